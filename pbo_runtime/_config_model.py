@@ -1,0 +1,157 @@
+"""The parsed, checked description of a subsystem: immutable data, no run-time state.
+
+The YAML loader (`_config_loader`) builds these after the checker (`_checker`) found no error.
+Every spec keeps the `Location` of its YAML node so later errors can still point at the file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from pbo_runtime._ports import PortSpec
+
+
+@dataclass(frozen=True)
+class Location:
+    file: str
+    line: int
+    column: int
+
+    def __str__(self) -> str:
+        return f"{self.file}:{self.line}:{self.column}"
+
+
+NOWHERE = Location("<none>", 0, 0)
+
+
+@dataclass(frozen=True)
+class RtpuSpec:
+    name: str
+    index: int
+    cpu: int | None = None
+    loc: Location = NOWHERE
+
+
+@dataclass(frozen=True)
+class BusSpec:
+    bandwidth: float = 40e6  # bytes per second
+    lock_overhead: float = 16.0  # bytes: Δ of TR eq. 1
+    loc: Location = NOWHERE
+
+
+@dataclass(frozen=True)
+class PlantSpec:
+    type: str = "mujoco_arm"  # entry point in group pbo.plants
+    model: str = "puma560"
+    timestep: float = 0.001  # seconds
+    options: Mapping[str, Any] = field(default_factory=dict)
+    loc: Location = NOWHERE
+
+
+@dataclass(frozen=True)
+class DeviceSpec:
+    name: str
+    driver: str  # entry point in group pbo.drivers
+    exclusive: bool = False
+    options: Mapping[str, Any] = field(default_factory=dict)  # every other key, e.g. mode
+    loc: Location = NOWHERE
+
+
+@dataclass(frozen=True)
+class VariableSpec:
+    name: str
+    index: int
+    dtype: str
+    shape: tuple[int, ...]
+    doc: str = ""
+    object: str | None = None  # the object type a job may set it as
+    loc: Location = NOWHERE
+
+    @property
+    def size(self) -> int:
+        n = 1
+        for d in self.shape:
+            n *= d
+        return n
+
+
+@dataclass(frozen=True)
+class PortBinding:
+    """One port of a task linked to one variable of the table."""
+
+    port: PortSpec
+    variable: str
+    shape: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    name: str
+    module: str  # library name (entry point in group pbo.modules)
+    rtpu: str
+    period: float  # seconds
+    priority: int = 0  # higher runs first among ready tasks of equal criticality
+    critical: bool = False
+    params: Mapping[str, Any] = field(default_factory=dict)
+    bindings: tuple[PortBinding, ...] = ()
+    resources: tuple[str, ...] = ()
+    index: int = 0
+    loc: Location = NOWHERE
+
+
+@dataclass(frozen=True)
+class ConfigurationSpec:
+    name: str
+    tasks: tuple[str, ...]
+    loc: Location = NOWHERE
+
+
+@dataclass(frozen=True)
+class JobSpec:
+    name: str
+    configuration: str
+    object: str | None = None
+    pre: str | None = None
+    post: str | None = None
+    timeout: float | None = None
+    loc: Location = NOWHERE
+
+
+@dataclass(frozen=True)
+class ApplicationStep:
+    job: str
+    arguments: Mapping[str, Any] = field(default_factory=dict)
+    loc: Location = NOWHERE
+
+
+@dataclass(frozen=True)
+class ApplicationSpec:
+    name: str
+    steps: tuple[ApplicationStep, ...]
+    loc: Location = NOWHERE
+
+
+@dataclass(frozen=True)
+class Subsystem:
+    """Everything one YAML file (and its includes) says, checked and resolved."""
+
+    name: str
+    file: str
+    rtpus: tuple[RtpuSpec, ...]
+    bus: BusSpec
+    plant: PlantSpec | None
+    devices: Mapping[str, DeviceSpec]
+    dims: Mapping[str, int]
+    variables: Mapping[str, VariableSpec]  # in table order
+    tasks: Mapping[str, TaskSpec]  # in file order; TaskSpec.index is the task's id in the table
+    configurations: Mapping[str, ConfigurationSpec]
+    jobs: Mapping[str, JobSpec]
+    applications: Mapping[str, ApplicationSpec]
+    init_order: tuple[str, ...]  # every task, producers of consts before their consumers
+
+    def rtpu(self, name: str) -> RtpuSpec:
+        return next(r for r in self.rtpus if r.name == name)
+
+    def tasks_on(self, rtpu: str) -> tuple[TaskSpec, ...]:
+        return tuple(t for t in self.tasks.values() if t.rtpu == rtpu)

@@ -1,0 +1,222 @@
+"""A task: one spawned instance of a port-based object, and its state machine (TR Figure 11).
+
+    spawn:  in-consts -> init -> out-consts             CREATED -> OFF   (init raises: kill, no task)
+    on:     in-vars + out-vars -> on -> out-vars        OFF -> ON
+    cycle:  in-vars -> cycle -> out-vars                ON (OFF returned: OFF; ERROR/raise: error())
+    off:    off                                         ON -> OFF
+    kill:   kill                                        OFF/ERROR -> KILLED
+    clear:  clear                                       ERROR -> OFF (True) or ERROR (False)
+
+The executive (rtpu) decides *when*; this class decides *what happens*, so every transition
+can be unit-tested with a manual clock and no process.
+"""
+
+from __future__ import annotations
+
+import traceback
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from pbo_runtime._config_model import DeviceSpec, TaskSpec
+from pbo_runtime._errors import LifecycleError, ModuleError
+from pbo_runtime._module import PortBasedObject, Status
+from pbo_runtime._table import StateTable, TaskState
+from pbo_runtime._table import Status as StatusWord
+from pbo_runtime._transfer import LocalTable
+
+DeviceOpener = Callable[[DeviceSpec], Any]
+
+
+@dataclass
+class TaskContext:
+    """What a module may ask of the runtime; `time` is the current cycle's release time."""
+
+    task_name: str
+    period: float
+    dims: dict[str, int]
+    resources: tuple[str, ...]
+    devices: dict[str, DeviceSpec]
+    opener: DeviceOpener | None
+    time: float = 0.0
+    opened: list[Any] = field(default_factory=list)
+
+    def open_device(self, name: str) -> Any:
+        if name not in self.resources:
+            listed = ", ".join(self.resources) or "none"
+            raise ModuleError(f"task '{self.task_name}' opens device '{name}', but its resources are: {listed}")
+        if self.opener is None:
+            raise ModuleError(f"task '{self.task_name}': no devices in this process")
+        device = self.opener(self.devices[name])
+        self.opened.append(device)
+        return device
+
+
+class Task:
+    """A module instance bound to its local table, moved through Figure 11's states."""
+
+    def __init__(
+        self,
+        spec: TaskSpec,
+        module_class: type[PortBasedObject],
+        table: StateTable,
+        dims: dict[str, int] | None = None,
+        devices: dict[str, DeviceSpec] | None = None,
+        opener: DeviceOpener | None = None,
+    ) -> None:
+        self.spec = spec
+        self.name = spec.name
+        self.index = spec.index
+        self.state = TaskState.NOT_CREATED
+        self.last_error = ""
+        self.cycles = 0
+        self.errors = 0
+        self.context = TaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}), opener)
+        self.local = LocalTable(table, spec.bindings, spec.index)
+        self.status = self.local.status
+        self.status[StatusWord.CYCLES] = 0
+        self.module = module_class.__new__(module_class)
+        self.module._pbo_ports = self.local.port_arrays
+        self.module._pbo_context = self.context
+        self._params = module_class.build_params(dict(spec.params))
+        self.read_inputs = self.local.read_inputs
+        self.write_outputs = self.local.write_outputs
+        self._cycle = self.module.cycle
+
+    # --- signals ----------------------------------------------------------------------------
+
+    def spawn(self, now: float) -> bool:
+        """Create the task: in-consts, init, out-consts. False (and killed) if init failed."""
+        self._expect("spawn", TaskState.NOT_CREATED)
+        self.state = TaskState.CREATED
+        try:
+            type(self.module).__init__(self.module)
+            self.local.read_consts()
+            self.context.time = now
+            self.module.init(self._params)
+        except Exception as exc:
+            self.last_error = _describe("init", exc)
+            self._run_kill()
+            self._publish(TaskState.KILLED)
+            return False
+        self.local.write_consts(0.0, now)
+        self._publish(TaskState.OFF)
+        return True
+
+    def turn_on(self, now: float) -> bool:
+        """In-vars and out-vars, on, out-vars. False (task in ERROR) if `on` raised."""
+        self._expect("on", TaskState.OFF)
+        self.local.read_for_on()
+        self.context.time = now
+        try:
+            self.module.on()
+        except Exception as exc:
+            self._fail("on", exc)
+            return False
+        self.state = TaskState.ON
+        self.status[StatusWord.STATE] = TaskState.ON
+        self.write_outputs(float(self.cycles), now)
+        return True
+
+    def run_cycle(self, now: float) -> Status:
+        """One cycle: in-vars, cycle, out-vars; errors go to the error component.
+
+        The executive calls this only while ON; it is the per-cycle path.
+        """
+        self.read_inputs()
+        self.context.time = now
+        try:
+            result = self._cycle()
+        except Exception as exc:
+            return self._cycle_failed(exc, now)
+        self.cycles += 1
+        if result is Status.CONTINUE or result == 0:
+            self.write_outputs(float(self.cycles), now)
+            return Status.CONTINUE
+        if result == Status.OFF:
+            self.write_outputs(float(self.cycles), now)
+            self.turn_off()
+            return Status.OFF
+        return self._cycle_failed(None, now)
+
+    def turn_off(self) -> None:
+        self._expect("off", TaskState.ON)
+        try:
+            self.module.off()
+        except Exception as exc:
+            self._fail("off", exc)
+            return
+        self._publish(TaskState.OFF)
+
+    def kill(self) -> None:
+        """Free the task. From ON it is turned off first, as job control would."""
+        if self.state == TaskState.ON:
+            self.turn_off()
+        self._expect("kill", TaskState.OFF, TaskState.ERROR, TaskState.CREATED)
+        self._run_kill()
+        self._publish(TaskState.KILLED)
+
+    def clear(self) -> bool:
+        """The operator's clear: True if the task went back to OFF."""
+        self._expect("clear", TaskState.ERROR)
+        try:
+            cleared = bool(self.module.clear())
+        except Exception as exc:
+            self.last_error = _describe("clear", exc)
+            return False
+        if cleared:
+            self.last_error = ""
+            self._publish(TaskState.OFF)
+        return cleared
+
+    # --- helpers ----------------------------------------------------------------------------
+
+    def _cycle_failed(self, exc: BaseException | None, now: float) -> Status:
+        self.errors += 1
+        self.status[StatusWord.ERRORS] = self.errors
+        self.last_error = _describe("cycle", exc) if exc else "cycle returned ERROR"
+        try:
+            verdict = self.module.error(exc)
+        except Exception as inner:
+            verdict = Status.ERROR
+            self.last_error += "; " + _describe("error", inner)
+        if verdict == Status.CONTINUE:
+            return Status.CONTINUE
+        if verdict == Status.OFF:
+            self.turn_off()
+            return Status.OFF
+        self._publish(TaskState.ERROR)
+        return Status.ERROR
+
+    def _fail(self, component: str, exc: BaseException) -> None:
+        self.errors += 1
+        self.status[StatusWord.ERRORS] = self.errors
+        self.last_error = _describe(component, exc)
+        self._publish(TaskState.ERROR)
+
+    def _run_kill(self) -> None:
+        try:
+            self.module.kill()
+        except Exception as exc:
+            self.last_error += ("; " if self.last_error else "") + _describe("kill", exc)
+        for device in self.context.opened:
+            try:
+                device.close()
+            except Exception as exc:
+                self.last_error += ("; " if self.last_error else "") + _describe("device close", exc)
+        self.context.opened.clear()
+
+    def _publish(self, state: TaskState) -> None:
+        self.state = state
+        self.status[StatusWord.STATE] = state
+        self.local.write_status()
+
+    def _expect(self, signal: str, *allowed: TaskState) -> None:
+        if self.state not in allowed:
+            names = " or ".join(s.name for s in allowed)
+            raise LifecycleError(f"task '{self.name}' cannot take '{signal}' in state {self.state.name} (needs {names})")
+
+
+def _describe(component: str, exc: BaseException) -> str:
+    frame = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
+    where = f" at {frame.filename.rsplit('/', 1)[-1]}:{frame.lineno}" if frame else ""
+    return f"{component} raised {type(exc).__name__}: {exc}{where}"

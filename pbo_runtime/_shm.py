@@ -1,0 +1,107 @@
+"""Naming, creating and removing the run's POSIX shared-memory objects and queues.
+
+Every object of a run is named `/pbo.<subsystem>.<run id>.<part>`, created 0600, and removed on
+every exit path. A new run of the same subsystem removes what a dead one left: the run id embeds
+the supervisor's pid, so objects whose pid is gone are leftovers.
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+import re
+from pathlib import Path
+
+import posix_ipc
+
+PREFIX = "pbo."
+_SHM_DIR = Path("/dev/shm")
+_NAME = re.compile(r"^pbo\.(?P<sub>[A-Za-z0-9_-]+)\.(?P<pid>\d+)-(?P<nonce>[0-9a-f]+)\.(?P<part>[A-Za-z0-9_.-]+)$")
+
+
+def object_name(subsystem: str, run_id: str, part: str) -> str:
+    """The POSIX name (with the leading slash) of one object of a run."""
+    return f"/{PREFIX}{subsystem}.{run_id}.{part}"
+
+
+def new_run_id() -> str:
+    return f"{os.getpid()}-{os.urandom(3).hex()}"
+
+
+def create_segment(name: str, size: int) -> tuple[posix_ipc.SharedMemory, mmap.mmap]:
+    """Create a 0600 segment that must not exist yet, mapped and zeroed."""
+    shm = posix_ipc.SharedMemory(name, posix_ipc.O_CREX, mode=0o600, size=size)
+    try:
+        mapping = mmap.mmap(shm.fd, shm.size)
+    finally:
+        shm.close_fd()
+    return shm, mapping
+
+
+def attach_segment(name: str) -> mmap.mmap:
+    shm = posix_ipc.SharedMemory(name)
+    try:
+        return mmap.mmap(shm.fd, shm.size)
+    finally:
+        shm.close_fd()
+
+
+def unlink_quietly(kind: str, name: str) -> bool:
+    """Unlink a segment ('shm'), semaphore ('sem') or queue ('mq'); False if it was not there."""
+    unlink = {
+        "shm": posix_ipc.unlink_shared_memory,
+        "sem": posix_ipc.unlink_semaphore,
+        "mq": posix_ipc.unlink_message_queue,
+    }[kind]
+    try:
+        unlink(name)
+        return True
+    except posix_ipc.ExistentialError:
+        return False
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def stale_objects(subsystem: str | None = None) -> list[tuple[str, str]]:
+    """(kind, name) of objects in /dev/shm whose creating run is dead.
+
+    Segments and semaphores are listed in /dev/shm; queues are found through the run ids seen
+    there, since /dev/mqueue may not be mounted.
+    """
+    found: list[tuple[str, str]] = []
+    if not _SHM_DIR.is_dir():
+        return found
+    for entry in sorted(os.listdir(_SHM_DIR)):
+        kind, base = ("sem", entry[4:]) if entry.startswith("sem.") else ("shm", entry)
+        match = _NAME.match(base)
+        if not match or (subsystem and match["sub"] != subsystem):
+            continue
+        if not _pid_alive(int(match["pid"])):
+            found.append((kind, "/" + base))
+    return found
+
+
+def remove_stale(subsystem: str | None, queue_parts: tuple[str, ...] = ()) -> list[str]:
+    """Remove leftovers of dead runs (and their queues by name); return what was removed."""
+    removed = []
+    run_ids: set[tuple[str, str]] = set()
+    for kind, name in stale_objects(subsystem):
+        if unlink_quietly(kind, name):
+            removed.append(name)
+        match = _NAME.match(name[1:])
+        if match:
+            run_ids.add((match["sub"], f"{match['pid']}-{match['nonce']}"))
+    for sub, run_id in run_ids:
+        for part in queue_parts:
+            name = object_name(sub, run_id, part)
+            if unlink_quietly("mq", name):
+                removed.append(name)
+    return removed

@@ -1,0 +1,355 @@
+"""The global state variable table in POSIX shared memory, behind one lock (TR §4.2).
+
+Layout of the segment, all offsets multiples of 8 bytes:
+
+    header        HEADER_WORDS int64: magic, version, layout hash, flags, lock holder pid, ...
+    directory     one DIRECTORY_RECORD per variable: name, dtype, shape, offsets (for tools)
+    manifest      names of every object of the run, so a later run can clean up after a crash
+    variables     per variable: 3 float64 metadata words (sequence, write time, writer) + data
+    task status   STATUS_WORDS float64 per task: state, cycles, overruns, timing counters
+
+A task never touches the table directly: `TransferPlan` (built once at spawn) gathers its
+inputs into its local table with one `take` per dtype and scatters its outputs with one
+fancy assignment per dtype, each under the single lock, so a cycle costs two lock pairs and a
+handful of C calls whatever the table's size.
+"""
+
+from __future__ import annotations
+
+import enum
+import hashlib
+import os
+from dataclasses import dataclass
+from typing import Iterable
+
+import numpy as np
+import posix_ipc
+
+from pbo_runtime import _shm
+from pbo_runtime._config_model import Subsystem, TaskSpec, VariableSpec
+from pbo_runtime._errors import InternalError, TableLayoutError
+
+MAGIC = 0x5042_4F5F_5441_424C  # "PBO_TABL"
+VERSION = 1
+HEADER_WORDS = 64
+DIRECTORY_RECORD = 128  # bytes: name[48] dtype[16] ndim shape[4] word offset, data byte offset, nbytes
+NAME_BYTES = 48
+MANIFEST_BYTES = 4096
+META_WORDS = 3  # sequence, write time, writer task index (-1: job control)
+STATUS_WORDS = 16
+
+
+class Header(enum.IntEnum):
+    """Word indices in the int64 header."""
+
+    MAGIC = 0
+    VERSION = 1
+    LAYOUT_HASH = 2
+    FLAGS = 3
+    LOCK_HOLDER = 4
+    N_VARIABLES = 5
+    N_TASKS = 6
+    SUPERVISOR_PID = 7
+    RUN_START_NS = 8
+    DIRECTORY_OFFSET = 9
+    MANIFEST_OFFSET = 10
+    DATA_OFFSET = 11
+    STATUS_OFFSET = 12
+    TOTAL_BYTES = 13
+    LOCK_RECOVERIES = 14  # times job control released a lock whose holder died
+
+
+class Flag(enum.IntFlag):
+    ILLEGAL_CONFIGURATION = 1
+    SHUTDOWN = 2
+
+
+class Status(enum.IntEnum):
+    """Word indices in a task's float64 status block."""
+
+    STATE = 0
+    CYCLES = 1
+    OVERRUNS = 2
+    EXEC_LAST = 3  # seconds
+    EXEC_MAX = 4
+    JITTER_LAST = 5  # release lateness, seconds
+    JITTER_MAX = 6
+    RELEASE = 7  # the last release time, run clock seconds
+    ERRORS = 8
+    LOCK_ACQUISITIONS = 9
+    BYTES_MOVED = 10
+    RTPU = 11
+    PID = 12
+
+
+class TaskState(enum.IntEnum):
+    """Figure 11's states; the number is what the status block holds."""
+
+    NOT_CREATED = 0
+    CREATED = 1
+    OFF = 2
+    ON = 3
+    ERROR = 4
+    KILLED = 5
+
+
+_DTYPE_CODES = ("float64", "float32", "int64", "int32", "int16", "int8", "uint8", "uint16", "uint32", "uint64", "bool")
+
+
+@dataclass(frozen=True)
+class VariableSlot:
+    """Where one variable lives in the segment."""
+
+    name: str
+    index: int
+    dtype: np.dtype
+    shape: tuple[int, ...]
+    meta_word: int  # float64 word index of its 3 metadata words
+    data_byte: int  # byte offset of its data (8-byte aligned)
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape, dtype=np.int64))
+
+    @property
+    def nbytes(self) -> int:
+        return self.size * self.dtype.itemsize
+
+    @property
+    def data_index(self) -> int:
+        """Index of its first element in a whole-segment view of its dtype."""
+        return self.data_byte // self.dtype.itemsize
+
+
+@dataclass(frozen=True)
+class TableLayout:
+    """Byte layout of a subsystem's table: a pure function of its variables and tasks."""
+
+    slots: tuple[VariableSlot, ...]
+    n_tasks: int
+    directory_offset: int
+    manifest_offset: int
+    data_offset: int
+    status_offset: int
+    total_bytes: int
+    layout_hash: int
+
+    @classmethod
+    def of(cls, subsystem: Subsystem) -> TableLayout:
+        return cls.build(subsystem.variables.values(), len(subsystem.tasks))
+
+    @classmethod
+    def build(cls, variables: Iterable[VariableSpec], n_tasks: int) -> TableLayout:
+        variables = list(variables)
+        directory = HEADER_WORDS * 8
+        manifest = directory + DIRECTORY_RECORD * len(variables)
+        cursor = manifest + MANIFEST_BYTES
+        data = cursor
+        slots = []
+        for index, var in enumerate(variables):
+            dtype = np.dtype(var.dtype)
+            if dtype.name not in _DTYPE_CODES:
+                raise TableLayoutError(f"variable '{var.name}': dtype {dtype.name} cannot live in the table")
+            meta_word = cursor // 8
+            cursor += META_WORDS * 8
+            data_byte = cursor
+            nbytes = int(np.prod(var.shape, dtype=np.int64)) * dtype.itemsize
+            cursor += -(-nbytes // 8) * 8
+            slots.append(VariableSlot(var.name, index, dtype, tuple(var.shape), meta_word, data_byte))
+        status = cursor
+        total = status + STATUS_WORDS * 8 * max(n_tasks, 1)
+        digest = hashlib.blake2b(digest_size=8)
+        for s in slots:
+            digest.update(f"{s.name}|{s.dtype.name}|{s.shape}|{s.meta_word}|{s.data_byte};".encode())
+        digest.update(f"tasks={n_tasks}".encode())
+        layout_hash = int.from_bytes(digest.digest(), "little", signed=True)
+        return cls(tuple(slots), n_tasks, directory, manifest, data, status, total, layout_hash)
+
+    def slot(self, name: str) -> VariableSlot:
+        for s in self.slots:
+            if s.name == name:
+                return s
+        raise KeyError(name)
+
+
+class StateTable:
+    """One mapping of the table. The supervisor creates it; RTPUs and tools attach to it."""
+
+    def __init__(self, layout: TableLayout, name: str, mapping, lock: posix_ipc.Semaphore, owner: bool) -> None:
+        self.layout = layout
+        self.name = name
+        self.lock_name = name + ".lock"
+        self._mapping = mapping
+        self.lock = lock
+        self.owner = owner
+        self.header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
+        self._views = {code: np.frombuffer(mapping, dtype=code, count=layout.total_bytes // np.dtype(code).itemsize) for code in _DTYPE_CODES}
+        self.words = self._views["float64"]
+        self.status = self.words[layout.status_offset // 8 :].reshape(-1, STATUS_WORDS)[: max(layout.n_tasks, 1)]
+        self._pid = os.getpid()
+
+    # --- life -------------------------------------------------------------------------------
+
+    @classmethod
+    def create(cls, layout: TableLayout, name: str, manifest: Iterable[str] = ()) -> StateTable:
+        """Create the segment and its lock (both 0600, both new) and fill the header."""
+        shm, mapping = _shm.create_segment(name, layout.total_bytes)
+        try:
+            lock = posix_ipc.Semaphore(name + ".lock", posix_ipc.O_CREX, mode=0o600, initial_value=1)
+        except BaseException:
+            mapping.close()
+            shm.unlink()
+            raise
+        table = cls(layout, name, mapping, lock, owner=True)
+        h = table.header
+        h[Header.VERSION] = VERSION
+        h[Header.LAYOUT_HASH] = layout.layout_hash
+        h[Header.N_VARIABLES] = len(layout.slots)
+        h[Header.N_TASKS] = layout.n_tasks
+        h[Header.SUPERVISOR_PID] = os.getpid()
+        h[Header.RUN_START_NS] = 0
+        h[Header.DIRECTORY_OFFSET] = layout.directory_offset
+        h[Header.MANIFEST_OFFSET] = layout.manifest_offset
+        h[Header.DATA_OFFSET] = layout.data_offset
+        h[Header.STATUS_OFFSET] = layout.status_offset
+        h[Header.TOTAL_BYTES] = layout.total_bytes
+        table._write_directory()
+        table.set_manifest(manifest)
+        for s in layout.slots:
+            table.words[s.meta_word + 2] = -1.0  # no writer yet
+        h[Header.MAGIC] = MAGIC  # last: a reader that sees the magic sees a complete header
+        return table
+
+    @classmethod
+    def attach(cls, layout: TableLayout, name: str) -> StateTable:
+        """Attach to a running table; a different layout fails clearly instead of corrupting it."""
+        try:
+            mapping = _shm.attach_segment(name)
+        except posix_ipc.ExistentialError:
+            raise TableLayoutError(f"no state variable table '{name}': is the subsystem running?") from None
+        header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
+        magic, version, found_hash, total = (int(header[i]) for i in (Header.MAGIC, Header.VERSION, Header.LAYOUT_HASH, Header.TOTAL_BYTES))
+        del header  # no view may outlive a mapping we close
+        problem = ""
+        if magic != MAGIC or version != VERSION:
+            problem = f"'{name}' is not a pbo state variable table of version {VERSION}"
+        elif found_hash != layout.layout_hash or total != layout.total_bytes:
+            problem = (
+                f"table '{name}' has another variable layout (hash {found_hash:#x}, this process expects "
+                f"{layout.layout_hash:#x}): was the YAML file changed after the run started?"
+            )
+        if problem:
+            mapping.close()
+            raise TableLayoutError(problem)
+        lock = posix_ipc.Semaphore(name + ".lock")
+        return cls(layout, name, mapping, lock, owner=False)
+
+    def close(self) -> None:
+        """Unmap (and, for the creator, unlink the segment and the lock)."""
+        self.header = self.words = self.status = None  # type: ignore[assignment]
+        self._views = {}
+        try:
+            self._mapping.close()
+        except BufferError:
+            pass  # a view still alive elsewhere keeps the mapping; the unlink below still frees the name
+        try:
+            self.lock.close()
+        except posix_ipc.ExistentialError:
+            pass
+        if self.owner:
+            self.unlink()
+
+    def unlink(self) -> None:
+        _shm.unlink_quietly("shm", self.name)
+        _shm.unlink_quietly("sem", self.lock_name)
+
+    # --- directory and manifest -------------------------------------------------------------
+
+    def _write_directory(self) -> None:
+        raw = np.frombuffer(self._mapping, dtype=np.uint8, count=self.layout.total_bytes)
+        for i, s in enumerate(self.layout.slots):
+            base = self.layout.directory_offset + i * DIRECTORY_RECORD
+            record = np.zeros(DIRECTORY_RECORD, dtype=np.uint8)
+            name = s.name.encode()[:NAME_BYTES]
+            record[: len(name)] = np.frombuffer(name, dtype=np.uint8)
+            dtype = s.dtype.name.encode()
+            record[NAME_BYTES : NAME_BYTES + len(dtype)] = np.frombuffer(dtype, dtype=np.uint8)
+            ints = np.array([len(s.shape), *(list(s.shape) + [0] * (4 - len(s.shape)))[:4], s.meta_word, s.data_byte, s.nbytes], dtype=np.int64)
+            record[64 : 64 + ints.nbytes] = np.frombuffer(ints.tobytes(), dtype=np.uint8)
+            raw[base : base + DIRECTORY_RECORD] = record
+
+    def set_manifest(self, names: Iterable[str]) -> None:
+        text = "\n".join(names).encode()
+        if len(text) >= MANIFEST_BYTES:
+            raise InternalError(f"run manifest of {len(text)} bytes does not fit {MANIFEST_BYTES}")
+        raw = np.frombuffer(self._mapping, dtype=np.uint8, count=self.layout.total_bytes)
+        start = self.layout.manifest_offset
+        raw[start : start + MANIFEST_BYTES] = 0
+        raw[start : start + len(text)] = np.frombuffer(text, dtype=np.uint8)
+
+    def manifest(self) -> list[str]:
+        return read_manifest(self._mapping, self.layout.manifest_offset)
+
+    # --- the lock ---------------------------------------------------------------------------
+
+    def acquire(self) -> None:
+        self.lock.acquire()
+        self.header[Header.LOCK_HOLDER] = self._pid
+
+    def release(self) -> None:
+        self.lock.release()
+
+    @property
+    def flags(self) -> Flag:
+        return Flag(int(self.header[Header.FLAGS]))
+
+    def set_flag(self, flag: Flag, on: bool = True) -> None:
+        self.acquire()
+        try:
+            value = int(self.header[Header.FLAGS])
+            self.header[Header.FLAGS] = (value | flag) if on else (value & ~flag)
+        finally:
+            self.release()
+
+    # --- whole-variable access (job control and tools; never per cycle) ---------------------
+
+    def view(self, name: str) -> np.ndarray:
+        """A live view of a variable's data in the table (read it under the lock)."""
+        s = self.layout.slot(name)
+        return self._views[s.dtype.name][s.data_index : s.data_index + s.size].reshape(s.shape)
+
+    def read(self, name: str) -> tuple[np.ndarray, int, float, int]:
+        """(copy of the value, sequence, write time, writer task index) taken under the lock."""
+        s = self.layout.slot(name)
+        view = self.view(name)
+        self.acquire()
+        try:
+            value = view.copy()
+            seq, when, writer = self.words[s.meta_word : s.meta_word + META_WORDS]
+        finally:
+            self.release()
+        return value, int(seq), float(when), int(writer)
+
+    def write(self, name: str, value, when: float, writer: int = -1) -> None:
+        """Write a whole variable as job control (writer -1) would: under the lock, stamped."""
+        s = self.layout.slot(name)
+        view = self.view(name)
+        source = np.asarray(value, dtype=s.dtype)
+        if source.shape != s.shape and source.size != s.size:
+            raise ValueError(f"variable '{name}' has shape {s.shape}, got a value of shape {source.shape}")
+        self.acquire()
+        try:
+            view[...] = source.reshape(s.shape)
+            self.words[s.meta_word] += 1
+            self.words[s.meta_word + 1] = when
+            self.words[s.meta_word + 2] = writer
+        finally:
+            self.release()
+
+    def dtype_view(self, dtype: np.dtype) -> np.ndarray:
+        return self._views[np.dtype(dtype).name]
+
+
+def read_manifest(mapping, offset: int) -> list[str]:
+    raw = bytes(mapping[offset : offset + MANIFEST_BYTES]).split(b"\0", 1)[0]
+    return [line for line in raw.decode(errors="replace").split("\n") if line]

@@ -1,0 +1,219 @@
+"""Figure 11, transfer by transfer and transition by transition, with real tables and no process."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pbo_runtime import InBoth, InConst, InVar, LifecycleError, OutBoth, OutConst, OutVar, PortBasedObject, Status
+from pbo_runtime._lifecycle import Task
+from pbo_runtime._table import TaskState
+from tests.conftest import task_spec, variables
+
+VARS = variables(
+    ("k_in", "float64", (2,)), ("k_out", "float64", (2,)), ("u", "float64", (2,)), ("y", "float64", (2,)),
+    ("b_in", "float64", ()), ("b_out", "float64", ()), ("n", "int32", ()),
+)
+
+
+class Recorder(PortBasedObject):
+    """Fake module that records what its ports held when each component ran."""
+
+    k_in = InConst("k_in", shape=(2,))
+    n = InConst("n", dtype="int32")
+    b_in = InBoth("b_in")
+    u = InVar("u", shape=(2,))
+    k_out = OutConst("k_out", shape=(2,))
+    b_out = OutBoth("b_out")
+    y = OutVar("y", shape=(2,))
+
+    fail_in: str = ""
+    seen: dict
+
+    def init(self, params):
+        self.seen = {"init": (self.k_in.copy(), int(self.n), float(self.b_in))}
+        self.calls = ["init"]
+        if self.fail_in == "init":
+            raise RuntimeError("init failed on purpose")
+        self.k_out = self.k_in * 2
+        self.b_out = 5.0
+
+    def on(self):
+        self.calls.append("on")
+        self.seen["on"] = (self.u.copy(), self.y.copy())
+        self.y = self.y + 100.0
+
+    def cycle(self):
+        self.calls.append("cycle")
+        if self.fail_in == "cycle":
+            raise ValueError("cycle failed on purpose")
+        if self.fail_in == "cycle-status":
+            return Status.ERROR
+        self.seen["cycle"] = (self.u.copy(), float(self.b_in))
+        np.add(self.u, 1.0, out=self.y)
+        self.b_out = float(self.b_in) + 1
+        return Status.OFF if self.fail_in == "stop" else Status.CONTINUE
+
+    def off(self):
+        self.calls.append("off")
+
+    def kill(self):
+        self.calls = getattr(self, "calls", []) + ["kill"]
+
+    def error(self, exc):
+        self.calls.append("error")
+        return {"recover": Status.CONTINUE, "stop": Status.OFF}.get(getattr(self, "verdict", ""), Status.ERROR)
+
+    def clear(self):
+        self.calls.append("clear")
+        return getattr(self, "clearable", True)
+
+
+@pytest.fixture
+def table(make_table):
+    t = make_table(VARS)
+    t.write("k_in", [1.0, 2.0], when=0)
+    t.write("n", 6, when=0)
+    t.write("b_in", 3.0, when=0)
+    t.write("u", [10.0, 20.0], when=0)
+    t.write("y", [7.0, 8.0], when=0)
+    return t
+
+
+def make_task(table, fail_in: str = "") -> Task:
+    task = Task(task_spec(Recorder, index=1), Recorder, table)
+    task.module.fail_in = fail_in
+    return task
+
+
+def test_in_consts_are_read_before_init(table):
+    task = make_task(table)
+    assert task.spawn(0.0)
+    k, n, b = task.module.seen["init"]
+    assert k.tolist() == [1.0, 2.0] and n == 6 and b == 3.0
+
+
+def test_out_consts_are_written_after_init(table):
+    task = make_task(table)
+    task.spawn(0.5)
+    value, seq, when, writer = table.read("k_out")
+    assert value.tolist() == [2.0, 4.0] and writer == 1 and when == 0.5
+    assert table.read("b_out")[0] == 5.0
+
+
+def test_spawn_leaves_the_task_off(table):
+    task = make_task(table)
+    task.spawn(0.0)
+    assert task.state is TaskState.OFF
+    assert table.status[1][0] == TaskState.OFF
+
+
+def test_init_that_raises_runs_kill_and_creates_no_task(table):
+    task = make_task(table, fail_in="init")
+    assert not task.spawn(0.0)
+    assert task.state is TaskState.KILLED
+    assert task.module.calls == ["init", "kill"]
+    assert "init raised RuntimeError: init failed on purpose" in task.last_error
+    assert table.read("k_out")[3] == -1  # nothing was written: the out-consts never left
+
+
+def test_in_vars_and_out_vars_are_read_before_on(table):
+    task = make_task(table)
+    task.spawn(0.0)
+    task.turn_on(1.0)
+    u, y = task.module.seen["on"]
+    assert u.tolist() == [10.0, 20.0]
+    assert y.tolist() == [7.0, 8.0]  # took over the value another task had left
+
+
+def test_out_vars_are_written_after_on(table):
+    task = make_task(table)
+    task.spawn(0.0)
+    task.turn_on(1.0)
+    assert table.read("y")[0].tolist() == [107.0, 108.0]
+    assert task.state is TaskState.ON
+
+
+def test_in_vars_are_read_before_each_cycle_and_out_vars_written_after(table):
+    task = make_task(table)
+    task.spawn(0.0)
+    task.turn_on(1.0)
+    table.write("u", [1.0, 2.0], when=1.0)
+    table.write("b_in", 9.0, when=1.0)
+    assert task.run_cycle(1.001) is Status.CONTINUE
+    assert task.module.seen["cycle"][0].tolist() == [1.0, 2.0]
+    assert task.module.seen["cycle"][1] == 9.0  # in-both is also read every cycle
+    value, seq, when, writer = table.read("y")
+    assert value.tolist() == [2.0, 3.0] and seq == 1 and when == 1.001
+    assert table.read("b_out")[0] == 10.0  # out-both is also written every cycle
+
+
+def test_cycle_returning_off_turns_the_task_off(table):
+    task = make_task(table, fail_in="stop")
+    task.spawn(0.0)
+    task.turn_on(0.0)
+    assert task.run_cycle(0.001) is Status.OFF
+    assert task.state is TaskState.OFF
+    assert task.module.calls[-1] == "off"
+
+
+def test_cycle_that_raises_calls_error_and_waits_in_error(table):
+    task = make_task(table, fail_in="cycle")
+    task.spawn(0.0)
+    task.turn_on(0.0)
+    assert task.run_cycle(0.001) is Status.ERROR
+    assert task.state is TaskState.ERROR
+    assert task.module.calls[-2:] == ["cycle", "error"]
+    assert "cycle raised ValueError: cycle failed on purpose" in task.last_error
+    assert table.status[1][0] == TaskState.ERROR
+
+
+def test_cycle_returning_error_calls_error_too(table):
+    task = make_task(table, fail_in="cycle-status")
+    task.spawn(0.0)
+    task.turn_on(0.0)
+    assert task.run_cycle(0.001) is Status.ERROR
+    assert task.module.calls[-1] == "error"
+
+
+def test_error_component_that_recovers_keeps_the_task_on(table):
+    task = make_task(table, fail_in="cycle")
+    task.module.verdict = "recover"
+    task.spawn(0.0)
+    task.turn_on(0.0)
+    assert task.run_cycle(0.001) is Status.CONTINUE
+    assert task.state is TaskState.ON
+
+
+def test_clear_returns_a_fixed_task_to_off(table):
+    task = make_task(table, fail_in="cycle")
+    task.spawn(0.0)
+    task.turn_on(0.0)
+    task.run_cycle(0.001)
+    assert task.clear()
+    assert task.state is TaskState.OFF
+
+
+def test_clear_leaves_an_unfixed_task_in_error(table):
+    task = make_task(table, fail_in="cycle")
+    task.spawn(0.0)
+    task.turn_on(0.0)
+    task.run_cycle(0.001)
+    task.module.clearable = False
+    assert not task.clear()
+    assert task.state is TaskState.ERROR
+
+
+def test_kill_from_on_turns_off_first_then_kills(table):
+    task = make_task(table)
+    task.spawn(0.0)
+    task.turn_on(0.0)
+    task.kill()
+    assert task.module.calls[-2:] == ["off", "kill"]
+    assert task.state is TaskState.KILLED
+
+
+def test_on_is_refused_unless_the_task_is_off(table):
+    task = make_task(table)
+    with pytest.raises(LifecycleError, match=r"^task 't' cannot take 'on' in state NOT_CREATED \(needs OFF\)$"):
+        task.turn_on(0.0)

@@ -1,0 +1,102 @@
+"""The global state variable table: layout, lock, metadata, attach checks, cleanup."""
+
+from __future__ import annotations
+
+import os
+import stat
+
+import numpy as np
+import posix_ipc
+import pytest
+
+from pbo_runtime import InVar, OutVar, PortBasedObject, TableLayoutError
+from pbo_runtime._table import Header, StateTable, TableLayout
+from pbo_runtime._transfer import LocalTable
+from tests.conftest import task_spec, unique_name, variables
+
+
+class Copier(PortBasedObject):
+    """Fake module: four inputs, two outputs (the benchmark's shape)."""
+
+    a = InVar("a", shape=(6,))
+    b = InVar("b", shape=(6,))
+    c = InVar("c", shape=(6,))
+    d = InVar("d", shape=(6,))
+    x = OutVar("x", shape=(6,))
+    y = OutVar("y", shape=(6,))
+
+
+VARS = variables(*[(n, "float64", (6,)) for n in "abcdxy"], ("n", "int32", ()))
+
+
+def test_table_segment_and_lock_are_created_owner_only(make_table):
+    table = make_table(VARS)
+    mode = os.stat("/dev/shm/" + table.name[1:]).st_mode
+    assert stat.S_IMODE(mode) == 0o600
+    assert stat.S_IMODE(os.stat("/dev/shm/sem." + table.lock_name[1:]).st_mode) == 0o600
+
+
+def test_close_by_the_creator_unlinks_segment_and_lock():
+    name = unique_name()
+    table = StateTable.create(TableLayout.build(VARS, 1), name)
+    table.close()
+    with pytest.raises(posix_ipc.ExistentialError):
+        posix_ipc.SharedMemory(name)
+    with pytest.raises(posix_ipc.ExistentialError):
+        posix_ipc.Semaphore(name + ".lock")
+
+
+def test_attaching_with_another_layout_fails_clearly(make_table):
+    table = make_table(VARS)
+    other = TableLayout.build(variables(("a", "float64", (7,))), 1)
+    with pytest.raises(TableLayoutError, match=r"another variable layout"):
+        StateTable.attach(other, table.name)
+
+
+def test_attaching_to_a_missing_table_says_so():
+    with pytest.raises(TableLayoutError, match=r"^no state variable table"):
+        StateTable.attach(TableLayout.build(VARS, 1), unique_name())
+
+
+def test_variables_are_aligned_and_do_not_overlap():
+    layout = TableLayout.build(VARS, 2)
+    spans = sorted((s.data_byte, s.data_byte + s.nbytes) for s in layout.slots)
+    assert all(start % 8 == 0 for start, _ in spans)
+    assert all(end <= nxt for (_, end), (nxt, _) in zip(spans, spans[1:]))
+    assert layout.status_offset >= spans[-1][1]
+
+
+def test_job_control_write_stamps_sequence_time_and_writer(make_table):
+    table = make_table(VARS)
+    table.write("a", np.arange(6.0), when=1.5)
+    value, seq, when, writer = table.read("a")
+    assert value.tolist() == [0, 1, 2, 3, 4, 5]
+    assert (seq, when, writer) == (1, 1.5, -1)
+    table.write("n", 6, when=2.0)
+    assert table.read("n")[0] == 6
+
+
+def test_a_cycle_transfer_moves_inputs_and_stamps_outputs(make_table):
+    table = make_table(VARS)
+    for name in "abcd":
+        table.write(name, np.full(6, ord(name)), when=0.0)
+    local = LocalTable(table, task_spec(Copier, index=2).bindings, task_index=2)
+    a, b, c, d, x, y = local.port_arrays
+    local.read_inputs()
+    assert a[0] == ord("a") and d[5] == ord("d")
+    assert local.input_sequence.tolist() == [1, 1, 1, 1]
+    np.add(a, b, out=x)
+    np.subtract(c, d, out=y)
+    local.write_outputs(7.0, 3.25)
+    value, seq, when, writer = table.read("x")
+    assert value[0] == ord("a") + ord("b")
+    assert (seq, when, writer) == (7, 3.25, 2)
+    assert table.header[Header.LOCK_HOLDER] == os.getpid()
+
+
+def test_transfer_indices_do_not_grow_with_the_table(make_table):
+    small = LocalTable(make_table(VARS), task_spec(Copier).bindings, 0)
+    big_vars = VARS + variables(*[(f"z{i}", "float64", (6,)) for i in range(500)])[len(VARS):]
+    big_vars = VARS + [v.__class__(v.name, len(VARS) + i, v.dtype, v.shape) for i, v in enumerate(big_vars[len(VARS):])]
+    big = LocalTable(make_table(big_vars), task_spec(Copier).bindings, 0)
+    assert [g.index.size for g in big._in_var.groups] == [g.index.size for g in small._in_var.groups]

@@ -98,8 +98,10 @@ class Task:
             self._run_kill()
             self._publish(TaskState.KILLED)
             return False
-        self.local.write_consts(0.0, now)
-        self._publish(TaskState.OFF)
+        self.state = TaskState.OFF
+        self.status[StatusWord.STATE] = TaskState.OFF
+        self.status[StatusWord.RELEASE] = now
+        self.local.write_consts()
         return True
 
     def turn_on(self, now: float) -> bool:
@@ -114,13 +116,15 @@ class Task:
             return False
         self.state = TaskState.ON
         self.status[StatusWord.STATE] = TaskState.ON
-        self.write_outputs(float(self.cycles), now)
+        self.status[StatusWord.RELEASE] = now
+        self.write_outputs()
         return True
 
     def run_cycle(self, now: float) -> Status:
-        """One cycle: in-vars, cycle, out-vars; errors go to the error component.
+        """One cycle released at `now`: in-vars, cycle, out-vars; errors go to `error`.
 
-        The executive calls this only while ON; it is the per-cycle path.
+        The executive calls this only while ON; it is the per-cycle path. The outputs' write
+        time and sequence are this release time and cycle count, in the status block.
         """
         self.read_inputs()
         self.context.time = now
@@ -129,11 +133,14 @@ class Task:
         except Exception as exc:
             return self._cycle_failed(exc, now)
         self.cycles += 1
+        status = self.status
+        status[StatusWord.CYCLES] = self.cycles
+        status[StatusWord.RELEASE] = now
         if result is Status.CONTINUE or result == 0:
-            self.write_outputs(float(self.cycles), now)
+            self.write_outputs()
             return Status.CONTINUE
         if result == Status.OFF:
-            self.write_outputs(float(self.cycles), now)
+            self.write_outputs()
             self.turn_off()
             return Status.OFF
         return self._cycle_failed(None, now)

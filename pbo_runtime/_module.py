@@ -37,6 +37,8 @@ class TaskContext(typing.Protocol):
     task_name: str
     period: float
     dims: dict[str, int]
+    resources: tuple[str, ...]
+    time: float
 
     def open_device(self, name: str) -> Any: ...
 
@@ -75,6 +77,14 @@ class PortBasedObject:
         return tuple(port.spec for port in cls._pbo_port_decls)
 
     @classmethod
+    def ports_for(cls, params: Any) -> tuple[PortSpec, ...]:
+        """The ports of a task built with these params: the class's, then any the params add.
+
+        Most modules have fixed ports; a data logger adds one input per logged variable.
+        """
+        return cls.ports()
+
+    @classmethod
     def build_params(cls, values: dict[str, Any] | None) -> Any:
         """Turn a YAML `params:` mapping into the module's `Params`, or raise ParamError saying why."""
         return build_params(cls.Params, values or {}, cls.__name__)
@@ -89,6 +99,21 @@ class PortBasedObject:
     def period(self) -> float:
         """The task's period in seconds."""
         return self._pbo_context.period
+
+    @property
+    def bound_arrays(self) -> list[np.ndarray]:
+        """The local arrays of every port, in `ports_for` order (class ports first)."""
+        return self._pbo_ports
+
+    @property
+    def time(self) -> float:
+        """The current cycle's release time, seconds on the run's clock."""
+        return self._pbo_context.time
+
+    @property
+    def resources(self) -> tuple[str, ...]:
+        """The device names this task may open (its YAML `resources`)."""
+        return self._pbo_context.resources
 
     def open_device(self, name: str) -> Any:
         """Open a device driver object by the device's YAML name (call it in `init`)."""

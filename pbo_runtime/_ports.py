@@ -50,6 +50,7 @@ class PortKind(enum.Enum):
 
 
 Shape = tuple[int | str, ...]
+ANY_DTYPE = "any"  # a port that takes its variable's dtype (and, with shape None, its shape)
 
 
 @dataclass(frozen=True)
@@ -59,12 +60,14 @@ class PortSpec:
     name: str
     kind: PortKind
     variable: str
-    dtype: str
-    shape: Shape
+    dtype: str  # a numpy dtype name, or ANY_DTYPE
+    shape: Shape | None  # None: whatever shape the variable has
     doc: str = ""
 
-    def resolved_shape(self, dims: dict[str, int]) -> tuple[int, ...]:
+    def resolved_shape(self, dims: dict[str, int], variable_shape: tuple[int, ...] = ()) -> tuple[int, ...]:
         """The shape with named dims replaced by their values (KeyError names a missing dim)."""
+        if self.shape is None:
+            return tuple(variable_shape)
         return tuple(dims[d] if isinstance(d, str) else int(d) for d in self.shape)
 
 
@@ -73,13 +76,13 @@ class Port:
 
     kind: PortKind
 
-    def __init__(self, variable: str, dtype: str = "float64", shape: Shape | int | str = (), doc: str = "") -> None:
+    def __init__(self, variable: str, dtype: str = "float64", shape: Shape | int | str | None = (), doc: str = "") -> None:
         if isinstance(shape, (int, str)):
             shape = (shape,)
-        np.dtype(dtype)  # an unknown dtype fails where the module is written, not at run time
         self.variable = variable
-        self.dtype = str(np.dtype(dtype))
-        self.shape: Shape = tuple(shape)
+        # an unknown dtype fails where the module is written, not at run time
+        self.dtype = dtype if dtype == ANY_DTYPE else str(np.dtype(dtype))
+        self.shape: Shape | None = None if shape is None else tuple(shape)
         self.doc = doc
         self.name = variable
         self.slot = -1

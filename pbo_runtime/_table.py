@@ -5,8 +5,14 @@ Layout of the segment, all offsets multiples of 8 bytes:
     header        HEADER_WORDS int64: magic, version, layout hash, flags, lock holder pid, ...
     directory     one DIRECTORY_RECORD per variable: name, dtype, shape, offsets (for tools)
     manifest      names of every object of the run, so a later run can clean up after a crash
-    variables     per variable: 3 float64 metadata words (sequence, write time, writer) + data
+    variables     per variable: 3 float64 metadata words (writer, sequence, write time) + data
     task status   STATUS_WORDS float64 per task: state, cycles, overruns, timing counters
+
+A variable's metadata says who wrote it last. When the writer is a task (index >= 0), the
+value's sequence number and write time are that task's cycle count and release time in its
+status block, which the task writes in the same locked scatter as the value itself, so the
+three always agree and a cycle stamps nothing extra. When the writer is job control (-1), the
+variable's own sequence and time words hold them.
 
 A task never touches the table directly: `TransferPlan` (built once at spawn) gathers its
 inputs into its local table with one `take` per dtype and scatters its outputs with one
@@ -35,7 +41,7 @@ HEADER_WORDS = 64
 DIRECTORY_RECORD = 128  # bytes: name[48] dtype[16] ndim shape[4] word offset, data byte offset, nbytes
 NAME_BYTES = 48
 MANIFEST_BYTES = 4096
-META_WORDS = 3  # sequence, write time, writer task index (-1: job control)
+META_WORDS = 3  # writer task index (-1: job control), then job control's sequence and write time
 STATUS_WORDS = 16
 
 
@@ -74,7 +80,7 @@ class Status(enum.IntEnum):
     EXEC_MAX = 4
     JITTER_LAST = 5  # release lateness, seconds
     JITTER_MAX = 6
-    RELEASE = 7  # the last release time, run clock seconds
+    RELEASE = 7  # the release time of the last cycle, clock seconds: its outputs' write time
     ERRORS = 8
     LOCK_ACQUISITIONS = 9
     BYTES_MOVED = 10
@@ -216,7 +222,7 @@ class StateTable:
         table._write_directory()
         table.set_manifest(manifest)
         for s in layout.slots:
-            table.words[s.meta_word + 2] = -1.0  # no writer yet
+            table.words[s.meta_word] = -1.0  # no writer yet: job control's, sequence 0
         h[Header.MAGIC] = MAGIC  # last: a reader that sees the magic sees a complete header
         return table
 
@@ -325,10 +331,13 @@ class StateTable:
         self.acquire()
         try:
             value = view.copy()
-            seq, when, writer = self.words[s.meta_word : s.meta_word + META_WORDS]
+            writer, seq, when = (float(w) for w in self.words[s.meta_word : s.meta_word + META_WORDS])
+            if writer >= 0:
+                seq = float(self.status[int(writer)][Status.CYCLES])
+                when = float(self.status[int(writer)][Status.RELEASE])
         finally:
             self.release()
-        return value, int(seq), float(when), int(writer)
+        return value, int(seq), when, int(writer)
 
     def write(self, name: str, value, when: float, writer: int = -1) -> None:
         """Write a whole variable as job control (writer -1) would: under the lock, stamped."""
@@ -340,9 +349,9 @@ class StateTable:
         self.acquire()
         try:
             view[...] = source.reshape(s.shape)
-            self.words[s.meta_word] += 1
-            self.words[s.meta_word + 1] = when
-            self.words[s.meta_word + 2] = writer
+            self.words[s.meta_word] = writer
+            self.words[s.meta_word + 1] += 1
+            self.words[s.meta_word + 2] = when
         finally:
             self.release()
 

@@ -3,11 +3,13 @@
 Everything is worked out at spawn: one contiguous local buffer per dtype and direction, each
 port's array a view into it, and for the per-cycle transfers one index array per dtype. A
 cycle's read is then `lock; take(idx, out=local); unlock` and its write is
-`stamp; lock; flat[idx] = local; unlock`: no name lookup, no allocation.
+`lock; flat[idx] = local; unlock`: no name lookup, no allocation.
 
-Local float64 buffers of the per-cycle region are laid out as
-    [sequence x k][write time x k][writer x k][float64 data ...][status block (outputs only)]
-so stamping k outputs is two `fill` calls whatever k is.
+Local float64 buffers are laid out as
+    [writer x k][float64 data ...][status block (per-cycle outputs only)]
+The writer words name this task on every output; the status block carries the cycle count and
+release time, which are the outputs' sequence number and write time (see `_table`), so a
+write is stamped by the same scatter that moves it.
 """
 
 from __future__ import annotations
@@ -41,10 +43,7 @@ class _Region:
         slots = [layout.slot(b.variable) for b in bindings]
         k = len(bindings)
         f64 = np.dtype("float64")
-        index64: list[int] = []
-        index64 += [s.meta_word for s in slots]
-        index64 += [s.meta_word + 1 for s in slots]
-        index64 += [s.meta_word + 2 for s in slots]
+        index64: list[int] = [s.meta_word for s in slots]
         other: dict[str, list[int]] = {}
         data_pos: list[tuple[str, int]] = []
         for s in slots:
@@ -63,9 +62,7 @@ class _Region:
             if idx:
                 self.groups.append(_Group(table.dtype_view(np.dtype(dtype_name)), np.asarray(idx, dtype=np.intp), local))
         local64 = locals_by_dtype["float64"]
-        self.sequence = local64[0:k]
-        self.write_time = local64[k : 2 * k]
-        self.writer = local64[2 * k : 3 * k]
+        self.writer = local64[0:k]
         self.writer.fill(writer)
         self.status = local64[self.status_at : self.status_at + status_words]
         self.arrays = [
@@ -99,9 +96,7 @@ class LocalTable:
         self._both_out = [(self._out_const.arrays[out_const.index(b)], by_binding[id(b)]) for b in out_const if b in out_var]
         self.port_arrays = [by_binding[id(b)] for b in bindings]
         self.status = self._out_var.status  # the executive's counters, written with the outputs
-        self.input_sequence = self._in_var.sequence
-        self.input_write_time = self._in_var.write_time
-        self.input_writer = self._in_var.writer
+        self.input_writer = self._in_var.writer  # who wrote each in-var, as of the last read
         self.bytes_in = sum(a.nbytes for a in self._in_var.arrays)
         self.bytes_out = sum(a.nbytes for a in self._out_var.arrays)
         self._lock = table.lock
@@ -118,8 +113,6 @@ class LocalTable:
         pid = self._pid
         in_groups = tuple((g.flat.take, g.index, g.local) for g in self._in_var.groups)
         out_groups = tuple((g.flat, g.index, g.local) for g in self._out_var.groups)
-        fill_sequence = self._out_var.sequence.fill
-        fill_time = self._out_var.write_time.fill
 
         if len(in_groups) == 1:
             (take, idx, local), = in_groups
@@ -141,18 +134,14 @@ class LocalTable:
         if len(out_groups) == 1:
             (flat, oidx, olocal), = out_groups
 
-            def write_outputs(sequence: float, now: float) -> None:
-                fill_sequence(sequence)
-                fill_time(now)
+            def write_outputs() -> None:
                 acquire()
                 header[holder] = pid
                 flat[oidx] = olocal
                 release()
         else:
 
-            def write_outputs(sequence: float, now: float) -> None:
-                fill_sequence(sequence)
-                fill_time(now)
+            def write_outputs() -> None:
                 acquire()
                 header[holder] = pid
                 for flat, idx, local in out_groups:
@@ -170,13 +159,12 @@ class LocalTable:
         for const_copy, var_copy in self._both_in:
             var_copy[...] = const_copy
 
-    def write_consts(self, sequence: float, now: float) -> None:
-        """Out-consts (and out-boths) after `init`."""
+    def write_consts(self) -> None:
+        """Out-consts (and out-boths) after `init`, with the status block (their write time)."""
         for const_copy, var_copy in self._both_out:
             const_copy[...] = var_copy
-        self._out_const.sequence.fill(sequence)
-        self._out_const.write_time.fill(now)
         self._scatter(self._out_const)
+        self.write_status()
 
     def read_for_on(self) -> None:
         """In-vars and out-vars before `on`: take over the current state of the system."""

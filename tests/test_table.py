@@ -72,6 +72,8 @@ def test_job_control_write_stamps_sequence_time_and_writer(make_table):
     value, seq, when, writer = table.read("a")
     assert value.tolist() == [0, 1, 2, 3, 4, 5]
     assert (seq, when, writer) == (1, 1.5, -1)
+    table.write("a", np.arange(6.0), when=2.5)
+    assert table.read("a")[1:] == (2, 2.5, -1)
     table.write("n", 6, when=2.0)
     assert table.read("n")[0] == 6
 
@@ -84,10 +86,12 @@ def test_a_cycle_transfer_moves_inputs_and_stamps_outputs(make_table):
     a, b, c, d, x, y = local.port_arrays
     local.read_inputs()
     assert a[0] == ord("a") and d[5] == ord("d")
-    assert local.input_sequence.tolist() == [1, 1, 1, 1]
+    assert local.input_writer.tolist() == [-1, -1, -1, -1]  # job control wrote them
     np.add(a, b, out=x)
     np.subtract(c, d, out=y)
-    local.write_outputs(7.0, 3.25)
+    local.status[1] = 7  # the executive's cycle count and release time: the outputs' stamp
+    local.status[7] = 3.25
+    local.write_outputs()
     value, seq, when, writer = table.read("x")
     assert value[0] == ord("a") + ord("b")
     assert (seq, when, writer) == (7, 3.25, 2)

@@ -1,0 +1,177 @@
+"""The MuJoCo arm's "hardware registers": one shared-memory segment, laid out like a VME board's.
+
+The plant creates the segment (0600, must not exist) and owns it; the driver attaches by name.
+Nothing here takes a cross-process lock. Each block has one writer and a seqlock:
+
+- state (q, qd, sim time, step count): written by the plant. It makes `STATE_SEQ` odd, writes,
+  makes it even again; a reader copies between two equal even reads of `STATE_SEQ`.
+- command (tau, q_cmd): written by the driver the same way with `CMD_SEQ`, so `CMD_SEQ // 2` counts
+  the commands written.
+- `BRAKE` and `MODE` are single aligned words written by the driver, read by the plant each step.
+- constants (DH, DYN, limits): written once by the plant before it publishes the first state.
+
+Aligned 8-byte words are read and written whole, and x86 keeps stores in program order (TSO),
+so the seqlocks need no fences there. Layout (byte offsets, n = ndof, all little-endian):
+
+    0    header, 16 words of 8 bytes (word index below)
+    128  state:    q[n], qd[n]                  float64
+    S    command:  tau[n], q_cmd[n]             float64, S = 128 + 16 n rounded up to 64
+    C    constant: DH[n,4], DYN[n,11], LIMITS[n,3] (q_min, q_max, tau_max)  float64
+"""
+
+from __future__ import annotations
+
+import mmap
+from dataclasses import dataclass
+
+import numpy as np
+import posix_ipc
+
+from pbo_runtime import PboError
+from pbo_runtime._shm import attach_segment, create_segment
+
+MAGIC = int.from_bytes(b"PBOARMRG", "little")
+VERSION = 1
+
+# Header words: u64 unless marked f64.
+W_MAGIC = 0
+W_VERSION = 1
+W_NDOF = 2
+W_STATE_SEQ = 3  # seqlock of the state block (odd while the plant writes)
+W_SIM_TIME = 4  # f64, s, published under STATE_SEQ
+W_STEP_COUNT = 5  # plant steps taken, published under STATE_SEQ
+W_CMD_SEQ = 6  # seqlock of the command block (odd while the driver writes)
+W_BRAKE = 7  # 1: brakes engaged (the plant holds the braked pose); the plant starts at 1
+W_MODE = 8  # which command registers the plant applies, MODE_* below
+W_TIMESTEP = 9  # f64, s, constant
+W_PLANT_PID = 10  # the owning plant's pid, for diagnostics
+HEADER_WORDS = 16
+
+MODE_NONE = 0  # no driver has claimed the arm: the plant applies no torque
+MODE_TORQUE = 1
+MODE_POSITION = 2  # reserved: q_cmd registers, not applied yet
+MODES = {"torque": MODE_TORQUE}  # what drivers may ask for today
+
+_CACHE_LINE = 64
+
+
+class DeviceError(PboError):
+    """A device's registers are missing, of another layout, or stuck mid-write."""
+
+
+def _align(offset: int) -> int:
+    return -(-offset // _CACHE_LINE) * _CACHE_LINE
+
+
+@dataclass(frozen=True)
+class RegisterLayout:
+    """Byte offsets of each register block for an arm of `ndof` joints."""
+
+    ndof: int
+    state: int
+    command: int
+    constant: int
+    size: int
+
+    @classmethod
+    def for_ndof(cls, ndof: int) -> RegisterLayout:
+        if ndof < 1:
+            raise ValueError(f"ndof must be >= 1, got: {ndof}")
+        state = HEADER_WORDS * 8
+        command = _align(state + 2 * ndof * 8)  # own cache line: another process writes it
+        constant = _align(command + 2 * ndof * 8)
+        size = _align(constant + ndof * (4 + 11 + 3) * 8)
+        return cls(ndof, state, command, constant, size)
+
+
+class Registers:
+    """Views over one mapping of the segment: header words, and numpy arrays per register.
+
+    The views hold the mapping open; `release()` drops them so the mapping can be closed.
+    """
+
+    def __init__(self, mapping: mmap.mmap, layout: RegisterLayout) -> None:
+        self.layout = layout
+        self._mapping = mapping
+        n = layout.ndof
+        raw = memoryview(mapping)
+        header = raw[: HEADER_WORDS * 8]
+        self._views: list[memoryview] = [raw, header]
+        # memoryview item access is the cheapest way to read or write one word from Python.
+        self.words = header.cast("Q")
+        self.reals = header.cast("d")
+        self._views += [self.words, self.reals]
+
+        def block(offset: int, count: int) -> np.ndarray:
+            return np.frombuffer(mapping, dtype=np.float64, count=count, offset=offset)
+
+        self.q = block(layout.state, n)
+        self.qd = block(layout.state + 8 * n, n)
+        self.tau = block(layout.command, n)
+        self.q_cmd = block(layout.command + 8 * n, n)
+        self.dh = block(layout.constant, 4 * n).reshape(n, 4)
+        self.dyn = block(layout.constant + 32 * n, 11 * n).reshape(n, 11)
+        self.limits = block(layout.constant + 120 * n, 3 * n).reshape(n, 3)
+
+    def release(self) -> None:
+        """Drop every view, then close the mapping (idempotent)."""
+        if self._mapping is None:
+            return
+        for name in ("q", "qd", "tau", "q_cmd", "dh", "dyn", "limits", "words", "reals"):
+            self.__dict__.pop(name, None)
+        for view in reversed(self._views):
+            view.release()
+        self._views.clear()
+        mapping, self._mapping = self._mapping, None
+        try:
+            mapping.close()
+        except BufferError:
+            # Someone kept a view (e.g. a test holding `registers.q`): the mapping goes when it does.
+            pass
+
+
+def create_registers(name: str, ndof: int) -> tuple[posix_ipc.SharedMemory, Registers]:
+    """Create the segment (0600, exclusive) with its header; the creator fills the constants."""
+    layout = RegisterLayout.for_ndof(ndof)
+    try:
+        shm, mapping = create_segment(name, layout.size)
+    except posix_ipc.ExistentialError:
+        raise DeviceError(
+            f"register segment {name!r} already exists; another plant owns it, or a dead run left it "
+            "(a new run of the subsystem removes leftovers)"
+        ) from None
+    registers = Registers(mapping, layout)
+    registers.words[W_VERSION] = VERSION
+    registers.words[W_NDOF] = ndof
+    registers.words[W_BRAKE] = 1
+    registers.words[W_MODE] = MODE_NONE
+    return shm, registers
+
+
+def attach_registers(name: str) -> Registers:
+    """Map an existing segment, checking that it is an arm register file of this layout."""
+    try:
+        mapping = attach_segment(name)
+    except posix_ipc.ExistentialError:
+        raise DeviceError(
+            f"no register segment {name!r}: the plant that owns it is not running (drivers attach, never create)"
+        ) from None
+    header_size = HEADER_WORDS * 8
+    if len(mapping) < header_size:
+        mapping.close()
+        raise DeviceError(
+            f"register segment {name!r} is {len(mapping)} bytes, smaller than the {header_size}-byte header"
+        )
+    magic, version, ndof = np.frombuffer(mapping, dtype=np.uint64, count=3).tolist()
+    # The plant writes the magic last, so a half-made segment is refused rather than misread.
+    problem = ""
+    if magic != MAGIC:
+        problem = f"magic is {magic:#x}, expected {MAGIC:#x} (not an arm register file, or not ready yet)"
+    elif version != VERSION:
+        problem = f"layout version is {version}, expected {VERSION}"
+    elif len(mapping) < RegisterLayout.for_ndof(ndof).size:
+        problem = f"size {len(mapping)} is too small for {ndof} joints"
+    if problem:
+        mapping.close()
+        raise DeviceError(f"register segment {name!r}: {problem}")
+    return Registers(mapping, RegisterLayout.for_ndof(ndof))

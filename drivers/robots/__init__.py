@@ -1,0 +1,29 @@
+"""Robot descriptions the simulated plant can build, by name, and their MuJoCo models."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from drivers.robots.description import DH_COLUMNS, DYN_COLUMNS, RobotDescription
+from drivers.robots.mjcf import to_mjcf
+from drivers.robots.puma560 import puma560
+
+_ROBOTS: dict[str, Callable[[], RobotDescription]] = {
+    "puma560": puma560,
+}
+
+
+def robot_names() -> tuple[str, ...]:
+    return tuple(sorted(_ROBOTS))
+
+
+def robot(name: str) -> RobotDescription:
+    """The description registered as `name`; the error lists the known names."""
+    try:
+        make = _ROBOTS[name]
+    except KeyError:
+        raise ValueError(f"unknown robot model {name!r}; known models: {', '.join(robot_names())}") from None
+    return make()
+
+
+__all__ = ["DH_COLUMNS", "DYN_COLUMNS", "RobotDescription", "robot", "robot_names", "to_mjcf"]

@@ -1,0 +1,113 @@
+"""PID joint position controller (TR Figure 8), with optional gravity feed-forward.
+
+tau_u = kp (q_r - q_m) + kd (qd_r - qd_m) + ki ∫(q_r - q_m) dt + g(q_m)
+
+The gravity term comes from Pinocchio, built in `init` from the robot's in-consts DH and DYN,
+so the same module drives whatever arm the robot interface reports. On `on` the integral is
+set so that the first output equals the torque already in the table (bumpless transfer when
+this controller takes over from another).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pbo_runtime import InConst, InVar, OutVar, PortBasedObject, Status
+
+Gain = float | tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class PidJointParams:
+    kp: Gain = 400.0  # N m / rad
+    kd: Gain = 40.0  # N m s / rad
+    ki: Gain = 0.0  # N m / (rad s)
+    integral_limit: float = 50.0  # N m: the integral term never exceeds this (anti-windup)
+    gravity_feedforward: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("kp", "kd", "ki"):
+            value = getattr(self, name)
+            gains = value if isinstance(value, tuple) else (value,)
+            if any(g < 0 for g in gains):
+                raise ValueError(f"{name} must be >= 0, got: {value}")
+        if self.integral_limit < 0:
+            raise ValueError(f"integral_limit must be >= 0, got: {self.integral_limit}")
+
+
+class PidJoint(PortBasedObject):
+    """PID joint position controller. The cycle allocates no arrays of its own; the gravity
+    term is Pinocchio's `computeGeneralizedGravity` on a model built once in `init`."""
+
+    Params = PidJointParams
+
+    ndof = InConst("NDOF", dtype="int32")
+    dh = InConst("DH", shape=("NDOF", 4))
+    dyn = InConst("DYN", shape=("NDOF", 11))
+    q_r = InVar("q_r", shape=("NDOF",), doc="reference joint position, rad")
+    qd_r = InVar("qd_r", shape=("NDOF",), doc="reference joint velocity, rad/s")
+    q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
+    qd_m = InVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s")
+    tau = OutVar("tau_u", shape=("NDOF",), doc="joint torque command, N m")
+
+    def init(self, params: PidJointParams) -> None:
+        n = int(self.ndof)
+        self._kp = self._gains("kp", params.kp, n)
+        self._kd = self._gains("kd", params.kd, n)
+        self._ki = self._gains("ki", params.ki, n)
+        self._limit = params.integral_limit
+        self._error = np.zeros(n)
+        self._term = np.zeros(n)
+        self._integral = np.zeros(n)  # the integral term itself, N m
+        self._previous = np.zeros(n)
+        self._gravity = None
+        if params.gravity_feedforward:
+            import pinocchio
+
+            from modules._robot_model import pinocchio_model
+
+            model = pinocchio_model(np.asarray(self.dh), np.asarray(self.dyn))
+            data = model.createData()
+            self._gravity = lambda q: pinocchio.computeGeneralizedGravity(model, data, q)
+
+    @staticmethod
+    def _gains(name: str, value: Gain, n: int) -> np.ndarray:
+        gains = np.asarray(value, dtype=float)
+        if gains.ndim == 1 and gains.size != n:
+            raise ValueError(f"{name} must have one gain or NDOF = {n} gains, got: {gains.size}")
+        return np.broadcast_to(gains, (n,)).copy()
+
+    def on(self) -> None:
+        # Bumpless take-over: with an integral term, start it where it reproduces the torque
+        # the previous controller left in the table (read before `on`, TR §4.3).
+        np.copyto(self._previous, self.tau)
+        self._integral[:] = 0.0
+        self._compute()
+        if np.any(self._ki > 0) and np.any(self._previous):
+            np.subtract(self._previous, self._term, out=self._integral)
+            np.clip(self._integral, -self._limit, self._limit, out=self._integral)
+            self._compute()
+
+    def cycle(self) -> Status:
+        np.subtract(self.q_r, self.q_m, out=self._error)
+        np.multiply(self._error, self._ki, out=self._term)
+        np.multiply(self._term, self.period, out=self._term)
+        np.add(self._integral, self._term, out=self._integral)
+        np.clip(self._integral, -self._limit, self._limit, out=self._integral)
+        self._compute()
+        return Status.CONTINUE
+
+    def _compute(self) -> None:
+        """tau = kp e + kd ed + integral + g(q_m); leaves the part without the integral in _term."""
+        tau, term = self.tau, self._term
+        np.subtract(self.q_r, self.q_m, out=self._error)
+        np.multiply(self._kp, self._error, out=tau)
+        np.subtract(self.qd_r, self.qd_m, out=self._error)
+        np.multiply(self._kd, self._error, out=term)
+        np.add(tau, term, out=tau)
+        if self._gravity is not None:
+            np.add(tau, self._gravity(self.q_m), out=tau)
+        np.copyto(term, tau)
+        np.add(tau, self._integral, out=tau)

@@ -1,0 +1,69 @@
+"""Signals to RTPUs and events back to job control: msgpack over POSIX message queues.
+
+Queues carry signals and events only, never per-cycle data (DESIGN §3). All are 0600.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msgpack
+import posix_ipc
+
+from pbo_runtime import _shm
+
+MAX_MESSAGES = 64
+MESSAGE_BYTES = 8192
+
+
+def signal_queue_name(subsystem: str, run_id: str, rtpu: str) -> str:
+    return _shm.object_name(subsystem, run_id, f"rtpu-{rtpu}")
+
+
+def event_queue_name(subsystem: str, run_id: str) -> str:
+    return _shm.object_name(subsystem, run_id, "events")
+
+
+def plant_registers_name(subsystem: str, run_id: str) -> str:
+    return _shm.object_name(subsystem, run_id, "plant")
+
+
+def table_name(subsystem: str, run_id: str) -> str:
+    return _shm.object_name(subsystem, run_id, "table")
+
+
+class Queue:
+    """One end of a message queue carrying msgpack-encoded lists."""
+
+    def __init__(self, name: str, create: bool = False) -> None:
+        self.name = name
+        flags = posix_ipc.O_CREX if create else 0
+        self._mq = posix_ipc.MessageQueue(name, flags, mode=0o600, max_messages=MAX_MESSAGES, max_message_size=MESSAGE_BYTES)
+        self.owner = create
+
+    def send(self, *message: Any, timeout: float | None = 1.0) -> None:
+        self._mq.send(msgpack.packb(list(message)), timeout=timeout)
+
+    def try_send(self, *message: Any) -> bool:
+        """Send without waiting; False if the queue is full or gone (a dying peer must not hang us)."""
+        try:
+            self._mq.send(msgpack.packb(list(message)), timeout=0)
+            return True
+        except (posix_ipc.BusyError, posix_ipc.ExistentialError, OSError):
+            return False
+
+    def receive(self, timeout: float | None) -> list[Any] | None:
+        """The next message, or None if none came within `timeout` seconds (0: do not wait)."""
+        try:
+            raw, _priority = self._mq.receive(timeout=max(timeout, 0.0) if timeout is not None else None)
+        except posix_ipc.BusyError:
+            return None
+        return msgpack.unpackb(raw)
+
+    def close(self) -> None:
+        try:
+            self._mq.close()
+        except posix_ipc.ExistentialError:
+            pass
+        if self.owner:
+            _shm.unlink_quietly("mq", self.name)

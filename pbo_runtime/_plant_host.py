@@ -1,0 +1,67 @@
+"""`python -m pbo_runtime._plant_host`: the plant process, the physical world outside the subsystem.
+
+It builds the registered plant (e.g. the MuJoCo arm) and steps it once per timestep of wall
+time on absolute deadlines; if it falls behind it catches up with extra steps, so simulated
+time tracks wall time, and counts the steps that were late.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import traceback
+
+from pbo_runtime import _messages, _registry
+from pbo_runtime._clock import lower_timer_slack
+from pbo_runtime._process import Stop, become_child
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pbo_runtime._plant_host")
+    parser.add_argument("--type", required=True)
+    parser.add_argument("--model", required=True)
+    parser.add_argument("--timestep", type=float, required=True)
+    parser.add_argument("--options", default="{}", help="JSON mapping of plant options")
+    parser.add_argument("--subsystem", required=True)
+    parser.add_argument("--run-id", required=True)
+    parser.add_argument("--parent", type=int, default=0)
+    args = parser.parse_args(argv)
+    if args.parent:
+        become_child(args.parent)
+    lower_timer_slack()
+    events = _messages.Queue(_messages.event_queue_name(args.subsystem, args.run_id))
+    plant = None
+    steps = late = 0
+    try:
+        plant_class = _registry.plant_class(args.type)
+        plant = plant_class(
+            _messages.plant_registers_name(args.subsystem, args.run_id), args.model, args.timestep, json.loads(args.options)
+        )
+        events.try_send("ready", "plant")
+        dt = plant.timestep
+        next_step = time.monotonic()
+        while True:
+            now = time.monotonic()
+            if now < next_step:
+                time.sleep(next_step - now)
+            elif now - next_step > dt:
+                late += 1
+            plant.step()
+            steps += 1
+            next_step += dt
+    except Stop:
+        return 0
+    except Exception as exc:
+        events.try_send("crashed", "plant", f"{type(exc).__name__}: {exc}", traceback.format_exc())
+        return 1
+    finally:
+        events.try_send("plant_stats", "plant", {"steps": steps, "late": late})
+        if plant is not None:
+            plant.close()
+        events.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

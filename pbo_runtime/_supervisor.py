@@ -1,0 +1,380 @@
+"""Job control: starts a subsystem, sequences its tasks, watches it, and always cleans up.
+
+`Supervisor.run` creates the table and queues, starts the plant and the RTPU processes,
+spawns every task in const-dependency order (waiting for each `init`), turns the
+configuration on, watches until the duration ends, Ctrl-C, or a failure, and then turns
+everything off, kills the tasks, stops the children and unlinks every object it made,
+whatever happened. A start first removes what a dead run of the same subsystem left.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import posix_ipc
+
+from pbo_runtime import _messages, _shm
+from pbo_runtime._config_model import Subsystem
+from pbo_runtime._errors import PboError
+from pbo_runtime._table import Header, StateTable, TableLayout, TaskState, read_manifest
+from pbo_runtime._table import Status as W
+
+START_TIMEOUT = 60.0  # seconds for a child to import numpy, pinocchio and mujoco on a busy machine
+SIGNAL_TIMEOUT = 10.0
+
+
+class RunFailure(PboError):
+    """The run could not start or had to stop: the message says which process or task, and why."""
+
+
+@dataclass
+class RunResult:
+    """What a run did: the summary's data and the JSON report's content."""
+
+    subsystem: str
+    configuration: str
+    duration: float = 0.0
+    stopped_by: str = "duration"
+    failure: str = ""
+    tasks: dict[str, dict[str, Any]] = field(default_factory=dict)
+    variables: dict[str, Any] = field(default_factory=dict)
+    plant: dict[str, Any] = field(default_factory=dict)
+    lock_recoveries: int = 0
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "subsystem": self.subsystem, "configuration": self.configuration, "duration": self.duration,
+            "stopped_by": self.stopped_by, "failure": self.failure, "tasks": self.tasks,
+            "variables": self.variables, "plant": self.plant, "lock_recoveries": self.lock_recoveries,
+        }
+
+
+@dataclass
+class _Child:
+    role: str  # 'plant' or the RTPU's name
+    process: subprocess.Popen
+    tasks: tuple[str, ...] = ()
+
+
+def remove_dead_runs(subsystem: str) -> list[str]:
+    """Unlink what crashed runs of this subsystem left, their queues included (via the manifest)."""
+    removed: list[str] = []
+    for kind, name in _shm.stale_objects(subsystem):
+        if kind == "shm" and name.endswith(".table"):
+            try:
+                mapping = _shm.attach_segment(name)
+                header = np.frombuffer(mapping, dtype=np.int64, count=16)
+                offset = int(header[Header.MANIFEST_OFFSET])
+                del header
+                entries = read_manifest(mapping, offset) if offset > 0 else []
+                mapping.close()
+            except (posix_ipc.Error, OSError, ValueError, BufferError):
+                entries = []
+            for entry in entries:
+                entry_kind, _, entry_name = entry.partition(" ")
+                if entry_kind in ("shm", "sem", "mq") and _shm.unlink_quietly(entry_kind, entry_name):
+                    removed.append(entry_name)
+        if _shm.unlink_quietly(kind, name):
+            removed.append(name)
+    return sorted(set(removed))
+
+
+class Supervisor:
+    """Runs one subsystem in one configuration for a duration (jobs and switching come later)."""
+
+    def __init__(
+        self,
+        subsystem: Subsystem,
+        configuration: str | None = None,
+        duration: float | None = 5.0,
+        on_tick: Callable[[Supervisor], None] | None = None,
+        say: Callable[[str], None] = lambda text: None,
+    ) -> None:
+        self.subsystem = subsystem
+        self.configuration = configuration or next(iter(subsystem.configurations))
+        if self.configuration not in subsystem.configurations:
+            raise RunFailure(
+                f"no configuration '{self.configuration}' in {subsystem.file} "
+                f"(configurations: {', '.join(subsystem.configurations)})"
+            )
+        self.duration = duration
+        self.on_tick = on_tick
+        self.say = say
+        self.run_id = _shm.new_run_id()
+        self.table: StateTable | None = None
+        self.events: _messages.Queue | None = None
+        self.signals: dict[str, _messages.Queue] = {}
+        self.children: list[_Child] = []
+        self.task_states: dict[str, str] = {t: TaskState.NOT_CREATED.name for t in subsystem.tasks}
+        self.task_errors: dict[str, str] = {}
+        self.result = RunResult(subsystem.name, self.configuration)
+        self.started_at = 0.0
+        self._stop_requested = ""
+        self._stats: dict[str, dict[str, Any]] = {}
+
+    # --- names ------------------------------------------------------------------------------
+
+    def _manifest(self) -> list[str]:
+        s, r = self.subsystem.name, self.run_id
+        table = _messages.table_name(s, r)
+        entries = [f"shm {table}", f"sem {table}.lock", f"mq {_messages.event_queue_name(s, r)}"]
+        entries += [f"mq {_messages.signal_queue_name(s, r, rtpu.name)}" for rtpu in self.subsystem.rtpus]
+        if self.subsystem.plant is not None:
+            entries.append(f"shm {_messages.plant_registers_name(s, r)}")
+        return entries
+
+    # --- the run ----------------------------------------------------------------------------
+
+    def run(self) -> RunResult:
+        previous = signal.signal(signal.SIGINT, self._interrupt)
+        previous_term = signal.signal(signal.SIGTERM, self._interrupt)
+        try:
+            removed = remove_dead_runs(self.subsystem.name)
+            if removed:
+                self.say(f"removed {len(removed)} object(s) left by a dead run: {', '.join(removed)}")
+            self._start()
+            self._watch()
+        except RunFailure as exc:
+            self.result.failure = str(exc)
+            self.result.stopped_by = "failure"
+        finally:
+            self._shutdown()
+            signal.signal(signal.SIGINT, previous)
+            signal.signal(signal.SIGTERM, previous_term)
+        return self.result
+
+    def request_stop(self, reason: str) -> None:
+        self._stop_requested = reason
+
+    def _interrupt(self, signum: int, _frame: Any) -> None:
+        self._stop_requested = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
+
+    def _start(self) -> None:
+        sub, run_id = self.subsystem, self.run_id
+        self.events = _messages.Queue(_messages.event_queue_name(sub.name, run_id), create=True)
+        for rtpu in sub.rtpus:
+            self.signals[rtpu.name] = _messages.Queue(_messages.signal_queue_name(sub.name, run_id, rtpu.name), create=True)
+        self.table = StateTable.create(TableLayout.of(sub), _messages.table_name(sub.name, run_id), self._manifest())
+        self._write_initial_values()
+        epoch = time.monotonic()
+        if sub.plant is not None:
+            plant = sub.plant
+            self._launch("plant", [
+                "-m", "pbo_runtime._plant_host", "--type", plant.type, "--model", plant.model,
+                "--timestep", repr(plant.timestep), "--options", json.dumps(dict(plant.options)),
+                "--subsystem", sub.name, "--run-id", run_id,
+            ])
+            self._await_ready({"plant"})
+        for rtpu in sub.rtpus:
+            hosted = tuple(t.name for t in sub.tasks_on(rtpu.name))
+            self._launch(rtpu.name, ["-m", "rtpu", sub.file, "--run-id", run_id, "--rtpu", rtpu.name,
+                                     "--epoch", repr(epoch + 0.00015 * rtpu.index)], hosted)
+        self._await_ready({r.name for r in sub.rtpus})
+        for name in sub.init_order:
+            self._signal(name, "spawn")
+            state = self._await_state(name, {"OFF", "KILLED"})
+            if state == "KILLED":
+                raise RunFailure(f"task '{name}' failed in init and was not created: {self.task_errors.get(name, '')}")
+        members = sub.configurations[self.configuration].tasks
+        ordered = [t for t in sub.init_order if t in members]
+        ordered.sort(key=lambda t: not sub.tasks[t].critical)  # the robot interface first: it publishes q_m
+        for name in ordered:
+            self._signal(name, "on")
+            state = self._await_state(name, {"ON", "ERROR"})
+            if state == "ERROR":
+                raise RunFailure(f"task '{name}' failed in on: {self.task_errors.get(name, '')}")
+        self.started_at = time.monotonic()
+        self.say(f"configuration '{self.configuration}' is on: {', '.join(ordered)}")
+
+    def _launch(self, role: str, arguments: list[str], tasks: tuple[str, ...] = ()) -> None:
+        command = [sys.executable, *arguments, "--parent", str(os.getpid())]
+        process = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True)
+        self.children.append(_Child(role, process, tasks))
+
+    def _write_initial_values(self) -> None:
+        assert self.table is not None
+        for var in self.subsystem.variables.values():
+            initial = getattr(var, "initial", None)
+            if initial is not None:
+                self.table.write(var.name, initial, when=time.monotonic(), writer=-1)
+
+    # --- waiting for the children -----------------------------------------------------------
+
+    def _signal(self, task: str, *message: Any) -> None:
+        rtpu = self.subsystem.tasks[task].rtpu
+        self.signals[rtpu].send(message[0], task, *message[1:], timeout=SIGNAL_TIMEOUT)
+
+    def _await_ready(self, roles: set[str]) -> None:
+        waiting = set(roles)
+        deadline = time.monotonic() + START_TIMEOUT
+        while waiting:
+            event = self._next_event(deadline, f"waiting for {', '.join(sorted(waiting))} to start")
+            if event[0] == "ready":
+                waiting.discard(event[1])
+
+    def _await_state(self, task: str, states: set[str]) -> str:
+        deadline = time.monotonic() + SIGNAL_TIMEOUT
+        while True:
+            self._next_event(deadline, f"waiting for task '{task}' to reach {' or '.join(sorted(states))}")
+            if self.task_states[task] in states:
+                return self.task_states[task]
+
+    def _next_event(self, deadline: float, doing: str) -> list[Any]:
+        assert self.events is not None
+        while True:
+            self._check_children()
+            if self._stop_requested:
+                raise RunFailure(f"stopped by {self._stop_requested} while {doing}")
+            event = self.events.receive(0.05)
+            if event is not None:
+                self._absorb(event)
+                return event
+            if time.monotonic() > deadline:
+                raise RunFailure(f"timed out {doing}")
+
+    def _absorb(self, event: list[Any]) -> None:
+        kind, source = event[0], event[1]
+        if kind == "state":
+            task, state, message = event[2], event[3], event[4]
+            self.task_states[task] = state
+            if message:
+                self.task_errors[task] = message
+            if state == "ERROR":
+                self.say(f"task '{task}' on {source} is in ERROR: {message} (operator intervention required)")
+        elif kind == "stats":
+            self._stats.update(event[2])
+        elif kind == "plant_stats":
+            self.result.plant = event[2]
+        elif kind == "refused":
+            self.say(f"{source} refused a signal for '{event[2]}': {event[3]}")
+        elif kind == "crashed":
+            raise RunFailure(f"{source} crashed: {event[2]}\n{event[3] if len(event) > 3 else ''}")
+
+    def _check_children(self) -> None:
+        for child in self.children:
+            code = child.process.poll()
+            if code is not None:
+                self._recover_lock_from(child.process.pid)
+                how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit status {code}"
+                hosted = f" while hosting tasks: {', '.join(child.tasks)}" if child.tasks else ""
+                what = "the plant" if child.role == "plant" else f"RTPU '{child.role}'"
+                raise RunFailure(f"{what} (pid {child.process.pid}) died ({how}){hosted}")
+
+    def _recover_lock_from(self, pid: int) -> None:
+        """A process that died holding the table lock must not wedge the others (DESIGN §4)."""
+        table = self.table
+        if table is None or int(table.header[Header.LOCK_HOLDER]) != pid:
+            return
+        for _ in range(5):  # the holder word is set right after acquire: give a live taker time to overwrite it
+            if table.lock.value > 0 or int(table.header[Header.LOCK_HOLDER]) != pid:
+                return
+            time.sleep(0.01)
+        table.header[Header.LOCK_HOLDER] = 0
+        table.header[Header.LOCK_RECOVERIES] += 1
+        table.lock.release()
+        self.result.lock_recoveries += 1
+
+    # --- running ----------------------------------------------------------------------------
+
+    def _watch(self) -> None:
+        assert self.events is not None
+        while True:
+            self._check_children()
+            if self._stop_requested:
+                self.result.stopped_by = self._stop_requested
+                return
+            if self.duration is not None and time.monotonic() - self.started_at >= self.duration:
+                self.result.stopped_by = "duration"
+                return
+            event = self.events.receive(0.1)
+            if event is not None:
+                self._absorb(event)
+            if self.on_tick is not None:
+                self.on_tick(self)
+
+    def status_rows(self) -> list[dict[str, Any]]:
+        """The live view's data, read from the table's status blocks."""
+        rows = []
+        if self.table is None:
+            return rows
+        for task in self.subsystem.tasks.values():
+            words = self.table.status[task.index]
+            rows.append({
+                "task": task.name, "rtpu": task.rtpu, "state": TaskState(int(words[W.STATE])).name,
+                "cycles": int(words[W.CYCLES]), "overruns": int(words[W.OVERRUNS]),
+                "exec_last": float(words[W.EXEC_LAST]), "jitter_max": float(words[W.JITTER_MAX]),
+            })
+        return rows
+
+    # --- stopping ---------------------------------------------------------------------------
+
+    def _shutdown(self) -> None:
+        self.result.duration = time.monotonic() - self.started_at if self.started_at else 0.0
+        alive = [c for c in self.children if c.process.poll() is None]
+        for child in alive:
+            if child.role != "plant":
+                self.signals[child.role].try_send("stop")
+        deadline = time.monotonic() + 5.0
+        rtpus = [c for c in alive if c.role != "plant"]
+        while any(c.process.poll() is None for c in rtpus) and time.monotonic() < deadline:
+            self._drain_events(0.05)
+        self._drain_events(0.0)
+        self._read_final_values()
+        for child in self.children:
+            if child.process.poll() is None:
+                child.process.send_signal(signal.SIGTERM)
+        for child in self.children:
+            try:
+                child.process.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                child.process.kill()
+                child.process.wait()
+        self._drain_events(0.0)
+        for name, stats in self._stats.items():
+            self.result.tasks[name] = {"rtpu": self.subsystem.tasks[name].rtpu, "state": self.task_states.get(name, "?"),
+                                       "error": self.task_errors.get(name, ""), **stats}
+        for queue in self.signals.values():
+            queue.close()
+        if self.events is not None:
+            self.events.close()
+        if self.table is not None:
+            self.table.close()
+        for entry in self._manifest():  # a backstop: whatever a child could not remove
+            kind, _, name = entry.partition(" ")
+            _shm.unlink_quietly(kind, name)
+
+    def _drain_events(self, timeout: float) -> None:
+        if self.events is None:
+            return
+        while True:
+            try:
+                event = self.events.receive(timeout)
+            except posix_ipc.Error:
+                return
+            if event is None:
+                return
+            try:
+                self._absorb(event)
+            except RunFailure as exc:
+                if not self.result.failure:
+                    self.result.failure = str(exc)
+                    self.result.stopped_by = "failure"
+            timeout = 0.0
+
+    def _read_final_values(self) -> None:
+        if self.table is None:
+            return
+        for var in self.subsystem.variables.values():
+            value, seq, when, writer = self.table.read(var.name)
+            self.result.variables[var.name] = {
+                "value": value.tolist(), "sequence": seq,
+                "writer": next((t.name for t in self.subsystem.tasks.values() if t.index == writer), "job control"),
+            }

@@ -1,0 +1,74 @@
+"""`python -m rtpu`: one emulated real-time processing unit, started by the supervisor.
+
+It loads and checks the same YAML file as the supervisor, attaches to the run's table (the
+layout hash proves they agree), hosts the tasks the file assigns to it, and runs the executive
+until told to stop. A module that raises never takes this process down (see `Task`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import traceback
+
+from pbo_runtime import _messages, _registry
+from pbo_runtime._clock import RealClock, lower_timer_slack
+from pbo_runtime._config_loader import load_subsystem
+from pbo_runtime._config_model import DeviceSpec
+from pbo_runtime._lifecycle import Task
+from pbo_runtime._process import Stop, become_child
+from pbo_runtime._table import StateTable, TableLayout
+from rtpu._executive import Executive
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m rtpu", description=__doc__)
+    parser.add_argument("file")
+    parser.add_argument("--run-id", required=True)
+    parser.add_argument("--rtpu", required=True)
+    parser.add_argument("--epoch", type=float, default=0.0, help="CLOCK_MONOTONIC time releases align to")
+    parser.add_argument("--parent", type=int, default=0)
+    parser.add_argument("--spin", type=float, default=0.0002, help="seconds spun before each release")
+    args = parser.parse_args(argv)
+    if args.parent:
+        become_child(args.parent)
+    lower_timer_slack()
+
+    subsystem = load_subsystem(args.file)
+    name = subsystem.name
+    events = _messages.Queue(_messages.event_queue_name(name, args.run_id))
+    report = lambda kind, *fields: events.try_send(kind, args.rtpu, *fields)  # noqa: E731
+    table = signals = None
+    executive = None
+    try:
+        table = StateTable.attach(TableLayout.of(subsystem), _messages.table_name(name, args.run_id))
+        signals = _messages.Queue(_messages.signal_queue_name(name, args.run_id, args.rtpu))
+        registers = _messages.plant_registers_name(name, args.run_id)
+
+        def open_device(device: DeviceSpec):
+            return _registry.driver_class(device.driver)(registers, device.options)
+
+        executive = Executive(RealClock(args.spin), signals, report, epoch=args.epoch)
+        for spec in subsystem.tasks_on(args.rtpu):
+            module_class = _registry.module_class(spec.module)
+            executive.add(Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device))
+        report("ready")
+        executive.run()
+        return 0
+    except Stop:
+        if executive is not None and executive.running:
+            executive.stop()
+        return 0
+    except Exception as exc:
+        report("crashed", f"{type(exc).__name__}: {exc}", traceback.format_exc())
+        return 1
+    finally:
+        if signals is not None:
+            signals.close()
+        if table is not None:
+            table.close()
+        events.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -67,6 +67,7 @@ class VariableSpec:
     doc: str = ""
     object: str | None = None  # the object type a job may set it as
     loc: Location = NOWHERE
+    initial: Any = field(default=None, compare=False)  # read-only numpy array job control writes at start
 
     @property
     def size(self) -> int:

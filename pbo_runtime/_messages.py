@@ -12,8 +12,20 @@ import posix_ipc
 
 from pbo_runtime import _shm
 
-MAX_MESSAGES = 64
 MESSAGE_BYTES = 8192
+
+
+def _system_limit(name: str, default: int) -> int:
+    try:
+        with open(f"/proc/sys/fs/mqueue/{name}") as limit:
+            return int(limit.read())
+    except (OSError, ValueError):
+        return default
+
+
+# Linux refuses queues longer than fs.mqueue.msg_max (10 by default) even to root.
+MAX_MESSAGES = min(64, _system_limit("msg_max", 10))
+MESSAGE_BYTES = min(MESSAGE_BYTES, _system_limit("msgsize_max", MESSAGE_BYTES))
 
 
 def signal_queue_name(subsystem: str, run_id: str, rtpu: str) -> str:
@@ -44,10 +56,10 @@ class Queue:
     def send(self, *message: Any, timeout: float | None = 1.0) -> None:
         self._mq.send(msgpack.packb(list(message)), timeout=timeout)
 
-    def try_send(self, *message: Any) -> bool:
-        """Send without waiting; False if the queue is full or gone (a dying peer must not hang us)."""
+    def try_send(self, *message: Any, timeout: float = 0.5) -> bool:
+        """Send, waiting at most `timeout`; False if the queue stayed full or is gone (a dead peer must not hang us)."""
         try:
-            self._mq.send(msgpack.packb(list(message)), timeout=0)
+            self._mq.send(msgpack.packb(list(message)), timeout=timeout)
             return True
         except (posix_ipc.BusyError, posix_ipc.ExistentialError, OSError):
             return False

@@ -48,12 +48,16 @@ class RunResult:
     variables: dict[str, Any] = field(default_factory=dict)
     plant: dict[str, Any] = field(default_factory=dict)
     lock_recoveries: int = 0
+    run_id: str = ""
+    objects: list[str] = field(default_factory=list)  # every shared object the run made ("kind /name")
+    states_at_stop: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return {
             "subsystem": self.subsystem, "configuration": self.configuration, "duration": self.duration,
             "stopped_by": self.stopped_by, "failure": self.failure, "tasks": self.tasks,
             "variables": self.variables, "plant": self.plant, "lock_recoveries": self.lock_recoveries,
+            "run_id": self.run_id, "objects": self.objects, "states_at_stop": self.states_at_stop,
         }
 
 
@@ -115,7 +119,8 @@ class Supervisor:
         self.children: list[_Child] = []
         self.task_states: dict[str, str] = {t: TaskState.NOT_CREATED.name for t in subsystem.tasks}
         self.task_errors: dict[str, str] = {}
-        self.result = RunResult(subsystem.name, self.configuration)
+        self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id)
+        self.result.objects = self._manifest()
         self.started_at = 0.0
         self._stop_requested = ""
         self._stats: dict[str, dict[str, Any]] = {}
@@ -202,7 +207,7 @@ class Supervisor:
     def _write_initial_values(self) -> None:
         assert self.table is not None
         for var in self.subsystem.variables.values():
-            initial = getattr(var, "initial", None)
+            initial = var.initial
             if initial is not None:
                 self.table.write(var.name, initial, when=time.monotonic(), writer=-1)
 
@@ -270,17 +275,9 @@ class Supervisor:
 
     def _recover_lock_from(self, pid: int) -> None:
         """A process that died holding the table lock must not wedge the others (DESIGN §4)."""
-        table = self.table
-        if table is None or int(table.header[Header.LOCK_HOLDER]) != pid:
-            return
-        for _ in range(5):  # the holder word is set right after acquire: give a live taker time to overwrite it
-            if table.lock.value > 0 or int(table.header[Header.LOCK_HOLDER]) != pid:
-                return
-            time.sleep(0.01)
-        table.header[Header.LOCK_HOLDER] = 0
-        table.header[Header.LOCK_RECOVERIES] += 1
-        table.lock.release()
-        self.result.lock_recoveries += 1
+        if self.table is not None and self.table.recover_lock_from(pid):
+            self.result.lock_recoveries += 1
+            self.say(f"released the table lock held by dead process {pid}")
 
     # --- running ----------------------------------------------------------------------------
 
@@ -318,6 +315,7 @@ class Supervisor:
 
     def _shutdown(self) -> None:
         self.result.duration = time.monotonic() - self.started_at if self.started_at else 0.0
+        self.result.states_at_stop = dict(self.task_states)
         alive = [c for c in self.children if c.process.poll() is None]
         for child in alive:
             if child.role != "plant":
@@ -339,7 +337,8 @@ class Supervisor:
                 child.process.wait()
         self._drain_events(0.0)
         for name, stats in self._stats.items():
-            self.result.tasks[name] = {"rtpu": self.subsystem.tasks[name].rtpu, "state": self.task_states.get(name, "?"),
+            self.result.tasks[name] = {"rtpu": self.subsystem.tasks[name].rtpu,
+                                       "state": self.result.states_at_stop.get(name, "?"),
                                        "error": self.task_errors.get(name, ""), **stats}
         for queue in self.signals.values():
             queue.close()

@@ -25,6 +25,7 @@ from __future__ import annotations
 import enum
 import hashlib
 import os
+import time
 from dataclasses import dataclass
 from typing import Iterable
 
@@ -304,6 +305,22 @@ class StateTable:
 
     def release(self) -> None:
         self.lock.release()
+
+    def recover_lock_from(self, dead_pid: int, settle: float = 0.05) -> bool:
+        """Release the lock if `dead_pid` died holding it (DESIGN §4); True if it was released.
+
+        The holder word is written right after each acquire, so a live process that took the
+        lock after the dead one would have overwritten it within microseconds: the word is
+        checked over `settle` seconds before the lock is released.
+        """
+        for _ in range(5):
+            if self.lock.value > 0 or int(self.header[Header.LOCK_HOLDER]) != dead_pid:
+                return False
+            time.sleep(settle / 5)
+        self.header[Header.LOCK_HOLDER] = 0
+        self.header[Header.LOCK_RECOVERIES] += 1
+        self.lock.release()
+        return True
 
     @property
     def flags(self) -> Flag:

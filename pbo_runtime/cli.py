@@ -28,6 +28,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     console = Console(highlight=False)
     errors = Console(stderr=True, highlight=False)
+    if not console.is_terminal:  # logs and CI: wide enough for the summary, no wrapping
+        console = Console(highlight=False, width=140)
+        errors = Console(stderr=True, highlight=False, width=140)
     try:
         return args.handler(args, console, errors)
     except ConfigErrors as exc:

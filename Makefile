@@ -1,0 +1,27 @@
+# The two commands of the README's quick start, and a few more. Everything installs into .venv.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: run test check bench clean-shm
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[test]'
+	touch $(STAMP)
+
+run: $(STAMP)            ## set up, then run the demo: PID joint control of a simulated PUMA 560
+	$(BIN)/pbo run configs/pid_joint.yaml --duration 5
+
+test: $(STAMP)           ## set up, then run every test
+	$(BIN)/python -m pytest -q
+
+check: $(STAMP)          ## check every shipped configuration
+	@for f in configs/*.yaml; do $(BIN)/pbo check $$f || exit 1; done
+
+bench: $(STAMP)          ## the benchmarks (figures go to docs/performance.md by hand, as printed)
+	$(BIN)/python bench/svar_transfer.py
+
+clean-shm: $(STAMP)      ## remove shared memory left by runs that crashed
+	$(BIN)/pbo clean

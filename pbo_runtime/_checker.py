@@ -1,0 +1,1151 @@
+"""The configuration checker: every rule of DESIGN.md §6 and §12, all errors of a file in one pass.
+
+It walks a loaded YAML document (`_yaml_nodes.YMap`), reports each mistake like a compiler
+(`file:line:col: error: ...` with the objects, what was found, the valid choices and a hint),
+and builds the frozen specs of `_config_model` from what is right, so the loader can assemble a
+`Subsystem` when nothing is wrong. It never stops at the first mistake: a broken part is left out
+of the later rules so one typo does not cascade into a page of follow-on errors.
+"""
+
+from __future__ import annotations
+
+import ast
+import difflib
+import graphlib
+import heapq
+import re
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Sequence
+
+import numpy as np
+
+from pbo_runtime._config_model import (
+    NOWHERE,
+    ApplicationSpec,
+    ApplicationStep,
+    BusSpec,
+    ConfigurationSpec,
+    DeviceSpec,
+    JobSpec,
+    Location,
+    PlantSpec,
+    PortBinding,
+    RtpuSpec,
+    TaskSpec,
+    VariableSpec,
+)
+from pbo_runtime._errors import ConfigError, ParamError
+from pbo_runtime._ports import ANY_DTYPE, PortSpec
+from pbo_runtime._units import DATA_RATE, FREQUENCY, SIZE, TIME, parse_quantity
+from pbo_runtime._yaml_nodes import YList, YMap, location_of, plain
+
+DTYPES = ("float64", "float32", "int32", "int64", "uint8", "bool")
+
+TOP_KEYS = (
+    "subsystem",
+    "include",
+    "rtpus",
+    "bus",
+    "plant",
+    "devices",
+    "dims",
+    "variables",
+    "tasks",
+    "configurations",
+    "jobs",
+    "applications",
+)
+TOP_REQUIRED = ("subsystem", "rtpus", "variables", "tasks", "configurations")
+VARIABLE_KEYS = ("type", "shape", "doc", "object", "initial")
+TASK_KEYS = ("module", "rtpu", "period", "rate", "priority", "critical", "params", "ports", "resources")
+JOB_KEYS = ("configuration", "object", "pre", "post", "timeout")
+BUS_KEYS = ("bandwidth", "lock_overhead")
+RTPU_KEYS = ("cpu",)
+
+_SUBSYSTEM_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
+_JOIN_HINT = "an output has one writer; join them with a join connector (TR Figure 6)"
+
+ModuleLookup = Callable[[str], Any]
+
+
+@dataclass
+class Checked:
+    """What the checker found: the problems, and the specs built from the parts that are right."""
+
+    errors: list[ConfigError] = field(default_factory=list)
+    warnings: list[ConfigError] = field(default_factory=list)
+    name: str = ""
+    rtpus: tuple[RtpuSpec, ...] = ()
+    bus: BusSpec = field(default_factory=BusSpec)
+    plant: PlantSpec | None = None
+    devices: dict[str, DeviceSpec] = field(default_factory=dict)
+    dims: dict[str, int] = field(default_factory=dict)
+    variables: dict[str, VariableSpec] = field(default_factory=dict)
+    initial_values: dict[str, np.ndarray] = field(default_factory=dict)
+    tasks: dict[str, TaskSpec] = field(default_factory=dict)
+    configurations: dict[str, ConfigurationSpec] = field(default_factory=dict)
+    jobs: dict[str, JobSpec] = field(default_factory=dict)
+    applications: dict[str, ApplicationSpec] = field(default_factory=dict)
+    init_order: tuple[str, ...] = ()
+
+
+@dataclass
+class _Binding:
+    """A port of a task linked to a variable, with where the link was written."""
+
+    port: PortSpec
+    variable: str
+    shape: tuple[int, ...]
+    loc: Location
+
+
+@dataclass
+class _Task:
+    """A task as far as it could be resolved; `ok` is False when its ports are unknown."""
+
+    name: str
+    index: int
+    loc: Location
+    module: str = ""
+    ok: bool = False
+    bindings: list[_Binding] = field(default_factory=list)
+    resources: list[tuple[str, Location]] = field(default_factory=list)
+    rtpu: str = ""
+    period: float = 0.0
+    priority: int = 0
+    critical: bool = False
+    params: dict[str, Any] = field(default_factory=dict)
+    built_params: Any = None  # the module's Params instance, once the params checked out
+
+
+def did_you_mean(name: object, choices: Iterable[str], what: str = "valid") -> str:
+    """'did you mean 'x'? (valid: a, b, c)' - the hint for an unknown name."""
+    options = sorted({str(c) for c in choices})
+    text = str(name)
+    # A truncation ('prio' for 'priority') is the likeliest slip; difflib alone may prefer 'period'.
+    close = [o for o in options if len(text) >= 3 and o.startswith(text)][:1]
+    close = close or difflib.get_close_matches(text, options, n=1, cutoff=0.6)
+    listing = f"({what}: {', '.join(options)})" if options else f"({what}: none)"
+    if close:
+        return f"did you mean '{close[0]}'? {listing}"
+    return listing
+
+
+def describe(value: object) -> str:
+    """A short, plain description of a YAML value for 'got: ...'."""
+    if value is None:
+        return "nothing (null)"
+    if isinstance(value, bool):
+        return f"true/false ({str(value).lower()})"
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, str):
+        return f"the text {value!r}"
+    if isinstance(value, int):
+        return f"the integer {value}"
+    if isinstance(value, float):
+        return f"the number {value}"
+    return f"{type(value).__name__} {value!r}"
+
+
+def _show_shape(shape: Sequence[object]) -> str:
+    if not shape:
+        return "() (a scalar)"
+    return "(" + ", ".join(str(d) for d in shape) + ("," if len(shape) == 1 else "") + ")"
+
+
+def _and_list(items: Sequence[str]) -> str:
+    """'a', 'a and b', 'a, b and c'."""
+    if len(items) <= 1:
+        return "".join(items)
+    return ", ".join(items[:-1]) + " and " + items[-1]
+
+
+class _Checker:
+    def __init__(self, file: str, module_lookup: ModuleLookup, module_names: Callable[[], Iterable[str]] | None) -> None:
+        self.file = file
+        self.module_lookup = module_lookup
+        self.module_names = module_names
+        self.out = Checked()
+        self.rtpu_names: set[str] = set()
+        self.var_initial: set[str] = set()
+        self.var_object: dict[str, str] = {}
+        self.var_locs: dict[str, Location] = {}
+        self.var_ok: set[str] = set()
+        self.tasks: dict[str, _Task] = {}
+        self.task_names: set[str] = set()
+        self.config_names: set[str] = set()
+        self.config_members: dict[str, list[tuple[str, Location]]] = {}
+        self.job_names: set[str] = set()
+        self.expression_names: set[str] = set()
+        self.device_names: set[str] = set()
+
+    # --- reporting --------------------------------------------------------------------------
+
+    def error(self, message: str, loc: Location, hint: str = "") -> None:
+        self.out.errors.append(ConfigError(message, loc.file, loc.line, loc.column, hint))
+
+    def warn(self, message: str, loc: Location, hint: str = "") -> None:
+        self.out.warnings.append(ConfigError(message, loc.file, loc.line, loc.column, hint, severity="warning"))
+
+    # --- shape helpers ----------------------------------------------------------------------
+
+    def mapping(self, value: Any, loc: Location, what: str, example: str = "") -> YMap | None:
+        """The value if it is a mapping, else an error saying what was expected."""
+        if isinstance(value, YMap):
+            return value
+        self.error(f"{what} must be a mapping, got: {describe(value)}", location_of(value, loc), example)
+        return None
+
+    def keys(self, m: YMap, allowed: Sequence[str], required: Sequence[str], where: str, owner_loc: Location) -> None:
+        for key in m:
+            if key not in allowed:
+                self.error(f"unknown key '{key}' {where}", m.key_loc(key), did_you_mean(key, allowed))
+        for key in required:
+            if key not in m:
+                self.error(f"{where} misses required key '{key}'", owner_loc, f"add '{key}:' (keys: {', '.join(allowed)})")
+
+    def name(self, key: object, loc: Location, what: str) -> str | None:
+        if isinstance(key, str) and key:
+            return key
+        self.error(f"{what} names must be text, got: {describe(key)}", loc, "write the name as plain text, e.g. q_m")
+        return None
+
+    def text(self, value: Any, loc: Location, what: str) -> str | None:
+        if isinstance(value, str):
+            return value
+        self.error(f"{what} must be text, got: {describe(value)}", location_of(value, loc))
+        return None
+
+    def boolean(self, value: Any, loc: Location, what: str) -> bool | None:
+        if isinstance(value, bool):
+            return value
+        self.error(f"{what} must be true or false, got: {describe(value)}", location_of(value, loc))
+        return None
+
+    def integer(self, value: Any, loc: Location, what: str, minimum: int | None = None) -> int | None:
+        if not isinstance(value, int) or isinstance(value, bool):
+            self.error(f"{what} must be an integer, got: {describe(value)}", location_of(value, loc))
+            return None
+        if minimum is not None and value < minimum:
+            self.error(f"{what} must be >= {minimum}, got: {value}", loc)
+            return None
+        return value
+
+    def quantity(self, value: Any, loc: Location, kind: str, what: str, positive: bool = True) -> float | None:
+        try:
+            number = parse_quantity(value, kind)
+        except ValueError as exc:
+            hint = ""
+            if kind == TIME and "that is a frequency" in str(exc):
+                hint = "give a rate as 'rate: 1 kHz', or a period as 'period: 1 ms'"
+            self.error(f"{what}: {exc}", location_of(value, loc), hint)
+            return None
+        if positive and number <= 0:
+            self.error(f"{what} must be > 0, got: {value}", loc)
+            return None
+        if not positive and number < 0:
+            self.error(f"{what} must be >= 0, got: {value}", loc)
+            return None
+        return number
+
+    # --- the pass ---------------------------------------------------------------------------
+
+    def run(self, doc: Any, doc_loc: Location) -> Checked:
+        if doc is None:
+            self.error(
+                "the file is empty",
+                doc_loc,
+                "a subsystem file is a mapping with keys " + ", ".join(TOP_REQUIRED),
+            )
+            return self.out
+        top = self.mapping(doc, doc_loc, "the top level", "a subsystem file is a mapping with keys " + ", ".join(TOP_REQUIRED))
+        if top is None:
+            return self.out
+        self.keys(top, TOP_KEYS, TOP_REQUIRED, "at the top level", top.loc)
+        self.check_subsystem(top)
+        self.check_dims(top)
+        self.check_rtpus(top)
+        self.check_bus(top)
+        self.check_plant(top)
+        self.check_devices(top)
+        self.check_variables(top)
+        self.check_tasks(top)
+        self.check_configurations(top)
+        self.check_jobs(top)
+        self.check_applications(top)
+        for config in self.config_members:
+            self.check_data_flow(config)
+        self.check_const_order()
+        self.check_unused()
+        return self.out
+
+    def section(self, top: YMap, key: str, example: str) -> YMap | None:
+        """A top-level section that maps names to entries; None (and an error) if it is not one."""
+        if key not in top or top[key] is None:
+            return None
+        return self.mapping(top[key], top.value_loc(key), f"'{key}'", example)
+
+    def check_subsystem(self, top: YMap) -> None:
+        if "subsystem" not in top:
+            return
+        loc = top.value_loc("subsystem")
+        name = self.text(top["subsystem"], loc, "'subsystem'")
+        if name is None:
+            return
+        if not _SUBSYSTEM_NAME.match(name):
+            self.error(
+                f"subsystem name {name!r} is not usable in shared-memory names",
+                loc,
+                "use letters, digits, '_' and '-', starting with a letter (e.g. puma)",
+            )
+            return
+        self.out.name = name
+
+    def check_dims(self, top: YMap) -> None:
+        dims = self.section(top, "dims", "e.g. dims: {NDOF: 6}")
+        if dims is None:
+            return
+        for key, value in dims.items():
+            name = self.name(key, dims.key_loc(key), "dim")
+            if name is None:
+                continue
+            size = self.integer(value, dims.value_loc(key), f"dim '{name}'", minimum=1)
+            if size is not None:
+                self.out.dims[name] = size
+
+    def check_rtpus(self, top: YMap) -> None:
+        if "rtpus" not in top:
+            return
+        value = top["rtpus"]
+        loc = top.value_loc("rtpus")
+        entries: list[tuple[Any, Location, Any, Location]] = []
+        if isinstance(value, YList):
+            entries = [(item, value.item_loc(i), None, value.item_loc(i)) for i, item in enumerate(value)]
+        elif isinstance(value, YMap):
+            entries = [(k, value.key_loc(k), v, value.value_loc(k)) for k, v in value.items()]
+        else:
+            self.error(
+                f"'rtpus' must be a list of names or a mapping of name to {{cpu: N}}, got: {describe(value)}",
+                loc,
+                "e.g. rtpus: [rtpu0, rtpu1] or rtpus: {rtpu0: {cpu: 0}}",
+            )
+            return
+        if not entries:
+            self.error("'rtpus' is empty: a subsystem needs at least one RTPU", location_of(value, loc), "e.g. rtpus: [rtpu0]")
+        rtpus: list[RtpuSpec] = []
+        for key, key_loc, spec, spec_loc in entries:
+            name = self.name(key, key_loc, "RTPU")
+            if name is None:
+                continue
+            if name in self.rtpu_names:
+                self.error(f"RTPU '{name}' is listed twice", key_loc)
+                continue
+            cpu = None
+            if spec is not None:
+                m = self.mapping(spec, spec_loc, f"RTPU '{name}'", "e.g. rtpu0: {cpu: 0}")
+                if m is not None:
+                    self.keys(m, RTPU_KEYS, (), f"in RTPU '{name}'", key_loc)
+                    if "cpu" in m and m["cpu"] is not None:
+                        cpu = self.integer(m["cpu"], m.value_loc("cpu"), f"cpu of RTPU '{name}'", minimum=0)
+            self.rtpu_names.add(name)
+            rtpus.append(RtpuSpec(name, len(rtpus), cpu, key_loc))
+        self.out.rtpus = tuple(rtpus)
+
+    def check_bus(self, top: YMap) -> None:
+        bus = self.section(top, "bus", "e.g. bus: {bandwidth: 40 MB/s, lock_overhead: 16 B}")
+        if bus is None:
+            return
+        self.keys(bus, BUS_KEYS, (), "in 'bus'", top.key_loc("bus"))
+        defaults = BusSpec()
+        bandwidth: float | None = defaults.bandwidth
+        overhead: float | None = defaults.lock_overhead
+        if "bandwidth" in bus:
+            bandwidth = self.quantity(bus["bandwidth"], bus.value_loc("bandwidth"), DATA_RATE, "bus bandwidth")
+        if "lock_overhead" in bus:
+            overhead = self.quantity(bus["lock_overhead"], bus.value_loc("lock_overhead"), SIZE, "bus lock_overhead", positive=False)
+        if bandwidth is not None and overhead is not None:
+            self.out.bus = BusSpec(bandwidth, overhead, bus.loc)
+
+    def check_plant(self, top: YMap) -> None:
+        plant = self.section(top, "plant", "e.g. plant: {model: puma560, timestep: 1 ms}")
+        if plant is None:
+            return
+        defaults = PlantSpec()
+        kind: str | None = defaults.type
+        model: str | None = defaults.model
+        timestep: float | None = defaults.timestep
+        if "type" in plant:
+            kind = self.text(plant["type"], plant.value_loc("type"), "plant type")
+        if "model" in plant:
+            model = self.text(plant["model"], plant.value_loc("model"), "plant model")
+        if "timestep" in plant:
+            timestep = self.quantity(plant["timestep"], plant.value_loc("timestep"), TIME, "plant timestep")
+        options = {k: plain(v) for k, v in plant.items() if k not in ("type", "model", "timestep")}
+        for key in options:
+            if not isinstance(key, str):
+                self.error(f"plant option names must be text, got: {describe(key)}", plant.key_loc(key))
+        if kind is not None and model is not None and timestep is not None:
+            self.out.plant = PlantSpec(kind, model, timestep, options, plant.loc)
+
+    def check_devices(self, top: YMap) -> None:
+        devices = self.section(top, "devices", "e.g. devices: {arm: {driver: mujoco_arm, exclusive: true}}")
+        if devices is None:
+            return
+        for key, value in devices.items():
+            key_loc = devices.key_loc(key)
+            name = self.name(key, key_loc, "device")
+            if name is None:
+                continue
+            self.device_names.add(name)
+            spec = self.mapping(value, devices.value_loc(key), f"device '{name}'", "e.g. arm: {driver: mujoco_arm, exclusive: true}")
+            if spec is None:
+                continue
+            if "driver" not in spec:
+                self.error(f"device '{name}' misses required key 'driver'", key_loc, "add 'driver: <name>' (a registered driver)")
+                continue
+            driver = self.text(spec["driver"], spec.value_loc("driver"), f"driver of device '{name}'")
+            exclusive: bool | None = False
+            if "exclusive" in spec:
+                exclusive = self.boolean(spec["exclusive"], spec.value_loc("exclusive"), f"'exclusive' of device '{name}'")
+            options = {k: plain(v) for k, v in spec.items() if k not in ("driver", "exclusive")}
+            bad = [k for k in options if not isinstance(k, str)]
+            for k in bad:
+                self.error(f"option names of device '{name}' must be text, got: {describe(k)}", spec.key_loc(k))
+            if driver is not None and exclusive is not None and not bad:
+                self.out.devices[name] = DeviceSpec(name, driver, exclusive, options, key_loc)
+
+    # --- variables --------------------------------------------------------------------------
+
+    def resolve_shape(self, value: Any, loc: Location, owner: str) -> tuple[int, ...] | None:
+        items: list[tuple[Any, Location]]
+        if isinstance(value, YList):
+            items = [(v, value.item_loc(i)) for i, v in enumerate(value)]
+        elif (isinstance(value, int) and not isinstance(value, bool)) or isinstance(value, str):
+            items = [(value, loc)]  # 'shape: 6' and 'shape: NDOF' mean one dimension
+        else:
+            self.error(
+                f"shape of {owner} must be a list of sizes or dim names, got: {describe(value)}",
+                location_of(value, loc),
+                "e.g. shape: [NDOF, 4]; leave shape out for a scalar",
+            )
+            return None
+        shape: list[int] = []
+        ok = True
+        for item, item_loc in items:
+            if isinstance(item, str):
+                if item in self.out.dims:
+                    shape.append(self.out.dims[item])
+                else:
+                    self.error(
+                        f"shape of {owner} uses dim '{item}', which 'dims' does not define",
+                        item_loc,
+                        did_you_mean(item, self.out.dims, "defined"),
+                    )
+                    ok = False
+            elif isinstance(item, int) and not isinstance(item, bool) and item >= 1:
+                shape.append(item)
+            else:
+                self.error(f"shape of {owner}: each size must be an integer >= 1 or a dim name, got: {describe(item)}", item_loc)
+                ok = False
+        return tuple(shape) if ok else None
+
+    def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str) -> np.ndarray | None:
+        """A value for a variable (initial or a job's argument) as an array, or an error."""
+        if isinstance(value, dict):
+            self.error(f"{what} must be a number or a list, got: a mapping", location_of(value, loc))
+            return None
+        found = _nested_shape(value)
+        if found is None:
+            self.error(
+                f"{what} is a ragged list; rows must have equal lengths",
+                location_of(value, loc),
+                f"give a nested list of shape {_show_shape(shape)}",
+            )
+            return None
+        if isinstance(value, list) and found != shape:
+            self.error(
+                f"{what} has shape {_show_shape(found)}, but the variable's shape is {_show_shape(shape)}",
+                location_of(value, loc),
+                f"give a nested list of shape {_show_shape(shape)}, or one number for every element",
+            )
+            return None
+        leaves = list(_leaves(value))
+        for leaf in leaves:
+            problem = _leaf_problem(leaf, dtype)
+            if problem:
+                self.error(f"{what}: {problem}", location_of(value, loc))
+                return None
+        try:
+            return np.broadcast_to(np.asarray(leaves if not isinstance(value, list) else value, dtype=dtype).reshape(found), shape).copy()
+        except (ValueError, TypeError, OverflowError) as exc:
+            self.error(f"{what} cannot be stored as {dtype}: {exc}", location_of(value, loc))
+            return None
+
+    def check_variables(self, top: YMap) -> None:
+        variables = self.section(top, "variables", "e.g. variables: {q_m: {type: float64, shape: [NDOF]}}")
+        if variables is None:
+            return
+        for key, value in variables.items():
+            key_loc = variables.key_loc(key)
+            name = self.name(key, key_loc, "variable")
+            if name is None:
+                continue
+            self.var_locs[name] = key_loc
+            spec = self.mapping(value, variables.value_loc(key), f"variable '{name}'", "e.g. q_m: {type: float64, shape: [NDOF]}")
+            if spec is None:
+                continue
+            where = f"in variable '{name}'"
+            self.keys(spec, VARIABLE_KEYS, ("type",), where, key_loc)
+            dtype: str | None = None
+            if "type" in spec:
+                type_loc = spec.value_loc("type")
+                raw = self.text(spec["type"], type_loc, f"type of variable '{name}'")
+                if raw is not None and raw not in DTYPES:
+                    self.error(f"variable '{name}' has unknown type '{raw}'", type_loc, did_you_mean(raw, DTYPES))
+                elif raw is not None:
+                    dtype = str(np.dtype(raw))
+            shape: tuple[int, ...] | None = ()
+            if "shape" in spec and spec["shape"] is not None:
+                shape = self.resolve_shape(spec["shape"], spec.value_loc("shape"), f"variable '{name}'")
+            doc = ""
+            if "doc" in spec and spec["doc"] is not None:
+                doc = self.text(spec["doc"], spec.value_loc("doc"), f"doc of variable '{name}'") or ""
+            obj: str | None = None
+            if "object" in spec:
+                obj = self.text(spec["object"], spec.value_loc("object"), f"object type of variable '{name}'")
+                if obj is not None:
+                    self.var_object[name] = obj
+            if "initial" in spec:
+                self.var_initial.add(name)
+                if dtype is not None and shape is not None:
+                    initial = self.check_value(
+                        spec["initial"], spec.value_loc("initial"), dtype, shape, f"initial value of variable '{name}'"
+                    )
+                    if initial is not None:
+                        self.out.initial_values[name] = initial
+            if dtype is None or shape is None:
+                continue
+            self.var_ok.add(name)
+            initial = self.out.initial_values.get(name)
+            if initial is not None:
+                initial = initial.copy()
+                initial.setflags(write=False)
+            self.out.variables[name] = VariableSpec(name, len(self.out.variables), dtype, shape, doc, obj, key_loc, initial)
+
+    # --- tasks ------------------------------------------------------------------------------
+
+    def known_modules(self) -> list[str] | None:
+        if self.module_names is None:
+            return None
+        try:
+            return list(self.module_names())
+        except Exception:  # a broken registry must not hide the user's mistake
+            return None
+
+    def check_tasks(self, top: YMap) -> None:
+        tasks = self.section(top, "tasks", "e.g. tasks: {pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}}")
+        if tasks is None:
+            return
+        for index, (key, value) in enumerate(tasks.items()):
+            key_loc = tasks.key_loc(key)
+            name = self.name(key, key_loc, "task")
+            if name is None:
+                continue
+            self.task_names.add(name)
+            spec = self.mapping(value, tasks.value_loc(key), f"task '{name}'", "e.g. pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}")
+            if spec is None:
+                continue
+            task = _Task(name, index, key_loc)
+            self.tasks[name] = task
+            self.keys(spec, TASK_KEYS, ("module", "rtpu"), f"in task '{name}'", key_loc)
+            complete = self.check_task_fields(task, spec)
+            module_class = self.check_task_module(task, spec)
+            if module_class is not None:
+                params_ok = self.check_task_params(task, spec, module_class)
+                if not params_ok:
+                    complete = False
+                task.ok = self.check_task_ports(task, spec, module_class)
+            if complete and task.ok:
+                self.out.tasks[name] = TaskSpec(
+                    name,
+                    task.module,
+                    task.rtpu,
+                    task.period,
+                    task.priority,
+                    task.critical,
+                    task.params,
+                    tuple(PortBinding(b.port, b.variable, b.shape) for b in task.bindings),
+                    tuple(r for r, _ in task.resources),
+                    index,
+                    key_loc,
+                )
+
+    def check_task_fields(self, task: _Task, spec: YMap) -> bool:
+        """rtpu, period/rate, priority, critical, resources; False if any is wrong."""
+        ok = True
+        name = task.name
+        if "rtpu" in spec:
+            loc = spec.value_loc("rtpu")
+            rtpu = self.text(spec["rtpu"], loc, f"rtpu of task '{name}'")
+            if rtpu is not None and rtpu not in self.rtpu_names:
+                self.error(f"task '{name}' runs on RTPU '{rtpu}', which 'rtpus' does not declare", loc, did_you_mean(rtpu, self.rtpu_names, "declared"))
+                ok = False
+            elif rtpu is None:
+                ok = False
+            else:
+                task.rtpu = rtpu
+        else:
+            ok = False
+        if "period" in spec and "rate" in spec:
+            self.error(
+                f"task '{name}' gives both a period and a rate",
+                spec.key_loc("rate"),
+                "give one of them: period: 1 ms or rate: 1 kHz",
+            )
+            ok = False
+        elif "period" in spec:
+            period = self.quantity(spec["period"], spec.value_loc("period"), TIME, f"period of task '{name}'")
+            ok = ok and period is not None
+            task.period = period or 0.0
+        elif "rate" in spec:
+            rate = self.quantity(spec["rate"], spec.value_loc("rate"), FREQUENCY, f"rate of task '{name}'")
+            ok = ok and rate is not None
+            task.period = 1.0 / rate if rate else 0.0
+        else:
+            self.error(
+                f"task '{name}' needs a period or a rate",
+                task.loc,
+                "add e.g. 'period: 1 ms' or 'rate: 1 kHz' (aperiodic tasks are not supported yet)",
+            )
+            ok = False
+        if "priority" in spec:
+            priority = self.integer(spec["priority"], spec.value_loc("priority"), f"priority of task '{name}'")
+            ok = ok and priority is not None
+            task.priority = priority or 0
+        if "critical" in spec:
+            critical = self.boolean(spec["critical"], spec.value_loc("critical"), f"'critical' of task '{name}'")
+            ok = ok and critical is not None
+            task.critical = bool(critical)
+        if "resources" in spec and spec["resources"] is not None:
+            value = spec["resources"]
+            loc = spec.value_loc("resources")
+            if not isinstance(value, YList):
+                self.error(f"resources of task '{name}' must be a list of device names, got: {describe(value)}", location_of(value, loc), "e.g. resources: [arm]")
+                return False
+            seen: set[str] = set()
+            for i, item in enumerate(value):
+                item_loc = value.item_loc(i)
+                device = self.text(item, item_loc, f"resource of task '{name}'")
+                if device is None:
+                    ok = False
+                elif device not in self.device_names:
+                    self.error(f"task '{name}' uses device '{device}', which 'devices' does not declare", item_loc, did_you_mean(device, self.device_names, "declared"))
+                    ok = False
+                elif device in seen:
+                    self.error(f"task '{name}' lists device '{device}' twice", item_loc)
+                    ok = False
+                else:
+                    seen.add(device)
+                    task.resources.append((device, item_loc))
+        return ok
+
+    def check_task_module(self, task: _Task, spec: YMap) -> Any:
+        if "module" not in spec:
+            return None
+        loc = spec.value_loc("module")
+        module = self.text(spec["module"], loc, f"module of task '{task.name}'")
+        if module is None:
+            return None
+        task.module = module
+        try:
+            module_class = self.module_lookup(module)
+        except Exception as exc:  # ModuleError, or a library that fails to import
+            known = self.known_modules()
+            hint = did_you_mean(module, known, "registered") if known is not None else str(exc)
+            self.error(f"task '{task.name}' uses module '{module}', which is not registered", loc, hint)
+            return None
+        return module_class
+
+    def module_ports(self, task: _Task, module_class: Any, loc: Location) -> tuple[PortSpec, ...] | None:
+        try:
+            # ports may depend on params (a data logger's inputs); without valid params, the class's
+            built = getattr(task, "built_params", None)
+            ports = tuple(module_class.ports_for(built) if built is not None else module_class.ports())
+        except Exception as exc:  # the module is broken, not the YAML; say so
+            self.error(f"module '{task.module}' of task '{task.name}' cannot list its ports: {exc!r}", loc)
+            return None
+        return ports
+
+    def check_task_ports(self, task: _Task, spec: YMap, module_class: Any) -> bool:
+        name = task.name
+        ports = self.module_ports(task, module_class, spec.value_loc("module"))
+        if ports is None:
+            return False
+        declared = {p.name: p for p in ports}
+        links: dict[str, tuple[str, Location]] = {}
+        ok = True
+        if "ports" in spec and spec["ports"] is not None:
+            m = self.mapping(spec["ports"], spec.value_loc("ports"), f"ports of task '{name}'", "e.g. ports: {tau: tau_u}")
+            if m is None:
+                ok = False
+            else:
+                for port_name, var in m.items():
+                    if port_name not in declared:
+                        self.error(
+                            f"module '{task.module}' of task '{name}' has no port '{port_name}'",
+                            m.key_loc(port_name),
+                            did_you_mean(port_name, declared, "ports"),
+                        )
+                        ok = False
+                        continue
+                    var_name = self.text(var, m.value_loc(port_name), f"variable of port '{port_name}' of task '{name}'")
+                    if var_name is None:
+                        ok = False
+                        continue
+                    links[port_name] = (var_name, m.value_loc(port_name))
+        for port in ports:
+            explicit = port.name in links
+            var, loc = links.get(port.name, (port.variable, task.loc))
+            if var not in self.var_locs:
+                if explicit:
+                    self.error(
+                        f"task '{name}' links port '{port.name}' to variable '{var}', which 'variables' does not declare",
+                        loc,
+                        did_you_mean(var, self.var_locs, "declared"),
+                    )
+                else:
+                    self.error(
+                        f"task '{name}' (module '{task.module}') links port '{port.name}' by default to variable '{var}', "
+                        "which 'variables' does not declare",
+                        loc,
+                        f"declare '{var}' under variables, or link the port with ports: {{{port.name}: <variable>}}; "
+                        + did_you_mean(var, self.var_locs, "declared"),
+                    )
+                ok = False
+                continue
+            if var not in self.var_ok:
+                ok = False  # the variable itself is wrong and was reported
+                continue
+            variable = self.out.variables[var]
+            if port.dtype == ANY_DTYPE:  # a port that takes whatever its variable is
+                port = PortSpec(port.name, port.kind, port.variable, variable.dtype,
+                                variable.shape if port.shape is None else port.shape, port.doc)
+            try:
+                shape = port.resolved_shape(self.out.dims, variable.shape)
+            except KeyError as exc:
+                self.error(
+                    f"port '{port.name}' of module '{task.module}' (task '{name}') has shape {_show_shape(port.shape)} "
+                    f"with dim {exc}, which 'dims' does not define",
+                    loc,
+                    did_you_mean(str(exc.args[0]), self.out.dims, "defined"),
+                )
+                ok = False
+                continue
+            except (TypeError, ValueError) as exc:
+                self.error(f"port '{port.name}' of module '{task.module}' has a bad shape {port.shape!r}: {exc}", loc)
+                ok = False
+                continue
+            if port.dtype != variable.dtype:
+                self.error(
+                    f"task '{name}' port '{port.name}' ({port.kind.value}) is {port.dtype}, but variable '{var}' is {variable.dtype}",
+                    loc,
+                    f"change the type of '{var}' (line {variable.loc.line}) or link the port to a {port.dtype} variable",
+                )
+                ok = False
+                continue
+            if shape != variable.shape:
+                named = "" if shape == port.shape else f" = {_show_shape(port.shape)}"
+                self.error(
+                    f"task '{name}' port '{port.name}' ({port.kind.value}) has shape {_show_shape(shape)}{named}, "
+                    f"but variable '{var}' has shape {_show_shape(variable.shape)}",
+                    loc,
+                    f"change the shape of '{var}' (line {variable.loc.line}) or link the port to a variable of shape {_show_shape(shape)}",
+                )
+                ok = False
+                continue
+            task.bindings.append(_Binding(port, var, shape, loc))
+        return ok
+
+    def check_task_params(self, task: _Task, spec: YMap, module_class: Any) -> bool:
+        raw = spec.get("params")
+        loc = spec.value_loc("params") if "params" in spec else task.loc
+        if raw is not None and not isinstance(raw, YMap):
+            self.error(f"params of task '{task.name}' must be a mapping, got: {describe(raw)}", location_of(raw, loc), "e.g. params: {kp: 400, kd: 40}")
+            return False
+        values = plain(raw) if raw is not None else {}
+        try:
+            task.built_params = module_class.build_params(values)
+        except ParamError as exc:
+            self.error(f"params of task '{task.name}' (module '{task.module}'): {exc}", location_of(raw, loc))
+            return False
+        except Exception as exc:  # a module's own validation may raise anything
+            self.error(f"params of task '{task.name}' (module '{task.module}') were refused: {exc!r}", location_of(raw, loc))
+            return False
+        task.params = values
+        return True
+
+    # --- configurations, jobs, applications --------------------------------------------------
+
+    def check_configurations(self, top: YMap) -> None:
+        configs = self.section(top, "configurations", "e.g. configurations: {joint_pid: [robot, pid]}")
+        if configs is None:
+            return
+        for key, value in configs.items():
+            key_loc = configs.key_loc(key)
+            name = self.name(key, key_loc, "configuration")
+            if name is None:
+                continue
+            self.config_names.add(name)
+            loc = configs.value_loc(key)
+            if not isinstance(value, YList):
+                self.error(f"configuration '{name}' must be a list of task names, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [robot, pid]")
+                continue
+            members: list[tuple[str, Location]] = []
+            first: dict[str, Location] = {}
+            ok = True
+            for i, item in enumerate(value):
+                item_loc = value.item_loc(i)
+                task = self.text(item, item_loc, f"task of configuration '{name}'")
+                if task is None:
+                    ok = False
+                    continue
+                if task not in self.task_names:
+                    self.error(f"configuration '{name}' names task '{task}', which 'tasks' does not declare", item_loc, did_you_mean(task, self.task_names, "declared"))
+                    ok = False
+                    continue
+                if task in first:
+                    self.error(
+                        f"task '{task}' appears twice in configuration '{name}' (first at line {first[task].line}, column {first[task].column})",
+                        item_loc,
+                        "a task runs at most once in a configuration; to run its module twice, declare a second task",
+                    )
+                    ok = False
+                    continue
+                first[task] = item_loc
+                members.append((task, item_loc))
+            self.config_members[name] = members
+            if ok:
+                self.out.configurations[name] = ConfigurationSpec(name, tuple(t for t, _ in members), key_loc)
+
+    def check_data_flow(self, config: str) -> None:
+        """Inputs have one writer; no variable two; consts come from init-time writers; exclusive devices."""
+        members = [self.tasks[t] for t, _ in self.config_members.get(config, []) if t in self.tasks]
+        # A task with an unresolved port may be the missing writer: report no "nobody writes it"
+        # errors then, only what the resolved links prove.
+        complete = all(t.ok for t in members) and len(members) == len(self.config_members.get(config, []))
+        writers: dict[str, list[tuple[_Task, _Binding]]] = {}
+        for task in members:
+            for b in task.bindings:
+                if not b.port.kind.is_input:
+                    writers.setdefault(b.variable, []).append((task, b))
+        for var, ws in writers.items():
+            if len(ws) > 1:
+                detail = _and_list([f"'{t.name}' (line {b.loc.line})" for t, b in ws])
+                count = "two" if len(ws) == 2 else str(len(ws))
+                self.error(f"variable '{var}' has {count} writers in configuration '{config}': {detail}", ws[1][1].loc, _JOIN_HINT)
+        job_written = set(self.var_object) | self.var_initial
+        written = sorted(set(writers) | job_written)
+        for task in members:
+            for b in task.bindings:
+                if not b.port.kind.is_input:
+                    continue
+                ws = writers.get(b.variable, [])
+                kind = b.port.kind.value
+                if not ws and b.variable not in job_written:
+                    if not complete:
+                        continue
+                    self.error(
+                        f"task '{task.name}' reads {kind} '{b.variable}', but no task in configuration '{config}' writes it",
+                        b.loc,
+                        (did_you_mean(b.variable, written, "written") if written else "nothing is written")
+                        + f"; add a task that writes '{b.variable}', or give it an initial: value",
+                    )
+                    continue
+                if not b.port.kind.needs_initial_value or b.variable in self.var_initial:
+                    continue
+                if ws and not any(w.port.kind.supplies_initial_value for _, w in ws):
+                    w_task, w_binding = ws[0]
+                    self.error(
+                        f"task '{task.name}' reads {kind} '{b.variable}' before its init, but its writer '{w_task.name}' "
+                        f"in configuration '{config}' writes it as {w_binding.port.kind.value} (only after each cycle)",
+                        b.loc,
+                        f"make port '{w_binding.port.name}' of module '{w_task.module}' out-const or out-both, "
+                        f"or give variable '{b.variable}' an initial: value",
+                    )
+                elif not ws and complete:
+                    self.error(
+                        f"task '{task.name}' reads {kind} '{b.variable}' before its init, but in configuration '{config}' "
+                        "only job control sets it, as a job's object, after tasks are spawned",
+                        b.loc,
+                        f"give variable '{b.variable}' an initial: value",
+                    )
+        users: dict[str, list[tuple[_Task, Location]]] = {}
+        for task in members:
+            for device, loc in task.resources:
+                spec = self.out.devices.get(device)
+                if spec is not None and spec.exclusive:
+                    users.setdefault(device, []).append((task, loc))
+        for device, us in users.items():
+            if len(us) > 1:
+                detail = _and_list([f"'{t.name}' (line {loc.line})" for t, loc in us])
+                self.error(
+                    f"device '{device}' is exclusive, but configuration '{config}' gives it to {detail}",
+                    us[1][1],
+                    "an exclusive device has one user per configuration; move one task to another configuration, "
+                    "or set exclusive: false if the driver can be shared",
+                )
+
+    def check_const_order(self) -> None:
+        """Producers of consts start before their readers, across every task; a cycle is an error."""
+        tasks = [t for t in self.tasks.values() if t.ok]
+        producers: dict[str, list[_Task]] = {}
+        for task in tasks:
+            for b in task.bindings:
+                if b.port.kind.supplies_initial_value:
+                    producers.setdefault(b.variable, []).append(task)
+        graph: dict[str, set[str]] = {t.name: set() for t in tasks}
+        via: dict[tuple[str, str], str] = {}
+        for task in tasks:
+            for b in task.bindings:
+                if b.port.kind.needs_initial_value:
+                    for producer in producers.get(b.variable, []):
+                        graph[task.name].add(producer.name)
+                        via.setdefault((producer.name, task.name), b.variable)
+        sorter = graphlib.TopologicalSorter(graph)
+        try:
+            sorter.prepare()
+        except graphlib.CycleError as exc:
+            cycle: list[str] = list(exc.args[1])
+            links = "; ".join(
+                f"'{a}' writes '{via.get((a, b), '?')}' that '{b}' reads before its init" for a, b in zip(cycle, cycle[1:])
+            )
+            self.error(
+                f"const dependencies form a cycle: {' -> '.join(cycle)}",
+                self.tasks[cycle[0]].loc,
+                f"{links}; break the cycle by making one of these ports a var (in-var/out-var)",
+            )
+            return
+        index = {t.name: t.index for t in tasks}
+        ready: list[tuple[int, str]] = []
+        order: list[str] = []
+        while sorter.is_active():
+            for name in sorter.get_ready():
+                heapq.heappush(ready, (index[name], name))
+            _, name = heapq.heappop(ready)
+            order.append(name)
+            sorter.done(name)
+        self.out.init_order = tuple(order)
+
+    def check_expression(self, value: Any, loc: Location, what: str) -> str | None:
+        text = self.text(value, loc, what)
+        if text is None:
+            return None
+        try:
+            tree = ast.parse(text, mode="eval")
+        except SyntaxError as exc:
+            self.error(f"{what} is not an expression: {exc.msg}: {text!r}", loc, 'e.g. "max(abs(q_m - q_d)) < 1e-3"')
+            return None
+        self.expression_names.update(n.id for n in ast.walk(tree) if isinstance(n, ast.Name))
+        return text
+
+    def check_jobs(self, top: YMap) -> None:
+        jobs = self.section(top, "jobs", "e.g. jobs: {move: {configuration: joint_pid, object: q_d}}")
+        if jobs is None:
+            return
+        for key, value in jobs.items():
+            key_loc = jobs.key_loc(key)
+            name = self.name(key, key_loc, "job")
+            if name is None:
+                continue
+            self.job_names.add(name)
+            spec = self.mapping(value, jobs.value_loc(key), f"job '{name}'", "e.g. move: {configuration: joint_pid, object: q_d}")
+            if spec is None:
+                continue
+            self.keys(spec, JOB_KEYS, ("configuration",), f"in job '{name}'", key_loc)
+            ok = "configuration" in spec
+            config = None
+            if "configuration" in spec:
+                loc = spec.value_loc("configuration")
+                config = self.text(spec["configuration"], loc, f"configuration of job '{name}'")
+                if config is not None and config not in self.config_names:
+                    self.error(f"job '{name}' runs configuration '{config}', which 'configurations' does not declare", loc, did_you_mean(config, self.config_names, "declared"))
+                    ok = False
+                ok = ok and config is not None
+            obj = None
+            if "object" in spec and spec["object"] is not None:
+                loc = spec.value_loc("object")
+                obj = self.text(spec["object"], loc, f"object of job '{name}'")
+                if obj is not None and obj not in self.var_locs:
+                    self.error(f"job '{name}' takes object '{obj}', which 'variables' does not declare", loc, did_you_mean(obj, self.var_object or self.var_locs, "objects"))
+                    ok = False
+                elif obj is not None and obj not in self.var_object:
+                    self.error(
+                        f"job '{name}' takes variable '{obj}' as its object, but the variable is not marked as an object",
+                        loc,
+                        f"add 'object: <type>' to variable '{obj}' (line {self.var_locs[obj].line})",
+                    )
+                    ok = False
+                ok = ok and obj is not None
+            pre = post = None
+            if "pre" in spec and spec["pre"] is not None:
+                pre = self.check_expression(spec["pre"], spec.value_loc("pre"), f"pre-condition of job '{name}'")
+                ok = ok and pre is not None
+            if "post" in spec and spec["post"] is not None:
+                post = self.check_expression(spec["post"], spec.value_loc("post"), f"post-condition of job '{name}'")
+                ok = ok and post is not None
+            timeout = None
+            if "timeout" in spec and spec["timeout"] is not None:
+                timeout = self.quantity(spec["timeout"], spec.value_loc("timeout"), TIME, f"timeout of job '{name}'")
+                ok = ok and timeout is not None
+            if ok and config is not None:
+                self.out.jobs[name] = JobSpec(name, config, obj, pre, post, timeout, key_loc)
+
+    def check_applications(self, top: YMap) -> None:
+        apps = self.section(top, "applications", "e.g. applications: {demo: [move, {move: {q_d: [0, 0, 0]}}]}")
+        if apps is None:
+            return
+        for key, value in apps.items():
+            key_loc = apps.key_loc(key)
+            name = self.name(key, key_loc, "application")
+            if name is None:
+                continue
+            loc = apps.value_loc(key)
+            if not isinstance(value, YList):
+                self.error(f"application '{name}' must be a list of job steps, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [move, {{move: {{q_d: [0, 0, 0]}}}}]")
+                continue
+            steps: list[ApplicationStep] = []
+            ok = True
+            for i, item in enumerate(value):
+                step = self.check_step(name, i + 1, item, value.item_loc(i))
+                if step is None:
+                    ok = False
+                else:
+                    steps.append(step)
+            if ok:
+                self.out.applications[name] = ApplicationSpec(name, tuple(steps), key_loc)
+
+    def check_step(self, app: str, number: int, item: Any, loc: Location) -> ApplicationStep | None:
+        args: Any = None
+        args_loc = loc
+        if isinstance(item, str):
+            job = item
+        elif isinstance(item, YMap) and len(item) == 1:
+            key = next(iter(item))
+            job_name = self.text(key, item.key_loc(key), f"job of step {number} of application '{app}'")
+            if job_name is None:
+                return None
+            job = job_name
+            loc = item.key_loc(key)
+            args = item[key]
+            args_loc = item.value_loc(key)
+        else:
+            self.error(
+                f"step {number} of application '{app}' must be a job name or {{job: {{object: value}}}}, got: {describe(item)}",
+                location_of(item, loc),
+                "e.g. - move: {q_d: [0, -0.5, 0.5, 0, 0, 0]}",
+            )
+            return None
+        if job not in self.job_names:
+            self.error(f"step {number} of application '{app}' runs job '{job}', which 'jobs' does not declare", loc, did_you_mean(job, self.job_names, "declared"))
+            return None
+        spec = self.out.jobs.get(job)
+        arguments: dict[str, Any] = {}
+        if args is not None:
+            m = self.mapping(args, args_loc, f"arguments of job '{job}' in application '{app}'", "e.g. move: {q_d: [0, 0, 0]}")
+            if m is None:
+                return None
+            for var, val in m.items():
+                var_loc = m.key_loc(var)
+                if spec is not None and var != spec.object:
+                    expected = f"its object is '{spec.object}'" if spec.object else "it takes no object"
+                    self.error(f"step {number} of application '{app}' gives '{var}' to job '{job}', but {expected}", var_loc)
+                    return None
+                variable = self.out.variables.get(str(var))
+                if variable is None:
+                    return None  # the job's own object is wrong, and was reported there
+                array = self.check_value(val, m.value_loc(var), variable.dtype, variable.shape, f"object '{var}' of step {number} of application '{app}'")
+                if array is None:
+                    return None
+                arguments[str(var)] = plain(val)
+        if spec is not None and spec.object and spec.object not in arguments:
+            self.warn(
+                f"step {number} of application '{app}' runs job '{job}' without its object '{spec.object}' "
+                f"(type {self.var_object.get(spec.object, '?')}): the application is incomplete and cannot run",
+                loc,
+                f"give it as '- {job}: {{{spec.object}: <value>}}'",
+            )
+        return ApplicationStep(job, arguments, loc)
+
+    def check_unused(self) -> None:
+        in_a_config = {t for members in self.config_members.values() for t, _ in members}
+        for task in self.tasks.values():
+            if task.name not in in_a_config:
+                self.warn(f"task '{task.name}' is in no configuration", task.loc, "it is spawned but never turned on; add it to a configuration or remove it")
+        if any(not t.ok for t in self.tasks.values()):
+            return  # who reads what is unknown while a task's ports are unknown
+        read = {b.variable for t in self.tasks.values() for b in t.bindings if b.port.kind.is_input}
+        for name, loc in self.var_locs.items():
+            if name not in read and name not in self.expression_names:
+                self.warn(f"variable '{name}' is read by no task", loc, "remove it, or link a task's input port to it")
+
+
+def _nested_shape(value: Any) -> tuple[int, ...] | None:
+    """The shape of a nested list, () for a scalar, None if ragged."""
+    if not isinstance(value, list):
+        return ()
+    if not value:
+        return (0,)
+    inner = [_nested_shape(v) for v in value]
+    if any(s is None or s != inner[0] for s in inner):
+        return None
+    first = inner[0]
+    assert first is not None
+    return (len(value), *first)
+
+
+def _leaves(value: Any) -> Iterable[Any]:
+    if isinstance(value, list):
+        for v in value:
+            yield from _leaves(v)
+    else:
+        yield value
+
+
+_INT_RANGE = {"int32": (-(2**31), 2**31 - 1), "int64": (-(2**63), 2**63 - 1), "uint8": (0, 255)}
+
+
+def _leaf_problem(leaf: Any, dtype: str) -> str:
+    if dtype == "bool":
+        return "" if isinstance(leaf, bool) else f"bool elements must be true or false, got: {describe(leaf)}"
+    if isinstance(leaf, bool) or not isinstance(leaf, (int, float)):
+        return f"{dtype} elements must be numbers, got: {describe(leaf)}"
+    if dtype in _INT_RANGE:
+        if not isinstance(leaf, int):
+            return f"{dtype} elements must be integers, got: {describe(leaf)}"
+        low, high = _INT_RANGE[dtype]
+        if not low <= leaf <= high:
+            return f"{dtype} elements must lie in [{low}, {high}], got: {leaf}"
+    return ""
+
+
+def check_document(
+    doc: Any,
+    file: str,
+    module_lookup: ModuleLookup,
+    module_names: Callable[[], Iterable[str]] | None = None,
+) -> Checked:
+    """Check a loaded document; never raises for anything in the document."""
+    checker = _Checker(file, module_lookup, module_names)
+    doc_loc = Location(file, 1, 1) if file else NOWHERE
+    try:
+        return checker.run(doc, doc_loc)
+    except Exception as exc:  # a bug here must still end as a message, never a traceback for the user
+        checker.error(
+            f"internal error in the checker: {exc!r}",
+            doc_loc,
+            "please report this with the file you checked",
+        )
+        return checker.out

@@ -1,0 +1,254 @@
+"""Safe YAML loading into plain values that remember where every node was written.
+
+The checker reports each mistake at `file:line:col`, so every mapping, key, sequence and
+scalar keeps its `Location` (1-based). Mappings load as `YMap` (a dict) and sequences as
+`YList` (a list); scalars are plain Python values whose location their container keeps.
+Only the safe YAML constructors run (`yaml.SafeLoader`); anything else is a ConfigError.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Iterable
+
+import yaml
+
+from pbo_runtime._config_model import Location
+from pbo_runtime._errors import ConfigError
+
+# Aliases can expand a small file into a huge tree ("billion laughs"); a subsystem never needs this many.
+MAX_NODES = 200_000
+
+_MAP_TAG = "tag:yaml.org,2002:map"
+_SEQ_TAG = "tag:yaml.org,2002:seq"
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+
+
+class YMap(dict):  # type: ignore[type-arg]
+    """A YAML mapping: a dict that knows where it, each key and each value were written."""
+
+    def __init__(self, loc: Location) -> None:
+        super().__init__()
+        self.loc = loc
+        self._key_locs: dict[Any, Location] = {}
+        self._value_locs: dict[Any, Location] = {}
+
+    def put(self, key: Any, value: Any, key_loc: Location, value_loc: Location) -> None:
+        self[key] = value
+        self._key_locs[key] = key_loc
+        self._value_locs[key] = value_loc
+
+    def key_loc(self, key: Any) -> Location:
+        return self._key_locs.get(key, self.loc)
+
+    def value_loc(self, key: Any) -> Location:
+        return self._value_locs.get(key, self.loc)
+
+
+class YList(list):  # type: ignore[type-arg]
+    """A YAML sequence: a list that knows where it and each item were written."""
+
+    def __init__(self, loc: Location) -> None:
+        super().__init__()
+        self.loc = loc
+        self._item_locs: list[Location] = []
+
+    def add(self, value: Any, loc: Location) -> None:
+        self.append(value)
+        self._item_locs.append(loc)
+
+    def item_loc(self, index: int) -> Location:
+        if 0 <= index < len(self._item_locs):
+            return self._item_locs[index]
+        return self.loc
+
+
+def location_of(value: Any, default: Location) -> Location:
+    """Where a value was written: its own location if it is a container, else `default`."""
+    return value.loc if isinstance(value, (YMap, YList)) else default
+
+
+def plain(value: Any) -> Any:
+    """The same value as ordinary dicts and lists (for specs handed to the runtime)."""
+    if isinstance(value, dict):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [plain(v) for v in value]
+    return value
+
+
+def load_file(path: str | os.PathLike[str], display: str | None = None) -> Any:
+    """Load one YAML file; `display` is the name messages use (default: the path as given)."""
+    name = display if display is not None else os.fspath(path)
+    try:
+        with open(path, "rb") as stream:
+            data = stream.read()
+    except IsADirectoryError:
+        raise ConfigError("is a directory, not a YAML file", name) from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read file: {exc.strerror or exc}", name) from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        before = data[: exc.start].decode("utf-8", "replace")
+        line, column = _line_col(before, len(before))
+        raise ConfigError(
+            f"not UTF-8 text: byte 0x{data[exc.start]:02x} cannot be decoded",
+            name,
+            line,
+            column,
+            "a configuration is a UTF-8 text file; is this a binary file?",
+        ) from None
+    return load_text(text, name)
+
+
+def load_text(text: str, file: str = "<string>") -> Any:
+    """Load YAML text into YMap/YList/scalars, or raise ConfigError at the offending mark."""
+    loader: yaml.SafeLoader | None = None
+    try:
+        try:
+            loader = yaml.SafeLoader(text)  # the reader rejects unprintable characters right here
+            node = loader.get_single_node()
+            if node is None:
+                return None
+            return _Builder(loader, file).build(node)
+        except yaml.MarkedYAMLError as exc:
+            raise _marked_error(exc, file) from None
+        except yaml.reader.ReaderError as exc:
+            line, column = _line_col(text, exc.position)
+            code = exc.character if isinstance(exc.character, int) else ord(str(exc.character)[:1] or "\0")
+            raise ConfigError(
+                f"invalid character U+{code:04X} in YAML: {exc.reason}",
+                file,
+                line,
+                column,
+                "a configuration is printable UTF-8 text; is this a binary file?",
+            ) from None
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"invalid YAML: {exc}", file, 1, 1) from None
+        except RecursionError:
+            raise ConfigError("YAML is nested too deeply to be a configuration", file, 1, 1) from None
+    finally:
+        if loader is not None:
+            loader.dispose()
+
+
+def _marked_error(exc: yaml.MarkedYAMLError, file: str) -> ConfigError:
+    mark = exc.problem_mark or exc.context_mark
+    line, column = (mark.line + 1, mark.column + 1) if mark is not None else (1, 1)
+    problem = exc.problem or "invalid YAML"
+    hint = ""
+    if exc.context:
+        hint = exc.context
+        if exc.context_mark is not None and exc.context_mark is not mark:
+            hint += f" (line {exc.context_mark.line + 1}, column {exc.context_mark.column + 1})"
+    if "'\\t'" in problem or "tab" in problem:
+        hint = (hint + "; " if hint else "") + "YAML indents with spaces, not tabs"
+    return ConfigError(f"invalid YAML: {problem}", file, line, column, hint)
+
+
+def _line_col(text: str, position: int) -> tuple[int, int]:
+    before = text[:position]
+    line = before.count("\n") + 1
+    column = position - (before.rfind("\n") + 1) + 1
+    return line, column
+
+
+class _Builder:
+    """Turns a composed node graph into YMap/YList/scalars, keeping each node's location."""
+
+    def __init__(self, loader: yaml.SafeLoader, file: str) -> None:
+        self._loader = loader
+        self._file = file
+        self._count = 0
+        self._active: set[int] = set()
+
+    def loc(self, node: yaml.Node) -> Location:
+        mark = node.start_mark
+        return Location(self._file, mark.line + 1, mark.column + 1)
+
+    def build(self, node: yaml.Node) -> Any:
+        self._count += 1
+        if self._count > MAX_NODES:
+            raise ConfigError(
+                f"YAML expands to more than {MAX_NODES} values (through aliases?)",
+                self._file,
+                *self._line_col(node),
+                "a configuration this large is a mistake; check anchors (&) and aliases (*)",
+            )
+        if isinstance(node, yaml.ScalarNode):
+            try:
+                return self._loader.construct_object(node, deep=True)
+            except (ValueError, TypeError, OverflowError) as exc:  # e.g. a date like 2024-02-30
+                raise ConfigError(f"cannot read value {node.value!r}: {exc}", self._file, *self._line_col(node)) from None
+        if id(node) in self._active:
+            raise ConfigError("an alias refers to a node that contains it (a recursive structure)", self._file, *self._line_col(node))
+        self._active.add(id(node))
+        try:
+            if isinstance(node, yaml.SequenceNode):
+                return self._sequence(node)
+            if isinstance(node, yaml.MappingNode):
+                return self._mapping(node)
+        finally:
+            self._active.discard(id(node))
+        raise ConfigError(f"unexpected YAML node {type(node).__name__}", self._file, *self._line_col(node))
+
+    def _line_col(self, node: yaml.Node) -> tuple[int, int]:
+        loc = self.loc(node)
+        return loc.line, loc.column
+
+    def _check_tag(self, node: yaml.Node, expected: str) -> None:
+        if node.tag != expected:
+            raise ConfigError(
+                f"YAML tag '{node.tag}' is not supported here",
+                self._file,
+                *self._line_col(node),
+                "remove the tag; a configuration uses plain mappings, lists and scalars",
+            )
+
+    def _sequence(self, node: yaml.SequenceNode) -> YList:
+        self._check_tag(node, _SEQ_TAG)
+        result = YList(self.loc(node))
+        for item in node.value:
+            result.add(self.build(item), self.loc(item))
+        return result
+
+    def _mapping(self, node: yaml.MappingNode) -> YMap:
+        self._check_tag(node, _MAP_TAG)
+        result = YMap(self.loc(node))
+        merges: list[yaml.Node] = []
+        for key_node, value_node in node.value:
+            if key_node.tag == _MERGE_TAG:
+                merges.append(value_node)
+                continue
+            if not isinstance(key_node, yaml.ScalarNode):
+                raise ConfigError(
+                    "a key must be a plain name, got a " + ("list" if isinstance(key_node, yaml.SequenceNode) else "mapping"),
+                    self._file,
+                    *self._line_col(key_node),
+                )
+            key = self.build(key_node)
+            try:
+                hash(key)
+            except TypeError:
+                raise ConfigError(f"a key must be a plain name, got: {key!r}", self._file, *self._line_col(key_node)) from None
+            if key in result:
+                first = result.key_loc(key)
+                raise ConfigError(
+                    f"duplicate key '{key}' (first at line {first.line}, column {first.column})",
+                    self._file,
+                    *self._line_col(key_node),
+                    "a mapping names each key once; remove or rename one of them",
+                )
+            result.put(key, self.build(value_node), self.loc(key_node), self.loc(value_node))
+        for merge in merges:
+            # `<<: *defaults` - explicit keys win over merged ones, as YAML 1.1 says.
+            sources: Iterable[yaml.Node] = merge.value if isinstance(merge, yaml.SequenceNode) else [merge]
+            for source_node in sources:
+                source = self.build(source_node)
+                if not isinstance(source, YMap):
+                    raise ConfigError("a merge key (<<) takes a mapping or a list of mappings", self._file, *self._line_col(source_node))
+                for key, value in source.items():
+                    if key not in result:
+                        result.put(key, value, source.key_loc(key), source.value_loc(key))
+        return result

@@ -1,0 +1,328 @@
+"""Loading a subsystem file: YAML with locations, includes, the frozen model, and never a traceback."""
+
+from __future__ import annotations
+
+import re
+import string
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from pbo_runtime import ConfigError, ConfigErrors, InConst, InVar, ModuleError, OutVar, PortBasedObject, PortKind
+from pbo_runtime._config_loader import CheckResult, check_file, format_diagnostics, load_subsystem
+from pbo_runtime._yaml_nodes import YList, YMap, load_text
+
+
+class FakeSensor(PortBasedObject):
+    n = InConst("N", dtype="int32")
+    y = OutVar("y", shape=("N",))
+
+
+class FakeFilter(PortBasedObject):
+    y = InVar("y", shape=("N",))
+    out = OutVar("y_f", shape=("N",))
+
+
+FAKES: dict[str, type] = {"fake_sensor": FakeSensor, "fake_filter": FakeFilter}
+
+
+def fake_lookup(name: str) -> type:
+    if name not in FAKES:
+        raise ModuleError(f"no module named '{name}'")
+    return FAKES[name]
+
+
+FULL = """\
+subsystem: bench
+rtpus: {rtpu0: {cpu: 0}, rtpu1: {cpu: 1}}
+bus: {bandwidth: 40 MB/s, lock_overhead: 16 B}
+plant: {model: puma560, timestep: 2 ms, gravity: off}
+devices:
+  adc: {driver: fake_adc, channels: 4}
+dims: {N: 3}
+variables:
+  N:   {type: int32, initial: 3}
+  y:   {type: float64, shape: [N], doc: raw signal}
+  y_f: {type: float64, shape: [N], object: filtered, initial: [0, 0, 0]}
+tasks:
+  filter: {module: fake_filter, rtpu: rtpu1, rate: 500 Hz, priority: 2}
+  sensor: {module: fake_sensor, rtpu: rtpu0, period: 1 ms, critical: true, resources: [adc]}
+configurations:
+  run: [sensor, filter]
+jobs:
+  go: {configuration: run, object: y_f, pre: "max(abs(y_f)) >= 0", timeout: 1.5 s}
+applications:
+  demo:
+    - go: {y_f: [1, 2, 3]}
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "bench.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_a_legal_file_loads_into_the_frozen_model(tmp_path: Path) -> None:
+    sub = load_subsystem(write(tmp_path, FULL), fake_lookup)
+    assert sub.name == "bench"
+    assert [(r.name, r.index, r.cpu) for r in sub.rtpus] == [("rtpu0", 0, 0), ("rtpu1", 1, 1)]
+    assert (sub.bus.bandwidth, sub.bus.lock_overhead) == (40e6, 16.0)
+    assert sub.plant is not None and sub.plant.type == "mujoco_arm" and sub.plant.timestep == pytest.approx(2e-3)
+    assert sub.plant.options == {"gravity": False}
+    assert sub.devices["adc"].driver == "fake_adc" and sub.devices["adc"].options == {"channels": 4}
+    assert not sub.devices["adc"].exclusive
+    assert sub.dims == {"N": 3}
+    assert [(v.name, v.index, v.dtype, v.shape) for v in sub.variables.values()] == [
+        ("N", 0, "int32", ()),
+        ("y", 1, "float64", (3,)),
+        ("y_f", 2, "float64", (3,)),
+    ]
+    assert sub.variables["y_f"].object == "filtered" and sub.variables["y"].doc == "raw signal"
+    filt = sub.tasks["filter"]
+    assert (filt.index, filt.period, filt.priority, filt.critical) == (0, pytest.approx(2e-3), 2, False)
+    assert [(b.port.name, b.port.kind, b.variable, b.shape) for b in filt.bindings] == [
+        ("y", PortKind.IN_VAR, "y", (3,)),
+        ("out", PortKind.OUT_VAR, "y_f", (3,)),
+    ]
+    assert sub.tasks["sensor"].resources == ("adc",) and sub.tasks["sensor"].critical
+    assert sub.configurations["run"].tasks == ("sensor", "filter")
+    assert sub.jobs["go"].timeout == pytest.approx(1.5) and sub.jobs["go"].object == "y_f"
+    assert sub.applications["demo"].steps[0].job == "go"
+    assert sub.applications["demo"].steps[0].arguments == {"y_f": [1, 2, 3]}
+    assert sub.init_order == ("filter", "sensor")
+    assert sub.tasks["sensor"].loc.line == 14 and sub.tasks["sensor"].loc.column == 3
+
+
+def test_check_file_returns_the_initial_values_as_arrays(tmp_path: Path) -> None:
+    result = check_file(write(tmp_path, FULL), fake_lookup)
+    assert result.errors == []
+    assert result.initial_values["N"].dtype.name == "int32" and int(result.initial_values["N"]) == 3
+    assert result.initial_values["y_f"].tolist() == [0.0, 0.0, 0.0]
+
+
+def test_load_subsystem_raises_every_error_at_once(tmp_path: Path) -> None:
+    text = FULL.replace("rtpu: rtpu1", "rtpu: rtpu7").replace("period: 1 ms", "period: 1 kg")
+    with pytest.raises(ConfigErrors) as info:
+        load_subsystem(write(tmp_path, text, "bad.yaml"), fake_lookup)
+    assert [e.line for e in info.value.errors] == [13, 14]
+    assert re.match(r"^.*bad\.yaml:13:39: error: task 'filter' runs on RTPU 'rtpu7'", str(info.value))
+
+
+# --- YAML with locations -------------------------------------------------------------------
+
+
+def test_every_mapping_key_sequence_and_scalar_keeps_its_location() -> None:
+    doc = load_text("a: 1\nb:\n  - x\n  - {c: 2}\n", "f.yaml")
+    assert isinstance(doc, YMap) and (doc.loc.line, doc.loc.column) == (1, 1)
+    assert (doc.key_loc("b").line, doc.key_loc("b").column) == (2, 1)
+    assert (doc.value_loc("a").line, doc.value_loc("a").column) == (1, 4)
+    items = doc["b"]
+    assert isinstance(items, YList) and (items.loc.line, items.loc.column) == (3, 3)
+    assert (items.item_loc(0).line, items.item_loc(0).column) == (3, 5)
+    assert (items[1].key_loc("c").line, items[1].key_loc("c").column) == (4, 6)
+    assert str(items[1].value_loc("c")) == "f.yaml:4:9"
+
+
+def test_a_yaml_syntax_error_is_a_config_error_at_its_mark() -> None:
+    with pytest.raises(ConfigError, match=r"^f\.yaml:2:2: error: invalid YAML: expected ',' or ']'"):
+        load_text("a: [1, 2\nb: 3\n", "f.yaml")
+
+
+def test_a_duplicate_key_is_an_error_at_the_second_key() -> None:
+    with pytest.raises(ConfigError, match=r"^f\.yaml:3:3: error: duplicate key 'x' \(first at line 2, column 3\)"):
+        load_text("tasks:\n  x: 1\n  x: 2\n", "f.yaml")
+
+
+def test_unsafe_tags_are_refused() -> None:
+    with pytest.raises(ConfigError, match=r"^f\.yaml:1:4: error: invalid YAML: could not determine a constructor"):
+        load_text("a: !!python/name:os.system x\n", "f.yaml")
+    with pytest.raises(ConfigError, match=r"^f\.yaml:1:4: error: YAML tag '.*python/object/apply:os\.system' is not supported here"):
+        load_text("a: !!python/object/apply:os.system [echo hi]\n", "f.yaml")
+
+
+def test_merge_keys_take_defaults_and_explicit_keys_win() -> None:
+    doc = load_text("d: &d {rtpu: rtpu0, period: 1 ms}\nt: {<<: *d, period: 2 ms}\n", "f.yaml")
+    assert doc["t"] == {"period": "2 ms", "rtpu": "rtpu0"}
+    assert doc["t"].key_loc("rtpu").line == 1
+
+
+def test_a_recursive_alias_is_an_error_not_a_hang() -> None:
+    with pytest.raises(ConfigError, match=r"recursive structure"):
+        load_text("&a [*a]", "f.yaml")
+
+
+def test_an_alias_bomb_is_an_error_not_a_hang() -> None:
+    bomb = "a: &a [x, x, x, x, x, x, x, x, x, x]\n"
+    for i, name in enumerate("bcdefgh"):
+        prev = "abcdefgh"[i]
+        bomb += f"{name}: &{name} [*{prev}, *{prev}, *{prev}, *{prev}, *{prev}, *{prev}, *{prev}, *{prev}, *{prev}, *{prev}]\n"
+    with pytest.raises(ConfigError, match=r"expands to more than"):
+        load_text(bomb, "f.yaml")
+
+
+# --- files that are not subsystems ----------------------------------------------------------
+
+
+def test_a_missing_file_is_an_error_not_a_traceback(tmp_path: Path) -> None:
+    result = check_file(tmp_path / "nope.yaml", fake_lookup)
+    assert result.subsystem is None
+    assert re.match(r"^.*nope\.yaml: error: cannot read file: No such file", str(result.errors[0]))
+    with pytest.raises(ConfigErrors):
+        load_subsystem(tmp_path / "nope.yaml", fake_lookup)
+
+
+def test_a_binary_file_is_an_error(tmp_path: Path) -> None:
+    path = tmp_path / "x.yaml"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR")
+    result = check_file(path, fake_lookup)
+    assert re.match(r"^.*x\.yaml:1:1: error: not UTF-8 text", str(result.errors[0]))
+
+
+def test_a_list_at_the_top_level_is_an_error(tmp_path: Path) -> None:
+    result = check_file(write(tmp_path, "- a\n- b\n"), fake_lookup)
+    assert [e.message for e in result.errors] == [
+        "the top level must be a mapping, got: a list",
+    ]
+
+
+def test_an_empty_file_is_an_error(tmp_path: Path) -> None:
+    result = check_file(write(tmp_path, "# nothing\n"), fake_lookup)
+    assert re.match(r"^.*bench\.yaml:1:1: error: the file is empty", str(result.errors[0]))
+
+
+def test_numbers_where_mappings_belong_are_errors(tmp_path: Path) -> None:
+    text = "subsystem: 5\nrtpus: 3\nvariables: 1\ntasks: 2\nconfigurations: [1]\nbus: 4\n"
+    result = check_file(write(tmp_path, text), fake_lookup)
+    assert [e.line for e in result.errors] == [1, 2, 3, 4, 5, 6]
+
+
+# --- includes ------------------------------------------------------------------------------
+
+
+def test_an_include_merges_sections_and_keeps_their_locations(tmp_path: Path) -> None:
+    common = "dims: {N: 3}\nvariables:\n  N: {type: int32, initial: 3}\n  y: {type: float64, shape: [N]}\n"
+    (tmp_path / "common").mkdir()
+    write(tmp_path, common, "common/vars.yaml")
+    main = FULL.replace("dims: {N: 3}\n", "include: [common/vars.yaml]\n")
+    main = main.replace("  N:   {type: int32, initial: 3}\n  y:   {type: float64, shape: [N], doc: raw signal}\n", "")
+    result = check_file(write(tmp_path, main), fake_lookup)
+    assert result.errors == [], format_diagnostics(result)
+    assert result.subsystem is not None
+    assert list(result.subsystem.variables) == ["N", "y", "y_f"]
+    assert result.subsystem.variables["y"].loc.file.endswith("vars.yaml")
+    assert result.subsystem.variables["y"].loc.line == 4
+
+
+def test_a_name_defined_in_an_include_and_the_file_is_an_error(tmp_path: Path) -> None:
+    write(tmp_path, "variables:\n  y: {type: float64}\n", "part.yaml")
+    main = FULL.replace("dims: {N: 3}\n", "dims: {N: 3}\ninclude: [part.yaml]\n")
+    result = check_file(write(tmp_path, main), fake_lookup)
+    assert any(re.match(r"^'y' in 'variables' is defined twice: here and at .*part\.yaml:2:3$", e.message) for e in result.errors)
+
+
+def test_a_missing_include_is_an_error_at_the_include(tmp_path: Path) -> None:
+    main = FULL.replace("dims: {N: 3}\n", "dims: {N: 3}\ninclude: [nothere.yaml]\n")
+    result = check_file(write(tmp_path, main), fake_lookup)
+    assert [e.message.split(" (")[0] for e in result.errors] == ["included file 'nothere.yaml' does not exist"]
+    assert (result.errors[0].line, result.errors[0].column) == (8, 11)
+
+
+def test_an_include_cycle_is_an_error(tmp_path: Path) -> None:
+    write(tmp_path, "include: [b.yaml]\n", "a.yaml")
+    write(tmp_path, "include: [a.yaml]\n", "b.yaml")
+    result = check_file(tmp_path / "a.yaml", fake_lookup)
+    assert any("includes itself" in e.message for e in result.errors)
+
+
+# --- diagnostics ---------------------------------------------------------------------------
+
+
+def test_diagnostics_are_in_line_order_with_a_count_line(tmp_path: Path) -> None:
+    text = FULL.replace("configurations:\n", "  idle: {module: fake_filter, rtpu: rtpu9, period: 1 ms}\nconfigurations:\n")
+    text = text.replace("priority: 2", "priority: high")
+    result = check_file(write(tmp_path, text), fake_lookup)
+    report = format_diagnostics(result)
+    lines = [line for line in report.splitlines() if not line.startswith("  ")]
+    assert re.match(r"^.*:13:\d+: error: priority of task 'filter' must be an integer", lines[0])
+    assert re.match(r"^.*:15:3: warning: task 'idle' is in no configuration", lines[1])
+    assert re.match(r"^.*:15:\d+: error: task 'idle' runs on RTPU 'rtpu9'", lines[2])
+    assert lines[-1] == "2 errors, 1 warning"
+
+
+def test_a_config_error_formats_as_a_warning_when_it_is_one() -> None:
+    assert ConfigError("x", "f.yaml", 3, 4, "h", severity="warning").format() == "f.yaml:3:4: warning: x\n  hint: h"
+    assert ConfigError("x", "f.yaml", 3, 4).format() == "f.yaml:3:4: error: x"
+    with pytest.raises(ValueError):
+        ConfigError("x", severity="fatal")
+
+
+def test_a_clean_file_reports_zero_counts(tmp_path: Path) -> None:
+    assert format_diagnostics(check_file(write(tmp_path, FULL), fake_lookup)) == "0 errors, 0 warnings"
+
+
+# --- nothing but ConfigErrors, whatever the input ------------------------------------------
+
+
+def _never_raises(path: Path) -> CheckResult:
+    result = check_file(path, fake_lookup)
+    assert all(isinstance(e, ConfigError) for e in result.errors + result.warnings)
+    assert not any("internal error" in e.message for e in result.errors), format_diagnostics(result)
+    if result.subsystem is None:
+        with pytest.raises(ConfigErrors):
+            load_subsystem(path, fake_lookup)
+    return result
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(text=st.text(alphabet=string.printable + "{}[]:-&*!|>'\"#%@`\u00b5\x00\x07", max_size=300))
+def test_arbitrary_text_never_raises_anything_but_config_errors(tmp_path: Path, text: str) -> None:
+    path = tmp_path / "fuzz.yaml"
+    path.write_text(text, encoding="utf-8")
+    _never_raises(path)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.binary(max_size=200))
+def test_arbitrary_bytes_never_raise_anything_but_config_errors(tmp_path: Path, data: bytes) -> None:
+    path = tmp_path / "fuzz.yaml"
+    path.write_bytes(data)
+    _never_raises(path)
+
+
+_NAMES = st.sampled_from(
+    [
+        "subsystem", "rtpus", "bus", "plant", "devices", "dims", "variables", "tasks", "configurations",
+        "jobs", "applications", "include", "type", "shape", "module", "rtpu", "period", "rate", "params",
+        "ports", "resources", "initial", "object", "configuration", "N", "y", "y_f", "sensor", "filter",
+        "fake_sensor", "fake_filter", "rtpu0", "float64", "int32", "1 ms", "cpu", "exclusive", "driver",
+    ]
+)
+_SCALARS = st.one_of(st.none(), st.booleans(), st.integers(-(2**70), 2**70), st.floats(allow_nan=True), _NAMES, st.text(max_size=8))
+_TREES = st.recursive(
+    _SCALARS,
+    lambda children: st.one_of(st.lists(children, max_size=4), st.dictionaries(_NAMES, children, max_size=5)),
+    max_leaves=40,
+)
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(tree=st.dictionaries(_NAMES, _TREES, max_size=8))
+def test_arbitrary_yaml_structures_never_raise_anything_but_config_errors(tmp_path: Path, tree: dict[str, Any]) -> None:
+    path = tmp_path / "fuzz.yaml"
+    path.write_text(yaml.safe_dump(tree), encoding="utf-8")
+    _never_raises(path)
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(section=st.sampled_from(["variables", "tasks", "configurations", "jobs", "applications", "rtpus", "devices"]), value=_TREES)
+def test_a_legal_file_with_one_section_replaced_by_garbage_never_raises(tmp_path: Path, section: str, value: Any) -> None:
+    doc = yaml.safe_load(FULL)
+    doc[section] = value
+    path = tmp_path / "fuzz.yaml"
+    path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    _never_raises(path)

@@ -1,0 +1,99 @@
+"""The product as a user runs it: `pbo run` on the demo file, in real processes.
+
+These start the plant and two RTPUs (three processes besides pbo), each for a few seconds.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import posix_ipc
+import pytest
+
+from tests.conftest import REPO
+
+pytestmark = pytest.mark.multiprocess
+
+DEMO = REPO / "configs" / "pid_joint.yaml"
+PBO = [sys.executable, "-m", "pbo_runtime.cli"]
+
+
+def assert_nothing_left(report: dict) -> None:
+    """Every object the run made is gone: opened by name, since /dev/mqueue may not be mounted."""
+    assert report["objects"], "the report lists the run's objects"
+    opener = {"shm": posix_ipc.SharedMemory, "sem": posix_ipc.Semaphore, "mq": posix_ipc.MessageQueue}
+    for entry in report["objects"]:
+        kind, name = entry.split(" ", 1)
+        with pytest.raises(posix_ipc.ExistentialError):
+            opener[kind](name)
+    leftovers = [n for n in os.listdir("/dev/shm") if report["run_id"] in n]
+    assert leftovers == []
+
+
+def children_of(pid: int) -> dict[int, str]:
+    """pid -> command line of the live children of `pid`."""
+    found = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+            ppid = int(stat.rsplit(")", 1)[1].split()[1])
+            if ppid == pid:
+                found[int(entry)] = Path(f"/proc/{entry}/cmdline").read_text().replace("\0", " ")
+        except (OSError, IndexError, ValueError):
+            continue
+    return found
+
+
+def test_demo_moves_the_arm_to_its_goal_and_leaves_nothing_behind(tmp_path):
+    report_path = tmp_path / "report.json"
+    done = subprocess.run([*PBO, "run", str(DEMO), "--duration", "3", "--report", str(report_path), "--no-live"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=180)
+    assert done.returncode == 0, done.stderr
+    assert "run summary" in done.stdout and "Traceback" not in done.stderr
+    report = json.loads(report_path.read_text())
+    assert report["stopped_by"] == "duration" and report["failure"] == ""
+    q_m = np.array(report["variables"]["q_m"]["value"])
+    q_d = np.array(report["variables"]["q_d"]["value"])
+    assert np.max(np.abs(q_m - q_d)) < 0.01, f"arm at {q_m}, goal {q_d}"
+    for name, task in report["tasks"].items():
+        assert report["states_at_stop"][name] == "ON"
+        expected = report["duration"] / {"robot": 0.001, "pid": 0.001, "traj": 0.002, "logger": 0.01}[name]
+        assert task["cycles"] > 0.5 * expected, f"{name} ran {task['cycles']} cycles of ~{expected:.0f}"
+    log = np.load(tmp_path / "runs" / "pid_joint.npz")
+    assert log["q_m"].shape[1:] == (6,) and len(log["time"]) > 100
+    assert np.all(np.diff(log["time"]) > 0)
+    assert_nothing_left(report)
+
+
+def test_killing_an_rtpu_stops_everything_and_names_the_rtpu_and_its_tasks(tmp_path):
+    report_path = tmp_path / "report.json"
+    pbo = subprocess.Popen([*PBO, "run", str(DEMO), "--duration", "60", "--report", str(report_path), "--no-live"],
+                           cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in pbo.stdout:  # wait until the configuration is on
+            if "is on" in line:
+                break
+        rtpu1 = [pid for pid, cmd in children_of(pbo.pid).items() if "--rtpu rtpu1" in cmd]
+        assert len(rtpu1) == 1
+        os.kill(rtpu1[0], signal.SIGKILL)
+        out, err = pbo.communicate(timeout=60)
+    finally:
+        if pbo.poll() is None:
+            pbo.kill()
+            pbo.wait()
+    assert pbo.returncode == 2
+    assert f"RTPU 'rtpu1' (pid {rtpu1[0]}) died (killed by SIGKILL) while hosting tasks: robot" in err
+    assert "Traceback" not in err
+    report = json.loads(report_path.read_text())
+    assert report["stopped_by"] == "failure"
+    assert children_of(pbo.pid) == {}
+    assert_nothing_left(report)

@@ -1,0 +1,159 @@
+"""The RTPU executive, stepped on a manual clock: releases, order, overruns, signals. No sleeping."""
+
+from __future__ import annotations
+
+import pytest
+
+from pbo_runtime import OutVar, PortBasedObject, Status
+from pbo_runtime._clock import ManualClock
+from pbo_runtime._lifecycle import Task
+from pbo_runtime._table import TaskState
+from rtpu._executive import Executive
+from tests.conftest import task_spec, variables
+
+RUNS: list[tuple[str, float]] = []
+
+
+class Ticker(PortBasedObject):
+    """Fake module: records (task, release time) on every cycle; may take simulated time."""
+
+    out = OutVar("out")
+    cost = 0.0
+    clock: ManualClock | None = None
+
+    def cycle(self) -> Status:
+        RUNS.append((self.task_name, self.time))
+        if self.cost and self.clock is not None:
+            self.clock.advance(self.cost)
+        return Status.CONTINUE
+
+
+class Faulty(Ticker):
+    def cycle(self) -> Status:
+        raise RuntimeError("broken on purpose")
+
+
+class FakeSignals:
+    """Fake signal queue: scripted (time, message) pairs; waiting moves the manual clock."""
+
+    def __init__(self, clock: ManualClock, script: list[tuple[float, list]]) -> None:
+        self.clock = clock
+        self.script = sorted(script, key=lambda item: item[0])
+
+    def receive(self, timeout):
+        deadline = self.clock.now() + (timeout or 0.0)
+        if self.script and self.script[0][0] <= deadline:
+            at, message = self.script.pop(0)
+            self.clock.time = max(self.clock.time, at)
+            return message
+        self.clock.time = max(self.clock.time, deadline)
+        return None
+
+
+@pytest.fixture
+def setup(make_table):
+    RUNS.clear()
+    table = make_table(variables(("o0", "float64", ()), ("o1", "float64", ()), ("o2", "float64", ())))
+    clock = ManualClock(0.0)
+    events: list[tuple] = []
+
+    def build(specs: list[tuple[str, type, float, bool]], script: list[tuple[float, list]]) -> Executive:
+        executive = Executive(clock, FakeSignals(clock, script), lambda *e: events.append(e), epoch=0.0)
+        for i, (name, module, period, critical) in enumerate(specs):
+            spec = task_spec(module, name=name, index=i, ports={"out": f"o{i}"}, period=period)
+            spec = spec.__class__(**{**spec.__dict__, "critical": critical})
+            task = Task(spec, module, table)
+            task.module.clock = clock
+            executive.add(task)
+        return executive
+
+    return build, clock, events
+
+
+def run_until(executive: Executive, clock: ManualClock, end: float) -> None:
+    """Step the executive through every release and signal due at or before `end`."""
+    while executive.running:
+        next_release = min((s.release for s in executive.on), default=float("inf"))
+        script = executive.signals.script
+        next_signal = script[0][0] if script else float("inf")
+        if min(next_release, next_signal) > end:
+            return
+        executive.run_once()
+
+
+def test_releases_follow_absolute_times_without_drift(setup):
+    build, clock, _ = setup
+    ex = build([("a", Ticker, 0.001, False)], [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0])])
+    Ticker.cost = 0.0003  # every cycle takes 0.3 ms: a relative sleep would drift by that
+    try:
+        run_until(ex, clock, 0.0105)
+    finally:
+        Ticker.cost = 0.0
+    assert [t for _, t in RUNS] == pytest.approx([i * 0.001 for i in range(11)])
+
+
+def test_critical_task_runs_first_when_released_together(setup):
+    build, clock, _ = setup
+    script = [(0.0, ["spawn", "slow"]), (0.0, ["spawn", "crit"]), (0.0, ["on", "slow", 0.0]), (0.0, ["on", "crit", 0.0])]
+    ex = build([("slow", Ticker, 0.001, False), ("crit", Ticker, 0.002, True)], script)
+    run_until(ex, clock, 0.0005)
+    assert [name for name, _ in RUNS[:2]] == ["crit", "slow"]
+
+
+def test_earliest_deadline_runs_first_among_non_critical_tasks(setup):
+    build, clock, _ = setup
+    script = [(0.0, ["spawn", "long"]), (0.0, ["spawn", "short"]), (0.0, ["on", "long", 0.0]), (0.0, ["on", "short", 0.0])]
+    ex = build([("long", Ticker, 0.004, False), ("short", Ticker, 0.001, False)], script)
+    run_until(ex, clock, 0.0005)
+    assert [name for name, _ in RUNS[:2]] == ["short", "long"]
+
+
+def test_an_overrun_is_counted_and_the_phase_is_kept(setup):
+    build, clock, _ = setup
+    ex = build([("a", Ticker, 0.001, False)], [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0])])
+    Ticker.cost = 0.0025  # 2.5 periods: the releases at 1 and 2 ms are missed
+    try:
+        run_until(ex, clock, 0.0001)
+    finally:
+        Ticker.cost = 0.0
+    run_until(ex, clock, 0.0045)
+    scheduled = ex.tasks["a"]
+    assert scheduled.overruns == 1
+    assert scheduled.missed == 1
+    assert [t for _, t in RUNS] == pytest.approx([0.0, 0.003, 0.004])
+
+
+def test_a_module_that_raises_goes_to_error_and_the_executive_goes_on(setup):
+    build, clock, events = setup
+    script = [(0.0, ["spawn", "bad"]), (0.0, ["spawn", "good"]), (0.0, ["on", "bad", 0.0]), (0.0, ["on", "good", 0.0])]
+    ex = build([("bad", Faulty, 0.001, False), ("good", Ticker, 0.001, False)], script)
+    run_until(ex, clock, 0.0055)
+    assert ex.tasks["bad"].task.state is TaskState.ERROR
+    assert ("state", "bad", "ERROR") == events[-1][:3] or any(e[:3] == ("state", "bad", "ERROR") for e in events)
+    assert len([1 for name, _ in RUNS if name == "good"]) == 6
+
+
+def test_off_stops_the_releases_and_stop_kills_every_task(setup):
+    build, clock, events = setup
+    script = [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0]), (0.0025, ["off", "a"]), (0.004, ["stop"])]
+    ex = build([("a", Ticker, 0.001, False)], script)
+    run_until(ex, clock, 0.01)
+    assert len(RUNS) == 3
+    assert not ex.running
+    assert ex.tasks["a"].task.state is TaskState.KILLED
+    assert events[-1][0] == "stats" and events[-1][1]["a"]["cycles"] == 3
+
+
+def test_a_signal_for_an_unknown_task_is_refused_not_fatal(setup):
+    build, clock, events = setup
+    ex = build([("a", Ticker, 0.001, False)], [(0.0, ["on", "nobody"])])
+    ex.run_once()
+    assert events == [("refused", "nobody", "no task 'nobody' on this RTPU")]
+
+
+def test_on_before_spawn_is_refused_with_the_reason(setup):
+    build, clock, events = setup
+    ex = build([("a", Ticker, 0.001, False)], [(0.0, ["on", "a"])])
+    ex.run_once()
+    assert events[0][0] == "refused" and "cannot take 'on' in state NOT_CREATED" in events[0][2]
+    assert ex.on == []

@@ -1,0 +1,133 @@
+"""Nothing is left behind and nothing wedges: dead lock holders, dead runs, a killed supervisor."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import posix_ipc
+import pytest
+
+from pbo_runtime import _messages, _shm
+from pbo_runtime._supervisor import remove_dead_runs
+from pbo_runtime._table import Header, StateTable, TableLayout
+from tests.conftest import REPO, unique_name, variables
+from tests.test_end_to_end import DEMO, PBO, children_of
+
+VARS = variables(("a", "float64", (3,)))
+
+HOLD_THE_LOCK = """
+import sys, time, numpy as np, posix_ipc
+from pbo_runtime import _shm
+name = sys.argv[1]
+lock = posix_ipc.Semaphore(name + ".lock")
+header = np.frombuffer(_shm.attach_segment(name), dtype=np.int64, count=64)
+lock.acquire()
+header[4] = __import__("os").getpid()
+print("holding", flush=True)
+time.sleep(60)
+"""
+
+
+def dead_pid() -> int:
+    child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    return int(child.stdout)
+
+
+def test_a_lock_whose_holder_died_is_released(make_table):
+    table = make_table(VARS)
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_THE_LOCK, table.name], stdout=subprocess.PIPE, text=True, cwd=REPO)
+    assert holder.stdout.readline().strip() == "holding"
+    holder.send_signal(signal.SIGKILL)
+    holder.wait()
+    assert table.lock.value == 0
+    assert table.recover_lock_from(holder.pid)
+    assert table.lock.value == 1
+    assert table.header[Header.LOCK_RECOVERIES] == 1
+    table.write("a", [1, 2, 3], when=0.0)  # the table works again
+
+
+def test_a_lock_held_by_someone_else_is_not_taken_away(make_table):
+    table = make_table(VARS)
+    table.acquire()
+    try:
+        assert not table.recover_lock_from(dead_pid())
+        assert table.lock.value == 0
+    finally:
+        table.release()
+
+
+def test_a_new_run_removes_what_a_dead_run_left_queues_included():
+    subsystem = "cleanuptest"
+    dead_run = f"{dead_pid()}-abc123"
+    live_run = _shm.new_run_id()
+    made = {}
+    for run in (dead_run, live_run):
+        table_name = _messages.table_name(subsystem, run)
+        queue_name = _messages.event_queue_name(subsystem, run)
+        plant_name = _messages.plant_registers_name(subsystem, run)
+        queue = _messages.Queue(queue_name, create=True)
+        shm, mapping = _shm.create_segment(plant_name, 4096)
+        mapping.close()
+        table = StateTable.create(TableLayout.build(VARS, 1), table_name,
+                                  [f"shm {table_name}", f"sem {table_name}.lock", f"mq {queue_name}", f"shm {plant_name}"])
+        made[run] = (table, queue, table_name, queue_name, plant_name)
+    try:
+        # the dead run's supervisor is gone: only its objects go
+        dead_table, dead_queue, *_ = made[dead_run]
+        dead_table.owner = False  # as if its process had died without cleaning up
+        dead_table.close()
+        dead_queue.owner = False
+        dead_queue.close()
+        removed = remove_dead_runs(subsystem)
+        _, _, table_name, queue_name, plant_name = made[dead_run]
+        assert set(removed) == {table_name, table_name + ".lock", queue_name, plant_name}
+        with pytest.raises(posix_ipc.ExistentialError):
+            posix_ipc.MessageQueue(queue_name)
+        with pytest.raises(posix_ipc.ExistentialError):
+            posix_ipc.SharedMemory(table_name)
+        _, _, live_table_name, live_queue_name, _ = made[live_run]
+        posix_ipc.SharedMemory(live_table_name).close_fd()  # the live run is untouched
+        posix_ipc.MessageQueue(live_queue_name).close()
+    finally:
+        live_table, live_queue, _, _, live_plant = made[live_run]
+        live_table.close()
+        live_queue.close()
+        _shm.unlink_quietly("shm", live_plant)
+
+
+@pytest.mark.multiprocess
+def test_killing_the_supervisor_takes_its_children_and_pbo_clean_removes_the_rest(tmp_path):
+    pbo = subprocess.Popen([*PBO, "run", str(DEMO), "--duration", "60", "--no-live"], cwd=tmp_path,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in pbo.stdout:
+            if "is on" in line:
+                break
+        children = children_of(pbo.pid)
+        assert len(children) == 3  # the plant and two RTPUs
+        ours = [n for n in os.listdir("/dev/shm") if f".{pbo.pid}-" in n]
+        assert ours, "the run's table and plant segments exist while it runs"
+        pbo.send_signal(signal.SIGKILL)
+        pbo.wait()
+    finally:
+        if pbo.poll() is None:
+            pbo.kill()
+    deadline = time.monotonic() + 20
+    while any(os.path.exists(f"/proc/{pid}") and "zombie" not in open(f"/proc/{pid}/status").read().lower()
+              for pid in children) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not [pid for pid in children if os.path.exists(f"/proc/{pid}")
+                and "zombie" not in open(f"/proc/{pid}/status").read().lower()], "children outlived the supervisor"
+    run_id = ours[0].split(".")[2]
+    cleaned = subprocess.run([*PBO, "clean", "--subsystem", "puma"], capture_output=True, text=True, timeout=60)
+    assert cleaned.returncode == 0
+    assert [n for n in os.listdir("/dev/shm") if run_id in n] == []
+    for rtpu in ("rtpu0", "rtpu1"):
+        with pytest.raises(posix_ipc.ExistentialError):
+            posix_ipc.MessageQueue(_messages.signal_queue_name("puma", run_id, rtpu))
+    with pytest.raises(posix_ipc.ExistentialError):
+        posix_ipc.MessageQueue(_messages.event_queue_name("puma", run_id))

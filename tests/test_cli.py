@@ -1,0 +1,97 @@
+"""The `pbo` command as a user meets it: verdicts, exit codes, no tracebacks."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import pbo_runtime
+from pbo_runtime.cli import main
+from tests.conftest import REPO
+
+DEMO = (REPO / "configs" / "pid_joint.yaml").read_text()
+
+
+def write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def three_mistakes() -> str:
+    text = DEMO.replace("module: pid_joint", "module: pid_jiont")  # an unknown module
+    text = text.replace("period: 2 ms", "period: -2 ms")  # a negative period
+    text = text.replace("configurations:\n  joint_pid: [robot, traj, pid, logger]",
+                        "configurations:\n  joint_pid: [robot, traj, pid, logger, gripper]")  # an unknown task
+    return text
+
+
+def line_of(text: str, needle: str) -> int:
+    return next(i for i, line in enumerate(text.splitlines(), 1) if needle in line)
+
+
+def test_check_reports_all_three_mistakes_with_their_lines_and_exits_1(tmp_path, capsys):
+    text = three_mistakes()
+    path = write(tmp_path, text)
+    assert main(["check", str(path)]) == 1
+    err = capsys.readouterr().err
+    errors = re.findall(rf"^{re.escape(str(path))}:(\d+):(\d+): error: (.*)$", err, re.MULTILINE)
+    lines = sorted(int(line) for line, _, _ in errors)
+    assert lines == sorted([line_of(text, "pid_jiont"), line_of(text, "-2 ms"), line_of(text, "gripper")])
+    assert "did you mean 'pid_joint'" in err
+    assert "Traceback" not in err
+    assert re.search(r"^3 errors", err, re.MULTILINE)
+
+
+def test_check_of_the_demo_prints_tasks_by_rtpu_and_the_init_order(capsys):
+    assert main(["check", str(REPO / "configs" / "pid_joint.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "configuration 'joint_pid': rtpu1: robot; rtpu0: traj, pid, logger" in out
+    assert re.search(r"init order: robot -> .*pid", out)
+
+
+def test_check_json_gives_the_same_verdict_for_tools(tmp_path, capsys):
+    assert main(["check", str(write(tmp_path, three_mistakes())), "--format", "json"]) == 1
+    verdict = json.loads(capsys.readouterr().out)
+    assert verdict["ok"] is False and len(verdict["errors"]) == 3
+    assert {"file", "line", "column", "message", "hint"} <= set(verdict["errors"][0])
+
+
+def test_check_of_a_missing_file_is_an_error_not_a_traceback(tmp_path, capsys):
+    assert main(["check", str(tmp_path / "nowhere.yaml")]) == 1
+    err = capsys.readouterr().err
+    assert "nowhere.yaml" in err and "Traceback" not in err
+
+
+def test_run_refuses_a_file_with_errors_and_starts_nothing(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "pbo_runtime.cli", "run", str(write(tmp_path, three_mistakes()))],
+                          capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert done.returncode == 1
+    assert done.stderr.count(": error: ") == 3 and "Traceback" not in done.stderr
+    assert "starting subsystem" not in done.stdout
+
+
+def test_lexicon_lists_every_module_with_its_ports(capsys):
+    assert main(["lexicon"]) == 0
+    out = capsys.readouterr().out
+    for module in ("robot_torque", "joint_trajectory", "pid_joint", "data_logger"):
+        assert module in out
+    assert "out-const" in out and "in-var" in out
+
+
+@pytest.mark.parametrize("config", sorted((REPO / "configs").glob("*.yaml")), ids=lambda p: p.name)
+def test_every_shipped_configuration_passes_the_checker(config, capsys):
+    assert main(["check", str(config)]) == 0, capsys.readouterr().err
+
+
+def test_the_public_surface_is_what_module_authors_need():
+    assert sorted(pbo_runtime.__all__) == [
+        "ConfigError", "ConfigErrors", "InBoth", "InConst", "InVar", "InternalError", "LifecycleError", "ModuleError",
+        "NoParams", "OutBoth", "OutConst", "OutVar", "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec",
+        "Status", "TableLayoutError",
+    ]

@@ -54,22 +54,28 @@ class Queue:
         self.owner = create
 
     def send(self, *message: Any, timeout: float | None = 1.0) -> None:
-        self._mq.send(msgpack.packb(list(message)), timeout=timeout)
+        raw = msgpack.packb(list(message))
+        while True:
+            try:
+                self._mq.send(raw, timeout=timeout)
+                return
+            except posix_ipc.SignalError:
+                continue  # interrupted by a signal whose handler only set a flag: send anyway
 
     def try_send(self, *message: Any, timeout: float = 0.5) -> bool:
         """Send, waiting at most `timeout`; False if the queue stayed full or is gone (a dead peer must not hang us)."""
         try:
             self._mq.send(msgpack.packb(list(message)), timeout=timeout)
             return True
-        except (posix_ipc.BusyError, posix_ipc.ExistentialError, OSError):
+        except (posix_ipc.BusyError, posix_ipc.ExistentialError, posix_ipc.SignalError, OSError):
             return False
 
     def receive(self, timeout: float | None) -> list[Any] | None:
         """The next message, or None if none came within `timeout` seconds (0: do not wait)."""
         try:
             raw, _priority = self._mq.receive(timeout=max(timeout, 0.0) if timeout is not None else None)
-        except posix_ipc.BusyError:
-            return None
+        except (posix_ipc.BusyError, posix_ipc.SignalError):
+            return None  # a signal's handler has run already (Ctrl-C sets the stop flag)
         return msgpack.unpackb(raw)
 
     def close(self) -> None:

@@ -97,3 +97,26 @@ def test_killing_an_rtpu_stops_everything_and_names_the_rtpu_and_its_tasks(tmp_p
     assert report["stopped_by"] == "failure"
     assert children_of(pbo.pid) == {}
     assert_nothing_left(report)
+
+
+def test_ctrl_c_stops_the_run_cleanly_with_a_summary(tmp_path):
+    report_path = tmp_path / "report.json"
+    pbo = subprocess.Popen([*PBO, "run", str(DEMO), "--duration", "0", "--report", str(report_path), "--no-live"],
+                           cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in pbo.stdout:
+            if "is on" in line:
+                break
+        time.sleep(0.5)  # let it cycle; nothing below depends on how long
+        pbo.send_signal(signal.SIGINT)
+        out, err = pbo.communicate(timeout=60)
+    finally:
+        if pbo.poll() is None:
+            pbo.kill()
+            pbo.wait()
+    assert pbo.returncode == 0, err
+    assert "run summary" in out and "stopped by Ctrl-C" in out
+    report = json.loads(report_path.read_text())
+    assert report["stopped_by"] == "Ctrl-C"
+    assert all(task["cycles"] > 0 for task in report["tasks"].values())
+    assert_nothing_left(report)

@@ -34,13 +34,14 @@ class SignalSource(Protocol):
 class Scheduled:
     """A task's place in the executive: its next release and its timing record."""
 
-    __slots__ = ("task", "period", "critical", "release", "overruns", "missed", "jitter", "exec_time", "samples",
+    __slots__ = ("task", "period", "critical", "priority", "release", "overruns", "missed", "jitter", "exec_time", "samples",
                  "jitter_max", "exec_max", "status")
 
     def __init__(self, task: Task) -> None:
         self.task = task
         self.period = task.spec.period
         self.critical = task.spec.critical
+        self.priority = task.spec.priority
         self.release = math.inf
         self.overruns = 0
         self.missed = 0
@@ -104,19 +105,25 @@ class Executive:
         self._run_ready()
 
     def _run_ready(self) -> None:
-        """Run every released task once, most urgent first; no allocation."""
+        """Run every released task once, most urgent first (maximum-urgency-first); no allocation.
+
+        Urgency: critical before not; then the earlier deadline (release + period); then the
+        higher user priority.
+        """
         clock = self.clock
         on = self.on
         while True:
             now = clock.now()
             best = None
             for s in on:
-                if s.release <= now and (
-                    best is None
-                    or (s.critical and not best.critical)
-                    or (s.critical == best.critical and s.release + s.period < best.release + best.period)
-                ):
+                if s.release > now:
+                    continue
+                if best is None or s.critical > best.critical:
                     best = s
+                elif s.critical == best.critical:
+                    deadline, best_deadline = s.release + s.period, best.release + best.period
+                    if deadline < best_deadline or (deadline == best_deadline and s.priority > best.priority):
+                        best = s
             if best is None:
                 return
             self._cycle(best, now)

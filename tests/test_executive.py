@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from pbo_runtime import OutVar, PortBasedObject, Status
@@ -57,11 +59,11 @@ def setup(make_table):
     clock = ManualClock(0.0)
     events: list[tuple] = []
 
-    def build(specs: list[tuple[str, type, float, bool]], script: list[tuple[float, list]]) -> Executive:
+    def build(specs: list[tuple], script: list[tuple[float, list]]) -> Executive:
         executive = Executive(clock, FakeSignals(clock, script), lambda *e: events.append(e), epoch=0.0)
-        for i, (name, module, period, critical) in enumerate(specs):
+        for i, (name, module, period, critical, *priority) in enumerate(specs):
             spec = task_spec(module, name=name, index=i, ports={"out": f"o{i}"}, period=period)
-            spec = spec.__class__(**{**spec.__dict__, "critical": critical})
+            spec = dataclasses.replace(spec, critical=critical, priority=priority[0] if priority else 0)
             task = Task(spec, module, table)
             task.module.clock = clock
             executive.add(task)
@@ -106,6 +108,14 @@ def test_earliest_deadline_runs_first_among_non_critical_tasks(setup):
     ex = build([("long", Ticker, 0.004, False), ("short", Ticker, 0.001, False)], script)
     run_until(ex, clock, 0.0005)
     assert [name for name, _ in RUNS[:2]] == ["short", "long"]
+
+
+def test_user_priority_breaks_a_tie_of_equal_deadlines(setup):
+    build, clock, _ = setup
+    script = [(0.0, ["spawn", "low"]), (0.0, ["spawn", "high"]), (0.0, ["on", "low", 0.0]), (0.0, ["on", "high", 0.0])]
+    ex = build([("low", Ticker, 0.001, False, 1), ("high", Ticker, 0.001, False, 5)], script)
+    run_until(ex, clock, 0.0005)
+    assert [name for name, _ in RUNS[:2]] == ["high", "low"]
 
 
 def test_an_overrun_is_counted_and_the_phase_is_kept(setup):

@@ -88,6 +88,7 @@ class PidJoint(PortBasedObject):
         if np.any(self._ki > 0) and np.any(self._previous):
             np.subtract(self._previous, self._term, out=self._integral)
             np.clip(self._integral, -self._limit, self._limit, out=self._integral)
+            np.copyto(self._integral, 0.0, where=self._ki == 0)  # no integral action: it would never decay
             self._compute()
 
     def cycle(self) -> Status:

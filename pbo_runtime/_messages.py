@@ -10,7 +10,7 @@ from typing import Any
 import msgpack
 import posix_ipc
 
-from pbo_runtime import _shm
+from pbo_runtime import _process, _shm
 
 MESSAGE_BYTES = 8192
 
@@ -60,6 +60,7 @@ class Queue:
                 self._mq.send(raw, timeout=timeout)
                 return
             except posix_ipc.SignalError:
+                _process.raise_if_stopping()
                 continue  # interrupted by a signal whose handler only set a flag: send anyway
 
     def try_send(self, *message: Any, timeout: float = 0.5) -> bool:
@@ -74,8 +75,13 @@ class Queue:
         """The next message, or None if none came within `timeout` seconds (0: do not wait)."""
         try:
             raw, _priority = self._mq.receive(timeout=max(timeout, 0.0) if timeout is not None else None)
-        except (posix_ipc.BusyError, posix_ipc.SignalError):
-            return None  # a signal's handler has run already (Ctrl-C sets the stop flag)
+        except posix_ipc.BusyError:
+            return None
+        except posix_ipc.SignalError:
+            # The signal's handler has run. In the supervisor it set a flag and we return; in
+            # a child it raised Stop, which posix_ipc replaced by SignalError: raise it again.
+            _process.raise_if_stopping()
+            return None
         return msgpack.unpackb(raw)
 
     def close(self) -> None:

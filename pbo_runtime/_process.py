@@ -8,12 +8,27 @@ import signal
 import sys
 
 
-class Stop(Exception):
-    """Raised in a child by SIGTERM/SIGINT so its `finally` blocks clean up."""
+class Stop(BaseException):
+    """Raised in a child by SIGTERM/SIGINT so its `finally` blocks clean up.
+
+    A BaseException, like KeyboardInterrupt: a module's `except Exception` (or the runtime's
+    own, which turns a module's failure into its ERROR state) must never swallow it.
+    """
+
+
+_requested = ""
 
 
 def _raise_stop(signum: int, _frame) -> None:
-    raise Stop(signal.Signals(signum).name)
+    global _requested
+    _requested = signal.Signals(signum).name
+    raise Stop(_requested)
+
+
+def raise_if_stopping() -> None:
+    """Re-raise a Stop that a C extension swallowed (posix_ipc turns it into SignalError)."""
+    if _requested:
+        raise Stop(_requested)
 
 
 def become_child(parent_pid: int) -> None:

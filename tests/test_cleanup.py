@@ -131,3 +131,22 @@ def test_killing_the_supervisor_takes_its_children_and_pbo_clean_removes_the_res
             posix_ipc.MessageQueue(_messages.signal_queue_name("puma", run_id, rtpu))
     with pytest.raises(posix_ipc.ExistentialError):
         posix_ipc.MessageQueue(_messages.event_queue_name("puma", run_id))
+
+
+@pytest.mark.multiprocess
+def test_an_rtpu_stops_on_sigterm_even_while_waiting_on_its_queue(tmp_path):
+    pbo = subprocess.Popen([*PBO, "run", str(DEMO), "--duration", "60", "--no-live"], cwd=tmp_path,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in pbo.stdout:
+            if "is on" in line:
+                break
+        rtpu0 = [pid for pid, cmd in children_of(pbo.pid).items() if "--rtpu rtpu0" in cmd][0]
+        os.kill(rtpu0, signal.SIGTERM)
+        out, err = pbo.communicate(timeout=60)
+    finally:
+        if pbo.poll() is None:
+            pbo.kill()
+            pbo.wait()
+    assert pbo.returncode == 2
+    assert f"RTPU 'rtpu0' (pid {rtpu0}) died (exit status 0) while hosting tasks: traj, pid, logger" in err

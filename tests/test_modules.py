@@ -1,0 +1,541 @@
+"""The four control modules, each driven through a real Task on a real shared-memory table.
+
+The transfers are the runtime's own (`Task.spawn`, `turn_on`, `run_cycle`, ...), the clock is
+the release time each call is given, and the arm is an in-process MuJoCo plant stepped by hand.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pinocchio
+import pytest
+
+from drivers.mujoco_arm.driver import MujocoArmDriver
+from drivers.mujoco_arm.plant import MujocoArmPlant
+from drivers.robots import robot
+from modules._robot_model import pinocchio_model
+from modules.data_logger import DataLogger
+from modules.joint_trajectory import JointTrajectory
+from modules.pid_joint import PidJoint
+from modules.robot_torque import RobotTorque
+from pbo_runtime import ParamError, Status
+from pbo_runtime._config_model import DeviceSpec, PortBinding, TaskSpec
+from pbo_runtime._lifecycle import Task
+from pbo_runtime._table import StateTable, TaskState
+from tests.conftest import task_spec, unique_name, variables
+
+PUMA = robot("puma560")
+N = PUMA.ndof
+DIMS = {"NDOF": N}
+EPS = 1e-12
+
+
+def arm_variables(n: int = N):
+    return variables(
+        ("NDOF", "int32", ()), ("DH", "float64", (n, 4)), ("DYN", "float64", (n, 11)),
+        ("q_m", "float64", (n,)), ("qd_m", "float64", (n,)), ("q_r", "float64", (n,)),
+        ("qd_r", "float64", (n,)), ("q_d", "float64", (n,)), ("tau_u", "float64", (n,)),
+    )
+
+
+@pytest.fixture
+def table(make_table) -> StateTable:
+    return make_table(arm_variables())
+
+
+# --- JointTrajectory ---------------------------------------------------------------------------
+
+V_MAX, A_MAX, DT = 1.0, 4.0, 0.01
+Q0 = np.array([0.1, -0.2, 0.3, 0.0, 0.5, -1.0])
+GOAL = np.array([1.0, 0.8, -0.7, 0.0, 0.5005, 2.0])  # long, short, reversed, still, tiny moves
+
+
+def trajectory_task(table: StateTable, q_m=Q0, q_d=GOAL) -> Task:
+    """A JointTrajectory task turned on at t = 0 with the arm at `q_m` and the goal `q_d`."""
+    table.write("q_m", q_m, when=0.0)
+    table.write("q_d", q_d, when=0.0)
+    params = {"max_velocity": V_MAX, "max_acceleration": A_MAX}
+    task = Task(task_spec(JointTrajectory, dims=DIMS, params=params, period=DT), JointTrajectory, table, DIMS)
+    assert task.spawn(0.0), task.last_error
+    assert task.turn_on(0.0), task.last_error
+    return task
+
+
+def run_trajectory(table: StateTable, task: Task, cycles: int, first: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(q_r, qd_r) as published after each of `cycles` cycles, one row per cycle."""
+    q_r, qd_r = np.zeros((cycles, N)), np.zeros((cycles, N))
+    for k in range(cycles):
+        assert task.run_cycle((first + k) * DT) is Status.CONTINUE
+        q_r[k], qd_r[k] = table.read("q_r")[0], table.read("qd_r")[0]
+    return q_r, qd_r
+
+
+def test_trajectory_starts_from_q_m_at_rest_when_turned_on(table):
+    table.write("q_r", np.full(N, 9.0), when=0.0)  # stale values another task left
+    table.write("qd_r", np.full(N, 5.0), when=0.0)
+    trajectory_task(table)
+    np.testing.assert_array_equal(table.read("q_r")[0], Q0)
+    np.testing.assert_array_equal(table.read("qd_r")[0], np.zeros(N))
+
+
+def test_trajectory_reaches_q_d_exactly_and_stops_there(table):
+    task = trajectory_task(table)
+    q_r, qd_r = run_trajectory(table, task, 500)  # 5 s: the longest move (3 rad at 1 rad/s) takes ~3.3 s
+    np.testing.assert_array_equal(q_r[-100:], np.broadcast_to(GOAL, (100, N)))  # exactly, and it stays
+    np.testing.assert_array_equal(qd_r[-100:], np.zeros((100, N)))
+
+
+def test_trajectory_never_exceeds_max_velocity_on_any_joint(table):
+    task = trajectory_task(table)
+    _, qd_r = run_trajectory(table, task, 500)
+    assert np.abs(qd_r).max() <= V_MAX
+    assert np.abs(qd_r).max() == V_MAX  # the long moves do cruise at the limit
+
+
+def test_trajectory_position_integrates_its_velocity_until_arrival(table):
+    task = trajectory_task(table)
+    q_r, qd_r = run_trajectory(table, task, 500)
+    q_r, qd_r = np.vstack([Q0, q_r]), np.vstack([np.zeros(N), qd_r])
+    moving = q_r[1:] != GOAL  # each joint's cycles before it snapped onto its goal
+    assert moving.sum() > 300
+    np.testing.assert_allclose(np.diff(q_r, axis=0)[moving], qd_r[1:][moving] * DT, rtol=0, atol=EPS)
+
+
+def velocity_steps(qd_r: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
+    """|change of qd_r| from one cycle to the next, every joint."""
+    before = np.zeros(N) if start is None else start
+    return np.abs(np.diff(np.vstack([before, qd_r]), axis=0))
+
+
+def test_trajectory_accelerates_and_brakes_within_max_acceleration_before_arrival(table):
+    task = trajectory_task(table)
+    q_r, qd_r = run_trajectory(table, task, 500)
+    steps = velocity_steps(qd_r)
+    # the cycle on which a joint snaps onto its goal is the known exception (next test)
+    arriving = (q_r == GOAL) & (np.vstack([Q0, q_r[:-1]]) != GOAL)
+    assert steps[~arriving].max() <= A_MAX * DT + EPS
+
+
+def test_trajectory_changes_velocity_by_at_most_max_acceleration_times_period(table):
+    task = trajectory_task(table)
+    _, qd_r = run_trajectory(table, task, 500)
+    assert velocity_steps(qd_r).max() <= A_MAX * DT + EPS
+
+
+def test_a_new_q_d_mid_way_redirects_the_trajectory_smoothly(table):
+    task = trajectory_task(table, q_m=np.zeros(N), q_d=np.full(N, 1.0))
+    _, qd_before = run_trajectory(table, task, 40)  # 0.4 s: every joint at 1 rad/s, cruising
+    np.testing.assert_array_equal(qd_before[-1], np.full(N, V_MAX))
+    back = np.array([-0.5, -0.5, 0.2, 0.9, -1.0, 1.5])  # four turn round, two go on
+    table.write("q_d", back, when=40 * DT)
+    q_r, qd_r = run_trajectory(table, task, 40, first=41)  # before any joint can arrive
+    assert velocity_steps(qd_r, start=qd_before[-1]).max() <= A_MAX * DT + EPS
+    assert np.abs(qd_r).max() <= V_MAX
+    behind = back < 0.28  # where the joints were at the switch: 0.28 rad
+    assert np.all(qd_r[-1][behind] < 0) and np.all(qd_r[-1][~behind] > 0)
+    q_r, qd_r = run_trajectory(table, task, 400, first=81)
+    np.testing.assert_array_equal(q_r[-1], back)
+    np.testing.assert_array_equal(qd_r[-1], np.zeros(N))
+
+
+@pytest.mark.parametrize(
+    ("params", "found"),
+    [
+        ({"max_velocity": 0}, "0.0, 4.0"),
+        ({"max_velocity": -1.0}, "-1.0, 4.0"),
+        ({"max_acceleration": 0.0}, "1.0, 0.0"),
+    ],
+)
+def test_trajectory_refuses_limits_that_are_not_positive(params, found):
+    with pytest.raises(
+        ParamError,
+        match=rf"^bad parameters for JointTrajectory: max_velocity and max_acceleration must be > 0, got: {found}$",
+    ):
+        JointTrajectory.build_params(params)
+
+
+# --- PidJoint ----------------------------------------------------------------------------------
+
+PID_DT = 0.01
+NO_GRAVITY = {"gravity_feedforward": False}
+
+
+def pid_task(table: StateTable, params: dict, period: float = PID_DT) -> Task:
+    """A PidJoint task for the PUMA's constants, spawned at t = 0 (not yet on)."""
+    table.write("NDOF", N, when=0.0)
+    table.write("DH", PUMA.dh, when=0.0)
+    table.write("DYN", PUMA.dyn, when=0.0)
+    return Task(task_spec(PidJoint, dims=DIMS, params=params, period=period), PidJoint, table, DIMS)
+
+
+def write_state(table: StateTable, q_r, q_m, qd_r=np.zeros(N), qd_m=np.zeros(N), when: float = 0.0) -> None:
+    for name, value in (("q_r", q_r), ("q_m", q_m), ("qd_r", qd_r), ("qd_m", qd_m)):
+        table.write(name, value, when=when)
+
+
+def tau_u(table: StateTable) -> np.ndarray:
+    return table.read("tau_u")[0]
+
+
+def test_pid_output_is_kp_times_position_error_plus_kd_times_velocity_error(table):
+    task = pid_task(table, {"kp": 100.0, "kd": 10.0, "ki": 0.0, **NO_GRAVITY})
+    assert task.spawn(0.0), task.last_error
+    write_state(
+        table,
+        q_r=[0.1, 0.2, 0.0, 1.0, -0.5, 0.0], q_m=[0.0, 0.3, 0.0, 0.5, 0.5, 0.0],
+        qd_r=[0.0, 0.0, 1.0, 0.5, 0.0, 2.0], qd_m=[0.0, 0.0, 0.0, 1.0, -1.0, 2.5],
+    )
+    assert task.turn_on(0.0)
+    np.testing.assert_allclose(tau_u(table), [10.0, -10.0, 10.0, 45.0, -90.0, -5.0], rtol=0, atol=1e-12)
+    write_state(table, q_r=np.full(N, 0.25), q_m=np.zeros(N), qd_r=np.zeros(N), qd_m=np.full(N, -0.5), when=PID_DT)
+    assert task.run_cycle(PID_DT) is Status.CONTINUE
+    np.testing.assert_allclose(tau_u(table), np.full(N, 30.0), rtol=0, atol=1e-12)  # 100 * 0.25 + 10 * 0.5
+
+
+def test_pid_integral_accumulates_ki_times_error_times_period_every_cycle(table):
+    task = pid_task(table, {"kp": 0.0, "kd": 0.0, "ki": 10.0, **NO_GRAVITY})
+    assert task.spawn(0.0), task.last_error
+    error = np.array([0.5, -0.5, 1.0, 0.0, 0.1, -2.0])
+    write_state(table, q_r=error, q_m=np.zeros(N))
+    assert task.turn_on(0.0)
+    np.testing.assert_array_equal(tau_u(table), np.zeros(N))  # nothing integrated yet
+    for k in range(1, 6):
+        task.run_cycle(k * PID_DT)
+        np.testing.assert_allclose(tau_u(table), k * 10.0 * error * PID_DT, rtol=1e-12, atol=1e-15)
+
+
+def test_pid_integral_is_clipped_at_integral_limit_and_unwinds_at_once(table):
+    task = pid_task(table, {"kp": 0.0, "kd": 0.0, "ki": 100.0, "integral_limit": 2.0, **NO_GRAVITY})
+    assert task.spawn(0.0), task.last_error
+    write_state(table, q_r=[1.0, -1.0, 1.0, -1.0, 1.0, -1.0], q_m=np.zeros(N))
+    assert task.turn_on(0.0)
+    for k in range(1, 51):  # 100 * 1 * 0.01 = 1 N m per cycle: at the limit after 2 cycles
+        task.run_cycle(k * PID_DT)
+    np.testing.assert_array_equal(tau_u(table), [2.0, -2.0, 2.0, -2.0, 2.0, -2.0])
+    write_state(table, q_r=[-0.5, 0.5, -0.5, 0.5, -0.5, 0.5], q_m=np.zeros(N), when=0.5)
+    task.run_cycle(0.51)
+    # anti-windup: no stored excess to work off first; the limit minus one step's 0.5 N m
+    np.testing.assert_allclose(tau_u(table), [1.5, -1.5, 1.5, -1.5, 1.5, -1.5], rtol=0, atol=1e-12)
+
+
+def test_pid_takes_one_gain_per_joint_from_a_list(table):
+    kp = [100.0, 200.0, 300.0, 0.0, 50.0, 1.0]
+    task = pid_task(table, {"kp": kp, "kd": [1.0, 2.0, 3.0, 4.0, 5.0, 6.0], "ki": 0.0, **NO_GRAVITY})
+    assert task.spawn(0.0), task.last_error
+    write_state(table, q_r=np.full(N, 0.5), q_m=np.zeros(N), qd_r=np.zeros(N), qd_m=np.full(N, 1.0))
+    assert task.turn_on(0.0)
+    task.run_cycle(PID_DT)
+    np.testing.assert_allclose(tau_u(table), [49.0, 98.0, 147.0, -4.0, 20.0, -5.5], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("gain", ["kp", "kd", "ki"])
+def test_pid_refuses_a_gain_list_of_the_wrong_length_at_init(table, gain):
+    task = pid_task(table, {gain: [1.0] * 5, **NO_GRAVITY})
+    assert not task.spawn(0.0)
+    assert task.state is TaskState.KILLED
+    assert task.last_error.startswith(f"init raised ValueError: {gain} must have one gain or NDOF = 6 gains, got: 5 at pid_joint.py:")
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({"kp": -1.0}, r"kp must be >= 0, got: -1\.0"),
+        ({"kd": -0.5}, r"kd must be >= 0, got: -0\.5"),
+        ({"ki": [1, 1, 1, -1, 1, 1]}, r"ki must be >= 0, got: \(1\.0, 1\.0, 1\.0, -1\.0, 1\.0, 1\.0\)"),
+        ({"integral_limit": -1.0}, r"integral_limit must be >= 0, got: -1\.0"),
+    ],
+)
+def test_pid_refuses_negative_gains_and_limits(params, message):
+    with pytest.raises(ParamError, match=rf"^bad parameters for PidJoint: {message}$"):
+        PidJoint.build_params(params)
+
+
+def pinocchio_gravity(q: np.ndarray) -> np.ndarray:
+    model = pinocchio_model(PUMA.dh, PUMA.dyn)
+    return pinocchio.computeGeneralizedGravity(model, model.createData(), q).copy()
+
+
+@pytest.mark.parametrize("q", [np.zeros(N), np.array([0.3, -0.7, 1.2, 0.4, -0.9, 2.0]), np.array([-1.0, 0.5, -0.4, 2.5, 1.3, 0.0])])
+def test_pid_with_gravity_feedforward_on_target_outputs_pinocchios_generalized_gravity(table, q):
+    task = pid_task(table, {"kp": 400.0, "kd": 40.0, "ki": 5.0})  # gravity_feedforward is the default
+    assert task.spawn(0.0), task.last_error
+    write_state(table, q_r=q, q_m=q)
+    assert task.turn_on(0.0)
+    for k in range(1, 4):
+        task.run_cycle(k * PID_DT)
+        np.testing.assert_allclose(tau_u(table), pinocchio_gravity(q), rtol=0, atol=1e-12)
+
+
+def test_pid_gravity_torque_of_the_puma_shoulder_at_zero_pose_is_37_48_n_m(table):
+    task = pid_task(table, {})
+    assert task.spawn(0.0), task.last_error
+    write_state(table, q_r=np.zeros(N), q_m=np.zeros(N))
+    assert task.turn_on(0.0)
+    task.run_cycle(PID_DT)
+    assert tau_u(table)[1] == pytest.approx(37.48, abs=0.01)
+
+
+def test_pid_with_integral_takes_over_the_torque_left_in_the_table(table):
+    task = pid_task(table, {"kp": 100.0, "kd": 0.0, "ki": 1.0, "integral_limit": 50.0, **NO_GRAVITY})
+    assert task.spawn(0.0), task.last_error
+    left = np.array([5.0, -5.0, 10.0, 0.0, 1.0, -1.0])
+    table.write("tau_u", left, when=0.0)  # what the previous controller commanded
+    write_state(table, q_r=np.full(N, 0.01), q_m=np.zeros(N))
+    assert task.turn_on(0.0)
+    np.testing.assert_allclose(tau_u(table), left, rtol=0, atol=1e-12)  # no bump
+
+
+def test_pid_bumpless_take_over_gives_no_offset_to_a_joint_without_integral_action(table):
+    """A joint with ki = 0 must stay a plain PD joint after `on`, not carry a constant offset."""
+    ki = [1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
+    task = pid_task(table, {"kp": 100.0, "kd": 0.0, "ki": ki, **NO_GRAVITY})
+    assert task.spawn(0.0), task.last_error
+    table.write("tau_u", np.full(N, 7.0), when=0.0)
+    write_state(table, q_r=np.zeros(N), q_m=np.zeros(N))
+    assert task.turn_on(0.0)
+    write_state(table, q_r=np.full(N, 0.1), q_m=np.zeros(N), when=PID_DT)
+    task.run_cycle(PID_DT)
+    np.testing.assert_allclose(tau_u(table)[3:], np.full(3, 10.0), rtol=0, atol=1e-12)  # kp * 0.1, no 7 N m
+    np.testing.assert_allclose(tau_u(table)[:3], np.full(3, 17.0 + 0.1 * PID_DT), rtol=0, atol=1e-12)
+
+
+# --- RobotTorque ---------------------------------------------------------------------------------
+
+ARM = DeviceSpec("arm", "mujoco_arm", True, {"mode": "torque"})
+
+
+class RecordingDriver(MujocoArmDriver):
+    """The real driver, remembering whether it was closed."""
+
+    closed = False
+
+    def close(self) -> None:
+        self.closed = True
+        super().close()
+
+
+@pytest.fixture
+def plant() -> Iterator[MujocoArmPlant]:
+    plant = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, {})
+    try:
+        yield plant
+    finally:
+        plant.close()
+
+
+@pytest.fixture
+def observer(plant) -> Iterator[MujocoArmDriver]:
+    """A second driver on the same registers, to see the brake request without the task's."""
+    driver = MujocoArmDriver(plant.name, {})
+    try:
+        yield driver
+    finally:
+        driver.close()
+
+
+def robot_task(table: StateTable, plant: MujocoArmPlant, resources: tuple[str, ...] = ("arm",),
+               dims: dict[str, int] = DIMS) -> tuple[Task, list[RecordingDriver]]:
+    opened: list[RecordingDriver] = []
+
+    def opener(device: DeviceSpec) -> RecordingDriver:
+        driver = RecordingDriver(plant.name, device.options)
+        opened.append(driver)
+        return driver
+
+    spec = dataclasses.replace(task_spec(RobotTorque, dims=dims, period=plant.timestep), resources=resources)
+    return Task(spec, RobotTorque, table, dims, devices={"arm": ARM}, opener=opener), opened
+
+
+def test_robot_spawn_publishes_ndof_dh_and_dyn_of_the_arm(table, plant):
+    task, _ = robot_task(table, plant)
+    assert task.spawn(0.0), task.last_error
+    ndof, _, _, writer = table.read("NDOF")
+    assert ndof == N and writer == task.index
+    np.testing.assert_array_equal(table.read("DH")[0], PUMA.dh)
+    np.testing.assert_array_equal(table.read("DYN")[0], PUMA.dyn)
+    task.kill()
+
+
+def test_robot_on_releases_the_brakes_and_publishes_where_the_arm_is(table, plant, observer):
+    task, _ = robot_task(table, plant)
+    assert task.spawn(0.0), task.last_error
+    assert observer.brakes_engaged
+    assert task.turn_on(0.0)
+    assert not observer.brakes_engaged
+    np.testing.assert_array_equal(table.read("q_m")[0], PUMA.q0)
+    np.testing.assert_array_equal(table.read("qd_m")[0], np.zeros(N))
+    plant.step()
+    assert not plant.brakes_engaged
+    task.kill()
+
+
+def test_robot_cycle_sends_tau_u_to_the_arm_and_publishes_the_state_the_plant_stepped(table, plant):
+    task, _ = robot_task(table, plant)
+    assert task.spawn(0.0), task.last_error
+    assert task.turn_on(0.0)
+    for k in range(1, 21):
+        tau = np.array([5.0, 40.0, -3.0, 1.0, -0.5, 0.2]) * (1 + 0.1 * k)
+        table.write("tau_u", tau, when=k * plant.timestep)
+        assert task.run_cycle(k * plant.timestep) is Status.CONTINUE
+        q_m, seq, when, writer = table.read("q_m")
+        np.testing.assert_array_equal(q_m, plant.data.qpos)  # the state as of the plant's last step
+        np.testing.assert_array_equal(table.read("qd_m")[0], plant.data.qvel)
+        assert (seq, when, writer) == (k, k * plant.timestep, task.index)
+        plant.step()
+        np.testing.assert_array_equal(plant.data.qfrc_applied, tau)  # what this cycle commanded
+    assert np.abs(plant.data.qpos - PUMA.q0).max() > 1e-4  # the arm did move
+    task.kill()
+
+
+def test_robot_off_engages_the_brakes(table, plant, observer):
+    task, _ = robot_task(table, plant)
+    assert task.spawn(0.0), task.last_error
+    assert task.turn_on(0.0)
+    task.run_cycle(plant.timestep)
+    task.turn_off()
+    assert observer.brakes_engaged
+    plant.step()
+    assert plant.brakes_engaged
+    task.kill()
+
+
+def test_robot_kill_engages_the_brakes_and_closes_the_driver(table, plant, observer):
+    task, opened = robot_task(table, plant)
+    assert task.spawn(0.0), task.last_error
+    assert task.turn_on(0.0)
+    task.turn_off()
+    observer.release_brakes()  # someone let go of the arm while the task was off
+    task.kill()
+    assert observer.brakes_engaged
+    assert [d.closed for d in opened] == [True]
+    assert task.state is TaskState.KILLED and task.last_error == ""
+
+
+def test_robot_task_whose_resources_do_not_list_the_device_fails_init_naming_it(table, plant):
+    task, opened = robot_task(table, plant, resources=())
+    assert not task.spawn(0.0)
+    assert task.state is TaskState.KILLED
+    assert task.last_error.startswith("init raised ModuleError: task 't' opens device 'arm', but its resources are: none at ")
+    assert opened == []
+
+
+def test_robot_fails_init_when_ndof_differs_from_the_arms_joints(make_table, plant, observer):
+    table = make_table(arm_variables(5))
+    task, opened = robot_task(table, plant, dims={"NDOF": 5})
+    assert not task.spawn(0.0)
+    assert task.state is TaskState.KILLED
+    assert task.last_error.startswith(
+        "init raised ModuleError: the arm on device 'arm' has 6 joints, but the configuration says NDOF = 5 at robot_torque.py:"
+    )
+    assert [d.closed for d in opened] == [True]  # kill ran and the driver was not leaked
+    assert observer.brakes_engaged
+
+
+# --- DataLogger ----------------------------------------------------------------------------------
+
+LOG_DT = 0.01
+LOGGED = variables(("x", "float64", (3,)), ("k", "int32", ()), ("m", "float64", (2, 2)), ("unlogged", "float64", ()))
+
+
+@pytest.fixture
+def log_table(make_table) -> StateTable:
+    return make_table(LOGGED)
+
+
+def logger_task(table: StateTable, params: dict) -> Task:
+    built = DataLogger.build_params(params)
+    bindings = tuple(PortBinding(p, p.variable, table.layout.slot(p.variable).shape) for p in DataLogger.ports_for(built))
+    spec = TaskSpec(name="log", module="DataLogger", rtpu="rtpu0", period=LOG_DT, params=params, bindings=bindings, index=1)
+    task = Task(spec, DataLogger, table)
+    assert task.spawn(0.0), task.last_error
+    assert task.turn_on(0.0), task.last_error
+    return task
+
+
+def log_cycles(table: StateTable, task: Task, cycles: int, t0: float = 1.0) -> list[tuple[float, np.ndarray, int, np.ndarray]]:
+    """Write fresh values, run a cycle; return what was written, with each release time."""
+    written = []
+    for i in range(cycles):
+        t = t0 + i * LOG_DT
+        x, k, m = np.array([i, -i, 0.5 * i]), 10 * i - 3, np.arange(4.0).reshape(2, 2) + i
+        for name, value in (("x", x), ("k", k), ("m", m), ("unlogged", -1.0)):
+            table.write(name, value, when=t)
+        assert task.run_cycle(t) is Status.CONTINUE
+        written.append((t, x, k, m))
+    return written
+
+
+def assert_log_holds(path: Path, written: list) -> None:
+    with np.load(path) as log:
+        assert sorted(log.files) == ["dropped", "k", "m", "time", "x"]
+        np.testing.assert_array_equal(log["time"], [w[0] for w in written])
+        assert np.all(np.diff(log["time"]) > 0)
+        np.testing.assert_array_equal(log["x"], np.array([w[1] for w in written]).reshape(len(written), 3))
+        np.testing.assert_array_equal(log["k"], np.array([w[2] for w in written], dtype=np.int32))
+        assert log["k"].dtype == np.int32
+        np.testing.assert_array_equal(log["m"], np.array([w[3] for w in written]).reshape(len(written), 2, 2))
+
+
+def test_logger_off_writes_one_row_per_cycle_of_every_logged_variable(log_table, tmp_path):
+    path = tmp_path / "runs" / "log.npz"
+    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path)})
+    written = log_cycles(log_table, task, 7)
+    assert not path.exists()  # the cycle does no I/O
+    task.turn_off()
+    assert_log_holds(path, written)
+    with np.load(path) as log:
+        assert log["dropped"] == 0
+    assert sorted(p.name for p in path.parent.iterdir()) == ["log.npz"]  # no partial file left behind
+    task.kill()
+
+
+def test_logger_kill_writes_the_file_too(log_table, tmp_path):
+    path = tmp_path / "log.npz"
+    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path)})
+    written = log_cycles(log_table, task, 4)
+    task.turn_off()
+    path.unlink()  # so that only kill can have written what we read
+    task.kill()
+    assert_log_holds(path, written)
+
+
+def test_logger_keeps_appending_after_off_and_on(log_table, tmp_path):
+    path = tmp_path / "log.npz"
+    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path)})
+    written = log_cycles(log_table, task, 3)
+    task.turn_off()
+    assert task.turn_on(2.0)
+    written += log_cycles(log_table, task, 2, t0=2.0)
+    task.kill()  # from ON: off, then kill
+    assert_log_holds(path, written)
+
+
+def test_logger_counts_rows_past_capacity_as_dropped_and_does_not_write_them(log_table, tmp_path):
+    path = tmp_path / "log.npz"
+    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "capacity": 3 * LOG_DT})
+    written = log_cycles(log_table, task, 5)
+    assert (task.module.logged, task.module.dropped) == (3, 2)
+    task.turn_off()
+    assert_log_holds(path, written[:3])
+    with np.load(path) as log:
+        assert log["dropped"] == 2
+    task.kill()
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({"variables": []}, r"bad parameters for DataLogger: variables must name at least one variable to log"),
+        ({"variables": ["x", "k", "x"]}, r"bad parameters for DataLogger: variables must not repeat, got: \['x', 'k', 'x'\]"),
+        ({"variables": ["x"], "path": "runs/log.csv"}, r"bad parameters for DataLogger: path must end in \.npz, got: 'runs/log\.csv'"),
+        ({"variables": ["x"], "capacity": 0}, r"bad parameters for DataLogger: capacity must be > 0 s, got: 0\.0"),
+        ({"path": "log.npz"}, r"missing parameter\(s\) 'variables' for DataLogger"),
+    ],
+)
+def test_logger_refuses_bad_params(params, message):
+    with pytest.raises(ParamError, match=rf"^{message}$"):
+        DataLogger.build_params(params)

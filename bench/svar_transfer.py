@@ -129,9 +129,7 @@ def main() -> None:
                 batch[key].append(_time_batch(f, args.iterations))
     finally:
         table.close()
-        del flat, take, global_views, pairs_in, pairs_out
-        bare.close()
-        shm.unlink()
+        shm.unlink()  # the mapping itself goes with the process; the name must not outlive it
         sem.unlink()
 
     print(f"one cycle's transfer: 4 in-vars + 2 out-vars of {SIZE} float64, two lock pairs; "

@@ -33,7 +33,7 @@ import numpy as np
 import posix_ipc
 
 from pbo_runtime import _shm
-from pbo_runtime._config_model import Subsystem, TaskSpec, VariableSpec
+from pbo_runtime._config_model import Subsystem, VariableSpec
 from pbo_runtime._errors import InternalError, TableLayoutError
 
 MAGIC = 0x5042_4F5F_5441_424C  # "PBO_TABL"
@@ -83,10 +83,8 @@ class Status(enum.IntEnum):
     JITTER_MAX = 6
     RELEASE = 7  # the release time of the last cycle, clock seconds: its outputs' write time
     ERRORS = 8
-    LOCK_ACQUISITIONS = 9
-    BYTES_MOVED = 10
-    RTPU = 11
-    PID = 12
+    # Lock acquisitions (2 per cycle) and bytes moved (cycles x the task's bytes per cycle) are
+    # exact functions of CYCLES: the bus report derives them instead of counting every cycle.
 
 
 class TaskState(enum.IntEnum):

@@ -14,7 +14,7 @@ import pytest
 from pbo_runtime import _messages, _shm
 from pbo_runtime._supervisor import remove_dead_runs
 from pbo_runtime._table import Header, StateTable, TableLayout
-from tests.conftest import REPO, unique_name, variables
+from tests.conftest import REPO, variables
 from tests.test_end_to_end import DEMO, PBO, children_of
 
 VARS = variables(("a", "float64", (3,)))

@@ -200,12 +200,19 @@ class _Checker:
         return None
 
     def keys(self, m: YMap, allowed: Sequence[str], required: Sequence[str], where: str, owner_loc: Location) -> None:
+        missing = [key for key in required if key not in m]
         for key in m:
             if key not in allowed:
-                self.error(f"unknown key '{key}' {where}", m.key_loc(key), did_you_mean(key, allowed))
-        for key in required:
-            if key not in m:
-                self.error(f"{where} misses required key '{key}'", owner_loc, f"add '{key}:' (keys: {', '.join(allowed)})")
+                close = difflib.get_close_matches(str(key), missing, n=1, cutoff=0.6)
+                if close:  # one mistake, one error: a misspelt required key
+                    missing.remove(close[0])
+                    self.error(f"unknown key '{key}' {where}: did you mean the required key '{close[0]}'?", m.key_loc(key),
+                               f"rename it '{close[0]}:'")
+                else:
+                    self.error(f"unknown key '{key}' {where}", m.key_loc(key), did_you_mean(key, allowed))
+        subject = where[3:] if where.startswith("in ") else "the file" if where == "at the top level" else where
+        for key in missing:
+            self.error(f"{subject} has no '{key}:', which is required", owner_loc, f"add '{key}:' (keys: {', '.join(allowed)})")
 
     def name(self, key: object, loc: Location, what: str) -> str | None:
         if isinstance(key, str) and key:
@@ -404,7 +411,7 @@ class _Checker:
             if spec is None:
                 continue
             if "driver" not in spec:
-                self.error(f"device '{name}' misses required key 'driver'", key_loc, "add 'driver: <name>' (a registered driver)")
+                self.error(f"device '{name}' has no 'driver:', which is required", key_loc, "add 'driver: <name>' (a registered driver)")
                 continue
             driver = self.text(spec["driver"], spec.value_loc("driver"), f"driver of device '{name}'")
             exclusive: bool | None = False

@@ -205,12 +205,17 @@ def test_an_unknown_key_in_a_variable_is_an_error(tmp_path: Path) -> None:
 def test_a_missing_required_top_level_key_is_an_error(tmp_path: Path) -> None:
     text = changed("rtpus: [rtpu0, rtpu1]\n", "")
     result = check(tmp_path, text)
-    assert any(re.match(r"^at the top level misses required key 'rtpus'$", e.message) for e in result.errors)
+    assert any(re.match(r"^the file has no 'rtpus:', which is required$", e.message) for e in result.errors)
+
+
+def test_a_misspelt_required_key_is_one_error_not_two(tmp_path: Path) -> None:
+    text = LEGAL.replace("module: fake_robot", "modul: fake_robot")
+    expect_error(tmp_path, text, "modul:", r"unknown key 'modul' in task 'robot': did you mean the required key 'module'\?$")
 
 
 def test_a_task_without_a_module_is_an_error_at_the_task(tmp_path: Path) -> None:
     text = changed("module: fake_traj, ", "")
-    expect_error(tmp_path, text, "traj:", r"in task 'traj' misses required key 'module'$")
+    expect_error(tmp_path, text, "traj:", r"task 'traj' has no 'module:', which is required$")
 
 
 def test_a_section_of_the_wrong_type_is_an_error(tmp_path: Path) -> None:

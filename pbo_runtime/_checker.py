@@ -1,7 +1,8 @@
 """The configuration checker: every rule of DESIGN.md §6 and §12, all errors of a file in one pass.
 
 It walks a loaded YAML document (`_yaml_nodes.YMap`), reports each mistake like a compiler
-(`file:line:col: error: ...` with the objects, what was found, the valid choices and a hint),
+(`file:line:col: error[E403]: ...` with the objects, what was found, the valid choices and a hint;
+every rule has a stable code, listed in docs/error-codes.md),
 and builds the frozen specs of `_config_model` from what is right, so the loader can assemble a
 `Subsystem` when nothing is wrong. It never stops at the first mistake: a broken part is left out
 of the later rules so one typo does not cascade into a page of follow-on errors.
@@ -9,7 +10,6 @@ of the later rules so one typo does not cascade into a page of follow-on errors.
 
 from __future__ import annotations
 
-import ast
 import difflib
 import graphlib
 import heapq
@@ -35,6 +35,7 @@ from pbo_runtime._config_model import (
     VariableSpec,
 )
 from pbo_runtime._errors import ConfigError, ParamError
+from pbo_runtime._expressions import ALLOWED, ExpressionError, compile_condition
 from pbo_runtime._ports import ANY_DTYPE, PortSpec
 from pbo_runtime._units import DATA_RATE, FREQUENCY, SIZE, TIME, parse_quantity
 from pbo_runtime._yaml_nodes import YList, YMap, location_of, plain
@@ -57,7 +58,10 @@ TOP_KEYS = (
 )
 TOP_REQUIRED = ("subsystem", "rtpus", "variables", "tasks", "configurations")
 VARIABLE_KEYS = ("type", "shape", "doc", "object", "initial")
-TASK_KEYS = ("module", "rtpu", "period", "rate", "priority", "critical", "params", "ports", "resources")
+TASK_KEYS = (
+    "module", "rtpu", "period", "rate", "aperiodic", "min_interarrival", "wcet",
+    "priority", "critical", "params", "ports", "resources",
+)
 JOB_KEYS = ("configuration", "object", "pre", "post", "timeout")
 BUS_KEYS = ("bandwidth", "lock_overhead")
 RTPU_KEYS = ("cpu",)
@@ -114,6 +118,9 @@ class _Task:
     period: float = 0.0
     priority: int = 0
     critical: bool = False
+    wcet: float | None = None
+    aperiodic: bool = False
+    min_interarrival: float | None = None
     params: dict[str, Any] = field(default_factory=dict)
     built_params: Any = None  # the module's Params instance, once the params checked out
 
@@ -150,6 +157,13 @@ def describe(value: object) -> str:
     return f"{type(value).__name__} {value!r}"
 
 
+def _ms(seconds: float) -> str:
+    """A time as an engineer writes it: '1 ms', '0.25 ms', '2 s'."""
+    if seconds >= 1:
+        return f"{seconds:g} s"
+    return f"{seconds * 1e3:g} ms"
+
+
 def _show_shape(shape: Sequence[object]) -> str:
     if not shape:
         return "() (a scalar)"
@@ -178,17 +192,20 @@ class _Checker:
         self.task_names: set[str] = set()
         self.config_names: set[str] = set()
         self.config_members: dict[str, list[tuple[str, Location]]] = {}
+        self.config_locs: dict[str, Location] = {}
         self.job_names: set[str] = set()
         self.expression_names: set[str] = set()
         self.device_names: set[str] = set()
+        self.sources: dict[str, list[str]] = {}
+        self.app_names: set[str] = set()
 
     # --- reporting --------------------------------------------------------------------------
 
-    def error(self, message: str, loc: Location, hint: str = "") -> None:
-        self.out.errors.append(ConfigError(message, loc.file, loc.line, loc.column, hint))
+    def error(self, code: str, message: str, loc: Location, hint: str = "") -> None:
+        self.out.errors.append(ConfigError(message, loc.file, loc.line, loc.column, hint, code=code))
 
-    def warn(self, message: str, loc: Location, hint: str = "") -> None:
-        self.out.warnings.append(ConfigError(message, loc.file, loc.line, loc.column, hint, severity="warning"))
+    def warn(self, code: str, message: str, loc: Location, hint: str = "") -> None:
+        self.out.warnings.append(ConfigError(message, loc.file, loc.line, loc.column, hint, severity="warning", code=code))
 
     # --- shape helpers ----------------------------------------------------------------------
 
@@ -196,7 +213,7 @@ class _Checker:
         """The value if it is a mapping, else an error saying what was expected."""
         if isinstance(value, YMap):
             return value
-        self.error(f"{what} must be a mapping, got: {describe(value)}", location_of(value, loc), example)
+        self.error("E113", f"{what} must be a mapping, got: {describe(value)}", location_of(value, loc), example)
         return None
 
     def keys(self, m: YMap, allowed: Sequence[str], required: Sequence[str], where: str, owner_loc: Location) -> None:
@@ -206,38 +223,38 @@ class _Checker:
                 close = difflib.get_close_matches(str(key), missing, n=1, cutoff=0.6)
                 if close:  # one mistake, one error: a misspelt required key
                     missing.remove(close[0])
-                    self.error(f"unknown key '{key}' {where}: did you mean the required key '{close[0]}'?", m.key_loc(key),
+                    self.error("E111", f"unknown key '{key}' {where}: did you mean the required key '{close[0]}'?", m.key_loc(key),
                                f"rename it '{close[0]}:'")
                 else:
-                    self.error(f"unknown key '{key}' {where}", m.key_loc(key), did_you_mean(key, allowed))
+                    self.error("E111", f"unknown key '{key}' {where}", m.key_loc(key), did_you_mean(key, allowed))
         subject = where[3:] if where.startswith("in ") else "the file" if where == "at the top level" else where
         for key in missing:
-            self.error(f"{subject} has no '{key}:', which is required", owner_loc, f"add '{key}:' (keys: {', '.join(allowed)})")
+            self.error("E112", f"{subject} has no '{key}:', which is required", owner_loc, f"add '{key}:' (keys: {', '.join(allowed)})")
 
     def name(self, key: object, loc: Location, what: str) -> str | None:
         if isinstance(key, str) and key:
             return key
-        self.error(f"{what} names must be text, got: {describe(key)}", loc, "write the name as plain text, e.g. q_m")
+        self.error("E118", f"{what} names must be text, got: {describe(key)}", loc, "write the name as plain text, e.g. q_m")
         return None
 
     def text(self, value: Any, loc: Location, what: str) -> str | None:
         if isinstance(value, str):
             return value
-        self.error(f"{what} must be text, got: {describe(value)}", location_of(value, loc))
+        self.error("E114", f"{what} must be text, got: {describe(value)}", location_of(value, loc))
         return None
 
     def boolean(self, value: Any, loc: Location, what: str) -> bool | None:
         if isinstance(value, bool):
             return value
-        self.error(f"{what} must be true or false, got: {describe(value)}", location_of(value, loc))
+        self.error("E115", f"{what} must be true or false, got: {describe(value)}", location_of(value, loc))
         return None
 
     def integer(self, value: Any, loc: Location, what: str, minimum: int | None = None) -> int | None:
         if not isinstance(value, int) or isinstance(value, bool):
-            self.error(f"{what} must be an integer, got: {describe(value)}", location_of(value, loc))
+            self.error("E116", f"{what} must be an integer, got: {describe(value)}", location_of(value, loc))
             return None
         if minimum is not None and value < minimum:
-            self.error(f"{what} must be >= {minimum}, got: {value}", loc)
+            self.error("E117", f"{what} must be >= {minimum}, got: {value}", loc)
             return None
         return value
 
@@ -248,13 +265,13 @@ class _Checker:
             hint = ""
             if kind == TIME and "that is a frequency" in str(exc):
                 hint = "give a rate as 'rate: 1 kHz', or a period as 'period: 1 ms'"
-            self.error(f"{what}: {exc}", location_of(value, loc), hint)
+            self.error("E501", f"{what}: {exc}", location_of(value, loc), hint)
             return None
         if positive and number <= 0:
-            self.error(f"{what} must be > 0, got: {value}", loc)
+            self.error("E502", f"{what} must be > 0, got: {value}", loc)
             return None
         if not positive and number < 0:
-            self.error(f"{what} must be >= 0, got: {value}", loc)
+            self.error("E502", f"{what} must be >= 0, got: {value}", loc)
             return None
         return number
 
@@ -263,6 +280,7 @@ class _Checker:
     def run(self, doc: Any, doc_loc: Location) -> Checked:
         if doc is None:
             self.error(
+                "E110",
                 "the file is empty",
                 doc_loc,
                 "a subsystem file is a mapping with keys " + ", ".join(TOP_REQUIRED),
@@ -285,6 +303,7 @@ class _Checker:
         self.check_applications(top)
         for config in self.config_members:
             self.check_data_flow(config)
+        self.check_schedulability()
         self.check_const_order()
         self.check_unused()
         return self.out
@@ -304,6 +323,7 @@ class _Checker:
             return
         if not _SUBSYSTEM_NAME.match(name):
             self.error(
+                "E201",
                 f"subsystem name {name!r} is not usable in shared-memory names",
                 loc,
                 "use letters, digits, '_' and '-', starting with a letter (e.g. puma)",
@@ -335,20 +355,21 @@ class _Checker:
             entries = [(k, value.key_loc(k), v, value.value_loc(k)) for k, v in value.items()]
         else:
             self.error(
+                "E113",
                 f"'rtpus' must be a list of names or a mapping of name to {{cpu: N}}, got: {describe(value)}",
                 loc,
                 "e.g. rtpus: [rtpu0, rtpu1] or rtpus: {rtpu0: {cpu: 0}}",
             )
             return
         if not entries:
-            self.error("'rtpus' is empty: a subsystem needs at least one RTPU", location_of(value, loc), "e.g. rtpus: [rtpu0]")
+            self.error("E119", "'rtpus' is empty: a subsystem needs at least one RTPU", location_of(value, loc), "e.g. rtpus: [rtpu0]")
         rtpus: list[RtpuSpec] = []
         for key, key_loc, spec, spec_loc in entries:
             name = self.name(key, key_loc, "RTPU")
             if name is None:
                 continue
             if name in self.rtpu_names:
-                self.error(f"RTPU '{name}' is listed twice", key_loc)
+                self.error("E202", f"RTPU '{name}' is listed twice", key_loc)
                 continue
             cpu = None
             if spec is not None:
@@ -393,7 +414,7 @@ class _Checker:
         options = {k: plain(v) for k, v in plant.items() if k not in ("type", "model", "timestep")}
         for key in options:
             if not isinstance(key, str):
-                self.error(f"plant option names must be text, got: {describe(key)}", plant.key_loc(key))
+                self.error("E118", f"plant option names must be text, got: {describe(key)}", plant.key_loc(key))
         if kind is not None and model is not None and timestep is not None:
             self.out.plant = PlantSpec(kind, model, timestep, options, plant.loc)
 
@@ -411,7 +432,7 @@ class _Checker:
             if spec is None:
                 continue
             if "driver" not in spec:
-                self.error(f"device '{name}' has no 'driver:', which is required", key_loc, "add 'driver: <name>' (a registered driver)")
+                self.error("E112", f"device '{name}' has no 'driver:', which is required", key_loc, "add 'driver: <name>' (a registered driver)")
                 continue
             driver = self.text(spec["driver"], spec.value_loc("driver"), f"driver of device '{name}'")
             exclusive: bool | None = False
@@ -420,7 +441,7 @@ class _Checker:
             options = {k: plain(v) for k, v in spec.items() if k not in ("driver", "exclusive")}
             bad = [k for k in options if not isinstance(k, str)]
             for k in bad:
-                self.error(f"option names of device '{name}' must be text, got: {describe(k)}", spec.key_loc(k))
+                self.error("E118", f"option names of device '{name}' must be text, got: {describe(k)}", spec.key_loc(k))
             if driver is not None and exclusive is not None and not bad:
                 self.out.devices[name] = DeviceSpec(name, driver, exclusive, options, key_loc)
 
@@ -434,6 +455,7 @@ class _Checker:
             items = [(value, loc)]  # 'shape: 6' and 'shape: NDOF' mean one dimension
         else:
             self.error(
+                "E113",
                 f"shape of {owner} must be a list of sizes or dim names, got: {describe(value)}",
                 location_of(value, loc),
                 "e.g. shape: [NDOF, 4]; leave shape out for a scalar",
@@ -447,6 +469,7 @@ class _Checker:
                     shape.append(self.out.dims[item])
                 else:
                     self.error(
+                        "E204",
                         f"shape of {owner} uses dim '{item}', which 'dims' does not define",
                         item_loc,
                         did_you_mean(item, self.out.dims, "defined"),
@@ -455,18 +478,19 @@ class _Checker:
             elif isinstance(item, int) and not isinstance(item, bool) and item >= 1:
                 shape.append(item)
             else:
-                self.error(f"shape of {owner}: each size must be an integer >= 1 or a dim name, got: {describe(item)}", item_loc)
+                self.error("E305", f"shape of {owner}: each size must be an integer >= 1 or a dim name, got: {describe(item)}", item_loc)
                 ok = False
         return tuple(shape) if ok else None
 
     def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str) -> np.ndarray | None:
         """A value for a variable (initial or a job's argument) as an array, or an error."""
         if isinstance(value, dict):
-            self.error(f"{what} must be a number or a list, got: a mapping", location_of(value, loc))
+            self.error("E310", f"{what} must be a number or a list, got: a mapping", location_of(value, loc))
             return None
         found = _nested_shape(value)
         if found is None:
             self.error(
+                "E311",
                 f"{what} is a ragged list; rows must have equal lengths",
                 location_of(value, loc),
                 f"give a nested list of shape {_show_shape(shape)}",
@@ -474,6 +498,7 @@ class _Checker:
             return None
         if isinstance(value, list) and found != shape:
             self.error(
+                "E312",
                 f"{what} has shape {_show_shape(found)}, but the variable's shape is {_show_shape(shape)}",
                 location_of(value, loc),
                 f"give a nested list of shape {_show_shape(shape)}, or one number for every element",
@@ -483,12 +508,12 @@ class _Checker:
         for leaf in leaves:
             problem = _leaf_problem(leaf, dtype)
             if problem:
-                self.error(f"{what}: {problem}", location_of(value, loc))
+                self.error("E313", f"{what}: {problem}", location_of(value, loc))
                 return None
         try:
             return np.broadcast_to(np.asarray(leaves if not isinstance(value, list) else value, dtype=dtype).reshape(found), shape).copy()
         except (ValueError, TypeError, OverflowError) as exc:
-            self.error(f"{what} cannot be stored as {dtype}: {exc}", location_of(value, loc))
+            self.error("E313", f"{what} cannot be stored as {dtype}: {exc}", location_of(value, loc))
             return None
 
     def check_variables(self, top: YMap) -> None:
@@ -511,7 +536,7 @@ class _Checker:
                 type_loc = spec.value_loc("type")
                 raw = self.text(spec["type"], type_loc, f"type of variable '{name}'")
                 if raw is not None and raw not in DTYPES:
-                    self.error(f"variable '{name}' has unknown type '{raw}'", type_loc, did_you_mean(raw, DTYPES))
+                    self.error("E303", f"variable '{name}' has unknown type '{raw}'", type_loc, did_you_mean(raw, DTYPES))
                 elif raw is not None:
                     dtype = str(np.dtype(raw))
             shape: tuple[int, ...] | None = ()
@@ -588,6 +613,9 @@ class _Checker:
                     tuple(r for r, _ in task.resources),
                     index,
                     key_loc,
+                    task.wcet,
+                    task.aperiodic,
+                    task.min_interarrival,
                 )
 
     def check_task_fields(self, task: _Task, spec: YMap) -> bool:
@@ -598,7 +626,7 @@ class _Checker:
             loc = spec.value_loc("rtpu")
             rtpu = self.text(spec["rtpu"], loc, f"rtpu of task '{name}'")
             if rtpu is not None and rtpu not in self.rtpu_names:
-                self.error(f"task '{name}' runs on RTPU '{rtpu}', which 'rtpus' does not declare", loc, did_you_mean(rtpu, self.rtpu_names, "declared"))
+                self.error("E203", f"task '{name}' runs on RTPU '{rtpu}', which 'rtpus' does not declare", loc, did_you_mean(rtpu, self.rtpu_names, "declared"))
                 ok = False
             elif rtpu is None:
                 ok = False
@@ -606,28 +634,7 @@ class _Checker:
                 task.rtpu = rtpu
         else:
             ok = False
-        if "period" in spec and "rate" in spec:
-            self.error(
-                f"task '{name}' gives both a period and a rate",
-                spec.key_loc("rate"),
-                "give one of them: period: 1 ms or rate: 1 kHz",
-            )
-            ok = False
-        elif "period" in spec:
-            period = self.quantity(spec["period"], spec.value_loc("period"), TIME, f"period of task '{name}'")
-            ok = ok and period is not None
-            task.period = period or 0.0
-        elif "rate" in spec:
-            rate = self.quantity(spec["rate"], spec.value_loc("rate"), FREQUENCY, f"rate of task '{name}'")
-            ok = ok and rate is not None
-            task.period = 1.0 / rate if rate else 0.0
-        else:
-            self.error(
-                f"task '{name}' needs a period or a rate",
-                task.loc,
-                "add e.g. 'period: 1 ms' or 'rate: 1 kHz' (aperiodic tasks are not supported yet)",
-            )
-            ok = False
+        ok = self.check_task_timing(task, spec) and ok
         if "priority" in spec:
             priority = self.integer(spec["priority"], spec.value_loc("priority"), f"priority of task '{name}'")
             ok = ok and priority is not None
@@ -640,7 +647,7 @@ class _Checker:
             value = spec["resources"]
             loc = spec.value_loc("resources")
             if not isinstance(value, YList):
-                self.error(f"resources of task '{name}' must be a list of device names, got: {describe(value)}", location_of(value, loc), "e.g. resources: [arm]")
+                self.error("E113", f"resources of task '{name}' must be a list of device names, got: {describe(value)}", location_of(value, loc), "e.g. resources: [arm]")
                 return False
             seen: set[str] = set()
             for i, item in enumerate(value):
@@ -649,14 +656,98 @@ class _Checker:
                 if device is None:
                     ok = False
                 elif device not in self.device_names:
-                    self.error(f"task '{name}' uses device '{device}', which 'devices' does not declare", item_loc, did_you_mean(device, self.device_names, "declared"))
+                    self.error("E208", f"task '{name}' uses device '{device}', which 'devices' does not declare", item_loc, did_you_mean(device, self.device_names, "declared"))
                     ok = False
                 elif device in seen:
-                    self.error(f"task '{name}' lists device '{device}' twice", item_loc)
+                    self.error("E602", f"task '{name}' lists device '{device}' twice", item_loc)
                     ok = False
                 else:
                     seen.add(device)
                     task.resources.append((device, item_loc))
+        return ok
+
+    def check_task_timing(self, task: _Task, spec: YMap) -> bool:
+        """period or rate, or aperiodic with min_interarrival; and wcet within the period."""
+        name = task.name
+        ok = True
+        aperiodic = False
+        if "aperiodic" in spec:
+            flag = self.boolean(spec["aperiodic"], spec.value_loc("aperiodic"), f"'aperiodic' of task '{name}'")
+            if flag is None:
+                return False  # periodic or not is unknown: any further timing error would be a guess
+            aperiodic = flag
+        task.aperiodic = aperiodic
+        if aperiodic:
+            for key in ("period", "rate"):
+                if key in spec:
+                    self.error(
+                        "E506",
+                        f"task '{name}' is aperiodic, so it takes no {key}",
+                        spec.key_loc(key),
+                        "an aperiodic task runs when an event arrives; give its min_interarrival: instead (e.g. min_interarrival: 5 ms)",
+                    )
+                    ok = False
+            if "min_interarrival" not in spec:
+                self.error(
+                    "E507",
+                    f"aperiodic task '{name}' needs a min_interarrival",
+                    spec.key_loc("aperiodic"),
+                    "add the shortest time between two of its events, e.g. min_interarrival: 5 ms",
+                )
+                return False
+            gap = self.quantity(spec["min_interarrival"], spec.value_loc("min_interarrival"), TIME, f"min_interarrival of task '{name}'")
+            if gap is None:
+                return False
+            task.min_interarrival = gap
+            task.period = gap  # the worst case: analysis treats it as periodic at its fastest
+        else:
+            if "min_interarrival" in spec:
+                self.error(
+                    "E508",
+                    f"task '{name}' gives a min_interarrival but is not aperiodic",
+                    spec.key_loc("min_interarrival"),
+                    "add 'aperiodic: true' for a task released by events, or give a periodic task a period: or rate:",
+                )
+                ok = False
+            if "period" in spec and "rate" in spec:
+                self.error(
+                    "E503",
+                    f"task '{name}' gives both a period and a rate",
+                    spec.key_loc("rate"),
+                    "give one of them: period: 1 ms or rate: 1 kHz",
+                )
+                return False
+            if "period" in spec:
+                period = self.quantity(spec["period"], spec.value_loc("period"), TIME, f"period of task '{name}'")
+                ok = ok and period is not None
+                task.period = period or 0.0
+            elif "rate" in spec:
+                rate = self.quantity(spec["rate"], spec.value_loc("rate"), FREQUENCY, f"rate of task '{name}'")
+                ok = ok and rate is not None
+                task.period = 1.0 / rate if rate else 0.0
+            else:
+                self.error(
+                    "E504",
+                    f"task '{name}' needs a period or a rate",
+                    task.loc,
+                    "add e.g. 'period: 1 ms' or 'rate: 1 kHz', or 'aperiodic: true' with a min_interarrival:",
+                )
+                return False
+        if "wcet" in spec:
+            loc = spec.value_loc("wcet")
+            wcet = self.quantity(spec["wcet"], loc, TIME, f"wcet of task '{name}'")
+            if wcet is None:
+                return False
+            if ok and task.period > 0 and wcet > task.period:
+                span = "min_interarrival" if aperiodic else "period"
+                self.error(
+                    "E505",
+                    f"wcet of task '{name}' must be <= its {span} ({_ms(task.period)}), got: {spec['wcet']}",
+                    loc,
+                    "a cycle that runs longer than its period can never keep up; check the wcet, or slow the task down",
+                )
+                return False
+            task.wcet = wcet
         return ok
 
     def check_task_module(self, task: _Task, spec: YMap) -> Any:
@@ -672,7 +763,7 @@ class _Checker:
         except Exception as exc:  # ModuleError, or a library that fails to import
             known = self.known_modules()
             hint = did_you_mean(module, known, "registered") if known is not None else str(exc)
-            self.error(f"task '{task.name}' uses module '{module}', which is not registered", loc, hint)
+            self.error("E207", f"task '{task.name}' uses module '{module}', which is not registered", loc, hint)
             return None
         return module_class
 
@@ -682,7 +773,7 @@ class _Checker:
             built = getattr(task, "built_params", None)
             ports = tuple(module_class.ports_for(built) if built is not None else module_class.ports())
         except Exception as exc:  # the module is broken, not the YAML; say so
-            self.error(f"module '{task.module}' of task '{task.name}' cannot list its ports: {exc!r}", loc)
+            self.error("E307", f"module '{task.module}' of task '{task.name}' cannot list its ports: {exc!r}", loc)
             return None
         return ports
 
@@ -702,6 +793,7 @@ class _Checker:
                 for port_name, var in m.items():
                     if port_name not in declared:
                         self.error(
+                            "E212",
                             f"module '{task.module}' of task '{name}' has no port '{port_name}'",
                             m.key_loc(port_name),
                             did_you_mean(port_name, declared, "ports"),
@@ -719,12 +811,14 @@ class _Checker:
             if var not in self.var_locs:
                 if explicit:
                     self.error(
+                        "E205",
                         f"task '{name}' links port '{port.name}' to variable '{var}', which 'variables' does not declare",
                         loc,
                         did_you_mean(var, self.var_locs, "declared"),
                     )
                 else:
                     self.error(
+                        "E206",
                         f"task '{name}' (module '{task.module}') links port '{port.name}' by default to variable '{var}', "
                         "which 'variables' does not declare",
                         loc,
@@ -744,6 +838,7 @@ class _Checker:
                 shape = port.resolved_shape(self.out.dims, variable.shape)
             except KeyError as exc:
                 self.error(
+                    "E304",
                     f"port '{port.name}' of module '{task.module}' (task '{name}') has shape {_show_shape(port.shape)} "
                     f"with dim {exc}, which 'dims' does not define",
                     loc,
@@ -752,11 +847,12 @@ class _Checker:
                 ok = False
                 continue
             except (TypeError, ValueError) as exc:
-                self.error(f"port '{port.name}' of module '{task.module}' has a bad shape {port.shape!r}: {exc}", loc)
+                self.error("E306", f"port '{port.name}' of module '{task.module}' has a bad shape {port.shape!r}: {exc}", loc)
                 ok = False
                 continue
             if port.dtype != variable.dtype:
                 self.error(
+                    "E301",
                     f"task '{name}' port '{port.name}' ({port.kind.value}) is {port.dtype}, but variable '{var}' is {variable.dtype}",
                     loc,
                     f"change the type of '{var}' (line {variable.loc.line}) or link the port to a {port.dtype} variable",
@@ -766,6 +862,7 @@ class _Checker:
             if shape != variable.shape:
                 named = "" if shape == port.shape else f" = {_show_shape(port.shape)}"
                 self.error(
+                    "E302",
                     f"task '{name}' port '{port.name}' ({port.kind.value}) has shape {_show_shape(shape)}{named}, "
                     f"but variable '{var}' has shape {_show_shape(variable.shape)}",
                     loc,
@@ -780,16 +877,16 @@ class _Checker:
         raw = spec.get("params")
         loc = spec.value_loc("params") if "params" in spec else task.loc
         if raw is not None and not isinstance(raw, YMap):
-            self.error(f"params of task '{task.name}' must be a mapping, got: {describe(raw)}", location_of(raw, loc), "e.g. params: {kp: 400, kd: 40}")
+            self.error("E113", f"params of task '{task.name}' must be a mapping, got: {describe(raw)}", location_of(raw, loc), "e.g. params: {kp: 400, kd: 40}")
             return False
         values = plain(raw) if raw is not None else {}
         try:
             task.built_params = module_class.build_params(values)
         except ParamError as exc:
-            self.error(f"params of task '{task.name}' (module '{task.module}'): {exc}", location_of(raw, loc))
+            self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {exc}", location_of(raw, loc))
             return False
         except Exception as exc:  # a module's own validation may raise anything
-            self.error(f"params of task '{task.name}' (module '{task.module}') were refused: {exc!r}", location_of(raw, loc))
+            self.error("E308", f"params of task '{task.name}' (module '{task.module}') were refused: {exc!r}", location_of(raw, loc))
             return False
         task.params = values
         return True
@@ -808,10 +905,11 @@ class _Checker:
             self.config_names.add(name)
             loc = configs.value_loc(key)
             if not isinstance(value, YList):
-                self.error(f"configuration '{name}' must be a list of task names, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [robot, pid]")
+                self.error("E113", f"configuration '{name}' must be a list of task names, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [robot, pid]")
                 continue
             members: list[tuple[str, Location]] = []
             first: dict[str, Location] = {}
+            modules: dict[str, tuple[str, Location]] = {}
             ok = True
             for i, item in enumerate(value):
                 item_loc = value.item_loc(i)
@@ -820,20 +918,37 @@ class _Checker:
                     ok = False
                     continue
                 if task not in self.task_names:
-                    self.error(f"configuration '{name}' names task '{task}', which 'tasks' does not declare", item_loc, did_you_mean(task, self.task_names, "declared"))
+                    self.error("E209", f"configuration '{name}' names task '{task}', which 'tasks' does not declare", item_loc, did_you_mean(task, self.task_names, "declared"))
                     ok = False
                     continue
                 if task in first:
                     self.error(
+                        "E402",
                         f"task '{task}' appears twice in configuration '{name}' (first at line {first[task].line}, column {first[task].column})",
                         item_loc,
                         "a task runs at most once in a configuration; to run its module twice, declare a second task",
                     )
                     ok = False
                     continue
+                module = self.tasks[task].module if task in self.tasks else ""
+                if module and module in modules:
+                    other, other_loc = modules[module]
+                    self.error(
+                        "E407",
+                        f"configuration '{name}' runs module '{module}' twice: as task '{other}' (line {self.tasks[other].loc.line}) "
+                        f"and as task '{task}' (line {self.tasks[task].loc.line})",
+                        item_loc,
+                        "a module runs at most once in a configuration (TR §3, Onika §4.3.2); "
+                        "combine the two tasks into one, or use distinct modules",
+                    )
+                    ok = False
+                    continue
+                if module:
+                    modules[module] = (task, item_loc)
                 first[task] = item_loc
                 members.append((task, item_loc))
             self.config_members[name] = members
+            self.config_locs[name] = key_loc
             if ok:
                 self.out.configurations[name] = ConfigurationSpec(name, tuple(t for t, _ in members), key_loc)
 
@@ -852,7 +967,7 @@ class _Checker:
             if len(ws) > 1:
                 detail = _and_list([f"'{t.name}' (line {b.loc.line})" for t, b in ws])
                 count = "two" if len(ws) == 2 else str(len(ws))
-                self.error(f"variable '{var}' has {count} writers in configuration '{config}': {detail}", ws[1][1].loc, _JOIN_HINT)
+                self.error("E401", f"variable '{var}' has {count} writers in configuration '{config}': {detail}", ws[1][1].loc, _JOIN_HINT)
         job_written = set(self.var_object) | self.var_initial
         written = sorted(set(writers) | job_written)
         for task in members:
@@ -865,6 +980,7 @@ class _Checker:
                     if not complete:
                         continue
                     self.error(
+                        "E403",
                         f"task '{task.name}' reads {kind} '{b.variable}', but no task in configuration '{config}' writes it",
                         b.loc,
                         (did_you_mean(b.variable, written, "written") if written else "nothing is written")
@@ -876,6 +992,7 @@ class _Checker:
                 if ws and not any(w.port.kind.supplies_initial_value for _, w in ws):
                     w_task, w_binding = ws[0]
                     self.error(
+                        "E404",
                         f"task '{task.name}' reads {kind} '{b.variable}' before its init, but its writer '{w_task.name}' "
                         f"in configuration '{config}' writes it as {w_binding.port.kind.value} (only after each cycle)",
                         b.loc,
@@ -884,6 +1001,7 @@ class _Checker:
                     )
                 elif not ws and complete:
                     self.error(
+                        "E405",
                         f"task '{task.name}' reads {kind} '{b.variable}' before its init, but in configuration '{config}' "
                         "only job control sets it, as a job's object, after tasks are spawned",
                         b.loc,
@@ -899,11 +1017,77 @@ class _Checker:
             if len(us) > 1:
                 detail = _and_list([f"'{t.name}' (line {loc.line})" for t, loc in us])
                 self.error(
+                    "E601",
                     f"device '{device}' is exclusive, but configuration '{config}' gives it to {detail}",
                     us[1][1],
                     "an exclusive device has one user per configuration; move one task to another configuration, "
                     "or set exclusive: false if the driver can be shared",
                 )
+
+    def check_schedulability(self) -> None:
+        """Warn where the declared wcets of one RTPU's tasks in a configuration cannot be guaranteed.
+
+        Only tasks that declare `wcet:` count; an aperiodic task counts at its min_interarrival
+        (a sporadic task at its fastest). For each RTPU and configuration, with U = Σ wcet_i / T_i
+        over its n tasks:
+
+        - U > 1 (W502): overloaded; no scheduler meets every deadline.
+        - else U > n(2^(1/n) - 1) (W501): beyond Liu & Layland's rate-monotonic bound, so
+          fixed rate-monotonic priorities are not guaranteed (the test is sufficient, not necessary).
+        - the critical tasks, U_c > 1 (W503): the executive runs maximum-urgency-first (Stewart &
+          Khosla): critical tasks always before the others, earliest deadline first among them.
+          With EDF inside the critical set, MUF guarantees that set when it fits the processor
+          on its own, U_c <= 1. We apply that test, not the RM bound n_c(2^(1/n_c) - 1), because
+          the executive orders critical tasks by deadline, not by rate. It ignores blocking: the
+          executive does not preempt a cycle, so a long non-critical cycle can still delay a
+          critical release by up to its wcet.
+        """
+        seen: set[tuple[str, frozenset[str]]] = set()
+        for config, members in self.config_members.items():
+            by_rtpu: dict[str, list[_Task]] = {}
+            for task_name, _ in members:
+                task = self.tasks.get(task_name)
+                if task is not None and task.rtpu and task.period > 0:
+                    by_rtpu.setdefault(task.rtpu, []).append(task)
+            loc = self.config_locs.get(config, NOWHERE)
+            for rtpu, tasks in by_rtpu.items():
+                timed = [t for t in tasks if t.wcet is not None]
+                key = (rtpu, frozenset(t.name for t in timed))
+                if not timed or key in seen:
+                    continue
+                seen.add(key)
+                untimed = [t.name for t in tasks if t.wcet is None]
+                note = f"; tasks without a wcet ({', '.join(untimed)}) only add to it" if untimed else ""
+                total = sum(_utilisation(t) for t in timed)
+                n = len(timed)
+                bound = n * (2 ** (1 / n) - 1)
+                where = f"RTPU '{rtpu}' in configuration '{config}'"
+                if total > 1:
+                    self.warn(
+                        "W502",
+                        f"{where} is overloaded: {_loads(timed)}; U = {total:.3f} > 1",
+                        loc,
+                        "no schedule meets every deadline; move a task to another RTPU, lengthen a period or shorten a cycle" + note,
+                    )
+                elif total > bound:
+                    self.warn(
+                        "W501",
+                        f"{where} exceeds the rate-monotonic bound: {_loads(timed)}; U = {total:.3f} > {bound:.3f} = n(2^(1/n) - 1) for n = {n}",
+                        loc,
+                        "Liu & Layland's test cannot guarantee these deadlines (it is sufficient, not necessary); "
+                        "move a task to another RTPU or lengthen a period" + note,
+                    )
+                critical = [t for t in tasks if t.critical]
+                if critical and all(t.wcet is not None for t in critical):
+                    critical_total = sum(_utilisation(t) for t in critical)
+                    if critical_total > 1:
+                        self.warn(
+                            "W503",
+                            f"critical tasks of {where} are not guaranteed: {_loads(critical)}; U_critical = {critical_total:.3f} > 1",
+                            loc,
+                            "maximum-urgency-first (Stewart & Khosla) guarantees the critical set only when it fits the RTPU "
+                            "on its own (EDF within the set); make fewer tasks critical, or spread them over RTPUs",
+                        )
 
     def check_const_order(self) -> None:
         """Producers of consts start before their readers, across every task; a cycle is an error."""
@@ -930,6 +1114,7 @@ class _Checker:
                 f"'{a}' writes '{via.get((a, b), '?')}' that '{b}' reads before its init" for a, b in zip(cycle, cycle[1:])
             )
             self.error(
+                "E406",
                 f"const dependencies form a cycle: {' -> '.join(cycle)}",
                 self.tasks[cycle[0]].loc,
                 f"{links}; break the cycle by making one of these ports a var (in-var/out-var)",
@@ -947,16 +1132,61 @@ class _Checker:
         self.out.init_order = tuple(order)
 
     def check_expression(self, value: Any, loc: Location, what: str) -> str | None:
+        """A job condition in the restricted language of `_expressions`, naming declared variables."""
         text = self.text(value, loc, what)
         if text is None:
             return None
+        example = 'e.g. "max(abs(q_m - q_d)) < 1e-3"'
         try:
-            tree = ast.parse(text, mode="eval")
-        except SyntaxError as exc:
-            self.error(f"{what} is not an expression: {exc.msg}: {text!r}", loc, 'e.g. "max(abs(q_m - q_d)) < 1e-3"')
+            condition = compile_condition(text)
+        except ExpressionError as exc:
+            where = self.inside_scalar(loc, text, exc.offset)
+            if exc.syntax:
+                self.error("E702", f"{what} is not an expression: {exc.message}: {text!r}", where, example)
+            else:
+                self.error(
+                    "E703",
+                    f"{what}: {exc.message} (column {exc.offset + 1} of {text!r})",
+                    where,
+                    f"a condition may use {ALLOWED}",
+                )
             return None
-        self.expression_names.update(n.id for n in ast.walk(tree) if isinstance(n, ast.Name))
-        return text
+        self.expression_names.update(condition.variables)
+        unknown = sorted(condition.variables - set(self.var_locs))
+        for name in unknown:
+            offset = _name_offset(text, name)
+            self.error(
+                "E704",
+                f"{what} uses '{name}', which 'variables' does not declare",
+                self.inside_scalar(loc, text, offset),
+                did_you_mean(name, self.var_locs, "declared"),
+            )
+        return None if unknown else text
+
+    def inside_scalar(self, loc: Location, text: str, offset: int) -> Location:
+        """Where character `offset` of a one-line scalar `text` written at `loc` is, if the file shows it.
+
+        The YAML node's location is its first character: the quote of a quoted scalar. Escapes
+        or a block scalar make the written text differ from the value; then `loc` it is.
+        """
+        line = self.source_line(loc)
+        if line is None or "\n" in text:
+            return loc
+        start = loc.column - 1
+        for skip in (1, 0) if line[start:start + 1] in ("'", '"') else (0,):
+            if line[start + skip:start + skip + len(text)] == text:
+                return Location(loc.file, loc.line, loc.column + skip + offset)
+        return loc
+
+    def source_line(self, loc: Location) -> str | None:
+        if loc.file not in self.sources:
+            try:
+                with open(loc.file, encoding="utf-8-sig") as stream:
+                    self.sources[loc.file] = stream.read().splitlines()
+            except (OSError, UnicodeError):
+                self.sources[loc.file] = []
+        lines = self.sources[loc.file]
+        return lines[loc.line - 1] if 0 < loc.line <= len(lines) else None
 
     def check_jobs(self, top: YMap) -> None:
         jobs = self.section(top, "jobs", "e.g. jobs: {move: {configuration: joint_pid, object: q_d}}")
@@ -978,7 +1208,7 @@ class _Checker:
                 loc = spec.value_loc("configuration")
                 config = self.text(spec["configuration"], loc, f"configuration of job '{name}'")
                 if config is not None and config not in self.config_names:
-                    self.error(f"job '{name}' runs configuration '{config}', which 'configurations' does not declare", loc, did_you_mean(config, self.config_names, "declared"))
+                    self.error("E210", f"job '{name}' runs configuration '{config}', which 'configurations' does not declare", loc, did_you_mean(config, self.config_names, "declared"))
                     ok = False
                 ok = ok and config is not None
             obj = None
@@ -986,10 +1216,11 @@ class _Checker:
                 loc = spec.value_loc("object")
                 obj = self.text(spec["object"], loc, f"object of job '{name}'")
                 if obj is not None and obj not in self.var_locs:
-                    self.error(f"job '{name}' takes object '{obj}', which 'variables' does not declare", loc, did_you_mean(obj, self.var_object or self.var_locs, "objects"))
+                    self.error("E213", f"job '{name}' takes object '{obj}', which 'variables' does not declare", loc, did_you_mean(obj, self.var_object or self.var_locs, "objects"))
                     ok = False
                 elif obj is not None and obj not in self.var_object:
                     self.error(
+                        "E701",
                         f"job '{name}' takes variable '{obj}' as its object, but the variable is not marked as an object",
                         loc,
                         f"add 'object: <type>' to variable '{obj}' (line {self.var_locs[obj].line})",
@@ -1011,30 +1242,91 @@ class _Checker:
                 self.out.jobs[name] = JobSpec(name, config, obj, pre, post, timeout, key_loc)
 
     def check_applications(self, top: YMap) -> None:
+        """Steps interlock (Onika §4.4.1-4.4.2); applications nest without cycles; gaps make them incomplete."""
         apps = self.section(top, "applications", "e.g. applications: {demo: [move, {move: {q_d: [0, 0, 0]}}]}")
         if apps is None:
             return
+        entries: list[tuple[str, Location, Any, Location]] = []
         for key, value in apps.items():
             key_loc = apps.key_loc(key)
             name = self.name(key, key_loc, "application")
             if name is None:
                 continue
-            loc = apps.value_loc(key)
+            if name in self.job_names:
+                self.error(
+                    "E214",
+                    f"'{name}' names both a job and an application",
+                    key_loc,
+                    "a step names a job or an application, so their names must differ; rename one",
+                )
+                continue
+            self.app_names.add(name)
+            entries.append((name, key_loc, value, apps.value_loc(key)))
+        parsed: dict[str, tuple[list[ApplicationStep], set[int], Location]] = {}
+        for name, key_loc, value, loc in entries:
             if not isinstance(value, YList):
-                self.error(f"application '{name}' must be a list of job steps, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [move, {{move: {{q_d: [0, 0, 0]}}}}]")
+                self.error("E113", f"application '{name}' must be a list of job steps, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [move, {{move: {{q_d: [0, 0, 0]}}}}]")
                 continue
             steps: list[ApplicationStep] = []
+            gaps: set[int] = set()  # step numbers whose job lacks its object
             ok = True
             for i, item in enumerate(value):
-                step = self.check_step(name, i + 1, item, value.item_loc(i))
-                if step is None:
+                checked = self.check_step(name, i + 1, item, value.item_loc(i))
+                if checked is None:
                     ok = False
-                else:
-                    steps.append(step)
+                    continue
+                step, gap = checked
+                steps.append(step)
+                if gap:
+                    gaps.add(i + 1)
             if ok:
-                self.out.applications[name] = ApplicationSpec(name, tuple(steps), key_loc)
+                parsed[name] = (steps, gaps, key_loc)
+        graph = {name: {s.job for s in steps if s.is_application} for name, (steps, _, _) in parsed.items()}
+        order = self.application_order(graph, {name: loc for name, _, _, loc in entries}, {name: k for name, k, _, _ in entries})
+        complete: dict[str, bool] = {}
+        for name in order:
+            steps, gaps, key_loc = parsed[name]
+            whole = not gaps
+            for number, step in enumerate(steps, 1):
+                if step.is_application and step.job in complete and not complete[step.job]:
+                    whole = False
+                    self.warn(
+                        "W702",
+                        f"application '{name}' is incomplete: step {number} '{step.job}' is the incomplete application '{step.job}'",
+                        step.loc,
+                        f"fill the gaps of '{step.job}' first; an incomplete application may be kept but not run",
+                    )
+            complete[name] = whole
+            self.out.applications[name] = ApplicationSpec(name, tuple(steps), key_loc, whole)
 
-    def check_step(self, app: str, number: int, item: Any, loc: Location) -> ApplicationStep | None:
+    def application_order(self, graph: dict[str, set[str]], locs: dict[str, Location], key_locs: dict[str, Location]) -> list[str]:
+        """Applications with the ones they use first; those on a cycle are reported and left out."""
+        known = {name: {s for s in subs if s in graph} for name, subs in graph.items()}
+        sorter = graphlib.TopologicalSorter(known)
+        try:
+            return list(sorter.static_order())
+        except graphlib.CycleError as exc:
+            cycle: list[str] = list(reversed(exc.args[1]))  # graphlib lists it from user to used
+            self.error(
+                "E708",
+                f"applications form a cycle: {' -> '.join(cycle)}",
+                key_locs.get(cycle[0], locs.get(cycle[0], NOWHERE)),
+                "an application may use another as a step, but never itself, directly or through others",
+            )
+            on_cycle = set(cycle)
+            rest = {n: subs for n, subs in known.items() if n not in on_cycle}
+            # whatever uses a broken application cannot be built either
+            changed = True
+            while changed:
+                changed = False
+                for n in list(rest):
+                    if rest[n] - set(rest):
+                        del rest[n]
+                        changed = True
+            return self.application_order(rest, locs, key_locs) if rest else []
+
+    def check_step(self, app: str, number: int, item: Any, loc: Location) -> tuple[ApplicationStep, bool] | None:
+        """One step and whether it leaves a gap (a job without its object); None if it is wrong."""
         args: Any = None
         args_loc = loc
         if isinstance(item, str):
@@ -1050,25 +1342,61 @@ class _Checker:
             args_loc = item.value_loc(key)
         else:
             self.error(
+                "E113",
                 f"step {number} of application '{app}' must be a job name or {{job: {{object: value}}}}, got: {describe(item)}",
                 location_of(item, loc),
                 "e.g. - move: {q_d: [0, -0.5, 0.5, 0, 0, 0]}",
             )
             return None
+        if job not in self.job_names and job in self.app_names:
+            if args is not None:
+                self.error(
+                    "E709",
+                    f"step {number} of application '{app}' gives objects to application '{job}', which takes none",
+                    location_of(args, args_loc),
+                    f"give the objects to the steps inside application '{job}'",
+                )
+                return None
+            return ApplicationStep(job, {}, loc, is_application=True), False
         if job not in self.job_names:
-            self.error(f"step {number} of application '{app}' runs job '{job}', which 'jobs' does not declare", loc, did_you_mean(job, self.job_names, "declared"))
+            self.error("E211", f"step {number} of application '{app}' runs job '{job}', which 'jobs' does not declare", loc,
+                       did_you_mean(job, self.job_names | self.app_names, "jobs and applications"))
             return None
         spec = self.out.jobs.get(job)
+        if spec is None:
+            return None  # the job itself is wrong, and was reported there
         arguments: dict[str, Any] = {}
         if args is not None:
             m = self.mapping(args, args_loc, f"arguments of job '{job}' in application '{app}'", "e.g. move: {q_d: [0, 0, 0]}")
             if m is None:
                 return None
+            names = list(m)
+            if names and spec.object is None:
+                self.error(
+                    "E705",
+                    f"step {number} of application '{app}' gives object '{names[0]}' to job '{job}', which takes no object",
+                    m.key_loc(names[0]),
+                    f"remove the object, or give job '{job}' an object: in 'jobs'",
+                )
+                return None
+            kind = self.var_object.get(str(spec.object), "?")
+            if len(names) > 1:
+                self.error(
+                    "E706",
+                    f"step {number} of application '{app}' gives {len(names)} objects to job '{job}' "
+                    f"({', '.join(str(n) for n in names)}), but a job takes exactly one",
+                    m.key_loc(names[1]),
+                    f"job '{job}' takes its object '{spec.object}' (type {kind}); give only that one",
+                )
+                return None
             for var, val in m.items():
-                var_loc = m.key_loc(var)
-                if spec is not None and var != spec.object:
-                    expected = f"its object is '{spec.object}'" if spec.object else "it takes no object"
-                    self.error(f"step {number} of application '{app}' gives '{var}' to job '{job}', but {expected}", var_loc)
+                if var != spec.object:
+                    self.error(
+                        "E707",
+                        f"step {number} of application '{app}' gives '{var}' to job '{job}', but its object is '{spec.object}' (type {kind})",
+                        m.key_loc(var),
+                        f"write '- {job}: {{{spec.object}: <value>}}'",
+                    )
                     return None
                 variable = self.out.variables.get(str(var))
                 if variable is None:
@@ -1077,26 +1405,42 @@ class _Checker:
                 if array is None:
                     return None
                 arguments[str(var)] = plain(val)
-        if spec is not None and spec.object and spec.object not in arguments:
+        gap = bool(spec.object) and spec.object not in arguments
+        if gap:
             self.warn(
-                f"step {number} of application '{app}' runs job '{job}' without its object '{spec.object}' "
-                f"(type {self.var_object.get(spec.object, '?')}): the application is incomplete and cannot run",
+                "W701",
+                f"application '{app}' is incomplete: step {number} '{job}' needs an object of type {self.var_object.get(str(spec.object), '?')}",
                 loc,
-                f"give it as '- {job}: {{{spec.object}: <value>}}'",
+                f"give it as '- {job}: {{{spec.object}: <value>}}'; an incomplete application may be kept but not run",
             )
-        return ApplicationStep(job, arguments, loc)
+        return ApplicationStep(job, arguments, loc), gap
 
     def check_unused(self) -> None:
         in_a_config = {t for members in self.config_members.values() for t, _ in members}
         for task in self.tasks.values():
             if task.name not in in_a_config:
-                self.warn(f"task '{task.name}' is in no configuration", task.loc, "it is spawned but never turned on; add it to a configuration or remove it")
+                self.warn("W201", f"task '{task.name}' is in no configuration", task.loc, "it is spawned but never turned on; add it to a configuration or remove it")
         if any(not t.ok for t in self.tasks.values()):
             return  # who reads what is unknown while a task's ports are unknown
         read = {b.variable for t in self.tasks.values() for b in t.bindings if b.port.kind.is_input}
         for name, loc in self.var_locs.items():
             if name not in read and name not in self.expression_names:
-                self.warn(f"variable '{name}' is read by no task", loc, "remove it, or link a task's input port to it")
+                self.warn("W202", f"variable '{name}' is read by no task", loc, "remove it, or link a task's input port to it")
+
+
+def _utilisation(task: _Task) -> float:
+    return (task.wcet or 0.0) / task.period
+
+
+def _loads(tasks: Sequence[_Task]) -> str:
+    """'traj 0.400 (0.8 ms / 2 ms), pid 0.500 (0.5 ms / 1 ms)'."""
+    return ", ".join(f"{t.name} {_utilisation(t):.3f} ({_ms(t.wcet or 0.0)} / {_ms(t.period)})" for t in tasks)
+
+
+def _name_offset(text: str, name: str) -> int:
+    """Where `name` first appears in `text` as a whole word; 0 if it cannot be found."""
+    match = re.search(rf"(?<![A-Za-z0-9_]){re.escape(name)}(?![A-Za-z0-9_])", text)
+    return match.start() if match else 0
 
 
 def _nested_shape(value: Any) -> tuple[int, ...] | None:
@@ -1151,6 +1495,7 @@ def check_document(
         return checker.run(doc, doc_loc)
     except Exception as exc:  # a bug here must still end as a message, never a traceback for the user
         checker.error(
+            "E901",
             f"internal error in the checker: {exc!r}",
             doc_loc,
             "please report this with the file you checked",

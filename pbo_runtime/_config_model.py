@@ -91,7 +91,7 @@ class TaskSpec:
     name: str
     module: str  # library name (entry point in group pbo.modules)
     rtpu: str
-    period: float  # seconds
+    period: float  # seconds; for an aperiodic task its min_interarrival (the worst case analysis assumes)
     priority: int = 0  # higher runs first among ready tasks of equal criticality
     critical: bool = False
     params: Mapping[str, Any] = field(default_factory=dict)
@@ -99,6 +99,9 @@ class TaskSpec:
     resources: tuple[str, ...] = ()
     index: int = 0
     loc: Location = NOWHERE
+    wcet: float | None = None  # seconds: the declared worst-case execution time of one cycle
+    aperiodic: bool = False  # released by events, at most once per min_interarrival (TR §4.3)
+    min_interarrival: float | None = None  # seconds, for an aperiodic task
 
 
 @dataclass(frozen=True)
@@ -121,9 +124,10 @@ class JobSpec:
 
 @dataclass(frozen=True)
 class ApplicationStep:
-    job: str
+    job: str  # a job's name, or an application's when `is_application`
     arguments: Mapping[str, Any] = field(default_factory=dict)
     loc: Location = NOWHERE
+    is_application: bool = False  # the step runs another application (Onika §4.4.2)
 
 
 @dataclass(frozen=True)
@@ -131,6 +135,7 @@ class ApplicationSpec:
     name: str
     steps: tuple[ApplicationStep, ...]
     loc: Location = NOWHERE
+    complete: bool = True  # False when a step lacks its object: it may be kept but not run (Onika §4.4.2)
 
 
 @dataclass(frozen=True)

@@ -43,7 +43,7 @@ DIRECTORY_RECORD = 128  # bytes: name[48] dtype[16] ndim shape[4] word offset, d
 NAME_BYTES = 48
 MANIFEST_BYTES = 4096
 META_WORDS = 3  # writer task index (-1: job control), then job control's sequence and write time
-STATUS_WORDS = 16
+STATUS_WORDS = 16  # per task in the table (room to grow without a layout change)
 
 
 class Header(enum.IntEnum):
@@ -83,6 +83,7 @@ class Status(enum.IntEnum):
     JITTER_MAX = 6
     RELEASE = 7  # the release time of the last cycle, clock seconds: its outputs' write time
     ERRORS = 8
+    USED = 9  # words in use: only these travel with each cycle's outputs
     # Lock acquisitions (2 per cycle) and bytes moved (cycles x the task's bytes per cycle) are
     # exact functions of CYCLES: the bus report derives them instead of counting every cycle.
 

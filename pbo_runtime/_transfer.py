@@ -21,6 +21,7 @@ import numpy as np
 from pbo_runtime._config_model import PortBinding
 from pbo_runtime._ports import PortKind
 from pbo_runtime._table import META_WORDS, STATUS_WORDS, Header, StateTable
+from pbo_runtime._table import Status as StatusWord
 
 _INPUT_ORDER = (PortKind.IN_CONST, PortKind.IN_BOTH, PortKind.IN_VAR)
 _OUTPUT_ORDER = (PortKind.OUT_CONST, PortKind.OUT_BOTH, PortKind.OUT_VAR)
@@ -87,7 +88,7 @@ class LocalTable:
         self._in_const = _Region(table, in_const, task_index, 0)
         self._in_var = _Region(table, in_var, task_index, 0)
         self._out_const = _Region(table, out_const, task_index, 0)
-        self._out_var = _Region(table, out_var, task_index, STATUS_WORDS)
+        self._out_var = _Region(table, out_var, task_index, int(StatusWord.USED))
         by_binding: dict[int, np.ndarray] = {}
         for region, members in ((self._in_var, in_var), (self._in_const, in_const), (self._out_var, out_var), (self._out_const, out_const)):
             for binding, array in zip(members, region.arrays):
@@ -97,8 +98,10 @@ class LocalTable:
         self.port_arrays = [by_binding[id(b)] for b in bindings]
         self.status = self._out_var.status  # the executive's counters, written with the outputs
         self.input_writer = self._in_var.writer  # who wrote each in-var, as of the last read
-        self.bytes_in = sum(a.nbytes for a in self._in_var.arrays)
+        self.bytes_in = sum(a.nbytes for a in self._in_var.arrays)  # the data of the per-cycle ports
         self.bytes_out = sum(a.nbytes for a in self._out_var.arrays)
+        # what a cycle really moves: the data, each variable's writer word, the status block
+        self.bytes_moved = sum(g.index.size * g.local.itemsize for g in (*self._in_var.groups, *self._out_var.groups))
         self._lock = table.lock
         self._header = table.header
         self._pid = table._pid
@@ -188,7 +191,7 @@ class LocalTable:
         first = self.table.layout.status_offset // 8 + self.task_index * STATUS_WORDS
         self.table.acquire()
         try:
-            self.table.words[first : first + STATUS_WORDS] = region.status
+            self.table.words[first : first + region.status.size] = region.status
         finally:
             self.table.release()
 

@@ -17,8 +17,8 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from pbo_runtime import _registry
 from pbo_runtime._errors import ConfigErrors, PboError
+from pbo_runtime._transitions import transitions
 
 EXIT_OK, EXIT_CONFIG, EXIT_RUN, EXIT_INTERNAL = 0, 1, 2, 3
 
@@ -67,8 +67,28 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--no-live", action="store_true", help="no live status table (the default when output is not a terminal)")
     run.set_defaults(handler=_run)
 
-    lexicon = sub.add_parser("lexicon", help="list the module library with every module's ports")
+    bus = sub.add_parser("bus", help="bus utilisation of each configuration (TR eq. 1-2), predicted and measured")
+    bus.add_argument("file")
+    bus.add_argument("--config", help="only this configuration (default: all)")
+    bus.add_argument("--run-report", type=Path, help="a run's JSON report (pbo run --report): measured beside predicted")
+    bus.add_argument("--combine", help="tasks to evaluate as one combined module (TR §4.5), comma-separated")
+    bus.add_argument("--format", choices=("table", "json", "csv"), default="table")
+    bus.add_argument("--plot", type=Path, help="draw per-task bars and the bandwidth line into this PNG")
+    bus.set_defaults(handler=_bus)
+
+    lexicon = sub.add_parser("lexicon", help="list the module library: every module's ports and parameters")
+    lexicon.add_argument("--format", choices=("table", "json"), default="table")
     lexicon.set_defaults(handler=_lexicon)
+
+    graph = sub.add_parser("graph", help="draw a configuration as a block diagram (.svg, .png or .dot)")
+    graph.add_argument("file")
+    graph.add_argument("--config", help="the configuration to draw (default: the first)")
+    graph.add_argument("-o", "--output", type=Path, help="out.svg, out.png or out.dot (default: DOT text on stdout)")
+    graph.set_defaults(handler=_graph)
+
+    schema = sub.add_parser("schema", help="the JSON Schema of the subsystem format, for editors")
+    schema.add_argument("-o", "--output", type=Path, help="write it here (default: stdout)")
+    schema.set_defaults(handler=_schema)
 
     clean = sub.add_parser("clean", help="remove shared memory, semaphores and queues left by dead runs")
     clean.add_argument("--subsystem", help="only this subsystem's leftovers")
@@ -103,12 +123,22 @@ def _verdict(subsystem: Any) -> str:
         placed = "; ".join(f"{rtpu}: {', '.join(tasks)}" for rtpu, tasks in by_rtpu.items())
         lines.append(f"  configuration '{name}': {placed}")
     lines.append(f"  init order: {' -> '.join(subsystem.init_order)}")
+    for application in subsystem.applications:
+        lines.append(f"  application '{application}':")
+        for t in transitions(subsystem, application):
+            if t.before is None:
+                lines.append(f"    {t.step}. {t.job}: configuration '{t.after}' on: {', '.join(t.on) or 'nothing'}")
+            elif t.before == t.after:
+                lines.append(f"    {t.step}. {t.job}: stays in '{t.after}' (new object only)")
+            else:
+                lines.append(f"    {t.step}. {t.job}: '{t.before}' -> '{t.after}': off {', '.join(t.off) or 'nothing'}; "
+                             f"on {', '.join(t.on) or 'nothing'}")
     return "\n".join(lines)
 
 
 def _check_json(result: Any) -> dict[str, Any]:
     def diagnostic(d: Any) -> dict[str, Any]:
-        return {"file": d.file, "line": d.line, "column": d.column, "severity": getattr(d, "severity", "error"),
+        return {"file": d.file, "line": d.line, "column": d.column, "severity": d.severity, "code": d.code,
                 "message": d.message, "hint": d.hint}
 
     out: dict[str, Any] = {"ok": not result.errors, "errors": [diagnostic(e) for e in result.errors],
@@ -119,6 +149,11 @@ def _check_json(result: Any) -> dict[str, Any]:
         out["init_order"] = list(sub.init_order)
         out["configurations"] = {
             name: {t: sub.tasks[t].rtpu for t in c.tasks} for name, c in sub.configurations.items()
+        }
+        out["applications"] = {
+            app: [{"step": t.step, "job": t.job, "from": t.before, "to": t.after, "off": list(t.off), "on": list(t.on)}
+                  for t in transitions(sub, app)]
+            for app in sub.applications
         }
     return out
 
@@ -206,25 +241,89 @@ def _format_value(value: Any) -> str:
     return f"{value:+.4f}" if isinstance(value, float) else str(value)
 
 
+# --- pbo bus ---------------------------------------------------------------------------------
+
+
+def _bus(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime import _bus as bus
+    from pbo_runtime._config_loader import load_subsystem
+
+    subsystem = load_subsystem(args.file)
+    if args.config and args.config not in subsystem.configurations:
+        errors.print(f"error: no configuration '{args.config}' in {args.file} "
+                     f"(configurations: {', '.join(subsystem.configurations)})", markup=False)
+        return EXIT_CONFIG
+    names = [args.config] if args.config else list(subsystem.configurations)
+    reports = {name: bus.predict(subsystem, name) for name in names}
+    seen = None
+    if args.run_report:
+        seen = bus.measured(subsystem, json.loads(args.run_report.read_text()))
+    documents = []
+    for name, report in reports.items():
+        measured = seen if seen is not None and seen.configuration == name else None
+        if args.format == "table":
+            console.print(bus.as_table(report, measured))
+        elif args.format == "json":
+            documents.append(bus.as_json(report, measured))
+        else:
+            console.out(bus.as_csv(report, measured), end="")
+    if args.format == "json":
+        console.out(json.dumps(documents[0] if len(documents) == 1 else documents, indent=2))
+    if args.combine:
+        members = [m.strip() for m in args.combine.split(",") if m.strip()]
+        before, after = bus.combined_saving(subsystem, names[0], members)
+        if args.format == "table":
+            console.print(bus.as_table(after))
+        console.print(bus.describe_saving(before, after), markup=False)
+    if args.plot:
+        bus.plot(reports, args.plot, measured=[seen] if seen is not None else None)
+        console.print(f"wrote {args.plot}", markup=False)
+    over = [name for name, report in reports.items() if report.over]
+    if over:
+        errors.print(f"error: over the bus bandwidth: {', '.join(over)}", markup=False)
+        return EXIT_CONFIG
+    return EXIT_OK
+
+
 # --- pbo lexicon, pbo clean --------------------------------------------------------------------
 
 
 def _lexicon(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    table = Table(title="module library (entry points 'pbo.modules')", title_justify="left")
-    for column in ("module", "port", "kind", "variable", "dtype", "shape"):
-        table.add_column(column)
-    for name in _registry.names(_registry.MODULES):
-        cls = _registry.module_class(name)
-        first = True
-        for port in cls.ports():
-            shape = "as variable" if port.shape is None else "[" + ", ".join(map(str, port.shape)) + "]"
-            table.add_row(name if first else "", port.name, port.kind.value, port.variable, port.dtype, shape)
-            first = False
-        if first:
-            table.add_row(name, "(ports from params)", "", "", "", "")
-        doc = (cls.__doc__ or "").strip().splitlines()
-        table.add_row("", f"[dim]{doc[0] if doc else ''}[/dim]", "", "", "", "", end_section=True)
-    console.print(table)
+    from pbo_runtime._lexicon import as_table, lexicon
+
+    entries = lexicon()
+    if args.format == "json":
+        console.out(json.dumps(entries, indent=2, default=str))
+    else:
+        console.print(as_table(entries))
+    return EXIT_OK
+
+
+def _graph(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime._config_loader import load_subsystem
+    from pbo_runtime._graph import draw, to_dot
+
+    subsystem = load_subsystem(args.file)
+    try:
+        if args.output:
+            draw(subsystem, args.config, args.output)
+            console.print(f"wrote {args.output}", markup=False)
+        else:
+            console.out(to_dot(subsystem, args.config), end="")
+    except ValueError as exc:
+        errors.print(f"error: {exc}", markup=False)
+        return EXIT_CONFIG
+    return EXIT_OK
+
+
+def _schema(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime._schema import schema_text, write_schema
+
+    if args.output:
+        write_schema(args.output)
+        console.print(f"wrote {args.output}", markup=False)
+    else:
+        console.out(schema_text(), end="")
     return EXIT_OK
 
 

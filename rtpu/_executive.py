@@ -64,7 +64,10 @@ class Scheduled:
             "errors": self.task.errors,
             "jitter_p50": pct(jitter, 50), "jitter_p99": pct(jitter, 99), "jitter_max": self.jitter_max,
             "exec_p50": pct(exec_time, 50), "exec_p99": pct(exec_time, 99), "exec_max": self.exec_max,
+            "bytes_in": self.task.local.bytes_in,
+            "bytes_out": self.task.local.bytes_out,
             "bytes_per_cycle": self.task.local.bytes_in + self.task.local.bytes_out,
+            "bytes_moved_per_cycle": self.task.local.bytes_moved,
         }
 
 

@@ -162,12 +162,18 @@ def only_error(result: CheckResult) -> ConfigError:
     return result.errors[0]
 
 
-def expect_error(tmp_path: Path, text: str, needle: str, message: str, nth: int = 0) -> ConfigError:
-    """Exactly one error, at `needle`, whose text matches `message` (a regex) after the location."""
+def expect_error(tmp_path: Path, text: str, needle: str, message: str, nth: int = 0, code: str = r"E\d{3}") -> ConfigError:
+    """Exactly one error, at `needle`, whose text matches `message` (a regex) after the location and code."""
     error = only_error(check(tmp_path, text))
     line, column = at(text, needle, nth)
-    assert re.match(rf"^.*bad\.yaml:{line}:{column}: error: {message}", str(error), re.MULTILINE), str(error)
+    assert re.match(rf"^.*bad\.yaml:{line}:{column}: error\[{code}\]: {message}", str(error), re.MULTILINE), str(error)
     return error
+
+
+def expect_warnings(result: CheckResult, *codes: str) -> list[ConfigError]:
+    assert result.errors == [], "\n".join(e.format() for e in result.errors)
+    assert sorted(w.code for w in result.warnings) == sorted(codes), "\n".join(w.format() for w in result.warnings)
+    return result.warnings
 
 
 # --- the legal file ------------------------------------------------------------------------
@@ -348,7 +354,7 @@ def test_an_input_nobody_writes_is_an_error_naming_the_configuration(tmp_path: P
     error = only_error(result)
     line, column = at(text, "pid:")
     assert re.match(
-        rf"^.*bad\.yaml:{line}:{column}: error: task 'pid' reads in-var 'q_r', but no task in configuration 'joint_pid' writes it",
+        rf"^.*bad\.yaml:{line}:{column}: error\[E403\]: task 'pid' reads in-var 'q_r', but no task in configuration 'joint_pid' writes it",
         str(error),
     )
     assert "written: " in error.hint
@@ -366,7 +372,7 @@ def test_a_variable_cannot_have_two_writers_in_one_configuration(tmp_path: Path)
     line, column = at(text, "tau_u}")
     grav_line, _ = at(text, "gravity:")
     assert re.match(
-        rf"^.*bad\.yaml:{line}:{column}: error: variable 'tau_u' has two writers in configuration 'joint_pid': "
+        rf"^.*bad\.yaml:{line}:{column}: error\[E401\]: variable 'tau_u' has two writers in configuration 'joint_pid': "
         rf"'gravity' \(line {grav_line}\) and 'pid' \(line {line}\)$",
         error.format().splitlines()[0],
     )
@@ -387,7 +393,7 @@ def test_in_const_cannot_take_an_out_var(tmp_path: Path) -> None:
     assert len(result.errors) == 2  # robot and pid both read NDOF as in-const
     line, column = at(text, "robot:")
     assert re.match(
-        rf"^.*bad\.yaml:{line}:{column}: error: task 'robot' reads in-const 'NDOF' before its init, but its writer 'dims' "
+        rf"^.*bad\.yaml:{line}:{column}: error\[E404\]: task 'robot' reads in-const 'NDOF' before its init, but its writer 'dims' "
         r"in configuration 'joint_pid' writes it as out-var \(only after each cycle\)",
         str(result.errors[0]),
     )
@@ -433,6 +439,7 @@ def test_a_cycle_of_const_dependencies_is_an_error_that_prints_the_cycle(tmp_pat
     text = changed("configurations:\n", "configurations:\n  consts: [ta, tb]\n", text)
     error = only_error(check(tmp_path, text))
     assert re.match(r"^const dependencies form a cycle: (ta -> tb -> ta|tb -> ta -> tb)$", error.message)
+    assert error.code == "E406"
     assert (error.line, error.column) == at(text, error.message.split(": ")[1].split(" ")[0] + ":")
     assert "'ta' writes 'a' that 'tb' reads before its init" in error.hint
 
@@ -539,7 +546,30 @@ def test_missing_params_are_an_error(tmp_path: Path) -> None:
 def test_a_module_that_cannot_list_its_ports_is_reported_not_raised(tmp_path: Path) -> None:
     text = changed("module: fake_traj", "module: fake_broken")
     result = check(tmp_path, text)
-    assert any(re.match(r"^module 'fake_broken' of task 'traj' cannot list its ports: RuntimeError", e.message) for e in result.errors)
+    assert any(re.match(r"^module 'fake_broken' of task 'traj' cannot list its ports: RuntimeError", e.message) and e.code == "E307"
+               for e in result.errors)
+
+
+class FakeBadShape(PortBasedObject):
+    x = InVar("q_m", shape=(None,))  # type: ignore[arg-type]  # a module bug on purpose
+
+
+def test_a_module_with_a_malformed_port_shape_is_reported_not_raised(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(FAKES, "fake_bad_shape", FakeBadShape)
+    text = changed("module: fake_traj", "module: fake_bad_shape")
+    codes = {e.code for e in check(tmp_path, text).errors}
+    assert "E306" in codes, codes
+
+
+def test_a_bug_in_the_checker_is_an_internal_error_not_a_traceback(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from pbo_runtime import _checker
+
+    def broken(self: Any) -> None:
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(_checker._Checker, "check_unused", broken)
+    error = only_error(check(tmp_path, LEGAL))
+    assert error.code == "E901" and re.match(r"^internal error in the checker: RuntimeError\('boom'\)$", error.message)
 
 
 # --- jobs and applications ------------------------------------------------------------------
@@ -552,7 +582,7 @@ def test_a_job_object_must_be_a_variable_marked_as_an_object(tmp_path: Path) -> 
 
 def test_a_job_condition_must_be_an_expression(tmp_path: Path) -> None:
     text = changed('"max(abs(q_m - q_d)) < 1e-3"', '"max(abs(q_m - q_d) < 1e-3"')
-    expect_error(tmp_path, text, '"max', r"post-condition of job 'move' is not an expression: ")
+    expect_error(tmp_path, text, "(abs", r"post-condition of job 'move' is not an expression: '\(' was never closed: ")
 
 
 def test_an_application_step_must_name_a_job(tmp_path: Path) -> None:
@@ -566,12 +596,17 @@ def test_an_application_object_must_match_the_variable_shape(tmp_path: Path) -> 
     expect_error(tmp_path, text, "[0, -0.5, 0.5]", r"object 'q_d' of step 1 of application 'demo' has shape \(3,\), but the variable's shape is \(6,\)$")
 
 
-def test_an_application_step_without_its_object_is_only_a_warning(tmp_path: Path) -> None:
-    text = changed("    - move: {q_d: [0, -0.5, 0.5, 0, 0, 0]}", "    - move")
+def test_an_application_step_without_its_object_is_only_a_warning_and_makes_it_incomplete(tmp_path: Path) -> None:
+    text = changed("    - move: {q_d: [0, -0.5, 0.5, 0, 0, 0]}", "    - move: {q_d: [0, -0.5, 0.5, 0, 0, 0]}\n    - move")
     result = check(tmp_path, text)
     assert result.errors == []
-    assert len(result.warnings) == 1
-    assert re.match(r"^.*bad\.yaml:\d+:7: warning: step 1 of application 'demo' runs job 'move' without its object 'q_d'", str(result.warnings[0]))
+    [warning] = result.warnings
+    line, column = at(text, "move", 2)
+    assert re.match(
+        rf"^.*bad\.yaml:{line}:{column}: warning\[W701\]: application 'demo' is incomplete: step 2 'move' needs an object of type joint_position$",
+        str(warning), re.MULTILINE,
+    ), str(warning)
+    assert result.subsystem is not None and result.subsystem.applications["demo"].complete is False
 
 
 # --- warnings ------------------------------------------------------------------------------
@@ -583,7 +618,7 @@ def test_a_variable_nobody_reads_is_a_warning(tmp_path: Path) -> None:
     assert result.errors == []
     [warning] = result.warnings
     line, column = at(text, "spare")
-    assert str(warning) == f"{tmp_path / 'bad.yaml'}:{line}:{column}: warning: variable 'spare' is read by no task\n  hint: remove it, or link a task's input port to it"
+    assert str(warning) == f"{tmp_path / 'bad.yaml'}:{line}:{column}: warning[W202]: variable 'spare' is read by no task\n  hint: remove it, or link a task's input port to it"
 
 
 def test_a_task_in_no_configuration_is_a_warning(tmp_path: Path) -> None:
@@ -608,3 +643,289 @@ def test_three_different_mistakes_are_all_reported_with_their_lines(tmp_path: Pa
     assert re.match(r"^variable 'q_d' has unknown type 'float63'$", result.errors[0].message)
     assert re.match(r"^task 'robot' runs on RTPU 'rtpu9'", result.errors[1].message)
     assert re.match(r"^timeout of job 'move': expected a time like '1 ms'", result.errors[2].message)
+
+
+# --- codes -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("code", "old", "new", "needle", "message"),
+    [
+        ("E111", "critical: true", "critcal: true", "critcal", r"unknown key 'critcal' in task 'robot'$"),
+        ("E112", "module: fake_traj, ", "", "traj:", r"task 'traj' has no 'module:', which is required$"),
+        ("E115", "critical: true", "critical: 1", "1, resources", r"'critical' of task 'robot' must be true or false, got: the integer 1$"),
+        ("E203", "rtpu: rtpu1", "rtpu: rtpu2", "rtpu2", r"task 'robot' runs on RTPU 'rtpu2', which 'rtpus' does not declare$"),
+        ("E204", "q_d:   {type: float64, shape: [NDOF]", "q_d:   {type: float64, shape: [NDFO]", "NDFO",
+         r"shape of variable 'q_d' uses dim 'NDFO', which 'dims' does not define$"),
+        ("E303", "q_d:   {type: float64", "q_d:   {type: float46", "float46", r"variable 'q_d' has unknown type 'float46'$"),
+        ("E501", "period: 2 ms", "period: 2 kg", "2 kg", r"period of task 'traj': expected a time like '1 ms' or a number of seconds, got: '2 kg'"),
+        ("E501", "period: 2 ms", "period: 500 Hz", "500 Hz", r"period of task 'traj': .* \(that is a frequency\)$"),
+        ("E502", "period: 2 ms", "period: -5 ms", "-5 ms", r"period of task 'traj' must be > 0, got: -5 ms$"),
+        ("E503", "rate: 1 kHz", "rate: 1 kHz, period: 1 ms", "rate:", r"task 'pid' gives both a period and a rate$"),
+        ("E504", ", period: 2 ms", "", "traj:", r"task 'traj' needs a period or a rate$"),
+        ("E701", "object: q_d, post", "object: q_m, post", "q_m, post", r"job 'move' takes variable 'q_m' as its object, but the variable is not marked as an object$"),
+        ("E210", "configuration: joint_pid", "configuration: joint_pd", "joint_pd,", r"job 'move' runs configuration 'joint_pd', which 'configurations' does not declare$"),
+    ],
+)
+def test_each_rule_has_its_own_code(tmp_path: Path, code: str, old: str, new: str, needle: str, message: str) -> None:
+    expect_error(tmp_path, changed(old, new), needle, message, code=code)
+
+
+def test_every_diagnostic_of_the_legal_file_variants_carries_a_code(tmp_path: Path) -> None:
+    text = changed("period: 2 ms", "period: 2 kg", changed("q_d:   {type: float64", "q_d:   {type: float46"))
+    result = check(tmp_path, text)
+    assert result.errors and all(re.match(r"^E\d{3}$", e.code) for e in result.errors)
+
+
+# --- task names and modules ------------------------------------------------------------------
+
+
+def test_two_tasks_with_one_name_are_a_duplicate_key_error_at_the_second(tmp_path: Path) -> None:
+    text = changed("  pid:   {module", "  traj:  {module")
+    error = only_error(check(tmp_path, text))
+    line, column = at(text, "traj:", 1)
+    assert re.match(rf"^.*bad\.yaml:{line}:{column}: error\[E102\]: duplicate key 'traj' \(first at line 14, column 3\)$", str(error), re.MULTILINE)
+
+
+TRAJ2 = "  traj2: {module: fake_traj, rtpu: rtpu0, period: 2 ms}\n"
+
+
+def test_a_module_runs_at_most_once_in_a_configuration(tmp_path: Path) -> None:
+    text = changed("configurations:\n", TRAJ2 + "configurations:\n")
+    text = changed("[robot, traj, pid]", "[robot, traj, pid, traj2]", text)
+    error = expect_error(
+        tmp_path, text, "traj2]", r"configuration 'joint_pid' runs module 'fake_traj' twice: as task 'traj' \(line 14\) and as task 'traj2' \(line 16\)$", code="E407"
+    )
+    assert "combine the two tasks into one, or use distinct modules" in error.hint
+
+
+def test_one_module_may_run_as_different_tasks_in_different_configurations(tmp_path: Path) -> None:
+    text = changed("configurations:\n", TRAJ2 + "configurations:\n")
+    text = changed("  joint_pid:", "  other: [robot, traj2, pid]\n  joint_pid:", text)
+    assert check(tmp_path, text).errors == []
+
+
+# --- job conditions ------------------------------------------------------------------------
+
+
+def test_a_condition_may_use_the_whole_language(tmp_path: Path) -> None:
+    text = changed('post: "max(abs(q_m - q_d)) < 1e-3"',
+                   'pre: "not any(abs(q_m) > 3.2) and norm(q_m[0:1] if 0 else q_m) >= 0", post: "max(abs(q_m - q_d)) < 1e-3"')
+    error = only_error(check(tmp_path, text))  # the slice and the conditional expression are not in it
+    assert error.code == "E703"
+    text = changed('post: "max(abs(q_m - q_d)) < 1e-3"',
+                   'pre: "not any(abs(q_m) > 3.2) and sqrt(sum(q_d ** 2)) >= 0 or min(q_m[0], -q_m[-1]) < 1", '
+                   'post: "max(abs(q_m - q_d)) < 1e-3"')
+    result = check(tmp_path, text)
+    assert result.errors == [] and result.subsystem is not None
+    assert result.subsystem.jobs["move"].pre is not None
+
+
+def test_a_condition_may_not_access_attributes_and_says_where(tmp_path: Path) -> None:
+    text = changed('"max(abs(q_m - q_d)) < 1e-3"', '"q_m.max() < 1e-3"')
+    error = expect_error(tmp_path, text, "q_m.max", r"post-condition of job 'move': attribute access \('\.max'\) is not allowed in a condition "
+                         r"\(column 1 of 'q_m\.max\(\) < 1e-3'\)$", code="E703")
+    assert "abs, max, min, sum, all, any, norm, sqrt" in error.hint
+
+
+def test_a_condition_may_not_import(tmp_path: Path) -> None:
+    text = changed('"max(abs(q_m - q_d)) < 1e-3"', "\"__import__('os').system('true') == 0\"")
+    expect_error(tmp_path, text, "__import__", r"post-condition of job 'move': attribute access \('\.system'\) is not allowed", code="E703")
+
+
+def test_a_condition_names_only_declared_variables(tmp_path: Path) -> None:
+    text = changed('"max(abs(q_m - q_d)) < 1e-3"', '"max(abs(q_x - q_d)) < 1e-3"')
+    error = expect_error(tmp_path, text, "q_x", r"post-condition of job 'move' uses 'q_x', which 'variables' does not declare$", code="E704")
+    assert error.hint.startswith("did you mean")
+
+
+def test_a_condition_in_block_style_is_reported_at_its_value(tmp_path: Path) -> None:
+    text = changed('move: {configuration: joint_pid, object: q_d, post: "max(abs(q_m - q_d)) < 1e-3", timeout: 10 s}',
+                   "move:\n    configuration: joint_pid\n    object: q_d\n    post: >-\n      lambda: 1\n    timeout: 10 s")
+    error = only_error(check(tmp_path, text))
+    assert error.code == "E703" and re.match(r"^post-condition of job 'move': a lambda is not allowed", error.message)
+    assert error.line == at(text, ">-")[0]
+
+
+# --- applications ---------------------------------------------------------------------------
+
+
+def with_apps(apps: str, jobs: str = "") -> str:
+    text = LEGAL[: LEGAL.index("applications:")] + "applications:\n" + apps
+    if jobs:
+        text = changed("jobs:\n", "jobs:\n" + jobs, text)
+    return text
+
+
+Q = "[0, -0.5, 0.5, 0, 0, 0]"
+
+
+def test_applications_may_nest_and_stay_complete(tmp_path: Path) -> None:
+    text = with_apps(f"  demo:\n    - move: {{q_d: {Q}}}\n  outer:\n    - demo\n    - hold\n", "  hold: {configuration: joint_pid}\n")
+    result = check(tmp_path, text)
+    assert result.errors == [] and result.warnings == []
+    assert result.subsystem is not None
+    outer = result.subsystem.applications["outer"]
+    assert outer.complete and [(s.job, s.is_application) for s in outer.steps] == [("demo", True), ("hold", False)]
+
+
+def test_an_application_using_an_incomplete_one_is_incomplete(tmp_path: Path) -> None:
+    text = with_apps("  demo: [move]\n  outer: [demo]\n")
+    result = check(tmp_path, text)
+    warnings = expect_warnings(result, "W701", "W702")
+    assert re.match(r"^application 'outer' is incomplete: step 1 'demo' is the incomplete application 'demo'$", warnings[1].message)
+    assert result.subsystem is not None
+    assert not result.subsystem.applications["outer"].complete and not result.subsystem.applications["demo"].complete
+
+
+def test_an_object_given_to_a_job_that_takes_none_is_an_error(tmp_path: Path) -> None:
+    text = with_apps(f"  demo:\n    - hold: {{q_d: {Q}}}\n", "  hold: {configuration: joint_pid}\n")
+    expect_error(tmp_path, text, "q_d: [0", r"step 1 of application 'demo' gives object 'q_d' to job 'hold', which takes no object$", code="E705")
+
+
+def test_two_objects_for_one_job_are_an_error(tmp_path: Path) -> None:
+    text = with_apps(f"  demo:\n    - move: {{q_d: {Q}, q_r: {Q}}}\n")
+    expect_error(tmp_path, text, "q_r: [0", r"step 1 of application 'demo' gives 2 objects to job 'move' \(q_d, q_r\), but a job takes exactly one$", code="E706")
+
+
+def test_an_object_that_is_not_the_jobs_is_an_error(tmp_path: Path) -> None:
+    text = with_apps(f"  demo:\n    - move: {{q_m: {Q}}}\n")
+    expect_error(tmp_path, text, "q_m: [0", r"step 1 of application 'demo' gives 'q_m' to job 'move', but its object is 'q_d' \(type joint_position\)$", code="E707")
+
+
+def test_a_cycle_of_applications_is_an_error(tmp_path: Path) -> None:
+    text = with_apps(f"  a: [b, {{move: {{q_d: {Q}}}}}]\n  b: [c]\n  c: [a]\n")
+    error = only_error(check(tmp_path, text))
+    assert error.code == "E708"
+    assert re.match(r"^applications form a cycle: (a -> b -> c -> a|b -> c -> a -> b|c -> a -> b -> c)$", error.message)
+
+
+def test_an_application_step_takes_no_objects(tmp_path: Path) -> None:
+    text = with_apps(f"  demo: [{{move: {{q_d: {Q}}}}}]\n  outer:\n    - demo: {{q_d: {Q}}}\n")
+    expect_error(tmp_path, text, "{q_d", r"step 1 of application 'outer' gives objects to application 'demo', which takes none$", nth=1, code="E709")
+
+
+def test_a_job_and_an_application_may_not_share_a_name(tmp_path: Path) -> None:
+    text = with_apps(f"  move: [{{move: {{q_d: {Q}}}}}]\n")
+    expect_error(tmp_path, text, "move: [", r"'move' names both a job and an application$", code="E214")
+
+
+# --- timing ---------------------------------------------------------------------------------
+
+
+def test_a_task_may_declare_its_wcet(tmp_path: Path) -> None:
+    result = check(tmp_path, changed("period: 2 ms}", "period: 2 ms, wcet: 0.2 ms}"))
+    assert result.errors == [] and result.warnings == []
+    assert result.subsystem is not None and result.subsystem.tasks["traj"].wcet == pytest.approx(2e-4)
+    assert result.subsystem.tasks["pid"].wcet is None
+
+
+def test_a_wcet_longer_than_the_period_is_an_error(tmp_path: Path) -> None:
+    text = changed("period: 2 ms}", "period: 2 ms, wcet: 3 ms}")
+    expect_error(tmp_path, text, "3 ms", r"wcet of task 'traj' must be <= its period \(2 ms\), got: 3 ms$", code="E505")
+
+
+def test_a_wcet_must_be_positive(tmp_path: Path) -> None:
+    text = changed("period: 2 ms}", "period: 2 ms, wcet: 0 ms}")
+    expect_error(tmp_path, text, "0 ms", r"wcet of task 'traj' must be > 0, got: 0 ms$", code="E502")
+
+
+def loads(traj: str, pid: str, traj_critical: bool = False, pid_critical: bool = False) -> str:
+    text = changed("period: 2 ms}", f"period: 2 ms, wcet: {traj}, critical: {str(traj_critical).lower()}}}")
+    return changed("params: {kp: 400}", f"wcet: {pid}, critical: {str(pid_critical).lower()}, params: {{kp: 400}}", text)
+
+
+def test_an_rtpu_within_the_rate_monotonic_bound_has_no_warning(tmp_path: Path) -> None:
+    assert check(tmp_path, loads("0.8 ms", "0.4 ms")).warnings == []  # U = 0.8 <= 0.828
+
+
+def test_an_rtpu_beyond_the_rate_monotonic_bound_is_a_warning(tmp_path: Path) -> None:
+    text = loads("1 ms", "0.4 ms")
+    [warning] = expect_warnings(check(tmp_path, text), "W501")
+    assert (warning.line, warning.column) == at(text, "joint_pid:")
+    assert warning.message == (
+        "RTPU 'rtpu0' in configuration 'joint_pid' exceeds the rate-monotonic bound: traj 0.500 (1 ms / 2 ms), "
+        "pid 0.400 (0.4 ms / 1 ms); U = 0.900 > 0.828 = n(2^(1/n) - 1) for n = 2"
+    )
+
+
+def test_an_overloaded_rtpu_is_a_warning(tmp_path: Path) -> None:
+    [warning] = expect_warnings(check(tmp_path, loads("1.5 ms", "0.5 ms")), "W502")
+    assert re.match(r"^RTPU 'rtpu0' in configuration 'joint_pid' is overloaded: traj 0\.750 .*; U = 1\.250 > 1$", warning.message)
+
+
+def test_critical_tasks_that_do_not_fit_alone_are_not_guaranteed_by_muf(tmp_path: Path) -> None:
+    warnings = expect_warnings(check(tmp_path, loads("1 ms", "0.6 ms", True, True)), "W502", "W503")
+    [muf] = [w for w in warnings if w.code == "W503"]
+    assert re.match(r"^critical tasks of RTPU 'rtpu0' in configuration 'joint_pid' are not guaranteed: traj 0\.500 \(1 ms / 2 ms\), "
+                    r"pid 0\.600 \(0\.6 ms / 1 ms\); U_critical = 1\.100 > 1$", muf.message)
+    assert "Stewart & Khosla" in muf.hint
+
+
+def test_an_overload_with_a_critical_set_that_fits_warns_only_of_the_overload(tmp_path: Path) -> None:
+    expect_warnings(check(tmp_path, loads("1.5 ms", "0.5 ms", pid_critical=True)), "W502")
+
+
+# --- aperiodic tasks --------------------------------------------------------------------------
+
+
+def test_an_aperiodic_task_gives_its_min_interarrival(tmp_path: Path) -> None:
+    result = check(tmp_path, changed("period: 2 ms}", "aperiodic: true, min_interarrival: 5 ms}"))
+    assert result.errors == [] and result.subsystem is not None
+    traj = result.subsystem.tasks["traj"]
+    assert traj.aperiodic and traj.min_interarrival == pytest.approx(5e-3) and traj.period == pytest.approx(5e-3)
+    assert not result.subsystem.tasks["pid"].aperiodic
+
+
+def test_an_aperiodic_task_takes_no_period(tmp_path: Path) -> None:
+    text = changed("period: 2 ms}", "aperiodic: true, min_interarrival: 5 ms, period: 2 ms}")
+    expect_error(tmp_path, text, "period: 2 ms}", r"task 'traj' is aperiodic, so it takes no period$", code="E506")
+
+
+def test_an_aperiodic_task_takes_no_rate(tmp_path: Path) -> None:
+    text = changed("rate: 1 kHz", "rate: 1 kHz, aperiodic: true, min_interarrival: 5 ms")
+    expect_error(tmp_path, text, "rate:", r"task 'pid' is aperiodic, so it takes no rate$", code="E506")
+
+
+def test_an_aperiodic_task_needs_a_min_interarrival(tmp_path: Path) -> None:
+    text = changed("period: 2 ms}", "aperiodic: true}")
+    expect_error(tmp_path, text, "aperiodic", r"aperiodic task 'traj' needs a min_interarrival$", code="E507")
+
+
+def test_a_min_interarrival_must_be_positive(tmp_path: Path) -> None:
+    text = changed("period: 2 ms}", "aperiodic: true, min_interarrival: 0 s}")
+    expect_error(tmp_path, text, "0 s}", r"min_interarrival of task 'traj' must be > 0, got: 0 s$", code="E502")
+
+
+def test_a_periodic_task_takes_no_min_interarrival(tmp_path: Path) -> None:
+    text = changed("period: 2 ms}", "period: 2 ms, min_interarrival: 5 ms}")
+    expect_error(tmp_path, text, "min_interarrival", r"task 'traj' gives a min_interarrival but is not aperiodic$", code="E508")
+
+
+# --- ten mistakes, one pass -----------------------------------------------------------------
+
+
+def test_ten_mistakes_in_ten_sections_give_ten_located_messages_in_file_order(tmp_path: Path) -> None:
+    mistakes = [
+        ("subsystem: puma", "subsystem: my puma/1", "my puma", "E201"),
+        ("rtpus: [rtpu0, rtpu1]", "rtpus: {rtpu0: {cpu: -1}, rtpu1: {cpu: 1}}", "-1", "E117"),
+        ("exclusive: true", "exclusive: maybe", "maybe", "E115"),
+        ("dims: {NDOF: 6}", "dims: {NDOF: 6, NX: six}", "six", "E116"),
+        ("q_m:   {type: float64, shape: [NDOF]}", "q_m:   {type: float64, shape: [NDOF], unit: rad}", "unit", "E111"),
+        ("period: 2 ms", "period: 2 kg", "2 kg", "E501"),
+        ("ports: {tau: tau_u}", "ports: {tau: tau_u, torque: tau_u}", "torque", "E212"),
+        ("[robot, traj, pid]", "[robot, traj, pid, gripper]", "gripper", "E209"),
+        ('"max(abs(q_m - q_d)) < 1e-3"', '"q_m.max() < 1e-3"', "q_m.max", "E703"),
+        ("- move: {q_d:", "- mvoe: {q_d:", "mvoe", "E211"),
+    ]
+    text = LEGAL
+    for old, new, _, _ in mistakes:
+        text = changed(old, new, text)
+    result = check(tmp_path, text)
+    expected = [(*at(text, needle), code) for _, _, needle, code in mistakes]
+    assert [(e.line, e.column, e.code) for e in result.errors] == expected, format_all(result)
+    assert len({e.line for e in result.errors}) == 10
+
+
+def format_all(result: CheckResult) -> str:
+    return "\n".join(e.format() for e in [*result.errors, *result.warnings])

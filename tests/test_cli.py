@@ -40,7 +40,7 @@ def test_check_reports_all_three_mistakes_with_their_lines_and_exits_1(tmp_path,
     path = write(tmp_path, text)
     assert main(["check", str(path)]) == 1
     err = capsys.readouterr().err
-    errors = re.findall(rf"^{re.escape(str(path))}:(\d+):(\d+): error: (.*)$", err, re.MULTILINE)
+    errors = re.findall(rf"^{re.escape(str(path))}:(\d+):(\d+): error\[E\d+\]: (.*)$", err, re.MULTILINE)
     lines = sorted(int(line) for line, _, _ in errors)
     assert lines == sorted([line_of(text, "pid_jiont"), line_of(text, "-2 ms"), line_of(text, "gripper")])
     assert "did you mean 'pid_joint'" in err
@@ -72,16 +72,49 @@ def test_run_refuses_a_file_with_errors_and_starts_nothing(tmp_path):
     done = subprocess.run([sys.executable, "-m", "pbo_runtime.cli", "run", str(write(tmp_path, three_mistakes()))],
                           capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert done.returncode == 1
-    assert done.stderr.count(": error: ") == 3 and "Traceback" not in done.stderr
+    assert len(re.findall(r": error\[E\d+\]: ", done.stderr)) == 3 and "Traceback" not in done.stderr
     assert "starting subsystem" not in done.stdout
 
 
-def test_lexicon_lists_every_module_with_its_ports(capsys):
-    assert main(["lexicon"]) == 0
+def test_lexicon_lists_every_module_with_its_ports_and_params(capsys):
+    assert main(["lexicon", "--format", "json"]) == 0
+    entries = {e["name"]: e for e in json.loads(capsys.readouterr().out)}
+    assert {"robot_torque", "joint_trajectory", "pid_joint", "data_logger", "join"} <= set(entries)
+    assert {p["name"]: p["default"] for p in entries["pid_joint"]["params"]}["kp"] == 400.0
+    assert any(p["kind"] == "out-const" and p["variable"] == "DH" for p in entries["robot_torque"]["ports"])
+
+
+def test_bus_prints_each_tasks_load_and_the_total_and_draws_the_plot(tmp_path, capsys):
+    plot = tmp_path / "bus.png"
+    assert main(["bus", str(REPO / "configs" / "pid_joint.yaml"), "--plot", str(plot)]) == 0
     out = capsys.readouterr().out
-    for module in ("robot_torque", "joint_trajectory", "pid_joint", "data_logger"):
-        assert module in out
-    assert "out-const" in out and "in-var" in out
+    assert "272.0" in out and "B (total)" in out and "577.6" in out  # pid: (192 + 48 + 32 B) / 1 ms
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bus_csv_has_a_line_per_task_and_a_total(capsys):
+    assert main(["bus", str(REPO / "configs" / "pid_joint.yaml"), "--format", "csv"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1 + 4 + 1
+
+
+def test_graph_draws_the_configuration_as_svg_and_as_dot(tmp_path, capsys):
+    svg = tmp_path / "fig8.svg"
+    assert main(["graph", str(REPO / "configs" / "pid_joint.yaml"), "-o", str(svg)]) == 0
+    assert "<svg" in svg.read_text()[:2000]
+    capsys.readouterr()
+    assert main(["graph", str(REPO / "configs" / "pid_joint.yaml")]) == 0
+    assert "digraph" in capsys.readouterr().out
+
+
+def test_graph_of_an_unknown_configuration_names_the_valid_ones(capsys):
+    assert main(["graph", str(REPO / "configs" / "pid_joint.yaml"), "--config", "nope"]) == 1
+    assert "joint_pid" in capsys.readouterr().err
+
+
+def test_the_committed_schema_is_what_pbo_schema_prints(capsys):
+    assert main(["schema"]) == 0
+    assert capsys.readouterr().out == (REPO / "docs" / "pbo-subsystem.schema.json").read_text()
 
 
 @pytest.mark.parametrize("config", sorted((REPO / "configs").glob("*.yaml")), ids=lambda p: p.name)

@@ -1,0 +1,64 @@
+"""Join connector (TR Figure 6): one unambiguous output from several conflicting ones.
+
+When two modules would write the same variable, each writes its own intermediate variable
+instead (p', p''), and the join connector combines them into p by a weighted average. Its
+inputs are the variables named in `params.inputs`; its output port `out` is linked to the
+joined variable with `ports: {out: p}`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pbo_runtime import ModuleError, PortBasedObject, Status
+from pbo_runtime._ports import ANY_DTYPE, InVar, OutVar, PortSpec
+
+
+@dataclass(frozen=True)
+class JoinParams:
+    inputs: tuple[str, ...]
+    weights: tuple[float, ...] = ()  # default: equal weights
+
+    def __post_init__(self) -> None:
+        if len(self.inputs) < 2:
+            raise ValueError(f"inputs must name at least two variables to join, got: {list(self.inputs)}")
+        if len(set(self.inputs)) != len(self.inputs):
+            raise ValueError(f"inputs must not repeat, got: {list(self.inputs)}")
+        if self.weights and len(self.weights) != len(self.inputs):
+            raise ValueError(f"weights and inputs must have equal length: |weights| = {len(self.weights)}, |inputs| = {len(self.inputs)}")
+        if self.weights and (any(w < 0 for w in self.weights) or sum(self.weights) <= 0):
+            raise ValueError(f"weights must be >= 0 and not all zero, got: {list(self.weights)}")
+
+
+class Join(PortBasedObject):
+    """Weighted average of its inputs: out = Σ w_i x_i / Σ w_i. Real-time safe cycle."""
+
+    Params = JoinParams
+
+    out = OutVar("joined", dtype=ANY_DTYPE, shape=None, doc="the joined variable (link it with ports: {out: <variable>})")
+
+    @classmethod
+    def ports_for(cls, params: JoinParams) -> tuple[PortSpec, ...]:
+        inputs = tuple(
+            PortSpec(name, InVar.kind, name, ANY_DTYPE, None, f"input {i} of the join") for i, name in enumerate(params.inputs)
+        )
+        return cls.ports() + inputs
+
+    def init(self, params: JoinParams) -> None:
+        self._inputs = self.bound_arrays[1:]
+        for name, array in zip(params.inputs, self._inputs):
+            if array.shape != self.out.shape:
+                raise ModuleError(f"join input '{name}' has shape {array.shape}, but the output has shape {self.out.shape}")
+        weights = np.asarray(params.weights or [1.0] * len(params.inputs), dtype=float)
+        self._weights = tuple(float(w) for w in weights / weights.sum())
+        self._term = np.zeros(self.out.shape, dtype=self.out.dtype)
+
+    def cycle(self) -> Status:
+        out, term = self.out, self._term
+        out.fill(0)
+        for weight, source in zip(self._weights, self._inputs):
+            np.multiply(source, weight, out=term, casting="unsafe")
+            np.add(out, term, out=out, casting="unsafe")
+        return Status.CONTINUE

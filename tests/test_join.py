@@ -1,0 +1,85 @@
+"""The join connector of TR Figure 6: checked in a configuration, and its weighted average."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from modules.join import Join
+from pbo_runtime import OutVar, ParamError, PortBasedObject
+from pbo_runtime._config_loader import check_file
+from pbo_runtime._config_model import PortBinding, TaskSpec
+from pbo_runtime._lifecycle import Task
+from tests.conftest import variables
+
+
+class FakeTorqueSource(PortBasedObject):
+    """Fake module: writes a torque (linked to its own intermediate variable by the YAML)."""
+
+    tau = OutVar("tau_u", shape=(3,))
+
+
+class OtherFakeTorqueSource(FakeTorqueSource):
+    """Fake module: a second, different torque source (a module runs at most once per configuration)."""
+
+
+LIBRARY = {"join": Join, "fake_source": FakeTorqueSource, "other_fake_source": OtherFakeTorqueSource}
+
+JOINED = """\
+subsystem: joins
+rtpus: [rtpu0]
+variables:
+  tau_a: {type: float64, shape: [3]}
+  tau_b: {type: float64, shape: [3]}
+  tau_u: {type: float64, shape: [3]}
+tasks:
+  a:    {module: fake_source, rtpu: rtpu0, period: 1 ms, ports: {tau: tau_a}}
+  b:    {module: other_fake_source, rtpu: rtpu0, period: 1 ms, ports: {tau: tau_b}}
+  join: {module: join, rtpu: rtpu0, period: 1 ms, params: {inputs: [tau_a, tau_b], weights: [3, 1]}, ports: {out: tau_u}}
+configurations:
+  both: [a, b, join]
+"""
+
+
+def check(tmp_path, text):
+    path = tmp_path / "joins.yaml"
+    path.write_text(text)
+    return check_file(path, module_lookup=LIBRARY.__getitem__, module_names=lambda: sorted(LIBRARY))
+
+
+def test_two_writers_joined_by_a_join_connector_is_a_legal_configuration(tmp_path):
+    result = check(tmp_path, JOINED)
+    assert result.errors == [], [e.format() for e in result.errors]
+    join = result.subsystem.tasks["join"]
+    assert [(b.port.name, b.variable) for b in join.bindings] == [("out", "tau_u"), ("tau_a", "tau_a"), ("tau_b", "tau_b")]
+
+
+def test_two_writers_of_one_variable_without_a_join_are_refused_with_the_hint(tmp_path):
+    text = JOINED.replace("ports: {tau: tau_a}", "ports: {tau: tau_u}").replace("ports: {tau: tau_b}", "ports: {tau: tau_u}")
+    text = text.replace("  both: [a, b, join]", "  both: [a, b]")
+    result = check(tmp_path, text)
+    assert any("two writers" in e.message and "join" in e.hint for e in result.errors), [e.format() for e in result.errors]
+
+
+def test_join_averages_its_inputs_by_their_weights(make_table):
+    table = make_table(variables(("tau_a", "float64", (3,)), ("tau_b", "float64", (3,)), ("tau_u", "float64", (3,))))
+    params = Join.build_params({"inputs": ["tau_a", "tau_b"], "weights": [3, 1]})
+    bindings = tuple(PortBinding(p, "tau_u" if p.name == "out" else p.variable, (3,)) for p in Join.ports_for(params))
+    spec = TaskSpec("join", "join", "rtpu0", 0.001, params={"inputs": ["tau_a", "tau_b"], "weights": [3, 1]}, bindings=bindings)
+    task = Task(spec, Join, table)
+    table.write("tau_a", [4.0, 8.0, -4.0], when=0.0)
+    table.write("tau_b", [0.0, 4.0, 4.0], when=0.0)
+    assert task.spawn(0.0) and task.turn_on(0.0)
+    task.run_cycle(0.001)
+    assert table.read("tau_u")[0] == pytest.approx(np.array([3.0, 7.0, -2.0]))
+
+
+@pytest.mark.parametrize(("params", "message"), [
+    ({"inputs": ["tau_a"]}, r"inputs must name at least two variables to join, got: \['tau_a'\]"),
+    ({"inputs": ["x", "x"]}, r"inputs must not repeat"),
+    ({"inputs": ["x", "y"], "weights": [1]}, r"weights and inputs must have equal length: \|weights\| = 1, \|inputs\| = 2"),
+    ({"inputs": ["x", "y"], "weights": [0, 0]}, r"weights must be >= 0 and not all zero"),
+])
+def test_join_params_are_checked(params, message):
+    with pytest.raises(ParamError, match=message):
+        Join.build_params(params)

@@ -11,6 +11,7 @@ of the later rules so one typo does not cascade into a page of follow-on errors.
 from __future__ import annotations
 
 import difflib
+import functools
 import graphlib
 import heapq
 import re
@@ -125,6 +126,15 @@ class _Task:
     built_params: Any = None  # the module's Params instance, once the params checked out
 
 
+@functools.cache
+def _dtype_name(raw: str) -> str:
+    """numpy's canonical name of a dtype (working it out costs microseconds: once per name)."""
+    return str(np.dtype(raw))
+
+
+LISTED = 12  # choices named in a hint; a longer list helps nobody read it
+
+
 def did_you_mean(name: object, choices: Iterable[str], what: str = "valid") -> str:
     """'did you mean 'x'? (valid: a, b, c)' - the hint for an unknown name."""
     options = sorted({str(c) for c in choices})
@@ -132,7 +142,8 @@ def did_you_mean(name: object, choices: Iterable[str], what: str = "valid") -> s
     # A truncation ('prio' for 'priority') is the likeliest slip; difflib alone may prefer 'period'.
     close = [o for o in options if len(text) >= 3 and o.startswith(text)][:1]
     close = close or difflib.get_close_matches(text, options, n=1, cutoff=0.6)
-    listing = f"({what}: {', '.join(options)})" if options else f"({what}: none)"
+    shown = options if len(options) <= LISTED else [*options[:LISTED], f"... {len(options) - LISTED} more"]
+    listing = f"({what}: {', '.join(shown)})" if options else f"({what}: none)"
     if close:
         return f"did you mean '{close[0]}'? {listing}"
     return listing
@@ -448,11 +459,12 @@ class _Checker:
     # --- variables --------------------------------------------------------------------------
 
     def resolve_shape(self, value: Any, loc: Location, owner: str) -> tuple[int, ...] | None:
-        items: list[tuple[Any, Location]]
         if isinstance(value, YList):
-            items = [(v, value.item_loc(i)) for i, v in enumerate(value)]
+            items: list[Any] = value
+            where = value.item_loc  # locations are worked out only for an error
         elif (isinstance(value, int) and not isinstance(value, bool)) or isinstance(value, str):
-            items = [(value, loc)]  # 'shape: 6' and 'shape: NDOF' mean one dimension
+            items = [value]  # 'shape: 6' and 'shape: NDOF' mean one dimension
+            where = lambda _index: loc  # noqa: E731
         else:
             self.error(
                 "E113",
@@ -463,22 +475,24 @@ class _Checker:
             return None
         shape: list[int] = []
         ok = True
-        for item, item_loc in items:
+        dims = self.out.dims
+        for index, item in enumerate(items):
             if isinstance(item, str):
-                if item in self.out.dims:
-                    shape.append(self.out.dims[item])
+                if item in dims:
+                    shape.append(dims[item])
                 else:
                     self.error(
                         "E204",
                         f"shape of {owner} uses dim '{item}', which 'dims' does not define",
-                        item_loc,
-                        did_you_mean(item, self.out.dims, "defined"),
+                        where(index),
+                        did_you_mean(item, dims, "defined"),
                     )
                     ok = False
             elif isinstance(item, int) and not isinstance(item, bool) and item >= 1:
                 shape.append(item)
             else:
-                self.error("E305", f"shape of {owner}: each size must be an integer >= 1 or a dim name, got: {describe(item)}", item_loc)
+                self.error("E305", f"shape of {owner}: each size must be an integer >= 1 or a dim name, got: {describe(item)}",
+                           where(index))
                 ok = False
         return tuple(shape) if ok else None
 
@@ -538,7 +552,7 @@ class _Checker:
                 if raw is not None and raw not in DTYPES:
                     self.error("E303", f"variable '{name}' has unknown type '{raw}'", type_loc, did_you_mean(raw, DTYPES))
                 elif raw is not None:
-                    dtype = str(np.dtype(raw))
+                    dtype = _dtype_name(raw)
             shape: tuple[int, ...] | None = ()
             if "shape" in spec and spec["shape"] is not None:
                 shape = self.resolve_shape(spec["shape"], spec.value_loc("shape"), f"variable '{name}'")
@@ -952,6 +966,13 @@ class _Checker:
             if ok:
                 self.out.configurations[name] = ConfigurationSpec(name, tuple(t for t, _ in members), key_loc)
 
+    def job_written(self) -> set[str]:
+        """Variables job control writes (objects and initial values): the same for every configuration."""
+        cached = getattr(self, "_job_written", None)
+        if cached is None:
+            cached = self._job_written = set(self.var_object) | self.var_initial
+        return cached
+
     def check_data_flow(self, config: str) -> None:
         """Inputs have one writer; no variable two; consts come from init-time writers; exclusive devices."""
         members = [self.tasks[t] for t, _ in self.config_members.get(config, []) if t in self.tasks]
@@ -968,8 +989,7 @@ class _Checker:
                 detail = _and_list([f"'{t.name}' (line {b.loc.line})" for t, b in ws])
                 count = "two" if len(ws) == 2 else str(len(ws))
                 self.error("E401", f"variable '{var}' has {count} writers in configuration '{config}': {detail}", ws[1][1].loc, _JOIN_HINT)
-        job_written = set(self.var_object) | self.var_initial
-        written = sorted(set(writers) | job_written)
+        job_written = self.job_written()
         for task in members:
             for b in task.bindings:
                 if not b.port.kind.is_input:
@@ -983,7 +1003,8 @@ class _Checker:
                         "E403",
                         f"task '{task.name}' reads {kind} '{b.variable}', but no task in configuration '{config}' writes it",
                         b.loc,
-                        (did_you_mean(b.variable, written, "written") if written else "nothing is written")
+                        (did_you_mean(b.variable, written, "written") if (written := sorted(set(writers) | job_written))
+                         else "nothing is written")
                         + f"; add a task that writes '{b.variable}', or give it an initial: value",
                     )
                     continue

@@ -7,13 +7,14 @@ Every spec keeps the `Location` of its YAML node so later errors can still point
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Mapping, NamedTuple
 
 from pbo_runtime._ports import PortSpec
 
 
-@dataclass(frozen=True)
-class Location:
+class Location(NamedTuple):
+    """Where a YAML node is (1-based). A NamedTuple: a file has hundreds of thousands of them."""
+
     file: str
     line: int
     column: int

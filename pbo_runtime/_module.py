@@ -7,6 +7,7 @@ owns the loop: it transfers the ports and calls the components (see `_lifecycle.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import enum
 import types
 import typing
@@ -155,7 +156,7 @@ def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
     if unknown:
         valid = ", ".join(sorted(fields)) or "none"
         raise ParamError(f"unknown parameter(s) {', '.join(repr(u) for u in unknown)} for {owner} (valid: {valid})")
-    hints = typing.get_type_hints(params_type)
+    hints = _type_hints(params_type)
     converted: dict[str, Any] = {}
     for name, value in values.items():
         converted[name] = _convert(value, hints.get(name, Any), f"{owner}.{name}")
@@ -172,10 +173,20 @@ def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
         raise ParamError(f"bad parameters for {owner}: {exc}") from None
 
 
+@functools.cache
+def _type_hints(params_type: type) -> dict[str, Any]:
+    """The resolved annotations of a Params class (string annotations compile: do it once)."""
+    return typing.get_type_hints(params_type)
+
+
+@functools.cache
+def _origin_and_args(hint: Any) -> tuple[Any, tuple[Any, ...]]:
+    return typing.get_origin(hint), typing.get_args(hint)
+
+
 def _convert(value: Any, hint: Any, where: str) -> Any:
     """Coerce a YAML scalar or list to the declared type; say what was expected and found."""
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
+    origin, args = _origin_and_args(hint)
     if hint is Any:
         return value
     if origin in (typing.Union, types.UnionType):

@@ -92,7 +92,11 @@ class Port:
 
     @property
     def spec(self) -> PortSpec:
-        return PortSpec(self.name, self.kind, self.variable, self.dtype, self.shape, self.doc)
+        """The declaration as data (made once: ports do not change after class creation)."""
+        spec = self.__dict__.get("_spec")
+        if spec is None or spec.name != self.name:
+            spec = self._spec = PortSpec(self.name, self.kind, self.variable, self.dtype, self.shape, self.doc)
+        return spec
 
     def __get__(self, obj: Any, owner: type | None = None) -> Any:
         if obj is None:

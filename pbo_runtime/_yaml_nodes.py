@@ -47,42 +47,61 @@ _SEQ_TAG = "tag:yaml.org,2002:seq"
 _MERGE_TAG = "tag:yaml.org,2002:merge"
 
 
+Where = Any  # a Location, or a YAML mark turned into one only when asked (errors are rare)
+
+
+def _located(file: str, where: Where) -> Location:
+    if isinstance(where, Location):
+        return where
+    return Location(file, where.line + 1, where.column + 1)
+
+
 class YMap(dict):  # type: ignore[type-arg]
     """A YAML mapping: a dict that knows where it, each key and each value were written."""
 
-    def __init__(self, loc: Location) -> None:
+    def __init__(self, loc: Where, file: str | None = None) -> None:
         super().__init__()
-        self.loc = loc
-        self._key_locs: dict[Any, Location] = {}
-        self._value_locs: dict[Any, Location] = {}
+        self._where = loc
+        self._file = file if file is not None else loc.file
+        self._key_locs: dict[Any, Where] = {}
+        self._value_locs: dict[Any, Where] = {}
 
-    def put(self, key: Any, value: Any, key_loc: Location, value_loc: Location) -> None:
+    @property
+    def loc(self) -> Location:
+        return _located(self._file, self._where)
+
+    def put(self, key: Any, value: Any, key_loc: Where, value_loc: Where) -> None:
         self[key] = value
         self._key_locs[key] = key_loc
         self._value_locs[key] = value_loc
 
     def key_loc(self, key: Any) -> Location:
-        return self._key_locs.get(key, self.loc)
+        return _located(self._file, self._key_locs.get(key, self._where))
 
     def value_loc(self, key: Any) -> Location:
-        return self._value_locs.get(key, self.loc)
+        return _located(self._file, self._value_locs.get(key, self._where))
 
 
 class YList(list):  # type: ignore[type-arg]
     """A YAML sequence: a list that knows where it and each item were written."""
 
-    def __init__(self, loc: Location) -> None:
+    def __init__(self, loc: Where, file: str | None = None) -> None:
         super().__init__()
-        self.loc = loc
-        self._item_locs: list[Location] = []
+        self._where = loc
+        self._file = file if file is not None else loc.file
+        self._item_locs: list[Where] = []
 
-    def add(self, value: Any, loc: Location) -> None:
+    @property
+    def loc(self) -> Location:
+        return _located(self._file, self._where)
+
+    def add(self, value: Any, loc: Where) -> None:
         self.append(value)
         self._item_locs.append(loc)
 
     def item_loc(self, index: int) -> Location:
         if 0 <= index < len(self._item_locs):
-            return self._item_locs[index]
+            return _located(self._file, self._item_locs[index])
         return self.loc
 
 
@@ -259,14 +278,14 @@ class _Builder:
 
     def _sequence(self, node: yaml.SequenceNode) -> YList:
         self._check_tag(node, _SEQ_TAG)
-        result = YList(self.loc(node))
+        result = YList(node.start_mark, self._file)
         for item in node.value:
-            result.add(self.build(item), self.loc(item))
+            result.add(self.build(item), item.start_mark)
         return result
 
     def _mapping(self, node: yaml.MappingNode) -> YMap:
         self._check_tag(node, _MAP_TAG)
-        result = YMap(self.loc(node))
+        result = YMap(node.start_mark, self._file)
         merges: list[yaml.Node] = []
         for key_node, value_node in node.value:
             if key_node.tag == _MERGE_TAG:
@@ -291,7 +310,7 @@ class _Builder:
                     *self._line_col(key_node),
                     "a mapping names each key once; remove or rename one of them",
                 )
-            result.put(key, self.build(value_node), self.loc(key_node), self.loc(value_node))
+            result.put(key, self.build(value_node), key_node.start_mark, value_node.start_mark)
         for merge in merges:
             # `<<: *defaults` - explicit keys win over merged ones, as YAML 1.1 says.
             sources: Iterable[yaml.Node] = merge.value if isinstance(merge, yaml.SequenceNode) else [merge]

@@ -41,7 +41,7 @@ from pbo_runtime._ports import ANY_DTYPE, PortSpec
 from pbo_runtime._units import DATA_RATE, FREQUENCY, SIZE, TIME, parse_quantity
 from pbo_runtime._yaml_nodes import YList, YMap, location_of, plain
 
-DTYPES = ("float64", "float32", "int32", "int64", "uint8", "bool")
+DTYPES = ("float64", "float32", "int64", "int32", "int16", "int8", "uint64", "uint32", "uint16", "uint8", "bool")  # what the table holds
 
 TOP_KEYS = (
     "subsystem",

@@ -84,7 +84,35 @@ def _check_file(
     errors.sort(key=_position)
     warnings = sorted(checked.warnings, key=_position)
     subsystem = None if errors else _assemble(checked, file)
+    if subsystem is not None:
+        errors = _bus_errors(subsystem)
+        if errors:
+            subsystem = None
     return CheckResult(subsystem, errors, warnings, dict(checked.initial_values) if not errors else {})
+
+
+def _bus_errors(subsystem: Subsystem) -> list[ConfigError]:
+    """Configurations whose predicted bus load (TR eq. 1-2) exceeds the bandwidth: E510."""
+    from pbo_runtime import _bus
+
+    errors = []
+    try:
+        over = _bus.over_bandwidth(subsystem)
+    except _bus.BusModelError as exc:  # the rules above should have caught it: say so, don't crash
+        return [ConfigError(f"cannot predict the bus load: {exc}", subsystem.file, 1, 1, code="E901",
+                            hint="please report this with the file you checked")]
+    for name, report in over:
+        heaviest = max(report.tasks, key=lambda t: t.rate_bytes_per_s)
+        loc = subsystem.configurations[name].loc
+        errors.append(ConfigError(
+            f"configuration '{name}' needs {report.total / 1e3:,.1f} kB/s of bus, {report.share:.0%} of the "
+            f"{report.bandwidth / 1e6:g} MB/s bandwidth (TR eq. 1-2); the heaviest task is '{heaviest.task}' "
+            f"at {heaviest.rate_bytes_per_s / 1e3:,.1f} kB/s",
+            loc.file, loc.line, loc.column, code="E510",
+            hint="lengthen periods, move variables out of the per-cycle ports, combine tasks (TR 4.5), or "
+                 "raise bus: {bandwidth: ...} if the backplane is faster (see pbo bus FILE)",
+        ))
+    return errors
 
 
 def load_subsystem(

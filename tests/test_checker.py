@@ -341,7 +341,7 @@ def test_a_port_and_its_variable_must_have_the_same_resolved_shape(tmp_path: Pat
 def test_an_unknown_dtype_is_an_error_with_the_valid_ones(tmp_path: Path) -> None:
     text = changed("q_d:   {type: float64", "q_d:   {type: float46")
     error = expect_error(tmp_path, text, "float46", r"variable 'q_d' has unknown type 'float46'$")
-    assert error.hint.startswith("did you mean 'float64'? (valid: bool, float32, float64, int32, int64, uint8)")
+    assert error.hint.startswith("did you mean 'float64'? (valid: bool, float32, float64, int16, int32, int64, int8, uint16, uint32, uint64, uint8)")
 
 
 # --- producers and consumers -----------------------------------------------------------------

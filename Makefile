@@ -23,6 +23,7 @@ check: $(STAMP)          ## check every shipped configuration
 
 bench: $(STAMP)          ## the benchmarks (figures go to docs/performance.md by hand, as printed)
 	$(BIN)/python bench/svar_transfer.py
+	$(BIN)/python bench/check_scale.py
 
 clean-shm: $(STAMP)      ## remove shared memory left by runs that crashed
 	$(BIN)/pbo clean

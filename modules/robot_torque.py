@@ -44,13 +44,25 @@ class RobotTorque(PortBasedObject):
         self.dyn = self._arm.dynamics()
         self._read = self._arm.read_state
         self._write = self._arm.write_torque
+        self._holding = False
 
     def on(self) -> None:
         self._read(self.q_m, self.qd_m)
         self._arm.release_brakes()
 
     def cycle(self) -> Status:
+        if self._holding:  # back from locally stable behaviour: a controller drives the arm again
+            self._holding = False
+            self._arm.release_brakes()
         self._write(self.tau_u)
+        self._read(self.q_m, self.qd_m)
+        return Status.CONTINUE
+
+    def stable_cycle(self) -> Status:
+        """Locally stable while the configuration is illegal: the brakes hold the arm still."""
+        if not self._holding:
+            self._holding = True
+            self._arm.engage_brakes()
         self._read(self.q_m, self.qd_m)
         return Status.CONTINUE
 

@@ -203,6 +203,7 @@ class _Checker:
         self.task_names: set[str] = set()
         self.config_names: set[str] = set()
         self.config_members: dict[str, list[tuple[str, Location]]] = {}
+        self.config_repeats: dict[str, set[str]] = {}  # tasks flagged E407 (a module repeated), per configuration
         self.config_locs: dict[str, Location] = {}
         self.job_names: set[str] = set()
         self.expression_names: set[str] = set()
@@ -956,6 +957,11 @@ class _Checker:
                         "combine the two tasks into one, or use distinct modules",
                     )
                     ok = False
+                    # still a member: what it writes counts, so no follow-on "nobody writes it" (E403),
+                    # and no follow-on "two writers" (E401) with the task it repeats
+                    first[task] = item_loc
+                    members.append((task, item_loc))
+                    self.config_repeats.setdefault(name, set()).add(task)
                     continue
                 if module:
                     modules[module] = (task, item_loc)
@@ -978,12 +984,20 @@ class _Checker:
         members = [self.tasks[t] for t, _ in self.config_members.get(config, []) if t in self.tasks]
         # A task with an unresolved port may be the missing writer: report no "nobody writes it"
         # errors then, only what the resolved links prove.
-        complete = all(t.ok for t in members) and len(members) == len(self.config_members.get(config, []))
+        repeats = self.config_repeats.get(config, set())
+        complete = all(t.ok for t in members if t.name not in repeats) and len(members) == len(self.config_members.get(config, []))
+        # A repeated module's task (E407) is not judged again: its writes satisfy readers (no
+        # follow-on E403/E405), but are not counted as second writers (E401) or as the kind of
+        # write a const needs (E404); its own reads repeat the first task's.
         writers: dict[str, list[tuple[_Task, _Binding]]] = {}
+        repeat_written: set[str] = set()
         for task in members:
             for b in task.bindings:
                 if not b.port.kind.is_input:
-                    writers.setdefault(b.variable, []).append((task, b))
+                    if task.name in repeats:
+                        repeat_written.add(b.variable)
+                    else:
+                        writers.setdefault(b.variable, []).append((task, b))
         for var, ws in writers.items():
             if len(ws) > 1:
                 detail = _and_list([f"'{t.name}' (line {b.loc.line})" for t, b in ws])
@@ -991,11 +1005,15 @@ class _Checker:
                 self.error("E401", f"variable '{var}' has {count} writers in configuration '{config}': {detail}", ws[1][1].loc, _JOIN_HINT)
         job_written = self.job_written()
         for task in members:
+            if task.name in repeats:
+                continue
             for b in task.bindings:
                 if not b.port.kind.is_input:
                     continue
                 ws = writers.get(b.variable, [])
                 kind = b.port.kind.value
+                if not ws and b.variable in repeat_written:
+                    continue
                 if not ws and b.variable not in job_written:
                     if not complete:
                         continue

@@ -38,6 +38,7 @@ class TaskContext:
     devices: dict[str, DeviceSpec]
     opener: DeviceOpener | None
     time: float = 0.0
+    event: Any = None
     opened: list[Any] = field(default_factory=list)
 
     def open_device(self, name: str) -> Any:
@@ -71,7 +72,7 @@ class Task:
         self.cycles = 0
         self.errors = 0
         self.context = TaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}), opener)
-        self.local = LocalTable(table, spec.bindings, spec.index)
+        self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
         self.status = self.local.status
         self.status[StatusWord.CYCLES] = 0
         self.module = module_class.__new__(module_class)
@@ -81,6 +82,7 @@ class Task:
         self.read_inputs = self.local.read_inputs
         self.write_outputs = self.local.write_outputs
         self._cycle = self.module.cycle
+        self._stable_cycle = self.module.stable_cycle
 
     # --- signals ----------------------------------------------------------------------------
 
@@ -120,7 +122,7 @@ class Task:
         self.write_outputs()
         return True
 
-    def run_cycle(self, now: float) -> Status:
+    def run_cycle(self, now: float, component: Callable[[], Status] | None = None) -> Status:
         """One cycle released at `now`: in-vars, cycle, out-vars; errors go to `error`.
 
         The executive calls this only while ON; it is the per-cycle path. The outputs' write
@@ -129,7 +131,7 @@ class Task:
         self.read_inputs()
         self.context.time = now
         try:
-            result = self._cycle()
+            result = (component or self._cycle)()
         except Exception as exc:
             return self._cycle_failed(exc, now)
         self.cycles += 1
@@ -144,6 +146,10 @@ class Task:
             self.turn_off()
             return Status.OFF
         return self._cycle_failed(None, now)
+
+    def run_stable_cycle(self, now: float) -> Status:
+        """One cycle of the locally stable behaviour (critical tasks, configuration illegal)."""
+        return self.run_cycle(now, self._stable_cycle)
 
     def turn_off(self) -> None:
         self._expect("off", TaskState.ON)

@@ -112,6 +112,11 @@ class PortBasedObject:
         return self._pbo_context.time
 
     @property
+    def event(self) -> Any:
+        """For an aperiodic task: the payload of the event this cycle serves (None if none)."""
+        return self._pbo_context.event
+
+    @property
     def resources(self) -> tuple[str, ...]:
         """The device names this task may open (its YAML `resources`)."""
         return self._pbo_context.resources
@@ -131,6 +136,12 @@ class PortBasedObject:
     def cycle(self) -> Status:
         """Every period while ON, between the in-var read and the out-var write. Real-time safe."""
         return Status.CONTINUE
+
+    def stable_cycle(self) -> Status:
+        """Instead of `cycle`, for a critical task while the configuration is illegal (a switch
+        that overran a cycle, a task in ERROR): keep the plant locally stable (TR 4.4), e.g. a
+        robot interface holds position. Real-time safe. By default, the ordinary cycle."""
+        return self.cycle()
 
     def off(self) -> None:
         """On `off`: leave outputs in a safe state, flush logs."""

@@ -24,7 +24,10 @@ import posix_ipc
 from pbo_runtime import _messages, _shm
 from pbo_runtime._config_model import Subsystem
 from pbo_runtime._errors import PboError
-from pbo_runtime._table import Header, StateTable, TableLayout, TaskState, read_manifest
+from pbo_runtime._control import ControlServer, control_queue_name
+from pbo_runtime._job_control import JobControl, JobFailure, application_steps
+from pbo_runtime._reconfiguration import Reconfiguration
+from pbo_runtime._table import Flag, Header, StateTable, TableLayout, TaskState, read_manifest
 from pbo_runtime._table import Status as W
 
 START_TIMEOUT = 60.0  # seconds for a child to import numpy, pinocchio and mujoco on a busy machine
@@ -33,6 +36,10 @@ SIGNAL_TIMEOUT = 10.0
 
 class RunFailure(PboError):
     """The run could not start or had to stop: the message says which process or task, and why."""
+
+
+class StopRequested(Exception):
+    """Ctrl-C, SIGTERM or `pbo stop` while job control was waiting: stop cleanly, not a failure."""
 
 
 @dataclass
@@ -51,6 +58,10 @@ class RunResult:
     run_id: str = ""
     objects: list[str] = field(default_factory=list)  # every shared object the run made ("kind /name")
     states_at_stop: dict[str, str] = field(default_factory=dict)
+    application: str = ""
+    jobs_done: list[str] = field(default_factory=list)
+    switches: list[dict[str, Any]] = field(default_factory=list)
+    stable_episodes: list[dict[str, Any]] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -58,6 +69,8 @@ class RunResult:
             "stopped_by": self.stopped_by, "failure": self.failure, "tasks": self.tasks,
             "variables": self.variables, "plant": self.plant, "lock_recoveries": self.lock_recoveries,
             "run_id": self.run_id, "objects": self.objects, "states_at_stop": self.states_at_stop,
+            "application": self.application, "jobs_done": self.jobs_done, "switches": self.switches,
+            "stable_episodes": self.stable_episodes,
         }
 
 
@@ -92,7 +105,7 @@ def remove_dead_runs(subsystem: str) -> list[str]:
 
 
 class Supervisor:
-    """Runs one subsystem in one configuration for a duration (jobs and switching come later)."""
+    """Runs one subsystem: a configuration for a duration, or an application's jobs."""
 
     def __init__(
         self,
@@ -101,8 +114,18 @@ class Supervisor:
         duration: float | None = 5.0,
         on_tick: Callable[[Supervisor], None] | None = None,
         say: Callable[[str], None] = lambda text: None,
+        application: str | None = None,
+        static: bool = False,
+        alternate: tuple[list[str], int, float] | None = None,
     ) -> None:
         self.subsystem = subsystem
+        self.application = application
+        if application is not None and application not in subsystem.applications:
+            raise RunFailure(f"no application '{application}' in {subsystem.file} "
+                             f"(applications: {', '.join(subsystem.applications) or 'none'})")
+        if configuration is None and application is not None:
+            first = application_steps(subsystem, application)
+            configuration = subsystem.jobs[first[0][0]].configuration if first else None
         self.configuration = configuration or next(iter(subsystem.configurations))
         if self.configuration not in subsystem.configurations:
             raise RunFailure(
@@ -124,6 +147,19 @@ class Supervisor:
         self.started_at = 0.0
         self._stop_requested = ""
         self._stats: dict[str, dict[str, Any]] = {}
+        self.reconfiguration = Reconfiguration(subsystem)
+        # RTPUs release at epoch + index * stagger + k * period: their lock holds rarely overlap, and
+        # a task reading what another RTPU wrote in the same period gives the writer that long to finish.
+        self.shortest_period = min(t.period for t in subsystem.tasks.values())
+        self.stagger = 0.45 * self.shortest_period / max(1, len(subsystem.rtpus) - 1)
+        self.epoch = 0.0
+        self.static = static
+        self.job_control = JobControl(self, static=static)
+        self.result.application = application or ""
+        self.alternate = alternate
+        self._stable: dict[str, float] = {}
+        self.control: ControlServer | None = None
+        self._serving = False
 
     # --- names ------------------------------------------------------------------------------
 
@@ -134,6 +170,7 @@ class Supervisor:
         entries += [f"mq {_messages.signal_queue_name(s, r, rtpu.name)}" for rtpu in self.subsystem.rtpus]
         if self.subsystem.plant is not None:
             entries.append(f"shm {_messages.plant_registers_name(s, r)}")
+        entries.append(f"mq {control_queue_name(s, r)}")
         return entries
 
     # --- the run ----------------------------------------------------------------------------
@@ -146,8 +183,22 @@ class Supervisor:
             if removed:
                 self.say(f"removed {len(removed)} object(s) left by a dead run: {', '.join(removed)}")
             self._start()
-            self._watch()
-        except RunFailure as exc:
+            if self.application:
+                self.job_control.run_application(self.application)
+                self.result.jobs_done = [job for job, _ in application_steps(self.subsystem, self.application)]
+                self.result.stopped_by = f"application '{self.application}' done"
+                self.say(f"application '{self.application}' is done")
+            elif self.alternate:
+                self.job_control.alternate(*self.alternate)
+                self.result.stopped_by = f"{self.alternate[1]} switches done"
+            else:
+                self._watch()
+        except StopRequested:
+            self.result.stopped_by = self._stop_requested
+        except (RunFailure, JobFailure) as exc:
+            self.result.failure = str(exc)
+            self.result.stopped_by = "failure"
+        except PboError as exc:  # a switch that could not complete, a condition that could not be read
             self.result.failure = str(exc)
             self.result.stopped_by = "failure"
         finally:
@@ -168,8 +219,9 @@ class Supervisor:
         for rtpu in sub.rtpus:
             self.signals[rtpu.name] = _messages.Queue(_messages.signal_queue_name(sub.name, run_id, rtpu.name), create=True)
         self.table = StateTable.create(TableLayout.of(sub), _messages.table_name(sub.name, run_id), self._manifest())
+        self.control = ControlServer(sub.name, run_id)
         self._write_initial_values()
-        epoch = time.monotonic()
+        epoch = self.epoch = time.monotonic()
         if sub.plant is not None:
             plant = sub.plant
             self._launch("plant", [
@@ -181,23 +233,67 @@ class Supervisor:
         for rtpu in sub.rtpus:
             hosted = tuple(t.name for t in sub.tasks_on(rtpu.name))
             self._launch(rtpu.name, ["-m", "rtpu", sub.file, "--run-id", run_id, "--rtpu", rtpu.name,
-                                     "--epoch", repr(epoch + 0.00015 * rtpu.index)], hosted)
+                                     "--epoch", repr(epoch + self.stagger * rtpu.index)], hosted)
         self._await_ready({r.name for r in sub.rtpus})
-        for name in sub.init_order:
-            self._signal(name, "spawn")
-            state = self._await_state(name, {"OFF", "KILLED"})
-            if state == "KILLED":
-                raise RunFailure(f"task '{name}' failed in init and was not created: {self.task_errors.get(name, '')}")
         members = sub.configurations[self.configuration].tasks
+        # dynamic: the union every configuration may need is spawned now (TR 4.4); static: this one's
+        spawned = [t for t in sub.init_order if t in members or not self.static]
+        for name in spawned:
+            self.respawn(name)
         ordered = [t for t in sub.init_order if t in members]
         ordered.sort(key=lambda t: not sub.tasks[t].critical)  # the robot interface first: it publishes q_m
         for name in ordered:
-            self._signal(name, "on")
-            state = self._await_state(name, {"ON", "ERROR"})
-            if state == "ERROR":
-                raise RunFailure(f"task '{name}' failed in on: {self.task_errors.get(name, '')}")
+            self.turn_on(name, self.configuration)
+        self._publish_plan_state()
         self.started_at = time.monotonic()
         self.say(f"configuration '{self.configuration}' is on: {', '.join(ordered)}")
+
+    def respawn(self, name: str) -> None:
+        """Spawn a task and wait for its init; an init failure stops the run (no half start)."""
+        state = self.signal_and_wait(name, "spawn", {"OFF", "KILLED"})
+        if state == "KILLED":
+            raise RunFailure(f"task '{name}' failed in init and was not created: {self.task_errors.get(name, '')}")
+
+    def turn_on(self, name: str, configuration: str) -> None:
+        """Turn a task on; critical tasks learn who writes their inputs in `configuration`."""
+        index = self.reconfiguration.index(configuration)
+        state = self.signal_and_wait(name, "on", {"ON", "ERROR"}, None, index)
+        if state == "ERROR":
+            raise RunFailure(f"task '{name}' failed in on: {self.task_errors.get(name, '')}")
+
+    def _await_change(self, task: str, before: str | None, states: set[str]) -> str:
+        """The task's state after a signal: one of `states`; a clear that fails reports ERROR again."""
+        deadline = time.monotonic() + SIGNAL_TIMEOUT
+        while True:
+            event = self._next_event(deadline, f"waiting for task '{task}'")
+            if event[0] in ("state", "refused") and event[2] == task:
+                if event[0] == "refused":
+                    raise PboError(f"task '{task}': {event[3]}")
+                if self.task_states[task] in states:
+                    return self.task_states[task]
+
+    def signal_and_wait(self, name: str, op: str, states: set[str], *arguments: Any) -> str:
+        self._signal(name, op, *arguments)
+        return self._await_state(name, states)
+
+    def set_configuration(self, configuration: str) -> None:
+        self.configuration = configuration
+        self.result.configuration = configuration
+        self._count_errors()
+
+    def _publish_plan_state(self) -> None:
+        """Mark the starting configuration as applied, so executives start in step with job control."""
+        assert self.table is not None
+        self.table.header[Header.PLAN_CONFIGURATION] = self.reconfiguration.index(self.configuration)
+
+    def _count_errors(self) -> None:
+        """Critical tasks run locally stable while a task of the configuration is in ERROR."""
+        if self.table is None:
+            return
+        members = self.subsystem.configurations[self.configuration].tasks
+        in_error = sum(1 for t in members if self.task_states.get(t) == "ERROR")
+        self.table.header[Header.TASKS_IN_ERROR] = in_error
+        self.table.set_flag(Flag.ILLEGAL_CONFIGURATION, bool(in_error) or bool(self._stable))
 
     def _launch(self, role: str, arguments: list[str], tasks: tuple[str, ...] = ()) -> None:
         command = [sys.executable, *arguments, "--parent", str(os.getpid())]
@@ -249,11 +345,28 @@ class Supervisor:
         kind, source = event[0], event[1]
         if kind == "state":
             task, state, message = event[2], event[3], event[4]
+            previous = self.task_states.get(task)
             self.task_states[task] = state
             if message:
                 self.task_errors[task] = message
-            if state == "ERROR":
-                self.say(f"task '{task}' on {source} is in ERROR: {message} (operator intervention required)")
+            if state == "ERROR" and previous != "ERROR":
+                self.say(f"task '{task}' on {source} is in ERROR: {message} (operator intervention required: pbo clear {task})")
+            if (state == "ERROR") != (previous == "ERROR"):
+                self._count_errors()
+        elif kind == "switched":
+            self.job_control.switched(source, event[2], event[5], event[6], event[7], event[8])
+        elif kind == "first_cycle":
+            self.job_control.first_cycle(event[2], event[3], event[4])
+        elif kind == "stable":
+            task, entering, at = event[2], event[3], event[4]
+            if entering:
+                self._stable[task] = at
+                self.say(f"configuration illegal: critical task '{task}' runs its locally stable behaviour")
+            elif task in self._stable:
+                began = self._stable.pop(task)
+                self.result.stable_episodes.append({"task": task, "from": began, "to": at, "seconds": at - began})
+                self.say(f"critical task '{task}' is back to its cycle after {(at - began) * 1e3:.1f} ms")
+            self._count_errors()
         elif kind == "stats":
             self._stats.update(event[2])
         elif kind == "plant_stats":
@@ -282,20 +395,106 @@ class Supervisor:
     # --- running ----------------------------------------------------------------------------
 
     def _watch(self) -> None:
+        """Serve events and commands until the duration is over (StopRequested ends it sooner)."""
+        while self.duration is None or time.monotonic() - self.started_at < self.duration:
+            self.pump(0.1)
+        self.result.stopped_by = "duration"
+
+    def pump(self, timeout: float) -> None:
+        """One turn of job control's loop: children, stop requests, one event, commands, the view."""
         assert self.events is not None
-        while True:
-            self._check_children()
-            if self._stop_requested:
-                self.result.stopped_by = self._stop_requested
-                return
-            if self.duration is not None and time.monotonic() - self.started_at >= self.duration:
-                self.result.stopped_by = "duration"
-                return
-            event = self.events.receive(0.1)
-            if event is not None:
-                self._absorb(event)
-            if self.on_tick is not None:
-                self.on_tick(self)
+        self._check_children()
+        if self._stop_requested:
+            raise StopRequested(self._stop_requested)
+        event = self.events.receive(timeout)
+        if event is not None:
+            self._absorb(event)
+        self._serve_commands()
+        if self.on_tick is not None:
+            self.on_tick(self)
+
+    def _serve_commands(self) -> None:
+        """Operator commands (pbo status, on, off, ...): served between events, never in a cycle."""
+        if self.control is None or self._serving:
+            return  # a command that waits (a switch) pumps events, but serves no second command meanwhile
+        self._serving = True
+        try:
+            self.control.poll(self._command)
+        finally:
+            self._serving = False
+
+    def _command(self, command: str, arguments: dict[str, Any]) -> dict[str, Any]:
+        """One operator command; PboError/ValueError/KeyError become a refusal the operator reads."""
+        tasks = self.subsystem.tasks
+        if command == "status":
+            return self._status_reply()
+        if command in ("on", "off", "clear", "event"):
+            task = arguments.get("task")
+            if task not in tasks:
+                raise PboError(f"no task '{task}' (tasks: {', '.join(tasks)})")
+            if command == "event":
+                self._signal(task, "event", arguments.get("values"))
+                return {"task": task, "message": f"event sent to '{task}'"}
+            before = self.task_states.get(task)
+            members = self.subsystem.configurations[self.configuration].tasks
+            if command == "on" and task not in members:
+                raise PboError(f"task '{task}' is not in the running configuration '{self.configuration}' "
+                               f"({', '.join(members)}): turning it on would give its outputs two writers; "
+                               f"use pbo switch to a configuration that has it")
+            if command == "clear" and before != "ERROR":
+                raise PboError(f"task '{task}' is {before}, not in ERROR: there is nothing to clear")
+            if command == "on" and before != "OFF":
+                raise PboError(f"task '{task}' is {before}: only an OFF task can be turned on")
+            if command == "off" and before != "ON":
+                raise PboError(f"task '{task}' is {before}: only an ON task can be turned off")
+            expected = {"on": {"ON", "ERROR"}, "off": {"OFF", "ERROR"}, "clear": {"OFF", "ERROR"}}[command]
+            extra = (None, self.reconfiguration.index(self.configuration)) if command == "on" else ()
+            self._signal(task, command, *extra)
+            state = self._await_change(task, before, expected)
+            self._count_errors()
+            note = ""
+            if command == "clear":
+                note = "cleared: the task is OFF; turn it on with pbo on" if state == "OFF" else \
+                    f"still in ERROR: its clear component found the fault not fixed ({self.task_errors.get(task, '')})"
+            return {"task": task, "state": state, "message": f"task '{task}' is {state}" + (f"; {note}" if note else "")}
+        if command in ("switch", "job") and self.application:
+            raise PboError(f"application '{self.application}' is running its jobs; switch and job are refused until it ends")
+        if command == "switch":
+            record = self.job_control.switch(str(arguments.get("configuration")))
+            return {"configuration": record.after, "entered": record.on, "left": record.off, "took": record.latency,
+                    "message": f"switched '{record.before}' -> '{record.after}' in {record.latency * 1e3:.2f} ms: "
+                               f"off {', '.join(record.off) or 'nothing'}; on {', '.join(record.on) or 'nothing'}"}
+        if command == "job":
+            name = arguments.get("job")
+            if name not in self.subsystem.jobs:
+                raise PboError(f"no job '{name}' (jobs: {', '.join(self.subsystem.jobs) or 'none'})")
+            job = self.subsystem.jobs[name]
+            values: dict[str, Any] = {}
+            if arguments.get("object") is not None:
+                if not job.object:
+                    raise PboError(f"job '{name}' takes no object")
+                values[job.object] = arguments["object"]
+            elif job.object:
+                raise PboError(f"job '{name}' needs its object '{job.object}': pbo job {name} VALUE ...")
+            self.job_control.start_job(name, values)
+            return {"job": name, "configuration": job.configuration,
+                    "message": f"job '{name}' runs in '{job.configuration}'" + (f"; done when {job.post}" if job.post else "")}
+        if command == "stop":
+            self.request_stop("pbo stop")
+            return {"message": f"stopping '{self.subsystem.name}'"}
+        raise PboError(f"unknown command '{command}' (commands: status, on, off, clear, event, switch, job, stop)")
+
+    def _status_reply(self) -> dict[str, Any]:
+        elapsed = time.monotonic() - self.started_at if self.started_at else 0.0
+        rows = []
+        for row, spec in zip(self.status_rows(), self.subsystem.tasks.values()):
+            rows.append({**row, "index": spec.index, "state": self.task_states.get(spec.name, row["state"]),
+                         "rate": row["cycles"] / elapsed if elapsed > 0 else 0.0,
+                         "error": self.task_errors.get(spec.name) if self.task_states.get(spec.name) == "ERROR" else None})
+        flags = [flag.name for flag in Flag if self.table is not None and self.table.flags & flag]
+        return {"subsystem": self.subsystem.name, "run_id": self.run_id, "configuration": self.configuration,
+                "job": self.job_control.job, "application": self.application, "elapsed": elapsed,
+                "tasks": rows, "flags": flags}
 
     def status_rows(self) -> list[dict[str, Any]]:
         """The live view's data, read from the table's status blocks."""
@@ -315,6 +514,7 @@ class Supervisor:
 
     def _shutdown(self) -> None:
         self.result.duration = time.monotonic() - self.started_at if self.started_at else 0.0
+        self.result.switches = [record.to_json() for record in self.job_control.switches]
         self.result.states_at_stop = dict(self.task_states)
         alive = [c for c in self.children if c.process.poll() is None]
         for child in alive:
@@ -337,9 +537,11 @@ class Supervisor:
                 child.process.wait()
         self._drain_events(0.0)
         for name, stats in self._stats.items():
-            self.result.tasks[name] = {"rtpu": self.subsystem.tasks[name].rtpu,
+            self.result.tasks[name] = {"rtpu": self.subsystem.tasks[name].rtpu, "critical": self.subsystem.tasks[name].critical,
                                        "state": self.result.states_at_stop.get(name, "?"),
                                        "error": self.task_errors.get(name, ""), **stats}
+        if self.control is not None:
+            self.control.close()
         for queue in self.signals.values():
             queue.close()
         if self.events is not None:

@@ -64,6 +64,16 @@ class Header(enum.IntEnum):
     STATUS_OFFSET = 12
     TOTAL_BYTES = 13
     LOCK_RECOVERIES = 14  # times job control released a lock whose holder died
+    # Dynamic reconfiguration (TR 4.4): job control posts a plan, every executive applies it at
+    # its first cycle boundary at or after the activation time.
+    PLAN_SEQUENCE = 16  # incremented for each new plan
+    PLAN_TIME_NS = 17  # activation time, CLOCK_MONOTONIC nanoseconds
+    PLAN_CONFIGURATION = 18  # index of the configuration to switch to (file order)
+    TASKS_IN_ERROR = 19  # set by job control: critical tasks run locally stable while > 0
+    SWITCHING_SINCE_NS = 24  # one word per RTPU (up to MAX_RTPUS): when its switch began, 0 if none
+
+
+MAX_RTPUS = 32
 
 
 class Flag(enum.IntFlag):

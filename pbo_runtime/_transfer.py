@@ -20,7 +20,7 @@ import numpy as np
 
 from pbo_runtime._config_model import PortBinding
 from pbo_runtime._ports import PortKind
-from pbo_runtime._table import META_WORDS, STATUS_WORDS, Header, StateTable
+from pbo_runtime._table import HEADER_WORDS, META_WORDS, STATUS_WORDS, Header, StateTable
 from pbo_runtime._table import Status as StatusWord
 
 _INPUT_ORDER = (PortKind.IN_CONST, PortKind.IN_BOTH, PortKind.IN_VAR)
@@ -39,7 +39,8 @@ class _Group:
 class _Region:
     """The local copies of a set of bindings, with the global indices they map to."""
 
-    def __init__(self, table: StateTable, bindings: list[PortBinding], writer: int, status_words: int) -> None:
+    def __init__(self, table: StateTable, bindings: list[PortBinding], writer: int, status_words: int,
+                 freshness: bool = False) -> None:
         layout = table.layout
         slots = [layout.slot(b.variable) for b in bindings]
         k = len(bindings)
@@ -52,6 +53,11 @@ class _Region:
             data_pos.append((s.dtype.name, len(target)))
             target.extend(range(s.data_index, s.data_index + s.size))
         self.status_at = len(index64)
+        # Inputs of a task that watches freshness also gather each writer's release time (the
+        # write time of what is read); the executive points these at the current writers.
+        self.freshness_at = len(index64)
+        if freshness:
+            index64.extend([HEADER_WORDS - 1] * k)  # an unused header word (0.0) until retargeted
         if status_words:
             first = layout.status_offset // 8 + writer * STATUS_WORDS
             index64.extend(range(first, first + status_words))
@@ -66,6 +72,10 @@ class _Region:
         self.writer = local64[0:k]
         self.writer.fill(writer)
         self.status = local64[self.status_at : self.status_at + status_words]
+        self.write_times = local64[self.freshness_at : self.freshness_at + (k if freshness else 0)]
+        self.freshness_index = (
+            self.groups[0].index[self.freshness_at : self.freshness_at + k] if freshness and self.groups else None
+        )
         self.arrays = [
             locals_by_dtype[dtype_name][pos : pos + s.size].reshape(s.shape)
             for (dtype_name, pos), s in zip(data_pos, slots)
@@ -75,7 +85,8 @@ class _Region:
 class LocalTable:
     """A task's private copies of its variables, and the transfers Figure 11 prescribes."""
 
-    def __init__(self, table: StateTable, bindings: tuple[PortBinding, ...], task_index: int) -> None:
+    def __init__(self, table: StateTable, bindings: tuple[PortBinding, ...], task_index: int,
+                 watch_freshness: bool = False) -> None:
         self.table = table
         self.task_index = task_index
         inputs = sorted((b for b in bindings if b.port.kind.is_input), key=lambda b: _INPUT_ORDER.index(b.port.kind))
@@ -86,7 +97,7 @@ class LocalTable:
         out_var = [b for b in outputs if b.port.kind.every_cycle]
         # Consts move once, at init; a `both` port has one local copy shared by both regions.
         self._in_const = _Region(table, in_const, task_index, 0)
-        self._in_var = _Region(table, in_var, task_index, 0)
+        self._in_var = _Region(table, in_var, task_index, 0, freshness=watch_freshness)
         self._out_const = _Region(table, out_const, task_index, 0)
         self._out_var = _Region(table, out_var, task_index, int(StatusWord.USED))
         by_binding: dict[int, np.ndarray] = {}
@@ -98,6 +109,8 @@ class LocalTable:
         self.port_arrays = [by_binding[id(b)] for b in bindings]
         self.status = self._out_var.status  # the executive's counters, written with the outputs
         self.input_writer = self._in_var.writer  # who wrote each in-var, as of the last read
+        self.input_variables = tuple(b.variable for b in in_var)
+        self.input_write_times = self._in_var.write_times  # with watch_freshness: each writer's last release
         self.bytes_in = sum(a.nbytes for a in self._in_var.arrays)  # the data of the per-cycle ports
         self.bytes_out = sum(a.nbytes for a in self._out_var.arrays)
         # what a cycle really moves: the data, each variable's writer word, the status block
@@ -106,6 +119,19 @@ class LocalTable:
         self._header = table.header
         self._pid = table._pid
         self._compile()
+
+    def watch_writers(self, writers: list[int]) -> None:
+        """Gather, with the inputs, the release time of these tasks (one per in-var; -1: none).
+
+        Called at `on` and at a switch, never per cycle; it rewrites index entries in place.
+        """
+        index = self._in_var.freshness_index
+        if index is None:
+            return
+        status_base = self.table.layout.status_offset // 8
+        for position, writer in enumerate(writers):
+            # a variable job control writes has no producer period: point at an unused word (0.0)
+            index[position] = status_base + writer * STATUS_WORDS + int(StatusWord.RELEASE) if writer >= 0 else HEADER_WORDS - 1
 
     def _compile(self) -> None:
         """Bind the per-cycle transfers to locals so a call does no attribute chasing."""

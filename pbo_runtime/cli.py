@@ -27,10 +27,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     console = Console(highlight=False)
-    errors = Console(stderr=True, highlight=False)
+    errors = Console(stderr=True, highlight=False, soft_wrap=True)
     if not console.is_terminal:  # logs and CI: wide enough for the summary, no wrapping
         console = Console(highlight=False, width=140)
-        errors = Console(stderr=True, highlight=False, width=140)
+        errors = Console(stderr=True, highlight=False, width=140, soft_wrap=True)
     try:
         return args.handler(args, console, errors)
     except ConfigErrors as exc:
@@ -65,6 +65,12 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--config", help="the configuration to turn on (default: the first in the file)")
     run.add_argument("--report", type=Path, help="write the run report (per task timing, final values) as JSON here")
     run.add_argument("--no-live", action="store_true", help="no live status table (the default when output is not a terminal)")
+    run.add_argument("--app", help="run this application's jobs one at a time, then stop")
+    run.add_argument("--static", action="store_true",
+                     help="static reconfiguration: only the current configuration's tasks exist (kill and spawn between jobs)")
+    run.add_argument("--alternate", metavar="A,B", help="switch test: alternate between these configurations")
+    run.add_argument("--switches", type=int, default=100, help="with --alternate: how many switches (default 100)")
+    run.add_argument("--interval", type=float, default=0.05, help="with --alternate: seconds between switches (default 0.05)")
     run.set_defaults(handler=_run)
 
     bus = sub.add_parser("bus", help="bus utilisation of each configuration (TR eq. 1-2), predicted and measured")
@@ -89,6 +95,35 @@ def _parser() -> argparse.ArgumentParser:
     schema = sub.add_parser("schema", help="the JSON Schema of the subsystem format, for editors")
     schema.add_argument("-o", "--output", type=Path, help="write it here (default: stdout)")
     schema.set_defaults(handler=_schema)
+
+    # operator commands on a running subsystem (another terminal), over its 0600 control queue
+    status = sub.add_parser("status", help="a running subsystem: tasks by RTPU with state, rate, jitter, overruns; current job")
+    status.set_defaults(handler=lambda a, c, e: _operator().status(c, a.subsystem))
+    for signal_name, text in (("on", "turn a task on"), ("off", "turn a task off"),
+                              ("clear", "clear a task's error (its clear component decides: OFF, or still ERROR)")):
+        command = sub.add_parser(signal_name, help=text)
+        command.add_argument("task")
+        command.set_defaults(handler=lambda a, c, e, op=signal_name: _operator().task_signal(c, op, a.task, a.subsystem))
+    switch = sub.add_parser("switch", help="switch the running subsystem to another configuration (dynamic, TR 4.4)")
+    switch.add_argument("configuration")
+    switch.set_defaults(handler=lambda a, c, e: _operator().switch(c, a.configuration, a.subsystem))
+    job = sub.add_parser("job", help="start a job, with its object's values: pbo job move 0.3 -0.5 0.5 0 0.4 0.2")
+    job.add_argument("name")
+    job.add_argument("values", nargs="*")
+    job.set_defaults(handler=lambda a, c, e: _operator().job(c, a.name, a.values, a.subsystem))
+    event = sub.add_parser("event", help="send an event (with values) to an aperiodic task")
+    event.add_argument("task")
+    event.add_argument("values", nargs="*")
+    event.set_defaults(handler=_event)
+    svar = sub.add_parser("svar", help="state variables of the running subsystem: value, sequence, age, writer")
+    svar.add_argument("names", nargs="*")
+    svar.add_argument("--watch", action="store_true", help="refresh until Ctrl-C")
+    svar.add_argument("--interval", type=float, default=0.5)
+    svar.set_defaults(handler=lambda a, c, e: _operator().svar(c, a.names, a.watch, a.interval, a.subsystem))
+    stop = sub.add_parser("stop", help="stop the running subsystem cleanly")
+    stop.set_defaults(handler=lambda a, c, e: _operator().stop(c, a.subsystem))
+    for command in (status, *[sub.choices[n] for n in ("on", "off", "clear")], switch, job, event, svar, stop):
+        command.add_argument("--subsystem", help="which running subsystem (needed only when several run)")
 
     clean = sub.add_parser("clean", help="remove shared memory, semaphores and queues left by dead runs")
     clean.add_argument("--subsystem", help="only this subsystem's leftovers")
@@ -168,16 +203,26 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     subsystem = load_subsystem(args.file)
     live = console.is_terminal and not args.no_live
     duration = args.duration if args.duration > 0 else None
+    alternate = None
+    if args.alternate:
+        names = [n.strip() for n in args.alternate.split(",") if n.strip()]
+        if len(names) < 2:
+            errors.print("error: --alternate takes two or more configurations, e.g. --alternate pid,pd", markup=False)
+            return EXIT_CONFIG
+        alternate = (names, args.switches, args.interval)
+        args.config = args.config or names[0]
+    options = {"application": args.app, "static": args.static, "alternate": alternate}
     say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
     say(f"starting subsystem '{subsystem.name}' ({len(subsystem.rtpus)} RTPUs, plant: "
         f"{subsystem.plant.model if subsystem.plant else 'none'}); "
         f"{'Ctrl-C stops it' if duration is None else f'runs {duration:g} s, Ctrl-C stops it sooner'}")
     if live:
         with Live(console=console, refresh_per_second=4, transient=True) as view:
-            supervisor = Supervisor(subsystem, args.config, duration, on_tick=lambda s: view.update(_status_table(s)), say=say)
+            supervisor = Supervisor(subsystem, args.config, duration, on_tick=lambda s: view.update(_status_table(s)), say=say,
+                                    **options)
             result = supervisor.run()
     else:
-        supervisor = Supervisor(subsystem, args.config, duration, say=say)
+        supervisor = Supervisor(subsystem, args.config, duration, say=say, **options)
         result = supervisor.run()
     if args.report:
         args.report.parent.mkdir(parents=True, exist_ok=True)
@@ -233,12 +278,53 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
             console.print(f"task '{name}': {t['error']}", markup=False)
     if result.plant:
         console.print(f"plant: {result.plant.get('steps', 0)} steps, {result.plant.get('late', 0)} late", markup=False)
+    _print_switches(console, result)
+
+
+def _print_switches(console: Console, result: Any) -> None:
+    """Per switch: latency (request to the first cycle of the new configuration); stale reads."""
+    import numpy as np
+
+    if not result.switches:
+        return
+    latency = np.array([s["latency"] for s in result.switches]) * 1e3
+    skew = np.array([s["skew"] for s in result.switches]) * 1e3
+    longest = np.array([s["longest"] for s in result.switches]) * 1e3
+    console.print(
+        f"switches: {len(result.switches)}; latency ms p50 {np.median(latency):.2f}, p99 {np.percentile(latency, 99):.2f}, "
+        f"max {latency.max():.2f}; RTPU skew ms max {skew.max():.3f}; longest switch on one RTPU {longest.max():.3f} ms",
+        markup=False)
+    critical = [(n, t) for n, t in result.tasks.items() if t.get("critical")]
+    for name, t in critical:
+        console.print(f"critical task '{name}': {t['cycles_lost_to_switches']} cycles lost to switches (read an output of a "
+                      f"task switched out); {t['stale_reads']} stale reads from late writers ({t['stale_reads_at_switches']} "
+                      f"within 3 periods of a switch); {t['stable_cycles']} locally stable cycles"
+                      + (f"; last lost: {t['last_cycle_lost']}" if t.get("last_cycle_lost") else "")
+                      + (f"; last stale: {t['last_stale_read']}" if t.get("last_stale_read") else ""), markup=False)
 
 
 def _format_value(value: Any) -> str:
     if isinstance(value, list):
         return "[" + ", ".join(f"{x:+.4f}" if isinstance(x, float) else str(x) for x in value) + "]"
     return f"{value:+.4f}" if isinstance(value, float) else str(value)
+
+
+# --- operator commands -------------------------------------------------------------------------
+
+
+def _operator() -> Any:
+    from pbo_runtime import _operator as operator
+
+    return operator
+
+
+def _event(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime._control import ControlClient
+
+    values = _operator().parse_object_values(args.values)
+    reply = ControlClient.connect(args.subsystem).call("event", {"task": args.task, "values": values})
+    console.print(str(reply.get("message", f"event sent to '{args.task}'")), markup=False)
+    return EXIT_OK
 
 
 # --- pbo bus ---------------------------------------------------------------------------------

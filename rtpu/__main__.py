@@ -17,6 +17,7 @@ from pbo_runtime._config_loader import load_subsystem
 from pbo_runtime._config_model import DeviceSpec
 from pbo_runtime._lifecycle import Task
 from pbo_runtime._process import Stop, become_child
+from pbo_runtime._reconfiguration import Reconfiguration
 from pbo_runtime._table import StateTable, TableLayout
 from rtpu._executive import Executive
 
@@ -48,10 +49,17 @@ def main(argv: list[str] | None = None) -> int:
         def open_device(device: DeviceSpec):
             return _registry.driver_class(device.driver)(registers, device.options)
 
-        executive = Executive(RealClock(args.spin), signals, report, epoch=args.epoch)
+        rtpu = subsystem.rtpu(args.rtpu)
+        executive = Executive(RealClock(args.spin), signals, report, epoch=args.epoch, header=table.header,
+                              reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
+                              n_rtpus=len(subsystem.rtpus))
         for spec in subsystem.tasks_on(args.rtpu):
             module_class = _registry.module_class(spec.module)
-            executive.add(Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device))
+
+            def make(spec=spec, module_class=module_class) -> Task:
+                return Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device)
+
+            executive.add(make(), make)
         report("ready")
         executive.run()
         return 0

@@ -5,10 +5,19 @@ timers share one wait; then runs the ready tasks, critical first, then earliest 
 (maximum-urgency-first). Release times advance by the period from the previous release, so
 the rate does not drift. Per task it keeps cycles, execution time, release jitter and overruns
 in the table's status block, and samples for percentiles in preallocated rings.
+
+Dynamic reconfiguration (TR §4.4): job control posts a plan in the table's header (a
+configuration and an activation time); at its first cycle boundary at or after that time each
+executive turns its leaving tasks off and its entering tasks on, so every RTPU switches at the
+same instant without a message on the per-cycle path. Critical tasks check every cycle that each
+input was written within one period of its producer (a stale read), and run their locally
+stable behaviour while the configuration is illegal: a switch that overran a cycle, or a task
+of the configuration in ERROR. Aperiodic tasks run on events instead of a timer.
 """
 
 from __future__ import annotations
 
+import collections
 import math
 from typing import Any, Callable, Protocol
 
@@ -16,10 +25,13 @@ import numpy as np
 
 from pbo_runtime._lifecycle import Task
 from pbo_runtime._module import Status
+from pbo_runtime._reconfiguration import Reconfiguration
+from pbo_runtime._table import Header, TaskState
 from pbo_runtime._table import Status as W
-from pbo_runtime._table import TaskState
 
 RING = 1 << 16  # samples kept per task for percentiles (65 s at 1 kHz)
+EVENTS_QUEUED = 16  # events an aperiodic task holds while it waits out its min inter-arrival time
+SWITCH_WINDOW_PERIODS = 3  # a stale read this close after a switch is counted against the switch
 
 
 class Clock(Protocol):
@@ -34,15 +46,21 @@ class SignalSource(Protocol):
 class Scheduled:
     """A task's place in the executive: its next release and its timing record."""
 
-    __slots__ = ("task", "period", "critical", "priority", "release", "overruns", "missed", "jitter", "exec_time", "samples",
-                 "jitter_max", "exec_max", "status")
+    __slots__ = ("task", "period", "critical", "priority", "release", "overruns", "missed", "jitter", "exec_time",
+                 "samples", "jitter_max", "exec_max", "status", "aperiodic", "events", "dropped_events",
+                 "last_release", "stale_reads", "stale_at_switch", "input_periods", "write_times", "stable_cycles",
+                 "in_stable", "first_cycle_of_plan", "last_stale", "expected_writers", "input_writers",
+                 "lost_to_switch", "last_lost")
 
     def __init__(self, task: Task) -> None:
         self.task = task
-        self.period = task.spec.period
-        self.critical = task.spec.critical
-        self.priority = task.spec.priority
+        spec = task.spec
+        self.aperiodic = bool(getattr(spec, "aperiodic", False))
+        self.period = (getattr(spec, "min_interarrival", None) or spec.period) if self.aperiodic else spec.period
+        self.critical = spec.critical
+        self.priority = spec.priority
         self.release = math.inf
+        self.last_release = -math.inf
         self.overruns = 0
         self.missed = 0
         self.jitter = np.zeros(RING)
@@ -51,8 +69,22 @@ class Scheduled:
         self.jitter_max = 0.0
         self.exec_max = 0.0
         self.status = task.status
+        self.events: collections.deque[Any] = collections.deque(maxlen=EVENTS_QUEUED)
+        self.dropped_events = 0
+        self.stale_reads = 0
+        self.stale_at_switch = 0
+        self.last_stale = ""
+        self.input_periods = [math.inf] * len(task.local.input_variables)  # producer periods, per in-var
+        self.expected_writers = [-1] * len(task.local.input_variables)  # the configuration's writer, per in-var
+        self.write_times = task.local.input_write_times  # gathered with the inputs: each writer's last release
+        self.input_writers = task.local.input_writer  # gathered with the inputs: who wrote what was read
+        self.lost_to_switch = 0
+        self.last_lost = ""
+        self.stable_cycles = 0
+        self.in_stable = False
+        self.first_cycle_of_plan = 0  # a plan's sequence until this entering task ran its first cycle
 
-    def statistics(self) -> dict[str, float]:
+    def statistics(self) -> dict[str, Any]:
         n = min(self.samples, RING)
         jitter = self.jitter[:n]
         exec_time = self.exec_time[:n]
@@ -68,21 +100,38 @@ class Scheduled:
             "bytes_out": self.task.local.bytes_out,
             "bytes_per_cycle": self.task.local.bytes_in + self.task.local.bytes_out,
             "bytes_moved_per_cycle": self.task.local.bytes_moved,
+            "stale_reads": self.stale_reads,
+            "stale_reads_at_switches": self.stale_at_switch,
+            "last_stale_read": self.last_stale,
+            "cycles_lost_to_switches": self.lost_to_switch,
+            "last_cycle_lost": self.last_lost,
+            "stable_cycles": self.stable_cycles,
+            "dropped_events": self.dropped_events,
         }
 
 
 class Executive:
     """Runs the tasks of one RTPU. `handle` deals with one signal; `run_once` is one wait + cycles."""
 
-    def __init__(self, clock: Clock, signals: SignalSource, report: Callable[..., None], epoch: float = 0.0) -> None:
+    def __init__(self, clock: Clock, signals: SignalSource, report: Callable[..., None], epoch: float = 0.0,
+                 header: np.ndarray | None = None, reconfiguration: Reconfiguration | None = None,
+                 rtpu_index: int = 0, n_rtpus: int = 1) -> None:
         self.clock = clock
         self.signals = signals
         self.report = report  # report(kind, *fields): events to job control
         self.epoch = epoch  # releases are aligned to epoch + k * period
         self.tasks: dict[str, Scheduled] = {}
+        self.factories: dict[str, Callable[[], Task]] = {}
         self.on: list[Scheduled] = []
         self.running = True
         self.idle_wait = 0.05
+        self.header = header  # the table's int64 header: plans, switching words, error count
+        self.reconfiguration = reconfiguration
+        self.rtpu_index = rtpu_index
+        self.switching_words = range(int(Header.SWITCHING_SINCE_NS), int(Header.SWITCHING_SINCE_NS) + n_rtpus)
+        self.plan_seen = int(header[Header.PLAN_SEQUENCE]) if header is not None else 0
+        self.configuration = -1  # index of the configuration last applied here
+        self.last_switch = -math.inf  # activation time of the last plan applied
 
     # --- the loop ---------------------------------------------------------------------------
 
@@ -96,13 +145,23 @@ class Executive:
         for s in self.on:
             if s.release < next_release:
                 next_release = s.release
-        wait = next_release - clock.now() if self.on else self.idle_wait
+        header = self.header
+        if header is not None and header[Header.PLAN_SEQUENCE] != self.plan_seen:
+            activation = header[Header.PLAN_TIME_NS] / 1e9
+            if clock.now() >= activation:
+                self.apply_plan()
+                return
+            next_release = min(next_release, activation)
+        if next_release == math.inf:
+            wait = self.idle_wait
+        else:
+            wait = next_release - clock.now()
         spin = getattr(clock, "spin", 0.0)
         message = self.signals.receive(wait - spin if wait > spin else 0)
         if message is not None:
             self.handle(message)
             return
-        if not self.on:
+        if next_release == math.inf:
             return
         clock.sleep_until(next_release)
         self._run_ready()
@@ -134,12 +193,27 @@ class Executive:
     def _cycle(self, s: Scheduled, start: float) -> None:
         release = s.release
         status = s.status
+        task = s.task
         jitter = start - release
         status[W.JITTER_LAST] = jitter
         if jitter > s.jitter_max:
             s.jitter_max = jitter
             status[W.JITTER_MAX] = jitter
-        result = s.task.run_cycle(release)
+        if s.aperiodic:
+            task.context.event = s.events.popleft() if s.events else None
+        if s.critical and self._configuration_illegal(start, s.period):
+            if not s.in_stable:
+                s.in_stable = True
+                self.report("stable", task.name, True, start)
+            s.stable_cycles += 1
+            result = task.run_stable_cycle(release)
+        else:
+            if s.in_stable:
+                s.in_stable = False
+                self.report("stable", task.name, False, start)
+            result = task.run_cycle(release)
+            if s.critical:
+                self._check_freshness(s, release)
         end = self.clock.now()
         took = end - start
         k = s.samples & (RING - 1)
@@ -150,26 +224,129 @@ class Executive:
         if took > s.exec_max:
             s.exec_max = took
             status[W.EXEC_MAX] = took
-        following = release + s.period
-        if end > following:
-            # The deadline passed: count the overrun and skip the releases already gone,
-            # keeping the phase (next = release + k * period, never end + period).
-            s.overruns += 1
-            skipped = int((end - release) // s.period)
-            s.missed += skipped - 1 if skipped > 1 else 0
-            status[W.OVERRUNS] = s.overruns
-            following = release + skipped * s.period
-            if following <= end:
-                following += s.period
-        s.release = following
+        if s.first_cycle_of_plan:
+            self.report("first_cycle", s.first_cycle_of_plan, task.name, start)
+            s.first_cycle_of_plan = 0
+        s.last_release = release
+        if s.aperiodic:
+            s.release = max(release + s.period, end) if s.events else math.inf
+        else:
+            following = release + s.period
+            if end > following:
+                # The deadline passed: count the overrun and skip the releases already gone,
+                # keeping the phase (next = release + k * period, never end + period).
+                s.overruns += 1
+                skipped = int((end - release) // s.period)
+                s.missed += skipped - 1 if skipped > 1 else 0
+                status[W.OVERRUNS] = s.overruns
+                following = release + skipped * s.period
+                if following <= end:
+                    following += s.period
+            s.release = following
         if result != Status.CONTINUE:
             self._leave_on(s)
+            self._report_state(task)
+
+    def _check_freshness(self, s: Scheduled, release: float) -> None:
+        """Classify each input the critical task just read (no allocation on the usual path).
+
+        - lost to a switch: the value still comes from a task the configuration no longer has
+          writing it (the switch cost the consumer a fresh input);
+        - stale: the configuration's writer wrote it, but more than one of its periods ago (the
+          writer ran late: timing, not reconfiguration). A writer that never ran yet is skipped.
+        """
+        times = s.write_times
+        periods = s.input_periods
+        writers = s.input_writers
+        expected = s.expected_writers
+        for i in range(len(periods)):
+            wanted = expected[i]
+            if wanted < 0:
+                continue
+            written_by = writers[i]
+            if written_by != wanted and written_by >= 0:
+                s.lost_to_switch += 1
+                s.last_lost = (f"{s.task.local.input_variables[i]} at {release:.6f}: still written by task "
+                               f"#{int(written_by)}, expected #{wanted}")
+                return
+            if times[i] > 0.0 and release - times[i] > periods[i]:
+                s.stale_reads += 1
+                if release - self.last_switch < SWITCH_WINDOW_PERIODS * s.period:
+                    s.stale_at_switch += 1
+                s.last_stale = f"{s.task.local.input_variables[i]} at {release:.6f}: age {(release - times[i]) * 1e3:.3f} ms"
+                return
+
+    def _configuration_illegal(self, now: float, period: float) -> bool:
+        """True while a task of the configuration is in ERROR or a switch has overrun a cycle."""
+        header = self.header
+        if header is None:
+            return False
+        if header[Header.TASKS_IN_ERROR] > 0:
+            return True
+        limit = (now - period) * 1e9
+        for word in self.switching_words:
+            since = header[word]
+            if since and since < limit:
+                return True
+        return False
+
+    # --- reconfiguration ----------------------------------------------------------------------
+
+    def apply_plan(self) -> None:
+        """Switch this RTPU's tasks to the planned configuration, at this cycle boundary."""
+        header = self.header
+        assert header is not None and self.reconfiguration is not None
+        clock = self.clock
+        applied_at = clock.now()
+        header[self.switching_words[0] + self.rtpu_index] = int(applied_at * 1e9) or 1
+        sequence = int(header[Header.PLAN_SEQUENCE])
+        configuration = int(header[Header.PLAN_CONFIGURATION])
+        activation = header[Header.PLAN_TIME_NS] / 1e9
+        view = self.reconfiguration.views[configuration]
+        leaving = [s for s in self.on if s.task.name not in view.members]
+        entering = [s for s in self.tasks.values() if s.task.name in view.members and s.task.state == TaskState.OFF]
+        try:
+            for s in leaving:
+                self._leave_on(s)
+                s.task.turn_off()
+            for s in sorted(entering, key=lambda s: not s.critical):
+                self._turn_on(s, activation, plan=sequence)
+            for s in self.on:
+                if s.critical:
+                    self._watch(s, configuration)
+        finally:
+            header[self.switching_words[0] + self.rtpu_index] = 0
+        self.plan_seen = sequence
+        self.configuration = configuration
+        self.last_switch = activation
+        done_at = clock.now()
+        for s in (*leaving, *entering):
             self._report_state(s.task)
+        self.report("switched", sequence, view.name, activation, applied_at, done_at,
+                    [s.task.name for s in leaving], [s.task.name for s in entering])
+
+    def _watch(self, s: Scheduled, configuration: int) -> None:
+        """Point a critical task's freshness check at the writers of its inputs in `configuration`."""
+        assert self.reconfiguration is not None
+        writers = [self.reconfiguration.writer_of(configuration, v) for v in s.task.local.input_variables]
+        s.task.local.watch_writers([w for w, _ in writers])
+        for i, (writer, period) in enumerate(writers):
+            s.input_periods[i] = period
+            s.expected_writers[i] = writer
+
+    def _turn_on(self, s: Scheduled, at: float, plan: int = 0) -> None:
+        s.release = math.inf if s.aperiodic else self._first_release(s, at)
+        if s.task.turn_on(self.clock.now()):
+            self.on.append(s)
+            s.first_cycle_of_plan = plan
 
     # --- signals ----------------------------------------------------------------------------
 
-    def add(self, task: Task) -> None:
+    def add(self, task: Task, factory: Callable[[], Task] | None = None) -> None:
+        """Host a task; `factory` makes a fresh instance when a killed task is spawned again (static switches)."""
         self.tasks[task.name] = Scheduled(task)
+        if factory is not None:
+            self.factories[task.name] = factory
 
     def handle(self, message: list[Any]) -> None:
         op = message[0]
@@ -179,6 +356,8 @@ class Executive:
         if op == "stats":
             self.report("stats", {name: s.statistics() for name, s in self.tasks.items()})
             return
+        if op == "plan":  # a wake-up: the plan itself is in the table's header
+            return
         name = message[1]
         s = self.tasks.get(name)
         if s is None:
@@ -187,12 +366,15 @@ class Executive:
         task = s.task
         try:
             if op == "spawn":
+                if task.state == TaskState.KILLED and name in self.factories:
+                    s = self.tasks[name] = Scheduled(self.factories[name]())  # a new instance: TR 4.4, static
+                    task = s.task
                 task.spawn(self.clock.now())
             elif op == "on":
                 at = message[2] if len(message) > 2 and message[2] is not None else self.clock.now()
-                s.release = self._first_release(s, at)
-                if task.turn_on(self.clock.now()):
-                    self.on.append(s)
+                self._turn_on(s, at)
+                if s.critical and self.reconfiguration is not None and len(message) > 3:
+                    self._watch(s, int(message[3]))
             elif op == "off":
                 self._leave_on(s)
                 task.turn_off()
@@ -201,6 +383,9 @@ class Executive:
                 task.kill()
             elif op == "clear":
                 task.clear()
+            elif op == "event":
+                self._event(s, message[2] if len(message) > 2 else None)
+                return
             else:
                 self.report("refused", name, f"unknown signal '{op}'")
                 return
@@ -208,6 +393,20 @@ class Executive:
             self.report("refused", name, f"{op}: {exc}")
             return
         self._report_state(task)
+
+    def _event(self, s: Scheduled, payload: Any) -> None:
+        """An event for an aperiodic task: released now, or after its minimum inter-arrival time."""
+        if not s.aperiodic:
+            self.report("refused", s.task.name, "event: the task is periodic")
+            return
+        if s.task.state != TaskState.ON:
+            self.report("refused", s.task.name, f"event: the task is {s.task.state.name}, not ON")
+            return
+        if len(s.events) == s.events.maxlen:
+            s.dropped_events += 1
+        s.events.append(payload)
+        if s.release == math.inf:
+            s.release = max(self.clock.now(), s.last_release + s.period)
 
     def stop(self) -> None:
         """Turn everything off and kill it (kill runs off first), then report statistics."""

@@ -1,0 +1,90 @@
+"""Operator commands against a running subsystem, from another process, as from another terminal.
+
+The fault drill: a task raises in its cycle, waits in ERROR (the robot holds the arm with its
+brakes meanwhile), and the operator sees it in `pbo status`, clears it and turns it back on.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import pytest
+
+from tests.conftest import REPO
+from tests.test_end_to_end import PBO, assert_nothing_left
+
+pytestmark = pytest.mark.multiprocess
+
+DRILL = REPO / "configs" / "fault_drill.yaml"
+
+
+def pbo(*arguments: str) -> subprocess.CompletedProcess:
+    return subprocess.run([*PBO, *arguments], capture_output=True, text=True, timeout=60)
+
+
+def test_a_task_that_raises_shows_as_error_and_recovers_after_clear(tmp_path):
+    report_path = tmp_path / "report.json"
+    run = subprocess.Popen([*PBO, "run", str(DRILL), "--duration", "0", "--no-live", "--report", str(report_path)],
+                           cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in run.stdout:
+            if "task 'glitch' on rtpu0 is in ERROR" in line:
+                break
+        assert "injected fault after 200 cycles" in line
+        status = pbo("status", "--subsystem", "drill")
+        assert status.returncode == 0, status.stderr
+        assert "glitch" in status.stdout and "ERROR" in status.stdout
+        refused = pbo("on", "glitch")
+        assert refused.returncode == 2 and "only an OFF task can be turned on" in refused.stderr
+        cleared = pbo("clear", "glitch")
+        assert cleared.returncode == 0, cleared.stderr
+        assert "task 'glitch' is OFF" in cleared.stdout
+        resumed = pbo("on", "glitch")
+        assert "task 'glitch' is ON" in resumed.stdout, resumed.stderr
+        values = pbo("svar", "q_m", "tau_u")
+        assert values.returncode == 0 and "q_m" in values.stdout and "robot" in values.stdout
+        stopped = pbo("stop")
+        assert stopped.returncode == 0, stopped.stderr
+        out, err = run.communicate(timeout=60)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    assert run.returncode == 0, err
+    report = json.loads(report_path.read_text())
+    assert report["stopped_by"] == "pbo stop"
+    assert report["states_at_stop"]["glitch"] == "ON"
+    assert report["tasks"]["robot"]["stable_cycles"] > 0  # the arm was held while glitch was in ERROR
+    assert any(e["task"] == "robot" for e in report["stable_episodes"])
+    assert_nothing_left(report)
+
+
+def test_switch_and_job_commands_reconfigure_a_running_subsystem(tmp_path):
+    report_path = tmp_path / "report.json"
+    run = subprocess.Popen([*PBO, "run", str(REPO / "configs" / "switch_joint.yaml"), "--duration", "0", "--no-live",
+                            "--report", str(report_path)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           text=True)
+    try:
+        for line in run.stdout:
+            if "is on" in line:
+                break
+        switched = pbo("switch", "pd")
+        assert switched.returncode == 0 and "switched 'pid' -> 'pd'" in switched.stdout, switched.stderr
+        unknown = pbo("switch", "nope")
+        assert unknown.returncode == 2 and "no configuration 'nope' (configurations: pid, pd)" in unknown.stderr
+        job = pbo("job", "reach", "0.1", "-0.4", "0.4", "0", "0.3", "0.1")
+        assert job.returncode == 0 and "job 'reach' runs in 'pid'" in job.stdout, job.stderr
+        short = pbo("job", "reach", "0.1")
+        assert short.returncode == 2 and "takes 6 values" in short.stderr
+        status = pbo("status")
+        assert "pid" in status.stdout and "reach" in status.stdout
+        assert pbo("stop").returncode == 0
+        run.communicate(timeout=60)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    report = json.loads(report_path.read_text())
+    assert [s["to"] for s in report["switches"]] == ["pd", "pid"]
+    assert_nothing_left(report)

@@ -1,0 +1,221 @@
+"""Dynamic reconfiguration across two RTPUs, simulated deterministically: no lost cycles (TR §4.4).
+
+Two executives share one real table and one manual clock; a tiny discrete-event loop always
+steps the one whose next event (a release or a plan's activation) comes first. Job control's
+part is played by writing the plan into the table's header, as the supervisor does. Nothing
+here sleeps or depends on the machine's timing, so the counts are exact.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from pbo_runtime import InVar, OutVar, PortBasedObject, Status
+from pbo_runtime._clock import ManualClock
+from pbo_runtime._config_loader import check_file
+from pbo_runtime._lifecycle import Task
+from pbo_runtime._reconfiguration import Reconfiguration
+from pbo_runtime._table import Header, StateTable, TableLayout, TaskState
+from rtpu._executive import Executive
+from tests.conftest import unique_name
+
+PERIOD = 0.001
+STAGGER = 0.00045
+
+
+class FakeControllerA(PortBasedObject):
+    """Fake module: writes +1 (its identity) into u every cycle."""
+
+    u = OutVar("u")
+
+    def cycle(self) -> Status:
+        self.u = 1.0
+        return Status.CONTINUE
+
+
+class FakeControllerB(FakeControllerA):
+    """Fake module: writes -1 into u every cycle."""
+
+    def cycle(self) -> Status:
+        self.u = -1.0
+        return Status.CONTINUE
+
+
+class FakeActuator(PortBasedObject):
+    """Fake critical module: records what it read; holds still while the configuration is illegal."""
+
+    u = InVar("u")
+    y = OutVar("y")
+
+    def init(self, params) -> None:
+        self.seen: list[float] = []
+        self.stable = 0
+
+    def cycle(self) -> Status:
+        self.seen.append(float(self.u))
+        self.y = self.u
+        return Status.CONTINUE
+
+    def stable_cycle(self) -> Status:
+        self.stable += 1
+        return Status.CONTINUE
+
+
+LIBRARY = {"a": FakeControllerA, "b": FakeControllerB, "actuator": FakeActuator}
+
+TEXT = """\
+subsystem: switching
+rtpus: [rtpu0, rtpu1]
+variables:
+  u: {type: float64}
+  y: {type: float64}
+tasks:
+  actuator: {module: actuator, rtpu: rtpu1, period: 1 ms, critical: true}
+  ctl_a:    {module: a, rtpu: rtpu0, period: 1 ms}
+  ctl_b:    {module: b, rtpu: rtpu0, period: 1 ms}
+configurations:
+  with_a: [actuator, ctl_a]
+  with_b: [actuator, ctl_b]
+"""
+
+
+class FakeSignals:
+    """Fake signal queue: waiting moves the shared manual clock to the deadline."""
+
+    def __init__(self, clock: ManualClock) -> None:
+        self.clock = clock
+        self.messages: list[list] = []
+
+    def receive(self, timeout):
+        if self.messages:
+            return self.messages.pop(0)
+        self.clock.time = max(self.clock.time, self.clock.time + (timeout or 0.0))
+        return None
+
+
+@pytest.fixture
+def rig(tmp_path, make_table):
+    path = tmp_path / "switching.yaml"
+    path.write_text(TEXT)
+    result = check_file(path, module_lookup=LIBRARY.__getitem__, module_names=lambda: sorted(LIBRARY))
+    assert result.errors == []
+    subsystem = result.subsystem
+    table = StateTable.create(TableLayout.of(subsystem), unique_name())
+    clock = ManualClock(1.0)
+    events: list[tuple] = []
+    executives = {}
+    for rtpu in subsystem.rtpus:
+        ex = Executive(clock, FakeSignals(clock), lambda *e, r=rtpu.name: events.append((r, *e)),
+                       epoch=rtpu.index * STAGGER, header=table.header, reconfiguration=Reconfiguration(subsystem),
+                       rtpu_index=rtpu.index, n_rtpus=len(subsystem.rtpus))
+        for spec in subsystem.tasks_on(rtpu.name):
+            ex.add(Task(spec, LIBRARY[spec.module], table))
+        executives[rtpu.name] = ex
+    yield subsystem, table, clock, executives, events
+    table.close()
+
+
+def next_event(ex: Executive) -> float:
+    times = [s.release for s in ex.on]
+    if ex.header[Header.PLAN_SEQUENCE] != ex.plan_seen:
+        times.append(ex.header[Header.PLAN_TIME_NS] / 1e9)
+    return min(times, default=math.inf)
+
+
+def step_until(executives: dict[str, Executive], clock: ManualClock, end: float) -> None:
+    """Discrete-event loop: run the executive whose next event is earliest, until `end`."""
+    while True:
+        name, ex = min(executives.items(), key=lambda item: next_event(item[1]))
+        due = next_event(ex)
+        if due > end:
+            clock.time = end
+            return
+        clock.time = max(clock.time, due)
+        ex.run_once()
+
+
+def start(subsystem, executives, clock) -> None:
+    recon = Reconfiguration(subsystem)
+    for name in subsystem.init_order:
+        executives[subsystem.tasks[name].rtpu].handle(["spawn", name])
+    for name in ("actuator", "ctl_a"):
+        executives[subsystem.tasks[name].rtpu].handle(["on", name, clock.now(), recon.index("with_a")])
+
+
+def post_plan(table: StateTable, configuration: int, activation: float) -> None:
+    header = table.header
+    header[Header.PLAN_CONFIGURATION] = configuration
+    header[Header.PLAN_TIME_NS] = int(round(activation * 1e9))
+    header[Header.PLAN_SEQUENCE] += 1
+
+
+def test_two_hundred_switches_lose_no_cycle_of_the_critical_task(rig):
+    subsystem, table, clock, executives, events = rig
+    start(subsystem, executives, clock)
+    step_until(executives, clock, clock.now() + 0.01)
+    actuator = executives["rtpu1"].tasks["actuator"]
+    recon = Reconfiguration(subsystem)
+    target = "with_b"
+    for _ in range(200):
+        # like the supervisor: activate on the first RTPU's release grid, a few periods ahead
+        activation = math.ceil((clock.now() + 0.004) / PERIOD) * PERIOD
+        post_plan(table, recon.index(target), activation)
+        step_until(executives, clock, activation + 0.010)
+        active = "ctl_b" if target == "with_b" else "ctl_a"
+        idle = "ctl_a" if active == "ctl_b" else "ctl_b"
+        assert executives["rtpu0"].tasks[active].task.state is TaskState.ON
+        assert executives["rtpu0"].tasks[idle].task.state is TaskState.OFF
+        target = "with_a" if target == "with_b" else "with_b"
+    assert actuator.lost_to_switch == 0, actuator.last_lost
+    assert actuator.stale_reads == 0, actuator.last_stale
+    assert actuator.stable_cycles == 0
+    switched = [e for e in events if e[1] == "switched"]
+    assert len(switched) == 2 * 200  # every RTPU applied every plan
+    # each pair of reports for one plan: both RTPUs applied it at the activation instant
+    by_plan: dict[int, list[float]] = {}
+    for e in switched:
+        by_plan.setdefault(e[2], []).append(e[5])
+    assert all(max(t) - min(t) < 1e-9 for t in by_plan.values())
+    # what the actuator read flips exactly at the switches: +1 from ctl_a, -1 from ctl_b, never 0
+    seen = actuator.task.module.seen
+    assert set(seen) == {1.0, -1.0}
+
+
+def test_the_entering_task_runs_its_first_cycle_at_the_activation_instant(rig):
+    subsystem, table, clock, executives, events = rig
+    start(subsystem, executives, clock)
+    step_until(executives, clock, clock.now() + 0.005)
+    activation = math.ceil((clock.now() + 0.004) / PERIOD) * PERIOD
+    post_plan(table, Reconfiguration(subsystem).index("with_b"), activation)
+    step_until(executives, clock, activation + 0.005)
+    first = [e for e in events if e[1] == "first_cycle"]
+    assert first and first[-1][3] == "ctl_b" and first[-1][4] == pytest.approx(activation)
+
+
+def test_a_switch_that_overruns_a_cycle_makes_the_critical_task_hold_still(rig):
+    subsystem, table, clock, executives, events = rig
+    start(subsystem, executives, clock)
+    step_until(executives, clock, clock.now() + 0.005)
+    # rtpu0 began a switch 3 periods ago and has not finished it (a slow `on`)
+    table.header[Header.SWITCHING_SINCE_NS + 0] = int((clock.now() - 0.003) * 1e9)
+    step_until(executives, clock, clock.now() + 0.003)
+    actuator = executives["rtpu1"].tasks["actuator"]
+    assert actuator.stable_cycles >= 2
+    assert ("rtpu1", "stable", "actuator", True) == next(e for e in events if e[1] == "stable")[:4]
+    table.header[Header.SWITCHING_SINCE_NS + 0] = 0
+    step_until(executives, clock, clock.now() + 0.003)
+    assert not actuator.in_stable
+
+
+def test_a_task_in_error_makes_the_critical_task_hold_still_until_it_is_cleared(rig):
+    subsystem, table, clock, executives, events = rig
+    start(subsystem, executives, clock)
+    table.header[Header.TASKS_IN_ERROR] = 1  # as job control sets it when a task reports ERROR
+    step_until(executives, clock, clock.now() + 0.003)
+    actuator = executives["rtpu1"].tasks["actuator"]
+    assert actuator.in_stable and actuator.task.module.stable >= 2
+    table.header[Header.TASKS_IN_ERROR] = 0
+    step_until(executives, clock, clock.now() + 0.002)
+    assert not actuator.in_stable

@@ -26,7 +26,7 @@ from pbo_runtime._table import Header
 if TYPE_CHECKING:
     from pbo_runtime._supervisor import Supervisor
 
-PLAN_LEAD = 0.004  # seconds between posting a plan and its activation: every RTPU wakes in time
+PLAN_LEAD = 0.002  # seconds from posting a plan to its activation: every RTPU is woken by then (wake-ups take ~0.1 ms)
 SWITCH_TIMEOUT = 5.0
 POLL = 0.01  # how often a job's post-condition is evaluated
 

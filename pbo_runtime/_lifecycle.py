@@ -186,7 +186,8 @@ class Task:
     def _cycle_failed(self, exc: BaseException | None, now: float) -> Status:
         self.errors += 1
         self.status[StatusWord.ERRORS] = self.errors
-        self.last_error = _describe("cycle", exc) if exc else "cycle returned ERROR"
+        reason = self.module.__dict__.pop("_pbo_fault", "")
+        self.last_error = _describe("cycle", exc) if exc else "cycle returned ERROR" + (f": {reason}" if reason else "")
         try:
             verdict = self.module.error(exc)
         except Exception as inner:

@@ -121,6 +121,11 @@ class PortBasedObject:
         """The device names this task may open (its YAML `resources`)."""
         return self._pbo_context.resources
 
+    def fault(self, message: str) -> Status:
+        """Return this from `cycle` to report an error with its reason: `return self.fault("...")`."""
+        self._pbo_fault = message
+        return Status.ERROR
+
     def open_device(self, name: str) -> Any:
         """Open a device driver object by the device's YAML name (call it in `init`)."""
         return self._pbo_context.open_device(name)

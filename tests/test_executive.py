@@ -167,3 +167,38 @@ def test_on_before_spawn_is_refused_with_the_reason(setup):
     ex.run_once()
     assert events[0][0] == "refused" and "cannot take 'on' in state NOT_CREATED" in events[0][2]
     assert ex.on == []
+
+
+class EventRecorder(PortBasedObject):
+    """Fake aperiodic module: records (release time, payload) of every event it serves."""
+
+    out = OutVar("out")
+    served: list = []
+
+    def cycle(self) -> Status:
+        EventRecorder.served.append((self.time, self.event))
+        return Status.CONTINUE
+
+
+def test_an_aperiodic_task_runs_on_events_no_faster_than_its_min_interarrival(setup):
+    build, clock, _ = setup
+    EventRecorder.served = []
+    script = [(0.0, ["spawn", "goal"]), (0.0, ["on", "goal", 0.0]), (0.002, ["event", "goal", [1.0]]),
+              (0.003, ["event", "goal", [2.0]]), (0.030, ["event", "goal", [3.0]])]
+    ex = build([("goal", EventRecorder, 0.01, False)], script)
+    scheduled = ex.tasks["goal"]
+    scheduled.aperiodic, scheduled.period = True, 0.01  # as a task with `aperiodic: true, min_interarrival: 10 ms`
+    run_until(ex, clock, 0.05)
+    assert [payload for _, payload in EventRecorder.served] == [[1.0], [2.0], [3.0]]
+    times = [t for t, _ in EventRecorder.served]
+    assert times == pytest.approx([0.002, 0.012, 0.030])  # the second waited out the 10 ms
+    assert scheduled.release == float("inf")  # nothing pending: no timer release
+
+
+def test_an_event_for_a_periodic_task_is_refused(setup):
+    build, clock, events = setup
+    ex = build([("a", Ticker, 0.001, False)], [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0]), (0.0, ["event", "a", [1]])])
+    ex.run_once()
+    ex.run_once()
+    ex.run_once()
+    assert ("refused", "a", "event: the task is periodic") in events

@@ -217,3 +217,20 @@ def test_on_is_refused_unless_the_task_is_off(table):
     task = make_task(table)
     with pytest.raises(LifecycleError, match=r"^task 't' cannot take 'on' in state NOT_CREATED \(needs OFF\)$"):
         task.turn_on(0.0)
+
+
+class Refuser(PortBasedObject):
+    """Fake module: returns ERROR with its reason through `fault`."""
+
+    y = OutVar("y", shape=(2,))
+
+    def cycle(self):
+        return self.fault("the goal has 2 values, got 5")
+
+
+def test_a_cycle_that_returns_a_fault_reports_its_reason(table):
+    task = Task(task_spec(Refuser, index=2), Refuser, table)
+    task.spawn(0.0)
+    task.turn_on(0.0)
+    assert task.run_cycle(0.001) is Status.ERROR
+    assert task.last_error == "cycle returned ERROR: the goal has 2 values, got 5"

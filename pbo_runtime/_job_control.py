@@ -48,6 +48,9 @@ class SwitchRecord:
     first_cycles: dict[str, float] = field(default_factory=dict)  # entering task -> start of its first cycle
     off: list[str] = field(default_factory=list)
     on: list[str] = field(default_factory=list)
+    # per critical task, until the next switch: cycles that read a switched-out writer, and stale reads
+    lost: dict[str, int] = field(default_factory=dict)
+    stale: dict[str, int] = field(default_factory=dict)
 
     @property
     def latency(self) -> float:
@@ -71,7 +74,8 @@ class SwitchRecord:
 
     def to_json(self) -> dict[str, Any]:
         return {"sequence": self.sequence, "from": self.before, "to": self.after, "latency": self.latency,
-                "skew": self.skew, "longest": self.longest, "off": self.off, "on": self.on}
+                "skew": self.skew, "longest": self.longest, "off": self.off, "on": self.on,
+                "cycles_lost": self.lost, "stale_reads": self.stale}
 
 
 def evaluate(supervisor: Supervisor, text: str) -> tuple[bool, dict[str, Any]]:
@@ -157,6 +161,14 @@ class JobControl:
         record.applied[rtpu] = (applied_at, done_at)
         record.off.extend(off)
         record.on.extend(on)
+
+    def window(self, sequence: int, task: str, lost: int, stale: int) -> None:
+        """A critical task's counts from switch `sequence` until the next one."""
+        for record in reversed(self.switches):
+            if record.sequence == sequence:
+                record.lost[task] = lost
+                record.stale[task] = stale
+                return
 
     def first_cycle(self, sequence: int, task: str, at: float) -> None:
         record = self.pending

@@ -355,6 +355,8 @@ class Supervisor:
                 self._count_errors()
         elif kind == "switched":
             self.job_control.switched(source, event[2], event[5], event[6], event[7], event[8])
+        elif kind == "window":
+            self.job_control.window(event[2], event[3], event[4], event[5])
         elif kind == "first_cycle":
             self.job_control.first_cycle(event[2], event[3], event[4])
         elif kind == "stable":
@@ -514,7 +516,6 @@ class Supervisor:
 
     def _shutdown(self) -> None:
         self.result.duration = time.monotonic() - self.started_at if self.started_at else 0.0
-        self.result.switches = [record.to_json() for record in self.job_control.switches]
         self.result.states_at_stop = dict(self.task_states)
         alive = [c for c in self.children if c.process.poll() is None]
         for child in alive:
@@ -536,6 +537,7 @@ class Supervisor:
                 child.process.kill()
                 child.process.wait()
         self._drain_events(0.0)
+        self.result.switches = [record.to_json() for record in self.job_control.switches]
         for name, stats in self._stats.items():
             self.result.tasks[name] = {"rtpu": self.subsystem.tasks[name].rtpu, "critical": self.subsystem.tasks[name].critical,
                                        "state": self.result.states_at_stop.get(name, "?"),

@@ -294,6 +294,11 @@ def _print_switches(console: Console, result: Any) -> None:
         f"switches: {len(result.switches)}; latency ms p50 {np.median(latency):.2f}, p99 {np.percentile(latency, 99):.2f}, "
         f"max {latency.max():.2f}; RTPU skew ms max {skew.max():.3f}; longest switch on one RTPU {longest.max():.3f} ms",
         markup=False)
+    windows = [s for s in result.switches if s.get("cycles_lost") or s.get("stale_reads")]
+    lost_in = [s["sequence"] for s in windows if any(s.get("cycles_lost", {}).values())]
+    if lost_in:
+        console.print(f"switches after which the critical task lost a cycle: {', '.join(map(str, lost_in[:20]))}"
+                      + (" ..." if len(lost_in) > 20 else ""), markup=False)
     critical = [(n, t) for n, t in result.tasks.items() if t.get("critical")]
     for name, t in critical:
         console.print(f"critical task '{name}': {t['cycles_lost_to_switches']} cycles lost to switches (read an output of a "

@@ -50,7 +50,7 @@ class Scheduled:
                  "samples", "jitter_max", "exec_max", "status", "aperiodic", "events", "dropped_events",
                  "last_release", "stale_reads", "stale_at_switch", "input_periods", "write_times", "stable_cycles",
                  "in_stable", "first_cycle_of_plan", "last_stale", "expected_writers", "input_writers",
-                 "lost_to_switch", "last_lost")
+                 "lost_to_switch", "last_lost", "window_lost", "window_stale")
 
     def __init__(self, task: Task) -> None:
         self.task = task
@@ -80,6 +80,8 @@ class Scheduled:
         self.input_writers = task.local.input_writer  # gathered with the inputs: who wrote what was read
         self.lost_to_switch = 0
         self.last_lost = ""
+        self.window_lost = 0  # counts at the last switch: what a switch's window adds is the difference
+        self.window_stale = 0
         self.stable_cycles = 0
         self.in_stable = False
         self.first_cycle_of_plan = 0  # a plan's sequence until this entering task ran its first cycle
@@ -303,6 +305,7 @@ class Executive:
         configuration = int(header[Header.PLAN_CONFIGURATION])
         activation = header[Header.PLAN_TIME_NS] / 1e9
         view = self.reconfiguration.views[configuration]
+        self.report_windows(sequence)
         leaving = [s for s in self.on if s.task.name not in view.members]
         entering = [s for s in self.tasks.values() if s.task.name in view.members and s.task.state == TaskState.OFF]
         try:
@@ -324,6 +327,16 @@ class Executive:
             self._report_state(s.task)
         self.report("switched", sequence, view.name, activation, applied_at, done_at,
                     [s.task.name for s in leaving], [s.task.name for s in entering])
+
+    def report_windows(self, following: int = 0) -> None:
+        """Per switch: what each critical task read between that switch and the next (or the stop)."""
+        for s in self.tasks.values():
+            if not s.critical:
+                continue
+            lost, stale = s.lost_to_switch - s.window_lost, s.stale_reads - s.window_stale
+            s.window_lost, s.window_stale = s.lost_to_switch, s.stale_reads
+            if self.plan_seen:
+                self.report("window", self.plan_seen, s.task.name, lost, stale)
 
     def _watch(self, s: Scheduled, configuration: int) -> None:
         """Point a critical task's freshness check at the writers of its inputs in `configuration`."""
@@ -410,6 +423,7 @@ class Executive:
 
     def stop(self) -> None:
         """Turn everything off and kill it (kill runs off first), then report statistics."""
+        self.report_windows()
         for s in list(self.tasks.values()):
             if s.task.state in (TaskState.ON, TaskState.OFF, TaskState.ERROR):
                 self._leave_on(s)

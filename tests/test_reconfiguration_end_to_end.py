@@ -37,7 +37,10 @@ def test_two_hundred_switches_between_two_controllers_on_the_running_arm(tmp_pat
     assert all(math.isfinite(s["latency"]) and s["latency"] > 0 for s in switches)
     assert [s["to"] for s in switches[:4]] == ["pd", "pid", "pd", "pid"]
     assert all(sorted(s["off"]) != sorted(s["on"]) for s in switches)
+    # per switch, what the critical task read until the next one (counts, not timing, are checked here)
+    assert all(set(s["cycles_lost"]) == {"robot"} and set(s["stale_reads"]) == {"robot"} for s in switches)
     robot = report["tasks"]["robot"]
+    assert sum(s["cycles_lost"]["robot"] for s in switches) == robot["cycles_lost_to_switches"]
     assert {"cycles_lost_to_switches", "stale_reads", "stable_cycles"} <= set(robot)
     q_m = np.array(report["variables"]["q_m"]["value"])
     q_d = np.array(report["variables"]["q_d"]["value"])

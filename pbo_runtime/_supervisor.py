@@ -123,6 +123,9 @@ class Supervisor:
         if application is not None and application not in subsystem.applications:
             raise RunFailure(f"no application '{application}' in {subsystem.file} "
                              f"(applications: {', '.join(subsystem.applications) or 'none'})")
+        if application is not None and not subsystem.applications[application].complete:
+            raise RunFailure(f"application '{application}' is incomplete (a step lacks the object its job needs) and "
+                             f"cannot be run; pbo check {subsystem.file} shows which step")
         if configuration is None and application is not None:
             first = application_steps(subsystem, application)
             configuration = subsystem.jobs[first[0][0]].configuration if first else None

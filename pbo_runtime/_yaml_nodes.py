@@ -226,6 +226,7 @@ class _Builder:
         self._file = file
         self._max_nodes = max_nodes or MAX_NODES
         self._scalars: dict[tuple[str, str], Any] = {}
+        self._path: list[Any] = []  # the keys leading to the mapping being built
         self._count = 0
         self._active: set[int] = set()
 
@@ -304,13 +305,23 @@ class _Builder:
                 raise ConfigError(f"a key must be a plain name, got: {key!r}", self._file, *self._line_col(key_node)) from None
             if key in result:
                 first = result.key_loc(key)
+                section = self._path[-1] if self._path else ""
+                named = {"tasks": "task", "variables": "variable", "configurations": "configuration", "jobs": "job",
+                         "applications": "application", "devices": "device", "dims": "dim"}.get(str(section))
                 raise ConfigError(
-                    f"duplicate key '{key}' (first at line {first.line}, column {first.column})",
+                    f"duplicate key '{key}'" + (f" in {section}" if section else "")
+                    + f" (first at line {first.line}, column {first.column})",
                     self._file,
                     *self._line_col(key_node),
-                    "a mapping names each key once; remove or rename one of them",
+                    f"{named} names are unique; rename one of the two" if named
+                    else "a mapping names each key once; remove or rename one of them",
                 )
-            result.put(key, self.build(value_node), key_node.start_mark, value_node.start_mark)
+            self._path.append(key)
+            try:
+                value = self.build(value_node)
+            finally:
+                self._path.pop()
+            result.put(key, value, key_node.start_mark, value_node.start_mark)
         for merge in merges:
             # `<<: *defaults` - explicit keys win over merged ones, as YAML 1.1 says.
             sources: Iterable[yaml.Node] = merge.value if isinstance(merge, yaml.SequenceNode) else [merge]

@@ -213,16 +213,16 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
         args.config = args.config or names[0]
     options = {"application": args.app, "static": args.static, "alternate": alternate}
     say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
+    supervisor = Supervisor(subsystem, args.config, duration, say=say, **options)  # refuses a bad request here
+    what = (f"application '{args.app}'" if args.app else f"{args.switches} switches" if alternate
+            else "Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner")
     say(f"starting subsystem '{subsystem.name}' ({len(subsystem.rtpus)} RTPUs, plant: "
-        f"{subsystem.plant.model if subsystem.plant else 'none'}); "
-        f"{'Ctrl-C stops it' if duration is None else f'runs {duration:g} s, Ctrl-C stops it sooner'}")
+        f"{subsystem.plant.model if subsystem.plant else 'none'}); {what}")
     if live:
         with Live(console=console, refresh_per_second=4, transient=True) as view:
-            supervisor = Supervisor(subsystem, args.config, duration, on_tick=lambda s: view.update(_status_table(s)), say=say,
-                                    **options)
+            supervisor.on_tick = lambda s: view.update(_status_table(s))
             result = supervisor.run()
     else:
-        supervisor = Supervisor(subsystem, args.config, duration, say=say, **options)
         result = supervisor.run()
     if args.report:
         args.report.parent.mkdir(parents=True, exist_ok=True)

@@ -684,7 +684,7 @@ def test_two_tasks_with_one_name_are_a_duplicate_key_error_at_the_second(tmp_pat
     text = changed("  pid:   {module", "  traj:  {module")
     error = only_error(check(tmp_path, text))
     line, column = at(text, "traj:", 1)
-    assert re.match(rf"^.*bad\.yaml:{line}:{column}: error\[E102\]: duplicate key 'traj' \(first at line 14, column 3\)$", str(error), re.MULTILINE)
+    assert re.match(rf"^.*bad\.yaml:{line}:{column}: error\[E102\]: duplicate key 'traj' in tasks \(first at line 14, column 3\)$", str(error), re.MULTILINE)
 
 
 TRAJ2 = "  traj2: {module: fake_traj, rtpu: rtpu0, period: 2 ms}\n"

@@ -134,7 +134,7 @@ def test_a_yaml_syntax_error_is_a_config_error_at_its_mark() -> None:
 
 
 def test_a_duplicate_key_is_an_error_at_the_second_key() -> None:
-    with pytest.raises(ConfigError, match=r"^f\.yaml:3:3: error\[E102\]: duplicate key 'x' \(first at line 2, column 3\)"):
+    with pytest.raises(ConfigError, match=r"^f\.yaml:3:3: error\[E102\]: duplicate key 'x' in tasks \(first at line 2, column 3\)\n  hint: task names are unique"):
         load_text("tasks:\n  x: 1\n  x: 2\n", "f.yaml")
 
 

@@ -81,3 +81,15 @@ def test_a_job_that_times_out_stops_the_application_with_the_condition_and_value
     assert "Traceback" not in done.stderr
     report = json.loads(report_path.read_text())
     assert report["stopped_by"] == "failure"
+
+
+def test_an_incomplete_application_is_refused_before_anything_starts(tmp_path):
+    text = SWITCHING.read_text().replace("    - settle: {q_d: [0.0, -0.3, 0.3, 0.0, 0.2, 0.0]}", "    - settle")
+    path = tmp_path / "incomplete.yaml"
+    path.write_text(text)
+    checked = subprocess.run([*PBO, "check", str(path)], capture_output=True, text=True, timeout=60)
+    assert checked.returncode == 0 and "warning[W701]: application 'tour' is incomplete" in checked.stdout
+    done = subprocess.run([*PBO, "run", str(path), "--app", "tour"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    assert "application 'tour' is incomplete (a step lacks the object its job needs) and cannot be run" in done.stderr
+    assert "starting subsystem" not in done.stdout

@@ -120,3 +120,19 @@ def test_ctrl_c_stops_the_run_cleanly_with_a_summary(tmp_path):
     assert report["stopped_by"] == "Ctrl-C"
     assert all(task["cycles"] > 0 for task in report["tasks"].values())
     assert_nothing_left(report)
+
+
+def test_computed_torque_as_a_combined_module_moves_the_arm_to_its_goal(tmp_path):
+    """TR Figure 14: PID + inverse dynamics as one task (TR 4.5), on the arm."""
+    report_path = tmp_path / "report.json"
+    done = subprocess.run([*PBO, "run", str(REPO / "configs" / "computed_torque.yaml"), "--config", "combined",
+                           "--duration", "3", "--report", str(report_path), "--no-live"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=180)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(report_path.read_text())
+    q_m = np.array(report["variables"]["q_m"]["value"])
+    q_d = np.array(report["variables"]["q_d"]["value"])
+    assert np.max(np.abs(q_m - q_d)) < 0.005, f"arm at {q_m}, goal {q_d}"
+    assert report["variables"]["tau_u"]["writer"] == "ctc"
+    assert report["variables"]["qdd_r"]["sequence"] == 0  # kept local: never written to the table
+    assert_nothing_left(report)

@@ -1,0 +1,99 @@
+"""Combined modules (TR §4.5): members run as one task, member-to-member links stay local."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivers.robots import robot
+from modules.combined import Combined
+from modules.joint_trajectory import JointTrajectory
+from modules.pid_joint import PidJoint
+from pbo_runtime import ParamError
+from pbo_runtime import _bus
+from pbo_runtime._config_loader import check_file
+from pbo_runtime._config_model import PortBinding, TaskSpec
+from pbo_runtime._lifecycle import Task
+from tests.conftest import REPO, task_spec, variables
+
+PUMA = robot("puma560")
+DIMS = {"NDOF": 6}
+MEMBERS = [
+    {"module": "joint_trajectory", "params": {"max_velocity": 1.0, "max_acceleration": 4.0}},
+    {"module": "pid_joint", "params": {"kp": 400, "kd": 40, "gravity_feedforward": False}, "ports": {"tau": "tau_u"}},
+]
+
+ARM = variables(
+    ("NDOF", "int32", ()), ("DH", "float64", (6, 4)), ("DYN", "float64", (6, 11)), ("q_m", "float64", (6,)),
+    ("qd_m", "float64", (6,)), ("q_d", "float64", (6,)), ("q_r", "float64", (6,)), ("qd_r", "float64", (6,)),
+    ("tau_u", "float64", (6,)),
+)
+
+
+def combined_spec(params, index=0) -> TaskSpec:
+    built = Combined.build_params(params)
+    bindings = tuple(PortBinding(p, p.variable, p.resolved_shape(DIMS)) for p in Combined.ports_for(built))
+    return TaskSpec("ctl", "combined", "rtpu0", 0.001, params=params, bindings=bindings, index=index)
+
+
+def test_links_between_members_stay_local_and_shared_inputs_are_read_once():
+    params = Combined.build_params({"members": MEMBERS})
+    ports = {p.name: p.kind.value for p in Combined.ports_for(params)}
+    assert "q_r" not in ports and "qd_r" not in ports  # traj -> pid only: local
+    assert ports["q_m"] == "in-var" and list(ports).count("q_m") == 1  # both read q_m: one port
+    assert ports["tau_u"] == "out-var" and ports["q_d"] == "in-var" and ports["DH"] == "in-const"
+
+
+def test_an_exported_link_is_written_to_the_table_and_read_in_place_by_the_members():
+    params = Combined.build_params({"members": MEMBERS, "export": ["q_r"]})
+    ports = {p.name: p.kind.value for p in Combined.ports_for(params)}
+    assert ports["q_r"] == "out-var" and "qd_r" not in ports
+
+
+def test_a_combined_task_computes_what_its_members_compute_apart(make_table):
+    def arm_table():
+        table = make_table(ARM)
+        table.write("NDOF", 6, when=0)
+        table.write("DH", PUMA.dh, when=0)
+        table.write("DYN", PUMA.dyn, when=0)
+        table.write("q_m", np.full(6, 0.1), when=0)
+        table.write("q_d", np.full(6, 0.5), when=0)
+        return table
+
+    together = arm_table()
+    task = Task(combined_spec({"members": MEMBERS}), Combined, together, DIMS)
+    apart = arm_table()
+    traj = Task(task_spec(JointTrajectory, "traj", 0, dims=DIMS, params=MEMBERS[0]["params"]), JointTrajectory, apart, DIMS)
+    pid = Task(task_spec(PidJoint, "pid", 1, dims=DIMS, ports={"tau": "tau_u"}, params=MEMBERS[1]["params"]), PidJoint, apart, DIMS)
+    for t in (task, traj, pid):
+        assert t.spawn(0.0), t.last_error
+        assert t.turn_on(0.0), t.last_error
+    for k in range(1, 50):
+        task.run_cycle(k * 0.001)
+        traj.run_cycle(k * 0.001)
+        pid.run_cycle(k * 0.001)
+        assert together.read("tau_u")[0] == pytest.approx(apart.read("tau_u")[0], abs=1e-12)
+    assert together.read("q_r")[1] == 0  # never written: it stayed local
+
+
+@pytest.mark.parametrize(("params", "message"), [
+    ({"members": [MEMBERS[0]]}, r"members must list at least two modules to combine"),
+    ({"members": [MEMBERS[0], {"module": "pid_jiont"}]}, r"member 2: no module named 'pid_jiont'"),
+    ({"members": [MEMBERS[0], {"module": "pid_joint", "ports": {"torque": "x"}}]}, r"member 2 \(pid_joint\) has no port\(s\) torque"),
+    ({"members": [MEMBERS[1], MEMBERS[1]]}, r"members 1:pid_joint and 2:pid_joint both write 'tau_u'"),
+    ({"members": [MEMBERS[0], {"module": "pid_joint", "params": {"kp": -1}}]}, r"kp must be >= 0, got: -1"),
+])
+def test_bad_members_are_refused_with_the_reason(params, message):
+    with pytest.raises(ParamError, match=message):
+        Combined.build_params(params)
+
+
+def test_the_computed_torque_configuration_checks_and_the_bus_shows_what_combining_saves():
+    result = check_file(REPO / "configs" / "computed_torque.yaml")
+    assert result.errors == [], [e.format() for e in result.errors]
+    subsystem = result.subsystem
+    apart = _bus.predict(subsystem, "separate")
+    together = _bus.predict(subsystem, "combined")
+    assert together.total < apart.total  # qdd_r never crosses the bus when PID and inverse dynamics are one task
+    ctc = subsystem.tasks["ctc"]
+    assert "qdd_r" not in {b.variable for b in ctc.bindings}

@@ -136,3 +136,20 @@ def test_computed_torque_as_a_combined_module_moves_the_arm_to_its_goal(tmp_path
     assert report["variables"]["tau_u"]["writer"] == "ctc"
     assert report["variables"]["qdd_r"]["sequence"] == 0  # kept local: never written to the table
     assert_nothing_left(report)
+
+
+def test_cartesian_teleoperation_follows_the_trackball(tmp_path):
+    """TR Figure 10: trackball -> Cartesian interpolator -> resolved rate -> integrator -> PID -> arm."""
+    report_path = tmp_path / "report.json"
+    done = subprocess.run([*PBO, "run", str(REPO / "configs" / "cartesian_teleop.yaml"), "--duration", "5.5",
+                           "--report", str(report_path), "--no-live"], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=180)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(report_path.read_text())
+    x_m = np.array(report["variables"]["x_m"]["value"])
+    x_d = np.array(report["variables"]["x_d"]["value"])
+    assert np.max(np.abs(x_m[:3] - x_d[:3])) < 0.002, f"hand at {x_m[:3]}, goal {x_d[:3]}"
+    log = np.load(tmp_path / "runs" / "teleop.npz")
+    moved = log["x_d"][-1, :3] - log["x_d"][0, :3]
+    assert moved == pytest.approx([0.05, 0.0, 0.05], abs=1e-3)  # the script: 5 cm along x, then 5 cm up (logging starts a tick late)
+    assert_nothing_left(report)

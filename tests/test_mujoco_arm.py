@@ -7,6 +7,7 @@ import stat
 from collections.abc import Iterator
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pinocchio
 import pytest
@@ -172,7 +173,7 @@ def test_opening_a_driver_on_a_missing_segment_says_the_plant_is_not_running(nam
 
 
 def test_a_wrong_mode_names_the_valid_modes(plant) -> None:
-    with pytest.raises(ValueError, match=r"^mujoco_arm driver mode must be one of: torque; got: 'velocity'$"):
+    with pytest.raises(ValueError, match=r"^mujoco_arm driver mode must be one of: torque, position; got: 'velocity'$"):
         MujocoArmDriver(plant.name, {"mode": "velocity"})
 
 
@@ -191,3 +192,231 @@ def test_read_state_gives_up_on_a_plant_stuck_mid_publish(plant, driver, monkeyp
     plant._registers.words[W_STATE_SEQ] += 1  # as if the plant died between the two seqlock writes
     with pytest.raises(DeviceError, match=r"mid-publish .*did the plant process die\?$"):
         read(driver)
+
+
+# --- position mode -------------------------------------------------------------------------------
+
+ROBOTS = ("puma560", "redundant7")
+
+
+@pytest.fixture(params=ROBOTS)
+def any_plant(request, name: str) -> Iterator[MujocoArmPlant]:
+    plant = MujocoArmPlant(name, request.param, TIMESTEP, {})
+    yield plant
+    plant.close()
+
+
+@pytest.fixture
+def positioner(any_plant: MujocoArmPlant) -> Iterator[MujocoArmDriver]:
+    driver = MujocoArmDriver(any_plant.name, {"mode": "position"})
+    yield driver
+    driver.close()
+
+
+def hold_here(plant: MujocoArmPlant, driver: MujocoArmDriver) -> np.ndarray:
+    """Command the current position and release the brakes, as a position interface's `on` does."""
+    q, _, _ = read(driver)
+    driver.write_position(q)
+    driver.release_brakes()
+    return q
+
+
+def test_the_plant_builds_the_7_dof_arm_and_publishes_its_constants(name) -> None:
+    arm = robot("redundant7")
+    with MujocoArmPlant(name, "redundant7", TIMESTEP, {}) as plant:
+        driver = MujocoArmDriver(name, {"mode": "position"})
+        assert (driver.ndof, plant.ndof) == (7, 7)
+        np.testing.assert_array_equal(driver.dh(), arm.dh)
+        np.testing.assert_array_equal(driver.dynamics(), arm.dyn)
+        np.testing.assert_array_equal(driver.torque_limits(), arm.torque_limits)
+        np.testing.assert_array_equal(read(driver)[0], arm.q0)
+        driver.close()
+
+
+def test_position_mode_holds_the_arm_against_gravity_without_sag(any_plant, positioner) -> None:
+    q0 = hold_here(any_plant, positioner)
+    assert positioner.active_mode == "position"
+    run(any_plant, 1.0)
+    q, qd, _ = read(positioner)
+    assert not any_plant.brakes_engaged
+    np.testing.assert_allclose(q, q0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(qd, 0.0, rtol=0, atol=1e-9)
+    # what holds it is the servo's gravity torque, not a brake
+    gravity = any_plant.gravity_torque(q, np.zeros(any_plant.ndof))
+    assert np.abs(gravity).max() > 10.0
+    np.testing.assert_allclose(any_plant.data.qfrc_applied, gravity, rtol=0, atol=1e-6)
+
+
+def step_joint(plant: MujocoArmPlant, driver: MujocoArmDriver, joint: int | None, size: float) -> np.ndarray:
+    """Step joint (or every joint) by `size` from where it holds; 1 s of plant steps; the trace."""
+    q0 = hold_here(plant, driver)
+    target = q0.copy()
+    if joint is None:
+        target += size
+    else:
+        target[joint] += size
+    driver.write_position(target)
+    trace = np.empty((round(1.0 / plant.timestep), plant.ndof))
+    for k in range(len(trace)):
+        plant.step()
+        trace[k] = plant.data.qpos
+        assert np.all(np.abs(plant.data.qfrc_applied) <= plant.description.torque_limits)
+    return target, trace
+
+
+@pytest.mark.parametrize(
+    ("any_plant", "joint"), [(r, j) for r in ROBOTS for j in range(robot(r).ndof)], indirect=["any_plant"]
+)
+@pytest.mark.parametrize("size", [0.2, -0.2])
+def test_a_position_step_brings_each_joint_within_1e_3_rad_in_1_s(any_plant, positioner, joint, size) -> None:
+    target, trace = step_joint(any_plant, positioner, joint, size)
+    np.testing.assert_allclose(trace[-1], target, rtol=0, atol=1e-3)
+    # the step took well under the second, without overshoot, and the other joints held on
+    error = np.abs(trace - target).max(axis=1)
+    assert error[300:].max() < 1e-3
+    assert (size * (trace[:, joint] - target[joint])).max() < 1e-3
+
+
+def test_a_step_of_every_joint_at_once_settles_too(any_plant, positioner) -> None:
+    target, trace = step_joint(any_plant, positioner, None, -0.3)
+    np.testing.assert_allclose(trace[-1], target, rtol=0, atol=1e-3)
+
+
+def test_a_small_step_is_the_critically_damped_linear_servo(any_plant, positioner) -> None:
+    """Below saturation the loop is Kp e - Kd qd on J: 10-90 % rise 3.36 / w, no overshoot."""
+    last = any_plant.ndof - 1  # a wrist joint: its inertia hardly changes with the pose
+    size = 1e-5
+    target, trace = step_joint(any_plant, positioner, last, size)
+    response = (trace[:, last] - (target[last] - size)) / size
+    rise = (np.argmax(response >= 0.9) - np.argmax(response >= 0.1)) * any_plant.timestep
+    assert rise == pytest.approx(3.36 / any_plant.servo_omega, rel=0.15)
+    assert response.max() < 1.01
+    assert abs(response[-1] - 1.0) < 1e-6
+
+
+def test_servo_gains_are_critically_damped_on_the_joint_inertia_at_25_hz(any_plant) -> None:
+    desc = any_plant.description
+    full = np.zeros((desc.ndof, desc.ndof))
+    data = type(any_plant.data)(any_plant.model)
+    data.qpos[:] = desc.q0
+    mujoco.mj_forward(any_plant.model, data)
+    mujoco.mj_fullM(any_plant.model, data, full)
+    inertia = np.diag(full)
+    assert np.all(inertia >= desc.dyn[:, 10])  # armature plus the links
+    omega = 2 * np.pi * 25.0 / np.sqrt(np.sqrt(2) - 1)
+    assert any_plant.servo_omega == pytest.approx(omega)
+    np.testing.assert_allclose(any_plant.servo_kp, inertia * omega**2, rtol=1e-12)
+    np.testing.assert_allclose(any_plant.servo_kd, 2 * inertia * omega, rtol=1e-12)
+    np.testing.assert_allclose(any_plant.servo_kd / (2 * np.sqrt(any_plant.servo_kp * inertia)), 1.0, rtol=1e-12)
+
+
+def test_a_slow_plant_lowers_the_servo_frequency_to_stay_stable(name) -> None:
+    with MujocoArmPlant(name, "puma560", 0.01, {}) as plant:
+        assert plant.servo_omega == pytest.approx(25.0)
+        driver = MujocoArmDriver(name, {"mode": "position"})
+        target, trace = step_joint(plant, driver, 1, 0.2)
+        np.testing.assert_allclose(trace[-1], target, rtol=0, atol=1e-3)
+        driver.close()
+
+
+def test_servo_gravity_is_mujocos_inverse_dynamics_at_rest(any_plant) -> None:
+    rng = np.random.default_rng(1)
+    desc = any_plant.description
+    data = type(any_plant.data)(any_plant.model)
+    for _ in range(10):
+        q = rng.uniform(desc.joint_limits[:, 0] + 0.05, desc.joint_limits[:, 1] - 0.05)
+        data.qpos[:] = q
+        mujoco.mj_inverse(any_plant.model, data)  # qvel = qacc = 0
+        np.testing.assert_allclose(any_plant.gravity_torque(q, np.zeros(desc.ndof)), data.qfrc_inverse, atol=1e-10)
+        model = pinocchio_model(desc.dh, desc.dyn)
+        np.testing.assert_allclose(data.qfrc_inverse, pinocchio.computeGeneralizedGravity(model, model.createData(), q), atol=1e-9)
+
+
+def test_position_commands_are_clipped_to_the_joint_limits(any_plant, positioner) -> None:
+    last = any_plant.ndof - 1
+    upper = any_plant.description.joint_limits[last, 1]
+    q0 = hold_here(any_plant, positioner)
+    target = q0.copy()
+    target[last] = upper + 1.0
+    positioner.write_position(target)
+    run(any_plant, 2.0)
+    assert read(positioner)[0][last] == pytest.approx(upper, abs=1e-3)
+
+
+def test_the_brakes_hold_in_position_mode_and_the_servo_takes_over_where_they_held(any_plant, positioner) -> None:
+    q0 = hold_here(any_plant, positioner)
+    positioner.engage_brakes()
+    positioner.write_position(q0 + 0.3)
+    run(any_plant, 0.2)
+    np.testing.assert_array_equal(read(positioner)[0], q0)  # braked: the command waits
+    positioner.release_brakes()
+    run(any_plant, 1.0)
+    np.testing.assert_allclose(read(positioner)[0], q0 + 0.3, rtol=0, atol=1e-3)
+
+
+def test_a_position_driver_must_command_a_position_before_releasing_the_brakes(positioner) -> None:
+    with pytest.raises(DeviceError, match=r"write_position before release_brakes; the plant would servo"):
+        positioner.release_brakes()
+    assert positioner.brakes_engaged and positioner.active_mode == "none"
+
+
+def test_each_driver_writes_only_its_own_mode(plant, driver) -> None:
+    positioner = MujocoArmDriver(plant.name, {"mode": "position"})
+    try:
+        with pytest.raises(DeviceError, match=r"write_position needs a driver opened with mode: position; this one has mode: torque$"):
+            driver.write_position(np.zeros(NDOF))
+        with pytest.raises(DeviceError, match=r"write_torque needs a driver opened with mode: torque; this one has mode: position$"):
+            positioner.write_torque(np.zeros(NDOF))
+        assert driver.commands_written == 0
+    finally:
+        positioner.close()
+
+
+def test_opening_a_driver_claims_nothing(plant) -> None:
+    drivers = [MujocoArmDriver(plant.name, {"mode": mode}) for mode in ("position", "torque", "position")]
+    try:
+        assert drivers[0].active_mode == "none"
+    finally:
+        for d in drivers:
+            d.close()
+
+
+def test_a_torque_driver_never_moves_an_arm_a_position_driver_commands(plant, driver) -> None:
+    positioner = MujocoArmDriver(plant.name, {"mode": "position"})
+    try:
+        q0 = hold_here(plant, positioner)
+        driver.write_torque(np.full(NDOF, 50.0))  # written, but not applied
+        run(plant, 0.5)
+        np.testing.assert_allclose(read(driver)[0], q0, rtol=0, atol=1e-9)
+        message = (
+            r"^arm registers '/pbo\.test\..*': cannot release the brakes in torque mode, another driver is "
+            r"commanding the arm in position mode; it must engage the brakes first$"
+        )
+        with pytest.raises(DeviceError, match=message):
+            driver.release_brakes()
+        assert driver.active_mode == "position"
+        run(plant, 0.1)
+        np.testing.assert_allclose(read(driver)[0], q0, rtol=0, atol=1e-9)
+        # handing over: the position driver lets go through the brakes, the torque driver takes the arm
+        positioner.engage_brakes()
+        driver.release_brakes()
+        assert driver.active_mode == "torque"
+        plant.step()
+        np.testing.assert_array_equal(plant.data.qfrc_applied, np.minimum(50.0, driver.torque_limits()))
+    finally:
+        positioner.close()
+
+
+def test_a_position_driver_never_moves_an_arm_a_torque_driver_commands(plant, driver) -> None:
+    positioner = MujocoArmDriver(plant.name, {"mode": "position"})
+    try:
+        driver.write_torque(np.full(NDOF, 1.0))
+        driver.release_brakes()
+        positioner.write_position(np.full(NDOF, 0.5))
+        with pytest.raises(DeviceError, match=r"cannot release the brakes in position mode, another driver is commanding the arm in torque mode"):
+            positioner.release_brakes()
+        plant.step()
+        np.testing.assert_array_equal(plant.data.qfrc_applied, np.full(NDOF, 1.0))
+        assert positioner.active_mode == "torque"
+    finally:
+        positioner.close()

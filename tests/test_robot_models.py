@@ -11,10 +11,17 @@ import numpy as np
 import pinocchio
 import pytest
 
-from drivers.robots import RobotDescription, robot, to_mjcf
+from drivers.robots import RobotDescription, robot, robot_names, to_mjcf
 from modules._robot_model import END_EFFECTOR_FRAME, forward_kinematics_dh, pinocchio_model
 
 TIMESTEP = 0.001
+ROBOTS = ("puma560", "redundant7")
+
+
+@pytest.fixture(scope="module", params=ROBOTS)
+def desc(request) -> RobotDescription:
+    """Each registered arm in turn: the agreement tests hold for every robot."""
+    return robot(request.param)
 
 
 @pytest.fixture(scope="module")
@@ -23,51 +30,56 @@ def puma() -> RobotDescription:
 
 
 @pytest.fixture(scope="module")
-def mj(puma: RobotDescription) -> tuple[mujoco.MjModel, mujoco.MjData]:
-    model = mujoco.MjModel.from_xml_string(to_mjcf(puma, TIMESTEP))
+def arm7() -> RobotDescription:
+    return robot("redundant7")
+
+
+@pytest.fixture(scope="module")
+def mj(desc: RobotDescription) -> tuple[mujoco.MjModel, mujoco.MjData]:
+    model = mujoco.MjModel.from_xml_string(to_mjcf(desc, TIMESTEP))
     return model, mujoco.MjData(model)
 
 
 @pytest.fixture(scope="module")
-def pin(puma: RobotDescription) -> tuple[pinocchio.Model, pinocchio.Data]:
-    model = pinocchio_model(puma.dh, puma.dyn)
+def pin(desc: RobotDescription) -> tuple[pinocchio.Model, pinocchio.Data]:
+    model = pinocchio_model(desc.dh, desc.dyn)
     return model, model.createData()
 
 
-def random_states(puma: RobotDescription, count: int = 20, seed: int = 560):
+def random_states(desc: RobotDescription, count: int = 20, seed: int = 560):
     """States strictly inside the joint limits, so no limit constraint acts in MuJoCo."""
     rng = np.random.default_rng(seed)
-    lower, upper = puma.joint_limits[:, 0], puma.joint_limits[:, 1]
+    lower, upper = desc.joint_limits[:, 0], desc.joint_limits[:, 1]
     margin = 0.05
     for _ in range(count):
         q = rng.uniform(lower + margin, upper - margin)
-        yield q, rng.uniform(-2.0, 2.0, puma.ndof), rng.uniform(-5.0, 5.0, puma.ndof)
+        yield q, rng.uniform(-2.0, 2.0, desc.ndof), rng.uniform(-5.0, 5.0, desc.ndof)
 
 
-def test_pinocchio_rnea_agrees_with_mujoco_inverse_dynamics(puma, mj, pin) -> None:
+def test_pinocchio_rnea_agrees_with_mujoco_inverse_dynamics(desc, mj, pin) -> None:
     mj_model, mj_data = mj
     pin_model, pin_data = pin
-    for q, qd, qdd in random_states(puma):
+    for q, qd, qdd in random_states(desc):
         mj_data.qpos[:], mj_data.qvel[:], mj_data.qacc[:] = q, qd, qdd
         mujoco.mj_inverse(mj_model, mj_data)
         assert mj_data.nefc == 0, "a joint limit was active; the states must avoid them"
         # MuJoCo's inverse dynamics includes the joint damping (a passive force); Pinocchio's has none.
-        tau = pinocchio.rnea(pin_model, pin_data, q, qd, qdd) + puma.damping * qd
+        tau = pinocchio.rnea(pin_model, pin_data, q, qd, qdd) + desc.damping * qd
         np.testing.assert_allclose(mj_data.qfrc_inverse, tau, rtol=0, atol=1e-6)
 
 
-def test_armature_is_part_of_both_models(puma, mj, pin) -> None:
+def test_armature_is_part_of_both_models(desc, mj, pin) -> None:
     mj_model, _ = mj
     pin_model, _ = pin
-    np.testing.assert_array_equal(mj_model.dof_armature, puma.dyn[:, 10])
-    np.testing.assert_array_equal(pin_model.armature, puma.dyn[:, 10])
+    np.testing.assert_array_equal(mj_model.dof_armature, desc.dyn[:, 10])
+    np.testing.assert_array_equal(pin_model.armature, desc.dyn[:, 10])
 
 
-def test_mass_matrices_agree(puma, mj, pin) -> None:
+def test_mass_matrices_agree(desc, mj, pin) -> None:
     mj_model, mj_data = mj
     pin_model, pin_data = pin
-    full = np.zeros((puma.ndof, puma.ndof))
-    for q, _, _ in random_states(puma):
+    full = np.zeros((desc.ndof, desc.ndof))
+    for q, _, _ in random_states(desc):
         mj_data.qpos[:] = q
         mujoco.mj_forward(mj_model, mj_data)
         mujoco.mj_fullM(mj_model, mj_data, full)
@@ -76,26 +88,26 @@ def test_mass_matrices_agree(puma, mj, pin) -> None:
         np.testing.assert_allclose(full, pin_mass, rtol=0, atol=1e-9)
 
 
-def test_joint_frames_agree_between_pinocchio_and_mujoco_bodies(puma, mj, pin) -> None:
+def test_joint_frames_agree_between_pinocchio_and_mujoco_bodies(desc, mj, pin) -> None:
     mj_model, mj_data = mj
     pin_model, pin_data = pin
-    for q, _, _ in random_states(puma):
+    for q, _, _ in random_states(desc):
         mj_data.qpos[:] = q
         mujoco.mj_kinematics(mj_model, mj_data)
         pinocchio.forwardKinematics(pin_model, pin_data, q)
-        for i in range(1, puma.ndof + 1):
+        for i in range(1, desc.ndof + 1):
             body = mj_model.body(f"link{i}").id
             np.testing.assert_allclose(pin_data.oMi[i].translation, mj_data.xpos[body], atol=1e-12)
             np.testing.assert_allclose(pin_data.oMi[i].rotation, mj_data.xmat[body].reshape(3, 3), atol=1e-12)
 
 
-def test_end_effector_is_the_last_dh_frame_in_all_three(puma, mj, pin) -> None:
+def test_end_effector_is_the_last_dh_frame_in_all_three(desc, mj, pin) -> None:
     mj_model, mj_data = mj
     pin_model, pin_data = pin
     frame = pin_model.getFrameId(END_EFFECTOR_FRAME)
     site = mj_model.site("ee").id
-    for q, _, _ in random_states(puma):
-        expected = forward_kinematics_dh(puma.dh, q)
+    for q, _, _ in random_states(desc):
+        expected = forward_kinematics_dh(desc.dh, q)
         pinocchio.framesForwardKinematics(pin_model, pin_data, q)
         np.testing.assert_allclose(pin_data.oMf[frame].homogeneous, expected, atol=1e-12)
         mj_data.qpos[:] = q
@@ -111,10 +123,11 @@ def test_dh_kinematics_reproduce_the_published_puma_reach(puma) -> None:
     np.testing.assert_allclose(pose[:3, 2], [0.0, 0.0, 1.0], atol=1e-12)
 
 
-def test_gravity_load_matches_corkes_published_value(puma, pin) -> None:
+def test_gravity_load_matches_corkes_published_value(puma) -> None:
     # Corke's p560.gravload(qz) = [0 37.4837 0.2489 0 0 0]; our changes to link 1 and to link 3's
     # Izz must not move it.
-    pin_model, pin_data = pin
+    pin_model = pinocchio_model(puma.dh, puma.dyn)
+    pin_data = pin_model.createData()
     gravity = pinocchio.computeGeneralizedGravity(pin_model, pin_data, np.zeros(6))
     np.testing.assert_allclose(gravity, [0, 37.4837, 0.2489, 0, 0, 0], atol=1e-4)
 
@@ -138,3 +151,105 @@ def test_descriptions_are_immutable(puma) -> None:
 def test_an_unknown_robot_name_lists_the_known_ones() -> None:
     with pytest.raises(ValueError, match=r"^unknown robot model 'puma561'; known models: .*puma560"):
         robot("puma561")
+
+
+def test_every_robot_is_registered_and_builds_in_mujoco() -> None:
+    assert robot_names() == ROBOTS
+    for name in ROBOTS:
+        desc = robot(name)
+        assert desc.name == name
+        mujoco.MjModel.from_xml_string(to_mjcf(desc, TIMESTEP))
+
+
+def test_gravity_never_needs_more_than_the_torque_limits(desc, pin) -> None:
+    pin_model, pin_data = pin
+    worst = np.zeros(desc.ndof)
+    for q, _, _ in random_states(desc, count=500, seed=7):
+        worst = np.maximum(worst, np.abs(pinocchio.computeGeneralizedGravity(pin_model, pin_data, q)))
+    assert np.all(worst < 0.5 * desc.torque_limits), worst / desc.torque_limits
+
+
+# --- redundant7: the iiwa-like S-R-S arm ---------------------------------------------------------
+
+
+def test_redundant7_is_a_spherical_shoulder_elbow_spherical_wrist_arm(arm7) -> None:
+    assert arm7.ndof == 7
+    np.testing.assert_array_equal(arm7.dh[:, 2], np.zeros(7))  # no a offsets: the axes intersect
+    # stretched straight up at q = 0: shoulder 0.36, elbow 0.78, wrist 1.18, flange 1.306 m
+    pose = forward_kinematics_dh(arm7.dh, np.zeros(7))
+    np.testing.assert_allclose(pose[:3, 3], [0.0, 0.0, 1.306], atol=1e-12)
+    np.testing.assert_allclose(pose[:3, 2], [0.0, 0.0, 1.0], atol=1e-12)
+    # wherever the arm is, joints 1-3 meet at the shoulder, 0.36 m up, and joints 5-7 at the
+    # wrist centre, 0.126 m behind the flange (DH frames 1, 2 and 5, 6 sit on those points)
+    rng = np.random.default_rng(3)
+    for _ in range(10):
+        q = rng.uniform(arm7.joint_limits[:, 0], arm7.joint_limits[:, 1])
+        flange = forward_kinematics_dh(arm7.dh, q)
+        for k in (1, 2):
+            np.testing.assert_allclose(forward_kinematics_dh(arm7.dh[:k], q[:k])[:3, 3], [0, 0, 0.36], atol=1e-12)
+        for k in (5, 6):
+            frame = forward_kinematics_dh(arm7.dh[:k], q[:k])
+            np.testing.assert_allclose(frame[:3, 3], flange[:3, 3] - 0.126 * flange[:3, 2], atol=1e-12)
+
+
+def ee_jacobian(desc: RobotDescription, q: np.ndarray) -> np.ndarray:
+    model = pinocchio_model(desc.dh, desc.dyn)
+    data = model.createData()
+    frame = model.getFrameId(END_EFFECTOR_FRAME)
+    return pinocchio.computeFrameJacobian(model, data, q, frame, pinocchio.LOCAL_WORLD_ALIGNED)
+
+
+def test_redundant7_home_pose_is_away_from_singularities_with_one_self_motion(arm7) -> None:
+    singular_values = np.linalg.svd(ee_jacobian(arm7, arm7.q0), compute_uv=False)
+    assert singular_values.shape == (6,)
+    assert singular_values.min() > 0.1  # full rank 6 of 7 joints: one redundant DOF left
+    # at q = 0 the arm is stretched out and singular
+    assert np.linalg.svd(ee_jacobian(arm7, np.zeros(7)), compute_uv=False).min() < 1e-12
+
+
+# Drake's iiwa14_no_collision.urdf, verbatim: joint (xyz, rpy) and link (mass, com, diagonal inertia).
+_URDF_JOINTS = [
+    ((0, 0, 0.1575), (0, 0, 0)), ((0, 0, 0.2025), (np.pi / 2, 0, np.pi)), ((0, 0.2045, 0), (np.pi / 2, 0, np.pi)),
+    ((0, 0, 0.2155), (np.pi / 2, 0, 0)), ((0, 0.1845, 0), (-np.pi / 2, np.pi, 0)), ((0, 0, 0.2155), (np.pi / 2, 0, 0)),
+    ((0, 0.081, 0), (-np.pi / 2, np.pi, 0)),
+]
+_URDF_LINKS = [
+    (5.76, (0, -0.03, 0.12), (0.033, 0.0333, 0.0123)), (6.35, (0.0003, 0.059, 0.042), (0.0305, 0.0304, 0.011)),
+    (3.5, (0, 0.03, 0.13), (0.025, 0.0238, 0.0076)), (3.5, (0, 0.067, 0.034), (0.017, 0.0164, 0.006)),
+    (3.5, (0.0001, 0.021, 0.076), (0.01, 0.0087, 0.00449)), (1.8, (0, 0.0006, 0.0004), (0.0049, 0.0047, 0.0036)),
+    (1.2, (0, 0, 0.02), (0.001, 0.001, 0.001)),
+]
+
+
+def urdf_as_mjcf(desc: RobotDescription) -> str:
+    """The Drake URDF's chain in MuJoCo, with our armature: an independent build of the same arm."""
+    text = '<mujoco><compiler angle="radian" eulerseq="XYZ"/><option gravity="0 0 -9.81"/><worldbody>'
+    for i, ((xyz, rpy), (mass, com, inertia)) in enumerate(zip(_URDF_JOINTS, _URDF_LINKS)):
+        text += (
+            f'<body pos="{" ".join(map(str, xyz))}" euler="{" ".join(map(str, rpy))}">'
+            f'<joint type="hinge" axis="0 0 1" armature="{desc.dyn[i, 10]}"/>'
+            f'<inertial pos="{" ".join(map(str, com))}" mass="{mass}" diaginertia="{" ".join(map(str, inertia))}"/>'
+        )
+    return text + "</body>" * 7 + "</worldbody></mujoco>"
+
+
+def test_redundant7_is_the_drake_iiwa14_urdf_moved_into_dh_frames(arm7) -> None:
+    """Same mass matrix and gravity torques as Drake's URDF everywhere: the COMs and inertias were
+    moved into the DH frames correctly, and every joint turns the same way as KUKA's."""
+    urdf = mujoco.MjModel.from_xml_string(urdf_as_mjcf(arm7))
+    ours = mujoco.MjModel.from_xml_string(to_mjcf(arm7, TIMESTEP))
+    ours.dof_damping[:] = 0.0  # the URDF build has none
+    full_urdf, full_ours = np.zeros((7, 7)), np.zeros((7, 7))
+    data_urdf, data_ours = mujoco.MjData(urdf), mujoco.MjData(ours)
+    for q, _, _ in random_states(arm7):
+        for model, data, full in ((urdf, data_urdf, full_urdf), (ours, data_ours, full_ours)):
+            data.qpos[:] = q
+            mujoco.mj_forward(model, data)
+            mujoco.mj_fullM(model, data, full)
+        np.testing.assert_allclose(full_ours, full_urdf, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(data_ours.qfrc_bias, data_urdf.qfrc_bias, rtol=0, atol=1e-10)
+    # and the flange: the URDF's last joint origin plus 0.045 m is our DH frame 7
+    mujoco.mj_kinematics(urdf, data_urdf)
+    last = urdf.nbody - 1
+    flange = data_urdf.xpos[last] + 0.045 * data_urdf.xmat[last].reshape(3, 3)[:, 2]
+    np.testing.assert_allclose(flange, forward_kinematics_dh(arm7.dh, q)[:3, 3], atol=1e-12)

@@ -1,7 +1,19 @@
-"""The arm's device driver: what a task opens to read joint state and command joint torques.
+"""The arm's device driver: what a task opens to read joint state and command the joints.
 
 It attaches to the register segment the plant created (never creating or removing it) and moves
 values with preallocated numpy views, so the per-cycle calls allocate no arrays.
+
+A driver is opened in one mode (option `mode`): `torque` (`write_torque`, the default) or
+`position` (`write_position`, tracked by the plant's joint servo; see `plant`). The other mode's
+write is refused. Opening a driver claims nothing: a driver takes the arm when it releases the
+brakes, which writes its mode into the `MODE` register, and the plant then applies only that
+mode's command registers. Two drivers of different modes are kept apart by refusal, not by
+"last one wins": `release_brakes` raises `DeviceError` while the brakes are already released in
+the other mode, so a torque driver can never move an arm a position driver is commanding (nor
+the reverse). The arm changes hands only through engaged brakes: the owner (its task turned off)
+engages them, then the other driver releases them. Drivers of the same mode share the
+registers, as before. Both command registers share one seqlock, which assumes one writer at a
+time: only the driver holding the arm should write commands (the others' are ignored anyway).
 """
 
 from __future__ import annotations
@@ -14,6 +26,9 @@ from typing import Any
 import numpy as np
 
 from drivers.mujoco_arm.registers import (
+    MODE_NAMES,
+    MODE_POSITION,
+    MODE_TORQUE,
     MODES,
     W_BRAKE,
     W_CMD_SEQ,
@@ -35,7 +50,7 @@ _STUCK_AFTER_S = 0.5
 
 
 class MujocoArmDriver(DeviceDriver):
-    """Joint-level access to the simulated arm. options: `mode` (only 'torque' for now)."""
+    """Joint-level access to the simulated arm. options: `mode`, 'torque' (default) or 'position'."""
 
     def __init__(self, registers: str, options: Mapping[str, Any]) -> None:
         super().__init__(registers, options)
@@ -46,6 +61,9 @@ class MujocoArmDriver(DeviceDriver):
         if mode not in MODES:
             raise ValueError(f"mujoco_arm driver mode must be one of: {', '.join(MODES)}; got: {mode!r}")
         self.mode: str = mode
+        self._mode_word = MODES[mode]
+        self._position = self._mode_word == MODE_POSITION
+        self._positioned = False  # a position written by this driver since it was opened
         self._regs = attach_registers(registers)
         self.ndof: int = self._regs.layout.ndof
         self.timestep: float = self._regs.reals[W_TIMESTEP]
@@ -55,8 +73,8 @@ class MujocoArmDriver(DeviceDriver):
         self._q = self._regs.q
         self._qd = self._regs.qd
         self._tau = self._regs.tau
+        self._q_cmd = self._regs.q_cmd
         self._stuck_deadline = 0.0
-        self._regs.words[W_MODE] = MODES[mode]
 
     # constants -------------------------------------------------------------------------------
 
@@ -106,12 +124,28 @@ class MujocoArmDriver(DeviceDriver):
         os.sched_yield()
 
     def write_torque(self, tau: np.ndarray) -> None:
-        """Command joint torques, N m (the plant clips them to its torque limits)."""
+        """Command joint torques, N m (the plant clips them to its torque limits). Torque mode only."""
+        if self._position:
+            raise DeviceError(self._wrong_mode("write_torque", "torque"))
         words = self._words
         seq = words[W_CMD_SEQ]
         words[W_CMD_SEQ] = seq + 1  # odd: the plant keeps the previous command
         np.copyto(self._tau, tau)
         words[W_CMD_SEQ] = seq + 2
+
+    def write_position(self, q_cmd: np.ndarray) -> None:
+        """Command joint positions, rad (the plant clips them to the joint limits). Position mode only."""
+        if not self._position:
+            raise DeviceError(self._wrong_mode("write_position", "position"))
+        words = self._words
+        seq = words[W_CMD_SEQ]
+        words[W_CMD_SEQ] = seq + 1  # odd: the plant keeps the previous command
+        np.copyto(self._q_cmd, q_cmd)
+        words[W_CMD_SEQ] = seq + 2
+        self._positioned = True
+
+    def _wrong_mode(self, call: str, needs: str) -> str:
+        return f"arm registers {self.registers!r}: {call} needs a driver opened with mode: {needs}; this one has mode: {self.mode}"
 
     # occasional ---------------------------------------------------------------------------------
 
@@ -122,8 +156,14 @@ class MujocoArmDriver(DeviceDriver):
 
     @property
     def commands_written(self) -> int:
-        """Torque commands written into the registers, by any driver, since the plant started."""
+        """Commands (torque or position) written into the registers, by any driver, since the plant started."""
         return int(self._words[W_CMD_SEQ]) // 2
+
+    @property
+    def active_mode(self) -> str:
+        """The mode whose commands the plant applies when unbraked: 'none', 'torque' or 'position'."""
+        word = int(self._words[W_MODE])
+        return MODE_NAMES.get(word, f"unknown ({word})")
 
     @property
     def brakes_engaged(self) -> bool:
@@ -131,8 +171,26 @@ class MujocoArmDriver(DeviceDriver):
         return bool(self._words[W_BRAKE])
 
     def release_brakes(self) -> None:
-        """Let the arm move from the plant's next step; command a holding torque first."""
-        self._words[W_BRAKE] = 0
+        """Take the arm in this driver's mode and let it move from the plant's next step.
+
+        Command first: a holding torque, or (required in position mode) the position to hold,
+        since the plant servoes to whatever q_cmd holds. Refused while the brakes are released in
+        the other mode: another driver is commanding the arm.
+        """
+        words = self._words
+        if self._position and not self._positioned:
+            raise DeviceError(
+                f"arm registers {self.registers!r}: write_position before release_brakes; "
+                "the plant would servo the arm to whatever position the registers hold"
+            )
+        current = words[W_MODE]
+        if words[W_BRAKE] == 0 and current != self._mode_word and current in (MODE_TORQUE, MODE_POSITION):
+            raise DeviceError(
+                f"arm registers {self.registers!r}: cannot release the brakes in {self.mode} mode, another "
+                f"driver is commanding the arm in {MODE_NAMES[current]} mode; it must engage the brakes first"
+            )
+        words[W_MODE] = self._mode_word
+        words[W_BRAKE] = 0
 
     def engage_brakes(self) -> None:
         """Hold the arm where it is from the plant's next step (commands are then ignored)."""
@@ -143,6 +201,6 @@ class MujocoArmDriver(DeviceDriver):
         regs = self.__dict__.pop("_regs", None)
         if regs is None:
             return
-        for name in ("_words", "_reals", "_q", "_qd", "_tau"):
+        for name in ("_words", "_reals", "_q", "_qd", "_tau", "_q_cmd"):
             self.__dict__.pop(name, None)
         regs.release()

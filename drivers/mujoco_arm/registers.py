@@ -8,6 +8,9 @@ Nothing here takes a cross-process lock. Each block has one writer and a seqlock
 - command (tau, q_cmd): written by the driver the same way with `CMD_SEQ`, so `CMD_SEQ // 2` counts
   the commands written.
 - `BRAKE` and `MODE` are single aligned words written by the driver, read by the plant each step.
+  `MODE` says which command registers the plant applies (tau in torque mode, q_cmd in position
+  mode); a driver writes it when it releases the brakes, i.e. when it takes the arm (see
+  `MujocoArmDriver.release_brakes` for how two drivers of different modes are kept apart).
 - constants (DH, DYN, limits): written once by the plant before it publishes the first state.
 
 Aligned 8-byte words are read and written whole, and x86 keeps stores in program order (TSO),
@@ -49,8 +52,9 @@ HEADER_WORDS = 16
 
 MODE_NONE = 0  # no driver has claimed the arm: the plant applies no torque
 MODE_TORQUE = 1
-MODE_POSITION = 2  # reserved: q_cmd registers, not applied yet
-MODES = {"torque": MODE_TORQUE}  # what drivers may ask for today
+MODE_POSITION = 2  # q_cmd registers, tracked by the plant's joint servo
+MODES = {"torque": MODE_TORQUE, "position": MODE_POSITION}  # what drivers may ask for
+MODE_NAMES = {MODE_NONE: "none", MODE_TORQUE: "torque", MODE_POSITION: "position"}
 
 _CACHE_LINE = 64
 

@@ -7,9 +7,11 @@ from collections.abc import Callable
 from drivers.robots.description import DH_COLUMNS, DYN_COLUMNS, RobotDescription
 from drivers.robots.mjcf import to_mjcf
 from drivers.robots.puma560 import puma560
+from drivers.robots.redundant7 import redundant7
 
 _ROBOTS: dict[str, Callable[[], RobotDescription]] = {
     "puma560": puma560,
+    "redundant7": redundant7,
 }
 
 

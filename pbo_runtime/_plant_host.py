@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import traceback
@@ -16,6 +17,9 @@ import traceback
 from pbo_runtime import _messages, _registry
 from pbo_runtime._clock import lower_timer_slack
 from pbo_runtime._process import Stop, become_child
+
+
+PLANT_FIFO_PRIORITY = 60  # above the RTPUs' 50: the simulated world steps on time whatever they do
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -27,10 +31,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--subsystem", required=True)
     parser.add_argument("--run-id", required=True)
     parser.add_argument("--parent", type=int, default=0)
+    parser.add_argument("--fifo", action="store_true", help="SCHED_FIFO above the RTPUs: the world does not wait")
     args = parser.parse_args(argv)
     if args.parent:
         become_child(args.parent)
     lower_timer_slack()
+    if args.fifo:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(PLANT_FIFO_PRIORITY))
+        except (OSError, AttributeError):
+            pass  # the RTPUs report whether SCHED_FIFO was granted; the plant then runs as they do
     events = _messages.Queue(_messages.event_queue_name(args.subsystem, args.run_id))
     plant = None
     steps = late = 0

@@ -62,6 +62,7 @@ class RunResult:
     jobs_done: list[str] = field(default_factory=list)
     switches: list[dict[str, Any]] = field(default_factory=list)
     stable_episodes: list[dict[str, Any]] = field(default_factory=list)
+    realtime: dict[str, dict[str, str]] = field(default_factory=dict)  # per RTPU: cpu, scheduler, timer slack
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -70,7 +71,7 @@ class RunResult:
             "variables": self.variables, "plant": self.plant, "lock_recoveries": self.lock_recoveries,
             "run_id": self.run_id, "objects": self.objects, "states_at_stop": self.states_at_stop,
             "application": self.application, "jobs_done": self.jobs_done, "switches": self.switches,
-            "stable_episodes": self.stable_episodes,
+            "stable_episodes": self.stable_episodes, "realtime": self.realtime,
         }
 
 
@@ -117,6 +118,7 @@ class Supervisor:
         application: str | None = None,
         static: bool = False,
         alternate: tuple[list[str], int, float] | None = None,
+        fifo: bool = False,
     ) -> None:
         self.subsystem = subsystem
         self.application = application
@@ -160,6 +162,7 @@ class Supervisor:
         self.job_control = JobControl(self, static=static)
         self.result.application = application or ""
         self.alternate = alternate
+        self.fifo = fifo
         self._stable: dict[str, float] = {}
         self.control: ControlServer | None = None
         self._serving = False
@@ -230,13 +233,14 @@ class Supervisor:
             self._launch("plant", [
                 "-m", "pbo_runtime._plant_host", "--type", plant.type, "--model", plant.model,
                 "--timestep", repr(plant.timestep), "--options", json.dumps(dict(plant.options)),
-                "--subsystem", sub.name, "--run-id", run_id,
+                "--subsystem", sub.name, "--run-id", run_id, *(["--fifo"] if self.fifo else []),
             ])
             self._await_ready({"plant"})
         for rtpu in sub.rtpus:
             hosted = tuple(t.name for t in sub.tasks_on(rtpu.name))
             self._launch(rtpu.name, ["-m", "rtpu", sub.file, "--run-id", run_id, "--rtpu", rtpu.name,
-                                     "--epoch", repr(epoch + self.stagger * rtpu.index)], hosted)
+                                     "--epoch", repr(epoch + self.stagger * rtpu.index), *(["--fifo"] if self.fifo else [])],
+                         hosted)
         self._await_ready({r.name for r in sub.rtpus})
         members = sub.configurations[self.configuration].tasks
         # dynamic: the union every configuration may need is spawned now (TR 4.4); static: this one's
@@ -323,6 +327,8 @@ class Supervisor:
             event = self._next_event(deadline, f"waiting for {', '.join(sorted(waiting))} to start")
             if event[0] == "ready":
                 waiting.discard(event[1])
+                if len(event) > 2 and isinstance(event[2], dict):
+                    self.result.realtime[event[1]] = event[2]
 
     def _await_state(self, task: str, states: set[str]) -> str:
         deadline = time.monotonic() + SIGNAL_TIMEOUT

@@ -66,6 +66,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--report", type=Path, help="write the run report (per task timing, final values) as JSON here")
     run.add_argument("--no-live", action="store_true", help="no live status table (the default when output is not a terminal)")
     run.add_argument("--app", help="run this application's jobs one at a time, then stop")
+    run.add_argument("--fifo", action="store_true",
+                     help="run RTPUs under SCHED_FIFO where the OS allows it (the summary says if it did)")
     run.add_argument("--static", action="store_true",
                      help="static reconfiguration: only the current configuration's tasks exist (kill and spawn between jobs)")
     run.add_argument("--alternate", metavar="A,B", help="switch test: alternate between these configurations")
@@ -211,7 +213,7 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
             return EXIT_CONFIG
         alternate = (names, args.switches, args.interval)
         args.config = args.config or names[0]
-    options = {"application": args.app, "static": args.static, "alternate": alternate}
+    options = {"application": args.app, "static": args.static, "alternate": alternate, "fifo": args.fifo}
     say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
     supervisor = Supervisor(subsystem, args.config, duration, say=say, **options)  # refuses a bad request here
     what = (f"application '{args.app}'" if args.app else f"{args.switches} switches" if alternate
@@ -278,6 +280,9 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
             console.print(f"task '{name}': {t['error']}", markup=False)
     if result.plant:
         console.print(f"plant: {result.plant.get('steps', 0)} steps, {result.plant.get('late', 0)} late", markup=False)
+    for rtpu, settings in result.realtime.items():
+        console.print(f"{rtpu}: cpu {settings.get('cpu')}, {settings.get('scheduler')}, timer slack {settings.get('timer_slack')}",
+                      markup=False)
     _print_switches(console, result)
 
 

@@ -12,13 +12,14 @@ import sys
 import traceback
 
 from pbo_runtime import _messages, _registry
-from pbo_runtime._clock import RealClock, lower_timer_slack
+from pbo_runtime._clock import RealClock
 from pbo_runtime._config_loader import load_subsystem
 from pbo_runtime._config_model import DeviceSpec
 from pbo_runtime._lifecycle import Task
 from pbo_runtime._process import Stop, become_child
 from pbo_runtime._reconfiguration import Reconfiguration
 from pbo_runtime._table import StateTable, TableLayout
+from rtpu import _realtime
 from rtpu._executive import Executive
 
 
@@ -30,10 +31,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--epoch", type=float, default=0.0, help="CLOCK_MONOTONIC time releases align to")
     parser.add_argument("--parent", type=int, default=0)
     parser.add_argument("--spin", type=float, default=0.0002, help="seconds spun before each release")
+    parser.add_argument("--fifo", action="store_true", help="ask for SCHED_FIFO (reported if refused)")
     args = parser.parse_args(argv)
     if args.parent:
         become_child(args.parent)
-    lower_timer_slack()
 
     subsystem = load_subsystem(args.file)
     name = subsystem.name
@@ -50,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
             return _registry.driver_class(device.driver)(registers, device.options)
 
         rtpu = subsystem.rtpu(args.rtpu)
+        realtime = _realtime.apply(rtpu.cpu, args.fifo)
         executive = Executive(RealClock(args.spin), signals, report, epoch=args.epoch, header=table.header,
                               reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
                               n_rtpus=len(subsystem.rtpus))
@@ -60,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
                 return Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device)
 
             executive.add(make(), make)
-        report("ready")
+        report("ready", realtime)
         executive.run()
         return 0
     except Stop:

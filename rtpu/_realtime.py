@@ -1,0 +1,35 @@
+"""Real-time settings of an RTPU process: CPU pinning, SCHED_FIFO, timer slack (DESIGN §13).
+
+Each is asked for and its outcome reported, never assumed: where the OS refuses (no permission,
+a CPU the machine does not have), the RTPU runs on with what it got and says so in the summary.
+"""
+
+from __future__ import annotations
+
+import os
+
+from pbo_runtime._clock import lower_timer_slack
+
+FIFO_PRIORITY = 50  # above ordinary processes, below the kernel's own real-time threads
+
+
+def apply(cpu: int | None, fifo: bool) -> dict[str, str]:
+    """Pin to `cpu` and switch to SCHED_FIFO if asked; return what took effect, for the summary."""
+    outcome = {"timer_slack": "1 ns" if lower_timer_slack() else "default (50 us): prctl refused"}
+    if cpu is not None:
+        try:
+            os.sched_setaffinity(0, {cpu})
+            outcome["cpu"] = str(cpu)
+        except (OSError, ValueError) as exc:
+            outcome["cpu"] = f"not pinned: CPU {cpu}: {exc}"
+    else:
+        outcome["cpu"] = "any"
+    if fifo:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
+            outcome["scheduler"] = f"SCHED_FIFO {FIFO_PRIORITY}"
+        except (OSError, AttributeError) as exc:
+            outcome["scheduler"] = f"SCHED_OTHER: SCHED_FIFO refused ({exc}); run as root or grant CAP_SYS_NICE"
+    else:
+        outcome["scheduler"] = "SCHED_OTHER"
+    return outcome

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from modules._braking import BrakingLaw
 from pbo_runtime import InVar, OutVar, PortBasedObject, Status
 
 
@@ -51,21 +52,10 @@ class CartesianTrajectory(PortBasedObject):
     x_r = OutVar("x_r", shape=(6,), doc="reference pose this cycle: position m, then rotation vector rad")
 
     def init(self, params: CartesianTrajectoryParams) -> None:
-        dt = self.period
         a = np.array([params.max_linear_acceleration] * 3 + [params.max_angular_acceleration] * 3)
-        self._v_max = np.array([params.max_linear_velocity] * 3 + [params.max_angular_velocity] * 3)
-        self._a_step = a * dt
-        self._a_step_tolerance = a * dt * (1 + 1e-9)
-        self._two_a = 2.0 * a
-        self._half_step = 0.5 * a * dt
-        self._half_step_squared = self._half_step**2
-        self._snap = a * dt**2
+        v_max = np.array([params.max_linear_velocity] * 3 + [params.max_angular_velocity] * 3)
+        self._law = BrakingLaw(6, v_max, a, self.period)
         self._velocity = np.zeros(6)  # the reference's velocity, m/s and rad/s
-        self._error = np.zeros(6)
-        self._speed = np.zeros(6)
-        self._change = np.zeros(6)
-        self._slow = np.zeros(6, dtype=bool)
-        self._near = np.zeros(6, dtype=bool)
 
     @property
     def velocity(self) -> np.ndarray:
@@ -77,28 +67,5 @@ class CartesianTrajectory(PortBasedObject):
         self._velocity[:] = 0.0
 
     def cycle(self) -> Status:
-        e, v, dv, x_r, xd_r, dt = self._error, self._speed, self._change, self.x_r, self._velocity, self.period
-        np.subtract(self.x_d, x_r, out=e)
-        # the fastest speed from which steps of a·dt still stop at the goal, signed towards it
-        np.abs(e, out=v)
-        np.multiply(v, self._two_a, out=v)
-        np.add(v, self._half_step_squared, out=v)
-        np.sqrt(v, out=v)
-        np.subtract(v, self._half_step, out=v)
-        np.minimum(v, self._v_max, out=v)
-        np.copysign(v, e, out=v)
-        # may this component land this cycle? only from a speed one acceleration step can stop
-        np.abs(xd_r, out=dv)
-        np.less_equal(dv, self._a_step_tolerance, out=self._slow)
-        np.subtract(v, xd_r, out=dv)
-        np.clip(dv, -self._a_step, self._a_step, out=dv)
-        np.add(xd_r, dv, out=xd_r)
-        np.multiply(xd_r, dt, out=dv)
-        np.add(x_r, dv, out=x_r)
-        np.subtract(self.x_d, x_r, out=e)
-        np.abs(e, out=e)
-        np.less_equal(e, self._snap, out=self._near)
-        np.logical_and(self._slow, self._near, out=self._near)
-        np.copyto(x_r, self.x_d, where=self._near)
-        np.copyto(xd_r, 0.0, where=self._near)
+        self._law.step(self.x_d, self.x_r, self._velocity)
         return Status.CONTINUE

@@ -30,15 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from modules._robot_model import (
-    END_EFFECTOR_FRAME,
-    frame_id,
-    frame_pose_and_jacobian,
-    limit_speed,
-    pinocchio_model,
-    pose_error,
-)
-from pbo_runtime import InConst, InVar, OutVar, PortBasedObject, Status
+from modules._robot_model import END_EFFECTOR_FRAME
+from modules.resolved_rate import ResolvedRate
 
 
 @dataclass(frozen=True)
@@ -70,43 +63,24 @@ class DampedLeastSquaresParams:
             raise ValueError("frame must name a frame of the arm, got: ''")
 
 
-class DampedLeastSquares(PortBasedObject):
-    """qd_r = J^T (J J^T + lambda^2 I)^-1 gain (x_d - x_m), bounded near singularities."""
+class DampedLeastSquares(ResolvedRate):
+    """qd_r = J^T (J J^T + lambda^2 I)^-1 gain (x_d - x_m), bounded near singularities.
 
-    Params = DampedLeastSquaresParams
+    Same ports and pose error as resolved_rate (Figures 12 and 13 differ only in this solve).
+    """
 
-    ndof = InConst("NDOF", dtype="int32")
-    dh = InConst("DH", shape=("NDOF", 4))
-    dyn = InConst("DYN", shape=("NDOF", 11))
-    q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
-    x_d = InVar("x_d", shape=(6,), doc="desired pose: position m, then rotation vector rad, base frame")
-    qd_r = OutVar("qd_r", shape=("NDOF",), doc="reference joint velocity, rad/s")
+    Params = DampedLeastSquaresParams  # type: ignore[assignment]
 
-    def init(self, params: DampedLeastSquaresParams) -> None:
-        n = int(self.ndof)
-        self._model = pinocchio_model(np.asarray(self.dh), np.asarray(self.dyn))
-        self._data = self._model.createData()
-        self._frame = frame_id(self._model, params.frame)
-        self._gain, self._max_speed = params.gain, params.max_joint_speed
+    def init(self, params: DampedLeastSquaresParams) -> None:  # type: ignore[override]
+        super().init(params)  # type: ignore[arg-type]
         self._damping_squared = params.damping**2
         self._max_damping_squared = params.max_damping**2
         self._threshold = params.manipulability_threshold
-        self._x = np.zeros(6)
-        self._error = np.zeros(6)
         self._solution = np.zeros(6)
-        self._jacobian = np.zeros((6, n))
         self._gram = np.zeros((6, 6))  # J J^T, then J J^T + lambda^2 I
         self._diagonal = self._gram.reshape(-1)[::7]  # a view of its diagonal
-        self._scratch = np.zeros(n)
         self.damping_squared = 0.0  # lambda^2 of the last cycle (for logs and tests)
         self.manipulability = 0.0  # w of the last cycle
-
-    def on(self) -> None:
-        self._compute()
-
-    def cycle(self) -> Status:
-        self._compute()
-        return Status.CONTINUE
 
     def damping_for(self, manipulability: float) -> float:
         """lambda^2 at manipulability w: the fixed part plus the variable part."""
@@ -115,15 +89,11 @@ class DampedLeastSquares(PortBasedObject):
             lam2 += self._max_damping_squared * (1.0 - (manipulability / self._threshold) ** 2)
         return lam2
 
-    def _compute(self) -> None:
-        frame_pose_and_jacobian(self._model, self._data, self._frame, self.q_m, self._x, self._jacobian)
-        e = pose_error(self.x_d, self._x, self._error)
-        np.multiply(e, self._gain, out=e)
+    def _solve(self, velocity: np.ndarray) -> None:
         gram, jacobian = self._gram, self._jacobian
         np.matmul(jacobian, jacobian.T, out=gram)
         self.manipulability = w = math.sqrt(max(float(np.linalg.det(gram)), 0.0))
         self.damping_squared = lam2 = self.damping_for(w)
         np.add(self._diagonal, lam2, out=self._diagonal)
-        np.copyto(self._solution, np.linalg.solve(gram, e))
+        np.copyto(self._solution, np.linalg.solve(gram, velocity))
         np.matmul(jacobian.T, self._solution, out=self.qd_r)
-        limit_speed(self.qd_r, self._max_speed, self._scratch)

@@ -82,9 +82,14 @@ class ResolvedRate(PortBasedObject):
         return Status.CONTINUE
 
     def _compute(self) -> None:
+        """The pose error, scaled by the gain, through the inverse kinematics of `_solve`."""
         frame_pose_and_jacobian(self._model, self._data, self._frame, self.q_m, self._x, self._jacobian)
         e = pose_error(self.x_d, self._x, self._error)
         np.multiply(e, self._gain, out=e)
-        np.copyto(self._pinv, np.linalg.pinv(self._jacobian))
-        np.matmul(self._pinv, e, out=self.qd_r)
+        self._solve(e)
         limit_speed(self.qd_r, self._max_speed, self._scratch)
+
+    def _solve(self, velocity: np.ndarray) -> None:
+        """qd_r for a Cartesian velocity: the pseudo-inverse (unbounded near a singularity)."""
+        np.copyto(self._pinv, np.linalg.pinv(self._jacobian))
+        np.matmul(self._pinv, velocity, out=self.qd_r)

@@ -41,10 +41,20 @@ The `MODE` register says which commands apply while the brakes are released:
 
 A torque command never moves the arm while it is in position mode and the reverse; which
 mode is in force is decided by the driver that released the brakes (see the driver).
+
+Target (plant option `target:`, for a camera; TR Figures 12 and 13): a small marker, a mocap body
+without mass or collisions, moved kinematically along a circle in a horizontal plane,
+
+    p(t) = center + radius (cos(2 pi t / period + phase), sin(2 pi t / period + phase), 0)
+
+with a fixed orientation (rotation vector `orientation`, default none). Its world pose (position
+m, then rotation vector rad) is published with the arm's state, under the same seqlock, for the
+pose at the published sim time. The world frame is the arm's base frame.
 """
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from typing import Any
@@ -64,13 +74,15 @@ from drivers.mujoco_arm.registers import (
     W_SIM_TIME,
     W_STATE_SEQ,
     W_STEP_COUNT,
+    W_TARGET,
     W_TIMESTEP,
     create_registers,
 )
 from drivers.robots import robot, to_mjcf
 from pbo_runtime._shm import unlink_quietly
 
-_OPTIONS = ("q0",)
+_OPTIONS = ("q0", "target")
+_TARGET_OPTIONS = ("center", "radius", "period", "phase", "orientation")
 # A driver's command write takes about a microsecond; if the seqlock is still odd after this many
 # looks the driver was preempted (or died) mid-write, and the plant keeps the previous command
 # rather than wait on it.
@@ -91,6 +103,8 @@ class MujocoArmPlant:
     """One MuJoCo arm behind a register segment named `registers_name`.
 
     options: `q0` (sequence of ndof floats, rad): the braked start pose; default the robot's home.
+    `target` (mapping): a moving target for a camera, `{center: [x, y, z], radius: m, period: s,
+    phase: rad, orientation: [rx, ry, rz]}` (center, radius and period required); default none.
     """
 
     def __init__(self, registers_name: str, model: str, timestep: float, options: Mapping[str, Any]) -> None:
@@ -105,13 +119,26 @@ class MujocoArmPlant:
         if q0.shape != (n,):
             raise ValueError(f"plant option q0 must have {n} values for {model!r}, got shape: {q0.shape}")
 
+        target = _target_options(options.get("target"))
+
         self.name = registers_name
         self.timestep = float(timestep)
         self.ndof = n
         self.description = description
-        self.model = mujoco.MjModel.from_xml_string(to_mjcf(description, self.timestep))
+        self.model = mujoco.MjModel.from_xml_string(to_mjcf(description, self.timestep, target=target is not None))
         self.data = mujoco.MjData(self.model)
         self.data.qpos[:] = q0
+        self.has_target = target is not None
+        self._target_pose = np.zeros(6)  # the target's pose at data.time, as published
+        if target is not None:
+            self._target_center, self._target_radius = target["center"], target["radius"]
+            self._target_rate = 2.0 * np.pi / target["period"]
+            self._target_phase = target["phase"]
+            self._target_pose[3:] = target["orientation"]
+            angle = float(np.linalg.norm(target["orientation"]))
+            axis = target["orientation"] / angle if angle > 0 else np.array([0.0, 0.0, 1.0])
+            mujoco.mju_axisAngle2Quat(self.data.mocap_quat[0], axis, angle)
+            self._move_target()
         mujoco.mj_forward(self.model, self.data)
 
         self._torque_limits = description.torque_limits.copy()
@@ -146,6 +173,7 @@ class MujocoArmPlant:
             regs.limits[:, 2] = description.torque_limits
             regs.reals[W_TIMESTEP] = self.timestep
             regs.words[W_PLANT_PID] = os.getpid()
+            regs.words[W_TARGET] = int(self.has_target)
             self._publish()
             regs.words[W_MAGIC] = MAGIC  # last: a driver refuses the segment until it is complete
         except BaseException:
@@ -206,7 +234,29 @@ class MujocoArmPlant:
             data.qpos[:] = self._brake_pose
             data.qvel[:] = 0.0
         self._steps += 1
+        if self.has_target:
+            self._move_target()
         self._publish()
+
+    def target_at(self, t: float, out: np.ndarray) -> np.ndarray:
+        """The target's pose (position m, rotation vector rad) at sim time t, into out (no allocation)."""
+        angle = self._target_rate * t + self._target_phase
+        center, radius = self._target_center, self._target_radius
+        out[0] = center[0] + radius * math.cos(angle)
+        out[1] = center[1] + radius * math.sin(angle)
+        out[2] = center[2]
+        out[3:] = self._target_pose[3:]
+        return out
+
+    @property
+    def target_pose(self) -> np.ndarray:
+        """The target's pose at the current sim time, a copy (zeros without a target)."""
+        return self._target_pose.copy()
+
+    def _move_target(self) -> None:
+        """Put the marker where the path says at data.time (kinematically: the mocap position)."""
+        self.target_at(self.data.time, self._target_pose)
+        np.copyto(self.data.mocap_pos[0], self._target_pose[:3])
 
     def _servo(self, data: mujoco.MjData) -> None:
         """Position mode: PD to the (joint-limited) q_cmd plus gravity, clipped, into qfrc_applied.
@@ -251,6 +301,7 @@ class MujocoArmPlant:
         np.copyto(regs.qd, self.data.qvel)
         regs.reals[W_SIM_TIME] = self.data.time
         words[W_STEP_COUNT] = self._steps
+        np.copyto(regs.target, self._target_pose)
         words[W_STATE_SEQ] = seq + 2
 
     def close(self) -> None:
@@ -266,3 +317,43 @@ class MujocoArmPlant:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _vector(value: Any, where: str) -> np.ndarray:
+    try:
+        vector = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        vector = np.zeros(0)
+    if vector.shape != (3,) or not np.all(np.isfinite(vector)):
+        raise ValueError(f"plant option {where} must be 3 finite numbers, got: {value!r}")
+    return vector
+
+
+def _positive(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+        raise ValueError(f"plant option {where} must be a finite number > 0, got: {value!r}")
+    return float(value)
+
+
+def _target_options(target: Any) -> dict[str, Any] | None:
+    """The checked `target:` plant option, or None without one."""
+    if target is None:
+        return None
+    if not isinstance(target, Mapping):
+        raise ValueError(f"plant option target must be a mapping {{center, radius, period, phase, orientation}}, got: {target!r}")
+    unknown = sorted(set(target) - set(_TARGET_OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown plant target option(s) {unknown}; valid options: {', '.join(_TARGET_OPTIONS)}")
+    missing = [key for key in ("center", "radius", "period") if key not in target]
+    if missing:
+        raise ValueError(f"plant option target needs {', '.join(missing)} (a circle: center [x, y, z] m, radius m, period s)")
+    phase = target.get("phase", 0.0)
+    if isinstance(phase, bool) or not isinstance(phase, (int, float)) or not math.isfinite(phase):
+        raise ValueError(f"plant option target.phase must be a finite number (rad), got: {phase!r}")
+    return {
+        "center": _vector(target["center"], "target.center"),
+        "radius": _positive(target["radius"], "target.radius"),
+        "period": _positive(target["period"], "target.period"),
+        "phase": float(phase),
+        "orientation": _vector(target.get("orientation", [0.0, 0.0, 0.0]), "target.orientation"),
+    }

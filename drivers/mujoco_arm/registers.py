@@ -12,6 +12,10 @@ Nothing here takes a cross-process lock. Each block has one writer and a seqlock
   mode); a driver writes it when it releases the brakes, i.e. when it takes the arm (see
   `MujocoArmDriver.release_brakes` for how two drivers of different modes are kept apart).
 - constants (DH, DYN, limits): written once by the plant before it publishes the first state.
+- target (version 2): the world pose of the plant's moving target marker (position m, rotation
+  vector rad), what a camera sees; written by the plant with the state, under `STATE_SEQ`.
+  `TARGET` is 1 when the plant has a target (plant option `target:`), else 0 and the block
+  stays zero.
 
 Aligned 8-byte words are read and written whole, and x86 keeps stores in program order (TSO),
 so the seqlocks need no fences there. Layout (byte offsets, n = ndof, all little-endian):
@@ -20,6 +24,7 @@ so the seqlocks need no fences there. Layout (byte offsets, n = ndof, all little
     128  state:    q[n], qd[n]                  float64
     S    command:  tau[n], q_cmd[n]             float64, S = 128 + 16 n rounded up to 64
     C    constant: DH[n,4], DYN[n,11], LIMITS[n,3] (q_min, q_max, tau_max)  float64
+    T    target:   pose[6] (x, y, z, rx, ry, rz), float64, T = C + 144 n rounded up to 64
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ from pbo_runtime import PboError
 from pbo_runtime._shm import attach_segment, create_segment
 
 MAGIC = int.from_bytes(b"PBOARMRG", "little")
-VERSION = 1
+VERSION = 2  # 2: the target block and the TARGET word
 
 # Header words: u64 unless marked f64.
 W_MAGIC = 0
@@ -48,6 +53,7 @@ W_BRAKE = 7  # 1: brakes engaged (the plant holds the braked pose); the plant st
 W_MODE = 8  # which command registers the plant applies, MODE_* below
 W_TIMESTEP = 9  # f64, s, constant
 W_PLANT_PID = 10  # the owning plant's pid, for diagnostics
+W_TARGET = 11  # 1: the plant moves a target and publishes its pose in the target block; constant
 HEADER_WORDS = 16
 
 MODE_NONE = 0  # no driver has claimed the arm: the plant applies no torque
@@ -75,6 +81,7 @@ class RegisterLayout:
     state: int
     command: int
     constant: int
+    target: int
     size: int
 
     @classmethod
@@ -84,8 +91,9 @@ class RegisterLayout:
         state = HEADER_WORDS * 8
         command = _align(state + 2 * ndof * 8)  # own cache line: another process writes it
         constant = _align(command + 2 * ndof * 8)
-        size = _align(constant + ndof * (4 + 11 + 3) * 8)
-        return cls(ndof, state, command, constant, size)
+        target = _align(constant + ndof * (4 + 11 + 3) * 8)
+        size = _align(target + 6 * 8)
+        return cls(ndof, state, command, constant, target, size)
 
 
 class Registers:
@@ -116,12 +124,13 @@ class Registers:
         self.dh = block(layout.constant, 4 * n).reshape(n, 4)
         self.dyn = block(layout.constant + 32 * n, 11 * n).reshape(n, 11)
         self.limits = block(layout.constant + 120 * n, 3 * n).reshape(n, 3)
+        self.target = block(layout.target, 6)
 
     def release(self) -> None:
         """Drop every view, then close the mapping (idempotent)."""
         if self._mapping is None:
             return
-        for name in ("q", "qd", "tau", "q_cmd", "dh", "dyn", "limits", "words", "reals"):
+        for name in ("q", "qd", "tau", "q_cmd", "dh", "dyn", "limits", "target", "words", "reals"):
             self.__dict__.pop(name, None)
         for view in reversed(self._views):
             view.release()

@@ -22,6 +22,7 @@ import numpy as np
 from drivers.robots.description import RobotDescription, dh_link_transform, inertia_matrix, rot_z
 
 _LINK_RADIUS = 0.04  # capsule radius for looks only (m)
+_TARGET_RADIUS = 0.02  # the camera target's marker, for looks only (m)
 
 
 def _num(values: np.ndarray | float) -> str:
@@ -64,8 +65,13 @@ def _geoms_xml(desc: RobotDescription, i: int) -> list[str]:
     return geoms
 
 
-def to_mjcf(desc: RobotDescription, timestep: float) -> str:
-    """The MJCF text of `desc` with `<option timestep=...>`; bodies `link<i>`, hinges `joint<i>`, site `ee`."""
+def to_mjcf(desc: RobotDescription, timestep: float, target: bool = False) -> str:
+    """The MJCF text of `desc` with `<option timestep=...>`; bodies `link<i>`, hinges `joint<i>`, site `ee`.
+
+    `target`: add body `target`, a small marker for a camera to see. It is a mocap body (no joint,
+    no mass, no collisions): the plant moves it kinematically through `data.mocap_pos` and
+    `mocap_quat`, it never touches the arm, and the arm's qpos and qvel stay exactly its joints.
+    """
     if not timestep > 0:
         raise ValueError(f"timestep must be > 0, got: {timestep}")
     lines = [
@@ -97,5 +103,13 @@ def to_mjcf(desc: RobotDescription, timestep: float) -> str:
     indent = "    " + "  " * desc.ndof
     lines.append(f'{indent}<site name="ee" pos="{_num(tool[:3, 3])}" quat="{_num(_quat(tool[:3, :3]))}" size="0.01"/>')
     lines.extend(reversed(closers))
+    if target:
+        lines += [
+            '    <body name="target" mocap="true">',
+            f'      <geom name="target" type="sphere" size="{_TARGET_RADIUS}" contype="0" conaffinity="0"'
+            ' rgba="1 0.3 0.1 0.8"/>',
+            '      <site name="target" size="0.005"/>',
+            "    </body>",
+        ]
     lines += ["  </worldbody>", "</mujoco>", ""]
     return "\n".join(lines)

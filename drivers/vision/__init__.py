@@ -1,0 +1,1 @@
+"""The simulated vision subsystem: a camera that reports the plant's moving target."""

@@ -18,10 +18,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 
-from modules._robot_model import END_EFFECTOR_FRAME, frame_id, frame_pose_and_jacobian, pinocchio_model
-from pbo_runtime import InConst, InVar, OutVar, PortBasedObject, Status
+from modules._robot_model import END_EFFECTOR_FRAME, frame_id, frame_pose_and_jacobian
+from modules._model_based import ModelBased
+from pbo_runtime import InVar, OutVar, Status
 
 
 @dataclass(frozen=True)
@@ -33,21 +33,17 @@ class FkJacobianParams:
             raise ValueError("frame must name a frame of the arm, got: ''")
 
 
-class FkJacobian(PortBasedObject):
+class FkJacobian(ModelBased):
     """Forward kinematics and Jacobian of the arm the robot interface describes."""
 
     Params = FkJacobianParams
 
-    ndof = InConst("NDOF", dtype="int32")
-    dh = InConst("DH", shape=("NDOF", 4))
-    dyn = InConst("DYN", shape=("NDOF", 11))
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
     x_m = OutVar("x_m", shape=(6,), doc="measured pose: position m, then rotation vector rad, base frame")
     jacobian = OutVar("J", shape=(6, "NDOF"), doc="frame Jacobian, LOCAL_WORLD_ALIGNED, linear rows first")
 
     def init(self, params: FkJacobianParams) -> None:
-        self._model = pinocchio_model(np.asarray(self.dh), np.asarray(self.dyn))
-        self._data = self._model.createData()
+        self.build_model()
         self._frame = frame_id(self._model, params.frame)
 
     def on(self) -> None:

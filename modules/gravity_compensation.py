@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio
 
-from modules._robot_model import pinocchio_model
-from pbo_runtime import InConst, InVar, OutVar, PortBasedObject, Status
+from modules._model_based import ModelBased
+from pbo_runtime import InVar, OutVar, Status
 
 
 @dataclass(frozen=True)
@@ -33,20 +33,16 @@ class GravityCompensationParams:
             raise ValueError(f"scale must be a finite number >= 0, got: {self.scale}")
 
 
-class GravityCompensation(PortBasedObject):
+class GravityCompensation(ModelBased):
     """tau_g = scale * g(q_m), with g from Pinocchio."""
 
     Params = GravityCompensationParams
 
-    ndof = InConst("NDOF", dtype="int32")
-    dh = InConst("DH", shape=("NDOF", 4))
-    dyn = InConst("DYN", shape=("NDOF", 11))
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
     tau_g = OutVar("tau_g", shape=("NDOF",), doc="gravity torque, N m")
 
     def init(self, params: GravityCompensationParams) -> None:
-        self._model = pinocchio_model(np.asarray(self.dh), np.asarray(self.dyn))
-        self._data = self._model.createData()
+        self.build_model()
         self._scale = params.scale
 
     def on(self) -> None:

@@ -21,8 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio
 
-from modules._robot_model import pinocchio_model, rnea_includes_armature
-from pbo_runtime import InConst, InVar, OutVar, PortBasedObject, Status
+from modules._robot_model import rnea_includes_armature
+from modules._model_based import ModelBased
+from pbo_runtime import InVar, OutVar, Status
 
 
 @dataclass(frozen=True)
@@ -34,22 +35,18 @@ class InverseDynamicsParams:
             raise ValueError(f"max_torque must be > 0, got: {self.max_torque}")
 
 
-class InverseDynamics(PortBasedObject):
+class InverseDynamics(ModelBased):
     """tau_u = RNEA(q_m, qd_m, qdd_r), rotor inertia included, clipped to max_torque."""
 
     Params = InverseDynamicsParams
 
-    ndof = InConst("NDOF", dtype="int32")
-    dh = InConst("DH", shape=("NDOF", 4))
-    dyn = InConst("DYN", shape=("NDOF", 11))
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
     qd_m = InVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s")
     qdd_r = InVar("qdd_r", shape=("NDOF",), doc="reference joint acceleration, rad/s^2")
     tau = OutVar("tau_u", shape=("NDOF",), doc="joint torque command, N m")
 
     def init(self, params: InverseDynamicsParams) -> None:
-        self._model = pinocchio_model(np.asarray(self.dh), np.asarray(self.dyn))
-        self._data = self._model.createData()
+        self.build_model()
         self._armature = None if rnea_includes_armature(self._model) else self._model.armature.copy()
         self._max = params.max_torque
         self._term = np.zeros(int(self.ndof))

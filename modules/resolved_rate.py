@@ -29,10 +29,10 @@ from modules._robot_model import (
     frame_id,
     frame_pose_and_jacobian,
     limit_speed,
-    pinocchio_model,
     pose_error,
 )
-from pbo_runtime import InConst, InVar, OutVar, PortBasedObject, Status
+from modules._model_based import ModelBased
+from pbo_runtime import InVar, OutVar, Status
 
 
 @dataclass(frozen=True)
@@ -50,22 +50,18 @@ class ResolvedRateParams:
             raise ValueError("frame must name a frame of the arm, got: ''")
 
 
-class ResolvedRate(PortBasedObject):
+class ResolvedRate(ModelBased):
     """qd_r = J^+ gain (x_d - x_m), speed-limited. Not for use near singularities (see DLS)."""
 
     Params = ResolvedRateParams
 
-    ndof = InConst("NDOF", dtype="int32")
-    dh = InConst("DH", shape=("NDOF", 4))
-    dyn = InConst("DYN", shape=("NDOF", 11))
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
     x_d = InVar("x_d", shape=(6,), doc="desired pose: position m, then rotation vector rad, base frame")
     qd_r = OutVar("qd_r", shape=("NDOF",), doc="reference joint velocity, rad/s")
 
     def init(self, params: ResolvedRateParams) -> None:
         n = int(self.ndof)
-        self._model = pinocchio_model(np.asarray(self.dh), np.asarray(self.dyn))
-        self._data = self._model.createData()
+        self.build_model()
         self._frame = frame_id(self._model, params.frame)
         self._gain, self._max_speed = params.gain, params.max_joint_speed
         self._x = np.zeros(6)

@@ -68,12 +68,12 @@ def reply_queue_prefix(subsystem: str, run_id: str) -> str:
 def live_runs() -> list[tuple[str, str, str]]:
     """(subsystem, run id, table name) of every run of this user whose supervisor is alive."""
     runs = []
-    directory = _shm._SHM_DIR
+    directory = _shm.SHM_DIR
     if not directory.is_dir():
         return runs
     uid = os.getuid()
     for entry in sorted(os.listdir(directory)):
-        match = _shm._NAME.match(entry)
+        match = _shm.NAME.match(entry)
         if not match or match["part"] != "table":
             continue
         try:
@@ -82,7 +82,7 @@ def live_runs() -> list[tuple[str, str, str]]:
             continue  # removed while we looked
         if uid != 0 and owner != uid:
             continue  # another user's run: its objects are 0600, we could not talk to it anyway
-        if _shm._pid_alive(int(match["pid"])):
+        if _shm.pid_alive(int(match["pid"])):
             run_id = f"{match['pid']}-{match['nonce']}"
             runs.append((match["sub"], run_id, _messages.table_name(match["sub"], run_id)))
     return runs

@@ -228,4 +228,4 @@ def _check_names(view: TableView, names: Sequence[str]) -> list[str]:
 
 def _run_alive(view: TableView) -> bool:
     """The segment is still there and its supervisor alive (a mapping outlives the run: values would freeze)."""
-    return (_shm._SHM_DIR / view.name.lstrip("/")).exists() and _shm._pid_alive(int(view.run_id.split("-")[0]))
+    return (_shm.SHM_DIR / view.name.lstrip("/")).exists() and _shm.pid_alive(int(view.run_id.split("-")[0]))

@@ -1,8 +1,9 @@
 """Naming, creating and removing the run's POSIX shared-memory objects and queues.
 
 Every object of a run is named `/pbo.<subsystem>.<run id>.<part>`, created 0600, and removed on
-every exit path. A new run of the same subsystem removes what a dead one left: the run id embeds
-the supervisor's pid, so objects whose pid is gone are leftovers.
+every exit path. The run id embeds the supervisor's pid, so objects whose pid is gone are a dead
+run's leftovers (`stale_objects`); the supervisor removes them, queues included, through the
+manifest the dead run's table keeps (`_supervisor.remove_dead_runs`).
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ from pathlib import Path
 import posix_ipc
 
 PREFIX = "pbo."
-_SHM_DIR = Path("/dev/shm")
-_NAME = re.compile(r"^pbo\.(?P<sub>[A-Za-z0-9_-]+)\.(?P<pid>\d+)-(?P<nonce>[0-9a-f]+)\.(?P<part>[A-Za-z0-9_.-]+)$")
+SHM_DIR = Path("/dev/shm")
+NAME = re.compile(r"^pbo\.(?P<sub>[A-Za-z0-9_-]+)\.(?P<pid>\d+)-(?P<nonce>[0-9a-f]+)\.(?P<part>[A-Za-z0-9_.-]+)$")
 
 
 def object_name(subsystem: str, run_id: str, part: str) -> str:
@@ -60,7 +61,7 @@ def unlink_quietly(kind: str, name: str) -> bool:
         return False
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -77,31 +78,13 @@ def stale_objects(subsystem: str | None = None) -> list[tuple[str, str]]:
     there, since /dev/mqueue may not be mounted.
     """
     found: list[tuple[str, str]] = []
-    if not _SHM_DIR.is_dir():
+    if not SHM_DIR.is_dir():
         return found
-    for entry in sorted(os.listdir(_SHM_DIR)):
+    for entry in sorted(os.listdir(SHM_DIR)):
         kind, base = ("sem", entry[4:]) if entry.startswith("sem.") else ("shm", entry)
-        match = _NAME.match(base)
+        match = NAME.match(base)
         if not match or (subsystem and match["sub"] != subsystem):
             continue
-        if not _pid_alive(int(match["pid"])):
+        if not pid_alive(int(match["pid"])):
             found.append((kind, "/" + base))
     return found
-
-
-def remove_stale(subsystem: str | None, queue_parts: tuple[str, ...] = ()) -> list[str]:
-    """Remove leftovers of dead runs (and their queues by name); return what was removed."""
-    removed = []
-    run_ids: set[tuple[str, str]] = set()
-    for kind, name in stale_objects(subsystem):
-        if unlink_quietly(kind, name):
-            removed.append(name)
-        match = _NAME.match(name[1:])
-        if match:
-            run_ids.add((match["sub"], f"{match['pid']}-{match['nonce']}"))
-    for sub, run_id in run_ids:
-        for part in queue_parts:
-            name = object_name(sub, run_id, part)
-            if unlink_quietly("mq", name):
-                removed.append(name)
-    return removed

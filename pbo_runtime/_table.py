@@ -77,8 +77,7 @@ MAX_RTPUS = 32
 
 
 class Flag(enum.IntFlag):
-    ILLEGAL_CONFIGURATION = 1
-    SHUTDOWN = 2
+    ILLEGAL_CONFIGURATION = 1  # a task of the configuration is in ERROR, or a switch overran a cycle
 
 
 class Status(enum.IntEnum):

@@ -285,7 +285,7 @@ def test_closing_the_server_unlinks_its_queue():
 
 
 def test_connect_with_no_run_raises_a_clear_error(monkeypatch, tmp_path: Path):
-    monkeypatch.setattr(_shm, "_SHM_DIR", tmp_path)  # an empty /dev/shm: no run, whatever else this machine runs
+    monkeypatch.setattr(_shm, "SHM_DIR", tmp_path)  # an empty /dev/shm: no run, whatever else this machine runs
     with pytest.raises(PboError, match=r"^no subsystem is running \(no live state variable table in /dev/shm\)"):
         ControlClient.connect()
 

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import InVar, ModuleError, OutConst, OutVar, PortBasedObject, Status
+from modules._robot_interface import RobotInterface
+from pbo_runtime import InVar, Status
 
 
 @dataclass(frozen=True)
@@ -21,7 +22,7 @@ class RobotPositionParams:
     device: str = "arm"  # the YAML device this task opens (listed in its resources), mode: position
 
 
-class RobotPosition(PortBasedObject):
+class RobotPosition(RobotInterface):
     """Position-mode robot interface over a joint-level arm driver in position mode.
 
     `on` commands the position the arm is at before it releases the brakes, so the arm does not
@@ -32,32 +33,11 @@ class RobotPosition(PortBasedObject):
 
     Params = RobotPositionParams
 
-    ndof = OutConst("NDOF", dtype="int32", doc="number of joints")
-    dh = OutConst("DH", shape=("NDOF", 4), doc="DH rows (theta offset, d, a, alpha), m and rad")
-    dyn = OutConst("DYN", shape=("NDOF", 11), doc="mass, COM, inertia about COM, armature per link (SI)")
-    q_m = OutVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
-    qd_m = OutVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s")
     q_r = InVar("q_r", shape=("NDOF",), doc="joint position reference the arm's servo tracks, rad")
 
     def init(self, params: RobotPositionParams) -> None:
-        self._arm = self.open_device(params.device)
-        mode = getattr(self._arm, "mode", None)
-        if mode != "position":
-            raise ModuleError(
-                f"the arm on device '{params.device}' is opened in {mode} mode; RobotPosition needs the device's "
-                "option mode: position"
-            )
-        if self._arm.ndof != self.q_m.shape[0]:
-            raise ModuleError(
-                f"the arm on device '{params.device}' has {self._arm.ndof} joints, but the configuration says NDOF = {self.q_m.shape[0]}"
-            )
-        self.ndof = self._arm.ndof
-        self.dh = self._arm.dh()
-        self.dyn = self._arm.dynamics()
-        self._read = self._arm.read_state
-        self._write = self._arm.write_position
+        self._write = self.open_arm(params.device, mode="position").write_position
         self._hold = np.zeros(self._arm.ndof)  # the position stable_cycle holds
-        self._holding = False
 
     def on(self) -> None:
         self._read(self.q_m, self.qd_m)
@@ -79,11 +59,3 @@ class RobotPosition(PortBasedObject):
         self._write(self._hold)
         self._read(self.q_m, self.qd_m)
         return Status.CONTINUE
-
-    def off(self) -> None:
-        self._arm.engage_brakes()
-
-    def kill(self) -> None:
-        arm = getattr(self, "_arm", None)
-        if arm is not None:
-            arm.engage_brakes()

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from pbo_runtime import InVar, ModuleError, OutConst, OutVar, PortBasedObject, Status
+from modules._robot_interface import RobotInterface
+from pbo_runtime import InVar, Status
 
 
 @dataclass(frozen=True)
@@ -17,7 +18,7 @@ class RobotTorqueParams:
     device: str = "arm"  # the YAML device this task opens (listed in its resources)
 
 
-class RobotTorque(PortBasedObject):
+class RobotTorque(RobotInterface):
     """Torque-mode robot interface over a joint-level arm driver.
 
     Brakes are released on `on` and engaged on `off` and `kill`, so the arm holds still
@@ -26,25 +27,10 @@ class RobotTorque(PortBasedObject):
 
     Params = RobotTorqueParams
 
-    ndof = OutConst("NDOF", dtype="int32", doc="number of joints")
-    dh = OutConst("DH", shape=("NDOF", 4), doc="DH rows (theta offset, d, a, alpha), m and rad")
-    dyn = OutConst("DYN", shape=("NDOF", 11), doc="mass, COM, inertia about COM, armature per link (SI)")
-    q_m = OutVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
-    qd_m = OutVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s")
     tau_u = InVar("tau_u", shape=("NDOF",), doc="joint torque command, N m")
 
     def init(self, params: RobotTorqueParams) -> None:
-        self._arm = self.open_device(params.device)
-        if self._arm.ndof != self.q_m.shape[0]:
-            raise ModuleError(
-                f"the arm on device '{params.device}' has {self._arm.ndof} joints, but the configuration says NDOF = {self.q_m.shape[0]}"
-            )
-        self.ndof = self._arm.ndof
-        self.dh = self._arm.dh()
-        self.dyn = self._arm.dynamics()
-        self._read = self._arm.read_state
-        self._write = self._arm.write_torque
-        self._holding = False
+        self._write = self.open_arm(params.device).write_torque
 
     def on(self) -> None:
         self._read(self.q_m, self.qd_m)
@@ -65,11 +51,3 @@ class RobotTorque(PortBasedObject):
             self._arm.engage_brakes()
         self._read(self.q_m, self.qd_m)
         return Status.CONTINUE
-
-    def off(self) -> None:
-        self._arm.engage_brakes()
-
-    def kill(self) -> None:
-        arm = getattr(self, "_arm", None)
-        if arm is not None:
-            arm.engage_brakes()

@@ -429,7 +429,7 @@ def test_robot_fails_init_when_ndof_differs_from_the_arms_joints(make_table, pla
     assert not task.spawn(0.0)
     assert task.state is TaskState.KILLED
     assert task.last_error.startswith(
-        "init raised ModuleError: the arm on device 'arm' has 6 joints, but the configuration says NDOF = 5 at robot_torque.py:"
+        "init raised ModuleError: the arm on device 'arm' has 6 joints, but the configuration says NDOF = 5 at _robot_interface.py:"
     )
     assert [d.closed for d in opened] == [True]  # kill ran and the driver was not leaked
     assert observer.brakes_engaged

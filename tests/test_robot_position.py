@@ -225,7 +225,7 @@ def test_init_fails_on_a_device_opened_in_torque_mode(table, plant, observer):
     assert task.state is TaskState.KILLED
     assert task.last_error.startswith(
         "init raised ModuleError: the arm on device 'arm' is opened in torque mode; RobotPosition needs the "
-        "device's option mode: position at robot_position.py:"
+        "device's option mode: position at _robot_interface.py:"
     )
     assert [d.closed for d in opened] == [True]
     assert observer.brakes_engaged

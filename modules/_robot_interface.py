@@ -1,0 +1,50 @@
+"""What every robot interface module shares (TR §4.3): the arm's constants and measured state.
+
+A robot interface is the only module that talks to the arm. It opens the arm's driver in
+`init`, checks the joint count against the configuration, publishes NDOF, DH and DYN as
+out-consts (so the rest of the task set configures itself for this robot), and engages the
+brakes on `off` and `kill`. Subclasses add the command port and how the arm is commanded.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pbo_runtime import ModuleError, OutConst, OutVar, PortBasedObject
+
+
+class RobotInterface(PortBasedObject):
+    """Base of robot_torque and robot_position: consts, measured state, brakes."""
+
+    ndof = OutConst("NDOF", dtype="int32", doc="number of joints")
+    dh = OutConst("DH", shape=("NDOF", 4), doc="DH rows (theta offset, d, a, alpha), m and rad")
+    dyn = OutConst("DYN", shape=("NDOF", 11), doc="mass, COM, inertia about COM, armature per link (SI)")
+    q_m = OutVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
+    qd_m = OutVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s")
+
+    def open_arm(self, device: str, mode: str | None = None) -> Any:
+        """Open the arm, check its mode and joints, publish its constants; binds `self._read`."""
+        self._arm = self.open_device(device)
+        if mode is not None and getattr(self._arm, "mode", None) != mode:
+            raise ModuleError(
+                f"the arm on device '{device}' is opened in {getattr(self._arm, 'mode', None)} mode; "
+                f"{type(self).__name__} needs the device's option mode: {mode}"
+            )
+        if self._arm.ndof != self.q_m.shape[0]:
+            raise ModuleError(
+                f"the arm on device '{device}' has {self._arm.ndof} joints, but the configuration says NDOF = {self.q_m.shape[0]}"
+            )
+        self.ndof = self._arm.ndof
+        self.dh = self._arm.dh()
+        self.dyn = self._arm.dynamics()
+        self._read = self._arm.read_state
+        self._holding = False
+        return self._arm
+
+    def off(self) -> None:
+        self._arm.engage_brakes()
+
+    def kill(self) -> None:
+        arm = getattr(self, "_arm", None)
+        if arm is not None:
+            arm.engage_brakes()

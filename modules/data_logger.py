@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -48,7 +47,7 @@ class DataLogger(PortBasedObject):
 
     def init(self, params: DataLoggerParams) -> None:
         self._names = params.variables
-        self._path = Path(params.path)
+        self._path = self.output_path(params.path)
         self._rows = max(1, int(round(params.capacity / self.period)))
         arrays = self.bound_arrays[-len(self._names):]
         self._sources = [a.reshape(-1) for a in arrays]  # flat views, made once

@@ -9,6 +9,8 @@ from __future__ import annotations
 import ctypes
 import time
 
+from pbo_runtime._table import Header
+
 
 class RealClock:
     """Wall time: sleep in the kernel until `spin` before a deadline, then spin to it."""
@@ -41,6 +43,25 @@ class ManualClock:
     def sleep_until(self, deadline: float) -> None:
         if deadline > self.time:
             self.time = deadline
+
+
+class SimClock:
+    """Simulated time (`--clock sim`): the tick the supervisor released, read from the table's header.
+
+    It never sleeps: the lockstep barrier (`_lockstep`) decides when time moves. `release_slack`
+    lets a release computed by adding periods in floating point (k x 1 ms may come out a few
+    ulps past the tick) still count as due at its tick.
+    """
+
+    def __init__(self, header, tick: float) -> None:
+        self.header = header
+        self.release_slack = tick * 1e-3
+
+    def now(self) -> float:
+        return int(self.header[Header.SIM_TIME_NS]) / 1e9
+
+    def sleep_until(self, deadline: float) -> None:
+        pass
 
 
 def lower_timer_slack(nanoseconds: int = 1) -> bool:

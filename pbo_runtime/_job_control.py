@@ -12,7 +12,6 @@ job times out.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -128,23 +127,25 @@ class JobControl:
         table = sup.table
         assert table is not None
         header = table.header
-        requested = time.monotonic()
+        requested = sup.now()
         # activate on the first RTPU's release grid: the entering tasks' first cycle is the cycle
         # boundary itself, so the critical consumer's next read already sees their output
         grid = sup.shortest_period
-        activation = sup.epoch + math.ceil((requested + PLAN_LEAD - sup.epoch) / grid) * grid
+        lead = sup.tick if sup.lockstep is not None else PLAN_LEAD  # simulated: the next tick on the grid
+        activation = sup.epoch + math.ceil((requested + lead - sup.epoch) / grid - 1e-9) * grid
         record = SwitchRecord(int(header[Header.PLAN_SEQUENCE]) + 1, before, configuration, requested, activation)
         self.pending = record
         header[Header.PLAN_CONFIGURATION] = sup.reconfiguration.index(configuration)
         header[Header.PLAN_TIME_NS] = int(activation * 1e9)
         header[Header.PLAN_SEQUENCE] = record.sequence  # last: an executive that sees it sees the whole plan
-        for queue in sup.signals.values():
-            queue.try_send("plan", timeout=0.0)
+        if sup.lockstep is None:  # the simulated clock's RTPUs read the header every tick anyway
+            for queue in sup.signals.values():
+                queue.try_send("plan", timeout=0.0)
         entering_active = [t for t in entering if sup.task_states.get(t) == "OFF"]
-        deadline = time.monotonic() + SWITCH_TIMEOUT
+        deadline = sup.now() + SWITCH_TIMEOUT
         while len(record.applied) < len(sup.signals) or any(t not in record.first_cycles for t in entering_active
                                                              if not getattr(self.subsystem.tasks[t], "aperiodic", False)):
-            if time.monotonic() > deadline:
+            if sup.now() > deadline:
                 raise PboError(f"switch to '{configuration}' did not complete within {SWITCH_TIMEOUT:g} s "
                                f"(applied on: {', '.join(record.applied) or 'no RTPU'})")
             sup.pump(0.002)
@@ -178,7 +179,7 @@ class JobControl:
     def _switch_static(self, before: str, after: str, leaving: list[str], entering: list[str]) -> SwitchRecord:
         """Static reconfiguration: only the next configuration's tasks exist (TR §4.4)."""
         sup = self.supervisor
-        requested = time.monotonic()
+        requested = sup.now()
         record = SwitchRecord(len(self.switches) + 1, before, after, requested, requested, off=list(leaving), on=list(entering))
         for name in leaving:
             sup.signal_and_wait(name, "kill", {"KILLED"})
@@ -186,7 +187,7 @@ class JobControl:
             if sup.task_states.get(name) in ("NOT_CREATED", "KILLED"):
                 sup.respawn(name)
             sup.turn_on(name, after)
-        record.applied["job control"] = (requested, time.monotonic())
+        record.applied["job control"] = (requested, sup.now())
         sup.set_configuration(after)
         self.switches.append(record)
         return record
@@ -198,10 +199,10 @@ class JobControl:
             if name not in self.subsystem.configurations:
                 raise PboError(f"no configuration '{name}' (configurations: {', '.join(self.subsystem.configurations)})")
         order = [c for c in configurations if c != sup.configuration] + [c for c in configurations if c == sup.configuration]
-        next_at = time.monotonic() + interval
+        next_at = sup.now() + interval
         for number in range(switches):
-            while time.monotonic() < next_at:
-                sup.pump(min(0.002, max(next_at - time.monotonic(), 0.0)))
+            while sup.now() < next_at - sup.tick / 2:
+                sup.pump(min(0.002, max(next_at - sup.now(), 0.0)))
             self.switch(order[number % len(order)])
             next_at += interval
 
@@ -219,20 +220,20 @@ class JobControl:
                 raise JobFailure(f"{where}: pre-condition '{job.pre}' does not hold ({_show(values)})")
         for variable, value in arguments.items():
             assert sup.table is not None
-            sup.table.write(variable, value, when=time.monotonic(), writer=-1)
+            sup.table.write(variable, value, when=sup.now(), writer=-1)
         if job.configuration != sup.configuration:
             self.switch(job.configuration)
         sup.say(f"{where}: running in '{job.configuration}'" + (f", waiting for {job.post}" if job.post else ""))
         if not job.post and not job.timeout:
             return
-        started = time.monotonic()
+        started = sup.now()
         while True:
             if job.post:
                 holds, values = evaluate(sup, job.post)
                 if holds:
-                    sup.say(f"{where}: done in {time.monotonic() - started:.2f} s ({job.post})")
+                    sup.say(f"{where}: done in {sup.now() - started:.2f} s ({job.post})")
                     return
-            if job.timeout and time.monotonic() - started > job.timeout:
+            if job.timeout and sup.now() - started > job.timeout:
                 if not job.post:
                     return  # a job with a timeout and no post-condition runs for that long
                 raise JobFailure(f"{where}: timed out after {job.timeout:g} s; post-condition '{job.post}' "
@@ -254,7 +255,7 @@ class JobControl:
             if array.size != variable_spec.size:
                 raise PboError(f"job '{name}': object '{variable}' takes {variable_spec.size} values "
                                f"(shape {list(variable_spec.shape)}), got {array.size}")
-            sup.table.write(variable, array.reshape(variable_spec.shape), when=time.monotonic(), writer=-1)
+            sup.table.write(variable, array.reshape(variable_spec.shape), when=sup.now(), writer=-1)
         if job.configuration != sup.configuration:
             self.switch(job.configuration)
         self.job = name

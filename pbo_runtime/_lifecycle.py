@@ -40,6 +40,7 @@ class TaskContext:
     time: float = 0.0
     event: Any = None
     opened: list[Any] = field(default_factory=list)
+    out_dir: str = ""  # `pbo run --out DIR`: where the run's files go ("" : paths stay as given)
 
     def open_device(self, name: str) -> Any:
         if name not in self.resources:
@@ -63,6 +64,7 @@ class Task:
         dims: dict[str, int] | None = None,
         devices: dict[str, DeviceSpec] | None = None,
         opener: DeviceOpener | None = None,
+        out_dir: str = "",
     ) -> None:
         self.spec = spec
         self.name = spec.name
@@ -71,7 +73,8 @@ class Task:
         self.last_error = ""
         self.cycles = 0
         self.errors = 0
-        self.context = TaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}), opener)
+        self.context = TaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}), opener,
+                                   out_dir=out_dir)
         self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
         self.status = self.local.status
         self.status[StatusWord.CYCLES] = 0

@@ -11,6 +11,7 @@ import functools
 import enum
 import types
 import typing
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -120,6 +121,16 @@ class PortBasedObject:
     def resources(self) -> tuple[str, ...]:
         """The device names this task may open (its YAML `resources`)."""
         return self._pbo_context.resources
+
+    def output_path(self, path: str) -> Path:
+        """Where to write a file named `path`: as given, or into the run's `--out DIR` under its file name.
+
+        With `--out`, every file of a run lands in DIR beside the run report, whatever
+        directory its YAML named, so one run's outputs never overwrite another's.
+        """
+        out_dir = self._pbo_context.out_dir
+        given = Path(path)
+        return Path(out_dir) / given.name if out_dir else given
 
     def fault(self, message: str) -> Status:
         """Return this from `cycle` to report an error with its reason: `return self.fault("...")`."""

@@ -2,7 +2,8 @@
 
 It builds the registered plant (e.g. the MuJoCo arm) and steps it once per timestep of wall
 time on absolute deadlines; if it falls behind it catches up with extra steps, so simulated
-time tracks wall time, and counts the steps that were late.
+time tracks wall time, and counts the steps that were late. With `--clock sim` it steps exactly
+once per tick of the supervisor's simulated clock instead (`_lockstep`), first in each tick.
 """
 
 from __future__ import annotations
@@ -14,8 +15,12 @@ import sys
 import time
 import traceback
 
-from pbo_runtime import _messages, _registry
+import numpy as np
+
+from pbo_runtime import _messages, _registry, _shm
 from pbo_runtime._clock import lower_timer_slack
+from pbo_runtime._lockstep import LockstepParticipant
+from pbo_runtime._table import HEADER_WORDS
 from pbo_runtime._process import Stop, become_child
 
 
@@ -32,6 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run-id", required=True)
     parser.add_argument("--parent", type=int, default=0)
     parser.add_argument("--fifo", action="store_true", help="SCHED_FIFO above the RTPUs: the world does not wait")
+    parser.add_argument("--clock", choices=("real", "sim"), default="real", help="sim: one step per supervisor tick")
     args = parser.parse_args(argv)
     if args.parent:
         become_child(args.parent)
@@ -42,14 +48,24 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, AttributeError):
             pass  # the RTPUs report whether SCHED_FIFO was granted; the plant then runs as they do
     events = _messages.Queue(_messages.event_queue_name(args.subsystem, args.run_id))
-    plant = None
+    plant = barrier = None
     steps = late = 0
     try:
         plant_class = _registry.plant_class(args.type)
         plant = plant_class(
             _messages.plant_registers_name(args.subsystem, args.run_id), args.model, args.timestep, json.loads(args.options)
         )
+        if args.clock == "sim":
+            table = _shm.attach_segment(_messages.table_name(args.subsystem, args.run_id))
+            header = np.frombuffer(table, dtype=np.int64, count=HEADER_WORDS)
+            barrier = LockstepParticipant(args.subsystem, args.run_id, "plant", header)
         events.try_send("ready", "plant")
+        if barrier is not None:
+            while True:
+                if barrier.wait():
+                    plant.step()
+                    steps += 1
+                barrier.done()
         dt = plant.timestep
         next_step = time.monotonic()
         while True:
@@ -68,6 +84,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     finally:
         events.try_send("plant_stats", "plant", {"steps": steps, "late": late})
+        if barrier is not None:
+            barrier.close()
         if plant is not None:
             plant.close()
         events.close()

@@ -5,11 +5,18 @@ spawns every task in const-dependency order (waiting for each `init`), turns the
 configuration on, watches until the duration ends, Ctrl-C, or a failure, and then turns
 everything off, kills the tasks, stops the children and unlinks every object it made,
 whatever happened. A start first removes what a dead run of the same subsystem left.
+
+With `clock="sim"` the supervisor is also the clock master: time is the tick count, advanced
+only by `pump`, and the plant and the RTPUs run each tick in turn (`_lockstep`), so a run
+replays bit for bit. Times that belong to the run (durations, job timeouts, switch times) are
+read through `now()`, on either clock; waits for processes (start-up, a signal's answer) stay
+on wall time, since a process that hangs must be caught whatever the clock.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -26,6 +33,7 @@ from pbo_runtime._config_model import Subsystem
 from pbo_runtime._errors import PboError
 from pbo_runtime._control import ControlServer, control_queue_name
 from pbo_runtime._job_control import JobControl, JobFailure, application_steps
+from pbo_runtime._lockstep import LockstepMaster, semaphore_names
 from pbo_runtime._reconfiguration import Reconfiguration
 from pbo_runtime._table import Flag, Header, StateTable, TableLayout, TaskState, read_manifest
 from pbo_runtime._table import Status as W
@@ -63,6 +71,9 @@ class RunResult:
     switches: list[dict[str, Any]] = field(default_factory=list)
     stable_episodes: list[dict[str, Any]] = field(default_factory=list)
     realtime: dict[str, dict[str, str]] = field(default_factory=dict)  # per RTPU: cpu, scheduler, timer slack
+    clock: str = "real"
+    tick: float = 0.0  # seconds per tick of the simulated clock
+    wall_seconds: float = 0.0  # how long the run took on the wall clock (a sim run's speed: duration / this)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -72,6 +83,7 @@ class RunResult:
             "run_id": self.run_id, "objects": self.objects, "states_at_stop": self.states_at_stop,
             "application": self.application, "jobs_done": self.jobs_done, "switches": self.switches,
             "stable_episodes": self.stable_episodes, "realtime": self.realtime,
+            "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds,
         }
 
 
@@ -119,8 +131,14 @@ class Supervisor:
         static: bool = False,
         alternate: tuple[list[str], int, float] | None = None,
         fifo: bool = False,
+        clock: str = "real",
+        out_dir: str | None = None,
     ) -> None:
         self.subsystem = subsystem
+        if clock not in ("real", "sim"):
+            raise RunFailure(f"unknown clock '{clock}': use real or sim")
+        self.simulated = clock == "sim"
+        self.out_dir = os.path.abspath(out_dir) if out_dir else ""
         self.application = application
         if application is not None and application not in subsystem.applications:
             raise RunFailure(f"no application '{application}' in {subsystem.file} "
@@ -149,7 +167,7 @@ class Supervisor:
         self.task_errors: dict[str, str] = {}
         self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id)
         self.result.objects = self._manifest()
-        self.started_at = 0.0
+        self.started_at: float | None = None  # run time when the configuration came on
         self._stop_requested = ""
         self._stats: dict[str, dict[str, Any]] = {}
         self.reconfiguration = Reconfiguration(subsystem)
@@ -158,6 +176,12 @@ class Supervisor:
         self.shortest_period = min(t.period for t in subsystem.tasks.values())
         self.stagger = 0.45 * self.shortest_period / max(1, len(subsystem.rtpus) - 1)
         self.epoch = 0.0
+        self.tick = simulation_tick(subsystem) if self.simulated else 0.0
+        self.lockstep: LockstepMaster | None = None
+        self.result.clock = clock
+        self.result.tick = self.tick
+        if self.simulated:
+            self.stagger = 0.0  # RTPUs run in turn within a tick: they cannot collide on the lock
         self.static = static
         self.job_control = JobControl(self, static=static)
         self.result.application = application or ""
@@ -166,6 +190,7 @@ class Supervisor:
         self._stable: dict[str, float] = {}
         self.control: ControlServer | None = None
         self._serving = False
+        self._refused: dict[str, str] = {}  # task -> why its RTPU refused the last signal
 
     # --- names ------------------------------------------------------------------------------
 
@@ -177,11 +202,19 @@ class Supervisor:
         if self.subsystem.plant is not None:
             entries.append(f"shm {_messages.plant_registers_name(s, r)}")
         entries.append(f"mq {control_queue_name(s, r)}")
+        if self.simulated:
+            roles = (["plant"] if self.subsystem.plant is not None else []) + [rtpu.name for rtpu in self.subsystem.rtpus]
+            entries += [f"sem {name}" for role in roles for name in semaphore_names(s, r, role)]
         return entries
+
+    def now(self) -> float:
+        """The run's time: CLOCK_MONOTONIC, or the simulated clock's last tick."""
+        return self.lockstep.now if self.lockstep is not None else time.monotonic()
 
     # --- the run ----------------------------------------------------------------------------
 
     def run(self) -> RunResult:
+        wall_start = time.monotonic()
         previous = signal.signal(signal.SIGINT, self._interrupt)
         previous_term = signal.signal(signal.SIGTERM, self._interrupt)
         try:
@@ -211,6 +244,7 @@ class Supervisor:
             self._shutdown()
             signal.signal(signal.SIGINT, previous)
             signal.signal(signal.SIGTERM, previous_term)
+            self.result.wall_seconds = time.monotonic() - wall_start
         return self.result
 
     def request_stop(self, reason: str) -> None:
@@ -226,20 +260,27 @@ class Supervisor:
             self.signals[rtpu.name] = _messages.Queue(_messages.signal_queue_name(sub.name, run_id, rtpu.name), create=True)
         self.table = StateTable.create(TableLayout.of(sub), _messages.table_name(sub.name, run_id), self._manifest())
         self.control = ControlServer(sub.name, run_id)
+        clock: list[str] = []
+        if self.simulated:
+            roles = (["plant"] if sub.plant is not None else []) + [rtpu.name for rtpu in sub.rtpus]
+            self.lockstep = LockstepMaster(sub.name, run_id, roles, self.tick, self.table.header)
+            clock = ["--clock", "sim"]
         self._write_initial_values()
-        epoch = self.epoch = time.monotonic()
+        epoch = self.epoch = self.now() if self.simulated else time.monotonic()
         if sub.plant is not None:
             plant = sub.plant
             self._launch("plant", [
                 "-m", "pbo_runtime._plant_host", "--type", plant.type, "--model", plant.model,
                 "--timestep", repr(plant.timestep), "--options", json.dumps(dict(plant.options)),
-                "--subsystem", sub.name, "--run-id", run_id, *(["--fifo"] if self.fifo else []),
+                "--subsystem", sub.name, "--run-id", run_id, *(["--fifo"] if self.fifo else []), *clock,
             ])
             self._await_ready({"plant"})
         for rtpu in sub.rtpus:
             hosted = tuple(t.name for t in sub.tasks_on(rtpu.name))
             self._launch(rtpu.name, ["-m", "rtpu", sub.file, "--run-id", run_id, "--rtpu", rtpu.name,
-                                     "--epoch", repr(epoch + self.stagger * rtpu.index), *(["--fifo"] if self.fifo else [])],
+                                     "--epoch", repr(epoch + self.stagger * rtpu.index), *(["--fifo"] if self.fifo else []),
+                                     *clock, *(["--tick", repr(self.tick)] if self.simulated else []),
+                                     *(["--out", self.out_dir] if self.out_dir else [])],
                          hosted)
         self._await_ready({r.name for r in sub.rtpus})
         members = sub.configurations[self.configuration].tasks
@@ -252,7 +293,7 @@ class Supervisor:
         for name in ordered:
             self.turn_on(name, self.configuration)
         self._publish_plan_state()
-        self.started_at = time.monotonic()
+        self.started_at = self.now()
         self.say(f"configuration '{self.configuration}' is on: {', '.join(ordered)}")
 
     def respawn(self, name: str) -> None:
@@ -270,6 +311,8 @@ class Supervisor:
 
     def _await_change(self, task: str, before: str | None, states: set[str]) -> str:
         """The task's state after a signal: one of `states`; a clear that fails reports ERROR again."""
+        if self.lockstep is not None:
+            return self._served_state(task, states, PboError)
         deadline = time.monotonic() + SIGNAL_TIMEOUT
         while True:
             event = self._next_event(deadline, f"waiting for task '{task}'")
@@ -304,7 +347,9 @@ class Supervisor:
 
     def _launch(self, role: str, arguments: list[str], tasks: tuple[str, ...] = ()) -> None:
         command = [sys.executable, *arguments, "--parent", str(os.getpid())]
-        process = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True)
+        # A replayed run must not depend on string hashing: fix it for the children of a sim run.
+        environment = {**os.environ, "PYTHONHASHSEED": "0"} if self.simulated else None
+        process = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True, env=environment)
         self.children.append(_Child(role, process, tasks))
 
     def _write_initial_values(self) -> None:
@@ -312,13 +357,23 @@ class Supervisor:
         for var in self.subsystem.variables.values():
             initial = var.initial
             if initial is not None:
-                self.table.write(var.name, initial, when=time.monotonic(), writer=-1)
+                self.table.write(var.name, initial, when=self.now(), writer=-1)
 
     # --- waiting for the children -----------------------------------------------------------
 
     def _signal(self, task: str, *message: Any) -> None:
         rtpu = self.subsystem.tasks[task].rtpu
+        self._refused.pop(task, None)
         self.signals[rtpu].send(message[0], task, *message[1:], timeout=SIGNAL_TIMEOUT)
+        if self.lockstep is not None:
+            self.lockstep.step(rtpu, self._while_stepping)  # served now, between ticks: at a known instant
+
+    def _while_stepping(self) -> None:
+        """While a participant runs its tick: fail if a child died, and keep the event queue drained."""
+        self._check_children()
+        assert self.events is not None
+        while (event := self.events.receive(0)) is not None:
+            self._absorb(event)
 
     def _await_ready(self, roles: set[str]) -> None:
         waiting = set(roles)
@@ -330,7 +385,19 @@ class Supervisor:
                 if len(event) > 2 and isinstance(event[2], dict):
                     self.result.realtime[event[1]] = event[2]
 
+    def _served_state(self, task: str, states: set[str], failure: type[PboError]) -> str:
+        """Sim clock: the signal was served in full when `_signal` returned; its events are all queued."""
+        self._while_stepping()
+        if task in self._refused:
+            raise failure(f"task '{task}': {self._refused[task]}")
+        state = self.task_states[task]
+        if state not in states:
+            raise failure(f"task '{task}' is {state} after the signal, not {' or '.join(sorted(states))}")
+        return state
+
     def _await_state(self, task: str, states: set[str]) -> str:
+        if self.lockstep is not None:
+            return self._served_state(task, states, RunFailure)
         deadline = time.monotonic() + SIGNAL_TIMEOUT
         while True:
             self._next_event(deadline, f"waiting for task '{task}' to reach {' or '.join(sorted(states))}")
@@ -383,6 +450,7 @@ class Supervisor:
         elif kind == "plant_stats":
             self.result.plant = event[2]
         elif kind == "refused":
+            self._refused[event[2]] = event[3]
             self.say(f"{source} refused a signal for '{event[2]}': {event[3]}")
         elif kind == "crashed":
             raise RunFailure(f"{source} crashed: {event[2]}\n{event[3] if len(event) > 3 else ''}")
@@ -407,19 +475,30 @@ class Supervisor:
 
     def _watch(self) -> None:
         """Serve events and commands until the duration is over (StopRequested ends it sooner)."""
-        while self.duration is None or time.monotonic() - self.started_at < self.duration:
-            self.pump(0.1)
+        assert self.started_at is not None
+        while self.duration is None or self.now() - self.started_at < self.duration - self.tick / 2:
+            left = self.duration - (self.now() - self.started_at) if self.duration is not None else 0.1
+            self.pump(min(0.1, left))
         self.result.stopped_by = "duration"
 
     def pump(self, timeout: float) -> None:
-        """One turn of job control's loop: children, stop requests, one event, commands, the view."""
+        """One turn of job control's loop: children, stop requests, events, commands, the view.
+
+        On the real clock it waits up to `timeout` for one event; on the simulated clock it runs
+        the ticks that cover `timeout` (at least one), taking every event after each.
+        """
         assert self.events is not None
         self._check_children()
         if self._stop_requested:
             raise StopRequested(self._stop_requested)
-        event = self.events.receive(timeout)
-        if event is not None:
-            self._absorb(event)
+        if self.lockstep is not None:
+            for _ in range(max(1, math.floor(timeout / self.tick + 1e-9))):
+                self.lockstep.advance(self._while_stepping)
+                self._while_stepping()
+        else:
+            event = self.events.receive(timeout)
+            if event is not None:
+                self._absorb(event)
         self._serve_commands()
         if self.on_tick is not None:
             self.on_tick(self)
@@ -496,7 +575,7 @@ class Supervisor:
         raise PboError(f"unknown command '{command}' (commands: status, on, off, clear, event, switch, job, stop)")
 
     def _status_reply(self) -> dict[str, Any]:
-        elapsed = time.monotonic() - self.started_at if self.started_at else 0.0
+        elapsed = self.now() - self.started_at if self.started_at is not None else 0.0
         rows = []
         for row, spec in zip(self.status_rows(), self.subsystem.tasks.values()):
             rows.append({**row, "index": spec.index, "state": self.task_states.get(spec.name, row["state"]),
@@ -524,12 +603,13 @@ class Supervisor:
     # --- stopping ---------------------------------------------------------------------------
 
     def _shutdown(self) -> None:
-        self.result.duration = time.monotonic() - self.started_at if self.started_at else 0.0
+        self.result.duration = self.now() - self.started_at if self.started_at is not None else 0.0
         self.result.states_at_stop = dict(self.task_states)
         alive = [c for c in self.children if c.process.poll() is None]
         for child in alive:
             if child.role != "plant":
                 self.signals[child.role].try_send("stop")
+                self._serve_stop(child)
         deadline = time.monotonic() + 5.0
         rtpus = [c for c in alive if c.role != "plant"]
         while any(c.process.poll() is None for c in rtpus) and time.monotonic() < deadline:
@@ -546,6 +626,8 @@ class Supervisor:
                 child.process.kill()
                 child.process.wait()
         self._drain_events(0.0)
+        if self.lockstep is not None:
+            self.lockstep.close()
         self.result.switches = [record.to_json() for record in self.job_control.switches]
         for name, stats in self._stats.items():
             self.result.tasks[name] = {"rtpu": self.subsystem.tasks[name].rtpu, "critical": self.subsystem.tasks[name].critical,
@@ -562,6 +644,22 @@ class Supervisor:
         for entry in self._manifest():  # a backstop: whatever a child could not remove
             kind, _, name = entry.partition(" ")
             _shm.unlink_quietly(kind, name)
+
+    def _serve_stop(self, child: _Child) -> None:
+        """Sim clock: step an RTPU once so it serves its stop; a dead or stuck one is left to SIGTERM."""
+        if self.lockstep is None:
+            return
+        deadline = time.monotonic() + 5.0
+
+        def wait() -> None:
+            self._drain_events(0.0)
+            if child.process.poll() is not None or time.monotonic() > deadline:
+                raise StopRequested("child gone")
+
+        try:
+            self.lockstep.step(child.role, wait)
+        except StopRequested:
+            pass
 
     def _drain_events(self, timeout: float) -> None:
         if self.events is None:
@@ -590,3 +688,20 @@ class Supervisor:
                 "value": value.tolist(), "sequence": seq,
                 "writer": next((t.name for t in self.subsystem.tasks.values() if t.index == writer), "job control"),
             }
+
+
+def simulation_tick(subsystem: Subsystem) -> float:
+    """The simulated clock's tick: the plant's timestep, or else the periods' greatest common divisor.
+
+    Every period must be a whole number of ticks, or a task would be released between ticks.
+    """
+    periods_ns = {name: int(round(task.period * 1e9)) for name, task in subsystem.tasks.items()}
+    if subsystem.plant is not None:
+        tick_ns = int(round(subsystem.plant.timestep * 1e9))
+        off_grid = [f"{name} ({ns / 1e6:g} ms)" for name, ns in periods_ns.items() if ns % tick_ns]
+        if off_grid:
+            raise RunFailure(f"--clock sim steps the plant every {tick_ns / 1e6:g} ms and releases tasks on those ticks, "
+                             f"but these periods are not whole multiples of it: {', '.join(off_grid)}; "
+                             f"make each period a multiple of the plant's timestep")
+        return tick_ns / 1e9
+    return math.gcd(*periods_ns.values()) / 1e9

@@ -70,6 +70,9 @@ class Header(enum.IntEnum):
     PLAN_TIME_NS = 17  # activation time, CLOCK_MONOTONIC nanoseconds
     PLAN_CONFIGURATION = 18  # index of the configuration to switch to (file order)
     TASKS_IN_ERROR = 19  # set by job control: critical tasks run locally stable while > 0
+    # Simulated clock (--clock sim): the supervisor advances time in ticks; every participant reads it here.
+    SIM_TIME_NS = 20  # the current tick's time, nanoseconds from the run's start
+    SIM_TICK = 21  # ticks released so far: a participant stepped with no new tick only serves its signals
     SWITCHING_SINCE_NS = 24  # one word per RTPU (up to MAX_RTPUS): when its switch began, 0 if none
 
 

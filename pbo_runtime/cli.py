@@ -70,6 +70,10 @@ def _parser() -> argparse.ArgumentParser:
                      help="run RTPUs under SCHED_FIFO where the OS allows it (the summary says if it did)")
     run.add_argument("--static", action="store_true",
                      help="static reconfiguration: only the current configuration's tasks exist (kill and spawn between jobs)")
+    run.add_argument("--clock", choices=("real", "sim"), default="real",
+                     help="sim: simulated time in lockstep ticks, as fast as the machine allows; the run replays bit for bit")
+    run.add_argument("--out", type=Path, metavar="DIR",
+                     help="write the run's files (data logs) and its report (report.json) into DIR")
     run.add_argument("--alternate", metavar="A,B", help="switch test: alternate between these configurations")
     run.add_argument("--switches", type=int, default=100, help="with --alternate: how many switches (default 100)")
     run.add_argument("--interval", type=float, default=0.05, help="with --alternate: seconds between switches (default 0.05)")
@@ -213,7 +217,10 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
             return EXIT_CONFIG
         alternate = (names, args.switches, args.interval)
         args.config = args.config or names[0]
-    options = {"application": args.app, "static": args.static, "alternate": alternate, "fifo": args.fifo}
+    options = {"application": args.app, "static": args.static, "alternate": alternate, "fifo": args.fifo,
+               "clock": args.clock, "out_dir": str(args.out) if args.out else None}
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
     say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
     supervisor = Supervisor(subsystem, args.config, duration, say=say, **options)  # refuses a bad request here
     what = (f"application '{args.app}'" if args.app else f"{args.switches} switches" if alternate
@@ -226,9 +233,9 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
             result = supervisor.run()
     else:
         result = supervisor.run()
-    if args.report:
-        args.report.parent.mkdir(parents=True, exist_ok=True)
-        args.report.write_text(json.dumps(result.to_json(), indent=2))
+    for report in ([args.report] if args.report else []) + ([args.out / "report.json"] if args.out else []):
+        report.parent.mkdir(parents=True, exist_ok=True)
+        report.write_text(json.dumps(result.to_json(), indent=2))
     _print_summary(console, subsystem, result)
     if result.failure:
         errors.print(f"error: {result.failure}", markup=False)
@@ -237,9 +244,7 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 
 def _status_table(supervisor: Any) -> Table:
-    import time
-
-    elapsed = time.monotonic() - supervisor.started_at if supervisor.started_at else 0.0
+    elapsed = supervisor.now() - supervisor.started_at if supervisor.started_at is not None else 0.0
     table = Table(title=f"{supervisor.subsystem.name} · {supervisor.configuration} · {elapsed:5.1f} s", title_justify="left")
     for column in ("task", "rtpu", "state", "cycles", "overruns", "exec µs", "max jitter µs"):
         table.add_column(column, justify="right" if column not in ("task", "rtpu", "state") else "left")
@@ -280,7 +285,13 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
             console.print(f"task '{name}': {t['error']}", markup=False)
     if result.plant:
         console.print(f"plant: {result.plant.get('steps', 0)} steps, {result.plant.get('late', 0)} late", markup=False)
+    if result.clock == "sim":
+        speed = result.duration / result.wall_seconds if result.wall_seconds else 0.0
+        console.print(f"clock: simulated, {result.tick * 1e3:g} ms ticks; {result.duration:.2f} s simulated in "
+                      f"{result.wall_seconds:.2f} s of wall time ({speed:.2f}x real time)", markup=False)
     for rtpu, settings in result.realtime.items():
+        if "clock" in settings:
+            continue  # simulated: no scheduler settings to report
         console.print(f"{rtpu}: cpu {settings.get('cpu')}, {settings.get('scheduler')}, timer slack {settings.get('timer_slack')}",
                       markup=False)
     _print_switches(console, result)

@@ -12,10 +12,11 @@ import sys
 import traceback
 
 from pbo_runtime import _messages, _registry
-from pbo_runtime._clock import RealClock
+from pbo_runtime._clock import RealClock, SimClock
 from pbo_runtime._config_loader import load_subsystem
 from pbo_runtime._config_model import DeviceSpec
 from pbo_runtime._lifecycle import Task
+from pbo_runtime._lockstep import LockstepParticipant
 from pbo_runtime._process import Stop, become_child
 from pbo_runtime._reconfiguration import Reconfiguration
 from pbo_runtime._table import StateTable, TableLayout
@@ -32,6 +33,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--parent", type=int, default=0)
     parser.add_argument("--spin", type=float, default=0.0002, help="seconds spun before each release")
     parser.add_argument("--fifo", action="store_true", help="ask for SCHED_FIFO (reported if refused)")
+    parser.add_argument("--clock", choices=("real", "sim"), default="real", help="sim: advance in the supervisor's ticks")
+    parser.add_argument("--tick", type=float, default=0.001, help="seconds per tick of the simulated clock")
+    parser.add_argument("--out", default="", help="directory the modules write their files into")
     args = parser.parse_args(argv)
     if args.parent:
         become_child(args.parent)
@@ -40,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     name = subsystem.name
     events = _messages.Queue(_messages.event_queue_name(name, args.run_id))
     report = lambda kind, *fields: events.try_send(kind, args.rtpu, *fields)  # noqa: E731
-    table = signals = None
+    table = signals = barrier = None
     executive = None
     try:
         table = StateTable.attach(TableLayout.of(subsystem), _messages.table_name(name, args.run_id))
@@ -52,18 +56,27 @@ def main(argv: list[str] | None = None) -> int:
 
         rtpu = subsystem.rtpu(args.rtpu)
         realtime = _realtime.apply(rtpu.cpu, args.fifo)
-        executive = Executive(RealClock(args.spin), signals, report, epoch=args.epoch, header=table.header,
+        simulated = args.clock == "sim"
+        clock = SimClock(table.header, args.tick) if simulated else RealClock(args.spin)
+        executive = Executive(clock, signals, report, epoch=args.epoch, header=table.header,
                               reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
                               n_rtpus=len(subsystem.rtpus))
         for spec in subsystem.tasks_on(args.rtpu):
             module_class = _registry.module_class(spec.module)
 
             def make(spec=spec, module_class=module_class) -> Task:
-                return Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device)
+                return Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device,
+                            out_dir=args.out)
 
             executive.add(make(), make)
+        if simulated:
+            barrier = LockstepParticipant(name, args.run_id, args.rtpu, table.header)
+            realtime = {"clock": f"simulated, {args.tick * 1e3:g} ms ticks"}
         report("ready", realtime)
-        executive.run()
+        if barrier is not None:
+            executive.run_lockstep(barrier)
+        else:
+            executive.run()
         return 0
     except Stop:
         if executive is not None and executive.running:
@@ -73,6 +86,8 @@ def main(argv: list[str] | None = None) -> int:
         report("crashed", f"{type(exc).__name__}: {exc}", traceback.format_exc())
         return 1
     finally:
+        if barrier is not None:
+            barrier.close()
         if signals is not None:
             signals.close()
         if table is not None:

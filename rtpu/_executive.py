@@ -32,6 +32,7 @@ from pbo_runtime._table import Status as W
 RING = 1 << 16  # samples kept per task for percentiles (65 s at 1 kHz)
 EVENTS_QUEUED = 16  # events an aperiodic task holds while it waits out its min inter-arrival time
 SWITCH_WINDOW_PERIODS = 3  # a stale read this close after a switch is counted against the switch
+AGE_TOLERANCE = 1e-7  # seconds: an input exactly one producer period old is fresh, whatever the rounding
 
 
 class Clock(Protocol):
@@ -41,6 +42,11 @@ class Clock(Protocol):
 
 class SignalSource(Protocol):
     def receive(self, timeout: float | None) -> list[Any] | None: ...
+
+
+class Barrier(Protocol):
+    def wait(self) -> bool: ...
+    def done(self) -> None: ...
 
 
 class Scheduled:
@@ -134,12 +140,40 @@ class Executive:
         self.plan_seen = int(header[Header.PLAN_SEQUENCE]) if header is not None else 0
         self.configuration = -1  # index of the configuration last applied here
         self.last_switch = -math.inf  # activation time of the last plan applied
+        self.release_slack = getattr(clock, "release_slack", 0.0)  # sim clock: a release a few ulps late is due
 
     # --- the loop ---------------------------------------------------------------------------
 
     def run(self) -> None:
         while self.running:
             self.run_once()
+
+    def run_lockstep(self, barrier: Barrier) -> None:
+        """The simulated clock's loop: per step, serve the queued signals; per new tick, the plan and the cycles.
+
+        Nothing here waits on time: the supervisor releases a tick only when every participant
+        finished the previous one, so the same inputs give the same cycles, bit for bit.
+        """
+        signals = self.signals
+        while self.running:
+            new_tick = barrier.wait()
+            try:
+                while self.running:
+                    message = signals.receive(0)
+                    if message is None:
+                        break
+                    self.handle(message)
+                if new_tick and self.running:
+                    self._plan_if_due()
+                    self._run_ready()
+            finally:
+                barrier.done()
+
+    def _plan_if_due(self) -> None:
+        header = self.header
+        if header is not None and header[Header.PLAN_SEQUENCE] != self.plan_seen:
+            if self.clock.now() + self.release_slack >= header[Header.PLAN_TIME_NS] / 1e9:
+                self.apply_plan()
 
     def run_once(self) -> None:
         clock = self.clock
@@ -150,7 +184,7 @@ class Executive:
         header = self.header
         if header is not None and header[Header.PLAN_SEQUENCE] != self.plan_seen:
             activation = header[Header.PLAN_TIME_NS] / 1e9
-            if clock.now() >= activation:
+            if clock.now() + self.release_slack >= activation:
                 self.apply_plan()
                 return
             next_release = min(next_release, activation)
@@ -176,11 +210,13 @@ class Executive:
         """
         clock = self.clock
         on = self.on
+        slack = self.release_slack
         while True:
             now = clock.now()
+            due = now + slack
             best = None
             for s in on:
-                if s.release > now:
+                if s.release > due:
                     continue
                 if best is None or s.critical > best.critical:
                     best = s
@@ -197,6 +233,8 @@ class Executive:
         status = s.status
         task = s.task
         jitter = start - release
+        if jitter < 0.0:
+            jitter = 0.0  # simulated clock: a release a few ulps past its tick
         status[W.JITTER_LAST] = jitter
         if jitter > s.jitter_max:
             s.jitter_max = jitter
@@ -271,7 +309,7 @@ class Executive:
                 s.last_lost = (f"{s.task.local.input_variables[i]} at {release:.6f}: still written by task "
                                f"#{int(written_by)}, expected #{wanted}")
                 return
-            if times[i] > 0.0 and release - times[i] > periods[i]:
+            if times[i] > 0.0 and release - times[i] > periods[i] + AGE_TOLERANCE:
                 s.stale_reads += 1
                 if release - self.last_switch < SWITCH_WINDOW_PERIODS * s.period:
                     s.stale_at_switch += 1

@@ -2,8 +2,8 @@
 
 It waits for the earliest release with a timed receive on its signal queue, so signals and
 timers share one wait; then runs the ready tasks, critical first, then earliest deadline
-(maximum-urgency-first). Release times advance by the period from the previous release, so
-the rate does not drift. Per task it keeps cycles, execution time, release jitter and overruns
+(maximum-urgency-first). The k-th release is epoch + k x period, counted, never summed, so the
+rate does not drift and rounding does not pile up. Per task it keeps cycles, execution time, release jitter and overruns
 in the table's status block, and samples for percentiles in preallocated rings.
 
 Dynamic reconfiguration (TR §4.4): job control posts a plan in the table's header (a
@@ -52,7 +52,7 @@ class Barrier(Protocol):
 class Scheduled:
     """A task's place in the executive: its next release and its timing record."""
 
-    __slots__ = ("task", "period", "critical", "priority", "release", "overruns", "missed", "jitter", "exec_time",
+    __slots__ = ("task", "period", "critical", "priority", "release", "release_index", "overruns", "missed", "jitter", "exec_time",
                  "samples", "jitter_max", "exec_max", "status", "aperiodic", "events", "dropped_events",
                  "last_release", "stale_reads", "stale_at_switch", "input_periods", "write_times", "stable_cycles",
                  "in_stable", "first_cycle_of_plan", "last_stale", "expected_writers", "input_writers",
@@ -66,6 +66,7 @@ class Scheduled:
         self.critical = spec.critical
         self.priority = spec.priority
         self.release = math.inf
+        self.release_index = 0  # periodic: release = epoch + release_index * period
         self.last_release = -math.inf
         self.overruns = 0
         self.missed = 0
@@ -271,17 +272,20 @@ class Executive:
         if s.aperiodic:
             s.release = max(release + s.period, end) if s.events else math.inf
         else:
-            following = release + s.period
+            s.release_index += 1
+            following = self.epoch + s.release_index * s.period
             if end > following:
                 # The deadline passed: count the overrun and skip the releases already gone,
-                # keeping the phase (next = release + k * period, never end + period).
+                # keeping the phase (next = epoch + k * period, never end + period).
                 s.overruns += 1
                 skipped = int((end - release) // s.period)
                 s.missed += skipped - 1 if skipped > 1 else 0
                 status[W.OVERRUNS] = s.overruns
-                following = release + skipped * s.period
+                s.release_index += skipped - 1
+                following = self.epoch + s.release_index * s.period
                 if following <= end:
-                    following += s.period
+                    s.release_index += 1
+                    following = self.epoch + s.release_index * s.period
             s.release = following
         if result != Status.CONTINUE:
             self._leave_on(s)
@@ -474,8 +478,8 @@ class Executive:
         self.running = False
 
     def _first_release(self, s: Scheduled, at: float) -> float:
-        periods = math.ceil((at - self.epoch) / s.period - 1e-9)
-        return self.epoch + max(periods, 0) * s.period
+        s.release_index = max(math.ceil((at - self.epoch) / s.period - 1e-9), 0)
+        return self.epoch + s.release_index * s.period
 
     def _leave_on(self, s: Scheduled) -> None:
         if s in self.on:

@@ -126,7 +126,7 @@ def test_computed_torque_as_a_combined_module_moves_the_arm_to_its_goal(tmp_path
     """TR Figure 14: PID + inverse dynamics as one task (TR 4.5), on the arm."""
     report_path = tmp_path / "report.json"
     done = subprocess.run([*PBO, "run", str(REPO / "configs" / "computed_torque.yaml"), "--config", "combined",
-                           "--duration", "3", "--report", str(report_path), "--no-live"],
+                           "--duration", "3", "--clock", "sim", "--report", str(report_path), "--no-live"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=180)
     assert done.returncode == 0, done.stderr
     report = json.loads(report_path.read_text())
@@ -141,7 +141,7 @@ def test_computed_torque_as_a_combined_module_moves_the_arm_to_its_goal(tmp_path
 def test_cartesian_teleoperation_follows_the_trackball(tmp_path):
     """TR Figure 10: trackball -> Cartesian interpolator -> resolved rate -> integrator -> PID -> arm."""
     report_path = tmp_path / "report.json"
-    done = subprocess.run([*PBO, "run", str(REPO / "configs" / "cartesian_teleop.yaml"), "--duration", "5.5",
+    done = subprocess.run([*PBO, "run", str(REPO / "configs" / "cartesian_teleop.yaml"), "--duration", "5.5", "--clock", "sim",
                            "--report", str(report_path), "--no-live"], cwd=tmp_path, capture_output=True, text=True,
                           timeout=180)
     assert done.returncode == 0, done.stderr

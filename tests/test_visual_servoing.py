@@ -382,7 +382,7 @@ def pbo_run(tmp_path: Path, *arguments: str) -> tuple[subprocess.CompletedProces
     from tests.test_end_to_end import PBO
 
     report_path = tmp_path / "report.json"
-    done = subprocess.run([*PBO, "run", str(CONFIG), "--no-live", "--report", str(report_path), *arguments],
+    done = subprocess.run([*PBO, "run", str(CONFIG), "--no-live", "--clock", "sim", "--report", str(report_path), *arguments],
                           cwd=tmp_path, capture_output=True, text=True, timeout=240)
     assert done.returncode == 0, done.stdout + done.stderr
     return done, json.loads(report_path.read_text())

@@ -24,8 +24,10 @@ The status reply (times in seconds, rates in Hz; keys marked ? may be absent or 
      "tasks": [{"task": str, "index": int (its status block in the table), "rtpu": str,
                 "state": "NOT_CREATED"|"CREATED"|"OFF"|"ON"|"ERROR"|"KILLED",
                 "cycles": int, "rate": float (measured Hz), "overruns": int,
-                "jitter_p99": float?, "jitter_max": float, "exec_last": float, "error": str?}, ...]
-       (in table index order: tasks[i] is status block i when "index" is absent),
+                "jitter_p50": float?, "jitter_p99": float?, "jitter_max": float, "exec_last": float,
+                "exec_p50": float?, "exec_p99": float?, "missed": int, "error": str?}, ...]
+       (in table index order: tasks[i] is status block i when "index" is absent;
+        percentiles are over each task's last 1,024 cycles, 0 until it has run that many),
      "flags": [str] (the table's flags that are set, e.g. "ILLEGAL_CONFIGURATION")}
 """
 
@@ -86,7 +88,8 @@ def status_table(reply: dict[str, Any]) -> Table:
         parts.append(f"job {reply['job']}")
     parts.append(f"{float(reply.get('elapsed') or 0.0):.1f} s")
     table = Table(title=" · ".join(parts), title_justify="left")
-    for column in ("rtpu", "task", "state", "cycles", "rate Hz", "jitter p99 µs", "jitter max µs", "exec µs", "overruns"):
+    for column in ("rtpu", "task", "state", "cycles", "rate Hz", "jitter p50 µs", "jitter p99 µs", "jitter max µs",
+                   "exec p50 µs", "exec p99 µs", "overruns", "missed"):
         table.add_column(column, justify="left" if column in ("rtpu", "task", "state") else "right")
     tasks = list(reply.get("tasks") or [])
     by_rtpu: dict[str, list[dict[str, Any]]] = {}
@@ -101,8 +104,9 @@ def status_table(reply: dict[str, Any]) -> Table:
             rate = task.get("rate")
             table.add_row(rtpu if i == 0 else "", str(task.get("task", "?")), f"[{style}]{state}[/]",
                           str(task.get("cycles", 0)), "—" if rate is None else f"{float(rate):.0f}",
-                          _us(task.get("jitter_p99")), _us(task.get("jitter_max")), _us(task.get("exec_last")),
-                          str(task.get("overruns", 0)))
+                          _us(task.get("jitter_p50")), _us(task.get("jitter_p99")), _us(task.get("jitter_max")),
+                          _us(task.get("exec_p50")), _us(task.get("exec_p99")), str(task.get("overruns", 0)),
+                          str(task.get("missed", 0)))
     return table
 
 

@@ -595,8 +595,11 @@ class Supervisor:
             words = self.table.status[task.index]
             rows.append({
                 "task": task.name, "rtpu": task.rtpu, "state": TaskState(int(words[W.STATE])).name,
-                "cycles": int(words[W.CYCLES]), "overruns": int(words[W.OVERRUNS]),
+                "cycles": int(words[W.CYCLES]), "overruns": int(words[W.OVERRUNS]), "missed": int(words[W.MISSED]),
                 "exec_last": float(words[W.EXEC_LAST]), "jitter_max": float(words[W.JITTER_MAX]),
+                # over the last 1,024 cycles, published by the executive every 1,024 cycles (0 before)
+                "jitter_p50": float(words[W.JITTER_P50]), "jitter_p99": float(words[W.JITTER_P99]),
+                "exec_p50": float(words[W.EXEC_P50]), "exec_p99": float(words[W.EXEC_P99]),
             })
         return rows
 

@@ -96,6 +96,13 @@ class Status(enum.IntEnum):
     RELEASE = 7  # the release time of the last cycle, clock seconds: its outputs' write time
     ERRORS = 8
     USED = 9  # words in use: only these travel with each cycle's outputs
+    # Written by the executive straight into the table (one writer, aligned words), every
+    # RECENT cycles, never with the outputs: what `pbo status` shows of the recent cycles.
+    MISSED = 10  # releases skipped after overruns
+    JITTER_P50 = 11  # over the last RECENT cycles, seconds
+    JITTER_P99 = 12
+    EXEC_P50 = 13
+    EXEC_P99 = 14
     # Lock acquisitions (2 per cycle) and bytes moved (cycles x the task's bytes per cycle) are
     # exact functions of CYCLES: the bus report derives them instead of counting every cycle.
 

@@ -260,15 +260,15 @@ def _status_table(supervisor: Any) -> Table:
 def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
     table = Table(title=f"run summary: {subsystem.name} · {result.configuration} · {result.duration:.2f} s "
                         f"(stopped by {result.stopped_by})", title_justify="left")
-    for column in ("task", "rtpu", "state", "cycles", "rate Hz", "overruns", "jitter p50 µs", "jitter p99 µs",
-                   "exec p50 µs", "exec p99 µs"):
+    for column in ("task", "rtpu", "state", "cycles", "rate Hz", "overruns", "missed", "jitter p50 µs", "jitter p99 µs",
+                   "jitter max µs", "exec p50 µs", "exec p99 µs"):
         table.add_column(column, justify="left" if column in ("task", "rtpu", "state") else "right")
     for name, t in result.tasks.items():
         if not t.get("cycles") and t.get("state") != "ERROR":
             continue
         rate = t["cycles"] / result.duration if result.duration else 0.0
-        table.add_row(name, t["rtpu"], t["state"], str(t["cycles"]), f"{rate:.0f}", str(t["overruns"]),
-                      f"{t['jitter_p50'] * 1e6:.0f}", f"{t['jitter_p99'] * 1e6:.0f}",
+        table.add_row(name, t["rtpu"], t["state"], str(t["cycles"]), f"{rate:.0f}", str(t["overruns"]), str(t["missed"]),
+                      f"{t['jitter_p50'] * 1e6:.0f}", f"{t['jitter_p99'] * 1e6:.0f}", f"{t['jitter_max'] * 1e6:.0f}",
                       f"{t['exec_p50'] * 1e6:.0f}", f"{t['exec_p99'] * 1e6:.0f}")
     console.print(table)
     values = Table(title="final values", title_justify="left")

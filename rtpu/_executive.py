@@ -30,6 +30,7 @@ from pbo_runtime._table import Header, TaskState
 from pbo_runtime._table import Status as W
 
 RING = 1 << 16  # samples kept per task for percentiles (65 s at 1 kHz)
+RECENT = 1 << 10  # every RECENT cycles, the last RECENT samples' percentiles go to the table for pbo status
 EVENTS_QUEUED = 16  # events an aperiodic task holds while it waits out its min inter-arrival time
 SWITCH_WINDOW_PERIODS = 3  # a stale read this close after a switch is counted against the switch
 AGE_TOLERANCE = 1e-7  # seconds: an input exactly one producer period old is fresh, whatever the rounding
@@ -56,7 +57,7 @@ class Scheduled:
                  "samples", "jitter_max", "exec_max", "status", "aperiodic", "events", "dropped_events",
                  "last_release", "stale_reads", "stale_at_switch", "input_periods", "write_times", "stable_cycles",
                  "in_stable", "first_cycle_of_plan", "last_stale", "expected_writers", "input_writers",
-                 "lost_to_switch", "last_lost", "window_lost", "window_stale")
+                 "lost_to_switch", "last_lost", "window_lost", "window_stale", "shared_status")
 
     def __init__(self, task: Task) -> None:
         self.task = task
@@ -76,6 +77,7 @@ class Scheduled:
         self.jitter_max = 0.0
         self.exec_max = 0.0
         self.status = task.status
+        self.shared_status = task.local.table.status[task.index]  # the table's own words, for what no cycle carries
         self.events: collections.deque[Any] = collections.deque(maxlen=EVENTS_QUEUED)
         self.dropped_events = 0
         self.stale_reads = 0
@@ -261,6 +263,8 @@ class Executive:
         s.jitter[k] = jitter
         s.exec_time[k] = took
         s.samples += 1
+        if not s.samples & (RECENT - 1):
+            self._publish_recent(s)
         status[W.EXEC_LAST] = took
         if took > s.exec_max:
             s.exec_max = took
@@ -290,6 +294,19 @@ class Executive:
         if result != Status.CONTINUE:
             self._leave_on(s)
             self._report_state(task)
+
+    @staticmethod
+    def _publish_recent(s: Scheduled) -> None:
+        """Percentiles of the last RECENT cycles into the table, once per RECENT cycles (~1 s at 1 kHz)."""
+        start = (s.samples - RECENT) & (RING - 1)
+        jitter = np.partition(s.jitter[start:start + RECENT], (RECENT // 2, RECENT * 99 // 100))
+        exec_time = np.partition(s.exec_time[start:start + RECENT], (RECENT // 2, RECENT * 99 // 100))
+        shared = s.shared_status
+        shared[W.JITTER_P50] = jitter[RECENT // 2]
+        shared[W.JITTER_P99] = jitter[RECENT * 99 // 100]
+        shared[W.EXEC_P50] = exec_time[RECENT // 2]
+        shared[W.EXEC_P99] = exec_time[RECENT * 99 // 100]
+        shared[W.MISSED] = s.missed
 
     def _check_freshness(self, s: Scheduled, release: float) -> None:
         """Classify each input the critical task just read (no allocation on the usual path).

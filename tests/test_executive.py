@@ -202,3 +202,19 @@ def test_an_event_for_a_periodic_task_is_refused(setup):
     ex.run_once()
     ex.run_once()
     assert ("refused", "a", "event: the task is periodic") in events
+
+
+def test_the_percentiles_of_the_last_1024_cycles_reach_the_table_for_pbo_status(setup):
+    from pbo_runtime._table import Status as W
+
+    build, clock, _ = setup
+    ex = build([("a", Ticker, 0.001, False)], [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0])])
+    Ticker.cost = 0.0002  # each cycle takes 0.2 ms of the manual clock
+    try:
+        run_until(ex, clock, 1.0235)  # releases 0 .. 1023 ms: exactly 1,024 cycles
+    finally:
+        Ticker.cost = 0.0
+    shared = ex.tasks["a"].shared_status
+    assert ex.tasks["a"].samples == 1024
+    assert shared[W.EXEC_P50] == pytest.approx(0.0002) and shared[W.EXEC_P99] == pytest.approx(0.0002)
+    assert shared[W.JITTER_P50] == pytest.approx(0.0, abs=1e-12) and shared[W.MISSED] == 0

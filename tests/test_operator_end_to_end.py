@@ -20,6 +20,7 @@ DRILL = REPO / "configs" / "fault_drill.yaml"
 
 
 def pbo(*arguments: str) -> subprocess.CompletedProcess:
+    """A command from another terminal; it names its subsystem, as other runs may be alive on the machine."""
     return subprocess.run([*PBO, *arguments], capture_output=True, text=True, timeout=60)
 
 
@@ -31,20 +32,20 @@ def test_a_task_that_raises_shows_as_error_and_recovers_after_clear(tmp_path):
         for line in run.stdout:
             if "task 'glitch' on rtpu0 is in ERROR" in line:
                 break
-        assert "injected fault after 200 cycles" in line
+        assert "injected fault after 200 cycles" in line, run.stderr.read() if run.poll() is not None else "alive"
         status = pbo("status", "--subsystem", "drill")
         assert status.returncode == 0, status.stderr
         assert "glitch" in status.stdout and "ERROR" in status.stdout
-        refused = pbo("on", "glitch")
+        refused = pbo("on", "glitch", "--subsystem", "drill")
         assert refused.returncode == 2 and "only an OFF task can be turned on" in refused.stderr
-        cleared = pbo("clear", "glitch")
+        cleared = pbo("clear", "glitch", "--subsystem", "drill")
         assert cleared.returncode == 0, cleared.stderr
         assert "task 'glitch' is OFF" in cleared.stdout
-        resumed = pbo("on", "glitch")
+        resumed = pbo("on", "glitch", "--subsystem", "drill")
         assert "task 'glitch' is ON" in resumed.stdout, resumed.stderr
-        values = pbo("svar", "q_m", "tau_u")
+        values = pbo("svar", "q_m", "tau_u", "--subsystem", "drill")
         assert values.returncode == 0 and "q_m" in values.stdout and "robot" in values.stdout
-        stopped = pbo("stop")
+        stopped = pbo("stop", "--subsystem", "drill")
         assert stopped.returncode == 0, stopped.stderr
         out, err = run.communicate(timeout=60)
     finally:
@@ -69,17 +70,17 @@ def test_switch_and_job_commands_reconfigure_a_running_subsystem(tmp_path):
         for line in run.stdout:
             if "is on" in line:
                 break
-        switched = pbo("switch", "pd")
+        switched = pbo("switch", "pd", "--subsystem", "puma_switch")
         assert switched.returncode == 0 and "switched 'pid' -> 'pd'" in switched.stdout, switched.stderr
-        unknown = pbo("switch", "nope")
+        unknown = pbo("switch", "nope", "--subsystem", "puma_switch")
         assert unknown.returncode == 2 and "no configuration 'nope' (configurations: pid, pd)" in unknown.stderr
-        job = pbo("job", "reach", "0.1", "-0.4", "0.4", "0", "0.3", "0.1")
+        job = pbo("job", "reach", "0.1", "-0.4", "0.4", "0", "0.3", "0.1", "--subsystem", "puma_switch")
         assert job.returncode == 0 and "job 'reach' runs in 'pid'" in job.stdout, job.stderr
-        short = pbo("job", "reach", "0.1")
+        short = pbo("job", "reach", "0.1", "--subsystem", "puma_switch")
         assert short.returncode == 2 and "takes 6 values" in short.stderr
-        status = pbo("status")
+        status = pbo("status", "--subsystem", "puma_switch")
         assert "pid" in status.stdout and "reach" in status.stdout
-        assert pbo("stop").returncode == 0
+        assert pbo("stop", "--subsystem", "puma_switch").returncode == 0
         run.communicate(timeout=60)
     finally:
         if run.poll() is None:

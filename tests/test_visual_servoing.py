@@ -415,3 +415,28 @@ def test_switching_between_ik_and_dls_while_servoing_completes(tmp_path):
     assert [s["to"] for s in report["switches"]] == ["dls", "ik", "dls", "ik"]
     assert report["failure"] == ""
     assert_nothing_left(report)
+
+
+@needs_entry_points
+@pytest.mark.multiprocess
+def test_through_the_singularity_dls_bounds_the_joint_speeds_where_plain_ik_does_not(tmp_path):
+    """TR Figures 12/13 in real processes: each controller alone, with the speed cap lifted, over
+    the same 4 s lap (the wrist singularity is 1.6-2.2 s in). Deterministic on the simulated clock."""
+    from tests.test_end_to_end import PBO
+
+    uncapped = tmp_path / "uncapped.yaml"
+    uncapped.write_text(CONFIG.read_text().replace("max_joint_speed: 3}", "max_joint_speed: 1000}"))
+    peak = {}
+    for controller in ("ik", "dls"):
+        done = subprocess.run([*PBO, "run", str(uncapped), "--config", controller, "--clock", "sim", "--duration", "4",
+                               "--no-live", "--out", str(tmp_path / controller)], cwd=tmp_path, capture_output=True,
+                              text=True, timeout=240)
+        assert done.returncode == 0, done.stdout + done.stderr
+        log = np.load(tmp_path / controller / "visual_servoing.npz")
+        speeds = np.abs(log["qd_m"]).max(axis=1)
+        peak[controller] = (speeds.max(), log["time"][speeds.argmax()])
+    ik_speed, ik_when = peak["ik"]
+    dls_speed, _ = peak["dls"]
+    assert 1.6 <= ik_when <= 2.2, f"plain IK peaks at {ik_when:.2f} s, not at the singularity"
+    assert dls_speed < 2.5
+    assert ik_speed > 2 * dls_speed, f"IK peak {ik_speed:.2f} rad/s vs DLS {dls_speed:.2f} rad/s"

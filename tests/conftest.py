@@ -48,3 +48,27 @@ def make_table():
     yield make
     for table in made:
         table.close()
+
+
+@pytest.fixture
+def no_leftover_ipc():
+    """Fail the test if it leaves behind a segment, semaphore or queue named by this test process.
+
+    Only names with this pytest process's pid count (`unique_name`), so objects of other test
+    runs on the machine do not. Leftovers are removed before the failure is reported.
+    """
+    mine = f"pbo.test.{os.getpid()}-"
+
+    def ours() -> set[Path]:
+        found: set[Path] = set()
+        for folder in (Path("/dev/shm"), Path("/dev/mqueue")):
+            if folder.is_dir():
+                found |= {folder / entry for entry in os.listdir(folder) if mine in entry}
+        return found
+
+    before = ours()
+    yield
+    left = ours() - before
+    for path in left:
+        path.unlink(missing_ok=True)
+    assert not left, f"left behind: {sorted(map(str, left))}"

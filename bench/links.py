@@ -1,0 +1,383 @@
+"""Write and read latency of a periodic link between two processes: the triple buffer against its alternatives.
+
+For each payload (48 B, 4 KiB, 1 MiB) and each contender, a sender process writes items and a
+reader process reads them, each timing every call (`perf_counter_ns`). By default both are
+periodic at unrelated rates (the reader's period is 0.65 of the sender's, as in TR §5.2 where
+subsystems run at rates that are not multiples of each other), spinning to their next release;
+`--back-to-back` drops the periods, so each side calls as fast as it can (the worst contention).
+
+- triple buffer: `pbo_runtime._triple_buffer.TripleBuffer` (`write`, `read(out)`): the lock is
+  held for the index swap only; neither side waits for the other's copy (TR §5.2);
+- locked buffer: one shm buffer and one semaphore held during each side's copy (a double buffer
+  as usually written): each side waits for the other's copy;
+- posix_ipc queue: each item is one message (payloads above fs.mqueue.msgsize_max go in chunks
+  of that size), the sender blocks while the queue is full, and a read drains what is waiting
+  (at most the queue's capacity) and keeps the newest complete item, as a state link needs.
+
+Ratios are each figure over the triple buffer's for the same payload and side, measured in the
+same run. The Zenoh link is not measured yet. Python call overhead dominates small payloads.
+
+    python bench/links.py [--quick] [--items N] [--rounds R] [--back-to-back]
+"""
+
+from __future__ import annotations
+
+import argparse
+import mmap
+import multiprocessing
+import os
+import platform
+import signal
+import struct
+import sys
+import time
+
+import numpy as np
+import posix_ipc
+
+from pbo_runtime import _messages
+from pbo_runtime._triple_buffer import LinkLayout, TripleBuffer
+
+PAYLOADS = (48, 4096, 1 << 20)
+ITEMS = {48: 50_000, 4096: 50_000, 1 << 20: 2_000}
+QUICK_ITEMS = {48: 2_000, 4096: 2_000, 1 << 20: 100}
+SENDER_PERIOD_NS = {48: 20_000, 4096: 20_000, 1 << 20: 300_000}  # a few times the slowest contender's usual write
+ROUNDS = 5  # the contenders take turns this many times (--quick: once)
+READER_PERIOD_SHARE = 0.65  # reader period / sender period: not a multiple, so the two drift through every phase
+MECHANISMS = ("triple buffer", "locked buffer", "posix_ipc queue")
+READS_PER_WRITE_CAP = 50  # the reader keeps at most this many samples per item written (and reads on)
+FORK = multiprocessing.get_context("fork")
+_CHUNK_HEADER = struct.Struct("<qq")  # item counter, chunk index
+
+
+def _name(part: str) -> str:
+    return f"/pbo.bench.{os.getpid()}-{os.urandom(3).hex()}.{part}"
+
+
+def _label(nbytes: int) -> str:
+    return f"{nbytes >> 20} MiB" if nbytes >= 1 << 20 else f"{nbytes >> 10} KiB" if nbytes >= 1024 else f"{nbytes} B"
+
+
+# --- the contenders: each has a creator (owner of the names) and two ends that attach by name ----
+
+
+WARM_WRITES = 3  # one per slot
+
+
+class _TripleEnd:
+    def __init__(self, name: str, nbytes: int, role: str) -> None:
+        self._link = TripleBuffer.attach(name, LinkLayout.raw(nbytes), role)
+        self.write, self.read = self._link.write, self._link.read  # bound once: no wrapper in the timed call
+        self._role = role
+
+    def warm(self, out: np.ndarray) -> None:
+        if self._role == "sender":
+            for _ in range(WARM_WRITES):
+                self._link.write(out)
+        else:
+            for slot in self._link._payloads:  # fault in all three slots' pages before timing
+                np.copyto(out, slot)
+
+    def items(self) -> int:
+        stats = self._link.statistics()
+        return stats.writes - WARM_WRITES if self._role == "sender" else stats.new
+
+    def close(self) -> None:
+        self.write = self.read = None  # type: ignore[assignment]
+        self._link.close()
+
+
+class _Triple:
+    def __init__(self, nbytes: int) -> None:
+        self.name = _name("link")
+        self._link = TripleBuffer.create(self.name, LinkLayout.raw(nbytes))
+
+    def end(self, nbytes: int, role: str) -> _TripleEnd:
+        return _TripleEnd(self.name, nbytes, role)
+
+    def close(self) -> None:
+        self._link.close()
+
+
+class _LockedEnd:
+    """One end of the locked buffer: the copy itself happens under the semaphore."""
+
+    def __init__(self, name: str, nbytes: int) -> None:
+        self._mapping = _attach(name)
+        self._counter = np.frombuffer(self._mapping, dtype=np.int64, count=1)
+        self._data = np.frombuffer(self._mapping, dtype=np.uint8, count=nbytes, offset=64)
+        self._lock = posix_ipc.Semaphore(name + ".lock")
+        self._last = 0
+        self._items = 0
+
+    def write(self, value: np.ndarray) -> None:
+        self._lock.acquire()
+        try:
+            np.copyto(self._data, value)
+            self._counter[0] += 1
+        finally:
+            self._lock.release()
+        self._items += 1
+
+    def read(self, out: np.ndarray) -> None:
+        self._lock.acquire()
+        try:
+            np.copyto(out, self._data)
+            counter = int(self._counter[0])
+        finally:
+            self._lock.release()
+        if counter != self._last:
+            self._last = counter
+            self._items += 1
+
+    def warm(self, out: np.ndarray) -> None:
+        np.copyto(out, self._data)  # both ends fault in the buffer's pages before timing
+
+    def items(self) -> int:
+        return self._items
+
+    def close(self) -> None:
+        self._counter = self._data = None  # type: ignore[assignment]
+        self._mapping.close()
+        self._lock.close()
+
+
+class _Locked:
+    def __init__(self, nbytes: int) -> None:
+        self.name = _name("locked")
+        self._shm = posix_ipc.SharedMemory(self.name, posix_ipc.O_CREX, mode=0o600, size=64 + nbytes)
+        self._shm.close_fd()
+        self._lock = posix_ipc.Semaphore(self.name + ".lock", posix_ipc.O_CREX, mode=0o600, initial_value=1)
+
+    def end(self, nbytes: int, role: str) -> _LockedEnd:
+        return _LockedEnd(self.name, nbytes)
+
+    def close(self) -> None:
+        self._shm.unlink()
+        self._lock.unlink()
+        self._lock.close()
+
+
+class _QueueEnd:
+    def __init__(self, name: str, nbytes: int) -> None:
+        self._queue = posix_ipc.MessageQueue(name)
+        self._chunk = self._queue.max_message_size - _CHUNK_HEADER.size
+        self._chunks = -(-nbytes // self._chunk)
+        self._staging = np.zeros(nbytes, dtype=np.uint8)
+        self._items = 0
+
+    def write(self, value: np.ndarray) -> None:
+        self._items += 1
+        raw = value.data
+        for index in range(self._chunks):
+            piece = raw[index * self._chunk : (index + 1) * self._chunk]
+            self._queue.send(_CHUNK_HEADER.pack(self._items, index) + piece, timeout=None)  # waits while full
+
+    def read(self, out: np.ndarray) -> None:
+        staging = self._staging
+        # What was waiting, not what keeps arriving. Asking first: posix_ipc's polling receive
+        # costs tens of µs on an empty queue, and with one reader each waiting message is there.
+        for _ in range(self._queue.current_messages):
+            message, _priority = self._queue.receive()
+            _counter, index = _CHUNK_HEADER.unpack_from(message)
+            start = index * self._chunk
+            data = np.frombuffer(message, dtype=np.uint8, offset=_CHUNK_HEADER.size)
+            if self._chunks == 1:
+                np.copyto(out, data)
+                self._items += 1
+                continue
+            staging[start : start + data.size] = data
+            if index == self._chunks - 1:
+                np.copyto(out, staging)  # a complete item only: out is never half of one
+                self._items += 1
+
+    def warm(self, out: np.ndarray) -> None:
+        pass  # a message is new memory each time: nothing to fault in ahead
+
+    def items(self) -> int:
+        return self._items
+
+    def close(self) -> None:
+        self._queue.close()
+
+
+class _Queue:
+    def __init__(self, nbytes: int) -> None:
+        self.name = _name("queue")
+        size = min(nbytes + _CHUNK_HEADER.size, _messages.MESSAGE_BYTES)
+        self._queue = posix_ipc.MessageQueue(
+            self.name, posix_ipc.O_CREX, mode=0o600, max_messages=_messages.MAX_MESSAGES, max_message_size=size
+        )
+
+    def end(self, nbytes: int, role: str) -> _QueueEnd:
+        return _QueueEnd(self.name, nbytes)
+
+    def close(self) -> None:
+        self._queue.close()
+        self._queue.unlink()
+
+
+CONTENDERS = {"triple buffer": _Triple, "locked buffer": _Locked, "posix_ipc queue": _Queue}
+
+
+def _attach(name: str) -> mmap.mmap:
+    shm = posix_ipc.SharedMemory(name)
+    try:
+        return mmap.mmap(shm.fd, shm.size)
+    finally:
+        shm.close_fd()
+
+
+# --- the two processes ------------------------------------------------------------------------
+
+
+def _sender(contender, nbytes: int, items: int, period: int, start, finished, results) -> None:
+    end = contender.end(nbytes, "sender")
+    value = np.ones(nbytes, dtype=np.uint8)
+    samples = np.empty(items, dtype=np.int64)
+    clock, write = time.perf_counter_ns, end.write
+    try:
+        end.warm(value)
+        start.wait()  # the reader warms up after the sender
+        start.wait()
+        release = clock()
+        for i in range(items):
+            while clock() < release:
+                pass
+            t0 = clock()
+            write(value)
+            samples[i] = clock() - t0
+            release = max(release + period, t0)  # an overrun starts the next period late, with no burst
+    finally:
+        finished.value = 1
+    results.send((samples, end.items()))
+    end.close()
+
+
+def _reader(contender, nbytes: int, items: int, period: int, start, finished, results) -> None:
+    end = contender.end(nbytes, "reader")
+    out = np.ones(nbytes, dtype=np.uint8)
+    samples = np.empty(items * READS_PER_WRITE_CAP, dtype=np.int64)
+    clock, read = time.perf_counter_ns, end.read
+    start.wait()
+    end.warm(out)
+    start.wait()
+    count = 0
+    release = clock()
+    while count == 0 or not finished.value:  # until the sender is done: a queue's sender may be waiting for us
+        while clock() < release:
+            pass
+        t0 = clock()
+        read(out)
+        if count < samples.size:
+            samples[count] = clock() - t0
+            count += 1
+        release = max(release + period, t0)
+    results.send((samples[:count], end.items()))
+    end.close()
+
+
+def measure(mechanism: str, nbytes: int, items: int, periods: tuple[int, int]) -> dict[str, tuple[np.ndarray, int]]:
+    """{side: (latencies in ns, items written or read)} of one contender, two processes; periods in ns (sender, reader)."""
+    contender = CONTENDERS[mechanism](nbytes)
+    start, finished = FORK.Barrier(2), FORK.RawValue("b", 0)
+    pipes = {side: FORK.Pipe(duplex=False) for side in ("write", "read")}
+    children = {
+        "write": FORK.Process(target=_sender, args=(contender, nbytes, items, periods[0], start, finished, pipes["write"][1])),
+        "read": FORK.Process(target=_reader, args=(contender, nbytes, items, periods[1], start, finished, pipes["read"][1])),
+    }
+    try:
+        for child in children.values():
+            child.start()
+        results = {side: pipes[side][0].recv() for side in ("write", "read")}
+    finally:
+        for child in children.values():
+            child.join(60)
+            if child.is_alive():
+                child.terminate()
+        contender.close()
+    return results
+
+
+def run(quick: bool = False, items: int | None = None, back_to_back: bool = False, rounds: int | None = None) -> list[dict]:
+    """One row per payload, contender and side: latencies in µs and ratios to the triple buffer.
+
+    The items are split over `rounds`, and the contenders take turns round by round (in a
+    rotating order), so that what else the machine does falls on all of them alike.
+    """
+    counts = QUICK_ITEMS if quick else ITEMS
+    rounds = rounds or (1 if quick else ROUNDS)
+    rows: list[dict] = []
+    for nbytes in PAYLOADS:
+        per_round = -(-(items or counts[nbytes]) // rounds)
+        sender_period = 0 if back_to_back else SENDER_PERIOD_NS[nbytes]
+        periods = (sender_period, int(sender_period * READER_PERIOD_SHARE))
+        pooled: dict[tuple[str, str], list[tuple[np.ndarray, int]]] = {}
+        for turn in range(rounds):
+            for mechanism in MECHANISMS[turn % 3 :] + MECHANISMS[: turn % 3]:
+                for side, result in measure(mechanism, nbytes, per_round, periods).items():
+                    pooled.setdefault((mechanism, side), []).append(result)
+        figures = {}
+        for key, results in pooled.items():
+            samples = np.concatenate([r[0] for r in results])
+            p50, p99 = np.percentile(samples, [50, 99]) / 1000
+            figures[key] = (samples.size, sum(r[1] for r in results), p50, p99, samples.max() / 1000)
+        for mechanism in MECHANISMS:
+            for side in ("write", "read"):
+                operations, moved, p50, p99, worst = figures[mechanism, side]
+                base = figures["triple buffer", side]
+                rows.append({
+                    "payload_bytes": nbytes,
+                    "payload": _label(nbytes),
+                    "sender_period_us": periods[0] / 1000,
+                    "reader_period_us": periods[1] / 1000,
+                    "mechanism": mechanism,
+                    "side": side,
+                    "operations": int(operations),
+                    "items": int(moved),
+                    "p50_us": float(p50),
+                    "p99_us": float(p99),
+                    "max_us": float(worst),
+                    "p50_ratio": float(p50 / base[2]),
+                    "p99_ratio": float(p99 / base[3]),
+                    "max_ratio": float(worst / base[4]),
+                })
+    return rows
+
+
+def table(rows: list[dict]) -> str:
+    headers = ("payload", "period µs", "mechanism", "side", "ops", "items", "p50 µs", "p99 µs", "max µs", "p50 x", "p99 x", "max x")
+    lines = [
+        f"Link latency between two processes ({os.cpu_count()} CPUs, {platform.python_implementation()} "
+        f"{platform.python_version()}); x = ratio to the triple buffer, same payload and side",
+        "period: of the side's calls (0: back to back); items: written by the sender, newest items the reader got",
+    ]
+    body = [
+        (r["payload"], f"{r['sender_period_us' if r['side'] == 'write' else 'reader_period_us']:g}", r["mechanism"], r["side"], str(r["operations"]), str(r["items"]), f"{r['p50_us']:.2f}",
+         f"{r['p99_us']:.2f}", f"{r['max_us']:.1f}", f"{r['p50_ratio']:.2f}", f"{r['p99_ratio']:.2f}", f"{r['max_ratio']:.2f}")
+        for r in rows
+    ]
+    widths = [max(len(h), *(len(b[i]) for b in body)) for i, h in enumerate(headers)]
+    fmt = "  ".join(f"{{:{'<' if i in (0, 2, 3) else '>'}{w}}}" for i, w in enumerate(widths))
+    lines.append(fmt.format(*headers))
+    lines.append(fmt.format(*("-" * w for w in widths)))
+    lines += [fmt.format(*b) for b in body]
+    lines.append("zenoh: not measured yet (issue 7, item 5)")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="small counts: a check that it runs, not a measurement")
+    parser.add_argument("--items", type=int, default=None, help="items per payload (default: 50,000, or 2,000 for 1 MiB)")
+    parser.add_argument("--back-to-back", action="store_true", help="no periods: each side calls as fast as it can")
+    parser.add_argument("--rounds", type=int, default=None, help=f"turns the contenders take (default: {ROUNDS}, --quick: 1)")
+    args = parser.parse_args(argv)
+    rows = run(args.quick, args.items, args.back_to_back, args.rounds)
+    print(table(rows))
+    return rows
+
+
+if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # so that `finally` removes the links' names
+    main()

@@ -41,6 +41,19 @@ class TaskContext:
     event: Any = None
     opened: list[Any] = field(default_factory=list)
     out_dir: str = ""  # `pbo run --out DIR`: where the run's files go ("" : paths stay as given)
+    links: dict[str, dict[str, Any]] = field(default_factory=dict)  # the application's links, by name
+
+    def open_link(self, name: str, like: Any, role: str) -> Any:
+        """One end of an application's link, carrying items shaped like the array `like`."""
+        from pbo_runtime._links import open_link_end
+
+        if name not in self.links:
+            provided = ", ".join(sorted(self.links)) or "none: this subsystem runs alone"
+            raise ModuleError(f"task '{self.task_name}' opens link '{name}', but the application provides no such link "
+                              f"(links: {provided}); run the application file that declares it: pbo run APP.yaml")
+        end = open_link_end(name, self.links[name], like, role)
+        self.opened.append(end)
+        return end
 
     def open_device(self, name: str) -> Any:
         if name not in self.resources:
@@ -65,6 +78,7 @@ class Task:
         devices: dict[str, DeviceSpec] | None = None,
         opener: DeviceOpener | None = None,
         out_dir: str = "",
+        links: dict[str, dict[str, Any]] | None = None,
     ) -> None:
         self.spec = spec
         self.name = spec.name
@@ -74,7 +88,7 @@ class Task:
         self.cycles = 0
         self.errors = 0
         self.context = TaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}), opener,
-                                   out_dir=out_dir)
+                                   out_dir=out_dir, links=dict(links or {}))
         self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
         self.status = self.local.status
         self.status[StatusWord.CYCLES] = 0

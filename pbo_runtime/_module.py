@@ -132,6 +132,13 @@ class PortBasedObject:
         given = Path(path)
         return Path(out_dir) / given.name if out_dir else given
 
+    def open_link(self, name: str, like: np.ndarray, role: str) -> Any:
+        """Open one end ('sender' or 'reader') of the application's link `name` (call it in `init`).
+
+        Items are shaped like `like` (a bound port array); the link closes when the task is killed.
+        """
+        return self._pbo_context.open_link(name, like, role)
+
     def fault(self, message: str) -> Status:
         """Return this from `cycle` to report an error with its reason: `return self.fault("...")`."""
         self._pbo_fault = message

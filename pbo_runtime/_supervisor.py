@@ -133,12 +133,14 @@ class Supervisor:
         fifo: bool = False,
         clock: str = "real",
         out_dir: str | None = None,
+        links: dict[str, dict[str, Any]] | None = None,
     ) -> None:
         self.subsystem = subsystem
         if clock not in ("real", "sim"):
             raise RunFailure(f"unknown clock '{clock}': use real or sim")
         self.simulated = clock == "sim"
         self.out_dir = os.path.abspath(out_dir) if out_dir else ""
+        self.links = dict(links or {})  # an application's links, handed to every RTPU (see _links)
         self.application = application
         if application is not None and application not in subsystem.applications:
             raise RunFailure(f"no application '{application}' in {subsystem.file} "
@@ -280,7 +282,8 @@ class Supervisor:
             self._launch(rtpu.name, ["-m", "rtpu", sub.file, "--run-id", run_id, "--rtpu", rtpu.name,
                                      "--epoch", repr(epoch + self.stagger * rtpu.index), *(["--fifo"] if self.fifo else []),
                                      *clock, *(["--tick", repr(self.tick)] if self.simulated else []),
-                                     *(["--out", self.out_dir] if self.out_dir else [])],
+                                     *(["--out", self.out_dir] if self.out_dir else []),
+                                     *(["--links", json.dumps(self.links)] if self.links else [])],
                          hosted)
         self._await_ready({r.name for r in sub.rtpus})
         members = sub.configurations[self.configuration].tasks

@@ -415,6 +415,16 @@ class TripleBuffer:
         self._new += 1
         return Freshness.NEW
 
+    @property
+    def lost(self) -> int:
+        """Items published that this reader never read (a cheap read of one count, for a cycle)."""
+        return self._lost
+
+    @property
+    def reused(self) -> int:
+        """Reads that got the same item as the read before."""
+        return self._reused
+
     def statistics(self) -> LinkStatistics:
         return LinkStatistics(
             writes=self._writes,

@@ -74,6 +74,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="sim: simulated time in lockstep ticks, as fast as the machine allows; the run replays bit for bit")
     run.add_argument("--out", type=Path, metavar="DIR",
                      help="write the run's files (data logs) and its report (report.json) into DIR")
+    run.add_argument("--links", help=argparse.SUPPRESS)  # set by an application's runner: JSON, see _links
     run.add_argument("--alternate", metavar="A,B", help="switch test: alternate between these configurations")
     run.add_argument("--switches", type=int, default=100, help="with --alternate: how many switches (default 100)")
     run.add_argument("--interval", type=float, default=0.05, help="with --alternate: seconds between switches (default 0.05)")
@@ -141,8 +142,11 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _check(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime._application import is_application_file
     from pbo_runtime._config_loader import check_file, format_diagnostics
 
+    if is_application_file(args.file):
+        return _check_application(args, console, errors)
     result = check_file(args.file)
     if args.format == "json":
         console.print_json(json.dumps(_check_json(result)))
@@ -151,6 +155,29 @@ def _check(args: argparse.Namespace, console: Console, errors: Console) -> int:
         if result.subsystem is not None and not result.errors:
             text = (text + "\n" if result.warnings else "") + _verdict(result.subsystem)
         (errors if result.errors else console).print(text, markup=False)
+    return EXIT_CONFIG if result.errors else EXIT_OK
+
+
+def _check_application(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    """An application file: each subsystem's file in full, then its links against their tasks."""
+    from pbo_runtime._application import check_application
+    from pbo_runtime._config_loader import CheckResult, format_diagnostics
+
+    result = check_application(args.file)
+    if args.format == "json":
+        console.print_json(json.dumps({"file": args.file, "ok": result.ok,
+                                       "errors": [_diagnostic_json(e) for e in result.errors],
+                                       "warnings": [_diagnostic_json(w) for w in result.warnings]}))
+        return EXIT_CONFIG if result.errors else EXIT_OK
+    text = format_diagnostics(CheckResult(None, result.errors, result.warnings))
+    if result.application is not None:
+        app = result.application
+        lines = [f"{args.file}: ok: application '{app.name}', {len(app.subsystems)} subsystems, {len(app.links)} link(s)"]
+        lines += [f"  subsystem {key}: {sub.file} ('{sub.name}', {len(sub.tasks)} tasks)" for key, sub in app.subsystems.items()]
+        lines += [f"  link {link.name}: {link.sender[0]}.{link.sender[1]} -> {link.receiver[0]}.{link.receiver[1]} "
+                  f"({link.dtype} {list(link.shape)}, {link.transport})" for link in app.links.values()]
+        text = (text + "\n" if result.warnings else "") + "\n".join(lines)
+    (errors if result.errors else console).print(text, markup=False)
     return EXIT_CONFIG if result.errors else EXIT_OK
 
 
@@ -177,13 +204,14 @@ def _verdict(subsystem: Any) -> str:
     return "\n".join(lines)
 
 
-def _check_json(result: Any) -> dict[str, Any]:
-    def diagnostic(d: Any) -> dict[str, Any]:
-        return {"file": d.file, "line": d.line, "column": d.column, "severity": d.severity, "code": d.code,
-                "message": d.message, "hint": d.hint}
+def _diagnostic_json(d: Any) -> dict[str, Any]:
+    return {"file": d.file, "line": d.line, "column": d.column, "severity": d.severity, "code": d.code,
+            "message": d.message, "hint": d.hint}
 
-    out: dict[str, Any] = {"ok": not result.errors, "errors": [diagnostic(e) for e in result.errors],
-                           "warnings": [diagnostic(w) for w in result.warnings]}
+
+def _check_json(result: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {"ok": not result.errors, "errors": [_diagnostic_json(e) for e in result.errors],
+                           "warnings": [_diagnostic_json(w) for w in result.warnings]}
     sub = result.subsystem
     if sub is not None and not result.errors:
         out["subsystem"] = sub.name
@@ -203,9 +231,12 @@ def _check_json(result: Any) -> dict[str, Any]:
 
 
 def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime._application import is_application_file
     from pbo_runtime._config_loader import load_subsystem
     from pbo_runtime._supervisor import Supervisor
 
+    if is_application_file(args.file):
+        return _run_application(args, console, errors)
     subsystem = load_subsystem(args.file)
     live = console.is_terminal and not args.no_live
     duration = args.duration if args.duration > 0 else None
@@ -218,7 +249,8 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
         alternate = (names, args.switches, args.interval)
         args.config = args.config or names[0]
     options = {"application": args.app, "static": args.static, "alternate": alternate, "fifo": args.fifo,
-               "clock": args.clock, "out_dir": str(args.out) if args.out else None}
+               "clock": args.clock, "out_dir": str(args.out) if args.out else None,
+               "links": json.loads(args.links) if args.links else None}
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
     say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
@@ -241,6 +273,28 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
         errors.print(f"error: {result.failure}", markup=False)
         return EXIT_RUN
     return EXIT_OK
+
+
+def _run_application(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    """Every subsystem of an application file at once, joined by its links (see _application_runner)."""
+    from pbo_runtime._application import check_application
+    from pbo_runtime._application_runner import ApplicationRunner
+    from pbo_runtime._config_loader import CheckResult, format_diagnostics
+
+    result = check_application(args.file)
+    if result.application is None:
+        errors.print(format_diagnostics(CheckResult(None, result.errors, result.warnings)), markup=False)
+        return EXIT_CONFIG
+    app = result.application
+    say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
+    duration = args.duration if args.duration > 0 else None
+    say(f"starting application '{app.name}': {', '.join(app.subsystems)}; "
+        + ("Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner"))
+    code = ApplicationRunner(app, duration, say, clock=args.clock, out_dir=args.out).run()
+    if code:
+        errors.print(f"error: application '{app.name}' stopped: a subsystem failed (exit {code}); see its lines above",
+                     markup=False)
+    return code
 
 
 def _status_table(supervisor: Any) -> Table:

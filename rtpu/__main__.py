@@ -8,6 +8,7 @@ until told to stop. A module that raises never takes this process down (see `Tas
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import traceback
 
@@ -36,11 +37,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--clock", choices=("real", "sim"), default="real", help="sim: advance in the supervisor's ticks")
     parser.add_argument("--tick", type=float, default=0.001, help="seconds per tick of the simulated clock")
     parser.add_argument("--out", default="", help="directory the modules write their files into")
+    parser.add_argument("--links", default="{}", help="JSON: the application's links, by name (see _links)")
     args = parser.parse_args(argv)
     if args.parent:
         become_child(args.parent)
 
     subsystem = load_subsystem(args.file)
+    links = json.loads(args.links)
     name = subsystem.name
     events = _messages.Queue(_messages.event_queue_name(name, args.run_id))
     report = lambda kind, *fields: events.try_send(kind, args.rtpu, *fields)  # noqa: E731
@@ -66,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
 
             def make(spec=spec, module_class=module_class) -> Task:
                 return Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device,
-                            out_dir=args.out)
+                            out_dir=args.out, links=links)
 
             executive.add(make(), make)
         if simulated:

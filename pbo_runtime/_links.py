@@ -1,0 +1,43 @@
+"""How a task reaches an application's link: the spec job control hands down, and the end it opens.
+
+The application runner (`_application_runner`) makes every link before the subsystems start and
+passes each subsystem a JSON mapping, link name -> spec, which travels with `pbo run --links` to
+the supervisor and then to each RTPU (`--links`), where `TaskContext.open_link` opens one end:
+
+    {"transport": "shm", "object": "/pbo.<app>.<run id>.link-<name>", "dtype": "float64", "shape": [6]}
+    {"transport": "zenoh", "key": "pbo/<app>/<name>", "endpoint": "tcp/127.0.0.1:<port>", ...}
+
+The payload the task's port carries must be the link's: a mismatch is refused with both sides
+named (the application checker reports it before anything runs; this is the runtime's guard).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from pbo_runtime._errors import ModuleError
+
+TRANSPORTS = ("shm", "zenoh")
+
+
+def open_link_end(name: str, spec: dict[str, Any], like: np.ndarray, role: str) -> Any:
+    """The sender's or reader's end of link `name`, for items shaped like `like`."""
+    from pbo_runtime._triple_buffer import LinkLayout
+
+    expected = (np.dtype(spec["dtype"]), tuple(spec["shape"]))
+    if (like.dtype, like.shape) != expected:
+        raise ModuleError(f"link '{name}' carries {expected[0]} {list(expected[1])}, but the port is {like.dtype} "
+                          f"{list(like.shape)}: link a variable of the link's type and shape")
+    layout = LinkLayout(like.dtype, like.shape)
+    transport = spec.get("transport", "shm")
+    if transport == "shm":
+        from pbo_runtime._triple_buffer import TripleBuffer
+
+        return TripleBuffer.attach(spec["object"], layout, role=role)
+    if transport == "zenoh":
+        from pbo_runtime import _zenoh_link
+
+        return _zenoh_link.open_periodic(spec, layout, role)
+    raise ModuleError(f"link '{name}': unknown transport '{transport}' (transports: {', '.join(TRANSPORTS)})")

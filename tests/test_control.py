@@ -101,7 +101,8 @@ class FakeSupervisor:
                     "job": "move", "application": None, "elapsed": 12.5, "flags": [],
                     "tasks": [
                         {"task": "robot", "index": 0, "rtpu": "rtpu1", "state": "ON", "cycles": 12500, "rate": 1000.0,
-                         "overruns": 0, "jitter_p99": 40e-6, "jitter_max": 90e-6, "exec_last": 12e-6, "error": ""},
+                         "overruns": 0, "missed": 1, "jitter_p50": 5e-6, "jitter_p99": 40e-6, "jitter_max": 90e-6,
+                         "exec_last": 12e-6, "exec_p50": 11e-6, "exec_p99": 20e-6, "error": ""},
                         {"task": "pid", "index": 1, "rtpu": "rtpu0", "state": "ERROR", "cycles": 300, "rate": 0.0,
                          "overruns": 2, "jitter_max": 1.5e-3, "exec_last": 30e-6, "error": "gain matrix is singular"},
                     ]}
@@ -356,7 +357,7 @@ def test_status_prints_tasks_by_rtpu_with_configuration_and_job(live):
     assert text.index("rtpu0") < text.index("rtpu1")  # grouped by RTPU, in order
     robot = next(line for line in text.splitlines() if "robot" in line)
     cells = [cell.strip() for cell in robot.split("│")[1:-1]]
-    assert cells == ["rtpu1", "robot", "ON", "12500", "1000", "40", "90", "12", "0"]
+    assert cells == ["rtpu1", "robot", "ON", "12500", "1000", "5", "40", "90", "11", "20", "0", "1"]
     assert "task 'pid' (ERROR): gain matrix is singular" in text
 
 

@@ -1,9 +1,12 @@
 """Join connector (TR Figure 6): one unambiguous output from several conflicting ones.
 
 When two modules would write the same variable, each writes its own intermediate variable
-instead (p', p''), and the join connector combines them into p by a weighted average. Its
-inputs are the variables named in `params.inputs`; its output port `out` is linked to the
-joined variable with `ports: {out: p}`.
+instead (p', p''), and the join connector combines them into p. Its inputs are the variables
+named in `params.inputs`; its output port `out` is linked to the joined variable with
+`ports: {out: p}`. The combining operation (`combine`):
+
+    average (default)   p = Σ w_i x_i / Σ w_i   a weighted average, e.g. blending two references
+    sum                 p = Σ w_i x_i           a weighted sum, e.g. feedback torque + gravity torque
 """
 
 from __future__ import annotations
@@ -20,8 +23,11 @@ from pbo_runtime._ports import ANY_DTYPE, InVar, OutVar, PortSpec
 class JoinParams:
     inputs: tuple[str, ...]
     weights: tuple[float, ...] = ()  # default: equal weights
+    combine: str = "average"  # or "sum": the weights are not normalised
 
     def __post_init__(self) -> None:
+        if self.combine not in ("average", "sum"):
+            raise ValueError(f"combine must be 'average' or 'sum', got: {self.combine!r}")
         if len(self.inputs) < 2:
             raise ValueError(f"inputs must name at least two variables to join, got: {list(self.inputs)}")
         if len(set(self.inputs)) != len(self.inputs):
@@ -33,7 +39,7 @@ class JoinParams:
 
 
 class Join(PortBasedObject):
-    """Weighted average of its inputs: out = Σ w_i x_i / Σ w_i. Real-time safe cycle."""
+    """Weighted average (or sum) of its inputs: out = Σ w_i x_i / Σ w_i. Real-time safe cycle."""
 
     Params = JoinParams
 
@@ -52,7 +58,9 @@ class Join(PortBasedObject):
             if array.shape != self.out.shape:
                 raise ModuleError(f"join input '{name}' has shape {array.shape}, but the output has shape {self.out.shape}")
         weights = np.asarray(params.weights or [1.0] * len(params.inputs), dtype=float)
-        self._weights = tuple(float(w) for w in weights / weights.sum())
+        if params.combine == "average":
+            weights = weights / weights.sum()
+        self._weights = tuple(float(w) for w in weights)
         self._term = np.zeros(self.out.shape, dtype=self.out.dtype)
 
     def cycle(self) -> Status:

@@ -31,10 +31,14 @@ from pbo_runtime._config_model import (
     Location,
     PlantSpec,
     PortBinding,
+    PortClaim,
     RtpuSpec,
     TaskSpec,
     VariableSpec,
 )
+from pbo_runtime import _registry
+from pbo_runtime._channels import EXAMPLE as CHANNELS_EXAMPLE
+from pbo_runtime._channels import ChannelError, format_channels, parse_channels
 from pbo_runtime._errors import ConfigError, ParamError
 from pbo_runtime._expressions import ALLOWED, ExpressionError, compile_condition
 from pbo_runtime._ports import ANY_DTYPE, PortSpec
@@ -64,6 +68,8 @@ TASK_KEYS = (
     "priority", "critical", "params", "ports", "resources",
 )
 JOB_KEYS = ("configuration", "object", "pre", "post", "timeout")
+DEVICE_KEYS = ("driver", "exclusive", "io")  # every other key of a device is a driver option
+CLAIM_KEYS = ("device", "channels")  # a resource or an io: given as {device: adc0, channels: 0-5}
 BUS_KEYS = ("bandwidth", "lock_overhead")
 RTPU_KEYS = ("cpu",)
 
@@ -71,6 +77,7 @@ _SUBSYSTEM_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
 _JOIN_HINT = "an output has one writer; join them with a join connector (TR Figure 6)"
 
 ModuleLookup = Callable[[str], Any]
+DriverLookup = Callable[[str], Any]
 
 
 @dataclass
@@ -115,6 +122,7 @@ class _Task:
     ok: bool = False
     bindings: list[_Binding] = field(default_factory=list)
     resources: list[tuple[str, Location]] = field(default_factory=list)
+    channels: dict[str, tuple[int, ...]] = field(default_factory=dict)  # device -> channels, where a subset is given
     rtpu: str = ""
     period: float = 0.0
     priority: int = 0
@@ -188,11 +196,30 @@ def _and_list(items: Sequence[str]) -> str:
     return ", ".join(items[:-1]) + " and " + items[-1]
 
 
+@dataclass(frozen=True)
+class _Claim:
+    """Channels of a device a task takes when it opens a resource: directly, or `via` a sensor wired to it."""
+
+    task: str
+    device: str
+    channels: tuple[int, ...] | None  # None: no channel is locked (a device that is not port-based)
+    loc: Location
+    via: str | None = None  # the sensor-actuator device whose io: brought this claim
+
+    def who(self) -> str:
+        through = f", through device '{self.via}'" if self.via else ""
+        return f"'{self.task}' (line {self.loc.line}{through})"
+
+
 class _Checker:
-    def __init__(self, file: str, module_lookup: ModuleLookup, module_names: Callable[[], Iterable[str]] | None) -> None:
+    def __init__(self, file: str, module_lookup: ModuleLookup, module_names: Callable[[], Iterable[str]] | None,
+                 driver_lookup: DriverLookup | None = None) -> None:
         self.file = file
         self.module_lookup = module_lookup
         self.module_names = module_names
+        self.driver_lookup = driver_lookup or _registry.driver_class
+        self._drivers: dict[str, Any] = {}
+        self._claims: dict[str, list[_Claim]] = {}
         self.out = Checked()
         self.rtpu_names: set[str] = set()
         self.var_initial: set[str] = set()
@@ -315,6 +342,7 @@ class _Checker:
         self.check_applications(top)
         for config in self.config_members:
             self.check_data_flow(config)
+        self.check_device_union()
         self.check_schedulability()
         self.check_const_order()
         self.check_unused()
@@ -450,12 +478,169 @@ class _Checker:
             exclusive: bool | None = False
             if "exclusive" in spec:
                 exclusive = self.boolean(spec["exclusive"], spec.value_loc("exclusive"), f"'exclusive' of device '{name}'")
-            options = {k: plain(v) for k, v in spec.items() if k not in ("driver", "exclusive")}
+            io: PortClaim | None = None
+            io_ok = True
+            if "io" in spec:
+                io = self.port_claim(spec["io"], spec.value_loc("io"), f"io of device '{name}'", f"device '{name}' (io:)", allow_name=False)
+                io_ok = io is not None
+            options = {k: plain(v) for k, v in spec.items() if k not in DEVICE_KEYS}
             bad = [k for k in options if not isinstance(k, str)]
             for k in bad:
                 self.error("E118", f"option names of device '{name}' must be text, got: {describe(k)}", spec.key_loc(k))
-            if driver is not None and exclusive is not None and not bad:
-                self.out.devices[name] = DeviceSpec(name, driver, exclusive, options, key_loc)
+            if driver is not None and not bad and not self.driver_accepts(name, driver, options, key_loc):
+                continue
+            if driver is not None and exclusive is not None and not bad and io_ok:
+                self.out.devices[name] = DeviceSpec(name, driver, exclusive, options, key_loc, io)
+        self.check_device_wiring()
+
+    # --- devices: drivers, channels, wiring -------------------------------------------------
+
+    def driver_class(self, driver: str) -> Any:
+        """The registered driver class, or None when it cannot be found (then only the YAML is checked)."""
+        if driver not in self._drivers:
+            try:
+                found = self.driver_lookup(driver)
+            except Exception:  # an unknown driver fails when the device is opened; the checker checks what it can
+                found = None
+            self._drivers[driver] = found if isinstance(found, type) else None
+        return self._drivers[driver]
+
+    def ports_of(self, device: str) -> int | None:
+        """How many channels a device has (0: not port-based), or None when its driver is unknown."""
+        spec = self.out.devices.get(device)
+        cls = self.driver_class(spec.driver) if spec is not None else None
+        if cls is None:
+            return None
+        ports = getattr(cls, "PORTS", 0)
+        return ports if isinstance(ports, int) and ports >= 0 else 0
+
+    def driver_accepts(self, name: str, driver: str, options: dict[str, Any], loc: Location) -> bool:
+        """The driver's own check of the device's options (E607); True when it has none or they pass."""
+        cls = self.driver_class(driver)
+        check = getattr(cls, "check_options", None)
+        if check is None:
+            return True
+        try:
+            check(options)
+        except (ValueError, TypeError) as exc:
+            self.error("E607", f"device '{name}' (driver {driver}): {exc}", loc,
+                       "the driver's docstring lists its options (docs/modules.md, 'Drivers')")
+            return False
+        return True
+
+    def port_claim(self, value: Any, loc: Location, what: str, owner: str, allow_name: bool) -> PortClaim | None:
+        """A device name (if `allow_name`) or {device: name, channels: ...}, as a PortClaim; None (and errors) if wrong."""
+        if allow_name and isinstance(value, str):
+            return PortClaim(value, None, loc)
+        example = "e.g. {device: adc0, channels: 0-5}"
+        if not isinstance(value, YMap):
+            expected = "a device name or a mapping {device: ..., channels: ...}" if allow_name else "a mapping {device: ..., channels: ...}"
+            self.error("E113", f"{what} must be {expected}, got: {describe(value)}", location_of(value, loc), example)
+            return None
+        self.keys(value, CLAIM_KEYS, ("device",), f"in {what}", loc)
+        if "device" not in value:
+            return None
+        device = self.text(value["device"], value.value_loc("device"), f"device of {what}")
+        if device is None:
+            return None
+        channels: tuple[int, ...] | None = None
+        if "channels" in value:
+            channels_loc = value.value_loc("channels")
+            try:
+                channels = parse_channels(plain(value["channels"]))
+            except ChannelError as exc:
+                self.error("E604", f"{owner}: channels of device '{device}': {exc}", location_of(value["channels"], channels_loc),
+                           CHANNELS_EXAMPLE)
+                return None
+        if any(k not in CLAIM_KEYS for k in value):
+            return None
+        return PortClaim(device, channels, value.value_loc("device"))
+
+    def channels_exist(self, claim: PortClaim, what: str) -> bool:
+        """E605 unless the claimed channels are channels of the device (when its driver is known)."""
+        if claim.channels is None:
+            return True
+        ports = self.ports_of(claim.device)
+        if ports is None:
+            return True
+        driver = self.out.devices[claim.device].driver
+        if ports == 0:
+            self.error("E605", f"{what} opens channels {format_channels(claim.channels)} of device '{claim.device}', "
+                       f"but its driver {driver} is not a port-based I/O device: it has no channels", claim.loc,
+                       f"open it whole: write just '{claim.device}'")
+            return False
+        missing = [c for c in claim.channels if c >= ports]
+        if missing:
+            self.error("E605", f"{what} opens channel(s) {format_channels(missing)} of device '{claim.device}', "
+                       f"which has channels 0-{ports - 1} (driver {driver})", claim.loc,
+                       f"choose channels among 0-{ports - 1}")
+            return False
+        return True
+
+    def check_device_wiring(self) -> None:
+        """Each device's io: names a declared I/O device of the kind its driver reads, with channels it has (E605, E606)."""
+        for name, spec in list(self.out.devices.items()):
+            cls = self.driver_class(spec.driver)
+            wants = getattr(cls, "IO", "") if cls is not None else None
+            claim = spec.io
+            if claim is None:
+                if wants:
+                    self.error("E606", f"device '{name}' (driver {spec.driver}) reads through a device of kind {wants}, but it has no io:",
+                               spec.loc, f"say where it is wired, e.g. io: {{device: <a device of kind {wants}>, channels: 0-5}}")
+                    del self.out.devices[name]
+                continue
+            where = f"device '{name}'"
+            problem = ""
+            hint = ""
+            if claim.device not in self.device_names:
+                problem = f"{where} is wired (io:) to device '{claim.device}', which 'devices' does not declare"
+                hint = did_you_mean(claim.device, self.device_names, "declared")
+            elif claim.device == name or self._wired_through(claim.device, name):
+                problem = f"{where} is wired (io:) to itself through {claim.device}"
+                hint = "io: names the I/O device (adc, dac, parallel port) the sensor's cable goes to"
+            elif wants == "":
+                problem = f"{where}: driver {spec.driver} reads no I/O device, so it takes no io:"
+                hint = "remove io:, or choose a sensor-actuator driver that reads through an I/O device"
+            elif claim.device in self.out.devices and wants:
+                io_driver = self.out.devices[claim.device].driver
+                io_cls = self.driver_class(io_driver)
+                kind = getattr(io_cls, "KIND", "") if io_cls is not None else None
+                if kind is not None and kind != wants:
+                    found = f"is of kind {kind}" if kind else "is not an I/O device"
+                    problem = (f"{where} (driver {spec.driver}) reads through a device of kind {wants}, but its io: "
+                               f"device '{claim.device}' {found} (driver {io_driver})")
+                    hint = f"wire it to a device of kind {wants}"
+            if problem:
+                self.error("E606", problem, claim.loc, hint)
+                del self.out.devices[name]
+                continue
+            if claim.device not in self.out.devices:
+                continue  # the I/O device itself is wrong, and was reported there
+            if not self.channels_exist(claim, where):
+                del self.out.devices[name]
+                continue
+            needs = getattr(cls, "IO_CHANNELS", 0) if cls is not None else 0
+            ports = self.ports_of(claim.device)
+            count = len(claim.channels) if claim.channels is not None else ports
+            if needs and count is not None and count != needs:
+                shown = format_channels(claim.channels) if claim.channels is not None else "all of them"
+                self.error("E605", f"{where} (driver {spec.driver}) needs {needs} channels of its {wants} device, "
+                           f"but io: gives {count} ({shown})", claim.loc,
+                           f"give exactly {needs} channels, e.g. channels: 0-{needs - 1}")
+                del self.out.devices[name]
+
+    def _wired_through(self, device: str, target: str) -> bool:
+        """True if following io: from `device` reaches `target` (a wiring loop)."""
+        seen: set[str] = set()
+        while device not in seen:
+            seen.add(device)
+            spec = self.out.devices.get(device)
+            if spec is None or spec.io is None:
+                return False
+            device = spec.io.device
+            if device == target:
+                return True
+        return False
 
     # --- variables --------------------------------------------------------------------------
 
@@ -631,6 +816,7 @@ class _Checker:
                     task.wcet,
                     task.aperiodic,
                     task.min_interarrival,
+                    dict(task.channels),
                 )
 
     def check_task_fields(self, task: _Task, spec: YMap) -> bool:
@@ -662,23 +848,28 @@ class _Checker:
             value = spec["resources"]
             loc = spec.value_loc("resources")
             if not isinstance(value, YList):
-                self.error("E113", f"resources of task '{name}' must be a list of device names, got: {describe(value)}", location_of(value, loc), "e.g. resources: [arm]")
+                self.error("E113", f"resources of task '{name}' must be a list of devices, got: {describe(value)}", location_of(value, loc), "e.g. resources: [arm, {device: adc0, channels: 6-7}]")
                 return False
             seen: set[str] = set()
             for i, item in enumerate(value):
                 item_loc = value.item_loc(i)
-                device = self.text(item, item_loc, f"resource of task '{name}'")
+                claim = self.port_claim(item, item_loc, f"resource of task '{name}'", f"task '{name}'", allow_name=True)
+                device = claim.device if claim is not None else None
                 if device is None:
                     ok = False
                 elif device not in self.device_names:
-                    self.error("E208", f"task '{name}' uses device '{device}', which 'devices' does not declare", item_loc, did_you_mean(device, self.device_names, "declared"))
+                    self.error("E208", f"task '{name}' uses device '{device}', which 'devices' does not declare", claim.loc, did_you_mean(device, self.device_names, "declared"))
                     ok = False
                 elif device in seen:
                     self.error("E602", f"task '{name}' lists device '{device}' twice", item_loc)
                     ok = False
+                elif device in self.out.devices and not self.channels_exist(claim, f"task '{name}'"):
+                    ok = False
                 else:
                     seen.add(device)
                     task.resources.append((device, item_loc))
+                    if claim.channels is not None:
+                        task.channels[device] = claim.channels
         return ok
 
     def check_task_timing(self, task: _Task, spec: YMap) -> bool:
@@ -1046,22 +1237,107 @@ class _Checker:
                         b.loc,
                         f"give variable '{b.variable}' an initial: value",
                     )
-        users: dict[str, list[tuple[_Task, Location]]] = {}
-        for task in members:
-            for device, loc in task.resources:
-                spec = self.out.devices.get(device)
-                if spec is not None and spec.exclusive:
-                    users.setdefault(device, []).append((task, loc))
+        self.check_device_claims(config, members)
+
+    # --- who holds which device (TR §4.6.1) ---------------------------------------------------
+
+    def claims_of(self, task: _Task) -> list[_Claim]:
+        """What opening each of its resources takes: the device (its channels, or all of a port-based
+        device's), and, for a sensor wired through io:, the I/O device's channels too."""
+        cached = self._claims.get(task.name)
+        if cached is not None:
+            return cached
+        claims: list[_Claim] = []
+        for device, loc in task.resources:
+            channels: tuple[int, ...] | None = task.channels.get(device)
+            via: str | None = None
+            seen: set[str] = set()
+            while device in self.out.devices and device not in seen:
+                seen.add(device)
+                if channels is None:
+                    ports = self.ports_of(device)
+                    channels = tuple(range(ports)) if ports else None
+                claims.append(_Claim(task.name, device, channels, loc, via))
+                io = self.out.devices[device].io
+                if io is None:
+                    break
+                via = via or device
+                device, channels = io.device, io.channels
+        self._claims[task.name] = claims
+        return claims
+
+    def _conflict(self, a: _Claim, b: _Claim) -> str:
+        """'' if two claims of different tasks can be held together; else 'exclusive' or the shared channels."""
+        if a.task == b.task or a.device != b.device:
+            return ""
+        spec = self.out.devices.get(a.device)
+        if spec is not None and spec.exclusive:
+            return "exclusive"
+        if a.channels is None or b.channels is None:
+            return ""
+        return format_channels(set(a.channels) & set(b.channels))
+
+    def check_device_claims(self, config: str, members: list[_Task]) -> None:
+        """An exclusive device has one user (E601); a channel has one user (E603), in each configuration."""
+        claims = [c for task in members for c in self.claims_of(task)]
+        users: dict[str, list[_Claim]] = {}
+        for claim in claims:
+            spec = self.out.devices.get(claim.device)
+            if spec is not None and spec.exclusive and all(u.task != claim.task for u in users.get(claim.device, [])):
+                users.setdefault(claim.device, []).append(claim)
         for device, us in users.items():
             if len(us) > 1:
-                detail = _and_list([f"'{t.name}' (line {loc.line})" for t, loc in us])
                 self.error(
                     "E601",
-                    f"device '{device}' is exclusive, but configuration '{config}' gives it to {detail}",
-                    us[1][1],
+                    f"device '{device}' is exclusive, but configuration '{config}' gives it to {_and_list([u.who() for u in us])}",
+                    us[1].loc,
                     "an exclusive device has one user per configuration; move one task to another configuration, "
                     "or set exclusive: false if the driver can be shared",
                 )
+        for j, later in enumerate(claims):
+            for earlier in claims[:j]:
+                shared = self._conflict(earlier, later)
+                if shared and shared != "exclusive":
+                    self.error(
+                        "E603",
+                        f"device '{later.device}': {later.who()} claims channels {format_channels(later.channels or ())}, but "
+                        f"{earlier.who()} holds {format_channels(earlier.channels or ())} in configuration '{config}'; "
+                        f"they overlap on {shared}",
+                        later.loc,
+                        _disjoint_hint(earlier, later),
+                    )
+
+    def check_device_union(self) -> None:
+        """W601: two tasks that no configuration has together, but that cannot hold their devices at once.
+
+        A dynamic run spawns every task at start (TR §4.4), and a task opens its devices in init,
+        so the second one's init would be refused.
+        """
+        tasks = [t for t in self.tasks.values() if t.resources]
+        together = {frozenset((a, b)) for members in self.config_members.values()
+                    for i, (a, _) in enumerate(members) for b, _ in members[i + 1:]}
+        reported: set[frozenset[str]] = set()
+        for i, first in enumerate(tasks):
+            for second in tasks[i + 1:]:
+                pair = frozenset((first.name, second.name))
+                if pair in together or pair in reported:
+                    continue
+                for a in self.claims_of(first):
+                    b = next((b for b in self.claims_of(second) if self._conflict(a, b)), None)
+                    if b is None:
+                        continue
+                    shared = self._conflict(a, b)
+                    what = "it is exclusive" if shared == "exclusive" else f"both need channels {shared}"
+                    reported.add(pair)
+                    self.warn(
+                        "W601",
+                        f"tasks {a.who()} and {b.who()} both open device '{a.device}' ({what}); no configuration has both, "
+                        "but a dynamic run spawns every task at start, so the second one's init will be refused",
+                        b.loc,
+                        "run with --static (only the current configuration's tasks exist), or give each task its own "
+                        "device or channels",
+                    )
+                    break
 
     def check_schedulability(self) -> None:
         """Warn where the declared wcets of one RTPU's tasks in a configuration cannot be guaranteed.
@@ -1467,6 +1743,17 @@ class _Checker:
                 self.warn("W202", f"variable '{name}' is read by no task", loc, "remove it, or link a task's input port to it")
 
 
+def _disjoint_hint(holder: _Claim, claimant: _Claim) -> str:
+    """How to give `claimant` channels `holder` does not hold."""
+    free = sorted(set(claimant.channels or ()) - set(holder.channels or ()))
+    hint = "a channel has one user per configuration: give the tasks disjoint channels"
+    if not free or claimant.via:
+        return hint
+    shown = format_channels(free)
+    value = shown if ", " not in shown else f"[{shown}]"
+    return f"{hint}, e.g. for '{claimant.task}': {{device: {claimant.device}, channels: {value}}}"
+
+
 def _utilisation(task: _Task) -> float:
     return (task.wcet or 0.0) / task.period
 
@@ -1526,9 +1813,14 @@ def check_document(
     file: str,
     module_lookup: ModuleLookup,
     module_names: Callable[[], Iterable[str]] | None = None,
+    driver_lookup: DriverLookup | None = None,
 ) -> Checked:
-    """Check a loaded document; never raises for anything in the document."""
-    checker = _Checker(file, module_lookup, module_names)
+    """Check a loaded document; never raises for anything in the document.
+
+    `driver_lookup` finds a driver class by name (the registry by default): what it declares
+    (channels, the I/O device it reads through, its options) is checked against the YAML.
+    """
+    checker = _Checker(file, module_lookup, module_names, driver_lookup)
     doc_loc = Location(file, 1, 1) if file else NOWHERE
     try:
         return checker.run(doc, doc_loc)

@@ -51,12 +51,25 @@ class PlantSpec:
 
 
 @dataclass(frozen=True)
+class PortClaim:
+    """Channels of an I/O device (TR §4.6.1): a task's `{device: adc0, channels: 0-5}`, or a device's `io:`.
+
+    `channels` None: the whole device (every channel of a port-based device).
+    """
+
+    device: str
+    channels: tuple[int, ...] | None = None
+    loc: Location = NOWHERE
+
+
+@dataclass(frozen=True)
 class DeviceSpec:
     name: str
     driver: str  # entry point in group pbo.drivers
     exclusive: bool = False
     options: Mapping[str, Any] = field(default_factory=dict)  # every other key, e.g. mode
     loc: Location = NOWHERE
+    io: PortClaim | None = None  # a sensor-actuator device wired to channels of an I/O device (TR §4.6.2)
 
 
 @dataclass(frozen=True)
@@ -97,12 +110,15 @@ class TaskSpec:
     critical: bool = False
     params: Mapping[str, Any] = field(default_factory=dict)
     bindings: tuple[PortBinding, ...] = ()
-    resources: tuple[str, ...] = ()
+    resources: tuple[str, ...] = ()  # the devices the task may open, by name
     index: int = 0
     loc: Location = NOWHERE
     wcet: float | None = None  # seconds: the declared worst-case execution time of one cycle
     aperiodic: bool = False  # released by events, at most once per min_interarrival (TR §4.3)
     min_interarrival: float | None = None  # seconds, for an aperiodic task
+    # device -> the channels the task opens, for resources given as {device: adc0, channels: 0-5};
+    # a device not listed here is opened whole
+    resource_channels: Mapping[str, tuple[int, ...]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -163,10 +163,26 @@ def json_schema() -> dict[str, Any]:
     driver: dict[str, Any] = {"type": "string", "description": "the registered driver (entry point group 'pbo.drivers')"}
     if drivers:
         driver["enum"] = list(drivers)
+    channels_item = {"oneOf": [{"type": "integer", "minimum": 0, "maximum": 63},
+                               {"type": "string", "pattern": r"^\s*\d+\s*(-\s*\d+\s*)?$"}]}
+    channels = {
+        "description": "channels of a port-based I/O device: 0-5, 6, or [0-3, 6, 7] (ranges include both ends)",
+        "oneOf": [channels_item, {"type": "array", "items": channels_item, "minItems": 1}],
+    }
+    claim = _obj(
+        {
+            "device": {"type": "string", "minLength": 1, "description": "a device of 'devices'"},
+            "channels": channels,
+        },
+        "channels of an I/O device: {device: adc0, channels: 0-5} (without channels: the whole device)",
+        required=("device",),
+    )
     device = _obj(
         {
             "driver": driver,
             "exclusive": {"type": "boolean", "default": False, "description": "true: at most one task of a configuration may use it"},
+            "io": {**claim, "description": "a sensor-actuator device: the I/O device channels its cable is wired to, "
+                                           "e.g. {device: adc0, channels: 0-5}"},
         },
         "a device: its driver, whether it is exclusive, and driver options (e.g. mode: torque)",
         required=("driver",),
@@ -205,9 +221,9 @@ def json_schema() -> dict[str, Any]:
         },
         "resources": {
             "type": "array",
-            "items": name,
+            "items": {"oneOf": [name, claim]},
             "uniqueItems": True,
-            "description": "the devices this task may open, e.g. [arm]",
+            "description": "the devices this task may open, e.g. [arm, {device: adc0, channels: 6-7}]",
         },
         "wcet": {"$ref": "#/$defs/time", "description": "the task's worst-case execution time per cycle, for the schedulability check"},
         "aperiodic": {"type": "boolean", "description": "true: the task is released by events, not by a period"},

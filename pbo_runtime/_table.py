@@ -7,6 +7,8 @@ Layout of the segment, all offsets multiples of 8 bytes:
     manifest      names of every object of the run, so a later run can clean up after a crash
     variables     per variable: 3 float64 metadata words (writer, sequence, write time) + data
     task status   STATUS_WORDS float64 per task: state, cycles, overruns, timing counters
+    devices       DEVICE_HOLDERS records of HOLDER_WORDS uint64 per device: who holds which channels
+                  (the device database, TR §4.6.1: see `_devices`; read and written under the lock)
 
 A variable's metadata says who wrote it last. When the writer is a task (index >= 0), the
 value's sequence number and write time are that task's cycle count and release time in its
@@ -44,6 +46,18 @@ NAME_BYTES = 48
 MANIFEST_BYTES = 4096
 META_WORDS = 3  # writer task index (-1: job control), then job control's sequence and write time
 STATUS_WORDS = 16  # per task in the table (room to grow without a layout change)
+DEVICE_HOLDERS = 8  # per device: how many opens of it (by tasks, or through a sensor's io:) may be held at once
+HOLDER_WORDS = 5  # per holder record, uint64: see `Holder`
+
+
+class Holder(enum.IntEnum):
+    """Word indices in a holder record of the device region; a record with TASK 0 is free."""
+
+    TASK = 0  # the holding task's index + 1
+    PID = 1  # the process (RTPU) that opened it: a dead one's records are recovered
+    MASK = 2  # the channels held, bit c for channel c (0: no channel locked, a device that is not port-based)
+    EXCLUSIVE = 3  # 1: the device is exclusive, nobody else may hold it
+    OPENED = 4  # index + 1 of the device the task opened (differs for a claim through a sensor's io:)
 
 
 class Header(enum.IntEnum):
@@ -158,13 +172,15 @@ class TableLayout:
     status_offset: int
     total_bytes: int
     layout_hash: int
+    devices_offset: int = 0  # the device database's region, after the task status blocks
+    n_devices: int = 0
 
     @classmethod
     def of(cls, subsystem: Subsystem) -> TableLayout:
-        return cls.build(subsystem.variables.values(), len(subsystem.tasks))
+        return cls.build(subsystem.variables.values(), len(subsystem.tasks), len(subsystem.devices))
 
     @classmethod
-    def build(cls, variables: Iterable[VariableSpec], n_tasks: int) -> TableLayout:
+    def build(cls, variables: Iterable[VariableSpec], n_tasks: int, n_devices: int = 0) -> TableLayout:
         variables = list(variables)
         directory = HEADER_WORDS * 8
         manifest = directory + DIRECTORY_RECORD * len(variables)
@@ -182,13 +198,16 @@ class TableLayout:
             cursor += -(-nbytes // 8) * 8
             slots.append(VariableSlot(var.name, index, dtype, tuple(var.shape), meta_word, data_byte))
         status = cursor
-        total = status + STATUS_WORDS * 8 * max(n_tasks, 1)
+        devices = status + STATUS_WORDS * 8 * max(n_tasks, 1)
+        total = devices + DEVICE_HOLDERS * HOLDER_WORDS * 8 * n_devices
         digest = hashlib.blake2b(digest_size=8)
         for s in slots:
             digest.update(f"{s.name}|{s.dtype.name}|{s.shape}|{s.meta_word}|{s.data_byte};".encode())
         digest.update(f"tasks={n_tasks}".encode())
+        if n_devices:
+            digest.update(f"devices={n_devices}x{DEVICE_HOLDERS}x{HOLDER_WORDS}".encode())
         layout_hash = int.from_bytes(digest.digest(), "little", signed=True)
-        return cls(tuple(slots), n_tasks, directory, manifest, data, status, total, layout_hash)
+        return cls(tuple(slots), n_tasks, directory, manifest, data, status, total, layout_hash, devices, n_devices)
 
     def slot(self, name: str) -> VariableSlot:
         for s in self.slots:
@@ -210,7 +229,11 @@ class StateTable:
         self.header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
         self._views = {code: np.frombuffer(mapping, dtype=code, count=layout.total_bytes // np.dtype(code).itemsize) for code in _DTYPE_CODES}
         self.words = self._views["float64"]
-        self.status = self.words[layout.status_offset // 8 :].reshape(-1, STATUS_WORDS)[: max(layout.n_tasks, 1)]
+        status = layout.status_offset // 8
+        self.status = self.words[status : status + STATUS_WORDS * max(layout.n_tasks, 1)].reshape(-1, STATUS_WORDS)
+        first = layout.devices_offset // 8
+        self.devices = self._views["uint64"][first : first + layout.n_devices * DEVICE_HOLDERS * HOLDER_WORDS].reshape(
+            layout.n_devices, DEVICE_HOLDERS, HOLDER_WORDS)
         self._pid = os.getpid()
 
     # --- life -------------------------------------------------------------------------------
@@ -271,7 +294,7 @@ class StateTable:
 
     def close(self) -> None:
         """Unmap (and, for the creator, unlink the segment and the lock)."""
-        self.header = self.words = self.status = None  # type: ignore[assignment]
+        self.header = self.words = self.status = self.devices = None  # type: ignore[assignment]
         self._views = {}
         try:
             self._mapping.close()

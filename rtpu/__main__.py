@@ -55,7 +55,12 @@ def main(argv: list[str] | None = None) -> int:
         registers = _messages.plant_registers_name(name, args.run_id)
 
         def open_device(device: DeviceSpec):
-            return _registry.driver_class(device.driver)(registers, device.options)
+            # The device database (TR 4.6.1) records the opening in the table, for every RTPU to see;
+            # the task opening it is the one of this RTPU in its init.
+            from pbo_runtime._devices import DeviceDatabase, task_in_init
+
+            opener = task_in_init(s.task for s in executive.tasks.values())
+            return DeviceDatabase(subsystem, table, registers).open(device.name, opener)
 
         rtpu = subsystem.rtpu(args.rtpu)
         realtime = _realtime.apply(rtpu.cpu, args.fifo)

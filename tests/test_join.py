@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+
 import numpy as np
 import pytest
 
@@ -10,7 +13,7 @@ from pbo_runtime import OutVar, ParamError, PortBasedObject
 from pbo_runtime._config_loader import check_file
 from pbo_runtime._config_model import PortBinding, TaskSpec
 from pbo_runtime._lifecycle import Task
-from tests.conftest import variables
+from tests.conftest import REPO, variables
 
 
 class FakeTorqueSource(PortBasedObject):
@@ -74,7 +77,21 @@ def test_join_averages_its_inputs_by_their_weights(make_table):
     assert table.read("tau_u")[0] == pytest.approx(np.array([3.0, 7.0, -2.0]))
 
 
+def test_join_with_combine_sum_adds_its_weighted_inputs(make_table):
+    table = make_table(variables(("tau_a", "float64", (3,)), ("tau_b", "float64", (3,)), ("tau_u", "float64", (3,))))
+    values = {"inputs": ["tau_a", "tau_b"], "weights": [1, 2], "combine": "sum"}
+    params = Join.build_params(values)
+    bindings = tuple(PortBinding(p, "tau_u" if p.name == "out" else p.variable, (3,)) for p in Join.ports_for(params))
+    task = Task(TaskSpec("join", "join", "rtpu0", 0.001, params=values, bindings=bindings), Join, table)
+    table.write("tau_a", [4.0, 8.0, -4.0], when=0.0)
+    table.write("tau_b", [0.0, 4.0, 4.0], when=0.0)
+    assert task.spawn(0.0) and task.turn_on(0.0)
+    task.run_cycle(0.001)
+    assert table.read("tau_u")[0] == pytest.approx(np.array([4.0, 16.0, 4.0]))
+
+
 @pytest.mark.parametrize(("params", "message"), [
+    ({"inputs": ["x", "y"], "combine": "max"}, r"combine must be 'average' or 'sum', got: 'max'"),
     ({"inputs": ["tau_a"]}, r"inputs must name at least two variables to join, got: \['tau_a'\]"),
     ({"inputs": ["x", "x"]}, r"inputs must not repeat"),
     ({"inputs": ["x", "y"], "weights": [1]}, r"weights and inputs must have equal length: \|weights\| = 1, \|inputs\| = 2"),
@@ -83,3 +100,42 @@ def test_join_averages_its_inputs_by_their_weights(make_table):
 def test_join_params_are_checked(params, message):
     with pytest.raises(ParamError, match=message):
         Join.build_params(params)
+
+
+# --- TR Figure 6 on the arm: configs/join.yaml ----------------------------------------------------
+
+FIGURE_6 = REPO / "configs" / "join.yaml"
+
+
+def test_the_figure_6_file_without_its_join_connector_has_two_writers_of_the_robot_s_torque(tmp_path):
+    text = FIGURE_6.read_text()
+    text = text.replace("ports: {tau: tau_pid}", "ports: {tau: tau_u}").replace("  gravity: {module: gravity_compensation, rtpu: rtpu1, period: 1 ms}",
+                                                                               "  gravity: {module: gravity_compensation, rtpu: rtpu1, period: 1 ms, ports: {tau_g: tau_u}}")
+    text = text.replace("  joined: [robot, traj, pid, gravity, join]", "  joined: [robot, traj, pid, gravity]")
+    path = tmp_path / "no_join.yaml"
+    path.write_text(text)
+    result = check_file(path)
+    errors = [e for e in result.errors if e.code == "E401"]
+    assert errors and "variable 'tau_u' has two writers in configuration 'joined': 'pid'" in errors[0].message
+    assert "join connector (TR Figure 6)" in errors[0].hint
+
+
+@pytest.mark.multiprocess
+def test_the_join_connector_gives_the_robot_feedback_plus_gravity_and_the_arm_reaches_its_goal(tmp_path):
+    """TR Figure 6: p' (PID) and p'' (gravity) are joined into the one tau_u the robot reads."""
+    from tests.test_end_to_end import PBO, assert_nothing_left
+
+    report_path = tmp_path / "report.json"
+    done = subprocess.run([*PBO, "run", str(FIGURE_6), "--duration", "2.5", "--report", str(report_path), "--no-live"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=180)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(report_path.read_text())
+    values = {name: np.array(v["value"]) for name, v in report["variables"].items()}
+    writers = {name: v["writer"] for name, v in report["variables"].items()}
+    assert (writers["tau_pid"], writers["tau_g"], writers["tau_u"]) == ("pid", "gravity", "join")
+    # the robot reads the sum (the two inputs are sampled a cycle apart: the arm is still, they barely change)
+    np.testing.assert_allclose(values["tau_u"], values["tau_pid"] + values["tau_g"], atol=0.05)
+    error = np.max(np.abs(values["q_m"] - values["q_d"]))
+    sag = np.max(np.abs(values["tau_g"])) / 400.0  # what the PID alone (kp 400, no integral) would settle to
+    assert error < 0.005 and sag > 10 * error, f"error {error:.4f} rad, PID alone would sag {sag:.4f} rad"
+    assert_nothing_left(report)

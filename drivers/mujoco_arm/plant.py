@@ -50,6 +50,25 @@ without mass or collisions, moved kinematically along a circle in a horizontal p
 with a fixed orientation (rotation vector `orientation`, default none). Its world pose (position
 m, then rotation vector rad) is published with the arm's state, under the same seqlock, for the
 pose at the published sim time. The world frame is the arm's base frame.
+
+I/O boards (register layout version 3; TR §4.6): the plant serves an ADC, a DAC and a parallel
+port in the register segment and wires them to the arm's wrist force/torque sensor (the MJCF's
+massless `ft` body, see `drivers.robots.mjcf`). Each step it takes the wrench the environment
+applies to the tool, w = -(MuJoCo's ft_force, ft_torque), in the sensor frame (the tool frame),
+and presents it through two sensors of different vendors (`drivers.force_torque.models`):
+
+- vendor A on parallel-port channels 0-7: when the driver writes a new REQUEST the plant latches
+  w in counts (fixed scale, rounded, clipped to 16 bits) and answers with ACK = REQUEST;
+- vendor B on ADC channels 0-5: gauge voltages v = C^-1 w + offset (its calibration sheet);
+- DAC channels 0-1 are looped back to ADC channels 6-7.
+
+Every step all 8 ADC channels are converted: volts plus Gaussian noise (`adc_noise`, V standard
+deviation, default 0; seeded by `seed`, default 0), rounded to counts and clipped at +-10 V.
+
+The contact (plant option `wrist_wrench: [fx, fy, fz, tx, ty, tz]`, N and N m, default none): a
+constant external wrench on the tool at the sensor, given in the sensor frame (it turns with the
+hand), applied as MuJoCo's `xfrc_applied` on the `ft` body, whose origin is the sensor's. With the
+body massless, the sensor measures exactly that wrench whatever the arm does.
 """
 
 from __future__ import annotations
@@ -62,10 +81,15 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from drivers.force_torque import models as ft_models
 from drivers.mujoco_arm.registers import (
+    ADC_CHANNELS,
     MAGIC,
     MODE_POSITION,
     MODE_TORQUE,
+    VOLTS_PER_COUNT,
+    W_BOARD_SEQ,
+    W_BOARD_STEP,
     W_BRAKE,
     W_CMD_SEQ,
     W_MAGIC,
@@ -81,7 +105,8 @@ from drivers.mujoco_arm.registers import (
 from drivers.robots import robot, to_mjcf
 from pbo_runtime._shm import unlink_quietly
 
-_OPTIONS = ("q0", "target")
+_OPTIONS = ("q0", "target", "wrist_wrench", "adc_noise", "seed")
+_LOOPBACK = ((0, 6), (1, 7))  # (DAC channel, ADC channel) pairs joined by the loopback cable
 _TARGET_OPTIONS = ("center", "radius", "period", "phase", "orientation")
 # A driver's command write takes about a microsecond; if the seqlock is still odd after this many
 # looks the driver was preempted (or died) mid-write, and the plant keeps the previous command
@@ -105,6 +130,8 @@ class MujocoArmPlant:
     options: `q0` (sequence of ndof floats, rad): the braked start pose; default the robot's home.
     `target` (mapping): a moving target for a camera, `{center: [x, y, z], radius: m, period: s,
     phase: rad, orientation: [rx, ry, rz]}` (center, radius and period required); default none.
+    `wrist_wrench` (6 floats, N and N m, sensor frame): a constant external wrench on the tool;
+    default none. `adc_noise` (V, >= 0): noise of each ADC conversion; `seed` (int >= 0) seeds it.
     """
 
     def __init__(self, registers_name: str, model: str, timestep: float, options: Mapping[str, Any]) -> None:
@@ -120,6 +147,13 @@ class MujocoArmPlant:
             raise ValueError(f"plant option q0 must have {n} values for {model!r}, got shape: {q0.shape}")
 
         target = _target_options(options.get("target"))
+        wrench = _wrench_option(options.get("wrist_wrench", [0.0] * 6))
+        adc_noise = options.get("adc_noise", 0.0)
+        if isinstance(adc_noise, bool) or not isinstance(adc_noise, (int, float)) or not (math.isfinite(adc_noise) and adc_noise >= 0):
+            raise ValueError(f"plant option adc_noise must be a finite number >= 0 (V, standard deviation), got: {adc_noise!r}")
+        seed = options.get("seed", 0)
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ValueError(f"plant option seed must be an integer >= 0, got: {seed!r}")
 
         self.name = registers_name
         self.timestep = float(timestep)
@@ -139,6 +173,21 @@ class MujocoArmPlant:
             axis = target["orientation"] / angle if angle > 0 else np.array([0.0, 0.0, 1.0])
             mujoco.mju_axisAngle2Quat(self.data.mocap_quat[0], axis, angle)
             self._move_target()
+        # The wrist F/T sensor and the boards it is wired to.
+        self._ft_body = self.model.body("ft").id
+        adr = int(self.model.sensor("ft_force").adr[0])
+        self._ft_reading = self.data.sensordata[adr : adr + 6]  # force then torque (ft_torque follows)
+        self._wrist_wrench = wrench  # applied, sensor frame
+        self._wrench = np.zeros(6)  # measured: what the sensor feels, published through the boards
+        self._ft_inverse = np.linalg.inv(ft_models.CALIBRATION)
+        self._volts = np.zeros(ADC_CHANNELS)
+        self._counts = np.zeros(ADC_CHANNELS)
+        self._noise = np.zeros(ADC_CHANNELS)
+        self._adc_noise = float(adc_noise)
+        self._rng = np.random.Generator(np.random.PCG64(seed))
+        self._a_counts = np.zeros(6)
+        self._a_ack = 0  # the last REQUEST vendor A's sensor answered
+        self._apply_wrist_wrench()
         mujoco.mj_forward(self.model, self.data)
 
         self._torque_limits = description.torque_limits.copy()
@@ -175,6 +224,8 @@ class MujocoArmPlant:
             regs.words[W_PLANT_PID] = os.getpid()
             regs.words[W_TARGET] = int(self.has_target)
             self._publish()
+            regs.pio_in[ft_models.A_STATUS] = ft_models.A_STATUS_POWERED  # vendor A's sensor is on, no reading yet
+            self._serve_boards()
             regs.words[W_MAGIC] = MAGIC  # last: a driver refuses the segment until it is complete
         except BaseException:
             self.close()
@@ -229,6 +280,7 @@ class MujocoArmPlant:
                 self._servo(data)
             else:
                 data.qfrc_applied[:] = 0.0
+        self._apply_wrist_wrench()
         mujoco.mj_step(self.model, data)
         if braked:
             data.qpos[:] = self._brake_pose
@@ -237,6 +289,73 @@ class MujocoArmPlant:
         if self.has_target:
             self._move_target()
         self._publish()
+        self._serve_boards()
+
+    # --- the wrist F/T sensor and the I/O boards --------------------------------------------------
+
+    @property
+    def wrist_wrench(self) -> np.ndarray:
+        """The external wrench applied at the wrist sensor (N, N m, sensor frame), a copy."""
+        return self._wrist_wrench.copy()
+
+    def set_wrist_wrench(self, wrench: Any) -> None:
+        """Change the contact from the next step (tests, demos)."""
+        self._wrist_wrench = _wrench_option(wrench)
+
+    @property
+    def measured_wrench(self) -> np.ndarray:
+        """What the wrist sensor felt at the last step (N, N m, sensor frame), before any vendor's quantisation; a copy."""
+        return self._wrench.copy()
+
+    def _apply_wrist_wrench(self) -> None:
+        """The contact, turned from the sensor frame into the world frame MuJoCo applies it in.
+
+        The hand's orientation is taken for the pose the coming step starts from (after a step,
+        data.xmat still holds the pose before its integration).
+        """
+        mujoco.mj_kinematics(self.model, self.data)
+        body = self._ft_body
+        rotation = self.data.xmat[body].reshape(3, 3)
+        applied = self.data.xfrc_applied[body]
+        np.matmul(rotation, self._wrist_wrench[:3], out=applied[:3])
+        np.matmul(rotation, self._wrist_wrench[3:], out=applied[3:])
+
+    def _serve_boards(self) -> None:
+        """One ADC conversion of all channels, and vendor A's answer to a new request (no allocation)."""
+        regs = self._registers
+        np.negative(self._ft_reading, out=self._wrench)  # MuJoCo's reading is the arm's pull on the tool
+        volts, counts = self._volts, self._counts
+        # vendor B's gauges on ADC 0-5, the DAC looped back on ADC 6-7
+        np.matmul(self._ft_inverse, self._wrench, out=volts[:6])
+        np.add(volts[:6], ft_models.OFFSET, out=volts[:6])
+        for dac, adc in _LOOPBACK:
+            volts[adc] = regs.dac[dac] * VOLTS_PER_COUNT
+        if self._adc_noise > 0:
+            self._rng.standard_normal(out=self._noise)
+            self._noise *= self._adc_noise
+            volts += self._noise
+        np.multiply(volts, 1.0 / VOLTS_PER_COUNT, out=counts)
+        np.rint(counts, out=counts)
+        np.clip(counts, -32768, 32767, out=counts)
+        words = regs.words
+        seq = words[W_BOARD_SEQ]
+        words[W_BOARD_SEQ] = seq + 1
+        np.copyto(regs.adc, counts, casting="unsafe")
+        words[W_BOARD_STEP] = self._steps
+        words[W_BOARD_SEQ] = seq + 2
+        # vendor A on parallel-port channels 0-7: latch on a new request, data first, then ACK
+        request = int(regs.pio_out[ft_models.A_REQUEST])
+        if request != self._a_ack:
+            a = self._a_counts
+            np.divide(self._wrench, ft_models.A_SCALE, out=a)
+            np.rint(a, out=a)
+            clipped = bool(np.any(np.abs(a) > 32767))
+            np.clip(a, -32768, 32767, out=a)
+            data = regs.pio_in[ft_models.A_DATA : ft_models.A_DATA + 6].view(np.int16)
+            np.copyto(data, a, casting="unsafe")
+            regs.pio_in[ft_models.A_STATUS] = ft_models.A_STATUS_POWERED | (ft_models.A_STATUS_CLIPPED if clipped else 0)
+            regs.pio_in[ft_models.A_ACK] = request
+            self._a_ack = request
 
     def target_at(self, t: float, out: np.ndarray) -> np.ndarray:
         """The target's pose (position m, rotation vector rad) at sim time t, into out (no allocation)."""
@@ -333,6 +452,16 @@ def _positive(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
         raise ValueError(f"plant option {where} must be a finite number > 0, got: {value!r}")
     return float(value)
+
+
+def _wrench_option(value: Any) -> np.ndarray:
+    try:
+        wrench = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        wrench = np.zeros(0)
+    if wrench.shape != (6,) or not np.all(np.isfinite(wrench)):
+        raise ValueError(f"plant option wrist_wrench must be 6 finite numbers [fx, fy, fz, tx, ty, tz] (N, N m), got: {value!r}")
+    return wrench
 
 
 def _target_options(target: Any) -> dict[str, Any] | None:

@@ -16,6 +16,15 @@ Nothing here takes a cross-process lock. Each block has one writer and a seqlock
   vector rad), what a camera sees; written by the plant with the state, under `STATE_SEQ`.
   `TARGET` is 1 when the plant has a target (plant option `target:`), else 0 and the block
   stays zero.
+- board (version 3): the simulated I/O boards in the same rack (TR §4.6.1), served by the plant:
+  an 8-channel 16-bit ADC (`adc`, int16 counts, +-10 V full scale), a 4-channel 16-bit DAC (`dac`,
+  int16 counts, +-10 V) and a 16-channel parallel port (`pio_in`, the lines devices drive, and
+  `pio_out`, the lines drivers drive; uint16 each). The plant converts every ADC channel each step
+  under `BOARD_SEQ` (a seqlock, as for the state); each DAC channel and each parallel-port line
+  word is one aligned word with one writer (the device database lends a channel to one task), so
+  they need no lock. What the plant wires to them (see `plant`): the wrist force/torque sensor of
+  vendor A to parallel-port channels 0-7, that of vendor B to ADC channels 0-5, and DAC channels
+  0-1 back to ADC channels 6-7 (a loopback cable).
 
 Aligned 8-byte words are read and written whole, and x86 keeps stores in program order (TSO),
 so the seqlocks need no fences there. Layout (byte offsets, n = ndof, all little-endian):
@@ -25,6 +34,8 @@ so the seqlocks need no fences there. Layout (byte offsets, n = ndof, all little
     S    command:  tau[n], q_cmd[n]             float64, S = 128 + 16 n rounded up to 64
     C    constant: DH[n,4], DYN[n,11], LIMITS[n,3] (q_min, q_max, tau_max)  float64
     T    target:   pose[6] (x, y, z, rx, ry, rz), float64, T = C + 144 n rounded up to 64
+    B    board:    adc[8] int16 at B, dac[4] int16 at B + 64, pio_in[16] uint16 at B + 128,
+                   pio_out[16] uint16 at B + 192; B = T + 48 rounded up to 64
 """
 
 from __future__ import annotations
@@ -39,7 +50,7 @@ from pbo_runtime import PboError
 from pbo_runtime._shm import attach_segment, create_segment
 
 MAGIC = int.from_bytes(b"PBOARMRG", "little")
-VERSION = 2  # 2: the target block and the TARGET word
+VERSION = 3  # 2: the target block and the TARGET word; 3: the board block and BOARD_SEQ
 
 # Header words: u64 unless marked f64.
 W_MAGIC = 0
@@ -54,7 +65,16 @@ W_MODE = 8  # which command registers the plant applies, MODE_* below
 W_TIMESTEP = 9  # f64, s, constant
 W_PLANT_PID = 10  # the owning plant's pid, for diagnostics
 W_TARGET = 11  # 1: the plant moves a target and publishes its pose in the target block; constant
+W_BOARD_SEQ = 12  # seqlock of the ADC block (odd while the plant converts)
+W_BOARD_STEP = 13  # the plant step of the last ADC conversion, published under BOARD_SEQ
 HEADER_WORDS = 16
+
+# The I/O boards (version 3).
+ADC_CHANNELS = 8
+DAC_CHANNELS = 4
+PIO_CHANNELS = 16
+ANALOG_FULL_SCALE = 10.0  # V: the ADC and the DAC span -10 V .. +10 V in int16 counts
+VOLTS_PER_COUNT = ANALOG_FULL_SCALE / 32768.0
 
 MODE_NONE = 0  # no driver has claimed the arm: the plant applies no torque
 MODE_TORQUE = 1
@@ -82,6 +102,7 @@ class RegisterLayout:
     command: int
     constant: int
     target: int
+    board: int
     size: int
 
     @classmethod
@@ -92,8 +113,9 @@ class RegisterLayout:
         command = _align(state + 2 * ndof * 8)  # own cache line: another process writes it
         constant = _align(command + 2 * ndof * 8)
         target = _align(constant + ndof * (4 + 11 + 3) * 8)
-        size = _align(target + 6 * 8)
-        return cls(ndof, state, command, constant, target, size)
+        board = _align(target + 6 * 8)
+        size = board + 4 * _CACHE_LINE  # adc, dac, pio_in, pio_out: each its own line (different writers)
+        return cls(ndof, state, command, constant, target, board, size)
 
 
 class Registers:
@@ -125,12 +147,18 @@ class Registers:
         self.dyn = block(layout.constant + 32 * n, 11 * n).reshape(n, 11)
         self.limits = block(layout.constant + 120 * n, 3 * n).reshape(n, 3)
         self.target = block(layout.target, 6)
+        board = layout.board
+        self.adc = np.frombuffer(mapping, dtype=np.int16, count=ADC_CHANNELS, offset=board)
+        self.dac = np.frombuffer(mapping, dtype=np.int16, count=DAC_CHANNELS, offset=board + _CACHE_LINE)
+        self.pio_in = np.frombuffer(mapping, dtype=np.uint16, count=PIO_CHANNELS, offset=board + 2 * _CACHE_LINE)
+        self.pio_out = np.frombuffer(mapping, dtype=np.uint16, count=PIO_CHANNELS, offset=board + 3 * _CACHE_LINE)
 
     def release(self) -> None:
         """Drop every view, then close the mapping (idempotent)."""
         if self._mapping is None:
             return
-        for name in ("q", "qd", "tau", "q_cmd", "dh", "dyn", "limits", "target", "words", "reals"):
+        for name in ("q", "qd", "tau", "q_cmd", "dh", "dyn", "limits", "target", "adc", "dac", "pio_in", "pio_out",
+                     "words", "reals"):
             self.__dict__.pop(name, None)
         for view in reversed(self._views):
             view.release()

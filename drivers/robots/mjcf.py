@@ -12,6 +12,12 @@ inertia; it costs one dynamics evaluation per step where RK4 costs four, which m
 stepping at 1 kHz in real time. RK4's extra accuracy buys nothing here: a controller's PD torques
 arrive held constant over each step (zero-order hold), so their stiffness is bounded by the
 sampling, not by the integrator.
+
+Wrist force/torque sensor: a massless body `ft`, welded to the last link at the tool frame (DH
+frame n, where site `ee` is), carries site `ft` and MuJoCo's `force` and `torque` sensors
+(`ft_force`, `ft_torque`): the interaction between the tool and the arm, in the site frame, the
+torque about its origin. Massless and without geoms, it changes neither the dynamics nor the
+kinematics; an external wrench applied to it (`xfrc_applied`) is what the sensor measures.
 """
 
 from __future__ import annotations
@@ -66,7 +72,8 @@ def _geoms_xml(desc: RobotDescription, i: int) -> list[str]:
 
 
 def to_mjcf(desc: RobotDescription, timestep: float, target: bool = False) -> str:
-    """The MJCF text of `desc` with `<option timestep=...>`; bodies `link<i>`, hinges `joint<i>`, site `ee`.
+    """The MJCF text of `desc` with `<option timestep=...>`; bodies `link<i>`, hinges `joint<i>`, site `ee`,
+    and the wrist force/torque sensor (body and site `ft`, sensors `ft_force` and `ft_torque`).
 
     `target`: add body `target`, a small marker for a camera to see. It is a mocap body (no joint,
     no mass, no collisions): the plant moves it kinematically through `data.mocap_pos` and
@@ -101,7 +108,11 @@ def to_mjcf(desc: RobotDescription, timestep: float, target: bool = False) -> st
         closers.append(f"{indent}</body>")
     tool = dh_link_transform(desc.dh[-1])
     indent = "    " + "  " * desc.ndof
-    lines.append(f'{indent}<site name="ee" pos="{_num(tool[:3, 3])}" quat="{_num(_quat(tool[:3, :3]))}" size="0.01"/>')
+    placement = f'pos="{_num(tool[:3, 3])}" quat="{_num(_quat(tool[:3, :3]))}"'
+    lines.append(f'{indent}<site name="ee" {placement} size="0.01"/>')
+    lines.append(f'{indent}<body name="ft" {placement}>')
+    lines.append(f'{indent}  <site name="ft" size="0.005"/>')
+    lines.append(f"{indent}</body>")
     lines.extend(reversed(closers))
     if target:
         lines += [
@@ -111,5 +122,13 @@ def to_mjcf(desc: RobotDescription, timestep: float, target: bool = False) -> st
             '      <site name="target" size="0.005"/>',
             "    </body>",
         ]
-    lines += ["  </worldbody>", "</mujoco>", ""]
+    lines += [
+        "  </worldbody>",
+        "  <sensor>",
+        '    <force name="ft_force" site="ft"/>',
+        '    <torque name="ft_torque" site="ft"/>',
+        "  </sensor>",
+        "</mujoco>",
+        "",
+    ]
     return "\n".join(lines)

@@ -51,6 +51,11 @@ def _check_options(options: Mapping[str, Any]) -> tuple[float, int, int]:
 class VisionCamera(DeviceDriver):
     """The target's pose as a camera reports it. options: `noise` (m), `latency` (frames), `seed`."""
 
+    @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """ValueError for an unknown or bad option (the checker reports it as E607)."""
+        _check_options(options)
+
     def __init__(self, registers: str, options: Mapping[str, Any]) -> None:
         super().__init__(registers, options)
         self.noise, self.latency, self.seed = _check_options(self.options)

@@ -1,0 +1,167 @@
+"""The simulated I/O boards (TR §4.6.1): an ADC, a DAC and a parallel port, served by the plant.
+
+In one process: the plant is stepped by hand; the drivers attach to its register segment with the
+channels the device database would lend them.
+"""
+
+from __future__ import annotations
+
+import tracemalloc
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from drivers.io.adc import Adc
+from drivers.io.dac import Dac
+from drivers.io.parallel_port import ParallelPort
+from drivers.mujoco_arm.plant import MujocoArmPlant
+from drivers.mujoco_arm.registers import VOLTS_PER_COUNT, DeviceError, attach_registers
+from tests.conftest import unique_name
+
+
+@pytest.fixture
+def plant() -> Iterator[MujocoArmPlant]:
+    made = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, {})
+    yield made
+    made.close()
+
+
+@pytest.fixture
+def opened() -> Iterator[list]:
+    drivers: list = []
+    yield drivers
+    for driver in drivers:
+        driver.close()
+
+
+def test_the_dac_is_looped_back_to_adc_channels_6_and_7(plant, opened):
+    dac = Dac(plant.name, {}, channels=(0, 1))
+    adc = Adc(plant.name, {}, channels=(6, 7))
+    opened += [dac, adc]
+    dac.write(np.array([2.5, -7.3]))
+    volts = np.zeros(2)
+    before = adc.read(volts)
+    np.testing.assert_array_equal(volts, 0.0)  # not converted yet
+    plant.step()
+    assert adc.read(volts) == before + 1  # the plant step of the conversion
+    np.testing.assert_allclose(volts, [2.5, -7.3], atol=VOLTS_PER_COUNT)
+
+
+def test_the_adc_reads_channels_that_are_not_consecutive_in_channel_order(plant, opened):
+    dac = Dac(plant.name, {}, channels=(0, 1))
+    opened.append(dac)
+    dac.write(np.array([1.0, -2.0]))
+    plant.step()
+    scattered = Adc(plant.name, {}, channels=(0, 6, 7))
+    every = Adc(plant.name, {})
+    opened += [scattered, every]
+    assert not scattered.contiguous and every.channels == tuple(range(8))
+    all_volts, some = np.zeros(8), np.zeros(3)
+    every.read(all_volts)
+    scattered.read(some)
+    np.testing.assert_array_equal(some, all_volts[[0, 6, 7]])
+    counts = np.zeros(3, dtype=np.int16)
+    scattered.read_counts(counts)
+    np.testing.assert_array_equal(counts * VOLTS_PER_COUNT, some)
+
+
+def test_a_dac_writes_only_its_channels_clips_at_full_scale_and_returns_them_to_zero_when_closed(plant):
+    low = Dac(plant.name, {}, channels=(0, 2))
+    high = Dac(plant.name, {}, channels=(1, 3))
+    try:
+        high.write(np.array([4.0, 5.0]))
+        low.write(np.array([20.0, -20.0]))
+        registers = attach_registers(plant.name)
+        try:
+            np.testing.assert_allclose(registers.dac * VOLTS_PER_COUNT, [10.0 - VOLTS_PER_COUNT, 4.0, -10.0, 5.0], atol=VOLTS_PER_COUNT)
+            low.close()
+            np.testing.assert_allclose(registers.dac * VOLTS_PER_COUNT, [0.0, 4.0, 0.0, 5.0], atol=VOLTS_PER_COUNT)
+        finally:
+            registers.release()
+    finally:
+        low.close()
+        high.close()
+
+
+def test_a_parallel_port_drives_and_reads_the_lines_of_its_channels_by_position(plant, opened):
+    port = ParallelPort(plant.name, {}, channels=(8, 9, 12))
+    opened.append(port)
+    port.write_channel(2, 0xBEEF)
+    assert port.output(2) == 0xBEEF
+    registers = attach_registers(plant.name)
+    try:
+        assert registers.pio_out[12] == 0xBEEF and not np.any(np.delete(registers.pio_out, 12))
+        registers.pio_in[9] = 0x1234
+        assert port.read_channel(1) == 0x1234
+        lines = np.zeros(3, dtype=np.uint16)
+        port.read(lines)
+        np.testing.assert_array_equal(lines, [0, 0x1234, 0])
+    finally:
+        registers.release()
+
+
+def test_vendor_a_s_sensor_shows_power_on_parallel_port_channel_7(plant, opened):
+    port = ParallelPort(plant.name, {}, channels=tuple(range(8)))
+    opened.append(port)
+    assert port.read_channel(7) & 1
+
+
+@pytest.mark.parametrize(("driver", "options", "channels", "message"), [
+    (Adc, {"range": 5}, None, r"^unknown adc option\(s\) \['range'\]; valid options: none$"),
+    (Dac, {}, (4,), r"^dac has channels 0-3; channel\(s\) 4 do not exist$"),
+    (ParallelPort, {}, (), r"no channels to open$"),
+])
+def test_a_board_driver_refuses_what_its_board_does_not_have(plant, driver, options, channels, message):
+    with pytest.raises((ValueError, DeviceError), match=message):
+        driver(plant.name, options, channels=channels)
+
+
+def allocation_peak(call, times: int = 1000) -> int:
+    """Bytes `times` calls of `call` have alive at once at most, beyond what the loop itself needs.
+
+    A per-cycle path that allocated even one small array per call would show it (the array object
+    and its data), however briefly it lived; what a path without arrays shows is Python's own
+    boxing of the integers a seqlock read or a handshake returns.
+    """
+    def loop(body):
+        for _ in range(times):
+            body()
+
+    def nothing():
+        pass
+
+    loop(call)  # first calls fill caches
+    tracemalloc.start()
+    try:
+        peaks = []
+        for body in (nothing, call):
+            tracemalloc.reset_peak()
+            start, _ = tracemalloc.get_traced_memory()
+            loop(body)
+            _, peak = tracemalloc.get_traced_memory()
+            peaks.append(peak - start)
+    finally:
+        tracemalloc.stop()
+    return peaks[1] - peaks[0]
+
+
+def one_array() -> int:
+    """The allocation peak of making one 6-element array per call: what a per-cycle path must stay under."""
+    return allocation_peak(lambda: np.empty(6))
+
+
+def test_one_small_array_per_call_would_show_in_the_allocation_peak():
+    assert allocation_peak(lambda: np.empty(3)) >= 64
+    assert one_array() > allocation_peak(lambda: None) + 64
+
+
+def test_reading_the_adc_and_writing_the_dac_allocate_nothing(plant, opened):
+    adc = Adc(plant.name, {}, channels=(0, 3, 6))
+    dac = Dac(plant.name, {}, channels=(0, 1))
+    consecutive = Adc(plant.name, {}, channels=(6, 7))
+    opened += [adc, dac, consecutive]
+    volts, two, out = np.zeros(3), np.zeros(2), np.array([1.0, 2.0])
+
+    for call in (lambda: adc.read(volts), lambda: consecutive.read(two), lambda: dac.write(out)):
+        assert allocation_peak(call) < one_array()

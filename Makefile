@@ -21,9 +21,9 @@ test: $(STAMP)           ## set up, then lint and run every test
 check: $(STAMP)          ## check every shipped configuration
 	@for f in configs/*.yaml; do $(BIN)/pbo check $$f || exit 1; done
 
-bench: $(STAMP)          ## the benchmarks (figures go to docs/performance.md by hand, as printed)
-	$(BIN)/python bench/svar_transfer.py
-	$(BIN)/python bench/check_scale.py
+bench: $(STAMP)          ## every benchmark against its baseline (a few minutes); rewrites docs/performance.md
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[bench]'
+	$(BIN)/python -m bench
 
 clean-shm: $(STAMP)      ## remove shared memory left by runs that crashed
 	$(BIN)/pbo clean

@@ -1,0 +1,51 @@
+"""The benchmark command works end to end on tiny counts: every section has its rows, every ratio is a
+positive finite number, and the performance page renders. Timing values are never asserted."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from bench import peers, run_all
+from bench._common import machine_info
+
+TINY = {
+    "svar_transfer": {"rounds": 1, "iterations": 200, "table_variables": 10},
+    "peers": {"iterations": 30, "seconds": 0.2, "warmup": 5, "rounds": 1},
+    "scale": {"rounds": 1, "iterations": 50, "rtpu_seconds": 0.03, "table_sizes": (10, 100), "port_counts": (1, 4),
+              "task_counts": (1, 3), "rtpu_counts": (1, 2)},
+    "realtime": {"seconds": 0.4, "rtpus": (1,), "rounds": 1},
+    "switching": {"switches": 4, "interval": 0.02},
+    "check_scale": {"sizes": (12, 30), "repeat": 1},
+}
+
+
+@pytest.mark.multiprocess
+def test_every_benchmark_runs_on_tiny_counts_and_renders_its_tables(tmp_path):
+    assert set(TINY) == set(run_all.BENCHMARKS) == set(run_all.QUICK) == set(run_all.FULL)
+    plot = tmp_path / "scale.png"
+    sections = run_all.collect(TINY, plot_path=str(plot), echo=None)
+
+    assert [s.key for s in sections] == list(run_all.BENCHMARKS)
+    for section in sections:
+        measured = section.tables or section.notes
+        assert measured, f"{section.key}: neither a table nor a note"
+        for table in section.tables:
+            assert table.rows, f"{section.key}: empty table {table.headers}"
+            assert all(len(row) == len(table.headers) for row in table.rows), section.key
+        for name, value in section.ratios.items():
+            assert value > 0 and math.isfinite(value), f"{section.key}: ratio {name} = {value}"
+        for target in section.targets:
+            assert target.value is None or (target.value > 0 and math.isfinite(target.value)), target.what
+    by_key = {s.key: s for s in sections}
+    # every peer has its row, measured or reported as not installed / failed, never a crash
+    names = [row[0] for row in by_key["peers"].tables[0].rows]
+    assert names == [contender.name for contender in peers.CONTENDERS.values()]  # type: ignore[attr-defined]
+    assert by_key["svar_transfer"].ratios and by_key["scale"].ratios and by_key["realtime"].tables
+    assert plot.stat().st_size > 0
+
+    page = run_all.render(sections, machine_info(), "python -m bench (test)", 1.0)
+    assert page.startswith("# Performance\n")
+    for heading in ("## Targets", "## Machine", "## How to reproduce", *(f"## {s.title}" for s in sections)):
+        assert heading in page

@@ -15,7 +15,7 @@ run: $(STAMP)            ## set up, then run the demo: PID joint control of a si
 	$(BIN)/pbo run configs/pid_joint.yaml --duration 5
 
 test: $(STAMP)           ## set up, then lint and run every test
-	$(BIN)/ruff check --quiet pbo_runtime rtpu drivers modules bench tests
+	$(BIN)/ruff check --quiet pbo_runtime rtpu drivers modules bench tests tools
 	$(BIN)/python -m pytest -q
 
 check: $(STAMP)          ## check every shipped configuration

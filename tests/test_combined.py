@@ -97,3 +97,13 @@ def test_the_computed_torque_configuration_checks_and_the_bus_shows_what_combini
     assert together.total < apart.total  # qdd_r never crosses the bus when PID and inverse dynamics are one task
     ctc = subsystem.tasks["ctc"]
     assert "qdd_r" not in {b.variable for b in ctc.bindings}
+
+
+@pytest.mark.multiprocess
+def test_computed_torque_tracks_a_fast_trajectory_at_least_five_times_better_than_pid_alone():
+    """TR Figure 14's point, on the arm and the simulated clock (so the figures are exact)."""
+    from tools.tracking_gain import tracking_errors
+
+    errors = tracking_errors(seconds=2.5)
+    assert errors["pid_alone"]["max"] >= 5 * errors["combined"]["max"], errors
+    assert errors["pid_alone"]["rms"] >= 5 * errors["combined"]["rms"], errors

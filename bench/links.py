@@ -12,10 +12,21 @@ subsystems run at rates that are not multiples of each other), spinning to their
   as usually written): each side waits for the other's copy;
 - posix_ipc queue: each item is one message (payloads above fs.mqueue.msgsize_max go in chunks
   of that size), the sender blocks while the queue is full, and a read drains what is waiting
-  (at most the queue's capacity) and keeps the newest complete item, as a state link needs.
+  (at most the queue's capacity) and keeps the newest complete item, as a state link needs;
+- zenoh: `pbo_runtime._zenoh_link.ZenohLink`, the same periodic link over eclipse-zenoh on
+  tcp/127.0.0.1 (the sender's session listens, the reader's connects; no scouting): a write is
+  one express `put` that never waits for the reader; a read takes the newest sample zenoh kept
+  in a one-sample ring and copies it out ("zenoh", the default delivery), or copies the item a
+  Python callback swapped in as it arrived ("zenoh callback"). Skipped, with a note, when
+  eclipse-zenoh is not installed.
 
 Ratios are each figure over the triple buffer's for the same payload and side, measured in the
-same run. The Zenoh link is not measured yet. Python call overhead dominates small payloads.
+same run. Python call overhead dominates small payloads.
+
+The links that stamp their items (triple buffer, zenoh) also give rows of one-way latency: from
+the sender's time stamp (taken as `write` is called) to the reader's `read` that first got the
+item ("one-way (read)": includes waiting for the reader's next period, as a task would), and for
+zenoh to the item's arrival in the reader's process ("one-way (arrival)": the transport alone).
 
     python bench/links.py [--quick] [--items N] [--rounds R] [--back-to-back]
 """
@@ -23,6 +34,7 @@ same run. The Zenoh link is not measured yet. Python call overhead dominates sma
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import mmap
 import multiprocessing
 import os
@@ -36,7 +48,8 @@ import numpy as np
 import posix_ipc
 
 from pbo_runtime import _messages
-from pbo_runtime._triple_buffer import LinkLayout, TripleBuffer
+from pbo_runtime._triple_buffer import Freshness, LinkLayout, TripleBuffer
+from pbo_runtime._zenoh_link import ZenohLink, free_port
 
 PAYLOADS = (48, 4096, 1 << 20)
 ITEMS = {48: 50_000, 4096: 50_000, 1 << 20: 2_000}
@@ -44,7 +57,9 @@ QUICK_ITEMS = {48: 2_000, 4096: 2_000, 1 << 20: 100}
 SENDER_PERIOD_NS = {48: 20_000, 4096: 20_000, 1 << 20: 300_000}  # a few times the slowest contender's usual write
 ROUNDS = 5  # the contenders take turns this many times (--quick: once)
 READER_PERIOD_SHARE = 0.65  # reader period / sender period: not a multiple, so the two drift through every phase
-MECHANISMS = ("triple buffer", "locked buffer", "posix_ipc queue")
+ZENOH = importlib.util.find_spec("zenoh") is not None  # found, not imported: children open sessions after the fork
+MECHANISMS = ("triple buffer", "locked buffer", "posix_ipc queue") + (("zenoh", "zenoh callback") if ZENOH else ())
+SIDES = ("write", "read", "one-way (read)", "one-way (arrival)")
 READS_PER_WRITE_CAP = 50  # the reader keeps at most this many samples per item written (and reads on)
 FORK = multiprocessing.get_context("fork")
 _CHUNK_HEADER = struct.Struct("<qq")  # item counter, chunk index
@@ -81,6 +96,16 @@ class _TripleEnd:
     def items(self) -> int:
         stats = self._link.statistics()
         return stats.writes - WARM_WRITES if self._role == "sender" else stats.new
+
+    def age(self) -> tuple[int, int] | None:
+        """(now - stamp, -1) in ns after the read that first got an item; None after any other read."""
+        link = self._link
+        if link.counter == self._last:
+            return None
+        self._last = link.counter
+        return time.monotonic_ns() - link.stamp_ns, -1
+
+    _last = 0
 
     def close(self) -> None:
         self.write = self.read = None  # type: ignore[assignment]
@@ -217,7 +242,73 @@ class _Queue:
         self._queue.unlink()
 
 
-CONTENDERS = {"triple buffer": _Triple, "locked buffer": _Locked, "posix_ipc queue": _Queue}
+class _ZenohEnd:
+    """The sender's session listens on the port, the reader's connects to it (both in the children)."""
+
+    def __init__(self, key: str, port: int, nbytes: int, role: str, delivery: str) -> None:
+        layout = LinkLayout.raw(nbytes)
+        if role == "sender":
+            self._link = ZenohLink.create(key, layout, role, port=port)
+        else:
+            self._link = ZenohLink.attach(key, layout, role, port=port, wait=30.0, delivery=delivery)
+        self._arrival_known = delivery == "callback"  # a ring is drained by read(): the arrival time is not seen
+        self.write, self.read = self._link.write, self._link.read
+        self._role = role
+        self._last = 0
+
+    def warm(self, out: np.ndarray) -> None:
+        link = self._link
+        give_up = time.monotonic() + 30.0
+        if self._role == "sender":
+            while not link._publisher.matching_status.matching:  # the reader's subscription has arrived
+                if time.monotonic() > give_up:
+                    raise RuntimeError(f"no reader subscribed to '{link.name}' within 30 s")
+                time.sleep(0.001)
+            for _ in range(WARM_WRITES):
+                link.write(out)
+        else:
+            while link.read(out) is Freshness.NONE:  # the sender's first warm-up item has arrived
+                if time.monotonic() > give_up:
+                    raise RuntimeError(f"nothing received on '{link.name}' within 30 s")
+                time.sleep(0.001)
+            self._last = link.counter
+
+    def items(self) -> int:
+        stats = self._link.statistics()
+        return stats.writes - WARM_WRITES if self._role == "sender" else stats.new - 1
+
+    def age(self) -> tuple[int, int] | None:
+        link = self._link
+        if link.counter == self._last:
+            return None
+        self._last = link.counter
+        return time.monotonic_ns() - link.stamp_ns, link.received_ns - link.stamp_ns if self._arrival_known else -1
+
+    def close(self) -> None:
+        self.write = self.read = None  # type: ignore[assignment]
+        self._link.close()
+
+
+class _Zenoh:
+    delivery = "ring"
+
+    def __init__(self, nbytes: int) -> None:
+        self.key = f"pbo/bench/{os.getpid()}-{os.urandom(3).hex()}/link"
+        self.port = free_port()
+
+    def end(self, nbytes: int, role: str) -> _ZenohEnd:
+        return _ZenohEnd(self.key, self.port, nbytes, role, self.delivery)
+
+    def close(self) -> None:
+        pass  # nothing outlives the children's sessions
+
+
+class _ZenohCallback(_Zenoh):
+    delivery = "callback"
+
+
+CONTENDERS = {"triple buffer": _Triple, "locked buffer": _Locked, "posix_ipc queue": _Queue, "zenoh": _Zenoh,
+              "zenoh callback": _ZenohCallback}
 
 
 def _attach(name: str) -> mmap.mmap:
@@ -250,7 +341,7 @@ def _sender(contender, nbytes: int, items: int, period: int, start, finished, re
             release = max(release + period, t0)  # an overrun starts the next period late, with no burst
     finally:
         finished.value = 1
-    results.send((samples, end.items()))
+    results.send((samples, end.items(), None))
     end.close()
 
 
@@ -258,6 +349,9 @@ def _reader(contender, nbytes: int, items: int, period: int, start, finished, re
     end = contender.end(nbytes, "reader")
     out = np.ones(nbytes, dtype=np.uint8)
     samples = np.empty(items * READS_PER_WRITE_CAP, dtype=np.int64)
+    age = getattr(end, "age", None)  # links that stamp their items: one-way latency of each new item
+    ages = np.empty((items + 2 * WARM_WRITES, 2), dtype=np.int64)
+    aged = 0
     clock, read = time.perf_counter_ns, end.read
     start.wait()
     end.warm(out)
@@ -272,13 +366,20 @@ def _reader(contender, nbytes: int, items: int, period: int, start, finished, re
         if count < samples.size:
             samples[count] = clock() - t0
             count += 1
+        if age is not None and (one_way := age()) is not None and aged < len(ages):
+            ages[aged] = one_way
+            aged += 1
         release = max(release + period, t0)
-    results.send((samples[:count], end.items()))
+    results.send((samples[:count], end.items(), ages[:aged] if age is not None else None))
     end.close()
 
 
-def measure(mechanism: str, nbytes: int, items: int, periods: tuple[int, int]) -> dict[str, tuple[np.ndarray, int]]:
-    """{side: (latencies in ns, items written or read)} of one contender, two processes; periods in ns (sender, reader)."""
+def measure(mechanism: str, nbytes: int, items: int, periods: tuple[int, int]) -> dict[str, tuple[np.ndarray, int, np.ndarray | None]]:
+    """{side: (latencies in ns, items written or read, one-way ns per new item)} of one contender, two processes.
+
+    Periods in ns (sender, reader). The one-way array (reader only, stamped links only) has two
+    columns: stamp to read, stamp to arrival in the reader's process (-1 where not known).
+    """
     contender = CONTENDERS[mechanism](nbytes)
     start, finished = FORK.Barrier(2), FORK.RawValue("b", 0)
     pipes = {side: FORK.Pipe(duplex=False) for side in ("write", "read")}
@@ -313,19 +414,26 @@ def run(quick: bool = False, items: int | None = None, back_to_back: bool = Fals
         sender_period = 0 if back_to_back else SENDER_PERIOD_NS[nbytes]
         periods = (sender_period, int(sender_period * READER_PERIOD_SHARE))
         pooled: dict[tuple[str, str], list[tuple[np.ndarray, int]]] = {}
+        turns = len(MECHANISMS)
         for turn in range(rounds):
-            for mechanism in MECHANISMS[turn % 3 :] + MECHANISMS[: turn % 3]:
-                for side, result in measure(mechanism, nbytes, per_round, periods).items():
-                    pooled.setdefault((mechanism, side), []).append(result)
+            for mechanism in MECHANISMS[turn % turns :] + MECHANISMS[: turn % turns]:
+                for side, (samples, moved, ages) in measure(mechanism, nbytes, per_round, periods).items():
+                    pooled.setdefault((mechanism, side), []).append((samples, moved))
+                    if ages is not None and len(ages):
+                        pooled.setdefault((mechanism, "one-way (read)"), []).append((ages[:, 0], len(ages)))
+                        if (ages[:, 1] >= 0).all():
+                            pooled.setdefault((mechanism, "one-way (arrival)"), []).append((ages[:, 1], len(ages)))
         figures = {}
         for key, results in pooled.items():
             samples = np.concatenate([r[0] for r in results])
             p50, p99 = np.percentile(samples, [50, 99]) / 1000
             figures[key] = (samples.size, sum(r[1] for r in results), p50, p99, samples.max() / 1000)
         for mechanism in MECHANISMS:
-            for side in ("write", "read"):
+            for side in SIDES:
+                if (mechanism, side) not in figures:
+                    continue  # one-way rows: stamped links only
                 operations, moved, p50, p99, worst = figures[mechanism, side]
-                base = figures["triple buffer", side]
+                base = figures.get(("triple buffer", side), figures.get(("triple buffer", "one-way (read)")))
                 rows.append({
                     "payload_bytes": nbytes,
                     "payload": _label(nbytes),
@@ -362,7 +470,10 @@ def table(rows: list[dict]) -> str:
     lines.append(fmt.format(*headers))
     lines.append(fmt.format(*("-" * w for w in widths)))
     lines += [fmt.format(*b) for b in body]
-    lines.append("zenoh: not measured yet (issue 7, item 5)")
+    if not ZENOH:
+        lines.append("zenoh: not measured: eclipse-zenoh is not installed (pip install 'eclipse-zenoh>=1.0')")
+    lines.append("one-way: sender's time stamp to the reader's first read of the item (read) or to its arrival in the "
+                 "reader's process (arrival); x of one-way rows: to the triple buffer's one-way (read)")
     return "\n".join(lines)
 
 

@@ -108,3 +108,17 @@ def test_the_follower_arm_tracks_the_leader_through_a_shared_memory_link(tmp_pat
     for key in ("leader", "follower"):
         assert_nothing_left(json.loads((tmp_path / "out" / key / "report.json").read_text()))
     assert [n for n in os.listdir("/dev/shm") if "pbo.pair." in n or "pbo.leader_follower." in n] == []
+
+
+@pytest.mark.multiprocess
+def test_the_same_application_runs_over_zenoh_changed_only_in_yaml(tmp_path):
+    pytest.importorskip("zenoh")
+    path = write_app(tmp_path, links="  arm_state: {type: float64, shape: [6], transport: zenoh}\n")
+    done = subprocess.run([*PBO, "run", path, "--duration", "3", "--out", str(tmp_path / "out")], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "link 'arm_state': leader.send -> follower.receive (float64 [6], zenoh)" in done.stdout
+    leader = np.load(tmp_path / "out" / "leader" / "leader.npz")
+    follower = np.load(tmp_path / "out" / "follower" / "follower.npz")
+    assert np.max(np.abs(follower["q_d"][-1] - leader["q_m"][-1])) < 0.01
+    assert np.max(np.abs(follower["q_m"][-1] - leader["q_m"][-1])) < 0.01

@@ -492,3 +492,25 @@ def main(argv: list[str] | None = None) -> list[dict]:
 if __name__ == "__main__":
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # so that `finally` removes the links' names
     main()
+
+
+def section(quick: bool = False, rounds: int | None = None):
+    """The benchmark as a section of docs/performance.md (`python -m bench` runs it)."""
+    from bench._common import Section, Table
+
+    rows = run(quick=quick, rounds=rounds)
+    result = Table(["payload", "mechanism", "side", "ops", "items", "p50 µs", "p99 µs", "max µs", "p50 x", "p99 x"],
+                   numeric=(3, 4, 5, 6, 7, 8, 9), caption="Ratios are to the triple buffer's same side and payload.")
+    for r in rows:
+        result.add(r["payload"], r["mechanism"], r["side"], r["operations"], r["items"], f"{r['p50_us']:.2f}",
+                   f"{r['p99_us']:.2f}", f"{r['max_us']:.1f}", f"{r['p50_ratio']:.2f}", f"{r['p99_ratio']:.2f}")
+    return Section(
+        key="links", title="Links between subsystems: triple buffer, locked buffer, queue, Zenoh (TR §5)",
+        command="python -m bench.links",
+        method="Two processes, a sender and a reader at their own periods (the reader at 0.65 of the sender's), "
+               "for 48 B, 4 KiB and 1 MiB items; write and read are the cost of one call on each side, one-way "
+               "is from the sender's time stamp to the reader's first read of the item. The contenders take "
+               "turns round by round so the machine's other work falls on all alike.",
+        limits="On 2 shared vCPUs the maxima are the scheduler's; the 1 MiB queue is split into 8 KiB messages "
+               "(fs.mqueue.msgsize_max), and its sender waits whenever the queue is full.",
+        tables=[result])

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from bench import check_scale, peers, realtime, scale, svar_transfer, switching
+from bench import check_scale, links, peers, realtime, scale, svar_transfer, switching
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -26,6 +26,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "realtime": realtime.run,
     "switching": switching.run,
     "check_scale": check_scale.run,
+    "links": links.section,
 }
 
 FULL: dict[str, dict[str, Any]] = {
@@ -35,6 +36,7 @@ FULL: dict[str, dict[str, Any]] = {
     "realtime": {"seconds": 10.0, "rtpus": (1, 2, 4), "rounds": 4},
     "switching": {"switches": 1000, "interval": 0.02},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 3},
+    "links": {},
 }
 
 QUICK: dict[str, dict[str, Any]] = {
@@ -44,6 +46,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "realtime": {"seconds": 1.0, "rtpus": (1, 2, 4), "rounds": 1},
     "switching": {"switches": 20, "interval": 0.02},
     "check_scale": {"sizes": (102, 1002), "repeat": 1},
+    "links": {"quick": True},
 }
 
 DOC = Path(REPO) / "docs" / "performance.md"

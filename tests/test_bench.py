@@ -18,6 +18,7 @@ TINY = {
     "realtime": {"seconds": 0.4, "rtpus": (1,), "rounds": 1},
     "switching": {"switches": 4, "interval": 0.02},
     "check_scale": {"sizes": (12, 30), "repeat": 1},
+    "links": {"quick": True, "rounds": 1},
 }
 
 

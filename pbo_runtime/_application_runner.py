@@ -23,6 +23,7 @@ from typing import Any, Callable
 
 from pbo_runtime import _shm
 from pbo_runtime._application import Application
+from pbo_runtime._supervisor import remove_dead_runs
 from pbo_runtime._triple_buffer import LinkLayout, TripleBuffer, link_name
 
 STOP_GRACE = 15.0  # seconds a subsystem gets to shut down after SIGTERM before it is killed
@@ -59,7 +60,7 @@ class ApplicationRunner:
     def run(self) -> int:
         previous = {s: signal.signal(s, self._interrupt) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
-            removed = remove_dead_links(self.application.name)
+            removed = remove_dead_runs(self.application.name)  # links of a killed runner: same names, same rule
             if removed:
                 self.say(f"removed {len(removed)} link(s) left by a dead run: {', '.join(removed)}")
             self._make_links()
@@ -132,11 +133,3 @@ class ApplicationRunner:
                 child.kill()
                 child.wait()
 
-
-def remove_dead_links(application: str) -> list[str]:
-    """Links a killed runner of this application left (its pid is in their names)."""
-    removed = []
-    for kind, name in _shm.stale_objects(application):
-        if _shm.unlink_quietly(kind, name):
-            removed.append(name)
-    return removed

@@ -171,7 +171,45 @@ class LinkStatistics:
     lock_recoveries: int  # locks released after their holder died (whole link)
 
 
-class TripleBuffer:
+class ReaderTally:
+    """A reader's account of the items it read: what every periodic link's reader keeps the same way.
+
+    `_tally(counter, stamp_ns)` classifies one read of an item (after its copy) as NEW or REUSED
+    and counts what was lost in between; `lost` and `reused` are cheap enough for a cycle.
+    """
+
+    counter = 0  # of the last item read; 0 until one is read (published counters start at 1)
+    stamp_ns = 0  # its time stamp, CLOCK_MONOTONIC ns
+    lost_in_last_read = 0
+    _before_first = 0  # the counter just before the first item this reader counts
+    _new = _reused = _lost = _empty = 0
+
+    def _tally(self, counter: int, stamp_ns: int) -> Freshness:
+        if counter == self.counter:
+            self._reused += 1
+            self.lost_in_last_read = 0
+            return Freshness.REUSED
+        assert counter > self.counter, f"link '{self.name}': counter went back from {self.counter} to {counter}"
+        lost = counter - max(self.counter, self._before_first) - 1
+        self.counter = counter
+        self.stamp_ns = stamp_ns
+        self.lost_in_last_read = lost
+        self._lost += lost
+        self._new += 1
+        return Freshness.NEW
+
+    @property
+    def lost(self) -> int:
+        """Items published that this reader never read (a cheap read of one count, for a cycle)."""
+        return self._lost
+
+    @property
+    def reused(self) -> int:
+        """Reads that got the same item as the read before."""
+        return self._reused
+
+
+class TripleBuffer(ReaderTally):
     """One process's end of a periodic link. `create` makes the link; `attach` opens it."""
 
     def __init__(self, layout: LinkLayout, name: str, mapping, lock: posix_ipc.Semaphore, owner: bool) -> None:
@@ -402,28 +440,7 @@ class TripleBuffer:
         counter = self._meta[base]
         stamp_ns = self._meta[base + 1]
         np.copyto(out, self._payloads[slot])
-        if counter == self.counter:
-            self._reused += 1
-            self.lost_in_last_read = 0
-            return Freshness.REUSED
-        assert counter > self.counter, f"link '{self.name}': counter went back from {self.counter} to {counter}"
-        lost = counter - max(self.counter, self._before_first) - 1
-        self.counter = counter
-        self.stamp_ns = stamp_ns
-        self.lost_in_last_read = lost
-        self._lost += lost
-        self._new += 1
-        return Freshness.NEW
-
-    @property
-    def lost(self) -> int:
-        """Items published that this reader never read (a cheap read of one count, for a cycle)."""
-        return self._lost
-
-    @property
-    def reused(self) -> int:
-        """Reads that got the same item as the read before."""
-        return self._reused
+        return self._tally(counter, stamp_ns)
 
     def statistics(self) -> LinkStatistics:
         return LinkStatistics(

@@ -106,6 +106,7 @@ from pbo_runtime._message_link import (
 )
 from pbo_runtime._triple_buffer import (
     Freshness,
+    ReaderTally,
     LinkError,
     LinkLayout,
     LinkLayoutError,
@@ -289,7 +290,7 @@ class _Ends:
 # --- the periodic link ----------------------------------------------------------------------------
 
 
-class ZenohLink(_Ends):
+class ZenohLink(_Ends, ReaderTally):
     """One process's end of a periodic link over zenoh. `create` listens; `attach` connects."""
 
     transport = "zenoh"
@@ -526,19 +527,10 @@ class ZenohLink(_Ends):
             self._view = np.frombuffer(raw, dtype=self.layout.dtype, count=self.layout.size, offset=ITEM_HEADER.size).reshape(self.layout.shape)
             self._source = raw
         np.copyto(self.value if out is None else out, self._view)
-        if counter == self.counter:
-            self._reused += 1
-            self.lost_in_last_read = 0
-            return Freshness.REUSED
-        assert counter > self.counter, f"link '{self.name}': counter went back from {self.counter} to {counter}"
-        lost = counter - max(self.counter, self._before_first) - 1
-        self.counter = counter
-        self.stamp_ns = stamp_ns
-        self.received_ns = received_ns
-        self.lost_in_last_read = lost
-        self._lost += lost
-        self._new += 1
-        return Freshness.NEW
+        freshness = self._tally(counter, stamp_ns)
+        if freshness is Freshness.NEW:
+            self.received_ns = received_ns
+        return freshness
 
     def _foreign_problem(self, foreign: tuple[int, int, int]) -> str:
         form, layout_hash, size = foreign
@@ -546,16 +538,6 @@ class ZenohLink(_Ends):
             return f"link '{self.name}' received an item that is not a pbo zenoh item of format {ITEM_FORMAT & 0xFFFF} ({size} bytes)"
         found = [o.get("layout") for o in self._other_ends(f"{self.key}/end/sender") if o.get("layout_hash") == layout_hash]
         return self._mismatch(found[0] if found else f"items of {size - ITEM_HEADER.size} bytes of another payload")
-
-    @property
-    def lost(self) -> int:
-        """Items published that this reader never read (as `TripleBuffer.lost`)."""
-        return self._lost
-
-    @property
-    def reused(self) -> int:
-        """Reads that got the same item as the read before (as `TripleBuffer.reused`)."""
-        return self._reused
 
     def statistics(self) -> LinkStatistics:
         return LinkStatistics(writes=self._writes, new=self._new, reused=self._reused, lost=self._lost, empty=self._empty,

@@ -71,18 +71,20 @@ class LockstepMaster:
         for role in self.roles:
             self.step(role, while_waiting)
 
-    def step(self, role: str, while_waiting: Callable[[], None]) -> None:
-        """Release one participant and wait until it is done; `while_waiting` runs every slice."""
+    def step(self, role: str, while_waiting: Callable[[], bool | None]) -> bool:
+        """Release one participant and wait until it is done (True); `while_waiting` runs every slice.
+
+        `while_waiting` may raise (a participant died) or return True to stop waiting (False).
+        """
         self._go[role].release()
         done = self._done[role]
         while True:
             try:
                 done.acquire(WAIT_SLICE)
-                return
-            except posix_ipc.BusyError:
-                while_waiting()  # raises if the participant died; drains its events meanwhile
-            except posix_ipc.SignalError:
-                while_waiting()  # Ctrl-C sets a flag in the supervisor; the tick still ends cleanly
+                return True
+            except (posix_ipc.BusyError, posix_ipc.SignalError):  # a signal: Ctrl-C only sets a flag
+                if while_waiting():
+                    return False
 
     def close(self) -> None:
         for semaphore in (*self._go.values(), *self._done.values()):

@@ -458,6 +458,9 @@ class Executive:
             elif op == "event":
                 self._event(s, message[2] if len(message) > 2 else None)
                 return
+            elif op == "message":  # from a link's relay (TaskContext.serve_link): no reply to anyone
+                self._event(s, message[2] if len(message) > 2 else None, quiet=True)
+                return
             else:
                 self.report("refused", name, f"unknown signal '{op}'")
                 return
@@ -466,13 +469,20 @@ class Executive:
             return
         self._report_state(task)
 
-    def _event(self, s: Scheduled, payload: Any) -> None:
-        """An event for an aperiodic task: released now, or after its minimum inter-arrival time."""
+    def _event(self, s: Scheduled, payload: Any, quiet: bool = False) -> None:
+        """An event for an aperiodic task: released now, or after its minimum inter-arrival time.
+
+        `quiet`: a message from another subsystem (TR §5.1); while the server is not ON it is
+        counted as dropped instead of refused, since no operator is there to read a refusal.
+        """
         if not s.aperiodic:
             self.report("refused", s.task.name, "event: the task is periodic")
             return
         if s.task.state != TaskState.ON:
-            self.report("refused", s.task.name, f"event: the task is {s.task.state.name}, not ON")
+            if quiet:
+                s.dropped_events += 1
+            else:
+                self.report("refused", s.task.name, f"event: the task is {s.task.state.name}, not ON")
             return
         if len(s.events) == s.events.maxlen:
             s.dropped_events += 1

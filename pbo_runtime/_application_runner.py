@@ -2,8 +2,10 @@
 
 Each subsystem runs as its own `pbo run` (its own supervisor, table, RTPUs and plant), started
 by this runner with `--links`, the JSON that tells its tasks where each link is. The runner
-makes the links first (shared memory: a triple buffer per link, 0600, named after the runner's
-run) and removes them last, whatever happened. Each subsystem's output is shown line by line
+makes the links first (shared memory: a triple buffer per periodic link, a message queue per
+message link, 0600, named after the runner's run) and removes them last, whatever happened.
+`run:` in the application file picks a subsystem's configuration (`--config`) or application of
+jobs (`--app`); an inline subsystem is run by its `app.yaml#key` reference. Each subsystem's output is shown line by line
 with its name in front. When one subsystem fails, or on Ctrl-C, the others are stopped
 (SIGTERM: their supervisors shut down cleanly); the exit status is the worst of theirs.
 """
@@ -24,6 +26,7 @@ from typing import Any, Callable
 from pbo_runtime import _shm
 from pbo_runtime._application import Application
 from pbo_runtime._supervisor import remove_dead_runs
+from pbo_runtime._message_link import MessageLink, message_link_name
 from pbo_runtime._triple_buffer import LinkLayout, TripleBuffer, link_name
 
 STOP_GRACE = 15.0  # seconds a subsystem gets to shut down after SIGTERM before it is killed
@@ -53,7 +56,7 @@ class ApplicationRunner:
         self.out_dir = out_dir
         self.run_id = _shm.new_run_id()
         self.links: dict[str, dict[str, Any]] = {}
-        self._buffers: list[TripleBuffer] = []
+        self._links: list[TripleBuffer | MessageLink] = []  # the shm links this runner made and removes
         self._children: dict[str, subprocess.Popen] = {}
         self._stopping = ""
 
@@ -68,8 +71,8 @@ class ApplicationRunner:
             return self._wait()
         finally:
             self._stop_all()
-            for buffer in self._buffers:
-                buffer.close()
+            for link in self._links:
+                link.close()
             for s, handler in previous.items():
                 signal.signal(s, handler)
 
@@ -78,22 +81,35 @@ class ApplicationRunner:
 
     def _make_links(self) -> None:
         for name, spec in self.application.links.items():
-            entry: dict[str, Any] = {"transport": spec.transport, "dtype": spec.dtype, "shape": list(spec.shape)}
-            if spec.transport == "shm":
-                object_name = link_name(self.application.name, self.run_id, name)
-                self._buffers.append(TripleBuffer.create(object_name, LinkLayout(spec.dtype, spec.shape)))
-                entry["object"] = object_name
-            else:  # zenoh: the sender listens on a loopback port, the reader connects to it
+            entry: dict[str, Any] = {"kind": spec.kind, "transport": spec.transport, "dtype": spec.dtype,
+                                     "shape": list(spec.shape)}
+            if spec.kind == "message":
+                entry["capacity"] = spec.capacity
+            if spec.transport == "zenoh":  # the sending (periodic) or serving (message) end listens; the other connects
                 entry["key"] = f"pbo/{self.application.name}/{self.run_id}/{name}"
                 entry["endpoint"] = f"tcp/127.0.0.1:{_free_port()}"
+            elif spec.kind == "message":
+                object_name = message_link_name(self.application.name, self.run_id, name)
+                self._links.append(MessageLink.create(object_name, spec.capacity))
+                entry["object"] = object_name
+            else:
+                object_name = link_name(self.application.name, self.run_id, name)
+                self._links.append(TripleBuffer.create(object_name, LinkLayout(spec.dtype, spec.shape)))
+                entry["object"] = object_name
             self.links[name] = entry
+            what = f"messages, {spec.capacity} queued at most" if spec.kind == "message" else "periodic"
             self.say(f"link '{name}': {spec.sender[0]}.{spec.sender[1]} -> {spec.receiver[0]}.{spec.receiver[1]} "
-                     f"({spec.dtype} {list(spec.shape)}, {spec.transport})")
+                     f"({spec.dtype} {list(spec.shape)}, {what}, {spec.transport})")
 
     def _start(self) -> None:
         for key, subsystem in self.application.subsystems.items():
             command = [sys.executable, "-m", "pbo_runtime.cli", "run", subsystem.file, "--no-live", "--clock", self.clock,
                        "--duration", repr(self.duration or 0.0), "--links", json.dumps(self.links)]
+            chosen = self.application.run.get(key, {})
+            if "config" in chosen:
+                command += ["--config", chosen["config"]]
+            if "app" in chosen:
+                command += ["--app", chosen["app"]]
             if self.out_dir is not None:
                 command += ["--out", str(self.out_dir / key)]
             child = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,

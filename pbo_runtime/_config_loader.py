@@ -169,7 +169,7 @@ def _load_with_includes(file: str, stack: list[str], errors: list[ConfigError]) 
     document still gets checked so the user sees everything at once.
     """
     try:
-        doc = load_file(file)
+        doc = _load_document(file)
     except ConfigError as exc:
         errors.append(exc)
         return _UNREADABLE
@@ -210,6 +210,29 @@ def _load_with_includes(file: str, stack: list[str], errors: list[ConfigError]) 
 
 
 _UNREADABLE = object()
+INLINE = "#"  # "app.yaml#operator": the subsystem written inline under `subsystems: {operator: ...}` of app.yaml
+
+
+def inline_reference(application_file: str, key: str) -> str:
+    """The name by which every process loads a subsystem written inline in an application file."""
+    return f"{application_file}{INLINE}{key}"
+
+
+def _load_document(file: str) -> Any:
+    """A subsystem file's document, or the inline subsystem an `app.yaml#key` reference points at.
+
+    Locations stay those of the application file, so an inline subsystem's errors point into it.
+    """
+    path, mark, key = file.rpartition(INLINE)
+    if not mark or os.path.exists(file):
+        return load_file(file)
+    root = load_file(path)
+    entries = root.get("subsystems") if isinstance(root, YMap) else None
+    node = entries.get(key) if isinstance(entries, YMap) else None
+    if not isinstance(node, YMap):
+        raise ConfigError(f"no inline subsystem '{key}' under subsystems: in {path}", path, 1, 1,
+                          "write it as a mapping: subsystems: {name: {subsystem: name, rtpus: [...], ...}}")
+    return node
 
 
 def _merge_into(target: YMap, source: YMap, errors: list[ConfigError]) -> None:

@@ -25,6 +25,7 @@ from pbo_runtime._table import Status as StatusWord
 from pbo_runtime._transfer import LocalTable
 
 DeviceOpener = Callable[[DeviceSpec], Any]
+Relay = Callable[[str, Any], Any]  # (task, a message link's receiving end) -> something with close()
 
 
 @dataclass
@@ -42,16 +43,30 @@ class TaskContext:
     opened: list[Any] = field(default_factory=list)
     out_dir: str = ""  # `pbo run --out DIR`: where the run's files go ("" : paths stay as given)
     links: dict[str, dict[str, Any]] = field(default_factory=dict)  # the application's links, by name
+    relay: Relay | None = None  # the RTPU's: wakes this task per message of a link it serves
 
     def open_link(self, name: str, like: Any, role: str) -> Any:
-        """One end of an application's link, carrying items shaped like the array `like`."""
+        """One end of an application's link, carrying items shaped like the array `like`.
+
+        role 'server' (a message link's receiving end): from then on each message releases this
+        aperiodic task, its payload in `event`; the end is the relay's to read, not the module's.
+        """
         from pbo_runtime._links import open_link_end
 
         if name not in self.links:
             provided = ", ".join(sorted(self.links)) or "none: this subsystem runs alone"
             raise ModuleError(f"task '{self.task_name}' opens link '{name}', but the application provides no such link "
                               f"(links: {provided}); run the application file that declares it: pbo run APP.yaml")
+        if role == "server" and self.relay is None:
+            raise ModuleError(f"task '{self.task_name}' serves link '{name}', but no RTPU hosts it to wake it")
         end = open_link_end(name, self.links[name], like, role)
+        if role == "server":
+            assert self.relay is not None
+            try:
+                end = self.relay(self.task_name, end)
+            except BaseException:
+                end.close()
+                raise
         self.opened.append(end)
         return end
 
@@ -79,6 +94,7 @@ class Task:
         opener: DeviceOpener | None = None,
         out_dir: str = "",
         links: dict[str, dict[str, Any]] | None = None,
+        relay: Relay | None = None,
     ) -> None:
         self.spec = spec
         self.name = spec.name
@@ -88,7 +104,7 @@ class Task:
         self.cycles = 0
         self.errors = 0
         self.context = TaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}), opener,
-                                   out_dir=out_dir, links=dict(links or {}))
+                                   out_dir=out_dir, links=dict(links or {}), relay=relay)
         self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
         self.status = self.local.status
         self.status[StatusWord.CYCLES] = 0

@@ -6,6 +6,10 @@ the supervisor and then to each RTPU (`--links`), where `TaskContext.open_link` 
 
     {"transport": "shm", "object": "/pbo.<app>.<run id>.link-<name>", "dtype": "float64", "shape": [6]}
     {"transport": "zenoh", "key": "pbo/<app>/<name>", "endpoint": "tcp/127.0.0.1:<port>", ...}
+    {"kind": "message", "transport": "shm", "object": "/pbo.<app>.<run id>.msg-<name>", "capacity": 8, ...}
+
+Roles: a periodic link has a 'sender' and a 'reader'; a message link a 'sender' and a 'server'
+(whose end the RTPU watches, releasing the server task per message: `_message_relay`).
 
 The payload the task's port carries must be the link's: a mismatch is refused with both sides
 named (the application checker reports it before anything runs; this is the runtime's guard).
@@ -30,14 +34,29 @@ def open_link_end(name: str, spec: dict[str, Any], like: np.ndarray, role: str) 
     if (like.dtype, like.shape) != expected:
         raise ModuleError(f"link '{name}' carries {expected[0]} {list(expected[1])}, but the port is {like.dtype} "
                           f"{list(like.shape)}: link a variable of the link's type and shape")
-    layout = LinkLayout(like.dtype, like.shape)
     transport = spec.get("transport", "shm")
+    if transport not in TRANSPORTS:
+        raise ModuleError(f"link '{name}': unknown transport '{transport}' (transports: {', '.join(TRANSPORTS)})")
+    if spec.get("kind", "periodic") == "message":
+        return _open_message_end(name, spec, transport, role)
+    layout = LinkLayout(like.dtype, like.shape)
     if transport == "shm":
         from pbo_runtime._triple_buffer import TripleBuffer
 
         return TripleBuffer.attach(spec["object"], layout, role=role)
-    if transport == "zenoh":
-        from pbo_runtime import _zenoh_link
+    from pbo_runtime import _zenoh_link
 
-        return _zenoh_link.open_periodic(spec, layout, role)
-    raise ModuleError(f"link '{name}': unknown transport '{transport}' (transports: {', '.join(TRANSPORTS)})")
+    return _zenoh_link.open_periodic(spec, layout, role)
+
+
+def _open_message_end(name: str, spec: dict[str, Any], transport: str, role: str) -> Any:
+    """A message link's 'sender' or 'server' end; the runner made the shm queue, the zenoh server listens."""
+    if role not in ("sender", "server"):
+        raise ModuleError(f"link '{name}' carries messages: its ends are 'sender' and 'server', not '{role}'")
+    if transport == "shm":
+        from pbo_runtime._message_link import MessageLink
+
+        return MessageLink.attach(spec["object"])
+    from pbo_runtime import _zenoh_link
+
+    return _zenoh_link.open_aperiodic(spec, role)

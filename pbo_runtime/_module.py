@@ -133,8 +133,10 @@ class PortBasedObject:
         return Path(out_dir) / given.name if out_dir else given
 
     def open_link(self, name: str, like: np.ndarray, role: str) -> Any:
-        """Open one end ('sender' or 'reader') of the application's link `name` (call it in `init`).
+        """Open one end of the application's link `name` (call it in `init`).
 
+        A periodic link's ends are 'sender' and 'reader'; a message link's 'sender' and 'server'
+        (an aperiodic task: each message then releases it, with `[body, sent_ns]` in `event`).
         Items are shaped like `like` (a bound port array); the link closes when the task is killed.
         """
         return self._pbo_context.open_link(name, like, role)

@@ -17,6 +17,7 @@ import posix_ipc
 
 PREFIX = "pbo."
 SHM_DIR = Path("/dev/shm")
+MQUEUE_DIR = Path("/dev/mqueue")
 NAME = re.compile(r"^pbo\.(?P<sub>[A-Za-z0-9_-]+)\.(?P<pid>\d+)-(?P<nonce>[0-9a-f]+)\.(?P<part>[A-Za-z0-9_.-]+)$")
 
 
@@ -72,19 +73,25 @@ def pid_alive(pid: int) -> bool:
 
 
 def stale_objects(subsystem: str | None = None) -> list[tuple[str, str]]:
-    """(kind, name) of objects in /dev/shm whose creating run is dead.
+    """(kind, name) of objects whose creating run is dead.
 
-    Segments and semaphores are listed in /dev/shm; queues are found through the run ids seen
-    there, since /dev/mqueue may not be mounted.
+    Segments and semaphores are listed in /dev/shm, queues in /dev/mqueue where it is mounted;
+    where it is not, a run's queues are found through its table's manifest (`remove_dead_runs`).
     """
     found: list[tuple[str, str]] = []
-    if not SHM_DIR.is_dir():
-        return found
-    for entry in sorted(os.listdir(SHM_DIR)):
-        kind, base = ("sem", entry[4:]) if entry.startswith("sem.") else ("shm", entry)
+    listed = [("sem", e[4:]) if e.startswith("sem.") else ("shm", e) for e in _entries(SHM_DIR)]
+    listed += [("mq", e) for e in _entries(MQUEUE_DIR)]  # where mounted: queues that no table's manifest lists
+    for kind, base in listed:
         match = NAME.match(base)
         if not match or (subsystem and match["sub"] != subsystem):
             continue
         if not pid_alive(int(match["pid"])):
             found.append((kind, "/" + base))
     return found
+
+
+def _entries(directory: Path) -> list[str]:
+    try:
+        return sorted(os.listdir(directory))
+    except OSError:  # not there, or not mounted
+        return []

@@ -814,3 +814,14 @@ def open_periodic(spec: Mapping[str, Any], layout: LinkLayout, role: Role | str)
     if _role(role) is Role.SENDER:
         return ZenohLink.create(spec["key"], layout, Role.SENDER, port=port, host=host)
     return ZenohLink.attach(spec["key"], layout, role, port=port, host=host, wait=spec.get("wait", DEFAULT_WAIT))
+
+
+def open_aperiodic(spec: Mapping[str, Any], role: str) -> ZenohMessageLink:
+    """One end of an application's zenoh message link: the server listens on the spec's endpoint, the sender connects."""
+    found = _TCP_ENDPOINT.match(str(spec.get("endpoint", "")))
+    if not found or "key" not in spec:
+        raise LinkError(f"a zenoh link's spec needs 'key' and 'endpoint' ('tcp/<host>:<port>'), got: {dict(spec)!r}")
+    host, port = found["host"], int(found["port"])
+    if role == "server":
+        return ZenohMessageLink.create(spec["key"], int(spec.get("capacity") or SYSTEM_CAPACITY), port=port, host=host)
+    return ZenohMessageLink.attach(spec["key"], port=port, host=host, wait=spec.get("wait", DEFAULT_WAIT))

@@ -173,9 +173,13 @@ def _check_application(args: argparse.Namespace, console: Console, errors: Conso
     if result.application is not None:
         app = result.application
         lines = [f"{args.file}: ok: application '{app.name}', {len(app.subsystems)} subsystems, {len(app.links)} link(s)"]
-        lines += [f"  subsystem {key}: {sub.file} ('{sub.name}', {len(sub.tasks)} tasks)" for key, sub in app.subsystems.items()]
-        lines += [f"  link {link.name}: {link.sender[0]}.{link.sender[1]} -> {link.receiver[0]}.{link.receiver[1]} "
-                  f"({link.dtype} {list(link.shape)}, {link.transport})" for link in app.links.values()]
+        for key, sub in app.subsystems.items():
+            runs = "".join(f", runs {'application' if k == 'app' else 'configuration'} '{v}'" for k, v in app.run.get(key, {}).items())
+            lines.append(f"  subsystem {key}: {sub.file} ('{sub.name}', {len(sub.tasks)} task(s){runs})")
+        for link in app.links.values():
+            kind = f"messages, {link.capacity} queued at most" if link.kind == "message" else "periodic"
+            lines.append(f"  link {link.name}: {link.sender[0]}.{link.sender[1]} -> {link.receiver[0]}.{link.receiver[1]} "
+                         f"({link.dtype} {list(link.shape)}, {kind}, {link.transport})")
         text = (text + "\n" if result.warnings else "") + "\n".join(lines)
     (errors if result.errors else console).print(text, markup=False)
     return EXIT_CONFIG if result.errors else EXIT_OK

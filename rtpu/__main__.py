@@ -62,6 +62,14 @@ def main(argv: list[str] | None = None) -> int:
             opener = task_in_init(s.task for s in executive.tasks.values())
             return DeviceDatabase(subsystem, table, registers).open(device.name, opener)
 
+        signal_queue = _messages.signal_queue_name(name, args.run_id, args.rtpu)
+
+        def relay(task: str, end):
+            # A message link's server task (TR 5.1): each message is a signal to this RTPU.
+            from pbo_runtime._message_relay import MessageRelay
+
+            return MessageRelay(end, signal_queue, task)
+
         rtpu = subsystem.rtpu(args.rtpu)
         realtime = _realtime.apply(rtpu.cpu, args.fifo)
         simulated = args.clock == "sim"
@@ -74,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
 
             def make(spec=spec, module_class=module_class) -> Task:
                 return Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device,
-                            out_dir=args.out, links=links)
+                            out_dir=args.out, links=links, relay=relay)
 
             executive.add(make(), make)
         if simulated:

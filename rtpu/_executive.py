@@ -407,7 +407,10 @@ class Executive:
             s.expected_writers[i] = writer
 
     def _turn_on(self, s: Scheduled, at: float, plan: int = 0) -> None:
-        s.release = math.inf if s.aperiodic else self._first_release(s, at)
+        if s.aperiodic:  # released by its first event; messages that came while it was off are served now
+            s.release = max(at, s.last_release + s.period) if s.events else math.inf
+        else:
+            s.release = self._first_release(s, at)
         if s.task.turn_on(self.clock.now()):
             self.on.append(s)
             s.first_cycle_of_plan = plan
@@ -472,22 +475,21 @@ class Executive:
     def _event(self, s: Scheduled, payload: Any, quiet: bool = False) -> None:
         """An event for an aperiodic task: released now, or after its minimum inter-arrival time.
 
-        `quiet`: a message from another subsystem (TR §5.1); while the server is not ON it is
-        counted as dropped instead of refused, since no operator is there to read a refusal.
+        `quiet`: a message from another subsystem (TR §5.1). While its server is not ON yet it
+        waits in the server's queue (released when it turns on), since the other subsystem may
+        start first; an operator's event is refused instead, for the operator to read.
         """
         if not s.aperiodic:
             self.report("refused", s.task.name, "event: the task is periodic")
             return
-        if s.task.state != TaskState.ON:
-            if quiet:
-                s.dropped_events += 1
-            else:
-                self.report("refused", s.task.name, f"event: the task is {s.task.state.name}, not ON")
+        on = s.task.state == TaskState.ON
+        if not on and not quiet:
+            self.report("refused", s.task.name, f"event: the task is {s.task.state.name}, not ON")
             return
         if len(s.events) == s.events.maxlen:
             s.dropped_events += 1
         s.events.append(payload)
-        if s.release == math.inf:
+        if on and s.release == math.inf:
             s.release = max(self.clock.now(), s.last_release + s.period)
 
     def stop(self) -> None:

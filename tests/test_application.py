@@ -16,14 +16,20 @@ from tests.test_end_to_end import PBO, assert_nothing_left
 APP = REPO / "configs" / "leader_follower.yaml"
 
 
-def write_app(tmp_path, links: str = "  arm_state: {type: float64, shape: [6], transport: shm}\n",
-              follower: str | None = None, extra: str = "") -> str:
-    """The shipped application, copied beside its subsystems so each can be changed."""
-    (tmp_path / "leader.yaml").write_text((REPO / "configs" / "leader.yaml").read_text())
+SHIPPED_LINKS = ("  arm_state: {type: float64, shape: [6], transport: shm}\n"
+                 "  goal: {kind: message, type: float64, shape: [6], capacity: 4, transport: shm}\n")
+
+
+def write_app(tmp_path, links: str = SHIPPED_LINKS, follower: str | None = None, leader: str | None = None,
+              operator: str | None = None, run: str = "run:\n  operator: {app: tour}\n") -> str:
+    """The shipped application, copied beside its subsystems so each part can be changed."""
+    (tmp_path / "leader.yaml").write_text(leader or (REPO / "configs" / "leader.yaml").read_text())
     (tmp_path / "follower.yaml").write_text(follower or (REPO / "configs" / "follower.yaml").read_text())
+    text = APP.read_text()
+    head, inline = text[:text.index("  operator:")], text[text.index("  operator:"):text.index("links:\n")]
     path = tmp_path / "app.yaml"
-    path.write_text("application: pair\nsubsystems:\n  leader: leader.yaml\n  follower: follower.yaml\n"
-                    f"{extra}links:\n{links}")
+    path.write_text(head.replace("application: leader_follower", "application: pair") + (operator or inline)
+                    + "links:\n" + links + run)
     return str(path)
 
 
@@ -49,21 +55,23 @@ def test_a_task_naming_an_undeclared_link_is_located_on_the_task(tmp_path):
 
 
 def test_a_link_without_a_receiver_is_an_error_with_a_hint(tmp_path):
-    result = check_application(write_app(tmp_path, links="  arm_state: {type: float64, shape: [6]}\n"
-                                                         "  spare: {type: float64, shape: [6]}\n"))
-    errors = [e for e in result.errors if e.code == "E805"]
-    assert {e.message for e in errors} == {"link 'spare' has no link_sender task", "link 'spare' has no link_receiver task"}
-    assert all(e.line == 7 for e in errors) and "module: link_receiver" in errors[1].hint + errors[0].hint
+    path = write_app(tmp_path, links=SHIPPED_LINKS + "  spare: {type: float64, shape: [6]}\n")
+    result = check_application(path)
+    assert codes(result) == ["E805", "E805"]
+    assert {e.message for e in result.errors} == {"link 'spare' has no link_sender task", "link 'spare' has no link_receiver task"}
+    spare_line = open(path).read().splitlines().index("  spare: {type: float64, shape: [6]}") + 1
+    assert all(e.line == spare_line for e in result.errors)
+    assert "module: link_receiver" in result.errors[1].hint + result.errors[0].hint
 
 
 def test_a_variable_of_another_shape_than_its_link_is_refused(tmp_path):
-    result = check_application(write_app(tmp_path, links="  arm_state: {type: float64, shape: [7]}\n"))
+    result = check_application(write_app(tmp_path, links=SHIPPED_LINKS.replace("shape: [6], transport: shm}", "shape: [7], transport: shm}")))
     assert codes(result).count("E806") == 2
     assert "carries float64 [7]" in result.errors[0].message
 
 
 def test_an_unknown_transport_and_a_missing_subsystem_file_are_reported_together(tmp_path):
-    path = write_app(tmp_path, links="  arm_state: {type: float64, shape: [6], transport: carrier-pigeon}\n")
+    path = write_app(tmp_path, links=SHIPPED_LINKS.replace("[6], transport: shm}", "[6], transport: carrier-pigeon}"))
     text = open(path).read().replace("follower: follower.yaml", "follower: nowhere.yaml")
     open(path, "w").write(text)
     result = check_application(path)
@@ -81,7 +89,85 @@ def test_an_error_in_a_subsystem_file_is_reported_with_its_own_location(tmp_path
 def test_pbo_check_on_an_application_prints_every_link(tmp_path):
     done = subprocess.run([*PBO, "check", str(APP)], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
-    assert "link arm_state: leader.send -> follower.receive (float64 [6], shm)" in done.stdout
+    assert "link arm_state: leader.send -> follower.receive (float64 [6], periodic, shm)" in done.stdout
+    assert "link goal: operator.console -> leader.goal (float64 [6], messages, 4 queued at most, shm)" in done.stdout
+    assert "subsystem operator: " + str(APP) + "#operator ('operator', 2 task(s), runs application 'tour')" in done.stdout
+
+
+def test_an_inline_subsystem_is_checked_in_full_and_its_errors_point_into_the_application_file(tmp_path):
+    path = write_app(tmp_path)
+    text = open(path).read().replace("period: 10 ms, params: {link: goal}", "period: 10 weeks, params: {link: goal}")
+    open(path, "w").write(text)
+    result = check_application(path)
+    assert result.errors and all(e.file == path for e in result.errors)
+    error = result.errors[0]
+    assert error.line == text.splitlines().index(next(line for line in text.splitlines() if "10 weeks" in line)) + 1
+    assert "weeks" in error.message
+
+
+def test_an_inline_subsystem_runs_under_its_reference_and_loads_alone(tmp_path):
+    from pbo_runtime._config_loader import load_subsystem
+
+    result = check_application(write_app(tmp_path))
+    operator = result.application.subsystems["operator"]
+    assert operator.file.endswith("app.yaml#operator") and operator.plant is None
+    assert load_subsystem(operator.file).tasks.keys() == {"console", "logger"}  # what `pbo run` and each RTPU do
+
+
+def test_a_missing_inline_subsystem_reference_is_a_clear_error(tmp_path):
+    from pbo_runtime._config_loader import check_file
+
+    result = check_file(write_app(tmp_path) + "#nobody")
+    assert result.subsystem is None and "no inline subsystem 'nobody' under subsystems:" in result.errors[0].message
+
+
+def test_a_message_sender_on_a_periodic_link_is_refused_with_the_fitting_modules(tmp_path):
+    result = check_application(write_app(tmp_path, links=SHIPPED_LINKS.replace("kind: message, ", "").replace("capacity: 4, ", "")))
+    errors = [e for e in result.errors if e.code == "E808"]
+    assert len(errors) == 2 and codes(result) == ["E808", "E808"]  # the operator's sender and the leader's server
+    assert "is a message_sender, a message link's end, but link 'goal' is a periodic link" in errors[1].message + errors[0].message
+    assert "kind: message" in errors[0].hint
+
+
+def test_a_periodic_message_server_is_refused_with_how_to_make_it_aperiodic(tmp_path):
+    leader = (REPO / "configs" / "leader.yaml").read_text().replace("aperiodic: true, min_interarrival: 10 ms,", "period: 10 ms,")
+    result = check_application(write_app(tmp_path, leader=leader))
+    assert codes(result) == ["E808"]
+    assert "serves message link 'goal' but is periodic" in result.errors[0].message
+    assert "aperiodic: true" in result.errors[0].hint and result.errors[0].file.endswith("leader.yaml")
+
+
+@pytest.mark.parametrize("capacity, wanted", [("0", "from 1 to"), ("many", "from 1 to"), ("100000", "fs.mqueue.msg_max")])
+def test_a_message_link_capacity_must_fit_the_systems_queues(tmp_path, capacity, wanted):
+    result = check_application(write_app(tmp_path, links=SHIPPED_LINKS.replace("capacity: 4", f"capacity: {capacity}")))
+    assert codes(result) == ["E803"]
+    assert wanted in result.errors[0].message + result.errors[0].hint
+
+
+def test_a_periodic_link_takes_no_capacity(tmp_path):
+    links = SHIPPED_LINKS.replace("shape: [6], transport: shm}", "shape: [6], capacity: 3, transport: shm}", 1)
+    result = check_application(write_app(tmp_path, links=links))
+    assert codes(result) == ["E803"] and "is periodic and takes no capacity" in result.errors[0].message
+
+
+def test_a_message_too_large_for_a_queue_is_sent_to_a_periodic_link_instead(tmp_path):
+    links = SHIPPED_LINKS + "  image: {kind: message, type: float64, shape: [480, 640]}\n"
+    result = check_application(write_app(tmp_path, links=links))
+    error = next(e for e in result.errors if e.code == "E803")
+    assert "more than the" in error.message and "kind: periodic" in error.hint
+
+
+@pytest.mark.parametrize("run, wanted", [
+    ("run:\n  nobody: {app: tour}\n", "run: no subsystem 'nobody'"),
+    ("run:\n  operator: {app: grand_tour}\n", "has no application 'grand_tour'"),
+    ("run:\n  operator: {config: operate, app: tour}\n", "not both"),
+    ("run:\n  operator: {speed: 2}\n", "unknown option 'speed'"),
+    ("run: [operator]\n", "run must map subsystems"),
+])
+def test_the_run_section_names_a_subsystem_and_one_of_its_configurations_or_applications(tmp_path, run, wanted):
+    result = check_application(write_app(tmp_path, run=run))
+    assert codes(result) == ["E807"], [e.format() for e in result.errors]
+    assert wanted in result.errors[0].message
 
 
 def test_a_subsystem_run_alone_says_which_link_it_lacks(tmp_path):
@@ -92,33 +178,46 @@ def test_a_subsystem_run_alone_says_which_link_it_lacks(tmp_path):
     assert "pbo run APP.yaml" in done.stderr
 
 
-@pytest.mark.multiprocess
-def test_the_follower_arm_tracks_the_leader_through_a_shared_memory_link(tmp_path):
-    done = subprocess.run([*PBO, "run", str(APP), "--duration", "3", "--out", str(tmp_path / "out")], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=240)
-    assert done.returncode == 0, done.stdout + done.stderr
-    assert "[leader] pbo: configuration 'lead' is on" in done.stdout and "[follower] run summary" in done.stdout
-    leader = np.load(tmp_path / "out" / "leader" / "leader.npz")
-    follower = np.load(tmp_path / "out" / "follower" / "follower.npz")
-    assert np.max(np.abs(leader["q_m"][-1] - np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2]))) < 0.01  # the leader reached its goal
-    assert np.max(np.abs(follower["q_d"][-1] - leader["q_m"][-1])) < 0.01  # the link carried it
+GOAL_B = np.array([-0.2, -0.3, 0.3, -0.2, 0.2, 0.4])  # the operator's second and last goal (configs/leader_follower.yaml)
+
+
+def assert_the_goal_reached_both_arms(out, done) -> None:
+    leader = np.load(out / "leader" / "leader.npz")
+    follower = np.load(out / "follower" / "follower.npz")
+    operator = np.load(out / "operator" / "operator.npz")
+    assert list(operator["message_counts"][-1]) == [2.0, 0.0]  # two goals sent, none put off
+    assert np.allclose(leader["q_d"][-1], GOAL_B)  # the leader's server took the last message
+    assert np.max(np.abs(leader["q_m"][-1] - GOAL_B)) < 0.01  # and the leader got there
+    assert np.max(np.abs(follower["q_d"][-1] - leader["q_m"][-1])) < 0.01  # the periodic link carried it
     assert np.max(np.abs(follower["q_m"][-1] - leader["q_m"][-1])) < 0.01  # and the follower got there too
     lost, reused, age = follower["link_counts"][-1]
     assert lost >= 0 and reused >= 0 and age >= 0  # no bound: the leader may stop before the follower's last cycles
-    for key in ("leader", "follower"):
-        assert_nothing_left(json.loads((tmp_path / "out" / key / "report.json").read_text()))
-    assert [n for n in os.listdir("/dev/shm") if "pbo.pair." in n or "pbo.leader_follower." in n] == []
+    report = json.loads((out / "leader" / "report.json").read_text())
+    goal = report["tasks"]["goal"]
+    assert goal["cycles"] == 2 and goal["dropped_events"] == 0, goal  # one release per message
+    for key in ("leader", "follower", "operator"):
+        assert_nothing_left(json.loads((out / key / "report.json").read_text()))
+
+
+@pytest.mark.multiprocess
+def test_the_operator_goal_message_moves_the_leader_and_the_follower_tracks_it_over_shared_memory(tmp_path):
+    done = subprocess.run([*PBO, "run", str(APP), "--duration", "4", "--clock", "sim", "--out", str(tmp_path / "out")],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "[leader] pbo: configuration 'lead' is on" in done.stdout and "[follower] run summary" in done.stdout
+    assert "[operator] run summary: operator · operate" in done.stdout
+    assert_the_goal_reached_both_arms(tmp_path / "out", done)
+    assert [n for n in os.listdir("/dev/shm") if "pbo.leader_follower." in n] == []
+    assert [n for n in os.listdir("/dev/mqueue") if "pbo.leader_follower." in n] == []
 
 
 @pytest.mark.multiprocess
 def test_the_same_application_runs_over_zenoh_changed_only_in_yaml(tmp_path):
     pytest.importorskip("zenoh")
-    path = write_app(tmp_path, links="  arm_state: {type: float64, shape: [6], transport: zenoh}\n")
-    done = subprocess.run([*PBO, "run", path, "--duration", "3", "--out", str(tmp_path / "out")], cwd=tmp_path,
+    path = write_app(tmp_path, links=SHIPPED_LINKS.replace("transport: shm", "transport: zenoh"))
+    done = subprocess.run([*PBO, "run", path, "--duration", "4", "--out", str(tmp_path / "out")], cwd=tmp_path,
                           capture_output=True, text=True, timeout=240)
     assert done.returncode == 0, done.stdout + done.stderr
-    assert "link 'arm_state': leader.send -> follower.receive (float64 [6], zenoh)" in done.stdout
-    leader = np.load(tmp_path / "out" / "leader" / "leader.npz")
-    follower = np.load(tmp_path / "out" / "follower" / "follower.npz")
-    assert np.max(np.abs(follower["q_d"][-1] - leader["q_m"][-1])) < 0.01
-    assert np.max(np.abs(follower["q_m"][-1] - leader["q_m"][-1])) < 0.01
+    assert "link 'arm_state': leader.send -> follower.receive (float64 [6], periodic, zenoh)" in done.stdout
+    assert "link 'goal': operator.console -> leader.goal (float64 [6], messages, 4 queued at most, zenoh)" in done.stdout
+    assert_the_goal_reached_both_arms(tmp_path / "out", done)

@@ -218,3 +218,41 @@ def test_the_percentiles_of_the_last_1024_cycles_reach_the_table_for_pbo_status(
     assert ex.tasks["a"].samples == 1024
     assert shared[W.EXEC_P50] == pytest.approx(0.0002) and shared[W.EXEC_P99] == pytest.approx(0.0002)
     assert shared[W.JITTER_P50] == pytest.approx(0.0, abs=1e-12) and shared[W.MISSED] == 0
+
+
+def aperiodic_recorder(build, script):
+    ex = build([("server", EventRecorder, 0.01, False)], script)
+    scheduled = ex.tasks["server"]
+    scheduled.aperiodic, scheduled.period = True, 0.01  # as `aperiodic: true, min_interarrival: 10 ms`
+    return ex, scheduled
+
+
+def test_a_link_message_that_comes_before_its_server_is_on_waits_and_is_served_when_it_turns_on(setup):
+    build, clock, events = setup
+    EventRecorder.served = []
+    script = [(0.0, ["spawn", "server"]), (0.001, ["message", "server", [[1.0], 7]]), (0.005, ["on", "server", 0.005])]
+    ex, _ = aperiodic_recorder(build, script)
+    run_until(ex, clock, 0.05)
+    assert EventRecorder.served == [(0.005, [[1.0], 7])]
+    assert not any(e[0] == "refused" for e in events)  # the other subsystem started first: not a mistake
+
+
+def test_an_operator_event_for_a_server_that_is_off_is_still_refused(setup):
+    build, clock, events = setup
+    EventRecorder.served = []
+    ex, _ = aperiodic_recorder(build, [(0.0, ["spawn", "server"]), (0.001, ["event", "server", [1.0]])])
+    run_until(ex, clock, 0.05)
+    assert ("refused", "server", "event: the task is OFF, not ON") in events and EventRecorder.served == []
+
+
+def test_link_messages_beyond_what_a_server_holds_are_counted_as_dropped(setup):
+    from rtpu._executive import EVENTS_QUEUED
+
+    build, clock, _ = setup
+    EventRecorder.served = []
+    script = [(0.0, ["spawn", "server"])] + [(0.001, ["message", "server", [[float(i)], i]]) for i in range(EVENTS_QUEUED + 3)]
+    ex, scheduled = aperiodic_recorder(build, script + [(0.002, ["on", "server", 0.002])])
+    run_until(ex, clock, 1.0)
+    assert scheduled.dropped_events == 3
+    assert [payload[1] for _, payload in EventRecorder.served] == list(range(3, EVENTS_QUEUED + 3))  # the newest kept
+    assert ex.tasks["server"].statistics()["dropped_events"] == 3

@@ -8,6 +8,7 @@
     links:                          # by name: periodic (triple buffers) or message (queues)
       arm_state: {type: float64, shape: [6], transport: shm}     # transport: shm | zenoh
       goal: {kind: message, type: float64, shape: [6], capacity: 4}
+      wrist: {type: float64, shape: [6], transport: zenoh, endpoint: "tcp/192.168.1.20:7447"}
     run:                            # optional, per subsystem: its configuration or its application
       operator: {app: tour}
 
@@ -24,6 +25,7 @@ file:line:col, a code (E8xx, docs/error-codes.md) and a hint.
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,7 +43,8 @@ MESSAGE_SENDER, SERVER = "message_sender", "message_server"
 ENDS = {"periodic": (SENDER, RECEIVER), "message": (MESSAGE_SENDER, SERVER)}  # kind -> (sending, receiving) module
 _KIND_OF_MODULE = {module: kind for kind, pair in ENDS.items() for module in pair}
 _TOP_KEYS = ("application", "subsystems", "links", "run")
-_LINK_KEYS = ("kind", "type", "shape", "transport", "capacity")
+_LINK_KEYS = ("kind", "type", "shape", "transport", "capacity", "endpoint")
+_ZENOH_ENDPOINT = re.compile(r"^tcp/(?P<host>[^/:\s]+):(?P<port>\d{1,5})$")
 _RUN_KEYS = ("config", "app")
 MESSAGE_OVERHEAD_BYTES = 32  # msgpack framing, the time stamp and the relay's envelope
 MSGPACK_BYTES_PER_NUMBER = 9  # a float64 or a large integer, encoded
@@ -58,6 +61,7 @@ class LinkSpec:
     loc: Location = NOWHERE
     kind: str = "periodic"  # or "message"
     capacity: int = 0  # a message link's queue: messages it holds (0: the system's most)
+    endpoint: str = ""  # zenoh: where the listening end listens, "tcp/<host>:<port>" ("": a free loopback port)
 
 
 @dataclass
@@ -204,8 +208,18 @@ def _check_links(root: YMap, application: Application, error) -> None:
         capacity = _message_capacity(name, kind, spec, shape, error)
         if capacity is None:
             continue
+        endpoint = spec.get("endpoint", "")
+        if endpoint and transport != "zenoh":
+            error("E803", f"link '{name}' uses transport '{transport}', which takes no endpoint", spec.key_loc("endpoint"),
+                  "an endpoint is where a zenoh link listens: add transport: zenoh, or remove it")
+            continue
+        found = _ZENOH_ENDPOINT.match(str(endpoint)) if endpoint else None
+        if endpoint and (found is None or not 0 < int(found["port"]) < 65536):
+            error("E803", f"link '{name}': endpoint must be tcp/<host>:<port>, got {endpoint!r}", spec.value_loc("endpoint"),
+                  "e.g. endpoint: tcp/192.168.1.20:7447 (the address of the machine whose subsystem listens)")
+            continue
         application.links[name] = LinkSpec(name, str(np.dtype(dtype)), tuple(shape), transport, loc=loc, kind=kind,
-                                           capacity=capacity)
+                                           capacity=capacity, endpoint=str(endpoint))
 
 
 def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error) -> int | None:
@@ -323,5 +337,5 @@ def _check_link_ends(application: Application, error) -> None:
             error("E805", f"link '{name}' joins two tasks of the same subsystem '{senders[0][0]}'", spec.loc,
                   "within a subsystem, tasks share state variables: use a variable, not a link")
         if senders and receivers:
-            application.links[name] = LinkSpec(name, spec.dtype, spec.shape, spec.transport,
-                                               senders[0][:2], receivers[0][:2], spec.loc, spec.kind, spec.capacity)
+            application.links[name] = LinkSpec(name, spec.dtype, spec.shape, spec.transport, senders[0][:2],
+                                               receivers[0][:2], spec.loc, spec.kind, spec.capacity, spec.endpoint)

@@ -87,7 +87,7 @@ class ApplicationRunner:
                 entry["capacity"] = spec.capacity
             if spec.transport == "zenoh":  # the sending (periodic) or serving (message) end listens; the other connects
                 entry["key"] = f"pbo/{self.application.name}/{self.run_id}/{name}"
-                entry["endpoint"] = f"tcp/127.0.0.1:{_free_port()}"
+                entry["endpoint"] = spec.endpoint or f"tcp/127.0.0.1:{_free_port()}"
             elif spec.kind == "message":
                 object_name = message_link_name(self.application.name, self.run_id, name)
                 self._links.append(MessageLink.create(object_name, spec.capacity))

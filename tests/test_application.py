@@ -221,3 +221,19 @@ def test_the_same_application_runs_over_zenoh_changed_only_in_yaml(tmp_path):
     assert "link 'arm_state': leader.send -> follower.receive (float64 [6], periodic, zenoh)" in done.stdout
     assert "link 'goal': operator.console -> leader.goal (float64 [6], messages, 4 queued at most, zenoh)" in done.stdout
     assert_the_goal_reached_both_arms(tmp_path / "out", done)
+
+
+def test_a_zenoh_link_may_name_the_endpoint_its_listening_end_binds_for_another_machine(tmp_path):
+    links = SHIPPED_LINKS.replace("transport: shm}", 'transport: zenoh, endpoint: "tcp/192.168.1.20:7447"}', 1)
+    result = check_application(write_app(tmp_path, links=links))
+    assert result.ok and result.application.links["arm_state"].endpoint == "tcp/192.168.1.20:7447"
+
+
+@pytest.mark.parametrize("endpoint, wanted", [
+    ('transport: shm, endpoint: "tcp/10.0.0.2:7447"', "takes no endpoint"),
+    ('transport: zenoh, endpoint: "udp/10.0.0.2:7447"', "endpoint must be tcp/<host>:<port>"),
+    ('transport: zenoh, endpoint: "tcp/10.0.0.2:99999"', "endpoint must be tcp/<host>:<port>"),
+])
+def test_a_bad_link_endpoint_is_refused_with_an_example(tmp_path, endpoint, wanted):
+    result = check_application(write_app(tmp_path, links=SHIPPED_LINKS.replace("transport: shm}", endpoint + "}", 1)))
+    assert codes(result) == ["E803"] and wanted in result.errors[0].message

@@ -9,21 +9,14 @@ time stamp. Before the first item arrives the output keeps its initial value.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from modules._link_params import LinkParams
 from pbo_runtime import PortBasedObject, Status
 from pbo_runtime._ports import ANY_DTYPE, OutVar
 
 
-@dataclass(frozen=True)
-class LinkReceiverParams:
-    link: str  # the link's name in the application file's `links:`
-
-    def __post_init__(self) -> None:
-        if not self.link:
-            raise ValueError("link must name a link of the application file")
+LinkReceiverParams = LinkParams
 
 
 class LinkReceiver(PortBasedObject):

@@ -8,19 +8,12 @@ linked variable's dtype and shape, which the application checker matched against
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
+from modules._link_params import LinkParams
 from pbo_runtime import PortBasedObject, Status
 from pbo_runtime._ports import ANY_DTYPE, InVar
 
 
-@dataclass(frozen=True)
-class LinkSenderParams:
-    link: str  # the link's name in the application file's `links:`
-
-    def __post_init__(self) -> None:
-        if not self.link:
-            raise ValueError("link must name a link of the application file")
+LinkSenderParams = LinkParams
 
 
 class LinkSender(PortBasedObject):

@@ -14,20 +14,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from modules._link_params import LinkParams
 from pbo_runtime import PortBasedObject, Status
 from pbo_runtime._message_link import MAX_PRIORITY, LinkFullError
 from pbo_runtime._ports import ANY_DTYPE, InVar, OutVar
 
 
 @dataclass(frozen=True)
-class MessageSenderParams:
-    link: str  # the message link's name in the application file's `links:`
+class MessageSenderParams(LinkParams):
     priority: int = 0  # 0..MAX_PRIORITY: the server takes higher priorities first
     every_cycle: bool = False  # send every cycle, changed or not (a heartbeat)
 
     def __post_init__(self) -> None:
-        if not self.link:
-            raise ValueError("link must name a message link of the application file")
+        super().__post_init__()
         if not 0 <= self.priority <= MAX_PRIORITY:
             raise ValueError(f"priority must be in 0..{MAX_PRIORITY}, got: {self.priority}")
 

@@ -11,21 +11,14 @@ value keeps its last good message). Until the first message the output keeps its
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from modules._link_params import LinkParams
 from pbo_runtime import PortBasedObject, Status
 from pbo_runtime._ports import ANY_DTYPE, OutVar
 
 
-@dataclass(frozen=True)
-class MessageServerParams:
-    link: str  # the message link's name in the application file's `links:`
-
-    def __post_init__(self) -> None:
-        if not self.link:
-            raise ValueError("link must name a message link of the application file")
+MessageServerParams = LinkParams
 
 
 class MessageServer(PortBasedObject):

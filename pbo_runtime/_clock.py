@@ -1,7 +1,8 @@
 """Clocks the executive reads time through, so a simulated clock can drive it (STYLE §13).
 
 Times are float seconds on CLOCK_MONOTONIC, which every process of the machine shares, so
-RTPUs can agree on release instants without talking.
+RTPUs can agree on release instants without talking. `sleep_until` returns the time it saw when
+the wait ended: the executive times the release from that reading, not from a later one.
 """
 
 from __future__ import annotations
@@ -19,13 +20,20 @@ class RealClock:
         self.spin = spin
         self.now = time.monotonic
 
-    def sleep_until(self, deadline: float) -> None:
+    def sleep_until(self, deadline: float) -> float:
+        """Wait until `deadline`; return the reading that ended the spin (the first at or past it).
+
+        Returning that reading lets the caller time the release at the instant the wait saw it,
+        as a bare loop does, instead of at a second reading taken after its own Python work.
+        """
         now = self.now
         remaining = deadline - now() - self.spin
         if remaining > 0:
             time.sleep(remaining)
-        while now() < deadline:
-            pass
+        seen = now()
+        while seen < deadline:
+            seen = now()
+        return seen
 
 
 class ManualClock:
@@ -40,9 +48,10 @@ class ManualClock:
     def advance(self, seconds: float) -> None:
         self.time += seconds
 
-    def sleep_until(self, deadline: float) -> None:
+    def sleep_until(self, deadline: float) -> float:
         if deadline > self.time:
             self.time = deadline
+        return self.time
 
 
 class SimClock:
@@ -60,8 +69,8 @@ class SimClock:
     def now(self) -> float:
         return int(self.header[Header.SIM_TIME_NS]) / 1e9
 
-    def sleep_until(self, deadline: float) -> None:
-        pass
+    def sleep_until(self, deadline: float) -> float:
+        return self.now()  # never waits: the lockstep barrier moves time
 
 
 def lower_timer_slack(nanoseconds: int = 1) -> bool:

@@ -38,7 +38,7 @@ AGE_TOLERANCE = 1e-7  # seconds: an input exactly one producer period old is fre
 
 class Clock(Protocol):
     def now(self) -> float: ...
-    def sleep_until(self, deadline: float) -> None: ...
+    def sleep_until(self, deadline: float) -> float: ...  # returns the reading that ended the wait
 
 
 class SignalSource(Protocol):
@@ -184,17 +184,21 @@ class Executive:
         for s in self.on:
             if s.release < next_release:
                 next_release = s.release
+        now = clock.now()
         header = self.header
         if header is not None and header[Header.PLAN_SEQUENCE] != self.plan_seen:
             activation = header[Header.PLAN_TIME_NS] / 1e9
-            if clock.now() + self.release_slack >= activation:
+            if now + self.release_slack >= activation:
                 self.apply_plan()
                 return
-            next_release = min(next_release, activation)
+            if activation < next_release:
+                next_release = activation
         if next_release == math.inf:
             wait = self.idle_wait
         else:
-            wait = next_release - clock.now()
+            wait = next_release - now
+        # The kernel wait ends `spin` before the release; the clock spins the rest. All of this
+        # runs before the release: nothing between the spin's end and the cycle but the pick.
         spin = getattr(clock, "spin", 0.0)
         message = self.signals.receive(wait - spin if wait > spin else 0)
         if message is not None:
@@ -202,20 +206,20 @@ class Executive:
             return
         if next_release == math.inf:
             return
-        clock.sleep_until(next_release)
-        self._run_ready()
+        self._run_ready(clock.sleep_until(next_release))
 
-    def _run_ready(self) -> None:
+    def _run_ready(self, first_now: float | None = None) -> None:
         """Run every released task once, most urgent first (maximum-urgency-first); no allocation.
 
         Urgency: critical before not; then the earlier deadline (release + period); then the
-        higher user priority.
+        higher user priority. `first_now`: the time the wait ended (`Clock.sleep_until`), so the
+        first cycle's jitter is timed where a bare loop times it; later picks read the clock.
         """
         clock = self.clock
         on = self.on
         slack = self.release_slack
+        now = clock.now() if first_now is None else first_now
         while True:
-            now = clock.now()
             due = now + slack
             best = None
             for s in on:
@@ -230,6 +234,7 @@ class Executive:
             if best is None:
                 return
             self._cycle(best, now)
+            now = clock.now()
 
     def _cycle(self, s: Scheduled, start: float) -> None:
         release = s.release

@@ -413,7 +413,7 @@ class Executive:
 
     def _turn_on(self, s: Scheduled, at: float, plan: int = 0) -> None:
         if s.aperiodic:  # released by its first event; messages that came while it was off are served now
-            s.release = max(at, s.last_release + s.period) if s.events else math.inf
+            s.release = max(self.clock.now(), s.last_release + s.period) if s.events else math.inf
         else:
             s.release = self._first_release(s, at)
         if s.task.turn_on(self.clock.now()):

@@ -25,7 +25,6 @@ file:line:col, a code (E8xx, docs/error-codes.md) and a hint.
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,7 +33,7 @@ import numpy as np
 from pbo_runtime._config_loader import CheckResult, check_file, inline_reference
 from pbo_runtime._config_model import NOWHERE, Location, Subsystem
 from pbo_runtime._errors import ConfigError
-from pbo_runtime._links import TRANSPORTS
+from pbo_runtime._links import TRANSPORTS, parse_endpoint
 from pbo_runtime._message_link import SYSTEM_CAPACITY, SYSTEM_MESSAGE_BYTES
 from pbo_runtime._yaml_nodes import YList, YMap, load_file, location_of
 
@@ -44,7 +43,6 @@ ENDS = {"periodic": (SENDER, RECEIVER), "message": (MESSAGE_SENDER, SERVER)}  # 
 _KIND_OF_MODULE = {module: kind for kind, pair in ENDS.items() for module in pair}
 _TOP_KEYS = ("application", "subsystems", "links", "run")
 _LINK_KEYS = ("kind", "type", "shape", "transport", "capacity", "endpoint")
-_ZENOH_ENDPOINT = re.compile(r"^tcp/(?P<host>[^/:\s]+):(?P<port>\d{1,5})$")
 _RUN_KEYS = ("config", "app")
 MESSAGE_OVERHEAD_BYTES = 32  # msgpack framing, the time stamp and the relay's envelope
 MSGPACK_BYTES_PER_NUMBER = 9  # a float64 or a large integer, encoded
@@ -213,8 +211,7 @@ def _check_links(root: YMap, application: Application, error) -> None:
             error("E803", f"link '{name}' uses transport '{transport}', which takes no endpoint", spec.key_loc("endpoint"),
                   "an endpoint is where a zenoh link listens: add transport: zenoh, or remove it")
             continue
-        found = _ZENOH_ENDPOINT.match(str(endpoint)) if endpoint else None
-        if endpoint and (found is None or not 0 < int(found["port"]) < 65536):
+        if endpoint and parse_endpoint(endpoint) is None:
             error("E803", f"link '{name}': endpoint must be tcp/<host>:<port>, got {endpoint!r}", spec.value_loc("endpoint"),
                   "e.g. endpoint: tcp/192.168.1.20:7447 (the address of the machine whose subsystem listens)")
             continue

@@ -17,6 +17,7 @@ named (the application checker reports it before anything runs; this is the runt
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import numpy as np
@@ -24,6 +25,15 @@ import numpy as np
 from pbo_runtime._errors import ModuleError
 
 TRANSPORTS = ("shm", "zenoh")
+_TCP_ENDPOINT = re.compile(r"^tcp/(?P<host>[^/:\s]+):(?P<port>\d{1,5})$")
+
+
+def parse_endpoint(text: Any) -> tuple[str, int] | None:
+    """(host, port) of a zenoh endpoint written `tcp/<host>:<port>`, or None if it is not one."""
+    found = _TCP_ENDPOINT.match(str(text))
+    if found is None or not 0 < int(found["port"]) < 65536:
+        return None
+    return found["host"], int(found["port"])
 
 
 def open_link_end(name: str, spec: dict[str, Any], like: np.ndarray, role: str) -> Any:

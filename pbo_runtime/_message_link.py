@@ -63,6 +63,25 @@ class Message:
     sent_ns: int  # CLOCK_MONOTONIC ns when it was sent (`time.monotonic_ns()`)
 
 
+def encode_message(name: str, priority: int, fields: list[Any], max_message_bytes: int) -> bytes:
+    """A message's bytes for either transport, or MessageLinkError saying what the sender must change."""
+    if not 0 <= priority <= MAX_PRIORITY:
+        raise MessageLinkError(f"message link '{name}': priority must be in 0..{MAX_PRIORITY}, got: {priority}")
+    try:
+        raw = msgpack.packb(fields, use_bin_type=True)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise MessageLinkError(
+            f"message link '{name}': cannot encode the message: {exc}",
+            hint="send dicts, lists, str, bytes, numbers, bools and None (a numpy array as .tolist())",
+        ) from None
+    if len(raw) > max_message_bytes:
+        raise MessageLinkError(
+            f"message link '{name}': a message of {len(raw)} bytes (encoded) exceeds its {max_message_bytes} bytes",
+            hint="send bulk data through a triple buffer (a periodic link), or create the link with a larger max_message_bytes",
+        )
+    return raw
+
+
 class MessageLink:
     """One process's end of an aperiodic link. `create` makes the queue; `attach` opens it."""
 
@@ -107,20 +126,7 @@ class MessageLink:
 
         Raises `LinkFullError` if the queue stayed full.
         """
-        if not 0 <= priority <= MAX_PRIORITY:
-            raise MessageLinkError(f"message link '{self.name}': priority must be in 0..{MAX_PRIORITY}, got: {priority}")
-        try:
-            raw = msgpack.packb([time.monotonic_ns(), body], use_bin_type=True)
-        except (TypeError, ValueError, OverflowError) as exc:
-            raise MessageLinkError(
-                f"message link '{self.name}': cannot encode the message: {exc}",
-                hint="send dicts, lists, str, bytes, numbers, bools and None (a numpy array as .tolist())",
-            ) from None
-        if len(raw) > self.max_message_bytes:
-            raise MessageLinkError(
-                f"message link '{self.name}': a message of {len(raw)} bytes (encoded) exceeds its {self.max_message_bytes} bytes",
-                hint="send bulk data through a triple buffer, or create the link with a larger max_message_bytes",
-            )
+        raw = encode_message(self.name, priority, [time.monotonic_ns(), body], self.max_message_bytes)
         while True:
             try:
                 self._queue.send(raw, timeout=timeout, priority=priority)

@@ -83,7 +83,6 @@ import heapq
 import itertools
 import json
 import os
-import re
 import socket
 import struct
 import threading
@@ -96,13 +95,13 @@ import numpy as np
 
 from pbo_runtime._errors import PboError
 from pbo_runtime._message_link import (
-    MAX_PRIORITY,
     SYSTEM_CAPACITY,
     SYSTEM_MESSAGE_BYTES,
     LinkFullError,
     Message,
     MessageLink,
     MessageLinkError,
+    encode_message,
 )
 from pbo_runtime._triple_buffer import (
     Freshness,
@@ -649,21 +648,8 @@ class ZenohMessageLink(_Ends):
 
         Raises `LinkFullError` if the receiver still holds `capacity` of this end's messages.
         """
-        if not 0 <= priority <= MAX_PRIORITY:
-            raise MessageLinkError(f"message link '{self.name}': priority must be in 0..{MAX_PRIORITY}, got: {priority}")
         sent_ns = time.monotonic_ns()
-        try:
-            raw = msgpack.packb([self._id, sent_ns, priority, body], use_bin_type=True)
-        except (TypeError, ValueError, OverflowError) as exc:
-            raise MessageLinkError(
-                f"message link '{self.name}': cannot encode the message: {exc}",
-                hint="send dicts, lists, str, bytes, numbers, bools and None (a numpy array as .tolist())",
-            ) from None
-        if len(raw) > self.max_message_bytes:
-            raise MessageLinkError(
-                f"message link '{self.name}': a message of {len(raw)} bytes (encoded) exceeds its {self.max_message_bytes} bytes",
-                hint="send bulk data through a periodic link, or create the link with a larger max_message_bytes",
-            )
+        raw = encode_message(self.name, priority, [self._id, sent_ns, priority, body], self.max_message_bytes)
         if self._session is None:
             raise MessageLinkError(f"message link '{self.name}' is closed")
         if self._publisher is not None and not self._publisher.matching_status.matching:
@@ -798,7 +784,14 @@ def open_message_link(transport: str, name: str, *, create: bool, capacity: int 
     return ZenohMessageLink.attach(name, port=port, host=host, session=session, wait=wait)
 
 
-_TCP_ENDPOINT = re.compile(r"^tcp/(?P<host>[^/:\s]+):(?P<port>\d{1,5})$")
+def _spec_endpoint(spec: Mapping[str, Any]) -> tuple[str, int]:
+    """(host, port) of the spec the application runner hands down (`_links`), or LinkError."""
+    from pbo_runtime._links import parse_endpoint
+
+    endpoint = parse_endpoint(spec.get("endpoint", ""))
+    if endpoint is None or "key" not in spec:
+        raise LinkError(f"a zenoh link's spec needs 'key' and 'endpoint' ('tcp/<host>:<port>'), got: {dict(spec)!r}")
+    return endpoint
 
 
 def open_periodic(spec: Mapping[str, Any], layout: LinkLayout, role: Role | str) -> ZenohLink:
@@ -807,10 +800,7 @@ def open_periodic(spec: Mapping[str, Any], layout: LinkLayout, role: Role | str)
     `spec`: {"key": "pbo/<app>/...", "endpoint": "tcp/<host>:<port>", "wait": seconds (optional)}.
     As the runner arranges it, the sender listens on the endpoint and the reader connects to it.
     """
-    found = _TCP_ENDPOINT.match(str(spec.get("endpoint", "")))
-    if not found or "key" not in spec:
-        raise LinkError(f"a zenoh link's spec needs 'key' and 'endpoint' ('tcp/<host>:<port>'), got: {dict(spec)!r}")
-    host, port = found["host"], int(found["port"])
+    host, port = _spec_endpoint(spec)
     if _role(role) is Role.SENDER:
         return ZenohLink.create(spec["key"], layout, Role.SENDER, port=port, host=host)
     return ZenohLink.attach(spec["key"], layout, role, port=port, host=host, wait=spec.get("wait", DEFAULT_WAIT))
@@ -818,10 +808,7 @@ def open_periodic(spec: Mapping[str, Any], layout: LinkLayout, role: Role | str)
 
 def open_aperiodic(spec: Mapping[str, Any], role: str) -> ZenohMessageLink:
     """One end of an application's zenoh message link: the server listens on the spec's endpoint, the sender connects."""
-    found = _TCP_ENDPOINT.match(str(spec.get("endpoint", "")))
-    if not found or "key" not in spec:
-        raise LinkError(f"a zenoh link's spec needs 'key' and 'endpoint' ('tcp/<host>:<port>'), got: {dict(spec)!r}")
-    host, port = found["host"], int(found["port"])
+    host, port = _spec_endpoint(spec)
     if role == "server":
         return ZenohMessageLink.create(spec["key"], int(spec.get("capacity") or SYSTEM_CAPACITY), port=port, host=host)
     return ZenohMessageLink.attach(spec["key"], port=port, host=host, wait=spec.get("wait", DEFAULT_WAIT))

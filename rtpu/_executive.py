@@ -144,6 +144,7 @@ class Executive:
         self.configuration = -1  # index of the configuration last applied here
         self.last_switch = -math.inf  # activation time of the last plan applied
         self.release_slack = getattr(clock, "release_slack", 0.0)  # sim clock: a release a few ulps late is due
+        self.spin = getattr(clock, "spin", 0.0)  # real clock: the wait on signals ends this long before a release
 
     # --- the loop ---------------------------------------------------------------------------
 
@@ -199,7 +200,7 @@ class Executive:
             wait = next_release - now
         # The kernel wait ends `spin` before the release; the clock spins the rest. All of this
         # runs before the release: nothing between the spin's end and the cycle but the pick.
-        spin = getattr(clock, "spin", 0.0)
+        spin = self.spin
         message = self.signals.receive(wait - spin if wait > spin else 0)
         if message is not None:
             self.handle(message)

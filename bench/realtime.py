@@ -49,11 +49,10 @@ import numpy as np
 
 from bench._common import REPO, Section, Table, Target, fmt_ratio, ratio, us
 from pbo_runtime import _messages
-from pbo_runtime._clock import RealClock, lower_timer_slack
+from pbo_runtime._clock import RealClock, lower_timer_slack, release_stagger
 from pbo_runtime._config_loader import load_subsystem
 
 SPIN = 0.0002  # RealClock's spin before a release, as `python -m rtpu --spin` defaults to
-STAGGER_SHARE = 0.45  # the supervisor spreads RTPU release offsets over this share of the shortest period
 FIFO_PRIORITY, PLANT_FIFO_PRIORITY = 50, 60  # as rtpu/_realtime.py and the plant host
 CONFIDENCE = 0.95  # of the overrun rate ratio's interval
 
@@ -192,7 +191,7 @@ class BareLoops:
         """Every loop for `seconds` with the plant stepping: per process its samples, and the plant's counts."""
         plant = _Plant(self.yaml_path, self.fifo)
         try:
-            stagger = STAGGER_SHARE * self.period / max(1, self.n - 1)
+            stagger = release_stagger(self.period, self.n)  # as the supervisor staggers its RTPUs
             # The plant steps from the instant it reports ready: releases timed from that instant
             # would fall at one phase to its steps, every stretch (the same each time, and right on
             # them). A pbo run's phase to its plant is whatever the process starts left: random.

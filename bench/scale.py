@@ -27,7 +27,7 @@ import numpy as np
 
 from bench._common import Section, Table, Target, fmt_ratio, percentiles, ratio, us
 from bench.svar_transfer import SIZE, Floor, bindings_for, interleaved_batches, object_name, vector_variables
-from pbo_runtime._clock import lower_timer_slack
+from pbo_runtime._clock import lower_timer_slack, release_stagger
 from pbo_runtime._table import StateTable, TableLayout
 from pbo_runtime._transfer import LocalTable
 
@@ -181,8 +181,8 @@ def rtpu_curve(seconds: float, counts: tuple[int, ...] = RTPU_COUNTS, tasks: int
                 for here in pipes:
                     if not here.poll(60) or here.recv() != "ready":
                         raise TimeoutError("an RTPU process did not start within 60 s")
-                # The supervisor's stagger: 0.45 of the period spread over the RTPUs (DESIGN §13).
-                stagger = 0.45 * PERIOD / max(1, n - 1) if mode == "staggered" else 0.0
+                # The supervisor's stagger: the period spaced evenly over the RTPUs (DESIGN §13).
+                stagger = release_stagger(PERIOD, n) if mode == "staggered" else 0.0
                 epoch = time.monotonic() + 0.05
                 for r, here in enumerate(pipes):
                     here.send(epoch + r * stagger)
@@ -267,7 +267,7 @@ per point; the median over batches of the mean time per transfer); the last runs
 - **RTPUs**: {', '.join(map(str, rtpu_counts))} processes with {TASKS_PER_RTPU} tasks each, released every
   1 ms on absolute deadlines for {rtpu_seconds:g} s, each transfer timed where it runs, so waiting for the
   single lock shows. *Aligned*: all released at the same instant (the lock's worst case);
-  *staggered*: release offsets spread over 0.45 ms, as the supervisor does.
+  *staggered*: release offsets spaced evenly over the 1 ms period, as the supervisor does.
 """,
         limits="""Python call overhead per transfer: the bytes hardly count (64 ports move 3 KB
 per cycle for about the price of two numpy calls more). Ports add index entries, not calls, so

@@ -55,7 +55,7 @@ cycles" means: [reconfiguration](reconfiguration.md).
         limits="""The plan's lead (2 ms, so every RTPU sees the plan before its activation
 time) and the wait for the next cycle boundary make the latency; the skew is the RTPUs' timer
 wake-up precision. A lost cycle needs the switch to overrun the gap between the writers' release
-and the critical consumer's read (0.45 ms of stagger): on a loaded machine a late release can do
+and the critical consumer's read (the RTPUs' stagger, half the 1 ms period with two RTPUs): on a loaded machine a late release can do
 that, and the count shows it; the simulated-time test (`tests/test_switching.py`) shows the
 protocol itself loses none.""",
     )

@@ -13,6 +13,19 @@ import time
 from pbo_runtime._table import Header
 
 
+def release_stagger(shortest_period: float, n_rtpus: int) -> float:
+    """The offset between consecutive RTPUs' releases on the real clock: the period spaced evenly.
+
+    RTPU i releases at epoch + i x stagger + k x period. Even spacing keeps any two RTPUs'
+    releases as far apart as the period allows, so their spins before a release, their cycles
+    and their lock holds overlap least. With 4 RTPUs on 2 CPUs at 1 kHz, spreading them over
+    0.45 of the period (until issue 6) made the spins collide: release jitter p99 about 180 µs,
+    against about 30 µs evenly spaced (bench/realtime). A task that reads what the RTPU before
+    it wrote in the same period gives the writer 1/n of the period to finish.
+    """
+    return shortest_period / n_rtpus if n_rtpus > 1 else 0.0
+
+
 class RealClock:
     """Wall time: sleep in the kernel until `spin` before a deadline, then spin to it."""
 

@@ -29,6 +29,7 @@ import numpy as np
 import posix_ipc
 
 from pbo_runtime import _messages, _shm
+from pbo_runtime._clock import release_stagger
 from pbo_runtime._config_model import Subsystem
 from pbo_runtime._errors import PboError
 from pbo_runtime._control import ControlServer, control_queue_name
@@ -173,10 +174,10 @@ class Supervisor:
         self._stop_requested = ""
         self._stats: dict[str, dict[str, Any]] = {}
         self.reconfiguration = Reconfiguration(subsystem)
-        # RTPUs release at epoch + index * stagger + k * period: their lock holds rarely overlap, and
-        # a task reading what another RTPU wrote in the same period gives the writer that long to finish.
+        # RTPUs release at epoch + index * stagger + k * period, evenly over the shortest period
+        # (release_stagger says why).
         self.shortest_period = min(t.period for t in subsystem.tasks.values())
-        self.stagger = 0.45 * self.shortest_period / max(1, len(subsystem.rtpus) - 1)
+        self.stagger = release_stagger(self.shortest_period, len(subsystem.rtpus))
         self.epoch = 0.0
         self.tick = simulation_tick(subsystem) if self.simulated else 0.0
         self.lockstep: LockstepMaster | None = None

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pbo_runtime import OutVar, PortBasedObject, Status
-from pbo_runtime._clock import ManualClock, RealClock, SimClock
+from pbo_runtime._clock import ManualClock, RealClock, SimClock, release_stagger
 from pbo_runtime._lifecycle import Task
 from pbo_runtime._table import HEADER_WORDS, Header
 from pbo_runtime._table import Status as W
@@ -127,3 +127,14 @@ def test_executive_reads_the_clock_again_for_a_second_task_released_together(exe
     assert first.cycles == second.cycles == 1
     jitters = sorted((first.status[W.JITTER_LAST], second.status[W.JITTER_LAST]))
     assert jitters[0] == 0.0 and jitters[1] > 0.0  # the second waited for the first's cycle
+
+
+@pytest.mark.parametrize("n_rtpus, offsets_ms", [(1, [0.0]), (2, [0.0, 0.5]), (4, [0.0, 0.25, 0.5, 0.75])])
+def test_rtpus_release_evenly_spaced_over_the_shortest_period(n_rtpus, offsets_ms):
+    stagger = release_stagger(0.001, n_rtpus)
+    assert [round(i * stagger * 1e3, 9) for i in range(n_rtpus)] == offsets_ms
+
+
+def test_the_last_rtpu_releases_a_full_stagger_before_the_first_one_releases_again():
+    stagger = release_stagger(0.002, 3)
+    assert 0.002 - 2 * stagger == pytest.approx(stagger)

@@ -27,13 +27,13 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable
 
 from pbo_runtime import _registry
 from pbo_runtime._channels import channels_of, format_channels, mask_of
 from pbo_runtime._config_model import DeviceSpec, Subsystem, TaskSpec
 from pbo_runtime._errors import PboError
-from pbo_runtime._table import DEVICE_HOLDERS, Holder, StateTable, TaskState
+from pbo_runtime._table import DEVICE_HOLDERS, Holder, StateTable
 
 DriverLookup = Callable[[str], Any]
 
@@ -276,19 +276,6 @@ class DeviceDatabase:
             exclusive=bool(record[Holder.EXCLUSIVE]),
             opened=self._names[opened] if 0 <= opened < len(self._names) else self._names[d],
         )
-
-
-def task_in_init(tasks: Iterable[Any]) -> TaskSpec:
-    """The spec of the one task of an RTPU that is in its `init` (state CREATED): the one opening a device.
-
-    An RTPU runs one task's init at a time, so there is exactly one while a module opens a device.
-    """
-    found = [t.spec for t in tasks if t.state == TaskState.CREATED]
-    if len(found) != 1:
-        raise DeviceOpenError(
-            "a device is opened in a task's init (TR §4.6.1); "
-            + ("no task of this RTPU is in init" if not found else f"tasks {', '.join(t.name for t in found)} are all in init"))
-    return found[0]
 
 
 def _alive(pid: int) -> bool:

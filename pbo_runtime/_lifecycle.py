@@ -24,7 +24,7 @@ from pbo_runtime._table import StateTable, TaskState
 from pbo_runtime._table import Status as StatusWord
 from pbo_runtime._transfer import LocalTable
 
-DeviceOpener = Callable[[DeviceSpec], Any]
+DeviceOpener = Callable[[DeviceSpec, TaskSpec], Any]  # the RTPU's: opens a device for the task whose init asks
 Relay = Callable[[str, Any], Any]  # (task, a message link's receiving end) -> something with close()
 
 
@@ -37,7 +37,7 @@ class TaskContext:
     dims: dict[str, int]
     resources: tuple[str, ...]
     devices: dict[str, DeviceSpec]
-    opener: DeviceOpener | None
+    opener: Callable[[DeviceSpec], Any] | None  # the task's own (Task.open_device)
     time: float = 0.0
     event: Any = None
     opened: list[Any] = field(default_factory=list)
@@ -103,7 +103,9 @@ class Task:
         self.last_error = ""
         self.cycles = 0
         self.errors = 0
-        self.context = TaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}), opener,
+        self._device_opener = opener
+        self.context = TaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}),
+                                   self.open_device if opener is not None else None,
                                    out_dir=out_dir, links=dict(links or {}), relay=relay)
         self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
         self.status = self.local.status
@@ -138,6 +140,19 @@ class Task:
         self.status[StatusWord.RELEASE] = now
         self.local.write_consts()
         return True
+
+    def open_device(self, device: DeviceSpec) -> Any:
+        """Open `device` for this task, which the device database records as its holder.
+
+        Only in init (TR §4.6.1): a task holds its devices from init until it is killed.
+        """
+        from pbo_runtime._devices import DeviceOpenError
+
+        if self.state != TaskState.CREATED:
+            raise DeviceOpenError(f"a device is opened in a task's init (TR §4.6.1); task '{self.name}' opened "
+                                  f"'{device.name}' while {self.state.name}")
+        assert self._device_opener is not None
+        return self._device_opener(device, self.spec)
 
     def turn_on(self, now: float) -> bool:
         """In-vars and out-vars, on, out-vars. False (task in ERROR) if `on` raised."""

@@ -15,7 +15,7 @@ import traceback
 from pbo_runtime import _messages, _registry
 from pbo_runtime._clock import RealClock, SimClock
 from pbo_runtime._config_loader import load_subsystem
-from pbo_runtime._config_model import DeviceSpec
+from pbo_runtime._config_model import DeviceSpec, TaskSpec
 from pbo_runtime._lifecycle import Task
 from pbo_runtime._lockstep import LockstepParticipant
 from pbo_runtime._process import Stop, become_child
@@ -54,13 +54,11 @@ def main(argv: list[str] | None = None) -> int:
         signals = _messages.Queue(_messages.signal_queue_name(name, args.run_id, args.rtpu))
         registers = _messages.plant_registers_name(name, args.run_id)
 
-        def open_device(device: DeviceSpec):
-            # The device database (TR 4.6.1) records the opening in the table, for every RTPU to see;
-            # the task opening it is the one of this RTPU in its init.
-            from pbo_runtime._devices import DeviceDatabase, task_in_init
+        def open_device(device: DeviceSpec, task: TaskSpec):
+            # The device database (TR 4.6.1) records the opening in the table, for every RTPU to see.
+            from pbo_runtime._devices import DeviceDatabase
 
-            opener = task_in_init(s.task for s in executive.tasks.values())
-            return DeviceDatabase(subsystem, table, registers).open(device.name, opener)
+            return DeviceDatabase(subsystem, table, registers).open(device.name, task)
 
         signal_queue = _messages.signal_queue_name(name, args.run_id, args.rtpu)
 

@@ -21,7 +21,7 @@ from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.mujoco_arm.registers import DeviceError
 from modules.analog_input import AnalogInput
 from pbo_runtime._config_loader import load_subsystem
-from pbo_runtime._devices import DeviceBusyError, DeviceDatabase, DeviceOpenError, task_in_init
+from pbo_runtime._devices import DeviceBusyError, DeviceDatabase, DeviceOpenError
 from pbo_runtime._lifecycle import Task
 from pbo_runtime._table import StateTable, TableLayout, TaskState
 from tests.conftest import REPO, unique_name
@@ -231,10 +231,8 @@ def test_channels_beyond_the_device_or_on_a_device_without_channels_are_refused_
 
 def test_a_task_holds_its_channels_from_init_until_it_is_killed(subsystem, table, database):
     spec = subsystem.tasks["high"]
-    tasks: list[Task] = []
     task = Task(spec, AnalogInput, table, dict(subsystem.dims), dict(subsystem.devices),
-                lambda device: database.open(device.name, task_in_init(tasks)))
-    tasks.append(task)
+                lambda device, opener: database.open(device.name, opener))
     assert task.spawn(0.0), task.last_error
     assert held(database) == {("adc0", "high", "adc0", (6, 7))}
     task.kill()
@@ -244,21 +242,20 @@ def test_a_task_holds_its_channels_from_init_until_it_is_killed(subsystem, table
 
 def test_a_refused_opening_fails_the_init_with_the_holders_name(subsystem, table, database):
     database.open_for("adc0", "low")
-    tasks: list[Task] = []
     task = Task(subsystem.tasks["middle"], AnalogInput, table, dict(subsystem.dims), dict(subsystem.devices),
-                lambda device: database.open(device.name, task_in_init(tasks)))
-    tasks.append(task)
+                lambda device, opener: database.open(device.name, opener))
     assert not task.spawn(0.0)
     assert "init raised DeviceBusyError: task 'middle' cannot open channels 4-7 of device 'adc0': task 'low'" in task.last_error
 
 
-def test_a_device_is_opened_only_in_an_init():
-    class Idle:
-        state = TaskState.OFF
-        spec = None
-
-    with pytest.raises(DeviceOpenError, match=r"^a device is opened in a task's init \(TR §4.6.1\); no task of this RTPU is in init$"):
-        task_in_init([Idle()])
+def test_a_device_is_opened_only_in_an_init(subsystem, table, database):
+    task = Task(subsystem.tasks["high"], AnalogInput, table, dict(subsystem.dims), dict(subsystem.devices),
+                lambda device, opener: database.open(device.name, opener))
+    assert task.spawn(0.0), task.last_error
+    with pytest.raises(DeviceOpenError, match=r"^a device is opened in a task's init \(TR §4.6.1\); "
+                                              r"task 'high' opened 'adc0' while OFF$"):
+        task.open_device(subsystem.devices["adc0"])
+    task.kill()
 
 
 # --- ownership across processes --------------------------------------------------------------------

@@ -341,7 +341,7 @@ def robot_task(table: StateTable, plant: MujocoArmPlant, resources: tuple[str, .
                dims: dict[str, int] = DIMS) -> tuple[Task, list[RecordingDriver]]:
     opened: list[RecordingDriver] = []
 
-    def opener(device: DeviceSpec) -> RecordingDriver:
+    def opener(device: DeviceSpec, _task: TaskSpec) -> RecordingDriver:
         driver = RecordingDriver(plant.name, device.options)
         opened.append(driver)
         return driver

@@ -20,7 +20,7 @@ from drivers.mujoco_arm.registers import DeviceError
 from drivers.robots import RobotDescription
 from modules.robot_position import RobotPosition
 from pbo_runtime import Status
-from pbo_runtime._config_model import DeviceSpec
+from pbo_runtime._config_model import DeviceSpec, TaskSpec
 from pbo_runtime._lifecycle import Task
 from pbo_runtime._table import StateTable, TaskState
 from tests.conftest import task_spec, unique_name, variables
@@ -91,7 +91,7 @@ def robot_task(table: StateTable, plant: MujocoArmPlant, device: DeviceSpec = AR
                ndof: int | None = None) -> tuple[Task, list[RecordingDriver]]:
     opened: list[RecordingDriver] = []
 
-    def opener(spec: DeviceSpec) -> RecordingDriver:
+    def opener(spec: DeviceSpec, _task: TaskSpec) -> RecordingDriver:
         driver = RecordingDriver(plant.name, spec.options)
         opened.append(driver)
         return driver

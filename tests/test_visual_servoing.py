@@ -30,7 +30,7 @@ from modules.damped_least_squares import DampedLeastSquares
 from modules.resolved_rate import ResolvedRate
 from modules.visual_servoing import VisualServoing
 from pbo_runtime import ParamError, PortBasedObject, Status, _registry
-from pbo_runtime._config_model import DeviceSpec
+from pbo_runtime._config_model import DeviceSpec, TaskSpec
 from pbo_runtime._lifecycle import Task
 from pbo_runtime._table import StateTable, TaskState
 from tests.conftest import REPO, task_spec, unique_name, variables
@@ -245,7 +245,7 @@ def vision_task(table: StateTable, plant: MujocoArmPlant, params: dict | None = 
                 device: DeviceSpec = CAMERA) -> tuple[Task, list[VisionCamera]]:
     opened: list[VisionCamera] = []
 
-    def opener(spec: DeviceSpec) -> VisionCamera:
+    def opener(spec: DeviceSpec, _task: TaskSpec) -> VisionCamera:
         camera = VisionCamera(plant.name, spec.options)
         opened.append(camera)
         return camera
@@ -287,7 +287,7 @@ def test_the_module_refuses_a_device_that_is_not_a_camera(table, plant):
 
     opened = []
 
-    def opener(spec: DeviceSpec):
+    def opener(spec: DeviceSpec, _task: TaskSpec):
         driver = MujocoArmDriver(plant.name, {"mode": "position"})
         opened.append(driver)
         return driver

@@ -38,9 +38,14 @@ class MessageLinkError(PboError):
 
 
 class LinkFullError(MessageLinkError):
-    """The queue stayed full for as long as the sender was willing to wait."""
+    """The link stayed full for as long as the sender was willing to wait.
 
-    def __init__(self, name: str, capacity: int, waited: float) -> None:
+    `bound`: what caps the capacity, for the hint; a posix_ipc queue's is fs.mqueue.msg_max,
+    a zenoh link's window has none but memory.
+    """
+
+    def __init__(self, name: str, capacity: int, waited: float,
+                 bound: str = f" (at most fs.mqueue.msg_max = {SYSTEM_CAPACITY})") -> None:
         self.name = name
         self.capacity = capacity
         self.waited = waited
@@ -49,7 +54,7 @@ class LinkFullError(MessageLinkError):
             f"message link '{name}' is full: {capacity} of {capacity} messages waiting ({how_long})",
             hint=(
                 "the receiver is not keeping up: receive more often, send with a timeout to wait for room, "
-                f"or create the link with a larger capacity (at most fs.mqueue.msg_max = {SYSTEM_CAPACITY})"
+                f"or create the link with a larger capacity{bound}"
             ),
         )
 

@@ -546,22 +546,6 @@ class ZenohLink(_Ends, ReaderTally):
 # --- the message link -----------------------------------------------------------------------------
 
 
-class WindowFullError(LinkFullError):
-    """`LinkFullError` with the zenoh link's hint: its bound is the link's window, not fs.mqueue.msg_max."""
-
-    def __init__(self, name: str, capacity: int, waited: float) -> None:
-        self.name = name
-        self.capacity = capacity
-        self.waited = waited
-        how_long = "the sender asked not to wait" if waited <= 0 else f"it stayed full for {waited:g} s"
-        MessageLinkError.__init__(
-            self,
-            f"message link '{name}' is full: {capacity} of {capacity} messages waiting ({how_long})",
-            hint=("the receiver is not keeping up: receive more often, send with a timeout to wait for room, "
-                  "or create the link with a larger capacity"),
-        )
-
-
 class ZenohMessageLink(_Ends):
     """One process's end of an aperiodic link over zenoh. `create` makes the receiving end; `attach` a sender."""
 
@@ -658,7 +642,7 @@ class ZenohMessageLink(_Ends):
         with self._room:
             if self._sent - self._consumed >= self.capacity:
                 if timeout == 0 or not self._room.wait_for(lambda: self._sent - self._consumed < self.capacity, timeout):
-                    raise WindowFullError(self.name, self.capacity, timeout or 0.0)
+                    raise LinkFullError(self.name, self.capacity, timeout or 0.0, bound="")
             self._sent += 1
             if self._publisher is None:  # the receiving end sends to itself
                 self._enqueue(self._id, sent_ns, priority, body)

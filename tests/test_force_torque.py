@@ -281,7 +281,7 @@ def test_the_ft_sensor_module_outputs_f_m_whichever_vendor_it_opens(make_plant, 
     sensor = (vendor_a if vendor == "a" else vendor_b)(plant, opened)
     table = make_table(variables(("f_m", "float64", (6,))), 1)
     spec = dataclasses.replace(task_spec(FtSensor, params={"device": "ft"}), resources=("ft",))
-    task = Task(spec, FtSensor, table, {}, {"ft": None}, lambda device: sensor)
+    task = Task(spec, FtSensor, table, {}, {"ft": None}, lambda device, opener: sensor)
     assert task.spawn(0.0), task.last_error
     assert task.turn_on(0.0)
     plant.step()
@@ -299,7 +299,7 @@ def test_the_ft_sensor_module_refuses_a_device_that_is_no_force_sensor(make_plan
     opened.append(adc)
     table = make_table(variables(("f_m", "float64", (6,))), 1)
     spec = dataclasses.replace(task_spec(FtSensor, params={"device": "adc0"}), resources=("adc0",))
-    task = Task(spec, FtSensor, table, {}, {"adc0": None}, lambda device: adc)
+    task = Task(spec, FtSensor, table, {}, {"adc0": None}, lambda device, opener: adc)
     assert not task.spawn(0.0)
     assert "device 'adc0' is not a force/torque sensor (its driver has no read_wrench); give it driver: ft_parallel or ft_analog" in task.last_error
 

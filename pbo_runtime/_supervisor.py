@@ -75,6 +75,7 @@ class RunResult:
     clock: str = "real"
     tick: float = 0.0  # seconds per tick of the simulated clock
     wall_seconds: float = 0.0  # how long the run took on the wall clock (a sim run's speed: duration / this)
+    links: dict[str, dict[str, Any]] = field(default_factory=dict)  # an application's links this run was handed
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -84,7 +85,7 @@ class RunResult:
             "run_id": self.run_id, "objects": self.objects, "states_at_stop": self.states_at_stop,
             "application": self.application, "jobs_done": self.jobs_done, "switches": self.switches,
             "stable_episodes": self.stable_episodes, "realtime": self.realtime,
-            "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds,
+            "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds, "links": self.links,
         }
 
 
@@ -170,6 +171,7 @@ class Supervisor:
         self.task_errors: dict[str, str] = {}
         self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id)
         self.result.objects = self._manifest()
+        self.result.links = self.links
         self.started_at: float | None = None  # run time when the configuration came on
         self._stop_requested = ""
         self._stats: dict[str, dict[str, Any]] = {}

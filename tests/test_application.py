@@ -7,6 +7,7 @@ import os
 import subprocess
 
 import numpy as np
+import posix_ipc
 import pytest
 
 from pbo_runtime._application import check_application, is_application_file
@@ -212,7 +213,19 @@ def test_the_operator_goal_message_moves_the_leader_and_the_follower_tracks_it_o
     assert "[operator] run summary: operator · operate" in done.stdout
     assert_the_goal_reached_both_arms(tmp_path / "out", done)
     assert [n for n in os.listdir("/dev/shm") if "pbo.leader_follower." in n] == []
-    assert [n for n in os.listdir("/dev/mqueue") if "pbo.leader_follower." in n] == []
+    assert_the_links_are_gone(json.loads((tmp_path / "out" / "leader" / "report.json").read_text()))
+
+
+def assert_the_links_are_gone(report: dict) -> None:
+    """The runner removed every shm link: opened by name, since /dev/mqueue may not be mounted."""
+    links = [spec for spec in report["links"].values() if spec["transport"] == "shm"]
+    assert {spec.get("kind", "periodic") for spec in links} == {"periodic", "message"}
+    for spec in links:
+        with pytest.raises(posix_ipc.ExistentialError):
+            if spec.get("kind") == "message":
+                posix_ipc.MessageQueue(spec["object"])
+            else:
+                posix_ipc.SharedMemory(spec["object"])
 
 
 @pytest.mark.multiprocess

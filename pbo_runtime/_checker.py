@@ -237,6 +237,7 @@ class _Checker:
         self.device_names: set[str] = set()
         self.sources: dict[str, list[str]] = {}
         self.app_names: set[str] = set()
+        self._port_shapes: dict[Any, tuple[int, ...]] = {}  # a port's declared shape -> resolved with the dims
 
     # --- reporting --------------------------------------------------------------------------
 
@@ -266,6 +267,8 @@ class _Checker:
                                f"rename it '{close[0]}:'")
                 else:
                     self.error("E111", f"unknown key '{key}' {where}", m.key_loc(key), did_you_mean(key, allowed))
+        if not missing:
+            return
         subject = where[3:] if where.startswith("in ") else "the file" if where == "at the top level" else where
         for key in missing:
             self.error("E112", f"{subject} has no '{key}:', which is required", owner_loc, f"add '{key}:' (keys: {', '.join(allowed)})")
@@ -711,10 +714,15 @@ class _Checker:
                 self.error("E313", f"{what}: {problem}", location_of(value, loc))
                 return None
         try:
-            return np.broadcast_to(np.asarray(leaves if not isinstance(value, list) else value, dtype=dtype).reshape(found), shape).copy()
+            array = np.asarray(leaves if not isinstance(value, list) else value, dtype=dtype).reshape(found)
         except (ValueError, TypeError, OverflowError) as exc:
             self.error("E313", f"{what} cannot be stored as {dtype}: {exc}", location_of(value, loc))
             return None
+        # One number fills every element (a list has the shape already, checked above). An
+        # empty array filled by broadcasting is what np.broadcast_to(...).copy() makes, faster.
+        filled = np.empty(shape, dtype=array.dtype)
+        filled[...] = array
+        return filled
 
     def check_variables(self, top: YMap) -> None:
         variables = self.section(top, "variables", "e.g. variables: {q_m: {type: float64, shape: [NDOF]}}")
@@ -726,18 +734,21 @@ class _Checker:
             if name is None:
                 continue
             self.var_locs[name] = key_loc
-            spec = self.mapping(value, variables.value_loc(key), f"variable '{name}'", "e.g. q_m: {type: float64, shape: [NDOF]}")
+            # (a mapping, as nearly always, needs no location and no message: they are made for the error only)
+            spec = value if isinstance(value, YMap) else self.mapping(
+                value, variables.value_loc(key), f"variable '{name}'", "e.g. q_m: {type: float64, shape: [NDOF]}")
             if spec is None:
                 continue
             where = f"in variable '{name}'"
             self.keys(spec, VARIABLE_KEYS, ("type",), where, key_loc)
             dtype: str | None = None
             if "type" in spec:
-                type_loc = spec.value_loc("type")
-                raw = self.text(spec["type"], type_loc, f"type of variable '{name}'")
-                if raw is not None and raw not in DTYPES:
-                    self.error("E303", f"variable '{name}' has unknown type '{raw}'", type_loc, did_you_mean(raw, DTYPES))
-                elif raw is not None:
+                raw = spec["type"]  # (its location is looked up only to report it)
+                if not isinstance(raw, str):
+                    self.text(raw, spec.value_loc("type"), f"type of variable '{name}'")
+                elif raw not in DTYPES:
+                    self.error("E303", f"variable '{name}' has unknown type '{raw}'", spec.value_loc("type"), did_you_mean(raw, DTYPES))
+                else:
                     dtype = _dtype_name(raw)
             shape: tuple[int, ...] | None = ()
             if "shape" in spec and spec["shape"] is not None:
@@ -747,7 +758,9 @@ class _Checker:
                 doc = self.text(spec["doc"], spec.value_loc("doc"), f"doc of variable '{name}'") or ""
             obj: str | None = None
             if "object" in spec:
-                obj = self.text(spec["object"], spec.value_loc("object"), f"object type of variable '{name}'")
+                obj = spec["object"]
+                if not isinstance(obj, str):
+                    obj = self.text(obj, spec.value_loc("object"), f"object type of variable '{name}'")
                 if obj is not None:
                     self.var_object[name] = obj
             if "initial" in spec:
@@ -787,7 +800,9 @@ class _Checker:
             if name is None:
                 continue
             self.task_names.add(name)
-            spec = self.mapping(value, tasks.value_loc(key), f"task '{name}'", "e.g. pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}")
+            # (a mapping, as nearly always, needs no location and no message: they are made for the error only)
+            spec = value if isinstance(value, YMap) else self.mapping(
+                value, tasks.value_loc(key), f"task '{name}'", "e.g. pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}")
             if spec is None:
                 continue
             task = _Task(name, index, key_loc)
@@ -809,8 +824,8 @@ class _Checker:
                     task.priority,
                     task.critical,
                     task.params,
-                    tuple(PortBinding(b.port, b.variable, b.shape) for b in task.bindings),
-                    tuple(r for r, _ in task.resources),
+                    tuple([PortBinding(b.port, b.variable, b.shape) for b in task.bindings]),
+                    tuple([r for r, _ in task.resources]),
                     index,
                     key_loc,
                     task.wcet,
@@ -824,12 +839,13 @@ class _Checker:
         ok = True
         name = task.name
         if "rtpu" in spec:
-            loc = spec.value_loc("rtpu")
-            rtpu = self.text(spec["rtpu"], loc, f"rtpu of task '{name}'")
-            if rtpu is not None and rtpu not in self.rtpu_names:
-                self.error("E203", f"task '{name}' runs on RTPU '{rtpu}', which 'rtpus' does not declare", loc, did_you_mean(rtpu, self.rtpu_names, "declared"))
+            rtpu = spec["rtpu"]  # (its location is looked up only to report it)
+            if not isinstance(rtpu, str):
+                self.text(rtpu, spec.value_loc("rtpu"), f"rtpu of task '{name}'")
                 ok = False
-            elif rtpu is None:
+            elif rtpu not in self.rtpu_names:
+                self.error("E203", f"task '{name}' runs on RTPU '{rtpu}', which 'rtpus' does not declare", spec.value_loc("rtpu"),
+                           did_you_mean(rtpu, self.rtpu_names, "declared"))
                 ok = False
             else:
                 task.rtpu = rtpu
@@ -959,9 +975,9 @@ class _Checker:
     def check_task_module(self, task: _Task, spec: YMap) -> Any:
         if "module" not in spec:
             return None
-        loc = spec.value_loc("module")
-        module = self.text(spec["module"], loc, f"module of task '{task.name}'")
-        if module is None:
+        module = spec["module"]  # (its location is looked up only to report it)
+        if not isinstance(module, str):
+            self.text(module, spec.value_loc("module"), f"module of task '{task.name}'")
             return None
         task.module = module
         try:
@@ -969,23 +985,39 @@ class _Checker:
         except Exception as exc:  # ModuleError, or a library that fails to import
             known = self.known_modules()
             hint = did_you_mean(module, known, "registered") if known is not None else str(exc)
-            self.error("E207", f"task '{task.name}' uses module '{module}', which is not registered", loc, hint)
+            self.error("E207", f"task '{task.name}' uses module '{module}', which is not registered", spec.value_loc("module"), hint)
             return None
         return module_class
 
-    def module_ports(self, task: _Task, module_class: Any, loc: Location) -> tuple[PortSpec, ...] | None:
+    def module_ports(self, task: _Task, module_class: Any, spec: YMap) -> tuple[PortSpec, ...] | None:
         try:
             # ports may depend on params (a data logger's inputs); without valid params, the class's
             built = getattr(task, "built_params", None)
             ports = tuple(module_class.ports_for(built) if built is not None else module_class.ports())
         except Exception as exc:  # the module is broken, not the YAML; say so
-            self.error("E307", f"module '{task.module}' of task '{task.name}' cannot list its ports: {exc!r}", loc)
+            self.error("E307", f"module '{task.module}' of task '{task.name}' cannot list its ports: {exc!r}", spec.value_loc("module"))
             return None
         return ports
 
+    def port_shape(self, port: PortSpec, variable_shape: tuple[int, ...]) -> tuple[int, ...]:
+        """`port.resolved_shape` with this file's dims; a declared shape is resolved once, not per task.
+
+        Raises what `resolved_shape` raises (a shape that fails is never remembered).
+        """
+        declared = port.shape
+        try:
+            shape = self._port_shapes.get(declared) if declared is not None else None
+        except TypeError:  # an unhashable declared shape: resolved afresh each time
+            shape = declared = None
+        if shape is None:
+            shape = port.resolved_shape(self.out.dims, variable_shape)
+            if declared is not None:
+                self._port_shapes[declared] = shape
+        return shape
+
     def check_task_ports(self, task: _Task, spec: YMap, module_class: Any) -> bool:
         name = task.name
-        ports = self.module_ports(task, module_class, spec.value_loc("module"))
+        ports = self.module_ports(task, module_class, spec)
         if ports is None:
             return False
         declared = {p.name: p for p in ports}
@@ -1006,15 +1038,18 @@ class _Checker:
                         )
                         ok = False
                         continue
-                    var_name = self.text(var, m.value_loc(port_name), f"variable of port '{port_name}' of task '{name}'")
+                    var_loc = m.value_loc(port_name)
+                    var_name = var if isinstance(var, str) else self.text(var, var_loc, f"variable of port '{port_name}' of task '{name}'")
                     if var_name is None:
                         ok = False
                         continue
-                    links[port_name] = (var_name, m.value_loc(port_name))
+                    links[port_name] = (var_name, var_loc)
+        var_locs, var_ok, variables = self.var_locs, self.var_ok, self.out.variables
         for port in ports:
-            explicit = port.name in links
-            var, loc = links.get(port.name, (port.variable, task.loc))
-            if var not in self.var_locs:
+            link = links.get(port.name)
+            explicit = link is not None
+            var, loc = link if link is not None else (port.variable, task.loc)
+            if var not in var_locs:
                 if explicit:
                     self.error(
                         "E205",
@@ -1033,15 +1068,15 @@ class _Checker:
                     )
                 ok = False
                 continue
-            if var not in self.var_ok:
+            if var not in var_ok:
                 ok = False  # the variable itself is wrong and was reported
                 continue
-            variable = self.out.variables[var]
+            variable = variables[var]
             if port.dtype == ANY_DTYPE:  # a port that takes whatever its variable is
                 port = PortSpec(port.name, port.kind, port.variable, variable.dtype,
                                 variable.shape if port.shape is None else port.shape, port.doc)
             try:
-                shape = port.resolved_shape(self.out.dims, variable.shape)
+                shape = self.port_shape(port, variable.shape)
             except KeyError as exc:
                 self.error(
                     "E304",
@@ -1081,21 +1116,25 @@ class _Checker:
 
     def check_task_params(self, task: _Task, spec: YMap, module_class: Any) -> bool:
         raw = spec.get("params")
-        loc = spec.value_loc("params") if "params" in spec else task.loc
         if raw is not None and not isinstance(raw, YMap):
-            self.error("E113", f"params of task '{task.name}' must be a mapping, got: {describe(raw)}", location_of(raw, loc), "e.g. params: {kp: 400, kd: 40}")
+            self.error("E113", f"params of task '{task.name}' must be a mapping, got: {describe(raw)}", self.params_loc(task, spec), "e.g. params: {kp: 400, kd: 40}")
             return False
         values = plain(raw) if raw is not None else {}
         try:
             task.built_params = module_class.build_params(values)
         except ParamError as exc:
-            self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {exc}", location_of(raw, loc))
+            self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {exc}", self.params_loc(task, spec))
             return False
         except Exception as exc:  # a module's own validation may raise anything
-            self.error("E308", f"params of task '{task.name}' (module '{task.module}') were refused: {exc!r}", location_of(raw, loc))
+            self.error("E308", f"params of task '{task.name}' (module '{task.module}') were refused: {exc!r}", self.params_loc(task, spec))
             return False
         task.params = values
         return True
+
+    @staticmethod
+    def params_loc(task: _Task, spec: YMap) -> Location:
+        """Where a message about a task's params points: the params, or the task when it gives none."""
+        return location_of(spec.get("params"), spec.value_loc("params") if "params" in spec else task.loc)
 
     # --- configurations, jobs, applications --------------------------------------------------
 
@@ -1109,8 +1148,8 @@ class _Checker:
             if name is None:
                 continue
             self.config_names.add(name)
-            loc = configs.value_loc(key)
             if not isinstance(value, YList):
+                loc = configs.value_loc(key)
                 self.error("E113", f"configuration '{name}' must be a list of task names, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [robot, pid]")
                 continue
             members: list[tuple[str, Location]] = []
@@ -1119,7 +1158,7 @@ class _Checker:
             ok = True
             for i, item in enumerate(value):
                 item_loc = value.item_loc(i)
-                task = self.text(item, item_loc, f"task of configuration '{name}'")
+                task = item if isinstance(item, str) else self.text(item, item_loc, f"task of configuration '{name}'")
                 if task is None:
                     ok = False
                     continue
@@ -1202,7 +1241,6 @@ class _Checker:
                 if not b.port.kind.is_input:
                     continue
                 ws = writers.get(b.variable, [])
-                kind = b.port.kind.value
                 if not ws and b.variable in repeat_written:
                     continue
                 if not ws and b.variable not in job_written:
@@ -1210,7 +1248,7 @@ class _Checker:
                         continue
                     self.error(
                         "E403",
-                        f"task '{task.name}' reads {kind} '{b.variable}', but no task in configuration '{config}' writes it",
+                        f"task '{task.name}' reads {b.port.kind.value} '{b.variable}', but no task in configuration '{config}' writes it",
                         b.loc,
                         (did_you_mean(b.variable, written, "written") if (written := sorted(set(writers) | job_written))
                          else "nothing is written")
@@ -1223,7 +1261,7 @@ class _Checker:
                     w_task, w_binding = ws[0]
                     self.error(
                         "E404",
-                        f"task '{task.name}' reads {kind} '{b.variable}' before its init, but its writer '{w_task.name}' "
+                        f"task '{task.name}' reads {b.port.kind.value} '{b.variable}' before its init, but its writer '{w_task.name}' "
                         f"in configuration '{config}' writes it as {w_binding.port.kind.value} (only after each cycle)",
                         b.loc,
                         f"make port '{w_binding.port.name}' of module '{w_task.module}' out-const or out-both, "
@@ -1232,7 +1270,7 @@ class _Checker:
                 elif not ws and complete:
                     self.error(
                         "E405",
-                        f"task '{task.name}' reads {kind} '{b.variable}' before its init, but in configuration '{config}' "
+                        f"task '{task.name}' reads {b.port.kind.value} '{b.variable}' before its init, but in configuration '{config}' "
                         "only job control sets it, as a job's object, after tasks are spawned",
                         b.loc,
                         f"give variable '{b.variable}' an initial: value",
@@ -1314,6 +1352,8 @@ class _Checker:
         so the second one's init would be refused.
         """
         tasks = [t for t in self.tasks.values() if t.resources]
+        if len(tasks) < 2:
+            return  # no two tasks open devices: nothing can clash (and no pairs of members to list)
         together = {frozenset((a, b)) for members in self.config_members.values()
                     for i, (a, _) in enumerate(members) for b, _ in members[i + 1:]}
         reported: set[frozenset[str]] = set()

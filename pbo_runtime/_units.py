@@ -7,6 +7,7 @@ Sizes are decimal SI (kB = 1000 B) unless written in binary units (KiB = 1024 B)
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 
@@ -58,6 +59,17 @@ _QUANTITY = re.compile(r"^\s*([+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?)\s*(
 
 def parse_quantity(value: object, kind: str) -> float:
     """The value in SI units, or ValueError saying what was expected and what was found."""
+    if type(value) is str:  # a file repeats the same few ('1 ms' for hundreds of tasks): parse each once
+        return _parse_text(value, kind)
+    return _parse(value, kind)
+
+
+@functools.lru_cache(maxsize=4096)
+def _parse_text(value: str, kind: str) -> float:
+    return _parse(value, kind)  # a ValueError is raised again each time, never remembered
+
+
+def _parse(value: object, kind: str) -> float:
     if kind not in UNITS:
         raise ValueError(f"unknown quantity kind {kind!r} (valid: {', '.join(UNITS)})")
     expected = _EXPECTED[kind]

@@ -315,6 +315,35 @@ _TREES = st.recursive(
 )
 
 
+def _same(a: Any, b: Any) -> bool:
+    """Equal, with NaN equal to itself and 1 distinct from True (YAML tells them apart)."""
+    if isinstance(a, float) and isinstance(b, float) and a != a and b != b:
+        return True
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    return a == b
+
+
+# Texts that read as other types unless quoted, beside those types: a memo keyed by text alone would mix them up
+_LOOKALIKES = st.sampled_from([1, "1", True, "true", None, "null", 1.5, "1.5", "~", "yes", 0, "0"])
+_MIXED_TREES = st.recursive(
+    st.one_of(_LOOKALIKES, _SCALARS),
+    lambda children: st.one_of(st.lists(children, max_size=4), st.dictionaries(_NAMES, children, max_size=5)),
+    max_leaves=40,
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(tree=st.dictionaries(_NAMES, _MIXED_TREES, max_size=8), flow=st.booleans())
+def test_the_memoised_loader_reads_what_the_safe_loader_reads(tree: dict[str, Any], flow: bool) -> None:
+    text = yaml.safe_dump(tree, default_flow_style=flow)
+    assert _same(plain(load_text(text, "f.yaml")), yaml.safe_load(text))
+
+
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(tree=st.dictionaries(_NAMES, _TREES, max_size=8))
 def test_arbitrary_yaml_structures_never_raise_anything_but_config_errors(tmp_path: Path, tree: dict[str, Any]) -> None:

@@ -26,6 +26,7 @@ from pbo_runtime._config_model import (
     ApplicationStep,
     BusSpec,
     ConfigurationSpec,
+    DEFAULT_SPIN,
     DeviceSpec,
     JobSpec,
     Location,
@@ -71,7 +72,7 @@ JOB_KEYS = ("configuration", "object", "pre", "post", "timeout")
 DEVICE_KEYS = ("driver", "exclusive", "io")  # every other key of a device is a driver option
 CLAIM_KEYS = ("device", "channels")  # a resource or an io: given as {device: adc0, channels: 0-5}
 BUS_KEYS = ("bandwidth", "lock_overhead")
-RTPU_KEYS = ("cpu",)
+RTPU_KEYS = ("cpu", "spin")
 
 _SUBSYSTEM_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
 _JOIN_HINT = "an output has one writer; join them with a join connector (TR Figure 6)"
@@ -347,6 +348,7 @@ class _Checker:
             self.check_data_flow(config)
         self.check_device_union()
         self.check_schedulability()
+        self.check_spins()
         self.check_const_order()
         self.check_unused()
         return self.out
@@ -415,14 +417,20 @@ class _Checker:
                 self.error("E202", f"RTPU '{name}' is listed twice", key_loc)
                 continue
             cpu = None
+            spin, spin_loc = DEFAULT_SPIN, key_loc
             if spec is not None:
-                m = self.mapping(spec, spec_loc, f"RTPU '{name}'", "e.g. rtpu0: {cpu: 0}")
+                m = self.mapping(spec, spec_loc, f"RTPU '{name}'", "e.g. rtpu0: {cpu: 0, spin: 200 us}")
                 if m is not None:
                     self.keys(m, RTPU_KEYS, (), f"in RTPU '{name}'", key_loc)
                     if "cpu" in m and m["cpu"] is not None:
                         cpu = self.integer(m["cpu"], m.value_loc("cpu"), f"cpu of RTPU '{name}'", minimum=0)
+                    if "spin" in m and m["spin"] is not None:
+                        spin_loc = m.value_loc("spin")
+                        spin = self.quantity(m["spin"], spin_loc, TIME, f"spin of RTPU '{name}'", positive=False)
+                        if spin is None:
+                            spin = DEFAULT_SPIN
             self.rtpu_names.add(name)
-            rtpus.append(RtpuSpec(name, len(rtpus), cpu, key_loc))
+            rtpus.append(RtpuSpec(name, len(rtpus), cpu, key_loc, spin, spin_loc))
         self.out.rtpus = tuple(rtpus)
 
     def check_bus(self, top: YMap) -> None:
@@ -1378,6 +1386,27 @@ class _Checker:
                         "device or channels",
                     )
                     break
+
+    def check_spins(self) -> None:
+        """E509: an RTPU's spin before a release must be shorter than its shortest period, or it
+        never sleeps: it would spin through every period, a whole CPU for nothing."""
+        shortest: dict[str, _Task] = {}
+        for task in self.tasks.values():
+            if task.rtpu and task.period > 0 and not task.aperiodic:
+                if task.rtpu not in shortest or task.period < shortest[task.rtpu].period:
+                    shortest[task.rtpu] = task
+        for rtpu in self.out.rtpus:
+            task = shortest.get(rtpu.name)
+            if task is not None and rtpu.spin >= task.period:
+                self.error(
+                    "E509",
+                    f"spin of RTPU '{rtpu.name}' must be shorter than the shortest period of its tasks "
+                    f"({_ms(task.period)}, task '{task.name}'), got: {_ms(rtpu.spin)}",
+                    rtpu.spin_loc,
+                    "the executive sleeps until `spin` before each release and spins the rest; "
+                    "the default, 200 us, hid the wake-up latency of the machine in docs/performance.md; "
+                    "`python -m bench.wait` measures yours",
+                )
 
     def check_schedulability(self) -> None:
         """Warn where the declared wcets of one RTPU's tasks in a configuration cannot be guaranteed.

@@ -26,12 +26,21 @@ class Location(NamedTuple):
 NOWHERE = Location("<none>", 0, 0)
 
 
+# The executive sleeps in the kernel until this long before a release, then spins: on the 2-vCPU
+# VM it was measured on, a wake-up is 40-125 µs late, so a 200 µs spin hides it (jitter p99 from
+# about 100 µs to a clock read) for a fifth of a CPU per RTPU at 1 kHz; 500 µs with four RTPUs on
+# two CPUs takes more CPU than the machine has (docs/performance.md, "The wait before a release").
+DEFAULT_SPIN = 0.0002
+
+
 @dataclass(frozen=True)
 class RtpuSpec:
     name: str
     index: int
     cpu: int | None = None
     loc: Location = NOWHERE
+    spin: float = DEFAULT_SPIN  # seconds spun before each release after the kernel's wait (bench/wait.py)
+    spin_loc: Location = NOWHERE
 
 
 @dataclass(frozen=True)

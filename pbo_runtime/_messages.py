@@ -11,6 +11,7 @@ import msgpack
 import posix_ipc
 
 from pbo_runtime import _process, _shm
+from pbo_runtime._errors import InternalError
 
 MESSAGE_BYTES = 8192
 
@@ -54,7 +55,7 @@ class Queue:
         self.owner = create
 
     def send(self, *message: Any, timeout: float | None = 1.0) -> None:
-        raw = msgpack.packb(list(message))
+        raw = self._encode(message)
         while True:
             try:
                 self._mq.send(raw, timeout=timeout)
@@ -65,11 +66,20 @@ class Queue:
 
     def try_send(self, *message: Any, timeout: float = 0.5) -> bool:
         """Send, waiting at most `timeout`; False if the queue stayed full or is gone (a dead peer must not hang us)."""
+        raw = self._encode(message)
         try:
-            self._mq.send(msgpack.packb(list(message)), timeout=timeout)
+            self._mq.send(raw, timeout=timeout)
             return True
         except (posix_ipc.BusyError, posix_ipc.ExistentialError, posix_ipc.SignalError, OSError):
             return False
+
+    def _encode(self, message: tuple[Any, ...]) -> bytes:
+        """The message as msgpack; one too long for the queue is our bug, named, never a bare ValueError."""
+        raw = msgpack.packb(list(message))
+        if len(raw) > self._mq.max_message_size:
+            raise InternalError(f"a '{message[0]}' message of {len(raw)} B does not fit queue {self.name} "
+                                f"(at most {self._mq.max_message_size} B); please report this")
+        return raw
 
     def receive(self, timeout: float | None) -> list[Any] | None:
         """The next message, or None if none came within `timeout` seconds (0: do not wait)."""

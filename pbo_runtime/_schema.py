@@ -131,11 +131,14 @@ def json_schema() -> dict[str, Any]:
     name = {"type": "string", "minLength": 1}
 
     rtpu_entry = _obj(
-        {"cpu": {"type": "integer", "minimum": 0, "description": "the CPU core this RTPU process is pinned to"}},
+        {"cpu": {"type": "integer", "minimum": 0, "description": "the CPU core this RTPU process is pinned to"},
+         "spin": {"$ref": "#/$defs/time",
+                  "description": "how long before each release the RTPU stops sleeping and spins (default 200 us); "
+                                 "shorter than its shortest period"}},
         "an RTPU's options",
     )
     rtpus = {
-        "description": "the RTPU processes; tasks name the one that hosts them: a list of names, or a mapping {name: {cpu: N}}",
+        "description": "the RTPU processes; tasks name the one that hosts them: a list of names, or a mapping {name: {cpu: N, spin: 200 us}}",
         "oneOf": [
             {"type": "array", "items": name, "minItems": 1, "uniqueItems": True},
             {"type": "object", "minProperties": 1, "additionalProperties": {"oneOf": [rtpu_entry, {"type": "null"}]}},

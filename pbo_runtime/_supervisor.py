@@ -283,7 +283,8 @@ class Supervisor:
         for rtpu in sub.rtpus:
             hosted = tuple(t.name for t in sub.tasks_on(rtpu.name))
             self._launch(rtpu.name, ["-m", "rtpu", sub.file, "--run-id", run_id, "--rtpu", rtpu.name,
-                                     "--epoch", repr(epoch + self.stagger * rtpu.index), *(["--fifo"] if self.fifo else []),
+                                     "--epoch", repr(epoch + self.stagger * rtpu.index), "--spin", repr(rtpu.spin),
+                                     *(["--fifo"] if self.fifo else []),
                                      *clock, *(["--tick", repr(self.tick)] if self.simulated else []),
                                      *(["--out", self.out_dir] if self.out_dir else []),
                                      *(["--links", json.dumps(self.links)] if self.links else [])],
@@ -638,10 +639,13 @@ class Supervisor:
         if self.lockstep is not None:
             self.lockstep.close()
         self.result.switches = [record.to_json() for record in self.job_control.switches]
+        started = self.started_at if self.started_at is not None else 0.0
         for name, stats in self._stats.items():
+            # an overrun's release as seconds since the configuration came on, as the summary reads it
+            overruns = [[release - started, late, took] for release, late, took in stats.get("last_overruns", [])]
             self.result.tasks[name] = {"rtpu": self.subsystem.tasks[name].rtpu, "critical": self.subsystem.tasks[name].critical,
                                        "state": self.result.states_at_stop.get(name, "?"),
-                                       "error": self.task_errors.get(name, ""), **stats}
+                                       "error": self.task_errors.get(name, ""), **stats, "last_overruns": overruns}
         if self.control is not None:
             self.control.close()
         for queue in self.signals.values():

@@ -341,6 +341,8 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
     for name, t in result.tasks.items():
         if t.get("error"):
             console.print(f"task '{name}': {t['error']}", markup=False)
+    for line in overrun_lines(subsystem, result.tasks):
+        console.print(line, markup=False)
     if result.plant:
         console.print(f"plant: {result.plant.get('steps', 0)} steps, {result.plant.get('late', 0)} late", markup=False)
     if result.clock == "sim":
@@ -350,9 +352,34 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
     for rtpu, settings in result.realtime.items():
         if "clock" in settings:
             continue  # simulated: no scheduler settings to report
-        console.print(f"{rtpu}: cpu {settings.get('cpu')}, {settings.get('scheduler')}, timer slack {settings.get('timer_slack')}",
-                      markup=False)
+        console.print(f"{rtpu}: cpu {settings.get('cpu')}, {settings.get('scheduler')}, timer slack {settings.get('timer_slack')}"
+                      + (f", spin {settings['spin']}" if "spin" in settings else ""), markup=False)
     _print_switches(console, result)
+
+
+def overrun_lines(subsystem: Any, tasks: dict[str, dict[str, Any]]) -> list[str]:
+    """Why each task overran. A late release is the machine's (the RTPU got its CPU late); a long
+    cycle is the module's (it ran longer than its period): they call for different remedies."""
+    lines = []
+    for name, t in tasks.items():
+        overruns = t.get("overruns", 0)
+        if not overruns or name not in subsystem.tasks:
+            continue
+        period = subsystem.tasks[name].period
+        late, long = t.get("overruns_late_release", overruns), t.get("overruns_long_cycle", 0)
+        parts = []
+        if late:
+            parts.append(f"{late} late release{'s' if late > 1 else ''} (started up to {t['jitter_max'] * 1e3:.2f} ms late: "
+                         "the machine held the RTPU's CPU; --fifo or pinning with rtpus: {cpu: N} help)")
+        if long:
+            parts.append(f"{long} long cycle{'s' if long > 1 else ''} (ran up to {t['exec_max'] * 1e3:.2f} ms: the module "
+                         "needs more than its period; lighten its cycle or lengthen its period)")
+        kept = t.get("last_overruns", [])
+        when = ", ".join(f"{release:.3f} s" for release, _, _ in kept)
+        which = "at" if len(kept) == overruns else f"the last {len(kept)} at"
+        lines.append(f"overruns of '{name}' ({period * 1e3:g} ms period): " + "; ".join(parts)
+                     + (f"; {which} {when} into the run" if kept else ""))
+    return lines
 
 
 def _print_switches(console: Console, result: Any) -> None:

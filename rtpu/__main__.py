@@ -15,7 +15,7 @@ import traceback
 from pbo_runtime import _messages, _registry
 from pbo_runtime._clock import RealClock, SimClock
 from pbo_runtime._config_loader import load_subsystem
-from pbo_runtime._config_model import DeviceSpec, TaskSpec
+from pbo_runtime._config_model import DEFAULT_SPIN, DeviceSpec, TaskSpec
 from pbo_runtime._lifecycle import Task
 from pbo_runtime._lockstep import LockstepParticipant
 from pbo_runtime._process import Stop, become_child
@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rtpu", required=True)
     parser.add_argument("--epoch", type=float, default=0.0, help="CLOCK_MONOTONIC time releases align to")
     parser.add_argument("--parent", type=int, default=0)
-    parser.add_argument("--spin", type=float, default=0.0002, help="seconds spun before each release")
+    parser.add_argument("--spin", type=float, default=DEFAULT_SPIN, help="seconds spun before each release")
     parser.add_argument("--fifo", action="store_true", help="ask for SCHED_FIFO (reported if refused)")
     parser.add_argument("--clock", choices=("real", "sim"), default="real", help="sim: advance in the supervisor's ticks")
     parser.add_argument("--tick", type=float, default=0.001, help="seconds per tick of the simulated clock")
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
             return MessageRelay(end, signal_queue, task)
 
         rtpu = subsystem.rtpu(args.rtpu)
-        realtime = _realtime.apply(rtpu.cpu, args.fifo)
+        realtime = {**_realtime.apply(rtpu.cpu, args.fifo), "spin": f"{args.spin * 1e6:g} µs"}
         simulated = args.clock == "sim"
         clock = SimClock(table.header, args.tick) if simulated else RealClock(args.spin)
         executive = Executive(clock, signals, report, epoch=args.epoch, header=table.header,

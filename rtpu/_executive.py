@@ -34,6 +34,7 @@ RECENT = 1 << 10  # every RECENT cycles, the last RECENT samples' percentiles go
 EVENTS_QUEUED = 16  # events an aperiodic task holds while it waits out its min inter-arrival time
 SWITCH_WINDOW_PERIODS = 3  # a stale read this close after a switch is counted against the switch
 AGE_TOLERANCE = 1e-7  # seconds: an input exactly one producer period old is fresh, whatever the rounding
+OVERRUNS_KEPT = 8  # the last overruns kept per task (release, lateness, execution time) for the run report
 
 
 class Clock(Protocol):
@@ -57,7 +58,8 @@ class Scheduled:
                  "samples", "jitter_max", "exec_max", "status", "aperiodic", "events", "dropped_events",
                  "last_release", "stale_reads", "stale_at_switch", "input_periods", "write_times", "stable_cycles",
                  "in_stable", "first_cycle_of_plan", "last_stale", "expected_writers", "input_writers",
-                 "lost_to_switch", "last_lost", "window_lost", "window_stale", "shared_status")
+                 "lost_to_switch", "last_lost", "window_lost", "window_stale", "shared_status", "overrun_log",
+                 "long_cycles")
 
     def __init__(self, task: Task) -> None:
         self.task = task
@@ -71,6 +73,8 @@ class Scheduled:
         self.last_release = -math.inf
         self.overruns = 0
         self.missed = 0
+        self.long_cycles = 0  # overruns the cycle alone caused (it took more than a period)
+        self.overrun_log = np.zeros(3 * OVERRUNS_KEPT)  # flat ring: release, lateness, execution time
         self.jitter = np.zeros(RING)
         self.exec_time = np.zeros(RING)
         self.samples = 0
@@ -118,7 +122,18 @@ class Scheduled:
             "last_cycle_lost": self.last_lost,
             "stable_cycles": self.stable_cycles,
             "dropped_events": self.dropped_events,
+            "overruns_long_cycle": self.long_cycles,
+            "overruns_late_release": self.overruns - self.long_cycles,
+            "last_overruns": self.last_overruns(),
         }
+
+    def last_overruns(self) -> list[list[float]]:
+        """The last OVERRUNS_KEPT overruns, oldest first: [release, how late it started, how long it ran]."""
+        kept = min(self.overruns, OVERRUNS_KEPT)
+        first = self.overruns - kept
+        log = self.overrun_log
+        return [[float(log[3 * k]), float(log[3 * k + 1]), float(log[3 * k + 2])]
+                for k in ((first + i) % OVERRUNS_KEPT for i in range(kept))]
 
 
 class Executive:
@@ -287,6 +302,14 @@ class Executive:
             if end > following:
                 # The deadline passed: count the overrun and skip the releases already gone,
                 # keeping the phase (next = epoch + k * period, never end + period).
+                # Record why (the flat ring's slots are floats already there: nothing is allocated).
+                k = 3 * (s.overruns % OVERRUNS_KEPT)
+                log = s.overrun_log
+                log[k] = release
+                log[k + 1] = jitter
+                log[k + 2] = took
+                if took > s.period:
+                    s.long_cycles += 1
                 s.overruns += 1
                 skipped = int((end - release) // s.period)
                 s.missed += skipped - 1 if skipped > 1 else 0
@@ -435,7 +458,7 @@ class Executive:
             self.stop()
             return
         if op == "stats":
-            self.report("stats", {name: s.statistics() for name, s in self.tasks.items()})
+            self.report_statistics()
             return
         if op == "plan":  # a wake-up: the plan itself is in the table's header
             return
@@ -509,8 +532,13 @@ class Executive:
                 except Exception as exc:
                     self.report("refused", s.task.name, f"kill: {exc}")
                 self._report_state(s.task)
-        self.report("stats", {name: s.statistics() for name, s in self.tasks.items()})
+        self.report_statistics()
         self.running = False
+
+    def report_statistics(self) -> None:
+        """One "stats" event per task: an RTPU hosting dozens of tasks would overflow one message."""
+        for name, s in self.tasks.items():
+            self.report("stats", {name: s.statistics()})
 
     def _first_release(self, s: Scheduled, at: float) -> float:
         s.release_index = max(math.ceil((at - self.epoch) / s.period - 1e-9), 0)

@@ -254,6 +254,18 @@ def test_an_rtpu_cpu_must_be_a_non_negative_integer(tmp_path: Path) -> None:
     expect_error(tmp_path, text, "-1", r"cpu of RTPU 'rtpu0' must be >= 0, got: -1$")
 
 
+def test_an_rtpu_spins_200_us_before_a_release_unless_it_gives_its_own_spin(tmp_path: Path) -> None:
+    result = check(tmp_path, changed("rtpus: [rtpu0, rtpu1]", "rtpus: {rtpu0: {spin: 50 us}, rtpu1: null}"))
+    assert result.errors == [] and result.subsystem is not None
+    assert [(r.name, r.spin) for r in result.subsystem.rtpus] == [("rtpu0", pytest.approx(50e-6)), ("rtpu1", 0.0002)]
+
+
+def test_an_rtpu_spin_as_long_as_its_shortest_period_is_an_error(tmp_path: Path) -> None:
+    text = changed("rtpus: [rtpu0, rtpu1]", "rtpus: {rtpu0: {spin: 1 ms}, rtpu1: null}")
+    expect_error(tmp_path, text, "1 ms}", r"spin of RTPU 'rtpu0' must be shorter than the shortest period of its tasks "
+                 r"\(1 ms, task 'pid'\), got: 1 ms$", code="E509")
+
+
 # --- undefined names -----------------------------------------------------------------------
 
 

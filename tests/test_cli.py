@@ -128,3 +128,22 @@ def test_the_public_surface_is_what_module_authors_need():
         "NoParams", "OutBoth", "OutConst", "OutVar", "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec",
         "Status", "TableLayoutError",
     ]
+
+
+def test_the_summary_tells_a_late_release_from_a_long_cycle():
+    from pbo_runtime._config_loader import load_subsystem
+    from pbo_runtime.cli import overrun_lines
+
+    subsystem = load_subsystem(REPO / "configs" / "pid_joint.yaml")
+    tasks = {
+        "robot": {"overruns": 2, "overruns_late_release": 2, "overruns_long_cycle": 0, "jitter_max": 0.0031,
+                  "exec_max": 0.00002, "last_overruns": [[0.25, 0.0031, 0.00002], [1.5, 0.0012, 0.00002]]},
+        "pid": {"overruns": 9, "overruns_late_release": 0, "overruns_long_cycle": 9, "jitter_max": 0.0,
+                "exec_max": 0.0042, "last_overruns": [[0.001 * i, 0.0, 0.0042] for i in range(8)]},
+        "traj": {"overruns": 0},
+    }
+    robot, pid = overrun_lines(subsystem, tasks)
+    assert robot == ("overruns of 'robot' (1 ms period): 2 late releases (started up to 3.10 ms late: the machine held the "
+                     "RTPU's CPU; --fifo or pinning with rtpus: {cpu: N} help); at 0.250 s, 1.500 s into the run")
+    assert pid.startswith("overruns of 'pid' (1 ms period): 9 long cycles (ran up to 4.20 ms: the module needs more than "
+                          "its period; lighten its cycle or lengthen its period); the last 8 at 0.000 s, 0.001 s,")

@@ -21,6 +21,7 @@ import pytest
 from rich.console import Console
 
 from pbo_runtime import PboError, _messages, _operator, _shm
+from pbo_runtime._errors import InternalError
 from pbo_runtime._control import (
     MAX_REQUESTS_PER_POLL,
     CommandRefused,
@@ -400,3 +401,13 @@ def test_a_job_without_values_sends_no_object(live):
 def test_job_object_values_must_be_finite_numbers(text):
     with pytest.raises(PboError, match=r"^a job's object values must be (numbers|finite), got: '\w+' \(value 2\)$"):
         _operator.parse_object_values(["0.1", text])
+
+
+def test_a_message_too_long_for_its_queue_is_named_as_our_bug_not_a_bare_value_error():
+    queue = _messages.Queue(f"/pbo-test-{uuid.uuid4().hex[:8]}", create=True)
+    try:
+        with pytest.raises(InternalError, match=r"^a 'stats' message of \d+ B does not fit queue .* please report this$"):
+            queue.try_send("stats", "x" * _messages.MESSAGE_BYTES)
+        assert queue.try_send("stats", "small")
+    finally:
+        queue.close()

@@ -153,3 +153,24 @@ def test_cartesian_teleoperation_follows_the_trackball(tmp_path):
     moved = log["x_d"][-1, :3] - log["x_d"][0, :3]
     assert moved == pytest.approx([0.05, 0.0, 0.05], abs=1e-3)  # the script: 5 cm along x, then 5 cm up (logging starts a tick late)
     assert_nothing_left(report)
+
+
+def test_an_rtpu_hosting_thirty_tasks_reports_every_one_at_stop(tmp_path):
+    # Regression: the RTPU sent all its tasks' statistics in one message; past ~23 tasks it did
+    # not fit the queue (8 KiB) and the RTPU crashed at stop, leaving the run report without tasks.
+    lines = ["subsystem: many", "rtpus: [rtpu0]", "dims: {NDOF: 6}", "variables:",
+             "  q_m: {type: float64, shape: [NDOF], initial: 0.0}", "tasks:"]
+    lines += [f"  w{i}: {{module: fault_injector, rtpu: rtpu0, period: 10 ms, params: {{fail_after: 1000000000}}, "
+              f"ports: {{watched: q_m}}}}" for i in range(30)]
+    lines += ["configurations:"] + [f"  c{i}: [w{i}]" for i in range(30)]
+    path = tmp_path / "many.yaml"
+    path.write_text("\n".join(lines) + "\n")
+    report_path = tmp_path / "report.json"
+    done = subprocess.run([*PBO, "run", str(path), "--duration", "0.2", "--clock", "sim", "--report", str(report_path),
+                           "--no-live"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    report = json.loads(report_path.read_text())
+    assert sorted(report["tasks"]) == sorted(f"w{i}" for i in range(30))
+    # c0 is the one on: released at 0, 10, ..., 200 ms of simulated time
+    assert report["tasks"]["w0"]["cycles"] == 21 and report["tasks"]["w1"]["cycles"] == 0
+    assert_nothing_left(report)

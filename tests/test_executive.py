@@ -59,7 +59,7 @@ def setup(make_table):
     clock = ManualClock(0.0)
     events: list[tuple] = []
 
-    def build(specs: list[tuple], script: list[tuple[float, list]]) -> Executive:
+    def build(specs: list[tuple], script: list[tuple[float, list]], clock: ManualClock = clock) -> Executive:
         executive = Executive(clock, FakeSignals(clock, script), lambda *e: events.append(e), epoch=0.0)
         for i, (name, module, period, critical, *priority) in enumerate(specs):
             spec = task_spec(module, name=name, index=i, ports={"out": f"o{i}"}, period=period)
@@ -70,6 +70,19 @@ def setup(make_table):
         return executive
 
     return build, clock, events
+
+
+class StallingClock(ManualClock):
+    """Fake clock: the wait for one release ends late, as when the machine holds the RTPU's CPU."""
+
+    def __init__(self, stall_at: float, stall: float) -> None:
+        super().__init__(0.0)
+        self.stall_at, self.stall = stall_at, stall
+
+    def sleep_until(self, deadline: float) -> float:
+        if abs(deadline - self.stall_at) < 1e-12:
+            deadline += self.stall
+        return super().sleep_until(deadline)
 
 
 def run_until(executive: Executive, clock: ManualClock, end: float) -> None:
@@ -256,3 +269,31 @@ def test_link_messages_beyond_what_a_server_holds_are_counted_as_dropped(setup):
     assert scheduled.dropped_events == 3
     assert [payload[1] for _, payload in EventRecorder.served] == list(range(3, EVENTS_QUEUED + 3))  # the newest kept
     assert ex.tasks["server"].statistics()["dropped_events"] == 3
+
+
+def test_each_overrun_is_recorded_with_its_cause_a_late_release_or_a_long_cycle(setup):
+    build, _, _ = setup
+    clock = StallingClock(stall_at=0.002, stall=0.0015)  # the 2 ms release starts at 3.5 ms
+    ex = build([("a", Ticker, 0.001, False)], [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0])], clock=clock)
+    run_until(ex, clock, 0.0035)
+    Ticker.cost = 0.0025  # the 4 ms cycle runs 2.5 periods on its own
+    try:
+        run_until(ex, clock, 0.0041)
+    finally:
+        Ticker.cost = 0.0
+    stats = ex.tasks["a"].statistics()
+    assert (stats["overruns"], stats["overruns_late_release"], stats["overruns_long_cycle"]) == (2, 1, 1)
+    assert stats["last_overruns"] == [pytest.approx([0.002, 0.0015, 0.0]), pytest.approx([0.004, 0.0, 0.0025])]
+
+
+def test_the_run_report_keeps_the_last_eight_overruns_oldest_first(setup):
+    build, clock, _ = setup
+    ex = build([("a", Ticker, 0.001, False)], [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0])])
+    Ticker.cost = 0.0015  # every cycle overruns: releases at 0, 2, 4, ... ms
+    try:
+        run_until(ex, clock, 0.0195)
+    finally:
+        Ticker.cost = 0.0
+    stats = ex.tasks["a"].statistics()
+    assert stats["overruns"] == 10 and stats["overruns_long_cycle"] == 10
+    assert [release for release, _, _ in stats["last_overruns"]] == pytest.approx([0.004 + 0.002 * i for i in range(8)])

@@ -25,7 +25,7 @@ spread. Overruns are rare events (a few per 10 000 cycles): their rate ratio poo
 comes with an exact 95% interval (a conditional binomial), since a handful of counts cannot give
 a ratio more precise than that.
 
-    python -m bench.realtime [--duration 10] [--rounds 8] [--rtpus 1 2 4] [--fifo]
+    python -m bench.realtime [--duration 60] [--rounds 12] [--rtpus 1 2 4] [--fifo]
 """
 
 from __future__ import annotations
@@ -51,8 +51,9 @@ from bench._common import REPO, Section, Table, Target, fmt_ratio, ratio, us
 from pbo_runtime import _messages
 from pbo_runtime._clock import RealClock, lower_timer_slack, release_stagger
 from pbo_runtime._config_loader import load_subsystem
+from pbo_runtime._config_model import DEFAULT_SPIN
 
-SPIN = 0.0002  # RealClock's spin before a release, as `python -m rtpu --spin` defaults to
+SPIN = DEFAULT_SPIN  # the executive's spin before a release, unless an RTPU gives its own
 FIFO_PRIORITY, PLANT_FIFO_PRIORITY = 50, 60  # as rtpu/_realtime.py and the plant host
 CONFIDENCE = 0.95  # of the overrun rate ratio's interval
 
@@ -370,7 +371,7 @@ def _spread(values: list[float]) -> str:
     return f"{min(values):.2f}-{max(values):.2f}x" if values else "n/a"
 
 
-def run(seconds: float = 10.0, rtpus: tuple[int, ...] = (1, 2, 4), fifo: bool = False, rounds: int = 8) -> Section:
+def run(seconds: float = 60.0, rtpus: tuple[int, ...] = (1, 2, 4), fifo: bool = False, rounds: int = 12) -> Section:
     results: dict[int, dict[str, Any]] = {}
     failures: dict[int, str] = {}
     for n in rtpus:
@@ -416,16 +417,18 @@ medians over the rounds (p50, p99), the worst max, and summed counts.
 both medians are the spin's own resolution, a few tens of ns (one clock read in CPython), and
 their ratio is near 1. The tails are the machine's: with more busy processes than CPUs (4 RTPUs
 and the plant on 2 vCPUs, each loop spinning up to 0.2 ms per release), a loop whose release
-falls on the plant's step or on another loop's spin waits for a CPU, and that phase is set by
-when each process happened to start, differently in every run and stretch; the executive's
-process also does more per release than the bare loop (its timed wait on the signal queue, the
-task's cycle: a few µs to tens of µs of CPU), so it competes a little more for the CPUs. On this
-shared VM other work (another test suite, other tenants) comes and goes within a round; hence
-rounds, medians and the ranges shown. Overruns are a few per 10 000 cycles on either side, so
-their ratio is known only to within its interval; nearly all are stalls of the whole VM (a cycle
-released 1 to 10 ms late on every RTPU at once), not long cycles, so with 2 and 4 RTPUs they come
-in bunches and the interval, which counts them as independent, is too narrow. SCHED_FIFO
-(`--fifo`) is the largest lever where the OS allows it.""",
+falls on the plant's step or on another loop's spin waits for a CPU. The executive's process
+also does more per release than the bare loop (its timed wait on the signal queue, the task's
+cycle: 10 to 20 µs), and a supervisor process runs beside it (awake every 100 ms to check
+its children and serve commands). Overruns are a few per 10,000 cycles on either side, and nearly all are late
+releases (1 to 5 ms), not long cycles: stalls of the whole VM, often on every RTPU at once (the
+run summary and report tell the two apart). Their rate is known only to within its interval;
+runs of 10 s gave 8 against 5 overruns and ratios from 0.5x to 2x depending on the run, which
+is why the command runs a minute per side. Overruns that come in bunches make the interval,
+which counts them as independent, too narrow. Release offsets matter: spread over 0.45 of the
+period (until issue 6), 4 RTPUs spun inside each other's spin and p99 was about 180 µs on both
+sides; spaced evenly (i/n of the period) it is tens of µs. SCHED_FIFO (`--fifo`) is allowed on
+this VM (root); see the wait benchmark for what it buys.""",
     )
     t = Table(["RTPUs", "loop", "cycles", "jitter p50 µs", "jitter p99 µs", "jitter max µs", "overruns", "overrun rate",
                "missed", "plant steps late"], numeric=(0, 2, 3, 4, 5, 6, 7, 8, 9))
@@ -494,9 +497,9 @@ in bunches and the interval, which counts them as independent, is too narrow. SC
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--duration", type=float, default=10.0, help="seconds of pbo run per RTPU count (the bare loop runs as long)")
+    parser.add_argument("--duration", type=float, default=60.0, help="seconds of pbo run per RTPU count (the bare loop runs as long)")
     parser.add_argument("--rtpus", type=int, nargs="+", default=[1, 2, 4], choices=[1, 2, 4])
-    parser.add_argument("--rounds", type=int, default=8, help="rounds of (pbo, bare) after a first bare stretch; the duration is split over them")
+    parser.add_argument("--rounds", type=int, default=12, help="rounds of (pbo, bare) after a first bare stretch; the duration is split over them")
     parser.add_argument("--fifo", action="store_true", help="SCHED_FIFO for both sides and the plant (root or CAP_SYS_NICE)")
     args = parser.parse_args()
     print(run(args.duration, tuple(args.rtpus), args.fifo, args.rounds).text())

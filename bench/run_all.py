@@ -1,6 +1,6 @@
 """Run every benchmark and write docs/performance.md from what they measured.
 
-    python -m bench                 # everything, full counts (a few minutes); rewrites docs/performance.md
+    python -m bench                 # everything, full counts (about 15 minutes); rewrites docs/performance.md
     python -m bench --quick         # everything, small counts (well under a minute); prints only
     python -m bench --only peers,scale --out /tmp/perf.md
 
@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from bench import check_scale, links, peers, realtime, scale, svar_transfer, switching
+from bench import check_scale, links, peers, realtime, scale, svar_transfer, switching, wait
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -24,6 +24,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "peers": peers.run,
     "scale": scale.run,
     "realtime": realtime.run,
+    "wait": wait.run,
     "switching": switching.run,
     "check_scale": check_scale.run,
     "links": links.section,
@@ -33,7 +34,8 @@ FULL: dict[str, dict[str, Any]] = {
     "svar_transfer": {"rounds": 21, "iterations": 20000, "table_variables": 1000},
     "peers": {"iterations": 10000, "seconds": 2.0, "warmup": 200, "rounds": 3},
     "scale": {"rounds": 15, "iterations": 2000, "rtpu_seconds": 1.5},
-    "realtime": {"seconds": 10.0, "rtpus": (1, 2, 4), "rounds": 8},
+    "realtime": {"seconds": 60.0, "rtpus": (1, 2, 4), "rounds": 12},
+    "wait": {"seconds": 1.5, "rounds": 4},
     "switching": {"switches": 1000, "interval": 0.02},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 3},
     "links": {},
@@ -44,29 +46,13 @@ QUICK: dict[str, dict[str, Any]] = {
     "peers": {"iterations": 300, "seconds": 0.3, "warmup": 20, "rounds": 1},
     "scale": {"rounds": 2, "iterations": 500, "rtpu_seconds": 0.2},
     "realtime": {"seconds": 1.0, "rtpus": (1, 2, 4), "rounds": 1},
+    "wait": {"seconds": 0.2, "rounds": 1},
     "switching": {"switches": 20, "interval": 0.02},
     "check_scale": {"sizes": (102, 1002), "repeat": 1},
     "links": {"quick": True},
 }
 
 DOC = Path(REPO) / "docs" / "performance.md"
-
-FIFO_SECTION = """## Real-time settings: SCHED_FIFO (measured by hand)
-
-Not part of `make bench` (it needs root or CAP_SYS_NICE); `python -m bench.realtime --fifo` runs the
-benchmark above with SCHED_FIFO on both sides. A single hand run on 2026-11-22,
-`pbo run configs/pid_joint.yaml --duration 3 --fifo` against the same without `--fifo`, back to back,
-while another test suite ran on the machine:
-
-| | robot jitter p99 µs | pid jitter p99 µs | traj jitter p99 µs | plant steps late |
-|---|---:|---:|---:|---:|
-| SCHED_FIFO (RTPUs 50, plant 60), timer slack 1 ns | 1 | 1 | 77 | 0 |
-| SCHED_OTHER, timer slack 1 ns | 39 | 10 | 298 | 17 |
-
-`--fifo` needs root or CAP_SYS_NICE; where it is refused the RTPU runs on and the summary says
-so. `rtpus: {rtpu0: {cpu: 0}}` pins an RTPU to a CPU (reported the same way).
-"""
-
 
 def collect(counts: dict[str, dict[str, Any]], only: tuple[str, ...] = (), plot_path: str | None = None,
             echo: Callable[[str], None] | None = print) -> list[Section]:
@@ -135,7 +121,6 @@ def render(sections: list[Section], info: dict[str, str], command: str, elapsed:
     ]
     for s in sections:
         lines += [s.markdown()]
-    lines += [FIFO_SECTION]
     return "\n".join(lines).rstrip() + "\n"
 
 

@@ -16,6 +16,7 @@ TINY = {
     "scale": {"rounds": 1, "iterations": 50, "rtpu_seconds": 0.03, "table_sizes": (10, 100), "port_counts": (1, 4),
               "task_counts": (1, 3), "rtpu_counts": (1, 2)},
     "realtime": {"seconds": 0.4, "rtpus": (1,), "rounds": 1},
+    "wait": {"seconds": 0.05, "rounds": 1, "loads": (1, 2)},
     "switching": {"switches": 4, "interval": 0.02},
     "check_scale": {"sizes": (12, 30), "repeat": 1},
     "links": {"quick": True, "rounds": 1},

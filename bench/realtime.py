@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing
 import os
 import random
 import signal
@@ -48,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from bench._common import REPO, Section, Table, Target, fmt_ratio, ratio, us
+from bench._processes import Workers
 from pbo_runtime import _messages
 from pbo_runtime._clock import RealClock, lower_timer_slack, release_stagger
 from pbo_runtime._config_loader import load_subsystem
@@ -55,7 +55,7 @@ from pbo_runtime._config_model import DEFAULT_SPIN
 
 SPIN = DEFAULT_SPIN  # the executive's spin before a release, unless an RTPU gives its own
 FIFO_PRIORITY, PLANT_FIFO_PRIORITY = 50, 60  # as rtpu/_realtime.py and the plant host
-CONFIDENCE = 0.95  # of the overrun rate ratio's interval
+CONFIDENCE = 0.95  # of the overrun rate ratio's interval (a bootstrap over rounds)
 
 
 def config_path(n_rtpus: int) -> Path:
@@ -165,28 +165,13 @@ class BareLoops:
 
     def __init__(self, n: int, period: float, yaml_path: Path, fifo: bool) -> None:
         self.n, self.period, self.yaml_path, self.fifo = n, period, yaml_path, fifo
-        ctx = multiprocessing.get_context("spawn")
-        self.procs: list[Any] = []
-        self.pipes: list[Connection] = []
-        try:
-            for _ in range(n):
-                here, there = ctx.Pipe()
-                p = ctx.Process(target=_bare_main, args=(period, fifo, there), daemon=True)
-                p.start()
-                self.procs.append(p)
-                self.pipes.append(here)
-            for here in self.pipes:
-                if not here.poll(60) or here.recv() != "ready":
-                    raise RuntimeError("a bare loop process did not start within 60 s")
-        except BaseException:
-            self.close()
-            raise
+        self.workers = Workers(n, _bare_main, (period, fifo), what="bare loop")
 
     def __enter__(self) -> BareLoops:
         return self
 
     def __exit__(self, *_exc: object) -> None:
-        self.close()
+        self.workers.close()
 
     def stretch(self, seconds: float) -> tuple[list[dict[str, np.ndarray]], dict[str, int]]:
         """Every loop for `seconds` with the plant stepping: per process its samples, and the plant's counts."""
@@ -197,27 +182,11 @@ class BareLoops:
             # would fall at one phase to its steps, every stretch (the same each time, and right on
             # them). A pbo run's phase to its plant is whatever the process starts left: random.
             epoch = time.monotonic() + 0.02 + random.uniform(0.0, self.period)
-            for i, here in enumerate(self.pipes):
-                here.send((epoch + i * stagger, epoch + seconds))
-            records = [here.recv() for here in self.pipes if here.poll(seconds + 60)]
+            self.workers.send_each([(epoch + i * stagger, epoch + seconds) for i in range(self.n)])
+            records = self.workers.answers(seconds + 60)
         finally:
             stats = plant.stop()
-        if len(records) != self.n:
-            raise RuntimeError(f"{self.n - len(records)} of {self.n} bare loop processes did not report")
         return records, stats
-
-    def close(self) -> None:
-        for here in self.pipes:
-            try:
-                here.send(None)
-            except OSError:
-                pass
-        for p in self.procs:
-            p.join(5)
-            if p.is_alive():
-                p.terminate()
-                p.join(5)
-        self.procs, self.pipes = [], []
 
 
 def _figures(jitter: np.ndarray, spanned: np.ndarray) -> dict[str, float]:
@@ -283,48 +252,26 @@ def _over_rounds(runs: list[dict[str, float]]) -> dict[str, float]:
     }
 
 
-def _binomial_cdf(k: int, n: int, p: float) -> float:
-    """P(X <= k) for X ~ Binomial(n, p)."""
-    if p <= 0.0:
-        return 1.0
-    if p >= 1.0:
-        return 1.0 if k >= n else 0.0
-    log_p, log_q = math.log(p), math.log1p(-p)
-    return min(1.0, sum(math.exp(math.lgamma(n + 1) - math.lgamma(i + 1) - math.lgamma(n - i + 1) + i * log_p + (n - i) * log_q)
-                        for i in range(k + 1)))
+def round_bootstrap_interval(rounds: list[tuple[dict[str, float], dict[str, float]]], confidence: float = CONFIDENCE,
+                             draws: int = 5000, seed: int = 6) -> tuple[float, float]:
+    """Interval for the pooled overrun-rate ratio pbo / bare, resampling whole rounds.
 
-
-def _solve(f: Any, target: float) -> float:
-    """The p in (0, 1) where the decreasing function f(p) equals target (bisection)."""
-    low, high = 0.0, 1.0
-    for _ in range(60):
-        middle = (low + high) / 2
-        if f(middle) > target:
-            low = middle
-        else:
-            high = middle
-    return (low + high) / 2
-
-
-def rate_ratio_interval(k_a: int, cycles_a: int, k_b: int, cycles_b: int,
-                        confidence: float = CONFIDENCE) -> tuple[float, float]:
-    """Exact interval for (k_a / cycles_a) / (k_b / cycles_b), k_a and k_b Poisson counts.
-
-    Given k = k_a + k_b, k_a is binomial with p = r c_a / (r c_a + c_b) for the rate ratio r;
-    the Clopper-Pearson interval for p maps to one for r.
+    Overruns are not independent events: a stall of the VM makes every RTPU overrun at once, and
+    stalls come in bursts (one round of 5 s once had 266 of a run's 618). An interval that counts
+    each overrun as independent (Poisson) is then far too narrow; the round, in which both sides
+    ran back to back, is the unit that is independent enough to resample.
     """
-    k = k_a + k_b
-    if k == 0:
-        return 0.0, math.inf
+    k_pbo = np.array([p["overruns"] for p, _ in rounds], dtype=float)
+    n_pbo = np.array([p["cycles"] for p, _ in rounds], dtype=float)
+    k_bare = np.array([b["overruns"] for _, b in rounds], dtype=float)
+    n_bare = np.array([b["cycles"] for _, b in rounds], dtype=float)
+    picks = np.random.default_rng(seed).integers(0, len(rounds), size=(draws, len(rounds)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratios = (k_pbo[picks].sum(1) / n_pbo[picks].sum(1)) / (k_bare[picks].sum(1) / n_bare[picks].sum(1))
+    ratios = np.where(np.isnan(ratios), 1.0, ratios)  # no overrun on either side in a draw: equal
     tail = (1.0 - confidence) / 2
-    p_low = 0.0 if k_a == 0 else _solve(lambda p: _binomial_cdf(k_a - 1, k, p), 1.0 - tail)
-    p_high = 1.0 if k_a == k else _solve(lambda p: _binomial_cdf(k_a, k, p), tail)
-    scale = cycles_b / cycles_a
-
-    def to_ratio(p: float) -> float:
-        return math.inf if p >= 1.0 else p / (1.0 - p) * scale
-
-    return to_ratio(p_low), to_ratio(p_high)
+    low, high = np.quantile(ratios, [tail, 1.0 - tail], method="inverted_cdf")  # no interpolation: inf stays inf
+    return float(low), float(high)
 
 
 def measure(n: int, seconds: float, fifo: bool, rounds: int = 8) -> dict[str, Any]:
@@ -409,8 +356,9 @@ plant's whole life: for pbo that includes the RTPUs' start, for the bare loop on
 (its processes are up before the plant starts). Within a run: the median of the
 processes' p50s, the worst process's p99 and max. Per round: the ratio pbo / bare of the p50s
 and of the p99s; the verdict takes the median of the {rounds} rounds' ratios (their range in
-brackets). Overruns are rare: their rate ratio pools the rounds' counts, with an exact
-{CONFIDENCE:.0%} interval for it (conditional binomial). The rows of the first table are
+brackets). Overruns are rare: their rate ratio pools the rounds' counts, with a
+{CONFIDENCE:.0%} interval from resampling whole rounds (a bootstrap: overruns come in bursts that
+hit every RTPU at once, so single overruns are not independent). The rows of the first table are
 medians over the rounds (p50, p99), the worst max, and summed counts.
 """,
         limits="""The medians: both sides spin the last 0.2 ms to the release in the same code, so
@@ -422,10 +370,11 @@ also does more per release than the bare loop (its timed wait on the signal queu
 cycle: 10 to 20 µs), and a supervisor process runs beside it (awake every 100 ms to check
 its children and serve commands). Overruns are a few per 10,000 cycles on either side, and nearly all are late
 releases (1 to 5 ms), not long cycles: stalls of the whole VM, often on every RTPU at once (the
-run summary and report tell the two apart). Their rate is known only to within its interval;
-runs of 10 s gave 8 against 5 overruns and ratios from 0.5x to 2x depending on the run, which
-is why the command runs a minute per side. Overruns that come in bunches make the interval,
-which counts them as independent, too narrow. Release offsets matter: spread over 0.45 of the
+run summary and report tell the two apart). They come in bursts: a round of 5 s may hold a third
+of a run's overruns on one side, so the pooled ratio swings with where the bursts fell (at 4
+RTPUs, two runs of a minute per side gave 0.75x and 1.83x), and the interval, which resamples
+rounds, is as wide as that makes it; runs of 10 s (8 against 5 overruns) decided nothing, which is
+why the command runs a minute per side. Release offsets matter: spread over 0.45 of the
 period (until issue 6), 4 RTPUs spun inside each other's spin and p99 was about 180 µs on both
 sides; spaced evenly (i/n of the period) it is tens of µs. SCHED_FIFO (`--fifo`) is allowed on
 this VM (root); see the wait benchmark for what it buys.""",
@@ -461,7 +410,7 @@ this VM (root); see the wait benchmark for what it buys.""",
         medians = {q: float(np.median(v)) if v else None for q, v in by_round.items()}
         pbo_k, bare_k = r["pbo"]["overruns"], r["bare"]["overruns"]
         overrun_ratio = ratio(r["pbo"]["overrun_rate"], r["bare"]["overrun_rate"])
-        low, high = rate_ratio_interval(pbo_k, r["pbo"]["cycles"], bare_k, r["bare"]["cycles"])
+        low, high = round_bootstrap_interval(r["rounds"])
         interval = f"[{low:.2f}-{'∞' if math.isinf(high) else f'{high:.2f}'}x]"
         for q, value in (*medians.items(), ("overrun_rate", overrun_ratio)):
             if value is not None:

@@ -24,7 +24,6 @@ same rounds.
 from __future__ import annotations
 
 import argparse
-import multiprocessing
 import os
 import random
 import time
@@ -34,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from bench._common import Section, Table, ratio, us
+from bench._processes import Workers
 from bench.realtime import FIFO_PRIORITY, _bare_stretch, _Plant, config_path
 from pbo_runtime._clock import RealClock, lower_timer_slack, release_stagger
 
@@ -93,41 +93,18 @@ class Loops:
     """n loop processes, started once, each run stretch by stretch."""
 
     def __init__(self, n: int) -> None:
-        ctx = multiprocessing.get_context("spawn")
-        self.procs, self.pipes = [], []
-        for _ in range(n):
-            here, there = ctx.Pipe()
-            process = ctx.Process(target=_loop_main, args=(there,), daemon=True)
-            process.start()
-            self.procs.append(process)
-            self.pipes.append(here)
-        for here in self.pipes:
-            if not here.poll(60) or here.recv() != "ready":
-                self.close()
-                raise RuntimeError("a loop process did not start within 60 s")
+        self.workers = Workers(n, _loop_main, what="loop")
+        self.n = n
 
     def stretch(self, variant: tuple[float, int, bool], seconds: float) -> list[dict[str, Any]]:
         spin, slack_ns, fifo = variant
-        stagger = release_stagger(PERIOD, len(self.pipes))
+        stagger = release_stagger(PERIOD, self.n)
         epoch = time.monotonic() + 0.05 + random.uniform(0.0, PERIOD)  # a random phase to the plant's steps
-        for i, here in enumerate(self.pipes):
-            here.send((spin, slack_ns, fifo, epoch + i * stagger, epoch + seconds))
-        records = [here.recv() for here in self.pipes if here.poll(seconds + 60)]
-        if len(records) != len(self.pipes):
-            raise RuntimeError(f"{len(self.pipes) - len(records)} loop processes did not report")
-        return records
+        self.workers.send_each([(spin, slack_ns, fifo, epoch + i * stagger, epoch + seconds) for i in range(self.n)])
+        return self.workers.answers(seconds + 60)
 
     def close(self) -> None:
-        for here in self.pipes:
-            try:
-                here.send(None)
-            except OSError:
-                pass
-        for process in self.procs:
-            process.join(5)
-            if process.is_alive():
-                process.terminate()
-        self.procs, self.pipes = [], []
+        self.workers.close()
 
 
 def measure(n_loops: int, variants: dict[str, tuple[float, int, bool]], seconds: float, rounds: int) -> dict[str, dict[str, Any]]:

@@ -51,3 +51,17 @@ def test_every_benchmark_runs_on_tiny_counts_and_renders_its_tables(tmp_path):
     assert page.startswith("# Performance\n")
     for heading in ("## Targets", "## Machine", "## How to reproduce", *(f"## {s.title}" for s in sections)):
         assert heading in page
+
+
+def test_the_overrun_interval_resamples_rounds_so_one_burst_widens_it():
+    from bench.realtime import round_bootstrap_interval
+
+    def rounds(pbo: list[int], bare: list[int]) -> list[tuple[dict, dict]]:
+        return [({"overruns": p, "cycles": 5000}, {"overruns": b, "cycles": 5000}) for p, b in zip(pbo, bare)]
+
+    steady_low, steady_high = round_bootstrap_interval(rounds([10] * 12, [10] * 12))
+    assert steady_low == steady_high == 1.0  # every round alike: nothing to resample
+    burst_low, burst_high = round_bootstrap_interval(rounds([109] + [1] * 11, [10] * 12))  # the same 120 overruns
+    assert burst_low < 0.5 and burst_high > 1.5
+    assert round_bootstrap_interval(rounds([0] * 3, [0] * 3)) == (1.0, 1.0)  # none on either side: equal
+    assert round_bootstrap_interval(rounds([2], [0])) == (math.inf, math.inf)

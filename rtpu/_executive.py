@@ -18,6 +18,7 @@ of the configuration in ERROR. Aperiodic tasks run on events instead of a timer.
 from __future__ import annotations
 
 import collections
+import gc
 import math
 from typing import Any, Callable, Protocol
 
@@ -474,6 +475,11 @@ class Executive:
                     s = self.tasks[name] = Scheduled(self.factories[name]())  # a new instance: TR 4.4, static
                     task = s.task
                 task.spawn(self.clock.now())
+                # What the process built up to here (imports, the task and its module) lives as
+                # long as the task: freezing it keeps it out of every later collection, which then
+                # walks only what the run allocates. A full collection of an RTPU process walks
+                # some 30,000 objects in 4-5 ms, several overruns at 1 kHz if it came mid-run.
+                gc.freeze()
             elif op == "on":
                 at = message[2] if len(message) > 2 and message[2] is not None else self.clock.now()
                 self._turn_on(s, at)

@@ -297,3 +297,16 @@ def test_the_run_report_keeps_the_last_eight_overruns_oldest_first(setup):
     stats = ex.tasks["a"].statistics()
     assert stats["overruns"] == 10 and stats["overruns_long_cycle"] == 10
     assert [release for release, _, _ in stats["last_overruns"]] == pytest.approx([0.004 + 0.002 * i for i in range(8)])
+
+
+def test_a_spawn_freezes_what_the_process_built_so_no_collection_walks_it_mid_run(setup):
+    import gc
+
+    build, clock, _ = setup
+    ex = build([("a", Ticker, 0.001, False)], [(0.0, ["spawn", "a"])])
+    gc.unfreeze()
+    try:
+        run_until(ex, clock, 0.0)
+        assert gc.get_freeze_count() > 0
+    finally:
+        gc.unfreeze()

@@ -615,6 +615,8 @@ class Supervisor:
     def _shutdown(self) -> None:
         self.result.duration = self.now() - self.started_at if self.started_at is not None else 0.0
         self.result.states_at_stop = dict(self.task_states)
+        if self.table is not None and not self.simulated:  # (on the simulated clock, the stop signal is in step)
+            self.table.announce_stop()
         alive = [c for c in self.children if c.process.poll() is None]
         for child in alive:
             if child.role != "plant":

@@ -95,6 +95,7 @@ MAX_RTPUS = 32
 
 class Flag(enum.IntFlag):
     ILLEGAL_CONFIGURATION = 1  # a task of the configuration is in ERROR, or a switch overran a cycle
+    STOPPING = 2  # job control is stopping the run: RTPUs run no more cycles
 
 
 class Status(enum.IntEnum):
@@ -374,6 +375,16 @@ class StateTable:
             self.header[Header.FLAGS] = (value | flag) if on else (value & ~flag)
         finally:
             self.release()
+
+    def announce_stop(self) -> None:
+        """Tell every RTPU at once that the run is over, before any is sent its stop signal.
+
+        Job control is the only writer of the flags, so this takes no lock: a wedged lock cannot
+        hold up a stop. Without it, RTPUs stopped first did their stop work (killing tasks,
+        percentiles of 65,536 samples) while the others still ran cycles, and those cycles
+        overran for want of a CPU: overruns of the shutdown, counted as the run's.
+        """
+        self.header[Header.FLAGS] = int(self.header[Header.FLAGS]) | Flag.STOPPING
 
     # --- whole-variable access (job control and tools; never per cycle) ---------------------
 

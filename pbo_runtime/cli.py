@@ -341,7 +341,7 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
     for name, t in result.tasks.items():
         if t.get("error"):
             console.print(f"task '{name}': {t['error']}", markup=False)
-    for line in overrun_lines(subsystem, result.tasks):
+    for line in overrun_lines(subsystem, result.tasks, result.realtime):
         console.print(line, markup=False)
     if result.plant:
         console.print(f"plant: {result.plant.get('steps', 0)} steps, {result.plant.get('late', 0)} late", markup=False)
@@ -357,9 +357,10 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
     _print_switches(console, result)
 
 
-def overrun_lines(subsystem: Any, tasks: dict[str, dict[str, Any]]) -> list[str]:
+def overrun_lines(subsystem: Any, tasks: dict[str, dict[str, Any]], realtime: dict[str, dict[str, str]] | None = None) -> list[str]:
     """Why each task overran. A late release is the machine's (the RTPU got its CPU late); a long
-    cycle is the module's (it ran longer than its period): they call for different remedies."""
+    cycle is the module's (it ran longer than its period): they call for different remedies.
+    `realtime`: what each RTPU reported of its scheduler, so the remedy is not one it already has."""
     lines = []
     for name, t in tasks.items():
         overruns = t.get("overruns", 0)
@@ -369,8 +370,11 @@ def overrun_lines(subsystem: Any, tasks: dict[str, dict[str, Any]]) -> list[str]
         late, long = t.get("overruns_late_release", overruns), t.get("overruns_long_cycle", 0)
         parts = []
         if late:
+            fifo = "FIFO" in (realtime or {}).get(t.get("rtpu", ""), {}).get("scheduler", "")
+            remedy = ("it ran SCHED_FIFO already, so the whole machine stalled" if fifo
+                      else "--fifo or pinning with rtpus: {cpu: N} help")
             parts.append(f"{late} late release{'s' if late > 1 else ''} (started up to {t['jitter_max'] * 1e3:.2f} ms late: "
-                         "the machine held the RTPU's CPU; --fifo or pinning with rtpus: {cpu: N} help)")
+                         f"the machine held the RTPU's CPU; {remedy})")
         if long:
             parts.append(f"{long} long cycle{'s' if long > 1 else ''} (ran up to {t['exec_max'] * 1e3:.2f} ms: the module "
                          "needs more than its period; lighten its cycle or lengthen its period)")

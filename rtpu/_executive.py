@@ -27,7 +27,7 @@ import numpy as np
 from pbo_runtime._lifecycle import Task
 from pbo_runtime._module import Status
 from pbo_runtime._reconfiguration import Reconfiguration
-from pbo_runtime._table import Header, TaskState
+from pbo_runtime._table import Flag, Header, TaskState
 from pbo_runtime._table import Status as W
 
 RING = 1 << 16  # samples kept per task for percentiles (65 s at 1 kHz)
@@ -35,6 +35,7 @@ RECENT = 1 << 10  # every RECENT cycles, the last RECENT samples' percentiles go
 EVENTS_QUEUED = 16  # events an aperiodic task holds while it waits out its min inter-arrival time
 SWITCH_WINDOW_PERIODS = 3  # a stale read this close after a switch is counted against the switch
 AGE_TOLERANCE = 1e-7  # seconds: an input exactly one producer period old is fresh, whatever the rounding
+_FLAGS, _STOPPING = int(Header.FLAGS), int(Flag.STOPPING)  # plain ints: read before every release
 OVERRUNS_KEPT = 8  # the last overruns kept per task (release, lateness, execution time) for the run report
 
 
@@ -223,7 +224,11 @@ class Executive:
             return
         if next_release == math.inf:
             return
-        self._run_ready(clock.sleep_until(next_release))
+        released_at = clock.sleep_until(next_release)
+        if header is not None and header[_FLAGS] & _STOPPING:
+            self.stop()  # the run is over: a cycle now would only compete with the others' stop work
+            return
+        self._run_ready(released_at)
 
     def _run_ready(self, first_now: float | None = None) -> None:
         """Run every released task once, most urgent first (maximum-urgency-first); no allocation.

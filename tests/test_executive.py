@@ -310,3 +310,27 @@ def test_a_spawn_freezes_what_the_process_built_so_no_collection_walks_it_mid_ru
         assert gc.get_freeze_count() > 0
     finally:
         gc.unfreeze()
+
+
+def test_once_job_control_announces_the_stop_no_further_cycle_runs(make_table):
+    # Regression (issue 6): RTPUs stopped first did their stop work while the others still ran
+    # cycles, which then overran for want of a CPU and were counted as the run's overruns.
+    import numpy as np
+
+    from pbo_runtime._table import Flag, Header
+
+    RUNS.clear()
+    table = make_table(variables(("o0", "float64", ())))
+    clock = ManualClock(0.0)
+    header = np.zeros(32, dtype=np.int64)
+    events: list[tuple] = []
+    ex = Executive(clock, FakeSignals(clock, [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0])]),
+                   lambda *e: events.append(e), epoch=0.0, header=header)
+    ex.add(Task(task_spec(Ticker, name="a", ports={"out": "o0"}, period=0.001), Ticker, table))
+    run_until(ex, clock, 0.0025)
+    assert len(RUNS) == 3
+    header[Header.FLAGS] |= Flag.STOPPING
+    run_until(ex, clock, 0.0100)
+    assert len(RUNS) == 3 and not ex.running
+    assert ex.tasks["a"].task.state.name == "KILLED"
+    assert [e for e in events if e[0] == "stats"], "it still reports its statistics"

@@ -154,6 +154,7 @@ class Executive:
         self.running = True
         self.idle_wait = 0.05
         self.header = header  # the table's int64 header: plans, switching words, error count
+        self.header_words = memoryview(header) if header is not None else None  # the same words, read as ints
         self.reconfiguration = reconfiguration
         self.rtpu_index = rtpu_index
         self.switching_words = range(int(Header.SWITCHING_SINCE_NS), int(Header.SWITCHING_SINCE_NS) + n_rtpus)
@@ -224,11 +225,11 @@ class Executive:
             return
         if next_release == math.inf:
             return
-        released_at = clock.sleep_until(next_release)
-        if header is not None and header[_FLAGS] & _STOPPING:
+        words = self.header_words  # (a Python int per read: no numpy scalar made before each release)
+        if words is not None and words[_FLAGS] & _STOPPING:
             self.stop()  # the run is over: a cycle now would only compete with the others' stop work
             return
-        self._run_ready(released_at)
+        self._run_ready(clock.sleep_until(next_release))
 
     def _run_ready(self, first_now: float | None = None) -> None:
         """Run every released task once, most urgent first (maximum-urgency-first); no allocation.

@@ -47,6 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     name = subsystem.name
     events = _messages.Queue(_messages.event_queue_name(name, args.run_id))
     report = lambda kind, *fields: events.try_send(kind, args.rtpu, *fields)  # noqa: E731
+    # at stop: job control drains its queue while every RTPU reports, so a full queue is waited out
+    report_at_stop = lambda kind, *fields: events.try_send(kind, args.rtpu, *fields, timeout=5.0)  # noqa: E731
     table = signals = barrier = None
     executive = None
     try:
@@ -72,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         realtime = {**_realtime.apply(rtpu.cpu, args.fifo), "spin": f"{args.spin * 1e6:g} µs"}
         simulated = args.clock == "sim"
         clock = SimClock(table.header, args.tick) if simulated else RealClock(args.spin)
-        executive = Executive(clock, signals, report, epoch=args.epoch, header=table.header,
+        executive = Executive(clock, signals, report, epoch=args.epoch, header=table.header, report_at_stop=report_at_stop,
                               reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
                               n_rtpus=len(subsystem.rtpus))
         for spec in subsystem.tasks_on(args.rtpu):

@@ -143,10 +143,13 @@ class Executive:
 
     def __init__(self, clock: Clock, signals: SignalSource, report: Callable[..., None], epoch: float = 0.0,
                  header: np.ndarray | None = None, reconfiguration: Reconfiguration | None = None,
-                 rtpu_index: int = 0, n_rtpus: int = 1) -> None:
+                 rtpu_index: int = 0, n_rtpus: int = 1, report_at_stop: Callable[..., None] | None = None) -> None:
         self.clock = clock
         self.signals = signals
         self.report = report  # report(kind, *fields): events to job control
+        # At stop no cycle waits on a report, and the last windows, states and statistics must
+        # not be dropped while every RTPU fills job control's queue at once: these may wait longer.
+        self.report_at_stop = report_at_stop or report
         self.epoch = epoch  # releases are aligned to epoch + k * period
         self.tasks: dict[str, Scheduled] = {}
         self.factories: dict[str, Callable[[], Task]] = {}
@@ -535,6 +538,7 @@ class Executive:
 
     def stop(self) -> None:
         """Turn everything off and kill it (kill runs off first), then report statistics."""
+        self.report = self.report_at_stop
         self.report_windows()
         for s in list(self.tasks.values()):
             if s.task.state in (TaskState.ON, TaskState.OFF, TaskState.ERROR):

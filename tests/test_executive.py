@@ -334,3 +334,18 @@ def test_once_job_control_announces_the_stop_no_further_cycle_runs(make_table):
     assert len(RUNS) == 3 and not ex.running
     assert ex.tasks["a"].task.state.name == "KILLED"
     assert [e for e in events if e[0] == "stats"], "it still reports its statistics"
+
+
+def test_what_an_rtpu_reports_at_stop_goes_by_the_patient_reporter(make_table):
+    # Every RTPU reports at once at stop; job control drains its queue meanwhile, so the last
+    # windows, states and statistics may wait out a full queue instead of being dropped.
+    RUNS.clear()
+    table = make_table(variables(("o0", "float64", ())))
+    clock = ManualClock(0.0)
+    during, at_stop = [], []
+    ex = Executive(clock, FakeSignals(clock, [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0]), (0.0025, ["stop"])]),
+                   lambda *e: during.append(e[0]), epoch=0.0, report_at_stop=lambda *e: at_stop.append(e[0]))
+    ex.add(Task(task_spec(Ticker, name="a", ports={"out": "o0"}, period=0.001), Ticker, table))
+    run_until(ex, clock, 0.01)
+    assert "stats" not in during and during.count("state") == 2  # spawned (OFF), then ON
+    assert at_stop.count("stats") == 1 and "state" in at_stop

@@ -370,11 +370,11 @@ also does more per release than the bare loop (its timed wait on the signal queu
 cycle: 10 to 20 µs), and a supervisor process runs beside it (awake every 100 ms to check
 its children and serve commands). Overruns are a few per 10,000 cycles on either side, and nearly all are late
 releases (1 to 5 ms), not long cycles: stalls of the whole VM, often on every RTPU at once (the
-run summary and report tell the two apart). They come in bursts: a round of 5 s may hold a third
-of a run's overruns on one side, so the pooled ratio swings with where the bursts fell (at 4
-RTPUs, two runs of a minute per side gave 0.75x and 1.83x), and the interval, which resamples
-rounds, is as wide as that makes it; runs of 10 s (8 against 5 overruns) decided nothing, which is
-why the command runs a minute per side. Release offsets matter: spread over 0.45 of the
+run summary and report tell the two apart). They come in bursts: one round of 5 s may hold a large share
+of a run's overruns on one side (the per-round counts above show where they fell), so the
+pooled ratio swings from run to run with the bursts, and the interval, which resamples rounds, is
+as wide as that makes it; runs of 10 s per side held too few overruns to decide anything, which
+is why the command runs a minute per side. Release offsets matter: spread over 0.45 of the
 period (until issue 6), 4 RTPUs spun inside each other's spin and p99 was about 180 µs on both
 sides; spaced evenly (i/n of the period) it is tens of µs. SCHED_FIFO (`--fifo`) is allowed on
 this VM (root); see the wait benchmark for what it buys.""",

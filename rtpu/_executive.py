@@ -35,7 +35,9 @@ RECENT = 1 << 10  # every RECENT cycles, the last RECENT samples' percentiles go
 EVENTS_QUEUED = 16  # events an aperiodic task holds while it waits out its min inter-arrival time
 SWITCH_WINDOW_PERIODS = 3  # a stale read this close after a switch is counted against the switch
 AGE_TOLERANCE = 1e-7  # seconds: an input exactly one producer period old is fresh, whatever the rounding
-_FLAGS, _STOPPING = int(Header.FLAGS), int(Flag.STOPPING)  # plain ints: read before every release
+# Header words read before every release, as plain ints (through a memoryview: no numpy scalar each time)
+_FLAGS, _STOPPING = int(Header.FLAGS), int(Flag.STOPPING)
+_PLAN_SEQUENCE, _PLAN_TIME_NS = int(Header.PLAN_SEQUENCE), int(Header.PLAN_TIME_NS)
 OVERRUNS_KEPT = 8  # the last overruns kept per task (release, lateness, execution time) for the run report
 
 
@@ -195,9 +197,9 @@ class Executive:
                 barrier.done()
 
     def _plan_if_due(self) -> None:
-        header = self.header
-        if header is not None and header[Header.PLAN_SEQUENCE] != self.plan_seen:
-            if self.clock.now() + self.release_slack >= header[Header.PLAN_TIME_NS] / 1e9:
+        words = self.header_words
+        if words is not None and words[_PLAN_SEQUENCE] != self.plan_seen:
+            if self.clock.now() + self.release_slack >= words[_PLAN_TIME_NS] / 1e9:
                 self.apply_plan()
 
     def run_once(self) -> None:
@@ -207,9 +209,9 @@ class Executive:
             if s.release < next_release:
                 next_release = s.release
         now = clock.now()
-        header = self.header
-        if header is not None and header[Header.PLAN_SEQUENCE] != self.plan_seen:
-            activation = header[Header.PLAN_TIME_NS] / 1e9
+        words = self.header_words
+        if words is not None and words[_PLAN_SEQUENCE] != self.plan_seen:
+            activation = words[_PLAN_TIME_NS] / 1e9
             if now + self.release_slack >= activation:
                 self.apply_plan()
                 return
@@ -228,7 +230,6 @@ class Executive:
             return
         if next_release == math.inf:
             return
-        words = self.header_words  # (a Python int per read: no numpy scalar made before each release)
         if words is not None and words[_FLAGS] & _STOPPING:
             self.stop()  # the run is over: a cycle now would only compete with the others' stop work
             return

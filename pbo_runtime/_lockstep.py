@@ -113,10 +113,8 @@ class LockstepParticipant:
             try:
                 self._go.acquire(1.0)
                 break
-            except posix_ipc.BusyError:
-                continue  # a supervisor that died sent us SIGTERM (PDEATHSIG): Stop ends the wait
-            except posix_ipc.SignalError:
-                _process.raise_if_stopping()
+            except (posix_ipc.BusyError, posix_ipc.SignalError):
+                _process.raise_if_stopping()  # a supervisor that died sent us SIGTERM (PDEATHSIG): Stop ends the wait
         tick = int(self.header[Header.SIM_TICK])
         if tick != self.last_tick:
             self.last_tick = tick

@@ -5,7 +5,8 @@ Queues carry signals and events only, never per-cycle data (DESIGN §3). All are
 
 from __future__ import annotations
 
-from typing import Any
+import time
+from typing import Any, Callable
 
 import msgpack
 import posix_ipc
@@ -14,6 +15,7 @@ from pbo_runtime import _process, _shm
 from pbo_runtime._errors import InternalError
 
 MESSAGE_BYTES = 8192
+READER_CHECK = 0.1  # seconds between checks that a queue's reader is alive, while a send waits on it
 
 
 def _system_limit(name: str, default: int) -> int:
@@ -64,14 +66,29 @@ class Queue:
                 _process.raise_if_stopping()
                 continue  # interrupted by a signal whose handler only set a flag: send anyway
 
-    def try_send(self, *message: Any, timeout: float = 0.5) -> bool:
-        """Send, waiting at most `timeout`; False if the queue stayed full or is gone (a dead peer must not hang us)."""
+    def try_send(self, *message: Any, timeout: float = 0.5, reader_alive: Callable[[], bool] | None = None) -> bool:
+        """Send, waiting at most `timeout`; False if the queue stayed full or is gone (a dead peer must not hang us).
+
+        `reader_alive`, asked every READER_CHECK seconds of the wait, ends it as soon as the
+        process that reads the queue is gone: a long wait is only worth it while someone drains.
+        """
         raw = self._encode(message)
-        try:
-            self._mq.send(raw, timeout=timeout)
-            return True
-        except (posix_ipc.BusyError, posix_ipc.ExistentialError, posix_ipc.SignalError, OSError):
-            return False
+        deadline = time.monotonic() + timeout
+        while True:
+            left = deadline - time.monotonic()
+            reader_gone = reader_alive is not None and not reader_alive()
+            if reader_gone or left <= 0.0:
+                wait = 0.0
+            else:
+                wait = left if reader_alive is None else min(left, READER_CHECK)
+            try:
+                self._mq.send(raw, timeout=wait)
+                return True
+            except posix_ipc.BusyError:
+                if reader_alive is None or reader_gone or wait >= left:
+                    return False
+            except (posix_ipc.ExistentialError, posix_ipc.SignalError, OSError):
+                return False
 
     def _encode(self, message: tuple[Any, ...]) -> bytes:
         """The message as msgpack; one too long for the queue is our bug, named, never a bare ValueError."""
@@ -82,7 +99,11 @@ class Queue:
         return raw
 
     def receive(self, timeout: float | None) -> list[Any] | None:
-        """The next message, or None if none came within `timeout` seconds (0: do not wait)."""
+        """The next message, or None if none came within `timeout` seconds (0: do not wait).
+
+        A stop requested while the process was not waiting is raised here (`_process.stop_only_at_waits`).
+        """
+        _process.raise_if_stopping()
         try:
             raw, _priority = self._mq.receive(timeout=max(timeout, 0.0) if timeout is not None else None)
         except posix_ipc.BusyError:

@@ -25,10 +25,31 @@ def _raise_stop(signum: int, _frame) -> None:
     raise Stop(_requested)
 
 
+def _request_stop(signum: int, _frame) -> None:
+    global _requested
+    if _requested:  # asked twice (a stuck module, an impatient operator): stop now
+        raise Stop(signal.Signals(signum).name)
+    _requested = signal.Signals(signum).name
+
+
 def raise_if_stopping() -> None:
-    """Re-raise a Stop that a C extension swallowed (posix_ipc turns it into SignalError)."""
+    """Raise Stop if one was requested: a C extension swallowed it (posix_ipc turns it into
+    SignalError), or the process takes stops only at its waits (`stop_only_at_waits`)."""
     if _requested:
         raise Stop(_requested)
+
+
+def stop_only_at_waits() -> None:
+    """From now on SIGTERM/SIGINT request a stop, which the process's next wait raises.
+
+    An RTPU calls this before its executive runs. A Stop raised wherever the signal landed could
+    land between a transfer's acquire and release of the table lock (no try/finally there: it is
+    the per-cycle path); the stop path then took the lock again and waited on itself for ever.
+    The executive's one wait (`Queue.receive`, the lockstep barrier) raises it instead, at most a
+    cycle later. A second signal raises at once, for a module that never returns to the wait.
+    """
+    signal.signal(signal.SIGTERM, _request_stop)
+    signal.signal(signal.SIGINT, _request_stop)
 
 
 def become_child(parent_pid: int) -> None:

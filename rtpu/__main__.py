@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import traceback
 
@@ -18,7 +19,7 @@ from pbo_runtime._config_loader import load_subsystem
 from pbo_runtime._config_model import DEFAULT_SPIN, DeviceSpec, TaskSpec
 from pbo_runtime._lifecycle import Task
 from pbo_runtime._lockstep import LockstepParticipant
-from pbo_runtime._process import Stop, become_child
+from pbo_runtime._process import Stop, become_child, stop_only_at_waits
 from pbo_runtime._reconfiguration import Reconfiguration
 from pbo_runtime._table import StateTable, TableLayout
 from rtpu import _realtime
@@ -48,7 +49,10 @@ def main(argv: list[str] | None = None) -> int:
     events = _messages.Queue(_messages.event_queue_name(name, args.run_id))
     report = lambda kind, *fields: events.try_send(kind, args.rtpu, *fields)  # noqa: E731
     # at stop: job control drains its queue while every RTPU reports, so a full queue is waited out
-    report_at_stop = lambda kind, *fields: events.try_send(kind, args.rtpu, *fields, timeout=5.0)  # noqa: E731
+    # (while job control lives: after it was killed nobody drains the queue, and the wait would only hang)
+    supervisor_alive = (lambda: os.getppid() == args.parent) if args.parent else None
+    report_at_stop = lambda kind, *fields: events.try_send(kind, args.rtpu, *fields, timeout=5.0,  # noqa: E731
+                                                           reader_alive=supervisor_alive)
     table = signals = barrier = None
     executive = None
     try:
@@ -88,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         if simulated:
             barrier = LockstepParticipant(name, args.run_id, args.rtpu, table.header)
             realtime = {"clock": f"simulated, {args.tick * 1e3:g} ms ticks"}
+        stop_only_at_waits()  # the executive takes the table lock from here on: a stop must not land inside a transfer
         report("ready", realtime)
         if barrier is not None:
             executive.run_lockstep(barrier)

@@ -11,7 +11,7 @@ import time
 import posix_ipc
 import pytest
 
-from pbo_runtime import _messages, _shm
+from pbo_runtime import _messages, _process, _shm
 from pbo_runtime._supervisor import remove_dead_runs
 from pbo_runtime._table import Header, StateTable, TableLayout
 from tests.conftest import REPO, variables
@@ -150,3 +150,107 @@ def test_an_rtpu_stops_on_sigterm_even_while_waiting_on_its_queue(tmp_path):
             pbo.wait()
     assert pbo.returncode == 2
     assert f"RTPU 'rtpu0' (pid {rtpu0}) died (exit status 0) while hosting tasks: traj, pid, logger" in err
+
+
+# --- a stop signal lands anywhere: it must not wedge an RTPU (issue 6, a CI failure) --------------
+
+class SignalInsideTheLock:
+    """Fake table lock (test only): the real semaphore, but once armed its next acquire sends this
+    process SIGTERM while it holds the lock, as PDEATHSIG or a Ctrl-C may at any instant."""
+
+    def __init__(self, real: posix_ipc.Semaphore) -> None:
+        self.real = real
+        self.armed = False
+
+    def acquire(self) -> None:
+        self.real.acquire(5.0)  # a process waiting on its own lock fails the test (BusyError) instead of hanging it
+        if self.armed:
+            self.armed = False
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    def release(self) -> None:
+        self.real.release()
+
+
+@pytest.fixture
+def stops_only_at_waits():
+    """This process takes SIGTERM/SIGINT as an RTPU does; the handlers and the request are restored after."""
+    saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    _process.stop_only_at_waits()
+    try:
+        yield
+    finally:
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+        _process._requested = ""
+
+
+def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_wait(no_leftover_ipc, make_table,
+                                                                                    stops_only_at_waits):
+    # Regression: a Stop raised between a transfer's acquire and release kept the table lock; the
+    # stop path (kill -> publish the state) then waited on the RTPU's own lock for ever, and a
+    # killed supervisor's RTPU outlived it (test_killing_the_supervisor..., seen once in CI).
+    from pbo_runtime._clock import RealClock
+    from pbo_runtime._lifecycle import Task
+    from pbo_runtime._table import TaskState
+    from rtpu._executive import Executive
+    from tests.conftest import task_spec, unique_name
+    from tests.test_executive import RUNS, Ticker
+
+    table = make_table(variables(("o0", "float64", ())))
+    real_lock = table.lock
+    table.lock = lock = SignalInsideTheLock(real_lock)
+    signals = _messages.Queue(unique_name("signals"), create=True)
+    events: list[tuple] = []
+    try:
+        executive = Executive(RealClock(0.0002), signals, lambda *e: events.append(e), epoch=time.monotonic())
+        executive.add(Task(task_spec(Ticker, name="a", ports={"out": "o0"}, period=0.001), Ticker, table))
+        signals.send("spawn", "a")
+        signals.send("on", "a")
+        for _ in range(10):
+            if executive.tasks["a"].task.state == TaskState.ON:
+                break
+            executive.run_once()
+        assert executive.tasks["a"].task.state == TaskState.ON
+        RUNS.clear()
+        lock.armed = True  # the signal comes inside the next cycle's first transfer
+        with pytest.raises(_process.Stop):
+            executive.run()
+        assert not lock.armed
+        executive.stop()  # as rtpu/__main__ does on Stop: kill every task, publish its state (the lock again), report
+        assert executive.tasks["a"].task.state == TaskState.KILLED
+        assert real_lock.value == 1, "the lock is free again"
+        assert len(RUNS) == 1, "the cycle the signal landed in ran to its end; none after it"
+        assert [e for e in events if e[0] == "stats"]
+    finally:
+        table.lock = real_lock
+        signals.close()
+
+
+def test_a_second_stop_signal_stops_at_once(stops_only_at_waits):
+    os.kill(os.getpid(), signal.SIGTERM)  # the first only asks: nothing is raised here
+    with pytest.raises(_process.Stop):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(1.0)  # (the handler runs as soon as the call returns)
+
+
+def test_a_report_at_stop_stops_waiting_on_a_full_queue_once_its_reader_is_gone(no_leftover_ipc):
+    # An RTPU whose supervisor was killed reports its stop to a queue nobody drains: each
+    # report used to wait out its 5 s, and an RTPU of many tasks outlived its supervisor by minutes.
+    from tests.conftest import unique_name
+
+    queue = _messages.Queue(unique_name("events"), create=True)
+    try:
+        while queue.try_send("filler", timeout=0):
+            pass
+        asked: list[int] = []
+
+        def reader_alive() -> bool:
+            asked.append(1)
+            return len(asked) < 3
+
+        assert queue.try_send("stats", timeout=60.0, reader_alive=reader_alive) is False
+        assert len(asked) == 3, "it gave up when told the reader was gone, not at the 60 s timeout"
+        assert queue.try_send("stats", timeout=60.0, reader_alive=lambda: False) is False
+    finally:
+        queue.close()

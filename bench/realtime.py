@@ -18,8 +18,10 @@ reading taken after its own Python work; both now time the first one, which lowe
 
 Rounds alternate the sides, bare - pbo - bare - pbo - ... - bare: round r compares the pbo run r
 with the second half of the bare stretch just before it and the first half of the one just after,
-so a change of load on the machine (another test suite, another tenant) falls on both alike. The
-bare loop processes are started once per RTPU count and the plant once per bare stretch. Each
+so a change of load on the machine (another test suite, another tenant) falls on both alike.
+Each bare stretch starts its plant and its loop processes afresh, as each pbo run starts its plant
+and RTPUs: the memory churn of a start-up keeps the kernel's memory threads busy for a while
+after, and both sides' windows follow one. Each
 round gives a p50 and a p99 ratio; the verdict takes their median over the rounds and shows their
 spread. Overruns are rare events (a few per 10 000 cycles): their rate ratio pools the rounds and
 comes with an exact 95% interval (a conditional binomial), since a handful of counts cannot give
@@ -161,29 +163,30 @@ class _Plant:
 
 
 class BareLoops:
-    """n bare loop processes, started once and run stretch by stretch, each with a fresh plant."""
+    """n bare loop processes and a plant, started afresh for each stretch as `pbo run` starts its RTPUs and plant.
+
+    Each pbo round begins with its processes' start-up (imports, page faults; the memory they
+    free at exit), and the machine's memory threads (kdamond, kcompactd) work on for a while
+    after such churn, taking a CPU for a millisecond or two now and then: a loop on that CPU
+    overruns. Loops started once and kept warm were spared that, and a trace showed kdamond
+    busier in the pbo windows (3.4 against 1.9 ms per second): each side now starts its own.
+    """
 
     def __init__(self, n: int, period: float, yaml_path: Path, fifo: bool) -> None:
         self.n, self.period, self.yaml_path, self.fifo = n, period, yaml_path, fifo
-        self.workers = Workers(n, _bare_main, (period, fifo), what="bare loop")
-
-    def __enter__(self) -> BareLoops:
-        return self
-
-    def __exit__(self, *_exc: object) -> None:
-        self.workers.close()
 
     def stretch(self, seconds: float) -> tuple[list[dict[str, np.ndarray]], dict[str, int]]:
         """Every loop for `seconds` with the plant stepping: per process its samples, and the plant's counts."""
-        plant = _Plant(self.yaml_path, self.fifo)
+        plant = _Plant(self.yaml_path, self.fifo)  # the plant first, then the loops, as the supervisor starts them
         try:
-            stagger = release_stagger(self.period, self.n)  # as the supervisor staggers its RTPUs
-            # The plant steps from the instant it reports ready: releases timed from that instant
-            # would fall at one phase to its steps, every stretch (the same each time, and right on
-            # them). A pbo run's phase to its plant is whatever the process starts left: random.
-            epoch = time.monotonic() + 0.02 + random.uniform(0.0, self.period)
-            self.workers.send_each([(epoch + i * stagger, epoch + seconds) for i in range(self.n)])
-            records = self.workers.answers(seconds + 60)
+            with Workers(self.n, _bare_main, (self.period, self.fifo), what="bare loop") as workers:
+                stagger = release_stagger(self.period, self.n)  # as the supervisor staggers its RTPUs
+                # The plant steps from the instant it reports ready: releases timed from that instant
+                # would fall at one phase to its steps, every stretch (the same each time, and right on
+                # them). A pbo run's phase to its plant is whatever the process starts left: random.
+                epoch = time.monotonic() + 0.02 + random.uniform(0.0, self.period)
+                workers.send_each([(epoch + i * stagger, epoch + seconds) for i in range(self.n)])
+                records = workers.answers(seconds + 60)
         finally:
             stats = plant.stop()
         return records, stats
@@ -282,34 +285,34 @@ def measure(n: int, seconds: float, fifo: bool, rounds: int = 8) -> dict[str, An
     share = seconds / rounds
     pbo_runs, bare_runs, exec_p50s, realtime = [], [], [], {}
     late = {"pbo": 0, "pbo_steps": 0, "bare": 0, "bare_steps": 0}
-    with BareLoops(n, period, yaml_path, fifo) as loops:
-        records, stats = loops.stretch(share / 2)
-        before = records  # the whole first stretch comes before round 0
-        for r in range(rounds):
-            report = pbo_run(yaml_path, share, fifo)
-            last = r == rounds - 1
-            records, plant_stats = loops.stretch(share / 2 if last else share)
-            for s in (stats, plant_stats) if r == 0 else (plant_stats,):
-                late["bare"] += s.get("late", 0)
-                late["bare_steps"] += s.get("steps", 0)
-            cut = [(record, record) if last else _halves(record) for record in records]
-            after = [first for first, _ in cut]
-            bare_runs.append(_summary([
-                _figures(np.concatenate([b["jitter"], a["jitter"]]), np.concatenate([b["spanned"], a["spanned"]]))
-                for b, a in zip(before, after)]))
-            before = [second for _, second in cut]
-            try:
-                tasks = report["tasks"].values()
-                pbo = [{"p50": t["jitter_p50"], "p99": t["jitter_p99"], "max": t["jitter_max"], "cycles": t["cycles"],
-                        "overruns": t["overruns"], "missed": t["missed"]} for t in tasks]
-                exec_p50s.append(float(np.median([t["exec_p50"] for t in tasks])))
-            except (KeyError, TypeError, AttributeError) as exc:
-                raise RuntimeError(f"the run report lacks per-task timing ({exc!r}): has `pbo run --report` changed?") from exc
-            pbo_runs.append(_summary(pbo))
-            plant = report.get("plant") or {}
-            late["pbo"] += plant.get("late", 0)
-            late["pbo_steps"] += plant.get("steps", 0)
-            realtime = report.get("realtime", {}) or realtime
+    loops = BareLoops(n, period, yaml_path, fifo)
+    records, stats = loops.stretch(share / 2)
+    before = records  # the whole first stretch comes before round 0
+    for r in range(rounds):
+        report = pbo_run(yaml_path, share, fifo)
+        last = r == rounds - 1
+        records, plant_stats = loops.stretch(share / 2 if last else share)
+        for s in (stats, plant_stats) if r == 0 else (plant_stats,):
+            late["bare"] += s.get("late", 0)
+            late["bare_steps"] += s.get("steps", 0)
+        cut = [(record, record) if last else _halves(record) for record in records]
+        after = [first for first, _ in cut]
+        bare_runs.append(_summary([
+            _figures(np.concatenate([b["jitter"], a["jitter"]]), np.concatenate([b["spanned"], a["spanned"]]))
+            for b, a in zip(before, after)]))
+        before = [second for _, second in cut]
+        try:
+            tasks = report["tasks"].values()
+            pbo = [{"p50": t["jitter_p50"], "p99": t["jitter_p99"], "max": t["jitter_max"], "cycles": t["cycles"],
+                    "overruns": t["overruns"], "missed": t["missed"]} for t in tasks]
+            exec_p50s.append(float(np.median([t["exec_p50"] for t in tasks])))
+        except (KeyError, TypeError, AttributeError) as exc:
+            raise RuntimeError(f"the run report lacks per-task timing ({exc!r}): has `pbo run --report` changed?") from exc
+        pbo_runs.append(_summary(pbo))
+        plant = report.get("plant") or {}
+        late["pbo"] += plant.get("late", 0)
+        late["pbo_steps"] += plant.get("steps", 0)
+        realtime = report.get("realtime", {}) or realtime
     return {"pbo": _over_rounds(pbo_runs), "bare": _over_rounds(bare_runs), "rounds": list(zip(pbo_runs, bare_runs)),
             "exec_p50": float(np.median(exec_p50s)), "plant_late": late, "realtime": realtime}
 
@@ -343,7 +346,9 @@ For 1, 2 and 4 RTPUs at 1 kHz with the arm plant (MuJoCo PUMA 560, 1 ms steps) r
 - **bare loop**: n plain processes running only the hybrid wait, with the executive's own
   `RealClock.sleep_until` (absolute deadlines, `time.sleep` to 0.2 ms before the release, spin to it,
   timer slack 1 ns), and the executive's overrun rule, released at the offsets the supervisor
-  staggers its RTPUs by, from a random phase to the steps of the real plant host process.
+  staggers its RTPUs by, from a random phase to the steps of the real plant host process. Each
+  stretch starts its plant host and its n loop processes afresh, as `pbo run` starts its plant and
+  RTPUs (a start-up's memory churn keeps the kernel's memory threads busy for a while after).
 - **rounds**: bare, then {rounds} x (pbo, bare); each bare stretch but the first and last runs
   {share:g} s and is cut in two, so round r compares pbo run r with {share / 2:g} s of bare loop right
   before it and {share / 2:g} s right after: a change of load on the machine falls on both alike.
@@ -352,8 +357,8 @@ Release jitter is how late a cycle started after its release time, timed on both
 clock reading that ended the spin (the executive's pick of the task and its call into it count
 in its execution time, as they come after the release); an overrun is a cycle that ended after
 its next release (the releases skipped are the "missed" ones). "Plant steps late" counts the
-plant's whole life: for pbo that includes the RTPUs' start, for the bare loop only its stretches
-(its processes are up before the plant starts). Within a run: the median of the
+plant's whole life: for pbo that includes the RTPUs' start and their spawns, for the bare loop its
+loop processes' start (a lighter one: no tasks to spawn). Within a run: the median of the
 processes' p50s, the worst process's p99 and max. Per round: the ratio pbo / bare of the p50s
 and of the p99s; the verdict takes the median of the {rounds} rounds' ratios (their range in
 brackets). Overruns are rare: their rate ratio pools the rounds' counts, with a

@@ -374,8 +374,15 @@ falls on the plant's step or on another loop's spin waits for a CPU. The executi
 also does more per release than the bare loop (its timed wait on the signal queue, the task's
 cycle: 10 to 20 µs), and a supervisor process runs beside it (awake every 100 ms to check
 its children and serve commands). Overruns are a few per 10,000 cycles on either side, and nearly all are late
-releases (1 to 5 ms), not long cycles: stalls of the whole VM, often on every RTPU at once (the
-run summary and report tell the two apart). They come in bursts: one round of 5 s may hold a large share
+releases (1 to 5 ms), not long cycles (the run summary and report tell the two apart). A
+sched_switch trace of a 4-RTPU run (tracefs, CLOCK_MONOTONIC) showed what holds the CPU then:
+not the loops' neighbours (while a loop waited, the other CPU was mostly idle) but foreign
+threads that take a CPU for 1 to 2 ms, the VM's memory monitor kdamond, kcompactd and the
+sandbox's agent; a loop on that CPU, spinning or due to wake, waits them out. kdamond works
+harder after a start-up's memory churn (3.4 against 1.9 ms per second of CPU in the windows
+after a pbo start and after a warm bare stretch), which is why each bare stretch now starts its
+processes as each pbo run does: the plant's late steps, 1,093 against 34 in a run with warm
+bare loops, became 724 against 742. They come in bursts: one round of 5 s may hold a large share
 of a run's overruns on one side (the per-round counts above show where they fell), so the
 pooled ratio swings from run to run with the bursts, and the interval, which resamples rounds, is
 as wide as that makes it; runs of 10 s per side held too few overruns to decide anything, which

@@ -76,6 +76,9 @@ class RunResult:
     tick: float = 0.0  # seconds per tick of the simulated clock
     wall_seconds: float = 0.0  # how long the run took on the wall clock (a sim run's speed: duration / this)
     links: dict[str, dict[str, Any]] = field(default_factory=dict)  # an application's links this run was handed
+    # CLOCK_MONOTONIC second the configuration came on (real clock; 0 on the simulated one): the
+    # origin of each task's last_overruns times, to match them with a trace of the machine (tools/cpu_trace.py)
+    started_monotonic: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -86,6 +89,7 @@ class RunResult:
             "application": self.application, "jobs_done": self.jobs_done, "switches": self.switches,
             "stable_episodes": self.stable_episodes, "realtime": self.realtime,
             "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds, "links": self.links,
+            "started_monotonic": self.started_monotonic,
         }
 
 
@@ -301,6 +305,8 @@ class Supervisor:
             self.turn_on(name, self.configuration)
         self._publish_plan_state()
         self.started_at = self.now()
+        if not self.simulated:
+            self.result.started_monotonic = self.started_at
         self.say(f"configuration '{self.configuration}' is on: {', '.join(ordered)}")
 
     def respawn(self, name: str) -> None:

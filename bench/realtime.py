@@ -321,7 +321,7 @@ def _spread(values: list[float]) -> str:
     return f"{min(values):.2f}-{max(values):.2f}x" if values else "n/a"
 
 
-def run(seconds: float = 60.0, rtpus: tuple[int, ...] = (1, 2, 4), fifo: bool = False, rounds: int = 12) -> Section:
+def run(seconds: float = 120.0, rtpus: tuple[int, ...] = (1, 2, 4), fifo: bool = False, rounds: int = 24) -> Section:
     results: dict[int, dict[str, Any]] = {}
     failures: dict[int, str] = {}
     for n in rtpus:
@@ -385,8 +385,11 @@ processes as each pbo run does: the plant's late steps, 1,093 against 34 in a ru
 bare loops, became 724 against 742. They come in bursts: one round of 5 s may hold a large share
 of a run's overruns on one side (the per-round counts above show where they fell), so the
 pooled ratio swings from run to run with the bursts, and the interval, which resamples rounds, is
-as wide as that makes it; runs of 10 s per side held too few overruns to decide anything, which
-is why the command runs a minute per side. Release offsets matter: spread over 0.45 of the
+as wide as that makes it. Runs of 10 s per side held too few overruns to decide anything; at a
+minute per side the interval of the log ratio was still about ±0.35 wide at 4 RTPUs (a standard
+error near 0.18), so a ratio of 1.2x read above 1.5x about one run in nine (1.53x in one
+`make bench`, 1.05x and 1.03x alone the same day), which is why the command runs two minutes
+per side. Release offsets matter: spread over 0.45 of the
 period (until issue 6), 4 RTPUs spun inside each other's spin and p99 was about 180 µs on both
 sides; spaced evenly (i/n of the period) it is tens of µs. SCHED_FIFO (`--fifo`) is allowed on
 this VM (root); see the wait benchmark for what it buys.""",
@@ -458,9 +461,9 @@ this VM (root); see the wait benchmark for what it buys.""",
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--duration", type=float, default=60.0, help="seconds of pbo run per RTPU count (the bare loop runs as long)")
+    parser.add_argument("--duration", type=float, default=120.0, help="seconds of pbo run per RTPU count (the bare loop runs as long)")
     parser.add_argument("--rtpus", type=int, nargs="+", default=[1, 2, 4], choices=[1, 2, 4])
-    parser.add_argument("--rounds", type=int, default=12, help="rounds of (pbo, bare) after a first bare stretch; the duration is split over them")
+    parser.add_argument("--rounds", type=int, default=24, help="rounds of (pbo, bare) after a first bare stretch; the duration is split over them")
     parser.add_argument("--fifo", action="store_true", help="SCHED_FIFO for both sides and the plant (root or CAP_SYS_NICE)")
     args = parser.parse_args()
     print(run(args.duration, tuple(args.rtpus), args.fifo, args.rounds).text())

@@ -1,6 +1,6 @@
 """Run every benchmark and write docs/performance.md from what they measured.
 
-    python -m bench                 # everything, full counts (about 10 minutes); rewrites docs/performance.md
+    python -m bench                 # everything, full counts (about 17 minutes); rewrites docs/performance.md
     python -m bench --quick         # everything, small counts (well under a minute); prints only
     python -m bench --only peers,scale --out /tmp/perf.md
 
@@ -34,7 +34,7 @@ FULL: dict[str, dict[str, Any]] = {
     "svar_transfer": {"rounds": 21, "iterations": 20000, "table_variables": 1000},
     "peers": {"iterations": 10000, "seconds": 2.0, "warmup": 200, "rounds": 3},
     "scale": {"rounds": 15, "iterations": 2000, "rtpu_seconds": 1.5},
-    "realtime": {"seconds": 60.0, "rtpus": (1, 2, 4), "rounds": 12},
+    "realtime": {"seconds": 120.0, "rtpus": (1, 2, 4), "rounds": 24},
     "wait": {"seconds": 1.5, "rounds": 4},
     "switching": {"switches": 1000, "interval": 0.02},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 3},

@@ -349,3 +349,28 @@ def test_what_an_rtpu_reports_at_stop_goes_by_the_patient_reporter(make_table):
     run_until(ex, clock, 0.01)
     assert "stats" not in during and during.count("state") == 2  # spawned (OFF), then ON
     assert at_stop.count("stats") == 1 and "state" in at_stop
+
+
+class Quiet(PortBasedObject):
+    """Fake module: a cycle that allocates nothing (Ticker records every cycle in a list)."""
+
+    out = OutVar("out")
+
+    def cycle(self) -> Status:
+        return Status.CONTINUE
+
+
+def test_the_per_cycle_path_takes_no_page_fault(setup):
+    # Regression (issue 6): the jitter and execution-time rings were zeroed lazily, so every 512
+    # cycles each wrote into a page the process had never touched: a page fault on the per-cycle
+    # path, 4 a second for a 1 kHz task (counted in /proc/PID/stat of a running RTPU).
+    import resource
+
+    build, clock, _ = setup
+    executive = build([("a", Quiet, 0.001, False)], [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0])])
+    run_until(executive, clock, 0.01)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    run_until(executive, clock, 4.1)  # 4,096 more cycles: 8 new pages in each ring were it untouched
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+    assert executive.tasks["a"].task.cycles >= 4096
+    assert faults <= 2, f"{faults} page faults in 4,096 cycles"

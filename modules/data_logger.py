@@ -51,9 +51,11 @@ class DataLogger(PortBasedObject):
         self._rows = max(1, int(round(params.capacity / self.period)))
         arrays = self.bound_arrays[-len(self._names):]
         self._sources = [a.reshape(-1) for a in arrays]  # flat views, made once
-        self._columns = [np.zeros((self._rows, a.size), dtype=a.dtype) for a in arrays]
+        # Written now (np.full, not the lazily mapped np.zeros): a row in a page never touched
+        # would be faulted in by the cycle that writes it.
+        self._columns = [np.full((self._rows, a.size), 0, dtype=a.dtype) for a in arrays]
         self._shapes = [a.shape for a in arrays]
-        self._times = np.zeros(self._rows)
+        self._times = np.full(self._rows, 0.0)
         self._pairs = list(zip(self._columns, self._sources))
         self.logged = 0
         self.dropped = 0

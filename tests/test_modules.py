@@ -526,6 +526,25 @@ def test_logger_counts_rows_past_capacity_as_dropped_and_does_not_write_them(log
     task.kill()
 
 
+def test_logger_cycles_take_no_page_fault_as_its_log_fills(log_table, tmp_path):
+    # Regression (issue 6): the log was np.zeros, mapped lazily: the cycle that first wrote into
+    # each new page took a page fault (32 over these 4,096 rows of m). A column of 35 MB, past
+    # glibc's largest mmap threshold (32 MiB), so that it is mapped, not recycled heap.
+    import resource
+
+    task = logger_task(log_table, {"variables": ["m"], "path": str(tmp_path / "log.npz"), "capacity": 1_100_000 * LOG_DT})
+    task.run_cycle(1.0)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for i in range(1, 4096):
+        task.run_cycle(1.0 + i * LOG_DT)
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+    assert task.module.logged == 4096
+    assert faults <= 2, f"{faults} page faults in 4,095 cycles"
+    task.turn_off()
+    (tmp_path / "log.npz").unlink()  # 35 MB: not kept
+    task.kill()
+
+
 @pytest.mark.parametrize(
     ("params", "message"),
     [

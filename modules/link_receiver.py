@@ -3,8 +3,9 @@
 Every cycle it copies the newest complete item into its output (the data is placed on its
 output port, TR §5), and publishes how it fared: `link_lost` counts items the sender published
 that this end never read (the sender is faster), `link_reused` cycles that found no new item
-(the sender is slower), and `link_age` the age of what was read, in seconds, by the sender's
-time stamp. Before the first item arrives the output keeps its initial value.
+(the sender is slower), and `link_age` the age of what was read, in seconds, from the sender's
+time stamp to this cycle's release (0 for an item published between the release and the read).
+Before the first item arrives the output keeps its initial value.
 """
 
 from __future__ import annotations
@@ -40,5 +41,6 @@ class LinkReceiver(PortBasedObject):
             counts = self._counts
             counts[0] = link.lost
             counts[1] = link.reused
-            counts[2] = self.time - link.stamp_ns * 1e-9
+            age = self.time - link.stamp_ns * 1e-9
+            counts[2] = age if age > 0.0 else 0.0  # stamped after this cycle's release (before its read): fresh
         return Status.CONTINUE

@@ -169,8 +169,8 @@ class BareLoops:
     Each pbo round begins with its processes' start-up (imports, page faults; the memory they
     free at exit), and the machine's memory threads (kdamond, kcompactd) work on for a while
     after such churn, taking a CPU for a millisecond or two now and then: a loop on that CPU
-    overruns. Loops started once and kept warm were spared that, and a trace showed kdamond
-    busier in the pbo windows (3.4 against 1.9 ms per second): each side now starts its own.
+    overruns. Loops started once and kept warm were spared that (the plant's late steps: 1,093
+    against 34 in one run; 724 against 742 once each side started its own).
     """
 
     def __init__(self, n: int, period: float, yaml_path: Path, fifo: bool) -> None:
@@ -379,18 +379,19 @@ releases (1 to 5 ms), not long cycles (the run summary and report tell the two a
 sched_switch trace of a 4-RTPU run (tracefs, CLOCK_MONOTONIC) showed what holds the CPU then:
 not the loops' neighbours (while a loop waited, the other CPU was mostly idle) but foreign
 threads that take a CPU for 1 to 2 ms, the VM's memory monitor kdamond, kcompactd and the
-sandbox's agent; a loop on that CPU, spinning or due to wake, waits them out. kdamond works
-harder after a start-up's memory churn (3.4 against 1.9 ms per second of CPU in the windows
-after a pbo start and after a warm bare stretch), which is why each bare stretch now starts its
-processes as each pbo run does: the plant's late steps, 1,093 against 34 in a run with warm
-bare loops, became 724 against 742. They come in bursts: one round of 5 s may hold a large share
+sandbox's agent; a loop on that CPU, spinning or due to wake, waits them out
+(`tools/cpu_trace.py` names them for each overrun of a run). The memory threads work harder
+after a start-up's memory churn, which is why each bare stretch now starts its processes as
+each pbo run does: the plant's late steps, which count such contention, were 1,093 against 34
+with warm bare loops and 724 against 742 with both sides starting theirs. They come in bursts: one round of 5 s may hold a large share
 of a run's overruns on one side (the per-round counts above show where they fell), so the
 pooled ratio swings from run to run with the bursts, and the interval, which resamples rounds, is
 as wide as that makes it. Runs of 10 s per side held too few overruns to decide anything; at a
-minute per side the interval of the log ratio was still about ±0.35 wide at 4 RTPUs (a standard
-error near 0.18), so a ratio of 1.2x read above 1.5x about one run in nine (1.53x in one
-`make bench`, 1.05x and 1.03x alone the same day), which is why the command runs two minutes
-per side. Release offsets matter: spread over 0.45 of the
+minute per side the interval of the log ratio was still about ±0.35 wide at 4 RTPUs, so the
+command runs two minutes per side. That is still not enough for one run to decide: the
+machine's load changes from minute to minute, beyond what alternating rounds within a run can
+even out, and on one day five runs of the benchmark at 4 RTPUs ranged from 1.03x to 1.62x (pooled 1.30x)
+and one run read 1.72x, 0.68x and 1.62x at 1, 2 and 4 RTPUs. Release offsets matter: spread over 0.45 of the
 period (until issue 6), 4 RTPUs spun inside each other's spin and p99 was about 180 µs on both
 sides; spaced evenly (i/n of the period) it is tens of µs. SCHED_FIFO (`--fifo`) is allowed on
 this VM (root); see the wait benchmark for what it buys.""",

@@ -75,17 +75,15 @@ class Queue:
         raw = self._encode(message)
         deadline = time.monotonic() + timeout
         while True:
-            left = deadline - time.monotonic()
-            reader_gone = reader_alive is not None and not reader_alive()
-            if reader_gone or left <= 0.0:
-                wait = 0.0
-            else:
-                wait = left if reader_alive is None else min(left, READER_CHECK)
+            left = max(deadline - time.monotonic(), 0.0)
+            if reader_alive is not None and not reader_alive():
+                left = 0.0  # nobody drains it: one try, no wait
+            wait = left if reader_alive is None else min(left, READER_CHECK)
             try:
                 self._mq.send(raw, timeout=wait)
                 return True
             except posix_ipc.BusyError:
-                if reader_alive is None or reader_gone or wait >= left:
+                if wait >= left:  # waited all that was left: the queue stayed full
                     return False
             except (posix_ipc.ExistentialError, posix_ipc.SignalError, OSError):
                 return False

@@ -21,11 +21,10 @@ with the second half of the bare stretch just before it and the first half of th
 so a change of load on the machine (another test suite, another tenant) falls on both alike.
 Each bare stretch starts its plant and its loop processes afresh, as each pbo run starts its plant
 and RTPUs: the memory churn of a start-up keeps the kernel's memory threads busy for a while
-after, and both sides' windows follow one. Each
-round gives a p50 and a p99 ratio; the verdict takes their median over the rounds and shows their
-spread. Overruns are rare events (a few per 10 000 cycles): their rate ratio pools the rounds and
-comes with an exact 95% interval (a conditional binomial), since a handful of counts cannot give
-a ratio more precise than that.
+after, and both sides' windows follow one. Each round gives a p50 and a p99 ratio; the verdict
+takes their median over the rounds and shows their spread. Overruns are rare events (a few per
+10 000 cycles) that come in bursts: their rate ratio pools the rounds and comes with a 95%
+interval from resampling whole rounds (`round_bootstrap_interval`).
 
     python -m bench.realtime [--duration 60] [--rounds 12] [--rtpus 1 2 4] [--fifo]
 """
@@ -163,34 +162,29 @@ class _Plant:
         return self.stats
 
 
-class BareLoops:
-    """n bare loop processes and a plant, started afresh for each stretch as `pbo run` starts its RTPUs and plant.
+def run_bare_loops(n: int, period: float, yaml_path: Path, fifo: bool,
+                   seconds: float) -> tuple[list[dict[str, np.ndarray]], dict[str, int]]:
+    """n bare loops for `seconds` with the plant stepping, all started afresh: per loop its samples, and the plant's counts.
 
-    Each pbo round begins with its processes' start-up (imports, page faults; the memory they
-    free at exit), and the machine's memory threads (kdamond, kcompactd) work on for a while
-    after such churn, taking a CPU for a millisecond or two now and then: a loop on that CPU
-    overruns. Loops started once and kept warm were spared that (the plant's late steps: 1,093
-    against 34 in one run; 724 against 742 once each side started its own).
+    Started as `pbo run` starts its plant and RTPUs, because a start-up's memory churn (imports,
+    page faults; the memory freed at exit) keeps the machine's memory threads (kdamond,
+    kcompactd) at work for a while after, taking a CPU for a millisecond or two now and then: a
+    loop on that CPU overruns. Loops started once and kept warm were spared that (the plant's
+    late steps: 1,093 against 34 in one run; 724 against 742 once each side started its own).
     """
-
-    def __init__(self, n: int, period: float, yaml_path: Path, fifo: bool) -> None:
-        self.n, self.period, self.yaml_path, self.fifo = n, period, yaml_path, fifo
-
-    def stretch(self, seconds: float) -> tuple[list[dict[str, np.ndarray]], dict[str, int]]:
-        """Every loop for `seconds` with the plant stepping: per process its samples, and the plant's counts."""
-        plant = _Plant(self.yaml_path, self.fifo)  # the plant first, then the loops, as the supervisor starts them
-        try:
-            with Workers(self.n, _bare_main, (self.period, self.fifo), what="bare loop") as workers:
-                stagger = release_stagger(self.period, self.n)  # as the supervisor staggers its RTPUs
-                # The plant steps from the instant it reports ready: releases timed from that instant
-                # would fall at one phase to its steps, every stretch (the same each time, and right on
-                # them). A pbo run's phase to its plant is whatever the process starts left: random.
-                epoch = time.monotonic() + 0.02 + random.uniform(0.0, self.period)
-                workers.send_each([(epoch + i * stagger, epoch + seconds) for i in range(self.n)])
-                records = workers.answers(seconds + 60)
-        finally:
-            stats = plant.stop()
-        return records, stats
+    plant = _Plant(yaml_path, fifo)  # the plant first, then the loops, as the supervisor starts them
+    try:
+        with Workers(n, _bare_main, (period, fifo), what="bare loop") as workers:
+            stagger = release_stagger(period, n)  # as the supervisor staggers its RTPUs
+            # The plant steps from the instant it reports ready: releases timed from that instant
+            # would fall at one phase to its steps, every stretch (the same each time, and right on
+            # them). A pbo run's phase to its plant is whatever the process starts left: random.
+            epoch = time.monotonic() + 0.02 + random.uniform(0.0, period)
+            workers.send_each([(epoch + i * stagger, epoch + seconds) for i in range(n)])
+            records = workers.answers(seconds + 60)
+    finally:
+        stats = plant.stop()
+    return records, stats
 
 
 def _figures(jitter: np.ndarray, spanned: np.ndarray) -> dict[str, float]:
@@ -286,13 +280,12 @@ def measure(n: int, seconds: float, fifo: bool, rounds: int = 8) -> dict[str, An
     share = seconds / rounds
     pbo_runs, bare_runs, exec_p50s, realtime = [], [], [], {}
     late = {"pbo": 0, "pbo_steps": 0, "bare": 0, "bare_steps": 0}
-    loops = BareLoops(n, period, yaml_path, fifo)
-    records, stats = loops.stretch(share / 2)
+    records, stats = run_bare_loops(n, period, yaml_path, fifo, share / 2)
     before = records  # the whole first stretch comes before round 0
     for r in range(rounds):
         report = pbo_run(yaml_path, share, fifo)
         last = r == rounds - 1
-        records, plant_stats = loops.stretch(share / 2 if last else share)
+        records, plant_stats = run_bare_loops(n, period, yaml_path, fifo, share / 2 if last else share)
         for s in (stats, plant_stats) if r == 0 else (plant_stats,):
             late["bare"] += s.get("late", 0)
             late["bare_steps"] += s.get("steps", 0)

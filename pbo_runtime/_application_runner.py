@@ -48,8 +48,9 @@ def _free_port() -> int:
 
 class ApplicationRunner:
     def __init__(self, application: Application, duration: float | None, say: Callable[[str], None],
-                 clock: str = "real", out_dir: Path | None = None) -> None:
+                 clock: str = "real", out_dir: Path | None = None, fifo: bool | None = None) -> None:
         self.application = application
+        self.fifo = fifo  # None: each subsystem's default (SCHED_FIFO on the real clock where allowed)
         self.duration = duration
         self.say = say
         self.clock = clock
@@ -102,20 +103,27 @@ class ApplicationRunner:
                      f"({spec.dtype} {list(spec.shape)}, {what}, {spec.transport})")
 
     def _start(self) -> None:
-        for key, subsystem in self.application.subsystems.items():
-            command = [sys.executable, "-m", "pbo_runtime.cli", "run", subsystem.file, "--no-live", "--clock", self.clock,
-                       "--duration", repr(self.duration or 0.0), "--links", json.dumps(self.links)]
-            chosen = self.application.run.get(key, {})
-            if "config" in chosen:
-                command += ["--config", chosen["config"]]
-            if "app" in chosen:
-                command += ["--app", chosen["app"]]
-            if self.out_dir is not None:
-                command += ["--out", str(self.out_dir / key)]
-            child = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        for key in self.application.subsystems:
+            child = subprocess.Popen(self.command(key), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      text=True, preexec_fn=_die_with_parent, start_new_session=True)
             self._children[key] = child
             threading.Thread(target=self._relay, args=(key, child), daemon=True).start()
+
+    def command(self, key: str) -> list[str]:
+        """The `pbo run` that runs subsystem `key` of the application, with the links and the run's options."""
+        subsystem = self.application.subsystems[key]
+        command = [sys.executable, "-m", "pbo_runtime.cli", "run", subsystem.file, "--no-live", "--clock", self.clock,
+                   "--duration", repr(self.duration or 0.0), "--links", json.dumps(self.links)]
+        chosen = self.application.run.get(key, {})
+        if "config" in chosen:
+            command += ["--config", chosen["config"]]
+        if "app" in chosen:
+            command += ["--app", chosen["app"]]
+        if self.out_dir is not None:
+            command += ["--out", str(self.out_dir / key)]
+        if self.fifo is not None:
+            command.append("--fifo" if self.fifo else "--no-fifo")
+        return command
 
     def _relay(self, key: str, child: subprocess.Popen) -> None:
         assert child.stdout is not None

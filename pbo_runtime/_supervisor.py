@@ -136,7 +136,7 @@ class Supervisor:
         application: str | None = None,
         static: bool = False,
         alternate: tuple[list[str], int, float] | None = None,
-        fifo: bool = False,
+        fifo: bool | None = None,
         clock: str = "real",
         out_dir: str | None = None,
         links: dict[str, dict[str, Any]] | None = None,
@@ -195,7 +195,10 @@ class Supervisor:
         self.job_control = JobControl(self, static=static)
         self.result.application = application or ""
         self.alternate = alternate
-        self.fifo = fifo
+        # SCHED_FIFO where the OS allows it, on the real clock unless asked otherwise: under SCHED_OTHER
+        # the machine's own threads take a CPU for milliseconds and RTPUs overrun about ten times as
+        # often (docs/performance.md). The simulated clock waits on ticks, not time: it needs none.
+        self.fifo = (not self.simulated) if fifo is None else fifo
         self._stable: dict[str, float] = {}
         self.control: ControlServer | None = None
         self._serving = False

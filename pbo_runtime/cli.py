@@ -66,8 +66,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--report", type=Path, help="write the run report (per task timing, final values) as JSON here")
     run.add_argument("--no-live", action="store_true", help="no live status table (the default when output is not a terminal)")
     run.add_argument("--app", help="run this application's jobs one at a time, then stop")
-    run.add_argument("--fifo", action="store_true",
-                     help="run RTPUs under SCHED_FIFO where the OS allows it (the summary says if it did)")
+    run.add_argument("--fifo", action=argparse.BooleanOptionalAction, default=None,
+                     help="RTPUs (priority 50) and the plant (60) under SCHED_FIFO where the OS allows it: the default "
+                          "with the real clock; the summary says if the OS refused. --no-fifo: SCHED_OTHER")
     run.add_argument("--static", action="store_true",
                      help="static reconfiguration: only the current configuration's tasks exist (kill and spawn between jobs)")
     run.add_argument("--clock", choices=("real", "sim"), default="real",
@@ -294,7 +295,7 @@ def _run_application(args: argparse.Namespace, console: Console, errors: Console
     duration = args.duration if args.duration > 0 else None
     say(f"starting application '{app.name}': {', '.join(app.subsystems)}; "
         + ("Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner"))
-    code = ApplicationRunner(app, duration, say, clock=args.clock, out_dir=args.out).run()
+    code = ApplicationRunner(app, duration, say, clock=args.clock, out_dir=args.out, fifo=args.fifo).run()
     if code:
         errors.print(f"error: application '{app.name}' stopped: a subsystem failed (exit {code}); see its lines above",
                      markup=False)
@@ -357,6 +358,15 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
     _print_switches(console, result)
 
 
+def _late_release_remedy(scheduler: str) -> str:
+    """What helps a late release, given the scheduler its RTPU reported (DESIGN §13)."""
+    if scheduler.startswith("SCHED_FIFO"):
+        return "it ran SCHED_FIFO already, so the whole machine stalled"
+    if "refused" in scheduler:
+        return "the OS refused SCHED_FIFO (see the RTPU's line below); pinning with rtpus: {cpu: N} helps meanwhile"
+    return "SCHED_FIFO (drop --no-fifo) or pinning with rtpus: {cpu: N} help"
+
+
 def overrun_lines(subsystem: Any, tasks: dict[str, dict[str, Any]], realtime: dict[str, dict[str, str]] | None = None) -> list[str]:
     """Why each task overran. A late release is the machine's (the RTPU got its CPU late); a long
     cycle is the module's (it ran longer than its period): they call for different remedies.
@@ -370,9 +380,7 @@ def overrun_lines(subsystem: Any, tasks: dict[str, dict[str, Any]], realtime: di
         late, long = t.get("overruns_late_release", overruns), t.get("overruns_long_cycle", 0)
         parts = []
         if late:
-            fifo = "FIFO" in (realtime or {}).get(t.get("rtpu", ""), {}).get("scheduler", "")
-            remedy = ("it ran SCHED_FIFO already, so the whole machine stalled" if fifo
-                      else "--fifo or pinning with rtpus: {cpu: N} help")
+            remedy = _late_release_remedy((realtime or {}).get(t.get("rtpu", ""), {}).get("scheduler", ""))
             parts.append(f"{late} late release{'s' if late > 1 else ''} (started up to {t['jitter_max'] * 1e3:.2f} ms late: "
                          f"the machine held the RTPU's CPU; {remedy})")
         if long:

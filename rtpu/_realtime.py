@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 
 from pbo_runtime._clock import lower_timer_slack
+from pbo_runtime._plant_host import PLANT_FIFO_PRIORITY
 
 FIFO_PRIORITY = 50  # above ordinary processes, below the kernel's own real-time threads
 
@@ -29,7 +30,8 @@ def apply(cpu: int | None, fifo: bool) -> dict[str, str]:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
             outcome["scheduler"] = f"SCHED_FIFO {FIFO_PRIORITY}"
         except (OSError, AttributeError) as exc:
-            outcome["scheduler"] = f"SCHED_OTHER: SCHED_FIFO refused ({exc}); run as root or grant CAP_SYS_NICE"
+            outcome["scheduler"] = (f"SCHED_OTHER: SCHED_FIFO refused ({exc}); it needs CAP_SYS_NICE (root has it) "
+                                    f"or a real-time priority limit (ulimit -r) of {PLANT_FIFO_PRIORITY}")
     else:
         outcome["scheduler"] = "SCHED_OTHER"
     return outcome

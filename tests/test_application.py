@@ -254,3 +254,15 @@ def test_a_zenoh_link_may_name_the_endpoint_its_listening_end_binds_for_another_
 def test_a_bad_link_endpoint_is_refused_with_an_example(tmp_path, endpoint, wanted):
     result = check_application(write_app(tmp_path, links=SHIPPED_LINKS.replace("transport: shm}", endpoint + "}", 1)))
     assert codes(result) == ["E803"] and wanted in result.errors[0].message
+
+
+def test_the_runner_hands_the_scheduler_choice_to_every_subsystem_and_otherwise_leaves_their_default():
+    from pbo_runtime._application_runner import ApplicationRunner
+
+    application = check_application(APP).application
+    default = ApplicationRunner(application, 1.0, lambda text: None)
+    sched_other = ApplicationRunner(application, 1.0, lambda text: None, fifo=False)
+    for key in application.subsystems:
+        assert not {"--fifo", "--no-fifo"} & set(default.command(key))
+        assert sched_other.command(key)[-1] == "--no-fifo"
+    assert ApplicationRunner(application, 1.0, lambda text: None, fifo=True).command("leader")[-1] == "--fifo"

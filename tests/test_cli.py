@@ -144,10 +144,17 @@ def test_the_summary_tells_a_late_release_from_a_long_cycle():
     }
     robot, pid = overrun_lines(subsystem, tasks)
     assert robot == ("overruns of 'robot' (1 ms period): 2 late releases (started up to 3.10 ms late: the machine held the "
-                     "RTPU's CPU; --fifo or pinning with rtpus: {cpu: N} help); at 0.250 s, 1.500 s into the run")
-    robot_fifo, _ = overrun_lines(subsystem, {**tasks, "robot": {**tasks["robot"], "rtpu": "rtpu1"}},
-                                  {"rtpu1": {"scheduler": "SCHED_FIFO 50"}})
+                     "RTPU's CPU; SCHED_FIFO (drop --no-fifo) or pinning with rtpus: {cpu: N} help); at 0.250 s, "
+                     "1.500 s into the run")
+
+    def robot_line_under(scheduler: str) -> str:
+        line, _ = overrun_lines(subsystem, {**tasks, "robot": {**tasks["robot"], "rtpu": "rtpu1"}},
+                                {"rtpu1": {"scheduler": scheduler}})
+        return line
+
     assert "(started up to 3.10 ms late: the machine held the RTPU's CPU; it ran SCHED_FIFO already, so the whole " \
-           "machine stalled)" in robot_fifo
+           "machine stalled)" in robot_line_under("SCHED_FIFO 50")
+    assert "the RTPU's CPU; the OS refused SCHED_FIFO (see the RTPU's line below); pinning with rtpus: {cpu: N} " \
+           "helps meanwhile)" in robot_line_under("SCHED_OTHER: SCHED_FIFO refused ([Errno 1] Operation not permitted)")
     assert pid.startswith("overruns of 'pid' (1 ms period): 9 long cycles (ran up to 4.20 ms: the module needs more than "
                           "its period; lighten its cycle or lengthen its period); the last 8 at 0.000 s, 0.001 s,")

@@ -61,6 +61,8 @@ def test_demo_moves_the_arm_to_its_goal_and_leaves_nothing_behind(tmp_path):
     assert "run summary" in done.stdout and "Traceback" not in done.stderr
     report = json.loads(report_path.read_text())
     assert report["stopped_by"] == "duration" and report["failure"] == ""
+    for settings in report["realtime"].values():  # asked for by default on the real clock: granted, or refused and why
+        assert settings["scheduler"] == "SCHED_FIFO 50" or settings["scheduler"].startswith("SCHED_OTHER: SCHED_FIFO refused (")
     q_m = np.array(report["variables"]["q_m"]["value"])
     q_d = np.array(report["variables"]["q_d"]["value"])
     assert np.max(np.abs(q_m - q_d)) < 0.01, f"arm at {q_m}, goal {q_d}"

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import ctypes
 import json
+import os
 import subprocess
 import sys
+
+import pytest
 
 from tests.conftest import REPO
 
@@ -29,3 +33,50 @@ def test_a_cpu_the_machine_does_not_have_is_reported_not_fatal():
 def test_sched_fifo_is_reported_as_granted_or_refused_with_the_reason():
     scheduler = applied(None, True)["scheduler"]
     assert scheduler == "SCHED_FIFO 50" or scheduler.startswith("SCHED_OTHER: SCHED_FIFO refused (")
+
+
+def test_the_real_clock_asks_for_sched_fifo_by_default_and_the_simulated_clock_does_not():
+    from pbo_runtime._config_loader import load_subsystem
+    from pbo_runtime._supervisor import Supervisor
+    from pbo_runtime.cli import _parser
+
+    subsystem = load_subsystem(REPO / "configs" / "pid_joint.yaml")
+    assert Supervisor(subsystem).fifo is True
+    assert Supervisor(subsystem, clock="sim").fifo is False  # it waits on ticks, not on time
+    assert Supervisor(subsystem, fifo=False).fifo is False
+    assert Supervisor(subsystem, clock="sim", fifo=True).fifo is True
+    fifo_of = {tuple(flags): _parser().parse_args(["run", "x.yaml", *flags]).fifo for flags in ([], ["--no-fifo"], ["--fifo"])}
+    assert fifo_of == {(): None, ("--no-fifo",): False, ("--fifo",): True}
+
+
+def _without_cap_sys_nice() -> None:
+    """In the child before exec: drop CAP_SYS_NICE from the bounding set, so root execs without it."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(PR_CAPBSET_DROP, CAP_SYS_NICE, 0, 0, 0) != 0:
+        raise OSError(ctypes.get_errno(), "prctl(PR_CAPBSET_DROP, CAP_SYS_NICE)")
+
+
+PR_CAPBSET_DROP, CAP_SYS_NICE = 24, 23  # <linux/prctl.h>, <linux/capability.h>
+
+
+@pytest.mark.multiprocess
+def test_a_run_the_os_refuses_sched_fifo_runs_on_under_sched_other_and_says_what_it_needs(tmp_path):
+    if os.geteuid() != 0 and _fifo_allowed_here():
+        pytest.skip("this user may use SCHED_FIFO without root: nothing here makes the OS refuse it")
+    report_path = tmp_path / "report.json"
+    done = subprocess.run([sys.executable, "-m", "pbo_runtime.cli", "run", str(REPO / "configs" / "pid_joint.yaml"),
+                           "--duration", "1", "--report", str(report_path), "--no-live"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=180,
+                          preexec_fn=_without_cap_sys_nice if os.geteuid() == 0 else None)
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stdout + done.stderr
+    report = json.loads(report_path.read_text())
+    assert report["stopped_by"] == "duration" and set(report["realtime"]) == {"rtpu0", "rtpu1"}
+    for rtpu, settings in report["realtime"].items():
+        assert settings["scheduler"].startswith("SCHED_OTHER: SCHED_FIFO refused ([Errno 1] Operation not permitted); "
+                                                "it needs CAP_SYS_NICE (root has it) or a real-time priority limit "
+                                                "(ulimit -r) of 60"), settings
+        assert f"{rtpu}: cpu any, SCHED_OTHER: SCHED_FIFO refused (" in done.stdout
+
+
+def _fifo_allowed_here() -> bool:
+    return applied(None, True)["scheduler"].startswith("SCHED_FIFO")

@@ -240,12 +240,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("file", help="the subsystem's YAML file")
     parser.add_argument("--duration", type=float, default=5.0, help="seconds of run (default 5)")
     parser.add_argument("--keep", type=Path, help="also write the raw trace here")
-    parser.add_argument("--fifo", action="store_true", help="pass --fifo to pbo run")
+    parser.add_argument("--fifo", action=argparse.BooleanOptionalAction, default=None,
+                        help="pass --fifo or --no-fifo to pbo run (default: its own, SCHED_FIFO where allowed)")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as folder:
         report_path = Path(folder) / "report.json"
         command = [sys.executable, "-m", "pbo_runtime.cli", "run", args.file, "--duration", f"{args.duration:g}",
-                   "--report", str(report_path), "--no-live", *(["--fifo"] if args.fifo else [])]
+                   "--report", str(report_path), "--no-live"]
+        if args.fifo is not None:
+            command.append("--fifo" if args.fifo else "--no-fifo")
         try:
             with ProcessNames() as names, SchedulerTrace() as trace:
                 done = subprocess.run(command, capture_output=True, text=True)

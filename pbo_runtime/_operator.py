@@ -78,6 +78,23 @@ def status(console: Console, subsystem: str | None = None) -> int:
     return 0
 
 
+def scheduler_brief(settings: dict[str, str]) -> str:
+    """What an RTPU runs under, short enough for the status table: FIFO 50, OTHER (FIFO refused), ..."""
+    if "clock" in settings:
+        return "sim clock"
+    scheduler = settings.get("scheduler", "")
+    if scheduler.startswith("SCHED_FIFO"):
+        brief = scheduler.replace("SCHED_", "")
+    elif "refused" in scheduler:
+        brief = "OTHER (FIFO refused)"
+    else:
+        brief = "OTHER" if scheduler else "?"
+    cpu = settings.get("cpu", "any")
+    if cpu != "any":
+        brief += f", cpu {cpu}" if cpu.isdigit() else ", not pinned"
+    return brief
+
+
 def status_table(reply: dict[str, Any]) -> Table:
     """The status reply as a table, one section per RTPU."""
     parts = [f"{reply.get('subsystem', '?')} · run {reply.get('run_id', '?')}",
@@ -92,6 +109,7 @@ def status_table(reply: dict[str, Any]) -> Table:
                    "exec p50 µs", "exec p99 µs", "overruns", "missed"):
         table.add_column(column, justify="left" if column in ("rtpu", "task", "state") else "right")
     tasks = list(reply.get("tasks") or [])
+    realtime = reply.get("realtime") or {}
     by_rtpu: dict[str, list[dict[str, Any]]] = {}
     for task in tasks:
         by_rtpu.setdefault(str(task.get("rtpu", "?")), []).append(task)
@@ -102,7 +120,8 @@ def status_table(reply: dict[str, Any]) -> Table:
             state = str(task.get("state", "?"))
             style = _STATE_STYLE.get(state, "white")
             rate = task.get("rate")
-            table.add_row(rtpu if i == 0 else "", str(task.get("task", "?")), f"[{style}]{state}[/]",
+            label = f"{rtpu}\n[dim]{scheduler_brief(realtime.get(rtpu, {}))}[/]" if rtpu in realtime else rtpu
+            table.add_row(label if i == 0 else "", str(task.get("task", "?")), f"[{style}]{state}[/]",
                           str(task.get("cycles", 0)), "—" if rate is None else f"{float(rate):.0f}",
                           _us(task.get("jitter_p50")), _us(task.get("jitter_p99")), _us(task.get("jitter_max")),
                           _us(task.get("exec_p50")), _us(task.get("exec_p99")), str(task.get("overruns", 0)),

@@ -600,7 +600,7 @@ class Supervisor:
         flags = [flag.name for flag in Flag if self.table is not None and self.table.flags & flag]
         return {"subsystem": self.subsystem.name, "run_id": self.run_id, "configuration": self.configuration,
                 "job": self.job_control.job, "application": self.application, "elapsed": elapsed,
-                "tasks": rows, "flags": flags}
+                "tasks": rows, "flags": flags, "realtime": dict(self.result.realtime)}
 
     def status_rows(self) -> list[dict[str, Any]]:
         """The live view's data, read from the table's status blocks."""

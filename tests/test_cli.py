@@ -158,3 +158,25 @@ def test_the_summary_tells_a_late_release_from_a_long_cycle():
            "helps meanwhile)" in robot_line_under("SCHED_OTHER: SCHED_FIFO refused ([Errno 1] Operation not permitted)")
     assert pid.startswith("overruns of 'pid' (1 ms period): 9 long cycles (ran up to 4.20 ms: the module needs more than "
                           "its period; lighten its cycle or lengthen its period); the last 8 at 0.000 s, 0.001 s,")
+
+
+def test_pbo_status_names_what_each_rtpu_runs_under():
+    from rich.console import Console
+
+    from pbo_runtime._operator import scheduler_brief, status_table
+
+    refused = "SCHED_OTHER: SCHED_FIFO refused ([Errno 1] Operation not permitted); it needs CAP_SYS_NICE"
+    assert scheduler_brief({"scheduler": "SCHED_FIFO 50", "cpu": "any"}) == "FIFO 50"
+    assert scheduler_brief({"scheduler": refused, "cpu": "1"}) == "OTHER (FIFO refused), cpu 1"
+    assert scheduler_brief({"scheduler": "SCHED_OTHER", "cpu": "not pinned: CPU 9: invalid"}) == "OTHER, not pinned"
+    assert scheduler_brief({"clock": "simulated, 1 ms ticks"}) == "sim clock"
+    reply = {"subsystem": "puma", "run_id": "1-ab", "configuration": "pid", "elapsed": 1.0,
+             "tasks": [{"task": "robot", "rtpu": "rtpu0", "state": "ON"}, {"task": "pid", "rtpu": "rtpu1", "state": "ON"}],
+             "realtime": {"rtpu0": {"scheduler": "SCHED_FIFO 50", "cpu": "any"}, "rtpu1": {"scheduler": refused, "cpu": "any"}}}
+    console = Console(record=True, width=160)
+    console.print(status_table(reply))
+    text = console.export_text()
+    assert "FIFO 50" in text and "OTHER (FIFO refused)" in text
+    console = Console(record=True, width=160)
+    console.print(status_table({**reply, "realtime": {}}))  # a supervisor of an older run: no column breaks
+    assert "robot" in console.export_text()

@@ -178,9 +178,9 @@ when it is longer than the wake-up: the loop is already running when the release
 its jitter is one clock read. The price is CPU: a 200 µs spin at 1 kHz is 20% of a CPU per loop,
 which four loops on two vCPUs can only pay by taking it from each other and from the plant. The
 tails (p99, max) are the machine's stalls, which no wait avoids; SCHED_FIFO lets a loop take the
-CPU from every normal thread, the platform's own kernel threads included (`pbo run --fifo`;
-refused without root or CAP_SYS_NICE, and the summary then says so); `rtpus: {rtpu0: {cpu: 0}}`
-pins an RTPU to a CPU.""",
+CPU from every normal thread, the platform's own kernel threads included (`pbo run` asks for it
+on the real clock; refused without root, CAP_SYS_NICE or `ulimit -r`, and the summary then says
+so); `rtpus: {rtpu0: {cpu: 0}}` pins an RTPU to a CPU.""",
     )
     table = Table(["loops", "wait", "cycles", "jitter p50 µs", "jitter p99 µs", "jitter max µs", "overruns",
                    "CPU per loop", "p50 / baseline", "p99 / baseline"], numeric=(0, 2, 3, 4, 5, 6, 7, 8, 9))

@@ -21,7 +21,7 @@ test: $(STAMP)           ## set up, then lint and run every test
 check: $(STAMP)          ## check every shipped configuration
 	@for f in configs/*.yaml; do $(BIN)/pbo check $$f || exit 1; done
 
-bench: $(STAMP)          ## every benchmark against its baseline (about 17 minutes); rewrites docs/performance.md
+bench: $(STAMP)          ## every benchmark against its baseline (about 25 minutes); rewrites docs/performance.md
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[bench]'
 	$(BIN)/python -m bench
 

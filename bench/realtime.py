@@ -398,11 +398,15 @@ SCHED_FIFO became the default, runs of two minutes per side read from 0.68x to 1
 runs at 4 RTPUs pooled 1.30x).
 
 Under SCHED_FIFO no thread of the machine outranks a loop but the kernel's own real-time ones:
-kdamond and the agent wait. What is left is the VM's own stalls (the hypervisor not running a
-virtual CPU), which stop both sides alike and which no setting inside the machine prevents; they
-are rare, so a run holds only a handful of overruns per side, and a ratio of a handful moves a
-lot with one stall more or less (the interval says how much). The row "all" pools the RTPU
-counts for a steadier figure. Release offsets matter: spread over 0.45 of the period (until
+kdamond and the agent wait, and the overruns left are rarer (the first table). A scheduler trace
+of a 4-RTPU run under SCHED_FIFO (`tools/cpu_trace.py`) showed each of them as a stall of 1 to 8 ms
+in which both CPUs sat idle while every RTPU and the plant were due: the virtual CPUs were not run
+(the hypervisor's doing, which no setting inside the machine prevents). Such stalls should stop
+both sides alike, yet they fell more often in the pbo runs than in the bare stretches: the
+executive overran more often than the bare loop in the run of this page, and the plant, the same
+process on both sides, was late more often in its pbo runs at 1 and 4 RTPUs (the first table). Why is still open. With so few
+overruns per side, one burst more or less moves a ratio a lot (the interval says how much); the
+row "all" pools the RTPU counts for a steadier figure. Release offsets matter: spread over 0.45 of the period (until
 issue 6), 4 RTPUs spun inside each other's spin and p99 was about 180 µs on both sides; spaced
 evenly (i/n of the period) it is tens of µs.""",
     )

@@ -1,6 +1,6 @@
 """Run every benchmark and write docs/performance.md from what they measured.
 
-    python -m bench                 # everything, full counts (about 17 minutes); rewrites docs/performance.md
+    python -m bench                 # everything, full counts (about 25 minutes); rewrites docs/performance.md
     python -m bench --quick         # everything, small counts (well under a minute); prints only
     python -m bench --only peers,scale --out /tmp/perf.md
 

@@ -19,6 +19,7 @@ later run removes them if this one died.
 
 from __future__ import annotations
 
+import time
 from typing import Callable
 
 import numpy as np
@@ -45,6 +46,7 @@ class LockstepMaster:
         self.tick = self.tick_ns / 1e9
         self.header = header
         self.ticks = 0
+        self.stepping, self.step_started = "", 0.0  # the participant released last, and when (wall clock)
         self._go: dict[str, posix_ipc.Semaphore] = {}
         self._done: dict[str, posix_ipc.Semaphore] = {}
         try:
@@ -78,6 +80,7 @@ class LockstepMaster:
         """
         self._go[role].release()
         done = self._done[role]
+        self.stepping, self.step_started = role, time.monotonic()  # for a watchdog in `while_waiting`
         while True:
             try:
                 done.acquire(WAIT_SLICE)

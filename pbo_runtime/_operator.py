@@ -110,6 +110,7 @@ def status_table(reply: dict[str, Any]) -> Table:
         table.add_column(column, justify="left" if column in ("rtpu", "task", "state") else "right")
     tasks = list(reply.get("tasks") or [])
     realtime = reply.get("realtime") or {}
+    stalled = reply.get("stalled") or {}
     by_rtpu: dict[str, list[dict[str, Any]]] = {}
     for task in tasks:
         by_rtpu.setdefault(str(task.get("rtpu", "?")), []).append(task)
@@ -119,6 +120,8 @@ def status_table(reply: dict[str, Any]) -> Table:
         for i, task in enumerate(by_rtpu[rtpu]):
             state = str(task.get("state", "?"))
             style = _STATE_STYLE.get(state, "white")
+            if task.get("task") in stalled:  # ON, but its cycle has not returned (see _stall_watch)
+                state, style = f"{state}, no cycle for {float(stalled[task['task']]):.1f} s", "bold red"
             rate = task.get("rate")
             label = f"{rtpu}\n[dim]{scheduler_brief(realtime.get(rtpu, {}))}[/]" if rtpu in realtime else rtpu
             table.add_row(label if i == 0 else "", str(task.get("task", "?")), f"[{style}]{state}[/]",

@@ -36,11 +36,14 @@ from pbo_runtime._control import ControlServer, control_queue_name
 from pbo_runtime._job_control import JobControl, JobFailure, application_steps
 from pbo_runtime._lockstep import LockstepMaster, semaphore_names
 from pbo_runtime._reconfiguration import Reconfiguration
+from pbo_runtime._stall_watch import StallWatch
 from pbo_runtime._table import Flag, Header, StateTable, TableLayout, TaskState, read_manifest
 from pbo_runtime._table import Status as W
 
 START_TIMEOUT = 60.0  # seconds for a child to import numpy, pinocchio and mujoco on a busy machine
 SIGNAL_TIMEOUT = 10.0
+SIM_STALL_SECONDS = 2.0  # wall seconds one participant may take over one tick of the simulated clock before it is reported
+STALL_CHECK_EVERY = 0.05  # seconds between looks at the cycle counts (StallWatch); job control pumps every 2 ms
 
 
 class RunFailure(PboError):
@@ -79,6 +82,10 @@ class RunResult:
     # CLOCK_MONOTONIC second the configuration came on (real clock; 0 on the simulated one): the
     # origin of each task's last_overruns times, to match them with a trace of the machine (tools/cpu_trace.py)
     started_monotonic: float = 0.0
+    # tasks ON that finished no cycle for a while: task, rtpu, from and to (seconds since the
+    # configuration came on; to None: until the stop), rtpu_killed (its RTPU did not stop by itself)
+    stalls: list[dict[str, Any]] = field(default_factory=list)
+    unstopped: list[str] = field(default_factory=list)  # RTPUs that did not stop within 5 s and were killed
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -89,7 +96,7 @@ class RunResult:
             "application": self.application, "jobs_done": self.jobs_done, "switches": self.switches,
             "stable_episodes": self.stable_episodes, "realtime": self.realtime,
             "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds, "links": self.links,
-            "started_monotonic": self.started_monotonic,
+            "started_monotonic": self.started_monotonic, "stalls": self.stalls, "unstopped": self.unstopped,
         }
 
 
@@ -179,6 +186,9 @@ class Supervisor:
         self.started_at: float | None = None  # run time when the configuration came on
         self._stop_requested = ""
         self._stats: dict[str, dict[str, Any]] = {}
+        self.stall_watch = StallWatch(subsystem.tasks.values(), self._cycles_of, say)
+        self._stalls_checked = -math.inf
+        self._slow_tick = -1  # the simulated clock's tick last reported as slow
         self.reconfiguration = Reconfiguration(subsystem)
         # RTPUs release at epoch + index * stagger + k * period, evenly over the shortest period
         # (release_stagger says why).
@@ -385,11 +395,20 @@ class Supervisor:
             self.lockstep.step(rtpu, self._while_stepping)  # served now, between ticks: at a known instant
 
     def _while_stepping(self) -> None:
-        """While a participant runs its tick: fail if a child died, and keep the event queue drained."""
+        """While a participant runs its tick: fail if a child died, stop if asked, keep the event queue
+        drained, and say so once if the tick takes seconds (a cycle there has not returned)."""
         self._check_children()
-        assert self.events is not None
+        if self._stop_requested:
+            raise StopRequested(self._stop_requested)  # a tick that never ends must not hold Ctrl-C
+        assert self.events is not None and self.lockstep is not None
         while (event := self.events.receive(0)) is not None:
             self._absorb(event)
+        lockstep = self.lockstep
+        waited = time.monotonic() - lockstep.step_started
+        if waited > SIM_STALL_SECONDS and self._slow_tick != lockstep.ticks:
+            self._slow_tick = lockstep.ticks
+            self.say(f"{lockstep.stepping} has not finished the tick at {lockstep.now:.3f} s for {waited:.1f} s of wall "
+                     "time: a cycle there has not returned (Ctrl-C stops the run)")
 
     def _await_ready(self, roles: set[str]) -> None:
         waiting = set(roles)
@@ -507,6 +526,7 @@ class Supervisor:
         self._check_children()
         if self._stop_requested:
             raise StopRequested(self._stop_requested)
+        self._check_stalls()
         if self.lockstep is not None:
             for _ in range(max(1, math.floor(timeout / self.tick + 1e-9))):
                 self.lockstep.advance(self._while_stepping)
@@ -518,6 +538,19 @@ class Supervisor:
         self._serve_commands()
         if self.on_tick is not None:
             self.on_tick(self)
+
+    def _cycles_of(self, index: int) -> float:
+        assert self.table is not None
+        return float(self.table.status[index][W.CYCLES])
+
+    def _check_stalls(self) -> None:
+        """Real clock: a task ON whose cycle count stops moving is reported (see _stall_watch)."""
+        if self.simulated or self.started_at is None or self.table is None:
+            return
+        now = self.now()
+        if now - self._stalls_checked >= STALL_CHECK_EVERY:
+            self._stalls_checked = now
+            self.stall_watch.check(now, self.task_states)
 
     def _serve_commands(self) -> None:
         """Operator commands (pbo status, on, off, ...): served between events, never in a cycle."""
@@ -600,7 +633,8 @@ class Supervisor:
         flags = [flag.name for flag in Flag if self.table is not None and self.table.flags & flag]
         return {"subsystem": self.subsystem.name, "run_id": self.run_id, "configuration": self.configuration,
                 "job": self.job_control.job, "application": self.application, "elapsed": elapsed,
-                "tasks": rows, "flags": flags, "realtime": dict(self.result.realtime)}
+                "tasks": rows, "flags": flags, "realtime": dict(self.result.realtime),
+                "stalled": {name: self.now() - stall.since for name, stall in self.stall_watch.open.items()}}
 
     def status_rows(self) -> list[dict[str, Any]]:
         """The live view's data, read from the table's status blocks."""
@@ -636,6 +670,7 @@ class Supervisor:
         while any(c.process.poll() is None for c in rtpus) and time.monotonic() < deadline:
             self._drain_events(0.05)
         self._drain_events(0.0)
+        self.result.unstopped = [c.role for c in rtpus if c.process.poll() is None]
         self._read_final_values()
         for child in self.children:
             if child.process.poll() is None:
@@ -657,6 +692,7 @@ class Supervisor:
             self.result.tasks[name] = {"rtpu": self.subsystem.tasks[name].rtpu, "critical": self.subsystem.tasks[name].critical,
                                        "state": self.result.states_at_stop.get(name, "?"),
                                        "error": self.task_errors.get(name, ""), **stats, "last_overruns": overruns}
+        self._report_stalls(started)
         if self.control is not None:
             self.control.close()
         for queue in self.signals.values():
@@ -668,6 +704,33 @@ class Supervisor:
         for entry in self._manifest():  # a backstop: whatever a child could not remove
             kind, _, name = entry.partition(" ")
             _shm.unlink_quietly(kind, name)
+
+    def _report_stalls(self, started: float) -> None:
+        """Stalls into the result; the table's counters for tasks whose RTPU was killed before it could report."""
+        killed = self.result.unstopped
+        for stall in self.stall_watch.episodes:
+            self.result.stalls.append({"task": stall.task, "rtpu": stall.rtpu, "from": stall.since - started,
+                                       "to": None if stall.until is None else stall.until - started,
+                                       "rtpu_killed": stall.rtpu in killed})
+        if not killed:
+            return
+        assert self.table is not None
+        for task in self.subsystem.tasks.values():
+            if task.name in self.result.tasks or task.rtpu not in killed:
+                continue
+            words = self.table.status[task.index]
+            self.result.tasks[task.name] = {
+                "rtpu": task.rtpu, "critical": task.critical, "state": self.result.states_at_stop.get(task.name, "?"),
+                "error": self.task_errors.get(task.name, ""), "from_table": True,  # its RTPU never reported
+                "cycles": int(words[W.CYCLES]), "overruns": int(words[W.OVERRUNS]), "missed": int(words[W.MISSED]),
+                "jitter_max": float(words[W.JITTER_MAX]), "jitter_p50": float(words[W.JITTER_P50]),
+                "jitter_p99": float(words[W.JITTER_P99]), "exec_max": float(words[W.EXEC_MAX]),
+                "exec_p50": float(words[W.EXEC_P50]), "exec_p99": float(words[W.EXEC_P99]), "last_overruns": []}
+        if not self.result.failure:
+            stuck = [s.task for s in self.stall_watch.episodes if s.until is None and s.rtpu in killed]
+            self.result.failure = (
+                f"{', '.join(killed)} did not stop within 5 s and {'was' if len(killed) == 1 else 'were'} killed: the kill "
+                "components of its tasks did not run" + (f" (stalled: {', '.join(stuck)})" if stuck else ""))
 
     def _serve_stop(self, child: _Child) -> None:
         """Sim clock: step an RTPU once so it serves its stop; a dead or stuck one is left to SIGTERM."""

@@ -344,6 +344,8 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
             console.print(f"task '{name}': {t['error']}", markup=False)
     for line in overrun_lines(subsystem, result.tasks, result.realtime):
         console.print(line, markup=False)
+    for line in stall_lines(result.stalls):
+        console.print(line, markup=False)
     if result.plant:
         console.print(f"plant: {result.plant.get('steps', 0)} steps, {result.plant.get('late', 0)} late", markup=False)
     if result.clock == "sim":
@@ -356,6 +358,21 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
         console.print(f"{rtpu}: cpu {settings.get('cpu')}, {settings.get('scheduler')}, timer slack {settings.get('timer_slack')}"
                       + (f", spin {settings['spin']}" if "spin" in settings else ""), markup=False)
     _print_switches(console, result)
+
+
+def stall_lines(stalls: list[dict[str, Any]]) -> list[str]:
+    """Each time a task ON finished no cycle for a while (never counted as an overrun: the cycle did not end)."""
+    lines = []
+    for s in stalls:
+        where = f"task '{s['task']}' ({s['rtpu']}) finished no cycle"
+        if s["to"] is not None:
+            lines.append(f"{where} for {s['to'] - s['from']:.2f} s, from {s['from']:.2f} s into the run")
+            continue
+        line = f"{where} from {s['from']:.2f} s into the run to the stop: its module's cycle never returned"
+        if s["rtpu_killed"]:
+            line += f"; {s['rtpu']} did not stop and was killed, so its tasks' figures are the table's last"
+        lines.append(line)
+    return lines
 
 
 def _late_release_remedy(scheduler: str) -> str:

@@ -177,6 +177,9 @@ def test_pbo_status_names_what_each_rtpu_runs_under():
     console.print(status_table(reply))
     text = console.export_text()
     assert "FIFO 50" in text and "OTHER (FIFO refused)" in text
+    console = Console(record=True, width=220)
+    console.print(status_table({**reply, "stalled": {"pid": 2.04}}))
+    assert "ON, no cycle for 2.0 s" in console.export_text()
     console = Console(record=True, width=160)
     console.print(status_table({**reply, "realtime": {}}))  # a supervisor of an older run: no column breaks
     assert "robot" in console.export_text()

@@ -2,8 +2,11 @@
 
 It builds the registered plant (e.g. the MuJoCo arm) and steps it once per timestep of wall
 time on absolute deadlines; if it falls behind it catches up with extra steps, so simulated
-time tracks wall time, and counts the steps that were late. With `--clock sim` it steps exactly
-once per tick of the supervisor's simulated clock instead (`_lockstep`), first in each tick.
+time tracks wall time, and counts the steps that were late. A plant under SCHED_FIFO that falls
+`BEHIND_LIMIT` behind cannot keep up (a step takes longer than its timestep): catching up would
+hold a CPU above every RTPU for good, so it steps down to SCHED_OTHER and says so at the end.
+With `--clock sim` it steps exactly once per tick of the supervisor's simulated clock instead
+(`_lockstep`), first in each tick.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from pbo_runtime._process import Stop, become_child
 
 
 PLANT_FIFO_PRIORITY = 60  # above the RTPUs' 50: the simulated world steps on time whatever they do
+BEHIND_LIMIT = 0.1  # seconds behind wall time at which a SCHED_FIFO plant gives up its priority
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -50,6 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     events = _messages.Queue(_messages.event_queue_name(args.subsystem, args.run_id))
     plant = barrier = None
     steps = late = 0
+    behind_when_stepped_down = 0.0  # seconds behind wall time when it left SCHED_FIFO (0: it did not)
     try:
         plant_class = _registry.plant_class(args.type)
         plant = plant_class(
@@ -68,12 +73,17 @@ def main(argv: list[str] | None = None) -> int:
                 barrier.done()
         dt = plant.timestep
         next_step = time.monotonic()
+        fifo = os.sched_getscheduler(0) == os.SCHED_FIFO
         while True:
             now = time.monotonic()
             if now < next_step:
                 time.sleep(next_step - now)
             elif now - next_step > dt:
                 late += 1
+                if fifo and now - next_step > BEHIND_LIMIT:
+                    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+                    fifo = False
+                    behind_when_stepped_down = now - next_step
             plant.step()
             steps += 1
             next_step += dt
@@ -83,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
         events.try_send("crashed", "plant", f"{type(exc).__name__}: {exc}", traceback.format_exc())
         return 1
     finally:
-        events.try_send("plant_stats", "plant", {"steps": steps, "late": late})
+        events.try_send("plant_stats", "plant", {"steps": steps, "late": late,
+                                                 "left_fifo_behind": behind_when_stepped_down})
         if barrier is not None:
             barrier.close()
         if plant is not None:

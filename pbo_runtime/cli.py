@@ -262,7 +262,8 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     supervisor = Supervisor(subsystem, args.config, duration, say=say, **options)  # refuses a bad request here
     what = (f"application '{args.app}'" if args.app else f"{args.switches} switches" if alternate
             else "Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner")
-    say(f"starting subsystem '{subsystem.name}' ({len(subsystem.rtpus)} RTPUs, plant: "
+    rtpus = f"{len(subsystem.rtpus)} RTPU{'s' if len(subsystem.rtpus) != 1 else ''}"
+    say(f"starting subsystem '{subsystem.name}' ({rtpus}, plant: "
         f"{subsystem.plant.model if subsystem.plant else 'none'}); {what}")
     if live:
         with Live(console=console, refresh_per_second=4, transient=True) as view:
@@ -348,6 +349,10 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
         console.print(line, markup=False)
     if result.plant:
         console.print(f"plant: {result.plant.get('steps', 0)} steps, {result.plant.get('late', 0)} late", markup=False)
+        if result.plant.get("left_fifo_behind"):
+            console.print(f"plant: it fell {result.plant['left_fifo_behind']:.2f} s behind real time (a step takes longer "
+                          "than its timestep) and left SCHED_FIFO, so as not to hold a CPU above the RTPUs: lengthen "
+                          "the timestep or lighten the model", markup=False)
     if result.clock == "sim":
         speed = result.duration / result.wall_seconds if result.wall_seconds else 0.0
         console.print(f"clock: simulated, {result.tick * 1e3:g} ms ticks; {result.duration:.2f} s simulated in "

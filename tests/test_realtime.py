@@ -80,3 +80,30 @@ def test_a_run_the_os_refuses_sched_fifo_runs_on_under_sched_other_and_says_what
 
 def _fifo_allowed_here() -> bool:
     return applied(None, True)["scheduler"].startswith("SCHED_FIFO")
+
+
+SLOW_PLANT = """
+subsystem: slow_plant
+rtpus: [rtpu0]
+plant: {model: puma560, timestep: 20 us}
+dims: {NDOF: 6}
+variables:
+  q_m: {type: float64, shape: [NDOF], initial: 0.0, doc: "a joint position, rad"}
+tasks:
+  watch: {module: fault_injector, rtpu: rtpu0, period: 1 ms, params: {fail_after: 1000000000}, ports: {watched: q_m}}
+configurations:
+  c: [watch]
+"""
+
+
+@pytest.mark.multiprocess
+def test_a_plant_that_cannot_keep_up_leaves_sched_fifo_instead_of_holding_a_cpu_and_says_so(tmp_path):
+    (tmp_path / "slow.yaml").write_text(SLOW_PLANT)  # a 20 µs timestep: a step of the arm takes longer
+    done = subprocess.run([sys.executable, "-m", "pbo_runtime.cli", "run", "slow.yaml", "--duration", "1.5",
+                           "--report", "report.json", "--no-live"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    report = json.loads((tmp_path / "report.json").read_text())
+    if not report["realtime"]["rtpu0"]["scheduler"].startswith("SCHED_FIFO"):
+        pytest.skip("SCHED_FIFO is refused here: the plant never had it to leave")
+    assert report["plant"]["late"] > 0 and report["plant"]["left_fifo_behind"] >= 0.1
+    assert "and left SCHED_FIFO, so as not to hold a CPU above the RTPUs" in done.stdout.replace("\n", " ")

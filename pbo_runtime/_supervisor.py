@@ -43,6 +43,7 @@ from pbo_runtime._table import Status as W
 START_TIMEOUT = 60.0  # seconds for a child to import numpy, pinocchio and mujoco on a busy machine
 SIGNAL_TIMEOUT = 10.0
 SIM_STALL_SECONDS = 2.0  # wall seconds one participant may take over one tick of the simulated clock before it is reported
+STOP_TIMEOUT = 5.0  # seconds an RTPU has to stop by itself before it is signalled (and then again before SIGKILL)
 STALL_CHECK_EVERY = 0.05  # seconds between looks at the cycle counts (StallWatch); job control pumps every 2 ms
 
 
@@ -665,7 +666,7 @@ class Supervisor:
             if child.role != "plant":
                 self.signals[child.role].try_send("stop")
                 self._serve_stop(child)
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + STOP_TIMEOUT
         rtpus = [c for c in alive if c.role != "plant"]
         while any(c.process.poll() is None for c in rtpus) and time.monotonic() < deadline:
             self._drain_events(0.05)
@@ -677,7 +678,7 @@ class Supervisor:
                 child.process.send_signal(signal.SIGTERM)
         for child in self.children:
             try:
-                child.process.wait(timeout=5.0)
+                child.process.wait(timeout=STOP_TIMEOUT)
             except subprocess.TimeoutExpired:
                 child.process.kill()
                 child.process.wait()
@@ -728,15 +729,16 @@ class Supervisor:
                 "exec_p50": float(words[W.EXEC_P50]), "exec_p99": float(words[W.EXEC_P99]), "last_overruns": []}
         if not self.result.failure:
             stuck = [s.task for s in self.stall_watch.episodes if s.until is None and s.rtpu in killed]
+            were = "was" if len(killed) == 1 else "were"
             self.result.failure = (
-                f"{', '.join(killed)} did not stop within 5 s and {'was' if len(killed) == 1 else 'were'} killed: the kill "
-                "components of its tasks did not run" + (f" (stalled: {', '.join(stuck)})" if stuck else ""))
+                f"{', '.join(killed)} did not stop within {STOP_TIMEOUT:g} s and {were} killed: the kill components of its "
+                "tasks did not run" + (f" (stalled: {', '.join(stuck)})" if stuck else ""))
 
     def _serve_stop(self, child: _Child) -> None:
         """Sim clock: step an RTPU once so it serves its stop; a dead or stuck one is left to SIGTERM."""
         if self.lockstep is None:
             return
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + STOP_TIMEOUT
 
         def give_up() -> bool:
             self._drain_events(0.0)

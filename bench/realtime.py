@@ -53,12 +53,12 @@ import numpy as np
 from bench._common import REPO, Section, Table, Target, fmt_ratio, ratio, us
 from bench._processes import Workers
 from pbo_runtime import _messages
-from pbo_runtime._clock import RealClock, lower_timer_slack, release_stagger
+from pbo_runtime._clock import RealClock, lower_timer_slack, release_stagger, scheduler_outcome
 from pbo_runtime._config_loader import load_subsystem
 from pbo_runtime._config_model import DEFAULT_SPIN
+from rtpu._realtime import FIFO_PRIORITY  # as the RTPUs take it (the plant host takes its own, above)
 
 SPIN = DEFAULT_SPIN  # the executive's spin before a release, unless an RTPU gives its own
-FIFO_PRIORITY, PLANT_FIFO_PRIORITY = 50, 60  # as rtpu/_realtime.py and the plant host
 CONFIDENCE = 0.95  # of the overrun rate ratio's interval (a bootstrap over rounds)
 
 
@@ -419,8 +419,8 @@ SCHEDULER_LABELS = {"fifo": "FIFO", "other": "OTHER"}
 
 def _scheduler_granted(result: dict[str, Any]) -> str:
     """What the RTPUs of a comparison ran under, from their run report: SCHED_FIFO or SCHED_OTHER."""
-    schedulers = [settings.get("scheduler", "") for settings in result["realtime"].values()]
-    return "SCHED_FIFO" if schedulers and all(s.startswith("SCHED_FIFO") for s in schedulers) else "SCHED_OTHER"
+    outcomes = [scheduler_outcome(settings.get("scheduler", "")) for settings in result["realtime"].values()]
+    return "SCHED_FIFO" if outcomes and all(o == "fifo" for o in outcomes) else "SCHED_OTHER"
 
 
 def _overrun_ratio(rounds: list[tuple[dict[str, float], dict[str, float]]]) -> tuple[float | None, int, int, str]:

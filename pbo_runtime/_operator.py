@@ -44,6 +44,7 @@ from rich.live import Live
 from rich.table import Table
 
 from pbo_runtime import _shm
+from pbo_runtime._clock import scheduler_outcome
 from pbo_runtime._control import ControlClient
 from pbo_runtime._errors import PboError
 from pbo_runtime._svar import TableView, open_table, svar_rows, svar_table
@@ -83,9 +84,10 @@ def scheduler_brief(settings: dict[str, str]) -> str:
     if "clock" in settings:
         return "sim clock"
     scheduler = settings.get("scheduler", "")
-    if scheduler.startswith("SCHED_FIFO"):
+    outcome = scheduler_outcome(scheduler)
+    if outcome == "fifo":
         brief = scheduler.replace("SCHED_", "")
-    elif "refused" in scheduler:
+    elif outcome == "refused":
         brief = "OTHER (FIFO refused)"
     else:
         brief = "OTHER" if scheduler else "?"

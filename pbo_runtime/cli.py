@@ -17,6 +17,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from pbo_runtime._clock import scheduler_outcome
 from pbo_runtime._errors import ConfigErrors, PboError
 from pbo_runtime._transitions import transitions
 
@@ -382,9 +383,10 @@ def stall_lines(stalls: list[dict[str, Any]]) -> list[str]:
 
 def _late_release_remedy(scheduler: str) -> str:
     """What helps a late release, given the scheduler its RTPU reported (DESIGN §13)."""
-    if scheduler.startswith("SCHED_FIFO"):
+    outcome = scheduler_outcome(scheduler)
+    if outcome == "fifo":
         return "it ran SCHED_FIFO already, so the whole machine stalled"
-    if "refused" in scheduler:
+    if outcome == "refused":
         return "the OS refused SCHED_FIFO (see the RTPU's line below); pinning with rtpus: {cpu: N} helps meanwhile"
     return "SCHED_FIFO (drop --no-fifo) or pinning with rtpus: {cpu: N} help"
 

@@ -1,0 +1,63 @@
+"""How the checker words what it found: hints for unknown names, short descriptions of values,
+times, shapes and lists as a message shows them.
+"""
+
+from __future__ import annotations
+
+import difflib
+from typing import Iterable, Sequence
+
+LISTED = 12  # choices named in a hint; a longer list helps nobody read it
+
+
+def did_you_mean(name: object, choices: Iterable[str], what: str = "valid") -> str:
+    """'did you mean 'x'? (valid: a, b, c)' - the hint for an unknown name."""
+    options = sorted({str(c) for c in choices})
+    text = str(name)
+    # A truncation ('prio' for 'priority') is the likeliest slip; difflib alone may prefer 'period'.
+    close = [o for o in options if len(text) >= 3 and o.startswith(text)][:1]
+    close = close or difflib.get_close_matches(text, options, n=1, cutoff=0.6)
+    shown = options if len(options) <= LISTED else [*options[:LISTED], f"... {len(options) - LISTED} more"]
+    listing = f"({what}: {', '.join(shown)})" if options else f"({what}: none)"
+    if close:
+        return f"did you mean '{close[0]}'? {listing}"
+    return listing
+
+
+def describe(value: object) -> str:
+    """A short, plain description of a YAML value for 'got: ...'."""
+    if value is None:
+        return "nothing (null)"
+    if isinstance(value, bool):
+        return f"true/false ({str(value).lower()})"
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, str):
+        return f"the text {value!r}"
+    if isinstance(value, int):
+        return f"the integer {value}"
+    if isinstance(value, float):
+        return f"the number {value}"
+    return f"{type(value).__name__} {value!r}"
+
+
+def _ms(seconds: float) -> str:
+    """A time as an engineer writes it: '1 ms', '0.25 ms', '2 s'."""
+    if seconds >= 1:
+        return f"{seconds:g} s"
+    return f"{seconds * 1e3:g} ms"
+
+
+def _show_shape(shape: Sequence[object]) -> str:
+    if not shape:
+        return "() (a scalar)"
+    return "(" + ", ".join(str(d) for d in shape) + ("," if len(shape) == 1 else "") + ")"
+
+
+def _and_list(items: Sequence[str]) -> str:
+    """'a', 'a and b', 'a, b and c'."""
+    if len(items) <= 1:
+        return "".join(items)
+    return ", ".join(items[:-1]) + " and " + items[-1]

@@ -1,35 +1,40 @@
-"""Release jitter and overruns of the real subsystem against a bare hybrid-wait loop, same load.
+"""Release jitter and overruns of the real subsystem against a bare hybrid-wait loop, in the same run.
 
-For 1, 2 and 4 RTPUs at 1 kHz with the arm plant running:
+For 1, 2 and 4 RTPUs at 1 kHz with the arm plant running, in paired rounds:
 
 - **pbo**: `pbo run bench/realtime_<n>rtpu.yaml --duration D --report FILE`: n RTPU processes,
-  each hosting one trivial 1 kHz task; the executive's own figures from the JSON run report;
+  each hosting one trivial 1 kHz task, and the plant host stepping the arm; the executive's own
+  figures from the JSON run report;
 - **bare loop**: n plain processes, each running only the hybrid wait and the executive's overrun
-  rule, with the real plant process stepping, released at the same offsets as the supervisor
-  staggers its RTPUs, from a random phase to the plant's steps as in a pbo run. The wait is the executive's own `RealClock.sleep_until` (absolute
+  rule, released at the offsets the supervisor staggers its RTPUs by, at a random phase to the
+  RTPUs and the plant. The wait is the executive's own `RealClock.sleep_until` (absolute
   deadlines counted as first + k x period, `time.sleep` to 0.2 ms before the release, spin to
   it, timer slack lowered as the RTPUs do), so the spin is the same code on both sides.
+
+Same run, same load: the bare loops run while the `pbo run` runs, from the instant it says its
+configuration is on until its duration ends, so both sides share the same seconds of the machine.
+This matters for overruns. Under SCHED_FIFO nearly all are stalls of the virtual machine, in
+which both vCPUs sit idle for 1 to 8 ms while every loop is due (`tools/cpu_trace.py`). Such a
+stall makes every loop of both sides overrun at once, and the ratio cancels it. When the sides
+took turns instead (bare - pbo - bare - ..., until 2026-11-25), a stall fell on one
+side only. One round of 5 s then held 29 of a run's 46 executive overruns, and the ratio swung
+from 0.99x to 4.50x between two runs. The price is load: both sides add their n loops to the
+other's, so each side runs beside 2n spinning loops and the plant instead of n.
 
 Like with like: both sides time a release at the clock reading that ended the spin (the value
 `sleep_until` returns). The executive's choice of the task to run and its call into it come
 after that instant and count in its execution time, not its jitter, as the bare loop's nothing
-does. (Until issue 6 the bare loop timed a second reading after the spin and the executive a
-reading taken after its own Python work; both now time the first one, which lowers both.)
+does.
 
-Rounds alternate the sides, bare - pbo - bare - pbo - ... - bare: round r compares the pbo run r
-with the second half of the bare stretch just before it and the first half of the one just after,
-so a change of load on the machine (another test suite, another tenant) falls on both alike.
-Each bare stretch starts its plant and its loop processes afresh, as each pbo run starts its plant
-and RTPUs: the memory churn of a start-up keeps the kernel's memory threads busy for a while
-after, and both sides' windows follow one. Each round gives a p50 and a p99 ratio; the verdict
-takes their median over the rounds and shows their spread. Overruns are rare events (a few per
-10 000 cycles) that come in bursts: their rate ratio pools the rounds and comes with a 95%
-interval from resampling whole rounds (`round_bootstrap_interval`).
+Each round gives a p50 and a p99 ratio; the verdict takes their median over the rounds and shows
+their spread. Overruns are rare events (a few per 100,000 cycles) that come in bursts: their rate ratio
+pools the rounds and comes with a 95% interval from resampling whole rounds
+(`round_bootstrap_interval`).
 
 Both sides run under the runtime's default scheduler, SCHED_FIFO where the OS allows it, which
 the targets judge; then under SCHED_OTHER (`pbo run --no-fifo`), reported beside it.
 
-    python -m bench.realtime [--duration 120] [--rounds 24] [--rtpus 1 2 4] [--other-duration 60] [--other-rounds 12]
+    python -m bench.realtime [--duration 240] [--rounds 48] [--rtpus 1 2 4] [--other-duration 60] [--other-rounds 12]
 """
 
 from __future__ import annotations
@@ -165,29 +170,58 @@ class _Plant:
         return self.stats
 
 
-def run_bare_loops(n: int, period: float, yaml_path: Path, fifo: bool,
-                   seconds: float) -> tuple[list[dict[str, np.ndarray]], dict[str, int]]:
-    """n bare loops for `seconds` with the plant stepping, all started afresh: per loop its samples, and the plant's counts.
+def _started_run(yaml_path: Path, seconds: float, fifo: bool, report: Path,
+                 attempts: int = 3) -> tuple[subprocess.Popen[str], float]:
+    """`pbo run FILE --duration D --report JSON`, started; returns once its configuration is on,
+    with the instant the run said so (its D seconds count from there).
 
-    Started as `pbo run` starts its plant and RTPUs, because a start-up's memory churn (imports,
-    page faults; the memory freed at exit) keeps the machine's memory threads (kdamond,
-    kcompactd) at work for a while after, taking a CPU for a millisecond or two now and then: a
-    loop on that CPU overruns. Loops started once and kept warm were spared that (the plant's
-    late steps: 1,093 against 34 in one run; 724 against 742 once each side started its own).
+    Retried when the run does not come up: on a machine shared with other runs the per-user POSIX
+    message queue quota (RLIMIT_MSGQUEUE) can be exhausted for a moment, and the run then refuses
+    to start.
     """
-    plant = _Plant(yaml_path, fifo)  # the plant first, then the loops, as the supervisor starts them
-    try:
-        with Workers(n, _bare_main, (period, fifo), what="bare loop") as workers:
-            stagger = release_stagger(period, n)  # as the supervisor staggers its RTPUs
-            # The plant steps from the instant it reports ready: releases timed from that instant
-            # would fall at one phase to its steps, every stretch (the same each time, and right on
-            # them). A pbo run's phase to its plant is whatever the process starts left: random.
-            epoch = time.monotonic() + 0.02 + random.uniform(0.0, period)
-            workers.send_each([(epoch + i * stagger, epoch + seconds) for i in range(n)])
+    command = [sys.executable, "-m", "pbo_runtime.cli", "run", str(yaml_path), "--duration", f"{seconds:g}",
+               "--report", str(report), "--no-live", "--fifo" if fifo else "--no-fifo"]
+    problem = ""
+    for attempt in range(attempts):
+        run = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        assert run.stdout is not None
+        said = []
+        for line in run.stdout:  # the supervisor flushes each line as it says it
+            if "is on:" in line:
+                return run, time.monotonic()
+            said.append(line.strip())
+        run.wait()
+        problem = f"`pbo run` did not turn its configuration on (exit {run.returncode}): {' / '.join(said[-2:])}"
+        time.sleep(3.0 * (attempt + 1))
+    raise RuntimeError(problem)
+
+
+def paired_round(workers: Workers, yaml_path: Path, n: int, period: float, seconds: float,
+                 fifo: bool) -> tuple[dict[str, Any], list[dict[str, np.ndarray]]]:
+    """One round: `pbo run` for `seconds` and the n bare loops over the same seconds, at the same time.
+
+    The bare loops start once the run's configuration is on and stop when its duration ends, so
+    a stall of the machine, a burst of the kernel's work, another tenant's minute all fall on both
+    sides at once. Their releases are staggered as the supervisor staggers its RTPUs, at a random
+    phase to the RTPUs' and to the plant's steps (the run's plant is the load of both sides).
+    """
+    with tempfile.TemporaryDirectory() as folder:
+        report = Path(folder) / "report.json"
+        run, on = _started_run(yaml_path, seconds, fifo, report)
+        try:
+            stagger = release_stagger(period, n)
+            first = on + 0.01 + random.uniform(0.0, period)
+            workers.send_each([(first + i * stagger, on + seconds) for i in range(n)])
             records = workers.answers(seconds + 60)
-    finally:
-        stats = plant.stop()
-    return records, stats
+            said, _ = run.communicate(timeout=120)
+        finally:
+            if run.poll() is None:
+                run.kill()
+                run.wait()
+        if not report.exists():
+            tail = said.strip().splitlines()[-1:]
+            raise RuntimeError(f"`pbo run` wrote no report (exit {run.returncode}): {' / '.join(tail)}")
+        return json.loads(report.read_text()), records
 
 
 def _figures(jitter: np.ndarray, spanned: np.ndarray) -> dict[str, float]:
@@ -195,35 +229,6 @@ def _figures(jitter: np.ndarray, spanned: np.ndarray) -> dict[str, float]:
     return {"p50": float(np.percentile(jitter, 50)), "p99": float(np.percentile(jitter, 99)), "max": float(jitter.max()),
             "cycles": len(jitter), "overruns": int(np.count_nonzero(spanned)),
             "missed": int(np.maximum(spanned - 1, 0).sum())}
-
-
-def _halves(record: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """A stretch's samples cut at its middle: the half after a pbo run and the half before the next."""
-    middle = len(record["jitter"]) // 2
-    return ({k: v[:middle] for k, v in record.items()}, {k: v[middle:] for k, v in record.items()})
-
-
-# --- the real subsystem -------------------------------------------------------------------------
-
-def pbo_run(yaml_path: Path, seconds: float, fifo: bool, attempts: int = 3) -> dict[str, Any]:
-    """`pbo run FILE --duration D --report JSON`: the run report.
-
-    Retried when no report came: on a machine shared with other runs the per-user POSIX message
-    queue quota (RLIMIT_MSGQUEUE) can be exhausted for a moment, and the run then refuses to start.
-    """
-    problem = ""
-    for attempt in range(attempts):
-        with tempfile.TemporaryDirectory() as folder:
-            report = Path(folder) / "report.json"
-            command = [sys.executable, "-m", "pbo_runtime.cli", "run", str(yaml_path), "--duration", f"{seconds:g}",
-                       "--report", str(report), "--no-live", "--fifo" if fifo else "--no-fifo"]
-            done = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=seconds + 120)
-            if report.exists():
-                return json.loads(report.read_text())
-            tail = (done.stderr or done.stdout).strip().splitlines()[-1:]
-            problem = f"`pbo run` wrote no report (exit {done.returncode}): {' / '.join(tail)}"
-        time.sleep(3.0 * (attempt + 1))
-    raise RuntimeError(problem)
 
 
 def _summary(per_process: list[dict[str, float]]) -> dict[str, float]:
@@ -276,49 +281,37 @@ def round_bootstrap_interval(rounds: list[tuple[dict[str, float], dict[str, floa
 
 
 def measure(n: int, seconds: float, fifo: bool, rounds: int = 8) -> dict[str, Any]:
-    """bare - (pbo - bare) x rounds, `seconds` of each side in all; per round, the two sides' figures."""
+    """`rounds` paired rounds, `seconds` in all; per round, the two sides' figures."""
     yaml_path = config_path(n)
     subsystem = load_subsystem(yaml_path)
     period = min(t.period for t in subsystem.tasks.values())
-    share = seconds / rounds
     pbo_runs, bare_runs, exec_p50s, realtime = [], [], [], {}
-    late = {"pbo": 0, "pbo_steps": 0, "bare": 0, "bare_steps": 0}
-    records, stats = run_bare_loops(n, period, yaml_path, fifo, share / 2)
-    before = records  # the whole first stretch comes before round 0
-    for r in range(rounds):
-        report = pbo_run(yaml_path, share, fifo)
-        last = r == rounds - 1
-        records, plant_stats = run_bare_loops(n, period, yaml_path, fifo, share / 2 if last else share)
-        for s in (stats, plant_stats) if r == 0 else (plant_stats,):
-            late["bare"] += s.get("late", 0)
-            late["bare_steps"] += s.get("steps", 0)
-        cut = [(record, record) if last else _halves(record) for record in records]
-        after = [first for first, _ in cut]
-        bare_runs.append(_summary([
-            _figures(np.concatenate([b["jitter"], a["jitter"]]), np.concatenate([b["spanned"], a["spanned"]]))
-            for b, a in zip(before, after)]))
-        before = [second for _, second in cut]
-        try:
-            tasks = report["tasks"].values()
-            pbo = [{"p50": t["jitter_p50"], "p99": t["jitter_p99"], "max": t["jitter_max"], "cycles": t["cycles"],
-                    "overruns": t["overruns"], "missed": t["missed"]} for t in tasks]
-            exec_p50s.append(float(np.median([t["exec_p50"] for t in tasks])))
-        except (KeyError, TypeError, AttributeError) as exc:
-            raise RuntimeError(f"the run report lacks per-task timing ({exc!r}): has `pbo run --report` changed?") from exc
-        pbo_runs.append(_summary(pbo))
-        plant = report.get("plant") or {}
-        late["pbo"] += plant.get("late", 0)
-        late["pbo_steps"] += plant.get("steps", 0)
-        realtime = report.get("realtime", {}) or realtime
+    plant_late = plant_steps = 0
+    with Workers(n, _bare_main, (period, fifo), what="bare loop") as workers:
+        for _ in range(rounds):
+            report, records = paired_round(workers, yaml_path, n, period, seconds / rounds, fifo)
+            bare_runs.append(_summary([_figures(r["jitter"], r["spanned"]) for r in records]))
+            try:
+                tasks = report["tasks"].values()
+                pbo = [{"p50": t["jitter_p50"], "p99": t["jitter_p99"], "max": t["jitter_max"], "cycles": t["cycles"],
+                        "overruns": t["overruns"], "missed": t["missed"]} for t in tasks]
+                exec_p50s.append(float(np.median([t["exec_p50"] for t in tasks])))
+            except (KeyError, TypeError, AttributeError) as exc:
+                raise RuntimeError(f"the run report lacks per-task timing ({exc!r}): has `pbo run --report` changed?") from exc
+            pbo_runs.append(_summary(pbo))
+            plant = report.get("plant") or {}
+            plant_late += plant.get("late", 0)
+            plant_steps += plant.get("steps", 0)
+            realtime = report.get("realtime", {}) or realtime
     return {"pbo": _over_rounds(pbo_runs), "bare": _over_rounds(bare_runs), "rounds": list(zip(pbo_runs, bare_runs)),
-            "exec_p50": float(np.median(exec_p50s)), "plant_late": late, "realtime": realtime}
+            "exec_p50": float(np.median(exec_p50s)), "plant_late": (plant_late, plant_steps), "realtime": realtime}
 
 
 def _spread(values: list[float]) -> str:
     return f"{min(values):.2f}-{max(values):.2f}x" if values else "n/a"
 
 
-def run(seconds: float = 120.0, rtpus: tuple[int, ...] = (1, 2, 4), rounds: int = 24,
+def run(seconds: float = 240.0, rtpus: tuple[int, ...] = (1, 2, 4), rounds: int = 48,
         other_seconds: float = 60.0, other_rounds: int = 12) -> Section:
     """The comparison under the runtime's default scheduler (SCHED_FIFO where the OS allows it),
     judged against the targets, then under SCHED_OTHER (`--no-fifo`, or what an unprivileged user
@@ -343,44 +336,45 @@ For 1, 2 and 4 RTPUs at 1 kHz with the arm plant (MuJoCo PUMA 560, 1 ms steps) r
 scheduler in turn: first the runtime's default, **SCHED_FIFO** where the OS allows it (RTPUs and bare
 loops at priority 50, the plant at 60; `pbo run` asks for it on the real clock), which the targets
 judge; then **SCHED_OTHER** (`pbo run --no-fifo`, and what a user gets where the OS refuses
-SCHED_FIFO), {other_seconds:g} s per side in {other_rounds} rounds, reported beside it. Both sides
-always run under the same scheduler:
+SCHED_FIFO), {other_seconds:g} s in {other_rounds} rounds, reported beside it. Both sides always run
+under the same scheduler, and at the same time:
 
-- **pbo**: `pbo run bench/realtime_<n>rtpu.yaml --duration {share:g} --report FILE`, {rounds} times: n RTPU processes, each
-  hosting one trivial 1 kHz task (a goal input, a time integrator, a join, a fault injector that never
-  fires: different modules because a module runs at most once per configuration); the figures are the
-  executive's own, from the JSON run report.
+- **pbo**: `pbo run bench/realtime_<n>rtpu.yaml --duration {share:g} --report FILE`, {rounds} times: n RTPU
+  processes, each hosting one trivial 1 kHz task (a goal input, a time integrator, a join, a fault
+  injector that never fires: different modules because a module runs at most once per
+  configuration), and the plant host; the figures are the executive's own, from the JSON run report.
 - **bare loop**: n plain processes running only the hybrid wait, with the executive's own
   `RealClock.sleep_until` (absolute deadlines, `time.sleep` to 0.2 ms before the release, spin to it,
   timer slack 1 ns), and the executive's overrun rule, released at the offsets the supervisor
-  staggers its RTPUs by, from a random phase to the steps of the real plant host process. Each
-  stretch starts its plant host and its n loop processes afresh, as `pbo run` starts its plant and
-  RTPUs (a start-up's memory churn keeps the kernel's memory threads busy for a while after).
-- **rounds**: bare, then {rounds} x (pbo, bare); each bare stretch but the first and last runs
-  {share:g} s and is cut in two, so round r compares pbo run r with {share / 2:g} s of bare loop right
-  before it and {share / 2:g} s right after: a change of load on the machine falls on both alike.
+  staggers its RTPUs by, at a random phase to the RTPUs and the plant's steps.
+- **paired rounds**: in each of the {rounds} rounds the bare loops run while the `pbo run` runs, from
+  the instant it says its configuration is on until its {share:g} s end. Whatever the machine does
+  in those seconds, a stall of the virtual CPUs, a burst of kernel work, another tenant's load,
+  falls on both sides at once. Each side runs beside the other's n loops as well as its own: 2n
+  loops and the plant in all.
 
 Release jitter is how late a cycle started after its release time, timed on both sides at the
 clock reading that ended the spin (the executive's pick of the task and its call into it count
 in its execution time, as they come after the release); an overrun is a cycle that ended after
 its next release (the releases skipped are the "missed" ones). "Plant steps late" counts the
-plant's whole life: for pbo that includes the RTPUs' start and their spawns, for the bare loop its
-loop processes' start (a lighter one: no tasks to spawn). Within a run: the median of the
-processes' p50s, the worst process's p99 and max. Per round: the ratio pbo / bare of the p50s
+plant's whole life, the RTPUs' start and their spawns included. Within a round: the median of
+the processes' p50s, the worst process's p99 and max. Per round: the ratio pbo / bare of the p50s
 and of the p99s; the verdict takes the median of the {rounds} rounds' ratios (their range in
 brackets). Overruns are rare: their rate ratio pools the rounds' counts, with a
 {CONFIDENCE:.0%} interval from resampling whole rounds (a bootstrap: overruns come in bursts that
-hit every RTPU at once, so single overruns are not independent). The rows of the first table are
+hit every loop at once, so single overruns are not independent). The rows of the first table are
 medians over the rounds (p50, p99), the worst max, and summed counts.
 """,
         limits="""The medians: both sides spin the last 0.2 ms to the release in the same code, so
 both medians are the spin's own resolution, a few tens of ns (one clock read in CPython), and
-their ratio is near 1. The tails are the machine's: with more busy processes than CPUs (4 RTPUs
-and the plant on 2 vCPUs, each loop spinning up to 0.2 ms per release), a loop whose release
-falls on the plant's step or on another loop's spin waits for a CPU. The executive's process
-also does more per release than the bare loop (its timed wait on the signal queue, the task's
-cycle: 10 to 20 µs), and a supervisor process runs beside it (awake every 100 ms to check
-its children and serve commands).
+their ratio is near 1. The tails are the machine's: with more busy processes than CPUs (at 4
+RTPUs, 8 loops and the plant on 2 vCPUs, each loop spinning up to 0.2 ms per release), a loop
+whose release falls on the plant's step or on another loop's spin waits for a CPU. The
+executive's process also does more per release than the bare loop (its timed wait on the signal
+queue, the task's cycle: 10 to 20 µs), and a supervisor process runs beside it (awake every
+100 ms to check its children and serve commands). Per round, p99 is either a few tenths of a µs
+or tens of µs, as more or fewer than 1% of a loop's cycles were disturbed: a round's p99 ratio
+can read 0.01x or 300x, and only the median over the rounds says something.
 
 Under SCHED_OTHER, overruns are a few per 10,000 cycles on either side, and nearly all are late
 releases (1 to 5 ms), not long cycles (the run summary and report tell the two apart). A
@@ -388,27 +382,22 @@ sched_switch trace of a 4-RTPU run (tracefs, CLOCK_MONOTONIC) showed what holds 
 not the loops' neighbours (while a loop waited, the other CPU was mostly idle) but foreign
 threads that take a CPU for 1 to 2 ms, the VM's memory monitor kdamond, kcompactd and the
 sandbox's agent; a loop on that CPU, spinning or due to wake, waits them out
-(`tools/cpu_trace.py --no-fifo` names them for each overrun of a run). The memory threads work
-harder after a start-up's memory churn, which is why each bare stretch starts its processes as
-each pbo run does (the plant's late steps, which count such contention, were 1,093 against 34
-with warm bare loops and 724 against 742 with both sides starting theirs). These overruns come in
-bursts, and the machine's load changes from minute to minute beyond what alternating rounds
-within a run can even out: under SCHED_OTHER the pooled ratio swings from run to run (until
-SCHED_FIFO became the default, runs of two minutes per side read from 0.68x to 1.72x, and five
-runs at 4 RTPUs pooled 1.30x).
+(`tools/cpu_trace.py --no-fifo` names them for each overrun of a run). Such a thread holds one
+CPU, so it makes the loops on that CPU overrun and not the others: pairing the sides evens that
+out over many rounds only.
 
 Under SCHED_FIFO no thread of the machine outranks a loop but the kernel's own real-time ones:
 kdamond and the agent wait, and the overruns left are rarer (the first table). A scheduler trace
 of a 4-RTPU run under SCHED_FIFO (`tools/cpu_trace.py`) showed each of them as a stall of 1 to 8 ms
 in which both CPUs sat idle while every RTPU and the plant were due: the virtual CPUs were not run
-(the hypervisor's doing, which no setting inside the machine prevents). Such stalls should stop
-both sides alike, yet they fell more often in the pbo runs than in the bare stretches: the
-executive overran more often than the bare loop in the run of this page, and the plant, the same
-process on both sides, was late more often in its pbo runs at 1 and 4 RTPUs (the first table). Why is still open. With so few
-overruns per side, one burst more or less moves a ratio a lot (the interval says how much); the
-row "all" pools the RTPU counts for a steadier figure. Release offsets matter: spread over 0.45 of the period (until
-issue 6), 4 RTPUs spun inside each other's spin and p99 was about 180 µs on both sides; spaced
-evenly (i/n of the period) it is tens of µs.""",
+(the hypervisor's doing, which no setting inside the machine prevents). Until 2026-11-25
+the two sides took turns (bare, pbo, bare, ...), and a stall fell on one side only: one
+round of 5 s held 29 of a run's 46 executive overruns at 4 RTPUs, and the ratio pooled over the
+RTPU counts read 4.50x in one run and 0.99x in the next. Run at the same time, a stall makes
+every loop of both sides overrun together, and the ratio keeps what is the executive's own.
+Release offsets matter: spread over 0.45 of the period (until issue 6), 4 RTPUs spun inside each
+other's spin and p99 was about 180 µs on both sides; spaced evenly (i/n of the period) it is
+tens of µs.""",
     )
     _tables(section, results, failures, rtpus, {"fifo": rounds, "other": other_rounds})
     return section
@@ -485,13 +474,12 @@ def _rows(section: Section, t: Table, r_table: Table, per_round: Table, schedule
     """One comparison's rows; targets if it ran under the default scheduler, notes otherwise."""
     label = SCHEDULER_LABELS[scheduler]
     plural = "s" if n > 1 else ""
+    late, steps = r["plant_late"]
     for side in ("pbo", "bare"):
         s = r[side]
-        late = r["plant_late"][side]
-        steps = r["plant_late"][f"{side}_steps"]
         t.add(label, n, "pbo executive" if side == "pbo" else "bare hybrid wait", f"{s['cycles']:,}", us(s["p50"]),
               us(s["p99"]), us(s["max"]), s["overruns"], f"{s['overrun_rate'] * 100:.3f}%", s["missed"],
-              f"{late} of {steps:,}")
+              f"{late} of {steps:,}" if side == "pbo" else "(the same plant)")
     by_round: dict[str, list[float]] = {}
     cells = []
     for q in ("p50", "p99"):
@@ -538,10 +526,10 @@ def _rows(section: Section, t: Table, r_table: Table, per_round: Table, schedule
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--duration", type=float, default=120.0,
-                        help="seconds of pbo run per RTPU count under the default scheduler (the bare loop runs as long)")
+    parser.add_argument("--duration", type=float, default=240.0,
+                        help="seconds of pbo run per RTPU count under the default scheduler (the bare loops run at the same time)")
     parser.add_argument("--rtpus", type=int, nargs="+", default=[1, 2, 4], choices=[1, 2, 4])
-    parser.add_argument("--rounds", type=int, default=24, help="rounds of (pbo, bare) after a first bare stretch; the duration is split over them")
+    parser.add_argument("--rounds", type=int, default=48, help="paired rounds (a pbo run with the bare loops beside it); the duration is split over them")
     parser.add_argument("--other-duration", type=float, default=60.0,
                         help="seconds per RTPU count under SCHED_OTHER (--no-fifo), reported beside; 0 leaves it out")
     parser.add_argument("--other-rounds", type=int, default=12, help="rounds under SCHED_OTHER")

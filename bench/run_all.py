@@ -34,7 +34,7 @@ FULL: dict[str, dict[str, Any]] = {
     "svar_transfer": {"rounds": 21, "iterations": 20000, "table_variables": 1000},
     "peers": {"iterations": 10000, "seconds": 2.0, "warmup": 200, "rounds": 3},
     "scale": {"rounds": 15, "iterations": 2000, "rtpu_seconds": 1.5},
-    "realtime": {"seconds": 120.0, "rtpus": (1, 2, 4), "rounds": 24, "other_seconds": 60.0, "other_rounds": 12},
+    "realtime": {"seconds": 240.0, "rtpus": (1, 2, 4), "rounds": 48, "other_seconds": 60.0, "other_rounds": 12},
     "wait": {"seconds": 1.5, "rounds": 4},
     "switching": {"switches": 1000, "interval": 0.02},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 3},

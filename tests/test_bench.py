@@ -76,3 +76,28 @@ def test_an_executive_without_overruns_against_a_bare_loop_with_some_reads_zero_
     assert _overrun_cell(value, pbo_k, bare_k, interval).startswith("0.00x [0.00-")
     assert _overrun_ratio([({"overruns": 2, "cycles": 5000}, {"overruns": 0, "cycles": 5000})])[0] is None
     assert _overrun_cell(None, 0, 0, "[1.00-1.00x]") == "equal (0 and 0)"
+
+
+@pytest.mark.multiprocess
+def test_a_paired_round_runs_the_bare_loops_over_the_seconds_the_run_runs():
+    from bench._processes import Workers
+    from bench.realtime import _bare_main, config_path, paired_round
+
+    with Workers(1, _bare_main, (0.001, False), what="bare loop") as workers:
+        report, records = paired_round(workers, config_path(1), 1, 0.001, 1.0, fifo=False)
+
+    (task,) = report["tasks"].values()
+    (record,) = records
+    assert report["stopped_by"] == "duration"
+    assert 900 <= task["cycles"] <= 1010  # releases a loaded machine skipped are not cycles
+    # from 10 ms (and a random phase) after the run said its configuration is on, to its end
+    assert abs(len(record["jitter"]) - task["cycles"]) <= 0.08 * task["cycles"]
+
+
+def test_a_run_that_never_turns_its_configuration_on_is_reported_with_its_last_words(tmp_path):
+    from bench.realtime import _started_run
+
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("subsystem: broken\nrtpus: [rtpu0]\nvariables: {}\ntasks: {}\nconfigurations: {none: [ghost]}\n")
+    with pytest.raises(RuntimeError, match=r"did not turn its configuration on \(exit 1\)"):
+        _started_run(broken, 1.0, False, tmp_path / "report.json")  # a file with errors: not tried again

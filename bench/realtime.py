@@ -14,8 +14,9 @@ For 1, 2 and 4 RTPUs at 1 kHz with the arm plant running, in paired rounds:
 Same run, same load: the bare loops run while the `pbo run` runs, from the instant it says its
 configuration is on until its duration ends, so both sides share the same seconds of the machine.
 This matters for overruns. Under SCHED_FIFO nearly all are stalls of the virtual machine, in
-which both vCPUs sit idle for 1 to 8 ms while every loop is due (`tools/cpu_trace.py`). Such a
-stall makes every loop of both sides overrun at once, and the ratio cancels it. When the sides
+which both vCPUs, or one, sit idle for 1 to 8 ms while loops are due (`tools/cpu_trace.py`). A
+stall of both makes every loop of both sides overrun at once, and the ratio cancels it; a stall
+of one falls on whichever side runs there, and only many rounds even that out. When the sides
 took turns instead (bare - pbo - bare - ..., until 2026-11-25), a stall fell on one
 side only. One round of 5 s then held 29 of a run's 46 executive overruns, and the ratio swung
 from 0.99x to 4.50x between two runs. The price is load: both sides add their n loops to the
@@ -217,9 +218,13 @@ def paired_round(workers: Workers, yaml_path: Path, n: int, period: float, secon
             records = workers.answers(seconds + 60)
             said, _ = run.communicate(timeout=120)
         finally:
-            if run.poll() is None:
-                run.kill()
-                run.wait()
+            if run.poll() is None:  # stopped as Ctrl-C stops it, so it removes its shared memory
+                run.send_signal(signal.SIGINT)
+                try:
+                    run.wait(15)
+                except subprocess.TimeoutExpired:
+                    run.kill()
+                    run.wait()
         if not report.exists():
             tail = said.strip().splitlines()[-1:]
             raise RuntimeError(f"`pbo run` wrote no report (exit {run.returncode}): {' / '.join(tail)}")
@@ -396,7 +401,7 @@ in which both CPUs sat idle while every RTPU and the plant were due: the virtual
 the two sides took turns (bare, pbo, bare, ...), and a stall fell on one side only: one
 round of 5 s held 29 of a run's 46 executive overruns at 4 RTPUs, and the ratio pooled over the
 RTPU counts read 4.50x in one run and 0.99x in the next. Run at the same time, a stall makes
-every loop of both sides overrun together (rounds of 30:30 and 4:4 in the per-round table), and
+every loop of both sides overrun together (at 4 RTPUs on 2026-11-25: rounds of 30:30 and 4:4), and
 the ratio keeps what is the executive's own. Not every stall takes both vCPUs, though: a trace of
 a 1-RTPU run (`tools/cpu_trace.py bench/realtime_1rtpu.yaml --duration 150`) kept 3 overruns, two
 with both CPUs idle for 1.1 to 1.2 ms after the release, one with the RTPU on CPU 0 for 0.95 ms

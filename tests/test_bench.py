@@ -4,6 +4,7 @@ positive finite number (an overrun-rate ratio may be 0), and the performance pag
 from __future__ import annotations
 
 import math
+import os
 
 import pytest
 
@@ -101,3 +102,32 @@ def test_a_run_that_never_turns_its_configuration_on_is_reported_with_its_last_w
     broken.write_text("subsystem: broken\nrtpus: [rtpu0]\nvariables: {}\ntasks: {}\nconfigurations: {none: [ghost]}\n")
     with pytest.raises(RuntimeError, match=r"did not turn its configuration on \(exit 1\)"):
         _started_run(broken, 1.0, False, tmp_path / "report.json")  # a file with errors: not tried again
+
+
+class FailingBareLoopsFake:
+    """Fake bare loops for one test: they take the round's commands and never report."""
+
+    def send_each(self, commands):
+        self.commands = commands
+
+    def answers(self, timeout):
+        raise RuntimeError("1 of 1 bare loop processes did not report")
+
+
+@pytest.mark.multiprocess
+def test_a_round_whose_bare_loops_fail_stops_its_run_and_leaves_no_shared_memory():
+    from bench.realtime import config_path, paired_round
+
+    def objects_of_the_run() -> set[str]:
+        found = set()
+        for folder in ("/dev/shm", "/dev/mqueue"):
+            if os.path.isdir(folder):
+                found |= {entry for entry in os.listdir(folder) if entry.startswith("pbo.bench_rt1.")}
+        return found
+
+    before = objects_of_the_run()
+    loops = FailingBareLoopsFake()
+    with pytest.raises(RuntimeError, match="did not report"):
+        paired_round(loops, config_path(1), 1, 0.001, 60.0, fifo=False)  # type: ignore[arg-type]
+    assert len(loops.commands) == 1
+    assert objects_of_the_run() - before == set()

@@ -385,7 +385,7 @@ def _late_release_remedy(scheduler: str) -> str:
     """What helps a late release, given the scheduler its RTPU reported (DESIGN §13)."""
     outcome = scheduler_outcome(scheduler)
     if outcome == "fifo":
-        return "it ran SCHED_FIFO already, so the whole machine stalled"
+        return "it ran SCHED_FIFO already, so only the kernel or, on a VM, the hypervisor held it"
     if outcome == "refused":
         return "the OS refused SCHED_FIFO (see the RTPU's line below); pinning with rtpus: {cpu: N} helps meanwhile"
     return "SCHED_FIFO (drop --no-fifo) or pinning with rtpus: {cpu: N} help"

@@ -6,7 +6,7 @@ pass itself, which runs the rules the mixins of this package define, in order.
 from __future__ import annotations
 
 import difflib
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from pbo_runtime import _registry
 from pbo_runtime._checker._model import TOP_KEYS, TOP_REQUIRED, Checked, DriverLookup, ModuleLookup, _Claim, _Task
@@ -165,3 +165,15 @@ class CheckerBase:
         if key not in top or top[key] is None:
             return None
         return self.mapping(top[key], top.value_loc(key), f"'{key}'", example)
+
+    def entries(self, top: YMap, key: str, what: str, example: str) -> Iterator[tuple[str, Any, Location, Location]]:
+        """Each entry of a top-level section that maps names to entries, as (name, value, where the
+        name is, where the value is); an entry whose name is not text is reported and left out."""
+        section = self.section(top, key, example)
+        if section is None:
+            return
+        for raw, value in section.items():
+            key_loc = section.key_loc(raw)
+            name = self.name(raw, key_loc, what)
+            if name is not None:
+                yield name, value, key_loc, section.value_loc(raw)

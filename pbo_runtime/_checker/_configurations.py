@@ -17,17 +17,10 @@ class ConfigurationChecks(CheckerBase):
     """Rules for `configurations:`, the data flow in each, and what is left unused."""
 
     def check_configurations(self, top: YMap) -> None:
-        configs = self.section(top, "configurations", "e.g. configurations: {joint_pid: [robot, pid]}")
-        if configs is None:
-            return
-        for key, value in configs.items():
-            key_loc = configs.key_loc(key)
-            name = self.name(key, key_loc, "configuration")
-            if name is None:
-                continue
+        for name, value, key_loc, value_loc in self.entries(top, "configurations", "configuration", "e.g. configurations: {joint_pid: [robot, pid]}"):
             self.config_names.add(name)
             if not isinstance(value, YList):
-                loc = configs.value_loc(key)
+                loc = value_loc
                 self.error("E113", f"configuration '{name}' must be a list of task names, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [robot, pid]")
                 continue
             members: list[tuple[str, Location]] = []

@@ -19,16 +19,9 @@ class DeviceChecks(CheckerBase):
     """Rules for `devices:`, and the driver lookups and channel checks tasks share."""
 
     def check_devices(self, top: YMap) -> None:
-        devices = self.section(top, "devices", "e.g. devices: {arm: {driver: mujoco_arm, exclusive: true}}")
-        if devices is None:
-            return
-        for key, value in devices.items():
-            key_loc = devices.key_loc(key)
-            name = self.name(key, key_loc, "device")
-            if name is None:
-                continue
+        for name, value, key_loc, value_loc in self.entries(top, "devices", "device", "e.g. devices: {arm: {driver: mujoco_arm, exclusive: true}}"):
             self.device_names.add(name)
-            spec = self.mapping(value, devices.value_loc(key), f"device '{name}'", "e.g. arm: {driver: mujoco_arm, exclusive: true}")
+            spec = self.mapping(value, value_loc, f"device '{name}'", "e.g. arm: {driver: mujoco_arm, exclusive: true}")
             if spec is None:
                 continue
             if "driver" not in spec:

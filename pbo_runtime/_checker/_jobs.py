@@ -76,16 +76,9 @@ class JobChecks(CheckerBase):
         return lines[loc.line - 1] if 0 < loc.line <= len(lines) else None
 
     def check_jobs(self, top: YMap) -> None:
-        jobs = self.section(top, "jobs", "e.g. jobs: {move: {configuration: joint_pid, object: q_d}}")
-        if jobs is None:
-            return
-        for key, value in jobs.items():
-            key_loc = jobs.key_loc(key)
-            name = self.name(key, key_loc, "job")
-            if name is None:
-                continue
+        for name, value, key_loc, value_loc in self.entries(top, "jobs", "job", "e.g. jobs: {move: {configuration: joint_pid, object: q_d}}"):
             self.job_names.add(name)
-            spec = self.mapping(value, jobs.value_loc(key), f"job '{name}'", "e.g. move: {configuration: joint_pid, object: q_d}")
+            spec = self.mapping(value, value_loc, f"job '{name}'", "e.g. move: {configuration: joint_pid, object: q_d}")
             if spec is None:
                 continue
             self.keys(spec, JOB_KEYS, ("configuration",), f"in job '{name}'", key_loc)
@@ -130,15 +123,8 @@ class JobChecks(CheckerBase):
 
     def check_applications(self, top: YMap) -> None:
         """Steps interlock (Onika §4.4.1-4.4.2); applications nest without cycles; gaps make them incomplete."""
-        apps = self.section(top, "applications", "e.g. applications: {demo: [move, {move: {q_d: [0, 0, 0]}}]}")
-        if apps is None:
-            return
         entries: list[tuple[str, Location, Any, Location]] = []
-        for key, value in apps.items():
-            key_loc = apps.key_loc(key)
-            name = self.name(key, key_loc, "application")
-            if name is None:
-                continue
+        for name, value, key_loc, value_loc in self.entries(top, "applications", "application", "e.g. applications: {demo: [move, {move: {q_d: [0, 0, 0]}}]}"):
             if name in self.job_names:
                 self.error(
                     "E214",
@@ -148,7 +134,7 @@ class JobChecks(CheckerBase):
                 )
                 continue
             self.app_names.add(name)
-            entries.append((name, key_loc, value, apps.value_loc(key)))
+            entries.append((name, key_loc, value, value_loc))
         parsed: dict[str, tuple[list[ApplicationStep], set[int], Location]] = {}
         for name, key_loc, value, loc in entries:
             if not isinstance(value, YList):

@@ -36,14 +36,8 @@ class SectionChecks(CheckerBase):
         self.out.name = name
 
     def check_dims(self, top: YMap) -> None:
-        dims = self.section(top, "dims", "e.g. dims: {NDOF: 6}")
-        if dims is None:
-            return
-        for key, value in dims.items():
-            name = self.name(key, dims.key_loc(key), "dim")
-            if name is None:
-                continue
-            size = self.integer(value, dims.value_loc(key), f"dim '{name}'", minimum=1)
+        for name, value, _, value_loc in self.entries(top, "dims", "dim", "e.g. dims: {NDOF: 6}"):
+            size = self.integer(value, value_loc, f"dim '{name}'", minimum=1)
             if size is not None:
                 self.out.dims[name] = size
 

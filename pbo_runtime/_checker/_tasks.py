@@ -26,18 +26,11 @@ class TaskChecks(CheckerBase):
             return None
 
     def check_tasks(self, top: YMap) -> None:
-        tasks = self.section(top, "tasks", "e.g. tasks: {pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}}")
-        if tasks is None:
-            return
-        for index, (key, value) in enumerate(tasks.items()):
-            key_loc = tasks.key_loc(key)
-            name = self.name(key, key_loc, "task")
-            if name is None:
-                continue
+        for index, (name, value, key_loc, value_loc) in enumerate(self.entries(top, "tasks", "task", "e.g. tasks: {pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}}")):
             self.task_names.add(name)
             # (a mapping, as nearly always, needs no location and no message: they are made for the error only)
             spec = value if isinstance(value, YMap) else self.mapping(
-                value, tasks.value_loc(key), f"task '{name}'", "e.g. pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}")
+                value, value_loc, f"task '{name}'", "e.g. pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}")
             if spec is None:
                 continue
             task = _Task(name, index, key_loc)

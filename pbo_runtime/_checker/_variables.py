@@ -95,18 +95,11 @@ class VariableChecks(CheckerBase):
         return filled
 
     def check_variables(self, top: YMap) -> None:
-        variables = self.section(top, "variables", "e.g. variables: {q_m: {type: float64, shape: [NDOF]}}")
-        if variables is None:
-            return
-        for key, value in variables.items():
-            key_loc = variables.key_loc(key)
-            name = self.name(key, key_loc, "variable")
-            if name is None:
-                continue
+        for name, value, key_loc, value_loc in self.entries(top, "variables", "variable", "e.g. variables: {q_m: {type: float64, shape: [NDOF]}}"):
             self.var_locs[name] = key_loc
             # (a mapping, as nearly always, needs no location and no message: they are made for the error only)
             spec = value if isinstance(value, YMap) else self.mapping(
-                value, variables.value_loc(key), f"variable '{name}'", "e.g. q_m: {type: float64, shape: [NDOF]}")
+                value, value_loc, f"variable '{name}'", "e.g. q_m: {type: float64, shape: [NDOF]}")
             if spec is None:
                 continue
             where = f"in variable '{name}'"

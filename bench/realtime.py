@@ -409,6 +409,7 @@ of the 1.15 ms it started late (a trace inside the guest cannot tell a process t
 from a vCPU the host did not run). A stall of one vCPU falls on whichever side runs there, so
 pairing evens it out only over many of them: at 1 RTPU, with the fewest overruns, the ratio
 rests on a few dozen.
+
 Release offsets matter: spread over 0.45 of the period (until issue 6), 4 RTPUs spun inside each
 other's spin and p99 was about 180 µs on both sides; spaced evenly (i/n of the period) it is
 tens of µs.""",

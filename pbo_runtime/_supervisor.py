@@ -47,6 +47,16 @@ STOP_TIMEOUT = 5.0  # seconds an RTPU has to stop by itself before it is signall
 STALL_CHECK_EVERY = 0.05  # seconds between looks at the cycle counts (StallWatch); job control pumps every 2 ms
 
 
+def _table_figures(words: np.ndarray) -> dict[str, float]:
+    """A task's counters from its status block: what the live view shows, and what a run report
+    gives for a task whose RTPU was killed before it could report. The percentiles are over the
+    last 1,024 cycles, published by the executive every 1,024 cycles (0 before)."""
+    return {"cycles": int(words[W.CYCLES]), "overruns": int(words[W.OVERRUNS]), "missed": int(words[W.MISSED]),
+            "jitter_max": float(words[W.JITTER_MAX]), "jitter_p50": float(words[W.JITTER_P50]),
+            "jitter_p99": float(words[W.JITTER_P99]), "exec_p50": float(words[W.EXEC_P50]),
+            "exec_p99": float(words[W.EXEC_P99])}
+
+
 class RunFailure(PboError):
     """The run could not start or had to stop: the message says which process or task, and why."""
 
@@ -86,7 +96,7 @@ class RunResult:
     # tasks ON that finished no cycle for a while: task, rtpu, from and to (seconds since the
     # configuration came on; to None: until the stop), rtpu_killed (its RTPU did not stop by itself)
     stalls: list[dict[str, Any]] = field(default_factory=list)
-    unstopped: list[str] = field(default_factory=list)  # RTPUs that did not stop within 5 s and were killed
+    unstopped: list[str] = field(default_factory=list)  # RTPUs that did not stop within STOP_TIMEOUT and were killed
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -644,14 +654,8 @@ class Supervisor:
             return rows
         for task in self.subsystem.tasks.values():
             words = self.table.status[task.index]
-            rows.append({
-                "task": task.name, "rtpu": task.rtpu, "state": TaskState(int(words[W.STATE])).name,
-                "cycles": int(words[W.CYCLES]), "overruns": int(words[W.OVERRUNS]), "missed": int(words[W.MISSED]),
-                "exec_last": float(words[W.EXEC_LAST]), "jitter_max": float(words[W.JITTER_MAX]),
-                # over the last 1,024 cycles, published by the executive every 1,024 cycles (0 before)
-                "jitter_p50": float(words[W.JITTER_P50]), "jitter_p99": float(words[W.JITTER_P99]),
-                "exec_p50": float(words[W.EXEC_P50]), "exec_p99": float(words[W.EXEC_P99]),
-            })
+            rows.append({"task": task.name, "rtpu": task.rtpu, "state": TaskState(int(words[W.STATE])).name,
+                         **_table_figures(words), "exec_last": float(words[W.EXEC_LAST])})
         return rows
 
     # --- stopping ---------------------------------------------------------------------------
@@ -723,10 +727,7 @@ class Supervisor:
             self.result.tasks[task.name] = {
                 "rtpu": task.rtpu, "critical": task.critical, "state": self.result.states_at_stop.get(task.name, "?"),
                 "error": self.task_errors.get(task.name, ""), "from_table": True,  # its RTPU never reported
-                "cycles": int(words[W.CYCLES]), "overruns": int(words[W.OVERRUNS]), "missed": int(words[W.MISSED]),
-                "jitter_max": float(words[W.JITTER_MAX]), "jitter_p50": float(words[W.JITTER_P50]),
-                "jitter_p99": float(words[W.JITTER_P99]), "exec_max": float(words[W.EXEC_MAX]),
-                "exec_p50": float(words[W.EXEC_P50]), "exec_p99": float(words[W.EXEC_P99]), "last_overruns": []}
+                **_table_figures(words), "exec_max": float(words[W.EXEC_MAX]), "last_overruns": []}
         if not self.result.failure:
             stuck = [s.task for s in self.stall_watch.episodes if s.until is None and s.rtpu in killed]
             were = "was" if len(killed) == 1 else "were"

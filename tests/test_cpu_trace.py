@@ -8,7 +8,8 @@ import pytest
 
 from tests.conftest import REPO
 from tools import cpu_trace
-from tools.cpu_trace import ProcessNames, SchedulerTrace, TraceUnavailable, explain, holders, occupancy, parse_switches
+from tools.cpu_trace import (ProcessNames, SchedulerTrace, TraceUnavailable, explain, holders, occupancy, parse_switches,
+                              parse_wakeups)
 
 
 def line(cpu: int, time: float, prev: int, state: str, following: int) -> str:
@@ -68,6 +69,37 @@ def test_each_overrun_the_report_kept_is_matched_with_the_cpus_holders():
     assert "pid (rtpu0) at 1.000 s: started 1.40 ms late, ran 0.05 ms" in text
     assert "CPU 0 (ms): [kdamond.0] 1.40, RTPU rtpu0 0.05" in text
     assert text.endswith("across these overruns (ms): [kdamond.0] 1.40, plant 0.10")
+
+
+def wakeup(cpu: int, time: float, pid: int) -> str:
+    """A sched_wakeup line as tracefs writes it, from the idle task's interrupt on `cpu`."""
+    return (f"          <idle>-0       [{cpu:03d}] dNh4.  {time:.6f}: sched_wakeup: comm=python pid={pid} prio=49 "
+            f"target_cpu={cpu:03d}")
+
+
+# CPU 1 as this VM traces it: the switch out of the idle task is missing. The RTPU's timer was to
+# wake it at 9.9998 (0.2 ms before its release at 10.0); it fired 1.3 ms late, at 10.0011.
+UNTRACED_SWITCH_IN = [
+    line(1, 9.999000, RTPU, "S", 0),
+    wakeup(1, 10.001100, RTPU),
+    line(1, 10.001300, RTPU, "S", 0),
+]
+
+
+def test_a_task_seen_leaving_a_cpu_it_was_not_seen_entering_ran_there_from_its_wakeup():
+    spans = occupancy(parse_switches(UNTRACED_SWITCH_IN), parse_wakeups(UNTRACED_SWITCH_IN))
+    assert spans[1] == [(9.999, pytest.approx(10.0011), 0), (pytest.approx(10.0011), 10.0013, RTPU)]
+    assert occupancy(parse_switches(UNTRACED_SWITCH_IN))[1] == [(9.999, 10.0013, RTPU)], "no wake-up: since the switch before"
+
+
+def test_an_overrun_says_when_its_rtpu_was_woken_from_its_release():
+    report = {"started_monotonic": 9.0, "duration": 5.0,
+              "tasks": {"pid": {"rtpu": "rtpu0", "overruns": 1, "last_overruns": [[1.0, 0.0012, 0.0001]]}}}
+    rows = explain(report, parse_switches(UNTRACED_SWITCH_IN), names(), parse_wakeups(UNTRACED_SWITCH_IN))
+    assert rows[0]["woken"] == [pytest.approx(0.0011)]
+    assert rows[0]["cpus"][1] == {"idle": pytest.approx(0.0011), "RTPU rtpu0": pytest.approx(0.0002)}
+    text = cpu_trace.render(rows, report)
+    assert "started 1.20 ms late, ran 0.10 ms; its RTPU was woken at +1.10 ms from the release" in text
 
 
 def test_a_run_without_overruns_says_so():

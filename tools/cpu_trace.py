@@ -3,10 +3,13 @@
     sudo .venv/bin/python tools/cpu_trace.py configs/pid_joint.yaml --duration 5 [--keep trace.txt]
 
 The run summary tells a late release (the machine kept the RTPU from running) from a long cycle
-(the module itself). This names the machine's part: it records every context switch
-(tracefs: sched_switch and sched_wakeup, timed on CLOCK_MONOTONIC, the clock the executive
-releases on) while `pbo run FILE --report` runs, then, for each overrun the report kept (the
-last 8 per task), lists what ran on each CPU from the release to the cycle's end. On the
+(the module itself). This names the machine's part: it records every context switch and
+wake-up (tracefs: sched_switch and sched_wakeup, timed on CLOCK_MONOTONIC, the clock the
+executive releases on) while `pbo run FILE --report` runs, then, for each overrun the report
+kept (the last 8 per task), says when its RTPU was woken and lists what ran on each CPU from the
+release to the cycle's end. The RTPU's wait ends its spin (0.2 ms) before the release: woken
+later than that, its timer fired late, and nothing inside the machine held it (on a VM: the
+host did not run that vCPU); woken on time but started late, something held its CPU. On the
 2-vCPU VM this was written on, they were foreign threads taking a CPU for 1-2 ms: the
 kernel's memory monitor (kdamond), compaction (kcompactd), the sandbox's agent.
 
@@ -17,6 +20,7 @@ the run and puts them back after.
 from __future__ import annotations
 
 import argparse
+import bisect
 import collections
 import json
 import os
@@ -25,6 +29,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,8 +37,10 @@ TRACEFS = Path("/sys/kernel/tracing")
 EVENTS = "sched:sched_switch\nsched:sched_wakeup\n"
 BUFFER_KB = 65536  # per CPU; a 1 kHz RTPU makes about 2,000 events a second
 IDLE = "idle"
+WAKE_WINDOW = 0.0005  # seconds before a release in which an RTPU's wake-up is looked for (its spin is 0.2 ms)
 
 _SWITCH = re.compile(r"\[(\d+)\]\s.*?\s([\d.]+): sched_switch: .*?prev_pid=(\d+) .*?prev_state=(\S+) ==> .*?next_pid=(\d+)")
+_WAKEUP = re.compile(r"\s([\d.]+): sched_wakeup: .*?pid=(\d+) .*?target_cpu=(\d+)")
 
 
 class TraceUnavailable(Exception):
@@ -63,13 +70,50 @@ def parse_switches(lines: list[str]) -> list[Switch]:
     return switches
 
 
-def occupancy(switches: list[Switch]) -> dict[int, list[tuple[float, float, int]]]:
-    """Per CPU, who ran when: (start, end, pid) from one switch to the next (pid 0 is the idle task)."""
+@dataclass(frozen=True)
+class Wakeup:
+    """One wake-up: at `time`, `pid` was made runnable, to run on `cpu`."""
+
+    cpu: int
+    time: float
+    pid: int
+
+
+def parse_wakeups(lines: list[str]) -> list[Wakeup]:
+    """The sched_wakeup events of a tracefs `trace` text, in time order."""
+    wakeups = []
+    for line in lines:
+        match = _WAKEUP.search(line)
+        if match:
+            when, pid, cpu = match.groups()
+            wakeups.append(Wakeup(int(cpu), float(when), int(pid)))
+    wakeups.sort(key=lambda w: w.time)
+    return wakeups
+
+
+def occupancy(switches: list[Switch], wakeups: Sequence[Wakeup] = ()) -> dict[int, list[tuple[float, float, int]]]:
+    """Per CPU, who ran when: (start, end, pid) from one switch to the next (pid 0 is the idle task).
+
+    Some kernels do not trace every switch: on the 2-vCPU VM this was written on, the switch out
+    of the idle task was never traced on CPU 1 (and always on CPU 0). A task then leaves a CPU it
+    was never seen to enter; it ran there from its last wake-up to that CPU (or, if none was
+    traced, since the switch before), and the CPU idled until then.
+    """
+    woken: dict[tuple[int, int], list[float]] = collections.defaultdict(list)
+    for w in wakeups:
+        woken[w.pid, w.cpu].append(w.time)
     spans: dict[int, list[tuple[float, float, int]]] = collections.defaultdict(list)
     running: dict[int, tuple[int, float]] = {}
     for s in switches:
         if s.cpu in running:
             pid, since = running[s.cpu]
+            if pid != s.prev:  # the switch into `prev` was not traced
+                times = woken.get((s.prev, s.cpu), [])
+                last = bisect.bisect_right(times, s.time) - 1  # its last wake-up to this CPU before it left
+                entered = times[last] if last >= 0 and times[last] >= since else since
+                if entered > since:
+                    spans[s.cpu].append((since, entered, pid))
+                pid, since = s.prev, entered
             spans[s.cpu].append((since, s.time, pid))
         running[s.cpu] = (s.next, s.time)
     return spans
@@ -197,18 +241,28 @@ class SchedulerTrace:
         (self.tracefs / name).write_text(value)
 
 
-def explain(report: dict, switches: list[Switch], names: ProcessNames) -> list[dict]:
-    """Per overrun the report kept: when, how late, how long it ran, and who held each CPU meanwhile (seconds)."""
+def explain(report: dict, switches: list[Switch], names: ProcessNames, wakeups: Sequence[Wakeup] = ()) -> list[dict]:
+    """Per overrun the report kept: when, how late, how long it ran, when its RTPU was woken
+    (seconds from the release), and who held each CPU meanwhile (seconds)."""
     origin = report.get("started_monotonic") or 0.0
     if not origin:
         raise TraceUnavailable("the run report has no started_monotonic (a simulated-clock run has no overruns to explain)")
-    spans = occupancy(switches)
+    spans = occupancy(switches, wakeups)
+    pids = {name: pid for pid, name in names.names.items()}
+    woken_at: dict[int | None, list[float]] = collections.defaultdict(list)
+    for w in wakeups:  # in time order
+        woken_at[w.pid].append(w.time)
     rows = []
     for task, stats in sorted(report["tasks"].items()):
+        rtpu_pid = pids.get(f"RTPU {stats.get('rtpu', '?')}")
         for at, late, took in stats.get("last_overruns", []):
             release = origin + at
             held = holders(spans, release, release + late + took)
-            rows.append({"task": task, "rtpu": stats.get("rtpu", "?"), "at": at, "late": late, "took": took,
+            # its wait ends `spin` before the release; a wake-up after that is a timer that fired late
+            times = woken_at.get(rtpu_pid, [])
+            first, last = bisect.bisect_left(times, release - WAKE_WINDOW), bisect.bisect_right(times, release + late)
+            woken = [t - release for t in times[first:last]]
+            rows.append({"task": task, "rtpu": stats.get("rtpu", "?"), "at": at, "late": late, "took": took, "woken": woken,
                          "cpus": {cpu: {names.name(pid): seconds for pid, seconds in sorted(h.items(), key=lambda kv: -kv[1])}
                                   for cpu, h in sorted(held.items())}})
     return rows
@@ -222,8 +276,11 @@ def render(rows: list[dict], report: dict) -> str:
     lines = [f"{len(rows)} overruns explained (the report keeps the last 8 per task; {total_overruns} counted):"]
     across: dict[str, float] = collections.defaultdict(float)
     for row in sorted(rows, key=lambda r: r["at"]):
+        woken = row.get("woken", [])
+        wake = (f"; its RTPU was woken at {', '.join(f'{w * 1e3:+.2f}' for w in woken)} ms from the release" if woken
+                else "; no wake-up of its RTPU traced from 0.5 ms before the release (it was on a CPU, or waiting for one)")
         lines.append(f"  {row['task']} ({row['rtpu']}) at {row['at']:.3f} s: started {row['late'] * 1e3:.2f} ms late, "
-                     f"ran {row['took'] * 1e3:.2f} ms")
+                     f"ran {row['took'] * 1e3:.2f} ms{wake}")
         for cpu, held in row["cpus"].items():
             shown = ", ".join(f"{name} {seconds * 1e3:.2f}" for name, seconds in list(held.items())[:4]) or "nothing recorded"
             lines.append(f"      CPU {cpu} (ms): {shown}")
@@ -262,7 +319,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.keep:
         args.keep.write_text("\n".join(trace.lines) + "\n")
     try:
-        rows = explain(report, parse_switches(trace.lines), names)
+        rows = explain(report, parse_switches(trace.lines), names, parse_wakeups(trace.lines))
     except TraceUnavailable as exc:
         print(f"cpu_trace: {exc}", file=sys.stderr)
         return 2

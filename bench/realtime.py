@@ -6,18 +6,29 @@ For 1, 2 and 4 RTPUs at 1 kHz with the arm plant running, in paired rounds:
   each hosting one trivial 1 kHz task, and the plant host stepping the arm; the executive's own
   figures from the JSON run report;
 - **bare loop**: n plain processes, each running only the hybrid wait and the executive's overrun
-  rule, released at the offsets the supervisor staggers its RTPUs by, at a random phase to the
-  RTPUs and the plant. The wait is the executive's own `RealClock.sleep_until` (absolute
-  deadlines counted as first + k x period, `time.sleep` to 0.2 ms before the release, spin to
-  it, timer slack lowered as the RTPUs do), so the spin is the same code on both sides.
+  rule. The wait is the executive's own `RealClock.sleep_until` (absolute deadlines counted as
+  first + k x period, `time.sleep` to 0.2 ms before the release, spin to it, timer slack lowered
+  as the RTPUs do), so the spin is the same code on both sides.
+
+Same CPU: RTPU i is pinned (`rtpus: {rtpuI: {cpu: N}}`, in a copy of the file) to the same CPU
+as bare loop i, and the bare loop is released in the middle between the releases of the RTPUs
+on that CPU (`bare_phases`; the run's release epoch is in its table's header). The CPUs turn by
+one each round. Why: the host wakes an idle virtual CPU late now and then, by 1 to 8 ms, while
+the other runs on time. Left to the kernel, the plant (SCHED_FIFO 60) sat on one vCPU, the
+RTPU started beside it went to the other, and the bare loop, warm from the round before, went
+either way: in 60 traced rounds at 1 RTPU (2026-11-25) the RTPU had a vCPU to itself in 25, the
+bare loop in 11. A vCPU that hosts one loop idles between its releases; in the round that
+read 11:2, 7 of the 8 executive overruns the trace kept were its timer firing late there, while
+the other vCPU woke the plant and the bare loop on time. Interleaved rounds of the two
+designs that day read 19:13 (1.46x) left to the kernel and 18:24 (0.75x) sharing a CPU, where
+nearly every round's counts came in equal pairs (1:1, 2:2, 3:3).
 
 Same run, same load: the bare loops run while the `pbo run` runs, from the instant it says its
 configuration is on until its duration ends, so both sides share the same seconds of the machine.
-This matters for overruns. Under SCHED_FIFO nearly all are stalls of the virtual machine, in
-which both vCPUs, or one, sit idle for 1 to 8 ms while loops are due (`tools/cpu_trace.py`). A
-stall of both makes every loop of both sides overrun at once, and the ratio cancels it; a stall
-of one falls on whichever side runs there, and only many rounds even that out. When the sides
-took turns instead (bare - pbo - bare - ..., until 2026-11-25), a stall fell on one
+This matters for overruns. Under SCHED_FIFO nearly all are stalls of the virtual machine: the
+timer that ends a loop's wait fires 1 to 8 ms late, on one vCPU or on both (`tools/cpu_trace.py`
+shows each wake-up). A stall makes every loop on the stalled vCPUs overrun at once, both sides'
+alike since they share each CPU, and the ratio cancels it. When the sides took turns instead (bare - pbo - bare - ..., until 2026-11-25), a stall fell on one
 side only. One round of 5 s then held 29 of a run's 46 executive overruns, and the ratio swung
 from 0.99x to 4.50x between two runs. The price is load: both sides add their n loops to the
 other's, so each side runs beside 2n spinning loops and the plant instead of n.
@@ -44,7 +55,6 @@ import argparse
 import json
 import math
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -55,6 +65,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from bench._common import REPO, Section, Table, Target, fmt_ratio, ratio, us
 from bench._processes import Workers
@@ -62,6 +73,9 @@ from pbo_runtime import _messages
 from pbo_runtime._clock import RealClock, lower_timer_slack, release_stagger, scheduler_outcome
 from pbo_runtime._config_loader import load_subsystem
 from pbo_runtime._config_model import DEFAULT_SPIN
+from pbo_runtime._control import find_live_run
+from pbo_runtime._shm import attach_segment
+from pbo_runtime._table import Header
 from rtpu._realtime import FIFO_PRIORITY  # as the RTPUs take it (the plant host takes its own, above)
 
 SPIN = DEFAULT_SPIN  # the executive's spin before a release, unless an RTPU gives its own
@@ -75,7 +89,10 @@ def config_path(n_rtpus: int) -> Path:
 # --- the bare loop ------------------------------------------------------------------------------
 
 def _bare_main(period: float, fifo: bool, conn: Connection) -> None:
-    """One bare loop process: runs a stretch per (first release, end) received, until None."""
+    """One bare loop process: runs a stretch per (first release, end, CPU) received, until None.
+
+    It pins itself to the CPU it is given (None: any), as an RTPU pins itself to its `cpu:`.
+    """
     lower_timer_slack()
     if fifo:
         try:
@@ -83,12 +100,17 @@ def _bare_main(period: float, fifo: bool, conn: Connection) -> None:
         except (OSError, AttributeError):
             pass
     clock = RealClock(SPIN)
+    every_cpu = os.sched_getaffinity(0)
     conn.send("ready")
     while True:
         command = conn.recv()
         if command is None:
             return
-        first_release, end = command  # set once every loop is ready: a slow start must not count as jitter
+        first_release, end, cpu = command  # set once every loop is ready: a slow start must not count as jitter
+        try:
+            os.sched_setaffinity(0, every_cpu if cpu is None else {cpu})
+        except (OSError, ValueError):
+            pass  # as an RTPU refused its CPU, it runs on where it is
         conn.send(_bare_stretch(clock, period, first_release, end))
 
 
@@ -199,22 +221,71 @@ def _started_run(yaml_path: Path, seconds: float, fifo: bool, report: Path,
     raise RuntimeError(problem)
 
 
+def placement(n: int, cpus: list[int], round_index: int) -> list[int]:
+    """The CPU of RTPU i (and of bare loop i) in a round: the CPUs in turn, turned by one each round.
+
+    Turning them moves every RTPU over every CPU across the rounds, so no side keeps a CPU the
+    host serves worse.
+    """
+    return [cpus[(i + round_index) % len(cpus)] for i in range(n)]
+
+
+def bare_phases(where: list[int], period: float) -> list[float]:
+    """When bare loop i is released, after the run's epoch (within a period): midway from RTPU i's
+    release to the next release of an RTPU on the same CPU, so the loops on a CPU spin one after
+    another, never together."""
+    stagger = release_stagger(period, len(where))
+    phases = []
+    for i, cpu in enumerate(where):
+        mine = i * stagger
+        following = min(((j * stagger - mine) % period or period) for j, other in enumerate(where) if other == cpu)
+        phases.append(mine + following / 2)
+    return phases
+
+
+def pinned_config(yaml_path: Path, cpus: list[int], folder: Path) -> Path:
+    """A copy of the benchmark's file with RTPU i pinned to `cpus[i]` (`rtpus: {name: {cpu: N}}`)."""
+    document = yaml.safe_load(yaml_path.read_text())
+    names = list(document["rtpus"])
+    document["rtpus"] = {name: {"cpu": cpu} for name, cpu in zip(names, cpus)}
+    pinned = folder / yaml_path.name
+    pinned.write_text(yaml.safe_dump(document, sort_keys=False))
+    return pinned
+
+
+def release_epoch(subsystem: str) -> float:
+    """The CLOCK_MONOTONIC second the live run's RTPUs release from (its table's header)."""
+    _sub, _run_id, table_name = find_live_run(subsystem)
+    segment = attach_segment(table_name)
+    try:
+        epoch_ns = int(np.frombuffer(segment, dtype=np.int64, count=Header.RELEASE_EPOCH_NS + 1)[Header.RELEASE_EPOCH_NS])
+    finally:
+        segment.close()
+    if not epoch_ns:
+        raise RuntimeError(f"the run of '{subsystem}' published no release epoch (a simulated clock?)")
+    return epoch_ns / 1e9
+
+
 def paired_round(workers: Workers, yaml_path: Path, n: int, period: float, seconds: float,
-                 fifo: bool) -> tuple[dict[str, Any], list[dict[str, np.ndarray]]]:
+                 fifo: bool, round_index: int = 0) -> tuple[dict[str, Any], list[dict[str, np.ndarray]]]:
     """One round: `pbo run` for `seconds` and the n bare loops over the same seconds, at the same time.
 
     The bare loops start once the run's configuration is on and stop when its duration ends, so
     a stall of the machine, a burst of the kernel's work, another tenant's minute all fall on both
-    sides at once. Their releases are staggered as the supervisor staggers its RTPUs, at a random
-    phase to the RTPUs' and to the plant's steps (the run's plant is the load of both sides).
+    sides at once. Bare loop i shares RTPU i's CPU (`placement`) and is released between the
+    releases of the RTPUs there (`bare_phases`): the host's stalls of one virtual CPU then fall
+    on both sides too. The plant runs where the kernel puts it, at its own phase to both.
     """
+    cpus = sorted(os.sched_getaffinity(0))
+    where = placement(n, cpus, round_index)
     with tempfile.TemporaryDirectory() as folder:
         report = Path(folder) / "report.json"
-        run, on = _started_run(yaml_path, seconds, fifo, report)
+        pinned = pinned_config(yaml_path, where, Path(folder))
+        run, on = _started_run(pinned, seconds, fifo, report)
         try:
-            stagger = release_stagger(period, n)
-            first = on + 0.01 + random.uniform(0.0, period)
-            workers.send_each([(first + i * stagger, on + seconds) for i in range(n)])
+            epoch = release_epoch(load_subsystem(pinned).name)
+            first = epoch + math.ceil((on + 0.01 - epoch) / period) * period  # a release of RTPU 0 after the start
+            workers.send_each([(first + phase, on + seconds, cpu) for phase, cpu in zip(bare_phases(where, period), where)])
             records = workers.answers(seconds + 60)
             said, _ = run.communicate(timeout=120)
         finally:
@@ -295,8 +366,8 @@ def measure(n: int, seconds: float, fifo: bool, rounds: int = 8) -> dict[str, An
     pbo_runs, bare_runs, exec_p50s, realtime = [], [], [], {}
     plant_late = plant_steps = 0
     with Workers(n, _bare_main, (period, fifo), what="bare loop") as workers:
-        for _ in range(rounds):
-            report, records = paired_round(workers, yaml_path, n, period, seconds / rounds, fifo)
+        for index in range(rounds):
+            report, records = paired_round(workers, yaml_path, n, period, seconds / rounds, fifo, index)
             bare_runs.append(_summary([_figures(r["jitter"], r["spanned"]) for r in records]))
             try:
                 tasks = report["tasks"].values()
@@ -309,7 +380,10 @@ def measure(n: int, seconds: float, fifo: bool, rounds: int = 8) -> dict[str, An
             plant = report.get("plant") or {}
             plant_late += plant.get("late", 0)
             plant_steps += plant.get("steps", 0)
-            realtime = report.get("realtime", {}) or realtime
+            for rtpu, settings in (report.get("realtime") or {}).items():  # the CPUs turn: keep every one
+                cpus = realtime.get(rtpu, {}).get("cpu", "")
+                cpu = settings.get("cpu", "")
+                realtime[rtpu] = {**settings, "cpu": cpus if cpu in cpus.split(" then ") else " then ".join(filter(None, (cpus, cpu)))}
     return {"pbo": _over_rounds(pbo_runs), "bare": _over_rounds(bare_runs), "rounds": list(zip(pbo_runs, bare_runs)),
             "exec_p50": float(np.median(exec_p50s)), "plant_late": (plant_late, plant_steps), "realtime": realtime}
 
@@ -352,8 +426,12 @@ under the same scheduler, and at the same time:
   configuration), and the plant host; the figures are the executive's own, from the JSON run report.
 - **bare loop**: n plain processes running only the hybrid wait, with the executive's own
   `RealClock.sleep_until` (absolute deadlines, `time.sleep` to 0.2 ms before the release, spin to it,
-  timer slack 1 ns), and the executive's overrun rule, released at the offsets the supervisor
-  staggers its RTPUs by, at a random phase to the RTPUs and the plant's steps.
+  timer slack 1 ns), and the executive's overrun rule.
+- **same CPU**: RTPU i (pinned with `rtpus: {{rtpuI: {{cpu: N}}}}` in a copy of the file) and bare loop i
+  share a CPU, the bare loop released midway between the releases of the RTPUs there; the CPUs
+  turn by one each round. The plant runs where the kernel puts it, at its own phase to both. The
+  host wakes an idle vCPU late now and then (1 to 8 ms) while the other runs on time, and then
+  both sides' loops there are late together (below).
 - **paired rounds**: in each of the {rounds} rounds the bare loops run while the `pbo run` runs, from
   the instant it says its configuration is on until its {share:g} s end. Whatever the machine does
   in those seconds, a stall of the virtual CPUs, a burst of kernel work, another tenant's load,
@@ -376,7 +454,8 @@ medians over the rounds (p50, p99), the worst max, and summed counts.
 both medians are the spin's own resolution, a few tens of ns (one clock read in CPython), and
 their ratio is near 1. The tails are the machine's: with more busy processes than CPUs (at 4
 RTPUs, 8 loops and the plant on 2 vCPUs, each loop spinning up to 0.2 ms per release), a loop
-whose release falls on the plant's step or on another loop's spin waits for a CPU. The
+whose release falls on the plant's step waits for a CPU (the loops sharing a CPU are released
+apart and spin one after another, unless one runs late). The
 executive's process also does more per release than the bare loop (its timed wait on the signal
 queue, the task's cycle: 10 to 20 µs), and a supervisor process runs beside it (awake every
 100 ms to check its children and serve commands). Per round, p99 is either a few tenths of a µs
@@ -390,25 +469,31 @@ not the loops' neighbours (while a loop waited, the other CPU was mostly idle) b
 threads that take a CPU for 1 to 2 ms, the VM's memory monitor kdamond, kcompactd and the
 sandbox's agent; a loop on that CPU, spinning or due to wake, waits them out
 (`tools/cpu_trace.py --no-fifo` names them for each overrun of a run). Such a thread holds one
-CPU, so it makes the loops on that CPU overrun and not the others: pairing the sides evens that
-out over many rounds only.
+CPU, so it makes the loops on that CPU overrun and not the others: one of each side, since bare
+loop i shares RTPU i's CPU.
 
 Under SCHED_FIFO no thread of the machine outranks a loop but the kernel's own real-time ones:
-kdamond and the agent wait, and the overruns left are rarer (the first table). A scheduler trace
-of a 4-RTPU run under SCHED_FIFO (`tools/cpu_trace.py`) showed each of them as a stall of 1 to 8 ms
-in which both CPUs sat idle while every RTPU and the plant were due: the virtual CPUs were not run
-(the hypervisor's doing, which no setting inside the machine prevents). Until 2026-11-25
+kdamond and the agent wait, and the overruns left are rarer (the first table). They are the
+host's: `tools/cpu_trace.py` shows, for each, when the RTPU was woken. Nearly always its timer
+fired late, 1 to 8 ms after the 0.2 ms before the release its wait was to end at, or it was
+woken on time and its vCPU then did not run it; no setting inside the machine prevents either.
+(On this VM the switch out of the idle task is never traced on CPU 1: until 2026-11-25 the tool
+counted a task's time there as idle, and read some of these as both CPUs idle.) Until 2026-11-25
 the two sides took turns (bare, pbo, bare, ...), and a stall fell on one side only: one
 round of 5 s held 29 of a run's 46 executive overruns at 4 RTPUs, and the ratio pooled over the
 RTPU counts read 4.50x in one run and 0.99x in the next. Run at the same time, a stall makes
 every loop of both sides overrun together (at 4 RTPUs on 2026-11-25: rounds of 30:30 and 4:4), and
-the ratio keeps what is the executive's own. Not every stall takes both vCPUs, though: a trace of
-a 1-RTPU run (`tools/cpu_trace.py bench/realtime_1rtpu.yaml --duration 150`) kept 3 overruns, two
-with both CPUs idle for 1.1 to 1.2 ms after the release, one with the RTPU on CPU 0 for 0.95 ms
-of the 1.15 ms it started late (a trace inside the guest cannot tell a process that did not run
-from a vCPU the host did not run). A stall of one vCPU falls on whichever side runs there, so
-pairing evens it out only over many of them: at 1 RTPU, with the fewest overruns, the ratio
-rests on a few dozen.
+the ratio keeps what is the executive's own. Not every stall takes both vCPUs: the host wakes one idle vCPU late while the other runs on
+time. Until 2026-11-25 the kernel placed the loops: the plant (SCHED_FIFO 60) sat on one vCPU,
+the RTPU started beside it went to the other, and the bare loop, warm from the round before, went
+either way. In 60 traced rounds at 1 RTPU the RTPU had a vCPU to itself in 25, the bare loop in
+11, and a vCPU that hosts one loop idles between its releases: in a round that read 11:2, the
+RTPU was alone on its vCPU, and 7 of the 8 overruns the trace kept were its timer firing late
+(by up to 2.6 ms) while the other vCPU woke the plant and the bare loop on time. Since then bare
+loop i shares RTPU i's CPU, and the CPUs turn each round. Interleaved rounds of the two designs
+that day read 19:13 (1.46x) left to the kernel and 18:24 (0.75x) on a shared CPU, where nearly
+every round's counts came in equal pairs (1:1, 2:2, 3:3). At 1 RTPU, with the fewest overruns,
+the ratio still rests on a few dozen.
 
 Release offsets matter: spread over 0.45 of the period (until issue 6), 4 RTPUs spun inside each
 other's spin and p99 was about 180 µs on both sides; spaced evenly (i/n of the period) it is

@@ -71,7 +71,7 @@ class Header(enum.IntEnum):
     N_VARIABLES = 5
     N_TASKS = 6
     SUPERVISOR_PID = 7
-    RUN_START_NS = 8
+    RELEASE_EPOCH_NS = 8  # real clock: the CLOCK_MONOTONIC ns RTPU i releases at, plus i x stagger + k x period
     DIRECTORY_OFFSET = 9
     MANIFEST_OFFSET = 10
     DATA_OFFSET = 11
@@ -256,7 +256,7 @@ class StateTable:
         h[Header.N_VARIABLES] = len(layout.slots)
         h[Header.N_TASKS] = layout.n_tasks
         h[Header.SUPERVISOR_PID] = os.getpid()
-        h[Header.RUN_START_NS] = 0
+        h[Header.RELEASE_EPOCH_NS] = 0
         h[Header.DIRECTORY_OFFSET] = layout.directory_offset
         h[Header.MANIFEST_OFFSET] = layout.manifest_offset
         h[Header.DATA_OFFSET] = layout.data_offset

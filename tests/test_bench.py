@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import os
 
+import numpy as np
 import pytest
 
 from bench import peers, run_all
@@ -80,19 +81,62 @@ def test_an_executive_without_overruns_against_a_bare_loop_with_some_reads_zero_
 
 
 @pytest.mark.multiprocess
-def test_a_paired_round_runs_the_bare_loops_over_the_seconds_the_run_runs():
+def test_a_paired_round_runs_the_bare_loops_over_the_seconds_the_run_runs_on_the_rtpus_cpu(monkeypatch):
+    import bench.realtime as realtime
     from bench._processes import Workers
-    from bench.realtime import _bare_main, config_path, paired_round
 
-    with Workers(1, _bare_main, (0.001, False), what="bare loop") as workers:
-        report, records = paired_round(workers, config_path(1), 1, 0.001, 1.0, fifo=False)
+    epochs, commands = [], []
+    read_epoch = realtime.release_epoch
+    monkeypatch.setattr(realtime, "release_epoch", lambda subsystem: epochs.append(read_epoch(subsystem)) or epochs[-1])
+    with Workers(1, realtime._bare_main, (0.001, False), what="bare loop") as workers:
+        send_each = workers.send_each
+        workers.send_each = lambda sent: commands.extend(sent) or send_each(sent)  # type: ignore[method-assign]
+        report, records = realtime.paired_round(workers, realtime.config_path(1), 1, 0.001, 1.0, fifo=False, round_index=1)
 
     (task,) = report["tasks"].values()
     (record,) = records
+    ((first_release, _end, cpu),) = commands
     assert report["stopped_by"] == "duration"
     assert 900 <= task["cycles"] <= 1010  # releases a loaded machine skipped are not cycles
-    # from 10 ms (and a random phase) after the run said its configuration is on, to its end
+    # from 10 ms after the run said its configuration is on, to its end
     assert abs(len(record["jitter"]) - task["cycles"]) <= 0.08 * task["cycles"]
+    # on the RTPU's CPU (turned by one in round 1), half a period after a release of the RTPU
+    cpus = sorted(os.sched_getaffinity(0))
+    assert cpu == cpus[1 % len(cpus)]
+    assert report["realtime"]["rtpu0"]["cpu"] == str(cpu)
+    (epoch,) = epochs
+    periods = (first_release - epoch) / 0.001
+    assert abs(periods - round(periods) - 0.5) < 1e-3
+
+
+def test_bare_loops_are_released_midway_between_the_releases_of_the_rtpus_on_their_cpu():
+    from bench.realtime import bare_phases, placement
+    from pbo_runtime._clock import release_stagger
+
+    period = 0.001
+    for n_cpus in (1, 2, 4):
+        for n in (1, 2, 3, 4):
+            for round_index in range(3):
+                where = placement(n, list(range(n_cpus)), round_index)
+                stagger = release_stagger(period, n)
+                for cpu in set(where):
+                    rtpus = sorted(i * stagger for i in range(n) if where[i] == cpu)
+                    bares = [phase % period for phase, c in zip(bare_phases(where, period), where) if c == cpu]
+                    for bare in bares:  # midway between the RTPU releases around it, on its CPU
+                        before = max((r for r in rtpus if r <= bare), default=rtpus[-1] - period)
+                        after = min((r for r in rtpus if r > bare), default=rtpus[0] + period)
+                        assert bare - before == pytest.approx(after - bare), (n_cpus, n, bare, rtpus)
+                    releases = sorted(rtpus + bares)
+                    assert min(np.diff(releases + [releases[0] + period])) > 0.1 * period  # none spins with another
+
+
+def test_every_rtpu_visits_every_cpu_as_the_rounds_turn():
+    from bench.realtime import placement
+
+    cpus = [0, 1]
+    for n in (1, 2, 4):
+        seen = [{placement(n, cpus, r)[i] for r in range(len(cpus))} for i in range(n)]
+        assert all(visited == set(cpus) for visited in seen)
 
 
 def test_a_run_that_never_turns_its_configuration_on_is_reported_with_its_last_words(tmp_path):

@@ -28,10 +28,11 @@ configuration is on until its duration ends, so both sides share the same second
 This matters for overruns. Under SCHED_FIFO nearly all are stalls of the virtual machine: the
 timer that ends a loop's wait fires 1 to 8 ms late, on one vCPU or on both (`tools/cpu_trace.py`
 shows each wake-up). A stall makes every loop on the stalled vCPUs overrun at once, both sides'
-alike since they share each CPU, and the ratio cancels it. When the sides took turns instead (bare - pbo - bare - ..., until 2026-11-25), a stall fell on one
-side only. One round of 5 s then held 29 of a run's 46 executive overruns, and the ratio swung
-from 0.99x to 4.50x between two runs. The price is load: both sides add their n loops to the
-other's, so each side runs beside 2n spinning loops and the plant instead of n.
+alike since they share each CPU, and the ratio cancels it. When the sides took turns instead
+(bare - pbo - bare - ..., until 2026-11-25), a stall fell on one side only. One round of 5 s
+then held 29 of a run's 46 executive overruns, and the ratio swung from 0.99x to 4.50x between
+two runs. The price is load: both sides add their n loops to the other's, so each side runs
+beside 2n spinning loops and the plant instead of n.
 
 Like with like: both sides time a release at the clock reading that ended the spin (the value
 `sleep_until` returns). The executive's choice of the task to run and its call into it come
@@ -474,9 +475,10 @@ loop i shares RTPU i's CPU.
 
 Under SCHED_FIFO no thread of the machine outranks a loop but the kernel's own real-time ones:
 kdamond and the agent wait, and the overruns left are rarer (the first table). They are the
-host's: `tools/cpu_trace.py` shows, for each, when the RTPU was woken. Nearly always its timer
-fired late, 1 to 8 ms after the 0.2 ms before the release its wait was to end at, or it was
-woken on time and its vCPU then did not run it; no setting inside the machine prevents either.
+host's: `tools/cpu_trace.py` shows, for each, when the RTPU was woken. Nearly always either its
+timer fired late (its wait was to end 0.2 ms before the release, and ended 1 to 8 ms after it),
+or it was woken on time and its vCPU then did not run it; no setting inside the machine
+prevents either.
 (On this VM the switch out of the idle task is never traced on CPU 1: until 2026-11-25 the tool
 counted a task's time there as idle, and read some of these as both CPUs idle.) Until 2026-11-25
 the two sides took turns (bare, pbo, bare, ...), and a stall fell on one side only: one

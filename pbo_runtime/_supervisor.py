@@ -218,7 +218,7 @@ class Supervisor:
         self.alternate = alternate
         # SCHED_FIFO where the OS allows it, on the real clock unless asked otherwise: under SCHED_OTHER
         # the machine's own threads take a CPU for milliseconds and RTPUs overrun several times as
-        # often (5 to 14 in docs/performance.md). The simulated clock waits on ticks: it needs none.
+        # often (8 to 14 in docs/performance.md). The simulated clock waits on ticks: it needs none.
         self.fifo = (not self.simulated) if fifo is None else fifo
         self._stable: dict[str, float] = {}
         self.control: ControlServer | None = None

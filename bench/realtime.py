@@ -57,6 +57,7 @@ import json
 import math
 import os
 import signal
+import struct
 import subprocess
 import sys
 import tempfile
@@ -259,7 +260,7 @@ def release_epoch(subsystem: str) -> float:
     _sub, _run_id, table_name = find_live_run(subsystem)
     segment = attach_segment(table_name)
     try:
-        epoch_ns = int(np.frombuffer(segment, dtype=np.int64, count=Header.RELEASE_EPOCH_NS + 1)[Header.RELEASE_EPOCH_NS])
+        (epoch_ns,) = struct.unpack_from("q", segment, 8 * Header.RELEASE_EPOCH_NS)  # the header's int64 words
     finally:
         segment.close()
     if not epoch_ns:
@@ -366,6 +367,7 @@ def measure(n: int, seconds: float, fifo: bool, rounds: int = 8) -> dict[str, An
     period = min(t.period for t in subsystem.tasks.values())
     pbo_runs, bare_runs, exec_p50s, realtime = [], [], [], {}
     plant_late = plant_steps = 0
+    cpus_seen: dict[str, list[str]] = {}
     with Workers(n, _bare_main, (period, fifo), what="bare loop") as workers:
         for index in range(rounds):
             report, records = paired_round(workers, yaml_path, n, period, seconds / rounds, fifo, index)
@@ -381,10 +383,11 @@ def measure(n: int, seconds: float, fifo: bool, rounds: int = 8) -> dict[str, An
             plant = report.get("plant") or {}
             plant_late += plant.get("late", 0)
             plant_steps += plant.get("steps", 0)
-            for rtpu, settings in (report.get("realtime") or {}).items():  # the CPUs turn: keep every one
-                cpus = realtime.get(rtpu, {}).get("cpu", "")
-                cpu = settings.get("cpu", "")
-                realtime[rtpu] = {**settings, "cpu": cpus if cpu in cpus.split(" then ") else " then ".join(filter(None, (cpus, cpu)))}
+            for rtpu, settings in (report.get("realtime") or {}).items():  # the CPUs turn: name every one
+                seen, cpu = cpus_seen.setdefault(rtpu, []), settings.get("cpu", "?")
+                if cpu not in seen:
+                    seen.append(cpu)
+                realtime[rtpu] = {**settings, "cpu": " then ".join(seen)}
     return {"pbo": _over_rounds(pbo_runs), "bare": _over_rounds(bare_runs), "rounds": list(zip(pbo_runs, bare_runs)),
             "exec_p50": float(np.median(exec_p50s)), "plant_late": (plant_late, plant_steps), "realtime": realtime}
 

@@ -16,7 +16,7 @@ on that CPU (`bare_phases`; the run's release epoch is in its table's header). T
 one each round. Why: the host wakes an idle virtual CPU late now and then, by 1 to 8 ms, while
 the other runs on time. Left to the kernel, the plant (SCHED_FIFO 60) sat on one vCPU, the
 RTPU started beside it went to the other, and the bare loop, warm from the round before, went
-either way: in 60 traced rounds at 1 RTPU (2026-11-25) the RTPU had a vCPU to itself in 25, the
+either way: in 60 rounds at 1 RTPU traced by a one-off script (2026-11-25) the RTPU had a vCPU to itself in 25, the
 bare loop in 11. A vCPU that hosts one loop idles between its releases; in the round that
 read 11:2, 7 of the 8 executive overruns the trace kept were its timer firing late there, while
 the other vCPU woke the plant and the bare loop on time. Interleaved rounds of the two
@@ -245,14 +245,14 @@ def bare_phases(where: list[int], period: float) -> list[float]:
     return phases
 
 
-def pinned_config(yaml_path: Path, cpus: list[int], folder: Path) -> Path:
-    """A copy of the benchmark's file with RTPU i pinned to `cpus[i]` (`rtpus: {name: {cpu: N}}`)."""
+def pinned_config(yaml_path: Path, cpus: list[int], folder: Path) -> tuple[Path, str]:
+    """A copy of the benchmark's file with RTPU i pinned to `cpus[i]` (`rtpus: {name: {cpu: N}}`), and its subsystem's name."""
     document = yaml.safe_load(yaml_path.read_text())
     names = list(document["rtpus"])
     document["rtpus"] = {name: {"cpu": cpu} for name, cpu in zip(names, cpus)}
     pinned = folder / yaml_path.name
     pinned.write_text(yaml.safe_dump(document, sort_keys=False))
-    return pinned
+    return pinned, document["subsystem"]
 
 
 def release_epoch(subsystem: str) -> float:
@@ -282,10 +282,10 @@ def paired_round(workers: Workers, yaml_path: Path, n: int, period: float, secon
     where = placement(n, cpus, round_index)
     with tempfile.TemporaryDirectory() as folder:
         report = Path(folder) / "report.json"
-        pinned = pinned_config(yaml_path, where, Path(folder))
+        pinned, subsystem = pinned_config(yaml_path, where, Path(folder))
         run, on = _started_run(pinned, seconds, fifo, report)
         try:
-            epoch = release_epoch(load_subsystem(pinned).name)
+            epoch = release_epoch(subsystem)
             first = epoch + math.ceil((on + 0.01 - epoch) / period) * period  # a release of RTPU 0 after the start
             workers.send_each([(first + phase, on + seconds, cpu) for phase, cpu in zip(bare_phases(where, period), where)])
             records = workers.answers(seconds + 60)
@@ -488,17 +488,18 @@ the two sides took turns (bare, pbo, bare, ...), and a stall fell on one side on
 round of 5 s held 29 of a run's 46 executive overruns at 4 RTPUs, and the ratio pooled over the
 RTPU counts read 4.50x in one run and 0.99x in the next. Run at the same time, a stall makes
 every loop of both sides overrun together (at 4 RTPUs on 2026-11-25: rounds of 30:30 and 4:4), and
-the ratio keeps what is the executive's own. Not every stall takes both vCPUs: the host wakes one idle vCPU late while the other runs on
+the ratio keeps what is the executive's own.
+
+Not every stall takes both vCPUs: the host wakes one idle vCPU late while the other runs on
 time. Until 2026-11-25 the kernel placed the loops: the plant (SCHED_FIFO 60) sat on one vCPU,
-the RTPU started beside it went to the other, and the bare loop, warm from the round before, went
-either way. In 60 traced rounds at 1 RTPU the RTPU had a vCPU to itself in 25, the bare loop in
-11, and a vCPU that hosts one loop idles between its releases: in a round that read 11:2, the
-RTPU was alone on its vCPU, and 7 of the 8 overruns the trace kept were its timer firing late
-(by up to 2.6 ms) while the other vCPU woke the plant and the bare loop on time. Since then bare
-loop i shares RTPU i's CPU, and the CPUs turn each round. Interleaved rounds of the two designs
-that day read 19:13 (1.46x) left to the kernel and 18:24 (0.75x) on a shared CPU, where nearly
-every round's counts came in equal pairs (1:1, 2:2, 3:3). At 1 RTPU, with the fewest overruns,
-the ratio still rests on a few dozen.
+the RTPU started beside it mostly went to the other, and the bare loop, warm from the round
+before, went either way. The RTPU then had a vCPU to itself more often than the bare loop, and
+the late wake-ups of a lone idle vCPU fell on it more often: a scheduler trace of those rounds
+showed its timers firing late there while the other vCPU woke the plant and the bare loop on
+time (`tools/cpu_trace.py` shows when each overrun's RTPU was woken). Since then bare loop i
+shares RTPU i's CPU and the CPUs turn each round, and a round's counts mostly come in equal
+pairs (the per-round table). At 1 RTPU, with the fewest overruns, the ratio still rests on a
+few dozen.
 
 Release offsets matter: spread over 0.45 of the period (until issue 6), 4 RTPUs spun inside each
 other's spin and p99 was about 180 µs on both sides; spaced evenly (i/n of the period) it is

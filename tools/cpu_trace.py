@@ -191,12 +191,14 @@ class SchedulerTrace:
         self.tracefs = tracefs
         self.saved: dict[str, str] = {}
         self.lines: list[str] = []
+        self.mounted_here = False  # unmounted again on exit, so the machine is left as it was
 
     def __enter__(self) -> SchedulerTrace:
         if not sys.platform.startswith("linux"):
             raise TraceUnavailable("the scheduler trace is Linux's (tracefs)")
         if not (self.tracefs / "trace").exists() and self.tracefs == TRACEFS:
-            subprocess.run(["mount", "-t", "tracefs", "nodev", str(self.tracefs)], capture_output=True)
+            mounted = subprocess.run(["mount", "-t", "tracefs", "nodev", str(self.tracefs)], capture_output=True)
+            self.mounted_here = mounted.returncode == 0
         if not (self.tracefs / "trace").exists():
             raise TraceUnavailable(f"no tracefs at {self.tracefs}: mount it (mount -t tracefs nodev {self.tracefs}) as root")
         try:
@@ -236,6 +238,9 @@ class SchedulerTrace:
             self._write("trace", "")
         except OSError:
             pass
+        if self.mounted_here:
+            subprocess.run(["umount", str(self.tracefs)], capture_output=True)
+            self.mounted_here = False
 
     def _write(self, name: str, value: str) -> None:
         (self.tracefs / name).write_text(value)

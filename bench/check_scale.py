@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from bench._common import Section, Table
-from pbo_runtime._config_loader import check_file
+from pbo_runtime.config.loader import check_file
 
 
 def generate(n_tasks: int) -> str:

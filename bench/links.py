@@ -6,14 +6,14 @@ periodic at unrelated rates (the reader's period is 0.65 of the sender's, as in 
 subsystems run at rates that are not multiples of each other), spinning to their next release;
 `--back-to-back` drops the periods, so each side calls as fast as it can (the worst contention).
 
-- triple buffer: `pbo_runtime._triple_buffer.TripleBuffer` (`write`, `read(out)`): the lock is
+- triple buffer: `pbo_runtime.links.triple_buffer.TripleBuffer` (`write`, `read(out)`): the lock is
   held for the index swap only; neither side waits for the other's copy (TR §5.2);
 - locked buffer: one shm buffer and one semaphore held during each side's copy (a double buffer
   as usually written): each side waits for the other's copy;
 - posix_ipc queue: each item is one message (payloads above fs.mqueue.msgsize_max go in chunks
   of that size), the sender blocks while the queue is full, and a read drains what is waiting
   (at most the queue's capacity) and keeps the newest complete item, as a state link needs;
-- zenoh: `pbo_runtime._zenoh_link.ZenohLink`, the same periodic link over eclipse-zenoh on
+- zenoh: `pbo_runtime.links.zenoh_link.ZenohLink`, the same periodic link over eclipse-zenoh on
   tcp/127.0.0.1 (the sender's session listens, the reader's connects; no scouting): a write is
   one express `put` that never waits for the reader; a read takes the newest sample zenoh kept
   in a one-sample ring and copies it out ("zenoh", the default delivery), or copies the item a
@@ -47,9 +47,9 @@ import time
 import numpy as np
 import posix_ipc
 
-from pbo_runtime import _messages
-from pbo_runtime._triple_buffer import Freshness, LinkLayout, TripleBuffer
-from pbo_runtime._zenoh_link import ZenohLink, free_port
+from pbo_runtime.ipc import messages
+from pbo_runtime.links.triple_buffer import Freshness, LinkLayout, TripleBuffer
+from pbo_runtime.links.zenoh_link import ZenohLink, free_port
 
 PAYLOADS = (48, 4096, 1 << 20)
 ITEMS = {48: 50_000, 4096: 50_000, 1 << 20: 2_000}
@@ -229,9 +229,9 @@ class _QueueEnd:
 class _Queue:
     def __init__(self, nbytes: int) -> None:
         self.name = _name("queue")
-        size = min(nbytes + _CHUNK_HEADER.size, _messages.MESSAGE_BYTES)
+        size = min(nbytes + _CHUNK_HEADER.size, messages.MESSAGE_BYTES)
         self._queue = posix_ipc.MessageQueue(
-            self.name, posix_ipc.O_CREX, mode=0o600, max_messages=_messages.MAX_MESSAGES, max_message_size=size
+            self.name, posix_ipc.O_CREX, mode=0o600, max_messages=messages.MAX_MESSAGES, max_message_size=size
         )
 
     def end(self, nbytes: int, role: str) -> _QueueEnd:

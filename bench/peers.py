@@ -47,9 +47,9 @@ import posix_ipc
 from bench._common import Section, Table, Target, fmt_ratio, percentiles, ratio, us
 from bench.svar_transfer import N_IN, N_OUT, SIZE, BenchTask, object_name
 from pbo_runtime import InVar, OutVar, PortBasedObject
-from pbo_runtime._config_model import PortBinding, VariableSpec
-from pbo_runtime._table import StateTable, TableLayout
-from pbo_runtime._transfer import LocalTable
+from pbo_runtime.config.model import PortBinding, VariableSpec
+from pbo_runtime.table.table import StateTable, TableLayout
+from pbo_runtime.task.transfer import LocalTable
 
 IN_WORDS, OUT_WORDS = N_IN * SIZE, N_OUT * SIZE
 STOP = -1

@@ -71,13 +71,13 @@ import yaml
 
 from bench._common import REPO, Section, Table, Target, fmt_ratio, ratio, us
 from bench._processes import Workers
-from pbo_runtime import _messages
-from pbo_runtime._clock import RealClock, lower_timer_slack, release_stagger, scheduler_outcome
-from pbo_runtime._config_loader import load_subsystem
-from pbo_runtime._config_model import DEFAULT_SPIN
-from pbo_runtime._control import find_live_run
-from pbo_runtime._shm import attach_segment
-from pbo_runtime._table import Header
+from pbo_runtime.ipc import messages
+from pbo_runtime.clock.clocks import RealClock, lower_timer_slack, release_stagger, scheduler_outcome
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.config.model import DEFAULT_SPIN
+from pbo_runtime.ipc.control import find_live_run
+from pbo_runtime.ipc.shm import attach_segment
+from pbo_runtime.table.table import Header
 from rtpu._realtime import FIFO_PRIORITY  # as the RTPUs take it (the plant host takes its own, above)
 
 SPIN = DEFAULT_SPIN  # the executive's spin before a release, unless an RTPU gives its own
@@ -156,9 +156,9 @@ class _Plant:
         if plant is None:
             raise AssertionError(f"{yaml_path} has no plant")
         self.subsystem, self.run_id = "bench_bare", f"{os.getpid()}-{os.urandom(3).hex()}"
-        self.events = _messages.Queue(_messages.event_queue_name(self.subsystem, self.run_id), create=True)
+        self.events = messages.Queue(messages.event_queue_name(self.subsystem, self.run_id), create=True)
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "pbo_runtime._plant_host", "--type", plant.type, "--model", plant.model,
+            [sys.executable, "-m", "pbo_runtime.supervisor.plant_host", "--type", plant.type, "--model", plant.model,
              "--timestep", repr(plant.timestep), "--options", json.dumps(dict(plant.options)),
              "--subsystem", self.subsystem, "--run-id", self.run_id, "--parent", str(os.getpid()),
              *(["--fifo"] if fifo else [])],

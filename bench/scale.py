@@ -27,9 +27,9 @@ import numpy as np
 
 from bench._common import Section, Table, Target, fmt_ratio, percentiles, ratio, us
 from bench.svar_transfer import SIZE, Floor, bindings_for, interleaved_batches, object_name, vector_variables
-from pbo_runtime._clock import lower_timer_slack, release_stagger
-from pbo_runtime._table import StateTable, TableLayout
-from pbo_runtime._transfer import LocalTable
+from pbo_runtime.clock.clocks import lower_timer_slack, release_stagger
+from pbo_runtime.table.table import StateTable, TableLayout
+from pbo_runtime.task.transfer import LocalTable
 
 TABLE_SIZES = (10, 100, 1000, 10000)
 PORT_COUNTS = (1, 2, 4, 8, 16, 32, 64)

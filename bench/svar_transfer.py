@@ -23,10 +23,10 @@ import posix_ipc
 
 from bench._common import Section, Table, Target, fmt_ratio, ratio
 from pbo_runtime import InVar, OutVar, PortBasedObject
-from pbo_runtime._config_model import PortBinding, VariableSpec
-from pbo_runtime._ports import PortKind, PortSpec
-from pbo_runtime._table import StateTable, TableLayout
-from pbo_runtime._transfer import LocalTable
+from pbo_runtime.config.model import PortBinding, VariableSpec
+from pbo_runtime.objects.ports import PortKind, PortSpec
+from pbo_runtime.table.table import StateTable, TableLayout
+from pbo_runtime.task.transfer import LocalTable
 
 SIZE = 6  # float64 per variable
 N_IN, N_OUT = 3, 2

@@ -35,7 +35,7 @@ import numpy as np
 from bench._common import Section, Table, ratio, us
 from bench._processes import Workers
 from bench.realtime import FIFO_PRIORITY, _bare_stretch, _Plant, config_path
-from pbo_runtime._clock import RealClock, lower_timer_slack, release_stagger
+from pbo_runtime.clock.clocks import RealClock, lower_timer_slack, release_stagger
 
 PERIOD = 0.001
 DEFAULT_SLACK_NS = 50_000  # Linux's default timer slack for a normal thread

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pbo_runtime import PortBasedObject, Status
-from pbo_runtime._ports import ANY_DTYPE, InVar, PortSpec
+from pbo_runtime.objects.ports import ANY_DTYPE, InVar, PortSpec
 
 
 @dataclass(frozen=True)

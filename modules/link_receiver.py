@@ -14,7 +14,7 @@ import numpy as np
 
 from modules._link_params import LinkParams
 from pbo_runtime import PortBasedObject, Status
-from pbo_runtime._ports import ANY_DTYPE, OutVar
+from pbo_runtime.objects.ports import ANY_DTYPE, OutVar
 
 
 LinkReceiverParams = LinkParams

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from modules._link_params import LinkParams
 from pbo_runtime import PortBasedObject, Status
-from pbo_runtime._ports import ANY_DTYPE, InVar
+from pbo_runtime.objects.ports import ANY_DTYPE, InVar
 
 
 LinkSenderParams = LinkParams

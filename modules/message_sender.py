@@ -16,8 +16,8 @@ import numpy as np
 
 from modules._link_params import LinkParams
 from pbo_runtime import PortBasedObject, Status
-from pbo_runtime._message_link import MAX_PRIORITY, LinkFullError
-from pbo_runtime._ports import ANY_DTYPE, InVar, OutVar
+from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
+from pbo_runtime.objects.ports import ANY_DTYPE, InVar, OutVar
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@
 "A subsystem interfacing module is an aperiodic server, which waits for a message or signal from
 the remote subsystem. When the signal is received, the aperiodic server executes its cycle
 component" (TR §5.1). Run it with `aperiodic: true, min_interarrival: ...`: its RTPU relays each
-message of `params.link` to the executive (`_message_relay`), which releases the task with the
+message of `params.link` to the executive (`links.relay`), which releases the task with the
 message in `event`; the cycle parses it into `value`, which the usual out-var transfer writes.
 A message of the wrong size or with non-finite numbers is a fault (the task goes to ERROR; the
 value keeps its last good message). Until the first message the output keeps its initial value.
@@ -15,7 +15,7 @@ import numpy as np
 
 from modules._link_params import LinkParams
 from pbo_runtime import PortBasedObject, Status
-from pbo_runtime._ports import ANY_DTYPE, OutVar
+from pbo_runtime.objects.ports import ANY_DTYPE, OutVar
 
 
 MessageServerParams = LinkParams

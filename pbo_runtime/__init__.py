@@ -5,7 +5,7 @@ The names a module author needs; everything else lives in private modules.
 
 from __future__ import annotations
 
-from pbo_runtime._errors import (
+from pbo_runtime.errors import (
     ConfigError,
     ConfigErrors,
     InternalError,
@@ -15,8 +15,8 @@ from pbo_runtime._errors import (
     PboError,
     TableLayoutError,
 )
-from pbo_runtime._module import NoParams, PortBasedObject, Status
-from pbo_runtime._ports import InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
+from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
+from pbo_runtime.objects.ports import InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
 
 __all__ = [
     "ConfigError",

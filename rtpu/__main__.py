@@ -13,15 +13,16 @@ import os
 import sys
 import traceback
 
-from pbo_runtime import _messages, _registry
-from pbo_runtime._clock import RealClock, SimClock
-from pbo_runtime._config_loader import load_subsystem
-from pbo_runtime._config_model import DEFAULT_SPIN, DeviceSpec, TaskSpec
-from pbo_runtime._lifecycle import Task
-from pbo_runtime._lockstep import LockstepParticipant
-from pbo_runtime._process import Stop, become_child, stop_only_at_waits
-from pbo_runtime._reconfiguration import Reconfiguration
-from pbo_runtime._table import StateTable, TableLayout
+from pbo_runtime.ipc import messages
+from pbo_runtime.objects import registry
+from pbo_runtime.clock.clocks import RealClock, SimClock
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.config.model import DEFAULT_SPIN, DeviceSpec, TaskSpec
+from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.clock.lockstep import LockstepParticipant
+from pbo_runtime.ipc.process import Stop, become_child, stop_only_at_waits
+from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.table.table import StateTable, TableLayout
 from rtpu import _realtime
 from rtpu._executive import Executive
 
@@ -46,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     subsystem = load_subsystem(args.file)
     links = json.loads(args.links)
     name = subsystem.name
-    events = _messages.Queue(_messages.event_queue_name(name, args.run_id))
+    events = messages.Queue(messages.event_queue_name(name, args.run_id))
     report = lambda kind, *fields: events.try_send(kind, args.rtpu, *fields)  # noqa: E731
     # at stop: job control drains its queue while every RTPU reports, so a full queue is waited out
     # (while job control lives: after it was killed nobody drains the queue, and the wait would only hang)
@@ -56,21 +57,21 @@ def main(argv: list[str] | None = None) -> int:
     table = signals = barrier = None
     executive = None
     try:
-        table = StateTable.attach(TableLayout.of(subsystem), _messages.table_name(name, args.run_id))
-        signals = _messages.Queue(_messages.signal_queue_name(name, args.run_id, args.rtpu))
-        registers = _messages.plant_registers_name(name, args.run_id)
+        table = StateTable.attach(TableLayout.of(subsystem), messages.table_name(name, args.run_id))
+        signals = messages.Queue(messages.signal_queue_name(name, args.run_id, args.rtpu))
+        registers = messages.plant_registers_name(name, args.run_id)
 
         def open_device(device: DeviceSpec, task: TaskSpec):
             # The device database (TR 4.6.1) records the opening in the table, for every RTPU to see.
-            from pbo_runtime._devices import DeviceDatabase
+            from pbo_runtime.table.devices import DeviceDatabase
 
             return DeviceDatabase(subsystem, table, registers).open(device.name, task)
 
-        signal_queue = _messages.signal_queue_name(name, args.run_id, args.rtpu)
+        signal_queue = messages.signal_queue_name(name, args.run_id, args.rtpu)
 
         def relay(task: str, end):
             # A message link's server task (TR 5.1): each message is a signal to this RTPU.
-            from pbo_runtime._message_relay import MessageRelay
+            from pbo_runtime.links.relay import MessageRelay
 
             return MessageRelay(end, signal_queue, task)
 
@@ -82,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
                               reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
                               n_rtpus=len(subsystem.rtpus))
         for spec in subsystem.tasks_on(args.rtpu):
-            module_class = _registry.module_class(spec.module)
+            module_class = registry.module_class(spec.module)
 
             def make(spec=spec, module_class=module_class) -> Task:
                 return Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device,

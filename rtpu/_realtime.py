@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import os
 
-from pbo_runtime._clock import lower_timer_slack
-from pbo_runtime._plant_host import PLANT_FIFO_PRIORITY
+from pbo_runtime.clock.clocks import lower_timer_slack
+from pbo_runtime.supervisor.plant_host import PLANT_FIFO_PRIORITY
 
 FIFO_PRIORITY = 50  # above ordinary processes, below the kernel's own real-time threads
 

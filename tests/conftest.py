@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from pbo_runtime._config_model import PortBinding, TaskSpec, VariableSpec
-from pbo_runtime._module import PortBasedObject
-from pbo_runtime._table import StateTable, TableLayout
+from pbo_runtime.config.model import PortBinding, TaskSpec, VariableSpec
+from pbo_runtime.objects.module import PortBasedObject
+from pbo_runtime.table.table import StateTable, TableLayout
 
 REPO = Path(__file__).resolve().parent.parent
 

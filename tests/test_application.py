@@ -10,7 +10,7 @@ import numpy as np
 import posix_ipc
 import pytest
 
-from pbo_runtime._application import check_application, is_application_file
+from pbo_runtime.config.application import check_application, is_application_file
 from tests.conftest import REPO
 from tests.test_end_to_end import PBO, assert_nothing_left
 
@@ -107,7 +107,7 @@ def test_an_inline_subsystem_is_checked_in_full_and_its_errors_point_into_the_ap
 
 
 def test_an_inline_subsystem_runs_under_its_reference_and_loads_alone(tmp_path):
-    from pbo_runtime._config_loader import load_subsystem
+    from pbo_runtime.config.loader import load_subsystem
 
     result = check_application(write_app(tmp_path))
     operator = result.application.subsystems["operator"]
@@ -116,7 +116,7 @@ def test_an_inline_subsystem_runs_under_its_reference_and_loads_alone(tmp_path):
 
 
 def test_a_missing_inline_subsystem_reference_is_a_clear_error(tmp_path):
-    from pbo_runtime._config_loader import check_file
+    from pbo_runtime.config.loader import check_file
 
     result = check_file(write_app(tmp_path) + "#nobody")
     assert result.subsystem is None and "no inline subsystem 'nobody' under subsystems:" in result.errors[0].message
@@ -257,7 +257,7 @@ def test_a_bad_link_endpoint_is_refused_with_an_example(tmp_path, endpoint, want
 
 
 def test_the_runner_hands_the_scheduler_choice_to_every_subsystem_and_otherwise_leaves_their_default():
-    from pbo_runtime._application_runner import ApplicationRunner
+    from pbo_runtime.supervisor.application_runner import ApplicationRunner
 
     application = check_application(APP).application
     default = ApplicationRunner(application, 1.0, lambda text: None)

@@ -111,7 +111,7 @@ def test_a_paired_round_runs_the_bare_loops_over_the_seconds_the_run_runs_on_the
 
 def test_bare_loops_are_released_midway_between_the_releases_of_the_rtpus_on_their_cpu():
     from bench.realtime import bare_phases, placement
-    from pbo_runtime._clock import release_stagger
+    from pbo_runtime.clock.clocks import release_stagger
 
     period = 0.001
     for n_cpus in (1, 2, 4):

@@ -11,11 +11,11 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from pbo_runtime import _bus
-from pbo_runtime._bus import BusModelError
-from pbo_runtime._config_loader import load_subsystem
-from pbo_runtime._config_model import BusSpec, ConfigurationSpec, PortBinding, RtpuSpec, Subsystem, TaskSpec, VariableSpec
-from pbo_runtime._ports import PortKind, PortSpec
+from pbo_runtime.config import bus as _bus
+from pbo_runtime.config.bus import BusModelError
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.config.model import BusSpec, ConfigurationSpec, PortBinding, RtpuSpec, Subsystem, TaskSpec, VariableSpec
+from pbo_runtime.objects.ports import PortKind, PortSpec
 
 REPO = Path(__file__).resolve().parent.parent
 DEMO = REPO / "configs" / "pid_joint.yaml"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from pbo_runtime._channels import ChannelError, channels_of, format_channels, mask_of, parse_channels
+from pbo_runtime.config.channels import ChannelError, channels_of, format_channels, mask_of, parse_channels
 
 
 @pytest.mark.parametrize(("written", "channels"), [

@@ -14,8 +14,8 @@ from typing import Any
 import pytest
 
 from pbo_runtime import InBoth, InConst, InVar, ModuleError, OutBoth, OutConst, OutVar, PortBasedObject
-from pbo_runtime._config_loader import CheckResult, check_file
-from pbo_runtime._errors import ConfigError
+from pbo_runtime.config.loader import CheckResult, check_file
+from pbo_runtime.errors import ConfigError
 
 # --- fake modules ------------------------------------------------------------------------
 
@@ -574,12 +574,12 @@ def test_a_module_with_a_malformed_port_shape_is_reported_not_raised(tmp_path: P
 
 
 def test_a_bug_in_the_checker_is_an_internal_error_not_a_traceback(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from pbo_runtime import _checker
+    from pbo_runtime.config import checker
 
     def broken(self: Any) -> None:
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(_checker._Checker, "check_unused", broken)
+    monkeypatch.setattr(checker._Checker, "check_unused", broken)
     error = only_error(check(tmp_path, LEGAL))
     assert error.code == "E901" and re.match(r"^internal error in the checker: RuntimeError\('boom'\)$", error.message)
 

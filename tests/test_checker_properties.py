@@ -24,7 +24,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pbo_runtime import InBoth, InConst, InVar, ModuleError, OutBoth, OutConst, OutVar, PortBasedObject
-from pbo_runtime._config_loader import CheckResult, check_file
+from pbo_runtime.config.loader import CheckResult, check_file
 
 # --- the pool: variables, and fake modules declared as data ---------------------------------
 

@@ -11,9 +11,11 @@ import time
 import posix_ipc
 import pytest
 
-from pbo_runtime import _messages, _process, _shm
-from pbo_runtime._supervisor import remove_dead_runs
-from pbo_runtime._table import Header, StateTable, TableLayout
+from pbo_runtime.ipc import messages
+from pbo_runtime.ipc import process
+from pbo_runtime.ipc import shm as _shm
+from pbo_runtime.supervisor.supervisor import remove_dead_runs
+from pbo_runtime.table.table import Header, StateTable, TableLayout
 from tests.conftest import REPO, variables
 from tests.test_end_to_end import DEMO, PBO, children_of
 
@@ -21,7 +23,7 @@ VARS = variables(("a", "float64", (3,)))
 
 HOLD_THE_LOCK = """
 import sys, time, numpy as np, posix_ipc
-from pbo_runtime import _shm
+from pbo_runtime.ipc import shm as _shm
 name = sys.argv[1]
 lock = posix_ipc.Semaphore(name + ".lock")
 header = np.frombuffer(_shm.attach_segment(name), dtype=np.int64, count=64)
@@ -66,10 +68,10 @@ def test_a_new_run_removes_what_a_dead_run_left_queues_included():
     live_run = _shm.new_run_id()
     made = {}
     for run in (dead_run, live_run):
-        table_name = _messages.table_name(subsystem, run)
-        queue_name = _messages.event_queue_name(subsystem, run)
-        plant_name = _messages.plant_registers_name(subsystem, run)
-        queue = _messages.Queue(queue_name, create=True)
+        table_name = messages.table_name(subsystem, run)
+        queue_name = messages.event_queue_name(subsystem, run)
+        plant_name = messages.plant_registers_name(subsystem, run)
+        queue = messages.Queue(queue_name, create=True)
         shm, mapping = _shm.create_segment(plant_name, 4096)
         mapping.close()
         table = StateTable.create(TableLayout.build(VARS, 1), table_name,
@@ -128,9 +130,9 @@ def test_killing_the_supervisor_takes_its_children_and_pbo_clean_removes_the_res
     assert [n for n in os.listdir("/dev/shm") if run_id in n] == []
     for rtpu in ("rtpu0", "rtpu1"):
         with pytest.raises(posix_ipc.ExistentialError):
-            posix_ipc.MessageQueue(_messages.signal_queue_name("puma", run_id, rtpu))
+            posix_ipc.MessageQueue(messages.signal_queue_name("puma", run_id, rtpu))
     with pytest.raises(posix_ipc.ExistentialError):
-        posix_ipc.MessageQueue(_messages.event_queue_name("puma", run_id))
+        posix_ipc.MessageQueue(messages.event_queue_name("puma", run_id))
 
 
 @pytest.mark.multiprocess
@@ -176,13 +178,13 @@ class SignalInsideTheLock:
 def stops_only_at_waits():
     """This process takes SIGTERM/SIGINT as an RTPU does; the handlers and the request are restored after."""
     saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
-    _process.stop_only_at_waits()
+    process.stop_only_at_waits()
     try:
         yield
     finally:
         for s, handler in saved.items():
             signal.signal(s, handler)
-        _process._requested = ""
+        process._requested = ""
 
 
 def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_wait(no_leftover_ipc, make_table,
@@ -190,9 +192,9 @@ def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_w
     # Regression: a Stop raised between a transfer's acquire and release kept the table lock; the
     # stop path (kill -> publish the state) then waited on the RTPU's own lock for ever, and a
     # killed supervisor's RTPU outlived it (test_killing_the_supervisor..., seen once in CI).
-    from pbo_runtime._clock import RealClock
-    from pbo_runtime._lifecycle import Task
-    from pbo_runtime._table import TaskState
+    from pbo_runtime.clock.clocks import RealClock
+    from pbo_runtime.task.lifecycle import Task
+    from pbo_runtime.table.table import TaskState
     from rtpu._executive import Executive
     from tests.conftest import task_spec, unique_name
     from tests.test_executive import RUNS, Ticker
@@ -200,7 +202,7 @@ def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_w
     table = make_table(variables(("o0", "float64", ())))
     real_lock = table.lock
     table.lock = lock = SignalInsideTheLock(real_lock)
-    signals = _messages.Queue(unique_name("signals"), create=True)
+    signals = messages.Queue(unique_name("signals"), create=True)
     events: list[tuple] = []
     try:
         executive = Executive(RealClock(0.0002), signals, lambda *e: events.append(e), epoch=time.monotonic())
@@ -214,7 +216,7 @@ def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_w
         assert executive.tasks["a"].task.state == TaskState.ON
         RUNS.clear()
         lock.armed = True  # the signal comes inside the next cycle's first transfer
-        with pytest.raises(_process.Stop):
+        with pytest.raises(process.Stop):
             executive.run()
         assert not lock.armed
         executive.stop()  # as rtpu/__main__ does on Stop: kill every task, publish its state (the lock again), report
@@ -229,7 +231,7 @@ def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_w
 
 def test_a_second_stop_signal_stops_at_once(stops_only_at_waits):
     os.kill(os.getpid(), signal.SIGTERM)  # the first only asks: nothing is raised here
-    with pytest.raises(_process.Stop):
+    with pytest.raises(process.Stop):
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(1.0)  # (the handler runs as soon as the call returns)
 
@@ -239,7 +241,7 @@ def test_a_report_at_stop_stops_waiting_on_a_full_queue_once_its_reader_is_gone(
     # report used to wait out its 5 s, and an RTPU of many tasks outlived its supervisor by minutes.
     from tests.conftest import unique_name
 
-    queue = _messages.Queue(unique_name("events"), create=True)
+    queue = messages.Queue(unique_name("events"), create=True)
     try:
         while queue.try_send("filler", timeout=0):
             pass

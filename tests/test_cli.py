@@ -131,8 +131,8 @@ def test_the_public_surface_is_what_module_authors_need():
 
 
 def test_the_summary_tells_a_late_release_from_a_long_cycle():
-    from pbo_runtime._config_loader import load_subsystem
-    from pbo_runtime.cli import overrun_lines
+    from pbo_runtime.config.loader import load_subsystem
+    from pbo_runtime.cli.main import overrun_lines
 
     subsystem = load_subsystem(REPO / "configs" / "pid_joint.yaml")
     tasks = {
@@ -163,7 +163,7 @@ def test_the_summary_tells_a_late_release_from_a_long_cycle():
 def test_pbo_status_names_what_each_rtpu_runs_under():
     from rich.console import Console
 
-    from pbo_runtime._operator import scheduler_brief, status_table
+    from pbo_runtime.cli.operator import scheduler_brief, status_table
 
     refused = "SCHED_OTHER: SCHED_FIFO refused ([Errno 1] Operation not permitted); it needs CAP_SYS_NICE"
     assert scheduler_brief({"scheduler": "SCHED_FIFO 50", "cpu": "any"}) == "FIFO 50"

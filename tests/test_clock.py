@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from pbo_runtime import OutVar, PortBasedObject, Status
-from pbo_runtime._clock import ManualClock, RealClock, SimClock, release_stagger
-from pbo_runtime._lifecycle import Task
-from pbo_runtime._table import HEADER_WORDS, Header
-from pbo_runtime._table import Status as W
+from pbo_runtime.clock.clocks import ManualClock, RealClock, SimClock, release_stagger
+from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.table.table import HEADER_WORDS, Header
+from pbo_runtime.table.table import Status as W
 from rtpu._executive import Executive
 from tests.conftest import task_spec, variables
 

@@ -10,10 +10,10 @@ from modules.combined import Combined
 from modules.joint_trajectory import JointTrajectory
 from modules.pid_joint import PidJoint
 from pbo_runtime import ParamError
-from pbo_runtime import _bus
-from pbo_runtime._config_loader import check_file
-from pbo_runtime._config_model import PortBinding, TaskSpec
-from pbo_runtime._lifecycle import Task
+from pbo_runtime.config import bus
+from pbo_runtime.config.loader import check_file
+from pbo_runtime.config.model import PortBinding, TaskSpec
+from pbo_runtime.task.lifecycle import Task
 from tests.conftest import REPO, task_spec, variables
 
 PUMA = robot("puma560")
@@ -92,8 +92,8 @@ def test_the_computed_torque_configuration_checks_and_the_bus_shows_what_combini
     result = check_file(REPO / "configs" / "computed_torque.yaml")
     assert result.errors == [], [e.format() for e in result.errors]
     subsystem = result.subsystem
-    apart = _bus.predict(subsystem, "separate")
-    together = _bus.predict(subsystem, "combined")
+    apart = bus.predict(subsystem, "separate")
+    together = bus.predict(subsystem, "combined")
     assert together.total < apart.total  # qdd_r never crosses the bus when PID and inverse dynamics are one task
     ctc = subsystem.tasks["ctc"]
     assert "qdd_r" not in {b.variable for b in ctc.bindings}

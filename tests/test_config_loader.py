@@ -13,8 +13,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pbo_runtime import ConfigError, ConfigErrors, InConst, InVar, ModuleError, OutVar, PortBasedObject, PortKind
-from pbo_runtime._config_loader import CheckResult, check_file, format_diagnostics, load_subsystem
-from pbo_runtime._yaml_nodes import YList, YMap, load_text, plain
+from pbo_runtime.config.loader import CheckResult, check_file, format_diagnostics, load_subsystem
+from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, plain
 
 
 class FakeSensor(PortBasedObject):
@@ -442,16 +442,16 @@ def test_every_code_in_the_doc_is_produced_by_its_example_with_the_message_shown
 
 
 def test_every_code_the_checker_uses_is_in_the_doc_and_only_those() -> None:
-    import pbo_runtime._checker as checker_module
-    import pbo_runtime._errors as errors_module
+    import pbo_runtime.config.checker as checker_module
+    import pbo_runtime.errors as errors_module
 
-    import pbo_runtime._config_loader as loader_module
+    import pbo_runtime.config.loader as loader_module
 
     checker_files = Path(checker_module.__file__).parent.glob("*.py")  # the checker is a package
     used = set(re.findall(r'"([EW]\d{3})"', "".join(p.read_text() for p in checker_files)))
     used |= set(re.findall(r'code="([EW]\d{3})"', Path(loader_module.__file__).read_text()))
     used |= set(re.findall(r'"([EW]\d{3})"\)', Path(errors_module.__file__).read_text()))
-    import pbo_runtime._application as application_module
+    import pbo_runtime.config.application as application_module
 
     used |= set(re.findall(r'"(E8\d{2})"', Path(application_module.__file__).read_text()))
     rows = doc_rows(ERROR_CODES_DOC.read_text())

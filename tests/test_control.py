@@ -20,9 +20,12 @@ import posix_ipc
 import pytest
 from rich.console import Console
 
-from pbo_runtime import PboError, _messages, _operator, _shm
-from pbo_runtime._errors import InternalError
-from pbo_runtime._control import (
+from pbo_runtime import PboError
+from pbo_runtime.ipc import messages
+from pbo_runtime.cli import operator
+from pbo_runtime.ipc import shm
+from pbo_runtime.errors import InternalError
+from pbo_runtime.ipc.control import (
     MAX_REQUESTS_PER_POLL,
     CommandRefused,
     ControlClient,
@@ -31,7 +34,7 @@ from pbo_runtime._control import (
     find_live_run,
     reply_queue_prefix,
 )
-from pbo_runtime._table import StateTable, TableLayout
+from pbo_runtime.table.table import StateTable, TableLayout
 from tests.conftest import variables
 
 
@@ -70,7 +73,7 @@ def fake_run() -> Iterator[Any]:
     def make(subsystem: str, run_id: str | None = None) -> tuple[str, str, StateTable]:
         run_id = run_id or new_run_id()
         layout = TableLayout.build(variables(("q_m", "float64", (3,)), ("n", "int32", ())), 2)
-        table = StateTable.create(layout, _messages.table_name(subsystem, run_id))
+        table = StateTable.create(layout, messages.table_name(subsystem, run_id))
         made.append(table)
         return subsystem, run_id, table
 
@@ -287,7 +290,7 @@ def test_closing_the_server_unlinks_its_queue():
 
 
 def test_connect_with_no_run_raises_a_clear_error(monkeypatch, tmp_path: Path):
-    monkeypatch.setattr(_shm, "SHM_DIR", tmp_path)  # an empty /dev/shm: no run, whatever else this machine runs
+    monkeypatch.setattr(shm, "SHM_DIR", tmp_path)  # an empty /dev/shm: no run, whatever else this machine runs
     with pytest.raises(PboError, match=r"^no subsystem is running \(no live state variable table in /dev/shm\)"):
         ControlClient.connect()
 
@@ -352,7 +355,7 @@ def recording_console() -> Console:
 def test_status_prints_tasks_by_rtpu_with_configuration_and_job(live):
     sub, _ = live
     console = recording_console()
-    assert _operator.status(console, sub) == 0
+    assert operator.status(console, sub) == 0
     text = console.export_text()
     assert f"{sub} · run" in text and "configuration joint_pid" in text and "job move" in text
     assert text.index("rtpu0") < text.index("rtpu1")  # grouped by RTPU, in order
@@ -365,7 +368,7 @@ def test_status_prints_tasks_by_rtpu_with_configuration_and_job(live):
 def test_task_signal_sends_the_task_and_prints_its_new_state(live):
     sub, supervisor = live
     console = recording_console()
-    assert _operator.task_signal(console, "on", "robot", sub) == 0
+    assert operator.task_signal(console, "on", "robot", sub) == 0
     assert supervisor.handled[-1] == ("on", {"task": "robot"})
     assert "task 'robot' is ON" in console.export_text()
 
@@ -373,41 +376,41 @@ def test_task_signal_sends_the_task_and_prints_its_new_state(live):
 def test_a_refused_task_signal_raises_with_the_supervisors_reason(live):
     sub, _ = live
     with pytest.raises(CommandRefused, match=r"task 'pid' is in ERROR: clear it first$"):
-        _operator.task_signal(recording_console(), "on", "pid", sub)
+        operator.task_signal(recording_console(), "on", "pid", sub)
 
 
 def test_a_task_command_other_than_on_off_clear_is_refused_before_sending(live):
     sub, supervisor = live
     with pytest.raises(PboError, match=r"^a task command is one of on, off, clear, got: 'kill'$"):
-        _operator.task_signal(recording_console(), "kill", "pid", sub)
+        operator.task_signal(recording_console(), "kill", "pid", sub)
     assert supervisor.handled == []
 
 
 def test_job_sends_its_object_values_as_floats(live):
     sub, supervisor = live
     console = recording_console()
-    assert _operator.job(console, "move", ["0.3", "-0.5", "0.5", "0", "0.4", "0.2"], sub) == 0
+    assert operator.job(console, "move", ["0.3", "-0.5", "0.5", "0", "0.4", "0.2"], sub) == 0
     assert supervisor.handled[-1] == ("job", {"job": "move", "object": [0.3, -0.5, 0.5, 0.0, 0.4, 0.2]})
     assert "job 'move' started (configuration 'joint_pid')" in console.export_text()
 
 
 def test_a_job_without_values_sends_no_object(live):
     sub, supervisor = live
-    _operator.job(recording_console(), "move", None, sub)
+    operator.job(recording_console(), "move", None, sub)
     assert supervisor.handled[-1] == ("job", {"job": "move", "object": None})
 
 
 @pytest.mark.parametrize("text", ["abc", "nan", "inf"])
 def test_job_object_values_must_be_finite_numbers(text):
     with pytest.raises(PboError, match=r"^a job's object values must be (numbers|finite), got: '\w+' \(value 2\)$"):
-        _operator.parse_object_values(["0.1", text])
+        operator.parse_object_values(["0.1", text])
 
 
 def test_a_message_too_long_for_its_queue_is_named_as_our_bug_not_a_bare_value_error():
-    queue = _messages.Queue(f"/pbo-test-{uuid.uuid4().hex[:8]}", create=True)
+    queue = messages.Queue(f"/pbo-test-{uuid.uuid4().hex[:8]}", create=True)
     try:
         with pytest.raises(InternalError, match=r"^a 'stats' message of \d+ B does not fit queue .* please report this$"):
-            queue.try_send("stats", "x" * _messages.MESSAGE_BYTES)
+            queue.try_send("stats", "x" * messages.MESSAGE_BYTES)
         assert queue.try_send("stats", "small")
     finally:
         queue.close()

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from pbo_runtime._config_loader import CheckResult, check_file
-from pbo_runtime._errors import ConfigError
+from pbo_runtime.config.loader import CheckResult, check_file
+from pbo_runtime.errors import ConfigError
 
 BASE = """\
 subsystem: devices

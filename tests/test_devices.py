@@ -20,10 +20,10 @@ from drivers.io.adc import Adc
 from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.mujoco_arm.registers import DeviceError
 from modules.analog_input import AnalogInput
-from pbo_runtime._config_loader import load_subsystem
-from pbo_runtime._devices import DeviceBusyError, DeviceDatabase, DeviceOpenError
-from pbo_runtime._lifecycle import Task
-from pbo_runtime._table import StateTable, TableLayout, TaskState
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.table.devices import DeviceBusyError, DeviceDatabase, DeviceOpenError
+from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.table.table import StateTable, TableLayout, TaskState
 from tests.conftest import REPO, unique_name
 
 SHEET = """\
@@ -262,9 +262,9 @@ def test_a_device_is_opened_only_in_an_init(subsystem, table, database):
 
 CHILD = """\
 import sys
-from pbo_runtime._config_loader import load_subsystem
-from pbo_runtime._devices import DeviceDatabase
-from pbo_runtime._table import StateTable, TableLayout
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.table.devices import DeviceDatabase
+from pbo_runtime.table.table import StateTable, TableLayout
 sub = load_subsystem(sys.argv[1])
 table = StateTable.attach(TableLayout.of(sub), sys.argv[2])
 driver = DeviceDatabase(sub, table, sys.argv[3]).open("adc0", sub.tasks["high"])

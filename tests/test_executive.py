@@ -7,9 +7,9 @@ import dataclasses
 import pytest
 
 from pbo_runtime import OutVar, PortBasedObject, Status
-from pbo_runtime._clock import ManualClock
-from pbo_runtime._lifecycle import Task
-from pbo_runtime._table import TaskState
+from pbo_runtime.clock.clocks import ManualClock
+from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.table.table import TaskState
 from rtpu._executive import Executive
 from tests.conftest import task_spec, variables
 
@@ -218,7 +218,7 @@ def test_an_event_for_a_periodic_task_is_refused(setup):
 
 
 def test_the_percentiles_of_the_last_1024_cycles_reach_the_table_for_pbo_status(setup):
-    from pbo_runtime._table import Status as W
+    from pbo_runtime.table.table import Status as W
 
     build, clock, _ = setup
     ex = build([("a", Ticker, 0.001, False)], [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0])])
@@ -317,7 +317,7 @@ def test_once_job_control_announces_the_stop_no_further_cycle_runs(make_table):
     # cycles, which then overran for want of a CPU and were counted as the run's overruns.
     import numpy as np
 
-    from pbo_runtime._table import Flag, Header
+    from pbo_runtime.table.table import Flag, Header
 
     RUNS.clear()
     table = make_table(variables(("o0", "float64", ())))
@@ -364,9 +364,9 @@ class Quiet(PortBasedObject):
 # raised its mmap threshold, and the rings would come from recycled heap, written already.
 CYCLES_IN_A_FRESH_PROCESS = """
 import os, resource, sys
-from pbo_runtime._clock import ManualClock
-from pbo_runtime._lifecycle import Task
-from pbo_runtime._table import StateTable, TableLayout
+from pbo_runtime.clock.clocks import ManualClock
+from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.table.table import StateTable, TableLayout
 from rtpu._executive import Executive
 from tests.conftest import task_spec, unique_name, variables
 from tests.test_executive import FakeSignals, Quiet, run_until

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pbo_runtime._expressions import ExpressionError, compile_condition
+from pbo_runtime.config.expressions import ExpressionError, compile_condition
 
 Q = {"q_m": np.array([0.1, -0.2, 0.3]), "q_d": np.array([0.1, -0.2, 0.3005]), "DH": np.arange(12.0).reshape(3, 4)}
 

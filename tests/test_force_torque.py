@@ -26,7 +26,7 @@ from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.mujoco_arm.registers import VOLTS_PER_COUNT, W_BRAKE, DeviceError
 from drivers.robots import robot, to_mjcf
 from modules.ft_sensor import FtSensor
-from pbo_runtime._lifecycle import Task
+from pbo_runtime.task.lifecycle import Task
 from tests.conftest import REPO, task_spec, unique_name, variables
 from tests.test_io_boards import allocation_peak, one_array
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from pbo_runtime._config_loader import load_subsystem
-from pbo_runtime._graph import JOB_CONTROL, diagram, draw, layers, to_dot
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.reports.graph import JOB_CONTROL, diagram, draw, layers, to_dot
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "configs" / "pid_joint.yaml"

@@ -10,9 +10,9 @@ import pytest
 
 from modules.join import Join
 from pbo_runtime import OutVar, ParamError, PortBasedObject
-from pbo_runtime._config_loader import check_file
-from pbo_runtime._config_model import PortBinding, TaskSpec
-from pbo_runtime._lifecycle import Task
+from pbo_runtime.config.loader import check_file
+from pbo_runtime.config.model import PortBinding, TaskSpec
+from pbo_runtime.task.lifecycle import Task
 from tests.conftest import REPO, variables
 
 

@@ -24,8 +24,8 @@ from modules.inverse_dynamics import InverseDynamics
 from modules.resolved_rate import ResolvedRate
 from modules.time_integrator import TimeIntegrator
 from pbo_runtime import ParamError, PortBasedObject, Status
-from pbo_runtime._lifecycle import Task
-from pbo_runtime._table import StateTable, TaskState
+from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.table.table import StateTable, TaskState
 from tests.conftest import task_spec, variables
 
 PUMA = robot("puma560")

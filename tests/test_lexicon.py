@@ -7,8 +7,8 @@ import json
 from rich.console import Console
 from rich.table import Table
 
-from pbo_runtime import _registry
-from pbo_runtime._lexicon import as_table, lexicon, shape_text, type_text
+from pbo_runtime.objects import registry
+from pbo_runtime.reports.lexicon import as_table, lexicon, shape_text, type_text
 
 
 def _by_name() -> dict[str, dict]:
@@ -17,9 +17,9 @@ def _by_name() -> dict[str, dict]:
 
 def test_every_module_appears_with_its_ports_and_params():
     entries = lexicon()
-    assert [e["name"] for e in entries] == list(_registry.names(_registry.MODULES))
+    assert [e["name"] for e in entries] == list(registry.names(registry.MODULES))
     for entry in entries:
-        cls = _registry.module_class(entry["name"])
+        cls = registry.module_class(entry["name"])
         assert "error" not in entry
         assert entry["summary"], entry["name"]
         assert [p["name"] for p in entry["ports"]] == [p.name for p in cls.ports()]
@@ -66,7 +66,7 @@ def test_table_shows_every_module():
     console = Console(width=160, record=True, color_system=None)
     console.print(table)
     text = console.export_text()
-    for name in _registry.names(_registry.MODULES):
+    for name in registry.names(registry.MODULES):
         assert name in text
     assert "kp: float | tuple[float, ...]" in text and "400.0" in text
     assert "as variable" in text or "(none declared)" in text

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from pbo_runtime import InBoth, InConst, InVar, LifecycleError, OutBoth, OutConst, OutVar, PortBasedObject, Status
-from pbo_runtime._lifecycle import Task
-from pbo_runtime._table import TaskState
+from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.table.table import TaskState
 from tests.conftest import task_spec, variables
 
 VARS = variables(

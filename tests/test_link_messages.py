@@ -11,7 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pbo_runtime._message_link import (
+from pbo_runtime.links.message_link import (
     MAX_PRIORITY,
     SYSTEM_CAPACITY,
     LinkFullError,

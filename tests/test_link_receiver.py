@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from modules.link_receiver import LinkReceiver
-from pbo_runtime._triple_buffer import LinkLayout, TripleBuffer
+from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer
 from tests.conftest import unique_name, variables
 from tests.test_message_modules import make_task
 

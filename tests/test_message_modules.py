@@ -13,12 +13,12 @@ import pytest
 
 from modules.message_sender import MessageSender
 from modules.message_server import MessageServer
-from pbo_runtime import _messages
-from pbo_runtime._config_model import PortBinding, TaskSpec
-from pbo_runtime._lifecycle import Task
-from pbo_runtime._message_link import MessageLink
-from pbo_runtime._message_relay import MessageRelay
-from pbo_runtime._table import TaskState
+from pbo_runtime.ipc import messages
+from pbo_runtime.config.model import PortBinding, TaskSpec
+from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.links.message_link import MessageLink
+from pbo_runtime.links.relay import MessageRelay
+from pbo_runtime.table.table import TaskState
 from tests.conftest import unique_name, variables
 
 
@@ -85,7 +85,7 @@ def test_a_message_link_without_its_application_names_what_to_run(no_leftover_ip
 
 
 def test_the_relay_forwards_each_message_to_the_rtpu_signal_queue_highest_priority_first(no_leftover_ipc, goal_link):
-    signals = _messages.Queue(unique_name("signals-rtpu0"), create=True)
+    signals = messages.Queue(unique_name("signals-rtpu0"), create=True)
     try:
         goal_link.send([1.0], priority=0)
         goal_link.send([9.0], priority=5)
@@ -139,7 +139,7 @@ def test_the_server_writes_each_message_and_a_malformed_one_is_a_fault_that_keep
 
 
 def test_a_relay_stops_promptly_while_its_link_is_quiet(no_leftover_ipc, goal_link):
-    signals = _messages.Queue(unique_name("signals-rtpu0"), create=True)
+    signals = messages.Queue(unique_name("signals-rtpu0"), create=True)
     try:
         relay = MessageRelay(MessageLink.attach(goal_link.name), signals.name, "goal")
         closing = threading.Thread(target=relay.close)

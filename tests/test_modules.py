@@ -23,9 +23,9 @@ from modules.joint_trajectory import JointTrajectory
 from modules.pid_joint import PidJoint
 from modules.robot_torque import RobotTorque
 from pbo_runtime import ParamError, Status
-from pbo_runtime._config_model import DeviceSpec, PortBinding, TaskSpec
-from pbo_runtime._lifecycle import Task
-from pbo_runtime._table import StateTable, TaskState
+from pbo_runtime.config.model import DeviceSpec, PortBinding, TaskSpec
+from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.table.table import StateTable, TaskState
 from tests.conftest import task_spec, unique_name, variables
 
 PUMA = robot("puma560")

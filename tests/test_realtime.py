@@ -36,9 +36,9 @@ def test_sched_fifo_is_reported_as_granted_or_refused_with_the_reason():
 
 
 def test_the_real_clock_asks_for_sched_fifo_by_default_and_the_simulated_clock_does_not():
-    from pbo_runtime._config_loader import load_subsystem
-    from pbo_runtime._supervisor import Supervisor
-    from pbo_runtime.cli import _parser
+    from pbo_runtime.config.loader import load_subsystem
+    from pbo_runtime.supervisor.supervisor import Supervisor
+    from pbo_runtime.cli.main import _parser
 
     subsystem = load_subsystem(REPO / "configs" / "pid_joint.yaml")
     assert Supervisor(subsystem).fifo is True

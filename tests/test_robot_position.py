@@ -20,9 +20,9 @@ from drivers.mujoco_arm.registers import DeviceError
 from drivers.robots import RobotDescription
 from modules.robot_position import RobotPosition
 from pbo_runtime import Status
-from pbo_runtime._config_model import DeviceSpec, TaskSpec
-from pbo_runtime._lifecycle import Task
-from pbo_runtime._table import StateTable, TaskState
+from pbo_runtime.config.model import DeviceSpec, TaskSpec
+from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.table.table import StateTable, TaskState
 from tests.conftest import task_spec, unique_name, variables
 
 ROBOTS = ("puma560", "redundant7")

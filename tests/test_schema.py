@@ -14,9 +14,9 @@ from typing import Any
 import pytest
 import yaml
 
-from pbo_runtime import _registry
-from pbo_runtime._checker import BUS_KEYS, JOB_KEYS, TASK_KEYS, TOP_KEYS, VARIABLE_KEYS
-from pbo_runtime._schema import json_schema, quantity_pattern, schema_text, write_schema
+from pbo_runtime.objects import registry
+from pbo_runtime.config.checker import BUS_KEYS, JOB_KEYS, TASK_KEYS, TOP_KEYS, VARIABLE_KEYS
+from pbo_runtime.reports.schema import json_schema, quantity_pattern, schema_text, write_schema
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "configs" / "pid_joint.yaml"
@@ -183,7 +183,7 @@ def test_every_object_node_has_a_type_and_closed_sections_reject_unknown_keys(sc
 
 
 def test_every_module_has_a_params_branch_from_its_params_dataclass(schema):
-    modules = list(_registry.names(_registry.MODULES))
+    modules = list(registry.names(registry.MODULES))
     task = schema["$defs"]["task"]
     assert task["properties"]["module"]["enum"] == modules
     branches = {b["if"]["properties"]["module"]["const"]: b["then"] for b in task["allOf"]}
@@ -201,7 +201,7 @@ def test_every_module_has_a_params_branch_from_its_params_dataclass(schema):
     assert logger["properties"]["variables"] == {
         "type": "array", "items": {"type": "string"}, "description": logger["properties"]["variables"]["description"]}
     assert schema["properties"]["devices"]["additionalProperties"]["properties"]["driver"]["enum"] == list(
-        _registry.names(_registry.DRIVERS))
+        registry.names(registry.DRIVERS))
 
 
 @pytest.mark.parametrize(
@@ -267,4 +267,4 @@ def test_write_schema_is_deterministic_and_matches_the_committed_file(tmp_path, 
     assert first.endswith("}\n") and '\n  "$defs": {' in first
     assert json.loads(first) == schema
     committed = REPO / "docs" / "pbo-subsystem.schema.json"
-    assert committed.read_text() == first, "regenerate it: python -c 'from pbo_runtime._schema import write_schema; write_schema(\"docs/pbo-subsystem.schema.json\")'"
+    assert committed.read_text() == first, "regenerate it: python -c 'from pbo_runtime.reports.schema import write_schema; write_schema(\"docs/pbo-subsystem.schema.json\")'"

@@ -18,9 +18,9 @@ import time
 import numpy as np
 import pytest
 
-from pbo_runtime import _shm
-from pbo_runtime._lockstep import LockstepMaster, LockstepParticipant
-from pbo_runtime._table import HEADER_WORDS, Header
+from pbo_runtime.ipc import shm
+from pbo_runtime.clock.lockstep import LockstepMaster, LockstepParticipant
+from pbo_runtime.table.table import HEADER_WORDS, Header
 from tests.conftest import REPO
 from tests.test_end_to_end import DEMO, PBO, assert_nothing_left
 
@@ -38,7 +38,7 @@ def run_sim(tmp_path, config, *arguments: str, out: str = "out") -> tuple[subpro
 @pytest.fixture
 def barrier():
     """A master with two participants ('plant', 'rtpu0') served by threads that log what they saw."""
-    run_id = _shm.new_run_id()
+    run_id = shm.new_run_id()
     header = np.zeros(HEADER_WORDS, dtype=np.int64)
     master = LockstepMaster("locktest", run_id, ["plant", "rtpu0"], 0.001, header)
     seen: list[tuple[str, bool, int]] = []
@@ -84,7 +84,7 @@ def test_a_step_without_a_new_tick_only_serves_signals(barrier):
 
 
 def test_the_barrier_semaphores_are_private_and_gone_after_close():
-    run_id = _shm.new_run_id()
+    run_id = shm.new_run_id()
     master = LockstepMaster("locktest", run_id, ["rtpu0"], 0.001, np.zeros(HEADER_WORDS, dtype=np.int64))
     names = [n for n in os.listdir("/dev/shm") if run_id in n]
     assert len(names) == 2 and all(os.stat(f"/dev/shm/{n}").st_mode & 0o777 == 0o600 for n in names)

@@ -11,8 +11,8 @@ import textwrap
 
 import pytest
 
-from pbo_runtime._config_model import TaskSpec
-from pbo_runtime._stall_watch import STALL_FLOOR, StallWatch
+from pbo_runtime.config.model import TaskSpec
+from pbo_runtime.supervisor.stall_watch import STALL_FLOOR, StallWatch
 
 
 def spec(name: str, index: int, period: float = 0.001, aperiodic: bool = False) -> TaskSpec:

@@ -15,9 +15,12 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from pbo_runtime import PboError, TableLayoutError, _messages, _operator, _shm
-from pbo_runtime._svar import format_value, open_table, svar_rows, svar_table
-from pbo_runtime._table import MAGIC, Header, StateTable, Status, TableLayout, TaskState
+from pbo_runtime import PboError, TableLayoutError
+from pbo_runtime.ipc import messages
+from pbo_runtime.cli import operator
+from pbo_runtime.ipc import shm
+from pbo_runtime.table.svar import format_value, open_table, svar_rows, svar_table
+from pbo_runtime.table.table import MAGIC, Header, StateTable, Status, TableLayout, TaskState
 from tests.conftest import variables
 
 VARS = variables(("q_m", "float64", (3,)), ("n", "int32", ()), ("DH", "float64", (2, 4)), ("gain", "float32", ()))
@@ -42,7 +45,7 @@ def run() -> Iterator[Any]:
     def make(var_specs=VARS, n_tasks: int = 3) -> tuple[str, StateTable]:
         subsystem = f"svar{uuid.uuid4().hex[:6]}"
         table = StateTable.create(TableLayout.build(var_specs, n_tasks),
-                                  _messages.table_name(subsystem, f"{os.getpid()}-{uuid.uuid4().hex[:6]}"))
+                                  messages.table_name(subsystem, f"{os.getpid()}-{uuid.uuid4().hex[:6]}"))
         made.append(table)
         return subsystem, table
 
@@ -106,14 +109,14 @@ def test_an_unknown_variable_names_the_choices(run):
 
 def test_a_segment_with_a_wrong_magic_fails_clearly():
     subsystem = f"svar{uuid.uuid4().hex[:6]}"
-    name = _messages.table_name(subsystem, f"{os.getpid()}-{uuid.uuid4().hex[:6]}")
-    _shm_object, mapping = _shm.create_segment(name, 4096)
+    name = messages.table_name(subsystem, f"{os.getpid()}-{uuid.uuid4().hex[:6]}")
+    _shm_object, mapping = shm.create_segment(name, 4096)
     try:
         with pytest.raises(TableLayoutError, match=rf"^'{name}' is not a pbo state variable table \(magic 0x0, expected {MAGIC:#x}\)"):
             open_table(subsystem)
     finally:
         mapping.close()
-        _shm.unlink_quietly("shm", name)
+        shm.unlink_quietly("shm", name)
 
 
 def test_a_table_of_another_version_fails_clearly(run):
@@ -170,7 +173,7 @@ def test_pbo_svar_prints_the_table_when_no_supervisor_answers(run):
     subsystem, table = run()
     table.write("q_m", [0.1, 0.2, 0.3], when=time.monotonic(), writer=0)
     console = Console(record=True, width=200, color_system=None)
-    assert _operator.svar(console, ["q_m", "n"], watch=False, subsystem=subsystem) == 0
+    assert operator.svar(console, ["q_m", "n"], watch=False, subsystem=subsystem) == 0
     text = console.export_text()
     assert "+0.1000" in text and "task #0" in text and "DH" not in text
 
@@ -178,11 +181,11 @@ def test_pbo_svar_prints_the_table_when_no_supervisor_answers(run):
 def test_pbo_svar_watch_refreshes_and_returns_zero(run):
     subsystem, _ = run()
     console = Console(record=True, width=200, color_system=None)
-    assert _operator.svar(console, [], watch=True, interval=0.01, subsystem=subsystem, updates=2) == 0
+    assert operator.svar(console, [], watch=True, interval=0.01, subsystem=subsystem, updates=2) == 0
     assert "gain" in console.export_text()
 
 
 def test_pbo_svar_suggests_a_close_name_for_an_unknown_variable(run):
     subsystem, _ = run()
     with pytest.raises(PboError, match=r"^no variable 'q_n' in 'svar\w+' \(did you mean 'q_m'\?\); variables: q_m, n, DH, gain$"):
-        _operator.svar(Console(record=True), ["q_n"], watch=False, subsystem=subsystem)
+        operator.svar(Console(record=True), ["q_n"], watch=False, subsystem=subsystem)

@@ -13,11 +13,11 @@ import math
 import pytest
 
 from pbo_runtime import InVar, OutVar, PortBasedObject, Status
-from pbo_runtime._clock import ManualClock
-from pbo_runtime._config_loader import check_file
-from pbo_runtime._lifecycle import Task
-from pbo_runtime._reconfiguration import Reconfiguration
-from pbo_runtime._table import Header, StateTable, TableLayout, TaskState
+from pbo_runtime.clock.clocks import ManualClock
+from pbo_runtime.config.loader import check_file
+from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.table.table import Header, StateTable, TableLayout, TaskState
 from rtpu._executive import Executive
 from tests.conftest import unique_name
 

@@ -10,8 +10,8 @@ import posix_ipc
 import pytest
 
 from pbo_runtime import InVar, OutVar, PortBasedObject, TableLayoutError
-from pbo_runtime._table import Header, StateTable, TableLayout
-from pbo_runtime._transfer import LocalTable
+from pbo_runtime.table.table import Header, StateTable, TableLayout
+from pbo_runtime.task.transfer import LocalTable
 from tests.conftest import task_spec, unique_name, variables
 
 

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from pbo_runtime import InVar, OutVar, PortBasedObject
-from pbo_runtime._config_loader import check_file
-from pbo_runtime._transitions import flatten, transitions
+from pbo_runtime.config.loader import check_file
+from pbo_runtime.config.transitions import flatten, transitions
 
 
 class FakeSensor(PortBasedObject):

@@ -25,7 +25,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pbo_runtime._triple_buffer import (
+from pbo_runtime.links.triple_buffer import (
     NO_SLOT,
     Freshness,
     LinkError,

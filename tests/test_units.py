@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from pbo_runtime._units import DATA_RATE, FREQUENCY, SIZE, TIME, parse_quantity
+from pbo_runtime.config.units import DATA_RATE, FREQUENCY, SIZE, TIME, parse_quantity
 
 
 @pytest.mark.parametrize(

@@ -29,10 +29,11 @@ from modules._robot_model import END_EFFECTOR_FRAME, frame_id, frame_pose_and_ja
 from modules.damped_least_squares import DampedLeastSquares
 from modules.resolved_rate import ResolvedRate
 from modules.visual_servoing import VisualServoing
-from pbo_runtime import ParamError, PortBasedObject, Status, _registry
-from pbo_runtime._config_model import DeviceSpec, TaskSpec
-from pbo_runtime._lifecycle import Task
-from pbo_runtime._table import StateTable, TaskState
+from pbo_runtime import ParamError, PortBasedObject, Status
+from pbo_runtime.objects import registry
+from pbo_runtime.config.model import DeviceSpec, TaskSpec
+from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.table.table import StateTable, TaskState
 from tests.conftest import REPO, task_spec, unique_name, variables
 
 TIMESTEP = 0.001
@@ -372,7 +373,7 @@ def test_at_the_wrist_singularity_dls_keeps_joint_speeds_bounded_and_resolved_ra
 
 # end to end (needs the entry points) ---------------------------------------------------------------
 
-REGISTERED = "visual_servoing" in _registry.names(_registry.MODULES) and "camera" in _registry.names(_registry.DRIVERS)
+REGISTERED = "visual_servoing" in registry.names(registry.MODULES) and "camera" in registry.names(registry.DRIVERS)
 needs_entry_points = pytest.mark.skipif(
     not REGISTERED, reason="visual_servoing (pbo.modules) and camera (pbo.drivers) are not registered in pyproject.toml yet"
 )

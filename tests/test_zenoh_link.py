@@ -28,9 +28,9 @@ import pytest
 
 pytest.importorskip("zenoh")
 
-from pbo_runtime._message_link import MAX_PRIORITY, LinkFullError, MessageLink, MessageLinkError  # noqa: E402
-from pbo_runtime._triple_buffer import Freshness, LinkError, LinkLayout, LinkLayoutError, TripleBuffer  # noqa: E402
-from pbo_runtime._zenoh_link import (  # noqa: E402
+from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError, MessageLink, MessageLinkError  # noqa: E402
+from pbo_runtime.links.triple_buffer import Freshness, LinkError, LinkLayout, LinkLayoutError, TripleBuffer  # noqa: E402
+from pbo_runtime.links.zenoh_link import (  # noqa: E402
     DELIVERIES,
     ITEM_FORMAT,
     ITEM_HEADER,

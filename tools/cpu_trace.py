@@ -177,7 +177,7 @@ def _describe(proc: Path) -> str:
         return f"[{(proc / 'comm').read_text().strip()}]"  # a kernel thread
     if "rtpu" in words and "--rtpu" in words:
         return f"RTPU {words[words.index('--rtpu') + 1]}"
-    if "pbo_runtime._plant_host" in words:
+    if "pbo_runtime.supervisor.plant_host" in words:
         return "plant"
     if "run" in words and ("pbo_runtime.cli" in words or any(w.endswith("/pbo") or w == "pbo" for w in words[:2])):
         return "pbo run (job control)"

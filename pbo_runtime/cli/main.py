@@ -1,0 +1,575 @@
+"""The `pbo` command: check a subsystem file, run it, list the module library, clean up.
+
+Exit status: 0 done, 1 the file has errors, 2 the run failed, 3 an internal error (please
+report it). No traceback reaches the user unless --debug is given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import traceback
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+from pbo_runtime.clock.clocks import scheduler_outcome
+from pbo_runtime.errors import ConfigErrors, PboError
+from pbo_runtime.config.transitions import transitions
+
+EXIT_OK, EXIT_CONFIG, EXIT_RUN, EXIT_INTERNAL = 0, 1, 2, 3
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    console = Console(highlight=False)
+    errors = Console(stderr=True, highlight=False, soft_wrap=True)
+    if not console.is_terminal:  # logs and CI: wide enough for the summary, no wrapping
+        console = Console(highlight=False, width=140)
+        errors = Console(stderr=True, highlight=False, width=140, soft_wrap=True)
+    try:
+        return args.handler(args, console, errors)
+    except ConfigErrors as exc:
+        errors.print(str(exc), markup=False)
+        return EXIT_CONFIG
+    except PboError as exc:
+        errors.print(f"error: {exc}", markup=False)
+        return EXIT_RUN
+    except KeyboardInterrupt:
+        return 130
+    except Exception:
+        if getattr(args, "debug", False):
+            raise
+        errors.print("internal error: pbo failed in a way it should not; please report this with the command you ran:", markup=False)
+        errors.print(traceback.format_exc(limit=-3).rstrip(), markup=False)
+        return EXIT_INTERNAL
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="pbo", description="Reconfigurable real-time control from port-based objects.")
+    parser.add_argument("--debug", action="store_true", help="show Python tracebacks of internal errors")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    check = sub.add_parser("check", help="check a subsystem file like a compiler: every error, with its line")
+    check.add_argument("file")
+    check.add_argument("--format", choices=("text", "json"), default="text")
+    check.set_defaults(handler=_check)
+
+    run = sub.add_parser("run", help="run a subsystem: plant, RTPUs, tasks; prints a summary at the end")
+    run.add_argument("file")
+    run.add_argument("--duration", type=float, default=5.0, help="seconds to run once the configuration is on (default 5; 0: until Ctrl-C)")
+    run.add_argument("--config", help="the configuration to turn on (default: the first in the file)")
+    run.add_argument("--report", type=Path, help="write the run report (per task timing, final values) as JSON here")
+    run.add_argument("--no-live", action="store_true", help="no live status table (the default when output is not a terminal)")
+    run.add_argument("--app", help="run this application's jobs one at a time, then stop")
+    run.add_argument("--fifo", action=argparse.BooleanOptionalAction, default=None,
+                     help="RTPUs (priority 50) and the plant (60) under SCHED_FIFO where the OS allows it: the default "
+                          "with the real clock; the summary says if the OS refused. --no-fifo: SCHED_OTHER")
+    run.add_argument("--static", action="store_true",
+                     help="static reconfiguration: only the current configuration's tasks exist (kill and spawn between jobs)")
+    run.add_argument("--clock", choices=("real", "sim"), default="real",
+                     help="sim: simulated time in lockstep ticks, as fast as the machine allows; the run replays bit for bit")
+    run.add_argument("--out", type=Path, metavar="DIR",
+                     help="write the run's files (data logs) and its report (report.json) into DIR")
+    run.add_argument("--links", help=argparse.SUPPRESS)  # set by an application's runner: JSON, see _links
+    run.add_argument("--alternate", metavar="A,B", help="switch test: alternate between these configurations")
+    run.add_argument("--switches", type=int, default=100, help="with --alternate: how many switches (default 100)")
+    run.add_argument("--interval", type=float, default=0.05, help="with --alternate: seconds between switches (default 0.05)")
+    run.set_defaults(handler=_run)
+
+    bus = sub.add_parser("bus", help="bus utilisation of each configuration (TR eq. 1-2), predicted and measured")
+    bus.add_argument("file")
+    bus.add_argument("--config", help="only this configuration (default: all)")
+    bus.add_argument("--run-report", type=Path, help="a run's JSON report (pbo run --report): measured beside predicted")
+    bus.add_argument("--combine", help="tasks to evaluate as one combined module (TR §4.5), comma-separated")
+    bus.add_argument("--format", choices=("table", "json", "csv"), default="table")
+    bus.add_argument("--plot", type=Path, help="draw per-task bars and the bandwidth line into this PNG")
+    bus.set_defaults(handler=_bus)
+
+    lexicon = sub.add_parser("lexicon", help="list the module library: every module's ports and parameters")
+    lexicon.add_argument("--format", choices=("table", "json"), default="table")
+    lexicon.set_defaults(handler=_lexicon)
+
+    graph = sub.add_parser("graph", help="draw a configuration as a block diagram (.svg, .png or .dot)")
+    graph.add_argument("file")
+    graph.add_argument("--config", help="the configuration to draw (default: the first)")
+    graph.add_argument("-o", "--output", type=Path, help="out.svg, out.png or out.dot (default: DOT text on stdout)")
+    graph.set_defaults(handler=_graph)
+
+    schema = sub.add_parser("schema", help="the JSON Schema of the subsystem format, for editors")
+    schema.add_argument("-o", "--output", type=Path, help="write it here (default: stdout)")
+    schema.set_defaults(handler=_schema)
+
+    # operator commands on a running subsystem (another terminal), over its 0600 control queue
+    status = sub.add_parser("status", help="a running subsystem: tasks by RTPU with state, rate, jitter, overruns; current job")
+    status.set_defaults(handler=lambda a, c, e: _operator().status(c, a.subsystem))
+    for signal_name, text in (("on", "turn a task on"), ("off", "turn a task off"),
+                              ("clear", "clear a task's error (its clear component decides: OFF, or still ERROR)")):
+        command = sub.add_parser(signal_name, help=text)
+        command.add_argument("task")
+        command.set_defaults(handler=lambda a, c, e, op=signal_name: _operator().task_signal(c, op, a.task, a.subsystem))
+    switch = sub.add_parser("switch", help="switch the running subsystem to another configuration (dynamic, TR 4.4)")
+    switch.add_argument("configuration")
+    switch.set_defaults(handler=lambda a, c, e: _operator().switch(c, a.configuration, a.subsystem))
+    job = sub.add_parser("job", help="start a job, with its object's values: pbo job move 0.3 -0.5 0.5 0 0.4 0.2")
+    job.add_argument("name")
+    job.add_argument("values", nargs="*")
+    job.set_defaults(handler=lambda a, c, e: _operator().job(c, a.name, a.values, a.subsystem))
+    event = sub.add_parser("event", help="send an event (with values) to an aperiodic task")
+    event.add_argument("task")
+    event.add_argument("values", nargs="*")
+    event.set_defaults(handler=_event)
+    svar = sub.add_parser("svar", help="state variables of the running subsystem: value, sequence, age, writer")
+    svar.add_argument("names", nargs="*")
+    svar.add_argument("--watch", action="store_true", help="refresh until Ctrl-C")
+    svar.add_argument("--interval", type=float, default=0.5)
+    svar.set_defaults(handler=lambda a, c, e: _operator().svar(c, a.names, a.watch, a.interval, a.subsystem))
+    stop = sub.add_parser("stop", help="stop the running subsystem cleanly")
+    stop.set_defaults(handler=lambda a, c, e: _operator().stop(c, a.subsystem))
+    for command in (status, *[sub.choices[n] for n in ("on", "off", "clear")], switch, job, event, svar, stop):
+        command.add_argument("--subsystem", help="which running subsystem (needed only when several run)")
+
+    clean = sub.add_parser("clean", help="remove shared memory, semaphores and queues left by dead runs")
+    clean.add_argument("--subsystem", help="only this subsystem's leftovers")
+    clean.set_defaults(handler=_clean)
+    return parser
+
+
+# --- pbo check -------------------------------------------------------------------------------
+
+
+def _check(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.config.application import is_application_file
+    from pbo_runtime.config.loader import check_file, format_diagnostics
+
+    if is_application_file(args.file):
+        return _check_application(args, console, errors)
+    result = check_file(args.file)
+    if args.format == "json":
+        console.print_json(json.dumps(_check_json(result)))
+    else:
+        text = format_diagnostics(result)
+        if result.subsystem is not None and not result.errors:
+            text = (text + "\n" if result.warnings else "") + _verdict(result.subsystem)
+        (errors if result.errors else console).print(text, markup=False)
+    return EXIT_CONFIG if result.errors else EXIT_OK
+
+
+def _check_application(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    """An application file: each subsystem's file in full, then its links against their tasks."""
+    from pbo_runtime.config.application import check_application
+    from pbo_runtime.config.loader import CheckResult, format_diagnostics
+
+    result = check_application(args.file)
+    if args.format == "json":
+        console.print_json(json.dumps({"file": args.file, "ok": result.ok,
+                                       "errors": [_diagnostic_json(e) for e in result.errors],
+                                       "warnings": [_diagnostic_json(w) for w in result.warnings]}))
+        return EXIT_CONFIG if result.errors else EXIT_OK
+    text = format_diagnostics(CheckResult(None, result.errors, result.warnings))
+    if result.application is not None:
+        app = result.application
+        lines = [f"{args.file}: ok: application '{app.name}', {len(app.subsystems)} subsystems, {len(app.links)} link(s)"]
+        for key, sub in app.subsystems.items():
+            runs = "".join(f", runs {'application' if k == 'app' else 'configuration'} '{v}'" for k, v in app.run.get(key, {}).items())
+            lines.append(f"  subsystem {key}: {sub.file} ('{sub.name}', {len(sub.tasks)} task(s){runs})")
+        for link in app.links.values():
+            kind = f"messages, {link.capacity} queued at most" if link.kind == "message" else "periodic"
+            lines.append(f"  link {link.name}: {link.sender[0]}.{link.sender[1]} -> {link.receiver[0]}.{link.receiver[1]} "
+                         f"({link.dtype} {list(link.shape)}, {kind}, {link.transport})")
+        text = (text + "\n" if result.warnings else "") + "\n".join(lines)
+    (errors if result.errors else console).print(text, markup=False)
+    return EXIT_CONFIG if result.errors else EXIT_OK
+
+
+def _verdict(subsystem: Any) -> str:
+    lines = [f"{subsystem.file}: ok: subsystem '{subsystem.name}', {len(subsystem.variables)} variables, "
+             f"{len(subsystem.tasks)} tasks, {len(subsystem.configurations)} configuration(s)"]
+    for name, configuration in subsystem.configurations.items():
+        by_rtpu: dict[str, list[str]] = {}
+        for task in configuration.tasks:
+            by_rtpu.setdefault(subsystem.tasks[task].rtpu, []).append(task)
+        placed = "; ".join(f"{rtpu}: {', '.join(tasks)}" for rtpu, tasks in by_rtpu.items())
+        lines.append(f"  configuration '{name}': {placed}")
+    lines.append(f"  init order: {' -> '.join(subsystem.init_order)}")
+    for application in subsystem.applications:
+        lines.append(f"  application '{application}':")
+        for t in transitions(subsystem, application):
+            if t.before is None:
+                lines.append(f"    {t.step}. {t.job}: configuration '{t.after}' on: {', '.join(t.on) or 'nothing'}")
+            elif t.before == t.after:
+                lines.append(f"    {t.step}. {t.job}: stays in '{t.after}' (new object only)")
+            else:
+                lines.append(f"    {t.step}. {t.job}: '{t.before}' -> '{t.after}': off {', '.join(t.off) or 'nothing'}; "
+                             f"on {', '.join(t.on) or 'nothing'}")
+    return "\n".join(lines)
+
+
+def _diagnostic_json(d: Any) -> dict[str, Any]:
+    return {"file": d.file, "line": d.line, "column": d.column, "severity": d.severity, "code": d.code,
+            "message": d.message, "hint": d.hint}
+
+
+def _check_json(result: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {"ok": not result.errors, "errors": [_diagnostic_json(e) for e in result.errors],
+                           "warnings": [_diagnostic_json(w) for w in result.warnings]}
+    sub = result.subsystem
+    if sub is not None and not result.errors:
+        out["subsystem"] = sub.name
+        out["init_order"] = list(sub.init_order)
+        out["configurations"] = {
+            name: {t: sub.tasks[t].rtpu for t in c.tasks} for name, c in sub.configurations.items()
+        }
+        out["applications"] = {
+            app: [{"step": t.step, "job": t.job, "from": t.before, "to": t.after, "off": list(t.off), "on": list(t.on)}
+                  for t in transitions(sub, app)]
+            for app in sub.applications
+        }
+    return out
+
+
+# --- pbo run ---------------------------------------------------------------------------------
+
+
+def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.config.application import is_application_file
+    from pbo_runtime.config.loader import load_subsystem
+    from pbo_runtime.supervisor.supervisor import Supervisor
+
+    if is_application_file(args.file):
+        return _run_application(args, console, errors)
+    subsystem = load_subsystem(args.file)
+    live = console.is_terminal and not args.no_live
+    duration = args.duration if args.duration > 0 else None
+    alternate = None
+    if args.alternate:
+        names = [n.strip() for n in args.alternate.split(",") if n.strip()]
+        if len(names) < 2:
+            errors.print("error: --alternate takes two or more configurations, e.g. --alternate pid,pd", markup=False)
+            return EXIT_CONFIG
+        alternate = (names, args.switches, args.interval)
+        args.config = args.config or names[0]
+    options = {"application": args.app, "static": args.static, "alternate": alternate, "fifo": args.fifo,
+               "clock": args.clock, "out_dir": str(args.out) if args.out else None,
+               "links": json.loads(args.links) if args.links else None}
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+    say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
+    supervisor = Supervisor(subsystem, args.config, duration, say=say, **options)  # refuses a bad request here
+    what = (f"application '{args.app}'" if args.app else f"{args.switches} switches" if alternate
+            else "Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner")
+    rtpus = f"{len(subsystem.rtpus)} RTPU{'s' if len(subsystem.rtpus) != 1 else ''}"
+    say(f"starting subsystem '{subsystem.name}' ({rtpus}, plant: "
+        f"{subsystem.plant.model if subsystem.plant else 'none'}); {what}")
+    if live:
+        with Live(console=console, refresh_per_second=4, transient=True) as view:
+            supervisor.on_tick = lambda s: view.update(_status_table(s))
+            result = supervisor.run()
+    else:
+        result = supervisor.run()
+    for report in ([args.report] if args.report else []) + ([args.out / "report.json"] if args.out else []):
+        report.parent.mkdir(parents=True, exist_ok=True)
+        report.write_text(json.dumps(result.to_json(), indent=2))
+    _print_summary(console, subsystem, result)
+    if result.failure:
+        errors.print(f"error: {result.failure}", markup=False)
+        return EXIT_RUN
+    return EXIT_OK
+
+
+def _run_application(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    """Every subsystem of an application file at once, joined by its links (see _application_runner)."""
+    from pbo_runtime.config.application import check_application
+    from pbo_runtime.supervisor.application_runner import ApplicationRunner
+    from pbo_runtime.config.loader import CheckResult, format_diagnostics
+
+    result = check_application(args.file)
+    if result.application is None:
+        errors.print(format_diagnostics(CheckResult(None, result.errors, result.warnings)), markup=False)
+        return EXIT_CONFIG
+    app = result.application
+    say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
+    duration = args.duration if args.duration > 0 else None
+    say(f"starting application '{app.name}': {', '.join(app.subsystems)}; "
+        + ("Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner"))
+    code = ApplicationRunner(app, duration, say, clock=args.clock, out_dir=args.out, fifo=args.fifo).run()
+    if code:
+        errors.print(f"error: application '{app.name}' stopped: a subsystem failed (exit {code}); see its lines above",
+                     markup=False)
+    return code
+
+
+def _status_table(supervisor: Any) -> Table:
+    elapsed = supervisor.now() - supervisor.started_at if supervisor.started_at is not None else 0.0
+    table = Table(title=f"{supervisor.subsystem.name} · {supervisor.configuration} · {elapsed:5.1f} s", title_justify="left")
+    for column in ("task", "rtpu", "state", "cycles", "overruns", "exec µs", "max jitter µs"):
+        table.add_column(column, justify="right" if column not in ("task", "rtpu", "state") else "left")
+    for row in supervisor.status_rows():
+        if row["state"] == "NOT_CREATED":
+            continue
+        colour = {"ON": "green", "ERROR": "bold red", "OFF": "yellow"}.get(row["state"], "white")
+        table.add_row(row["task"], row["rtpu"], f"[{colour}]{row['state']}[/]", str(row["cycles"]), str(row["overruns"]),
+                      f"{row['exec_last'] * 1e6:.0f}", f"{row['jitter_max'] * 1e6:.0f}")
+    return table
+
+
+def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
+    table = Table(title=f"run summary: {subsystem.name} · {result.configuration} · {result.duration:.2f} s "
+                        f"(stopped by {result.stopped_by})", title_justify="left")
+    for column in ("task", "rtpu", "state", "cycles", "rate Hz", "overruns", "missed", "jitter p50 µs", "jitter p99 µs",
+                   "jitter max µs", "exec p50 µs", "exec p99 µs"):
+        table.add_column(column, justify="left" if column in ("task", "rtpu", "state") else "right")
+    for name, t in result.tasks.items():
+        if not t.get("cycles") and t.get("state") != "ERROR":
+            continue
+        rate = t["cycles"] / result.duration if result.duration else 0.0
+        table.add_row(name, t["rtpu"], t["state"], str(t["cycles"]), f"{rate:.0f}", str(t["overruns"]), str(t["missed"]),
+                      f"{t['jitter_p50'] * 1e6:.0f}", f"{t['jitter_p99'] * 1e6:.0f}", f"{t['jitter_max'] * 1e6:.0f}",
+                      f"{t['exec_p50'] * 1e6:.0f}", f"{t['exec_p99'] * 1e6:.0f}")
+    console.print(table)
+    values = Table(title="final values", title_justify="left")
+    values.add_column("variable")
+    values.add_column("value")
+    values.add_column("writer")
+    for name, v in result.variables.items():
+        if subsystem.variables[name].size > 12:
+            continue
+        values.add_row(name, _format_value(v["value"]), v["writer"])
+    console.print(values)
+    for name, t in result.tasks.items():
+        if t.get("error"):
+            console.print(f"task '{name}': {t['error']}", markup=False)
+    for line in overrun_lines(subsystem, result.tasks, result.realtime):
+        console.print(line, markup=False)
+    for line in stall_lines(result.stalls):
+        console.print(line, markup=False)
+    if result.plant:
+        console.print(f"plant: {result.plant.get('steps', 0)} steps, {result.plant.get('late', 0)} late", markup=False)
+        if result.plant.get("left_fifo_behind"):
+            console.print(f"plant: it fell {result.plant['left_fifo_behind']:.2f} s behind real time (a step takes longer "
+                          "than its timestep) and left SCHED_FIFO, so as not to hold a CPU above the RTPUs: lengthen "
+                          "the timestep or lighten the model", markup=False)
+    if result.clock == "sim":
+        speed = result.duration / result.wall_seconds if result.wall_seconds else 0.0
+        console.print(f"clock: simulated, {result.tick * 1e3:g} ms ticks; {result.duration:.2f} s simulated in "
+                      f"{result.wall_seconds:.2f} s of wall time ({speed:.2f}x real time)", markup=False)
+    for rtpu, settings in result.realtime.items():
+        if "clock" in settings:
+            continue  # simulated: no scheduler settings to report
+        console.print(f"{rtpu}: cpu {settings.get('cpu')}, {settings.get('scheduler')}, timer slack {settings.get('timer_slack')}"
+                      + (f", spin {settings['spin']}" if "spin" in settings else ""), markup=False)
+    _print_switches(console, result)
+
+
+def stall_lines(stalls: list[dict[str, Any]]) -> list[str]:
+    """Each time a task ON finished no cycle for a while (never counted as an overrun: the cycle did not end)."""
+    lines = []
+    for s in stalls:
+        where = f"task '{s['task']}' ({s['rtpu']}) finished no cycle"
+        if s["to"] is not None:
+            lines.append(f"{where} for {s['to'] - s['from']:.2f} s, from {s['from']:.2f} s into the run")
+            continue
+        line = f"{where} from {s['from']:.2f} s into the run to the stop: its module's cycle never returned"
+        if s["rtpu_killed"]:
+            line += f"; {s['rtpu']} did not stop and was killed, so its tasks' figures are the table's last"
+        lines.append(line)
+    return lines
+
+
+def _late_release_remedy(scheduler: str) -> str:
+    """What helps a late release, given the scheduler its RTPU reported (DESIGN §13)."""
+    outcome = scheduler_outcome(scheduler)
+    if outcome == "fifo":
+        return "it ran SCHED_FIFO already, so only the kernel or, on a VM, the hypervisor held it"
+    if outcome == "refused":
+        return "the OS refused SCHED_FIFO (see the RTPU's line below); pinning with rtpus: {cpu: N} helps meanwhile"
+    return "SCHED_FIFO (drop --no-fifo) or pinning with rtpus: {cpu: N} help"
+
+
+def overrun_lines(subsystem: Any, tasks: dict[str, dict[str, Any]], realtime: dict[str, dict[str, str]] | None = None) -> list[str]:
+    """Why each task overran. A late release is the machine's (the RTPU got its CPU late); a long
+    cycle is the module's (it ran longer than its period): they call for different remedies.
+    `realtime`: what each RTPU reported of its scheduler, so the remedy is not one it already has."""
+    lines = []
+    for name, t in tasks.items():
+        overruns = t.get("overruns", 0)
+        if not overruns or name not in subsystem.tasks:
+            continue
+        period = subsystem.tasks[name].period
+        late, long = t.get("overruns_late_release", overruns), t.get("overruns_long_cycle", 0)
+        parts = []
+        if late:
+            remedy = _late_release_remedy((realtime or {}).get(t.get("rtpu", ""), {}).get("scheduler", ""))
+            parts.append(f"{late} late release{'s' if late > 1 else ''} (started up to {t['jitter_max'] * 1e3:.2f} ms late: "
+                         f"the machine held the RTPU's CPU; {remedy})")
+        if long:
+            parts.append(f"{long} long cycle{'s' if long > 1 else ''} (ran up to {t['exec_max'] * 1e3:.2f} ms: the module "
+                         "needs more than its period; lighten its cycle or lengthen its period)")
+        kept = t.get("last_overruns", [])
+        when = ", ".join(f"{release:.3f} s" for release, _, _ in kept)
+        which = "at" if len(kept) == overruns else f"the last {len(kept)} at"
+        lines.append(f"overruns of '{name}' ({period * 1e3:g} ms period): " + "; ".join(parts)
+                     + (f"; {which} {when} into the run" if kept else ""))
+    return lines
+
+
+def _print_switches(console: Console, result: Any) -> None:
+    """Per switch: latency (request to the first cycle of the new configuration); stale reads."""
+    import numpy as np
+
+    if not result.switches:
+        return
+    latency = np.array([s["latency"] for s in result.switches]) * 1e3
+    skew = np.array([s["skew"] for s in result.switches]) * 1e3
+    longest = np.array([s["longest"] for s in result.switches]) * 1e3
+    console.print(
+        f"switches: {len(result.switches)}; latency ms p50 {np.median(latency):.2f}, p99 {np.percentile(latency, 99):.2f}, "
+        f"max {latency.max():.2f}; RTPU skew ms max {skew.max():.3f}; longest switch on one RTPU {longest.max():.3f} ms",
+        markup=False)
+    windows = [s for s in result.switches if s.get("cycles_lost") or s.get("stale_reads")]
+    lost_in = [s["sequence"] for s in windows if any(s.get("cycles_lost", {}).values())]
+    if lost_in:
+        console.print(f"switches after which the critical task lost a cycle: {', '.join(map(str, lost_in[:20]))}"
+                      + (" ..." if len(lost_in) > 20 else ""), markup=False)
+    critical = [(n, t) for n, t in result.tasks.items() if t.get("critical")]
+    for name, t in critical:
+        console.print(f"critical task '{name}': {t['cycles_lost_to_switches']} cycles lost to switches (read an output of a "
+                      f"task switched out); {t['stale_reads']} stale reads from late writers ({t['stale_reads_at_switches']} "
+                      f"within 3 periods of a switch); {t['stable_cycles']} locally stable cycles"
+                      + (f"; last lost: {t['last_cycle_lost']}" if t.get("last_cycle_lost") else "")
+                      + (f"; last stale: {t['last_stale_read']}" if t.get("last_stale_read") else ""), markup=False)
+
+
+def _format_value(value: Any) -> str:
+    if isinstance(value, list):
+        return "[" + ", ".join(f"{x:+.4f}" if isinstance(x, float) else str(x) for x in value) + "]"
+    return f"{value:+.4f}" if isinstance(value, float) else str(value)
+
+
+# --- operator commands -------------------------------------------------------------------------
+
+
+def _operator() -> Any:
+    from pbo_runtime.cli import operator
+
+    return operator
+
+
+def _event(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.ipc.control import ControlClient
+
+    values = _operator().parse_object_values(args.values)
+    reply = ControlClient.connect(args.subsystem).call("event", {"task": args.task, "values": values})
+    console.print(str(reply.get("message", f"event sent to '{args.task}'")), markup=False)
+    return EXIT_OK
+
+
+# --- pbo bus ---------------------------------------------------------------------------------
+
+
+def _bus(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.config import bus
+    from pbo_runtime.config.loader import load_subsystem
+
+    subsystem = load_subsystem(args.file)
+    if args.config and args.config not in subsystem.configurations:
+        errors.print(f"error: no configuration '{args.config}' in {args.file} "
+                     f"(configurations: {', '.join(subsystem.configurations)})", markup=False)
+        return EXIT_CONFIG
+    names = [args.config] if args.config else list(subsystem.configurations)
+    reports = {name: bus.predict(subsystem, name) for name in names}
+    seen = None
+    if args.run_report:
+        seen = bus.measured(subsystem, json.loads(args.run_report.read_text()))
+    documents = []
+    for name, report in reports.items():
+        measured = seen if seen is not None and seen.configuration == name else None
+        if args.format == "table":
+            console.print(bus.as_table(report, measured))
+        elif args.format == "json":
+            documents.append(bus.as_json(report, measured))
+        else:
+            console.out(bus.as_csv(report, measured), end="")
+    if args.format == "json":
+        console.out(json.dumps(documents[0] if len(documents) == 1 else documents, indent=2))
+    if args.combine:
+        members = [m.strip() for m in args.combine.split(",") if m.strip()]
+        before, after = bus.combined_saving(subsystem, names[0], members)
+        if args.format == "table":
+            console.print(bus.as_table(after))
+        console.print(bus.describe_saving(before, after), markup=False)
+    if args.plot:
+        bus.plot(reports, args.plot, measured=[seen] if seen is not None else None)
+        console.print(f"wrote {args.plot}", markup=False)
+    over = [name for name, report in reports.items() if report.over]
+    if over:
+        errors.print(f"error: over the bus bandwidth: {', '.join(over)}", markup=False)
+        return EXIT_CONFIG
+    return EXIT_OK
+
+
+# --- pbo lexicon, pbo clean --------------------------------------------------------------------
+
+
+def _lexicon(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.reports.lexicon import as_table, lexicon
+
+    entries = lexicon()
+    if args.format == "json":
+        console.out(json.dumps(entries, indent=2, default=str))
+    else:
+        console.print(as_table(entries))
+    return EXIT_OK
+
+
+def _graph(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.config.loader import load_subsystem
+    from pbo_runtime.reports.graph import draw, to_dot
+
+    subsystem = load_subsystem(args.file)
+    try:
+        if args.output:
+            draw(subsystem, args.config, args.output)
+            console.print(f"wrote {args.output}", markup=False)
+        else:
+            console.out(to_dot(subsystem, args.config), end="")
+    except ValueError as exc:
+        errors.print(f"error: {exc}", markup=False)
+        return EXIT_CONFIG
+    return EXIT_OK
+
+
+def _schema(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.reports.schema import schema_text, write_schema
+
+    if args.output:
+        write_schema(args.output)
+        console.print(f"wrote {args.output}", markup=False)
+    else:
+        console.out(schema_text(), end="")
+    return EXIT_OK
+
+
+def _clean(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.supervisor.supervisor import remove_dead_runs
+
+    removed = remove_dead_runs(args.subsystem) if args.subsystem else remove_dead_runs_all()
+    console.print(f"removed {len(removed)} object(s) left by dead runs" + (": " + ", ".join(removed) if removed else ""), markup=False)
+    return EXIT_OK
+
+
+def remove_dead_runs_all() -> list[str]:
+    from pbo_runtime.ipc import shm
+    from pbo_runtime.supervisor.supervisor import remove_dead_runs
+
+    subsystems = {name[1:].split(".")[1] for _, name in shm.stale_objects(None)}
+    return sorted(r for s in subsystems for r in remove_dead_runs(s))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,259 @@
+"""The operator's commands on a running subsystem, as the `pbo` CLI calls them from another terminal.
+
+Each function finds the live run (`ipc.control.find_live_run`), sends one request over the run's
+control queue, prints the outcome on the console it is given and returns the exit status 0.
+Anything that stops a command (no run, no answer, the supervisor refused) raises a PboError
+whose message says why; the CLI prints it and exits with 2, as for every other run failure.
+`svar` alone reads the table directly (`table.svar`), so it works even while the supervisor is busy.
+
+The commands, their arguments and what the supervisor answers besides `"ok": True` (on refusal
+`{"ok": False, "error": "..."}`; any reply may carry a "message" the client prints as it is):
+
+    status               {}                               the status reply below
+    on | off | clear     {"task": str}                    {"task": str, "state": str}
+    switch               {"configuration": str}           {"configuration": str, "entered": [str], "left": [str],
+                                                           "took": seconds}    (all but "configuration" optional)
+    job                  {"job": str, "object": [float] | None}
+                                                          {"job": str, "configuration": str}   (optional)
+    stop                 {}                               {}
+
+The status reply (times in seconds, rates in Hz; keys marked ? may be absent or None):
+
+    {"subsystem": str, "run_id": str, "configuration": str, "job": str?, "application": str?,
+     "elapsed": float (since the configuration went on),
+     "tasks": [{"task": str, "index": int (its status block in the table), "rtpu": str,
+                "state": "NOT_CREATED"|"CREATED"|"OFF"|"ON"|"ERROR"|"KILLED",
+                "cycles": int, "rate": float (measured Hz), "overruns": int,
+                "jitter_p50": float?, "jitter_p99": float?, "jitter_max": float, "exec_last": float,
+                "exec_p50": float?, "exec_p99": float?, "missed": int, "error": str?}, ...]
+       (in table index order: tasks[i] is status block i when "index" is absent;
+        percentiles are over each task's last 1,024 cycles, 0 until it has run that many),
+     "flags": [str] (the table's flags that are set, e.g. "ILLEGAL_CONFIGURATION")}
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+from pbo_runtime.ipc import shm
+from pbo_runtime.clock.clocks import scheduler_outcome
+from pbo_runtime.ipc.control import ControlClient
+from pbo_runtime.errors import PboError
+from pbo_runtime.table.svar import TableView, open_table, svar_rows, svar_table
+
+STATUS_TIMEOUT = 2.0
+COMMAND_TIMEOUT = 5.0  # a switch or a task signal may wait for RTPUs to confirm
+WRITER_MAP_TIMEOUT = 0.5  # svar asks for task names, but must not wait long for a busy supervisor
+TASK_COMMANDS = ("on", "off", "clear")
+_STATE_STYLE = {"ON": "green", "OFF": "yellow", "ERROR": "bold red", "KILLED": "red"}
+
+
+def _say(console: Console, reply: dict[str, Any], default: str) -> None:
+    console.print(str(reply.get("message") or default), markup=False)
+
+
+def _us(seconds: Any) -> str:
+    return "—" if seconds is None else f"{float(seconds) * 1e6:.0f}"
+
+
+# --- status ---------------------------------------------------------------------------------
+
+
+def status(console: Console, subsystem: str | None = None) -> int:
+    """Print the run's tasks by RTPU (state, rate, jitter, overruns), its configuration and job."""
+    reply = ControlClient.connect(subsystem).call("status", timeout=STATUS_TIMEOUT)
+    console.print(status_table(reply))
+    for flag in reply.get("flags") or []:
+        console.print(f"[bold red]flag:[/] {flag}")
+    for task in reply.get("tasks") or []:
+        if task.get("error"):
+            console.print(f"task '{task['task']}' ({task.get('state', '?')}): {task['error']}", markup=False)
+    return 0
+
+
+def scheduler_brief(settings: dict[str, str]) -> str:
+    """What an RTPU runs under, short enough for the status table: FIFO 50, OTHER (FIFO refused), ..."""
+    if "clock" in settings:
+        return "sim clock"
+    scheduler = settings.get("scheduler", "")
+    outcome = scheduler_outcome(scheduler)
+    if outcome == "fifo":
+        brief = scheduler.replace("SCHED_", "")
+    elif outcome == "refused":
+        brief = "OTHER (FIFO refused)"
+    else:
+        brief = "OTHER" if scheduler else "?"
+    cpu = settings.get("cpu", "any")
+    if cpu != "any":
+        brief += f", cpu {cpu}" if cpu.isdigit() else ", not pinned"
+    return brief
+
+
+def status_table(reply: dict[str, Any]) -> Table:
+    """The status reply as a table, one section per RTPU."""
+    parts = [f"{reply.get('subsystem', '?')} · run {reply.get('run_id', '?')}",
+             f"configuration {reply.get('configuration') or '—'}"]
+    if reply.get("application"):
+        parts.append(f"application {reply['application']}")
+    if reply.get("job"):
+        parts.append(f"job {reply['job']}")
+    parts.append(f"{float(reply.get('elapsed') or 0.0):.1f} s")
+    table = Table(title=" · ".join(parts), title_justify="left")
+    for column in ("rtpu", "task", "state", "cycles", "rate Hz", "jitter p50 µs", "jitter p99 µs", "jitter max µs",
+                   "exec p50 µs", "exec p99 µs", "overruns", "missed"):
+        table.add_column(column, justify="left" if column in ("rtpu", "task", "state") else "right")
+    tasks = list(reply.get("tasks") or [])
+    realtime = reply.get("realtime") or {}
+    stalled = reply.get("stalled") or {}
+    by_rtpu: dict[str, list[dict[str, Any]]] = {}
+    for task in tasks:
+        by_rtpu.setdefault(str(task.get("rtpu", "?")), []).append(task)
+    for n, rtpu in enumerate(sorted(by_rtpu)):
+        if n:
+            table.add_section()
+        for i, task in enumerate(by_rtpu[rtpu]):
+            state = str(task.get("state", "?"))
+            style = _STATE_STYLE.get(state, "white")
+            if task.get("task") in stalled:  # ON, but its cycle has not returned (see _stall_watch)
+                state, style = f"{state}, no cycle for {float(stalled[task['task']]):.1f} s", "bold red"
+            rate = task.get("rate")
+            label = f"{rtpu}\n[dim]{scheduler_brief(realtime.get(rtpu, {}))}[/]" if rtpu in realtime else rtpu
+            table.add_row(label if i == 0 else "", str(task.get("task", "?")), f"[{style}]{state}[/]",
+                          str(task.get("cycles", 0)), "—" if rate is None else f"{float(rate):.0f}",
+                          _us(task.get("jitter_p50")), _us(task.get("jitter_p99")), _us(task.get("jitter_max")),
+                          _us(task.get("exec_p50")), _us(task.get("exec_p99")), str(task.get("overruns", 0)),
+                          str(task.get("missed", 0)))
+    return table
+
+
+# --- commands -------------------------------------------------------------------------------
+
+
+def task_signal(console: Console, command: str, task: str, subsystem: str | None = None) -> int:
+    """Turn a task on or off, or clear its error (TR Figure 11), through job control."""
+    if command not in TASK_COMMANDS:
+        raise PboError(f"a task command is one of {', '.join(TASK_COMMANDS)}, got: {command!r}")
+    reply = ControlClient.connect(subsystem).call(command, {"task": task}, timeout=COMMAND_TIMEOUT)
+    state = reply.get("state")
+    _say(console, reply, f"task '{task}' is {state}" if state else f"sent '{command}' to task '{task}'")
+    return 0
+
+
+def switch(console: Console, configuration: str, subsystem: str | None = None) -> int:
+    """Switch the running subsystem to another configuration (a dynamic reconfiguration, TR §4.4)."""
+    reply = ControlClient.connect(subsystem).call("switch", {"configuration": configuration}, timeout=COMMAND_TIMEOUT)
+    text = f"configuration '{reply.get('configuration', configuration)}' is on"
+    if reply.get("entered") or reply.get("left"):
+        text += f" (on: {', '.join(reply.get('entered') or []) or '—'}; off: {', '.join(reply.get('left') or []) or '—'})"
+    if reply.get("took") is not None:
+        text += f" in {float(reply['took']) * 1e3:.1f} ms"
+    _say(console, reply, text)
+    return 0
+
+
+def job(console: Console, name: str, object_values: Sequence[str] | None, subsystem: str | None = None) -> int:
+    """Start a job, with its object's values as given on the command line (`pbo job move 0.3 -0.5 ...`)."""
+    values = parse_object_values(object_values)
+    reply = ControlClient.connect(subsystem).call("job", {"job": name, "object": values}, timeout=COMMAND_TIMEOUT)
+    where = f" (configuration '{reply['configuration']}')" if reply.get("configuration") else ""
+    _say(console, reply, f"job '{reply.get('job', name)}' started{where}")
+    return 0
+
+
+def parse_object_values(texts: Sequence[str] | None) -> list[float] | None:
+    """Command-line numbers as floats (None when none are given); the supervisor checks the shape."""
+    if not texts:
+        return None
+    values = []
+    for position, text in enumerate(texts, 1):
+        try:
+            value = float(text)
+        except ValueError:
+            raise PboError(f"a job's object values must be numbers, got: {text!r} (value {position})") from None
+        if not math.isfinite(value):
+            raise PboError(f"a job's object values must be finite, got: {text!r} (value {position})")
+        values.append(value)
+    return values
+
+
+def stop(console: Console, subsystem: str | None = None) -> int:
+    """Ask the supervisor to stop the run: tasks off, killed, every object unlinked."""
+    client = ControlClient.connect(subsystem)
+    reply = client.call("stop", timeout=STATUS_TIMEOUT)
+    _say(console, reply, f"'{client.subsystem}' (run {client.run_id}) is stopping")
+    return 0
+
+
+# --- svar -----------------------------------------------------------------------------------
+
+
+def svar(console: Console, names: Sequence[str], watch: bool, interval: float = 0.5, subsystem: str | None = None,
+         updates: int | None = None) -> int:
+    """Show state variables (all when `names` is empty) with sequence, age and writer; `watch` refreshes until Ctrl-C.
+
+    `updates` bounds the number of refreshes in watch mode (for tests; None: until Ctrl-C or the run ends).
+    """
+    view = open_table(subsystem)
+    try:
+        chosen = _check_names(view, names)
+        writers = writer_names(view.subsystem, view.run_id)
+        title = f"{view.subsystem} · run {view.run_id}"
+        if not watch:
+            console.print(svar_table(svar_rows(view, chosen, writers), title))
+            return 0
+        with Live(console=console, auto_refresh=False, transient=False) as live:
+            try:
+                count = 0
+                while updates is None or count < updates:
+                    if not _run_alive(view):
+                        live.update(svar_table(svar_rows(view, chosen, writers), f"{title} · ended"), refresh=True)
+                        break
+                    live.update(svar_table(svar_rows(view, chosen, writers), title), refresh=True)
+                    count += 1
+                    if updates is None or count < updates:
+                        time.sleep(interval)
+            except KeyboardInterrupt:
+                pass
+        if not _run_alive(view):
+            console.print(f"the run of '{view.subsystem}' has ended", markup=False)
+        return 0
+    finally:
+        view.close()
+
+
+def writer_names(subsystem: str, run_id: str) -> dict[int, str]:
+    """Task index -> name from the supervisor's status reply; {} if it does not answer in time."""
+    try:
+        reply = ControlClient(subsystem, run_id).request("status", timeout=WRITER_MAP_TIMEOUT)
+    except PboError:
+        return {}
+    if not reply.get("ok"):
+        return {}
+    names = {}
+    for position, task in enumerate(reply.get("tasks") or []):
+        if isinstance(task, dict) and "task" in task:
+            names[int(task.get("index", position))] = str(task["task"])
+    return names
+
+
+def _check_names(view: TableView, names: Sequence[str]) -> list[str]:
+    known = view.variables()
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        hints = [f"did you mean '{close[0]}'?" for n in unknown for close in [difflib.get_close_matches(n, known, 1)] if close]
+        raise PboError(f"no variable {', '.join(repr(n) for n in unknown)} in '{view.subsystem}'"
+                       f"{' (' + ' '.join(hints) + ')' if hints else ''}; variables: {', '.join(known)}")
+    return list(names) or known
+
+
+def _run_alive(view: TableView) -> bool:
+    """The segment is still there and its supervisor alive (a mapping outlives the run: values would freeze)."""
+    return (shm.SHM_DIR / view.name.lstrip("/")).exists() and shm.pid_alive(int(view.run_id.split("-")[0]))

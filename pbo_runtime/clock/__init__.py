@@ -1,0 +1,1 @@
+"""Real and simulated clocks, and the lockstep barrier of the simulated one."""

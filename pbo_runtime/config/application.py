@@ -1,0 +1,338 @@
+"""Application files: several subsystems run in parallel, joined by links (TR §5, DESIGN §9).
+
+    application: two_arms
+    subsystems:                     # name -> its subsystem file (relative to this file), or the subsystem inline
+      leader: leader.yaml
+      follower: follower.yaml
+      operator: {subsystem: operator, rtpus: [rtpu0], ...}
+    links:                          # by name: periodic (triple buffers) or message (queues)
+      arm_state: {type: float64, shape: [6], transport: shm}     # transport: shm | zenoh
+      goal: {kind: message, type: float64, shape: [6], capacity: 4}
+      wrist: {type: float64, shape: [6], transport: zenoh, endpoint: "tcp/192.168.1.20:7447"}
+    run:                            # optional, per subsystem: its configuration or its application
+      operator: {app: tour}
+
+A link's ends are tasks of the subsystems, in two different subsystems, each with its port
+`value` linked to a variable of the link's type and shape: a periodic link joins one
+`link_sender` and one `link_receiver`; a message link one `message_sender` and one
+`message_server` (an aperiodic task the message releases, TR §5.1). An inline subsystem is
+loaded by every process as `app.yaml#key` (`config.loader.inline_reference`), so its errors
+point into the application file. `check_application` checks the file like `pbo check` checks a
+subsystem: every subsystem in full, then the links against the tasks, every mistake with
+file:line:col, a code (E8xx, docs/error-codes.md) and a hint.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pbo_runtime.config.loader import CheckResult, check_file, inline_reference
+from pbo_runtime.config.model import NOWHERE, Location, Subsystem
+from pbo_runtime.errors import ConfigError
+from pbo_runtime.links.spec import TRANSPORTS, parse_endpoint
+from pbo_runtime.links.message_link import SYSTEM_CAPACITY, SYSTEM_MESSAGE_BYTES
+from pbo_runtime.config.yaml_nodes import YList, YMap, load_file, location_of
+
+SENDER, RECEIVER = "link_sender", "link_receiver"
+MESSAGE_SENDER, SERVER = "message_sender", "message_server"
+ENDS = {"periodic": (SENDER, RECEIVER), "message": (MESSAGE_SENDER, SERVER)}  # kind -> (sending, receiving) module
+_KIND_OF_MODULE = {module: kind for kind, pair in ENDS.items() for module in pair}
+_TOP_KEYS = ("application", "subsystems", "links", "run")
+_LINK_KEYS = ("kind", "type", "shape", "transport", "capacity", "endpoint")
+_RUN_KEYS = ("config", "app")
+MESSAGE_OVERHEAD_BYTES = 32  # msgpack framing, the time stamp and the relay's envelope
+MSGPACK_BYTES_PER_NUMBER = 9  # a float64 or a large integer, encoded
+
+
+@dataclass(frozen=True)
+class LinkSpec:
+    name: str
+    dtype: str
+    shape: tuple[int, ...]
+    transport: str = "shm"
+    sender: tuple[str, str] = ("", "")  # (subsystem, task)
+    receiver: tuple[str, str] = ("", "")
+    loc: Location = NOWHERE
+    kind: str = "periodic"  # or "message"
+    capacity: int = 0  # a message link's queue: messages it holds (0: the system's most)
+    endpoint: str = ""  # zenoh: where the listening end listens, "tcp/<host>:<port>" ("": a free loopback port)
+
+
+@dataclass
+class Application:
+    name: str
+    file: str
+    subsystems: dict[str, Subsystem] = field(default_factory=dict)  # by the application's name for it
+    links: dict[str, LinkSpec] = field(default_factory=dict)
+    run: dict[str, dict[str, str]] = field(default_factory=dict)  # subsystem -> {"config": ..., "app": ...}
+
+
+@dataclass
+class ApplicationCheck:
+    application: Application | None
+    errors: list[ConfigError] = field(default_factory=list)
+    warnings: list[ConfigError] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+
+def is_application_file(path: str | os.PathLike[str]) -> bool:
+    """True if the file's first top-level key is `application:` (a subsystem file starts otherwise)."""
+    try:
+        with open(path, encoding="utf-8") as text:
+            for line in text:
+                stripped = line.strip()
+                if stripped and not stripped.startswith("#") and not line[0].isspace():
+                    return stripped.startswith("application:")
+    except OSError:
+        return False
+    return False
+
+
+def check_application(path: str | os.PathLike[str]) -> ApplicationCheck:
+    """Every problem of an application file and of its subsystems' files; never raises on bad input."""
+    file = str(path)
+    result = ApplicationCheck(None)
+    try:
+        root = load_file(file)
+    except ConfigError as exc:
+        result.errors.append(exc)
+        return result
+
+    def error(code: str, message: str, loc: Location, hint: str = "") -> None:
+        result.errors.append(ConfigError(message, loc.file, loc.line, loc.column, hint, code=code))
+
+    if not isinstance(root, YMap):
+        error("E801", "an application file must be a mapping with application, subsystems and links",
+              location_of(root, Location(file, 1, 1)))
+        return result
+    for key in root:
+        if key not in _TOP_KEYS:
+            error("E801", f"unknown key '{key}' in an application file", root.key_loc(key),
+                  f"an application file has: {', '.join(_TOP_KEYS)}")
+    name = root.get("application")
+    if not isinstance(name, str) or not name:
+        error("E801", "application must be a name", root.value_loc("application") if "application" in root else root.loc,
+              "e.g. application: two_arms")
+        name = "application"
+    application = Application(name, file)
+    _check_subsystems(root, Path(file).parent, application, result, error)
+    _check_links(root, application, error)
+    _check_run(root, application, error)
+    if not result.errors:
+        _check_link_ends(application, error)
+    if not result.errors:
+        result.application = application
+    return result
+
+
+def _check_subsystems(root: YMap, folder: Path, application: Application, result: ApplicationCheck, error) -> None:
+    entries = root.get("subsystems")
+    if not isinstance(entries, YMap) or not entries:
+        error("E801", "subsystems must map each subsystem's name to its file",
+              root.value_loc("subsystems") if "subsystems" in root else root.loc, "e.g. subsystems: {leader: leader.yaml}")
+        return
+    names: dict[str, str] = {}
+    for key, value in entries.items():
+        loc = entries.value_loc(key)
+        if isinstance(value, YMap):
+            path = inline_reference(application.file, key)
+        elif not isinstance(value, str):
+            error("E802", f"subsystem '{key}' must be the path of its subsystem file, or the subsystem itself", loc,
+                  "e.g. leader: leader.yaml, or operator: {subsystem: operator, rtpus: [rtpu0], ...}")
+            continue
+        else:
+            path = folder / value
+            if not path.is_file():
+                error("E802", f"subsystem '{key}': no file '{value}' (looked for {path})", loc,
+                      "paths are relative to the application file")
+                continue
+        checked: CheckResult = check_file(path)
+        result.errors.extend(checked.errors)
+        result.warnings.extend(checked.warnings)
+        if checked.subsystem is None:
+            if not checked.errors:
+                error("E802", f"subsystem '{key}': '{path}' could not be loaded", loc)
+            continue
+        own = checked.subsystem.name
+        if own in names:
+            error("E802", f"subsystems '{names[own]}' and '{key}' are both named '{own}' in their files", loc,
+                  "each subsystem's `subsystem:` name must be unique: it names its shared memory")
+            continue
+        names[own] = key
+        application.subsystems[key] = checked.subsystem
+
+
+def _check_links(root: YMap, application: Application, error) -> None:
+    entries = root.get("links", YMap(root.loc))
+    if not isinstance(entries, YMap):
+        error("E803", "links must map each link's name to its kind, type, shape and transport", location_of(entries, root.loc))
+        return
+    for name, spec in entries.items():
+        loc = entries.key_loc(name)
+        if not isinstance(spec, YMap):
+            error("E803", f"link '{name}' must be a mapping", entries.value_loc(name), "e.g. {type: float64, shape: [6]}")
+            continue
+        for key in spec:
+            if key not in _LINK_KEYS:
+                error("E803", f"link '{name}': unknown key '{key}'", spec.key_loc(key), f"a link has: {', '.join(_LINK_KEYS)}")
+        kind = spec.get("kind", "periodic")
+        if kind not in ENDS:
+            error("E803", f"link '{name}': unknown kind '{kind}'", spec.value_loc("kind"),
+                  "kind: periodic (a triple buffer: the newest item, every cycle) or kind: message (a queue: every item, once)")
+            continue
+        dtype = spec.get("type", "float64")
+        try:
+            np.dtype(dtype)
+        except TypeError:
+            error("E803", f"link '{name}': type '{dtype}' is not a numpy dtype", spec.value_loc("type"), "e.g. float64, int32")
+            continue
+        shape = spec.get("shape", YList(loc))
+        if not isinstance(shape, list) or not all(isinstance(n, int) and n > 0 for n in shape):
+            error("E803", f"link '{name}': shape must be a list of positive integers, got {shape!r}",
+                  spec.value_loc("shape") if "shape" in spec else loc, "e.g. shape: [6]")
+            continue
+        transport = spec.get("transport", "shm")
+        if transport not in TRANSPORTS:
+            error("E803", f"link '{name}': unknown transport '{transport}'", spec.value_loc("transport"),
+                  f"transports: {', '.join(TRANSPORTS)}")
+            continue
+        capacity = _message_capacity(name, kind, spec, shape, error)
+        if capacity is None:
+            continue
+        endpoint = spec.get("endpoint", "")
+        if endpoint and transport != "zenoh":
+            error("E803", f"link '{name}' uses transport '{transport}', which takes no endpoint", spec.key_loc("endpoint"),
+                  "an endpoint is where a zenoh link listens: add transport: zenoh, or remove it")
+            continue
+        if endpoint and parse_endpoint(endpoint) is None:
+            error("E803", f"link '{name}': endpoint must be tcp/<host>:<port>, got {endpoint!r}", spec.value_loc("endpoint"),
+                  "e.g. endpoint: tcp/192.168.1.20:7447 (the address of the machine whose subsystem listens)")
+            continue
+        application.links[name] = LinkSpec(name, str(np.dtype(dtype)), tuple(shape), transport, loc=loc, kind=kind,
+                                           capacity=capacity, endpoint=str(endpoint))
+
+
+def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error) -> int | None:
+    """A message link's capacity (default: the system's most), checked; None after an error."""
+    if kind != "message":
+        if "capacity" in spec:
+            error("E803", f"link '{name}' is periodic and takes no capacity", spec.key_loc("capacity"),
+                  "a triple buffer holds the newest item only; capacity is for kind: message")
+            return None
+        return 0
+    capacity = spec.get("capacity", SYSTEM_CAPACITY)
+    if not isinstance(capacity, int) or isinstance(capacity, bool) or not 1 <= capacity <= SYSTEM_CAPACITY:
+        error("E803", f"link '{name}': capacity must be a whole number of messages from 1 to {SYSTEM_CAPACITY}, "
+                      f"got {capacity!r}", spec.value_loc("capacity"),
+              f"this machine's queues hold at most fs.mqueue.msg_max = {SYSTEM_CAPACITY} messages")
+        return None
+    encoded = MSGPACK_BYTES_PER_NUMBER * int(np.prod(shape)) + MESSAGE_OVERHEAD_BYTES
+    if encoded > SYSTEM_MESSAGE_BYTES:
+        error("E803", f"link '{name}': a message of {list(shape)} numbers takes about {encoded} bytes, more than "
+                      f"the {SYSTEM_MESSAGE_BYTES} a message may hold", spec.value_loc("shape") if "shape" in spec else spec.loc,
+              "send bulk data through a periodic link (kind: periodic), and commands or goals as messages")
+        return None
+    return capacity
+
+
+def _check_run(root: YMap, application: Application, error) -> None:
+    """`run: {subsystem: {config: NAME} | {app: NAME}}`: what each subsystem runs (default: its first configuration)."""
+    entries = root.get("run", YMap(root.loc))
+    if not isinstance(entries, YMap):
+        error("E807", "run must map subsystems to {config: NAME} or {app: NAME}", location_of(entries, root.loc),
+              "e.g. run: {operator: {app: tour}}")
+        return
+    for key, options in entries.items():
+        if key not in application.subsystems:
+            if key not in (root.get("subsystems") or {}):
+                error("E807", f"run: no subsystem '{key}' in this application", entries.key_loc(key),
+                      f"subsystems: {', '.join(application.subsystems) or 'none'}")
+            continue
+        if not isinstance(options, YMap) or not options:
+            error("E807", f"run: subsystem '{key}' needs {{config: NAME}} or {{app: NAME}}", entries.value_loc(key))
+            continue
+        subsystem = application.subsystems[key]
+        chosen: dict[str, str] = {}
+        for option, value in options.items():
+            if option not in _RUN_KEYS:
+                error("E807", f"run: unknown option '{option}' for subsystem '{key}'", options.key_loc(option),
+                      "config: a configuration to turn on, or app: an application of the subsystem's jobs")
+                continue
+            known = subsystem.configurations if option == "config" else subsystem.applications
+            if value not in known:
+                what = "configuration" if option == "config" else "application"
+                error("E807", f"run: subsystem '{key}' has no {what} '{value}'", options.value_loc(option),
+                      f"its {what}s: {', '.join(known) or 'none'}")
+                continue
+            chosen[option] = value
+        if len(chosen) == 2:
+            error("E807", f"run: subsystem '{key}' takes a configuration or an application, not both",
+                  entries.key_loc(key), "an application's jobs choose their own configurations")
+            continue
+        application.run[key] = chosen
+
+
+def _check_link_ends(application: Application, error) -> None:
+    """Each link: one sending and one receiving task of its kind, in different subsystems, ports of its payload."""
+    ends: dict[str, dict[str, list[tuple[str, str, Location]]]] = {
+        n: {module: [] for module in ENDS[spec.kind]} for n, spec in application.links.items()}
+    refused: set[tuple[str, str]] = set()  # (link, module) of ends already reported: no "has no ..." on top
+    for key, subsystem in application.subsystems.items():
+        for task in subsystem.tasks.values():
+            kind = _KIND_OF_MODULE.get(task.module)
+            if kind is None:
+                continue
+            link = task.params.get("link")
+            if link not in application.links:
+                error("E804", f"task '{task.name}' of subsystem '{key}' uses link '{link}', which the application does not declare",
+                      task.loc, f"links: {', '.join(application.links) or 'none'}; declare it under links:")
+                continue
+            spec = application.links[link]
+            if spec.kind != kind:
+                refused.update((link, module) for module in ENDS[spec.kind])
+                fitting = " and ".join(ENDS[spec.kind])
+                error("E808", f"task '{task.name}' of subsystem '{key}' is a {task.module}, a {kind} link's end, but "
+                              f"link '{link}' is a {spec.kind} link", task.loc,
+                      f"a {spec.kind} link's ends are {fitting}; or declare the link with kind: {kind}")
+                continue
+            if task.module == SERVER and not task.aperiodic:
+                refused.add((link, task.module))
+                error("E808", f"task '{task.name}' of subsystem '{key}' serves message link '{link}' but is periodic",
+                      task.loc, "a message_server runs when a message arrives: give it aperiodic: true and a "
+                                "min_interarrival: (e.g. 10 ms) instead of a period")
+                continue
+            binding = next(b for b in task.bindings if b.port.name == "value")
+            variable = subsystem.variables[binding.variable]
+            if (np.dtype(variable.dtype), tuple(variable.shape)) != (np.dtype(spec.dtype), spec.shape):
+                refused.add((link, task.module))
+                error("E806", f"task '{task.name}' of subsystem '{key}' links variable '{variable.name}' "
+                              f"({variable.dtype} {list(variable.shape)}) to link '{link}', which carries "
+                              f"{spec.dtype} {list(spec.shape)}", task.loc,
+                      "the variable and the link must have the same type and shape")
+                continue
+            ends[link][task.module].append((key, task.name, task.loc))
+    for name, spec in application.links.items():
+        sending, receiving = ENDS[spec.kind]
+        senders, receivers = ends[name][sending], ends[name][receiving]
+        for role, found in ((sending, senders), (receiving, receivers)):
+            if not found and (name, role) not in refused:
+                extra_keys = ", aperiodic: true, min_interarrival: 10 ms" if role == SERVER else ""
+                error("E805", f"link '{name}' has no {role} task", spec.loc,
+                      f"add a task with module: {role}, params: {{link: {name}}}{extra_keys} to one subsystem")
+            for extra in found[1:]:
+                error("E805", f"link '{name}' has a second {role}: task '{extra[1]}' of subsystem '{extra[0]}' "
+                              f"(the first is '{found[0][1]}' of '{found[0][0]}')", extra[2],
+                      "a link joins one sender and one receiver")
+        if senders and receivers and senders[0][0] == receivers[0][0]:
+            error("E805", f"link '{name}' joins two tasks of the same subsystem '{senders[0][0]}'", spec.loc,
+                  "within a subsystem, tasks share state variables: use a variable, not a link")
+        if senders and receivers:
+            application.links[name] = LinkSpec(name, spec.dtype, spec.shape, spec.transport, senders[0][:2],
+                                               receivers[0][:2], spec.loc, spec.kind, spec.capacity, spec.endpoint)

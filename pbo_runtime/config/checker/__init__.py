@@ -1,0 +1,88 @@
+"""The configuration checker: every rule of DESIGN.md §6 and §12, all errors of a file in one pass.
+
+It walks a loaded YAML document (`config.yaml_nodes.YMap`), reports each mistake like a compiler
+(`file:line:col: error[E403]: ...` with the objects, what was found, the valid choices and a hint;
+every rule has a stable code, listed in docs/error-codes.md),
+and builds the frozen specs of `config.model` from what is right, so the loader can assemble a
+`Subsystem` when nothing is wrong. It never stops at the first mistake: a broken part is left out
+of the later rules so one typo does not cascade into a page of follow-on errors.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Iterable
+
+from pbo_runtime.config.checker.base import CheckerBase
+from pbo_runtime.config.checker.claims import ClaimChecks
+from pbo_runtime.config.checker.configurations import ConfigurationChecks
+from pbo_runtime.config.checker.devices import DeviceChecks
+from pbo_runtime.config.checker.jobs import JobChecks
+from pbo_runtime.config.checker.model import (
+    BUS_KEYS,
+    CLAIM_KEYS,
+    DEVICE_KEYS,
+    DTYPES,
+    JOB_KEYS,
+    RTPU_KEYS,
+    TASK_KEYS,
+    TOP_KEYS,
+    VARIABLE_KEYS,
+    Checked,
+    DriverLookup,
+    ModuleLookup,
+)
+from pbo_runtime.config.checker.sections import SectionChecks
+from pbo_runtime.config.checker.tasks import TaskChecks
+from pbo_runtime.config.checker.timing import TimingChecks
+from pbo_runtime.config.checker.variables import VariableChecks
+from pbo_runtime.config.checker.words import describe, did_you_mean
+from pbo_runtime.config.model import NOWHERE, Location
+
+__all__ = [
+    "BUS_KEYS",
+    "CLAIM_KEYS",
+    "DEVICE_KEYS",
+    "DTYPES",
+    "JOB_KEYS",
+    "RTPU_KEYS",
+    "TASK_KEYS",
+    "TOP_KEYS",
+    "VARIABLE_KEYS",
+    "Checked",
+    "DriverLookup",
+    "ModuleLookup",
+    "check_document",
+    "describe",
+    "did_you_mean",
+]
+
+
+class _Checker(SectionChecks, DeviceChecks, VariableChecks, TaskChecks, ConfigurationChecks, ClaimChecks,
+               JobChecks, TimingChecks, CheckerBase):
+    """The whole checker: the core (`CheckerBase`) with every rule, one mixin a concept."""
+
+
+def check_document(
+    doc: Any,
+    file: str,
+    module_lookup: ModuleLookup,
+    module_names: Callable[[], Iterable[str]] | None = None,
+    driver_lookup: DriverLookup | None = None,
+) -> Checked:
+    """Check a loaded document; never raises for anything in the document.
+
+    `driver_lookup` finds a driver class by name (the registry by default): what it declares
+    (channels, the I/O device it reads through, its options) is checked against the YAML.
+    """
+    checker = _Checker(file, module_lookup, module_names, driver_lookup)
+    doc_loc = Location(file, 1, 1) if file else NOWHERE
+    try:
+        return checker.run(doc, doc_loc)
+    except Exception as exc:  # a bug here must still end as a message, never a traceback for the user
+        checker.error(
+            "E901",
+            f"internal error in the checker: {exc!r}",
+            doc_loc,
+            "please report this with the file you checked",
+        )
+        return checker.out

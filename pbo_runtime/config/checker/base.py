@@ -1,0 +1,179 @@
+"""The checker's core: the state of one pass, how it reports a problem, the helpers that check a
+value's YAML shape (a mapping, its keys, a name, text, a flag, an integer, a quantity), and the
+pass itself, which runs the rules the mixins of this package define, in order.
+"""
+
+from __future__ import annotations
+
+import difflib
+from typing import Any, Callable, Iterable, Iterator, Sequence
+
+from pbo_runtime.objects import registry
+from pbo_runtime.config.checker.model import TOP_KEYS, TOP_REQUIRED, Checked, DriverLookup, ModuleLookup, _Claim, _Task
+from pbo_runtime.config.checker.words import describe, did_you_mean
+from pbo_runtime.config.model import Location
+from pbo_runtime.errors import ConfigError
+from pbo_runtime.config.units import TIME, parse_quantity
+from pbo_runtime.config.yaml_nodes import YMap, location_of
+
+
+class CheckerBase:
+    """One pass over one document; `run` calls the `check_*` rules the mixins add (see `_Checker`)."""
+
+    def __init__(self, file: str, module_lookup: ModuleLookup, module_names: Callable[[], Iterable[str]] | None,
+                 driver_lookup: DriverLookup | None = None) -> None:
+        self.file = file
+        self.module_lookup = module_lookup
+        self.module_names = module_names
+        self.driver_lookup = driver_lookup or registry.driver_class
+        self._drivers: dict[str, Any] = {}
+        self._claims: dict[str, list[_Claim]] = {}
+        self.out = Checked()
+        self.rtpu_names: set[str] = set()
+        self.var_initial: set[str] = set()
+        self.var_object: dict[str, str] = {}
+        self.var_locs: dict[str, Location] = {}
+        self.var_ok: set[str] = set()
+        self.tasks: dict[str, _Task] = {}
+        self.task_names: set[str] = set()
+        self.config_names: set[str] = set()
+        self.config_members: dict[str, list[tuple[str, Location]]] = {}
+        self.config_repeats: dict[str, set[str]] = {}  # tasks flagged E407 (a module repeated), per configuration
+        self.config_locs: dict[str, Location] = {}
+        self.job_names: set[str] = set()
+        self.expression_names: set[str] = set()
+        self.device_names: set[str] = set()
+        self.sources: dict[str, list[str]] = {}
+        self.app_names: set[str] = set()
+        self._port_shapes: dict[Any, tuple[int, ...]] = {}  # a port's declared shape -> resolved with the dims
+
+    # --- reporting --------------------------------------------------------------------------
+
+    def error(self, code: str, message: str, loc: Location, hint: str = "") -> None:
+        self.out.errors.append(ConfigError(message, loc.file, loc.line, loc.column, hint, code=code))
+
+    def warn(self, code: str, message: str, loc: Location, hint: str = "") -> None:
+        self.out.warnings.append(ConfigError(message, loc.file, loc.line, loc.column, hint, severity="warning", code=code))
+
+    # --- shape helpers ----------------------------------------------------------------------
+
+    def mapping(self, value: Any, loc: Location, what: str, example: str = "") -> YMap | None:
+        """The value if it is a mapping, else an error saying what was expected."""
+        if isinstance(value, YMap):
+            return value
+        self.error("E113", f"{what} must be a mapping, got: {describe(value)}", location_of(value, loc), example)
+        return None
+
+    def keys(self, m: YMap, allowed: Sequence[str], required: Sequence[str], where: str, owner_loc: Location) -> None:
+        missing = [key for key in required if key not in m]
+        for key in m:
+            if key not in allowed:
+                close = difflib.get_close_matches(str(key), missing, n=1, cutoff=0.6)
+                if close:  # one mistake, one error: a misspelt required key
+                    missing.remove(close[0])
+                    self.error("E111", f"unknown key '{key}' {where}: did you mean the required key '{close[0]}'?", m.key_loc(key),
+                               f"rename it '{close[0]}:'")
+                else:
+                    self.error("E111", f"unknown key '{key}' {where}", m.key_loc(key), did_you_mean(key, allowed))
+        if not missing:
+            return
+        subject = where[3:] if where.startswith("in ") else "the file" if where == "at the top level" else where
+        for key in missing:
+            self.error("E112", f"{subject} has no '{key}:', which is required", owner_loc, f"add '{key}:' (keys: {', '.join(allowed)})")
+
+    def name(self, key: object, loc: Location, what: str) -> str | None:
+        if isinstance(key, str) and key:
+            return key
+        self.error("E118", f"{what} names must be text, got: {describe(key)}", loc, "write the name as plain text, e.g. q_m")
+        return None
+
+    def text(self, value: Any, loc: Location, what: str) -> str | None:
+        if isinstance(value, str):
+            return value
+        self.error("E114", f"{what} must be text, got: {describe(value)}", location_of(value, loc))
+        return None
+
+    def boolean(self, value: Any, loc: Location, what: str) -> bool | None:
+        if isinstance(value, bool):
+            return value
+        self.error("E115", f"{what} must be true or false, got: {describe(value)}", location_of(value, loc))
+        return None
+
+    def integer(self, value: Any, loc: Location, what: str, minimum: int | None = None) -> int | None:
+        if not isinstance(value, int) or isinstance(value, bool):
+            self.error("E116", f"{what} must be an integer, got: {describe(value)}", location_of(value, loc))
+            return None
+        if minimum is not None and value < minimum:
+            self.error("E117", f"{what} must be >= {minimum}, got: {value}", loc)
+            return None
+        return value
+
+    def quantity(self, value: Any, loc: Location, kind: str, what: str, positive: bool = True) -> float | None:
+        try:
+            number = parse_quantity(value, kind)
+        except ValueError as exc:
+            hint = ""
+            if kind == TIME and "that is a frequency" in str(exc):
+                hint = "give a rate as 'rate: 1 kHz', or a period as 'period: 1 ms'"
+            self.error("E501", f"{what}: {exc}", location_of(value, loc), hint)
+            return None
+        if positive and number <= 0:
+            self.error("E502", f"{what} must be > 0, got: {value}", loc)
+            return None
+        if not positive and number < 0:
+            self.error("E502", f"{what} must be >= 0, got: {value}", loc)
+            return None
+        return number
+
+    # --- the pass ---------------------------------------------------------------------------
+
+    def run(self, doc: Any, doc_loc: Location) -> Checked:
+        if doc is None:
+            self.error(
+                "E110",
+                "the file is empty",
+                doc_loc,
+                "a subsystem file is a mapping with keys " + ", ".join(TOP_REQUIRED),
+            )
+            return self.out
+        top = self.mapping(doc, doc_loc, "the top level", "a subsystem file is a mapping with keys " + ", ".join(TOP_REQUIRED))
+        if top is None:
+            return self.out
+        self.keys(top, TOP_KEYS, TOP_REQUIRED, "at the top level", top.loc)
+        self.check_subsystem(top)
+        self.check_dims(top)
+        self.check_rtpus(top)
+        self.check_bus(top)
+        self.check_plant(top)
+        self.check_devices(top)
+        self.check_variables(top)
+        self.check_tasks(top)
+        self.check_configurations(top)
+        self.check_jobs(top)
+        self.check_applications(top)
+        for config in self.config_members:
+            self.check_data_flow(config)
+        self.check_device_union()
+        self.check_schedulability()
+        self.check_spins()
+        self.check_const_order()
+        self.check_unused()
+        return self.out
+
+    def section(self, top: YMap, key: str, example: str) -> YMap | None:
+        """A top-level section that maps names to entries; None (and an error) if it is not one."""
+        if key not in top or top[key] is None:
+            return None
+        return self.mapping(top[key], top.value_loc(key), f"'{key}'", example)
+
+    def entries(self, top: YMap, key: str, what: str, example: str) -> Iterator[tuple[str, Any, Location, Location]]:
+        """Each entry of a top-level section that maps names to entries, as (name, value, where the
+        name is, where the value is); an entry whose name is not text is reported and left out."""
+        section = self.section(top, key, example)
+        if section is None:
+            return
+        for raw, value in section.items():
+            key_loc = section.key_loc(raw)
+            name = self.name(raw, key_loc, what)
+            if name is not None:
+                yield name, value, key_loc, section.value_loc(raw)

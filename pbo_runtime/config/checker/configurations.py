@@ -1,0 +1,161 @@
+"""Configurations and their data flow: which tasks run together, who writes what each task reads,
+and what no configuration or no task uses.
+"""
+
+from __future__ import annotations
+
+from pbo_runtime.config.checker.base import CheckerBase
+from pbo_runtime.config.checker.model import _Binding, _Task
+from pbo_runtime.config.checker.words import _and_list, describe, did_you_mean
+from pbo_runtime.config.model import ConfigurationSpec, Location
+from pbo_runtime.config.yaml_nodes import YList, YMap, location_of
+
+_JOIN_HINT = "an output has one writer; join them with a join connector (TR Figure 6)"
+
+
+class ConfigurationChecks(CheckerBase):
+    """Rules for `configurations:`, the data flow in each, and what is left unused."""
+
+    def check_configurations(self, top: YMap) -> None:
+        for name, value, key_loc, value_loc in self.entries(top, "configurations", "configuration", "e.g. configurations: {joint_pid: [robot, pid]}"):
+            self.config_names.add(name)
+            if not isinstance(value, YList):
+                loc = value_loc
+                self.error("E113", f"configuration '{name}' must be a list of task names, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [robot, pid]")
+                continue
+            members: list[tuple[str, Location]] = []
+            first: dict[str, Location] = {}
+            modules: dict[str, tuple[str, Location]] = {}
+            ok = True
+            for i, item in enumerate(value):
+                item_loc = value.item_loc(i)
+                task = item if isinstance(item, str) else self.text(item, item_loc, f"task of configuration '{name}'")
+                if task is None:
+                    ok = False
+                    continue
+                if task not in self.task_names:
+                    self.error("E209", f"configuration '{name}' names task '{task}', which 'tasks' does not declare", item_loc, did_you_mean(task, self.task_names, "declared"))
+                    ok = False
+                    continue
+                if task in first:
+                    self.error(
+                        "E402",
+                        f"task '{task}' appears twice in configuration '{name}' (first at line {first[task].line}, column {first[task].column})",
+                        item_loc,
+                        "a task runs at most once in a configuration; to run its module twice, declare a second task",
+                    )
+                    ok = False
+                    continue
+                module = self.tasks[task].module if task in self.tasks else ""
+                if module and module in modules:
+                    other, other_loc = modules[module]
+                    self.error(
+                        "E407",
+                        f"configuration '{name}' runs module '{module}' twice: as task '{other}' (line {self.tasks[other].loc.line}) "
+                        f"and as task '{task}' (line {self.tasks[task].loc.line})",
+                        item_loc,
+                        "a module runs at most once in a configuration (TR §3, Onika §4.3.2); "
+                        "combine the two tasks into one, or use distinct modules",
+                    )
+                    ok = False
+                    # still a member: what it writes counts, so no follow-on "nobody writes it" (E403),
+                    # and no follow-on "two writers" (E401) with the task it repeats
+                    first[task] = item_loc
+                    members.append((task, item_loc))
+                    self.config_repeats.setdefault(name, set()).add(task)
+                    continue
+                if module:
+                    modules[module] = (task, item_loc)
+                first[task] = item_loc
+                members.append((task, item_loc))
+            self.config_members[name] = members
+            self.config_locs[name] = key_loc
+            if ok:
+                self.out.configurations[name] = ConfigurationSpec(name, tuple(t for t, _ in members), key_loc)
+
+    def job_written(self) -> set[str]:
+        """Variables job control writes (objects and initial values): the same for every configuration."""
+        cached = getattr(self, "_job_written", None)
+        if cached is None:
+            cached = self._job_written = set(self.var_object) | self.var_initial
+        return cached
+
+    def check_data_flow(self, config: str) -> None:
+        """Inputs have one writer; no variable two; consts come from init-time writers; exclusive devices."""
+        members = [self.tasks[t] for t, _ in self.config_members.get(config, []) if t in self.tasks]
+        # A task with an unresolved port may be the missing writer: report no "nobody writes it"
+        # errors then, only what the resolved links prove.
+        repeats = self.config_repeats.get(config, set())
+        complete = all(t.ok for t in members if t.name not in repeats) and len(members) == len(self.config_members.get(config, []))
+        # A repeated module's task (E407) is not judged again: its writes satisfy readers (no
+        # follow-on E403/E405), but are not counted as second writers (E401) or as the kind of
+        # write a const needs (E404); its own reads repeat the first task's.
+        writers: dict[str, list[tuple[_Task, _Binding]]] = {}
+        repeat_written: set[str] = set()
+        for task in members:
+            for b in task.bindings:
+                if not b.port.kind.is_input:
+                    if task.name in repeats:
+                        repeat_written.add(b.variable)
+                    else:
+                        writers.setdefault(b.variable, []).append((task, b))
+        for var, ws in writers.items():
+            if len(ws) > 1:
+                detail = _and_list([f"'{t.name}' (line {b.loc.line})" for t, b in ws])
+                count = "two" if len(ws) == 2 else str(len(ws))
+                self.error("E401", f"variable '{var}' has {count} writers in configuration '{config}': {detail}", ws[1][1].loc, _JOIN_HINT)
+        job_written = self.job_written()
+        for task in members:
+            if task.name in repeats:
+                continue
+            for b in task.bindings:
+                if not b.port.kind.is_input:
+                    continue
+                ws = writers.get(b.variable, [])
+                if not ws and b.variable in repeat_written:
+                    continue
+                if not ws and b.variable not in job_written:
+                    if not complete:
+                        continue
+                    self.error(
+                        "E403",
+                        f"task '{task.name}' reads {b.port.kind.value} '{b.variable}', but no task in configuration '{config}' writes it",
+                        b.loc,
+                        (did_you_mean(b.variable, written, "written") if (written := sorted(set(writers) | job_written))
+                         else "nothing is written")
+                        + f"; add a task that writes '{b.variable}', or give it an initial: value",
+                    )
+                    continue
+                if not b.port.kind.needs_initial_value or b.variable in self.var_initial:
+                    continue
+                if ws and not any(w.port.kind.supplies_initial_value for _, w in ws):
+                    w_task, w_binding = ws[0]
+                    self.error(
+                        "E404",
+                        f"task '{task.name}' reads {b.port.kind.value} '{b.variable}' before its init, but its writer '{w_task.name}' "
+                        f"in configuration '{config}' writes it as {w_binding.port.kind.value} (only after each cycle)",
+                        b.loc,
+                        f"make port '{w_binding.port.name}' of module '{w_task.module}' out-const or out-both, "
+                        f"or give variable '{b.variable}' an initial: value",
+                    )
+                elif not ws and complete:
+                    self.error(
+                        "E405",
+                        f"task '{task.name}' reads {b.port.kind.value} '{b.variable}' before its init, but in configuration '{config}' "
+                        "only job control sets it, as a job's object, after tasks are spawned",
+                        b.loc,
+                        f"give variable '{b.variable}' an initial: value",
+                    )
+        self.check_device_claims(config, members)
+
+    def check_unused(self) -> None:
+        in_a_config = {t for members in self.config_members.values() for t, _ in members}
+        for task in self.tasks.values():
+            if task.name not in in_a_config:
+                self.warn("W201", f"task '{task.name}' is in no configuration", task.loc, "it is spawned but never turned on; add it to a configuration or remove it")
+        if any(not t.ok for t in self.tasks.values()):
+            return  # who reads what is unknown while a task's ports are unknown
+        read = {b.variable for t in self.tasks.values() for b in t.bindings if b.port.kind.is_input}
+        for name, loc in self.var_locs.items():
+            if name not in read and name not in self.expression_names:
+                self.warn("W202", f"variable '{name}' is read by no task", loc, "remove it, or link a task's input port to it")

@@ -1,0 +1,123 @@
+"""The small top-level sections: the subsystem's name, dims, RTPUs, the bus and the plant."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+from pbo_runtime.config.checker.base import CheckerBase
+from pbo_runtime.config.checker.model import BUS_KEYS, RTPU_KEYS
+from pbo_runtime.config.checker.words import describe
+from pbo_runtime.config.model import DEFAULT_SPIN, BusSpec, Location, PlantSpec, RtpuSpec
+from pbo_runtime.config.units import DATA_RATE, SIZE, TIME
+from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
+
+_SUBSYSTEM_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
+
+
+class SectionChecks(CheckerBase):
+    """Rules for `subsystem:`, `dims:`, `rtpus:`, `bus:` and `plant:`."""
+
+    def check_subsystem(self, top: YMap) -> None:
+        if "subsystem" not in top:
+            return
+        loc = top.value_loc("subsystem")
+        name = self.text(top["subsystem"], loc, "'subsystem'")
+        if name is None:
+            return
+        if not _SUBSYSTEM_NAME.match(name):
+            self.error(
+                "E201",
+                f"subsystem name {name!r} is not usable in shared-memory names",
+                loc,
+                "use letters, digits, '_' and '-', starting with a letter (e.g. puma)",
+            )
+            return
+        self.out.name = name
+
+    def check_dims(self, top: YMap) -> None:
+        for name, value, _, value_loc in self.entries(top, "dims", "dim", "e.g. dims: {NDOF: 6}"):
+            size = self.integer(value, value_loc, f"dim '{name}'", minimum=1)
+            if size is not None:
+                self.out.dims[name] = size
+
+    def check_rtpus(self, top: YMap) -> None:
+        if "rtpus" not in top:
+            return
+        value = top["rtpus"]
+        loc = top.value_loc("rtpus")
+        entries: list[tuple[Any, Location, Any, Location]] = []
+        if isinstance(value, YList):
+            entries = [(item, value.item_loc(i), None, value.item_loc(i)) for i, item in enumerate(value)]
+        elif isinstance(value, YMap):
+            entries = [(k, value.key_loc(k), v, value.value_loc(k)) for k, v in value.items()]
+        else:
+            self.error(
+                "E113",
+                f"'rtpus' must be a list of names or a mapping of name to {{cpu: N}}, got: {describe(value)}",
+                loc,
+                "e.g. rtpus: [rtpu0, rtpu1] or rtpus: {rtpu0: {cpu: 0}}",
+            )
+            return
+        if not entries:
+            self.error("E119", "'rtpus' is empty: a subsystem needs at least one RTPU", location_of(value, loc), "e.g. rtpus: [rtpu0]")
+        rtpus: list[RtpuSpec] = []
+        for key, key_loc, spec, spec_loc in entries:
+            name = self.name(key, key_loc, "RTPU")
+            if name is None:
+                continue
+            if name in self.rtpu_names:
+                self.error("E202", f"RTPU '{name}' is listed twice", key_loc)
+                continue
+            cpu = None
+            spin, spin_loc = DEFAULT_SPIN, key_loc
+            if spec is not None:
+                m = self.mapping(spec, spec_loc, f"RTPU '{name}'", "e.g. rtpu0: {cpu: 0, spin: 200 us}")
+                if m is not None:
+                    self.keys(m, RTPU_KEYS, (), f"in RTPU '{name}'", key_loc)
+                    if "cpu" in m and m["cpu"] is not None:
+                        cpu = self.integer(m["cpu"], m.value_loc("cpu"), f"cpu of RTPU '{name}'", minimum=0)
+                    if "spin" in m and m["spin"] is not None:
+                        spin_loc = m.value_loc("spin")
+                        spin = self.quantity(m["spin"], spin_loc, TIME, f"spin of RTPU '{name}'", positive=False)
+                        if spin is None:
+                            spin = DEFAULT_SPIN
+            self.rtpu_names.add(name)
+            rtpus.append(RtpuSpec(name, len(rtpus), cpu, key_loc, spin, spin_loc))
+        self.out.rtpus = tuple(rtpus)
+
+    def check_bus(self, top: YMap) -> None:
+        bus = self.section(top, "bus", "e.g. bus: {bandwidth: 40 MB/s, lock_overhead: 16 B}")
+        if bus is None:
+            return
+        self.keys(bus, BUS_KEYS, (), "in 'bus'", top.key_loc("bus"))
+        defaults = BusSpec()
+        bandwidth: float | None = defaults.bandwidth
+        overhead: float | None = defaults.lock_overhead
+        if "bandwidth" in bus:
+            bandwidth = self.quantity(bus["bandwidth"], bus.value_loc("bandwidth"), DATA_RATE, "bus bandwidth")
+        if "lock_overhead" in bus:
+            overhead = self.quantity(bus["lock_overhead"], bus.value_loc("lock_overhead"), SIZE, "bus lock_overhead", positive=False)
+        if bandwidth is not None and overhead is not None:
+            self.out.bus = BusSpec(bandwidth, overhead, bus.loc)
+
+    def check_plant(self, top: YMap) -> None:
+        plant = self.section(top, "plant", "e.g. plant: {model: puma560, timestep: 1 ms}")
+        if plant is None:
+            return
+        defaults = PlantSpec()
+        kind: str | None = defaults.type
+        model: str | None = defaults.model
+        timestep: float | None = defaults.timestep
+        if "type" in plant:
+            kind = self.text(plant["type"], plant.value_loc("type"), "plant type")
+        if "model" in plant:
+            model = self.text(plant["model"], plant.value_loc("model"), "plant model")
+        if "timestep" in plant:
+            timestep = self.quantity(plant["timestep"], plant.value_loc("timestep"), TIME, "plant timestep")
+        options = {k: plain(v) for k, v in plant.items() if k not in ("type", "model", "timestep")}
+        for key in options:
+            if not isinstance(key, str):
+                self.error("E118", f"plant option names must be text, got: {describe(key)}", plant.key_loc(key))
+        if kind is not None and model is not None and timestep is not None:
+            self.out.plant = PlantSpec(kind, model, timestep, options, plant.loc)

@@ -1,0 +1,365 @@
+"""Tasks: their fields and timing, their module, its params, and the links of its ports to variables."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pbo_runtime.config.checker.base import CheckerBase
+from pbo_runtime.config.checker.model import TASK_KEYS, _Binding, _Task
+from pbo_runtime.config.checker.words import _ms, _show_shape, describe, did_you_mean
+from pbo_runtime.config.model import Location, PortBinding, TaskSpec
+from pbo_runtime.errors import ParamError
+from pbo_runtime.objects.ports import ANY_DTYPE, PortSpec
+from pbo_runtime.config.units import FREQUENCY, TIME
+from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
+
+
+class TaskChecks(CheckerBase):
+    """Rules for `tasks:`."""
+
+    def known_modules(self) -> list[str] | None:
+        if self.module_names is None:
+            return None
+        try:
+            return list(self.module_names())
+        except Exception:  # a broken registry must not hide the user's mistake
+            return None
+
+    def check_tasks(self, top: YMap) -> None:
+        for index, (name, value, key_loc, value_loc) in enumerate(self.entries(top, "tasks", "task", "e.g. tasks: {pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}}")):
+            self.task_names.add(name)
+            # (a mapping, as nearly always, needs no location and no message: they are made for the error only)
+            spec = value if isinstance(value, YMap) else self.mapping(
+                value, value_loc, f"task '{name}'", "e.g. pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}")
+            if spec is None:
+                continue
+            task = _Task(name, index, key_loc)
+            self.tasks[name] = task
+            self.keys(spec, TASK_KEYS, ("module", "rtpu"), f"in task '{name}'", key_loc)
+            complete = self.check_task_fields(task, spec)
+            module_class = self.check_task_module(task, spec)
+            if module_class is not None:
+                params_ok = self.check_task_params(task, spec, module_class)
+                if not params_ok:
+                    complete = False
+                task.ok = self.check_task_ports(task, spec, module_class)
+            if complete and task.ok:
+                self.out.tasks[name] = TaskSpec(
+                    name,
+                    task.module,
+                    task.rtpu,
+                    task.period,
+                    task.priority,
+                    task.critical,
+                    task.params,
+                    tuple([PortBinding(b.port, b.variable, b.shape) for b in task.bindings]),
+                    tuple([r for r, _ in task.resources]),
+                    index,
+                    key_loc,
+                    task.wcet,
+                    task.aperiodic,
+                    task.min_interarrival,
+                    dict(task.channels),
+                )
+
+    def check_task_fields(self, task: _Task, spec: YMap) -> bool:
+        """rtpu, period/rate, priority, critical, resources; False if any is wrong."""
+        ok = True
+        name = task.name
+        if "rtpu" in spec:
+            rtpu = spec["rtpu"]  # (its location is looked up only to report it)
+            if not isinstance(rtpu, str):
+                self.text(rtpu, spec.value_loc("rtpu"), f"rtpu of task '{name}'")
+                ok = False
+            elif rtpu not in self.rtpu_names:
+                self.error("E203", f"task '{name}' runs on RTPU '{rtpu}', which 'rtpus' does not declare", spec.value_loc("rtpu"),
+                           did_you_mean(rtpu, self.rtpu_names, "declared"))
+                ok = False
+            else:
+                task.rtpu = rtpu
+        else:
+            ok = False
+        ok = self.check_task_timing(task, spec) and ok
+        if "priority" in spec:
+            priority = self.integer(spec["priority"], spec.value_loc("priority"), f"priority of task '{name}'")
+            ok = ok and priority is not None
+            task.priority = priority or 0
+        if "critical" in spec:
+            critical = self.boolean(spec["critical"], spec.value_loc("critical"), f"'critical' of task '{name}'")
+            ok = ok and critical is not None
+            task.critical = bool(critical)
+        if "resources" in spec and spec["resources"] is not None:
+            value = spec["resources"]
+            loc = spec.value_loc("resources")
+            if not isinstance(value, YList):
+                self.error("E113", f"resources of task '{name}' must be a list of devices, got: {describe(value)}", location_of(value, loc), "e.g. resources: [arm, {device: adc0, channels: 6-7}]")
+                return False
+            seen: set[str] = set()
+            for i, item in enumerate(value):
+                item_loc = value.item_loc(i)
+                claim = self.port_claim(item, item_loc, f"resource of task '{name}'", f"task '{name}'", allow_name=True)
+                device = claim.device if claim is not None else None
+                if device is None:
+                    ok = False
+                elif device not in self.device_names:
+                    self.error("E208", f"task '{name}' uses device '{device}', which 'devices' does not declare", claim.loc, did_you_mean(device, self.device_names, "declared"))
+                    ok = False
+                elif device in seen:
+                    self.error("E602", f"task '{name}' lists device '{device}' twice", item_loc)
+                    ok = False
+                elif device in self.out.devices and not self.channels_exist(claim, f"task '{name}'"):
+                    ok = False
+                else:
+                    seen.add(device)
+                    task.resources.append((device, item_loc))
+                    if claim.channels is not None:
+                        task.channels[device] = claim.channels
+        return ok
+
+    def check_task_timing(self, task: _Task, spec: YMap) -> bool:
+        """period or rate, or aperiodic with min_interarrival; and wcet within the period."""
+        name = task.name
+        ok = True
+        aperiodic = False
+        if "aperiodic" in spec:
+            flag = self.boolean(spec["aperiodic"], spec.value_loc("aperiodic"), f"'aperiodic' of task '{name}'")
+            if flag is None:
+                return False  # periodic or not is unknown: any further timing error would be a guess
+            aperiodic = flag
+        task.aperiodic = aperiodic
+        if aperiodic:
+            for key in ("period", "rate"):
+                if key in spec:
+                    self.error(
+                        "E506",
+                        f"task '{name}' is aperiodic, so it takes no {key}",
+                        spec.key_loc(key),
+                        "an aperiodic task runs when an event arrives; give its min_interarrival: instead (e.g. min_interarrival: 5 ms)",
+                    )
+                    ok = False
+            if "min_interarrival" not in spec:
+                self.error(
+                    "E507",
+                    f"aperiodic task '{name}' needs a min_interarrival",
+                    spec.key_loc("aperiodic"),
+                    "add the shortest time between two of its events, e.g. min_interarrival: 5 ms",
+                )
+                return False
+            gap = self.quantity(spec["min_interarrival"], spec.value_loc("min_interarrival"), TIME, f"min_interarrival of task '{name}'")
+            if gap is None:
+                return False
+            task.min_interarrival = gap
+            task.period = gap  # the worst case: analysis treats it as periodic at its fastest
+        else:
+            if "min_interarrival" in spec:
+                self.error(
+                    "E508",
+                    f"task '{name}' gives a min_interarrival but is not aperiodic",
+                    spec.key_loc("min_interarrival"),
+                    "add 'aperiodic: true' for a task released by events, or give a periodic task a period: or rate:",
+                )
+                ok = False
+            if "period" in spec and "rate" in spec:
+                self.error(
+                    "E503",
+                    f"task '{name}' gives both a period and a rate",
+                    spec.key_loc("rate"),
+                    "give one of them: period: 1 ms or rate: 1 kHz",
+                )
+                return False
+            if "period" in spec:
+                period = self.quantity(spec["period"], spec.value_loc("period"), TIME, f"period of task '{name}'")
+                ok = ok and period is not None
+                task.period = period or 0.0
+            elif "rate" in spec:
+                rate = self.quantity(spec["rate"], spec.value_loc("rate"), FREQUENCY, f"rate of task '{name}'")
+                ok = ok and rate is not None
+                task.period = 1.0 / rate if rate else 0.0
+            else:
+                self.error(
+                    "E504",
+                    f"task '{name}' needs a period or a rate",
+                    task.loc,
+                    "add e.g. 'period: 1 ms' or 'rate: 1 kHz', or 'aperiodic: true' with a min_interarrival:",
+                )
+                return False
+        if "wcet" in spec:
+            loc = spec.value_loc("wcet")
+            wcet = self.quantity(spec["wcet"], loc, TIME, f"wcet of task '{name}'")
+            if wcet is None:
+                return False
+            if ok and task.period > 0 and wcet > task.period:
+                span = "min_interarrival" if aperiodic else "period"
+                self.error(
+                    "E505",
+                    f"wcet of task '{name}' must be <= its {span} ({_ms(task.period)}), got: {spec['wcet']}",
+                    loc,
+                    "a cycle that runs longer than its period can never keep up; check the wcet, or slow the task down",
+                )
+                return False
+            task.wcet = wcet
+        return ok
+
+    def check_task_module(self, task: _Task, spec: YMap) -> Any:
+        if "module" not in spec:
+            return None
+        module = spec["module"]  # (its location is looked up only to report it)
+        if not isinstance(module, str):
+            self.text(module, spec.value_loc("module"), f"module of task '{task.name}'")
+            return None
+        task.module = module
+        try:
+            module_class = self.module_lookup(module)
+        except Exception as exc:  # ModuleError, or a library that fails to import
+            known = self.known_modules()
+            hint = did_you_mean(module, known, "registered") if known is not None else str(exc)
+            self.error("E207", f"task '{task.name}' uses module '{module}', which is not registered", spec.value_loc("module"), hint)
+            return None
+        return module_class
+
+    def module_ports(self, task: _Task, module_class: Any, spec: YMap) -> tuple[PortSpec, ...] | None:
+        try:
+            # ports may depend on params (a data logger's inputs); without valid params, the class's
+            built = getattr(task, "built_params", None)
+            ports = tuple(module_class.ports_for(built) if built is not None else module_class.ports())
+        except Exception as exc:  # the module is broken, not the YAML; say so
+            self.error("E307", f"module '{task.module}' of task '{task.name}' cannot list its ports: {exc!r}", spec.value_loc("module"))
+            return None
+        return ports
+
+    def port_shape(self, port: PortSpec, variable_shape: tuple[int, ...]) -> tuple[int, ...]:
+        """`port.resolved_shape` with this file's dims; a declared shape is resolved once, not per task.
+
+        Raises what `resolved_shape` raises (a shape that fails is never remembered).
+        """
+        declared = port.shape
+        try:
+            shape = self._port_shapes.get(declared) if declared is not None else None
+        except TypeError:  # an unhashable declared shape: resolved afresh each time
+            shape = declared = None
+        if shape is None:
+            shape = port.resolved_shape(self.out.dims, variable_shape)
+            if declared is not None:
+                self._port_shapes[declared] = shape
+        return shape
+
+    def check_task_ports(self, task: _Task, spec: YMap, module_class: Any) -> bool:
+        name = task.name
+        ports = self.module_ports(task, module_class, spec)
+        if ports is None:
+            return False
+        declared = {p.name: p for p in ports}
+        links: dict[str, tuple[str, Location]] = {}
+        ok = True
+        if "ports" in spec and spec["ports"] is not None:
+            m = self.mapping(spec["ports"], spec.value_loc("ports"), f"ports of task '{name}'", "e.g. ports: {tau: tau_u}")
+            if m is None:
+                ok = False
+            else:
+                for port_name, var in m.items():
+                    if port_name not in declared:
+                        self.error(
+                            "E212",
+                            f"module '{task.module}' of task '{name}' has no port '{port_name}'",
+                            m.key_loc(port_name),
+                            did_you_mean(port_name, declared, "ports"),
+                        )
+                        ok = False
+                        continue
+                    var_loc = m.value_loc(port_name)
+                    var_name = var if isinstance(var, str) else self.text(var, var_loc, f"variable of port '{port_name}' of task '{name}'")
+                    if var_name is None:
+                        ok = False
+                        continue
+                    links[port_name] = (var_name, var_loc)
+        var_locs, var_ok, variables = self.var_locs, self.var_ok, self.out.variables
+        for port in ports:
+            link = links.get(port.name)
+            explicit = link is not None
+            var, loc = link if link is not None else (port.variable, task.loc)
+            if var not in var_locs:
+                if explicit:
+                    self.error(
+                        "E205",
+                        f"task '{name}' links port '{port.name}' to variable '{var}', which 'variables' does not declare",
+                        loc,
+                        did_you_mean(var, self.var_locs, "declared"),
+                    )
+                else:
+                    self.error(
+                        "E206",
+                        f"task '{name}' (module '{task.module}') links port '{port.name}' by default to variable '{var}', "
+                        "which 'variables' does not declare",
+                        loc,
+                        f"declare '{var}' under variables, or link the port with ports: {{{port.name}: <variable>}}; "
+                        + did_you_mean(var, self.var_locs, "declared"),
+                    )
+                ok = False
+                continue
+            if var not in var_ok:
+                ok = False  # the variable itself is wrong and was reported
+                continue
+            variable = variables[var]
+            if port.dtype == ANY_DTYPE:  # a port that takes whatever its variable is
+                port = PortSpec(port.name, port.kind, port.variable, variable.dtype,
+                                variable.shape if port.shape is None else port.shape, port.doc)
+            try:
+                shape = self.port_shape(port, variable.shape)
+            except KeyError as exc:
+                self.error(
+                    "E304",
+                    f"port '{port.name}' of module '{task.module}' (task '{name}') has shape {_show_shape(port.shape)} "
+                    f"with dim {exc}, which 'dims' does not define",
+                    loc,
+                    did_you_mean(str(exc.args[0]), self.out.dims, "defined"),
+                )
+                ok = False
+                continue
+            except (TypeError, ValueError) as exc:
+                self.error("E306", f"port '{port.name}' of module '{task.module}' has a bad shape {port.shape!r}: {exc}", loc)
+                ok = False
+                continue
+            if port.dtype != variable.dtype:
+                self.error(
+                    "E301",
+                    f"task '{name}' port '{port.name}' ({port.kind.value}) is {port.dtype}, but variable '{var}' is {variable.dtype}",
+                    loc,
+                    f"change the type of '{var}' (line {variable.loc.line}) or link the port to a {port.dtype} variable",
+                )
+                ok = False
+                continue
+            if shape != variable.shape:
+                named = "" if shape == port.shape else f" = {_show_shape(port.shape)}"
+                self.error(
+                    "E302",
+                    f"task '{name}' port '{port.name}' ({port.kind.value}) has shape {_show_shape(shape)}{named}, "
+                    f"but variable '{var}' has shape {_show_shape(variable.shape)}",
+                    loc,
+                    f"change the shape of '{var}' (line {variable.loc.line}) or link the port to a variable of shape {_show_shape(shape)}",
+                )
+                ok = False
+                continue
+            task.bindings.append(_Binding(port, var, shape, loc))
+        return ok
+
+    def check_task_params(self, task: _Task, spec: YMap, module_class: Any) -> bool:
+        raw = spec.get("params")
+        if raw is not None and not isinstance(raw, YMap):
+            self.error("E113", f"params of task '{task.name}' must be a mapping, got: {describe(raw)}", self.params_loc(task, spec), "e.g. params: {kp: 400, kd: 40}")
+            return False
+        values = plain(raw) if raw is not None else {}
+        try:
+            task.built_params = module_class.build_params(values)
+        except ParamError as exc:
+            self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {exc}", self.params_loc(task, spec))
+            return False
+        except Exception as exc:  # a module's own validation may raise anything
+            self.error("E308", f"params of task '{task.name}' (module '{task.module}') were refused: {exc!r}", self.params_loc(task, spec))
+            return False
+        task.params = values
+        return True
+
+    @staticmethod
+    def params_loc(task: _Task, spec: YMap) -> Location:
+        """Where a message about a task's params points: the params, or the task when it gives none."""
+        return location_of(spec.get("params"), spec.value_loc("params") if "params" in spec else task.loc)

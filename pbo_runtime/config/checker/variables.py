@@ -1,0 +1,189 @@
+"""Variables: their type and shape (with dims), an initial value or a job's argument as an array."""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, Iterable
+
+import numpy as np
+
+from pbo_runtime.config.checker.base import CheckerBase
+from pbo_runtime.config.checker.model import DTYPES, VARIABLE_KEYS
+from pbo_runtime.config.checker.words import _show_shape, describe, did_you_mean
+from pbo_runtime.config.model import Location, VariableSpec
+from pbo_runtime.config.yaml_nodes import YList, YMap, location_of
+
+
+class VariableChecks(CheckerBase):
+    """Rules for `variables:`, and the value check an application step reuses."""
+
+    def resolve_shape(self, value: Any, loc: Location, owner: str) -> tuple[int, ...] | None:
+        if isinstance(value, YList):
+            items: list[Any] = value
+            where = value.item_loc  # locations are worked out only for an error
+        elif (isinstance(value, int) and not isinstance(value, bool)) or isinstance(value, str):
+            items = [value]  # 'shape: 6' and 'shape: NDOF' mean one dimension
+            where = lambda _index: loc  # noqa: E731
+        else:
+            self.error(
+                "E113",
+                f"shape of {owner} must be a list of sizes or dim names, got: {describe(value)}",
+                location_of(value, loc),
+                "e.g. shape: [NDOF, 4]; leave shape out for a scalar",
+            )
+            return None
+        shape: list[int] = []
+        ok = True
+        dims = self.out.dims
+        for index, item in enumerate(items):
+            if isinstance(item, str):
+                if item in dims:
+                    shape.append(dims[item])
+                else:
+                    self.error(
+                        "E204",
+                        f"shape of {owner} uses dim '{item}', which 'dims' does not define",
+                        where(index),
+                        did_you_mean(item, dims, "defined"),
+                    )
+                    ok = False
+            elif isinstance(item, int) and not isinstance(item, bool) and item >= 1:
+                shape.append(item)
+            else:
+                self.error("E305", f"shape of {owner}: each size must be an integer >= 1 or a dim name, got: {describe(item)}",
+                           where(index))
+                ok = False
+        return tuple(shape) if ok else None
+
+    def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str) -> np.ndarray | None:
+        """A value for a variable (initial or a job's argument) as an array, or an error."""
+        if isinstance(value, dict):
+            self.error("E310", f"{what} must be a number or a list, got: a mapping", location_of(value, loc))
+            return None
+        found = _nested_shape(value)
+        if found is None:
+            self.error(
+                "E311",
+                f"{what} is a ragged list; rows must have equal lengths",
+                location_of(value, loc),
+                f"give a nested list of shape {_show_shape(shape)}",
+            )
+            return None
+        if isinstance(value, list) and found != shape:
+            self.error(
+                "E312",
+                f"{what} has shape {_show_shape(found)}, but the variable's shape is {_show_shape(shape)}",
+                location_of(value, loc),
+                f"give a nested list of shape {_show_shape(shape)}, or one number for every element",
+            )
+            return None
+        leaves = list(_leaves(value))
+        for leaf in leaves:
+            problem = _leaf_problem(leaf, dtype)
+            if problem:
+                self.error("E313", f"{what}: {problem}", location_of(value, loc))
+                return None
+        try:
+            array = np.asarray(leaves if not isinstance(value, list) else value, dtype=dtype).reshape(found)
+        except (ValueError, TypeError, OverflowError) as exc:
+            self.error("E313", f"{what} cannot be stored as {dtype}: {exc}", location_of(value, loc))
+            return None
+        # One number fills every element (a list has the shape already, checked above). An
+        # empty array filled by broadcasting is what np.broadcast_to(...).copy() makes, faster.
+        filled = np.empty(shape, dtype=array.dtype)
+        filled[...] = array
+        return filled
+
+    def check_variables(self, top: YMap) -> None:
+        for name, value, key_loc, value_loc in self.entries(top, "variables", "variable", "e.g. variables: {q_m: {type: float64, shape: [NDOF]}}"):
+            self.var_locs[name] = key_loc
+            # (a mapping, as nearly always, needs no location and no message: they are made for the error only)
+            spec = value if isinstance(value, YMap) else self.mapping(
+                value, value_loc, f"variable '{name}'", "e.g. q_m: {type: float64, shape: [NDOF]}")
+            if spec is None:
+                continue
+            where = f"in variable '{name}'"
+            self.keys(spec, VARIABLE_KEYS, ("type",), where, key_loc)
+            dtype: str | None = None
+            if "type" in spec:
+                raw = spec["type"]  # (its location is looked up only to report it)
+                if not isinstance(raw, str):
+                    self.text(raw, spec.value_loc("type"), f"type of variable '{name}'")
+                elif raw not in DTYPES:
+                    self.error("E303", f"variable '{name}' has unknown type '{raw}'", spec.value_loc("type"), did_you_mean(raw, DTYPES))
+                else:
+                    dtype = _dtype_name(raw)
+            shape: tuple[int, ...] | None = ()
+            if "shape" in spec and spec["shape"] is not None:
+                shape = self.resolve_shape(spec["shape"], spec.value_loc("shape"), f"variable '{name}'")
+            doc = ""
+            if "doc" in spec and spec["doc"] is not None:
+                doc = self.text(spec["doc"], spec.value_loc("doc"), f"doc of variable '{name}'") or ""
+            obj: str | None = None
+            if "object" in spec:
+                obj = spec["object"]
+                if not isinstance(obj, str):
+                    obj = self.text(obj, spec.value_loc("object"), f"object type of variable '{name}'")
+                if obj is not None:
+                    self.var_object[name] = obj
+            if "initial" in spec:
+                self.var_initial.add(name)
+                if dtype is not None and shape is not None:
+                    initial = self.check_value(
+                        spec["initial"], spec.value_loc("initial"), dtype, shape, f"initial value of variable '{name}'"
+                    )
+                    if initial is not None:
+                        self.out.initial_values[name] = initial
+            if dtype is None or shape is None:
+                continue
+            self.var_ok.add(name)
+            initial = self.out.initial_values.get(name)
+            if initial is not None:
+                initial = initial.copy()
+                initial.setflags(write=False)
+            self.out.variables[name] = VariableSpec(name, len(self.out.variables), dtype, shape, doc, obj, key_loc, initial)
+
+
+@functools.cache
+def _dtype_name(raw: str) -> str:
+    """numpy's canonical name of a dtype (working it out costs microseconds: once per name)."""
+    return str(np.dtype(raw))
+
+
+def _nested_shape(value: Any) -> tuple[int, ...] | None:
+    """The shape of a nested list, () for a scalar, None if ragged."""
+    if not isinstance(value, list):
+        return ()
+    if not value:
+        return (0,)
+    inner = [_nested_shape(v) for v in value]
+    if any(s is None or s != inner[0] for s in inner):
+        return None
+    first = inner[0]
+    assert first is not None
+    return (len(value), *first)
+
+
+def _leaves(value: Any) -> Iterable[Any]:
+    if isinstance(value, list):
+        for v in value:
+            yield from _leaves(v)
+    else:
+        yield value
+
+
+_INT_RANGE = {"int32": (-(2**31), 2**31 - 1), "int64": (-(2**63), 2**63 - 1), "uint8": (0, 255)}
+
+
+def _leaf_problem(leaf: Any, dtype: str) -> str:
+    if dtype == "bool":
+        return "" if isinstance(leaf, bool) else f"bool elements must be true or false, got: {describe(leaf)}"
+    if isinstance(leaf, bool) or not isinstance(leaf, (int, float)):
+        return f"{dtype} elements must be numbers, got: {describe(leaf)}"
+    if dtype in _INT_RANGE:
+        if not isinstance(leaf, int):
+            return f"{dtype} elements must be integers, got: {describe(leaf)}"
+        low, high = _INT_RANGE[dtype]
+        if not low <= leaf <= high:
+            return f"{dtype} elements must lie in [{low}, {high}], got: {leaf}"
+    return ""

@@ -1,0 +1,263 @@
+"""Load a subsystem's YAML file (and its includes), check it, and build the frozen `Subsystem`.
+
+`check_file` is what `pbo check` and the supervisor call: it never raises for anything in the
+files, it returns every error and warning. `load_subsystem` is the strict form: a `Subsystem`
+or `ConfigErrors` listing everything wrong. Module classes are found by name through
+`module_lookup` (the library registry by default; tests pass fakes).
+"""
+
+from __future__ import annotations
+
+import gc
+import os
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from pbo_runtime.objects import registry
+from pbo_runtime.config.checker import Checked, ModuleLookup, check_document, describe
+from pbo_runtime.config.model import Location, Subsystem
+from pbo_runtime.errors import ConfigError, ConfigErrors
+from pbo_runtime.config.yaml_nodes import YList, YMap, load_file
+
+# Sections whose entries an included file may add to (names must not clash).
+_MERGED_SECTIONS = ("devices", "dims", "variables", "tasks", "configurations", "jobs", "applications")
+
+
+@dataclass
+class CheckResult:
+    """Every problem of a file, and the subsystem when there is no error."""
+
+    subsystem: Subsystem | None
+    errors: list[ConfigError] = field(default_factory=list)
+    warnings: list[ConfigError] = field(default_factory=list)
+    initial_values: dict[str, np.ndarray] = field(default_factory=dict)  # variable -> its `initial:` value
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+
+def _default_names() -> Iterable[str]:
+    return registry.names(registry.MODULES)
+
+
+def check_file(
+    path: str | os.PathLike[str],
+    module_lookup: ModuleLookup = registry.module_class,
+    *,
+    module_names: Callable[[], Iterable[str]] | None = None,
+) -> CheckResult:
+    """Check a subsystem file and its includes; every problem ends in the result, never raised.
+
+    `module_names` lists the registered modules for "did you mean"; by default the registry's
+    names when `module_lookup` is the registry's.
+    """
+    # A large file makes hundreds of thousands of small objects and no reference cycles that
+    # matter: the cyclic GC would only rescan the growing heap again and again.
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        return _check_file(path, module_lookup, module_names)
+    finally:
+        if enabled:
+            gc.enable()
+
+
+def _check_file(
+    path: str | os.PathLike[str],
+    module_lookup: ModuleLookup,
+    module_names: Callable[[], Iterable[str]] | None,
+) -> CheckResult:
+    if module_names is None and module_lookup is registry.module_class:
+        module_names = _default_names
+    file = os.fspath(path)
+    errors: list[ConfigError] = []
+    try:
+        doc = _load_with_includes(file, [], errors)
+        checked = Checked() if doc is _UNREADABLE else check_document(doc, file, module_lookup, module_names)
+    except Exception as exc:  # the promise is "never a traceback"; a bug becomes a message to report
+        checked = Checked()
+        checked.errors.append(ConfigError(f"internal error while loading: {exc!r}", file, hint="please report this with the file you checked"))
+    errors.extend(checked.errors)
+    errors.sort(key=_position)
+    warnings = sorted(checked.warnings, key=_position)
+    subsystem = None if errors else _assemble(checked, file)
+    if subsystem is not None:
+        errors = _bus_errors(subsystem)
+        if errors:
+            subsystem = None
+    return CheckResult(subsystem, errors, warnings, dict(checked.initial_values) if not errors else {})
+
+
+def _bus_errors(subsystem: Subsystem) -> list[ConfigError]:
+    """Configurations whose predicted bus load (TR eq. 1-2) exceeds the bandwidth: E510."""
+    from pbo_runtime.config import bus as _bus
+
+    errors = []
+    try:
+        over = _bus.over_bandwidth(subsystem)
+    except _bus.BusModelError as exc:  # the rules above should have caught it: say so, don't crash
+        return [ConfigError(f"cannot predict the bus load: {exc}", subsystem.file, 1, 1, code="E901",
+                            hint="please report this with the file you checked")]
+    for name, report in over:
+        heaviest = max(report.tasks, key=lambda t: t.rate_bytes_per_s)
+        loc = subsystem.configurations[name].loc
+        errors.append(ConfigError(
+            f"configuration '{name}' needs {report.total / 1e3:,.1f} kB/s of bus, {report.share:.0%} of the "
+            f"{report.bandwidth / 1e6:g} MB/s bandwidth (TR eq. 1-2); the heaviest task is '{heaviest.task}' "
+            f"at {heaviest.rate_bytes_per_s / 1e3:,.1f} kB/s",
+            loc.file, loc.line, loc.column, code="E510",
+            hint="lengthen periods, move variables out of the per-cycle ports, combine tasks (TR 4.5), or "
+                 "raise bus: {bandwidth: ...} if the backplane is faster (see pbo bus FILE)",
+        ))
+    return errors
+
+
+def load_subsystem(
+    path: str | os.PathLike[str],
+    module_lookup: ModuleLookup = registry.module_class,
+    *,
+    module_names: Callable[[], Iterable[str]] | None = None,
+) -> Subsystem:
+    """The checked subsystem, or ConfigErrors with every error of the file."""
+    result = check_file(path, module_lookup, module_names=module_names)
+    if result.errors or result.subsystem is None:
+        raise ConfigErrors(result.errors)
+    return result.subsystem
+
+
+def format_diagnostics(result: CheckResult) -> str:
+    """Errors and warnings in file/line order, then a count line like '2 errors, 1 warning'."""
+    problems = sorted([*result.errors, *result.warnings], key=_position)
+    lines = [p.format() for p in problems]
+    lines.append(f"{_count(len(result.errors), 'error')}, {_count(len(result.warnings), 'warning')}")
+    return "\n".join(lines)
+
+
+def _count(n: int, word: str) -> str:
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
+def _position(error: ConfigError) -> tuple[str, int, int]:
+    return (error.file, error.line, error.column)
+
+
+def _assemble(checked: Checked, file: str) -> Subsystem:
+    return Subsystem(
+        name=checked.name,
+        file=file,
+        rtpus=checked.rtpus,
+        bus=checked.bus,
+        plant=checked.plant,
+        devices=dict(checked.devices),
+        dims=dict(checked.dims),
+        variables=dict(checked.variables),
+        tasks=dict(checked.tasks),
+        configurations=dict(checked.configurations),
+        jobs=dict(checked.jobs),
+        applications=dict(checked.applications),
+        init_order=checked.init_order,
+    )
+
+
+def _load_with_includes(file: str, stack: list[str], errors: list[ConfigError]) -> Any:
+    """The file's document with the mappings of its `include:` files merged in, includes first.
+
+    Problems of the includes themselves (missing file, cycle, clash) go to `errors`; the merged
+    document still gets checked so the user sees everything at once.
+    """
+    try:
+        doc = _load_document(file)
+    except ConfigError as exc:
+        errors.append(exc)
+        return _UNREADABLE
+    if not isinstance(doc, YMap) or "include" not in doc:
+        return doc
+    includes = doc["include"]
+    inc_loc = doc.value_loc("include")
+    if isinstance(includes, str):
+        includes_list: list[tuple[Any, Location]] = [(includes, inc_loc)]
+    elif isinstance(includes, YList):
+        includes_list = [(item, includes.item_loc(i)) for i, item in enumerate(includes)]
+    else:
+        errors.append(_error(f"'include' must be a list of file paths, got: {describe(includes)}", inc_loc, "e.g. include: [common/puma_variables.yaml]"))
+        return doc
+    merged = YMap(doc.loc)
+    here = os.path.dirname(file)
+    chain = [*stack, os.path.realpath(file)]
+    for item, loc in includes_list:
+        if not isinstance(item, str) or not item:
+            errors.append(_error(f"an include must be a file path, got: {describe(item)}", loc))
+            continue
+        target = os.path.normpath(os.path.join(here, item))
+        if os.path.realpath(target) in chain:
+            errors.append(_error(f"'{item}' includes itself (through {' -> '.join(os.path.basename(c) for c in chain)})", loc, "remove one of the includes"))
+            continue
+        if not os.path.isfile(target):
+            errors.append(_error(f"included file '{item}' does not exist (looked for {target})", loc, "include paths are relative to the including file"))
+            continue
+        part = _load_with_includes(target, chain, errors)
+        if part is _UNREADABLE:
+            continue
+        if not isinstance(part, YMap):
+            errors.append(_error(f"included file '{item}' must be a mapping of sections, got: {describe(part)}", loc))
+            continue
+        _merge_into(merged, part, errors)
+    _merge_into(merged, doc, errors)
+    return merged
+
+
+_UNREADABLE = object()
+INLINE = "#"  # "app.yaml#operator": the subsystem written inline under `subsystems: {operator: ...}` of app.yaml
+
+
+def inline_reference(application_file: str, key: str) -> str:
+    """The name by which every process loads a subsystem written inline in an application file."""
+    return f"{application_file}{INLINE}{key}"
+
+
+def _load_document(file: str) -> Any:
+    """A subsystem file's document, or the inline subsystem an `app.yaml#key` reference points at.
+
+    Locations stay those of the application file, so an inline subsystem's errors point into it.
+    """
+    path, mark, key = file.rpartition(INLINE)
+    if not mark or os.path.exists(file):
+        return load_file(file)
+    root = load_file(path)
+    entries = root.get("subsystems") if isinstance(root, YMap) else None
+    node = entries.get(key) if isinstance(entries, YMap) else None
+    if not isinstance(node, YMap):
+        raise ConfigError(f"no inline subsystem '{key}' under subsystems: in {path}", path, 1, 1,
+                          "write it as a mapping: subsystems: {name: {subsystem: name, rtpus: [...], ...}}")
+    return node
+
+
+def _merge_into(target: YMap, source: YMap, errors: list[ConfigError]) -> None:
+    for key, value in source.items():
+        if key == "include" and key in target:
+            continue  # each file's include list was followed already
+        if key not in target:
+            target.put(key, value, source.key_loc(key), source.value_loc(key))
+            continue
+        existing = target[key]
+        if key in _MERGED_SECTIONS and isinstance(existing, YMap) and isinstance(value, YMap):
+            combined = YMap(existing.loc)
+            for k, v in existing.items():
+                combined.put(k, v, existing.key_loc(k), existing.value_loc(k))
+            for k, v in value.items():
+                if k in combined:
+                    first = combined.key_loc(k)
+                    errors.append(_error(f"'{k}' in '{key}' is defined twice: here and at {first}", value.key_loc(k), "an included file and the including file must not define the same name"))
+                    continue
+                combined.put(k, v, value.key_loc(k), value.value_loc(k))
+            target.put(key, combined, target.key_loc(key), target.value_loc(key))
+        else:
+            first = target.key_loc(key)
+            errors.append(_error(f"'{key}' is given twice: here and at {first}", source.key_loc(key), "set it in one file only"))
+
+
+def _error(message: str, loc: Location, hint: str = "") -> ConfigError:
+    return ConfigError(message, loc.file, loc.line, loc.column, hint)

@@ -1,0 +1,110 @@
+"""Exception types, each saying which object and which rule (STYLE.md §9)."""
+
+from __future__ import annotations
+
+import re
+
+
+class PboError(Exception):
+    """Base of every error this runtime raises on purpose."""
+
+
+class ConfigError(PboError):
+    """A mistake in a YAML file; carries where it is, a stable code and a hint.
+
+    `severity` is "error" (the file is refused) or "warning" (it runs, but probably not as meant).
+    `code` names the rule ("E101", "W201"; docs/error-codes.md lists them all). A diagnostic made
+    without one (the YAML reader's, the include loader's) gets it from its message's first words.
+    A line of 0 means the problem belongs to the whole file (e.g. it cannot be read).
+    """
+
+    def __init__(
+        self,
+        message: str,
+        file: str = "",
+        line: int = 0,
+        column: int = 0,
+        hint: str = "",
+        severity: str = "error",
+        code: str = "",
+    ) -> None:
+        if severity not in ("error", "warning"):
+            raise ValueError(f"severity must be 'error' or 'warning', got: {severity!r}")
+        if code and not _CODE.match(code):
+            raise ValueError(f"code must look like 'E101' or 'W201', got: {code!r}")
+        self.message = message
+        self.file = file
+        self.line = line
+        self.column = column
+        self.hint = hint
+        self.severity = severity
+        self.code = code or infer_code(message)
+        super().__init__(self.format())
+
+    def format(self) -> str:
+        if self.file and self.line:
+            where = f"{self.file}:{self.line}:{self.column}: "
+        elif self.file:
+            where = f"{self.file}: "
+        else:
+            where = ""
+        tag = f"{self.severity}[{self.code}]" if self.code else self.severity
+        text = f"{where}{tag}: {self.message}"
+        if self.hint:
+            text += f"\n  hint: {self.hint}"
+        return text
+
+
+_CODE = re.compile(r"^[EW]\d{3}$")
+
+# Codes of the diagnostics made outside the checker (`config.yaml_nodes`, `config.loader`), which
+# build ConfigError from a message alone: the first pattern that matches the message wins.
+_INFERRED: tuple[tuple[re.Pattern[str], str], ...] = tuple(
+    (re.compile(pattern), code)
+    for pattern, code in (
+        (r"^(cannot read file|is a directory|not UTF-8 text|invalid character U\+)", "E100"),
+        (r"^duplicate key ", "E102"),
+        (r"^(YAML tag |a key must be a plain name|a merge key)", "E103"),
+        (r"^(YAML expands to more than|an alias refers to a node that contains it)", "E104"),
+        (r"^(invalid YAML|YAML is nested too deeply|unexpected YAML node|cannot read value )", "E101"),
+        (r"^('include' must be|an include must be|included file |'[^']*' includes itself)", "E105"),
+        (r"^'[^']*' (in '[^']*' is defined twice|is given twice)", "E215"),
+        (r"^internal error", "E901"),
+    )
+)
+
+
+def infer_code(message: str) -> str:
+    """The code of a message made without one, or "" when no rule claims it."""
+    for pattern, code in _INFERRED:
+        if pattern.match(message):
+            return code
+    return ""
+
+
+class ConfigErrors(PboError):
+    """Every error found in one pass over the files."""
+
+    def __init__(self, errors: list[ConfigError]) -> None:
+        self.errors = list(errors)
+        super().__init__("\n".join(e.format() for e in self.errors))
+
+
+class ParamError(PboError):
+    """A module's parameters do not fit its `Params` declaration."""
+
+
+class ModuleError(PboError):
+    """A module could not be found, or broke its contract."""
+
+
+class TableLayoutError(PboError):
+    """The shared table's layout differs from what this process expects."""
+
+
+class LifecycleError(PboError):
+    """A signal that is not legal in the task's current state (e.g. `on` while ERROR)."""
+
+
+class InternalError(PboError):
+    """An invariant of the runtime itself broke: please report this with the command you ran."""

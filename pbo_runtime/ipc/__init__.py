@@ -1,0 +1,1 @@
+"""Between processes: shared segments, pid liveness, queues, typed messages, child processes."""

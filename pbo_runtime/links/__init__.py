@@ -1,0 +1,1 @@
+"""Links between subsystems: specs, triple buffers, message queues, zenoh, the relay."""

@@ -1,0 +1,58 @@
+"""Wake an aperiodic server task when a message arrives from another subsystem (TR §5.1).
+
+The executive waits in one place, a timed receive on its RTPU's signal queue, so signals and
+timers share one wait (rtpu/_executive.py). A message link is another queue (or a Zenoh
+subscription), so a relay thread blocks on the link and forwards each message to that signal
+queue as `["message", task, [body, sent_ns]]`; the executive then releases the server as it does
+for an operator's event, at most once per min_interarrival, its payload in `self.event`.
+
+The relay never touches the table or the task: the server's cycle runs on the executive's thread,
+with the usual transfers. Back-pressure is bounded at every step: the signal queue holds
+fs.mqueue.msg_max messages, the executive a server's EVENTS_QUEUED (more are counted as dropped),
+and while the relay waits for room the link's own queue fills, so its sender gets LinkFullError
+instead of a silent loss.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+from pbo_runtime.ipc import messages
+
+POLL = 0.1  # seconds the relay blocks on the link before it looks at its stop flag
+
+
+class MessageRelay:
+    """Forwards the messages of `link` (a receiving end) to RTPU signal queue `signal_queue` for `task`."""
+
+    def __init__(self, link: Any, signal_queue: str, task: str) -> None:
+        self.link = link
+        self.task = task
+        self.forwarded = 0
+        self._signals = messages.Queue(signal_queue)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._forward, name=f"relay-{task}", daemon=True)
+        self._thread.start()
+
+    def _forward(self) -> None:
+        link, stop, signals = self.link, self._stop, self._signals
+        while not stop.is_set():
+            try:
+                message = link.receive(timeout=POLL)
+            except Exception:  # the link closed under us: the task is being killed
+                return
+            if message is None:
+                continue
+            payload = [message.body, message.sent_ns]
+            while not signals.try_send("message", self.task, payload, timeout=POLL):
+                if stop.is_set():
+                    return
+            self.forwarded += 1
+
+    def close(self) -> None:
+        """Stop forwarding, then close the link's end (the task is killed)."""
+        self._stop.set()
+        self._thread.join(timeout=5 * POLL)
+        self._signals.close()
+        self.link.close()

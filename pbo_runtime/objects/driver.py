@@ -1,0 +1,45 @@
+"""Device driver objects (TR §4.6): how a task reaches hardware, opened by name in `init`.
+
+The runtime builds a driver from the YAML `devices:` entry through the device database
+(`table.devices`): the registered driver class gets the name of the plant's register segment (the
+simulated board) and the device's options, and, by what the class declares:
+
+- a reconfigurable I/O device driver (TR §4.6.1: an ADC, a DAC, a parallel port) declares
+  `PORTS`, its number of channels, and gets `channels=`: the subset the task opened (every
+  channel when the task named none). It must touch no other channel: the database lends the
+  others to other tasks.
+- a sensor-actuator driver (TR §4.6.2: a force/torque sensor) declares `IO`, the kind of I/O
+  device it is wired to, and gets `io=`: that device's driver, already opened on the channels the
+  YAML's `io: {device: ..., channels: ...}` names. It closes it in its own `close`.
+- any other driver (the arm, the camera) gets the registers and the options only.
+
+A driver checks its options in `check_options`, which the checker also calls, so `pbo check`
+reports a bad option with the device's YAML location before anything runs.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, Mapping
+
+
+class DeviceDriver:
+    """Base of driver objects. Reads and writes must be real-time safe (no allocation)."""
+
+    PORTS: ClassVar[int] = 0  # > 0: a port-based I/O device with this many channels (0 .. PORTS-1)
+    KIND: ClassVar[str] = ""  # the kind of I/O device, e.g. "adc", that a sensor's `IO` names
+    IO: ClassVar[str] = ""  # a sensor-actuator driver: the KIND of I/O device it is wired to
+    IO_CHANNELS: ClassVar[int] = 0  # ... and how many of its channels it needs
+
+    def __init__(self, registers: str, options: Mapping[str, Any], *, channels: tuple[int, ...] | None = None,
+                 io: DeviceDriver | None = None) -> None:
+        self.registers = registers
+        self.options = dict(options)
+        self.channels: tuple[int, ...] = tuple(channels if channels is not None else range(self.PORTS))
+        self.io = io
+
+    @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """Raise ValueError saying what is wrong with `options` (the YAML keys besides driver, exclusive, io)."""
+
+    def close(self) -> None:
+        """Release the device; called when the task that opened it is killed."""

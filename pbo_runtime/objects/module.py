@@ -1,0 +1,267 @@
+"""The port-based object: the base class of every control module (TR §4.3, Figure 11).
+
+A module declares its ports on the class and overrides the components it needs. The framework
+owns the loop: it transfers the ports and calls the components (see `task.lifecycle.Task`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import enum
+import types
+import typing
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from pbo_runtime.errors import ParamError
+from pbo_runtime.objects.ports import Port, PortSpec
+
+
+class Status(enum.IntEnum):
+    """What `cycle` (and `error`) return: go on, turn this task off, or report an error."""
+
+    CONTINUE = 0
+    OFF = 1
+    ERROR = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class NoParams:
+    """The parameters of a module that takes none."""
+
+
+class TaskContext(typing.Protocol):
+    """What a running task may ask of the runtime, besides its ports."""
+
+    task_name: str
+    period: float
+    dims: dict[str, int]
+    resources: tuple[str, ...]
+    time: float
+
+    def open_device(self, name: str) -> Any: ...
+
+
+class PortBasedObject:
+    """Base class of control modules.
+
+    Override the components you need; each does nothing by default. `init`, `on`, `off`,
+    `kill`, `error` and `clear` run outside the real-time loop; `cycle` runs every period and
+    must be real-time safe: no allocation, no I/O, no blocking.
+    """
+
+    Params: ClassVar[type] = NoParams
+    _pbo_port_decls: ClassVar[tuple[Port, ...]] = ()
+
+    _pbo_ports: list[np.ndarray]
+    _pbo_context: TaskContext
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        seen: dict[str, Port] = {}
+        for klass in reversed(cls.__mro__):
+            for name, value in vars(klass).items():
+                if isinstance(value, Port):
+                    seen.pop(name, None)
+                    seen[name] = value
+        for slot, port in enumerate(seen.values()):
+            port.slot = slot
+        cls._pbo_port_decls = tuple(seen.values())
+
+    # --- what the checker, the lexicon and the task see ---------------------------------------
+
+    @classmethod
+    def ports(cls) -> tuple[PortSpec, ...]:
+        """The declared ports, in declaration order."""
+        return tuple(port.spec for port in cls._pbo_port_decls)
+
+    @classmethod
+    def ports_for(cls, params: Any) -> tuple[PortSpec, ...]:
+        """The ports of a task built with these params: the class's, then any the params add.
+
+        Most modules have fixed ports; a data logger adds one input per logged variable.
+        """
+        return cls.ports()
+
+    @classmethod
+    def build_params(cls, values: dict[str, Any] | None) -> Any:
+        """Turn a YAML `params:` mapping into the module's `Params`, or raise ParamError saying why."""
+        return build_params(cls.Params, values or {}, cls.__name__)
+
+    # --- the runtime's services -------------------------------------------------------------
+
+    @property
+    def task_name(self) -> str:
+        return self._pbo_context.task_name
+
+    @property
+    def period(self) -> float:
+        """The task's period in seconds."""
+        return self._pbo_context.period
+
+    @property
+    def bound_arrays(self) -> list[np.ndarray]:
+        """The local arrays of every port, in `ports_for` order (class ports first)."""
+        return self._pbo_ports
+
+    @property
+    def time(self) -> float:
+        """The current cycle's release time, seconds on the run's clock."""
+        return self._pbo_context.time
+
+    @property
+    def event(self) -> Any:
+        """For an aperiodic task: the payload of the event this cycle serves (None if none)."""
+        return self._pbo_context.event
+
+    @property
+    def resources(self) -> tuple[str, ...]:
+        """The device names this task may open (its YAML `resources`)."""
+        return self._pbo_context.resources
+
+    def output_path(self, path: str) -> Path:
+        """Where to write a file named `path`: as given, or into the run's `--out DIR` under its file name.
+
+        With `--out`, every file of a run lands in DIR beside the run report, whatever
+        directory its YAML named, so one run's outputs never overwrite another's.
+        """
+        out_dir = self._pbo_context.out_dir
+        given = Path(path)
+        return Path(out_dir) / given.name if out_dir else given
+
+    def open_link(self, name: str, like: np.ndarray, role: str) -> Any:
+        """Open one end of the application's link `name` (call it in `init`).
+
+        A periodic link's ends are 'sender' and 'reader'; a message link's 'sender' and 'server'
+        (an aperiodic task: each message then releases it, with `[body, sent_ns]` in `event`).
+        Items are shaped like `like` (a bound port array); the link closes when the task is killed.
+        """
+        return self._pbo_context.open_link(name, like, role)
+
+    def fault(self, message: str) -> Status:
+        """Return this from `cycle` to report an error with its reason: `return self.fault("...")`."""
+        self._pbo_fault = message
+        return Status.ERROR
+
+    def open_device(self, name: str) -> Any:
+        """Open a device driver object by the device's YAML name (call it in `init`)."""
+        return self._pbo_context.open_device(name)
+
+    # --- components (TR §4.3) ---------------------------------------------------------------
+
+    def init(self, params: Any) -> None:
+        """On `spawn`, after in-consts are read; allocate here. An exception kills the task."""
+
+    def on(self) -> None:
+        """On `on`, after in-vars and out-vars are read: take over the current state."""
+
+    def cycle(self) -> Status:
+        """Every period while ON, between the in-var read and the out-var write. Real-time safe."""
+        return Status.CONTINUE
+
+    def stable_cycle(self) -> Status:
+        """Instead of `cycle`, for a critical task while the configuration is illegal (a switch
+        that overran a cycle, a task in ERROR): keep the plant locally stable (TR 4.4), e.g. a
+        robot interface holds position. Real-time safe. By default, the ordinary cycle."""
+        return self.cycle()
+
+    def off(self) -> None:
+        """On `off`: leave outputs in a safe state, flush logs."""
+
+    def kill(self) -> None:
+        """On `kill`, or after `init` failed: free what `init` took."""
+
+    def error(self, exc: BaseException | None) -> Status:
+        """After an error while ON. Return CONTINUE if recovered, OFF to stop, ERROR to wait for the operator."""
+        return Status.ERROR
+
+    def clear(self) -> bool:
+        """On the operator's `clear`: True if the fault is gone (task goes OFF), False to stay in ERROR."""
+        return True
+
+
+def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
+    """Build a frozen dataclass of parameters from YAML values, checking names and types."""
+    if not isinstance(values, dict):
+        raise ParamError(f"params of {owner} must be a mapping, got: {type(values).__name__}")
+    fields = _fields(params_type) if isinstance(params_type, type) else {f.name: f for f in dataclasses.fields(params_type)}
+    unknown = sorted(set(values) - set(fields))
+    if unknown:
+        valid = ", ".join(sorted(fields)) or "none"
+        raise ParamError(f"unknown parameter(s) {', '.join(repr(u) for u in unknown)} for {owner} (valid: {valid})")
+    hints = _type_hints(params_type)
+    converted: dict[str, Any] = {}
+    for name, value in values.items():
+        converted[name] = _convert(value, hints.get(name, Any), f"{owner}.{name}")
+    missing = [
+        name
+        for name, f in fields.items()
+        if name not in converted and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
+    if missing:
+        raise ParamError(f"missing parameter(s) {', '.join(repr(m) for m in missing)} for {owner}")
+    try:
+        return params_type(**converted)
+    except (TypeError, ValueError) as exc:
+        raise ParamError(f"bad parameters for {owner}: {exc}") from None
+
+
+@functools.cache
+def _fields(params_type: type) -> dict[str, dataclasses.Field[Any]]:
+    """The fields of a Params class by name (the same for every task built with it: read, never changed)."""
+    return {f.name: f for f in dataclasses.fields(params_type)}
+
+
+@functools.cache
+def _type_hints(params_type: type) -> dict[str, Any]:
+    """The resolved annotations of a Params class (string annotations compile: do it once)."""
+    return typing.get_type_hints(params_type)
+
+
+@functools.cache
+def _origin_and_args(hint: Any) -> tuple[Any, tuple[Any, ...]]:
+    return typing.get_origin(hint), typing.get_args(hint)
+
+
+def _convert(value: Any, hint: Any, where: str) -> Any:
+    """Coerce a YAML scalar or list to the declared type; say what was expected and found."""
+    origin, args = _origin_and_args(hint)
+    if hint is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        errors = []
+        for option in args:
+            if option is type(None):
+                if value is None:
+                    return None
+                continue
+            try:
+                return _convert(value, option, where)
+            except ParamError as exc:
+                errors.append(str(exc))
+        raise ParamError(errors[-1] if errors else f"{where}: unexpected value {value!r}")
+    if hint is bool:
+        if isinstance(value, bool):
+            return value
+        raise ParamError(f"{where} must be true or false, got: {value!r}")
+    if hint is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        raise ParamError(f"{where} must be a number, got: {value!r}")
+    if hint is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise ParamError(f"{where} must be an integer, got: {value!r}")
+    if hint is str:
+        if isinstance(value, str):
+            return value
+        raise ParamError(f"{where} must be a string, got: {value!r}")
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            raise ParamError(f"{where} must be a list, got: {value!r}")
+        item = args[0] if args else Any
+        return tuple(_convert(v, item, f"{where}[{i}]") for i, v in enumerate(value))
+    return value

@@ -1,0 +1,50 @@
+"""The library registry: modules, drivers and plants by name, through entry points.
+
+A YAML file names a module (`module: pid_joint`); it resolves only through the entry-point
+groups `pbo.modules`, `pbo.drivers` and `pbo.plants`, never to arbitrary importable code.
+Third-party libraries register in the same groups.
+"""
+
+from __future__ import annotations
+
+import functools
+from importlib import metadata
+from typing import Any
+
+from pbo_runtime.errors import ModuleError
+
+MODULES = "pbo.modules"
+DRIVERS = "pbo.drivers"
+PLANTS = "pbo.plants"
+
+_KIND = {MODULES: "module", DRIVERS: "driver", PLANTS: "plant"}
+
+
+@functools.cache
+def names(group: str) -> tuple[str, ...]:
+    """Every name registered in a group, sorted."""
+    return tuple(sorted({ep.name for ep in metadata.entry_points(group=group)}))
+
+
+@functools.cache
+def load(group: str, name: str) -> Any:
+    """The object registered under `name`, or ModuleError listing the valid names."""
+    found = [ep for ep in metadata.entry_points(group=group) if ep.name == name]
+    if not found:
+        raise ModuleError(f"no {_KIND.get(group, group)} named '{name}' (registered: {', '.join(names(group)) or 'none'})")
+    try:
+        return found[0].load()
+    except Exception as exc:  # a broken library must not look like a typo in the YAML
+        raise ModuleError(f"{_KIND.get(group, group)} '{name}' is registered but failed to import: {exc!r}") from exc
+
+
+def module_class(name: str) -> Any:
+    return load(MODULES, name)
+
+
+def driver_class(name: str) -> Any:
+    return load(DRIVERS, name)
+
+
+def plant_class(name: str) -> Any:
+    return load(PLANTS, name)

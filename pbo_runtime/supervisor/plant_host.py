@@ -1,0 +1,108 @@
+"""`python -m pbo_runtime.supervisor.plant_host`: the plant process, the physical world outside the subsystem.
+
+It builds the registered plant (e.g. the MuJoCo arm) and steps it once per timestep of wall
+time on absolute deadlines; if it falls behind it catches up with extra steps, so simulated
+time tracks wall time, and counts the steps that were late. A plant under SCHED_FIFO that falls
+`BEHIND_LIMIT` behind cannot keep up (a step takes longer than its timestep): catching up would
+hold a CPU above every RTPU for good, so it steps down to SCHED_OTHER and says so at the end.
+With `--clock sim` it steps exactly once per tick of the supervisor's simulated clock instead
+(`clock.lockstep`), first in each tick.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import traceback
+
+import numpy as np
+
+from pbo_runtime.ipc import messages
+from pbo_runtime.objects import registry
+from pbo_runtime.ipc import shm
+from pbo_runtime.clock.clocks import lower_timer_slack
+from pbo_runtime.clock.lockstep import LockstepParticipant
+from pbo_runtime.table.table import HEADER_WORDS
+from pbo_runtime.ipc.process import Stop, become_child
+
+
+PLANT_FIFO_PRIORITY = 60  # above the RTPUs' 50: the simulated world steps on time whatever they do
+BEHIND_LIMIT = 0.1  # seconds behind wall time at which a SCHED_FIFO plant gives up its priority
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pbo_runtime.supervisor.plant_host")
+    parser.add_argument("--type", required=True)
+    parser.add_argument("--model", required=True)
+    parser.add_argument("--timestep", type=float, required=True)
+    parser.add_argument("--options", default="{}", help="JSON mapping of plant options")
+    parser.add_argument("--subsystem", required=True)
+    parser.add_argument("--run-id", required=True)
+    parser.add_argument("--parent", type=int, default=0)
+    parser.add_argument("--fifo", action="store_true", help="SCHED_FIFO above the RTPUs: the world does not wait")
+    parser.add_argument("--clock", choices=("real", "sim"), default="real", help="sim: one step per supervisor tick")
+    args = parser.parse_args(argv)
+    if args.parent:
+        become_child(args.parent)
+    lower_timer_slack()
+    if args.fifo:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(PLANT_FIFO_PRIORITY))
+        except (OSError, AttributeError):
+            pass  # the RTPUs report whether SCHED_FIFO was granted; the plant then runs as they do
+    events = messages.Queue(messages.event_queue_name(args.subsystem, args.run_id))
+    plant = barrier = None
+    steps = late = 0
+    behind_when_stepped_down = 0.0  # seconds behind wall time when it left SCHED_FIFO (0: it did not)
+    try:
+        plant_class = registry.plant_class(args.type)
+        plant = plant_class(
+            messages.plant_registers_name(args.subsystem, args.run_id), args.model, args.timestep, json.loads(args.options)
+        )
+        if args.clock == "sim":
+            table = shm.attach_segment(messages.table_name(args.subsystem, args.run_id))
+            header = np.frombuffer(table, dtype=np.int64, count=HEADER_WORDS)
+            barrier = LockstepParticipant(args.subsystem, args.run_id, "plant", header)
+        events.try_send("ready", "plant")
+        if barrier is not None:
+            while True:
+                if barrier.wait():
+                    plant.step()
+                    steps += 1
+                barrier.done()
+        dt = plant.timestep
+        next_step = time.monotonic()
+        fifo = os.sched_getscheduler(0) == os.SCHED_FIFO
+        while True:
+            now = time.monotonic()
+            if now < next_step:
+                time.sleep(next_step - now)
+            elif now - next_step > dt:
+                late += 1
+                if fifo and now - next_step > BEHIND_LIMIT:
+                    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+                    fifo = False
+                    behind_when_stepped_down = now - next_step
+            plant.step()
+            steps += 1
+            next_step += dt
+    except Stop:
+        return 0
+    except Exception as exc:
+        events.try_send("crashed", "plant", f"{type(exc).__name__}: {exc}", traceback.format_exc())
+        return 1
+    finally:
+        events.try_send("plant_stats", "plant", {"steps": steps, "late": late,
+                                                 "left_fifo_behind": behind_when_stepped_down})
+        if barrier is not None:
+            barrier.close()
+        if plant is not None:
+            plant.close()
+        events.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

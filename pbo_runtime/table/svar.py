@@ -1,0 +1,304 @@
+"""`pbo svar`: read a running subsystem's state variables from its table, without the YAML file.
+
+The table describes itself (`table.table`): its header gives the offsets, and the variable directory
+one 128-byte record per variable (name, dtype, shape, metadata word, data offset, size), so an
+operator's tool needs only the live run's name (`ipc.control.find_live_run`). It maps the segment
+read-only and takes the table lock for one copy at a time, with a timeout: a reader never holds
+the lock longer than a task's own transfer, and a wedged lock is reported instead of hanging.
+
+The layout hash cannot be checked without the YAML file; the magic, the version and the
+directory's own consistency (offsets inside the segment, sizes matching shapes) are.
+"""
+
+from __future__ import annotations
+
+import math
+import mmap
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import posix_ipc
+from rich.table import Table
+
+from pbo_runtime.ipc.control import find_live_run
+from pbo_runtime.errors import PboError, TableLayoutError
+from pbo_runtime.table.table import (
+    _DTYPE_CODES,
+    DIRECTORY_RECORD,
+    HEADER_WORDS,
+    MAGIC,
+    META_WORDS,
+    NAME_BYTES,
+    STATUS_WORDS,
+    VERSION,
+    Header,
+    Status,
+    TaskState,
+)
+
+LOCK_TIMEOUT = 1.0  # seconds: a task holds the lock for microseconds; a second means it is wedged
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One variable as the table's directory describes it."""
+
+    name: str
+    dtype: np.dtype
+    shape: tuple[int, ...]
+    meta_word: int
+    data_byte: int
+    nbytes: int
+
+
+class TableView:
+    """A read-only mapping of a live run's table, described by its own header and directory."""
+
+    def __init__(self, subsystem: str, run_id: str, name: str, mapping: mmap.mmap, lock: posix_ipc.Semaphore) -> None:
+        self.subsystem = subsystem
+        self.run_id = run_id
+        self.name = name
+        self._mapping = mapping
+        self._lock = lock
+        header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
+        self.supervisor_pid = int(header[Header.SUPERVISOR_PID])
+        self.n_tasks = int(header[Header.N_TASKS])
+        self._entries = _read_directory(name, mapping, header)
+        status_offset = int(header[Header.STATUS_OFFSET])
+        total = int(header[Header.TOTAL_BYTES])
+        del header
+        blocks = max(self.n_tasks, 1)
+        if self.n_tasks < 0 or status_offset < HEADER_WORDS * 8 or status_offset + blocks * STATUS_WORDS * 8 > total:
+            raise TableLayoutError(f"table '{name}': its {self.n_tasks} task status blocks at byte {status_offset} "
+                                   f"lie outside the segment")
+        self._words = np.frombuffer(mapping, dtype=np.float64, count=total // 8)
+        self._status = self._words[status_offset // 8 : status_offset // 8 + blocks * STATUS_WORDS].reshape(blocks, STATUS_WORDS)
+        self._values = {
+            e.name: np.frombuffer(mapping, dtype=e.dtype, count=e.nbytes // e.dtype.itemsize, offset=e.data_byte).reshape(e.shape)
+            for e in self._entries.values()
+        }
+
+    def variables(self) -> list[str]:
+        """The variables' names, in table order."""
+        return list(self._entries)
+
+    def entry(self, name: str) -> Entry:
+        try:
+            return self._entries[name]
+        except KeyError:
+            raise KeyError(f"no variable '{name}' in the table of '{self.subsystem}' "
+                           f"(variables: {', '.join(self._entries)})") from None
+
+    def read(self, name: str) -> tuple[np.ndarray, int, float, int]:
+        """(copy of the value, sequence, write time, writer task index; -1: job control), under the lock."""
+        e = self.entry(name)
+        view = self._values[name]
+        self._acquire()
+        try:
+            value = view.copy()
+            writer, seq, when = (float(w) for w in self._words[e.meta_word : e.meta_word + META_WORDS])
+            if 0 <= writer < len(self._status):
+                seq = float(self._status[int(writer)][Status.CYCLES])
+                when = float(self._status[int(writer)][Status.RELEASE])
+        finally:
+            self._lock.release()
+        return value, int(seq), when, int(writer)
+
+    def age(self, name: str, now: float | None = None) -> float:
+        """Seconds since the variable was last written (time.monotonic); inf if it never was."""
+        _value, seq, when, writer = self.read(name)
+        stamp = _write_time(seq, when, writer)
+        if stamp is None:
+            return math.inf
+        return (time.monotonic() if now is None else now) - stamp
+
+    def task_status(self) -> list[dict[str, Any]]:
+        """Each task's status block by table index: state, cycles, overruns, timings in seconds."""
+        self._acquire()
+        try:
+            blocks = self._status[: self.n_tasks].copy()
+        finally:
+            self._lock.release()
+        rows = []
+        for index, words in enumerate(blocks):
+            state = int(words[Status.STATE])
+            rows.append({
+                "index": index,
+                "state": TaskState(state).name if state in TaskState._value2member_map_ else str(state),
+                "cycles": int(words[Status.CYCLES]), "overruns": int(words[Status.OVERRUNS]),
+                "exec_last": float(words[Status.EXEC_LAST]), "exec_max": float(words[Status.EXEC_MAX]),
+                "jitter_last": float(words[Status.JITTER_LAST]), "jitter_max": float(words[Status.JITTER_MAX]),
+                "release": float(words[Status.RELEASE]), "errors": int(words[Status.ERRORS]),
+            })
+        return rows
+
+    def _acquire(self) -> None:
+        try:
+            self._lock.acquire(LOCK_TIMEOUT)
+        except posix_ipc.BusyError:
+            holder = int(np.frombuffer(self._mapping, dtype=np.int64, count=HEADER_WORDS)[Header.LOCK_HOLDER])
+            raise PboError(f"the table lock of '{self.subsystem}' has been held for over {LOCK_TIMEOUT:g} s "
+                           f"(last taken by pid {holder}): the run is wedged") from None
+
+    def close(self) -> None:
+        self._values = {}
+        self._words = self._status = None  # type: ignore[assignment]
+        try:
+            self._mapping.close()
+        except BufferError:
+            pass  # an array a caller kept still points into it; the mapping goes with it
+        try:
+            self._lock.close()
+        except posix_ipc.ExistentialError:
+            pass
+
+    def __enter__(self) -> TableView:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+
+def open_table(subsystem: str | None = None) -> TableView:
+    """Attach read-only to the table of the live run of `subsystem` (or of the only live run)."""
+    sub, run_id, name = find_live_run(subsystem)
+    return attach(name, sub, run_id)
+
+
+def attach(name: str, subsystem: str = "", run_id: str = "") -> TableView:
+    """Attach read-only to the table segment `name`, checking that it is a table this code can read."""
+    try:
+        shm = posix_ipc.SharedMemory(name, read_only=True)
+    except posix_ipc.ExistentialError:
+        raise TableLayoutError(f"no state variable table '{name}': the run has ended") from None
+    try:
+        if shm.size < HEADER_WORDS * 8:
+            raise TableLayoutError(f"'{name}' ({shm.size} bytes) is too small to be a pbo state variable table")
+        mapping = mmap.mmap(shm.fd, shm.size, access=mmap.ACCESS_READ)
+    finally:
+        shm.close_fd()
+    try:
+        header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
+        magic, version, total = int(header[Header.MAGIC]), int(header[Header.VERSION]), int(header[Header.TOTAL_BYTES])
+        del header
+        if magic != MAGIC:
+            raise TableLayoutError(f"'{name}' is not a pbo state variable table (magic {magic:#x}, expected {MAGIC:#x}); "
+                                   f"if its run is starting, try again in a moment")
+        if version != VERSION:
+            raise TableLayoutError(f"table '{name}' has layout version {version}, this pbo reads version {VERSION}: "
+                                   f"use the pbo that started the run")
+        if not 0 < total <= len(mapping):
+            raise TableLayoutError(f"table '{name}' says it has {total} bytes, its segment has {len(mapping)}")
+        lock = posix_ipc.Semaphore(name + ".lock")
+    except posix_ipc.ExistentialError:
+        mapping.close()
+        raise TableLayoutError(f"table '{name}' has no lock '{name}.lock': the run has ended") from None
+    except BaseException:
+        mapping.close()
+        raise
+    try:
+        return TableView(subsystem or _part(name, 1), run_id or _part(name, 2), name, mapping, lock)
+    except BaseException:
+        try:
+            mapping.close()
+        except BufferError:
+            pass
+        lock.close()
+        raise
+
+
+def _write_time(seq: int, when: float, writer: int) -> float | None:
+    """When the value was written; None if it never was (job control's sequence 0) or a task has no release yet."""
+    if writer < 0:
+        return when if seq > 0 else None
+    return when if when > 0 else None  # a task's `on` transfer precedes its first release
+
+
+def _part(name: str, index: int) -> str:
+    parts = name.lstrip("/").split(".")
+    return parts[index] if len(parts) > index else ""
+
+
+def _read_directory(name: str, mapping: mmap.mmap, header: np.ndarray) -> dict[str, Entry]:
+    count, offset, total = int(header[Header.N_VARIABLES]), int(header[Header.DIRECTORY_OFFSET]), int(header[Header.TOTAL_BYTES])
+    if count < 0 or offset < HEADER_WORDS * 8 or offset + count * DIRECTORY_RECORD > total:
+        raise TableLayoutError(f"table '{name}': its directory ({count} records at byte {offset}) lies outside the segment")
+    entries: dict[str, Entry] = {}
+    for i in range(count):
+        base = offset + i * DIRECTORY_RECORD
+        record = bytes(mapping[base : base + DIRECTORY_RECORD])
+        var = record[:NAME_BYTES].split(b"\0", 1)[0].decode(errors="replace")
+        code = record[NAME_BYTES:64].split(b"\0", 1)[0].decode(errors="replace")
+        ints = np.frombuffer(record[64:], dtype=np.int64)
+        ndim, shape, meta_word, data_byte, nbytes = int(ints[0]), tuple(int(n) for n in ints[1 : 1 + min(max(int(ints[0]), 0), 4)]), \
+            int(ints[5]), int(ints[6]), int(ints[7])
+        where = f"table '{name}', directory record {i} ('{var}')"
+        if code not in _DTYPE_CODES:
+            raise TableLayoutError(f"{where}: dtype '{code}' is not one a table holds ({', '.join(_DTYPE_CODES)})")
+        dtype = np.dtype(code)
+        if not 0 <= ndim <= 4 or any(n < 0 for n in shape):
+            raise TableLayoutError(f"{where}: shape {shape} of {ndim} dimensions is not valid")
+        if nbytes != int(np.prod(shape, dtype=np.int64)) * dtype.itemsize:
+            raise TableLayoutError(f"{where}: {nbytes} bytes do not hold a {dtype.name} array of shape {shape}")
+        if not (0 <= meta_word and (meta_word + META_WORDS) * 8 <= total and data_byte % dtype.itemsize == 0
+                and 0 <= data_byte and data_byte + nbytes <= total):
+            raise TableLayoutError(f"{where}: its offsets (metadata word {meta_word}, data byte {data_byte}) lie outside the segment")
+        entries[var] = Entry(var, dtype, shape, meta_word, data_byte, nbytes)
+    return entries
+
+
+# --- what `pbo svar` shows ------------------------------------------------------------------
+
+
+def format_value(value: np.ndarray) -> str:
+    """A value as text: floats with 4 decimals, integers as they are, long arrays summarised."""
+    array = np.asarray(value)
+    if array.dtype.kind == "f":
+        formatter = {"float_kind": lambda x: f"{x:+.4f}"}
+    else:
+        formatter = None
+    if array.ndim == 0:
+        return formatter["float_kind"](array.item()) if formatter else str(array.item())
+    return np.array2string(array, separator=", ", formatter=formatter, max_line_width=10**6, threshold=24, edgeitems=4)
+
+
+def svar_rows(view: TableView, names: Sequence[str] | None = None, writers: Mapping[int, str] | None = None,
+              now: float | None = None) -> list[dict[str, Any]]:
+    """One row per variable: name, value (text), sequence, age in ms, writer, written.
+
+    `writers` maps task indexes to names (from the supervisor's `status` reply); without it a
+    task shows as "task #3". Job control's writes show as "job control". `written` is False for
+    a variable nobody wrote yet (writer "—"); `age_ms` is None when no write time is known.
+    """
+    rows = []
+    for name in names if names else view.variables():
+        value, seq, when, writer = view.read(name)
+        stamp = _write_time(seq, when, writer)
+        age_ms = None if stamp is None else ((time.monotonic() if now is None else now) - stamp) * 1e3
+        written = writer >= 0 or seq > 0
+        if not written:
+            who = "—"
+        else:
+            who = "job control" if writer < 0 else (writers or {}).get(writer, f"task #{writer}")
+        rows.append({"name": name, "value": format_value(value), "sequence": seq, "age_ms": age_ms, "writer": who,
+                     "written": written})
+    return rows
+
+
+def svar_table(rows: Sequence[Mapping[str, Any]], title: str | None = None) -> Table:
+    table = Table(title=title, title_justify="left")
+    table.add_column("variable")
+    table.add_column("value")
+    table.add_column("seq", justify="right")
+    table.add_column("age ms", justify="right")
+    table.add_column("writer")
+    for row in rows:
+        if row["age_ms"] is not None:
+            age = f"{row['age_ms']:.1f}"
+        else:
+            age = "—" if row.get("written", True) else "never"
+        table.add_row(row["name"], row["value"], str(row["sequence"]), age, row["writer"])
+    return table

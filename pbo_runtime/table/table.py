@@ -1,0 +1,433 @@
+"""The global state variable table in POSIX shared memory, behind one lock (TR §4.2).
+
+Layout of the segment, all offsets multiples of 8 bytes:
+
+    header        HEADER_WORDS int64: magic, version, layout hash, flags, lock holder pid, ...
+    directory     one DIRECTORY_RECORD per variable: name, dtype, shape, offsets (for tools)
+    manifest      names of every object of the run, so a later run can clean up after a crash
+    variables     per variable: 3 float64 metadata words (writer, sequence, write time) + data
+    task status   STATUS_WORDS float64 per task: state, cycles, overruns, timing counters
+    devices       DEVICE_HOLDERS records of HOLDER_WORDS uint64 per device: who holds which channels
+                  (the device database, TR §4.6.1: see `table.devices`; read and written under the lock)
+
+A variable's metadata says who wrote it last. When the writer is a task (index >= 0), the
+value's sequence number and write time are that task's cycle count and release time in its
+status block, which the task writes in the same locked scatter as the value itself, so the
+three always agree and a cycle stamps nothing extra. When the writer is job control (-1), the
+variable's own sequence and time words hold them.
+
+A task never touches the table directly: `TransferPlan` (built once at spawn) gathers its
+inputs into its local table with one `take` per dtype and scatters its outputs with one
+fancy assignment per dtype, each under the single lock, so a cycle costs two lock pairs and a
+handful of C calls whatever the table's size.
+"""
+
+from __future__ import annotations
+
+import enum
+import hashlib
+import os
+import time
+from dataclasses import dataclass
+from typing import Iterable
+
+import numpy as np
+import posix_ipc
+
+from pbo_runtime.ipc import shm as _shm
+from pbo_runtime.config.model import Subsystem, VariableSpec
+from pbo_runtime.errors import InternalError, TableLayoutError
+
+MAGIC = 0x5042_4F5F_5441_424C  # "PBO_TABL"
+VERSION = 1
+HEADER_WORDS = 64
+DIRECTORY_RECORD = 128  # bytes: name[48] dtype[16] ndim shape[4] word offset, data byte offset, nbytes
+NAME_BYTES = 48
+MANIFEST_BYTES = 4096
+META_WORDS = 3  # writer task index (-1: job control), then job control's sequence and write time
+STATUS_WORDS = 16  # per task in the table (room to grow without a layout change)
+DEVICE_HOLDERS = 8  # per device: how many opens of it (by tasks, or through a sensor's io:) may be held at once
+HOLDER_WORDS = 5  # per holder record, uint64: see `Holder`
+
+
+class Holder(enum.IntEnum):
+    """Word indices in a holder record of the device region; a record with TASK 0 is free."""
+
+    TASK = 0  # the holding task's index + 1
+    PID = 1  # the process (RTPU) that opened it: a dead one's records are recovered
+    MASK = 2  # the channels held, bit c for channel c (0: no channel locked, a device that is not port-based)
+    EXCLUSIVE = 3  # 1: the device is exclusive, nobody else may hold it
+    OPENED = 4  # index + 1 of the device the task opened (differs for a claim through a sensor's io:)
+
+
+class Header(enum.IntEnum):
+    """Word indices in the int64 header."""
+
+    MAGIC = 0
+    VERSION = 1
+    LAYOUT_HASH = 2
+    FLAGS = 3
+    LOCK_HOLDER = 4
+    N_VARIABLES = 5
+    N_TASKS = 6
+    SUPERVISOR_PID = 7
+    RELEASE_EPOCH_NS = 8  # real clock: the CLOCK_MONOTONIC ns RTPU i releases at, plus i x stagger + k x period
+    DIRECTORY_OFFSET = 9
+    MANIFEST_OFFSET = 10
+    DATA_OFFSET = 11
+    STATUS_OFFSET = 12
+    TOTAL_BYTES = 13
+    LOCK_RECOVERIES = 14  # times job control released a lock whose holder died
+    # Dynamic reconfiguration (TR 4.4): job control posts a plan, every executive applies it at
+    # its first cycle boundary at or after the activation time.
+    PLAN_SEQUENCE = 16  # incremented for each new plan
+    PLAN_TIME_NS = 17  # activation time, CLOCK_MONOTONIC nanoseconds
+    PLAN_CONFIGURATION = 18  # index of the configuration to switch to (file order)
+    TASKS_IN_ERROR = 19  # set by job control: critical tasks run locally stable while > 0
+    # Simulated clock (--clock sim): the supervisor advances time in ticks; every participant reads it here.
+    SIM_TIME_NS = 20  # the current tick's time, nanoseconds from the run's start
+    SIM_TICK = 21  # ticks released so far: a participant stepped with no new tick only serves its signals
+    SWITCHING_SINCE_NS = 24  # one word per RTPU (up to MAX_RTPUS): when its switch began, 0 if none
+
+
+MAX_RTPUS = 32
+
+
+class Flag(enum.IntFlag):
+    ILLEGAL_CONFIGURATION = 1  # a task of the configuration is in ERROR, or a switch overran a cycle
+    STOPPING = 2  # job control is stopping the run: RTPUs run no more cycles
+
+
+class Status(enum.IntEnum):
+    """Word indices in a task's float64 status block."""
+
+    STATE = 0
+    CYCLES = 1
+    OVERRUNS = 2
+    EXEC_LAST = 3  # seconds
+    EXEC_MAX = 4
+    JITTER_LAST = 5  # release lateness, seconds
+    JITTER_MAX = 6
+    RELEASE = 7  # the release time of the last cycle, clock seconds: its outputs' write time
+    ERRORS = 8
+    USED = 9  # words in use: only these travel with each cycle's outputs
+    # Written by the executive straight into the table (one writer, aligned words), every
+    # RECENT cycles, never with the outputs: what `pbo status` shows of the recent cycles.
+    MISSED = 10  # releases skipped after overruns
+    JITTER_P50 = 11  # over the last RECENT cycles, seconds
+    JITTER_P99 = 12
+    EXEC_P50 = 13
+    EXEC_P99 = 14
+    # Lock acquisitions (2 per cycle) and bytes moved (cycles x the task's bytes per cycle) are
+    # exact functions of CYCLES: the bus report derives them instead of counting every cycle.
+
+
+class TaskState(enum.IntEnum):
+    """Figure 11's states; the number is what the status block holds."""
+
+    NOT_CREATED = 0
+    CREATED = 1
+    OFF = 2
+    ON = 3
+    ERROR = 4
+    KILLED = 5
+
+
+_DTYPE_CODES = ("float64", "float32", "int64", "int32", "int16", "int8", "uint8", "uint16", "uint32", "uint64", "bool")
+
+
+@dataclass(frozen=True)
+class VariableSlot:
+    """Where one variable lives in the segment."""
+
+    name: str
+    index: int
+    dtype: np.dtype
+    shape: tuple[int, ...]
+    meta_word: int  # float64 word index of its 3 metadata words
+    data_byte: int  # byte offset of its data (8-byte aligned)
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape, dtype=np.int64))
+
+    @property
+    def nbytes(self) -> int:
+        return self.size * self.dtype.itemsize
+
+    @property
+    def data_index(self) -> int:
+        """Index of its first element in a whole-segment view of its dtype."""
+        return self.data_byte // self.dtype.itemsize
+
+
+@dataclass(frozen=True)
+class TableLayout:
+    """Byte layout of a subsystem's table: a pure function of its variables and tasks."""
+
+    slots: tuple[VariableSlot, ...]
+    n_tasks: int
+    directory_offset: int
+    manifest_offset: int
+    data_offset: int
+    status_offset: int
+    total_bytes: int
+    layout_hash: int
+    devices_offset: int = 0  # the device database's region, after the task status blocks
+    n_devices: int = 0
+
+    @classmethod
+    def of(cls, subsystem: Subsystem) -> TableLayout:
+        return cls.build(subsystem.variables.values(), len(subsystem.tasks), len(subsystem.devices))
+
+    @classmethod
+    def build(cls, variables: Iterable[VariableSpec], n_tasks: int, n_devices: int = 0) -> TableLayout:
+        variables = list(variables)
+        directory = HEADER_WORDS * 8
+        manifest = directory + DIRECTORY_RECORD * len(variables)
+        cursor = manifest + MANIFEST_BYTES
+        data = cursor
+        slots = []
+        for index, var in enumerate(variables):
+            dtype = np.dtype(var.dtype)
+            if dtype.name not in _DTYPE_CODES:
+                raise TableLayoutError(f"variable '{var.name}': dtype {dtype.name} cannot live in the table")
+            meta_word = cursor // 8
+            cursor += META_WORDS * 8
+            data_byte = cursor
+            nbytes = int(np.prod(var.shape, dtype=np.int64)) * dtype.itemsize
+            cursor += -(-nbytes // 8) * 8
+            slots.append(VariableSlot(var.name, index, dtype, tuple(var.shape), meta_word, data_byte))
+        status = cursor
+        devices = status + STATUS_WORDS * 8 * max(n_tasks, 1)
+        total = devices + DEVICE_HOLDERS * HOLDER_WORDS * 8 * n_devices
+        digest = hashlib.blake2b(digest_size=8)
+        for s in slots:
+            digest.update(f"{s.name}|{s.dtype.name}|{s.shape}|{s.meta_word}|{s.data_byte};".encode())
+        digest.update(f"tasks={n_tasks}".encode())
+        if n_devices:
+            digest.update(f"devices={n_devices}x{DEVICE_HOLDERS}x{HOLDER_WORDS}".encode())
+        layout_hash = int.from_bytes(digest.digest(), "little", signed=True)
+        return cls(tuple(slots), n_tasks, directory, manifest, data, status, total, layout_hash, devices, n_devices)
+
+    def slot(self, name: str) -> VariableSlot:
+        for s in self.slots:
+            if s.name == name:
+                return s
+        raise KeyError(name)
+
+
+class StateTable:
+    """One mapping of the table. The supervisor creates it; RTPUs and tools attach to it."""
+
+    def __init__(self, layout: TableLayout, name: str, mapping, lock: posix_ipc.Semaphore, owner: bool) -> None:
+        self.layout = layout
+        self.name = name
+        self.lock_name = name + ".lock"
+        self._mapping = mapping
+        self.lock = lock
+        self.owner = owner
+        self.header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
+        self._views = {code: np.frombuffer(mapping, dtype=code, count=layout.total_bytes // np.dtype(code).itemsize) for code in _DTYPE_CODES}
+        self.words = self._views["float64"]
+        status = layout.status_offset // 8
+        self.status = self.words[status : status + STATUS_WORDS * max(layout.n_tasks, 1)].reshape(-1, STATUS_WORDS)
+        first = layout.devices_offset // 8
+        self.devices = self._views["uint64"][first : first + layout.n_devices * DEVICE_HOLDERS * HOLDER_WORDS].reshape(
+            layout.n_devices, DEVICE_HOLDERS, HOLDER_WORDS)
+        self._pid = os.getpid()
+
+    # --- life -------------------------------------------------------------------------------
+
+    @classmethod
+    def create(cls, layout: TableLayout, name: str, manifest: Iterable[str] = ()) -> StateTable:
+        """Create the segment and its lock (both 0600, both new) and fill the header."""
+        shm, mapping = _shm.create_segment(name, layout.total_bytes)
+        try:
+            lock = posix_ipc.Semaphore(name + ".lock", posix_ipc.O_CREX, mode=0o600, initial_value=1)
+        except BaseException:
+            mapping.close()
+            shm.unlink()
+            raise
+        table = cls(layout, name, mapping, lock, owner=True)
+        h = table.header
+        h[Header.VERSION] = VERSION
+        h[Header.LAYOUT_HASH] = layout.layout_hash
+        h[Header.N_VARIABLES] = len(layout.slots)
+        h[Header.N_TASKS] = layout.n_tasks
+        h[Header.SUPERVISOR_PID] = os.getpid()
+        h[Header.RELEASE_EPOCH_NS] = 0
+        h[Header.DIRECTORY_OFFSET] = layout.directory_offset
+        h[Header.MANIFEST_OFFSET] = layout.manifest_offset
+        h[Header.DATA_OFFSET] = layout.data_offset
+        h[Header.STATUS_OFFSET] = layout.status_offset
+        h[Header.TOTAL_BYTES] = layout.total_bytes
+        table._write_directory()
+        table.set_manifest(manifest)
+        for s in layout.slots:
+            table.words[s.meta_word] = -1.0  # no writer yet: job control's, sequence 0
+        h[Header.MAGIC] = MAGIC  # last: a reader that sees the magic sees a complete header
+        return table
+
+    @classmethod
+    def attach(cls, layout: TableLayout, name: str) -> StateTable:
+        """Attach to a running table; a different layout fails clearly instead of corrupting it."""
+        try:
+            mapping = _shm.attach_segment(name)
+        except posix_ipc.ExistentialError:
+            raise TableLayoutError(f"no state variable table '{name}': is the subsystem running?") from None
+        header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
+        magic, version, found_hash, total = (int(header[i]) for i in (Header.MAGIC, Header.VERSION, Header.LAYOUT_HASH, Header.TOTAL_BYTES))
+        del header  # no view may outlive a mapping we close
+        problem = ""
+        if magic != MAGIC or version != VERSION:
+            problem = f"'{name}' is not a pbo state variable table of version {VERSION}"
+        elif found_hash != layout.layout_hash or total != layout.total_bytes:
+            problem = (
+                f"table '{name}' has another variable layout (hash {found_hash:#x}, this process expects "
+                f"{layout.layout_hash:#x}): was the YAML file changed after the run started?"
+            )
+        if problem:
+            mapping.close()
+            raise TableLayoutError(problem)
+        lock = posix_ipc.Semaphore(name + ".lock")
+        return cls(layout, name, mapping, lock, owner=False)
+
+    def close(self) -> None:
+        """Unmap (and, for the creator, unlink the segment and the lock)."""
+        self.header = self.words = self.status = self.devices = None  # type: ignore[assignment]
+        self._views = {}
+        try:
+            self._mapping.close()
+        except BufferError:
+            pass  # a view still alive elsewhere keeps the mapping; the unlink below still frees the name
+        try:
+            self.lock.close()
+        except posix_ipc.ExistentialError:
+            pass
+        if self.owner:
+            self.unlink()
+
+    def unlink(self) -> None:
+        _shm.unlink_quietly("shm", self.name)
+        _shm.unlink_quietly("sem", self.lock_name)
+
+    # --- directory and manifest -------------------------------------------------------------
+
+    def _write_directory(self) -> None:
+        raw = np.frombuffer(self._mapping, dtype=np.uint8, count=self.layout.total_bytes)
+        for i, s in enumerate(self.layout.slots):
+            base = self.layout.directory_offset + i * DIRECTORY_RECORD
+            record = np.zeros(DIRECTORY_RECORD, dtype=np.uint8)
+            name = s.name.encode()[:NAME_BYTES]
+            record[: len(name)] = np.frombuffer(name, dtype=np.uint8)
+            dtype = s.dtype.name.encode()
+            record[NAME_BYTES : NAME_BYTES + len(dtype)] = np.frombuffer(dtype, dtype=np.uint8)
+            ints = np.array([len(s.shape), *(list(s.shape) + [0] * (4 - len(s.shape)))[:4], s.meta_word, s.data_byte, s.nbytes], dtype=np.int64)
+            record[64 : 64 + ints.nbytes] = np.frombuffer(ints.tobytes(), dtype=np.uint8)
+            raw[base : base + DIRECTORY_RECORD] = record
+
+    def set_manifest(self, names: Iterable[str]) -> None:
+        text = "\n".join(names).encode()
+        if len(text) >= MANIFEST_BYTES:
+            raise InternalError(f"run manifest of {len(text)} bytes does not fit {MANIFEST_BYTES}")
+        raw = np.frombuffer(self._mapping, dtype=np.uint8, count=self.layout.total_bytes)
+        start = self.layout.manifest_offset
+        raw[start : start + MANIFEST_BYTES] = 0
+        raw[start : start + len(text)] = np.frombuffer(text, dtype=np.uint8)
+
+    def manifest(self) -> list[str]:
+        return read_manifest(self._mapping, self.layout.manifest_offset)
+
+    # --- the lock ---------------------------------------------------------------------------
+
+    def acquire(self) -> None:
+        self.lock.acquire()
+        self.header[Header.LOCK_HOLDER] = self._pid
+
+    def release(self) -> None:
+        self.lock.release()
+
+    def recover_lock_from(self, dead_pid: int, settle: float = 0.05) -> bool:
+        """Release the lock if `dead_pid` died holding it (DESIGN §4); True if it was released.
+
+        The holder word is written right after each acquire, so a live process that took the
+        lock after the dead one would have overwritten it within microseconds: the word is
+        checked over `settle` seconds before the lock is released.
+        """
+        for _ in range(5):
+            if self.lock.value > 0 or int(self.header[Header.LOCK_HOLDER]) != dead_pid:
+                return False
+            time.sleep(settle / 5)
+        self.header[Header.LOCK_HOLDER] = 0
+        self.header[Header.LOCK_RECOVERIES] += 1
+        self.lock.release()
+        return True
+
+    @property
+    def flags(self) -> Flag:
+        return Flag(int(self.header[Header.FLAGS]))
+
+    def set_flag(self, flag: Flag, on: bool = True) -> None:
+        self.acquire()
+        try:
+            value = int(self.header[Header.FLAGS])
+            self.header[Header.FLAGS] = (value | flag) if on else (value & ~flag)
+        finally:
+            self.release()
+
+    def announce_stop(self) -> None:
+        """Tell every RTPU at once that the run is over, before any is sent its stop signal.
+
+        Job control is the only writer of the flags, so this takes no lock: a wedged lock cannot
+        hold up a stop. Without it, RTPUs stopped first did their stop work (killing tasks,
+        percentiles of 65,536 samples) while the others still ran cycles, and those cycles
+        overran for want of a CPU: overruns of the shutdown, counted as the run's.
+        """
+        self.header[Header.FLAGS] = int(self.header[Header.FLAGS]) | Flag.STOPPING
+
+    # --- whole-variable access (job control and tools; never per cycle) ---------------------
+
+    def view(self, name: str) -> np.ndarray:
+        """A live view of a variable's data in the table (read it under the lock)."""
+        s = self.layout.slot(name)
+        return self._views[s.dtype.name][s.data_index : s.data_index + s.size].reshape(s.shape)
+
+    def read(self, name: str) -> tuple[np.ndarray, int, float, int]:
+        """(copy of the value, sequence, write time, writer task index) taken under the lock."""
+        s = self.layout.slot(name)
+        view = self.view(name)
+        self.acquire()
+        try:
+            value = view.copy()
+            writer, seq, when = (float(w) for w in self.words[s.meta_word : s.meta_word + META_WORDS])
+            if writer >= 0:
+                seq = float(self.status[int(writer)][Status.CYCLES])
+                when = float(self.status[int(writer)][Status.RELEASE])
+        finally:
+            self.release()
+        return value, int(seq), when, int(writer)
+
+    def write(self, name: str, value, when: float, writer: int = -1) -> None:
+        """Write a whole variable as job control (writer -1) would: under the lock, stamped."""
+        s = self.layout.slot(name)
+        view = self.view(name)
+        source = np.asarray(value, dtype=s.dtype)
+        if source.shape != s.shape and source.size != s.size:
+            raise ValueError(f"variable '{name}' has shape {s.shape}, got a value of shape {source.shape}")
+        self.acquire()
+        try:
+            view[...] = source.reshape(s.shape)
+            self.words[s.meta_word] = writer
+            self.words[s.meta_word + 1] += 1
+            self.words[s.meta_word + 2] = when
+        finally:
+            self.release()
+
+    def dtype_view(self, dtype: np.dtype) -> np.ndarray:
+        return self._views[np.dtype(dtype).name]
+
+
+def read_manifest(mapping, offset: int) -> list[str]:
+    raw = bytes(mapping[offset : offset + MANIFEST_BYTES]).split(b"\0", 1)[0]
+    return [line for line in raw.decode(errors="replace").split("\n") if line]

@@ -1,0 +1,284 @@
+"""A task: one spawned instance of a port-based object, and its state machine (TR Figure 11).
+
+    spawn:  in-consts -> init -> out-consts             CREATED -> OFF   (init raises: kill, no task)
+    on:     in-vars + out-vars -> on -> out-vars        OFF -> ON
+    cycle:  in-vars -> cycle -> out-vars                ON (OFF returned: OFF; ERROR/raise: error())
+    off:    off                                         ON -> OFF
+    kill:   kill                                        OFF/ERROR -> KILLED
+    clear:  clear                                       ERROR -> OFF (True) or ERROR (False)
+
+The executive (rtpu) decides *when*; this class decides *what happens*, so every transition
+can be unit-tested with a manual clock and no process.
+"""
+
+from __future__ import annotations
+
+import traceback
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from pbo_runtime.config.model import DeviceSpec, TaskSpec
+from pbo_runtime.errors import LifecycleError, ModuleError
+from pbo_runtime.objects.module import PortBasedObject, Status
+from pbo_runtime.table.table import StateTable, TaskState
+from pbo_runtime.table.table import Status as StatusWord
+from pbo_runtime.task.transfer import LocalTable
+
+DeviceOpener = Callable[[DeviceSpec, TaskSpec], Any]  # the RTPU's: opens a device for the task whose init asks
+Relay = Callable[[str, Any], Any]  # (task, a message link's receiving end) -> something with close()
+
+
+@dataclass
+class TaskContext:
+    """What a module may ask of the runtime; `time` is the current cycle's release time."""
+
+    task_name: str
+    period: float
+    dims: dict[str, int]
+    resources: tuple[str, ...]
+    devices: dict[str, DeviceSpec]
+    opener: Callable[[DeviceSpec], Any] | None  # the task's own (Task.open_device)
+    time: float = 0.0
+    event: Any = None
+    opened: list[Any] = field(default_factory=list)
+    out_dir: str = ""  # `pbo run --out DIR`: where the run's files go ("" : paths stay as given)
+    links: dict[str, dict[str, Any]] = field(default_factory=dict)  # the application's links, by name
+    relay: Relay | None = None  # the RTPU's: wakes this task per message of a link it serves
+
+    def open_link(self, name: str, like: Any, role: str) -> Any:
+        """One end of an application's link, carrying items shaped like the array `like`.
+
+        role 'server' (a message link's receiving end): from then on each message releases this
+        aperiodic task, its payload in `event`; the end is the relay's to read, not the module's.
+        """
+        from pbo_runtime.links.ends import open_link_end
+
+        if name not in self.links:
+            provided = ", ".join(sorted(self.links)) or "none: this subsystem runs alone"
+            raise ModuleError(f"task '{self.task_name}' opens link '{name}', but the application provides no such link "
+                              f"(links: {provided}); run the application file that declares it: pbo run APP.yaml")
+        if role == "server" and self.relay is None:
+            raise ModuleError(f"task '{self.task_name}' serves link '{name}', but no RTPU hosts it to wake it")
+        end = open_link_end(name, self.links[name], like, role)
+        if role == "server":
+            assert self.relay is not None
+            try:
+                end = self.relay(self.task_name, end)
+            except BaseException:
+                end.close()
+                raise
+        self.opened.append(end)
+        return end
+
+    def open_device(self, name: str) -> Any:
+        if name not in self.resources:
+            listed = ", ".join(self.resources) or "none"
+            raise ModuleError(f"task '{self.task_name}' opens device '{name}', but its resources are: {listed}")
+        if self.opener is None:
+            raise ModuleError(f"task '{self.task_name}': no devices in this process")
+        device = self.opener(self.devices[name])
+        self.opened.append(device)
+        return device
+
+
+class Task:
+    """A module instance bound to its local table, moved through Figure 11's states."""
+
+    def __init__(
+        self,
+        spec: TaskSpec,
+        module_class: type[PortBasedObject],
+        table: StateTable,
+        dims: dict[str, int] | None = None,
+        devices: dict[str, DeviceSpec] | None = None,
+        opener: DeviceOpener | None = None,
+        out_dir: str = "",
+        links: dict[str, dict[str, Any]] | None = None,
+        relay: Relay | None = None,
+    ) -> None:
+        self.spec = spec
+        self.name = spec.name
+        self.index = spec.index
+        self.state = TaskState.NOT_CREATED
+        self.last_error = ""
+        self.cycles = 0
+        self.errors = 0
+        self._device_opener = opener
+        self.context = TaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}),
+                                   self.open_device if opener is not None else None,
+                                   out_dir=out_dir, links=dict(links or {}), relay=relay)
+        self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
+        self.status = self.local.status
+        self.status[StatusWord.CYCLES] = 0
+        self.module = module_class.__new__(module_class)
+        self.module._pbo_ports = self.local.port_arrays
+        self.module._pbo_context = self.context
+        self._params = module_class.build_params(dict(spec.params))
+        self.read_inputs = self.local.read_inputs
+        self.write_outputs = self.local.write_outputs
+        self._cycle = self.module.cycle
+        self._stable_cycle = self.module.stable_cycle
+
+    # --- signals ----------------------------------------------------------------------------
+
+    def spawn(self, now: float) -> bool:
+        """Create the task: in-consts, init, out-consts. False (and killed) if init failed."""
+        self._expect("spawn", TaskState.NOT_CREATED)
+        self.state = TaskState.CREATED
+        try:
+            type(self.module).__init__(self.module)
+            self.local.read_consts()
+            self.context.time = now
+            self.module.init(self._params)
+        except Exception as exc:
+            self.last_error = _describe("init", exc)
+            self._run_kill()
+            self._publish(TaskState.KILLED)
+            return False
+        self.state = TaskState.OFF
+        self.status[StatusWord.STATE] = TaskState.OFF
+        self.status[StatusWord.RELEASE] = now
+        self.local.write_consts()
+        return True
+
+    def open_device(self, device: DeviceSpec) -> Any:
+        """Open `device` for this task, which the device database records as its holder.
+
+        Only in init (TR §4.6.1): a task holds its devices from init until it is killed.
+        """
+        from pbo_runtime.table.devices import DeviceOpenError
+
+        if self.state != TaskState.CREATED:
+            raise DeviceOpenError(f"a device is opened in a task's init (TR §4.6.1); task '{self.name}' opened "
+                                  f"'{device.name}' while {self.state.name}")
+        assert self._device_opener is not None
+        return self._device_opener(device, self.spec)
+
+    def turn_on(self, now: float) -> bool:
+        """In-vars and out-vars, on, out-vars. False (task in ERROR) if `on` raised."""
+        self._expect("on", TaskState.OFF)
+        self.local.read_for_on()
+        self.context.time = now
+        try:
+            self.module.on()
+        except Exception as exc:
+            self._fail("on", exc)
+            return False
+        self.state = TaskState.ON
+        self.status[StatusWord.STATE] = TaskState.ON
+        self.status[StatusWord.RELEASE] = now
+        self.write_outputs()
+        return True
+
+    def run_cycle(self, now: float, component: Callable[[], Status] | None = None) -> Status:
+        """One cycle released at `now`: in-vars, cycle, out-vars; errors go to `error`.
+
+        The executive calls this only while ON; it is the per-cycle path. The outputs' write
+        time and sequence are this release time and cycle count, in the status block.
+        """
+        self.read_inputs()
+        self.context.time = now
+        try:
+            result = (component or self._cycle)()
+        except Exception as exc:
+            return self._cycle_failed(exc, now)
+        self.cycles += 1
+        status = self.status
+        status[StatusWord.CYCLES] = self.cycles
+        status[StatusWord.RELEASE] = now
+        if result is Status.CONTINUE or result == 0:
+            self.write_outputs()
+            return Status.CONTINUE
+        if result == Status.OFF:
+            self.write_outputs()
+            self.turn_off()
+            return Status.OFF
+        return self._cycle_failed(None, now)
+
+    def run_stable_cycle(self, now: float) -> Status:
+        """One cycle of the locally stable behaviour (critical tasks, configuration illegal)."""
+        return self.run_cycle(now, self._stable_cycle)
+
+    def turn_off(self) -> None:
+        self._expect("off", TaskState.ON)
+        try:
+            self.module.off()
+        except Exception as exc:
+            self._fail("off", exc)
+            return
+        self._publish(TaskState.OFF)
+
+    def kill(self) -> None:
+        """Free the task. From ON it is turned off first, as job control would."""
+        if self.state == TaskState.ON:
+            self.turn_off()
+        self._expect("kill", TaskState.OFF, TaskState.ERROR, TaskState.CREATED)
+        self._run_kill()
+        self._publish(TaskState.KILLED)
+
+    def clear(self) -> bool:
+        """The operator's clear: True if the task went back to OFF."""
+        self._expect("clear", TaskState.ERROR)
+        try:
+            cleared = bool(self.module.clear())
+        except Exception as exc:
+            self.last_error = _describe("clear", exc)
+            return False
+        if cleared:
+            self.last_error = ""
+            self._publish(TaskState.OFF)
+        return cleared
+
+    # --- helpers ----------------------------------------------------------------------------
+
+    def _cycle_failed(self, exc: BaseException | None, now: float) -> Status:
+        self.errors += 1
+        self.status[StatusWord.ERRORS] = self.errors
+        reason = self.module.__dict__.pop("_pbo_fault", "")
+        self.last_error = _describe("cycle", exc) if exc else "cycle returned ERROR" + (f": {reason}" if reason else "")
+        try:
+            verdict = self.module.error(exc)
+        except Exception as inner:
+            verdict = Status.ERROR
+            self.last_error += "; " + _describe("error", inner)
+        if verdict == Status.CONTINUE:
+            return Status.CONTINUE
+        if verdict == Status.OFF:
+            self.turn_off()
+            return Status.OFF
+        self._publish(TaskState.ERROR)
+        return Status.ERROR
+
+    def _fail(self, component: str, exc: BaseException) -> None:
+        self.errors += 1
+        self.status[StatusWord.ERRORS] = self.errors
+        self.last_error = _describe(component, exc)
+        self._publish(TaskState.ERROR)
+
+    def _run_kill(self) -> None:
+        try:
+            self.module.kill()
+        except Exception as exc:
+            self.last_error += ("; " if self.last_error else "") + _describe("kill", exc)
+        for device in self.context.opened:
+            try:
+                device.close()
+            except Exception as exc:
+                self.last_error += ("; " if self.last_error else "") + _describe("device close", exc)
+        self.context.opened.clear()
+
+    def _publish(self, state: TaskState) -> None:
+        self.state = state
+        self.status[StatusWord.STATE] = state
+        self.local.write_status()
+
+    def _expect(self, signal: str, *allowed: TaskState) -> None:
+        if self.state not in allowed:
+            names = " or ".join(s.name for s in allowed)
+            raise LifecycleError(f"task '{self.name}' cannot take '{signal}' in state {self.state.name} (needs {names})")
+
+
+def _describe(component: str, exc: BaseException) -> str:
+    frame = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
+    where = f" at {frame.filename.rsplit('/', 1)[-1]}:{frame.lineno}" if frame else ""
+    return f"{component} raised {type(exc).__name__}: {exc}{where}"

@@ -19,9 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from pbo_runtime import ModuleError, PortBasedObject, Status
-from pbo_runtime.objects.ports import PortSpec
-from pbo_runtime.objects.registry import module_class
+from pbo_runtime import ModuleError, PortBasedObject, PortSpec, Status, module_class
 
 _MEMBER_KEYS = ("module", "params", "ports")
 

@@ -13,8 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import PortBasedObject, Status
-from pbo_runtime.objects.ports import ANY_DTYPE, InVar, PortSpec
+from pbo_runtime import ANY_DTYPE, InVar, PortBasedObject, PortSpec, Status
 
 
 @dataclass(frozen=True)

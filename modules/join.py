@@ -15,8 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import ModuleError, PortBasedObject, Status
-from pbo_runtime.objects.ports import ANY_DTYPE, InVar, OutVar, PortSpec
+from pbo_runtime import ANY_DTYPE, InVar, ModuleError, OutVar, PortBasedObject, PortSpec, Status
 
 
 @dataclass(frozen=True)

@@ -13,9 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from modules._link_params import LinkParams
-from pbo_runtime import PortBasedObject, Status
-from pbo_runtime.objects.ports import ANY_DTYPE, OutVar
-
+from pbo_runtime import ANY_DTYPE, OutVar, PortBasedObject, Status
 
 LinkReceiverParams = LinkParams
 

@@ -9,9 +9,7 @@ linked variable's dtype and shape, which the application checker matched against
 from __future__ import annotations
 
 from modules._link_params import LinkParams
-from pbo_runtime import PortBasedObject, Status
-from pbo_runtime.objects.ports import ANY_DTYPE, InVar
-
+from pbo_runtime import ANY_DTYPE, InVar, PortBasedObject, Status
 
 LinkSenderParams = LinkParams
 

@@ -15,9 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from modules._link_params import LinkParams
-from pbo_runtime import PortBasedObject, Status
-from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
-from pbo_runtime.objects.ports import ANY_DTYPE, InVar, OutVar
+from pbo_runtime import ANY_DTYPE, MAX_PRIORITY, InVar, LinkFullError, OutVar, PortBasedObject, Status
 
 
 @dataclass(frozen=True)

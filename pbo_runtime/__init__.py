@@ -1,10 +1,12 @@
 """pbo-runtime: dynamically reconfigurable real-time control from port-based objects.
 
-The names a module author needs; everything else lives in private modules.
+The names module, driver and plant authors import; everything else lives in the wings
+(objects/, config/, table/, task/, ...) and may change without notice.
 """
 
 from __future__ import annotations
 
+from pbo_runtime.config.channels import format_channels
 from pbo_runtime.errors import (
     ConfigError,
     ConfigErrors,
@@ -15,17 +17,27 @@ from pbo_runtime.errors import (
     PboError,
     TableLayoutError,
 )
+from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
+from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
+from pbo_runtime.objects.driver import DeviceDriver
 from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
-from pbo_runtime.objects.ports import InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
+from pbo_runtime.objects.ports import ANY_DTYPE, InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
+from pbo_runtime.objects.registry import module_class
+
+__version__ = "0.1.0"
 
 __all__ = [
+    "ANY_DTYPE",
+    "MAX_PRIORITY",
     "ConfigError",
     "ConfigErrors",
+    "DeviceDriver",
     "InBoth",
     "InConst",
     "InVar",
     "InternalError",
     "LifecycleError",
+    "LinkFullError",
     "ModuleError",
     "NoParams",
     "OutBoth",
@@ -38,4 +50,9 @@ __all__ = [
     "PortSpec",
     "Status",
     "TableLayoutError",
+    "attach_segment",
+    "create_segment",
+    "format_channels",
+    "module_class",
+    "unlink_quietly",
 ]

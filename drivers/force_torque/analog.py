@@ -21,7 +21,7 @@ import numpy as np
 
 from drivers.force_torque import models
 from drivers.mujoco_arm.registers import DeviceError
-from pbo_runtime.objects.driver import DeviceDriver
+from pbo_runtime import DeviceDriver
 
 _OPTIONS = ("calibration", "offset")
 

@@ -16,8 +16,7 @@ from typing import Any
 import numpy as np
 
 from drivers.mujoco_arm.registers import W_BOARD_SEQ, W_BOARD_STEP, DeviceError, Registers, attach_registers
-from pbo_runtime.config.channels import format_channels
-from pbo_runtime.objects.driver import DeviceDriver
+from pbo_runtime import DeviceDriver, format_channels
 
 _SPINS_BEFORE_YIELD = 100
 _STUCK_AFTER_S = 0.5

@@ -14,7 +14,7 @@ import numpy as np
 
 from drivers.io.board import BoardDriver
 from drivers.mujoco_arm.registers import DAC_CHANNELS, VOLTS_PER_COUNT
-from pbo_runtime.objects.driver import DeviceDriver
+from pbo_runtime import DeviceDriver
 
 
 class Dac(BoardDriver):

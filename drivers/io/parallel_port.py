@@ -19,7 +19,7 @@ import numpy as np
 
 from drivers.io.board import BoardDriver
 from drivers.mujoco_arm.registers import PIO_CHANNELS
-from pbo_runtime.objects.driver import DeviceDriver
+from pbo_runtime import DeviceDriver
 
 
 class ParallelPort(BoardDriver):

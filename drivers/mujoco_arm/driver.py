@@ -40,7 +40,7 @@ from drivers.mujoco_arm.registers import (
     DeviceError,
     attach_registers,
 )
-from pbo_runtime.objects.driver import DeviceDriver
+from pbo_runtime import DeviceDriver
 
 _OPTIONS = ("mode",)
 # Spins before the reader starts yielding the CPU to a plant preempted mid-publish (it may share

@@ -103,7 +103,7 @@ from drivers.mujoco_arm.registers import (
     create_registers,
 )
 from drivers.robots import robot, to_mjcf
-from pbo_runtime.ipc.shm import unlink_quietly
+from pbo_runtime import unlink_quietly
 
 _OPTIONS = ("q0", "target", "wrist_wrench", "adc_noise", "seed")
 _LOOPBACK = ((0, 6), (1, 7))  # (DAC channel, ADC channel) pairs joined by the loopback cable

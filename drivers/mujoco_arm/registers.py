@@ -46,8 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 import posix_ipc
 
-from pbo_runtime import PboError
-from pbo_runtime.ipc.shm import attach_segment, create_segment
+from pbo_runtime import PboError, attach_segment, create_segment
 
 MAGIC = int.from_bytes(b"PBOARMRG", "little")
 VERSION = 3  # 2: the target block and the TARGET word; 3: the board block and BOARD_SEQ

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from drivers.mujoco_arm.registers import W_SIM_TIME, W_STATE_SEQ, W_TARGET, DeviceError, attach_registers
-from pbo_runtime.objects.driver import DeviceDriver
+from pbo_runtime import DeviceDriver
 
 _OPTIONS = ("latency", "noise", "seed")
 _SPINS_BEFORE_YIELD = 100

@@ -1,0 +1,123 @@
+"""The house: pbo_runtime's wings, the one-way imports between them, and the public surface.
+
+A newcomer finds where a change goes by the folder names alone; these tests keep it so. Wings are
+ranked low to high, and a file may import its own wing or a lower one only.
+"""
+
+from __future__ import annotations
+
+import ast
+import graphlib
+from pathlib import Path
+
+import pytest
+
+import pbo_runtime
+from tests.conftest import REPO
+
+PACKAGE = REPO / "pbo_runtime"
+
+# low to high; wings of one rank do not import each other
+WING_RANK = {
+    "errors": 0,
+    "objects": 1,
+    "ipc": 1,
+    "links": 2,
+    "config": 3,
+    "table": 4,
+    "reports": 4,
+    "clock": 5,
+    "task": 5,
+    "supervisor": 6,
+    "cli": 7,
+    "__init__": 8,
+}
+
+PUBLIC_NAMES = [
+    "ANY_DTYPE", "MAX_PRIORITY", "ConfigError", "ConfigErrors", "DeviceDriver", "InBoth", "InConst", "InVar",
+    "InternalError", "LifecycleError", "LinkFullError", "ModuleError", "NoParams", "OutBoth", "OutConst", "OutVar",
+    "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec", "Status", "TableLayoutError",
+    "attach_segment", "create_segment", "format_channels", "module_class", "unlink_quietly",
+]
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(REPO).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imported_modules(path: Path, known: set[str]) -> set[str]:
+    """Every module `path` imports, wherever the import stands (a function, `if TYPE_CHECKING:`)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            for alias in node.names:
+                submodule = f"{node.module}.{alias.name}"
+                found.add(submodule if submodule in known else node.module)
+        elif isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+    return found
+
+
+def runtime_imports() -> dict[str, set[str]]:
+    files = {module_name(path): path for path in PACKAGE.rglob("*.py")}
+    known = set(files)
+    return {name: {m for m in imported_modules(path, known) if m.startswith("pbo_runtime")} - {name}
+            for name, path in files.items()}
+
+
+def wing_of(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def test_the_package_root_holds_only_the_public_surface_and_the_wings():
+    files = sorted(p.name for p in PACKAGE.iterdir() if p.is_file() and p.suffix == ".py")
+    wings = sorted(p.name for p in PACKAGE.iterdir() if p.is_dir() and p.name != "__pycache__")
+    assert files == ["__init__.py", "errors.py"]
+    assert wings == sorted(w for w in WING_RANK if w not in ("errors", "__init__"))
+
+
+def test_every_wing_and_file_says_what_it_is_for():
+    missing = [str(p.relative_to(REPO)) for p in PACKAGE.rglob("*.py") if ast.get_docstring(ast.parse(p.read_text())) is None
+               and p.name != "__main__.py"]
+    assert missing == []
+
+
+@pytest.mark.xfail(strict=True, reason="job control still names Supervisor for its type; it is to depend on a host protocol")
+def test_no_module_of_the_runtime_imports_one_that_imports_it_back():
+    graphlib.TopologicalSorter(runtime_imports()).prepare()  # raises CycleError, naming the cycle
+
+
+def test_a_wing_imports_only_its_own_and_lower_wings():
+    upward = sorted(f"{module} imports {imported}"
+                    for module, imports in runtime_imports().items() for imported in imports
+                    if wing_of(module) != wing_of(imported) and WING_RANK[wing_of(imported)] >= WING_RANK[wing_of(module)])
+    assert upward == []
+
+
+@pytest.mark.parametrize("folder", ["modules", "drivers"])
+def test_modules_and_drivers_use_only_the_public_surface_and_never_each_other(folder):
+    other = {"modules": "drivers", "drivers": "modules"}[folder]
+    wrong = []
+    for path in (REPO / folder).rglob("*.py"):
+        for imported in imported_modules(path, set()):
+            top = imported.split(".")[0]
+            if (top == "pbo_runtime" and imported != "pbo_runtime") or top in (other, "rtpu"):
+                wrong.append(f"{path.relative_to(REPO)} imports {imported}")
+    assert wrong == []
+
+
+def test_the_runtime_finds_modules_drivers_and_plants_by_name_never_by_import():
+    wrong = [f"{module} imports {imported}" for module, path in
+             ((module_name(p), p) for p in PACKAGE.rglob("*.py"))
+             for imported in imported_modules(path, set())
+             if imported.split(".")[0] in ("modules", "drivers", "rtpu")]
+    assert wrong == []
+
+
+def test_the_public_surface_is_pinned():
+    assert sorted(pbo_runtime.__all__) == sorted(PUBLIC_NAMES)
+    assert all(hasattr(pbo_runtime, name) for name in PUBLIC_NAMES)

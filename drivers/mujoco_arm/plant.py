@@ -1,74 +1,14 @@
 """The simulated arm itself: a MuJoCo model of a named robot, stepped by a plant host process.
 
 The plant owns the register segment (see `registers`): it publishes the measured state after every
-step and applies whatever the driver last commanded. It starts with the brakes engaged, like the
-real PUMA, so the arm does not fall before a controller is on. It does no real-time pacing: the
-host calls `step()` once per `timestep` of wall time (or as fast as it likes, in tests).
+step and applies whatever the driver last commanded, in torque or position mode (`MODE`). It starts
+with the brakes engaged so the arm does not fall before a controller is on. It does no real-time
+pacing: the host calls `step()` once per `timestep` of wall time (or as fast as it likes, in tests).
+Options: `q0`, `target` (a moving marker for the camera), `wrist_wrench` (a contact), `adc_noise`
+and `seed` (the I/O boards that carry the wrist force/torque sensor).
 
-The `MODE` register says which commands apply while the brakes are released:
-
-- torque: the driver's `tau`, clipped to the torque limits, is the joint torque.
-- position: the plant is the arm's own joint controller, as on an industrial position-controlled
-  arm: every plant step (the servo runs at the plant's rate, 1 kHz by default) each joint gets
-
-      tau = Kp (q_cmd - q) - Kd qd + g(q),    clipped to the torque limits,
-
-  where q_cmd is clipped to the joint limits and g(q) is the gravity torque MuJoCo itself computes
-  for the current pose (recursive Newton-Euler at zero velocity and acceleration, on a scratch
-  `MjData`), so the arm holds its pose without sag or steady-state error.
-
-  Gains: each joint is tuned as a critically damped second-order loop, Kp = J w², Kd = 2 J w,
-  with J its inertia as the motor sees it: the armature (rotor inertia times gear ratio squared)
-  plus the links' inertia about the joint, i.e. the diagonal of MuJoCo's mass matrix at the
-  robot's home pose. For a geared arm the armature is the large, pose-independent part (all of
-  the wrist's); the links' part is added so the heavy proximal joints are not underdamped
-  (armature alone would give the PUMA's shoulder a damping ratio of 0.44). w is chosen for a
-  -3 dB bandwidth of 25 Hz, w = 2 pi 25 / sqrt(sqrt(2) - 1) = 244 rad/s (10-90 % rise
-  3.36 / w = 14 ms; 15 ms measured at 1 kHz, where the torque is held over each step), but at
-  most 0.25 / timestep, so a slower plant stays well inside the discrete-time stability limit
-  of a PD held over one step. Joint friction adds under 1 % to Kd. Away from the home pose the
-  true inertia differs, so the damping ratio sqrt(J_home / J) drifts: 0.89-1.3 on the PUMA,
-  0.73-1.9 on the 7-DOF arm's shoulder, 1.0 on every wrist joint. See `servo_kp`, `servo_kd`.
-
-  Gains this stiff reach the torque limits on any step over about a milliradian, and a
-  saturated linear PD overshoots (up to 60 % on the PUMA, 94 % on the 7-DOF arm, for a 0.2 rad
-  step: it starts braking only once the error is below 2 / w times the speed). So, as
-  industrial drives do, the PD is written as a velocity loop, tau = Kd (v_ref - qd) + g(q)
-  with v_ref = (Kp / Kd) e, and v_ref is capped by the braking curve sqrt(2 a |e|), a = half
-  the joint's torque limit over J: the fastest approach from which the joint can still stop.
-  Within a few mrad of q_cmd the cap is inactive and the loop is exactly the linear PD above;
-  large steps arrive without overshoot (0.2 rad in 0.1-0.2 s).
-
-A torque command never moves the arm while it is in position mode and the reverse; which
-mode is in force is decided by the driver that released the brakes (see the driver).
-
-Target (plant option `target:`, for a camera; TR Figures 12 and 13): a small marker, a mocap body
-without mass or collisions, moved kinematically along a circle in a horizontal plane,
-
-    p(t) = center + radius (cos(2 pi t / period + phase), sin(2 pi t / period + phase), 0)
-
-with a fixed orientation (rotation vector `orientation`, default none). Its world pose (position
-m, then rotation vector rad) is published with the arm's state, under the same seqlock, for the
-pose at the published sim time. The world frame is the arm's base frame.
-
-I/O boards (register layout version 3; TR §4.6): the plant serves an ADC, a DAC and a parallel
-port in the register segment and wires them to the arm's wrist force/torque sensor (the MJCF's
-massless `ft` body, see `drivers.robots.mjcf`). Each step it takes the wrench the environment
-applies to the tool, w = -(MuJoCo's ft_force, ft_torque), in the sensor frame (the tool frame),
-and presents it through two sensors of different vendors (`drivers.force_torque.models`):
-
-- vendor A on parallel-port channels 0-7: when the driver writes a new REQUEST the plant latches
-  w in counts (fixed scale, rounded, clipped to 16 bits) and answers with ACK = REQUEST;
-- vendor B on ADC channels 0-5: gauge voltages v = C^-1 w + offset (its calibration sheet);
-- DAC channels 0-1 are looped back to ADC channels 6-7.
-
-Every step all 8 ADC channels are converted: volts plus Gaussian noise (`adc_noise`, V standard
-deviation, default 0; seeded by `seed`, default 0), rounded to counts and clipped at +-10 V.
-
-The contact (plant option `wrist_wrench: [fx, fy, fz, tx, ty, tz]`, N and N m, default none): a
-constant external wrench on the tool at the sensor, given in the sensor frame (it turns with the
-hand), applied as MuJoCo's `xfrc_applied` on the `ft` body, whose origin is the sensor's. With the
-body massless, the sensor measures exactly that wrench whatever the arm does.
+docs/plant.md says how the position servo is designed (gains, braking curve) and what each option
+does.
 """
 
 from __future__ import annotations

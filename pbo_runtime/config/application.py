@@ -142,7 +142,7 @@ def _check_subsystems(root: YMap, folder: Path, application: Application, result
     for key, value in entries.items():
         loc = entries.value_loc(key)
         if isinstance(value, YMap):
-            path = inline_reference(application.file, key)
+            path: Path | str = inline_reference(application.file, key)
         elif not isinstance(value, str):
             error("E802", f"subsystem '{key}' must be the path of its subsystem file, or the subsystem itself", loc,
                   "e.g. leader: leader.yaml, or operator: {subsystem: operator, rtpus: [rtpu0], ...}")

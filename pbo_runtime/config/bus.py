@@ -222,10 +222,13 @@ def measured(subsystem: Subsystem, report_json: Mapping[str, Any], configuration
         # run reports it; otherwise the data alone.
         moved = row.get("bytes_moved_per_cycle", row.get("bytes_per_cycle"))
         data = row.get("bytes_per_cycle")
-        moved = float(moved) if moved is not None else float(predicted.bytes_in + predicted.bytes_out)
+        predicted_bytes = (predicted.bytes_in or 0) + (predicted.bytes_out or 0)  # a prediction always splits them
+        moved = float(moved) if moved is not None else float(predicted_bytes)
+        bytes_in: int | None
+        bytes_out: int | None
         if "bytes_in" in row and "bytes_out" in row:
             bytes_in, bytes_out = int(row["bytes_in"]), int(row["bytes_out"])
-        elif data is not None and predicted.bytes_in + predicted.bytes_out == float(data):  # same bindings, same split
+        elif data is not None and predicted_bytes == float(data):  # same bindings, same split
             bytes_in, bytes_out = predicted.bytes_in, predicted.bytes_out
         else:
             bytes_in = bytes_out = None

@@ -199,8 +199,8 @@ class _Validator:
                 raise self.refuse(node, f"the operator '{_OPERATOR_TEXT.get(type(node.op), type(node.op).__name__)}'")
             self.check(node.operand)
         elif isinstance(node, ast.BoolOp):
-            for value in node.values:
-                self.check(value)
+            for operand in node.values:
+                self.check(operand)
         elif isinstance(node, ast.Compare):
             for op in node.ops:
                 if type(op) not in _COMPARE:

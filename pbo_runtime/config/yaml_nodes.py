@@ -53,7 +53,7 @@ if _CSafeLoader is not None:
             self.__dict__.pop("resolve", None)
             super().dispose()
 else:
-    _FastLoader = None
+    _FastLoader = None  # type: ignore[misc, assignment]  # no libyaml: the pure-Python loader
 
 _MAP_TAG = "tag:yaml.org,2002:map"
 _SEQ_TAG = "tag:yaml.org,2002:seq"
@@ -84,7 +84,7 @@ class YMap(dict):  # type: ignore[type-arg]
 
     def __init__(self, loc: Where, file: str | None = None) -> None:
         super().__init__()
-        self._where = loc
+        self._where: Where = loc
         self._file = file if file is not None else loc.file
         self._key_locs: dict[Any, Where] = {}
         self._value_locs: dict[Any, Where] = {}
@@ -99,13 +99,13 @@ class YMap(dict):  # type: ignore[type-arg]
         self._value_locs[key] = value_loc
 
     def key_loc(self, key: Any) -> Location:
-        where = self._key_locs.get(key, self._where)
+        where: Where = self._key_locs.get(key, self._where)
         if isinstance(where, Location):
             return where
         return _new_location(Location, (self._file, where.line + 1, where.column + 1))  # _located, inlined: a hot path
 
     def value_loc(self, key: Any) -> Location:
-        where = self._value_locs.get(key, self._where)
+        where: Where = self._value_locs.get(key, self._where)
         if isinstance(where, Location):
             return where
         return _new_location(Location, (self._file, where.line + 1, where.column + 1))  # _located, inlined: a hot path

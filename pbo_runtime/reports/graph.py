@@ -318,7 +318,7 @@ def _render(d: Diagram, path: Path, fmt: str) -> None:
                                     facecolor="#eef2f8", edgecolor="#9aa8bd", linewidth=1.0, zorder=0))
         ax.text(bx0 + 0.25, by1 - 0.25, rtpu, ha="left", va="top", fontsize=10, fontweight="bold", color="#4a5a75", zorder=1)
     patches = {}
-    styles = {
+    styles: dict[str, dict[str, Any]] = {
         "task": dict(facecolor="white", edgecolor="#333333", boxstyle="round,pad=0,rounding_size=0.15"),
         "job": dict(facecolor="#e8f4e8", edgecolor="#3a7d3a", boxstyle="round,pad=0,rounding_size=0.3"),
         "device": dict(facecolor="#f6efe4", edgecolor="#8a6d3b", boxstyle="round,pad=0,rounding_size=0.05"),

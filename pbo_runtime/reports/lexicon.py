@@ -37,7 +37,7 @@ def lexicon() -> list[dict[str, Any]]:
     dtype, shape as text, doc), params (name, type, default, required, doc) and note (set when
     the ports depend on params, None otherwise). A module that fails to import gets an `error`.
     """
-    entries = []
+    entries: list[dict[str, Any]] = []
     for name in registry.names(registry.MODULES):
         try:
             cls = registry.module_class(name)
@@ -48,7 +48,7 @@ def lexicon() -> list[dict[str, Any]]:
     return entries
 
 
-def module_entry(name: str, cls: type) -> dict[str, Any]:
+def module_entry(name: str, cls: type[PortBasedObject]) -> dict[str, Any]:
     """The lexicon entry of one module class."""
     return {
         "name": name,
@@ -98,7 +98,7 @@ def ports_depend_on_params(cls: type) -> bool:
     return getattr(own, "__func__", own) is not getattr(base, "__func__", base)
 
 
-def _ports_note(cls: type) -> str | None:
+def _ports_note(cls: type[PortBasedObject]) -> str | None:
     """For a module whose ports depend on params: the note, with the sentence of its docs that says how."""
     if not ports_depend_on_params(cls):
         return None

@@ -26,6 +26,7 @@ from pbo_runtime.config.checker.model import (
     RTPU_KEYS,
     TASK_KEYS,
     TOP_KEYS,
+    TOP_REQUIRED,
     VARIABLE_KEYS,
     Checked,
     DriverLookup,
@@ -59,7 +60,41 @@ __all__ = [
 
 class _Checker(SectionChecks, DeviceChecks, VariableChecks, TaskChecks, ConfigurationChecks, ClaimChecks,
                JobChecks, TimingChecks, CheckerBase):
-    """The whole checker: the core (`CheckerBase`) with every rule, one mixin a concept."""
+    """The whole checker: the core (`CheckerBase`) with every rule, one mixin a concept, and the pass."""
+
+    def run(self, doc: Any, doc_loc: Location) -> Checked:
+        """Every rule over `doc`, in order; a broken part is left out of the rules after it."""
+        if doc is None:
+            self.error(
+                "E110",
+                "the file is empty",
+                doc_loc,
+                "a subsystem file is a mapping with keys " + ", ".join(TOP_REQUIRED),
+            )
+            return self.out
+        top = self.mapping(doc, doc_loc, "the top level", "a subsystem file is a mapping with keys " + ", ".join(TOP_REQUIRED))
+        if top is None:
+            return self.out
+        self.keys(top, TOP_KEYS, TOP_REQUIRED, "at the top level", top.loc)
+        self.check_subsystem(top)
+        self.check_dims(top)
+        self.check_rtpus(top)
+        self.check_bus(top)
+        self.check_plant(top)
+        self.check_devices(top)
+        self.check_variables(top)
+        self.check_tasks(top)
+        self.check_configurations(top)
+        self.check_jobs(top)
+        self.check_applications(top)
+        for config in self.config_members:
+            self.check_data_flow(config)
+        self.check_device_union()
+        self.check_schedulability()
+        self.check_spins()
+        self.check_const_order()
+        self.check_unused()
+        return self.out
 
 
 def check_document(

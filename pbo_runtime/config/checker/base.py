@@ -1,6 +1,7 @@
 """The checker's core: the state of one pass, how it reports a problem, the helpers that check a
-value's YAML shape (a mapping, its keys, a name, text, a flag, an integer, a quantity), and the
-pass itself, which runs the rules the mixins of this package define, in order.
+value's YAML shape (a mapping, its keys, a name, text, a flag, an integer, a quantity). The pass
+itself, which runs the rules the mixins of this package define, in order, is the whole checker's
+(`config.checker._Checker.run`).
 """
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ import difflib
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from pbo_runtime.objects import registry
-from pbo_runtime.config.checker.model import TOP_KEYS, TOP_REQUIRED, Checked, DriverLookup, ModuleLookup, _Claim, _Task
+from pbo_runtime.config.checker.model import Checked, DriverLookup, ModuleLookup, _Claim, _Task
 from pbo_runtime.config.checker.words import describe, did_you_mean
 from pbo_runtime.config.model import Location
 from pbo_runtime.errors import ConfigError
@@ -18,7 +19,7 @@ from pbo_runtime.config.yaml_nodes import YMap, location_of
 
 
 class CheckerBase:
-    """One pass over one document; `run` calls the `check_*` rules the mixins add (see `_Checker`)."""
+    """The state of one pass over one document and the helpers every rule uses."""
 
     def __init__(self, file: str, module_lookup: ModuleLookup, module_names: Callable[[], Iterable[str]] | None,
                  driver_lookup: DriverLookup | None = None) -> None:
@@ -124,41 +125,6 @@ class CheckerBase:
             self.error("E502", f"{what} must be >= 0, got: {value}", loc)
             return None
         return number
-
-    # --- the pass ---------------------------------------------------------------------------
-
-    def run(self, doc: Any, doc_loc: Location) -> Checked:
-        if doc is None:
-            self.error(
-                "E110",
-                "the file is empty",
-                doc_loc,
-                "a subsystem file is a mapping with keys " + ", ".join(TOP_REQUIRED),
-            )
-            return self.out
-        top = self.mapping(doc, doc_loc, "the top level", "a subsystem file is a mapping with keys " + ", ".join(TOP_REQUIRED))
-        if top is None:
-            return self.out
-        self.keys(top, TOP_KEYS, TOP_REQUIRED, "at the top level", top.loc)
-        self.check_subsystem(top)
-        self.check_dims(top)
-        self.check_rtpus(top)
-        self.check_bus(top)
-        self.check_plant(top)
-        self.check_devices(top)
-        self.check_variables(top)
-        self.check_tasks(top)
-        self.check_configurations(top)
-        self.check_jobs(top)
-        self.check_applications(top)
-        for config in self.config_members:
-            self.check_data_flow(config)
-        self.check_device_union()
-        self.check_schedulability()
-        self.check_spins()
-        self.check_const_order()
-        self.check_unused()
-        return self.out
 
     def section(self, top: YMap, key: str, example: str) -> YMap | None:
         """A top-level section that maps names to entries; None (and an error) if it is not one."""

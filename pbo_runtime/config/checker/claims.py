@@ -4,6 +4,8 @@ want them at once, within a configuration or across the tasks a dynamic run spaw
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from pbo_runtime.config.channels import format_channels
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.model import _Claim, _Task
@@ -12,6 +14,9 @@ from pbo_runtime.config.checker.words import _and_list
 
 class ClaimChecks(CheckerBase):
     """Rules for exclusive devices and channels: one user each."""
+
+    if TYPE_CHECKING:  # rules of other mixins this one calls; the whole checker has them
+        def ports_of(self, device: str) -> int | None: ...
 
     def claims_of(self, task: _Task) -> list[_Claim]:
         """What opening each of its resources takes: the device (its channels, or all of a port-based

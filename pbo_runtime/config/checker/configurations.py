@@ -4,6 +4,8 @@ and what no configuration or no task uses.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.model import _Binding, _Task
 from pbo_runtime.config.checker.words import _and_list, describe, did_you_mean
@@ -15,6 +17,9 @@ _JOIN_HINT = "an output has one writer; join them with a join connector (TR Figu
 
 class ConfigurationChecks(CheckerBase):
     """Rules for `configurations:`, the data flow in each, and what is left unused."""
+
+    if TYPE_CHECKING:  # rules of other mixins this one calls; the whole checker has them
+        def check_device_claims(self, config: str, members: list[_Task]) -> None: ...
 
     def check_configurations(self, top: YMap) -> None:
         for name, value, key_loc, value_loc in self.entries(top, "configurations", "configuration", "e.g. configurations: {joint_pid: [robot, pid]}"):

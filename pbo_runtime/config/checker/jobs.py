@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import graphlib
 import re
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pbo_runtime.config.checker.base import CheckerBase
+import numpy as np
 from pbo_runtime.config.checker.model import JOB_KEYS
 from pbo_runtime.config.checker.words import describe, did_you_mean
 from pbo_runtime.config.model import NOWHERE, ApplicationSpec, ApplicationStep, JobSpec, Location
@@ -17,6 +18,9 @@ from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
 
 class JobChecks(CheckerBase):
     """Rules for `jobs:` and `applications:`."""
+
+    if TYPE_CHECKING:  # rules of other mixins this one calls; the whole checker has them
+        def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str) -> np.ndarray | None: ...
 
     def check_expression(self, value: Any, loc: Location, what: str) -> str | None:
         """A job condition in the restricted language of `config.expressions`, naming declared variables."""

@@ -79,9 +79,8 @@ class SectionChecks(CheckerBase):
                         cpu = self.integer(m["cpu"], m.value_loc("cpu"), f"cpu of RTPU '{name}'", minimum=0)
                     if "spin" in m and m["spin"] is not None:
                         spin_loc = m.value_loc("spin")
-                        spin = self.quantity(m["spin"], spin_loc, TIME, f"spin of RTPU '{name}'", positive=False)
-                        if spin is None:
-                            spin = DEFAULT_SPIN
+                        given = self.quantity(m["spin"], spin_loc, TIME, f"spin of RTPU '{name}'", positive=False)
+                        spin = DEFAULT_SPIN if given is None else given
             self.rtpu_names.add(name)
             rtpus.append(RtpuSpec(name, len(rtpus), cpu, key_loc, spin, spin_loc))
         self.out.rtpus = tuple(rtpus)

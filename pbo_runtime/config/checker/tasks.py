@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pbo_runtime.config.checker.base import CheckerBase
+from pbo_runtime.config.model import PortClaim
 from pbo_runtime.config.checker.model import TASK_KEYS, _Binding, _Task
 from pbo_runtime.config.checker.words import _ms, _show_shape, describe, did_you_mean
 from pbo_runtime.config.model import Location, PortBinding, TaskSpec
@@ -16,6 +17,10 @@ from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
 
 class TaskChecks(CheckerBase):
     """Rules for `tasks:`."""
+
+    if TYPE_CHECKING:  # rules of other mixins this one calls; the whole checker has them
+        def port_claim(self, value: Any, loc: Location, what: str, owner: str, allow_name: bool) -> PortClaim | None: ...
+        def channels_exist(self, claim: PortClaim, what: str) -> bool: ...
 
     def known_modules(self) -> list[str] | None:
         if self.module_names is None:
@@ -99,7 +104,7 @@ class TaskChecks(CheckerBase):
                 item_loc = value.item_loc(i)
                 claim = self.port_claim(item, item_loc, f"resource of task '{name}'", f"task '{name}'", allow_name=True)
                 device = claim.device if claim is not None else None
-                if device is None:
+                if claim is None or device is None:
                     ok = False
                 elif device not in self.device_names:
                     self.error("E208", f"task '{name}' uses device '{device}', which 'devices' does not declare", claim.loc, did_you_mean(device, self.device_names, "declared"))

@@ -26,12 +26,12 @@ class TimingChecks(CheckerBase):
                 if task.rtpu not in shortest or task.period < shortest[task.rtpu].period:
                     shortest[task.rtpu] = task
         for rtpu in self.out.rtpus:
-            task = shortest.get(rtpu.name)
-            if task is not None and rtpu.spin >= task.period:
+            fastest = shortest.get(rtpu.name)
+            if fastest is not None and rtpu.spin >= fastest.period:
                 self.error(
                     "E509",
                     f"spin of RTPU '{rtpu.name}' must be shorter than the shortest period of its tasks "
-                    f"({_ms(task.period)}, task '{task.name}'), got: {_ms(rtpu.spin)}",
+                    f"({_ms(fastest.period)}, task '{fastest.name}'), got: {_ms(rtpu.spin)}",
                     rtpu.spin_loc,
                     "the executive sleeps until `spin` before each release and spins the rest; "
                     "the default, 200 us, hid the wake-up latency of the machine in docs/performance.md; "

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import functools
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
@@ -20,7 +20,7 @@ class VariableChecks(CheckerBase):
     def resolve_shape(self, value: Any, loc: Location, owner: str) -> tuple[int, ...] | None:
         if isinstance(value, YList):
             items: list[Any] = value
-            where = value.item_loc  # locations are worked out only for an error
+            where: Callable[[int], Location] = value.item_loc  # locations are worked out only for an error
         elif (isinstance(value, int) and not isinstance(value, bool)) or isinstance(value, str):
             items = [value]  # 'shape: 6' and 'shape: NDOF' mean one dimension
             where = lambda _index: loc  # noqa: E731

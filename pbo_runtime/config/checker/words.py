@@ -50,7 +50,7 @@ def _ms(seconds: float) -> str:
     return f"{seconds * 1e3:g} ms"
 
 
-def _show_shape(shape: Sequence[object]) -> str:
+def _show_shape(shape: Sequence[object] | None) -> str:
     if not shape:
         return "() (a scalar)"
     return "(" + ", ".join(str(d) for d in shape) + ("," if len(shape) == 1 else "") + ")"

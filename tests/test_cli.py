@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 
-import pbo_runtime
 from pbo_runtime.cli import main
 from tests.conftest import REPO
 
@@ -120,14 +119,6 @@ def test_the_committed_schema_is_what_pbo_schema_prints(capsys):
 @pytest.mark.parametrize("config", sorted((REPO / "configs").glob("*.yaml")), ids=lambda p: p.name)
 def test_every_shipped_configuration_passes_the_checker(config, capsys):
     assert main(["check", str(config)]) == 0, capsys.readouterr().err
-
-
-def test_the_public_surface_is_what_module_authors_need():
-    assert sorted(pbo_runtime.__all__) == [
-        "ConfigError", "ConfigErrors", "InBoth", "InConst", "InVar", "InternalError", "LifecycleError", "ModuleError",
-        "NoParams", "OutBoth", "OutConst", "OutVar", "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec",
-        "Status", "TableLayoutError",
-    ]
 
 
 def test_the_summary_tells_a_late_release_from_a_long_cycle():

@@ -40,10 +40,11 @@ def create_segment(name: str, size: int) -> tuple[posix_ipc.SharedMemory, mmap.m
     return shm, mapping
 
 
-def attach_segment(name: str) -> mmap.mmap:
-    shm = posix_ipc.SharedMemory(name)
+def attach_segment(name: str, read_only: bool = False) -> mmap.mmap:
+    """Map an existing segment whole (posix_ipc.ExistentialError if it is not there)."""
+    shm = posix_ipc.SharedMemory(name, read_only=read_only)
     try:
-        return mmap.mmap(shm.fd, shm.size)
+        return mmap.mmap(shm.fd, shm.size, access=mmap.ACCESS_READ if read_only else mmap.ACCESS_DEFAULT)
     finally:
         shm.close_fd()
 

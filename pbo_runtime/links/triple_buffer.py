@@ -31,8 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 import posix_ipc
 
-from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm as _shm
+from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
 from pbo_runtime.errors import PboError
 
 MAGIC = 0x5042_4F5F_5452_4942  # "PBO_TRIB"
@@ -69,6 +69,7 @@ class Word(enum.IntEnum):
 
 # The words of the per-item paths as plain ints: an enum member costs a lookup at each use.
 _NEWEST, _READING, _WRITING, _LOCK_HOLDER = int(Word.NEWEST), int(Word.READING), int(Word.WRITING), int(Word.LOCK_HOLDER)
+_LOCK_WORDS = {"holder_word": _LOCK_HOLDER, "recoveries_word": int(Word.LOCK_RECOVERIES)}
 
 
 class Role(enum.StrEnum):
@@ -213,14 +214,14 @@ class ReaderTally:
 class TripleBuffer(ReaderTally):
     """One process's end of a periodic link. `create` makes the link; `attach` opens it."""
 
-    def __init__(self, layout: LinkLayout, name: str, mapping, lock: posix_ipc.Semaphore, owner: bool) -> None:
+    def __init__(self, layout: LinkLayout, segment: LockedSegment) -> None:
         self.layout = layout
-        self.name = name
-        self.lock_name = name + ".lock"
-        self.owner = owner
+        self.name = segment.name
+        self.lock_name = segment.lock_name
         self._set_role(None)
-        self._mapping = mapping
-        self._lock = lock
+        self._segment = segment
+        self._mapping = mapping = segment.mapping
+        self._lock = segment.lock
         self._pid = os.getpid()
         # Plain memoryviews for the few words touched per item: indexing one costs a fraction of
         # a numpy scalar access, and the critical section is made of nothing else.
@@ -248,19 +249,17 @@ class TripleBuffer(ReaderTally):
 
     # --- life -------------------------------------------------------------------------------
 
+    @property
+    def owner(self) -> bool:
+        """True for the creator, whose close unlinks the segment and the lock."""
+        return self._segment.owner
+
     @classmethod
     def create(cls, name: str, layout: LinkLayout, role: Role | str | None = None) -> TripleBuffer:
         """Create the segment and its lock (both 0600, both new); optionally take one end of it."""
         role = _role(role)
-        shm, mapping = _shm.create_segment(name, layout.total_bytes)
-        try:
-            lock = posix_ipc.Semaphore(name + ".lock", posix_ipc.O_CREX, mode=0o600, initial_value=1)
-        except BaseException:
-            mapping.close()
-            shm.unlink()
-            raise
-        link = cls(layout, name, mapping, lock, owner=True)
-        h = link._header
+        link = cls(layout, LockedSegment.create(name, layout.total_bytes, **_LOCK_WORDS))
+        mapping, h = link._mapping, link._header
         h[Word.VERSION] = VERSION
         h[Word.LAYOUT_HASH] = layout.layout_hash
         h[Word.TOTAL_BYTES] = layout.total_bytes
@@ -286,20 +285,19 @@ class TripleBuffer(ReaderTally):
     def attach(cls, name: str, layout: LinkLayout, role: Role | str | None = None) -> TripleBuffer:
         """Open an existing link; a different payload fails clearly instead of corrupting it."""
         role = _role(role)
+
+        def check(mapping) -> None:
+            problem = _layout_problem(name, mapping, layout)
+            if problem:
+                raise LinkLayoutError(problem)
+
         try:
-            mapping = _shm.attach_segment(name)
+            segment = LockedSegment.attach(name, check=check, **_LOCK_WORDS)
+        except MissingLockError:
+            raise LinkError(f"link '{name}' has no lock '{name}.lock': was it half removed?") from None
         except posix_ipc.ExistentialError:
             raise LinkError(f"no link '{name}': has the subsystem that creates it started?") from None
-        problem = _layout_problem(name, mapping, layout)
-        if problem:
-            mapping.close()
-            raise LinkLayoutError(problem)
-        try:
-            lock = posix_ipc.Semaphore(name + ".lock")
-        except posix_ipc.ExistentialError:
-            mapping.close()
-            raise LinkError(f"link '{name}' has no lock '{name}.lock': was it half removed?") from None
-        link = cls(layout, name, mapping, lock, owner=False)
+        link = cls(layout, segment)
         if role is not None:
             try:
                 link._claim(role)
@@ -319,21 +317,11 @@ class TripleBuffer(ReaderTally):
             self._payloads = ()
             self._header.release()
             self._meta.release()
-            try:
-                self._mapping.close()
-            except BufferError:
-                pass  # a view from begin_write() is still alive; the unlink below still frees the name
             self._mapping = None
-            try:
-                self._lock.close()
-            except posix_ipc.ExistentialError:
-                pass
-            if self.owner:
-                self.unlink()
+            self._segment.close()  # a view from begin_write() still alive keeps the mapping, not the names
 
     def unlink(self) -> None:
-        _shm.unlink_quietly("shm", self.name)
-        _shm.unlink_quietly("sem", self.lock_name)
+        self._segment.unlink()
 
     def __enter__(self) -> TripleBuffer:
         return self
@@ -517,33 +505,15 @@ class TripleBuffer(ReaderTally):
     def _wait_for_lock(self) -> None:
         """The other side holds the lock (for its swap, microseconds) or died holding it."""
         self._contended += 1
-        while True:
-            try:
-                self._lock.acquire(LOCK_PATIENCE)
-                return
-            except posix_ipc.BusyError:
-                holder = self._header[Word.LOCK_HOLDER]
-                if holder not in (0, self._pid) and not _shm.pid_alive(holder):
-                    self.recover_lock_from(holder)
-            except posix_ipc.SignalError:
-                process.raise_if_stopping()
+        self._segment.wait_for_lock(LOCK_PATIENCE)
 
     def recover_lock_from(self, dead_pid: int, settle: float = 0.05) -> bool:
         """Release the lock if `dead_pid` died holding it; True if it was released.
 
-        As for the table (`StateTable.recover_lock_from`): the holder word is written right after
-        each acquire, so it is watched over `settle` seconds before the lock is released. The
-        swap a dead holder left half done leaves NEWEST and READING each pointing at a complete
-        slot, and a sender that takes over picks its slot afresh (`_claim`).
+        The swap a dead holder left half done leaves NEWEST and READING each pointing at a
+        complete slot, and a sender that takes over picks its slot afresh (`_claim`).
         """
-        for _ in range(5):
-            if self._lock.value > 0 or self._header[Word.LOCK_HOLDER] != dead_pid:
-                return False
-            time.sleep(settle / 5)
-        self._header[Word.LOCK_HOLDER] = 0
-        self._header[Word.LOCK_RECOVERIES] += 1
-        self._lock.release()
-        return True
+        return self._segment.recover_lock_from(dead_pid, settle)
 
 
 def link_name(subsystem: str, run_id: str, link: str) -> str:

@@ -24,11 +24,13 @@ import posix_ipc
 from rich.table import Table
 
 from pbo_runtime.ipc.control import find_live_run
+from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
 from pbo_runtime.errors import PboError, TableLayoutError
 from pbo_runtime.table.table import (
     _DTYPE_CODES,
     DIRECTORY_RECORD,
     HEADER_WORDS,
+    LOCK_WORDS,
     MAGIC,
     META_WORDS,
     NAME_BYTES,
@@ -57,12 +59,13 @@ class Entry:
 class TableView:
     """A read-only mapping of a live run's table, described by its own header and directory."""
 
-    def __init__(self, subsystem: str, run_id: str, name: str, mapping: mmap.mmap, lock: posix_ipc.Semaphore) -> None:
+    def __init__(self, subsystem: str, run_id: str, segment: LockedSegment) -> None:
         self.subsystem = subsystem
         self.run_id = run_id
-        self.name = name
-        self._mapping = mapping
-        self._lock = lock
+        self.name = name = segment.name
+        self._segment = segment
+        self._lock = segment.lock
+        mapping = segment.mapping
         header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
         self.supervisor_pid = int(header[Header.SUPERVISOR_PID])
         self.n_tasks = int(header[Header.N_TASKS])
@@ -139,21 +142,14 @@ class TableView:
         try:
             self._lock.acquire(LOCK_TIMEOUT)
         except posix_ipc.BusyError:
-            holder = int(np.frombuffer(self._mapping, dtype=np.int64, count=HEADER_WORDS)[Header.LOCK_HOLDER])
+            holder = self._segment.holder
             raise PboError(f"the table lock of '{self.subsystem}' has been held for over {LOCK_TIMEOUT:g} s "
                            f"(last taken by pid {holder}): the run is wedged") from None
 
     def close(self) -> None:
         self._values = {}
         self._words = self._status = None  # type: ignore[assignment]
-        try:
-            self._mapping.close()
-        except BufferError:
-            pass  # an array a caller kept still points into it; the mapping goes with it
-        try:
-            self._lock.close()
-        except posix_ipc.ExistentialError:
-            pass
+        self._segment.close()  # an array a caller kept still points into the mapping: it goes with it
 
     def __enter__(self) -> TableView:
         return self
@@ -170,20 +166,13 @@ def open_table(subsystem: str | None = None) -> TableView:
 
 def attach(name: str, subsystem: str = "", run_id: str = "") -> TableView:
     """Attach read-only to the table segment `name`, checking that it is a table this code can read."""
-    try:
-        shm = posix_ipc.SharedMemory(name, read_only=True)
-    except posix_ipc.ExistentialError:
-        raise TableLayoutError(f"no state variable table '{name}': the run has ended") from None
-    try:
-        if shm.size < HEADER_WORDS * 8:
-            raise TableLayoutError(f"'{name}' ({shm.size} bytes) is too small to be a pbo state variable table")
-        mapping = mmap.mmap(shm.fd, shm.size, access=mmap.ACCESS_READ)
-    finally:
-        shm.close_fd()
-    try:
+
+    def check(mapping) -> None:
+        if len(mapping) < HEADER_WORDS * 8:
+            raise TableLayoutError(f"'{name}' ({len(mapping)} bytes) is too small to be a pbo state variable table")
         header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
         magic, version, total = int(header[Header.MAGIC]), int(header[Header.VERSION]), int(header[Header.TOTAL_BYTES])
-        del header
+        del header  # no view may outlive a mapping the segment closes
         if magic != MAGIC:
             raise TableLayoutError(f"'{name}' is not a pbo state variable table (magic {magic:#x}, expected {MAGIC:#x}); "
                                    f"if its run is starting, try again in a moment")
@@ -192,21 +181,17 @@ def attach(name: str, subsystem: str = "", run_id: str = "") -> TableView:
                                    f"use the pbo that started the run")
         if not 0 < total <= len(mapping):
             raise TableLayoutError(f"table '{name}' says it has {total} bytes, its segment has {len(mapping)}")
-        lock = posix_ipc.Semaphore(name + ".lock")
-    except posix_ipc.ExistentialError:
-        mapping.close()
-        raise TableLayoutError(f"table '{name}' has no lock '{name}.lock': the run has ended") from None
-    except BaseException:
-        mapping.close()
-        raise
+
     try:
-        return TableView(subsystem or _part(name, 1), run_id or _part(name, 2), name, mapping, lock)
+        segment = LockedSegment.attach(name, check=check, read_only=True, **LOCK_WORDS)
+    except MissingLockError:
+        raise TableLayoutError(f"table '{name}' has no lock '{name}.lock': the run has ended") from None
+    except posix_ipc.ExistentialError:
+        raise TableLayoutError(f"no state variable table '{name}': the run has ended") from None
+    try:
+        return TableView(subsystem or _part(name, 1), run_id or _part(name, 2), segment)
     except BaseException:
-        try:
-            mapping.close()
-        except BufferError:
-            pass
-        lock.close()
+        segment.close()
         raise
 
 

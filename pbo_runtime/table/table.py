@@ -27,14 +27,13 @@ from __future__ import annotations
 import enum
 import hashlib
 import os
-import time
 from dataclasses import dataclass
 from typing import Iterable
 
 import numpy as np
 import posix_ipc
 
-from pbo_runtime.ipc import shm as _shm
+from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
 from pbo_runtime.config.model import Subsystem, VariableSpec
 from pbo_runtime.errors import InternalError, TableLayoutError
 
@@ -217,16 +216,19 @@ class TableLayout:
         raise KeyError(name)
 
 
+LOCK_WORDS = {"holder_word": int(Header.LOCK_HOLDER), "recoveries_word": int(Header.LOCK_RECOVERIES)}  # the segment's lock words
+
+
 class StateTable:
     """One mapping of the table. The supervisor creates it; RTPUs and tools attach to it."""
 
-    def __init__(self, layout: TableLayout, name: str, mapping, lock: posix_ipc.Semaphore, owner: bool) -> None:
+    def __init__(self, layout: TableLayout, segment: LockedSegment) -> None:
         self.layout = layout
-        self.name = name
-        self.lock_name = name + ".lock"
-        self._mapping = mapping
-        self.lock = lock
-        self.owner = owner
+        self.name = segment.name
+        self.lock_name = segment.lock_name
+        self._segment = segment
+        self._mapping = mapping = segment.mapping
+        self.lock = segment.lock  # the transfers bind its acquire and release once (`task.transfer`)
         self.header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
         self._views = {code: np.frombuffer(mapping, dtype=code, count=layout.total_bytes // np.dtype(code).itemsize) for code in _DTYPE_CODES}
         self.words = self._views["float64"]
@@ -239,17 +241,19 @@ class StateTable:
 
     # --- life -------------------------------------------------------------------------------
 
+    @property
+    def owner(self) -> bool:
+        """True for the creator, whose close unlinks the segment and the lock."""
+        return self._segment.owner
+
+    @owner.setter
+    def owner(self, owner: bool) -> None:
+        self._segment.owner = owner
+
     @classmethod
     def create(cls, layout: TableLayout, name: str, manifest: Iterable[str] = ()) -> StateTable:
         """Create the segment and its lock (both 0600, both new) and fill the header."""
-        shm, mapping = _shm.create_segment(name, layout.total_bytes)
-        try:
-            lock = posix_ipc.Semaphore(name + ".lock", posix_ipc.O_CREX, mode=0o600, initial_value=1)
-        except BaseException:
-            mapping.close()
-            shm.unlink()
-            raise
-        table = cls(layout, name, mapping, lock, owner=True)
+        table = cls(layout, LockedSegment.create(name, layout.total_bytes, **LOCK_WORDS))
         h = table.header
         h[Header.VERSION] = VERSION
         h[Header.LAYOUT_HASH] = layout.layout_hash
@@ -272,45 +276,35 @@ class StateTable:
     @classmethod
     def attach(cls, layout: TableLayout, name: str) -> StateTable:
         """Attach to a running table; a different layout fails clearly instead of corrupting it."""
+
+        def check(mapping) -> None:
+            header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
+            magic, version, found_hash, total = (int(header[i]) for i in (Header.MAGIC, Header.VERSION, Header.LAYOUT_HASH, Header.TOTAL_BYTES))
+            del header  # no view may outlive a mapping the segment closes
+            if magic != MAGIC or version != VERSION:
+                raise TableLayoutError(f"'{name}' is not a pbo state variable table of version {VERSION}")
+            if found_hash != layout.layout_hash or total != layout.total_bytes:
+                raise TableLayoutError(
+                    f"table '{name}' has another variable layout (hash {found_hash:#x}, this process expects "
+                    f"{layout.layout_hash:#x}): was the YAML file changed after the run started?"
+                )
+
         try:
-            mapping = _shm.attach_segment(name)
+            segment = LockedSegment.attach(name, check=check, **LOCK_WORDS)
+        except MissingLockError:
+            raise  # the segment is there: say so, not that the run is missing
         except posix_ipc.ExistentialError:
             raise TableLayoutError(f"no state variable table '{name}': is the subsystem running?") from None
-        header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
-        magic, version, found_hash, total = (int(header[i]) for i in (Header.MAGIC, Header.VERSION, Header.LAYOUT_HASH, Header.TOTAL_BYTES))
-        del header  # no view may outlive a mapping we close
-        problem = ""
-        if magic != MAGIC or version != VERSION:
-            problem = f"'{name}' is not a pbo state variable table of version {VERSION}"
-        elif found_hash != layout.layout_hash or total != layout.total_bytes:
-            problem = (
-                f"table '{name}' has another variable layout (hash {found_hash:#x}, this process expects "
-                f"{layout.layout_hash:#x}): was the YAML file changed after the run started?"
-            )
-        if problem:
-            mapping.close()
-            raise TableLayoutError(problem)
-        lock = posix_ipc.Semaphore(name + ".lock")
-        return cls(layout, name, mapping, lock, owner=False)
+        return cls(layout, segment)
 
     def close(self) -> None:
         """Unmap (and, for the creator, unlink the segment and the lock)."""
         self.header = self.words = self.status = self.devices = None  # type: ignore[assignment]
         self._views = {}
-        try:
-            self._mapping.close()
-        except BufferError:
-            pass  # a view still alive elsewhere keeps the mapping; the unlink below still frees the name
-        try:
-            self.lock.close()
-        except posix_ipc.ExistentialError:
-            pass
-        if self.owner:
-            self.unlink()
+        self._segment.close()
 
     def unlink(self) -> None:
-        _shm.unlink_quietly("shm", self.name)
-        _shm.unlink_quietly("sem", self.lock_name)
+        self._segment.unlink()
 
     # --- directory and manifest -------------------------------------------------------------
 
@@ -349,20 +343,8 @@ class StateTable:
         self.lock.release()
 
     def recover_lock_from(self, dead_pid: int, settle: float = 0.05) -> bool:
-        """Release the lock if `dead_pid` died holding it (DESIGN §4); True if it was released.
-
-        The holder word is written right after each acquire, so a live process that took the
-        lock after the dead one would have overwritten it within microseconds: the word is
-        checked over `settle` seconds before the lock is released.
-        """
-        for _ in range(5):
-            if self.lock.value > 0 or int(self.header[Header.LOCK_HOLDER]) != dead_pid:
-                return False
-            time.sleep(settle / 5)
-        self.header[Header.LOCK_HOLDER] = 0
-        self.header[Header.LOCK_RECOVERIES] += 1
-        self.lock.release()
-        return True
+        """Release the lock if `dead_pid` died holding it (DESIGN §4); True if it was released."""
+        return self._segment.recover_lock_from(dead_pid, settle)
 
     @property
     def flags(self) -> Flag:

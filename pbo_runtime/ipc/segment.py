@@ -1,0 +1,168 @@
+"""A POSIX shared-memory segment with its process-shared lock: what the state table and a periodic link are made of.
+
+The segment `<name>` and its lock `<name>.lock` (a semaphore of initial value 1) are created
+together, both 0600 and both new, and the creator unlinks both when it closes. Two int64 words of
+the segment's header belong to the lock: `holder_word`, the pid of its last holder, written right
+after every acquire, and `recoveries_word`, how many times a lock whose holder died was released.
+Where they lie is the user's layout (`table.table`, `links.triple_buffer`); what they mean is here.
+
+A holder that dies holding the lock must not wedge the others (DESIGN §4): `recover_lock_from`
+releases it when the holder word still names the dead pid, and `wait_for_lock` does that by itself
+for a waiter that finds the holder dead. The per-cycle paths take `lock` and their header view
+directly; nothing here stands between them and the semaphore.
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+import time
+from typing import Callable
+
+import posix_ipc
+
+from pbo_runtime.ipc import process
+from pbo_runtime.ipc import shm
+
+Check = Callable[[mmap.mmap | memoryview], None]  # raises when a mapped segment is not what its user expects
+
+
+class MissingLockError(posix_ipc.ExistentialError):
+    """The segment is there, its lock is not: it is half removed (its run is ending or crashed)."""
+
+
+class LockedSegment:
+    """One mapping of a segment and its lock. `create` makes both; `attach` opens them."""
+
+    def __init__(self, name: str, mapping: mmap.mmap, lock: posix_ipc.Semaphore, owner: bool, *,
+                 holder_word: int, recoveries_word: int) -> None:
+        self.name = name
+        self.lock_name = name + ".lock"
+        self.mapping = mapping
+        self.lock = lock
+        self.owner = owner  # the creator: its close unlinks the segment and the lock
+        self.holder_word = holder_word
+        self.recoveries_word = recoveries_word
+        self.words = memoryview(mapping)[: (max(holder_word, recoveries_word) + 1) * 8].cast("q")
+        self._pid = os.getpid()
+
+    @classmethod
+    def create(cls, name: str, size: int, *, holder_word: int, recoveries_word: int) -> LockedSegment:
+        """Create the segment (zeroed) and its lock, both 0600 and both new."""
+        shm_object, mapping = shm.create_segment(name, size)
+        try:
+            lock = posix_ipc.Semaphore(name + ".lock", posix_ipc.O_CREX, mode=0o600, initial_value=1)
+        except BaseException:
+            mapping.close()
+            shm_object.unlink()
+            raise
+        return cls(name, mapping, lock, owner=True, holder_word=holder_word, recoveries_word=recoveries_word)
+
+    @classmethod
+    def attach(cls, name: str, *, holder_word: int, recoveries_word: int, check: Check | None = None,
+               read_only: bool = False) -> LockedSegment:
+        """Map an existing segment, let `check` refuse it, then open its lock.
+
+        posix_ipc.ExistentialError if there is no segment `name`, MissingLockError if it has no
+        lock; whatever `check` raises if the mapping (empty for a segment being created) is not
+        what the caller expects. A read-only mapping serves tools that never write.
+        """
+        try:
+            mapping = shm.attach_segment(name, read_only=read_only)
+        except ValueError:  # an empty segment cannot be mapped: its creator has not sized it yet
+            if check is not None:
+                check(memoryview(b""))
+            raise
+        try:
+            if check is not None:
+                check(mapping)
+            try:
+                lock = posix_ipc.Semaphore(name + ".lock")
+            except posix_ipc.ExistentialError:
+                raise MissingLockError(f"segment '{name}' has no lock '{name}.lock'") from None
+        except BaseException:
+            mapping.close()
+            raise
+        return cls(name, mapping, lock, owner=False, holder_word=holder_word, recoveries_word=recoveries_word)
+
+    # --- the lock -----------------------------------------------------------------------------
+
+    def acquire(self) -> None:
+        """Take the lock, waiting as long as it takes, and sign the holder word."""
+        self.lock.acquire()
+        self.words[self.holder_word] = self._pid
+
+    def release(self) -> None:
+        self.lock.release()
+
+    @property
+    def holder(self) -> int:
+        """The pid of the lock's last holder (0: none yet, or its lock was recovered)."""
+        return self.words[self.holder_word]
+
+    @property
+    def recoveries(self) -> int:
+        return self.words[self.recoveries_word]
+
+    def wait_for_lock(self, patience: float) -> None:
+        """Take the lock, which another process holds or held when it died; the caller signs it.
+
+        Every `patience` seconds of the wait the holder is looked at: a dead one's lock is
+        released (`recover_lock_from`) and taken. A stop requested meanwhile is raised.
+        """
+        lock, words, holder_word = self.lock, self.words, self.holder_word
+        while True:
+            try:
+                lock.acquire(patience)
+                return
+            except posix_ipc.BusyError:
+                holder = words[holder_word]
+                if holder not in (0, self._pid) and not shm.pid_alive(holder):
+                    self.recover_lock_from(holder)
+            except posix_ipc.SignalError:
+                process.raise_if_stopping()
+
+    def recover_lock_from(self, dead_pid: int, settle: float = 0.05) -> bool:
+        """Release the lock if `dead_pid` died holding it (DESIGN §4); True if it was released.
+
+        The holder word is written right after each acquire, so a live process that took the
+        lock after the dead one would have overwritten it within microseconds: the word is
+        checked over `settle` seconds before the lock is released.
+        """
+        lock, words = self.lock, self.words
+        for _ in range(5):
+            if lock.value > 0 or words[self.holder_word] != dead_pid:
+                return False
+            time.sleep(settle / 5)
+        words[self.holder_word] = 0
+        words[self.recoveries_word] += 1
+        lock.release()
+        return True
+
+    # --- life ---------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Unmap and close the lock (and, for the creator, unlink both). Twice is harmless.
+
+        The user drops its own views first; one still alive elsewhere keeps the mapping until
+        it goes, and the unlink still frees the names.
+        """
+        if self.mapping is None:
+            return
+        self.words.release()
+        try:
+            self.mapping.close()
+        except BufferError:
+            pass
+        self.mapping = None  # type: ignore[assignment]
+        try:
+            self.lock.close()
+        except posix_ipc.ExistentialError:
+            pass
+        if self.owner:
+            self.unlink()
+
+    def unlink(self) -> None:
+        """Remove the names of the segment and the lock (whoever still maps them keeps them)."""
+        shm.unlink_quietly("shm", self.name)
+        shm.unlink_quietly("sem", self.lock_name)

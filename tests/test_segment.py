@@ -6,14 +6,17 @@ import os
 import stat
 import subprocess
 import sys
+import threading
 
 import posix_ipc
 import pytest
 
 from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
+from pbo_runtime.ipc.shm import pid_alive
 from tests.conftest import unique_name
 
 WORDS = {"holder_word": 1, "recoveries_word": 2}
+SAFETY_NET = 60.0  # seconds: a waiter that never takes the lock fails instead of hanging the suite
 
 
 def dead_pid() -> int:
@@ -127,3 +130,36 @@ def test_a_waiter_takes_over_the_lock_of_a_dead_holder(segment):
     segment.wait_for_lock(0.001)
     assert segment.lock.value == 0 and segment.recoveries == 1
     segment.release()
+
+
+def test_a_zombie_is_dead_and_so_are_pids_that_name_no_process():
+    # Regression (issue 17): two liveness checks disagreed on a zombie (dead, not yet reaped),
+    # so the lock of a zombie holder was never recovered.
+    child = os.fork()
+    if child == 0:
+        os._exit(0)
+    try:
+        os.waitid(os.P_PID, child, os.WEXITED | os.WNOWAIT)  # it has died; it stays a zombie until reaped
+        assert not pid_alive(child)
+    finally:
+        os.waitpid(child, 0)
+    assert not pid_alive(child) and not pid_alive(0) and not pid_alive(-1)
+    assert pid_alive(os.getpid()) and pid_alive(1)
+
+
+def test_a_waiter_takes_over_the_lock_of_a_zombie_holder(segment):
+    # Regression (issue 17): the waiter looked at a zombie holder and waited on.
+    child = os.fork()
+    if child == 0:
+        LockedSegment.attach(segment.name, **WORDS).acquire()  # its own mapping, signed with its own pid
+        os._exit(0)
+    try:
+        os.waitid(os.P_PID, child, os.WEXITED | os.WNOWAIT)
+        assert segment.holder == child and segment.lock.value == 0
+        waiting = threading.Thread(target=segment.wait_for_lock, args=(0.001,), daemon=True)
+        waiting.start()
+        waiting.join(SAFETY_NET)
+        assert not waiting.is_alive() and segment.recoveries == 1
+        segment.release()
+    finally:
+        os.waitpid(child, 0)

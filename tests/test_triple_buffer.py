@@ -18,6 +18,7 @@ import multiprocessing
 import os
 import random
 import stat
+import threading
 import time
 
 import numpy as np
@@ -389,6 +390,29 @@ def test_a_sender_taking_over_from_one_that_died_mid_swap_picks_a_free_slot():
             assert sender._writing not in (h[Word.NEWEST], h[Word.READING])
             assert sender.write(np.full(4, 5)) == 2  # it goes on from the dead sender's counter
         assert reader.read() is Freshness.NEW and (reader.value == 5).all()
+
+
+@pytest.mark.multiprocess
+def test_a_lock_whose_holder_is_a_zombie_is_recovered_by_the_other_side():
+    # Regression (issue 17): ipc.shm.pid_alive counted a zombie (dead, not yet reaped) as alive, so
+    # the reader waited for ever on the lock of a sender whose parent had not reaped it yet.
+    name = unique_name("link")
+    layout = LinkLayout("int64", (4,))
+    with TripleBuffer.create(name, layout, "reader") as reader:
+        child = FORK.Process(target=_exit_holding, args=(name, layout, "sender", True))
+        child.start()
+        try:
+            os.waitid(os.P_PID, child.pid, os.WEXITED | os.WNOWAIT)  # it has died; nobody reaps it yet
+            got: list[Freshness] = []
+            reading = threading.Thread(target=lambda: got.append(reader.read()), daemon=True)
+            reading.start()
+            reading.join(SAFETY_NET)
+            assert got == [Freshness.NEW] and (reader.value == 2).all()
+            assert reader.statistics().lock_recoveries == 1
+            with TripleBuffer.attach(name, layout, "sender") as sender:  # the zombie's role is free as well
+                sender.write(np.full(4, 3))
+        finally:
+            child.join(SAFETY_NET)
 
 
 def _hammer_sender(name: str, n_items: int, pause_probability: float, max_pause: float, seed: int, progress) -> None:

@@ -64,13 +64,26 @@ def unlink_quietly(kind: str, name: str) -> bool:
 
 
 def pid_alive(pid: int) -> bool:
+    """True while process `pid` runs. A zombie (dead, not yet reaped by its parent) is dead.
+
+    The one liveness check of the runtime: a lock, a device or a link role whose holder is a
+    zombie is recovered like that of a process that is gone.
+    """
+    if pid <= 0:
+        return False  # 0 and negative pids name process groups, never a holder
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
-        return True
-    return True
+        pass  # it exists, under another user
+    try:
+        stat = (Path("/proc") / str(pid) / "stat").read_text()
+    except FileNotFoundError:
+        return False  # it was reaped between the two looks
+    except OSError:
+        return True  # no /proc here: the signal's answer stands
+    return stat.rsplit(")", 1)[-1].split()[0] not in ("Z", "X")  # the state follows the command name
 
 
 def stale_objects(subsystem: str | None = None) -> list[tuple[str, str]]:

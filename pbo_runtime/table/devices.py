@@ -26,13 +26,13 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Callable
 
 from pbo_runtime.objects import registry
 from pbo_runtime.config.channels import channels_of, format_channels, mask_of
 from pbo_runtime.config.model import DeviceSpec, Subsystem, TaskSpec
 from pbo_runtime.errors import PboError
+from pbo_runtime.ipc.shm import pid_alive
 from pbo_runtime.table.table import DEVICE_HOLDERS, Holder, StateTable
 
 DriverLookup = Callable[[str], Any]
@@ -215,7 +215,7 @@ class DeviceDatabase:
             held = int(record[Holder.MASK])
             if not (opening.device.exclusive or record[Holder.EXCLUSIVE] or held & mask):
                 continue
-            if not _alive(int(record[Holder.PID])):
+            if not pid_alive(int(record[Holder.PID])):
                 record[:] = 0  # its RTPU died with the task: recover the device
                 continue
             found.append(self._describe(d, record))
@@ -277,19 +277,3 @@ class DeviceDatabase:
             opened=self._names[opened] if 0 <= opened < len(self._names) else self._names[d],
         )
 
-
-def _alive(pid: int) -> bool:
-    """True while process `pid` runs (a zombie, dead but not yet reaped, counts as dead)."""
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return True
-    return stat.rsplit(")", 1)[-1].split()[0] != "Z"

@@ -10,7 +10,8 @@ import posix_ipc
 import pytest
 
 from pbo_runtime import InVar, OutVar, PortBasedObject, TableLayoutError
-from pbo_runtime.table.table import Header, StateTable, TableLayout
+from pbo_runtime.table.directory import DIRECTORY_RECORD, Entry, read_directory
+from pbo_runtime.table.table import HEADER_WORDS, Header, StateTable, TableLayout
 from pbo_runtime.task.transfer import LocalTable
 from tests.conftest import task_spec, unique_name, variables
 
@@ -64,6 +65,26 @@ def test_variables_are_aligned_and_do_not_overlap():
     assert all(start % 8 == 0 for start, _ in spans)
     assert all(end <= nxt for (_, end), (nxt, _) in zip(spans, spans[1:]))
     assert layout.status_offset >= spans[-1][1]
+
+
+def test_the_directory_reads_back_every_variable_as_the_layout_placed_it(make_table):
+    long_name = "v" * 60  # longer than a record's name field: cut, as every reader sees it
+    table = make_table(variables(("q_m", "float64", (6,)), ("n", "int32", ()), ("J", "float32", (6, 7)),
+                                 ("flags", "bool", (2, 3, 4, 1)), (long_name, "uint8", (3,))))
+    h = table.header
+    found = read_directory(table.name, table._mapping, int(h[Header.N_VARIABLES]), int(h[Header.DIRECTORY_OFFSET]),
+                           int(h[Header.TOTAL_BYTES]), HEADER_WORDS * 8)
+    assert list(found.values()) == [Entry(s.name[:48], s.dtype, s.shape, s.meta_word, s.data_byte, s.nbytes)
+                                    for s in table.layout.slots]
+
+
+def test_a_directory_record_with_a_dtype_no_table_holds_is_refused(make_table):
+    table = make_table(VARS)
+    offset = table.layout.directory_offset
+    record = bytearray(table._mapping[offset : offset + DIRECTORY_RECORD])
+    record[48:64] = b"complex128".ljust(16, b"\0")
+    with pytest.raises(TableLayoutError, match=r"^table 'T', directory record 0 \('a'\): dtype 'complex128' is not one a table holds \(float64, "):
+        read_directory("T", bytes(record), 1, 0, DIRECTORY_RECORD, 0)
 
 
 def test_job_control_write_stamps_sequence_time_and_writer(make_table):

@@ -13,10 +13,8 @@ directory's own consistency (offsets inside the segment, sizes matching shapes) 
 from __future__ import annotations
 
 import math
-import mmap
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -26,14 +24,11 @@ from rich.table import Table
 from pbo_runtime.ipc.control import find_live_run
 from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
 from pbo_runtime.errors import PboError, TableLayoutError
+from pbo_runtime.table.directory import META_WORDS, Entry, read_directory
 from pbo_runtime.table.table import (
-    _DTYPE_CODES,
-    DIRECTORY_RECORD,
     HEADER_WORDS,
     LOCK_WORDS,
     MAGIC,
-    META_WORDS,
-    NAME_BYTES,
     STATUS_WORDS,
     VERSION,
     Header,
@@ -42,18 +37,6 @@ from pbo_runtime.table.table import (
 )
 
 LOCK_TIMEOUT = 1.0  # seconds: a task holds the lock for microseconds; a second means it is wedged
-
-
-@dataclass(frozen=True)
-class Entry:
-    """One variable as the table's directory describes it."""
-
-    name: str
-    dtype: np.dtype
-    shape: tuple[int, ...]
-    meta_word: int
-    data_byte: int
-    nbytes: int
 
 
 class TableView:
@@ -69,7 +52,8 @@ class TableView:
         header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
         self.supervisor_pid = int(header[Header.SUPERVISOR_PID])
         self.n_tasks = int(header[Header.N_TASKS])
-        self._entries = _read_directory(name, mapping, header)
+        self._entries = read_directory(name, mapping, int(header[Header.N_VARIABLES]), int(header[Header.DIRECTORY_OFFSET]),
+                                       int(header[Header.TOTAL_BYTES]), HEADER_WORDS * 8)
         status_offset = int(header[Header.STATUS_OFFSET])
         total = int(header[Header.TOTAL_BYTES])
         del header
@@ -205,34 +189,6 @@ def _write_time(seq: int, when: float, writer: int) -> float | None:
 def _part(name: str, index: int) -> str:
     parts = name.lstrip("/").split(".")
     return parts[index] if len(parts) > index else ""
-
-
-def _read_directory(name: str, mapping: mmap.mmap, header: np.ndarray) -> dict[str, Entry]:
-    count, offset, total = int(header[Header.N_VARIABLES]), int(header[Header.DIRECTORY_OFFSET]), int(header[Header.TOTAL_BYTES])
-    if count < 0 or offset < HEADER_WORDS * 8 or offset + count * DIRECTORY_RECORD > total:
-        raise TableLayoutError(f"table '{name}': its directory ({count} records at byte {offset}) lies outside the segment")
-    entries: dict[str, Entry] = {}
-    for i in range(count):
-        base = offset + i * DIRECTORY_RECORD
-        record = bytes(mapping[base : base + DIRECTORY_RECORD])
-        var = record[:NAME_BYTES].split(b"\0", 1)[0].decode(errors="replace")
-        code = record[NAME_BYTES:64].split(b"\0", 1)[0].decode(errors="replace")
-        ints = np.frombuffer(record[64:], dtype=np.int64)
-        ndim, shape, meta_word, data_byte, nbytes = int(ints[0]), tuple(int(n) for n in ints[1 : 1 + min(max(int(ints[0]), 0), 4)]), \
-            int(ints[5]), int(ints[6]), int(ints[7])
-        where = f"table '{name}', directory record {i} ('{var}')"
-        if code not in _DTYPE_CODES:
-            raise TableLayoutError(f"{where}: dtype '{code}' is not one a table holds ({', '.join(_DTYPE_CODES)})")
-        dtype = np.dtype(code)
-        if not 0 <= ndim <= 4 or any(n < 0 for n in shape):
-            raise TableLayoutError(f"{where}: shape {shape} of {ndim} dimensions is not valid")
-        if nbytes != int(np.prod(shape, dtype=np.int64)) * dtype.itemsize:
-            raise TableLayoutError(f"{where}: {nbytes} bytes do not hold a {dtype.name} array of shape {shape}")
-        if not (0 <= meta_word and (meta_word + META_WORDS) * 8 <= total and data_byte % dtype.itemsize == 0
-                and 0 <= data_byte and data_byte + nbytes <= total):
-            raise TableLayoutError(f"{where}: its offsets (metadata word {meta_word}, data byte {data_byte}) lie outside the segment")
-        entries[var] = Entry(var, dtype, shape, meta_word, data_byte, nbytes)
-    return entries
 
 
 # --- what `pbo svar` shows ------------------------------------------------------------------

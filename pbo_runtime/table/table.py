@@ -3,7 +3,7 @@
 Layout of the segment, all offsets multiples of 8 bytes:
 
     header        HEADER_WORDS int64: magic, version, layout hash, flags, lock holder pid, ...
-    directory     one DIRECTORY_RECORD per variable: name, dtype, shape, offsets (for tools)
+    directory     one DIRECTORY_RECORD per variable: name, dtype, shape, offsets (for tools: `table.directory`)
     manifest      names of every object of the run, so a later run can clean up after a crash
     variables     per variable: 3 float64 metadata words (writer, sequence, write time) + data
     task status   STATUS_WORDS float64 per task: state, cycles, overruns, timing counters
@@ -36,14 +36,13 @@ import posix_ipc
 from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
 from pbo_runtime.config.model import Subsystem, VariableSpec
 from pbo_runtime.errors import InternalError, TableLayoutError
+from pbo_runtime.table.directory import DIRECTORY_RECORD, DTYPE_CODES, META_WORDS, Entry, write_directory
 
 MAGIC = 0x5042_4F5F_5441_424C  # "PBO_TABL"
 VERSION = 1
 HEADER_WORDS = 64
-DIRECTORY_RECORD = 128  # bytes: name[48] dtype[16] ndim shape[4] word offset, data byte offset, nbytes
-NAME_BYTES = 48
 MANIFEST_BYTES = 4096
-META_WORDS = 3  # writer task index (-1: job control), then job control's sequence and write time
+# META_WORDS (`table.directory`): writer task index (-1: job control), then job control's sequence and write time
 STATUS_WORDS = 16  # per task in the table (room to grow without a layout change)
 DEVICE_HOLDERS = 8  # per device: how many opens of it (by tasks, or through a sensor's io:) may be held at once
 HOLDER_WORDS = 5  # per holder record, uint64: see `Holder`
@@ -132,9 +131,6 @@ class TaskState(enum.IntEnum):
     KILLED = 5
 
 
-_DTYPE_CODES = ("float64", "float32", "int64", "int32", "int16", "int8", "uint8", "uint16", "uint32", "uint64", "bool")
-
-
 @dataclass(frozen=True)
 class VariableSlot:
     """Where one variable lives in the segment."""
@@ -189,7 +185,7 @@ class TableLayout:
         slots = []
         for index, var in enumerate(variables):
             dtype = np.dtype(var.dtype)
-            if dtype.name not in _DTYPE_CODES:
+            if dtype.name not in DTYPE_CODES:
                 raise TableLayoutError(f"variable '{var.name}': dtype {dtype.name} cannot live in the table")
             meta_word = cursor // 8
             cursor += META_WORDS * 8
@@ -230,7 +226,7 @@ class StateTable:
         self._mapping = mapping = segment.mapping
         self.lock = segment.lock  # the transfers bind its acquire and release once (`task.transfer`)
         self.header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
-        self._views = {code: np.frombuffer(mapping, dtype=code, count=layout.total_bytes // np.dtype(code).itemsize) for code in _DTYPE_CODES}
+        self._views = {code: np.frombuffer(mapping, dtype=code, count=layout.total_bytes // np.dtype(code).itemsize) for code in DTYPE_CODES}
         self.words = self._views["float64"]
         status = layout.status_offset // 8
         self.status = self.words[status : status + STATUS_WORDS * max(layout.n_tasks, 1)].reshape(-1, STATUS_WORDS)
@@ -309,17 +305,8 @@ class StateTable:
     # --- directory and manifest -------------------------------------------------------------
 
     def _write_directory(self) -> None:
-        raw = np.frombuffer(self._mapping, dtype=np.uint8, count=self.layout.total_bytes)
-        for i, s in enumerate(self.layout.slots):
-            base = self.layout.directory_offset + i * DIRECTORY_RECORD
-            record = np.zeros(DIRECTORY_RECORD, dtype=np.uint8)
-            name = s.name.encode()[:NAME_BYTES]
-            record[: len(name)] = np.frombuffer(name, dtype=np.uint8)
-            dtype = s.dtype.name.encode()
-            record[NAME_BYTES : NAME_BYTES + len(dtype)] = np.frombuffer(dtype, dtype=np.uint8)
-            ints = np.array([len(s.shape), *(list(s.shape) + [0] * (4 - len(s.shape)))[:4], s.meta_word, s.data_byte, s.nbytes], dtype=np.int64)
-            record[64 : 64 + ints.nbytes] = np.frombuffer(ints.tobytes(), dtype=np.uint8)
-            raw[base : base + DIRECTORY_RECORD] = record
+        entries = (Entry(s.name, s.dtype, s.shape, s.meta_word, s.data_byte, s.nbytes) for s in self.layout.slots)
+        write_directory(self._mapping, self.layout.directory_offset, entries)
 
     def set_manifest(self, names: Iterable[str]) -> None:
         text = "\n".join(names).encode()

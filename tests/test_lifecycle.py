@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from pbo_runtime import InBoth, InConst, InVar, LifecycleError, OutBoth, OutConst, OutVar, PortBasedObject, Status
+from pbo_runtime.objects.module import TaskContext
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import TaskState
 from tests.conftest import task_spec, variables
@@ -234,3 +235,9 @@ def test_a_cycle_that_returns_a_fault_reports_its_reason(table):
     task.turn_on(0.0)
     assert task.run_cycle(0.001) is Status.ERROR
     assert task.last_error == "cycle returned ERROR: the goal has 2 values, got 5"
+
+
+def test_a_tasks_context_is_the_task_context_modules_see(table):
+    task = make_task(table)
+    assert isinstance(task.context, TaskContext)
+    assert task.module._pbo_context is task.context

@@ -33,16 +33,22 @@ class NoParams:
     """The parameters of a module that takes none."""
 
 
+@typing.runtime_checkable
 class TaskContext(typing.Protocol):
-    """What a running task may ask of the runtime, besides its ports."""
+    """What a running task may ask of the runtime, besides its ports: what a module sees through
+    `PortBasedObject`'s properties and methods. The runtime's own is `task.lifecycle.RuntimeTaskContext`."""
 
     task_name: str
-    period: float
-    dims: dict[str, int]
-    resources: tuple[str, ...]
-    time: float
+    period: float  # seconds
+    dims: dict[str, int]  # the subsystem's named dimensions
+    resources: tuple[str, ...]  # the devices the task may open
+    time: float  # the current cycle's release time, seconds on the run's clock
+    event: Any  # an aperiodic task's event this cycle (None if none)
+    out_dir: str  # `pbo run --out DIR`, or "" when paths stay as given
 
     def open_device(self, name: str) -> Any: ...
+
+    def open_link(self, name: str, like: np.ndarray, role: str) -> Any: ...
 
 
 class PortBasedObject:

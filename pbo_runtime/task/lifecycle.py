@@ -17,6 +17,8 @@ import traceback
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+import numpy as np
+
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.errors import LifecycleError, ModuleError
 from pbo_runtime.objects.module import PortBasedObject, Status
@@ -29,8 +31,9 @@ Relay = Callable[[str, Any], Any]  # (task, a message link's receiving end) -> s
 
 
 @dataclass
-class TaskContext:
-    """What a module may ask of the runtime; `time` is the current cycle's release time."""
+class RuntimeTaskContext:
+    """The runtime's `objects.module.TaskContext` for one task, with what the task keeps of its own:
+    the devices and link ends it opened (closed when it is killed), and how it opens them."""
 
     task_name: str
     period: float
@@ -45,7 +48,7 @@ class TaskContext:
     links: dict[str, dict[str, Any]] = field(default_factory=dict)  # the application's links, by name
     relay: Relay | None = None  # the RTPU's: wakes this task per message of a link it serves
 
-    def open_link(self, name: str, like: Any, role: str) -> Any:
+    def open_link(self, name: str, like: np.ndarray, role: str) -> Any:
         """One end of an application's link, carrying items shaped like the array `like`.
 
         role 'server' (a message link's receiving end): from then on each message releases this
@@ -104,9 +107,9 @@ class Task:
         self.cycles = 0
         self.errors = 0
         self._device_opener = opener
-        self.context = TaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}),
-                                   self.open_device if opener is not None else None,
-                                   out_dir=out_dir, links=dict(links or {}), relay=relay)
+        self.context = RuntimeTaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}),
+                                          self.open_device if opener is not None else None,
+                                          out_dir=out_dir, links=dict(links or {}), relay=relay)
         self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
         self.status = self.local.status
         self.status[StatusWord.CYCLES] = 0

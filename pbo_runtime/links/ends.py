@@ -13,48 +13,66 @@ Roles: a periodic link has a 'sender' and a 'reader'; a message link a 'sender' 
 
 The payload the task's port carries must be the link's: a mismatch is refused with both sides
 named (the application checker reports it before anything runs; this is the runtime's guard).
+
+`OPENERS` maps each transport to its openers, one per kind of link: adding a transport is one
+entry there (and its name in `links.spec.TRANSPORTS`, which a test keeps equal to it).
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from pbo_runtime.errors import ModuleError
-from pbo_runtime.links.spec import TRANSPORTS
 
-def open_link_end(name: str, spec: dict[str, Any], like: np.ndarray, role: str) -> Any:
-    """The sender's or reader's end of link `name`, for items shaped like `like`."""
+Opener = Callable[[dict[str, Any], np.ndarray, str], Any]  # (the link's spec, an item like the port's, role) -> end
+# Each opener imports its transport when called: a subsystem that uses no zenoh link never loads zenoh.
+
+
+def _shm_periodic(spec: dict[str, Any], like: np.ndarray, role: str) -> Any:
+    from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer
+
+    return TripleBuffer.attach(spec["object"], LinkLayout(like.dtype, like.shape), role=role)
+
+
+def _zenoh_periodic(spec: dict[str, Any], like: np.ndarray, role: str) -> Any:
+    from pbo_runtime.links import zenoh_link
     from pbo_runtime.links.triple_buffer import LinkLayout
 
+    return zenoh_link.open_periodic(spec, LinkLayout(like.dtype, like.shape), role)
+
+
+def _shm_message(spec: dict[str, Any], _like: np.ndarray, _role: str) -> Any:
+    """The runner made the queue: both ends attach."""
+    from pbo_runtime.links.message_link import MessageLink
+
+    return MessageLink.attach(spec["object"])
+
+
+def _zenoh_message(spec: dict[str, Any], _like: np.ndarray, role: str) -> Any:
+    """The server listens on the spec's endpoint, the sender connects."""
+    from pbo_runtime.links import zenoh_link
+
+    return zenoh_link.open_aperiodic(spec, role)
+
+
+OPENERS: dict[str, dict[str, Opener]] = {  # transport -> kind of link -> how an end of it opens
+    "shm": {"periodic": _shm_periodic, "message": _shm_message},
+    "zenoh": {"periodic": _zenoh_periodic, "message": _zenoh_message},
+}
+
+
+def open_link_end(name: str, spec: dict[str, Any], like: np.ndarray, role: str) -> Any:
+    """The end of link `name` in `role`, for items shaped like `like`."""
     expected = (np.dtype(spec["dtype"]), tuple(spec["shape"]))
     if (like.dtype, like.shape) != expected:
         raise ModuleError(f"link '{name}' carries {expected[0]} {list(expected[1])}, but the port is {like.dtype} "
                           f"{list(like.shape)}: link a variable of the link's type and shape")
     transport = spec.get("transport", "shm")
-    if transport not in TRANSPORTS:
-        raise ModuleError(f"link '{name}': unknown transport '{transport}' (transports: {', '.join(TRANSPORTS)})")
-    if spec.get("kind", "periodic") == "message":
-        return _open_message_end(name, spec, transport, role)
-    layout = LinkLayout(like.dtype, like.shape)
-    if transport == "shm":
-        from pbo_runtime.links.triple_buffer import TripleBuffer
-
-        return TripleBuffer.attach(spec["object"], layout, role=role)
-    from pbo_runtime.links import zenoh_link
-
-    return zenoh_link.open_periodic(spec, layout, role)
-
-
-def _open_message_end(name: str, spec: dict[str, Any], transport: str, role: str) -> Any:
-    """A message link's 'sender' or 'server' end; the runner made the shm queue, the zenoh server listens."""
-    if role not in ("sender", "server"):
+    if transport not in OPENERS:
+        raise ModuleError(f"link '{name}': unknown transport '{transport}' (transports: {', '.join(OPENERS)})")
+    kind = "message" if spec.get("kind", "periodic") == "message" else "periodic"
+    if kind == "message" and role not in ("sender", "server"):
         raise ModuleError(f"link '{name}' carries messages: its ends are 'sender' and 'server', not '{role}'")
-    if transport == "shm":
-        from pbo_runtime.links.message_link import MessageLink
-
-        return MessageLink.attach(spec["object"])
-    from pbo_runtime.links import zenoh_link
-
-    return zenoh_link.open_aperiodic(spec, role)
+    return OPENERS[transport][kind](spec, like, role)

@@ -1,80 +1,17 @@
-"""Links between subsystems over eclipse-zenoh: the same API and semantics as in shared memory (DESIGN.md §9).
+"""Links between subsystems over eclipse-zenoh: the same API and semantics as in shared memory.
 
-When an application outgrows one machine its links run over Zenoh (issue 7, item 5), chosen per
-link in the YAML (`transport: shm | zenoh`). Both kinds keep their shared-memory interface:
+When an application outgrows one machine its links run over Zenoh, chosen per link in the YAML
+(`transport: shm | zenoh`). `ZenohLink` is a periodic link like `links.triple_buffer.TripleBuffer`
+(the sender puts each item as one express `put` and never waits; the reader keeps the newest
+complete item), `ZenohMessageLink` an aperiodic one like `links.message_link.MessageLink` (the
+queue lives at the receiver; a sender has a window of `capacity` messages, refilled by credits).
+`open_link` and `open_message_link` pick the transport; `open_periodic` and `open_aperiodic` open
+an end from the spec the application runner hands down (`links.ends`).
 
-* `ZenohLink`, a periodic link like `links.triple_buffer.TripleBuffer`: the same `LinkLayout`, a
-  sender with `write(value, stamp_ns)` or `begin_write()` + `publish(stamp_ns)` (each returns the
-  item's counter), a reader whose `read(out)` returns the same `Freshness` (NEW / REUSED / NONE)
-  and sets `counter`, `stamp_ns` and `lost_in_last_read`, and `statistics()` with the same keys.
-  The sender puts each item (a 48-byte header: format, layout hash, sender epoch, counter, time
-  stamp; then the payload's bytes) on the key `<key>/item` as one express `put`, never waiting
-  for the reader (congestion control DROP: an item the network cannot take now is dropped, and
-  the reader counts it lost). The reader keeps only the newest complete item in a local slot
-  (swapped under a `threading.Lock` held for a few statements) and `read()` copies out of it, so
-  a read never waits for the network. How items reach the slot is the reader's `delivery`:
-  - "ring" (the default): zenoh keeps the newest sample in a one-sample ring channel, in its own
-    threads and without the GIL; each `read()` takes what is there (one `try_recv`) into the slot;
-  - "callback": a Python callback swaps each sample into the slot as it arrives. It needs the
-    GIL, so while the reader's thread runs Python (an executive spinning to its release, a long
-    cycle) an item waits for the interpreter to switch threads (5 ms at best): with a reader
-    spinning between reads, bench/links.py measured its median one-way latency at 5 to 330 times
-    the ring's for small items. Use it where the reading process mostly sleeps and wants each
-    item's arrival time (`received_ns`).
-* `ZenohMessageLink`, an aperiodic link like `links.message_link.MessageLink`: msgpack bodies with a
-  priority and a sending time, received highest priority first and oldest first within one.
-  The priority travels in the message (every message goes at one zenoh priority,
-  `MESSAGE_PRIORITY`, reliably, congestion control BLOCK); the receiver orders its queue exactly
-  as a POSIX queue does. The queue lives at the receiver (the end that `create`s the link); a
-  sender that `attach`es has a window of `capacity` messages in flight, refilled by credits the
-  receiver publishes as `receive()` takes messages. So a full link raises `LinkFullError` at the
-  sender, at once or after `timeout`, as in shared memory, and nothing already sent is dropped.
-  Each sender has its own window (with several, the receiver holds at most capacity × senders).
-  A sender whose receiver is not connected gets `MessageLinkError` instead of a message that
-  vanishes; messages in flight when a receiver dies are lost with it, and a sender's window
-  starts afresh when a receiver appears again. The receiving end may also send to itself.
-
-Sessions stay on the machine unless told otherwise; `config_entries` lists every key set:
-multicast and gossip scouting off, the shared-memory transport off (nothing left in /dev/shm),
-explicit endpoints only (`tcp/127.0.0.1:<port>` by default). The end that `create`s a link
-listens on `tcp/<host>:<port>` with a session in router mode, the hub of that link; an end that
-`attach`es connects to it as a client, trying for up to `wait` seconds (a client reconnects by
-itself if the hub restarts). Through the hub, two ends that both attach see each other, as when
-a supervisor makes a link and its tasks attach. An end given `session=` (from `open_session`)
-uses it and leaves it open on close; otherwise `close()` closes the end's own session. Open
-sessions after a fork, never before: zenoh's runtime threads do not survive one.
-
-Pick the link by transport with the factories (the YAML's `transport: shm | zenoh`):
-
-    open_link(transport, name, layout, role=None, *, create, port=None, host="127.0.0.1",
-              wait=5.0, session=None) -> TripleBuffer | ZenohLink
-    open_message_link(transport, name, *, create, capacity=SYSTEM_CAPACITY,
-                      max_message_bytes=SYSTEM_MESSAGE_BYTES, port=None, host="127.0.0.1",
-                      wait=5.0, session=None) -> MessageLink | ZenohMessageLink
-
-`open_periodic(spec, layout, role)` opens an end from the spec the application runner hands down
-(`links.ends`: {"key", "endpoint": "tcp/<host>:<port>"}; the sender listens, the reader connects).
-
-`transport` is "shm" or "zenoh"; `create` says which end makes the link (shm: creates its names;
-zenoh: listens, and for messages is the receiver); `port` (zenoh, required unless a `session` is
-given) is the creating end's TCP port, `host` its address; `wait` (zenoh, attaching end) how long
-to keep trying to reach it. A shm link given zenoh options is refused, not silently run without
-them. A zenoh link's key expression is its name without a leading '/'; `link_key(application,
-link)` makes one with no run id in it, as the ends on two machines must agree on it.
-
-What differs from shared memory, and why:
-
-* `new + lost` counts from the first item the reader received (shm: from the newest item at its
-  attach); items put before the reader's subscription reached the sender are not its losses.
-* The payload is checked at open and on every item: each end answers queries on
-  `<key>/end/<role>` with its layout, pid and newest counter, so the end that opens second fails
-  at once with `LinkLayoutError` (or `LinkError` for a second sender or reader), and an item of
-  another layout makes the reader's `read()` raise the same error.
-* A sender continues from the reader's newest counter when it can ask it (as a sender taking
-  over in shm does); when it could not, the reader renumbers the new sender's items onto its own
-  counter (the first one new, none lost), so counters still never go back.
-* There is no lock between processes: `contended` counts the reader's local lock found busy (a
-  callback swapping an item in) and `lock_recoveries` is always 0.
+Sessions stay on the machine unless told otherwise (`config_entries` lists every key set), and
+open after a fork, never before: zenoh's runtime threads do not survive one. What differs from
+shared memory, and why, the reader's two deliveries and their measured latencies:
+docs/subsystems.md, "Links over Zenoh".
 """
 
 from __future__ import annotations

@@ -181,7 +181,7 @@ def rtpu_curve(seconds: float, counts: tuple[int, ...] = RTPU_COUNTS, tasks: int
                 for here in pipes:
                     if not here.poll(60) or here.recv() != "ready":
                         raise TimeoutError("an RTPU process did not start within 60 s")
-                # The supervisor's stagger: the period spaced evenly over the RTPUs (DESIGN §13).
+                # The supervisor's stagger: the period spaced evenly over the RTPUs (docs/architecture.md).
                 stagger = release_stagger(PERIOD, n) if mode == "staggered" else 0.0
                 epoch = time.monotonic() + 0.05
                 for r, here in enumerate(pipes):

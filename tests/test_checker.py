@@ -1,4 +1,4 @@
-"""The checker's rules (DESIGN.md §6, §12): one legal and one illegal case per rule.
+"""The checker's rules: one legal and one illegal case per rule.
 
 Each illegal case changes one thing in a legal file and expects exactly one error, at the
 line and column of the offending node, with an anchored message.

@@ -1,4 +1,4 @@
-"""Quantities in YAML: numbers in SI units or strings with a unit (DESIGN.md §12)."""
+"""Quantities in YAML: numbers in SI units or strings with a unit."""
 
 from __future__ import annotations
 

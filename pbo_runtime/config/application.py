@@ -1,4 +1,4 @@
-"""Application files: several subsystems run in parallel, joined by links (TR §5, DESIGN §9).
+"""Application files: several subsystems run in parallel, joined by links (TR §5).
 
     application: two_arms
     subsystems:                     # name -> its subsystem file (relative to this file), or the subsystem inline

@@ -6,7 +6,7 @@ the segment's header belong to the lock: `holder_word`, the pid of its last hold
 after every acquire, and `recoveries_word`, how many times a lock whose holder died was released.
 Where they lie is the user's layout (`table.table`, `links.triple_buffer`); what they mean is here.
 
-A holder that dies holding the lock must not wedge the others (DESIGN §4): `recover_lock_from`
+A holder that dies holding the lock must not wedge the others: `recover_lock_from`
 releases it when the holder word still names the dead pid, and `wait_for_lock` does that by itself
 for a waiter that finds the holder dead. The per-cycle paths take `lock` and their header view
 directly; nothing here stands between them and the semaphore.
@@ -123,7 +123,7 @@ class LockedSegment:
                 process.raise_if_stopping()
 
     def recover_lock_from(self, dead_pid: int, settle: float = 0.05) -> bool:
-        """Release the lock if `dead_pid` died holding it (DESIGN §4); True if it was released.
+        """Release the lock if `dead_pid` died holding it; True if it was released.
 
         The holder word is written right after each acquire, so a live process that took the
         lock after the dead one would have overwritten it within microseconds: the word is

@@ -108,7 +108,7 @@ def config_entries(listen: Sequence[str] = (), connect: Sequence[str] = ()) -> d
         "scouting/multicast/enabled": False,  # never discover peers by multicast...
         "scouting/gossip/enabled": False,  # ...nor learn of peers from other peers: only the endpoints above
         "scouting/delay": 0,  # nothing to scout for, so no reason to wait for it at open
-        "transport/shared_memory/enabled": False,  # its segments outlive the process in /dev/shm (DESIGN.md §13)
+        "transport/shared_memory/enabled": False,  # its segments outlive the process in /dev/shm
         "timestamping/enabled": False,  # items carry their own CLOCK_MONOTONIC stamps
         "adminspace/enabled": False,
     }

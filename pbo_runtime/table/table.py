@@ -330,7 +330,7 @@ class StateTable:
         self.lock.release()
 
     def recover_lock_from(self, dead_pid: int, settle: float = 0.05) -> bool:
-        """Release the lock if `dead_pid` died holding it (DESIGN §4); True if it was released."""
+        """Release the lock if `dead_pid` died holding it; True if it was released."""
         return self._segment.recover_lock_from(dead_pid, settle)
 
     @property

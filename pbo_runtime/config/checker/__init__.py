@@ -1,4 +1,4 @@
-"""The configuration checker: every rule of DESIGN.md §6 and §12, all errors of a file in one pass.
+"""The configuration checker: every rule of the format (docs/configuration.md, docs/error-codes.md), all errors of a file in one pass.
 
 It walks a loaded YAML document (`config.yaml_nodes.YMap`), reports each mistake like a compiler
 (`file:line:col: error[E403]: ...` with the objects, what was found, the valid choices and a hint;

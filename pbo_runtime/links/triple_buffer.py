@@ -24,9 +24,11 @@ from __future__ import annotations
 
 import enum
 import hashlib
+import mmap
 import os
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import posix_ipc
@@ -69,7 +71,7 @@ class Word(enum.IntEnum):
 
 # The words of the per-item paths as plain ints: an enum member costs a lookup at each use.
 _NEWEST, _READING, _WRITING, _LOCK_HOLDER = int(Word.NEWEST), int(Word.READING), int(Word.WRITING), int(Word.LOCK_HOLDER)
-_LOCK_WORDS = {"holder_word": _LOCK_HOLDER, "recoveries_word": int(Word.LOCK_RECOVERIES)}
+_LOCK_WORDS: dict[str, Any] = {"holder_word": _LOCK_HOLDER, "recoveries_word": int(Word.LOCK_RECOVERIES)}
 
 
 class Role(enum.StrEnum):
@@ -180,6 +182,7 @@ class ReaderTally:
     and counts what was lost in between; `lost` and `reused` are cheap enough for a cycle.
     """
 
+    name: str  # the link's, for messages
     counter = 0  # of the last item read; 0 until one is read (published counters start at 1)
     stamp_ns = 0  # its time stamp, CLOCK_MONOTONIC ns
     lost_in_last_read = 0
@@ -220,7 +223,8 @@ class TripleBuffer(ReaderTally):
         self.lock_name = segment.lock_name
         self._set_role(None)
         self._segment = segment
-        self._mapping = mapping = segment.mapping
+        self._mapping: mmap.mmap | None = segment.mapping
+        mapping = segment.mapping
         self._lock = segment.lock
         self._pid = os.getpid()
         # Plain memoryviews for the few words touched per item: indexing one costs a fraction of
@@ -259,7 +263,7 @@ class TripleBuffer(ReaderTally):
         """Create the segment and its lock (both 0600, both new); optionally take one end of it."""
         role = _role(role)
         link = cls(layout, LockedSegment.create(name, layout.total_bytes, **_LOCK_WORDS))
-        mapping, h = link._mapping, link._header
+        mapping, h = link._segment.mapping, link._header
         h[Word.VERSION] = VERSION
         h[Word.LAYOUT_HASH] = layout.layout_hash
         h[Word.TOTAL_BYTES] = layout.total_bytes

@@ -171,6 +171,10 @@ def link_key(application: str, link: str) -> str:
 class _Ends:
     """What the two kinds of link share: a session (own or given), its entities, the end queryable."""
 
+    name: str
+    key: str
+    _session: Any  # a zenoh.Session; None once closed
+
     def _open_session(self, session: Any, listen: Sequence[str], connect: Sequence[str], wait: float | None = 0.0) -> None:
         self._entities: list[Any] = []
         self._session = None
@@ -248,13 +252,13 @@ class ZenohLink(_Ends, ReaderTally):
         self._payload = np.frombuffer(self._wire, dtype=layout.dtype, count=layout.size, offset=ITEM_HEADER.size).reshape(layout.shape)
         self._layout_hash = layout.layout_hash  # computed once: the property hashes the layout's text at each use
         self._words[:3] = (ITEM_FORMAT, self._layout_hash, int.from_bytes(os.urandom(7), "little"))
-        self._publisher = None
+        self._publisher: Any = None
         self._published = 0
         self._writes = 0
         # reader: the slot the callback fills, under the lock
         self._lock = threading.Lock()
         self._newest: tuple[bytes, int, int, int] | None = None  # raw item, counter, stamp ns, received ns
-        self._ring = None  # delivery "ring": the subscriber whose one-sample ring read() drains
+        self._ring: Any = None  # delivery "ring": the subscriber whose one-sample ring read() drains
         self._newest_epoch = 0
         self._offset = 0  # added to the current sender's counters (see _take_item)
         self._foreign: tuple[int, int, int] | None = None  # format, layout hash, size of an item of another layout
@@ -462,7 +466,7 @@ class ZenohLink(_Ends, ReaderTally):
         if raw is not self._source:  # a view per item received, none per read
             self._view = np.frombuffer(raw, dtype=self.layout.dtype, count=self.layout.size, offset=ITEM_HEADER.size).reshape(self.layout.shape)
             self._source = raw
-        np.copyto(self.value if out is None else out, self._view)
+        np.copyto(self.value if out is None else out, self._view)  # type: ignore[arg-type]  # set with _source
         freshness = self._tally(counter, stamp_ns)
         if freshness is Freshness.NEW:
             self.received_ns = received_ns
@@ -472,7 +476,7 @@ class ZenohLink(_Ends, ReaderTally):
         form, layout_hash, size = foreign
         if form != ITEM_FORMAT:
             return f"link '{self.name}' received an item that is not a pbo zenoh item of format {ITEM_FORMAT & 0xFFFF} ({size} bytes)"
-        found = [o.get("layout") for o in self._other_ends(f"{self.key}/end/sender") if o.get("layout_hash") == layout_hash]
+        found: list[Any] = [o.get("layout") for o in self._other_ends(f"{self.key}/end/sender") if o.get("layout_hash") == layout_hash]
         return self._mismatch(found[0] if found else f"items of {size - ITEM_HEADER.size} bytes of another payload")
 
     def statistics(self) -> LinkStatistics:
@@ -501,7 +505,7 @@ class ZenohMessageLink(_Ends):
         self._arrival = itertools.count()
         self._consumed_by: dict[int, int] = {}  # receiver: per sender id
         self._malformed = 0
-        self._publisher = None
+        self._publisher: Any = None
 
     @classmethod
     def create(cls, name: str, capacity: int = SYSTEM_CAPACITY, max_message_bytes: int = SYSTEM_MESSAGE_BYTES, *,

@@ -119,7 +119,8 @@ class DeviceDatabase:
                 return openings
             if spec.io.device not in devices or any(o.device.name == spec.io.device for o in openings):
                 raise DeviceOpenError(f"device '{spec.name}' is wired (io:) to '{spec.io.device}', which is not an I/O device of this subsystem")
-            spec, channels = devices[spec.io.device], spec.io.channels
+            io = spec.io
+            spec, channels = devices[io.device], io.channels
 
     def open(self, name: str, task: TaskSpec) -> Any:
         """Claim device `name` (and what it is wired to) for `task`, then build its driver.

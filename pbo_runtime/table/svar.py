@@ -197,6 +197,7 @@ def _part(name: str, index: int) -> str:
 def format_value(value: np.ndarray) -> str:
     """A value as text: floats with 4 decimals, integers as they are, long arrays summarised."""
     array = np.asarray(value)
+    formatter: Any
     if array.dtype.kind == "f":
         formatter = {"float_kind": lambda x: f"{x:+.4f}"}
     else:

@@ -28,7 +28,7 @@ import enum
 import hashlib
 import os
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Any, Iterable
 
 import numpy as np
 import posix_ipc
@@ -212,7 +212,7 @@ class TableLayout:
         raise KeyError(name)
 
 
-LOCK_WORDS = {"holder_word": int(Header.LOCK_HOLDER), "recoveries_word": int(Header.LOCK_RECOVERIES)}  # the segment's lock words
+LOCK_WORDS: dict[str, Any] = {"holder_word": int(Header.LOCK_HOLDER), "recoveries_word": int(Header.LOCK_RECOVERIES)}  # the segment's lock words
 
 
 class StateTable:

@@ -1,38 +1,18 @@
-"""Shared fixtures: real tables in real shared memory, removed after each test."""
+"""Shared fixtures: real tables in real shared memory, removed after each test.
+
+Plain helpers (names, specs, fakes) are in tests/support.py; test files import those, never each other.
+"""
 
 from __future__ import annotations
 
 import os
-import uuid
 from pathlib import Path
 
 import pytest
 
-from pbo_runtime.config.model import PortBinding, TaskSpec, VariableSpec
-from pbo_runtime.objects.module import PortBasedObject
+from pbo_runtime.config.model import VariableSpec
 from pbo_runtime.table.table import StateTable, TableLayout
-
-REPO = Path(__file__).resolve().parent.parent
-
-
-def unique_name(part: str = "table") -> str:
-    """A run-style object name no other test or run uses."""
-    return f"/pbo.test.{os.getpid()}-{uuid.uuid4().hex[:6]}.{part}"
-
-
-def variables(*specs: tuple[str, str, tuple[int, ...]]) -> list[VariableSpec]:
-    return [VariableSpec(name, i, dtype, shape) for i, (name, dtype, shape) in enumerate(specs)]
-
-
-def task_spec(module: type[PortBasedObject], name: str = "t", index: int = 0, ports: dict[str, str] | None = None,
-              dims: dict[str, int] | None = None, params: dict | None = None, period: float = 0.001) -> TaskSpec:
-    """A TaskSpec binding each declared port to its default variable (or `ports[name]`)."""
-    ports = ports or {}
-    bindings = tuple(
-        PortBinding(p, ports.get(p.name, p.variable), p.resolved_shape(dims or {})) for p in module.ports()
-    )
-    return TaskSpec(name=name, module=module.__name__, rtpu="rtpu0", period=period, params=params or {},
-                    bindings=bindings, index=index)
+from tests.support import unique_name
 
 
 @pytest.fixture

@@ -11,8 +11,7 @@ import posix_ipc
 import pytest
 
 from pbo_runtime.config.application import check_application, is_application_file
-from tests.conftest import REPO
-from tests.test_end_to_end import PBO, assert_nothing_left
+from tests.support import PBO, REPO, assert_nothing_left
 
 APP = REPO / "configs" / "leader_follower.yaml"
 

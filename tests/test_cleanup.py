@@ -16,8 +16,7 @@ from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm as _shm
 from pbo_runtime.supervisor.supervisor import remove_dead_runs
 from pbo_runtime.table.table import Header, StateTable, TableLayout
-from tests.conftest import REPO, variables
-from tests.test_end_to_end import DEMO, PBO, children_of
+from tests.support import DEMO, PBO, REPO, RUNS, Ticker, children_of, task_spec, unique_name, variables
 
 VARS = variables(("a", "float64", (3,)))
 
@@ -196,8 +195,6 @@ def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_w
     from pbo_runtime.task.lifecycle import Task
     from pbo_runtime.table.table import TaskState
     from rtpu._executive import Executive
-    from tests.conftest import task_spec, unique_name
-    from tests.test_executive import RUNS, Ticker
 
     table = make_table(variables(("o0", "float64", ())))
     real_lock = table.lock
@@ -239,8 +236,6 @@ def test_a_second_stop_signal_stops_at_once(stops_only_at_waits):
 def test_a_report_at_stop_stops_waiting_on_a_full_queue_once_its_reader_is_gone(no_leftover_ipc):
     # An RTPU whose supervisor was killed reports its stop to a queue nobody drains: each
     # report used to wait out its 5 s, and an RTPU of many tasks outlived its supervisor by minutes.
-    from tests.conftest import unique_name
-
     queue = messages.Queue(unique_name("events"), create=True)
     try:
         while queue.try_send("filler", timeout=0):

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from pbo_runtime.cli import main
-from tests.conftest import REPO
+from tests.support import REPO
 
 DEMO = (REPO / "configs" / "pid_joint.yaml").read_text()
 

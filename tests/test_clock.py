@@ -15,7 +15,7 @@ from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import HEADER_WORDS, Header
 from pbo_runtime.table.table import Status as W
 from rtpu._executive import Executive
-from tests.conftest import task_spec, variables
+from tests.support import task_spec, variables
 
 
 class ScriptedTime:

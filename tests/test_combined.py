@@ -14,7 +14,7 @@ from pbo_runtime.config import bus
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task
-from tests.conftest import REPO, task_spec, variables
+from tests.support import REPO, task_spec, variables
 
 PUMA = robot("puma560")
 DIMS = {"NDOF": 6}

@@ -35,7 +35,7 @@ from pbo_runtime.ipc.control import (
     reply_queue_prefix,
 )
 from pbo_runtime.table.table import StateTable, TableLayout
-from tests.conftest import variables
+from tests.support import variables
 
 
 def _mine() -> set[str]:

@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from tests.conftest import REPO
+from tests.support import REPO
 from tools import cpu_trace
 from tools.cpu_trace import (ProcessNames, SchedulerTrace, TraceUnavailable, explain, holders, occupancy, parse_switches,
                               parse_wakeups)

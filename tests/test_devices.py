@@ -24,7 +24,7 @@ from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.table.devices import DeviceBusyError, DeviceDatabase, DeviceOpenError
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TableLayout, TaskState
-from tests.conftest import REPO, unique_name
+from tests.support import REPO, unique_name
 
 SHEET = """\
     calibration: [[40.0, 0.8, -0.4, 0.0, 0.0, 0.2], [-0.6, 40.0, 0.5, 0.0, 0.0, -0.3], [0.4, -0.2, 80.0, 0.0, 0.0, 0.0],

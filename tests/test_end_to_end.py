@@ -9,48 +9,14 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
-import posix_ipc
 import pytest
 
-from tests.conftest import REPO
+from tests.support import DEMO, PBO, REPO, assert_nothing_left, children_of
 
 pytestmark = pytest.mark.multiprocess
-
-DEMO = REPO / "configs" / "pid_joint.yaml"
-PBO = [sys.executable, "-m", "pbo_runtime.cli"]
-
-
-def assert_nothing_left(report: dict) -> None:
-    """Every object the run made is gone: opened by name, since /dev/mqueue may not be mounted."""
-    assert report["objects"], "the report lists the run's objects"
-    opener = {"shm": posix_ipc.SharedMemory, "sem": posix_ipc.Semaphore, "mq": posix_ipc.MessageQueue}
-    for entry in report["objects"]:
-        kind, name = entry.split(" ", 1)
-        with pytest.raises(posix_ipc.ExistentialError):
-            opener[kind](name)
-    leftovers = [n for n in os.listdir("/dev/shm") if report["run_id"] in n]
-    assert leftovers == []
-
-
-def children_of(pid: int) -> dict[int, str]:
-    """pid -> command line of the live children of `pid`."""
-    found = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            stat = Path(f"/proc/{entry}/stat").read_text()
-            ppid = int(stat.rsplit(")", 1)[1].split()[1])
-            if ppid == pid:
-                found[int(entry)] = Path(f"/proc/{entry}/cmdline").read_text().replace("\0", " ")
-        except (OSError, IndexError, ValueError):
-            continue
-    return found
 
 
 def test_demo_moves_the_arm_to_its_goal_and_leaves_nothing_behind(tmp_path):

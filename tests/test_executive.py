@@ -11,45 +11,12 @@ from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import TaskState
 from rtpu._executive import Executive
-from tests.conftest import task_spec, variables
-
-RUNS: list[tuple[str, float]] = []
-
-
-class Ticker(PortBasedObject):
-    """Fake module: records (task, release time) on every cycle; may take simulated time."""
-
-    out = OutVar("out")
-    cost = 0.0
-    clock: ManualClock | None = None
-
-    def cycle(self) -> Status:
-        RUNS.append((self.task_name, self.time))
-        if self.cost and self.clock is not None:
-            self.clock.advance(self.cost)
-        return Status.CONTINUE
+from tests.support import REPO, RUNS, FakeSignals, Ticker, run_until, task_spec, variables
 
 
 class Faulty(Ticker):
     def cycle(self) -> Status:
         raise RuntimeError("broken on purpose")
-
-
-class FakeSignals:
-    """Fake signal queue: scripted (time, message) pairs; waiting moves the manual clock."""
-
-    def __init__(self, clock: ManualClock, script: list[tuple[float, list]]) -> None:
-        self.clock = clock
-        self.script = sorted(script, key=lambda item: item[0])
-
-    def receive(self, timeout):
-        deadline = self.clock.now() + (timeout or 0.0)
-        if self.script and self.script[0][0] <= deadline:
-            at, message = self.script.pop(0)
-            self.clock.time = max(self.clock.time, at)
-            return message
-        self.clock.time = max(self.clock.time, deadline)
-        return None
 
 
 @pytest.fixture
@@ -83,17 +50,6 @@ class StallingClock(ManualClock):
         if abs(deadline - self.stall_at) < 1e-12:
             deadline += self.stall
         return super().sleep_until(deadline)
-
-
-def run_until(executive: Executive, clock: ManualClock, end: float) -> None:
-    """Step the executive through every release and signal due at or before `end`."""
-    while executive.running:
-        next_release = min((s.release for s in executive.on), default=float("inf"))
-        script = executive.signals.script
-        next_signal = script[0][0] if script else float("inf")
-        if min(next_release, next_signal) > end:
-            return
-        executive.run_once()
 
 
 def test_releases_follow_absolute_times_without_drift(setup):
@@ -351,15 +307,6 @@ def test_what_an_rtpu_reports_at_stop_goes_by_the_patient_reporter(make_table):
     assert at_stop.count("stats") == 1 and "state" in at_stop
 
 
-class Quiet(PortBasedObject):
-    """Fake module: a cycle that allocates nothing (Ticker records every cycle in a list)."""
-
-    out = OutVar("out")
-
-    def cycle(self) -> Status:
-        return Status.CONTINUE
-
-
 # Run in a fresh interpreter, as an RTPU is: in a long-lived one (the test suite) glibc may have
 # raised its mmap threshold, and the rings would come from recycled heap, written already.
 CYCLES_IN_A_FRESH_PROCESS = """
@@ -368,8 +315,7 @@ from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TableLayout
 from rtpu._executive import Executive
-from tests.conftest import task_spec, unique_name, variables
-from tests.test_executive import FakeSignals, Quiet, run_until
+from tests.support import FakeSignals, Quiet, run_until, task_spec, unique_name, variables
 
 table = StateTable.create(TableLayout.build(variables(("o0", "float64", ())), 1), unique_name())
 try:
@@ -391,8 +337,6 @@ def test_the_per_cycle_path_takes_no_page_fault():
     # path, 4 a second for a 1 kHz task (counted in /proc/PID/stat of a running RTPU).
     import subprocess
     import sys
-
-    from tests.conftest import REPO
 
     done = subprocess.run([sys.executable, "-c", CYCLES_IN_A_FRESH_PROCESS], cwd=REPO, capture_output=True, text=True,
                           timeout=60)

@@ -20,8 +20,7 @@ import yaml
 
 from drivers.force_torque import models
 from drivers.mujoco_arm.registers import VOLTS_PER_COUNT
-from tests.conftest import REPO
-from tests.test_end_to_end import PBO, assert_nothing_left
+from tests.support import PBO, REPO, assert_nothing_left
 
 pytestmark = pytest.mark.multiprocess
 

@@ -6,7 +6,6 @@ channels the device database would lend them.
 
 from __future__ import annotations
 
-import tracemalloc
 from collections.abc import Iterator
 
 import numpy as np
@@ -17,7 +16,7 @@ from drivers.io.dac import Dac
 from drivers.io.parallel_port import ParallelPort
 from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.mujoco_arm.registers import VOLTS_PER_COUNT, DeviceError, attach_registers
-from tests.conftest import unique_name
+from tests.support import allocation_peak, one_array, unique_name
 
 
 @pytest.fixture
@@ -115,40 +114,6 @@ def test_vendor_a_s_sensor_shows_power_on_parallel_port_channel_7(plant, opened)
 def test_a_board_driver_refuses_what_its_board_does_not_have(plant, driver, options, channels, message):
     with pytest.raises((ValueError, DeviceError), match=message):
         driver(plant.name, options, channels=channels)
-
-
-def allocation_peak(call, times: int = 1000) -> int:
-    """Bytes `times` calls of `call` have alive at once at most, beyond what the loop itself needs.
-
-    A per-cycle path that allocated even one small array per call would show it (the array object
-    and its data), however briefly it lived; what a path without arrays shows is Python's own
-    boxing of the integers a seqlock read or a handshake returns.
-    """
-    def loop(body):
-        for _ in range(times):
-            body()
-
-    def nothing():
-        pass
-
-    loop(call)  # first calls fill caches
-    tracemalloc.start()
-    try:
-        peaks = []
-        for body in (nothing, call):
-            tracemalloc.reset_peak()
-            start, _ = tracemalloc.get_traced_memory()
-            loop(body)
-            _, peak = tracemalloc.get_traced_memory()
-            peaks.append(peak - start)
-    finally:
-        tracemalloc.stop()
-    return peaks[1] - peaks[0]
-
-
-def one_array() -> int:
-    """The allocation peak of making one 6-element array per call: what a per-cycle path must stay under."""
-    return allocation_peak(lambda: np.empty(6))
 
 
 def test_one_small_array_per_call_would_show_in_the_allocation_peak():

@@ -13,7 +13,7 @@ from pbo_runtime import OutVar, ParamError, PortBasedObject
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task
-from tests.conftest import REPO, variables
+from tests.support import PBO, REPO, assert_nothing_left, variables
 
 
 class FakeTorqueSource(PortBasedObject):
@@ -123,8 +123,6 @@ def test_the_figure_6_file_without_its_join_connector_has_two_writers_of_the_rob
 @pytest.mark.multiprocess
 def test_the_join_connector_gives_the_robot_feedback_plus_gravity_and_the_arm_reaches_its_goal(tmp_path):
     """TR Figure 6: p' (PID) and p'' (gravity) are joined into the one tau_u the robot reads."""
-    from tests.test_end_to_end import PBO, assert_nothing_left
-
     report_path = tmp_path / "report.json"
     done = subprocess.run([*PBO, "run", str(FIGURE_6), "--duration", "2.5", "--report", str(report_path), "--no-live"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=180)

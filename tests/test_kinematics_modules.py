@@ -26,7 +26,7 @@ from modules.time_integrator import TimeIntegrator
 from pbo_runtime import ParamError, PortBasedObject, Status
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.conftest import task_spec, variables
+from tests.support import task_spec, variables
 
 PUMA = robot("puma560")
 N = PUMA.ndof

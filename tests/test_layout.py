@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import ast
 import graphlib
+import re
 from pathlib import Path
 
 import pytest
 
 import pbo_runtime
-from tests.conftest import REPO
+from tests.support import REPO
 
 PACKAGE = REPO / "pbo_runtime"
 
@@ -121,3 +122,23 @@ def test_the_runtime_finds_modules_drivers_and_plants_by_name_never_by_import():
 def test_the_public_surface_is_pinned():
     assert sorted(pbo_runtime.__all__) == sorted(PUBLIC_NAMES)
     assert all(hasattr(pbo_runtime, name) for name in PUBLIC_NAMES)
+
+
+# --- the test suite ----------------------------------------------------------------------------
+
+# `from tests.test_x import ...`, `from tests import test_x`, `from .test_x import ...`, and the same of conftest,
+# anywhere in a file's text: a script a test runs in a fresh interpreter counts too
+IMPORT_OF_A_TEST_FILE = re.compile(
+    r"^\s*(?:from|import)\s+(?:tests)?\.?(?P<module>test_\w+|conftest)\b"
+    r"|^\s*from\s+(?:tests|\.)\s+import\s+[^\n]*?\b(?P<named>test_\w+|conftest)\b",
+    re.MULTILINE,
+)
+
+
+def test_no_test_file_imports_another_test_file_or_the_conftest():
+    """Shared helpers are in tests/support.py and fixtures in conftest.py (pytest hands them over by name),
+    so each test file reads, runs and moves on its own."""
+    wrong = sorted(f"{path.name} imports {match['module'] or match['named']}"
+                   for path in (REPO / "tests").glob("*.py")
+                   for match in IMPORT_OF_A_TEST_FILE.finditer(path.read_text()))
+    assert wrong == []

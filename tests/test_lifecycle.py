@@ -9,7 +9,7 @@ from pbo_runtime import InBoth, InConst, InVar, LifecycleError, OutBoth, OutCons
 from pbo_runtime.objects.module import TaskContext
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import TaskState
-from tests.conftest import task_spec, variables
+from tests.support import task_spec, variables
 
 VARS = variables(
     ("k_in", "float64", (2,)), ("k_out", "float64", (2,)), ("u", "float64", (2,)), ("y", "float64", (2,)),

@@ -19,7 +19,7 @@ from pbo_runtime.links.message_link import (
     MessageLink,
     MessageLinkError,
 )
-from tests.conftest import unique_name
+from tests.support import unique_name
 
 pytestmark = pytest.mark.usefixtures("no_leftover_ipc")
 

@@ -10,8 +10,7 @@ import pytest
 
 from modules.link_receiver import LinkReceiver
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer
-from tests.conftest import unique_name, variables
-from tests.test_message_modules import make_task
+from tests.support import make_task, unique_name, variables
 
 
 @pytest.fixture

@@ -14,12 +14,10 @@ import pytest
 from modules.message_sender import MessageSender
 from modules.message_server import MessageServer
 from pbo_runtime.ipc import messages
-from pbo_runtime.config.model import PortBinding, TaskSpec
-from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.links.message_link import MessageLink
 from pbo_runtime.links.relay import MessageRelay
 from pbo_runtime.table.table import TaskState
-from tests.conftest import unique_name, variables
+from tests.support import make_task, unique_name, variables
 
 
 @pytest.fixture
@@ -31,14 +29,6 @@ def goal_link():
 
 def link_spec(link: MessageLink) -> dict:
     return {"kind": "message", "transport": "shm", "object": link.name, "dtype": "float64", "shape": [3], "capacity": 3}
-
-
-def make_task(table, module, name: str, ports: dict[str, tuple[str, tuple[int, ...]]], links: dict, relay=None,
-              params: dict | None = None, index: int = 0, aperiodic: bool = False) -> Task:
-    bindings = tuple(PortBinding(p, ports[p.name][0], ports[p.name][1]) for p in module.ports())
-    spec = TaskSpec(name=name, module=module.__name__, rtpu="rtpu0", period=0.01, params=params or {"link": "goal"},
-                    bindings=bindings, index=index, aperiodic=aperiodic, min_interarrival=0.01 if aperiodic else None)
-    return Task(spec, module, table, links=links, relay=relay)
 
 
 @pytest.fixture

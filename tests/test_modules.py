@@ -26,7 +26,7 @@ from pbo_runtime import ParamError, Status
 from pbo_runtime.config.model import DeviceSpec, PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.conftest import task_spec, unique_name, variables
+from tests.support import task_spec, unique_name, variables
 
 PUMA = robot("puma560")
 N = PUMA.ndof

@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from tests.conftest import REPO
+from tests.support import REPO
 
 APPLY = "import json, sys; from rtpu import _realtime; print(json.dumps(_realtime.apply({cpu}, {fifo})))"
 

@@ -15,8 +15,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from tests.conftest import REPO
-from tests.test_end_to_end import PBO, assert_nothing_left
+from tests.support import PBO, REPO, assert_nothing_left
 
 pytestmark = pytest.mark.multiprocess
 

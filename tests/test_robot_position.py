@@ -23,7 +23,7 @@ from pbo_runtime import Status
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.conftest import task_spec, unique_name, variables
+from tests.support import task_spec, unique_name, variables
 
 ROBOTS = ("puma560", "redundant7")
 TIMESTEP = 0.001

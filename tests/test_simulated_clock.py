@@ -21,8 +21,7 @@ import pytest
 from pbo_runtime.ipc import shm
 from pbo_runtime.clock.lockstep import LockstepMaster, LockstepParticipant
 from pbo_runtime.table.table import HEADER_WORDS, Header
-from tests.conftest import REPO
-from tests.test_end_to_end import DEMO, PBO, assert_nothing_left
+from tests.support import DEMO, PBO, REPO, assert_nothing_left, children_of
 
 
 def run_sim(tmp_path, config, *arguments: str, out: str = "out") -> tuple[subprocess.CompletedProcess, dict]:
@@ -204,8 +203,6 @@ def test_an_rtpu_killed_in_a_simulated_run_stops_the_run_and_leaves_nothing(tmp_
 
 def _wait_for_child(parent: int, marker: str) -> int:
     """The pid of the parent's child whose command line has `marker`, once the run's tasks are on."""
-    from tests.test_end_to_end import children_of
-
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         for pid, command in children_of(parent).items():

@@ -21,7 +21,7 @@ from pbo_runtime.cli import operator
 from pbo_runtime.ipc import shm
 from pbo_runtime.table.svar import format_value, open_table, svar_rows, svar_table
 from pbo_runtime.table.table import MAGIC, Header, StateTable, Status, TableLayout, TaskState
-from tests.conftest import variables
+from tests.support import variables
 
 VARS = variables(("q_m", "float64", (3,)), ("n", "int32", ()), ("DH", "float64", (2, 4)), ("gain", "float32", ()))
 

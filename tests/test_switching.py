@@ -19,7 +19,7 @@ from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Header, StateTable, TableLayout, TaskState
 from rtpu._executive import Executive
-from tests.conftest import unique_name
+from tests.support import unique_name
 
 PERIOD = 0.001
 STAGGER = 0.00045

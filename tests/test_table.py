@@ -13,7 +13,7 @@ from pbo_runtime import InVar, OutVar, PortBasedObject, TableLayoutError
 from pbo_runtime.table.directory import DIRECTORY_RECORD, Entry, read_directory
 from pbo_runtime.table.table import HEADER_WORDS, Header, StateTable, TableLayout
 from pbo_runtime.task.transfer import LocalTable
-from tests.conftest import task_spec, unique_name, variables
+from tests.support import task_spec, unique_name, variables
 
 
 class Copier(PortBasedObject):

@@ -8,7 +8,7 @@ import pytest
 from modules.trackball_input import TrackballInput
 from pbo_runtime import ParamError
 from pbo_runtime.task.lifecycle import Task
-from tests.conftest import task_spec, variables
+from tests.support import task_spec, variables
 
 POSE = np.array([0.5, -0.1, 0.2, 0.0, -0.4, 0.0])
 

@@ -35,7 +35,7 @@ from pbo_runtime.links.triple_buffer import (
     TripleBuffer,
     Word,
 )
-from tests.conftest import unique_name
+from tests.support import unique_name
 
 pytestmark = pytest.mark.usefixtures("no_leftover_ipc")
 

@@ -34,7 +34,7 @@ from pbo_runtime.objects import registry
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.conftest import REPO, task_spec, unique_name, variables
+from tests.support import PBO, REPO, assert_nothing_left, task_spec, unique_name, variables
 
 TIMESTEP = 0.001
 CONFIG = REPO / "configs" / "visual_servoing.yaml"
@@ -380,8 +380,6 @@ needs_entry_points = pytest.mark.skipif(
 
 
 def pbo_run(tmp_path: Path, *arguments: str) -> tuple[subprocess.CompletedProcess, dict]:
-    from tests.test_end_to_end import PBO
-
     report_path = tmp_path / "report.json"
     done = subprocess.run([*PBO, "run", str(CONFIG), "--no-live", "--clock", "sim", "--report", str(report_path), *arguments],
                           cwd=tmp_path, capture_output=True, text=True, timeout=240)
@@ -392,8 +390,6 @@ def pbo_run(tmp_path: Path, *arguments: str) -> tuple[subprocess.CompletedProces
 @needs_entry_points
 @pytest.mark.multiprocess
 def test_dls_tracks_the_target_through_the_wrist_singularity(tmp_path):
-    from tests.test_end_to_end import assert_nothing_left
-
     done, report = pbo_run(tmp_path, "--config", "dls", "--duration", "4")
     assert report["stopped_by"] == "duration" and report["failure"] == ""
     x_m = np.array(report["variables"]["x_m"]["value"])
@@ -409,8 +405,6 @@ def test_dls_tracks_the_target_through_the_wrist_singularity(tmp_path):
 @needs_entry_points
 @pytest.mark.multiprocess
 def test_switching_between_ik_and_dls_while_servoing_completes(tmp_path):
-    from tests.test_end_to_end import assert_nothing_left
-
     done, report = pbo_run(tmp_path, "--alternate", "ik,dls", "--switches", "4", "--interval", "1")
     assert len(report["switches"]) == 4
     assert [s["to"] for s in report["switches"]] == ["dls", "ik", "dls", "ik"]
@@ -423,8 +417,6 @@ def test_switching_between_ik_and_dls_while_servoing_completes(tmp_path):
 def test_through_the_singularity_dls_bounds_the_joint_speeds_where_plain_ik_does_not(tmp_path):
     """TR Figures 12/13 in real processes: each controller alone, with the speed cap lifted, over
     the same 4 s lap (the wrist singularity is 1.6-2.2 s in). Deterministic on the simulated clock."""
-    from tests.test_end_to_end import PBO
-
     uncapped = tmp_path / "uncapped.yaml"
     uncapped.write_text(CONFIG.read_text().replace("max_joint_speed: 3}", "max_joint_speed: 1000}"))
     peak = {}

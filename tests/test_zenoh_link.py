@@ -43,7 +43,7 @@ from pbo_runtime.links.zenoh_link import (  # noqa: E402
     open_message_link,
     open_periodic,
 )
-from tests.conftest import unique_name  # noqa: E402
+from tests.support import unique_name  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("no_leftover_ipc")
 

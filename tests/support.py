@@ -1,0 +1,182 @@
+"""Plain helpers the test files share: names, specs, fakes, and checks on what a run left behind.
+
+Fixtures live in conftest.py (pytest hands them to a test by its argument names); everything a
+test file imports from elsewhere in tests/ comes from here, never from another test file.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tracemalloc
+import uuid
+from pathlib import Path
+
+import numpy as np
+import posix_ipc
+import pytest
+
+from pbo_runtime import OutVar, PortBasedObject, Status
+from pbo_runtime.clock.clocks import ManualClock
+from pbo_runtime.config.model import PortBinding, TaskSpec, VariableSpec
+from pbo_runtime.task.lifecycle import Task
+
+REPO = Path(__file__).resolve().parent.parent
+DEMO = REPO / "configs" / "pid_joint.yaml"
+PBO = [sys.executable, "-m", "pbo_runtime.cli"]  # the `pbo` command, run by the interpreter running the tests
+
+
+# --- names and specs -------------------------------------------------------------------------
+
+
+def unique_name(part: str = "table") -> str:
+    """A run-style object name no other test or run uses; `no_leftover_ipc` watches names with this pid."""
+    return f"/pbo.test.{os.getpid()}-{uuid.uuid4().hex[:6]}.{part}"
+
+
+def variables(*specs: tuple[str, str, tuple[int, ...]]) -> list[VariableSpec]:
+    return [VariableSpec(name, i, dtype, shape) for i, (name, dtype, shape) in enumerate(specs)]
+
+
+def task_spec(module: type[PortBasedObject], name: str = "t", index: int = 0, ports: dict[str, str] | None = None,
+              dims: dict[str, int] | None = None, params: dict | None = None, period: float = 0.001) -> TaskSpec:
+    """A TaskSpec binding each declared port to its default variable (or `ports[name]`)."""
+    ports = ports or {}
+    bindings = tuple(
+        PortBinding(p, ports.get(p.name, p.variable), p.resolved_shape(dims or {})) for p in module.ports()
+    )
+    return TaskSpec(name=name, module=module.__name__, rtpu="rtpu0", period=period, params=params or {},
+                    bindings=bindings, index=index)
+
+
+def make_task(table, module, name: str, ports: dict[str, tuple[str, tuple[int, ...]]], links: dict, relay=None,
+              params: dict | None = None, index: int = 0, aperiodic: bool = False) -> Task:
+    """A task of a link module (sender, server, receiver) on `table`, its ports bound to (variable, shape)."""
+    bindings = tuple(PortBinding(p, ports[p.name][0], ports[p.name][1]) for p in module.ports())
+    spec = TaskSpec(name=name, module=module.__name__, rtpu="rtpu0", period=0.01, params=params or {"link": "goal"},
+                    bindings=bindings, index=index, aperiodic=aperiodic, min_interarrival=0.01 if aperiodic else None)
+    return Task(spec, module, table, links=links, relay=relay)
+
+
+# --- fakes for an executive on a manual clock ----------------------------------------------------
+
+RUNS: list[tuple[str, float]] = []  # (task, release time) of every Ticker cycle; cleared by the tests that read it
+
+
+class Ticker(PortBasedObject):
+    """Fake module: records (task, release time) on every cycle; may take simulated time."""
+
+    out = OutVar("out")
+    cost = 0.0
+    clock: ManualClock | None = None
+
+    def cycle(self) -> Status:
+        RUNS.append((self.task_name, self.time))
+        if self.cost and self.clock is not None:
+            self.clock.advance(self.cost)
+        return Status.CONTINUE
+
+
+class Quiet(PortBasedObject):
+    """Fake module: a cycle that allocates nothing (Ticker records every cycle in a list)."""
+
+    out = OutVar("out")
+
+    def cycle(self) -> Status:
+        return Status.CONTINUE
+
+
+class FakeSignals:
+    """Fake signal queue: scripted (time, message) pairs; waiting moves the manual clock."""
+
+    def __init__(self, clock: ManualClock, script: list[tuple[float, list]]) -> None:
+        self.clock = clock
+        self.script = sorted(script, key=lambda item: item[0])
+
+    def receive(self, timeout):
+        deadline = self.clock.now() + (timeout or 0.0)
+        if self.script and self.script[0][0] <= deadline:
+            at, message = self.script.pop(0)
+            self.clock.time = max(self.clock.time, at)
+            return message
+        self.clock.time = max(self.clock.time, deadline)
+        return None
+
+
+def run_until(executive, clock: ManualClock, end: float) -> None:
+    """Step the executive (rtpu._executive.Executive) through every release and signal due at or before `end`."""
+    while executive.running:
+        next_release = min((s.release for s in executive.on), default=float("inf"))
+        script = executive.signals.script
+        next_signal = script[0][0] if script else float("inf")
+        if min(next_release, next_signal) > end:
+            return
+        executive.run_once()
+
+
+# --- allocations on a per-cycle path -------------------------------------------------------------
+
+
+def allocation_peak(call, times: int = 1000) -> int:
+    """Bytes `times` calls of `call` have alive at once at most, beyond what the loop itself needs.
+
+    A per-cycle path that allocated even one small array per call would show it (the array object
+    and its data), however briefly it lived; what a path without arrays shows is Python's own
+    boxing of the integers a seqlock read or a handshake returns.
+    """
+    def loop(body):
+        for _ in range(times):
+            body()
+
+    def nothing():
+        pass
+
+    loop(call)  # first calls fill caches
+    tracemalloc.start()
+    try:
+        peaks = []
+        for body in (nothing, call):
+            tracemalloc.reset_peak()
+            start, _ = tracemalloc.get_traced_memory()
+            loop(body)
+            _, peak = tracemalloc.get_traced_memory()
+            peaks.append(peak - start)
+    finally:
+        tracemalloc.stop()
+    return peaks[1] - peaks[0]
+
+
+def one_array() -> int:
+    """The allocation peak of making one 6-element array per call: what a per-cycle path must stay under."""
+    return allocation_peak(lambda: np.empty(6))
+
+
+# --- runs in real processes ----------------------------------------------------------------------
+
+
+def assert_nothing_left(report: dict) -> None:
+    """Every object the run made is gone: opened by name, since /dev/mqueue may not be mounted."""
+    assert report["objects"], "the report lists the run's objects"
+    opener = {"shm": posix_ipc.SharedMemory, "sem": posix_ipc.Semaphore, "mq": posix_ipc.MessageQueue}
+    for entry in report["objects"]:
+        kind, name = entry.split(" ", 1)
+        with pytest.raises(posix_ipc.ExistentialError):
+            opener[kind](name)
+    leftovers = [n for n in os.listdir("/dev/shm") if report["run_id"] in n]
+    assert leftovers == []
+
+
+def children_of(pid: int) -> dict[int, str]:
+    """pid -> command line of the live children of `pid`."""
+    found = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+            ppid = int(stat.rsplit(")", 1)[1].split()[1])
+            if ppid == pid:
+                found[int(entry)] = Path(f"/proc/{entry}/cmdline").read_text().replace("\0", " ")
+        except (OSError, IndexError, ValueError):
+            continue
+    return found

@@ -176,6 +176,226 @@ def expect_warnings(result: CheckResult, *codes: str) -> list[ConfigError]:
     return result.warnings
 
 
+def edited(*edits: tuple[str, str], text: str = LEGAL) -> str:
+    """`text` with each (old, new) edit made in turn, each of them once."""
+    for old, new in edits:
+        text = changed(old, new, text)
+    return text
+
+
+def with_apps(apps: str, jobs: str = "") -> str:
+    """The legal file with its applications replaced by `apps`, and `jobs` added to its jobs."""
+    text = LEGAL[: LEGAL.index("applications:")] + "applications:\n" + apps
+    if jobs:
+        text = changed("jobs:\n", "jobs:\n" + jobs, text)
+    return text
+
+
+Q = "[0, -0.5, 0.5, 0, 0, 0]"
+TRAJ2 = "  traj2: {module: fake_traj, rtpu: rtpu0, period: 2 ms}\n"
+BOTH_WRITER_AND_READER = (
+    ("variables:\n", "variables:\n  c: {type: float64}\n"),
+    ("tasks:\n", "tasks:\n  w: {module: fake_both_writer, rtpu: rtpu0, period: 1 ms}\n"
+                 "  r: {module: fake_both_reader, rtpu: rtpu0, period: 1 ms}\n"),
+)
+
+
+# --- one mistake, one message ----------------------------------------------------------------
+
+
+def mistake(name: str, text: str, needle: str, message: str, *, nth: int = 0, code: str = r"E\d{3}",
+            hint: str | None = None):
+    """A file with one mistake: its one error is at the `nth` `needle`, its message matches `message`
+    (anchored after location and code), and its hint, if given, is searched for `hint` (both regexes)."""
+    return pytest.param(text, needle, message, nth, code, hint, id=name)
+
+
+ONE_MISTAKE = [
+    # keys and types
+    mistake("an_unknown_key_in_a_task_is_an_error_with_a_suggestion",
+            changed("critical: true", "critcal: true"), "critcal", r"unknown key 'critcal' in task 'robot'$",
+            hint=r"did you mean 'critical'\?"),
+    mistake("an_unknown_key_in_a_variable_is_an_error",
+            changed("q_r:   {type: float64,", "q_r:   {type: float64, units: rad,"), "units",
+            r"unknown key 'units' in variable 'q_r'$"),
+    mistake("a_misspelt_required_key_is_one_error_not_two",
+            changed("module: fake_robot", "modul: fake_robot"), "modul:",
+            r"unknown key 'modul' in task 'robot': did you mean the required key 'module'\?$"),
+    mistake("a_task_without_a_module_is_an_error_at_the_task",
+            changed("module: fake_traj, ", ""), "traj:", r"task 'traj' has no 'module:', which is required$"),
+    mistake("a_flag_that_is_not_a_boolean_is_an_error",
+            changed("critical: true", "critical: yes please"), "yes please",
+            r"'critical' of task 'robot' must be true or false, got: the text 'yes please'$"),
+    mistake("an_invalid_subsystem_name_is_an_error",
+            changed("subsystem: puma", "subsystem: my puma/1"), "my puma",
+            r"subsystem name 'my puma/1' is not usable in shared-memory names$"),
+    mistake("an_rtpu_cpu_must_be_a_non_negative_integer",
+            changed("rtpus: [rtpu0, rtpu1]", "rtpus: {rtpu0: {cpu: -1}, rtpu1: {cpu: 1}}"), "-1",
+            r"cpu of RTPU 'rtpu0' must be >= 0, got: -1$"),
+    mistake("an_rtpu_spin_as_long_as_its_shortest_period_is_an_error",
+            changed("rtpus: [rtpu0, rtpu1]", "rtpus: {rtpu0: {spin: 1 ms}, rtpu1: null}"), "1 ms}",
+            r"spin of RTPU 'rtpu0' must be shorter than the shortest period of its tasks \(1 ms, task 'pid'\), got: 1 ms$",
+            code="E509"),
+    # undefined names
+    mistake("a_port_linked_to_an_undefined_variable_is_an_error_with_a_suggestion",
+            changed("ports: {tau: tau_u}", "ports: {tau: tau_uu}"), "tau_uu",
+            r"task 'pid' links port 'tau' to variable 'tau_uu', which 'variables' does not declare$",
+            hint=r"^did you mean 'tau_u'\?"),
+    mistake("a_port_linked_by_default_to_an_undeclared_variable_is_an_error",
+            changed(", ports: {tau: tau_u}", ""), "pid:",
+            r"task 'pid' \(module 'fake_pid'\) links port 'tau' by default to variable 'tau', which 'variables' does not declare$",
+            hint=r"ports: \{tau: <variable>\}"),
+    mistake("an_unknown_module_is_an_error_with_a_suggestion",
+            changed("module: fake_traj", "module: fake_trajj"), "fake_trajj",
+            r"task 'traj' uses module 'fake_trajj', which is not registered$",
+            hint=r"^did you mean 'fake_traj'\? \(registered: "),
+    mistake("an_unknown_rtpu_is_an_error_with_a_suggestion",
+            changed("rtpu: rtpu1", "rtpu: rtpu2"), "rtpu2", r"task 'robot' runs on RTPU 'rtpu2', which 'rtpus' does not declare$",
+            hint=r"^did you mean 'rtpu[01]'\? \(declared: rtpu0, rtpu1\)$"),
+    mistake("an_unknown_device_is_an_error",
+            changed("resources: [arm]", "resources: [army]"), "army",
+            r"task 'robot' uses device 'army', which 'devices' does not declare$"),
+    mistake("an_unknown_dim_in_a_shape_is_an_error",
+            changed("q_d:   {type: float64, shape: [NDOF]", "q_d:   {type: float64, shape: [NDFO]"), "NDFO",
+            r"shape of variable 'q_d' uses dim 'NDFO', which 'dims' does not define$",
+            hint=r"did you mean 'NDOF'\?"),
+    mistake("an_unknown_task_in_a_configuration_is_an_error",
+            changed("[robot, traj, pid]", "[robot, traj, pid, gravity]"), "gravity",
+            r"configuration 'joint_pid' names task 'gravity', which 'tasks' does not declare$"),
+    mistake("an_unknown_configuration_in_a_job_is_an_error",
+            changed("configuration: joint_pid", "configuration: joint_pd"), "joint_pd,",
+            r"job 'move' runs configuration 'joint_pd', which 'configurations' does not declare$",
+            hint=r"^did you mean 'joint_pid'\?"),
+    mistake("a_port_the_module_does_not_declare_is_an_error",
+            changed("ports: {tau: tau_u}", "ports: {tau: tau_u, torque: tau_u}"), "torque",
+            r"module 'fake_pid' of task 'pid' has no port 'torque'$",
+            hint=r"^\(ports: ndof, q_m, q_r, tau\)$"),
+    # ports and variables agree
+    mistake("a_port_and_its_variable_must_have_the_same_dtype",
+            changed("q_d:   {type: float64", "q_d:   {type: float32"), "traj:",
+            r"task 'traj' port 'q_d' \(in-var\) is float64, but variable 'q_d' is float32$",
+            hint=r"^change the type of 'q_d' \(line 10\) or link the port to a float64 variable$"),
+    mistake("an_unknown_dtype_is_an_error_with_the_valid_ones",
+            changed("q_d:   {type: float64", "q_d:   {type: float46"), "float46", r"variable 'q_d' has unknown type 'float46'$",
+            hint=r"^did you mean 'float64'\? \(valid: bool, float32, float64, int16, int32, int64, int8, uint16, uint32, "
+                 r"uint64, uint8\)"),
+    # producers and consumers
+    mistake("in_both_without_a_writer_is_an_error",
+            edited(*BOTH_WRITER_AND_READER, ("configurations:\n", "configurations:\n  both: [r]\n  other: [w]\n")),
+            "r: {module", r"task 'r' reads in-both 'c', but no task in configuration 'both' writes it"),
+    mistake("a_task_appears_at_most_once_in_a_configuration",
+            changed("[robot, traj, pid]", "[robot, traj, pid, traj]"), "traj",
+            r"task 'traj' appears twice in configuration 'joint_pid' \(first at line 17, column 22\)$", nth=3,
+            hint=r"declare a second task"),
+    # periods
+    mistake("a_period_must_be_positive",
+            changed("period: 2 ms", "period: -5 ms"), "-5 ms", r"period of task 'traj' must be > 0, got: -5 ms$"),
+    mistake("a_rate_must_be_positive",
+            changed("rate: 1 kHz", "rate: 0 Hz"), "0 Hz", r"rate of task 'pid' must be > 0, got: 0 Hz$"),
+    mistake("a_task_cannot_give_both_period_and_rate",
+            changed("rate: 1 kHz", "rate: 1 kHz, period: 1 ms"), "rate:", r"task 'pid' gives both a period and a rate$"),
+    mistake("a_task_needs_a_period_or_a_rate",
+            changed(", period: 2 ms", ""), "traj:", r"task 'traj' needs a period or a rate$"),
+    mistake("a_period_in_frequency_units_says_to_use_rate",
+            changed("period: 2 ms", "period: 500 Hz"), "500 Hz",
+            r"period of task 'traj': expected a time like '1 ms' or a number of seconds, got: '500 Hz' \(that is a frequency\)$",
+            hint=r"rate: 1 kHz"),
+    # devices
+    mistake("an_exclusive_device_has_one_user_per_configuration",
+            changed("period: 2 ms}", "period: 2 ms, resources: [arm]}"), "arm",
+            r"device 'arm' is exclusive, but configuration 'joint_pid' gives it to 'robot' \(line 13\) and 'traj'", nth=3,
+            hint=r"exclusive: false"),
+    # values
+    mistake("an_initial_value_must_match_the_shape",
+            changed("q_m:   {type: float64, shape: [NDOF]}", "q_m:   {type: float64, shape: [NDOF], initial: [1, 2, 3]}"),
+            "[1, 2, 3]", r"initial value of variable 'q_m' has shape \(3,\), but the variable's shape is \(6,\)$"),
+    mistake("an_initial_value_must_fit_the_dtype",
+            changed("initial: 6}", "initial: 6.5}"), "6.5",
+            r"initial value of variable 'NDOF': int32 elements must be integers, got: the number 6.5$"),
+    mistake("params_the_module_refuses_are_an_error_at_the_params_node",
+            changed("params: {kp: 400}", "params: {kp: 400, ki: 1}"), "{kp: 400, ki: 1}",
+            r"params of task 'pid' \(module 'fake_pid'\): unknown parameter\(s\) 'ki' for FakePid \(valid: kd, kp\)$"),
+    mistake("missing_params_are_an_error",
+            changed(", params: {kp: 400}", ""), "pid:", r"params of task 'pid' \(module 'fake_pid'\): missing parameter\(s\) 'kp'"),
+    # jobs and applications
+    mistake("a_job_object_must_be_a_variable_marked_as_an_object",
+            changed("object: q_d, post", "object: q_m, post"), "q_m, post",
+            r"job 'move' takes variable 'q_m' as its object, but the variable is not marked as an object$"),
+    mistake("a_job_condition_must_be_an_expression",
+            changed('"max(abs(q_m - q_d)) < 1e-3"', '"max(abs(q_m - q_d) < 1e-3"'), "(abs",
+            r"post-condition of job 'move' is not an expression: '\(' was never closed: "),
+    mistake("an_application_step_must_name_a_job",
+            changed("- move:", "- mvoe:"), "mvoe", r"step 1 of application 'demo' runs job 'mvoe', which 'jobs' does not declare$",
+            hint=r"^did you mean 'move'\?"),
+    mistake("an_application_object_must_match_the_variable_shape",
+            changed("[0, -0.5, 0.5, 0, 0, 0]", "[0, -0.5, 0.5]"), "[0, -0.5, 0.5]",
+            r"object 'q_d' of step 1 of application 'demo' has shape \(3,\), but the variable's shape is \(6,\)$"),
+    # task names and modules
+    mistake("a_module_runs_at_most_once_in_a_configuration",
+            edited(("configurations:\n", TRAJ2 + "configurations:\n"), ("[robot, traj, pid]", "[robot, traj, pid, traj2]")),
+            "traj2]", r"configuration 'joint_pid' runs module 'fake_traj' twice: as task 'traj' \(line 14\) and as task 'traj2' "
+                      r"\(line 16\)$", code="E407",
+            hint=r"combine the two tasks into one, or use distinct modules"),
+    # job conditions
+    mistake("a_condition_may_not_access_attributes_and_says_where",
+            changed('"max(abs(q_m - q_d)) < 1e-3"', '"q_m.max() < 1e-3"'), "q_m.max",
+            r"post-condition of job 'move': attribute access \('\.max'\) is not allowed in a condition "
+            r"\(column 1 of 'q_m\.max\(\) < 1e-3'\)$", code="E703",
+            hint=r"abs, max, min, sum, all, any, norm, sqrt"),
+    mistake("a_condition_may_not_import",
+            changed('"max(abs(q_m - q_d)) < 1e-3"', "\"__import__('os').system('true') == 0\""), "__import__",
+            r"post-condition of job 'move': attribute access \('\.system'\) is not allowed", code="E703"),
+    mistake("a_condition_names_only_declared_variables",
+            changed('"max(abs(q_m - q_d)) < 1e-3"', '"max(abs(q_x - q_d)) < 1e-3"'), "q_x",
+            r"post-condition of job 'move' uses 'q_x', which 'variables' does not declare$", code="E704",
+            hint=r"^did you mean"),
+    # applications
+    mistake("an_object_given_to_a_job_that_takes_none_is_an_error",
+            with_apps(f"  demo:\n    - hold: {{q_d: {Q}}}\n", "  hold: {configuration: joint_pid}\n"), "q_d: [0",
+            r"step 1 of application 'demo' gives object 'q_d' to job 'hold', which takes no object$", code="E705"),
+    mistake("two_objects_for_one_job_are_an_error",
+            with_apps(f"  demo:\n    - move: {{q_d: {Q}, q_r: {Q}}}\n"), "q_r: [0",
+            r"step 1 of application 'demo' gives 2 objects to job 'move' \(q_d, q_r\), but a job takes exactly one$", code="E706"),
+    mistake("an_object_that_is_not_the_jobs_is_an_error",
+            with_apps(f"  demo:\n    - move: {{q_m: {Q}}}\n"), "q_m: [0",
+            r"step 1 of application 'demo' gives 'q_m' to job 'move', but its object is 'q_d' \(type joint_position\)$", code="E707"),
+    mistake("an_application_step_takes_no_objects",
+            with_apps(f"  demo: [{{move: {{q_d: {Q}}}}}]\n  outer:\n    - demo: {{q_d: {Q}}}\n"), "{q_d",
+            r"step 1 of application 'outer' gives objects to application 'demo', which takes none$", nth=1, code="E709"),
+    mistake("a_job_and_an_application_may_not_share_a_name",
+            with_apps(f"  move: [{{move: {{q_d: {Q}}}}}]\n"), "move: [", r"'move' names both a job and an application$", code="E214"),
+    # timing
+    mistake("a_wcet_longer_than_the_period_is_an_error",
+            changed("period: 2 ms}", "period: 2 ms, wcet: 3 ms}"), "3 ms",
+            r"wcet of task 'traj' must be <= its period \(2 ms\), got: 3 ms$", code="E505"),
+    mistake("a_wcet_must_be_positive",
+            changed("period: 2 ms}", "period: 2 ms, wcet: 0 ms}"), "0 ms", r"wcet of task 'traj' must be > 0, got: 0 ms$", code="E502"),
+    # aperiodic tasks
+    mistake("an_aperiodic_task_takes_no_period",
+            changed("period: 2 ms}", "aperiodic: true, min_interarrival: 5 ms, period: 2 ms}"), "period: 2 ms}",
+            r"task 'traj' is aperiodic, so it takes no period$", code="E506"),
+    mistake("an_aperiodic_task_takes_no_rate",
+            changed("rate: 1 kHz", "rate: 1 kHz, aperiodic: true, min_interarrival: 5 ms"), "rate:",
+            r"task 'pid' is aperiodic, so it takes no rate$", code="E506"),
+    mistake("an_aperiodic_task_needs_a_min_interarrival",
+            changed("period: 2 ms}", "aperiodic: true}"), "aperiodic", r"aperiodic task 'traj' needs a min_interarrival$", code="E507"),
+    mistake("a_min_interarrival_must_be_positive",
+            changed("period: 2 ms}", "aperiodic: true, min_interarrival: 0 s}"), "0 s}",
+            r"min_interarrival of task 'traj' must be > 0, got: 0 s$", code="E502"),
+    mistake("a_periodic_task_takes_no_min_interarrival",
+            changed("period: 2 ms}", "period: 2 ms, min_interarrival: 5 ms}"), "min_interarrival",
+            r"task 'traj' gives a min_interarrival but is not aperiodic$", code="E508"),
+]
+
+
+@pytest.mark.parametrize(("text", "needle", "message", "nth", "code", "hint"), ONE_MISTAKE)
+def test_one_mistake_is_one_error_at_its_node_with_an_anchored_message(tmp_path: Path, text: str, needle: str, message: str,
+                                                                        nth: int, code: str, hint: str | None) -> None:
+    error = expect_error(tmp_path, text, needle, message, nth=nth, code=code)
+    if hint is not None:
+        assert re.search(hint, error.hint), error.hint
+
+
 # --- the legal file ------------------------------------------------------------------------
 
 
@@ -197,31 +417,10 @@ def test_an_unknown_top_level_key_is_an_error_with_a_suggestion(tmp_path: Path) 
     assert error.hint.startswith("did you mean 'dims'?")
 
 
-def test_an_unknown_key_in_a_task_is_an_error_with_a_suggestion(tmp_path: Path) -> None:
-    text = changed("critical: true", "critcal: true")
-    error = expect_error(tmp_path, text, "critcal", r"unknown key 'critcal' in task 'robot'$")
-    assert "did you mean 'critical'?" in error.hint
-
-
-def test_an_unknown_key_in_a_variable_is_an_error(tmp_path: Path) -> None:
-    text = changed("q_r:   {type: float64,", "q_r:   {type: float64, units: rad,")
-    expect_error(tmp_path, text, "units", r"unknown key 'units' in variable 'q_r'$")
-
-
 def test_a_missing_required_top_level_key_is_an_error(tmp_path: Path) -> None:
     text = changed("rtpus: [rtpu0, rtpu1]\n", "")
     result = check(tmp_path, text)
     assert any(re.match(r"^the file has no 'rtpus:', which is required$", e.message) for e in result.errors)
-
-
-def test_a_misspelt_required_key_is_one_error_not_two(tmp_path: Path) -> None:
-    text = LEGAL.replace("module: fake_robot", "modul: fake_robot")
-    expect_error(tmp_path, text, "modul:", r"unknown key 'modul' in task 'robot': did you mean the required key 'module'\?$")
-
-
-def test_a_task_without_a_module_is_an_error_at_the_task(tmp_path: Path) -> None:
-    text = changed("module: fake_traj, ", "")
-    expect_error(tmp_path, text, "traj:", r"task 'traj' has no 'module:', which is required$")
 
 
 def test_a_section_of_the_wrong_type_is_an_error(tmp_path: Path) -> None:
@@ -232,26 +431,11 @@ def test_a_section_of_the_wrong_type_is_an_error(tmp_path: Path) -> None:
     assert (error.line, error.column) == at(text, "6", 0)
 
 
-def test_a_flag_that_is_not_a_boolean_is_an_error(tmp_path: Path) -> None:
-    text = changed("critical: true", "critical: yes please")
-    expect_error(tmp_path, text, "yes please", r"'critical' of task 'robot' must be true or false, got: the text 'yes please'$")
-
-
-def test_an_invalid_subsystem_name_is_an_error(tmp_path: Path) -> None:
-    text = changed("subsystem: puma", "subsystem: my puma/1")
-    expect_error(tmp_path, text, "my puma", r"subsystem name 'my puma/1' is not usable in shared-memory names$")
-
-
 def test_rtpus_may_be_a_mapping_with_cpus(tmp_path: Path) -> None:
     result = check(tmp_path, changed("rtpus: [rtpu0, rtpu1]", "rtpus: {rtpu0: {cpu: 0}, rtpu1: {cpu: 1}}"))
     assert result.errors == []
     assert result.subsystem is not None
     assert [(r.name, r.index, r.cpu) for r in result.subsystem.rtpus] == [("rtpu0", 0, 0), ("rtpu1", 1, 1)]
-
-
-def test_an_rtpu_cpu_must_be_a_non_negative_integer(tmp_path: Path) -> None:
-    text = changed("rtpus: [rtpu0, rtpu1]", "rtpus: {rtpu0: {cpu: -1}, rtpu1: {cpu: 1}}")
-    expect_error(tmp_path, text, "-1", r"cpu of RTPU 'rtpu0' must be >= 0, got: -1$")
 
 
 def test_an_rtpu_spins_200_us_before_a_release_unless_it_gives_its_own_spin(tmp_path: Path) -> None:
@@ -260,50 +444,7 @@ def test_an_rtpu_spins_200_us_before_a_release_unless_it_gives_its_own_spin(tmp_
     assert [(r.name, r.spin) for r in result.subsystem.rtpus] == [("rtpu0", pytest.approx(50e-6)), ("rtpu1", 0.0002)]
 
 
-def test_an_rtpu_spin_as_long_as_its_shortest_period_is_an_error(tmp_path: Path) -> None:
-    text = changed("rtpus: [rtpu0, rtpu1]", "rtpus: {rtpu0: {spin: 1 ms}, rtpu1: null}")
-    expect_error(tmp_path, text, "1 ms}", r"spin of RTPU 'rtpu0' must be shorter than the shortest period of its tasks "
-                 r"\(1 ms, task 'pid'\), got: 1 ms$", code="E509")
-
-
 # --- undefined names -----------------------------------------------------------------------
-
-
-def test_a_port_linked_to_an_undefined_variable_is_an_error_with_a_suggestion(tmp_path: Path) -> None:
-    text = changed("ports: {tau: tau_u}", "ports: {tau: tau_uu}")
-    error = expect_error(tmp_path, text, "tau_uu", r"task 'pid' links port 'tau' to variable 'tau_uu', which 'variables' does not declare$")
-    assert error.hint.startswith("did you mean 'tau_u'?")
-
-
-def test_a_port_linked_by_default_to_an_undeclared_variable_is_an_error(tmp_path: Path) -> None:
-    text = changed(", ports: {tau: tau_u}", "")
-    error = expect_error(
-        tmp_path, text, "pid:", r"task 'pid' \(module 'fake_pid'\) links port 'tau' by default to variable 'tau', which 'variables' does not declare$"
-    )
-    assert "ports: {tau: <variable>}" in error.hint
-
-
-def test_an_unknown_module_is_an_error_with_a_suggestion(tmp_path: Path) -> None:
-    text = changed("module: fake_traj", "module: fake_trajj")
-    error = expect_error(tmp_path, text, "fake_trajj", r"task 'traj' uses module 'fake_trajj', which is not registered$")
-    assert error.hint.startswith("did you mean 'fake_traj'? (registered: ")
-
-
-def test_an_unknown_rtpu_is_an_error_with_a_suggestion(tmp_path: Path) -> None:
-    text = changed("rtpu: rtpu1", "rtpu: rtpu2")
-    error = expect_error(tmp_path, text, "rtpu2", r"task 'robot' runs on RTPU 'rtpu2', which 'rtpus' does not declare$")
-    assert re.match(r"^did you mean 'rtpu[01]'\? \(declared: rtpu0, rtpu1\)$", error.hint)
-
-
-def test_an_unknown_device_is_an_error(tmp_path: Path) -> None:
-    text = changed("resources: [arm]", "resources: [army]")
-    expect_error(tmp_path, text, "army", r"task 'robot' uses device 'army', which 'devices' does not declare$")
-
-
-def test_an_unknown_dim_in_a_shape_is_an_error(tmp_path: Path) -> None:
-    text = changed("q_d:   {type: float64, shape: [NDOF]", "q_d:   {type: float64, shape: [NDFO]")
-    error = expect_error(tmp_path, text, "NDFO", r"shape of variable 'q_d' uses dim 'NDFO', which 'dims' does not define$")
-    assert "did you mean 'NDOF'?" in error.hint
 
 
 def test_a_port_shape_naming_an_undefined_dim_is_an_error(tmp_path: Path) -> None:
@@ -316,30 +457,7 @@ def test_a_port_shape_naming_an_undefined_dim_is_an_error(tmp_path: Path) -> Non
     assert re.match(r"^port 'x' of module 'fake_needs_dim' \(task 'needs'\) has shape \(NJOINTS,\) with dim 'NJOINTS'", error.message)
 
 
-def test_an_unknown_task_in_a_configuration_is_an_error(tmp_path: Path) -> None:
-    text = changed("[robot, traj, pid]", "[robot, traj, pid, gravity]")
-    expect_error(tmp_path, text, "gravity", r"configuration 'joint_pid' names task 'gravity', which 'tasks' does not declare$")
-
-
-def test_an_unknown_configuration_in_a_job_is_an_error(tmp_path: Path) -> None:
-    text = changed("configuration: joint_pid", "configuration: joint_pd")
-    error = expect_error(tmp_path, text, "joint_pd,", r"job 'move' runs configuration 'joint_pd', which 'configurations' does not declare$")
-    assert error.hint.startswith("did you mean 'joint_pid'?")
-
-
-def test_a_port_the_module_does_not_declare_is_an_error(tmp_path: Path) -> None:
-    text = changed("ports: {tau: tau_u}", "ports: {tau: tau_u, torque: tau_u}")
-    error = expect_error(tmp_path, text, "torque", r"module 'fake_pid' of task 'pid' has no port 'torque'$")
-    assert error.hint == "(ports: ndof, q_m, q_r, tau)"
-
-
 # --- ports and variables agree ---------------------------------------------------------------
-
-
-def test_a_port_and_its_variable_must_have_the_same_dtype(tmp_path: Path) -> None:
-    text = changed("q_d:   {type: float64", "q_d:   {type: float32")
-    error = expect_error(tmp_path, text, "traj:", r"task 'traj' port 'q_d' \(in-var\) is float64, but variable 'q_d' is float32$")
-    assert error.hint == "change the type of 'q_d' (line 10) or link the port to a float64 variable"
 
 
 def test_a_port_and_its_variable_must_have_the_same_resolved_shape(tmp_path: Path) -> None:
@@ -348,12 +466,6 @@ def test_a_port_and_its_variable_must_have_the_same_resolved_shape(tmp_path: Pat
     assert len(result.errors) == 2  # traj writes it, pid reads it
     error = result.errors[0]
     assert re.match(r"^task 'traj' port 'q_r' \(out-var\) has shape \(6,\) = \(NDOF,\), but variable 'q_r' has shape \(7,\)$", error.message)
-
-
-def test_an_unknown_dtype_is_an_error_with_the_valid_ones(tmp_path: Path) -> None:
-    text = changed("q_d:   {type: float64", "q_d:   {type: float46")
-    error = expect_error(tmp_path, text, "float46", r"variable 'q_d' has unknown type 'float46'$")
-    assert error.hint.startswith("did you mean 'float64'? (valid: bool, float32, float64, int16, int32, int64, int8, uint16, uint32, uint64, uint8)")
 
 
 # --- producers and consumers -----------------------------------------------------------------
@@ -432,19 +544,6 @@ def test_in_both_takes_an_out_both(tmp_path: Path) -> None:
     assert check(tmp_path, text).errors == []
 
 
-def test_in_both_without_a_writer_is_an_error(tmp_path: Path) -> None:
-    text = changed("variables:\n", "variables:\n  c: {type: float64}\n")
-    text = changed("tasks:\n", "tasks:\n  w: {module: fake_both_writer, rtpu: rtpu0, period: 1 ms}\n  r: {module: fake_both_reader, rtpu: rtpu0, period: 1 ms}\n", text)
-    text = changed("configurations:\n", "configurations:\n  both: [r]\n  other: [w]\n", text)
-    expect_error(tmp_path, text, "r: {module", r"task 'r' reads in-both 'c', but no task in configuration 'both' writes it")
-
-
-def test_a_task_appears_at_most_once_in_a_configuration(tmp_path: Path) -> None:
-    text = changed("[robot, traj, pid]", "[robot, traj, pid, traj]")
-    error = expect_error(tmp_path, text, "traj", r"task 'traj' appears twice in configuration 'joint_pid' \(first at line 17, column 22\)$", nth=3)
-    assert "declare a second task" in error.hint
-
-
 def test_a_cycle_of_const_dependencies_is_an_error_that_prints_the_cycle(tmp_path: Path) -> None:
     text = changed("variables:\n", "variables:\n  a: {type: float64}\n  b: {type: float64}\n")
     text = changed("tasks:\n", "tasks:\n  ta: {module: fake_const_a, rtpu: rtpu0, period: 1 ms}\n  tb: {module: fake_const_b, rtpu: rtpu0, period: 1 ms}\n", text)
@@ -469,32 +568,6 @@ def test_the_init_order_puts_const_producers_first_then_file_order(tmp_path: Pat
 # --- periods ---------------------------------------------------------------------------------
 
 
-def test_a_period_must_be_positive(tmp_path: Path) -> None:
-    text = changed("period: 2 ms", "period: -5 ms")
-    expect_error(tmp_path, text, "-5 ms", r"period of task 'traj' must be > 0, got: -5 ms$")
-
-
-def test_a_rate_must_be_positive(tmp_path: Path) -> None:
-    text = changed("rate: 1 kHz", "rate: 0 Hz")
-    expect_error(tmp_path, text, "0 Hz", r"rate of task 'pid' must be > 0, got: 0 Hz$")
-
-
-def test_a_task_cannot_give_both_period_and_rate(tmp_path: Path) -> None:
-    text = changed("rate: 1 kHz", "rate: 1 kHz, period: 1 ms")
-    expect_error(tmp_path, text, "rate:", r"task 'pid' gives both a period and a rate$")
-
-
-def test_a_task_needs_a_period_or_a_rate(tmp_path: Path) -> None:
-    text = changed(", period: 2 ms", "")
-    expect_error(tmp_path, text, "traj:", r"task 'traj' needs a period or a rate$")
-
-
-def test_a_period_in_frequency_units_says_to_use_rate(tmp_path: Path) -> None:
-    text = changed("period: 2 ms", "period: 500 Hz")
-    error = expect_error(tmp_path, text, "500 Hz", r"period of task 'traj': expected a time like '1 ms' or a number of seconds, got: '500 Hz' \(that is a frequency\)$")
-    assert "rate: 1 kHz" in error.hint
-
-
 def test_a_rate_becomes_a_period(tmp_path: Path) -> None:
     result = check(tmp_path, LEGAL)
     assert result.subsystem is not None
@@ -504,13 +577,6 @@ def test_a_rate_becomes_a_period(tmp_path: Path) -> None:
 # --- devices ---------------------------------------------------------------------------------
 
 
-def test_an_exclusive_device_has_one_user_per_configuration(tmp_path: Path) -> None:
-    text = changed("period: 2 ms}", "period: 2 ms, resources: [arm]}")
-    arm_line, _ = at(text, "resources: [arm]")
-    error = expect_error(tmp_path, text, "arm", rf"device 'arm' is exclusive, but configuration 'joint_pid' gives it to 'robot' \(line {arm_line}\) and 'traj'", nth=3)
-    assert "exclusive: false" in error.hint
-
-
 def test_a_shared_device_may_have_many_users(tmp_path: Path) -> None:
     text = changed("exclusive: true", "exclusive: false")
     text = changed("period: 2 ms}", "period: 2 ms, resources: [arm]}", text)
@@ -518,16 +584,6 @@ def test_a_shared_device_may_have_many_users(tmp_path: Path) -> None:
 
 
 # --- values ----------------------------------------------------------------------------------
-
-
-def test_an_initial_value_must_match_the_shape(tmp_path: Path) -> None:
-    text = changed("q_m:   {type: float64, shape: [NDOF]}", "q_m:   {type: float64, shape: [NDOF], initial: [1, 2, 3]}")
-    expect_error(tmp_path, text, "[1, 2, 3]", r"initial value of variable 'q_m' has shape \(3,\), but the variable's shape is \(6,\)$")
-
-
-def test_an_initial_value_must_fit_the_dtype(tmp_path: Path) -> None:
-    text = changed("initial: 6}", "initial: 6.5}")
-    expect_error(tmp_path, text, "6.5", r"initial value of variable 'NDOF': int32 elements must be integers, got: the number 6.5$")
 
 
 def test_one_number_initialises_every_element(tmp_path: Path) -> None:
@@ -542,17 +598,6 @@ def test_a_ragged_initial_value_is_an_error(tmp_path: Path) -> None:
     text = changed("q_m:   {type: float64, shape: [NDOF]}", "q_m:   {type: float64, shape: [2, 2], initial: [[1, 2], [3]]}", text)
     result = check(tmp_path, text)
     assert any(re.match(r"^initial value of variable 'q_m' is a ragged list", e.message) for e in result.errors)
-
-
-def test_params_the_module_refuses_are_an_error_at_the_params_node(tmp_path: Path) -> None:
-    text = changed("params: {kp: 400}", "params: {kp: 400, ki: 1}")
-    error = expect_error(tmp_path, text, "{kp: 400, ki: 1}", r"params of task 'pid' \(module 'fake_pid'\): unknown parameter\(s\) 'ki' for FakePid \(valid: kd, kp\)$")
-    assert error.column > 1
-
-
-def test_missing_params_are_an_error(tmp_path: Path) -> None:
-    text = changed(", params: {kp: 400}", "")
-    expect_error(tmp_path, text, "pid:", r"params of task 'pid' \(module 'fake_pid'\): missing parameter\(s\) 'kp'")
 
 
 def test_a_module_that_cannot_list_its_ports_is_reported_not_raised(tmp_path: Path) -> None:
@@ -585,27 +630,6 @@ def test_a_bug_in_the_checker_is_an_internal_error_not_a_traceback(tmp_path: Pat
 
 
 # --- jobs and applications ------------------------------------------------------------------
-
-
-def test_a_job_object_must_be_a_variable_marked_as_an_object(tmp_path: Path) -> None:
-    text = changed("object: q_d, post", "object: q_m, post")
-    expect_error(tmp_path, text, "q_m, post", r"job 'move' takes variable 'q_m' as its object, but the variable is not marked as an object$")
-
-
-def test_a_job_condition_must_be_an_expression(tmp_path: Path) -> None:
-    text = changed('"max(abs(q_m - q_d)) < 1e-3"', '"max(abs(q_m - q_d) < 1e-3"')
-    expect_error(tmp_path, text, "(abs", r"post-condition of job 'move' is not an expression: '\(' was never closed: ")
-
-
-def test_an_application_step_must_name_a_job(tmp_path: Path) -> None:
-    text = changed("- move:", "- mvoe:")
-    error = expect_error(tmp_path, text, "mvoe", r"step 1 of application 'demo' runs job 'mvoe', which 'jobs' does not declare$")
-    assert error.hint.startswith("did you mean 'move'?")
-
-
-def test_an_application_object_must_match_the_variable_shape(tmp_path: Path) -> None:
-    text = changed("[0, -0.5, 0.5, 0, 0, 0]", "[0, -0.5, 0.5]")
-    expect_error(tmp_path, text, "[0, -0.5, 0.5]", r"object 'q_d' of step 1 of application 'demo' has shape \(3,\), but the variable's shape is \(6,\)$")
 
 
 def test_an_application_step_without_its_object_is_only_a_warning_and_makes_it_incomplete(tmp_path: Path) -> None:
@@ -699,18 +723,6 @@ def test_two_tasks_with_one_name_are_a_duplicate_key_error_at_the_second(tmp_pat
     assert re.match(rf"^.*bad\.yaml:{line}:{column}: error\[E102\]: duplicate key 'traj' in tasks \(first at line 14, column 3\)$", str(error), re.MULTILINE)
 
 
-TRAJ2 = "  traj2: {module: fake_traj, rtpu: rtpu0, period: 2 ms}\n"
-
-
-def test_a_module_runs_at_most_once_in_a_configuration(tmp_path: Path) -> None:
-    text = changed("configurations:\n", TRAJ2 + "configurations:\n")
-    text = changed("[robot, traj, pid]", "[robot, traj, pid, traj2]", text)
-    error = expect_error(
-        tmp_path, text, "traj2]", r"configuration 'joint_pid' runs module 'fake_traj' twice: as task 'traj' \(line 14\) and as task 'traj2' \(line 16\)$", code="E407"
-    )
-    assert "combine the two tasks into one, or use distinct modules" in error.hint
-
-
 def test_one_module_may_run_as_different_tasks_in_different_configurations(tmp_path: Path) -> None:
     text = changed("configurations:\n", TRAJ2 + "configurations:\n")
     text = changed("  joint_pid:", "  other: [robot, traj2, pid]\n  joint_pid:", text)
@@ -733,24 +745,6 @@ def test_a_condition_may_use_the_whole_language(tmp_path: Path) -> None:
     assert result.subsystem.jobs["move"].pre is not None
 
 
-def test_a_condition_may_not_access_attributes_and_says_where(tmp_path: Path) -> None:
-    text = changed('"max(abs(q_m - q_d)) < 1e-3"', '"q_m.max() < 1e-3"')
-    error = expect_error(tmp_path, text, "q_m.max", r"post-condition of job 'move': attribute access \('\.max'\) is not allowed in a condition "
-                         r"\(column 1 of 'q_m\.max\(\) < 1e-3'\)$", code="E703")
-    assert "abs, max, min, sum, all, any, norm, sqrt" in error.hint
-
-
-def test_a_condition_may_not_import(tmp_path: Path) -> None:
-    text = changed('"max(abs(q_m - q_d)) < 1e-3"', "\"__import__('os').system('true') == 0\"")
-    expect_error(tmp_path, text, "__import__", r"post-condition of job 'move': attribute access \('\.system'\) is not allowed", code="E703")
-
-
-def test_a_condition_names_only_declared_variables(tmp_path: Path) -> None:
-    text = changed('"max(abs(q_m - q_d)) < 1e-3"', '"max(abs(q_x - q_d)) < 1e-3"')
-    error = expect_error(tmp_path, text, "q_x", r"post-condition of job 'move' uses 'q_x', which 'variables' does not declare$", code="E704")
-    assert error.hint.startswith("did you mean")
-
-
 def test_a_condition_in_block_style_is_reported_at_its_value(tmp_path: Path) -> None:
     text = changed('move: {configuration: joint_pid, object: q_d, post: "max(abs(q_m - q_d)) < 1e-3", timeout: 10 s}',
                    "move:\n    configuration: joint_pid\n    object: q_d\n    post: >-\n      lambda: 1\n    timeout: 10 s")
@@ -760,16 +754,6 @@ def test_a_condition_in_block_style_is_reported_at_its_value(tmp_path: Path) -> 
 
 
 # --- applications ---------------------------------------------------------------------------
-
-
-def with_apps(apps: str, jobs: str = "") -> str:
-    text = LEGAL[: LEGAL.index("applications:")] + "applications:\n" + apps
-    if jobs:
-        text = changed("jobs:\n", "jobs:\n" + jobs, text)
-    return text
-
-
-Q = "[0, -0.5, 0.5, 0, 0, 0]"
 
 
 def test_applications_may_nest_and_stay_complete(tmp_path: Path) -> None:
@@ -790,36 +774,11 @@ def test_an_application_using_an_incomplete_one_is_incomplete(tmp_path: Path) ->
     assert not result.subsystem.applications["outer"].complete and not result.subsystem.applications["demo"].complete
 
 
-def test_an_object_given_to_a_job_that_takes_none_is_an_error(tmp_path: Path) -> None:
-    text = with_apps(f"  demo:\n    - hold: {{q_d: {Q}}}\n", "  hold: {configuration: joint_pid}\n")
-    expect_error(tmp_path, text, "q_d: [0", r"step 1 of application 'demo' gives object 'q_d' to job 'hold', which takes no object$", code="E705")
-
-
-def test_two_objects_for_one_job_are_an_error(tmp_path: Path) -> None:
-    text = with_apps(f"  demo:\n    - move: {{q_d: {Q}, q_r: {Q}}}\n")
-    expect_error(tmp_path, text, "q_r: [0", r"step 1 of application 'demo' gives 2 objects to job 'move' \(q_d, q_r\), but a job takes exactly one$", code="E706")
-
-
-def test_an_object_that_is_not_the_jobs_is_an_error(tmp_path: Path) -> None:
-    text = with_apps(f"  demo:\n    - move: {{q_m: {Q}}}\n")
-    expect_error(tmp_path, text, "q_m: [0", r"step 1 of application 'demo' gives 'q_m' to job 'move', but its object is 'q_d' \(type joint_position\)$", code="E707")
-
-
 def test_a_cycle_of_applications_is_an_error(tmp_path: Path) -> None:
     text = with_apps(f"  a: [b, {{move: {{q_d: {Q}}}}}]\n  b: [c]\n  c: [a]\n")
     error = only_error(check(tmp_path, text))
     assert error.code == "E708"
     assert re.match(r"^applications form a cycle: (a -> b -> c -> a|b -> c -> a -> b|c -> a -> b -> c)$", error.message)
-
-
-def test_an_application_step_takes_no_objects(tmp_path: Path) -> None:
-    text = with_apps(f"  demo: [{{move: {{q_d: {Q}}}}}]\n  outer:\n    - demo: {{q_d: {Q}}}\n")
-    expect_error(tmp_path, text, "{q_d", r"step 1 of application 'outer' gives objects to application 'demo', which takes none$", nth=1, code="E709")
-
-
-def test_a_job_and_an_application_may_not_share_a_name(tmp_path: Path) -> None:
-    text = with_apps(f"  move: [{{move: {{q_d: {Q}}}}}]\n")
-    expect_error(tmp_path, text, "move: [", r"'move' names both a job and an application$", code="E214")
 
 
 # --- timing ---------------------------------------------------------------------------------
@@ -830,16 +789,6 @@ def test_a_task_may_declare_its_wcet(tmp_path: Path) -> None:
     assert result.errors == [] and result.warnings == []
     assert result.subsystem is not None and result.subsystem.tasks["traj"].wcet == pytest.approx(2e-4)
     assert result.subsystem.tasks["pid"].wcet is None
-
-
-def test_a_wcet_longer_than_the_period_is_an_error(tmp_path: Path) -> None:
-    text = changed("period: 2 ms}", "period: 2 ms, wcet: 3 ms}")
-    expect_error(tmp_path, text, "3 ms", r"wcet of task 'traj' must be <= its period \(2 ms\), got: 3 ms$", code="E505")
-
-
-def test_a_wcet_must_be_positive(tmp_path: Path) -> None:
-    text = changed("period: 2 ms}", "period: 2 ms, wcet: 0 ms}")
-    expect_error(tmp_path, text, "0 ms", r"wcet of task 'traj' must be > 0, got: 0 ms$", code="E502")
 
 
 def loads(traj: str, pid: str, traj_critical: bool = False, pid_critical: bool = False) -> str:
@@ -887,31 +836,6 @@ def test_an_aperiodic_task_gives_its_min_interarrival(tmp_path: Path) -> None:
     traj = result.subsystem.tasks["traj"]
     assert traj.aperiodic and traj.min_interarrival == pytest.approx(5e-3) and traj.period == pytest.approx(5e-3)
     assert not result.subsystem.tasks["pid"].aperiodic
-
-
-def test_an_aperiodic_task_takes_no_period(tmp_path: Path) -> None:
-    text = changed("period: 2 ms}", "aperiodic: true, min_interarrival: 5 ms, period: 2 ms}")
-    expect_error(tmp_path, text, "period: 2 ms}", r"task 'traj' is aperiodic, so it takes no period$", code="E506")
-
-
-def test_an_aperiodic_task_takes_no_rate(tmp_path: Path) -> None:
-    text = changed("rate: 1 kHz", "rate: 1 kHz, aperiodic: true, min_interarrival: 5 ms")
-    expect_error(tmp_path, text, "rate:", r"task 'pid' is aperiodic, so it takes no rate$", code="E506")
-
-
-def test_an_aperiodic_task_needs_a_min_interarrival(tmp_path: Path) -> None:
-    text = changed("period: 2 ms}", "aperiodic: true}")
-    expect_error(tmp_path, text, "aperiodic", r"aperiodic task 'traj' needs a min_interarrival$", code="E507")
-
-
-def test_a_min_interarrival_must_be_positive(tmp_path: Path) -> None:
-    text = changed("period: 2 ms}", "aperiodic: true, min_interarrival: 0 s}")
-    expect_error(tmp_path, text, "0 s}", r"min_interarrival of task 'traj' must be > 0, got: 0 s$", code="E502")
-
-
-def test_a_periodic_task_takes_no_min_interarrival(tmp_path: Path) -> None:
-    text = changed("period: 2 ms}", "period: 2 ms, min_interarrival: 5 ms}")
-    expect_error(tmp_path, text, "min_interarrival", r"task 'traj' gives a min_interarrival but is not aperiodic$", code="E508")
 
 
 # --- ten mistakes, one pass -----------------------------------------------------------------

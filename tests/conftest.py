@@ -30,14 +30,17 @@ def make_table():
         table.close()
 
 
-@pytest.fixture
+@pytest.fixture(autouse=True)
 def no_leftover_ipc():
-    """Fail the test if it leaves behind a segment, semaphore or queue named by this test process.
+    """Fail any test that leaves behind a segment, semaphore or queue named with this test process's pid.
 
-    Only names with this pytest process's pid count (`unique_name`), so objects of other test
-    runs on the machine do not. Leftovers are removed before the failure is reported.
+    That is every name `unique_name` makes (`pbo.test.<pid>-...`) and every run this process starts or
+    fakes (`pbo.<subsystem>.<pid>-...`); objects of other processes, other test runs on the machine
+    included, do not count. Autouse, and so set up before and torn down after every fixture a test
+    asks for: whatever made the object has closed it by then. Leftovers are removed before the
+    failure is reported, so one test's leak does not fail the next.
     """
-    mine = f"pbo.test.{os.getpid()}-"
+    mine = f".{os.getpid()}-"
 
     def ours() -> set[Path]:
         found: set[Path] = set()

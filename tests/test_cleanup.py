@@ -186,7 +186,7 @@ def stops_only_at_waits():
         process._requested = ""
 
 
-def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_wait(no_leftover_ipc, make_table,
+def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_wait(make_table,
                                                                                     stops_only_at_waits):
     # Regression: a Stop raised between a transfer's acquire and release kept the table lock; the
     # stop path (kill -> publish the state) then waited on the RTPU's own lock for ever, and a
@@ -233,7 +233,7 @@ def test_a_second_stop_signal_stops_at_once(stops_only_at_waits):
         time.sleep(1.0)  # (the handler runs as soon as the call returns)
 
 
-def test_a_report_at_stop_stops_waiting_on_a_full_queue_once_its_reader_is_gone(no_leftover_ipc):
+def test_a_report_at_stop_stops_waiting_on_a_full_queue_once_its_reader_is_gone():
     # An RTPU whose supervisor was killed reports its stop to a queue nobody drains: each
     # report used to wait out its 5 s, and an RTPU of many tasks outlived its supervisor by minutes.
     queue = messages.Queue(unique_name("events"), create=True)

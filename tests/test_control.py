@@ -38,17 +38,6 @@ from pbo_runtime.table.table import StateTable, TableLayout
 from tests.support import variables
 
 
-def _mine() -> set[str]:
-    return {e for e in os.listdir("/dev/shm") if f".{os.getpid()}-" in e}
-
-
-@pytest.fixture(autouse=True)
-def nothing_left_in_dev_shm() -> Iterator[None]:
-    before = _mine()
-    yield
-    assert _mine() - before == set()
-
-
 def _queue_exists(name: str) -> bool:
     try:
         posix_ipc.MessageQueue(name).close()

@@ -21,8 +21,6 @@ from pbo_runtime.links.message_link import (
 )
 from tests.support import unique_name
 
-pytestmark = pytest.mark.usefixtures("no_leftover_ipc")
-
 FORK = multiprocessing.get_context("fork")
 SAFETY_NET = 60.0  # seconds: a broken link fails instead of hanging the suite
 

@@ -14,7 +14,7 @@ from tests.support import make_task, unique_name, variables
 
 
 @pytest.fixture
-def receiver(no_leftover_ipc, make_table):
+def receiver(make_table):
     link = TripleBuffer.create(unique_name("tb-q"), LinkLayout(np.dtype("float64"), (3,)), role="sender")
     table = make_table(variables(("q_d", "float64", (3,)), ("link_counts", "float64", (3,))))
     spec = {"kind": "periodic", "transport": "shm", "object": link.name, "dtype": "float64", "shape": [3]}

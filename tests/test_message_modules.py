@@ -32,7 +32,7 @@ def link_spec(link: MessageLink) -> dict:
 
 
 @pytest.fixture
-def sender(no_leftover_ipc, make_table, goal_link):
+def sender(make_table, goal_link):
     table = make_table(variables(("goal", "float64", (3,)), ("message_counts", "float64", (2,))))
     task = make_task(table, MessageSender, "console", {"value": ("goal", (3,)), "counts": ("message_counts", (2,))},
                      {"goal": link_spec(goal_link)})
@@ -67,14 +67,14 @@ def test_a_full_queue_puts_the_send_off_and_counts_it_and_the_value_goes_later(s
     assert list(table.read("message_counts")[0]) == [4.0, 2.0]
 
 
-def test_a_message_link_without_its_application_names_what_to_run(no_leftover_ipc, make_table, goal_link):
+def test_a_message_link_without_its_application_names_what_to_run(make_table, goal_link):
     table = make_table(variables(("goal", "float64", (3,)), ("message_counts", "float64", (2,))))
     task = make_task(table, MessageSender, "console", {"value": ("goal", (3,)), "counts": ("message_counts", (2,))}, {})
     assert not task.spawn(0.0)
     assert "opens link 'goal', but the application provides no such link" in task.last_error
 
 
-def test_the_relay_forwards_each_message_to_the_rtpu_signal_queue_highest_priority_first(no_leftover_ipc, goal_link):
+def test_the_relay_forwards_each_message_to_the_rtpu_signal_queue_highest_priority_first(goal_link):
     signals = messages.Queue(unique_name("signals-rtpu0"), create=True)
     try:
         goal_link.send([1.0], priority=0)
@@ -92,7 +92,7 @@ def test_the_relay_forwards_each_message_to_the_rtpu_signal_queue_highest_priori
         signals.close()
 
 
-def test_a_server_needs_an_rtpu_to_wake_it(no_leftover_ipc, make_table, goal_link):
+def test_a_server_needs_an_rtpu_to_wake_it(make_table, goal_link):
     table = make_table(variables(("q_d", "float64", (3,))))
     task = make_task(table, MessageServer, "goal", {"value": ("q_d", (3,))}, {"goal": link_spec(goal_link)}, aperiodic=True)
     assert not task.spawn(0.0)
@@ -110,7 +110,7 @@ class RecordingRelay:
         self.end.close()
 
 
-def test_the_server_writes_each_message_and_a_malformed_one_is_a_fault_that_keeps_the_last_good_value(no_leftover_ipc, make_table, goal_link):
+def test_the_server_writes_each_message_and_a_malformed_one_is_a_fault_that_keeps_the_last_good_value(make_table, goal_link):
     table = make_table(variables(("q_d", "float64", (3,))))
     relays: list[RecordingRelay] = []
     task = make_task(table, MessageServer, "goal", {"value": ("q_d", (3,))}, {"goal": link_spec(goal_link)},
@@ -128,7 +128,7 @@ def test_the_server_writes_each_message_and_a_malformed_one_is_a_fault_that_keep
     assert relays[0].closed
 
 
-def test_a_relay_stops_promptly_while_its_link_is_quiet(no_leftover_ipc, goal_link):
+def test_a_relay_stops_promptly_while_its_link_is_quiet(goal_link):
     signals = messages.Queue(unique_name("signals-rtpu0"), create=True)
     try:
         relay = MessageRelay(MessageLink.attach(goal_link.name), signals.name, "goal")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import stat
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,6 +17,7 @@ from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.mujoco_arm.registers import W_STATE_SEQ, DeviceError
 from drivers.robots import robot
 from modules._robot_model import pinocchio_model
+from tests.support import unique_name
 
 TIMESTEP = 0.001
 NDOF = 6
@@ -28,10 +28,9 @@ def segment_path(name: str) -> Path:
 
 
 @pytest.fixture
-def name() -> Iterator[str]:
-    name = f"/pbo.test.{os.getpid()}-{os.urandom(4).hex()}.plant"
-    yield name
-    assert not segment_path(name).exists(), f"{name} left in /dev/shm"
+def name() -> str:
+    """The plant's segment name; conftest's no_leftover_ipc fails the test if the segment outlives it."""
+    return unique_name("plant")
 
 
 @pytest.fixture

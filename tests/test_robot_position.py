@@ -7,9 +7,7 @@ period is the plant's timestep), for both robots the plant can build.
 from __future__ import annotations
 
 import dataclasses
-import os
 from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,18 +26,6 @@ from tests.support import task_spec, unique_name, variables
 ROBOTS = ("puma560", "redundant7")
 TIMESTEP = 0.001
 ARM = DeviceSpec("arm", "mujoco_arm", True, {"mode": "position"})
-
-
-def shm_names() -> set[str]:
-    return {p.name for p in Path("/dev/shm").iterdir() if p.name.startswith(f"pbo.test.{os.getpid()}-")}
-
-
-@pytest.fixture(autouse=True)
-def nothing_left_in_dev_shm() -> Iterator[None]:
-    """Runs outside every other fixture: plants, drivers and tables are all gone after the test."""
-    before = shm_names()
-    yield
-    assert shm_names() <= before, f"left in /dev/shm: {sorted(shm_names() - before)}"
 
 
 @pytest.fixture(params=ROBOTS)

@@ -26,17 +26,6 @@ from tests.support import variables
 VARS = variables(("q_m", "float64", (3,)), ("n", "int32", ()), ("DH", "float64", (2, 4)), ("gain", "float32", ()))
 
 
-def _mine() -> set[str]:
-    return {e for e in os.listdir("/dev/shm") if f".{os.getpid()}-" in e}
-
-
-@pytest.fixture(autouse=True)
-def nothing_left_in_dev_shm() -> Iterator[None]:
-    before = _mine()
-    yield
-    assert _mine() - before == set()
-
-
 @pytest.fixture
 def run() -> Iterator[Any]:
     """A live run's table: (subsystem, table); closed and unlinked after the test."""

@@ -37,8 +37,6 @@ from pbo_runtime.links.triple_buffer import (
 )
 from tests.support import unique_name
 
-pytestmark = pytest.mark.usefixtures("no_leftover_ipc")
-
 FORK = multiprocessing.get_context("fork")  # children start in milliseconds; each attaches by name
 VALUES = 2048  # 16 KiB of float64 per item: copies long enough for a protocol bug to tear one
 ITEM = np.dtype([("counter", "<i8"), ("values", "<f8", (VALUES,)), ("checksum", "<u8")])

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -44,17 +43,6 @@ DEMO_TARGET = DEMO["plant"]["target"]
 DEMO_OFFSET = np.array(DEMO["tasks"]["vision"]["params"]["offset"])
 CIRCLE = {"center": [0.4, -0.1, 0.2], "radius": 0.1, "period": 2.0}
 CAMERA = DeviceSpec("camera", "camera", False, {})
-
-
-def shm_names() -> set[str]:
-    return {p.name for p in Path("/dev/shm").iterdir() if p.name.startswith(f"pbo.test.{os.getpid()}-")}
-
-
-@pytest.fixture(autouse=True)
-def nothing_left_in_dev_shm() -> Iterator[None]:
-    before = shm_names()
-    yield
-    assert shm_names() <= before, f"left in /dev/shm: {sorted(shm_names() - before)}"
 
 
 @pytest.fixture

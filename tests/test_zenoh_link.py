@@ -45,8 +45,6 @@ from pbo_runtime.links.zenoh_link import (  # noqa: E402
 )
 from tests.support import unique_name  # noqa: E402
 
-pytestmark = pytest.mark.usefixtures("no_leftover_ipc")
-
 SPAWN = multiprocessing.get_context("spawn")  # zenoh's threads do not survive a fork
 SAFETY_NET = 30.0  # seconds: a broken link fails instead of hanging the suite (no test asserts on time)
 VALUES = 512  # 4 KiB of float64 per item: large enough that a torn item would show

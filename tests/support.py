@@ -151,6 +151,28 @@ def one_array() -> int:
     return allocation_peak(lambda: np.empty(6))
 
 
+# --- items of a link that show a torn copy -------------------------------------------------------
+
+
+def checksum(counter: int) -> int:
+    return (counter * 0x9E37_79B9_7F4A_7C15) % (1 << 64)
+
+
+def fill(item: np.ndarray, counter: int) -> None:
+    """Write item `counter` of a (counter, values, checksum) payload: every field derives from the counter."""
+    item["counter"] = counter
+    item["values"] = counter
+    item["checksum"] = checksum(counter)
+
+
+def assert_complete(item: np.ndarray, counter: int) -> None:
+    """The item is exactly the one the sender wrote with this counter: every field agrees."""
+    assert int(item["counter"]) == counter
+    values = item["values"]
+    assert values.min() == values.max() == counter, f"torn item: values {values.min()}..{values.max()}, counter {counter}"
+    assert int(item["checksum"]) == checksum(counter)
+
+
 # --- runs in real processes ----------------------------------------------------------------------
 
 

@@ -10,6 +10,9 @@ What the protocol guarantees, and what these tests check:
 * counters never go back; `new + lost` equals the counter's advance;
 * neither side waits for the other's copy: a sender completes any number of writes while a read
   is held open, and a reader any number of reads while a write is held open.
+
+What every transport promises (reads, reuses, losses, stamps, roles, payload mismatch) is tested
+over this one and zenoh in test_link_contract.py; here are the protocol's own steps and processes.
 """
 
 from __future__ import annotations
@@ -29,13 +32,12 @@ from hypothesis import strategies as st
 from pbo_runtime.links.triple_buffer import (
     NO_SLOT,
     Freshness,
-    LinkError,
     LinkLayout,
     LinkLayoutError,
     TripleBuffer,
     Word,
 )
-from tests.support import unique_name
+from tests.support import assert_complete, checksum, fill, unique_name
 
 FORK = multiprocessing.get_context("fork")  # children start in milliseconds; each attaches by name
 VALUES = 2048  # 16 KiB of float64 per item: copies long enough for a protocol bug to tear one
@@ -43,24 +45,6 @@ ITEM = np.dtype([("counter", "<i8"), ("values", "<f8", (VALUES,)), ("checksum", 
 ITEM_LAYOUT = LinkLayout(ITEM)
 DONE, STARTED = 0, 1  # words of the sender's progress array
 SAFETY_NET = 60.0  # seconds: a broken protocol fails instead of hanging the suite (no test asserts on time)
-
-
-def checksum(counter: int) -> int:
-    return (counter * 0x9E37_79B9_7F4A_7C15) % (1 << 64)
-
-
-def fill(item: np.ndarray, counter: int) -> None:
-    item["counter"] = counter
-    item["values"] = counter
-    item["checksum"] = checksum(counter)
-
-
-def assert_complete(item: np.ndarray, counter: int) -> None:
-    """The item is exactly the one the sender wrote with this counter: every field agrees."""
-    assert int(item["counter"]) == counter
-    values = item["values"]
-    assert values.min() == values.max() == counter, f"torn item: values {values.min()}..{values.max()}, counter {counter}"
-    assert int(item["checksum"]) == checksum(counter)
 
 
 @pytest.fixture
@@ -76,59 +60,6 @@ def link_pair():
 
 
 # --- one process: the protocol step by step ---------------------------------------------------
-
-
-def test_a_read_before_any_write_gets_nothing_and_leaves_the_array(link_pair):
-    _, reader = link_pair
-    out = np.full(6, 7.0)
-    assert reader.read(out) is Freshness.NONE
-    assert (out == 7.0).all()
-    assert reader.counter == 0
-    assert reader.statistics().empty == 1
-
-
-def test_a_write_is_read_back_with_its_counter_and_time_stamp(link_pair):
-    sender, reader = link_pair
-    before = time.monotonic_ns()
-    assert sender.write(np.arange(6.0)) == 1
-    assert reader.read() is Freshness.NEW
-    assert reader.value.tolist() == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
-    assert reader.counter == 1
-    assert before <= reader.stamp_ns <= time.monotonic_ns()
-    assert reader.lost_in_last_read == 0
-
-
-def test_the_sender_can_stamp_an_item_with_when_its_data_was_generated(link_pair):
-    sender, reader = link_pair
-    sender.write(np.zeros(6), stamp_ns=123_456)
-    reader.read()
-    assert reader.stamp_ns == 123_456
-
-
-def test_reading_again_before_a_new_write_reuses_the_item(link_pair):
-    sender, reader = link_pair
-    sender.write(np.ones(6))
-    reader.read()
-    out = np.zeros(6)
-    assert reader.read(out) is Freshness.REUSED
-    assert (out == 1.0).all()  # a reuse still copies: the caller's array always holds the item
-    stats = reader.statistics()
-    assert (stats.new, stats.reused, stats.lost) == (1, 1, 0)
-
-
-def test_a_slow_reader_gets_the_newest_item_and_counts_the_ones_it_lost(link_pair):
-    sender, reader = link_pair
-    for k in range(1, 8):
-        sender.write(np.full(6, float(k)))
-    assert reader.read() is Freshness.NEW
-    assert reader.counter == 7 and (reader.value == 7.0).all()
-    assert reader.lost_in_last_read == 6
-    sender.write(np.full(6, 8.0))
-    sender.write(np.full(6, 9.0))
-    reader.read()
-    assert reader.lost_in_last_read == 1
-    stats = reader.statistics()
-    assert stats.new + stats.lost == 9
 
 
 def test_a_reader_attached_late_does_not_count_earlier_items_as_lost():
@@ -157,21 +88,6 @@ def test_the_sender_never_fills_the_slot_a_read_holds_open(link_pair):
     assert (out == 1.0).all() and reader.counter == 1
     assert reader.read() is Freshness.NEW and reader.counter == 1001
     assert sender.statistics().contended == reader.statistics().contended == 0
-
-
-def test_a_reader_never_waits_for_a_write_held_open(link_pair):
-    sender, reader = link_pair
-    sender.write(np.full(6, 1.0))
-    half_written = sender.begin_write()
-    half_written[:3] = 2.0  # the sender is in the middle of its copy
-    assert reader.read() is Freshness.NEW
-    for _ in range(100):
-        assert reader.read() is Freshness.REUSED
-        assert (reader.value == 1.0).all() and reader.counter == 1
-    half_written[3:] = 2.0
-    del half_written
-    sender.publish()
-    assert reader.read() is Freshness.NEW and (reader.value == 2.0).all()
 
 
 def test_the_torn_item_check_catches_a_half_written_item():
@@ -279,28 +195,6 @@ def test_attaching_with_another_payload_fails_clearly_and_the_same_one_round_tri
             assert (reader.value == value).all()
 
 
-def test_a_structured_payload_round_trips_field_by_field():
-    name = unique_name("link")
-    with TripleBuffer.create(name, ITEM_LAYOUT, "sender") as sender, TripleBuffer.attach(name, ITEM_LAYOUT, "reader") as reader:
-        fill(sender.begin_write(), 1)
-        sender.publish()
-        reader.read()
-        assert_complete(reader.value, 1)
-
-
-def test_the_mismatch_error_names_both_payloads():
-    name = unique_name("link")
-    with TripleBuffer.create(name, LinkLayout("float64", (6,))):
-        with pytest.raises(LinkLayoutError, match=r"carries float64 \(6,\), this process expects float32 \(3,\)"):
-            TripleBuffer.attach(name, LinkLayout("float32", (3,)))
-
-
-def test_attaching_to_a_missing_link_names_it():
-    name = unique_name("link")
-    with pytest.raises(LinkError, match=rf"^no link '{name}': has the subsystem that creates it started\?$"):
-        TripleBuffer.attach(name, LinkLayout.raw(8))
-
-
 def test_a_payload_of_python_objects_or_no_bytes_is_refused():
     with pytest.raises(LinkLayoutError, match=r"holds Python objects"):
         LinkLayout(object, (3,))
@@ -320,24 +214,6 @@ def test_the_segment_and_its_lock_are_private_and_the_creator_removes_them():
     link.close()
     assert not os.path.exists(segment) and not os.path.exists(lock)
     link.close()  # twice is harmless
-
-
-def test_a_link_has_one_live_sender_and_one_live_reader():
-    name = unique_name("link")
-    layout = LinkLayout.raw(8)
-    with TripleBuffer.create(name, layout, "sender"):
-        with pytest.raises(LinkError, match=rf"^link '{name}' already has a sender: pid {os.getpid()} "):
-            TripleBuffer.attach(name, layout, "sender")
-        with TripleBuffer.attach(name, layout, "reader") as reader:
-            with pytest.raises(LinkError, match=r"^cannot write link '.*': this process opened it as its reader; only its sender may$"):
-                reader.write(np.zeros(8, dtype=np.uint8))
-        with TripleBuffer.attach(name, layout, "reader"):  # the first reader closed: its role is free again
-            pass
-
-
-def test_a_role_must_be_sender_or_reader():
-    with pytest.raises(LinkError, match=r"^role must be one of sender, reader \(or None\), got: 'writer'$"):
-        TripleBuffer.create(unique_name("link"), LinkLayout.raw(8), "writer")
 
 
 # --- two processes ------------------------------------------------------------------------------

@@ -13,6 +13,9 @@ What these tests check, with the two ends in separate processes where it matters
 * sessions stay on loopback (no scouting) and close with their link; `open_link` picks the
   transport.
 
+What every transport promises is tested over shared memory and zenoh alike in
+test_link_contract.py; here is what is zenoh's own.
+
 Children are spawned, not forked: zenoh's runtime threads do not survive a fork. No test
 asserts on time; SAFETY_NET only turns a hang into a failure.
 """
@@ -43,7 +46,7 @@ from pbo_runtime.links.zenoh_link import (  # noqa: E402
     open_message_link,
     open_periodic,
 )
-from tests.support import unique_name  # noqa: E402
+from tests.support import assert_complete, fill, unique_name  # noqa: E402
 
 SPAWN = multiprocessing.get_context("spawn")  # zenoh's threads do not survive a fork
 SAFETY_NET = 30.0  # seconds: a broken link fails instead of hanging the suite (no test asserts on time)
@@ -55,23 +58,6 @@ DONE, STARTED = 0, 1  # words of the sender's progress array
 
 def key(part: str) -> str:
     return link_key(f"test-{os.getpid()}-{os.urandom(3).hex()}", part)
-
-
-def checksum(counter: int) -> int:
-    return (counter * 0x9E37_79B9_7F4A_7C15) % (1 << 64)
-
-
-def fill(item: np.ndarray, counter: int) -> None:
-    item["counter"] = counter
-    item["values"] = counter
-    item["checksum"] = checksum(counter)
-
-
-def assert_complete(item: np.ndarray, counter: int) -> None:
-    assert int(item["counter"]) == counter
-    values = item["values"]
-    assert values.min() == values.max() == counter, f"torn item: values {values.min()}..{values.max()}, counter {counter}"
-    assert int(item["checksum"]) == checksum(counter)
 
 
 def until(condition, what: str) -> None:
@@ -165,24 +151,7 @@ def test_a_delivery_must_be_ring_or_callback():
         ZenohLink.create("pbo/a/b", LinkLayout.raw(8), "reader", port=free_port(), delivery="queue")
 
 
-def test_only_the_reader_reads_and_only_the_sender_writes(lone_reader):
-    with pytest.raises(LinkError, match=r"^cannot write link '.*': this process opened it as its reader; only its sender may$"):
-        lone_reader.write(np.zeros(6))
-    with ZenohLink.create(key("b"), LinkLayout.raw(8), "sender", port=free_port()) as sender:
-        with pytest.raises(LinkError, match=r"^cannot read link '.*': this process opened it as its sender; only its reader may$"):
-            sender.read()
-
-
 # --- one process, two or three sessions over loopback ---------------------------------------------
-
-
-def test_a_second_sender_or_another_payload_is_refused_at_open():
-    name, port, layout = key("arm"), free_port(), LinkLayout("float64", (6,))
-    with ZenohLink.create(name, layout, "reader", port=port), ZenohLink.attach(name, layout, "sender", port=port):
-        with pytest.raises(LinkError, match=rf"^link '{name}' already has a sender: pid {os.getpid()} on .* \(a link has one sender and one reader\)$"):
-            ZenohLink.attach(name, layout, "sender", port=port)
-        with pytest.raises(LinkLayoutError, match=r"carries float64 \(6,\), this process expects float32 \(3,\): do both ends"):
-            ZenohLink.attach(name, LinkLayout("float32", (3,)), "reader", port=port)
 
 
 @pytest.mark.parametrize("delivery", DELIVERIES)
@@ -196,29 +165,6 @@ def test_the_creating_end_forwards_between_two_ends_that_attach_to_it(delivery):
             assert sender.write([4, 2]) == 1
             read_until(reader, 1)
             assert reader.value.tolist() == [4, 2]
-
-
-def test_a_sender_taking_over_goes_on_from_the_readers_counter():
-    name, port, layout = key("takeover"), free_port(), LinkLayout("int64", (2,))
-    with ZenohLink.create(name, layout, "reader", port=port) as reader:
-        with ZenohLink.attach(name, layout, "sender", port=port) as first:
-            wait_for_reader(first)
-            for k in range(1, 6):
-                first.write([k, k])
-            read_until(reader, 5)
-        with ZenohLink.attach(name, layout, "sender", port=port) as second:  # the first one's role is free again
-            wait_for_reader(second)
-            assert second.write([6, 6]) == 6
-        assert read_until(reader, 6) is Freshness.NEW
-        assert (reader.counter, reader.lost_in_last_read) == (6, 0)
-
-
-def test_attaching_when_nothing_listens_names_the_link_and_the_endpoint():
-    name, port = key("missing"), free_port()
-    with pytest.raises(LinkError, match=rf"^no link '{name}': nothing answered on tcp/127\.0\.0\.1:{port}: has the subsystem"):
-        ZenohLink.attach(name, LinkLayout.raw(8), "reader", port=port, wait=0)
-    with pytest.raises(MessageLinkError, match=rf"^no message link '{name}': nothing answered on tcp/127\.0\.0\.1:{port}: "):
-        ZenohMessageLink.attach(name, port=port, wait=0)
 
 
 def test_sessions_stay_on_loopback_and_close_with_their_link():
@@ -278,17 +224,6 @@ def test_a_message_to_a_receiver_that_left_is_refused_not_lost():
         until(lambda: not sender._publisher.matching_status.matching, "the receiver to leave")
         with pytest.raises(MessageLinkError, match=rf"^message link '{name}' has no receiver connected: the message was not sent\n  hint: "):
             sender.send({"x": 1})
-
-
-def test_a_message_out_of_range_or_too_large_is_refused_before_it_is_sent():
-    name, port = key("limits"), free_port()
-    with ZenohMessageLink.create(name, capacity=2, max_message_bytes=64, port=port) as receiver:
-        with pytest.raises(MessageLinkError, match=rf"priority must be in 0\.\.{MAX_PRIORITY}, got: -1$"):
-            receiver.send("x", priority=-1)
-        with pytest.raises(MessageLinkError, match=r"a message of \d+ bytes \(encoded\) exceeds its 64 bytes"):
-            receiver.send("x" * 100)
-        receiver.send("to myself", priority=3)  # the receiving end may send to its own queue
-        assert receiver.receive(timeout=0).body == "to myself"
 
 
 # --- two processes ----------------------------------------------------------------------------------

@@ -229,7 +229,6 @@ def assert_the_links_are_gone(report: dict) -> None:
 
 @pytest.mark.multiprocess
 def test_the_same_application_runs_over_zenoh_changed_only_in_yaml(tmp_path):
-    pytest.importorskip("zenoh")
     path = write_app(tmp_path, links=SHIPPED_LINKS.replace("transport: shm", "transport: zenoh"))
     done = subprocess.run([*PBO, "run", path, "--duration", "4", "--out", str(tmp_path / "out")], cwd=tmp_path,
                           capture_output=True, text=True, timeout=240)

@@ -263,7 +263,6 @@ def test_json_of_a_task_that_never_ran_has_no_infinite_period():
 
 
 def test_plot_writes_a_non_empty_png(tmp_path):
-    pytest.importorskip("matplotlib")
     sub = load_subsystem(str(DEMO))
     report = _bus.predict(sub, "joint_pid")
     path = _bus.plot({"joint_pid": report}, tmp_path / "bus.png")
@@ -273,7 +272,6 @@ def test_plot_writes_a_non_empty_png(tmp_path):
 
 
 def test_plot_accepts_several_reports_and_measured_ones(tmp_path):
-    pytest.importorskip("matplotlib")
     sub = small()
     path = _bus.plot([_bus.predict(sub, "run"), _bus.predict(small(bandwidth=1e5), "run")], tmp_path / "two.png",
                      measured={"run": _bus.measured(sub, synthetic_run())})

@@ -29,11 +29,9 @@ import time
 import numpy as np
 import pytest
 
-pytest.importorskip("zenoh")
-
-from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError, MessageLink, MessageLinkError  # noqa: E402
-from pbo_runtime.links.triple_buffer import Freshness, LinkError, LinkLayout, LinkLayoutError, TripleBuffer  # noqa: E402
-from pbo_runtime.links.zenoh_link import (  # noqa: E402
+from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError, MessageLink, MessageLinkError
+from pbo_runtime.links.triple_buffer import Freshness, LinkError, LinkLayout, LinkLayoutError, TripleBuffer
+from pbo_runtime.links.zenoh_link import (
     DELIVERIES,
     ITEM_FORMAT,
     ITEM_HEADER,
@@ -46,7 +44,7 @@ from pbo_runtime.links.zenoh_link import (  # noqa: E402
     open_message_link,
     open_periodic,
 )
-from tests.support import assert_complete, fill, unique_name  # noqa: E402
+from tests.support import assert_complete, fill, unique_name
 
 SPAWN = multiprocessing.get_context("spawn")  # zenoh's threads do not survive a fork
 SAFETY_NET = 30.0  # seconds: a broken link fails instead of hanging the suite (no test asserts on time)

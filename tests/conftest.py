@@ -6,6 +6,7 @@ Plain helpers (names, specs, fakes) are in tests/support.py; test files import t
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -55,3 +56,53 @@ def no_leftover_ipc():
     for path in left:
         path.unlink(missing_ok=True)
     assert not left, f"left behind: {sorted(map(str, left))}"
+
+
+# --- processes a test starts ------------------------------------------------------------------------
+
+_started: list[str] = []  # what the running test started, by the audit hook below
+
+
+def _note_a_started_process(event: str, args: tuple) -> None:
+    """Audit hook: note each child this process starts that is a Python process (pbo, an RTPU, a plant, a script).
+
+    Every subprocess goes through the "subprocess.Popen" event and every fork through "os.fork";
+    a tool a library runs now and then (a font cache, a linker lookup) is not a Python process and
+    does not count.
+    """
+    if event == "subprocess.Popen":
+        executable, command = args[0], args[1]
+        program = executable or (command[0] if isinstance(command, (list, tuple)) and command else command)
+        if program is not None and Path(os.fsdecode(program)).name.startswith("python"):
+            _started.append(" ".join(map(os.fsdecode, command)) if isinstance(command, (list, tuple)) else os.fsdecode(command))
+    elif event in ("os.fork", "os.forkpty"):
+        _started.append(event)
+
+
+sys.addaudithook(_note_a_started_process)  # an audit hook stays for the process's life: it only appends to a list
+
+
+@pytest.fixture(autouse=True)
+def only_marked_tests_start_processes(request, monkeypatch):
+    """Fail a test that starts a process (subprocess, fork, multiprocessing) unless it is marked `multiprocess`.
+
+    `pytest -m "not multiprocess"` is then the quick suite, with nothing left out of it that starts
+    a process. multiprocessing's spawn and forkserver start children without an audit event, so
+    Process.start is noted here too.
+    """
+    import multiprocessing.process
+
+    start = multiprocessing.process.BaseProcess.start
+
+    def noted_start(process):
+        _started.append(f"multiprocessing {process.name}")
+        return start(process)
+
+    monkeypatch.setattr(multiprocessing.process.BaseProcess, "start", noted_start)
+    _started.clear()
+    yield
+    started = [what.split("\n")[0][:120] for what in _started]
+    _started.clear()
+    if started and request.node.get_closest_marker("multiprocess") is None:
+        pytest.fail(f"this test starts processes but is not marked @pytest.mark.multiprocess: {'; '.join(started[:3])}",
+                    pytrace=False)

@@ -86,6 +86,7 @@ def test_an_error_in_a_subsystem_file_is_reported_with_its_own_location(tmp_path
     assert result.errors and all(e.file.endswith("follower.yaml") for e in result.errors)
 
 
+@pytest.mark.multiprocess
 def test_pbo_check_on_an_application_prints_every_link(tmp_path):
     done = subprocess.run([*PBO, "check", str(APP)], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
@@ -170,6 +171,7 @@ def test_the_run_section_names_a_subsystem_and_one_of_its_configurations_or_appl
     assert wanted in result.errors[0].message
 
 
+@pytest.mark.multiprocess
 def test_a_subsystem_run_alone_says_which_link_it_lacks(tmp_path):
     done = subprocess.run([*PBO, "run", str(REPO / "configs" / "follower.yaml"), "--no-live", "--duration", "1"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=120)

@@ -139,6 +139,7 @@ def test_every_rtpu_visits_every_cpu_as_the_rounds_turn():
         assert all(visited == set(cpus) for visited in seen)
 
 
+@pytest.mark.multiprocess
 def test_a_run_that_never_turns_its_configuration_on_is_reported_with_its_last_words(tmp_path):
     from bench.realtime import _started_run
 

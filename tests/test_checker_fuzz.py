@@ -184,6 +184,7 @@ def test_a_mutated_shipped_config_gets_located_diagnostics_never_an_exception(co
         assert result.subsystem is None
 
 
+@pytest.mark.multiprocess
 @pytest.mark.parametrize("config", SHIPPED, ids=lambda p: p.name)
 @seed(20240612)
 @settings(max_examples=CLI_RUNS, deadline=None, suppress_health_check=[HealthCheck.too_slow])

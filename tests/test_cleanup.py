@@ -38,6 +38,7 @@ def dead_pid() -> int:
     return int(child.stdout)
 
 
+@pytest.mark.multiprocess
 def test_a_lock_whose_holder_died_is_released(make_table):
     table = make_table(VARS)
     holder = subprocess.Popen([sys.executable, "-c", HOLD_THE_LOCK, table.name], stdout=subprocess.PIPE, text=True, cwd=REPO)
@@ -51,6 +52,7 @@ def test_a_lock_whose_holder_died_is_released(make_table):
     table.write("a", [1, 2, 3], when=0.0)  # the table works again
 
 
+@pytest.mark.multiprocess
 def test_a_lock_held_by_someone_else_is_not_taken_away(make_table):
     table = make_table(VARS)
     table.acquire()
@@ -61,6 +63,7 @@ def test_a_lock_held_by_someone_else_is_not_taken_away(make_table):
         table.release()
 
 
+@pytest.mark.multiprocess
 def test_a_new_run_removes_what_a_dead_run_left_queues_included():
     subsystem = "cleanuptest"
     dead_run = f"{dead_pid()}-abc123"

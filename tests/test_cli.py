@@ -67,6 +67,7 @@ def test_check_of_a_missing_file_is_an_error_not_a_traceback(tmp_path, capsys):
     assert "nowhere.yaml" in err and "Traceback" not in err
 
 
+@pytest.mark.multiprocess
 def test_run_refuses_a_file_with_errors_and_starts_nothing(tmp_path):
     done = subprocess.run([sys.executable, "-m", "pbo_runtime.cli", "run", str(write(tmp_path, three_mistakes()))],
                           capture_output=True, text=True, timeout=60, cwd=tmp_path)

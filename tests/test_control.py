@@ -315,6 +315,7 @@ def test_two_live_runs_of_one_subsystem_are_reported(fake_run):
         find_live_run(sub)
 
 
+@pytest.mark.multiprocess
 def test_a_dead_runs_table_is_not_a_live_run(fake_run):
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True, check=True)
     sub, _, _ = fake_run(new_subsystem(), new_run_id(int(dead.stdout)))

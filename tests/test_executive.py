@@ -331,6 +331,7 @@ finally:
 """
 
 
+@pytest.mark.multiprocess
 def test_the_per_cycle_path_takes_no_page_fault():
     # Regression (issue 6): the jitter and execution-time rings were zeroed lazily, so every 512
     # cycles each wrote into a page the process had never touched: a page fault on the per-cycle

@@ -22,14 +22,17 @@ def applied(cpu, fifo: bool) -> dict:
     return json.loads(done.stdout)
 
 
+@pytest.mark.multiprocess
 def test_an_rtpu_is_pinned_to_the_cpu_its_yaml_names():
     assert applied(0, False) == {"timer_slack": "1 ns", "cpu": "0", "scheduler": "SCHED_OTHER"}
 
 
+@pytest.mark.multiprocess
 def test_a_cpu_the_machine_does_not_have_is_reported_not_fatal():
     assert applied(4096, False)["cpu"].startswith("not pinned: CPU 4096: ")
 
 
+@pytest.mark.multiprocess
 def test_sched_fifo_is_reported_as_granted_or_refused_with_the_reason():
     scheduler = applied(None, True)["scheduler"]
     assert scheduler == "SCHED_FIFO 50" or scheduler.startswith("SCHED_OTHER: SCHED_FIFO refused (")

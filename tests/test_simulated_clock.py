@@ -173,6 +173,7 @@ def test_an_application_runs_its_jobs_on_the_simulated_clock(tmp_path):
     assert np.max(np.abs(q_m - np.array([-0.2, -0.6, 0.4, 0.1, 0.3, -0.1]))) < 0.01
 
 
+@pytest.mark.multiprocess
 def test_periods_off_the_plant_timestep_are_refused_for_the_simulated_clock(tmp_path):
     config = tmp_path / "odd.yaml"
     config.write_text(DEMO.read_text().replace("period: 2 ms", "period: 2.5 ms"))

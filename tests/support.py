@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 import tracemalloc
 import uuid
 from pathlib import Path
@@ -149,6 +150,19 @@ def allocation_peak(call, times: int = 1000) -> int:
 def one_array() -> int:
     """The allocation peak of making one 6-element array per call: what a per-cycle path must stay under."""
     return allocation_peak(lambda: np.empty(6))
+
+
+# --- waiting for what another end does -------------------------------------------------------------
+
+
+def until(condition, what: str, safety_net: float = 30.0) -> None:
+    """Poll `condition` until it holds; fail after `safety_net` seconds, which only turns a hang into a
+    failure (no test asserts on time)."""
+    give_up = time.monotonic() + safety_net
+    while not condition():
+        if time.monotonic() > give_up:
+            pytest.fail(f"gave up waiting: {what}")
+        time.sleep(0.001)
 
 
 # --- items of a link that show a torn copy -------------------------------------------------------

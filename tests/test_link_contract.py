@@ -30,20 +30,10 @@ from hypothesis import strategies as st
 from pbo_runtime.links.message_link import MAX_PRIORITY, SYSTEM_CAPACITY, LinkFullError, Message, MessageLink, MessageLinkError
 from pbo_runtime.links.triple_buffer import Freshness, LinkError, LinkLayout, LinkLayoutError, TripleBuffer
 from pbo_runtime.links.zenoh_link import ZenohLink, ZenohMessageLink, free_port, link_key
-from tests.support import assert_complete, fill, unique_name
+from tests.support import assert_complete, fill, unique_name, until
 
-SAFETY_NET = 30.0  # seconds: a broken link fails instead of hanging the suite (no test asserts on time)
 ARM = LinkLayout("float64", (6,))
 ITEM_LAYOUT = LinkLayout(np.dtype([("counter", "<i8"), ("values", "<f8", (64,)), ("checksum", "<u8")]))
-
-
-def until(condition, what: str) -> None:
-    """Poll `condition` until it holds; fail after SAFETY_NET (never an assertion on time)."""
-    give_up = time.monotonic() + SAFETY_NET
-    while not condition():
-        if time.monotonic() > give_up:
-            pytest.fail(f"gave up waiting: {what}")
-        time.sleep(0.001)
 
 
 class SharedMemory:

@@ -44,7 +44,7 @@ from pbo_runtime.links.zenoh_link import (
     open_message_link,
     open_periodic,
 )
-from tests.support import assert_complete, fill, unique_name
+from tests.support import assert_complete, fill, unique_name, until
 
 SPAWN = multiprocessing.get_context("spawn")  # zenoh's threads do not survive a fork
 SAFETY_NET = 30.0  # seconds: a broken link fails instead of hanging the suite (no test asserts on time)
@@ -56,15 +56,6 @@ DONE, STARTED = 0, 1  # words of the sender's progress array
 
 def key(part: str) -> str:
     return link_key(f"test-{os.getpid()}-{os.urandom(3).hex()}", part)
-
-
-def until(condition, what: str) -> None:
-    """Poll `condition` until it holds; fail after SAFETY_NET (never an assertion on time)."""
-    give_up = time.monotonic() + SAFETY_NET
-    while not condition():
-        if time.monotonic() > give_up:
-            pytest.fail(f"gave up waiting: {what}")
-        time.sleep(0.001)
 
 
 def read_until(reader: ZenohLink, counter: int, out: np.ndarray | None = None) -> Freshness:

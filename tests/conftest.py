@@ -1,10 +1,13 @@
-"""Shared fixtures: real tables in real shared memory, removed after each test.
+"""Shared fixtures: real tables in real shared memory, removed after each test; and two checks on every
+test, autouse: it leaves no segment, semaphore or queue behind, and it starts processes only if it
+is marked `multiprocess`.
 
 Plain helpers (names, specs, fakes) are in tests/support.py; test files import those, never each other.
 """
 
 from __future__ import annotations
 
+import multiprocessing.process
 import os
 import sys
 from pathlib import Path
@@ -37,7 +40,7 @@ def no_leftover_ipc():
 
     That is every name `unique_name` makes (`pbo.test.<pid>-...`) and every run this process starts or
     fakes (`pbo.<subsystem>.<pid>-...`); objects of other processes, other test runs on the machine
-    included, do not count. Autouse, and so set up before and torn down after every fixture a test
+    included, do not count (queues only where /dev/mqueue is mounted). Autouse, and so set up before and torn down after every fixture a test
     asks for: whatever made the object has closed it by then. Leftovers are removed before the
     failure is reported, so one test's leak does not fail the next.
     """
@@ -90,8 +93,6 @@ def only_marked_tests_start_processes(request, monkeypatch):
     a process. multiprocessing's spawn and forkserver start children without an audit event, so
     Process.start is noted here too.
     """
-    import multiprocessing.process
-
     start = multiprocessing.process.BaseProcess.start
 
     def noted_start(process):

@@ -11,7 +11,7 @@ from pbo_runtime.links.ends import OPENERS, open_link_end
 from pbo_runtime.links.message_link import MessageLink
 from pbo_runtime.links.spec import TRANSPORTS
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer
-from tests.conftest import unique_name
+from tests.support import unique_name
 
 pytestmark = pytest.mark.usefixtures("no_leftover_ipc")
 

@@ -13,7 +13,7 @@ import pytest
 
 from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
 from pbo_runtime.ipc.shm import pid_alive
-from tests.conftest import unique_name
+from tests.support import unique_name
 
 WORDS = {"holder_word": 1, "recoveries_word": 2}
 SAFETY_NET = 60.0  # seconds: a waiter that never takes the lock fails instead of hanging the suite
@@ -107,6 +107,7 @@ def test_acquire_signs_the_holder_word_and_release_frees_the_lock(segment):
     assert segment.lock.value == 1
 
 
+@pytest.mark.multiprocess
 def test_a_lock_whose_holder_died_is_recovered_and_counted(segment):
     gone = dead_pid()
     segment.lock.acquire()
@@ -115,6 +116,7 @@ def test_a_lock_whose_holder_died_is_recovered_and_counted(segment):
     assert segment.lock.value == 1 and segment.holder == 0 and segment.recoveries == 1
 
 
+@pytest.mark.multiprocess
 def test_a_lock_another_process_took_since_is_not_taken_away(segment):
     segment.acquire()  # signed by this live process, after the dead one
     try:
@@ -124,6 +126,7 @@ def test_a_lock_another_process_took_since_is_not_taken_away(segment):
         segment.release()
 
 
+@pytest.mark.multiprocess
 def test_a_waiter_takes_over_the_lock_of_a_dead_holder(segment):
     segment.lock.acquire()
     segment.words[segment.holder_word] = dead_pid()
@@ -132,6 +135,7 @@ def test_a_waiter_takes_over_the_lock_of_a_dead_holder(segment):
     segment.release()
 
 
+@pytest.mark.multiprocess
 def test_a_zombie_is_dead_and_so_are_pids_that_name_no_process():
     # Regression (issue 17): two liveness checks disagreed on a zombie (dead, not yet reaped),
     # so the lock of a zombie holder was never recovered.
@@ -147,6 +151,7 @@ def test_a_zombie_is_dead_and_so_are_pids_that_name_no_process():
     assert pid_alive(os.getpid()) and pid_alive(1)
 
 
+@pytest.mark.multiprocess
 def test_a_waiter_takes_over_the_lock_of_a_zombie_holder(segment):
     # Regression (issue 17): the waiter looked at a zombie holder and waited on.
     child = os.fork()

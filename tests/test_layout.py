@@ -87,7 +87,6 @@ def test_every_wing_and_file_says_what_it_is_for():
     assert missing == []
 
 
-@pytest.mark.xfail(strict=True, reason="job control still names Supervisor for its type; it is to depend on a host protocol")
 def test_no_module_of_the_runtime_imports_one_that_imports_it_back():
     graphlib.TopologicalSorter(runtime_imports()).prepare()  # raises CycleError, naming the cycle
 

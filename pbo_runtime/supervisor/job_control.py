@@ -1,6 +1,7 @@
 """Job control proper: switching configurations, running jobs and applications (TR §4.4, Onika §4.4).
 
-The supervisor owns the processes; this module decides what to switch to and when. A dynamic
+The supervisor owns the processes; this module decides what to switch to and when, through the
+narrow `JobHost` protocol the supervisor implements (a fake host in the unit tests). A dynamic
 switch posts a plan in the table's header (configuration, activation a few milliseconds ahead)
 and wakes the RTPUs; each applies it at its first cycle boundary at or after the activation,
 so all switch at one instant. A static switch kills the leaving tasks and spawns the entering
@@ -13,17 +14,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from collections.abc import Mapping
+from typing import Any, Callable, Protocol
 
 import numpy as np
 
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.config.expressions import compile_condition
-from pbo_runtime.table.table import Header
-
-if TYPE_CHECKING:
-    from pbo_runtime.supervisor.supervisor import Supervisor
 
 PLAN_LEAD = 0.002  # seconds from posting a plan to its activation: every RTPU is woken by then (wake-ups take ~0.1 ms)
 SWITCH_TIMEOUT = 5.0
@@ -77,11 +75,53 @@ class SwitchRecord:
                 "cycles_lost": self.lost, "stale_reads": self.stale}
 
 
-def evaluate(supervisor: Supervisor, text: str) -> tuple[bool, dict[str, Any]]:
+class JobHost(Protocol):
+    """What job control needs of the process that runs the subsystem, and nothing more.
+
+    The Supervisor is the host of a run; tests use a fake host and a manual clock, so every
+    decision here is tested without a process. `tick` is the simulated clock's tick (0 on the
+    real clock); `epoch` and `shortest_period` make the first RTPU's release grid.
+    """
+
+    @property
+    def subsystem(self) -> Subsystem: ...
+    @property
+    def configuration(self) -> str: ...
+    @property
+    def task_states(self) -> Mapping[str, str]: ...
+    @property
+    def epoch(self) -> float: ...
+    @property
+    def shortest_period(self) -> float: ...
+    @property
+    def tick(self) -> float: ...
+    @property
+    def say(self) -> Callable[[str], None]: ...
+
+    def now(self) -> float:
+        """The run's time, on whichever clock runs it."""
+    def pump(self, timeout: float) -> None:
+        """Let the run go on for `timeout` seconds: events (which call back `switched`...), commands, the view."""
+    def read_variable(self, name: str) -> np.ndarray:
+        """A state variable's current value."""
+    def write_variable(self, name: str, value: Any) -> None:
+        """Write a state variable as job control (a job's object)."""
+    def post_plan(self, configuration: str, activation: float) -> int:
+        """Post a switch plan in the table's header, wake the RTPUs; the plan's sequence number."""
+    def set_configuration(self, configuration: str) -> None:
+        """The switch is done: `configuration` is the running one."""
+    def kill_task(self, task: str) -> None:
+        """Kill a task and wait until it is KILLED."""
+    def respawn(self, task: str) -> None:
+        """Spawn a task and wait for its init."""
+    def turn_on(self, task: str, configuration: str) -> None:
+        """Turn a task on in `configuration` and wait until it is ON."""
+
+
+def evaluate(host: JobHost, text: str) -> tuple[bool, dict[str, Any]]:
     """Evaluate a condition on the table's current values: (holds, the values it read)."""
     condition = compile_condition(text)
-    assert supervisor.table is not None
-    values = {name: supervisor.table.read(name)[0] for name in sorted(condition.variables)}
+    values = {name: host.read_variable(name) for name in sorted(condition.variables)}
     return condition.evaluate(values), values
 
 
@@ -103,9 +143,9 @@ def application_steps(subsystem: Subsystem, application: str, _seen: tuple[str, 
 class JobControl:
     """Switches and jobs for one running subsystem."""
 
-    def __init__(self, supervisor: Supervisor, static: bool = False) -> None:
-        self.supervisor = supervisor
-        self.subsystem = supervisor.subsystem
+    def __init__(self, host: JobHost, static: bool = False) -> None:
+        self.host = host
+        self.subsystem = host.subsystem
         self.static = static
         self.switches: list[SwitchRecord] = []
         self.pending: SwitchRecord | None = None
@@ -115,42 +155,35 @@ class JobControl:
     # --- switching --------------------------------------------------------------------------
 
     def switch(self, configuration: str) -> SwitchRecord:
-        sup = self.supervisor
+        host = self.host
         if configuration not in self.subsystem.configurations:
             raise PboError(f"no configuration '{configuration}' (configurations: {', '.join(self.subsystem.configurations)})")
-        before = sup.configuration
+        before = host.configuration
         leaving = [t for t in self.subsystem.configurations[before].tasks if t not in self.subsystem.configurations[configuration].tasks]
         entering = [t for t in self.subsystem.configurations[configuration].tasks
                     if t not in self.subsystem.configurations[before].tasks]
         if self.static:
             return self._switch_static(before, configuration, leaving, entering)
-        table = sup.table
-        assert table is not None
-        header = table.header
-        requested = sup.now()
+        requested = host.now()
         # activate on the first RTPU's release grid: the entering tasks' first cycle is the cycle
         # boundary itself, so the critical consumer's next read already sees their output
-        grid = sup.shortest_period
-        lead = sup.tick if sup.lockstep is not None else PLAN_LEAD  # simulated: the next tick on the grid
-        activation = sup.epoch + math.ceil((requested + lead - sup.epoch) / grid - 1e-9) * grid
-        record = SwitchRecord(int(header[Header.PLAN_SEQUENCE]) + 1, before, configuration, requested, activation)
+        grid = host.shortest_period
+        lead = host.tick if host.tick > 0 else PLAN_LEAD  # simulated: the next tick on the grid
+        activation = host.epoch + math.ceil((requested + lead - host.epoch) / grid - 1e-9) * grid
+        sequence = host.post_plan(configuration, activation)
+        record = SwitchRecord(sequence, before, configuration, requested, activation)
         self.pending = record
-        header[Header.PLAN_CONFIGURATION] = sup.reconfiguration.index(configuration)
-        header[Header.PLAN_TIME_NS] = int(activation * 1e9)
-        header[Header.PLAN_SEQUENCE] = record.sequence  # last: an executive that sees it sees the whole plan
-        if sup.lockstep is None:  # the simulated clock's RTPUs read the header every tick anyway
-            for queue in sup.signals.values():
-                queue.try_send("plan", timeout=0.0)
-        entering_active = [t for t in entering if sup.task_states.get(t) == "OFF"]
-        deadline = sup.now() + SWITCH_TIMEOUT
-        while len(record.applied) < len(sup.signals) or any(t not in record.first_cycles for t in entering_active
+        entering_active = [t for t in entering if host.task_states.get(t) == "OFF"]
+        deadline = host.now() + SWITCH_TIMEOUT
+        rtpus = len(self.subsystem.rtpus)
+        while len(record.applied) < rtpus or any(t not in record.first_cycles for t in entering_active
                                                              if not getattr(self.subsystem.tasks[t], "aperiodic", False)):
-            if sup.now() > deadline:
+            if host.now() > deadline:
                 raise PboError(f"switch to '{configuration}' did not complete within {SWITCH_TIMEOUT:g} s "
                                f"(applied on: {', '.join(record.applied) or 'no RTPU'})")
-            sup.pump(0.002)
+            host.pump(0.002)
         self.pending = None
-        sup.set_configuration(configuration)
+        host.set_configuration(configuration)
         self.switches.append(record)
         return record
 
@@ -178,31 +211,31 @@ class JobControl:
 
     def _switch_static(self, before: str, after: str, leaving: list[str], entering: list[str]) -> SwitchRecord:
         """Static reconfiguration: only the next configuration's tasks exist (TR §4.4)."""
-        sup = self.supervisor
-        requested = sup.now()
+        host = self.host
+        requested = host.now()
         record = SwitchRecord(len(self.switches) + 1, before, after, requested, requested, off=list(leaving), on=list(entering))
         for name in leaving:
-            sup.signal_and_wait(name, "kill", {"KILLED"})
+            host.kill_task(name)
         for name in [t for t in self.subsystem.init_order if t in entering]:
-            if sup.task_states.get(name) in ("NOT_CREATED", "KILLED"):
-                sup.respawn(name)
-            sup.turn_on(name, after)
-        record.applied["job control"] = (requested, sup.now())
-        sup.set_configuration(after)
+            if host.task_states.get(name) in ("NOT_CREATED", "KILLED"):
+                host.respawn(name)
+            host.turn_on(name, after)
+        record.applied["job control"] = (requested, host.now())
+        host.set_configuration(after)
         self.switches.append(record)
         return record
 
     def alternate(self, configurations: list[str], switches: int, interval: float) -> None:
         """Switch between configurations `switches` times, one every `interval` seconds (a switch test)."""
-        sup = self.supervisor
+        host = self.host
         for name in configurations:
             if name not in self.subsystem.configurations:
                 raise PboError(f"no configuration '{name}' (configurations: {', '.join(self.subsystem.configurations)})")
-        order = [c for c in configurations if c != sup.configuration] + [c for c in configurations if c == sup.configuration]
-        next_at = sup.now() + interval
+        order = [c for c in configurations if c != host.configuration] + [c for c in configurations if c == host.configuration]
+        next_at = host.now() + interval
         for number in range(switches):
-            while sup.now() < next_at - sup.tick / 2:
-                sup.pump(min(0.002, max(next_at - sup.now(), 0.0)))
+            while host.now() < next_at - host.tick / 2:
+                host.pump(min(0.002, max(next_at - host.now(), 0.0)))
             self.switch(order[number % len(order)])
             next_at += interval
 
@@ -210,53 +243,51 @@ class JobControl:
 
     def run_job(self, name: str, arguments: dict[str, Any], step: str = "") -> None:
         """Pre-condition, object, switch, then wait for the post-condition (or the timeout)."""
-        sup = self.supervisor
+        host = self.host
         job = self.subsystem.jobs[name]
         where = f"job '{name}'{step}"
         self.job = name
         if job.pre:
-            holds, values = evaluate(sup, job.pre)
+            holds, values = evaluate(host, job.pre)
             if not holds:
                 raise JobFailure(f"{where}: pre-condition '{job.pre}' does not hold ({_show(values)})")
         for variable, value in arguments.items():
-            assert sup.table is not None
-            sup.table.write(variable, value, when=sup.now(), writer=-1)
-        if job.configuration != sup.configuration:
+            host.write_variable(variable, value)
+        if job.configuration != host.configuration:
             self.switch(job.configuration)
-        sup.say(f"{where}: running in '{job.configuration}'" + (f", waiting for {job.post}" if job.post else ""))
+        host.say(f"{where}: running in '{job.configuration}'" + (f", waiting for {job.post}" if job.post else ""))
         if not job.post and not job.timeout:
             return
-        started = sup.now()
+        started = host.now()
         while True:
             if job.post:
-                holds, values = evaluate(sup, job.post)
+                holds, values = evaluate(host, job.post)
                 if holds:
-                    sup.say(f"{where}: done in {sup.now() - started:.2f} s ({job.post})")
+                    host.say(f"{where}: done in {host.now() - started:.2f} s ({job.post})")
                     return
-            if job.timeout and sup.now() - started > job.timeout:
+            if job.timeout and host.now() - started > job.timeout:
                 if not job.post:
                     return  # a job with a timeout and no post-condition runs for that long
                 raise JobFailure(f"{where}: timed out after {job.timeout:g} s; post-condition '{job.post}' "
                                  f"still false ({_show(values)})")
-            sup.pump(POLL)
+            host.pump(POLL)
 
     def start_job(self, name: str, arguments: dict[str, Any]) -> None:
         """An operator's job: its object and its configuration now; its post-condition is shown, not awaited."""
-        sup = self.supervisor
+        host = self.host
         job = self.subsystem.jobs[name]
         if job.pre:
-            holds, values = evaluate(sup, job.pre)
+            holds, values = evaluate(host, job.pre)
             if not holds:
                 raise JobFailure(f"job '{name}': pre-condition '{job.pre}' does not hold ({_show(values)})")
-        assert sup.table is not None
         for variable, value in arguments.items():
             variable_spec = self.subsystem.variables[variable]
             array = np.asarray(value, dtype=variable_spec.dtype)
             if array.size != variable_spec.size:
                 raise PboError(f"job '{name}': object '{variable}' takes {variable_spec.size} values "
                                f"(shape {list(variable_spec.shape)}), got {array.size}")
-            sup.table.write(variable, array.reshape(variable_spec.shape), when=sup.now(), writer=-1)
-        if job.configuration != sup.configuration:
+            host.write_variable(variable, array.reshape(variable_spec.shape))
+        if job.configuration != host.configuration:
             self.switch(job.configuration)
         self.job = name
 

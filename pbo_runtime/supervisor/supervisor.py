@@ -362,6 +362,30 @@ class Supervisor:
                 if self.task_states[task] in states:
                     return self.task_states[task]
 
+    def kill_task(self, name: str) -> None:
+        self.signal_and_wait(name, "kill", {"KILLED"})
+
+    def read_variable(self, name: str) -> np.ndarray:
+        assert self.table is not None
+        return self.table.read(name)[0]
+
+    def write_variable(self, name: str, value: Any) -> None:
+        assert self.table is not None
+        self.table.write(name, value, when=self.now(), writer=-1)
+
+    def post_plan(self, configuration: str, activation: float) -> int:
+        """Post a switch plan in the table's header and wake the RTPUs; the plan's sequence number."""
+        assert self.table is not None
+        header = self.table.header
+        sequence = int(header[Header.PLAN_SEQUENCE]) + 1
+        header[Header.PLAN_CONFIGURATION] = self.reconfiguration.index(configuration)
+        header[Header.PLAN_TIME_NS] = int(activation * 1e9)
+        header[Header.PLAN_SEQUENCE] = sequence  # last: an executive that sees it sees the whole plan
+        if self.lockstep is None:  # the simulated clock's RTPUs read the header every tick anyway
+            for queue in self.signals.values():
+                queue.try_send("plan", timeout=0.0)
+        return sequence
+
     def signal_and_wait(self, name: str, op: str, states: set[str], *arguments: Any) -> str:
         self._signal(name, op, *arguments)
         return self._await_state(name, states)

@@ -48,12 +48,11 @@ def main(argv: list[str] | None = None) -> int:
     links = json.loads(args.links)
     name = subsystem.name
     events = messages.Queue(messages.event_queue_name(name, args.run_id))
-    report = lambda kind, *fields: events.try_send(kind, args.rtpu, *fields)  # noqa: E731
+    report = lambda event: events.report(args.rtpu, event)  # noqa: E731
     # at stop: job control drains its queue while every RTPU reports, so a full queue is waited out
     # (while job control lives: after it was killed nobody drains the queue, and the wait would only hang)
     supervisor_alive = (lambda: os.getppid() == args.parent) if args.parent else None
-    report_at_stop = lambda kind, *fields: events.try_send(kind, args.rtpu, *fields, timeout=5.0,  # noqa: E731
-                                                           reader_alive=supervisor_alive)
+    report_at_stop = lambda event: events.report(args.rtpu, event, timeout=5.0, reader_alive=supervisor_alive)  # noqa: E731
     table = signals = barrier = None
     executive = None
     try:
@@ -94,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
             barrier = LockstepParticipant(name, args.run_id, args.rtpu, table.header)
             realtime = {"clock": f"simulated, {args.tick * 1e3:g} ms ticks"}
         stop_only_at_waits()  # the executive takes the table lock from here on: a stop must not land inside a transfer
-        report("ready", realtime)
+        report(messages.Ready(realtime))
         if barrier is not None:
             executive.run_lockstep(barrier)
         else:
@@ -105,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
             executive.stop()
         return 0
     except Exception as exc:
-        report("crashed", f"{type(exc).__name__}: {exc}", traceback.format_exc())
+        report(messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
         return 1
     finally:
         if barrier is not None:

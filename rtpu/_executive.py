@@ -24,6 +24,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
+from pbo_runtime.ipc.messages import Event, FirstCycle, Refused, Stable, StateChanged, Stats, Switched, Window
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.module import Status
 from pbo_runtime.config.reconfiguration import Reconfiguration
@@ -145,12 +146,12 @@ class Scheduled:
 class Executive:
     """Runs the tasks of one RTPU. `handle` deals with one signal; `run_once` is one wait + cycles."""
 
-    def __init__(self, clock: Clock, signals: SignalSource, report: Callable[..., None], epoch: float = 0.0,
+    def __init__(self, clock: Clock, signals: SignalSource, report: Callable[[Event], None], epoch: float = 0.0,
                  header: np.ndarray | None = None, reconfiguration: Reconfiguration | None = None,
-                 rtpu_index: int = 0, n_rtpus: int = 1, report_at_stop: Callable[..., None] | None = None) -> None:
+                 rtpu_index: int = 0, n_rtpus: int = 1, report_at_stop: Callable[[Event], None] | None = None) -> None:
         self.clock = clock
         self.signals = signals
-        self.report = report  # report(kind, *fields): events to job control
+        self.report = report  # report(event): events to job control (ipc.messages), on state changes only
         # At stop no cycle waits on a report, and the last windows, states and statistics must
         # not be dropped while every RTPU fills job control's queue at once: these may wait longer.
         self.report_at_stop = report_at_stop or report
@@ -281,13 +282,13 @@ class Executive:
         if s.critical and self._configuration_illegal(start, s.period):
             if not s.in_stable:
                 s.in_stable = True
-                self.report("stable", task.name, True, start)
+                self.report(Stable(task.name, True, start))
             s.stable_cycles += 1
             result = task.run_stable_cycle(release)
         else:
             if s.in_stable:
                 s.in_stable = False
-                self.report("stable", task.name, False, start)
+                self.report(Stable(task.name, False, start))
             result = task.run_cycle(release)
             if s.critical:
                 self._check_freshness(s, release)
@@ -304,7 +305,7 @@ class Executive:
             s.exec_max = took
             status[W.EXEC_MAX] = took
         if s.first_cycle_of_plan:
-            self.report("first_cycle", s.first_cycle_of_plan, task.name, start)
+            self.report(FirstCycle(s.first_cycle_of_plan, task.name, start))
             s.first_cycle_of_plan = 0
         s.last_release = release
         if s.aperiodic:
@@ -426,8 +427,8 @@ class Executive:
         done_at = clock.now()
         for s in (*leaving, *entering):
             self._report_state(s.task)
-        self.report("switched", sequence, view.name, activation, applied_at, done_at,
-                    [s.task.name for s in leaving], [s.task.name for s in entering])
+        self.report(Switched(sequence, view.name, activation, applied_at, done_at,
+                             [s.task.name for s in leaving], [s.task.name for s in entering]))
 
     def report_windows(self, following: int = 0) -> None:
         """Per switch: what each critical task read between that switch and the next (or the stop)."""
@@ -437,7 +438,7 @@ class Executive:
             lost, stale = s.lost_to_switch - s.window_lost, s.stale_reads - s.window_stale
             s.window_lost, s.window_stale = s.lost_to_switch, s.stale_reads
             if self.plan_seen:
-                self.report("window", self.plan_seen, s.task.name, lost, stale)
+                self.report(Window(self.plan_seen, s.task.name, lost, stale))
 
     def _watch(self, s: Scheduled, configuration: int) -> None:
         """Point a critical task's freshness check at the writers of its inputs in `configuration`."""
@@ -478,7 +479,7 @@ class Executive:
         name = message[1]
         s = self.tasks.get(name)
         if s is None:
-            self.report("refused", name, f"no task '{name}' on this RTPU")
+            self.report(Refused(name, f"no task '{name}' on this RTPU"))
             return
         task = s.task
         try:
@@ -512,10 +513,10 @@ class Executive:
                 self._event(s, message[2] if len(message) > 2 else None, quiet=True)
                 return
             else:
-                self.report("refused", name, f"unknown signal '{op}'")
+                self.report(Refused(name, f"unknown signal '{op}'"))
                 return
         except Exception as exc:  # a refused signal is job control's mistake, not a crash
-            self.report("refused", name, f"{op}: {exc}")
+            self.report(Refused(name, f"{op}: {exc}"))
             return
         self._report_state(task)
 
@@ -527,11 +528,11 @@ class Executive:
         start first; an operator's event is refused instead, for the operator to read.
         """
         if not s.aperiodic:
-            self.report("refused", s.task.name, "event: the task is periodic")
+            self.report(Refused(s.task.name, "event: the task is periodic"))
             return
         on = s.task.state == TaskState.ON
         if not on and not quiet:
-            self.report("refused", s.task.name, f"event: the task is {s.task.state.name}, not ON")
+            self.report(Refused(s.task.name, f"event: the task is {s.task.state.name}, not ON"))
             return
         if len(s.events) == s.events.maxlen:
             s.dropped_events += 1
@@ -549,15 +550,15 @@ class Executive:
                 try:
                     s.task.kill()
                 except Exception as exc:
-                    self.report("refused", s.task.name, f"kill: {exc}")
+                    self.report(Refused(s.task.name, f"kill: {exc}"))
                 self._report_state(s.task)
         self.report_statistics()
         self.running = False
 
     def report_statistics(self) -> None:
-        """One "stats" event per task: an RTPU hosting dozens of tasks would overflow one message."""
+        """One Stats event per task: an RTPU hosting dozens of tasks would overflow one message."""
         for name, s in self.tasks.items():
-            self.report("stats", {name: s.statistics()})
+            self.report(Stats({name: s.statistics()}))
 
     def _first_release(self, s: Scheduled, at: float) -> float:
         s.release_index = max(math.ceil((at - self.epoch) / s.period - 1e-9), 0)
@@ -568,4 +569,4 @@ class Executive:
             self.on.remove(s)
 
     def _report_state(self, task: Task) -> None:
-        self.report("state", task.name, task.state.name, task.last_error)
+        self.report(StateChanged(task.name, task.state.name, task.last_error))

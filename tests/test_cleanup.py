@@ -203,9 +203,9 @@ def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_w
     real_lock = table.lock
     table.lock = lock = SignalInsideTheLock(real_lock)
     signals = messages.Queue(unique_name("signals"), create=True)
-    events: list[tuple] = []
+    events: list[messages.Event] = []
     try:
-        executive = Executive(RealClock(0.0002), signals, lambda *e: events.append(e), epoch=time.monotonic())
+        executive = Executive(RealClock(0.0002), signals, events.append, epoch=time.monotonic())
         executive.add(Task(task_spec(Ticker, name="a", ports={"out": "o0"}, period=0.001), Ticker, table))
         signals.send("spawn", "a")
         signals.send("on", "a")
@@ -223,7 +223,7 @@ def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_w
         assert executive.tasks["a"].task.state == TaskState.KILLED
         assert real_lock.value == 1, "the lock is free again"
         assert len(RUNS) == 1, "the cycle the signal landed in ran to its end; none after it"
-        assert [e for e in events if e[0] == "stats"]
+        assert [e for e in events if isinstance(e, messages.Stats)]
     finally:
         table.lock = real_lock
         signals.close()

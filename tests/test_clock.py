@@ -96,7 +96,7 @@ class NoSignals:
 def executive_on(make_table):
     def build(clock: ManualClock) -> tuple[Executive, Task]:
         table = make_table(variables(("o0", "float64", ())))
-        executive = Executive(clock, NoSignals(), lambda *event: None, epoch=0.0)
+        executive = Executive(clock, NoSignals(), lambda event: None, epoch=0.0)
         task = Task(task_spec(Idle, name="idle", ports={"out": "o0"}, period=0.001), Idle, table)
         executive.add(task)
         executive.handle(["spawn", "idle"])

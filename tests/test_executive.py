@@ -8,6 +8,8 @@ import pytest
 
 from pbo_runtime import OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
+from pbo_runtime.ipc import messages
+from pbo_runtime.ipc.messages import Refused, StateChanged, Stats
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import TaskState
 from rtpu._executive import Executive
@@ -24,10 +26,10 @@ def setup(make_table):
     RUNS.clear()
     table = make_table(variables(("o0", "float64", ()), ("o1", "float64", ()), ("o2", "float64", ())))
     clock = ManualClock(0.0)
-    events: list[tuple] = []
+    events: list[messages.Event] = []
 
     def build(specs: list[tuple], script: list[tuple[float, list]], clock: ManualClock = clock) -> Executive:
-        executive = Executive(clock, FakeSignals(clock, script), lambda *e: events.append(e), epoch=0.0)
+        executive = Executive(clock, FakeSignals(clock, script), events.append, epoch=0.0)
         for i, (name, module, period, critical, *priority) in enumerate(specs):
             spec = task_spec(module, name=name, index=i, ports={"out": f"o{i}"}, period=period)
             spec = dataclasses.replace(spec, critical=critical, priority=priority[0] if priority else 0)
@@ -108,7 +110,7 @@ def test_a_module_that_raises_goes_to_error_and_the_executive_goes_on(setup):
     ex = build([("bad", Faulty, 0.001, False), ("good", Ticker, 0.001, False)], script)
     run_until(ex, clock, 0.0055)
     assert ex.tasks["bad"].task.state is TaskState.ERROR
-    assert ("state", "bad", "ERROR") == events[-1][:3] or any(e[:3] == ("state", "bad", "ERROR") for e in events)
+    assert any(isinstance(e, StateChanged) and (e.task, e.state) == ("bad", "ERROR") for e in events)
     assert len([1 for name, _ in RUNS if name == "good"]) == 6
 
 
@@ -120,21 +122,21 @@ def test_off_stops_the_releases_and_stop_kills_every_task(setup):
     assert len(RUNS) == 3
     assert not ex.running
     assert ex.tasks["a"].task.state is TaskState.KILLED
-    assert events[-1][0] == "stats" and events[-1][1]["a"]["cycles"] == 3
+    assert isinstance(events[-1], Stats) and events[-1].tasks["a"]["cycles"] == 3
 
 
 def test_a_signal_for_an_unknown_task_is_refused_not_fatal(setup):
     build, clock, events = setup
     ex = build([("a", Ticker, 0.001, False)], [(0.0, ["on", "nobody"])])
     ex.run_once()
-    assert events == [("refused", "nobody", "no task 'nobody' on this RTPU")]
+    assert events == [Refused("nobody", "no task 'nobody' on this RTPU")]
 
 
 def test_on_before_spawn_is_refused_with_the_reason(setup):
     build, clock, events = setup
     ex = build([("a", Ticker, 0.001, False)], [(0.0, ["on", "a"])])
     ex.run_once()
-    assert events[0][0] == "refused" and "cannot take 'on' in state NOT_CREATED" in events[0][2]
+    assert isinstance(events[0], Refused) and "cannot take 'on' in state NOT_CREATED" in events[0].reason
     assert ex.on == []
 
 
@@ -170,7 +172,7 @@ def test_an_event_for_a_periodic_task_is_refused(setup):
     ex.run_once()
     ex.run_once()
     ex.run_once()
-    assert ("refused", "a", "event: the task is periodic") in events
+    assert Refused("a", "event: the task is periodic") in events
 
 
 def test_the_percentiles_of_the_last_1024_cycles_reach_the_table_for_pbo_status(setup):
@@ -203,7 +205,7 @@ def test_a_link_message_that_comes_before_its_server_is_on_waits_and_is_served_w
     ex, _ = aperiodic_recorder(build, script)
     run_until(ex, clock, 0.05)
     assert EventRecorder.served == [(0.005, [[1.0], 7])]
-    assert not any(e[0] == "refused" for e in events)  # the other subsystem started first: not a mistake
+    assert not any(isinstance(e, Refused) for e in events)  # the other subsystem started first: not a mistake
 
 
 def test_an_operator_event_for_a_server_that_is_off_is_still_refused(setup):
@@ -211,7 +213,7 @@ def test_an_operator_event_for_a_server_that_is_off_is_still_refused(setup):
     EventRecorder.served = []
     ex, _ = aperiodic_recorder(build, [(0.0, ["spawn", "server"]), (0.001, ["event", "server", [1.0]])])
     run_until(ex, clock, 0.05)
-    assert ("refused", "server", "event: the task is OFF, not ON") in events and EventRecorder.served == []
+    assert Refused("server", "event: the task is OFF, not ON") in events and EventRecorder.served == []
 
 
 def test_link_messages_beyond_what_a_server_holds_are_counted_as_dropped(setup):
@@ -279,9 +281,9 @@ def test_once_job_control_announces_the_stop_no_further_cycle_runs(make_table):
     table = make_table(variables(("o0", "float64", ())))
     clock = ManualClock(0.0)
     header = np.zeros(32, dtype=np.int64)
-    events: list[tuple] = []
+    events: list[messages.Event] = []
     ex = Executive(clock, FakeSignals(clock, [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0])]),
-                   lambda *e: events.append(e), epoch=0.0, header=header)
+                   events.append, epoch=0.0, header=header)
     ex.add(Task(task_spec(Ticker, name="a", ports={"out": "o0"}, period=0.001), Ticker, table))
     run_until(ex, clock, 0.0025)
     assert len(RUNS) == 3
@@ -289,7 +291,7 @@ def test_once_job_control_announces_the_stop_no_further_cycle_runs(make_table):
     run_until(ex, clock, 0.0100)
     assert len(RUNS) == 3 and not ex.running
     assert ex.tasks["a"].task.state.name == "KILLED"
-    assert [e for e in events if e[0] == "stats"], "it still reports its statistics"
+    assert [e for e in events if isinstance(e, Stats)], "it still reports its statistics"
 
 
 def test_what_an_rtpu_reports_at_stop_goes_by_the_patient_reporter(make_table):
@@ -300,7 +302,7 @@ def test_what_an_rtpu_reports_at_stop_goes_by_the_patient_reporter(make_table):
     clock = ManualClock(0.0)
     during, at_stop = [], []
     ex = Executive(clock, FakeSignals(clock, [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0]), (0.0025, ["stop"])]),
-                   lambda *e: during.append(e[0]), epoch=0.0, report_at_stop=lambda *e: at_stop.append(e[0]))
+                   lambda e: during.append(e.KIND), epoch=0.0, report_at_stop=lambda e: at_stop.append(e.KIND))
     ex.add(Task(task_spec(Ticker, name="a", ports={"out": "o0"}, period=0.001), Ticker, table))
     run_until(ex, clock, 0.01)
     assert "stats" not in during and during.count("state") == 2  # spawned (OFF), then ON
@@ -320,7 +322,7 @@ from tests.support import FakeSignals, Quiet, run_until, task_spec, unique_name,
 table = StateTable.create(TableLayout.build(variables(("o0", "float64", ())), 1), unique_name())
 try:
     clock = ManualClock(0.0)
-    executive = Executive(clock, FakeSignals(clock, [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0])]), lambda *e: None)
+    executive = Executive(clock, FakeSignals(clock, [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0])]), lambda e: None)
     executive.add(Task(task_spec(Quiet, name="a", ports={"out": "o0"}), Quiet, table))
     run_until(executive, clock, 0.01)
     before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt

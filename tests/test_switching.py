@@ -14,6 +14,7 @@ import pytest
 
 from pbo_runtime import InVar, OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
+from pbo_runtime.ipc import messages
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.config.reconfiguration import Reconfiguration
@@ -104,10 +105,10 @@ def rig(tmp_path, make_table):
     subsystem = result.subsystem
     table = StateTable.create(TableLayout.of(subsystem), unique_name())
     clock = ManualClock(1.0)
-    events: list[tuple] = []
+    events: list[tuple[str, messages.Event]] = []
     executives = {}
     for rtpu in subsystem.rtpus:
-        ex = Executive(clock, FakeSignals(clock), lambda *e, r=rtpu.name: events.append((r, *e)),
+        ex = Executive(clock, FakeSignals(clock), lambda e, r=rtpu.name: events.append((r, e)),
                        epoch=rtpu.index * STAGGER, header=table.header, reconfiguration=Reconfiguration(subsystem),
                        rtpu_index=rtpu.index, n_rtpus=len(subsystem.rtpus))
         for spec in subsystem.tasks_on(rtpu.name):
@@ -171,12 +172,12 @@ def test_two_hundred_switches_lose_no_cycle_of_the_critical_task(rig):
     assert actuator.lost_to_switch == 0, actuator.last_lost
     assert actuator.stale_reads == 0, actuator.last_stale
     assert actuator.stable_cycles == 0
-    switched = [e for e in events if e[1] == "switched"]
+    switched = [e for _, e in events if isinstance(e, messages.Switched)]
     assert len(switched) == 2 * 200  # every RTPU applied every plan
     # each pair of reports for one plan: both RTPUs applied it at the activation instant
     by_plan: dict[int, list[float]] = {}
     for e in switched:
-        by_plan.setdefault(e[2], []).append(e[5])
+        by_plan.setdefault(e.sequence, []).append(e.applied_at)
     assert all(max(t) - min(t) < 1e-9 for t in by_plan.values())
     # what the actuator read flips exactly at the switches: +1 from ctl_a, -1 from ctl_b, never 0
     seen = actuator.task.module.seen
@@ -190,8 +191,8 @@ def test_the_entering_task_runs_its_first_cycle_at_the_activation_instant(rig):
     activation = math.ceil((clock.now() + 0.004) / PERIOD) * PERIOD
     post_plan(table, Reconfiguration(subsystem).index("with_b"), activation)
     step_until(executives, clock, activation + 0.005)
-    first = [e for e in events if e[1] == "first_cycle"]
-    assert first and first[-1][3] == "ctl_b" and first[-1][4] == pytest.approx(activation)
+    first = [e for _, e in events if isinstance(e, messages.FirstCycle)]
+    assert first and first[-1].task == "ctl_b" and first[-1].at == pytest.approx(activation)
 
 
 def test_a_switch_that_overruns_a_cycle_makes_the_critical_task_hold_still(rig):
@@ -203,7 +204,8 @@ def test_a_switch_that_overruns_a_cycle_makes_the_critical_task_hold_still(rig):
     step_until(executives, clock, clock.now() + 0.003)
     actuator = executives["rtpu1"].tasks["actuator"]
     assert actuator.stable_cycles >= 2
-    assert ("rtpu1", "stable", "actuator", True) == next(e for e in events if e[1] == "stable")[:4]
+    rtpu, stable = next((r, e) for r, e in events if isinstance(e, messages.Stable))
+    assert (rtpu, stable.task, stable.entering) == ("rtpu1", "actuator", True)
     table.header[Header.SWITCHING_SINCE_NS + 0] = 0
     step_until(executives, clock, clock.now() + 0.003)
     assert not actuator.in_stable

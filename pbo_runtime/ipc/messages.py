@@ -1,12 +1,19 @@
 """Signals to RTPUs and events back to job control: msgpack over POSIX message queues.
 
 Queues carry signals and events only, never per-cycle data (DESIGN §3). All are 0600.
+
+Events are typed: one frozen dataclass per kind, below. They are encoded and decoded here
+only (`Queue.report`, `Queue.receive_event`); on the wire an event is the msgpack list
+`[kind, source, *fields]` (source: the RTPU's name or "plant"), fields in declaration order,
+trailing fields with a default may be left out. Events are sent on state changes (a task's
+state, a switch, a stable episode's start and end), never per cycle.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from typing import Any, Callable
+from typing import Any, Callable, ClassVar, Union
 
 import msgpack
 import posix_ipc
@@ -48,8 +55,134 @@ def table_name(subsystem: str, run_id: str) -> str:
     return shm.object_name(subsystem, run_id, "table")
 
 
+# --- events: RTPUs and the plant to job control ----------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Ready:
+    """A child is up: an RTPU says what it runs under (cpu, scheduler, timer slack...), the plant nothing."""
+
+    KIND: ClassVar[str] = "ready"
+    realtime: dict[str, str] | None = None
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class StateChanged:
+    """A task's lifecycle state after a signal, a cycle or a switch; `error` the last error's message."""
+
+    KIND: ClassVar[str] = "state"
+    task: str
+    state: str
+    error: str = ""
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Switched:
+    """An RTPU applied plan `sequence`: when, and which of its tasks went off and on."""
+
+    KIND: ClassVar[str] = "switched"
+    sequence: int
+    configuration: str
+    activation: float
+    applied_at: float
+    done_at: float
+    off: list[str]
+    on: list[str]
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Window:
+    """A critical task's cycles lost and stale reads from switch `sequence` to the next one (or the stop)."""
+
+    KIND: ClassVar[str] = "window"
+    sequence: int
+    task: str
+    lost: int
+    stale: int
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class FirstCycle:
+    """An entering task of plan `sequence` ran its first cycle, starting at `at`."""
+
+    KIND: ClassVar[str] = "first_cycle"
+    sequence: int
+    task: str
+    at: float
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Stable:
+    """A critical task entered (`entering`) or left its locally stable behaviour at `at`."""
+
+    KIND: ClassVar[str] = "stable"
+    task: str
+    entering: bool
+    at: float
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Stats:
+    """Per task (one task a message: an RTPU with dozens would overflow one), its run figures."""
+
+    KIND: ClassVar[str] = "stats"
+    tasks: dict[str, dict[str, Any]]
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class PlantStats:
+    """The plant's figures at its end: steps, late steps, how far behind it left SCHED_FIFO."""
+
+    KIND: ClassVar[str] = "plant_stats"
+    figures: dict[str, Any]
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Refused:
+    """An RTPU refused a signal for `task` (job control's mistake, not a crash): why."""
+
+    KIND: ClassVar[str] = "refused"
+    task: str
+    reason: str
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Crashed:
+    """A child failed outside any task: the exception, and its traceback."""
+
+    KIND: ClassVar[str] = "crashed"
+    error: str
+    trace: str = ""
+
+
+Event = Union[Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, Refused, Crashed]
+EVENT_TYPES: dict[str, type[Event]] = {cls.KIND: cls for cls in
+                                       (Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats,
+                                        Refused, Crashed)}
+_FIELDS: dict[type, tuple[str, ...]] = {cls: tuple(f.name for f in dataclasses.fields(cls)) for cls in EVENT_TYPES.values()}
+
+
+def event_to_wire(source: str, event: Event) -> list[Any]:
+    """`[kind, source, *fields]`: what goes on the event queue."""
+    return [event.KIND, source, *(getattr(event, name) for name in _FIELDS[type(event)])]
+
+
+def event_from_wire(message: list[Any]) -> tuple[str, Event]:
+    """(source, event) from `[kind, source, *fields]`; anything else is our bug, named."""
+    kind = message[0] if isinstance(message, list) and len(message) >= 2 else None
+    cls = EVENT_TYPES.get(kind) if isinstance(kind, str) else None
+    if cls is None:
+        raise InternalError(f"an event that is not one of {', '.join(EVENT_TYPES)} came on the event queue: "
+                            f"{message!r:.200}; please report this")
+    try:
+        return str(message[1]), cls(*message[2:])
+    except TypeError as exc:
+        raise InternalError(f"a malformed '{kind}' event came on the event queue ({exc}): {message!r:.200}; "
+                            "please report this") from None
+
+
 class Queue:
-    """One end of a message queue carrying msgpack-encoded lists."""
+    """One end of a message queue carrying msgpack-encoded lists (events: `report`, `receive_event`)."""
 
     def __init__(self, name: str, create: bool = False) -> None:
         self.name = name
@@ -88,6 +221,16 @@ class Queue:
                     return False
             except (posix_ipc.ExistentialError, posix_ipc.SignalError, OSError):
                 return False
+
+    def report(self, source: str, event: Event, timeout: float = 0.5,
+               reader_alive: Callable[[], bool] | None = None) -> bool:
+        """Send one event from `source` (`try_send`: a dead or stuck job control never hangs the sender)."""
+        return self.try_send(*event_to_wire(source, event), timeout=timeout, reader_alive=reader_alive)
+
+    def receive_event(self, timeout: float | None) -> tuple[str, Event] | None:
+        """The next event as (source, event), or None if none came within `timeout` (see `receive`)."""
+        message = self.receive(timeout)
+        return None if message is None else event_from_wire(message)
 
     def _encode(self, message: tuple[Any, ...]) -> bytes:
         """The message as msgpack; one too long for the queue is our bug, named, never a bare ValueError."""

@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
             table = shm.attach_segment(messages.table_name(args.subsystem, args.run_id))
             header = np.frombuffer(table, dtype=np.int64, count=HEADER_WORDS)
             barrier = LockstepParticipant(args.subsystem, args.run_id, "plant", header)
-        events.try_send("ready", "plant")
+        events.report("plant", messages.Ready())
         if barrier is not None:
             while True:
                 if barrier.wait():
@@ -92,11 +92,11 @@ def main(argv: list[str] | None = None) -> int:
     except Stop:
         return 0
     except Exception as exc:
-        events.try_send("crashed", "plant", f"{type(exc).__name__}: {exc}", traceback.format_exc())
+        events.report("plant", messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
         return 1
     finally:
-        events.try_send("plant_stats", "plant", {"steps": steps, "late": late,
-                                                 "left_fifo_behind": behind_when_stepped_down})
+        events.report("plant", messages.PlantStats({"steps": steps, "late": late,
+                                                    "left_fifo_behind": behind_when_stepped_down}))
         if barrier is not None:
             barrier.close()
         if plant is not None:

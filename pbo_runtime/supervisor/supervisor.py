@@ -355,12 +355,11 @@ class Supervisor:
             return self._served_state(task, states, PboError)
         deadline = time.monotonic() + SIGNAL_TIMEOUT
         while True:
-            event = self._next_event(deadline, f"waiting for task '{task}'")
-            if event[0] in ("state", "refused") and event[2] == task:
-                if event[0] == "refused":
-                    raise PboError(f"task '{task}': {event[3]}")
-                if self.task_states[task] in states:
-                    return self.task_states[task]
+            _, event = self._next_event(deadline, f"waiting for task '{task}'")
+            if isinstance(event, messages.Refused) and event.task == task:
+                raise PboError(f"task '{task}': {event.reason}")
+            if isinstance(event, messages.StateChanged) and event.task == task and self.task_states[task] in states:
+                return self.task_states[task]
 
     def kill_task(self, name: str) -> None:
         self.signal_and_wait(name, "kill", {"KILLED"})
@@ -439,8 +438,8 @@ class Supervisor:
         if self._stop_requested:
             raise StopRequested(self._stop_requested)  # a tick that never ends must not hold Ctrl-C
         assert self.events is not None and self.lockstep is not None
-        while (event := self.events.receive(0)) is not None:
-            self._absorb(event)
+        while (received := self.events.receive_event(0)) is not None:
+            self._absorb(*received)
         lockstep = self.lockstep
         waited = time.monotonic() - lockstep.step_started
         if waited > SIM_STALL_SECONDS and self._slow_tick != lockstep.ticks:
@@ -452,11 +451,11 @@ class Supervisor:
         waiting = set(roles)
         deadline = time.monotonic() + START_TIMEOUT
         while waiting:
-            event = self._next_event(deadline, f"waiting for {', '.join(sorted(waiting))} to start")
-            if event[0] == "ready":
-                waiting.discard(event[1])
-                if len(event) > 2 and isinstance(event[2], dict):
-                    self.result.realtime[event[1]] = event[2]
+            source, event = self._next_event(deadline, f"waiting for {', '.join(sorted(waiting))} to start")
+            if isinstance(event, messages.Ready):
+                waiting.discard(source)
+                if isinstance(event.realtime, dict):
+                    self.result.realtime[source] = event.realtime
 
     def _served_state(self, task: str, states: set[str], failure: type[PboError]) -> str:
         """Sim clock: the signal was served in full when `_signal` returned; its events are all queued."""
@@ -477,23 +476,22 @@ class Supervisor:
             if self.task_states[task] in states:
                 return self.task_states[task]
 
-    def _next_event(self, deadline: float, doing: str) -> list[Any]:
+    def _next_event(self, deadline: float, doing: str) -> tuple[str, messages.Event]:
         assert self.events is not None
         while True:
             self._check_children()
             if self._stop_requested:
                 raise RunFailure(f"stopped by {self._stop_requested} while {doing}")
-            event = self.events.receive(0.05)
-            if event is not None:
-                self._absorb(event)
-                return event
+            received = self.events.receive_event(0.05)
+            if received is not None:
+                self._absorb(*received)
+                return received
             if time.monotonic() > deadline:
                 raise RunFailure(f"timed out {doing}")
 
-    def _absorb(self, event: list[Any]) -> None:
-        kind, source = event[0], event[1]
-        if kind == "state":
-            task, state, message = event[2], event[3], event[4]
+    def _absorb(self, source: str, event: messages.Event) -> None:
+        if isinstance(event, messages.StateChanged):
+            task, state, message = event.task, event.state, event.error
             previous = self.task_states.get(task)
             self.task_states[task] = state
             if message:
@@ -502,15 +500,15 @@ class Supervisor:
                 self.say(f"task '{task}' on {source} is in ERROR: {message} (operator intervention required: pbo clear {task})")
             if (state == "ERROR") != (previous == "ERROR"):
                 self._count_errors()
-        elif kind == "switched":
-            self.job_control.switched(source, event[2], event[5], event[6], event[7], event[8])
-        elif kind == "window":
-            self.job_control.window(event[2], event[3], event[4], event[5])
-        elif kind == "first_cycle":
-            self.job_control.first_cycle(event[2], event[3], event[4])
-        elif kind == "stable":
-            task, entering, at = event[2], event[3], event[4]
-            if entering:
+        elif isinstance(event, messages.Switched):
+            self.job_control.switched(source, event.sequence, event.applied_at, event.done_at, event.off, event.on)
+        elif isinstance(event, messages.Window):
+            self.job_control.window(event.sequence, event.task, event.lost, event.stale)
+        elif isinstance(event, messages.FirstCycle):
+            self.job_control.first_cycle(event.sequence, event.task, event.at)
+        elif isinstance(event, messages.Stable):
+            task, at = event.task, event.at
+            if event.entering:
                 self._stable[task] = at
                 self.say(f"configuration illegal: critical task '{task}' runs its locally stable behaviour")
             elif task in self._stable:
@@ -518,15 +516,15 @@ class Supervisor:
                 self.result.stable_episodes.append({"task": task, "from": began, "to": at, "seconds": at - began})
                 self.say(f"critical task '{task}' is back to its cycle after {(at - began) * 1e3:.1f} ms")
             self._count_errors()
-        elif kind == "stats":
-            self._stats.update(event[2])
-        elif kind == "plant_stats":
-            self.result.plant = event[2]
-        elif kind == "refused":
-            self._refused[event[2]] = event[3]
-            self.say(f"{source} refused a signal for '{event[2]}': {event[3]}")
-        elif kind == "crashed":
-            raise RunFailure(f"{source} crashed: {event[2]}\n{event[3] if len(event) > 3 else ''}")
+        elif isinstance(event, messages.Stats):
+            self._stats.update(event.tasks)
+        elif isinstance(event, messages.PlantStats):
+            self.result.plant = event.figures
+        elif isinstance(event, messages.Refused):
+            self._refused[event.task] = event.reason
+            self.say(f"{source} refused a signal for '{event.task}': {event.reason}")
+        elif isinstance(event, messages.Crashed):
+            raise RunFailure(f"{source} crashed: {event.error}\n{event.trace}")
 
     def _check_children(self) -> None:
         for child in self.children:
@@ -570,9 +568,9 @@ class Supervisor:
                 self.lockstep.advance(self._while_stepping)
                 self._while_stepping()
         else:
-            event = self.events.receive(timeout)
-            if event is not None:
-                self._absorb(event)
+            received = self.events.receive_event(timeout)
+            if received is not None:
+                self._absorb(*received)
         self._serve_commands()
         if self.on_tick is not None:
             self.on_tick(self)
@@ -779,13 +777,13 @@ class Supervisor:
             return
         while True:
             try:
-                event = self.events.receive(timeout)
+                received = self.events.receive_event(timeout)
             except posix_ipc.Error:
                 return
-            if event is None:
+            if received is None:
                 return
             try:
-                self._absorb(event)
+                self._absorb(*received)
             except RunFailure as exc:
                 if not self.result.failure:
                     self.result.failure = str(exc)

@@ -6,11 +6,12 @@ configuration on, watches until the duration ends, Ctrl-C, or a failure, and the
 everything off, kills the tasks, stops the children and unlinks every object it made,
 whatever happened. A start first removes what a dead run of the same subsystem left.
 
-With `clock="sim"` the supervisor is also the clock master: time is the tick count, advanced
-only by `pump`, and the plant and the RTPUs run each tick in turn (`clock.lockstep`), so a run
-replays bit for bit. Times that belong to the run (durations, job timeouts, switch times) are
-read through `now()`, on either clock; waits for processes (start-up, a signal's answer) stay
-on wall time, since a process that hangs must be caught whatever the clock.
+The run's clock is a parameter (`clock.run_clock`): real time, or with `clock="sim"` the
+simulated clock, whose master the supervisor then is: time is the tick count, advanced only by
+`pump`, and the plant and the RTPUs run each tick in turn (`clock.lockstep`), so a run replays
+bit for bit. Times that belong to the run (durations, job timeouts, switch times) are read
+through `now()`, on either clock; waits for processes (start-up, a signal's answer) stay on
+wall time, since a process that hangs must be caught whatever the clock.
 """
 
 from __future__ import annotations
@@ -30,12 +31,11 @@ import posix_ipc
 
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import shm
-from pbo_runtime.clock.clocks import release_stagger
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import ControlServer, control_queue_name
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
-from pbo_runtime.clock.lockstep import LockstepMaster, semaphore_names
+from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.stall_watch import StallWatch
 from pbo_runtime.table.table import Flag, Header, StateTable, TableLayout, TaskState, read_manifest
@@ -163,7 +163,7 @@ class Supervisor:
         self.subsystem = subsystem
         if clock not in ("real", "sim"):
             raise RunFailure(f"unknown clock '{clock}': use real or sim")
-        self.simulated = clock == "sim"
+        self.clock: RunClock = SimRunClock(simulation_tick(subsystem)) if clock == "sim" else RealRunClock()
         self.out_dir = os.path.abspath(out_dir) if out_dir else ""
         self.links = dict(links or {})  # an application's links, handed to every RTPU (see _links)
         self.application = application
@@ -200,19 +200,15 @@ class Supervisor:
         self._stats: dict[str, dict[str, Any]] = {}
         self.stall_watch = StallWatch(subsystem.tasks.values(), self._cycles_of, say)
         self._stalls_checked = -math.inf
-        self._slow_tick = -1  # the simulated clock's tick last reported as slow
         self.reconfiguration = Reconfiguration(subsystem)
         # RTPUs release at epoch + index * stagger + k * period, evenly over the shortest period
-        # (release_stagger says why).
+        # on the real clock (clocks.release_stagger says why).
         self.shortest_period = min(t.period for t in subsystem.tasks.values())
-        self.stagger = release_stagger(self.shortest_period, len(subsystem.rtpus))
+        self.stagger = self.clock.stagger(self.shortest_period, len(subsystem.rtpus))
         self.epoch = 0.0
-        self.tick = simulation_tick(subsystem) if self.simulated else 0.0
-        self.lockstep: LockstepMaster | None = None
+        self.tick = self.clock.tick
         self.result.clock = clock
         self.result.tick = self.tick
-        if self.simulated:
-            self.stagger = 0.0  # RTPUs run in turn within a tick: they cannot collide on the lock
         self.static = static
         self.job_control = JobControl(self, static=static)
         self.result.application = application or ""
@@ -220,7 +216,7 @@ class Supervisor:
         # SCHED_FIFO where the OS allows it, on the real clock unless asked otherwise: under SCHED_OTHER
         # the machine's own threads take a CPU for milliseconds and RTPUs overrun several times as
         # often (8 to 14 in docs/performance.md). The simulated clock waits on ticks: it needs none.
-        self.fifo = (not self.simulated) if fifo is None else fifo
+        self.fifo = self.clock.fifo_by_default if fifo is None else fifo
         self._stable: dict[str, float] = {}
         self.control: ControlServer | None = None
         self._serving = False
@@ -236,14 +232,16 @@ class Supervisor:
         if self.subsystem.plant is not None:
             entries.append(f"shm {messages.plant_registers_name(s, r)}")
         entries.append(f"mq {control_queue_name(s, r)}")
-        if self.simulated:
-            roles = (["plant"] if self.subsystem.plant is not None else []) + [rtpu.name for rtpu in self.subsystem.rtpus]
-            entries += [f"sem {name}" for role in roles for name in semaphore_names(s, r, role)]
+        entries += [f"sem {name}" for name in self.clock.semaphores(s, r, self._roles())]
         return entries
+
+    def _roles(self) -> list[str]:
+        """The children, in the order the simulated clock steps them: the plant first, then the RTPUs."""
+        return (["plant"] if self.subsystem.plant is not None else []) + [rtpu.name for rtpu in self.subsystem.rtpus]
 
     def now(self) -> float:
         """The run's time: CLOCK_MONOTONIC, or the simulated clock's last tick."""
-        return self.lockstep.now if self.lockstep is not None else time.monotonic()
+        return self.clock.now()
 
     # --- the run ----------------------------------------------------------------------------
 
@@ -294,21 +292,14 @@ class Supervisor:
             self.signals[rtpu.name] = messages.Queue(messages.signal_queue_name(sub.name, run_id, rtpu.name), create=True)
         self.table = StateTable.create(TableLayout.of(sub), messages.table_name(sub.name, run_id), self._manifest())
         self.control = ControlServer(sub.name, run_id)
-        clock: list[str] = []
-        if self.simulated:
-            roles = (["plant"] if sub.plant is not None else []) + [rtpu.name for rtpu in sub.rtpus]
-            self.lockstep = LockstepMaster(sub.name, run_id, roles, self.tick, self.table.header)
-            clock = ["--clock", "sim"]
+        epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()
-        epoch = self.epoch = self.now() if self.simulated else time.monotonic()
-        if not self.simulated:  # for whoever lines up with the releases from outside (bench.realtime)
-            self.table.header[Header.RELEASE_EPOCH_NS] = int(epoch * 1e9)
         if sub.plant is not None:
             plant = sub.plant
             self._launch("plant", [
                 "-m", "pbo_runtime.supervisor.plant_host", "--type", plant.type, "--model", plant.model,
                 "--timestep", repr(plant.timestep), "--options", json.dumps(dict(plant.options)),
-                "--subsystem", sub.name, "--run-id", run_id, *(["--fifo"] if self.fifo else []), *clock,
+                "--subsystem", sub.name, "--run-id", run_id, *(["--fifo"] if self.fifo else []), *self.clock.plant_arguments(),
             ])
             self._await_ready({"plant"})
         for rtpu in sub.rtpus:
@@ -316,7 +307,7 @@ class Supervisor:
             self._launch(rtpu.name, ["-m", "rtpu", sub.file, "--run-id", run_id, "--rtpu", rtpu.name,
                                      "--epoch", repr(epoch + self.stagger * rtpu.index), "--spin", repr(rtpu.spin),
                                      *(["--fifo"] if self.fifo else []),
-                                     *clock, *(["--tick", repr(self.tick)] if self.simulated else []),
+                                     *self.clock.rtpu_arguments(),
                                      *(["--out", self.out_dir] if self.out_dir else []),
                                      *(["--links", json.dumps(self.links)] if self.links else [])],
                          hosted)
@@ -332,7 +323,7 @@ class Supervisor:
             self.turn_on(name, self.configuration)
         self._publish_plan_state()
         self.started_at = self.now()
-        if not self.simulated:
+        if self.clock.on_monotonic:
             self.result.started_monotonic = self.started_at
         self.say(f"configuration '{self.configuration}' is on: {', '.join(ordered)}")
 
@@ -351,7 +342,7 @@ class Supervisor:
 
     def _await_change(self, task: str, before: str | None, states: set[str]) -> str:
         """The task's state after a signal: one of `states`; a clear that fails reports ERROR again."""
-        if self.lockstep is not None:
+        if self.clock.signals_served_when_sent:
             return self._served_state(task, states, PboError)
         deadline = time.monotonic() + SIGNAL_TIMEOUT
         while True:
@@ -380,7 +371,7 @@ class Supervisor:
         header[Header.PLAN_CONFIGURATION] = self.reconfiguration.index(configuration)
         header[Header.PLAN_TIME_NS] = int(activation * 1e9)
         header[Header.PLAN_SEQUENCE] = sequence  # last: an executive that sees it sees the whole plan
-        if self.lockstep is None:  # the simulated clock's RTPUs read the header every tick anyway
+        if self.clock.plans_need_a_wakeup:
             for queue in self.signals.values():
                 queue.try_send("plan", timeout=0.0)
         return sequence
@@ -410,9 +401,8 @@ class Supervisor:
 
     def _launch(self, role: str, arguments: list[str], tasks: tuple[str, ...] = ()) -> None:
         command = [sys.executable, *arguments, "--parent", str(os.getpid())]
-        # A replayed run must not depend on string hashing: fix it for the children of a sim run.
-        environment = {**os.environ, "PYTHONHASHSEED": "0"} if self.simulated else None
-        process = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True, env=environment)
+        process = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True,
+                                   env=self.clock.child_environment())
         self.children.append(_Child(role, process, tasks))
 
     def _write_initial_values(self) -> None:
@@ -428,8 +418,7 @@ class Supervisor:
         rtpu = self.subsystem.tasks[task].rtpu
         self._refused.pop(task, None)
         self.signals[rtpu].send(message[0], task, *message[1:], timeout=SIGNAL_TIMEOUT)
-        if self.lockstep is not None:
-            self.lockstep.step(rtpu, self._while_stepping)  # served now, between ticks: at a known instant
+        self.clock.serve(rtpu, self._while_stepping)
 
     def _while_stepping(self) -> None:
         """While a participant runs its tick: fail if a child died, stop if asked, keep the event queue
@@ -437,14 +426,13 @@ class Supervisor:
         self._check_children()
         if self._stop_requested:
             raise StopRequested(self._stop_requested)  # a tick that never ends must not hold Ctrl-C
-        assert self.events is not None and self.lockstep is not None
+        assert self.events is not None
         while (received := self.events.receive_event(0)) is not None:
             self._absorb(*received)
-        lockstep = self.lockstep
-        waited = time.monotonic() - lockstep.step_started
-        if waited > SIM_STALL_SECONDS and self._slow_tick != lockstep.ticks:
-            self._slow_tick = lockstep.ticks
-            self.say(f"{lockstep.stepping} has not finished the tick at {lockstep.now:.3f} s for {waited:.1f} s of wall "
+        slow = self.clock.slow_participant(SIM_STALL_SECONDS)
+        if slow is not None:
+            stepping, at, waited = slow
+            self.say(f"{stepping} has not finished the tick at {at:.3f} s for {waited:.1f} s of wall "
                      "time: a cycle there has not returned (Ctrl-C stops the run)")
 
     def _await_ready(self, roles: set[str]) -> None:
@@ -468,7 +456,7 @@ class Supervisor:
         return state
 
     def _await_state(self, task: str, states: set[str]) -> str:
-        if self.lockstep is not None:
+        if self.clock.signals_served_when_sent:
             return self._served_state(task, states, RunFailure)
         deadline = time.monotonic() + SIGNAL_TIMEOUT
         while True:
@@ -563,17 +551,16 @@ class Supervisor:
         if self._stop_requested:
             raise StopRequested(self._stop_requested)
         self._check_stalls()
-        if self.lockstep is not None:
-            for _ in range(max(1, math.floor(timeout / self.tick + 1e-9))):
-                self.lockstep.advance(self._while_stepping)
-                self._while_stepping()
-        else:
-            received = self.events.receive_event(timeout)
-            if received is not None:
-                self._absorb(*received)
+        self.clock.run_for(timeout, self._take_one_event, self._while_stepping)
         self._serve_commands()
         if self.on_tick is not None:
             self.on_tick(self)
+
+    def _take_one_event(self, timeout: float) -> None:
+        assert self.events is not None
+        received = self.events.receive_event(timeout)
+        if received is not None:
+            self._absorb(*received)
 
     def _cycles_of(self, index: int) -> float:
         assert self.table is not None
@@ -581,7 +568,7 @@ class Supervisor:
 
     def _check_stalls(self) -> None:
         """Real clock: a task ON whose cycle count stops moving is reported (see _stall_watch)."""
-        if self.simulated or self.started_at is None or self.table is None:
+        if not self.clock.watches_stalls or self.started_at is None or self.table is None:
             return
         now = self.now()
         if now - self._stalls_checked >= STALL_CHECK_EVERY:
@@ -688,8 +675,8 @@ class Supervisor:
     def _shutdown(self) -> None:
         self.result.duration = self.now() - self.started_at if self.started_at is not None else 0.0
         self.result.states_at_stop = dict(self.task_states)
-        if self.table is not None and not self.simulated:  # (on the simulated clock, the stop signal is in step)
-            self.table.announce_stop()
+        if self.table is not None:
+            self.clock.announce_stop(self.table.announce_stop)
         alive = [c for c in self.children if c.process.poll() is None]
         for child in alive:
             if child.role != "plant":
@@ -712,8 +699,7 @@ class Supervisor:
                 child.process.kill()
                 child.process.wait()
         self._drain_events(0.0)
-        if self.lockstep is not None:
-            self.lockstep.close()
+        self.clock.close()
         self.result.switches = [record.to_json() for record in self.job_control.switches]
         started = self.started_at if self.started_at is not None else 0.0
         for name, stats in self._stats.items():
@@ -762,15 +748,13 @@ class Supervisor:
 
     def _serve_stop(self, child: _Child) -> None:
         """Sim clock: step an RTPU once so it serves its stop; a dead or stuck one is left to SIGTERM."""
-        if self.lockstep is None:
-            return
         deadline = time.monotonic() + STOP_TIMEOUT
 
         def give_up() -> bool:
             self._drain_events(0.0)
             return child.process.poll() is not None or time.monotonic() > deadline
 
-        self.lockstep.step(child.role, give_up)
+        self.clock.serve(child.role, give_up)
 
     def _drain_events(self, timeout: float) -> None:
         if self.events is None:

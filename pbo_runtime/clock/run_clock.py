@@ -1,0 +1,179 @@
+"""The clock a run is supervised on: real time, or the simulated clock's lockstep ticks.
+
+The executive takes its clock as a parameter (`clocks.RealClock`, `clocks.SimClock`); the
+supervisor does the same with a `RunClock`, so what differs between the two clocks is said
+here once instead of in branches through the supervisor:
+
+- `RealRunClock`: time is CLOCK_MONOTONIC; the children run on their own timers, RTPUs release
+  staggered over the shortest period, a plan needs a wake-up on each RTPU's queue, and the
+  supervisor waits for events between its own turns.
+- `SimRunClock`: the supervisor is the clock master (`clock.lockstep`): time is the tick count,
+  moved only by `run_for`; a signal is served in full when its RTPU is stepped, so its answer
+  is already queued when `serve` returns; children run with a fixed string hash so a run
+  replays bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from typing import Callable, Protocol
+
+import numpy as np
+
+from pbo_runtime.clock.clocks import release_stagger
+from pbo_runtime.clock.lockstep import LockstepMaster, semaphore_names
+from pbo_runtime.table.table import Header
+
+
+class RunClock(Protocol):
+    """What the supervisor asks of its clock."""
+
+    name: str  # "real" or "sim", as `pbo run --clock` names it
+    tick: float  # seconds per tick of the simulated clock; 0 on the real clock
+    fifo_by_default: bool  # RTPUs ask for SCHED_FIFO unless told otherwise
+    on_monotonic: bool  # its times are CLOCK_MONOTONIC seconds (lined up with a trace of the machine)
+    watches_stalls: bool  # a task whose cycle count stops moving is reported (StallWatch)
+    signals_served_when_sent: bool  # a signal's answer is queued when `serve` returns (no waiting for it)
+    plans_need_a_wakeup: bool  # RTPUs must be woken to read a plan in the header
+
+    def now(self) -> float:
+        """The run's time."""
+    def semaphores(self, subsystem: str, run_id: str, roles: list[str]) -> list[str]:
+        """The names of the semaphores this clock will make for these participants (for the manifest)."""
+    def start(self, subsystem: str, run_id: str, roles: list[str], header: np.ndarray) -> float:
+        """Start the clock for a run whose table has `header`; the release epoch."""
+    def stagger(self, shortest_period: float, n_rtpus: int) -> float:
+        """The offset between consecutive RTPUs' release grids."""
+    def plant_arguments(self) -> list[str]:
+        """What the plant is told about the clock on its command line."""
+    def rtpu_arguments(self) -> list[str]:
+        """What an RTPU is told about the clock on its command line."""
+    def child_environment(self) -> dict[str, str] | None:
+        """The children's environment (None: the supervisor's own)."""
+    def run_for(self, timeout: float, wait_for_events: Callable[[float], None], while_stepping: Callable[[], None]) -> None:
+        """Let the run go on for `timeout`: wait for events, or run the ticks that cover it (at least one)."""
+    def serve(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
+        """Have participant `role` serve the signals queued for it now (a no-op where it serves them itself)."""
+    def announce_stop(self, announce: Callable[[], None]) -> None:
+        """Tell the children the run is stopping before they are signalled (where they run on their own)."""
+    def slow_participant(self, limit: float) -> tuple[str, float, float] | None:
+        """Once per tick: (who, at what time, for how long) when one participant took over `limit` wall seconds."""
+    def close(self) -> None:
+        """Remove what the clock made."""
+
+
+class RealRunClock:
+    """Wall time: CLOCK_MONOTONIC, shared by every process of the machine."""
+
+    name = "real"
+    tick = 0.0
+    fifo_by_default = True  # under SCHED_OTHER the machine's threads hold a CPU for milliseconds
+    on_monotonic = True
+    watches_stalls = True
+    signals_served_when_sent = False
+    plans_need_a_wakeup = True
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def semaphores(self, subsystem: str, run_id: str, roles: list[str]) -> list[str]:
+        return []
+
+    def start(self, subsystem: str, run_id: str, roles: list[str], header: np.ndarray) -> float:
+        epoch = time.monotonic()
+        header[Header.RELEASE_EPOCH_NS] = int(epoch * 1e9)  # for whoever lines up with the releases from outside (bench.realtime)
+        return epoch
+
+    def stagger(self, shortest_period: float, n_rtpus: int) -> float:
+        return release_stagger(shortest_period, n_rtpus)
+
+    def plant_arguments(self) -> list[str]:
+        return []
+
+    def rtpu_arguments(self) -> list[str]:
+        return []
+
+    def child_environment(self) -> dict[str, str] | None:
+        return None
+
+    def run_for(self, timeout: float, wait_for_events: Callable[[float], None], while_stepping: Callable[[], None]) -> None:
+        wait_for_events(timeout)
+
+    def serve(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
+        pass  # an RTPU serves its queue between its own releases
+
+    def announce_stop(self, announce: Callable[[], None]) -> None:
+        announce()
+
+    def slow_participant(self, limit: float) -> tuple[str, float, float] | None:
+        return None
+
+    def close(self) -> None:
+        pass
+
+
+class SimRunClock:
+    """Simulated time in lockstep ticks, the supervisor as clock master (`clock.lockstep`)."""
+
+    name = "sim"
+    fifo_by_default = False  # it waits on ticks, not on time
+    on_monotonic = False
+    watches_stalls = False  # a stuck participant is reported per tick instead (slow_participant)
+    signals_served_when_sent = True
+    plans_need_a_wakeup = False  # the simulated clock's RTPUs read the header every tick anyway
+
+    def __init__(self, tick: float) -> None:
+        self.tick = tick
+        self.lockstep: LockstepMaster | None = None
+        self._slow_tick = -1  # the tick last reported as slow
+
+    def now(self) -> float:
+        return self.lockstep.now if self.lockstep is not None else 0.0
+
+    def semaphores(self, subsystem: str, run_id: str, roles: list[str]) -> list[str]:
+        return [name for role in roles for name in semaphore_names(subsystem, run_id, role)]
+
+    def start(self, subsystem: str, run_id: str, roles: list[str], header: np.ndarray) -> float:
+        self.lockstep = LockstepMaster(subsystem, run_id, roles, self.tick, header)
+        return self.now()
+
+    def stagger(self, shortest_period: float, n_rtpus: int) -> float:
+        return 0.0  # RTPUs run in turn within a tick: they cannot collide on the lock
+
+    def plant_arguments(self) -> list[str]:
+        return ["--clock", "sim"]
+
+    def rtpu_arguments(self) -> list[str]:
+        return ["--clock", "sim", "--tick", repr(self.tick)]
+
+    def child_environment(self) -> dict[str, str] | None:
+        return {**os.environ, "PYTHONHASHSEED": "0"}  # a replayed run must not depend on string hashing
+
+    def run_for(self, timeout: float, wait_for_events: Callable[[float], None], while_stepping: Callable[[], None]) -> None:
+        assert self.lockstep is not None
+        for _ in range(max(1, math.floor(timeout / self.tick + 1e-9))):
+            self.lockstep.advance(while_stepping)
+            while_stepping()
+
+    def serve(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
+        if self.lockstep is not None:
+            self.lockstep.step(role, while_waiting)  # served now, between ticks: at a known instant
+
+    def announce_stop(self, announce: Callable[[], None]) -> None:
+        pass  # the stop signal is served in step
+
+    def slow_participant(self, limit: float) -> tuple[str, float, float] | None:
+        lockstep = self.lockstep
+        if lockstep is None:
+            return None
+        waited = time.monotonic() - lockstep.step_started
+        if waited > limit and self._slow_tick != lockstep.ticks:
+            self._slow_tick = lockstep.ticks
+            return lockstep.stepping, lockstep.now, waited
+        return None
+
+    def close(self) -> None:
+        if self.lockstep is not None:
+            self.lockstep.close()

@@ -105,34 +105,16 @@ def _parser() -> argparse.ArgumentParser:
     schema.add_argument("-o", "--output", type=Path, help="write it here (default: stdout)")
     schema.set_defaults(handler=_schema)
 
-    # operator commands on a running subsystem (another terminal), over its 0600 control queue
-    status = sub.add_parser("status", help="a running subsystem: tasks by RTPU with state, rate, jitter, overruns; current job")
-    status.set_defaults(handler=lambda a, c, e: _operator().status(c, a.subsystem))
-    for signal_name, text in (("on", "turn a task on"), ("off", "turn a task off"),
-                              ("clear", "clear a task's error (its clear component decides: OFF, or still ERROR)")):
-        command = sub.add_parser(signal_name, help=text)
-        command.add_argument("task")
-        command.set_defaults(handler=lambda a, c, e, op=signal_name: _operator().task_signal(c, op, a.task, a.subsystem))
-    switch = sub.add_parser("switch", help="switch the running subsystem to another configuration (dynamic, TR 4.4)")
-    switch.add_argument("configuration")
-    switch.set_defaults(handler=lambda a, c, e: _operator().switch(c, a.configuration, a.subsystem))
-    job = sub.add_parser("job", help="start a job, with its object's values: pbo job move 0.3 -0.5 0.5 0 0.4 0.2")
-    job.add_argument("name")
-    job.add_argument("values", nargs="*")
-    job.set_defaults(handler=lambda a, c, e: _operator().job(c, a.name, a.values, a.subsystem))
-    event = sub.add_parser("event", help="send an event (with values) to an aperiodic task")
-    event.add_argument("task")
-    event.add_argument("values", nargs="*")
-    event.set_defaults(handler=_event)
-    svar = sub.add_parser("svar", help="state variables of the running subsystem: value, sequence, age, writer")
-    svar.add_argument("names", nargs="*")
-    svar.add_argument("--watch", action="store_true", help="refresh until Ctrl-C")
-    svar.add_argument("--interval", type=float, default=0.5)
-    svar.set_defaults(handler=lambda a, c, e: _operator().svar(c, a.names, a.watch, a.interval, a.subsystem))
-    stop = sub.add_parser("stop", help="stop the running subsystem cleanly")
-    stop.set_defaults(handler=lambda a, c, e: _operator().stop(c, a.subsystem))
-    for command in (status, *[sub.choices[n] for n in ("on", "off", "clear")], switch, job, event, svar, stop):
+    # operator commands on a running subsystem (another terminal), over its 0600 control queue:
+    # every verb as the command table declares it
+    from pbo_runtime.supervisor.commands import VERBS
+
+    for verb in VERBS:
+        command = sub.add_parser(verb.name, help=verb.help)
+        for argument in verb.arguments:
+            command.add_argument(argument.name, **argument.argparse_options())
         command.add_argument("--subsystem", help="which running subsystem (needed only when several run)")
+        command.set_defaults(handler=lambda a, c, e, name=verb.name: _operator().run_verb(name, a, c))
 
     clean = sub.add_parser("clean", help="remove shared memory, semaphores and queues left by dead runs")
     clean.add_argument("--subsystem", help="only this subsystem's leftovers")
@@ -458,15 +440,6 @@ def _operator() -> Any:
     from pbo_runtime.cli import operator
 
     return operator
-
-
-def _event(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    from pbo_runtime.ipc.control import ControlClient
-
-    values = _operator().parse_object_values(args.values)
-    reply = ControlClient.connect(args.subsystem).call("event", {"task": args.task, "values": values})
-    console.print(str(reply.get("message", f"event sent to '{args.task}'")), markup=False)
-    return EXIT_OK
 
 
 # --- pbo bus ---------------------------------------------------------------------------------

@@ -6,38 +6,17 @@ Anything that stops a command (no run, no answer, the supervisor refused) raises
 whose message says why; the CLI prints it and exits with 2, as for every other run failure.
 `svar` alone reads the table directly (`table.svar`), so it works even while the supervisor is busy.
 
-The commands, their arguments and what the supervisor answers besides `"ok": True` (on refusal
-`{"ok": False, "error": "..."}`; any reply may carry a "message" the client prints as it is):
-
-    status               {}                               the status reply below
-    on | off | clear     {"task": str}                    {"task": str, "state": str}
-    switch               {"configuration": str}           {"configuration": str, "entered": [str], "left": [str],
-                                                           "took": seconds}    (all but "configuration" optional)
-    job                  {"job": str, "object": [float] | None}
-                                                          {"job": str, "configuration": str}   (optional)
-    stop                 {}                               {}
-
-The status reply (times in seconds, rates in Hz; keys marked ? may be absent or None):
-
-    {"subsystem": str, "run_id": str, "configuration": str, "job": str?, "application": str?,
-     "elapsed": float (since the configuration went on),
-     "tasks": [{"task": str, "index": int (its status block in the table), "rtpu": str,
-                "state": "NOT_CREATED"|"CREATED"|"OFF"|"ON"|"ERROR"|"KILLED",
-                "cycles": int, "rate": float (measured Hz), "overruns": int,
-                "jitter_p50": float?, "jitter_p99": float?, "jitter_max": float, "exec_last": float,
-                "exec_p50": float?, "exec_p99": float?, "missed": int, "error": str?}, ...]
-       (in table index order: tasks[i] is status block i when "index" is absent;
-        percentiles are over each task's last 1,024 cycles, 0 until it has run that many),
-     "flags": [str] (the table's flags that are set, e.g. "ILLEGAL_CONFIGURATION")}
+The verbs, their arguments, what the supervisor does and answers, and the status reply are
+declared once, in `supervisor.commands`; this module prints the replies (`run_verb`).
 """
 
 from __future__ import annotations
 
+import argparse
 import difflib
-import math
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Callable
 
 from rich.console import Console
 from rich.live import Live
@@ -47,10 +26,11 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.clock.clocks import scheduler_outcome
 from pbo_runtime.ipc.control import ControlClient
 from pbo_runtime.errors import PboError
+from pbo_runtime.supervisor.commands import COMMANDS, parse_object_values
 from pbo_runtime.table.svar import TableView, open_table, svar_rows, svar_table
 
-STATUS_TIMEOUT = 2.0
-COMMAND_TIMEOUT = 5.0  # a switch or a task signal may wait for RTPUs to confirm
+__all__ = ["parse_object_values", "run_verb", "status", "task_signal", "switch", "job", "event", "stop", "svar"]
+
 WRITER_MAP_TIMEOUT = 0.5  # svar asks for task names, but must not wait long for a busy supervisor
 TASK_COMMANDS = ("on", "off", "clear")
 _STATE_STYLE = {"ON": "green", "OFF": "yellow", "ERROR": "bold red", "KILLED": "red"}
@@ -69,7 +49,7 @@ def _us(seconds: Any) -> str:
 
 def status(console: Console, subsystem: str | None = None) -> int:
     """Print the run's tasks by RTPU (state, rate, jitter, overruns), its configuration and job."""
-    reply = ControlClient.connect(subsystem).call("status", timeout=STATUS_TIMEOUT)
+    reply = ControlClient.connect(subsystem).call("status", timeout=COMMANDS["status"].timeout)
     console.print(status_table(reply))
     for flag in reply.get("flags") or []:
         console.print(f"[bold red]flag:[/] {flag}")
@@ -141,7 +121,8 @@ def task_signal(console: Console, command: str, task: str, subsystem: str | None
     """Turn a task on or off, or clear its error (TR Figure 11), through job control."""
     if command not in TASK_COMMANDS:
         raise PboError(f"a task command is one of {', '.join(TASK_COMMANDS)}, got: {command!r}")
-    reply = ControlClient.connect(subsystem).call(command, {"task": task}, timeout=COMMAND_TIMEOUT)
+    verb = COMMANDS[command]
+    reply = ControlClient.connect(subsystem).call(command, verb.request({"task": task}), timeout=verb.timeout)
     state = reply.get("state")
     _say(console, reply, f"task '{task}' is {state}" if state else f"sent '{command}' to task '{task}'")
     return 0
@@ -149,7 +130,8 @@ def task_signal(console: Console, command: str, task: str, subsystem: str | None
 
 def switch(console: Console, configuration: str, subsystem: str | None = None) -> int:
     """Switch the running subsystem to another configuration (a dynamic reconfiguration, TR §4.4)."""
-    reply = ControlClient.connect(subsystem).call("switch", {"configuration": configuration}, timeout=COMMAND_TIMEOUT)
+    verb = COMMANDS["switch"]
+    reply = ControlClient.connect(subsystem).call("switch", verb.request({"configuration": configuration}), timeout=verb.timeout)
     text = f"configuration '{reply.get('configuration', configuration)}' is on"
     if reply.get("entered") or reply.get("left"):
         text += f" (on: {', '.join(reply.get('entered') or []) or '—'}; off: {', '.join(reply.get('left') or []) or '—'})"
@@ -161,35 +143,50 @@ def switch(console: Console, configuration: str, subsystem: str | None = None) -
 
 def job(console: Console, name: str, object_values: Sequence[str] | None, subsystem: str | None = None) -> int:
     """Start a job, with its object's values as given on the command line (`pbo job move 0.3 -0.5 ...`)."""
-    values = parse_object_values(object_values)
-    reply = ControlClient.connect(subsystem).call("job", {"job": name, "object": values}, timeout=COMMAND_TIMEOUT)
+    verb = COMMANDS["job"]
+    request = verb.request({"name": name, "values": object_values})
+    reply = ControlClient.connect(subsystem).call("job", request, timeout=verb.timeout)
     where = f" (configuration '{reply['configuration']}')" if reply.get("configuration") else ""
     _say(console, reply, f"job '{reply.get('job', name)}' started{where}")
     return 0
 
 
-def parse_object_values(texts: Sequence[str] | None) -> list[float] | None:
-    """Command-line numbers as floats (None when none are given); the supervisor checks the shape."""
-    if not texts:
-        return None
-    values = []
-    for position, text in enumerate(texts, 1):
-        try:
-            value = float(text)
-        except ValueError:
-            raise PboError(f"a job's object values must be numbers, got: {text!r} (value {position})") from None
-        if not math.isfinite(value):
-            raise PboError(f"a job's object values must be finite, got: {text!r} (value {position})")
-        values.append(value)
-    return values
+def event(console: Console, task: str, values: Sequence[str] | None, subsystem: str | None = None) -> int:
+    """Send an event, with the values given on the command line, to an aperiodic task."""
+    verb = COMMANDS["event"]
+    request = verb.request({"task": task, "values": values})
+    reply = ControlClient.connect(subsystem).call("event", request, timeout=verb.timeout)
+    console.print(str(reply.get("message", f"event sent to '{task}'")), markup=False)
+    return 0
 
 
 def stop(console: Console, subsystem: str | None = None) -> int:
     """Ask the supervisor to stop the run: tasks off, killed, every object unlinked."""
     client = ControlClient.connect(subsystem)
-    reply = client.call("stop", timeout=STATUS_TIMEOUT)
+    reply = client.call("stop", timeout=COMMANDS["stop"].timeout)
     _say(console, reply, f"'{client.subsystem}' (run {client.run_id}) is stopping")
     return 0
+
+
+# --- the verbs as the CLI runs them -----------------------------------------------------------
+
+# How each verb of the command table runs from the command line: (parsed arguments, console) -> exit status
+_RUNNERS: dict[str, Callable[[argparse.Namespace, Console], int]] = {
+    "status": lambda a, c: status(c, a.subsystem),
+    "on": lambda a, c: task_signal(c, "on", a.task, a.subsystem),
+    "off": lambda a, c: task_signal(c, "off", a.task, a.subsystem),
+    "clear": lambda a, c: task_signal(c, "clear", a.task, a.subsystem),
+    "switch": lambda a, c: switch(c, a.configuration, a.subsystem),
+    "job": lambda a, c: job(c, a.name, a.values, a.subsystem),
+    "event": lambda a, c: event(c, a.task, a.values, a.subsystem),
+    "svar": lambda a, c: svar(c, a.names, a.watch, a.interval, a.subsystem),
+    "stop": lambda a, c: stop(c, a.subsystem),
+}
+
+
+def run_verb(name: str, args: argparse.Namespace, console: Console) -> int:
+    """Run verb `name` of the command table with the command line's arguments; the exit status."""
+    return _RUNNERS[name](args, console)
 
 
 # --- svar -----------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ that finds its queue gone (the client gave up) is dropped.
 
 `find_live_run` is how every operator tool finds the run it talks to without the YAML file:
 the table segment `/dev/shm/pbo.<subsystem>.<pid>-<nonce>.table` whose supervisor pid is alive.
-The commands and their replies are listed in `cli.operator`.
+The verbs, their arguments and replies are declared in `supervisor.commands`.
 """
 
 from __future__ import annotations

@@ -35,6 +35,7 @@ from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import ControlServer, control_queue_name
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
+from pbo_runtime.supervisor.commands import dispatch
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.stall_watch import StallWatch
@@ -581,83 +582,33 @@ class Supervisor:
             return  # a command that waits (a switch) pumps events, but serves no second command meanwhile
         self._serving = True
         try:
-            self.control.poll(self._command)
+            self.control.poll(lambda command, arguments: dispatch(self, command, arguments))
         finally:
             self._serving = False
 
-    def _command(self, command: str, arguments: dict[str, Any]) -> dict[str, Any]:
-        """One operator command; PboError/ValueError/KeyError become a refusal the operator reads."""
-        tasks = self.subsystem.tasks
-        if command == "status":
-            return self._status_reply()
-        if command in ("on", "off", "clear", "event"):
-            task = arguments.get("task")
-            if task not in tasks:
-                raise PboError(f"no task '{task}' (tasks: {', '.join(tasks)})")
-            if command == "event":
-                self._signal(task, "event", arguments.get("values"))
-                return {"task": task, "message": f"event sent to '{task}'"}
-            before = self.task_states.get(task)
-            members = self.subsystem.configurations[self.configuration].tasks
-            if command == "on" and task not in members:
-                raise PboError(f"task '{task}' is not in the running configuration '{self.configuration}' "
-                               f"({', '.join(members)}): turning it on would give its outputs two writers; "
-                               f"use pbo switch to a configuration that has it")
-            if command == "clear" and before != "ERROR":
-                raise PboError(f"task '{task}' is {before}, not in ERROR: there is nothing to clear")
-            if command == "on" and before != "OFF":
-                raise PboError(f"task '{task}' is {before}: only an OFF task can be turned on")
-            if command == "off" and before != "ON":
-                raise PboError(f"task '{task}' is {before}: only an ON task can be turned off")
-            expected = {"on": {"ON", "ERROR"}, "off": {"OFF", "ERROR"}, "clear": {"OFF", "ERROR"}}[command]
-            extra = (None, self.reconfiguration.index(self.configuration)) if command == "on" else ()
-            self._signal(task, command, *extra)
-            state = self._await_change(task, before, expected)
-            self._count_errors()
-            note = ""
-            if command == "clear":
-                note = "cleared: the task is OFF; turn it on with pbo on" if state == "OFF" else \
-                    f"still in ERROR: its clear component found the fault not fixed ({self.task_errors.get(task, '')})"
-            return {"task": task, "state": state, "message": f"task '{task}' is {state}" + (f"; {note}" if note else "")}
-        if command in ("switch", "job") and self.application:
-            raise PboError(f"application '{self.application}' is running its jobs; switch and job are refused until it ends")
-        if command == "switch":
-            record = self.job_control.switch(str(arguments.get("configuration")))
-            return {"configuration": record.after, "entered": record.on, "left": record.off, "took": record.latency,
-                    "message": f"switched '{record.before}' -> '{record.after}' in {record.latency * 1e3:.2f} ms: "
-                               f"off {', '.join(record.off) or 'nothing'}; on {', '.join(record.on) or 'nothing'}"}
-        if command == "job":
-            name = arguments.get("job")
-            if name not in self.subsystem.jobs:
-                raise PboError(f"no job '{name}' (jobs: {', '.join(self.subsystem.jobs) or 'none'})")
-            job = self.subsystem.jobs[name]
-            values: dict[str, Any] = {}
-            if arguments.get("object") is not None:
-                if not job.object:
-                    raise PboError(f"job '{name}' takes no object")
-                values[job.object] = arguments["object"]
-            elif job.object:
-                raise PboError(f"job '{name}' needs its object '{job.object}': pbo job {name} VALUE ...")
-            self.job_control.start_job(name, values)
-            return {"job": name, "configuration": job.configuration,
-                    "message": f"job '{name}' runs in '{job.configuration}'" + (f"; done when {job.post}" if job.post else "")}
-        if command == "stop":
-            self.request_stop("pbo stop")
-            return {"message": f"stopping '{self.subsystem.name}'"}
-        raise PboError(f"unknown command '{command}' (commands: status, on, off, clear, event, switch, job, stop)")
+    # --- the operator's verbs (commands.CommandHost) ------------------------------------------
 
-    def _status_reply(self) -> dict[str, Any]:
-        elapsed = self.now() - self.started_at if self.started_at is not None else 0.0
-        rows = []
-        for row, spec in zip(self.status_rows(), self.subsystem.tasks.values()):
-            rows.append({**row, "index": spec.index, "state": self.task_states.get(spec.name, row["state"]),
-                         "rate": row["cycles"] / elapsed if elapsed > 0 else 0.0,
-                         "error": self.task_errors.get(spec.name) if self.task_states.get(spec.name) == "ERROR" else None})
-        flags = [flag.name for flag in Flag if self.table is not None and self.table.flags & flag]
-        return {"subsystem": self.subsystem.name, "run_id": self.run_id, "configuration": self.configuration,
-                "job": self.job_control.job, "application": self.application, "elapsed": elapsed,
-                "tasks": rows, "flags": flags, "realtime": dict(self.result.realtime),
-                "stalled": {name: self.now() - stall.since for name, stall in self.stall_watch.open.items()}}
+    @property
+    def realtime(self) -> dict[str, dict[str, str]]:
+        return self.result.realtime
+
+    def table_flags(self) -> list[str]:
+        return [flag.name for flag in Flag if self.table is not None and self.table.flags & flag]
+
+    def stalled_since(self) -> dict[str, float]:
+        return {name: stall.since for name, stall in self.stall_watch.open.items()}
+
+    def signal_task(self, task: str, op: str, states: set[str]) -> str:
+        """Send on, off or clear to a task; its state once it is one of `states` (a refusal raises PboError)."""
+        before = self.task_states.get(task)
+        extra = (None, self.reconfiguration.index(self.configuration)) if op == "on" else ()
+        self._signal(task, op, *extra)
+        state = self._await_change(task, before, states)
+        self._count_errors()
+        return state
+
+    def send_event(self, task: str, values: Any) -> None:
+        self._signal(task, "event", values)
 
     def status_rows(self) -> list[dict[str, Any]]:
         """The live view's data, read from the table's status blocks."""

@@ -1,0 +1,307 @@
+"""The operator's verbs on a running subsystem, each declared once: name, arguments, help, handler, reply.
+
+`pbo status`, `pbo on TASK`, `pbo switch CONFIGURATION`, ... come from this table: the CLI builds
+its subparsers from it (`cli.main`), the supervisor serves the control queue's requests with
+`dispatch` (`ipc.control`), and the verb table in docs/operator-commands.md is `verb_table()`
+(a test keeps them equal). How the operator's terminal prints each reply is `cli.operator`'s.
+
+A handler decides; it reaches the run only through `CommandHost`, which the Supervisor
+implements (a fake host in the unit tests, with a manual clock). A handler that says no raises
+PboError (or ValueError/KeyError), whose message the operator reads as the refusal.
+
+The status reply (times in seconds, rates in Hz; keys marked ? may be absent or None):
+
+    {"subsystem": str, "run_id": str, "configuration": str, "job": str?, "application": str?,
+     "elapsed": float (since the configuration went on),
+     "tasks": [{"task": str, "index": int (its status block in the table), "rtpu": str,
+                "state": "NOT_CREATED"|"CREATED"|"OFF"|"ON"|"ERROR"|"KILLED",
+                "cycles": int, "rate": float (measured Hz), "overruns": int,
+                "jitter_p50": float?, "jitter_p99": float?, "jitter_max": float, "exec_last": float,
+                "exec_p50": float?, "exec_p99": float?, "missed": int, "error": str?}, ...]
+       (in table index order: tasks[i] is status block i when "index" is absent;
+        percentiles are over each task's last 1,024 cycles, 0 until it has run that many),
+     "flags": [str] (the table's flags that are set, e.g. "ILLEGAL_CONFIGURATION"),
+     "realtime": {rtpu: {what it runs under}}, "stalled": {task: seconds without a cycle}}
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Callable, Protocol
+
+from pbo_runtime.errors import PboError
+
+if TYPE_CHECKING:
+    from pbo_runtime.config.model import Subsystem
+    from pbo_runtime.supervisor.job_control import JobControl
+
+STATUS_TIMEOUT = 2.0
+COMMAND_TIMEOUT = 5.0  # a switch or a task signal may wait for RTPUs to confirm
+
+
+class CommandHost(Protocol):
+    """What the operator's verbs need of the running subsystem (the Supervisor; a fake in tests)."""
+
+    @property
+    def subsystem(self) -> Subsystem: ...
+    @property
+    def run_id(self) -> str: ...
+    @property
+    def configuration(self) -> str: ...
+    @property
+    def application(self) -> str | None: ...
+    @property
+    def started_at(self) -> float | None: ...
+    @property
+    def task_states(self) -> Mapping[str, str]: ...
+    @property
+    def task_errors(self) -> Mapping[str, str]: ...
+    @property
+    def job_control(self) -> JobControl: ...
+    @property
+    def realtime(self) -> Mapping[str, Mapping[str, str]]: ...
+
+    def now(self) -> float:
+        """The run's time."""
+    def status_rows(self) -> list[dict[str, Any]]:
+        """Per task, in table index order: its status block's figures."""
+    def table_flags(self) -> list[str]:
+        """The names of the table's flags that are set."""
+    def stalled_since(self) -> Mapping[str, float]:
+        """Tasks ON whose cycle has not returned, and since when (run time)."""
+    def signal_task(self, task: str, op: str, states: set[str]) -> str:
+        """Send `op` (on, off, clear) to a task and wait until it is in one of `states`; that state."""
+    def send_event(self, task: str, values: Any) -> None:
+        """Send an event with `values` to an aperiodic task."""
+    def request_stop(self, reason: str) -> None:
+        """Stop the run cleanly, as soon as the command is answered."""
+
+
+Handler = Callable[[CommandHost, dict[str, Any]], dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class Argument:
+    """One argument of a verb: on the command line (`name`; an option when it starts with --), and in the request (`key`)."""
+
+    name: str
+    help: str | None = None
+    key: str | None = None  # the request's key; None: the command line's own (not sent)
+    nargs: str | None = None
+    flag: bool = False  # an option without a value
+    type: Callable[[str], Any] | None = None
+    default: Any = None
+    parse: Callable[[Any], Any] | None = None  # command-line text to the request's value
+
+    def argparse_options(self) -> dict[str, Any]:
+        """The keywords of argparse's add_argument that declare it."""
+        options: dict[str, Any] = {}
+        if self.flag:
+            options["action"] = "store_true"
+        if self.nargs is not None:
+            options["nargs"] = self.nargs
+        if self.type is not None:
+            options["type"] = self.type
+        if self.default is not None:
+            options["default"] = self.default
+        if self.help is not None:
+            options["help"] = self.help
+        return options
+
+    @property
+    def dest(self) -> str:
+        return self.name.lstrip("-").replace("-", "_")
+
+
+@dataclass(frozen=True)
+class Verb:
+    """An operator verb: what the CLI offers, what the supervisor does, what it answers."""
+
+    name: str
+    help: str
+    arguments: tuple[Argument, ...]
+    handler: Handler | None  # None: served by the operator's side alone (svar reads the table itself)
+    result: str  # the reply besides "ok": True, as the docs' table shows it
+    timeout: float = STATUS_TIMEOUT  # how long the operator waits for the answer
+
+    def request(self, values: Mapping[str, Any]) -> dict[str, Any]:
+        """The request's arguments from the command line's values (by argument name)."""
+        request = {}
+        for argument in self.arguments:
+            if argument.key is None:
+                continue
+            value = values.get(argument.dest)
+            request[argument.key] = argument.parse(value) if argument.parse is not None else value
+        return request
+
+
+def parse_object_values(texts: Sequence[str] | None) -> list[float] | None:
+    """Command-line numbers as floats (None when none are given); the supervisor checks the shape."""
+    if not texts:
+        return None
+    values = []
+    for position, text in enumerate(texts, 1):
+        try:
+            value = float(text)
+        except ValueError:
+            raise PboError(f"a job's object values must be numbers, got: {text!r} (value {position})") from None
+        if not math.isfinite(value):
+            raise PboError(f"a job's object values must be finite, got: {text!r} (value {position})")
+        values.append(value)
+    return values
+
+
+# --- the handlers: what the supervisor does for each verb -------------------------------------
+
+
+def status(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+    now = host.now()
+    elapsed = now - host.started_at if host.started_at is not None else 0.0
+    rows = []
+    for row, spec in zip(host.status_rows(), host.subsystem.tasks.values()):
+        rows.append({**row, "index": spec.index, "state": host.task_states.get(spec.name, row["state"]),
+                     "rate": row["cycles"] / elapsed if elapsed > 0 else 0.0,
+                     "error": host.task_errors.get(spec.name) if host.task_states.get(spec.name) == "ERROR" else None})
+    return {"subsystem": host.subsystem.name, "run_id": host.run_id, "configuration": host.configuration,
+            "job": host.job_control.job, "application": host.application, "elapsed": elapsed,
+            "tasks": rows, "flags": host.table_flags(), "realtime": dict(host.realtime),
+            "stalled": {name: now - since for name, since in host.stalled_since().items()}}
+
+
+def _task(host: CommandHost, arguments: dict[str, Any]) -> str:
+    tasks = host.subsystem.tasks
+    task = arguments.get("task")
+    if task not in tasks:
+        raise PboError(f"no task '{task}' (tasks: {', '.join(tasks)})")
+    return str(task)
+
+
+_EXPECTED = {"on": {"ON", "ERROR"}, "off": {"OFF", "ERROR"}, "clear": {"OFF", "ERROR"}}
+
+
+def task_signal(command: str) -> Handler:
+    """The handler of on, off or clear: checked against the task's state, then sent and awaited."""
+
+    def handle(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+        task = _task(host, arguments)
+        before = host.task_states.get(task)
+        members = host.subsystem.configurations[host.configuration].tasks
+        if command == "on" and task not in members:
+            raise PboError(f"task '{task}' is not in the running configuration '{host.configuration}' "
+                           f"({', '.join(members)}): turning it on would give its outputs two writers; "
+                           f"use pbo switch to a configuration that has it")
+        if command == "clear" and before != "ERROR":
+            raise PboError(f"task '{task}' is {before}, not in ERROR: there is nothing to clear")
+        if command == "on" and before != "OFF":
+            raise PboError(f"task '{task}' is {before}: only an OFF task can be turned on")
+        if command == "off" and before != "ON":
+            raise PboError(f"task '{task}' is {before}: only an ON task can be turned off")
+        state = host.signal_task(task, command, _EXPECTED[command])
+        note = ""
+        if command == "clear":
+            note = "cleared: the task is OFF; turn it on with pbo on" if state == "OFF" else \
+                f"still in ERROR: its clear component found the fault not fixed ({host.task_errors.get(task, '')})"
+        return {"task": task, "state": state, "message": f"task '{task}' is {state}" + (f"; {note}" if note else "")}
+
+    handle.__name__ = command
+    return handle
+
+
+def event(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+    task = _task(host, arguments)
+    host.send_event(task, arguments.get("values"))
+    return {"task": task, "message": f"event sent to '{task}'"}
+
+
+def _no_application(host: CommandHost) -> None:
+    if host.application:
+        raise PboError(f"application '{host.application}' is running its jobs; switch and job are refused until it ends")
+
+
+def switch(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+    _no_application(host)
+    record = host.job_control.switch(str(arguments.get("configuration")))
+    return {"configuration": record.after, "entered": record.on, "left": record.off, "took": record.latency,
+            "message": f"switched '{record.before}' -> '{record.after}' in {record.latency * 1e3:.2f} ms: "
+                       f"off {', '.join(record.off) or 'nothing'}; on {', '.join(record.on) or 'nothing'}"}
+
+
+def job(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+    _no_application(host)
+    name = arguments.get("job")
+    if name not in host.subsystem.jobs:
+        raise PboError(f"no job '{name}' (jobs: {', '.join(host.subsystem.jobs) or 'none'})")
+    spec = host.subsystem.jobs[name]
+    values: dict[str, Any] = {}
+    if arguments.get("object") is not None:
+        if not spec.object:
+            raise PboError(f"job '{name}' takes no object")
+        values[spec.object] = arguments["object"]
+    elif spec.object:
+        raise PboError(f"job '{name}' needs its object '{spec.object}': pbo job {name} VALUE ...")
+    host.job_control.start_job(name, values)
+    return {"job": name, "configuration": spec.configuration,
+            "message": f"job '{name}' runs in '{spec.configuration}'" + (f"; done when {spec.post}" if spec.post else "")}
+
+
+def stop(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+    host.request_stop("pbo stop")
+    return {"message": f"stopping '{host.subsystem.name}'"}
+
+
+# --- the table --------------------------------------------------------------------------------
+
+_TASK = Argument("task", help="the task's name", key="task")
+_TASK_REPLY = '`{"task": str, "state": str}`'
+
+VERBS: tuple[Verb, ...] = (
+    Verb("status", "a running subsystem: tasks by RTPU with state, rate, jitter, overruns; current job", (), status,
+         "the status reply: configuration, job, elapsed, per task state, rate, jitter, overruns; flags", STATUS_TIMEOUT),
+    Verb("on", "turn a task on", (_TASK,), task_signal("on"), _TASK_REPLY, COMMAND_TIMEOUT),
+    Verb("off", "turn a task off", (_TASK,), task_signal("off"), _TASK_REPLY, COMMAND_TIMEOUT),
+    Verb("clear", "clear a task's error (its clear component decides: OFF, or still ERROR)", (_TASK,),
+         task_signal("clear"), _TASK_REPLY, COMMAND_TIMEOUT),
+    Verb("switch", "switch the running subsystem to another configuration (dynamic, TR 4.4)",
+         (Argument("configuration", help="the configuration to switch to", key="configuration"),), switch,
+         '`{"configuration": str, "entered": [str], "left": [str], "took": seconds}`', COMMAND_TIMEOUT),
+    Verb("job", "start a job, with its object's values: pbo job move 0.3 -0.5 0.5 0 0.4 0.2",
+         (Argument("name", help="the job's name", key="job"),
+          Argument("values", help="its object's values, if it takes one", key="object", nargs="*",
+                   parse=parse_object_values)),
+         job, '`{"job": str, "configuration": str}`', COMMAND_TIMEOUT),
+    Verb("event", "send an event (with values) to an aperiodic task",
+         (Argument("task", help="the aperiodic task's name", key="task"),
+          Argument("values", help="numbers the event carries", key="values", nargs="*", parse=parse_object_values)),
+         event, '`{"task": str}`'),
+    Verb("svar", "state variables of the running subsystem: value, sequence, age, writer",
+         (Argument("names", help="the variables to show (default: all)", nargs="*"),
+          Argument("--watch", help="refresh until Ctrl-C", flag=True),
+          Argument("--interval", help="seconds between refreshes with --watch (default 0.5)", type=float, default=0.5)),
+         None, "read from the table by the operator's side, lock-free: no request"),
+    Verb("stop", "stop the running subsystem cleanly", (), stop, "`{}`", STATUS_TIMEOUT),
+)
+COMMANDS: dict[str, Verb] = {verb.name: verb for verb in VERBS}
+SERVED = tuple(verb.name for verb in VERBS if verb.handler is not None)
+
+
+def dispatch(host: CommandHost, command: str, arguments: dict[str, Any]) -> dict[str, Any]:
+    """One operator request, as the supervisor serves it from the control queue."""
+    verb = COMMANDS.get(command)
+    if verb is None or verb.handler is None:
+        raise PboError(f"unknown command '{command}' (commands: {', '.join(SERVED)})")
+    return verb.handler(host, arguments)
+
+
+def verb_table() -> str:
+    """The verbs as a markdown table, for docs/operator-commands.md."""
+    lines = ["| verb | arguments | what it does | reply (besides `\"ok\": true`) |", "| --- | --- | --- | --- |"]
+    for verb in VERBS:
+        shown = []
+        for argument in verb.arguments:
+            text = argument.name.upper() if not argument.name.startswith("-") else argument.name
+            text += " ..." if argument.nargs == "*" else ""
+            shown.append(f"`{text}`" if not argument.name.startswith("-") else f"`[{text}]`")
+        lines.append(f"| `pbo {verb.name}` | {' '.join(shown) or '–'} | {verb.help.replace('|', '/')} | {verb.result} |")
+    return "\n".join(lines) + "\n"

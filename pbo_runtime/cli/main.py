@@ -529,7 +529,7 @@ def _schema(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 
 def _clean(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    from pbo_runtime.supervisor.supervisor import remove_dead_runs
+    from pbo_runtime.supervisor.children import remove_dead_runs
 
     removed = remove_dead_runs(args.subsystem) if args.subsystem else remove_dead_runs_all()
     console.print(f"removed {len(removed)} object(s) left by dead runs" + (": " + ", ".join(removed) if removed else ""), markup=False)
@@ -538,7 +538,7 @@ def _clean(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 def remove_dead_runs_all() -> list[str]:
     from pbo_runtime.ipc import shm
-    from pbo_runtime.supervisor.supervisor import remove_dead_runs
+    from pbo_runtime.supervisor.children import remove_dead_runs
 
     subsystems = {name[1:].split(".")[1] for _, name in shm.stale_objects(None)}
     return sorted(r for s in subsystems for r in remove_dead_runs(s))

@@ -25,7 +25,7 @@ from typing import Any, Callable
 
 from pbo_runtime.ipc import shm
 from pbo_runtime.config.application import Application
-from pbo_runtime.supervisor.supervisor import remove_dead_runs
+from pbo_runtime.supervisor.children import remove_dead_runs
 from pbo_runtime.links.message_link import MessageLink, message_link_name
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer, link_name
 

@@ -1,0 +1,147 @@
+"""The supervisor's children, the plant and the RTPU processes: launching them, noticing one die,
+stopping them all on every exit path, and removing what crashed runs of a subsystem left."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import posix_ipc
+
+from pbo_runtime.clock.run_clock import RunClock
+from pbo_runtime.ipc import messages
+from pbo_runtime.ipc import shm
+from pbo_runtime.ipc.control import ControlServer
+from pbo_runtime.supervisor.failures import RunFailure
+from pbo_runtime.supervisor.run_report import STOP_TIMEOUT, RunResult
+from pbo_runtime.table.table import Header, StateTable, read_manifest
+
+
+@dataclass
+class _Child:
+    role: str  # 'plant' or the RTPU's name
+    process: subprocess.Popen
+    tasks: tuple[str, ...] = ()
+
+
+def remove_dead_runs(subsystem: str) -> list[str]:
+    """Unlink what crashed runs of this subsystem left, their queues included (via the manifest)."""
+    removed: list[str] = []
+    for kind, name in shm.stale_objects(subsystem):
+        if kind == "shm" and name.endswith(".table"):
+            try:
+                mapping = shm.attach_segment(name)
+                header = np.frombuffer(mapping, dtype=np.int64, count=16)
+                offset = int(header[Header.MANIFEST_OFFSET])
+                del header
+                entries = read_manifest(mapping, offset) if offset > 0 else []
+                mapping.close()
+            except (posix_ipc.Error, OSError, ValueError, BufferError):
+                entries = []
+            for entry in entries:
+                entry_kind, _, entry_name = entry.partition(" ")
+                if entry_kind in ("shm", "sem", "mq") and shm.unlink_quietly(entry_kind, entry_name):
+                    removed.append(entry_name)
+        if shm.unlink_quietly(kind, name):
+            removed.append(name)
+    return sorted(set(removed))
+
+
+class Children:
+    """The Supervisor's part that starts, watches and stops its child processes."""
+
+    clock: RunClock
+    children: list[_Child]
+    table: StateTable | None
+    result: RunResult
+    signals: dict[str, messages.Queue]
+    events: messages.Queue | None
+    control: ControlServer | None
+    task_states: dict[str, str]
+    started_at: float | None
+    say: Callable[[str], None]
+    now: Callable[[], float]
+    _manifest: Callable[[], list[str]]
+    _drain_events: Callable[[float], None]
+    _read_final_values: Callable[[], None]
+    _report_run: Callable[[], None]
+
+    def _launch(self, role: str, arguments: list[str], tasks: tuple[str, ...] = ()) -> None:
+        command = [sys.executable, *arguments, "--parent", str(os.getpid())]
+        process = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True,
+                                   env=self.clock.child_environment())
+        self.children.append(_Child(role, process, tasks))
+
+    def _check_children(self) -> None:
+        for child in self.children:
+            code = child.process.poll()
+            if code is not None:
+                self._recover_lock_from(child.process.pid)
+                how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit status {code}"
+                hosted = f" while hosting tasks: {', '.join(child.tasks)}" if child.tasks else ""
+                what = "the plant" if child.role == "plant" else f"RTPU '{child.role}'"
+                raise RunFailure(f"{what} (pid {child.process.pid}) died ({how}){hosted}")
+
+    def _recover_lock_from(self, pid: int) -> None:
+        """A process that died holding the table lock must not wedge the others (DESIGN §4)."""
+        if self.table is not None and self.table.recover_lock_from(pid):
+            self.result.lock_recoveries += 1
+            self.say(f"released the table lock held by dead process {pid}")
+
+    def _shutdown(self) -> None:
+        """Stop the children (each RTPU by itself first), report, close and unlink everything: on every exit path."""
+        self.result.duration = self.now() - self.started_at if self.started_at is not None else 0.0
+        self.result.states_at_stop = dict(self.task_states)
+        if self.table is not None:
+            self.clock.announce_stop(self.table.announce_stop)
+        alive = [c for c in self.children if c.process.poll() is None]
+        for child in alive:
+            if child.role != "plant":
+                self.signals[child.role].try_send("stop")
+                self._serve_stop(child)
+        deadline = time.monotonic() + STOP_TIMEOUT
+        rtpus = [c for c in alive if c.role != "plant"]
+        while any(c.process.poll() is None for c in rtpus) and time.monotonic() < deadline:
+            self._drain_events(0.05)
+        self._drain_events(0.0)
+        self.result.unstopped = [c.role for c in rtpus if c.process.poll() is None]
+        self._read_final_values()
+        for child in self.children:
+            if child.process.poll() is None:
+                child.process.send_signal(signal.SIGTERM)
+        for child in self.children:
+            try:
+                child.process.wait(timeout=STOP_TIMEOUT)
+            except subprocess.TimeoutExpired:
+                child.process.kill()
+                child.process.wait()
+        self._drain_events(0.0)
+        self.clock.close()
+        self._report_run()
+        if self.control is not None:
+            self.control.close()
+        for queue in self.signals.values():
+            queue.close()
+        if self.events is not None:
+            self.events.close()
+        if self.table is not None:
+            self.table.close()
+        for entry in self._manifest():  # a backstop: whatever a child could not remove
+            kind, _, name = entry.partition(" ")
+            shm.unlink_quietly(kind, name)
+
+    def _serve_stop(self, child: _Child) -> None:
+        """Sim clock: step an RTPU once so it serves its stop; a dead or stuck one is left to SIGTERM."""
+        deadline = time.monotonic() + STOP_TIMEOUT
+
+        def give_up() -> bool:
+            self._drain_events(0.0)
+            return child.process.poll() is not None or time.monotonic() > deadline
+
+        self.clock.serve(child.role, give_up)

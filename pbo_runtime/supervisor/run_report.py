@@ -1,0 +1,146 @@
+"""The run's report: what a run did (`RunResult`, the summary's data and the JSON report), and how
+the supervisor fills it from the children's statistics, the stall watch and the table."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from pbo_runtime.config.model import Subsystem
+from pbo_runtime.table.table import StateTable, TaskState
+from pbo_runtime.table.table import Status as W
+
+if TYPE_CHECKING:
+    from pbo_runtime.supervisor.job_control import JobControl
+    from pbo_runtime.supervisor.stall_watch import StallWatch
+
+STOP_TIMEOUT = 5.0  # seconds an RTPU has to stop by itself before it is signalled (and then again before SIGKILL)
+
+
+def _table_figures(words: np.ndarray) -> dict[str, float]:
+    """A task's counters from its status block: what the live view shows, and what a run report
+    gives for a task whose RTPU was killed before it could report. The percentiles are over the
+    last 1,024 cycles, published by the executive every 1,024 cycles (0 before)."""
+    return {"cycles": int(words[W.CYCLES]), "overruns": int(words[W.OVERRUNS]), "missed": int(words[W.MISSED]),
+            "jitter_max": float(words[W.JITTER_MAX]), "jitter_p50": float(words[W.JITTER_P50]),
+            "jitter_p99": float(words[W.JITTER_P99]), "exec_p50": float(words[W.EXEC_P50]),
+            "exec_p99": float(words[W.EXEC_P99])}
+
+
+@dataclass
+class RunResult:
+    """What a run did: the summary's data and the JSON report's content."""
+
+    subsystem: str
+    configuration: str
+    duration: float = 0.0
+    stopped_by: str = "duration"
+    failure: str = ""
+    tasks: dict[str, dict[str, Any]] = field(default_factory=dict)
+    variables: dict[str, Any] = field(default_factory=dict)
+    plant: dict[str, Any] = field(default_factory=dict)
+    lock_recoveries: int = 0
+    run_id: str = ""
+    objects: list[str] = field(default_factory=list)  # every shared object the run made ("kind /name")
+    states_at_stop: dict[str, str] = field(default_factory=dict)
+    application: str = ""
+    jobs_done: list[str] = field(default_factory=list)
+    switches: list[dict[str, Any]] = field(default_factory=list)
+    stable_episodes: list[dict[str, Any]] = field(default_factory=list)
+    realtime: dict[str, dict[str, str]] = field(default_factory=dict)  # per RTPU: cpu, scheduler, timer slack
+    clock: str = "real"
+    tick: float = 0.0  # seconds per tick of the simulated clock
+    wall_seconds: float = 0.0  # how long the run took on the wall clock (a sim run's speed: duration / this)
+    links: dict[str, dict[str, Any]] = field(default_factory=dict)  # an application's links this run was handed
+    # CLOCK_MONOTONIC second the configuration came on (real clock; 0 on the simulated one): the
+    # origin of each task's last_overruns times, to match them with a trace of the machine (tools/cpu_trace.py)
+    started_monotonic: float = 0.0
+    # tasks ON that finished no cycle for a while: task, rtpu, from and to (seconds since the
+    # configuration came on; to None: until the stop), rtpu_killed (its RTPU did not stop by itself)
+    stalls: list[dict[str, Any]] = field(default_factory=list)
+    unstopped: list[str] = field(default_factory=list)  # RTPUs that did not stop within STOP_TIMEOUT and were killed
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "subsystem": self.subsystem, "configuration": self.configuration, "duration": self.duration,
+            "stopped_by": self.stopped_by, "failure": self.failure, "tasks": self.tasks,
+            "variables": self.variables, "plant": self.plant, "lock_recoveries": self.lock_recoveries,
+            "run_id": self.run_id, "objects": self.objects, "states_at_stop": self.states_at_stop,
+            "application": self.application, "jobs_done": self.jobs_done, "switches": self.switches,
+            "stable_episodes": self.stable_episodes, "realtime": self.realtime,
+            "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds, "links": self.links,
+            "started_monotonic": self.started_monotonic, "stalls": self.stalls, "unstopped": self.unstopped,
+        }
+
+
+class RunReporting:
+    """The Supervisor's part that fills its RunResult and reads the live view's rows from the table."""
+
+    subsystem: Subsystem
+    table: StateTable | None
+    result: RunResult
+    job_control: JobControl
+    stall_watch: StallWatch
+    started_at: float | None
+    task_errors: dict[str, str]
+    _stats: dict[str, dict[str, Any]]
+
+    def _report_run(self) -> None:
+        """Switches, each task's figures, stalls: into the result, once the children have reported."""
+        self.result.switches = [record.to_json() for record in self.job_control.switches]
+        started = self.started_at if self.started_at is not None else 0.0
+        for name, stats in self._stats.items():
+            # an overrun's release as seconds since the configuration came on, as the summary reads it
+            overruns = [[release - started, late, took] for release, late, took in stats.get("last_overruns", [])]
+            self.result.tasks[name] = {"rtpu": self.subsystem.tasks[name].rtpu, "critical": self.subsystem.tasks[name].critical,
+                                       "state": self.result.states_at_stop.get(name, "?"),
+                                       "error": self.task_errors.get(name, ""), **stats, "last_overruns": overruns}
+        self._report_stalls(started)
+
+    def _report_stalls(self, started: float) -> None:
+        """Stalls into the result; the table's counters for tasks whose RTPU was killed before it could report."""
+        killed = self.result.unstopped
+        for stall in self.stall_watch.episodes:
+            self.result.stalls.append({"task": stall.task, "rtpu": stall.rtpu, "from": stall.since - started,
+                                       "to": None if stall.until is None else stall.until - started,
+                                       "rtpu_killed": stall.rtpu in killed})
+        if not killed:
+            return
+        assert self.table is not None
+        for task in self.subsystem.tasks.values():
+            if task.name in self.result.tasks or task.rtpu not in killed:
+                continue
+            words = self.table.status[task.index]
+            self.result.tasks[task.name] = {
+                "rtpu": task.rtpu, "critical": task.critical, "state": self.result.states_at_stop.get(task.name, "?"),
+                "error": self.task_errors.get(task.name, ""), "from_table": True,  # its RTPU never reported
+                **_table_figures(words), "exec_max": float(words[W.EXEC_MAX]), "last_overruns": []}
+        if not self.result.failure:
+            stuck = [s.task for s in self.stall_watch.episodes if s.until is None and s.rtpu in killed]
+            were = "was" if len(killed) == 1 else "were"
+            self.result.failure = (
+                f"{', '.join(killed)} did not stop within {STOP_TIMEOUT:g} s and {were} killed: the kill components of its "
+                "tasks did not run" + (f" (stalled: {', '.join(stuck)})" if stuck else ""))
+
+    def _read_final_values(self) -> None:
+        if self.table is None:
+            return
+        for var in self.subsystem.variables.values():
+            value, seq, when, writer = self.table.read(var.name)
+            self.result.variables[var.name] = {
+                "value": value.tolist(), "sequence": seq,
+                "writer": next((t.name for t in self.subsystem.tasks.values() if t.index == writer), "job control"),
+            }
+
+    def status_rows(self) -> list[dict[str, Any]]:
+        """The live view's data, read from the table's status blocks."""
+        rows = []
+        if self.table is None:
+            return rows
+        for task in self.subsystem.tasks.values():
+            words = self.table.status[task.index]
+            rows.append({"task": task.name, "rtpu": task.rtpu, "state": TaskState(int(words[W.STATE])).name,
+                         **_table_figures(words), "exec_last": float(words[W.EXEC_LAST])})
+        return rows

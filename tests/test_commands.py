@@ -8,8 +8,10 @@ import pytest
 
 from pbo_runtime.cli import operator
 from pbo_runtime.cli.main import _parser
-from pbo_runtime.supervisor.commands import COMMANDS, VERBS, verb_table
+from pbo_runtime.errors import PboError
+from pbo_runtime.supervisor.commands import COMMANDS, VERBS, dispatch, verb_table
 from tests.conftest import REPO
+from tests.fake_job_host import FakeJobHost, fake_subsystem
 
 
 def subparsers() -> dict[str, argparse.ArgumentParser]:
@@ -39,3 +41,110 @@ def test_a_verbs_request_takes_its_keys_from_the_table_and_parses_numbers():
     assert COMMANDS["job"].request({"name": "move", "values": []}) == {"job": "move", "object": None}
     assert COMMANDS["on"].request({"task": "pid"}) == {"task": "pid"}
     assert COMMANDS["status"].request({}) == {}
+
+
+# --- every verb's handler on a fake host, as the supervisor dispatches it ----------------------
+
+
+@pytest.fixture(scope="module")
+def subsystem(tmp_path_factory):
+    return fake_subsystem(tmp_path_factory.mktemp("commands"))
+
+
+@pytest.fixture
+def host(subsystem) -> FakeJobHost:
+    return FakeJobHost(subsystem, "pid")
+
+
+def test_status_reports_each_task_with_its_rate_and_only_an_errors_message(host):
+    host.clock.advance(2.0)
+    host.task_states["traj"], host.task_errors["traj"] = "ERROR", "cycle raised RuntimeError"
+    host.task_errors["pid"] = "an old error, cleared since"
+    reply = dispatch(host, "status", {})
+    rows = {row["task"]: row for row in reply["tasks"]}
+    assert (reply["configuration"], reply["elapsed"], reply["flags"]) == ("pid", 2.0, ["ILLEGAL_CONFIGURATION"])
+    assert [row["index"] for row in reply["tasks"]] == [0, 1, 2, 3] and rows["robot"]["rate"] == 50.0
+    assert rows["traj"]["error"] == "cycle raised RuntimeError" and rows["pid"]["error"] is None
+
+
+@pytest.mark.parametrize("verb, task, before, after", [("on", "pd", "OFF", "ON"), ("off", "pid", "ON", "OFF")])
+def test_on_and_off_signal_the_task_and_answer_its_new_state(subsystem, verb, task, before, after):
+    host = FakeJobHost(subsystem, "pd" if verb == "on" else "pid")
+    host.task_states[task] = before
+    assert dispatch(host, verb, {"task": task}) == {"task": task, "state": after, "message": f"task '{task}' is {after}"}
+    assert host.signals == [(task, verb)]
+
+
+@pytest.mark.parametrize("verb, task, state, refusal", [
+    ("on", "pd", "OFF", r"^task 'pd' is not in the running configuration 'pid' \(robot, traj, pid\): turning it on would "
+                        r"give its outputs two writers; use pbo switch to a configuration that has it$"),
+    ("on", "pid", "ON", r"^task 'pid' is ON: only an OFF task can be turned on$"),
+    ("off", "pid", "ERROR", r"^task 'pid' is ERROR: only an ON task can be turned off$"),
+    ("clear", "pid", "ON", r"^task 'pid' is ON, not in ERROR: there is nothing to clear$"),
+    ("event", "nobody", "", r"^no task 'nobody' \(tasks: robot, traj, pid, pd\)$"),
+])
+def test_a_task_verb_the_tasks_state_does_not_allow_is_refused_and_nothing_is_sent(host, verb, task, state, refusal):
+    if state:
+        host.task_states[task] = state
+    with pytest.raises(PboError, match=refusal):
+        dispatch(host, verb, {"task": task})
+    assert host.signals == [] and host.events == []
+
+
+@pytest.mark.parametrize("fixed, message", [
+    (True, "task 'pid' is OFF; cleared: the task is OFF; turn it on with pbo on"),
+    (False, "task 'pid' is ERROR; still in ERROR: its clear component found the fault not fixed (gain matrix is singular)"),
+])
+def test_clear_says_whether_the_tasks_clear_component_fixed_the_fault(host, fixed, message):
+    host.task_states["pid"], host.task_errors["pid"] = "ERROR", "gain matrix is singular"
+    host.clear_fixes_the_fault = fixed
+    assert dispatch(host, "clear", {"task": "pid"})["message"] == message
+
+
+def test_an_event_is_sent_with_its_values(host):
+    assert dispatch(host, "event", {"task": "traj", "values": [1.0, 2.0]}) == {"task": "traj", "message": "event sent to 'traj'"}
+    assert host.events == [("traj", [1.0, 2.0])]
+
+
+def test_switch_answers_what_went_off_and_on_and_how_long_it_took(host):
+    reply = dispatch(host, "switch", {"configuration": "pd"})
+    assert (reply["configuration"], reply["entered"], reply["left"]) == ("pd", ["pd"], ["pid"])
+    assert reply["message"] == "switched 'pid' -> 'pd' in 2.00 ms: off pid; on pd"
+
+
+@pytest.mark.parametrize("arguments, refusal", [
+    ({"job": "reach", "object": None}, r"^job 'reach' needs its object 'q_d': pbo job reach VALUE \.\.\.$"),
+    ({"job": "hold", "object": [1.0]}, r"^job 'hold' takes no object$"),
+    ({"job": "jump", "object": None}, r"^no job 'jump' \(jobs: guarded, hold, dwell, reach, settle\)$"),
+    ({"job": "guarded", "object": None}, r"^job 'guarded': pre-condition 'max\(abs\(q_m\)\) > 10' does not hold"),
+])
+def test_a_job_the_run_cannot_start_is_refused_before_anything_changes(host, arguments, refusal):
+    with pytest.raises(PboError, match=refusal):
+        dispatch(host, "job", arguments)
+    assert host.plans == [] and host.job_control.job is None
+
+
+def test_a_job_with_its_object_starts_in_its_configuration(host):
+    reply = dispatch(host, "job", {"job": "settle", "object": [0.0] * 6})
+    assert reply == {"job": "settle", "configuration": "pd",
+                     "message": "job 'settle' runs in 'pd'; done when max(abs(q_m - q_d)) < 0.01 and max(abs(qd_m)) < 0.01"}
+    assert host.configuration == "pd" and host.job_control.job == "settle"
+
+
+@pytest.mark.parametrize("verb, arguments", [("switch", {"configuration": "pd"}), ("job", {"job": "hold", "object": None})])
+def test_switch_and_job_are_refused_while_an_application_runs(host, verb, arguments):
+    host.application = "tour"
+    with pytest.raises(PboError, match=r"^application 'tour' is running its jobs; switch and job are refused until it ends$"):
+        dispatch(host, verb, arguments)
+    assert host.plans == []
+
+
+def test_stop_asks_the_run_to_stop(host):
+    assert dispatch(host, "stop", {}) == {"message": "stopping 'puma_switch'"}
+    assert host.stopped_by == "pbo stop"
+
+
+@pytest.mark.parametrize("verb", ["kill", "svar"])
+def test_a_verb_the_supervisor_does_not_serve_is_refused_with_the_ones_it_does(host, verb):
+    with pytest.raises(PboError, match=rf"^unknown command '{verb}' \(commands: status, on, off, clear, switch, job, event, stop\)$"):
+        dispatch(host, verb, {})

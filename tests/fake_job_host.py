@@ -1,0 +1,148 @@
+"""FakeJobHost: a running subsystem without a process, for unit tests of job control and the operator's verbs.
+
+It implements `JobHost` (job_control) and `CommandHost` (commands) on a manual clock: variables
+are numpy arrays in a dict, tasks are states in a dict, and its RTPUs apply a posted plan when
+the clock reaches the plan's activation (as the executives do at that cycle boundary), unless
+told they never will. `pump` moves the clock; `on_pump` lets a test change the world meanwhile
+(the arm reaching its goal). Nothing is started, nothing sleeps.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from pbo_runtime.clock.clocks import ManualClock
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.config.model import Subsystem
+from pbo_runtime.supervisor.job_control import JobControl
+from tests.conftest import REPO
+
+# configs/switch_joint.yaml with jobs for every path of job control: a pre-condition that never
+# holds, a job with no object, one that only runs for a while
+SUBSYSTEM = (REPO / "configs" / "switch_joint.yaml").read_text().replace("\njobs:\n", """
+jobs:
+  guarded: {configuration: pd, pre: "max(abs(q_m)) > 10", post: "max(abs(q_m - q_d)) < 0.01"}
+  hold:    {configuration: pd}
+  dwell:   {configuration: pd, timeout: 50 ms}
+""")
+
+
+def fake_subsystem(directory: Path) -> Subsystem:
+    path = directory / "switch_joint.yaml"
+    path.write_text(SUBSYSTEM)
+    return load_subsystem(str(path))
+
+
+class FakeJobHost:
+    """A run as job control and the operator's verbs see it; see the module's docstring."""
+
+    def __init__(self, subsystem: Subsystem, configuration: str | None = None, static: bool = False) -> None:
+        self.subsystem = subsystem
+        self.configuration = configuration or next(iter(subsystem.configurations))
+        self.clock = ManualClock(0.0)
+        self.epoch = 0.0
+        self.shortest_period = min(t.period for t in subsystem.tasks.values())
+        self.tick = 0.0
+        self.said: list[str] = []
+        self.say: Callable[[str], None] = self.said.append
+        self.values = {name: np.zeros(var.shape, dtype=var.dtype) if var.initial is None else np.array(var.initial)
+                       for name, var in subsystem.variables.items()}
+        members = subsystem.configurations[self.configuration].tasks
+        self.task_states = {name: "ON" if name in members else "OFF" for name in subsystem.tasks}
+        self.task_errors: dict[str, str] = {}
+        self.plans: list[tuple[int, str, float]] = []  # (sequence, configuration, activation) as posted
+        self.rtpus_apply_plans = True
+        self.signals: list[tuple[str, str]] = []  # (task, op) as sent
+        self.clear_fixes_the_fault = True
+        self.events: list[tuple[str, Any]] = []
+        self.stopped_by = ""
+        self.on_pump: Callable[[FakeJobHost], None] | None = None
+        self.job_control = JobControl(self, static=static)
+        # what the operator's status reads
+        self.run_id = "1234-abcdef"
+        self.application: str | None = None
+        self.started_at: float | None = 0.0
+        self.realtime: dict[str, dict[str, str]] = {}
+
+    # --- JobHost ----------------------------------------------------------------------------
+
+    def now(self) -> float:
+        return self.clock.now()
+
+    def pump(self, timeout: float) -> None:
+        self.clock.advance(timeout)
+        if self.on_pump is not None:
+            self.on_pump(self)
+        record = self.job_control.pending
+        if record is None or not self.rtpus_apply_plans or self.now() < record.activation:
+            return
+        after = self.subsystem.configurations[record.after].tasks
+        before = self.subsystem.configurations[record.before].tasks
+        for rtpu in self.subsystem.rtpus:
+            hosted = [t.name for t in self.subsystem.tasks_on(rtpu.name)]
+            off = [t for t in hosted if t in before and t not in after]
+            on = [t for t in hosted if t in after and self.task_states[t] == "OFF"]
+            for task in off:
+                self.task_states[task] = "OFF"
+            for task in on:
+                self.task_states[task] = "ON"
+                self.job_control.first_cycle(record.sequence, task, record.activation)
+            self.job_control.switched(rtpu.name, record.sequence, record.activation, record.activation, off, on)
+
+    def read_variable(self, name: str) -> np.ndarray:
+        return self.values[name]
+
+    def write_variable(self, name: str, value: Any) -> None:
+        self.values[name] = np.asarray(value, dtype=self.subsystem.variables[name].dtype)
+
+    def post_plan(self, configuration: str, activation: float) -> int:
+        sequence = len(self.plans) + 1
+        self.plans.append((sequence, configuration, activation))
+        return sequence
+
+    def set_configuration(self, configuration: str) -> None:
+        self.configuration = configuration
+
+    def kill_task(self, task: str) -> None:
+        self.signals.append((task, "kill"))
+        self.task_states[task] = "KILLED"
+
+    def respawn(self, task: str) -> None:
+        self.signals.append((task, "spawn"))
+        self.task_states[task] = "OFF"
+
+    def turn_on(self, task: str, configuration: str) -> None:
+        self.signals.append((task, "on"))
+        self.task_states[task] = "ON"
+
+    # --- CommandHost ------------------------------------------------------------------------
+
+    def status_rows(self) -> list[dict[str, Any]]:
+        return [{"task": t.name, "rtpu": t.rtpu, "state": self.task_states[t.name], "cycles": 100, "overruns": 0,
+                 "missed": 0, "jitter_max": 0.0, "exec_last": 0.0} for t in self.subsystem.tasks.values()]
+
+    def table_flags(self) -> list[str]:
+        return ["ILLEGAL_CONFIGURATION"] if "ERROR" in self.task_states.values() else []
+
+    def stalled_since(self) -> dict[str, float]:
+        return {}
+
+    def signal_task(self, task: str, op: str, states: set[str]) -> str:
+        self.signals.append((task, op))
+        if op == "on":
+            self.task_states[task] = "ON"
+        elif op == "off":
+            self.task_states[task] = "OFF"
+        elif op == "clear" and self.clear_fixes_the_fault:
+            self.task_states[task] = "OFF"
+        assert self.task_states[task] in states
+        return self.task_states[task]
+
+    def send_event(self, task: str, values: Any) -> None:
+        self.events.append((task, values))
+
+    def request_stop(self, reason: str) -> None:
+        self.stopped_by = reason

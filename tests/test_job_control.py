@@ -1,0 +1,137 @@
+"""Job control's decisions on a fake host and a manual clock: switches, jobs, applications; no process."""
+
+from __future__ import annotations
+
+import pytest
+
+from pbo_runtime.errors import PboError
+from pbo_runtime.supervisor.job_control import POLL, SWITCH_TIMEOUT, JobFailure
+from tests.fake_job_host import FakeJobHost, fake_subsystem
+
+GOAL = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]
+
+
+@pytest.fixture(scope="module")
+def subsystem(tmp_path_factory):
+    return fake_subsystem(tmp_path_factory.mktemp("job_control"))
+
+
+@pytest.fixture
+def host(subsystem) -> FakeJobHost:
+    return FakeJobHost(subsystem, "pid")
+
+
+def arm_reaches_its_goal_after(seconds: float):
+    """An on_pump that moves q_m to q_d (and stops the arm) once `seconds` of run time have passed."""
+    def move(host: FakeJobHost) -> None:
+        if host.now() >= seconds:
+            host.values["q_m"] = host.values["q_d"].copy()
+            host.values["qd_m"][:] = 0.0
+    return move
+
+
+# --- switching --------------------------------------------------------------------------------
+
+
+def test_a_switch_posts_a_plan_on_the_release_grid_and_ends_when_every_rtpu_applied_it(host):
+    host.clock.advance(0.0104)
+    record = host.job_control.switch("pd")
+    assert host.plans == [(1, "pd", pytest.approx(0.013))]  # 2 ms of lead, rounded up to the 1 ms grid
+    assert (record.before, record.after, record.off, record.on) == ("pid", "pd", ["pid"], ["pd"])
+    assert set(record.applied) == {"rtpu0", "rtpu1"} and record.latency == pytest.approx(0.013 - 0.0104)
+    assert host.configuration == "pd" and host.job_control.pending is None
+    assert host.job_control.switches == [record]
+
+
+def test_on_the_simulated_clock_the_plan_activates_at_the_next_tick_of_the_grid(host):
+    host.tick = 0.001
+    host.clock.advance(0.005)
+    host.job_control.switch("pd")
+    assert host.plans[0][2] == pytest.approx(0.006)
+
+
+def test_a_switch_no_rtpu_applies_times_out_and_says_where_it_stood(host):
+    host.rtpus_apply_plans = False
+    with pytest.raises(PboError, match=rf"^switch to 'pd' did not complete within {SWITCH_TIMEOUT:g} s \(applied on: no RTPU\)$"):
+        host.job_control.switch("pd")
+    assert host.now() > SWITCH_TIMEOUT and host.configuration == "pid"
+
+
+def test_a_switch_to_an_unknown_configuration_names_the_ones_there_are(host):
+    with pytest.raises(PboError, match=r"^no configuration 'fast' \(configurations: pid, pd\)$"):
+        host.job_control.switch("fast")
+    assert host.plans == []
+
+
+def test_a_static_switch_kills_the_leaving_tasks_and_spawns_and_turns_on_the_entering_ones(subsystem):
+    host = FakeJobHost(subsystem, "pid", static=True)
+    host.task_states["pd"] = "NOT_CREATED"  # static: only the running configuration's tasks exist
+    record = host.job_control.switch("pd")
+    assert host.signals == [("pid", "kill"), ("pd", "spawn"), ("pd", "on")]
+    assert host.plans == [] and host.configuration == "pd" and (record.off, record.on) == (["pid"], ["pd"])
+
+
+def test_alternate_switches_the_given_number_of_times_one_interval_apart(host):
+    host.job_control.alternate(["pid", "pd"], 4, 0.05)
+    assert [r.after for r in host.job_control.switches] == ["pd", "pid", "pd", "pid"]
+    requested = [r.requested_at for r in host.job_control.switches]
+    assert requested[0] == pytest.approx(0.05, abs=0.003) and all(
+        0.045 < b - a < 0.055 for a, b in zip(requested, requested[1:]))
+
+
+# --- jobs -------------------------------------------------------------------------------------
+
+
+def test_a_job_writes_its_object_switches_and_waits_for_its_post_condition(host):
+    host.on_pump = arm_reaches_its_goal_after(0.5)
+    host.job_control.run_job("settle", {"q_d": GOAL})
+    assert list(host.values["q_d"]) == GOAL and host.configuration == "pd"
+    assert host.job_control.job == "settle" and 0.5 <= host.now() < 0.6
+    assert host.said[-1].startswith("job 'settle': done in 0.5")
+
+
+def test_a_job_whose_pre_condition_fails_is_refused_with_the_values_it_read(host):
+    with pytest.raises(JobFailure, match=r"^job 'guarded': pre-condition 'max\(abs\(q_m\)\) > 10' does not hold "
+                                         r"\(q_m = \[0\., 0\., 0\., 0\., 0\., 0\.\]\)$"):
+        host.job_control.run_job("guarded", {})
+    assert host.plans == [] and host.configuration == "pid"
+
+
+def test_a_job_that_times_out_says_its_post_condition_is_still_false(host):
+    with pytest.raises(JobFailure, match=r"^job 'reach': timed out after 10 s; post-condition "
+                                         r"'max\(abs\(q_m - q_d\)\) < 0\.01' still false \(q_d = \[ 0\.3, -0\.5, .*; q_m = \[0\., "):
+        host.job_control.run_job("reach", {"q_d": GOAL})
+    assert host.now() == pytest.approx(10.0, abs=0.02)
+
+
+def test_a_job_with_a_timeout_and_no_post_condition_runs_for_that_long(host):
+    host.job_control.run_job("dwell", {})
+    # switched at the plan's activation (2 ms), then 50 ms in polls of POLL: the first poll past them
+    assert host.configuration == "pd" and host.now() == pytest.approx(0.002 + 0.05 + POLL)
+
+
+def test_a_job_with_neither_post_condition_nor_timeout_returns_once_switched(host):
+    host.job_control.run_job("hold", {})
+    assert host.configuration == "pd" and host.now() < 0.01
+
+
+def test_an_operators_job_is_started_not_awaited_and_its_object_must_have_the_variables_size(host):
+    with pytest.raises(PboError, match=r"^job 'reach': object 'q_d' takes 6 values \(shape \[6\]\), got 2$"):
+        host.job_control.start_job("reach", {"q_d": [0.1, 0.2]})
+    host.job_control.start_job("settle", {"q_d": GOAL})
+    assert host.job_control.job == "settle" and host.configuration == "pd" and list(host.values["q_d"]) == GOAL
+
+
+def test_an_application_runs_its_jobs_in_order_each_in_its_configuration(host):
+    host.on_pump = arm_reaches_its_goal_after(0.0)
+    host.job_control.run_application("tour")
+    assert [(r.before, r.after) for r in host.job_control.switches] == [("pid", "pd"), ("pd", "pid")]
+    assert list(host.values["q_d"]) == [-0.2, -0.6, 0.4, 0.1, 0.3, -0.1] and host.job_control.job is None
+    assert [line.split(":")[0] for line in host.said if "done in" in line] == [
+        f"job '{job}' (step {n} of 3 of application 'tour')" for n, job in enumerate(["reach", "settle", "reach"], 1)]
+
+
+def test_an_application_stops_at_the_job_that_times_out_in_the_configuration_it_is_in(host):
+    with pytest.raises(JobFailure, match=r"^job 'reach' \(step 1 of 3 of application 'tour'\): timed out after 10 s"):
+        host.job_control.run_application("tour")
+    assert host.configuration == "pid" and host.job_control.job == "reach"

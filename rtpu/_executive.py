@@ -24,6 +24,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
+from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.messages import Event, FirstCycle, Refused, Stable, StateChanged, Stats, Switched, Window
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.module import Status
@@ -467,23 +468,25 @@ class Executive:
             self.factories[task.name] = factory
 
     def handle(self, message: list[Any]) -> None:
-        op = message[0]
-        if op == "stop":
+        """One signal as it came off the queue (`[kind, *fields]`, decoded by `messages.signal_from_wire`)."""
+        signal = messages.signal_from_wire(message)
+        if isinstance(signal, messages.StopRtpu):
             self.stop()
             return
-        if op == "stats":
+        if isinstance(signal, messages.SendStats):
             self.report_statistics()
             return
-        if op == "plan":  # a wake-up: the plan itself is in the table's header
+        if isinstance(signal, messages.PlanPosted):  # a wake-up: the plan itself is in the table's header
             return
-        name = message[1]
+        name = signal.task if signal is not None else message[1]
         s = self.tasks.get(name)
         if s is None:
             self.report(Refused(name, f"no task '{name}' on this RTPU"))
             return
         task = s.task
+        op = message[0]
         try:
-            if op == "spawn":
+            if isinstance(signal, messages.Spawn):
                 if task.state == TaskState.KILLED and name in self.factories:
                     s = self.tasks[name] = Scheduled(self.factories[name]())  # a new instance: TR 4.4, static
                     task = s.task
@@ -493,24 +496,24 @@ class Executive:
                 # walks only what the run allocates. A full collection of an RTPU process walks
                 # some 30,000 objects in 4-5 ms, several overruns at 1 kHz if it came mid-run.
                 gc.freeze()
-            elif op == "on":
-                at = message[2] if len(message) > 2 and message[2] is not None else self.clock.now()
+            elif isinstance(signal, messages.TurnOn):
+                at = signal.at if signal.at is not None else self.clock.now()
                 self._turn_on(s, at)
-                if s.critical and self.reconfiguration is not None and len(message) > 3:
-                    self._watch(s, int(message[3]))
-            elif op == "off":
+                if s.critical and self.reconfiguration is not None and signal.configuration is not None:
+                    self._watch(s, int(signal.configuration))
+            elif isinstance(signal, messages.TurnOff):
                 self._leave_on(s)
                 task.turn_off()
-            elif op == "kill":
+            elif isinstance(signal, messages.Kill):
                 self._leave_on(s)
                 task.kill()
-            elif op == "clear":
+            elif isinstance(signal, messages.Clear):
                 task.clear()
-            elif op == "event":
-                self._event(s, message[2] if len(message) > 2 else None)
+            elif isinstance(signal, messages.OperatorEvent):
+                self._event(s, signal.values)
                 return
-            elif op == "message":  # from a link's relay (TaskContext.serve_link): no reply to anyone
-                self._event(s, message[2] if len(message) > 2 else None, quiet=True)
+            elif isinstance(signal, messages.LinkMessage):  # from a link's relay (TaskContext.serve_link): no reply to anyone
+                self._event(s, signal.payload, quiet=True)
                 return
             else:
                 self.report(Refused(name, f"unknown signal '{op}'"))

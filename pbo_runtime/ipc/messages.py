@@ -2,11 +2,12 @@
 
 Queues carry signals and events only, never per-cycle data (DESIGN §3). All are 0600.
 
-Events are typed: one frozen dataclass per kind, below. They are encoded and decoded here
-only (`Queue.report`, `Queue.receive_event`); on the wire an event is the msgpack list
-`[kind, source, *fields]` (source: the RTPU's name or "plant"), fields in declaration order,
-trailing fields with a default may be left out. Events are sent on state changes (a task's
-state, a switch, a stable episode's start and end), never per cycle.
+Signals and events are typed: one frozen dataclass per kind, below, encoded and decoded here
+only (`Queue.signal`/`try_signal` and `signal_from_wire` for signals; `Queue.report` and
+`Queue.receive_event` for events). On the wire a signal is the msgpack list `[kind, *fields]`
+and an event `[kind, source, *fields]` (source: the RTPU's name or "plant"), fields in
+declaration order; trailing fields with a default may be left out. Events are sent on state
+changes (a task's state, a switch, a stable episode's start and end), never per cycle.
 """
 
 from __future__ import annotations
@@ -53,6 +54,109 @@ def plant_registers_name(subsystem: str, run_id: str) -> str:
 
 def table_name(subsystem: str, run_id: str) -> str:
     return shm.object_name(subsystem, run_id, "table")
+
+
+# --- signals: job control (and a link's relay) to an RTPU ------------------------------------
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Spawn:
+    """Create the task and run its init (again, with a fresh instance, after a kill: a static switch)."""
+
+    KIND: ClassVar[str] = "spawn"
+    task: str
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class TurnOn:
+    """Turn the task on, its releases aligned from `at` (None: now); a critical task watches the
+    writers of its inputs in configuration number `configuration` (None: it does not)."""
+
+    KIND: ClassVar[str] = "on"
+    task: str
+    at: float | None = None
+    configuration: int | None = None
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class TurnOff:
+    KIND: ClassVar[str] = "off"
+    task: str
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Kill:
+    KIND: ClassVar[str] = "kill"
+    task: str
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Clear:
+    """The operator's clear: the task's clear component decides whether it goes back to OFF."""
+
+    KIND: ClassVar[str] = "clear"
+    task: str
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class OperatorEvent:
+    """An event for an aperiodic task from the operator (`pbo event`): refused unless the task is ON."""
+
+    KIND: ClassVar[str] = "event"
+    task: str
+    values: Any = None
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class LinkMessage:
+    """A message of another subsystem for the task serving its link (TR §5.1): kept until it is ON."""
+
+    KIND: ClassVar[str] = "message"
+    task: str
+    payload: Any = None
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class StopRtpu:
+    """The run is over: every task off and killed, statistics reported, the executive ends."""
+
+    KIND: ClassVar[str] = "stop"
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class SendStats:
+    KIND: ClassVar[str] = "stats"
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class PlanPosted:
+    """A wake-up: a plan is in the table's header (the plan itself never travels on a queue)."""
+
+    KIND: ClassVar[str] = "plan"
+
+
+TaskSignal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage]  # the signals for one task
+Signal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, StopRtpu, SendStats, PlanPosted]
+SIGNAL_TYPES: dict[str, type[Signal]] = {cls.KIND: cls for cls in
+                                         (Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, StopRtpu,
+                                          SendStats, PlanPosted)}
+
+
+def signal_to_wire(signal: Signal) -> list[Any]:
+    """`[kind, *fields]`: what goes on an RTPU's signal queue."""
+    return [signal.KIND, *(getattr(signal, name) for name in _FIELDS[type(signal)])]
+
+
+def signal_from_wire(message: list[Any]) -> Signal | None:
+    """The signal `[kind, *fields]` stands for; None for a kind no RTPU knows (the RTPU refuses it)."""
+    cls = SIGNAL_TYPES.get(message[0]) if message and isinstance(message[0], str) else None
+    if cls is None:
+        return None
+    try:
+        return cls(*message[1:])
+    except TypeError as exc:
+        raise InternalError(f"a malformed '{message[0]}' signal came on a signal queue ({exc}): {message!r:.200}; "
+                            "please report this") from None
 
 
 # --- events: RTPUs and the plant to job control ----------------------------------------------
@@ -159,7 +263,8 @@ Event = Union[Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, 
 EVENT_TYPES: dict[str, type[Event]] = {cls.KIND: cls for cls in
                                        (Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats,
                                         Refused, Crashed)}
-_FIELDS: dict[type, tuple[str, ...]] = {cls: tuple(f.name for f in dataclasses.fields(cls)) for cls in EVENT_TYPES.values()}
+_FIELDS: dict[type, tuple[str, ...]] = {cls: tuple(f.name for f in dataclasses.fields(cls))
+                                        for cls in (*SIGNAL_TYPES.values(), *EVENT_TYPES.values())}
 
 
 def event_to_wire(source: str, event: Event) -> list[Any]:
@@ -221,6 +326,14 @@ class Queue:
                     return False
             except (posix_ipc.ExistentialError, posix_ipc.SignalError, OSError):
                 return False
+
+    def signal(self, signal: Signal, timeout: float | None = 1.0) -> None:
+        """Send a signal to an RTPU (`send`: waits for room, at most `timeout`)."""
+        self.send(*signal_to_wire(signal), timeout=timeout)
+
+    def try_signal(self, signal: Signal, timeout: float = 0.5) -> bool:
+        """Send a signal if there is room within `timeout` (`try_send`)."""
+        return self.try_send(*signal_to_wire(signal), timeout=timeout)
 
     def report(self, source: str, event: Event, timeout: float = 0.5,
                reader_alive: Callable[[], bool] | None = None) -> bool:

@@ -103,7 +103,7 @@ class Children:
         alive = [c for c in self.children if c.process.poll() is None]
         for child in alive:
             if child.role != "plant":
-                self.signals[child.role].try_send("stop")
+                self.signals[child.role].try_signal(messages.StopRtpu())
                 self._serve_stop(child)
         deadline = time.monotonic() + STOP_TIMEOUT
         rtpus = [c for c in alive if c.role != "plant"]

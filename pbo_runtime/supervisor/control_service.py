@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Any, Callable
 
 from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.control import ControlServer
 from pbo_runtime.supervisor.commands import dispatch
 from pbo_runtime.supervisor.run_report import RunResult
@@ -24,7 +25,7 @@ class ControlService:
     configuration: str
     task_states: dict[str, str]
     _serving: bool
-    _signal: Callable[..., None]
+    _signal: Callable[[messages.TaskSignal], None]
     _await_change: Callable[[str, str | None, set[str]], str]
     _count_errors: Callable[[], None]
 
@@ -51,11 +52,15 @@ class ControlService:
     def signal_task(self, task: str, op: str, states: set[str]) -> str:
         """Send on, off or clear to a task; its state once it is one of `states` (a refusal raises PboError)."""
         before = self.task_states.get(task)
-        extra = (None, self.reconfiguration.index(self.configuration)) if op == "on" else ()
-        self._signal(task, op, *extra)
+        signal: messages.TaskSignal
+        if op == "on":  # a critical task learns who writes its inputs in the running configuration
+            signal = messages.TurnOn(task, None, self.reconfiguration.index(self.configuration))
+        else:
+            signal = messages.TurnOff(task) if op == "off" else messages.Clear(task)
+        self._signal(signal)
         state = self._await_change(task, before, states)
         self._count_errors()
         return state
 
     def send_event(self, task: str, values: Any) -> None:
-        self._signal(task, "event", values)
+        self._signal(messages.OperatorEvent(task, values))

@@ -41,15 +41,16 @@ class EventHandling:
     _check_children: Callable[[], None]
     _count_errors: Callable[[], None]
 
-    def _signal(self, task: str, *message: Any) -> None:
+    def _signal(self, signal: messages.TaskSignal) -> None:
+        task = signal.task
         rtpu = self.subsystem.tasks[task].rtpu
         self._refused.pop(task, None)
-        self.signals[rtpu].send(message[0], task, *message[1:], timeout=SIGNAL_TIMEOUT)
+        self.signals[rtpu].signal(signal, timeout=SIGNAL_TIMEOUT)
         self.clock.serve(rtpu, self._while_stepping)
 
-    def signal_and_wait(self, name: str, op: str, states: set[str], *arguments: Any) -> str:
-        self._signal(name, op, *arguments)
-        return self._await_state(name, states)
+    def signal_and_wait(self, signal: messages.TaskSignal, states: set[str]) -> str:
+        self._signal(signal)
+        return self._await_state(signal.task, states)
 
     def _while_stepping(self) -> None:
         """While a participant runs its tick: fail if a child died, stop if asked, keep the event queue

@@ -235,20 +235,20 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
 
     def respawn(self, name: str) -> None:
         """Spawn a task and wait for its init; an init failure stops the run (no half start)."""
-        state = self.signal_and_wait(name, "spawn", {"OFF", "KILLED"})
+        state = self.signal_and_wait(messages.Spawn(name), {"OFF", "KILLED"})
         if state == "KILLED":
             raise RunFailure(f"task '{name}' failed in init and was not created: {self.task_errors.get(name, '')}")
 
     def turn_on(self, name: str, configuration: str) -> None:
         """Turn a task on; critical tasks learn who writes their inputs in `configuration`."""
         index = self.reconfiguration.index(configuration)
-        state = self.signal_and_wait(name, "on", {"ON", "ERROR"}, None, index)
+        state = self.signal_and_wait(messages.TurnOn(name, None, index), {"ON", "ERROR"})
         if state == "ERROR":
             raise RunFailure(f"task '{name}' failed in on: {self.task_errors.get(name, '')}")
 
 
     def kill_task(self, name: str) -> None:
-        self.signal_and_wait(name, "kill", {"KILLED"})
+        self.signal_and_wait(messages.Kill(name), {"KILLED"})
 
     def read_variable(self, name: str) -> np.ndarray:
         assert self.table is not None
@@ -268,7 +268,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         header[Header.PLAN_SEQUENCE] = sequence  # last: an executive that sees it sees the whole plan
         if self.clock.plans_need_a_wakeup:
             for queue in self.signals.values():
-                queue.try_send("plan", timeout=0.0)
+                queue.try_signal(messages.PlanPosted(), timeout=0.0)
         return sequence
 
 

@@ -24,7 +24,9 @@ from pbo_runtime.table.table import Header, StateTable, read_manifest
 
 
 @dataclass
-class _Child:
+class Child:
+    """One child process of the run: the plant or an RTPU, and the tasks it hosts."""
+
     role: str  # 'plant' or the RTPU's name
     process: subprocess.Popen
     tasks: tuple[str, ...] = ()
@@ -57,7 +59,7 @@ class Children:
     """The Supervisor's part that starts, watches and stops its child processes."""
 
     clock: RunClock
-    children: list[_Child]
+    children: list[Child]
     table: StateTable | None
     result: RunResult
     signals: dict[str, messages.Queue]
@@ -76,7 +78,7 @@ class Children:
         command = [sys.executable, *arguments, "--parent", str(os.getpid())]
         process = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True,
                                    env=self.clock.child_environment())
-        self.children.append(_Child(role, process, tasks))
+        self.children.append(Child(role, process, tasks))
 
     def _check_children(self) -> None:
         for child in self.children:
@@ -136,7 +138,7 @@ class Children:
             kind, _, name = entry.partition(" ")
             shm.unlink_quietly(kind, name)
 
-    def _serve_stop(self, child: _Child) -> None:
+    def _serve_stop(self, child: Child) -> None:
         """Sim clock: step an RTPU once so it serves its stop; a dead or stuck one is left to SIGTERM."""
         deadline = time.monotonic() + STOP_TIMEOUT
 

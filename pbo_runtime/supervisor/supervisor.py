@@ -30,7 +30,7 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import ControlServer, control_queue_name
-from pbo_runtime.supervisor.children import Children, _Child, remove_dead_runs
+from pbo_runtime.supervisor.children import Children, Child, remove_dead_runs
 from pbo_runtime.supervisor.control_service import ControlService
 from pbo_runtime.supervisor.events import EventHandling
 from pbo_runtime.supervisor.failures import RunFailure, StopRequested
@@ -95,7 +95,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         self.table: StateTable | None = None
         self.events: messages.Queue | None = None
         self.signals: dict[str, messages.Queue] = {}
-        self.children: list[_Child] = []
+        self.children: list[Child] = []
         self.task_states: dict[str, str] = {t: TaskState.NOT_CREATED.name for t in subsystem.tasks}
         self.task_errors: dict[str, str] = {}
         self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id)

@@ -14,8 +14,9 @@ $(STAMP): pyproject.toml
 run: $(STAMP)            ## set up, then run the demo: PID joint control of a simulated PUMA 560
 	$(BIN)/pbo run configs/pid_joint.yaml --duration 5
 
-test: $(STAMP)           ## set up, then lint and run every test
+test: $(STAMP)           ## set up, then lint, type-check and run every test
 	$(BIN)/ruff check --quiet pbo_runtime rtpu drivers modules bench tests tools
+	$(BIN)/mypy
 	$(BIN)/python -m pytest -q
 
 check: $(STAMP)          ## check every shipped configuration

@@ -18,7 +18,7 @@ from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.supervisor.job_control import JobControl
-from tests.conftest import REPO
+from tests.support import REPO
 
 # configs/switch_joint.yaml with jobs for every path of job control: a pre-condition that never
 # holds, a job with no object, one that only runs for a while

@@ -10,7 +10,7 @@ from pbo_runtime.cli import operator
 from pbo_runtime.cli.main import _parser
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.commands import COMMANDS, VERBS, dispatch, verb_table
-from tests.conftest import REPO
+from tests.support import REPO
 from tests.fake_job_host import FakeJobHost, fake_subsystem
 
 

@@ -68,7 +68,7 @@ def reply_queue_prefix(subsystem: str, run_id: str) -> str:
 
 def live_runs() -> list[tuple[str, str, str]]:
     """(subsystem, run id, table name) of every run of this user whose supervisor is alive."""
-    runs = []
+    runs: list[tuple[str, str, str]] = []
     directory = shm.SHM_DIR
     if not directory.is_dir():
         return runs

@@ -23,6 +23,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from pbo_runtime.ipc import shm
 from pbo_runtime.config.application import Application
 from pbo_runtime.supervisor.children import remove_dead_runs
@@ -95,7 +97,7 @@ class ApplicationRunner:
                 entry["object"] = object_name
             else:
                 object_name = link_name(self.application.name, self.run_id, name)
-                self._links.append(TripleBuffer.create(object_name, LinkLayout(spec.dtype, spec.shape)))
+                self._links.append(TripleBuffer.create(object_name, LinkLayout(np.dtype(spec.dtype), spec.shape)))
                 entry["object"] = object_name
             self.links[name] = entry
             what = f"messages, {spec.capacity} queued at most" if spec.kind == "message" else "periodic"

@@ -230,7 +230,7 @@ def switch(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
 
 def job(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     _no_application(host)
-    name = arguments.get("job")
+    name = str(arguments.get("job"))
     if name not in host.subsystem.jobs:
         raise PboError(f"no job '{name}' (jobs: {', '.join(host.subsystem.jobs) or 'none'})")
     spec = host.subsystem.jobs[name]

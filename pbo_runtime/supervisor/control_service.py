@@ -3,12 +3,12 @@ and what the Supervisor offers them as their `CommandHost`."""
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.control import ControlServer
-from pbo_runtime.supervisor.commands import dispatch
+from pbo_runtime.supervisor.commands import CommandHost, dispatch
 from pbo_runtime.supervisor.run_report import RunResult
 from pbo_runtime.supervisor.stall_watch import StallWatch
 from pbo_runtime.table.table import Flag, StateTable
@@ -35,7 +35,8 @@ class ControlService:
             return  # a command that waits (a switch) pumps events, but serves no second command meanwhile
         self._serving = True
         try:
-            self.control.poll(lambda command, arguments: dispatch(self, command, arguments))
+            host = cast(CommandHost, self)  # the Supervisor this mixin is part of
+            self.control.poll(lambda command, arguments: dispatch(host, command, arguments))
         finally:
             self._serving = False
 
@@ -44,7 +45,7 @@ class ControlService:
         return self.result.realtime
 
     def table_flags(self) -> list[str]:
-        return [flag.name for flag in Flag if self.table is not None and self.table.flags & flag]
+        return [str(flag.name) for flag in Flag if self.table is not None and self.table.flags & flag]
 
     def stalled_since(self) -> dict[str, float]:
         return {name: stall.since for name, stall in self.stall_watch.open.items()}

@@ -136,7 +136,7 @@ class RunReporting:
 
     def status_rows(self) -> list[dict[str, Any]]:
         """The live view's data, read from the table's status blocks."""
-        rows = []
+        rows: list[dict[str, Any]] = []
         if self.table is None:
             return rows
         for task in self.subsystem.tasks.values():

@@ -6,6 +6,9 @@ The names module, driver and plant authors import; everything else lives in the 
 
 from __future__ import annotations
 
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _installed_version
+
 from pbo_runtime.config.channels import format_channels
 from pbo_runtime.errors import (
     ConfigError,
@@ -24,7 +27,10 @@ from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
 from pbo_runtime.objects.ports import ANY_DTYPE, InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
 from pbo_runtime.objects.registry import module_class
 
-__version__ = "0.1.0"
+try:
+    __version__ = _installed_version("pbo-runtime")  # pyproject.toml's, as installed: one source
+except PackageNotFoundError:  # a checkout imported without installing it
+    __version__ = "0+unknown"
 
 __all__ = [
     "ANY_DTYPE",

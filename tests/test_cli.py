@@ -175,3 +175,13 @@ def test_pbo_status_names_what_each_rtpu_runs_under():
     console = Console(record=True, width=160)
     console.print(status_table({**reply, "realtime": {}}))  # a supervisor of an older run: no column breaks
     assert "robot" in console.export_text()
+
+
+def test_version_prints_the_version_pyproject_declares(capsys):
+    import tomllib
+
+    declared = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["version"]
+    with pytest.raises(SystemExit) as stopped:
+        main(["--version"])
+    assert stopped.value.code == 0
+    assert capsys.readouterr().out == f"pbo {declared}\n"

@@ -1,4 +1,4 @@
-"""The RTPU executive: one thread that releases ON tasks on absolute deadlines (DESIGN §3).
+"""The RTPU executive: one thread that releases ON tasks on absolute deadlines (docs/architecture.md).
 
 It waits for the earliest release with a timed receive on its signal queue, so signals and
 timers share one wait; then runs the ready tasks, critical first, then earliest deadline

@@ -1,4 +1,4 @@
-"""Real-time settings of an RTPU process: CPU pinning, SCHED_FIFO, timer slack (DESIGN §13).
+"""Real-time settings of an RTPU process: CPU pinning, SCHED_FIFO, timer slack (docs/configuration.md).
 
 Each is asked for and its outcome reported, never assumed: where the OS refuses (no permission,
 a CPU the machine does not have), the RTPU runs on with what it got and says so in the summary.

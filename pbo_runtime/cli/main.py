@@ -367,7 +367,7 @@ def stall_lines(stalls: list[dict[str, Any]]) -> list[str]:
 
 
 def _late_release_remedy(scheduler: str) -> str:
-    """What helps a late release, given the scheduler its RTPU reported (DESIGN §13)."""
+    """What helps a late release, given the scheduler its RTPU reported (docs/configuration.md)."""
     outcome = scheduler_outcome(scheduler)
     if outcome == "fifo":
         return "it ran SCHED_FIFO already, so only the kernel or, on a VM, the hypervisor held it"

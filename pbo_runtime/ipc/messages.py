@@ -1,6 +1,6 @@
 """Signals to RTPUs and events back to job control: msgpack over POSIX message queues.
 
-Queues carry signals and events only, never per-cycle data (DESIGN §3). All are 0600.
+Queues carry signals and events only, never per-cycle data (docs/architecture.md). All are 0600.
 
 Signals and events are typed: one frozen dataclass per kind, below, encoded and decoded here
 only (`Queue.signal`/`try_signal` and `signal_from_wire` for signals; `Queue.report` and

@@ -3,7 +3,7 @@
 Every object of a run is named `/pbo.<subsystem>.<run id>.<part>`, created 0600, and removed on
 every exit path. The run id embeds the supervisor's pid, so objects whose pid is gone are a dead
 run's leftovers (`stale_objects`); the supervisor removes them, queues included, through the
-manifest the dead run's table keeps (`supervisor.supervisor.remove_dead_runs`).
+manifest the dead run's table keeps (`supervisor.children.remove_dead_runs`).
 """
 
 from __future__ import annotations

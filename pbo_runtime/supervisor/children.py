@@ -91,7 +91,7 @@ class Children:
                 raise RunFailure(f"{what} (pid {child.process.pid}) died ({how}){hosted}")
 
     def _recover_lock_from(self, pid: int) -> None:
-        """A process that died holding the table lock must not wedge the others (DESIGN §4)."""
+        """A process that died holding the table lock must not wedge the others."""
         if self.table is not None and self.table.recover_lock_from(pid):
             self.result.lock_recoveries += 1
             self.say(f"released the table lock held by dead process {pid}")

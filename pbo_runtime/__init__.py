@@ -6,9 +6,6 @@ The names module, driver and plant authors import; everything else lives in the 
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError
-from importlib.metadata import version as _installed_version
-
 from pbo_runtime.config.channels import format_channels
 from pbo_runtime.errors import (
     ConfigError,
@@ -25,12 +22,9 @@ from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
 from pbo_runtime.objects.driver import DeviceDriver
 from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
 from pbo_runtime.objects.ports import ANY_DTYPE, InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
-from pbo_runtime.objects.registry import module_class
+from pbo_runtime.objects.registry import installed_version, module_class
 
-try:
-    __version__ = _installed_version("pbo-runtime")  # pyproject.toml's, as installed: one source
-except PackageNotFoundError:  # a checkout imported without installing it
-    __version__ = "0+unknown"
+__version__ = installed_version()
 
 __all__ = [
     "ANY_DTYPE",

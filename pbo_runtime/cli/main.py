@@ -17,8 +17,8 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-import pbo_runtime
 from pbo_runtime.clock.clocks import scheduler_outcome
+from pbo_runtime.objects import registry
 from pbo_runtime.errors import ConfigErrors, PboError
 from pbo_runtime.config.transitions import transitions
 
@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="pbo", description="Reconfigurable real-time control from port-based objects.")
     parser.add_argument("--debug", action="store_true", help="show Python tracebacks of internal errors")
-    parser.add_argument("--version", action="version", version=f"pbo {pbo_runtime.__version__}",
+    parser.add_argument("--version", action="version", version=f"pbo {registry.installed_version()}",
                         help="print the installed pbo-runtime's version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 

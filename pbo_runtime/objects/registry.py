@@ -20,6 +20,14 @@ PLANTS = "pbo.plants"
 _KIND = {MODULES: "module", DRIVERS: "driver", PLANTS: "plant"}
 
 
+def installed_version() -> str:
+    """pbo-runtime's version as installed (pyproject.toml's): the one source of `pbo --version`."""
+    try:
+        return metadata.version("pbo-runtime")
+    except metadata.PackageNotFoundError:  # a checkout imported without installing it
+        return "0+unknown"
+
+
 @functools.cache
 def names(group: str) -> tuple[str, ...]:
     """Every name registered in a group, sorted."""

@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -88,7 +89,7 @@ def _fifo_allowed_here() -> bool:
 SLOW_PLANT = """
 subsystem: slow_plant
 rtpus: [rtpu0]
-plant: {model: puma560, timestep: 20 us}
+plant: {type: fake_slow_plant, model: none, timestep: 1 ms}
 dims: {NDOF: 6}
 variables:
   q_m: {type: float64, shape: [NDOF], initial: 0.0, doc: "a joint position, rad"}
@@ -98,15 +99,47 @@ configurations:
   c: [watch]
 """
 
+FAKE_SLOW_PLANT = '''"""A fake plant for one test: each step sleeps three timesteps, so it falls behind on any machine."""
+
+import time
+
+
+class FakeSlowPlant:
+    def __init__(self, registers_name, model, timestep, options):
+        self.timestep = timestep
+
+    def step(self):
+        time.sleep(3 * self.timestep)
+
+    def close(self):
+        pass
+'''
+
+
+def register_fake_slow_plant(folder: Path) -> dict[str, str]:
+    """Install the fake plant in `folder` under the entry point `pbo.plants: fake_slow_plant`; the env that finds it."""
+    (folder / "fake_slow_plant.py").write_text(FAKE_SLOW_PLANT)
+    dist_info = folder / "fake_slow_plant-0.dist-info"
+    dist_info.mkdir()
+    (dist_info / "METADATA").write_text("Metadata-Version: 2.1\nName: fake-slow-plant\nVersion: 0\n")
+    (dist_info / "entry_points.txt").write_text("[pbo.plants]\nfake_slow_plant = fake_slow_plant:FakeSlowPlant\n")
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(folder), os.environ.get("PYTHONPATH")]))}
+
 
 @pytest.mark.multiprocess
 def test_a_plant_that_cannot_keep_up_leaves_sched_fifo_instead_of_holding_a_cpu_and_says_so(tmp_path):
-    (tmp_path / "slow.yaml").write_text(SLOW_PLANT)  # a 20 µs timestep: a step of the arm takes longer
+    # Each step of the fake plant takes three timesteps, so every step after the first is late and the
+    # plant falls at least two timesteps further behind each time: 0.1 s behind within 50 steps, on any machine.
+    env = register_fake_slow_plant(tmp_path)
+    (tmp_path / "slow.yaml").write_text(SLOW_PLANT)
     done = subprocess.run([sys.executable, "-m", "pbo_runtime.cli", "run", "slow.yaml", "--duration", "1.5",
-                           "--report", "report.json", "--no-live"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+                           "--report", "report.json", "--no-live"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=120)
     assert done.returncode == 0, done.stdout + done.stderr
     report = json.loads((tmp_path / "report.json").read_text())
     if not report["realtime"]["rtpu0"]["scheduler"].startswith("SCHED_FIFO"):
         pytest.skip("SCHED_FIFO is refused here: the plant never had it to leave")
-    assert report["plant"]["late"] > 0 and report["plant"]["left_fifo_behind"] >= 0.1
+    plant = report["plant"]
+    # late is counted before a step and steps after it, so the step the stop interrupted may be late but not counted
+    assert plant["steps"] - 1 <= plant["late"] <= plant["steps"] and plant["left_fifo_behind"] >= 0.1, plant
     assert "and left SCHED_FIFO, so as not to hold a CPU above the RTPUs" in done.stdout.replace("\n", " ")

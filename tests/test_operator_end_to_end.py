@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+from typing import IO
 
 import pytest
 
@@ -16,6 +17,17 @@ from tests.support import PBO, REPO, assert_nothing_left
 pytestmark = pytest.mark.multiprocess
 
 DRILL = REPO / "configs" / "fault_drill.yaml"
+
+
+def read_until(stream: IO[str], *texts: str) -> list[str]:
+    """The lines of `stream` up to the one by which every text has been seen (all of them if it ends first)."""
+    lines, waiting = [], set(texts)
+    for line in stream:
+        lines.append(line)
+        waiting = {text for text in waiting if text not in line}
+        if not waiting:
+            break
+    return lines
 
 
 def pbo(*arguments: str) -> subprocess.CompletedProcess:
@@ -28,10 +40,10 @@ def test_a_task_that_raises_shows_as_error_and_recovers_after_clear(tmp_path):
     run = subprocess.Popen([*PBO, "run", str(DRILL), "--duration", "0", "--no-live", "--report", str(report_path)],
                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        for line in run.stdout:
-            if "task 'glitch' on rtpu0 is in ERROR" in line:
-                break
-        assert "injected fault after 200 cycles" in line, run.stderr.read() if run.poll() is not None else "alive"
+        # the robot has run a stable cycle once it says so: what is asserted below waits for events, never for time
+        said = "".join(read_until(run.stdout, "task 'glitch' on rtpu0 is in ERROR",
+                                  "configuration illegal: critical task 'robot' runs its locally stable behaviour"))
+        assert "injected fault after 200 cycles" in said, run.stderr.read() if run.poll() is not None else said
         status = pbo("status", "--subsystem", "drill")
         assert status.returncode == 0, status.stderr
         assert "glitch" in status.stdout and "ERROR" in status.stdout
@@ -42,6 +54,7 @@ def test_a_task_that_raises_shows_as_error_and_recovers_after_clear(tmp_path):
         assert "task 'glitch' is OFF" in cleared.stdout
         resumed = pbo("on", "glitch", "--subsystem", "drill")
         assert "task 'glitch' is ON" in resumed.stdout, resumed.stderr
+        assert "critical task 'robot' is back to its cycle" in "".join(read_until(run.stdout, "is back to its cycle"))
         values = pbo("svar", "q_m", "tau_u", "--subsystem", "drill")
         assert values.returncode == 0 and "q_m" in values.stdout and "robot" in values.stdout
         stopped = pbo("stop", "--subsystem", "drill")
@@ -66,9 +79,7 @@ def test_switch_and_job_commands_reconfigure_a_running_subsystem(tmp_path):
                             "--report", str(report_path)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                            text=True)
     try:
-        for line in run.stdout:
-            if "is on" in line:
-                break
+        read_until(run.stdout, "is on")
         switched = pbo("switch", "pd", "--subsystem", "puma_switch")
         assert switched.returncode == 0 and "switched 'pid' -> 'pd'" in switched.stdout, switched.stderr
         unknown = pbo("switch", "nope", "--subsystem", "puma_switch")

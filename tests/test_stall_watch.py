@@ -116,22 +116,36 @@ def library_with_a_hanging_module(tmp_path) -> dict[str, str]:
 @pytest.mark.multiprocess
 def test_a_module_that_never_returns_is_reported_stalled_and_the_run_fails_with_its_figures(tmp_path,
                                                                                            library_with_a_hanging_module):
+    # The run waits until the stall is reported, then Ctrl-C: on a slow machine the 500 cycles take longer, nothing else
     (tmp_path / "hang.yaml").write_text(SUBSYSTEM)
     report_path = tmp_path / "report.json"
-    done = subprocess.run([sys.executable, "-m", "pbo_runtime.cli", "run", "hang.yaml", "--duration", "1.5",
-                           "--report", str(report_path), "--no-live"], cwd=tmp_path, capture_output=True, text=True,
-                          timeout=120, env=library_with_a_hanging_module)
-    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stdout + done.stderr
-    assert "pbo: task 'stuck' (rtpu0, 1 ms period) has finished no cycle for" in done.stdout
-    assert "task 'stuck' (rtpu0) finished no cycle from" in done.stdout
+    run = subprocess.Popen([sys.executable, "-m", "pbo_runtime.cli", "run", "hang.yaml", "--duration", "0",
+                            "--report", str(report_path), "--no-live"], cwd=tmp_path, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True, env=library_with_a_hanging_module)
+    try:
+        assert run.stdout is not None
+        seen = []
+        for line in run.stdout:
+            seen.append(line)
+            if "has finished no cycle for" in line:
+                break
+        assert seen[-1].startswith("pbo: task 'stuck' (rtpu0, 1 ms period) has finished no cycle for"), seen
+        run.send_signal(signal.SIGINT)
+        out, err = run.communicate(timeout=90)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 2 and "Traceback" not in err, out + err
+    assert "task 'stuck' (rtpu0) finished no cycle from" in out
     assert "error: rtpu0 did not stop within 5 s and was killed: the kill components of its tasks did not run " \
-           "(stalled: stuck)" in done.stderr
+           "(stalled: stuck)" in err
     report = json.loads(report_path.read_text())
     [stall] = report["stalls"]
     assert (stall["task"], stall["rtpu"], stall["to"], stall["rtpu_killed"]) == ("stuck", "rtpu0", None, True)
-    assert 0.0 <= stall["from"] < 1.0 and report["unstopped"] == ["rtpu0"]
+    assert stall["from"] >= 0.0 and report["unstopped"] == ["rtpu0"]
     assert report["tasks"]["stuck"]["cycles"] == 500 and report["tasks"]["stuck"]["from_table"] is True
-    assert report["tasks"]["fine"]["cycles"] > 500 and "from_table" not in report["tasks"]["fine"]
+    # the other RTPU went on and reported its task's figures itself
+    assert report["tasks"]["fine"]["cycles"] > 0 and "from_table" not in report["tasks"]["fine"]
     assert [n for n in os.listdir("/dev/shm") if report["run_id"] in n] == []
 
 

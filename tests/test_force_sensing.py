@@ -1,6 +1,7 @@
 """configs/force_sensing.yaml as a user runs it (TR §4.6): the F/T sensor on the running arm.
 
-Each run starts the plant and two RTPUs for about a second and a half. The same task set runs
+Each run starts the plant and two RTPUs for a second and a half of the simulated clock, so what
+the sensors read never depends on how fast the machine is. The same task set runs
 once with vendor A's sensor (parallel port) and once with vendor B's (ADC and calibration sheet):
 both give the wrench the plant applies as f_m. The ADC is lent across RTPUs (vendor B's sensor
 on channels 0-5 on rtpu1, the DAC loopback on 6-7 on rtpu0), and a task that asks for channels
@@ -44,7 +45,7 @@ def pbo_run(directory: Path, file: Path, *arguments: str) -> tuple[subprocess.Co
 
 @functools.cache
 def vendor_run(configuration: str, directory: str) -> dict:
-    done, report = pbo_run(Path(directory), CONFIG, "--config", configuration, "--duration", "1.5")
+    done, report = pbo_run(Path(directory), CONFIG, "--config", configuration, "--duration", "1.5", "--clock", "sim")
     assert done.returncode == 0, done.stderr
     return report
 
@@ -90,7 +91,7 @@ def test_a_task_asking_for_channels_held_on_another_rtpu_fails_its_init_naming_t
     config["configurations"]["probing"] = ["robot", "traj", "fk", "probe"]
     file = tmp_path / "probe.yaml"
     file.write_text(yaml.safe_dump(config, sort_keys=False))
-    done, report = pbo_run(tmp_path, file, "--duration", "1")
+    done, report = pbo_run(tmp_path, file, "--duration", "1", "--clock", "sim")
     assert done.returncode != 0
     assert "task 'probe' failed in init and was not created: init raised DeviceBusyError: task 'probe' cannot open " \
            "channels 4-7 of device 'adc0': task 'force_b' (RTPU rtpu1, pid " in done.stderr, done.stderr

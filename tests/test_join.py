@@ -124,8 +124,8 @@ def test_the_figure_6_file_without_its_join_connector_has_two_writers_of_the_rob
 def test_the_join_connector_gives_the_robot_feedback_plus_gravity_and_the_arm_reaches_its_goal(tmp_path):
     """TR Figure 6: p' (PID) and p'' (gravity) are joined into the one tau_u the robot reads."""
     report_path = tmp_path / "report.json"
-    done = subprocess.run([*PBO, "run", str(FIGURE_6), "--duration", "2.5", "--report", str(report_path), "--no-live"],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=180)
+    done = subprocess.run([*PBO, "run", str(FIGURE_6), "--duration", "2.5", "--clock", "sim", "--report", str(report_path),
+                           "--no-live"], cwd=tmp_path, capture_output=True, text=True, timeout=180)
     assert done.returncode == 0, done.stderr
     report = json.loads(report_path.read_text())
     values = {name: np.array(v["value"]) for name, v in report["variables"].items()}

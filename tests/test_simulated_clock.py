@@ -13,7 +13,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -191,7 +190,10 @@ def test_an_rtpu_killed_in_a_simulated_run_stops_the_run_and_leaves_nothing(tmp_
                             "--report", str(report_path)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                            text=True)
     try:
-        rtpu = _wait_for_child(pbo.pid, "--rtpu rtpu1")
+        for line in pbo.stdout:  # past the start: tasks spawned and on, ticks running
+            if "is on" in line:
+                break
+        (rtpu,) = [pid for pid, command in children_of(pbo.pid).items() if "--rtpu rtpu1" in command]
         os.kill(rtpu, signal.SIGKILL)
         out, err = pbo.communicate(timeout=60)
     finally:
@@ -200,15 +202,3 @@ def test_an_rtpu_killed_in_a_simulated_run_stops_the_run_and_leaves_nothing(tmp_
     assert pbo.returncode == 2, out + err
     assert f"RTPU 'rtpu1' (pid {rtpu}) died (killed by SIGKILL) while hosting tasks: robot" in err
     assert_nothing_left(json.loads(report_path.read_text()))
-
-
-def _wait_for_child(parent: int, marker: str) -> int:
-    """The pid of the parent's child whose command line has `marker`, once the run's tasks are on."""
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        for pid, command in children_of(parent).items():
-            if marker in command:
-                time.sleep(1.0)  # past the start: tasks spawned and on, ticks running
-                return pid
-        time.sleep(0.1)
-    raise AssertionError(f"no child with {marker!r}")

@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
+import time
 
 import numpy as np
 import posix_ipc
 import pytest
 
 from pbo_runtime.config.application import check_application, is_application_file
-from tests.support import PBO, REPO, assert_nothing_left
+from tests.support import PBO, REPO, assert_nothing_left, children_of
 
 APP = REPO / "configs" / "leader_follower.yaml"
 
@@ -181,9 +183,55 @@ def test_a_subsystem_run_alone_says_which_link_it_lacks(tmp_path):
 
 
 GOAL_B = np.array([-0.2, -0.3, 0.3, -0.2, 0.2, 0.4])  # the operator's second and last goal (configs/leader_follower.yaml)
+SETTLED = 0.005  # rad: both arms this close to where they go before the run is stopped
 
 
-def assert_the_goal_reached_both_arms(out, done) -> None:
+def run_until_both_arms_settle(tmp_path, application: str) -> tuple[int, str, str]:
+    """`pbo run APP` on the real clock until the operator is done, the leader holds the operator's last goal
+    and the follower the leader's pose, then Ctrl-C: (exit status, stdout, stderr).
+
+    Each subsystem starts on its own and would count a duration from its own start, so a fixed duration
+    may end one before the others have done their part on a loaded machine; this waits for the arms instead.
+    """
+    said, complained = tmp_path / "stdout.txt", tmp_path / "stderr.txt"
+    with said.open("w") as stdout, complained.open("w") as stderr:
+        runner = subprocess.Popen([*PBO, "run", application, "--duration", "0", "--out", str(tmp_path / "out")],
+                                  cwd=tmp_path, stdout=stdout, stderr=stderr, text=True)
+    try:
+        deadline = time.monotonic() + 180
+        # the operator ends by itself once its application is done; its summary is awaited, so Ctrl-C cannot cut it off
+        while "[operator] run summary" not in said.read_text() or not _both_arms_settled(runner.pid):
+            assert runner.poll() is None, said.read_text() + complained.read_text()
+            assert time.monotonic() < deadline, "the arms did not settle: " + said.read_text()
+            time.sleep(0.2)
+        runner.send_signal(signal.SIGINT)
+        runner.wait(timeout=120)
+    finally:
+        if runner.poll() is None:
+            runner.kill()
+            runner.wait()
+    return runner.returncode, said.read_text(), complained.read_text()
+
+
+def _both_arms_settled(runner: int) -> bool:
+    from pbo_runtime import PboError
+    from pbo_runtime.ipc.control import live_runs
+    from pbo_runtime.table.svar import attach
+
+    ours = children_of(runner)  # each subsystem's supervisor, whose pid starts its run id
+    tables = {sub: name for sub, run_id, name in live_runs() if int(run_id.split("-")[0]) in ours}
+    if not {"leader", "follower"} <= set(tables):
+        return False
+    try:
+        with attach(tables["leader"]) as leader, attach(tables["follower"]) as follower:
+            goal, leader_at, follower_at = leader.read("q_d")[0], leader.read("q_m")[0], follower.read("q_m")[0]
+    except PboError:  # a table still being filled in, or one whose run just ended
+        return False
+    return (np.allclose(goal, GOAL_B) and np.max(np.abs(leader_at - GOAL_B)) < SETTLED
+            and np.max(np.abs(follower_at - leader_at)) < SETTLED)
+
+
+def assert_the_goal_reached_both_arms(out) -> None:
     leader = np.load(out / "leader" / "leader.npz")
     follower = np.load(out / "follower" / "follower.npz")
     operator = np.load(out / "operator" / "operator.npz")
@@ -208,13 +256,12 @@ def assert_the_goal_reached_both_arms(out, done) -> None:
 @pytest.mark.multiprocess
 def test_the_operator_goal_message_moves_the_leader_and_the_follower_tracks_it_over_shared_memory(tmp_path):
     # The real clock: each subsystem of an application keeps its own simulated clock, so with
-    # --clock sim the follower may end its 4 s while the leader, started later, still moves.
-    done = subprocess.run([*PBO, "run", str(APP), "--duration", "4", "--out", str(tmp_path / "out")],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=240)
-    assert done.returncode == 0, done.stdout + done.stderr
-    assert "[leader] pbo: configuration 'lead' is on" in done.stdout and "[follower] run summary" in done.stdout
-    assert "[operator] run summary: operator · operate" in done.stdout
-    assert_the_goal_reached_both_arms(tmp_path / "out", done)
+    # --clock sim the follower may end its run while the leader, started later, still moves.
+    status, out, err = run_until_both_arms_settle(tmp_path, str(APP))
+    assert status == 0, out + err
+    assert "[leader] pbo: configuration 'lead' is on" in out and "[follower] run summary" in out
+    assert "[operator] run summary: operator · operate" in out
+    assert_the_goal_reached_both_arms(tmp_path / "out")
     assert [n for n in os.listdir("/dev/shm") if "pbo.leader_follower." in n] == []
     assert_the_links_are_gone(json.loads((tmp_path / "out" / "leader" / "report.json").read_text()))
 
@@ -234,12 +281,11 @@ def assert_the_links_are_gone(report: dict) -> None:
 @pytest.mark.multiprocess
 def test_the_same_application_runs_over_zenoh_changed_only_in_yaml(tmp_path):
     path = write_app(tmp_path, links=SHIPPED_LINKS.replace("transport: shm", "transport: zenoh"))
-    done = subprocess.run([*PBO, "run", path, "--duration", "4", "--out", str(tmp_path / "out")], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=240)
-    assert done.returncode == 0, done.stdout + done.stderr
-    assert "link 'arm_state': leader.send -> follower.receive (float64 [6], periodic, zenoh)" in done.stdout
-    assert "link 'goal': operator.console -> leader.goal (float64 [6], messages, 4 queued at most, zenoh)" in done.stdout
-    assert_the_goal_reached_both_arms(tmp_path / "out", done)
+    status, out, err = run_until_both_arms_settle(tmp_path, path)
+    assert status == 0, out + err
+    assert "link 'arm_state': leader.send -> follower.receive (float64 [6], periodic, zenoh)" in out
+    assert "link 'goal': operator.console -> leader.goal (float64 [6], messages, 4 queued at most, zenoh)" in out
+    assert_the_goal_reached_both_arms(tmp_path / "out")
 
 
 def test_a_zenoh_link_may_name_the_endpoint_its_listening_end_binds_for_another_machine(tmp_path):

@@ -129,6 +129,8 @@ def test_a_module_that_never_returns_is_reported_stalled_and_the_run_fails_with_
             seen.append(line)
             if "has finished no cycle for" in line:
                 break
+        else:  # its output ended: the run did too
+            pytest.fail("the run ended without reporting a stall:\n" + "".join(seen) + run.communicate(timeout=60)[1])
         assert seen[-1].startswith("pbo: task 'stuck' (rtpu0, 1 ms period) has finished no cycle for"), seen
         run.send_signal(signal.SIGINT)
         out, err = run.communicate(timeout=90)

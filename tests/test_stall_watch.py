@@ -166,6 +166,8 @@ def test_on_the_simulated_clock_a_tick_that_never_ends_is_reported_and_ctrl_c_st
             seen.append(line)
             if "has not finished the tick" in line:
                 break
+        else:  # its output ended: the run did too
+            pytest.fail("the run ended without reporting the tick:\n" + "".join(seen) + run.communicate(timeout=60)[1])
         assert seen[-1].startswith("pbo: rtpu0 has not finished the tick at 0.500 s for 2.0 s of wall time: a cycle there "
                                    "has not returned (Ctrl-C stops the run)"), seen
         run.send_signal(signal.SIGINT)

@@ -26,10 +26,9 @@ class Location(NamedTuple):
 NOWHERE = Location("<none>", 0, 0)
 
 
-# The executive sleeps in the kernel until this long before a release, then spins: on the 2-vCPU
-# VM it was measured on, a wake-up is 40-125 µs late, so a 200 µs spin hides it (jitter p99 from
-# about 100 µs to a clock read) for a fifth of a CPU per RTPU at 1 kHz; 500 µs with four RTPUs on
-# two CPUs takes more CPU than the machine has (docs/performance.md, "The wait before a release").
+# The executive sleeps in the kernel until this long before a release, then spins the rest: long
+# enough to hide a late wake-up, short enough to leave CPU for the other RTPUs; how this figure was
+# chosen, measured: docs/performance.md, "The wait before a release" (`python -m bench.wait`).
 DEFAULT_SPIN = 0.0002
 
 

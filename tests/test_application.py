@@ -314,3 +314,34 @@ def test_the_runner_hands_the_scheduler_choice_to_every_subsystem_and_otherwise_
         assert not {"--fifo", "--no-fifo"} & set(default.command(key))
         assert sched_other.command(key)[-1] == "--no-fifo"
     assert ApplicationRunner(application, 1.0, lambda text: None, fifo=True).command("leader")[-1] == "--fifo"
+
+
+class SlowTerminal:
+    """A terminal that takes 2 ms a line: the relay is still printing when the subsystem has ended."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def write(self, text: str) -> None:
+        time.sleep(0.002)
+        self.lines.append(text)
+
+    def flush(self) -> None:
+        pass
+
+
+@pytest.mark.multiprocess
+def test_the_runner_prints_an_ended_subsystems_last_lines_before_it_returns(monkeypatch):
+    import sys
+
+    from pbo_runtime.supervisor.application_runner import ApplicationRunner
+
+    terminal = SlowTerminal()
+    monkeypatch.setattr(sys, "stdout", terminal)
+    runner = ApplicationRunner(check_application(APP).application, duration=None, say=lambda text: None)
+    child = subprocess.Popen([sys.executable, "-c", "for i in range(200): print(i)\nprint('its summary, last')"],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    runner.watch("operator", child)
+    child.wait()  # it ended at once; printing its 201 lines takes the relay 0.4 s
+    runner._stop_all()
+    assert len(terminal.lines) == 201 and terminal.lines[-1] == "[operator] its summary, last\n"

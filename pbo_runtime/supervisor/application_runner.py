@@ -32,6 +32,7 @@ from pbo_runtime.links.message_link import MessageLink, message_link_name
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer, link_name
 
 STOP_GRACE = 15.0  # seconds a subsystem gets to shut down after SIGTERM before it is killed
+RELAY_GRACE = 2.0  # seconds to print what an ended subsystem still had in its pipe
 
 
 def _die_with_parent() -> None:
@@ -61,6 +62,7 @@ class ApplicationRunner:
         self.links: dict[str, dict[str, Any]] = {}
         self._links: list[TripleBuffer | MessageLink] = []  # the shm links this runner made and removes
         self._children: dict[str, subprocess.Popen] = {}
+        self._relays: list[threading.Thread] = []  # one per subsystem: its output, prefixed, until it ends
         self._stopping = ""
 
     def run(self) -> int:
@@ -108,8 +110,14 @@ class ApplicationRunner:
         for key in self.application.subsystems:
             child = subprocess.Popen(self.command(key), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      text=True, preexec_fn=_die_with_parent, start_new_session=True)
-            self._children[key] = child
-            threading.Thread(target=self._relay, args=(key, child), daemon=True).start()
+            self.watch(key, child)
+
+    def watch(self, key: str, child: subprocess.Popen) -> None:
+        """Take subsystem `key`'s process: its output is relayed, prefixed with `[key]`, until it ends."""
+        self._children[key] = child
+        relay = threading.Thread(target=self._relay, args=(key, child), daemon=True)
+        relay.start()
+        self._relays.append(relay)
 
     def command(self, key: str) -> list[str]:
         """The `pbo run` that runs subsystem `key` of the application, with the links and the run's options."""
@@ -158,4 +166,6 @@ class ApplicationRunner:
             except subprocess.TimeoutExpired:
                 child.kill()
                 child.wait()
+        for relay in self._relays:  # a subsystem's last lines (its summary) are printed before the runner's
+            relay.join(timeout=RELAY_GRACE)
 

@@ -277,13 +277,17 @@ class TripleBuffer(ReaderTally):
         text = layout.description.encode()[:DESCRIPTION_BYTES - 1]
         mapping[HEADER_WORDS * 8 : HEADER_WORDS * 8 + len(text)] = text
         h[Word.MAGIC] = MAGIC  # last: whoever sees the magic sees a complete header
+        return link._take_role(role)
+
+    def _take_role(self, role: Role | None) -> TripleBuffer:
+        """This end, holding `role` (None: none yet); closed again if the role is taken."""
         if role is not None:
             try:
-                link._claim(role)
+                self._claim(role)
             except BaseException:
-                link.close()
+                self.close()
                 raise
-        return link
+        return self
 
     @classmethod
     def attach(cls, name: str, layout: LinkLayout, role: Role | str | None = None) -> TripleBuffer:
@@ -302,13 +306,7 @@ class TripleBuffer(ReaderTally):
         except posix_ipc.ExistentialError:
             raise LinkError(f"no link '{name}': has the subsystem that creates it started?") from None
         link = cls(layout, segment)
-        if role is not None:
-            try:
-                link._claim(role)
-            except BaseException:
-                link.close()
-                raise
-        return link
+        return link._take_role(role)
 
     def close(self) -> None:
         """Give up this end's role, unmap (and, for the creator, unlink the segment and the lock)."""

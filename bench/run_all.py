@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from bench import check_scale, links, peers, realtime, scale, svar_transfer, switching, wait
+from bench import check_scale, faults, links, peers, realtime, scale, svar_transfer, switching, wait
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -28,6 +28,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "switching": switching.run,
     "check_scale": check_scale.run,
     "links": links.section,
+    "faults": faults.run,
 }
 
 FULL: dict[str, dict[str, Any]] = {
@@ -39,6 +40,7 @@ FULL: dict[str, dict[str, Any]] = {
     "switching": {"switches": 1000, "interval": 0.02},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 3},
     "links": {},
+    "faults": {"stop_seconds": 2.0},
 }
 
 QUICK: dict[str, dict[str, Any]] = {
@@ -50,6 +52,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "switching": {"switches": 20, "interval": 0.02},
     "check_scale": {"sizes": (102, 1002), "repeat": 1},
     "links": {"quick": True},
+    "faults": {"cases": ("controller_stop",), "stop_seconds": 0.5, "run_seconds": 2.0},
 }
 
 DOC = Path(REPO) / "docs" / "performance.md"

@@ -4,6 +4,11 @@ A robot interface is the only module that talks to the arm. It opens the arm's d
 `init`, checks the joint count against the configuration, publishes NDOF, DH and DYN as
 out-consts (so the rest of the task set configures itself for this robot), and engages the
 brakes on `off` and `kill`. Subclasses add the command port and how the arm is commanded.
+
+It also watches the plant: a measurement whose simulated time has not moved for
+`PLANT_STALL_PERIODS` of the slower of the task and the plant's timestep (the plant process
+stopped or starved) is not fresh, so the cycle holds the arm instead of commanding it and says
+so (`Status.STABLE`) until the plant steps again.
 """
 
 from __future__ import annotations
@@ -11,6 +16,8 @@ from __future__ import annotations
 from typing import Any
 
 from pbo_runtime import ModuleError, OutConst, OutVar, PortBasedObject
+
+PLANT_STALL_PERIODS = 3  # cycles (or plant steps, if slower) without a new step before the plant counts as stalled
 
 
 class RobotInterface(PortBasedObject):
@@ -39,7 +46,23 @@ class RobotInterface(PortBasedObject):
         self.dyn = self._arm.dynamics()
         self._read = self._arm.read_state
         self._holding = False
+        self._plant_stall_after = PLANT_STALL_PERIODS * max(self.period, getattr(self._arm, "timestep", 0.0))
+        self._last_sim_time = -1.0
+        self._sim_time_seen_at = 0.0
         return self._arm
+
+    def plant_moving(self, sim_time: float) -> bool:
+        """False once the plant's simulated time has stood still past the stall bound (no allocation)."""
+        now = self.time
+        if sim_time != self._last_sim_time:
+            self._last_sim_time = sim_time
+            self._sim_time_seen_at = now
+            return True
+        return now - self._sim_time_seen_at <= self._plant_stall_after
+
+    def watch_plant_from_now(self) -> None:
+        """On `on`: the stall bound counts from this moment, not from before the task was off."""
+        self._last_sim_time = -1.0
 
     def off(self) -> None:
         self._arm.engage_brakes()

@@ -41,21 +41,26 @@ class RobotPosition(RobotInterface):
 
     def on(self) -> None:
         self._read(self.q_m, self.qd_m)
+        self.watch_plant_from_now()
         self._write(self.q_m)  # hold where the arm is: q_r may be stale or another arm's
         self._arm.release_brakes()
 
     def cycle(self) -> Status:
+        if not self.plant_moving(self._read(self.q_m, self.qd_m)):
+            self._hold_still()  # the plant stopped stepping: hold what it last showed
+            return Status.STABLE
         self._holding = False
         self._write(self.q_r)
-        self._read(self.q_m, self.qd_m)
         return Status.CONTINUE
 
     def stable_cycle(self) -> Status:
-        """Locally stable while the configuration is illegal: hold the position of that moment."""
+        """Locally stable while the configuration is illegal or q_r is stale: hold the position of that moment."""
+        self._read(self.q_m, self.qd_m)
+        self._hold_still()
+        return Status.CONTINUE
+
+    def _hold_still(self) -> None:
         if not self._holding:
             self._holding = True
-            self._read(self.q_m, self.qd_m)
             np.copyto(self._hold, self.q_m)
         self._write(self._hold)
-        self._read(self.q_m, self.qd_m)
-        return Status.CONTINUE

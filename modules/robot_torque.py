@@ -22,7 +22,8 @@ class RobotTorque(RobotInterface):
     """Torque-mode robot interface over a joint-level arm driver.
 
     Brakes are released on `on` and engaged on `off` and `kill`, so the arm holds still
-    whenever no controller drives it. Real-time safe cycle: two driver calls, no allocation.
+    whenever no controller drives it, and while the plant has stopped stepping. Real-time safe
+    cycle: two driver calls, no allocation.
     """
 
     Params = RobotTorqueParams
@@ -34,20 +35,26 @@ class RobotTorque(RobotInterface):
 
     def on(self) -> None:
         self._read(self.q_m, self.qd_m)
+        self.watch_plant_from_now()
         self._arm.release_brakes()
 
     def cycle(self) -> Status:
+        if not self.plant_moving(self._read(self.q_m, self.qd_m)):
+            self._hold()  # the plant stopped stepping: a torque now would be applied on a state nobody saw
+            return Status.STABLE
         if self._holding:  # back from locally stable behaviour: a controller drives the arm again
             self._holding = False
             self._arm.release_brakes()
         self._write(self.tau_u)
-        self._read(self.q_m, self.qd_m)
         return Status.CONTINUE
 
-    def stable_cycle(self) -> Status:
-        """Locally stable while the configuration is illegal: the brakes hold the arm still."""
+    def _hold(self) -> None:
         if not self._holding:
             self._holding = True
             self._arm.engage_brakes()
+
+    def stable_cycle(self) -> Status:
+        """Locally stable while the configuration is illegal or tau_u is stale: the brakes hold the arm still."""
+        self._hold()
         self._read(self.q_m, self.qd_m)
         return Status.CONTINUE

@@ -9,10 +9,14 @@ in the table's status block, and samples for percentiles in preallocated rings.
 Dynamic reconfiguration (TR §4.4): job control posts a plan in the table's header (a
 configuration and an activation time); at its first cycle boundary at or after that time each
 executive turns its leaving tasks off and its entering tasks on, so every RTPU switches at the
-same instant without a message on the per-cycle path. Critical tasks check every cycle that each
-input was written within one period of its producer (a stale read), and run their locally
-stable behaviour while the configuration is illegal: a switch that overran a cycle, or a task
-of the configuration in ERROR. Aperiodic tasks run on events instead of a timer.
+same instant without a message on the per-cycle path. A critical task reads its inputs before it
+runs, and runs its locally stable behaviour instead of its cycle while the configuration is
+illegal (a switch that overran a cycle, or a task of the configuration in ERROR), or while an
+input is older than its freshness bound (its writer stalled: by default two of the writer's
+periods, `fresh_within` in YAML), or when the module itself returns `Status.STABLE` (a device
+that stopped updating); it resumes by itself when they are fresh again. It also counts reads
+older than one writer period (stale reads: timing, not yet a fault). Aperiodic tasks run on
+events instead of a timer.
 """
 
 from __future__ import annotations
@@ -37,6 +41,12 @@ RECENT = 1 << 10  # every RECENT cycles, the last RECENT samples' percentiles go
 EVENTS_QUEUED = 16  # events an aperiodic task holds while it waits out its min inter-arrival time
 SWITCH_WINDOW_PERIODS = 3  # a stale read this close after a switch is counted against the switch
 AGE_TOLERANCE = 1e-7  # seconds: an input exactly one producer period old is fresh, whatever the rounding
+# The default freshness bound of a critical task's input, in periods of its writer: one missed
+# write is tolerated, a second one means the writer stalled (detected within 3 of the reader's
+# periods when both run at one rate).
+FRESH_WITHIN_WRITER_PERIODS = 2.0
+# Why a critical task runs its locally stable behaviour (Scheduled.held)
+NOT_HELD, HELD_ILLEGAL, HELD_STALE_INPUT, HELD_BY_MODULE = 0, 1, 2, 3
 # Header words read before every release, as plain ints (through a memoryview: no numpy scalar each time)
 _FLAGS, _STOPPING = int(Header.FLAGS), int(Flag.STOPPING)
 _PLAN_SEQUENCE, _PLAN_TIME_NS = int(Header.PLAN_SEQUENCE), int(Header.PLAN_TIME_NS)
@@ -65,7 +75,8 @@ class Scheduled:
                  "last_release", "stale_reads", "stale_at_switch", "input_periods", "write_times", "stable_cycles",
                  "in_stable", "first_cycle_of_plan", "last_stale", "expected_writers", "input_writers",
                  "lost_to_switch", "last_lost", "window_lost", "window_stale", "shared_status", "overrun_log",
-                 "long_cycles")
+                 "long_cycles", "fresh_bounds", "fresh_within", "writer_names", "held", "expired_input",
+                 "expired_reads", "fresh_since")
 
     def __init__(self, task: Task) -> None:
         self.task = task
@@ -105,6 +116,18 @@ class Scheduled:
         self.window_stale = 0
         self.stable_cycles = 0
         self.in_stable = False
+        self.held = NOT_HELD  # why the current stable episode began
+        # Freshness bound per in-var (seconds; inf: not watched), set per configuration by `_watch`
+        self.fresh_bounds = [math.inf] * len(task.local.input_variables)
+        self.writer_names = [""] * len(task.local.input_variables)
+        by_port = getattr(spec, "fresh_within", None) or {}
+        variable_of = {b.port.name: b.variable for b in spec.bindings}
+        self.fresh_within = {variable_of[port]: bound for port, bound in by_port.items() if port in variable_of}
+        self.expired_input = -1  # the in-var found past its bound, while held for it
+        # When the configuration it watches came on: what was written before counts as written
+        # then, so each writer has its bound from the switch (or start) to write a first value.
+        self.fresh_since = 0.0
+        self.expired_reads = 0  # cycles a critical task ran stable because an input was past its bound
         self.first_cycle_of_plan = 0  # a plan's sequence until this entering task ran its first cycle
 
     def statistics(self) -> dict[str, Any]:
@@ -129,6 +152,7 @@ class Scheduled:
             "cycles_lost_to_switches": self.lost_to_switch,
             "last_cycle_lost": self.last_lost,
             "stable_cycles": self.stable_cycles,
+            "expired_reads": self.expired_reads,
             "dropped_events": self.dropped_events,
             "overruns_long_cycle": self.long_cycles,
             "overruns_late_release": self.overruns - self.long_cycles,
@@ -280,19 +304,35 @@ class Executive:
             status[W.JITTER_MAX] = jitter
         if s.aperiodic:
             task.context.event = s.events.popleft() if s.events else None
-        if s.critical and self._configuration_illegal(start, s.period):
+        held = NOT_HELD
+        expired = -1
+        if s.critical:
+            task.read_inputs()  # first: whether the cycle may use them depends on how old they are
+            expired = self._check_freshness(s, release)
+            if expired >= 0:
+                held = HELD_STALE_INPUT
+                s.expired_reads += 1
+            elif self._configuration_illegal(start, s.period):
+                held = HELD_ILLEGAL
+            if held:
+                result = task.run_read_stable_cycle(release)
+            else:
+                result = task.run_read_cycle(release)
+        else:
+            result = task.run_cycle(release)
+        if result is Status.STABLE:
+            held = held or HELD_BY_MODULE
+            result = Status.CONTINUE
+        if held:
+            s.stable_cycles += 1
             if not s.in_stable:
                 s.in_stable = True
-                self.report(Stable(task.name, True, start))
-            s.stable_cycles += 1
-            result = task.run_stable_cycle(release)
-        else:
-            if s.in_stable:
-                s.in_stable = False
-                self.report(Stable(task.name, False, start))
-            result = task.run_cycle(release)
-            if s.critical:
-                self._check_freshness(s, release)
+                s.held = held
+                self._report_stable(s, start, expired, release)
+        elif s.in_stable and result == Status.CONTINUE:
+            s.in_stable = False
+            s.held = NOT_HELD
+            self.report(Stable(task.name, False, start))
         end = self.clock.now()
         took = end - start
         k = s.samples & (RING - 1)
@@ -352,9 +392,10 @@ class Executive:
         shared[W.EXEC_P99] = exec_time[RECENT * 99 // 100]
         shared[W.MISSED] = s.missed
 
-    def _check_freshness(self, s: Scheduled, release: float) -> None:
-        """Classify each input the critical task just read (no allocation on the usual path).
+    def _check_freshness(self, s: Scheduled, release: float) -> int:
+        """Classify each input the critical task just read; the first past its bound, or -1 (no allocation).
 
+        - past its freshness bound: the cycle must not use it (the caller runs `stable_cycle`);
         - lost to a switch: the value still comes from a task the configuration no longer has
           writing it (the switch cost the consumer a fresh input);
         - stale: the configuration's writer wrote it, but more than one of its periods ago (the
@@ -362,24 +403,48 @@ class Executive:
         """
         times = s.write_times
         periods = s.input_periods
+        bounds = s.fresh_bounds
         writers = s.input_writers
         expected = s.expected_writers
+        since = s.fresh_since
+        counted = False
         for i in range(len(periods)):
             wanted = expected[i]
             if wanted < 0:
+                continue
+            written_at = times[i]
+            if release - (written_at if written_at > since else since) > bounds[i]:
+                return i
+            if counted:
                 continue
             written_by = writers[i]
             if written_by != wanted and written_by >= 0:
                 s.lost_to_switch += 1
                 s.last_lost = (f"{s.task.local.input_variables[i]} at {release:.6f}: still written by task "
                                f"#{int(written_by)}, expected #{wanted}")
-                return
-            if times[i] > 0.0 and release - times[i] > periods[i] + AGE_TOLERANCE:
+                counted = True
+            elif written_at > 0.0 and release - written_at > periods[i] + AGE_TOLERANCE:
                 s.stale_reads += 1
                 if release - self.last_switch < SWITCH_WINDOW_PERIODS * s.period:
                     s.stale_at_switch += 1
-                s.last_stale = f"{s.task.local.input_variables[i]} at {release:.6f}: age {(release - times[i]) * 1e3:.3f} ms"
-                return
+                s.last_stale = f"{s.task.local.input_variables[i]} at {release:.6f}: age {(release - written_at) * 1e3:.3f} ms"
+                counted = True
+        return -1
+
+    def _report_stable(self, s: Scheduled, start: float, expired: int, release: float) -> None:
+        """A critical task's stable episode begins: say why (off the usual path: once per episode)."""
+        if s.held == HELD_STALE_INPUT:
+            variable = s.task.local.input_variables[expired]
+            age = release - max(float(s.write_times[expired]), s.fresh_since)
+            writer = s.writer_names[expired] or "its writer"
+            reason = (f"in-var '{variable}' is {age * 1e3:.1f} ms old, past its freshness bound of "
+                      f"{s.fresh_bounds[expired] * 1e3:.3g} ms ('{writer}' stopped writing it)")
+            cause = "stale"
+        elif s.held == HELD_BY_MODULE:
+            reason, cause = "the module's own inputs are not fresh (its cycle returned STABLE)", "module"
+        else:
+            reason, cause = "the configuration is illegal (a task in ERROR, or a switch that overran a cycle)", "illegal"
+        self.report(Stable(s.task.name, True, start, reason, cause))
 
     def _configuration_illegal(self, now: float, period: float) -> bool:
         """True while a task of the configuration is in ERROR or a switch has overrun a cycle."""
@@ -419,7 +484,7 @@ class Executive:
                 self._turn_on(s, activation, plan=sequence)
             for s in self.on:
                 if s.critical:
-                    self._watch(s, configuration)
+                    self._watch(s, configuration, activation)
         finally:
             header[self.switching_words[0] + self.rtpu_index] = 0
         self.plan_seen = sequence
@@ -441,14 +506,18 @@ class Executive:
             if self.plan_seen:
                 self.report(Window(self.plan_seen, s.task.name, lost, stale))
 
-    def _watch(self, s: Scheduled, configuration: int) -> None:
-        """Point a critical task's freshness check at the writers of its inputs in `configuration`."""
+    def _watch(self, s: Scheduled, configuration: int, since: float) -> None:
+        """Point a critical task's freshness check at the writers of its inputs in `configuration`, on since `since`."""
         assert self.reconfiguration is not None
-        writers = [self.reconfiguration.writer_of(configuration, v) for v in s.task.local.input_variables]
+        variables = s.task.local.input_variables
+        s.fresh_since = since
+        writers = [self.reconfiguration.writer_of(configuration, v) for v in variables]
         s.task.local.watch_writers([w for w, _ in writers])
         for i, (writer, period) in enumerate(writers):
             s.input_periods[i] = period
             s.expected_writers[i] = writer
+            s.fresh_bounds[i] = s.fresh_within.get(variables[i], FRESH_WITHIN_WRITER_PERIODS * period) + AGE_TOLERANCE
+            s.writer_names[i] = self.reconfiguration.task_names.get(writer, "")
 
     def _turn_on(self, s: Scheduled, at: float, plan: int = 0) -> None:
         if s.aperiodic:  # released by its first event; messages that came while it was off are served now
@@ -500,7 +569,7 @@ class Executive:
                 at = signal.at if signal.at is not None else self.clock.now()
                 self._turn_on(s, at)
                 if s.critical and self.reconfiguration is not None and signal.configuration is not None:
-                    self._watch(s, int(signal.configuration))
+                    self._watch(s, int(signal.configuration), at)
             elif isinstance(signal, messages.TurnOff):
                 self._leave_on(s)
                 task.turn_off()

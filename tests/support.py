@@ -115,6 +115,42 @@ def run_until(executive, clock: ManualClock, end: float) -> None:
         executive.run_once()
 
 
+class IdleSignals:
+    """Fake signal queue for executives stepped together (`step_executives`): signals are handed
+    to `Executive.handle` directly; waiting moves the shared manual clock."""
+
+    def __init__(self, clock: ManualClock) -> None:
+        self.clock = clock
+
+    def receive(self, timeout):
+        self.clock.time = max(self.clock.time, self.clock.time + (timeout or 0.0))
+        return None
+
+
+def next_event(executive) -> float:
+    """When the executive next has something to do: a release, or a plan's activation."""
+    from pbo_runtime.table.table import Header
+
+    times = [s.release for s in executive.on]
+    if executive.header[Header.PLAN_SEQUENCE] != executive.plan_seen:
+        times.append(executive.header[Header.PLAN_TIME_NS] / 1e9)
+    return min(times, default=float("inf"))
+
+
+def step_executives(executives: dict, clock: ManualClock, end: float) -> None:
+    """Discrete-event loop over executives sharing one table and one manual clock: run the one
+    whose next event is earliest, until `end`. Leaving one out of `executives` is an RTPU that
+    stopped (SIGSTOP): its tasks release nothing, its outputs age."""
+    while True:
+        name, executive = min(executives.items(), key=lambda item: next_event(item[1]))
+        due = next_event(executive)
+        if due > end:
+            clock.time = max(clock.time, end)
+            return
+        clock.time = max(clock.time, due)
+        executive.run_once()
+
+
 # --- allocations on a per-cycle path -------------------------------------------------------------
 
 
@@ -216,3 +252,40 @@ def children_of(pid: int) -> dict[int, str]:
         except (OSError, IndexError, ValueError):
             continue
     return found
+
+
+def demo_copy(folder: Path, subsystem: str, **tasks: dict) -> Path:
+    """The demo's YAML under another subsystem name (runs side by side never share one), with
+    `tasks` entries updated key by key, written to `folder`."""
+    import yaml
+
+    config = yaml.safe_load(DEMO.read_text())
+    config["subsystem"] = subsystem
+    for name, update in tasks.items():
+        config["tasks"][name].update(update)
+    path = folder / f"{subsystem}.yaml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return path
+
+
+def wait_until_cycling(process, subsystem: str, task_index: int = 0, safety_net: float = 120.0) -> None:
+    """Until task `task_index` of the run of `subsystem` started by `process` has run cycles."""
+    from pbo_runtime.table.svar import open_table
+
+    def cycling() -> bool:
+        if process.poll() is not None:
+            pytest.fail(f"the run ended before its tasks ran (exit {process.returncode})")
+        try:
+            with open_table(subsystem) as view:
+                return view.task_status()[task_index]["cycles"] > 0
+        except Exception:  # not created yet
+            return False
+
+    until(cycling, f"the tasks of '{subsystem}' to run", safety_net)
+
+
+def child_running(pid: int, marker: str) -> int:
+    """The pid of the child of `pid` whose command line holds `marker` (e.g. '--rtpu rtpu0', 'plant_host')."""
+    found = [child for child, command in children_of(pid).items() if marker in command]
+    assert len(found) == 1, f"children of {pid} with '{marker}': {found}"
+    return found[0]

@@ -22,6 +22,7 @@ TINY = {
     "switching": {"switches": 4, "interval": 0.02},
     "check_scale": {"sizes": (12, 30), "repeat": 1},
     "links": {"quick": True, "rounds": 1},
+    "faults": {"cases": ("controller_stop",), "stop_seconds": 0.2, "run_seconds": 1.5},
 }
 
 

@@ -391,6 +391,26 @@ def test_robot_cycle_sends_tau_u_to_the_arm_and_publishes_the_state_the_plant_st
     task.kill()
 
 
+def test_robot_holds_the_arm_and_says_stable_while_the_plant_stops_stepping(table, plant, observer):
+    task, _ = robot_task(table, plant)
+    assert task.spawn(0.0), task.last_error
+    assert task.turn_on(0.0)
+    dt = plant.timestep
+    table.write("tau_u", np.full(N, 5.0), when=0.0)
+    statuses = []
+    for k in range(1, 11):  # the plant steps for 4 cycles, then stops (SIGSTOP) for 6
+        statuses.append(task.run_cycle(k * dt))
+        if k <= 4:
+            plant.step()
+    # cycle 5 reads the 4th step, the last: cycles 6-8 are within 3 periods of it, 9 and 10 are held
+    assert statuses == [Status.CONTINUE] * 8 + [Status.STABLE] * 2
+    assert observer.brakes_engaged
+    plant.step()  # the plant runs again: the next cycle drives the arm again
+    assert task.run_cycle(11 * dt) is Status.CONTINUE
+    assert not observer.brakes_engaged
+    task.kill()
+
+
 def test_robot_off_engages_the_brakes(table, plant, observer):
     task, _ = robot_task(table, plant)
     assert task.spawn(0.0), task.last_error

@@ -20,7 +20,7 @@ from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Header, StateTable, TableLayout, TaskState
 from rtpu._executive import Executive
-from tests.support import unique_name
+from tests.support import IdleSignals, step_executives, unique_name
 
 PERIOD = 0.001
 STAGGER = 0.00045
@@ -82,20 +82,6 @@ configurations:
 """
 
 
-class FakeSignals:
-    """Fake signal queue: waiting moves the shared manual clock to the deadline."""
-
-    def __init__(self, clock: ManualClock) -> None:
-        self.clock = clock
-        self.messages: list[list] = []
-
-    def receive(self, timeout):
-        if self.messages:
-            return self.messages.pop(0)
-        self.clock.time = max(self.clock.time, self.clock.time + (timeout or 0.0))
-        return None
-
-
 @pytest.fixture
 def rig(tmp_path, make_table):
     path = tmp_path / "switching.yaml"
@@ -108,7 +94,7 @@ def rig(tmp_path, make_table):
     events: list[tuple[str, messages.Event]] = []
     executives = {}
     for rtpu in subsystem.rtpus:
-        ex = Executive(clock, FakeSignals(clock), lambda e, r=rtpu.name: events.append((r, e)),
+        ex = Executive(clock, IdleSignals(clock), lambda e, r=rtpu.name: events.append((r, e)),
                        epoch=rtpu.index * STAGGER, header=table.header, reconfiguration=Reconfiguration(subsystem),
                        rtpu_index=rtpu.index, n_rtpus=len(subsystem.rtpus))
         for spec in subsystem.tasks_on(rtpu.name):
@@ -116,25 +102,6 @@ def rig(tmp_path, make_table):
         executives[rtpu.name] = ex
     yield subsystem, table, clock, executives, events
     table.close()
-
-
-def next_event(ex: Executive) -> float:
-    times = [s.release for s in ex.on]
-    if ex.header[Header.PLAN_SEQUENCE] != ex.plan_seen:
-        times.append(ex.header[Header.PLAN_TIME_NS] / 1e9)
-    return min(times, default=math.inf)
-
-
-def step_until(executives: dict[str, Executive], clock: ManualClock, end: float) -> None:
-    """Discrete-event loop: run the executive whose next event is earliest, until `end`."""
-    while True:
-        name, ex = min(executives.items(), key=lambda item: next_event(item[1]))
-        due = next_event(ex)
-        if due > end:
-            clock.time = end
-            return
-        clock.time = max(clock.time, due)
-        ex.run_once()
 
 
 def start(subsystem, executives, clock) -> None:
@@ -155,7 +122,7 @@ def post_plan(table: StateTable, configuration: int, activation: float) -> None:
 def test_two_hundred_switches_lose_no_cycle_of_the_critical_task(rig):
     subsystem, table, clock, executives, events = rig
     start(subsystem, executives, clock)
-    step_until(executives, clock, clock.now() + 0.01)
+    step_executives(executives, clock, clock.now() + 0.01)
     actuator = executives["rtpu1"].tasks["actuator"]
     recon = Reconfiguration(subsystem)
     target = "with_b"
@@ -163,7 +130,7 @@ def test_two_hundred_switches_lose_no_cycle_of_the_critical_task(rig):
         # like the supervisor: activate on the first RTPU's release grid, a few periods ahead
         activation = math.ceil((clock.now() + 0.004) / PERIOD) * PERIOD
         post_plan(table, recon.index(target), activation)
-        step_until(executives, clock, activation + 0.010)
+        step_executives(executives, clock, activation + 0.010)
         active = "ctl_b" if target == "with_b" else "ctl_a"
         idle = "ctl_a" if active == "ctl_b" else "ctl_b"
         assert executives["rtpu0"].tasks[active].task.state is TaskState.ON
@@ -187,10 +154,10 @@ def test_two_hundred_switches_lose_no_cycle_of_the_critical_task(rig):
 def test_the_entering_task_runs_its_first_cycle_at_the_activation_instant(rig):
     subsystem, table, clock, executives, events = rig
     start(subsystem, executives, clock)
-    step_until(executives, clock, clock.now() + 0.005)
+    step_executives(executives, clock, clock.now() + 0.005)
     activation = math.ceil((clock.now() + 0.004) / PERIOD) * PERIOD
     post_plan(table, Reconfiguration(subsystem).index("with_b"), activation)
-    step_until(executives, clock, activation + 0.005)
+    step_executives(executives, clock, activation + 0.005)
     first = [e for _, e in events if isinstance(e, messages.FirstCycle)]
     assert first and first[-1].task == "ctl_b" and first[-1].at == pytest.approx(activation)
 
@@ -198,16 +165,16 @@ def test_the_entering_task_runs_its_first_cycle_at_the_activation_instant(rig):
 def test_a_switch_that_overruns_a_cycle_makes_the_critical_task_hold_still(rig):
     subsystem, table, clock, executives, events = rig
     start(subsystem, executives, clock)
-    step_until(executives, clock, clock.now() + 0.005)
+    step_executives(executives, clock, clock.now() + 0.005)
     # rtpu0 began a switch 3 periods ago and has not finished it (a slow `on`)
     table.header[Header.SWITCHING_SINCE_NS + 0] = int((clock.now() - 0.003) * 1e9)
-    step_until(executives, clock, clock.now() + 0.003)
+    step_executives(executives, clock, clock.now() + 0.003)
     actuator = executives["rtpu1"].tasks["actuator"]
     assert actuator.stable_cycles >= 2
     rtpu, stable = next((r, e) for r, e in events if isinstance(e, messages.Stable))
     assert (rtpu, stable.task, stable.entering) == ("rtpu1", "actuator", True)
     table.header[Header.SWITCHING_SINCE_NS + 0] = 0
-    step_until(executives, clock, clock.now() + 0.003)
+    step_executives(executives, clock, clock.now() + 0.003)
     assert not actuator.in_stable
 
 
@@ -215,9 +182,9 @@ def test_a_task_in_error_makes_the_critical_task_hold_still_until_it_is_cleared(
     subsystem, table, clock, executives, events = rig
     start(subsystem, executives, clock)
     table.header[Header.TASKS_IN_ERROR] = 1  # as job control sets it when a task reports ERROR
-    step_until(executives, clock, clock.now() + 0.003)
+    step_executives(executives, clock, clock.now() + 0.003)
     actuator = executives["rtpu1"].tasks["actuator"]
     assert actuator.in_stable and actuator.task.module.stable >= 2
     table.header[Header.TASKS_IN_ERROR] = 0
-    step_until(executives, clock, clock.now() + 0.002)
+    step_executives(executives, clock, clock.now() + 0.002)
     assert not actuator.in_stable

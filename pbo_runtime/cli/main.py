@@ -264,6 +264,10 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     if result.failure:
         errors.print(f"error: {result.failure}", markup=False)
         return EXIT_RUN
+    if result.faults:
+        for fault in result.faults:
+            errors.print(f"fault: {fault}", markup=False)
+        return EXIT_RUN
     return EXIT_OK
 
 

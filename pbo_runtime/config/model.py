@@ -127,6 +127,9 @@ class TaskSpec:
     # device -> the channels the task opens, for resources given as {device: adc0, channels: 0-5};
     # a device not listed here is opened whole
     resource_channels: Mapping[str, tuple[int, ...]] = field(default_factory=dict)
+    # in-var port -> seconds: how old a critical task's input may be before it runs its locally
+    # stable behaviour instead of its cycle (a port not listed: two periods of its writer)
+    fresh_within: Mapping[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,7 @@ class Reconfiguration:
                         writers[binding.variable] = (task.index, task.period)
             self.views.append(ConfigurationView(index, name, frozenset(configuration.tasks), writers))
         self.by_name = {view.name: view for view in self.views}
+        self.task_names = {task.index: task.name for task in subsystem.tasks.values()}
 
     def index(self, name: str) -> int:
         return self.by_name[name].index

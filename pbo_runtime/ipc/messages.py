@@ -217,12 +217,14 @@ class FirstCycle:
 
 @dataclasses.dataclass(frozen=True, slots=True)
 class Stable:
-    """A critical task entered (`entering`) or left its locally stable behaviour at `at`."""
+    """A critical task entered (`entering`) or left its locally stable behaviour at `at`; entering, why."""
 
     KIND: ClassVar[str] = "stable"
     task: str
     entering: bool
     at: float
+    reason: str = ""  # what the operator reads
+    cause: str = ""  # "illegal" (configuration), "stale" (an in-var past its freshness bound), "module" (it said so)
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -239,6 +241,16 @@ class PlantStats:
 
     KIND: ClassVar[str] = "plant_stats"
     figures: dict[str, Any]
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class PlantStalled:
+    """The plant process did not run for `seconds` (stopped, or starved of CPU) and resumed at
+    simulated time `sim_time` without integrating the backlog: the world stood still meanwhile."""
+
+    KIND: ClassVar[str] = "plant_stalled"
+    seconds: float
+    sim_time: float
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -259,9 +271,9 @@ class Crashed:
     trace: str = ""
 
 
-Event = Union[Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, Refused, Crashed]
+Event = Union[Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled, Refused, Crashed]
 EVENT_TYPES: dict[str, type[Event]] = {cls.KIND: cls for cls in
-                                       (Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats,
+                                       (Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled,
                                         Refused, Crashed)}
 _FIELDS: dict[type, tuple[str, ...]] = {cls: tuple(f.name for f in dataclasses.fields(cls))
                                         for cls in (*SIGNAL_TYPES.values(), *EVENT_TYPES.values())}

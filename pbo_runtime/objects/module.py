@@ -21,11 +21,17 @@ from pbo_runtime.objects.ports import Port, PortSpec
 
 
 class Status(enum.IntEnum):
-    """What `cycle` (and `error`) return: go on, turn this task off, or report an error."""
+    """What `cycle` (and `error`) return: go on, turn this task off, or report an error.
+
+    STABLE: go on, but this cycle ran the locally stable behaviour because the module's own
+    inputs stopped being fresh (a device that stopped updating): the runtime reports the episode
+    as it reports stale in-vars, and the task is back to normal with its next CONTINUE.
+    """
 
     CONTINUE = 0
     OFF = 1
     ERROR = 2
+    STABLE = 3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,8 +176,9 @@ class PortBasedObject:
 
     def stable_cycle(self) -> Status:
         """Instead of `cycle`, for a critical task while the configuration is illegal (a switch
-        that overran a cycle, a task in ERROR): keep the plant locally stable (TR 4.4), e.g. a
-        robot interface holds position. Real-time safe. By default, the ordinary cycle."""
+        that overran a cycle, a task in ERROR) or while an in-var is older than its freshness
+        bound (its writer stalled): keep the plant locally stable (TR 4.4), e.g. a robot
+        interface holds position. Real-time safe. By default, the ordinary cycle."""
         return self.cycle()
 
     def off(self) -> None:

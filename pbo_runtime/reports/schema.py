@@ -231,6 +231,12 @@ def json_schema() -> dict[str, Any]:
         "wcet": {"$ref": "#/$defs/time", "description": "the task's worst-case execution time per cycle, for the schedulability check"},
         "aperiodic": {"type": "boolean", "description": "true: the task is released by events, not by a period"},
         "min_interarrival": {"$ref": "#/$defs/time", "description": "an aperiodic task's least time between two releases"},
+        "fresh_within": {
+            "type": "object",
+            "description": "a critical task's in-var port -> how old its value may be before the task runs its locally "
+                           "stable behaviour, e.g. {tau_u: 3 ms} (default: two periods of the port's writer)",
+            "additionalProperties": {"$ref": "#/$defs/time"},
+        },
     }
     task = _obj(task_properties, "a task: an instance of a module on an RTPU", required=("module", "rtpu"))
     branches = []

@@ -35,7 +35,7 @@ class EventHandling:
     task_errors: dict[str, str]
     say: Callable[[str], None]
     _stop_requested: str
-    _stable: dict[str, float]
+    _stable: dict[str, tuple[float, str, str]]  # task -> (since, reason, cause) of its open stable episode
     _stats: dict[str, dict[str, Any]]
     _refused: dict[str, str]
     _check_children: Callable[[], None]
@@ -141,22 +141,34 @@ class EventHandling:
         elif isinstance(event, messages.Stable):
             task, at = event.task, event.at
             if event.entering:
-                self._stable[task] = at
-                self.say(f"configuration illegal: critical task '{task}' runs its locally stable behaviour")
+                self._stable[task] = (at, event.reason, event.cause)
+                self.say(f"critical task '{task}' runs its locally stable behaviour: {event.reason or 'the configuration is illegal'}")
             elif task in self._stable:
-                began = self._stable.pop(task)
-                self.result.stable_episodes.append({"task": task, "from": began, "to": at, "seconds": at - began})
+                self._end_stable_episode(task, at)
+                began = self.result.stable_episodes[-1]["from"]
                 self.say(f"critical task '{task}' is back to its cycle after {(at - began) * 1e3:.1f} ms")
             self._count_errors()
         elif isinstance(event, messages.Stats):
             self._stats.update(event.tasks)
         elif isinstance(event, messages.PlantStats):
             self.result.plant = event.figures
+        elif isinstance(event, messages.PlantStalled):
+            fault = (f"the plant did not run for {event.seconds:.3f} s (its process was stopped or starved) and resumed at "
+                     f"simulated time {event.sim_time:.3f} s without integrating the backlog")
+            self.result.faults.append(fault)
+            self.say(fault)
         elif isinstance(event, messages.Refused):
             self._refused[event.task] = event.reason
             self.say(f"{source} refused a signal for '{event.task}': {event.reason}")
         elif isinstance(event, messages.Crashed):
             raise RunFailure(f"{source} crashed: {event.error}\n{event.trace}")
+
+    def _end_stable_episode(self, task: str, at: float | None) -> None:
+        """Into the report; `at` None: the task was still stable when the run stopped."""
+        began, reason, cause = self._stable.pop(task)
+        self.result.stable_episodes.append({"task": task, "from": began, "to": at,
+                                            "seconds": None if at is None else at - began,
+                                            "reason": reason, "cause": cause})
 
     def _take_one_event(self, timeout: float) -> None:
         assert self.events is not None

@@ -5,6 +5,9 @@ time on absolute deadlines; if it falls behind it catches up with extra steps, s
 time tracks wall time, and counts the steps that were late. A plant under SCHED_FIFO that falls
 `BEHIND_LIMIT` behind cannot keep up (a step takes longer than its timestep): catching up would
 hold a CPU above every RTPU for good, so it steps down to SCHED_OTHER and says so at the end.
+A plant whose process did not run at all for `STALL_AFTER` (stopped, or starved) is another
+matter: it resynchronises to wall time instead of integrating the backlog (thousands of steps
+of the last command, at once), and reports the stall when it resumes.
 With `--clock sim` it steps exactly once per tick of the supervisor's simulated clock instead
 (`clock.lockstep`), first in each tick.
 """
@@ -31,6 +34,9 @@ from pbo_runtime.ipc.process import Stop, become_child
 
 PLANT_FIFO_PRIORITY = 60  # above the RTPUs' 50: the simulated world steps on time whatever they do
 BEHIND_LIMIT = 0.1  # seconds behind wall time at which a SCHED_FIFO plant gives up its priority
+# Seconds the process may not run between two steps before it counts as stalled (not slow): a
+# stopped or starved plant resumes at wall time; the world stood still meanwhile.
+STALL_AFTER = 0.02
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -55,7 +61,8 @@ def main(argv: list[str] | None = None) -> int:
             pass  # the RTPUs report whether SCHED_FIFO was granted; the plant then runs as they do
     events = messages.Queue(messages.event_queue_name(args.subsystem, args.run_id))
     plant = barrier = None
-    steps = late = 0
+    steps = late = stalls = 0
+    stalled_for = 0.0  # seconds of wall time the plant did not integrate (its stalls)
     behind_when_stepped_down = 0.0  # seconds behind wall time when it left SCHED_FIFO (0: it did not)
     try:
         plant_class = registry.plant_class(args.type)
@@ -74,20 +81,29 @@ def main(argv: list[str] | None = None) -> int:
                     steps += 1
                 barrier.done()
         dt = plant.timestep
-        next_step = time.monotonic()
+        stall_after = max(STALL_AFTER, 2 * dt)
+        next_step = last_stepped = time.monotonic()
         fifo = os.sched_getscheduler(0) == os.SCHED_FIFO
         while True:
             now = time.monotonic()
             if now < next_step:
                 time.sleep(next_step - now)
-            elif now - next_step > dt:
-                late += 1
-                if fifo and now - next_step > BEHIND_LIMIT:
-                    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-                    fifo = False
-                    behind_when_stepped_down = now - next_step
+                now = time.monotonic()  # (a process stopped in its sleep wakes up late)
+            if now - next_step > dt:
+                if now - last_stepped > stall_after and now - next_step > stall_after:
+                    stalls += 1
+                    stalled_for += now - next_step
+                    events.report("plant", messages.PlantStalled(now - last_stepped, getattr(plant, "sim_time", 0.0)))
+                    next_step = now  # resynchronise: the backlog is not integrated
+                else:
+                    late += 1
+                    if fifo and now - next_step > BEHIND_LIMIT:
+                        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+                        fifo = False
+                        behind_when_stepped_down = now - next_step
             plant.step()
             steps += 1
+            last_stepped = time.monotonic()
             next_step += dt
     except Stop:
         return 0
@@ -95,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         events.report("plant", messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
         return 1
     finally:
-        events.report("plant", messages.PlantStats({"steps": steps, "late": late,
+        events.report("plant", messages.PlantStats({"steps": steps, "late": late, "stalls": stalls, "stalled_for": stalled_for,
                                                     "left_fifo_behind": behind_when_stepped_down}))
         if barrier is not None:
             barrier.close()

@@ -4,7 +4,7 @@ the supervisor fills it from the children's statistics, the stall watch and the 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -61,6 +61,9 @@ class RunResult:
     # configuration came on; to None: until the stop), rtpu_killed (its RTPU did not stop by itself)
     stalls: list[dict[str, Any]] = field(default_factory=list)
     unstopped: list[str] = field(default_factory=list)  # RTPUs that did not stop within STOP_TIMEOUT and were killed
+    # What went wrong without stopping the run, one line each (a critical task held stable by
+    # stale inputs, ...): the run ends with exit status 2 and the summary lists them
+    faults: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -72,6 +75,7 @@ class RunResult:
             "stable_episodes": self.stable_episodes, "realtime": self.realtime,
             "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds, "links": self.links,
             "started_monotonic": self.started_monotonic, "stalls": self.stalls, "unstopped": self.unstopped,
+            "faults": self.faults,
         }
 
 
@@ -86,11 +90,14 @@ class RunReporting:
     started_at: float | None
     task_errors: dict[str, str]
     _stats: dict[str, dict[str, Any]]
+    _stable: dict[str, tuple[float, str, str]]
+    _end_stable_episode: Callable[[str, float | None], None]
 
     def _report_run(self) -> None:
-        """Switches, each task's figures, stalls: into the result, once the children have reported."""
+        """Switches, each task's figures, stalls, stable episodes: into the result, once the children have reported."""
         self.result.switches = [record.to_json() for record in self.job_control.switches]
         started = self.started_at if self.started_at is not None else 0.0
+        self._report_stable_episodes(started)
         for name, stats in self._stats.items():
             # an overrun's release as seconds since the configuration came on, as the summary reads it
             overruns = [[release - started, late, took] for release, late, took in stats.get("last_overruns", [])]
@@ -98,6 +105,21 @@ class RunReporting:
                                        "state": self.result.states_at_stop.get(name, "?"),
                                        "error": self.task_errors.get(name, ""), **stats, "last_overruns": overruns}
         self._report_stalls(started)
+
+    def _report_stable_episodes(self, started: float) -> None:
+        """Close the episodes still open at the stop. Those caused by stale inputs after the
+        configuration came on are faults; while it comes on, task by task, a critical task on
+        first may hold the arm until its writers run, which is what it is for, not a fault."""
+        for task in list(self._stable):
+            self._end_stable_episode(task, None)
+        for episode in self.result.stable_episodes:
+            episode["while_starting"] = (self.started_at is not None and episode["from"] < self.started_at
+                                         and episode["to"] is not None)  # (one still open at the stop is a fault)
+            if episode["cause"] in ("stale", "module") and not episode["while_starting"]:
+                lasted = "until the stop" if episode["to"] is None else f"for {episode['seconds'] * 1e3:.1f} ms"
+                self.result.faults.append(
+                    f"critical task '{episode['task']}' ran its locally stable behaviour {lasted}, from "
+                    f"{episode['from'] - started:.3f} s into the run: {episode['reason']}")
 
     def _report_stalls(self, started: float) -> None:
         """Stalls into the result; the table's counters for tasks whose RTPU was killed before it could report."""

@@ -123,7 +123,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         # the machine's own threads take a CPU for milliseconds and RTPUs overrun several times as
         # often (8 to 14 in docs/performance.md). The simulated clock waits on ticks: it needs none.
         self.fifo = self.clock.fifo_by_default if fifo is None else fifo
-        self._stable: dict[str, float] = {}
+        self._stable: dict[str, tuple[float, str, str]] = {}
         self.control: ControlServer | None = None
         self._serving = False
         self._refused: dict[str, str] = {}  # task -> why its RTPU refused the last signal

@@ -180,6 +180,11 @@ class Task:
         time and sequence are this release time and cycle count, in the status block.
         """
         self.read_inputs()
+        return self.run_read_cycle(now, component)
+
+    def run_read_cycle(self, now: float, component: Callable[[], Status] | None = None) -> Status:
+        """`run_cycle` once the in-vars were read: the executive reads a critical task's inputs
+        first, to choose between `cycle` and `stable_cycle` by how fresh they are."""
         self.context.time = now
         try:
             result = (component or self._cycle)()
@@ -192,6 +197,9 @@ class Task:
         if result is Status.CONTINUE or result == 0:
             self.write_outputs()
             return Status.CONTINUE
+        if result is Status.STABLE:
+            self.write_outputs()
+            return Status.STABLE
         if result == Status.OFF:
             self.write_outputs()
             self.turn_off()
@@ -201,6 +209,10 @@ class Task:
     def run_stable_cycle(self, now: float) -> Status:
         """One cycle of the locally stable behaviour (critical tasks, configuration illegal)."""
         return self.run_cycle(now, self._stable_cycle)
+
+    def run_read_stable_cycle(self, now: float) -> Status:
+        """`run_stable_cycle` once the in-vars were read (they were too old for `cycle`)."""
+        return self.run_read_cycle(now, self._stable_cycle)
 
     def turn_off(self) -> None:
         self._expect("off", TaskState.ON)

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.model import _Binding, _Task
-from pbo_runtime.config.checker.words import _and_list, describe, did_you_mean
+from pbo_runtime.config.checker.words import _ms, _and_list, describe, did_you_mean
 from pbo_runtime.config.model import ConfigurationSpec, Location
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of
 
@@ -117,6 +117,17 @@ class ConfigurationChecks(CheckerBase):
                 if not b.port.kind.is_input:
                     continue
                 ws = writers.get(b.variable, [])
+                given = task.fresh_within.get(b.port.name)
+                if ws and given is not None and given[0] <= ws[0][0].period:
+                    w_task = ws[0][0]
+                    self.error(
+                        "E512",
+                        f"fresh_within of port '{b.port.name}' of task '{task.name}' ({_ms(given[0])}) is not longer than the "
+                        f"period of its writer '{w_task.name}' ({_ms(w_task.period)}) in configuration '{config}': every read would be stale",
+                        given[1],
+                        f"give at least two periods of '{w_task.name}' ({_ms(2 * w_task.period)}: one missed write tolerated), "
+                        "or leave it out for that default",
+                    )
                 if not ws and b.variable in repeat_written:
                     continue
                 if not ws and b.variable not in job_written:

@@ -44,7 +44,7 @@ TOP_REQUIRED = ("subsystem", "rtpus", "variables", "tasks", "configurations")
 VARIABLE_KEYS = ("type", "shape", "doc", "object", "initial")
 TASK_KEYS = (
     "module", "rtpu", "period", "rate", "aperiodic", "min_interarrival", "wcet",
-    "priority", "critical", "params", "ports", "resources",
+    "priority", "critical", "params", "ports", "resources", "fresh_within",
 )
 JOB_KEYS = ("configuration", "object", "pre", "post", "timeout")
 DEVICE_KEYS = ("driver", "exclusive", "io")  # every other key of a device is a driver option
@@ -108,6 +108,7 @@ class _Task:
     min_interarrival: float | None = None
     params: dict[str, Any] = field(default_factory=dict)
     built_params: Any = None  # the module's Params instance, once the params checked out
+    fresh_within: dict[str, tuple[float, Location]] = field(default_factory=dict)  # in-var port -> bound (s), where given
 
 
 @dataclass(frozen=True)

@@ -48,6 +48,8 @@ class TaskChecks(CheckerBase):
                 if not params_ok:
                     complete = False
                 task.ok = self.check_task_ports(task, spec, module_class)
+                if task.ok and "fresh_within" in spec:
+                    complete = self.check_task_freshness(task, spec) and complete
             if complete and task.ok:
                 self.out.tasks[name] = TaskSpec(
                     name,
@@ -65,6 +67,7 @@ class TaskChecks(CheckerBase):
                     task.aperiodic,
                     task.min_interarrival,
                     dict(task.channels),
+                    {port: bound for port, (bound, _) in task.fresh_within.items()},
                 )
 
     def check_task_fields(self, task: _Task, spec: YMap) -> bool:
@@ -345,6 +348,33 @@ class TaskChecks(CheckerBase):
                 ok = False
                 continue
             task.bindings.append(_Binding(port, var, shape, loc))
+        return ok
+
+    def check_task_freshness(self, task: _Task, spec: YMap) -> bool:
+        """`fresh_within: {port: time}`: in-var ports of a critical task, each a time > 0."""
+        name = task.name
+        loc = spec.value_loc("fresh_within")
+        if not task.critical:
+            self.error("E511", f"task '{name}' gives fresh_within, but only a critical task watches how fresh its inputs are",
+                       spec.key_loc("fresh_within"), "add 'critical: true' to the task, or remove fresh_within")
+            return False
+        m = self.mapping(spec["fresh_within"], loc, f"fresh_within of task '{name}'", "e.g. fresh_within: {tau_u: 3 ms}")
+        if m is None:
+            return False
+        inputs = {b.port.name: b for b in task.bindings if b.port.kind.is_input and b.port.kind.every_cycle}
+        ok = True
+        for port, value in m.items():
+            if port not in inputs:
+                self.error("E511", f"fresh_within of task '{name}' names '{port}', which is not an in-var port of module '{task.module}'",
+                           m.key_loc(port), did_you_mean(str(port), sorted(inputs), "in-var ports") if inputs else
+                           f"module '{task.module}' reads no in-var, so fresh_within has nothing to watch")
+                ok = False
+                continue
+            bound = self.quantity(value, m.value_loc(port), TIME, f"fresh_within of port '{port}' of task '{name}'")
+            if bound is None:
+                ok = False
+                continue
+            task.fresh_within[port] = (bound, m.value_loc(port))
         return ok
 
     def check_task_params(self, task: _Task, spec: YMap, module_class: Any) -> bool:

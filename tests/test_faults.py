@@ -1,0 +1,67 @@
+"""A part of a running subsystem fails: the runtime stays safe, says what happened, exits 2, and
+leaves nothing behind. Real processes on the real clock (a stopped process needs real time to
+go by); no figure is asserted, only outcomes (bench/faults.py measures the figures)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+
+import pytest
+
+from tests.support import PBO, assert_nothing_left, child_running, demo_copy, wait_until_cycling
+
+pytestmark = pytest.mark.multiprocess
+
+STOPPED_FOR = 0.5  # seconds: hundreds of the robot task's periods, on any machine
+
+
+def run_with_a_stop(tmp_path, subsystem: str, marker: str) -> tuple[subprocess.CompletedProcess, dict]:
+    """Run the demo for 3 s; SIGSTOP the child whose command line holds `marker` for STOPPED_FOR."""
+    config = demo_copy(tmp_path, subsystem, logger={"params": {"variables": ["q_m"], "path": "arm.npz"}})
+    report = tmp_path / "report.json"
+    process = subprocess.Popen([*PBO, "run", str(config), "--duration", "3", "--report", str(report), "--no-live"],
+                               cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_until_cycling(process, subsystem)
+        stopped = child_running(process.pid, marker)
+        os.kill(stopped, signal.SIGSTOP)
+        time.sleep(STOPPED_FOR)
+        os.kill(stopped, signal.SIGCONT)
+        stdout, stderr = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    done = subprocess.CompletedProcess(process.args, process.returncode, stdout, stderr)
+    return done, json.loads(report.read_text())
+
+
+def test_a_stopped_controller_makes_the_robot_hold_the_arm_and_the_run_exit_2(tmp_path):
+    done, report = run_with_a_stop(tmp_path, "fault_controller", "--rtpu rtpu0")
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "Traceback" not in done.stderr and "run summary" in done.stdout
+    held = [e for e in report["stable_episodes"] if e["cause"] == "stale" and not e["while_starting"]]
+    assert held and all(e["task"] == "robot" for e in held)
+    assert "in-var 'tau_u' is" in held[0]["reason"] and "('pid' stopped writing it)" in held[0]["reason"]
+    assert held[0]["to"] is not None  # back to its cycle by itself once the controller ran again
+    assert any(f.startswith("critical task 'robot' ran its locally stable behaviour") for f in report["faults"])
+    assert "fault: critical task 'robot' ran its locally stable behaviour" in done.stderr
+    assert report["states_at_stop"]["robot"] == "ON"
+    assert_nothing_left(report)
+
+
+def test_a_stopped_plant_resumes_without_integrating_the_backlog_and_the_run_exits_2(tmp_path):
+    done, report = run_with_a_stop(tmp_path, "fault_plant", "plant_host")
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "Traceback" not in done.stderr
+    stalls = [f for f in report["faults"] if f.startswith("the plant did not run for")]
+    assert len(stalls) == 1 and "without integrating the backlog" in stalls[0]
+    assert report["plant"]["stalls"] == 1
+    held = [e for e in report["stable_episodes"] if e["cause"] == "module"]  # the robot saw the sim time stand still
+    assert held and held[0]["task"] == "robot" and held[0]["to"] is not None
+    assert "fault: the plant did not run for" in done.stderr
+    assert_nothing_left(report)

@@ -1,0 +1,219 @@
+"""A critical task never runs its cycle on stale inputs: past an input's freshness bound it runs
+its locally stable behaviour, says why, and resumes by itself when fresh values return.
+
+Two executives share one real table and one manual clock (`support.step_executives`); an RTPU
+that stops (SIGSTOP, a hung module) is one the loop no longer steps, so the counts are exact.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from pbo_runtime import InVar, OutVar, PortBasedObject, Status
+from pbo_runtime.clock.clocks import ManualClock
+from pbo_runtime.config.loader import check_file
+from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.ipc import messages
+from pbo_runtime.table.table import StateTable, TableLayout
+from pbo_runtime.task.lifecycle import Task
+from rtpu._executive import Executive
+from tests.support import IdleSignals, step_executives, unique_name
+
+PERIOD = 0.001
+STAGGER = 0.00045  # rtpu1's releases come 0.45 ms after rtpu0's
+
+
+class FakeWriter(PortBasedObject):
+    """Fake controller: writes its cycle count into u."""
+
+    u = OutVar("u")
+
+    def init(self, params) -> None:
+        self.count = 0
+
+    def cycle(self) -> Status:
+        self.count += 1
+        self.u = float(self.count)
+        return Status.CONTINUE
+
+
+class FakeActuator(PortBasedObject):
+    """Fake critical module: records the release time of each cycle and of each stable cycle."""
+
+    u = InVar("u")
+    y = OutVar("y")
+
+    def init(self, params) -> None:
+        self.cycles: list[float] = []
+        self.stable: list[float] = []
+
+    def cycle(self) -> Status:
+        self.cycles.append(self.time)
+        self.y = self.u
+        return Status.CONTINUE
+
+    def stable_cycle(self) -> Status:
+        self.stable.append(self.time)
+        return Status.CONTINUE
+
+
+class FakeDeviceWatcher(FakeActuator):
+    """Fake robot interface: says STABLE while its (fake) device has stopped updating."""
+
+    device_stalled = False
+
+    def cycle(self) -> Status:
+        if FakeDeviceWatcher.device_stalled:
+            self.stable.append(self.time)
+            return Status.STABLE
+        return super().cycle()
+
+
+LIBRARY = {"writer": FakeWriter, "actuator": FakeActuator, "watcher": FakeDeviceWatcher}
+
+
+def text(actuator: str, writer: str) -> str:
+    return f"""\
+subsystem: freshness
+rtpus: [rtpu0, rtpu1]
+variables:
+  u: {{type: float64}}
+  y: {{type: float64}}
+tasks:
+  actuator: {actuator}
+  writer: {writer}
+configurations:
+  loop: [actuator, writer]
+"""
+
+
+@pytest.fixture
+def rig(tmp_path, make_table):
+    """build(actuator YAML) -> (clock, executives, events, the actuator's Scheduled), started at t = 1 s."""
+    made: list[StateTable] = []
+
+    def build(actuator: str = "{module: actuator, rtpu: rtpu1, period: 1 ms, critical: true}",
+              writer: str = "{module: writer, rtpu: rtpu0, period: 1 ms}", on_after: float = 0.0):
+        path = tmp_path / "freshness.yaml"
+        path.write_text(text(actuator, writer))
+        result = check_file(path, module_lookup=LIBRARY.__getitem__, module_names=lambda: sorted(LIBRARY))
+        assert result.errors == [], result.errors
+        subsystem = result.subsystem
+        table = StateTable.create(TableLayout.of(subsystem), unique_name())
+        made.append(table)
+        clock = ManualClock(1.0)
+        events: list[messages.Event] = []
+        recon = Reconfiguration(subsystem)
+        executives = {}
+        for rtpu in subsystem.rtpus:
+            ex = Executive(clock, IdleSignals(clock), events.append, epoch=rtpu.index * STAGGER, header=table.header,
+                           reconfiguration=recon, rtpu_index=rtpu.index, n_rtpus=len(subsystem.rtpus))
+            for spec in subsystem.tasks_on(rtpu.name):
+                ex.add(Task(spec, LIBRARY[spec.module], table))
+            executives[rtpu.name] = ex
+        for name in subsystem.init_order:
+            executives[subsystem.tasks[name].rtpu].handle(["spawn", name])
+        for name in ("actuator", "writer"):  # critical first, as job control turns them on
+            executives[subsystem.tasks[name].rtpu].handle(["on", name, clock.now() + on_after, recon.index("loop")])
+        return clock, executives, events, executives[subsystem.tasks["actuator"].rtpu].tasks["actuator"]
+
+    yield build
+    FakeDeviceWatcher.device_stalled = False
+    for table in made:
+        table.close()
+
+
+def stable_events(events: list[messages.Event]) -> list[messages.Stable]:
+    return [e for e in events if isinstance(e, messages.Stable)]
+
+
+def last_write(executives) -> float:
+    return executives["rtpu0"].tasks["writer"].last_release
+
+
+def test_inputs_within_their_bound_never_hold_the_critical_task(rig):
+    clock, executives, events, actuator = rig()
+    step_executives(executives, clock, clock.now() + 0.05)
+    assert actuator.stable_cycles == 0 and not stable_events(events)
+    assert len(actuator.task.module.cycles) == 50
+
+
+def test_outputs_written_by_on_long_before_the_first_release_do_not_hold_the_critical_task(rig):
+    # job control turns every task on ahead of a common first release; `on` writes the outputs
+    # then. The actuator's RTPU releases first, so its first cycle reads what `on` wrote.
+    clock, executives, events, actuator = rig("{module: actuator, rtpu: rtpu0, period: 1 ms, critical: true}",
+                                              "{module: writer, rtpu: rtpu1, period: 1 ms}", on_after=0.1)
+    step_executives(executives, clock, clock.now() + 0.2)
+    assert actuator.stable_cycles == 0 and not stable_events(events)
+
+
+def test_a_critical_task_whose_writer_stops_runs_stable_from_its_third_period_on(rig):
+    clock, executives, events, actuator = rig()
+    step_executives(executives, clock, clock.now() + 0.01)
+    stopped_at = clock.now()
+    written = last_write(executives)
+    step_executives({"rtpu1": executives["rtpu1"]}, clock, clock.now() + 0.01)  # rtpu0 stopped (SIGSTOP)
+    module = actuator.task.module
+    # two more cycles read values one and two periods old (one missed write is tolerated);
+    # the third release reads a value 2.45 ms old, past the default bound of two writer periods
+    assert [round(t - written, 5) for t in module.cycles if t > written] == [0.00045, 0.00145]
+    assert module.stable[0] == pytest.approx(written + 0.00245)
+    assert module.stable[0] - stopped_at <= 3 * PERIOD
+    assert actuator.in_stable and len(module.stable) == actuator.stable_cycles == actuator.expired_reads
+    (entering,) = stable_events(events)
+    assert (entering.task, entering.entering, entering.cause) == ("actuator", True, "stale")
+    assert entering.reason == ("in-var 'u' is 2.5 ms old, past its freshness bound of 2 ms ('writer' stopped writing it)")
+
+
+def test_the_critical_task_resumes_its_cycle_by_itself_when_fresh_values_return(rig):
+    clock, executives, events, actuator = rig()
+    step_executives(executives, clock, clock.now() + 0.01)
+    step_executives({"rtpu1": executives["rtpu1"]}, clock, clock.now() + 0.01)
+    resumed_at = clock.now()
+    step_executives(executives, clock, clock.now() + 0.01)  # SIGCONT: the writer catches up
+    module = actuator.task.module
+    assert not actuator.in_stable
+    assert module.cycles[-1] > resumed_at and all(t < resumed_at + PERIOD for t in module.stable)
+    entering, leaving = stable_events(events)
+    assert (leaving.entering, leaving.task) == (False, "actuator") and leaving.at > entering.at
+
+
+def test_the_cycle_never_reads_a_value_older_than_the_bound(rig):
+    clock, executives, _, actuator = rig()
+    table_reader = actuator.task.local
+    ages = []
+    module = actuator.task.module
+    original = module.cycle
+
+    def cycle_recording_age() -> Status:
+        ages.append(module.time - float(table_reader.input_write_times[0]))
+        return original()
+
+    actuator.task._cycle = cycle_recording_age
+    for rounds in range(5):  # the writer stops and comes back, five times
+        step_executives(executives, clock, clock.now() + 0.004)
+        step_executives({"rtpu1": executives["rtpu1"]}, clock, clock.now() + 0.004 + rounds * 0.001)
+    assert ages and max(ages) <= 2 * PERIOD
+
+
+def test_fresh_within_gives_one_port_a_longer_bound(rig):
+    clock, executives, events, actuator = rig("{module: actuator, rtpu: rtpu1, period: 1 ms, critical: true, fresh_within: {u: 5 ms}}")
+    step_executives(executives, clock, clock.now() + 0.01)
+    written = last_write(executives)
+    step_executives({"rtpu1": executives["rtpu1"]}, clock, clock.now() + 0.01)
+    module = actuator.task.module
+    assert module.stable[0] == pytest.approx(written + 0.00545)
+    assert "past its freshness bound of 5 ms" in stable_events(events)[0].reason
+
+
+def test_a_module_that_returns_stable_is_reported_as_a_stable_episode_and_resumes(rig):
+    clock, executives, events, actuator = rig("{module: watcher, rtpu: rtpu1, period: 1 ms, critical: true}")
+    step_executives(executives, clock, clock.now() + 0.005)
+    FakeDeviceWatcher.device_stalled = True
+    step_executives(executives, clock, clock.now() + 0.005)
+    FakeDeviceWatcher.device_stalled = False
+    step_executives(executives, clock, clock.now() + 0.005)
+    entering, leaving = stable_events(events)
+    assert (entering.cause, entering.entering, leaving.entering) == ("module", True, False)
+    assert actuator.stable_cycles == 5 and not actuator.in_stable
+    assert actuator.task.state.name == "ON"

@@ -86,7 +86,7 @@ def test_a_new_run_removes_what_a_dead_run_left_queues_included():
         dead_table.close()
         dead_queue.owner = False
         dead_queue.close()
-        removed = remove_dead_runs(subsystem)
+        removed = remove_dead_runs(subsystem).removed
         _, _, table_name, queue_name, plant_name = made[dead_run]
         assert set(removed) == {table_name, table_name + ".lock", queue_name, plant_name}
         with pytest.raises(posix_ipc.ExistentialError):

@@ -9,7 +9,7 @@ import pytest
 from pbo_runtime.cli import operator
 from pbo_runtime.cli.main import _parser
 from pbo_runtime.errors import PboError
-from pbo_runtime.supervisor.commands import COMMANDS, VERBS, dispatch, verb_table
+from pbo_runtime.supervisor.commands import COMMANDS, VERBS, WHICH_RUN, dispatch, verb_table
 from tests.support import REPO
 from tests.fake_job_host import FakeJobHost, fake_subsystem
 
@@ -27,9 +27,17 @@ def test_the_docs_verb_table_is_the_one_the_command_table_makes():
 @pytest.mark.parametrize("verb", VERBS, ids=lambda verb: verb.name)
 def test_every_verb_is_a_cli_command_with_its_declared_arguments_and_a_runner(verb):
     parser = subparsers()[verb.name]
-    declared = [argument.dest for argument in verb.arguments] + ["subsystem"]
+    declared = [argument.dest for argument in verb.arguments] + ["subsystem", "run"]
     assert [a.dest for a in parser._actions if a.dest != "help"] == declared
     assert verb.name in operator._RUNNERS
+
+
+@pytest.mark.parametrize("verb", VERBS, ids=lambda verb: verb.name)
+def test_every_verb_picks_its_run_with_the_arguments_the_table_declares_once(verb):
+    assert [a.name for a in WHICH_RUN] == ["--subsystem", "--run"]
+    arguments = ([] if verb.name not in ("on", "off", "clear", "switch", "job", "event") else ["x"])
+    parsed = _parser().parse_args([verb.name, *arguments, "--run", "1234-ab", "--subsystem", "puma"])
+    assert (parsed.run, parsed.subsystem) == ("1234-ab", "puma")
 
 
 def test_the_cli_runs_no_verb_the_table_does_not_declare():

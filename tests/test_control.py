@@ -280,23 +280,23 @@ def test_closing_the_server_unlinks_its_queue():
 
 def test_connect_with_no_run_raises_a_clear_error(monkeypatch, tmp_path: Path):
     monkeypatch.setattr(shm, "SHM_DIR", tmp_path)  # an empty /dev/shm: no run, whatever else this machine runs
-    with pytest.raises(PboError, match=r"^no subsystem is running \(no live state variable table in /dev/shm\)"):
+    with pytest.raises(PboError, match=r"^no subsystem is running \(no live state variable table of yours in /dev/shm\)"):
         ControlClient.connect()
 
 
 def test_connect_to_a_subsystem_that_is_not_running_names_it(fake_run):
     sub, run_id, _ = fake_run(new_subsystem())
-    with pytest.raises(PboError, match=rf"^subsystem 'nosuch' is not running \(running: .*'{sub}' \(run {run_id}\)"):
+    with pytest.raises(PboError, match=rf"^subsystem 'nosuch' is not running \(running: .*'{sub}' run {run_id} \(pid "):
         ControlClient.connect("nosuch")
 
 
 def test_connect_with_two_live_runs_and_no_name_lists_both(fake_run):
     first, first_id, _ = fake_run(new_subsystem())
     second, second_id, _ = fake_run(new_subsystem())
-    with pytest.raises(PboError, match=r"^\d+ runs are alive: .*; name the subsystem to talk to$") as caught:
+    with pytest.raises(PboError, match=r"^\d+ runs are alive: .*; pass --subsystem NAME or --run ID$") as caught:
         ControlClient.connect()
-    assert f"'{first}' (run {first_id})" in str(caught.value)
-    assert f"'{second}' (run {second_id})" in str(caught.value)
+    assert f"'{first}' run {first_id} (pid {os.getpid()}, started " in str(caught.value)
+    assert f"'{second}' run {second_id} (pid {os.getpid()}, started " in str(caught.value)
 
 
 def test_connect_by_name_picks_that_run_among_several(fake_run):
@@ -307,12 +307,41 @@ def test_connect_by_name_picks_that_run_among_several(fake_run):
     assert find_live_run(sub) == (sub, run_id, table.name)
 
 
-def test_two_live_runs_of_one_subsystem_are_reported(fake_run):
+def test_two_live_runs_of_one_subsystem_without_a_run_id_are_listed_with_the_hint_to_pass_one(fake_run):
     sub = new_subsystem()
     _, first_id, _ = fake_run(sub)
     _, second_id, _ = fake_run(sub)
-    with pytest.raises(PboError, match=rf"^2 runs of subsystem '{sub}' are alive \(run ids .*\): stop all but one$"):
+    with pytest.raises(PboError, match=rf"^2 runs of subsystem '{sub}' are alive: '{sub}' run .*; "
+                                       rf"pass --run ID \(pbo runs lists them\)$") as caught:
         find_live_run(sub)
+    assert f"run {first_id} (pid" in str(caught.value) and f"run {second_id} (pid" in str(caught.value)
+
+
+@pytest.mark.parametrize("by_subsystem", [True, False])
+def test_a_run_is_picked_by_its_id_or_a_unique_prefix_of_it(fake_run, by_subsystem):
+    sub = new_subsystem()
+    fake_run(sub, f"{os.getpid()}-aaaaaa")
+    _, run_id, table = fake_run(sub, f"{os.getpid()}-abcdef")
+    for given in (run_id, f"{os.getpid()}-ab"):
+        assert find_live_run(sub if by_subsystem else None, given) == (sub, run_id, table.name)
+        client = ControlClient.connect(sub if by_subsystem else None, given)
+        assert (client.subsystem, client.run_id) == (sub, run_id)
+
+
+def test_a_run_id_prefix_that_matches_several_runs_asks_for_more_of_it(fake_run):
+    sub = new_subsystem()
+    fake_run(sub, f"{os.getpid()}-aaaaaa")
+    fake_run(sub, f"{os.getpid()}-abcdef")
+    with pytest.raises(PboError, match=rf"^run id '{os.getpid()}-a' matches 2 live runs: .*; give more of the id$"):
+        find_live_run(sub, f"{os.getpid()}-a")
+
+
+def test_a_run_id_that_no_live_run_has_is_refused_with_the_live_runs(fake_run):
+    sub, run_id, _ = fake_run(new_subsystem())
+    with pytest.raises(PboError, match=rf"^no live run has run id '999999999' \(running: .*'{sub}' run {run_id} "):
+        find_live_run(None, "999999999")
+    with pytest.raises(PboError, match=rf"^no live run has run id '{run_id}' of subsystem 'nosuch' \(running: "):
+        find_live_run("nosuch", run_id)
 
 
 @pytest.mark.multiprocess

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import traceback
 from pathlib import Path
@@ -110,16 +111,20 @@ def _parser() -> argparse.ArgumentParser:
 
     # operator commands on a running subsystem (another terminal), over its 0600 control queue:
     # every verb as the command table declares it
-    from pbo_runtime.supervisor.commands import VERBS
+    from pbo_runtime.supervisor.commands import VERBS, WHICH_RUN
 
     for verb in VERBS:
         command = sub.add_parser(verb.name, help=verb.help)
-        for argument in verb.arguments:
+        for argument in (*verb.arguments, *WHICH_RUN):
             command.add_argument(argument.name, **argument.argparse_options())
-        command.add_argument("--subsystem", help="which running subsystem (needed only when several run)")
         command.set_defaults(handler=lambda a, c, e, name=verb.name: _operator().run_verb(name, a, c))
 
-    clean = sub.add_parser("clean", help="remove shared memory, semaphores and queues left by dead runs")
+    runs = sub.add_parser("runs", help="list your live runs: subsystem, run id, pid, start, configuration, job, file")
+    runs.add_argument("--subsystem", help="only this subsystem's runs")
+    runs.add_argument("--json", action="store_true", help="print them as JSON")
+    runs.set_defaults(handler=lambda a, c, e: _operator().runs(c, a.subsystem, a.json))
+
+    clean = sub.add_parser("clean", help="remove your shared memory, semaphores and queues left by dead runs")
     clean.add_argument("--subsystem", help="only this subsystem's leftovers")
     clean.set_defaults(handler=_clean)
     return parser
@@ -536,19 +541,20 @@ def _schema(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 
 def _clean(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    from pbo_runtime.supervisor.children import remove_dead_runs
+    from pbo_runtime.supervisor.cleanup import remove_dead_runs
 
-    removed = remove_dead_runs(args.subsystem) if args.subsystem else remove_dead_runs_all()
-    console.print(f"removed {len(removed)} object(s) left by dead runs" + (": " + ", ".join(removed) if removed else ""), markup=False)
+    cleanup = remove_dead_runs(args.subsystem)
+    removed = cleanup.removed
+    console.print(f"removed {len(removed)} object(s) left by dead runs" + (": " + ", ".join(removed) if removed else ""),
+                  markup=False)
+    if cleanup.live:
+        console.print(f"left {len(cleanup.live)} live run(s) alone: {', '.join(cleanup.live)} (pbo runs lists them)",
+                      markup=False)
+    if cleanup.ignored:
+        console.print(f"ignored {len(cleanup.ignored)} object(s) named like a run's but not yours to trust "
+                      f"(only uid {os.geteuid()}'s with mode 0600 are): {cleanup.ignored_summary()}; not touched: "
+                      f"{', '.join(sorted(cleanup.ignored))}", markup=False)
     return EXIT_OK
-
-
-def remove_dead_runs_all() -> list[str]:
-    from pbo_runtime.ipc import shm
-    from pbo_runtime.supervisor.children import remove_dead_runs
-
-    subsystems = {name[1:].split(".")[1] for _, name in shm.stale_objects(None)}
-    return sorted(r for s in subsystems for r in remove_dead_runs(s))
 
 
 if __name__ == "__main__":

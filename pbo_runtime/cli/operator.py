@@ -1,6 +1,7 @@
 """The operator's commands on a running subsystem, as the `pbo` CLI calls them from another terminal.
 
-Each function finds the live run (`ipc.control.find_live_run`), sends one request over the run's
+Each function finds the live run (`ipc.control.find_live_run`: by `--subsystem` and `--run ID` when
+several are alive; `pbo runs` lists them), sends one request over the run's
 control queue, prints the outcome on the console it is given and returns the exit status 0.
 Anything that stops a command (no run, no answer, the supervisor refused) raises a PboError
 whose message says why; the CLI prints it and exits with 2, as for every other run failure.
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import json
 import time
 from collections.abc import Sequence
 from typing import Any, Callable
@@ -25,11 +27,12 @@ from rich.table import Table
 from pbo_runtime.ipc import shm
 from pbo_runtime.clock.clocks import scheduler_outcome
 from pbo_runtime.ipc.control import ControlClient
+from pbo_runtime.ipc.runs import live_runs
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.commands import COMMANDS, parse_object_values
 from pbo_runtime.table.svar import TableView, open_table, svar_rows, svar_table
 
-__all__ = ["parse_object_values", "run_verb", "status", "task_signal", "switch", "job", "event", "stop", "svar"]
+__all__ = ["parse_object_values", "run_verb", "runs", "status", "task_signal", "switch", "job", "event", "stop", "svar"]
 
 WRITER_MAP_TIMEOUT = 0.5  # svar asks for task names, but must not wait long for a busy supervisor
 TASK_COMMANDS = ("on", "off", "clear")
@@ -47,9 +50,9 @@ def _us(seconds: Any) -> str:
 # --- status ---------------------------------------------------------------------------------
 
 
-def status(console: Console, subsystem: str | None = None) -> int:
+def status(console: Console, subsystem: str | None = None, run: str | None = None) -> int:
     """Print the run's tasks by RTPU (state, rate, jitter, overruns), its configuration and job."""
-    reply = ControlClient.connect(subsystem).call("status", timeout=COMMANDS["status"].timeout)
+    reply = ControlClient.connect(subsystem, run).call("status", timeout=COMMANDS["status"].timeout)
     console.print(status_table(reply))
     for flag in reply.get("flags") or []:
         console.print(f"[bold red]flag:[/] {flag}")
@@ -117,21 +120,21 @@ def status_table(reply: dict[str, Any]) -> Table:
 # --- commands -------------------------------------------------------------------------------
 
 
-def task_signal(console: Console, command: str, task: str, subsystem: str | None = None) -> int:
+def task_signal(console: Console, command: str, task: str, subsystem: str | None = None, run: str | None = None) -> int:
     """Turn a task on or off, or clear its error (TR Figure 11), through job control."""
     if command not in TASK_COMMANDS:
         raise PboError(f"a task command is one of {', '.join(TASK_COMMANDS)}, got: {command!r}")
     verb = COMMANDS[command]
-    reply = ControlClient.connect(subsystem).call(command, verb.request({"task": task}), timeout=verb.timeout)
+    reply = ControlClient.connect(subsystem, run).call(command, verb.request({"task": task}), timeout=verb.timeout)
     state = reply.get("state")
     _say(console, reply, f"task '{task}' is {state}" if state else f"sent '{command}' to task '{task}'")
     return 0
 
 
-def switch(console: Console, configuration: str, subsystem: str | None = None) -> int:
+def switch(console: Console, configuration: str, subsystem: str | None = None, run: str | None = None) -> int:
     """Switch the running subsystem to another configuration (a dynamic reconfiguration, TR §4.4)."""
     verb = COMMANDS["switch"]
-    reply = ControlClient.connect(subsystem).call("switch", verb.request({"configuration": configuration}), timeout=verb.timeout)
+    reply = ControlClient.connect(subsystem, run).call("switch", verb.request({"configuration": configuration}), timeout=verb.timeout)
     text = f"configuration '{reply.get('configuration', configuration)}' is on"
     if reply.get("entered") or reply.get("left"):
         text += f" (on: {', '.join(reply.get('entered') or []) or '—'}; off: {', '.join(reply.get('left') or []) or '—'})"
@@ -141,30 +144,69 @@ def switch(console: Console, configuration: str, subsystem: str | None = None) -
     return 0
 
 
-def job(console: Console, name: str, object_values: Sequence[str] | None, subsystem: str | None = None) -> int:
+def job(console: Console, name: str, object_values: Sequence[str] | None, subsystem: str | None = None,
+        run: str | None = None) -> int:
     """Start a job, with its object's values as given on the command line (`pbo job move 0.3 -0.5 ...`)."""
     verb = COMMANDS["job"]
     request = verb.request({"name": name, "values": object_values})
-    reply = ControlClient.connect(subsystem).call("job", request, timeout=verb.timeout)
+    reply = ControlClient.connect(subsystem, run).call("job", request, timeout=verb.timeout)
     where = f" (configuration '{reply['configuration']}')" if reply.get("configuration") else ""
     _say(console, reply, f"job '{reply.get('job', name)}' started{where}")
     return 0
 
 
-def event(console: Console, task: str, values: Sequence[str] | None, subsystem: str | None = None) -> int:
+def event(console: Console, task: str, values: Sequence[str] | None, subsystem: str | None = None,
+          run: str | None = None) -> int:
     """Send an event, with the values given on the command line, to an aperiodic task."""
     verb = COMMANDS["event"]
     request = verb.request({"task": task, "values": values})
-    reply = ControlClient.connect(subsystem).call("event", request, timeout=verb.timeout)
+    reply = ControlClient.connect(subsystem, run).call("event", request, timeout=verb.timeout)
     console.print(str(reply.get("message", f"event sent to '{task}'")), markup=False)
     return 0
 
 
-def stop(console: Console, subsystem: str | None = None) -> int:
+def stop(console: Console, subsystem: str | None = None, run: str | None = None) -> int:
     """Ask the supervisor to stop the run: tasks off, killed, every object unlinked."""
-    client = ControlClient.connect(subsystem)
+    client = ControlClient.connect(subsystem, run)
     reply = client.call("stop", timeout=COMMANDS["stop"].timeout)
     _say(console, reply, f"'{client.subsystem}' (run {client.run_id}) is stopping")
+    return 0
+
+
+# --- runs -----------------------------------------------------------------------------------
+
+RUNS_TIMEOUT = 0.5  # per run: `pbo runs` asks each supervisor what it runs, but lists a busy one anyway
+
+
+def runs(console: Console, subsystem: str | None = None, as_json: bool = False) -> int:
+    """List this user's live runs (oldest first): subsystem, run id, pid, start, configuration, job, file."""
+    rows = []
+    for run in live_runs(subsystem):
+        row: dict[str, Any] = {**run.to_json(), "configuration": None, "job": None, "application": None, "file": None,
+                               "answered": False}
+        try:
+            reply = ControlClient(run.subsystem, run.run_id).request("status", timeout=RUNS_TIMEOUT)
+        except PboError:
+            reply = {}  # starting, stopping, or too busy to answer now: listed all the same
+        if reply.get("ok"):
+            row.update({key: reply.get(key) for key in ("configuration", "job", "application", "file")}, answered=True)
+        rows.append(row)
+    if as_json:
+        console.out(json.dumps(rows, indent=2))
+        return 0
+    if not rows:
+        console.print(f"no live run{' of ' + repr(subsystem) if subsystem else ''} of yours "
+                      "(pbo run FILE starts one)", markup=False)
+        return 0
+    table = Table(title="live runs", title_justify="left")
+    for column in ("subsystem", "run id", "pid", "started", "configuration", "job", "file"):
+        table.add_column(column)
+    for row in rows:
+        started = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(row["started_at"])) if row["started_at"] else "?"
+        configuration = row["configuration"] or ("—" if row["answered"] else "(no answer)")
+        job = row["job"] or (f"application {row['application']}" if row["application"] else "—")
+        table.add_row(row["subsystem"], row["run_id"], str(row["pid"]), started, configuration, job, row["file"] or "—")
+    console.print(table)
     return 0
 
 
@@ -172,15 +214,15 @@ def stop(console: Console, subsystem: str | None = None) -> int:
 
 # How each verb of the command table runs from the command line: (parsed arguments, console) -> exit status
 _RUNNERS: dict[str, Callable[[argparse.Namespace, Console], int]] = {
-    "status": lambda a, c: status(c, a.subsystem),
-    "on": lambda a, c: task_signal(c, "on", a.task, a.subsystem),
-    "off": lambda a, c: task_signal(c, "off", a.task, a.subsystem),
-    "clear": lambda a, c: task_signal(c, "clear", a.task, a.subsystem),
-    "switch": lambda a, c: switch(c, a.configuration, a.subsystem),
-    "job": lambda a, c: job(c, a.name, a.values, a.subsystem),
-    "event": lambda a, c: event(c, a.task, a.values, a.subsystem),
-    "svar": lambda a, c: svar(c, a.names, a.watch, a.interval, a.subsystem),
-    "stop": lambda a, c: stop(c, a.subsystem),
+    "status": lambda a, c: status(c, a.subsystem, a.run),
+    "on": lambda a, c: task_signal(c, "on", a.task, a.subsystem, a.run),
+    "off": lambda a, c: task_signal(c, "off", a.task, a.subsystem, a.run),
+    "clear": lambda a, c: task_signal(c, "clear", a.task, a.subsystem, a.run),
+    "switch": lambda a, c: switch(c, a.configuration, a.subsystem, a.run),
+    "job": lambda a, c: job(c, a.name, a.values, a.subsystem, a.run),
+    "event": lambda a, c: event(c, a.task, a.values, a.subsystem, a.run),
+    "svar": lambda a, c: svar(c, a.names, a.watch, a.interval, a.subsystem, run=a.run),
+    "stop": lambda a, c: stop(c, a.subsystem, a.run),
 }
 
 
@@ -193,12 +235,12 @@ def run_verb(name: str, args: argparse.Namespace, console: Console) -> int:
 
 
 def svar(console: Console, names: Sequence[str], watch: bool, interval: float = 0.5, subsystem: str | None = None,
-         updates: int | None = None) -> int:
+         updates: int | None = None, run: str | None = None) -> int:
     """Show state variables (all when `names` is empty) with sequence, age and writer; `watch` refreshes until Ctrl-C.
 
     `updates` bounds the number of refreshes in watch mode (for tests; None: until Ctrl-C or the run ends).
     """
-    view = open_table(subsystem)
+    view = open_table(subsystem, run)
     try:
         chosen = _check_names(view, names)
         writers = writer_names(view.subsystem, view.run_id)

@@ -23,7 +23,8 @@ slot and goes away with a reboot or `rm /dev/mqueue/pbo.*` where that is mounted
 that finds its queue gone (the client gave up) is dropped.
 
 `find_live_run` is how every operator tool finds the run it talks to without the YAML file:
-the table segment `/dev/shm/pbo.<subsystem>.<pid>-<nonce>.table` whose supervisor pid is alive.
+the table segment `/dev/shm/pbo.<subsystem>.<pid>-<nonce>.table`, ours and 0600, whose supervisor
+pid is alive (`ipc.runs`); `--subsystem` and `--run ID` pick one when several are.
 The verbs, their arguments and replies are declared in `supervisor.commands`.
 """
 
@@ -37,6 +38,7 @@ import msgpack
 import posix_ipc
 
 from pbo_runtime.ipc import messages
+from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
 from pbo_runtime.errors import PboError
 
@@ -67,46 +69,17 @@ def reply_queue_prefix(subsystem: str, run_id: str) -> str:
 
 
 def live_runs() -> list[tuple[str, str, str]]:
-    """(subsystem, run id, table name) of every run of this user whose supervisor is alive."""
-    runs: list[tuple[str, str, str]] = []
-    directory = shm.SHM_DIR
-    if not directory.is_dir():
-        return runs
-    uid = os.getuid()
-    for entry in sorted(os.listdir(directory)):
-        match = shm.NAME.match(entry)
-        if not match or match["part"] != "table":
-            continue
-        try:
-            owner = os.stat(directory / entry).st_uid
-        except OSError:
-            continue  # removed while we looked
-        if uid != 0 and owner != uid:
-            continue  # another user's run: its objects are 0600, we could not talk to it anyway
-        if shm.pid_alive(int(match["pid"])):
-            run_id = f"{match['pid']}-{match['nonce']}"
-            runs.append((match["sub"], run_id, messages.table_name(match["sub"], run_id)))
-    return runs
+    """(subsystem, run id, table name) of every live run of this user (`ipc.runs.live_runs`)."""
+    return [(run.subsystem, run.run_id, run.table) for run in runs.live_runs()]
 
 
-def find_live_run(subsystem: str | None = None) -> tuple[str, str, str]:
-    """(subsystem, run id, table name) of the one live run meant; PboError if there is not exactly one."""
-    runs = live_runs()
-    listing = ", ".join(f"'{sub}' (run {run_id})" for sub, run_id, _ in runs)
-    if subsystem is not None:
-        mine = [run for run in runs if run[0] == subsystem]
-        if not mine:
-            others = f" (running: {listing})" if runs else " (no subsystem is running)"
-            raise PboError(f"subsystem '{subsystem}' is not running{others}")
-        if len(mine) > 1:
-            ids = ", ".join(run_id for _, run_id, _ in mine)
-            raise PboError(f"{len(mine)} runs of subsystem '{subsystem}' are alive (run ids {ids}): stop all but one")
-        return mine[0]
-    if not runs:
-        raise PboError("no subsystem is running (no live state variable table in /dev/shm): start one with `pbo run FILE`")
-    if len(runs) > 1:
-        raise PboError(f"{len(runs)} runs are alive: {listing}; name the subsystem to talk to")
-    return runs[0]
+def find_live_run(subsystem: str | None = None, run: str | None = None) -> tuple[str, str, str]:
+    """(subsystem, run id, table name) of the one live run meant; PboError if there is not exactly one.
+
+    `run` is a run id or a unique prefix of one (`pbo runs` lists them); see `ipc.runs.find_run`.
+    """
+    found = runs.find_run(subsystem, run)
+    return found.subsystem, found.run_id, found.table
 
 
 # --- the supervisor's side ------------------------------------------------------------------
@@ -234,9 +207,9 @@ class ControlClient:
         self.last_reply_queue = ""  # the name the last request used (gone once it returned)
 
     @classmethod
-    def connect(cls, subsystem: str | None = None) -> ControlClient:
-        """The client of the live run of `subsystem` (or of the only live run when None)."""
-        sub, run_id, _table = find_live_run(subsystem)
+    def connect(cls, subsystem: str | None = None, run: str | None = None) -> ControlClient:
+        """The client of the live run meant by `subsystem` and `run` (a run id's prefix), or of the only one."""
+        sub, run_id, _table = find_live_run(subsystem, run)
         return cls(sub, run_id)
 
     def request(self, command: str, arguments: dict[str, Any] | None = None, timeout: float = 2.0) -> dict[str, Any]:

@@ -1,9 +1,14 @@
-"""Naming, creating and removing the run's POSIX shared-memory objects and queues.
+"""Naming, creating, listing and removing the run's POSIX shared-memory objects and queues.
 
 Every object of a run is named `/pbo.<subsystem>.<run id>.<part>`, created 0600, and removed on
-every exit path. The run id embeds the supervisor's pid, so objects whose pid is gone are a dead
-run's leftovers (`stale_objects`); the supervisor removes them, queues included, through the
-manifest the dead run's table keeps (`supervisor.children.remove_dead_runs`).
+every exit path. The run id is the supervisor's pid and a random nonce (`new_run_id`), so two runs
+never share a name and objects whose pid is gone are a dead run's leftovers.
+
+/dev/shm (and /dev/mqueue) are writable by every user, so a name proves nothing: anyone may create
+`pbo.puma.1-abcdef.table`. An object is trusted only when it is owned by this process's effective
+uid with mode 0600 (`distrust` says why not); everything that finds a run or cleans up lists
+objects through `list_objects`, which marks the others, and never acts on them. Cleaning up is
+`supervisor.cleanup`'s.
 """
 
 from __future__ import annotations
@@ -11,6 +16,8 @@ from __future__ import annotations
 import mmap
 import os
 import re
+import stat
+from dataclasses import dataclass
 from pathlib import Path
 
 import posix_ipc
@@ -86,22 +93,91 @@ def pid_alive(pid: int) -> bool:
     return stat.rsplit(")", 1)[-1].split()[0] not in ("Z", "X")  # the state follows the command name
 
 
-def stale_objects(subsystem: str | None = None) -> list[tuple[str, str]]:
-    """(kind, name) of objects whose creating run is dead.
+def distrust(status: os.stat_result) -> str | None:
+    """Why an object with this status is not to be trusted; None when it is (ours, 0600, a plain file)."""
+    if status.st_uid != os.geteuid():
+        return f"owned by uid {status.st_uid}"
+    if not stat.S_ISREG(status.st_mode):
+        return "not a regular file"
+    if stat.S_IMODE(status.st_mode) != 0o600:
+        return f"mode {stat.S_IMODE(status.st_mode):04o}, not 0600"
+    return None
+
+
+@dataclass(frozen=True)
+class Listed:
+    """One object named like a run's, as listed: its kind ('shm', 'sem', 'mq'), POSIX name and run."""
+
+    kind: str
+    name: str  # with the leading slash
+    subsystem: str
+    run_id: str
+    part: str
+    distrust: str | None  # why it is not ours to use or remove; None: it is
+
+    @property
+    def pid(self) -> int:
+        """The pid in its run id: the supervisor (or application runner) that made it."""
+        return int(self.run_id.split("-", 1)[0])
+
+
+def run_of(name: str) -> tuple[str, str] | None:
+    """(subsystem, run id) of an object name (with or without its slash); None if it is not a run's name."""
+    match = NAME.match(name.lstrip("/"))
+    return (match["sub"], f"{match['pid']}-{match['nonce']}") if match else None
+
+
+def list_objects(subsystem: str | None = None) -> list[Listed]:
+    """Every object named like a run's (of `subsystem`, or of every subsystem), trusted or not.
 
     Segments and semaphores are listed in /dev/shm, queues in /dev/mqueue where it is mounted;
-    where it is not, a run's queues are found through its table's manifest (`remove_dead_runs`).
+    where it is not, a run's queues are found through its table's manifest (`supervisor.cleanup`).
+    Each is looked at with lstat, never followed or opened.
     """
-    found: list[tuple[str, str]] = []
-    listed = [("sem", e[4:]) if e.startswith("sem.") else ("shm", e) for e in _entries(SHM_DIR)]
-    listed += [("mq", e) for e in _entries(MQUEUE_DIR)]  # where mounted: queues that no table's manifest lists
-    for kind, base in listed:
-        match = NAME.match(base)
-        if not match or (subsystem and match["sub"] != subsystem):
-            continue
-        if not pid_alive(int(match["pid"])):
-            found.append((kind, "/" + base))
+    found: list[Listed] = []
+    places = [(SHM_DIR, "shm"), (MQUEUE_DIR, "mq")]
+    for directory, default_kind in places:
+        for entry in _entries(directory):
+            kind, base = ("sem", entry[4:]) if default_kind == "shm" and entry.startswith("sem.") else (default_kind, entry)
+            match = NAME.match(base)
+            if not match or (subsystem and match["sub"] != subsystem):
+                continue
+            try:
+                status = os.lstat(directory / entry)
+            except OSError:
+                continue  # removed while we looked
+            found.append(Listed(kind, "/" + base, match["sub"], f"{match['pid']}-{match['nonce']}", match["part"],
+                                distrust(status)))
     return found
+
+
+def look_at(kind: str, name: str) -> tuple[bool, str | None]:
+    """(exists, why it is not to be trusted) for one object named by a manifest.
+
+    A segment or semaphore is looked at in /dev/shm; a queue in /dev/mqueue where that is mounted,
+    else through the queue's own descriptor (opened, never read or written).
+    """
+    base = name.lstrip("/")
+    if kind == "mq" and not _mounted(MQUEUE_DIR):
+        try:
+            queue = posix_ipc.MessageQueue(name)
+        except posix_ipc.ExistentialError:
+            return False, None
+        except (posix_ipc.Error, OSError, ValueError) as exc:
+            return True, f"cannot be opened ({exc})"
+        try:
+            return True, distrust(os.fstat(queue.mqd))
+        finally:
+            queue.close()
+    path = {"shm": SHM_DIR / base, "sem": SHM_DIR / f"sem.{base}", "mq": MQUEUE_DIR / base}[kind]
+    try:
+        return True, distrust(os.lstat(path))
+    except FileNotFoundError:
+        return False, None
+
+
+def _mounted(directory: Path) -> bool:
+    return directory.is_dir() and os.path.ismount(directory)
 
 
 def _entries(directory: Path) -> list[str]:

@@ -27,7 +27,7 @@ import numpy as np
 
 from pbo_runtime.ipc import shm
 from pbo_runtime.config.application import Application
-from pbo_runtime.supervisor.children import remove_dead_runs
+from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.links.message_link import MessageLink, message_link_name
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer, link_name
 
@@ -68,7 +68,7 @@ class ApplicationRunner:
     def run(self) -> int:
         previous = {s: signal.signal(s, self._interrupt) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
-            removed = remove_dead_runs(self.application.name)  # links of a killed runner: same names, same rule
+            removed = remove_dead_runs(self.application.name).removed  # links of a killed runner: same names, same rule
             if removed:
                 self.say(f"removed {len(removed)} link(s) left by a dead run: {', '.join(removed)}")
             self._make_links()

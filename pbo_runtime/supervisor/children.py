@@ -1,5 +1,5 @@
 """The supervisor's children, the plant and the RTPU processes: launching them, noticing one die,
-stopping them all on every exit path, and removing what crashed runs of a subsystem left."""
+and stopping them all on every exit path. (What crashed runs left is `supervisor.cleanup`'s.)"""
 
 from __future__ import annotations
 
@@ -11,16 +11,13 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-import numpy as np
-import posix_ipc
-
 from pbo_runtime.clock.run_clock import RunClock
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import shm
 from pbo_runtime.ipc.control import ControlServer
 from pbo_runtime.supervisor.failures import RunFailure
 from pbo_runtime.supervisor.run_report import STOP_TIMEOUT, RunResult
-from pbo_runtime.table.table import Header, StateTable, read_manifest
+from pbo_runtime.table.table import StateTable
 
 
 @dataclass
@@ -30,29 +27,6 @@ class Child:
     role: str  # 'plant' or the RTPU's name
     process: subprocess.Popen
     tasks: tuple[str, ...] = ()
-
-
-def remove_dead_runs(subsystem: str) -> list[str]:
-    """Unlink what crashed runs of this subsystem left, their queues included (via the manifest)."""
-    removed: list[str] = []
-    for kind, name in shm.stale_objects(subsystem):
-        if kind == "shm" and name.endswith(".table"):
-            try:
-                mapping = shm.attach_segment(name)
-                header = np.frombuffer(mapping, dtype=np.int64, count=16)
-                offset = int(header[Header.MANIFEST_OFFSET])
-                del header
-                entries = read_manifest(mapping, offset) if offset > 0 else []
-                mapping.close()
-            except (posix_ipc.Error, OSError, ValueError, BufferError):
-                entries = []
-            for entry in entries:
-                entry_kind, _, entry_name = entry.partition(" ")
-                if entry_kind in ("shm", "sem", "mq") and shm.unlink_quietly(entry_kind, entry_name):
-                    removed.append(entry_name)
-        if shm.unlink_quietly(kind, name):
-            removed.append(name)
-    return sorted(set(removed))
 
 
 class Children:
@@ -79,6 +53,8 @@ class Children:
         process = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True,
                                    env=self.clock.child_environment())
         self.children.append(Child(role, process, tasks))
+        if self.table is not None:  # cleanup leaves the run alone while any of its processes lives
+            self.table.set_manifest([*self._manifest(), *(f"pid {c.process.pid} {c.role}" for c in self.children)])
 
     def _check_children(self) -> None:
         for child in self.children:

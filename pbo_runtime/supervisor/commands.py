@@ -11,7 +11,8 @@ PboError (or ValueError/KeyError), whose message the operator reads as the refus
 
 The status reply (times in seconds, rates in Hz; keys marked ? may be absent or None):
 
-    {"subsystem": str, "run_id": str, "configuration": str, "job": str?, "application": str?,
+    {"subsystem": str, "run_id": str, "file": str (the subsystem's YAML file), "configuration": str,
+     "job": str?, "application": str?,
      "elapsed": float (since the configuration went on),
      "tasks": [{"task": str, "index": int (its status block in the table), "rtpu": str,
                 "state": "NOT_CREATED"|"CREATED"|"OFF"|"ON"|"ERROR"|"KILLED",
@@ -94,6 +95,7 @@ class Argument:
     type: Callable[[str], Any] | None = None
     default: Any = None
     parse: Callable[[Any], Any] | None = None  # command-line text to the request's value
+    metavar: str | None = None  # how the help shows its value
 
     def argparse_options(self) -> dict[str, Any]:
         """The keywords of argparse's add_argument that declare it."""
@@ -108,6 +110,8 @@ class Argument:
             options["default"] = self.default
         if self.help is not None:
             options["help"] = self.help
+        if self.metavar is not None:
+            options["metavar"] = self.metavar
         return options
 
     @property
@@ -164,7 +168,8 @@ def status(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
         rows.append({**row, "index": spec.index, "state": host.task_states.get(spec.name, row["state"]),
                      "rate": row["cycles"] / elapsed if elapsed > 0 else 0.0,
                      "error": host.task_errors.get(spec.name) if host.task_states.get(spec.name) == "ERROR" else None})
-    return {"subsystem": host.subsystem.name, "run_id": host.run_id, "configuration": host.configuration,
+    return {"subsystem": host.subsystem.name, "run_id": host.run_id, "file": host.subsystem.file,
+            "configuration": host.configuration,
             "job": host.job_control.job, "application": host.application, "elapsed": elapsed,
             "tasks": rows, "flags": host.table_flags(), "realtime": dict(host.realtime),
             "stalled": {name: now - since for name, since in host.stalled_since().items()}}
@@ -283,6 +288,14 @@ VERBS: tuple[Verb, ...] = (
     Verb("stop", "stop the running subsystem cleanly", (), stop, "`{}`", STATUS_TIMEOUT),
 )
 COMMANDS: dict[str, Verb] = {verb.name: verb for verb in VERBS}
+
+# Every verb acts on one run; these pick it when several are alive (`ipc.runs.find_run`). The CLI
+# gives them to every verb, and the docs say so under the verb table.
+WHICH_RUN: tuple[Argument, ...] = (
+    Argument("--subsystem", help="which running subsystem, by name (needed only when several run)", metavar="NAME"),
+    Argument("--run", help="which run, by its id or a unique prefix of it (pbo runs lists them; needed only when "
+                           "a subsystem runs more than once)", metavar="ID"),
+)
 SERVED = tuple(verb.name for verb in VERBS if verb.handler is not None)
 
 
@@ -304,4 +317,5 @@ def verb_table() -> str:
             text += " ..." if argument.nargs == "*" else ""
             shown.append(f"`{text}`" if not argument.name.startswith("-") else f"`[{text}]`")
         lines.append(f"| `pbo {verb.name}` | {' '.join(shown) or '–'} | {verb.help.replace('|', '/')} | {verb.result} |")
-    return "\n".join(lines) + "\n"
+    which = "; ".join(f"`{a.name} {a.metavar}`: {a.help}" for a in WHICH_RUN)
+    return "\n".join(lines) + f"\n\nEvery verb also takes {which}.\n"

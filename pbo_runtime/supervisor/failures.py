@@ -9,5 +9,9 @@ class RunFailure(PboError):
     """The run could not start or had to stop: the message says which process or task, and why."""
 
 
+class RunRefused(PboError):
+    """The run may not start: another live run holds what it needs. Nothing of it is left running."""
+
+
 class StopRequested(Exception):
     """Ctrl-C, SIGTERM or `pbo stop` while job control was waiting: stop cleanly, not a failure."""

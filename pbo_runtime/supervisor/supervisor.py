@@ -26,14 +26,16 @@ from typing import Any, Callable
 import numpy as np
 
 from pbo_runtime.ipc import messages
+from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import ControlServer, control_queue_name
-from pbo_runtime.supervisor.children import Children, Child, remove_dead_runs
+from pbo_runtime.supervisor.children import Children, Child
+from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.supervisor.control_service import ControlService
 from pbo_runtime.supervisor.events import EventHandling
-from pbo_runtime.supervisor.failures import RunFailure, StopRequested
+from pbo_runtime.supervisor.failures import RunFailure, RunRefused, StopRequested
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
@@ -43,7 +45,7 @@ from pbo_runtime.table.table import Flag, Header, StateTable, TableLayout, TaskS
 from pbo_runtime.table.table import Status as W
 
 # the run's vocabulary, for whoever imports it from here
-__all__ = ["RunFailure", "RunResult", "StopRequested", "Supervisor", "remove_dead_runs", "simulation_tick"]
+__all__ = ["RunFailure", "RunRefused", "RunResult", "StopRequested", "Supervisor", "remove_dead_runs", "simulation_tick"]
 
 STALL_CHECK_EVERY = 0.05  # seconds between looks at the cycle counts (StallWatch); job control pumps every 2 ms
 
@@ -127,6 +129,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         self.control: ControlServer | None = None
         self._serving = False
         self._refused: dict[str, str] = {}  # task -> why its RTPU refused the last signal
+        self._refuse_if_devices_in_use()  # before anything starts
 
     # --- names ------------------------------------------------------------------------------
 
@@ -140,6 +143,25 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         entries.append(f"mq {control_queue_name(s, r)}")
         entries += [f"sem {name}" for name in self.clock.semaphores(s, r, self._roles())]
         return entries
+
+    def _refuse_if_devices_in_use(self) -> None:
+        """RunRefused if a live run of this subsystem holds its exclusive devices (the arm has one master).
+
+        Checked before anything starts, and again once this run's table exists, before any child
+        starts: two runs started at the same instant then each see the other's table, and at most
+        one goes on (both may refuse; neither runs alongside the other). A subsystem without
+        exclusive devices may run several times side by side.
+        """
+        exclusive = [name for name, device in self.subsystem.devices.items() if device.exclusive]
+        if not exclusive:
+            return
+        others = [run for run in runs.live_runs(self.subsystem.name) if run.run_id != self.run_id]
+        if not others:
+            return
+        devices = ", ".join(f"'{name}'" for name in exclusive)
+        raise RunRefused(f"subsystem '{self.subsystem.name}' is already running as {' and '.join(run.brief() for run in others)}, "
+                         f"which holds its exclusive device(s) {devices}: a second run would drive them too; "
+                         f"stop that run first: pbo stop --run {others[0].run_id}")
 
     def _roles(self) -> list[str]:
         """The children, in the order the simulated clock steps them: the plant first, then the RTPUs."""
@@ -156,7 +178,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         previous = signal.signal(signal.SIGINT, self._interrupt)
         previous_term = signal.signal(signal.SIGTERM, self._interrupt)
         try:
-            removed = remove_dead_runs(self.subsystem.name)
+            removed = remove_dead_runs(self.subsystem.name).removed
             if removed:
                 self.say(f"removed {len(removed)} object(s) left by a dead run: {', '.join(removed)}")
             self._start()
@@ -170,6 +192,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
                 self.result.stopped_by = f"{self.alternate[1]} switches done"
             else:
                 self._watch()
+        except RunRefused:
+            raise  # nothing ran: no summary, the refusal alone (after the finally removed what was made)
         except StopRequested:
             self.result.stopped_by = self._stop_requested
         except (RunFailure, JobFailure) as exc:
@@ -197,6 +221,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         for rtpu in sub.rtpus:
             self.signals[rtpu.name] = messages.Queue(messages.signal_queue_name(sub.name, run_id, rtpu.name), create=True)
         self.table = StateTable.create(TableLayout.of(sub), messages.table_name(sub.name, run_id), self._manifest())
+        self._refuse_if_devices_in_use()  # again, now that a run started at the same instant sees this one
         self.control = ControlServer(sub.name, run_id)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()

@@ -142,9 +142,9 @@ class TableView:
         self.close()
 
 
-def open_table(subsystem: str | None = None) -> TableView:
-    """Attach read-only to the table of the live run of `subsystem` (or of the only live run)."""
-    sub, run_id, name = find_live_run(subsystem)
+def open_table(subsystem: str | None = None, run: str | None = None) -> TableView:
+    """Attach read-only to the table of the live run meant by `subsystem` and `run` (or of the only live run)."""
+    sub, run_id, name = find_live_run(subsystem, run)
     return attach(name, sub, run_id)
 
 

@@ -4,7 +4,8 @@ Layout of the segment, all offsets multiples of 8 bytes:
 
     header        HEADER_WORDS int64: magic, version, layout hash, flags, lock holder pid, ...
     directory     one DIRECTORY_RECORD per variable: name, dtype, shape, offsets (for tools: `table.directory`)
-    manifest      names of every object of the run, so a later run can clean up after a crash
+    manifest      names of every object of the run and the pids of its processes (`pid <pid> <role>`), so a
+                  later run can clean up after a crash, and leaves a run alone while any of them lives
     variables     per variable: 3 float64 metadata words (writer, sequence, write time) + data
     task status   STATUS_WORDS float64 per task: state, cycles, overruns, timing counters
     devices       DEVICE_HOLDERS records of HOLDER_WORDS uint64 per device: who holds which channels
@@ -41,7 +42,7 @@ from pbo_runtime.table.directory import DIRECTORY_RECORD, DTYPE_CODES, META_WORD
 MAGIC = 0x5042_4F5F_5441_424C  # "PBO_TABL"
 VERSION = 1
 HEADER_WORDS = 64
-MANIFEST_BYTES = 4096
+MANIFEST_BYTES = 8192  # names of up to 32 RTPUs with the simulated clock's semaphores, and the pids of the run's processes
 # META_WORDS (`table.directory`): writer task index (-1: job control), then job control's sequence and write time
 STATUS_WORDS = 16  # per task in the table (room to grow without a layout change)
 DEVICE_HOLDERS = 8  # per device: how many opens of it (by tasks, or through a sensor's io:) may be held at once

@@ -226,6 +226,23 @@ def assert_complete(item: np.ndarray, counter: int) -> None:
 # --- runs in real processes ----------------------------------------------------------------------
 
 
+def subsystem_copy(directory: Path, subsystem: str, exclusive: bool = True) -> Path:
+    """configs/pid_joint.yaml as subsystem `subsystem` on one RTPU, in `directory`, its arm exclusive or not.
+
+    Runs of one subsystem with an exclusive device refuse each other, and other test runs on the
+    machine use the shipped names: a test that starts runs gives them a name of its own. One RTPU
+    keeps a run's share of the per-user queue memory (`ulimit -q`) small when several run at once.
+    """
+    text = DEMO.read_text()
+    for old, new in (("\nsubsystem: puma", f"\nsubsystem: {subsystem}"), ("rtpus: [rtpu0, rtpu1]", "rtpus: [rtpu0]"),
+                     ("rtpu: rtpu1", "rtpu: rtpu0"), ("exclusive: true", f"exclusive: {str(exclusive).lower()}")):
+        assert old in text, old
+        text = text.replace(old, new)
+    path = directory / f"{subsystem}.yaml"
+    path.write_text(text)
+    return path
+
+
 def assert_nothing_left(report: dict) -> None:
     """Every object the run made is gone: opened by name, since /dev/mqueue may not be mounted."""
     assert report["objects"], "the report lists the run's objects"

@@ -23,6 +23,7 @@ from rich.console import Console
 from pbo_runtime import PboError
 from pbo_runtime.ipc import messages
 from pbo_runtime.cli import operator
+from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
 from pbo_runtime.errors import InternalError
 from pbo_runtime.ipc.control import (
@@ -315,6 +316,16 @@ def test_two_live_runs_of_one_subsystem_without_a_run_id_are_listed_with_the_hin
                                        rf"pass --run ID \(pbo runs lists them\)$") as caught:
         find_live_run(sub)
     assert f"run {first_id} (pid" in str(caught.value) and f"run {second_id} (pid" in str(caught.value)
+
+
+def test_two_live_runs_of_the_only_running_subsystem_ask_for_a_run_id_even_unnamed(fake_run, monkeypatch):
+    sub = new_subsystem()
+    fake_run(sub)
+    fake_run(sub)
+    every_run = runs.live_runs
+    monkeypatch.setattr(runs, "live_runs", lambda subsystem=None: every_run(sub))  # as if nothing else ran on the machine
+    with pytest.raises(PboError, match=rf"^2 runs of subsystem '{sub}' are alive: .*; pass --run ID \(pbo runs lists them\)$"):
+        find_live_run()
 
 
 @pytest.mark.parametrize("by_subsystem", [True, False])

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import IO, Any, Iterator
 
 import numpy as np
+import posix_ipc
 import pytest
 
 from pbo_runtime.cli.main import main
@@ -176,6 +177,21 @@ def test_pbo_clean_says_how_many_objects_it_ignored_and_why(planted, capsys):
     assert (f"ignored 3 object(s) named like a run's but not yours to trust (only uid 0's with mode 0600 are): "
             f"1 mode 0666, not 0600, 2 owned by uid {NOBODY}; not touched: ") in out
     assert all(path.exists() for path in planted.paths)
+
+
+def test_a_queue_named_by_a_manifest_is_judged_through_its_descriptor_where_dev_mqueue_is_not_mounted(monkeypatch,
+                                                                                                      tmp_path):
+    monkeypatch.setattr(shm, "MQUEUE_DIR", tmp_path)  # not a mount: queues cannot be listed, only opened
+    name = shm.object_name(new_subsystem(), run_id(os.getpid()), "events")
+    queue = posix_ipc.MessageQueue(name, posix_ipc.O_CREX, mode=0o600, max_messages=1, max_message_size=64)
+    try:
+        assert shm.look_at("mq", name) == (True, None)
+        os.fchmod(queue.mqd, 0o666)
+        assert shm.look_at("mq", name) == (True, "mode 0666, not 0600")
+    finally:
+        queue.close()
+        queue.unlink()
+    assert shm.look_at("mq", name) == (False, None)
 
 
 # --- finding runs --------------------------------------------------------------------------------

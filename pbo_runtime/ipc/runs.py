@@ -79,8 +79,8 @@ def find_run(subsystem: str | None = None, run: str | None = None) -> LiveRun:
     ids = "; ".join(r.describe() for r in chosen)
     if run is not None:
         raise PboError(f"run id '{run}' matches {len(chosen)} live runs: {ids}; give more of the id")
-    if subsystem is not None:
-        raise PboError(f"{len(chosen)} runs of subsystem '{subsystem}' are alive: {ids}; {HINT}")
+    if len({r.subsystem for r in chosen}) == 1:  # named, or the only subsystem running: only --run can tell them apart
+        raise PboError(f"{len(chosen)} runs of subsystem '{chosen[0].subsystem}' are alive: {ids}; {HINT}")
     raise PboError(f"{len(chosen)} runs are alive: {ids}; pass --subsystem NAME or --run ID")
 
 

@@ -11,7 +11,7 @@ PboError (or ValueError/KeyError), whose message the operator reads as the refus
 
 The status reply (times in seconds, rates in Hz; keys marked ? may be absent or None):
 
-    {"subsystem": str, "run_id": str, "file": str (the subsystem's YAML file), "configuration": str,
+    {"subsystem": str, "run_id": str, "file": str (the subsystem's YAML file, absolute), "configuration": str,
      "job": str?, "application": str?,
      "elapsed": float (since the configuration went on),
      "tasks": [{"task": str, "index": int (its status block in the table), "rtpu": str,
@@ -28,6 +28,7 @@ The status reply (times in seconds, rates in Hz; keys marked ? may be absent or 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable, Protocol
@@ -168,7 +169,7 @@ def status(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
         rows.append({**row, "index": spec.index, "state": host.task_states.get(spec.name, row["state"]),
                      "rate": row["cycles"] / elapsed if elapsed > 0 else 0.0,
                      "error": host.task_errors.get(spec.name) if host.task_states.get(spec.name) == "ERROR" else None})
-    return {"subsystem": host.subsystem.name, "run_id": host.run_id, "file": host.subsystem.file,
+    return {"subsystem": host.subsystem.name, "run_id": host.run_id, "file": os.path.abspath(host.subsystem.file),
             "configuration": host.configuration,
             "job": host.job_control.job, "application": host.application, "elapsed": elapsed,
             "tasks": rows, "flags": host.table_flags(), "realtime": dict(host.realtime),

@@ -22,6 +22,7 @@ import pytest
 from pbo_runtime.cli.main import main
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc import messages
+from pbo_runtime.ipc import runs as run_finding
 from pbo_runtime.ipc import shm
 from pbo_runtime.ipc.runs import live_runs
 from pbo_runtime.supervisor.cleanup import read_run_manifest, remove_dead_runs
@@ -205,6 +206,17 @@ def test_a_table_of_another_user_or_mode_is_no_run_even_named_after_a_live_pid(p
     assert live_runs(sub) == []
     mine = tables(sub, os.getpid())
     assert [run.table for run in live_runs(sub)] == [mine.name]
+
+
+def test_a_table_whose_pid_now_names_a_process_started_after_it_is_a_dead_run(tables, monkeypatch):
+    sub = new_subsystem()
+    table = tables(sub, os.getpid())
+    assert [run.table for run in live_runs(sub)] == [table.name]
+    later = os.lstat(shm.SHM_DIR / table.name.lstrip("/")).st_ctime + 60
+    monkeypatch.setattr(run_finding, "process_start_time", lambda pid: later)  # the pid was reused by a process started since
+    assert live_runs(sub) == []
+    dead(table)  # its supervisor "died": the table is a leftover, which cleanup removes though the pid lives
+    assert remove_dead_runs(sub).removed == sorted([table.name, f"{table.name}.lock"])
 
 
 def test_pbo_runs_lists_each_live_run_as_a_table_and_as_json(tables, capsys):

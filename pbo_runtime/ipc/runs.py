@@ -1,7 +1,7 @@
 """Finding this user's live runs: what `pbo runs` lists and how every operator verb picks its run.
 
 A run is its state table, `/dev/shm/pbo.<subsystem>.<pid>-<nonce>.table`, and it is live while
-its supervisor (the pid in the run id) is. Only tables this process may trust count
+its supervisor (the pid in the run id, started before the table was made: not a reused pid) is. Only tables this process may trust count
 (`shm.distrust`: owned by its effective uid, mode 0600): a table another user planted, however
 it is named, is neither listed, nor talked to, nor in the way of a run.
 
@@ -21,6 +21,7 @@ from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import shm
 
 HINT = "pass --run ID (pbo runs lists them)"
+REUSE_SLACK = 2.0  # seconds: /proc gives the boot time in whole seconds; a reused pid starts long after
 
 
 @dataclass(frozen=True)
@@ -53,7 +54,7 @@ def live_runs(subsystem: str | None = None) -> list[LiveRun]:
     for listed in shm.list_objects(subsystem):
         if listed.kind != "shm" or listed.part != "table" or listed.distrust is not None:
             continue
-        if shm.pid_alive(listed.pid):
+        if supervisor_alive(listed.pid, listed.name):
             runs.append(LiveRun(listed.subsystem, listed.run_id, listed.pid, listed.name, process_start_time(listed.pid)))
     return sorted(runs, key=lambda r: (r.started_at or 0.0, r.run_id))
 
@@ -82,6 +83,23 @@ def find_run(subsystem: str | None = None, run: str | None = None) -> LiveRun:
     if len({r.subsystem for r in chosen}) == 1:  # named, or the only subsystem running: only --run can tell them apart
         raise PboError(f"{len(chosen)} runs of subsystem '{chosen[0].subsystem}' are alive: {ids}; {HINT}")
     raise PboError(f"{len(chosen)} runs are alive: {ids}; pass --subsystem NAME or --run ID")
+
+
+def supervisor_alive(pid: int, table: str) -> bool:
+    """True while the supervisor that made `table` runs: process `pid` is alive and started before the table was made.
+
+    A dead run's pid may be reused by another process, which started after the table existed:
+    that run is dead. (Nothing rewrites a table's ctime after its creation: it is written
+    through its mapping only.)
+    """
+    if not shm.pid_alive(pid):
+        return False
+    started = process_start_time(pid)
+    try:
+        made = os.lstat(shm.SHM_DIR / table.lstrip("/")).st_ctime
+    except OSError:
+        return False  # removed meanwhile: the run ended
+    return started is None or started <= made + REUSE_SLACK
 
 
 def process_start_time(pid: int) -> float | None:

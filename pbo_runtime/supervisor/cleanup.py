@@ -5,8 +5,9 @@ The rules, since /dev/shm is writable by every user and root may be the one clea
 - only objects this process trusts are touched (`shm.distrust`: owned by its effective uid, mode
   0600); the others are counted, with the reason, and left alone;
 - a run is removed only when none of its processes is alive: the pid in its run id (the
-  supervisor), and every child pid its table's manifest records (`pid <pid> <role>` lines: the
-  plant and the RTPUs, which may outlive a supervisor killed outright);
+  supervisor, unless that pid was reused: `ipc.runs.supervisor_alive`), and every child pid its
+  table's manifest records (`pid <pid> <role>` lines: the plant and the RTPUs, which may outlive a
+  supervisor killed outright);
 - a table's manifest names the run's queues, which cannot be listed where /dev/mqueue is not
   mounted; an entry is followed only when it names an object of that same run (same subsystem
   and run id as the table that holds it), and only if that object, looked at, is trusted too.
@@ -20,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import posix_ipc
 
+from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
 from pbo_runtime.table.table import HEADER_WORDS, Header, read_manifest
 
@@ -52,7 +54,8 @@ def remove_dead_runs(subsystem: str | None = None) -> Cleanup:
     for (sub, run_id), objects in sorted(by_run.items()):
         table = next((o.name for o in objects if o.kind == "shm" and o.part == "table"), None)
         entries, pids = read_run_manifest(table) if table is not None else ([], [])
-        if any(shm.pid_alive(pid) for pid in [objects[0].pid, *pids]):
+        supervisor = runs.supervisor_alive(objects[0].pid, table) if table is not None else shm.pid_alive(objects[0].pid)
+        if supervisor or any(shm.pid_alive(pid) for pid in pids):
             cleanup.live.append(run_id)
             continue
         names = {(o.kind, o.name) for o in objects}

@@ -42,7 +42,7 @@ def test_a_task_that_raises_shows_as_error_and_recovers_after_clear(tmp_path):
     try:
         # the robot has run a stable cycle once it says so: what is asserted below waits for events, never for time
         said = "".join(read_until(run.stdout, "task 'glitch' on rtpu0 is in ERROR",
-                                  "configuration illegal: critical task 'robot' runs its locally stable behaviour"))
+                                  "critical task 'robot' runs its locally stable behaviour: the configuration is illegal"))
         assert "injected fault after 200 cycles" in said, run.stderr.read() if run.poll() is not None else said
         status = pbo("status", "--subsystem", "drill")
         assert status.returncode == 0, status.stderr

@@ -48,7 +48,7 @@ FRESH_WITHIN_WRITER_PERIODS = 2.0
 # Why a critical task runs its locally stable behaviour (Scheduled.held)
 NOT_HELD, HELD_ILLEGAL, HELD_STALE_INPUT, HELD_BY_MODULE = 0, 1, 2, 3
 # Header words read before every release, as plain ints (through a memoryview: no numpy scalar each time)
-_FLAGS, _STOPPING = int(Header.FLAGS), int(Flag.STOPPING)
+_FLAGS, _STOPPING, _STATIC_SWITCH = int(Header.FLAGS), int(Flag.STOPPING), int(Flag.STATIC_SWITCH)
 _PLAN_SEQUENCE, _PLAN_TIME_NS = int(Header.PLAN_SEQUENCE), int(Header.PLAN_TIME_NS)
 OVERRUNS_KEPT = 8  # the last overruns kept per task (release, lateness, execution time) for the run report
 
@@ -309,11 +309,11 @@ class Executive:
         if s.critical:
             task.read_inputs()  # first: whether the cycle may use them depends on how old they are
             expired = self._check_freshness(s, release)
-            if expired >= 0:
+            if self._configuration_illegal(start, s.period):
+                held = HELD_ILLEGAL  # (a stale input then is the switch's doing, not a fault)
+            elif expired >= 0:
                 held = HELD_STALE_INPUT
                 s.expired_reads += 1
-            elif self._configuration_illegal(start, s.period):
-                held = HELD_ILLEGAL
             if held:
                 result = task.run_read_stable_cycle(release)
             else:
@@ -451,7 +451,7 @@ class Executive:
         header = self.header
         if header is None:
             return False
-        if header[Header.TASKS_IN_ERROR] > 0:
+        if header[Header.TASKS_IN_ERROR] > 0 or int(header[Header.FLAGS]) & _STATIC_SWITCH:
             return True
         limit = (now - period) * 1e9
         for word in self.switching_words:
@@ -570,6 +570,9 @@ class Executive:
                 self._turn_on(s, at)
                 if s.critical and self.reconfiguration is not None and signal.configuration is not None:
                     self._watch(s, int(signal.configuration), at)
+            elif isinstance(signal, messages.Watch):
+                if s.critical and self.reconfiguration is not None:
+                    self._watch(s, int(signal.configuration), self.clock.now())
             elif isinstance(signal, messages.TurnOff):
                 self._leave_on(s)
                 task.turn_off()

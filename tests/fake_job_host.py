@@ -118,6 +118,12 @@ class FakeJobHost:
         self.signals.append((task, "on"))
         self.task_states[task] = "ON"
 
+    def hold_critical_tasks(self, hold: bool) -> None:
+        self.signals.append(("critical tasks", "hold" if hold else "release"))
+
+    def watch(self, task: str, configuration: str) -> None:
+        self.signals.append((task, f"watch {configuration}"))
+
     # --- CommandHost ------------------------------------------------------------------------
 
     def status_rows(self) -> list[dict[str, Any]]:

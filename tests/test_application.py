@@ -13,7 +13,7 @@ import posix_ipc
 import pytest
 
 from pbo_runtime.config.application import check_application, is_application_file
-from tests.support import PBO, REPO, assert_nothing_left, children_of
+from tests.support import PBO, REPO, assert_ended_well, assert_nothing_left, children_of
 
 APP = REPO / "configs" / "leader_follower.yaml"
 
@@ -231,6 +231,14 @@ def _both_arms_settled(runner: int) -> bool:
             and np.max(np.abs(follower_at - leader_at)) < SETTLED)
 
 
+def assert_application_ended_well(status: int, out, said: str) -> None:
+    """The runner's status is the worst of its subsystems': 0, or 2 for timing faults only (support.assert_ended_well)."""
+    reports = [json.loads((out / key / "report.json").read_text()) for key in ("leader", "follower", "operator")]
+    for report in reports:
+        assert_ended_well(2 if report["faults"] else 0, report, said)
+    assert status == (2 if any(report["faults"] for report in reports) else 0), said
+
+
 def assert_the_goal_reached_both_arms(out) -> None:
     leader = np.load(out / "leader" / "leader.npz")
     follower = np.load(out / "follower" / "follower.npz")
@@ -258,7 +266,7 @@ def test_the_operator_goal_message_moves_the_leader_and_the_follower_tracks_it_o
     # The real clock: each subsystem of an application keeps its own simulated clock, so with
     # --clock sim the follower may end its run while the leader, started later, still moves.
     status, out, err = run_until_both_arms_settle(tmp_path, str(APP))
-    assert status == 0, out + err
+    assert_application_ended_well(status, tmp_path / "out", out + err)
     assert "[leader] pbo: configuration 'lead' is on" in out and "[follower] run summary" in out
     assert "[operator] run summary: operator · operate" in out
     assert_the_goal_reached_both_arms(tmp_path / "out")
@@ -282,7 +290,7 @@ def assert_the_links_are_gone(report: dict) -> None:
 def test_the_same_application_runs_over_zenoh_changed_only_in_yaml(tmp_path):
     path = write_app(tmp_path, links=SHIPPED_LINKS.replace("transport: shm", "transport: zenoh"))
     status, out, err = run_until_both_arms_settle(tmp_path, path)
-    assert status == 0, out + err
+    assert_application_ended_well(status, tmp_path / "out", out + err)
     assert "link 'arm_state': leader.send -> follower.receive (float64 [6], periodic, zenoh)" in out
     assert "link 'goal': operator.console -> leader.goal (float64 [6], messages, 4 queued at most, zenoh)" in out
     assert_the_goal_reached_both_arms(tmp_path / "out")

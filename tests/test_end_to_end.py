@@ -16,7 +16,7 @@ import time
 import numpy as np
 import pytest
 
-from tests.support import DEMO, PBO, REPO, assert_nothing_left, children_of
+from tests.support import DEMO, PBO, REPO, assert_ended_well, assert_nothing_left, children_of
 
 pytestmark = pytest.mark.multiprocess
 
@@ -26,9 +26,9 @@ def test_make_run_s_demo_runs_for_its_duration_on_the_real_clock_and_leaves_noth
     report_path = tmp_path / "report.json"
     done = subprocess.run([*PBO, "run", str(DEMO), "--duration", "3", "--report", str(report_path), "--no-live"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=180)
-    assert done.returncode == 0, done.stderr
-    assert "run summary" in done.stdout and "Traceback" not in done.stderr
+    assert "run summary" in done.stdout and "Traceback" not in done.stderr, done.stderr
     report = json.loads(report_path.read_text())
+    assert_ended_well(done.returncode, report, done.stderr)
     assert report["stopped_by"] == "duration" and report["failure"] == "" and report["clock"] == "real"
     for settings in report["realtime"].values():  # asked for by default on the real clock: granted, or refused and why
         assert settings["scheduler"] == "SCHED_FIFO 50" or settings["scheduler"].startswith("SCHED_OTHER: SCHED_FIFO refused (")
@@ -95,9 +95,9 @@ def test_ctrl_c_stops_the_run_cleanly_with_a_summary(tmp_path):
         if pbo.poll() is None:
             pbo.kill()
             pbo.wait()
-    assert pbo.returncode == 0, err
-    assert "run summary" in out and "stopped by Ctrl-C" in out
+    assert "run summary" in out and "stopped by Ctrl-C" in out, err
     report = json.loads(report_path.read_text())
+    assert_ended_well(pbo.returncode, report, err)
     assert report["stopped_by"] == "Ctrl-C"
     assert all(report["states_at_stop"][name] == "ON" for name in report["tasks"])
     assert_nothing_left(report)

@@ -67,7 +67,8 @@ def test_a_static_switch_kills_the_leaving_tasks_and_spawns_and_turns_on_the_ent
     host = FakeJobHost(subsystem, "pid", static=True)
     host.task_states["pd"] = "NOT_CREATED"  # static: only the running configuration's tasks exist
     record = host.job_control.switch("pd")
-    assert host.signals == [("pid", "kill"), ("pd", "spawn"), ("pd", "on")]
+    assert host.signals == [("critical tasks", "hold"), ("pid", "kill"), ("pd", "spawn"), ("pd", "on"),
+                            ("robot", "watch pd"), ("critical tasks", "release")]
     assert host.plans == [] and host.configuration == "pd" and (record.off, record.on) == (["pid"], ["pd"])
 
 

@@ -12,7 +12,7 @@ from typing import IO
 
 import pytest
 
-from tests.support import PBO, REPO, assert_nothing_left
+from tests.support import PBO, REPO, assert_ended_well, assert_nothing_left
 
 pytestmark = pytest.mark.multiprocess
 
@@ -64,8 +64,8 @@ def test_a_task_that_raises_shows_as_error_and_recovers_after_clear(tmp_path):
         if run.poll() is None:
             run.kill()
             run.wait()
-    assert run.returncode == 0, err
     report = json.loads(report_path.read_text())
+    assert_ended_well(run.returncode, report, err)
     assert report["stopped_by"] == "pbo stop"
     assert report["states_at_stop"]["glitch"] == "ON"
     assert report["tasks"]["robot"]["stable_cycles"] > 0  # the arm was held while glitch was in ERROR

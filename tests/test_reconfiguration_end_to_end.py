@@ -15,7 +15,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from tests.support import PBO, REPO, assert_nothing_left
+from tests.support import PBO, REPO, assert_ended_well, assert_nothing_left
 
 pytestmark = pytest.mark.multiprocess
 
@@ -31,7 +31,7 @@ def run(tmp_path, *arguments: str) -> tuple[subprocess.CompletedProcess, dict]:
 
 def test_two_hundred_switches_between_two_controllers_on_the_running_arm(tmp_path):
     done, report = run(tmp_path, "--alternate", "pid,pd", "--switches", "200", "--interval", "0.02")
-    assert done.returncode == 0, done.stderr
+    assert_ended_well(done.returncode, report, done.stderr)
     switches = report["switches"]
     assert len(switches) == 200
     assert all(math.isfinite(s["latency"]) and s["latency"] > 0 for s in switches)

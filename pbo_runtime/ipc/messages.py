@@ -135,10 +135,20 @@ class PlanPosted:
     KIND: ClassVar[str] = "plan"
 
 
-TaskSignal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage]  # the signals for one task
-Signal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, StopRtpu, SendStats, PlanPosted]
+@dataclasses.dataclass(frozen=True, slots=True)
+class Watch:
+    """A critical task that stays ON across a static switch watches the writers of its inputs in
+    configuration number `configuration` from now (the executive answers with its state)."""
+
+    KIND: ClassVar[str] = "watch"
+    task: str
+    configuration: int
+
+
+TaskSignal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch]  # the signals for one task
+Signal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch, StopRtpu, SendStats, PlanPosted]
 SIGNAL_TYPES: dict[str, type[Signal]] = {cls.KIND: cls for cls in
-                                         (Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, StopRtpu,
+                                         (Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch, StopRtpu,
                                           SendStats, PlanPosted)}
 
 

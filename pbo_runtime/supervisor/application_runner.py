@@ -150,7 +150,7 @@ class ApplicationRunner:
                 reason = f"subsystem '{failed[0]}' failed (exit {codes[failed[0]]})" if failed else self._stopping
                 self.say(f"stopping every subsystem: {reason}")
                 self._stop_all()
-                return max((c.returncode or 0) for c in self._children.values()) if failed else 0
+                return max((c.returncode or 0) for c in self._children.values())  # a fault seen before the stop counts
             if all(code is not None for code in codes.values()):
                 return 0
             time.sleep(0.05)

@@ -19,6 +19,7 @@ from pbo_runtime.supervisor.run_report import RunResult
 
 START_TIMEOUT = 60.0  # seconds for a child to import numpy, pinocchio and mujoco on a busy machine
 SIGNAL_TIMEOUT = 10.0
+STABLE_EPISODES_TOLD = 5  # per critical task, as they happen; the summary counts them all
 SIM_STALL_SECONDS = 2.0  # wall seconds one participant may take over one tick of the simulated clock before it is reported
 
 
@@ -36,6 +37,7 @@ class EventHandling:
     say: Callable[[str], None]
     _stop_requested: str
     _stable: dict[str, tuple[float, str, str]]  # task -> (since, reason, cause) of its open stable episode
+    started_at: float | None
     _stats: dict[str, dict[str, Any]]
     _refused: dict[str, str]
     _check_children: Callable[[], None]
@@ -140,23 +142,29 @@ class EventHandling:
             self.job_control.first_cycle(event.sequence, event.task, event.at)
         elif isinstance(event, messages.Stable):
             task, at = event.task, event.at
+            told = sum(1 for e in self.result.stable_episodes if e["task"] == task) < STABLE_EPISODES_TOLD
             if event.entering:
                 self._stable[task] = (at, event.reason, event.cause)
-                self.say(f"critical task '{task}' runs its locally stable behaviour: {event.reason or 'the configuration is illegal'}")
+                if told:
+                    self.say(f"critical task '{task}' runs its locally stable behaviour: {event.reason or 'the configuration is illegal'}")
             elif task in self._stable:
                 self._end_stable_episode(task, at)
                 began = self.result.stable_episodes[-1]["from"]
-                self.say(f"critical task '{task}' is back to its cycle after {(at - began) * 1e3:.1f} ms")
+                if told:
+                    self.say(f"critical task '{task}' is back to its cycle after {(at - began) * 1e3:.1f} ms"
+                             + ("" if sum(1 for e in self.result.stable_episodes if e["task"] == task) < STABLE_EPISODES_TOLD
+                                else "; its further episodes are counted in the summary, not told"))
             self._count_errors()
         elif isinstance(event, messages.Stats):
             self._stats.update(event.tasks)
         elif isinstance(event, messages.PlantStats):
             self.result.plant = event.figures
         elif isinstance(event, messages.PlantStalled):
-            fault = (f"the plant did not run for {event.seconds:.3f} s (its process was stopped or starved) and resumed at "
+            stall = (f"the plant did not run for {event.seconds:.3f} s (its process was stopped or starved) and resumed at "
                      f"simulated time {event.sim_time:.3f} s without integrating the backlog")
-            self.result.faults.append(fault)
-            self.say(fault)
+            if self.started_at is not None:  # (while the children start, they starve it of CPU, and no task drives it yet)
+                self.result.faults.append(stall)
+            self.say(stall)
         elif isinstance(event, messages.Refused):
             self._refused[event.task] = event.reason
             self.say(f"{source} refused a signal for '{event.task}': {event.reason}")

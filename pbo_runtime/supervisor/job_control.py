@@ -116,6 +116,10 @@ class JobHost(Protocol):
         """Spawn a task and wait for its init."""
     def turn_on(self, task: str, configuration: str) -> None:
         """Turn a task on in `configuration` and wait until it is ON."""
+    def hold_critical_tasks(self, hold: bool) -> None:
+        """While a static switch kills and spawns tasks, critical tasks run their locally stable behaviour."""
+    def watch(self, task: str, configuration: str) -> None:
+        """A critical task that stays ON watches the writers of its inputs in `configuration`."""
 
 
 def evaluate(host: JobHost, text: str) -> tuple[bool, dict[str, Any]]:
@@ -214,12 +218,19 @@ class JobControl:
         host = self.host
         requested = host.now()
         record = SwitchRecord(len(self.switches) + 1, before, after, requested, requested, off=list(leaving), on=list(entering))
-        for name in leaving:
-            host.kill_task(name)
-        for name in [t for t in self.subsystem.init_order if t in entering]:
-            if host.task_states.get(name) in ("NOT_CREATED", "KILLED"):
-                host.respawn(name)
-            host.turn_on(name, after)
+        host.hold_critical_tasks(True)  # their writers stop now: holding is the switch's doing, not a fault
+        try:
+            for name in leaving:
+                host.kill_task(name)
+            for name in [t for t in self.subsystem.init_order if t in entering]:
+                if host.task_states.get(name) in ("NOT_CREATED", "KILLED"):
+                    host.respawn(name)
+                host.turn_on(name, after)
+            for name in self.subsystem.configurations[after].tasks:
+                if self.subsystem.tasks[name].critical and name not in entering:
+                    host.watch(name, after)
+        finally:
+            host.hold_critical_tasks(False)
         record.applied["job control"] = (requested, host.now())
         host.set_configuration(after)
         self.switches.append(record)

@@ -108,18 +108,27 @@ class RunReporting:
 
     def _report_stable_episodes(self, started: float) -> None:
         """Close the episodes still open at the stop. Those caused by stale inputs after the
-        configuration came on are faults; while it comes on, task by task, a critical task on
-        first may hold the arm until its writers run, which is what it is for, not a fault."""
+        configuration came on are faults, one line per task and cause; while it comes on, task by
+        task, a critical task on first may hold the arm until its writers run, which is what it is
+        for, not a fault."""
         for task in list(self._stable):
             self._end_stable_episode(task, None)
+        grouped: dict[tuple[str, str], list[dict[str, Any]]] = {}
         for episode in self.result.stable_episodes:
             episode["while_starting"] = (self.started_at is not None and episode["from"] < self.started_at
                                          and episode["to"] is not None)  # (one still open at the stop is a fault)
             if episode["cause"] in ("stale", "module") and not episode["while_starting"]:
-                lasted = "until the stop" if episode["to"] is None else f"for {episode['seconds'] * 1e3:.1f} ms"
-                self.result.faults.append(
-                    f"critical task '{episode['task']}' ran its locally stable behaviour {lasted}, from "
-                    f"{episode['from'] - started:.3f} s into the run: {episode['reason']}")
+                grouped.setdefault((episode["task"], episode["cause"]), []).append(episode)
+        for (task, _), episodes in grouped.items():
+            first = episodes[0]
+            if len(episodes) == 1:
+                lasted = "until the stop" if first["to"] is None else f"for {first['seconds'] * 1e3:.1f} ms"
+                how = f"{lasted}, from {first['from'] - started:.3f} s into the run"
+            else:
+                ended = [e["seconds"] for e in episodes if e["seconds"] is not None]
+                longest = "one until the stop" if len(ended) < len(episodes) else f"the longest {max(ended) * 1e3:.1f} ms"
+                how = f"{len(episodes)} times ({longest}), the first from {first['from'] - started:.3f} s into the run"
+            self.result.faults.append(f"critical task '{task}' ran its locally stable behaviour {how}: {first['reason']}")
 
     def _report_stalls(self, started: float) -> None:
         """Stalls into the result; the table's counters for tasks whose RTPU was killed before it could report."""

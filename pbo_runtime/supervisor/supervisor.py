@@ -272,6 +272,13 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
             raise RunFailure(f"task '{name}' failed in on: {self.task_errors.get(name, '')}")
 
 
+    def hold_critical_tasks(self, hold: bool) -> None:
+        assert self.table is not None
+        self.table.set_flag(Flag.STATIC_SWITCH, hold)
+
+    def watch(self, name: str, configuration: str) -> None:
+        self.signal_and_wait(messages.Watch(name, self.reconfiguration.index(configuration)), {"ON"})
+
     def kill_task(self, name: str) -> None:
         self.signal_and_wait(messages.Kill(name), {"KILLED"})
 

@@ -95,6 +95,7 @@ MAX_RTPUS = 32
 class Flag(enum.IntFlag):
     ILLEGAL_CONFIGURATION = 1  # a task of the configuration is in ERROR, or a switch overran a cycle
     STOPPING = 2  # job control is stopping the run: RTPUs run no more cycles
+    STATIC_SWITCH = 4  # job control is killing and spawning tasks: critical tasks hold until it is done
 
 
 class Status(enum.IntEnum):

@@ -63,6 +63,7 @@ _INFERRED: tuple[tuple[re.Pattern[str], str], ...] = tuple(
     (re.compile(pattern), code)
     for pattern, code in (
         (r"^(cannot read file|is a directory|not UTF-8 text|invalid character U\+)", "E100"),
+        (r"^the file is [\d,]+ bytes.*; a configuration file may be at most", "E106"),
         (r"^duplicate key ", "E102"),
         (r"^(YAML tag |a key must be a plain name|a merge key)", "E103"),
         (r"^(YAML expands to more than|an alias refers to a node that contains it)", "E104"),

@@ -21,6 +21,8 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from pbo_runtime.config.limits import MAX_CONDITION_INT
+
 FUNCTIONS: dict[str, tuple[Callable[..., Any], int, int | None]] = {
     # name: (implementation, least arguments, most arguments or None for any number)
     "abs": (np.abs, 1, 1),
@@ -98,13 +100,14 @@ class ExpressionError(ValueError):
     """A condition that does not parse, or uses something the language leaves out.
 
     `offset` is the 0-based character offset in the condition's text; `syntax` tells a parse
-    error from a refused construct.
+    error from a refused construct, `too_large` an integer beyond the language's bound.
     """
 
-    def __init__(self, message: str, offset: int, syntax: bool = False) -> None:
+    def __init__(self, message: str, offset: int, syntax: bool = False, too_large: bool = False) -> None:
         self.message = message
         self.offset = offset
         self.syntax = syntax
+        self.too_large = too_large  # an integer beyond MAX_CONDITION_INT, written or computed
         super().__init__(f"{message} (column {offset + 1})")
 
 
@@ -147,6 +150,16 @@ def _fold(op: Callable[[Any, Any], Any], xs: tuple[Any, ...]) -> Any:
     return result
 
 
+_WRAPPING = (ast.Add, ast.Sub, ast.Mult, ast.Pow)  # what wraps around in fixed-width integers
+
+
+def _integers(value: Any) -> bool:
+    """An integer operand: a Python int (not a flag) or an integer numpy array."""
+    if isinstance(value, bool):
+        return False
+    return isinstance(value, int) or (isinstance(value, (np.ndarray, np.generic)) and value.dtype.kind in "iu")
+
+
 def _truth(value: Any) -> bool:
     return bool(np.all(value))
 
@@ -183,6 +196,8 @@ class _Validator:
                 raise self.refuse(node, f"a complex number ({value!r})")
             if not isinstance(value, (bool, int, float)):
                 raise self.refuse(node, f"the constant {value!r}")
+            if isinstance(value, int) and abs(value) > MAX_CONDITION_INT:
+                raise self.too_large(node, f"the integer {value}")
         elif isinstance(node, ast.Name):
             if node.id.startswith("__"):
                 raise self.refuse(node, f"the dunder name '{node.id}'")
@@ -194,6 +209,7 @@ class _Validator:
                 raise self.refuse(node, f"the operator '{_OPERATOR_TEXT.get(type(node.op), type(node.op).__name__)}'")
             self.check(node.left)
             self.check(node.right)
+            self.constant_integer(node)  # integers written in the condition: their arithmetic must stay in bounds
         elif isinstance(node, ast.UnaryOp):
             if not isinstance(node.op, (ast.USub, ast.Not)):
                 raise self.refuse(node, f"the operator '{_OPERATOR_TEXT.get(type(node.op), type(node.op).__name__)}'")
@@ -217,6 +233,38 @@ class _Validator:
             raise self.refuse(node, f"attribute access ('.{node.attr}')")
         else:
             raise self.refuse(node, _CONSTRUCTS.get(type(node), f"'{type(node).__name__}'"))
+
+    def too_large(self, node: ast.AST, what: str) -> ExpressionError:
+        offset = _offset(self.text, getattr(node, "lineno", 1), getattr(node, "col_offset", 0))
+        return ExpressionError(f"{what} is beyond the integers a condition computes with "
+                               f"(at most {MAX_CONDITION_INT:,} = 2**63 - 1)", offset, too_large=True)
+
+    def constant_integer(self, node: ast.expr) -> int | None:
+        """The value of an integer written as constants (`10**10**10`), each step bounded before it
+        is computed; None if the node is not integer constants alone."""
+        if isinstance(node, ast.Constant):
+            return node.value if isinstance(node.value, int) and not isinstance(node.value, bool) else None
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+            inner = self.constant_integer(node.operand)
+            return None if inner is None else -inner
+        if not isinstance(node, ast.BinOp) or not isinstance(node.op, (ast.Add, ast.Sub, ast.Mult, ast.Pow)):
+            return None
+        left, right = self.constant_integer(node.left), self.constant_integer(node.right)
+        if left is None or right is None:
+            return None
+        if isinstance(node.op, ast.Pow):
+            if right < 0:
+                return None  # a float, as 10**-3 is
+            if abs(left) > 1 and right * (abs(left).bit_length() - 1) > 63:  # 2**bits <= |left|: a lower bound of the result
+                raise self.too_large(node, f"the integer {ast.get_source_segment(self.text, node) or 'power'}")
+            result = left**right
+        elif isinstance(node.op, ast.Mult):
+            result = left * right  # operands are bounded: the product has at most 126 bits
+        else:
+            result = left + right if isinstance(node.op, ast.Add) else left - right
+        if abs(result) > MAX_CONDITION_INT:
+            raise self.too_large(node, f"the integer {ast.get_source_segment(self.text, node) or result}")
+        return result
 
     def check_index(self, node: ast.expr) -> None:
         items = node.elts if isinstance(node, ast.Tuple) else [node]
@@ -269,8 +317,11 @@ class _Evaluator:
         if isinstance(node, ast.Name):
             return np.asarray(self.values[node.id])
         if isinstance(node, ast.BinOp):
+            left, right = self.value(node.left), self.value(node.right)
             with np.errstate(all="ignore"):  # 1/0 is inf and compares as such, as in a control law
-                return _BINARY[type(node.op)](self.value(node.left), self.value(node.right))
+                if _integers(left) and _integers(right) and type(node.op) in _WRAPPING:
+                    return self.integer_arithmetic(node, left, right)
+                return _BINARY[type(node.op)](left, right)
         if isinstance(node, ast.UnaryOp):
             operand = self.value(node.operand)
             return np.negative(operand) if isinstance(node.op, ast.USub) else not _truth(operand)
@@ -302,3 +353,17 @@ class _Evaluator:
             function = FUNCTIONS[node.func.id][0]
             return function(*(self.value(a) for a in node.args))
         raise AssertionError(f"the validator let {type(node).__name__} through")  # our invariant
+
+    def integer_arithmetic(self, node: ast.BinOp, left: Any, right: Any) -> Any:
+        """+ - * ** of integers (an int variable, a written integer) in int64, refused where it would
+        wrap around: the result is worked out in float64 first, which cannot wrap."""
+        op = _BINARY[type(node.op)]
+        estimate = op(np.asarray(left, dtype=np.float64), np.asarray(right, dtype=np.float64))
+        if isinstance(node.op, ast.Pow) and np.any(np.asarray(right) < 0):
+            return estimate  # an integer to a negative power is a fraction, as 10**-3 is
+        if np.any(np.abs(estimate) >= 2.0**63):
+            offset = _offset(self.text, node.lineno, node.col_offset)
+            raise ExpressionError(f"'{ast.get_source_segment(self.text, node)}' computes an integer beyond "
+                                  f"{MAX_CONDITION_INT:,} (2**63 - 1), here about {np.max(np.abs(estimate)):.3g}",
+                                  offset, too_large=True)
+        return op(np.asarray(left, dtype=np.int64), np.asarray(right, dtype=np.int64))

@@ -16,6 +16,7 @@ from typing import Any, Iterable
 
 import yaml
 
+from pbo_runtime.config.limits import MAX_FILE_BYTES, show_bytes
 from pbo_runtime.config.model import Location
 from pbo_runtime.errors import ConfigError
 
@@ -155,24 +156,35 @@ def load_file(path: str | os.PathLike[str], display: str | None = None) -> Any:
     name = display if display is not None else os.fspath(path)
     try:
         with open(path, "rb") as stream:
-            data = stream.read()
+            size = os.fstat(stream.fileno()).st_size
+            if size > MAX_FILE_BYTES:  # before parsing: a huge file costs ~120 bytes of memory per byte
+                raise ConfigError(
+                    f"the file is {show_bytes(size)}; a configuration file may be at most {show_bytes(MAX_FILE_BYTES)}",
+                    name,
+                    hint="a file this large is a mistake (a generated list gone wrong?); split a real subsystem with include:",
+                )
+            data = stream.read(MAX_FILE_BYTES + 1)  # a file that grows while read is cut at the limit
     except IsADirectoryError:
         raise ConfigError("is a directory, not a YAML file", name) from None
     except OSError as exc:
         raise ConfigError(f"cannot read file: {exc.strerror or exc}", name) from None
+    return load_text(decode_utf8(data, name), name)
+
+
+def decode_utf8(data: bytes, name: str) -> str:
+    """A file's bytes as text, or a ConfigError at the first byte that is not UTF-8."""
     try:
-        text = data.decode("utf-8-sig")
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         before = data[: exc.start].decode("utf-8", "replace")
         line, column = _line_col(before, len(before))
         raise ConfigError(
-            f"not UTF-8 text: byte 0x{data[exc.start]:02x} cannot be decoded",
+            f"not UTF-8 text: byte 0x{data[exc.start]:02x} at byte offset {exc.start} cannot be decoded",
             name,
             line,
             column,
-            "a configuration is a UTF-8 text file; is this a binary file?",
+            "save the file as UTF-8 (a configuration is UTF-8 text; is this a binary file?)",
         ) from None
-    return load_text(text, name)
 
 
 def load_text(text: str, file: str = "<string>") -> Any:

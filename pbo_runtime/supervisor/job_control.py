@@ -21,7 +21,7 @@ import numpy as np
 
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
-from pbo_runtime.config.expressions import compile_condition
+from pbo_runtime.config.expressions import ExpressionError, compile_condition
 
 PLAN_LEAD = 0.002  # seconds from posting a plan to its activation: every RTPU is woken by then (wake-ups take ~0.1 ms)
 SWITCH_TIMEOUT = 5.0
@@ -126,7 +126,10 @@ def evaluate(host: JobHost, text: str) -> tuple[bool, dict[str, Any]]:
     """Evaluate a condition on the table's current values: (holds, the values it read)."""
     condition = compile_condition(text)
     values = {name: host.read_variable(name) for name in sorted(condition.variables)}
-    return condition.evaluate(values), values
+    try:
+        return condition.evaluate(values), values
+    except ExpressionError as exc:  # e.g. an int variable's power beyond int64: refused, never a wrapped answer
+        raise JobFailure(f"condition '{text}' cannot be evaluated on the values read ({_show(values)}): {exc}") from None
 
 
 def _show(values: dict[str, Any]) -> str:

@@ -83,6 +83,7 @@ class _Checker(SectionChecks, DeviceChecks, VariableChecks, TaskChecks, Configur
         self.check_plant(top)
         self.check_devices(top)
         self.check_variables(top)
+        self.check_table_size(top)
         self.check_tasks(top)
         self.check_configurations(top)
         self.check_jobs(top)

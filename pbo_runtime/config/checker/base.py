@@ -31,6 +31,7 @@ class CheckerBase:
         self._claims: dict[str, list[_Claim]] = {}
         self.out = Checked()
         self.rtpu_names: set[str] = set()
+        self.bad_dims: set[str] = set()  # dims given but refused (reported at the dim)
         self.var_initial: set[str] = set()
         self.var_object: dict[str, str] = {}
         self.var_locs: dict[str, Location] = {}

@@ -34,6 +34,9 @@ class JobChecks(CheckerBase):
             where = self.inside_scalar(loc, text, exc.offset)
             if exc.syntax:
                 self.error("E702", f"{what} is not an expression: {exc.message}: {text!r}", where, example)
+            elif exc.too_large:
+                self.error("E710", f"{what}: {exc.message} (column {exc.offset + 1} of {text!r})", where,
+                           "a condition compares measured values; write a float (1e30) for a huge number")
             else:
                 self.error(
                     "E703",

@@ -8,6 +8,7 @@ from typing import Any
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.model import BUS_KEYS, RTPU_KEYS
 from pbo_runtime.config.checker.words import describe
+from pbo_runtime.config.limits import MAX_DIM
 from pbo_runtime.config.model import DEFAULT_SPIN, BusSpec, Location, PlantSpec, RtpuSpec
 from pbo_runtime.config.units import DATA_RATE, SIZE, TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
@@ -38,8 +39,14 @@ class SectionChecks(CheckerBase):
     def check_dims(self, top: YMap) -> None:
         for name, value, _, value_loc in self.entries(top, "dims", "dim", "e.g. dims: {NDOF: 6}"):
             size = self.integer(value, value_loc, f"dim '{name}'", minimum=1)
+            if size is not None and size > MAX_DIM:
+                self.error("E315", f"dim '{name}' must be at most {MAX_DIM:,}, got: {size:,}", value_loc,
+                           "a dim counts joints, channels or pixels; is a digit too many?")
+                size = None
             if size is not None:
                 self.out.dims[name] = size
+            else:
+                self.bad_dims.add(name)  # reported here; a shape using it is not reported again
 
     def check_rtpus(self, top: YMap) -> None:
         if "rtpus" not in top:

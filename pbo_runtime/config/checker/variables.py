@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 from typing import Any, Callable, Iterable
 
 import numpy as np
@@ -10,7 +11,9 @@ import numpy as np
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.model import DTYPES, VARIABLE_KEYS
 from pbo_runtime.config.checker.words import _show_shape, describe, did_you_mean
+from pbo_runtime.config.limits import MAX_DIM, MAX_TABLE_BYTES, show_bytes
 from pbo_runtime.config.model import Location, VariableSpec
+from pbo_runtime.config.values import element_problem, leaves as _leaves, nested_shape as _nested_shape, non_finite
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of
 
 
@@ -39,6 +42,8 @@ class VariableChecks(CheckerBase):
             if isinstance(item, str):
                 if item in dims:
                     shape.append(dims[item])
+                elif item in self.bad_dims:
+                    ok = False  # the dim itself is wrong, and was reported there
                 else:
                     self.error(
                         "E204",
@@ -47,13 +52,37 @@ class VariableChecks(CheckerBase):
                         did_you_mean(item, dims, "defined"),
                     )
                     ok = False
-            elif isinstance(item, int) and not isinstance(item, bool) and item >= 1:
+            elif isinstance(item, int) and not isinstance(item, bool) and 1 <= item <= MAX_DIM:
                 shape.append(item)
+            elif isinstance(item, int) and not isinstance(item, bool) and item > MAX_DIM:
+                self.error("E315", f"shape of {owner}: each size must be at most {MAX_DIM:,}, got: {item:,}", where(index),
+                           "a size counts joints, channels or pixels; is a digit too many?")
+                ok = False
             else:
                 self.error("E305", f"shape of {owner}: each size must be an integer >= 1 or a dim name, got: {describe(item)}",
                            where(index))
                 ok = False
         return tuple(shape) if ok else None
+
+    def check_variable_size(self, name: str, dtype: str, shape: tuple[int, ...], loc: Location) -> bool:
+        """A variable that fits in the table by itself (E315 at its shape); before any value of it is built."""
+        nbytes = math.prod(shape) * _itemsize(dtype)
+        if nbytes <= MAX_TABLE_BYTES:
+            return True
+        self.error("E315", f"variable '{name}' ({dtype}, shape {_show_shape(shape)}) would take {show_bytes(nbytes)}, "
+                           f"more than the whole state variable table may hold, {show_bytes(MAX_TABLE_BYTES)}", loc,
+                   "the table is copied to and from every task each cycle; check the dims and sizes of the shape")
+        return False
+
+    def check_table_size(self, top: YMap) -> None:
+        """The variables' data together fit in the table's limit (E316), reported at `variables:`."""
+        total = sum(-(-math.prod(v.shape) * _itemsize(v.dtype) // 8) * 8 for v in self.out.variables.values())
+        if total > MAX_TABLE_BYTES:
+            biggest = sorted(self.out.variables.values(), key=lambda v: math.prod(v.shape) * _itemsize(v.dtype))[-3:]
+            self.error("E316", f"the variables take {show_bytes(total)} of state variable table, more than its limit of "
+                               f"{show_bytes(MAX_TABLE_BYTES)}",
+                       top.key_loc("variables"),
+                       "the largest: " + ", ".join(f"'{v.name}' {_show_shape(v.shape)} {v.dtype}" for v in reversed(biggest)))
 
     def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str) -> np.ndarray | None:
         """A value for a variable (initial or a job's argument) as an array, or an error."""
@@ -78,8 +107,13 @@ class VariableChecks(CheckerBase):
             )
             return None
         leaves = list(_leaves(value))
+        for leaf, leaf_loc in _located_leaves(value, loc):
+            if non_finite(leaf):  # at the value itself: it is the one to fix
+                self.error("E314", f"{what}: {element_problem(leaf, dtype)}", leaf_loc,
+                           "write a finite number; NaN and Inf would travel on to the actuators")
+                return None
         for leaf in leaves:
-            problem = _leaf_problem(leaf, dtype)
+            problem = element_problem(leaf, dtype)
             if problem:
                 self.error("E313", f"{what}: {problem}", location_of(value, loc))
                 return None
@@ -116,6 +150,8 @@ class VariableChecks(CheckerBase):
             shape: tuple[int, ...] | None = ()
             if "shape" in spec and spec["shape"] is not None:
                 shape = self.resolve_shape(spec["shape"], spec.value_loc("shape"), f"variable '{name}'")
+                if shape is not None and dtype is not None and not self.check_variable_size(name, dtype, shape, spec.value_loc("shape")):
+                    shape = None
             doc = ""
             if "doc" in spec and spec["doc"] is not None:
                 doc = self.text(spec["doc"], spec.value_loc("doc"), f"doc of variable '{name}'") or ""
@@ -150,40 +186,17 @@ def _dtype_name(raw: str) -> str:
     return str(np.dtype(raw))
 
 
-def _nested_shape(value: Any) -> tuple[int, ...] | None:
-    """The shape of a nested list, () for a scalar, None if ragged."""
-    if not isinstance(value, list):
-        return ()
-    if not value:
-        return (0,)
-    inner = [_nested_shape(v) for v in value]
-    if any(s is None or s != inner[0] for s in inner):
-        return None
-    first = inner[0]
-    assert first is not None
-    return (len(value), *first)
+def _itemsize(dtype: str) -> int:
+    return np.dtype(dtype).itemsize
 
 
-def _leaves(value: Any) -> Iterable[Any]:
-    if isinstance(value, list):
-        for v in value:
-            yield from _leaves(v)
+def _located_leaves(value: Any, loc: Location) -> Iterable[tuple[Any, Location]]:
+    """Each number of a value with where it was written (a scalar: the value's own place)."""
+    if isinstance(value, YList):
+        for index, item in enumerate(value):
+            yield from _located_leaves(item, value.item_loc(index))
+    elif isinstance(value, list):
+        for item in value:
+            yield from _located_leaves(item, loc)
     else:
-        yield value
-
-
-_INT_RANGE = {"int32": (-(2**31), 2**31 - 1), "int64": (-(2**63), 2**63 - 1), "uint8": (0, 255)}
-
-
-def _leaf_problem(leaf: Any, dtype: str) -> str:
-    if dtype == "bool":
-        return "" if isinstance(leaf, bool) else f"bool elements must be true or false, got: {describe(leaf)}"
-    if isinstance(leaf, bool) or not isinstance(leaf, (int, float)):
-        return f"{dtype} elements must be numbers, got: {describe(leaf)}"
-    if dtype in _INT_RANGE:
-        if not isinstance(leaf, int):
-            return f"{dtype} elements must be integers, got: {describe(leaf)}"
-        low, high = _INT_RANGE[dtype]
-        if not low <= leaf <= high:
-            return f"{dtype} elements must lie in [{low}, {high}], got: {leaf}"
-    return ""
+        yield value, loc

@@ -7,6 +7,8 @@ from __future__ import annotations
 import difflib
 from typing import Iterable, Sequence
 
+from pbo_runtime.config.values import describe as describe  # the same words for values wherever they are checked
+
 LISTED = 12  # choices named in a hint; a longer list helps nobody read it
 
 
@@ -22,25 +24,6 @@ def did_you_mean(name: object, choices: Iterable[str], what: str = "valid") -> s
     if close:
         return f"did you mean '{close[0]}'? {listing}"
     return listing
-
-
-def describe(value: object) -> str:
-    """A short, plain description of a YAML value for 'got: ...'."""
-    if value is None:
-        return "nothing (null)"
-    if isinstance(value, bool):
-        return f"true/false ({str(value).lower()})"
-    if isinstance(value, dict):
-        return "a mapping"
-    if isinstance(value, list):
-        return "a list"
-    if isinstance(value, str):
-        return f"the text {value!r}"
-    if isinstance(value, int):
-        return f"the integer {value}"
-    if isinstance(value, float):
-        return f"the number {value}"
-    return f"{type(value).__name__} {value!r}"
 
 
 def _ms(seconds: float) -> str:

@@ -119,6 +119,7 @@ class Task:
         self._params = module_class.build_params(dict(spec.params))
         self.read_inputs = self.local.read_inputs
         self.write_outputs = self.local.write_outputs
+        self._outputs_finite = self.local.outputs_finite
         self._cycle = self.module.cycle
         self._stable_cycle = self.module.stable_cycle
 
@@ -167,6 +168,9 @@ class Task:
         except Exception as exc:
             self._fail("on", exc)
             return False
+        if not self._outputs_finite():
+            self._fail("on", problem=self._non_finite())
+            return False
         self.state = TaskState.ON
         self.status[StatusWord.STATE] = TaskState.ON
         self.status[StatusWord.RELEASE] = now
@@ -190,6 +194,8 @@ class Task:
             result = (component or self._cycle)()
         except Exception as exc:
             return self._cycle_failed(exc, now)
+        if not self._outputs_finite():  # NaN or Inf never reaches the table, nor an actuator after it
+            return self._cycle_failed(None, now, self._non_finite())
         self.cycles += 1
         status = self.status
         status[StatusWord.CYCLES] = self.cycles
@@ -246,11 +252,20 @@ class Task:
 
     # --- helpers ----------------------------------------------------------------------------
 
-    def _cycle_failed(self, exc: BaseException | None, now: float) -> Status:
+    def _non_finite(self) -> str:
+        names = self.local.non_finite_outputs()
+        return (f"out-var{'s' if len(names) > 1 else ''} {', '.join(repr(n) for n in names)} not finite (NaN or Inf); "
+                "not written to the table")
+
+    def _cycle_failed(self, exc: BaseException | None, now: float, problem: str = "") -> Status:
+        """The cycle raised, returned ERROR, or (`problem`) left outputs that must not be written."""
         self.errors += 1
         self.status[StatusWord.ERRORS] = self.errors
         reason = self.module.__dict__.pop("_pbo_fault", "")
-        self.last_error = _describe("cycle", exc) if exc else "cycle returned ERROR" + (f": {reason}" if reason else "")
+        if problem:
+            self.last_error = f"cycle: {problem}"
+        else:
+            self.last_error = _describe("cycle", exc) if exc else "cycle returned ERROR" + (f": {reason}" if reason else "")
         try:
             verdict = self.module.error(exc)
         except Exception as inner:
@@ -264,10 +279,10 @@ class Task:
         self._publish(TaskState.ERROR)
         return Status.ERROR
 
-    def _fail(self, component: str, exc: BaseException) -> None:
+    def _fail(self, component: str, exc: BaseException | None = None, problem: str = "") -> None:
         self.errors += 1
         self.status[StatusWord.ERRORS] = self.errors
-        self.last_error = _describe(component, exc)
+        self.last_error = f"{component}: {problem}" if exc is None else _describe(component, exc)
         self._publish(TaskState.ERROR)
 
     def _run_kill(self) -> None:

@@ -15,6 +15,7 @@ write is stamped by the same scatter that moves it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -73,6 +74,9 @@ class _Region:
         self.writer.fill(writer)
         self.status = local64[self.status_at : self.status_at + status_words]
         self.write_times = local64[self.freshness_at : self.freshness_at + (k if freshness else 0)]
+        # the variables' data alone, one contiguous view per float dtype (no writer words, no status)
+        self.float_data = [local64[k : self.status_at]]
+        self.float_data += [local for name, local in locals_by_dtype.items() if name != "float64" and local.dtype.kind == "f"]
         self.freshness_index = (
             self.groups[0].index[self.freshness_at : self.freshness_at + k] if freshness and self.groups else None
         )
@@ -110,6 +114,7 @@ class LocalTable:
         self.status = self._out_var.status  # the executive's counters, written with the outputs
         self.input_writer = self._in_var.writer  # who wrote each in-var, as of the last read
         self.input_variables = tuple(b.variable for b in in_var)
+        self._out_variables = tuple(b.variable for b in out_var)
         self.input_write_times = self._in_var.write_times  # with watch_freshness: each writer's last release
         self.bytes_in = sum(a.nbytes for a in self._in_var.arrays)  # the data of the per-cycle ports
         self.bytes_out = sum(a.nbytes for a in self._out_var.arrays)
@@ -179,6 +184,38 @@ class LocalTable:
 
         self.read_inputs = read_inputs
         self.write_outputs = write_outputs
+        self.outputs_finite = self._finite_check()
+
+    def _finite_check(self) -> Callable[[], bool]:
+        """The per-cycle test that every float out-var is finite, before the outputs are written.
+
+        A dot product with zeros is NaN when an element is NaN or +-Inf (0 * Inf is NaN) and 0.0
+        otherwise, whatever the finite values (0 * 1e308 is 0): one C call over each float local
+        buffer, allocating no array. It measured ~0.5 µs for a task's outputs, against ~1.6 µs
+        for `np.isfinite(buffer, out=mask)` then `mask.all()`, which also allocates on each call
+        (the `.all()` wrapper). Only the variables' data is tested (not the writer words or the
+        status block); integer buffers cannot hold a non-finite number.
+        """
+        dots = tuple((data.dot, np.zeros_like(data)) for data in self._out_var.float_data if data.size)
+        if len(dots) == 1:
+            (dot, zeros), = dots
+
+            def outputs_finite() -> bool:
+                return dot(zeros) == 0.0  # type: ignore[no-any-return]
+        else:
+
+            def outputs_finite() -> bool:
+                for dot, zeros in dots:
+                    if not dot(zeros) == 0.0:
+                        return False
+                return True
+
+        return outputs_finite
+
+    def non_finite_outputs(self) -> list[str]:
+        """The out-vars that hold NaN or Inf now, for the error message (not per cycle)."""
+        return [variable for variable, array in zip(self._out_variables, self._out_var.arrays)
+                if array.dtype.kind == "f" and not np.isfinite(array).all()]
 
     # --- the transfers of Figure 11 that are not per cycle -----------------------------------
 

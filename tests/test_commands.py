@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 import argparse
+import math
 
+import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from pbo_runtime.cli import operator
 from pbo_runtime.cli.main import _parser
+from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.errors import PboError
-from pbo_runtime.supervisor.commands import COMMANDS, VERBS, WHICH_RUN, dispatch, verb_table
+from pbo_runtime.ipc.control import BadRequest
+from pbo_runtime.supervisor.commands import COMMANDS, SERVED, VERBS, WHICH_RUN, dispatch, verb_table
 from tests.support import REPO
 from tests.fake_job_host import FakeJobHost, fake_subsystem
 
@@ -109,9 +115,106 @@ def test_clear_says_whether_the_tasks_clear_component_fixed_the_fault(host, fixe
     assert dispatch(host, "clear", {"task": "pid"})["message"] == message
 
 
-def test_an_event_is_sent_with_its_values(host):
-    assert dispatch(host, "event", {"task": "traj", "values": [1.0, 2.0]}) == {"task": "traj", "message": "event sent to 'traj'"}
-    assert host.events == [("traj", [1.0, 2.0])]
+@pytest.fixture(scope="module")
+def goal_subsystem():
+    return load_subsystem(str(REPO / "configs" / "operator_goal.yaml"))  # 'goal' is aperiodic
+
+
+@pytest.fixture
+def goal_host(goal_subsystem) -> FakeJobHost:
+    return FakeJobHost(goal_subsystem, "operated")
+
+
+def test_an_event_is_sent_with_its_values(goal_host):
+    values = [0.1, -0.5, 0.5, 0, 0.3, 0.1]
+    assert dispatch(goal_host, "event", {"task": "goal", "values": values}) == {"task": "goal", "message": "event sent to 'goal'"}
+    assert goal_host.events == [("goal", values)]
+
+
+# issue 18: every one was sent before (a periodic task got an event, an aperiodic one went to ERROR)
+@pytest.mark.parametrize("arguments, refusal", [
+    ({"task": "pid", "values": [1, 2, 3]}, r"^task 'pid' is periodic: it runs on its own timer and takes no events; "
+                                           r"send events to an aperiodic task \(goal\)$"),
+    ({"task": "goal", "values": "abc"}, r"^the values of an event for 'goal' must be a list of numbers, got: the text 'abc'$"),
+    ({"task": "goal", "values": [0.1, float("nan")]}, r"^the values of an event for 'goal': values must be finite numbers, "
+                                                      r"got: \.nan \(not a number\) \(value 2\)$"),
+    ({"task": "goal", "values": [float("-inf")]}, r"values must be finite numbers, got: -\.inf \(value 1\)$"),
+    ({"task": "goal", "values": [[0.1], [0.2]]}, r"values must be numbers, got: a list \(value 1\)$"),
+    ({"task": "goal", "values": [True]}, r"values must be numbers, got: true/false \(true\) \(value 1\)$"),
+    ({"task": "goal", "values": [0.0] * 257}, r"must be at most 256 numbers, got: 257$"),
+    ({"task": ["goal"], "values": [0.0]}, r"^task must be named by text, got: a list \(tasks: robot, goal, traj, pid\)$"),
+    ({"task": "goal", "values": [0.0], "priority": 1}, r"^'event' takes no argument 'priority' \(its arguments: task, values\)$"),
+])
+def test_a_malformed_event_is_refused_as_a_bad_request_and_nothing_is_sent(goal_host, arguments, refusal):
+    with pytest.raises(BadRequest, match=refusal):
+        dispatch(goal_host, "event", arguments)
+    assert goal_host.events == []
+
+
+def test_an_event_for_an_aperiodic_task_that_is_not_on_is_refused_for_the_runs_state(goal_host):
+    goal_host.task_states["goal"] = "OFF"
+    with pytest.raises(PboError, match=r"^task 'goal' is OFF, not ON: an event would not run it; turn it on with pbo on goal$") as refused:
+        dispatch(goal_host, "event", {"task": "goal", "values": [0.0] * 6})
+    assert not isinstance(refused.value, BadRequest) and goal_host.events == []
+
+
+@pytest.mark.parametrize("job_object, refusal", [
+    ([float("nan")] + [0.0] * 5, r"^job 'reach': object 'q_d': float64 elements must be finite numbers, got: \.nan \(not a number\) \(value 1\)$"),
+    ([0.0] * 5 + [float("inf")], r"got: \.inf \(value 6\)$"),
+    ([0.0] * 5, r"^job 'reach': object 'q_d': the variable takes 6 values \(shape \[6\]\), got 5$"),
+    (["a"] * 6, r"float64 elements must be numbers, got: the text 'a' \(value 1\)$"),
+    ([[0.0, 0.0], [0.0]], r"^job 'reach': object 'q_d' is a ragged list; rows must have equal lengths$"),
+    ({"q_d": 1}, r"^job 'reach': object 'q_d' must be numbers, got: a mapping$"),
+    (10**400, r"float64 elements must be finite numbers, got: an integer of 401 digits, beyond the largest float64$"),
+], ids=["nan", "inf", "short", "text", "ragged", "mapping", "huge"])
+def test_a_job_object_that_is_not_finite_numbers_of_its_shape_is_refused_before_anything_changes(host, job_object, refusal):
+    before = host.values["q_d"].copy()
+    with pytest.raises(BadRequest, match=refusal):
+        dispatch(host, "job", {"job": "reach", "object": job_object})
+    assert host.plans == [] and host.job_control.job is None and (host.values["q_d"] == before).all()
+
+
+@pytest.mark.parametrize("command, arguments, refusal", [
+    ("on", {"task": ["pid"]}, r"^task must be named by text, got: a list \(tasks: robot, traj, pid, pd\)$"),
+    ("clear", {"task": {"a": 1}}, r"^task must be named by text, got: a mapping"),
+    ("off", {}, r"^task must be named by text, got: nothing \(null\)"),
+    ("switch", {"configuration": 3}, r"^configuration must be named by text, got: the integer 3 \(configurations: pid, pd\)$"),
+    ("switch", {"configuration": "nope"}, r"^no configuration 'nope' \(configurations: pid, pd\)$"),
+    ("job", {"job": None}, r"^job must be named by text, got: nothing \(null\)"),
+    ("status", {"verbose": True}, r"^'status' takes no argument 'verbose' \(its arguments: none\)$"),
+    ("kill", {}, r"^unknown command 'kill'"),
+])
+def test_a_request_of_the_wrong_shape_is_a_bad_request_with_what_was_expected(host, command, arguments, refusal):
+    with pytest.raises(BadRequest, match=refusal):
+        dispatch(host, command, arguments)
+    assert host.signals == [] and host.plans == []
+
+
+# Anything that can arrive on the control queue (msgpack: None, flags, integers up to 64 bits,
+# floats with NaN and Inf, text, lists, maps with text keys): a reply or a refusal, never an
+# internal error, and never a non-finite value written or sent.
+_ANYTHING = st.recursive(
+    st.none() | st.booleans() | st.integers(-(2**63), 2**64 - 1) | st.floats() | st.text(max_size=8),
+    lambda inner: st.lists(inner, max_size=7) | st.dictionaries(st.text(max_size=6), inner, max_size=3),
+    max_leaves=20,
+)
+_KEYS = st.sampled_from(["task", "values", "job", "object", "configuration", "x"])
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(command=st.sampled_from([*SERVED, "nope"]), arguments=st.dictionaries(_KEYS, _ANYTHING | st.sampled_from(
+    ["goal", "pid", "robot", "operated", "reach"]) | st.lists(st.floats(), min_size=6, max_size=6), max_size=3))
+def test_any_request_shape_is_answered_or_refused_never_an_internal_error(goal_subsystem, command, arguments):
+    host = FakeJobHost(goal_subsystem, "operated")
+    try:
+        reply = dispatch(host, command, arguments)
+    except PboError:
+        pass
+    else:
+        assert isinstance(reply, dict) and isinstance(reply.get("message", ""), str)
+    for _, values in host.events:
+        assert values is None or all(math.isfinite(v) for v in values)
+    assert all(np.isfinite(value).all() for value in host.values.values() if value.dtype.kind == "f")
 
 
 def test_switch_answers_what_went_off_and_on_and_how_long_it_took(host):

@@ -7,6 +7,7 @@ Fake live runs are table segments named with this test process's pid, which is a
 from __future__ import annotations
 
 import os
+import re
 import stat
 import subprocess
 import sys
@@ -28,6 +29,7 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.errors import InternalError
 from pbo_runtime.ipc.control import (
     MAX_REQUESTS_PER_POLL,
+    BadRequest,
     CommandRefused,
     ControlClient,
     ControlServer,
@@ -35,8 +37,12 @@ from pbo_runtime.ipc.control import (
     find_live_run,
     reply_queue_prefix,
 )
+from pbo_runtime.cli.main import main
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.supervisor.commands import dispatch
 from pbo_runtime.table.table import StateTable, TableLayout
-from tests.support import variables
+from tests.fake_job_host import FakeJobHost
+from tests.support import REPO, variables
 
 
 def _queue_exists(name: str) -> bool:
@@ -430,10 +436,14 @@ def test_a_job_without_values_sends_no_object(live):
     assert supervisor.handled[-1] == ("job", {"job": "move", "object": None})
 
 
-@pytest.mark.parametrize("text", ["abc", "nan", "inf"])
+@pytest.mark.parametrize("text", ["abc", "nan", "inf", "-inf", "1e999"])
 def test_job_object_values_must_be_finite_numbers(text):
-    with pytest.raises(PboError, match=r"^a job's object values must be (numbers|finite), got: '\w+' \(value 2\)$"):
+    with pytest.raises(BadRequest, match=r"^values must be (finite )?numbers, got: '[\w-]+' \(value 2\)$"):
         operator.parse_object_values(["0.1", text])
+
+
+def test_command_line_values_keep_integers_as_integers_for_integer_variables():
+    assert operator.parse_object_values(["3", "-1", "0.5", "1e3", str(2**64)]) == [3, -1, 0.5, 1000.0, float(2**64)]
 
 
 def test_a_message_too_long_for_its_queue_is_named_as_our_bug_not_a_bare_value_error():
@@ -444,3 +454,85 @@ def test_a_message_too_long_for_its_queue_is_named_as_our_bug_not_a_bare_value_e
         assert queue.try_send("stats", "small")
     finally:
         queue.close()
+
+
+# --- issue 18: every shape a request can take is answered, with the supervisor's own verbs ------------
+
+
+class DispatchingSupervisor(FakeSupervisor):
+    """Serves the queue with the supervisor's real dispatch, on a fake run of configs/operator_goal.yaml."""
+
+    def __init__(self, server: ControlServer, host: FakeJobHost) -> None:
+        super().__init__(server)
+        self.host = host
+
+    def handle(self, command: str, arguments: dict[str, Any]) -> dict[str, Any]:
+        self.handled.append((command, arguments))
+        return dispatch(self.host, command, arguments)
+
+
+@pytest.fixture
+def goal_run(fake_run) -> Iterator[tuple[str, FakeJobHost]]:
+    sub, run_id, _ = fake_run(new_subsystem())
+    host = FakeJobHost(load_subsystem(str(REPO / "configs" / "operator_goal.yaml")), "operated")
+    control = ControlServer(sub, run_id)
+    try:
+        with DispatchingSupervisor(control, host):
+            yield sub, host
+    finally:
+        control.close()
+
+
+def raw_request(server_name: str, reply_name: str, payload: bytes) -> dict[str, Any]:
+    """Send bytes as they are to a control queue and wait for the answer, as a hostile client would."""
+    control = posix_ipc.MessageQueue(server_name)
+    replies = posix_ipc.MessageQueue(reply_name, posix_ipc.O_CREX, mode=0o600, max_messages=1, max_message_size=8192)
+    try:
+        control.send(payload)
+        raw, _ = replies.receive(timeout=5.0)
+        return msgpack.unpackb(raw)
+    finally:
+        control.close()
+        replies.close()
+        replies.unlink()
+
+
+@pytest.mark.parametrize("request_, error", [
+    (["on", {"task": [1, 2]}], r"^task must be named by text, got: a list \(tasks: robot, goal, traj, pid\)$"),
+    (["event", {"task": "goal", "values": "abc"}], r"^the values of an event for 'goal' must be a list of numbers, got: the text 'abc'$"),
+    (["event", {"task": "pid", "values": [1, 2, 3]}], r"^task 'pid' is periodic: .* \(goal\)$"),
+    (["event", {"task": "goal", "values": [float("nan")] * 6}], r"values must be finite numbers, got: \.nan \(not a number\) \(value 1\)$"),
+    (["job", {"job": "go", "object": [0.0] * 6}], r"^no job 'go' \(jobs: none\)$"),
+    (["switch", {"configuration": {"a": 1}}], r"^configuration must be named by text, got: a mapping \(configurations: operated\)$"),
+    (["stop", {"now": True}], r"^'stop' takes no argument 'now' \(its arguments: none\)$"),
+    (["fly", {}], r"^unknown command 'fly' \(commands: "),
+    (["status", [1, 2]], r"^malformed request: expected \[command, reply queue, arguments\], got a list of 3 \(str, str, list\)$"),
+], ids=["task-list", "event-text", "event-periodic", "event-nan", "job-unknown", "switch-mapping", "stop-argument",
+        "unknown", "arguments-list"])
+def test_a_malformed_request_on_the_control_queue_is_refused_clearly_never_an_internal_error(goal_run, request_, error):
+    sub, host = goal_run
+    client = ControlClient(*find_live_run(sub)[:2])
+    reply_name = f"{reply_queue_prefix(client.subsystem, client.run_id)}{os.getpid()}-raw"
+    reply = raw_request(client.control_name, reply_name, msgpack.packb([request_[0], reply_name, request_[1]]))
+    assert reply["ok"] is False and reply["bad_request"] is True and re.search(error, reply["error"]), reply
+    assert host.events == [] and all(state == "ON" for state in host.task_states.values())
+
+
+def test_pbo_event_to_a_periodic_task_is_refused_with_exit_status_1_and_a_hint(goal_run, capsys):
+    sub, host = goal_run
+    assert main(["event", "pid", "1", "2", "3", "--subsystem", sub]) == 1
+    err = capsys.readouterr().err
+    assert f"error: '{sub}' refused 'event': task 'pid' is periodic" in err and "send events to an aperiodic task (goal)" in err
+    assert "event sent" not in err and host.events == []
+
+
+def test_pbo_job_with_values_that_are_not_numbers_exits_1_before_sending(goal_run, capsys):
+    sub, host = goal_run
+    assert main(["job", "reach", "0", "nan", "--subsystem", sub]) == 1
+    assert "error: values must be finite numbers, got: 'nan' (value 2)" in capsys.readouterr().err
+
+
+def test_pbo_event_to_the_aperiodic_task_is_sent(goal_run, capsys):
+    sub, host = goal_run
+    assert main(["event", "goal", "0.1", "-0.5", "0.5", "0", "0.3", "0.1", "--subsystem", sub]) == 0
+    assert "event sent to 'goal'" in capsys.readouterr().out and host.events == [("goal", [0.1, -0.5, 0.5, 0, 0.3, 0.1])]

@@ -83,11 +83,11 @@ def test_switch_and_job_commands_reconfigure_a_running_subsystem(tmp_path):
         switched = pbo("switch", "pd", "--subsystem", "puma_switch")
         assert switched.returncode == 0 and "switched 'pid' -> 'pd'" in switched.stdout, switched.stderr
         unknown = pbo("switch", "nope", "--subsystem", "puma_switch")
-        assert unknown.returncode == 2 and "no configuration 'nope' (configurations: pid, pd)" in unknown.stderr
+        assert unknown.returncode == 1 and "no configuration 'nope' (configurations: pid, pd)" in unknown.stderr  # bad input
         job = pbo("job", "reach", "0.1", "-0.4", "0.4", "0", "0.3", "0.1", "--subsystem", "puma_switch")
         assert job.returncode == 0 and "job 'reach' runs in 'pid'" in job.stdout, job.stderr
         short = pbo("job", "reach", "0.1", "--subsystem", "puma_switch")
-        assert short.returncode == 2 and "takes 6 values" in short.stderr
+        assert short.returncode == 1 and "takes 6 values" in short.stderr
         status = pbo("status", "--subsystem", "puma_switch")
         assert "pid" in status.stdout and "reach" in status.stdout
         assert pbo("stop", "--subsystem", "puma_switch").returncode == 0

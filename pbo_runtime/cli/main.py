@@ -1,7 +1,7 @@
 """The `pbo` command: check a subsystem file, run it, list the module library, clean up.
 
-Exit status: 0 done, 1 the file has errors, 2 the run failed, 3 an internal error (please
-report it). No traceback reaches the user unless --debug is given.
+Exit status: 0 done, 1 the file has errors (or an operator command's arguments were refused),
+2 the run failed, 3 an internal error (please report it). No traceback reaches the user unless --debug is given.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from rich.table import Table
 from pbo_runtime.clock.clocks import scheduler_outcome
 from pbo_runtime.objects import registry
 from pbo_runtime.errors import ConfigErrors, PboError
+from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.config.transitions import transitions
 
 EXIT_OK, EXIT_CONFIG, EXIT_RUN, EXIT_INTERNAL = 0, 1, 2, 3
@@ -38,6 +39,9 @@ def main(argv: list[str] | None = None) -> int:
         return args.handler(args, console, errors)
     except ConfigErrors as exc:
         errors.print(str(exc), markup=False)
+        return EXIT_CONFIG
+    except BadRequest as exc:  # an operator command whose arguments the run refused: bad input
+        errors.print(f"error: {exc}", markup=False)
         return EXIT_CONFIG
     except PboError as exc:
         errors.print(f"error: {exc}", markup=False)

@@ -4,7 +4,8 @@ Each function finds the live run (`ipc.control.find_live_run`: by `--subsystem` 
 several are alive; `pbo runs` lists them), sends one request over the run's
 control queue, prints the outcome on the console it is given and returns the exit status 0.
 Anything that stops a command (no run, no answer, the supervisor refused) raises a PboError
-whose message says why; the CLI prints it and exits with 2, as for every other run failure.
+whose message says why; the CLI prints it and exits with 2, as for every other run failure, or
+with 1 for a BadRequest (the arguments were wrong: a name, a value; see docs/operator-commands.md).
 `svar` alone reads the table directly (`table.svar`), so it works even while the supervisor is busy.
 
 The verbs, their arguments, what the supervisor does and answers, and the status reply are

@@ -60,8 +60,8 @@ def element_problem(leaf: Any, dtype: str) -> str:
         return ""
     if isinstance(leaf, float) and not math.isfinite(leaf):
         return f"{dtype} elements must be finite numbers, got: {_written(leaf)}"
-    if isinstance(leaf, int) and abs(leaf) > np.finfo(dtype).max:
-        return f"{dtype} elements must be finite numbers, got: {leaf:.3g}, beyond the largest {dtype}"
+    if isinstance(leaf, int) and abs(leaf) > int(np.finfo(dtype).max):
+        return f"{dtype} elements must be finite numbers, got: an integer of {len(str(abs(leaf)))} digits, beyond the largest {dtype}"
     return ""
 
 
@@ -110,7 +110,10 @@ def as_value(value: Any, dtype: str, shape: Sequence[int], what: str) -> np.ndar
     size = math.prod(shape)
     if isinstance(value, dict):
         raise ValueError(f"{what} must be numbers, got: a mapping")
-    found = nested_shape(value)
+    try:
+        found = nested_shape(value)
+    except RecursionError:  # lists in lists a thousand deep: no variable has that many dimensions
+        raise ValueError(f"{what} is lists nested too deeply to be a variable's value") from None
     if found is None:
         raise ValueError(f"{what} is a ragged list; rows must have equal lengths")
     count = math.prod(found)

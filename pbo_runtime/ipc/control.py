@@ -11,6 +11,7 @@ The protocol is msgpack on both sides:
 
     request  [command: str, reply_queue_name: str, arguments: dict]   -> the control queue
     reply    {"ok": True, ...} or {"ok": False, "error": "..."}         -> the reply queue
+             (a refusal of what was asked, not of the run's state, adds "bad_request": True)
 
 Each request brings its own reply queue, created 0600 by the client and named in the run's
 namespace, `/pbo.<subsystem>.<run id>.reply-<client pid>-<nonce>`; the server answers only to
@@ -54,6 +55,12 @@ Handler = Callable[[str, dict[str, Any]], dict[str, Any]]
 
 class CommandRefused(PboError):
     """The supervisor answered, and said no (the reply's `error` is the message)."""
+
+
+class BadRequest(CommandRefused):
+    """A request refused for what it asks, not for the run's state: no such task, values that are
+    not finite numbers, an event for a periodic task, an unknown argument. The operator's input is
+    wrong (the CLI exits 1, as for any bad argument); the reply carries `"bad_request": True`."""
 
 
 def control_queue_name(subsystem: str, run_id: str) -> str:
@@ -128,8 +135,9 @@ class ControlServer:
             return
         if len(request) != 3 or not isinstance(request[0], str) or not isinstance(request[2], dict):
             shape = ", ".join(type(item).__name__ for item in request)
-            self._reply(reply_to, {"ok": False, "error": f"malformed request: expected [command, reply queue, arguments], "
-                                                         f"got a list of {len(request)} ({shape})"})
+            self._reply(reply_to, {"ok": False, "bad_request": True,
+                                   "error": f"malformed request: expected [command, reply queue, arguments], "
+                                            f"got a list of {len(request)} ({shape})"})
             return
         command, _, arguments = request
         try:
@@ -137,6 +145,8 @@ class ControlServer:
             if not isinstance(reply, dict):
                 raise TypeError(f"the handler returned {type(reply).__name__}, not a dict")
             reply = {"ok": True, **reply}
+        except BadRequest as exc:
+            reply = {"ok": False, "error": str(exc), "bad_request": True}
         except KeyError as exc:
             reply = {"ok": False, "error": str(exc.args[0]) if len(exc.args) == 1 else str(exc)}
         except (PboError, ValueError) as exc:
@@ -258,7 +268,8 @@ class ControlClient:
         """`request`, raising CommandRefused with the supervisor's message when it said no."""
         reply = self.request(command, arguments, timeout)
         if not reply["ok"]:
-            raise CommandRefused(f"'{self.subsystem}' refused '{command}': {reply.get('error') or 'no reason given'}")
+            refusal = BadRequest if reply.get("bad_request") else CommandRefused
+            raise refusal(f"'{self.subsystem}' refused '{command}': {reply.get('error') or 'no reason given'}")
         return reply
 
     @staticmethod

@@ -7,7 +7,9 @@ its subparsers from it (`cli.main`), the supervisor serves the control queue's r
 
 A handler decides; it reaches the run only through `CommandHost`, which the Supervisor
 implements (a fake host in the unit tests, with a manual clock). A handler that says no raises
-PboError (or ValueError/KeyError), whose message the operator reads as the refusal.
+PboError (or ValueError/KeyError), whose message the operator reads as the refusal; BadRequest
+when what was asked is wrong (a name, a value, an argument), not the run's state. Every request
+is checked here, whatever sent it: the CLI, or anything else that writes to the control queue.
 
 The status reply (times in seconds, rates in Hz; keys marked ? may be absent or None):
 
@@ -29,11 +31,13 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable, Protocol
 
+from pbo_runtime.config.values import INT_RANGE, as_value, describe, element_problem
 from pbo_runtime.errors import PboError
+from pbo_runtime.ipc.control import BadRequest
 
 if TYPE_CHECKING:
     from pbo_runtime.config.model import Subsystem
@@ -41,6 +45,7 @@ if TYPE_CHECKING:
 
 STATUS_TIMEOUT = 2.0
 COMMAND_TIMEOUT = 5.0  # a switch or a task signal may wait for RTPUs to confirm
+MAX_EVENT_VALUES = 256  # an event carries a goal or a setpoint, never bulk data (a request is at most 4 KiB)
 
 
 class CommandHost(Protocol):
@@ -142,20 +147,53 @@ class Verb:
         return request
 
 
-def parse_object_values(texts: Sequence[str] | None) -> list[float] | None:
-    """Command-line numbers as floats (None when none are given); the supervisor checks the shape."""
+def parse_object_values(texts: Sequence[str] | None) -> list[int | float] | None:
+    """Command-line numbers (None when none are given): integers as written ('3'), others as floats.
+
+    Refused here already when not finite numbers; the supervisor checks them again, with the
+    variable's dtype and shape, since a request may come from elsewhere than this command line.
+    """
     if not texts:
         return None
-    values = []
+    values: list[int | float] = []
     for position, text in enumerate(texts, 1):
         try:
-            value = float(text)
+            value: int | float = int(text)
+            if abs(value) > INT_RANGE["int64"][1]:
+                value = float(text)  # beyond any integer variable: a float, refused or not by its dtype
         except ValueError:
-            raise PboError(f"a job's object values must be numbers, got: {text!r} (value {position})") from None
+            try:
+                value = float(text)
+            except ValueError:
+                raise BadRequest(f"values must be numbers, got: {text!r} (value {position})") from None
         if not math.isfinite(value):
-            raise PboError(f"a job's object values must be finite, got: {text!r} (value {position})")
+            raise BadRequest(f"values must be finite numbers, got: {text!r} (value {position})")
         values.append(value)
     return values
+
+
+def _numbers(values: Any, what: str) -> list[int | float]:
+    """An event's values as the control queue brought them: a flat list of finite numbers."""
+    if not isinstance(values, list):
+        raise BadRequest(f"{what} must be a list of numbers, got: {describe(values)}")
+    if len(values) > MAX_EVENT_VALUES:
+        raise BadRequest(f"{what} must be at most {MAX_EVENT_VALUES} numbers, got: {len(values)}")
+    for position, value in enumerate(values, 1):
+        problem = element_problem(value, "float64")
+        if problem:
+            raise BadRequest(f"{what}: {problem.replace('float64 elements', 'values')} (value {position})")
+    return values
+
+
+def _name(arguments: dict[str, Any], key: str, what: str, known: Collection[str]) -> str:
+    """A name argument that must be text and one of `known` (tasks, jobs, configurations)."""
+    value = arguments.get(key)
+    listing = ", ".join(known) or "none"
+    if not isinstance(value, str):
+        raise BadRequest(f"{what} must be named by text, got: {describe(value)} ({what}s: {listing})")
+    if value not in known:
+        raise BadRequest(f"no {what} '{value}' ({what}s: {listing})")
+    return value
 
 
 # --- the handlers: what the supervisor does for each verb -------------------------------------
@@ -177,11 +215,7 @@ def status(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
 
 
 def _task(host: CommandHost, arguments: dict[str, Any]) -> str:
-    tasks = host.subsystem.tasks
-    task = arguments.get("task")
-    if task not in tasks:
-        raise PboError(f"no task '{task}' (tasks: {', '.join(tasks)})")
-    return str(task)
+    return _name(arguments, "task", "task", host.subsystem.tasks)
 
 
 _EXPECTED = {"on": {"ON", "ERROR"}, "off": {"OFF", "ERROR"}, "clear": {"OFF", "ERROR"}}
@@ -217,7 +251,17 @@ def task_signal(command: str) -> Handler:
 
 def event(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     task = _task(host, arguments)
-    host.send_event(task, arguments.get("values"))
+    values = arguments.get("values")
+    if values is not None:
+        values = _numbers(values, f"the values of an event for '{task}'")
+    if not host.subsystem.tasks[task].aperiodic:
+        aperiodic = [name for name, spec in host.subsystem.tasks.items() if spec.aperiodic]
+        raise BadRequest(f"task '{task}' is periodic: it runs on its own timer and takes no events; send events to an "
+                         f"aperiodic task ({', '.join(aperiodic) if aperiodic else 'this subsystem has none'})")
+    state = host.task_states.get(task)
+    if state != "ON":
+        raise PboError(f"task '{task}' is {state}, not ON: an event would not run it; turn it on with pbo on {task}")
+    host.send_event(task, values)
     return {"task": task, "message": f"event sent to '{task}'"}
 
 
@@ -228,7 +272,7 @@ def _no_application(host: CommandHost) -> None:
 
 def switch(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     _no_application(host)
-    record = host.job_control.switch(str(arguments.get("configuration")))
+    record = host.job_control.switch(_name(arguments, "configuration", "configuration", host.subsystem.configurations))
     return {"configuration": record.after, "entered": record.on, "left": record.off, "took": record.latency,
             "message": f"switched '{record.before}' -> '{record.after}' in {record.latency * 1e3:.2f} ms: "
                        f"off {', '.join(record.off) or 'nothing'}; on {', '.join(record.on) or 'nothing'}"}
@@ -236,17 +280,19 @@ def switch(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
 
 def job(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     _no_application(host)
-    name = str(arguments.get("job"))
-    if name not in host.subsystem.jobs:
-        raise PboError(f"no job '{name}' (jobs: {', '.join(host.subsystem.jobs) or 'none'})")
+    name = _name(arguments, "job", "job", host.subsystem.jobs)
     spec = host.subsystem.jobs[name]
     values: dict[str, Any] = {}
     if arguments.get("object") is not None:
         if not spec.object:
-            raise PboError(f"job '{name}' takes no object")
-        values[spec.object] = arguments["object"]
+            raise BadRequest(f"job '{name}' takes no object")
+        variable = host.subsystem.variables[spec.object]
+        try:  # the checker's rule for a job's object in a file: numbers of the dtype, finite, all elements
+            values[spec.object] = as_value(arguments["object"], variable.dtype, variable.shape, f"job '{name}': object '{spec.object}'")
+        except ValueError as exc:
+            raise BadRequest(str(exc)) from None
     elif spec.object:
-        raise PboError(f"job '{name}' needs its object '{spec.object}': pbo job {name} VALUE ...")
+        raise BadRequest(f"job '{name}' needs its object '{spec.object}': pbo job {name} VALUE ...")
     host.job_control.start_job(name, values)
     return {"job": name, "configuration": spec.configuration,
             "message": f"job '{name}' runs in '{spec.configuration}'" + (f"; done when {spec.post}" if spec.post else "")}
@@ -304,7 +350,12 @@ def dispatch(host: CommandHost, command: str, arguments: dict[str, Any]) -> dict
     """One operator request, as the supervisor serves it from the control queue."""
     verb = COMMANDS.get(command)
     if verb is None or verb.handler is None:
-        raise PboError(f"unknown command '{command}' (commands: {', '.join(SERVED)})")
+        raise BadRequest(f"unknown command '{command}' (commands: {', '.join(SERVED)})")
+    takes = [argument.key for argument in verb.arguments if argument.key is not None]
+    unknown = [key for key in arguments if key not in takes]
+    if unknown:
+        raise BadRequest(f"'{command}' takes no argument {', '.join(repr(key) for key in unknown)} "
+                         f"(its arguments: {', '.join(takes) or 'none'})")
     return verb.handler(host, arguments)
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pbo_runtime import ModuleError, OutConst, OutVar, PortBasedObject
+from pbo_runtime import ModuleError, OutConst, OutVar, PortBasedObject, Status
 
 PLANT_STALL_PERIODS = 3  # cycles (or plant steps, if slower) without a new step before the plant counts as stalled
 
@@ -66,6 +66,12 @@ class RobotInterface(PortBasedObject):
 
     def off(self) -> None:
         self._arm.engage_brakes()
+
+    def error(self, exc: BaseException | None) -> Status:
+        """A cycle failed (the driver refused a non-finite command, the plant stopped answering):
+        the brakes hold the arm, which must not keep the last command, and the task waits in ERROR."""
+        self._arm.engage_brakes()
+        return Status.ERROR
 
     def kill(self) -> None:
         arm = getattr(self, "_arm", None)

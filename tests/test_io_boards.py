@@ -130,3 +130,31 @@ def test_reading_the_adc_and_writing_the_dac_allocate_nothing(plant, opened):
 
     for call in (lambda: adc.read(volts), lambda: consecutive.read(two), lambda: dac.write(out)):
         assert allocation_peak(call) < one_array()
+
+
+# issue 18: a NaN voltage was cast to an arbitrary count; it is refused and the channels keep their value
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_a_dac_refuses_voltages_that_are_not_finite_and_writes_nothing(plant, opened, bad):
+    dac = Dac(plant.name, {}, channels=(0, 1))
+    opened.append(dac)
+    dac.write(np.array([2.5, -1.0]))
+    before = attach_registers(plant.name)
+    try:
+        counts = before.dac[:2].copy()
+        with pytest.raises(DeviceError, match=rf"^dac on registers '{plant.name}': refused voltages that are not finite "
+                                              rf"\(\[2\.5, -?(nan|inf)\]\) for channels \[0, 1\]; the channels keep their values"):
+            dac.write(np.array([2.5, bad]))
+        np.testing.assert_array_equal(before.dac[:2], counts)
+    finally:
+        before.release()
+
+
+@pytest.mark.parametrize("lines", [float("nan"), 1.5, -1, 65536, "3"])
+def test_a_parallel_port_refuses_output_lines_that_are_not_16_bit_integers(plant, opened, lines):
+    port = ParallelPort(plant.name, {}, channels=(2,))
+    opened.append(port)
+    port.write_channel(0, 0x00FF)
+    with pytest.raises(DeviceError, match=rf"^parallel_port on registers '{plant.name}': output lines of channel 2 must be "
+                                          rf"an integer 0 \.\. 65535, got: "):
+        port.write_channel(0, lines)
+    assert port.output(0) == 0x00FF

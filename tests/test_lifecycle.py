@@ -9,7 +9,7 @@ from pbo_runtime import InBoth, InConst, InVar, LifecycleError, OutBoth, OutCons
 from pbo_runtime.objects.module import TaskContext
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import TaskState
-from tests.support import task_spec, variables
+from tests.support import allocation_peak, one_array, task_spec, variables
 
 VARS = variables(
     ("k_in", "float64", (2,)), ("k_out", "float64", (2,)), ("u", "float64", (2,)), ("y", "float64", (2,)),
@@ -241,3 +241,103 @@ def test_a_tasks_context_is_the_task_context_modules_see(table):
     task = make_task(table)
     assert isinstance(task.context, TaskContext)
     assert task.module._pbo_context is task.context
+
+
+# --- issue 18: non-finite outputs never reach the table ------------------------------------------
+
+NON_FINITE_VARS = variables(("x", "float64", (3,)), ("w", "float32", (2,)), ("count", "int32", (2,)), ("src", "float64", ()))
+
+
+class Emitter(PortBasedObject):
+    """Fake module: writes what the test sets in `emit` to its float64, float32 and int32 out-vars."""
+
+    src = InVar("src")
+    x = OutVar("x", shape=(3,))
+    w = OutVar("w", dtype="float32", shape=(2,))
+    count = OutVar("count", dtype="int32", shape=(2,))
+
+    emit: dict = {}
+    verdict = Status.ERROR
+    errors_seen: list
+
+    def init(self, params):
+        self.errors_seen = []
+
+    def on(self):
+        self.cycle()
+
+    def cycle(self):
+        for name, value in self.emit.items():
+            getattr(self, name)[...] = value
+        np.add(self.count, 1, out=self.count)
+        return Status.CONTINUE
+
+    def error(self, exc):
+        self.errors_seen.append(exc)
+        return self.verdict
+
+
+@pytest.fixture
+def emitter(make_table):
+    table = make_table(NON_FINITE_VARS)
+
+    def make(**emit) -> Task:
+        task = Task(task_spec(Emitter, name="emitter", index=0), Emitter, table)
+        task.module.emit = {"x": [1.0, 2.0, 3.0], "w": [0.5, 0.25]}
+        assert task.spawn(0.0) and task.turn_on(0.0)
+        task.module.emit = {**task.module.emit, **emit}
+        return task
+
+    return make, table
+
+
+@pytest.mark.parametrize("emit, named", [
+    ({"x": [1.0, np.nan, 3.0]}, "out-var 'x'"),
+    ({"x": [np.inf, 0.0, 0.0]}, "out-var 'x'"),
+    ({"w": [0.0, -np.inf]}, "out-var 'w'"),
+    ({"x": [np.nan] * 3, "w": [np.nan, 0.0]}, "out-vars 'x', 'w'"),
+], ids=["nan", "inf", "float32", "both"])
+def test_a_cycle_whose_float_outputs_are_not_finite_goes_to_error_and_writes_nothing(emitter, emit, named):
+    make, table = emitter
+    task = make()
+    assert task.run_cycle(0.001) is Status.CONTINUE
+    before = {name: table.read(name) for name in ("x", "w", "count")}
+    task.module.emit.update(emit)
+    assert task.run_cycle(0.002) is Status.ERROR
+    assert task.state == TaskState.ERROR and task.module.errors_seen == [None]
+    assert task.last_error == f"cycle: {named} not finite (NaN or Inf); not written to the table"
+    for name in ("x", "w", "count"):  # not a value, not a sequence number, nothing moved (the int out-var either)
+        value, seq, when, _ = table.read(name)
+        assert value.tolist() == before[name][0].tolist() and (seq, when) == before[name][1:3]
+
+
+def test_an_error_component_that_recovers_keeps_the_task_on_but_writes_nothing_non_finite(emitter):
+    make, table = emitter
+    task = make(x=[np.nan, 0.0, 0.0])
+    task.module.verdict = Status.CONTINUE
+    assert task.run_cycle(0.001) is Status.CONTINUE and task.state == TaskState.ON
+    assert np.isfinite(table.read("x")[0]).all()
+
+
+def test_outputs_that_are_not_finite_after_on_put_the_task_in_error_before_they_are_written(emitter, make_table):
+    make, table = emitter
+    task = Task(task_spec(Emitter, name="emitter", index=0), Emitter, table)
+    task.module.emit = {"x": [0.0, np.inf, 0.0], "w": [0.0, 0.0]}
+    assert task.spawn(0.0)
+    assert task.turn_on(0.0) is False and task.state == TaskState.ERROR
+    assert task.last_error == "on: out-var 'x' not finite (NaN or Inf); not written to the table"
+    assert table.read("x")[0].tolist() == [0.0, 0.0, 0.0]
+
+
+def test_integer_out_vars_are_not_checked_and_finite_floats_of_any_size_pass(emitter):
+    make, table = emitter
+    task = make(x=[1e308, -1e308, 0.0], count=[2**31 - 2, -(2**31)])
+    assert task.run_cycle(0.001) is Status.CONTINUE
+    assert table.read("x")[0].tolist() == [1e308, -1e308, 0.0]
+
+
+def test_the_finite_check_allocates_no_array(emitter):
+    make, _ = emitter
+    task = make()
+    assert task.local.outputs_finite()
+    assert allocation_peak(task.local.outputs_finite) < one_array()  # at most Python's own loop over the two float dtypes

@@ -411,6 +411,27 @@ def test_robot_holds_the_arm_and_says_stable_while_the_plant_stops_stepping(tabl
     task.kill()
 
 
+# issue 18: a NaN torque reached the arm and MuJoCo reset the simulation
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_robot_refuses_a_non_finite_torque_goes_to_error_and_the_brakes_hold_the_arm(table, plant, observer, bad):
+    task, _ = robot_task(table, plant)
+    assert task.spawn(0.0), task.last_error
+    assert task.turn_on(0.0)
+    table.write("tau_u", np.full(N, 2.0), when=plant.timestep)
+    assert task.run_cycle(plant.timestep) is Status.CONTINUE
+    written = observer.commands_written
+    tau = np.full(N, 2.0)
+    tau[1] = bad
+    table.write("tau_u", tau, when=2 * plant.timestep)
+    assert task.run_cycle(2 * plant.timestep) is Status.ERROR
+    assert task.state is TaskState.ERROR and observer.brakes_engaged and observer.commands_written == written
+    assert task.last_error.startswith("cycle raised DeviceError: arm registers ") and "write_torque refused a torque command that is not finite" in task.last_error
+    plant.step()
+    assert plant.brakes_engaged and np.isfinite(plant.data.qpos).all()
+    assert task.clear() and task.state is TaskState.OFF  # the operator's clear, then on: it drives the arm again
+    task.kill()
+
+
 def test_robot_off_engages_the_brakes(table, plant, observer):
     task, _ = robot_task(table, plant)
     assert task.spawn(0.0), task.last_error

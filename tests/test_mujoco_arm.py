@@ -419,3 +419,33 @@ def test_a_position_driver_never_moves_an_arm_a_torque_driver_commands(plant, dr
         assert positioner.active_mode == "torque"
     finally:
         positioner.close()
+
+
+# issue 18: a NaN torque made MuJoCo reset the simulation; the driver now refuses it
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("mode", ["torque", "position"])
+def test_a_command_that_is_not_finite_is_refused_and_never_written(plant, mode, bad) -> None:
+    arm = MujocoArmDriver(plant.name, {"mode": mode})
+    try:
+        write = arm.write_torque if mode == "torque" else arm.write_position
+        good = np.full(NDOF, 0.25)
+        write(good)
+        written = arm.commands_written
+        command = good.copy()
+        command[3] = bad
+        with pytest.raises(DeviceError, match=rf"^arm registers '{plant.name}': write_{mode} refused a {mode} command that is "
+                                              rf"not finite \(\[0\.25, 0\.25, 0\.25, -?(nan|inf), 0\.25, 0\.25\]\); the arm keeps "
+                                              rf"its previous command: fix the task that computes it$"):
+            write(command)
+        assert arm.commands_written == written
+        registers = plant._registers.tau if mode == "torque" else plant._registers.q_cmd
+        np.testing.assert_array_equal(registers, good)
+    finally:
+        arm.close()
+
+
+def test_writing_a_finite_torque_allocates_no_array(plant, driver) -> None:
+    from tests.support import allocation_peak, one_array
+
+    tau = np.full(NDOF, 1.0)
+    assert allocation_peak(lambda: driver.write_torque(tau)) < one_array()

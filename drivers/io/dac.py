@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from drivers.io.board import BoardDriver
-from drivers.mujoco_arm.registers import DAC_CHANNELS, VOLTS_PER_COUNT
+from drivers.mujoco_arm.registers import DAC_CHANNELS, VOLTS_PER_COUNT, DeviceError
 from pbo_runtime import DeviceDriver
 
 
@@ -36,9 +36,17 @@ class Dac(BoardDriver):
         self._per_volt = np.full(n, 1.0 / VOLTS_PER_COUNT)
         self._lowest = np.full(n, -32768.0)
         self._highest = np.full(n, 32767.0)
+        self._finite = np.zeros(n, dtype=bool)  # per channel: the voltage is finite (filled per write, no allocation)
 
     def write(self, volts: np.ndarray) -> None:
-        """Set the lent channels (one value per channel, in channel order), V; rounded to counts."""
+        """Set the lent channels (one value per channel, in channel order), V; rounded to counts.
+
+        NaN or Inf is refused (`DeviceError`) and nothing is written: the channels keep their values.
+        """
+        if np.count_nonzero(np.isfinite(volts, out=self._finite)) != self._finite.size:  # two C calls, no array
+            raise DeviceError(f"dac on registers {self.registers!r}: refused voltages that are not finite "
+                              f"([{', '.join(f'{x:g}' for x in np.ravel(volts))}]) for channels "
+                              f"{list(self.channels)}; the channels keep their values: fix the task that computes them")
         scaled = self._scaled
         np.multiply(volts, self._per_volt, out=scaled)
         np.rint(scaled, out=scaled)

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from drivers.io.board import BoardDriver
-from drivers.mujoco_arm.registers import PIO_CHANNELS
+from drivers.mujoco_arm.registers import PIO_CHANNELS, DeviceError
 from pbo_runtime import DeviceDriver
 
 
@@ -51,8 +51,13 @@ class ParallelPort(BoardDriver):
         return self._in_words[self._numbers[k]]
 
     def write_channel(self, k: int, lines: int) -> None:
-        """Drive the output lines of the k-th lent channel (0 .. 65535)."""
-        self._out_words[self._numbers[k]] = lines
+        """Drive the output lines of the k-th lent channel (0 .. 65535); anything else (a float, NaN,
+        a number out of range) is refused with `DeviceError` and the lines keep their state."""
+        try:
+            self._out_words[self._numbers[k]] = lines
+        except (TypeError, ValueError):  # the memoryview takes only 16-bit integers: nothing was written
+            raise DeviceError(f"parallel_port on registers {self.registers!r}: output lines of channel "
+                              f"{self._numbers[k]} must be an integer 0 .. 65535, got: {lines!r}") from None
 
     def output(self, k: int) -> int:
         """The output lines of the k-th lent channel, as last driven."""

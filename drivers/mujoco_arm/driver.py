@@ -14,6 +14,8 @@ the reverse). The arm changes hands only through engaged brakes: the owner (its 
 engages them, then the other driver releases them. Drivers of the same mode share the
 registers, as before. Both command registers share one seqlock, which assumes one writer at a
 time: only the driver holding the arm should write commands (the others' are ignored anyway).
+A command with NaN or Inf is refused (`DeviceError`) and never written: the writing task goes to
+ERROR, and the robot interface's error component engages the brakes.
 """
 
 from __future__ import annotations
@@ -81,6 +83,7 @@ class MujocoArmDriver(DeviceDriver):
         self._tau = self._regs.tau
         self._q_cmd = self._regs.q_cmd
         self._stuck_deadline = 0.0
+        self._finite = np.zeros(self.ndof, dtype=bool)  # per element of a command: finite (filled per write, no allocation)
 
     # constants -------------------------------------------------------------------------------
 
@@ -133,6 +136,8 @@ class MujocoArmDriver(DeviceDriver):
         """Command joint torques, N m (the plant clips them to its torque limits). Torque mode only."""
         if self._position:
             raise DeviceError(self._wrong_mode("write_torque", "torque"))
+        if np.count_nonzero(np.isfinite(tau, out=self._finite)) != self.ndof:  # a non-finite command never reaches the arm
+            raise DeviceError(self._not_finite("write_torque", "torque", tau))
         words = self._words
         seq = words[W_CMD_SEQ]
         words[W_CMD_SEQ] = seq + 1  # odd: the plant keeps the previous command
@@ -143,12 +148,19 @@ class MujocoArmDriver(DeviceDriver):
         """Command joint positions, rad (the plant clips them to the joint limits). Position mode only."""
         if not self._position:
             raise DeviceError(self._wrong_mode("write_position", "position"))
+        if np.count_nonzero(np.isfinite(q_cmd, out=self._finite)) != self.ndof:
+            raise DeviceError(self._not_finite("write_position", "position", q_cmd))
         words = self._words
         seq = words[W_CMD_SEQ]
         words[W_CMD_SEQ] = seq + 1  # odd: the plant keeps the previous command
         np.copyto(self._q_cmd, q_cmd)
         words[W_CMD_SEQ] = seq + 2
         self._positioned = True
+
+    def _not_finite(self, call: str, what: str, command: np.ndarray) -> str:
+        return (f"arm registers {self.registers!r}: {call} refused a {what} command that is not finite "
+                f"([{', '.join(f'{x:g}' for x in np.ravel(command))}]); the arm keeps its previous "
+                f"command: fix the task that computes it")
 
     def _wrong_mode(self, call: str, needs: str) -> str:
         return f"arm registers {self.registers!r}: {call} needs a driver opened with mode: {needs}; this one has mode: {self.mode}"

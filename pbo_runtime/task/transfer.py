@@ -189,24 +189,27 @@ class LocalTable:
     def _finite_check(self) -> Callable[[], bool]:
         """The per-cycle test that every float out-var is finite, before the outputs are written.
 
-        A dot product with zeros is NaN when an element is NaN or +-Inf (0 * Inf is NaN) and 0.0
-        otherwise, whatever the finite values (0 * 1e308 is 0): one C call over each float local
-        buffer, allocating no array. It measured ~0.5 µs for a task's outputs, against ~1.6 µs
-        for `np.isfinite(buffer, out=mask)` then `mask.all()`, which also allocates on each call
-        (the `.all()` wrapper). Only the variables' data is tested (not the writer words or the
-        status block); integer buffers cannot hold a non-finite number.
+        `np.isfinite` into a mask made here, then `np.count_nonzero` of it (a Python int): two C
+        calls per float dtype and no allocation, no floating-point warning. (A dot product with
+        zeros, NaN when an element is not finite, measured about as fast but allocates its result
+        and warns on Inf; `mask.all()` allocates on each call, in its Python wrapper.) Only the
+        variables' data is tested, not the writer words or the status block; integer buffers
+        cannot hold a non-finite number.
         """
-        dots = tuple((data.dot, np.zeros_like(data)) for data in self._out_var.float_data if data.size)
-        if len(dots) == 1:
-            (dot, zeros), = dots
+        isfinite, count_nonzero = np.isfinite, np.count_nonzero
+        checks = tuple((data, np.zeros(data.size, dtype=bool), data.size) for data in self._out_var.float_data if data.size)
+        if len(checks) == 1:
+            (data, mask, size), = checks
 
             def outputs_finite() -> bool:
-                return dot(zeros) == 0.0  # type: ignore[no-any-return]
+                isfinite(data, out=mask)
+                return count_nonzero(mask) == size  # type: ignore[no-any-return]
         else:
 
             def outputs_finite() -> bool:
-                for dot, zeros in dots:
-                    if not dot(zeros) == 0.0:
+                for data, mask, size in checks:
+                    isfinite(data, out=mask)
+                    if count_nonzero(mask) != size:
                         return False
                 return True
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from pbo_runtime import InBoth, InConst, InVar, ModuleError, OutBoth, OutConst, OutVar, PortBasedObject
+from pbo_runtime import ANY_DTYPE, InBoth, InConst, InVar, ModuleError, OutBoth, OutConst, OutVar, PortBasedObject
 from pbo_runtime.config.loader import CheckResult, check_file
 from pbo_runtime.errors import ConfigError
 
@@ -57,6 +57,12 @@ class FakeNdofVar(PortBasedObject):
     ndof = OutVar("NDOF", dtype="int32")
 
 
+class FakeKReader(PortBasedObject):
+    """Reads K, of any dtype and shape: so a variable added by a case is read, and warns of nothing."""
+
+    k = InVar("K", dtype=ANY_DTYPE, shape=None)
+
+
 class FakeConstA(PortBasedObject):
     b = InConst("b")
     a = OutConst("a")
@@ -93,6 +99,7 @@ FAKES: dict[str, type] = {
     "fake_ndof_const": FakeNdofConst,
     "fake_ndof_var": FakeNdofVar,
     "fake_const_a": FakeConstA,
+    "fake_k_reader": FakeKReader,
     "fake_const_b": FakeConstB,
     "fake_both_reader": FakeBothReader,
     "fake_both_writer": FakeBothWriter,
@@ -330,6 +337,58 @@ ONE_MISTAKE = [
     mistake("an_application_object_must_match_the_variable_shape",
             changed("[0, -0.5, 0.5, 0, 0, 0]", "[0, -0.5, 0.5]"), "[0, -0.5, 0.5]",
             r"object 'q_d' of step 1 of application 'demo' has shape \(3,\), but the variable's shape is \(6,\)$"),
+    # issue 18: non-finite values, at the value itself
+    mistake("an_initial_value_may_not_be_nan",
+            changed("tau_u: {type: float64, shape: [NDOF]}", "tau_u: {type: float64, shape: [NDOF], initial: [0, 0, .nan, 0, 0, 0]}"),
+            ".nan", r"initial value of variable 'tau_u': float64 elements must be finite numbers, got: \.nan \(not a number\)$",
+            code="E314", hint=r"^write a finite number; NaN and Inf would travel on to the actuators$"),
+    mistake("a_scalar_initial_value_may_not_be_infinite",
+            changed("q_m:   {type: float64, shape: [NDOF]}", "q_m:   {type: float64, shape: [NDOF], initial: -.inf}"),
+            "-.inf", r"initial value of variable 'q_m': float64 elements must be finite numbers, got: -\.inf$", code="E314"),
+    mistake("an_application_object_may_not_be_infinite",
+            changed("[0, -0.5, 0.5, 0, 0, 0]", "[0, -0.5, 0.5, 0, .Inf, 0]"), ".Inf",
+            r"object 'q_d' of step 1 of application 'demo': float64 elements must be finite numbers, got: \.inf$", code="E314"),
+    mistake("a_nested_initial_value_is_refused_at_the_element",
+            edited(("variables:\n", "variables:\n  K: {type: float32, shape: [2, 2], initial: [[1, 2], [.NaN, 4]]}\n"),
+                   ("  pid:   {", "  k:     {module: fake_k_reader, rtpu: rtpu0, period: 1 ms}\n  pid:   {"),
+                   ("[robot, traj, pid]", "[robot, traj, pid, k]")),
+            ".NaN", r"initial value of variable 'K': float32 elements must be finite numbers, got: \.nan \(not a number\)$",
+            code="E314"),
+    # issue 18: sizes bounded before anything is built
+    mistake("a_dim_beyond_the_limit_is_an_error_at_the_dim_and_nowhere_else",
+            changed("NDOF: 6}", "NDOF: 1000000000000}"), "1000000000000",
+            r"dim 'NDOF' must be at most 16,777,216, got: 1,000,000,000,000$", code="E315",
+            hint=r"is a digit too many\?$"),
+    mistake("a_dim_that_is_a_float_is_an_error_at_the_dim_and_nowhere_else",
+            changed("NDOF: 6}", "NDOF: 1.0e+12}"), "1.0e+12", r"dim 'NDOF' must be an integer, got: the number 1000000000000\.0$",
+            code="E116"),
+    mistake("a_size_in_a_shape_beyond_the_limit_is_an_error_at_the_size",
+            edited(("variables:\n", "variables:\n  K: {type: float32, shape: [2, 100000000], initial: 0}\n"),
+                   ("  pid:   {", "  k:     {module: fake_k_reader, rtpu: rtpu0, period: 1 ms}\n  pid:   {"),
+                   ("[robot, traj, pid]", "[robot, traj, pid, k]")),
+            "100000000", r"shape of variable 'K': each size must be at most 16,777,216, got: 100,000,000$", code="E315"),
+    mistake("a_variable_larger_than_the_table_is_an_error_at_its_shape_before_its_initial_value_is_built",
+            edited(("variables:\n", "variables:\n  K: {type: float64, shape: [4096, 4096], initial: 0}\n"),
+                   ("  pid:   {", "  k:     {module: fake_k_reader, rtpu: rtpu0, period: 1 ms}\n  pid:   {"),
+                   ("[robot, traj, pid]", "[robot, traj, pid, k]")),
+            "[4096, 4096]", r"variable 'K' \(float64, shape \(4096, 4096\)\) would take 134,217,728 bytes \(128 MiB\), more than "
+                            r"the whole state variable table may hold, 67,108,864 bytes \(64 MiB\)$", code="E315"),
+    mistake("variables_that_together_exceed_the_table_are_an_error_at_variables",  # (unread: warnings only)
+            changed("variables:\n", "variables:\n  K: {type: float64, shape: [2100, 2100]}\n  L: {type: float64, shape: [2100, 2100]}\n"),
+            "variables:", r"the variables take 70,560,\d+ bytes \(67.3 MiB\) of state variable table, more than its limit of "
+                          r"67,108,864 bytes \(64 MiB\)$", code="E316", hint=r"^the largest: '[KL]' \(2100, 2100\) float64"),
+    # issue 18: integers in conditions are bounded, never wrapped
+    mistake("a_condition_may_not_compute_an_integer_beyond_int64",
+            changed('"max(abs(q_m - q_d)) < 1e-3"', '"10**10**10 > 1"'), "10**10**10",
+            r"post-condition of job 'move': the integer 10\*\*10\*\*10 is beyond the integers a condition computes with "
+            r"\(at most 9,223,372,036,854,775,807 = 2\*\*63 - 1\) \(column 1 of '10\*\*10\*\*10 > 1'\)$", code="E710",
+            hint=r"write a float \(1e30\)"),
+    mistake("a_condition_may_not_write_an_integer_beyond_int64",
+            changed('"max(abs(q_m - q_d)) < 1e-3"', '"max(abs(q_m)) < 99999999999999999999"'), "99999999999999999999",
+            r"post-condition of job 'move': the integer 99999999999999999999 is beyond the integers", code="E710"),
+    mistake("a_product_of_written_integers_beyond_int64_is_refused",
+            changed('"max(abs(q_m - q_d)) < 1e-3"', '"max(abs(q_m)) < 3037000500 * 3037000500"'), "3037000500 *",
+            r"post-condition of job 'move': the integer 3037000500 \* 3037000500 is beyond", code="E710"),
     # task names and modules
     mistake("a_module_runs_at_most_once_in_a_configuration",
             edited(("configurations:\n", TRAJ2 + "configurations:\n"), ("[robot, traj, pid]", "[robot, traj, pid, traj2]")),

@@ -185,3 +185,38 @@ def test_version_prints_the_version_pyproject_declares(capsys):
         main(["--version"])
     assert stopped.value.code == 0
     assert capsys.readouterr().out == f"pbo {declared}\n"
+
+
+# --- issue 18: files that are not UTF-8, or too large, are bad input: one line, exit 1 ----------------------
+
+
+def latin1(text: str) -> bytes:
+    return text.encode("latin-1")
+
+
+@pytest.mark.parametrize("verb", [["check"], ["run", "--clock", "sim", "--duration", "0.01", "--no-live"]], ids=["check", "run"])
+@pytest.mark.parametrize("what", ["subsystem", "application"])
+def test_a_yaml_file_that_is_not_utf8_is_one_clear_error_with_exit_1(tmp_path, capsys, verb, what):
+    text = DEMO + "# réglé\n" if what == "subsystem" else f"application: demo\n# réglé\nsubsystems: {{a: {REPO / 'configs' / 'pid_joint.yaml'}}}\n"
+    path = tmp_path / "latin.yaml"
+    path.write_bytes(latin1(text))
+    offset = latin1(text).index(b"\xe9")
+    line = text[:offset].count("\n") + 1
+    assert main([verb[0], str(path), *verb[1:]]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "internal error" not in err
+    assert re.search(rf"^{re.escape(str(path))}:{line}:\d+: error\[E100\]: not UTF-8 text: byte 0xe9 at byte offset {offset} "
+                     rf"cannot be decoded\n  hint: save the file as UTF-8", err, re.MULTILINE), err
+
+
+def test_a_file_over_the_size_limit_is_refused_before_it_is_parsed(tmp_path, capsys):
+    from pbo_runtime.config.limits import MAX_FILE_BYTES
+
+    path = tmp_path / "huge.yaml"
+    with path.open("w") as out:  # a 20 MB YAML list took 3.1 GB and 15.6 s to check
+        out.write("subsystem: huge\nx: [" + "0, " * (MAX_FILE_BYTES // 3) + "0]\n")
+    size = path.stat().st_size
+    assert main(["check", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"{path}: error[E106]: the file is {size:,} bytes (4 MiB); a configuration file may be at most "
+                          f"4,194,304 bytes (4 MiB)\n  hint: ")

@@ -116,3 +116,40 @@ def test_the_evaluator_never_compiles_or_evals(monkeypatch: pytest.MonkeyPatch) 
     for name in ("eval", "exec", "compile"):
         monkeypatch.setattr(builtins, name, refuse)
     assert condition.evaluate(Q)
+
+
+# --- issue 18: `10**10**10 > 1` evaluated false (int64 wrapped around); integers are bounded -----------
+
+
+@pytest.mark.parametrize(("text", "column"), [
+    ("10**10**10 > 1", 1),
+    ("9**9**9 > 1", 1),  # refused before it is computed: 9**387420489 would take minutes
+    ("q_m[0] < 2**64", 10),
+    ("q_m[0] < 4611686018427387904 + 4611686018427387904", 10),
+    ("q_m[0] < -(3037000500 * 3037000500)", 12),
+    ("q_m[0] < 18446744073709551616", 10),
+])
+def test_integers_written_in_a_condition_beyond_int64_are_refused_at_check_time(text: str, column: int) -> None:
+    with pytest.raises(ExpressionError, match=r" is beyond the integers a condition computes with \(at most "
+                                              r"9,223,372,036,854,775,807 = 2\*\*63 - 1\)") as refused:
+        compile_condition(text)
+    assert refused.value.too_large and not refused.value.syntax and refused.value.offset + 1 == column
+
+
+@pytest.mark.parametrize(("text", "expected"), [
+    ("2**62 + (2**62 - 1) > 0", True),
+    ("10**-3 < 1", True),  # a fraction, as in Python
+    ("10.0**400 > 1", True),  # floats overflow to inf, which compares as such
+    ("NDOF**2 == 36", True),
+    ("NDOF * 2**59 > 0", True),
+    ("NDOF * 0 + 9223372036854775806 + 1 > 0", True),  # float64 would round it up to 2**63
+])
+def test_integer_arithmetic_within_int64_and_float_arithmetic_give_the_right_answer(text: str, expected: bool) -> None:
+    assert compile_condition(text).evaluate({"NDOF": np.int32(6)}) is expected
+
+
+@pytest.mark.parametrize("text", ["NDOF**40 > 0", "NDOF * 9223372036854775807 > 0", "-NDOF * 2**62 * 4 < 0"])
+def test_integer_arithmetic_on_variables_that_would_wrap_is_refused_when_evaluated(text: str) -> None:
+    condition = compile_condition(text)  # only the values tell
+    with pytest.raises(ExpressionError, match=r"computes an integer beyond 9,223,372,036,854,775,807 \(2\*\*63 - 1\)"):
+        condition.evaluate({"NDOF": np.array(6, dtype=np.int32)})

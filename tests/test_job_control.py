@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from pbo_runtime.errors import PboError
-from pbo_runtime.supervisor.job_control import POLL, SWITCH_TIMEOUT, JobFailure
+from pbo_runtime.supervisor.job_control import POLL, SWITCH_TIMEOUT, JobFailure, evaluate
 from tests.fake_job_host import FakeJobHost, fake_subsystem
 
 GOAL = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]
@@ -136,3 +137,12 @@ def test_an_application_stops_at_the_job_that_times_out_in_the_configuration_it_
     with pytest.raises(JobFailure, match=r"^job 'reach' \(step 1 of 3 of application 'tour'\): timed out after 10 s"):
         host.job_control.run_application("tour")
     assert host.configuration == "pid" and host.job_control.job == "reach"
+
+
+def test_a_condition_that_cannot_be_evaluated_on_the_values_read_is_a_job_failure_not_a_wrong_answer(subsystem):
+    # issue 18: an integer power that wraps around in int64 must not decide a job
+    host = FakeJobHost(subsystem, "pid")
+    host.values["NDOF"] = np.array(6, dtype=np.int32)
+    with pytest.raises(JobFailure, match=r"^condition 'NDOF\*\*40 > 0' cannot be evaluated on the values read \(NDOF = 6\): "
+                                         r"'NDOF\*\*40' computes an integer beyond"):
+        evaluate(host, "NDOF**40 > 0")

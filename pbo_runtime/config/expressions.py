@@ -153,6 +153,13 @@ def _fold(op: Callable[[Any, Any], Any], xs: tuple[Any, ...]) -> Any:
 _WRAPPING = (ast.Add, ast.Sub, ast.Mult, ast.Pow)  # what wraps around in fixed-width integers
 
 
+def _exact_beyond(op: Callable[[Any, Any], Any], left: Any, right: Any) -> bool:
+    """Whether an integer result whose float64 estimate is within [2**63, 2**64) really exceeds the
+    bound: worked out again with Python's exact integers (cheap, as the result is below 2**64)."""
+    exact = op(np.asarray(left, dtype=object), np.asarray(right, dtype=object))
+    return bool(np.any(np.abs(exact) > MAX_CONDITION_INT))
+
+
 def _integers(value: Any) -> bool:
     """An integer operand: a Python int (not a flag) or an integer numpy array."""
     if isinstance(value, bool):
@@ -361,9 +368,10 @@ class _Evaluator:
         estimate = op(np.asarray(left, dtype=np.float64), np.asarray(right, dtype=np.float64))
         if isinstance(node.op, ast.Pow) and np.any(np.asarray(right) < 0):
             return estimate  # an integer to a negative power is a fraction, as 10**-3 is
-        if np.any(np.abs(estimate) >= 2.0**63):
+        largest = np.max(np.abs(estimate))
+        if largest >= 2.0**63 and (largest >= 2.0**64 or _exact_beyond(op, left, right)):  # float64 rounds near 2**63
             offset = _offset(self.text, node.lineno, node.col_offset)
             raise ExpressionError(f"'{ast.get_source_segment(self.text, node)}' computes an integer beyond "
-                                  f"{MAX_CONDITION_INT:,} (2**63 - 1), here about {np.max(np.abs(estimate)):.3g}",
+                                  f"{MAX_CONDITION_INT:,} (2**63 - 1), here about {largest:.3g}",
                                   offset, too_large=True)
         return op(np.asarray(left, dtype=np.int64), np.asarray(right, dtype=np.int64))

@@ -134,11 +134,16 @@ def run(rounds: int = 21, iterations: int = 20000, table_variables: int = 1000) 
     try:
         bindings = tuple(PortBinding(p, p.variable, (SIZE,)) for p in BenchTask.ports())
         local = LocalTable(table, bindings, task_index=3)
-        read_inputs, write_outputs = local.read_inputs, local.write_outputs
+        read_inputs, write_outputs, outputs_finite = local.read_inputs, local.write_outputs, local.outputs_finite
 
         def pbo_transfer() -> None:
             read_inputs()
             write_outputs()
+
+        def pbo_checked() -> None:  # what Task.run_cycle does around a cycle: no NaN or Inf is written
+            read_inputs()
+            if outputs_finite():
+                write_outputs()
 
         # The naive way: one np.copyto per variable, views made once, same semaphore.
         flat = floor.flat
@@ -158,7 +163,8 @@ def run(rounds: int = 21, iterations: int = 20000, table_variables: int = 1000) 
                 copyto(dst, src)
             release()
 
-        contenders = {"floor": floor.transfer, "pbo table": pbo_transfer, "per-variable copyto": naive}
+        contenders = {"floor": floor.transfer, "pbo table": pbo_transfer, "pbo table + finite check": pbo_checked,
+                      "per-variable copyto": naive}
         each: dict[str, list[np.ndarray]] = {k: [] for k in contenders}
         batch = interleaved_batches(contenders, rounds * iterations)
         for _ in range(rounds):
@@ -184,6 +190,9 @@ then {rounds} rounds x {iterations:,} individually timed transfers for the per-c
   the real table, which also move each variable's writer word and the task's status block (its
   cycle count and release time, the outputs' sequence number and write time) and record the
   lock holder's pid;
+- **pbo table + finite check**: the same, with the test a task's cycle makes before writing its
+  outputs (`LocalTable.outputs_finite`: `np.isfinite` into a preallocated mask and
+  `np.count_nonzero`, so no NaN or Inf reaches the table); its cost is the difference to the row above;
 - **per-variable copyto**: the obvious implementation, one `np.copyto` per variable.
 
 The batch median (the median over batches of the mean time per transfer, no clock read inside a

@@ -24,6 +24,10 @@ from pbo_runtime.objects.ports import PortKind
 from pbo_runtime.table.table import HEADER_WORDS, META_WORDS, STATUS_WORDS, Header, StateTable
 from pbo_runtime.table.table import Status as StatusWord
 
+# np.count_nonzero's C function without its Python wrapper, which only dispatches on axis and
+# keepdims: the wrapper cost about 0.3 µs of the finite check's ~1 µs per cycle (2 vCPUs, loaded).
+_COUNT_NONZERO = getattr(getattr(getattr(np, "_core", None), "multiarray", None), "count_nonzero", np.count_nonzero)
+
 _INPUT_ORDER = (PortKind.IN_CONST, PortKind.IN_BOTH, PortKind.IN_VAR)
 _OUTPUT_ORDER = (PortKind.OUT_CONST, PortKind.OUT_BOTH, PortKind.OUT_VAR)
 
@@ -190,13 +194,13 @@ class LocalTable:
         """The per-cycle test that every float out-var is finite, before the outputs are written.
 
         `np.isfinite` into a mask made here, then `np.count_nonzero` of it (a Python int): two C
-        calls per float dtype and no allocation, no floating-point warning. (A dot product with
+        calls per float dtype, no array allocated, no floating-point warning. (A dot product with
         zeros, NaN when an element is not finite, measured about as fast but allocates its result
         and warns on Inf; `mask.all()` allocates on each call, in its Python wrapper.) Only the
         variables' data is tested, not the writer words or the status block; integer buffers
         cannot hold a non-finite number.
         """
-        isfinite, count_nonzero = np.isfinite, np.count_nonzero
+        isfinite, count_nonzero = np.isfinite, _COUNT_NONZERO
         checks = tuple((data, np.zeros(data.size, dtype=bool), data.size) for data in self._out_var.float_data if data.size)
         if len(checks) == 1:
             (data, mask, size), = checks

@@ -2,8 +2,9 @@
 
 An aperiodic task: it runs when the operator sends an event (`pbo event goal 0.3 -0.5 ...`),
 not on a timer, with the same transfers as a periodic cycle. When turned on it takes the arm's
-current position as the goal, so nothing moves until a goal arrives. A payload of the wrong
-length is refused as an ERROR return (the task waits in ERROR; `pbo clear` returns it to OFF).
+current position as the goal, so nothing moves until a goal arrives. The supervisor refuses an
+event that is not NDOF finite numbers (`EVENT_SHAPE`); a payload that reaches the cycle anyway
+(another sender) of the wrong length is an ERROR return (`pbo clear` returns it to OFF).
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from pbo_runtime import InVar, OutVar, PortBasedObject, Status
 
 class GoalInput(PortBasedObject):
     """Writes each event's values into q_d. Run it with `aperiodic: true, min_interarrival: ...`."""
+
+    EVENT_SHAPE = ("NDOF",)  # the supervisor refuses an event of another count before it is sent
 
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad: the goal until one arrives")
     q_d = OutVar("q_d", shape=("NDOF",), doc="desired joint position, rad")

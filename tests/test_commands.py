@@ -142,6 +142,8 @@ def test_an_event_is_sent_with_its_values(goal_host):
     ({"task": "goal", "values": [[0.1], [0.2]]}, r"values must be numbers, got: a list \(value 1\)$"),
     ({"task": "goal", "values": [True]}, r"values must be numbers, got: true/false \(true\) \(value 1\)$"),
     ({"task": "goal", "values": [0.0] * 257}, r"must be at most 256 numbers, got: 257$"),
+    ({"task": "goal", "values": [0.1, 0.2, 0.3]}, r"^task 'goal' takes events of 6 values \(goal_input's EVENT_SHAPE\), got 3$"),
+    ({"task": "goal", "values": None}, r"^task 'goal' takes events of 6 values \(goal_input's EVENT_SHAPE\), got 0$"),
     ({"task": ["goal"], "values": [0.0]}, r"^task must be named by text, got: a list \(tasks: robot, goal, traj, pid\)$"),
     ({"task": "goal", "values": [0.0], "priority": 1}, r"^'event' takes no argument 'priority' \(its arguments: task, values\)$"),
 ])

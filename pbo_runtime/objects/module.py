@@ -66,6 +66,10 @@ class PortBasedObject:
     """
 
     Params: ClassVar[type] = NoParams
+    # For an aperiodic task: the shape (sizes or dim names) of the values an operator's event must
+    # carry, which the supervisor checks before sending it (`pbo event TASK values...`); None: any
+    # list of finite numbers. A wrong event is refused to the operator, never a task in ERROR.
+    EVENT_SHAPE: ClassVar[tuple[int | str, ...] | None] = None
     _pbo_port_decls: ClassVar[tuple[Port, ...]] = ()
 
     _pbo_ports: list[np.ndarray]

@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol
 from pbo_runtime.config.values import INT_RANGE, as_value, describe, element_problem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import BadRequest
+from pbo_runtime.objects import registry
 
 if TYPE_CHECKING:
     from pbo_runtime.config.model import Subsystem
@@ -258,11 +259,30 @@ def event(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
         aperiodic = [name for name, spec in host.subsystem.tasks.items() if spec.aperiodic]
         raise BadRequest(f"task '{task}' is periodic: it runs on its own timer and takes no events; send events to an "
                          f"aperiodic task ({', '.join(aperiodic) if aperiodic else 'this subsystem has none'})")
+    expected = _event_size(host, task)
+    if expected is not None and len(values or ()) != expected:
+        raise BadRequest(f"task '{task}' takes events of {expected} values "
+                         f"({host.subsystem.tasks[task].module}'s EVENT_SHAPE), got {len(values or ())}")
     state = host.task_states.get(task)
     if state != "ON":
         raise PboError(f"task '{task}' is {state}, not ON: an event would not run it; turn it on with pbo on {task}")
     host.send_event(task, values)
     return {"task": task, "message": f"event sent to '{task}'"}
+
+
+def _event_size(host: CommandHost, task: str) -> int | None:
+    """How many values the task's module says an event carries (its EVENT_SHAPE), None if any."""
+    spec = host.subsystem.tasks[task]
+    try:
+        shape = getattr(registry.module_class(spec.module), "EVENT_SHAPE", None)
+    except Exception:  # noqa: BLE001 - the run found the module at start; a fake host's may not exist
+        return None
+    if shape is None:
+        return None
+    dims = host.subsystem.dims
+    if any(isinstance(size, str) and size not in dims for size in shape):
+        return None  # a dim the subsystem does not define: the module's own cycle judges the count
+    return math.prod(dims[size] if isinstance(size, str) else int(size) for size in shape)
 
 
 def _no_application(host: CommandHost) -> None:

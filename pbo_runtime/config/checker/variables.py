@@ -107,11 +107,11 @@ class VariableChecks(CheckerBase):
             )
             return None
         leaves = list(_leaves(value))
-        for leaf, leaf_loc in _located_leaves(value, loc):
-            if non_finite(leaf):  # at the value itself: it is the one to fix
-                self.error("E314", f"{what}: {element_problem(leaf, dtype)}", leaf_loc,
-                           "write a finite number; NaN and Inf would travel on to the actuators")
-                return None
+        if any(map(non_finite, leaves)):  # reported at the value itself: it is the one to fix
+            leaf, leaf_loc = next((leaf, where) for leaf, where in _located_leaves(value, loc) if non_finite(leaf))
+            self.error("E314", f"{what}: {element_problem(leaf, dtype)}", leaf_loc,
+                       "write a finite number; NaN and Inf would travel on to the actuators")
+            return None
         for leaf in leaves:
             problem = element_problem(leaf, dtype)
             if problem:

@@ -20,7 +20,7 @@ from pbo_runtime.ipc import messages
 from pbo_runtime.cli import operator
 from pbo_runtime.ipc import shm
 from pbo_runtime.table.svar import format_value, open_table, svar_rows, svar_table
-from pbo_runtime.table.table import MAGIC, Header, StateTable, Status, TableLayout, TaskState
+from pbo_runtime.table.table import MAGIC, VERSION, Header, StateTable, Status, TableLayout, TaskState
 from tests.support import variables
 
 VARS = variables(("q_m", "float64", (3,)), ("n", "int32", ()), ("DH", "float64", (2, 4)), ("gain", "float32", ()))
@@ -111,7 +111,7 @@ def test_a_segment_with_a_wrong_magic_fails_clearly():
 def test_a_table_of_another_version_fails_clearly(run):
     subsystem, table = run()
     table.header[Header.VERSION] = 99
-    with pytest.raises(TableLayoutError, match=r"has layout version 99, this pbo reads version 1"):
+    with pytest.raises(TableLayoutError, match=rf"has layout version 99, this pbo reads version {VERSION}"):
         open_table(subsystem)
 
 

@@ -31,6 +31,7 @@ from pbo_runtime.ipc.control import ControlClient
 from pbo_runtime.ipc.runs import live_runs
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.commands import COMMANDS, parse_object_values
+from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.svar import TableView, open_table, svar_rows, svar_table
 
 __all__ = ["parse_object_values", "run_verb", "runs", "status", "task_signal", "switch", "job", "event", "stop", "svar"]
@@ -252,11 +253,16 @@ def svar(console: Console, names: Sequence[str], watch: bool, interval: float = 
         with Live(console=console, auto_refresh=False, transient=False) as live:
             try:
                 count = 0
+                rows: list[dict[str, Any]] = []
                 while updates is None or count < updates:
-                    if not _run_alive(view):
-                        live.update(svar_table(svar_rows(view, chosen, writers), f"{title} · ended"), refresh=True)
+                    ended = not _run_alive(view)
+                    try:
+                        rows, note = svar_rows(view, chosen, writers), " · ended" if ended else ""
+                    except TableBusy:  # a writer stopped mid-write: show the last rows, never wait on it
+                        note = " · table busy (a writer stopped mid-write), last values shown"
+                    live.update(svar_table(rows, title + note), refresh=True)
+                    if ended:
                         break
-                    live.update(svar_table(svar_rows(view, chosen, writers), title), refresh=True)
                     count += 1
                     if updates is None or count < updates:
                         time.sleep(interval)

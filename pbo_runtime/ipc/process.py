@@ -39,6 +39,11 @@ def raise_if_stopping() -> None:
         raise Stop(_requested)
 
 
+def stop_requested() -> str:
+    """The name of the signal that asked this process to stop ('' if none did)."""
+    return _requested
+
+
 def stop_only_at_waits() -> None:
     """From now on SIGTERM/SIGINT request a stop, which the process's next wait raises.
 

@@ -1,15 +1,20 @@
 """A POSIX shared-memory segment with its process-shared lock: what the state table and a periodic link are made of.
 
 The segment `<name>` and its lock `<name>.lock` (a semaphore of initial value 1) are created
-together, both 0600 and both new, and the creator unlinks both when it closes. Two int64 words of
-the segment's header belong to the lock: `holder_word`, the pid of its last holder, written right
-after every acquire, and `recoveries_word`, how many times a lock whose holder died was released.
-Where they lie is the user's layout (`table.table`, `links.triple_buffer`); what they mean is here.
+together, both 0600 and both new, and the creator unlinks both when it closes. A few int64 words
+of the segment's header belong to the lock (the lock record): `holder_word`, the pid of its last
+holder, written right after every acquire; `recoveries_word`, how many times a lock whose holder
+died was released; and, for a segment read by observers that never take the lock,
+`sequence_word`, a seqlock: a writer makes it odd before it writes under the lock and even
+after, so a reader that copies without the lock knows whether its copy is whole
+(`table.snapshot`). Where they lie is the user's layout (`table.table`, `links.triple_buffer`);
+what they mean is here.
 
 A holder that dies holding the lock must not wedge the others: `recover_lock_from`
-releases it when the holder word still names the dead pid, and `wait_for_lock` does that by itself
-for a waiter that finds the holder dead. The per-cycle paths take `lock` and their header view
-directly; nothing here stands between them and the semaphore.
+releases it when the holder word still names the dead pid (and makes an odd sequence even: the
+dead writer's half-written values are what the table holds now), and `wait_for_lock` does that
+by itself for a waiter that finds the holder dead. The per-cycle paths take `lock` and their
+header words directly; nothing here stands between them and the semaphore.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ class LockedSegment:
     """One mapping of a segment and its lock. `create` makes both; `attach` opens them."""
 
     def __init__(self, name: str, mapping: mmap.mmap, lock: posix_ipc.Semaphore, owner: bool, *,
-                 holder_word: int, recoveries_word: int) -> None:
+                 holder_word: int, recoveries_word: int, sequence_word: int | None = None) -> None:
         self.name = name
         self.lock_name = name + ".lock"
         self.mapping = mapping
@@ -43,11 +48,15 @@ class LockedSegment:
         self.owner = owner  # the creator: its close unlinks the segment and the lock
         self.holder_word = holder_word
         self.recoveries_word = recoveries_word
-        self.words = memoryview(mapping)[: (max(holder_word, recoveries_word) + 1) * 8].cast("q")
+        self.sequence_word = sequence_word
+        last = max(holder_word, recoveries_word, -1 if sequence_word is None else sequence_word)
+        # a memoryview: its item stores cost about half a numpy scalar store, on the per-cycle path
+        self.words = memoryview(mapping)[: (last + 1) * 8].cast("q")
         self._pid = os.getpid()
 
     @classmethod
-    def create(cls, name: str, size: int, *, holder_word: int, recoveries_word: int) -> LockedSegment:
+    def create(cls, name: str, size: int, *, holder_word: int, recoveries_word: int,
+               sequence_word: int | None = None) -> LockedSegment:
         """Create the segment (zeroed) and its lock, both 0600 and both new."""
         shm_object, mapping = shm.create_segment(name, size)
         try:
@@ -56,11 +65,12 @@ class LockedSegment:
             mapping.close()
             shm_object.unlink()
             raise
-        return cls(name, mapping, lock, owner=True, holder_word=holder_word, recoveries_word=recoveries_word)
+        return cls(name, mapping, lock, owner=True, holder_word=holder_word, recoveries_word=recoveries_word,
+                   sequence_word=sequence_word)
 
     @classmethod
-    def attach(cls, name: str, *, holder_word: int, recoveries_word: int, check: Check | None = None,
-               read_only: bool = False) -> LockedSegment:
+    def attach(cls, name: str, *, holder_word: int, recoveries_word: int, sequence_word: int | None = None,
+               check: Check | None = None, read_only: bool = False) -> LockedSegment:
         """Map an existing segment, let `check` refuse it, then open its lock.
 
         posix_ipc.ExistentialError if there is no segment `name`, MissingLockError if it has no
@@ -83,7 +93,8 @@ class LockedSegment:
         except BaseException:
             mapping.close()
             raise
-        return cls(name, mapping, lock, owner=False, holder_word=holder_word, recoveries_word=recoveries_word)
+        return cls(name, mapping, lock, owner=False, holder_word=holder_word, recoveries_word=recoveries_word,
+                   sequence_word=sequence_word)
 
     # --- the lock -----------------------------------------------------------------------------
 
@@ -95,6 +106,22 @@ class LockedSegment:
     def release(self) -> None:
         self.lock.release()
 
+    def acquire_watching(self, slice_seconds: float, while_waiting: Callable[[], None]) -> None:
+        """Take the lock and sign it, calling `while_waiting` after every `slice_seconds` of the wait.
+
+        For a process that must never block for good on another's lock (job control): its
+        `while_waiting` looks after the holder and may raise to give up. A signal (Ctrl-C) ends
+        a slice early instead of surfacing as posix_ipc.SignalError.
+        """
+        lock = self.lock
+        while True:
+            try:
+                lock.acquire(slice_seconds)
+                break
+            except (posix_ipc.BusyError, posix_ipc.SignalError):
+                while_waiting()
+        self.words[self.holder_word] = self._pid
+
     @property
     def holder(self) -> int:
         """The pid of the lock's last holder (0: none yet, or its lock was recovered)."""
@@ -103,6 +130,32 @@ class LockedSegment:
     @property
     def recoveries(self) -> int:
         return self.words[self.recoveries_word]
+
+    @property
+    def held(self) -> bool:
+        """Whether someone holds the lock now (a look, not a wait)."""
+        return self.lock.value == 0
+
+    def begin_write(self) -> int:
+        """Under the lock, before writing what observers read: make the sequence odd; pass the result to `end_write`.
+
+        `| 1` rather than `+ 1`: a sequence left odd by a writer that died mid-write stays odd
+        through this write and turns even after it.
+        """
+        assert self.sequence_word is not None
+        sequence = self.words[self.sequence_word] | 1
+        self.words[self.sequence_word] = sequence
+        return sequence
+
+    def end_write(self, sequence: int) -> None:
+        """Under the lock, after writing: the sequence even again, one past `begin_write`'s."""
+        assert self.sequence_word is not None
+        self.words[self.sequence_word] = sequence + 1
+
+    @property
+    def sequence(self) -> int:
+        """The seqlock's value: odd while a writer writes (0 for a segment without one)."""
+        return 0 if self.sequence_word is None else self.words[self.sequence_word]
 
     def wait_for_lock(self, patience: float) -> None:
         """Take the lock, which another process holds or held when it died; the caller signs it.
@@ -136,6 +189,8 @@ class LockedSegment:
             time.sleep(settle / 5)
         words[self.holder_word] = 0
         words[self.recoveries_word] += 1
+        if self.sequence_word is not None and words[self.sequence_word] & 1:
+            words[self.sequence_word] += 1  # it died mid-write: observers read what it left rather than give up for good
         lock.release()
         return True
 

@@ -93,6 +93,18 @@ def pid_alive(pid: int) -> bool:
     return stat.rsplit(")", 1)[-1].split()[0] not in ("Z", "X")  # the state follows the command name
 
 
+def pid_state(pid: int) -> str:
+    """The one-letter state of process `pid` from /proc ('R', 'S', 'D', 'T' stopped, 't' traced,
+    'Z' zombie, ...), or '' if there is no such process (or no /proc to ask)."""
+    if pid <= 0:
+        return ""
+    try:
+        stat = (Path("/proc") / str(pid) / "stat").read_text()
+    except OSError:
+        return ""
+    return stat.rsplit(")", 1)[-1].split()[0]
+
+
 def distrust(status: os.stat_result) -> str | None:
     """Why an object with this status is not to be trusted; None when it is (ours, 0600, a plain file)."""
     if status.st_uid != os.geteuid():

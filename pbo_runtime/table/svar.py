@@ -3,8 +3,9 @@
 The table describes itself (`table.table`): its header gives the offsets, and the variable directory
 one 128-byte record per variable (name, dtype, shape, metadata word, data offset, size), so an
 operator's tool needs only the live run's name (`ipc.control.find_live_run`). It maps the segment
-read-only and takes the table lock for one copy at a time, with a timeout: a reader never holds
-the lock longer than a task's own transfer, and a wedged lock is reported instead of hanging.
+read-only and never takes the table lock: it copies under the table's seqlock (`table.snapshot`),
+so a reader stopped or killed by the operator cannot wedge the run, and a table whose writer
+stopped mid-write is reported as busy instead of hanging the reader.
 
 The layout hash cannot be checked without the YAML file; the magic, the version and the
 directory's own consistency (offsets inside the segment, sizes matching shapes) are.
@@ -23,8 +24,9 @@ from rich.table import Table
 
 from pbo_runtime.ipc.control import find_live_run
 from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
-from pbo_runtime.errors import PboError, TableLayoutError
-from pbo_runtime.table.directory import META_WORDS, Entry, read_directory
+from pbo_runtime.errors import TableLayoutError
+from pbo_runtime.table.directory import Entry, read_directory
+from pbo_runtime.table.snapshot import Seqlock
 from pbo_runtime.table.table import (
     HEADER_WORDS,
     LOCK_WORDS,
@@ -34,9 +36,8 @@ from pbo_runtime.table.table import (
     Header,
     Status,
     TaskState,
+    copy_variable,
 )
-
-LOCK_TIMEOUT = 1.0  # seconds: a task holds the lock for microseconds; a second means it is wedged
 
 
 class TableView:
@@ -47,7 +48,7 @@ class TableView:
         self.run_id = run_id
         self.name = name = segment.name
         self._segment = segment
-        self._lock = segment.lock
+        self._seqlock = Seqlock(segment.words, int(Header.LOCK_SEQUENCE), name)
         mapping = segment.mapping
         header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
         self.supervisor_pid = int(header[Header.SUPERVISOR_PID])
@@ -80,19 +81,13 @@ class TableView:
                            f"(variables: {', '.join(self._entries)})") from None
 
     def read(self, name: str) -> tuple[np.ndarray, int, float, int]:
-        """(copy of the value, sequence, write time, writer task index; -1: job control), under the lock."""
+        """(copy of the value, sequence, write time, writer task index; -1: job control), lock-free.
+
+        TableBusy if a writer keeps the table mid-write through every try (`table.snapshot`).
+        """
         e = self.entry(name)
-        view = self._values[name]
-        self._acquire()
-        try:
-            value = view.copy()
-            writer, seq, when = (float(w) for w in self._words[e.meta_word : e.meta_word + META_WORDS])
-            if 0 <= writer < len(self._status):
-                seq = float(self._status[int(writer)][Status.CYCLES])
-                when = float(self._status[int(writer)][Status.RELEASE])
-        finally:
-            self._lock.release()
-        return value, int(seq), when, int(writer)
+        view, words, status = self._values[name], self._words, self._status
+        return self._seqlock.read(lambda: copy_variable(view, words, e.meta_word, status))
 
     def age(self, name: str, now: float | None = None) -> float:
         """Seconds since the variable was last written (time.monotonic); inf if it never was."""
@@ -104,11 +99,7 @@ class TableView:
 
     def task_status(self) -> list[dict[str, Any]]:
         """Each task's status block by table index: state, cycles, overruns, timings in seconds."""
-        self._acquire()
-        try:
-            blocks = self._status[: self.n_tasks].copy()
-        finally:
-            self._lock.release()
+        blocks = self._seqlock.read(self._status[: self.n_tasks].copy)
         rows = []
         for index, words in enumerate(blocks):
             state = int(words[Status.STATE])
@@ -121,14 +112,6 @@ class TableView:
                 "release": float(words[Status.RELEASE]), "errors": int(words[Status.ERRORS]),
             })
         return rows
-
-    def _acquire(self) -> None:
-        try:
-            self._lock.acquire(LOCK_TIMEOUT)
-        except posix_ipc.BusyError:
-            holder = self._segment.holder
-            raise PboError(f"the table lock of '{self.subsystem}' has been held for over {LOCK_TIMEOUT:g} s "
-                           f"(last taken by pid {holder}): the run is wedged") from None
 
     def close(self) -> None:
         self._values = {}

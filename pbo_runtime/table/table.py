@@ -2,7 +2,7 @@
 
 Layout of the segment, all offsets multiples of 8 bytes:
 
-    header        HEADER_WORDS int64: magic, version, layout hash, flags, lock holder pid, ...
+    header        HEADER_WORDS int64: magic, version, layout hash, flags, the lock record, ...
     directory     one DIRECTORY_RECORD per variable: name, dtype, shape, offsets (for tools: `table.directory`)
     manifest      names of every object of the run and the pids of its processes (`pid <pid> <role>`), so a
                   later run can clean up after a crash, and leaves a run alone while any of them lives
@@ -21,6 +21,10 @@ A task never touches the table directly: `TransferPlan` (built once at spawn) ga
 inputs into its local table with one `take` per dtype and scatters its outputs with one
 fancy assignment per dtype, each under the single lock, so a cycle costs two lock pairs and a
 handful of C calls whatever the table's size.
+
+Only RTPUs and job control's writes take the lock. Observers (`pbo svar`, `pbo status`, job
+control's reads) copy without it under the seqlock of the lock record (`table.snapshot`): every
+write under the lock makes `Header.LOCK_SEQUENCE` odd first and even after.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ import enum
 import hashlib
 import os
 from dataclasses import dataclass
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 import posix_ipc
@@ -38,9 +42,10 @@ from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
 from pbo_runtime.config.model import Subsystem, VariableSpec
 from pbo_runtime.errors import InternalError, TableLayoutError
 from pbo_runtime.table.directory import DIRECTORY_RECORD, DTYPE_CODES, META_WORDS, Entry, write_directory
+from pbo_runtime.table.snapshot import Seqlock
 
 MAGIC = 0x5042_4F5F_5441_424C  # "PBO_TABL"
-VERSION = 1
+VERSION = 2  # 2: the lock record's sequence word (observers read without the lock)
 HEADER_WORDS = 64
 MANIFEST_BYTES = 8192  # names of up to 32 RTPUs with the simulated clock's semaphores, and the pids of the run's processes
 # META_WORDS (`table.directory`): writer task index (-1: job control), then job control's sequence and write time
@@ -66,7 +71,7 @@ class Header(enum.IntEnum):
     VERSION = 1
     LAYOUT_HASH = 2
     FLAGS = 3
-    LOCK_HOLDER = 4
+    LOCK_HOLDER = 4  # the lock record: the pid of the lock's last holder, written after every acquire
     N_VARIABLES = 5
     N_TASKS = 6
     SUPERVISOR_PID = 7
@@ -77,6 +82,7 @@ class Header(enum.IntEnum):
     STATUS_OFFSET = 12
     TOTAL_BYTES = 13
     LOCK_RECOVERIES = 14  # times job control released a lock whose holder died
+    LOCK_SEQUENCE = 15  # the seqlock: odd while a writer holding the lock writes (`table.snapshot`)
     # Dynamic reconfiguration (TR 4.4): job control posts a plan, every executive applies it at
     # its first cycle boundary at or after the activation time.
     PLAN_SEQUENCE = 16  # incremented for each new plan
@@ -214,7 +220,22 @@ class TableLayout:
         raise KeyError(name)
 
 
-LOCK_WORDS: dict[str, Any] = {"holder_word": int(Header.LOCK_HOLDER), "recoveries_word": int(Header.LOCK_RECOVERIES)}  # the segment's lock words
+LOCK_WORDS: dict[str, Any] = {"holder_word": int(Header.LOCK_HOLDER), "recoveries_word": int(Header.LOCK_RECOVERIES),
+                              "sequence_word": int(Header.LOCK_SEQUENCE)}  # the segment's lock record
+
+
+def copy_variable(value: np.ndarray, words: np.ndarray, meta_word: int, status: np.ndarray) -> tuple[np.ndarray, int, float, int]:
+    """(copy of `value`, sequence, write time, writer task index) from the table's words, unchecked.
+
+    A task writer's sequence and write time are its status block's cycle count and release
+    (see the module's docstring). Read it inside `Seqlock.read`; a torn copy raises nothing.
+    """
+    copy = value.copy()
+    writer, seq, when = (float(w) for w in words[meta_word : meta_word + META_WORDS])
+    if 0 <= writer < len(status):
+        seq = float(status[int(writer)][Status.CYCLES])
+        when = float(status[int(writer)][Status.RELEASE])
+    return copy, int(seq), when, int(writer)
 
 
 class StateTable:
@@ -227,6 +248,11 @@ class StateTable:
         self._segment = segment
         self._mapping = mapping = segment.mapping
         self.lock = segment.lock  # the transfers bind its acquire and release once (`task.transfer`)
+        self.lock_words = segment.words  # the lock record (int64 memoryview): holder, recoveries, sequence
+        self.seqlock = Seqlock(segment.words, int(Header.LOCK_SEQUENCE), segment.name)
+        # How this process waits for the lock: None blocks (an RTPU); job control sets a bounded
+        # wait that looks after the holder meanwhile (`supervisor.lock_watch`).
+        self.lock_wait: Callable[[], None] | None = None
         self.header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
         self._views = {code: np.frombuffer(mapping, dtype=code, count=layout.total_bytes // np.dtype(code).itemsize) for code in DTYPE_CODES}
         self.words = self._views["float64"]
@@ -297,7 +323,7 @@ class StateTable:
 
     def close(self) -> None:
         """Unmap (and, for the creator, unlink the segment and the lock)."""
-        self.header = self.words = self.status = self.devices = None  # type: ignore[assignment]
+        self.header = self.words = self.status = self.devices = self.lock_words = None  # type: ignore[assignment]
         self._views = {}
         self._segment.close()
 
@@ -325,11 +351,38 @@ class StateTable:
     # --- the lock ---------------------------------------------------------------------------
 
     def acquire(self) -> None:
-        self.lock.acquire()
-        self.header[Header.LOCK_HOLDER] = self._pid
+        """Take the lock (as `lock_wait` says) and sign the holder word; a write must also `begin_write`."""
+        if self.lock_wait is None:
+            self.lock.acquire()
+        else:
+            self.lock_wait()
+        self.lock_words[Header.LOCK_HOLDER] = self._pid
 
     def release(self) -> None:
         self.lock.release()
+
+    def begin_write(self) -> int:
+        """Under the lock, before a write observers may read: the sequence odd (`LockedSegment.begin_write`)."""
+        return self._segment.begin_write()
+
+    def end_write(self, sequence: int) -> None:
+        self._segment.end_write(sequence)
+
+    @property
+    def lock_held(self) -> bool:
+        return self._segment.held
+
+    @property
+    def lock_holder(self) -> int:
+        return self._segment.holder
+
+    @property
+    def lock_sequence(self) -> int:
+        return self._segment.sequence
+
+    def acquire_watching(self, slice_seconds: float, while_waiting: Callable[[], None]) -> None:
+        """Job control's wait for the lock: see `LockedSegment.acquire_watching`."""
+        self._segment.acquire_watching(slice_seconds, while_waiting)
 
     def recover_lock_from(self, dead_pid: int, settle: float = 0.05) -> bool:
         """Release the lock if `dead_pid` died holding it; True if it was released."""
@@ -340,12 +393,9 @@ class StateTable:
         return Flag(int(self.header[Header.FLAGS]))
 
     def set_flag(self, flag: Flag, on: bool = True) -> None:
-        self.acquire()
-        try:
-            value = int(self.header[Header.FLAGS])
-            self.header[Header.FLAGS] = (value | flag) if on else (value & ~flag)
-        finally:
-            self.release()
+        """Job control is the only writer of the flags, one aligned word: it takes no lock (see `announce_stop`)."""
+        value = int(self.header[Header.FLAGS])
+        self.header[Header.FLAGS] = (value | flag) if on else (value & ~flag)
 
     def announce_stop(self) -> None:
         """Tell every RTPU at once that the run is over, before any is sent its stop signal.
@@ -360,24 +410,19 @@ class StateTable:
     # --- whole-variable access (job control and tools; never per cycle) ---------------------
 
     def view(self, name: str) -> np.ndarray:
-        """A live view of a variable's data in the table (read it under the lock)."""
+        """A live view of a variable's data in the table (copy it inside `seqlock.read`, or under the lock)."""
         s = self.layout.slot(name)
         return self._views[s.dtype.name][s.data_index : s.data_index + s.size].reshape(s.shape)
 
     def read(self, name: str) -> tuple[np.ndarray, int, float, int]:
-        """(copy of the value, sequence, write time, writer task index) taken under the lock."""
+        """(copy of the value, sequence, write time, writer task index), lock-free (TableBusy if it stays busy)."""
         s = self.layout.slot(name)
-        view = self.view(name)
-        self.acquire()
-        try:
-            value = view.copy()
-            writer, seq, when = (float(w) for w in self.words[s.meta_word : s.meta_word + META_WORDS])
-            if writer >= 0:
-                seq = float(self.status[int(writer)][Status.CYCLES])
-                when = float(self.status[int(writer)][Status.RELEASE])
-        finally:
-            self.release()
-        return value, int(seq), when, int(writer)
+        view, words, status = self.view(name), self.words, self.status
+        return self.seqlock.read(lambda: copy_variable(view, words, s.meta_word, status))
+
+    def status_blocks(self) -> np.ndarray:
+        """A lock-free copy of every task's status block (TableBusy if the table stays busy)."""
+        return self.seqlock.read(self.status.copy)
 
     def write(self, name: str, value, when: float, writer: int = -1) -> None:
         """Write a whole variable as job control (writer -1) would: under the lock, stamped."""
@@ -388,10 +433,14 @@ class StateTable:
             raise ValueError(f"variable '{name}' has shape {s.shape}, got a value of shape {source.shape}")
         self.acquire()
         try:
-            view[...] = source.reshape(s.shape)
-            self.words[s.meta_word] = writer
-            self.words[s.meta_word + 1] += 1
-            self.words[s.meta_word + 2] = when
+            sequence = self.begin_write()
+            try:
+                view[...] = source.reshape(s.shape)
+                self.words[s.meta_word] = writer
+                self.words[s.meta_word + 1] += 1
+                self.words[s.meta_word + 2] = when
+            finally:
+                self.end_write(sequence)
         finally:
             self.release()
 

@@ -3,7 +3,9 @@
 Everything is worked out at spawn: one contiguous local buffer per dtype and direction, each
 port's array a view into it, and for the per-cycle transfers one index array per dtype. A
 cycle's read is then `lock; take(idx, out=local); unlock` and its write is
-`lock; flat[idx] = local; unlock`: no name lookup, no allocation.
+`lock; sequence odd; flat[idx] = local; sequence even; unlock`: no name lookup, no allocation.
+The sequence is the seqlock observers read the table under without the lock (`table.snapshot`);
+it costs the write two integer stores. A read changes nothing observers see, so it leaves it.
 
 Local float64 buffers are laid out as
     [writer x k][float64 data ...][status block (per-cycle outputs only)]
@@ -125,7 +127,7 @@ class LocalTable:
         # what a cycle really moves: the data, each variable's writer word, the status block
         self.bytes_moved = sum(g.index.size * g.local.itemsize for g in (*self._in_var.groups, *self._out_var.groups))
         self._lock = table.lock
-        self._header = table.header
+        self._lock_words = table.lock_words
         self._pid = table._pid
         self._compile()
 
@@ -146,8 +148,9 @@ class LocalTable:
         """Bind the per-cycle transfers to locals so a call does no attribute chasing."""
         acquire = self._lock.acquire
         release = self._lock.release
-        header = self._header
+        words = self._lock_words  # a memoryview: its stores cost about half a numpy array's
         holder = int(Header.LOCK_HOLDER)
+        sequence_word = int(Header.LOCK_SEQUENCE)
         pid = self._pid
         in_groups = tuple((g.flat.take, g.index, g.local) for g in self._in_var.groups)
         out_groups = tuple((g.flat, g.index, g.local) for g in self._out_var.groups)
@@ -157,14 +160,14 @@ class LocalTable:
 
             def read_inputs() -> None:
                 acquire()
-                header[holder] = pid
+                words[holder] = pid
                 take(idx, out=local, mode="clip")
                 release()
         else:
 
             def read_inputs() -> None:
                 acquire()
-                header[holder] = pid
+                words[holder] = pid
                 for take, idx, local in in_groups:
                     take(idx, out=local, mode="clip")
                 release()
@@ -174,16 +177,22 @@ class LocalTable:
 
             def write_outputs() -> None:
                 acquire()
-                header[holder] = pid
+                words[holder] = pid
+                sequence = words[sequence_word] | 1  # odd: observers retry (| 1: stays odd after a dead writer's)
+                words[sequence_word] = sequence
                 flat[oidx] = olocal
+                words[sequence_word] = sequence + 1
                 release()
         else:
 
             def write_outputs() -> None:
                 acquire()
-                header[holder] = pid
+                words[holder] = pid
+                sequence = words[sequence_word] | 1
+                words[sequence_word] = sequence
                 for flat, idx, local in out_groups:
                     flat[idx] = local
+                words[sequence_word] = sequence + 1
                 release()
 
         self.read_inputs = read_inputs
@@ -261,7 +270,9 @@ class LocalTable:
         first = self.table.layout.status_offset // 8 + self.task_index * STATUS_WORDS
         self.table.acquire()
         try:
+            sequence = self.table.begin_write()
             self.table.words[first : first + region.status.size] = region.status
+            self.table.end_write(sequence)
         finally:
             self.table.release()
 
@@ -276,8 +287,10 @@ class LocalTable:
     def _scatter(self, region: _Region) -> None:
         self.table.acquire()
         try:
+            sequence = self.table.begin_write()
             for g in region.groups:
                 g.flat[g.index] = g.local
+            self.table.end_write(sequence)
         finally:
             self.table.release()
 

@@ -13,7 +13,9 @@ import os
 import sys
 import traceback
 
-from pbo_runtime.ipc import messages
+import posix_ipc
+
+from pbo_runtime.ipc import messages, process
 from pbo_runtime.objects import registry
 from pbo_runtime.clock.clocks import RealClock, SimClock
 from pbo_runtime.config.loader import load_subsystem
@@ -103,6 +105,11 @@ def main(argv: list[str] | None = None) -> int:
         if executive is not None and executive.running:
             executive.stop()
         return 0
+    except posix_ipc.SignalError as exc:
+        if process.stop_requested():  # a stop signal ended a wait on the table lock, which a wedge held up
+            return 0
+        report(messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
+        return 1
     except Exception as exc:
         report(messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
         return 1

@@ -1,5 +1,9 @@
 """The supervisor's children, the plant and the RTPU processes: launching them, noticing one die,
-and stopping them all on every exit path. (What crashed runs left is `supervisor.cleanup`'s.)"""
+and stopping them all on every exit path. (What crashed runs left is `supervisor.cleanup`'s.)
+
+A stop always ends: a child stopped by SIGSTOP is resumed first (SIGCONT) so it can stop by
+itself, the table lock is watched while they stop (`supervisor.lock_watch`), and whatever has
+not stopped after STOP_TIMEOUT is resumed and sent SIGTERM, then SIGKILL after another."""
 
 from __future__ import annotations
 
@@ -47,6 +51,8 @@ class Children:
     _drain_events: Callable[[float], None]
     _read_final_values: Callable[[], None]
     _report_run: Callable[[], None]
+    _look_at_the_lock: Callable[[], None]
+    _look_at_the_lock_while_stopping: Callable[[], None]
 
     def _launch(self, role: str, arguments: list[str], tasks: tuple[str, ...] = ()) -> None:
         command = [sys.executable, *arguments, "--parent", str(os.getpid())]
@@ -65,6 +71,7 @@ class Children:
                 hosted = f" while hosting tasks: {', '.join(child.tasks)}" if child.tasks else ""
                 what = "the plant" if child.role == "plant" else f"RTPU '{child.role}'"
                 raise RunFailure(f"{what} (pid {child.process.pid}) died ({how}){hosted}")
+        self._look_at_the_lock()
 
     def _recover_lock_from(self, pid: int) -> None:
         """A process that died holding the table lock must not wedge the others."""
@@ -79,6 +86,7 @@ class Children:
         if self.table is not None:
             self.clock.announce_stop(self.table.announce_stop)
         alive = [c for c in self.children if c.process.poll() is None]
+        self._resume_stopped(alive)  # the flag is up: a resumed RTPU runs no more cycles, it only stops
         for child in alive:
             if child.role != "plant":
                 self.signals[child.role].try_signal(messages.StopRtpu())
@@ -87,12 +95,14 @@ class Children:
         rtpus = [c for c in alive if c.role != "plant"]
         while any(c.process.poll() is None for c in rtpus) and time.monotonic() < deadline:
             self._drain_events(0.05)
+            self._look_at_the_lock_while_stopping()  # an RTPU whose stop waits on a wedged lock must not wait for good
         self._drain_events(0.0)
         self.result.unstopped = [c.role for c in rtpus if c.process.poll() is None]
         self._read_final_values()
         for child in self.children:
             if child.process.poll() is None:
-                child.process.send_signal(signal.SIGTERM)
+                _signal_quietly(child.process, signal.SIGCONT)  # a stopped process takes SIGTERM only once resumed
+                _signal_quietly(child.process, signal.SIGTERM)
         for child in self.children:
             try:
                 child.process.wait(timeout=STOP_TIMEOUT)
@@ -114,6 +124,14 @@ class Children:
             kind, _, name = entry.partition(" ")
             shm.unlink_quietly(kind, name)
 
+    def _resume_stopped(self, children: list[Child]) -> None:
+        """SIGCONT to every child stopped (SIGSTOP) when the run stops: a stopped process cannot stop by itself."""
+        for child in children:
+            if shm.pid_state(child.process.pid) in ("T", "t"):
+                _signal_quietly(child.process, signal.SIGCONT)
+                what = "the plant" if child.role == "plant" else f"RTPU '{child.role}'"
+                self.say(f"{what} (pid {child.process.pid}) was stopped (SIGSTOP): resumed it so it can stop")
+
     def _serve_stop(self, child: Child) -> None:
         """Sim clock: step an RTPU once so it serves its stop; a dead or stuck one is left to SIGTERM."""
         deadline = time.monotonic() + STOP_TIMEOUT
@@ -123,3 +141,10 @@ class Children:
             return child.process.poll() is not None or time.monotonic() > deadline
 
         self.clock.serve(child.role, give_up)
+
+
+def _signal_quietly(process: subprocess.Popen, signum: int) -> None:
+    try:
+        process.send_signal(signum)
+    except OSError:  # it ended meanwhile
+        pass

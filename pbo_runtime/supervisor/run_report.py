@@ -9,7 +9,8 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from pbo_runtime.config.model import Subsystem
-from pbo_runtime.table.table import StateTable, TaskState
+from pbo_runtime.table.snapshot import TableBusy
+from pbo_runtime.table.table import StateTable, TaskState, copy_variable
 from pbo_runtime.table.table import Status as W
 
 if TYPE_CHECKING:
@@ -64,6 +65,9 @@ class RunResult:
     # What went wrong without stopping the run, one line each (a critical task held stable by
     # stale inputs, ...): the run ends with exit status 2 and the summary lists them
     faults: list[str] = field(default_factory=list)
+    # holdings of the table lock past its bound (supervisor.lock_watch): pid, holder, role, state
+    # (dead, stopped, running), held_ms, bound_ms, action (killed, released, left), at (run seconds)
+    lock_events: list[dict[str, Any]] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -76,6 +80,7 @@ class RunResult:
             "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds, "links": self.links,
             "started_monotonic": self.started_monotonic, "stalls": self.stalls, "unstopped": self.unstopped,
             "faults": self.faults,
+            "lock_events": self.lock_events,
         }
 
 
@@ -156,22 +161,40 @@ class RunReporting:
                 "tasks did not run" + (f" (stalled: {', '.join(stuck)})" if stuck else ""))
 
     def _read_final_values(self) -> None:
+        """Every variable's last value, lock-free; if a writer left the table mid-write, as it is, marked torn."""
         if self.table is None:
             return
+        table, torn = self.table, False
         for var in self.subsystem.variables.values():
-            value, seq, when, writer = self.table.read(var.name)
+            slot = table.layout.slot(var.name)
+            try:
+                if torn:
+                    raise TableBusy("busy for the variables before")  # one wait for "busy" is enough
+                value, seq, when, writer = table.read(var.name)
+            except TableBusy:
+                value, seq, when, writer = copy_variable(table.view(var.name), table.words, slot.meta_word, table.status)
+                torn = True
             self.result.variables[var.name] = {
                 "value": value.tolist(), "sequence": seq,
                 "writer": next((t.name for t in self.subsystem.tasks.values() if t.index == writer), "job control"),
+                **({"torn": True} if torn else {}),
             }
 
     def status_rows(self) -> list[dict[str, Any]]:
-        """The live view's data, read from the table's status blocks."""
+        """The live view's data, from a lock-free copy of the table's status blocks.
+
+        A table kept busy gives the blocks as they are: each figure is one word, and the view
+        must not wait on a writer.
+        """
         rows: list[dict[str, Any]] = []
         if self.table is None:
             return rows
+        try:
+            blocks = self.table.status_blocks()
+        except TableBusy:
+            blocks = self.table.status.copy()
         for task in self.subsystem.tasks.values():
-            words = self.table.status[task.index]
+            words = blocks[task.index]
             rows.append({"task": task.name, "rtpu": task.rtpu, "state": TaskState(int(words[W.STATE])).name,
                          **_table_figures(words), "exec_last": float(words[W.EXEC_LAST])})
         return rows

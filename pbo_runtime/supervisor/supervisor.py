@@ -37,10 +37,12 @@ from pbo_runtime.supervisor.control_service import ControlService
 from pbo_runtime.supervisor.events import EventHandling
 from pbo_runtime.supervisor.failures import RunFailure, RunRefused, StopRequested
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
+from pbo_runtime.supervisor.lock_watch import LockWatching
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.stall_watch import StallWatch
+from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import Flag, Header, StateTable, TableLayout, TaskState
 from pbo_runtime.table.table import Status as W
 
@@ -50,7 +52,7 @@ __all__ = ["RunFailure", "RunRefused", "RunResult", "StopRequested", "Supervisor
 STALL_CHECK_EVERY = 0.05  # seconds between looks at the cycle counts (StallWatch); job control pumps every 2 ms
 
 
-class Supervisor(Children, EventHandling, ControlService, RunReporting):
+class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatching):
     """Runs one subsystem: a configuration for a duration, or an application's jobs."""
 
     def __init__(
@@ -222,6 +224,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
             self.signals[rtpu.name] = messages.Queue(messages.signal_queue_name(sub.name, run_id, rtpu.name), create=True)
         self.table = StateTable.create(TableLayout.of(sub), messages.table_name(sub.name, run_id), self._manifest())
         self._refuse_if_devices_in_use()  # again, now that a run started at the same instant sees this one
+        self._watch_the_lock(self.table)
         self.control = ControlServer(sub.name, run_id)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()
@@ -283,8 +286,13 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         self.signal_and_wait(messages.Kill(name), {"KILLED"})
 
     def read_variable(self, name: str) -> np.ndarray:
+        """A variable's value, lock-free; while a writer keeps the table busy, the lock watch decides."""
         assert self.table is not None
-        return self.table.read(name)[0]
+        while True:
+            try:
+                return self.table.read(name)[0]
+            except TableBusy:
+                self._while_waiting_for_the_lock()  # a writer stopped mid-write holds the lock: past the bound it is ended
 
     def write_variable(self, name: str, value: Any) -> None:
         assert self.table is not None
@@ -353,6 +361,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         if self._stop_requested:
             raise StopRequested(self._stop_requested)
         self._check_stalls()
+        if self.lock_watch is not None:  # while the lock is taken, look again soon
+            timeout = self.lock_watch.next_look_in(timeout)
         self.clock.run_for(timeout, self._take_one_event, self._while_stepping)
         self._serve_commands()
         if self.on_tick is not None:

@@ -1,0 +1,213 @@
+"""The supervisor's watch on the table lock: a holder past a bound is killed and the lock recovered.
+
+Only RTPUs and job control's own writes take the table lock, each for microseconds; observers
+read without it (`table.snapshot`). A holder that keeps it longer, dead, stopped (SIGSTOP) or
+stuck, holds up every RTPU while the arm keeps its last command. Job control looks at the lock
+record (`table.table`: whether the semaphore is taken, its holder's pid, the write sequence) at
+every turn of its loop, and every LOCK_LOOK_EVERY while the lock is taken. Every acquisition
+signs the holder word and every write moves the sequence, so one (holder, sequence) seen taken
+at every look is one holding, and `LockWatch` says when one has lasted `lock_hold_bound`: a few
+periods of the fastest task, never under LOCK_HOLD_FLOOR. The bound is wall time on either
+clock: the simulated clock does not advance while a participant holds the lock, since job
+control waits for it.
+
+What is then done (`LockWatching`): a live holder gets one last look, job control waiting
+LOCK_LOOK_EVERY for the lock itself (a holder that only took it again and again is no wedge); a
+dead holder's lock is released; a live one that is one of this run's processes is SIGKILLed and
+its lock released once it is dead; any other process is never signalled. Each case is a
+supervisor line and an entry of the run report's `lock_events`, and the run fails (exit 2). An
+RTPU killed this way is then handled as any RTPU that died.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import posix_ipc
+
+from pbo_runtime.ipc import shm
+from pbo_runtime.supervisor.children import Child
+from pbo_runtime.supervisor.failures import RunFailure, StopRequested
+from pbo_runtime.supervisor.run_report import STOP_TIMEOUT, RunResult
+from pbo_runtime.table.table import StateTable
+
+LOCK_HOLD_PERIODS = 5  # a holding past this many periods of the fastest task is a wedge ...
+LOCK_HOLD_FLOOR = 0.05  # ... and never one under this (seconds): a VM steals milliseconds now and then
+LOCK_LOOK_EVERY = 0.01  # seconds between looks while the lock is taken; also the last look's wait
+
+
+def lock_hold_bound(shortest_period: float) -> float:
+    """Wall seconds a holding of the table lock may last: LOCK_HOLD_PERIODS fastest periods, at least LOCK_HOLD_FLOOR."""
+    return max(LOCK_HOLD_PERIODS * shortest_period, LOCK_HOLD_FLOOR)
+
+
+@dataclass(frozen=True)
+class LockSample:
+    """One look at the lock record."""
+
+    held: bool
+    holder: int  # the pid that signed the last acquisition
+    sequence: int  # the write sequence (odd while a writer writes)
+
+
+@dataclass
+class Holding:
+    """One holding of the lock as the looks saw it, on the wall clock (time.monotonic)."""
+
+    holder: int
+    sequence: int
+    since: float  # the first look that saw it
+    last: float  # the latest look that saw it
+
+    @property
+    def seconds(self) -> float:
+        return self.last - self.since
+
+
+class LockWatch:
+    """Follows the holdings of the lock from looks at its record; says when one has lasted `bound`."""
+
+    def __init__(self, bound: float, sample: Callable[[], LockSample], clock: Callable[[], float] = time.monotonic) -> None:
+        self.bound = bound
+        self._sample = sample
+        self._clock = clock
+        self.holding: Holding | None = None
+
+    def look(self) -> Holding | None:
+        """Look once; the holding if it has lasted the bound (its holder is then for the caller to end)."""
+        now = self._clock()
+        sample = self._sample()
+        if not sample.held:
+            self.holding = None
+            return None
+        holding = self.holding
+        if holding is None or (holding.holder, holding.sequence) != (sample.holder, sample.sequence):
+            self.holding = Holding(sample.holder, sample.sequence, now, now)
+            return None
+        holding.last = now
+        return holding if holding.seconds >= self.bound else None
+
+    def next_look_in(self, idle: float) -> float:
+        """How long job control may wait before its next look: `idle`, or LOCK_LOOK_EVERY while the lock is taken."""
+        return min(idle, LOCK_LOOK_EVERY) if self.holding is not None else idle
+
+    def forget(self) -> None:
+        self.holding = None
+
+
+class LockWatching:
+    """The Supervisor's part that watches the table lock and takes it for job control's writes."""
+
+    table: StateTable | None
+    children: list[Child]
+    result: RunResult
+    say: Callable[[str], None]
+    now: Callable[[], float]
+    started_at: float | None
+    shortest_period: float
+    _stop_requested: str
+    _check_children: Callable[[], None]
+    lock_watch: LockWatch | None = None
+
+    def _watch_the_lock(self, table: StateTable) -> None:
+        """From the table's creation: job control's writes wait through `_take_table_lock`; looks begin."""
+        table.lock_wait = self._take_table_lock
+        self.lock_watch = LockWatch(lock_hold_bound(self.shortest_period),
+                                    lambda: LockSample(table.lock_held, table.lock_holder, table.lock_sequence))
+
+    def _take_table_lock(self) -> None:
+        """Job control's wait for the lock: never for good, and a Ctrl-C or a dead child ends it."""
+        assert self.table is not None
+        self.table.acquire_watching(LOCK_LOOK_EVERY, self._while_waiting_for_the_lock)
+
+    def _while_waiting_for_the_lock(self) -> None:
+        self._check_children()  # looks at the lock too: a wedge is ended (RunFailure) rather than waited out
+        if self._stop_requested:
+            raise StopRequested(self._stop_requested)
+
+    def _look_at_the_lock(self) -> None:
+        """One look (every turn of job control's loop); ends a holding past the bound with RunFailure."""
+        if self.table is None or self.lock_watch is None:
+            return
+        holding = self.lock_watch.look()
+        if holding is not None:
+            self._end_holding(holding)
+
+    def _look_at_the_lock_while_stopping(self) -> None:
+        """The same while the run stops: a wedge must not hold up the children's stop; the first failure is kept."""
+        try:
+            self._look_at_the_lock()
+        except RunFailure as exc:
+            if not self.result.failure:
+                self.result.failure = str(exc)
+                self.result.stopped_by = "failure"
+
+    def _end_holding(self, holding: Holding) -> None:
+        assert self.table is not None and self.lock_watch is not None
+        pid = holding.holder
+        child = next((c for c in self.children if c.process.pid == pid), None)
+        state = shm.pid_state(pid) if pid not in (0, os.getpid()) else ""
+        alive = bool(state) and state not in ("Z", "X")
+        if alive and self._lock_comes_free():
+            self.lock_watch.forget()  # it was taken again and again, not held: no wedge
+            return
+        how = "stopped" if state in ("T", "t") else "running" if alive else "dead"
+        who = _describe(child, pid)
+        released = False
+        if pid in (0, os.getpid()):
+            action, done = "left", "it cannot be told who holds it; the run is stopped"
+        elif not alive:
+            released = self.table.recover_lock_from(pid)
+            action, done = ("released", "the lock was released") if released else ("left", "it could not be released")
+        elif child is not None:
+            _kill(child.process)
+            released = self.table.recover_lock_from(pid)
+            action = "killed"
+            done = "it was killed (SIGKILL) and the lock released" if released else "it was killed (SIGKILL)"
+        else:
+            action, done = "left", "it is not a process of this run, so it was not signalled; the run is stopped"
+        if released:
+            self.result.lock_recoveries += 1
+        held_ms = holding.seconds * 1e3
+        self.result.lock_events.append({
+            "pid": pid, "holder": who, "role": child.role if child is not None else "", "state": how,
+            "held_ms": held_ms, "bound_ms": self.lock_watch.bound * 1e3, "action": action,
+            "at": self.now() - self.started_at if self.started_at is not None else 0.0,
+        })
+        self.lock_watch.forget()
+        message = (f"the table lock was held for {held_ms:.0f} ms (bound {self.lock_watch.bound * 1e3:.0f} ms) by {who}, "
+                   f"{how}: {done}" + (f"; it hosted tasks: {', '.join(child.tasks)}" if child is not None and child.tasks else ""))
+        self.say(message)
+        raise RunFailure(message)
+
+    def _lock_comes_free(self) -> bool:
+        """The last look: can job control take the lock within LOCK_LOOK_EVERY? (released at once)"""
+        assert self.table is not None
+        try:
+            self.table.lock.acquire(LOCK_LOOK_EVERY)
+        except (posix_ipc.BusyError, posix_ipc.SignalError):
+            return False
+        self.table.lock.release()
+        return True
+
+
+def _describe(child: Child | None, pid: int) -> str:
+    if pid == 0 or pid == os.getpid():
+        return "a process that did not sign the lock"
+    if child is None:
+        return f"pid {pid}, not a process of this run"
+    return f"the plant (pid {pid})" if child.role == "plant" else f"RTPU '{child.role}' (pid {pid})"
+
+
+def _kill(process: subprocess.Popen[Any]) -> None:
+    """SIGKILL (it ends a stopped process too) and reap, so the lock's holder is dead when it is recovered."""
+    try:
+        process.send_signal(signal.SIGKILL)
+        process.wait(timeout=STOP_TIMEOUT)
+    except (OSError, subprocess.TimeoutExpired):
+        pass

@@ -6,7 +6,10 @@ test file imports from elsewhere in tests/ comes from here, never from another t
 
 from __future__ import annotations
 
+import json
 import os
+import signal
+import subprocess
 import sys
 import time
 import tracemalloc
@@ -20,6 +23,7 @@ import pytest
 from pbo_runtime import OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.model import PortBinding, TaskSpec, VariableSpec
+from pbo_runtime.ipc.shm import attach_segment as shm_attach
 from pbo_runtime.task.lifecycle import Task
 
 REPO = Path(__file__).resolve().parent.parent
@@ -320,3 +324,94 @@ def assert_ended_well(returncode: int, report: dict, said: str = "") -> None:
         assert all(fault.startswith(TIMING_FAULTS) for fault in report["faults"]), report["faults"]
         return
     assert returncode == 0, said or report
+
+
+# --- faults in a real run: stopped processes, a held table lock ----------------------------------
+
+
+def start_run(file: Path, cwd: Path, *arguments: str) -> subprocess.Popen:
+    """`pbo run FILE --no-live ...` in `cwd`, returned once its configuration is on (stdout read up to that line)."""
+    run = subprocess.Popen([*PBO, "run", str(file), "--no-live", *arguments], cwd=cwd,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert run.stdout is not None
+    for line in run.stdout:
+        if "is on" in line:
+            return run
+    run.wait(timeout=60)
+    pytest.fail(f"the run did not start: {run.stderr.read() if run.stderr else ''}")
+
+
+def run_processes(run: subprocess.Popen) -> dict[str, int]:
+    """role ('plant', 'rtpu0', ...) -> pid of a live run's children."""
+    roles = {}
+    for pid, command in children_of(run.pid).items():
+        words = command.split()
+        if "--rtpu" in words:
+            roles[words[words.index("--rtpu") + 1]] = pid
+        elif "pbo_runtime.supervisor.plant_host" in command:
+            roles["plant"] = pid
+    return roles
+
+
+def process_state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return ""
+
+
+def stop_process(pid: int) -> None:
+    """SIGSTOP `pid` and wait until it is stopped."""
+    os.kill(pid, signal.SIGSTOP)
+    until(lambda: process_state(pid) in ("T", "t"), f"process {pid} to stop")
+
+
+def stop_while_holding_the_lock(pid: int, table_name: str) -> None:
+    """SIGSTOP `pid` at a moment it holds the table lock (its holder word names it while the lock is taken).
+
+    It holds the lock a few microseconds per cycle, so this stops and resumes it until a stop lands
+    there: hundreds of tries, each a fraction of a millisecond; the safety net only turns a hang into a failure.
+    """
+    lock = posix_ipc.Semaphore(table_name + ".lock")
+    mapping = shm_attach(table_name)
+    header = np.frombuffer(mapping, dtype=np.int64, count=16)
+    try:
+        give_up = time.monotonic() + 60
+        while time.monotonic() < give_up:
+            stop_process(pid)
+            for _look in range(2):  # twice: another process may have taken the lock but not yet signed it
+                if lock.value != 0 or header[4] != pid:  # Header.LOCK_HOLDER
+                    break
+                time.sleep(0.005)
+            else:
+                return
+            os.kill(pid, signal.SIGCONT)
+        pytest.fail(f"never caught process {pid} holding the lock of {table_name}")
+    finally:
+        del header
+        mapping.close()
+        lock.close()
+
+
+def table_of(run: subprocess.Popen, subsystem: str) -> str:
+    """The POSIX name of the table of the run whose supervisor is `run`."""
+    [entry] = [e for e in os.listdir("/dev/shm") if e.startswith(f"pbo.{subsystem}.{run.pid}-") and e.endswith(".table")]
+    return "/" + entry
+
+
+def assert_ended_cleanly(run: subprocess.Popen, subsystem: str, report_path: Path, status: int) -> tuple[str, str]:
+    """The run ends (a generous safety net, no timing), with `status`, no traceback, and nothing left; (stdout, stderr)."""
+    try:
+        out, err = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    assert run.returncode == status, f"exit {run.returncode}, expected {status}:\n{err}"
+    assert "Traceback" not in err and "internal error" not in err, err
+    assert "run summary" in out, "the summary is printed"
+    assert children_of(run.pid) == {}
+    report = json.loads(report_path.read_text())
+    assert_nothing_left(report)
+    assert [e for e in os.listdir("/dev/shm") if f"pbo.{subsystem}.{run.pid}-" in e] == []
+    return out, err

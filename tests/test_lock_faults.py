@@ -110,14 +110,14 @@ def test_a_snapshot_taken_while_another_process_writes_is_never_torn(make_table)
 def test_a_writer_stopped_mid_write_makes_observers_report_the_table_busy_instead_of_waiting(make_table):
     table = make_table(VARS)
     table.acquire()
-    sequence = table.begin_write()  # ... and never ends it, like a writer stopped there
+    before = table.begin_write()  # ... and never ends it, like a writer stopped there
     try:
         with svar.attach(table.name) as view, pytest.raises(TableBusy, match=r"^table busy: '"):
             view.read("a")
         with pytest.raises(TableBusy):
             table.read("a")
     finally:
-        table.end_write(sequence)
+        table.end_write(before)
         table.release()
     assert table.read("a")[1] == 0
 
@@ -125,8 +125,9 @@ def test_a_writer_stopped_mid_write_makes_observers_report_the_table_busy_instea
 def test_a_recovered_lock_of_a_writer_that_died_mid_write_lets_observers_read_again(make_table):
     table = make_table(VARS)
     table.acquire()
-    table.begin_write()
-    table.header[Header.LOCK_HOLDER] = dead = 2**22 + 1  # above pid_max: no live process has it
+    dead = 2**22 + 1  # above pid_max: no live process has it
+    table.header[Header.LOCK_SEQUENCE] = 2 * dead + 1  # its writer tag: it died writing
+    assert table.lock_holder == dead
     assert table.recover_lock_from(dead, settle=0.0)
     assert table.lock_sequence % 2 == 0
     assert table.read("a")[0].tolist() == [0.0] * 6

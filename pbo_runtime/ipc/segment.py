@@ -3,15 +3,17 @@
 The segment `<name>` and its lock `<name>.lock` (a semaphore of initial value 1) are created
 together, both 0600 and both new, and the creator unlinks both when it closes. A few int64 words
 of the segment's header belong to the lock (the lock record): `holder_word`, the pid of its last
-holder, written right after every acquire; `recoveries_word`, how many times a lock whose holder
-died was released; and, for a segment read by observers that never take the lock,
-`sequence_word`, a seqlock: a writer makes it odd before it writes under the lock and even
-after, so a reader that copies without the lock knows whether its copy is whole
-(`table.snapshot`). Where they lie is the user's layout (`table.table`, `links.triple_buffer`);
-what they mean is here.
+holder; `recoveries_word`, how many times a lock whose holder died was released; and, for a
+segment read by observers that never take the lock, `sequence_word`, a seqlock: a writer makes
+it odd before it writes under the lock and even after, so a reader that copies without the lock
+knows whether its copy is whole (`table.snapshot`). The odd value is the writer's tag, 2 pid + 1,
+and the even value after is the one before plus 2: so a write signs the lock with the sequence
+alone (two integer stores), and every other acquire signs the holder word. The lock's holder is
+the tag's pid while the sequence is odd, else the holder word's. Where the words lie is the
+user's layout (`table.table`, `links.triple_buffer`); what they mean is here.
 
 A holder that dies holding the lock must not wedge the others: `recover_lock_from`
-releases it when the holder word still names the dead pid (and makes an odd sequence even: the
+releases it when the lock record still names the dead pid (and makes an odd sequence even: the
 dead writer's half-written values are what the table holds now), and `wait_for_lock` does that
 by itself for a waiter that finds the holder dead. The per-cycle paths take `lock` and their
 header words directly; nothing here stands between them and the semaphore.
@@ -124,7 +126,11 @@ class LockedSegment:
 
     @property
     def holder(self) -> int:
-        """The pid of the lock's last holder (0: none yet, or its lock was recovered)."""
+        """The pid of the lock's last holder (0: none yet, or its lock was recovered): a writer's while the sequence is odd."""
+        if self.sequence_word is not None:
+            sequence = self.words[self.sequence_word]
+            if sequence & 1:
+                return sequence >> 1
         return self.words[self.holder_word]
 
     @property
@@ -136,21 +142,22 @@ class LockedSegment:
         """Whether someone holds the lock now (a look, not a wait)."""
         return self.lock.value == 0
 
+    @property
+    def writer_tag(self) -> int:
+        """What this process's writes make the sequence while they write: odd, and naming it."""
+        return 2 * self._pid + 1
+
     def begin_write(self) -> int:
-        """Under the lock, before writing what observers read: make the sequence odd; pass the result to `end_write`.
-
-        `| 1` rather than `+ 1`: a sequence left odd by a writer that died mid-write stays odd
-        through this write and turns even after it.
-        """
+        """Under the lock, before writing what observers read: the sequence odd; pass the result to `end_write`."""
         assert self.sequence_word is not None
-        sequence = self.words[self.sequence_word] | 1
-        self.words[self.sequence_word] = sequence
-        return sequence
+        before = self.words[self.sequence_word]  # even: a writer that died mid-write left it odd, and its recovery evened it
+        self.words[self.sequence_word] = self.writer_tag
+        return before
 
-    def end_write(self, sequence: int) -> None:
-        """Under the lock, after writing: the sequence even again, one past `begin_write`'s."""
+    def end_write(self, before: int) -> None:
+        """Under the lock, after writing: the sequence even again, 2 past what it was before."""
         assert self.sequence_word is not None
-        self.words[self.sequence_word] = sequence + 1
+        self.words[self.sequence_word] = before + 2
 
     @property
     def sequence(self) -> int:
@@ -163,13 +170,13 @@ class LockedSegment:
         Every `patience` seconds of the wait the holder is looked at: a dead one's lock is
         released (`recover_lock_from`) and taken. A stop requested meanwhile is raised.
         """
-        lock, words, holder_word = self.lock, self.words, self.holder_word
+        lock = self.lock
         while True:
             try:
                 lock.acquire(patience)
                 return
             except posix_ipc.BusyError:
-                holder = words[holder_word]
+                holder = self.holder
                 if holder not in (0, self._pid) and not shm.pid_alive(holder):
                     self.recover_lock_from(holder)
             except posix_ipc.SignalError:
@@ -178,19 +185,22 @@ class LockedSegment:
     def recover_lock_from(self, dead_pid: int, settle: float = 0.05) -> bool:
         """Release the lock if `dead_pid` died holding it; True if it was released.
 
-        The holder word is written right after each acquire, so a live process that took the
-        lock after the dead one would have overwritten it within microseconds: the word is
-        checked over `settle` seconds before the lock is released.
+        The lock record is signed right after each acquire, so a live process that took the
+        lock after the dead one would have overwritten it within microseconds: it is checked
+        over `settle` seconds before the lock is released.
         """
         lock, words = self.lock, self.words
         for _ in range(5):
-            if lock.value > 0 or words[self.holder_word] != dead_pid:
+            if lock.value > 0 or self.holder != dead_pid:
                 return False
             time.sleep(settle / 5)
         words[self.holder_word] = 0
         words[self.recoveries_word] += 1
         if self.sequence_word is not None and words[self.sequence_word] & 1:
-            words[self.sequence_word] += 1  # it died mid-write: observers read what it left rather than give up for good
+            # It died mid-write: observers read what it left rather than give up for good. The
+            # even value before its write is lost; twice the monotonic clock in ns is above any
+            # value writes (2 per write) reached, so no reader takes it for the one it saw before.
+            words[self.sequence_word] = 2 * time.monotonic_ns()
         lock.release()
         return True
 

@@ -365,8 +365,13 @@ class StateTable:
         """Under the lock, before a write observers may read: the sequence odd (`LockedSegment.begin_write`)."""
         return self._segment.begin_write()
 
-    def end_write(self, sequence: int) -> None:
-        self._segment.end_write(sequence)
+    def end_write(self, before: int) -> None:
+        self._segment.end_write(before)
+
+    @property
+    def writer_tag(self) -> int:
+        """The odd sequence this process's writes show while they write (2 pid + 1)."""
+        return self._segment.writer_tag
 
     @property
     def lock_held(self) -> bool:
@@ -374,6 +379,7 @@ class StateTable:
 
     @property
     def lock_holder(self) -> int:
+        """The pid holding the lock, or that last held it (a writer's while the sequence is odd)."""
         return self._segment.holder
 
     @property
@@ -433,14 +439,14 @@ class StateTable:
             raise ValueError(f"variable '{name}' has shape {s.shape}, got a value of shape {source.shape}")
         self.acquire()
         try:
-            sequence = self.begin_write()
+            before = self.begin_write()
             try:
                 view[...] = source.reshape(s.shape)
                 self.words[s.meta_word] = writer
                 self.words[s.meta_word + 1] += 1
                 self.words[s.meta_word + 2] = when
             finally:
-                self.end_write(sequence)
+                self.end_write(before)
         finally:
             self.release()
 

@@ -5,7 +5,8 @@ port's array a view into it, and for the per-cycle transfers one index array per
 cycle's read is then `lock; take(idx, out=local); unlock` and its write is
 `lock; sequence odd; flat[idx] = local; sequence even; unlock`: no name lookup, no allocation.
 The sequence is the seqlock observers read the table under without the lock (`table.snapshot`);
-it costs the write two integer stores. A read changes nothing observers see, so it leaves it.
+its odd value names the writer, so it also signs the lock (`ipc.segment`): a write costs two
+integer stores and a load, as a read costs its one store of the holder word.
 
 Local float64 buffers are laid out as
     [writer x k][float64 data ...][status block (per-cycle outputs only)]
@@ -128,6 +129,7 @@ class LocalTable:
         self.bytes_moved = sum(g.index.size * g.local.itemsize for g in (*self._in_var.groups, *self._out_var.groups))
         self._lock = table.lock
         self._lock_words = table.lock_words
+        self._writer_tag = table.writer_tag
         self._pid = table._pid
         self._compile()
 
@@ -152,6 +154,7 @@ class LocalTable:
         holder = int(Header.LOCK_HOLDER)
         sequence_word = int(Header.LOCK_SEQUENCE)
         pid = self._pid
+        tag = self._writer_tag
         in_groups = tuple((g.flat.take, g.index, g.local) for g in self._in_var.groups)
         out_groups = tuple((g.flat, g.index, g.local) for g in self._out_var.groups)
 
@@ -177,22 +180,20 @@ class LocalTable:
 
             def write_outputs() -> None:
                 acquire()
-                words[holder] = pid
-                sequence = words[sequence_word] | 1  # odd: observers retry (| 1: stays odd after a dead writer's)
-                words[sequence_word] = sequence
+                before = words[sequence_word]
+                words[sequence_word] = tag  # odd, and naming this process: observers retry, the lock is signed
                 flat[oidx] = olocal
-                words[sequence_word] = sequence + 1
+                words[sequence_word] = before + 2
                 release()
         else:
 
             def write_outputs() -> None:
                 acquire()
-                words[holder] = pid
-                sequence = words[sequence_word] | 1
-                words[sequence_word] = sequence
+                before = words[sequence_word]
+                words[sequence_word] = tag
                 for flat, idx, local in out_groups:
                     flat[idx] = local
-                words[sequence_word] = sequence + 1
+                words[sequence_word] = before + 2
                 release()
 
         self.read_inputs = read_inputs
@@ -270,9 +271,9 @@ class LocalTable:
         first = self.table.layout.status_offset // 8 + self.task_index * STATUS_WORDS
         self.table.acquire()
         try:
-            sequence = self.table.begin_write()
+            before = self.table.begin_write()
             self.table.words[first : first + region.status.size] = region.status
-            self.table.end_write(sequence)
+            self.table.end_write(before)
         finally:
             self.table.release()
 
@@ -287,10 +288,10 @@ class LocalTable:
     def _scatter(self, region: _Region) -> None:
         self.table.acquire()
         try:
-            sequence = self.table.begin_write()
+            before = self.table.begin_write()
             for g in region.groups:
                 g.flat[g.index] = g.local
-            self.table.end_write(sequence)
+            self.table.end_write(before)
         finally:
             self.table.release()
 

@@ -367,7 +367,7 @@ def stop_process(pid: int) -> None:
 
 
 def stop_while_holding_the_lock(pid: int, table_name: str) -> None:
-    """SIGSTOP `pid` at a moment it holds the table lock (its holder word names it while the lock is taken).
+    """SIGSTOP `pid` at a moment it holds the table lock (its lock record names it while the lock is taken).
 
     It holds the lock a few microseconds per cycle, so this stops and resumes it until a stop lands
     there: hundreds of tries, each a fraction of a millisecond; the safety net only turns a hang into a failure.
@@ -380,7 +380,9 @@ def stop_while_holding_the_lock(pid: int, table_name: str) -> None:
         while time.monotonic() < give_up:
             stop_process(pid)
             for _look in range(2):  # twice: another process may have taken the lock but not yet signed it
-                if lock.value != 0 or header[4] != pid:  # Header.LOCK_HOLDER
+                sequence = int(header[15])  # Header.LOCK_SEQUENCE: a writer's tag (2 pid + 1) while odd
+                holder = sequence >> 1 if sequence & 1 else int(header[4])  # else Header.LOCK_HOLDER
+                if lock.value != 0 or holder != pid:
                     break
                 time.sleep(0.005)
             else:

@@ -12,7 +12,9 @@ import sys
 import numpy as np
 import pytest
 
-from pbo_runtime.supervisor.lock_watch import LOCK_HOLD_FLOOR, LockSample, LockWatch, lock_hold_bound
+from pbo_runtime.supervisor.failures import RunFailure, StopRequested
+from pbo_runtime.supervisor.lock_watch import LOCK_HOLD_FLOOR, LockSample, LockWatch, LockWatching, lock_hold_bound
+from pbo_runtime.supervisor.run_report import RunResult
 from pbo_runtime.table import svar
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import Header
@@ -258,3 +260,63 @@ def test_a_run_with_a_stopped_rtpu_and_a_stopped_plant_always_ends_cleanly(tmp_p
     out, _ = assert_ended_cleanly(run, subsystem, report, 0)
     assert f"RTPU 'rtpu1' (pid {roles['rtpu1']}) was stopped (SIGSTOP): resumed it so it can stop" in out
     assert json.loads(report.read_text())["unstopped"] == []
+
+
+# --- job control's own writes wait for the lock, never for good ----------------------------------
+
+
+class JobControlHost(LockWatching):
+    """The Supervisor's parts the lock watch needs, around a real table: no children, a list for its lines."""
+
+    def __init__(self, table) -> None:
+        self.table = table
+        self.children = []
+        self.result = RunResult("test", "c")
+        self.lines: list[str] = []
+        self.say = self.lines.append
+        self.now = lambda: 0.0
+        self.started_at = None
+        self.shortest_period = 0.001
+        self._stop_requested = ""
+        self._serving = False
+        self._watch_the_lock(table)
+
+    def _check_children(self) -> None:
+        self._look_at_the_lock()
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("holder_ends", ["stopped", "killed"])
+def test_job_controls_write_never_waits_for_good_on_a_lock_held_past_the_bound(make_table, holder_ends):
+    table = make_table(VARS)
+    host = JobControlHost(table)
+    holder = hold_the_lock(table.name)
+    try:
+        if holder_ends == "killed":
+            end(holder)
+        with pytest.raises(RunFailure, match=rf"^the table lock was held for \d+ ms \(bound 50 ms\) by pid {holder.pid}, "):
+            table.write("a", np.ones(6), when=1.0)
+        [event] = host.result.lock_events
+        assert (event["pid"], event["action"]) == (holder.pid, "left" if holder_ends == "stopped" else "released")
+        assert host.result.failure == host.lines[0]
+        if holder_ends == "stopped":
+            assert process_state(holder.pid) in ("T", "t")
+        else:
+            assert table.lock.value == 1 and host.result.lock_recoveries == 1
+            table.write("a", np.ones(6), when=1.0)  # the table works again
+            assert table.read("a")[0].tolist() == [1.0] * 6
+    finally:
+        if holder.poll() is None:
+            end(holder)
+
+
+def test_a_stop_asked_for_while_job_control_waits_for_the_lock_ends_the_wait(make_table):
+    table = make_table(VARS)
+    host = JobControlHost(table)
+    table.acquire()  # as a holder that keeps it: this process, whom the watch never ends
+    try:
+        host._stop_requested = "Ctrl-C"
+        with pytest.raises(StopRequested):
+            host._take_table_lock()
+    finally:
+        table.release()

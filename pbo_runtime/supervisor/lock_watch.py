@@ -111,6 +111,7 @@ class LockWatching:
     started_at: float | None
     shortest_period: float
     _stop_requested: str
+    _serving: bool  # an operator's command is being served (`ControlService`)
     _check_children: Callable[[], None]
     lock_watch: LockWatch | None = None
 
@@ -128,6 +129,8 @@ class LockWatching:
     def _while_waiting_for_the_lock(self) -> None:
         self._check_children()  # looks at the lock too: a wedge is ended (RunFailure) rather than waited out
         if self._stop_requested:
+            if self._serving:  # a PboError is what an operator's command answers with; the next turn of the loop stops
+                raise RunFailure(f"stopped by {self._stop_requested} while waiting for the table lock")
             raise StopRequested(self._stop_requested)
 
     def _look_at_the_lock(self) -> None:
@@ -183,6 +186,8 @@ class LockWatching:
         message = (f"the table lock was held for {held_ms:.0f} ms (bound {self.lock_watch.bound * 1e3:.0f} ms) by {who}, "
                    f"{how}: {done}" + (f"; it hosted tasks: {', '.join(child.tasks)}" if child is not None and child.tasks else ""))
         self.say(message)
+        if not self.result.failure:  # the run fails even where the raise is answered to a command instead
+            self.result.failure, self.result.stopped_by = message, "failure"
         raise RunFailure(message)
 
     def _lock_comes_free(self) -> bool:

@@ -188,8 +188,9 @@ then {rounds} rounds x {iterations:,} individually timed transfers for the per-c
   same bytes (one `take` in, one fancy assignment out) on a bare segment;
 - **pbo table**: `LocalTable.read_inputs()` then `LocalTable.write_outputs()` of a real task on
   the real table, which also move each variable's writer word and the task's status block (its
-  cycle count and release time, the outputs' sequence number and write time) and record the
-  lock holder's pid;
+  cycle count and release time, the outputs' sequence number and write time), sign the lock
+  (the read stores the holder's pid; the write makes the table's write sequence odd, naming the
+  writer, and even again: the seqlock observers read under without the lock);
 - **pbo table + finite check**: the same, with the test a task's cycle makes before writing its
   outputs (`LocalTable.outputs_finite`: `np.isfinite` into a preallocated mask and
   `np.count_nonzero`, so no NaN or Inf reaches the table); its cost is the difference to the row above;
@@ -200,7 +201,8 @@ batch) is the figure the target is judged on; per-call figures include one `perf
 each (about 0.07 µs).
 """,
         limits="""Python call overhead, not bytes. Each lock pair costs ~0.1-0.2 µs, each numpy
-call ~0.1-0.2 µs; the pid word ~0.03 µs per acquire. Per-variable stamping with `fill` cost
+call ~0.1-0.2 µs; the pid word ~0.03 µs per read, the write sequence (a load and two stores)
+~0.07 µs per write. Per-variable stamping with `fill` cost
 0.15 µs more and was replaced by the status-block scheme (see
 [architecture](architecture.md#metadata-without-per-cycle-stamping)); the index arrays are built
 at spawn, so the table's size does not enter (see the scale curves below).""",

@@ -174,6 +174,23 @@ def test_pbo_svar_watch_refreshes_and_returns_zero(run):
     assert "gain" in console.export_text()
 
 
+def test_pbo_svar_says_table_busy_when_a_writer_stopped_mid_write_and_never_waits_on_it(run):
+    # Issue 18: a writer stopped mid-write leaves the table's write sequence odd. The one-shot
+    # read gives up with "table busy"; the watch keeps going and says so in its title.
+    subsystem, table = run()
+    table.acquire()
+    before = table.begin_write()
+    try:
+        with pytest.raises(PboError, match=r"^table busy: "):
+            operator.svar(Console(record=True), ["q_m"], watch=False, subsystem=subsystem)
+        console = Console(record=True, width=200, color_system=None)
+        assert operator.svar(console, [], watch=True, interval=0.01, subsystem=subsystem, updates=2) == 0
+        assert "table busy (a writer stopped mid-write), last values shown" in " ".join(console.export_text().split())
+    finally:
+        table.end_write(before)
+        table.release()
+
+
 def test_pbo_svar_suggests_a_close_name_for_an_unknown_variable(run):
     subsystem, _ = run()
     with pytest.raises(PboError, match=r"^no variable 'q_n' in 'svar\w+' \(did you mean 'q_m'\?\); variables: q_m, n, DH, gain$"):

@@ -221,7 +221,8 @@ def test_a_lock_held_by_a_process_outside_the_run_fails_the_run_and_is_never_sig
         holder = hold_the_lock(table_of(run, subsystem))
         if holder_ends == "killed":  # as `kill -9` of a reader that held the lock
             end(holder)
-        _, err = assert_ended_cleanly(run, subsystem, report, 2)
+        out, err = assert_ended_cleanly(run, subsystem, report, 2)
+        assert out.count("pbo: the table lock was held") == 1, "reported once, though it is held to the end"
         if holder_ends == "stopped":
             assert process_state(holder.pid) in ("T", "t"), "another run's or user's process is never signalled"
             assert f"by pid {holder.pid}, not a process of this run, stopped: it is not a process of this run" in err
@@ -320,3 +321,16 @@ def test_a_stop_asked_for_while_job_control_waits_for_the_lock_ends_the_wait(mak
             host._take_table_lock()
     finally:
         table.release()
+
+
+def test_a_holding_left_alone_is_reported_once(looks):
+    watch = LockWatch(0.05, lambda: looks.sample, lambda: looks.now)
+    looks.sample = LockSample(True, 1234, 8)
+    reported = []
+    for _ in range(30):
+        holding = watch.look()
+        if holding is not None:
+            reported.append(holding.seconds)
+            holding.ended = True  # as the supervisor marks one it could not end
+        looks.now += 0.01
+    assert len(reported) == 1

@@ -63,6 +63,7 @@ class Holding:
     sequence: int
     since: float  # the first look that saw it
     last: float  # the latest look that saw it
+    ended: bool = False  # reported and dealt with: a holder left alone is not reported again
 
     @property
     def seconds(self) -> float:
@@ -90,7 +91,7 @@ class LockWatch:
             self.holding = Holding(sample.holder, sample.sequence, now, now)
             return None
         holding.last = now
-        return holding if holding.seconds >= self.bound else None
+        return holding if holding.seconds >= self.bound and not holding.ended else None
 
     def next_look_in(self, idle: float) -> float:
         """How long job control may wait before its next look: `idle`, or LOCK_LOOK_EVERY while the lock is taken."""
@@ -182,7 +183,9 @@ class LockWatching:
             "held_ms": held_ms, "bound_ms": self.lock_watch.bound * 1e3, "action": action,
             "at": self.now() - self.started_at if self.started_at is not None else 0.0,
         })
-        self.lock_watch.forget()
+        holding.ended = True
+        if action != "left":
+            self.lock_watch.forget()  # the lock is free again
         message = (f"the table lock was held for {held_ms:.0f} ms (bound {self.lock_watch.bound * 1e3:.0f} ms) by {who}, "
                    f"{how}: {done}" + (f"; it hosted tasks: {', '.join(child.tasks)}" if child is not None and child.tasks else ""))
         self.say(message)

@@ -258,7 +258,7 @@ def test_a_run_with_a_stopped_rtpu_and_a_stopped_plant_always_ends_cleanly(tmp_p
     except BaseException:
         run.kill()
         raise
-    out, _ = assert_ended_cleanly(run, subsystem, report, 0)
+    out, _ = assert_ended_cleanly(run, subsystem, report, None)  # (the stopped plant and robot are faults, exit 2)
     assert f"RTPU 'rtpu1' (pid {roles['rtpu1']}) was stopped (SIGSTOP): resumed it so it can stop" in out
     assert json.loads(report.read_text())["unstopped"] == []
 

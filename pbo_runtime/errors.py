@@ -107,5 +107,18 @@ class LifecycleError(PboError):
     """A signal that is not legal in the task's current state (e.g. `on` while ERROR)."""
 
 
+class OutputError(PboError):
+    """A file the run promised (a data log) could not be written: the message names it and the OS error.
+
+    Raised from a module's component, it puts the task in ERROR like any exception, and the
+    run's exit status then says a fault happened (`pbo run` exits 2), though the run goes on.
+    """
+
+
+class ResourceLimitError(PboError):
+    """An OS limit stopped the run (queue memory, open files, /dev/shm space): one line naming the
+    limit, its value, what the run needs, and how to raise it."""
+
+
 class InternalError(PboError):
     """An invariant of the runtime itself broke: please report this with the command you ran."""

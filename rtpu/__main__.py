@@ -15,6 +15,7 @@ import traceback
 
 import posix_ipc
 
+from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import messages, process
 from pbo_runtime.objects import registry
 from pbo_runtime.clock.clocks import RealClock, SimClock
@@ -111,7 +112,9 @@ def main(argv: list[str] | None = None) -> int:
         report(messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
         return 1
     except Exception as exc:
-        report(messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
+        limit = limits.explain(exc, f"{args.rtpu} starting" if executive is None else args.rtpu)
+        report(messages.Crashed(str(limit), "") if limit is not None
+               else messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
         return 1
     finally:
         if barrier is not None:

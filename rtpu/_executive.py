@@ -644,4 +644,4 @@ class Executive:
             self.on.remove(s)
 
     def _report_state(self, task: Task) -> None:
-        self.report(StateChanged(task.name, task.state.name, task.last_error))
+        self.report(StateChanged(task.name, task.state.name, task.last_error, task.output_failed))

@@ -37,7 +37,8 @@ WING_RANK = {
 PUBLIC_NAMES = [
     "ANY_DTYPE", "MAX_PRIORITY", "ConfigError", "ConfigErrors", "DeviceDriver", "InBoth", "InConst", "InVar",
     "InternalError", "LifecycleError", "LinkFullError", "ModuleError", "NoParams", "OutBoth", "OutConst", "OutVar",
-    "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec", "Status", "TableLayoutError",
+    "OutputError", "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec", "ResourceLimitError", "Status",
+    "TableLayoutError",
     "attach_segment", "create_segment", "format_channels", "module_class", "unlink_quietly",
 ]
 

@@ -15,7 +15,10 @@ from __future__ import annotations
 
 import math
 import os
+import sys
+import time
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import mujoco
@@ -74,7 +77,9 @@ class MujocoArmPlant:
     default none. `adc_noise` (V, >= 0): noise of each ADC conversion; `seed` (int >= 0) seeds it.
     """
 
-    def __init__(self, registers_name: str, model: str, timestep: float, options: Mapping[str, Any]) -> None:
+    def __init__(self, registers_name: str, model: str, timestep: float, options: Mapping[str, Any],
+                 log_dir: str = "") -> None:
+        route_mujoco_log(log_dir)
         unknown = sorted(set(options) - set(_OPTIONS))
         if unknown:
             raise ValueError(f"unknown mujoco_arm plant option(s) {unknown}; valid options: {', '.join(_OPTIONS)}")
@@ -376,6 +381,25 @@ class MujocoArmPlant:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def route_mujoco_log(log_dir: str) -> None:
+    """MuJoCo's warnings (an unstable simulation, a contact buffer full) go to this process's stderr,
+    as one line each, and to `log_dir`/MUJOCO_LOG.TXT when the run has an output directory (`pbo run
+    --out`); MuJoCo's own handler would write MUJOCO_LOG.TXT into the operator's working directory."""
+    log = Path(log_dir) / "MUJOCO_LOG.TXT" if log_dir else None
+
+    def warn(message: str) -> None:
+        line = f"{time.strftime('%Y-%m-%d %H:%M:%S')} WARNING: {message}"
+        print(f"plant: MuJoCo warning: {message}", file=sys.stderr, flush=True)
+        if log is not None:
+            try:
+                with log.open("a") as file:
+                    file.write(line + "\n")
+            except OSError as exc:
+                print(f"plant: cannot write {log}: {exc}", file=sys.stderr, flush=True)
+
+    mujoco.set_mju_user_warning(warn)
 
 
 def _vector(value: Any, where: str) -> np.ndarray:

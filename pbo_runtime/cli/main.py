@@ -48,12 +48,25 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_RUN
     except KeyboardInterrupt:
         return 130
+    except (OSError, MemoryError) as exc:  # an OS limit met outside the run (too many open files reading the YAML)
+        from pbo_runtime.ipc.limits import explain
+
+        limit = explain(exc, f"pbo {args.command}")
+        if limit is None or getattr(args, "debug", False):
+            return _internal_error(args, errors)
+        errors.print(f"error: {limit}", markup=False)
+        return EXIT_RUN
     except Exception:
-        if getattr(args, "debug", False):
-            raise
-        errors.print("internal error: pbo failed in a way it should not; please report this with the command you ran:", markup=False)
-        errors.print(traceback.format_exc(limit=-3).rstrip(), markup=False)
-        return EXIT_INTERNAL
+        return _internal_error(args, errors)
+
+
+def _internal_error(args: argparse.Namespace, errors: Console) -> int:
+    """A bug: the last frames of the traceback and a request to report it (the whole traceback with --debug)."""
+    if getattr(args, "debug", False):
+        raise
+    errors.print("internal error: pbo failed in a way it should not; please report this with the command you ran:", markup=False)
+    errors.print(traceback.format_exc(limit=-3).rstrip(), markup=False)
+    return EXIT_INTERNAL
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -251,8 +264,10 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     options = {"application": args.app, "static": args.static, "alternate": alternate, "fifo": args.fifo,
                "clock": args.clock, "out_dir": str(args.out) if args.out else None,
                "links": json.loads(args.links) if args.links else None}
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
+    refused = _check_output_paths(args)
+    if refused:
+        errors.print(f"error: {refused}", markup=False)
+        return EXIT_CONFIG
     say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
     supervisor = Supervisor(subsystem, args.config, duration, say=say, **options)  # refuses a bad request here
     what = (f"application '{args.app}'" if args.app else f"{args.switches} switches" if alternate
@@ -266,18 +281,43 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
             result = supervisor.run()
     else:
         result = supervisor.run()
-    for report in ([args.report] if args.report else []) + ([args.out / "report.json"] if args.out else []):
-        report.parent.mkdir(parents=True, exist_ok=True)
-        report.write_text(json.dumps(result.to_json(), indent=2))
-    _print_summary(console, subsystem, result)
-    if result.failure:
-        errors.print(f"error: {result.failure}", markup=False)
-        return EXIT_RUN
-    if result.faults:
-        for fault in result.faults:
-            errors.print(f"fault: {fault}", markup=False)
-        return EXIT_RUN
-    return EXIT_OK
+    _print_summary(console, subsystem, result)  # first: whatever fails below, the operator has seen the run
+    unwritten = _write_reports(args, result.to_json())
+    for line in [result.failure] if result.failure else []:
+        errors.print(f"error: {line}", markup=False)
+    for line in result.faults:
+        errors.print(f"fault: {line}", markup=False)
+    for line in unwritten:
+        errors.print(f"error: {line}", markup=False)
+    return EXIT_RUN if result.failure or result.faults or unwritten else EXIT_OK
+
+
+def _check_output_paths(args: argparse.Namespace) -> str:
+    """Why --out or --report cannot take the run's results ("" if they can): tried before anything starts."""
+    from pbo_runtime.cli.output_paths import OutputPathError, check_output_dir, check_report_path
+
+    try:
+        if args.out:
+            check_output_dir(args.out)
+        if getattr(args, "report", None):
+            check_report_path(args.report)
+    except OutputPathError as exc:
+        return str(exc)
+    return ""
+
+
+def _write_reports(args: argparse.Namespace, report: dict[str, Any]) -> list[str]:
+    """Write the run report where asked; one line per path that could not take it."""
+    from pbo_runtime.cli.output_paths import OutputPathError, write_report
+
+    text = json.dumps(report, indent=2)
+    failed = []
+    for path in ([args.report] if args.report else []) + ([args.out / "report.json"] if args.out else []):
+        try:
+            write_report(path, text)
+        except OutputPathError as exc:
+            failed.append(str(exc))
+    return failed
 
 
 def _run_application(args: argparse.Namespace, console: Console, errors: Console) -> int:
@@ -291,6 +331,10 @@ def _run_application(args: argparse.Namespace, console: Console, errors: Console
         errors.print(format_diagnostics(CheckResult(None, result.errors, result.warnings)), markup=False)
         return EXIT_CONFIG
     app = result.application
+    refused = _check_output_paths(args)
+    if refused:
+        errors.print(f"error: {refused}", markup=False)
+        return EXIT_CONFIG
     say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
     duration = args.duration if args.duration > 0 else None
     say(f"starting application '{app.name}': {', '.join(app.subsystems)}; "

@@ -38,15 +38,18 @@ from typing import Any, Callable
 import msgpack
 import posix_ipc
 
+from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
 from pbo_runtime.errors import PboError
 
-# Requests are small (a command, a name, at most a job's object values): a short queue of 4 KiB
-# messages keeps the run's share of the per-user queue memory (RLIMIT_MSGQUEUE) small.
+# Requests are small (a command, a name, at most a job's object values) and each client waits for
+# its answer: a short queue of 4 KiB messages keeps the run's share of the per-user queue memory
+# (RLIMIT_MSGQUEUE) small. It holds a poll and a half (MAX_REQUESTS_PER_POLL); a client that finds
+# it full waits its timeout for the supervisor to serve.
 REQUEST_BYTES = min(4096, messages.MESSAGE_BYTES)
-REQUEST_SLOTS = min(8, messages.MAX_MESSAGES)
+REQUEST_SLOTS = min(6, messages.MAX_MESSAGES)
 REPLY_BYTES = messages.MESSAGE_BYTES
 MAX_REQUESTS_PER_POLL = 4
 
@@ -65,6 +68,10 @@ class BadRequest(CommandRefused):
 
 def control_queue_name(subsystem: str, run_id: str) -> str:
     return shm.object_name(subsystem, run_id, "control")
+
+
+def control_queue_size(subsystem: str, run_id: str) -> limits.QueueSize:
+    return limits.QueueSize(control_queue_name(subsystem, run_id), REQUEST_SLOTS, REQUEST_BYTES)
 
 
 def reply_queue_prefix(subsystem: str, run_id: str) -> str:
@@ -103,6 +110,7 @@ class ControlServer:
         self._mq: posix_ipc.MessageQueue | None = posix_ipc.MessageQueue(
             self.name, posix_ipc.O_CREX, mode=0o600, max_messages=REQUEST_SLOTS, max_message_size=REQUEST_BYTES
         )
+        self.size = limits.QueueSize(self.name, self._mq.max_messages, self._mq.max_message_size)
         self.served = 0
         self.dropped = 0
 
@@ -238,8 +246,10 @@ class ControlClient:
             try:
                 replies = posix_ipc.MessageQueue(reply_name, posix_ipc.O_CREX, mode=0o600, max_messages=1,
                                                  max_message_size=REPLY_BYTES)
-            except (posix_ipc.Error, OSError) as exc:
-                raise PboError(f"cannot create a reply queue for '{command}': {exc}") from None
+            except (posix_ipc.Error, OSError, ValueError) as exc:
+                doing = f"creating a reply queue for '{command}'"
+                reply_queue = limits.QueueSize(reply_name, 1, REPLY_BYTES)
+                raise limits.explain(exc, doing, [reply_queue]) or PboError(f"{doing}: {exc}") from None
             raw = msgpack.packb([command, reply_name, dict(arguments or {})], default=_plain)
             if len(raw) > REQUEST_BYTES:
                 raise PboError(f"the request '{command}' has {len(raw)} bytes, more than the control queue takes ({REQUEST_BYTES})")

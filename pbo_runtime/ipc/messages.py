@@ -22,22 +22,34 @@ import posix_ipc
 from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm
 from pbo_runtime.errors import InternalError
+from pbo_runtime.ipc.limits import QueueSize, queue_system_limit
 
-MESSAGE_BYTES = 8192
 READER_CHECK = 0.1  # seconds between checks that a queue's reader is alive, while a send waits on it
 
+# Linux refuses queues longer than fs.mqueue.msg_max (10 by default) or with longer messages than
+# msgsize_max (8192) to a process without CAP_SYS_RESOURCE.
+MAX_MESSAGES = min(64, queue_system_limit("msg_max", 10))
+MESSAGE_BYTES = min(8192, queue_system_limit("msgsize_max", 8192))
 
-def _system_limit(name: str, default: int) -> int:
-    try:
-        with open(f"/proc/sys/fs/mqueue/{name}") as limit:
-            return int(limit.read())
-    except (OSError, ValueError):
-        return default
+# Each queue of a run is sized for what it carries: every byte of depth x message size counts
+# against the per-user RLIMIT_MSGQUEUE (docs/architecture.md has the figures per run).
+QUEUE_DEPTH = min(10, MAX_MESSAGES)  # signals come one at a time, events in bursts the supervisor drains
+SIGNAL_BYTES = 128  # spawn, on, off, kill, clear, stop, stats, plan: a kind, a task's name, two numbers
+EVENT_BYTES = 2048  # a task's statistics (about 600 B), a state change with its error (cut to fit)
+CUT_STRINGS_TO = (1000, 300, 80)  # an event too long for its queue has its long strings cut, in these steps
 
 
-# Linux refuses queues longer than fs.mqueue.msg_max (10 by default) even to root.
-MAX_MESSAGES = min(64, _system_limit("msg_max", 10))
-MESSAGE_BYTES = min(MESSAGE_BYTES, _system_limit("msgsize_max", MESSAGE_BYTES))
+def signal_queue_size(name: str, task_names: list[str], payload_bytes: int = 0) -> QueueSize:
+    """An RTPU's signal queue: small signals, and room for a payload of `payload_bytes` where it hosts
+    an aperiodic task (an operator's event, a link's message); at most MESSAGE_BYTES."""
+    longest = max((len(task.encode()) for task in task_names), default=0)
+    return QueueSize(name, QUEUE_DEPTH, min(SIGNAL_BYTES + longest + payload_bytes, MESSAGE_BYTES))
+
+
+def event_queue_size(name: str, task_names: list[str]) -> QueueSize:
+    """The run's event queue: EVENT_BYTES, or more where a switch's lists of task names need it."""
+    names = sum(len(task.encode()) + 2 for task in task_names)
+    return QueueSize(name, QUEUE_DEPTH, max(EVENT_BYTES, 256 + 2 * names))
 
 
 def signal_queue_name(subsystem: str, run_id: str, rtpu: str) -> str:
@@ -182,12 +194,17 @@ class Ready:
 
 @dataclasses.dataclass(frozen=True, slots=True)
 class StateChanged:
-    """A task's lifecycle state after a signal, a cycle or a switch; `error` the last error's message."""
+    """A task's lifecycle state after a signal, a cycle or a switch; `error` the last error's message.
+
+    `output_failed`: the error is an output the run promised that could not be written (a data
+    log: `errors.OutputError`); the run goes on, and its exit status says so.
+    """
 
     KIND: ClassVar[str] = "state"
     task: str
     state: str
     error: str = ""
+    output_failed: bool = False
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -311,11 +328,22 @@ def event_from_wire(message: list[Any]) -> tuple[str, Event]:
 class Queue:
     """One end of a message queue carrying msgpack-encoded lists (events: `report`, `receive_event`)."""
 
-    def __init__(self, name: str, create: bool = False) -> None:
+    def __init__(self, name: str, create: bool = False, size: QueueSize | None = None) -> None:
+        """Open queue `name`, or with `create` make it new: `size` messages deep and long (default:
+        the system's largest, MAX_MESSAGES of MESSAGE_BYTES)."""
         self.name = name
-        flags = posix_ipc.O_CREX if create else 0
-        self._mq = posix_ipc.MessageQueue(name, flags, mode=0o600, max_messages=MAX_MESSAGES, max_message_size=MESSAGE_BYTES)
+        if create:
+            depth, length = (size.depth, size.message_bytes) if size is not None else (MAX_MESSAGES, MESSAGE_BYTES)
+            self._mq = posix_ipc.MessageQueue(name, posix_ipc.O_CREX, mode=0o600, max_messages=depth,
+                                              max_message_size=length)
+        else:
+            self._mq = posix_ipc.MessageQueue(name)
         self.owner = create
+
+    @property
+    def size(self) -> QueueSize:
+        """The queue as the kernel made it: its depth and message size."""
+        return QueueSize(self.name, self._mq.max_messages, self._mq.max_message_size)
 
     def send(self, *message: Any, timeout: float | None = 1.0) -> None:
         raw = self._encode(message)
@@ -327,13 +355,15 @@ class Queue:
                 process.raise_if_stopping()
                 continue  # interrupted by a signal whose handler only set a flag: send anyway
 
-    def try_send(self, *message: Any, timeout: float = 0.5, reader_alive: Callable[[], bool] | None = None) -> bool:
+    def try_send(self, *message: Any, timeout: float = 0.5, reader_alive: Callable[[], bool] | None = None,
+                 cut_to_fit: bool = False) -> bool:
         """Send, waiting at most `timeout`; False if the queue stayed full or is gone (a dead peer must not hang us).
 
         `reader_alive`, asked every READER_CHECK seconds of the wait, ends it as soon as the
         process that reads the queue is gone: a long wait is only worth it while someone drains.
+        `cut_to_fit`: cut long strings (an event's error text) rather than refuse the message.
         """
-        raw = self._encode(message)
+        raw = self._encode(message, cut_to_fit)
         deadline = time.monotonic() + timeout
         while True:
             left = max(deadline - time.monotonic(), 0.0)
@@ -360,19 +390,26 @@ class Queue:
     def report(self, source: str, event: Event, timeout: float = 0.5,
                reader_alive: Callable[[], bool] | None = None) -> bool:
         """Send one event from `source` (`try_send`: a dead or stuck job control never hangs the sender)."""
-        return self.try_send(*event_to_wire(source, event), timeout=timeout, reader_alive=reader_alive)
+        return self.try_send(*event_to_wire(source, event), timeout=timeout, reader_alive=reader_alive, cut_to_fit=True)
 
     def receive_event(self, timeout: float | None) -> tuple[str, Event] | None:
         """The next event as (source, event), or None if none came within `timeout` (see `receive`)."""
         message = self.receive(timeout)
         return None if message is None else event_from_wire(message)
 
-    def _encode(self, message: tuple[Any, ...]) -> bytes:
-        """The message as msgpack; one too long for the queue is our bug, named, never a bare ValueError."""
+    def _encode(self, message: tuple[Any, ...], cut_to_fit: bool = False) -> bytes:
+        """The message as msgpack; with `cut_to_fit`, its long strings (an error's text, a traceback) cut
+        until it fits the queue. One that does not fit even so is our bug, named, never a bare ValueError.
+        """
+        limit = self._mq.max_message_size
         raw = msgpack.packb(list(message))
-        if len(raw) > self._mq.max_message_size:
+        for longest in CUT_STRINGS_TO if cut_to_fit else ():
+            if len(raw) <= limit:
+                break
+            raw = msgpack.packb(_cut_strings(list(message), longest))
+        if len(raw) > limit:
             raise InternalError(f"a '{message[0]}' message of {len(raw)} B does not fit queue {self.name} "
-                                f"(at most {self._mq.max_message_size} B); please report this")
+                                f"(at most {limit} B); please report this")
         return raw
 
     def receive(self, timeout: float | None) -> list[Any] | None:
@@ -399,3 +436,15 @@ class Queue:
             pass
         if self.owner:
             shm.unlink_quietly("mq", self.name)
+
+
+def _cut_strings(value: Any, longest: int) -> Any:
+    """`value` with every string longer than `longest` cut in the middle: its start and its end say most."""
+    if isinstance(value, str) and len(value) > longest:
+        head = longest // 3
+        return f"{value[:head]} [...{len(value) - longest} characters cut...] {value[len(value) - (longest - head):]}"
+    if isinstance(value, list):
+        return [_cut_strings(item, longest) for item in value]
+    if isinstance(value, dict):
+        return {key: _cut_strings(item, longest) for key, item in value.items()}
+    return value

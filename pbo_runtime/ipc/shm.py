@@ -22,6 +22,8 @@ from pathlib import Path
 
 import posix_ipc
 
+from pbo_runtime.ipc import limits
+
 PREFIX = "pbo."
 SHM_DIR = Path("/dev/shm")
 MQUEUE_DIR = Path("/dev/mqueue")
@@ -38,12 +40,33 @@ def new_run_id() -> str:
 
 
 def create_segment(name: str, size: int) -> tuple[posix_ipc.SharedMemory, mmap.mmap]:
-    """Create a 0600 segment that must not exist yet, mapped and zeroed."""
-    shm = posix_ipc.SharedMemory(name, posix_ipc.O_CREX, mode=0o600, size=size)
+    """Create a 0600 segment that must not exist yet, mapped and zeroed.
+
+    Its pages are allocated now: on a full /dev/shm the creation fails with a ResourceLimitError
+    naming the space needed, where a sparse segment would kill the first process to write a page
+    the file system cannot give (SIGBUS).
+    """
+    doing = f"creating shared memory {name}"
     try:
+        shm = posix_ipc.SharedMemory(name, posix_ipc.O_CREX, mode=0o600, size=size)
+    except (OSError, ValueError, posix_ipc.Error) as exc:
+        error = limits.explain(exc, doing, shm_bytes=size)
+        if error is None:
+            raise
+        raise error from None
+    try:
+        os.posix_fallocate(shm.fd, 0, size)
         mapping = mmap.mmap(shm.fd, shm.size)
-    finally:
+    except OSError as exc:
         shm.close_fd()
+        shm.unlink()
+        error = limits.explain(exc, doing, shm_bytes=size)
+        if error is None:
+            raise
+        raise error from None
+    finally:
+        if shm.fd >= 0:
+            shm.close_fd()
     return shm, mapping
 
 

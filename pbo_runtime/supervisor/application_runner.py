@@ -24,11 +24,13 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
+import posix_ipc
 
+from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import shm
 from pbo_runtime.config.application import Application
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
-from pbo_runtime.links.message_link import MessageLink, message_link_name
+from pbo_runtime.links.message_link import SYSTEM_MESSAGE_BYTES, MessageLink, message_link_name
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer, link_name
 
 STOP_GRACE = 15.0  # seconds a subsystem gets to shut down after SIGTERM before it is killed
@@ -95,7 +97,14 @@ class ApplicationRunner:
                 entry["endpoint"] = spec.endpoint or f"tcp/127.0.0.1:{_free_port()}"
             elif spec.kind == "message":
                 object_name = message_link_name(self.application.name, self.run_id, name)
-                self._links.append(MessageLink.create(object_name, spec.capacity))
+                try:
+                    self._links.append(MessageLink.create(object_name, spec.capacity))
+                except (OSError, posix_ipc.Error) as exc:
+                    size = limits.QueueSize(object_name, spec.capacity, SYSTEM_MESSAGE_BYTES)
+                    error = limits.explain(exc, f"creating message link '{name}' ({object_name})", [size])
+                    if error is None:
+                        raise
+                    raise error from None
                 entry["object"] = object_name
             else:
                 object_name = link_name(self.application.name, self.run_id, name)

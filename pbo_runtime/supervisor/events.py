@@ -130,6 +130,10 @@ class EventHandling:
             self.task_states[task] = state
             if message:
                 self.task_errors[task] = message
+            if event.output_failed and message:
+                said = f"task '{task}' on {source} "
+                if not any(fault.startswith(said) for fault in self.result.faults):  # its first failure says it
+                    self.result.faults.append(f"{said}could not write its output: {message}")
             if state == "ERROR" and previous != "ERROR":
                 self.say(f"task '{task}' on {source} is in ERROR: {message} (operator intervention required: pbo clear {task})")
             if (state == "ERROR") != (previous == "ERROR"):
@@ -169,7 +173,7 @@ class EventHandling:
             self._refused[event.task] = event.reason
             self.say(f"{source} refused a signal for '{event.task}': {event.reason}")
         elif isinstance(event, messages.Crashed):
-            raise RunFailure(f"{source} crashed: {event.error}\n{event.trace}")
+            raise RunFailure(f"{source} crashed: {event.error}" + (f"\n{event.trace}" if event.trace else ""))
 
     def _end_stable_episode(self, task: str, at: float | None) -> None:
         """Into the report; `at` None: the task was still stable when the run stopped."""

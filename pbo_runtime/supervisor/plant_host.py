@@ -23,6 +23,7 @@ import traceback
 
 import numpy as np
 
+from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import messages
 from pbo_runtime.objects import registry
 from pbo_runtime.ipc import shm
@@ -50,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--parent", type=int, default=0)
     parser.add_argument("--fifo", action="store_true", help="SCHED_FIFO above the RTPUs: the world does not wait")
     parser.add_argument("--clock", choices=("real", "sim"), default="real", help="sim: one step per supervisor tick")
+    parser.add_argument("--out", default="", help="the run's output directory: the plant's own log goes there")
     args = parser.parse_args(argv)
     if args.parent:
         become_child(args.parent)
@@ -67,7 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         plant_class = registry.plant_class(args.type)
         plant = plant_class(
-            messages.plant_registers_name(args.subsystem, args.run_id), args.model, args.timestep, json.loads(args.options)
+            messages.plant_registers_name(args.subsystem, args.run_id), args.model, args.timestep, json.loads(args.options),
+            log_dir=args.out,
         )
         if args.clock == "sim":
             table = shm.attach_segment(messages.table_name(args.subsystem, args.run_id))
@@ -108,7 +111,9 @@ def main(argv: list[str] | None = None) -> int:
     except Stop:
         return 0
     except Exception as exc:
-        events.report("plant", messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
+        limit = limits.explain(exc, "the plant")
+        events.report("plant", messages.Crashed(str(limit), "") if limit is not None
+                      else messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
         return 1
     finally:
         events.report("plant", messages.PlantStats({"steps": steps, "late": late, "stalls": stalls, "stalled_for": stalled_for,

@@ -68,6 +68,8 @@ class RunResult:
     # holdings of the table lock past its bound (supervisor.lock_watch): pid, holder, role, state
     # (dead, stopped, running), held_ms, bound_ms, action (killed, released, left), at (run seconds)
     lock_events: list[dict[str, Any]] = field(default_factory=list)
+    # what the run's queues take of RLIMIT_MSGQUEUE (depth x (message size + the kernel's 96 B)), as made
+    queue_bytes: int = 0
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -79,7 +81,7 @@ class RunResult:
             "stable_episodes": self.stable_episodes, "realtime": self.realtime,
             "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds, "links": self.links,
             "started_monotonic": self.started_monotonic, "stalls": self.stalls, "unstopped": self.unstopped,
-            "faults": self.faults,
+            "faults": self.faults, "queue_bytes": self.queue_bytes,
             "lock_events": self.lock_events,
         }
 

@@ -24,13 +24,16 @@ import time
 from typing import Any, Callable
 
 import numpy as np
+import posix_ipc
 
+from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
-from pbo_runtime.ipc.control import ControlServer, control_queue_name
+from pbo_runtime.config.application import MESSAGE_OVERHEAD_BYTES, MSGPACK_BYTES_PER_NUMBER
+from pbo_runtime.ipc.control import REQUEST_BYTES, ControlServer, control_queue_name, control_queue_size
 from pbo_runtime.supervisor.children import Children, Child
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.supervisor.control_service import ControlService
@@ -201,8 +204,14 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         except (RunFailure, JobFailure) as exc:
             self.result.failure = str(exc)
             self.result.stopped_by = "failure"
-        except PboError as exc:  # a switch that could not complete, a condition that could not be read
+        except PboError as exc:  # a switch that could not complete, a condition that could not be read, an OS limit
             self.result.failure = str(exc)
+            self.result.stopped_by = "failure"
+        except (OSError, MemoryError, posix_ipc.Error) as exc:  # an OS limit met making a semaphore, a child's pipes...
+            limit = limits.explain(exc, "starting the run" if self.started_at is None else "running")
+            if limit is None:
+                raise
+            self.result.failure = str(limit)
             self.result.stopped_by = "failure"
         finally:
             self._shutdown()
@@ -217,15 +226,47 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
     def _interrupt(self, signum: int, _frame: Any) -> None:
         self._stop_requested = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
 
+    def queue_plan(self) -> list[limits.QueueSize]:
+        """The run's queues, each sized for what it carries: the events, a signal queue per RTPU, the control queue."""
+        sub, run_id = self.subsystem, self.run_id
+        plan = [messages.event_queue_size(messages.event_queue_name(sub.name, run_id), list(sub.tasks))]
+        # what an aperiodic task's event may carry: an operator's values (a control request at most),
+        # or a message of one of the application's links, as the checker bounds it
+        payload = max([REQUEST_BYTES] + [MSGPACK_BYTES_PER_NUMBER * int(np.prod(link.get("shape", [1])))
+                                         + MESSAGE_OVERHEAD_BYTES for link in self.links.values()
+                                         if link.get("kind") == "message"])
+        for rtpu in sub.rtpus:
+            hosted = sub.tasks_on(rtpu.name)
+            plan.append(messages.signal_queue_size(messages.signal_queue_name(sub.name, run_id, rtpu.name),
+                                                   [t.name for t in hosted], payload if any(t.aperiodic for t in hosted) else 0))
+        plan.append(control_queue_size(sub.name, run_id))
+        return plan
+
+    def _make_queues(self) -> None:
+        """Every queue of the run, refused whole before the first is made if they cannot fit."""
+        plan = self.queue_plan()
+        limits.check_queue_room(plan)
+        events, *signals, _control = plan
+        try:
+            self.events = messages.Queue(events.name, create=True, size=events)
+            for rtpu, size in zip(self.subsystem.rtpus, signals):
+                self.signals[rtpu.name] = messages.Queue(size.name, create=True, size=size)
+            self.control = ControlServer(self.subsystem.name, self.run_id)
+        except (OSError, ValueError, posix_ipc.Error) as exc:
+            made = len(self.signals) + (self.events is not None) + (self.control is not None)
+            error = limits.explain(exc, f"creating queue {plan[made].name}", plan)
+            if error is None:
+                raise
+            raise error from None
+        made_sizes = [self.events.size, *(queue.size for queue in self.signals.values()), self.control.size]
+        self.result.queue_bytes = sum(size.bytes for size in made_sizes)
+
     def _start(self) -> None:
         sub, run_id = self.subsystem, self.run_id
-        self.events = messages.Queue(messages.event_queue_name(sub.name, run_id), create=True)
-        for rtpu in sub.rtpus:
-            self.signals[rtpu.name] = messages.Queue(messages.signal_queue_name(sub.name, run_id, rtpu.name), create=True)
+        self._make_queues()
         self.table = StateTable.create(TableLayout.of(sub), messages.table_name(sub.name, run_id), self._manifest())
         self._refuse_if_devices_in_use()  # again, now that a run started at the same instant sees this one
         self._watch_the_lock(self.table)
-        self.control = ControlServer(sub.name, run_id)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()
         if sub.plant is not None:
@@ -234,6 +275,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                 "-m", "pbo_runtime.supervisor.plant_host", "--type", plant.type, "--model", plant.model,
                 "--timestep", repr(plant.timestep), "--options", json.dumps(dict(plant.options)),
                 "--subsystem", sub.name, "--run-id", run_id, *(["--fifo"] if self.fifo else []), *self.clock.plant_arguments(),
+                *(["--out", self.out_dir] if self.out_dir else []),
             ])
             self._await_ready({"plant"})
         for rtpu in sub.rtpus:

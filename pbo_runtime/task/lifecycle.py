@@ -20,7 +20,7 @@ from typing import Any, Callable
 import numpy as np
 
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
-from pbo_runtime.errors import LifecycleError, ModuleError
+from pbo_runtime.errors import LifecycleError, ModuleError, OutputError
 from pbo_runtime.objects.module import PortBasedObject, Status
 from pbo_runtime.table.table import StateTable, TaskState
 from pbo_runtime.table.table import Status as StatusWord
@@ -104,6 +104,7 @@ class Task:
         self.index = spec.index
         self.state = TaskState.NOT_CREATED
         self.last_error = ""
+        self.output_failed = False  # an output it promised (a data log) could not be written: the run answers for it
         self.cycles = 0
         self.errors = 0
         self._device_opener = opener
@@ -135,7 +136,7 @@ class Task:
             self.context.time = now
             self.module.init(self._params)
         except Exception as exc:
-            self.last_error = _describe("init", exc)
+            self.last_error = self._describe("init", exc)
             self._run_kill()
             self._publish(TaskState.KILLED)
             return False
@@ -243,7 +244,7 @@ class Task:
         try:
             cleared = bool(self.module.clear())
         except Exception as exc:
-            self.last_error = _describe("clear", exc)
+            self.last_error = self._describe("clear", exc)
             return False
         if cleared:
             self.last_error = ""
@@ -265,12 +266,12 @@ class Task:
         if problem:
             self.last_error = f"cycle: {problem}"
         else:
-            self.last_error = _describe("cycle", exc) if exc else "cycle returned ERROR" + (f": {reason}" if reason else "")
+            self.last_error = self._describe("cycle", exc) if exc else "cycle returned ERROR" + (f": {reason}" if reason else "")
         try:
             verdict = self.module.error(exc)
         except Exception as inner:
             verdict = Status.ERROR
-            self.last_error += "; " + _describe("error", inner)
+            self.last_error += "; " + self._describe("error", inner)
         if verdict == Status.CONTINUE:
             return Status.CONTINUE
         if verdict == Status.OFF:
@@ -282,20 +283,26 @@ class Task:
     def _fail(self, component: str, exc: BaseException | None = None, problem: str = "") -> None:
         self.errors += 1
         self.status[StatusWord.ERRORS] = self.errors
-        self.last_error = f"{component}: {problem}" if exc is None else _describe(component, exc)
+        self.last_error = f"{component}: {problem}" if exc is None else self._describe(component, exc)
         self._publish(TaskState.ERROR)
 
     def _run_kill(self) -> None:
         try:
             self.module.kill()
         except Exception as exc:
-            self.last_error += ("; " if self.last_error else "") + _describe("kill", exc)
+            self.last_error += ("; " if self.last_error else "") + self._describe("kill", exc)
         for device in self.context.opened:
             try:
                 device.close()
             except Exception as exc:
-                self.last_error += ("; " if self.last_error else "") + _describe("device close", exc)
+                self.last_error += ("; " if self.last_error else "") + self._describe("device close", exc)
         self.context.opened.clear()
+
+    def _describe(self, component: str, exc: BaseException) -> str:
+        """The error's one-line description; notes an output that could not be written."""
+        if isinstance(exc, OutputError):
+            self.output_failed = True
+        return _describe(component, exc)
 
     def _publish(self, state: TaskState) -> None:
         self.state = state

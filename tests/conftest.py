@@ -107,3 +107,28 @@ def only_marked_tests_start_processes(request, monkeypatch):
     if started and request.node.get_closest_marker("multiprocess") is None:
         pytest.fail(f"this test starts processes but is not marked @pytest.mark.multiprocess: {'; '.join(started[:3])}",
                     pytrace=False)
+
+
+# --- a small disk ------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 64 KiB tmpfs mounted in tmp_path/disk, unmounted after the test: a disk a test can fill.
+
+    Root ignores file permissions, so a read-only directory proves nothing; a full file system
+    refuses root too. Skipped where mounting is not allowed.
+    """
+    import subprocess
+
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k,mode=0700", "tmpfs", str(disk)],
+                             capture_output=True, text=True)
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.strip()}")
+    try:
+        yield disk
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
+

@@ -421,3 +421,9 @@ def assert_ended_cleanly(run: subprocess.Popen, subsystem: str, report_path: Pat
     assert_nothing_left(report)
     assert [e for e in os.listdir("/dev/shm") if f"pbo.{subsystem}.{run.pid}-" in e] == []
     return out, err
+def fill_disk(disk: Path, leave: int = 0) -> None:
+    """Fill the file system of `disk` until at most `leave` bytes are free."""
+    free = os.statvfs(disk)
+    room = free.f_bavail * free.f_frsize - leave
+    if room > 0:
+        (disk / "filler").write_bytes(b"\0" * room)

@@ -240,9 +240,9 @@ def assert_application_ended_well(status: int, out, said: str) -> None:
 
 
 def assert_the_goal_reached_both_arms(out) -> None:
-    leader = np.load(out / "leader" / "leader.npz")
-    follower = np.load(out / "follower" / "follower.npz")
-    operator = np.load(out / "operator" / "operator.npz")
+    leader = np.load(out / "leader" / "leader.npy")
+    follower = np.load(out / "follower" / "follower.npy")
+    operator = np.load(out / "operator" / "operator.npy")
     sent, put_off = operator["message_counts"][-1]
     # two goals, and the initial value too if the console's first cycle came before the first job's write
     assert sent in (2.0, 3.0) and put_off == 0.0

@@ -7,6 +7,9 @@ the release time each call is given, and the arm is an in-process MuJoCo plant s
 from __future__ import annotations
 
 import dataclasses
+import os
+import re
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,7 +21,7 @@ from drivers.mujoco_arm.driver import MujocoArmDriver
 from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.robots import robot
 from modules._robot_model import pinocchio_model
-from modules.data_logger import DataLogger
+from modules.data_logger import DataLogger, read_log
 from modules.joint_trajectory import JointTrajectory
 from modules.pid_joint import PidJoint
 from modules.robot_torque import RobotTorque
@@ -26,7 +29,7 @@ from pbo_runtime import ParamError, Status
 from pbo_runtime.config.model import DeviceSpec, PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.support import task_spec, unique_name, variables
+from tests.support import fill_disk, task_spec, unique_name, variables
 
 PUMA = robot("puma560")
 N = PUMA.ndof
@@ -510,70 +513,143 @@ def log_cycles(table: StateTable, task: Task, cycles: int, t0: float = 1.0) -> l
     return written
 
 
-def assert_log_holds(path: Path, written: list) -> None:
-    with np.load(path) as log:
-        assert sorted(log.files) == ["dropped", "k", "m", "time", "x"]
-        np.testing.assert_array_equal(log["time"], [w[0] for w in written])
-        assert np.all(np.diff(log["time"]) > 0)
-        np.testing.assert_array_equal(log["x"], np.array([w[1] for w in written]).reshape(len(written), 3))
-        np.testing.assert_array_equal(log["k"], np.array([w[2] for w in written], dtype=np.int32))
-        assert log["k"].dtype == np.int32
-        np.testing.assert_array_equal(log["m"], np.array([w[3] for w in written]).reshape(len(written), 2, 2))
+def assert_log_holds(path: Path, written: list, load=np.load) -> None:
+    log = load(path)
+    assert log.dtype.names == ("time", "x", "k", "m")
+    np.testing.assert_array_equal(log["time"], [w[0] for w in written])
+    assert np.all(np.diff(log["time"]) > 0)
+    np.testing.assert_array_equal(log["x"], np.array([w[1] for w in written]).reshape(len(written), 3))
+    np.testing.assert_array_equal(log["k"], np.array([w[2] for w in written], dtype=np.int32))
+    assert log["k"].dtype == np.int32
+    np.testing.assert_array_equal(log["m"], np.array([w[3] for w in written]).reshape(len(written), 2, 2))
 
 
 def test_logger_off_writes_one_row_per_cycle_of_every_logged_variable(log_table, tmp_path):
-    path = tmp_path / "runs" / "log.npz"
+    path = tmp_path / "runs" / "log.npy"
     task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path)})
     written = log_cycles(log_table, task, 7)
-    assert not path.exists()  # the cycle does no I/O
+    assert len(np.load(path)) == 0  # a second's chunk is not full yet: the cycles wrote nothing
     task.turn_off()
     assert_log_holds(path, written)
-    with np.load(path) as log:
-        assert log["dropped"] == 0
-    assert sorted(p.name for p in path.parent.iterdir()) == ["log.npz"]  # no partial file left behind
+    assert sorted(p.name for p in path.parent.iterdir()) == ["log.npy"]  # no partial file left behind
     task.kill()
 
 
-def test_logger_kill_writes_the_file_too(log_table, tmp_path):
-    path = tmp_path / "log.npz"
+def test_logger_appends_each_chunk_as_it_fills_and_the_file_is_a_whole_array_after_each(log_table, tmp_path):
+    path = tmp_path / "log.npy"
+    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "chunk": 3 * LOG_DT})
+    written = log_cycles(log_table, task, 2)
+    assert len(np.load(path)) == 0
+    written += log_cycles(log_table, task, 5, t0=2.0)
+    assert_log_holds(path, written[:6])  # two chunks of 3: the 7th row waits in the third
+    task.kill()
+    assert_log_holds(path, written)
+
+
+def test_logger_kill_writes_the_chunk_begun(log_table, tmp_path):
+    path = tmp_path / "log.npy"
     task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path)})
     written = log_cycles(log_table, task, 4)
     task.turn_off()
-    path.unlink()  # so that only kill can have written what we read
-    task.kill()
-    assert_log_holds(path, written)
-
-
-def test_logger_keeps_appending_after_off_and_on(log_table, tmp_path):
-    path = tmp_path / "log.npz"
-    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path)})
-    written = log_cycles(log_table, task, 3)
-    task.turn_off()
-    assert task.turn_on(2.0)
-    written += log_cycles(log_table, task, 2, t0=2.0)
+    written += log_cycles_after_on(log_table, task, 2)
     task.kill()  # from ON: off, then kill
     assert_log_holds(path, written)
 
 
-def test_logger_counts_rows_past_capacity_as_dropped_and_does_not_write_them(log_table, tmp_path):
-    path = tmp_path / "log.npz"
-    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "capacity": 3 * LOG_DT})
-    written = log_cycles(log_table, task, 5)
-    assert (task.module.logged, task.module.dropped) == (3, 2)
+def log_cycles_after_on(table: StateTable, task: Task, cycles: int) -> list:
+    assert task.turn_on(2.0)
+    return log_cycles(table, task, cycles, t0=2.0)
+
+
+def test_logger_keeps_appending_after_off_and_on(log_table, tmp_path):
+    path = tmp_path / "log.npy"
+    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path)})
+    written = log_cycles(log_table, task, 3)
     task.turn_off()
-    assert_log_holds(path, written[:3])
-    with np.load(path) as log:
-        assert log["dropped"] == 2
+    written += log_cycles_after_on(log_table, task, 2)
+    task.turn_off()
+    assert_log_holds(path, written)
     task.kill()
+
+
+def test_read_log_gives_back_the_rows_of_a_chunk_whose_count_a_killed_process_did_not_write(log_table, tmp_path):
+    path = tmp_path / "log.npy"
+    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "chunk": 2 * LOG_DT})
+    written = log_cycles(log_table, task, 6)
+    task.kill()
+    row = task.module._dtype.itemsize
+    with open(path, "r+b") as file:  # as if killed after the third chunk's rows, before its count, halfway into a 4th
+        file.write(task.module._header(4))
+        file.seek(0, 2)
+        file.write(b"\1" * (row // 2))
+    assert len(np.load(path)) == 4
+    assert_log_holds(path, written, load=read_log)
+
+
+def test_logger_whose_file_is_removed_fails_at_the_next_chunk_with_the_os_error(log_table, tmp_path):
+    path = tmp_path / "runs" / "log.npy"
+    task = logger_task(log_table, {"variables": ["x"], "path": str(path), "chunk": 2 * LOG_DT})
+    log_cycles(log_table, task, 2)
+    shutil.rmtree(path.parent)
+    assert cycles_until_error(log_table, task, 2.0, 10) == 1  # the cycle that fills the chunk: its write fails
+    assert task.state is TaskState.ERROR and task.output_failed
+    assert re.fullmatch(r"cycle raised OutputError: cannot write log .*/runs/log\.npy \(2 rows after the 2 written\): "
+                        r"\[Errno 2\] .*removed.* at data_logger\.py:\d+", task.last_error), task.last_error
+    task.kill()
+    assert not path.parent.exists()  # nothing made again, no partial file
+
+
+def test_logger_on_a_full_disk_fails_at_the_write_keeps_the_rows_written_and_leaves_no_partial_file(log_table, small_disk):
+    path = small_disk / "log.npy"
+    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "chunk": 2 * LOG_DT})
+    written = log_cycles(log_table, task, 2)
+    fill_disk(small_disk)
+    ran = cycles_until_error(log_table, task, 2.0, 1000)  # rows of 76 B: the file's one page takes a few dozen
+    assert 0 < ran < 1000
+    assert task.state is TaskState.ERROR and task.output_failed
+    assert "[Errno 28] No space left on device" in task.last_error
+    kept = np.load(path)
+    assert len(kept) >= 2 and len(kept) % 2 == 0
+    assert_log_holds(path, written + [(t, x, k, m) for t, x, k, m in log_values(2.0, len(kept) - 2)])
+    assert os.path.getsize(path) == task.module._header_bytes + len(kept) * kept.dtype.itemsize  # no torn chunk
+    task.kill()
+    assert sorted(p.name for p in small_disk.iterdir()) == ["filler", "log.npy"]
+
+
+def cycles_until_error(table: StateTable, task: Task, t0: float, most: int) -> int:
+    """Run `log_cycles`' cycles until one ends in ERROR (or `most` ran); how many ended well."""
+    for i, (t, x, k, m) in enumerate(log_values(t0, most)):
+        for name, value in (("x", x), ("k", k), ("m", m)):
+            table.write(name, value, when=t)
+        if task.run_cycle(t) is not Status.CONTINUE:
+            return i
+    return most
+
+
+def log_values(t0: float, cycles: int) -> list:
+    """What `log_cycles` writes, without running anything."""
+    return [(t0 + i * LOG_DT, np.array([i, -i, 0.5 * i]), 10 * i - 3, np.arange(4.0).reshape(2, 2) + i) for i in range(cycles)]
+
+
+def test_logger_that_cannot_create_its_file_is_not_created(log_table, tmp_path):
+    built = DataLogger.build_params({"variables": ["x"], "path": "/proc/pbo-log.npy"})
+    bindings = tuple(PortBinding(p, p.variable, log_table.layout.slot(p.variable).shape) for p in DataLogger.ports_for(built))
+    spec = TaskSpec(name="log", module="DataLogger", rtpu="rtpu0", period=LOG_DT, params={"variables": ["x"],
+                    "path": "/proc/pbo-log.npy"}, bindings=bindings, index=1)
+    task = Task(spec, DataLogger, log_table)
+    assert not task.spawn(0.0)
+    assert task.output_failed
+    assert re.match(r"init raised OutputError: cannot create log /proc/pbo-log\.npy: \[Errno \d+\] ", task.last_error)
 
 
 def test_logger_cycles_take_no_page_fault_as_its_log_fills(log_table, tmp_path):
     # Regression (issue 6): the log was np.zeros, mapped lazily: the cycle that first wrote into
-    # each new page took a page fault (32 over these 4,096 rows of m). A column of 35 MB, past
-    # glibc's largest mmap threshold (32 MiB), so that it is mapped, not recycled heap.
+    # each new page took a page fault (32 over these 4,096 rows of m). The chunk buffer is
+    # written in init, so its rows fill without faults until the chunk is written.
     import resource
 
-    task = logger_task(log_table, {"variables": ["m"], "path": str(tmp_path / "log.npz"), "capacity": 1_100_000 * LOG_DT})
+    task = logger_task(log_table, {"variables": ["m"], "path": str(tmp_path / "log.npy"), "chunk": 1_000_000 * LOG_DT})
+    assert task.module._rows > 4096
     task.run_cycle(1.0)
     before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     for i in range(1, 4096):
@@ -581,9 +657,8 @@ def test_logger_cycles_take_no_page_fault_as_its_log_fills(log_table, tmp_path):
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
     assert task.module.logged == 4096
     assert faults < 8, f"{faults} page faults in 4,095 cycles"  # 32 to 40 before the fix
-    task.turn_off()
-    (tmp_path / "log.npz").unlink()  # 35 MB: not kept
     task.kill()
+    assert len(np.load(tmp_path / "log.npy")) == 4096
 
 
 @pytest.mark.parametrize(
@@ -591,9 +666,12 @@ def test_logger_cycles_take_no_page_fault_as_its_log_fills(log_table, tmp_path):
     [
         ({"variables": []}, r"bad parameters for DataLogger: variables must name at least one variable to log"),
         ({"variables": ["x", "k", "x"]}, r"bad parameters for DataLogger: variables must not repeat, got: \['x', 'k', 'x'\]"),
-        ({"variables": ["x"], "path": "runs/log.csv"}, r"bad parameters for DataLogger: path must end in \.npz, got: 'runs/log\.csv'"),
-        ({"variables": ["x"], "capacity": 0}, r"bad parameters for DataLogger: capacity must be > 0 s, got: 0\.0"),
-        ({"path": "log.npz"}, r"missing parameter\(s\) 'variables' for DataLogger"),
+        ({"variables": ["x", "time"]}, r"bad parameters for DataLogger: variables must not include 'time': .*"),
+        ({"variables": ["x"], "path": "runs/log.npz"},
+         r"bad parameters for DataLogger: path must end in \.npy \(one structured array, appended as the run goes\), "
+         r"got: 'runs/log\.npz'"),
+        ({"variables": ["x"], "chunk": 0}, r"bad parameters for DataLogger: chunk must be > 0 s, got: 0\.0"),
+        ({"path": "log.npy"}, r"missing parameter\(s\) 'variables' for DataLogger"),
     ],
 )
 def test_logger_refuses_bad_params(params, message):

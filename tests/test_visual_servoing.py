@@ -413,7 +413,7 @@ def test_through_the_singularity_dls_bounds_the_joint_speeds_where_plain_ik_does
                                "--no-live", "--out", str(tmp_path / controller)], cwd=tmp_path, capture_output=True,
                               text=True, timeout=240)
         assert done.returncode == 0, done.stdout + done.stderr
-        log = np.load(tmp_path / controller / "visual_servoing.npz")
+        log = np.load(tmp_path / controller / "visual_servoing.npy")
         speeds = np.abs(log["qd_m"]).max(axis=1)
         peak[controller] = (speeds.max(), log["time"][speeds.argmax()])
     ik_speed, ik_when = peak["ik"]

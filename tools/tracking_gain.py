@@ -33,7 +33,7 @@ def comparison_file(folder: Path) -> Path:
     tasks["pid_alone"] = {"module": "pid_joint", "rtpu": "rtpu0", "period": "1 ms", "ports": {"tau": "tau_u"},
                           "params": {"kp": 400, "kd": 40, "ki": 10, "gravity_feedforward": True}}
     tasks["logger"] = {"module": "data_logger", "rtpu": "rtpu0", "period": "2 ms",
-                       "params": {"variables": ["q_m", "q_r"], "path": "tracking.npz"}}
+                       "params": {"variables": ["q_m", "q_r"], "path": "tracking.npy"}}
     spec["configurations"] = {"combined": ["robot", "traj", "ctc", "logger"], "pid_alone": ["robot", "traj", "pid_alone", "logger"]}
     path = folder / "computed_torque_vs_pid.yaml"
     path.write_text(yaml.safe_dump(spec, sort_keys=False))
@@ -52,7 +52,7 @@ def tracking_errors(seconds: float = 2.5) -> dict[str, dict[str, float]]:
                                   cwd=folder, capture_output=True, text=True, timeout=300)
             if done.returncode != 0:
                 raise RuntimeError(f"{configuration}: pbo run failed:\n{done.stdout}\n{done.stderr}")
-            log = np.load(run_dir / "tracking.npz")
+            log = np.load(run_dir / "tracking.npy")
             error = np.abs(log["q_r"] - log["q_m"]).max(axis=1)
             out[configuration] = {"max": float(error.max()), "rms": float(np.sqrt(np.mean(error ** 2)))}
     return out

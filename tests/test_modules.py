@@ -25,7 +25,7 @@ from modules.data_logger import DataLogger, read_log
 from modules.joint_trajectory import JointTrajectory
 from modules.pid_joint import PidJoint
 from modules.robot_torque import RobotTorque
-from pbo_runtime import ParamError, Status
+from pbo_runtime import OutputError, ParamError, Status
 from pbo_runtime.config.model import DeviceSpec, PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
@@ -509,6 +509,7 @@ def log_cycles(table: StateTable, task: Task, cycles: int, t0: float = 1.0) -> l
         for name, value in (("x", x), ("k", k), ("m", m), ("unlogged", -1.0)):
             table.write(name, value, when=t)
         assert task.run_cycle(t) is Status.CONTINUE
+        task.module.wait_for_writer()  # each chunk written before the next cycle, as a period gives it time to
         written.append((t, x, k, m))
     return written
 
@@ -572,6 +573,51 @@ def test_logger_keeps_appending_after_off_and_on(log_table, tmp_path):
     task.kill()
 
 
+def test_logger_keeps_every_row_of_a_run_longer_than_the_120_s_it_once_kept(log_table, tmp_path):
+    # Regression (issue 18): rows past 120 s were dropped; now the memory is one chunk, whatever the length.
+    path = tmp_path / "log.npy"
+    task = logger_task(log_table, {"variables": ["k"], "path": str(path)})
+    cycles = 13_000  # 130 s of 10 ms cycles
+    for i in range(cycles):
+        task.run_cycle(1.0 + i * LOG_DT)
+        task.module.wait_for_writer()
+    assert task.module._rows == 100 and len(np.load(path)) == 13_000  # every chunk of a second written as it filled
+    task.kill()
+    assert len(np.load(path)) == cycles
+
+
+def test_rows_taken_while_the_writer_still_writes_the_other_chunk_are_dropped_counted_and_reported(log_table, tmp_path):
+    import threading
+
+    path = tmp_path / "log.npy"
+    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "chunk": 2 * LOG_DT})
+    release, append = threading.Event(), task.module._append
+
+    def slow_disk(data, rows):
+        if threading.current_thread() is task.module._writer:
+            release.wait(30)
+        append(data, rows)
+
+    task.module._append = slow_disk
+    written = log_cycles_without_waiting(log_table, task, 7)  # 2 handed over, 2 filling the other, 3 with nowhere to go
+    assert task.module.dropped == 3
+    release.set()
+    with pytest.raises(OutputError, match=r"^log \S+/log\.npy: 3 rows dropped: writing a chunk of 2 rows took longer than "
+                                          r"filling one \(the disk is too slow for this period\)$"):
+        task.module.off()
+    assert_log_holds(path, written[:4])
+    task.kill()
+
+
+def log_cycles_without_waiting(table: StateTable, task: Task, cycles: int) -> list:
+    written = log_values(1.0, cycles)
+    for t, x, k, m in written:
+        for name, value in (("x", x), ("k", k), ("m", m)):
+            table.write(name, value, when=t)
+        assert task.run_cycle(t) is Status.CONTINUE
+    return written
+
+
 def test_read_log_gives_back_the_rows_of_a_chunk_whose_count_a_killed_process_did_not_write(log_table, tmp_path):
     path = tmp_path / "log.npy"
     task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "chunk": 2 * LOG_DT})
@@ -591,7 +637,7 @@ def test_logger_whose_file_is_removed_fails_at_the_next_chunk_with_the_os_error(
     task = logger_task(log_table, {"variables": ["x"], "path": str(path), "chunk": 2 * LOG_DT})
     log_cycles(log_table, task, 2)
     shutil.rmtree(path.parent)
-    assert cycles_until_error(log_table, task, 2.0, 10) == 1  # the cycle that fills the chunk: its write fails
+    assert cycles_until_error(log_table, task, 2.0, 10) == 2  # the 2nd fills the chunk, whose write fails; the 3rd says so
     assert task.state is TaskState.ERROR and task.output_failed
     assert re.fullmatch(r"cycle raised OutputError: cannot write log .*/runs/log\.npy \(2 rows after the 2 written\): "
                         r"\[Errno 2\] .*removed.* at data_logger\.py:\d+", task.last_error), task.last_error
@@ -623,6 +669,7 @@ def cycles_until_error(table: StateTable, task: Task, t0: float, most: int) -> i
             table.write(name, value, when=t)
         if task.run_cycle(t) is not Status.CONTINUE:
             return i
+        task.module.wait_for_writer()
     return most
 
 

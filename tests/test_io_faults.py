@@ -142,19 +142,22 @@ def test_a_signal_too_long_for_its_queue_is_refused_not_cut():
                                  r"run's results; name a directory on a disk, e\.g\. runs/"),
     (["--out", "/sys/pbo"], r"error: --out /sys/pbo: is under /sys, .*"),
     (["--report", "/proc/self/report.json"], r"error: --report /proc/self/report\.json: is under /proc, .*"),
-    (["--report", "/dev/full"], r"error: --report /dev/full: refuses writes: \[Errno 28\] No space left on device; .*"),
+    (["--report", "/dev/full"], r"error: --report /dev/full: refuses writes: \[Errno 28\] No space left on device; name a "
+                                r"file on a disk"),
     (["--out", "/dev/full/x"], r"error: --out /dev/full/x: cannot make the directory: \[Errno 20\] Not a directory; a part "
                                r"of the path is a file, not a directory"),
     (["--report", "{tmp}"], r"error: --report \S+: is a directory; name a file \(or use --out DIR for DIR/report\.json\)"),
     (["--out", "{tmp}/a-file"], r"error: --out \S+/a-file: exists and is not a directory; name a directory \(it is made if "
                                 r"missing\)"),
 ])
-def test_an_output_path_that_cannot_take_the_results_is_refused_before_the_run_starts(tmp_path, capsys, arguments, pattern):
+@pytest.mark.parametrize("file", [DEMO, DEMO.parent / "leader_follower.yaml"], ids=["subsystem", "application"])
+def test_an_output_path_that_cannot_take_the_results_is_refused_before_the_run_starts(tmp_path, capsys, arguments, pattern,
+                                                                                      file):
     (tmp_path / "a-file").write_text("")
     arguments = [a.replace("{tmp}", str(tmp_path)) for a in arguments]
-    assert main(["run", str(DEMO), "--clock", "sim", "--no-live", *arguments]) == 1
+    assert main(["run", str(file), "--clock", "sim", "--no-live", *arguments]) == 1
     out, err = capsys.readouterr()
-    assert "starting subsystem" not in out  # nothing started
+    assert "starting" not in out  # nothing started
     assert re.fullmatch(pattern, err.strip()), err
 
 

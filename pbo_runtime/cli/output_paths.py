@@ -135,7 +135,7 @@ def _probe_in_place(path: Path, option: str) -> None:
     except BlockingIOError:
         pass  # a pipe that is full now: it drains while the run goes
     except OSError as exc:
-        raise OutputPathError(f"{option} {path}: refuses writes: {_os_error(exc)}; {_hint(exc)}") from None
+        raise OutputPathError(f"{option} {path}: refuses writes: {_os_error(exc)}; name a file on a disk") from None
     finally:
         os.close(handle)
 

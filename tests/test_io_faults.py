@@ -113,8 +113,14 @@ def test_a_run_of_the_demo_needs_the_queue_memory_the_docs_give():
     assert sum(q.bytes for q in plan) == PID_JOINT_QUEUE_BYTES
 
 
+def test_the_event_queue_grows_for_a_switch_of_many_tasks_up_to_the_systems_message_size():
+    assert messages.event_queue_size("", [["pid"] * 10, ["robot"]]).message_bytes == messages.EVENT_BYTES
+    assert messages.event_queue_size("", [[f"task_{i:04d}" for i in range(200)]]).message_bytes == 256 + 2 * 200 * 11
+    assert messages.event_queue_size("", [[f"task_{i:04d}" for i in range(2000)]]).message_bytes == messages.MESSAGE_BYTES
+
+
 def test_an_event_too_long_for_its_queue_arrives_with_its_long_strings_cut():
-    queue = messages.Queue(unique_name("events"), create=True, size=messages.event_queue_size("", ["pid"]))
+    queue = messages.Queue(unique_name("events"), create=True, size=messages.event_queue_size("", [["pid"]]))
     try:
         assert queue.report("rtpu0", messages.StateChanged("pid", "ERROR", "cycle raised ValueError: " + "x" * 10_000))
         source, event = queue.receive_event(0)

@@ -46,10 +46,11 @@ def signal_queue_size(name: str, task_names: list[str], payload_bytes: int = 0) 
     return QueueSize(name, QUEUE_DEPTH, min(SIGNAL_BYTES + longest + payload_bytes, MESSAGE_BYTES))
 
 
-def event_queue_size(name: str, task_names: list[str]) -> QueueSize:
-    """The run's event queue: EVENT_BYTES, or more where a switch's lists of task names need it."""
-    names = sum(len(task.encode()) + 2 for task in task_names)
-    return QueueSize(name, QUEUE_DEPTH, max(EVENT_BYTES, 256 + 2 * names))
+def event_queue_size(name: str, tasks_by_rtpu: list[list[str]]) -> QueueSize:
+    """The run's event queue: EVENT_BYTES, or more where a switch's lists of an RTPU's task names
+    (off and on) need it, up to MESSAGE_BYTES."""
+    names = max((sum(len(task.encode()) + 2 for task in tasks) for tasks in tasks_by_rtpu), default=0)
+    return QueueSize(name, QUEUE_DEPTH, max(EVENT_BYTES, min(256 + 2 * names, MESSAGE_BYTES)))
 
 
 def signal_queue_name(subsystem: str, run_id: str, rtpu: str) -> str:

@@ -229,7 +229,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
     def queue_plan(self) -> list[limits.QueueSize]:
         """The run's queues, each sized for what it carries: the events, a signal queue per RTPU, the control queue."""
         sub, run_id = self.subsystem, self.run_id
-        plan = [messages.event_queue_size(messages.event_queue_name(sub.name, run_id), list(sub.tasks))]
+        plan = [messages.event_queue_size(messages.event_queue_name(sub.name, run_id),
+                                          [[t.name for t in sub.tasks_on(rtpu.name)] for rtpu in sub.rtpus])]
         # what an aperiodic task's event may carry: an operator's values (a control request at most),
         # or a message of one of the application's links, as the checker bounds it
         payload = max([REQUEST_BYTES] + [MSGPACK_BYTES_PER_NUMBER * int(np.prod(link.get("shape", [1])))

@@ -15,6 +15,7 @@ With `--clock sim` it steps exactly once per tick of the supervisor's simulated 
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import sys
@@ -68,9 +69,11 @@ def main(argv: list[str] | None = None) -> int:
     behind_when_stepped_down = 0.0  # seconds behind wall time when it left SCHED_FIFO (0: it did not)
     try:
         plant_class = registry.plant_class(args.type)
+        # a plant that keeps a log of its own (MuJoCo's) takes the run's output directory for it
+        takes_log_dir = "log_dir" in inspect.signature(plant_class).parameters
         plant = plant_class(
             messages.plant_registers_name(args.subsystem, args.run_id), args.model, args.timestep, json.loads(args.options),
-            log_dir=args.out,
+            **({"log_dir": args.out} if takes_log_dir else {}),
         )
         if args.clock == "sim":
             table = shm.attach_segment(messages.table_name(args.subsystem, args.run_id))

@@ -55,7 +55,7 @@ def bench_config(folder: Path) -> Path:
     config = yaml.safe_load(DEMO.read_text())
     config["subsystem"] = SUBSYSTEM
     config["tasks"]["logger"].update({"rtpu": "rtpu1", "period": "2 ms",
-                                      "params": {"variables": ["q_m"], "path": "arm.npz"}})
+                                      "params": {"variables": ["q_m"], "path": "arm.npy"}})
     path = folder / "faults.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
@@ -164,7 +164,7 @@ def run_case(case: str, stop_seconds: float, run_seconds: float = RUN_SECONDS) -
         result = json.loads(report.read_text())
         after = [e for e in result["stable_episodes"] if e["from"] >= stopped_at]
         detected = (after[0]["from"] - stopped_at) * 1e3 if after else None
-        log = np.load(out / "arm.npz")
+        log = np.load(out / "arm.npy")
         excursion = excursion_past_goal(log["q_m"], goal)
         said = after[0]["reason"] if after else "no stable episode" + (" after the fault" if target else "")
         return Outcome(case, what.format(s=stop_seconds), detected, excursion, left, process.returncode, said)

@@ -21,7 +21,7 @@ STOPPED_FOR = 0.5  # seconds: hundreds of the robot task's periods, on any machi
 
 def run_with_a_stop(tmp_path, subsystem: str, marker: str) -> tuple[subprocess.CompletedProcess, dict]:
     """Run the demo for 3 s; SIGSTOP the child whose command line holds `marker` for STOPPED_FOR."""
-    config = demo_copy(tmp_path, subsystem, logger={"params": {"variables": ["q_m"], "path": "arm.npz"}})
+    config = demo_copy(tmp_path, subsystem, logger={"params": {"variables": ["q_m"], "path": "arm.npy"}})
     report = tmp_path / "report.json"
     process = subprocess.Popen([*PBO, "run", str(config), "--duration", "3", "--report", str(report), "--no-live"],
                                cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -122,18 +122,33 @@ def excursion_past_goal(q: np.ndarray, goal: np.ndarray) -> float:
     return float(max(0.0, past.max()))
 
 
+def child_with(pid: int, marker: str) -> int:
+    """The child of `pid` whose command line holds `marker`, waiting a little for it to show in /proc."""
+    for _ in range(100):
+        found = [p for p, cmd in children(pid).items() if marker in cmd]
+        if found:
+            return found[0]
+        time.sleep(0.05)
+    raise RuntimeError(f"no child of {pid} runs '{marker}'")
+
+
 def controller_process(pid: int) -> int:
-    return next(p for p, cmd in children(pid).items() if "--rtpu rtpu0" in cmd)
+    return child_with(pid, "--rtpu rtpu0")
+
+
+def robot_process(pid: int) -> int:
+    return child_with(pid, "--rtpu rtpu1")
 
 
 def plant_process(pid: int) -> int:
-    return next(p for p, cmd in children(pid).items() if "plant_host" in cmd)
+    return child_with(pid, "plant_host")
 
 
 CASES: dict[str, tuple[str, Callable[[int], int] | None]] = {
     "none": ("no fault: the baseline of the excursion", None),
     "controller_stop": ("SIGSTOP the controller's RTPU (trajectory and PID) for {s:g} s", controller_process),
     "plant_stop": ("SIGSTOP the plant for {s:g} s", plant_process),
+    "robot_stop": ("SIGSTOP the robot interface's RTPU (and the logger) for {s:g} s", robot_process),
 }
 
 
@@ -164,9 +179,14 @@ def run_case(case: str, stop_seconds: float, run_seconds: float = RUN_SECONDS) -
         result = json.loads(report.read_text())
         after = [e for e in result["stable_episodes"] if e["from"] >= stopped_at]
         detected = (after[0]["from"] - stopped_at) * 1e3 if after else None
+        if case == "robot_stop":  # the stopped task is the one that would hold: the plant's watchdog does
+            detected, after = None, []
         log = np.load(out / "arm.npy")
         excursion = excursion_past_goal(log["q_m"], goal)
         said = after[0]["reason"] if after else "no stable episode" + (" after the fault" if target else "")
+        trips = result.get("plant", {}).get("watchdog_trips", 0)
+        if trips:
+            said += f"; the plant's drive watchdog held the arm {trips} time{'s' if trips > 1 else ''}"
         return Outcome(case, what.format(s=stop_seconds), detected, excursion, left, process.returncode, said)
 
 

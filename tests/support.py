@@ -427,3 +427,8 @@ def fill_disk(disk: Path, leave: int = 0) -> None:
     room = free.f_bavail * free.f_frsize - leave
     if room > 0:
         (disk / "filler").write_bytes(b"\0" * room)
+
+
+# Plant options for tests that step an in-process arm by hand, with no controller writing
+# commands: its drive watchdog (which holds the arm once commands stop) is off.
+NO_WATCHDOG = {"command_timeout": 0}

@@ -24,7 +24,7 @@ from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.table.devices import DeviceBusyError, DeviceDatabase, DeviceOpenError
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TableLayout, TaskState
-from tests.support import REPO, unique_name
+from tests.support import NO_WATCHDOG, REPO, unique_name
 
 SHEET = """\
     calibration: [[40.0, 0.8, -0.4, 0.0, 0.0, 0.2], [-0.6, 40.0, 0.5, 0.0, 0.0, -0.3], [0.4, -0.2, 80.0, 0.0, 0.0, 0.0],
@@ -91,7 +91,7 @@ def subsystem(tmp_path_factory):
 
 @pytest.fixture
 def plant() -> Iterator[MujocoArmPlant]:
-    made = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, {"wrist_wrench": [1.0, 2.0, 3.0, 0.1, 0.2, 0.3]})
+    made = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, {**NO_WATCHDOG, "wrist_wrench": [1.0, 2.0, 3.0, 0.1, 0.2, 0.3]})
     yield made
     made.close()
 

@@ -27,7 +27,7 @@ from drivers.mujoco_arm.registers import VOLTS_PER_COUNT, W_BRAKE, DeviceError
 from drivers.robots import robot, to_mjcf
 from modules.ft_sensor import FtSensor
 from pbo_runtime.task.lifecycle import Task
-from tests.support import REPO, allocation_peak, one_array, task_spec, unique_name, variables
+from tests.support import NO_WATCHDOG, REPO, allocation_peak, one_array, task_spec, unique_name, variables
 
 WRENCH = [12.0, -7.5, 30.0, 0.8, -0.45, 0.3]
 SHEET = {"calibration": models.CALIBRATION.tolist(), "offset": models.OFFSET.tolist()}
@@ -49,7 +49,7 @@ def make_plant() -> Iterator:
     made: list[MujocoArmPlant] = []
 
     def make(**options) -> MujocoArmPlant:
-        plant = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, options)
+        plant = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, {**NO_WATCHDOG, **options})
         made.append(plant)
         return plant
 

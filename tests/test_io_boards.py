@@ -16,12 +16,12 @@ from drivers.io.dac import Dac
 from drivers.io.parallel_port import ParallelPort
 from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.mujoco_arm.registers import VOLTS_PER_COUNT, DeviceError, attach_registers
-from tests.support import allocation_peak, one_array, unique_name
+from tests.support import NO_WATCHDOG, allocation_peak, one_array, unique_name
 
 
 @pytest.fixture
 def plant() -> Iterator[MujocoArmPlant]:
-    made = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, {})
+    made = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, NO_WATCHDOG)
     yield made
     made.close()
 

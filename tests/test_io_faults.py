@@ -29,7 +29,7 @@ from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.limits import KERNEL_BYTES_PER_MESSAGE
 from pbo_runtime.supervisor.supervisor import Supervisor
-from tests.support import DEMO, PBO, assert_nothing_left, children_of, fill_disk, unique_name, until
+from tests.support import DEMO, NO_WATCHDOG, PBO, assert_nothing_left, children_of, fill_disk, unique_name, until
 
 PID_JOINT_QUEUE_BYTES = 51_182  # docs/architecture.md: 50.0 KiB (275.6 KiB when every queue was 10 x 8 KiB)
 
@@ -279,7 +279,7 @@ def test_mujocos_warnings_go_to_the_runs_output_directory_not_the_working_direct
     monkeypatch.chdir(tmp_path)
     out = tmp_path / "out"
     out.mkdir()
-    plant = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, {}, log_dir=str(out))
+    plant = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, NO_WATCHDOG, log_dir=str(out))
     try:
         plant.data.qfrc_applied[0] = np.nan
         mujoco.mj_step(plant.model, plant.data)

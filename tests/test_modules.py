@@ -29,7 +29,7 @@ from pbo_runtime import OutputError, ParamError, Status
 from pbo_runtime.config.model import DeviceSpec, PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.support import fill_disk, task_spec, unique_name, variables
+from tests.support import NO_WATCHDOG, fill_disk, task_spec, unique_name, variables
 
 PUMA = robot("puma560")
 N = PUMA.ndof
@@ -323,7 +323,7 @@ class RecordingDriver(MujocoArmDriver):
 
 @pytest.fixture
 def plant() -> Iterator[MujocoArmPlant]:
-    plant = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, {})
+    plant = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, NO_WATCHDOG)
     try:
         yield plant
     finally:

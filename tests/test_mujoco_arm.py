@@ -17,7 +17,7 @@ from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.mujoco_arm.registers import W_STATE_SEQ, DeviceError
 from drivers.robots import robot
 from modules._robot_model import pinocchio_model
-from tests.support import unique_name
+from tests.support import NO_WATCHDOG, unique_name
 
 TIMESTEP = 0.001
 NDOF = 6
@@ -35,7 +35,7 @@ def name() -> str:
 
 @pytest.fixture
 def plant(name: str) -> Iterator[MujocoArmPlant]:
-    plant = MujocoArmPlant(name, "puma560", TIMESTEP, {})
+    plant = MujocoArmPlant(name, "puma560", TIMESTEP, NO_WATCHDOG)
     yield plant
     plant.close()
 
@@ -148,7 +148,7 @@ def test_segment_is_created_owner_only(plant) -> None:
 
 
 def test_close_leaves_nothing_in_dev_shm(name) -> None:
-    plant = MujocoArmPlant(name, "puma560", TIMESTEP, {})
+    plant = MujocoArmPlant(name, "puma560", TIMESTEP, NO_WATCHDOG)
     driver = MujocoArmDriver(name, {"mode": "torque"})
     assert segment_path(name).exists()
     driver.close()
@@ -161,7 +161,7 @@ def test_close_leaves_nothing_in_dev_shm(name) -> None:
 
 def test_a_second_plant_on_the_same_segment_is_refused_and_leaves_the_first_alone(plant) -> None:
     with pytest.raises(DeviceError, match=r"^register segment '/pbo\.test\..*' already exists"):
-        MujocoArmPlant(plant.name, "puma560", TIMESTEP, {})
+        MujocoArmPlant(plant.name, "puma560", TIMESTEP, NO_WATCHDOG)
     assert segment_path(plant.name).exists()
 
 
@@ -183,7 +183,7 @@ def test_an_unknown_driver_option_is_an_error(plant) -> None:
 
 def test_an_unknown_robot_model_names_the_known_ones(name) -> None:
     with pytest.raises(ValueError, match=r"^unknown robot model 'puma600'; known models: puma560"):
-        MujocoArmPlant(name, "puma600", TIMESTEP, {})
+        MujocoArmPlant(name, "puma600", TIMESTEP, NO_WATCHDOG)
 
 
 def test_read_state_gives_up_on_a_plant_stuck_mid_publish(plant, driver, monkeypatch) -> None:
@@ -200,7 +200,7 @@ ROBOTS = ("puma560", "redundant7")
 
 @pytest.fixture(params=ROBOTS)
 def any_plant(request, name: str) -> Iterator[MujocoArmPlant]:
-    plant = MujocoArmPlant(name, request.param, TIMESTEP, {})
+    plant = MujocoArmPlant(name, request.param, TIMESTEP, NO_WATCHDOG)
     yield plant
     plant.close()
 
@@ -222,7 +222,7 @@ def hold_here(plant: MujocoArmPlant, driver: MujocoArmDriver) -> np.ndarray:
 
 def test_the_plant_builds_the_7_dof_arm_and_publishes_its_constants(name) -> None:
     arm = robot("redundant7")
-    with MujocoArmPlant(name, "redundant7", TIMESTEP, {}) as plant:
+    with MujocoArmPlant(name, "redundant7", TIMESTEP, NO_WATCHDOG) as plant:
         driver = MujocoArmDriver(name, {"mode": "position"})
         assert (driver.ndof, plant.ndof) == (7, 7)
         np.testing.assert_array_equal(driver.dh(), arm.dh)
@@ -310,7 +310,7 @@ def test_servo_gains_are_critically_damped_on_the_joint_inertia_at_25_hz(any_pla
 
 
 def test_a_slow_plant_lowers_the_servo_frequency_to_stay_stable(name) -> None:
-    with MujocoArmPlant(name, "puma560", 0.01, {}) as plant:
+    with MujocoArmPlant(name, "puma560", 0.01, NO_WATCHDOG) as plant:
         assert plant.servo_omega == pytest.approx(25.0)
         driver = MujocoArmDriver(name, {"mode": "position"})
         target, trace = step_joint(plant, driver, 1, 0.2)
@@ -449,3 +449,24 @@ def test_writing_a_finite_torque_allocates_no_array(plant, driver) -> None:
 
     tau = np.full(NDOF, 1.0)
     assert allocation_peak(lambda: driver.write_torque(tau)) < one_array()
+
+
+def test_the_drive_watchdog_holds_the_arm_when_commands_stop_and_lets_go_at_the_next(name):
+    # the robot interface's RTPU stopped (SIGSTOP): nobody engages the brakes, the last torque would stay
+    with MujocoArmPlant(name, "puma560", TIMESTEP, {"command_timeout": 0.05}) as plant:
+        driver = MujocoArmDriver(plant.name, {"mode": "torque"})
+        try:
+            driver.write_torque(np.full(6, 3.0))
+            driver.release_brakes()
+            run(plant, 0.05)  # within the timeout: the command is applied
+            assert not plant.brakes_engaged and plant.watchdog_trips == 0
+            run(plant, 0.01)
+            assert plant.brakes_engaged and plant.watchdog_trips == 1
+            held = plant.data.qpos.copy()
+            run(plant, 0.1)
+            np.testing.assert_array_equal(plant.data.qpos, held)  # on its brakes, not on the last torque
+            driver.write_torque(np.full(6, 3.0))  # the controller is back
+            plant.step()
+            assert not plant.brakes_engaged and plant.watchdog_trips == 1
+        finally:
+            driver.close()

@@ -21,7 +21,7 @@ from pbo_runtime import Status
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.support import task_spec, unique_name, variables
+from tests.support import NO_WATCHDOG, task_spec, unique_name, variables
 
 ROBOTS = ("puma560", "redundant7")
 TIMESTEP = 0.001
@@ -30,7 +30,7 @@ ARM = DeviceSpec("arm", "mujoco_arm", True, {"mode": "position"})
 
 @pytest.fixture(params=ROBOTS)
 def plant(request) -> Iterator[MujocoArmPlant]:
-    plant = MujocoArmPlant(unique_name("plant"), request.param, TIMESTEP, {})
+    plant = MujocoArmPlant(unique_name("plant"), request.param, TIMESTEP, NO_WATCHDOG)
     try:
         yield plant
     finally:

@@ -33,7 +33,7 @@ from pbo_runtime.objects import registry
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.support import PBO, REPO, assert_nothing_left, task_spec, unique_name, variables
+from tests.support import NO_WATCHDOG, PBO, REPO, assert_nothing_left, task_spec, unique_name, variables
 
 TIMESTEP = 0.001
 CONFIG = REPO / "configs" / "visual_servoing.yaml"
@@ -52,7 +52,7 @@ def make_plant() -> Iterator:
     def make(target: dict | None = CIRCLE, **options) -> MujocoArmPlant:
         if target is not None:
             options["target"] = target
-        plant = MujocoArmPlant(unique_name("plant"), "puma560", TIMESTEP, options)
+        plant = MujocoArmPlant(unique_name("plant"), "puma560", TIMESTEP, {**NO_WATCHDOG, **options})
         made.append(plant)
         return plant
 

@@ -5,7 +5,9 @@ step and applies whatever the driver last commanded, in torque or position mode 
 with the brakes engaged so the arm does not fall before a controller is on. It does no real-time
 pacing: the host calls `step()` once per `timestep` of wall time (or as fast as it likes, in tests).
 Options: `q0`, `target` (a moving marker for the camera), `wrist_wrench` (a contact), `adc_noise`
-and `seed` (the I/O boards that carry the wrist force/torque sensor).
+and `seed` (the I/O boards that carry the wrist force/torque sensor), `command_timeout` (the
+drive's watchdog: with the brakes released and no new command for that long, the arm holds on
+its brakes until one comes).
 
 docs/plant.md says how the position servo is designed (gains, braking curve) and what each option
 does.
@@ -48,7 +50,10 @@ from drivers.mujoco_arm.registers import (
 from drivers.robots import robot, to_mjcf
 from pbo_runtime import unlink_quietly
 
-_OPTIONS = ("q0", "target", "wrist_wrench", "adc_noise", "seed")
+_OPTIONS = ("q0", "target", "wrist_wrench", "adc_noise", "seed", "command_timeout")
+# Simulated seconds without a new command after which the arm holds on its brakes, as a drive's
+# watchdog does when its controller stops (a stopped robot interface cannot engage them itself)
+COMMAND_TIMEOUT = 0.05
 _LOOPBACK = ((0, 6), (1, 7))  # (DAC channel, ADC channel) pairs joined by the loopback cable
 _TARGET_OPTIONS = ("center", "radius", "period", "phase", "orientation")
 # A driver's command write takes about a microsecond; if the seqlock is still odd after this many
@@ -99,6 +104,9 @@ class MujocoArmPlant:
         seed = options.get("seed", 0)
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             raise ValueError(f"plant option seed must be an integer >= 0, got: {seed!r}")
+        command_timeout = options.get("command_timeout", COMMAND_TIMEOUT)
+        if isinstance(command_timeout, bool) or not isinstance(command_timeout, (int, float)) or not command_timeout >= 0:
+            raise ValueError(f"plant option command_timeout must be a number of seconds >= 0 (0: no watchdog), got: {command_timeout!r}")
 
         self.name = registers_name
         self.timestep = float(timestep)
@@ -157,6 +165,11 @@ class MujocoArmPlant:
         self._brake_pose = q0.copy()
         self._braked = True
         self._steps = 0
+        self._command_timeout = float(command_timeout)
+        self._command_seen = -1  # the command sequence last seen, and the simulated time it changed
+        self._command_seen_at = 0.0
+        self.watchdog_trips = 0  # times the watchdog held the arm for want of a new command
+        self._watchdog_holding = False
 
         self._shm, self._registers = create_registers(registers_name, n)
         try:
@@ -207,7 +220,7 @@ class MujocoArmPlant:
         """Advance the simulation by exactly one timestep and publish the new state."""
         regs = self._registers
         data = self.data
-        braked = regs.words[W_BRAKE] != 0
+        braked = regs.words[W_BRAKE] != 0 or self._command_stale(regs.words, data.time)
         if braked and not self._braked:
             self._brake_pose[:] = data.qpos  # brakes grip where the arm is now
         self._braked = braked
@@ -342,6 +355,19 @@ class MujocoArmPlant:
         np.multiply(tau, self.servo_kd, out=tau)
         np.add(tau, self.gravity_torque(qpos, self._gravity), out=tau)
         np.clip(tau, -self._torque_limits, self._torque_limits, out=data.qfrc_applied)
+
+    def _command_stale(self, words: np.ndarray, now: float) -> bool:
+        """The drive's watchdog: no new command for `command_timeout` while the brakes are off."""
+        sequence = int(words[W_CMD_SEQ])
+        if sequence != self._command_seen or words[W_BRAKE] != 0:  # (braked: nothing is owed)
+            self._command_seen, self._command_seen_at = sequence, now
+            self._watchdog_holding = False
+            return False
+        stale = self._command_timeout > 0 and now - self._command_seen_at > self._command_timeout
+        if stale and not self._watchdog_holding:
+            self._watchdog_holding = True
+            self.watchdog_trips += 1
+        return stale
 
     def _read_command(self, source: np.ndarray, target: np.ndarray) -> None:
         """Copy one command register under the command seqlock; keep the last good command if the

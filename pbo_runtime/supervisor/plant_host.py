@@ -120,6 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     finally:
         events.report("plant", messages.PlantStats({"steps": steps, "late": late, "stalls": stalls, "stalled_for": stalled_for,
+                                                    "watchdog_trips": getattr(plant, "watchdog_trips", 0),
                                                     "left_fifo_behind": behind_when_stepped_down}))
         if barrier is not None:
             barrier.close()

@@ -32,6 +32,7 @@ import numpy as np
 import yaml
 
 from bench._common import REPO, Section, Table
+from pbo_runtime.ipc import shm
 
 DEMO = Path(REPO) / "configs" / "pid_joint.yaml"
 SUBSYSTEM = "puma_faults"
@@ -61,19 +62,7 @@ def bench_config(folder: Path) -> Path:
     return path
 
 
-def children(pid: int) -> dict[int, str]:
-    """pid -> command line of the live children of `pid`."""
-    found = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            stat = Path(f"/proc/{entry}/stat").read_text()
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                found[int(entry)] = Path(f"/proc/{entry}/cmdline").read_text().replace("\0", " ")
-        except (OSError, IndexError, ValueError):
-            continue
-    return found
+
 
 
 def run_objects() -> list[str]:
@@ -125,7 +114,7 @@ def excursion_past_goal(q: np.ndarray, goal: np.ndarray) -> float:
 def child_with(pid: int, marker: str) -> int:
     """The child of `pid` whose command line holds `marker`, waiting a little for it to show in /proc."""
     for _ in range(100):
-        found = [p for p, cmd in children(pid).items() if marker in cmd]
+        found = [p for p, cmd in shm.children_of(pid).items() if marker in cmd]
         if found:
             return found[0]
         time.sleep(0.05)

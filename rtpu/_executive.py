@@ -45,11 +45,12 @@ AGE_TOLERANCE = 1e-7  # seconds: an input exactly one producer period old is fre
 # write is tolerated, a second one means the writer stalled (detected within 3 of the reader's
 # periods when both run at one rate).
 FRESH_WITHIN_WRITER_PERIODS = 2.0
-# Why a critical task runs its locally stable behaviour (Scheduled.held)
+# Why a critical task runs its locally stable behaviour (the cycle's `held`)
 NOT_HELD, HELD_ILLEGAL, HELD_STALE_INPUT, HELD_BY_MODULE = 0, 1, 2, 3
 # Header words read before every release, as plain ints (through a memoryview: no numpy scalar each time)
 _FLAGS, _STOPPING, _STATIC_SWITCH = int(Header.FLAGS), int(Flag.STOPPING), int(Flag.STATIC_SWITCH)
 _PLAN_SEQUENCE, _PLAN_TIME_NS = int(Header.PLAN_SEQUENCE), int(Header.PLAN_TIME_NS)
+_TASKS_IN_ERROR = int(Header.TASKS_IN_ERROR)
 OVERRUNS_KEPT = 8  # the last overruns kept per task (release, lateness, execution time) for the run report
 
 
@@ -75,8 +76,8 @@ class Scheduled:
                  "last_release", "stale_reads", "stale_at_switch", "input_periods", "write_times", "stable_cycles",
                  "in_stable", "first_cycle_of_plan", "last_stale", "expected_writers", "input_writers",
                  "lost_to_switch", "last_lost", "window_lost", "window_stale", "shared_status", "overrun_log",
-                 "long_cycles", "fresh_bounds", "fresh_within", "writer_names", "held", "expired_input",
-                 "expired_reads", "fresh_since")
+                 "long_cycles", "fresh_bounds", "fresh_within", "writer_names", "expired_reads",
+                 "fresh_since")
 
     def __init__(self, task: Task) -> None:
         self.task = task
@@ -116,14 +117,12 @@ class Scheduled:
         self.window_stale = 0
         self.stable_cycles = 0
         self.in_stable = False
-        self.held = NOT_HELD  # why the current stable episode began
         # Freshness bound per in-var (seconds; inf: not watched), set per configuration by `_watch`
         self.fresh_bounds = [math.inf] * len(task.local.input_variables)
         self.writer_names = [""] * len(task.local.input_variables)
         by_port = getattr(spec, "fresh_within", None) or {}
         variable_of = {b.port.name: b.variable for b in spec.bindings}
         self.fresh_within = {variable_of[port]: bound for port, bound in by_port.items() if port in variable_of}
-        self.expired_input = -1  # the in-var found past its bound, while held for it
         # When the configuration it watches came on: what was written before counts as written
         # then, so each writer has its bound from the switch (or start) to write a first value.
         self.fresh_since = 0.0
@@ -327,11 +326,9 @@ class Executive:
             s.stable_cycles += 1
             if not s.in_stable:
                 s.in_stable = True
-                s.held = held
-                self._report_stable(s, start, expired, release)
+                self._report_stable(s, held, start, expired, release)
         elif s.in_stable and result == Status.CONTINUE:
             s.in_stable = False
-            s.held = NOT_HELD
             self.report(Stable(task.name, False, start))
         end = self.clock.now()
         took = end - start
@@ -431,16 +428,17 @@ class Executive:
                 counted = True
         return -1
 
-    def _report_stable(self, s: Scheduled, start: float, expired: int, release: float) -> None:
-        """A critical task's stable episode begins: say why (off the usual path: once per episode)."""
-        if s.held == HELD_STALE_INPUT:
+    def _report_stable(self, s: Scheduled, held: int, start: float, expired: int, release: float) -> None:
+        """A critical task's stable episode begins, `held` for one of the HELD_ reasons: say why
+        (off the usual path: once per episode)."""
+        if held == HELD_STALE_INPUT:
             variable = s.task.local.input_variables[expired]
             age = release - max(float(s.write_times[expired]), s.fresh_since)
             writer = s.writer_names[expired] or "its writer"
             reason = (f"in-var '{variable}' is {age * 1e3:.1f} ms old, past its freshness bound of "
                       f"{s.fresh_bounds[expired] * 1e3:.3g} ms ('{writer}' stopped writing it)")
             cause = "stale"
-        elif s.held == HELD_BY_MODULE:
+        elif held == HELD_BY_MODULE:
             reason, cause = "the module's own inputs are not fresh (its cycle returned STABLE)", "module"
         else:
             reason, cause = "the configuration is illegal (a task in ERROR, or a switch that overran a cycle)", "illegal"
@@ -448,14 +446,14 @@ class Executive:
 
     def _configuration_illegal(self, now: float, period: float) -> bool:
         """True while a task of the configuration is in ERROR or a switch has overrun a cycle."""
-        header = self.header
-        if header is None:
+        words = self.header_words  # (plain ints: no numpy scalar per read, on every critical cycle)
+        if words is None:
             return False
-        if header[Header.TASKS_IN_ERROR] > 0 or int(header[Header.FLAGS]) & _STATIC_SWITCH:
+        if words[_TASKS_IN_ERROR] > 0 or words[_FLAGS] & _STATIC_SWITCH:
             return True
         limit = (now - period) * 1e9
         for word in self.switching_words:
-            since = header[word]
+            since = words[word]
             if since and since < limit:
                 return True
         return False

@@ -24,6 +24,8 @@ from pbo_runtime import OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.model import PortBinding, TaskSpec, VariableSpec
 from pbo_runtime.ipc.shm import attach_segment as shm_attach
+from pbo_runtime.ipc.shm import children_of
+from pbo_runtime.ipc.shm import pid_state as process_state
 from pbo_runtime.task.lifecycle import Task
 
 REPO = Path(__file__).resolve().parent.parent
@@ -259,22 +261,6 @@ def assert_nothing_left(report: dict) -> None:
     assert leftovers == []
 
 
-def children_of(pid: int) -> dict[int, str]:
-    """pid -> command line of the live children of `pid`."""
-    found = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            stat = Path(f"/proc/{entry}/stat").read_text()
-            ppid = int(stat.rsplit(")", 1)[1].split()[1])
-            if ppid == pid:
-                found[int(entry)] = Path(f"/proc/{entry}/cmdline").read_text().replace("\0", " ")
-        except (OSError, IndexError, ValueError):
-            continue
-    return found
-
-
 def demo_copy(folder: Path, subsystem: str, **tasks: dict) -> Path:
     """The demo's YAML under another subsystem name (runs side by side never share one), with
     `tasks` entries updated key by key, written to `folder`."""
@@ -287,29 +273,6 @@ def demo_copy(folder: Path, subsystem: str, **tasks: dict) -> Path:
     path = folder / f"{subsystem}.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
-
-
-def wait_until_cycling(process, subsystem: str, task_index: int = 0, safety_net: float = 120.0) -> None:
-    """Until task `task_index` of the run of `subsystem` started by `process` has run cycles."""
-    from pbo_runtime.table.svar import open_table
-
-    def cycling() -> bool:
-        if process.poll() is not None:
-            pytest.fail(f"the run ended before its tasks ran (exit {process.returncode})")
-        try:
-            with open_table(subsystem) as view:
-                return view.task_status()[task_index]["cycles"] > 0
-        except Exception:  # not created yet
-            return False
-
-    until(cycling, f"the tasks of '{subsystem}' to run", safety_net)
-
-
-def child_running(pid: int, marker: str) -> int:
-    """The pid of the child of `pid` whose command line holds `marker` (e.g. '--rtpu rtpu0', 'plant_host')."""
-    found = [child for child, command in children_of(pid).items() if marker in command]
-    assert len(found) == 1, f"children of {pid} with '{marker}': {found}"
-    return found[0]
 
 
 # Faults a real-clock run reports when the machine is slow or busy: a critical task held while its
@@ -351,13 +314,6 @@ def run_processes(run: subprocess.Popen) -> dict[str, int]:
         elif "pbo_runtime.supervisor.plant_host" in command:
             roles["plant"] = pid
     return roles
-
-
-def process_state(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return ""
 
 
 def stop_process(pid: int) -> None:

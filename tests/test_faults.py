@@ -12,23 +12,21 @@ import time
 
 import pytest
 
-from tests.support import PBO, assert_nothing_left, child_running, demo_copy, wait_until_cycling
+from tests.support import assert_nothing_left, demo_copy, run_processes, start_run, stop_process
 
 pytestmark = pytest.mark.multiprocess
 
 STOPPED_FOR = 0.5  # seconds: hundreds of the robot task's periods, on any machine
 
 
-def run_with_a_stop(tmp_path, subsystem: str, marker: str) -> tuple[subprocess.CompletedProcess, dict]:
-    """Run the demo for 3 s; SIGSTOP the child whose command line holds `marker` for STOPPED_FOR."""
+def run_with_a_stop(tmp_path, subsystem: str, role: str) -> tuple[subprocess.CompletedProcess, dict]:
+    """Run the demo for 3 s; SIGSTOP its child `role` ('rtpu0', 'plant', ...) for STOPPED_FOR once the configuration is on."""
     config = demo_copy(tmp_path, subsystem, logger={"params": {"variables": ["q_m"], "path": "arm.npy"}})
     report = tmp_path / "report.json"
-    process = subprocess.Popen([*PBO, "run", str(config), "--duration", "3", "--report", str(report), "--no-live"],
-                               cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = start_run(config, tmp_path, "--duration", "3", "--report", str(report))
     try:
-        wait_until_cycling(process, subsystem)
-        stopped = child_running(process.pid, marker)
-        os.kill(stopped, signal.SIGSTOP)
+        stopped = run_processes(process)[role]
+        stop_process(stopped)
         time.sleep(STOPPED_FOR)
         os.kill(stopped, signal.SIGCONT)
         stdout, stderr = process.communicate(timeout=120)
@@ -41,7 +39,7 @@ def run_with_a_stop(tmp_path, subsystem: str, marker: str) -> tuple[subprocess.C
 
 
 def test_a_stopped_controller_makes_the_robot_hold_the_arm_and_the_run_exit_2(tmp_path):
-    done, report = run_with_a_stop(tmp_path, "fault_controller", "--rtpu rtpu0")
+    done, report = run_with_a_stop(tmp_path, "fault_controller", "rtpu0")
     assert done.returncode == 2, done.stdout + done.stderr
     assert "Traceback" not in done.stderr and "run summary" in done.stdout
     held = [e for e in report["stable_episodes"] if e["cause"] == "stale" and not e["while_starting"]]
@@ -55,7 +53,7 @@ def test_a_stopped_controller_makes_the_robot_hold_the_arm_and_the_run_exit_2(tm
 
 
 def test_a_stopped_plant_resumes_without_integrating_the_backlog_and_the_run_exits_2(tmp_path):
-    done, report = run_with_a_stop(tmp_path, "fault_plant", "plant_host")
+    done, report = run_with_a_stop(tmp_path, "fault_plant", "plant")
     assert done.returncode == 2, done.stdout + done.stderr
     assert "Traceback" not in done.stderr
     stalls = [f for f in report["faults"] if f.startswith("the plant did not run for")]

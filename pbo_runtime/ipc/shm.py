@@ -128,6 +128,21 @@ def pid_state(pid: int) -> str:
     return stat.rsplit(")", 1)[-1].split()[0]
 
 
+def children_of(pid: int) -> dict[int, str]:
+    """pid -> command line of the live children of `pid` (from /proc; empty where there is none)."""
+    found = {}
+    for entry in _entries(Path("/proc")):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = (Path("/proc") / entry / "stat").read_text()
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                found[int(entry)] = (Path("/proc") / entry / "cmdline").read_text().replace("\0", " ")
+        except (OSError, IndexError, ValueError):
+            continue
+    return found
+
+
 def distrust(status: os.stat_result) -> str | None:
     """Why an object with this status is not to be trusted; None when it is (ours, 0600, a plain file)."""
     if status.st_uid != os.geteuid():

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from pbo_runtime.cli import main
-from tests.support import REPO
+from tests.support import REPO, assert_nothing_left, demo_copy
 
 DEMO = (REPO / "configs" / "pid_joint.yaml").read_text()
 
@@ -74,6 +74,37 @@ def test_run_refuses_a_file_with_errors_and_starts_nothing(tmp_path):
     assert done.returncode == 1
     assert len(re.findall(r": error\[E\d+\]: ", done.stderr)) == 3 and "Traceback" not in done.stderr
     assert "starting subsystem" not in done.stdout
+
+
+# `pbo run` whose summary is interrupted by SIGTERM and Ctrl-C, as an application runner stopping
+# its subsystems, or an impatient operator, sends them to a run that has just ended
+STOPPED_WHILE_SUMMARISING = """
+import importlib, os, signal, sys
+cli = importlib.import_module("pbo_runtime.cli.main")  # the package exports the function of the same name
+
+summarise = cli._print_summary
+
+def stopped_twice_while_summarising(*args):
+    os.kill(os.getpid(), signal.SIGTERM)
+    os.kill(os.getpid(), signal.SIGINT)
+    summarise(*args)
+
+cli._print_summary = stopped_twice_while_summarising
+sys.exit(cli.main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.multiprocess
+def test_a_stop_after_the_run_has_ended_does_not_lose_its_summary_or_report(tmp_path):
+    config = demo_copy(tmp_path, "second_stop")
+    done = subprocess.run([sys.executable, "-c", STOPPED_WHILE_SUMMARISING, "run", str(config), "--clock", "sim",
+                           "--duration", "0.2", "--no-live", "--out", str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "run summary" in done.stdout
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["stopped_by"] == "duration" and not report["faults"]
+    assert_nothing_left(report)
 
 
 def test_lexicon_lists_every_module_with_its_ports_and_params(capsys):

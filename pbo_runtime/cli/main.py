@@ -7,8 +7,10 @@ Exit status: 0 done, 1 the file has errors (or an operator command's arguments w
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import signal
 import sys
 import traceback
 from pathlib import Path
@@ -275,14 +277,15 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     rtpus = f"{len(subsystem.rtpus)} RTPU{'s' if len(subsystem.rtpus) != 1 else ''}"
     say(f"starting subsystem '{subsystem.name}' ({rtpus}, plant: "
         f"{subsystem.plant.model if subsystem.plant else 'none'}); {what}")
-    if live:
-        with Live(console=console, refresh_per_second=4, transient=True) as view:
-            supervisor.on_tick = lambda s: view.update(_status_table(s))
+    with _results_outlive_a_second_stop():
+        if live:
+            with Live(console=console, refresh_per_second=4, transient=True) as view:
+                supervisor.on_tick = lambda s: view.update(_status_table(s))
+                result = supervisor.run()
+        else:
             result = supervisor.run()
-    else:
-        result = supervisor.run()
-    _print_summary(console, subsystem, result)  # first: whatever fails below, the operator has seen the run
-    unwritten = _write_reports(args, result.to_json())
+        _print_summary(console, subsystem, result)  # first: whatever fails below, the operator has seen the run
+        unwritten = _write_reports(args, result.to_json())
     for line in [result.failure] if result.failure else []:
         errors.print(f"error: {line}", markup=False)
     for line in result.faults:
@@ -290,6 +293,23 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     for line in unwritten:
         errors.print(f"error: {line}", markup=False)
     return EXIT_RUN if result.failure or result.faults or unwritten else EXIT_OK
+
+
+@contextlib.contextmanager
+def _results_outlive_a_second_stop():
+    """Once the run has ended, Ctrl-C and SIGTERM no longer cut its summary and report short.
+
+    The supervisor handles both while the run lasts and puts these back when it ends. An
+    application runner stopping its subsystems sends SIGTERM to one that has just ended on its
+    own, and an operator presses Ctrl-C twice: either would otherwise lose the report.
+    """
+    stops = (signal.SIGINT, signal.SIGTERM)
+    previous = {stop: signal.signal(stop, signal.SIG_IGN) for stop in stops}
+    try:
+        yield
+    finally:
+        for stop, handler in previous.items():
+            signal.signal(stop, handler)
 
 
 def _check_output_paths(args: argparse.Namespace) -> str:

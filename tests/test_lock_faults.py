@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pbo_runtime.supervisor.failures import RunFailure, StopRequested
-from pbo_runtime.supervisor.lock_watch import LOCK_HOLD_FLOOR, LockSample, LockWatch, LockWatching, lock_hold_bound
+from pbo_runtime.supervisor.lock_watch import LOCK_HOLD_FLOOR, LOCK_LOOK_EVERY, LockSample, LockWatch, LockWatching, lock_hold_bound
 from pbo_runtime.supervisor.run_report import RunResult
 from pbo_runtime.table import svar
 from pbo_runtime.table.snapshot import TableBusy
@@ -175,13 +175,13 @@ def test_a_lock_taken_again_between_looks_is_a_new_holding(looks, change):
         looks.now += 0.01
 
 
-def test_the_watch_looks_often_only_while_the_lock_is_taken(looks):
+def test_the_watch_looks_every_half_bound_and_often_while_the_lock_is_taken(looks):
     watch = LockWatch(0.05, lambda: looks.sample, lambda: looks.now)
     watch.look()
-    assert watch.next_look_in(0.1) == 0.1
+    assert watch.next_look_in(0.1) == 0.025 and watch.next_look_in(0.01) == 0.01
     looks.sample = LockSample(True, 1234, 8)
     watch.look()
-    assert watch.next_look_in(0.1) < 0.1
+    assert watch.next_look_in(0.1) == LOCK_LOOK_EVERY
 
 
 def test_the_bound_is_a_few_periods_of_the_fastest_task_and_never_under_the_floor():

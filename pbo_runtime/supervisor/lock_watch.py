@@ -4,7 +4,8 @@ Only RTPUs and job control's own writes take the table lock, each for microsecon
 read without it (`table.snapshot`). A holder that keeps it longer, dead, stopped (SIGSTOP) or
 stuck, holds up every RTPU while the arm keeps its last command. Job control looks at the lock
 record (`table.table`: whether the semaphore is taken, its holder's pid, the write sequence) at
-every turn of its loop, and every LOCK_LOOK_EVERY while the lock is taken. Every acquisition
+every turn of its loop, at least every half bound, and every LOCK_LOOK_EVERY while the lock is
+taken: a wedge is ended within one and a half bounds of its start. Every acquisition
 signs the holder word and every write moves the sequence, so one (holder, sequence) seen taken
 at every look is one holding, and `LockWatch` says when one has lasted `lock_hold_bound`: a few
 periods of the fastest task, never under LOCK_HOLD_FLOOR. The bound is wall time on either
@@ -94,8 +95,9 @@ class LockWatch:
         return holding if holding.seconds >= self.bound and not holding.ended else None
 
     def next_look_in(self, idle: float) -> float:
-        """How long job control may wait before its next look: `idle`, or LOCK_LOOK_EVERY while the lock is taken."""
-        return min(idle, LOCK_LOOK_EVERY) if self.holding is not None else idle
+        """How long job control may wait before its next look: `idle` up to half the bound, or
+        LOCK_LOOK_EVERY while the lock is taken (the arm runs on its last command meanwhile)."""
+        return min(idle, LOCK_LOOK_EVERY if self.holding is not None else self.bound / 2)
 
     def forget(self) -> None:
         self.holding = None
@@ -170,7 +172,9 @@ class LockWatching:
             action, done = ("released", "the lock was released") if released else ("left", "it could not be released")
         elif child is not None:
             _kill(child.process)
-            released = self.table.recover_lock_from(pid)
+            # reaped, and it held the lock up to the last look: only a taker that has not signed yet
+            # could be mistaken for it, a window of microseconds; the arm waits meanwhile
+            released = self.table.recover_lock_from(pid, settle=LOCK_LOOK_EVERY)
             action = "killed"
             done = "it was killed (SIGKILL) and the lock released" if released else "it was killed (SIGKILL)"
         else:

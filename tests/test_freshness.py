@@ -14,6 +14,7 @@ from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.ipc import messages
+from pbo_runtime.supervisor.run_report import BRIEF_HOLD_PERIODS, BRIEF_HOLDS_SHARE, stable_episode_lines
 from pbo_runtime.table.table import StateTable, TableLayout
 from pbo_runtime.task.lifecycle import Task
 from rtpu._executive import Executive
@@ -217,3 +218,48 @@ def test_a_module_that_returns_stable_is_reported_as_a_stable_episode_and_resume
     assert (entering.cause, entering.entering, leaving.entering) == ("module", True, False)
     assert actuator.stable_cycles == 5 and not actuator.in_stable
     assert actuator.task.state.name == "ON"
+
+
+# --- what the run report makes of the episodes: faults, or timing ---------------------------------
+
+ON_AT = 100.0  # the configuration came on (run clock seconds)
+ROBOT_PERIOD = 0.001
+
+
+def episode(start: float, seconds: float | None, cause: str = "stale") -> dict:
+    return {"task": "robot", "from": ON_AT + start, "to": None if seconds is None else ON_AT + start + seconds,
+            "seconds": seconds, "reason": "in-var 'tau_u' is 2.5 ms old", "cause": cause}
+
+
+def lines(*episodes: dict, duration: float = 5.0) -> tuple[list[str], list[str]]:
+    return stable_episode_lines(list(episodes), {"robot": ROBOT_PERIOD}, ON_AT, duration)
+
+
+def test_a_brief_hold_that_ends_by_itself_is_timing_not_a_fault():
+    faults, timing = lines(episode(1.0, 0.002), episode(3.0, 0.001))
+    assert faults == []
+    assert timing == [f"critical task 'robot' held 2 times (the longest 2.0 ms), the first from 1.000 s into the run, "
+                      f"each back to its cycle within {BRIEF_HOLD_PERIODS} periods (a late input: timing, not a fault): "
+                      "in-var 'tau_u' is 2.5 ms old"]
+
+
+@pytest.mark.parametrize("held, said", [
+    (BRIEF_HOLD_PERIODS * ROBOT_PERIOD, "for 10.0 ms, from 1.000 s into the run"),
+    (None, "until the stop, from 1.000 s into the run"),
+], ids=["as long as the brief bound", "until the stop"])
+def test_a_hold_of_the_brief_bound_or_longer_or_until_the_stop_is_a_fault(held, said):
+    faults, timing = lines(episode(1.0, held))
+    assert faults == [f"critical task 'robot' ran its locally stable behaviour {said}: in-var 'tau_u' is 2.5 ms old"]
+    assert timing == []
+
+
+def test_brief_holds_adding_up_to_more_than_a_twentieth_of_the_run_are_a_fault():
+    assert BRIEF_HOLDS_SHARE == 0.05
+    faults, timing = lines(*(episode(0.01 * k, 0.005) for k in range(11)), duration=1.0)  # 55 ms of 1 s
+    assert len(faults) == 1 and faults[0].startswith("critical task 'robot' ran its locally stable behaviour 11 times")
+    assert timing == []
+
+
+def test_a_hold_while_the_configuration_comes_on_is_neither_and_is_marked():
+    held = episode(-0.5, 0.3)
+    assert lines(held) == ([], []) and held["while_starting"] is True

@@ -410,6 +410,8 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
         console.print(line, markup=False)
     for line in stall_lines(result.stalls):
         console.print(line, markup=False)
+    for line in result.timing_holds:
+        console.print(line, markup=False)
     if result.plant:
         console.print(f"plant: {result.plant.get('steps', 0)} steps, {result.plant.get('late', 0)} late", markup=False)
         if result.plant.get("left_fifo_behind"):

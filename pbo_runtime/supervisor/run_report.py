@@ -18,6 +18,12 @@ if TYPE_CHECKING:
     from pbo_runtime.supervisor.stall_watch import StallWatch
 
 STOP_TIMEOUT = 5.0  # seconds an RTPU has to stop by itself before it is signalled (and then again before SIGKILL)
+# A critical task's hold on stale inputs that ended by itself within this many of its periods is a
+# late input (the machine held the writer's CPU a moment), told in the summary as timing, as an
+# overrun is; a longer one, one still going at the stop, or brief ones adding up to more than
+# BRIEF_HOLDS_SHARE of the run are faults (exit status 2).
+BRIEF_HOLD_PERIODS = 10
+BRIEF_HOLDS_SHARE = 0.05
 
 
 def _table_figures(words: np.ndarray) -> dict[str, float]:
@@ -65,6 +71,8 @@ class RunResult:
     # What went wrong without stopping the run, one line each (a critical task held stable by
     # stale inputs, ...): the run ends with exit status 2 and the summary lists them
     faults: list[str] = field(default_factory=list)
+    # brief holds of critical tasks on late inputs (BRIEF_HOLD_PERIODS), one line per task and cause: timing, not faults
+    timing_holds: list[str] = field(default_factory=list)
     # holdings of the table lock past its bound (supervisor.lock_watch): pid, holder, role, state
     # (dead, stopped, running), held_ms, bound_ms, action (killed, released, left), at (run seconds)
     lock_events: list[dict[str, Any]] = field(default_factory=list)
@@ -81,7 +89,7 @@ class RunResult:
             "stable_episodes": self.stable_episodes, "realtime": self.realtime,
             "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds, "links": self.links,
             "started_monotonic": self.started_monotonic, "stalls": self.stalls, "unstopped": self.unstopped,
-            "faults": self.faults, "queue_bytes": self.queue_bytes,
+            "faults": self.faults, "timing_holds": self.timing_holds, "queue_bytes": self.queue_bytes,
             "lock_events": self.lock_events,
         }
 
@@ -114,28 +122,13 @@ class RunReporting:
         self._report_stalls(started)
 
     def _report_stable_episodes(self, started: float) -> None:
-        """Close the episodes still open at the stop. Those caused by stale inputs after the
-        configuration came on are faults, one line per task and cause; while it comes on, task by
-        task, a critical task on first may hold the arm until its writers run, which is what it is
-        for, not a fault."""
+        """Close the episodes still open at the stop; tell each task's faults and timing holds (`stable_episode_lines`)."""
         for task in list(self._stable):
             self._end_stable_episode(task, None)
-        grouped: dict[tuple[str, str], list[dict[str, Any]]] = {}
-        for episode in self.result.stable_episodes:
-            episode["while_starting"] = (self.started_at is not None and episode["from"] < self.started_at
-                                         and episode["to"] is not None)  # (one still open at the stop is a fault)
-            if episode["cause"] in ("stale", "module") and not episode["while_starting"]:
-                grouped.setdefault((episode["task"], episode["cause"]), []).append(episode)
-        for (task, _), episodes in grouped.items():
-            first = episodes[0]
-            if len(episodes) == 1:
-                lasted = "until the stop" if first["to"] is None else f"for {first['seconds'] * 1e3:.1f} ms"
-                how = f"{lasted}, from {first['from'] - started:.3f} s into the run"
-            else:
-                ended = [e["seconds"] for e in episodes if e["seconds"] is not None]
-                longest = "one until the stop" if len(ended) < len(episodes) else f"the longest {max(ended) * 1e3:.1f} ms"
-                how = f"{len(episodes)} times ({longest}), the first from {first['from'] - started:.3f} s into the run"
-            self.result.faults.append(f"critical task '{task}' ran its locally stable behaviour {how}: {first['reason']}")
+        periods = {name: task.period for name, task in self.subsystem.tasks.items()}
+        faults, timing = stable_episode_lines(self.result.stable_episodes, periods, self.started_at, self.result.duration)
+        self.result.faults += faults
+        self.result.timing_holds += timing
 
     def _report_stalls(self, started: float) -> None:
         """Stalls into the result; the table's counters for tasks whose RTPU was killed before it could report."""
@@ -200,3 +193,46 @@ class RunReporting:
             rows.append({"task": task.name, "rtpu": task.rtpu, "state": TaskState(int(words[W.STATE])).name,
                          **_table_figures(words), "exec_last": float(words[W.EXEC_LAST])})
         return rows
+
+
+def stable_episode_lines(episodes: list[dict[str, Any]], periods: dict[str, float], started_at: float | None,
+                         duration: float) -> tuple[list[str], list[str]]:
+    """(faults, timing holds): one line per critical task and cause, from its stable episodes.
+
+    Episodes of stale inputs or of a module's own STABLE count, once the configuration came on:
+    while it comes on, task by task, a critical task on first may hold the arm until its writers
+    run, which is what it is for (each episode is marked `while_starting`). An episode is brief
+    when it ended by itself within BRIEF_HOLD_PERIODS of its task's periods (marked `brief`).
+    Brief ones are timing unless they add up to more than BRIEF_HOLDS_SHARE of the run.
+    """
+    origin = started_at if started_at is not None else 0.0
+    grouped: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for episode in episodes:
+        episode["while_starting"] = (started_at is not None and episode["from"] < started_at
+                                     and episode["to"] is not None)  # (one still open at the stop is a fault)
+        episode["brief"] = (episode["to"] is not None
+                            and episode["seconds"] < BRIEF_HOLD_PERIODS * periods.get(episode["task"], 0.0))
+        if episode["cause"] in ("stale", "module") and not episode["while_starting"]:
+            grouped.setdefault((episode["task"], episode["cause"]), []).append(episode)
+    faults, timing = [], []
+    for (task, _), group in grouped.items():
+        brief = [e for e in group if e["brief"]]
+        held = sum(e["seconds"] for e in brief)
+        if len(brief) == len(group) and held <= BRIEF_HOLDS_SHARE * duration:
+            timing.append(f"critical task '{task}' held {_episodes(brief, origin)}, each back to its cycle within "
+                          f"{BRIEF_HOLD_PERIODS} periods (a late input: timing, not a fault): {brief[0]['reason']}")
+        else:
+            faults.append(f"critical task '{task}' ran its locally stable behaviour {_episodes(group, origin)}: "
+                          f"{group[0]['reason']}")
+    return faults, timing
+
+
+def _episodes(episodes: list[dict[str, Any]], origin: float) -> str:
+    """How long, or how often, and from when: "for 1.0 ms, from 2.232 s into the run", "3 times (the longest ...)"."""
+    first = episodes[0]
+    if len(episodes) == 1:
+        lasted = "until the stop" if first["to"] is None else f"for {first['seconds'] * 1e3:.1f} ms"
+        return f"{lasted}, from {first['from'] - origin:.3f} s into the run"
+    ended = [e["seconds"] for e in episodes if e["seconds"] is not None]
+    longest = "one until the stop" if len(ended) < len(episodes) else f"the longest {max(ended) * 1e3:.1f} ms"
+    return f"{len(episodes)} times ({longest}), the first from {first['from'] - origin:.3f} s into the run"

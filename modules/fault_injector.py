@@ -3,13 +3,17 @@
 It watches a variable (e.g. q_m) and, after `fail_after` cycles, raises in `cycle` once, as a
 driver fault or a numerical blow-up would. Its `error` component cannot recover, so the task
 waits in ERROR and job control shows it; its `clear` component reports the fault fixed, so the
-operator's `pbo clear` returns it to OFF and `pbo on` resumes it. Shipped as real code (not a
-mock) so operators can rehearse the procedure on the simulated arm.
+operator's `pbo clear` returns it to OFF and `pbo on` resumes it. With `fault: hang` its cycle
+never returns instead, as a driver call waiting for a device that never answers: every task of
+its RTPU stops with it, and the critical tasks that read their outputs hold the arm. Shipped as
+real code (not a mock) so operators can rehearse the procedure on the simulated arm.
 """
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
+from typing import Literal
 
 from pbo_runtime import InVar, PortBasedObject, Status
 
@@ -18,6 +22,7 @@ from pbo_runtime import InVar, PortBasedObject, Status
 class FaultInjectorParams:
     fail_after: int = 1000  # cycles before the fault
     recoverable: bool = False  # True: the error component recovers by itself (the task stays ON)
+    fault: Literal["raise", "hang"] = "raise"  # "raise": the cycle raises once; "hang": the cycle never returns
 
     def __post_init__(self) -> None:
         if self.fail_after < 0:
@@ -25,7 +30,7 @@ class FaultInjectorParams:
 
 
 class FaultInjector(PortBasedObject):
-    """Raises once in `cycle` after `fail_after` cycles; `clear` then returns it to OFF."""
+    """Raises once in `cycle` after `fail_after` cycles (or hangs there); `clear` then returns it to OFF."""
 
     Params = FaultInjectorParams
 
@@ -34,6 +39,7 @@ class FaultInjector(PortBasedObject):
     def init(self, params: FaultInjectorParams) -> None:
         self._fail_after = params.fail_after
         self._recoverable = params.recoverable
+        self._hangs = params.fault == "hang"
         self.cycles = 0
         self.failed = False
 
@@ -41,6 +47,8 @@ class FaultInjector(PortBasedObject):
         self.cycles += 1
         if not self.failed and self.cycles > self._fail_after:
             self.failed = True
+            if self._hangs:
+                threading.Event().wait()  # nobody sets it: blocked as on a device that never answers
             raise RuntimeError(f"injected fault after {self._fail_after} cycles")
         return Status.CONTINUE
 

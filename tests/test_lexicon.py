@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import typing
 
 from rich.console import Console
 from rich.table import Table
@@ -58,6 +59,7 @@ def test_texts():
     assert shape_text(("NDOF", 4)) == "[NDOF, 4]"
     assert type_text(float | tuple[float, ...]) == "float | tuple[float, ...]"
     assert type_text(str | None) == "str | None"
+    assert type_text(typing.Literal["raise", "hang"]) == '"raise" | "hang"'
 
 
 def test_table_shows_every_module():

@@ -10,6 +10,7 @@ import dataclasses
 import os
 import re
 import shutil
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.robots import robot
 from modules._robot_model import pinocchio_model
 from modules.data_logger import DataLogger, read_log
+from modules.fault_injector import FaultInjector
 from modules.joint_trajectory import JointTrajectory
 from modules.pid_joint import PidJoint
 from modules.robot_torque import RobotTorque
@@ -159,6 +161,24 @@ def test_trajectory_refuses_limits_that_are_not_positive(params, found):
         match=rf"^bad parameters for JointTrajectory: max_velocity and max_acceleration must be > 0, got: {found}$",
     ):
         JointTrajectory.build_params(params)
+
+
+def test_the_fault_injector_raises_or_hangs_and_refuses_any_other_fault():
+    assert FaultInjector.build_params({"fault": "hang"}).fault == "hang"
+    with pytest.raises(ParamError, match=r"FaultInjector.fault must be one of 'raise', 'hang', got: 'freeze'$"):
+        FaultInjector.build_params({"fault": "freeze"})
+
+
+def test_a_hanging_fault_injectors_cycle_does_not_return(table):
+    task = Task(task_spec(FaultInjector, params={"fail_after": 1, "fault": "hang"}, ports={"watched": "q_m"}),
+                FaultInjector, table, DIMS)
+    assert task.spawn(0.0), task.last_error
+    assert task.turn_on(0.0), task.last_error
+    assert task.run_cycle(0.0) == Status.CONTINUE
+    hung = threading.Thread(target=task.run_cycle, args=(0.01,), daemon=True)  # left blocked: it holds nothing
+    hung.start()
+    hung.join(timeout=0.2)
+    assert hung.is_alive() and task.module.failed and task.cycles == 1
 
 
 # --- PidJoint ----------------------------------------------------------------------------------

@@ -260,6 +260,10 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
             except ParamError as exc:
                 errors.append(str(exc))
         raise ParamError(errors[-1] if errors else f"{where}: unexpected value {value!r}")
+    if origin is typing.Literal:
+        if value in args:
+            return value
+        raise ParamError(f"{where} must be one of {', '.join(repr(a) for a in args)}, got: {value!r}")
     if hint is bool:
         if isinstance(value, bool):
             return value

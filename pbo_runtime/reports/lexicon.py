@@ -12,6 +12,7 @@ import dataclasses
 import functools
 import inspect
 import io
+import json
 import re
 import sys
 import textwrap
@@ -200,6 +201,8 @@ def type_text(hint: Any) -> str:
     args = typing.get_args(hint)
     if origin in (typing.Union, types.UnionType):
         return " | ".join(type_text(a) for a in args)
+    if origin is typing.Literal:  # the values a YAML file may give: `"raise" | "hang"`
+        return " | ".join(json.dumps(a) for a in args)
     if origin is not None and args:
         name = getattr(origin, "__name__", str(origin))
         return f"{name}[{', '.join('...' if a is Ellipsis else type_text(a) for a in args)}]"

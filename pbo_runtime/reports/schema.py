@@ -88,6 +88,8 @@ def hint_schema(hint: Any) -> dict[str, Any]:
         return {"type": "null"}
     origin = typing.get_origin(hint)
     args = typing.get_args(hint)
+    if origin is typing.Literal:
+        return {"enum": list(args)}
     if origin in (typing.Union, types.UnionType):
         return {"oneOf": [hint_schema(a) for a in args]}
     if origin in (tuple, list):

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -20,12 +19,12 @@ import numpy as np
 import posix_ipc
 import pytest
 
+from bench._inject import stop_process, stop_while_holding_the_lock  # noqa: F401 (the tests' way to cause them)
 from pbo_runtime import OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.model import PortBinding, TaskSpec, VariableSpec
-from pbo_runtime.ipc.shm import attach_segment as shm_attach
 from pbo_runtime.ipc.shm import children_of
-from pbo_runtime.ipc.shm import pid_state as process_state
+from pbo_runtime.ipc.shm import pid_state as process_state  # noqa: F401 (for the tests)
 from pbo_runtime.task.lifecycle import Task
 
 REPO = Path(__file__).resolve().parent.parent
@@ -263,13 +262,15 @@ def assert_nothing_left(report: dict) -> None:
 
 def demo_copy(folder: Path, subsystem: str, **tasks: dict) -> Path:
     """The demo's YAML under another subsystem name (runs side by side never share one), with
-    `tasks` entries updated key by key, written to `folder`."""
+    `tasks` entries updated key by key (a task the demo lacks is added to its configuration), written to `folder`."""
     import yaml
 
     config = yaml.safe_load(DEMO.read_text())
     config["subsystem"] = subsystem
     for name, update in tasks.items():
-        config["tasks"][name].update(update)
+        if name not in config["tasks"]:
+            config["configurations"]["joint_pid"].append(name)
+        config["tasks"].setdefault(name, {}).update(update)
     path = folder / f"{subsystem}.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
@@ -314,41 +315,6 @@ def run_processes(run: subprocess.Popen) -> dict[str, int]:
         elif "pbo_runtime.supervisor.plant_host" in command:
             roles["plant"] = pid
     return roles
-
-
-def stop_process(pid: int) -> None:
-    """SIGSTOP `pid` and wait until it is stopped."""
-    os.kill(pid, signal.SIGSTOP)
-    until(lambda: process_state(pid) in ("T", "t"), f"process {pid} to stop")
-
-
-def stop_while_holding_the_lock(pid: int, table_name: str) -> None:
-    """SIGSTOP `pid` at a moment it holds the table lock (its lock record names it while the lock is taken).
-
-    It holds the lock a few microseconds per cycle, so this stops and resumes it until a stop lands
-    there: hundreds of tries, each a fraction of a millisecond; the safety net only turns a hang into a failure.
-    """
-    lock = posix_ipc.Semaphore(table_name + ".lock")
-    mapping = shm_attach(table_name)
-    header = np.frombuffer(mapping, dtype=np.int64, count=16)
-    try:
-        give_up = time.monotonic() + 60
-        while time.monotonic() < give_up:
-            stop_process(pid)
-            for _look in range(2):  # twice: another process may have taken the lock but not yet signed it
-                sequence = int(header[15])  # Header.LOCK_SEQUENCE: a writer's tag (2 pid + 1) while odd
-                holder = sequence >> 1 if sequence & 1 else int(header[4])  # else Header.LOCK_HOLDER
-                if lock.value != 0 or holder != pid:
-                    break
-                time.sleep(0.005)
-            else:
-                return
-            os.kill(pid, signal.SIGCONT)
-        pytest.fail(f"never caught process {pid} holding the lock of {table_name}")
-    finally:
-        del header
-        mapping.close()
-        lock.close()
 
 
 def table_of(run: subprocess.Popen, subsystem: str) -> str:

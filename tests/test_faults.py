@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from tests.support import assert_nothing_left, demo_copy, run_processes, start_run, stop_process
+from tests.support import PBO, assert_nothing_left, demo_copy, run_processes, start_run, stop_process
 
 pytestmark = pytest.mark.multiprocess
 
@@ -62,4 +62,21 @@ def test_a_stopped_plant_resumes_without_integrating_the_backlog_and_the_run_exi
     held = [e for e in report["stable_episodes"] if e["cause"] == "module"]  # the robot saw the sim time stand still
     assert held and held[0]["task"] == "robot" and held[0]["to"] is not None
     assert "fault: the plant did not run for" in done.stderr
+    assert_nothing_left(report)
+
+
+def test_a_module_that_never_returns_stops_its_rtpu_and_the_robot_holds_the_arm_until_the_end(tmp_path):
+    config = demo_copy(tmp_path, "fault_hang", stuck={"module": "fault_injector", "rtpu": "rtpu0", "period": "2 ms",
+                                                       "params": {"fail_after": 100, "fault": "hang"}})
+    report_path = tmp_path / "report.json"
+    done = subprocess.run([*PBO, "run", str(config), "--duration", "2", "--report", str(report_path), "--no-live"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "Traceback" not in done.stderr
+    report = json.loads(report_path.read_text())
+    held = [e for e in report["stable_episodes"] if e["cause"] == "stale" and not e["while_starting"]]
+    assert held and held[-1]["task"] == "robot" and "('pid' stopped writing it)" in held[-1]["reason"]
+    assert "fault: critical task 'robot' ran its locally stable behaviour until the stop" in done.stderr
+    assert report["tasks"]["stuck"]["cycles"] == 100 and report["unstopped"] == ["rtpu0"]
+    assert "error: rtpu0 did not stop within 5 s and was killed" in done.stderr
     assert_nothing_left(report)

@@ -65,6 +65,15 @@ def test_a_stopped_plant_resumes_without_integrating_the_backlog_and_the_run_exi
     assert_nothing_left(report)
 
 
+
+def test_a_stopped_robot_interface_leaves_the_arm_to_its_drive_watchdog_and_the_run_exits_2(tmp_path):
+    done, report = run_with_a_stop(tmp_path, "fault_robot", "rtpu1")
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert report["plant"]["watchdog_trips"] >= 1
+    assert any(f.startswith("the arm's drive watchdog held the arm") for f in report["faults"])
+    assert "fault: the arm's drive watchdog held the arm" in done.stderr and "Traceback" not in done.stderr
+    assert_nothing_left(report)
+
 def test_a_module_that_never_returns_stops_its_rtpu_and_the_robot_holds_the_arm_until_the_end(tmp_path):
     config = demo_copy(tmp_path, "fault_hang", stuck={"module": "fault_injector", "rtpu": "rtpu0", "period": "2 ms",
                                                        "params": {"fail_after": 100, "fault": "hang"}})

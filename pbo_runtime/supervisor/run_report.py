@@ -120,6 +120,12 @@ class RunReporting:
                                        "state": self.result.states_at_stop.get(name, "?"),
                                        "error": self.task_errors.get(name, ""), **stats, "last_overruns": overruns}
         self._report_stalls(started)
+        trips = self.result.plant.get("watchdog_trips", 0)
+        if trips:  # no task of the run commanded the arm: only the drive itself held it
+            self.result.faults.append(
+                f"the arm's drive watchdog held the arm {trips} time{'s' if trips > 1 else ''}: no command came within "
+                "its timeout (the plant's command_timeout) while the brakes were off; the task that drives it was "
+                "stopped, starved or blocked")
 
     def _report_stable_episodes(self, started: float) -> None:
         """Close the episodes still open at the stop; tell each task's faults and timing holds (`stable_episode_lines`)."""

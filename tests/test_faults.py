@@ -56,9 +56,10 @@ def test_a_stopped_plant_resumes_without_integrating_the_backlog_and_the_run_exi
     done, report = run_with_a_stop(tmp_path, "fault_plant", "plant")
     assert done.returncode == 2, done.stdout + done.stderr
     assert "Traceback" not in done.stderr
+    # the stop is one stall at least; a busy machine may starve the plant past the stall bound again
     stalls = [f for f in report["faults"] if f.startswith("the plant did not run for")]
-    assert len(stalls) == 1 and "without integrating the backlog" in stalls[0]
-    assert report["plant"]["stalls"] == 1
+    assert stalls and all("without integrating the backlog" in stall for stall in stalls)
+    assert report["plant"]["stalls"] >= len(stalls) and report["plant"]["stalled_for"] >= STOPPED_FOR
     held = [e for e in report["stable_episodes"] if e["cause"] == "module"]  # the robot saw the sim time stand still
     assert held and held[0]["task"] == "robot" and held[0]["to"] is not None
     assert "fault: the plant did not run for" in done.stderr

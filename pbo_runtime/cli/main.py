@@ -164,7 +164,7 @@ def _check(args: argparse.Namespace, console: Console, errors: Console) -> int:
     else:
         text = format_diagnostics(result)
         if result.subsystem is not None and not result.errors:
-            text = (text + "\n" if result.warnings else "") + _verdict(result.subsystem)
+            text = (text + "\n" if result.warnings else "") + _verdict(result.subsystem) + _inferred_lines(result)
         (errors if result.errors else console).print(text, markup=False)
     return EXIT_CONFIG if result.errors else EXIT_OK
 
@@ -219,6 +219,33 @@ def _verdict(subsystem: Any) -> str:
     return "\n".join(lines)
 
 
+def _inferred_lines(result: Any) -> str:
+    """What the file left out and the check worked out: dims from the plant's robot, variables from their ports."""
+    lines = []
+    sub = result.subsystem
+    if result.robot_dims:
+        model = sub.plant.model if sub.plant is not None else "?"
+        lines.append(f"  dims from the plant's robot '{model}': " + ", ".join(f"{k} = {v}" for k, v in result.robot_dims.items()))
+    if result.inferred:
+        lines.append(f"  inferred from their ports: {len(result.inferred)} variable(s)")
+        width = max(len(name) for name in result.inferred)
+        for name in result.inferred:
+            v = sub.variables[name]
+            lines.append(f"    {name:<{width}}  {v.dtype:<7}  {list(v.shape)}")
+    return "".join("\n" + line for line in lines)
+
+
+def _inferred_json(result: Any) -> dict[str, Any]:
+    """The same, for --format json: present only when the file relies on it."""
+    out: dict[str, Any] = {}
+    if result.robot_dims:
+        out["robot_dims"] = dict(result.robot_dims)
+    if result.inferred:
+        variables = result.subsystem.variables
+        out["inferred"] = {name: {"type": variables[name].dtype, "shape": list(variables[name].shape)} for name in result.inferred}
+    return out
+
+
 def _diagnostic_json(d: Any) -> dict[str, Any]:
     return {"file": d.file, "line": d.line, "column": d.column, "severity": d.severity, "code": d.code,
             "message": d.message, "hint": d.hint}
@@ -239,6 +266,7 @@ def _check_json(result: Any) -> dict[str, Any]:
                   for t in transitions(sub, app)]
             for app in sub.applications
         }
+        out.update(_inferred_json(result))
     return out
 
 

@@ -5,7 +5,7 @@ the records it keeps while it works (a task as far as it resolved, its port link
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -79,9 +79,10 @@ class Checked:
     robot_dims: dict[str, int] = field(default_factory=dict)  # dims 'dims:' left out, taken from the plant's robot
 
 
-@dataclass(frozen=True)
-class _Link:
-    """A port of a task and the variable it links to, before that variable is known to exist."""
+class _Link(NamedTuple):
+    """A port of a task and the variable it links to, before that variable is known to exist.
+
+    A NamedTuple: a large file has one per port of every task."""
 
     port: PortSpec
     variable: str

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from bench import check_scale, faults, links, peers, realtime, scale, svar_transfer, switching, wait
+from bench import check_scale, faults, links, peers, placement, realtime, scale, svar_transfer, switching, wait
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -27,6 +27,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "wait": wait.run,
     "switching": switching.run,
     "check_scale": check_scale.run,
+    "placement": placement.run,
     "links": links.section,
     "faults": faults.run,
 }
@@ -39,6 +40,7 @@ FULL: dict[str, dict[str, Any]] = {
     "wait": {"seconds": 1.5, "rounds": 4},
     "switching": {"switches": 1000, "interval": 0.02},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 3},
+    "placement": {"tasks": 102, "repeat": 200, "check_repeat": 5},
     "links": {},
     "faults": {"stop_seconds": 2.0},
 }
@@ -51,6 +53,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "wait": {"seconds": 0.2, "rounds": 1},
     "switching": {"switches": 20, "interval": 0.02},
     "check_scale": {"sizes": (102, 1002), "repeat": 1},
+    "placement": {"tasks": 102, "repeat": 20, "check_repeat": 1},
     "links": {"quick": True},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.5, "run_seconds": 2.0},
 }

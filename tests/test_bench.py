@@ -21,6 +21,7 @@ TINY = {
     "wait": {"seconds": 0.05, "rounds": 1, "loads": (1, 2)},
     "switching": {"switches": 4, "interval": 0.02},
     "check_scale": {"sizes": (12, 30), "repeat": 1},
+    "placement": {"tasks": 12, "repeat": 2, "check_repeat": 1},
     "links": {"quick": True, "rounds": 1},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.2, "run_seconds": 1.5},
 }

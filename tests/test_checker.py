@@ -248,10 +248,13 @@ ONE_MISTAKE = [
             changed("ports: {tau: tau_u}", "ports: {tau: tau_uu}"), "tau_uu",
             r"task 'pid' links port 'tau' to variable 'tau_uu', which 'variables' does not declare$",
             hint=r"^did you mean 'tau_u'\?"),
-    mistake("a_port_linked_by_default_to_an_undeclared_variable_is_an_error",
-            changed(", ports: {tau: tau_u}", ""), "pid:",
-            r"task 'pid' \(module 'fake_pid'\) links port 'tau' by default to variable 'tau', which 'variables' does not declare$",
-            hint=r"ports: \{tau: <variable>\}"),
+    mistake("a_port_of_any_dtype_linked_by_default_to_an_undeclared_variable_is_an_error",
+            edited(("  pid: ", "  kr:    {module: fake_k_reader, rtpu: rtpu0, period: 1 ms}\n  pid: "),
+                   ("[robot, traj, pid]", "[robot, traj, pid, kr]")), "kr:",
+            r"task 'kr' \(module 'fake_k_reader'\) links port 'k' by default to variable 'K', which 'variables' does not declare "
+            r"and its ports cannot define$",
+            hint=r"^no port that links 'K' declares a dtype \(port 'k' of task 'kr' is any dtype, any shape\); declare 'K' "
+                 r"under variables: .*ports: \{k: <variable>\}"),
     mistake("an_unknown_module_is_an_error_with_a_suggestion",
             changed("module: fake_traj", "module: fake_trajj"), "fake_trajj",
             r"task 'traj' uses module 'fake_trajj', which is not registered$",

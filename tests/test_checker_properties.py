@@ -31,7 +31,7 @@ from pbo_runtime.config.loader import CheckResult, check_file
 SCALARS = ("a", "b", "c", "d", "e")
 VECTORS = ("u", "v", "w")  # shape [N], N = 3
 POOL = SCALARS + VECTORS
-GHOST = "ghost"  # never declared: a link to it leaves the task's ports unresolved (E205)
+GHOST = "ghost"  # never declared: made from its ports when they agree, else a link to it leaves a task unresolved (E205, E317)
 
 # module -> its ports as (port name, kind, default variable); the vector-ness follows the variable.
 MODULE_PORTS: dict[str, tuple[tuple[str, str, str], ...]] = {
@@ -194,15 +194,32 @@ class Verdict:
     cycle: bool
 
 
-def bindings(task: Task, declared: set[str]) -> list[tuple[str, str]]:
-    """(kind, variable) of each port that links to a declared variable of the port's shape."""
+def bindings(task: Task, shapes: dict[str, tuple[str, ...]]) -> list[tuple[str, str]]:
+    """(kind, variable) of each port that links to a known variable (declared or inferred) of the port's shape."""
     kinds = {port: (kind, default) for port, kind, default in MODULE_PORTS.get(task.module, ())}
     out = []
     for port, var in task.links:
         kind, default = kinds[port]
-        if var in declared and _shape(var) == _shape(default):
+        if var in shapes and shapes[var] == _shape(default):
             out.append((kind, var))
     return out
+
+
+def inferred(ts: TaskSet, declared: set[str]) -> dict[str, tuple[str, ...]]:
+    """The undeclared variables the checker makes from their ports, with their shapes: those linked by
+    default or by two ports or more, whose ports agree on the shape (the dtype is float64 for all)."""
+    uses: dict[str, list[tuple[tuple[str, ...], bool]]] = defaultdict(list)  # var -> (port's shape, explicit)
+    for task in ts.tasks:
+        defaults = {port: default for port, _, default in MODULE_PORTS.get(task.module, ())}
+        for port, var in task.links:
+            if var not in declared:
+                uses[var].append((_shape(defaults[port]), var != defaults[port]))
+    made = {}
+    for var, found in uses.items():
+        shapes = {shape for shape, _ in found}
+        if not (len(found) == 1 and found[0][1]) and len(shapes) == 1:
+            made[var] = shapes.pop()
+    return made
 
 
 def oracle(ts: TaskSet) -> Verdict:
@@ -210,7 +227,8 @@ def oracle(ts: TaskSet) -> Verdict:
     initial = {v.name for v in ts.variables if v.initial}
     by_job_control = initial | {v.name for v in ts.variables if v.object}
     tasks = {t.name: t for t in ts.tasks}
-    bound = {t.name: bindings(t, declared) for t in ts.tasks}
+    shapes = {name: _shape(name) for name in declared} | inferred(ts, declared)
+    bound = {t.name: bindings(t, shapes) for t in ts.tasks}
     resolved = {t.name: t.module in MODULE_PORTS and len(bound[t.name]) == len(t.links) for t in ts.tasks}
     errors: Counter[Key] = Counter()
 
@@ -298,7 +316,7 @@ _SUBJECT = {
     "E406": re.compile(r"^const dependencies form a cycle: (?P<cycle>\w+( -> \w+)+)$"),
 }
 _UNRESOLVED = re.compile(r"^task '(?P<task>\w+)' (links port|\(module|port '\w+' \(|uses module)")
-_UNRESOLVED_CODES = ("E205", "E206", "E301", "E302", "E207")
+_UNRESOLVED_CODES = ("E205", "E206", "E301", "E302", "E207", "E317")
 
 
 def reported(result: CheckResult) -> tuple[Counter[Key], list[list[str]]]:

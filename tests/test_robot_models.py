@@ -253,3 +253,11 @@ def test_redundant7_is_the_drake_iiwa14_urdf_moved_into_dh_frames(arm7) -> None:
     last = urdf.nbody - 1
     flange = data_urdf.xpos[last] + 0.045 * data_urdf.xmat[last].reshape(3, 3)[:, 2]
     np.testing.assert_allclose(flange, forward_kinematics_dh(arm7.dh, q)[:3, 3], atol=1e-12)
+
+
+def test_every_robot_model_is_registered_for_the_checker_with_its_dims() -> None:
+    from pbo_runtime.objects import registry
+
+    assert registry.names(registry.ROBOTS) == robot_names()
+    for name in robot_names():
+        assert registry.robot_dims(name) == {"NDOF": robot(name).ndof}

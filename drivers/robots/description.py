@@ -56,6 +56,11 @@ class RobotDescription:
         set_(self, "q0", _frozen(self.q0, (n,), "q0", self.name))
         self._check_physical()
 
+    @property
+    def dims(self) -> dict[str, int]:
+        """The named sizes a subsystem's ports may use without `dims:` giving them (the checker asks)."""
+        return {"NDOF": self.ndof}
+
     def _check_physical(self) -> None:
         """Refuse what a simulator cannot integrate, naming the link and the rule."""
         for i, row in enumerate(self.dyn, start=1):

@@ -118,6 +118,15 @@ def _parser() -> argparse.ArgumentParser:
     lexicon.add_argument("--format", choices=("table", "json"), default="table")
     lexicon.set_defaults(handler=_lexicon)
 
+    place = sub.add_parser("place", help="which lexicon modules can be placed in a configuration, and why not the rest")
+    place.add_argument("file")
+    place.add_argument("--config", help="the configuration (default: the first in the file)")
+    place.add_argument("--tasks", help="the configuration's tasks instead, comma-separated (a canvas being built)")
+    place.add_argument("--rtpu", help="the RTPU the module would run on (default: the first)")
+    place.add_argument("--module", action="append", help="only this module (repeat for more; default: every registered one)")
+    place.add_argument("--format", choices=("text", "json"), default="text")
+    place.set_defaults(handler=_place)
+
     graph = sub.add_parser("graph", help="draw a configuration as a block diagram (.svg, .png or .dot)")
     graph.add_argument("file")
     graph.add_argument("--config", help="the configuration to draw (default: the first)")
@@ -164,7 +173,7 @@ def _check(args: argparse.Namespace, console: Console, errors: Console) -> int:
     else:
         text = format_diagnostics(result)
         if result.subsystem is not None and not result.errors:
-            text = (text + "\n" if result.warnings else "") + _verdict(result.subsystem)
+            text = (text + "\n" if result.warnings else "") + _verdict(result.subsystem) + _inferred_lines(result)
         (errors if result.errors else console).print(text, markup=False)
     return EXIT_CONFIG if result.errors else EXIT_OK
 
@@ -219,6 +228,33 @@ def _verdict(subsystem: Any) -> str:
     return "\n".join(lines)
 
 
+def _inferred_lines(result: Any) -> str:
+    """What the file left out and the check worked out: dims from the plant's robot, variables from their ports."""
+    lines = []
+    sub = result.subsystem
+    if result.robot_dims:
+        model = sub.plant.model if sub.plant is not None else "?"
+        lines.append(f"  dims from the plant's robot '{model}': " + ", ".join(f"{k} = {v}" for k, v in result.robot_dims.items()))
+    if result.inferred:
+        lines.append(f"  inferred from their ports: {len(result.inferred)} variable(s)")
+        width = max(len(name) for name in result.inferred)
+        for name in result.inferred:
+            v = sub.variables[name]
+            lines.append(f"    {name:<{width}}  {v.dtype:<7}  {list(v.shape)}")
+    return "".join("\n" + line for line in lines)
+
+
+def _inferred_json(result: Any) -> dict[str, Any]:
+    """The same, for --format json: present only when the file relies on it."""
+    out: dict[str, Any] = {}
+    if result.robot_dims:
+        out["robot_dims"] = dict(result.robot_dims)
+    if result.inferred:
+        variables = result.subsystem.variables
+        out["inferred"] = {name: {"type": variables[name].dtype, "shape": list(variables[name].shape)} for name in result.inferred}
+    return out
+
+
 def _diagnostic_json(d: Any) -> dict[str, Any]:
     return {"file": d.file, "line": d.line, "column": d.column, "severity": d.severity, "code": d.code,
             "message": d.message, "hint": d.hint}
@@ -239,6 +275,7 @@ def _check_json(result: Any) -> dict[str, Any]:
                   for t in transitions(sub, app)]
             for app in sub.applications
         }
+        out.update(_inferred_json(result))
     return out
 
 
@@ -579,6 +616,37 @@ def _lexicon(args: argparse.Namespace, console: Console, errors: Console) -> int
         console.out(json.dumps(entries, indent=2, default=str))
     else:
         console.print(as_table(entries))
+    return EXIT_OK
+
+
+def _place(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.config.loader import load_subsystem
+    from pbo_runtime.config.placement import placement_report
+
+    subsystem = load_subsystem(args.file)
+    tasks = [t.strip() for t in args.tasks.split(",") if t.strip()] if args.tasks is not None else None
+    try:
+        report = placement_report(subsystem, args.config, tasks=tasks, rtpu=args.rtpu, modules=args.module)
+    except ValueError as exc:
+        errors.print(f"error: {exc}", markup=False)
+        return EXIT_CONFIG
+    if args.format == "json":
+        console.out(json.dumps(report, indent=2))
+        return EXIT_OK
+    where = f"configuration '{report['configuration']}'" if report["configuration"] else "tasks " + ", ".join(report["tasks"])
+    lines = [f"{args.file}: {where} on {report['rtpu']}: {report['legal']} of {len(report['modules'])} modules can be placed"]
+    width = max((len(m["module"]) for m in report["modules"]), default=0)
+    for m in report["modules"]:
+        if m["legal"]:
+            notes = []
+            if m["new_variables"]:
+                notes.append("new variables: " + ", ".join(m["new_variables"]))
+            if m["open_inputs"]:
+                notes.append("inputs nobody writes yet: " + ", ".join(m["open_inputs"]))
+            lines.append(f"  ok  {m['module']:<{width}}" + (f"  ({'; '.join(notes)})" if notes else ""))
+        else:
+            lines.append(f"  no  {m['module']:<{width}}  [{m['code']}] {m['reason']}")
+    console.print("\n".join(lines), markup=False, highlight=False, soft_wrap=True)
     return EXIT_OK
 
 

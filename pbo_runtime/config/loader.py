@@ -33,6 +33,8 @@ class CheckResult:
     errors: list[ConfigError] = field(default_factory=list)
     warnings: list[ConfigError] = field(default_factory=list)
     initial_values: dict[str, np.ndarray] = field(default_factory=dict)  # variable -> its `initial:` value
+    inferred: tuple[str, ...] = ()  # variables whose type or shape came from their ports, when there is no error
+    robot_dims: dict[str, int] = field(default_factory=dict)  # dims taken from the plant's robot, when there is no error
 
     @property
     def ok(self) -> bool:
@@ -88,7 +90,9 @@ def _check_file(
         errors = _bus_errors(subsystem)
         if errors:
             subsystem = None
-    return CheckResult(subsystem, errors, warnings, dict(checked.initial_values) if not errors else {})
+    if errors:
+        return CheckResult(subsystem, errors, warnings)
+    return CheckResult(subsystem, errors, warnings, dict(checked.initial_values), tuple(checked.inferred), dict(checked.robot_dims))
 
 
 def _bus_errors(subsystem: Subsystem) -> list[ConfigError]:

@@ -1,7 +1,8 @@
-"""The library registry: modules, drivers and plants by name, through entry points.
+"""The library registry: modules, drivers, plants and robots by name, through entry points.
 
 A YAML file names a module (`module: pid_joint`); it resolves only through the entry-point
-groups `pbo.modules`, `pbo.drivers` and `pbo.plants`, never to arbitrary importable code.
+groups `pbo.modules`, `pbo.drivers`, `pbo.plants` and `pbo.robots` (a function that returns a
+robot's description, whose `dims` the checker reads), never to arbitrary importable code.
 Third-party libraries register in the same groups.
 """
 
@@ -16,8 +17,9 @@ from pbo_runtime.errors import ModuleError
 MODULES = "pbo.modules"
 DRIVERS = "pbo.drivers"
 PLANTS = "pbo.plants"
+ROBOTS = "pbo.robots"
 
-_KIND = {MODULES: "module", DRIVERS: "driver", PLANTS: "plant"}
+_KIND = {MODULES: "module", DRIVERS: "driver", PLANTS: "plant", ROBOTS: "robot model"}
 
 
 def installed_version() -> str:
@@ -56,3 +58,8 @@ def driver_class(name: str) -> Any:
 
 def plant_class(name: str) -> Any:
     return load(PLANTS, name)
+
+
+def robot_dims(model: str) -> dict[str, int]:
+    """The dims a robot model gives (e.g. {"NDOF": 6} for puma560); ModuleError for an unknown model."""
+    return dict(load(ROBOTS, model)().dims)

@@ -208,8 +208,7 @@ def json_schema() -> dict[str, Any]:
                 "type": ["number", "boolean", "array"],
             },
         },
-        "a variable of the global state variable table",
-        required=("type",),
+        "a variable of the global state variable table (no type: the ports that link it give type and shape)",
     )
     task_properties = {
         "module": {"type": "string", "enum": list(modules), "description": "the module's library name (`pbo lexicon` lists them)"},
@@ -297,7 +296,8 @@ def json_schema() -> dict[str, Any]:
             "description": "named sizes used in shapes, e.g. {NDOF: 6}",
             "additionalProperties": {"type": "integer", "minimum": 1},
         },
-        "variables": _map({"$ref": "#/$defs/variable"}, "the global state variable table: name -> type, shape, doc, object, initial"),
+        "variables": _map({"$ref": "#/$defs/variable"}, "the global state variable table: name -> type, shape, doc, object, initial; "
+                                                        "a variable that only connects ports needs no entry"),
         "tasks": _map({"$ref": "#/$defs/task"}, "every task any configuration may use: name -> module, rtpu, period or rate, ..."),
         "configurations": _map(
             {"type": "array", "items": name, "uniqueItems": True, "description": "the tasks that run together"},
@@ -317,7 +317,7 @@ def json_schema() -> dict[str, Any]:
         **schema,
         # an included file may hold only some sections; a file without includes must be whole
         "if": {"not": {"required": ["include"]}},
-        "then": {"required": ["subsystem", "rtpus", "variables", "tasks", "configurations"]},
+        "then": {"required": ["subsystem", "rtpus", "tasks", "configurations"]},
         "$defs": {
             "time": _quantity(TIME),
             "frequency": _quantity(FREQUENCY),

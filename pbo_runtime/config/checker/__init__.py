@@ -16,6 +16,7 @@ from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.claims import ClaimChecks
 from pbo_runtime.config.checker.configurations import ConfigurationChecks
 from pbo_runtime.config.checker.devices import DeviceChecks
+from pbo_runtime.config.checker.inference import InferenceChecks
 from pbo_runtime.config.checker.jobs import JobChecks
 from pbo_runtime.config.checker.model import (
     BUS_KEYS,
@@ -58,7 +59,7 @@ __all__ = [
 ]
 
 
-class _Checker(SectionChecks, DeviceChecks, VariableChecks, TaskChecks, ConfigurationChecks, ClaimChecks,
+class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, TaskChecks, ConfigurationChecks, ClaimChecks,
                JobChecks, TimingChecks, CheckerBase):
     """The whole checker: the core (`CheckerBase`) with every rule, one mixin a concept, and the pass."""
 
@@ -83,8 +84,8 @@ class _Checker(SectionChecks, DeviceChecks, VariableChecks, TaskChecks, Configur
         self.check_plant(top)
         self.check_devices(top)
         self.check_variables(top)
+        self.check_tasks(top)  # also makes the variables no entry types, from their ports
         self.check_table_size(top)
-        self.check_tasks(top)
         self.check_configurations(top)
         self.check_jobs(top)
         self.check_applications(top)

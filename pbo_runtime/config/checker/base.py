@@ -10,8 +10,9 @@ import difflib
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from pbo_runtime.objects import registry
-from pbo_runtime.config.checker.model import Checked, DriverLookup, ModuleLookup, _Claim, _Task
+from pbo_runtime.config.checker.model import Checked, DriverLookup, ModuleLookup, _Claim, _PartialVariable, _Task
 from pbo_runtime.config.checker.words import describe, did_you_mean
+from pbo_runtime.config.limits import MAX_DIM
 from pbo_runtime.config.model import Location
 from pbo_runtime.errors import ConfigError
 from pbo_runtime.config.units import TIME, parse_quantity
@@ -48,6 +49,44 @@ class CheckerBase:
         self.sources: dict[str, list[str]] = {}
         self.app_names: set[str] = set()
         self._port_shapes: dict[Any, tuple[int, ...]] = {}  # a port's declared shape -> resolved with the dims
+        # variables no entry (or an entry without a type) declares, which take their type and shape from their ports
+        self.var_partial: dict[str, _PartialVariable] = {}  # an entry that gives no type: the rest of it
+        self.var_inferred: set[str] = set()  # made from their ports alone (no entry at all)
+        self.infer_failed: set[str] = set()  # their ports disagree (reported at each port)
+        self.infer_failed_why: dict[str, str] = {}  # their ports cannot define them: why, for the hint
+        self._robot_dims: dict[str, int] | None = None
+
+    # --- dims ---------------------------------------------------------------------------------
+
+    def robot_dim(self, name: str) -> int | None:
+        """A dim 'dims:' does not give, from the plant's robot (NDOF: the joints of its model), or None.
+
+        Found once, it joins the subsystem's dims (modules read NDOF from them too), and the check
+        says where it came from. A dim 'dims:' gives, even wrongly, is never replaced.
+        """
+        if name in self.bad_dims:
+            return None
+        if self._robot_dims is None:
+            self._robot_dims = self._plant_robot_dims()
+        size = self._robot_dims.get(name)
+        if size is not None:
+            self.out.dims[name] = size
+            self.out.robot_dims[name] = size
+        return size
+
+    def _plant_robot_dims(self) -> dict[str, int]:
+        """The dims of the plant's robot model (entry-point group pbo.robots); {} when there is none."""
+        plant = self.out.plant
+        if plant is None:
+            return {}
+        try:
+            dims = registry.robot_dims(plant.model)
+        except Exception:  # an unknown model: the dim stays undefined, reported where it is used
+            return {}
+        if not isinstance(dims, dict):
+            return {}
+        return {k: v for k, v in dims.items()
+                if isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_DIM}
 
     # --- reporting --------------------------------------------------------------------------
 

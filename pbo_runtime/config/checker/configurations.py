@@ -173,5 +173,5 @@ class ConfigurationChecks(CheckerBase):
             return  # who reads what is unknown while a task's ports are unknown
         read = {b.variable for t in self.tasks.values() for b in t.bindings if b.port.kind.is_input}
         for name, loc in self.var_locs.items():
-            if name not in read and name not in self.expression_names:
+            if name not in read and name not in self.expression_names and name not in self.var_inferred:
                 self.warn("W202", f"variable '{name}' is read by no task", loc, "remove it, or link a task's input port to it")

@@ -5,7 +5,7 @@ the records it keeps while it works (a task as far as it resolved, its port link
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -40,7 +40,7 @@ TOP_KEYS = (
     "jobs",
     "applications",
 )
-TOP_REQUIRED = ("subsystem", "rtpus", "variables", "tasks", "configurations")
+TOP_REQUIRED = ("subsystem", "rtpus", "tasks", "configurations")  # variables: only those ports cannot define
 VARIABLE_KEYS = ("type", "shape", "doc", "object", "initial")
 TASK_KEYS = (
     "module", "rtpu", "period", "rate", "aperiodic", "min_interarrival", "wcet",
@@ -75,6 +75,31 @@ class Checked:
     jobs: dict[str, JobSpec] = field(default_factory=dict)
     applications: dict[str, ApplicationSpec] = field(default_factory=dict)
     init_order: tuple[str, ...] = ()
+    inferred: list[str] = field(default_factory=list)  # variables whose type or shape came from their ports
+    robot_dims: dict[str, int] = field(default_factory=dict)  # dims 'dims:' left out, taken from the plant's robot
+
+
+class _Link(NamedTuple):
+    """A port of a task and the variable it links to, before that variable is known to exist.
+
+    A NamedTuple: a large file has one per port of every task."""
+
+    port: PortSpec
+    variable: str
+    loc: Location
+    explicit: bool  # written as ports: {port: variable}; else the port's own default name
+
+
+@dataclass
+class _PartialVariable:
+    """A `variables:` entry that gives no type: what it does give, the rest comes from its ports."""
+
+    loc: Location
+    shape: tuple[int, ...] | None  # None: from the ports too
+    doc: str
+    object: str | None
+    initial: Any  # the raw YAML value, checked once the type and shape are known; None: none given
+    initial_loc: Location | None
 
 
 @dataclass

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING, Any
 
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.model import PortClaim
-from pbo_runtime.config.checker.model import TASK_KEYS, _Binding, _Task
+from pbo_runtime.config.checker.model import TASK_KEYS, _Binding, _Link, _Task
 from pbo_runtime.config.checker.words import _ms, _show_shape, describe, did_you_mean
 from pbo_runtime.config.model import Location, PortBinding, TaskSpec
 from pbo_runtime.errors import ParamError
@@ -21,6 +21,7 @@ class TaskChecks(CheckerBase):
     if TYPE_CHECKING:  # rules of other mixins this one calls; the whole checker has them
         def port_claim(self, value: Any, loc: Location, what: str, owner: str, allow_name: bool) -> PortClaim | None: ...
         def channels_exist(self, claim: PortClaim, what: str) -> bool: ...
+        def infer_variables(self, linked: list[tuple[_Task, list[_Link]]]) -> None: ...
 
     def known_modules(self) -> list[str] | None:
         if self.module_names is None:
@@ -31,6 +32,9 @@ class TaskChecks(CheckerBase):
             return None
 
     def check_tasks(self, top: YMap) -> None:
+        # Two passes: every task's links first, so a variable no entry declares can take its type and
+        # shape from all the ports that link it (`infer_variables`); then each link is checked.
+        pending: list[tuple[_Task, YMap, bool, tuple[list[_Link], bool] | None]] = []
         for index, (name, value, key_loc, value_loc) in enumerate(self.entries(top, "tasks", "task", "e.g. tasks: {pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}}")):
             self.task_names.add(name)
             # (a mapping, as nearly always, needs no location and no message: they are made for the error only)
@@ -43,16 +47,22 @@ class TaskChecks(CheckerBase):
             self.keys(spec, TASK_KEYS, ("module", "rtpu"), f"in task '{name}'", key_loc)
             complete = self.check_task_fields(task, spec)
             module_class = self.check_task_module(task, spec)
+            links = None
             if module_class is not None:
                 params_ok = self.check_task_params(task, spec, module_class)
                 if not params_ok:
                     complete = False
-                task.ok = self.check_task_ports(task, spec, module_class)
+                links = self.task_links(task, spec, module_class)
+            pending.append((task, spec, complete, links))
+        self.infer_variables([(task, links[0]) for task, _, _, links in pending if links is not None])
+        for task, spec, complete, links in pending:
+            if links is not None:
+                task.ok = self.bind_task_ports(task, *links)
                 if task.ok and "fresh_within" in spec:
                     complete = self.check_task_freshness(task, spec) and complete
             if complete and task.ok:
-                self.out.tasks[name] = TaskSpec(
-                    name,
+                self.out.tasks[task.name] = TaskSpec(
+                    task.name,
                     task.module,
                     task.rtpu,
                     task.period,
@@ -61,8 +71,8 @@ class TaskChecks(CheckerBase):
                     task.params,
                     tuple([PortBinding(b.port, b.variable, b.shape) for b in task.bindings]),
                     tuple([r for r, _ in task.resources]),
-                    index,
-                    key_loc,
+                    task.index,
+                    task.loc,
                     task.wcet,
                     task.aperiodic,
                     task.min_interarrival,
@@ -246,18 +256,26 @@ class TaskChecks(CheckerBase):
         except TypeError:  # an unhashable declared shape: resolved afresh each time
             shape = declared = None
         if shape is None:
-            shape = port.resolved_shape(self.out.dims, variable_shape)
+            while True:
+                try:
+                    shape = port.resolved_shape(self.out.dims, variable_shape)
+                    break
+                except KeyError as exc:  # a dim 'dims:' leaves out may be the plant's robot's (NDOF)
+                    if not isinstance(exc.args[0], str) or self.robot_dim(exc.args[0]) is None:
+                        raise
             if declared is not None:
                 self._port_shapes[declared] = shape
         return shape
 
-    def check_task_ports(self, task: _Task, spec: YMap, module_class: Any) -> bool:
+    def task_links(self, task: _Task, spec: YMap, module_class: Any) -> tuple[list[_Link], bool] | None:
+        """Each port of the task and the variable it links to (`ports:`, else the port's own name),
+        and whether `ports:` was right; None when the module cannot list its ports."""
         name = task.name
         ports = self.module_ports(task, module_class, spec)
         if ports is None:
-            return False
+            return None
         declared = {p.name: p for p in ports}
-        links: dict[str, tuple[str, Location]] = {}
+        relinked: dict[str, tuple[str, Location]] = {}
         ok = True
         if "ports" in spec and spec["ports"] is not None:
             m = self.mapping(spec["ports"], spec.value_loc("ports"), f"ports of task '{name}'", "e.g. ports: {tau: tau_u}")
@@ -279,28 +297,47 @@ class TaskChecks(CheckerBase):
                     if var_name is None:
                         ok = False
                         continue
-                    links[port_name] = (var_name, var_loc)
-        var_locs, var_ok, variables = self.var_locs, self.var_ok, self.out.variables
+                    relinked[port_name] = (var_name, var_loc)
+        links = []
         for port in ports:
-            link = links.get(port.name)
-            explicit = link is not None
-            var, loc = link if link is not None else (port.variable, task.loc)
+            link = relinked.get(port.name)
+            if link is None:
+                links.append(_Link(port, port.variable, task.loc, False))
+            else:
+                links.append(_Link(port, link[0], link[1], True))
+        return links, ok
+
+    def bind_task_ports(self, task: _Task, links: list[_Link], ok: bool) -> bool:
+        """Each link checked against its variable (declared, or inferred from the ports): dtype and shape."""
+        name = task.name
+        var_locs, var_ok, variables = self.var_locs, self.var_ok, self.out.variables
+        for link in links:
+            port, var, loc, explicit = link.port, link.variable, link.loc, link.explicit
             if var not in var_locs:
+                if var in self.infer_failed:
+                    ok = False  # its ports disagree, and each was reported
+                    continue
+                if port.shape is not None and not self.port_shape_resolves(task, port, loc):
+                    ok = False
+                    continue
+                why = self.infer_failed_why.get(var)
                 if explicit:
                     self.error(
                         "E205",
                         f"task '{name}' links port '{port.name}' to variable '{var}', which 'variables' does not declare",
                         loc,
-                        did_you_mean(var, self.var_locs, "declared"),
+                        (f"{why}; declare it under variables:" if why else
+                         f"{did_you_mean(var, self.var_locs, 'declared')}; a new variable that only one task's ports: "
+                         f"names needs an entry under variables: (so that a typo never makes one)"),
                     )
                 else:
                     self.error(
                         "E206",
                         f"task '{name}' (module '{task.module}') links port '{port.name}' by default to variable '{var}', "
-                        "which 'variables' does not declare",
+                        "which 'variables' does not declare and its ports cannot define",
                         loc,
-                        f"declare '{var}' under variables, or link the port with ports: {{{port.name}: <variable>}}; "
-                        + did_you_mean(var, self.var_locs, "declared"),
+                        f"{why}; declare '{var}' under variables: (e.g. {var}: {{type: float64, shape: [NDOF]}}), "
+                        f"or link the port with ports: {{{port.name}: <variable>}}",
                     )
                 ok = False
                 continue
@@ -314,13 +351,7 @@ class TaskChecks(CheckerBase):
             try:
                 shape = self.port_shape(port, variable.shape)
             except KeyError as exc:
-                self.error(
-                    "E304",
-                    f"port '{port.name}' of module '{task.module}' (task '{name}') has shape {_show_shape(port.shape)} "
-                    f"with dim {exc}, which 'dims' does not define",
-                    loc,
-                    did_you_mean(str(exc.args[0]), self.out.dims, "defined"),
-                )
+                self.report_unknown_port_dim(task, port, loc, exc)
                 ok = False
                 continue
             except (TypeError, ValueError) as exc:
@@ -349,6 +380,28 @@ class TaskChecks(CheckerBase):
                 continue
             task.bindings.append(_Binding(port, var, shape, loc))
         return ok
+
+    def port_shape_resolves(self, task: _Task, port: PortSpec, loc: Location) -> bool:
+        """True if the port's declared shape resolves with the dims; else E304 or E306, reported here."""
+        try:
+            self.port_shape(port, ())
+        except KeyError as exc:
+            self.report_unknown_port_dim(task, port, loc, exc)
+            return False
+        except (TypeError, ValueError) as exc:
+            self.error("E306", f"port '{port.name}' of module '{task.module}' has a bad shape {port.shape!r}: {exc}", loc)
+            return False
+        return True
+
+    def report_unknown_port_dim(self, task: _Task, port: PortSpec, loc: Location, exc: KeyError) -> None:
+        self.error(
+            "E304",
+            f"port '{port.name}' of module '{task.module}' (task '{task.name}') has shape {_show_shape(port.shape)} "
+            f"with dim {exc}, which 'dims' does not define",
+            loc,
+            did_you_mean(str(exc.args[0]), self.out.dims, "defined")
+            + ("" if self.out.plant is not None else "; or add a plant: whose robot gives it (e.g. plant: {model: puma560} gives NDOF)"),
+        )
 
     def check_task_freshness(self, task: _Task, spec: YMap) -> bool:
         """`fresh_within: {port: time}`: in-var ports of a critical task, each a time > 0."""

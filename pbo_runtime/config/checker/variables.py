@@ -9,7 +9,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from pbo_runtime.config.checker.base import CheckerBase
-from pbo_runtime.config.checker.model import DTYPES, VARIABLE_KEYS
+from pbo_runtime.config.checker.model import DTYPES, VARIABLE_KEYS, _PartialVariable
 from pbo_runtime.config.checker.words import _show_shape, describe, did_you_mean
 from pbo_runtime.config.limits import MAX_DIM, MAX_TABLE_BYTES, show_bytes
 from pbo_runtime.config.model import Location, VariableSpec
@@ -44,6 +44,8 @@ class VariableChecks(CheckerBase):
                     shape.append(dims[item])
                 elif item in self.bad_dims:
                     ok = False  # the dim itself is wrong, and was reported there
+                elif (size := self.robot_dim(item)) is not None:
+                    shape.append(size)
                 else:
                     self.error(
                         "E204",
@@ -81,7 +83,7 @@ class VariableChecks(CheckerBase):
             biggest = sorted(self.out.variables.values(), key=lambda v: math.prod(v.shape) * _itemsize(v.dtype))[-3:]
             self.error("E316", f"the variables take {show_bytes(total)} of state variable table, more than its limit of "
                                f"{show_bytes(MAX_TABLE_BYTES)}",
-                       top.key_loc("variables"),
+                       top.key_loc("variables") if "variables" in top else top.loc,
                        "the largest: " + ", ".join(f"'{v.name}' {_show_shape(v.shape)} {v.dtype}" for v in reversed(biggest)))
 
     def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str) -> np.ndarray | None:
@@ -137,7 +139,7 @@ class VariableChecks(CheckerBase):
             if spec is None:
                 continue
             where = f"in variable '{name}'"
-            self.keys(spec, VARIABLE_KEYS, ("type",), where, key_loc)
+            self.keys(spec, VARIABLE_KEYS, (), where, key_loc)  # no type: its ports give it (InferenceChecks)
             dtype: str | None = None
             if "type" in spec:
                 raw = spec["type"]  # (its location is looked up only to report it)
@@ -170,6 +172,11 @@ class VariableChecks(CheckerBase):
                     )
                     if initial is not None:
                         self.out.initial_values[name] = initial
+            if "type" not in spec and (shape is not None or "shape" not in spec):
+                given = shape if "shape" in spec and spec["shape"] is not None else None
+                self.var_partial[name] = _PartialVariable(key_loc, given, doc, obj, spec.get("initial"),
+                                                          spec.value_loc("initial") if "initial" in spec else None)
+                continue
             if dtype is None or shape is None:
                 continue
             self.var_ok.add(name)

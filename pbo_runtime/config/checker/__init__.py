@@ -32,6 +32,7 @@ from pbo_runtime.config.checker.model import (
     DriverLookup,
     ModuleLookup,
 )
+from pbo_runtime.config.checker.objects import ObjectChecks
 from pbo_runtime.config.checker.sections import SectionChecks
 from pbo_runtime.config.checker.tasks import TaskChecks
 from pbo_runtime.config.checker.timing import TimingChecks
@@ -59,7 +60,7 @@ __all__ = [
 
 
 class _Checker(SectionChecks, DeviceChecks, VariableChecks, TaskChecks, ConfigurationChecks, ClaimChecks,
-               JobChecks, TimingChecks, CheckerBase):
+               ObjectChecks, JobChecks, TimingChecks, CheckerBase):
     """The whole checker: the core (`CheckerBase`) with every rule, one mixin a concept, and the pass."""
 
     def run(self, doc: Any, doc_loc: Location) -> Checked:
@@ -84,6 +85,8 @@ class _Checker(SectionChecks, DeviceChecks, VariableChecks, TaskChecks, Configur
         self.check_devices(top)
         self.check_variables(top)
         self.check_table_size(top)
+        self.check_object_types(top)
+        self.check_objects(top)
         self.check_tasks(top)
         self.check_configurations(top)
         self.check_jobs(top)

@@ -47,6 +47,8 @@ class CheckerBase:
         self.device_names: set[str] = set()
         self.sources: dict[str, list[str]] = {}
         self.app_names: set[str] = set()
+        self.bad_object_types: set[str] = set()  # object types refused (reported there): no follow-on errors
+        self.object_locs: dict[str, Location] = {}  # every object named under objects:, right or wrong
         self._port_shapes: dict[Any, tuple[int, ...]] = {}  # a port's declared shape -> resolved with the dims
 
     # --- reporting --------------------------------------------------------------------------

@@ -309,6 +309,8 @@ class JobChecks(CheckerBase):
                      step: ApplicationStep) -> ApplicationStep | None:
         """A step that gives a named object: it exists, and its type is the one the job or application needs."""
         obj = self.out.objects.get(name)
+        if kind in self.bad_object_types:
+            return None  # the type itself is wrong, and was reported there
         if obj is None:
             if name in self.object_locs:
                 return None  # the object is wrong itself, and was reported there

@@ -85,7 +85,7 @@ class ObjectChecks(CheckerBase):
                 if spec is not None and (spec.dtype, spec.shape) != (kind.dtype, kind.shape):
                     self.error("E712", f"variable '{variable}' ({spec.dtype} {_show_shape(spec.shape)}) is marked object: '{type_name}', "
                                        f"but objects of type '{type_name}' are {kind.dtype} {_show_shape(kind.shape)}",
-                               where, f"give the variable the type's dtype and shape, or mark it with another object type")
+                               where, "give the variable the type's dtype and shape, or mark it with another object type")
                 continue
             if spec is None:
                 self.bad_object_types.add(type_name)  # the variable is wrong, and was reported there

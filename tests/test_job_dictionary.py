@@ -387,3 +387,23 @@ def test_check_prints_a_short_job_dictionary(tmp_path, capsys):
 
 def test_an_objects_value_is_the_array_job_control_writes(subsystem):
     assert np.array_equal(subsystem.objects["ready"].value, np.array(READY)) and subsystem.objects["ready"].value.dtype == np.float64
+
+
+def test_the_examples_of_the_configuration_guide_check_and_print_the_dictionary_it_shows(tmp_path, capsys):
+    guide = (Path(__file__).resolve().parent.parent / "docs" / "configuration.md").read_text()
+
+    def block(section: str, fence: str = "```yaml\n") -> str:
+        return guide.split(f"\n## {section}\n", 1)[1].split(fence, 1)[1].split("```", 1)[0]
+
+    head = LEGAL.split("object_types:\n", 1)[0]
+    tasks = LEGAL.split("tasks:\n", 1)[1].split("  pd:", 1)[0]
+    text = (head + block("object_types, objects") + "tasks:\n" + tasks + "configurations:\n  joint_pid: [robot, traj, pid]\n"
+            + block("jobs") + block("applications"))
+    path = tmp_path / "guide.yaml"
+    path.write_text(text)
+    assert main(["check", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert [line.split("]")[0] for line in out.splitlines() if "warning[" in line] == [
+        f"{path}:{line_of(text, 'approach: [reach')[0]}:{c}: warning[W701" for c in (14, 21)]
+    shown = guide.split("### The job dictionary\n", 1)[1].split("```\n", 1)[1].split("```", 1)[0]
+    assert out.endswith(shown)

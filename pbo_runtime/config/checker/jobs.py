@@ -109,12 +109,12 @@ class JobChecks(CheckerBase):
             if written:
                 loc = spec.value_loc("object")
                 obj = self.text(spec["object"], loc, f"object of job '{name}'")
-                if obj == NO_OBJECT:
-                    pass
-                elif obj is not None and obj not in self.var_locs:
+                if obj is None or obj == NO_OBJECT:
+                    pass  # not text (reported), or `object: none`: the job is an action
+                elif obj not in self.var_locs:
                     self.error("E213", f"job '{name}' takes object '{obj}', which 'variables' does not declare", loc, did_you_mean(obj, self.var_object or self.var_locs, "objects"))
                     ok = False
-                elif obj is not None and obj not in self.var_object:
+                elif obj not in self.var_object:
                     self.error(
                         "E701",
                         f"job '{name}' takes variable '{obj}' as its object, but the variable is not marked as an object",
@@ -256,9 +256,6 @@ class JobChecks(CheckerBase):
     def fill_application(self, app: str, number: int, inner: ApplicationSpec, item: _Step) -> ApplicationStep | None:
         """A step giving an object to an application: one object of the one type of its gaps fills them all (Onika §4.4.2)."""
         step, given, given_loc = item.step, item.given, item.given_loc
-        kinds = sorted({str(g.object_type) for g in inner.gaps if g.object_type} | {
-            str(g2.object_type) for g in inner.gaps if g.object_type is None
-            for g2 in _inner_gaps(self.out.applications, g.job)})
         if not inner.gaps:
             self.error(
                 "E709",
@@ -269,6 +266,7 @@ class JobChecks(CheckerBase):
             return None
         kind = inner.object_type
         if kind is None:
+            kinds = sorted({str(g.object_type) for g in _inner_gaps(self.out.applications, step.job)})
             where = ", ".join(f"step {g.step} '{g.job}' ({g.object_type or 'several'})" for g in inner.gaps)
             self.error(
                 "E718",

@@ -21,12 +21,12 @@ from pbo_runtime.supervisor.job_control import JobControl
 from tests.support import REPO
 
 # configs/switch_joint.yaml with jobs for every path of job control: a pre-condition that never
-# holds, a job with no object, one that only runs for a while
+# holds, a job with no object (its trajectory keeps the goal it has), one that only runs for a while
 SUBSYSTEM = (REPO / "configs" / "switch_joint.yaml").read_text().replace("\njobs:\n", """
 jobs:
-  guarded: {configuration: pd, pre: "max(abs(q_m)) > 10", post: "max(abs(q_m - q_d)) < 0.01"}
-  hold:    {configuration: pd}
-  dwell:   {configuration: pd, timeout: 50 ms}
+  guarded: {configuration: pd, object: none, pre: "max(abs(q_m)) > 10", post: "max(abs(q_m - q_d)) < 0.01"}
+  hold:    {configuration: pd, object: none}
+  dwell:   {configuration: pd, object: none, timeout: 50 ms}
 """)
 
 

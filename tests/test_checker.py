@@ -413,7 +413,7 @@ ONE_MISTAKE = [
             hint=r"^did you mean"),
     # applications
     mistake("an_object_given_to_a_job_that_takes_none_is_an_error",
-            with_apps(f"  demo:\n    - hold: {{q_d: {Q}}}\n", "  hold: {configuration: joint_pid}\n"), "q_d: [0",
+            with_apps(f"  demo:\n    - hold: {{q_d: {Q}}}\n", "  hold: {configuration: joint_pid, object: none}\n"), "q_d: [0",
             r"step 1 of application 'demo' gives object 'q_d' to job 'hold', which takes no object$", code="E705"),
     mistake("two_objects_for_one_job_are_an_error",
             with_apps(f"  demo:\n    - move: {{q_d: {Q}, q_r: {Q}}}\n"), "q_r: [0",
@@ -819,7 +819,7 @@ def test_a_condition_in_block_style_is_reported_at_its_value(tmp_path: Path) -> 
 
 
 def test_applications_may_nest_and_stay_complete(tmp_path: Path) -> None:
-    text = with_apps(f"  demo:\n    - move: {{q_d: {Q}}}\n  outer:\n    - demo\n    - hold\n", "  hold: {configuration: joint_pid}\n")
+    text = with_apps(f"  demo:\n    - move: {{q_d: {Q}}}\n  outer:\n    - demo\n    - hold\n", "  hold: {configuration: joint_pid, object: none}\n")
     result = check(tmp_path, text)
     assert result.errors == [] and result.warnings == []
     assert result.subsystem is not None

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from pbo_runtime.errors import PboError
-from pbo_runtime.supervisor.job_control import POLL, SWITCH_TIMEOUT, JobFailure, evaluate
-from tests.fake_job_host import FakeJobHost, fake_subsystem
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.supervisor.job_control import POLL, SWITCH_TIMEOUT, JobFailure, application_steps, evaluate
+from tests.fake_job_host import SUBSYSTEM, FakeJobHost, fake_subsystem
 
 GOAL = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]
 
@@ -146,3 +147,63 @@ def test_a_condition_that_cannot_be_evaluated_on_the_values_read_is_a_job_failur
     with pytest.raises(JobFailure, match=r"^condition 'NDOF\*\*40 > 0' cannot be evaluated on the values read \(NDOF = 6\): "
                                          r"'NDOF\*\*40' computes an integer beyond"):
         evaluate(host, "NDOF**40 > 0")
+
+
+# --- named objects and incomplete applications filled with one (Onika §4.4.2) -------------------------
+
+READY = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]  # the object `ready` of configs/switch_joint.yaml
+ELSEWHERE = [0.1, -0.2, 0.3, 0.0, 0.1, 0.0]
+
+
+@pytest.fixture(scope="module")
+def with_approach(tmp_path_factory):
+    """The fake subsystem with an incomplete application of one object type, and one that fills it twice."""
+    folder = tmp_path_factory.mktemp("approach")
+    path = folder / "approach.yaml"
+    path.write_text(SUBSYSTEM + f"  approach: [reach, settle]\n  visit:\n    - approach: ready\n"
+                                f"    - approach: {{joint_position: {ELSEWHERE}}}\n    - hold\n")
+    return load_subsystem(str(path))
+
+
+def written_objects(host: FakeJobHost) -> list[tuple[str, list[float]]]:
+    """Every write of job control from now on, as (variable, value), in order."""
+    writes: list[tuple[str, list[float]]] = []
+    write = host.write_variable
+
+    def record(name: str, value) -> None:
+        writes.append((name, np.asarray(value).tolist()))
+        write(name, value)
+    host.write_variable = record  # type: ignore[method-assign]
+    return writes
+
+
+def test_a_step_with_a_named_object_writes_the_objects_value(host):
+    writes = written_objects(host)
+    host.on_pump = arm_reaches_its_goal_after(0.0)
+    host.job_control.run_application("tour")
+    assert writes[0] == ("q_d", READY) and len(writes) == 3
+
+
+def test_an_incomplete_application_given_an_object_fills_each_of_its_gaps_with_it(with_approach):
+    host = FakeJobHost(with_approach, "pid")
+    writes = written_objects(host)
+    host.on_pump = arm_reaches_its_goal_after(0.0)
+    host.job_control.run_application("visit")
+    assert writes == [("q_d", READY), ("q_d", READY), ("q_d", ELSEWHERE), ("q_d", ELSEWHERE)]
+    assert [line.split(":")[0] for line in host.said if "running in" in line] == [
+        f"job '{job}' (step {n} of 5 of application 'visit')" for n, job in enumerate(["reach", "settle", "reach", "settle", "hold"], 1)]
+    assert [(r.before, r.after) for r in host.job_control.switches] == [("pid", "pd"), ("pd", "pid"), ("pid", "pd")]
+
+
+def test_an_incomplete_application_is_not_run_on_its_own(with_approach):
+    host = FakeJobHost(with_approach, "pid")
+    with pytest.raises(JobFailure, match=r"^application 'approach' is incomplete"):
+        host.job_control.run_application("approach")
+    assert host.plans == [] and host.job_control.switches == []
+
+
+def test_application_steps_resolve_named_objects_and_fills_down_through_nested_applications(with_approach):
+    steps = application_steps(with_approach, "visit")
+    assert [(job, {k: np.asarray(v).tolist() for k, v in arguments.items()}) for job, arguments in steps] == [
+        ("reach", {"q_d": READY}), ("settle", {"q_d": READY}), ("reach", {"q_d": ELSEWHERE}), ("settle", {"q_d": ELSEWHERE}),
+        ("hold", {})]

@@ -91,3 +91,19 @@ def test_an_incomplete_application_is_refused_before_anything_starts(tmp_path):
     assert done.returncode == 2
     assert "application 'tour' is incomplete (a step lacks the object its job needs) and cannot be run" in done.stderr
     assert "starting subsystem" not in done.stdout
+
+
+def test_an_incomplete_application_given_a_named_object_runs_each_of_its_jobs_with_it(tmp_path):
+    # Onika §4.4.2: `approach` lacks its objects; `visit` gives it `ready`, which fills both gaps
+    text = SWITCHING.read_text().replace("subsystem: puma_switch", "subsystem: puma_switch_visit")
+    path = tmp_path / "visit.yaml"
+    path.write_text(text + "  approach: [reach, settle]\n  visit: [{approach: ready}]\n")
+    report_path = tmp_path / "report.json"
+    done = subprocess.run([*PBO, "run", str(path), "--no-live", "--app", "visit", "--clock", "sim", "--report", str(report_path)],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=240)
+    report = json.loads(report_path.read_text())
+    assert_ended_well(done.returncode, report, done.stderr)
+    assert report["jobs_done"] == ["reach", "settle"] and report["stopped_by"] == "application 'visit' done"
+    q_m = np.array(report["variables"]["q_m"]["value"])
+    assert np.max(np.abs(q_m - np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2]))) < 0.01
+    assert_nothing_left(report)

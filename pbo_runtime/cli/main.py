@@ -25,6 +25,7 @@ from pbo_runtime.objects import registry
 from pbo_runtime.errors import ConfigErrors, PboError
 from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.config.transitions import transitions
+from pbo_runtime.config.job_dictionary import dictionary_lines, job_dictionary
 
 EXIT_OK, EXIT_CONFIG, EXIT_RUN, EXIT_INTERNAL = 0, 1, 2, 3
 
@@ -225,6 +226,9 @@ def _verdict(subsystem: Any) -> str:
             else:
                 lines.append(f"    {t.step}. {t.job}: '{t.before}' -> '{t.after}': off {', '.join(t.off) or 'nothing'}; "
                              f"on {', '.join(t.on) or 'nothing'}")
+    if subsystem.jobs:
+        lines.append("  job dictionary:")
+        lines.extend(f"    {line}" for line in dictionary_lines(subsystem))
     return "\n".join(lines)
 
 
@@ -270,11 +274,15 @@ def _check_json(result: Any) -> dict[str, Any]:
         out["configurations"] = {
             name: {t: sub.tasks[t].rtpu for t in c.tasks} for name, c in sub.configurations.items()
         }
-        out["applications"] = {
-            app: [{"step": t.step, "job": t.job, "from": t.before, "to": t.after, "off": list(t.off), "on": list(t.on)}
-                  for t in transitions(sub, app)]
-            for app in sub.applications
-        }
+        dictionary = job_dictionary(sub)  # Onika's job dictionary: classes, object types and edges
+        out["object_types"] = dictionary["object_types"]
+        out["objects"] = dictionary["objects"]
+        out["jobs"] = dictionary["jobs"]
+        out["applications"] = dictionary["applications"]
+        for app, entry in out["applications"].items():
+            entry["transitions"] = [
+                {"step": t.step, "job": t.job, "from": t.before, "to": t.after, "off": list(t.off), "on": list(t.on)}
+                for t in transitions(sub, app)]
         out.update(_inferred_json(result))
     return out
 

@@ -22,7 +22,8 @@ from pbo_runtime.errors import ConfigError, ConfigErrors
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_file
 
 # Sections whose entries an included file may add to (names must not clash).
-_MERGED_SECTIONS = ("devices", "dims", "variables", "tasks", "configurations", "jobs", "applications")
+_MERGED_SECTIONS = ("devices", "dims", "variables", "object_types", "objects", "tasks", "configurations", "jobs",
+                    "applications")
 
 
 @dataclass
@@ -163,6 +164,8 @@ def _assemble(checked: Checked, file: str) -> Subsystem:
         jobs=dict(checked.jobs),
         applications=dict(checked.applications),
         init_order=checked.init_order,
+        object_types=dict(checked.object_types),
+        objects=dict(checked.objects),
     )
 
 

@@ -140,22 +140,68 @@ class ConfigurationSpec:
 
 
 @dataclass(frozen=True)
+class ObjectTypeSpec:
+    """A kind of object a job may take (Onika's "preference file"): what its values are."""
+
+    name: str
+    dtype: str
+    shape: tuple[int, ...]
+    unit: str = ""
+    doc: str = ""
+    loc: Location = NOWHERE
+    declared: bool = True  # False: implied by the variables marked `object: <name>` (no object_types: entry)
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """A named object: a value of an object type, given to a job or an application by name."""
+
+    name: str
+    type: str
+    value: Any = field(default=None, compare=False)  # read-only numpy array of the type's dtype and shape
+    doc: str = ""
+    loc: Location = NOWHERE
+
+
+ACTION = "action"
+ACTION_REQUIRING_OBJECT = "action_requiring_object"
+INCOMPLETE = "incomplete"  # an application with gaps of several object types: no one object fills it
+
+
+@dataclass(frozen=True)
 class JobSpec:
     name: str
     configuration: str
-    object: str | None = None
+    object: str | None = None  # the variable its object is written to: `object:`, or inferred from the tasks
     pre: str | None = None
     post: str | None = None
     timeout: float | None = None
     loc: Location = NOWHERE
+    object_type: str | None = None  # the type of its object (Onika §4.3.3)
+
+    @property
+    def kind(self) -> str:
+        """An action, or an action requiring an object (Onika §4.4.1)."""
+        return ACTION if self.object is None else ACTION_REQUIRING_OBJECT
 
 
 @dataclass(frozen=True)
 class ApplicationStep:
     job: str  # a job's name, or an application's when `is_application`
-    arguments: Mapping[str, Any] = field(default_factory=dict)
+    arguments: Mapping[str, Any] = field(default_factory=dict)  # a job's object variable -> the value written
     loc: Location = NOWHERE
     is_application: bool = False  # the step runs another application (Onika §4.4.2)
+    object: str | None = None  # a named object given to the step (its value is read when the step runs)
+    fill: Any = field(default=None, compare=False)  # an application's object written out: fills each of its gaps
+
+
+@dataclass(frozen=True)
+class Gap:
+    """A step of an application that lacks its object (Onika §4.4.2, Figure 4)."""
+
+    step: int  # 1-based, in the application's own steps
+    job: str  # the job, or the incomplete application, of that step
+    object_type: str | None  # None: an incomplete application with gaps of several types (fill them inside it)
 
 
 @dataclass(frozen=True)
@@ -164,6 +210,20 @@ class ApplicationSpec:
     steps: tuple[ApplicationStep, ...]
     loc: Location = NOWHERE
     complete: bool = True  # False when a step lacks its object: it may be kept but not run (Onika §4.4.2)
+    gaps: tuple[Gap, ...] = ()
+
+    @property
+    def object_type(self) -> str | None:
+        """The one object type of all its gaps, if it has gaps and they agree: one object fills them all."""
+        types = {gap.object_type for gap in self.gaps}
+        return next(iter(types)) if len(types) == 1 else None
+
+    @property
+    def kind(self) -> str:
+        """As a step of another application: an action, an action requiring an object, or neither."""
+        if not self.gaps:
+            return ACTION
+        return ACTION_REQUIRING_OBJECT if self.object_type is not None else INCOMPLETE
 
 
 @dataclass(frozen=True)
@@ -183,6 +243,8 @@ class Subsystem:
     jobs: Mapping[str, JobSpec]
     applications: Mapping[str, ApplicationSpec]
     init_order: tuple[str, ...]  # every task, producers of consts before their consumers
+    object_types: Mapping[str, ObjectTypeSpec] = field(default_factory=dict)  # declared, then implied
+    objects: Mapping[str, ObjectSpec] = field(default_factory=dict)
 
     def rtpu(self, name: str) -> RtpuSpec:
         return next(r for r in self.rtpus if r.name == name)

@@ -255,7 +255,8 @@ def json_schema() -> dict[str, Any]:
     job = _obj(
         {
             "configuration": {"type": "string", "description": "the configuration the job runs"},
-            "object": {"type": "string", "description": "the variable (marked with object:) an application step gives the job"},
+            "object": {"type": "string", "description": "the variable (marked with object:) an application step gives the job; "
+                                                        "left out: inferred from the tasks that read one; none: no object"},
             "pre": {"type": "string", "description": "a pre-condition: an expression over variables that must hold before the job starts"},
             "post": {"type": "string", "description": "a post-condition: the job is done when it holds, e.g. \"max(abs(q_m - q_d)) < 1e-3\""},
             "timeout": {"$ref": "#/$defs/time", "description": "the job fails if its post-condition does not hold within this time"},
@@ -264,7 +265,7 @@ def json_schema() -> dict[str, Any]:
         required=("configuration",),
     )
     step = {
-        "description": "a job name, or {job: {object: value}}",
+        "description": "a job or application name, {job: object name}, {job: {object variable: value}}, or {application: {object type: value}}",
         "oneOf": [
             {"type": "string", "minLength": 1},
             {
@@ -272,11 +273,36 @@ def json_schema() -> dict[str, Any]:
                 "minProperties": 1,
                 "maxProperties": 1,
                 "additionalProperties": {
-                    "oneOf": [{"type": "object", "description": "object variable -> value"}, {"type": "null"}],
+                    "oneOf": [{"type": "string", "minLength": 1, "description": "a named object (one of 'objects')"},
+                              {"type": "object", "description": "object variable (or, for an application, object type) -> value"},
+                              {"type": "null"}],
                 },
             },
         ],
     }
+    object_type = _obj(
+        {
+            "type": {"type": "string", "enum": list(DTYPES), "description": "the numpy dtype of the object's values"},
+            "shape": {
+                "description": "sizes or dim names, e.g. [NDOF]; leave it out for a scalar",
+                "oneOf": [{"type": "array", "items": shape_item}, shape_item, {"type": "null"}],
+            },
+            "unit": {"type": "string", "description": "the unit of its values, for the people who give them, e.g. rad"},
+            "doc": {"type": "string", "description": "what an object of this type is"},
+        },
+        "an object type: what a job's object may be (variables marked object: <type> hold it)",
+        required=("type",),
+    )
+    named_object = _obj(
+        {
+            "type": {"type": "string", "description": "its object type (one of 'object_types', or a type a variable is marked with)"},
+            "value": {"description": "a number for every element, or a nested list of the type's shape",
+                      "type": ["number", "boolean", "array"]},
+            "doc": {"type": "string", "description": "what the object is, e.g. the home pose"},
+        },
+        "a named object: a value of an object type, given to a job by name (- move: home)",
+        required=("type", "value"),
+    )
     top = {
         "subsystem": {
             "type": "string",
@@ -298,6 +324,8 @@ def json_schema() -> dict[str, Any]:
         },
         "variables": _map({"$ref": "#/$defs/variable"}, "the global state variable table: name -> type, shape, doc, object, initial; "
                                                         "a variable that only connects ports needs no entry"),
+        "object_types": _map({"$ref": "#/$defs/object_type"}, "object types: what a job's object may be, name -> type, shape, unit, doc"),
+        "objects": _map({"$ref": "#/$defs/object"}, "named objects: name -> type and value, given to jobs by name"),
         "tasks": _map({"$ref": "#/$defs/task"}, "every task any configuration may use: name -> module, rtpu, period or rate, ..."),
         "configurations": _map(
             {"type": "array", "items": name, "uniqueItems": True, "description": "the tasks that run together"},
@@ -326,6 +354,8 @@ def json_schema() -> dict[str, Any]:
             "variable": variable,
             "task": task,
             "job": job,
+            "object_type": object_type,
+            "object": named_object,
             **{f"params_{m}": params_schema(m, registry.module_class(m)) for m in modules if _loads(m)},
         },
     }

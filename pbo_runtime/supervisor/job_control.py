@@ -136,14 +136,27 @@ def _show(values: dict[str, Any]) -> str:
     return "; ".join(f"{name} = {np.array2string(np.asarray(v), precision=4, separator=', ', max_line_width=10**6)}" for name, v in values.items())
 
 
-def application_steps(subsystem: Subsystem, application: str, _seen: tuple[str, ...] = ()) -> list[tuple[str, dict[str, Any]]]:
-    """(job, object values) in order, with applications used as steps expanded in place."""
+def application_steps(subsystem: Subsystem, application: str, _seen: tuple[str, ...] = (),
+                      fill: Any = None) -> list[tuple[str, dict[str, Any]]]:
+    """(job, object values) in order, with applications used as steps expanded in place (Onika §4.4.2).
+
+    A step's named object is read from the subsystem now, so the value it has when the
+    application starts is the one written. An application given an object fills each of its
+    gaps with it (`fill`), down through the incomplete applications it uses.
+    """
     steps: list[tuple[str, dict[str, Any]]] = []
     for step in subsystem.applications[application].steps:
+        given = subsystem.objects[step.object].value if step.object is not None else step.fill
+        if given is None:
+            given = fill
         if step.job in subsystem.applications and application not in _seen:
-            steps.extend(application_steps(subsystem, step.job, (*_seen, application)))
+            steps.extend(application_steps(subsystem, step.job, (*_seen, application), given))
         elif step.job in subsystem.jobs:
-            steps.append((step.job, dict(step.arguments)))
+            arguments = dict(step.arguments)
+            variable = subsystem.jobs[step.job].object
+            if variable is not None and variable not in arguments and given is not None:
+                arguments[variable] = given
+            steps.append((step.job, arguments))
     return steps
 
 

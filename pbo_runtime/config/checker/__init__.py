@@ -33,6 +33,7 @@ from pbo_runtime.config.checker.model import (
     DriverLookup,
     ModuleLookup,
 )
+from pbo_runtime.config.checker.objects import ObjectChecks
 from pbo_runtime.config.checker.sections import SectionChecks
 from pbo_runtime.config.checker.tasks import TaskChecks
 from pbo_runtime.config.checker.timing import TimingChecks
@@ -60,7 +61,7 @@ __all__ = [
 
 
 class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, TaskChecks, ConfigurationChecks, ClaimChecks,
-               JobChecks, TimingChecks, CheckerBase):
+               ObjectChecks, JobChecks, TimingChecks, CheckerBase):
     """The whole checker: the core (`CheckerBase`) with every rule, one mixin a concept, and the pass."""
 
     def run(self, doc: Any, doc_loc: Location) -> Checked:
@@ -86,6 +87,8 @@ class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, Tas
         self.check_variables(top)
         self.check_tasks(top)  # also makes the variables no entry types, from their ports
         self.check_table_size(top)
+        self.check_object_types(top)  # after the tasks: an object variable's type may come from its ports
+        self.check_objects(top)
         self.check_configurations(top)
         self.check_jobs(top)
         self.check_applications(top)

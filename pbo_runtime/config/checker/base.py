@@ -48,6 +48,8 @@ class CheckerBase:
         self.device_names: set[str] = set()
         self.sources: dict[str, list[str]] = {}
         self.app_names: set[str] = set()
+        self.bad_object_types: set[str] = set()  # object types refused (reported there): no follow-on errors
+        self.object_locs: dict[str, Location] = {}  # every object named under objects:, right or wrong
         self._port_shapes: dict[Any, tuple[int, ...]] = {}  # a port's declared shape -> resolved with the dims
         # variables no entry (or an entry without a type) declares, which take their type and shape from their ports
         self.var_partial: dict[str, _PartialVariable] = {}  # an entry that gives no type: the rest of it

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
 import graphlib
 import re
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from pbo_runtime.config.checker.base import CheckerBase
 import numpy as np
-from pbo_runtime.config.checker.model import JOB_KEYS
+from pbo_runtime.config.checker.model import JOB_KEYS, NO_OBJECT
 from pbo_runtime.config.checker.words import describe, did_you_mean
-from pbo_runtime.config.model import NOWHERE, ApplicationSpec, ApplicationStep, JobSpec, Location
+from pbo_runtime.config.model import NOWHERE, ApplicationSpec, ApplicationStep, Gap, JobSpec, Location
 from pbo_runtime.config.expressions import ALLOWED, ExpressionError, compile_condition
 from pbo_runtime.config.units import TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
@@ -20,7 +22,11 @@ class JobChecks(CheckerBase):
     """Rules for `jobs:` and `applications:`."""
 
     if TYPE_CHECKING:  # rules of other mixins this one calls; the whole checker has them
-        def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str) -> np.ndarray | None: ...
+        def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str,
+                        owner: str = "the variable's shape") -> np.ndarray | None: ...
+        def check_object_names(self) -> None: ...
+        def objects_of_type(self, type_name: str | None) -> str: ...
+        def job_written(self) -> set[str]: ...
 
     def check_expression(self, value: Any, loc: Location, what: str) -> str | None:
         """A job condition in the restricted language of `config.expressions`, naming declared variables."""
@@ -99,13 +105,16 @@ class JobChecks(CheckerBase):
                     ok = False
                 ok = ok and config is not None
             obj = None
-            if "object" in spec and spec["object"] is not None:
+            written = "object" in spec and spec["object"] is not None  # `object: null` is left out, like every key
+            if written:
                 loc = spec.value_loc("object")
                 obj = self.text(spec["object"], loc, f"object of job '{name}'")
-                if obj is not None and obj not in self.var_locs:
+                if obj is None or obj == NO_OBJECT:
+                    pass  # not text (reported), or `object: none`: the job is an action
+                elif obj not in self.var_locs:
                     self.error("E213", f"job '{name}' takes object '{obj}', which 'variables' does not declare", loc, did_you_mean(obj, self.var_object or self.var_locs, "objects"))
                     ok = False
-                elif obj is not None and obj not in self.var_object:
+                elif obj not in self.var_object:
                     self.error(
                         "E701",
                         f"job '{name}' takes variable '{obj}' as its object, but the variable is not marked as an object",
@@ -114,6 +123,11 @@ class JobChecks(CheckerBase):
                     )
                     ok = False
                 ok = ok and obj is not None
+            if ok and config is not None:
+                obj = self.job_object(name, config, obj if written else None, spec.value_loc("object") if written else key_loc)
+                ok = obj != ""
+            if obj == NO_OBJECT:
+                obj = None
             pre = post = None
             if "pre" in spec and spec["pre"] is not None:
                 pre = self.check_expression(spec["pre"], spec.value_loc("pre"), f"pre-condition of job '{name}'")
@@ -126,12 +140,54 @@ class JobChecks(CheckerBase):
                 timeout = self.quantity(spec["timeout"], spec.value_loc("timeout"), TIME, f"timeout of job '{name}'")
                 ok = ok and timeout is not None
             if ok and config is not None:
-                self.out.jobs[name] = JobSpec(name, config, obj, pre, post, timeout, key_loc)
+                kind = self.var_object.get(obj) if obj is not None else None
+                self.out.jobs[name] = JobSpec(name, config, obj, pre, post, timeout, key_loc, kind)
+
+    def job_object(self, job: str, config: str, written: str | None, loc: Location) -> str | None:
+        """The variable a job's object goes to: inferred from its configuration's tasks (Onika §4.3.3).
+
+        A task needs user input when it reads a variable marked `object:` that no task of the
+        configuration writes: job control writes it, from the object the job is given. `written`
+        is the job's own `object:` (None if left out, NO_OBJECT for `object: none`), checked against
+        that. Returns the variable, None (an action), or "" after an error.
+        """
+        members = [self.tasks.get(t) for t, _ in self.config_members.get(config, [])]
+        if any(task is None or not task.ok for task in members):
+            return written  # a task's ports are unknown: what it reads is too (reported at the task)
+        outputs = {b.variable: task.name for task in members if task is not None for b in task.bindings if not b.port.kind.is_input}
+        needed: dict[str, str] = {}  # object variable -> the first task that reads it
+        for task in members:
+            assert task is not None
+            for b in task.bindings:
+                if b.port.kind.is_input and b.variable in self.var_object and b.variable not in outputs:
+                    needed.setdefault(b.variable, task.name)
+        need = ", ".join(f"'{v}' (type {self.var_object[v]}, read by '{t}')" for v, t in needed.items())
+        if written == NO_OBJECT:
+            return NO_OBJECT
+        if written is not None:
+            touched = {b.variable for task in members if task is not None for b in task.bindings}
+            if written in needed or written in touched:
+                return written  # an out-var takes over the value it finds when it is turned on, too
+            unwritten = {b.variable for task in members if task is not None for b in task.bindings
+                         if b.port.kind.is_input and b.variable not in outputs} - self.job_written()
+            if unwritten:
+                return written  # the configuration is broken itself (E403 there): what it needs is not known
+            self.error("E715", f"job '{job}' takes object '{written}', but no task of configuration '{config}' reads or writes it", loc,
+                       f"its tasks need {need}: write that, or leave object: out to infer it" if needed
+                       else "its tasks need no object: remove object:, and the job is an action")
+            return ""
+        if len(needed) > 1:
+            self.error("E716", f"job '{job}' needs more than one object: configuration '{config}' reads {need}, "
+                               "but a job takes one", loc,
+                       f"choose the one its steps give with object: <variable> (the others keep their value), "
+                       f"or object: {NO_OBJECT}")
+            return ""
+        return next(iter(needed), None)
 
     def check_applications(self, top: YMap) -> None:
         """Steps interlock (Onika §4.4.1-4.4.2); applications nest without cycles; gaps make them incomplete."""
         entries: list[tuple[str, Location, Any, Location]] = []
-        for name, value, key_loc, value_loc in self.entries(top, "applications", "application", "e.g. applications: {demo: [move, {move: {q_d: [0, 0, 0]}}]}"):
+        for name, value, key_loc, value_loc in self.entries(top, "applications", "application", "e.g. applications: {demo: [move, {move: home}]}"):
             if name in self.job_names:
                 self.error(
                     "E214",
@@ -142,42 +198,132 @@ class JobChecks(CheckerBase):
                 continue
             self.app_names.add(name)
             entries.append((name, key_loc, value, value_loc))
-        parsed: dict[str, tuple[list[ApplicationStep], set[int], Location]] = {}
+        self.check_object_names()
+        parsed: dict[str, tuple[list[_Step], Location]] = {}
         for name, key_loc, value, loc in entries:
             if not isinstance(value, YList):
-                self.error("E113", f"application '{name}' must be a list of job steps, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [move, {{move: {{q_d: [0, 0, 0]}}}}]")
+                self.error("E113", f"application '{name}' must be a list of job steps, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [move, {{move: home}}]")
                 continue
-            steps: list[ApplicationStep] = []
-            gaps: set[int] = set()  # step numbers whose job lacks its object
+            steps: list[_Step] = []
             ok = True
             for i, item in enumerate(value):
                 checked = self.check_step(name, i + 1, item, value.item_loc(i))
                 if checked is None:
                     ok = False
                     continue
-                step, gap = checked
-                steps.append(step)
-                if gap:
-                    gaps.add(i + 1)
+                steps.append(checked)
             if ok:
-                parsed[name] = (steps, gaps, key_loc)
-        graph = {name: {s.job for s in steps if s.is_application} for name, (steps, _, _) in parsed.items()}
+                parsed[name] = (steps, key_loc)
+        graph = {name: {s.step.job for s in steps if s.step.is_application} for name, (steps, _) in parsed.items()}
         order = self.application_order(graph, {name: loc for name, _, _, loc in entries}, {name: k for name, k, _, _ in entries})
-        complete: dict[str, bool] = {}
         for name in order:
-            steps, gaps, key_loc = parsed[name]
-            whole = not gaps
-            for number, step in enumerate(steps, 1):
-                if step.is_application and step.job in complete and not complete[step.job]:
-                    whole = False
+            steps, key_loc = parsed[name]
+            built: list[ApplicationStep] = []
+            gaps: list[Gap] = []
+            ok = True
+            for number, item in enumerate(steps, 1):
+                step = item.step
+                if not step.is_application:
+                    built.append(step)
+                    if item.gap is not None:
+                        gaps.append(Gap(number, step.job, item.gap))
+                    continue
+                inner = self.out.applications.get(step.job)
+                if inner is None:
+                    ok = False  # it is wrong itself, and was reported there
+                    continue
+                if item.given is not None:
+                    filled = self.fill_application(name, number, inner, item)
+                    if filled is None:
+                        ok = False
+                        continue
+                    built.append(filled)
+                    continue
+                built.append(step)
+                if inner.gaps:
+                    gaps.append(Gap(number, step.job, inner.object_type))
+                    fix = (f"give it an object of type {inner.object_type} ('- {step.job}: <object>') or fill the gaps of '{step.job}'"
+                           if inner.object_type else f"fill the gaps of '{step.job}' first")
                     self.warn(
                         "W702",
                         f"application '{name}' is incomplete: step {number} '{step.job}' is the incomplete application '{step.job}'",
                         step.loc,
-                        f"fill the gaps of '{step.job}' first; an incomplete application may be kept but not run",
+                        f"{fix}; an incomplete application may be kept but not run",
                     )
-            complete[name] = whole
-            self.out.applications[name] = ApplicationSpec(name, tuple(steps), key_loc, whole)
+            if ok:
+                self.out.applications[name] = ApplicationSpec(name, tuple(built), key_loc, not gaps, tuple(gaps))
+
+    def fill_application(self, app: str, number: int, inner: ApplicationSpec, item: _Step) -> ApplicationStep | None:
+        """A step giving an object to an application: one object of the one type of its gaps fills them all (Onika §4.4.2)."""
+        step, given, given_loc = item.step, item.given, item.given_loc
+        if not inner.gaps:
+            self.error(
+                "E709",
+                f"step {number} of application '{app}' gives objects to application '{step.job}', which takes none",
+                location_of(given, given_loc),
+                f"application '{step.job}' is complete: it has no gap to fill; write '- {step.job}'",
+            )
+            return None
+        kind = inner.object_type
+        if kind is None:
+            kinds = sorted({str(g.object_type) for g in _inner_gaps(self.out.applications, step.job)})
+            where = ", ".join(f"step {g.step} '{g.job}' ({g.object_type or 'several'})" for g in inner.gaps)
+            self.error(
+                "E718",
+                f"step {number} of application '{app}' gives an object to application '{step.job}', whose gaps need "
+                f"objects of types {', '.join(kinds)}: no one object fills them ({where})",
+                location_of(given, given_loc),
+                f"give the objects to the steps inside application '{step.job}'",
+            )
+            return None
+        if isinstance(given, str):
+            return self.named_object(app, number, step.job, "application", kind, given, given_loc, step)
+        m = self.mapping(given, given_loc, f"object of application '{step.job}' in application '{app}'",
+                         f"e.g. - {step.job}: <object name>, or - {step.job}: {{{kind}: <value>}}")
+        if m is None:
+            return None
+        keys = list(m)
+        if len(keys) != 1 or keys[0] != kind:
+            wrong = keys[1] if len(keys) > 1 else keys[0] if keys else None
+            self.error(
+                "E706" if len(keys) > 1 else "E707",
+                f"step {number} of application '{app}' gives {', '.join(str(k) for k in keys) or 'nothing'} to application "
+                f"'{step.job}', whose gaps take one object of type {kind}",
+                m.key_loc(wrong) if wrong is not None else location_of(m, given_loc),
+                f"write '- {step.job}: {{{kind}: <value>}}', or name an object of type {kind}: {self.objects_of_type(kind)}",
+            )
+            return None
+        value = m[kind]
+        if isinstance(value, str):
+            return self.named_object(app, number, step.job, "application", kind, value, m.value_loc(kind), step)
+        object_type = self.out.object_types[kind]
+        array = self.check_value(value, m.value_loc(kind), object_type.dtype, object_type.shape,
+                                 f"object of step {number} of application '{app}'", f"the shape of object type '{kind}'")
+        if array is None:
+            return None
+        return dataclasses.replace(step, fill=plain(value))
+
+    def named_object(self, app: str, number: int, target: str, what: str, kind: str | None, name: str, loc: Location,
+                     step: ApplicationStep) -> ApplicationStep | None:
+        """A step that gives a named object: it exists, and its type is the one the job or application needs."""
+        obj = self.out.objects.get(name)
+        if kind in self.bad_object_types:
+            return None  # the type itself is wrong, and was reported there
+        if obj is None:
+            if name in self.object_locs:
+                return None  # the object is wrong itself, and was reported there
+            fitting = [o.name for o in self.out.objects.values() if o.type == kind]
+            self.error("E714", f"step {number} of application '{app}' gives object '{name}' to {what} '{target}', "
+                               "but 'objects' declares no such object", loc,
+                       did_you_mean(name, fitting, f"objects of type {kind}") if fitting
+                       else f"declare it: objects: {{{name}: {{type: {kind}, value: <value>}}}}")
+            return None
+        if obj.type != kind:
+            self.error("E713", f"step {number} of application '{app}' gives object '{name}' of type {obj.type} to {what} "
+                               f"'{target}', which needs an object of type {kind}", loc,
+                       f"objects of type {kind}: {self.objects_of_type(kind)}")
+            return None
+        return dataclasses.replace(step, object=name)
 
     def application_order(self, graph: dict[str, set[str]], locs: dict[str, Location], key_locs: dict[str, Location]) -> list[str]:
         """Applications with the ones they use first; those on a cycle are reported and left out."""
@@ -205,8 +351,8 @@ class JobChecks(CheckerBase):
                         changed = True
             return self.application_order(rest, locs, key_locs) if rest else []
 
-    def check_step(self, app: str, number: int, item: Any, loc: Location) -> tuple[ApplicationStep, bool] | None:
-        """One step and whether it leaves a gap (a job without its object); None if it is wrong."""
+    def check_step(self, app: str, number: int, item: Any, loc: Location) -> _Step | None:
+        """One step as far as it can be checked before the applications it uses are: None if it is wrong."""
         args: Any = None
         args_loc = loc
         if isinstance(item, str):
@@ -223,21 +369,13 @@ class JobChecks(CheckerBase):
         else:
             self.error(
                 "E113",
-                f"step {number} of application '{app}' must be a job name or {{job: {{object: value}}}}, got: {describe(item)}",
+                f"step {number} of application '{app}' must be a job name or {{job: object}}, got: {describe(item)}",
                 location_of(item, loc),
-                "e.g. - move: {q_d: [0, -0.5, 0.5, 0, 0, 0]}",
+                "e.g. - move: home, or - move: {q_d: [0, -0.5, 0.5, 0, 0, 0]}",
             )
             return None
         if job not in self.job_names and job in self.app_names:
-            if args is not None:
-                self.error(
-                    "E709",
-                    f"step {number} of application '{app}' gives objects to application '{job}', which takes none",
-                    location_of(args, args_loc),
-                    f"give the objects to the steps inside application '{job}'",
-                )
-                return None
-            return ApplicationStep(job, {}, loc, is_application=True), False
+            return _Step(ApplicationStep(job, {}, loc, is_application=True), None, args, args_loc)
         if job not in self.job_names:
             self.error("E211", f"step {number} of application '{app}' runs job '{job}', which 'jobs' does not declare", loc,
                        did_you_mean(job, self.job_names | self.app_names, "jobs and applications"))
@@ -245,9 +383,18 @@ class JobChecks(CheckerBase):
         spec = self.out.jobs.get(job)
         if spec is None:
             return None  # the job itself is wrong, and was reported there
+        step = ApplicationStep(job, {}, loc)
+        kind = spec.object_type
+        if isinstance(args, str):
+            if spec.object is None:
+                self.error("E705", f"step {number} of application '{app}' gives object '{args}' to job '{job}', which takes no object",
+                           args_loc, f"write '- {job}', or give job '{job}' an object: in 'jobs'")
+                return None
+            named = self.named_object(app, number, job, "job", kind, args, args_loc, step)
+            return None if named is None else _Step(named, None)
         arguments: dict[str, Any] = {}
         if args is not None:
-            m = self.mapping(args, args_loc, f"arguments of job '{job}' in application '{app}'", "e.g. move: {q_d: [0, 0, 0]}")
+            m = self.mapping(args, args_loc, f"arguments of job '{job}' in application '{app}'", f"e.g. - {job}: home, or - {job}: {{q_d: [0, 0, 0]}}")
             if m is None:
                 return None
             names = list(m)
@@ -259,7 +406,6 @@ class JobChecks(CheckerBase):
                     f"remove the object, or give job '{job}' an object: in 'jobs'",
                 )
                 return None
-            kind = self.var_object.get(str(spec.object), "?")
             if len(names) > 1:
                 self.error(
                     "E706",
@@ -275,12 +421,15 @@ class JobChecks(CheckerBase):
                         "E707",
                         f"step {number} of application '{app}' gives '{var}' to job '{job}', but its object is '{spec.object}' (type {kind})",
                         m.key_loc(var),
-                        f"write '- {job}: {{{spec.object}: <value>}}'",
+                        f"write '- {job}: {{{spec.object}: <value>}}', or name an object of type {kind}: {self.objects_of_type(kind)}",
                     )
                     return None
                 variable = self.out.variables.get(str(var))
                 if variable is None:
                     return None  # the job's own object is wrong, and was reported there
+                if isinstance(val, str):
+                    named = self.named_object(app, number, job, "job", kind, val, m.value_loc(var), step)
+                    return None if named is None else _Step(named, None)
                 array = self.check_value(val, m.value_loc(var), variable.dtype, variable.shape, f"object '{var}' of step {number} of application '{app}'")
                 if array is None:
                     return None
@@ -289,11 +438,33 @@ class JobChecks(CheckerBase):
         if gap:
             self.warn(
                 "W701",
-                f"application '{app}' is incomplete: step {number} '{job}' needs an object of type {self.var_object.get(str(spec.object), '?')}",
+                f"application '{app}' is incomplete: step {number} '{job}' needs an object of type {kind}",
                 loc,
-                f"give it as '- {job}: {{{spec.object}: <value>}}'; an incomplete application may be kept but not run",
+                f"give it as '- {job}: <object>' (of type {kind}: {self.objects_of_type(kind)}) or '- {job}: {{{spec.object}: <value>}}'; "
+                "an incomplete application may be kept but not run",
             )
-        return ApplicationStep(job, arguments, loc), gap
+        return _Step(dataclasses.replace(step, arguments=arguments), kind if gap else None)
+
+
+@dataclass(frozen=True)
+class _Step:
+    """A step as `check_step` left it: a job's step whole; an application's with what it was given, checked later."""
+
+    step: ApplicationStep
+    gap: str | None  # a job step without its object: the object type it needs
+    given: Any = None  # an application step's object (a name, or {type: value}), as written
+    given_loc: Location = NOWHERE
+
+
+def _inner_gaps(applications: dict[str, ApplicationSpec], name: str) -> list[Gap]:
+    """The gaps of an application and, for a gap that is an incomplete application, its own (for a message)."""
+    spec = applications.get(name)
+    if spec is None:
+        return []
+    found: list[Gap] = []
+    for gap in spec.gaps:
+        found.extend(_inner_gaps(applications, gap.job) if gap.object_type is None else [gap])
+    return found
 
 
 def _name_offset(text: str, name: str) -> int:

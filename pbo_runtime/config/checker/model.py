@@ -16,6 +16,8 @@ from pbo_runtime.config.model import (
     DeviceSpec,
     JobSpec,
     Location,
+    ObjectSpec,
+    ObjectTypeSpec,
     PlantSpec,
     RtpuSpec,
     TaskSpec,
@@ -35,6 +37,8 @@ TOP_KEYS = (
     "devices",
     "dims",
     "variables",
+    "object_types",
+    "objects",
     "tasks",
     "configurations",
     "jobs",
@@ -47,6 +51,9 @@ TASK_KEYS = (
     "priority", "critical", "params", "ports", "resources", "fresh_within",
 )
 JOB_KEYS = ("configuration", "object", "pre", "post", "timeout")
+OBJECT_TYPE_KEYS = ("type", "shape", "unit", "doc")
+OBJECT_KEYS = ("type", "value", "doc")
+NO_OBJECT = "none"  # `object: none`: a job that takes no object, its tasks reading the variable as it is
 DEVICE_KEYS = ("driver", "exclusive", "io")  # every other key of a device is a driver option
 CLAIM_KEYS = ("device", "channels")  # a resource or an io: given as {device: adc0, channels: 0-5}
 BUS_KEYS = ("bandwidth", "lock_overhead")
@@ -74,6 +81,8 @@ class Checked:
     configurations: dict[str, ConfigurationSpec] = field(default_factory=dict)
     jobs: dict[str, JobSpec] = field(default_factory=dict)
     applications: dict[str, ApplicationSpec] = field(default_factory=dict)
+    object_types: dict[str, ObjectTypeSpec] = field(default_factory=dict)
+    objects: dict[str, ObjectSpec] = field(default_factory=dict)
     init_order: tuple[str, ...] = ()
     inferred: list[str] = field(default_factory=list)  # variables whose type or shape came from their ports
     robot_dims: dict[str, int] = field(default_factory=dict)  # dims 'dims:' left out, taken from the plant's robot

@@ -86,8 +86,9 @@ class VariableChecks(CheckerBase):
                        top.key_loc("variables") if "variables" in top else top.loc,
                        "the largest: " + ", ".join(f"'{v.name}' {_show_shape(v.shape)} {v.dtype}" for v in reversed(biggest)))
 
-    def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str) -> np.ndarray | None:
-        """A value for a variable (initial or a job's argument) as an array, or an error."""
+    def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str,
+                    owner: str = "the variable's shape") -> np.ndarray | None:
+        """A value for a variable (initial or a job's argument), or of an object type (`owner`), as an array, or an error."""
         if isinstance(value, dict):
             self.error("E310", f"{what} must be a number or a list, got: a mapping", location_of(value, loc))
             return None
@@ -103,7 +104,7 @@ class VariableChecks(CheckerBase):
         if isinstance(value, list) and found != shape:
             self.error(
                 "E312",
-                f"{what} has shape {_show_shape(found)}, but the variable's shape is {_show_shape(shape)}",
+                f"{what} has shape {_show_shape(found)}, but {owner} is {_show_shape(shape)}",
                 location_of(value, loc),
                 f"give a nested list of shape {_show_shape(shape)}, or one number for every element",
             )

@@ -8,10 +8,12 @@ until told to stop. A module that raises never takes this process down (see `Tas
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
 import traceback
+from typing import Callable
 
 import posix_ipc
 
@@ -19,6 +21,7 @@ from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import messages, process
 from pbo_runtime.objects import registry
 from pbo_runtime.clock.clocks import RealClock, SimClock
+from pbo_runtime.config.live import from_wire
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import DEFAULT_SPIN, DeviceSpec, TaskSpec
 from pbo_runtime.task.lifecycle import Task
@@ -28,6 +31,15 @@ from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import StateTable, TableLayout
 from rtpu import _realtime
 from rtpu._executive import Executive
+
+
+@dataclasses.dataclass
+class LiveStage:
+    """A live description this RTPU read, staged for the next plan (`_executive.LiveStage`)."""
+
+    reconfiguration: Reconfiguration
+    specs: dict[str, TaskSpec]
+    factories: dict[str, Callable[[], Task]]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -43,6 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tick", type=float, default=0.001, help="seconds per tick of the simulated clock")
     parser.add_argument("--out", default="", help="directory the modules write their files into")
     parser.add_argument("--links", default="{}", help="JSON: the application's links, by name (see _links)")
+    parser.add_argument("--live", default="", help="directory of the run's live descriptions (live-N.json, `LiveUpdate`)")
     args = parser.parse_args(argv)
     if args.parent:
         become_child(args.parent)
@@ -81,16 +94,28 @@ def main(argv: list[str] | None = None) -> int:
         realtime = {**_realtime.apply(rtpu.cpu, args.fifo), "spin": f"{args.spin * 1e6:g} µs"}
         simulated = args.clock == "sim"
         clock = SimClock(table.header, args.tick) if simulated else RealClock(args.spin)
-        executive = Executive(clock, signals, report, epoch=args.epoch, header=table.header, report_at_stop=report_at_stop,
-                              reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
-                              n_rtpus=len(subsystem.rtpus))
-        for spec in subsystem.tasks_on(args.rtpu):
+        def factory(spec: TaskSpec):
             module_class = registry.module_class(spec.module)
 
-            def make(spec=spec, module_class=module_class) -> Task:
+            def make() -> Task:
                 return Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device,
                             out_dir=args.out, links=links, relay=relay)
 
+            return make
+
+        def live_stage(sequence: int) -> LiveStage:
+            # A live change: the description job control checked, as plain data (config.live.to_wire);
+            # read between cycles, never during one
+            with open(os.path.join(args.live, f"live-{sequence}.json"), encoding="utf-8") as stream:
+                live = from_wire(subsystem, json.load(stream))
+            return LiveStage(Reconfiguration(live), dict(live.tasks),
+                             {spec.name: factory(spec) for spec in live.tasks_on(args.rtpu)})
+
+        executive = Executive(clock, signals, report, epoch=args.epoch, header=table.header, report_at_stop=report_at_stop,
+                              reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
+                              n_rtpus=len(subsystem.rtpus), live_loader=live_stage if args.live else None)
+        for spec in subsystem.tasks_on(args.rtpu):
+            make = factory(spec)
             executive.add(make(), make)
         if simulated:
             barrier = LockstepParticipant(name, args.run_id, args.rtpu, table.header)

@@ -2,7 +2,9 @@
 
 It loads and checks the same YAML file as the supervisor, attaches to the run's table (the
 layout hash proves they agree), hosts the tasks the file assigns to it, and runs the executive
-until told to stop. A module that raises never takes this process down (see `Task`).
+until told to stop. A module that raises never takes this process down (see `Task`). A live
+change comes as a `LiveUpdate`: it reads the run's live description (`live-N.json`, plain data
+written by job control) and stages it for the next plan.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import json
 import os
 import sys
 import traceback
-from typing import Callable
+from typing import Any, Callable
 
 import posix_ipc
 
@@ -21,7 +23,7 @@ from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import messages, process
 from pbo_runtime.objects import registry
 from pbo_runtime.clock.clocks import RealClock, SimClock
-from pbo_runtime.config.live import from_wire
+from pbo_runtime.config.live import task_from_wire
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import DEFAULT_SPIN, DeviceSpec, TaskSpec
 from pbo_runtime.task.lifecycle import Task
@@ -38,7 +40,8 @@ class LiveStage:
     """A live description this RTPU read, staged for the next plan (`_executive.LiveStage`)."""
 
     reconfiguration: Reconfiguration
-    specs: dict[str, TaskSpec]
+    tasks: dict[str, tuple[int, Any]]  # every task of the live description: (status block, params)
+    spec: Callable[[str], TaskSpec]  # a task's full spec (its module looked up)
     factories: dict[str, Callable[[], Task]]
 
 
@@ -104,12 +107,23 @@ def main(argv: list[str] | None = None) -> int:
             return make
 
         def live_stage(sequence: int) -> LiveStage:
-            # A live change: the description job control checked, as plain data (config.live.to_wire);
-            # read between cycles, never during one
+            # A live change: the description job control checked, as plain data (config.live.to_wire),
+            # read between cycles. No module is looked up here but for a task this RTPU will spawn or
+            # tune (`spec`): the RTPU of a critical task spends well under a millisecond on it.
             with open(os.path.join(args.live, f"live-{sequence}.json"), encoding="utf-8") as stream:
-                live = from_wire(subsystem, json.load(stream))
-            return LiveStage(Reconfiguration(live), dict(live.tasks),
-                             {spec.name: factory(spec) for spec in live.tasks_on(args.rtpu)})
+                data = json.load(stream)
+            tasks = data["tasks"]
+            reconfiguration = Reconfiguration.of_members(
+                data["configurations"], {name: (t["index"], t["period"], t["writes"]) for name, t in tasks.items()})
+
+            def spec(name: str) -> TaskSpec:
+                return task_from_wire(subsystem, name, tasks[name])
+
+            def lazy(name: str) -> Callable[[], Task]:
+                return lambda: factory(spec(name))()
+
+            return LiveStage(reconfiguration, {name: (t["index"], t["params"]) for name, t in tasks.items()}, spec,
+                             {name: lazy(name) for name, t in tasks.items() if t["rtpu"] == args.rtpu})
 
         executive = Executive(clock, signals, report, epoch=args.epoch, header=table.header, report_at_stop=report_at_stop,
                               reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,

@@ -171,7 +171,8 @@ class LiveStage(Protocol):
     """A live description an RTPU read (`LiveUpdate`), staged until the next plan applies it."""
 
     reconfiguration: Reconfiguration
-    specs: dict[str, Any]  # task -> its TaskSpec in the live description (every task, any RTPU)
+    tasks: dict[str, tuple[int, Any]]  # every task of the live description: (status block, params)
+    spec: Callable[[str], Any]  # a task's full TaskSpec (its module looked up: only for a task hosted here)
     factories: dict[str, Callable[[], Task]]  # this RTPU's tasks, each made afresh from its live spec
 
 
@@ -208,6 +209,7 @@ class Executive:
         # and the next plan swaps it in at its cycle boundary (`apply_plan`), tunes included.
         self.live_loader = live_loader
         self.staged: LiveStage | None = None
+        self.staged_tunes: dict[str, Any] = {}  # hosted task -> its new spec, when its parameters changed
 
     # --- the loop ---------------------------------------------------------------------------
 
@@ -484,8 +486,8 @@ class Executive:
         configuration = int(header[Header.PLAN_CONFIGURATION])
         activation = header[Header.PLAN_TIME_NS] / 1e9
         if self.staged is not None:  # a live change: its configurations and tunes, at this boundary
-            self._swap_in(self.staged)
-            self.staged = None
+            self._swap_in(self.staged, self.staged_tunes)
+            self.staged, self.staged_tunes = None, {}
         view = self.reconfiguration.views[configuration]
         self.report_windows(sequence)
         leaving = [s for s in self.on if s.task.name not in view.members]
@@ -510,16 +512,13 @@ class Executive:
         self.report(Switched(sequence, view.name, activation, applied_at, done_at,
                              [s.task.name for s in leaving], [s.task.name for s in entering]))
 
-    def _swap_in(self, stage: LiveStage) -> None:
+    def _swap_in(self, stage: LiveStage, tunes: dict[str, Any]) -> None:
         """The staged live description becomes this RTPU's: who is in which configuration, who writes
         what; tasks whose tunable parameters changed take them now, between two cycles."""
         self.reconfiguration = stage.reconfiguration
-        for name, s in self.tasks.items():
-            spec = stage.specs.get(name)
-            if spec is None or spec.index != s.task.index or spec.params == s.task.spec.params:
-                continue
+        for name, spec in tunes.items():
             try:
-                s.task.tune(spec)
+                self.tasks[name].task.tune(spec)
             except Exception as exc:  # noqa: BLE001 - the checker passed the values: a module that refuses them says why
                 self.report(Refused(name, f"tune: {exc}"))
 
@@ -633,10 +632,15 @@ class Executive:
             if self.live_loader is None:
                 raise RuntimeError("this RTPU was started without a live description")
             stage = self.live_loader(sequence)
+            tunes = {}
+            for name, s in self.tasks.items():
+                index, params = stage.tasks.get(name, (-1, None))
+                if index == s.task.index and params != s.task.spec.params and s.task.state != TaskState.KILLED:
+                    tunes[name] = stage.spec(name)  # built now: the boundary only calls tune
         except Exception as exc:  # noqa: BLE001 - job control refuses the change and says why
             self.report(messages.Staged(sequence, f"{type(exc).__name__}: {exc}"))
             return
-        self.staged = stage
+        self.staged, self.staged_tunes = stage, tunes
         self.factories.update(stage.factories)
         self.report(messages.Staged(sequence))
 

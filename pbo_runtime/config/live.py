@@ -334,6 +334,7 @@ def to_wire(subsystem: Subsystem) -> dict[str, Any]:
         "tasks": {name: {"module": t.module, "rtpu": t.rtpu, "period": t.period, "priority": t.priority,
                          "critical": t.critical, "params": plain(dict(t.params)),
                          "bindings": [[b.port.name, b.variable, list(b.shape)] for b in t.bindings],
+                         "writes": [b.variable for b in t.bindings if not b.port.kind.is_input and b.port.kind.every_cycle],
                          "resources": list(t.resources), "index": t.index, "wcet": t.wcet, "aperiodic": t.aperiodic,
                          "min_interarrival": t.min_interarrival,
                          "resource_channels": {d: list(c) for d, c in t.resource_channels.items()},
@@ -344,18 +345,22 @@ def to_wire(subsystem: Subsystem) -> dict[str, Any]:
 
 def from_wire(base: Subsystem, data: Mapping[str, Any], module_lookup: Callable[[str], Any] = registry.module_class) -> Subsystem:
     """The live subsystem `to_wire` describes, on the file's `base` (its variables, devices, RTPUs)."""
-    tasks: dict[str, TaskSpec] = {}
-    for name, t in data["tasks"].items():
-        module_class = module_lookup(t["module"])
-        ports = {port.name: port for port in module_class.ports_for(module_class.build_params(dict(t["params"])))}
-        bindings = tuple(PortBinding(ports[port], variable, tuple(shape)) for port, variable, shape in t["bindings"])
-        known = base.tasks.get(name)
-        tasks[name] = TaskSpec(name, t["module"], t["rtpu"], float(t["period"]), int(t["priority"]), bool(t["critical"]),
-                               dict(t["params"]), bindings, tuple(t["resources"]), int(t["index"]),
-                               known.loc if known is not None else NOWHERE, t["wcet"], bool(t["aperiodic"]),
-                               t["min_interarrival"], {d: tuple(c) for d, c in t["resource_channels"].items()},
-                               dict(t["fresh_within"]))
+    tasks = {name: task_from_wire(base, name, t, module_lookup) for name, t in data["tasks"].items()}
     configurations = {name: ConfigurationSpec(name, tuple(members), base.configurations[name].loc
                                               if name in base.configurations else NOWHERE)
                       for name, members in data["configurations"].items()}
     return dataclasses.replace(base, tasks=tasks, configurations=configurations, init_order=tuple(data["init_order"]))
+
+
+def task_from_wire(base: Subsystem, name: str, t: Mapping[str, Any],
+                   module_lookup: Callable[[str], Any] = registry.module_class) -> TaskSpec:
+    """One task's spec from `to_wire`'s data (its module is looked up: do it only for a task to host)."""
+    module_class = module_lookup(t["module"])
+    ports = {port.name: port for port in module_class.ports_for(module_class.build_params(dict(t["params"])))}
+    bindings = tuple(PortBinding(ports[port], variable, tuple(shape)) for port, variable, shape in t["bindings"])
+    known = base.tasks.get(name)
+    return TaskSpec(name, t["module"], t["rtpu"], float(t["period"]), int(t["priority"]), bool(t["critical"]),
+                    dict(t["params"]), bindings, tuple(t["resources"]), int(t["index"]),
+                    known.loc if known is not None else NOWHERE, t["wcet"], bool(t["aperiodic"]),
+                    t["min_interarrival"], {d: tuple(c) for d, c in t["resource_channels"].items()},
+                    dict(t["fresh_within"]))

@@ -216,6 +216,9 @@ def test_save_then_check_gives_the_live_subsystem_back_with_the_comments_kept(ho
     assert reply["edits"] == 4 and "WARNING" not in reply["message"]
     text = saved.read_text()
     assert "# Dynamic reconfiguration on the arm (TR §4.4)" in text and "# yaml-language-server" in text
+    original = SUBSYSTEM.splitlines(keepends=True)
+    untouched = [line for line in original if not line.startswith(("  pid:", "          params: {kp: 400"))]
+    assert [line for line in text.splitlines(keepends=True) if line in original] == untouched  # as written, in order
     result = check_file(saved)
     assert result.ok, format_diagnostics(result)
     assert result.subsystem is not None and same_subsystem(result.subsystem, host.subsystem)

@@ -6,12 +6,17 @@ a spawned task's entry appended to `tasks:` and its configuration, a killed one 
 both, a replaced one's entry put in its place, a set parameter changed where it is written.
 ruamel.yaml only writes here: every file is still loaded by the project's own safe loader
 (`config.yaml_nodes`), and the saved file is checked by it before `pbo save` says it is done.
+
+ruamel.yaml re-flows what it writes (the alignment of `q_m:   {...}`, a flow mapping over two
+lines), so the saved text takes from the round trip only what the changes touched: the entries of
+`tasks:` and `configurations:` that changed; every other section and entry is the original's text.
 """
 
 from __future__ import annotations
 
 import io
 import os
+import re
 from typing import Any
 
 from ruamel.yaml import YAML
@@ -30,13 +35,52 @@ def saved_text(live: LiveDescription) -> str:
     yaml = YAML(typ="rt")
     yaml.preserve_quotes = True
     yaml.width = 4096  # long flow mappings stay on their line, as written
+    yaml.indent(mapping=2, sequence=4, offset=2)  # `  - item` under its key, as the shipped files write lists
     with open(live.file, encoding="utf-8") as stream:
-        doc = yaml.load(stream)
+        original = stream.read()
+    doc = yaml.load(original)
+    before = {name: list(members) for name, members in doc["configurations"].items()}
     for edit in live.edits:
         _replay(doc, edit)
     out = io.StringIO()
     yaml.dump(doc, out)
-    return out.getvalue()
+    touched = {"tasks": {name for edit in live.edits for name in (edit.task, edit.new) if name},
+               "configurations": {name for name, members in doc["configurations"].items()
+                                  if list(members) != before.get(name)}}
+    return _merged(original, out.getvalue(), touched)
+
+
+_KEY = {0: re.compile(r"^([A-Za-z_][\w-]*)\s*:"), 2: re.compile(r"^  ([A-Za-z_][\w-]*)\s*:")}
+
+
+def _chunks(text: str, indent: int) -> list[tuple[str | None, str]]:
+    """(key, text) of each entry at `indent`, from its key's line to the next key's; None: the text before the first."""
+    chunks: list[tuple[str | None, str]] = []
+    key: str | None = None
+    lines: list[str] = []
+    for line in text.splitlines(keepends=True):
+        match = _KEY[indent].match(line)
+        if match:
+            chunks.append((key, "".join(lines)))
+            key, lines = match.group(1), [line]
+        else:
+            lines.append(line)
+    chunks.append((key, "".join(lines)))
+    return chunks
+
+
+def _merged(original: str, dumped: str, touched: dict[str, set[str]]) -> str:
+    """`dumped`'s text where the changes are, `original`'s everywhere else (same keys, same order)."""
+    kept = dict(_chunks(original, 0))
+    parts = []
+    for key, text in _chunks(dumped, 0):
+        if key not in touched:
+            parts.append(kept.get(key, text))
+            continue
+        entries = dict(_chunks(kept.get(key, ""), 2))
+        parts.extend(entries.get(name, text) if name not in touched[key] and name in entries else text
+                     for name, text in _chunks(text, 2))
+    return "".join(parts)
 
 
 def save_live(live: LiveDescription, path: str) -> bool:

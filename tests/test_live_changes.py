@@ -255,3 +255,9 @@ def test_the_live_description_an_rtpu_reads_is_the_one_job_control_checked(tmp_p
     assert located_nowhere(back.tasks) == located_nowhere(live.subsystem.tasks)
     assert back.configurations.keys() == live.subsystem.configurations.keys()
     assert all(back.configurations[n].tasks == c.tasks for n, c in live.subsystem.configurations.items())
+
+
+def test_an_aperiodic_task_can_be_spawned_with_its_shortest_interarrival(host):
+    dispatch(host, "spawn", {**LOGGER, "period": None, "aperiodic": True, "min_interarrival": "20ms"})
+    spec = host.subsystem.tasks["logger"]
+    assert spec.aperiodic and spec.min_interarrival == pytest.approx(0.02)

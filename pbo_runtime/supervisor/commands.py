@@ -356,9 +356,10 @@ def _texts(arguments: dict[str, Any], key: str, what: str) -> list[str]:
 
 def _task_change(arguments: dict[str, Any]) -> TaskChange:
     """What `pbo spawn` and `pbo replace` say of the new task; values stay YAML text, the checker reads them."""
-    fields = {key: str(arguments[key]) for key in ("period", "priority") if arguments.get(key) is not None}
-    if arguments.get("critical"):
-        fields["critical"] = "true"
+    fields = {key: str(arguments[key]) for key in ("period", "priority", "min_interarrival") if arguments.get(key) is not None}
+    for flag in ("critical", "aperiodic"):
+        if arguments.get(flag):
+            fields[flag] = "true"
     try:
         return TaskChange(_text(arguments, "module", "--module", optional=True), _text(arguments, "rtpu", "--rtpu", optional=True),
                           fields, parse_assignments(_texts(arguments, "params", "--param"), "--param"),
@@ -473,6 +474,9 @@ _NEW_TASK = (
     Argument("--period", help="its period, with a unit: 10ms", key="period", metavar="P"),
     Argument("--priority", help="its priority among ready tasks", key="priority", metavar="N"),
     Argument("--critical", help="a critical task (runs first, watches its inputs)", key="critical", flag=True),
+    Argument("--aperiodic", help="released by events, not by a timer", key="aperiodic", flag=True),
+    Argument("--min-interarrival", help="an aperiodic task's shortest time between releases: 5ms", key="min_interarrival",
+             metavar="T"),
     Argument("--param", help="a parameter: --param kp=300 (YAML value)", key="params", nargs="+", extend=True,
              metavar="K=V"),
     Argument("--port", help="a port's variable: --port tau=tau_u", key="ports", nargs="+", extend=True, metavar="P=VAR"),

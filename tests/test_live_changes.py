@@ -261,3 +261,18 @@ def test_an_aperiodic_task_can_be_spawned_with_its_shortest_interarrival(host):
     dispatch(host, "spawn", {**LOGGER, "period": None, "aperiodic": True, "min_interarrival": "20ms"})
     spec = host.subsystem.tasks["logger"]
     assert spec.aperiodic and spec.min_interarrival == pytest.approx(0.02)
+
+
+def test_a_live_description_directory_a_dead_run_left_is_removed_and_a_live_runs_is_kept(tmp_path):
+    import os
+
+    from pbo_runtime.supervisor.live_changes import remove_dead_live_dirs
+
+    dead = tmp_path / "pbo-live-999999999-abc123-x1y2"  # no such pid
+    alive = tmp_path / f"pbo-live-{os.getpid()}-abc123-x1y2"
+    other = tmp_path / "pbo-live-notarun"
+    for folder in (dead, alive, other):
+        folder.mkdir()
+    (dead / "live-1.json").write_text("{}")
+    assert remove_dead_live_dirs(str(tmp_path)) == [str(dead)]
+    assert not dead.exists() and alive.exists() and other.exists()

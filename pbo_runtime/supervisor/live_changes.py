@@ -7,7 +7,8 @@ JSON) to `live-N.json` in a 0700 directory of the run, and sends each RTPU a typ
 signal; the RTPU reads it between cycles, builds the task specs and the configurations' writers,
 stages them and answers `Staged(N)`. Job control then spawns the new tasks and posts a plan; each
 executive swaps the staged description in at that plan's cycle boundary. The per-cycle path is
-untouched. The directory goes with the run.
+untouched. The directory goes with the run; one a run killed outright left (its name carries the
+run id, so its supervisor's pid) is removed by the next run's start.
 
 Where a spawned task's status block comes from: the table is laid out at start with spare blocks
 (`table.SPARE_TASK_SLOTS`); `config.live` gives a new task a free one, and refuses a spawn past them.
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import tempfile
 import time
@@ -30,12 +32,37 @@ from pbo_runtime.config.live import LiveDescription, to_wire
 from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.errors import PboError
-from pbo_runtime.ipc import messages
+from pbo_runtime.ipc import messages, shm
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
 from pbo_runtime.supervisor.run_report import RunResult
 from pbo_runtime.supervisor.stall_watch import StallWatch
 
 STAGE_TIMEOUT = 10.0  # wall seconds for every RTPU to read a live description
+LIVE_DIR_PREFIX = "pbo-live-"  # then the run id (supervisor pid - nonce), then mkdtemp's suffix
+_LIVE_DIR = re.compile(rf"^{LIVE_DIR_PREFIX}(\d+)-[0-9a-f]+-\w+$")
+
+
+def remove_dead_live_dirs(root: str | None = None) -> list[str]:
+    """Remove the live-description directories of runs whose supervisor is dead (ours only); what went."""
+    root = root or tempfile.gettempdir()
+    removed: list[str] = []
+    try:
+        names = os.listdir(root)
+    except OSError:
+        return removed
+    for name in names:
+        match = _LIVE_DIR.match(name)
+        path = os.path.join(root, name)
+        if match is None or shm.pid_alive(int(match.group(1))):
+            continue
+        try:
+            if os.stat(path, follow_symlinks=False).st_uid != os.geteuid() or not os.path.isdir(path):
+                continue
+        except OSError:
+            continue
+        shutil.rmtree(path, ignore_errors=True)
+        removed.append(path)
+    return removed
 
 
 class LiveChanges:
@@ -57,12 +84,14 @@ class LiveChanges:
     _live_sequence: int
     _staged: dict[str, tuple[int, str]]  # rtpu -> (sequence, error) of its last Staged answer
     _queued_application: str | None
+    run_id: str
     _while_stepping: Callable[[], None]
     _next_event: Callable[[float, str], Any]
 
     def _start_live(self, slots: int) -> None:
         """Before the RTPUs start: the directory of the run's live descriptions; the description itself."""
-        self.live_dir = tempfile.mkdtemp(prefix=f"pbo-live-{self.subsystem.name}-")
+        remove_dead_live_dirs()
+        self.live_dir = tempfile.mkdtemp(prefix=f"{LIVE_DIR_PREFIX}{self.run_id}-")
         try:
             self.live = LiveDescription.start(self.subsystem, slots)
         except PboError as exc:  # the run goes on; live changes are refused, saying why

@@ -42,6 +42,7 @@ class PidJoint(PortBasedObject):
     term is Pinocchio's `computeGeneralizedGravity` on a model built once in `init`."""
 
     Params = PidJointParams
+    TUNABLE = ("kp", "kd", "ki")  # pbo set pid kp 300: the gains change between two cycles
 
     ndof = InConst("NDOF", dtype="int32")
     dh = InConst("DH", shape=("NDOF", 4))
@@ -78,6 +79,13 @@ class PidJoint(PortBasedObject):
         if gains.ndim == 1 and gains.size != n:
             raise ValueError(f"{name} must have one gain or NDOF = {n} gains, got: {gains.size}")
         return np.broadcast_to(gains, (n,)).copy()
+
+    def tune(self, params: PidJointParams) -> None:
+        n = self._kp.size
+        np.copyto(self._kp, self._gains("kp", params.kp, n))
+        np.copyto(self._kd, self._gains("kd", params.kd, n))
+        np.copyto(self._ki, self._gains("ki", params.ki, n))
+        np.copyto(self._integral, 0.0, where=self._ki == 0)  # no integral action left: it would never decay
 
     def on(self) -> None:
         # Bumpless take-over: with an integral term, start it where it reproduces the torque

@@ -2,16 +2,20 @@
 
 It loads and checks the same YAML file as the supervisor, attaches to the run's table (the
 layout hash proves they agree), hosts the tasks the file assigns to it, and runs the executive
-until told to stop. A module that raises never takes this process down (see `Task`).
+until told to stop. A module that raises never takes this process down (see `Task`). A live
+change comes as a `LiveUpdate`: it reads the run's live description (`live-N.json`, plain data
+written by job control) and stages it for the next plan.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
 import traceback
+from typing import Any, Callable
 
 import posix_ipc
 
@@ -19,6 +23,7 @@ from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import messages, process
 from pbo_runtime.objects import registry
 from pbo_runtime.clock.clocks import RealClock, SimClock
+from pbo_runtime.config.live import task_from_wire
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import DEFAULT_SPIN, DeviceSpec, TaskSpec
 from pbo_runtime.task.lifecycle import Task
@@ -28,6 +33,16 @@ from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import StateTable, TableLayout
 from rtpu import _realtime
 from rtpu._executive import Executive
+
+
+@dataclasses.dataclass
+class LiveStage:
+    """A live description this RTPU read, staged for the next plan (`_executive.LiveStage`)."""
+
+    reconfiguration: Reconfiguration
+    tasks: dict[str, tuple[int, Any]]  # every task of the live description: (status block, params)
+    spec: Callable[[str], TaskSpec]  # a task's full spec (its module looked up)
+    factories: dict[str, Callable[[], Task]]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -43,6 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tick", type=float, default=0.001, help="seconds per tick of the simulated clock")
     parser.add_argument("--out", default="", help="directory the modules write their files into")
     parser.add_argument("--links", default="{}", help="JSON: the application's links, by name (see _links)")
+    parser.add_argument("--live", default="", help="directory of the run's live descriptions (live-N.json, `LiveUpdate`)")
     args = parser.parse_args(argv)
     if args.parent:
         become_child(args.parent)
@@ -81,16 +97,39 @@ def main(argv: list[str] | None = None) -> int:
         realtime = {**_realtime.apply(rtpu.cpu, args.fifo), "spin": f"{args.spin * 1e6:g} µs"}
         simulated = args.clock == "sim"
         clock = SimClock(table.header, args.tick) if simulated else RealClock(args.spin)
-        executive = Executive(clock, signals, report, epoch=args.epoch, header=table.header, report_at_stop=report_at_stop,
-                              reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
-                              n_rtpus=len(subsystem.rtpus))
-        for spec in subsystem.tasks_on(args.rtpu):
+        def factory(spec: TaskSpec):
             module_class = registry.module_class(spec.module)
 
-            def make(spec=spec, module_class=module_class) -> Task:
+            def make() -> Task:
                 return Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device,
                             out_dir=args.out, links=links, relay=relay)
 
+            return make
+
+        def live_stage(sequence: int) -> LiveStage:
+            # A live change: the description job control checked, as plain data (config.live.to_wire),
+            # read between cycles. No module is looked up here but for a task this RTPU will spawn or
+            # tune (`spec`): the RTPU of a critical task spends well under a millisecond on it.
+            with open(os.path.join(args.live, f"live-{sequence}.json"), encoding="utf-8") as stream:
+                data = json.load(stream)
+            tasks = data["tasks"]
+            reconfiguration = Reconfiguration.of_members(
+                data["configurations"], {name: (t["index"], t["period"], t["writes"]) for name, t in tasks.items()})
+
+            def spec(name: str) -> TaskSpec:
+                return task_from_wire(subsystem, name, tasks[name])
+
+            def lazy(name: str) -> Callable[[], Task]:
+                return lambda: factory(spec(name))()
+
+            return LiveStage(reconfiguration, {name: (t["index"], t["params"]) for name, t in tasks.items()}, spec,
+                             {name: lazy(name) for name, t in tasks.items() if t["rtpu"] == args.rtpu})
+
+        executive = Executive(clock, signals, report, epoch=args.epoch, header=table.header, report_at_stop=report_at_stop,
+                              reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
+                              n_rtpus=len(subsystem.rtpus), live_loader=live_stage if args.live else None)
+        for spec in subsystem.tasks_on(args.rtpu):
+            make = factory(spec)
             executive.add(make(), make)
         if simulated:
             barrier = LockstepParticipant(name, args.run_id, args.rtpu, table.header)

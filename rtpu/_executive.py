@@ -167,12 +167,22 @@ class Scheduled:
                 for k in ((first + i) % OVERRUNS_KEPT for i in range(kept))]
 
 
+class LiveStage(Protocol):
+    """A live description an RTPU read (`LiveUpdate`), staged until the next plan applies it."""
+
+    reconfiguration: Reconfiguration
+    tasks: dict[str, tuple[int, Any]]  # every task of the live description: (status block, params)
+    spec: Callable[[str], Any]  # a task's full TaskSpec (its module looked up: only for a task hosted here)
+    factories: dict[str, Callable[[], Task]]  # this RTPU's tasks, each made afresh from its live spec
+
+
 class Executive:
     """Runs the tasks of one RTPU. `handle` deals with one signal; `run_once` is one wait + cycles."""
 
     def __init__(self, clock: Clock, signals: SignalSource, report: Callable[[Event], None], epoch: float = 0.0,
                  header: np.ndarray | None = None, reconfiguration: Reconfiguration | None = None,
-                 rtpu_index: int = 0, n_rtpus: int = 1, report_at_stop: Callable[[Event], None] | None = None) -> None:
+                 rtpu_index: int = 0, n_rtpus: int = 1, report_at_stop: Callable[[Event], None] | None = None,
+                 live_loader: Callable[[int], LiveStage] | None = None) -> None:
         self.clock = clock
         self.signals = signals
         self.report = report  # report(event): events to job control (ipc.messages), on state changes only
@@ -195,6 +205,11 @@ class Executive:
         self.last_switch = -math.inf  # activation time of the last plan applied
         self.release_slack = getattr(clock, "release_slack", 0.0)  # sim clock: a release a few ulps late is due
         self.spin = getattr(clock, "spin", 0.0)  # real clock: the wait on signals ends this long before a release
+        # Live changes (`pbo spawn/kill/replace/set`): a LiveUpdate stages the run's new description,
+        # and the next plan swaps it in at its cycle boundary (`apply_plan`), tunes included.
+        self.live_loader = live_loader
+        self.staged: LiveStage | None = None
+        self.staged_tunes: dict[str, Any] = {}  # hosted task -> its new spec, when its parameters changed
 
     # --- the loop ---------------------------------------------------------------------------
 
@@ -470,6 +485,9 @@ class Executive:
         sequence = int(header[Header.PLAN_SEQUENCE])
         configuration = int(header[Header.PLAN_CONFIGURATION])
         activation = header[Header.PLAN_TIME_NS] / 1e9
+        if self.staged is not None:  # a live change: its configurations and tunes, at this boundary
+            self._swap_in(self.staged, self.staged_tunes)
+            self.staged, self.staged_tunes = None, {}
         view = self.reconfiguration.views[configuration]
         self.report_windows(sequence)
         leaving = [s for s in self.on if s.task.name not in view.members]
@@ -493,6 +511,16 @@ class Executive:
             self._report_state(s.task)
         self.report(Switched(sequence, view.name, activation, applied_at, done_at,
                              [s.task.name for s in leaving], [s.task.name for s in entering]))
+
+    def _swap_in(self, stage: LiveStage, tunes: dict[str, Any]) -> None:
+        """The staged live description becomes this RTPU's: who is in which configuration, who writes
+        what; tasks whose tunable parameters changed take them now, between two cycles."""
+        self.reconfiguration = stage.reconfiguration
+        for name, spec in tunes.items():
+            try:
+                self.tasks[name].task.tune(spec)
+            except Exception as exc:  # noqa: BLE001 - the checker passed the values: a module that refuses them says why
+                self.report(Refused(name, f"tune: {exc}"))
 
     def report_windows(self, following: int = 0) -> None:
         """Per switch: what each critical task read between that switch and the next (or the stop)."""
@@ -545,8 +573,13 @@ class Executive:
             return
         if isinstance(signal, messages.PlanPosted):  # a wake-up: the plan itself is in the table's header
             return
+        if isinstance(signal, messages.LiveUpdate):
+            self._stage(signal.sequence)
+            return
         name = signal.task if signal is not None else message[1]
         s = self.tasks.get(name)
+        if s is None and isinstance(signal, messages.Spawn) and name in self.factories:  # spawned live
+            s = self.tasks[name] = Scheduled(self.factories[name]())
         if s is None:
             self.report(Refused(name, f"no task '{name}' on this RTPU"))
             return
@@ -592,6 +625,24 @@ class Executive:
             self.report(Refused(name, f"{op}: {exc}"))
             return
         self._report_state(task)
+
+    def _stage(self, sequence: int) -> None:
+        """Read live description `sequence` and keep it for the next plan; its tasks on this RTPU can be spawned now."""
+        try:
+            if self.live_loader is None:
+                raise RuntimeError("this RTPU was started without a live description")
+            stage = self.live_loader(sequence)
+            tunes = {}
+            for name, s in self.tasks.items():
+                index, params = stage.tasks.get(name, (-1, None))
+                if index == s.task.index and params != s.task.spec.params and s.task.state != TaskState.KILLED:
+                    tunes[name] = stage.spec(name)  # built now: the boundary only calls tune
+        except Exception as exc:  # noqa: BLE001 - job control refuses the change and says why
+            self.report(messages.Staged(sequence, f"{type(exc).__name__}: {exc}"))
+            return
+        self.staged, self.staged_tunes = stage, tunes
+        self.factories.update(stage.factories)
+        self.report(messages.Staged(sequence))
 
     def _event(self, s: Scheduled, payload: Any, quiet: bool = False) -> None:
         """An event for an aperiodic task: released now, or after its minimum inter-arrival time.

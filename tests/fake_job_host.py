@@ -4,7 +4,8 @@ It implements `JobHost` (job_control) and `CommandHost` (commands) on a manual c
 are numpy arrays in a dict, tasks are states in a dict, and its RTPUs apply a posted plan when
 the clock reaches the plan's activation (as the executives do at that cycle boundary), unless
 told they never will. `pump` moves the clock; `on_pump` lets a test change the world meanwhile
-(the arm reaching its goal). Nothing is started, nothing sleeps.
+(the arm reaching its goal). Live changes are staged (`staged`) and adopted as the supervisor
+does; `init_fails` names tasks whose spawn fails. Nothing is started, nothing sleeps.
 """
 
 from __future__ import annotations
@@ -15,9 +16,12 @@ from typing import Any, Callable
 import numpy as np
 
 from pbo_runtime.clock.clocks import ManualClock
+from pbo_runtime.config.live import LiveDescription
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import Subsystem
+from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.job_control import JobControl
+from pbo_runtime.table.table import SPARE_TASK_SLOTS
 from tests.support import REPO
 
 # configs/switch_joint.yaml with jobs for every path of job control: a pre-condition that never
@@ -66,6 +70,11 @@ class FakeJobHost:
         self.application: str | None = None
         self.started_at: float | None = 0.0
         self.realtime: dict[str, dict[str, str]] = {}
+        # live changes
+        self.live: LiveDescription | None = LiveDescription.start(subsystem, len(subsystem.tasks) + SPARE_TASK_SLOTS)
+        self.staged: Subsystem | None = None
+        self.init_fails: set[str] = set()
+        self.started_applications: list[str] = []
 
     # --- JobHost ----------------------------------------------------------------------------
 
@@ -79,10 +88,11 @@ class FakeJobHost:
         record = self.job_control.pending
         if record is None or not self.rtpus_apply_plans or self.now() < record.activation:
             return
-        after = self.subsystem.configurations[record.after].tasks
+        planned = self.staged or self.subsystem  # a live change's plan applies its staged description
+        after = planned.configurations[record.after].tasks
         before = self.subsystem.configurations[record.before].tasks
         for rtpu in self.subsystem.rtpus:
-            hosted = [t.name for t in self.subsystem.tasks_on(rtpu.name)]
+            hosted = list(dict.fromkeys(t.name for s in (self.subsystem, planned) for t in s.tasks_on(rtpu.name)))
             off = [t for t in hosted if t in before and t not in after]
             on = [t for t in hosted if t in after and self.task_states[t] == "OFF"]
             for task in off:
@@ -112,6 +122,9 @@ class FakeJobHost:
 
     def respawn(self, task: str) -> None:
         self.signals.append((task, "spawn"))
+        if task in self.init_fails:
+            self.task_states[task] = "KILLED"
+            raise PboError(f"task '{task}' failed in init and was not created: the fake's init_fails")
         self.task_states[task] = "OFF"
 
     def turn_on(self, task: str, configuration: str) -> None:
@@ -124,7 +137,19 @@ class FakeJobHost:
     def watch(self, task: str, configuration: str) -> None:
         self.signals.append((task, f"watch {configuration}"))
 
+    def stage_live(self, live: LiveDescription) -> None:
+        self.signals.append(("every RTPU", f"live {', '.join(live.subsystem.tasks)}"))
+        self.staged = live.subsystem
+        for name in live.subsystem.tasks:
+            self.task_states.setdefault(name, "NOT_CREATED")
+
+    def adopt(self, live: LiveDescription) -> None:
+        self.live, self.subsystem, self.staged = live, live.subsystem, None
+
     # --- CommandHost ------------------------------------------------------------------------
+
+    def start_application(self, name: str) -> None:
+        self.started_applications.append(name)
 
     def status_rows(self) -> list[dict[str, Any]]:
         return [{"task": t.name, "rtpu": t.rtpu, "state": self.task_states[t.name], "cycles": 100, "overruns": 0,

@@ -355,3 +355,20 @@ def fill_disk(disk: Path, leave: int = 0) -> None:
 # Plant options for tests that step an in-process arm by hand, with no controller writing
 # commands: its drive watchdog (which holds the arm once commands stop) is off.
 NO_WATCHDOG = {"command_timeout": 0}
+
+
+def live_demo_copy(folder: Path, subsystem: str) -> Path:
+    """configs/pid_joint.yaml, comments kept, as subsystem `subsystem`, for live changes: without its
+    logger (a live test spawns one: a module runs once a configuration), with a job and an application."""
+    text = DEMO.read_text()
+    logger = ("  logger: {module: data_logger, rtpu: rtpu0, period: 10 ms,\n"
+              "           params: {variables: [q_m, q_r, tau_u], path: runs/pid_joint.npy}}\n")
+    for old, new in (("\nsubsystem: puma\n", f"\nsubsystem: {subsystem}\n"), (logger, ""),
+                     ("  joint_pid: [robot, traj, pid, logger]\n",
+                      "  joint_pid: [robot, traj, pid]  # the PID loop\n\njobs:\n  hold: {configuration: joint_pid, timeout: 100 ms}\n"
+                      "\napplications:\n  settle: [hold]\n")):
+        assert old in text, old
+        text = text.replace(old, new)
+    path = folder / f"{subsystem}.yaml"
+    path.write_text(text)
+    return path

@@ -41,7 +41,8 @@ def test_every_verb_is_a_cli_command_with_its_declared_arguments_and_a_runner(ve
 @pytest.mark.parametrize("verb", VERBS, ids=lambda verb: verb.name)
 def test_every_verb_picks_its_run_with_the_arguments_the_table_declares_once(verb):
     assert [a.name for a in WHICH_RUN] == ["--subsystem", "--run"]
-    arguments = ([] if verb.name not in ("on", "off", "clear", "switch", "job", "event") else ["x"])
+    arguments = {"on": ["x"], "off": ["x"], "clear": ["x"], "switch": ["x"], "job": ["x"], "event": ["x"], "spawn": ["x"],
+                 "kill": ["x"], "replace": ["x", "y"], "set": ["x", "kp", "1"], "app": ["x"], "save": ["x"]}.get(verb.name, [])
     parsed = _parser().parse_args([verb.name, *arguments, "--run", "1234-ab", "--subsystem", "puma"])
     assert (parsed.run, parsed.subsystem) == ("1234-ab", "puma")
 
@@ -184,7 +185,7 @@ def test_a_job_object_that_is_not_finite_numbers_of_its_shape_is_refused_before_
     ("switch", {"configuration": "nope"}, r"^no configuration 'nope' \(configurations: pid, pd\)$"),
     ("job", {"job": None}, r"^job must be named by text, got: nothing \(null\)"),
     ("status", {"verbose": True}, r"^'status' takes no argument 'verbose' \(its arguments: none\)$"),
-    ("kill", {}, r"^unknown command 'kill'"),
+    ("launch", {}, r"^unknown command 'launch'"),
 ])
 def test_a_request_of_the_wrong_shape_is_a_bad_request_with_what_was_expected(host, command, arguments, refusal):
     with pytest.raises(BadRequest, match=refusal):
@@ -247,7 +248,8 @@ def test_a_job_with_its_object_starts_in_its_configuration(host):
 @pytest.mark.parametrize("verb, arguments", [("switch", {"configuration": "pd"}), ("job", {"job": "hold", "object": None})])
 def test_switch_and_job_are_refused_while_an_application_runs(host, verb, arguments):
     host.application = "tour"
-    with pytest.raises(PboError, match=r"^application 'tour' is running its jobs; switch and job are refused until it ends$"):
+    with pytest.raises(PboError, match=r"^application 'tour' is running its jobs; switch, job, app and live changes are refused "
+                                       r"until it ends$"):
         dispatch(host, verb, arguments)
     assert host.plans == []
 
@@ -257,7 +259,8 @@ def test_stop_asks_the_run_to_stop(host):
     assert host.stopped_by == "pbo stop"
 
 
-@pytest.mark.parametrize("verb", ["kill", "svar"])
+@pytest.mark.parametrize("verb", ["launch", "svar"])
 def test_a_verb_the_supervisor_does_not_serve_is_refused_with_the_ones_it_does(host, verb):
-    with pytest.raises(PboError, match=rf"^unknown command '{verb}' \(commands: status, on, off, clear, switch, job, event, stop\)$"):
+    with pytest.raises(PboError, match=rf"^unknown command '{verb}' \(commands: status, on, off, clear, switch, job, event, "
+                                       rf"spawn, kill, replace, set, app, save, stop\)$"):
         dispatch(host, verb, {})

@@ -31,7 +31,7 @@ from pbo_runtime.ipc.limits import KERNEL_BYTES_PER_MESSAGE
 from pbo_runtime.supervisor.supervisor import Supervisor
 from tests.support import DEMO, NO_WATCHDOG, PBO, assert_nothing_left, children_of, fill_disk, unique_name, until
 
-PID_JOINT_QUEUE_BYTES = 51_182  # docs/architecture.md: 50.0 KiB (275.6 KiB when every queue was 10 x 8 KiB)
+PID_JOINT_QUEUE_BYTES = 51_872  # docs/architecture.md: 50.7 KiB (275.6 KiB when every queue was 10 x 8 KiB)
 
 
 def run_limited(tmp_path: Path, wrapper: list[str], *arguments: str) -> tuple[subprocess.CompletedProcess, dict]:
@@ -62,7 +62,7 @@ def assert_one_line_error(done: subprocess.CompletedProcess, pattern: str) -> No
 @pytest.mark.multiprocess
 @pytest.mark.parametrize(("wrapper", "pattern"), [
     pytest.param(["prlimit", "--msgqueue=20000"],
-                 r"error: this run needs 50\.0 KiB of POSIX message-queue memory \(4 queues\), more than the per-user "
+                 r"error: this run needs 50\.7 KiB of POSIX message-queue memory \(4 queues\), more than the per-user "
                  r"limit RLIMIT_MSGQUEUE of 19\.5 KiB: raise it \(ulimit -q 1000000\) and run again", id="queue memory"),
     pytest.param(in_namespace("-i", "echo 2 > /proc/sys/fs/mqueue/queues_max"),
                  r"error: this run needs 4 POSIX message queues and the system allows fs\.mqueue\.queues_max = 2(, \d+ "
@@ -100,7 +100,7 @@ def test_queue_memory_taken_by_other_queues_is_named_at_the_queue_that_did_not_f
         hog.unlink()
     assert_one_line_error(
         done, r"error: creating queue /pbo\.puma\.[\w-]+\.\w+(-\w+)?: the per-user POSIX message-queue memory RLIMIT_MSGQUEUE "
-              r"\(51\.9 KiB\) is used up: this run needs 50\.0 KiB and other queues of this user hold the rest; stop other "
+              r"\(52\.6 KiB\) is used up: this run needs 50\.7 KiB and other queues of this user hold the rest; stop other "
               r"runs \(pbo runs\) or raise it \(ulimit -q \d+\)")
     assert_nothing_left(report)
 
@@ -108,7 +108,7 @@ def test_queue_memory_taken_by_other_queues_is_named_at_the_queue_that_did_not_f
 def test_a_run_of_the_demo_needs_the_queue_memory_the_docs_give():
     plan = Supervisor(load_subsystem(str(DEMO)), duration=0.1).queue_plan()
     assert [(q.name.rsplit(".", 1)[1], q.depth, q.message_bytes) for q in plan] == [
-        ("events", 10, 2048), ("rtpu-rtpu0", 10, 134), ("rtpu-rtpu1", 10, 133), ("control", 6, 4096)]
+        ("events", 10, 2048), ("rtpu-rtpu0", 10, 168), ("rtpu-rtpu1", 10, 168), ("control", 6, 4096)]
     assert sum(q.bytes for q in plan) == sum(q.depth * (q.message_bytes + KERNEL_BYTES_PER_MESSAGE) for q in plan)
     assert sum(q.bytes for q in plan) == PID_JOINT_QUEUE_BYTES
 

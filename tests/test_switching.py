@@ -9,12 +9,14 @@ here sleeps or depends on the machine's timing, so the counts are exact.
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import pytest
 
 from pbo_runtime import InVar, OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.ipc import messages
+from pbo_runtime.config.live import LiveDescription, TaskChange, to_wire
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.config.reconfiguration import Reconfiguration
@@ -188,3 +190,47 @@ def test_a_task_in_error_makes_the_critical_task_hold_still_until_it_is_cleared(
     table.header[Header.TASKS_IN_ERROR] = 0
     step_executives(executives, clock, clock.now() + 0.002)
     assert not actuator.in_stable
+
+
+def test_a_live_replace_is_staged_then_applied_at_the_plans_boundary_losing_no_cycle(rig):
+    subsystem, table, clock, executives, events = rig
+    live = LiveDescription.start(subsystem, table.layout.n_tasks, module_lookup=LIBRARY.__getitem__)
+    new = live.replace("ctl_a", "ctl_c", TaskChange(module="b")).subsystem
+    stage = SimpleNamespace(reconfiguration=Reconfiguration.of_members(
+                                to_wire(new)["configurations"],
+                                {name: (t["index"], t["period"], t["writes"]) for name, t in to_wire(new)["tasks"].items()}),
+                            tasks={name: (t.index, dict(t.params)) for name, t in new.tasks.items()},
+                            spec=new.tasks.__getitem__,
+                            factories={"ctl_c": lambda: Task(new.tasks["ctl_c"], LIBRARY["b"], table)})
+    for executive in executives.values():
+        executive.live_loader = lambda sequence: stage
+    start(subsystem, executives, clock)
+    step_executives(executives, clock, clock.now() + 0.005)
+    for executive in executives.values():
+        executive.handle(["live", 1])
+    executives["rtpu0"].handle(["spawn", "ctl_c"])  # a task the staged description adds: created and spawned
+    assert [e.sequence for _, e in events if isinstance(e, messages.Staged)] == [1, 1]
+    assert executives["rtpu0"].tasks["ctl_c"].task.state is TaskState.OFF
+    actuator = executives["rtpu1"].tasks["actuator"]
+    assert actuator.task.module.seen[-1] == 1.0  # still ctl_a's: nothing applied before the plan
+    activation = math.ceil((clock.now() + 0.004) / PERIOD) * PERIOD
+    post_plan(table, 0, activation)  # the running configuration, with its new members
+    step_executives(executives, clock, activation + 0.010)
+    assert executives["rtpu0"].tasks["ctl_a"].task.state is TaskState.OFF
+    assert executives["rtpu0"].tasks["ctl_c"].task.state is TaskState.ON
+    assert actuator.lost_to_switch == 0 and actuator.stale_reads == 0 and actuator.stable_cycles == 0
+    seen = actuator.task.module.seen
+    # ctl_c's from the activation on: the actuator's 10 releases in those 10 ms (at +0.45 ms, ...) read it, none missed
+    assert seen[seen.index(-1.0):] == [-1.0] * 10
+
+
+def test_a_live_description_an_rtpu_cannot_read_is_answered_with_why(rig):
+    subsystem, table, clock, executives, events = rig
+
+    def unreadable(sequence):
+        raise FileNotFoundError(f"live-{sequence}.json")
+
+    executives["rtpu0"].live_loader = unreadable
+    executives["rtpu0"].handle(["live", 2])
+    staged = [e for _, e in events if isinstance(e, messages.Staged)]
+    assert staged == [messages.Staged(2, "FileNotFoundError: live-2.json")] and executives["rtpu0"].staged is None

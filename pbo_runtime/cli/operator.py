@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import functools
 import json
 import time
 from collections.abc import Sequence
@@ -175,6 +176,18 @@ def stop(console: Console, subsystem: str | None = None, run: str | None = None)
     return 0
 
 
+def live_change(console: Console, name: str, args: argparse.Namespace) -> int:
+    """spawn, kill, replace, set, app, save: the request from the command line, the supervisor's message.
+
+    A change the checker refuses comes back as a BadRequest whose text is the checker's located
+    messages, as `pbo check` prints them; the CLI prints it and exits 1.
+    """
+    verb = COMMANDS[name]
+    reply = ControlClient.connect(args.subsystem, args.run).call(name, verb.request(vars(args)), timeout=verb.timeout)
+    _say(console, reply, f"{name}: done")
+    return 0
+
+
 # --- runs -----------------------------------------------------------------------------------
 
 RUNS_TIMEOUT = 0.5  # per run: `pbo runs` asks each supervisor what it runs, but lists a busy one anyway
@@ -226,6 +239,8 @@ _RUNNERS: dict[str, Callable[[argparse.Namespace, Console], int]] = {
     "svar": lambda a, c: svar(c, a.names, a.watch, a.interval, a.subsystem, run=a.run),
     "stop": lambda a, c: stop(c, a.subsystem, a.run),
 }
+for _live_verb in ("spawn", "kill", "replace", "set", "app", "save"):
+    _RUNNERS[_live_verb] = functools.partial(lambda verb, a, c: live_change(c, verb, a), _live_verb)
 
 
 def run_verb(name: str, args: argparse.Namespace, console: Console) -> int:

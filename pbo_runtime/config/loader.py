@@ -83,6 +83,23 @@ def _check_file(
     except Exception as exc:  # the promise is "never a traceback"; a bug becomes a message to report
         checked = Checked()
         checked.errors.append(ConfigError(f"internal error while loading: {exc!r}", file, hint="please report this with the file you checked"))
+    return _result(checked, file, errors)
+
+
+def check_loaded(doc: Any, file: str, module_lookup: ModuleLookup = registry.module_class) -> CheckResult:
+    """Check a document already loaded (and changed: a live change, `config.live`) as `check_file` checks a file."""
+    names = _default_names if module_lookup is registry.module_class else None
+    return _result(check_document(doc, file, module_lookup, names), file, [])
+
+
+def load_document(file: str) -> tuple[Any, list[ConfigError]]:
+    """A file's document with its includes merged in (what `check_file` checks), and what kept it from loading."""
+    errors: list[ConfigError] = []
+    doc = _load_with_includes(file, [], errors)
+    return (None if doc is _UNREADABLE else doc), errors
+
+
+def _result(checked: Checked, file: str, errors: list[ConfigError]) -> CheckResult:
     errors.extend(checked.errors)
     errors.sort(key=_position)
     warnings = sorted(checked.warnings, key=_position)

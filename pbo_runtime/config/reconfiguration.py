@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Iterable, Mapping
 
 from pbo_runtime.config.model import Subsystem
 
@@ -24,17 +25,32 @@ class Reconfiguration:
     """The configurations of a subsystem, by index (file order), as executives use them."""
 
     def __init__(self, subsystem: Subsystem) -> None:
+        writes = {name: (task.index, task.period, [b.variable for b in task.bindings
+                                                   if not b.port.kind.is_input and b.port.kind.every_cycle])
+                  for name, task in subsystem.tasks.items()}
+        self._build({name: c.tasks for name, c in subsystem.configurations.items()}, writes)
+
+    @classmethod
+    def of_members(cls, configurations: Mapping[str, Iterable[str]],
+                   writes: Mapping[str, tuple[int, float, list[str]]]) -> Reconfiguration:
+        """From plain data: members per configuration, and per task (index, period, variables it writes
+        every cycle). What an RTPU builds from a live description without looking up any module."""
+        self = cls.__new__(cls)
+        self._build(configurations, writes)
+        return self
+
+    def _build(self, configurations: Mapping[str, Iterable[str]], writes: Mapping[str, tuple[int, float, list[str]]]) -> None:
         self.views: list[ConfigurationView] = []
-        for index, (name, configuration) in enumerate(subsystem.configurations.items()):
+        for index, (name, members) in enumerate(configurations.items()):
+            members = tuple(members)
             writers: dict[str, tuple[int, float]] = {}
-            for task_name in configuration.tasks:
-                task = subsystem.tasks[task_name]
-                for binding in task.bindings:
-                    if not binding.port.kind.is_input and binding.port.kind.every_cycle:
-                        writers[binding.variable] = (task.index, task.period)
-            self.views.append(ConfigurationView(index, name, frozenset(configuration.tasks), writers))
+            for task_name in members:
+                task_index, period, variables = writes[task_name]
+                for variable in variables:
+                    writers[variable] = (task_index, period)
+            self.views.append(ConfigurationView(index, name, frozenset(members), writers))
         self.by_name = {view.name: view for view in self.views}
-        self.task_names = {task.index: task.name for task in subsystem.tasks.values()}
+        self.task_names = {task_index: name for name, (task_index, _, _) in writes.items()}
 
     def index(self, name: str) -> int:
         return self.by_name[name].index

@@ -158,11 +158,21 @@ class Watch:
     configuration: int
 
 
+@dataclasses.dataclass(frozen=True, slots=True)
+class LiveUpdate:
+    """A live change (`pbo spawn/kill/replace/set`): read the run's live description number `sequence`
+    from the run's file of it and keep it staged; the next plan applies it at its cycle boundary."""
+
+    KIND: ClassVar[str] = "live"
+    sequence: int
+
+
 TaskSignal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch]  # the signals for one task
-Signal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch, StopRtpu, SendStats, PlanPosted]
+Signal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch, StopRtpu, SendStats, PlanPosted,
+               LiveUpdate]
 SIGNAL_TYPES: dict[str, type[Signal]] = {cls.KIND: cls for cls in
                                          (Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch, StopRtpu,
-                                          SendStats, PlanPosted)}
+                                          SendStats, PlanPosted, LiveUpdate)}
 
 
 def signal_to_wire(signal: Signal) -> list[Any]:
@@ -291,6 +301,15 @@ class Refused:
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
+class Staged:
+    """An RTPU read live description `sequence` (`LiveUpdate`); `error` if it could not."""
+
+    KIND: ClassVar[str] = "staged"
+    sequence: int
+    error: str = ""
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
 class Crashed:
     """A child failed outside any task: the exception, and its traceback."""
 
@@ -299,10 +318,11 @@ class Crashed:
     trace: str = ""
 
 
-Event = Union[Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled, Refused, Crashed]
+Event = Union[Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled, Refused, Staged,
+              Crashed]
 EVENT_TYPES: dict[str, type[Event]] = {cls.KIND: cls for cls in
                                        (Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled,
-                                        Refused, Crashed)}
+                                        Refused, Staged, Crashed)}
 _FIELDS: dict[type, tuple[str, ...]] = {cls: tuple(f.name for f in dataclasses.fields(cls))
                                         for cls in (*SIGNAL_TYPES.values(), *EVENT_TYPES.values())}
 

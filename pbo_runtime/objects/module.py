@@ -70,6 +70,9 @@ class PortBasedObject:
     # carry, which the supervisor checks before sending it (`pbo event TASK values...`); None: any
     # list of finite numbers. A wrong event is refused to the operator, never a task in ERROR.
     EVENT_SHAPE: ClassVar[tuple[int | str, ...] | None] = None
+    # The parameters an operator may change while the task runs (`pbo set TASK PARAM VALUE`): `tune`
+    # gets the whole new Params between two cycles. Every other parameter is read in `init` only.
+    TUNABLE: ClassVar[tuple[str, ...]] = ()
     _pbo_port_decls: ClassVar[tuple[Port, ...]] = ()
 
     _pbo_ports: list[np.ndarray]
@@ -194,6 +197,10 @@ class PortBasedObject:
     def error(self, exc: BaseException | None) -> Status:
         """After an error while ON. Return CONTINUE if recovered, OFF to stop, ERROR to wait for the operator."""
         return Status.ERROR
+
+    def tune(self, params: Any) -> None:
+        """A TUNABLE parameter changed (`pbo set`): take the new `params`. Runs between two cycles, at
+        the cycle boundary the change is applied at; keep it short (copy into preallocated arrays)."""
 
     def clear(self) -> bool:
         """On the operator's `clear`: True if the fault is gone (task goes OFF), False to stay in ERROR."""

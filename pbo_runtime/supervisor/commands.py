@@ -35,10 +35,13 @@ from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable, Protocol
 
+from pbo_runtime.config.live import LiveChangeRefused, LiveDescription, TaskChange, parse_assignments
+from pbo_runtime.config.live_save import save_live
 from pbo_runtime.config.values import INT_RANGE, as_value, describe, element_problem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.objects import registry
+from pbo_runtime.supervisor.job_control import application_steps
 
 if TYPE_CHECKING:
     from pbo_runtime.config.model import Subsystem
@@ -85,6 +88,11 @@ class CommandHost(Protocol):
         """Send an event with `values` to an aperiodic task."""
     def request_stop(self, reason: str) -> None:
         """Stop the run cleanly, as soon as the command is answered."""
+    @property
+    def live(self) -> LiveDescription | None:
+        """The description the run lives by (None: live changes are off for this run)."""
+    def start_application(self, name: str) -> None:
+        """Run application `name` on the live subsystem, as soon as the command is answered."""
 
 
 Handler = Callable[[CommandHost, dict[str, Any]], dict[str, Any]]
@@ -100,6 +108,7 @@ class Argument:
     nargs: str | None = None
     flag: bool = False  # an option without a value
     type: Callable[[str], Any] | None = None
+    extend: bool = False  # an option given several times, or with several values: all of them, in order
     default: Any = None
     parse: Callable[[Any], Any] | None = None  # command-line text to the request's value
     metavar: str | None = None  # how the help shows its value
@@ -109,6 +118,8 @@ class Argument:
         options: dict[str, Any] = {}
         if self.flag:
             options["action"] = "store_true"
+        if self.extend:
+            options["action"] = "extend"
         if self.nargs is not None:
             options["nargs"] = self.nargs
         if self.type is not None:
@@ -287,7 +298,8 @@ def _event_size(host: CommandHost, task: str) -> int | None:
 
 def _no_application(host: CommandHost) -> None:
     if host.application:
-        raise PboError(f"application '{host.application}' is running its jobs; switch and job are refused until it ends")
+        raise PboError(f"application '{host.application}' is running its jobs; switch, job, app and live changes "
+                       "are refused until it ends")
 
 
 def switch(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
@@ -323,9 +335,154 @@ def stop(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     return {"message": f"stopping '{host.subsystem.name}'"}
 
 
+# --- live changes (config.live checks them, job control applies them at a cycle boundary) ------
+
+
+def _text(arguments: dict[str, Any], key: str, what: str, optional: bool = False) -> str | None:
+    value = arguments.get(key)
+    if value is None and optional:
+        return None
+    if not isinstance(value, str) or not value:
+        raise BadRequest(f"{what} must be given as text, got: {describe(value)}")
+    return value
+
+
+def _texts(arguments: dict[str, Any], key: str, what: str) -> list[str]:
+    values = arguments.get(key) or []
+    if not isinstance(values, list) or not all(isinstance(v, str) for v in values):
+        raise BadRequest(f"{what} must be a list of texts, got: {describe(values)}")
+    return values
+
+
+def _task_change(arguments: dict[str, Any]) -> TaskChange:
+    """What `pbo spawn` and `pbo replace` say of the new task; values stay YAML text, the checker reads them."""
+    fields = {key: str(arguments[key]) for key in ("period", "priority", "min_interarrival") if arguments.get(key) is not None}
+    for flag in ("critical", "aperiodic"):
+        if arguments.get(flag):
+            fields[flag] = "true"
+    try:
+        return TaskChange(_text(arguments, "module", "--module", optional=True), _text(arguments, "rtpu", "--rtpu", optional=True),
+                          fields, parse_assignments(_texts(arguments, "params", "--param"), "--param"),
+                          parse_assignments(_texts(arguments, "ports", "--port"), "--port"))
+    except LiveChangeRefused as exc:
+        raise BadRequest(str(exc)) from None
+
+
+def _live(host: CommandHost) -> LiveDescription:
+    _no_application(host)
+    live = host.live
+    if live is None:
+        raise PboError(f"live changes are off for this run: {host.subsystem.file} could not be read again when it started")
+    return live
+
+
+def _checked(change: Callable[[], LiveDescription]) -> LiveDescription:
+    """The changed description, or the refusal (a BadRequest: the change asked for is wrong), located."""
+    try:
+        return change()
+    except LiveChangeRefused as exc:
+        raise BadRequest(str(exc)) from None
+
+
+def _applied(host: CommandHost, live: LiveDescription, change: str, task: str) -> dict[str, Any]:
+    record = host.job_control.apply_live(live, change)
+    spec = host.subsystem.tasks.get(task)
+    state = host.task_states.get(task, "KILLED")
+    where = f" on {spec.rtpu} (status block {spec.index})" if spec is not None else ""
+    return {"task": task, "state": state, "configuration": host.configuration,
+            "entered": record.on, "left": record.off, "at": record.activation,
+            "message": f"{change}: done at the cycle boundary at {record.activation:.3f} s; task '{task}'{where} is {state}"}
+
+
+def spawn(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+    live = _live(host)
+    name = _text(arguments, "task", "the task's name")
+    assert name is not None
+    new = _checked(lambda: live.spawn(name, _task_change(arguments), [host.configuration]))
+    return _applied(host, new, f"spawn '{name}'", name)
+
+
+def kill(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+    live = _live(host)
+    name = _task(host, arguments)
+    new = _checked(lambda: live.kill(name))
+    reply = _applied(host, new, f"kill '{name}'", name)
+    return {**reply, "message": f"kill '{name}': off at the cycle boundary at {reply['at']:.3f} s, then killed"}
+
+
+def replace(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+    live = _live(host)
+    old = _task(host, arguments)
+    new_name = _text(arguments, "new", "the new task's name")
+    assert new_name is not None
+    new = _checked(lambda: live.replace(old, new_name, _task_change(arguments)))
+    reply = _applied(host, new, f"replace '{old}' by '{new_name}'", new_name)
+    return {**reply, "replaced": old}
+
+
+def set_parameter(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+    live = _live(host)
+    name = _task(host, arguments)
+    param = _text(arguments, "param", "the parameter's name")
+    assert param is not None
+    texts = _texts(arguments, "values", "the values")
+    new = _checked(lambda: live.set_param(name, param, texts))
+    reply = _applied(host, new, f"set '{param}' of '{name}'", name)
+    value = host.subsystem.tasks[name].params.get(param)
+    return {**reply, "param": param, "value": value,
+            "message": f"'{param}' of task '{name}' is {value} from the cycle boundary at {reply['at']:.3f} s"}
+
+
+def app(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+    _no_application(host)
+    name = _name(arguments, "application", "application", host.subsystem.applications)
+    if not host.subsystem.applications[name].complete:
+        raise BadRequest(f"application '{name}' is incomplete (a step lacks its object) and cannot run; "
+                         f"pbo check {host.subsystem.file} shows which step")
+    host.start_application(name)
+    steps = [job for job, _ in application_steps(host.subsystem, name)]
+    return {"application": name, "jobs": steps,
+            "message": f"application '{name}' runs its jobs ({', '.join(steps)}); pbo status shows the current one"}
+
+
+def save(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+    live = host.live
+    if live is None:
+        raise PboError(f"live changes are off for this run: {host.subsystem.file} could not be read again when it started")
+    path = _text(arguments, "file", "the file to write")
+    assert path is not None
+    if not os.path.isabs(path):
+        raise BadRequest(f"the file to write must be an absolute path (the supervisor writes it), got: {path!r}")
+    if os.path.exists(path) and not arguments.get("force"):
+        raise BadRequest(f"{path} exists: give --force to overwrite it")
+    try:
+        same = save_live(live, path)
+    except LiveChangeRefused as exc:
+        raise PboError(str(exc)) from None
+    return {"file": path, "edits": len(live.edits),
+            "message": f"wrote {path}: the file with {len(live.edits)} live change(s) replayed, comments kept" +
+                       ("" if same else "; WARNING: pbo check on it does not give the live subsystem back")}
+
+
 # --- the table --------------------------------------------------------------------------------
 
 _TASK = Argument("task", help="the task's name", key="task")
+# what `pbo spawn` and `pbo replace` say of the new task (values are YAML, checked as in the file)
+_NEW_TASK = (
+    Argument("--module", help="its module (pbo lexicon lists them)", key="module", metavar="M"),
+    Argument("--rtpu", help="the RTPU that runs it", key="rtpu", metavar="R"),
+    Argument("--period", help="its period, with a unit: 10ms", key="period", metavar="P"),
+    Argument("--priority", help="its priority among ready tasks", key="priority", metavar="N"),
+    Argument("--critical", help="a critical task (runs first, watches its inputs)", key="critical", flag=True),
+    Argument("--aperiodic", help="released by events, not by a timer", key="aperiodic", flag=True),
+    Argument("--min-interarrival", help="an aperiodic task's shortest time between releases: 5ms", key="min_interarrival",
+             metavar="T"),
+    Argument("--param", help="a parameter: --param kp=300 (YAML value)", key="params", nargs="+", extend=True,
+             metavar="K=V"),
+    Argument("--port", help="a port's variable: --port tau=tau_u", key="ports", nargs="+", extend=True, metavar="P=VAR"),
+)
+_LIVE_REPLY = '`{"task": str, "state": str, "configuration": str, "entered": [str], "left": [str], "at": seconds}`'
+LIVE_TIMEOUT = 15.0  # a live change spawns (imports, init) and waits for a cycle boundary
 _TASK_REPLY = '`{"task": str, "state": str}`'
 
 VERBS: tuple[Verb, ...] = (
@@ -347,6 +504,26 @@ VERBS: tuple[Verb, ...] = (
          (Argument("task", help="the aperiodic task's name", key="task"),
           Argument("values", help="numbers the event carries", key="values", nargs="*", parse=parse_object_values)),
          event, '`{"task": str}`'),
+    Verb("spawn", "spawn a task on the live subsystem, checked first, on at a cycle boundary: "
+                  "pbo spawn logger --module data_logger --rtpu rtpu0 --period 10ms --param variables=[q_m]",
+         (Argument("task", help="the new task's name", key="task"), *_NEW_TASK), spawn, _LIVE_REPLY, LIVE_TIMEOUT),
+    Verb("kill", "kill a task of the live subsystem, checked first: off at a cycle boundary, then killed", (_TASK,), kill,
+         _LIVE_REPLY, LIVE_TIMEOUT),
+    Verb("replace", "replace a task by a new one in one switch, checked first: pbo replace pid pd --param ki=0 "
+                    "(the new task is the old one's entry with what is given)",
+         (Argument("task", help="the task to replace", key="task"), Argument("new", help="the new task's name", key="new"),
+          *_NEW_TASK), replace, _LIVE_REPLY + ' and `"replaced": str`', LIVE_TIMEOUT),
+    Verb("set", "set a live-tunable parameter of a task, checked as in YAML, applied at a cycle boundary: pbo set pid kp 300",
+         (_TASK, Argument("param", help="the parameter (its module declares it tunable)", key="param"),
+          Argument("values", help="its value (YAML); several make a list", key="values", nargs="+")),
+         set_parameter, _LIVE_REPLY + ' and `"param": str, "value": any`', LIVE_TIMEOUT),
+    Verb("app", "run one of the file's applications on the live subsystem",
+         (Argument("name", help="the application's name", key="application"),), app, '`{"application": str, "jobs": [str]}`',
+         COMMAND_TIMEOUT),
+    Verb("save", "write the live subsystem as YAML: the file with the live changes, comments and order kept",
+         (Argument("file", help="where to write it", key="file", parse=lambda path: os.path.abspath(path) if path else path),
+          Argument("--force", help="overwrite the file if it exists", key="force", flag=True)),
+         save, '`{"file": str, "edits": int}`', COMMAND_TIMEOUT),
     Verb("svar", "state variables of the running subsystem: value, sequence, age, writer",
          (Argument("names", help="the variables to show (default: all)", nargs="*"),
           Argument("--watch", help="refresh until Ctrl-C", flag=True),
@@ -386,7 +563,7 @@ def verb_table() -> str:
         shown = []
         for argument in verb.arguments:
             text = argument.name.upper() if not argument.name.startswith("-") else argument.name
-            text += " ..." if argument.nargs == "*" else ""
+            text += " ..." if argument.nargs in ("*", "+") else ""
             shown.append(f"`{text}`" if not argument.name.startswith("-") else f"`[{text}]`")
         lines.append(f"| `pbo {verb.name}` | {' '.join(shown) or '–'} | {verb.help.replace('|', '/')} | {verb.result} |")
     which = "; ".join(f"`{a.name} {a.metavar}`: {a.help}" for a in WHICH_RUN)

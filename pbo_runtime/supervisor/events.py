@@ -42,10 +42,12 @@ class EventHandling:
     _refused: dict[str, str]
     _check_children: Callable[[], None]
     _count_errors: Callable[[], None]
+    every_task: dict[str, Any]  # every task the run has had (live changes add some), by name
+    staged: Callable[[str, int, str], None]
 
     def _signal(self, signal: messages.TaskSignal) -> None:
         task = signal.task
-        rtpu = self.subsystem.tasks[task].rtpu
+        rtpu = self.every_task[task].rtpu
         self._refused.pop(task, None)
         self.signals[rtpu].signal(signal, timeout=SIGNAL_TIMEOUT)
         self.clock.serve(rtpu, self._while_stepping)
@@ -172,6 +174,8 @@ class EventHandling:
         elif isinstance(event, messages.Refused):
             self._refused[event.task] = event.reason
             self.say(f"{source} refused a signal for '{event.task}': {event.reason}")
+        elif isinstance(event, messages.Staged):
+            self.staged(source, event.sequence, event.error)
         elif isinstance(event, messages.Crashed):
             raise RunFailure(f"{source} crashed: {event.error}" + (f"\n{event.trace}" if event.trace else ""))
 

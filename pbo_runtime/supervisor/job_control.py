@@ -19,6 +19,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
+from pbo_runtime.config.live import LiveDescription
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.config.expressions import ExpressionError, compile_condition
@@ -48,6 +49,7 @@ class SwitchRecord:
     # per critical task, until the next switch: cycles that read a switched-out writer, and stale reads
     lost: dict[str, int] = field(default_factory=dict)
     stale: dict[str, int] = field(default_factory=dict)
+    change: str = ""  # a live change applied by this plan (`pbo spawn` ...), "" for a switch
 
     @property
     def latency(self) -> float:
@@ -72,7 +74,7 @@ class SwitchRecord:
     def to_json(self) -> dict[str, Any]:
         return {"sequence": self.sequence, "from": self.before, "to": self.after, "latency": self.latency,
                 "skew": self.skew, "longest": self.longest, "off": self.off, "on": self.on,
-                "cycles_lost": self.lost, "stale_reads": self.stale}
+                "cycles_lost": self.lost, "stale_reads": self.stale, **({"change": self.change} if self.change else {})}
 
 
 class JobHost(Protocol):
@@ -120,6 +122,10 @@ class JobHost(Protocol):
         """While a static switch kills and spawns tasks, critical tasks run their locally stable behaviour."""
     def watch(self, task: str, configuration: str) -> None:
         """A critical task that stays ON watches the writers of its inputs in `configuration`."""
+    def stage_live(self, live: LiveDescription) -> None:
+        """Every RTPU reads the live description and keeps it for the next plan; its new tasks can be spawned."""
+    def adopt(self, live: LiveDescription) -> None:
+        """The live change is applied: `live` is the running subsystem's description from now on."""
 
 
 def evaluate(host: JobHost, text: str) -> tuple[bool, dict[str, Any]]:
@@ -184,6 +190,14 @@ class JobControl:
                     if t not in self.subsystem.configurations[before].tasks]
         if self.static:
             return self._switch_static(before, configuration, leaving, entering)
+        return self._switch_dynamic(before, configuration, entering)
+
+    def _switch_dynamic(self, before: str, configuration: str, entering: list[str], change: str = "",
+                        tasks: Mapping[str, Any] | None = None) -> SwitchRecord:
+        """Post a plan for `configuration` and wait until every RTPU applied it and `entering` tasks ran
+        (`tasks`: their specs, when they are new in a live change)."""
+        host = self.host
+        specs = tasks if tasks is not None else self.subsystem.tasks
         requested = host.now()
         # activate on the first RTPU's release grid: the entering tasks' first cycle is the cycle
         # boundary itself, so the critical consumer's next read already sees their output
@@ -191,13 +205,12 @@ class JobControl:
         lead = host.tick if host.tick > 0 else PLAN_LEAD  # simulated: the next tick on the grid
         activation = host.epoch + math.ceil((requested + lead - host.epoch) / grid - 1e-9) * grid
         sequence = host.post_plan(configuration, activation)
-        record = SwitchRecord(sequence, before, configuration, requested, activation)
+        record = SwitchRecord(sequence, before, configuration, requested, activation, change=change)
         self.pending = record
-        entering_active = [t for t in entering if host.task_states.get(t) == "OFF"]
+        entering_active = [t for t in entering if host.task_states.get(t) == "OFF" and not getattr(specs[t], "aperiodic", False)]
         deadline = host.now() + SWITCH_TIMEOUT
         rtpus = len(self.subsystem.rtpus)
-        while len(record.applied) < rtpus or any(t not in record.first_cycles for t in entering_active
-                                                             if not getattr(self.subsystem.tasks[t], "aperiodic", False)):
+        while len(record.applied) < rtpus or any(t not in record.first_cycles for t in entering_active):
             if host.now() > deadline:
                 raise PboError(f"switch to '{configuration}' did not complete within {SWITCH_TIMEOUT:g} s "
                                f"(applied on: {', '.join(record.applied) or 'no RTPU'})")
@@ -205,6 +218,44 @@ class JobControl:
         self.pending = None
         host.set_configuration(configuration)
         self.switches.append(record)
+        return record
+
+    def apply_live(self, live: LiveDescription, change: str) -> SwitchRecord:
+        """A live change, checked already (`config.live`): applied at one cycle boundary, as a switch is.
+
+        Every RTPU stages the new description; new tasks are spawned (their init runs, they wait
+        OFF); one plan for the running configuration then turns leaving tasks off and entering ones
+        on at the same boundary, swaps in who writes what for the critical tasks' freshness watch,
+        and gives tuned tasks their parameters; tasks gone from the description are killed after.
+        A new task whose init fails refuses the change, with nothing else changed.
+        """
+        host = self.host
+        if self.static:
+            raise PboError("live changes apply at a cycle boundary, as a dynamic switch does; this run switches "
+                           "statically (--static): restart it without --static")
+        before, after = self.subsystem, live.subsystem
+        configuration = host.configuration
+        was = before.configurations[configuration].tasks
+        now = after.configurations[configuration].tasks
+        added = [name for name in after.init_order if name not in before.tasks]
+        removed = [name for name in before.tasks if name not in after.tasks]
+        host.stage_live(live)
+        spawned: list[str] = []
+        try:
+            for name in added:
+                host.respawn(name)
+                spawned.append(name)
+        except PboError as exc:
+            for name in spawned:
+                host.kill_task(name)
+            host.stage_live(LiveDescription(live.file, live.doc, before, live.slots))  # what the RTPUs had
+            raise PboError(f"{change} is refused: {exc}; nothing else changed") from None
+        record = self._switch_dynamic(configuration, configuration, [t for t in now if t not in was], change, after.tasks)
+        self.subsystem = after
+        host.adopt(live)
+        for name in removed:
+            if host.task_states.get(name) not in ("KILLED", "NOT_CREATED"):
+                host.kill_task(name)
         return record
 
     def switched(self, rtpu: str, sequence: int, applied_at: float, done_at: float, off: list[str], on: list[str]) -> None:

@@ -106,6 +106,7 @@ class RunReporting:
     task_errors: dict[str, str]
     _stats: dict[str, dict[str, Any]]
     _stable: dict[str, tuple[float, str, str]]
+    every_task: dict[str, Any]  # every task the run has had, by name: live changes add and remove some
     _end_stable_episode: Callable[[str, float | None], None]
 
     def _report_run(self) -> None:
@@ -116,7 +117,8 @@ class RunReporting:
         for name, stats in self._stats.items():
             # an overrun's release as seconds since the configuration came on, as the summary reads it
             overruns = [[release - started, late, took] for release, late, took in stats.get("last_overruns", [])]
-            self.result.tasks[name] = {"rtpu": self.subsystem.tasks[name].rtpu, "critical": self.subsystem.tasks[name].critical,
+            spec = self.subsystem.tasks.get(name) or self.every_task[name]
+            self.result.tasks[name] = {"rtpu": spec.rtpu, "critical": spec.critical,
                                        "state": self.result.states_at_stop.get(name, "?"),
                                        "error": self.task_errors.get(name, ""), **stats, "last_overruns": overruns}
         self._report_stalls(started)
@@ -131,7 +133,7 @@ class RunReporting:
         """Close the episodes still open at the stop; tell each task's faults and timing holds (`stable_episode_lines`)."""
         for task in list(self._stable):
             self._end_stable_episode(task, None)
-        periods = {name: task.period for name, task in self.subsystem.tasks.items()}
+        periods = {name: task.period for name, task in {**self.every_task, **self.subsystem.tasks}.items()}
         faults, timing = stable_episode_lines(self.result.stable_episodes, periods, self.started_at, self.result.duration)
         self.result.faults += faults
         self.result.timing_holds += timing
@@ -177,7 +179,8 @@ class RunReporting:
                 torn = True
             self.result.variables[var.name] = {
                 "value": value.tolist(), "sequence": seq,
-                "writer": next((t.name for t in self.subsystem.tasks.values() if t.index == writer), "job control"),
+                "writer": next((t.name for t in (*self.subsystem.tasks.values(), *self.every_task.values()) if t.index == writer),
+                               "job control"),
                 **({"torn": True} if torn else {}),
             }
 

@@ -32,13 +32,17 @@ class StallWatch:
 
     def __init__(self, tasks: Iterable[TaskSpec], cycles_of: Callable[[int], float],
                  say: Callable[[str], None] = lambda text: None) -> None:
-        self._watched = [(t.name, t.rtpu, t.index, t.period, max(STALL_PERIODS * t.period, STALL_FLOOR))
-                         for t in tasks if not t.aperiodic]
+        self.watch_tasks(tasks)
         self._cycles_of = cycles_of  # task index -> its cycle count in the table
         self._say = say
         self._seen: dict[str, tuple[float, float]] = {}  # task -> (cycle count, when it was first seen)
         self.open: dict[str, Stall] = {}
         self.episodes: list[Stall] = []
+
+    def watch_tasks(self, tasks: Iterable[TaskSpec]) -> None:
+        """Watch these tasks from now on (a live change added or removed some); episodes are kept."""
+        self._watched = [(t.name, t.rtpu, t.index, t.period, max(STALL_PERIODS * t.period, STALL_FLOOR))
+                         for t in tasks if not t.aperiodic]
 
     def check(self, now: float, states: dict[str, str]) -> None:
         for name, rtpu, index, period, limit in self._watched:

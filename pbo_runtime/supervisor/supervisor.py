@@ -30,7 +30,8 @@ from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
-from pbo_runtime.config.model import Subsystem
+from pbo_runtime.config.live import MAX_NAME, LiveDescription
+from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.errors import PboError
 from pbo_runtime.config.application import MESSAGE_OVERHEAD_BYTES, MSGPACK_BYTES_PER_NUMBER
 from pbo_runtime.ipc.control import REQUEST_BYTES, ControlServer, control_queue_name, control_queue_size
@@ -40,6 +41,7 @@ from pbo_runtime.supervisor.control_service import ControlService
 from pbo_runtime.supervisor.events import EventHandling
 from pbo_runtime.supervisor.failures import RunFailure, RunRefused, StopRequested
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
+from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockWatching
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
@@ -55,7 +57,7 @@ __all__ = ["RunFailure", "RunRefused", "RunResult", "StopRequested", "Supervisor
 STALL_CHECK_EVERY = 0.05  # seconds between looks at the cycle counts (StallWatch); job control pumps every 2 ms
 
 
-class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatching):
+class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatching, LiveChanges):
     """Runs one subsystem: a configuration for a duration, or an application's jobs."""
 
     def __init__(
@@ -134,6 +136,13 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.control: ControlServer | None = None
         self._serving = False
         self._refused: dict[str, str] = {}  # task -> why its RTPU refused the last signal
+        # live changes (supervisor.live_changes): the description the run lives by, made at start
+        self.live: LiveDescription | None = None
+        self.live_dir = ""
+        self.every_task: dict[str, TaskSpec] = dict(subsystem.tasks)
+        self._live_sequence = 0
+        self._staged: dict[str, tuple[int, str]] = {}
+        self._queued_application: str | None = None
         self._refuse_if_devices_in_use()  # before anything starts
 
     # --- names ------------------------------------------------------------------------------
@@ -215,6 +224,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             self.result.stopped_by = "failure"
         finally:
             self._shutdown()
+            self._end_live()
             signal.signal(signal.SIGINT, previous)
             signal.signal(signal.SIGTERM, previous_term)
             self.result.wall_seconds = time.monotonic() - wall_start
@@ -238,8 +248,10 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                                          if link.get("kind") == "message"])
         for rtpu in sub.rtpus:
             hosted = sub.tasks_on(rtpu.name)
+            # (room for the longest name a task spawned live may have: `pbo spawn` may put one on any RTPU)
             plan.append(messages.signal_queue_size(messages.signal_queue_name(sub.name, run_id, rtpu.name),
-                                                   [t.name for t in hosted], payload if any(t.aperiodic for t in hosted) else 0))
+                                                   [t.name for t in hosted] + ["x" * MAX_NAME],
+                                                   payload if any(t.aperiodic for t in hosted) else 0))
         plan.append(control_queue_size(sub.name, run_id))
         return plan
 
@@ -268,6 +280,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.table = StateTable.create(TableLayout.of(sub), messages.table_name(sub.name, run_id), self._manifest())
         self._refuse_if_devices_in_use()  # again, now that a run started at the same instant sees this one
         self._watch_the_lock(self.table)
+        self._start_live(self.table.layout.n_tasks)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()
         if sub.plant is not None:
@@ -286,7 +299,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                                      *(["--fifo"] if self.fifo else []),
                                      *self.clock.rtpu_arguments(),
                                      *(["--out", self.out_dir] if self.out_dir else []),
-                                     *(["--links", json.dumps(self.links)] if self.links else [])],
+                                     *(["--links", json.dumps(self.links)] if self.links else []),
+                                     "--live", self.live_dir],
                          hosted)
         self._await_ready({r.name for r in sub.rtpus})
         members = sub.configurations[self.configuration].tasks
@@ -389,6 +403,9 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         """Serve events and commands until the duration is over (StopRequested ends it sooner)."""
         assert self.started_at is not None
         while self.duration is None or self.now() - self.started_at < self.duration - self.tick / 2:
+            if self._queued_application is not None:
+                self._run_queued_application()
+                continue
             left = self.duration - (self.now() - self.started_at) if self.duration is not None else 0.1
             self.pump(min(0.1, left))
         self.result.stopped_by = "duration"

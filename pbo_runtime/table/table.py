@@ -50,6 +50,10 @@ HEADER_WORDS = 64
 MANIFEST_BYTES = 8192  # names of up to 32 RTPUs with the simulated clock's semaphores, and the pids of the run's processes
 # META_WORDS (`table.directory`): writer task index (-1: job control), then job control's sequence and write time
 STATUS_WORDS = 16  # per task in the table (room to grow without a layout change)
+# Status blocks reserved beyond the file's tasks for tasks spawned while the subsystem runs (`pbo
+# spawn`, `pbo replace`): the layout is fixed when the run starts, so a live change takes a free
+# block, and one past them is refused (docs/live.md). A killed task's block is free again.
+SPARE_TASK_SLOTS = 8
 DEVICE_HOLDERS = 8  # per device: how many opens of it (by tasks, or through a sensor's io:) may be held at once
 HOLDER_WORDS = 5  # per holder record, uint64: see `Holder`
 
@@ -181,7 +185,8 @@ class TableLayout:
 
     @classmethod
     def of(cls, subsystem: Subsystem) -> TableLayout:
-        return cls.build(subsystem.variables.values(), len(subsystem.tasks), len(subsystem.devices))
+        """The run's layout: the file's tasks and SPARE_TASK_SLOTS more status blocks for live spawns."""
+        return cls.build(subsystem.variables.values(), task_slots(subsystem), len(subsystem.devices))
 
     @classmethod
     def build(cls, variables: Iterable[VariableSpec], n_tasks: int, n_devices: int = 0) -> TableLayout:
@@ -218,6 +223,11 @@ class TableLayout:
             if s.name == name:
                 return s
         raise KeyError(name)
+
+
+def task_slots(subsystem: Subsystem) -> int:
+    """Status blocks a run of `subsystem` has: its file's tasks (a live subsystem's highest index + 1) and the spares."""
+    return max((task.index for task in subsystem.tasks.values()), default=-1) + 1 + SPARE_TASK_SLOTS
 
 
 LOCK_WORDS: dict[str, Any] = {"holder_word": int(Header.LOCK_HOLDER), "recoveries_word": int(Header.LOCK_RECOVERIES),

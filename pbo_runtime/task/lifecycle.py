@@ -126,6 +126,15 @@ class Task:
 
     # --- signals ----------------------------------------------------------------------------
 
+    def tune(self, spec: TaskSpec) -> None:
+        """A live change of tunable parameters (`pbo set`): the module's `tune` gets the new Params,
+        between two cycles. The spec was checked (`config.live`); a module that refuses raises."""
+        params = type(self.module).build_params(dict(spec.params))
+        if self.state in (TaskState.OFF, TaskState.ON, TaskState.ERROR):
+            self.module.tune(params)
+        self._params = params
+        self.spec = spec
+
     def spawn(self, now: float) -> bool:
         """Create the task: in-consts, init, out-consts. False (and killed) if init failed."""
         self._expect("spawn", TaskState.NOT_CREATED)

@@ -1,0 +1,366 @@
+"""The live description of a running subsystem: its file as changed by `pbo spawn/kill/replace/set`.
+
+A run starts from its YAML file. A live change is first made on a copy of the description the
+run is living by (the file's document, includes merged, with every change so far), and that copy
+goes through the same checker as `pbo check`, every configuration of it: a change that would
+break a rule is refused (`LiveChangeRefused`) with the checker's located messages, exactly as
+`pbo check` prints them, before anything of the run is touched. Only a description that checks
+clean is handed to job control, which applies it at a cycle boundary (`supervisor.job_control`).
+
+Decisions this module makes, and why:
+
+- Where a change's own text is located: each value the operator gives (`--module`, `--param
+  kp=300`, `pbo set pid kp 300`) is loaded by the project's own safe loader as a YAML snippet
+  named after what gave it, `<pbo spawn logger --param path>:1:1`; a mistake in it is reported
+  there, and a mistake a change reveals elsewhere (a reader left without its writer) at the
+  file's own line, where the fix goes.
+- Status blocks: the table's layout is fixed when the run starts, with `slots` status blocks
+  (the file's tasks and some spares, `table.SPARE_TASK_SLOTS`). A task keeps its block for life;
+  a new task takes the lowest block no task of the run uses (a killed task's is free again), and
+  a spawn past them is refused.
+- State variables: the layout is fixed, so a change that would add or reshape a variable is
+  refused, with a message that says to add it to the file and restart.
+- How RTPUs learn it: `to_wire` is the description an RTPU needs (task specs and configuration
+  members, no YAML), written by the supervisor to a file of the run and read back by each RTPU
+  with `from_wire`, outside any cycle; nothing of the per-cycle path changes.
+- `edits` records each change in order, for `pbo save` (`config.live_save`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Mapping
+
+from pbo_runtime.config.checker import ModuleLookup
+from pbo_runtime.config.loader import check_loaded, load_document
+from pbo_runtime.config.model import NOWHERE, ConfigurationSpec, Location, PortBinding, Subsystem, TaskSpec
+from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, plain
+from pbo_runtime.errors import ConfigError, PboError
+from pbo_runtime.objects import registry
+
+# A live task's name: a plain identifier (it travels in signals, queues are sized for names this long)
+NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,39}$")
+MAX_NAME = 40
+SPAWN_KEYS = ("module", "rtpu", "period", "priority", "critical", "aperiodic", "min_interarrival", "wcet")
+
+
+class LiveChangeRefused(PboError):
+    """A live change refused before anything was touched: what was asked is wrong, or it breaks a rule."""
+
+
+@dataclass(frozen=True)
+class Edit:
+    """One live change as `pbo save` replays it on the original file."""
+
+    kind: str  # spawn, kill, replace, set
+    task: str
+    entry: Any = None  # spawn, replace: the new task's entry (plain); set: the parameter's value
+    new: str = ""  # replace: the new task's name
+    param: str = ""  # set: the parameter
+    configurations: tuple[str, ...] = ()  # spawn: the configurations it joined
+
+
+@dataclass(frozen=True)
+class TaskChange:
+    """What a spawn or a replace says of the new task; a value is the operator's YAML text."""
+
+    module: str | None = None
+    rtpu: str | None = None
+    fields: Mapping[str, str] = dataclasses.field(default_factory=dict)  # period, priority, critical, ...
+    params: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    ports: Mapping[str, str] = dataclasses.field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class LiveDescription:
+    """The running subsystem's description: its document (never mutated: a change copies what it edits)."""
+
+    file: str
+    doc: YMap
+    subsystem: Subsystem
+    slots: int  # status blocks in the run's table
+    edits: tuple[Edit, ...] = ()
+    module_lookup: ModuleLookup = registry.module_class
+
+    @classmethod
+    def start(cls, subsystem: Subsystem, slots: int, module_lookup: ModuleLookup = registry.module_class) -> LiveDescription:
+        """The description of a run that has just started from `subsystem`'s file."""
+        doc, errors = load_document(subsystem.file)
+        if errors or not isinstance(doc, YMap):
+            shown = "; ".join(e.format() for e in errors) or "not a mapping"
+            raise LiveChangeRefused(f"{subsystem.file} cannot be read again for live changes ({shown}): "
+                                    "was it changed or removed after the run started?")
+        return cls(subsystem.file, doc, subsystem, slots, (), module_lookup)
+
+    # --- the changes --------------------------------------------------------------------------
+
+    def spawn(self, name: str, change: TaskChange, configurations: Iterable[str]) -> LiveDescription:
+        """A new task, member of `configurations` (the running one, as `pbo spawn` asks)."""
+        self._new_name(name, "spawn")
+        if not change.module or not change.rtpu:
+            raise LiveChangeRefused(f"a spawned task needs --module and --rtpu (pbo spawn {name} --module M --rtpu R)")
+        entry = _entry(YMap(Location(f"<pbo spawn {name}>", 1, 1)), change, f"pbo spawn {name}")
+        doc = _copy(self.doc)
+        tasks = _copy(doc["tasks"])
+        tasks.put(name, entry, entry.loc, entry.loc)
+        doc.put("tasks", tasks, self.doc.key_loc("tasks"), self.doc.value_loc("tasks"))
+        joined = tuple(configurations)
+        configs = _copy(doc["configurations"])
+        for configuration in joined:
+            members = _copy_list(configs[configuration])
+            members.add(name, entry.loc)
+            configs.put(configuration, members, configs.key_loc(configuration), configs.value_loc(configuration))
+        doc.put("configurations", configs, self.doc.key_loc("configurations"), self.doc.value_loc("configurations"))
+        return self._checked(doc, f"spawning task '{name}'", Edit("spawn", name, plain(entry), configurations=joined))
+
+    def kill(self, name: str) -> LiveDescription:
+        """The task gone from the description and from every configuration that has it."""
+        self._task(name)
+        doc = _copy(self.doc)
+        tasks = _copy(doc["tasks"])
+        _remove(tasks, name)
+        doc.put("tasks", tasks, self.doc.key_loc("tasks"), self.doc.value_loc("tasks"))
+        configs = _copy(doc["configurations"])
+        for configuration, members in list(configs.items()):
+            if isinstance(members, YList) and name in members:
+                configs.put(configuration, _copy_list(members, without=name), configs.key_loc(configuration),
+                            configs.value_loc(configuration))
+        doc.put("configurations", configs, self.doc.key_loc("configurations"), self.doc.value_loc("configurations"))
+        return self._checked(doc, f"killing task '{name}'", Edit("kill", name))
+
+    def replace(self, old: str, new: str, change: TaskChange) -> LiveDescription:
+        """`new` takes `old`'s place: its entry (`old`'s, with what `change` says) where `old`'s was, in
+        every configuration that has `old`, in one switch."""
+        self._task(old)
+        self._new_name(new, "replace")
+        original = self.doc["tasks"][old]
+        base = _copy(original) if isinstance(original, YMap) else YMap(Location(f"<pbo replace {old} {new}>", 1, 1))
+        entry = _entry(base, change, f"pbo replace {old} {new}")
+        doc = _copy(self.doc)
+        tasks_before = doc["tasks"]
+        tasks = YMap(tasks_before.loc)
+        for key, value in tasks_before.items():  # the new entry where the old one was: the file's order kept
+            if key == old:
+                tasks.put(new, entry, tasks_before.key_loc(old), tasks_before.value_loc(old))
+            else:
+                tasks.put(key, value, tasks_before.key_loc(key), tasks_before.value_loc(key))
+        doc.put("tasks", tasks, self.doc.key_loc("tasks"), self.doc.value_loc("tasks"))
+        configs = _copy(doc["configurations"])
+        for configuration, members in list(configs.items()):
+            if isinstance(members, YList) and old in members:
+                configs.put(configuration, _copy_list(members, swap=(old, new)), configs.key_loc(configuration),
+                            configs.value_loc(configuration))
+        doc.put("configurations", configs, self.doc.key_loc("configurations"), self.doc.value_loc("configurations"))
+        return self._checked(doc, f"replacing task '{old}' by '{new}'", Edit("replace", old, plain(entry), new=new))
+
+    def set_param(self, task: str, param: str, texts: list[str]) -> LiveDescription:
+        """A live-tunable parameter of a task set to the value the operator wrote (one value, or a list)."""
+        spec = self._task(task)
+        module_class = self.module_lookup(spec.module)
+        fields = [f.name for f in dataclasses.fields(module_class.Params)] if dataclasses.is_dataclass(module_class.Params) else []
+        tunable = tuple(getattr(module_class, "TUNABLE", ()))
+        if param not in fields:
+            raise LiveChangeRefused(f"module '{spec.module}' of task '{task}' has no parameter '{param}' "
+                                    f"(parameters: {', '.join(fields) or 'none'}; live-tunable: {', '.join(tunable) or 'none'})")
+        if param not in tunable:
+            raise LiveChangeRefused(
+                f"parameter '{param}' of task '{task}' is not live-tunable: module '{spec.module}' reads it in init only "
+                f"(live-tunable: {', '.join(tunable) or 'none'}); to change it, replace the task: pbo replace {task} NEW --param {param}=...")
+        if not texts:
+            raise LiveChangeRefused(f"pbo set {task} {param} needs a value")
+        where = f"pbo set {task} {param}"
+        if len(texts) == 1:
+            value, _ = _snippet(texts[0], where)
+        else:
+            value = YList(Location(f"<{where}>", 1, 1))
+            for position, text in enumerate(texts, 1):
+                item, loc = _snippet(text, f"{where} (value {position})")
+                value.add(item, loc)
+        doc = _copy(self.doc)
+        tasks = _copy(doc["tasks"])
+        entry = _copy(tasks[task])
+        params = _copy(entry["params"]) if isinstance(entry.get("params"), YMap) else YMap(Location(f"<{where}>", 1, 1))
+        params.put(param, value, Location(f"<{where}>", 1, 1), Location(f"<{where}>", 1, 1))
+        entry.put("params", params, tasks[task].key_loc("params") if "params" in tasks[task] else params.loc,
+                  tasks[task].value_loc("params") if "params" in tasks[task] else params.loc)
+        tasks.put(task, entry, self.doc["tasks"].key_loc(task), self.doc["tasks"].value_loc(task))
+        doc.put("tasks", tasks, self.doc.key_loc("tasks"), self.doc.value_loc("tasks"))
+        return self._checked(doc, f"setting '{param}' of task '{task}'", Edit("set", task, plain(value), param=param))
+
+    # --- checking -----------------------------------------------------------------------------
+
+    def _task(self, name: str) -> TaskSpec:
+        if name not in self.subsystem.tasks:
+            raise LiveChangeRefused(f"no task '{name}' in the live subsystem (tasks: {', '.join(self.subsystem.tasks)})")
+        if name not in self.doc.get("tasks", {}):
+            raise LiveChangeRefused(f"task '{name}' is declared in an included file: change it there, and restart")
+        return self.subsystem.tasks[name]
+
+    def _new_name(self, name: str, verb: str) -> None:
+        if not NAME.match(name):
+            raise LiveChangeRefused(f"a task's name is a letter or '_' then letters, digits or '_', at most {MAX_NAME} "
+                                    f"characters, got: {name!r}")
+        if name in self.subsystem.tasks:
+            raise LiveChangeRefused(f"task '{name}' exists already (module '{self.subsystem.tasks[name].module}' on "
+                                    f"{self.subsystem.tasks[name].rtpu}): choose another name, or kill it first")
+
+    def _checked(self, doc: YMap, what: str, edit: Edit) -> LiveDescription:
+        """The description with `doc`, if the checker finds no error in it; else the refusal, located."""
+        result = check_loaded(doc, self.file, self.module_lookup)
+        errors, subsystem = result.errors, result.subsystem
+        if errors or subsystem is None:
+            if any(error.code == "E206" for error in errors):  # a variable no file declares: the layout cannot grow
+                what += " (a live change cannot add a state variable: add it to the file's variables: and restart)"
+            raise LiveChangeRefused(refusal(what, errors))
+        self._same_variables(subsystem, what)
+        subsystem = self._reindexed(subsystem, what)
+        return dataclasses.replace(self, doc=doc, subsystem=subsystem, edits=(*self.edits, edit))
+
+    def _same_variables(self, subsystem: Subsystem, what: str) -> None:
+        live = self.subsystem.variables
+        for name, variable in subsystem.variables.items():
+            known = live.get(name)
+            if known is None or (known.dtype, known.shape) != (variable.dtype, variable.shape):
+                change = "add state variable" if known is None else "change the type or shape of state variable"
+                raise LiveChangeRefused(
+                    f"{what} would {change} '{name}': the state variable table's layout is fixed when the run starts; "
+                    f"add '{name}' to the file's variables: and restart the run")
+
+    def _reindexed(self, subsystem: Subsystem, what: str) -> Subsystem:
+        """Each task's status block: the one it has; a new task, the lowest no task of the run uses."""
+        used = {task.index for task in self.subsystem.tasks.values()}  # a leaving task keeps its block until it is killed
+        free = iter(index for index in range(self.slots) if index not in used)
+        tasks: dict[str, TaskSpec] = {}
+        for name, spec in subsystem.tasks.items():
+            if name in self.subsystem.tasks:
+                index = self.subsystem.tasks[name].index
+            else:
+                index = next(free, -1)
+                if index < 0:
+                    raise LiveChangeRefused(
+                        f"{what} needs a status block in the table, but all {self.slots} are in use (the file's tasks and "
+                        f"the spares reserved at start): kill a task first, or add the task to the file and restart")
+            tasks[name] = dataclasses.replace(spec, index=index)
+        return dataclasses.replace(subsystem, tasks=tasks)
+
+
+def refusal(what: str, errors: list[ConfigError]) -> str:
+    """The refusal's text: the checker's messages as `pbo check` prints them, then its count line."""
+    count = f"{len(errors)} error" + ("" if len(errors) == 1 else "s")
+    return f"{what} would break the live configuration:\n" + "\n".join(e.format() for e in errors) + f"\n{count}, 0 warnings"
+
+
+# --- building the new YAML nodes ------------------------------------------------------------------
+
+
+def _snippet(text: str, where: str) -> tuple[Any, Location]:
+    """One value the operator wrote, loaded by the safe loader as YAML, located at `<where>`."""
+    if not isinstance(text, str) or "\n" in text or "\r" in text:
+        raise LiveChangeRefused(f"{where}: a value is one line of YAML, got: {text!r}")
+    file = f"<{where}>"
+    try:
+        loaded = load_text(f"value: {text}\n", file)
+    except ConfigError as exc:
+        raise LiveChangeRefused(f"{where}: not a YAML value: {text!r} ({exc})") from None
+    if not isinstance(loaded, YMap) or set(loaded) != {"value"}:
+        raise LiveChangeRefused(f"{where}: not one YAML value: {text!r}")
+    return loaded["value"], Location(file, 1, 1)
+
+
+def _entry(base: YMap, change: TaskChange, where: str) -> YMap:
+    """`base` (a task's entry) with what `change` says put in it; each value located where it came from."""
+    entry = base
+    for key, text in (("module", change.module), ("rtpu", change.rtpu), *change.fields.items()):
+        if text is None:
+            continue
+        if key not in SPAWN_KEYS:
+            raise LiveChangeRefused(f"{where}: '{key}' cannot be given here (given: {', '.join(SPAWN_KEYS)}, --param, --port)")
+        value, loc = _snippet(str(text), f"{where} --{key}")
+        entry.put(key, value, loc, loc)
+    for section, given in (("params", change.params), ("ports", change.ports)):
+        if not given:
+            continue
+        existing = entry.get(section)
+        mapping = _copy(existing) if isinstance(existing, YMap) else YMap(Location(f"<{where} --{section[:-1]}>", 1, 1))
+        for key, text in given.items():
+            value, loc = _snippet(text, f"{where} --{section[:-1]} {key}")
+            mapping.put(key, value, loc, loc)
+        entry.put(section, mapping, mapping.loc, mapping.loc)
+    return entry
+
+
+def _copy(node: YMap) -> YMap:
+    """A shallow copy of a mapping that keeps where each key and value was written."""
+    copy = YMap(node.loc)
+    for key, value in node.items():
+        copy.put(key, value, node.key_loc(key), node.value_loc(key))
+    return copy
+
+
+def _remove(node: YMap, key: str) -> None:
+    del node[key]
+
+
+def _copy_list(node: YList, without: str | None = None, swap: tuple[str, str] | None = None) -> YList:
+    copy = YList(node.loc)
+    for index, item in enumerate(node):
+        if item == without:
+            continue
+        copy.add(swap[1] if swap is not None and item == swap[0] else item, node.item_loc(index))
+    return copy
+
+
+def parse_assignments(texts: Iterable[str] | None, what: str) -> dict[str, str]:
+    """`k=v` arguments (`--param kp=300`, `--port tau=tau_u`) as {k: v}; v stays YAML text."""
+    result: dict[str, str] = {}
+    for text in texts or ():
+        key, equals, value = str(text).partition("=")
+        if not equals or not key.strip():
+            raise LiveChangeRefused(f"{what} is given as NAME=VALUE, got: {text!r}")
+        result[key.strip()] = value.strip()
+    return result
+
+
+# --- what an RTPU needs of it -----------------------------------------------------------------------
+
+
+def to_wire(subsystem: Subsystem) -> dict[str, Any]:
+    """The tasks and configurations of a live subsystem as plain data (JSON), for its RTPUs."""
+    return {
+        "configurations": {name: list(c.tasks) for name, c in subsystem.configurations.items()},
+        "init_order": list(subsystem.init_order),
+        "tasks": {name: {"module": t.module, "rtpu": t.rtpu, "period": t.period, "priority": t.priority,
+                         "critical": t.critical, "params": plain(dict(t.params)),
+                         "bindings": [[b.port.name, b.variable, list(b.shape)] for b in t.bindings],
+                         "writes": [b.variable for b in t.bindings if not b.port.kind.is_input and b.port.kind.every_cycle],
+                         "resources": list(t.resources), "index": t.index, "wcet": t.wcet, "aperiodic": t.aperiodic,
+                         "min_interarrival": t.min_interarrival,
+                         "resource_channels": {d: list(c) for d, c in t.resource_channels.items()},
+                         "fresh_within": dict(t.fresh_within)}
+                  for name, t in subsystem.tasks.items()},
+    }
+
+
+def from_wire(base: Subsystem, data: Mapping[str, Any], module_lookup: Callable[[str], Any] = registry.module_class) -> Subsystem:
+    """The live subsystem `to_wire` describes, on the file's `base` (its variables, devices, RTPUs)."""
+    tasks = {name: task_from_wire(base, name, t, module_lookup) for name, t in data["tasks"].items()}
+    configurations = {name: ConfigurationSpec(name, tuple(members), base.configurations[name].loc
+                                              if name in base.configurations else NOWHERE)
+                      for name, members in data["configurations"].items()}
+    return dataclasses.replace(base, tasks=tasks, configurations=configurations, init_order=tuple(data["init_order"]))
+
+
+def task_from_wire(base: Subsystem, name: str, t: Mapping[str, Any],
+                   module_lookup: Callable[[str], Any] = registry.module_class) -> TaskSpec:
+    """One task's spec from `to_wire`'s data (its module is looked up: do it only for a task to host)."""
+    module_class = module_lookup(t["module"])
+    ports = {port.name: port for port in module_class.ports_for(module_class.build_params(dict(t["params"])))}
+    bindings = tuple(PortBinding(ports[port], variable, tuple(shape)) for port, variable, shape in t["bindings"])
+    known = base.tasks.get(name)
+    return TaskSpec(name, t["module"], t["rtpu"], float(t["period"]), int(t["priority"]), bool(t["critical"]),
+                    dict(t["params"]), bindings, tuple(t["resources"]), int(t["index"]),
+                    known.loc if known is not None else NOWHERE, t["wcet"], bool(t["aperiodic"]),
+                    t["min_interarrival"], {d: tuple(c) for d, c in t["resource_channels"].items()},
+                    dict(t["fresh_within"]))

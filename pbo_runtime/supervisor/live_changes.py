@@ -1,0 +1,162 @@
+"""The Supervisor's side of live changes (`pbo spawn/kill/replace/set/app`): what job control asks of it.
+
+How a change reaches the RTPUs: each RTPU loaded the YAML file itself at start, and a live change
+must not make it check YAML again (a check takes milliseconds, on the RTPU of a critical task).
+So the supervisor writes the checked live description as plain data (`config.live.to_wire`,
+JSON) to `live-N.json` in a 0700 directory of the run, and sends each RTPU a typed `LiveUpdate(N)`
+signal; the RTPU reads it between cycles, builds the task specs and the configurations' writers,
+stages them and answers `Staged(N)`. Job control then spawns the new tasks and posts a plan; each
+executive swaps the staged description in at that plan's cycle boundary. The per-cycle path is
+untouched. The directory goes with the run; one a run killed outright left (its name carries the
+run id, so its supervisor's pid) is removed by the next run's start.
+
+Where a spawned task's status block comes from: the table is laid out at start with spare blocks
+(`table.SPARE_TASK_SLOTS`); `config.live` gives a new task a free one, and refuses a spawn past them.
+
+An application started live (`pbo app`) runs from the supervisor's watch loop, between commands,
+the way `pbo run --app` runs one at start; switches and jobs are refused while it runs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import tempfile
+import time
+from typing import Any, Callable
+
+from pbo_runtime.clock.run_clock import RunClock
+from pbo_runtime.config.live import LiveDescription, to_wire
+from pbo_runtime.config.model import Subsystem, TaskSpec
+from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.errors import PboError
+from pbo_runtime.ipc import messages, shm
+from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
+from pbo_runtime.supervisor.run_report import RunResult
+from pbo_runtime.supervisor.stall_watch import StallWatch
+
+STAGE_TIMEOUT = 10.0  # wall seconds for every RTPU to read a live description
+LIVE_DIR_PREFIX = "pbo-live-"  # then the run id (supervisor pid - nonce), then mkdtemp's suffix
+_LIVE_DIR = re.compile(rf"^{LIVE_DIR_PREFIX}(\d+)-[0-9a-f]+-\w+$")
+
+
+def remove_dead_live_dirs(root: str | None = None) -> list[str]:
+    """Remove the live-description directories of runs whose supervisor is dead (ours only); what went."""
+    root = root or tempfile.gettempdir()
+    removed: list[str] = []
+    try:
+        names = os.listdir(root)
+    except OSError:
+        return removed
+    for name in names:
+        match = _LIVE_DIR.match(name)
+        path = os.path.join(root, name)
+        if match is None or shm.pid_alive(int(match.group(1))):
+            continue
+        try:
+            if os.stat(path, follow_symlinks=False).st_uid != os.geteuid() or not os.path.isdir(path):
+                continue
+        except OSError:
+            continue
+        shutil.rmtree(path, ignore_errors=True)
+        removed.append(path)
+    return removed
+
+
+class LiveChanges:
+    """The Supervisor's part that stages, adopts and runs live changes."""
+
+    subsystem: Subsystem
+    clock: RunClock
+    signals: dict[str, messages.Queue]
+    result: RunResult
+    job_control: JobControl
+    task_states: dict[str, str]
+    reconfiguration: Reconfiguration
+    stall_watch: StallWatch
+    application: str | None
+    say: Callable[[str], None]
+    live: LiveDescription | None
+    live_dir: str
+    every_task: dict[str, TaskSpec]  # every task the run has had, by name (the last spec of a name)
+    _live_sequence: int
+    _staged: dict[str, tuple[int, str]]  # rtpu -> (sequence, error) of its last Staged answer
+    _queued_application: str | None
+    run_id: str
+    _while_stepping: Callable[[], None]
+    _next_event: Callable[[float, str], Any]
+
+    def _start_live(self, slots: int) -> None:
+        """Before the RTPUs start: the directory of the run's live descriptions; the description itself."""
+        remove_dead_live_dirs()
+        self.live_dir = tempfile.mkdtemp(prefix=f"{LIVE_DIR_PREFIX}{self.run_id}-")
+        try:
+            self.live = LiveDescription.start(self.subsystem, slots)
+        except PboError as exc:  # the run goes on; live changes are refused, saying why
+            self.live = None
+            self.say(f"live changes are off for this run: {exc}")
+
+    def _end_live(self) -> None:
+        if self.live_dir:
+            shutil.rmtree(self.live_dir, ignore_errors=True)
+
+    def stage_live(self, live: LiveDescription) -> None:
+        """Every RTPU reads `live` and keeps it for the next plan (see the module's docstring)."""
+        self._live_sequence += 1
+        sequence = self._live_sequence
+        path = os.path.join(self.live_dir, f"live-{sequence}.json")
+        with open(path + ".tmp", "w", encoding="utf-8") as stream:
+            json.dump(to_wire(live.subsystem), stream)
+        os.replace(path + ".tmp", path)
+        self.every_task.update(live.subsystem.tasks)
+        for name in live.subsystem.tasks:
+            self.task_states.setdefault(name, "NOT_CREATED")
+        for rtpu, queue in self.signals.items():
+            queue.signal(messages.LiveUpdate(sequence))
+            self.clock.serve(rtpu, self._while_stepping)
+        deadline = time.monotonic() + STAGE_TIMEOUT
+        while any(self._staged.get(rtpu, (0, ""))[0] != sequence for rtpu in self.signals):
+            if self.clock.signals_served_when_sent:
+                self._while_stepping()
+                if any(self._staged.get(rtpu, (0, ""))[0] != sequence for rtpu in self.signals):
+                    raise PboError(f"an RTPU did not read live description {sequence}")
+                break
+            self._next_event(deadline, f"waiting for the RTPUs to read live description {sequence}")
+        errors = [f"{rtpu}: {error}" for rtpu, (seen, error) in self._staged.items() if seen == sequence and error]
+        if errors:
+            raise PboError(f"the RTPUs could not read the live description: {'; '.join(errors)}")
+
+    def staged(self, rtpu: str, sequence: int, error: str) -> None:
+        """An RTPU's `Staged` answer."""
+        self._staged[rtpu] = (sequence, error)
+
+    def adopt(self, live: LiveDescription) -> None:
+        """The change is applied: `live` describes the running subsystem from now on."""
+        self.live = live
+        self.subsystem = live.subsystem
+        self.reconfiguration = Reconfiguration(live.subsystem)
+        self.every_task.update(live.subsystem.tasks)
+        self.stall_watch.watch_tasks(live.subsystem.tasks.values())
+
+    def start_application(self, name: str) -> None:
+        """Run application `name` from the watch loop, as soon as the command is answered."""
+        self._queued_application = name
+
+    def _run_queued_application(self) -> None:
+        """An application started with `pbo app`: its jobs one at a time; a failure ends it, not the run."""
+        name, self._queued_application = self._queued_application, None
+        if name is None:
+            return
+        self.application = name
+        try:
+            self.job_control.run_application(name)
+            self.result.jobs_done += [job for job, _ in application_steps(self.subsystem, name)]
+            self.say(f"application '{name}' is done")
+        except JobFailure as exc:
+            self.say(f"application '{name}' stopped: {exc}")
+            self.result.faults.append(f"application '{name}' started with pbo app stopped: {exc}")
+        finally:
+            self.application = None
+            self.job_control.job = None

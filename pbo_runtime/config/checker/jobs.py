@@ -153,7 +153,9 @@ class JobChecks(CheckerBase):
         """
         members = [self.tasks.get(t) for t, _ in self.config_members.get(config, [])]
         if any(task is None or not task.ok for task in members):
-            return written  # a task's ports are unknown: what it reads is too (reported at the task)
+            # a task's ports are unknown, so what it reads is too (reported at the task): no
+            # inferred class, lest the steps that give the job an object be refused as well
+            return "" if written is None else written
         outputs = {b.variable: task.name for task in members if task is not None for b in task.bindings if not b.port.kind.is_input}
         needed: dict[str, str] = {}  # object variable -> the first task that reads it
         for task in members:

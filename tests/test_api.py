@@ -23,7 +23,7 @@ from pbo_runtime.api import streams
 from pbo_runtime.api.app import create_app
 from pbo_runtime.api.auth import COOKIE
 from pbo_runtime.api.link import LiveRunLink, NoRun
-from pbo_runtime.api.replies import jsonable
+from pbo_runtime.api.jsonable import jsonable
 from pbo_runtime.api.streams import MAX_VARIABLE_RATE
 from pbo_runtime.api.verbs import LOCAL_VERBS
 from pbo_runtime.errors import PboError
@@ -381,3 +381,39 @@ def test_the_api_drives_a_real_simulated_run_and_streams_its_variables(tmp_path)
     assert json.loads(report.read_text())["stopped_by"] == "pbo stop"
     response = client.post("/api/verbs/status", headers=BEARER)
     assert response.status_code == 404 and "subsystem 'api_e2e' is not running" in response.json()["error"]
+
+
+# --- pbo hmi ----------------------------------------------------------------------------------
+
+
+def test_pbo_hmi_prints_the_loopback_url_with_its_token_even_when_listening_on_every_interface():
+    from pbo_runtime.api.server import url
+
+    assert url("127.0.0.1", 8470, "abc") == "http://127.0.0.1:8470/?token=abc"
+    assert url("0.0.0.0", 8470, "abc") == "http://127.0.0.1:8470/?token=abc"
+    assert url("::1", 8470, "abc") == "http://[::1]:8470/?token=abc"
+
+
+def test_pbo_hmi_refuses_a_port_in_use_with_what_to_do():
+    from pbo_runtime.api.server import bind
+
+    first = bind("127.0.0.1", 0)
+    try:
+        port = first.getsockname()[1]
+        with pytest.raises(PboError, match=rf"^port {port} on 127.0.0.1 is in use \(another pbo hmi\?\): pass --port N, "
+                                           r"or --port 0 for any free one$"):
+            bind("127.0.0.1", port)
+    finally:
+        first.close()
+
+
+def test_pbo_hmi_serves_the_run_of_the_files_subsystem(tmp_path, subsystem):
+    from pbo_runtime.api.server import describe_run, subsystem_of
+
+    assert subsystem_of(subsystem.file) == "puma_switch"
+    (tmp_path / "broken.yaml").write_text("subsystem: [")
+    assert subsystem_of(str(tmp_path / "broken.yaml")) is None
+    said = describe_run(LiveRunLink("no_such_subsystem_here"))
+    assert said.startswith("no run of 'no_such_subsystem_here' yet: lexicon, check, bus and graph are served")
+    with pytest.raises(NoRun, match="^no live run has run id"):
+        describe_run(LiveRunLink(None, "0-no-such-run"))

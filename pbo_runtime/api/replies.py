@@ -7,29 +7,15 @@ Every answer of the API is a JSON object with `"ok"`, as the supervisor's replie
 from __future__ import annotations
 
 import json
-import math
 from typing import Any
 
 from fastapi.responses import JSONResponse
 
-from pbo_runtime.ipc.control import plain
+from pbo_runtime.api.jsonable import jsonable
 
 # What a refusal's status says: the request was wrong, the run's state refused it, there is no run,
 # the run did not answer.
 BAD_REQUEST, REFUSED, NO_RUN, NO_ANSWER = 400, 409, 404, 503
-
-
-def jsonable(value: Any) -> Any:
-    """`value` with numpy scalars and arrays as Python numbers and lists, and NaN/inf as None (JSON has neither)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple, set, frozenset)):
-        return [jsonable(v) for v in value]
-    if isinstance(value, (str, int, bool)) or value is None:
-        return value
-    return jsonable(plain(value))
 
 
 class Reply(JSONResponse):

@@ -356,7 +356,7 @@ def test_every_websocket_route_is_behind_the_token(client):
 
 @pytest.mark.multiprocess
 def test_the_api_drives_a_real_simulated_run_and_streams_its_variables(tmp_path):
-    file = demo_copy(tmp_path, "api_e2e", logger={"params": {"variables": ["q_m"], "path": str(tmp_path / "log.npy")}})
+    file = demo_copy(tmp_path, "api_e2e")
     report = tmp_path / "report.json"
     run = start_run(file, tmp_path, "--clock", "sim", "--duration", "0", "--report", str(report))
     try:

@@ -35,7 +35,7 @@ from pbo_runtime.supervisor.commands import COMMANDS, parse_object_values
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.svar import TableView, open_table, svar_rows, svar_table
 
-__all__ = ["parse_object_values", "run_verb", "runs", "status", "task_signal", "switch", "job", "event", "stop", "svar"]
+__all__ = ["parse_object_values", "run_verb", "run_verb_json", "runs", "status", "task_signal", "switch", "job", "event", "stop", "svar"]
 
 WRITER_MAP_TIMEOUT = 0.5  # svar asks for task names, but must not wait long for a busy supervisor
 TASK_COMMANDS = ("on", "off", "clear")

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from bench import check_scale, faults, links, peers, realtime, scale, svar_transfer, switching, wait
+from bench import api_stream, check_scale, faults, links, peers, realtime, scale, svar_transfer, switching, wait
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -29,6 +29,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "check_scale": check_scale.run,
     "links": links.section,
     "faults": faults.run,
+    "api_stream": api_stream.run,
 }
 
 FULL: dict[str, dict[str, Any]] = {
@@ -41,6 +42,7 @@ FULL: dict[str, dict[str, Any]] = {
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 3},
     "links": {},
     "faults": {"stop_seconds": 2.0},
+    "api_stream": {"seconds": 120.0, "rounds": 12},
 }
 
 QUICK: dict[str, dict[str, Any]] = {
@@ -53,6 +55,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "check_scale": {"sizes": (102, 1002), "repeat": 1},
     "links": {"quick": True},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.5, "run_seconds": 2.0},
+    "api_stream": {"seconds": 2.0, "rounds": 2},
 }
 
 DOC = Path(REPO) / "docs" / "performance.md"

@@ -23,6 +23,7 @@ TINY = {
     "check_scale": {"sizes": (12, 30), "repeat": 1},
     "links": {"quick": True, "rounds": 1},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.2, "run_seconds": 1.5},
+    "api_stream": {"seconds": 1.0, "rounds": 1},
 }
 
 

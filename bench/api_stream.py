@@ -157,8 +157,11 @@ the median of the rounds' ratios, overruns pooled over the rounds; the target is
         limits="""The server and the client share the machine's 2 vCPUs with the RTPUs and the plant:
 what the stream costs is mostly their CPU time (JSON encoding on one side, decoding on the other),
 which a SCHED_FIFO RTPU preempts. Tails and overruns on this shared VM vary from run to run with the
-hypervisor's stalls; the rounds alternate to spread those over both sides, but a handful of overruns
-either way moves the overrun ratio a lot.""",
+hypervisor's stalls and with what else runs; the rounds alternate to spread those over both sides,
+but a handful of overruns either way moves the overrun ratio by several percent. The robot's RTPU
+spins to its release and its jitter p99 is often under a microsecond, so a round's p99 ratio of two
+such figures can read anything from 0 to 1000x: read the median over the rounds, and rerun on a quiet
+machine before judging a few percent.""",
     )
     try:
         with tempfile.TemporaryDirectory(prefix="bench-api-") as name:

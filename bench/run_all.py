@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from bench import check_scale, faults, links, peers, placement, realtime, scale, svar_transfer, switching, wait
+from bench import api_stream, check_scale, faults, links, peers, placement, realtime, scale, svar_transfer, switching, wait
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -30,6 +30,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "placement": placement.run,
     "links": links.section,
     "faults": faults.run,
+    "api_stream": api_stream.run,
 }
 
 FULL: dict[str, dict[str, Any]] = {
@@ -43,6 +44,7 @@ FULL: dict[str, dict[str, Any]] = {
     "placement": {"tasks": 102, "repeat": 200, "check_repeat": 5},
     "links": {},
     "faults": {"stop_seconds": 2.0},
+    "api_stream": {"seconds": 120.0, "rounds": 12},
 }
 
 QUICK: dict[str, dict[str, Any]] = {
@@ -56,6 +58,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "placement": {"tasks": 102, "repeat": 20, "check_repeat": 1},
     "links": {"quick": True},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.5, "run_seconds": 2.0},
+    "api_stream": {"seconds": 2.0, "rounds": 2},
 }
 
 DOC = Path(REPO) / "docs" / "performance.md"

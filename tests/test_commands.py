@@ -33,7 +33,7 @@ def test_the_docs_verb_table_is_the_one_the_command_table_makes():
 @pytest.mark.parametrize("verb", VERBS, ids=lambda verb: verb.name)
 def test_every_verb_is_a_cli_command_with_its_declared_arguments_and_a_runner(verb):
     parser = subparsers()[verb.name]
-    declared = [argument.dest for argument in verb.arguments] + ["subsystem", "run"]
+    declared = [argument.dest for argument in verb.arguments] + ["subsystem", "run", "format"]
     assert [a.dest for a in parser._actions if a.dest != "help"] == declared
     assert verb.name in operator._RUNNERS
 

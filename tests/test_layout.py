@@ -30,8 +30,9 @@ WING_RANK = {
     "clock": 5,
     "task": 5,
     "supervisor": 6,
-    "cli": 7,
-    "__init__": 8,
+    "api": 7,
+    "cli": 8,
+    "__init__": 9,
 }
 
 PUBLIC_NAMES = [

@@ -28,6 +28,8 @@ from pbo_runtime.config.transitions import transitions
 from pbo_runtime.config.job_dictionary import dictionary_lines, job_dictionary
 
 EXIT_OK, EXIT_CONFIG, EXIT_RUN, EXIT_INTERNAL = 0, 1, 2, 3
+FORMAT_HELP = ("json: print the reply as JSON, a refusal too ({\"ok\": false, \"error\": ...}), on stdout; "
+               "the exit status is the same")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -146,12 +148,27 @@ def _parser() -> argparse.ArgumentParser:
         command = sub.add_parser(verb.name, help=verb.help)
         for argument in (*verb.arguments, *WHICH_RUN):
             command.add_argument(argument.name, **argument.argparse_options())
+        command.add_argument("--format", choices=("text", "json"), default="text", help=FORMAT_HELP)
         command.set_defaults(handler=lambda a, c, e, name=verb.name: _operator().run_verb(name, a, c))
 
     runs = sub.add_parser("runs", help="list your live runs: subsystem, run id, pid, start, configuration, job, file")
     runs.add_argument("--subsystem", help="only this subsystem's runs")
-    runs.add_argument("--json", action="store_true", help="print them as JSON")
-    runs.set_defaults(handler=lambda a, c, e: _operator().runs(c, a.subsystem, a.json))
+    runs.add_argument("--format", choices=("text", "json"), default="text", help="json: the runs as a list of objects")
+    runs.add_argument("--json", action="store_true", help=argparse.SUPPRESS)  # the older spelling of --format json
+    runs.set_defaults(handler=lambda a, c, e: _operator().runs(c, a.subsystem, a.json or a.format == "json"))
+
+    hmi = sub.add_parser("hmi", help="serve the local API (HTTP + WebSocket) for a live run, on 127.0.0.1 with a token")
+    hmi.add_argument("file", nargs="?", help="the subsystem file for lexicon, check, bus and graph (default: the run's own)")
+    hmi.add_argument("--port", type=int, default=8470, help="TCP port (default 8470; 0: any free port, printed)")
+    hmi.add_argument("--host", default="127.0.0.1",
+                     help="address to listen on (default 127.0.0.1: this machine only; 0.0.0.0: every interface, with a warning)")
+    for argument in WHICH_RUN:
+        hmi.add_argument(argument.name, **argument.argparse_options())
+    hmi.set_defaults(handler=_hmi)
+
+    completion = sub.add_parser("completion", help="print the shell completion script: eval \"$(pbo completion bash)\"")
+    completion.add_argument("shell", choices=("bash", "zsh", "tcsh"))
+    completion.set_defaults(handler=lambda a, c, e: _completion(parser, a, c))
 
     clean = sub.add_parser("clean", help="remove your shared memory, semaphores and queues left by dead runs")
     clean.add_argument("--subsystem", help="only this subsystem's leftovers")
@@ -567,6 +584,39 @@ def _operator() -> Any:
     from pbo_runtime.cli import operator
 
     return operator
+
+
+# --- pbo hmi, pbo completion --------------------------------------------------------------------
+
+
+def _hmi(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    if args.file is not None and not os.path.isfile(args.file):
+        errors.print(f"error: no subsystem file '{args.file}': give the YAML file of the subsystem, or none", markup=False)
+        return EXIT_CONFIG
+    if not 0 <= args.port <= 65535:
+        errors.print(f"error: --port must be 0 to 65535, got: {args.port}", markup=False)
+        return EXIT_CONFIG
+    from pbo_runtime.api.server import serve
+
+    def say(text: str) -> None:
+        console.print(text, markup=False, soft_wrap=True)  # the URL stays on one line
+        console.file.flush()  # at once, when a script reads the URL from a pipe
+
+    def warn(text: str) -> None:
+        errors.print(text, markup=False)
+        errors.file.flush()
+
+    with contextlib.suppress(KeyboardInterrupt):
+        return serve(os.path.abspath(args.file) if args.file else None, args.host, args.port, args.subsystem, args.run,
+                     say, warn)
+    return EXIT_OK
+
+
+def _completion(parser: argparse.ArgumentParser, args: argparse.Namespace, console: Console) -> int:
+    import shtab
+
+    console.out(shtab.complete(parser, shell=args.shell), end="")
+    return EXIT_OK
 
 
 # --- pbo bus ---------------------------------------------------------------------------------

@@ -28,14 +28,15 @@ from rich.table import Table
 
 from pbo_runtime.ipc import shm
 from pbo_runtime.clock.clocks import scheduler_outcome
-from pbo_runtime.ipc.control import ControlClient
+from pbo_runtime.api.jsonable import jsonable
+from pbo_runtime.ipc.control import BadRequest, ControlClient
 from pbo_runtime.ipc.runs import live_runs
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.commands import COMMANDS, parse_object_values
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.svar import TableView, open_table, svar_rows, svar_table
 
-__all__ = ["parse_object_values", "run_verb", "runs", "status", "task_signal", "switch", "job", "event", "stop", "svar"]
+__all__ = ["parse_object_values", "run_verb", "run_verb_json", "runs", "status", "task_signal", "switch", "job", "event", "stop", "svar"]
 
 WRITER_MAP_TIMEOUT = 0.5  # svar asks for task names, but must not wait long for a busy supervisor
 TASK_COMMANDS = ("on", "off", "clear")
@@ -245,7 +246,62 @@ for _live_verb in ("spawn", "kill", "replace", "set", "app", "save"):
 
 def run_verb(name: str, args: argparse.Namespace, console: Console) -> int:
     """Run verb `name` of the command table with the command line's arguments; the exit status."""
+    if getattr(args, "format", "text") == "json":
+        return run_verb_json(name, args, console)
     return _RUNNERS[name](args, console)
+
+
+def run_verb_json(name: str, args: argparse.Namespace, console: Console) -> int:
+    """`pbo VERB --format json`: the reply dict as the supervisor sent it (the API's answer too), or the refusal.
+
+    Any verb of the command table, with no code of its own here: its request is made from the
+    command line by the table (`Verb.request`). The exit status is the text form's: 0 done, 1 the
+    request was wrong, 2 the run refused it, or no run answered.
+    """
+    verb = COMMANDS[name]
+    try:
+        if verb.handler is None:
+            reply = _LOCAL_JSON[name](args)
+        else:
+            request = verb.request(vars(args))
+            reply = ControlClient.connect(args.subsystem, args.run).request(name, request, timeout=verb.timeout)
+    except BadRequest as exc:
+        reply = {"ok": False, "error": str(exc), "bad_request": True}
+    except PboError as exc:
+        reply = {"ok": False, "error": str(exc)}
+    if reply is not None:
+        console.out(json.dumps(jsonable(reply), indent=2))
+    if reply is None or reply.get("ok"):
+        return 0
+    return 1 if reply.get("bad_request") else 2
+
+
+def svar_json(args: argparse.Namespace) -> dict[str, Any] | None:
+    """`pbo svar --format json`: the rows pbo svar shows; with --watch, one compact line per refresh (JSON Lines)."""
+    view = open_table(args.subsystem, args.run)
+    try:
+        chosen = _check_names(view, args.names)
+        writers = writer_names(view.subsystem, view.run_id)
+        head = {"ok": True, "subsystem": view.subsystem, "run_id": view.run_id}
+        if not args.watch:
+            return {**head, "variables": svar_rows(view, chosen, writers)}
+        try:
+            while _run_alive(view):
+                try:
+                    line: dict[str, Any] = {**head, "variables": svar_rows(view, chosen, writers)}
+                except TableBusy as exc:
+                    line = {**head, "busy": str(exc)}
+                print(json.dumps(jsonable(line)), flush=True)
+                time.sleep(args.interval)
+        except KeyboardInterrupt:
+            pass
+        return None
+    finally:
+        view.close()
+
+
+# How the verbs the supervisor does not serve (handler None) answer --format json
+_LOCAL_JSON: dict[str, Callable[[argparse.Namespace], dict[str, Any] | None]] = {"svar": svar_json}
 
 
 # --- svar -----------------------------------------------------------------------------------

@@ -148,25 +148,11 @@ class ControlServer:
                                             f"got a list of {len(request)} ({shape})"})
             return
         command, _, arguments = request
-        try:
-            reply = handler(command, arguments)
-            if not isinstance(reply, dict):
-                raise TypeError(f"the handler returned {type(reply).__name__}, not a dict")
-            reply = {"ok": True, **reply}
-        except BadRequest as exc:
-            reply = {"ok": False, "error": str(exc), "bad_request": True}
-        except KeyError as exc:
-            reply = {"ok": False, "error": str(exc.args[0]) if len(exc.args) == 1 else str(exc)}
-        except (PboError, ValueError) as exc:
-            reply = {"ok": False, "error": str(exc)}
-        except Exception as exc:  # noqa: BLE001 - an operator's request must never bring the run down
-            reply = {"ok": False, "error": f"internal error in the supervisor serving '{command}' "
-                                           f"(please report this): {type(exc).__name__}: {exc}"}
-        self._reply(reply_to, reply, command)
+        self._reply(reply_to, answer(handler, command, arguments), command)
 
     def _reply(self, name: str, reply: dict[str, Any], command: str = "") -> None:
         try:
-            raw = msgpack.packb(reply, default=_plain)
+            raw = msgpack.packb(reply, default=plain)
         except (TypeError, ValueError, OverflowError) as exc:
             raw = msgpack.packb({"ok": False, "error": f"the reply to '{command}' cannot be encoded: {exc}"})
         if len(raw) > REPLY_BYTES:
@@ -203,7 +189,29 @@ class ControlServer:
         self.close()
 
 
-def _plain(value: Any) -> Any:
+def answer(handler: Handler, command: str, arguments: dict[str, Any]) -> dict[str, Any]:
+    """The reply to one request as the supervisor sends it: `{"ok": True, ...}`, or the refusal.
+
+    Never raises: a handler's refusal (PboError, ValueError, KeyError) becomes its message, a
+    BadRequest adds `"bad_request": True`, and anything else is an internal error of the supervisor.
+    """
+    try:
+        reply = handler(command, arguments)
+        if not isinstance(reply, dict):
+            raise TypeError(f"the handler returned {type(reply).__name__}, not a dict")
+        return {"ok": True, **reply}
+    except BadRequest as exc:
+        return {"ok": False, "error": str(exc), "bad_request": True}
+    except KeyError as exc:
+        return {"ok": False, "error": str(exc.args[0]) if len(exc.args) == 1 else str(exc)}
+    except (PboError, ValueError) as exc:
+        return {"ok": False, "error": str(exc)}
+    except Exception as exc:  # noqa: BLE001 - an operator's request must never bring the run down
+        return {"ok": False, "error": f"internal error in the supervisor serving '{command}' "
+                                      f"(please report this): {type(exc).__name__}: {exc}"}
+
+
+def plain(value: Any) -> Any:
     """numpy scalars and arrays in a handler's reply travel as Python numbers and lists."""
     if hasattr(value, "tolist"):
         return value.tolist()
@@ -250,7 +258,7 @@ class ControlClient:
                 doing = f"creating a reply queue for '{command}'"
                 reply_queue = limits.QueueSize(reply_name, 1, REPLY_BYTES)
                 raise limits.explain(exc, doing, [reply_queue]) or PboError(f"{doing}: {exc}") from None
-            raw = msgpack.packb([command, reply_name, dict(arguments or {})], default=_plain)
+            raw = msgpack.packb([command, reply_name, dict(arguments or {})], default=plain)
             if len(raw) > REQUEST_BYTES:
                 raise PboError(f"the request '{command}' has {len(raw)} bytes, more than the control queue takes ({REQUEST_BYTES})")
             try:

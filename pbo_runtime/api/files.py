@@ -1,0 +1,160 @@
+"""What needs only a subsystem file, not a run: the lexicon, the checker, the bus report, the diagram.
+
+    GET  /api/lexicon               every module's ports and parameters (pbo lexicon --format json)
+    GET  /api/check                 the checker's verdict on the file (pbo check)
+    POST /api/check                 the same on YAML text sent as the body (the editor's unsaved file)
+    GET  /api/bus?config=NAME       predicted bus utilisation (pbo bus --format json)
+    GET  /api/graph?config=NAME     the configuration's block diagram as SVG (pbo graph -o x.svg)
+
+The file is the one `pbo hmi FILE` was given, or else the attached run's own (its status reply
+names it); with neither, these answer 404 and say so. The lexicon needs no file.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from fastapi import APIRouter, Request
+from fastapi.responses import Response
+from starlette.concurrency import run_in_threadpool
+
+from pbo_runtime.api.link import RunLink
+from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, Reply, refusal
+from pbo_runtime.config import bus
+from pbo_runtime.config.loader import CheckResult, check_file, format_diagnostics
+from pbo_runtime.errors import ConfigError, PboError
+from pbo_runtime.reports.graph import draw
+from pbo_runtime.reports.lexicon import lexicon
+
+MAX_POSTED_YAML = 1 << 20  # bytes: a subsystem file, not a data set
+POSTED_NAME = "posted.yaml"  # how messages name YAML sent as a body
+
+
+class NoFile(PboError):
+    """Neither `pbo hmi FILE` nor a live run says which subsystem file to read."""
+
+
+def subsystem_file(request: Request) -> str:
+    """The file given to `pbo hmi`, or the attached run's; NoFile when there is neither."""
+    given: str | None = request.app.state.file
+    if given:
+        return given
+    link: RunLink = request.app.state.link
+    try:
+        reply = link.request("status", {}, 1.0)
+    except PboError as exc:
+        raise NoFile(f"no subsystem file: pbo hmi was given none and no run names one ({exc}); "
+                     f"start it as pbo hmi FILE") from None
+    if not reply.get("ok") or not reply.get("file"):
+        raise NoFile("no subsystem file: pbo hmi was given none and the run did not say its own; start it as pbo hmi FILE")
+    return str(reply["file"])
+
+
+def diagnostic(d: ConfigError, rename: tuple[str, str] | None = None) -> dict[str, Any]:
+    file = d.file.replace(*rename) if rename else d.file
+    return {"file": file, "line": d.line, "column": d.column, "severity": d.severity, "code": d.code,
+            "message": d.message, "hint": d.hint}
+
+
+def check_reply(result: CheckResult, rename: tuple[str, str] | None = None) -> dict[str, Any]:
+    """The checker's verdict: ok, every error and warning located, and the text pbo check prints."""
+    text = format_diagnostics(result)
+    if rename:
+        text = text.replace(*rename)
+    reply: dict[str, Any] = {"ok": True, "valid": not result.errors, "errors": [diagnostic(e, rename) for e in result.errors],
+                             "warnings": [diagnostic(w, rename) for w in result.warnings], "text": text}
+    if result.subsystem is not None and not result.errors:
+        sub = result.subsystem
+        reply.update(subsystem=sub.name, configurations={name: list(c.tasks) for name, c in sub.configurations.items()},
+                     init_order=list(sub.init_order))
+    return reply
+
+
+def check_text(text: str) -> dict[str, Any]:
+    """Check YAML text as if it were a file named posted.yaml (an include is looked for beside no file)."""
+    with tempfile.TemporaryDirectory(prefix="pbo-check-") as folder:
+        path = Path(folder) / POSTED_NAME
+        path.write_text(text, encoding="utf-8")
+        return check_reply(check_file(str(path)), (str(path), POSTED_NAME))
+
+
+def loaded(file: str, what: str) -> Any:
+    """The checked subsystem of `file`; ValueError naming the first error when it has any."""
+    result = check_file(file)
+    if result.errors or result.subsystem is None:
+        first = result.errors[0].format().splitlines()[0] if result.errors else f"{file}: not a subsystem file"
+        raise ValueError(f"cannot {what}: {file} has {len(result.errors)} error(s), the first: {first}; "
+                         f"GET /api/check lists them all")
+    return result.subsystem
+
+
+def bus_reply(file: str, configuration: str | None) -> dict[str, Any]:
+    subsystem = loaded(file, "report the bus")
+    if configuration is not None and configuration not in subsystem.configurations:
+        raise ValueError(f"no configuration '{configuration}' in {file} (configurations: {', '.join(subsystem.configurations)})")
+    names = [configuration] if configuration else list(subsystem.configurations)
+    return {"ok": True, "file": file, "configurations": {name: bus.as_json(bus.predict(subsystem, name)) for name in names}}
+
+
+def graph_svg(file: str, configuration: str | None) -> bytes:
+    subsystem = loaded(file, "draw the diagram")
+    with tempfile.TemporaryDirectory(prefix="pbo-graph-") as folder:
+        path = draw(subsystem, configuration, os.path.join(folder, "graph.svg"))  # ValueError: no such configuration
+        return path.read_bytes()
+
+
+def router() -> APIRouter:
+    routes = APIRouter(prefix="/api", tags=["files"])
+
+    @routes.get("/lexicon", summary="the module library: every module's ports and parameters (pbo lexicon)")
+    def get_lexicon() -> Reply:
+        return Reply({"ok": True, "modules": lexicon()})
+
+    @routes.get("/check", summary="check the subsystem file like a compiler (pbo check)")
+    def get_check(request: Request) -> Reply:
+        try:
+            file = subsystem_file(request)
+        except NoFile as exc:
+            return refusal(NO_RUN, str(exc))
+        return Reply({**check_reply(check_file(file)), "file": file})
+
+    @routes.post("/check", summary="check YAML text sent as the body (text/plain or application/yaml)",
+                 openapi_extra={"requestBody": {"required": True, "content": {"application/yaml": {"schema": {"type": "string"}},
+                                                                              "text/plain": {"schema": {"type": "string"}}}}})
+    async def post_check(request: Request) -> Reply:
+        raw = await request.body()
+        if len(raw) > MAX_POSTED_YAML:
+            return refusal(BAD_REQUEST, f"the YAML is {len(raw)} bytes, more than {MAX_POSTED_YAML} taken", bad_request=True)
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            return refusal(BAD_REQUEST, f"the YAML is not UTF-8 text: {exc}", bad_request=True)
+        return Reply(await run_in_threadpool(check_text, text))
+
+    @routes.get("/bus", summary="predicted bus utilisation per configuration (pbo bus --format json)")
+    def get_bus(request: Request, config: str | None = None) -> Reply:
+        try:
+            return Reply(bus_reply(subsystem_file(request), config))
+        except NoFile as exc:
+            return refusal(NO_RUN, str(exc))
+        except ValueError as exc:
+            return refusal(BAD_REQUEST, str(exc), bad_request=True)
+
+    @routes.get("/graph", summary="a configuration's block diagram as SVG (pbo graph -o out.svg)",
+                responses={200: {"content": {"image/svg+xml": {}}}})
+    def get_graph(request: Request, config: str | None = None) -> Response:
+        try:
+            return Response(graph_svg(subsystem_file(request), config), media_type="image/svg+xml")
+        except NoFile as exc:
+            return refusal(NO_RUN, str(exc))
+        except ValueError as exc:
+            return refusal(BAD_REQUEST, str(exc), bad_request=True)
+
+    # Placement queries (which lexicon modules can be placed in a configuration, and why not the
+    # rest; where an application's gaps are): routes over the config wing's placement functions
+    # go here, beside the checker they share.
+
+    return routes

@@ -277,6 +277,26 @@ def test_lexicon_check_bus_and_graph_of_the_file_pbo_hmi_was_given(client, subsy
     assert wrong.status_code == 400 and wrong.json()["error"] == f"no configuration 'nope' in {subsystem.file} (configurations: pid, pd)"
 
 
+def test_placement_queries_say_which_modules_the_canvas_may_place_and_why_not_the_rest(client):
+    reply = client.get("/api/place", params={"config": "pid", "module": ["pid_joint", "gravity_compensation"]},
+                       headers=BEARER).json()
+    verdicts = {m["module"]: m for m in reply["modules"]}
+    assert reply["ok"] is True and verdicts["pid_joint"]["legal"] is False and verdicts["pid_joint"]["code"] == "E407"
+    assert verdicts["gravity_compensation"]["legal"] is True
+    wrong = client.get("/api/place", params={"config": "nope"}, headers=BEARER)
+    assert wrong.status_code == 400 and wrong.json()["error"].startswith("no configuration 'nope'")
+
+
+def test_the_job_dictionary_and_the_gaps_of_a_row_of_icons_are_routes(client):
+    dictionary = client.get("/api/dictionary", headers=BEARER).json()
+    assert dictionary["ok"] is True and {"reach", "settle", "hold"} <= set(dictionary["jobs"])
+    assert "tour" in dictionary["applications"]
+    gaps = client.post("/api/gaps", json={"row": ["settle", "reach"]}, headers=BEARER).json()
+    assert gaps["ok"] is True and gaps["complete"] is False
+    assert [(gap["step"], gap["object_type"]) for gap in gaps["gaps"]] == [(1, "joint_position"), (2, "joint_position")]
+    assert client.post("/api/gaps", json={"rows": []}, headers=BEARER).status_code == 400  # a body without its row
+
+
 def test_posted_yaml_is_checked_with_messages_located_in_it(client):
     reply = client.post("/api/check", content="subsystem: x\nrtpus: [r]\nvariables: {}\ntasks: {}\nconfigurations: {}\nfoo: 1\n",
                         headers={**BEARER, "Content-Type": "application/yaml"}).json()

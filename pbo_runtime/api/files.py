@@ -5,6 +5,13 @@
     POST /api/check                 the same on YAML text sent as the body (the editor's unsaved file)
     GET  /api/bus?config=NAME       predicted bus utilisation (pbo bus --format json)
     GET  /api/graph?config=NAME     the configuration's block diagram as SVG (pbo graph -o x.svg)
+    GET  /api/place?config=NAME     which lexicon modules can be placed in a configuration, and why
+         [&tasks=a,b][&rtpu=R]      not the rest (pbo place --format json): the canvas dims those
+         [&module=M...]
+    GET  /api/dictionary            the job dictionary: object types, jobs, applications, objects,
+                                    each with its class and edges (pbo check --format json's part)
+    POST /api/gaps                  {"row": [icon, ...]}: where a partial application's gaps are,
+                                    and of which object type (the workspace's row, left to right)
 
 The file is the one `pbo hmi FILE` was given, or else the attached run's own (its status reply
 names it); with neither, these answer 404 and say so. The lexicon needs no file.
@@ -15,16 +22,19 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response
+from pydantic import BaseModel
 from starlette.concurrency import run_in_threadpool
 
 from pbo_runtime.api.link import RunLink
 from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, Reply, refusal
 from pbo_runtime.config import bus
+from pbo_runtime.config.job_dictionary import job_dictionary, row_gaps
 from pbo_runtime.config.loader import CheckResult, check_file, format_diagnostics
+from pbo_runtime.config.placement import placement_report
 from pbo_runtime.errors import ConfigError, PboError
 from pbo_runtime.reports.graph import draw
 from pbo_runtime.reports.lexicon import lexicon
@@ -153,8 +163,41 @@ def router() -> APIRouter:
         except ValueError as exc:
             return refusal(BAD_REQUEST, str(exc), bad_request=True)
 
-    # Placement queries (which lexicon modules can be placed in a configuration, and why not the
-    # rest; where an application's gaps are): routes over the config wing's placement functions
-    # go here, beside the checker they share.
+    @routes.get("/place", summary="which lexicon modules can be placed in a configuration, and why not the rest (pbo place)")
+    def get_place(request: Request, config: str | None = None, tasks: str | None = None, rtpu: str | None = None,
+                  module: Annotated[list[str] | None, Query()] = None) -> Reply:
+        try:
+            subsystem = loaded(subsystem_file(request), "answer a placement query")
+            members = [name.strip() for name in tasks.split(",") if name.strip()] if tasks is not None else None
+            return Reply({"ok": True, **placement_report(subsystem, config, tasks=members, rtpu=rtpu, modules=module)})
+        except NoFile as exc:
+            return refusal(NO_RUN, str(exc))
+        except ValueError as exc:
+            return refusal(BAD_REQUEST, str(exc), bad_request=True)
+
+    @routes.get("/dictionary", summary="the job dictionary: object types, jobs, applications, objects, with classes and edges")
+    def get_dictionary(request: Request) -> Reply:
+        try:
+            return Reply({"ok": True, **job_dictionary(loaded(subsystem_file(request), "list the job dictionary"))})
+        except NoFile as exc:
+            return refusal(NO_RUN, str(exc))
+        except ValueError as exc:
+            return refusal(BAD_REQUEST, str(exc), bad_request=True)
+
+    @routes.post("/gaps", summary="where a partial application's gaps are, and of which object type")
+    def post_gaps(request: Request, body: GapsRequest) -> Reply:
+        try:
+            return Reply({"ok": True, **row_gaps(loaded(subsystem_file(request), "find the gaps"), body.row)})
+        except NoFile as exc:
+            return refusal(NO_RUN, str(exc))
+        except ValueError as exc:
+            return refusal(BAD_REQUEST, str(exc), bad_request=True)
 
     return routes
+
+
+class GapsRequest(BaseModel):
+    """The workspace's row of icons, left to right: names of jobs, applications and objects, or
+    steps as a file writes them ({job: object name} or {job: {variable: value}})."""
+
+    row: list[Any]

@@ -15,7 +15,7 @@ from pbo_runtime.cli.main import _parser
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import BadRequest
-from pbo_runtime.supervisor.commands import COMMANDS, SERVED, VERBS, WHICH_RUN, dispatch, verb_table
+from pbo_runtime.supervisor.commands import COMMANDS, SERVED, VERBS, WHICH_RUN, dispatch, parse_job_object, verb_table
 from tests.support import REPO
 from tests.fake_job_host import FakeJobHost, fake_subsystem
 
@@ -243,6 +243,24 @@ def test_a_job_with_its_object_starts_in_its_configuration(host):
     assert reply == {"job": "settle", "configuration": "pd",
                      "message": "job 'settle' runs in 'pd'; done when max(abs(q_m - q_d)) < 0.01 and max(abs(qd_m)) < 0.01"}
     assert host.configuration == "pd" and host.job_control.job == "settle"
+
+
+def test_a_job_takes_a_named_object_of_the_file_by_its_name(host):
+    reply = dispatch(host, "job", {"job": "reach", "object": "ready"})
+    assert reply["job"] == "reach" and host.job_control.job == "reach"
+    assert (host.values["q_d"] == host.subsystem.objects["ready"].value).all()
+
+
+def test_a_named_object_the_file_lacks_is_refused_with_the_ones_of_the_jobs_type(host):
+    with pytest.raises(BadRequest, match=r"^no object 'raedy' in the file \(objects of type joint_position: ready\); "
+                                         r"give it by name or as numbers: pbo job reach VALUE \.\.\.$"):
+        dispatch(host, "job", {"job": "reach", "object": "raedy"})
+    assert host.plans == [] and host.job_control.job is None
+
+
+@pytest.mark.parametrize("texts, parsed", [(["ready"], "ready"), (["0.3", "-1"], [0.3, -1]), (None, None)])
+def test_the_command_line_gives_a_job_a_named_object_or_its_numbers(texts, parsed):
+    assert parse_job_object(texts) == parsed
 
 
 @pytest.mark.parametrize("verb, arguments", [("switch", {"configuration": "pd"}), ("job", {"job": "hold", "object": None})])

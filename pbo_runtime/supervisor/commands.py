@@ -184,6 +184,13 @@ def parse_object_values(texts: Sequence[str] | None) -> list[int | float] | None
     return values
 
 
+def parse_job_object(texts: Sequence[str] | None) -> list[int | float] | str | None:
+    """A job's object on the command line: a named object (`pbo job reach home`), or its numbers."""
+    if texts and len(texts) == 1 and texts[0].isidentifier():
+        return texts[0]
+    return parse_object_values(texts)
+
+
 def _numbers(values: Any, what: str) -> list[int | float]:
     """An event's values as the control queue brought them: a flat list of finite numbers."""
     if not isinstance(values, list):
@@ -319,8 +326,11 @@ def job(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
         if not spec.object:
             raise BadRequest(f"job '{name}' takes no object")
         variable = host.subsystem.variables[spec.object]
+        given = arguments["object"]
+        if isinstance(given, str):  # a named object of the file (`objects:`), as an application's step gives one
+            given = _named_object(host, name, spec.object_type, given)
         try:  # the checker's rule for a job's object in a file: numbers of the dtype, finite, all elements
-            values[spec.object] = as_value(arguments["object"], variable.dtype, variable.shape, f"job '{name}': object '{spec.object}'")
+            values[spec.object] = as_value(given, variable.dtype, variable.shape, f"job '{name}': object '{spec.object}'")
         except ValueError as exc:
             raise BadRequest(str(exc)) from None
     elif spec.object:
@@ -328,6 +338,20 @@ def job(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     host.job_control.start_job(name, values)
     return {"job": name, "configuration": spec.configuration,
             "message": f"job '{name}' runs in '{spec.configuration}'" + (f"; done when {spec.post}" if spec.post else "")}
+
+
+def _named_object(host: CommandHost, job: str, object_type: str | None, name: str) -> list[Any]:
+    """The value of the file's object `name`, if it is of the job's object type."""
+    objects = host.subsystem.objects
+    fitting = sorted(o.name for o in objects.values() if o.type == object_type)
+    found = objects.get(name)
+    if found is None:
+        raise BadRequest(f"no object '{name}' in the file (objects of type {object_type}: {', '.join(fitting) or 'none'}); "
+                         f"give it by name or as numbers: pbo job {job} VALUE ...")
+    if found.type != object_type:
+        raise BadRequest(f"object '{name}' is of type {found.type}, but job '{job}' takes one of type {object_type} "
+                         f"({', '.join(fitting) or 'the file names none'})")
+    return found.value.tolist()
 
 
 def stop(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
@@ -495,10 +519,10 @@ VERBS: tuple[Verb, ...] = (
     Verb("switch", "switch the running subsystem to another configuration (dynamic, TR 4.4)",
          (Argument("configuration", help="the configuration to switch to", key="configuration"),), switch,
          '`{"configuration": str, "entered": [str], "left": [str], "took": seconds}`', COMMAND_TIMEOUT),
-    Verb("job", "start a job, with its object's values: pbo job move 0.3 -0.5 0.5 0 0.4 0.2",
+    Verb("job", "start a job, with its object: pbo job reach ready, or its values: pbo job reach 0.3 -0.5 0.5 0 0.4 0.2",
          (Argument("name", help="the job's name", key="job"),
-          Argument("values", help="its object's values, if it takes one", key="object", nargs="*",
-                   parse=parse_object_values)),
+          Argument("values", help="its object: a named object of the file, or its values", key="object", nargs="*",
+                   parse=parse_job_object)),
          job, '`{"job": str, "configuration": str}`', COMMAND_TIMEOUT),
     Verb("event", "send an event (with values) to an aperiodic task",
          (Argument("task", help="the aperiodic task's name", key="task"),

@@ -232,6 +232,13 @@ def test_a_missing_include_is_an_error_at_the_include(tmp_path: Path) -> None:
     assert (result.errors[0].line, result.errors[0].column) == (8, 11)
 
 
+def test_an_include_with_a_nul_character_is_an_error_at_the_include_not_an_internal_one(tmp_path: Path) -> None:
+    main = FULL.replace("dims: {N: 3}\n", 'dims: {N: 3}\ninclude: ["a\\0b.yaml"]\n')
+    result = check_file(write(tmp_path, main), fake_lookup)
+    assert [e.message for e in result.errors] == ["an include must be a file path, got: 'a\\x00b.yaml', which holds a NUL character"]
+    assert (result.errors[0].line, result.errors[0].column) == (8, 11)
+
+
 def test_an_include_cycle_is_an_error(tmp_path: Path) -> None:
     write(tmp_path, "include: [b.yaml]\n", "a.yaml")
     write(tmp_path, "include: [a.yaml]\n", "b.yaml")

@@ -215,6 +215,10 @@ def _load_with_includes(file: str, stack: list[str], errors: list[ConfigError]) 
         if not isinstance(item, str) or not item:
             errors.append(_error(f"an include must be a file path, got: {describe(item)}", loc))
             continue
+        if "\0" in item:  # no file system takes one: os.path would raise
+            errors.append(_error(f"an include must be a file path, got: {item!r}, which holds a NUL character", loc,
+                                 "write the path as plain text, e.g. include: [common/puma_variables.yaml]"))
+            continue
         target = os.path.normpath(os.path.join(here, item))
         if os.path.realpath(target) in chain:
             errors.append(_error(f"'{item}' includes itself (through {' -> '.join(os.path.basename(c) for c in chain)})", loc, "remove one of the includes"))

@@ -86,7 +86,9 @@ def test_a_module_that_never_returns_stops_its_rtpu_and_the_robot_holds_the_arm_
     report = json.loads(report_path.read_text())
     held = [e for e in report["stable_episodes"] if e["cause"] == "stale" and not e["while_starting"]]
     assert held and held[-1]["task"] == "robot" and "('pid' stopped writing it)" in held[-1]["reason"]
-    assert "fault: critical task 'robot' ran its locally stable behaviour until the stop" in done.stderr
+    # held until the stop ("until the stop", or "N times (one until the stop)" after brief holds on a busy machine)
+    held_lines = [line for line in done.stderr.splitlines() if line.startswith("fault: critical task 'robot' ran its")]
+    assert any("until the stop" in line and "('pid' stopped writing it)" in line for line in held_lines), done.stderr
     assert report["tasks"]["stuck"]["cycles"] == 100 and report["unstopped"] == ["rtpu0"]
     assert "error: rtpu0 did not stop within 5 s and was killed" in done.stderr
     assert_nothing_left(report)

@@ -21,6 +21,12 @@ class InjectionFailed(RuntimeError):
     """The fault could not be caused (the process ended, or never held the lock)."""
 
 
+def table_of(subsystem: str, supervisor: int) -> str:
+    """The POSIX name of the table of `subsystem`'s run whose `pbo run` is process `supervisor`."""
+    [entry] = [e for e in os.listdir("/dev/shm") if e.startswith(f"pbo.{subsystem}.{supervisor}-") and e.endswith(".table")]
+    return "/" + entry
+
+
 def stop_process(pid: int, safety_net: float = 30.0) -> float:
     """SIGSTOP `pid` and wait until it is stopped; the CLOCK_MONOTONIC time of the signal."""
     stopped_at = time.monotonic()

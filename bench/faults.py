@@ -35,7 +35,7 @@ import numpy as np
 import yaml
 
 from bench._common import REPO, Section, Table
-from bench._inject import InjectionFailed, stop_process, stop_while_holding_the_lock
+from bench._inject import InjectionFailed, stop_process, stop_while_holding_the_lock, table_of
 from pbo_runtime.ipc import shm
 
 DEMO = Path(REPO) / "configs" / "pid_joint.yaml"
@@ -149,12 +149,6 @@ class LiveRun:
 Injector = Callable[[LiveRun, float], float]
 
 
-def table_of(supervisor: int) -> str:
-    """The POSIX name of the table of the run whose `pbo run` is `supervisor`."""
-    [table] = [n for n in os.listdir("/dev/shm") if n.startswith(f"pbo.{SUBSYSTEM}.{supervisor}-") and n.endswith(".table")]
-    return "/" + table
-
-
 def stopped(target: Callable[[int], int]) -> Injector:
     """SIGSTOP the run's process that `target` finds, for `seconds`, then SIGCONT."""
     def inject(run: LiveRun, seconds: float) -> float:
@@ -169,7 +163,7 @@ def stopped(target: Callable[[int], int]) -> Injector:
 def stopped_holding_the_lock(run: LiveRun, seconds: float) -> float:
     """SIGSTOP the controller's RTPU at a moment it holds the table lock, for `seconds` (if it lives that long)."""
     pid = controller_process(run.supervisor)
-    stopped_at = stop_while_holding_the_lock(pid, table_of(run.supervisor))
+    stopped_at = stop_while_holding_the_lock(pid, table_of(SUBSYSTEM, run.supervisor))
     time.sleep(seconds)
     resume(pid)
     return stopped_at
@@ -202,7 +196,7 @@ def hung(run: LiveRun, seconds: float) -> float:
 
     stuck = load_subsystem(str(run.config)).tasks["stuck"]
     time.sleep(seconds)
-    with attach(table_of(run.supervisor)) as view:
+    with attach(table_of(SUBSYSTEM, run.supervisor)) as view:
         row = view.task_status()[stuck.index]
     if row["cycles"] != HANG_AFTER:
         raise InjectionFailed(f"the module was to hang after {HANG_AFTER} cycles; its task has finished {row['cycles']}")

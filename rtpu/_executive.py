@@ -209,7 +209,7 @@ class Executive:
         # and the next plan swaps it in at its cycle boundary (`apply_plan`), tunes included.
         self.live_loader = live_loader
         self.staged: LiveStage | None = None
-        self.staged_tunes: dict[str, Any] = {}  # hosted task -> its new spec, when its parameters changed
+        self.staged_tunes: dict[str, Any] = {}  # hosted task -> (its new spec, its Params), when its parameters changed
 
     # --- the loop ---------------------------------------------------------------------------
 
@@ -516,9 +516,9 @@ class Executive:
         """The staged live description becomes this RTPU's: who is in which configuration, who writes
         what; tasks whose tunable parameters changed take them now, between two cycles."""
         self.reconfiguration = stage.reconfiguration
-        for name, spec in tunes.items():
+        for name, (spec, params) in tunes.items():
             try:
-                self.tasks[name].task.tune(spec)
+                self.tasks[name].task.tune(spec, params)
             except Exception as exc:  # noqa: BLE001 - the checker passed the values: a module that refuses them says why
                 self.report(Refused(name, f"tune: {exc}"))
 
@@ -636,7 +636,8 @@ class Executive:
             for name, s in self.tasks.items():
                 index, params = stage.tasks.get(name, (-1, None))
                 if index == s.task.index and params != s.task.spec.params and s.task.state != TaskState.KILLED:
-                    tunes[name] = stage.spec(name)  # built now: the boundary only calls tune
+                    spec = stage.spec(name)
+                    tunes[name] = (spec, s.task.tune_params(spec))  # built now: the boundary only calls tune
         except Exception as exc:  # noqa: BLE001 - job control refuses the change and says why
             self.report(messages.Staged(sequence, f"{type(exc).__name__}: {exc}"))
             return

@@ -19,6 +19,7 @@ import numpy as np
 import posix_ipc
 import pytest
 
+from bench import _inject
 from bench._inject import stop_process, stop_while_holding_the_lock  # noqa: F401 (the tests' way to cause them)
 from pbo_runtime import OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
@@ -320,8 +321,7 @@ def run_processes(run: subprocess.Popen) -> dict[str, int]:
 
 def table_of(run: subprocess.Popen, subsystem: str) -> str:
     """The POSIX name of the table of the run whose supervisor is `run`."""
-    [entry] = [e for e in os.listdir("/dev/shm") if e.startswith(f"pbo.{subsystem}.{run.pid}-") and e.endswith(".table")]
-    return "/" + entry
+    return _inject.table_of(subsystem, run.pid)
 
 
 def assert_ended_cleanly(run: subprocess.Popen, subsystem: str, report_path: Path, status: int | None) -> tuple[str, str]:

@@ -126,10 +126,14 @@ class Task:
 
     # --- signals ----------------------------------------------------------------------------
 
-    def tune(self, spec: TaskSpec) -> None:
-        """A live change of tunable parameters (`pbo set`): the module's `tune` gets the new Params,
-        between two cycles. The spec was checked (`config.live`); a module that refuses raises."""
-        params = type(self.module).build_params(dict(spec.params))
+    def tune_params(self, spec: TaskSpec) -> Any:
+        """The module's Params for a live change of `spec` (`pbo set`): built when the change is
+        staged, so the cycle boundary only hands them over (`tune`). The spec was checked (`config.live`)."""
+        return type(self.module).build_params(dict(spec.params))
+
+    def tune(self, spec: TaskSpec, params: Any) -> None:
+        """A live change of tunable parameters: the module's `tune` gets `params` (`tune_params`),
+        between two cycles; a module that refuses raises."""
         if self.state in (TaskState.OFF, TaskState.ON, TaskState.ERROR):
             self.module.tune(params)
         self._params = params

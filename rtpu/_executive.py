@@ -74,7 +74,7 @@ class Scheduled:
     __slots__ = ("task", "period", "critical", "priority", "release", "release_index", "overruns", "missed", "jitter", "exec_time",
                  "samples", "jitter_max", "exec_max", "status", "aperiodic", "events", "dropped_events",
                  "last_release", "stale_reads", "stale_at_switch", "input_periods", "write_times", "stable_cycles",
-                 "in_stable", "first_cycle_of_plan", "last_stale", "expected_writers", "input_writers",
+                 "held_for", "first_cycle_of_plan", "last_stale", "expected_writers", "input_writers",
                  "lost_to_switch", "last_lost", "window_lost", "window_stale", "shared_status", "overrun_log",
                  "long_cycles", "fresh_bounds", "fresh_within", "writer_names", "expired_reads",
                  "fresh_since")
@@ -116,7 +116,7 @@ class Scheduled:
         self.window_lost = 0  # counts at the last switch: what a switch's window adds is the difference
         self.window_stale = 0
         self.stable_cycles = 0
-        self.in_stable = False
+        self.held_for = NOT_HELD  # why the current stable episode holds the task (one of the HELD_ reasons)
         # Freshness bound per in-var (seconds; inf: not watched), set per configuration by `_watch`
         self.fresh_bounds = [math.inf] * len(task.local.input_variables)
         self.writer_names = [""] * len(task.local.input_variables)
@@ -339,11 +339,13 @@ class Executive:
             result = Status.CONTINUE
         if held:
             s.stable_cycles += 1
-            if not s.in_stable:
-                s.in_stable = True
+            if held != s.held_for:  # an episode begins, or goes on for another reason: a new episode says why
+                if s.held_for:
+                    self.report(Stable(task.name, False, start))
+                s.held_for = held
                 self._report_stable(s, held, start, expired, release)
-        elif s.in_stable and result == Status.CONTINUE:
-            s.in_stable = False
+        elif s.held_for and result == Status.CONTINUE:
+            s.held_for = NOT_HELD
             self.report(Stable(task.name, False, start))
         end = self.clock.now()
         took = end - start

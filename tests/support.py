@@ -9,7 +9,9 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import signal
 import sys
+import threading
 import time
 import tracemalloc
 import uuid
@@ -295,16 +297,49 @@ def assert_ended_well(returncode: int, report: dict, said: str = "") -> None:
 # --- faults in a real run: stopped processes, a held table lock ----------------------------------
 
 
+SAYING_SAFETY_NET = 180.0  # seconds a run may take to say what a test waits for: a net for a hang, not a timing
+
+
+def read_until(run: subprocess.Popen, *texts: str, safety_net: float = SAYING_SAFETY_NET) -> str:
+    """What `run` printed up to the line by which it has said every one of `texts` (all of it if it ended first).
+
+    A run that has said neither all of them nor its last line after `safety_net` seconds is
+    stopped (Ctrl-C, then SIGKILL) and the test fails with what it said: a missing line never
+    hangs the suite."""
+    assert run.stdout is not None
+    said: list[str] = []
+    waiting = set(texts)
+
+    def read() -> None:
+        for line in run.stdout:
+            said.append(line)
+            waiting.difference_update([text for text in waiting if text in line])
+            if not waiting:
+                return
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    reader.join(safety_net)
+    if reader.is_alive():
+        run.send_signal(signal.SIGINT)
+        try:
+            run.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            run.kill()
+            run.wait()
+        reader.join()
+        pytest.fail(f"the run did not say {sorted(waiting)} within {safety_net:.0f} s; it said:\n{''.join(said)}")
+    return "".join(said)
+
+
 def start_run(file: Path, cwd: Path, *arguments: str) -> subprocess.Popen:
     """`pbo run FILE --no-live ...` in `cwd`, returned once its configuration is on (stdout read up to that line)."""
     run = subprocess.Popen([*PBO, "run", str(file), "--no-live", *arguments], cwd=cwd,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert run.stdout is not None
-    for line in run.stdout:
-        if "is on" in line:
-            return run
-    run.wait(timeout=60)
-    pytest.fail(f"the run did not start: {run.stderr.read() if run.stderr else ''}")
+    if "is on" not in read_until(run, "is on"):
+        run.wait(timeout=60)
+        pytest.fail(f"the run did not start: {run.stderr.read() if run.stderr else ''}")
+    return run
 
 
 def run_processes(run: subprocess.Popen) -> dict[str, int]:

@@ -16,7 +16,7 @@ from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm as _shm
 from pbo_runtime.supervisor.supervisor import remove_dead_runs
 from pbo_runtime.table.table import Header, StateTable, TableLayout
-from tests.support import DEMO, PBO, REPO, RUNS, Ticker, children_of, task_spec, unique_name, variables
+from tests.support import DEMO, PBO, REPO, RUNS, Ticker, children_of, read_until, task_spec, unique_name, variables
 
 VARS = variables(("a", "float64", (3,)))
 
@@ -108,9 +108,7 @@ def test_killing_the_supervisor_takes_its_children_and_pbo_clean_removes_the_res
     pbo = subprocess.Popen([*PBO, "run", str(DEMO), "--duration", "60", "--no-live"], cwd=tmp_path,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        for line in pbo.stdout:
-            if "is on" in line:
-                break
+        read_until(pbo, "is on")
         children = children_of(pbo.pid)
         assert len(children) == 3  # the plant and two RTPUs
         ours = [n for n in os.listdir("/dev/shm") if f".{pbo.pid}-" in n]
@@ -142,9 +140,7 @@ def test_an_rtpu_stops_on_sigterm_even_while_waiting_on_its_queue(tmp_path):
     pbo = subprocess.Popen([*PBO, "run", str(DEMO), "--duration", "60", "--no-live"], cwd=tmp_path,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        for line in pbo.stdout:
-            if "is on" in line:
-                break
+        read_until(pbo, "is on")
         rtpu0 = [pid for pid, cmd in children_of(pbo.pid).items() if "--rtpu rtpu0" in cmd][0]
         os.kill(rtpu0, signal.SIGTERM)
         out, err = pbo.communicate(timeout=60)

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import pytest
 
-from tests.support import DEMO, PBO, REPO, assert_ended_well, assert_nothing_left, children_of
+from tests.support import DEMO, PBO, REPO, assert_ended_well, assert_nothing_left, children_of, read_until
 
 pytestmark = pytest.mark.multiprocess
 
@@ -60,9 +60,7 @@ def test_killing_an_rtpu_stops_everything_and_names_the_rtpu_and_its_tasks(tmp_p
     pbo = subprocess.Popen([*PBO, "run", str(DEMO), "--duration", "60", "--report", str(report_path), "--no-live"],
                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        for line in pbo.stdout:  # wait until the configuration is on
-            if "is on" in line:
-                break
+        read_until(pbo, "is on")  # wait until the configuration is on
         rtpu1 = [pid for pid, cmd in children_of(pbo.pid).items() if "--rtpu rtpu1" in cmd]
         assert len(rtpu1) == 1
         os.kill(rtpu1[0], signal.SIGKILL)
@@ -85,9 +83,7 @@ def test_ctrl_c_stops_the_run_cleanly_with_a_summary(tmp_path):
     pbo = subprocess.Popen([*PBO, "run", str(DEMO), "--duration", "0", "--report", str(report_path), "--no-live"],
                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        for line in pbo.stdout:
-            if "is on" in line:
-                break
+        read_until(pbo, "is on")
         time.sleep(0.5)  # let it cycle; nothing below depends on how long
         pbo.send_signal(signal.SIGINT)
         out, err = pbo.communicate(timeout=60)

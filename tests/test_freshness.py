@@ -14,10 +14,11 @@ from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.ipc import messages
-from pbo_runtime.supervisor.run_report import BRIEF_HOLD_PERIODS, BRIEF_HOLDS_SHARE, stable_episode_lines
-from pbo_runtime.table.table import StateTable, TableLayout
+from pbo_runtime.supervisor.events import STABLE_EPISODES_TOLD, EventHandling
+from pbo_runtime.supervisor.run_report import BRIEF_HOLD_PERIODS, BRIEF_HOLDS_SHARE, RunResult, stable_episode_lines
+from pbo_runtime.table.table import Header, StateTable, TableLayout
 from pbo_runtime.task.lifecycle import Task
-from rtpu._executive import Executive
+from rtpu._executive import HELD_ILLEGAL, HELD_STALE_INPUT, NOT_HELD, Executive
 from tests.support import IdleSignals, step_executives, unique_name
 
 PERIOD = 0.001
@@ -160,7 +161,7 @@ def test_a_critical_task_whose_writer_stops_runs_stable_from_its_third_period_on
     assert [round(t - written, 5) for t in module.cycles if t > written] == [0.00045, 0.00145]
     assert module.stable[0] == pytest.approx(written + 0.00245)
     assert module.stable[0] - stopped_at <= 3 * PERIOD
-    assert actuator.in_stable and len(module.stable) == actuator.stable_cycles == actuator.expired_reads
+    assert actuator.held_for == HELD_STALE_INPUT and len(module.stable) == actuator.stable_cycles == actuator.expired_reads
     (entering,) = stable_events(events)
     assert (entering.task, entering.entering, entering.cause) == ("actuator", True, "stale")
     assert entering.reason == ("in-var 'u' is 2.5 ms old, past its freshness bound of 2 ms ('writer' stopped writing it)")
@@ -173,10 +174,25 @@ def test_the_critical_task_resumes_its_cycle_by_itself_when_fresh_values_return(
     resumed_at = clock.now()
     step_executives(executives, clock, clock.now() + 0.01)  # SIGCONT: the writer catches up
     module = actuator.task.module
-    assert not actuator.in_stable
+    assert actuator.held_for == NOT_HELD
     assert module.cycles[-1] > resumed_at and all(t < resumed_at + PERIOD for t in module.stable)
     entering, leaving = stable_events(events)
     assert (leaving.entering, leaving.task) == (False, "actuator") and leaving.at > entering.at
+
+
+def test_a_hold_for_a_stale_input_that_goes_on_because_a_task_is_in_error_is_a_new_episode_saying_so(rig):
+    clock, executives, events, actuator = rig()
+    step_executives(executives, clock, clock.now() + 0.01)
+    step_executives({"rtpu1": executives["rtpu1"]}, clock, clock.now() + 0.005)  # the writer stopped: a stale hold
+    header = executives["rtpu1"].header
+    header[Header.TASKS_IN_ERROR] = 1  # as job control sets it when a task reports ERROR
+    step_executives({"rtpu1": executives["rtpu1"]}, clock, clock.now() + 0.005)
+    assert actuator.held_for == HELD_ILLEGAL
+    header[Header.TASKS_IN_ERROR] = 0
+    step_executives(executives, clock, clock.now() + 0.01)  # cleared, and the writer runs again
+    episodes = [(e.entering, e.cause) for e in stable_events(events)]
+    assert episodes == [(True, "stale"), (False, ""), (True, "illegal"), (False, "")]
+    assert actuator.held_for == NOT_HELD
 
 
 def test_the_cycle_never_reads_a_value_older_than_the_bound(rig):
@@ -216,7 +232,7 @@ def test_a_module_that_returns_stable_is_reported_as_a_stable_episode_and_resume
     step_executives(executives, clock, clock.now() + 0.005)
     entering, leaving = stable_events(events)
     assert (entering.cause, entering.entering, leaving.entering) == ("module", True, False)
-    assert actuator.stable_cycles == 5 and not actuator.in_stable
+    assert actuator.stable_cycles == 5 and actuator.held_for == NOT_HELD
     assert actuator.task.state.name == "ON"
 
 
@@ -263,3 +279,31 @@ def test_brief_holds_adding_up_to_more_than_a_twentieth_of_the_run_are_a_fault()
 def test_a_hold_while_the_configuration_comes_on_is_neither_and_is_marked():
     held = episode(-0.5, 0.3)
     assert lines(held) == ([], []) and held["while_starting"] is True
+
+
+class StableEpisodesHeard(EventHandling):
+    """The Supervisor's part that hears stable episodes, with a list for its lines."""
+
+    def __init__(self) -> None:
+        self.result = RunResult("test", "c")
+        self._stable = {}
+        self.lines: list[str] = []
+        self.say = self.lines.append
+        self._count_errors = lambda: None
+
+    def hold(self, cause: str, at: float) -> None:
+        self._absorb("rtpu1", messages.Stable("robot", True, at, f"held for {cause}", cause))
+        self._absorb("rtpu1", messages.Stable("robot", False, at + 0.001))
+
+
+def test_a_hold_for_an_illegal_configuration_is_told_even_after_many_holds_for_late_inputs():
+    heard = StableEpisodesHeard()
+    for late in range(STABLE_EPISODES_TOLD + 3):
+        heard.hold("stale", at=float(late))
+    heard.hold("illegal", at=100.0)
+    told = [line for line in heard.lines if "runs its locally stable behaviour" in line]
+    assert told == ["critical task 'robot' runs its locally stable behaviour: held for stale"] * STABLE_EPISODES_TOLD + [
+        "critical task 'robot' runs its locally stable behaviour: held for illegal"]
+    assert heard.lines[2 * STABLE_EPISODES_TOLD - 1].endswith("its further holds for late inputs are counted in the summary, not told")
+    assert heard.lines[-1].startswith("critical task 'robot' is back to its cycle after 1.0 ms")
+    assert len(heard.result.stable_episodes) == STABLE_EPISODES_TOLD + 4

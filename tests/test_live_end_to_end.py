@@ -20,7 +20,7 @@ from pbo_runtime.config.live_save import same_subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.commands import dispatch
 from pbo_runtime.supervisor.supervisor import Supervisor
-from tests.support import PBO, assert_nothing_left, live_demo_copy
+from tests.support import PBO, assert_nothing_left, live_demo_copy, read_until
 
 pytestmark = pytest.mark.multiprocess
 
@@ -107,9 +107,7 @@ def test_the_live_verbs_work_from_another_terminal_and_a_refusal_reads_as_pbo_ch
                             str(report_path)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert run.stdout is not None
-        for line in run.stdout:
-            if "is on" in line:
-                break
+        read_until(run, "is on")
         spawned = pbo("spawn", "logger", "--module", "data_logger", "--rtpu", "rtpu0", "--period", "10ms",
                       "--param", "variables=[q_m, q_r, tau_u]", "path=runs/cli.npy")
         assert spawned.returncode == 0 and "task 'logger' on rtpu0 (status block 3) is ON" in spawned.stdout, spawned.stderr

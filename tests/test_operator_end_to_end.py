@@ -8,26 +8,14 @@ from __future__ import annotations
 
 import json
 import subprocess
-from typing import IO
 
 import pytest
 
-from tests.support import PBO, REPO, assert_ended_well, assert_nothing_left
+from tests.support import PBO, REPO, assert_ended_well, assert_nothing_left, read_until
 
 pytestmark = pytest.mark.multiprocess
 
 DRILL = REPO / "configs" / "fault_drill.yaml"
-
-
-def read_until(stream: IO[str], *texts: str) -> list[str]:
-    """The lines of `stream` up to the one by which every text has been seen (all of them if it ends first)."""
-    lines, waiting = [], set(texts)
-    for line in stream:
-        lines.append(line)
-        waiting = {text for text in waiting if text not in line}
-        if not waiting:
-            break
-    return lines
 
 
 def pbo(*arguments: str) -> subprocess.CompletedProcess:
@@ -41,8 +29,8 @@ def test_a_task_that_raises_shows_as_error_and_recovers_after_clear(tmp_path):
                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         # the robot has run a stable cycle once it says so: what is asserted below waits for events, never for time
-        said = "".join(read_until(run.stdout, "task 'glitch' on rtpu0 is in ERROR",
-                                  "critical task 'robot' runs its locally stable behaviour: the configuration is illegal"))
+        said = read_until(run, "task 'glitch' on rtpu0 is in ERROR",
+                          "critical task 'robot' runs its locally stable behaviour: the configuration is illegal")
         assert "injected fault after 200 cycles" in said, run.stderr.read() if run.poll() is not None else said
         status = pbo("status", "--subsystem", "drill")
         assert status.returncode == 0, status.stderr
@@ -54,7 +42,7 @@ def test_a_task_that_raises_shows_as_error_and_recovers_after_clear(tmp_path):
         assert "task 'glitch' is OFF" in cleared.stdout
         resumed = pbo("on", "glitch", "--subsystem", "drill")
         assert "task 'glitch' is ON" in resumed.stdout, resumed.stderr
-        assert "critical task 'robot' is back to its cycle" in "".join(read_until(run.stdout, "is back to its cycle"))
+        assert "critical task 'robot' is back to its cycle" in read_until(run, "is back to its cycle")
         values = pbo("svar", "q_m", "tau_u", "--subsystem", "drill")
         assert values.returncode == 0 and "q_m" in values.stdout and "robot" in values.stdout
         stopped = pbo("stop", "--subsystem", "drill")
@@ -79,7 +67,7 @@ def test_switch_and_job_commands_reconfigure_a_running_subsystem(tmp_path):
                             "--report", str(report_path)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                            text=True)
     try:
-        read_until(run.stdout, "is on")
+        read_until(run, "is on")
         switched = pbo("switch", "pd", "--subsystem", "puma_switch")
         assert switched.returncode == 0 and "switched 'pid' -> 'pd'" in switched.stdout, switched.stderr
         unknown = pbo("switch", "nope", "--subsystem", "puma_switch")

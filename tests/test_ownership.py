@@ -13,7 +13,7 @@ import os
 import subprocess
 import uuid
 from pathlib import Path
-from typing import IO, Any, Iterator
+from typing import Any, Iterator
 
 import numpy as np
 import posix_ipc
@@ -28,7 +28,7 @@ from pbo_runtime.ipc.runs import live_runs
 from pbo_runtime.supervisor.cleanup import read_run_manifest, remove_dead_runs
 from pbo_runtime.supervisor.supervisor import RunRefused, Supervisor
 from pbo_runtime.table.table import HEADER_WORDS, MAGIC, MANIFEST_BYTES, VERSION, Header, StateTable, TableLayout
-from tests.support import PBO, subsystem_copy, variables
+from tests.support import PBO, read_until, subsystem_copy, variables
 
 NOBODY = 65534
 VARS = variables(("q_m", "float64", (3,)))
@@ -283,16 +283,6 @@ def test_a_run_that_finds_another_run_started_at_the_same_instant_refuses_and_le
 # --- end to end: real runs ----------------------------------------------------------------------
 
 
-def read_until(stream: IO[str], text: str) -> str:
-    """What `stream` says up to the line with `text` (all of it if it ends first)."""
-    said = []
-    for line in stream:
-        said.append(line)
-        if text in line:
-            break
-    return "".join(said)
-
-
 def pbo(*arguments: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     return subprocess.run([*PBO, *arguments], capture_output=True, text=True, timeout=120, cwd=cwd)
 
@@ -309,7 +299,7 @@ class Runs:
         process = subprocess.Popen([*PBO, "run", file, "--clock", "sim", "--duration", "0", "--no-live"], cwd=self.directory,
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         self.started.append(process)
-        said = read_until(process.stdout, "is on")
+        said = read_until(process, "is on")
         assert "is on" in said, said + (process.stderr.read() if process.poll() is not None else "")
         return process, next(r.run_id for r in live_runs() if r.pid == process.pid)
 

@@ -20,7 +20,7 @@ import pytest
 from pbo_runtime.ipc import shm
 from pbo_runtime.clock.lockstep import LockstepMaster, LockstepParticipant
 from pbo_runtime.table.table import HEADER_WORDS, Header
-from tests.support import DEMO, PBO, REPO, assert_nothing_left, children_of
+from tests.support import DEMO, PBO, REPO, assert_nothing_left, children_of, read_until
 
 
 def run_sim(tmp_path, config, *arguments: str, out: str = "out") -> tuple[subprocess.CompletedProcess, dict]:
@@ -190,9 +190,7 @@ def test_an_rtpu_killed_in_a_simulated_run_stops_the_run_and_leaves_nothing(tmp_
                             "--report", str(report_path)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                            text=True)
     try:
-        for line in pbo.stdout:  # past the start: tasks spawned and on, ticks running
-            if "is on" in line:
-                break
+        read_until(pbo, "is on")  # past the start: tasks spawned and on, ticks running
         (rtpu,) = [pid for pid, command in children_of(pbo.pid).items() if "--rtpu rtpu1" in command]
         os.kill(rtpu, signal.SIGKILL)
         out, err = pbo.communicate(timeout=60)

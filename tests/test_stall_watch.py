@@ -13,6 +13,7 @@ import pytest
 
 from pbo_runtime.config.model import TaskSpec
 from pbo_runtime.supervisor.stall_watch import STALL_FLOOR, StallWatch
+from tests.support import read_until
 
 
 def spec(name: str, index: int, period: float = 0.001, aperiodic: bool = False) -> TaskSpec:
@@ -123,14 +124,9 @@ def test_a_module_that_never_returns_is_reported_stalled_and_the_run_fails_with_
                             "--report", str(report_path), "--no-live"], cwd=tmp_path, stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True, env=library_with_a_hanging_module)
     try:
-        assert run.stdout is not None
-        seen = []
-        for line in run.stdout:
-            seen.append(line)
-            if "has finished no cycle for" in line:
-                break
-        else:  # its output ended: the run did too
-            pytest.fail("the run ended without reporting a stall:\n" + "".join(seen) + run.communicate(timeout=60)[1])
+        seen = read_until(run, "has finished no cycle for").splitlines()
+        if not seen or "has finished no cycle for" not in seen[-1]:  # its output ended: the run did too
+            pytest.fail("the run ended without reporting a stall:\n" + "\n".join(seen) + run.communicate(timeout=60)[1])
         assert seen[-1].startswith("pbo: task 'stuck' (rtpu0, 1 ms period) has finished no cycle for"), seen
         run.send_signal(signal.SIGINT)
         out, err = run.communicate(timeout=90)
@@ -160,14 +156,10 @@ def test_on_the_simulated_clock_a_tick_that_never_ends_is_reported_and_ctrl_c_st
                             "--report", str(report_path), "--no-live"], cwd=tmp_path, stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True, env=library_with_a_hanging_module)
     try:
-        assert run.stdout is not None
-        seen = []
-        for line in run.stdout:  # the notice comes 2 s of wall time into the tick that never ends
-            seen.append(line)
-            if "has not finished the tick" in line:
-                break
-        else:  # its output ended: the run did too
-            pytest.fail("the run ended without reporting the tick:\n" + "".join(seen) + run.communicate(timeout=60)[1])
+        # the notice comes 2 s of wall time into the tick that never ends
+        seen = read_until(run, "has not finished the tick").splitlines()
+        if not seen or "has not finished the tick" not in seen[-1]:  # its output ended: the run did too
+            pytest.fail("the run ended without reporting the tick:\n" + "\n".join(seen) + run.communicate(timeout=60)[1])
         assert seen[-1].startswith("pbo: rtpu0 has not finished the tick at 0.500 s for 2.0 s of wall time: a cycle there "
                                    "has not returned (Ctrl-C stops the run)"), seen
         run.send_signal(signal.SIGINT)

@@ -21,7 +21,7 @@ from pbo_runtime.config.loader import check_file
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Header, StateTable, TableLayout, TaskState
-from rtpu._executive import Executive
+from rtpu._executive import HELD_ILLEGAL, NOT_HELD, Executive
 from tests.support import IdleSignals, step_executives, unique_name
 
 PERIOD = 0.001
@@ -177,7 +177,7 @@ def test_a_switch_that_overruns_a_cycle_makes_the_critical_task_hold_still(rig):
     assert (rtpu, stable.task, stable.entering) == ("rtpu1", "actuator", True)
     table.header[Header.SWITCHING_SINCE_NS + 0] = 0
     step_executives(executives, clock, clock.now() + 0.003)
-    assert not actuator.in_stable
+    assert actuator.held_for == NOT_HELD
 
 
 def test_a_task_in_error_makes_the_critical_task_hold_still_until_it_is_cleared(rig):
@@ -186,10 +186,10 @@ def test_a_task_in_error_makes_the_critical_task_hold_still_until_it_is_cleared(
     table.header[Header.TASKS_IN_ERROR] = 1  # as job control sets it when a task reports ERROR
     step_executives(executives, clock, clock.now() + 0.003)
     actuator = executives["rtpu1"].tasks["actuator"]
-    assert actuator.in_stable and actuator.task.module.stable >= 2
+    assert actuator.held_for == HELD_ILLEGAL and actuator.task.module.stable >= 2
     table.header[Header.TASKS_IN_ERROR] = 0
     step_executives(executives, clock, clock.now() + 0.002)
-    assert not actuator.in_stable
+    assert actuator.held_for == NOT_HELD
 
 
 def test_a_live_replace_is_staged_then_applied_at_the_plans_boundary_losing_no_cycle(rig):

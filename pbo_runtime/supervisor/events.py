@@ -19,7 +19,7 @@ from pbo_runtime.supervisor.run_report import RunResult
 
 START_TIMEOUT = 60.0  # seconds for a child to import numpy, pinocchio and mujoco on a busy machine
 SIGNAL_TIMEOUT = 10.0
-STABLE_EPISODES_TOLD = 5  # per critical task, as they happen; the summary counts them all
+STABLE_EPISODES_TOLD = 5  # holds for late inputs per critical task told as they happen; the summary counts them all
 SIM_STALL_SECONDS = 2.0  # wall seconds one participant may take over one tick of the simulated clock before it is reported
 
 
@@ -148,18 +148,19 @@ class EventHandling:
             self.job_control.first_cycle(event.sequence, event.task, event.at)
         elif isinstance(event, messages.Stable):
             task, at = event.task, event.at
-            told = sum(1 for e in self.result.stable_episodes if e["task"] == task) < STABLE_EPISODES_TOLD
             if event.entering:
                 self._stable[task] = (at, event.reason, event.cause)
-                if told:
+                if self._told(task, event.cause):
                     self.say(f"critical task '{task}' runs its locally stable behaviour: {event.reason or 'the configuration is illegal'}")
             elif task in self._stable:
+                cause = self._stable[task][2]
+                told = self._told(task, cause)
                 self._end_stable_episode(task, at)
                 began = self.result.stable_episodes[-1]["from"]
                 if told:
                     self.say(f"critical task '{task}' is back to its cycle after {(at - began) * 1e3:.1f} ms"
-                             + ("" if sum(1 for e in self.result.stable_episodes if e["task"] == task) < STABLE_EPISODES_TOLD
-                                else "; its further episodes are counted in the summary, not told"))
+                             + ("" if self._told(task, cause) else "; its further holds for late inputs are counted in "
+                                                                   "the summary, not told"))
             self._count_errors()
         elif isinstance(event, messages.Stats):
             self._stats.update(event.tasks)
@@ -178,6 +179,12 @@ class EventHandling:
             self.staged(source, event.sequence, event.error)
         elif isinstance(event, messages.Crashed):
             raise RunFailure(f"{source} crashed: {event.error}" + (f"\n{event.trace}" if event.trace else ""))
+
+    def _told(self, task: str, cause: str) -> bool:
+        """Whether a stable episode of `task` for `cause` is told as it happens: always when the
+        configuration is illegal (the operator acts on it), the first few holds for late inputs."""
+        return cause == "illegal" or sum(1 for e in self.result.stable_episodes
+                                         if e["task"] == task and e["cause"] != "illegal") < STABLE_EPISODES_TOLD
 
     def _end_stable_episode(self, task: str, at: float | None) -> None:
         """Into the report; `at` None: the task was still stable when the run stopped."""

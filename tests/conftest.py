@@ -132,3 +132,60 @@ def small_disk(tmp_path):
     finally:
         subprocess.run(["umount", "-l", str(disk)], capture_output=True)
 
+
+
+# --- a real browser for the HMI -----------------------------------------------------------------------
+
+
+# What Chromium itself logs as an error that is the API's answer, not the page's failure: a refusal
+# the page shows (404 no file, 409 ...), and a stream's server gone at the test's end (it retries).
+BROWSER_NOTICES = ("Failed to load resource: the server responded with a status of", "WebSocket connection to ")
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """Debian's Chromium, driven by Playwright (its own browser download is not used): headless, one per session.
+
+    Where no Chromium can start, a browser test is skipped, except under CI=true, where it fails:
+    CI installs Chromium (.ci/run), so a missing browser there is a broken setup, not a reason to pass.
+    """
+    from tests.support import chromium_executable, chromium_flags
+
+    def unavailable(why: str):
+        if os.environ.get("CI") == "true":
+            pytest.fail(f"no browser for the HMI's tests under CI=true: {why}", pytrace=False)
+        pytest.skip(f"no browser for the HMI's tests: {why}")
+
+    try:
+        from playwright.sync_api import Error as PlaywrightError, sync_playwright
+    except ImportError as exc:
+        unavailable(f"playwright is not installed ({exc}); make .venv/.installed installs it")
+    executable = chromium_executable()
+    if executable is None:
+        unavailable("no chromium on PATH (apt-get install chromium, or set PBO_CHROMIUM)")
+    from playwright.sync_api import expect
+
+    expect.set_options(timeout=60_000)  # a net for a page that never shows what is awaited, never a timing
+    with sync_playwright() as playwright:
+        try:
+            launched = playwright.chromium.launch(executable_path=executable, headless=True, args=chromium_flags())
+        except PlaywrightError as exc:
+            unavailable(f"{executable} did not start: {str(exc).splitlines()[0]}")
+        yield launched
+        launched.close()
+
+
+@pytest.fixture
+def page(browser):
+    """A fresh page 1280 px wide (the narrowest the HMI is laid out for); a script error on it fails the test."""
+    context = browser.new_context(viewport={"width": 1280, "height": 900})
+    opened = context.new_page()
+    script_errors: list[str] = []
+    opened.on("pageerror", lambda error: script_errors.append(str(error)))
+    opened.on("console", lambda message: script_errors.append(message.text)
+              if message.type == "error" and not message.text.startswith(BROWSER_NOTICES) else None)
+    opened.on("response", lambda response: script_errors.append(f"{response.status} {response.url}")
+              if "/static/" in response.url and response.status >= 400 else None)
+    yield opened
+    context.close()
+    assert not script_errors, f"the page's scripts failed: {script_errors}"

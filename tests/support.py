@@ -407,3 +407,49 @@ def live_demo_copy(folder: Path, subsystem: str) -> Path:
     path = folder / f"{subsystem}.yaml"
     path.write_text(text)
     return path
+
+
+# --- the browser HMI ------------------------------------------------------------------------------
+
+
+CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome")
+
+
+def chromium_executable() -> str | None:
+    """The Chromium the HMI's tests drive: $PBO_CHROMIUM, or Debian's on PATH."""
+    import shutil
+
+    if os.environ.get("PBO_CHROMIUM"):
+        return os.environ["PBO_CHROMIUM"]
+    return next((found for name in CHROMIUM_NAMES if (found := shutil.which(name))), None)
+
+
+def chromium_flags() -> list[str]:
+    """Chromium with nothing of its own on the network (this machine's network is closed: its background
+    connections would be refused, many at a time), and without its sandbox when run as root."""
+    flags = ["--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+             "--disable-component-update", "--disable-sync", "--disable-default-apps"]
+    return flags + (["--no-sandbox"] if os.geteuid() == 0 else [])
+
+
+def start_hmi(*arguments: str, cwd: Path | None = None) -> tuple[subprocess.Popen, str]:
+    """`pbo hmi ARGUMENTS --port 0` and the URL it printed (with its token); the caller stops it (`stop_hmi`)."""
+    hmi = subprocess.Popen([*PBO, "hmi", *arguments, "--port", "0"], cwd=cwd, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    said = read_until(hmi, "http://127.0.0.1:")
+    urls = [word for word in said.split() if word.startswith("http://127.0.0.1:")]
+    if not urls:
+        stop_hmi(hmi)
+        pytest.fail(f"pbo hmi printed no URL: {said}{hmi.stderr.read() if hmi.stderr else ''}")
+    return hmi, urls[0]
+
+
+def stop_hmi(hmi: subprocess.Popen) -> str:
+    """Ctrl-C to `pbo hmi`, as an operator stops it; what it wrote on stderr."""
+    if hmi.poll() is None:
+        hmi.send_signal(signal.SIGINT)
+    try:
+        return hmi.communicate(timeout=30)[1]
+    except subprocess.TimeoutExpired:
+        hmi.kill()
+        return hmi.communicate()[1]

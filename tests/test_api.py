@@ -142,6 +142,28 @@ def test_the_first_page_load_with_the_token_sets_an_httponly_strict_cookie_that_
     assert client.post("/api/verbs/status").json()["ok"] is True  # the cookie alone, from now on
 
 
+def test_the_page_allows_scripts_only_from_this_server_and_its_own_import_map(client):
+    page = client.get("/", headers=BEARER)
+    policy = page.headers["content-security-policy"]
+    assert "script-src 'self' 'sha256-" in policy and "frame-ancestors 'none'" in policy and "unsafe-eval" not in policy
+    assert '<script type="module" src="/static/js/main.js">' in page.text
+
+
+@pytest.mark.parametrize(("path", "media_type"), [("js/main.js", "text/javascript"), ("css/hmi.css", "text/css"),
+                                                  ("vendor/preact/preact.mjs", "text/javascript")])
+def test_the_hmis_files_are_served_behind_the_token_with_their_media_type(client, path, media_type):
+    assert client.get(f"/static/{path}").status_code == 401
+    served = client.get(f"/static/{path}", headers=BEARER)
+    assert served.status_code == 200 and served.headers["content-type"].startswith(media_type)
+
+
+@pytest.mark.parametrize("path", ["../app.py", "..%2Fapp.py", "vendor/../../auth.py", "vendor/vendored.json.missing",
+                                  "js", "../../../../../etc/passwd"])
+def test_no_file_outside_the_hmis_own_is_served(client, path):
+    refused = client.get(f"/static/{path}", headers=BEARER)
+    assert refused.status_code == 404 and refused.json()["ok"] is False
+
+
 def test_the_openapi_description_lists_every_route_behind_the_token(client):
     assert client.get("/openapi.json").status_code == 401
     paths = client.get("/openapi.json", headers=BEARER).json()["paths"]

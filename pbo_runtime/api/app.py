@@ -1,4 +1,4 @@
-"""The API as one FastAPI app: every route behind the token, the page, the OpenAPI description.
+"""The API as one FastAPI app: every route behind the token, the HMI's page and files, the OpenAPI description.
 
 `create_app(link, token, file)` assembles the routers (`api.verbs`, `api.files`, `api.streams`)
 under one router whose single dependency is `auth.require_token`: no route is reachable without
@@ -8,11 +8,14 @@ routes do, `{"ok": false, "error": "one line"}`.
 
 from __future__ import annotations
 
+import base64
+import hashlib
+from pathlib import Path
 from typing import Any
 
 from fastapi import APIRouter, Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import HTMLResponse
+from fastapi.responses import FileResponse, HTMLResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from pbo_runtime.api import files, streams, verbs
@@ -21,21 +24,27 @@ from pbo_runtime.api.link import RunLink
 from pbo_runtime.api.replies import BAD_REQUEST, Reply, refusal
 from pbo_runtime.objects.registry import installed_version
 
-# The HMI's page comes with the next issue; until then `/` says what is served.
-PLACEHOLDER = """<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>pbo hmi</title></head>
-<body>
-<h1>pbo hmi</h1>
-<p>The local API of pbo-runtime is running. The browser HMI is not part of this version yet.</p>
-<ul>
-<li><a href="/openapi.json">/openapi.json</a>: every route, described</li>
-<li><a href="/api/runs">/api/runs</a>: your live runs</li>
-<li><a href="/api/lexicon">/api/lexicon</a>: the module library</li>
-<li><a href="/api/check">/api/check</a>: the checker's verdict on the file</li>
-<li><a href="/api/graph">/api/graph</a>: the configuration's block diagram</li>
-</ul>
-</body></html>
-"""
+STATIC = Path(__file__).resolve().parent / "static"  # the HMI: shipped in the package, no build step
+MEDIA_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
+               ".mjs": "text/javascript; charset=utf-8", ".css": "text/css; charset=utf-8",
+               ".json": "application/json", ".svg": "image/svg+xml", ".png": "image/png"}
+
+
+def page_policy(page: str) -> str:
+    """The page's Content-Security-Policy: scripts only from this server (and the page's own import
+    map, by its hash), nothing from the network, never framed by another site."""
+    importmap = page.split('<script type="importmap">', 1)[1].split("</script>", 1)[0]
+    digest = base64.b64encode(hashlib.sha256(importmap.encode()).digest()).decode()
+    return (f"default-src 'self'; script-src 'self' 'sha256-{digest}'; style-src 'self' 'unsafe-inline'; "
+            "img-src 'self' data:; connect-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'self'")
+
+
+def static_file(path: str) -> Path:
+    """The file under STATIC that `/static/PATH` names; 404 for anything else (a path out of it included)."""
+    file = (STATIC / path).resolve()
+    if not file.is_relative_to(STATIC) or not file.is_file() or file.suffix not in MEDIA_TYPES:
+        raise StarletteHTTPException(404, f"no file /static/{path}")
+    return file
 
 
 def create_app(link: RunLink, token: str, file: str | None = None) -> FastAPI:
@@ -49,12 +58,20 @@ def create_app(link: RunLink, token: str, file: str | None = None) -> FastAPI:
 
     protected = APIRouter(dependencies=[Depends(require_token)])
 
+    index = (STATIC / "index.html").read_text(encoding="utf-8")
+    policy = page_policy(index)
+
     @protected.get("/", response_class=HTMLResponse, include_in_schema=False)
     def page(request: Request) -> HTMLResponse:
-        response = HTMLResponse(PLACEHOLDER)
+        response = HTMLResponse(index, headers={"content-security-policy": policy, "cache-control": "no-cache"})
         if request.query_params.get("token"):  # the first load, from the printed URL: the browser keeps the token
             response.set_cookie(COOKIE, request.query_params["token"], httponly=True, samesite="strict", path="/")
         return response
+
+    @protected.get("/static/{path:path}", include_in_schema=False)
+    def static(path: str) -> FileResponse:
+        file = static_file(path)
+        return FileResponse(file, media_type=MEDIA_TYPES[file.suffix], headers={"cache-control": "no-cache"})
 
     @protected.get("/openapi.json", include_in_schema=False)
     def openapi() -> dict[str, Any]:

@@ -8,7 +8,7 @@ import pytest
 from pbo_runtime import InBoth, InConst, InVar, LifecycleError, OutBoth, OutConst, OutVar, PortBasedObject, Status
 from pbo_runtime.objects.module import TaskContext
 from pbo_runtime.task.lifecycle import Task
-from pbo_runtime.table.table import TaskState
+from pbo_runtime.table.table import Status as StatusWord, TaskState
 from tests.support import allocation_peak, one_array, task_spec, variables
 
 VARS = variables(
@@ -107,6 +107,19 @@ def test_spawn_leaves_the_task_off(table):
     task.spawn(0.0)
     assert task.state is TaskState.OFF
     assert table.status[1][0] == TaskState.OFF
+
+
+def test_a_task_spawned_into_a_killed_tasks_status_block_keeps_none_of_its_counts_but_its_last_write_time(table):
+    block = table.status[1]
+    block[:] = 99.0  # what the killed task left: cycles, overruns, jitter, errors, percentiles
+    block[StatusWord.STATE] = TaskState.KILLED
+    block[StatusWord.RELEASE] = 12.5  # when it last wrote: readers judge the age of its values by it
+    task = make_task(table)
+    expected = [0.0] * len(block)
+    expected[StatusWord.RELEASE] = 12.5
+    assert block.tolist() == expected and task.status.tolist() == expected[:len(task.status)] and len(task.status) > StatusWord.RELEASE
+    task.spawn(13.0)
+    assert table.status[1][StatusWord.STATE] == TaskState.OFF and table.status[1][StatusWord.CYCLES] == 0
 
 
 def test_init_that_raises_runs_kill_and_creates_no_task(table):

@@ -113,7 +113,7 @@ class Task:
                                           out_dir=out_dir, links=dict(links or {}), relay=relay)
         self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
         self.status = self.local.status
-        self.status[StatusWord.CYCLES] = 0
+        self._forget_an_earlier_tasks_figures(table.status[spec.index])
         self.module = module_class.__new__(module_class)
         self.module._pbo_ports = self.local.port_arrays
         self.module._pbo_context = self.context
@@ -123,6 +123,15 @@ class Task:
         self._outputs_finite = self.local.outputs_finite
         self._cycle = self.module.cycle
         self._stable_cycle = self.module.stable_cycle
+
+    def _forget_an_earlier_tasks_figures(self, shared: Any) -> None:
+        """A task spawned live may take the status block of one killed earlier: none of that task's
+        counts stay. Its RELEASE stays: it is the write time of what that task wrote last, which
+        readers still judge the age of."""
+        release = float(shared[StatusWord.RELEASE])
+        shared[:] = 0.0
+        self.status[:] = 0.0
+        shared[StatusWord.RELEASE] = self.status[StatusWord.RELEASE] = release
 
     # --- signals ----------------------------------------------------------------------------
 

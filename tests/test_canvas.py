@@ -14,25 +14,14 @@ from pbo_runtime.config.canvas import (CanvasError, Origin, Pin, check_canvas, f
 from pbo_runtime.config.canvas_job import JobRefused, save_job
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.yaml_nodes import load_text
-from tests.support import REPO
+from tests.support import FIGURE_8_CANVAS, REPO, canvas_base_file
 
-FIGURE_8 = [
-    {"name": "robot", "module": "robot_torque", "fields": {"rtpu": "rtpu1", "period": "1 ms", "resources": "[arm]"}},
-    {"name": "traj", "module": "joint_trajectory", "fields": {"rtpu": "rtpu0", "period": "2 ms"}},
-    {"name": "pid", "module": "pid_joint", "fields": {"rtpu": "rtpu0", "period": "1 ms"}, "params": {"kp": "400"}},
-    {"name": "logger", "module": "data_logger", "fields": {"rtpu": "rtpu0", "period": "10 ms"},
-     "params": {"variables": "[q_m, q_r, tau_u]"}},
-]
+FIGURE_8 = FIGURE_8_CANVAS
 SECOND_WRITER = {"name": "inv", "module": "inverse_dynamics", "fields": {"rtpu": "rtpu0", "period": "1 ms"}}
 
 
 def base_file(folder: Path) -> Path:
-    """configs/pid_joint.yaml's header (rtpus, plant, devices, dims, variables) with no task: an empty canvas's file."""
-    text = (REPO / "configs" / "pid_joint.yaml").read_text()
-    header = text.split("\ntasks:", 1)[0]
-    path = folder / "empty.yaml"
-    path.write_text(header + "\n# the canvas's jobs go here\ntasks: {}\n\nconfigurations: {}\n")
-    return path
+    return canvas_base_file(folder)
 
 
 def test_figure_8_on_an_empty_canvas_checks_clean_with_every_pin_joined(tmp_path):

@@ -28,7 +28,7 @@ def lexicon_block(page, module: str):
     return page.get_by_role("listbox", name="task lexicon").locator(f"[data-module={module}]")
 
 
-def checked(page) -> None:
+def verdicts_current(page) -> None:
     """Wait until the lexicon's placement verdicts are those of the canvas as it is (the checker answered)."""
     expect(page.get_by_role("listbox", name="task lexicon")).to_have_attribute("aria-busy", "false")
 
@@ -48,7 +48,7 @@ def drag_figure_8(page) -> None:
     set_next_drop_modifier(page, "data_logger", "variables", LOGGED)
     for module, x, y in FIGURE_8:
         block = lexicon_block(page, module)
-        checked(page)
+        verdicts_current(page)
         expect(block).to_have_attribute("aria-disabled", "false")
         block.drag_to(canvas, target_position={"x": x, "y": y})
         placed = canvas.locator(f"g.task[data-module={module}]")
@@ -96,7 +96,7 @@ def test_with_figure_8_on_the_canvas_a_second_writer_of_tau_u_is_dimmed_with_the
         page.goto(url)
         second = lexicon_block(page, "inverse_dynamics")
         drag_figure_8(page)
-        checked(page)
+        verdicts_current(page)
         expect(second).to_have_attribute("aria-disabled", "true")
         expect(second).to_have_attribute("title", "E401: variable 'tau_u' would have two writers on the canvas: 'pid_joint' and port "
                                                   "'tau' of module 'inverse_dynamics' (an output has one writer; join them with "
@@ -151,7 +151,7 @@ def test_figure_8_placed_by_keyboard_is_saved_as_a_job_that_pbo_check_finds_clea
         page.goto(url)
         set_next_drop_modifier(page, "data_logger", "variables", LOGGED)
         for module, _, _ in FIGURE_8:
-            checked(page)
+            verdicts_current(page)
             lexicon_block(page, module).focus()
             page.keyboard.press("Enter")  # placed at the next free spot
             expect(canvas_of(page).locator(f"g.task[data-module={module}]")).to_have_count(1)

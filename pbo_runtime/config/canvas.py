@@ -394,13 +394,19 @@ def file_canvas(file: str) -> dict[str, Any]:
     doc, errors = load_document(file)
     if not isinstance(doc, YMap):
         raise CanvasError(f"cannot read {file}: {_first(errors, file)}")
-    tasks = doc.get("tasks") if isinstance(doc.get("tasks"), dict) else {}
-    configurations = doc.get("configurations") if isinstance(doc.get("configurations"), dict) else {}
-    rtpus = doc.get("rtpus") if isinstance(doc.get("rtpus"), list) else []
-    devices = doc.get("devices") if isinstance(doc.get("devices"), dict) else {}
+    tasks: dict[Any, Any] = _section(doc, "tasks", dict)
+    configurations: dict[Any, Any] = _section(doc, "configurations", dict)
+    rtpus: list[Any] = _section(doc, "rtpus", list)
+    devices: dict[Any, Any] = _section(doc, "devices", dict)
     return {"file": file, "subsystem": str(doc.get("subsystem", "")), "rtpus": [str(r) for r in rtpus],
             "devices": [str(d) for d in devices],
             "configurations": {str(name): [str(t) for t in members] for name, members in configurations.items()
                                if isinstance(members, list)},
             "tasks": {str(name): canvas_task_json(str(name), entry) for name, entry in tasks.items()},
-            "jobs": [str(j) for j in doc.get("jobs") or {}] if isinstance(doc.get("jobs"), dict) else []}
+            "jobs": [str(j) for j in _section(doc, "jobs", dict)]}
+
+
+def _section(doc: YMap, key: str, kind: type) -> Any:
+    """The document's section `key` when it is of `kind`, else an empty one (the checker reports what is wrong)."""
+    value = doc.get(key)
+    return value if isinstance(value, kind) else kind()

@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from ruamel.yaml import YAML
-from ruamel.yaml.comments import CommentedMap, CommentedSeq
+from ruamel.yaml.comments import CommentedMap
 
 from pbo_runtime.config.canvas import CanvasError, CanvasTask
 from pbo_runtime.config.live import NAME

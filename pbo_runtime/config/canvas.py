@@ -169,7 +169,7 @@ def pin_of(origin: Origin, message: str, pins: Sequence[Pin]) -> str | None:
 
 
 def diagnostic(error: ConfigError, pins: Mapping[str, Sequence[Pin]],
-               params: Mapping[str, Sequence[str]] | None = None) -> dict[str, Any]:
+               params: Mapping[str, Sequence[str]] | None = None, names: Sequence[str] = ()) -> dict[str, Any]:
     """A diagnostic as the canvas shows it: E-code, message, hint, and the task, modifier and pin it belongs to.
 
     A module's own check of its params is located at the task's `params:` as a whole; the modifier it
@@ -184,6 +184,8 @@ def diagnostic(error: ConfigError, pins: Mapping[str, Sequence[Pin]],
     if origin is None:
         out.update(file=error.file, line=error.line, column=error.column)
         return out
+    if names:  # "'pid' (line 1)": a canvas task has no line of a file to point to
+        out["message"] = re.sub(rf"'({'|'.join(map(re.escape, names))})' \(line \d+\)", r"'\1'", error.message)
     out.update(task=origin.task, section=origin.section, key=origin.key,
                port=pin_of(origin, error.message, pins.get(origin.task, ())), file=None, line=None, column=None)
     return out
@@ -313,7 +315,7 @@ def check_canvas(file: str, tasks: Sequence[CanvasTask], configuration: str = CA
     placed = subsystem if subsystem is not None else _placeable(base, tasks, errors, module_lookup)
     pins = task_pins(subsystem or placed, tasks, module_lookup)
     modifiers = {t.name: list(t.params) for t in tasks}
-    diagnostics = [diagnostic(e, pins, modifiers) for e in [*errors, *result.warnings]]
+    diagnostics = [diagnostic(e, pins, modifiers, list(modifiers)) for e in [*errors, *result.warnings]]
     placement: dict[str, Any]
     if placed is None:
         placement = {"error": f"the file's base has errors: nothing can be placed until they are fixed "

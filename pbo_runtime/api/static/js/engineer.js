@@ -212,7 +212,7 @@ export function Engineer({ status }) {
       <aside class="side-pane">
         ${chosenTask ? html`<${TaskPanel} task=${chosenTask} module=${lexicon.find((m) => m.name === chosenTask.module)}
                                           rtpus=${(file && file.rtpus) || []} live=${live && Boolean(states[chosenTask.name])}
-                                          state=${states[chosenTask.name]} modules=${lexicon} verdicts=${verdicts}
+                                          state=${states[chosenTask.name]} modules=${lexicon}
                                           onApply=${apply} onToggle=${toggle} onDelete=${remove} onReplace=${replace} />`
           : chosenModule ? html`<${LexiconModifiers} module=${chosenModule} defaults=${defaults[chosenModule.name]}
                                                      onChange=${(name, params) => setDefaults({ ...defaults, [name]: { params } })} />`

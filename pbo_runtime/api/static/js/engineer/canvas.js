@@ -30,7 +30,7 @@ function Badge({ diagnostics, x, y, pin }) {
 function Block({ task, pins, diagnostics, state, selected, openVariables, onSelect, onMoveStart, onKey }) {
   const places = pinPlaces(pins);
   const height = blockHeight(pins);
-  const mine = diagnostics.filter((d) => !d.port);
+  const mine = diagnostics;  // the block's badge counts them all; a pin's badge, those about it
   const byPin = {};
   for (const d of diagnostics.filter((d) => d.port)) (byPin[d.port] = byPin[d.port] || []).push(d);
   const status = state ? ` ${state}` : task.on ? "" : " off";

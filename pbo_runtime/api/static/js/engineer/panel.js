@@ -27,7 +27,7 @@ export function LexiconModifiers({ module, defaults, onChange }) {
 }
 
 /** The selected task: its fields, modifiers and port links, edited as a whole (Apply, or Enter). */
-export function TaskPanel({ task, module, rtpus, live, state, modules, verdicts, onApply, onToggle, onDelete, onReplace }) {
+export function TaskPanel({ task, module, rtpus, live, state, modules, onApply, onToggle, onDelete, onReplace }) {
   const [draft, setDraft] = useState(task);
   const [replacement, setReplacement] = useState("");
   useEffect(() => setDraft(task), [JSON.stringify(payload(task))]);  // a move keeps what is being typed
@@ -48,7 +48,7 @@ export function TaskPanel({ task, module, rtpus, live, state, modules, verdicts,
           <select value=${replacement} onChange=${(e) => setReplacement(e.currentTarget.value)} aria-label="replace by module">
             <option value="">a module…</option>
             ${modules.filter((m) => m.name !== task.module).map((m) => html`
-              <option value=${m.name} disabled=${verdicts[m.name] && !verdicts[m.name].legal && verdicts[m.name].code !== "E401"}>${m.name}</option>`)}
+              <option value=${m.name}>${m.name}</option>`)}
           </select></label>
         <button type="submit" disabled=${!replacement}>Replace</button>
       </form>

@@ -49,6 +49,7 @@ def test_a_second_writer_placed_anyway_is_located_on_its_block_and_its_pin(tmp_p
     assert not reply["valid"]
     e401 = [d for d in reply["diagnostics"] if d["code"] == "E401"]
     assert [(d["task"], d["port"]) for d in e401] == [("inv", "tau")]
+    assert e401[0]["message"] == "variable 'tau_u' has two writers in configuration 'canvas': 'pid' and 'inv'"
     # the placement query still answers, from the tasks whose own entries are sound
     assert {v["module"]: v["legal"] for v in reply["placement"]["modules"]}["gravity_compensation"] is True
 

@@ -8,6 +8,7 @@ Set PBO_SCREENSHOTS to a folder to keep a screenshot of the canvas with Figure 8
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 from pathlib import Path
 
@@ -80,7 +81,7 @@ def test_figure_8_dragged_onto_an_empty_canvas_joins_its_pins_by_variable_and_ch
                      "DH: robot_torque.dh -> pid_joint.dh (const)"):
             assert link in links, (link, sorted(links))
         # q_d is the goal: no task writes it, job control does (its initial value), so its pin is not open
-        expect(canvas_of(page).locator("g.task[data-module=joint_trajectory] .pin[data-port=q_d]")).not_to_have_class("pin open")
+        expect(canvas_of(page).locator("g.task[data-module=joint_trajectory] .pin[data-port=q_d]")).to_have_class("pin")
         expect(canvas_of(page).locator(".badge")).to_have_count(0)
         if os.environ.get("PBO_SCREENSHOTS"):
             folder = Path(os.environ["PBO_SCREENSHOTS"])
@@ -144,6 +145,41 @@ def test_two_writers_of_tau_u_loaded_from_a_file_show_e401_on_the_block_and_its_
         stop_hmi(hmi)
 
 
+def test_a_tasks_modifiers_are_checked_as_in_yaml_and_it_can_be_turned_off_and_replaced(page, tmp_path):
+    demo = tmp_path / "pid_joint.yaml"
+    demo.write_text(DEMO.read_text())
+    hmi, url = start_hmi(str(demo), cwd=tmp_path)
+    try:
+        page.goto(url)
+        canvas = canvas_of(page)
+        pid = canvas.locator("g.task[data-task=pid]")
+        expect(page.locator("[data-test=checker]")).to_have_text("No error")
+        pid.click()
+        panel = page.get_by_role("region", name="task pid")
+        expect(panel.get_by_label("modifier kp")).to_have_value("400")
+        panel.get_by_label("modifier kp").fill("\"stiff\"")
+        panel.get_by_label("modifier kp").press("Enter")
+        expect(pid.locator(".block-badge")).to_have_attribute("data-code", "E308")
+        expect(page.locator(".diagnostics li[data-code=E308]")).to_contain_text("pid kp")
+        panel.get_by_label("modifier kp").fill("300")
+        panel.get_by_role("button", name="Apply").click()
+        expect(page.locator("[data-test=checker]")).to_have_text("No error")
+        # off: left out of the configuration, so nobody writes the robot's torque
+        panel.get_by_role("button", name="Turn off").click()
+        expect(pid).to_have_class(re.compile(r"\boff\b"))
+        expect(canvas.locator("path.link[data-variable=tau_u]")).to_have_count(0)
+        expect(canvas.locator("g.task[data-task=robot] .pin-badge[data-port=tau_u]")).to_have_attribute("data-code", "E403")
+        panel.get_by_role("button", name="Turn on").click()
+        expect(page.locator("[data-test=checker]")).to_have_text("No error")
+        panel.get_by_label("replace by module").select_option("inverse_dynamics")
+        panel.get_by_role("button", name="Replace").click()
+        expect(canvas.locator("g.task[data-task=inverse_dynamics]")).to_have_count(1)
+        expect(pid).to_have_count(0)
+        expect(canvas.locator("g.task[data-task=inverse_dynamics] .pin-badge[data-port=qdd_r]")).to_have_attribute("data-code", "E403")
+    finally:
+        stop_hmi(hmi)
+
+
 def test_figure_8_placed_by_keyboard_is_saved_as_a_job_that_pbo_check_finds_clean(page, tmp_path):
     base = canvas_base_file(tmp_path, "canvas_save")
     hmi, url = start_hmi(str(base), cwd=tmp_path)
@@ -183,7 +219,8 @@ def test_attached_to_a_sim_run_a_dropped_task_is_spawned_and_its_toggle_turns_it
         expect(canvas.locator("g.task[data-task=pid] [data-test=state]")).to_have_text("ON")
         # dropped without what it logs: the run refuses the spawn, and the page says why in the API's words
         lexicon_block(page, "data_logger").drag_to(canvas, target_position={"x": 500, "y": 480})
-        expect(page.get_by_role("alert")).to_contain_text("spawn data_logger: ")
+        expect(page.get_by_role("alert")).to_contain_text("spawn data_logger: spawning task 'data_logger' would break the live "
+                                                          "configuration:")
         expect(canvas.locator("g.task[data-module=data_logger]")).to_have_count(0)
         set_next_drop_modifier(page, "data_logger", "variables", LOGGED)
         lexicon_block(page, "data_logger").drag_to(canvas, target_position={"x": 500, "y": 480})

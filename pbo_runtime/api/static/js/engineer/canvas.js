@@ -9,7 +9,8 @@ import { DRAG_TYPE } from "./lexicon.js";
 export const CANVAS_HEIGHT = 620;
 
 function curve(a, b) {
-  const bend = Math.max(40, Math.abs(b.x - a.x) / 2);
+  // forward: an S as wide as the gap; backward (a feedback link): a short loop that stays near its blocks
+  const bend = b.x > a.x ? Math.max(40, (b.x - a.x) / 2) : 50;
   return `M${a.x},${a.y} C${a.x + bend},${a.y} ${b.x - bend},${b.y} ${b.x},${b.y}`;
 }
 

@@ -219,7 +219,8 @@ def _value(text: str, file: str, errors: list[ConfigError]) -> tuple[bool, Any, 
         errors.append(exc)
         return False, None, loc
     if not isinstance(loaded, YMap) or set(loaded) != {"value"}:
-        errors.append(ConfigError(f"not one YAML value: {text!r}", file, 1, 1, hint="write one value: 400, [1, 2], \"text\""))
+        errors.append(ConfigError(f"invalid YAML: not one value: {text!r}", file, 1, 1, code="E101",
+                                  hint="write one value: 400, [1, 2], \"text\""))
         return False, None, loc
     return True, loaded["value"], loaded.value_loc("value")
 

@@ -453,3 +453,23 @@ def stop_hmi(hmi: subprocess.Popen) -> str:
     except subprocess.TimeoutExpired:
         hmi.kill()
         return hmi.communicate()[1]
+
+
+# --- the job canvas (engineer level) ---------------------------------------------------------------
+
+# TR Figure 8 as the canvas sends it: tasks with their values as YAML text
+FIGURE_8_CANVAS = [
+    {"name": "robot", "module": "robot_torque", "fields": {"rtpu": "rtpu1", "period": "1 ms", "resources": "[arm]"}},
+    {"name": "traj", "module": "joint_trajectory", "fields": {"rtpu": "rtpu0", "period": "2 ms"}},
+    {"name": "pid", "module": "pid_joint", "fields": {"rtpu": "rtpu0", "period": "1 ms"}, "params": {"kp": "400"}},
+    {"name": "logger", "module": "data_logger", "fields": {"rtpu": "rtpu0", "period": "10 ms"},
+     "params": {"variables": "[q_m, q_r, tau_u]"}},
+]
+
+
+def canvas_base_file(folder: Path, name: str = "empty") -> Path:
+    """configs/pid_joint.yaml's header (rtpus, plant, devices, dims, variables) with no task: an empty canvas's file."""
+    header = DEMO.read_text().split("\ntasks:", 1)[0].replace("\nsubsystem: puma\n", f"\nsubsystem: {name}\n")
+    path = folder / f"{name}.yaml"
+    path.write_text(header + "\n# the canvas's jobs go here\ntasks: {}\n\nconfigurations: {}\n")
+    return path

@@ -3,13 +3,15 @@
 The original file is read again by ruamel.yaml's round-trip mode, which keeps comments, key
 order and flow style, and each live change (`LiveDescription.edits`) is replayed on it in order:
 a spawned task's entry appended to `tasks:` and its configuration, a killed one removed from
-both, a replaced one's entry put in its place, a set parameter changed where it is written.
+both, a replaced one's entry put in its place, a set parameter changed where it is written, an
+application run with its steps (`pbo app NAME --steps`) written under `applications:`.
 ruamel.yaml only writes here: every file is still loaded by the project's own safe loader
 (`config.yaml_nodes`), and the saved file is checked by it before `pbo save` says it is done.
 
 ruamel.yaml re-flows what it writes (the alignment of `q_m:   {...}`, a flow mapping over two
 lines), so the saved text takes from the round trip only what the changes touched: the entries of
-`tasks:` and `configurations:` that changed; every other section and entry is the original's text.
+`tasks:`, `configurations:` and `applications:` that changed; every other section and entry is the
+original's text. `round_trip` and `merged` serve the HMI's saves too (`config.workspace_file`).
 """
 
 from __future__ import annotations
@@ -32,10 +34,7 @@ def saved_text(live: LiveDescription) -> str:
     if not os.path.isfile(live.file):
         raise LiveChangeRefused(f"{live.file} is no file of its own (an inline subsystem?): pbo save writes a file's "
                                 "changes back, and this run has none to start from")
-    yaml = YAML(typ="rt")
-    yaml.preserve_quotes = True
-    yaml.width = 4096  # long flow mappings stay on their line, as written
-    yaml.indent(mapping=2, sequence=4, offset=2)  # `  - item` under its key, as the shipped files write lists
+    yaml = round_trip()
     with open(live.file, encoding="utf-8") as stream:
         original = stream.read()
     doc = yaml.load(original)
@@ -44,10 +43,20 @@ def saved_text(live: LiveDescription) -> str:
         _replay(doc, edit)
     out = io.StringIO()
     yaml.dump(doc, out)
-    touched = {"tasks": {name for edit in live.edits for name in (edit.task, edit.new) if name},
+    touched = {"tasks": {name for edit in live.edits if edit.kind != "application" for name in (edit.task, edit.new) if name},
+               "applications": {edit.task for edit in live.edits if edit.kind == "application"},
                "configurations": {name for name, members in doc["configurations"].items()
                                   if list(members) != before.get(name)}}
-    return _merged(original, out.getvalue(), touched)
+    return merged(original, out.getvalue(), touched)
+
+
+def round_trip() -> YAML:
+    """ruamel.yaml's round trip, writing as the shipped files do."""
+    yaml = YAML(typ="rt")
+    yaml.preserve_quotes = True
+    yaml.width = 4096  # long flow mappings stay on their line, as written
+    yaml.indent(mapping=2, sequence=4, offset=2)  # `  - item` under its key, as the shipped files write lists
+    return yaml
 
 
 _KEY = {0: re.compile(r"^([A-Za-z_][\w-]*)\s*:"), 2: re.compile(r"^  ([A-Za-z_][\w-]*)\s*:")}
@@ -69,12 +78,12 @@ def _chunks(text: str, indent: int) -> list[tuple[str | None, str]]:
     return chunks
 
 
-def _merged(original: str, dumped: str, touched: dict[str, set[str]]) -> str:
+def merged(original: str, dumped: str, touched: dict[str, set[str]]) -> str:
     """`dumped`'s text where the changes are, `original`'s everywhere else (same keys, same order)."""
     kept = dict(_chunks(original, 0))
     parts = []
     for key, text in _chunks(dumped, 0):
-        if key not in touched:
+        if key not in touched or key not in kept:  # untouched: the original's text; new: the dump's
             parts.append(kept.get(key, text))
             continue
         entries = dict(_chunks(kept.get(key, ""), 2))
@@ -119,6 +128,12 @@ def _flow(value: Any) -> Any:
     return value
 
 
+def _flow_steps(steps: list[Any]) -> CommentedSeq:
+    """An application's steps as the shipped files write them: one a line, `- reach: ready`, values in flow style."""
+    return CommentedSeq(step if isinstance(step, str) else CommentedMap((key, _flow(value)) for key, value in step.items())
+                        for step in steps)
+
+
 def _replay(doc: Any, edit: Edit) -> None:
     tasks = doc["tasks"]
     configurations = doc["configurations"]
@@ -139,6 +154,10 @@ def _replay(doc: Any, edit: Edit) -> None:
             for index, member in enumerate(members):
                 if member == edit.task:
                     members[index] = edit.new
+    elif edit.kind == "application":
+        if doc.get("applications") is None:
+            doc["applications"] = CommentedMap()
+        doc["applications"][edit.task] = _flow_steps(edit.entry)
     elif edit.kind == "set":
         entry = tasks[edit.task]
         if "params" not in entry or entry["params"] is None:

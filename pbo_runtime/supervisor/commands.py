@@ -464,7 +464,10 @@ def app(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
         live = _live(host)
         given = _text(arguments, "application", "the application's name")
         assert given is not None
-        new = _checked(lambda: live.with_application(given, steps))
+        if not isinstance(steps, (str, list)):
+            raise BadRequest(f"the steps must be a list, or YAML text of one, got: {describe(steps)}")
+        listed: str | list[Any] = steps
+        new = _checked(lambda: live.with_application(given, listed))
         host.job_control.apply_live(new, f"application '{given}'")
     name = _name(arguments, "application", "application", host.subsystem.applications)
     if not host.subsystem.applications[name].complete:

@@ -84,7 +84,7 @@ export function ObjectEditor({ dictionary, name, where, onSaved, onClose }) {
           return html`
             <label class="object-field">
               <span>${label}</span>
-              <input type="number" step=${INTEGER.test(dtype) ? "1" : "any"} value=${texts[i]} required
+              <input type="number" step=${INTEGER.test(dtype) ? "1" : "any"} value=${texts[i]}
                      onInput=${(e) => setTexts(texts.map((t, k) => (k === i ? e.currentTarget.value : t)))} />
             </label>`;
         })}

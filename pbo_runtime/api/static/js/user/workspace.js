@@ -192,7 +192,7 @@ export function Workspace({ dictionary, steps, actions, message, setMessage, sta
                   : status ? "No application is running." : "No run attached."}
       </p>
       <form class="workspace-actions" onSubmit=${save} aria-label="save or run the application">
-        <label>Application name <input name="application" value=${name} required pattern="[A-Za-z_][A-Za-z0-9_]{0,39}"
+        <label>Application name <input name="application" value=${name}
                                       onInput=${(e) => setName(e.currentTarget.value)} /></label>
         <label class="check"><input type="checkbox" checked=${replace} onChange=${(e) => setReplace(e.currentTarget.checked)} />
           replace an application of that name</label>

@@ -200,6 +200,11 @@ def test_an_incomplete_application_is_saved_to_the_file_and_reused_as_an_icon(pa
 
         page.get_by_role("button", name="Save application").click()  # again: the name is taken
         expect(message(page)).to_have_text(f"Not saved: application 'tour' exists in {file}: choose another name, or replace it")
+
+        page.get_by_role("button", name="open application approach in the workspace").click()  # back in the row, to change
+        expect(row(page).locator(".unit")).to_have_count(2)
+        expect(row(page).get_by_role("button", name=re.compile("^gap: an object of type joint_position for step 1 reach"))).to_be_visible()
+        expect(page.get_by_label("Application name", exact=True)).to_have_value("approach")
     finally:
         stop_hmi(hmi)
 

@@ -8,7 +8,7 @@ import { get } from "./api.js";
 import { Dictionary } from "./user/dictionary.js";
 import { Workspace } from "./user/workspace.js";
 import { ObjectEditor } from "./user/object_editor.js";
-import { insert, move, remove, removeObject } from "./user/row.js";
+import { fromApplication, insert, move, remove, removeObject } from "./user/row.js";
 
 export function User({ status }) {
   const [dictionary, setDictionary] = useState(null);
@@ -17,6 +17,7 @@ export function User({ status }) {
   const [selected, setSelected] = useState(null);
   const [editing, setEditing] = useState(null);  // {name, where: "dictionary" | "workspace"}
   const [message, setMessage] = useState({ text: "", error: false });
+  const [name, setName] = useState("workspace");  // the application's name, for Save and Run
   useEffect(() => { get("dictionary").then(setDictionary, (e) => setError(e.message)); }, []);
 
   const apply = (result) => {
@@ -37,7 +38,8 @@ export function User({ status }) {
     clear: () => { setSteps([]); setMessage({ text: "The row is empty", error: false }); },
   };
   const select = (name, force = false) => setSelected(force || selected !== name ? name : null);
-  const append = (name) => { setSelected(name); actions.insert({ before: steps.length }, name); };
+  const append = (icon) => { setSelected(icon); actions.insert({ before: steps.length }, icon); };
+  const open = (application) => { if (apply(fromApplication(dictionary, application))) setName(application); };
   const saved = (reply) => { if (reply.dictionary) setDictionary(reply.dictionary); };
   const editor = (where) => (editing && editing.where === where && dictionary ? html`
     <${ObjectEditor} dictionary=${dictionary} name=${editing.name} where=${where} onSaved=${saved}
@@ -48,13 +50,13 @@ export function User({ status }) {
       <aside class="dictionary-pane" aria-labelledby="dictionary-title"><h2 id="dictionary-title">Job dictionary</h2>
         ${error ? html`<p class="error" role="alert">${error}</p>` : !dictionary ? html`<p>Loading…</p>` : html`
           <${Dictionary} dictionary=${dictionary} selected=${selected} onSelect=${select} onAppend=${append}
-                         onEdit=${(name) => setEditing({ name, where: "dictionary" })} />
+                         onEdit=${(object) => setEditing({ name: object, where: "dictionary" })} onOpen=${open} />
           ${editor("dictionary")}`}
       </aside>
       <div class="workspace-pane"><h2>Application workspace</h2>
         ${dictionary ? html`
           <${Workspace} dictionary=${dictionary} steps=${steps} actions=${actions} message=${message} setMessage=${setMessage}
-                        status=${status} onSaved=${saved} />
+                        status=${status} onSaved=${saved} name=${name} setName=${setName} />
           ${editor("workspace")}` : null}
       </div>
     </div>`;

@@ -38,7 +38,7 @@ function DictionaryIcon({ name, entry, what, selected, onSelect, onAppend }) {
     </button>`;
 }
 
-function Section({ title, items, selected, onSelect, onAppend, onEdit, test }) {
+function Section({ title, items, selected, onSelect, onAppend, onEdit, onOpen, test }) {
   if (!items.length) return null;
   return html`
     <section class="dictionary-section" data-test=${test}>
@@ -48,20 +48,22 @@ function Section({ title, items, selected, onSelect, onAppend, onEdit, test }) {
           <li key=${name}>
             <${DictionaryIcon} name=${name} entry=${entry} what=${what} selected=${selected === name}
                                onSelect=${onSelect} onAppend=${onAppend} />
-            ${what === "object" ? html`<button class="edit-object" aria-label=${`edit the values of ${name}`}
+            ${what === "object" ? html`<button class="icon-action" aria-label=${`edit the values of ${name}`}
                                                onClick=${() => onEdit(name)}>Edit values</button>` : null}
+            ${what === "application" ? html`<button class="icon-action" aria-label=${`open application ${name} in the workspace`}
+                                                    onClick=${() => onOpen(name)}>Open</button>` : null}
           </li>`)}
       </ul>
     </section>`;
 }
 
 /** The dictionary pane: the object types' legend, then the icons by class. */
-export function Dictionary({ dictionary, selected, onSelect, onAppend, onEdit }) {
+export function Dictionary({ dictionary, selected, onSelect, onAppend, onEdit, onOpen }) {
   const jobs = Object.entries(dictionary.jobs).map(([name, entry]) => [name, entry, "job"]);
   const applications = Object.entries(dictionary.applications).map(([name, entry]) => [name, entry, "application"]);
   const all = [...jobs, ...applications];
   const objects = Object.entries(dictionary.objects).map(([name, entry]) => [name, entry, "object"]);
-  const common = { selected, onSelect, onAppend, onEdit };
+  const common = { selected, onSelect, onAppend, onEdit, onOpen };
   return html`
     <div class="dictionary" aria-label="job dictionary">
       <p class="hint">Drag an icon into the workspace, or press Enter on it to append it. Click (or Space) selects it;

@@ -130,6 +130,18 @@ export function move(steps, from, before) {
   return { steps: [...rest.slice(0, at), step, ...rest.slice(at)], message: `'${step.name}' moved to step ${at + 1}` };
 }
 
+/** Application `name` of the dictionary as a row, to change and save again; refused if a step's object is written out as values. */
+export function fromApplication(dictionary, name) {
+  const application = dictionary.applications[name];
+  const written = application.steps.find((s) => s.object === null && s.value !== null && s.value !== undefined);
+  if (written) {
+    return { refused: `step ${written.step} of '${name}' gives '${written.job}' its object as values written out in the file; `
+                      + "the workspace takes named objects: name the value under objects: in the file, or build the row anew" };
+  }
+  const steps = application.steps.map((s) => ({ id: nextId++, name: s.job, object: s.object }));
+  return { steps, message: `application '${name}' opened in the workspace: Save with replace ticked writes it back` };
+}
+
 /** The row as the API takes it: [{name, object}]. */
 export function rowBody(steps) {
   return steps.map((s) => ({ name: s.name, object: s.object }));

@@ -123,10 +123,10 @@ function Unit({ dictionary, step, index, count, running, actions }) {
 
 /**
  * The workspace: the row, its message line, Save and Run. `steps` and `actions` (insert, remove, move,
- * removeObject, editObject, clear) are the User level's; `onSaved(reply)` takes a save's new dictionary.
+ * removeObject, editObject, clear) are the User level's, and `name` the application's; `onSaved(reply)`
+ * takes a save's new dictionary.
  */
-export function Workspace({ dictionary, steps, actions, message, setMessage, status, onSaved }) {
-  const [name, setName] = useState("workspace");
+export function Workspace({ dictionary, steps, actions, message, setMessage, status, onSaved, name, setName }) {
   const [replace, setReplace] = useState(false);
   const [busy, setBusy] = useState(false);
   const [runName, setRunName] = useState(null);

@@ -74,8 +74,8 @@ function Slot({ step, index, icon, onInsert, onRemoveObject, onEditObject }) {
     </button>`;
 }
 
-function isRunning(dictionary, step, status, runName) {
-  if (!status || !status.job || !status.application || status.application !== runName) return false;
+function isRunning(dictionary, step, status) {
+  if (!status || !status.job) return false;
   if (step.name === status.job) return true;
   const application = dictionary.applications[step.name];
   return Boolean(application && application.steps.some((s) => s.job === status.job));
@@ -171,7 +171,7 @@ export function Workspace({ dictionary, steps, actions, message, setMessage, sta
   const readiness = !steps.length ? "Empty: drop jobs from the dictionary."
     : open.length ? `Not runnable: ${open.length} gap${open.length === 1 ? "" : "s"} to fill (it can be saved as an incomplete application).`
     : status ? "Complete: ready to run on the attached run." : "Complete: attach a run (pbo run FILE) to run it.";
-  const mine = running && running === runName;
+  const mine = running && running === (runName || name);  // the row it runs: started here, or named as it is
 
   return html`
     <div class="workspace">
@@ -181,7 +181,7 @@ export function Workspace({ dictionary, steps, actions, message, setMessage, sta
         <${Place} before=${0} count=${steps.length} onInsert=${actions.insert} onMove=${actions.move} />
         ${steps.map((step, index) => html`
           <${Unit} key=${step.id} dictionary=${dictionary} step=${step} index=${index} count=${steps.length}
-                   running=${mine && isRunning(dictionary, step, status, runName)} actions=${actions} />
+                   running=${mine && isRunning(dictionary, step, status)} actions=${actions} />
           <${Place} key=${"place" + step.id} before=${index + 1} count=${steps.length} onInsert=${actions.insert} onMove=${actions.move} />`)}
       </div>
       <p class="readiness" data-test="run-readiness">${readiness}</p>

@@ -4,7 +4,7 @@
 // removed and moved with their objects. Save writes the row to the YAML file as an application
 // (with gaps too: an incomplete one, reused as an icon); Run runs it on the attached run, refused
 // while gaps remain or no run is attached, and the running job is highlighted from the status stream.
-import { html, useState } from "../html.js";
+import { html, useState, useEffect } from "../html.js";
 import { post } from "../api.js";
 import { IconSvg } from "./edges.js";
 import { DRAG_ICON, iconLabel } from "./dictionary.js";
@@ -74,11 +74,33 @@ function Slot({ step, index, icon, onInsert, onRemoveObject, onEditObject }) {
     </button>`;
 }
 
-function isRunning(dictionary, step, status) {
-  if (!status || !status.job) return false;
-  if (step.name === status.job) return true;
-  const application = dictionary.applications[step.name];
-  return Boolean(application && application.steps.some((s) => s.job === status.job));
+/** The row's jobs in the order they run, each with the row step it belongs to: [[job, step index], ...]. */
+function runOrder(dictionary, steps) {
+  const expand = (name, index, seen) => {
+    const application = dictionary.applications[name];
+    if (!application || seen.includes(name)) return [[name, index]];
+    return application.steps.flatMap((s) => expand(s.job, index, [...seen, name]));
+  };
+  return steps.flatMap((step, index) => expand(step.name, index, []));
+}
+
+/**
+ * Which step of the row runs now: the status stream names the job, and the same job may come twice,
+ * so each new job is looked for after the one before it. null while nothing of this row runs.
+ */
+function useRunningStep(dictionary, steps, job, active) {
+  const [position, setPosition] = useState(-1);  // in runOrder
+  useEffect(() => {
+    if (!active || !job) { setPosition(-1); return; }
+    const order = runOrder(dictionary, steps);
+    setPosition((before) => {
+      if (before >= 0 && order[before] && order[before][0] === job) return before;
+      const after = order.findIndex(([name], i) => i > before && name === job);
+      return after >= 0 ? after : order.findIndex(([name]) => name === job);
+    });
+  }, [job, active]);
+  const order = runOrder(dictionary, steps);
+  return active && position >= 0 && order[position] ? order[position][1] : null;
 }
 
 /** One step of the row: its icon (focusable: Delete removes it, Alt+arrows move it), its slot, its tools. */
@@ -171,7 +193,8 @@ export function Workspace({ dictionary, steps, actions, message, setMessage, sta
   const readiness = !steps.length ? "Empty: drop jobs from the dictionary."
     : open.length ? `Not runnable: ${open.length} gap${open.length === 1 ? "" : "s"} to fill (it can be saved as an incomplete application).`
     : status ? "Complete: ready to run on the attached run." : "Complete: attach a run (pbo run FILE) to run it.";
-  const mine = running && running === (runName || name);  // the row it runs: started here, or named as it is
+  const mine = Boolean(running && running === (runName || name));  // the row it runs: started here, or named as it is
+  const runningStep = useRunningStep(dictionary, steps, status ? status.job : null, mine);
 
   return html`
     <div class="workspace">
@@ -181,7 +204,7 @@ export function Workspace({ dictionary, steps, actions, message, setMessage, sta
         <${Place} before=${0} count=${steps.length} onInsert=${actions.insert} onMove=${actions.move} />
         ${steps.map((step, index) => html`
           <${Unit} key=${step.id} dictionary=${dictionary} step=${step} index=${index} count=${steps.length}
-                   running=${mine && isRunning(dictionary, step, status)} actions=${actions} />
+                   running=${runningStep === index} actions=${actions} />
           <${Place} key=${"place" + step.id} before=${index + 1} count=${steps.length} onInsert=${actions.insert} onMove=${actions.move} />`)}
       </div>
       <p class="readiness" data-test="run-readiness">${readiness}</p>

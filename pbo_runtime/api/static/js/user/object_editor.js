@@ -54,7 +54,8 @@ export function ObjectEditor({ dictionary, name, where, onSaved, onClose }) {
   const [texts, setTexts] = useState(fresh);
   const [message, setMessage] = useState({ text: "", error: false });
   const [saving, setSaving] = useState(false);
-  useEffect(() => { setTexts(fresh()); setMessage({ text: "", error: false }); }, [name, obj && JSON.stringify(obj.value)]);
+  useEffect(() => { setTexts(fresh()); }, [name, obj && JSON.stringify(obj.value)]);  // the file's values, once saved
+  useEffect(() => { setMessage({ text: "", error: false }); }, [name]);
   if (!obj) return null;
 
   const save = async (event) => {

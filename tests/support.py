@@ -455,11 +455,12 @@ def stop_hmi(hmi: subprocess.Popen) -> str:
         return hmi.communicate()[1]
 
 
-def user_level_copy(folder: Path, subsystem: str, seconds: float = 20.0) -> Path:
+def user_level_copy(folder: Path, subsystem: str, reach_seconds: float = 6.0, hold_seconds: float = 600.0) -> Path:
     """configs/pid_joint.yaml, comments kept, as subsystem `subsystem`, for the HMI's user level: without
     its logger, with a joint_position object type, two named objects, a job that requires an object
-    (`reach`: its trajectory reads q_d) and an action (`hold`), each running `seconds` (simulated on
-    `--clock sim`) so a page sees each one as the current job."""
+    (`reach`: its trajectory reads q_d) and an action (`hold`), each running for its seconds (simulated
+    on `--clock sim`): long enough for a page to see `reach` as the current job at any speed of the
+    simulation, and `hold` until the test stops the run."""
     text = DEMO.read_text()
     logger = ("  logger: {module: data_logger, rtpu: rtpu0, period: 10 ms,\n"
               "           params: {variables: [q_m, q_r, tau_u], path: runs/pid_joint.npy}}\n")
@@ -470,8 +471,8 @@ def user_level_copy(folder: Path, subsystem: str, seconds: float = 20.0) -> Path
                "  ready: {type: joint_position, value: [0.3, -0.5, 0.5, 0.2, 0.4, 0.2], doc: \"upper arm raised\"}\n"
                "\ntasks:\n")
     jobs = (f"  joint_pid: [robot, traj, pid]  # the PID loop\n\njobs:\n"
-            f"  reach: {{configuration: joint_pid, timeout: {seconds:g} s}}   # requires a joint_position: traj reads q_d\n"
-            f"  hold:  {{configuration: joint_pid, object: none, timeout: {seconds:g} s}}\n")
+            f"  reach: {{configuration: joint_pid, timeout: {reach_seconds:g} s}}   # requires a joint_position: traj reads q_d\n"
+            f"  hold:  {{configuration: joint_pid, object: none, timeout: {hold_seconds:g} s}}\n")
     for old, new in (("\nsubsystem: puma\n", f"\nsubsystem: {subsystem}\n"), (logger, ""), ("\ntasks:\n", objects),
                      ("  joint_pid: [robot, traj, pid, logger]\n", jobs)):
         assert old in text, old

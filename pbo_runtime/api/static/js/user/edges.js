@@ -5,7 +5,7 @@
 // from T's name alone (a hash), so every page, every run and every screenshot draws T the same way.
 import { html } from "../html.js";
 
-export const WIDTH = 132;   // the body, px
+export const WIDTH = 156;   // the body, px
 export const HEIGHT = 58;
 export const DEPTH = 12;    // how far a notch cuts in and a tab sticks out: an object overlaps its job by this much
 const TOP = 15, BOTTOM = 43; // where a shaped edge runs, px from the top
@@ -83,7 +83,7 @@ export function IconSvg({ edges, kind, title, subtitle, application = false }) {
   const hasTab = (edges.left || {}).shape === "tab";
   const x0 = hasTab ? -DEPTH : 0;
   const width = WIDTH - x0;
-  const label = title.length > 16 ? title.slice(0, 15) + "…" : title;
+  const clip = (text, most) => (text.length > most ? text.slice(0, most - 1) + "…" : text);  // the full name is the button's label
   return html`
     <svg class=${"icon-svg kind-" + kind} width=${width} height=${HEIGHT} viewBox=${`${x0} 0 ${width} ${HEIGHT}`}
          aria-hidden="true" focusable="false">
@@ -91,8 +91,8 @@ export function IconSvg({ edges, kind, title, subtitle, application = false }) {
       ${edgePaths.map((p) => html`<path class=${"icon-edge edge-" + p.side} d=${p.d} stroke=${p.colour}
                                         fill=${p.side === "left" ? p.colour : "none"} fill-opacity="0.35" />`)}
       ${application ? html`<path class="icon-app-rule" d=${`M5,4 L5,${HEIGHT - 4}`} />` : null}
-      <text class="icon-title" x=${hasTab ? 8 : 12} y="24">${label}</text>
-      <text class="icon-subtitle" x=${hasTab ? 8 : 12} y="42">${subtitle}</text>
+      <text class="icon-title" x=${hasTab ? 8 : 12} y="24">${clip(title, 17)}</text>
+      <text class="icon-subtitle" x=${hasTab ? 8 : 12} y="42">${clip(subtitle, 22)}</text>
     </svg>`;
 }
 

@@ -473,3 +473,33 @@ def canvas_base_file(folder: Path, name: str = "empty") -> Path:
     path = folder / f"{name}.yaml"
     path.write_text(header + "\n# the canvas's jobs go here\ntasks: {}\n\nconfigurations: {}\n")
     return path
+
+
+# --- the application workspace (user level) -------------------------------------------------------
+
+
+def user_level_copy(folder: Path, subsystem: str, reach_seconds: float = 6.0, hold_seconds: float = 600.0) -> Path:
+    """configs/pid_joint.yaml, comments kept, as subsystem `subsystem`, for the HMI's user level: without
+    its logger, with a joint_position object type, two named objects, a job that requires an object
+    (`reach`: its trajectory reads q_d) and an action (`hold`), each running for its seconds (simulated
+    on `--clock sim`): long enough for a page to see `reach` as the current job at any speed of the
+    simulation, and `hold` until the test stops the run."""
+    text = DEMO.read_text()
+    logger = ("  logger: {module: data_logger, rtpu: rtpu0, period: 10 ms,\n"
+              "           params: {variables: [q_m, q_r, tau_u], path: runs/pid_joint.npy}}\n")
+    objects = ("\nobject_types:                    # what a job's object may be\n"
+               "  joint_position: {type: float64, shape: [NDOF], unit: rad, doc: \"a position of the six joints\"}\n"
+               "objects:                         # named objects: a step gives one to a job by name\n"
+               "  home:  {type: joint_position, value: 0}\n"
+               "  ready: {type: joint_position, value: [0.3, -0.5, 0.5, 0.2, 0.4, 0.2], doc: \"upper arm raised\"}\n"
+               "\ntasks:\n")
+    jobs = (f"  joint_pid: [robot, traj, pid]  # the PID loop\n\njobs:\n"
+            f"  reach: {{configuration: joint_pid, timeout: {reach_seconds:g} s}}   # requires a joint_position: traj reads q_d\n"
+            f"  hold:  {{configuration: joint_pid, object: none, timeout: {hold_seconds:g} s}}\n")
+    for old, new in (("\nsubsystem: puma\n", f"\nsubsystem: {subsystem}\n"), (logger, ""), ("\ntasks:\n", objects),
+                     ("  joint_pid: [robot, traj, pid, logger]\n", jobs)):
+        assert old in text, old
+        text = text.replace(old, new, 1)
+    path = folder / f"{subsystem}.yaml"
+    path.write_text(text)
+    return path

@@ -23,12 +23,11 @@ import tempfile
 from collections.abc import Sequence
 from typing import Any
 
-from ruamel.yaml import YAML
 from ruamel.yaml.comments import CommentedMap
 
 from pbo_runtime.config.canvas import CanvasError, CanvasTask
 from pbo_runtime.config.live import NAME
-from pbo_runtime.config.live_save import _chunks, _flow, _merged
+from pbo_runtime.config.live_save import chunks, flow, merged, round_trip
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import ACTION_REQUIRING_OBJECT
 from pbo_runtime.config.yaml_nodes import load_text, plain
@@ -63,14 +62,6 @@ def _loaded(text: str, what: str) -> Any:
         raise JobRefused(f"{what} is not a YAML value: {text!r} ({exc})") from None
 
 
-def _yaml() -> YAML:
-    yaml = YAML(typ="rt")
-    yaml.preserve_quotes = True
-    yaml.width = 4096
-    yaml.indent(mapping=2, sequence=4, offset=2)
-    return yaml
-
-
 def _section(doc: Any, key: str) -> Any:
     """The document's mapping `key`, made (block style) when it is missing or empty."""
     section = doc.get(key)
@@ -90,7 +81,7 @@ def job_text(original: str, name: str, tasks: Sequence[CanvasTask], loaded_from:
     members = [t for t in tasks if t.on]
     if not members:
         raise JobRefused("the canvas has no task that is on: a job runs a configuration of at least one task")
-    yaml = _yaml()
+    yaml = round_trip()
     doc = yaml.load(original)
     if not isinstance(doc, CommentedMap):
         raise JobRefused("the subsystem file is not a mapping of sections; pbo check says what is wrong")
@@ -109,7 +100,7 @@ def job_text(original: str, name: str, tasks: Sequence[CanvasTask], loaded_from:
         if task.name in file_tasks and users:
             raise JobRefused(f"task '{task.name}' on the canvas differs from the file's, which configuration(s) "
                              f"{', '.join(users)} run: rename it on the canvas to keep both")
-        file_tasks[task.name] = _flow(entry)
+        file_tasks[task.name] = flow(entry)
         touched.append(task.name)
     if loaded_from and not touched and list(configurations.get(loaded_from) or []) == names:
         configuration = loaded_from  # the canvas is that configuration, unchanged
@@ -119,12 +110,12 @@ def job_text(original: str, name: str, tasks: Sequence[CanvasTask], loaded_from:
                              "choose another name for the job")
         configuration = name
     else:
-        configurations[name] = _flow(names)
+        configurations[name] = flow(names)
         configuration = name
     job: dict[str, Any] = {"configuration": configuration}
     if object_choice == "none":
         job["object"] = "none"
-    _section(doc, "jobs")[name] = _flow(job)
+    _section(doc, "jobs")[name] = flow(job)
     out = io.StringIO()
     yaml.dump(doc, out)
     changed = {"tasks": set(touched), "configurations": {configuration}, "jobs": {name}}
@@ -134,12 +125,12 @@ def job_text(original: str, name: str, tasks: Sequence[CanvasTask], loaded_from:
 def merged_sections(original: str, dumped: str, changed: dict[str, set[str]]) -> str:
     """`pbo save`'s merge (the original's text but for the changed entries), where a changed section the
     original wrote in flow style (`tasks: {}`) or lacks is taken whole from the round trip's text."""
-    new = dict(_chunks(dumped, 0))
-    block = {key for key, text in _chunks(original, 0) if key in changed
+    new = dict(chunks(dumped, 0))
+    block = {key for key, text in chunks(original, 0) if key in changed
              and re.match(rf"^{re.escape(key)}\s*:\s*(#.*)?$", text.splitlines()[0] if text else "")}
     base = "".join(new.get(key, text) if key in changed and key not in block else text  # type: ignore[arg-type]
-                   for key, text in _chunks(original, 0))
-    return _merged(base, dumped, {key: entries for key, entries in changed.items() if key in block})
+                   for key, text in chunks(original, 0))
+    return merged(base, dumped, {key: entries for key, entries in changed.items() if key in block})
 
 
 def save_job(file: str, name: str, tasks: Sequence[CanvasTask], loaded_from: str | None = None,

@@ -24,11 +24,15 @@ Decisions this module makes, and why:
   members, no YAML), written by the supervisor to a file of the run and read back by each RTPU
   with `from_wire`, outside any cycle; nothing of the per-cycle path changes.
 - `edits` records each change in order, for `pbo save` (`config.live_save`).
+- An application given with its steps (`pbo app NAME --steps`, the HMI's workspace) is a change
+  too: it is put in the description's `applications:` and checked with the whole file, so a step
+  that does not interlock, or an object of the wrong type, is refused before any job runs.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Mapping
@@ -54,9 +58,9 @@ class LiveChangeRefused(PboError):
 class Edit:
     """One live change as `pbo save` replays it on the original file."""
 
-    kind: str  # spawn, kill, replace, set
-    task: str
-    entry: Any = None  # spawn, replace: the new task's entry (plain); set: the parameter's value
+    kind: str  # spawn, kill, replace, set, application
+    task: str  # application: the application's name
+    entry: Any = None  # spawn, replace: the new task's entry (plain); set: the parameter's value; application: its steps
     new: str = ""  # replace: the new task's name
     param: str = ""  # set: the parameter
     configurations: tuple[str, ...] = ()  # spawn: the configurations it joined
@@ -188,6 +192,25 @@ class LiveDescription:
         tasks.put(task, entry, self.doc["tasks"].key_loc(task), self.doc["tasks"].value_loc(task))
         doc.put("tasks", tasks, self.doc.key_loc("tasks"), self.doc.value_loc("tasks"))
         return self._checked(doc, f"setting '{param}' of task '{task}'", Edit("set", task, plain(value), param=param))
+
+    def with_application(self, name: str, steps: str | list[Any]) -> LiveDescription:
+        """The description with application `name` (replaced if it has one) of `steps`: a list as a file
+        writes it, or that list as one line of YAML text (`pbo app NAME --steps "[reach: ready, hold]"`)."""
+        if not NAME.match(name):
+            raise LiveChangeRefused(f"an application's name is a letter or '_' then letters, digits or '_', at most "
+                                    f"{MAX_NAME} characters, got: {name!r}")
+        # JSON is YAML on one line: the safe loader reads either, each step located in it
+        node, loc = _snippet(steps if isinstance(steps, str) else json.dumps(steps), f"pbo app {name} --steps")
+        if not isinstance(node, YList) or not node:
+            raise LiveChangeRefused(f"application '{name}': its steps are a non-empty list, e.g. [reach: ready, hold], "
+                                    f"got: {plain(node)!r}")
+        doc = _copy(self.doc)
+        existing = doc.get("applications")
+        applications = _copy(existing) if isinstance(existing, YMap) else YMap(loc)
+        applications.put(name, node, loc, loc)
+        where = (self.doc.key_loc("applications"), self.doc.value_loc("applications")) if "applications" in self.doc else (loc, loc)
+        doc.put("applications", applications, *where)
+        return self._checked(doc, f"application '{name}'", Edit("application", name, plain(node)))
 
     # --- checking -----------------------------------------------------------------------------
 

@@ -3,13 +3,15 @@
 The original file is read again by ruamel.yaml's round-trip mode, which keeps comments, key
 order and flow style, and each live change (`LiveDescription.edits`) is replayed on it in order:
 a spawned task's entry appended to `tasks:` and its configuration, a killed one removed from
-both, a replaced one's entry put in its place, a set parameter changed where it is written.
+both, a replaced one's entry put in its place, a set parameter changed where it is written, an
+application run with its steps (`pbo app NAME --steps`) written under `applications:`.
 ruamel.yaml only writes here: every file is still loaded by the project's own safe loader
 (`config.yaml_nodes`), and the saved file is checked by it before `pbo save` says it is done.
 
 ruamel.yaml re-flows what it writes (the alignment of `q_m:   {...}`, a flow mapping over two
 lines), so the saved text takes from the round trip only what the changes touched: the entries of
-`tasks:` and `configurations:` that changed; every other section and entry is the original's text.
+`tasks:`, `configurations:` and `applications:` that changed; every other section and entry is the
+original's text. `round_trip` and `merged` serve the HMI's saves too (`config.workspace_file`).
 """
 
 from __future__ import annotations
@@ -32,10 +34,7 @@ def saved_text(live: LiveDescription) -> str:
     if not os.path.isfile(live.file):
         raise LiveChangeRefused(f"{live.file} is no file of its own (an inline subsystem?): pbo save writes a file's "
                                 "changes back, and this run has none to start from")
-    yaml = YAML(typ="rt")
-    yaml.preserve_quotes = True
-    yaml.width = 4096  # long flow mappings stay on their line, as written
-    yaml.indent(mapping=2, sequence=4, offset=2)  # `  - item` under its key, as the shipped files write lists
+    yaml = round_trip()
     with open(live.file, encoding="utf-8") as stream:
         original = stream.read()
     doc = yaml.load(original)
@@ -44,16 +43,26 @@ def saved_text(live: LiveDescription) -> str:
         _replay(doc, edit)
     out = io.StringIO()
     yaml.dump(doc, out)
-    touched = {"tasks": {name for edit in live.edits for name in (edit.task, edit.new) if name},
+    touched = {"tasks": {name for edit in live.edits if edit.kind != "application" for name in (edit.task, edit.new) if name},
+               "applications": {edit.task for edit in live.edits if edit.kind == "application"},
                "configurations": {name for name, members in doc["configurations"].items()
                                   if list(members) != before.get(name)}}
-    return _merged(original, out.getvalue(), touched)
+    return merged(original, out.getvalue(), touched)
+
+
+def round_trip() -> YAML:
+    """ruamel.yaml's round trip, writing as the shipped files do."""
+    yaml = YAML(typ="rt")
+    yaml.preserve_quotes = True
+    yaml.width = 4096  # long flow mappings stay on their line, as written
+    yaml.indent(mapping=2, sequence=4, offset=2)  # `  - item` under its key, as the shipped files write lists
+    return yaml
 
 
 _KEY = {0: re.compile(r"^([A-Za-z_][\w-]*)\s*:"), 2: re.compile(r"^  ([A-Za-z_][\w-]*)\s*:")}
 
 
-def _chunks(text: str, indent: int) -> list[tuple[str | None, str]]:
+def chunks(text: str, indent: int) -> list[tuple[str | None, str]]:
     """(key, text) of each entry at `indent`, from its key's line to the next key's; None: the text before the first."""
     chunks: list[tuple[str | None, str]] = []
     key: str | None = None
@@ -69,17 +78,17 @@ def _chunks(text: str, indent: int) -> list[tuple[str | None, str]]:
     return chunks
 
 
-def _merged(original: str, dumped: str, touched: dict[str, set[str]]) -> str:
+def merged(original: str, dumped: str, touched: dict[str, set[str]]) -> str:
     """`dumped`'s text where the changes are, `original`'s everywhere else (same keys, same order)."""
-    kept = dict(_chunks(original, 0))
+    kept = dict(chunks(original, 0))
     parts = []
-    for key, text in _chunks(dumped, 0):
-        if key not in touched:
+    for key, text in chunks(dumped, 0):
+        if key not in touched or key not in kept:  # untouched: the original's text; new: the dump's
             parts.append(kept.get(key, text))
             continue
-        entries = dict(_chunks(kept.get(key, ""), 2))
+        entries = dict(chunks(kept.get(key, ""), 2))
         parts.extend(entries.get(name, text) if name not in touched[key] and name in entries else text
-                     for name, text in _chunks(text, 2))
+                     for name, text in chunks(text, 2))
     return "".join(parts)
 
 
@@ -106,24 +115,30 @@ def same_subsystem(saved: Subsystem, live: Subsystem) -> bool:
             and {n: c.tasks for n, c in saved.configurations.items()} == {n: c.tasks for n, c in live.configurations.items()})
 
 
-def _flow(value: Any) -> Any:
+def flow(value: Any) -> Any:
     """A plain value as ruamel nodes, mappings and lists in flow style (as the shipped files write tasks)."""
     if isinstance(value, dict):
-        mapping = CommentedMap((key, _flow(item)) for key, item in value.items())
+        mapping = CommentedMap((key, flow(item)) for key, item in value.items())
         mapping.fa.set_flow_style()
         return mapping
     if isinstance(value, list):
-        sequence = CommentedSeq(_flow(item) for item in value)
+        sequence = CommentedSeq(flow(item) for item in value)
         sequence.fa.set_flow_style()
         return sequence
     return value
+
+
+def _flow_steps(steps: list[Any]) -> CommentedSeq:
+    """An application's steps as the shipped files write them: one a line, `- reach: ready`, values in flow style."""
+    return CommentedSeq(step if isinstance(step, str) else CommentedMap((key, flow(value)) for key, value in step.items())
+                        for step in steps)
 
 
 def _replay(doc: Any, edit: Edit) -> None:
     tasks = doc["tasks"]
     configurations = doc["configurations"]
     if edit.kind == "spawn":
-        tasks[edit.task] = _flow(edit.entry)
+        tasks[edit.task] = flow(edit.entry)
         for name in edit.configurations:
             configurations[name].append(edit.task)
     elif edit.kind == "kill":
@@ -133,16 +148,20 @@ def _replay(doc: Any, edit: Edit) -> None:
                 members.remove(edit.task)
     elif edit.kind == "replace":
         position = list(tasks).index(edit.task)
-        tasks.insert(position, edit.new, _flow(edit.entry))
+        tasks.insert(position, edit.new, flow(edit.entry))
         del tasks[edit.task]
         for members in configurations.values():
             for index, member in enumerate(members):
                 if member == edit.task:
                     members[index] = edit.new
+    elif edit.kind == "application":
+        if doc.get("applications") is None:
+            doc["applications"] = CommentedMap()
+        doc["applications"][edit.task] = _flow_steps(edit.entry)
     elif edit.kind == "set":
         entry = tasks[edit.task]
         if "params" not in entry or entry["params"] is None:
-            entry["params"] = _flow({})
-        entry["params"][edit.param] = _flow(edit.entry)
+            entry["params"] = flow({})
+        entry["params"][edit.param] = flow(edit.entry)
     else:
         raise AssertionError(f"unknown live edit {edit.kind!r}")

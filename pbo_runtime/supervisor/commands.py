@@ -459,6 +459,16 @@ def set_parameter(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any
 
 def app(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     _no_application(host)
+    steps = arguments.get("steps")
+    if steps is not None:  # an application given with its steps: checked with the whole file, then adopted
+        live = _live(host)
+        given = _text(arguments, "application", "the application's name")
+        assert given is not None
+        if not isinstance(steps, (str, list)):
+            raise BadRequest(f"the steps must be a list, or YAML text of one, got: {describe(steps)}")
+        listed: str | list[Any] = steps
+        new = _checked(lambda: live.with_application(given, listed))
+        host.job_control.apply_live(new, f"application '{given}'")
     name = _name(arguments, "application", "application", host.subsystem.applications)
     if not host.subsystem.applications[name].complete:
         raise BadRequest(f"application '{name}' is incomplete (a step lacks its object) and cannot run; "
@@ -541,9 +551,12 @@ VERBS: tuple[Verb, ...] = (
          (_TASK, Argument("param", help="the parameter (its module declares it tunable)", key="param"),
           Argument("values", help="its value (YAML); several make a list", key="values", nargs="+")),
          set_parameter, _LIVE_REPLY + ' and `"param": str, "value": any`', LIVE_TIMEOUT),
-    Verb("app", "run one of the file's applications on the live subsystem",
-         (Argument("name", help="the application's name", key="application"),), app, '`{"application": str, "jobs": [str]}`',
-         COMMAND_TIMEOUT),
+    Verb("app", "run one of the file's applications on the live subsystem; with --steps, an application given here "
+                "(checked first): pbo app tour2 --steps \"[reach: ready, hold]\"",
+         (Argument("name", help="the application's name", key="application"),
+          Argument("--steps", help="its steps as YAML, as the file writes them (replaces an application of that name)",
+                   key="steps", metavar="YAML")),
+         app, '`{"application": str, "jobs": [str]}`', LIVE_TIMEOUT),
     Verb("save", "write the live subsystem as YAML: the file with the live changes, comments and order kept",
          (Argument("file", help="where to write it", key="file", parse=lambda path: os.path.abspath(path) if path else path),
           Argument("--force", help="overwrite the file if it exists", key="force", flag=True)),

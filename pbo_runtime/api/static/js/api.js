@@ -57,3 +57,17 @@ export function stream(path, params, onMessage, onState = () => {}) {
   open();
   return { close() { closed = true; clearTimeout(retry); if (socket) socket.close(); } };
 }
+
+// The subsystem file changed (a job saved on the canvas, an application or an object saved in the
+// workspace): every part that shows what the file holds reads it again.
+const FILE_CHANGED = "pbo:file-changed";
+
+export function announceFileChanged() {
+  window.dispatchEvent(new Event(FILE_CHANGED));
+}
+
+/** Calls `reread` whenever a part of the page changed the file; returns the unsubscribe function. */
+export function onFileChanged(reread) {
+  window.addEventListener(FILE_CHANGED, reread);
+  return () => window.removeEventListener(FILE_CHANGED, reread);
+}

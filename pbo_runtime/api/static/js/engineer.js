@@ -5,7 +5,7 @@
 // delete, replace and modifier changes go to the run as the operator's verbs (spawn, on, off, kill,
 // replace, set); each refusal is shown with the API's own words.
 import { html, useState, useEffect, useRef, useMemo } from "./html.js";
-import { get, post, verb } from "./api.js";
+import { announceFileChanged, get, onFileChanged, post, verb } from "./api.js";
 import { Lexicon } from "./engineer/lexicon.js";
 import { JobCanvas } from "./engineer/canvas.js";
 import { LexiconModifiers, TaskPanel, CheckerList, SaveJob } from "./engineer/panel.js";
@@ -59,6 +59,7 @@ export function Engineer({ status }) {
   useEffect(() => {
     get("lexicon").then((reply) => setModules(reply.modules), (e) => say(e.message, true));
     loadFile();
+    return onFileChanged(loadFile);  // an application or object saved on the user level
   }, []);
 
   const load = (name) => {
@@ -172,7 +173,7 @@ export function Engineer({ status }) {
   };
   const saveJob = async (name, object) => {
     const reply = await act(`save job ${name}`, () => post("canvas/job", { name, object, configuration: loadedFrom, tasks: tasks.map(payload) }));
-    if (reply && reply.configuration) { setLoadedFrom(reply.configuration); setTouched(true); loadFile(); }
+    if (reply && reply.configuration) { setLoadedFrom(reply.configuration); setTouched(true); announceFileChanged(); }
   };
   const keyOnBlock = (event, task) => {
     const step = event.shiftKey ? 50 : 10;

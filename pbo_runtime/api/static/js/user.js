@@ -4,7 +4,7 @@
 // whichever pane it was opened from. The parts are in js/user/; this file holds their shared state:
 // the dictionary as the file has it now, the row, the selected icon and the message line.
 import { html, useState, useEffect } from "./html.js";
-import { get } from "./api.js";
+import { announceFileChanged, get, onFileChanged } from "./api.js";
 import { Dictionary } from "./user/dictionary.js";
 import { Workspace } from "./user/workspace.js";
 import { ObjectEditor } from "./user/object_editor.js";
@@ -18,7 +18,11 @@ export function User({ status }) {
   const [editing, setEditing] = useState(null);  // {name, where: "dictionary" | "workspace"}
   const [message, setMessage] = useState({ text: "", error: false });
   const [name, setName] = useState("workspace");  // the application's name, for Save and Run
-  useEffect(() => { get("dictionary").then(setDictionary, (e) => setError(e.message)); }, []);
+  useEffect(() => {
+    const read = () => get("dictionary").then((d) => { setDictionary(d); setError(""); }, (e) => setError(e.message));
+    read();
+    return onFileChanged(read);  // a job saved on the canvas joins the dictionary at once
+  }, []);
 
   const apply = (result) => {
     if (result.refused) { setMessage({ text: `Refused: ${result.refused}`, error: true }); return false; }
@@ -40,7 +44,7 @@ export function User({ status }) {
   const select = (name, force = false) => setSelected(force || selected !== name ? name : null);
   const append = (icon) => { setSelected(icon); actions.insert({ before: steps.length }, icon); };
   const open = (application) => { if (apply(fromApplication(dictionary, application))) setName(application); };
-  const saved = (reply) => { if (reply.dictionary) setDictionary(reply.dictionary); };
+  const saved = (reply) => { if (reply.dictionary) setDictionary(reply.dictionary); announceFileChanged(); };
   const editor = (where) => (editing && editing.where === where && dictionary ? html`
     <${ObjectEditor} dictionary=${dictionary} name=${editing.name} where=${where} onSaved=${saved}
                      onClose=${() => setEditing(null)} />` : null);

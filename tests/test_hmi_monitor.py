@@ -19,6 +19,8 @@ pytestmark = pytest.mark.multiprocess
 
 expect = pytest.importorskip("playwright.sync_api").expect
 
+NET = 60_000  # ms: a net for a plot that never shows what is awaited (as expect's, set in conftest), never a timing
+
 # The largest tracking error the plot holds now, over its series, and whether it has been steady
 # over the last 20 samples (the arm at rest): read from the data the plot draws.
 ERROR_NOW = """() => {
@@ -91,7 +93,7 @@ def test_a_configuration_switch_turns_the_leaving_controller_off_and_the_enterin
         expect(page.locator("[data-test=configuration]")).to_have_text("pid")
         switch = page.get_by_role("form", name="configuration switch")
         expect(switch.get_by_role("button", name="Switch")).to_be_disabled()  # the running one is chosen
-        switch.get_by_label("configuration").select_option("pd")
+        switch.get_by_label("configuration", exact=True).select_option("pd")
         switch.get_by_role("button", name="Switch").click()
         expect(page.locator("[data-test=monitor-outcome]")).to_contain_text("switched 'pid' -> 'pd'")
         expect(page.locator("[data-test=configuration]")).to_have_text("pd")
@@ -115,9 +117,9 @@ def test_a_gain_changed_live_changes_the_plotted_tracking_error_and_the_arm_is_d
             "data-series", ";".join(f"q_r[{i}] - q_m[{i}]" for i in range(6)))
         expect(page.locator("[data-test=arm]")).to_have_attribute("data-frames", "7")  # six joints and the tool
         expect(page.get_by_role("img", name="arm, side (x, z)").locator("circle")).to_have_count(7)
-        steady = page.wait_for_function(f"() => {{ const e = ({ERROR_NOW})(); return e && e.spread < 1e-4 && e; }}").json_value()
+        steady = page.wait_for_function(f"() => {{ const e = ({ERROR_NOW})(); return e && e.spread < 1e-4 && e; }}", timeout=NET).json_value()
 
-        kp = page.get_by_label("pid kp")
+        kp = page.get_by_label("pid kp", exact=True)
         expect(kp).to_have_value("400")
         kp.fill("fast")
         kp.press("Enter")  # the form is the keyboard's: Enter submits
@@ -125,7 +127,8 @@ def test_a_gain_changed_live_changes_the_plotted_tracking_error_and_the_arm_is_d
         kp.fill("40")
         kp.press("Enter")
         expect(page.locator("[data-test=monitor-outcome]")).to_contain_text("'kp' of task 'pid' is 40")
-        bigger = page.wait_for_function(f"() => {{ const e = ({ERROR_NOW})(); return e && e.now > {5 * steady['now']} && e; }}")
+        bigger = page.wait_for_function(f"() => {{ const e = ({ERROR_NOW})(); return e && e.now > {5 * steady['now']} && e; }}",
+                                    timeout=NET)
         assert bigger.json_value()["now"] > 5 * steady["now"]
         if os.environ.get("PBO_SCREENSHOTS"):
             folder = Path(os.environ["PBO_SCREENSHOTS"])

@@ -80,6 +80,7 @@ def test_an_error_task_is_cleared_and_turned_on_with_its_buttons_while_the_flag_
         expect(bus.locator("tr[data-task=glitch] .measured")).not_to_have_text("0.0")  # on again: measured from its rate
         expect(bus.locator("tr[data-task=B] .measured")).not_to_have_text("0.0")
     finally:
+        page.close()  # before the server stops: the bus table's next request would find no server
         stop_hmi(hmi)
         stop(run)
 
@@ -101,12 +102,14 @@ def test_a_configuration_switch_turns_the_leaving_controller_off_and_the_enterin
         expect(task_row(page, "rtpu0", "pid").locator(".state")).to_have_text("OFF")
         expect(page.get_by_role("table", name="bus load").locator("caption")).to_contain_text("'pd'")
     finally:
+        page.close()  # before the server stops: the bus table's next request would find no server
         stop_hmi(hmi)
         stop(run)
 
 
 def test_a_gain_changed_live_changes_the_plotted_tracking_error_and_the_arm_is_drawn(page, tmp_path):
-    # Without gravity feed-forward nor integral, the arm at rest sags by g(q) / kp: a tenth of the gain, ten times the error.
+    # Without gravity feed-forward nor integral, the arm at rest sags by g(q) / kp: a tenth of the gain, a larger error
+    # (not ten times: the sagging arm leans out of the gravity that pulls it).
     file = demo_copy(tmp_path, "hmi_monitor_kp", pid={"params": {"kp": 400, "kd": 40, "ki": 0, "gravity_feedforward": False}})
     run = start_run(file, tmp_path, "--clock", "sim", "--duration", "0", live=True)
     hmi, url = start_hmi(str(file), cwd=tmp_path)
@@ -127,14 +130,15 @@ def test_a_gain_changed_live_changes_the_plotted_tracking_error_and_the_arm_is_d
         kp.fill("40")
         kp.press("Enter")
         expect(page.locator("[data-test=monitor-outcome]")).to_contain_text("'kp' of task 'pid' is 40")
-        bigger = page.wait_for_function(f"() => {{ const e = ({ERROR_NOW})(); return e && e.now > {5 * steady['now']} && e; }}",
+        bigger = page.wait_for_function(f"() => {{ const e = ({ERROR_NOW})(); return e && e.now > {2 * steady['now']} && e; }}",
                                     timeout=NET)
-        assert bigger.json_value()["now"] > 5 * steady["now"]
+        assert bigger.json_value()["now"] > 2 * steady["now"]
         if os.environ.get("PBO_SCREENSHOTS"):
             folder = Path(os.environ["PBO_SCREENSHOTS"])
             folder.mkdir(parents=True, exist_ok=True)
             page.locator("section.monitor").scroll_into_view_if_needed()
             page.screenshot(path=str(folder / "hmi-monitor.png"), full_page=True)
     finally:
+        page.close()  # before the server stops: the bus table's next request would find no server
         stop_hmi(hmi)
         stop(run)

@@ -29,7 +29,7 @@ export function seriesFor(a, b, element, shape) {
 
 function SeriesForm({ layout, onAdd }) {
   const numeric = Object.entries(layout.variables).filter(([, v]) => v.dtype !== "bool");
-  const [a, setA] = useState(numeric.length ? numeric[0][0] : "");
+  const [a, setA] = useState(layout.variables.q_m ? "q_m" : numeric.length ? numeric[0][0] : "");
   const [b, setB] = useState("");
   const [element, setElement] = useState("all");
   const shape = a && layout.variables[a] ? layout.variables[a].shape : [];

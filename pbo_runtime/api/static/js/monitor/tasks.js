@@ -32,7 +32,7 @@ function TaskRow({ task, report }) {
       <th scope="row">${task.task}</th>
       <td class=${"state state-" + task.state}>${task.state}</td>
       <td>${task.rate.toFixed(1)}</td><td>${ms(task.jitter_p99)}</td><td>${task.overruns}</td><td>${ms(task.exec_p99)}</td>
-      <td class="task-error" title=${task.error || ""}>${task.error || ""}</td>
+      <td class="task-error"><span title=${task.error || ""}>${task.error || ""}</span></td>
       <td class="task-actions">${actionsFor(task.state).map((name) => html`
         <button onClick=${() => act(name)} disabled=${busy} aria-label=${`${LABEL[name]} ${task.task}`}
                 class=${name === "clear" ? "clear" : ""}>${LABEL[name]}</button>`)}</td>

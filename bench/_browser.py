@@ -52,6 +52,15 @@ class Browser:
             page.wait_for_function("() => window.pboMonitor.plot && window.pboMonitor.plot.samples > 0", timeout=READY_TIMEOUT_MS)
         return page
 
+    def warm(self, url: str) -> None:
+        """Load the page once and close it: the server's first answers (the lexicon imports every module) are not a run's."""
+        page = self._browser.new_page(viewport={"width": 1280, "height": 900})
+        try:
+            page.goto(url)
+            page.wait_for_selector(".lexicon [data-module]", timeout=READY_TIMEOUT_MS)
+        finally:
+            page.close()
+
     def close(self) -> None:
         try:
             self._browser.close()

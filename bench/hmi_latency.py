@@ -130,6 +130,7 @@ refresh. A write the page never showed (a later one overtook it between two fram
                                        folder, "is on:")
                 hmi, url = start([sys.executable, "-m", "pbo_runtime.cli", "hmi", "--subsystem", SUBSYSTEM, "--port", "0"],
                                  folder, "http://")
+                browser.warm(url)
                 page = browser.open_monitor(url, [{"a": "stamp", "b": None, "index": 0}], RATE)
                 page.evaluate(PROBE)
                 write_stamps(file, writes)

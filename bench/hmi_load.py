@@ -81,6 +81,7 @@ runs; read the medians over the rounds, and rerun on a quiet machine before judg
             browser = Browser()
             server, url = api_stream.start_server(folder)
             try:
+                browser.warm(url)
                 results: list[dict[str, dict[str, Any]]] = []
                 for index in range(rounds):
                     order = ("none", "client") if index % 2 == 0 else ("client", "none")

@@ -1,24 +1,24 @@
 // The bus load of the running configuration (TR eq. 1-2): each task's Z_j predicted from the file
 // beside measured from the run's task rates now, and their sum B as a share of the bandwidth.
-import { html, useState, useEffect } from "../html.js";
+import { html, useState, useEffect, useRef } from "../html.js";
 import { get } from "../api.js";
 
-const POLL_MS = 2000;
+const POLL_MS = 2000;  // the status stream comes twice a second: the bus every other one
 const kB = (bytesPerSecond) => (bytesPerSecond / 1e3).toFixed(1);
 const percent = (share) => (share == null ? "–" : (share * 100).toFixed(3) + " %");
 
 export function BusLoad({ status }) {
   const [bus, setBus] = useState(null);
   const [error, setError] = useState("");
-  const run = status.run_id;
+  const asked = useRef(0);
+  // Asked again when a status arrives at least POLL_MS after the last ask, never on a timer of its own:
+  // when the server or the run is gone, the status stream stops and so does this.
   useEffect(() => {
-    let live = true;
-    const ask = () => get("monitor/bus").then((reply) => { if (live) { setBus(reply); setError(""); } },
-                                              (e) => live && setError(e.message));
-    ask();
-    const timer = setInterval(ask, POLL_MS);
-    return () => { live = false; clearInterval(timer); };
-  }, [run]);
+    const now = Date.now();
+    if (now - asked.current < POLL_MS) return;
+    asked.current = now;
+    get("monitor/bus").then((reply) => { setBus(reply); setError(""); }, (e) => setError(e.message));
+  }, [status]);
   if (error) return html`<p class="error" role="alert" data-test="bus-error">${error}</p>`;
   if (!bus) return null;
   const measured = Object.fromEntries(bus.measured.tasks.map((t) => [t.task, t]));

@@ -20,7 +20,7 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -98,8 +98,11 @@ class StreamingClient:
         self._thread.join(timeout=10)
 
 
-def one_run(file: Path, folder: Path, seconds: float, url: str | None) -> dict[str, Any]:
-    """One `pbo run` of `seconds` once on, with a streaming client when `url` is given; its report and the client's count."""
+def one_run(file: Path, folder: Path, seconds: float, url: str | None,
+            client_for: Callable[[str], Any] = StreamingClient) -> dict[str, Any]:
+    """One `pbo run` of `seconds` once on, with a streaming client when `url` is given; its report and the client's count.
+
+    `client_for(url)`: the client, a context manager counting `messages` and saying a `problem` (bench.hmi_load's is a page)."""
     report = folder / "report.json"
     report.unlink(missing_ok=True)
     command = [sys.executable, "-m", "pbo_runtime.cli", "run", str(file), "--duration", f"{seconds:g}", "--report",
@@ -107,12 +110,12 @@ def one_run(file: Path, folder: Path, seconds: float, url: str | None) -> dict[s
     run = subprocess.Popen(command, cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     assert run.stdout is not None
     said: list[str] = []
-    client: StreamingClient | None = None
+    client: Any = None
     try:
         for line in run.stdout:
             said.append(line.strip())
             if "is on:" in line and url is not None and client is None:
-                client = StreamingClient(url).__enter__()
+                client = client_for(url).__enter__()
         run.wait(timeout=seconds + 120)
     finally:
         if client is not None:
@@ -187,7 +190,8 @@ machine before judging a few percent.""",
     return section
 
 
-def _tables(section: Section, results: list[dict[str, dict[str, Any]]], per_run: float) -> None:
+def _tables(section: Section, results: list[dict[str, dict[str, Any]]], per_run: float,
+            who: str = "a 100 Hz client", what: str = "10 variables at 100 Hz") -> None:
     rtpus = sorted({rtpu for r in results for side in r.values() for rtpu in by_rtpu(side["report"])})
     t = Table(["RTPU", "client", "jitter p50 µs", "jitter p99 µs", "overruns", "cycles"], numeric=(2, 3, 4, 5))
     ratios: dict[str, list[float]] = {"p50": [], "p99": []}
@@ -198,7 +202,7 @@ def _tables(section: Section, results: list[dict[str, dict[str, Any]]], per_run:
             kept = [f for f in figures if f is not None]
             if not kept:
                 continue
-            t.add(rtpu, "10 variables at 100 Hz" if side == "client" else "none", us(float(np.median([f["p50"] for f in kept]))),
+            t.add(rtpu, what if side == "client" else "none", us(float(np.median([f["p50"] for f in kept]))),
                   us(float(np.median([f["p99"] for f in kept]))), sum(f["overruns"] for f in kept), f"{sum(f['cycles'] for f in kept):,}")
             pooled[side][0] += sum(f["overruns"] for f in kept)
             pooled[side][1] += sum(f["cycles"] for f in kept)
@@ -216,16 +220,16 @@ def _tables(section: Section, results: list[dict[str, dict[str, Any]]], per_run:
                          f"{RATE:g} Hz for {per_run:g} s)")
     for problem in {r["client"]["problem"] for r in results if r["client"]["problem"]}:
         section.notes.append(f"the client reported: {problem}")
-    for key, what in (("p50", "jitter p50"), ("p99", "jitter p99")):
+    for key, figure in (("p50", "jitter p50"), ("p99", "jitter p99")):
         value = float(np.median(ratios[key])) if ratios[key] else None
         if value is not None:
-            section.ratios[f"{what} with / without a client"] = value
+            section.ratios[f"{figure} with / without a client"] = value
         spread = f"rounds {min(ratios[key]):.2f}-{max(ratios[key]):.2f}x" if ratios[key] else "no round measured"
-        section.targets.append(Target(f"RTPU {what} with a 100 Hz client / without", value, LIMIT, note=spread))
+        section.targets.append(Target(f"RTPU {figure} with {who} / without", value, LIMIT, note=spread))
     (k_client, n_client), (k_none, n_none) = pooled["client"], pooled["none"]
     counts = f"{k_client} overruns in {n_client:,} cycles with the client, {k_none} in {n_none:,} without"
     if k_client == 0 and k_none == 0:
-        section.targets.append(Target("RTPU overrun rate with a 100 Hz client / without", 1.0, LIMIT, note=f"equal: {counts}"))
+        section.targets.append(Target(f"RTPU overrun rate with {who} / without", 1.0, LIMIT, note=f"equal: {counts}"))
         section.ratios["overrun_rate with / without a client"] = 1.0
     else:
         value = ratio(k_client / n_client, k_none / n_none) if n_client and n_none and k_none else None
@@ -233,7 +237,7 @@ def _tables(section: Section, results: list[dict[str, dict[str, Any]]], per_run:
             value = 0.0
         if value is not None:
             section.ratios["overrun_rate with / without a client"] = value
-        section.targets.append(Target("RTPU overrun rate with a 100 Hz client / without", value, LIMIT,
+        section.targets.append(Target(f"RTPU overrun rate with {who} / without", value, LIMIT,
                                       note=counts if value is not None else f"none without the client: {counts}"))
     section.notes.append("ratios with / without: " + ", ".join(f"{name} {fmt_ratio(v)}" for name, v in section.ratios.items()))
 

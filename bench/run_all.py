@@ -16,7 +16,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from bench import api_stream, check_scale, faults, links, peers, placement, realtime, scale, svar_transfer, switching, wait
+from bench import (api_stream, check_scale, faults, hmi_latency, hmi_load, links, peers, placement, realtime, scale,
+                   svar_transfer, switching, wait)
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -31,6 +32,8 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "links": links.section,
     "faults": faults.run,
     "api_stream": api_stream.run,
+    "hmi_latency": hmi_latency.run,
+    "hmi_load": hmi_load.run,
 }
 
 FULL: dict[str, dict[str, Any]] = {
@@ -45,6 +48,8 @@ FULL: dict[str, dict[str, Any]] = {
     "links": {},
     "faults": {"stop_seconds": 2.0},
     "api_stream": {"seconds": 120.0, "rounds": 12},
+    "hmi_latency": {"writes": 1000},
+    "hmi_load": {"seconds": 120.0, "rounds": 12},
 }
 
 QUICK: dict[str, dict[str, Any]] = {
@@ -59,6 +64,8 @@ QUICK: dict[str, dict[str, Any]] = {
     "links": {"quick": True},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.5, "run_seconds": 2.0},
     "api_stream": {"seconds": 2.0, "rounds": 2},
+    "hmi_latency": {"writes": 100},
+    "hmi_load": {"seconds": 20.0, "rounds": 2},
 }
 
 DOC = Path(REPO) / "docs" / "performance.md"

@@ -332,9 +332,10 @@ def read_until(run: subprocess.Popen, *texts: str, safety_net: float = SAYING_SA
     return "".join(said)
 
 
-def start_run(file: Path, cwd: Path, *arguments: str) -> subprocess.Popen:
-    """`pbo run FILE --no-live ...` in `cwd`, returned once its configuration is on (stdout read up to that line)."""
-    run = subprocess.Popen([*PBO, "run", str(file), "--no-live", *arguments], cwd=cwd,
+def start_run(file: Path, cwd: Path, *arguments: str, live: bool = False) -> subprocess.Popen:
+    """`pbo run FILE --no-live ...` in `cwd` (without --no-live when `live`: live changes on), returned once
+    its configuration is on (stdout read up to that line)."""
+    run = subprocess.Popen([*PBO, "run", str(file), *([] if live else ["--no-live"]), *arguments], cwd=cwd,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     if "is on" not in read_until(run, "is on"):
         run.wait(timeout=60)

@@ -18,7 +18,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, HTMLResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from pbo_runtime.api import canvas, files, streams, verbs, workspace
+from pbo_runtime.api import canvas, files, monitor, streams, verbs, workspace
 from pbo_runtime.api.auth import COOKIE, require_token
 from pbo_runtime.api.link import RunLink
 from pbo_runtime.api.replies import BAD_REQUEST, Reply, refusal
@@ -82,6 +82,7 @@ def create_app(link: RunLink, token: str, file: str | None = None) -> FastAPI:
     protected.include_router(streams.router())
     protected.include_router(canvas.router())
     protected.include_router(workspace.router())
+    protected.include_router(monitor.router())
     app.include_router(protected)
 
     @app.exception_handler(StarletteHTTPException)

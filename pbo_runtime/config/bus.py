@@ -41,7 +41,7 @@ from pbo_runtime.objects.ports import PortKind
 
 __all__ = [
     "BusModelError", "TaskLoad", "BusReport",
-    "transfer_bytes", "task_load", "predict", "predict_all", "measured", "over_bandwidth", "combined_saving",
+    "transfer_bytes", "task_load", "predict", "predict_all", "measured", "measured_live", "over_bandwidth", "combined_saving",
     "describe_saving", "as_table", "as_json", "as_csv", "plot",
 ]
 
@@ -237,6 +237,32 @@ def measured(subsystem: Subsystem, report_json: Mapping[str, Any], configuration
         loads.append(TaskLoad(name, str(row.get("rtpu") or spec.rtpu), interval, bytes_in, bytes_out, per_cycle,
                               cycles * per_cycle / duration, predicted.aperiodic, cycles))
     return _report(subsystem, configuration, loads, "measured", duration)
+
+
+def measured_live(subsystem: Subsystem, status: Mapping[str, Any]) -> BusReport:
+    """Z_j of a running configuration, now: each task's measured rate × (bytes per cycle + 2Δ).
+
+    `status` is the status reply of a live run (`supervisor.commands`): its `configuration`, and
+    per task its measured `rate` (Hz) and `state`. A task not ON moves nothing now (rate 0); a
+    task of the configuration the reply does not list ran no cycle. The bytes per cycle are what
+    `measured` takes when a report does not say what the table moved: the data of the task's
+    per-cycle bindings, from the file. `period` is the measured mean interval (inf when not running).
+    """
+    configuration = str(status.get("configuration") or next(iter(subsystem.configurations), ""))
+    names = _members(subsystem, configuration)
+    rows = {str(row.get("task")): row for row in status.get("tasks") or ()}
+    loads = []
+    for name in names:
+        predicted = task_load(subsystem, subsystem.tasks[name])
+        row = rows.get(name) or {}
+        rate = float(row.get("rate") or 0.0) if row.get("state") == "ON" else 0.0
+        if not (math.isfinite(rate) and rate > 0):
+            rate = 0.0
+        interval = 1.0 / rate if rate > 0 else math.inf
+        loads.append(TaskLoad(name, str(row.get("rtpu") or predicted.rtpu), interval, predicted.bytes_in, predicted.bytes_out,
+                              predicted.per_cycle_bytes, rate * predicted.per_cycle_bytes, predicted.aperiodic,
+                              int(row.get("cycles") or 0)))
+    return _report(subsystem, configuration, loads, "measured")
 
 
 # --- combined modules (TR §4.5) ----------------------------------------------------------------

@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test check bench clean-shm
+.PHONY: run test check bench screenshots clean-shm
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +25,9 @@ check: $(STAMP)          ## check every shipped configuration
 bench: $(STAMP)          ## every benchmark against its baseline (about 25 minutes); rewrites docs/performance.md
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[bench]'
 	$(BIN)/python -m bench
+
+screenshots: $(STAMP)   ## the HMI's pictures in docs/, taken by its browser tests (needs chromium)
+	PBO_SCREENSHOTS=docs $(BIN)/python -m pytest -q tests/test_hmi_engineer.py tests/test_hmi_user.py tests/test_hmi_monitor.py
 
 clean-shm: $(STAMP)      ## remove shared memory left by runs that crashed
 	$(BIN)/pbo clean

@@ -433,6 +433,14 @@ def chromium_flags() -> list[str]:
     return flags + (["--no-sandbox"] if os.geteuid() == 0 else [])
 
 
+def screenshot(page, name: str) -> None:
+    """With PBO_SCREENSHOTS naming a folder (`make screenshots`: docs/), the whole page saved there as `name`."""
+    folder = os.environ.get("PBO_SCREENSHOTS")
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(Path(folder) / name), full_page=True)
+
+
 def start_hmi(*arguments: str, cwd: Path | None = None) -> tuple[subprocess.Popen, str]:
     """`pbo hmi ARGUMENTS --port 0` and the URL it printed (with its token); the caller stops it (`stop_hmi`)."""
     hmi = subprocess.Popen([*PBO, "hmi", *arguments, "--port", "0"], cwd=cwd, stdout=subprocess.PIPE,

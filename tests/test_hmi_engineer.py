@@ -7,14 +7,13 @@ Set PBO_SCREENSHOTS to a folder to keep a screenshot of the canvas with Figure 8
 
 from __future__ import annotations
 
-import os
 import re
 import subprocess
 from pathlib import Path
 
 import pytest
 
-from tests.support import DEMO, PBO, canvas_base_file, live_demo_copy, start_hmi, start_run, stop_hmi
+from tests.support import DEMO, PBO, canvas_base_file, live_demo_copy, screenshot, start_hmi, start_run, stop_hmi
 
 pytestmark = pytest.mark.multiprocess
 
@@ -83,11 +82,8 @@ def test_figure_8_dragged_onto_an_empty_canvas_joins_its_pins_by_variable_and_ch
         # q_d is the goal: no task writes it, job control does (its initial value), so its pin is not open
         expect(canvas_of(page).locator("g.task[data-module=joint_trajectory] .pin[data-port=q_d]")).to_have_class("pin")
         expect(canvas_of(page).locator(".badge")).to_have_count(0)
-        if os.environ.get("PBO_SCREENSHOTS"):
-            folder = Path(os.environ["PBO_SCREENSHOTS"])
-            folder.mkdir(parents=True, exist_ok=True)
-            page.mouse.move(640, 10)  # off the lexicon: no block's hover text in the picture
-            page.screenshot(path=str(folder / "hmi-canvas.png"), full_page=True)
+        page.mouse.move(640, 10)  # off the lexicon: no block's hover text in the picture
+        screenshot(page, "hmi-canvas.png")
     finally:
         stop_hmi(hmi)
 

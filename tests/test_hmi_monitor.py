@@ -7,13 +7,12 @@ never its pixels. With PBO_SCREENSHOTS=FOLDER, the kp test saves the monitor as 
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 
 import pytest
 
-from tests.support import REPO, demo_copy, start_hmi, start_run, stop_hmi
+from tests.support import REPO, demo_copy, screenshot, start_hmi, start_run, stop_hmi
 
 pytestmark = pytest.mark.multiprocess
 
@@ -133,11 +132,8 @@ def test_a_gain_changed_live_changes_the_plotted_tracking_error_and_the_arm_is_d
         bigger = page.wait_for_function(f"() => {{ const e = ({ERROR_NOW})(); return e && e.now > {2 * steady['now']} && e; }}",
                                     timeout=NET)
         assert bigger.json_value()["now"] > 2 * steady["now"]
-        if os.environ.get("PBO_SCREENSHOTS"):
-            folder = Path(os.environ["PBO_SCREENSHOTS"])
-            folder.mkdir(parents=True, exist_ok=True)
-            page.locator("section.monitor").scroll_into_view_if_needed()
-            page.screenshot(path=str(folder / "hmi-monitor.png"), full_page=True)
+        page.locator("section.monitor").scroll_into_view_if_needed()
+        screenshot(page, "hmi-monitor.png")
     finally:
         page.close()  # before the server stops: the bus table's next request would find no server
         stop_hmi(hmi)

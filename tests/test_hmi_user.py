@@ -8,14 +8,13 @@ With PBO_SCREENSHOTS naming a folder, the workspace with a gap is saved there as
 
 from __future__ import annotations
 
-import os
 import re
 import subprocess
 from pathlib import Path
 
 import pytest
 
-from tests.support import PBO, start_hmi, start_run, stop_hmi, user_level_copy
+from tests.support import PBO, screenshot, start_hmi, start_run, stop_hmi, user_level_copy
 
 pytestmark = pytest.mark.multiprocess
 
@@ -42,13 +41,6 @@ def row(page):
 
 def message(page):
     return page.locator("[data-test=workspace-message]")
-
-
-def screenshot(page, name: str) -> None:
-    folder = os.environ.get("PBO_SCREENSHOTS")
-    if folder:
-        Path(folder).mkdir(parents=True, exist_ok=True)
-        page.screenshot(path=str(Path(folder) / name))
 
 
 def check_clean(file: Path) -> str:

@@ -69,6 +69,17 @@ def test_age_is_seconds_since_the_write_on_the_monotonic_clock(run):
         assert view.age("n") == math.inf  # never written
 
 
+def test_on_a_simulated_clock_run_age_is_counted_on_its_simulated_time(run):
+    subsystem, table = run()
+    table.header[Header.SIM_TICK] = 40  # as the supervisor releases ticks of a --clock sim run
+    table.header[Header.SIM_TIME_NS] = 2_000_000_000
+    table.write("q_m", [1, 2, 3], when=1.75)
+    with open_table(subsystem) as view:
+        assert view.age("q_m") == pytest.approx(0.25)
+        [row] = svar_rows(view, ["q_m"])
+        assert row["age_ms"] == pytest.approx(250.0)
+
+
 def test_a_task_written_variable_takes_sequence_and_time_from_the_tasks_status_block(run):
     subsystem, table = run()
     table.write("q_m", [1, 2, 3], when=1.0, writer=2)

@@ -89,13 +89,21 @@ class TableView:
         view, words, status = self._values[name], self._words, self._status
         return self._seqlock.read(lambda: copy_variable(view, words, e.meta_word, status))
 
+    def now(self) -> float:
+        """The run's clock now, in the seconds its write times are in: the current tick of a
+        `--clock sim` run (which has released ticks), else CLOCK_MONOTONIC."""
+        header = self._words[:HEADER_WORDS].view(np.int64)
+        if int(header[Header.SIM_TICK]) > 0:
+            return int(header[Header.SIM_TIME_NS]) / 1e9
+        return time.monotonic()
+
     def age(self, name: str, now: float | None = None) -> float:
-        """Seconds since the variable was last written (time.monotonic); inf if it never was."""
+        """Seconds since the variable was last written, on the run's clock (`now`); inf if it never was."""
         _value, seq, when, writer = self.read(name)
         stamp = _write_time(seq, when, writer)
         if stamp is None:
             return math.inf
-        return (time.monotonic() if now is None else now) - stamp
+        return (self.now() if now is None else now) - stamp
 
     def task_status(self) -> list[dict[str, Any]]:
         """Each task's status block by table index: state, cycles, overruns, timings in seconds."""
@@ -202,7 +210,7 @@ def svar_rows(view: TableView, names: Sequence[str] | None = None, writers: Mapp
     for name in names if names else view.variables():
         value, seq, when, writer = view.read(name)
         stamp = _write_time(seq, when, writer)
-        age_ms = None if stamp is None else ((time.monotonic() if now is None else now) - stamp) * 1e3
+        age_ms = None if stamp is None else ((view.now() if now is None else now) - stamp) * 1e3
         written = writer >= 0 or seq > 0
         if not written:
             who = "—"

@@ -63,6 +63,15 @@ def test_a_spawn_that_is_wrong_is_refused_before_anything_is_touched(host, chang
     assert host.signals == [] and host.plans == [] and "logger" not in host.subsystem.tasks
 
 
+def test_a_spawned_task_opens_the_devices_given_as_its_resources_checked_like_the_files(host):
+    with pytest.raises(BadRequest, match=r"E208\].*'camera'"):
+        dispatch(host, "spawn", {**LOGGER, "resources": ["camera"]})
+    assert "logger" not in host.subsystem.tasks
+    with pytest.raises(BadRequest, match=r"E601\].*'arm'"):  # exclusive, and the robot of the running configuration holds it
+        dispatch(host, "spawn", {**LOGGER, "resources": ["arm"]})
+    assert "logger" not in host.subsystem.tasks and host.signals == []
+
+
 def test_a_spawn_past_the_spare_status_blocks_is_refused_with_the_way_out(host):
     assert host.live is not None
     host.live = dataclasses.replace(host.live, slots=len(host.subsystem.tasks))  # no spare block left

@@ -47,7 +47,7 @@ from pbo_runtime.objects import registry
 # A live task's name: a plain identifier (it travels in signals, queues are sized for names this long)
 NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,39}$")
 MAX_NAME = 40
-SPAWN_KEYS = ("module", "rtpu", "period", "priority", "critical", "aperiodic", "min_interarrival", "wcet")
+SPAWN_KEYS = ("module", "rtpu", "period", "priority", "critical", "aperiodic", "min_interarrival", "wcet", "resources")
 
 
 class LiveChangeRefused(PboError):

@@ -384,6 +384,9 @@ def _task_change(arguments: dict[str, Any]) -> TaskChange:
     for flag in ("critical", "aperiodic"):
         if arguments.get(flag):
             fields[flag] = "true"
+    resources = _texts(arguments, "resources", "--resources")
+    if resources:
+        fields["resources"] = f"[{', '.join(resources)}]"
     try:
         return TaskChange(_text(arguments, "module", "--module", optional=True), _text(arguments, "rtpu", "--rtpu", optional=True),
                           fields, parse_assignments(_texts(arguments, "params", "--param"), "--param"),
@@ -514,6 +517,8 @@ _NEW_TASK = (
     Argument("--param", help="a parameter: --param kp=300 (YAML value)", key="params", nargs="+", extend=True,
              metavar="K=V"),
     Argument("--port", help="a port's variable: --port tau=tau_u", key="ports", nargs="+", extend=True, metavar="P=VAR"),
+    Argument("--resources", help="the devices it opens: --resources arm", key="resources", nargs="+", extend=True,
+             metavar="DEVICE"),
 )
 _LIVE_REPLY = '`{"task": str, "state": str, "configuration": str, "entered": [str], "left": [str], "at": seconds}`'
 LIVE_TIMEOUT = 15.0  # a live change spawns (imports, init) and waits for a cycle boundary

@@ -35,6 +35,8 @@ function spawnArguments(task) {
   const assigned = (values) => Object.entries(values).filter(([, v]) => String(v).trim()).map(([k, v]) => `${k}=${v}`);
   if (assigned(task.params).length) args.params = assigned(task.params);
   if (assigned(task.ports).length) args.ports = assigned(task.ports);
+  const resources = String(task.fields.resources || "").replace(/[\[\]]/g, "").split(",").map((d) => d.trim()).filter(Boolean);
+  if (resources.length) args.resources = resources;  // the devices it opens: a robot interface can be spawned too
   return args;
 }
 

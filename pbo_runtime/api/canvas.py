@@ -17,7 +17,7 @@ text}, "ports": {port: variable}, "on": bool}`. The logic is `config.canvas` and
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 from fastapi import APIRouter, Request
 from pydantic import BaseModel
@@ -51,40 +51,33 @@ def configuration_name(given: str | None) -> str:
     return given
 
 
+def answer(request: Request, reply: Callable[[str], dict[str, Any]]) -> Reply:
+    """`reply(file)` for the file the HMI edits, or the refusal: 404 no file, 400 a wrong canvas, 409 a job refused."""
+    try:
+        return Reply({"ok": True, **reply(subsystem_file(request))})
+    except NoFile as exc:
+        return refusal(NO_RUN, str(exc))
+    except CanvasError as exc:
+        return refusal(BAD_REQUEST, str(exc), bad_request=True)
+    except JobRefused as exc:
+        return refusal(REFUSED, str(exc))
+
+
 def router() -> APIRouter:
     routes = APIRouter(prefix="/api/canvas", tags=["canvas"])
 
     @routes.get("", summary="what the job canvas starts from: the file's configurations and their tasks")
     def get_canvas(request: Request) -> Reply:
-        try:
-            return Reply({"ok": True, **file_canvas(subsystem_file(request))})
-        except NoFile as exc:
-            return refusal(NO_RUN, str(exc))
-        except CanvasError as exc:
-            return refusal(BAD_REQUEST, str(exc), bad_request=True)
+        return answer(request, file_canvas)
 
     @routes.post("/check", summary="check the job canvas composed onto the file's base (pbo check), with placement")
     def post_check(request: Request, body: CanvasRequest) -> Reply:
-        try:
-            file = subsystem_file(request)
-            tasks = tasks_from_json(body.tasks)
-            return Reply({"ok": True, "file": file, **check_canvas(file, tasks, configuration_name(body.configuration))})
-        except NoFile as exc:
-            return refusal(NO_RUN, str(exc))
-        except CanvasError as exc:
-            return refusal(BAD_REQUEST, str(exc), bad_request=True)
+        return answer(request, lambda file: {"file": file, **check_canvas(file, tasks_from_json(body.tasks),
+                                                                          configuration_name(body.configuration))})
 
     @routes.post("/job", summary="save the job canvas as a job in the subsystem file (action, or action requiring an object)")
     def post_job(request: Request, body: JobRequest) -> Reply:
-        try:
-            file = subsystem_file(request)
-            tasks = tasks_from_json(body.tasks)
-            return Reply({"ok": True, **save_job(file, body.name, tasks, body.configuration or None, body.object)})
-        except NoFile as exc:
-            return refusal(NO_RUN, str(exc))
-        except CanvasError as exc:
-            return refusal(BAD_REQUEST, str(exc), bad_request=True)
-        except JobRefused as exc:
-            return refusal(REFUSED, str(exc))
+        return answer(request, lambda file: save_job(file, body.name, tasks_from_json(body.tasks), body.configuration or None,
+                                                     body.object))
 
     return routes

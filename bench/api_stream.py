@@ -191,7 +191,8 @@ machine before judging a few percent.""",
 
 
 def _tables(section: Section, results: list[dict[str, dict[str, Any]]], per_run: float,
-            who: str = "a 100 Hz client", what: str = "10 variables at 100 Hz") -> None:
+            who: str = "a 100 Hz client", what: str = "10 variables at 100 Hz",
+            received: str = "the client received {n} messages") -> None:
     rtpus = sorted({rtpu for r in results for side in r.values() for rtpu in by_rtpu(side["report"])})
     t = Table(["RTPU", "client", "jitter p50 µs", "jitter p99 µs", "overruns", "cycles"], numeric=(2, 3, 4, 5))
     ratios: dict[str, list[float]] = {"p50": [], "p99": []}
@@ -216,7 +217,7 @@ def _tables(section: Section, results: list[dict[str, dict[str, Any]]], per_run:
     section.tables.append(t)
     messages = [r["client"]["messages"] for r in results]
     expected = RATE * per_run
-    section.notes.append(f"the client received {np.median(messages):,.0f} messages per run (median; {expected:,.0f} at "
+    section.notes.append(received.format(n=f"{np.median(messages):,.0f}") + f" per run (median; {expected:,.0f} at "
                          f"{RATE:g} Hz for {per_run:g} s)")
     for problem in {r["client"]["problem"] for r in results if r["client"]["problem"]}:
         section.notes.append(f"the client reported: {problem}")

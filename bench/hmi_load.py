@@ -99,8 +99,8 @@ runs; read the medians over the rounds, and rerun on a quiet machine before judg
     except Exception as exc:  # noqa: BLE001 - a benchmark that cannot run says why in its section
         section.notes.append(f"not measured: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
         return section
-    api_stream._tables(section, results, per_run, who="the page plotting", what="page: 10 variables at 100 Hz")
-    section.notes[0] = section.notes[0].replace("the client received", "the page's plot took").replace("messages", "samples")
+    api_stream._tables(section, results, per_run, who="the page plotting", what="page: 10 variables at 100 Hz",
+                       received="the page's plot took {n} samples")
     return section
 
 

@@ -138,8 +138,10 @@ def small_disk(tmp_path):
 
 
 # What Chromium itself logs as an error that is the API's answer, not the page's failure: a refusal
-# the page shows (404 no file, 409 ...), and a stream's server gone at the test's end (it retries).
-BROWSER_NOTICES = ("Failed to load resource: the server responded with a status of", "WebSocket connection to ")
+# the page shows (404 no file, 409 ...), and the server gone at the test's end (a stream retries,
+# a request in flight is refused).
+BROWSER_NOTICES = ("Failed to load resource: the server responded with a status of", "WebSocket connection to ",
+                   "Failed to load resource: net::ERR_CONNECTION_REFUSED")
 
 
 @pytest.fixture(scope="session")

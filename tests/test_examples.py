@@ -30,7 +30,8 @@ def copied(tmp_path_factory) -> Path:
 
 def test_the_shipped_examples_are_the_repository_configs_folder():
     assert EXAMPLES.resolve() == (REPO / "configs").resolve()
-    assert shipped_files() == sorted(p.relative_to(REPO / "configs").as_posix() for p in (REPO / "configs").rglob("*") if p.is_file())
+    configs = REPO / "configs"
+    assert shipped_files() == sorted(p.relative_to(configs).as_posix() for p in configs.rglob("*") if p.is_file())
     assert SCHEMA in shipped_files() and set(CONFIGS) <= set(shipped_files())
 
 

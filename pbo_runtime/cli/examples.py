@@ -59,7 +59,8 @@ def copy_examples(folder: Path, force: bool = False, examples: Path = EXAMPLES) 
             differ.append(name)
     if differ and not force:
         shown = ", ".join(differ[:3]) + (f" and {len(differ) - 3} more" if len(differ) > 3 else "")
-        raise ExamplesRefused(f"{folder}: {_files(len(differ))} {'differs' if len(differ) == 1 else 'differ'} from the shipped examples ({shown}); nothing written: "
+        verb = "differs" if len(differ) == 1 else "differ"
+        raise ExamplesRefused(f"{folder}: {_files(len(differ))} {verb} from the shipped examples ({shown}); nothing written: "
                               "--force overwrites them, or give another folder")
     try:
         folder.mkdir(parents=True, exist_ok=True)

@@ -380,6 +380,13 @@ def assert_ended_cleanly(run: subprocess.Popen, subsystem: str, report_path: Pat
     assert_nothing_left(report)
     assert [e for e in os.listdir("/dev/shm") if f"pbo.{subsystem}.{run.pid}-" in e] == []
     return out, err
+def only_file(folder: Path, pattern: str) -> Path:
+    """The one file under `folder` matching the glob `pattern` (a run's log in its dated directory)."""
+    found = sorted(folder.glob(pattern))
+    assert len(found) == 1, f"{pattern} under {folder}: {found}"
+    return found[0]
+
+
 def fill_disk(disk: Path, leave: int = 0) -> None:
     """Fill the file system of `disk` until at most `leave` bytes are free."""
     free = os.statvfs(disk)

@@ -162,9 +162,11 @@ class DataLogger(PortBasedObject):
         """The writer thread: encode and append each buffer handed over; a failure is the next cycle's to raise.
 
         It holds the GIL while it encodes, in slices (ENCODE_SLICE) with a pause between, and
-        not during its system calls, so the executive's thread waits a slice at most; the write's
-        own time (the disk, the kernel's write-back throttling: milliseconds at times) is spent
-        off the cycle."""
+        not during its system calls, so the executive's thread waits a slice at most. The pause
+        also gives up the CPU: the thread inherits the RTPU's SCHED_FIFO priority, and on an RTPU
+        pinned to one CPU a thread of equal priority that never blocked would hold the executive
+        off until it did. The write's own time (the disk, the kernel's write-back throttling:
+        milliseconds at times) is spent off the cycle."""
         while True:
             os.eventfd_read(self._wake)
             if self._stopping:

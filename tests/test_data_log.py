@@ -24,7 +24,7 @@ from pbo_runtime.reports.data_log import LogError
 from pbo_runtime.reports.run_plot import csv_text, figure, load_run
 from pbo_runtime.table.table import StateTable
 from pbo_runtime.task.lifecycle import Task
-from tests.support import PBO, demo_copy, variables
+from tests.support import PBO, REPO, variables
 
 DT = 0.01
 LOGGED = variables(("x", "float64", (3,)), ("k", "int32", ()), ("m", "float64", (2, 2)))
@@ -250,28 +250,51 @@ def test_pbo_log_export_of_what_is_not_a_log_is_one_line_and_exit_1(tmp_path, ca
 # --- a run's output directory ------------------------------------------------------------------
 
 
+def switching_copy(folder, subsystem: str):
+    """configs/switch_joint.yaml as `subsystem`, with a logger in both configurations: its app switches between jobs."""
+    text = (REPO / "configs" / "switch_joint.yaml").read_text()
+    for old, new in (("subsystem: puma_switch", f"subsystem: {subsystem}"),
+                     ("\nconfigurations:\n", "\n  logger: {module: data_logger, rtpu: rtpu0, period: 10 ms, "
+                                             "params: {variables: [q_m, q_d, tau_u], path: arm.mcap}}\n\nconfigurations:\n"),
+                     ("pid: [robot, traj, pid]", "pid: [robot, traj, pid, logger]"),
+                     ("pd:  [robot, traj, pd]", "pd:  [robot, traj, pd, logger]")):
+        assert old in text, old
+        text = text.replace(old, new)
+    path = folder / f"{subsystem}.yaml"
+    path.write_text(text)
+    return path
+
+
 @pytest.mark.multiprocess
-def test_a_run_writes_its_report_and_mcap_log_into_its_own_directory_and_says_where(tmp_path):
-    config = demo_copy(tmp_path, "datalog_dir", logger={"params": {"variables": ["q_m", "q_r", "tau_u"], "path": "arm.mcap"}})
-    done = subprocess.run([*PBO, "run", str(config), "--clock", "sim", "--no-live", "--app", "demo"], cwd=tmp_path,
+def test_a_run_writes_its_report_and_mcap_log_into_its_own_directory_says_where_and_plots_with_its_switches(tmp_path):
+    config = switching_copy(tmp_path, "datalog_dir")
+    done = subprocess.run([*PBO, "run", str(config), "--clock", "sim", "--no-live", "--app", "tour"], cwd=tmp_path,
                           capture_output=True, text=True, timeout=240)
     assert done.returncode == 0, done.stdout + done.stderr
     (run_dir,) = (tmp_path / "runs").iterdir()
     assert re.fullmatch(r"datalog_dir-\d{8}-\d{6}", run_dir.name)
     assert sorted(os.listdir(run_dir)) == ["arm.mcap", "report.json"]
     report = json.loads((run_dir / "report.json").read_text())
-    rows = len(read_log(run_dir / "arm.mcap"))
+    log = read_log(run_dir / "arm.mcap")
     tail = done.stdout.rstrip().splitlines()[-2:]
-    assert tail == [f"log: runs/{run_dir.name}/arm.mcap ({rows} rows)", f"run directory: runs/{run_dir.name}"]
+    assert tail == [f"log: runs/{run_dir.name}/arm.mcap ({len(log)} rows)", f"run directory: runs/{run_dir.name}"]
     with open(run_dir / "arm.mcap", "rb") as file:
         reader = make_reader(file)
         units = {c.topic: c.metadata["unit"] for c in reader.get_summary().channels.values()}
         run = {m.name: m.metadata for m in reader.iter_metadata()}["pbo-run"]
-    assert units == {"q_m": "rad", "q_r": "rad", "tau_u": "N m"}
-    assert run["subsystem"] == "datalog_dir" and run["clock"] == "sim" and run["application"] == "demo"
-    assert run["configuration"] == "joint_pid" and run["yaml"] == config.read_text()
-    assert {"pbo-runtime", "numpy", "mujoco"} <= set(run)
-    log = read_log(run_dir / "arm.mcap")
-    jobs = [m for m in report["marks"] if m["kind"] == "job"]
-    assert [m["label"] for m in jobs] == ["job move starts", "job move done"] * 2
-    assert log["time"][0] <= report["started_at"] <= jobs[0]["time"] < jobs[-1]["time"] <= log["time"][-1]  # one clock
+    assert units == {"q_m": "rad", "q_d": "rad", "tau_u": "N m"}
+    assert run["subsystem"] == "datalog_dir" and run["clock"] == "sim" and run["application"] == "tour"
+    assert run["configuration"] == "pid" and run["yaml"] == config.read_text() and run["file"] == str(config.resolve())
+    assert {"pbo-runtime", "numpy", "mujoco", "python"} <= set(run)
+    marks = report["marks"]
+    assert [m["label"] for m in marks] == ["pid on", "job reach starts", "job reach done", "pid -> pd",
+                                           "job settle starts", "job settle done"]
+    times = [m["time"] for m in marks]
+    assert report["started_at"] == times[0] and times == sorted(times) and log["time"][0] <= times[1] < times[-1] <= log["time"][-1]
+    switch = marks[3]["time"]  # one clock: the log's q_d changes to the settle job's object at the switch
+    np.testing.assert_allclose(log["q_d"][log["time"] < switch - 0.05][-1], [0.3, -0.5, 0.5, 0.2, 0.4, 0.2])
+    np.testing.assert_allclose(log["q_d"][-1], [0.0, -0.3, 0.3, 0.0, 0.2, 0.0])
+    png = tmp_path / "tour.png"
+    plotted = subprocess.run([*PBO, "plot", str(run_dir), "-o", str(png)], cwd=tmp_path, capture_output=True, text=True,
+                             timeout=120)
+    assert plotted.returncode == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", plotted.stderr

@@ -414,7 +414,7 @@ def _print_outputs(console: Console, out: Path, result: Any) -> None:
     """Where every log of the run went (path and rows), then the run's directory."""
     from pbo_runtime.reports.data_log import LogError, find_logs, log_rows
 
-    listed = [Path(p) for t in result.tasks.values() for p in t.get("outputs", [])]
+    listed = [Path(p).resolve() for t in result.tasks.values() for p in t.get("outputs", [])]
     paths = list(dict.fromkeys([*listed, *(p.resolve() for p in find_logs(out))]))  # a killed RTPU's logs: found
     for path in paths:
         shown = os.path.relpath(path) if not str(os.path.relpath(path)).startswith("../..") else str(path)

@@ -51,7 +51,7 @@ __all__ = ["DataLogger", "DataLoggerParams", "read_log"]
 
 CHUNK_BYTES = 256 * 1024  # the most one cycle writes at once (tens of microseconds into the page cache)
 FORMATS = (".mcap", ".npy")
-ENCODE_SLICE = 200e-6  # seconds the writer encodes before it lets the GIL go (the cycle's thread may want it)
+ENCODE_SLICE = 50e-6  # seconds the writer encodes before it lets the GIL go (a thread of the RTPU may want it)
 ENCODE_PAUSE = 50e-6  # seconds it then sleeps: long enough for a thread waiting on the GIL to take it
 
 
@@ -381,9 +381,9 @@ class _McapFile(_LogFile):
             for channel, values in columns:
                 data = f'{{"time":{at!r},"value":{dumps(values[row])}}}'.encode()
                 add(channel, log_time=stamp, data=data, publish_time=stamp, sequence=row)
-            if pause and time.perf_counter() > slice_ends:
-                time.sleep(ENCODE_PAUSE)
-                slice_ends = time.perf_counter() + ENCODE_SLICE
+                if pause and time.perf_counter() > slice_ends:
+                    time.sleep(ENCODE_PAUSE)
+                    slice_ends = time.perf_counter() + ENCODE_SLICE
 
     def finish(self) -> None:
         """The summary and footer: the log then opens indexed (a killed run's log is read chunk by chunk)."""

@@ -416,8 +416,9 @@ def _print_outputs(console: Console, out: Path, result: Any) -> None:
 
     listed = [Path(p).resolve() for t in result.tasks.values() for p in t.get("outputs", [])]
     paths = list(dict.fromkeys([*listed, *(p.resolve() for p in find_logs(out))]))  # a killed RTPU's logs: found
+    here = Path.cwd().resolve()
     for path in paths:
-        shown = os.path.relpath(path) if not str(os.path.relpath(path)).startswith("../..") else str(path)
+        shown = path.relative_to(here) if path.is_relative_to(here) else path  # as the operator would type it
         try:
             console.print(f"log: {shown} ({log_rows(path)} rows)", markup=False)
         except (LogError, OSError) as exc:

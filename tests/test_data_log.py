@@ -300,3 +300,15 @@ def test_a_run_writes_its_report_and_mcap_log_into_its_own_directory_says_where_
     plotted = subprocess.run([*PBO, "plot", str(run_dir), "-o", str(png)], cwd=tmp_path, capture_output=True, text=True,
                              timeout=120)
     assert plotted.returncode == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", plotted.stderr
+
+
+def test_the_plot_of_an_npy_log_takes_its_units_from_the_runs_report(table, tmp_path):
+    directory = tmp_path / "run"
+    task = logger(table, directory / "log.npy")
+    run_cycles(table, task, 5)
+    task.kill()
+    (directory / "report.json").write_text(json.dumps({"started_at": 1.0, "marks": [],
+                                                       "variables": {"x": {"unit": "m"}, "m": {"unit": "N m"}}}))
+    fig = figure(load_run(directory / "log.npy"), ["x", "m"])
+    assert [ax.get_ylabel() for ax in fig.axes] == ["x [m]", "m [N m]"]
+    assert csv_text(open_log(directory / "log.npy")).splitlines()[0].startswith("time [s],x[0],x[1],x[2],k,m[0][0]")

@@ -312,3 +312,12 @@ def test_the_plot_of_an_npy_log_takes_its_units_from_the_runs_report(table, tmp_
     fig = figure(load_run(directory / "log.npy"), ["x", "m"])
     assert [ax.get_ylabel() for ax in fig.axes] == ["x [m]", "m [N m]"]
     assert csv_text(open_log(directory / "log.npy")).splitlines()[0].startswith("time [s],x[0],x[1],x[2],k,m[0][0]")
+
+
+def test_a_run_refused_before_it_starts_leaves_no_run_directory(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    config = tmp_path / "arm.yaml"
+    config.write_text((REPO / "configs" / "pid_joint.yaml").read_text())
+    assert main(["run", str(config), "--clock", "sim", "--no-live", "--config", "no_such"]) == 2
+    assert "no configuration 'no_such'" in capsys.readouterr().err
+    assert list((tmp_path / "runs").iterdir()) == []

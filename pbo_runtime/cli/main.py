@@ -341,7 +341,7 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
         args.config = args.config or names[0]
     made = args.out is None
     args.out = args.out or default_run_dir(subsystem.name)
-    with _removed_if_refused(args.out if made else None):
+    with _removed_if_empty(args.out if made else None):
         return _run_subsystem(args, console, errors, subsystem, live, duration, alternate)
 
 
@@ -399,15 +399,14 @@ def default_run_dir(name: str) -> Path:
 
 
 @contextlib.contextmanager
-def _removed_if_refused(made: Path | None):
+def _removed_if_empty(made: Path | None):
     """The default run directory made for a run that was refused before it wrote anything goes again."""
     try:
         yield
-    except BaseException:
+    finally:
         if made is not None:
             with contextlib.suppress(OSError):
-                made.rmdir()  # only if empty: a run that wrote something keeps it
-        raise
+                made.rmdir()  # only if empty: a run that ran has its report there at least
 
 
 def _print_outputs(console: Console, out: Path, result: Any) -> None:

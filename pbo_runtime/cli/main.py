@@ -473,7 +473,6 @@ def _write_reports(args: argparse.Namespace, report: dict[str, Any]) -> list[str
 def _run_application(args: argparse.Namespace, console: Console, errors: Console) -> int:
     """Every subsystem of an application file at once, joined by its links (see _application_runner)."""
     from pbo_runtime.config.application import check_application
-    from pbo_runtime.supervisor.application_runner import ApplicationRunner
     from pbo_runtime.config.loader import CheckResult, format_diagnostics
 
     result = check_application(args.file)
@@ -481,7 +480,15 @@ def _run_application(args: argparse.Namespace, console: Console, errors: Console
         errors.print(format_diagnostics(CheckResult(None, result.errors, result.warnings)), markup=False)
         return EXIT_CONFIG
     app = result.application
+    made = args.out is None
     args.out = args.out or default_run_dir(app.name)  # each subsystem's files in a directory of its own below it
+    with _removed_if_empty(args.out if made else None):
+        return _run_linked_subsystems(args, console, errors, app)
+
+
+def _run_linked_subsystems(args: argparse.Namespace, console: Console, errors: Console, app: Any) -> int:
+    from pbo_runtime.supervisor.application_runner import ApplicationRunner
+
     refused = _check_output_paths(args)
     if refused:
         errors.print(f"error: {refused}", markup=False)

@@ -178,6 +178,8 @@ class DataLogger(PortBasedObject):
                 self._append(self._buffers[index][0], self._queued_rows, pause=True)
             except OutputError as exc:
                 self._failure = str(exc)
+            except Exception as exc:  # a bug in encoding: said by the next cycle, never a writer gone silent
+                self._failure = f"cannot write log {self.path}: its writer failed: {type(exc).__name__}: {exc}"
             self._queued = -1
 
     def wait_for_writer(self, patience: float = 30.0) -> None:

@@ -205,7 +205,8 @@ def _started_run(yaml_path: Path, seconds: float, fifo: bool, report: Path,
     to start.
     """
     command = [sys.executable, "-m", "pbo_runtime.cli", "run", str(yaml_path), "--duration", f"{seconds:g}",
-               "--report", str(report), "--no-live", "--fifo" if fifo else "--no-fifo"]
+               "--report", str(report), "--out", str(report.with_suffix("")),  # its files beside the report, not in the checkout
+               "--no-live", "--fifo" if fifo else "--no-fifo"]
     problem = ""
     for attempt in range(attempts):
         run = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

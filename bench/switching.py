@@ -28,7 +28,8 @@ def run_switches(switches: int, interval: float, configurations: str = "pid,pd")
     with tempfile.TemporaryDirectory() as folder:
         report = Path(folder) / "report.json"
         command = [sys.executable, "-m", "pbo_runtime.cli", "run", CONFIG, "--alternate", configurations,
-                   "--switches", str(switches), "--interval", f"{interval:g}", "--report", str(report), "--no-live"]
+                   "--switches", str(switches), "--interval", f"{interval:g}", "--report", str(report), "--no-live",
+                   "--out", folder]  # the run's directory in the temporary folder, not in the checkout
         done = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=switches * interval + 180)
         if not report.exists():
             tail = (done.stderr or done.stdout).strip().splitlines()[-1:]

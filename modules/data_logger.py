@@ -1,44 +1,64 @@
 """Data logger (TR §4.1: a task that only gathers data): chosen variables, every cycle, to a file.
 
 Its inputs are the variables named in `params.variables` (one in-var each, of the variable's
-own dtype and shape). The file is one structured numpy array in `.npy` format: a row per cycle,
-a `time` field (the cycle's release time, s) and one field per variable, so `np.load(path)["q_m"]`
-is the `q_m` column, shaped (rows, *its shape). `read_log` gives the whole log back, a log cut
-short by a crash included.
+own dtype and shape). The path's extension picks the format:
+
+- `.mcap` (the default): the format Foxglove and PlotJuggler open. One channel per variable
+  (its topic the variable's name), each message one cycle's value as JSON
+  (`{"time": 1.25, "value": [..]}`, a JSON schema per channel), at log time the cycle's release
+  time on the run's clock; each channel's metadata carries the variable's unit, doc, dtype and
+  shape from the YAML, and the file a `pbo-run` metadata record (subsystem, configuration, clock,
+  versions, the YAML file) and a `pbo-log` one (the columns, so a log cut short before its first
+  chunk still says what it holds). One MCAP chunk (zstd) per chunk of rows.
+- `.npy`: one structured numpy array: a row per cycle, a `time` field and one field per
+  variable, so `np.load(path)["q_m"]` is the `q_m` column, shaped (rows, *its shape).
+
+`pbo_runtime.read_log(path)` reads either back as that structured array, a log cut short by a
+crash included (`pbo_runtime.open_log` adds the units, docs and the run's metadata).
 
 The file is written in chunks as the run goes, so a run of any length keeps every row with
 bounded memory, and a killed RTPU loses only the rows since the last chunk written. The cycle
-fills one of two chunk buffers preallocated in `init` (it allocates nothing and does no I/O);
-the cycle that fills it hands it to a writer thread (an eventfd write) and goes on in the other.
-The writer appends the chunk to the file (one write of at most CHUNK_BYTES) and then rewrites
-the row count in the file's header (fixed size: numpy leaves room for the count to grow), so the
-file is a valid array after every chunk. A write takes microseconds into the page cache, but
-milliseconds at times when the kernel throttles write-back: that is why it is not the cycle's.
-`off` and `kill` write the chunk begun. A write that fails (disk full, file or directory removed)
-makes the next cycle raise `OutputError`: the task goes to ERROR with the OS error, the run's exit
-status says so, and the file keeps every row of the chunks written before.
+fills one of two chunk buffers preallocated in `init` (it allocates nothing, encodes nothing and
+does no I/O); the cycle that fills it hands it to a writer thread (an eventfd write) and goes on
+in the other. The writer encodes the chunk (MCAP: JSON and zstd, in slices of at most
+ENCODE_SLICE seconds with a pause between, so the cycle's thread never waits long for the GIL)
+and appends it to the file in one write; an `.npy` log then rewrites the row count in its header
+(fixed size: numpy leaves room for the count to grow), so the file is a valid array after every
+chunk; an MCAP log is readable up to its last chunk, and gets its summary and footer when the
+task is killed. A write takes microseconds into the page cache, but milliseconds at times when
+the kernel throttles write-back: that is why it is not the cycle's. `off` and `kill` write the
+chunk begun. A write that fails (disk full, file or directory removed) makes the next cycle
+raise `OutputError`: the task goes to ERROR with the OS error, the run's exit status says so, and
+the file keeps every row of the chunks written before (an MCAP log keeps the failed chunk's bytes
+and writes them first when the task is cleared).
 """
 
 from __future__ import annotations
 
 import io
+import json
 import os
 import threading
 import time
 from dataclasses import dataclass
-from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
-from pbo_runtime import ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status
+from pbo_runtime import ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status, read_log
+
+__all__ = ["DataLogger", "DataLoggerParams", "read_log"]
 
 CHUNK_BYTES = 256 * 1024  # the most one cycle writes at once (tens of microseconds into the page cache)
+FORMATS = (".mcap", ".npy")
+ENCODE_SLICE = 50e-6  # seconds the writer encodes before it lets the GIL go (a thread of the RTPU may want it)
+ENCODE_PAUSE = 50e-6  # seconds it then sleeps: long enough for a thread waiting on the GIL to take it
 
 
 @dataclass(frozen=True)
 class DataLoggerParams:
     variables: tuple[str, ...]
-    path: str = "runs/log.npy"
+    path: str = "log.mcap"  # relative: under the run's output directory
     chunk: float = 1.0  # seconds of rows written to the file at a time (at most CHUNK_BYTES)
 
     def __post_init__(self) -> None:
@@ -50,12 +70,13 @@ class DataLoggerParams:
             raise ValueError("variables must not include 'time': the log's time field is the cycle's release time")
         if not self.chunk > 0:
             raise ValueError(f"chunk must be > 0 s, got: {self.chunk}")
-        if not self.path.endswith(".npy"):
-            raise ValueError(f"path must end in .npy (one structured array, appended as the run goes), got: {self.path!r}")
+        if not self.path.endswith(FORMATS):
+            raise ValueError(f"path must end in .mcap (Foxglove, PlotJuggler) or .npy (one numpy structured array), "
+                             f"got: {self.path!r}")
 
 
 class DataLogger(PortBasedObject):
-    """Logs chosen variables every cycle; appends them to `path` a chunk at a time."""
+    """Logs chosen variables every cycle; appends them to `path` (.mcap or .npy) a chunk at a time."""
 
     Params = DataLoggerParams
 
@@ -77,12 +98,11 @@ class DataLogger(PortBasedObject):
         for _ in range(2):
             chunk = np.full(self._rows, 0, dtype=self._dtype)
             pairs = [(_flat_rows(chunk[name]), source) for name, source in zip(params.variables, sources)]
-            self._buffers.append((memoryview(chunk).cast("B"), chunk["time"], pairs))
+            self._buffers.append((chunk, chunk["time"], pairs))
         self._current = 0
-        self._bytes, self._times, self._pairs = self._buffers[0]
+        self._chunk, self._times, self._pairs = self._buffers[0]
         self.path = self.output_path(params.path)
         self.logged = 0  # rows taken, the chunk begun included
-        self.written = 0  # rows in the file (its header's count)
         self.dropped = 0  # rows taken while both buffers were full (the disk took longer than a chunk to write one)
         self._filled = 0  # rows of the chunk begun
         self._queued = -1  # the buffer the writer is to write (-1: none), and its rows
@@ -92,8 +112,11 @@ class DataLogger(PortBasedObject):
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
-            self._header_bytes = len(self._header(0))
-            _write_all(self._fd, self._header(0))
+            if self.path.suffix == ".mcap":
+                columns = {name: self.variable_note(name) for name in params.variables}
+                self._file: _LogFile = _McapFile(self._fd, self._dtype, columns, self.run_metadata, self.task_name, self.period)
+            else:
+                self._file = _NpyFile(self._fd, self._dtype)
         except OSError as exc:
             self._close()
             raise OutputError(f"cannot create log {self.path}: {_os_error(exc)}") from None
@@ -101,6 +124,11 @@ class DataLogger(PortBasedObject):
         self._stopping = False
         self._writer = threading.Thread(target=self._write_queued, name=f"log-{self.task_name}", daemon=True)
         self._writer.start()
+
+    @property
+    def written(self) -> int:
+        """Rows in the file (an .npy header's count; an MCAP log's rows of the chunks written)."""
+        return self._file.rows
 
     def cycle(self) -> Status:
         if self._failure:
@@ -126,16 +154,19 @@ class DataLogger(PortBasedObject):
         self._queued_rows = self._filled
         self._queued = self._current
         self._current ^= 1
-        self._bytes, self._times, self._pairs = self._buffers[self._current]
+        self._chunk, self._times, self._pairs = self._buffers[self._current]
         self._filled = 0
         os.eventfd_write(self._wake, 1)
 
     def _write_queued(self) -> None:
-        """The writer thread: append each buffer handed over; a failure is the next cycle's to raise.
+        """The writer thread: encode and append each buffer handed over; a failure is the next cycle's to raise.
 
-        It holds the GIL only between its system calls (which release it), so the executive's
-        thread waits microseconds for it at most; the write's own time (the disk, the kernel's
-        write-back throttling: milliseconds at times) is spent off the cycle."""
+        It holds the GIL while it encodes, in slices (ENCODE_SLICE) with a pause between, and
+        not during its system calls, so the executive's thread waits a slice at most. The pause
+        also gives up the CPU: the thread inherits the RTPU's SCHED_FIFO priority, and on an RTPU
+        pinned to one CPU a thread of equal priority that never blocked would hold the executive
+        off until it did. The write's own time (the disk, the kernel's write-back throttling:
+        milliseconds at times) is spent off the cycle."""
         while True:
             os.eventfd_read(self._wake)
             if self._stopping:
@@ -144,9 +175,11 @@ class DataLogger(PortBasedObject):
             if index < 0:
                 continue
             try:
-                self._append(self._buffers[index][0], self._queued_rows)
+                self._append(self._buffers[index][0], self._queued_rows, pause=True)
             except OutputError as exc:
                 self._failure = str(exc)
+            except Exception as exc:  # a bug in encoding: said by the next cycle, never a writer gone silent
+                self._failure = f"cannot write log {self.path}: its writer failed: {type(exc).__name__}: {exc}"
             self._queued = -1
 
     def wait_for_writer(self, patience: float = 30.0) -> None:
@@ -165,6 +198,9 @@ class DataLogger(PortBasedObject):
             return
         try:
             self.write_chunk()
+            self._file.finish()
+        except OSError as exc:
+            raise OutputError(f"cannot finish log {self.path}: {_os_error(exc)}") from None
         finally:
             self._stopping = True
             os.eventfd_write(self._wake, 1)
@@ -188,34 +224,69 @@ class DataLogger(PortBasedObject):
         if self._failure:
             raise OutputError(self._failure)
         rows, self._filled = self._filled, 0
-        self._append(self._bytes, rows)
+        self._append(self._chunk, rows)
         if self.dropped:
             dropped, self.dropped = self.dropped, 0
             raise OutputError(f"log {self.path}: {dropped} rows dropped: writing a chunk of {self._rows} rows took "
                               "longer than filling one (the disk is too slow for this period)")
 
-    def _append(self, data: memoryview, rows: int) -> None:
-        """Append `rows` rows of `data` to the file, then count them in its header; OutputError if either fails."""
-        if rows == 0 or self._fd < 0:
+    def _append(self, chunk: np.ndarray, rows: int, pause: bool = False) -> None:
+        """Append `rows` rows of `chunk` to the file; OutputError if it fails (the file keeps the chunks before)."""
+        if self._fd < 0:
             return
-        committed = self._header_bytes + self.written * self._dtype.itemsize
+        written = self._file.rows
         try:
             if os.fstat(self._fd).st_nlink == 0:
                 raise FileNotFoundError(2, "the file was removed while the run wrote it (its directory deleted?)")
-            os.lseek(self._fd, committed, os.SEEK_SET)
-            _write_all(self._fd, data[: rows * self._dtype.itemsize])
-            os.pwrite(self._fd, self._header(self.written + rows), 0)
+            self._file.append(chunk, rows, pause)
         except OSError as exc:
+            raise OutputError(f"cannot write log {self.path} ({rows} rows after the {written} "
+                              f"written): {_os_error(exc)}") from None
+
+    def _close(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+
+class _LogFile:
+    """A log's format: appends chunks of rows to the file's descriptor; `rows` counts those in the file."""
+
+    rows = 0
+
+    def append(self, chunk: np.ndarray, rows: int, pause: bool) -> None:
+        raise NotImplementedError
+
+    def finish(self) -> None:
+        """At the task's kill: what the format writes after the last row."""
+
+
+class _NpyFile(_LogFile):
+    """One structured array: each chunk appended, then the row count in the header rewritten."""
+
+    def __init__(self, fd: int, dtype: np.dtype) -> None:
+        self.fd, self.dtype, self.rows = fd, dtype, 0
+        self.header_bytes = len(self.header(0))
+        _write_all(fd, self.header(0))
+
+    def append(self, chunk: np.ndarray, rows: int, pause: bool) -> None:
+        if rows == 0:
+            return
+        committed = self.header_bytes + self.rows * self.dtype.itemsize
+        try:
+            os.lseek(self.fd, committed, os.SEEK_SET)
+            _write_all(self.fd, memoryview(chunk).cast("B")[: rows * self.dtype.itemsize])
+            os.pwrite(self.fd, self.header(self.rows + rows), 0)
+        except OSError:
             try:
-                os.ftruncate(self._fd, committed)  # no partial chunk after the rows the header counts
+                os.ftruncate(self.fd, committed)  # no partial chunk after the rows the header counts
             except OSError:
                 pass
-            raise OutputError(f"cannot write log {self.path} ({rows} rows after the {self.written} "
-                              f"written): {_os_error(exc)}") from None
-        self.written += rows
+            raise
+        self.rows += rows
 
-    def _header(self, rows: int) -> bytes:
-        header = {"descr": np.lib.format.dtype_to_descr(self._dtype), "fortran_order": False, "shape": (rows,)}
+    def header(self, rows: int) -> bytes:
+        header = {"descr": np.lib.format.dtype_to_descr(self.dtype), "fortran_order": False, "shape": (rows,)}
         out = io.BytesIO()
         try:
             np.lib.format.write_array_header_1_0(out, header)
@@ -224,29 +295,123 @@ class DataLogger(PortBasedObject):
             np.lib.format.write_array_header_2_0(out, header)
         return out.getvalue()
 
-    def _close(self) -> None:
-        if self._fd >= 0:
-            os.close(self._fd)
-            self._fd = -1
+
+class _PendingBytes:
+    """What the MCAP writer writes to: its bytes held until `commit` appends them to the file whole.
+
+    `tell` counts the held bytes after those in the file, so the writer's chunk indexes point
+    where the chunks land. A commit that fails leaves the file as it was and keeps the bytes,
+    for the next commit to write first: the writer's indexes stay true."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.committed = 0
+        self.held = bytearray()
+
+    def write(self, data: bytes) -> int:
+        self.held += data
+        return len(data)
+
+    def tell(self) -> int:
+        return self.committed + len(self.held)
+
+    def flush(self) -> None:
+        pass
+
+    def commit(self) -> None:
+        if not self.held:
+            return
+        try:
+            os.lseek(self.fd, self.committed, os.SEEK_SET)
+            _write_all(self.fd, self.held)
+        except OSError:
+            try:
+                os.ftruncate(self.fd, self.committed)
+            except OSError:
+                pass
+            raise
+        self.committed += len(self.held)
+        self.held.clear()
 
 
-def read_log(path: str | Path) -> np.ndarray:
-    """The whole log at `path`: every complete row in the file, those a crash left uncounted included.
+class _McapFile(_LogFile):
+    """MCAP: a channel per variable, JSON messages, one zstd chunk per chunk of rows."""
 
-    `np.load(path)` gives the rows the header counts (every chunk written whole); this also
-    gives the complete rows of a chunk whose count a killed process did not get to write.
-    """
-    with open(path, "rb") as file:
-        version = np.lib.format.read_magic(file)
-        if version == (1, 0):
-            shape, fortran_order, dtype = np.lib.format.read_array_header_1_0(file)
-        else:
-            shape, fortran_order, dtype = np.lib.format.read_array_header_2_0(file)
-        if fortran_order or len(shape) != 1 or dtype.names is None:
-            raise ValueError(f"{path}: not a data log (a 1-D structured array), got shape {shape} of {dtype}")
-        start = file.tell()
-        rows = max(shape[0], (os.fstat(file.fileno()).st_size - start) // dtype.itemsize)
-        return np.fromfile(file, dtype=dtype, count=rows)
+    def __init__(self, fd: int, dtype: np.dtype, columns: Mapping[str, tuple[str, str]], run: Mapping[str, str],
+                 task: str, period: float) -> None:
+        from mcap.writer import CompressionType, Writer
+
+        self.rows = 0
+        self.pending = 0  # rows encoded into bytes not yet in the file
+        self.stream = _PendingBytes(fd)
+        # never a chunk by size: one per chunk of rows (`flush`), so each is on disk whole as it ends
+        self.writer = Writer(self.stream, chunk_size=1 << 62, compression=CompressionType.ZSTD)  # type: ignore[arg-type]
+        self.writer.start(profile="", library=f"pbo-runtime {run.get('pbo-runtime', '')}".strip())
+        self.names = [name for name in dtype.names or () if name != "time"]
+        described = []
+        self.channels = []
+        self.floats = []
+        for name in self.names:
+            field_dtype, shape = dtype[name].base, dtype[name].shape
+            doc, unit = columns.get(name, ("", ""))
+            described.append({"name": name, "dtype": str(field_dtype), "shape": list(shape), "unit": unit, "doc": doc})
+            schema = self.writer.register_schema(name, "jsonschema", json.dumps(_json_schema(name, field_dtype, shape, unit, doc)).encode())
+            self.channels.append(self.writer.register_channel(name, "json", schema, {
+                "unit": unit, "doc": doc, "dtype": str(field_dtype), "shape": json.dumps(list(shape))}))
+            self.floats.append(field_dtype.kind == "f")
+        self.writer.add_metadata("pbo-run", {str(k): str(v) for k, v in run.items()})
+        self.writer.add_metadata("pbo-log", {"task": task, "period": repr(period), "columns": json.dumps(described)})
+        self.stream.commit()
+
+    def append(self, chunk: np.ndarray, rows: int, pause: bool) -> None:
+        if rows:
+            self.encode(chunk[:rows], pause)
+            self.pending += rows
+            self.writer.flush()  # the chunk ends here: compressed, written to the stream with its index
+        self.stream.commit()
+        self.rows += self.pending
+        self.pending = 0
+
+    def encode(self, chunk: np.ndarray, pause: bool) -> None:
+        times = chunk["time"].tolist()
+        stamps = np.rint(chunk["time"] * 1e9).astype(np.int64).tolist()
+        columns = [(channel, _json_values(chunk[name], floating))
+                   for channel, name, floating in zip(self.channels, self.names, self.floats)]
+        add, dumps = self.writer.add_message, json.dumps
+        slice_ends = time.perf_counter() + ENCODE_SLICE
+        for row, (at, stamp) in enumerate(zip(times, stamps)):
+            for channel, values in columns:
+                data = f'{{"time":{at!r},"value":{dumps(values[row])}}}'.encode()
+                add(channel, log_time=stamp, data=data, publish_time=stamp, sequence=row)
+                if pause and time.perf_counter() > slice_ends:
+                    time.sleep(ENCODE_PAUSE)
+                    slice_ends = time.perf_counter() + ENCODE_SLICE
+
+    def finish(self) -> None:
+        """The summary and footer: the log then opens indexed (a killed run's log is read chunk by chunk)."""
+        self.writer.finish()
+        self.stream.commit()
+
+
+def _json_values(column: np.ndarray, floating: bool) -> list[Any]:
+    """A column's rows as JSON-ready lists; a non-finite float becomes null (JSON has no NaN)."""
+    if floating and not np.isfinite(column).all():
+        column = column.astype(object)
+        column[~np.isfinite(column.astype(np.float64))] = None
+    return column.tolist()
+
+
+def _json_schema(name: str, dtype: np.dtype, shape: tuple[int, ...], unit: str, doc: str) -> dict[str, Any]:
+    """The JSON schema of a variable's messages: its time and its value (a number or nested arrays)."""
+    value: dict[str, Any] = {"type": "integer" if dtype.kind in "iub" else "number"}
+    if dtype.kind == "b":
+        value = {"type": "boolean"}
+    for size in reversed(shape):
+        value = {"type": "array", "items": value, "minItems": size, "maxItems": size}
+    description = ", ".join(part for part in (doc, unit) if part)
+    return {"title": name, "type": "object", "description": description,
+            "properties": {"time": {"type": "number", "description": "the cycle's release time on the run's clock, s"},
+                           "value": {**value, "description": description}}}
 
 
 def _flat_rows(field: np.ndarray) -> np.ndarray:
@@ -256,7 +421,7 @@ def _flat_rows(field: np.ndarray) -> np.ndarray:
     return flat
 
 
-def _write_all(fd: int, data: bytes | memoryview) -> None:
+def _write_all(fd: int, data: bytes | bytearray | memoryview) -> None:
     view = memoryview(data)
     while view:
         view = view[os.write(fd, view):]

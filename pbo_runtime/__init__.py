@@ -25,6 +25,7 @@ from pbo_runtime.objects.driver import DeviceDriver
 from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
 from pbo_runtime.objects.ports import ANY_DTYPE, InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
 from pbo_runtime.objects.registry import installed_version, module_class
+from pbo_runtime.reports.data_log import open_log, read_log
 
 __version__ = installed_version()
 
@@ -58,5 +59,7 @@ __all__ = [
     "create_segment",
     "format_channels",
     "module_class",
+    "open_log",
+    "read_log",
     "unlink_quietly",
 ]

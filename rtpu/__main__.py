@@ -25,6 +25,7 @@ from pbo_runtime.objects import registry
 from pbo_runtime.clock.clocks import RealClock, SimClock
 from pbo_runtime.config.live import task_from_wire
 from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.config.log_notes import run_metadata, variable_notes
 from pbo_runtime.config.model import DEFAULT_SPIN, DeviceSpec, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.clock.lockstep import LockstepParticipant
@@ -57,6 +58,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--clock", choices=("real", "sim"), default="real", help="sim: advance in the supervisor's ticks")
     parser.add_argument("--tick", type=float, default=0.001, help="seconds per tick of the simulated clock")
     parser.add_argument("--out", default="", help="directory the modules write their files into")
+    parser.add_argument("--configuration", default="", help="the configuration the run started in (for the logs' metadata)")
+    parser.add_argument("--application", default="", help="the application the run runs (for the logs' metadata)")
     parser.add_argument("--links", default="{}", help="JSON: the application's links, by name (see _links)")
     parser.add_argument("--live", default="", help="directory of the run's live descriptions (live-N.json, `LiveUpdate`)")
     args = parser.parse_args(argv)
@@ -97,12 +100,16 @@ def main(argv: list[str] | None = None) -> int:
         realtime = {**_realtime.apply(rtpu.cpu, args.fifo), "spin": f"{args.spin * 1e6:g} µs"}
         simulated = args.clock == "sim"
         clock = SimClock(table.header, args.tick) if simulated else RealClock(args.spin)
+        # what a data log says of the run and its variables: made once, copied by each task's init
+        notes = variable_notes(subsystem)
+        about_run = run_metadata(subsystem, args.clock, args.configuration, args.application)
+
         def factory(spec: TaskSpec):
             module_class = registry.module_class(spec.module)
 
             def make() -> Task:
                 return Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device,
-                            out_dir=args.out, links=links, relay=relay)
+                            out_dir=args.out, links=links, relay=relay, run_metadata=about_run, variable_notes=notes)
 
             return make
 

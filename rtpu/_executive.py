@@ -156,6 +156,8 @@ class Scheduled:
             "overruns_long_cycle": self.long_cycles,
             "overruns_late_release": self.overruns - self.long_cycles,
             "last_overruns": self.last_overruns(),
+            # the files its module wrote (a data log), for `pbo run` to say where they went
+            **({"outputs": list(dict.fromkeys(self.task.context.outputs))} if self.task.context.outputs else {}),
         }
 
     def last_overruns(self) -> list[list[float]]:

@@ -380,6 +380,13 @@ def assert_ended_cleanly(run: subprocess.Popen, subsystem: str, report_path: Pat
     assert_nothing_left(report)
     assert [e for e in os.listdir("/dev/shm") if f"pbo.{subsystem}.{run.pid}-" in e] == []
     return out, err
+def only_file(folder: Path, pattern: str) -> Path:
+    """The one file under `folder` matching the glob `pattern` (a run's log in its dated directory)."""
+    found = sorted(folder.glob(pattern))
+    assert len(found) == 1, f"{pattern} under {folder}: {found}"
+    return found[0]
+
+
 def fill_disk(disk: Path, leave: int = 0) -> None:
     """Fill the file system of `disk` until at most `leave` bytes are free."""
     free = os.statvfs(disk)
@@ -398,7 +405,7 @@ def live_demo_copy(folder: Path, subsystem: str) -> Path:
     logger (a live test spawns one: a module runs once a configuration), with a job and an application."""
     text = DEMO.read_text()
     logger = ("  logger: {module: data_logger, rtpu: rtpu0, period: 10 ms,\n"
-              "           params: {variables: [q_m, q_r, tau_u], path: runs/pid_joint.npy}}\n")
+              "           params: {variables: [q_m, q_r, tau_u], path: pid_joint.mcap}}\n")
     for old, new in (("\nsubsystem: puma\n", f"\nsubsystem: {subsystem}\n"), (logger, ""),
                      ("  joint_pid: [robot, traj, pid, logger]\n",
                       "  joint_pid: [robot, traj, pid]  # the PID loop\n\njobs:\n  hold: {configuration: joint_pid, object: none, timeout: 100 ms}\n"
@@ -495,7 +502,7 @@ def user_level_copy(folder: Path, subsystem: str, reach_seconds: float = 6.0, ho
     simulation, and `hold` until the test stops the run."""
     text = DEMO.read_text()
     logger = ("  logger: {module: data_logger, rtpu: rtpu0, period: 10 ms,\n"
-              "           params: {variables: [q_m, q_r, tau_u], path: runs/pid_joint.npy}}\n")
+              "           params: {variables: [q_m, q_r, tau_u], path: pid_joint.mcap}}\n")
     objects = ("\nobject_types:                    # what a job's object may be\n"
                "  joint_position: {type: float64, shape: [NDOF], unit: rad, doc: \"a position of the six joints\"}\n"
                "objects:                         # named objects: a step gives one to a job by name\n"

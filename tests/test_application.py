@@ -12,6 +12,7 @@ import numpy as np
 import posix_ipc
 import pytest
 
+from pbo_runtime import read_log
 from pbo_runtime.config.application import check_application, is_application_file
 from tests.support import PBO, REPO, assert_ended_well, assert_nothing_left, children_of
 
@@ -240,9 +241,9 @@ def assert_application_ended_well(status: int, out, said: str) -> None:
 
 
 def assert_the_goal_reached_both_arms(out) -> None:
-    leader = np.load(out / "leader" / "leader.npy")
-    follower = np.load(out / "follower" / "follower.npy")
-    operator = np.load(out / "operator" / "operator.npy")
+    leader = read_log(out / "leader" / "leader.mcap")
+    follower = read_log(out / "follower" / "follower.mcap")
+    operator = read_log(out / "operator" / "operator.mcap")
     sent, put_off = operator["message_counts"][-1]
     # two goals, and the initial value too if the console's first cycle came before the first job's write
     assert sent in (2.0, 3.0) and put_off == 0.0

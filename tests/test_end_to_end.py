@@ -16,7 +16,8 @@ import time
 import numpy as np
 import pytest
 
-from tests.support import DEMO, PBO, REPO, assert_ended_well, assert_nothing_left, children_of, read_until
+from pbo_runtime import read_log
+from tests.support import DEMO, PBO, REPO, assert_ended_well, assert_nothing_left, children_of, only_file, read_until
 
 pytestmark = pytest.mark.multiprocess
 
@@ -33,7 +34,7 @@ def test_make_run_s_demo_runs_for_its_duration_on_the_real_clock_and_leaves_noth
     for settings in report["realtime"].values():  # asked for by default on the real clock: granted, or refused and why
         assert settings["scheduler"] == "SCHED_FIFO 50" or settings["scheduler"].startswith("SCHED_OTHER: SCHED_FIFO refused (")
     assert all(report["states_at_stop"][name] == "ON" for name in report["tasks"])
-    assert (tmp_path / "runs" / "pid_joint.npy").exists()
+    assert only_file(tmp_path, "runs/puma-*/pid_joint.mcap").stat().st_size > 0  # the run's own directory
     assert_nothing_left(report)
 
 
@@ -50,7 +51,7 @@ def test_demo_moves_the_arm_to_its_goal_on_the_simulated_clock(tmp_path):
     for name, period in {"robot": 0.001, "pid": 0.001, "traj": 0.002, "logger": 0.01}.items():
         assert report["states_at_stop"][name] == "ON"
         assert report["tasks"][name]["cycles"] == round(3.0 / period) + 1, name  # released at 0, period, ..., 3 s
-    log = np.load(tmp_path / "runs" / "pid_joint.npy")
+    log = read_log(only_file(tmp_path, "runs/puma-*/pid_joint.mcap"))
     assert log["q_m"].shape == (301, 6) and np.allclose(np.diff(log["time"]), 0.01)
     assert_nothing_left(report)
 
@@ -126,7 +127,7 @@ def test_cartesian_teleoperation_follows_the_trackball(tmp_path):
     x_m = np.array(report["variables"]["x_m"]["value"])
     x_d = np.array(report["variables"]["x_d"]["value"])
     assert np.max(np.abs(x_m[:3] - x_d[:3])) < 0.002, f"hand at {x_m[:3]}, goal {x_d[:3]}"
-    log = np.load(tmp_path / "runs" / "teleop.npy")
+    log = read_log(only_file(tmp_path, "runs/*/teleop.mcap"))
     moved = log["x_d"][-1, :3] - log["x_d"][0, :3]
     assert moved == pytest.approx([0.05, 0.0, 0.05], abs=1e-3)  # the script: 5 cm along x, then 5 cm up (logging starts a tick late)
     assert_nothing_left(report)

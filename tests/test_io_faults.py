@@ -22,14 +22,15 @@ import posix_ipc
 import pytest
 
 from drivers.mujoco_arm.plant import MujocoArmPlant
-from modules.data_logger import read_log
+from pbo_runtime import open_log, read_log
+from pbo_runtime.reports.data_log import LogError
 from pbo_runtime.cli.main import main
 from pbo_runtime.cli.output_paths import OutputPathError, write_report
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.limits import KERNEL_BYTES_PER_MESSAGE
 from pbo_runtime.supervisor.supervisor import Supervisor
-from tests.support import DEMO, NO_WATCHDOG, PBO, assert_nothing_left, children_of, fill_disk, unique_name, until
+from tests.support import DEMO, NO_WATCHDOG, PBO, assert_nothing_left, children_of, demo_copy, fill_disk, unique_name, until
 
 PID_JOINT_QUEUE_BYTES = 51_872  # docs/architecture.md: 50.7 KiB (275.6 KiB when every queue was 10 x 8 KiB)
 
@@ -201,7 +202,8 @@ def test_a_report_to_a_device_is_written_in_place(tmp_path):
 def test_a_disk_that_fills_during_the_run_fails_the_log_and_the_report_with_the_summary_printed(tmp_path, small_disk):
     fill_disk(small_disk, leave=4096)  # one page: the --out probe takes it and gives it back; the log's header then takes it
     report = tmp_path / "elsewhere" / "report.json"
-    done = subprocess.run([*PBO, "run", str(DEMO), "--clock", "sim", "--duration", "1.5", "--no-live", "--out", str(small_disk),
+    npy = demo_copy(tmp_path, "puma", logger={"params": {"variables": ["q_m", "q_r", "tau_u"], "path": "pid_joint.npy"}})
+    done = subprocess.run([*PBO, "run", str(npy), "--clock", "sim", "--duration", "1.5", "--no-live", "--out", str(small_disk),
                            "--report", str(report)], cwd=tmp_path, capture_output=True, text=True, timeout=240)
     assert done.returncode == 2, done.stdout + done.stderr
     assert "Traceback" not in done.stdout + done.stderr
@@ -227,11 +229,14 @@ def test_a_disk_that_fills_during_the_run_fails_the_log_and_the_report_with_the_
 
 
 @pytest.mark.multiprocess
-def test_a_sigkill_of_the_loggers_rtpu_loses_at_most_the_chunk_it_was_filling(tmp_path):
+@pytest.mark.parametrize("name", ["pid_joint.mcap", "pid_joint.npy"])
+def test_a_sigkill_of_the_loggers_rtpu_loses_at_most_the_chunk_it_was_filling(tmp_path, name):
+    """The log, MCAP or .npy, reads back with every row of the chunks written before the kill (issue 21)."""
     out, report = tmp_path / "out", tmp_path / "report.json"
-    run = subprocess.Popen([*PBO, "run", str(DEMO), "--clock", "sim", "--duration", "0", "--no-live", "--out", str(out),
+    config = demo_copy(tmp_path, f"kill_{name.split('.')[1]}", logger={"params": {"variables": ["q_m", "q_r", "tau_u"], "path": name}})
+    run = subprocess.Popen([*PBO, "run", str(config), "--clock", "sim", "--duration", "0", "--no-live", "--out", str(out),
                             "--report", str(report)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    log = out / "pid_joint.npy"
+    log = out / name
     try:
         until(lambda: rows_in(log) >= 200, "two chunks of the log written", safety_net=120)
         seen = rows_in(log)
@@ -252,15 +257,18 @@ def test_a_sigkill_of_the_loggers_rtpu_loses_at_most_the_chunk_it_was_filling(tm
     # handed over (milliseconds of wall time: a tick or two of the simulated clock; 20 is the margin).
     assert taken - len(rows) <= 100 + 20, (taken, len(rows))
     np.testing.assert_allclose(rows["time"], np.arange(len(rows)) * 0.01, atol=1e-9)  # none missing on the way
-    assert sorted(p.name for p in out.iterdir()) == ["pid_joint.npy", "report.json"]
+    assert sorted(p.name for p in out.iterdir()) == [name, "report.json"]
     assert_nothing_left(result)
+    if name.endswith(".mcap"):
+        kept = open_log(log)
+        assert not kept.complete and kept.units["q_m"] == "rad"  # no summary: read chunk by chunk, units and all
 
 
 def rows_in(log: Path) -> int:
-    """The rows a log's header counts now (0 before its header is written: it is created empty, then written)."""
+    """The rows a log holds now (0 before its header is written: it is created empty, then written)."""
     try:
-        return len(np.load(log))
-    except (OSError, EOFError, ValueError):
+        return len(read_log(log))
+    except (OSError, EOFError, ValueError, LogError):
         return 0
 
 

@@ -40,7 +40,8 @@ PUBLIC_NAMES = [
     "InternalError", "LifecycleError", "LinkFullError", "ModuleError", "NoParams", "OutBoth", "OutConst", "OutVar",
     "OutputError", "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec", "ResourceLimitError", "Status",
     "TableLayoutError",
-    "attach_segment", "create_segment", "format_channels", "module_class", "unlink_quietly",
+    "attach_segment", "create_segment", "format_channels", "module_class", "open_log", "read_log",
+    "unlink_quietly",
 ]
 
 

@@ -91,7 +91,7 @@ def test_live_changes_cost_the_critical_task_no_cycle_and_no_fresh_input(tmp_pat
     assert result["tasks"]["logger"]["state"] == "ON" and result["tasks"]["logger"]["rtpu"] == "rtpu0"
     assert result["variables"]["tau_u"]["writer"] == "pd"
     assert result["jobs_done"] == ["hold"]
-    log = np.load(tmp_path / "again.npy")  # the logger spawned again logged from its boundary to the stop (--out: by file name)
+    log = np.load(tmp_path / "runs" / "again.npy")  # the logger spawned again logged from its boundary to the stop (under --out)
     assert log["q_m"].shape[1] == 6 and np.allclose(np.diff(log["time"]), 0.01)
     assert_nothing_left(result)
 

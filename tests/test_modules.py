@@ -613,10 +613,10 @@ def test_rows_taken_while_the_writer_still_writes_the_other_chunk_are_dropped_co
     task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "chunk": 2 * LOG_DT})
     release, append = threading.Event(), task.module._append
 
-    def slow_disk(data, rows):
+    def slow_disk(data, rows, pause=False):
         if threading.current_thread() is task.module._writer:
             release.wait(30)
-        append(data, rows)
+        append(data, rows, pause)
 
     task.module._append = slow_disk
     written = log_cycles_without_waiting(log_table, task, 7)  # 2 handed over, 2 filling the other, 3 with nowhere to go
@@ -645,7 +645,7 @@ def test_read_log_gives_back_the_rows_of_a_chunk_whose_count_a_killed_process_di
     task.kill()
     row = task.module._dtype.itemsize
     with open(path, "r+b") as file:  # as if killed after the third chunk's rows, before its count, halfway into a 4th
-        file.write(task.module._header(4))
+        file.write(task.module._file.header(4))
         file.seek(0, 2)
         file.write(b"\1" * (row // 2))
     assert len(np.load(path)) == 4
@@ -677,7 +677,7 @@ def test_logger_on_a_full_disk_fails_at_the_write_keeps_the_rows_written_and_lea
     kept = np.load(path)
     assert len(kept) >= 2 and len(kept) % 2 == 0
     assert_log_holds(path, written + [(t, x, k, m) for t, x, k, m in log_values(2.0, len(kept) - 2)])
-    assert os.path.getsize(path) == task.module._header_bytes + len(kept) * kept.dtype.itemsize  # no torn chunk
+    assert os.path.getsize(path) == task.module._file.header_bytes + len(kept) * kept.dtype.itemsize  # no torn chunk
     task.kill()
     assert sorted(p.name for p in small_disk.iterdir()) == ["filler", "log.npy"]
 
@@ -735,8 +735,8 @@ def test_logger_cycles_take_no_page_fault_as_its_log_fills(log_table, tmp_path):
         ({"variables": ["x", "k", "x"]}, r"bad parameters for DataLogger: variables must not repeat, got: \['x', 'k', 'x'\]"),
         ({"variables": ["x", "time"]}, r"bad parameters for DataLogger: variables must not include 'time': .*"),
         ({"variables": ["x"], "path": "runs/log.npz"},
-         r"bad parameters for DataLogger: path must end in \.npy \(one structured array, appended as the run goes\), "
-         r"got: 'runs/log\.npz'"),
+         r"bad parameters for DataLogger: path must end in \.mcap \(Foxglove, PlotJuggler\) or \.npy \(one numpy "
+         r"structured array\), got: 'runs/log\.npz'"),
         ({"variables": ["x"], "chunk": 0}, r"bad parameters for DataLogger: chunk must be > 0 s, got: 0\.0"),
         ({"path": "log.npy"}, r"missing parameter\(s\) 'variables' for DataLogger"),
     ],

@@ -17,6 +17,7 @@ import threading
 import numpy as np
 import pytest
 
+from pbo_runtime import read_log
 from pbo_runtime.ipc import shm
 from pbo_runtime.clock.lockstep import LockstepMaster, LockstepParticipant
 from pbo_runtime.table.table import HEADER_WORDS, Header
@@ -104,10 +105,10 @@ def test_two_simulated_runs_write_identical_logs_even_under_load(tmp_path):
         for hog in hogs:
             hog.kill()
             hog.wait()
-    first = (tmp_path / "quiet" / "pid_joint.npy").read_bytes()
-    second = (tmp_path / "loaded" / "pid_joint.npy").read_bytes()
+    first = (tmp_path / "quiet" / "pid_joint.mcap").read_bytes()
+    second = (tmp_path / "loaded" / "pid_joint.mcap").read_bytes()
     assert first == second
-    log = np.load(tmp_path / "quiet" / "pid_joint.npy")
+    log = read_log(tmp_path / "quiet" / "pid_joint.mcap")
     assert len(log["time"]) == 301 and np.allclose(np.diff(log["time"]), 0.01)  # 0 to 3 s, every 10 ms, on its tick
     assert quiet["variables"]["q_m"] == loaded["variables"]["q_m"]
     assert quiet["clock"] == "sim" and quiet["tick"] == 0.001
@@ -125,7 +126,7 @@ def test_a_simulated_run_releases_every_cycle_and_steps_the_plant_once_per_tick(
         assert task["cycles"] == round(2.0 / period) + 1, name
         assert task["overruns"] == task["missed"] == 0 and task["jitter_max"] < 1e-9  # rounding only
     assert "clock: simulated, 1 ms ticks; 2.00 s simulated in" in done.stdout
-    assert sorted(os.listdir(tmp_path / "out")) == ["pid_joint.npy", "report.json"]
+    assert sorted(os.listdir(tmp_path / "out")) == ["pid_joint.mcap", "report.json"]
     assert not (tmp_path / "runs").exists()  # with --out, the YAML's directory is not used
 
 

@@ -28,7 +28,7 @@ from modules._robot_model import END_EFFECTOR_FRAME, frame_id, frame_pose_and_ja
 from modules.damped_least_squares import DampedLeastSquares
 from modules.resolved_rate import ResolvedRate
 from modules.visual_servoing import VisualServoing
-from pbo_runtime import ParamError, PortBasedObject, Status
+from pbo_runtime import ParamError, PortBasedObject, Status, read_log
 from pbo_runtime.objects import registry
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.task.lifecycle import Task
@@ -413,7 +413,7 @@ def test_through_the_singularity_dls_bounds_the_joint_speeds_where_plain_ik_does
                                "--no-live", "--out", str(tmp_path / controller)], cwd=tmp_path, capture_output=True,
                               text=True, timeout=240)
         assert done.returncode == 0, done.stdout + done.stderr
-        log = np.load(tmp_path / controller / "visual_servoing.npy")
+        log = read_log(tmp_path / controller / "visual_servoing.mcap")
         speeds = np.abs(log["qd_m"]).max(axis=1)
         peak[controller] = (speeds.max(), log["time"][speeds.argmax()])
     ik_speed, ik_when = peak["ik"]

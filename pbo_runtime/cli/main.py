@@ -101,12 +101,27 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--clock", choices=("real", "sim"), default="real",
                      help="sim: simulated time in lockstep ticks, as fast as the machine allows; the run replays bit for bit")
     run.add_argument("--out", type=Path, metavar="DIR",
-                     help="write the run's files (data logs) and its report (report.json) into DIR")
+                     help="the run's output directory: its report (report.json), its data logs and every file it "
+                          "writes (default: runs/SUBSYSTEM-DATE-TIME/ in the current directory)")
     run.add_argument("--links", help=argparse.SUPPRESS)  # set by an application's runner: JSON, see _links
     run.add_argument("--alternate", metavar="A,B", help="switch test: alternate between these configurations")
     run.add_argument("--switches", type=int, default=100, help="with --alternate: how many switches (default 100)")
     run.add_argument("--interval", type=float, default=0.05, help="with --alternate: seconds between switches (default 0.05)")
     run.set_defaults(handler=_run)
+
+    plot = sub.add_parser("plot", help="plot a run's logged variables against time, switches and jobs marked")
+    plot.add_argument("target", metavar="RUN_DIR_OR_LOG", help="a run's directory (pbo run prints it) or a log file")
+    plot.add_argument("variables", nargs="*", metavar="VARIABLE", help="the variables to plot (default: every one logged)")
+    plot.add_argument("-o", "--output", type=Path, help="write the plot to this .png, .svg or .pdf (default: a window)")
+    plot.set_defaults(handler=_plot)
+
+    log = sub.add_parser("log", help="a data log's contents for other tools: pbo log export LOG --csv")
+    log_verbs = log.add_subparsers(dest="log_command", required=True, metavar="COMMAND")
+    export = log_verbs.add_parser("export", help="write a log as CSV for spreadsheets: one column per element, units in the header")
+    export.add_argument("log", metavar="LOG", help="a .mcap or .npy data log")
+    export.add_argument("--csv", action="store_true", required=True, help="as CSV (the one format for now)")
+    export.add_argument("-o", "--output", type=Path, help="write it here (default: stdout)")
+    export.set_defaults(handler=_log_export)
 
     bus = sub.add_parser("bus", help="bus utilisation of each configuration (TR eq. 1-2), predicted and measured")
     bus.add_argument("file")
@@ -316,7 +331,6 @@ def _check_json(result: Any) -> dict[str, Any]:
 def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from pbo_runtime.config.application import is_application_file
     from pbo_runtime.config.loader import load_subsystem
-    from pbo_runtime.supervisor.supervisor import Supervisor
 
     if is_application_file(args.file):
         return _run_application(args, console, errors)
@@ -331,9 +345,18 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
             return EXIT_CONFIG
         alternate = (names, args.switches, args.interval)
         args.config = args.config or names[0]
+    made = args.out is None
+    args.out = args.out or default_run_dir(subsystem.name)
+    with _removed_if_empty(args.out if made else None):
+        return _run_subsystem(args, console, errors, subsystem, live, duration, alternate)
+
+
+def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, subsystem: Any, live: bool,
+                   duration: float | None, alternate: Any) -> int:
+    from pbo_runtime.supervisor.supervisor import Supervisor
+
     options = {"application": args.app, "static": args.static, "alternate": alternate, "fifo": args.fifo,
-               "clock": args.clock, "out_dir": str(args.out) if args.out else None,
-               "links": json.loads(args.links) if args.links else None}
+               "clock": args.clock, "out_dir": str(args.out), "links": json.loads(args.links) if args.links else None}
     refused = _check_output_paths(args)
     if refused:
         errors.print(f"error: {refused}", markup=False)
@@ -354,6 +377,7 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
             result = supervisor.run()
         _print_summary(console, subsystem, result)  # first: whatever fails below, the operator has seen the run
         unwritten = _write_reports(args, result.to_json())
+        _print_outputs(console, args.out, result)
     for line in [result.failure] if result.failure else []:
         errors.print(f"error: {line}", markup=False)
     for line in result.faults:
@@ -361,6 +385,50 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     for line in unwritten:
         errors.print(f"error: {line}", markup=False)
     return EXIT_RUN if result.failure or result.faults or unwritten else EXIT_OK
+
+
+def default_run_dir(name: str) -> Path:
+    """runs/NAME-DATE-TIME/ under the current directory, made now (a suffix when two runs start in one second)."""
+    import time
+
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    for attempt in range(1, 1000):
+        candidate = Path("runs") / (f"{name}-{stamp}" + (f"-{attempt}" if attempt > 1 else ""))
+        try:
+            candidate.mkdir(parents=True)
+            return candidate
+        except FileExistsError:
+            continue
+        except OSError:
+            return candidate  # check_output_dir says why it cannot be made
+    return Path("runs") / f"{name}-{stamp}-{os.getpid()}"
+
+
+@contextlib.contextmanager
+def _removed_if_empty(made: Path | None):
+    """The default run directory made for a run that was refused before it wrote anything goes again."""
+    try:
+        yield
+    finally:
+        if made is not None:
+            with contextlib.suppress(OSError):
+                made.rmdir()  # only if empty: a run that ran has its report there at least
+
+
+def _print_outputs(console: Console, out: Path, result: Any) -> None:
+    """Where every log of the run went (path and rows), then the run's directory."""
+    from pbo_runtime.reports.data_log import LogError, find_logs, log_rows
+
+    listed = [Path(p).resolve() for t in result.tasks.values() for p in t.get("outputs", [])]
+    paths = list(dict.fromkeys([*listed, *(p.resolve() for p in find_logs(out))]))  # a killed RTPU's logs: found
+    here = Path.cwd().resolve()
+    for path in paths:
+        shown = path.relative_to(here) if path.is_relative_to(here) else path  # as the operator would type it
+        try:
+            console.print(f"log: {shown} ({log_rows(path)} rows)", markup=False)
+        except (LogError, OSError) as exc:
+            console.print(f"log: {shown} (unreadable: {exc})", markup=False)
+    console.print(f"run directory: {out}", markup=False)
 
 
 @contextlib.contextmanager
@@ -411,7 +479,6 @@ def _write_reports(args: argparse.Namespace, report: dict[str, Any]) -> list[str
 def _run_application(args: argparse.Namespace, console: Console, errors: Console) -> int:
     """Every subsystem of an application file at once, joined by its links (see _application_runner)."""
     from pbo_runtime.config.application import check_application
-    from pbo_runtime.supervisor.application_runner import ApplicationRunner
     from pbo_runtime.config.loader import CheckResult, format_diagnostics
 
     result = check_application(args.file)
@@ -419,6 +486,15 @@ def _run_application(args: argparse.Namespace, console: Console, errors: Console
         errors.print(format_diagnostics(CheckResult(None, result.errors, result.warnings)), markup=False)
         return EXIT_CONFIG
     app = result.application
+    made = args.out is None
+    args.out = args.out or default_run_dir(app.name)  # each subsystem's files in a directory of its own below it
+    with _removed_if_empty(args.out if made else None):
+        return _run_linked_subsystems(args, console, errors, app)
+
+
+def _run_linked_subsystems(args: argparse.Namespace, console: Console, errors: Console, app: Any) -> int:
+    from pbo_runtime.supervisor.application_runner import ApplicationRunner
+
     refused = _check_output_paths(args)
     if refused:
         errors.print(f"error: {refused}", markup=False)
@@ -431,6 +507,7 @@ def _run_application(args: argparse.Namespace, console: Console, errors: Console
     if code:
         errors.print(f"error: application '{app.name}' stopped: a subsystem failed (exit {code}); see its lines above",
                      markup=False)
+    console.print(f"run directory: {args.out}", markup=False)
     return code
 
 
@@ -622,6 +699,49 @@ def _completion(parser: argparse.ArgumentParser, args: argparse.Namespace, conso
     import shtab
 
     console.out(shtab.complete(parser, shell=args.shell), end="")
+    return EXIT_OK
+
+
+# --- pbo plot, pbo log export ------------------------------------------------------------------
+
+
+def _plot(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.reports.data_log import LogError
+    from pbo_runtime.reports.run_plot import chosen, figure, load_run, save
+
+    try:
+        run = load_run(args.target)
+        chosen(run, args.variables)  # an unknown variable is refused before anything is drawn
+        if args.output is None and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            raise LogError("no display to show the plot on: write it to a file with -o plot.png (or .svg)")
+        if args.output is not None:
+            save(figure(run, args.variables), args.output)
+            console.print(f"wrote {args.output}", markup=False)
+            return EXIT_OK
+    except (LogError, OSError) as exc:
+        errors.print(f"error: {exc}", markup=False)
+        return EXIT_CONFIG
+    import matplotlib.pyplot as plt
+
+    figure(run, args.variables, new=plt.figure)  # the same figure, in a window of the interactive backend
+    plt.show()
+    return EXIT_OK
+
+
+def _log_export(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.reports.data_log import LogError, open_log
+    from pbo_runtime.reports.run_plot import csv_text
+
+    try:
+        text = csv_text(open_log(args.log))
+        if args.output is None:
+            sys.stdout.write(text)
+            return EXIT_OK
+        args.output.write_text(text)
+    except (LogError, OSError) as exc:
+        errors.print(f"error: {exc}", markup=False)
+        return EXIT_CONFIG
+    console.print(f"wrote {args.output} ({text.count(chr(10)) - 1} rows)", markup=False)
     return EXIT_OK
 
 

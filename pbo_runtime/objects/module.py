@@ -12,7 +12,7 @@ import enum
 import types
 import typing
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
@@ -50,7 +50,10 @@ class TaskContext(typing.Protocol):
     resources: tuple[str, ...]  # the devices the task may open
     time: float  # the current cycle's release time, seconds on the run's clock
     event: Any  # an aperiodic task's event this cycle (None if none)
-    out_dir: str  # `pbo run --out DIR`, or "" when paths stay as given
+    out_dir: str  # the run's output directory (`pbo run --out DIR`, or its default), or "" when paths stay as given
+    outputs: list[str]  # the files the task's `output_path` gave out, for the run to say where they went
+    run_metadata: Mapping[str, str]  # the run: subsystem, configuration, clock, versions, the YAML file (config.log_notes)
+    variable_notes: Mapping[str, tuple[str, str]]  # each variable's (doc, unit) from the YAML
 
     def open_device(self, name: str) -> Any: ...
 
@@ -142,14 +145,27 @@ class PortBasedObject:
         return self._pbo_context.resources
 
     def output_path(self, path: str) -> Path:
-        """Where to write a file named `path`: as given, or into the run's `--out DIR` under its file name.
+        """Where to write a file named `path`: a relative path under the run's output directory, an absolute one as given.
 
-        With `--out`, every file of a run lands in DIR beside the run report, whatever
-        directory its YAML named, so one run's outputs never overwrite another's.
+        Every run has an output directory (`pbo run --out DIR`, or runs/<subsystem>-<time>/), beside
+        its report, so one run's files never overwrite another's and never land wherever the shell
+        happened to be. Outside a run (a task made by hand) the path stays as given. The run lists
+        the file among its outputs.
         """
         out_dir = self._pbo_context.out_dir
         given = Path(path)
-        return Path(out_dir) / given.name if out_dir else given
+        where = Path(out_dir) / given if out_dir and not given.is_absolute() else given
+        self._pbo_context.outputs.append(str(where))
+        return where
+
+    @property
+    def run_metadata(self) -> Mapping[str, str]:
+        """What the run is, for a file a task writes: subsystem, configuration, clock, versions, the YAML file and text."""
+        return self._pbo_context.run_metadata
+
+    def variable_note(self, name: str) -> tuple[str, str]:
+        """A variable's (doc, unit) as its YAML gives them (unit "" when it names none)."""
+        return self._pbo_context.variable_notes.get(name, ("", ""))
 
     def open_link(self, name: str, like: np.ndarray, role: str) -> Any:
         """Open one end of the application's link `name` (call it in `init`).

@@ -1,1 +1,1 @@
-"""What the runtime tells about a file: graph, lexicon, schema."""
+"""What the runtime tells about a file or a run: graph, lexicon, schema, data logs read back, plots of a run."""

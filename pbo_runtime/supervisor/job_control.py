@@ -177,6 +177,12 @@ class JobControl:
         self.pending: SwitchRecord | None = None
         self.job: str | None = None
         self.application: str | None = None
+        # what a plot of the run's logs marks: switches and jobs, at their times on the run's clock
+        # (the clock a data log's rows are stamped with: each cycle's release time)
+        self.marks: list[dict[str, Any]] = []
+
+    def mark(self, at: float, kind: str, label: str) -> None:
+        self.marks.append({"time": at, "kind": kind, "label": label})
 
     # --- switching --------------------------------------------------------------------------
 
@@ -218,6 +224,8 @@ class JobControl:
         self.pending = None
         host.set_configuration(configuration)
         self.switches.append(record)
+        # the plan's activation: the cycle boundary at which every RTPU switched
+        self.mark(record.activation, "change" if change else "switch", change or f"{before} -> {configuration}")
         return record
 
     def apply_live(self, live: LiveDescription, change: str) -> SwitchRecord:
@@ -301,6 +309,7 @@ class JobControl:
         record.applied["job control"] = (requested, host.now())
         host.set_configuration(after)
         self.switches.append(record)
+        self.mark(record.applied["job control"][1], "switch", f"{before} -> {after}")
         return record
 
     def alternate(self, configurations: list[str], switches: int, interval: float) -> None:
@@ -334,18 +343,22 @@ class JobControl:
         if job.configuration != host.configuration:
             self.switch(job.configuration)
         host.say(f"{where}: running in '{job.configuration}'" + (f", waiting for {job.post}" if job.post else ""))
+        started = host.now()
+        self.mark(started, "job", f"job {name} starts")
         if not job.post and not job.timeout:
             return
-        started = host.now()
         while True:
             if job.post:
                 holds, values = evaluate(host, job.post)
                 if holds:
                     host.say(f"{where}: done in {host.now() - started:.2f} s ({job.post})")
+                    self.mark(host.now(), "job", f"job {name} done")
                     return
             if job.timeout and host.now() - started > job.timeout:
                 if not job.post:
+                    self.mark(host.now(), "job", f"job {name} ends")
                     return  # a job with a timeout and no post-condition runs for that long
+                self.mark(host.now(), "job", f"job {name} timed out")
                 raise JobFailure(f"{where}: timed out after {job.timeout:g} s; post-condition '{job.post}' "
                                  f"still false ({_show(values)})")
             host.pump(POLL)
@@ -368,6 +381,7 @@ class JobControl:
         if job.configuration != host.configuration:
             self.switch(job.configuration)
         self.job = name
+        self.mark(host.now(), "job", f"job {name} starts")
 
     def run_application(self, application: str) -> None:
         spec = self.subsystem.applications[application]

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
+from pbo_runtime.config.log_notes import variable_notes
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import StateTable, TaskState, copy_variable
@@ -78,6 +79,10 @@ class RunResult:
     lock_events: list[dict[str, Any]] = field(default_factory=list)
     # what the run's queues take of RLIMIT_MSGQUEUE (depth x (message size + the kernel's 96 B)), as made
     queue_bytes: int = 0
+    # the run's clock (what a data log's time is: CLOCK_MONOTONIC, or simulated seconds) when the
+    # configuration came on, and what happened when on it: switches and jobs (JobControl.marks)
+    started_at: float = 0.0
+    marks: list[dict[str, Any]] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -90,7 +95,7 @@ class RunResult:
             "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds, "links": self.links,
             "started_monotonic": self.started_monotonic, "stalls": self.stalls, "unstopped": self.unstopped,
             "faults": self.faults, "timing_holds": self.timing_holds, "queue_bytes": self.queue_bytes,
-            "lock_events": self.lock_events,
+            "lock_events": self.lock_events, "started_at": self.started_at, "marks": self.marks,
         }
 
 
@@ -112,6 +117,8 @@ class RunReporting:
     def _report_run(self) -> None:
         """Switches, each task's figures, stalls, stable episodes: into the result, once the children have reported."""
         self.result.switches = [record.to_json() for record in self.job_control.switches]
+        self.result.marks = list(self.job_control.marks)
+        self.result.started_at = self.started_at if self.started_at is not None else 0.0
         started = self.started_at if self.started_at is not None else 0.0
         self._report_stable_episodes(started)
         for name, stats in self._stats.items():
@@ -168,6 +175,7 @@ class RunReporting:
         if self.table is None:
             return
         table, torn = self.table, False
+        notes = variable_notes(self.subsystem)  # a plot of an .npy log takes its units from here
         for var in self.subsystem.variables.values():
             slot = table.layout.slot(var.name)
             try:
@@ -181,7 +189,7 @@ class RunReporting:
                 "value": value.tolist(), "sequence": seq,
                 "writer": next((t.name for t in (*self.subsystem.tasks.values(), *self.every_task.values()) if t.index == writer),
                                "job control"),
-                **({"torn": True} if torn else {}),
+                "unit": notes[var.name][1], **({"torn": True} if torn else {}),
             }
 
     def status_rows(self) -> list[dict[str, Any]]:

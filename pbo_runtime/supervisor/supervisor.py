@@ -299,6 +299,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                                      *(["--fifo"] if self.fifo else []),
                                      *self.clock.rtpu_arguments(),
                                      *(["--out", self.out_dir] if self.out_dir else []),
+                                     "--configuration", self.configuration, "--application", self.application or "",
                                      *(["--links", json.dumps(self.links)] if self.links else []),
                                      "--live", self.live_dir],
                          hosted)
@@ -314,6 +315,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             self.turn_on(name, self.configuration)
         self._publish_plan_state()
         self.started_at = self.now()
+        self.job_control.mark(self.started_at, "configuration", f"{self.configuration} on")
         if self.clock.on_monotonic:
             self.result.started_monotonic = self.started_at
         self.say(f"configuration '{self.configuration}' is on: {', '.join(ordered)}")

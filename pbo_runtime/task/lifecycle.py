@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import traceback
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -44,7 +44,10 @@ class RuntimeTaskContext:
     time: float = 0.0
     event: Any = None
     opened: list[Any] = field(default_factory=list)
-    out_dir: str = ""  # `pbo run --out DIR`: where the run's files go ("" : paths stay as given)
+    out_dir: str = ""  # the run's output directory: where the run's files go ("" : paths stay as given)
+    outputs: list[str] = field(default_factory=list)  # the files `output_path` gave out
+    run_metadata: Mapping[str, str] = field(default_factory=dict)  # config.log_notes.run_metadata
+    variable_notes: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # config.log_notes.variable_notes
     links: dict[str, dict[str, Any]] = field(default_factory=dict)  # the application's links, by name
     relay: Relay | None = None  # the RTPU's: wakes this task per message of a link it serves
 
@@ -98,6 +101,8 @@ class Task:
         out_dir: str = "",
         links: dict[str, dict[str, Any]] | None = None,
         relay: Relay | None = None,
+        run_metadata: Mapping[str, str] | None = None,
+        variable_notes: Mapping[str, tuple[str, str]] | None = None,
     ) -> None:
         self.spec = spec
         self.name = spec.name
@@ -110,7 +115,8 @@ class Task:
         self._device_opener = opener
         self.context = RuntimeTaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}),
                                           self.open_device if opener is not None else None,
-                                          out_dir=out_dir, links=dict(links or {}), relay=relay)
+                                          out_dir=out_dir, links=dict(links or {}), relay=relay,
+                                          run_metadata=run_metadata or {}, variable_notes=variable_notes or {})
         self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
         self.status = self.local.status
         self._forget_an_earlier_tasks_figures(table.status[spec.index])

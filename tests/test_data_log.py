@@ -1,0 +1,323 @@
+"""Data logs other tools open (issue 21): MCAP written by the data logger and read back with the
+`mcap` library, logs cut short by a kill, `pbo plot`, `pbo log export --csv`, and where a run's
+logs land (its output directory) and how `pbo run` says so."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import struct
+import subprocess
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from modules.data_logger import DataLogger
+from pbo_runtime import Status, open_log, read_log
+from pbo_runtime.cli.main import main
+from pbo_runtime.config.log_notes import split_unit
+from pbo_runtime.config.model import PortBinding, TaskSpec
+from pbo_runtime.reports.data_log import LogError
+from pbo_runtime.reports.run_plot import csv_text, figure, load_run
+from pbo_runtime.table.table import StateTable
+from pbo_runtime.task.lifecycle import Task
+from tests.support import PBO, REPO, variables
+
+DT = 0.01
+LOGGED = variables(("x", "float64", (3,)), ("k", "int32", ()), ("m", "float64", (2, 2)))
+NOTES = {"x": ("hand position", "m"), "k": ("a counter", ""), "m": ("a matrix", "N m")}
+RUN = {"subsystem": "arm", "configuration": "joint_pid", "clock": "sim", "pbo-runtime": "0.1.0", "numpy": np.__version__,
+       "mujoco": "3.0", "file": "/somewhere/arm.yaml", "yaml": "subsystem: arm\n"}
+
+
+@pytest.fixture
+def table(make_table) -> StateTable:
+    return make_table(LOGGED)
+
+
+def logger(table: StateTable, path, chunk: float = 1.0) -> Task:
+    params = {"variables": ["x", "k", "m"], "path": str(path), "chunk": chunk}
+    built = DataLogger.build_params(params)
+    bindings = tuple(PortBinding(p, p.variable, table.layout.slot(p.variable).shape) for p in DataLogger.ports_for(built))
+    spec = TaskSpec(name="log", module="DataLogger", rtpu="rtpu0", period=DT, params=params, bindings=bindings, index=1)
+    task = Task(spec, DataLogger, table, run_metadata=RUN, variable_notes=NOTES)
+    assert task.spawn(0.0), task.last_error
+    assert task.turn_on(0.0), task.last_error
+    return task
+
+
+def run_cycles(table: StateTable, task: Task, cycles: int, x=None) -> list[tuple[float, list, int, list]]:
+    written = []
+    for i in range(cycles):
+        t = 1.0 + i * DT
+        value = np.array([i, -i, 0.5 * i]) if x is None else x(i)
+        m = np.arange(4.0).reshape(2, 2) + i
+        table.write("x", value, when=t)
+        table.write("k", 10 * i - 3, when=t)
+        table.write("m", m, when=t)
+        assert task.run_cycle(t) is Status.CONTINUE
+        task.module.wait_for_writer()
+        written.append((t, value.tolist(), 10 * i - 3, m.tolist()))
+    return written
+
+
+def test_an_mcap_log_reads_back_with_the_mcap_library_every_variable_with_its_unit_doc_and_the_run_metadata(table, tmp_path):
+    path = tmp_path / "log.mcap"
+    task = logger(table, path, chunk=3 * DT)
+    written = run_cycles(table, task, 8)
+    task.kill()
+    with open(path, "rb") as file:
+        reader = make_reader(file)
+        summary = reader.get_summary()
+        channels = {c.topic: c for c in summary.channels.values()}
+        assert list(channels) == ["x", "k", "m"]
+        assert {name: (c.metadata["unit"], c.metadata["doc"]) for name, c in channels.items()} == {
+            "x": ("m", "hand position"), "k": ("", "a counter"), "m": ("N m", "a matrix")}
+        assert all(c.message_encoding == "json" for c in channels.values())
+        assert {summary.schemas[c.schema_id].encoding for c in channels.values()} == {"jsonschema"}
+        assert summary.statistics.message_count == 3 * 8 and summary.statistics.chunk_count == 3  # 3 + 3 + 2 rows
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        assert metadata["pbo-run"] == RUN
+        by_topic: dict[str, list] = {"x": [], "k": [], "m": []}
+        for _, channel, message in reader.iter_messages():
+            body = json.loads(message.data)
+            by_topic[channel.topic].append((message.log_time, body["time"], body["value"]))
+    assert [v for _, _, v in by_topic["x"]] == [w[1] for w in written]
+    assert [v for _, _, v in by_topic["k"]] == [w[2] for w in written]
+    assert [v for _, _, v in by_topic["m"]] == [w[3] for w in written]
+    assert [(stamp, t) for stamp, t, _ in by_topic["x"]] == [(round(w[0] * 1e9), w[0]) for w in written]
+    log = open_log(path)
+    assert log.complete and log.units == {"x": "m", "k": "", "m": "N m"} and log.metadata == RUN
+    rows = read_log(path)
+    assert rows.dtype.names == ("time", "x", "k", "m") and rows["k"].dtype == np.int32 and rows["m"].shape == (8, 2, 2)
+    np.testing.assert_array_equal(rows["time"], [w[0] for w in written])
+    np.testing.assert_array_equal(rows["m"], [w[3] for w in written])
+
+
+def test_an_mcap_log_whose_writer_was_killed_reads_up_to_its_last_whole_chunk(table, tmp_path):
+    path = tmp_path / "log.mcap"
+    task = logger(table, path, chunk=2 * DT)
+    written = run_cycles(table, task, 7)  # three chunks of two rows written; the seventh row in the chunk begun
+    cut = tmp_path / "killed.mcap"
+    shutil.copy(path, cut)  # as a SIGKILL leaves it: no summary, no footer
+    with open(cut, "ab") as file:
+        file.write(b"\x06" + struct.pack("<Q", 4096) + b"half a chunk")  # and a chunk's record cut short
+    task.kill()
+    log = open_log(cut)
+    assert not log.complete and len(log.rows) == 6
+    np.testing.assert_array_equal(log.rows["x"], [w[1] for w in written[:6]])
+    assert log.units["x"] == "m" and log.metadata["subsystem"] == "arm"
+
+
+def test_an_mcap_log_killed_before_its_first_chunk_still_says_what_it_holds(table, tmp_path):
+    path = tmp_path / "log.mcap"
+    task = logger(table, path)
+    run_cycles(table, task, 3)  # a second's chunk: nothing written yet
+    log = open_log(path)
+    assert len(log.rows) == 0 and log.variables == ["x", "k", "m"] and log.units["m"] == "N m"
+    task.kill()
+    assert len(read_log(path)) == 3
+
+
+def test_non_finite_values_are_logged_as_json_null_and_read_back_as_nan(table, tmp_path):
+    path = tmp_path / "log.mcap"
+    task = logger(table, path)
+    run_cycles(table, task, 2, x=lambda i: np.array([np.nan, np.inf, i]))
+    task.kill()
+    with open(path, "rb") as file:
+        bodies = [json.loads(m.data) for _, c, m in make_reader(file).iter_messages() if c.topic == "x"]
+    assert bodies[0]["value"] == [None, None, 0.0]
+    assert np.isnan(read_log(path)["x"][:, :2]).all()
+
+
+@pytest.mark.parametrize(("doc", "split"), [
+    ("measured joint position, rad", ("measured joint position", "rad")),
+    ("measured joint velocity, rad/s", ("measured joint velocity", "rad/s")),
+    ("joint torque command, N m", ("joint torque command", "N m")),
+    ("hand Jacobian, linear rows first", ("hand Jacobian, linear rows first", "")),
+    ("measured hand pose: position m, rotation vector rad", ("measured hand pose: position m, rotation vector rad", "")),
+    ("number of joints", ("number of joints", "")),
+])
+def test_a_variables_unit_is_the_last_clause_of_its_doc_when_that_is_made_of_units(doc, split):
+    assert split_unit(doc) == split
+
+
+# --- reading what is not a log ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("make", "message"), [
+    (lambda d: d / "missing.mcap", r"no log .*missing\.mcap: no such file"),
+    (lambda d: d, r"no log .*: it is a directory"),
+    (lambda d: (d / "notes.txt").write_text("hello") and d / "notes.txt", r".*notes\.txt: not a data log \(neither MCAP nor \.npy\)"),
+    (lambda d: np.save(d / "plain.npy", np.zeros(3)) or d / "plain.npy",
+     r".*plain\.npy: not a data log \(a 1-D structured array with a time field\), got shape \(3,\) of float64"),
+])
+def test_open_log_refuses_what_is_not_a_log_naming_it(tmp_path, make, message):
+    with pytest.raises(LogError, match=rf"^{message}$"):
+        open_log(make(tmp_path))
+
+
+# --- pbo plot, pbo log export ----------------------------------------------------------------------
+
+
+@pytest.fixture
+def run_dir(table, tmp_path):
+    """A run's directory as `pbo run` leaves it: a log and report.json with the switches and jobs marked."""
+    directory = tmp_path / "runs" / "arm-1"
+    task = logger(table, directory / "log.mcap", chunk=2 * DT)
+    run_cycles(table, task, 20)
+    task.kill()
+    marks = [{"time": 1.0, "kind": "configuration", "label": "joint_pid on"},
+             {"time": 1.05, "kind": "job", "label": "job move starts"},
+             {"time": 1.1, "kind": "switch", "label": "joint_pid -> pd"}]
+    (directory / "report.json").write_text(json.dumps({"started_at": 1.0, "marks": marks, "variables": {}}))
+    return directory
+
+
+def test_the_plot_has_a_subplot_per_variable_a_line_per_element_units_and_the_marks_on_the_runs_clock(run_dir):
+    fig = figure(load_run(run_dir))
+    axes = fig.axes
+    assert [ax.get_ylabel() for ax in axes] == ["x [m]", "k", "m [N m]"]
+    assert [len([line for line in ax.lines if line.get_gid() != "mark"]) for ax in axes] == [3, 1, 4]
+    assert [t.get_text() for t in axes[0].get_legend().get_texts()] == ["x[0]", "x[1]", "x[2]"]
+    marks = [line for line in axes[2].lines if line.get_gid() == "mark"]
+    assert [round(line.get_xdata()[0], 9) for line in marks] == [0.0, 0.05, 0.1]  # seconds since the configuration came on
+    assert [t.get_text() for t in axes[0].texts if t.get_gid() == "mark"] == ["joint_pid on", "job move starts", "joint_pid -> pd"]
+    first = [line for line in axes[0].lines if line.get_gid() != "mark"][0]
+    assert first.get_xdata()[0] == pytest.approx(0.0)  # the first row's release is the configuration's start
+
+
+def test_pbo_plot_writes_a_png_of_the_run(run_dir, tmp_path, capsys):
+    png = tmp_path / "plot.png"
+    assert main(["plot", str(run_dir), "x", "m", "-o", str(png)]) == 0
+    data = png.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    width, height = struct.unpack(">II", data[16:24])
+    assert (width, height) == (1000, 560)  # 10 in wide, 1.2 + 2.2 in per subplot, at 100 dpi
+    assert len(data) > 20_000
+    assert capsys.readouterr().out.strip() == f"wrote {png}"
+
+
+def test_pbo_plot_of_one_log_finds_the_report_beside_it(run_dir, tmp_path):
+    run = load_run(run_dir / "log.mcap")
+    assert run.origin == 1.0 and len(run.marks) == 3
+
+
+@pytest.mark.parametrize(("arguments", "message"), [
+    (["nowhere"], r"error: no run directory or log nowhere: no such file or directory"),
+    (["RUN", "q_x"], r"error: no variable 'q_x' in \S+log\.mcap \(logged: x, k, m\)"),
+    (["RUN/report.json"], r"error: \S+report\.json: not a data log \(neither MCAP nor \.npy\)"),
+    (["EMPTY"], r"error: \S+empty: no data log in this directory \(no \*\.mcap or \*\.npy file\); give a run's directory "
+                r"\(pbo run prints it\) or a log file"),
+    (["RUN", "-o", "plot.gif"], r"error: -o plot\.gif: the plot is written as \.png, \.svg or \.pdf, got '\.gif'"),
+    (["RUN"], r"error: no display to show the plot on: write it to a file with -o plot\.png \(or \.svg\)"),
+])
+def test_pbo_plot_refuses_bad_input_in_one_line(run_dir, tmp_path, capsys, monkeypatch, arguments, message):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "empty").mkdir()
+    given = [a.replace("RUN", str(run_dir)).replace("EMPTY", str(tmp_path / "empty")) for a in arguments]
+    assert main(["plot", *given]) == 1
+    err = capsys.readouterr().err.strip()
+    assert re.fullmatch(message, err), err
+    assert not (tmp_path / "plot.gif").exists()
+
+
+def test_pbo_log_export_writes_a_csv_with_a_column_per_element_and_units_in_the_header(run_dir, capsys):
+    assert main(["log", "export", str(run_dir / "log.mcap"), "--csv"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "time [s],x[0] [m],x[1] [m],x[2] [m],k,m[0][0] [N m],m[0][1] [N m],m[1][0] [N m],m[1][1] [N m]"
+    assert lines[1] == "1.0,0.0,0.0,0.0,-3,0.0,1.0,2.0,3.0"
+    assert len(lines) == 21
+
+
+def test_pbo_log_export_writes_the_file_named_and_says_so(run_dir, tmp_path, capsys):
+    out = tmp_path / "log.csv"
+    assert main(["log", "export", str(run_dir / "log.mcap"), "--csv", "-o", str(out)]) == 0
+    assert capsys.readouterr().out.strip() == f"wrote {out} (20 rows)"
+    assert out.read_text() == csv_text(open_log(run_dir / "log.mcap"))
+
+
+def test_pbo_log_export_of_what_is_not_a_log_is_one_line_and_exit_1(tmp_path, capsys):
+    assert main(["log", "export", str(tmp_path / "none.mcap"), "--csv"]) == 1
+    assert capsys.readouterr().err.strip() == f"error: no log {tmp_path / 'none.mcap'}: no such file"
+
+
+# --- a run's output directory ------------------------------------------------------------------
+
+
+def switching_copy(folder, subsystem: str):
+    """configs/switch_joint.yaml as `subsystem`, with a logger in both configurations: its app switches between jobs."""
+    text = (REPO / "configs" / "switch_joint.yaml").read_text()
+    for old, new in (("subsystem: puma_switch", f"subsystem: {subsystem}"),
+                     ("\nconfigurations:\n", "\n  logger: {module: data_logger, rtpu: rtpu0, period: 10 ms, "
+                                             "params: {variables: [q_m, q_d, tau_u], path: arm.mcap}}\n\nconfigurations:\n"),
+                     ("pid: [robot, traj, pid]", "pid: [robot, traj, pid, logger]"),
+                     ("pd:  [robot, traj, pd]", "pd:  [robot, traj, pd, logger]")):
+        assert old in text, old
+        text = text.replace(old, new)
+    path = folder / f"{subsystem}.yaml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.multiprocess
+def test_a_run_writes_its_report_and_mcap_log_into_its_own_directory_says_where_and_plots_with_its_switches(tmp_path):
+    config = switching_copy(tmp_path, "datalog_dir")
+    done = subprocess.run([*PBO, "run", str(config), "--clock", "sim", "--no-live", "--app", "tour"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stdout + done.stderr
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    assert re.fullmatch(r"datalog_dir-\d{8}-\d{6}", run_dir.name)
+    assert sorted(os.listdir(run_dir)) == ["arm.mcap", "report.json"]
+    report = json.loads((run_dir / "report.json").read_text())
+    log = read_log(run_dir / "arm.mcap")
+    tail = done.stdout.rstrip().splitlines()[-2:]
+    assert tail == [f"log: runs/{run_dir.name}/arm.mcap ({len(log)} rows)", f"run directory: runs/{run_dir.name}"]
+    with open(run_dir / "arm.mcap", "rb") as file:
+        reader = make_reader(file)
+        units = {c.topic: c.metadata["unit"] for c in reader.get_summary().channels.values()}
+        run = {m.name: m.metadata for m in reader.iter_metadata()}["pbo-run"]
+    assert units == {"q_m": "rad", "q_d": "rad", "tau_u": "N m"}
+    assert run["subsystem"] == "datalog_dir" and run["clock"] == "sim" and run["application"] == "tour"
+    assert run["configuration"] == "pid" and run["yaml"] == config.read_text() and run["file"] == str(config.resolve())
+    assert {"pbo-runtime", "numpy", "mujoco", "python"} <= set(run)
+    marks = report["marks"]
+    assert [m["label"] for m in marks] == ["pid on", "job reach starts", "job reach done", "pid -> pd", "job settle starts",
+                                           "job settle done", "pd -> pid", "job reach starts", "job reach done"]
+    times = [m["time"] for m in marks]
+    assert report["started_at"] == times[0] and times == sorted(times) and log["time"][0] <= times[1] < times[-1] <= log["time"][-1] + 0.01
+    # one clock: each job's object is in the log from its switch on
+    first, second = marks[3]["time"], marks[6]["time"]
+    np.testing.assert_allclose(log["q_d"][log["time"] < first - 0.05][-1], [0.3, -0.5, 0.5, 0.2, 0.4, 0.2])
+    np.testing.assert_allclose(log["q_d"][(log["time"] > first) & (log["time"] < second - 0.05)][-1], [0.0, -0.3, 0.3, 0.0, 0.2, 0.0])
+    np.testing.assert_allclose(log["q_d"][-1], [-0.2, -0.6, 0.4, 0.1, 0.3, -0.1])
+    png = tmp_path / "tour.png"
+    plotted = subprocess.run([*PBO, "plot", str(run_dir), "-o", str(png)], cwd=tmp_path, capture_output=True, text=True,
+                             timeout=120)
+    assert plotted.returncode == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", plotted.stderr
+
+
+def test_the_plot_of_an_npy_log_takes_its_units_from_the_runs_report(table, tmp_path):
+    directory = tmp_path / "run"
+    task = logger(table, directory / "log.npy")
+    run_cycles(table, task, 5)
+    task.kill()
+    (directory / "report.json").write_text(json.dumps({"started_at": 1.0, "marks": [],
+                                                       "variables": {"x": {"unit": "m"}, "m": {"unit": "N m"}}}))
+    fig = figure(load_run(directory / "log.npy"), ["x", "m"])
+    assert [ax.get_ylabel() for ax in fig.axes] == ["x [m]", "m [N m]"]
+    assert csv_text(open_log(directory / "log.npy")).splitlines()[0].startswith("time [s],x[0],x[1],x[2],k,m[0][0]")
+
+
+def test_a_run_refused_before_it_starts_leaves_no_run_directory(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    config = tmp_path / "arm.yaml"
+    config.write_text((REPO / "configs" / "pid_joint.yaml").read_text())
+    assert main(["run", str(config), "--clock", "sim", "--no-live", "--config", "no_such"]) == 2
+    assert "no configuration 'no_such'" in capsys.readouterr().err
+    assert list((tmp_path / "runs").iterdir()) == []

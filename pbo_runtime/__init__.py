@@ -21,15 +21,20 @@ from pbo_runtime.errors import (
 )
 from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
 from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
+from pbo_runtime.objects.arm import ARM_COLUMNS, EE_COLUMNS, GRAVITY, Arm, arm_model
 from pbo_runtime.objects.driver import DeviceDriver
 from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
 from pbo_runtime.objects.ports import ANY_DTYPE, InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
-from pbo_runtime.objects.registry import installed_version, module_class
+from pbo_runtime.objects.registry import installed_version, module_class, registered_robot
 
 __version__ = installed_version()
 
 __all__ = [
     "ANY_DTYPE",
+    "ARM_COLUMNS",
+    "Arm",
+    "EE_COLUMNS",
+    "GRAVITY",
     "MAX_PRIORITY",
     "ConfigError",
     "ConfigErrors",
@@ -54,9 +59,11 @@ __all__ = [
     "ResourceLimitError",
     "Status",
     "TableLayoutError",
+    "arm_model",
     "attach_segment",
     "create_segment",
     "format_channels",
     "module_class",
+    "registered_robot",
     "unlink_quietly",
 ]

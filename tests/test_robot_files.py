@@ -249,6 +249,17 @@ def test_your_robot_reaches_its_goal_within_a_milliradian_on_the_simulated_clock
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout + run.stderr
     report = json.loads((tmp_path / "report.json").read_text())
-    final = np.array(report["final_values"]["q_m"])
-    goal = np.array(report["final_values"]["q_d"])
+    assert report["jobs_done"] == ["reach", "reach"] and report["faults"] == []
+    final, goal = (np.array(report["variables"][name]["value"]) for name in ("q_m", "q_d"))
+    np.testing.assert_allclose(goal, [-0.4, -1.6, 1.0, 0.6, -0.5, -0.3])  # the last step's goal
     assert np.max(np.abs(final - goal)) < 1e-3
+    assert "dropped meshes MuJoCo cannot read" in run.stdout  # the run says what loading the URDF changed
+
+
+def test_a_package_registers_a_robot_file_by_name_and_it_loads_like_a_path(tmp_path, monkeypatch):
+    import drivers.robots.plant_model as plant_model
+
+    urdf = write(tmp_path, "shipped/arm.urdf", two_link_urdf())
+    monkeypatch.setattr(plant_model, "registered_robot", lambda name: urdf if name == "my_arm" else None)
+    arm = load_robot("my_arm", Path("/elsewhere"), TIMESTEP, {"ee": "tool"})
+    assert arm.joint_names == ("shoulder", "elbow") and arm.source == str(urdf)

@@ -172,7 +172,10 @@ class SectionChecks(CheckerBase):
                 self.error("E217" if key == "ee" else "E216", str(exc), loc, getattr(exc, "hint", ""))
                 return
             self._robot_dims = dict(robot.dims)
-            self.out.robot_notes = [f"robot {Path(robot.source).name}: {note}" for note in robot.notes]
+            name = Path(robot.source).name
+            self.out.robot_notes = [f"robot {name}: {robot.ndof} joints ({', '.join(robot.joint_names)}), "
+                                    f"end effector {robot.ee_name}"]
+            self.out.robot_notes += [f"robot {name}: {note}" for note in robot.notes]
         self._check_robot_ndof(plant)
 
     def _check_robot_ndof(self, plant: YMap) -> None:

@@ -145,7 +145,7 @@ def test_graph_of_an_unknown_configuration_names_the_valid_ones(capsys):
 
 def test_the_committed_schema_is_what_pbo_schema_prints(capsys):
     assert main(["schema"]) == 0
-    assert capsys.readouterr().out == (REPO / "docs" / "pbo-subsystem.schema.json").read_text()
+    assert capsys.readouterr().out == (REPO / "configs" / "pbo-subsystem.schema.json").read_text()
 
 
 @pytest.mark.parametrize("config", sorted((REPO / "configs").glob("*.yaml")), ids=lambda p: p.name)

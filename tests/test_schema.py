@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 import yaml
 
+from pbo_runtime.config.application import is_application_file
 from pbo_runtime.objects import registry
 from pbo_runtime.config.checker import BUS_KEYS, JOB_KEYS, TASK_KEYS, TOP_KEYS, VARIABLE_KEYS
 from pbo_runtime.reports.schema import json_schema, quantity_pattern, schema_text, write_schema
@@ -225,8 +226,19 @@ def test_quantity_patterns_follow_the_units_parser(kind, good, bad):
 
 
 def test_the_demo_conforms(schema):
-    assert DEMO.read_text().splitlines()[0] == "# yaml-language-server: $schema=../docs/pbo-subsystem.schema.json"
+    assert DEMO.read_text().splitlines()[0] == "# yaml-language-server: $schema=pbo-subsystem.schema.json"
     assert validate(demo(), schema) == []
+
+
+SUBSYSTEM_FILES = [path for path in sorted([*(REPO / "configs").glob("*.yaml"), *(REPO / "bench").glob("*.yaml")])
+                   if not is_application_file(path)]  # the schema describes subsystem files, not applications
+
+
+@pytest.mark.parametrize("path", SUBSYSTEM_FILES, ids=lambda p: p.relative_to(REPO).as_posix())
+def test_every_subsystem_file_names_the_committed_schema_by_a_path_that_exists(path):
+    first = re.fullmatch(r"# yaml-language-server: \$schema=(\S+)", path.read_text().splitlines()[0])
+    assert first, f"{path.name}: its first line must be '# yaml-language-server: $schema=<path to the schema>'"
+    assert (path.parent / first.group(1)).resolve() == (REPO / "configs" / "pbo-subsystem.schema.json").resolve()
 
 
 def test_an_unknown_key_does_not_conform(schema):
@@ -266,5 +278,5 @@ def test_write_schema_is_deterministic_and_matches_the_committed_file(tmp_path, 
     assert first == second == schema_text()
     assert first.endswith("}\n") and '\n  "$defs": {' in first
     assert json.loads(first) == schema
-    committed = REPO / "docs" / "pbo-subsystem.schema.json"
-    assert committed.read_text() == first, "regenerate it: python -c 'from pbo_runtime.reports.schema import write_schema; write_schema(\"docs/pbo-subsystem.schema.json\")'"
+    committed = REPO / "configs" / "pbo-subsystem.schema.json"  # beside the example configs, and shipped with them
+    assert committed.read_text() == first, "regenerate it: pbo schema -o configs/pbo-subsystem.schema.json"

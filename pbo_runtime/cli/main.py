@@ -1,4 +1,4 @@
-"""The `pbo` command: check a subsystem file, run it, list the module library, clean up.
+"""The `pbo` command: check a subsystem file, run it, list the module library, copy out the examples, clean up.
 
 Exit status: 0 done, 1 the file has errors (or an operator command's arguments were refused),
 2 the run failed, 3 an internal error (please report it). No traceback reaches the user unless --debug is given.
@@ -139,6 +139,12 @@ def _parser() -> argparse.ArgumentParser:
     schema = sub.add_parser("schema", help="the JSON Schema of the subsystem format, for editors")
     schema.add_argument("-o", "--output", type=Path, help="write it here (default: stdout)")
     schema.set_defaults(handler=_schema)
+
+    examples = sub.add_parser("examples", help="copy the example subsystem files and their JSON Schema into a folder, to run and edit")
+    examples.add_argument("dir", nargs="?", type=Path, default=Path("pbo-examples"), metavar="DIR",
+                          help="where to put them (default: ./pbo-examples; made if missing)")
+    examples.add_argument("--force", action="store_true", help="overwrite files there that differ from the shipped ones")
+    examples.set_defaults(handler=_examples)
 
     # operator commands on a running subsystem (another terminal), over its 0600 control queue:
     # every verb as the command table declares it
@@ -738,6 +744,18 @@ def _schema(args: argparse.Namespace, console: Console, errors: Console) -> int:
         console.print(f"wrote {args.output}", markup=False)
     else:
         console.out(schema_text(), end="")
+    return EXIT_OK
+
+
+def _examples(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.cli.examples import ExamplesRefused, copy_examples, summary
+
+    try:
+        copied = copy_examples(args.dir, force=args.force)
+    except ExamplesRefused as exc:
+        errors.print(f"error: {exc}", markup=False)
+        return EXIT_CONFIG
+    console.print("\n".join(summary(copied)), markup=False, soft_wrap=True)
     return EXIT_OK
 
 

@@ -2,9 +2,11 @@
 
 YAML Language Server (VS Code's YAML extension, and others) reads a first-line comment
 
-    # yaml-language-server: $schema=../docs/pbo-subsystem.schema.json
+    # yaml-language-server: $schema=pbo-subsystem.schema.json
 
-and then completes keys, shows their descriptions and marks unknown keys while one types.
+(a path relative to the file: the schema lies beside the example configs, in the repository's
+`configs/` and in the folder `pbo examples` copies them to) and then completes keys, shows their
+descriptions and marks unknown keys while one types.
 The schema is built from what the checker accepts: the section keys, the units of quantities,
 the registered modules (each with the parameters of its `Params` dataclass) and drivers. It
 helps while editing; `pbo check` stays the judge (links, shapes, writers, const order).

@@ -249,6 +249,6 @@ def test_your_robot_reaches_its_goal_within_a_milliradian_on_the_simulated_clock
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout + run.stderr
     report = json.loads((tmp_path / "report.json").read_text())
-    final = np.array(report["final_values"]["q_m"])
-    goal = np.array(report["final_values"]["q_d"])
+    final = np.array(report["variables"]["q_m"]["value"])
+    goal = np.array(report["variables"]["q_d"]["value"])
     assert np.max(np.abs(final - goal)) < 1e-3

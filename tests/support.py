@@ -6,6 +6,7 @@ test file imports from elsewhere in tests/ comes from here, never from another t
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import subprocess
@@ -570,3 +571,23 @@ EXAMPLE_ROBOTS = {
 def example_robot(name: str) -> str:
     """The `package://` URI of an example-robot-data arm."""
     return f"package://example-robot-data/{EXAMPLE_ROBOTS[name]}"
+
+
+@functools.lru_cache(maxsize=None)
+def arm_tables(model: str) -> tuple[np.ndarray, np.ndarray]:
+    """The ARM and EE constants the plant publishes for a registered robot (as its robot interface
+    writes them to the table), read-only: for tests that write the robot's constants themselves."""
+    from drivers.robots.plant_model import load_robot
+
+    loaded = load_robot(model, REPO, 0.001, {})
+    arm, ee = loaded.arm.copy(), loaded.ee.copy()
+    arm.setflags(write=False)
+    ee.setflags(write=False)
+    return arm, ee
+
+
+def arm_constants(n: int) -> list[tuple[str, str, tuple[int, ...]]]:
+    """The robot interface's out-consts NDOF, ARM and EE as `variables()` specs, for `n` joints."""
+    from pbo_runtime import Arm
+
+    return [("NDOF", "int32", ()), ("ARM", "float64", (n, Arm.WIDTH)), ("EE", "float64", (Arm.EE_WIDTH,))]

@@ -151,6 +151,8 @@ class SectionChecks(CheckerBase):
         model_loc = plant.value_loc("model") if "model" in plant else plant.loc
         robot_options = sorted(set(spec.options) & set(ROBOT_OPTIONS))
         if not is_robot_file(spec.model) and spec.model not in registry.names(registry.ROBOTS):
+            if not self._plant_describes_robots(spec.type):
+                return  # a plant of another kind: its model is its own, checked when it starts
             self.error("E216", f"plant model {spec.model!r} is neither a registered robot nor a robot file", model_loc,
                        did_you_mean(spec.model, registry.names(registry.ROBOTS), "registered")
                        + "; or give a URDF (.urdf) or MJCF (.xml) file, relative to this file")
@@ -177,6 +179,15 @@ class SectionChecks(CheckerBase):
                                     f"end effector {robot.ee_name}"]
             self.out.robot_notes += [f"robot {name}: {note}" for note in robot.notes]
         self._check_robot_ndof(plant)
+
+    @staticmethod
+    def _plant_describes_robots(kind: str) -> bool:
+        """Whether plants of type `kind` simulate robots (`describe_robot`); False for a type that is
+        not registered (the plant host refuses it when the run starts)."""
+        try:
+            return hasattr(registry.plant_class(kind), "describe_robot")
+        except ModuleError:
+            return False
 
     def _check_robot_ndof(self, plant: YMap) -> None:
         """NDOF in `dims:` must be the robot's joint count: say both places."""

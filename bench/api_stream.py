@@ -27,7 +27,7 @@ import numpy as np
 from bench._common import REPO, Section, Table, Target, fmt_ratio, ratio, us
 
 SUBSYSTEM = "bench_api"
-VARIABLES = ("NDOF", "DH", "DYN", "q_m", "qd_m", "q_d", "q_r", "qd_r", "tau_u", "load")
+VARIABLES = ("NDOF", "ARM", "EE", "q_m", "qd_m", "q_d", "q_r", "qd_r", "tau_u", "load")
 RATE = 100.0  # Hz: the API's limit for a variable stream
 LIMIT = 1.05  # at most 5% more jitter or overruns with the client than without
 TENTH = '  load:  {type: float64, shape: [NDOF], doc: "read by the API client only (the tenth variable)"}\n'

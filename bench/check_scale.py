@@ -35,8 +35,8 @@ def generate(n_tasks: int) -> str:
         "dims: {NDOF: 6}",
         "variables:",
         "  NDOF: {type: int32, initial: 6}",
-        "  DH: {type: float64, shape: [NDOF, 4], initial: 0.0}",
-        "  DYN: {type: float64, shape: [NDOF, 11], initial: 0.0}",
+        "  ARM: {type: float64, shape: [NDOF, 29], initial: 0.0}",
+        "  EE: {type: float64, shape: [8], initial: 0.0}",
     ]
     loops = n_tasks // 3
     for i in range(loops):

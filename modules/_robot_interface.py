@@ -1,7 +1,7 @@
 """What every robot interface module shares (TR §4.3): the arm's constants and measured state.
 
 A robot interface is the only module that talks to the arm. It opens the arm's driver in
-`init`, checks the joint count against the configuration, publishes NDOF, DH and DYN as
+`init`, checks the joint count against the configuration, publishes NDOF, ARM and EE as
 out-consts (so the rest of the task set configures itself for this robot), and engages the
 brakes on `off` and `kill`. Subclasses add the command port and how the arm is commanded.
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pbo_runtime import ModuleError, OutConst, OutVar, PortBasedObject, Status
+from pbo_runtime import Arm, ModuleError, OutConst, OutVar, PortBasedObject, Status
 
 PLANT_STALL_PERIODS = 3  # cycles (or plant steps, if slower) without a new step before the plant counts as stalled
 
@@ -24,8 +24,8 @@ class RobotInterface(PortBasedObject):
     """Base of robot_torque and robot_position: consts, measured state, brakes."""
 
     ndof = OutConst("NDOF", dtype="int32", doc="number of joints")
-    dh = OutConst("DH", shape=("NDOF", 4), doc="DH rows (theta offset, d, a, alpha), m and rad")
-    dyn = OutConst("DYN", shape=("NDOF", 11), doc="mass, COM, inertia about COM, armature per link (SI)")
+    arm_table = OutConst("ARM", shape=("NDOF", Arm.WIDTH), doc="the arm's joint table: a row per joint (pbo_runtime.ARM_COLUMNS, SI)")
+    end_effector = OutConst("EE", shape=(Arm.EE_WIDTH,), doc="where the end effector is (pbo_runtime.EE_COLUMNS, m)")
     q_m = OutVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
     qd_m = OutVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s")
 
@@ -42,8 +42,8 @@ class RobotInterface(PortBasedObject):
                 f"the arm on device '{device}' has {self._arm.ndof} joints, but the configuration says NDOF = {self.q_m.shape[0]}"
             )
         self.ndof = self._arm.ndof
-        self.dh = self._arm.dh()
-        self.dyn = self._arm.dynamics()
+        self.arm_table = self._arm.arm()
+        self.end_effector = self._arm.end_effector()
         self._read = self._arm.read_state
         self._holding = False
         self._plant_stall_after = PLANT_STALL_PERIODS * max(self.period, getattr(self._arm, "timestep", 0.0))

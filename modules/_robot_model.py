@@ -1,12 +1,9 @@
-"""The controllers' rigid-body model of the arm, built with Pinocchio from the plant's DH and DYN.
+"""What the model-based modules compute with the arm's Pinocchio model (built by `pbo_runtime.arm_model`).
 
-Control modules read the `DH` and `DYN` constants (from the arm driver, through state variables)
-and build their model here, so they compute with the same arm the plant simulates without
-importing `drivers`. Conventions (as `drivers.robots.description`): standard DH rows
-(theta_offset, d, a, alpha), T_i = Rz(q_i+theta_offset) Tz(d) Tx(a) Rx(alpha); DYN rows
-(mass, cx, cy, cz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz, armature) with COM and inertia about the COM in
-DH link frame i. Joint i's frame is DH frame i-1 turned by Rz(q_i+theta_offset_i), so Pinocchio's
-q equals the DH joint vector.
+Control modules read the `ARM` and `EE` constants (from the arm driver, through state variables)
+and build their model with `pbo_runtime.arm_model`, so they compute with the same arm the plant
+simulates without importing `drivers`. Its q is the plant's joint vector; its frames are
+`joint<i>`, `link<i>` and the end effector `ee`.
 """
 
 from __future__ import annotations
@@ -14,78 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio
 
-#: Name of the operational frame at the last DH frame (frame n).
+#: Name of the operational frame at the end effector.
 END_EFFECTOR_FRAME = "ee"
-
-
-def _link_transform(dh_row: np.ndarray) -> np.ndarray:
-    """Tz(d) Tx(a) Rx(alpha): DH frame i seen from the joint-i frame."""
-    _, d, a, alpha = dh_row
-    ca, sa = np.cos(alpha), np.sin(alpha)
-    return np.array([[1.0, 0.0, 0.0, a], [0.0, ca, -sa, 0.0], [0.0, sa, ca, d], [0.0, 0.0, 0.0, 1.0]])
-
-
-def _rot_z(angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, -s, 0.0, 0.0], [s, c, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
-
-
-def _se3(transform: np.ndarray) -> pinocchio.SE3:
-    return pinocchio.SE3(transform[:3, :3].copy(), transform[:3, 3].copy())
-
-
-def _check_shapes(dh: np.ndarray, dyn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    dh = np.asarray(dh, dtype=np.float64)
-    dyn = np.asarray(dyn, dtype=np.float64)
-    if dh.ndim != 2 or dh.shape[1] != 4:
-        raise ValueError(f"dh must have shape (n, 4), got: {dh.shape}")
-    if dyn.shape != (dh.shape[0], 11):
-        raise ValueError(f"dyn must have shape ({dh.shape[0]}, 11) to match dh, got: {dyn.shape}")
-    return dh, dyn
-
-
-def pinocchio_model(dh: np.ndarray, dyn: np.ndarray) -> pinocchio.Model:
-    """A chain of revolute-Z joints `joint<i>`, armature in `model.armature`, gravity -9.81 z.
-
-    Made at `init`, never in `cycle`: building the model allocates.
-    """
-    dh, dyn = _check_shapes(dh, dyn)
-    model = pinocchio.Model()
-    model.name = "dh_arm"
-    parent = 0
-    parent_link = np.eye(4)  # the base frame is DH frame 0
-    for i, (dh_row, dyn_row) in enumerate(zip(dh, dyn), start=1):
-        placement = parent_link @ _rot_z(dh_row[0])
-        joint = model.addJoint(parent, pinocchio.JointModelRZ(), _se3(placement), f"joint{i}")
-        link = _link_transform(dh_row)
-        rotation, offset = link[:3, :3], link[:3, 3]
-        mass, cx, cy, cz, ixx, iyy, izz, ixy, ixz, iyz, _ = dyn_row
-        inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-        model.appendBodyToJoint(
-            joint,
-            pinocchio.Inertia(mass, rotation @ np.array([cx, cy, cz]) + offset, rotation @ inertia @ rotation.T),
-            pinocchio.SE3.Identity(),
-        )
-        model.addBodyFrame(f"link{i}", joint, pinocchio.SE3.Identity(), int(model.nframes - 1))
-        parent, parent_link = joint, link
-    model.addFrame(
-        pinocchio.Frame(END_EFFECTOR_FRAME, parent, _se3(parent_link), pinocchio.FrameType.OP_FRAME)
-    )
-    model.armature[:] = dyn[:, 10]
-    model.gravity = pinocchio.Motion(np.array([0.0, 0.0, -9.81]), np.zeros(3))
-    return model
-
-
-def forward_kinematics_dh(dh: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """The 4x4 pose of DH frame n in the base frame: the plain product of the DH transforms."""
-    dh = np.asarray(dh, dtype=np.float64)
-    q = np.asarray(q, dtype=np.float64)
-    if q.shape != (dh.shape[0],):
-        raise ValueError(f"q must have shape ({dh.shape[0]},) to match dh, got: {q.shape}")
-    pose = np.eye(4)
-    for dh_row, qi in zip(dh, q):
-        pose = pose @ _rot_z(qi + dh_row[0]) @ _link_transform(dh_row)
-    return pose
 
 
 # --- helpers for the Cartesian modules (fk_jacobian, resolved_rate, damped_least_squares) -------

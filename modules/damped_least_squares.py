@@ -18,7 +18,7 @@ exceeds max_joint_speed. For an arm with fewer than 6 joints J J^T is singular, 
 full damping always applies.
 
 Poses are (6,): position m, then a rotation vector rad (axis * angle). The module computes the
-kinematics itself from the model built once in `init` from the out-consts DH and DYN. Real-time
+kinematics itself from the model built once in `init` from the out-consts ARM and EE. Real-time
 notes: the cycle allocates no arrays of its own, but `numpy.linalg.det` and `numpy.linalg.solve`
 (6 x 6) and the Pinocchio calls allocate inside the library.
 """

@@ -1,14 +1,14 @@
 """Forward kinematics and Jacobian (TR Figure 7; used in Figures 10, 12 and 13).
 
 From the measured joint position q_m it publishes the measured Cartesian pose x_m of an
-operational frame (by default "ee", the last DH frame) and that frame's Jacobian J:
+operational frame (by default "ee", the end effector) and that frame's Jacobian J:
 
     x_m = (p, log3(R))   position in the base frame, then orientation as a rotation vector
     J   = (6, NDOF)      LOCAL_WORLD_ALIGNED: linear-velocity rows first, then angular-velocity
                          rows, both in the base frame, so xd = J qd for the position part and
                          omega = J[3:] qd for the angular velocity
 
-The model is built once in `init` from the robot interface's out-consts DH and DYN (TR §4.3:
+The model is built once in `init` from the robot interface's out-consts ARM and EE (TR §4.3:
 the module configures itself for whatever arm is attached). Real-time notes: the cycle allocates
 no arrays of its own, but the Pinocchio calls (`computeJointJacobians`, `updateFramePlacement`,
 `log3`, `getFrameJacobian`) return small objects the binding allocates.

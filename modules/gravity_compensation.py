@@ -3,7 +3,7 @@
     tau_g = scale * g(q_m)
 
 g is Pinocchio's `computeGeneralizedGravity` on the model built once in `init` from the robot
-interface's out-consts DH and DYN (TR §4.3), so the module serves whatever arm is attached. A
+interface's out-consts ARM and EE (TR §4.3), so the module serves whatever arm is attached. A
 building block for the torque-mode configurations of the TR (Figures 8 and 14): add tau_g to a
 PD controller's torque with a join, or use it on its own to let an operator move the arm by hand.
 `scale` < 1 compensates only part of the weight (e.g. for an uncertain payload).

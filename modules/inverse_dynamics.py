@@ -3,7 +3,7 @@
     tau_u = M(q_m) qdd_r + C(q_m, qd_m) qd_m + g(q_m)
 
 computed with Pinocchio's recursive Newton-Euler algorithm (`rnea`) on the model built once in
-`init` from the robot interface's out-consts DH and DYN. The rotor inertia (DYN column 10,
+`init` from the robot interface's out-consts ARM and EE. The rotor inertia (ARM column `armature`,
 `model.armature`) is part of M: Pinocchio 4 `rnea` adds armature * qdd itself; with a Pinocchio
 whose `rnea` ignores it (probed once at init) the module adds it. Feed qdd_r from a PD law on
 the joint error plus the trajectory's acceleration and the arm's error dynamics become linear

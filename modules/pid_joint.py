@@ -2,7 +2,7 @@
 
 tau_u = kp (q_r - q_m) + kd (qd_r - qd_m) + ki ∫(q_r - q_m) dt + g(q_m)
 
-The gravity term comes from Pinocchio, built in `init` from the robot's in-consts DH and DYN,
+The gravity term comes from Pinocchio, built in `init` from the robot's in-consts ARM and EE,
 so the same module drives whatever arm the robot interface reports. On `on` the integral is
 set so that the first output equals the torque already in the table (bumpless transfer when
 this controller takes over from another).
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import InConst, InVar, OutVar, PortBasedObject, Status
+from pbo_runtime import Arm, InConst, InVar, OutVar, PortBasedObject, Status, arm_model
 
 Gain = float | tuple[float, ...]
 
@@ -45,8 +45,8 @@ class PidJoint(PortBasedObject):
     TUNABLE = ("kp", "kd", "ki")  # pbo set pid kp 300: the gains change between two cycles
 
     ndof = InConst("NDOF", dtype="int32")
-    dh = InConst("DH", shape=("NDOF", 4))
-    dyn = InConst("DYN", shape=("NDOF", 11))
+    arm_table = InConst("ARM", shape=("NDOF", Arm.WIDTH), doc="the arm's joint table (pbo_runtime.ARM_COLUMNS)")
+    end_effector = InConst("EE", shape=(Arm.EE_WIDTH,), doc="where the end effector is (pbo_runtime.EE_COLUMNS)")
     q_r = InVar("q_r", shape=("NDOF",), doc="reference joint position, rad")
     qd_r = InVar("qd_r", shape=("NDOF",), doc="reference joint velocity, rad/s")
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
@@ -67,9 +67,7 @@ class PidJoint(PortBasedObject):
         if params.gravity_feedforward:
             import pinocchio
 
-            from modules._robot_model import pinocchio_model
-
-            model = pinocchio_model(np.asarray(self.dh), np.asarray(self.dyn))
+            model = arm_model(self.arm_table, self.end_effector)
             data = model.createData()
             self._gravity = lambda q: pinocchio.computeGeneralizedGravity(model, data, q)
 

@@ -13,7 +13,7 @@ least squares module (Figure 13) is the reconfigurable alternative that stays bo
 
 Poses are (6,): position m, then a rotation vector rad (axis * angle), as fk_jacobian publishes.
 The module computes the kinematics itself from the model built once in `init` from the robot
-interface's out-consts DH and DYN. Real-time notes: the cycle allocates no arrays of its own,
+interface's out-consts ARM and EE. Real-time notes: the cycle allocates no arrays of its own,
 but `numpy.linalg.pinv` (an SVD) and the Pinocchio calls allocate inside the library.
 """
 

@@ -1,7 +1,7 @@
 """Position-mode robot interface (TR Figures 12 and 13): the arm as a position-controlled robot.
 
 Like `robot_torque` it is the only module that talks to the arm and publishes the robot's
-constants NDOF, DH and DYN as out-consts and the measured joint state every cycle; but its input
+constants NDOF, ARM and EE as out-consts and the measured joint state every cycle; but its input
 is a joint position reference `q_r`, which the arm's own joint servo tracks (the simulated
 arm's driver opened with `mode: position`). This is the interface the TR's visual servoing
 configuration drives: the controllers above it compute where the joints should be, not torques.

@@ -1,6 +1,6 @@
 """Torque-mode robot interface (TR Figure 8): the only module that talks to the arm.
 
-It publishes the robot's constants NDOF, DH and DYN as out-consts (TR §4.3: swap this module
+It publishes the robot's constants NDOF, ARM and EE as out-consts (TR §4.3: swap this module
 and the rest of the task set reconfigures itself for another robot), the measured joint
 state every cycle, and sends the control signal `tau_u` to the arm's driver.
 """

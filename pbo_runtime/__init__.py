@@ -21,16 +21,21 @@ from pbo_runtime.errors import (
 )
 from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
 from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
+from pbo_runtime.objects.arm import ARM_COLUMNS, EE_COLUMNS, GRAVITY, Arm, arm_model
 from pbo_runtime.objects.driver import DeviceDriver
 from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
 from pbo_runtime.objects.ports import ANY_DTYPE, InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
-from pbo_runtime.objects.registry import installed_version, module_class
+from pbo_runtime.objects.registry import installed_version, module_class, registered_robot
 from pbo_runtime.reports.data_log import open_log, read_log
 
 __version__ = installed_version()
 
 __all__ = [
     "ANY_DTYPE",
+    "ARM_COLUMNS",
+    "Arm",
+    "EE_COLUMNS",
+    "GRAVITY",
     "MAX_PRIORITY",
     "ConfigError",
     "ConfigErrors",
@@ -55,11 +60,13 @@ __all__ = [
     "ResourceLimitError",
     "Status",
     "TableLayoutError",
+    "arm_model",
     "attach_segment",
     "create_segment",
     "format_channels",
     "module_class",
     "open_log",
     "read_log",
+    "registered_robot",
     "unlink_quietly",
 ]

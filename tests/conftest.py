@@ -12,6 +12,7 @@ import os
 import sys
 from pathlib import Path
 
+import mujoco  # noqa: F401  (imported before any test: its first import probes the GL library in a child process)
 import pytest
 
 from pbo_runtime.config.model import VariableSpec

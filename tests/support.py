@@ -6,6 +6,7 @@ test file imports from elsewhere in tests/ comes from here, never from another t
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import subprocess
@@ -519,3 +520,81 @@ def user_level_copy(folder: Path, subsystem: str, reach_seconds: float = 6.0, ho
     path = folder / f"{subsystem}.yaml"
     path.write_text(text)
     return path
+
+
+# --- DH oracles: an independent reading of a DH robot, to hold the plant's ARM table to -----------
+
+
+def dh_pinocchio_model(dh: np.ndarray, dyn: np.ndarray):  # type: ignore[no-untyped-def]
+    """A DH robot's Pinocchio model built straight from its DH and DYN rows (standard DH,
+    T_i = Rz(q_i + theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i); COM and inertia in DH frame i), frames
+    `joint<i>`, `link<i>` and `ee` (DH frame n). The runtime never builds it this way: it is the
+    tests' second opinion on the model `pbo_runtime.arm_model` makes from the plant's ARM table."""
+    import pinocchio
+
+    from drivers.robots.description import dh_link_transform, inertia_matrix, rot_z
+
+    def se3(transform: np.ndarray):  # type: ignore[no-untyped-def]
+        return pinocchio.SE3(transform[:3, :3].copy(), transform[:3, 3].copy())
+
+    model = pinocchio.Model()
+    parent, parent_link = 0, np.eye(4)
+    for i, (dh_row, dyn_row) in enumerate(zip(np.asarray(dh, float), np.asarray(dyn, float)), start=1):
+        joint = model.addJoint(parent, pinocchio.JointModelRZ(), se3(parent_link @ rot_z(dh_row[0])), f"joint{i}")
+        link = dh_link_transform(dh_row)
+        rotation, offset = link[:3, :3], link[:3, 3]
+        model.appendBodyToJoint(joint, pinocchio.Inertia(dyn_row[0], rotation @ dyn_row[1:4] + offset,
+                                                         rotation @ inertia_matrix(dyn_row) @ rotation.T),
+                                pinocchio.SE3.Identity())
+        model.addBodyFrame(f"link{i}", joint, pinocchio.SE3.Identity(), int(model.nframes - 1))
+        parent, parent_link = joint, link
+    model.addFrame(pinocchio.Frame("ee", parent, se3(parent_link), pinocchio.FrameType.OP_FRAME))
+    model.armature[:] = np.asarray(dyn, float)[:, 10]
+    model.gravity = pinocchio.Motion(np.array([0.0, 0.0, -9.81]), np.zeros(3))
+    return model
+
+
+def dh_forward_kinematics(dh: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The 4x4 pose of DH frame n in the base frame: the plain product of the DH transforms."""
+    from drivers.robots.description import dh_link_transform, rot_z
+
+    pose = np.eye(4)
+    for dh_row, qi in zip(np.asarray(dh, float), np.asarray(q, float)):
+        pose = pose @ rot_z(qi + dh_row[0]) @ dh_link_transform(dh_row)
+    return pose
+
+
+#: Arms of the example-robot-data package (a test dependency: robot files no one here wrote),
+#: by name: their URDF inside the package, for `package://example-robot-data/...`.
+EXAMPLE_ROBOTS = {
+    "ur5": "robots/ur_description/urdf/ur5_robot.urdf",
+    "panda": "robots/panda_description/urdf/panda.urdf",
+    "z1": "robots/z1_description/urdf/z1.urdf",
+    "xarm7": "robots/xarm_description/urdf/xarm7.urdf",
+    "so100": "robots/so_arm_description/urdf/so100.urdf",
+}
+
+
+def example_robot(name: str) -> str:
+    """The `package://` URI of an example-robot-data arm."""
+    return f"package://example-robot-data/{EXAMPLE_ROBOTS[name]}"
+
+
+@functools.lru_cache(maxsize=None)
+def arm_tables(model: str) -> tuple[np.ndarray, np.ndarray]:
+    """The ARM and EE constants the plant publishes for a registered robot (as its robot interface
+    writes them to the table), read-only: for tests that write the robot's constants themselves."""
+    from drivers.robots.plant_model import load_robot
+
+    loaded = load_robot(model, REPO, 0.001, {})
+    arm, ee = loaded.arm.copy(), loaded.ee.copy()
+    arm.setflags(write=False)
+    ee.setflags(write=False)
+    return arm, ee
+
+
+def arm_constants(n: int) -> list[tuple[str, str, tuple[int, ...]]]:
+    """The robot interface's out-consts NDOF, ARM and EE as `variables()` specs, for `n` joints."""
+    from pbo_runtime import Arm
+
+    return [("NDOF", "int32", ()), ("ARM", "float64", (n, Arm.WIDTH)), ("EE", "float64", (Arm.EE_WIDTH,))]

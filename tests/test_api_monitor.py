@@ -1,5 +1,6 @@
 """The monitor's logic and routes, in-process: the bus load measured from a live run's task rates
-(config.bus.measured_live), the arm's joint frames by forward kinematics (reports.arm), what the
+(config.bus.measured_live), the arm's joint frames by forward kinematics of the ARM and EE tables
+(reports.arm, held to the DH product of the tests' own oracle), what the
 monitor reads of a file (reports.monitor), and the routes over them (api.monitor) with FastAPI's
 TestClient. The run behind the app is a unit test's link (`StatusLink`): a fixed status reply and a
 real table made with StateTable.create; no process is started.
@@ -17,7 +18,7 @@ import pytest
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
-from modules._robot_model import forward_kinematics_dh
+from pbo_runtime import Arm
 from pbo_runtime.api.app import create_app
 from pbo_runtime.api.link import NoRun
 from pbo_runtime.config import bus
@@ -25,11 +26,11 @@ from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.ipc import messages
 from pbo_runtime.objects import registry
-from pbo_runtime.reports.arm import ArmFrames, arm_of
+from pbo_runtime.reports.arm import ArmFrames
 from pbo_runtime.reports.monitor import monitor_layout
 from pbo_runtime.table.svar import TableView, attach
 from pbo_runtime.table.table import StateTable, TableLayout
-from tests.support import DEMO, REPO
+from tests.support import DEMO, REPO, arm_tables, dh_forward_kinematics
 
 TOKEN = "the-token-of-this-test"
 BEARER = {"Authorization": f"Bearer {TOKEN}"}
@@ -98,24 +99,30 @@ def test_a_configuration_the_file_lacks_is_refused_by_name(demo):
 @pytest.mark.parametrize("robot", ["puma560", "redundant7"])
 def test_the_arms_tool_frame_is_the_product_of_its_dh_transforms(robot):
     description = registry.load(registry.ROBOTS, robot)()
-    frames = ArmFrames(description.dh, robot)
+    frames = ArmFrames(*arm_tables(robot), robot)  # the ARM and EE its plant publishes
     for q in [description.q0, np.zeros(description.ndof), np.random.default_rng(7).uniform(-2, 2, description.ndof)]:
         positions = frames.positions(q)
         assert positions.shape == (description.ndof + 1, 3)
-        np.testing.assert_allclose(positions[-1], forward_kinematics_dh(description.dh, q)[:3, 3], atol=1e-12)
+        np.testing.assert_allclose(positions[-1], dh_forward_kinematics(description.dh, q)[:3, 3], atol=1e-12)
         for i in range(description.ndof):  # joint i+1's frame is DH frame i: the product of the first i transforms
-            np.testing.assert_allclose(positions[i], forward_kinematics_dh(description.dh[:i], q[:i])[:3, 3]
+            np.testing.assert_allclose(positions[i], dh_forward_kinematics(description.dh[:i], q[:i])[:3, 3]
                                        if i else np.zeros(3), atol=1e-12)
 
 
 def test_a_joint_vector_of_the_wrong_size_is_refused_with_the_arms_joints():
-    frames = ArmFrames(registry.load(registry.ROBOTS, "puma560")().dh, "puma560")
+    frames = ArmFrames(*arm_tables("puma560"), "puma560")
     with pytest.raises(ValueError, match="arm 'puma560' has 6 joints, got 3 joint positions"):
         frames.positions([0.0, 0.0, 0.0])
 
 
-def test_the_arm_of_a_subsystem_is_its_plants_robot(demo):
-    assert arm_of(demo).name == "puma560" and arm_of(demo).ndof == 6
+@pytest.mark.parametrize(("arm", "ee", "message"), [
+    (np.zeros((6, 4)), arm_tables("puma560")[1], r"ARM must have shape \(NDOF, 29\), got: \(6, 4\)"),
+    (arm_tables("puma560")[0], np.zeros(7), r"EE must have shape \(8,\), got: \(7,\)"),
+    (np.full((6, 29), np.nan), arm_tables("puma560")[1], "ARM and EE must be finite"),
+])
+def test_constants_that_are_not_an_arm_are_refused_with_the_arms_name(arm, ee, message):
+    with pytest.raises(ValueError, match=rf"^arm 'puma560': {message}"):
+        ArmFrames(arm, ee, "puma560")
 
 
 # --- what the monitor reads of a file ------------------------------------------------------------
@@ -125,7 +132,8 @@ def test_the_layout_offers_the_tunable_parameters_with_the_files_values(demo):
     layout = monitor_layout(demo)
     assert layout["tasks"]["pid"]["tunable"] == {"kp": 400, "kd": 40, "ki": 10}
     assert layout["tasks"]["robot"]["tunable"] == {} and layout["tasks"]["logger"]["module"] == "data_logger"
-    assert layout["variables"]["q_m"]["shape"] == [6] and layout["variables"]["DH"]["shape"] == [6, 4]
+    assert layout["variables"]["q_m"]["shape"] == [6] and layout["variables"]["ARM"]["shape"] == [6, 29]
+    assert layout["variables"]["EE"]["shape"] == [8]
     assert layout["configurations"] == {"joint_pid": ["robot", "traj", "pid", "logger"]}
     assert layout["plant"] == "puma560"
 
@@ -155,12 +163,21 @@ class StatusLink:
 
 
 @pytest.fixture
-def table(demo) -> Iterator[StateTable]:
-    """A real table of the demo's layout, named like a run of this (live) process."""
+def blank_table(demo) -> Iterator[StateTable]:
+    """A real table of the demo's layout, named like a run of this (live) process, as it is before any task started."""
     made = StateTable.create(TableLayout.of(demo), messages.table_name(f"mon{uuid.uuid4().hex[:6]}",
                                                                        f"{os.getpid()}-{uuid.uuid4().hex[:6]}"))
     yield made
     made.close()
+
+
+@pytest.fixture
+def table(blank_table) -> StateTable:
+    """That table once the robot interface has published the arm's constants ARM and EE (the plant's PUMA 560)."""
+    arm, ee = arm_tables("puma560")
+    blank_table.write("ARM", arm, when=0.0)
+    blank_table.write("EE", ee, when=0.0)
+    return blank_table
 
 
 def test_the_layout_route_answers_for_the_file_pbo_hmi_was_given():
@@ -196,8 +213,37 @@ def test_the_arm_stream_sends_the_joint_frames_of_q_m_in_the_table(table, demo):
         head = stream.receive_json()
         assert (head["ok"], head["arm"], head["ndof"], head["joints"]) == (True, "puma560", 6, "q_m")
         message = stream.receive_json()
-    np.testing.assert_allclose(message["frames"], arm_of(demo).positions(q), atol=1e-12)
+    np.testing.assert_allclose(message["frames"], ArmFrames(*arm_tables("puma560")).positions(q), atol=1e-12)
+    description = registry.load(registry.ROBOTS, "puma560")()
+    np.testing.assert_allclose(message["frames"][-1], dh_forward_kinematics(description.dh, q)[:3, 3], atol=1e-12)
     assert message["q"] == q.tolist()
+
+
+def test_the_arm_stream_draws_the_arm_in_the_table_not_the_one_the_file_names(table):
+    """Whatever robot the file's plant names, the drawing is of the ARM and EE the run published."""
+    scaled = arm_tables("puma560")[0].copy()
+    scaled[:, Arm.POSITION] *= 2.0  # every joint twice as far from its parent: only the table says so
+    table.write("ARM", scaled, when=1.0)
+    q = np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2])
+    table.write("q_m", q, when=1.0)
+    client = TestClient(create_app(StatusLink(running({}), table.name), TOKEN, str(DEMO)))
+    with client.websocket_connect("/api/streams/arm?rate=50", headers=BEARER) as stream:
+        stream.receive_json()
+        message = stream.receive_json()
+    drawn = np.array(message["frames"])
+    np.testing.assert_allclose(drawn, ArmFrames(scaled, arm_tables("puma560")[1]).positions(q), atol=1e-12)
+    assert not np.allclose(drawn, ArmFrames(*arm_tables("puma560")).positions(q), atol=1e-3)
+
+
+def test_the_arm_stream_refuses_before_the_robot_interface_published_the_arm(blank_table):
+    client = TestClient(create_app(StatusLink(running({}), blank_table.name), TOKEN, str(DEMO)))
+    with client.websocket_connect("/api/streams/arm", headers=BEARER) as stream:
+        first = stream.receive_json()
+        assert first["ok"] is False
+        assert first["error"].startswith("no arm to draw: the robot interface of 'puma' has not published ARM yet")
+        with pytest.raises(WebSocketDisconnect) as closed:
+            stream.receive_json()
+    assert closed.value.code == 1008
 
 
 @pytest.mark.parametrize(("query", "refusal"), [

@@ -468,6 +468,15 @@ def test_the_legal_file_has_no_error_and_no_warning(tmp_path: Path) -> None:
     assert result.subsystem is not None
 
 
+@pytest.mark.parametrize(("plant", "codes"), [
+    ("{type: not_a_robot_plant, model: none}", []),  # not a robot plant: its model is its own business
+    ("{model: none}", ["E216"]),  # the default plant (mujoco_arm) simulates robots
+])
+def test_only_a_plant_that_simulates_robots_needs_a_robot_for_its_model(tmp_path: Path, plant: str, codes: list[str]) -> None:
+    result = check(tmp_path, changed("dims: {NDOF: 6}", f"plant: {plant}\ndims: {{NDOF: 6}}"))
+    assert [e.code for e in result.errors] == codes, result.errors
+
+
 # --- keys and types ------------------------------------------------------------------------
 
 

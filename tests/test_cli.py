@@ -112,7 +112,8 @@ def test_lexicon_lists_every_module_with_its_ports_and_params(capsys):
     entries = {e["name"]: e for e in json.loads(capsys.readouterr().out)}
     assert {"robot_torque", "joint_trajectory", "pid_joint", "data_logger", "join"} <= set(entries)
     assert {p["name"]: p["default"] for p in entries["pid_joint"]["params"]}["kp"] == 400.0
-    assert any(p["kind"] == "out-const" and p["variable"] == "DH" for p in entries["robot_torque"]["ports"])
+    out_consts = {p["variable"] for p in entries["robot_torque"]["ports"] if p["kind"] == "out-const"}
+    assert out_consts == {"NDOF", "ARM", "EE"}
 
 
 def test_bus_prints_each_tasks_load_and_the_total_and_draws_the_plot(tmp_path, capsys):

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.robots import robot
 from modules.combined import Combined
 from modules.joint_trajectory import JointTrajectory
 from modules.pid_joint import PidJoint
@@ -14,9 +13,9 @@ from pbo_runtime.config import bus
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task
-from tests.support import REPO, task_spec, variables
+from tests.support import REPO, arm_constants, arm_tables, task_spec, variables
 
-PUMA = robot("puma560")
+PUMA_ARM, PUMA_EE = arm_tables("puma560")  # what its robot interface publishes
 DIMS = {"NDOF": 6}
 MEMBERS = [
     {"module": "joint_trajectory", "params": {"max_velocity": 1.0, "max_acceleration": 4.0}},
@@ -24,7 +23,7 @@ MEMBERS = [
 ]
 
 ARM = variables(
-    ("NDOF", "int32", ()), ("DH", "float64", (6, 4)), ("DYN", "float64", (6, 11)), ("q_m", "float64", (6,)),
+    *arm_constants(6), ("q_m", "float64", (6,)),
     ("qd_m", "float64", (6,)), ("q_d", "float64", (6,)), ("q_r", "float64", (6,)), ("qd_r", "float64", (6,)),
     ("tau_u", "float64", (6,)),
 )
@@ -41,7 +40,7 @@ def test_links_between_members_stay_local_and_shared_inputs_are_read_once():
     ports = {p.name: p.kind.value for p in Combined.ports_for(params)}
     assert "q_r" not in ports and "qd_r" not in ports  # traj -> pid only: local
     assert ports["q_m"] == "in-var" and list(ports).count("q_m") == 1  # both read q_m: one port
-    assert ports["tau_u"] == "out-var" and ports["q_d"] == "in-var" and ports["DH"] == "in-const"
+    assert ports["tau_u"] == "out-var" and ports["q_d"] == "in-var" and ports["ARM"] == ports["EE"] == "in-const"
 
 
 def test_an_exported_link_is_written_to_the_table_and_read_in_place_by_the_members():
@@ -54,8 +53,8 @@ def test_a_combined_task_computes_what_its_members_compute_apart(make_table):
     def arm_table():
         table = make_table(ARM)
         table.write("NDOF", 6, when=0)
-        table.write("DH", PUMA.dh, when=0)
-        table.write("DYN", PUMA.dyn, when=0)
+        table.write("ARM", PUMA_ARM, when=0)
+        table.write("EE", PUMA_EE, when=0)
         table.write("q_m", np.full(6, 0.1), when=0)
         table.write("q_d", np.full(6, 0.5), when=0)
         return table

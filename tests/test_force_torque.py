@@ -24,10 +24,10 @@ from drivers.io.adc import Adc
 from drivers.io.parallel_port import ParallelPort
 from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.mujoco_arm.registers import VOLTS_PER_COUNT, W_BRAKE, DeviceError
-from drivers.robots import robot, to_mjcf
+from drivers.robots.plant_model import load_robot
 from modules.ft_sensor import FtSensor
 from pbo_runtime.task.lifecycle import Task
-from tests.support import NO_WATCHDOG, REPO, allocation_peak, one_array, task_spec, unique_name, variables
+from tests.support import NO_WATCHDOG, REPO, allocation_peak, example_robot, one_array, task_spec, unique_name, variables
 
 WRENCH = [12.0, -7.5, 30.0, 0.8, -0.45, 0.3]
 SHEET = {"calibration": models.CALIBRATION.tolist(), "offset": models.OFFSET.tolist()}
@@ -91,14 +91,19 @@ def vendor_b(plant: MujocoArmPlant, opened: list, options=None) -> AnalogForceTo
 # --- the physics --------------------------------------------------------------------------------
 
 
-def test_the_wrist_carries_a_massless_sensor_body_with_force_and_torque_sensors():
-    model = mujoco.MjModel.from_xml_string(to_mjcf(robot("puma560"), 0.001))
+@pytest.mark.parametrize(("model", "wrist"), [("puma560", "link6"), (example_robot("ur5"), "tool0")])
+def test_the_wrist_carries_a_massless_sensor_body_with_force_and_torque_sensors(model, wrist):
+    """The plant adds the sensor to every robot it loads, a registered one or a robot file."""
+    model = load_robot(model, REPO, 0.001, {}).model
     body = model.body("ft")
-    assert model.body_mass[body.id] == 0.0 and model.body_parentid[body.id] == model.body("link6").id
+    assert model.body_mass[body.id] == 0.0 and model.body_parentid[body.id] == model.body(wrist).id
+    assert model.site("ee").bodyid[0] == model.body(wrist).id  # welded where the end effector is
     assert [model.sensor(i).name for i in range(model.nsensor)] == ["ft_force", "ft_torque"]
     data = mujoco.MjData(model)
+    data.qpos[:] = np.random.default_rng(6).uniform(-1, 1, model.nq)
     mujoco.mj_forward(model, data)
-    np.testing.assert_allclose(data.site_xpos[model.site("ft").id], data.site_xpos[model.site("ee").id], atol=1e-15)
+    np.testing.assert_allclose(data.site_xpos[model.site("ft").id], data.site_xpos[model.site("ee").id], atol=1e-12)
+    np.testing.assert_allclose(data.site_xmat[model.site("ft").id], data.site_xmat[model.site("ee").id], atol=1e-12)
 
 
 def test_the_plant_measures_exactly_the_applied_wrench_while_the_arm_falls(make_plant):

@@ -38,7 +38,7 @@ def test_dot_has_a_cluster_per_rtpu_with_its_tasks(subsystem):
 def test_dot_edges_are_links_labelled_with_their_variables(subsystem):
     edges = _edges(to_dot(subsystem, "joint_pid"))
     assert ("robot", "pid", 'label="q_m"') in edges  # every cycle: solid
-    assert ("robot", "pid", 'label="DH", style=dashed') in edges  # out-const -> in-const
+    assert ("robot", "pid", 'label="ARM", style=dashed') in edges  # out-const -> in-const
     assert ("pid", "robot", 'label="tau_u"') in edges
     job = [e for e in edges if e[0] == JOB_CONTROL]
     assert [(s, t) for s, t, _ in job] == [(JOB_CONTROL, "traj")] and 'label="q_d"' in job[0][2]

@@ -77,7 +77,8 @@ def test_figure_8_dragged_onto_an_empty_canvas_joins_its_pins_by_variable_and_ch
                      "q_m: robot_torque.q_m -> joint_trajectory.q_m", "q_r: joint_trajectory.q_r -> pid_joint.q_r",
                      "qd_r: joint_trajectory.qd_r -> pid_joint.qd_r", "q_r: joint_trajectory.q_r -> data_logger.q_r",
                      "tau_u: pid_joint.tau -> data_logger.tau_u", "NDOF: robot_torque.ndof -> pid_joint.ndof (const)",
-                     "DH: robot_torque.dh -> pid_joint.dh (const)"):
+                     "ARM: robot_torque.arm_table -> pid_joint.arm_table (const)",
+                     "EE: robot_torque.end_effector -> pid_joint.end_effector (const)"):
             assert link in links, (link, sorted(links))
         # q_d is the goal: no task writes it, job control does (its initial value), so its pin is not open
         expect(canvas_of(page).locator("g.task[data-module=joint_trajectory] .pin[data-port=q_d]")).to_have_class("pin")

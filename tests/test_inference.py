@@ -67,10 +67,12 @@ def test_pbo_check_lists_the_inferred_variables_and_dims_in_text_and_json(capsys
     out = capsys.readouterr().out
     assert "dims from the plant's robot 'puma560': NDOF = 6" in out
     assert "inferred from their ports: 9 variable(s)" in out
-    assert any(line.split() == ["DH", "float64", "[6,", "4]"] for line in out.splitlines())
+    assert any(line.split() == ["ARM", "float64", "[6,", "29]"] for line in out.splitlines())
+    assert any(line.split() == ["EE", "float64", "[8]"] for line in out.splitlines())
     assert main(["check", "--format", "json", str(MINIMAL)]) == 0
     document = json.loads(capsys.readouterr().out)
-    assert document["inferred"]["DH"] == {"type": "float64", "shape": [6, 4]}
+    assert document["inferred"]["ARM"] == {"type": "float64", "shape": [6, 29]}
+    assert document["inferred"]["EE"] == {"type": "float64", "shape": [8]}
     assert document["inferred"]["NDOF"] == {"type": "int32", "shape": []}
     assert document["robot_dims"] == {"NDOF": 6}
 
@@ -155,9 +157,17 @@ def test_without_dims_a_port_dim_comes_from_the_plants_robot_and_never_overrides
     result = check(tmp_path, no_dims)
     assert result.errors == [], errors(result)
     assert result.robot_dims == {"NDOF": 7} and result.subsystem is not None and result.subsystem.dims == {"NDOF": 7}
+    given = check(tmp_path, SMALL.replace("dims: {NDOF: 6}", "dims: {NDOF: 7}\nplant: {model: redundant7}"))
+    assert given.errors == [] and given.robot_dims == {} and given.subsystem is not None  # dims said it: nothing taken
+    assert given.subsystem.variables["q_r"].shape == (7,)
+
+
+def test_dims_that_disagree_with_the_plants_robot_are_e318_at_the_dim_never_overridden(tmp_path: Path) -> None:
     given = check(tmp_path, SMALL.replace("dims: {NDOF: 6}", "dims: {NDOF: 6}\nplant: {model: redundant7}"))
-    assert given.errors == [] and given.robot_dims == {} and given.subsystem is not None
-    assert given.subsystem.variables["q_r"].shape == (6,)
+    assert [(code, message.split(" (at ")[0]) for code, _, message in errors(given)] == [
+        ("E318", "dim 'NDOF' is 6 here, but the plant's robot 'redundant7' has 7 joints")]
+    assert given.errors[0].line == 3 and given.robot_dims == {}
+    assert given.errors[0].hint == "remove NDOF from dims: (the robot gives it) or set it to 7"
 
 
 def test_without_dims_and_without_a_plant_an_undefined_port_dim_is_e304_with_a_hint_to_add_one(tmp_path: Path) -> None:

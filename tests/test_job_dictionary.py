@@ -27,8 +27,8 @@ devices:
 dims: {{NDOF: 6}}
 variables:
   NDOF:  {{type: int32}}
-  DH:    {{type: float64, shape: [NDOF, 4]}}
-  DYN:   {{type: float64, shape: [NDOF, 11]}}
+  ARM:   {{type: float64, shape: [NDOF, 29]}}
+  EE:    {{type: float64, shape: [8]}}
   q_m:   {{type: float64, shape: [NDOF]}}
   qd_m:  {{type: float64, shape: [NDOF]}}
   q_d:   {{type: float64, shape: [NDOF], object: joint_position, initial: 0}}

@@ -1,9 +1,9 @@
 """The kinematics and dynamics modules, each driven through a real Task on a real table.
 
 fk_jacobian, inverse_dynamics, gravity_compensation, resolved_rate, damped_least_squares,
-time_integrator and cartesian_trajectory, with the PUMA 560's DH and DYN as the robot
-interface would publish them. References come from Pinocchio's own algorithms and from finite
-differences; the rate controllers are closed with a plain Euler loop standing in for the arm.
+time_integrator and cartesian_trajectory, with the PUMA 560's ARM and EE as the robot
+interface would publish them. References come from Pinocchio's own algorithms on the tests' own
+model of the PUMA (built from its DH rows, not from the ARM table) and from finite differences; the rate controllers are closed with a plain Euler loop standing in for the arm.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import pinocchio
 import pytest
 
 from drivers.robots import robot
-from modules._robot_model import END_EFFECTOR_FRAME, forward_kinematics_dh, pinocchio_model, pose_error
+from modules._robot_model import END_EFFECTOR_FRAME, pose_error
 from modules.cartesian_trajectory import CartesianTrajectory
 from modules.damped_least_squares import DampedLeastSquares
 from modules.fk_jacobian import FkJacobian
@@ -26,9 +26,10 @@ from modules.time_integrator import TimeIntegrator
 from pbo_runtime import ParamError, PortBasedObject, Status
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.support import task_spec, variables
+from tests.support import arm_constants, arm_tables, dh_forward_kinematics, dh_pinocchio_model, task_spec, variables
 
 PUMA = robot("puma560")
+PUMA_ARM, PUMA_EE = arm_tables("puma560")  # what its robot interface publishes
 N = PUMA.ndof
 DIMS = {"NDOF": N}
 DT = 0.001
@@ -40,7 +41,7 @@ Q_NEAR_WRIST_SINGULARITY = np.array([0.0, 0.3, 0.3, 0.0, 0.002, 0.0])  # q5 = 0 
 
 def kinematics_variables():
     return variables(
-        ("NDOF", "int32", ()), ("DH", "float64", (N, 4)), ("DYN", "float64", (N, 11)),
+        *arm_constants(N),
         ("q_m", "float64", (N,)), ("qd_m", "float64", (N,)), ("qdd_r", "float64", (N,)),
         ("q_r", "float64", (N,)), ("qd_r", "float64", (N,)), ("tau_u", "float64", (N,)),
         ("tau_g", "float64", (N,)), ("x_m", "float64", (6,)), ("x_d", "float64", (6,)),
@@ -52,8 +53,8 @@ def kinematics_variables():
 def table(make_table) -> StateTable:
     table = make_table(kinematics_variables())
     table.write("NDOF", N, when=0.0)  # the robot interface's out-consts
-    table.write("DH", PUMA.dh, when=0.0)
-    table.write("DYN", PUMA.dyn, when=0.0)
+    table.write("ARM", PUMA_ARM, when=0.0)
+    table.write("EE", PUMA_EE, when=0.0)
     return table
 
 
@@ -72,7 +73,7 @@ def read(table: StateTable, name: str) -> np.ndarray:
     return table.read(name)[0]
 
 
-MODEL = pinocchio_model(PUMA.dh, PUMA.dyn)
+MODEL = dh_pinocchio_model(PUMA.dh, PUMA.dyn)  # the oracle: the modules build theirs from ARM and EE
 EE = MODEL.getFrameId(END_EFFECTOR_FRAME)
 
 
@@ -115,7 +116,7 @@ def test_fk_x_m_is_pinocchios_frame_placement_and_the_dh_product(table, q):
     np.testing.assert_allclose(x_m[:3], frame.translation, rtol=0, atol=1e-12)
     np.testing.assert_allclose(pinocchio.exp3(x_m[3:]), frame.rotation, rtol=0, atol=1e-12)
     assert np.linalg.norm(x_m[3:]) <= np.pi + 1e-12  # a rotation vector as log3 gives it
-    np.testing.assert_allclose(np.linalg.inv(forward_kinematics_dh(PUMA.dh, q)) @ np.block(
+    np.testing.assert_allclose(np.linalg.inv(dh_forward_kinematics(PUMA.dh, q)) @ np.block(
         [[pinocchio.exp3(x_m[3:]), x_m[:3, None]], [np.zeros((1, 3)), np.ones((1, 1))]]), np.eye(4), rtol=0, atol=1e-12)
 
 

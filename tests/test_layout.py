@@ -36,12 +36,12 @@ WING_RANK = {
 }
 
 PUBLIC_NAMES = [
-    "ANY_DTYPE", "MAX_PRIORITY", "ConfigError", "ConfigErrors", "DeviceDriver", "InBoth", "InConst", "InVar",
+    "ANY_DTYPE", "ARM_COLUMNS", "Arm", "EE_COLUMNS", "GRAVITY", "MAX_PRIORITY", "ConfigError", "ConfigErrors", "DeviceDriver", "InBoth", "InConst", "InVar",
     "InternalError", "LifecycleError", "LinkFullError", "ModuleError", "NoParams", "OutBoth", "OutConst", "OutVar",
     "OutputError", "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec", "ResourceLimitError", "Status",
     "TableLayoutError",
-    "attach_segment", "create_segment", "format_channels", "module_class", "open_log", "read_log",
-    "unlink_quietly",
+    "arm_model", "attach_segment", "create_segment", "format_channels", "module_class", "open_log", "read_log",
+    "registered_robot", "unlink_quietly",
 ]
 
 

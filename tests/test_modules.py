@@ -21,7 +21,6 @@ import pytest
 from drivers.mujoco_arm.driver import MujocoArmDriver
 from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.robots import robot
-from modules._robot_model import pinocchio_model
 from modules.data_logger import DataLogger, read_log
 from modules.fault_injector import FaultInjector
 from modules.joint_trajectory import JointTrajectory
@@ -31,9 +30,10 @@ from pbo_runtime import OutputError, ParamError, Status
 from pbo_runtime.config.model import DeviceSpec, PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.support import NO_WATCHDOG, fill_disk, task_spec, unique_name, variables
+from tests.support import NO_WATCHDOG, arm_constants, arm_tables, dh_pinocchio_model, fill_disk, task_spec, unique_name, variables
 
 PUMA = robot("puma560")
+PUMA_ARM, PUMA_EE = arm_tables("puma560")  # what its robot interface publishes
 N = PUMA.ndof
 DIMS = {"NDOF": N}
 EPS = 1e-12
@@ -41,7 +41,7 @@ EPS = 1e-12
 
 def arm_variables(n: int = N):
     return variables(
-        ("NDOF", "int32", ()), ("DH", "float64", (n, 4)), ("DYN", "float64", (n, 11)),
+        *arm_constants(n),
         ("q_m", "float64", (n,)), ("qd_m", "float64", (n,)), ("q_r", "float64", (n,)),
         ("qd_r", "float64", (n,)), ("q_d", "float64", (n,)), ("tau_u", "float64", (n,)),
     )
@@ -190,8 +190,8 @@ NO_GRAVITY = {"gravity_feedforward": False}
 def pid_task(table: StateTable, params: dict, period: float = PID_DT) -> Task:
     """A PidJoint task for the PUMA's constants, spawned at t = 0 (not yet on)."""
     table.write("NDOF", N, when=0.0)
-    table.write("DH", PUMA.dh, when=0.0)
-    table.write("DYN", PUMA.dyn, when=0.0)
+    table.write("ARM", PUMA_ARM, when=0.0)
+    table.write("EE", PUMA_EE, when=0.0)
     return Task(task_spec(PidJoint, dims=DIMS, params=params, period=period), PidJoint, table, DIMS)
 
 
@@ -278,7 +278,8 @@ def test_pid_refuses_negative_gains_and_limits(params, message):
 
 
 def pinocchio_gravity(q: np.ndarray) -> np.ndarray:
-    model = pinocchio_model(PUMA.dh, PUMA.dyn)
+    """g(q) of the tests' own model of the PUMA, built from its DH rows (not from the ARM table the module reads)."""
+    model = dh_pinocchio_model(PUMA.dh, PUMA.dyn)
     return pinocchio.computeGeneralizedGravity(model, model.createData(), q).copy()
 
 
@@ -373,13 +374,14 @@ def robot_task(table: StateTable, plant: MujocoArmPlant, resources: tuple[str, .
     return Task(spec, RobotTorque, table, dims, devices={"arm": ARM}, opener=opener), opened
 
 
-def test_robot_spawn_publishes_ndof_dh_and_dyn_of_the_arm(table, plant):
+def test_robot_spawn_publishes_ndof_arm_and_ee_of_the_arm(table, plant):
     task, _ = robot_task(table, plant)
     assert task.spawn(0.0), task.last_error
     ndof, _, _, writer = table.read("NDOF")
     assert ndof == N and writer == task.index
-    np.testing.assert_array_equal(table.read("DH")[0], PUMA.dh)
-    np.testing.assert_array_equal(table.read("DYN")[0], PUMA.dyn)
+    np.testing.assert_array_equal(table.read("ARM")[0], PUMA_ARM)
+    np.testing.assert_array_equal(table.read("EE")[0], PUMA_EE)
+    assert table.read("ARM")[3] == table.read("EE")[3] == task.index
     task.kill()
 
 

@@ -16,8 +16,8 @@ from drivers.mujoco_arm.driver import MujocoArmDriver
 from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.mujoco_arm.registers import W_STATE_SEQ, DeviceError
 from drivers.robots import robot
-from modules._robot_model import pinocchio_model
-from tests.support import NO_WATCHDOG, unique_name
+from pbo_runtime import Arm, arm_model
+from tests.support import NO_WATCHDOG, arm_tables, dh_pinocchio_model, unique_name
 
 TIMESTEP = 0.001
 NDOF = 6
@@ -71,8 +71,10 @@ def test_driver_reads_what_the_plant_published(plant, driver) -> None:
 def test_driver_reads_the_constants_the_plant_wrote(plant, driver) -> None:
     puma = robot("puma560")
     assert (driver.ndof, driver.timestep) == (NDOF, TIMESTEP)
-    np.testing.assert_array_equal(driver.dh(), puma.dh)
-    np.testing.assert_array_equal(driver.dynamics(), puma.dyn)
+    arm, ee = arm_tables("puma560")
+    np.testing.assert_array_equal(driver.arm(), arm)
+    np.testing.assert_array_equal(driver.end_effector(), ee)
+    np.testing.assert_array_equal(driver.arm()[:, Arm.ARMATURE], puma.dyn[:, 10])
     np.testing.assert_array_equal(driver.joint_limits(), puma.joint_limits)
     np.testing.assert_array_equal(driver.torque_limits(), puma.torque_limits)
 
@@ -119,7 +121,7 @@ def test_engaging_the_brakes_holds_the_arm_where_it_is(plant, driver) -> None:
 @pytest.mark.parametrize("sign", [1.0, -1.0])
 def test_a_torque_command_moves_the_joint_in_the_commanded_direction(plant, driver, joint: int, sign: float) -> None:
     # Like a controller: build the model from the driver's constants, cancel gravity, push one joint.
-    model = pinocchio_model(driver.dh(), driver.dynamics())
+    model = arm_model(driver.arm(), driver.end_effector())
     data = model.createData()
     q, qd = np.zeros(NDOF), np.zeros(NDOF)
     push = np.zeros(NDOF)
@@ -182,7 +184,7 @@ def test_an_unknown_driver_option_is_an_error(plant) -> None:
 
 
 def test_an_unknown_robot_model_names_the_known_ones(name) -> None:
-    with pytest.raises(ValueError, match=r"^unknown robot model 'puma600'; known models: puma560"):
+    with pytest.raises(ValueError, match=r"^no robot model named 'puma600' \(registered: puma560, redundant7\)"):
         MujocoArmPlant(name, "puma600", TIMESTEP, NO_WATCHDOG)
 
 
@@ -225,8 +227,9 @@ def test_the_plant_builds_the_7_dof_arm_and_publishes_its_constants(name) -> Non
     with MujocoArmPlant(name, "redundant7", TIMESTEP, NO_WATCHDOG) as plant:
         driver = MujocoArmDriver(name, {"mode": "position"})
         assert (driver.ndof, plant.ndof) == (7, 7)
-        np.testing.assert_array_equal(driver.dh(), arm.dh)
-        np.testing.assert_array_equal(driver.dynamics(), arm.dyn)
+        np.testing.assert_array_equal(driver.arm(), arm_tables("redundant7")[0])
+        np.testing.assert_array_equal(driver.end_effector(), arm_tables("redundant7")[1])
+        np.testing.assert_array_equal(driver.joint_limits(), arm.joint_limits)
         np.testing.assert_array_equal(driver.torque_limits(), arm.torque_limits)
         np.testing.assert_array_equal(read(driver)[0], arm.q0)
         driver.close()
@@ -259,7 +262,7 @@ def step_joint(plant: MujocoArmPlant, driver: MujocoArmDriver, joint: int | None
     for k in range(len(trace)):
         plant.step()
         trace[k] = plant.data.qpos
-        assert np.all(np.abs(plant.data.qfrc_applied) <= plant.description.torque_limits)
+        assert np.all(np.abs(plant.data.qfrc_applied) <= plant.robot.torque_limits)
     return target, trace
 
 
@@ -294,7 +297,7 @@ def test_a_small_step_is_the_critically_damped_linear_servo(any_plant, positione
 
 
 def test_servo_gains_are_critically_damped_on_the_joint_inertia_at_25_hz(any_plant) -> None:
-    desc = any_plant.description
+    desc = robot(any_plant.robot.name)
     full = np.zeros((desc.ndof, desc.ndof))
     data = type(any_plant.data)(any_plant.model)
     data.qpos[:] = desc.q0
@@ -320,20 +323,22 @@ def test_a_slow_plant_lowers_the_servo_frequency_to_stay_stable(name) -> None:
 
 def test_servo_gravity_is_mujocos_inverse_dynamics_at_rest(any_plant) -> None:
     rng = np.random.default_rng(1)
-    desc = any_plant.description
+    desc = robot(any_plant.robot.name)
+    # both Pinocchio models: the controllers' (from the plant's ARM and EE) and the DH oracle
+    models = [arm_model(any_plant.robot.arm, any_plant.robot.ee), dh_pinocchio_model(desc.dh, desc.dyn)]
     data = type(any_plant.data)(any_plant.model)
     for _ in range(10):
         q = rng.uniform(desc.joint_limits[:, 0] + 0.05, desc.joint_limits[:, 1] - 0.05)
         data.qpos[:] = q
         mujoco.mj_inverse(any_plant.model, data)  # qvel = qacc = 0
         np.testing.assert_allclose(any_plant.gravity_torque(q, np.zeros(desc.ndof)), data.qfrc_inverse, atol=1e-10)
-        model = pinocchio_model(desc.dh, desc.dyn)
-        np.testing.assert_allclose(data.qfrc_inverse, pinocchio.computeGeneralizedGravity(model, model.createData(), q), atol=1e-9)
+        for model in models:
+            np.testing.assert_allclose(data.qfrc_inverse, pinocchio.computeGeneralizedGravity(model, model.createData(), q), atol=1e-9)
 
 
 def test_position_commands_are_clipped_to_the_joint_limits(any_plant, positioner) -> None:
     last = any_plant.ndof - 1
-    upper = any_plant.description.joint_limits[last, 1]
+    upper = any_plant.robot.joint_limits[last, 1]
     q0 = hold_here(any_plant, positioner)
     target = q0.copy()
     target[last] = upper + 1.0

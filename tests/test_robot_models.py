@@ -1,10 +1,15 @@
 """The plant's MuJoCo model and the controllers' Pinocchio model are the same arm.
 
-Both are built from one RobotDescription's DH and DYN arrays by independent code
-(`drivers.robots.mjcf` and `modules._robot_model`); these tests hold them to each other.
+A registered robot is a RobotDescription's DH and DYN arrays. The plant's MuJoCo model is built
+from them (`drivers.robots.mjcf`, then `drivers.robots.plant_model.load_robot`); the controllers'
+Pinocchio model from the ARM and EE tables the plant reads back from its compiled model
+(`pbo_runtime.arm_model`); and the tests' own oracle builds a Pinocchio model straight from the
+DH rows (`tests.support.dh_pinocchio_model`). Three independent roads, held to each other.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -12,10 +17,16 @@ import pinocchio
 import pytest
 
 from drivers.robots import RobotDescription, robot, robot_names, to_mjcf
-from modules._robot_model import END_EFFECTOR_FRAME, forward_kinematics_dh, pinocchio_model
+from drivers.robots.plant_model import PlantRobot, load_robot
+from modules._robot_model import END_EFFECTOR_FRAME
+from pbo_runtime import Arm, arm_model
+from tests.support import dh_forward_kinematics, dh_pinocchio_model
 
 TIMESTEP = 0.001
 ROBOTS = ("puma560", "redundant7")
+#: The two Pinocchio models of a registered arm: the controllers' (from the plant's ARM and EE
+#: tables) and the tests' oracle (straight from the DH rows).
+PINOCCHIO_MODELS = ("arm_table", "dh_oracle")
 
 
 @pytest.fixture(scope="module", params=ROBOTS)
@@ -35,14 +46,28 @@ def arm7() -> RobotDescription:
 
 
 @pytest.fixture(scope="module")
-def mj(desc: RobotDescription) -> tuple[mujoco.MjModel, mujoco.MjData]:
-    model = mujoco.MjModel.from_xml_string(to_mjcf(desc, TIMESTEP))
-    return model, mujoco.MjData(model)
+def loaded(desc: RobotDescription) -> PlantRobot:
+    """The robot as the plant loads it: its compiled MuJoCo model and the ARM and EE read from it."""
+    return load_robot(desc.name, Path("."), TIMESTEP, {})
 
 
 @pytest.fixture(scope="module")
-def pin(desc: RobotDescription) -> tuple[pinocchio.Model, pinocchio.Data]:
-    model = pinocchio_model(desc.dh, desc.dyn)
+def mj(loaded: PlantRobot) -> tuple[mujoco.MjModel, mujoco.MjData]:
+    return loaded.model, mujoco.MjData(loaded.model)
+
+
+def pinocchio_of(kind: str, desc: RobotDescription) -> pinocchio.Model:
+    """The controllers' model of `desc` (from the plant's ARM and EE) or the DH oracle's."""
+    if kind == "dh_oracle":
+        return dh_pinocchio_model(desc.dh, desc.dyn)
+    loaded = load_robot(desc.name, Path("."), TIMESTEP, {})
+    return arm_model(loaded.arm, loaded.ee)
+
+
+@pytest.fixture(scope="module", params=PINOCCHIO_MODELS)
+def pin(request, desc: RobotDescription) -> tuple[pinocchio.Model, pinocchio.Data]:
+    """Each Pinocchio model in turn: every agreement with MuJoCo holds for both."""
+    model = pinocchio_of(request.param, desc)
     return model, model.createData()
 
 
@@ -102,12 +127,13 @@ def test_joint_frames_agree_between_pinocchio_and_mujoco_bodies(desc, mj, pin) -
 
 
 def test_end_effector_is_the_last_dh_frame_in_all_three(desc, mj, pin) -> None:
+    # all three: the DH product itself, the Pinocchio model's frame ee and the plant's site ee
     mj_model, mj_data = mj
     pin_model, pin_data = pin
     frame = pin_model.getFrameId(END_EFFECTOR_FRAME)
     site = mj_model.site("ee").id
     for q, _, _ in random_states(desc):
-        expected = forward_kinematics_dh(desc.dh, q)
+        expected = dh_forward_kinematics(desc.dh, q)
         pinocchio.framesForwardKinematics(pin_model, pin_data, q)
         np.testing.assert_allclose(pin_data.oMf[frame].homogeneous, expected, atol=1e-12)
         mj_data.qpos[:] = q
@@ -118,15 +144,16 @@ def test_end_effector_is_the_last_dh_frame_in_all_three(desc, mj, pin) -> None:
 
 def test_dh_kinematics_reproduce_the_published_puma_reach(puma) -> None:
     # Corke's p560.fkine(qz): (a2 + a3, -d3, d4), tool z pointing up (z1 is -y0, so d3 goes to -y).
-    pose = forward_kinematics_dh(puma.dh, np.zeros(6))
+    pose = dh_forward_kinematics(puma.dh, np.zeros(6))
     np.testing.assert_allclose(pose[:3, 3], [0.4521, -0.15005, 0.4318], atol=1e-12)
     np.testing.assert_allclose(pose[:3, 2], [0.0, 0.0, 1.0], atol=1e-12)
 
 
-def test_gravity_load_matches_corkes_published_value(puma) -> None:
+@pytest.mark.parametrize("kind", PINOCCHIO_MODELS)
+def test_gravity_load_matches_corkes_published_value(puma, kind) -> None:
     # Corke's p560.gravload(qz) = [0 37.4837 0.2489 0 0 0]; our changes to link 1 and to link 3's
     # Izz must not move it.
-    pin_model = pinocchio_model(puma.dh, puma.dyn)
+    pin_model = pinocchio_of(kind, puma)
     pin_data = pin_model.createData()
     gravity = pinocchio.computeGeneralizedGravity(pin_model, pin_data, np.zeros(6))
     np.testing.assert_allclose(gravity, [0, 37.4837, 0.2489, 0, 0, 0], atol=1e-4)
@@ -159,6 +186,34 @@ def test_every_robot_is_registered_and_builds_in_mujoco() -> None:
         desc = robot(name)
         assert desc.name == name
         mujoco.MjModel.from_xml_string(to_mjcf(desc, TIMESTEP))
+        assert load_robot(name, Path("."), TIMESTEP, {}).ndof == desc.ndof
+
+
+def test_the_generated_mjcf_has_no_plant_parts_and_load_robot_adds_them_once() -> None:
+    """to_mjcf is the arm alone; the wrist sensor and the camera's target are the plant's, added by load_robot."""
+    alone = mujoco.MjModel.from_xml_string(to_mjcf(robot("puma560"), TIMESTEP))
+    assert (alone.nsensor, alone.nmocap) == (0, 0)
+    assert all(alone.body(i).name != "ft" for i in range(alone.nbody))
+    plant = load_robot("puma560", Path("."), TIMESTEP, {}, target=True).model
+    assert [plant.sensor(i).name for i in range(plant.nsensor)] == ["ft_force", "ft_torque"]
+    assert plant.nmocap == 1 and plant.body("target").mocapid[0] == 0
+    assert plant.site("ft").bodyid[0] == plant.body("ft").id
+    np.testing.assert_array_equal(plant.body("ft").pos, alone.site("ee").pos)  # welded at the end effector
+    assert (plant.nq, plant.nv) == (alone.nq, alone.nv)  # the target is a mocap body: no joint of its own
+
+
+def test_the_arm_table_carries_the_descriptions_limits_armature_and_damping(desc, loaded) -> None:
+    arm = loaded.arm
+    assert arm.shape == (desc.ndof, Arm.WIDTH) and loaded.ee.shape == (Arm.EE_WIDTH,)
+    np.testing.assert_array_equal(arm[:, Arm.PARENT], np.arange(desc.ndof) - 1)  # a serial chain
+    np.testing.assert_array_equal(arm[:, Arm.TYPE], Arm.HINGE)
+    np.testing.assert_array_equal(arm[:, Arm.LIMITED], 1.0)
+    np.testing.assert_array_equal(arm[:, [Arm.Q_MIN, Arm.Q_MAX]], desc.joint_limits)
+    np.testing.assert_array_equal(arm[:, Arm.EFFORT], desc.torque_limits)
+    np.testing.assert_array_equal(arm[:, Arm.ARMATURE], desc.dyn[:, 10])
+    np.testing.assert_array_equal(arm[:, Arm.DAMPING], desc.damping)
+    np.testing.assert_allclose(arm[:, Arm.MASS], desc.dyn[:, 0], rtol=1e-12)
+    assert loaded.ee[0] == desc.ndof - 1  # the end effector moves with the last joint
 
 
 def test_gravity_never_needs_more_than_the_torque_limits(desc, pin) -> None:
@@ -176,7 +231,7 @@ def test_redundant7_is_a_spherical_shoulder_elbow_spherical_wrist_arm(arm7) -> N
     assert arm7.ndof == 7
     np.testing.assert_array_equal(arm7.dh[:, 2], np.zeros(7))  # no a offsets: the axes intersect
     # stretched straight up at q = 0: shoulder 0.36, elbow 0.78, wrist 1.18, flange 1.306 m
-    pose = forward_kinematics_dh(arm7.dh, np.zeros(7))
+    pose = dh_forward_kinematics(arm7.dh, np.zeros(7))
     np.testing.assert_allclose(pose[:3, 3], [0.0, 0.0, 1.306], atol=1e-12)
     np.testing.assert_allclose(pose[:3, 2], [0.0, 0.0, 1.0], atol=1e-12)
     # wherever the arm is, joints 1-3 meet at the shoulder, 0.36 m up, and joints 5-7 at the
@@ -184,27 +239,28 @@ def test_redundant7_is_a_spherical_shoulder_elbow_spherical_wrist_arm(arm7) -> N
     rng = np.random.default_rng(3)
     for _ in range(10):
         q = rng.uniform(arm7.joint_limits[:, 0], arm7.joint_limits[:, 1])
-        flange = forward_kinematics_dh(arm7.dh, q)
+        flange = dh_forward_kinematics(arm7.dh, q)
         for k in (1, 2):
-            np.testing.assert_allclose(forward_kinematics_dh(arm7.dh[:k], q[:k])[:3, 3], [0, 0, 0.36], atol=1e-12)
+            np.testing.assert_allclose(dh_forward_kinematics(arm7.dh[:k], q[:k])[:3, 3], [0, 0, 0.36], atol=1e-12)
         for k in (5, 6):
-            frame = forward_kinematics_dh(arm7.dh[:k], q[:k])
+            frame = dh_forward_kinematics(arm7.dh[:k], q[:k])
             np.testing.assert_allclose(frame[:3, 3], flange[:3, 3] - 0.126 * flange[:3, 2], atol=1e-12)
 
 
-def ee_jacobian(desc: RobotDescription, q: np.ndarray) -> np.ndarray:
-    model = pinocchio_model(desc.dh, desc.dyn)
+def ee_jacobian(desc: RobotDescription, q: np.ndarray, kind: str) -> np.ndarray:
+    model = pinocchio_of(kind, desc)
     data = model.createData()
     frame = model.getFrameId(END_EFFECTOR_FRAME)
     return pinocchio.computeFrameJacobian(model, data, q, frame, pinocchio.LOCAL_WORLD_ALIGNED)
 
 
-def test_redundant7_home_pose_is_away_from_singularities_with_one_self_motion(arm7) -> None:
-    singular_values = np.linalg.svd(ee_jacobian(arm7, arm7.q0), compute_uv=False)
+@pytest.mark.parametrize("kind", PINOCCHIO_MODELS)
+def test_redundant7_home_pose_is_away_from_singularities_with_one_self_motion(arm7, kind) -> None:
+    singular_values = np.linalg.svd(ee_jacobian(arm7, arm7.q0, kind), compute_uv=False)
     assert singular_values.shape == (6,)
     assert singular_values.min() > 0.1  # full rank 6 of 7 joints: one redundant DOF left
     # at q = 0 the arm is stretched out and singular
-    assert np.linalg.svd(ee_jacobian(arm7, np.zeros(7)), compute_uv=False).min() < 1e-12
+    assert np.linalg.svd(ee_jacobian(arm7, np.zeros(7), kind), compute_uv=False).min() < 1e-12
 
 
 # Drake's iiwa14_no_collision.urdf, verbatim: joint (xyz, rpy) and link (mass, com, diagonal inertia).
@@ -237,7 +293,7 @@ def test_redundant7_is_the_drake_iiwa14_urdf_moved_into_dh_frames(arm7) -> None:
     """Same mass matrix and gravity torques as Drake's URDF everywhere: the COMs and inertias were
     moved into the DH frames correctly, and every joint turns the same way as KUKA's."""
     urdf = mujoco.MjModel.from_xml_string(urdf_as_mjcf(arm7))
-    ours = mujoco.MjModel.from_xml_string(to_mjcf(arm7, TIMESTEP))
+    ours = load_robot("redundant7", Path("."), TIMESTEP, {}).model  # the plant's, wrist sensor and all
     ours.dof_damping[:] = 0.0  # the URDF build has none
     full_urdf, full_ours = np.zeros((7, 7)), np.zeros((7, 7))
     data_urdf, data_ours = mujoco.MjData(urdf), mujoco.MjData(ours)
@@ -252,7 +308,7 @@ def test_redundant7_is_the_drake_iiwa14_urdf_moved_into_dh_frames(arm7) -> None:
     mujoco.mj_kinematics(urdf, data_urdf)
     last = urdf.nbody - 1
     flange = data_urdf.xpos[last] + 0.045 * data_urdf.xmat[last].reshape(3, 3)[:, 2]
-    np.testing.assert_allclose(flange, forward_kinematics_dh(arm7.dh, q)[:3, 3], atol=1e-12)
+    np.testing.assert_allclose(flange, dh_forward_kinematics(arm7.dh, q)[:3, 3], atol=1e-12)
 
 
 def test_every_robot_model_is_registered_for_the_checker_with_its_dims() -> None:

@@ -15,13 +15,13 @@ import pytest
 from drivers.mujoco_arm.driver import MujocoArmDriver
 from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.mujoco_arm.registers import DeviceError
-from drivers.robots import RobotDescription
+from drivers.robots import RobotDescription, robot
 from modules.robot_position import RobotPosition
 from pbo_runtime import Status
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.support import NO_WATCHDOG, task_spec, unique_name, variables
+from tests.support import NO_WATCHDOG, arm_constants, arm_tables, task_spec, unique_name, variables
 
 ROBOTS = ("puma560", "redundant7")
 TIMESTEP = 0.001
@@ -39,7 +39,7 @@ def plant(request) -> Iterator[MujocoArmPlant]:
 
 @pytest.fixture
 def desc(plant: MujocoArmPlant) -> RobotDescription:
-    return plant.description
+    return robot(plant.robot.name)
 
 
 @pytest.fixture
@@ -47,7 +47,7 @@ def table(make_table, plant: MujocoArmPlant) -> StateTable:
     n = plant.ndof
     return make_table(
         variables(
-            ("NDOF", "int32", ()), ("DH", "float64", (n, 4)), ("DYN", "float64", (n, 11)),
+            *arm_constants(n),
             ("q_m", "float64", (n,)), ("qd_m", "float64", (n,)), ("q_r", "float64", (n,)),
         )
     )
@@ -117,11 +117,13 @@ def q_m(table: StateTable) -> np.ndarray:
     return table.read("q_m")[0]
 
 
-def test_spawn_publishes_ndof_dh_and_dyn_of_the_arm(table, plant, desc, task):
+def test_spawn_publishes_ndof_arm_and_ee_of_the_arm(table, plant, desc, task):
     ndof, _, _, writer = table.read("NDOF")
     assert ndof == desc.ndof and writer == task.index
-    np.testing.assert_array_equal(table.read("DH")[0], desc.dh)
-    np.testing.assert_array_equal(table.read("DYN")[0], desc.dyn)
+    arm, ee = arm_tables(desc.name)
+    np.testing.assert_array_equal(table.read("ARM")[0], arm)
+    np.testing.assert_array_equal(table.read("EE")[0], ee)
+    assert table.read("ARM")[3] == table.read("EE")[3] == task.index
 
 
 def test_on_releases_the_brakes_without_moving_the_arm(table, plant, desc, task, observer):
@@ -219,7 +221,7 @@ def test_init_fails_on_a_device_opened_in_torque_mode(table, plant, observer):
 
 def test_init_fails_when_ndof_differs_from_the_arms_joints(make_table, plant, observer):
     n = plant.ndof - 1
-    table = make_table(variables(("NDOF", "int32", ()), ("DH", "float64", (n, 4)), ("DYN", "float64", (n, 11)),
+    table = make_table(variables(*arm_constants(n),
                                  ("q_m", "float64", (n,)), ("qd_m", "float64", (n,)), ("q_r", "float64", (n,))))
     task, opened = robot_task(table, plant, ndof=n)
     assert not task.spawn(0.0)

@@ -24,7 +24,7 @@ from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.mujoco_arm.registers import DeviceError
 from drivers.robots import robot
 from drivers.vision.camera import VisionCamera
-from modules._robot_model import END_EFFECTOR_FRAME, frame_id, frame_pose_and_jacobian, pinocchio_model
+from modules._robot_model import END_EFFECTOR_FRAME, frame_id, frame_pose_and_jacobian
 from modules.damped_least_squares import DampedLeastSquares
 from modules.resolved_rate import ResolvedRate
 from modules.visual_servoing import VisualServoing
@@ -33,7 +33,8 @@ from pbo_runtime.objects import registry
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.support import NO_WATCHDOG, PBO, REPO, assert_nothing_left, task_spec, unique_name, variables
+from tests.support import (NO_WATCHDOG, PBO, REPO, arm_constants, arm_tables, assert_nothing_left, dh_pinocchio_model, task_spec,
+                           unique_name, variables)
 
 TIMESTEP = 0.001
 CONFIG = REPO / "configs" / "visual_servoing.yaml"
@@ -299,15 +300,15 @@ def test_bad_module_params_are_refused(params, message):
 # the singularity on the demo's path: resolved rate vs damped least squares ----------------------
 
 PUMA = robot("puma560")
+PUMA_ARM, PUMA_EE = arm_tables("puma560")  # what its robot interface publishes
 N = PUMA.ndof
 
 
 def controller(make_table, module: type[PortBasedObject], params: dict) -> tuple[Task, StateTable]:
-    table = make_table(variables(("NDOF", "int32", ()), ("DH", "float64", (N, 4)), ("DYN", "float64", (N, 11)),
-                                 ("q_m", "float64", (N,)), ("x_d", "float64", (6,)), ("qd_r", "float64", (N,))))
+    table = make_table(variables(*arm_constants(N), ("q_m", "float64", (N,)), ("x_d", "float64", (6,)), ("qd_r", "float64", (N,))))
     table.write("NDOF", N, when=0.0)
-    table.write("DH", PUMA.dh, when=0.0)
-    table.write("DYN", PUMA.dyn, when=0.0)
+    table.write("ARM", PUMA_ARM, when=0.0)
+    table.write("EE", PUMA_EE, when=0.0)
     task = Task(task_spec(module, dims={"NDOF": N}, params=params), module, table, {"NDOF": N})
     assert task.spawn(0.0), task.last_error
     return task, table
@@ -319,7 +320,7 @@ def follow_the_demo_path(driver: tuple[Task, StateTable], shadow: tuple[Task, St
     qd_r integrated exactly (an ideal arm); the shadow controller sees the same q_m and x_d every
     cycle (the poses the path visits) but does not move the arm. Returns the largest joint speed
     each asks for, the smallest |q5| passed and the driver's largest position error after 0.2 s."""
-    model = pinocchio_model(PUMA.dh, PUMA.dyn)
+    model = dh_pinocchio_model(PUMA.dh, PUMA.dyn)  # the ideal arm, modelled apart from the controllers' ARM table
     data, frame = model.createData(), frame_id(model, END_EFFECTOR_FRAME)
     x, jacobian = np.zeros(6), np.zeros((6, N))
     q = DEMO_Q0.copy()

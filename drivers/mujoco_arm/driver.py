@@ -42,7 +42,7 @@ from drivers.mujoco_arm.registers import (
     DeviceError,
     attach_registers,
 )
-from pbo_runtime import DeviceDriver
+from pbo_runtime import Arm, DeviceDriver
 
 _OPTIONS = ("mode",)
 # Spins before the reader starts yielding the CPU to a plant preempted mid-publish (it may share
@@ -87,21 +87,22 @@ class MujocoArmDriver(DeviceDriver):
 
     # constants -------------------------------------------------------------------------------
 
-    def dh(self) -> np.ndarray:
-        """DH rows (theta_offset, d, a, alpha), a copy: shape (ndof, 4)."""
-        return self._regs.dh.copy()
+    def arm(self) -> np.ndarray:
+        """The arm's joint table (the ARM constant, columns `pbo_runtime.ARM_COLUMNS`), a copy: (ndof, Arm.WIDTH)."""
+        return self._regs.arm.copy()
 
-    def dynamics(self) -> np.ndarray:
-        """DYN rows (mass, cx, cy, cz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz, armature), a copy: (ndof, 11)."""
-        return self._regs.dyn.copy()
+    def end_effector(self) -> np.ndarray:
+        """Where the end effector is (the EE constant, `pbo_runtime.EE_COLUMNS`), a copy: (Arm.EE_WIDTH,)."""
+        return self._regs.ee.copy()
 
     def joint_limits(self) -> np.ndarray:
-        """(ndof, 2) lower, upper joint positions, rad."""
-        return self._regs.limits[:, :2].copy()
+        """(ndof, 2) lower, upper joint positions, rad (-inf and inf for a joint without a range)."""
+        arm = self._regs.arm
+        return np.where(arm[:, [Arm.LIMITED]] > 0, arm[:, [Arm.Q_MIN, Arm.Q_MAX]], [-np.inf, np.inf])
 
     def torque_limits(self) -> np.ndarray:
         """(ndof,) |tau| the plant applies at most, N m; larger commands are clipped."""
-        return self._regs.limits[:, 2].copy()
+        return self._regs.arm[:, Arm.EFFORT].copy()
 
     # per cycle: no allocation ------------------------------------------------------------------
 

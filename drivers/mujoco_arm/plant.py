@@ -1,13 +1,15 @@
-"""The simulated arm itself: a MuJoCo model of a named robot, stepped by a plant host process.
+"""The simulated arm itself: a MuJoCo model of a robot (registered, or from a URDF or MJCF file),
+stepped by a plant host process.
 
 The plant owns the register segment (see `registers`): it publishes the measured state after every
 step and applies whatever the driver last commanded, in torque or position mode (`MODE`). It starts
 with the brakes engaged so the arm does not fall before a controller is on. It does no real-time
 pacing: the host calls `step()` once per `timestep` of wall time (or as fast as it likes, in tests).
-Options: `q0`, `target` (a moving marker for the camera), `wrist_wrench` (a contact), `adc_noise`
-and `seed` (the I/O boards that carry the wrist force/torque sensor), `command_timeout` (the
-drive's watchdog: with the brakes released and no new command for that long, the arm holds on
-its brakes until one comes).
+Options: `ee` (the end effector: a link or site of the robot's file), `q0`, `torque_limits` and
+`velocity_limits` (where the file gives none), `target` (a moving marker for the camera),
+`wrist_wrench` (a contact), `adc_noise` and `seed` (the I/O boards that carry the wrist
+force/torque sensor), `command_timeout` (the drive's watchdog: with the brakes released and no
+new command for that long, the arm holds on its brakes until one comes).
 
 docs/plant.md says how the position servo is designed (gains, braking curve) and what each option
 does.
@@ -47,10 +49,11 @@ from drivers.mujoco_arm.registers import (
     W_TIMESTEP,
     create_registers,
 )
-from drivers.robots import robot, to_mjcf
+from drivers.robots.plant_model import PlantRobot, load_robot
 from pbo_runtime import unlink_quietly
 
-_OPTIONS = ("q0", "target", "wrist_wrench", "adc_noise", "seed", "command_timeout")
+_OPTIONS = ("ee", "q0", "torque_limits", "velocity_limits", "target", "wrist_wrench", "adc_noise", "seed", "command_timeout")
+_ROBOT_KEYS = ("ee", "q0", "torque_limits", "velocity_limits")  # the options that change the robot itself
 # Simulated seconds without a new command after which the arm holds on its brakes, as a drive's
 # watchdog does when its controller stops (a stopped robot interface cannot engage them itself)
 COMMAND_TIMEOUT = 0.05
@@ -83,19 +86,13 @@ class MujocoArmPlant:
     """
 
     def __init__(self, registers_name: str, model: str, timestep: float, options: Mapping[str, Any],
-                 log_dir: str = "") -> None:
+                 log_dir: str = "", base_dir: str = ".") -> None:
         route_mujoco_log(log_dir)
         unknown = sorted(set(options) - set(_OPTIONS))
         if unknown:
             raise ValueError(f"unknown mujoco_arm plant option(s) {unknown}; valid options: {', '.join(_OPTIONS)}")
         if not timestep > 0:
             raise ValueError(f"plant timestep must be > 0, got: {timestep}")
-        description = robot(model)
-        n = description.ndof
-        q0 = np.array(options.get("q0", description.q0), dtype=np.float64)
-        if q0.shape != (n,):
-            raise ValueError(f"plant option q0 must have {n} values for {model!r}, got shape: {q0.shape}")
-
         target = _target_options(options.get("target"))
         wrench = _wrench_option(options.get("wrist_wrench", [0.0] * 6))
         adc_noise = options.get("adc_noise", 0.0)
@@ -108,11 +105,14 @@ class MujocoArmPlant:
         if isinstance(command_timeout, bool) or not isinstance(command_timeout, (int, float)) or not command_timeout >= 0:
             raise ValueError(f"plant option command_timeout must be a number of seconds >= 0 (0: no watchdog), got: {command_timeout!r}")
 
+        robot = load_robot(model, Path(base_dir), float(timestep), options, target=target is not None)
+        n = robot.ndof
+        q0 = robot.q0
         self.name = registers_name
         self.timestep = float(timestep)
         self.ndof = n
-        self.description = description
-        self.model = mujoco.MjModel.from_xml_string(to_mjcf(description, self.timestep, target=target is not None))
+        self.robot = robot
+        self.model = robot.model
         self.data = mujoco.MjData(self.model)
         self.data.qpos[:] = q0
         self.has_target = target is not None
@@ -143,9 +143,9 @@ class MujocoArmPlant:
         self._apply_wrist_wrench()
         mujoco.mj_forward(self.model, self.data)
 
-        self._torque_limits = description.torque_limits.copy()
-        self._q_min = description.joint_limits[:, 0].copy()
-        self._q_max = description.joint_limits[:, 1].copy()
+        self._torque_limits = robot.torque_limits.copy()
+        self._q_min = robot.joint_limits[:, 0].copy()
+        self._q_max = robot.joint_limits[:, 1].copy()
         self._tau = np.zeros(n)  # last consistent command, preallocated for step()
         self._q_cmd = np.zeros(n)  # last consistent position command
         self._scratch = np.zeros(n)
@@ -154,7 +154,7 @@ class MujocoArmPlant:
         # Gravity for the servo is computed on its own MjData (velocity stays zero there).
         self._gravity_data = mujoco.MjData(self.model)
         self.servo_omega = min(_SERVO_OMEGA, _SERVO_MAX_OMEGA_DT / self.timestep)
-        inertia = self._joint_inertia(description.q0)
+        inertia = self._joint_inertia(robot.home)
         self.servo_kp = inertia * self.servo_omega**2
         self.servo_kd = 2.0 * inertia * self.servo_omega
         self.servo_kp.setflags(write=False)
@@ -174,10 +174,8 @@ class MujocoArmPlant:
         self._shm, self._registers = create_registers(registers_name, n)
         try:
             regs = self._registers
-            regs.dh[:] = description.dh
-            regs.dyn[:] = description.dyn
-            regs.limits[:, :2] = description.joint_limits
-            regs.limits[:, 2] = description.torque_limits
+            regs.arm[:] = robot.arm
+            regs.ee[:] = robot.ee
             regs.reals[W_TIMESTEP] = self.timestep
             regs.words[W_PLANT_PID] = os.getpid()
             regs.words[W_TARGET] = int(self.has_target)
@@ -188,6 +186,12 @@ class MujocoArmPlant:
         except BaseException:
             self.close()
             raise
+
+    @staticmethod
+    def describe_robot(model: str, base_dir: str, options: Mapping[str, Any]) -> PlantRobot:
+        """The robot a plant of these options would simulate, as `pbo check` sees it; RobotFileError
+        (a ValueError whose `key` names the plant key at fault) if it cannot."""
+        return load_robot(model, Path(base_dir), 0.001, {k: v for k, v in options.items() if k in _ROBOT_KEYS})
 
     @property
     def sim_time(self) -> float:

@@ -11,7 +11,8 @@ Nothing here takes a cross-process lock. Each block has one writer and a seqlock
   `MODE` says which command registers the plant applies (tau in torque mode, q_cmd in position
   mode); a driver writes it when it releases the brakes, i.e. when it takes the arm (see
   `MujocoArmDriver.release_brakes` for how two drivers of different modes are kept apart).
-- constants (DH, DYN, limits): written once by the plant before it publishes the first state.
+- constants (ARM, EE: the arm's joint table and end effector, `pbo_runtime.objects.arm`): written
+  once by the plant before it publishes the first state.
 - target (version 2): the world pose of the plant's moving target marker (position m, rotation
   vector rad), what a camera sees; written by the plant with the state, under `STATE_SEQ`.
   `TARGET` is 1 when the plant has a target (plant option `target:`), else 0 and the block
@@ -32,8 +33,8 @@ so the seqlocks need no fences there. Layout (byte offsets, n = ndof, all little
     0    header, 16 words of 8 bytes (word index below)
     128  state:    q[n], qd[n]                  float64
     S    command:  tau[n], q_cmd[n]             float64, S = 128 + 16 n rounded up to 64
-    C    constant: DH[n,4], DYN[n,11], LIMITS[n,3] (q_min, q_max, tau_max)  float64
-    T    target:   pose[6] (x, y, z, rx, ry, rz), float64, T = C + 144 n rounded up to 64
+    C    constant: ARM[n,29], EE[8]              float64
+    T    target:   pose[6] (x, y, z, rx, ry, rz), float64, T = C + 8 (29 n + 8) rounded up to 64
     B    board:    adc[8] int16 at B, dac[4] int16 at B + 64, pio_in[16] uint16 at B + 128,
                    pio_out[16] uint16 at B + 192; B = T + 48 rounded up to 64
 """
@@ -46,10 +47,10 @@ from dataclasses import dataclass
 import numpy as np
 import posix_ipc
 
-from pbo_runtime import PboError, attach_segment, create_segment
+from pbo_runtime import Arm, PboError, attach_segment, create_segment
 
 MAGIC = int.from_bytes(b"PBOARMRG", "little")
-VERSION = 3  # 2: the target block and the TARGET word; 3: the board block and BOARD_SEQ
+VERSION = 4  # 2: the target block and the TARGET word; 3: the board block and BOARD_SEQ; 4: ARM and EE
 
 # Header words: u64 unless marked f64.
 W_MAGIC = 0
@@ -111,7 +112,7 @@ class RegisterLayout:
         state = HEADER_WORDS * 8
         command = _align(state + 2 * ndof * 8)  # own cache line: another process writes it
         constant = _align(command + 2 * ndof * 8)
-        target = _align(constant + ndof * (4 + 11 + 3) * 8)
+        target = _align(constant + (ndof * Arm.WIDTH + Arm.EE_WIDTH) * 8)
         board = _align(target + 6 * 8)
         size = board + 4 * _CACHE_LINE  # adc, dac, pio_in, pio_out: each its own line (different writers)
         return cls(ndof, state, command, constant, target, board, size)
@@ -142,9 +143,8 @@ class Registers:
         self.qd = block(layout.state + 8 * n, n)
         self.tau = block(layout.command, n)
         self.q_cmd = block(layout.command + 8 * n, n)
-        self.dh = block(layout.constant, 4 * n).reshape(n, 4)
-        self.dyn = block(layout.constant + 32 * n, 11 * n).reshape(n, 11)
-        self.limits = block(layout.constant + 120 * n, 3 * n).reshape(n, 3)
+        self.arm = block(layout.constant, Arm.WIDTH * n).reshape(n, Arm.WIDTH)
+        self.ee = block(layout.constant + 8 * Arm.WIDTH * n, Arm.EE_WIDTH)
         self.target = block(layout.target, 6)
         board = layout.board
         self.adc = np.frombuffer(mapping, dtype=np.int16, count=ADC_CHANNELS, offset=board)
@@ -156,7 +156,7 @@ class Registers:
         """Drop every view, then close the mapping (idempotent)."""
         if self._mapping is None:
             return
-        for name in ("q", "qd", "tau", "q_cmd", "dh", "dyn", "limits", "target", "adc", "dac", "pio_in", "pio_out",
+        for name in ("q", "qd", "tau", "q_cmd", "arm", "ee", "target", "adc", "dac", "pio_in", "pio_out",
                      "words", "reals"):
             self.__dict__.pop(name, None)
         for view in reversed(self._views):

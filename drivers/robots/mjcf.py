@@ -13,11 +13,9 @@ stepping at 1 kHz in real time. RK4's extra accuracy buys nothing here: a contro
 arrive held constant over each step (zero-order hold), so their stiffness is bounded by the
 sampling, not by the integrator.
 
-Wrist force/torque sensor: a massless body `ft`, welded to the last link at the tool frame (DH
-frame n, where site `ee` is), carries site `ft` and MuJoCo's `force` and `torque` sensors
-(`ft_force`, `ft_torque`): the interaction between the tool and the arm, in the site frame, the
-torque about its origin. Massless and without geoms, it changes neither the dynamics nor the
-kinematics; an external wrench applied to it (`xfrc_applied`) is what the sensor measures.
+Site `ee` is the tool frame (DH frame n), the end effector. The plant adds its own parts (the wrist
+force/torque sensor, the camera's target) to this model as it does to any robot's
+(`drivers.robots.plant_model`). Each joint's torque limit is its `actuatorfrcrange`.
 """
 
 from __future__ import annotations
@@ -28,7 +26,6 @@ import numpy as np
 from drivers.robots.description import RobotDescription, dh_link_transform, inertia_matrix, rot_z
 
 _LINK_RADIUS = 0.04  # capsule radius for looks only (m)
-_TARGET_RADIUS = 0.02  # the camera target's marker, for looks only (m)
 
 
 def _num(values: np.ndarray | float) -> str:
@@ -71,14 +68,8 @@ def _geoms_xml(desc: RobotDescription, i: int) -> list[str]:
     return geoms
 
 
-def to_mjcf(desc: RobotDescription, timestep: float, target: bool = False) -> str:
-    """The MJCF text of `desc` with `<option timestep=...>`; bodies `link<i>`, hinges `joint<i>`, site `ee`,
-    and the wrist force/torque sensor (body and site `ft`, sensors `ft_force` and `ft_torque`).
-
-    `target`: add body `target`, a small marker for a camera to see. It is a mocap body (no joint,
-    no mass, no collisions): the plant moves it kinematically through `data.mocap_pos` and
-    `mocap_quat`, it never touches the arm, and the arm's qpos and qvel stay exactly its joints.
-    """
+def to_mjcf(desc: RobotDescription, timestep: float) -> str:
+    """The MJCF text of `desc` with `<option timestep=...>`: bodies `link<i>`, hinges `joint<i>`, site `ee`."""
     if not timestep > 0:
         raise ValueError(f"timestep must be > 0, got: {timestep}")
     lines = [
@@ -101,7 +92,8 @@ def to_mjcf(desc: RobotDescription, timestep: float, target: bool = False) -> st
         lines.append(
             f'{inner}<joint name="joint{i + 1}" type="hinge" pos="0 0 0" axis="0 0 1" '
             f'range="{_num(lower)} {_num(upper)}" armature="{_num(desc.dyn[i, 10])}" '
-            f'damping="{_num(desc.damping[i])}" limited="true"/>'
+            f'damping="{_num(desc.damping[i])}" limited="true" '
+            f'actuatorfrcrange="{_num(-desc.torque_limits[i])} {_num(desc.torque_limits[i])}"/>'
         )
         lines.append(inner + _inertial_xml(desc, i))
         lines.extend(inner + g for g in _geoms_xml(desc, i))
@@ -110,24 +102,9 @@ def to_mjcf(desc: RobotDescription, timestep: float, target: bool = False) -> st
     indent = "    " + "  " * desc.ndof
     placement = f'pos="{_num(tool[:3, 3])}" quat="{_num(_quat(tool[:3, :3]))}"'
     lines.append(f'{indent}<site name="ee" {placement} size="0.01"/>')
-    lines.append(f'{indent}<body name="ft" {placement}>')
-    lines.append(f'{indent}  <site name="ft" size="0.005"/>')
-    lines.append(f"{indent}</body>")
     lines.extend(reversed(closers))
-    if target:
-        lines += [
-            '    <body name="target" mocap="true">',
-            f'      <geom name="target" type="sphere" size="{_TARGET_RADIUS}" contype="0" conaffinity="0"'
-            ' rgba="1 0.3 0.1 0.8"/>',
-            '      <site name="target" size="0.005"/>',
-            "    </body>",
-        ]
     lines += [
         "  </worldbody>",
-        "  <sensor>",
-        '    <force name="ft_force" site="ft"/>',
-        '    <torque name="ft_torque" site="ft"/>',
-        "  </sensor>",
         "</mujoco>",
         "",
     ]

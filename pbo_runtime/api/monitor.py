@@ -5,7 +5,7 @@
     GET /api/monitor/bus            the running configuration's bus load, predicted from the file
                                     beside measured from the run's task rates now (config.bus)
     WS  /api/streams/arm?rate=20    the arm's joint frame origins, base to tool, from q_m by forward
-         [&q=q_m]                   kinematics (reports.arm): {"time", "q", "frames": [[x, y, z], ...]}
+         [&q=q_m]                   kinematics of the table's ARM and EE (reports.arm): {"time", "q", "frames": [[x, y, z], ...]}
 
 The file is the one `pbo hmi FILE` was given or the run's own (`api.files.subsystem_file`). The arm
 stream reads q_m lock-free from the table, as the variables stream does, at most 50 times a second.
@@ -29,7 +29,7 @@ from pbo_runtime.api.streams import ALIVE_EVERY, Pacer, parse_rate, refuse, run_
 from pbo_runtime.config import bus
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
-from pbo_runtime.reports.arm import ArmFrames, arm_of
+from pbo_runtime.reports.arm import ArmFrames
 from pbo_runtime.reports.monitor import monitor_layout
 from pbo_runtime.supervisor.commands import STATUS_TIMEOUT
 from pbo_runtime.table.snapshot import TableBusy
@@ -52,9 +52,18 @@ def checked(file: str, what: str) -> Subsystem:
     return _checked(file, modified, what)
 
 
-@functools.lru_cache(maxsize=4)
-def arm(file: str, modified: int) -> ArmFrames:
-    return arm_of(_checked(file, modified, "draw the arm"))
+def arm_in(view: Any, name: str) -> ArmFrames:
+    """The arm whose constants (ARM, EE) the robot interface published in the run's table."""
+    missing = [const for const in ("ARM", "EE") if const not in view.variables()]
+    if missing:
+        raise ValueError(f"'{view.subsystem}' has no {' nor '.join(missing)} in its table: a robot interface "
+                         "(robot_torque, robot_position) publishes them")
+    arm, _sequence, _when, _writer = view.read("ARM")
+    ee, _sequence, _when, _writer = view.read("EE")
+    if not arm.any():
+        raise ValueError(f"the robot interface of '{view.subsystem}' has not published ARM yet (its task has not "
+                         "started); try again in a moment")
+    return ArmFrames(arm, ee, name)
 
 
 def router() -> APIRouter:
@@ -112,7 +121,9 @@ def router() -> APIRouter:
         try:
             try:
                 file = websocket.app.state.file or await run_in_threadpool(_run_file, link)
-                frames = await run_in_threadpool(arm, file, os.stat(file).st_mtime_ns)
+                subsystem = await run_in_threadpool(checked, file, "draw the arm")
+                name = subsystem.plant.model if subsystem.plant is not None else subsystem.name
+                frames = await run_in_threadpool(arm_in, view, name)
             except (PboError, ValueError, OSError) as exc:
                 await refuse(websocket, f"no arm to draw: {exc}")
                 return

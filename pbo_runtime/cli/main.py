@@ -277,6 +277,7 @@ def _inferred_lines(result: Any) -> str:
     if result.robot_dims:
         model = sub.plant.model if sub.plant is not None else "?"
         lines.append(f"  dims from the plant's robot '{model}': " + ", ".join(f"{k} = {v}" for k, v in result.robot_dims.items()))
+    lines += [f"  {note}" for note in result.robot_notes]
     if result.inferred:
         lines.append(f"  inferred from their ports: {len(result.inferred)} variable(s)")
         width = max(len(name) for name in result.inferred)
@@ -291,6 +292,8 @@ def _inferred_json(result: Any) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if result.robot_dims:
         out["robot_dims"] = dict(result.robot_dims)
+    if result.robot_notes:
+        out["robot_notes"] = list(result.robot_notes)
     if result.inferred:
         variables = result.subsystem.variables
         out["inferred"] = {name: {"type": variables[name].dtype, "shape": list(variables[name].shape)} for name in result.inferred}
@@ -368,6 +371,8 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
     rtpus = f"{len(subsystem.rtpus)} RTPU{'s' if len(subsystem.rtpus) != 1 else ''}"
     say(f"starting subsystem '{subsystem.name}' ({rtpus}, plant: "
         f"{subsystem.plant.model if subsystem.plant else 'none'}); {what}")
+    for note in subsystem.robot_notes:
+        say(note)
     with _results_outlive_a_second_stop():
         if live:
             with Live(console=console, refresh_per_second=4, transient=True) as view:

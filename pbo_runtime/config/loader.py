@@ -36,6 +36,7 @@ class CheckResult:
     initial_values: dict[str, np.ndarray] = field(default_factory=dict)  # variable -> its `initial:` value
     inferred: tuple[str, ...] = ()  # variables whose type or shape came from their ports, when there is no error
     robot_dims: dict[str, int] = field(default_factory=dict)  # dims taken from the plant's robot, when there is no error
+    robot_notes: list[str] = field(default_factory=list)  # what loading the plant's robot file changed
 
     @property
     def ok(self) -> bool:
@@ -110,7 +111,8 @@ def _result(checked: Checked, file: str, errors: list[ConfigError]) -> CheckResu
             subsystem = None
     if errors:
         return CheckResult(subsystem, errors, warnings)
-    return CheckResult(subsystem, errors, warnings, dict(checked.initial_values), tuple(checked.inferred), dict(checked.robot_dims))
+    return CheckResult(subsystem, errors, warnings, dict(checked.initial_values), tuple(checked.inferred), dict(checked.robot_dims),
+                       list(checked.robot_notes))
 
 
 def _bus_errors(subsystem: Subsystem) -> list[ConfigError]:
@@ -183,6 +185,7 @@ def _assemble(checked: Checked, file: str) -> Subsystem:
         init_order=checked.init_order,
         object_types=dict(checked.object_types),
         objects=dict(checked.objects),
+        robot_notes=tuple(checked.robot_notes),
     )
 
 

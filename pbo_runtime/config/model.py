@@ -245,6 +245,7 @@ class Subsystem:
     init_order: tuple[str, ...]  # every task, producers of consts before their consumers
     object_types: Mapping[str, ObjectTypeSpec] = field(default_factory=dict)  # declared, then implied
     objects: Mapping[str, ObjectSpec] = field(default_factory=dict)
+    robot_notes: tuple[str, ...] = field(default=(), compare=False)  # what loading the plant's robot file changed
 
     def rtpu(self, name: str) -> RtpuSpec:
         return next(r for r in self.rtpus if r.name == name)

@@ -60,6 +60,11 @@ def plant_class(name: str) -> Any:
     return load(PLANTS, name)
 
 
+def registered_robot(name: str) -> Any:
+    """What the `pbo.robots` entry point `name` makes: a robot description, or the path of a robot file."""
+    return load(ROBOTS, name)()
+
+
 def robot_dims(model: str) -> dict[str, int]:
     """The dims a robot model gives (e.g. {"NDOF": 6} for puma560); ModuleError for an unknown model."""
-    return dict(load(ROBOTS, model)().dims)
+    return dict(registered_robot(model).dims)

@@ -53,6 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fifo", action="store_true", help="SCHED_FIFO above the RTPUs: the world does not wait")
     parser.add_argument("--clock", choices=("real", "sim"), default="real", help="sim: one step per supervisor tick")
     parser.add_argument("--out", default="", help="the run's output directory: the plant's own log goes there")
+    parser.add_argument("--base-dir", default="", help="the YAML file's folder: a robot file's path is relative to it")
     args = parser.parse_args(argv)
     if args.parent:
         become_child(args.parent)
@@ -69,11 +70,13 @@ def main(argv: list[str] | None = None) -> int:
     behind_when_stepped_down = 0.0  # seconds behind wall time when it left SCHED_FIFO (0: it did not)
     try:
         plant_class = registry.plant_class(args.type)
-        # a plant that keeps a log of its own (MuJoCo's) takes the run's output directory for it
-        takes_log_dir = "log_dir" in inspect.signature(plant_class).parameters
+        # A plant that keeps a log of its own (MuJoCo's) takes the run's output directory for it;
+        # one that reads files (a robot's) takes the YAML file's folder, where relative paths start.
+        parameters = inspect.signature(plant_class).parameters
         plant = plant_class(
             messages.plant_registers_name(args.subsystem, args.run_id), args.model, args.timestep, json.loads(args.options),
-            **({"log_dir": args.out} if takes_log_dir else {}),
+            **({"log_dir": args.out} if "log_dir" in parameters else {}),
+            **({"base_dir": args.base_dir} if "base_dir" in parameters and args.base_dir else {}),
         )
         if args.clock == "sim":
             table = shm.attach_segment(messages.table_name(args.subsystem, args.run_id))

@@ -21,6 +21,7 @@ import math
 import os
 import signal
 import time
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -290,6 +291,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                 "--timestep", repr(plant.timestep), "--options", json.dumps(dict(plant.options)),
                 "--subsystem", sub.name, "--run-id", run_id, *(["--fifo"] if self.fifo else []), *self.clock.plant_arguments(),
                 *(["--out", self.out_dir] if self.out_dir else []),
+                "--base-dir", str(Path(plant.loc.file or sub.file).resolve().parent),
             ])
             self._await_ready({"plant"})
         for rtpu in sub.rtpus:

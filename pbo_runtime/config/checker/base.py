@@ -33,6 +33,7 @@ class CheckerBase:
         self.out = Checked()
         self.rtpu_names: set[str] = set()
         self.bad_dims: set[str] = set()  # dims given but refused (reported at the dim)
+        self.dims_node: YMap | None = None  # the file's dims: mapping, for errors about a dim
         self.var_initial: set[str] = set()
         self.var_object: dict[str, str] = {}
         self.var_locs: dict[str, Location] = {}

@@ -86,6 +86,7 @@ class Checked:
     init_order: tuple[str, ...] = ()
     inferred: list[str] = field(default_factory=list)  # variables whose type or shape came from their ports
     robot_dims: dict[str, int] = field(default_factory=dict)  # dims 'dims:' left out, taken from the plant's robot
+    robot_notes: list[str] = field(default_factory=list)  # what loading the plant's robot file changed (dropped meshes...)
 
 
 class _Link(NamedTuple):

@@ -3,15 +3,27 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import Any
 
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.model import BUS_KEYS, RTPU_KEYS
-from pbo_runtime.config.checker.words import describe
+from pbo_runtime.config.checker.words import describe, did_you_mean
 from pbo_runtime.config.limits import MAX_DIM
 from pbo_runtime.config.model import DEFAULT_SPIN, BusSpec, Location, PlantSpec, RtpuSpec
 from pbo_runtime.config.units import DATA_RATE, SIZE, TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
+from pbo_runtime.errors import ModuleError
+from pbo_runtime.objects import registry
+
+#: Plant options that change the robot (the plant checks them as it loads the robot).
+ROBOT_OPTIONS = ("ee", "q0", "torque_limits", "velocity_limits")
+_ROBOT_SUFFIXES = (".urdf", ".xml", ".mjcf")
+
+
+def is_robot_file(model: str) -> bool:
+    """Whether a plant's `model:` names a robot file (a path or a package:// URI), not a registered robot."""
+    return model.startswith("package://") or model.lower().endswith(_ROBOT_SUFFIXES) or "/" in model
 
 _SUBSYSTEM_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
 
@@ -37,6 +49,7 @@ class SectionChecks(CheckerBase):
         self.out.name = name
 
     def check_dims(self, top: YMap) -> None:
+        self.dims_node = top["dims"] if isinstance(top.get("dims"), YMap) else None
         for name, value, _, value_loc in self.entries(top, "dims", "dim", "e.g. dims: {NDOF: 6}"):
             size = self.integer(value, value_loc, f"dim '{name}'", minimum=1)
             if size is not None and size > MAX_DIM:
@@ -127,3 +140,64 @@ class SectionChecks(CheckerBase):
                 self.error("E118", f"plant option names must be text, got: {describe(key)}", plant.key_loc(key))
         if kind is not None and model is not None and timestep is not None:
             self.out.plant = PlantSpec(kind, model, timestep, options, plant.loc)
+            self.check_robot(plant, self.out.plant)
+
+    def check_robot(self, plant: YMap, spec: PlantSpec) -> None:
+        """The plant's robot: a registered one, or a file that loads, with its end effector; its NDOF.
+
+        A registered robot without robot options is known by its dims alone (no simulator is loaded);
+        a robot file, or robot options, are checked by the plant itself, as it will load them.
+        """
+        model_loc = plant.value_loc("model") if "model" in plant else plant.loc
+        robot_options = sorted(set(spec.options) & set(ROBOT_OPTIONS))
+        if not is_robot_file(spec.model) and spec.model not in registry.names(registry.ROBOTS):
+            if not self._plant_describes_robots(spec.type):
+                return  # a plant of another kind: its model is its own, checked when it starts
+            self.error("E216", f"plant model {spec.model!r} is neither a registered robot nor a robot file", model_loc,
+                       did_you_mean(spec.model, registry.names(registry.ROBOTS), "registered")
+                       + "; or give a URDF (.urdf) or MJCF (.xml) file, relative to this file")
+            return
+        described = {} if is_robot_file(spec.model) or robot_options else self._plant_robot_dims()
+        if described:  # a registered DH robot: its dims are known without loading a simulator
+            self._robot_dims = described
+        else:
+            try:
+                describe = registry.plant_class(spec.type).describe_robot
+            except (ModuleError, AttributeError):
+                return  # a plant of another kind checks its own options when it starts
+            base_dir = Path(spec.loc.file).resolve().parent if spec.loc.file else Path.cwd()
+            try:
+                robot = describe(spec.model, str(base_dir), dict(spec.options))
+            except ValueError as exc:
+                key = getattr(exc, "key", "model")
+                loc = plant.value_loc(key) if key in plant else model_loc
+                self.error("E217" if key == "ee" else "E216", str(exc), loc, getattr(exc, "hint", ""))
+                return
+            self._robot_dims = dict(robot.dims)
+            name = Path(robot.source).name
+            self.out.robot_notes = [f"robot {name}: {robot.ndof} joints ({', '.join(robot.joint_names)}), "
+                                    f"end effector {robot.ee_name}"]
+            self.out.robot_notes += [f"robot {name}: {note}" for note in robot.notes]
+        self._check_robot_ndof(plant)
+
+    @staticmethod
+    def _plant_describes_robots(kind: str) -> bool:
+        """Whether plants of type `kind` simulate robots (`describe_robot`); False for a type that is
+        not registered (the plant host refuses it when the run starts)."""
+        try:
+            return hasattr(registry.plant_class(kind), "describe_robot")
+        except ModuleError:
+            return False
+
+    def _check_robot_ndof(self, plant: YMap) -> None:
+        """NDOF in `dims:` must be the robot's joint count: say both places."""
+        given = self.out.dims.get("NDOF")
+        robot = (self._robot_dims or {}).get("NDOF")
+        if given is None or robot is None or given == robot or self.dims_node is None:
+            return
+        model = plant.get("model", PlantSpec().model)
+        where = plant.value_loc("model") if "model" in plant else plant.loc
+        self.error("E318", f"dim 'NDOF' is {given} here, but the plant's robot {model!r} has {robot} joints "
+                           f"(at {where.file}:{where.line}:{where.column})",
+                   self.dims_node.value_loc("NDOF"),
+                   f"remove NDOF from dims: (the robot gives it) or set it to {robot}")

@@ -119,7 +119,8 @@ def test_without_tracefs_the_trace_says_what_to_do(tmp_path):
 
 
 @pytest.mark.multiprocess
-def test_a_real_run_is_traced_and_the_trace_settings_are_put_back(capsys):
+def test_a_real_run_is_traced_and_the_trace_settings_are_put_back(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the run's directory (runs/...) lands here, not in the checkout
     settings = {name: cpu_trace.TRACEFS / name for name in ("trace_clock", "set_event", "tracing_on")}
     before = {name: path.read_text() for name, path in settings.items() if path.exists()}
     status = cpu_trace.main([str(REPO / "configs" / "pid_joint.yaml"), "--duration", "1"])

@@ -190,6 +190,14 @@ def test_the_plot_has_a_subplot_per_variable_a_line_per_element_units_and_the_ma
     assert first.get_xdata()[0] == pytest.approx(0.0)  # the first row's release is the configuration's start
 
 
+def test_marks_at_one_instant_share_one_label_so_none_prints_over_another():
+    from pbo_runtime.reports.run_plot import _side_by_side
+
+    marks = [(2.0, "job reach starts", "job"), (0.0, "joint_pid on", "switch"), (1.9999, "job reach done", "job")]
+    assert _side_by_side(marks, (0.0, 4.0)) == [(0.0, "joint_pid on", "switch"),
+                                                (1.9999, "job reach done / job reach starts", "job")]
+
+
 def test_pbo_plot_writes_a_png_of_the_run(run_dir, tmp_path, capsys):
     png = tmp_path / "plot.png"
     assert main(["plot", str(run_dir), "x", "m", "-o", str(png)]) == 0

@@ -123,12 +123,26 @@ def figure(run: RunData, variables: list[str] | None = None, new: Callable[..., 
             line.set_gid("mark")
         ax.grid(True, linewidth=0.3)
     top = axes[0]
-    for at, label, kind in marks:
+    for at, label, kind in _side_by_side(marks, top.get_xlim()):
         top.annotate(label, xy=(at, 1.0), xycoords=("data", "axes fraction"), rotation=90, fontsize="x-small",
                      va="bottom", ha="right", color=MARK_COLOURS.get(kind, "black"), gid="mark")
     axes[-1].set_xlabel("time since the configuration came on [s]" if run.marks else "time [s]")
     fig.suptitle(_title(run), fontsize="small")
     return fig
+
+
+def _side_by_side(marks: list[tuple[float, str, str]], limits: tuple[float, float]) -> list[tuple[float, str, str]]:
+    """One label for marks closer than a hundredth of the time axis (a job's end and the next one's
+    start are one instant), their texts joined, so labels never print over each other."""
+    near = 0.01 * (limits[1] - limits[0])
+    joined: list[tuple[float, str, str]] = []
+    for at, label, kind in sorted(marks, key=lambda mark: mark[0]):
+        if joined and at - joined[-1][0] < near:
+            first, text, first_kind = joined[-1]
+            joined[-1] = (first, f"{text} / {label}", first_kind)
+        else:
+            joined.append((at, label, kind))
+    return joined
 
 
 def _title(run: RunData) -> str:

@@ -145,6 +145,15 @@ def test_a_variables_unit_is_the_last_clause_of_its_doc_when_that_is_made_of_uni
     assert split_unit(doc) == split
 
 
+def test_a_variable_the_file_gives_no_doc_takes_the_unit_of_the_port_that_writes_it():
+    from pbo_runtime.config.loader import load_subsystem
+    from pbo_runtime.config.log_notes import variable_notes
+
+    notes = variable_notes(load_subsystem(str(REPO / "configs" / "pid_joint_minimal.yaml")))
+    assert notes["q_m"] == ("measured joint position", "rad")  # robot_torque's out-var, no entry in the file
+    assert notes["tau_u"] == ("joint torque command", "N m")  # pid_joint's out-var
+
+
 # --- reading what is not a log ------------------------------------------------------------------
 
 

@@ -8,6 +8,8 @@ copies them (`PortBasedObject.run_metadata`, `variable_note`).
 A variable's unit is its object type's `unit:` when it has one, else the last clause of its
 `doc:` when that clause is made of units only, as the shipped files write them:
 `doc: "measured joint velocity, rad/s"` has unit `rad/s` and doc `measured joint velocity`.
+A variable the file declares without a doc (or not at all) takes the doc of the port that
+writes it, as its module declares it.
 """
 
 from __future__ import annotations
@@ -47,13 +49,27 @@ def _is_unit(text: str) -> bool:
 def variable_notes(subsystem: Subsystem) -> dict[str, tuple[str, str]]:
     """Every variable's (doc, unit), as a log's channels carry them."""
     notes = {}
+    port_docs = _port_docs(subsystem)
     for name, variable in subsystem.variables.items():
-        doc, unit = split_unit(variable.doc)
+        doc, unit = split_unit(variable.doc or port_docs.get(name, ""))
         object_type = subsystem.object_types.get(variable.object or "")
         if object_type is not None and object_type.unit:
             unit = object_type.unit
         notes[name] = (doc, unit)
     return notes
+
+
+def _port_docs(subsystem: Subsystem) -> dict[str, str]:
+    """For a variable the file gives no doc: the doc of a port that writes it (else of one that reads
+    it), as the module declares it ("measured joint position, rad")."""
+    docs: dict[str, str] = {}
+    for writers_first in (True, False):
+        for task in subsystem.tasks.values():
+            for binding in task.bindings:
+                writes = binding.port.kind.value.startswith("out")
+                if binding.port.doc and writes == writers_first and binding.variable not in docs:
+                    docs[binding.variable] = binding.port.doc
+    return docs
 
 
 def run_metadata(subsystem: Subsystem, clock: str, configuration: str = "", application: str = "") -> dict[str, str]:

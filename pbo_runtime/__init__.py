@@ -21,7 +21,7 @@ from pbo_runtime.errors import (
 )
 from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
 from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
-from pbo_runtime.objects.arm import ARM_COLUMNS, EE_COLUMNS, GRAVITY, Arm, arm_model
+from pbo_runtime.objects.arm import ARM_COLUMNS, EE_COLUMNS, GRAVITY, ROBOT_OPTIONS, ROBOT_SUFFIXES, Arm, arm_model, is_robot_file
 from pbo_runtime.objects.driver import DeviceDriver
 from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
 from pbo_runtime.objects.ports import ANY_DTYPE, InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
@@ -36,6 +36,8 @@ __all__ = [
     "Arm",
     "EE_COLUMNS",
     "GRAVITY",
+    "ROBOT_OPTIONS",
+    "ROBOT_SUFFIXES",
     "MAX_PRIORITY",
     "ConfigError",
     "ConfigErrors",
@@ -64,6 +66,7 @@ __all__ = [
     "attach_segment",
     "create_segment",
     "format_channels",
+    "is_robot_file",
     "module_class",
     "open_log",
     "read_log",

@@ -50,10 +50,9 @@ from drivers.mujoco_arm.registers import (
     create_registers,
 )
 from drivers.robots.plant_model import PlantRobot, load_robot
-from pbo_runtime import unlink_quietly
+from pbo_runtime import ROBOT_OPTIONS, unlink_quietly
 
 _OPTIONS = ("ee", "q0", "torque_limits", "velocity_limits", "target", "wrist_wrench", "adc_noise", "seed", "command_timeout")
-_ROBOT_KEYS = ("ee", "q0", "torque_limits", "velocity_limits")  # the options that change the robot itself
 # Simulated seconds without a new command after which the arm holds on its brakes, as a drive's
 # watchdog does when its controller stops (a stopped robot interface cannot engage them itself)
 COMMAND_TIMEOUT = 0.05
@@ -191,7 +190,7 @@ class MujocoArmPlant:
     def describe_robot(model: str, base_dir: str, options: Mapping[str, Any]) -> PlantRobot:
         """The robot a plant of these options would simulate, as `pbo check` sees it; RobotFileError
         (a ValueError whose `key` names the plant key at fault) if it cannot."""
-        return load_robot(model, Path(base_dir), 0.001, {k: v for k, v in options.items() if k in _ROBOT_KEYS})
+        return load_robot(model, Path(base_dir), 0.001, {k: v for k, v in options.items() if k in ROBOT_OPTIONS})
 
     @property
     def sim_time(self) -> float:

@@ -21,15 +21,17 @@ import os
 import sys
 import xml.etree.ElementTree as ElementTree
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
 
+from pbo_runtime import ROBOT_SUFFIXES
+
 #: Mesh formats MuJoCo reads.
 READABLE_MESHES = (".stl", ".obj", ".msh")
 MAX_ROBOT_FILE_BYTES = 20 * 1024 * 1024  # a robot file is kilobytes; this refuses a runaway one early
-ROBOT_SUFFIXES = (".urdf", ".xml", ".mjcf")
 _URDF_TAGS = {"link", "joint", "material"}  # what a URDF's <robot> holds for MuJoCo; the rest is for other tools
 
 
@@ -50,11 +52,6 @@ class RobotSource:
     kind: str  # "urdf" or "mjcf"
     notes: list[str] = field(default_factory=list)
     velocity: dict[str, float] = field(default_factory=dict)  # joint name -> speed limit the file gives
-
-
-def is_robot_file(model: str) -> bool:
-    """Whether a plant's `model:` names a file (else it names a robot registered by name)."""
-    return model.startswith("package://") or model.lower().endswith(ROBOT_SUFFIXES) or "/" in model
 
 
 def resolve(model: str, base_dir: Path) -> Path:
@@ -206,14 +203,15 @@ def _package_path(uri: str, start: Path) -> Path:
     name, _, rest = uri[len("package://"):].partition("/")
     if not name:
         raise RobotFileError(f"{uri!r} names no package")
-    for root in _package_roots(name, start):
+    root = next(_package_roots(name, start), None)
+    if root is not None:
         return (root / rest).resolve()
     raise RobotFileError(
         f"package {name!r} of {uri!r} is not in the file's folders nor in the search path; install the package "
         f"that ships it, or add the folder that holds {name}/ to PBO_ROBOT_PATH")
 
 
-def _package_roots(name: str, start: Path):  # type: ignore[no-untyped-def]
+def _package_roots(name: str, start: Path) -> Iterator[Path]:
     """Candidate folders of package `name`, nearest first."""
     for folder in (start.resolve(), *start.resolve().parents):
         if folder.name == name or _package_xml_names(folder / "package.xml") == name:

@@ -27,8 +27,8 @@ import numpy as np
 
 from drivers.robots.arm_table import ArmTables
 from drivers.robots.description import RobotDescription
-from drivers.robots.files import RobotFileError, RobotSource, is_robot_file, read_robot, resolve
-from pbo_runtime import GRAVITY, registered_robot
+from drivers.robots.files import RobotFileError, RobotSource, read_robot, resolve
+from pbo_runtime import GRAVITY, is_robot_file, registered_robot
 
 _LIMIT_OPTIONS = ("torque_limits", "velocity_limits")
 _RESERVED_SITES = ("ft", "target")

@@ -56,6 +56,16 @@ class Arm:
 END_EFFECTOR_FRAME = "ee"
 GRAVITY = (0.0, 0.0, -9.81)
 
+#: What a robot file's name ends with: a URDF, or an MJCF.
+ROBOT_SUFFIXES = (".urdf", ".xml", ".mjcf")
+#: Plant options that change the robot itself (the rest change the world around it).
+ROBOT_OPTIONS = ("ee", "q0", "torque_limits", "velocity_limits")
+
+
+def is_robot_file(model: str) -> bool:
+    """Whether a plant's `model:` names a robot file (a path or a package:// URI), not a registered robot."""
+    return model.startswith("package://") or model.lower().endswith(ROBOT_SUFFIXES) or "/" in model
+
 
 def check_arm(arm: Any, ee: Any) -> tuple[np.ndarray, np.ndarray]:
     """`arm` and `ee` as float arrays, or ValueError naming the first thing that is not a valid arm."""

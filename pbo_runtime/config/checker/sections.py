@@ -15,15 +15,8 @@ from pbo_runtime.config.units import DATA_RATE, SIZE, TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
 from pbo_runtime.errors import ModuleError
 from pbo_runtime.objects import registry
+from pbo_runtime.objects.arm import ROBOT_OPTIONS, is_robot_file
 
-#: Plant options that change the robot (the plant checks them as it loads the robot).
-ROBOT_OPTIONS = ("ee", "q0", "torque_limits", "velocity_limits")
-_ROBOT_SUFFIXES = (".urdf", ".xml", ".mjcf")
-
-
-def is_robot_file(model: str) -> bool:
-    """Whether a plant's `model:` names a robot file (a path or a package:// URI), not a registered robot."""
-    return model.startswith("package://") or model.lower().endswith(_ROBOT_SUFFIXES) or "/" in model
 
 _SUBSYSTEM_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
 

@@ -15,17 +15,16 @@ from __future__ import annotations
 
 import functools
 import os
-import time
 from typing import Any
 
-from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect, status
+from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
 from starlette.concurrency import run_in_threadpool
 
 from pbo_runtime.api.files import NoFile, loaded, subsystem_file
 from pbo_runtime.api.jsonable import jsonable
 from pbo_runtime.api.link import NoRun, RunLink
 from pbo_runtime.api.replies import BAD_REQUEST, NO_ANSWER, NO_RUN, Reply, refusal
-from pbo_runtime.api.streams import ALIVE_EVERY, Pacer, parse_rate, refuse, run_alive
+from pbo_runtime.api.streams import accept_at_rate, open_view, refuse, ticks
 from pbo_runtime.config import bus
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
@@ -105,19 +104,12 @@ def router() -> APIRouter:
 
     @routes.websocket("/api/streams/arm")
     async def arm_stream(websocket: WebSocket) -> None:
-        await websocket.accept()
+        rate = await accept_at_rate(websocket, DEFAULT_ARM_RATE, MAX_ARM_RATE)
+        view = await open_view(websocket) if rate is not None else None
+        if rate is None or view is None:
+            return
         link: RunLink = websocket.app.state.link
-        try:
-            rate = parse_rate(websocket.query_params.get("rate"), DEFAULT_ARM_RATE, MAX_ARM_RATE)
-        except ValueError as exc:
-            await refuse(websocket, str(exc))
-            return
         joints = websocket.query_params.get("q") or "q_m"
-        try:
-            view = await run_in_threadpool(link.open_table)
-        except PboError as exc:
-            await refuse(websocket, str(exc))
-            return
         try:
             try:
                 file = websocket.app.state.file or await run_in_threadpool(_run_file, link)
@@ -149,17 +141,9 @@ def _run_file(link: RunLink) -> str:
 
 async def stream_arm(websocket: WebSocket, view: Any, frames: ArmFrames, joints: str, rate: float) -> None:
     """Send the arm's joint frames `rate` times a second until the client leaves or the run ends."""
-    pacer = Pacer(rate)
-    checked_at = time.monotonic()
     await websocket.send_json({"ok": True, "subsystem": view.subsystem, "arm": frames.name, "joints": joints,
                                "rate": rate, "ndof": frames.ndof})
-    while True:
-        now = time.monotonic()
-        if now - checked_at >= ALIVE_EVERY:
-            checked_at = now
-            if not run_alive(view):
-                await refuse(websocket, f"the run of '{view.subsystem}' has ended", status.WS_1000_NORMAL_CLOSURE, ended=True)
-                return
+    async for now in ticks(websocket, view, rate):
         try:
             q, _sequence, _when, _writer = view.read(joints)
             message: dict[str, Any] = {"time": now, "q": q.tolist(), "frames": frames.positions(q).tolist()}
@@ -169,4 +153,3 @@ async def stream_arm(websocket: WebSocket, view: Any, frames: ArmFrames, joints:
             await refuse(websocket, f"cannot draw the arm: {exc}")
             return
         await websocket.send_json(jsonable(message))
-        await pacer.wait()

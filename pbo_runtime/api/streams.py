@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import AsyncIterator
 from typing import Any
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect, status
@@ -73,6 +74,42 @@ def run_alive(view: TableView) -> bool:
     return (shm.SHM_DIR / view.name.lstrip("/")).exists() and shm.pid_alive(view.supervisor_pid)
 
 
+async def accept_at_rate(websocket: WebSocket, default: float, limit: float) -> float | None:
+    """Accept a stream and read its `?rate=`; None once a bad rate has been refused."""
+    await websocket.accept()
+    try:
+        return parse_rate(websocket.query_params.get("rate"), default, limit)
+    except ValueError as exc:
+        await refuse(websocket, str(exc))
+        return None
+
+
+async def open_view(websocket: WebSocket) -> TableView | None:
+    """A lock-free view of the run's table (the caller closes it); None once the refusal was sent."""
+    link: RunLink = websocket.app.state.link
+    try:
+        return await run_in_threadpool(link.open_table)
+    except PboError as exc:
+        await refuse(websocket, str(exc))
+        return None
+
+
+async def ticks(websocket: WebSocket, view: TableView, rate: float) -> AsyncIterator[float]:
+    """The time of each message, `rate` times a second, while the run lives; when it ends, the
+    stream is closed saying so."""
+    pacer = Pacer(rate)
+    checked = time.monotonic()
+    while True:
+        now = time.monotonic()
+        if now - checked >= ALIVE_EVERY:
+            checked = now
+            if not run_alive(view):
+                await refuse(websocket, f"the run of '{view.subsystem}' has ended", status.WS_1000_NORMAL_CLOSURE, ended=True)
+                return
+        yield now
+        await pacer.wait()
+
+
 def router() -> APIRouter:
     routes = APIRouter(prefix="/api/streams")
 
@@ -102,17 +139,9 @@ def router() -> APIRouter:
 
     @routes.websocket("/variables")
     async def variables_stream(websocket: WebSocket) -> None:
-        await websocket.accept()
-        link: RunLink = websocket.app.state.link
-        try:
-            rate = parse_rate(websocket.query_params.get("rate"), DEFAULT_VARIABLE_RATE, MAX_VARIABLE_RATE)
-        except ValueError as exc:
-            await refuse(websocket, str(exc))
-            return
-        try:
-            view = await run_in_threadpool(link.open_table)
-        except PboError as exc:
-            await refuse(websocket, str(exc))
+        rate = await accept_at_rate(websocket, DEFAULT_VARIABLE_RATE, MAX_VARIABLE_RATE)
+        view = await open_view(websocket) if rate is not None else None
+        if rate is None or view is None:
             return
         try:
             names = [n for n in (websocket.query_params.get("names") or "").split(",") if n] or view.variables()
@@ -132,16 +161,8 @@ def router() -> APIRouter:
 
 async def stream_variables(websocket: WebSocket, view: TableView, names: list[str], rate: float) -> None:
     """Send the variables `rate` times a second until the client leaves or the run ends."""
-    pacer = Pacer(rate)
-    checked = time.monotonic()
     await websocket.send_json({"ok": True, "subsystem": view.subsystem, "run_id": view.run_id, "names": names, "rate": rate})
-    while True:
-        now = time.monotonic()
-        if now - checked >= ALIVE_EVERY:
-            checked = now
-            if not run_alive(view):
-                await refuse(websocket, f"the run of '{view.subsystem}' has ended", status.WS_1000_NORMAL_CLOSURE, ended=True)
-                return
+    async for now in ticks(websocket, view, rate):
         values: dict[str, Any] = {}
         sequences: dict[str, int] = {}
         try:
@@ -153,4 +174,3 @@ async def stream_variables(websocket: WebSocket, view: TableView, names: list[st
         except TableBusy as exc:  # a writer stopped mid-write: say so, never wait on it
             message = {"time": now, "busy": str(exc)}
         await websocket.send_json(jsonable(message))
-        await pacer.wait()

@@ -91,19 +91,24 @@ def main(argv: list[str] | None = None) -> int:
                 barrier.done()
         dt = plant.timestep
         stall_after = max(STALL_AFTER, 2 * dt)
-        next_step = last_stepped = time.monotonic()
+        next_step = awake = time.monotonic()
         fifo = os.sched_getscheduler(0) == os.SCHED_FIFO
         while True:
             now = time.monotonic()
             if now < next_step:
                 time.sleep(next_step - now)
                 now = time.monotonic()  # (a process stopped in its sleep wakes up late)
+            # Stalled: this process did not run between two wake-ups, wherever a stop landed (in
+            # its sleep, its step, or between the two); the time since its last step would miss a
+            # stop that landed before that step.
+            gap, awake = now - awake, now
             if now - next_step > dt:
-                if now - last_stepped > stall_after and now - next_step > stall_after:
+                if gap > stall_after and now - next_step > stall_after:
+                    events.report("plant", messages.PlantStalled(gap, getattr(plant, "sim_time", 0.0)))
+                    resumed = time.monotonic()  # (a stop may land in the report too)
                     stalls += 1
-                    stalled_for += now - next_step
-                    events.report("plant", messages.PlantStalled(now - last_stepped, getattr(plant, "sim_time", 0.0)))
-                    next_step = now  # resynchronise: the backlog is not integrated
+                    stalled_for += resumed - next_step
+                    next_step = awake = resumed  # resynchronise: the backlog is not integrated
                 else:
                     late += 1
                     if fifo and now - next_step > BEHIND_LIMIT:
@@ -112,7 +117,6 @@ def main(argv: list[str] | None = None) -> int:
                         behind_when_stepped_down = now - next_step
             plant.step()
             steps += 1
-            last_stepped = time.monotonic()
             next_step += dt
     except Stop:
         return 0

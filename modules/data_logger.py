@@ -20,39 +20,43 @@ The file is written in chunks as the run goes, so a run of any length keeps ever
 bounded memory, and a killed RTPU loses only the rows since the last chunk written. The cycle
 fills one of two chunk buffers preallocated in `init` (it allocates nothing, encodes nothing and
 does no I/O); the cycle that fills it hands it to a writer thread (an eventfd write) and goes on
-in the other. The writer encodes the chunk (MCAP: JSON and zstd, in slices of at most
-ENCODE_SLICE seconds with a pause between, so the cycle's thread never waits long for the GIL)
-and appends it to the file in one write; an `.npy` log then rewrites the row count in its header
-(fixed size: numpy leaves room for the count to grow), so the file is a valid array after every
-chunk; an MCAP log is readable up to its last chunk, and gets its summary and footer when the
-task is killed. A write takes microseconds into the page cache, but milliseconds at times when
-the kernel throttles write-back: that is why it is not the cycle's. `off` and `kill` write the
-chunk begun. A write that fails (disk full, file or directory removed) makes the next cycle
-raise `OutputError`: the task goes to ERROR with the OS error, the run's exit status says so, and
-the file keeps every row of the chunks written before (an MCAP log keeps the failed chunk's bytes
-and writes them first when the task is cleared).
+in the other. An `.npy` log's writer appends the chunk in one write, then rewrites the row count
+in the header (fixed size: numpy leaves room for the count to grow), so the file is a valid array
+after every chunk. An MCAP log's chunks are encoded (JSON, zstd) by a process of its own
+(modules/_mcap_encoder.py), which reads the buffers from shared memory: the encoding never holds
+the RTPU's GIL, and the writer thread only waits for it with the GIL released. The log is
+readable up to its last chunk, and gets its summary and footer when the task is killed. A write
+takes microseconds into the page cache, but milliseconds at times when the kernel throttles
+write-back: that is why it is not the cycle's. `off` and `kill` write the chunk begun.
+
+When both buffers are full (the writer still writes one), a cycle on the real clock drops its
+row, counted and reported; on the simulated clock it waits for the writer instead, as the
+simulated time does: a log of a simulated run has every row, however slow the disk.
+
+A write that fails (disk full, file or directory removed) makes the next cycle raise
+`OutputError`: the task goes to ERROR with the OS error, the run's exit status says so, and the
+file keeps every row of the chunks written before (an MCAP log keeps the failed chunk's bytes and
+writes them first when the task is cleared).
 """
 
 from __future__ import annotations
 
 import io
-import json
+import mmap
 import os
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Mapping
 
 import numpy as np
 
+from modules._mcap_encoder import McapEncoder, McapLog, write_all
 from pbo_runtime import ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status, read_log
 
 __all__ = ["DataLogger", "DataLoggerParams", "read_log"]
 
 CHUNK_BYTES = 256 * 1024  # the most one cycle writes at once (tens of microseconds into the page cache)
 FORMATS = (".mcap", ".npy")
-ENCODE_SLICE = 50e-6  # seconds the writer encodes before it lets the GIL go (a thread of the RTPU may want it)
-ENCODE_PAUSE = 50e-6  # seconds it then sleeps: long enough for a thread waiting on the GIL to take it
 
 
 @dataclass(frozen=True)
@@ -90,15 +94,28 @@ class DataLogger(PortBasedObject):
         arrays = self.bound_arrays[-len(params.variables):]
         self._dtype = np.dtype([("time", np.float64)] + [(name, a.dtype, a.shape) for name, a in zip(params.variables, arrays)])
         self._rows = max(1, min(int(round(params.chunk / self.period)), CHUNK_BYTES // self._dtype.itemsize))
-        # Two chunk buffers: the cycle fills one while the writer writes the other. Written now
-        # (np.full, not the lazily mapped np.zeros): a row in a page never touched would be
-        # faulted in by the cycle that writes it. Each buffer's views are made once.
+        # Two chunk buffers: the cycle fills one while the writer writes the other. An MCAP log's
+        # are shared with its encoder process (a memfd: nothing to clean up in /dev/shm). Written
+        # now: a row in a page never touched would be faulted in by the cycle that writes it.
+        # Each buffer's views are made once.
+        mcap = params.path.endswith(".mcap")
+        self._shared_fd, self._shared = -1, None
+        if mcap:
+            size = 2 * self._rows * self._dtype.itemsize
+            self._shared_fd = os.memfd_create(f"pbo-log-{self.task_name}", os.MFD_CLOEXEC)
+            os.ftruncate(self._shared_fd, size)
+            self._shared = mmap.mmap(self._shared_fd, size)
         sources = [a.reshape(-1) for a in arrays]
         self._buffers = []
-        for _ in range(2):
-            chunk = np.full(self._rows, 0, dtype=self._dtype)
+        for index in range(2):
+            if self._shared is not None:
+                chunk = np.frombuffer(self._shared, self._dtype, count=self._rows, offset=index * self._rows * self._dtype.itemsize)
+                chunk.fill(0)
+            else:
+                chunk = np.full(self._rows, 0, dtype=self._dtype)
             pairs = [(_flat_rows(chunk[name]), source) for name, source in zip(params.variables, sources)]
             self._buffers.append((chunk, chunk["time"], pairs))
+        self._wait_when_full = self.run_metadata.get("clock") == "sim"
         self._current = 0
         self._chunk, self._times, self._pairs = self._buffers[0]
         self.path = self.output_path(params.path)
@@ -112,11 +129,13 @@ class DataLogger(PortBasedObject):
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
-            if self.path.suffix == ".mcap":
+            if mcap:
                 columns = {name: self.variable_note(name) for name in params.variables}
-                self._file: _LogFile = _McapFile(self._fd, self._dtype, columns, self.run_metadata, self.task_name, self.period)
+                McapLog(self._fd, self._dtype, columns, self.run_metadata, self.task_name, self.period)  # the preamble, now
+                setup = {"columns": columns, "run": dict(self.run_metadata), "task": self.task_name, "period": self.period}
+                self._file: _LogFile = _McapProcess(McapEncoder(self._fd, self._shared_fd, self._dtype, self._rows, setup))
             else:
-                self._file = _NpyFile(self._fd, self._dtype)
+                self._file = _NpyFile(self._fd, self._dtype, [chunk for chunk, _, _ in self._buffers])
         except OSError as exc:
             self._close()
             raise OutputError(f"cannot create log {self.path}: {_os_error(exc)}") from None
@@ -136,8 +155,10 @@ class DataLogger(PortBasedObject):
         row = self._filled
         if row == self._rows:  # full, and the writer still has the other buffer
             if self._queued >= 0:
-                self.dropped += 1
-                return Status.CONTINUE
+                if not self._wait_when_full:
+                    self.dropped += 1
+                    return Status.CONTINUE
+                self.wait_for_writer()
             self._hand_over()
             row = 0
         self._times[row] = self.time
@@ -159,14 +180,11 @@ class DataLogger(PortBasedObject):
         os.eventfd_write(self._wake, 1)
 
     def _write_queued(self) -> None:
-        """The writer thread: encode and append each buffer handed over; a failure is the next cycle's to raise.
+        """The writer thread: append each buffer handed over; a failure is the next cycle's to raise.
 
-        It holds the GIL while it encodes, in slices (ENCODE_SLICE) with a pause between, and
-        not during its system calls, so the executive's thread waits a slice at most. The pause
-        also gives up the CPU: the thread inherits the RTPU's SCHED_FIFO priority, and on an RTPU
-        pinned to one CPU a thread of equal priority that never blocked would hold the executive
-        off until it did. The write's own time (the disk, the kernel's write-back throttling:
-        milliseconds at times) is spent off the cycle."""
+        Its time is in system calls (the write; for MCAP, the wait for the encoder process), with
+        the GIL released: the executive's thread never waits for it. The write's own time (the
+        disk, the kernel's write-back throttling: milliseconds at times) is spent off the cycle."""
         while True:
             os.eventfd_read(self._wake)
             if self._stopping:
@@ -175,10 +193,10 @@ class DataLogger(PortBasedObject):
             if index < 0:
                 continue
             try:
-                self._append(self._buffers[index][0], self._queued_rows, pause=True)
+                self._append(index, self._queued_rows)
             except OutputError as exc:
                 self._failure = str(exc)
-            except Exception as exc:  # a bug in encoding: said by the next cycle, never a writer gone silent
+            except Exception as exc:  # a bug in writing or encoding: said by the next cycle, never a writer gone silent
                 self._failure = f"cannot write log {self.path}: its writer failed: {type(exc).__name__}: {exc}"
             self._queued = -1
 
@@ -224,58 +242,66 @@ class DataLogger(PortBasedObject):
         if self._failure:
             raise OutputError(self._failure)
         rows, self._filled = self._filled, 0
-        self._append(self._chunk, rows)
+        self._append(self._current, rows)
         if self.dropped:
             dropped, self.dropped = self.dropped, 0
             raise OutputError(f"log {self.path}: {dropped} rows dropped: writing a chunk of {self._rows} rows took "
                               "longer than filling one (the disk is too slow for this period)")
 
-    def _append(self, chunk: np.ndarray, rows: int, pause: bool = False) -> None:
-        """Append `rows` rows of `chunk` to the file; OutputError if it fails (the file keeps the chunks before)."""
+    def _append(self, index: int, rows: int) -> None:
+        """Append `rows` rows of buffer `index` to the file; OutputError if it fails (the file keeps the chunks before)."""
         if self._fd < 0:
             return
         written = self._file.rows
         try:
             if os.fstat(self._fd).st_nlink == 0:
                 raise FileNotFoundError(2, "the file was removed while the run wrote it (its directory deleted?)")
-            self._file.append(chunk, rows, pause)
+            self._file.append(index, rows)
         except OSError as exc:
             raise OutputError(f"cannot write log {self.path} ({rows} rows after the {written} "
                               f"written): {_os_error(exc)}") from None
 
     def _close(self) -> None:
+        if hasattr(self, "_file"):
+            self._file.stop()
         if self._fd >= 0:
             os.close(self._fd)
             self._fd = -1
+        if self._shared_fd >= 0:
+            os.close(self._shared_fd)
+            self._shared_fd = -1
 
 
 class _LogFile:
-    """A log's format: appends chunks of rows to the file's descriptor; `rows` counts those in the file."""
+    """A log's format: appends a chunk buffer's rows to the file; `rows` counts those in the file."""
 
     rows = 0
 
-    def append(self, chunk: np.ndarray, rows: int, pause: bool) -> None:
+    def append(self, index: int, rows: int) -> None:
         raise NotImplementedError
 
     def finish(self) -> None:
         """At the task's kill: what the format writes after the last row."""
 
+    def stop(self) -> None:
+        """At the task's kill or a failed init: let go of what the format holds."""
+
 
 class _NpyFile(_LogFile):
     """One structured array: each chunk appended, then the row count in the header rewritten."""
 
-    def __init__(self, fd: int, dtype: np.dtype) -> None:
-        self.fd, self.dtype, self.rows = fd, dtype, 0
+    def __init__(self, fd: int, dtype: np.dtype, buffers: list[np.ndarray]) -> None:
+        self.fd, self.dtype, self.buffers, self.rows = fd, dtype, buffers, 0
         self.header_bytes = len(self.header(0))
-        _write_all(fd, self.header(0))
+        write_all(fd, self.header(0))
 
-    def append(self, chunk: np.ndarray, rows: int, pause: bool) -> None:
+    def append(self, index: int, rows: int) -> None:
         if rows == 0:
             return
         committed = self.header_bytes + self.rows * self.dtype.itemsize
         try:
             os.lseek(self.fd, committed, os.SEEK_SET)
-            _write_all(self.fd, memoryview(chunk).cast("B")[: rows * self.dtype.itemsize])
+            write_all(self.fd, self.buffers[index].data.cast("B")[: rows * self.dtype.itemsize])
             os.pwrite(self.fd, self.header(self.rows + rows), 0)
         except OSError:
             try:
@@ -296,122 +322,26 @@ class _NpyFile(_LogFile):
         return out.getvalue()
 
 
-class _PendingBytes:
-    """What the MCAP writer writes to: its bytes held until `commit` appends them to the file whole.
+class _McapProcess(_LogFile):
+    """MCAP, encoded and written by the log's encoder process (modules/_mcap_encoder.py)."""
 
-    `tell` counts the held bytes after those in the file, so the writer's chunk indexes point
-    where the chunks land. A commit that fails leaves the file as it was and keeps the bytes,
-    for the next commit to write first: the writer's indexes stay true."""
+    def __init__(self, encoder: McapEncoder) -> None:
+        self.encoder = encoder
 
-    def __init__(self, fd: int) -> None:
-        self.fd = fd
-        self.committed = 0
-        self.held = bytearray()
-
-    def write(self, data: bytes) -> int:
-        self.held += data
-        return len(data)
-
-    def tell(self) -> int:
-        return self.committed + len(self.held)
-
-    def flush(self) -> None:
-        pass
-
-    def commit(self) -> None:
-        if not self.held:
-            return
+    def append(self, index: int, rows: int) -> None:
         try:
-            os.lseek(self.fd, self.committed, os.SEEK_SET)
-            _write_all(self.fd, self.held)
-        except OSError:
-            try:
-                os.ftruncate(self.fd, self.committed)
-            except OSError:
-                pass
-            raise
-        self.committed += len(self.held)
-        self.held.clear()
-
-
-class _McapFile(_LogFile):
-    """MCAP: a channel per variable, JSON messages, one zstd chunk per chunk of rows."""
-
-    def __init__(self, fd: int, dtype: np.dtype, columns: Mapping[str, tuple[str, str]], run: Mapping[str, str],
-                 task: str, period: float) -> None:
-        from mcap.writer import CompressionType, Writer
-
-        self.rows = 0
-        self.pending = 0  # rows encoded into bytes not yet in the file
-        self.stream = _PendingBytes(fd)
-        # never a chunk by size: one per chunk of rows (`flush`), so each is on disk whole as it ends
-        self.writer = Writer(self.stream, chunk_size=1 << 62, compression=CompressionType.ZSTD)  # type: ignore[arg-type]
-        self.writer.start(profile="", library=f"pbo-runtime {run.get('pbo-runtime', '')}".strip())
-        self.names = [name for name in dtype.names or () if name != "time"]
-        described = []
-        self.channels = []
-        self.floats = []
-        for name in self.names:
-            field_dtype, shape = dtype[name].base, dtype[name].shape
-            doc, unit = columns.get(name, ("", ""))
-            described.append({"name": name, "dtype": str(field_dtype), "shape": list(shape), "unit": unit, "doc": doc})
-            schema = self.writer.register_schema(name, "jsonschema", json.dumps(_json_schema(name, field_dtype, shape, unit, doc)).encode())
-            self.channels.append(self.writer.register_channel(name, "json", schema, {
-                "unit": unit, "doc": doc, "dtype": str(field_dtype), "shape": json.dumps(list(shape))}))
-            self.floats.append(field_dtype.kind == "f")
-        self.writer.add_metadata("pbo-run", {str(k): str(v) for k, v in run.items()})
-        self.writer.add_metadata("pbo-log", {"task": task, "period": repr(period), "columns": json.dumps(described)})
-        self.stream.commit()
-
-    def append(self, chunk: np.ndarray, rows: int, pause: bool) -> None:
-        if rows:
-            self.encode(chunk[:rows], pause)
-            self.pending += rows
-            self.writer.flush()  # the chunk ends here: compressed, written to the stream with its index
-        self.stream.commit()
-        self.rows += self.pending
-        self.pending = 0
-
-    def encode(self, chunk: np.ndarray, pause: bool) -> None:
-        times = chunk["time"].tolist()
-        stamps = np.rint(chunk["time"] * 1e9).astype(np.int64).tolist()
-        columns = [(channel, _json_values(chunk[name], floating))
-                   for channel, name, floating in zip(self.channels, self.names, self.floats)]
-        add, dumps = self.writer.add_message, json.dumps
-        slice_ends = time.perf_counter() + ENCODE_SLICE
-        for row, (at, stamp) in enumerate(zip(times, stamps)):
-            for channel, values in columns:
-                data = f'{{"time":{at!r},"value":{dumps(values[row])}}}'.encode()
-                add(channel, log_time=stamp, data=data, publish_time=stamp, sequence=row)
-                if pause and time.perf_counter() > slice_ends:
-                    time.sleep(ENCODE_PAUSE)
-                    slice_ends = time.perf_counter() + ENCODE_SLICE
+            self.encoder.append(index, rows)
+        finally:
+            self.rows = self.encoder.rows
 
     def finish(self) -> None:
-        """The summary and footer: the log then opens indexed (a killed run's log is read chunk by chunk)."""
-        self.writer.finish()
-        self.stream.commit()
+        try:
+            self.encoder.finish()
+        finally:
+            self.rows = self.encoder.rows
 
-
-def _json_values(column: np.ndarray, floating: bool) -> list[Any]:
-    """A column's rows as JSON-ready lists; a non-finite float becomes null (JSON has no NaN)."""
-    if floating and not np.isfinite(column).all():
-        column = column.astype(object)
-        column[~np.isfinite(column.astype(np.float64))] = None
-    return column.tolist()
-
-
-def _json_schema(name: str, dtype: np.dtype, shape: tuple[int, ...], unit: str, doc: str) -> dict[str, Any]:
-    """The JSON schema of a variable's messages: its time and its value (a number or nested arrays)."""
-    value: dict[str, Any] = {"type": "integer" if dtype.kind in "iub" else "number"}
-    if dtype.kind == "b":
-        value = {"type": "boolean"}
-    for size in reversed(shape):
-        value = {"type": "array", "items": value, "minItems": size, "maxItems": size}
-    description = ", ".join(part for part in (doc, unit) if part)
-    return {"title": name, "type": "object", "description": description,
-            "properties": {"time": {"type": "number", "description": "the cycle's release time on the run's clock, s"},
-                           "value": {**value, "description": description}}}
+    def stop(self) -> None:
+        self.encoder.stop()
 
 
 def _flat_rows(field: np.ndarray) -> np.ndarray:
@@ -419,12 +349,6 @@ def _flat_rows(field: np.ndarray) -> np.ndarray:
     flat = field.reshape(field.shape[0], -1)
     assert np.shares_memory(flat, field), "a field of a structured array reshapes to a view"
     return flat
-
-
-def _write_all(fd: int, data: bytes | bytearray | memoryview) -> None:
-    view = memoryview(data)
-    while view:
-        view = view[os.write(fd, view):]
 
 
 def _os_error(exc: OSError) -> str:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from modules._mcap_encoder import McapLog
 from modules.data_logger import DataLogger
 from pbo_runtime import Status, open_log, read_log
 from pbo_runtime.cli.main import main
@@ -64,6 +65,7 @@ def run_cycles(table: StateTable, task: Task, cycles: int, x=None) -> list[tuple
     return written
 
 
+@pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own
 def test_an_mcap_log_reads_back_with_the_mcap_library_every_variable_with_its_unit_doc_and_the_run_metadata(table, tmp_path):
     path = tmp_path / "log.mcap"
     task = logger(table, path, chunk=3 * DT)
@@ -97,6 +99,7 @@ def test_an_mcap_log_reads_back_with_the_mcap_library_every_variable_with_its_un
     np.testing.assert_array_equal(rows["m"], [w[3] for w in written])
 
 
+@pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own
 def test_an_mcap_log_whose_writer_was_killed_reads_up_to_its_last_whole_chunk(table, tmp_path):
     path = tmp_path / "log.mcap"
     task = logger(table, path, chunk=2 * DT)
@@ -112,6 +115,7 @@ def test_an_mcap_log_whose_writer_was_killed_reads_up_to_its_last_whole_chunk(ta
     assert log.units["x"] == "m" and log.metadata["subsystem"] == "arm"
 
 
+@pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own
 def test_an_mcap_log_killed_before_its_first_chunk_still_says_what_it_holds(table, tmp_path):
     path = tmp_path / "log.mcap"
     task = logger(table, path)
@@ -122,6 +126,35 @@ def test_an_mcap_log_killed_before_its_first_chunk_still_says_what_it_holds(tabl
     assert len(read_log(path)) == 3
 
 
+@pytest.mark.multiprocess
+def test_an_mcap_logs_encoder_process_ends_with_the_task_and_nothing_is_left(table, tmp_path):
+    task = logger(table, tmp_path / "log.mcap", chunk=2 * DT)
+    run_cycles(table, task, 3)
+    encoder = task.module._file.encoder.process
+    assert encoder.poll() is None
+    task.kill()
+    assert encoder.poll() == 0 and open_log(tmp_path / "log.mcap").complete
+
+
+@pytest.mark.multiprocess
+def test_an_mcap_log_whose_encoder_process_dies_fails_the_next_chunk_naming_it_and_keeps_the_chunks_before(table, tmp_path):
+    path = tmp_path / "log.mcap"
+    task = logger(table, path, chunk=2 * DT)
+    written = run_cycles(table, task, 2)
+    task.module._file.encoder.process.kill()
+    task.module._file.encoder.process.wait()
+    for i in range(2, 4):
+        assert task.run_cycle(1.0 + i * DT) is Status.CONTINUE
+    task.module.wait_for_writer()
+    assert task.run_cycle(1.0 + 4 * DT) is Status.ERROR
+    assert re.fullmatch(r"cycle raised OutputError: cannot write log .*log\.mcap \(2 rows after the 2 written\): "
+                        r"the log's encoder process ended \(killed by SIGKILL\) at data_logger\.py:\d+", task.last_error), task.last_error
+    task.kill()
+    log = open_log(path)
+    assert not log.complete and [row.tolist() for row in log.rows["x"]] == [w[1] for w in written]
+
+
+@pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own
 def test_non_finite_values_are_logged_as_json_null_and_read_back_as_nan(table, tmp_path):
     path = tmp_path / "log.mcap"
     task = logger(table, path)
@@ -173,12 +206,27 @@ def test_open_log_refuses_what_is_not_a_log_naming_it(tmp_path, make, message):
 
 
 @pytest.fixture
-def run_dir(table, tmp_path):
-    """A run's directory as `pbo run` leaves it: a log and report.json with the switches and jobs marked."""
+def run_dir(tmp_path):
+    """A run's directory as `pbo run` leaves it: a log and report.json with the switches and jobs marked.
+
+    The log is written by the logger's MCAP writer in this process (the logger itself runs it in
+    a process of its own, tested above): 20 rows at DT from 1.0 s, in chunks of two."""
     directory = tmp_path / "runs" / "arm-1"
-    task = logger(table, directory / "log.mcap", chunk=2 * DT)
-    run_cycles(table, task, 20)
-    task.kill()
+    directory.mkdir(parents=True)
+    rows = np.zeros(20, dtype=[("time", np.float64), ("x", np.float64, (3,)), ("k", np.int32), ("m", np.float64, (2, 2))])
+    i = np.arange(20)
+    rows["time"] = 1.0 + i * DT
+    rows["x"] = np.stack([i, -i, 0.5 * i], axis=1)
+    rows["k"] = 10 * i - 3
+    rows["m"] = np.arange(4.0).reshape(2, 2) + i[:, None, None]
+    fd = os.open(directory / "log.mcap", os.O_WRONLY | os.O_CREAT, 0o644)
+    try:
+        log = McapLog(fd, rows.dtype, NOTES, RUN, "log", DT)
+        for start in range(0, 20, 2):
+            log.append(rows[start:start + 2], 2)
+        log.finish()
+    finally:
+        os.close(fd)
     marks = [{"time": 1.0, "kind": "configuration", "label": "joint_pid on"},
              {"time": 1.05, "kind": "job", "label": "job move starts"},
              {"time": 1.1, "kind": "switch", "label": "joint_pid -> pd"}]

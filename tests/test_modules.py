@@ -512,11 +512,11 @@ def log_table(make_table) -> StateTable:
     return make_table(LOGGED)
 
 
-def logger_task(table: StateTable, params: dict) -> Task:
+def logger_task(table: StateTable, params: dict, clock: str = "real") -> Task:
     built = DataLogger.build_params(params)
     bindings = tuple(PortBinding(p, p.variable, table.layout.slot(p.variable).shape) for p in DataLogger.ports_for(built))
     spec = TaskSpec(name="log", module="DataLogger", rtpu="rtpu0", period=LOG_DT, params=params, bindings=bindings, index=1)
-    task = Task(spec, DataLogger, table)
+    task = Task(spec, DataLogger, table, run_metadata={"clock": clock})
     assert task.spawn(0.0), task.last_error
     assert task.turn_on(0.0), task.last_error
     return task
@@ -608,19 +608,23 @@ def test_logger_keeps_every_row_of_a_run_longer_than_the_120_s_it_once_kept(log_
     assert len(np.load(path)) == cycles
 
 
-def test_rows_taken_while_the_writer_still_writes_the_other_chunk_are_dropped_counted_and_reported(log_table, tmp_path):
-    import threading
-
-    path = tmp_path / "log.npy"
-    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "chunk": 2 * LOG_DT})
+def slowed_writer(task: Task) -> threading.Event:
+    """Hold the logger's writer thread in each append until the event returned is set (a slow disk)."""
     release, append = threading.Event(), task.module._append
 
-    def slow_disk(data, rows, pause=False):
+    def slow_disk(index, rows):
         if threading.current_thread() is task.module._writer:
             release.wait(30)
-        append(data, rows, pause)
+        append(index, rows)
 
     task.module._append = slow_disk
+    return release
+
+
+def test_rows_taken_while_the_writer_still_writes_the_other_chunk_are_dropped_counted_and_reported(log_table, tmp_path):
+    path = tmp_path / "log.npy"
+    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "chunk": 2 * LOG_DT})
+    release = slowed_writer(task)
     written = log_cycles_without_waiting(log_table, task, 7)  # 2 handed over, 2 filling the other, 3 with nowhere to go
     assert task.module.dropped == 3
     release.set()
@@ -628,6 +632,18 @@ def test_rows_taken_while_the_writer_still_writes_the_other_chunk_are_dropped_co
                                           r"filling one \(the disk is too slow for this period\)$"):
         task.module.off()
     assert_log_holds(path, written[:4])
+    task.kill()
+
+
+def test_on_the_simulated_clock_a_logger_waits_for_a_slow_writer_and_drops_no_row(log_table, tmp_path):
+    path = tmp_path / "log.npy"
+    task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "chunk": 2 * LOG_DT}, clock="sim")
+    release = slowed_writer(task)
+    threading.Timer(0.2, release.set).start()  # the fifth cycle waits until then, however long that is
+    written = log_cycles_without_waiting(log_table, task, 7)
+    assert task.module.dropped == 0 and release.is_set()
+    task.module.off()
+    assert_log_holds(path, written)
     task.kill()
 
 

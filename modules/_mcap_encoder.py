@@ -1,0 +1,302 @@
+"""MCAP encoding for the data logger, in a process of its own so that it never holds the RTPU's GIL.
+
+Encoding a chunk is Python work (a JSON text and an MCAP record per variable per row). Done by a
+thread of the RTPU it took the GIL from the executive's thread for tens of microseconds at a
+time, and every task on that RTPU saw it in its cycle. Here the encoder is a child process
+(`python -m modules._mcap_encoder`): the logger's two chunk buffers live in a memfd both map,
+and the logger's writer thread only says "buffer i holds n rows" down a pipe and waits for the
+reply with the GIL released. The child runs at SCHED_OTHER, niced, on the RTPU's CPU: it takes
+the time the executive leaves idle.
+
+The file's preamble (header, schemas, channels, the run's metadata) is written by the logger in
+its `init`, so a log cut short at once still says what it holds; the child builds the same
+writer, which writes those bytes again, identically, and counts them as written instead.
+
+The child ends on `finish` (summary and footer written) or when the pipe closes without one (the
+RTPU died): it then leaves the log as a SIGKILL leaves it, readable chunk by chunk up to the last
+whole one, and not marked complete.
+"""
+
+from __future__ import annotations
+
+import json
+import mmap
+import os
+import struct
+import subprocess
+import sys
+from typing import Any, Mapping
+
+import numpy as np
+
+FINISH = -1  # the command's buffer index that asks for the summary and footer
+NICE = 10  # below the RTPU's other processes: the encoder takes the CPU the executive leaves
+_LENGTH = struct.Struct("<I")
+
+
+class EncoderGone(OSError):
+    """The encoder process ended without answering (killed, or a bug): the log cannot go on."""
+
+
+class McapEncoder:
+    """The logger's handle on its encoder process: append a buffer's rows, finish, stop.
+
+    Made in the logger's `init` (a fork and exec, no waiting); the first call, from the writer
+    thread, sends the setup and so waits for the child to have started."""
+
+    def __init__(self, log_fd: int, buffers_fd: int, dtype: np.dtype, rows: int, setup: Mapping[str, Any]) -> None:
+        self.rows = 0  # rows in the file, as the child last said
+        commands_read, self._commands = os.pipe2(os.O_CLOEXEC)
+        self._replies, replies_write = os.pipe2(os.O_CLOEXEC)
+        self._setup: dict[str, Any] | None = {
+            **setup, "log_fd": log_fd, "buffers_fd": buffers_fd, "descr": np.lib.format.dtype_to_descr(dtype), "rows": rows}
+        try:
+            self.process = subprocess.Popen(
+                [sys.executable, "-m", "modules._mcap_encoder", str(commands_read), str(replies_write)],
+                pass_fds=(commands_read, replies_write, log_fd, buffers_fd), stdin=subprocess.DEVNULL)
+        finally:
+            os.close(commands_read)
+            os.close(replies_write)
+
+    def append(self, index: int, rows: int) -> None:
+        """Have buffer `index`'s first `rows` rows appended; OSError (with the child's errno) if that failed."""
+        self._ask({"buffer": index, "rows": rows})
+
+    def finish(self) -> None:
+        self._ask({"buffer": FINISH, "rows": 0})
+
+    def _ask(self, command: dict[str, Any]) -> None:
+        try:
+            if self._setup is not None:
+                setup, self._setup = self._setup, None
+                _send(self._commands, setup)
+            _send(self._commands, command)
+        except BrokenPipeError:
+            reply = None
+        else:
+            reply = _receive(self._replies)
+        if reply is None:
+            code = self.process.wait()
+            raise EncoderGone(f"the log's encoder process ended ({_exit_cause(code)})")
+        self.rows = reply["rows"]
+        if "errno" in reply:
+            raise OSError(reply["errno"], reply["strerror"])
+        if "bug" in reply:
+            raise RuntimeError(reply["bug"])
+
+    def stop(self, patience: float = 5.0) -> None:
+        """Close the pipes; the child ends (having finished or not); killed if it does not within `patience`."""
+        for fd in (self._commands, self._replies):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        try:
+            self.process.wait(timeout=patience)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+
+
+def _exit_cause(code: int) -> str:
+    if code < 0:
+        import signal
+
+        return f"killed by {signal.Signals(-code).name}"
+    return f"exit status {code}"
+
+
+def _send(fd: int, message: Mapping[str, Any]) -> None:
+    data = json.dumps(message).encode()
+    write_all(fd, _LENGTH.pack(len(data)) + data)
+
+
+def _receive(fd: int) -> Any:
+    """The next message, or None when the other end closed."""
+    head = _read_exactly(fd, _LENGTH.size)
+    if head is None:
+        return None
+    body = _read_exactly(fd, _LENGTH.unpack(head)[0])
+    return None if body is None else json.loads(body)
+
+
+def _read_exactly(fd: int, size: int) -> bytes | None:
+    data = bytearray()
+    while len(data) < size:
+        part = os.read(fd, size - len(data))
+        if not part:
+            return None
+        data += part
+    return bytes(data)
+
+
+def write_all(fd: int, data: bytes | bytearray | memoryview) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]
+
+
+class PendingBytes:
+    """What the MCAP writer writes to: its bytes held until `commit` appends them to the file whole.
+
+    `tell` counts the held bytes after those in the file, so the writer's chunk indexes point
+    where the chunks land. A commit that fails leaves the file as it was and keeps the bytes,
+    for the next commit to write first: the writer's indexes stay true."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.committed = 0
+        self.held = bytearray()
+
+    def write(self, data: bytes) -> int:
+        self.held += data
+        return len(data)
+
+    def tell(self) -> int:
+        return self.committed + len(self.held)
+
+    def flush(self) -> None:
+        pass
+
+    def commit(self) -> None:
+        if not self.held:
+            return
+        try:
+            os.lseek(self.fd, self.committed, os.SEEK_SET)
+            write_all(self.fd, self.held)
+        except OSError:
+            try:
+                os.ftruncate(self.fd, self.committed)
+            except OSError:
+                pass
+            raise
+        self.committed += len(self.held)
+        self.held.clear()
+
+    def count_as_committed(self) -> None:
+        """The held bytes are in the file already (the logger wrote the same preamble)."""
+        self.committed += len(self.held)
+        self.held.clear()
+
+
+class McapLog:
+    """MCAP: a channel per variable, JSON messages, one zstd chunk per chunk of rows."""
+
+    def __init__(self, fd: int, dtype: np.dtype, columns: Mapping[str, tuple[str, str]], run: Mapping[str, str],
+                 task: str, period: float, preamble_written: bool = False) -> None:
+        from mcap.writer import CompressionType, Writer
+
+        self.rows = 0
+        self.pending = 0  # rows encoded into bytes not yet in the file
+        self.stream = PendingBytes(fd)
+        # never a chunk by size: one per chunk of rows (`flush`), so each is on disk whole as it ends
+        self.writer = Writer(self.stream, chunk_size=1 << 62, compression=CompressionType.ZSTD)  # type: ignore[arg-type]
+        self.writer.start(profile="", library=f"pbo-runtime {run.get('pbo-runtime', '')}".strip())
+        self.names = [name for name in dtype.names or () if name != "time"]
+        described = []
+        self.channels = []
+        self.floats = []
+        for name in self.names:
+            field_dtype, shape = dtype[name].base, dtype[name].shape
+            doc, unit = columns.get(name, ("", ""))
+            described.append({"name": name, "dtype": str(field_dtype), "shape": list(shape), "unit": unit, "doc": doc})
+            schema = self.writer.register_schema(name, "jsonschema", json.dumps(_json_schema(name, field_dtype, shape, unit, doc)).encode())
+            self.channels.append(self.writer.register_channel(name, "json", schema, {
+                "unit": unit, "doc": doc, "dtype": str(field_dtype), "shape": json.dumps(list(shape))}))
+            self.floats.append(field_dtype.kind == "f")
+        self.writer.add_metadata("pbo-run", {str(k): str(v) for k, v in run.items()})
+        self.writer.add_metadata("pbo-log", {"task": task, "period": repr(period), "columns": json.dumps(described)})
+        if preamble_written:
+            self.stream.count_as_committed()
+        else:
+            self.stream.commit()
+
+    def append(self, chunk: np.ndarray, rows: int) -> None:
+        if rows:
+            self.encode(chunk[:rows])
+            self.pending += rows
+            self.writer.flush()  # the chunk ends here: compressed, written to the stream with its index
+        self.stream.commit()
+        self.rows += self.pending
+        self.pending = 0
+
+    def encode(self, chunk: np.ndarray) -> None:
+        times = chunk["time"].tolist()
+        stamps = np.rint(chunk["time"] * 1e9).astype(np.int64).tolist()
+        columns = [(channel, _json_values(chunk[name], floating))
+                   for channel, name, floating in zip(self.channels, self.names, self.floats)]
+        add, dumps = self.writer.add_message, json.dumps
+        for row, (at, stamp) in enumerate(zip(times, stamps)):
+            for channel, values in columns:
+                data = f'{{"time":{at!r},"value":{dumps(values[row])}}}'.encode()
+                add(channel, log_time=stamp, data=data, publish_time=stamp, sequence=row)
+
+    def finish(self) -> None:
+        """The summary and footer: the log then opens indexed (a killed run's log is read chunk by chunk)."""
+        self.writer.finish()
+        self.stream.commit()
+
+
+def _json_values(column: np.ndarray, floating: bool) -> list[Any]:
+    """A column's rows as JSON-ready lists; a non-finite float becomes null (JSON has no NaN)."""
+    if floating and not np.isfinite(column).all():
+        column = column.astype(object)
+        column[~np.isfinite(column.astype(np.float64))] = None
+    return column.tolist()
+
+
+def _json_schema(name: str, dtype: np.dtype, shape: tuple[int, ...], unit: str, doc: str) -> dict[str, Any]:
+    """The JSON schema of a variable's messages: its time and its value (a number or nested arrays)."""
+    value: dict[str, Any] = {"type": "integer" if dtype.kind in "iub" else "number"}
+    if dtype.kind == "b":
+        value = {"type": "boolean"}
+    for size in reversed(shape):
+        value = {"type": "array", "items": value, "minItems": size, "maxItems": size}
+    description = ", ".join(part for part in (doc, unit) if part)
+    return {"title": name, "type": "object", "description": description,
+            "properties": {"time": {"type": "number", "description": "the cycle's release time on the run's clock, s"},
+                           "value": {**value, "description": description}}}
+
+
+def _step_aside() -> None:
+    """Leave the CPU to the RTPU: SCHED_OTHER (a child inherits the executive's SCHED_FIFO), niced."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError:
+        pass
+    try:
+        os.nice(NICE)
+    except OSError:
+        pass
+
+
+def _serve(commands: int, replies: int) -> None:
+    """The child: set up from the first message, then answer each command until finish or the pipe closes."""
+    _step_aside()
+    setup = _receive(commands)
+    if setup is None:
+        return
+    dtype = np.lib.format.descr_to_dtype(setup["descr"])
+    rows = setup["rows"]
+    shared = mmap.mmap(setup["buffers_fd"], 2 * rows * dtype.itemsize, prot=mmap.PROT_READ)
+    buffers = [np.frombuffer(shared, dtype, count=rows, offset=i * rows * dtype.itemsize) for i in (0, 1)]
+    columns = {name: tuple(note) for name, note in setup["columns"].items()}
+    log = McapLog(setup["log_fd"], dtype, columns, setup["run"], setup["task"], setup["period"], preamble_written=True)
+    while (command := _receive(commands)) is not None:
+        reply: dict[str, Any] = {}
+        try:
+            if command["buffer"] == FINISH:
+                log.finish()
+            else:
+                log.append(buffers[command["buffer"]], command["rows"])
+        except OSError as exc:
+            reply = {"errno": exc.errno, "strerror": exc.strerror or str(exc)}
+        except Exception as exc:  # a bug in encoding: said to the logger, whose next cycle raises it
+            reply = {"bug": f"{type(exc).__name__}: {exc}"}
+        _send(replies, {"rows": log.rows, **reply})
+        if command["buffer"] == FINISH:
+            return
+
+
+if __name__ == "__main__":
+    _serve(int(sys.argv[1]), int(sys.argv[2]))

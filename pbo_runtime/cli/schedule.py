@@ -125,14 +125,14 @@ def diagnostics(subsystem: Subsystem, costs: Mapping[str, Cost], results: Mappin
                     blocked = (f", blocked {_ms(v.response.blocking)} by '{v.response.blocked_by}'"
                                if v.response.blocked_by else "")
                     errors.append(ConfigError(
-                        f"critical task '{v.task}' can miss its deadline on RTPU '{rtpu}' {where}: response time "
-                        f"{_ms(v.response.time)} > deadline {_ms(v.period)} (C = {_ms(v.cost.seconds)}{blocked})",
+                        f"critical task '{v.task}' can miss its deadline on RTPU '{rtpu}' {where}: {_late(v, verdicts)} "
+                        f"(C = {_ms(v.cost.seconds)}{blocked})",
                         loc.file, loc.line, loc.column,
                         hint=_remedy(subsystem, costs, configuration, v, kept, verdicts, profile)))
                 elif v.status == MAY_MISS and v.response is not None:
                     warnings.append(ConfigError(
-                        f"task '{v.task}' can miss its deadline on RTPU '{rtpu}' {where}: response time "
-                        f"{_ms(v.response.time)} > deadline {_ms(v.period)}", loc.file, loc.line, loc.column,
+                        f"task '{v.task}' can miss its deadline on RTPU '{rtpu}' {where}: {_late(v, verdicts)}",
+                        loc.file, loc.line, loc.column,
                         hint="not critical: the executive runs it after every critical cycle; it overruns, the critical tasks do not",
                         severity="warning"))
                 elif v.status == UNKNOWN and v.critical:
@@ -144,6 +144,17 @@ def diagnostics(subsystem: Subsystem, costs: Mapping[str, Cost], results: Mappin
                              f"configuration '{configuration}' (pbo run FILE --config {configuration}), or declare a wcet:",
                         severity="warning"))
     return errors, warnings
+
+
+def _late(v: Verdict, verdicts: list[Verdict]) -> str:
+    """'response time 1.1 ms > deadline 1 ms', or why there is no response time: the load it waits behind."""
+    assert v.response is not None
+    if v.response.time != float("inf"):
+        return f"response time {_ms(v.response.time)} > deadline {_ms(v.period)}"
+    waited = [u for u in verdicts if u.critical or not v.critical]  # a critical task waits for critical cycles only
+    load = sum(u.cost.seconds / u.period for u in waited if u.cost is not None)
+    return (f"its response time is unbounded: the {'critical ' if v.critical else ''}tasks of the RTPU need more than "
+            f"it has (U = {load:.2f} > 1)")
 
 
 def _remedy(subsystem: Subsystem, costs: Mapping[str, Cost], configuration: str, v: Verdict,

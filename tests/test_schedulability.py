@@ -21,7 +21,7 @@ from pbo_runtime.cli.main import main
 from pbo_runtime.config.allocation import pinned_tasks, propose
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.schedulability import Cost, Load, analyse_configuration, response_times
-from tests.support import PBO, demo_copy
+from tests.support import PBO, REPO, demo_copy
 
 # --- the analysis, known answers ---------------------------------------------------------------
 
@@ -147,6 +147,15 @@ def test_allocate_finds_nothing_when_the_blocking_task_is_pinned(tmp_path: Path)
     assert search.proposal is None and not search.gave_up
 
 
+def test_an_aperiodic_task_counts_at_its_min_interarrival_and_blocks_like_any_cycle() -> None:
+    sub = load_subsystem(REPO / "configs" / "operator_goal.yaml")
+    costs = _costs(robot=0.2, goal=0.9, traj=0.3, pid=0.4)
+    verdicts = {v.task: v for v in analyse_configuration(sub, "operated", costs, {"goal": "rtpu1"})["rtpu1"]}
+    assert verdicts["goal"].period == pytest.approx(0.1)  # min_interarrival: 100 ms
+    robot = verdicts["robot"]
+    assert robot.status == "refuted" and robot.response is not None and robot.response.blocked_by == "goal"
+
+
 # --- the CLI ------------------------------------------------------------------------------------
 
 
@@ -215,6 +224,21 @@ def test_a_profile_that_does_not_fit_the_file_is_refused(tmp_path: Path, capsys:
         assert "hint: " in err and "Traceback" not in err
 
 
+def test_each_configuration_is_judged_with_its_own_tasks(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import yaml
+
+    file = demo_copy(tmp_path, "sched_two", logger={"rtpu": "rtpu1"})
+    text = yaml.safe_load(file.read_text())
+    text["configurations"]["quiet"] = ["robot", "traj", "pid"]  # no logger beside the robot
+    file.write_text(yaml.safe_dump(text, sort_keys=False))
+    assert main(["check", str(file), "--profile", str(_profile(tmp_path, "sched_two"))]) == 1
+    out, err = capsys.readouterr()
+    quiet = out[out.index("configuration 'quiet':\n"):]  # its table (the check's own summary names it too)
+    assert [line.split()[5:8] for line in quiet.splitlines() if line.strip().startswith("robot*")] == [["0.200", "ms", "proven"]]
+    assert "configuration 'joint_pid': response time 1.100 ms" in err
+    assert "configuration 'quiet': response" not in err
+
+
 def test_a_task_that_did_not_run_leaves_its_rtpu_unanalysed(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     file = demo_copy(tmp_path, "sched_unrun", logger={"rtpu": "rtpu1"})
     profile = _profile(tmp_path, "sched_unrun", logger={"cycles": 0, "exec_max": 0.0, "exec_p99": 0.0})
@@ -265,3 +289,9 @@ def test_a_real_run_report_feeds_check_with_a_profile(tmp_path: Path) -> None:
     assert set(verdicts) == {"robot*", "traj", "pid", "logger"}, checked.stdout
     assert " proven " in verdicts["robot*"]
     assert "critical deadlines: 1 task(s) proven" in checked.stdout
+
+
+def test_a_profile_is_refused_for_an_application_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    profile = _profile(tmp_path, "puma")
+    assert main(["check", str(REPO / "configs" / "leader_follower.yaml"), "--profile", str(profile)]) == 1
+    assert "error: --profile takes a subsystem file, and " in capsys.readouterr().err

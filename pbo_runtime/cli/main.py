@@ -220,6 +220,10 @@ def _check(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from pbo_runtime.config.loader import check_file, format_diagnostics
 
     if is_application_file(args.file):
+        if args.profile:
+            errors.print(f"error: --profile takes a subsystem file, and {args.file} is an application: check each of its "
+                         "subsystem files with the report of its own run", markup=False)
+            return EXIT_CONFIG
         return _check_application(args, console, errors)
     result = check_file(args.file)
     refuted, timing = EXIT_OK, dict[str, Any]()  # the verdicts of --profile, for --format json

@@ -65,8 +65,9 @@ def load_profile(path: Path, subsystem: Subsystem, exec_time: str) -> tuple[dict
     key = EXEC_TIMES[exec_time]
     costs: dict[str, Cost] = {}
     for name, spec in subsystem.tasks.items():
-        figures = report["tasks"].get(name) or {}
-        if figures.get("cycles", 0) > 0 and isinstance(figures.get(key), (int, float)):
+        figures = report["tasks"].get(name)
+        figures = figures if isinstance(figures, dict) else {}
+        if isinstance(figures.get("cycles"), int) and figures["cycles"] > 0 and isinstance(figures.get(key), (int, float)):
             costs[name] = Cost(float(figures[key]), key)
         elif spec.wcet is not None:
             costs[name] = Cost(spec.wcet, "wcet")

@@ -65,8 +65,9 @@ def propose(subsystem: Subsystem, costs: Mapping[str, Cost], configurations: Seq
     tasks = sorted({t for c in configurations for t in subsystem.configurations[c].tasks},
                    key=lambda t: (-costs[t].seconds / subsystem.tasks[t].period, subsystem.tasks[t].index))
     tried = 0
+    verdicts: dict[tuple[frozenset[str], bool], bool] = {}  # an RTPU's task set -> it keeps its deadlines (shared by every pass)
     for every_deadline in (True, False):
-        search = _Searcher(subsystem, costs, configurations, kept, every_deadline, limit - tried)
+        search = _Searcher(subsystem, costs, configurations, kept, every_deadline, limit - tried, verdicts)
         for moves in range(0, (len(tasks) if max_moves is None else max_moves) + 1):
             placement = search.place(tasks, moves)
             if placement is not None:
@@ -83,7 +84,8 @@ class _Searcher:
     """Depth-first placement with a move budget, cut where a deadline is refuted."""
 
     def __init__(self, subsystem: Subsystem, costs: Mapping[str, Cost], configurations: Sequence[str],
-                 kept: Mapping[str, str], every_deadline: bool, limit: int) -> None:
+                 kept: Mapping[str, str], every_deadline: bool, limit: int,
+                 verdicts: dict[tuple[frozenset[str], bool], bool]) -> None:
         self.subsystem = subsystem
         self.costs = costs
         self.kept = kept
@@ -92,6 +94,7 @@ class _Searcher:
         self.tried = 0
         self.gave_up = False
         self.rtpus = [r.name for r in subsystem.rtpus]
+        self.verdicts = verdicts
         self.members: dict[str, list[str]] = {}  # task -> the configurations judged that have it
         for configuration in configurations:
             for task in subsystem.configurations[configuration].tasks:
@@ -124,9 +127,11 @@ class _Searcher:
     def _fits(self, name: str, rtpu: str, placement: Mapping[str, str]) -> bool:
         """Every configuration with `name` in it: the tasks placed on `rtpu` so far keep their deadlines."""
         for configuration in self.members[name]:
-            specs = [self.subsystem.tasks[t] for t in self.subsystem.configurations[configuration].tasks
-                     if placement.get(t) == rtpu]
-            if not meets(specs, self.costs, self.every_deadline):
+            together = frozenset(t for t in self.subsystem.configurations[configuration].tasks if placement.get(t) == rtpu)
+            key = (together, self.every_deadline)
+            if key not in self.verdicts:  # the same set comes back at every move budget, and in other configurations
+                self.verdicts[key] = meets([self.subsystem.tasks[t] for t in together], self.costs, self.every_deadline)
+            if not self.verdicts[key]:
                 return False
         return True
 

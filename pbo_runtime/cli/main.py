@@ -20,6 +20,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from pbo_runtime.cli import schedule
 from pbo_runtime.clock.clocks import scheduler_outcome
 from pbo_runtime.objects import registry
 from pbo_runtime.errors import ConfigErrors, PboError
@@ -84,7 +85,21 @@ def _parser() -> argparse.ArgumentParser:
     check = sub.add_parser("check", help="check a subsystem file like a compiler: every error, with its line")
     check.add_argument("file")
     check.add_argument("--format", choices=("text", "json"), default="text")
+    check.add_argument("--profile", metavar="RUN",
+                       help="a run's report.json (or its directory): prove or refute each critical deadline with the "
+                            "measured execution times (non-preemptive response-time analysis, docs/scheduling.md)")
+    schedule.add_arguments(check)
     check.set_defaults(handler=_check)
+
+    allocate = sub.add_parser("allocate", help="propose the fewest task moves between RTPUs that prove every critical deadline")
+    allocate.add_argument("file")
+    allocate.add_argument("--profile", metavar="RUN", required=True, help="a run's report.json (or its directory)")
+    schedule.add_arguments(allocate)
+    allocate.add_argument("--config", help="judge only this configuration (default: every one the profile measured)")
+    allocate.add_argument("--pin", action="append", metavar="TASK[,TASK]", help="keep this task on its RTPU (repeat for more)")
+    allocate.add_argument("--free", action="append", metavar="TASK[,TASK]",
+                          help="let this user of an exclusive device move (by default it keeps its RTPU)")
+    allocate.set_defaults(handler=schedule.allocate)
 
     run = sub.add_parser("run", help="run a subsystem: plant, RTPUs, tasks; prints a summary at the end")
     run.add_argument("file")
@@ -205,16 +220,25 @@ def _check(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from pbo_runtime.config.loader import check_file, format_diagnostics
 
     if is_application_file(args.file):
+        if args.profile:
+            errors.print(f"error: --profile takes a subsystem file, and {args.file} is an application: check each of its "
+                         "subsystem files with the report of its own run", markup=False)
+            return EXIT_CONFIG
         return _check_application(args, console, errors)
     result = check_file(args.file)
+    refuted, timing = EXIT_OK, dict[str, Any]()  # the verdicts of --profile, for --format json
     if args.format == "json":
-        console.print_json(json.dumps(_check_json(result)))
+        if args.profile and result.subsystem is not None and not result.errors:
+            refuted, timing = schedule.check_profile(args, console, errors, result.subsystem)
+        console.print_json(json.dumps({**_check_json(result), **({"schedulability": timing} if timing else {})}))
     else:
         text = format_diagnostics(result)
         if result.subsystem is not None and not result.errors:
             text = (text + "\n" if result.warnings else "") + _verdict(result.subsystem) + _inferred_lines(result)
         (errors if result.errors else console).print(text, markup=False)
-    return EXIT_CONFIG if result.errors else EXIT_OK
+        if args.profile and result.subsystem is not None and not result.errors:
+            refuted, _ = schedule.check_profile(args, console, errors, result.subsystem)
+    return EXIT_CONFIG if result.errors or refuted else EXIT_OK
 
 
 def _check_application(args: argparse.Namespace, console: Console, errors: Console) -> int:

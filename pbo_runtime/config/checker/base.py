@@ -14,7 +14,7 @@ from pbo_runtime.config.checker.model import Checked, DriverLookup, ModuleLookup
 from pbo_runtime.config.checker.words import describe, did_you_mean
 from pbo_runtime.config.limits import MAX_DIM
 from pbo_runtime.config.model import Location
-from pbo_runtime.errors import ConfigError
+from pbo_runtime.errors import ConfigError, Note
 from pbo_runtime.config.units import TIME, parse_quantity
 from pbo_runtime.config.yaml_nodes import YMap, location_of
 
@@ -44,9 +44,13 @@ class CheckerBase:
         self.config_members: dict[str, list[tuple[str, Location]]] = {}
         self.config_repeats: dict[str, set[str]] = {}  # tasks flagged E407 (a module repeated), per configuration
         self.config_locs: dict[str, Location] = {}
+        self.config_list_locs: dict[str, Location] = {}  # where each configuration's list of tasks is written
         self.job_names: set[str] = set()
         self.expression_names: set[str] = set()
         self.device_names: set[str] = set()
+        self.var_nodes: dict[str, YMap] = {}  # each variable's YAML entry, for the place of its type: or shape:
+        self.var_links: dict[str, list[Any]] = {}  # variable -> every port linked to it (_Linked), for E301/E302
+        self.device_nodes: dict[str, YMap] = {}  # each device's YAML entry, for the place of one of its options
         self.sources: dict[str, list[str]] = {}
         self.app_names: set[str] = set()
         self.bad_object_types: set[str] = set()  # object types refused (reported there): no follow-on errors
@@ -93,11 +97,15 @@ class CheckerBase:
 
     # --- reporting --------------------------------------------------------------------------
 
-    def error(self, code: str, message: str, loc: Location, hint: str = "") -> None:
-        self.out.errors.append(ConfigError(message, loc.file, loc.line, loc.column, hint, code=code))
+    def error(self, code: str, message: str, loc: Location, hint: str = "",
+              notes: Iterable[tuple[Location, str]] = ()) -> None:
+        """Report at `loc`, where the fix goes; `notes` are the related places (location, what is there)."""
+        self.out.errors.append(ConfigError(message, loc.file, loc.line, loc.column, hint, code=code, notes=_notes(notes)))
 
-    def warn(self, code: str, message: str, loc: Location, hint: str = "") -> None:
-        self.out.warnings.append(ConfigError(message, loc.file, loc.line, loc.column, hint, severity="warning", code=code))
+    def warn(self, code: str, message: str, loc: Location, hint: str = "",
+             notes: Iterable[tuple[Location, str]] = ()) -> None:
+        self.out.warnings.append(ConfigError(message, loc.file, loc.line, loc.column, hint, severity="warning", code=code,
+                                             notes=_notes(notes)))
 
     # --- shape helpers ----------------------------------------------------------------------
 
@@ -186,3 +194,7 @@ class CheckerBase:
             name = self.name(raw, key_loc, what)
             if name is not None:
                 yield name, value, key_loc, section.value_loc(raw)
+
+
+def _notes(notes: Iterable[tuple[Location, str]]) -> tuple[Note, ...]:
+    return tuple(Note(message, loc.file, loc.line, loc.column) for loc, message in notes)

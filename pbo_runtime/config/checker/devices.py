@@ -24,6 +24,7 @@ class DeviceChecks(CheckerBase):
             spec = self.mapping(value, value_loc, f"device '{name}'", "e.g. arm: {driver: mujoco_arm, exclusive: true}")
             if spec is None:
                 continue
+            self.device_nodes[name] = spec
             if "driver" not in spec:
                 self.error("E112", f"device '{name}' has no 'driver:', which is required", key_loc, "add 'driver: <name>' (a registered driver)")
                 continue

@@ -214,6 +214,22 @@ def test_an_input_no_task_writes_anywhere_is_still_reported_at_its_reader(tmp_pa
 # --- notes: where the fix goes first, the related places after --------------------------------
 
 
+@pytest.mark.parametrize(("edits", "needle", "code", "note_at", "note"), [
+    pytest.param([("configurations:", "  gravity: {module: gravity_compensation, rtpu: rtpu1, period: 1 ms, ports: {tau_g: tau_u}}\n"
+                                      "configurations:"), ("[robot, traj, pid]", "[robot, traj, pid, gravity]")],
+                 "tau_u}}\nconfigurations", "E401", "tau_u}}\n  gravity", "task 'pid' writes 'tau_u' (port 'tau')", id="the_other_writer"),
+    pytest.param([("[robot, traj, pid]", "[robot, traj, pid, pid]")], "pid]", "E402", "pid,", "task 'pid' is first listed here",
+                 id="the_first_listing"),
+    pytest.param([("params: {max_velocity: 1.0}}", "params: {max_velocity: 1.0}, resources: [arm]}")], "arm]}\n  pid", "E601",
+                 "arm]}", "task 'robot' opens it here", id="the_other_user_of_an_exclusive_device"),
+])
+def test_a_conflict_is_reported_at_its_second_party_with_the_first_as_a_note(tmp_path: Path, edits, needle, code, note_at, note) -> None:
+    text = edited(BASE, *edits)
+    error = only_error(check(tmp_path, text))
+    assert (error.code, (error.line, error.column)) == (code, at(text, needle)), error.format()
+    assert [(n.line, n.column, n.message) for n in error.notes] == [(*at(text, note_at), note)]
+
+
 def test_a_diagnostic_prints_its_notes_after_the_message_and_before_the_hint() -> None:
     error = ConfigError("variable 'x' is float32", "a.yaml", 3, 9, "change it", code="E301",
                         notes=[Note("task 't' port 'x' is float64", "a.yaml", 7, 3)])

@@ -48,6 +48,7 @@ class ConfigurationChecks(CheckerBase):
                         f"task '{task}' appears twice in configuration '{name}' (first at line {first[task].line}, column {first[task].column})",
                         item_loc,
                         "a task runs at most once in a configuration; to run its module twice, declare a second task",
+                        [(first[task], f"task '{task}' is first listed here")],
                     )
                     ok = False
                     continue
@@ -109,7 +110,8 @@ class ConfigurationChecks(CheckerBase):
             if len(ws) > 1:
                 detail = _and_list([f"'{t.name}' (line {b.loc.line})" for t, b in ws])
                 count = "two" if len(ws) == 2 else str(len(ws))
-                self.error("E401", f"variable '{var}' has {count} writers in configuration '{config}': {detail}", ws[1][1].loc, _JOIN_HINT)
+                self.error("E401", f"variable '{var}' has {count} writers in configuration '{config}': {detail}", ws[1][1].loc, _JOIN_HINT,
+                           [(b.loc, f"task '{t.name}' writes '{var}' (port '{b.port.name}')") for t, b in ws if b is not ws[1][1]])
         job_written = self.job_written()
         member_names = {t.name for t in members}
         left_out: dict[tuple[str, ...], list[tuple[_Task, _Binding]]] = {}  # the tasks that would write them -> their readers

@@ -145,6 +145,17 @@ def test_plant_options_are_checked_against_what_the_plant_declares(tmp_path: Pat
         assert error.hint.startswith("did you mean 'wrist_wrench'?")
 
 
+@pytest.mark.parametrize(("gains", "count"), [("kp: [400, 400]", 2), ("kd: [1, 2, 3, 4, 5, 6, 7]", 7)])
+def test_a_gain_list_of_another_length_than_the_joints_is_refused_at_the_gain(tmp_path: Path, gains: str, count: int) -> None:
+    text = edited(BASE, ("kp: 400, kd: 40", f"kp: 400, kd: 40, {gains}" if gains.startswith("kd") else f"{gains}, kd: 40"))
+    if gains.startswith("kd"):
+        text = edited(text, ("kd: 40, ", ""))
+    name = gains.split(":")[0]
+    error = expect(tmp_path, text, gains.split(": ")[1], "E308",
+                   rf"params of task 'pid' \(module 'pid_joint'\): {name} must have 6 values \(NDOF\), got: {count}")
+    assert error.hint == "give a list of 6 values, or one number for all"
+
+
 def test_two_plant_mistakes_are_two_errors_in_one_pass(tmp_path: Path) -> None:
     result = check(tmp_path, edited(BASE, ("timestep: 1 ms}", "timestep: 1 ms, q0: [1, 2], wrist_wrenh: [0]}")))
     assert sorted(e.code for e in result.errors) == ["E111", "E320"]

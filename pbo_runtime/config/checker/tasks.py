@@ -10,7 +10,7 @@ from pbo_runtime.config.checker.model import TASK_KEYS, _Binding, _Link, _Linked
 from pbo_runtime.config.checker.words import _ms, _show_shape, describe, did_you_mean
 from pbo_runtime.config.model import Location, PortBinding, TaskSpec
 from pbo_runtime.errors import ParamError
-from pbo_runtime.objects.module import PortBasedObject
+from pbo_runtime.objects.module import PortBasedObject, convert_param, param_fields
 from pbo_runtime.objects.ports import ANY_DTYPE, PortSpec
 from pbo_runtime.config.units import FREQUENCY, TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
@@ -540,7 +540,36 @@ class TaskChecks(CheckerBase):
             self.error("E308", f"params of task '{task.name}' (module '{task.module}') were refused: {exc!r}", self.params_loc(task, spec))
             return False
         task.params = values
-        return True
+        return self.check_param_lengths(task, spec, module_class)
+
+    def check_param_lengths(self, task: _Task, spec: YMap, module_class: Any) -> bool:
+        """A list parameter declared with a shape (`metadata={"shape": ("NDOF",)}`: one value per joint)
+        has that many values (E308 at the parameter), which the module would otherwise refuse in init."""
+        try:
+            declared = param_fields(module_class.Params)
+        except TypeError:  # Params is not a dataclass: nothing is declared
+            return True
+        raw = spec.get("params")
+        ok = True
+        for name, field in declared.items():
+            shape, value = field.metadata.get("shape"), getattr(task.built_params, name, None)
+            if not isinstance(value, tuple) or not isinstance(shape, tuple) or len(shape) != 1:
+                continue
+            size, dim = shape[0], ""
+            if isinstance(size, str):
+                dim = size
+                size = self.out.dims.get(dim) if dim in self.out.dims else self.robot_dim(dim)
+                if size is None:
+                    continue  # an unknown dim is reported where a shape uses it
+            if len(value) == size:
+                continue
+            where = raw.value_loc(name) if isinstance(raw, YMap) and name in raw else self.params_loc(task, spec)
+            self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {name} must have "
+                               f"{size} values{f' ({dim})' if dim else ''}, got: {len(value)}",
+                       location_of(raw.get(name) if isinstance(raw, YMap) else None, where),
+                       f"give a list of {size} values" + (", or one number for all" if _takes_a_number(module_class.Params, name) else ""))
+            ok = False
+        return ok
 
     def check_task_devices(self, task: _Task, spec: YMap, module_class: Any) -> bool:
         """The devices a module opens by a param (its DEVICES): among the task's resources (E608), with
@@ -649,3 +678,12 @@ def _ports_that_link(links: list[_Linked]) -> str:
     if len(links) == 1:
         return "the one port that links it is"
     return f"all {len(links)} ports that link it are"
+
+
+def _takes_a_number(params_type: type, name: str) -> bool:
+    """Whether a parameter declared as a list also takes one number (a gain for every joint)."""
+    try:
+        convert_param(params_type, name, 0.0, name)
+    except ParamError:
+        return False
+    return True

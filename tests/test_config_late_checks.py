@@ -170,6 +170,14 @@ def test_a_wrong_member_of_a_combined_module_is_one_error_without_a_nobody_write
                          "            {module: pid_joint, ports: {tau: qdd_r}}, {module: inverse_dynamix}]}}"))
     error = only_error(check(tmp_path, text))
     assert error.code == "E308" and "member 2" in error.message and "inverse_dynamix" in error.message
+    assert (error.line, error.column) == at(text, "inverse_dynamix")  # the member to fix, not the whole params
+
+
+@pytest.mark.parametrize(("params", "needle"), [("{kp: 400, kq: 1}", "kq"), ("{kp: stiff}", "stiff"), ("{kp: 400, kd: -1}", "-1")])
+def test_a_refused_parameter_is_reported_at_the_parameter(tmp_path: Path, params: str, needle: str) -> None:
+    text = edited(BASE, ("params: {kp: 400, kd: 40}", f"params: {params}"))
+    error = only_error(check(tmp_path, text))
+    assert (error.code, (error.line, error.column)) == ("E308", at(text, needle)), error.format()
 
 
 @pytest.mark.parametrize("value", ["high", "{a: 1}"])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from typing import TYPE_CHECKING, Any, Mapping
 
 from pbo_runtime.config.checker.base import CheckerBase
@@ -534,10 +535,11 @@ class TaskChecks(CheckerBase):
         try:
             task.built_params = module_class.build_params(values)
         except ParamError as exc:
-            self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {exc}", self.params_loc(task, spec))
+            self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {exc}", self.refused_at(task, spec, str(exc)))
             return False
         except Exception as exc:  # a module's own validation may raise anything
-            self.error("E308", f"params of task '{task.name}' (module '{task.module}') were refused: {exc!r}", self.params_loc(task, spec))
+            self.error("E308", f"params of task '{task.name}' (module '{task.module}') were refused: {exc!r}",
+                       self.refused_at(task, spec, str(exc)))
             return False
         task.params = values
         return self.check_param_lengths(task, spec, module_class)
@@ -642,6 +644,21 @@ class TaskChecks(CheckerBase):
             return False
         return True
 
+    def refused_at(self, task: _Task, spec: YMap, message: str) -> Location:
+        """Where the parameter a refusal names is written (a value it quotes, as a combined module's
+        wrong member 'inverse_dynamix'; a parameter it names: 'ki', PidJoint.kp, "kd must be >= 0"),
+        else the params."""
+        raw = spec.get("params")
+        if isinstance(raw, YMap):
+            for text in [*re.findall(r"'([^']+)'", message), *re.findall(r"\b\w+\.(\w+)\b", message)]:
+                found = _named_in(raw, text) or _key_in(raw, text)
+                if found is not None:
+                    return found
+            named = next((word for word in re.findall(r"\b\w+\b", message) if word in raw), None)
+            if named is not None:
+                return location_of(raw[named], raw.value_loc(named))
+        return self.params_loc(task, spec)
+
     @staticmethod
     def params_loc(task: _Task, spec: YMap) -> Location:
         """Where a message about a task's params points: the params, or the task when it gives none."""
@@ -687,3 +704,20 @@ def _takes_a_number(params_type: type, name: str) -> bool:
     except ParamError:
         return False
     return True
+
+
+def _key_in(node: Any, text: str) -> Location | None:
+    """Where a task's params give a key named `text` (a parameter, a member's key), or None."""
+    if isinstance(node, YMap):
+        for key, value in node.items():
+            if key == text:
+                return node.key_loc(key)
+            found = _key_in(value, text)
+            if found is not None:
+                return found
+    elif isinstance(node, YList):
+        for item in node:
+            found = _key_in(item, text)
+            if found is not None:
+                return found
+    return None

@@ -156,6 +156,14 @@ def test_a_gain_list_of_another_length_than_the_joints_is_refused_at_the_gain(tm
     assert error.hint == "give a list of 6 values, or one number for all"
 
 
+@pytest.mark.parametrize(("option", "needle"), [("gain: 2", "gain"), ("mode: torq", "torq")])
+def test_a_driver_option_the_driver_refuses_is_reported_at_the_option(tmp_path: Path, option: str, needle: str) -> None:
+    text = edited(BASE, ("mode: torque, exclusive: true}", f"{option}, exclusive: true}}" if needle == "torq" else
+                         f"mode: torque, exclusive: true, {option}}}"))
+    error = only_error(check(tmp_path, text))
+    assert (error.code, (error.line, error.column)) == ("E607", at(text, needle)), error.format()
+
+
 def test_two_plant_mistakes_are_two_errors_in_one_pass(tmp_path: Path) -> None:
     result = check(tmp_path, edited(BASE, ("timestep: 1 ms}", "timestep: 1 ms, q0: [1, 2], wrist_wrenh: [0]}")))
     assert sorted(e.code for e in result.errors) == ["E111", "E320"]

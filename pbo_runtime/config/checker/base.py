@@ -7,6 +7,7 @@ itself, which runs the rules the mixins of this package define, in order, is the
 from __future__ import annotations
 
 import difflib
+import re
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from pbo_runtime.objects import registry
@@ -16,7 +17,7 @@ from pbo_runtime.config.limits import MAX_DIM
 from pbo_runtime.config.model import Location
 from pbo_runtime.errors import ConfigError, Note
 from pbo_runtime.config.units import TIME, parse_quantity
-from pbo_runtime.config.yaml_nodes import YMap, location_of
+from pbo_runtime.config.yaml_nodes import YList, YMap, location_of
 
 
 class CheckerBase:
@@ -198,3 +199,51 @@ class CheckerBase:
 
 def _notes(notes: Iterable[tuple[Location, str]]) -> tuple[Note, ...]:
     return tuple(Note(message, loc.file, loc.line, loc.column) for loc, message in notes)
+
+
+def named_in(node: Any, text: str) -> Location | None:
+    """Where a task's params write `text` as a value (a join's input in `inputs:`), or None."""
+    if isinstance(node, YMap):
+        for key, value in node.items():
+            if value == text:
+                return node.value_loc(key)
+            found = named_in(value, text)
+            if found is not None:
+                return found
+    elif isinstance(node, YList):
+        for index, item in enumerate(node):
+            if item == text:
+                return node.item_loc(index)
+            found = named_in(item, text)
+            if found is not None:
+                return found
+    return None
+
+
+def key_in(node: Any, text: str) -> Location | None:
+    """Where a task's params give a key named `text` (a parameter, a member's key), or None."""
+    if isinstance(node, YMap):
+        for key, value in node.items():
+            if key == text:
+                return node.key_loc(key)
+            found = key_in(value, text)
+            if found is not None:
+                return found
+    elif isinstance(node, YList):
+        for item in node:
+            found = key_in(item, text)
+            if found is not None:
+                return found
+    return None
+
+
+def named_by(node: YMap, message: str, skip: Sequence[str] = ()) -> Location | None:
+    """Where in `node` (a task's params, a device's options) the thing a refusal names is written: a
+    value or key it quotes ('inverse_dynamix', 'ki'), Owner.name, or the first key it names ("kd must
+    be >= 0", but none of `skip`); None when it names none of them."""
+    for text in [*re.findall(r"'([^']+)'", message), *re.findall(r"\b\w+\.(\w+)\b", message)]:
+        found = named_in(node, text) or key_in(node, text)
+        if found is not None:
+            return found
+    named = next((word for word in re.findall(r"\b\w+\b", message) if word in node and word not in skip), None)
+    return location_of(node[named], node.value_loc(named)) if named is not None else None

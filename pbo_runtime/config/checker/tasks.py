@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import re
 from typing import TYPE_CHECKING, Any, Mapping
 
-from pbo_runtime.config.checker.base import CheckerBase
+from pbo_runtime.config.checker.base import CheckerBase, named_by, named_in
 from pbo_runtime.config.model import PortClaim
 from pbo_runtime.config.checker.model import TASK_KEYS, _Binding, _Link, _Linked, _Task
 from pbo_runtime.config.checker.words import _ms, _show_shape, describe, did_you_mean
@@ -462,7 +461,7 @@ class TaskChecks(CheckerBase):
                 if b.shape == meant:
                     continue
                 ok = False
-                where = _named_in(spec.get("params"), b.port.name) or b.loc
+                where = named_in(spec.get("params"), b.port.name) or b.loc
                 notes = [(reference.loc, f"port '{reference.port.name}' links variable '{reference.variable}', of shape {_show_shape(meant)}")]
                 if b.variable in self.var_locs:
                     notes.append((self.var_locs[b.variable], f"variable '{b.variable}' is declared here, with shape {_show_shape(b.shape)}"))
@@ -649,15 +648,8 @@ class TaskChecks(CheckerBase):
         wrong member 'inverse_dynamix'; a parameter it names: 'ki', PidJoint.kp, "kd must be >= 0"),
         else the params."""
         raw = spec.get("params")
-        if isinstance(raw, YMap):
-            for text in [*re.findall(r"'([^']+)'", message), *re.findall(r"\b\w+\.(\w+)\b", message)]:
-                found = _named_in(raw, text) or _key_in(raw, text)
-                if found is not None:
-                    return found
-            named = next((word for word in re.findall(r"\b\w+\b", message) if word in raw), None)
-            if named is not None:
-                return location_of(raw[named], raw.value_loc(named))
-        return self.params_loc(task, spec)
+        found = named_by(raw, message) if isinstance(raw, YMap) else None
+        return found or self.params_loc(task, spec)
 
     @staticmethod
     def params_loc(task: _Task, spec: YMap) -> Location:
@@ -671,32 +663,6 @@ def _ports_from_params(module_class: Any) -> bool:
     return own is not None and own is not PortBasedObject.ports_for.__func__  # type: ignore[attr-defined]
 
 
-def _named_in(node: Any, text: str) -> Location | None:
-    """Where a task's params write `text` as a value (a join's input in `inputs:`), or None."""
-    if isinstance(node, YMap):
-        for key, value in node.items():
-            if value == text:
-                return node.value_loc(key)
-            found = _named_in(value, text)
-            if found is not None:
-                return found
-    elif isinstance(node, YList):
-        for index, item in enumerate(node):
-            if item == text:
-                return node.item_loc(index)
-            found = _named_in(item, text)
-            if found is not None:
-                return found
-    return None
-
-
-def _ports_that_link(links: list[_Linked]) -> str:
-    """'the port that links it is' / 'all 3 ports that link it are' (the dtype or shape follows)."""
-    if len(links) == 1:
-        return "the one port that links it is"
-    return f"all {len(links)} ports that link it are"
-
-
 def _takes_a_number(params_type: type, name: str) -> bool:
     """Whether a parameter declared as a list also takes one number (a gain for every joint)."""
     try:
@@ -706,18 +672,8 @@ def _takes_a_number(params_type: type, name: str) -> bool:
     return True
 
 
-def _key_in(node: Any, text: str) -> Location | None:
-    """Where a task's params give a key named `text` (a parameter, a member's key), or None."""
-    if isinstance(node, YMap):
-        for key, value in node.items():
-            if key == text:
-                return node.key_loc(key)
-            found = _key_in(value, text)
-            if found is not None:
-                return found
-    elif isinstance(node, YList):
-        for item in node:
-            found = _key_in(item, text)
-            if found is not None:
-                return found
-    return None
+def _ports_that_link(links: list[_Linked]) -> str:
+    """'the port that links it is' / 'all 3 ports that link it are' (the dtype or shape follows)."""
+    if len(links) == 1:
+        return "the one port that links it is"
+    return f"all {len(links)} ports that link it are"

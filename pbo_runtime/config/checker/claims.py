@@ -117,6 +117,7 @@ class ClaimChecks(CheckerBase):
                         b.loc,
                         "run with --static (only the current configuration's tasks exist), or give each task its own "
                         "device or channels",
+                        [(a.loc, f"task '{a.task}' opens it here")],
                     )
                     break
 

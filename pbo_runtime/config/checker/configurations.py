@@ -162,6 +162,7 @@ class ConfigurationChecks(CheckerBase):
                         b.loc,
                         f"make port '{w_binding.port.name}' of module '{w_task.module}' out-const or out-both, "
                         f"or give variable '{b.variable}' an initial: value",
+                        [(w_binding.loc, f"task '{w_task.name}' writes '{b.variable}' as {w_binding.port.kind.value}")],
                     )
                 elif not ws and complete:
                     self.error(
@@ -185,7 +186,10 @@ class ConfigurationChecks(CheckerBase):
         variables = list(dict.fromkeys(b.variable for _, b in readers))
         readers_named = _and_list(list(dict.fromkeys(f"'{t.name}'" for t, _ in readers)))
         shown = _and_list([f"'{v}'" for v in variables])
-        notes = [(b.loc, f"task '{t.name}' reads {b.port.kind.value} '{b.variable}'") for t, b in readers]
+        read: dict[tuple[str, Location], list[str]] = {}  # a reader's link (the task, or its ports: entry) -> what it reads there
+        for t, b in readers:
+            read.setdefault((t.name, b.loc), []).append(f"{b.port.kind.value} '{b.variable}'")
+        notes = [(loc, f"task '{name}' reads {_and_list(what)}") for (name, loc), what in read.items()]
         notes += [(self.tasks[w].loc, f"task '{w}' writes {_and_list([repr(v) for v in variables])}") for w in outside]
         if len(outside) == 1:
             members = [t for t, _ in self.config_members.get(config, [])]

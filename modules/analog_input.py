@@ -20,6 +20,7 @@ class AnalogInput(PortBasedObject):
     """v = the lent ADC channels' voltages. Real-time safe cycle."""
 
     Params = AnalogInputParams
+    DEVICES = {"device": {}}
 
     v = OutVar("v_in", shape=None, doc="voltages of the lent ADC channels, V, in channel order (one element each)")
 

@@ -51,6 +51,10 @@ class Join(PortBasedObject):
         )
         return cls.ports() + inputs
 
+    @classmethod
+    def same_shape(cls, params: JoinParams) -> tuple[tuple[str, ...], ...]:
+        return (("out", *params.inputs),)  # pbo check refuses inputs of another shape than the output
+
     def init(self, params: JoinParams) -> None:
         self._inputs = self.bound_arrays[1:]
         for name, array in zip(params.inputs, self._inputs):

@@ -10,7 +10,7 @@ this controller takes over from another).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -21,9 +21,10 @@ Gain = float | tuple[float, ...]
 
 @dataclass(frozen=True)
 class PidJointParams:
-    kp: Gain = 400.0  # N m / rad
-    kd: Gain = 40.0  # N m s / rad
-    ki: Gain = 0.0  # N m / (rad s)
+    # one gain for every joint, or a list of one per joint (pbo check counts them)
+    kp: Gain = field(default=400.0, metadata={"shape": ("NDOF",)})  # N m / rad
+    kd: Gain = field(default=40.0, metadata={"shape": ("NDOF",)})  # N m s / rad
+    ki: Gain = field(default=0.0, metadata={"shape": ("NDOF",)})  # N m / (rad s)
     integral_limit: float = 50.0  # N m: the integral term never exceeds this (anti-windup)
     gravity_feedforward: bool = True
 

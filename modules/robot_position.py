@@ -32,6 +32,7 @@ class RobotPosition(RobotInterface):
     """
 
     Params = RobotPositionParams
+    DEVICES = {"device": {"mode": "position"}}
 
     q_r = InVar("q_r", shape=("NDOF",), doc="joint position reference the arm's servo tracks, rad")
 

@@ -27,11 +27,12 @@ class RobotTorque(RobotInterface):
     """
 
     Params = RobotTorqueParams
+    DEVICES = {"device": {"mode": "torque"}}
 
     tau_u = InVar("tau_u", shape=("NDOF",), doc="joint torque command, N m")
 
     def init(self, params: RobotTorqueParams) -> None:
-        self._write = self.open_arm(params.device).write_torque
+        self._write = self.open_arm(params.device, mode="torque").write_torque
 
     def on(self) -> None:
         self._read(self.q_m, self.qd_m)

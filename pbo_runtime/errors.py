@@ -3,6 +3,28 @@
 from __future__ import annotations
 
 import re
+from typing import NamedTuple, Sequence
+
+
+class Note(NamedTuple):
+    """A place related to a diagnostic, as a compiler's note: the diagnostic itself points where the
+    fix goes, a note where else the problem shows (the ports that read a mistyped variable)."""
+
+    message: str
+    file: str = ""
+    line: int = 0
+    column: int = 0
+
+    def format(self) -> str:
+        return f"{_where(self.file, self.line, self.column)}note: {self.message}"
+
+
+def _where(file: str, line: int, column: int) -> str:
+    if file and line:
+        return f"{file}:{line}:{column}: "
+    if file:
+        return f"{file}: "
+    return ""
 
 
 class PboError(Exception):
@@ -15,7 +37,8 @@ class ConfigError(PboError):
     `severity` is "error" (the file is refused) or "warning" (it runs, but probably not as meant).
     `code` names the rule ("E101", "W201"; docs/error-codes.md lists them all). A diagnostic made
     without one (the YAML reader's, the include loader's) gets it from its message's first words.
-    A line of 0 means the problem belongs to the whole file (e.g. it cannot be read).
+    A line of 0 means the problem belongs to the whole file (e.g. it cannot be read). Its location
+    is where the fix goes; `notes` are the related places, each printed on a line of its own.
     """
 
     def __init__(
@@ -27,6 +50,7 @@ class ConfigError(PboError):
         hint: str = "",
         severity: str = "error",
         code: str = "",
+        notes: Sequence[Note] = (),
     ) -> None:
         if severity not in ("error", "warning"):
             raise ValueError(f"severity must be 'error' or 'warning', got: {severity!r}")
@@ -39,17 +63,14 @@ class ConfigError(PboError):
         self.hint = hint
         self.severity = severity
         self.code = code or infer_code(message)
+        self.notes = tuple(notes)
         super().__init__(self.format())
 
     def format(self) -> str:
-        if self.file and self.line:
-            where = f"{self.file}:{self.line}:{self.column}: "
-        elif self.file:
-            where = f"{self.file}: "
-        else:
-            where = ""
         tag = f"{self.severity}[{self.code}]" if self.code else self.severity
-        text = f"{where}{tag}: {self.message}"
+        text = f"{_where(self.file, self.line, self.column)}{tag}: {self.message}"
+        for note in self.notes:
+            text += f"\n  {note.format()}"
         if self.hint:
             text += f"\n  hint: {self.hint}"
         return text

@@ -80,6 +80,14 @@ def test_a_task_that_is_off_stays_out_of_the_configuration(tmp_path):
     assert [d["code"] for d in reply["diagnostics"] if d["task"] == "inv"] == ["W201"]  # in no configuration
 
 
+def test_a_task_turned_off_that_writes_what_another_reads_is_shown_at_the_pin_that_misses_it(tmp_path):
+    tasks = [{**t, "on": t["name"] != "pid"} for t in FIGURE_8]  # the PID off: nobody on the canvas writes tau_u
+    reply = check_canvas(str(base_file(tmp_path)), tasks_from_json(tasks), "joint_pid")
+    e408 = [d for d in reply["diagnostics"] if d["code"] == "E408"]
+    assert [(d["task"], d["port"]) for d in e408] == [("robot", "tau_u")]
+    assert e408[0]["message"].startswith("configuration 'joint_pid' leaves out task 'pid', which writes 'tau_u'")
+
+
 def test_the_base_files_own_errors_keep_their_line_and_no_module_is_placed(tmp_path):
     path = base_file(tmp_path)
     path.write_text(path.read_text().replace("tau_u: {type: float64", "tau_u: {type: float65"))

@@ -281,18 +281,19 @@ ONE_MISTAKE = [
             r"module 'fake_pid' of task 'pid' has no port 'torque'$",
             hint=r"^\(ports: ndof, q_m, q_r, tau\)$"),
     # ports and variables agree
-    mistake("a_port_and_its_variable_must_have_the_same_dtype",
-            changed("q_d:   {type: float64", "q_d:   {type: float32"), "traj:",
-            r"task 'traj' port 'q_d' \(in-var\) is float64, but variable 'q_d' is float32$",
-            hint=r"^change the type of 'q_d' \(line 10\) or link the port to a float64 variable$"),
+    mistake("a_port_and_its_variable_must_have_the_same_dtype_reported_at_the_declaration_its_ports_agree_against",
+            changed("q_d:   {type: float64", "q_d:   {type: float32"), "float32",
+            r"variable 'q_d' is float32, but the one port that links it is float64$", code="E301",
+            hint=r"^change the type of 'q_d' to float64$"),
     mistake("an_unknown_dtype_is_an_error_with_the_valid_ones",
             changed("q_d:   {type: float64", "q_d:   {type: float46"), "float46", r"variable 'q_d' has unknown type 'float46'$",
             hint=r"^did you mean 'float64'\? \(valid: bool, float32, float64, int16, int32, int64, int8, uint16, uint32, "
                  r"uint64, uint8\)"),
     # producers and consumers
-    mistake("in_both_without_a_writer_is_an_error",
+    mistake("in_both_whose_writer_the_configuration_leaves_out_is_an_error_at_the_configuration",
             edited(*BOTH_WRITER_AND_READER, ("configurations:\n", "configurations:\n  both: [r]\n  other: [w]\n")),
-            "r: {module", r"task 'r' reads in-both 'c', but no task in configuration 'both' writes it"),
+            "[r]", r"configuration 'both' leaves out task 'w', which writes 'c', read by 'r'$", code="E408",
+            hint=r"^add it: both: \[r, w\]$"),
     mistake("a_task_appears_at_most_once_in_a_configuration",
             changed("[robot, traj, pid]", "[robot, traj, pid, traj]"), "traj",
             r"task 'traj' appears twice in configuration 'joint_pid' \(first at line 17, column 22\)$", nth=3,
@@ -322,8 +323,8 @@ ONE_MISTAKE = [
     mistake("an_initial_value_must_fit_the_dtype",
             changed("initial: 6}", "initial: 6.5}"), "6.5",
             r"initial value of variable 'NDOF': int32 elements must be integers, got: the number 6.5$"),
-    mistake("params_the_module_refuses_are_an_error_at_the_params_node",
-            changed("params: {kp: 400}", "params: {kp: 400, ki: 1}"), "{kp: 400, ki: 1}",
+    mistake("params_the_module_refuses_are_an_error_at_the_parameter_it_names",
+            changed("params: {kp: 400}", "params: {kp: 400, ki: 1}"), "ki: 1",
             r"params of task 'pid' \(module 'fake_pid'\): unknown parameter\(s\) 'ki' for FakePid \(valid: kd, kp\)$"),
     mistake("missing_params_are_an_error",
             changed(", params: {kp: 400}", ""), "pid:", r"params of task 'pid' \(module 'fake_pid'\): missing parameter\(s\) 'kp'"),
@@ -533,26 +534,32 @@ def test_a_port_shape_naming_an_undefined_dim_is_an_error(tmp_path: Path) -> Non
 
 def test_a_port_and_its_variable_must_have_the_same_resolved_shape(tmp_path: Path) -> None:
     text = changed("q_r:   {type: float64, shape: [NDOF]}", "q_r:   {type: float64, shape: [7]}")
-    result = check(tmp_path, text)
-    assert len(result.errors) == 2  # traj writes it, pid reads it
-    error = result.errors[0]
-    assert re.match(r"^task 'traj' port 'q_r' \(out-var\) has shape \(6,\) = \(NDOF,\), but variable 'q_r' has shape \(7,\)$", error.message)
+    error = expect_error(tmp_path, text, "[7]", r"variable 'q_r' has shape \(7,\), but all 2 ports that link it are of shape \(6,\)$",
+                         code="E302")
+    assert error.hint == "change the shape of 'q_r' to [NDOF]"
+    assert [(n.line, n.message) for n in error.notes] == [  # traj writes it, pid reads it
+        (at(text, "traj:")[0], "task 'traj' port 'q_r' (out-var) has shape (6,) = (NDOF,)"),
+        (at(text, "pid:")[0], "task 'pid' port 'q_r' (in-var) has shape (6,) = (NDOF,)")]
 
 
 # --- producers and consumers -----------------------------------------------------------------
 
 
 def test_an_input_nobody_writes_is_an_error_naming_the_configuration(tmp_path: Path) -> None:
-    text = changed("[robot, traj, pid]", "[robot, pid]")
-    text = changed("  move:", "  move:", text)
-    result = check(tmp_path, text)
-    error = only_error(result)
-    line, column = at(text, "pid:")
-    assert re.match(
-        rf"^.*bad\.yaml:{line}:{column}: error\[E403\]: task 'pid' reads in-var 'q_r', but no task in configuration 'joint_pid' writes it",
-        str(error),
-    )
+    text = edited(("ports: {tau: tau_u}", "ports: {tau: tau_u, q_r: q_x}"),
+                  ("  tau_u:", "  q_x:   {type: float64, shape: [NDOF]}\n  tau_u:"))
+    error = expect_error(tmp_path, text, "q_x}", r"task 'pid' reads in-var 'q_x', but no task in configuration 'joint_pid' writes it$",
+                         code="E403")
     assert "written: " in error.hint
+
+
+def test_a_task_the_configuration_leaves_out_is_reported_at_its_list_with_the_readers_as_notes(tmp_path: Path) -> None:
+    text = changed("[robot, traj, pid]", "[robot, pid]")
+    error = expect_error(tmp_path, text, "[robot, pid]",
+                         r"configuration 'joint_pid' leaves out task 'traj', which writes 'q_r', read by 'pid'$", code="E408")
+    assert error.hint == "add it: joint_pid: [robot, pid, traj]"
+    assert [(n.line, n.message) for n in error.notes] == [(at(text, "pid:")[0], "task 'pid' reads in-var 'q_r'"),
+                                                          (at(text, "traj:")[0], "task 'traj' writes 'q_r'")]
 
 
 def test_an_object_or_an_initial_value_counts_as_written_by_job_control(tmp_path: Path) -> None:

@@ -40,7 +40,7 @@ FULL = """\
 subsystem: bench
 rtpus: {rtpu0: {cpu: 0}, rtpu1: {cpu: 1}}
 bus: {bandwidth: 40 MB/s, lock_overhead: 16 B}
-plant: {model: puma560, timestep: 2 ms, gravity: off}
+plant: {model: puma560, timestep: 2 ms, seed: 3}
 devices:
   adc: {driver: fake_adc, channels: 4}
 dims: {N: 3}
@@ -73,7 +73,7 @@ def test_a_legal_file_loads_into_the_frozen_model(tmp_path: Path) -> None:
     assert [(r.name, r.index, r.cpu) for r in sub.rtpus] == [("rtpu0", 0, 0), ("rtpu1", 1, 1)]
     assert (sub.bus.bandwidth, sub.bus.lock_overhead) == (40e6, 16.0)
     assert sub.plant is not None and sub.plant.type == "mujoco_arm" and sub.plant.timestep == pytest.approx(2e-3)
-    assert sub.plant.options == {"gravity": False}
+    assert sub.plant.options == {"seed": 3}
     assert sub.devices["adc"].driver == "fake_adc" and sub.devices["adc"].options == {"channels": 4}
     assert not sub.devices["adc"].exclusive
     assert sub.dims == {"N": 3}

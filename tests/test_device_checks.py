@@ -166,8 +166,8 @@ ONE_MISTAKE = [
             changed("  ft_a: {driver: ft_parallel, io: {device: pio0, channels: 0-7}}", "  ft_a: {driver: ft_parallel, io: {device: ft_a}}"),
             "E606", "ft_a}}", r"device 'ft_a' is wired \(io:\) to itself through ft_a$"),
     # driver options
-    mistake("a_calibration_matrix_of_the_wrong_shape_is_an_error_at_the_device",
-            changed("offset: [0, 0, 0, 0, 0, 0]}", "offset: [0, 0, 0]}"), "E607", "ft_b: {driver",
+    mistake("a_calibration_matrix_of_the_wrong_shape_is_an_error_at_the_option",
+            changed("offset: [0, 0, 0, 0, 0, 0]}", "offset: [0, 0, 0]}"), "E607", "[0, 0, 0]}",
             r"device 'ft_b' \(driver ft_analog\): ft_analog option offset must be 6 voltages, got shape \(3,\)",
             hint=r"docstring lists its options"),
 ]

@@ -113,8 +113,8 @@ def test_a_killed_task_leaves_at_a_cycle_boundary_and_is_killed_after(host):
 
 
 def test_killing_the_only_controller_of_a_configuration_is_refused_even_when_it_is_not_running(host):
-    with pytest.raises(BadRequest, match=r"^killing task 'pd' would break the live configuration:\n.*error\[E403\]: task 'robot' "
-                                         r"reads in-var 'tau_u', but no task in configuration 'pd' writes it"):
+    with pytest.raises(BadRequest, match=r"^killing task 'pd' would break the live configuration:\n.*error\[E408\]: configuration 'pd' "
+                                         r"leaves out task 'pid', which writes 'tau_u', read by 'robot'"):
         dispatch(host, "kill", {"task": "pd"})
 
 

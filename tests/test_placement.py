@@ -208,6 +208,14 @@ def test_the_report_is_plain_data_for_every_registered_module_of_figure_8() -> N
     assert {m["module"]: m for m in without_pid["modules"]}["pid_joint"]["legal"]
 
 
+def test_a_robot_interface_for_the_other_mode_of_the_free_arm_is_refused_as_pbo_check_would() -> None:
+    subsystem = load_subsystem(REPO / "configs" / "pid_joint.yaml")  # its arm is in torque mode
+    by_module = {m["module"]: m for m in placement_report(subsystem, tasks=["traj", "pid", "logger"])["modules"]}
+    assert by_module["robot_torque"]["legal"]
+    assert (by_module["robot_position"]["code"], by_module["robot_position"]["reason"]) == (
+        "E609", "module 'robot_position' needs device 'arm' with mode: position, but the device has mode: torque")
+
+
 @pytest.mark.parametrize(("arguments", "message"), [
     ({"configuration": "nope"}, "no configuration 'nope' (configurations: joint_pid)"),
     ({"rtpu": "rtpu9"}, "no RTPU 'rtpu9' (rtpus: rtpu0, rtpu1)"),

@@ -241,6 +241,14 @@ def test_a_robot_the_check_refuses_is_reported_where_the_fix_goes(tmp_path, plan
     assert re.search(message, error.message), error.message
 
 
+@pytest.mark.parametrize(("plant", "code"), [("{model: robots/arm.urdf, ee: tool, q0: [0.1]}", "E216"),
+                                           ("{model: robots/arm.urdf, ee: wrist}", "E217")])
+def test_a_robot_option_the_robot_refuses_is_one_error_as_the_robot_without_it_still_gives_ndof(tmp_path, plant, code):
+    write(tmp_path, "robots/arm.urdf", two_link_urdf())
+    result = check_file(subsystem_with(tmp_path, plant))
+    assert [e.code for e in result.errors] == [code], [str(e) for e in result.errors]  # no "NDOF is not defined" after it
+
+
 @pytest.mark.multiprocess
 def test_your_robot_reaches_its_goal_within_a_milliradian_on_the_simulated_clock(tmp_path):
     config = Path(__file__).resolve().parent.parent / "configs" / "your_robot.yaml"

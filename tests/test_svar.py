@@ -20,7 +20,7 @@ from pbo_runtime.ipc import messages
 from pbo_runtime.cli import operator
 from pbo_runtime.ipc import shm
 from pbo_runtime.table.svar import format_value, open_table, svar_rows, svar_table
-from pbo_runtime.table.table import MAGIC, VERSION, Header, StateTable, Status, TableLayout, TaskState
+from pbo_runtime.table.table import MAGIC, VERSION, Flag, Header, StateTable, Status, TableLayout, TaskState
 from tests.support import variables
 
 VARS = variables(("q_m", "float64", (3,)), ("n", "int32", ()), ("DH", "float64", (2, 4)), ("gain", "float32", ()))
@@ -78,6 +78,16 @@ def test_on_a_simulated_clock_run_age_is_counted_on_its_simulated_time(run):
         assert view.age("q_m") == pytest.approx(0.25)
         [row] = svar_rows(view, ["q_m"])
         assert row["age_ms"] == pytest.approx(250.0)
+
+
+def test_on_a_simulated_clock_run_before_its_first_tick_age_is_counted_from_time_zero(run):
+    subsystem, table = run()
+    table.set_flag(Flag.SIM_CLOCK, True)  # as the lockstep marks a --clock sim run's table before any tick
+    table.write("q_m", [1, 2, 3], when=0.0)  # job control's initial value, at simulated time 0
+    with open_table(subsystem) as view:
+        assert view.now() == 0.0
+        [row] = svar_rows(view, ["q_m"])
+        assert row["age_ms"] == 0.0
 
 
 def test_a_task_written_variable_takes_sequence_and_time_from_the_tasks_status_block(run):

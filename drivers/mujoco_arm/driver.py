@@ -54,20 +54,22 @@ _STUCK_AFTER_S = 0.5
 class MujocoArmDriver(DeviceDriver):
     """Joint-level access to the simulated arm. options: `mode`, 'torque' (default) or 'position'."""
 
+    OPTION_DEFAULTS = {"mode": "torque"}
+
     @classmethod
     def check_options(cls, options: Mapping[str, Any]) -> None:
         """ValueError for an unknown option or mode (the checker reports it as E607)."""
         unknown = sorted(set(options) - set(_OPTIONS))
         if unknown:
             raise ValueError(f"unknown mujoco_arm driver option(s) {unknown}; valid options: {', '.join(_OPTIONS)}")
-        mode = options.get("mode", "torque")
+        mode = options.get("mode", cls.OPTION_DEFAULTS["mode"])
         if mode not in MODES:
             raise ValueError(f"mujoco_arm driver mode must be one of: {', '.join(MODES)}; got: {mode!r}")
 
     def __init__(self, registers: str, options: Mapping[str, Any]) -> None:
         super().__init__(registers, options)
         self.check_options(self.options)
-        mode = self.options.get("mode", "torque")
+        mode = self.options.get("mode", self.OPTION_DEFAULTS["mode"])
         self.mode: str = mode
         self._mode_word = MODES[mode]
         self._position = self._mode_word == MODE_POSITION

@@ -22,6 +22,7 @@ import os
 import sys
 import time
 from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +53,6 @@ from drivers.mujoco_arm.registers import (
 from drivers.robots.plant_model import PlantRobot, load_robot
 from pbo_runtime import ROBOT_OPTIONS, unlink_quietly
 
-_OPTIONS = ("ee", "q0", "torque_limits", "velocity_limits", "target", "wrist_wrench", "adc_noise", "seed", "command_timeout")
 # Simulated seconds without a new command after which the arm holds on its brakes, as a drive's
 # watchdog does when its controller stops (a stopped robot interface cannot engage them itself)
 COMMAND_TIMEOUT = 0.05
@@ -74,6 +74,42 @@ _SERVO_MAX_OMEGA_DT = 0.25
 _SERVO_BRAKING_SHARE = 0.5
 
 
+_PER_JOINT = {"shape": ("NDOF",)}  # a list with one value per joint of the robot
+
+
+@dataclass(frozen=True)
+class MujocoArmPlantOptions:
+    """The plant's options (the `plant:` keys besides type, model and timestep), declared as a module's
+    parameters are, so `pbo check` checks their names, types and lengths before anything runs.
+
+    The robot options (ee, q0, torque_limits, velocity_limits) are checked against the robot itself
+    too, when it is loaded (`describe_robot`)."""
+
+    ee: str | None = None  # the end effector: a link or site of the robot's file
+    q0: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # rad: the braked start pose
+    torque_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # N m, where the file gives none
+    velocity_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # rad/s
+    target: Mapping[str, Any] | None = None  # a moving target for a camera: {center, radius, period, phase, orientation}
+    wrist_wrench: tuple[float, ...] = field(default=(0.0,) * 6, metadata={"shape": (6,)})  # N, N m, sensor frame
+    adc_noise: float = 0.0  # V: standard deviation of each ADC conversion
+    seed: int = 0  # seeds the ADC noise
+    command_timeout: float = COMMAND_TIMEOUT  # s: the drive's watchdog (0: none)
+
+    def __post_init__(self) -> None:
+        _target_options(self.target)
+        _wrench_option(self.wrist_wrench)
+        adc_noise, seed, command_timeout = self.adc_noise, self.seed, self.command_timeout
+        if isinstance(adc_noise, bool) or not isinstance(adc_noise, (int, float)) or not (math.isfinite(adc_noise) and adc_noise >= 0):
+            raise ValueError(f"plant option adc_noise must be a finite number >= 0 (V, standard deviation), got: {adc_noise!r}")
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ValueError(f"plant option seed must be an integer >= 0, got: {seed!r}")
+        if isinstance(command_timeout, bool) or not isinstance(command_timeout, (int, float)) or not command_timeout >= 0:
+            raise ValueError(f"plant option command_timeout must be a number of seconds >= 0 (0: no watchdog), got: {command_timeout!r}")
+
+
+_OPTIONS = tuple(f.name for f in fields(MujocoArmPlantOptions))
+
+
 class MujocoArmPlant:
     """One MuJoCo arm behind a register segment named `registers_name`.
 
@@ -82,7 +118,10 @@ class MujocoArmPlant:
     phase: rad, orientation: [rx, ry, rz]}` (center, radius and period required); default none.
     `wrist_wrench` (6 floats, N and N m, sensor frame): a constant external wrench on the tool;
     default none. `adc_noise` (V, >= 0): noise of each ADC conversion; `seed` (int >= 0) seeds it.
+    `Options` declares them all.
     """
+
+    Options = MujocoArmPlantOptions
 
     def __init__(self, registers_name: str, model: str, timestep: float, options: Mapping[str, Any],
                  log_dir: str = "", base_dir: str = ".") -> None:
@@ -92,17 +131,11 @@ class MujocoArmPlant:
             raise ValueError(f"unknown mujoco_arm plant option(s) {unknown}; valid options: {', '.join(_OPTIONS)}")
         if not timestep > 0:
             raise ValueError(f"plant timestep must be > 0, got: {timestep}")
-        target = _target_options(options.get("target"))
-        wrench = _wrench_option(options.get("wrist_wrench", [0.0] * 6))
-        adc_noise = options.get("adc_noise", 0.0)
-        if isinstance(adc_noise, bool) or not isinstance(adc_noise, (int, float)) or not (math.isfinite(adc_noise) and adc_noise >= 0):
-            raise ValueError(f"plant option adc_noise must be a finite number >= 0 (V, standard deviation), got: {adc_noise!r}")
-        seed = options.get("seed", 0)
-        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise ValueError(f"plant option seed must be an integer >= 0, got: {seed!r}")
-        command_timeout = options.get("command_timeout", COMMAND_TIMEOUT)
-        if isinstance(command_timeout, bool) or not isinstance(command_timeout, (int, float)) or not command_timeout >= 0:
-            raise ValueError(f"plant option command_timeout must be a number of seconds >= 0 (0: no watchdog), got: {command_timeout!r}")
+        declared = MujocoArmPlantOptions(**{k: v for k, v in options.items() if k in ("target", "wrist_wrench", "adc_noise", "seed",
+                                                                                    "command_timeout")})
+        target = _target_options(declared.target)
+        wrench = _wrench_option(declared.wrist_wrench)
+        adc_noise, seed, command_timeout = declared.adc_noise, declared.seed, declared.command_timeout
 
         robot = load_robot(model, Path(base_dir), float(timestep), options, target=target is not None)
         n = robot.ndof

@@ -66,7 +66,9 @@ def subsystem_file(request: Request) -> str:
 def diagnostic(d: ConfigError, rename: tuple[str, str] | None = None) -> dict[str, Any]:
     file = d.file.replace(*rename) if rename else d.file
     return {"file": file, "line": d.line, "column": d.column, "severity": d.severity, "code": d.code,
-            "message": d.message, "hint": d.hint}
+            "message": d.message, "hint": d.hint,
+            "notes": [{"file": n.file.replace(*rename) if rename else n.file, "line": n.line, "column": n.column,
+                       "message": n.message} for n in d.notes]}
 
 
 def check_reply(result: CheckResult, rename: tuple[str, str] | None = None) -> dict[str, Any]:

@@ -326,7 +326,8 @@ def _inferred_json(result: Any) -> dict[str, Any]:
 
 def _diagnostic_json(d: Any) -> dict[str, Any]:
     return {"file": d.file, "line": d.line, "column": d.column, "severity": d.severity, "code": d.code,
-            "message": d.message, "hint": d.hint}
+            "message": d.message, "hint": d.hint,
+            "notes": [{"file": n.file, "line": n.line, "column": n.column, "message": n.message} for n in d.notes]}
 
 
 def _check_json(result: Any) -> dict[str, Any]:

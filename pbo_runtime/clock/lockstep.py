@@ -27,7 +27,7 @@ import posix_ipc
 
 from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm
-from pbo_runtime.table.table import Header
+from pbo_runtime.table.table import Flag, Header
 
 WAIT_SLICE = 0.05  # seconds between checks for dead children while a participant runs its tick
 
@@ -60,6 +60,8 @@ class LockstepMaster:
             raise
         header[Header.SIM_TIME_NS] = 0
         header[Header.SIM_TICK] = 0
+        # before the run's participants exist: no one else writes the flags yet
+        header[Header.FLAGS] = int(header[Header.FLAGS]) | Flag.SIM_CLOCK
 
     @property
     def now(self) -> float:

@@ -175,6 +175,11 @@ def diagnostic(error: ConfigError, pins: Mapping[str, Sequence[Pin]],
     A module's own check of its params is located at the task's `params:` as a whole; the modifier it
     is about is the one of the task's (`params`: task -> its modifiers) that the message names."""
     origin = origin_of(error.file)
+    about = error.message
+    if origin is None:  # the canvas's own configuration list (E408): shown at the first task its notes name
+        noted = next(((o, n.message) for n in error.notes if (o := origin_of(n.file)) is not None), None)
+        if noted is not None:
+            origin, about = noted
     if origin is not None and origin.section == "params" and origin.key is None:
         named = [key for key in (params or {}).get(origin.task, ()) if re.search(rf"\b{re.escape(key)}\b", error.message)]
         if named:
@@ -187,7 +192,7 @@ def diagnostic(error: ConfigError, pins: Mapping[str, Sequence[Pin]],
     if names:  # "'pid' (line 1)": a canvas task has no line of a file to point to
         out["message"] = re.sub(rf"'({'|'.join(map(re.escape, names))})' \(line \d+\)", r"'\1'", error.message)
     out.update(task=origin.task, section=origin.section, key=origin.key,
-               port=pin_of(origin, error.message, pins.get(origin.task, ())), file=None, line=None, column=None)
+               port=pin_of(origin, about, pins.get(origin.task, ())), file=None, line=None, column=None)
     return out
 
 

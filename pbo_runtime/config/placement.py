@@ -6,8 +6,9 @@ is legal where the configuration's rules (the checker's, docs/configuration.md) 
 it. The first rule it would break is the answer, worded and coded as `pbo check` would:
 
 - E407: the configuration runs the module already (a module runs at most once);
-- E208, E601: the device it opens (its `device` parameter) is not declared, or is exclusive and
-  held by a task of the configuration;
+- E208, E601, E609: the device it opens (its `device` parameter) is not declared, is exclusive and
+  held by a task of the configuration, or lacks a driver option the module needs (its `DEVICES`:
+  robot_torque on an arm in position mode);
 - E301, E302, E304, E206: a port and its variable disagree on dtype or shape, a port's shape names
   an undefined dim, or a port of any dtype names a variable nothing defines;
 - E401: an output port would be a second writer of a variable;
@@ -83,6 +84,7 @@ class _Module:
     ports: tuple[_Port, ...]
     device: str | None  # the device its default params open
     problem: tuple[str, str, str] | None = None  # the module cannot be imported or list its ports
+    needs: tuple[tuple[str, Any], ...] = ()  # the driver options it needs of that device (its DEVICES)
 
 
 class Placement:
@@ -186,7 +188,10 @@ class Placement:
             kind = p.kind
             ports.append(_Port(p.name, kind, kind.value, p.variable, p.dtype, shape, kind.is_input,
                                kind.needs_initial_value, kind.supplies_initial_value, problem))
-        return _Module(name, tuple(ports), device if isinstance(device, str) else None)
+        uses = getattr(cls, "DEVICES", None)
+        needs = uses.get("device") if isinstance(uses, dict) else None
+        return _Module(name, tuple(ports), device if isinstance(device, str) else None,
+                       needs=tuple(needs.items()) if isinstance(needs, dict) else ())
 
     # --- the query ----------------------------------------------------------------------------
 
@@ -211,6 +216,12 @@ class Placement:
                 return Verdict(name, False, "E601", f"module '{name}' opens device '{device}', which is exclusive, and task "
                                                     f"'{holder}' holds it {where}",
                                "an exclusive device has one user per configuration; remove that task first")
+            for option, wanted in module.needs:
+                has = spec.options.get(option, _driver_default(spec.driver, option))
+                if has is not None and has != wanted:
+                    return Verdict(name, False, "E609", f"module '{name}' needs device '{device}' with {option}: {wanted}, "
+                                                        f"but the device has {option}: {has}",
+                                   f"choose a module for a device with {option}: {has}")
         variables, writers = self.variables, self.writers
         links: dict[str, str] = {}
         new: list[str] = []
@@ -322,6 +333,15 @@ def _store(index: dict[str, list[Any]], key: str, entries: list[Any]) -> None:
         index[key] = entries
     else:
         index.pop(key, None)
+
+
+def _driver_default(driver: str, option: str) -> Any:
+    """What a device's option is when its YAML leaves it out (its driver's OPTION_DEFAULTS), or None."""
+    try:
+        defaults = getattr(registry.driver_class(driver), "OPTION_DEFAULTS", None) or {}
+    except Exception:  # an unknown driver: the checker reported it
+        return None
+    return defaults.get(option)
 
 
 def _default_device(cls: Any) -> str | None:

@@ -29,6 +29,9 @@ class DeviceDriver:
     KIND: ClassVar[str] = ""  # the kind of I/O device, e.g. "adc", that a sensor's `IO` names
     IO: ClassVar[str] = ""  # a sensor-actuator driver: the KIND of I/O device it is wired to
     IO_CHANNELS: ClassVar[int] = 0  # ... and how many of its channels it needs
+    # The options a device has when its YAML leaves them out: what `pbo check` compares with what
+    # a module needs of the device (a module's DEVICES)
+    OPTION_DEFAULTS: ClassVar[Mapping[str, Any]] = {}
 
     def __init__(self, registers: str, options: Mapping[str, Any], *, channels: tuple[int, ...] | None = None,
                  io: DeviceDriver | None = None) -> None:

@@ -76,6 +76,10 @@ class PortBasedObject:
     # The parameters an operator may change while the task runs (`pbo set TASK PARAM VALUE`): `tune`
     # gets the whole new Params between two cycles. Every other parameter is read in `init` only.
     TUNABLE: ClassVar[tuple[str, ...]] = ()
+    # The Params fields that name a YAML device the module opens in `init`, each with the driver
+    # options it needs the device to have: {"device": {"mode": "torque"}}. `pbo check` refuses a
+    # device that is not among the task's resources (E608) or lacks those options (E609).
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {}
     _pbo_port_decls: ClassVar[tuple[Port, ...]] = ()
 
     _pbo_ports: list[np.ndarray]
@@ -107,6 +111,13 @@ class PortBasedObject:
         Most modules have fixed ports; a data logger adds one input per logged variable.
         """
         return cls.ports()
+
+    @classmethod
+    def same_shape(cls, params: Any) -> tuple[tuple[str, ...], ...]:
+        """Groups of port names whose variables must all have one shape (a join's output and
+        inputs): ports that take their shape from their variable, but must agree with each other.
+        `pbo check` reports a variable of another shape; by default there are none."""
+        return ()
 
     @classmethod
     def build_params(cls, values: dict[str, Any] | None) -> Any:
@@ -249,6 +260,20 @@ def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
         raise ParamError(f"bad parameters for {owner}: {exc}") from None
 
 
+def convert_param(params_type: type, name: str, value: Any, where: str) -> Any:
+    """One YAML value as field `name` of a Params class takes it, or ParamError saying what it accepts.
+
+    The checker uses it to report each wrong parameter (a plant's option) at its own place."""
+    return _convert(value, _type_hints(params_type).get(name, Any), where)
+
+
+def param_fields(params_type: type) -> dict[str, dataclasses.Field[Any]]:
+    """The fields of a Params class by name; a field's `metadata["shape"]` (sizes or dim names, as a
+    port's) says how long a list it takes: `q0: tuple[float, ...] | None = field(default=None,
+    metadata={"shape": ("NDOF",)})`."""
+    return dict(_fields(params_type))
+
+
 @functools.cache
 def _fields(params_type: type) -> dict[str, dataclasses.Field[Any]]:
     """The fields of a Params class by name (the same for every task built with it: read, never changed)."""
@@ -272,7 +297,7 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
     if hint is Any:
         return value
     if origin in (typing.Union, types.UnionType):
-        errors = []
+        errors: dict[Any, str] = {}
         for option in args:
             if option is type(None):
                 if value is None:
@@ -281,8 +306,13 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
             try:
                 return _convert(value, option, where)
             except ParamError as exc:
-                errors.append(str(exc))
-        raise ParamError(errors[-1] if errors else f"{where}: unexpected value {value!r}")
+                errors[option] = str(exc)
+        # A list whose items are wrong is best told about its items, if only one option takes a list;
+        # otherwise say every kind of value the parameter accepts.
+        lists = [option for option in errors if _origin_and_args(option)[0] in (tuple, list)]
+        if isinstance(value, (list, tuple)) and len(lists) == 1:
+            raise ParamError(errors[lists[0]])
+        raise ParamError(f"{where} must be {' or '.join(_accepted(option) for option in args)}, got: {value!r}")
     if origin is typing.Literal:
         if value in args:
             return value
@@ -309,3 +339,22 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
         item = args[0] if args else Any
         return tuple(_convert(v, item, f"{where}[{i}]") for i, v in enumerate(value))
     return value
+
+
+def _accepted(hint: Any) -> str:
+    """What a YAML value of type `hint` is, in words: 'a number', 'a list of numbers', 'null'."""
+    origin, args = _origin_and_args(hint)
+    if hint is type(None):
+        return "null"
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_accepted(a) for a in args)
+    if origin is typing.Literal:
+        return "one of " + ", ".join(repr(a) for a in args)
+    if origin in (tuple, list):
+        item = _accepted(args[0]) if args and args[0] is not Ellipsis else "value"
+        return "a list of " + _PLURAL.get(item, item)
+    return _WORDS.get(hint, f"a {getattr(hint, '__name__', hint)}")
+
+
+_WORDS: dict[Any, str] = {float: "a number", int: "an integer", str: "a string", bool: "true or false", Any: "any value"}
+_PLURAL = {"a number": "numbers", "an integer": "integers", "a string": "strings", "true or false": "flags", "any value": "values"}

@@ -45,7 +45,8 @@ class ControlService:
         return self.result.realtime
 
     def table_flags(self) -> list[str]:
-        return [str(flag.name) for flag in Flag if self.table is not None and self.table.flags & flag]
+        # SIM_CLOCK says which clock the times are on, not a state the operator must look at
+        return [str(flag.name) for flag in Flag if flag is not Flag.SIM_CLOCK and self.table is not None and self.table.flags & flag]
 
     def stalled_since(self) -> dict[str, float]:
         return {name: stall.since for name, stall in self.stall_watch.open.items()}

@@ -33,6 +33,7 @@ from pbo_runtime.table.table import (
     MAGIC,
     STATUS_WORDS,
     VERSION,
+    Flag,
     Header,
     Status,
     TaskState,
@@ -91,9 +92,9 @@ class TableView:
 
     def now(self) -> float:
         """The run's clock now, in the seconds its write times are in: the current tick of a
-        `--clock sim` run (which has released ticks), else CLOCK_MONOTONIC."""
+        `--clock sim` run (0 before its first), else CLOCK_MONOTONIC."""
         header = self._words[:HEADER_WORDS].view(np.int64)
-        if int(header[Header.SIM_TICK]) > 0:
+        if int(header[Header.FLAGS]) & Flag.SIM_CLOCK or int(header[Header.SIM_TICK]) > 0:
             return int(header[Header.SIM_TIME_NS]) / 1e9
         return time.monotonic()
 

@@ -7,6 +7,7 @@ itself, which runs the rules the mixins of this package define, in order, is the
 from __future__ import annotations
 
 import difflib
+import re
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from pbo_runtime.objects import registry
@@ -14,9 +15,9 @@ from pbo_runtime.config.checker.model import Checked, DriverLookup, ModuleLookup
 from pbo_runtime.config.checker.words import describe, did_you_mean
 from pbo_runtime.config.limits import MAX_DIM
 from pbo_runtime.config.model import Location
-from pbo_runtime.errors import ConfigError
+from pbo_runtime.errors import ConfigError, Note
 from pbo_runtime.config.units import TIME, parse_quantity
-from pbo_runtime.config.yaml_nodes import YMap, location_of
+from pbo_runtime.config.yaml_nodes import YList, YMap, location_of
 
 
 class CheckerBase:
@@ -44,9 +45,13 @@ class CheckerBase:
         self.config_members: dict[str, list[tuple[str, Location]]] = {}
         self.config_repeats: dict[str, set[str]] = {}  # tasks flagged E407 (a module repeated), per configuration
         self.config_locs: dict[str, Location] = {}
+        self.config_list_locs: dict[str, Location] = {}  # where each configuration's list of tasks is written
         self.job_names: set[str] = set()
         self.expression_names: set[str] = set()
         self.device_names: set[str] = set()
+        self.var_nodes: dict[str, YMap] = {}  # each variable's YAML entry, for the place of its type: or shape:
+        self.var_links: dict[str, list[Any]] = {}  # variable -> every port linked to it (_Linked), for E301/E302
+        self.device_nodes: dict[str, YMap] = {}  # each device's YAML entry, for the place of one of its options
         self.sources: dict[str, list[str]] = {}
         self.app_names: set[str] = set()
         self.bad_object_types: set[str] = set()  # object types refused (reported there): no follow-on errors
@@ -93,11 +98,15 @@ class CheckerBase:
 
     # --- reporting --------------------------------------------------------------------------
 
-    def error(self, code: str, message: str, loc: Location, hint: str = "") -> None:
-        self.out.errors.append(ConfigError(message, loc.file, loc.line, loc.column, hint, code=code))
+    def error(self, code: str, message: str, loc: Location, hint: str = "",
+              notes: Iterable[tuple[Location, str]] = ()) -> None:
+        """Report at `loc`, where the fix goes; `notes` are the related places (location, what is there)."""
+        self.out.errors.append(ConfigError(message, loc.file, loc.line, loc.column, hint, code=code, notes=_notes(notes)))
 
-    def warn(self, code: str, message: str, loc: Location, hint: str = "") -> None:
-        self.out.warnings.append(ConfigError(message, loc.file, loc.line, loc.column, hint, severity="warning", code=code))
+    def warn(self, code: str, message: str, loc: Location, hint: str = "",
+             notes: Iterable[tuple[Location, str]] = ()) -> None:
+        self.out.warnings.append(ConfigError(message, loc.file, loc.line, loc.column, hint, severity="warning", code=code,
+                                             notes=_notes(notes)))
 
     # --- shape helpers ----------------------------------------------------------------------
 
@@ -186,3 +195,55 @@ class CheckerBase:
             name = self.name(raw, key_loc, what)
             if name is not None:
                 yield name, value, key_loc, section.value_loc(raw)
+
+
+def _notes(notes: Iterable[tuple[Location, str]]) -> tuple[Note, ...]:
+    return tuple(Note(message, loc.file, loc.line, loc.column) for loc, message in notes)
+
+
+def named_in(node: Any, text: str) -> Location | None:
+    """Where a task's params write `text` as a value (a join's input in `inputs:`), or None."""
+    if isinstance(node, YMap):
+        for key, value in node.items():
+            if value == text:
+                return node.value_loc(key)
+            found = named_in(value, text)
+            if found is not None:
+                return found
+    elif isinstance(node, YList):
+        for index, item in enumerate(node):
+            if item == text:
+                return node.item_loc(index)
+            found = named_in(item, text)
+            if found is not None:
+                return found
+    return None
+
+
+def key_in(node: Any, text: str) -> Location | None:
+    """Where a task's params give a key named `text` (a parameter, a member's key), or None."""
+    if isinstance(node, YMap):
+        for key, value in node.items():
+            if key == text:
+                return node.key_loc(key)
+            found = key_in(value, text)
+            if found is not None:
+                return found
+    elif isinstance(node, YList):
+        for item in node:
+            found = key_in(item, text)
+            if found is not None:
+                return found
+    return None
+
+
+def named_by(node: YMap, message: str, skip: Sequence[str] = ()) -> Location | None:
+    """Where in `node` (a task's params, a device's options) the thing a refusal names is written: a
+    value or key it quotes ('inverse_dynamix', 'ki'), Owner.name, or the first key it names ("kd must
+    be >= 0", but none of `skip`); None when it names none of them."""
+    for text in [*re.findall(r"'([^']+)'", message), *re.findall(r"\b\w+\.(\w+)\b", message)]:
+        found = named_in(node, text) or key_in(node, text)
+        if found is not None:
+            return found
+    named = next((word for word in re.findall(r"\b\w+\b", message) if word in node and word not in skip), None)
+    return location_of(node[named], node.value_loc(named)) if named is not None else None

@@ -70,6 +70,7 @@ class ClaimChecks(CheckerBase):
                     us[1].loc,
                     "an exclusive device has one user per configuration; move one task to another configuration, "
                     "or set exclusive: false if the driver can be shared",
+                    [(u.loc, f"task '{u.task}' opens it here") for u in us if u is not us[1]],
                 )
         for j, later in enumerate(claims):
             for earlier in claims[:j]:
@@ -82,6 +83,7 @@ class ClaimChecks(CheckerBase):
                         f"they overlap on {shared}",
                         later.loc,
                         _disjoint_hint(earlier, later),
+                        [(earlier.loc, f"task '{earlier.task}' claims channels {format_channels(earlier.channels or ())} here")],
                     )
 
     def check_device_union(self) -> None:
@@ -115,6 +117,7 @@ class ClaimChecks(CheckerBase):
                         b.loc,
                         "run with --static (only the current configuration's tasks exist), or give each task its own "
                         "device or channels",
+                        [(a.loc, f"task '{a.task}' opens it here")],
                     )
                     break
 

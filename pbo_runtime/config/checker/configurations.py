@@ -48,6 +48,7 @@ class ConfigurationChecks(CheckerBase):
                         f"task '{task}' appears twice in configuration '{name}' (first at line {first[task].line}, column {first[task].column})",
                         item_loc,
                         "a task runs at most once in a configuration; to run its module twice, declare a second task",
+                        [(first[task], f"task '{task}' is first listed here")],
                     )
                     ok = False
                     continue
@@ -75,6 +76,7 @@ class ConfigurationChecks(CheckerBase):
                 members.append((task, item_loc))
             self.config_members[name] = members
             self.config_locs[name] = key_loc
+            self.config_list_locs[name] = location_of(value, value_loc)
             if ok:
                 self.out.configurations[name] = ConfigurationSpec(name, tuple(t for t, _ in members), key_loc)
 
@@ -108,8 +110,11 @@ class ConfigurationChecks(CheckerBase):
             if len(ws) > 1:
                 detail = _and_list([f"'{t.name}' (line {b.loc.line})" for t, b in ws])
                 count = "two" if len(ws) == 2 else str(len(ws))
-                self.error("E401", f"variable '{var}' has {count} writers in configuration '{config}': {detail}", ws[1][1].loc, _JOIN_HINT)
+                self.error("E401", f"variable '{var}' has {count} writers in configuration '{config}': {detail}", ws[1][1].loc, _JOIN_HINT,
+                           [(b.loc, f"task '{t.name}' writes '{var}' (port '{b.port.name}')") for t, b in ws if b is not ws[1][1]])
         job_written = self.job_written()
+        member_names = {t.name for t in members}
+        left_out: dict[tuple[str, ...], list[tuple[_Task, _Binding]]] = {}  # the tasks that would write them -> their readers
         for task in members:
             if task.name in repeats:
                 continue
@@ -133,6 +138,10 @@ class ConfigurationChecks(CheckerBase):
                 if not ws and b.variable not in job_written:
                     if not complete:
                         continue
+                    outside = self.writers_outside(b.variable, member_names)
+                    if outside:  # the fix goes in the configuration's list: reported there (E408)
+                        left_out.setdefault(outside, []).append((task, b))
+                        continue
                     self.error(
                         "E403",
                         f"task '{task.name}' reads {b.port.kind.value} '{b.variable}', but no task in configuration '{config}' writes it",
@@ -153,6 +162,7 @@ class ConfigurationChecks(CheckerBase):
                         b.loc,
                         f"make port '{w_binding.port.name}' of module '{w_task.module}' out-const or out-both, "
                         f"or give variable '{b.variable}' an initial: value",
+                        [(w_binding.loc, f"task '{w_task.name}' writes '{b.variable}' as {w_binding.port.kind.value}")],
                     )
                 elif not ws and complete:
                     self.error(
@@ -162,7 +172,33 @@ class ConfigurationChecks(CheckerBase):
                         b.loc,
                         f"give variable '{b.variable}' an initial: value",
                     )
+        for outside, readers in left_out.items():
+            self.report_left_out(config, outside, readers)
         self.check_device_claims(config, members)
+
+    def writers_outside(self, variable: str, members: set[str]) -> tuple[str, ...]:
+        """The declared tasks, not in `members`, that write `variable`."""
+        return tuple(t.name for t in self.tasks.values()
+                     if t.name not in members and any(b.variable == variable and not b.port.kind.is_input for b in t.bindings))
+
+    def report_left_out(self, config: str, outside: tuple[str, ...], readers: list[tuple[_Task, _Binding]]) -> None:
+        """E408 at the configuration's list: it leaves out the task that writes what its tasks read."""
+        variables = list(dict.fromkeys(b.variable for _, b in readers))
+        readers_named = _and_list(list(dict.fromkeys(f"'{t.name}'" for t, _ in readers)))
+        shown = _and_list([f"'{v}'" for v in variables])
+        read: dict[tuple[str, Location], list[str]] = {}  # a reader's link (the task, or its ports: entry) -> what it reads there
+        for t, b in readers:
+            read.setdefault((t.name, b.loc), []).append(f"{b.port.kind.value} '{b.variable}'")
+        notes = [(loc, f"task '{name}' reads {_and_list(what)}") for (name, loc), what in read.items()]
+        notes += [(self.tasks[w].loc, f"task '{w}' writes {_and_list([repr(v) for v in variables])}") for w in outside]
+        if len(outside) == 1:
+            members = [t for t, _ in self.config_members.get(config, [])]
+            self.error("E408", f"configuration '{config}' leaves out task '{outside[0]}', which writes {shown}, read by {readers_named}",
+                       self.config_list_locs[config], f"add it: {config}: [{', '.join([*members, outside[0]])}]", notes)
+        else:
+            self.error("E408", f"configuration '{config}' has no writer of {shown}, read by {readers_named}; "
+                               f"{_and_list([repr(w) for w in outside])} write {'it' if len(variables) == 1 else 'them'}",
+                       self.config_list_locs[config], f"add one of {', '.join(repr(w) for w in outside)} to configuration '{config}'", notes)
 
     def check_unused(self) -> None:
         in_a_config = {t for members in self.config_members.values() for t, _ in members}

@@ -8,7 +8,7 @@ from typing import Any
 
 from pbo_runtime.config.channels import EXAMPLE as CHANNELS_EXAMPLE
 from pbo_runtime.config.channels import ChannelError, format_channels, parse_channels
-from pbo_runtime.config.checker.base import CheckerBase
+from pbo_runtime.config.checker.base import CheckerBase, named_by
 from pbo_runtime.config.checker.model import CLAIM_KEYS, DEVICE_KEYS
 from pbo_runtime.config.checker.words import describe, did_you_mean
 from pbo_runtime.config.model import DeviceSpec, Location, PortClaim
@@ -24,6 +24,7 @@ class DeviceChecks(CheckerBase):
             spec = self.mapping(value, value_loc, f"device '{name}'", "e.g. arm: {driver: mujoco_arm, exclusive: true}")
             if spec is None:
                 continue
+            self.device_nodes[name] = spec
             if "driver" not in spec:
                 self.error("E112", f"device '{name}' has no 'driver:', which is required", key_loc, "add 'driver: <name>' (a registered driver)")
                 continue
@@ -40,7 +41,7 @@ class DeviceChecks(CheckerBase):
             bad = [k for k in options if not isinstance(k, str)]
             for k in bad:
                 self.error("E118", f"option names of device '{name}' must be text, got: {describe(k)}", spec.key_loc(k))
-            if driver is not None and not bad and not self.driver_accepts(name, driver, options, key_loc):
+            if driver is not None and not bad and not self.driver_accepts(name, driver, options, key_loc, spec):
                 continue
             if driver is not None and exclusive is not None and not bad and io_ok:
                 self.out.devices[name] = DeviceSpec(name, driver, exclusive, options, key_loc, io)
@@ -67,8 +68,8 @@ class DeviceChecks(CheckerBase):
         ports = getattr(cls, "PORTS", 0)
         return ports if isinstance(ports, int) and ports >= 0 else 0
 
-    def driver_accepts(self, name: str, driver: str, options: dict[str, Any], loc: Location) -> bool:
-        """The driver's own check of the device's options (E607); True when it has none or they pass."""
+    def driver_accepts(self, name: str, driver: str, options: dict[str, Any], loc: Location, node: YMap | None = None) -> bool:
+        """The driver's own check of the device's options (E607, at the option it names); True when it has none or they pass."""
         cls = self.driver_class(driver)
         check = getattr(cls, "check_options", None)
         if check is None:
@@ -76,7 +77,7 @@ class DeviceChecks(CheckerBase):
         try:
             check(options)
         except (ValueError, TypeError) as exc:
-            self.error("E607", f"device '{name}' (driver {driver}): {exc}", loc,
+            self.error("E607", f"device '{name}' (driver {driver}): {exc}", (named_by(node, str(exc), DEVICE_KEYS) if node is not None else None) or loc,
                        "the driver's docstring lists its options (docs/modules.md, 'Drivers')")
             return False
         return True

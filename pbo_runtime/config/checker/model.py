@@ -100,6 +100,17 @@ class _Link(NamedTuple):
     explicit: bool  # written as ports: {port: variable}; else the port's own default name
 
 
+class _Linked(NamedTuple):
+    """A port linked to a declared variable, as the check of dtype and shape saw it."""
+
+    task: str
+    port: PortSpec  # with the variable's dtype (and shape) where it declares any
+    shape: tuple[int, ...]  # the port's shape, resolved
+    loc: Location
+    own_dtype: bool  # the port declares its dtype (not ANY_DTYPE): it has a say in what the variable should be
+    own_shape: bool  # ... and its shape
+
+
 @dataclass
 class _PartialVariable:
     """A `variables:` entry that gives no type: what it does give, the rest comes from its ports."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 from typing import Any
@@ -13,9 +14,10 @@ from pbo_runtime.config.limits import MAX_DIM
 from pbo_runtime.config.model import DEFAULT_SPIN, BusSpec, Location, PlantSpec, RtpuSpec
 from pbo_runtime.config.units import DATA_RATE, SIZE, TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
-from pbo_runtime.errors import ModuleError
+from pbo_runtime.errors import ModuleError, ParamError
 from pbo_runtime.objects import registry
 from pbo_runtime.objects.arm import ROBOT_OPTIONS, is_robot_file
+from pbo_runtime.objects.module import convert_param, param_fields
 
 
 _SUBSYSTEM_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
@@ -133,7 +135,72 @@ class SectionChecks(CheckerBase):
                 self.error("E118", f"plant option names must be text, got: {describe(key)}", plant.key_loc(key))
         if kind is not None and model is not None and timestep is not None:
             self.out.plant = PlantSpec(kind, model, timestep, options, plant.loc)
-            self.check_robot(plant, self.out.plant)
+            wrong = self.check_plant_options(plant, self.out.plant)
+            # the robot is still described (its NDOF is a dim), without the options already refused
+            robot = dataclasses.replace(self.out.plant, options={k: v for k, v in options.items() if k not in wrong})
+            self.check_robot(plant, robot)
+
+    def check_plant_options(self, plant: YMap, spec: PlantSpec) -> set[Any]:
+        """The plant's options against what its type declares (`Options`, a dataclass like a module's
+        Params): names (E111, with a did-you-mean), types and lengths (E320), each at its own key;
+        then the plant's own check of them together. The options refused (none when nothing is declared)."""
+        try:
+            declared = getattr(registry.plant_class(spec.type), "Options", None)
+        except ModuleError:
+            return set()  # an unregistered plant type is refused when the run starts
+        if not (isinstance(declared, type) and dataclasses.is_dataclass(declared)):
+            return set()
+        fields = param_fields(declared)
+        owner = f"plant {spec.type}"
+        wrong: set[Any] = set()
+        values: dict[str, Any] = {}
+        for key, value in spec.options.items():
+            if not isinstance(key, str):
+                wrong.add(key)  # reported above (E118)
+                continue
+            if key not in fields:
+                self.error("E111", f"unknown option '{key}' of {owner}", plant.key_loc(key),
+                           did_you_mean(key, [*fields, "type", "model", "timestep"], "options"))
+                wrong.add(key)
+                continue
+            loc = plant.value_loc(key)
+            try:
+                values[key] = convert_param(declared, key, value, f"plant option {key}")
+            except ParamError as exc:
+                self.error("E320", str(exc), location_of(plant[key], loc))
+                wrong.add(key)
+                continue
+            problem = self._option_length(key, values[key], fields[key].metadata.get("shape"), spec)
+            if problem:
+                self.error("E320", problem, location_of(plant[key], loc),
+                           "give one value per joint, or leave the option out for the robot's own" if fields[key].metadata.get("shape") == ("NDOF",) else "")
+                wrong.add(key)
+        if wrong:
+            return wrong
+        try:
+            declared(**values)
+        except (TypeError, ValueError) as exc:
+            named = next((k for k in values if re.search(rf"\b{re.escape(k)}\b", str(exc))), None)
+            self.error("E320", str(exc), plant.value_loc(named) if named is not None else plant.loc)
+            return {named} if named is not None else set(values)
+        return set()
+
+    def _option_length(self, key: str, value: Any, shape: Any, spec: PlantSpec) -> str:
+        """'' if a list option has the length its declared shape says; else what is wrong. A dim
+        (NDOF) is the robot's when it is known without loading it, else the file's dims:."""
+        if not isinstance(value, tuple) or not isinstance(shape, tuple) or len(shape) != 1:
+            return ""
+        size, named = shape[0], ""
+        if isinstance(size, str):
+            robot = self._plant_robot_dims() if not is_robot_file(spec.model) else {}
+            dim = size
+            size = robot.get(dim, self.out.dims.get(dim))
+            if size is None:
+                return ""  # a robot file's joints are known once it is loaded: checked then
+            named = f" ({dim}: the joints of {spec.model})" if dim in robot else f" ({dim})"
+        if len(value) == size:
+            return ""
+        return f"plant option {key} must have {size} values{named}, got: {len(value)}"
 
     def check_robot(self, plant: YMap, spec: PlantSpec) -> None:
         """The plant's robot: a registered one, or a file that loads, with its end effector; its NDOF.
@@ -159,13 +226,19 @@ class SectionChecks(CheckerBase):
             except (ModuleError, AttributeError):
                 return  # a plant of another kind checks its own options when it starts
             base_dir = Path(spec.loc.file).resolve().parent if spec.loc.file else Path.cwd()
-            try:
-                robot = describe(spec.model, str(base_dir), dict(spec.options))
-            except ValueError as exc:
-                key = getattr(exc, "key", "model")
-                loc = plant.value_loc(key) if key in plant else model_loc
-                self.error("E217" if key == "ee" else "E216", str(exc), loc, getattr(exc, "hint", ""))
-                return
+            options = dict(spec.options)
+            while True:
+                try:
+                    robot = describe(spec.model, str(base_dir), options)
+                    break
+                except ValueError as exc:
+                    key = getattr(exc, "key", "model")
+                    loc = plant.value_loc(key) if key in plant else model_loc
+                    self.error("E217" if key == "ee" else "E216", str(exc), loc, getattr(exc, "hint", ""))
+                    if key not in options:
+                        return  # the robot itself cannot be loaded
+                    # a robot option it refuses (reported): the robot without it still gives its dims (NDOF)
+                    del options[key]
             self._robot_dims = dict(robot.dims)
             name = Path(robot.source).name
             self.out.robot_notes = [f"robot {name}: {robot.ndof} joints ({', '.join(robot.joint_names)}), "

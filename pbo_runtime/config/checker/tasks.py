@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Mapping
 
-from pbo_runtime.config.checker.base import CheckerBase
+from pbo_runtime.config.checker.base import CheckerBase, named_by, named_in
 from pbo_runtime.config.model import PortClaim
-from pbo_runtime.config.checker.model import TASK_KEYS, _Binding, _Link, _Task
+from pbo_runtime.config.checker.model import TASK_KEYS, _Binding, _Link, _Linked, _Task
 from pbo_runtime.config.checker.words import _ms, _show_shape, describe, did_you_mean
 from pbo_runtime.config.model import Location, PortBinding, TaskSpec
 from pbo_runtime.errors import ParamError
+from pbo_runtime.objects.module import PortBasedObject, convert_param, param_fields
 from pbo_runtime.objects.ports import ANY_DTYPE, PortSpec
 from pbo_runtime.config.units import FREQUENCY, TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
@@ -22,6 +23,7 @@ class TaskChecks(CheckerBase):
         def port_claim(self, value: Any, loc: Location, what: str, owner: str, allow_name: bool) -> PortClaim | None: ...
         def channels_exist(self, claim: PortClaim, what: str) -> bool: ...
         def infer_variables(self, linked: list[tuple[_Task, list[_Link]]]) -> None: ...
+        def driver_class(self, driver: str) -> Any: ...
 
     def known_modules(self) -> list[str] | None:
         if self.module_names is None:
@@ -35,6 +37,7 @@ class TaskChecks(CheckerBase):
         # Two passes: every task's links first, so a variable no entry declares can take its type and
         # shape from all the ports that link it (`infer_variables`); then each link is checked.
         pending: list[tuple[_Task, YMap, bool, tuple[list[_Link], bool] | None]] = []
+        module_class_of: dict[str, Any] = {}
         for index, (name, value, key_loc, value_loc) in enumerate(self.entries(top, "tasks", "task", "e.g. tasks: {pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}}")):
             self.task_names.add(name)
             # (a mapping, as nearly always, needs no location and no message: they are made for the error only)
@@ -52,12 +55,27 @@ class TaskChecks(CheckerBase):
                 params_ok = self.check_task_params(task, spec, module_class)
                 if not params_ok:
                     complete = False
-                links = self.task_links(task, spec, module_class)
+                elif not self.check_task_devices(task, spec, module_class):
+                    complete = False
+                # Ports made from the params (a combined module's members, a join's inputs) are unknown
+                # while the params are wrong: the task is left unresolved, so no reader of what it
+                # would write is told that nobody writes it (E403 is a consequence, not a mistake).
+                if params_ok or not _ports_from_params(module_class):
+                    links = self.task_links(task, spec, module_class)
+            module_class_of[name] = module_class
             pending.append((task, spec, complete, links))
         self.infer_variables([(task, links[0]) for task, _, _, links in pending if links is not None])
+        self.var_links = {}
+        bound = []
         for task, spec, complete, links in pending:
             if links is not None:
                 task.ok = self.bind_task_ports(task, *links)
+            bound.append((task, spec, complete, links))
+        self.report_link_mismatches()
+        for task, spec, complete, links in bound:
+            if links is not None:
+                if task.ok and module_class_of.get(task.name) is not None:
+                    task.ok = self.check_same_shapes(task, spec, module_class_of[task.name])
                 if task.ok and "fresh_within" in spec:
                     complete = self.check_task_freshness(task, spec) and complete
             if complete and task.ok:
@@ -345,6 +363,7 @@ class TaskChecks(CheckerBase):
                 ok = False  # the variable itself is wrong and was reported
                 continue
             variable = variables[var]
+            own_dtype, own_shape = port.dtype != ANY_DTYPE, port.shape is not None
             if port.dtype == ANY_DTYPE:  # a port that takes whatever its variable is
                 port = PortSpec(port.name, port.kind, port.variable, variable.dtype,
                                 variable.shape if port.shape is None else port.shape, port.doc)
@@ -358,27 +377,103 @@ class TaskChecks(CheckerBase):
                 self.error("E306", f"port '{port.name}' of module '{task.module}' has a bad shape {port.shape!r}: {exc}", loc)
                 ok = False
                 continue
-            if port.dtype != variable.dtype:
-                self.error(
-                    "E301",
-                    f"task '{name}' port '{port.name}' ({port.kind.value}) is {port.dtype}, but variable '{var}' is {variable.dtype}",
-                    loc,
-                    f"change the type of '{var}' (line {variable.loc.line}) or link the port to a {port.dtype} variable",
-                )
-                ok = False
-                continue
-            if shape != variable.shape:
-                named = "" if shape == port.shape else f" = {_show_shape(port.shape)}"
-                self.error(
-                    "E302",
-                    f"task '{name}' port '{port.name}' ({port.kind.value}) has shape {_show_shape(shape)}{named}, "
-                    f"but variable '{var}' has shape {_show_shape(variable.shape)}",
-                    loc,
-                    f"change the shape of '{var}' (line {variable.loc.line}) or link the port to a variable of shape {_show_shape(shape)}",
-                )
+            # A mismatch is reported once every task is linked (`report_link_mismatches`): where all the
+            # ports of a variable agree with each other, it is the declaration that is wrong.
+            self.var_links.setdefault(var, []).append(_Linked(task.name, port, shape, loc, own_dtype, own_shape))
+            if port.dtype != variable.dtype or shape != variable.shape:
                 ok = False
                 continue
             task.bindings.append(_Binding(port, var, shape, loc))
+        return ok
+
+    def report_link_mismatches(self) -> None:
+        """E301/E302 for the ports whose dtype or shape differs from their variable's. When every port
+        that links a variable agrees (on the dtype, or on the shape), the declaration is what is
+        wrong: one error at its type: (or shape:), the ports as notes. Otherwise one at each odd port."""
+        for var, every in self.var_links.items():
+            variable = self.out.variables[var]
+            wrong_type = [link for link in every if link.port.dtype != variable.dtype]
+            links = [link for link in every if link.own_dtype]  # a port of any dtype agrees with every variable
+            if wrong_type:
+                dtypes = {link.port.dtype for link in links}
+                if len(dtypes) == 1:
+                    dtype = dtypes.pop()
+                    self.error("E301", f"variable '{var}' is {variable.dtype}, but {_ports_that_link(links)} {dtype}",
+                               self.declared_at(var, "type"), f"change the type of '{var}' to {dtype}",
+                               [(link.loc, f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) is {link.port.dtype}")
+                                for link in links])
+                    continue
+                for link in wrong_type:
+                    self.error("E301", f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) is {link.port.dtype}, "
+                                       f"but variable '{var}' is {variable.dtype}",
+                               link.loc, f"link the port to a {link.port.dtype} variable",
+                               [(self.declared_at(var, "type"), f"variable '{var}' is declared {variable.dtype} here")])
+            typed = [link for link in every if link.port.dtype == variable.dtype and link.own_shape]
+            wrong_shape = [link for link in typed if link.shape != variable.shape]
+            if not wrong_shape:
+                continue
+            shapes = {link.shape for link in typed}
+            if len(shapes) == 1 and not wrong_type:
+                shape = shapes.pop()
+                written = next((link.port.shape for link in typed if link.port.shape is not None and link.port.shape != shape), shape)
+                self.error("E302", f"variable '{var}' has shape {_show_shape(variable.shape)}, but {_ports_that_link(typed)} "
+                                   f"of shape {_show_shape(shape)}",
+                           self.declared_at(var, "shape"), f"change the shape of '{var}' to [{', '.join(str(d) for d in written)}]",
+                           [(link.loc, f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) has shape "
+                                       f"{_show_shape(link.shape)}" + ("" if link.shape == link.port.shape else f" = {_show_shape(link.port.shape)}"))
+                            for link in typed])
+                continue
+            for link in wrong_shape:
+                named = "" if link.shape == link.port.shape else f" = {_show_shape(link.port.shape)}"
+                self.error("E302", f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) has shape {_show_shape(link.shape)}{named}, "
+                                   f"but variable '{var}' has shape {_show_shape(variable.shape)}",
+                           link.loc, f"link the port to a variable of shape {_show_shape(link.shape)}",
+                           [(self.declared_at(var, "shape"), f"variable '{var}' is declared with shape {_show_shape(variable.shape)} here")])
+
+    def declared_at(self, var: str, key: str) -> Location:
+        """Where a variable's entry gives `key` (type, shape), else where the entry is."""
+        node = self.var_nodes.get(var)
+        if node is not None and key in node:
+            return node.value_loc(key)
+        return self.var_locs.get(var, self.out.variables[var].loc)
+
+    def check_same_shapes(self, task: _Task, spec: YMap, module_class: Any) -> bool:
+        """E319: the ports a module groups as one shape (`same_shape`: a join's output and inputs) link
+        variables of one shape. Reported where the odd port is named (a join's `inputs:` item), with
+        the variable's declaration and the port it disagrees with as notes."""
+        try:
+            groups = tuple(module_class.same_shape(task.built_params)) if task.built_params is not None else ()
+        except Exception as exc:  # the module is broken, not the YAML
+            self.error("E307", f"module '{task.module}' of task '{task.name}' cannot say which ports share a shape: {exc!r}",
+                       spec.value_loc("module"))
+            return False
+        bound = {b.port.name: b for b in task.bindings}
+        ok = True
+        for group in groups:
+            members = [bound[port] for port in group if port in bound]
+            shapes = [b.shape for b in members]
+            if len(set(shapes)) < 2:
+                continue
+            # the shape most of them have is the one meant (the first port's on a tie: a join's output)
+            meant = max(shapes, key=lambda shape: (shapes.count(shape), -shapes.index(shape)))
+            reference = next(b for b in members if b.shape == meant)
+            for b in members:
+                if b.shape == meant:
+                    continue
+                ok = False
+                where = named_in(spec.get("params"), b.port.name) or b.loc
+                notes = [(reference.loc, f"port '{reference.port.name}' links variable '{reference.variable}', of shape {_show_shape(meant)}")]
+                if b.variable in self.var_locs:
+                    notes.append((self.var_locs[b.variable], f"variable '{b.variable}' is declared here, with shape {_show_shape(b.shape)}"))
+                self.error(
+                    "E319",
+                    f"task '{task.name}' (module '{task.module}') needs one shape on ports {', '.join(repr(p) for p in group)}: "
+                    f"port '{b.port.name}' links variable '{b.variable}', of shape {_show_shape(b.shape)}, "
+                    f"where port '{reference.port.name}' links '{reference.variable}', of shape {_show_shape(meant)}",
+                    where,
+                    f"link port '{b.port.name}' to a variable of shape {_show_shape(meant)}, or change the shape of '{b.variable}'",
+                    notes,
+                )
         return ok
 
     def port_shape_resolves(self, task: _Task, port: PortSpec, loc: Location) -> bool:
@@ -439,15 +534,146 @@ class TaskChecks(CheckerBase):
         try:
             task.built_params = module_class.build_params(values)
         except ParamError as exc:
-            self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {exc}", self.params_loc(task, spec))
+            self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {exc}", self.refused_at(task, spec, str(exc)))
             return False
         except Exception as exc:  # a module's own validation may raise anything
-            self.error("E308", f"params of task '{task.name}' (module '{task.module}') were refused: {exc!r}", self.params_loc(task, spec))
+            self.error("E308", f"params of task '{task.name}' (module '{task.module}') were refused: {exc!r}",
+                       self.refused_at(task, spec, str(exc)))
             return False
         task.params = values
+        return self.check_param_lengths(task, spec, module_class)
+
+    def check_param_lengths(self, task: _Task, spec: YMap, module_class: Any) -> bool:
+        """A list parameter declared with a shape (`metadata={"shape": ("NDOF",)}`: one value per joint)
+        has that many values (E308 at the parameter), which the module would otherwise refuse in init."""
+        try:
+            declared = param_fields(module_class.Params)
+        except TypeError:  # Params is not a dataclass: nothing is declared
+            return True
+        raw = spec.get("params")
+        ok = True
+        for name, field in declared.items():
+            shape, value = field.metadata.get("shape"), getattr(task.built_params, name, None)
+            if not isinstance(value, tuple) or not isinstance(shape, tuple) or len(shape) != 1:
+                continue
+            size, dim = shape[0], ""
+            if isinstance(size, str):
+                dim = size
+                size = self.out.dims.get(dim) if dim in self.out.dims else self.robot_dim(dim)
+                if size is None:
+                    continue  # an unknown dim is reported where a shape uses it
+            if len(value) == size:
+                continue
+            where = raw.value_loc(name) if isinstance(raw, YMap) and name in raw else self.params_loc(task, spec)
+            self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {name} must have "
+                               f"{size} values{f' ({dim})' if dim else ''}, got: {len(value)}",
+                       location_of(raw.get(name) if isinstance(raw, YMap) else None, where),
+                       f"give a list of {size} values" + (", or one number for all" if _takes_a_number(module_class.Params, name) else ""))
+            ok = False
+        return ok
+
+    def check_task_devices(self, task: _Task, spec: YMap, module_class: Any) -> bool:
+        """The devices a module opens by a param (its DEVICES): among the task's resources (E608), with
+        the driver options the module needs (E609). What `pbo run` would refuse in init or in on."""
+        uses = getattr(module_class, "DEVICES", None)
+        listed = spec.get("resources")
+        if not isinstance(uses, Mapping) or not uses or task.built_params is None:
+            return True
+        if isinstance(listed, YList) and len(listed) != len(task.resources):
+            return True  # a resource is wrong, and was reported there: which ones it meant is unknown
+        resources = [device for device, _ in task.resources]
+        params = spec.get("params") if isinstance(spec.get("params"), YMap) else None
+        ok = True
+        for field, needs in uses.items():
+            device = getattr(task.built_params, str(field), None)
+            if not isinstance(device, str):
+                continue
+            given = params is not None and field in params
+            if device not in resources:
+                ok = False
+                declared = device in self.device_names
+                listing = ", ".join(resources) if resources else "none"
+                what = f"opens device '{device}' (params: {field}" + ("" if given else ", by default") + ")"
+                notes = []
+                if "resources" in spec:
+                    notes.append((spec.value_loc("resources"), f"the resources of task '{task.name}': {listing}"))
+                if given:
+                    assert params is not None
+                    hint = (did_you_mean(device, resources, "resources") if resources else "the task has no resources")
+                    hint += f"; or add '{device}' to resources:" if declared else f"; 'devices' does not declare '{device}'"
+                    self.error("E608", f"task '{task.name}' (module '{task.module}') {what}, which is not among its resources",
+                               params.value_loc(field), hint, notes)
+                else:
+                    where = spec.value_loc("resources") if "resources" in spec else task.loc
+                    fix = (f"add '{device}' to resources:" if declared else f"declare device '{device}' under devices: and add it to resources:")
+                    if resources:
+                        fix += f", or name one of its resources with params: {{{field}: {resources[0]}}}"
+                    self.error("E608", f"task '{task.name}' (module '{task.module}') {what}, which is not among its resources ({listing})",
+                               where, fix, notes)
+                continue
+            ok = self.check_device_options(task, spec, device, needs) and ok
+        return ok
+
+    def check_device_options(self, task: _Task, spec: YMap, device: str, needs: Any) -> bool:
+        """E609: the device has every driver option the module needs (its value, or the driver's default)."""
+        device_spec = self.out.devices.get(device)
+        cls = self.driver_class(device_spec.driver) if device_spec is not None else None
+        if device_spec is None or cls is None or not isinstance(needs, Mapping):
+            return True  # the device or its driver is wrong or unknown: reported there, or checked when opened
+        defaults = getattr(cls, "OPTION_DEFAULTS", {}) or {}
+        node = self.device_nodes.get(device)
+        for option, wanted in needs.items():
+            if option in device_spec.options:
+                has, where, how = device_spec.options[option], (node.value_loc(option) if node is not None else device_spec.loc), ""
+            elif option in defaults:
+                has, where, how = defaults[option], device_spec.loc, f" (driver {device_spec.driver}'s default)"
+            else:
+                continue  # a driver without the option: it cannot be checked here
+            if has == wanted:
+                continue
+            self.error(
+                "E609",
+                f"task '{task.name}' (module '{task.module}') needs device '{device}' with {option}: {wanted}, "
+                f"but the device has {option}: {has}{how}",
+                spec.value_loc("module"),
+                f"choose a module for a device with {option}: {has}, or give device '{device}' {option}: {wanted} "
+                f"(if no other task needs it as it is)",
+                [(where, f"device '{device}' has {option}: {has}{how}")],
+            )
+            return False
         return True
+
+    def refused_at(self, task: _Task, spec: YMap, message: str) -> Location:
+        """Where the parameter a refusal names is written (a value it quotes, as a combined module's
+        wrong member 'inverse_dynamix'; a parameter it names: 'ki', PidJoint.kp, "kd must be >= 0"),
+        else the params."""
+        raw = spec.get("params")
+        found = named_by(raw, message) if isinstance(raw, YMap) else None
+        return found or self.params_loc(task, spec)
 
     @staticmethod
     def params_loc(task: _Task, spec: YMap) -> Location:
         """Where a message about a task's params points: the params, or the task when it gives none."""
         return location_of(spec.get("params"), spec.value_loc("params") if "params" in spec else task.loc)
+
+
+def _ports_from_params(module_class: Any) -> bool:
+    """Whether a module's ports depend on its params (it overrides `ports_for`)."""
+    own = getattr(getattr(module_class, "ports_for", None), "__func__", None)
+    return own is not None and own is not PortBasedObject.ports_for.__func__  # type: ignore[attr-defined]
+
+
+def _takes_a_number(params_type: type, name: str) -> bool:
+    """Whether a parameter declared as a list also takes one number (a gain for every joint)."""
+    try:
+        convert_param(params_type, name, 0.0, name)
+    except ParamError:
+        return False
+    return True
+
+
+def _ports_that_link(links: list[_Linked]) -> str:
+    """'the port that links it is' / 'all 3 ports that link it are' (the dtype or shape follows)."""
+    if len(links) == 1:
+        return "the one port that links it is"
+    return f"all {len(links)} ports that link it are"

@@ -139,6 +139,7 @@ class VariableChecks(CheckerBase):
                 value, value_loc, f"variable '{name}'", "e.g. q_m: {type: float64, shape: [NDOF]}")
             if spec is None:
                 continue
+            self.var_nodes[name] = spec
             where = f"in variable '{name}'"
             self.keys(spec, VARIABLE_KEYS, (), where, key_loc)  # no type: its ports give it (InferenceChecks)
             dtype: str | None = None

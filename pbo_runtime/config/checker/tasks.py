@@ -53,6 +53,8 @@ class TaskChecks(CheckerBase):
                 if not params_ok:
                     complete = False
                 links = self.task_links(task, spec, module_class)
+                if links is not None:
+                    task.outputs = tuple((link.port.name, link.variable) for link in links[0] if not link.port.kind.is_input)
             pending.append((task, spec, complete, links))
         self.infer_variables([(task, links[0]) for task, _, _, links in pending if links is not None])
         for task, spec, complete, links in pending:

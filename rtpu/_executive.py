@@ -499,7 +499,7 @@ class Executive:
         try:
             for s in leaving:
                 self._leave_on(s)
-                s.task.turn_off()
+                s.task.turn_off(clock.now())
             for s in sorted(entering, key=lambda s: not s.critical):
                 self._turn_on(s, activation, plan=sequence)
             for s in self.on:
@@ -610,10 +610,10 @@ class Executive:
                     self._watch(s, int(signal.configuration), self.clock.now())
             elif isinstance(signal, messages.TurnOff):
                 self._leave_on(s)
-                task.turn_off()
+                task.turn_off(self.clock.now())
             elif isinstance(signal, messages.Kill):
                 self._leave_on(s)
-                task.kill()
+                task.kill(self.clock.now())
             elif isinstance(signal, messages.Clear):
                 task.clear()
             elif isinstance(signal, messages.OperatorEvent):
@@ -677,7 +677,7 @@ class Executive:
             if s.task.state in (TaskState.ON, TaskState.OFF, TaskState.ERROR):
                 self._leave_on(s)
                 try:
-                    s.task.kill()
+                    s.task.kill(self.clock.now())
                 except Exception as exc:
                     self.report(Refused(s.task.name, f"kill: {exc}"))
                 self._report_state(s.task)

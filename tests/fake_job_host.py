@@ -61,6 +61,7 @@ class FakeJobHost:
         self.rtpus_apply_plans = True
         self.signals: list[tuple[str, str]] = []  # (task, op) as sent
         self.clear_fixes_the_fault = True
+        self.on_leaves = "ON"  # OFF: the task's on failed and its error component turned it off
         self.events: list[tuple[str, Any]] = []
         self.stopped_by = ""
         self.on_pump: Callable[[FakeJobHost], None] | None = None
@@ -164,7 +165,7 @@ class FakeJobHost:
     def signal_task(self, task: str, op: str, states: set[str]) -> str:
         self.signals.append((task, op))
         if op == "on":
-            self.task_states[task] = "ON"
+            self.task_states[task] = self.on_leaves
         elif op == "off":
             self.task_states[task] = "OFF"
         elif op == "clear" and self.clear_fixes_the_fault:

@@ -264,16 +264,17 @@ def assert_nothing_left(report: dict) -> None:
     assert leftovers == []
 
 
-def demo_copy(folder: Path, subsystem: str, **tasks: dict) -> Path:
-    """The demo's YAML under another subsystem name (runs side by side never share one), with
-    `tasks` entries updated key by key (a task the demo lacks is added to its configuration), written to `folder`."""
+def demo_copy(folder: Path, subsystem: str, *, source: Path = DEMO, **tasks: dict) -> Path:
+    """The demo's YAML (or `source`, another of configs/) under another subsystem name (runs side by
+    side never share one), with `tasks` entries updated key by key (a task the file lacks is added to
+    its first configuration), written to `folder`."""
     import yaml
 
-    config = yaml.safe_load(DEMO.read_text())
+    config = yaml.safe_load(source.read_text())
     config["subsystem"] = subsystem
     for name, update in tasks.items():
         if name not in config["tasks"]:
-            config["configurations"]["joint_pid"].append(name)
+            next(iter(config["configurations"].values())).append(name)
         config["tasks"].setdefault(name, {}).update(update)
     path = folder / f"{subsystem}.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))

@@ -397,8 +397,8 @@ ONE_MISTAKE = [
     mistake("a_module_runs_at_most_once_in_a_configuration",
             edited(("configurations:\n", TRAJ2 + "configurations:\n"), ("[robot, traj, pid]", "[robot, traj, pid, traj2]")),
             "traj2]", r"configuration 'joint_pid' runs module 'fake_traj' twice: as task 'traj' \(line 14\) and as task 'traj2' "
-                      r"\(line 16\)$", code="E407",
-            hint=r"combine the two tasks into one, or use distinct modules"),
+                      r"\(line 16\), both writing q_r$", code="E407",
+            hint=r"declare 'q_r_traj2' under variables:, link them with ports: \{q_r: q_r_traj2\}\) and join each"),
     # job conditions
     mistake("a_condition_may_not_access_attributes_and_says_where",
             changed('"max(abs(q_m - q_d)) < 1e-3"', '"q_m.max() < 1e-3"'), "q_m.max",
@@ -943,3 +943,31 @@ def test_ten_mistakes_in_ten_sections_give_ten_located_messages_in_file_order(tm
 
 def format_all(result: CheckResult) -> str:
     return "\n".join(e.format() for e in [*result.errors, *result.warnings])
+
+
+# --- issue 22: an instance of a module is the module with the variables its outputs write ---------
+
+
+def test_the_hint_of_e407_when_followed_gives_two_instances_of_one_module_issue_22(tmp_path: Path) -> None:
+    text = edited(("configurations:\n", TRAJ2 + "configurations:\n"), ("[robot, traj, pid]", "[robot, traj, pid, traj2]"))
+    hint = only_error(check(tmp_path, text)).hint
+    declared, linked = re.search(r"declare '(\w+)' under variables:, link them with ports: (\{.*?\})\)", hint).groups()
+    followed = edited(("  traj2: {module: fake_traj, rtpu: rtpu0, period: 2 ms}", f"  traj2: {{module: fake_traj, rtpu: rtpu0, period: 2 ms, ports: {linked}}}"),
+                      ("variables:\n", f"variables:\n  {declared}: {{type: float64, shape: [NDOF]}}\n"), text=text)
+    assert check(tmp_path, followed).errors == []
+
+
+def test_tasks_of_a_module_that_writes_nothing_may_run_side_by_side_issue_22(tmp_path: Path) -> None:
+    text = edited(("variables:\n", "variables:\n  K: {type: float64, initial: 1}\n"),
+                  ("tasks:\n", "tasks:\n  look1: {module: fake_k_reader, rtpu: rtpu0, period: 1 ms}\n"
+                                "  look2: {module: fake_k_reader, rtpu: rtpu0, period: 5 ms}\n"),
+                  ("[robot, traj, pid]", "[robot, traj, pid, look1, look2]"))
+    assert check(tmp_path, text).errors == []
+
+
+def test_a_second_pid_on_the_same_torque_is_still_one_module_twice_at_its_place_in_the_list_issue_22(tmp_path: Path) -> None:
+    text = edited(("configurations:\n", "  pid2: {module: fake_pid, rtpu: rtpu0, period: 1 ms, params: {kp: 1}, ports: {tau: tau_u}}\n"
+                   "configurations:\n"), ("[robot, traj, pid]", "[robot, traj, pid, pid2]"))
+    error = expect_error(tmp_path, text, "pid2]", r"configuration 'joint_pid' runs module 'fake_pid' twice: as task 'pid' "
+                                                  r"\(line 15\) and as task 'pid2' \(line 16\), both writing tau_u$", code="E407")
+    assert "ports: {tau: tau_u_pid2}" in error.hint

@@ -222,6 +222,11 @@ def inferred(ts: TaskSet, declared: set[str]) -> dict[str, tuple[str, ...]]:
     return made
 
 
+def instance_writes(task: Task) -> frozenset[str]:
+    kinds = {port: kind for port, kind, _ in MODULE_PORTS.get(task.module, ())}
+    return frozenset(var for port, var in task.links if kinds[port] not in INPUTS)
+
+
 def oracle(ts: TaskSet) -> Verdict:
     declared = {v.name for v in ts.variables}
     initial = {v.name for v in ts.variables if v.initial}
@@ -230,13 +235,16 @@ def oracle(ts: TaskSet) -> Verdict:
     shapes = {name: _shape(name) for name in declared} | inferred(ts, declared)
     bound = {t.name: bindings(t, shapes) for t in ts.tasks}
     resolved = {t.name: t.module in MODULE_PORTS and len(bound[t.name]) == len(t.links) for t in ts.tasks}
+    # a module's instance: the module with the variables its outputs link to, resolved or not (issue 22)
+    writes = {t.name: instance_writes(t) for t in ts.tasks}
     errors: Counter[Key] = Counter()
 
     for config, members in ts.configurations:
-        running: list[str] = []  # the tasks the rules see; a second task of a module is E407
+        running: list[str] = []  # the tasks the rules see; a second instance of a module is E407
         left_out: list[str] = []
         for name in members:
-            if any(tasks[other].module == tasks[name].module for other in running):
+            if writes[name] and any(tasks[other].module == tasks[name].module and writes[other] == writes[name]
+                                    for other in running):
                 errors["E407", config, name] += 1
                 left_out.append(name)
             else:
@@ -397,9 +405,9 @@ def test_the_checker_reports_exactly_the_data_flow_errors_the_rules_call_for(ts:
             assert order.index(producer) < order.index(reader), (producer, reader, order, text)
 
 
-# --- a disagreement: a checker bug, kept as a minimal example ----------------------------------
+# --- instances of one module (issue 22), kept as minimal examples -------------------------------
 
-E407_CASCADE = """\
+TWO_INSTANCES = """\
 subsystem: prop
 rtpus: [rtpu0]
 dims: {N: 3}
@@ -419,6 +427,13 @@ configurations:
 """
 
 
-def test_a_task_left_out_for_e407_still_counts_as_a_writer() -> None:
-    result = check_text(E407_CASCADE)
+def test_two_tasks_of_one_module_writing_variables_of_their_own_are_two_instances_issue_22() -> None:
+    result = check_text(TWO_INSTANCES)
+    assert result.errors == [], "\n".join(e.format() for e in result.errors)
+
+
+def test_a_second_instance_writing_the_same_variables_is_one_e407_and_nothing_else() -> None:
+    result = check_text(TWO_INSTANCES.replace("  s2: {module: m_source, rtpu: rtpu0, period: 1 ms, ports: {k: b, y: v}}\n",
+                                              "  s2: {module: m_source, rtpu: rtpu0, period: 1 ms}\n  s3: {module: m_filter, rtpu: rtpu0, period: 1 ms}\n")
+                        .replace("[s1, s2, r]", "[s1, s2, s3, r]"))
     assert [e.code for e in result.errors] == ["E407"], "\n".join(e.format() for e in result.errors)

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+
 import numpy as np
 import pytest
 
@@ -13,7 +16,7 @@ from pbo_runtime.config import bus
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task
-from tests.support import REPO, arm_constants, arm_tables, task_spec, variables
+from tests.support import PBO, REPO, arm_constants, arm_tables, assert_nothing_left, demo_copy, task_spec, variables
 
 PUMA_ARM, PUMA_EE = arm_tables("puma560")  # what its robot interface publishes
 DIMS = {"NDOF": 6}
@@ -106,3 +109,35 @@ def test_computed_torque_tracks_a_fast_trajectory_at_least_five_times_better_tha
     errors = tracking_errors(seconds=2.5)
     assert errors["pid_alone"]["max"] >= 5 * errors["combined"]["max"], errors
     assert errors["pid_alone"]["rms"] >= 5 * errors["combined"]["rms"], errors
+
+
+# --- two different combined modules in one configuration (issue 22) ----------------------------
+
+TWO_COMBINED = REPO / "configs" / "combined_modules.yaml"
+
+
+def test_a_configuration_with_two_different_combined_modules_checks_clean_issue_22():
+    result = check_file(TWO_COMBINED)
+    assert result.errors == [] and result.warnings == [], [e.format() for e in result.errors + result.warnings]
+    tasks = result.subsystem.tasks
+    members = result.subsystem.configurations["two_combined"].tasks
+    assert [name for name in members if tasks[name].module == "combined"] == ["ik", "ctc"]
+    assert {b.variable for b in tasks["ik"].bindings if not b.port.kind.is_input} == {"q_r", "qd_r"}  # qd_r exported
+    assert "qdd_r" not in {b.variable for b in tasks["ctc"].bindings}  # kept local
+
+
+@pytest.mark.multiprocess
+def test_two_combined_modules_bring_the_hand_to_its_cartesian_goal_issue_22(tmp_path):
+    """ik (resolved rate + integrator) gives the joint reference, ctc (PID + inverse dynamics) the torque."""
+    path = demo_copy(tmp_path, "two_combined_run", source=TWO_COMBINED)
+    report_path = tmp_path / "report.json"
+    done = subprocess.run([*PBO, "run", str(path), "--duration", "3", "--clock", "sim", "--report", str(report_path),
+                           "--no-live"], cwd=tmp_path, capture_output=True, text=True, timeout=180)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(report_path.read_text())
+    values = {name: np.array(v["value"]) for name, v in report["variables"].items()}
+    writers = {name: v["writer"] for name, v in report["variables"].items()}
+    assert (writers["q_r"], writers["qd_r"], writers["tau_u"]) == ("ik", "ik", "ctc")
+    assert np.max(np.abs(values["x_m"][:3] - values["x_d"][:3])) < 0.002, f"hand at {values['x_m'][:3]}, goal {values['x_d'][:3]}"
+    assert np.max(np.abs(values["x_m"][3:] - values["x_d"][3:])) < 0.01  # and holds its orientation
+    assert_nothing_left(report)

@@ -90,6 +90,14 @@ def test_on_and_off_signal_the_task_and_answer_its_new_state(subsystem, verb, ta
     assert host.signals == [(task, verb)]
 
 
+def test_an_on_whose_error_component_turned_the_task_off_says_so_issue_22(subsystem):
+    host = FakeJobHost(subsystem, "pid")
+    host.task_states["pid"], host.on_leaves, host.task_errors["pid"] = "OFF", "OFF", "on raised RuntimeError: no arm"
+    reply = dispatch(host, "on", {"task": "pid"})
+    assert reply["state"] == "OFF"
+    assert reply["message"] == "task 'pid' is OFF; its on failed and its error component turned it off (on raised RuntimeError: no arm)"
+
+
 @pytest.mark.parametrize("verb, task, state, refusal", [
     ("on", "pd", "OFF", r"^task 'pd' is not in the running configuration 'pid' \(robot, traj, pid\): turning it on would "
                         r"give its outputs two writers; use pbo switch to a configuration that has it$"),

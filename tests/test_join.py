@@ -13,7 +13,7 @@ from pbo_runtime import OutVar, ParamError, PortBasedObject
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task
-from tests.support import PBO, REPO, assert_nothing_left, variables
+from tests.support import PBO, REPO, assert_nothing_left, demo_copy, variables
 
 
 class FakeTorqueSource(PortBasedObject):
@@ -23,7 +23,7 @@ class FakeTorqueSource(PortBasedObject):
 
 
 class OtherFakeTorqueSource(FakeTorqueSource):
-    """Fake module: a second, different torque source (a module runs at most once per configuration)."""
+    """Fake module: a second, different torque source."""
 
 
 LIBRARY = {"join": Join, "fake_source": FakeTorqueSource, "other_fake_source": OtherFakeTorqueSource}
@@ -107,33 +107,66 @@ def test_join_params_are_checked(params, message):
 FIGURE_6 = REPO / "configs" / "join.yaml"
 
 
-def test_the_figure_6_file_without_its_join_connector_has_two_writers_of_the_robot_s_torque(tmp_path):
+def test_figure_6_with_one_join_per_conflicting_output_checks_clean_issue_22():
+    result = check_file(FIGURE_6)
+    assert result.errors == [] and result.warnings == [], [e.format() for e in result.errors + result.warnings]
+    joins = {name: task for name, task in result.subsystem.tasks.items() if task.module == "join"}
+    figure = result.subsystem.configurations["figure_6"].tasks
+    assert [name for name in figure if name in joins] == ["join_q", "join_qd"]
+    assert [name for name in figure if result.subsystem.tasks[name].module == "joint_trajectory"] == ["traj_a", "traj_b"]
+
+
+def test_the_figure_6_file_without_its_join_connectors_has_two_writers_of_each_shared_output(tmp_path):
     text = FIGURE_6.read_text()
-    text = text.replace("ports: {tau: tau_pid}", "ports: {tau: tau_u}").replace("  gravity: {module: gravity_compensation, rtpu: rtpu1, period: 1 ms}",
-                                                                               "  gravity: {module: gravity_compensation, rtpu: rtpu1, period: 1 ms, ports: {tau_g: tau_u}}")
-    text = text.replace("  joined: [robot, traj, pid, gravity, join]", "  joined: [robot, traj, pid, gravity]")
+    for task in ("traj_a", "traj_b"):
+        text = text.replace(f"ports: {{q_r: q_r_{task[-1]}, qd_r: qd_r_{task[-1]}}}", "ports: {q_r: q_r, qd_r: qd_r}")
+    text = text.replace("  figure_6:   [robot, traj_a, traj_b, join_q, join_qd, pid]", "  figure_6:   [robot, traj_a, traj_b, pid]")
     path = tmp_path / "no_join.yaml"
     path.write_text(text)
-    result = check_file(path)
-    errors = [e for e in result.errors if e.code == "E401"]
-    assert errors and "variable 'tau_u' has two writers in configuration 'joined': 'pid'" in errors[0].message
+    errors = check_file(path).errors
+    assert [e.code for e in errors] == ["E407"], [e.format() for e in errors]  # B repeats A on the same outputs
+    assert "runs module 'joint_trajectory' twice: as task 'traj_a'" in errors[0].message
+    assert "both writing q_r and qd_r" in errors[0].message
     assert "join connector (TR Figure 6)" in errors[0].hint
 
 
 @pytest.mark.multiprocess
-def test_the_join_connector_gives_the_robot_feedback_plus_gravity_and_the_arm_reaches_its_goal(tmp_path):
-    """TR Figure 6: p' (PID) and p'' (gravity) are joined into the one tau_u the robot reads."""
-    report_path = tmp_path / "report.json"
-    done = subprocess.run([*PBO, "run", str(FIGURE_6), "--duration", "2.5", "--clock", "sim", "--report", str(report_path),
-                           "--no-live"], cwd=tmp_path, capture_output=True, text=True, timeout=180)
-    assert done.returncode == 0, done.stderr
-    report = json.loads(report_path.read_text())
+@pytest.mark.parametrize("seconds", [0.4, 3.0], ids=["moving", "arrived"])
+def test_figure_6_joins_the_two_references_into_the_one_the_pid_follows_and_the_arm_reaches_its_goal_issue_22(tmp_path, seconds):
+    """A and B write p' and p''; one join per conflicting output gives the PID its q_r and qd_r."""
+    report = run_report(tmp_path, demo_copy(tmp_path, f"fig6_{int(seconds * 10)}", source=FIGURE_6), seconds)
     values = {name: np.array(v["value"]) for name, v in report["variables"].items()}
     writers = {name: v["writer"] for name, v in report["variables"].items()}
-    assert (writers["tau_pid"], writers["tau_g"], writers["tau_u"]) == ("pid", "gravity", "join")
+    assert (writers["q_r_a"], writers["q_r_b"], writers["q_r"], writers["qd_r"], writers["tau_u"]) == (
+        "traj_a", "traj_b", "join_q", "join_qd", "pid")
+    # the joins read A and B once a 2 ms cycle: they lag them by at most a cycle's motion (1.5 rad/s x 2 ms)
+    np.testing.assert_allclose(values["q_r"], (values["q_r_a"] + values["q_r_b"]) / 2, atol=0.006)
+    if seconds < 1:  # on the way, the brisk and the gentle reference differ: the joined one is between them
+        assert np.max(np.abs(values["q_r_a"] - values["q_r_b"])) > 0.1
+    else:
+        assert np.max(np.abs(values["q_m"] - values["q_d"])) < 0.005, f"arm at {values['q_m']}, goal {values['q_d']}"
+    assert_nothing_left(report)
+
+
+@pytest.mark.multiprocess
+def test_the_torque_sum_join_gives_the_robot_feedback_plus_gravity_and_the_arm_reaches_its_goal(tmp_path):
+    """p' (PID) and p'' (gravity) are joined into the one tau_u the robot reads."""
+    report = run_report(tmp_path, demo_copy(tmp_path, "fig6_torque_sum", source=FIGURE_6), 2.5, "torque_sum")
+    values = {name: np.array(v["value"]) for name, v in report["variables"].items()}
+    writers = {name: v["writer"] for name, v in report["variables"].items()}
+    assert (writers["tau_pid"], writers["tau_g"], writers["tau_u"]) == ("pid_fb", "gravity", "join_tau")
     # the robot reads the sum (the two inputs are sampled a cycle apart: the arm is still, they barely change)
     np.testing.assert_allclose(values["tau_u"], values["tau_pid"] + values["tau_g"], atol=0.05)
     error = np.max(np.abs(values["q_m"] - values["q_d"]))
     sag = np.max(np.abs(values["tau_g"])) / 400.0  # what the PID alone (kp 400, no integral) would settle to
     assert error < 0.005 and sag > 10 * error, f"error {error:.4f} rad, PID alone would sag {sag:.4f} rad"
     assert_nothing_left(report)
+
+
+def run_report(folder, path, seconds: float, configuration: str | None = None) -> dict:
+    report_path = folder / "report.json"
+    chosen = ["--config", configuration] if configuration else []
+    done = subprocess.run([*PBO, "run", str(path), *chosen, "--duration", str(seconds), "--clock", "sim",
+                           "--report", str(report_path), "--no-live"], cwd=folder, capture_output=True, text=True, timeout=180)
+    assert done.returncode == 0, done.stderr
+    return json.loads(report_path.read_text())

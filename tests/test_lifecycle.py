@@ -354,3 +354,178 @@ def test_the_finite_check_allocates_no_array(emitter):
     task = make()
     assert task.local.outputs_finite()
     assert allocation_peak(task.local.outputs_finite) < one_array()  # at most Python's own loop over the two float dtypes
+
+
+# --- issue 22: off places final values; an error after init goes to the error component ----------
+
+OFF_VARS = variables(("y", "float64", (2,)))
+
+
+class Offender(PortBasedObject):
+    """Fake module: its cycles write [1, 1], its off the final [0, 0]; `failing` names the one
+    component that raises, `verdict` what its error component answers (`error`: it raises too)."""
+
+    y = OutVar("y", shape=(2,))
+
+    failing = ""
+    verdict: object = Status.ERROR
+    cycle_returns = Status.CONTINUE
+
+    def _maybe_fail(self, component):
+        self.calls.append(component)
+        if self.failing == component:
+            raise RuntimeError(f"{component} failed on purpose")
+
+    def init(self, params):
+        self.calls = ["init"]
+        self.errors_seen = []
+        self.final = np.zeros(2)
+
+    def on(self):
+        self._maybe_fail("on")
+
+    def cycle(self):
+        self._maybe_fail("cycle")
+        self.y[...] = 1.0
+        return self.cycle_returns
+
+    def off(self):
+        self.y[...] = self.final
+        if self.failing:  # recorded only then: the allocation test measures an off that appends nothing
+            self._maybe_fail("off")
+
+    def kill(self):
+        self._maybe_fail("kill")
+
+    def clear(self):
+        self._maybe_fail("clear")
+        return True
+
+    def error(self, exc):
+        self.calls.append("error")
+        self.errors_seen.append(str(exc))
+        if self.verdict == "error":
+            raise ValueError("error failed too")
+        return self.verdict
+
+
+@pytest.fixture
+def offender(make_table):
+    table = make_table(OFF_VARS)
+
+    def make(failing: str = "", verdict: object = Status.ERROR) -> Task:
+        task = Task(task_spec(Offender, name="offender", index=0), Offender, table)
+        assert task.spawn(0.0)
+        task.module.failing, task.module.verdict = failing, verdict
+        return task
+
+    return make, table
+
+
+def cycled(task: Task) -> Task:
+    assert task.turn_on(0.0)
+    assert task.run_cycle(0.001) is Status.CONTINUE
+    return task
+
+
+def test_off_places_its_final_values_on_the_output_ports_issue_22(offender):
+    make, table = offender
+    task = cycled(make())
+    assert table.read("y")[0].tolist() == [1.0, 1.0]
+    task.turn_off(0.0015)
+    value, seq, when, writer = table.read("y")
+    assert value.tolist() == [0.0, 0.0] and when == 0.0015 and writer == 0
+    assert task.state is TaskState.OFF and table.status[0][StatusWord.STATE] == TaskState.OFF
+
+
+@pytest.mark.parametrize("how", ["cycle returned OFF", "kill from ON", "error component turned it off"])
+def test_every_way_of_turning_off_writes_the_final_values(offender, how):
+    make, table = offender
+    task = cycled(make())
+    if how == "cycle returned OFF":
+        task.module.cycle_returns = Status.OFF
+        assert task.run_cycle(0.002) is Status.OFF
+    elif how == "kill from ON":
+        task.kill(0.002)
+    else:
+        task.module.failing, task.module.verdict = "cycle", Status.OFF
+        assert task.run_cycle(0.002) is Status.OFF
+    assert table.read("y")[0].tolist() == [0.0, 0.0]
+
+
+def test_final_values_that_are_not_finite_are_not_written_and_go_to_the_error_component(offender):
+    make, table = offender
+    task = cycled(make())
+    task.module.final[1] = np.nan
+    task.turn_off(0.002)
+    assert task.state is TaskState.ERROR and task.module.calls[-1] == "error"
+    assert task.last_error == "off: out-var 'y' not finite (NaN or Inf); not written to the table"
+    assert table.read("y")[0].tolist() == [1.0, 1.0]
+
+
+def test_turning_off_allocates_no_array(offender):
+    make, _ = offender
+    task = cycled(make())
+
+    def off_and_on():
+        task.turn_off(0.002)
+        task.state = TaskState.ON  # back ON without on's own transfers: only off's path is measured
+
+    assert allocation_peak(off_and_on) < one_array()
+
+
+ON, OFF, ERROR = TaskState.ON, TaskState.OFF, TaskState.ERROR
+
+
+@pytest.mark.parametrize("component, verdict, state", [
+    ("on", Status.CONTINUE, ON), ("on", Status.OFF, OFF), ("on", Status.ERROR, ERROR), ("on", "error", ERROR),
+    ("cycle", Status.CONTINUE, ON), ("cycle", Status.OFF, OFF), ("cycle", Status.ERROR, ERROR), ("cycle", "error", ERROR),
+    ("off", Status.CONTINUE, OFF), ("off", Status.OFF, OFF), ("off", Status.ERROR, ERROR), ("off", "error", ERROR),
+    ("clear", Status.CONTINUE, OFF), ("clear", Status.OFF, OFF), ("clear", Status.ERROR, ERROR), ("clear", "error", ERROR),
+    ("kill", Status.CONTINUE, TaskState.KILLED), ("kill", "error", TaskState.KILLED),
+], ids=lambda v: getattr(v, "name", v))
+def test_an_error_after_init_goes_to_the_error_component_whichever_component_raised_issue_22(offender, component, verdict, state):
+    make, table = offender
+    task = make(failing=component, verdict=Status.ERROR if component == "clear" else verdict)
+    if component == "on":
+        assert task.turn_on(0.0) is (state is ON)
+    elif component == "cycle":
+        assert task.turn_on(0.0)
+        assert task.run_cycle(0.001) is {ON: Status.CONTINUE, OFF: Status.OFF, ERROR: Status.ERROR}[state]
+    elif component == "off":
+        cycled(task).turn_off(0.002)
+    elif component == "clear":
+        task.module.failing = "cycle"
+        assert task.turn_on(0.0) and task.run_cycle(0.001) is Status.ERROR
+        task.module.failing, task.module.verdict = "clear", verdict
+        assert task.clear() is (state is OFF)
+    else:
+        task.kill(0.0)
+    assert task.state is state and table.status[0][StatusWord.STATE] == state
+    assert task.module.calls[-1] == ("off" if (component, state) == ("cycle", OFF) else "error")
+    assert task.module.errors_seen[-1] == f"{component} failed on purpose"
+    if state is ERROR or component == "kill":
+        assert f"{component} raised RuntimeError: {component} failed on purpose" in task.last_error
+    if verdict == "error":
+        assert "; error raised ValueError: error failed too" in task.last_error
+
+
+def test_an_on_whose_error_component_recovers_writes_its_outputs_as_on_would(offender):
+    make, table = offender
+    task = make(failing="on", verdict=Status.CONTINUE)
+    table.write("y", [3.0, 3.0], when=0.25)  # read before on; on fails; the error component recovers
+    assert task.turn_on(0.5) and table.read("y")[0].tolist() == [3.0, 3.0] and table.read("y")[2] == 0.5
+
+
+def test_an_off_whose_error_component_answers_error_writes_no_final_values(offender):
+    make, table = offender
+    task = cycled(make(failing="off", verdict=Status.ERROR))
+    task.turn_off(0.002)
+    assert task.state is ERROR and table.read("y")[0].tolist() == [1.0, 1.0]
+
+
+def test_a_failed_init_still_kills_without_the_error_component(offender, make_table):
+    task = Task(task_spec(Offender, name="offender", index=0), Offender, make_table(OFF_VARS))
+    task.module.init = lambda params: (_ for _ in ()).throw(RuntimeError("init failed"))
+    task.module.error = lambda exc: pytest.fail("error must not run for a failed init")
+    assert not task.spawn(0.0) and task.state is TaskState.KILLED

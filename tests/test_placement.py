@@ -146,10 +146,12 @@ def test_a_port_to_a_variable_nothing_declares_defines_it(small: Subsystem) -> N
 
 
 @pytest.mark.parametrize(("tasks", "module", "code", "reason"), [
-    (["src"], "source", "E407", "module 'source' runs already in configuration 'flowing', as task 'src'"),
+    (["src"], "source", "E407", "module 'source' runs already in configuration 'flowing', as task 'src' writing the same variables"),
     (["src"], "second_writer", "E401",
      "variable 'u' would have two writers in configuration 'flowing': 'src' and port 'u' of module 'second_writer'"),
-    (["arm"], "arm_user", "E407", "module 'arm_user' runs already in configuration 'flowing', as task 'arm'"),
+    # a second instance of a module that writes nothing is no repeat (issue 22): its device decides
+    (["arm"], "arm_user", "E601", "module 'arm_user' opens device 'arm', which is exclusive, and task 'arm' holds it in "
+                                  "configuration 'flowing'"),
     ([], "camera_user", "E208", "module 'camera_user' opens device 'camera', which 'devices' does not declare"),
     ([], "const_reader", "E403", "port 'k' of module 'const_reader' reads in-const 'k', but no task in configuration 'flowing' writes it"),
     (["late"], "const_reader", "E404",
@@ -188,7 +190,7 @@ def test_the_index_follows_tasks_placed_and_removed(small: Subsystem) -> None:
     placement.add_task(small.tasks["arm"])
     assert placement.query("second_writer").code == "E401"
     assert placement.query("const_reader").legal
-    assert placement.query("arm_user").code == "E407"
+    assert placement.query("source").code == "E407" and placement.query("arm_user").code == "E601"
     placement.remove_task("src")
     placement.remove_task("arm")
     assert placement.query("second_writer").legal and placement.query("arm_user").legal
@@ -232,9 +234,20 @@ def test_pbo_place_prints_each_module_and_exits_0_or_1_for_an_unknown_configurat
     assert main(["place", figure_8, "--module", "pid_joint", "--module", "gravity_compensation"]) == 0
     out = capsys.readouterr().out
     assert "configuration 'joint_pid' on rtpu0: 1 of 2 modules can be placed" in out
-    assert "no  pid_joint             [E407] module 'pid_joint' runs already in configuration 'joint_pid', as task 'pid'" in out
+    assert "no  pid_joint             [E407] module 'pid_joint' runs already in configuration 'joint_pid', as task 'pid' writing the same variables" in out
     assert "ok  gravity_compensation  (new variables: tau_g)" in out
     assert main(["place", figure_8, "--format", "json", "--tasks", "robot"]) == 0
     assert json.loads(capsys.readouterr().out)["tasks"] == ["robot"]
     assert main(["place", figure_8, "--config", "nope"]) == 1
     assert "no configuration 'nope'" in capsys.readouterr().err
+
+
+def test_a_module_placed_again_is_a_second_instance_once_its_first_writes_variables_of_its_own_issue_22(small: Subsystem) -> None:
+    placement = Placement(small, ["src"], "flowing", module_lookup=fake_lookup)
+    assert placement.query("source").code == "E407"
+    assert "link the outputs of task 'src' to variables of their own" in placement.query("source").hint
+    placement.remove_task("src")
+    relinked = dataclasses.replace(small.tasks["src"], bindings=tuple(
+        dataclasses.replace(b, variable=f"{b.variable}_src") for b in small.tasks["src"].bindings))
+    placement.add_task(relinked)
+    assert placement.query("source").legal

@@ -5,7 +5,9 @@ dropped on the canvas becomes a new task whose ports join the variables of their
 is legal where the configuration's rules (the checker's, docs/configuration.md) still hold with
 it. The first rule it would break is the answer, worded and coded as `pbo check` would:
 
-- E407: the configuration runs the module already (a module runs at most once);
+- E407: the configuration runs the module already writing the variables its outputs would write
+  (an instance of a module is the module with its outputs' variables: a second join, or a second
+  combined module, writing variables of its own is a second instance);
 - E208, E601, E609: the device it opens (its `device` parameter) is not declared, is exclusive and
   held by a task of the configuration, or lacks a driver option the module needs (its `DEVICES`:
   robot_torque on an arm in position mode);
@@ -103,7 +105,7 @@ class Placement:
         self.initial = {name for name, v in subsystem.variables.items() if v.initial is not None}
         self.job_written = self.initial | {name for name, v in subsystem.variables.items() if v.object}
         self.members: dict[str, TaskSpec] = {}
-        self.module_users: dict[str, str] = {}  # module -> the task that runs it
+        self.instances: dict[tuple[str, frozenset[str]], str] = {}  # (module, variables it writes) -> its task
         self.writers: dict[str, list[tuple[str, str, bool]]] = {}  # variable -> (task, port, supplies init)
         self.const_readers: dict[str, list[tuple[str, str]]] = {}  # variable -> (task, port) reading it before init
         self.device_users: dict[str, str] = {}  # exclusive device -> the task that holds it
@@ -115,7 +117,9 @@ class Placement:
     def add_task(self, task: TaskSpec) -> None:
         """Index a task that joins the configuration (placed, or there from the start)."""
         self.members[task.name] = task
-        self.module_users.setdefault(task.module, task.name)
+        instance = _instance(task)
+        if instance[1]:
+            self.instances.setdefault(instance, task.name)
         for b in task.bindings:
             kind = b.port.kind
             if kind.is_input:
@@ -133,11 +137,12 @@ class Placement:
     def remove_task(self, name: str) -> None:
         """Forget a task that leaves the configuration."""
         task = self.members.pop(name)
-        if self.module_users.get(task.module) == name:
-            del self.module_users[task.module]
-            other = next((t.name for t in self.members.values() if t.module == task.module), None)
+        instance = _instance(task)
+        if self.instances.get(instance) == name:
+            del self.instances[instance]
+            other = next((t.name for t in self.members.values() if _instance(t) == instance), None)
             if other is not None:
-                self.module_users[task.module] = other
+                self.instances[instance] = other
         for variable in {b.variable for b in task.bindings}:
             writers = [w for w in self.writers.get(variable, []) if w[0] != name]
             readers = [r for r in self.const_readers.get(variable, []) if r[0] != name]
@@ -201,10 +206,12 @@ class Placement:
         if module.problem is not None:
             return Verdict(name, False, *module.problem)
         where = self.where
-        user = self.module_users.get(name)
+        user = self.instances.get((name, frozenset(p.variable for p in module.ports if not p.is_input)))
         if user is not None:
-            return Verdict(name, False, "E407", f"module '{name}' runs already {where}, as task '{user}'",
-                           "a module runs at most once in a configuration (TR §3, Onika §4.3.2)")
+            return Verdict(name, False, "E407", f"module '{name}' runs already {where}, as task '{user}' writing the "
+                                                "same variables",
+                           f"one set of output ports has one writer: link the outputs of task '{user}' to variables of "
+                           "their own (ports:), then place it and join the two with a join connector (TR Figure 6)")
         device = module.device
         if device is not None:
             spec = self.subsystem.devices.get(device)
@@ -326,6 +333,11 @@ def placement_report(subsystem: Subsystem, configuration: str | None = None, *, 
         "legal": sum(v.legal for v in verdicts),
         "modules": [v.as_json() for v in verdicts],
     }
+
+
+def _instance(task: TaskSpec) -> tuple[str, frozenset[str]]:
+    """A module's instance: the module with the variables its output ports write (E407)."""
+    return task.module, frozenset(b.variable for b in task.bindings if not b.port.kind.is_input)
 
 
 def _store(index: dict[str, list[Any]], key: str, entries: list[Any]) -> None:

@@ -216,13 +216,15 @@ class PortBasedObject:
         return self.cycle()
 
     def off(self) -> None:
-        """On `off`: leave outputs in a safe state, flush logs."""
+        """On `off`: place final values on the out-vars (written to the table when it returns), flush logs."""
 
     def kill(self) -> None:
         """On `kill`, or after `init` failed: free what `init` took."""
 
     def error(self, exc: BaseException | None) -> Status:
-        """After an error while ON. Return CONTINUE if recovered, OFF to stop, ERROR to wait for the operator."""
+        """After an error in any component once init succeeded (on, cycle, off, clear, kill; `exc` None
+        for a returned ERROR or outputs not finite). Return CONTINUE if recovered, OFF to stop, ERROR
+        to wait for the operator (docs/modules.md: where each verdict leaves the task)."""
         return Status.ERROR
 
     def tune(self, params: Any) -> None:

@@ -237,7 +237,7 @@ def _task(host: CommandHost, arguments: dict[str, Any]) -> str:
     return _name(arguments, "task", "task", host.subsystem.tasks)
 
 
-_EXPECTED = {"on": {"ON", "ERROR"}, "off": {"OFF", "ERROR"}, "clear": {"OFF", "ERROR"}}
+_EXPECTED = {"on": {"ON", "ERROR", "OFF"}, "off": {"OFF", "ERROR"}, "clear": {"OFF", "ERROR"}}  # on: OFF when its error component turned it off
 
 
 def task_signal(command: str) -> Handler:
@@ -262,6 +262,8 @@ def task_signal(command: str) -> Handler:
         if command == "clear":
             note = "cleared: the task is OFF; turn it on with pbo on" if state == "OFF" else \
                 f"still in ERROR: its clear component found the fault not fixed ({host.task_errors.get(task, '')})"
+        if command == "on" and state == "OFF":
+            note = f"its on failed and its error component turned it off ({host.task_errors.get(task, '')})"
         return {"task": task, "state": state, "message": f"task '{task}' is {state}" + (f"; {note}" if note else "")}
 
     handle.__name__ = command

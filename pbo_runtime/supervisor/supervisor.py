@@ -331,9 +331,16 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
     def turn_on(self, name: str, configuration: str) -> None:
         """Turn a task on; critical tasks learn who writes their inputs in `configuration`."""
         index = self.reconfiguration.index(configuration)
-        state = self.signal_and_wait(messages.TurnOn(name, None, index), {"ON", "ERROR"})
-        if state == "ERROR":
-            raise RunFailure(f"task '{name}' failed in on: {self.task_errors.get(name, '')}")
+        self._signal(messages.TurnOn(name, None, index))
+        try:  # the state its on left: OFF too, when on failed and its error component turned it off
+            state = self._await_change(name, "OFF", {"ON", "ERROR", "OFF"})
+        except RunFailure:
+            raise
+        except PboError as exc:
+            raise RunFailure(str(exc)) from None
+        if state != "ON":
+            raise RunFailure(f"task '{name}' failed in on{' and its error component turned it off' if state == 'OFF' else ''}: "
+                             f"{self.task_errors.get(name, '')}")
 
 
     def hold_critical_tasks(self, hold: bool) -> None:

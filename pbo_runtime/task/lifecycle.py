@@ -2,10 +2,19 @@
 
     spawn:  in-consts -> init -> out-consts             CREATED -> OFF   (init raises: kill, no task)
     on:     in-vars + out-vars -> on -> out-vars        OFF -> ON
-    cycle:  in-vars -> cycle -> out-vars                ON (OFF returned: OFF; ERROR/raise: error())
-    off:    off                                         ON -> OFF
+    cycle:  in-vars -> cycle -> out-vars                ON (OFF returned: off)
+    off:    off -> out-vars                             ON -> OFF   (its final values reach the table)
     kill:   kill                                        OFF/ERROR -> KILLED
     clear:  clear                                       ERROR -> OFF (True) or ERROR (False)
+
+An error after init (a component raised, returned ERROR, or left an output NaN or Inf) goes to
+the `error` component, whichever component it was (TR §4.3); its verdict says where the task
+goes. CONTINUE: on as if the component had succeeded (a failed `on` turns the task on, a failed
+`cycle` stays on, a failed `off` or `clear` ends OFF); OFF: the task turns off (`off` runs if
+the task was on); ERROR, or `error` raising: the task waits in ERROR for the operator's clear.
+Outputs that are not finite are never written, whatever the verdict. A `kill` that raises goes
+to `error` as well, but the task is killed all the same: kill is not refusable. Only a failed
+init keeps the report's other path: kill, and no task.
 
 The executive (rtpu) decides *when*; this class decides *what happens*, so every transition
 can be unit-tested with a manual clock and no process.
@@ -188,23 +197,36 @@ class Task:
         return self._device_opener(device, self.spec)
 
     def turn_on(self, now: float) -> bool:
-        """In-vars and out-vars, on, out-vars. False (task in ERROR) if `on` raised."""
+        """In-vars and out-vars, on, out-vars. True if the task is ON: `on` succeeded, or it failed
+        and the error component recovered (else the task is OFF or ERROR, as `error` said)."""
         self._expect("on", TaskState.OFF)
         self.local.read_for_on()
         self.context.time = now
         try:
             self.module.on()
         except Exception as exc:
-            self._fail("on", exc)
-            return False
+            return self._on_failed(now, exc)
         if not self._outputs_finite():
-            self._fail("on", problem=self._non_finite())
-            return False
+            return self._on_failed(now, None, self._non_finite())
+        self._enter_on(now)
+        return True
+
+    def _enter_on(self, now: float) -> None:
         self.state = TaskState.ON
         self.status[StatusWord.STATE] = TaskState.ON
         self.status[StatusWord.RELEASE] = now
         self.write_outputs()
-        return True
+
+    def _on_failed(self, now: float, exc: BaseException | None, problem: str = "") -> bool:
+        verdict = self._error_component("on", exc, problem)
+        if verdict == Status.CONTINUE and self._outputs_finite():
+            self._enter_on(now)
+            return True
+        if verdict == Status.CONTINUE:  # recovered, but its outputs still cannot be written
+            self.last_error += "; " + self._non_finite()
+            verdict = Status.ERROR
+        self._publish(TaskState.OFF if verdict == Status.OFF else TaskState.ERROR)
+        return False
 
     def run_cycle(self, now: float, component: Callable[[], Status] | None = None) -> Status:
         """One cycle released at `now`: in-vars, cycle, out-vars; errors go to `error`.
@@ -237,7 +259,7 @@ class Task:
             return Status.STABLE
         if result == Status.OFF:
             self.write_outputs()
-            self.turn_off()
+            self.turn_off(now)
             return Status.OFF
         return self._cycle_failed(None, now)
 
@@ -249,31 +271,57 @@ class Task:
         """`run_stable_cycle` once the in-vars were read (they were too old for `cycle`)."""
         return self.run_read_cycle(now, self._stable_cycle)
 
-    def turn_off(self) -> None:
+    def turn_off(self, now: float | None = None) -> None:
+        """off, out-vars: ON -> OFF. What `off` leaves on the output ports (the final values that
+        keep the system stable while the task does not run, TR §4.3) is written to the table, by
+        the transfer a cycle's end uses, stamped `now` (default: the last release)."""
         self._expect("off", TaskState.ON)
+        if now is not None:
+            self.context.time = now
         try:
             self.module.off()
         except Exception as exc:
-            self._fail("off", exc)
+            self._off_failed(now, exc)
             return
-        self._publish(TaskState.OFF)
+        if not self._outputs_finite():
+            self._off_failed(now, None, self._non_finite())
+            return
+        self._leave_on(now)
 
-    def kill(self) -> None:
+    def _leave_on(self, now: float | None) -> None:
+        """OFF, with the final values of the out-vars and the status block in one write."""
+        self.state = TaskState.OFF
+        self.status[StatusWord.STATE] = TaskState.OFF
+        if now is not None:
+            self.status[StatusWord.RELEASE] = now
+        self.write_outputs()
+
+    def _off_failed(self, now: float | None, exc: BaseException | None, problem: str = "") -> None:
+        """`off` failed: the task is stopping either way; `error` says whether it stops OFF or in ERROR."""
+        verdict = self._error_component("off", exc, problem)
+        if verdict != Status.ERROR and self._outputs_finite():
+            self._leave_on(now)
+        else:
+            self._publish(TaskState.OFF if verdict != Status.ERROR else TaskState.ERROR)
+
+    def kill(self, now: float | None = None) -> None:
         """Free the task. From ON it is turned off first, as job control would."""
         if self.state == TaskState.ON:
-            self.turn_off()
+            self.turn_off(now)
         self._expect("kill", TaskState.OFF, TaskState.ERROR, TaskState.CREATED)
-        self._run_kill()
+        self._run_kill(after_init=True)
         self._publish(TaskState.KILLED)
 
     def clear(self) -> bool:
-        """The operator's clear: True if the task went back to OFF."""
+        """The operator's clear: True if the task went back to OFF. If `clear` raises, the error
+        component decides (CONTINUE or OFF: OFF; ERROR: the task stays in ERROR)."""
         self._expect("clear", TaskState.ERROR)
         try:
             cleared = bool(self.module.clear())
         except Exception as exc:
-            self.last_error = self._describe("clear", exc)
-            return False
+            cleared = self._error_component("clear", exc) != Status.ERROR
+            if not cleared:
+                return False
         if cleared:
             self.last_error = ""
             self._publish(TaskState.OFF)
@@ -288,37 +336,48 @@ class Task:
 
     def _cycle_failed(self, exc: BaseException | None, now: float, problem: str = "") -> Status:
         """The cycle raised, returned ERROR, or (`problem`) left outputs that must not be written."""
-        self.errors += 1
-        self.status[StatusWord.ERRORS] = self.errors
         reason = self.module.__dict__.pop("_pbo_fault", "")
-        if problem:
-            self.last_error = f"cycle: {problem}"
-        else:
-            self.last_error = self._describe("cycle", exc) if exc else "cycle returned ERROR" + (f": {reason}" if reason else "")
-        try:
-            verdict = self.module.error(exc)
-        except Exception as inner:
-            verdict = Status.ERROR
-            self.last_error += "; " + self._describe("error", inner)
+        if not problem and exc is None:
+            problem = "returned ERROR" + (f": {reason}" if reason else "")
+        verdict = self._error_component("cycle", exc, problem)
         if verdict == Status.CONTINUE:
             return Status.CONTINUE
         if verdict == Status.OFF:
-            self.turn_off()
+            self.turn_off(now)
             return Status.OFF
         self._publish(TaskState.ERROR)
         return Status.ERROR
 
-    def _fail(self, component: str, exc: BaseException | None = None, problem: str = "") -> None:
+    def _error_component(self, component: str, exc: BaseException | None, problem: str = "") -> Status:
+        """Count the error, describe it, and ask the module's `error` what to do (TR §4.3): its
+        verdict, or ERROR if it raised or answered something else."""
         self.errors += 1
         self.status[StatusWord.ERRORS] = self.errors
-        self.last_error = f"{component}: {problem}" if exc is None else self._describe(component, exc)
-        self._publish(TaskState.ERROR)
+        if exc is not None:
+            self.last_error = self._describe(component, exc)
+        else:
+            self.last_error = f"{component} {problem}" if problem.startswith("returned") else f"{component}: {problem}"
+        try:
+            verdict = self.module.error(exc)
+        except Exception as inner:
+            self.last_error += "; " + self._describe("error", inner)
+            return Status.ERROR
+        if verdict == Status.CONTINUE or verdict == Status.OFF:
+            return Status(verdict)
+        return Status.ERROR
 
-    def _run_kill(self) -> None:
+    def _run_kill(self, after_init: bool = False) -> None:
+        """kill, then close what the task opened. After init, a kill that raises goes to the error
+        component too (for the record: the task is killed whatever it answers)."""
         try:
             self.module.kill()
         except Exception as exc:
-            self.last_error += ("; " if self.last_error else "") + self._describe("kill", exc)
+            if after_init:
+                before = self.last_error
+                self._error_component("kill", exc)
+                self.last_error = (before + "; " if before else "") + self.last_error
+            else:
+                self.last_error += ("; " if self.last_error else "") + self._describe("kill", exc)
         for device in self.context.opened:
             try:
                 device.close()

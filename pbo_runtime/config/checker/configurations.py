@@ -30,7 +30,10 @@ class ConfigurationChecks(CheckerBase):
                 continue
             members: list[tuple[str, Location]] = []
             first: dict[str, Location] = {}
-            modules: dict[str, tuple[str, Location]] = {}
+            # A module's instance is the module with the variables its output ports write: two tasks
+            # of one module are two instances unless they would write the same ones (E407). A task
+            # that writes nothing (a data logger, a link's sending end) repeats nothing.
+            instances: dict[tuple[str, frozenset[str]], tuple[str, Location]] = {}
             ok = True
             for i, item in enumerate(value):
                 item_loc = value.item_loc(i)
@@ -52,16 +55,23 @@ class ConfigurationChecks(CheckerBase):
                     )
                     ok = False
                     continue
-                module = self.tasks[task].module if task in self.tasks else ""
-                if module and module in modules:
-                    other, other_loc = modules[module]
+                record = self.tasks.get(task)
+                module = record.module if record is not None else ""
+                writes = frozenset(variable for _, variable in record.outputs) if record is not None else frozenset()
+                instance = (module, writes)
+                if module and writes and instance in instances:
+                    other, other_loc = instances[instance]
+                    assert record is not None
+                    relink = ", ".join(f"{port}: {variable}_{task}" for port, variable in record.outputs)
+                    declare = _and_list([f"'{variable}_{task}'" for _, variable in record.outputs])
                     self.error(
                         "E407",
                         f"configuration '{name}' runs module '{module}' twice: as task '{other}' (line {self.tasks[other].loc.line}) "
-                        f"and as task '{task}' (line {self.tasks[task].loc.line})",
+                        f"and as task '{task}' (line {record.loc.line}), both writing {_and_list(sorted(writes))}",
                         item_loc,
-                        "a module runs at most once in a configuration (TR §3, Onika §4.3.2); "
-                        "combine the two tasks into one, or use distinct modules",
+                        f"one set of output ports has one writer: give task '{task}' outputs of its own (declare {declare} "
+                        f"under variables:, link them with ports: {{{relink}}}) and join each with the other task's by a join "
+                        "connector (TR Figure 6), or leave one of the two tasks out of the configuration",
                     )
                     ok = False
                     # still a member: what it writes counts, so no follow-on "nobody writes it" (E403),
@@ -70,8 +80,8 @@ class ConfigurationChecks(CheckerBase):
                     members.append((task, item_loc))
                     self.config_repeats.setdefault(name, set()).add(task)
                     continue
-                if module:
-                    modules[module] = (task, item_loc)
+                if module and writes:
+                    instances[instance] = (task, item_loc)
                 first[task] = item_loc
                 members.append((task, item_loc))
             self.config_members[name] = members

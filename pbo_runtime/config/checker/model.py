@@ -143,6 +143,7 @@ class _Task:
     module: str = ""
     ok: bool = False
     bindings: list[_Binding] = field(default_factory=list)
+    outputs: tuple[tuple[str, str], ...] = ()  # (port, variable) of each output port as linked, resolved or not (E407)
     resources: list[tuple[str, Location]] = field(default_factory=list)
     channels: dict[str, tuple[int, ...]] = field(default_factory=dict)  # device -> channels, where a subset is given
     rtpu: str = ""

@@ -62,6 +62,8 @@ class TaskChecks(CheckerBase):
                 # would write is told that nobody writes it (E403 is a consequence, not a mistake).
                 if params_ok or not _ports_from_params(module_class):
                     links = self.task_links(task, spec, module_class)
+                    if links is not None:
+                        task.outputs = tuple((link.port.name, link.variable) for link in links[0] if not link.port.kind.is_input)
             module_class_of[name] = module_class
             pending.append((task, spec, complete, links))
         self.infer_variables([(task, links[0]) for task, _, _, links in pending if links is not None])

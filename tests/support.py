@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import re
 import subprocess
 import signal
 import sys
@@ -280,6 +281,20 @@ def demo_copy(folder: Path, subsystem: str, *, source: Path = DEMO, **tasks: dic
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
 
+
+
+def config_copy(config: Path, folder: Path, subsystem: str, replace: tuple[tuple[str, str], ...] = ()) -> Path:
+    """A shipped configs/ file under another subsystem name (runs side by side never share one),
+    comments kept, each (old, new) of `replace` applied once it is found, written to `folder`."""
+    text = config.read_text()
+    text, count = re.subn(r"(?m)^subsystem: \S+$", f"subsystem: {subsystem}", text)
+    assert count == 1, f"{config} names its subsystem once"
+    for old, new in replace:
+        assert old in text, old
+        text = text.replace(old, new)
+    path = folder / f"{subsystem}.yaml"
+    path.write_text(text)
+    return path
 
 # Faults a real-clock run reports when the machine is slow or busy: a critical task held while its
 # writer ran late, or while the plant was starved, or the arm's drive watchdog holding it while the

@@ -117,9 +117,11 @@ def test_computed_torque_as_a_combined_module_moves_the_arm_to_its_goal(tmp_path
 
 
 def test_cartesian_teleoperation_follows_the_trackball(tmp_path):
-    """TR Figure 10: trackball -> Cartesian interpolator -> resolved rate -> integrator -> PID -> arm."""
+    """TR Figure 10's earlier variant (configuration teleop; tests/test_figures.py runs the figure as
+    published): trackball -> Cartesian trajectory -> resolved rate -> integrator -> PID -> arm."""
     report_path = tmp_path / "report.json"
-    done = subprocess.run([*PBO, "run", str(REPO / "configs" / "cartesian_teleop.yaml"), "--duration", "5.5", "--clock", "sim",
+    done = subprocess.run([*PBO, "run", str(REPO / "configs" / "cartesian_teleop.yaml"), "--config", "teleop",
+                           "--duration", "5.5", "--clock", "sim",
                            "--report", str(report_path), "--no-live"], cwd=tmp_path, capture_output=True, text=True,
                           timeout=180)
     assert done.returncode == 0, done.stderr

@@ -59,7 +59,7 @@ def test_figure_8_with_only_its_tasks_and_initial_values_checks_clean_as_the_sam
     assert (minimal.initial_values["q_d"] == full.initial_values["q_d"]).all()
     assert set(minimal.inferred) == set(a.variables)  # q_d too: its entry gives no type
     assert minimal.robot_dims == {"NDOF": 6}
-    assert full.inferred == () and full.robot_dims == {}
+    assert full.inferred == () and full.robot_dims == {"NDOF": 6}  # neither file copies NDOF into dims:
 
 
 def test_pbo_check_lists_the_inferred_variables_and_dims_in_text_and_json(capsys: pytest.CaptureFixture[str]) -> None:
@@ -82,7 +82,8 @@ def test_a_file_that_declares_every_variable_says_nothing_of_inference(capsys: p
     assert "inferred" not in capsys.readouterr().out
     assert main(["check", "--format", "json", str(FULL)]) == 0
     document = json.loads(capsys.readouterr().out)
-    assert "inferred" not in document and "robot_dims" not in document
+    assert "inferred" not in document
+    assert document["robot_dims"] == {"NDOF": 6}  # NDOF is the robot's, not a copy in dims: (TR §4.3)
 
 
 def test_a_variable_only_ports_link_takes_their_dtype_and_shape(tmp_path: Path) -> None:
@@ -175,3 +176,14 @@ def test_without_dims_and_without_a_plant_an_undefined_port_dim_is_e304_with_a_h
     codes = {e.code for e in result.errors}
     assert codes == {"E304"}, errors(result)
     assert all("add a plant: whose robot gives it" in e.hint for e in result.errors)
+
+
+@pytest.mark.parametrize("name", ["pid_joint", "computed_torque", "cartesian_teleop", "visual_servoing", "switch_joint",
+                                  "fault_drill", "operator_goal", "force_sensing", "leader", "follower"])
+def test_a_shipped_config_takes_ndof_from_its_robot_with_no_dims_copied_in(name: str) -> None:
+    """TR §4.3: if the robot is changed, only the robot interface changes; no file repeats its NDOF."""
+    path = REPO / "configs" / f"{name}.yaml"
+    assert "\ndims:" not in path.read_text()
+    result = check_file(path)
+    assert result.errors == [] and result.warnings == []
+    assert result.robot_dims == {"NDOF": 6} and result.subsystem is not None and result.subsystem.dims == {"NDOF": 6}

@@ -28,6 +28,7 @@ FAST = {"max_velocity": 2.0, "max_acceleration": 8.0}
 def comparison_file(folder: Path) -> Path:
     """The shipped file with a fast trajectory, a logger and a `pid_alone` configuration added."""
     spec = yaml.safe_load(CONFIG.read_text())
+    spec["subsystem"] = "ctc_vs_pid"  # its own name: a run of the shipped 'ctc' may be alive beside it
     tasks = spec["tasks"]
     tasks["traj"]["params"] = dict(FAST)
     tasks["pid_alone"] = {"module": "pid_joint", "rtpu": "rtpu0", "period": "1 ms", "ports": {"tau": "tau_u"},

@@ -562,6 +562,8 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
         console.print(line, markup=False)
     for line in result.timing_holds:
         console.print(line, markup=False)
+    for line in processor_lines(result.tasks):
+        console.print(line, markup=False)
     if result.plant:
         console.print(f"plant: {result.plant.get('steps', 0)} steps, {result.plant.get('late', 0)} late", markup=False)
         if result.plant.get("left_fifo_behind"):
@@ -578,6 +580,20 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
         console.print(f"{rtpu}: cpu {settings.get('cpu')}, {settings.get('scheduler')}, timer slack {settings.get('timer_slack')}"
                       + (f", spin {settings['spin']}" if "spin" in settings else ""), markup=False)
     _print_switches(console, result)
+
+
+def processor_lines(tasks: dict[str, dict[str, Any]]) -> list[str]:
+    """Each special-purpose processor's own timing (TR 4.6.3), from the figures its driver gave with its task's."""
+    lines = []
+    for name, t in tasks.items():
+        for device, f in t.get("devices", {}).items():
+            if f.get("processor") != "spp":
+                continue
+            line = (f"special-purpose processor '{device}' (task '{name}', routine {f.get('routine') or 'none'}): "
+                    f"{f['items']} work items, service p50 {f['service_p50'] * 1e6:.0f} µs, p99 {f['service_p99'] * 1e6:.0f} µs, "
+                    f"max {f['service_max'] * 1e6:.0f} µs; {f['missed']} missed, {f['late_calls']} of {f['calls']} calls late")
+            lines.append(line + (f"; {f['fault']}" if f.get("fault") else ""))
+    return lines
 
 
 def stall_lines(stalls: list[dict[str, Any]]) -> list[str]:

@@ -134,6 +134,7 @@ def _parser() -> argparse.ArgumentParser:
 
     lexicon = sub.add_parser("lexicon", help="list the module library: every module's ports and parameters")
     lexicon.add_argument("--format", choices=("table", "json"), default="table")
+    lexicon.add_argument("--drivers", action="store_true", help="list the device drivers (TR 4.6) instead of the modules")
     lexicon.set_defaults(handler=_lexicon)
 
     place = sub.add_parser("place", help="which lexicon modules can be placed in a configuration, and why not the rest")
@@ -814,13 +815,16 @@ def _bus(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 
 def _lexicon(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    from pbo_runtime.reports.lexicon import as_table, lexicon
+    from pbo_runtime.reports.lexicon import as_table, drivers, drivers_table, lexicon
 
-    entries = lexicon()
+    entries = drivers() if args.drivers else lexicon()
     if args.format == "json":
         console.out(json.dumps(entries, indent=2, default=str))
+    elif args.drivers:
+        console.print(drivers_table(entries))
     else:
         console.print(as_table(entries))
+        console.print("device drivers: pbo lexicon --drivers", markup=False)
     return EXIT_OK
 
 

@@ -56,6 +56,19 @@ def _die_with(parent: int) -> None:
         raise _Stop("parent gone")
 
 
+def _own_processor() -> None:
+    """Leave what the task's RTPU process handed down: its SCHED_FIFO priority and its CPU. The
+    processor is another piece of hardware; here it must never take an RTPU's CPU from it."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
+    try:
+        os.sched_setaffinity(0, range(os.cpu_count() or 1))
+    except (OSError, AttributeError):
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m drivers.spp.processor")
     parser.add_argument("segment")
@@ -67,6 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     mapping = semaphore = None
     try:
         _die_with(args.parent)
+        _own_processor()
         mapping = attach_segment(args.segment)
         semaphore = posix_ipc.Semaphore(args.semaphore)
         serve(mapping, semaphore, args.memory, args.download_bytes, args.parent)

@@ -1,11 +1,14 @@
-"""Cartesian teleoperation input (TR Figure 10): a 6-DOF trackball, scripted or read from a file.
+"""Cartesian teleoperation input (TR Figure 10): a 6-DOF trackball's motion as the desired pose.
 
-Stands where a real trackball's driver would: it turns an operator's motion into a desired pose
-x_d, as an offset from where the arm was when the task turned on. The motion is a list of
-waypoints (time in s since `on`, then dx, dy, dz in m and rx, ry, rz in rad), interpolated
-linearly and held after the last one; given inline (`script`) or as a CSV file (`file`) with the
-same seven columns, so a recorded session can be replayed. The file is read in `init`, never
-in `cycle`.
+It turns an operator's motion into a desired pose x_d, as an offset from where the arm was when
+the task turned on. The motion comes from one of:
+
+- `device`: a trackball device (driver `trackball`, TR §4.6.2), read each cycle through its
+  driver, whose own `source` is a script or the operator in the browser HMI (`pbo play`);
+- `script` or `file`: waypoints in the module itself, as before the trackball had a driver
+  (time in s since `on`, then dx, dy, dz in m and rx, ry, rz in rad), interpolated linearly and
+  held after the last one; inline (`script`) or as a CSV file (`file`) with the same seven
+  columns. The file is read in `init`, never in `cycle`.
 """
 
 from __future__ import annotations
@@ -15,17 +18,19 @@ from pathlib import Path
 
 import numpy as np
 
-from pbo_runtime import InVar, OutVar, PortBasedObject, Status
+from pbo_runtime import InVar, ModuleError, OutVar, PortBasedObject, Status
 
 
 @dataclass(frozen=True)
 class TrackballParams:
     script: tuple[tuple[float, ...], ...] = ()  # rows: t, dx, dy, dz, rx, ry, rz
     file: str = ""  # a CSV of the same rows (a header line is allowed)
+    device: str = ""  # a trackball device (driver trackball) in the task's resources, read each cycle
 
     def __post_init__(self) -> None:
-        if bool(self.script) == bool(self.file):
-            raise ValueError("give exactly one of script (inline waypoints) or file (a CSV of waypoints)")
+        if sum(map(bool, (self.script, self.file, self.device))) != 1:
+            raise ValueError("give exactly one of device (a trackball device), script (inline waypoints) or file "
+                             "(a CSV of waypoints)")
         if self.script:
             check_waypoints(np.asarray(self.script, dtype=float), "script")
 
@@ -49,6 +54,16 @@ class TrackballInput(PortBasedObject):
     x_d = OutVar("x_d", shape=(6,), doc="desired Cartesian pose")
 
     def init(self, params: TrackballParams) -> None:
+        self._start = np.zeros(6)
+        self._offset = np.zeros(6)
+        self._started = 0.0
+        self._read_offset = None
+        if params.device:
+            ball = self.open_device(params.device)
+            if not callable(getattr(ball, "read_offset", None)):
+                raise ModuleError(f"device '{params.device}' is not a trackball (it has no read_offset); give it driver: trackball")
+            self._read_offset = ball.read_offset
+            return
         if params.file:
             path = Path(params.file)
             try:
@@ -61,9 +76,6 @@ class TrackballInput(PortBasedObject):
             rows = np.asarray(params.script, dtype=float)
         self._times = rows[:, 0].copy()
         self._offsets = rows[:, 1:].copy()
-        self._start = np.zeros(6)
-        self._offset = np.zeros(6)
-        self._started = 0.0
 
     def on(self) -> None:
         np.copyto(self._start, self.x_m)
@@ -72,6 +84,10 @@ class TrackballInput(PortBasedObject):
 
     def cycle(self) -> Status:
         elapsed = self.time - self._started
+        if self._read_offset is not None:
+            self._read_offset(elapsed, self._offset)
+            np.add(self._start, self._offset, out=self.x_d)
+            return Status.CONTINUE
         times, offsets, offset = self._times, self._offsets, self._offset
         k = int(np.searchsorted(times, elapsed))
         if k == 0:

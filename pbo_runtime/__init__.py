@@ -19,6 +19,7 @@ from pbo_runtime.errors import (
     ResourceLimitError,
     TableLayoutError,
 )
+from pbo_runtime.ipc.operator_input import OperatorInput
 from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
 from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
 from pbo_runtime.objects.arm import ARM_COLUMNS, EE_COLUMNS, GRAVITY, ROBOT_OPTIONS, ROBOT_SUFFIXES, Arm, arm_model, is_robot_file
@@ -50,6 +51,7 @@ __all__ = [
     "LinkFullError",
     "ModuleError",
     "NoParams",
+    "OperatorInput",
     "OutBoth",
     "OutConst",
     "OutVar",

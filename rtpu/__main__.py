@@ -82,11 +82,21 @@ def main(argv: list[str] | None = None) -> int:
         signals = messages.Queue(messages.signal_queue_name(name, args.run_id, args.rtpu))
         registers = messages.plant_registers_name(name, args.run_id)
 
+        # drivers that keep figures of their own (a special-purpose processor's timing), by task and
+        # device: their figures go with the task's statistics into the run's summary
+        with_figures: dict[str, dict[str, Any]] = {}
+
         def open_device(device: DeviceSpec, task: TaskSpec):
             # The device database (TR 4.6.1) records the opening in the table, for every RTPU to see.
             from pbo_runtime.table.devices import DeviceDatabase
 
-            return DeviceDatabase(subsystem, table, registers).open(device.name, task)
+            driver = DeviceDatabase(subsystem, table, registers).open(device.name, task)
+            if callable(getattr(driver, "figures", None)):
+                with_figures.setdefault(task.name, {})[device.name] = driver
+            return driver
+
+        def device_figures(task: str) -> dict[str, Any]:
+            return {device: driver.figures() for device, driver in with_figures.get(task, {}).items()}
 
         signal_queue = messages.signal_queue_name(name, args.run_id, args.rtpu)
 
@@ -135,6 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         executive = Executive(clock, signals, report, epoch=args.epoch, header=table.header, report_at_stop=report_at_stop,
                               reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
                               n_rtpus=len(subsystem.rtpus), live_loader=live_stage if args.live else None)
+        executive.device_figures = device_figures
         for spec in subsystem.tasks_on(args.rtpu):
             make = factory(spec)
             executive.add(make(), make)

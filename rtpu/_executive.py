@@ -197,6 +197,8 @@ class Executive:
         self.on: list[Scheduled] = []
         self.running = True
         self.idle_wait = 0.05
+        # a task's drivers' own figures (a special-purpose processor's timing), reported with its statistics
+        self.device_figures: Callable[[str], dict[str, Any]] = lambda task: {}
         self.header = header  # the table's int64 header: plans, switching words, error count
         self.header_words = memoryview(header) if header is not None else None  # the same words, read as ints
         self.reconfiguration = reconfiguration
@@ -687,7 +689,8 @@ class Executive:
     def report_statistics(self) -> None:
         """One Stats event per task: an RTPU hosting dozens of tasks would overflow one message."""
         for name, s in self.tasks.items():
-            self.report(Stats({name: s.statistics()}))
+            figures = self.device_figures(name)
+            self.report(Stats({name: {**s.statistics(), **({"devices": figures} if figures else {})}}))
 
     def _first_release(self, s: Scheduled, at: float) -> float:
         s.release_index = max(math.ceil((at - self.epoch) / s.period - 1e-9), 0)

@@ -41,7 +41,7 @@ def test_every_verb_is_a_cli_command_with_its_declared_arguments_and_a_runner(ve
 @pytest.mark.parametrize("verb", VERBS, ids=lambda verb: verb.name)
 def test_every_verb_picks_its_run_with_the_arguments_the_table_declares_once(verb):
     assert [a.name for a in WHICH_RUN] == ["--subsystem", "--run"]
-    arguments = {"on": ["x"], "off": ["x"], "clear": ["x"], "switch": ["x"], "job": ["x"], "event": ["x"], "spawn": ["x"],
+    arguments = {"on": ["x"], "off": ["x"], "clear": ["x"], "switch": ["x"], "job": ["x"], "event": ["x"], "play": ["x"], "spawn": ["x"],
                  "kill": ["x"], "replace": ["x", "y"], "set": ["x", "kp", "1"], "app": ["x"], "save": ["x"]}.get(verb.name, [])
     parsed = _parser().parse_args([verb.name, *arguments, "--run", "1234-ab", "--subsystem", "puma"])
     assert (parsed.run, parsed.subsystem) == ("1234-ab", "puma")
@@ -288,5 +288,5 @@ def test_stop_asks_the_run_to_stop(host):
 @pytest.mark.parametrize("verb", ["launch", "svar"])
 def test_a_verb_the_supervisor_does_not_serve_is_refused_with_the_ones_it_does(host, verb):
     with pytest.raises(PboError, match=rf"^unknown command '{verb}' \(commands: status, on, off, clear, switch, job, event, "
-                                       rf"spawn, kill, replace, set, app, save, stop\)$"):
+                                       rf"play, spawn, kill, replace, set, app, save, stop\)$"):
         dispatch(host, verb, {})

@@ -179,7 +179,8 @@ def test_without_dims_and_without_a_plant_an_undefined_port_dim_is_e304_with_a_h
 
 
 @pytest.mark.parametrize("name", ["pid_joint", "computed_torque", "cartesian_teleop", "visual_servoing", "switch_joint",
-                                  "fault_drill", "operator_goal", "force_sensing", "leader", "follower"])
+                                  "fault_drill", "operator_goal", "force_sensing", "leader", "follower", "join",
+                                  "combined_modules", "cartesian_teleop_hmi", "visual_servoing_spp"])
 def test_a_shipped_config_takes_ndof_from_its_robot_with_no_dims_copied_in(name: str) -> None:
     """TR §4.3: if the robot is changed, only the robot interface changes; no file repeats its NDOF."""
     path = REPO / "configs" / f"{name}.yaml"

@@ -149,6 +149,7 @@ def _parser() -> argparse.ArgumentParser:
 
     lexicon = sub.add_parser("lexicon", help="list the module library: every module's ports and parameters")
     lexicon.add_argument("--format", choices=("table", "json"), default="table")
+    lexicon.add_argument("--drivers", action="store_true", help="list the device drivers (TR 4.6) instead of the modules")
     lexicon.set_defaults(handler=_lexicon)
 
     place = sub.add_parser("place", help="which lexicon modules can be placed in a configuration, and why not the rest")
@@ -587,6 +588,8 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
         console.print(line, markup=False)
     for line in result.timing_holds:
         console.print(line, markup=False)
+    for line in processor_lines(result.tasks):
+        console.print(line, markup=False)
     if result.plant:
         console.print(f"plant: {result.plant.get('steps', 0)} steps, {result.plant.get('late', 0)} late", markup=False)
         if result.plant.get("left_fifo_behind"):
@@ -603,6 +606,20 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
         console.print(f"{rtpu}: cpu {settings.get('cpu')}, {settings.get('scheduler')}, timer slack {settings.get('timer_slack')}"
                       + (f", spin {settings['spin']}" if "spin" in settings else ""), markup=False)
     _print_switches(console, result)
+
+
+def processor_lines(tasks: dict[str, dict[str, Any]]) -> list[str]:
+    """Each special-purpose processor's own timing (TR 4.6.3), from the figures its driver gave with its task's."""
+    lines = []
+    for name, t in tasks.items():
+        for device, f in t.get("devices", {}).items():
+            if f.get("processor") != "spp":
+                continue
+            line = (f"special-purpose processor '{device}' (task '{name}', routine {f.get('routine') or 'none'}): "
+                    f"{f['items']} work items, service p50 {f['service_p50'] * 1e6:.0f} µs, p99 {f['service_p99'] * 1e6:.0f} µs, "
+                    f"max {f['service_max'] * 1e6:.0f} µs; {f['missed']} missed, {f['late_calls']} of {f['calls']} calls late")
+            lines.append(line + (f"; {f['fault']}" if f.get("fault") else ""))
+    return lines
 
 
 def stall_lines(stalls: list[dict[str, Any]]) -> list[str]:
@@ -823,13 +840,16 @@ def _bus(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 
 def _lexicon(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    from pbo_runtime.reports.lexicon import as_table, lexicon
+    from pbo_runtime.reports.lexicon import as_table, drivers, drivers_table, lexicon
 
-    entries = lexicon()
+    entries = drivers() if args.drivers else lexicon()
     if args.format == "json":
         console.out(json.dumps(entries, indent=2, default=str))
+    elif args.drivers:
+        console.print(drivers_table(entries))
     else:
         console.print(as_table(entries))
+        console.print("device drivers: pbo lexicon --drivers", markup=False)
     return EXIT_OK
 
 

@@ -169,6 +169,16 @@ def event(console: Console, task: str, values: Sequence[str] | None, subsystem: 
     return 0
 
 
+def play(console: Console, device: str, values: Sequence[str] | None, subsystem: str | None = None,
+         run: str | None = None) -> int:
+    """Play a device the operator drives (a trackball with source: hmi) with the values given."""
+    verb = COMMANDS["play"]
+    request = verb.request({"device": device, "values": values})
+    reply = ControlClient.connect(subsystem, run).call("play", request, timeout=verb.timeout)
+    console.print(str(reply.get("message", f"device '{device}' played")), markup=False)
+    return 0
+
+
 def stop(console: Console, subsystem: str | None = None, run: str | None = None) -> int:
     """Ask the supervisor to stop the run: tasks off, killed, every object unlinked."""
     client = ControlClient.connect(subsystem, run)
@@ -237,6 +247,7 @@ _RUNNERS: dict[str, Callable[[argparse.Namespace, Console], int]] = {
     "switch": lambda a, c: switch(c, a.configuration, a.subsystem, a.run),
     "job": lambda a, c: job(c, a.name, a.values, a.subsystem, a.run),
     "event": lambda a, c: event(c, a.task, a.values, a.subsystem, a.run),
+    "play": lambda a, c: play(c, a.device, a.values, a.subsystem, a.run),
     "svar": lambda a, c: svar(c, a.names, a.watch, a.interval, a.subsystem, run=a.run),
     "stop": lambda a, c: stop(c, a.subsystem, a.run),
 }

@@ -13,6 +13,9 @@ simulated board) and the device's options, and, by what the class declares:
   YAML's `io: {device: ..., channels: ...}` names. It closes it in its own `close`.
 - any other driver (the arm, the camera) gets the registers and the options only.
 
+A driver whose `__init__` takes `device=` also gets the device's YAML name (the trackball names
+its operator input after it).
+
 A driver checks its options in `check_options`, which the checker also calls, so `pbo check`
 reports a bad option with the device's YAML location before anything runs.
 """

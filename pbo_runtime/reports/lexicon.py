@@ -49,6 +49,42 @@ def lexicon() -> list[dict[str, Any]]:
     return entries
 
 
+def drivers() -> list[dict[str, Any]]:
+    """One JSON-able entry per registered device driver (`pbo lexicon --drivers`), sorted by name.
+
+    Each entry: name, class, kind (the report's three classes of driver, TR §4.6, read from what
+    the class declares: `PORTS`, an I/O device; `download`, a special-purpose processor; else a
+    sensor-actuator driver, wired through `IO` or not), io (the I/O device kind a sensor is wired
+    to, or ""), channels (an I/O device's) and summary. A driver that fails to import gets an `error`.
+    """
+    entries: list[dict[str, Any]] = []
+    for name in registry.names(registry.DRIVERS):
+        try:
+            cls = registry.driver_class(name)
+        except Exception as exc:  # a broken library is reported, not fatal to the listing
+            entries.append({"name": name, "class": "", "kind": "", "io": "", "channels": 0, "summary": "", "error": str(exc)})
+            continue
+        ports = int(getattr(cls, "PORTS", 0) or 0)
+        kind = ("I/O device (TR 4.6.1)" if ports else
+                "special-purpose processor (TR 4.6.3)" if callable(getattr(cls, "download", None)) else
+                "sensor-actuator (TR 4.6.2)")
+        entries.append({"name": name, "class": f"{cls.__module__}:{cls.__qualname__}", "kind": kind,
+                        "io": str(getattr(cls, "IO", "") or ""), "channels": ports, "summary": first_line(cls.__doc__)})
+    return entries
+
+
+def drivers_table(entries: list[dict[str, Any]]) -> Table:
+    """The device drivers as a rich Table: one row per driver."""
+    table = Table(title="device drivers (entry points 'pbo.drivers')", title_justify="left")
+    for column in ("driver", "kind", "wired to", "summary"):
+        table.add_column(column)
+    for entry in entries:
+        wired = f"{entry['io']} channels" if entry["io"] else (f"{entry['channels']} channels" if entry["channels"] else "")
+        summary = entry.get("error") or entry["summary"]
+        table.add_row(escape(entry["name"]), entry["kind"], wired, escape(summary))
+    return table
+
+
 def module_entry(name: str, cls: type[PortBasedObject]) -> dict[str, Any]:
     """The lexicon entry of one module class."""
     return {

@@ -41,10 +41,26 @@ def tunables(module: str, params: dict[str, Any]) -> dict[str, Any]:
     return {name: plain(params.get(name, defaults.get(name))) for name in getattr(cls, "TUNABLE", ())}
 
 
+def played_devices(subsystem: Subsystem) -> dict[str, list[dict[str, Any]]]:
+    """The devices the operator plays (`pbo play`), each with its controls: the driver's
+    `operator_controls(options)` (name, unit, min, max), for those whose options make it played."""
+    played = {}
+    for name, device in subsystem.devices.items():
+        try:
+            controls = getattr(registry.driver_class(device.driver), "operator_controls", None)
+        except PboError:
+            continue
+        found = controls(dict(device.options)) if callable(controls) else None
+        if found:
+            played[name] = found
+    return played
+
+
 def monitor_layout(subsystem: Subsystem) -> dict[str, Any]:
     """{"subsystem", "plant", "configurations": {name: [task]}, "tasks": {task: {module, rtpu, period, critical,
-    tunable: {param: value}}}, "variables": {name: {dtype, shape, doc}}}, in file order."""
+    tunable: {param: value}}}, "variables": {name: {dtype, shape, doc}}, "played": {device: [control]}}, in file order."""
     return {
+        "played": played_devices(subsystem),
         "subsystem": subsystem.name,
         "plant": subsystem.plant.model if subsystem.plant is not None else None,
         "configurations": {name: list(c.tasks) for name, c in subsystem.configurations.items()},

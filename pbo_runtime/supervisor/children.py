@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from pbo_runtime.clock.run_clock import RunClock
+from pbo_runtime.config.model import Subsystem
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import shm
 from pbo_runtime.ipc.control import ControlServer
@@ -37,6 +38,8 @@ class Children:
     """The Supervisor's part that starts, watches and stops its child processes."""
 
     clock: RunClock
+    subsystem: Subsystem
+    run_id: str
     children: list[Child]
     table: StateTable | None
     result: RunResult
@@ -123,6 +126,11 @@ class Children:
         for entry in self._manifest():  # a backstop: whatever a child could not remove
             kind, _, name = entry.partition(" ")
             shm.unlink_quietly(kind, name)
+        # ... and what a child made under the run's name that the manifest does not list (a special-purpose
+        # processor's memory, made by its driver in a task): every child is gone, so all of it is the run's
+        for listed in shm.list_objects(self.subsystem.name):
+            if listed.run_id == self.run_id and listed.distrust is None:
+                shm.unlink_quietly(listed.kind, listed.name)
 
     def _resume_stopped(self, children: list[Child]) -> None:
         """SIGCONT to every child stopped (SIGSTOP) when the run stops: a stopped process cannot stop by itself."""

@@ -39,6 +39,7 @@ from pbo_runtime.config.live import LiveChangeRefused, LiveDescription, TaskChan
 from pbo_runtime.config.live_save import save_live
 from pbo_runtime.config.values import INT_RANGE, as_value, describe, element_problem
 from pbo_runtime.errors import PboError
+from pbo_runtime.ipc import operator_input
 from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.objects import registry
 from pbo_runtime.supervisor.job_control import application_steps
@@ -288,6 +289,14 @@ def event(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
         raise PboError(f"task '{task}' is {state}, not ON: an event would not run it; turn it on with pbo on {task}")
     host.send_event(task, values)
     return {"task": task, "message": f"event sent to '{task}'"}
+
+
+def play(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
+    devices = host.subsystem.devices
+    device = _name(arguments, "device", "device", devices)
+    values = _numbers(arguments.get("values") or [], f"the values played into device '{device}'")
+    writes = operator_input.play(host.subsystem.name, host.run_id, device, [float(v) for v in values])
+    return {"device": device, "writes": writes, "message": f"device '{device}' plays {values}"}
 
 
 def _event_size(host: CommandHost, task: str) -> int | None:
@@ -545,6 +554,11 @@ VERBS: tuple[Verb, ...] = (
          (Argument("task", help="the aperiodic task's name", key="task"),
           Argument("values", help="numbers the event carries", key="values", nargs="*", parse=parse_object_values)),
          event, '`{"task": str}`'),
+    Verb("play", "play a device the operator drives (a trackball with source: hmi): pbo play trackball 0.05 0 0 0 0 0",
+         (Argument("device", help="the device's name", key="device"),
+          Argument("values", help="the numbers it reads from now on (a trackball: dx dy dz m, rx ry rz rad)", key="values",
+                   nargs="*", parse=parse_object_values)),
+         play, '`{"device": str, "writes": int}`'),
     Verb("spawn", "spawn a task on the live subsystem, checked first, on at a cycle boundary: "
                   "pbo spawn logger --module data_logger --rtpu rtpu0 --period 10ms --param variables=[q_m]",
          (Argument("task", help="the new task's name", key="task"), *_NEW_TASK), spawn, _LIVE_REPLY, LIVE_TIMEOUT),

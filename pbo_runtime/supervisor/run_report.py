@@ -128,6 +128,9 @@ class RunReporting:
             self.result.tasks[name] = {"rtpu": spec.rtpu, "critical": spec.critical,
                                        "state": self.result.states_at_stop.get(name, "?"),
                                        "error": self.task_errors.get(name, ""), **stats, "last_overruns": overruns}
+            for device, figures in stats.get("devices", {}).items():
+                if figures.get("fault"):  # a special-purpose processor that died under its task: the task said so too
+                    self.result.faults.append(f"device '{device}' of task '{name}': {figures['fault']}")
         self._report_stalls(started)
         trips = self.result.plant.get("watchdog_trips", 0)
         if trips:  # no task of the run commanded the arm: only the drive itself held it

@@ -24,6 +24,7 @@ data with views it precomputed.
 
 from __future__ import annotations
 
+import inspect
 import os
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -160,6 +161,8 @@ class DeviceDatabase:
                     kwargs["channels"] = opening.channels
                 if opening.device.io is not None:
                     kwargs["io"] = below
+                if "device" in inspect.signature(opening.driver).parameters:  # a driver that names what it makes after its device
+                    kwargs["device"] = opening.device.name
                 driver = opening.driver(self.registers, opening.device.options, **kwargs)
                 below = driver
         except BaseException:

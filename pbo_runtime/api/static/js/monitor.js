@@ -7,6 +7,7 @@ import { get } from "./api.js";
 import { TasksByRtpu, IllegalNote } from "./monitor/tasks.js";
 import { ConfigurationSwitch } from "./monitor/switch.js";
 import { Tunables } from "./monitor/tune.js";
+import { PlayedDevices } from "./monitor/trackball.js";
 import { BusLoad } from "./monitor/bus.js";
 import { Plots } from "./monitor/plot.js";
 import { ArmView } from "./monitor/arm.js";
@@ -50,6 +51,7 @@ export function Monitor({ status }) {
             <div class="monitor-row">
               <${ConfigurationSwitch} status=${status} layout=${layout} report=${report} />
               <${Tunables} status=${status} layout=${layout} report=${report} />
+              <${PlayedDevices} status=${status} layout=${layout} report=${report} />
             </div>
             <${BusLoad} status=${status} />
           </div>

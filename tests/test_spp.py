@@ -1,0 +1,240 @@
+"""The special-purpose processor (TR §4.6.3): an emulated accelerator in a process of its own, behind its driver.
+
+In one process (the test's, as a task's would be): the driver starts the processor, downloads
+the arm's Jacobian routine, and gets exactly what Pinocchio computes; a cycle's call allocates
+nothing and never waits, even on a stopped processor; a dead processor is a named fault, and
+nothing is left in /dev/shm whichever side dies. End to end on the simulated clock:
+configs/visual_servoing_spp.yaml (Figure 13 with fk on the processor) tracks its target with the
+processor's timing in the summary, and killing the processor mid-run puts fk in ERROR naming it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pinocchio
+import pytest
+
+from drivers.spp.driver import ProcessorError, SpecialPurposeProcessor
+from pbo_runtime import arm_model
+from pbo_runtime.ipc.shm import children_of, pid_alive
+from pbo_runtime.reports.lexicon import drivers
+from tests.support import (PBO, REPO, allocation_peak, arm_tables, assert_nothing_left, one_array, read_until, run_processes,
+                           start_run, unique_name, until)
+
+CONFIG = REPO / "configs" / "visual_servoing_spp.yaml"
+Q = np.array([0.1, -0.5, 0.4, 0.1, 0.2, 0.3])
+
+
+def _registers() -> str:
+    """A name like a run's plant registers (/pbo.<subsystem>.<run id>.plant): the processor's names derive from it."""
+    return unique_name("plant")
+
+
+def _left(spp_segment: str) -> list[str]:
+    base = spp_segment.lstrip("/")
+    return [n for n in os.listdir("/dev/shm") if base in n]
+
+
+def _pinocchio(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    arm, ee = arm_tables("puma560")
+    model = arm_model(arm, ee)
+    data = model.createData()
+    frame = model.getFrameId("ee")
+    pinocchio.computeJointJacobians(model, data, q)
+    placement = pinocchio.updateFramePlacement(model, data, frame)
+    x = np.concatenate([placement.translation, pinocchio.log3(placement.rotation)])
+    return x, pinocchio.getFrameJacobian(model, data, frame, pinocchio.LOCAL_WORLD_ALIGNED)
+
+
+@pytest.fixture
+def spp():
+    arm, ee = arm_tables("puma560")
+    processor = SpecialPurposeProcessor(_registers(), {})
+    processor.download("jacobian", {"ARM": arm, "EE": ee})
+    yield processor
+    processor.close()
+    assert _left(processor.segment) == []
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"memory": 0}, r"spp option memory must be a whole number >= 1, got: 0"),
+    ({"start_timeout": -1}, r"spp option start_timeout must be a number of seconds > 0"),
+    ({"cores": 4}, r"unknown spp option\(s\) \['cores'\]; valid options: memory, download_bytes, start_timeout"),
+])
+def test_bad_spp_options_are_refused_before_any_processor_starts(options, message):
+    with pytest.raises(ValueError, match=message):
+        SpecialPurposeProcessor.check_options(options)
+
+
+def test_pbo_lexicon_lists_the_spp_driver_as_a_special_purpose_processor():
+    entries = {e["name"]: e for e in drivers()}
+    assert entries["spp"]["kind"] == "special-purpose processor (TR 4.6.3)"
+    assert entries["spp"]["class"] == "drivers.spp.driver:SpecialPurposeProcessor"
+
+
+@pytest.mark.multiprocess
+def test_the_downloaded_jacobian_is_what_pinocchio_computes(spp):
+    out = np.zeros(42)
+    spp.call_and_wait(Q, out)
+    x, jacobian = _pinocchio(Q)
+    np.testing.assert_allclose(out[:6], x, atol=1e-12)
+    np.testing.assert_allclose(out[6:].reshape(6, 6), jacobian, atol=1e-12)
+    figures = spp.figures()
+    assert figures["routine"] == "jacobian" and figures["items"] >= 1 and figures["service_p99"] > 0
+
+
+@pytest.mark.multiprocess
+def test_a_batch_of_jacobians_is_one_work_item():
+    arm, ee = arm_tables("puma560")
+    processor = SpecialPurposeProcessor(_registers(), {})
+    try:
+        assert processor.download("jacobian_batch", {"ARM": arm, "EE": ee}, batch=3) == (18, 126)
+        qs = np.stack([Q, -Q, 2 * Q])
+        out = np.zeros(126)
+        processor.call_and_wait(qs.ravel(), out)
+        for k, q in enumerate(qs):
+            np.testing.assert_allclose(out[k * 42 + 6:(k + 1) * 42].reshape(6, 6), _pinocchio(q)[1], atol=1e-12)
+        assert processor.figures()["items"] == 1
+    finally:
+        processor.close()
+    assert _left(processor.segment) == []
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("routine, options, message", [
+    ("fft", {}, r"could not load routine 'fft': ValueError: no routine 'fft' on this processor; routines: jacobian, jacobian_batch"),
+    ("jacobian_batch", {"batch": 0}, r"needs option batch, a whole number >= 1, got: 0"),
+    ("jacobian", {"frame": "hand"}, r"the arm has no frame 'hand'"),
+])
+def test_a_download_the_processor_cannot_load_is_refused_with_its_reason(routine, options, message):
+    arm, ee = arm_tables("puma560")
+    processor = SpecialPurposeProcessor(_registers(), {})
+    try:
+        with pytest.raises(ProcessorError, match=message):
+            processor.download(routine, {"ARM": arm, "EE": ee}, **options)
+    finally:
+        processor.close()
+    assert _left(processor.segment) == []
+
+
+@pytest.mark.multiprocess
+def test_a_cycles_call_allocates_nothing(spp):
+    out = np.zeros(42)
+    spp.call_and_wait(Q, out)
+    assert allocation_peak(lambda: spp.call(Q, out)) < one_array()
+
+
+@pytest.mark.multiprocess
+def test_a_call_never_waits_on_a_stopped_processor_and_says_how_old_its_result_is(spp):
+    out = np.zeros(42)
+    spp.call_and_wait(Q, out)
+    os.kill(spp.process.pid, signal.SIGSTOP)
+    try:
+        ages = [spp.call(Q, out) for _ in range(50)]
+    finally:
+        os.kill(spp.process.pid, signal.SIGCONT)
+    assert ages == list(range(1, 51))  # each call returned at once, with the same (ever older) result
+    assert spp.fault == ""  # stopped is slow, not dead: the module decides what an old result means
+    assert spp.figures()["late_calls"] >= 49
+
+
+@pytest.mark.multiprocess
+def test_a_killed_processor_is_a_named_fault_and_leaves_nothing(spp):
+    out = np.zeros(42)
+    spp.call_and_wait(Q, out)
+    pid = spp.process.pid
+    os.kill(pid, signal.SIGKILL)
+    until(lambda: (spp.call(Q, out), spp.fault)[1] != "", "the driver sees the processor dead")
+    assert spp.fault.startswith(f"the special-purpose processor (pid {pid}) died (killed by SIGKILL)")
+    spp.close()
+    assert spp.figures()["fault"] == spp.fault
+    assert _left(spp.segment) == []
+
+
+@pytest.mark.multiprocess
+def test_a_killed_task_process_takes_its_processor_and_its_memory_with_it(tmp_path):
+    script = textwrap.dedent(f"""
+        import sys, time
+        from drivers.spp.driver import SpecialPurposeProcessor
+        spp = SpecialPurposeProcessor({_registers()!r}, {{}})
+        print(spp.process.pid, spp.segment, flush=True)
+        time.sleep(600)
+    """)
+    task = subprocess.Popen([sys.executable, "-c", script], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        pid, segment = task.stdout.readline().split()
+        assert _left(segment)
+        task.kill()  # no close, no finally: the processor must notice by itself
+        task.wait()
+        until(lambda: not pid_alive(int(pid)) and _left(segment) == [], "the processor gone and its memory unlinked")
+    finally:
+        if task.poll() is None:
+            task.kill()
+            task.wait()
+
+
+# --- end to end: Figure 13 with fk on the processor, on the simulated clock -------------------------
+
+
+def _config_copy(folder: Path, subsystem: str) -> Path:
+    text = CONFIG.read_text().replace("subsystem: visual_servo_spp", f"subsystem: {subsystem}")
+    path = folder / f"{subsystem}.yaml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.multiprocess
+def test_figure_13_with_fk_on_the_processor_tracks_and_the_summary_shows_the_processors_timing(tmp_path):
+    subsystem = "spp_fig13"
+    done = subprocess.run([*PBO, "run", str(_config_copy(tmp_path, subsystem)), "--no-live", "--clock", "sim",
+                           "--duration", "1", "--out", str(tmp_path / "out")],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert done.returncode == 0, done.stderr + done.stdout
+    figures = report["tasks"]["fk"]["devices"]["fpa"]
+    assert figures["routine"] == "jacobian" and figures["fault"] == ""
+    assert figures["items"] > 0 and figures["calls"] == report["tasks"]["fk"]["cycles"] + 1  # + the one `on` waited for
+    assert "special-purpose processor 'fpa' (task 'fk', routine jacobian): " in done.stdout
+    final = {name: np.array(v["value"]) for name, v in report["variables"].items()}
+    x, jacobian = _pinocchio(final["q_m"])
+    np.testing.assert_allclose(final["J"], jacobian, atol=0.05)  # the answer to a q_m a cycle or so before the last
+    np.testing.assert_allclose(final["x_m"], x, atol=0.01)
+    assert np.linalg.norm(final["x_m"][:3] - final["x_d"][:3]) < 0.03  # the hand follows the target
+    assert_nothing_left(report)
+    assert [n for n in os.listdir("/dev/shm") if f"pbo.{subsystem}." in n] == []
+
+
+@pytest.mark.multiprocess
+def test_killing_the_processor_mid_run_puts_its_task_in_error_naming_it_and_leaves_nothing(tmp_path):
+    subsystem = "spp_killed"
+    run = start_run(_config_copy(tmp_path, subsystem), tmp_path, "--clock", "sim", "--duration", "600",
+                    "--out", str(tmp_path / "out"))
+    try:
+        rtpu = run_processes(run)["rtpu1"]
+        processors = [pid for pid, command in children_of(rtpu).items() if "drivers.spp.processor" in command]
+        assert len(processors) == 1
+        os.kill(processors[0], signal.SIGKILL)
+        said = read_until(run, "task 'fk' on rtpu1 is in ERROR")
+        assert f"the special-purpose processor (pid {processors[0]}) died (killed by SIGKILL)" in said
+        run.send_signal(signal.SIGINT)
+        out, err = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    assert run.returncode == 2, err
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["tasks"]["fk"]["state"] == "ERROR"
+    assert "device 'fpa': the special-purpose processor" in report["tasks"]["fk"]["error"]
+    assert any(f.startswith("device 'fpa' of task 'fk': the special-purpose processor") for f in report["faults"])
+    assert children_of(run.pid) == {}
+    assert_nothing_left(report)
+    assert [n for n in os.listdir("/dev/shm") if f"pbo.{subsystem}." in n] == []

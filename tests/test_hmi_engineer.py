@@ -50,7 +50,9 @@ def drag_figure_8(page) -> None:
         block = lexicon_block(page, module)
         verdicts_current(page)
         expect(block).to_have_attribute("aria-disabled", "false")
-        block.drag_to(canvas, target_position={"x": x, "y": y})
+        # grabbed by its top edge, beside the module's name: with 29 modules the block may sit at the
+        # bottom of the scrolled lexicon, where its middle was not reliably under the pointer
+        block.drag_to(canvas, source_position={"x": 30, "y": 12}, target_position={"x": x, "y": y})
         placed = canvas.locator(f"g.task[data-module={module}]")
         expect(placed).to_have_count(1)
         frame, box = canvas.bounding_box(), placed.bounding_box()

@@ -40,7 +40,11 @@ _stopping = ""
 
 
 def _stop(signum: int, _frame) -> None:
+    """Raise once: a second signal (the parent's death signal after a SIGTERM) must not break into
+    the `finally` that unlinks."""
     global _stopping
+    if _stopping:
+        return
     _stopping = signal.Signals(signum).name
     raise _Stop(_stopping)
 

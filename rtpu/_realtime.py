@@ -27,7 +27,10 @@ def apply(cpu: int | None, fifo: bool) -> dict[str, str]:
         outcome["cpu"] = "any"
     if fifo:
         try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
+            # RESET_ON_FORK: a process a task starts (a log's encoder, a special-purpose processor)
+            # begins at SCHED_OTHER. Inheriting SCHED_FIFO at the RTPU's priority, its interpreter's
+            # start-up (tens to hundreds of ms of CPU) would hold the executive off its CPU.
+            os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(FIFO_PRIORITY))
             outcome["scheduler"] = f"SCHED_FIFO {FIFO_PRIORITY}"
         except (OSError, AttributeError) as exc:
             outcome["scheduler"] = (f"SCHED_OTHER: SCHED_FIFO refused ({exc}); it needs CAP_SYS_NICE (root has it) "

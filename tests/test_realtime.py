@@ -39,6 +39,21 @@ def test_sched_fifo_is_reported_as_granted_or_refused_with_the_reason():
     assert scheduler == "SCHED_FIFO 50" or scheduler.startswith("SCHED_OTHER: SCHED_FIFO refused (")
 
 
+CHILD_POLICY = ("import json, os, subprocess, sys; from rtpu import _realtime; granted = _realtime.apply(None, True)['scheduler']; "
+                "child = subprocess.run([sys.executable, '-c', 'import os; print(os.sched_getscheduler(0))'], capture_output=True, "
+                "text=True).stdout; print(json.dumps([granted, int(child)]))")
+
+
+@pytest.mark.multiprocess
+def test_a_process_a_task_starts_begins_at_sched_other_not_at_the_rtpus_sched_fifo():
+    """A log's encoder or a special-purpose processor inheriting SCHED_FIFO 50 held the executive off its
+    CPU for its interpreter's start-up (a 108 ms late release and the arm's watchdog in `make run`)."""
+    done = subprocess.run([sys.executable, "-c", CHILD_POLICY], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert done.returncode == 0, done.stderr
+    granted, child_policy = json.loads(done.stdout)
+    assert child_policy == os.SCHED_OTHER, (granted, child_policy)
+
+
 def test_the_real_clock_asks_for_sched_fifo_by_default_and_the_simulated_clock_does_not():
     from pbo_runtime.config.loader import load_subsystem
     from pbo_runtime.supervisor.supervisor import Supervisor

@@ -162,11 +162,11 @@ def test_a_killed_processor_is_a_named_fault_and_leaves_nothing(spp):
 @pytest.mark.multiprocess
 def test_a_killed_task_process_takes_its_processor_and_its_memory_with_it(tmp_path):
     script = textwrap.dedent(f"""
-        import sys, time
+        import signal
         from drivers.spp.driver import SpecialPurposeProcessor
         spp = SpecialPurposeProcessor({_registers()!r}, {{}})
         print(spp.process.pid, spp.segment, flush=True)
-        time.sleep(600)
+        signal.pause()  # a task process at work, until the test kills it
     """)
     task = subprocess.Popen([sys.executable, "-c", script], cwd=REPO, stdout=subprocess.PIPE, text=True)
     try:

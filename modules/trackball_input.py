@@ -14,11 +14,10 @@ the task turned on. The motion comes from one of:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from pbo_runtime import InVar, ModuleError, OutVar, PortBasedObject, Status
+from pbo_runtime import InVar, ModuleError, OutVar, PortBasedObject, Status, Waypoints
 
 
 @dataclass(frozen=True)
@@ -32,17 +31,7 @@ class TrackballParams:
             raise ValueError("give exactly one of device (a trackball device), script (inline waypoints) or file "
                              "(a CSV of waypoints)")
         if self.script:
-            check_waypoints(np.asarray(self.script, dtype=float), "script")
-
-
-def check_waypoints(rows: np.ndarray, where: str) -> np.ndarray:
-    if rows.ndim != 2 or rows.shape[1] != 7 or len(rows) == 0:
-        raise ValueError(f"{where}: each waypoint is 7 numbers (t, dx, dy, dz, rx, ry, rz), got shape {list(rows.shape)}")
-    if not np.all(np.isfinite(rows)):
-        raise ValueError(f"{where}: waypoints must be finite numbers")
-    if np.any(np.diff(rows[:, 0]) <= 0) or rows[0, 0] < 0:
-        raise ValueError(f"{where}: waypoint times must start at >= 0 and increase, got: {rows[:, 0].tolist()}")
-    return rows
+            Waypoints.from_script(self.script)
 
 
 class TrackballInput(PortBasedObject):
@@ -64,18 +53,8 @@ class TrackballInput(PortBasedObject):
                 raise ModuleError(f"device '{params.device}' is not a trackball (it has no read_offset); give it driver: trackball")
             self._read_offset = ball.read_offset
             return
-        if params.file:
-            path = Path(params.file)
-            try:
-                rows = np.atleast_2d(np.genfromtxt(path, delimiter=",", comments="#"))
-            except (OSError, ValueError) as exc:
-                raise ValueError(f"cannot read trackball file '{path}': {exc}") from None
-            rows = rows[~np.isnan(rows).all(axis=1)]  # a header line reads as a row of nan
-            rows = check_waypoints(rows, str(path))
-        else:
-            rows = np.asarray(params.script, dtype=float)
-        self._times = rows[:, 0].copy()
-        self._offsets = rows[:, 1:].copy()
+        waypoints = Waypoints.from_csv(params.file) if params.file else Waypoints.from_script(params.script)
+        self._read_offset = waypoints.offset_at
 
     def on(self) -> None:
         np.copyto(self._start, self.x_m)
@@ -83,21 +62,6 @@ class TrackballInput(PortBasedObject):
         self.x_d = self.x_m
 
     def cycle(self) -> Status:
-        elapsed = self.time - self._started
-        if self._read_offset is not None:
-            self._read_offset(elapsed, self._offset)
-            np.add(self._start, self._offset, out=self.x_d)
-            return Status.CONTINUE
-        times, offsets, offset = self._times, self._offsets, self._offset
-        k = int(np.searchsorted(times, elapsed))
-        if k == 0:
-            np.multiply(offsets[0], elapsed / times[0] if times[0] > 0 else 1.0, out=offset)
-        elif k >= len(times):
-            np.copyto(offset, offsets[-1])
-        else:
-            share = (elapsed - times[k - 1]) / (times[k] - times[k - 1])
-            np.subtract(offsets[k], offsets[k - 1], out=offset)
-            np.multiply(offset, share, out=offset)
-            np.add(offset, offsets[k - 1], out=offset)
-        np.add(self._start, offset, out=self.x_d)
+        self._read_offset(self.time - self._started, self._offset)
+        np.add(self._start, self._offset, out=self.x_d)
         return Status.CONTINUE

@@ -27,6 +27,7 @@ from pbo_runtime.objects.driver import DeviceDriver
 from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
 from pbo_runtime.objects.ports import ANY_DTYPE, InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
 from pbo_runtime.objects.registry import installed_version, module_class, registered_robot
+from pbo_runtime.objects.waypoints import Waypoints
 from pbo_runtime.reports.data_log import open_log, read_log
 
 __version__ = installed_version()
@@ -64,6 +65,7 @@ __all__ = [
     "ResourceLimitError",
     "Status",
     "TableLayoutError",
+    "Waypoints",
     "arm_model",
     "attach_segment",
     "create_segment",

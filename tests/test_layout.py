@@ -39,7 +39,7 @@ PUBLIC_NAMES = [
     "ANY_DTYPE", "ARM_COLUMNS", "Arm", "EE_COLUMNS", "GRAVITY", "ROBOT_OPTIONS", "ROBOT_SUFFIXES", "MAX_PRIORITY", "ConfigError", "ConfigErrors", "DeviceDriver", "InBoth", "InConst", "InVar",
     "InternalError", "LifecycleError", "LinkFullError", "ModuleError", "NoParams", "OutBoth", "OutConst", "OutVar",
     "OperatorInput", "OutputError", "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec", "ResourceLimitError", "Status",
-    "TableLayoutError",
+    "TableLayoutError", "Waypoints",
     "arm_model", "attach_segment", "create_segment", "format_channels", "is_robot_file", "module_class", "open_log", "read_log",
     "registered_robot", "unlink_quietly",
 ]

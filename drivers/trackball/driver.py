@@ -23,25 +23,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from pbo_runtime import DeviceDriver, OperatorInput
+from pbo_runtime import DeviceDriver, OperatorInput, Waypoints
 
 _OPTIONS = ("source", "script", "file", "reach", "turn")
 SOURCES = ("script", "hmi")
-
-
-def check_waypoints(rows: np.ndarray, where: str) -> np.ndarray:
-    if rows.ndim != 2 or rows.shape[1] != 7 or len(rows) == 0:
-        raise ValueError(f"{where}: each waypoint is 7 numbers (t, dx, dy, dz, rx, ry, rz), got shape {list(rows.shape)}")
-    if not np.all(np.isfinite(rows)):
-        raise ValueError(f"{where}: waypoints must be finite numbers")
-    if np.any(np.diff(rows[:, 0]) <= 0) or rows[0, 0] < 0:
-        raise ValueError(f"{where}: waypoint times must start at >= 0 and increase, got: {rows[:, 0].tolist()}")
-    return rows
 
 
 def _check_options(options: Mapping[str, Any]) -> tuple[str, float, float]:
@@ -59,11 +48,7 @@ def _check_options(options: Mapping[str, Any]) -> tuple[str, float, float]:
         raise ValueError(f"a trackball with source: hmi is played by the operator; it takes no {given[0]} "
                          "(give source: script to replay one)")
     if options.get("script"):
-        try:
-            rows = np.asarray(options["script"], dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(f"trackball option script must be rows of 7 numbers, got: {options['script']!r}") from None
-        check_waypoints(rows, "trackball option script")
+        Waypoints.from_script(options["script"], "trackball option script")
     bounds = []
     for key, default, unit in (("reach", 0.3, "m"), ("turn", 1.0, "rad")):
         value = options.get(key, default)
@@ -106,16 +91,10 @@ class Trackball(DeviceDriver):
             self._read_input = self._input.read
             return
         if self.options.get("file"):
-            path = Path(self.options["file"])
-            try:
-                rows = np.atleast_2d(np.genfromtxt(path, delimiter=",", comments="#"))
-            except (OSError, ValueError) as exc:
-                raise ValueError(f"cannot read trackball file '{path}': {exc}") from None
-            rows = check_waypoints(rows[~np.isnan(rows).all(axis=1)], str(path))  # a header line reads as a row of nan
+            self._waypoints = Waypoints.from_csv(self.options["file"])
         else:
-            rows = np.asarray(self.options["script"], dtype=float)
-        self._times = rows[:, 0].copy()
-        self._offsets = rows[:, 1:].copy()
+            self._waypoints = Waypoints.from_script(self.options["script"], "trackball option script")
+        self._scripted = self._waypoints.offset_at
 
     def read_offset(self, elapsed: float, out: np.ndarray) -> bool:
         """Fill out (6,) with the displacement at `elapsed` s since the module turned on (a script's
@@ -128,19 +107,6 @@ class Trackball(DeviceDriver):
         np.minimum(out, self._upper, out=out)
         np.maximum(out, self._lower, out=out)
         return played
-
-    def _scripted(self, elapsed: float, out: np.ndarray) -> None:
-        times, offsets = self._times, self._offsets
-        k = int(np.searchsorted(times, elapsed))
-        if k == 0:
-            np.multiply(offsets[0], elapsed / times[0] if times[0] > 0 else 1.0, out=out)
-        elif k >= len(times):
-            np.copyto(out, offsets[-1])
-        else:
-            share = (elapsed - times[k - 1]) / (times[k] - times[k - 1])
-            np.subtract(offsets[k], offsets[k - 1], out=out)
-            np.multiply(out, share, out=out)
-            np.add(out, offsets[k - 1], out=out)
 
     def close(self) -> None:
         """Unlink the operator input, if it made one (idempotent)."""

@@ -614,3 +614,28 @@ def arm_constants(n: int) -> list[tuple[str, str, tuple[int, ...]]]:
     from pbo_runtime import Arm
 
     return [("NDOF", "int32", ()), ("ARM", "float64", (n, Arm.WIDTH)), ("EE", "float64", (Arm.EE_WIDTH,))]
+
+
+def robot_state_table(make_table, model: str, *specs: tuple[str, str, tuple[int, ...]]):  # type: ignore[no-untyped-def]
+    """A table with the robot interface's out-consts of `model` written (NDOF, ARM, EE), and `specs`:
+    what the model-based modules read at spawn, without a plant."""
+    arm, ee = arm_tables(model)
+    table = make_table(variables(*arm_constants(len(arm)), *specs))
+    table.write("NDOF", len(arm), when=0.0)
+    table.write("ARM", arm, when=0.0)
+    table.write("EE", ee, when=0.0)
+    return table
+
+
+def spawned_task(table, module: type[PortBasedObject], dims: dict[str, int], params: dict | None = None,
+                 period: float = 0.001) -> Task:
+    """A real Task of `module` on `table`, spawned (its init run); fails the test if spawn failed."""
+    task = Task(task_spec(module, dims=dims, params=params, period=period), module, table, dims)
+    assert task.spawn(0.0), task.last_error
+    return task
+
+
+def write_values(table, when: float = 0.0, **values) -> None:
+    """Write each keyword's value to the variable of that name, stamped `when`."""
+    for name, value in values.items():
+        table.write(name, value, when=when)

@@ -26,10 +26,9 @@ from modules.time_integrator import TimeIntegrator
 from pbo_runtime import ParamError, PortBasedObject, Status
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.support import arm_constants, arm_tables, dh_forward_kinematics, dh_pinocchio_model, task_spec, variables
+from tests.support import dh_forward_kinematics, dh_pinocchio_model, robot_state_table, spawned_task, task_spec, write_values
 
 PUMA = robot("puma560")
-PUMA_ARM, PUMA_EE = arm_tables("puma560")  # what its robot interface publishes
 N = PUMA.ndof
 DIMS = {"NDOF": N}
 DT = 0.001
@@ -39,34 +38,24 @@ Q_GENERIC = np.array([0.2, -0.5, 0.8, 0.3, -0.9, 0.4])  # well away from every s
 Q_NEAR_WRIST_SINGULARITY = np.array([0.0, 0.3, 0.3, 0.0, 0.002, 0.0])  # q5 = 0 aligns joints 4 and 6
 
 
-def kinematics_variables():
-    return variables(
-        *arm_constants(N),
-        ("q_m", "float64", (N,)), ("qd_m", "float64", (N,)), ("qdd_r", "float64", (N,)),
-        ("q_r", "float64", (N,)), ("qd_r", "float64", (N,)), ("tau_u", "float64", (N,)),
-        ("tau_g", "float64", (N,)), ("x_m", "float64", (6,)), ("x_d", "float64", (6,)),
-        ("x_r", "float64", (6,)), ("J", "float64", (6, N)),
-    )
+KINEMATICS_VARIABLES = (
+    ("q_m", "float64", (N,)), ("qd_m", "float64", (N,)), ("qdd_r", "float64", (N,)),
+    ("q_r", "float64", (N,)), ("qd_r", "float64", (N,)), ("tau_u", "float64", (N,)),
+    ("tau_g", "float64", (N,)), ("x_m", "float64", (6,)), ("x_d", "float64", (6,)),
+    ("x_r", "float64", (6,)), ("J", "float64", (6, N)),
+)
 
 
 @pytest.fixture
 def table(make_table) -> StateTable:
-    table = make_table(kinematics_variables())
-    table.write("NDOF", N, when=0.0)  # the robot interface's out-consts
-    table.write("ARM", PUMA_ARM, when=0.0)
-    table.write("EE", PUMA_EE, when=0.0)
-    return table
+    return robot_state_table(make_table, "puma560", *KINEMATICS_VARIABLES)
 
 
 def spawned(table: StateTable, module: type[PortBasedObject], params: dict | None = None, period: float = DT) -> Task:
-    task = Task(task_spec(module, dims=DIMS, params=params, period=period), module, table, DIMS)
-    assert task.spawn(0.0), task.last_error
-    return task
+    return spawned_task(table, module, DIMS, params, period)
 
 
-def write(table: StateTable, when: float = 0.0, **values) -> None:
-    for name, value in values.items():
-        table.write(name, value, when=when)
+write = write_values
 
 
 def read(table: StateTable, name: str) -> np.ndarray:

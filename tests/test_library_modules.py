@@ -24,10 +24,9 @@ from pbo_runtime import ParamError, PortBasedObject, Status
 from pbo_runtime.config.model import PortBinding, TaskSpec
 from pbo_runtime.table.table import StateTable
 from pbo_runtime.task.lifecycle import Task
-from tests.support import allocation_peak, arm_constants, arm_tables, dh_pinocchio_model, one_array, task_spec, variables
+from tests.support import allocation_peak, dh_pinocchio_model, one_array, robot_state_table, spawned_task, write_values
 
 PUMA = robot("puma560")
-PUMA_ARM, PUMA_EE = arm_tables("puma560")
 N = PUMA.ndof
 DIMS = {"NDOF": N}
 DT = 0.001
@@ -38,28 +37,19 @@ Q_GENERIC = np.array([0.2, -0.5, 0.8, 0.3, -0.9, 0.4])  # well away from every s
 
 @pytest.fixture
 def table(make_table) -> StateTable:
-    table = make_table(variables(
-        *arm_constants(N),
+    return robot_state_table(make_table, "puma560",
         ("q_m", "float64", (N,)), ("qd_m", "float64", (N,)), ("q_r", "float64", (N,)), ("qdd_r", "float64", (N,)),
         ("x_m", "float64", (6,)), ("x_d", "float64", (6,)), ("x_r", "float64", (6,)), ("xd_r", "float64", (6,)),
         ("xdd_u", "float64", (6,)), ("J", "float64", (6, N)), ("ik_residual", "float64", ()),
         ("signal", "float64", (3,)), ("rate", "float64", (3,)),
-    ))
-    table.write("NDOF", N, when=0.0)  # the robot interface's out-consts
-    table.write("ARM", PUMA_ARM, when=0.0)
-    table.write("EE", PUMA_EE, when=0.0)
-    return table
+    )
 
 
 def spawned(table: StateTable, module: type[PortBasedObject], params: dict | None = None, period: float = DT) -> Task:
-    task = Task(task_spec(module, dims=DIMS, params=params, period=period), module, table, DIMS)
-    assert task.spawn(0.0), task.last_error
-    return task
+    return spawned_task(table, module, DIMS, params, period)
 
 
-def write(table: StateTable, when: float = 0.0, **values) -> None:
-    for name, value in values.items():
-        table.write(name, value, when=when)
+write = write_values
 
 
 def read(table: StateTable, name: str) -> np.ndarray:

@@ -86,6 +86,8 @@ def test_a_task_turned_off_that_writes_what_another_reads_is_shown_at_the_pin_th
     e408 = [d for d in reply["diagnostics"] if d["code"] == "E408"]
     assert [(d["task"], d["port"]) for d in e408] == [("robot", "tau_u")]
     assert e408[0]["message"].startswith("configuration 'joint_pid' leaves out task 'pid', which writes 'tau_u'")
+    notes = {(n["task"], n["message"]) for n in e408[0]["notes"]}  # the related places, named by their blocks
+    assert ("pid", "task 'pid' writes 'tau_u'") in notes and any(task == "robot" for task, _ in notes)
 
 
 def test_the_base_files_own_errors_keep_their_line_and_no_module_is_placed(tmp_path):

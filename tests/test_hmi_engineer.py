@@ -170,6 +170,7 @@ def test_a_tasks_modifiers_are_checked_as_in_yaml_and_it_can_be_turned_off_and_r
         expect(canvas.locator("path.link[data-variable=tau_u]")).to_have_count(0)
         # (E408: the configuration leaves out the writer; the canvas shows it at the pin that misses it)
         expect(canvas.locator("g.task[data-task=robot] .pin-badge[data-port=tau_u]")).to_have_attribute("data-code", "E408")
+        expect(page.locator(".diagnostics li[data-code=E408] .notes")).to_contain_text("note: pid task 'pid' writes 'tau_u'")
         panel.get_by_role("button", name="Turn on").click()
         expect(page.locator("[data-test=checker]")).to_have_text("No error")
         panel.get_by_label("replace by module").select_option("inverse_dynamics")

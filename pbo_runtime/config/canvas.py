@@ -35,7 +35,7 @@ from pbo_runtime.config.loader import CheckResult, check_loaded, load_document
 from pbo_runtime.config.model import Location, Subsystem
 from pbo_runtime.config.placement import placement_report
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, plain
-from pbo_runtime.errors import ConfigError
+from pbo_runtime.errors import ConfigError, Note
 from pbo_runtime.objects import registry
 
 CANVAS_CONFIGURATION = "canvas"  # the configuration's name when the canvas did not start from one of the file's
@@ -168,6 +168,14 @@ def pin_of(origin: Origin, message: str, pins: Sequence[Pin]) -> str | None:
     return None
 
 
+def note_on_canvas(note: Note) -> dict[str, Any]:
+    """A related place of a diagnostic: the canvas task it is in, or the base file's line."""
+    origin = origin_of(note.file)
+    if origin is not None:
+        return {"message": note.message, "task": origin.task, "file": None, "line": None}
+    return {"message": note.message, "task": None, "file": note.file, "line": note.line}
+
+
 def diagnostic(error: ConfigError, pins: Mapping[str, Sequence[Pin]],
                params: Mapping[str, Sequence[str]] | None = None, names: Sequence[str] = ()) -> dict[str, Any]:
     """A diagnostic as the canvas shows it: E-code, message, hint, and the task, modifier and pin it belongs to.
@@ -185,7 +193,8 @@ def diagnostic(error: ConfigError, pins: Mapping[str, Sequence[Pin]],
         if named:
             origin = Origin(origin.task, "params", named[0])
     out: dict[str, Any] = {"code": error.code, "severity": error.severity, "message": error.message, "hint": error.hint,
-                           "task": None, "section": None, "key": None, "port": None}
+                           "task": None, "section": None, "key": None, "port": None,
+                           "notes": [note_on_canvas(note) for note in error.notes]}
     if origin is None:
         out.update(file=error.file, line=error.line, column=error.column)
         return out

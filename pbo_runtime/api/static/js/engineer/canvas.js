@@ -14,7 +14,8 @@ function curve(a, b) {
   return `M${a.x},${a.y} C${a.x + bend},${a.y} ${b.x - bend},${b.y} ${b.x},${b.y}`;
 }
 
-const label = (d) => `${d.code}: ${d.message}${d.hint ? ` (hint: ${d.hint})` : ""}`;
+const label = (d) => `${d.code}: ${d.message}${d.hint ? ` (hint: ${d.hint})` : ""}`
+  + (d.notes || []).map((n) => `\n  note: ${n.task || `${(n.file || "").split("/").pop()}:${n.line}`}: ${n.message}`).join("");
 
 function Badge({ diagnostics, x, y, pin }) {
   const worst = diagnostics.find((d) => d.severity === "error") || diagnostics[0];

@@ -80,7 +80,7 @@ export function TaskPanel({ task, module, rtpus, live, state, modules, onApply, 
     </section>`;
 }
 
-/** The checker's verdict on the canvas: each diagnostic with its E-code, where, message and hint. */
+/** The checker's verdict on the canvas: each diagnostic with its E-code, where, message and hint, and its notes: the related places. */
 export function CheckerList({ checked, pending }) {
   if (!checked) return html`<p class="muted" data-test="checker">Checking…</p>`;
   const shown = checked.diagnostics;
@@ -95,7 +95,9 @@ export function CheckerList({ checked, pending }) {
           <li class=${d.severity} data-code=${d.code}>
             <strong>${d.code}</strong> ${d.task ? html`<code>${d.task}${d.port ? "." + d.port : d.key ? " " + d.key : d.section ? " " + d.section : ""}</code>`
               : html`<code>${(d.file || "").split("/").pop()}:${d.line}</code>`}
-            ${" "}${d.message}${d.hint ? html`<br /><small>${d.hint}</small>` : ""}</li>`)}
+            ${" "}${d.message}${d.hint ? html`<br /><small>${d.hint}</small>` : ""}
+            ${(d.notes || []).length ? html`<ul class="notes">${d.notes.map((n) => html`
+              <li><small>note: <code>${n.task || `${(n.file || "").split("/").pop()}:${n.line}`}</code> ${n.message}</small></li>`)}</ul>` : ""}</li>`)}
       </ul>
     </section>`;
 }

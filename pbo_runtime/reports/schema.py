@@ -14,6 +14,7 @@ helps while editing; `pbo check` stays the judge (links, shapes, writers, const 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import types
@@ -23,10 +24,12 @@ from typing import Any
 
 from pbo_runtime.objects import registry
 from pbo_runtime.reports.lexicon import jsonable, param_hints, params_info, ports_depend_on_params
+from pbo_runtime.config.model import PlantSpec
 from pbo_runtime.config.units import DATA_RATE, FREQUENCY, SIZE, TIME, UNITS
 
 SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 SCHEMA_ID = "urn:pbo-runtime:subsystem-schema"
+_PLANT_KEYS = ("type", "model", "timestep")  # a plant section's own keys; the others are its options
 DTYPES = ("float64", "float32", "int64", "int32", "int16", "int8", "uint8", "uint16", "uint32", "uint64", "bool")
 
 # A number (as `config.units` reads it), then a unit; a bare number in a string is SI units.
@@ -108,7 +111,11 @@ def hint_schema(hint: Any) -> dict[str, Any]:
 
 def params_schema(module: str, cls: type) -> dict[str, Any]:
     """The `params:` of a task of this module: the fields of its `Params` dataclass."""
-    params_type = getattr(cls, "Params", None)
+    return fields_schema(getattr(cls, "Params", None), f"parameters of module '{module}'")
+
+
+def fields_schema(params_type: Any, description: str) -> dict[str, Any]:
+    """The fields of a dataclass as the checker converts YAML values to them (a module's Params, a plant's Options)."""
     hints = param_hints(params_type)
     properties: dict[str, Any] = {}
     required: list[str] = []
@@ -121,7 +128,27 @@ def params_schema(module: str, cls: type) -> dict[str, Any]:
         else:
             node["default"] = jsonable(info["default"])
         properties[info["name"]] = node
-    return _obj(properties, f"parameters of module '{module}'", tuple(required))
+    return _obj(properties, description, tuple(required))
+
+
+def plant_option_branches(plants: list[str]) -> list[dict[str, Any]]:
+    """Per registered plant that declares its `Options`: the option keys its `plant:` section may hold."""
+    branches = []
+    for plant in plants:
+        try:
+            options = getattr(registry.plant_class(plant), "Options", None)
+        except Exception:  # a broken plant: its section stays open
+            continue
+        if not (isinstance(options, type) and dataclasses.is_dataclass(options)):
+            continue
+        declared = fields_schema(options, f"options of plant '{plant}'")
+        condition: dict[str, Any] = {"properties": {"type": {"const": plant}}}
+        if plant != PlantSpec.type:  # the default plant also answers a section without `type:`
+            condition["required"] = ["type"]
+        branches.append({"if": condition, "then": {
+            "properties": declared["properties"],
+            "propertyNames": {"enum": [*_PLANT_KEYS, *declared["properties"]]}}})
+    return branches
 
 
 # --- the schema -------------------------------------------------------------------------------
@@ -167,6 +194,9 @@ def json_schema() -> dict[str, Any]:
         "the simulated world the devices live in; other keys are options of the plant",
         closed=False,
     )
+    option_branches = plant_option_branches(plants)
+    if option_branches:
+        plant["allOf"] = option_branches
     driver: dict[str, Any] = {"type": "string", "description": "the registered driver (entry point group 'pbo.drivers')"}
     if drivers:
         driver["enum"] = list(drivers)

@@ -20,6 +20,7 @@ import re
 import types
 import typing
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any
 
 from pbo_runtime.objects import registry
@@ -131,7 +132,7 @@ def fields_schema(params_type: Any, description: str) -> dict[str, Any]:
     return _obj(properties, description, tuple(required))
 
 
-def plant_option_branches(plants: list[str]) -> list[dict[str, Any]]:
+def plant_option_branches(plants: Sequence[str]) -> list[dict[str, Any]]:
     """Per registered plant that declares its `Options`: the option keys its `plant:` section may hold."""
     branches = []
     for plant in plants:

@@ -23,7 +23,7 @@ TINY = {
     "check_scale": {"sizes": (12, 30), "repeat": 1},
     "placement": {"tasks": 12, "repeat": 2, "check_repeat": 1},
     "links": {"quick": True, "rounds": 1},
-    "dora": {"seconds": 0.3, "rounds": 1},
+    "dora": {"seconds": 0.3, "rounds": 1, "schedulers": ("other",)},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.2, "run_seconds": 1.5},
     "data_log": {"seconds": 1.0, "rounds": 1},
     "api_stream": {"seconds": 1.0, "rounds": 1},
@@ -233,13 +233,15 @@ def test_the_dora_benchmark_is_skipped_with_its_reason_when_dora_is_not_installe
 @pytest.mark.multiprocess
 @pytest.mark.skipif(bool(DORA_MISSING), reason=DORA_MISSING)
 def test_a_tiny_dora_run_measures_every_way_and_leaves_no_process_or_shared_memory():
+    scheduler = "fifo" if dora_peer.fifo_permitted() else "other"  # fifo: every process of both sides at an RTPU's priority
     before = _bench_shared_memory()
-    section = dora_peer.run(seconds=0.3, rounds=1)
+    section = dora_peer.run(seconds=0.3, rounds=1, schedulers=(scheduler,))
 
     (table,) = section.tables
-    assert [row[0] for row in table.rows] == [dora_peer.LABELS[peer] for peer in dora_peer.PEERS]
+    assert [row[:2] for row in table.rows] == [[scheduler, dora_peer.LABELS[peer]] for peer in dora_peer.PEERS]
     assert not any("failed" in cell for row in table.rows for cell in row), table.rows
-    assert set(section.ratios) == {f"{peer} / dora-rs one-way {q}" for peer in ("triple buffer", "zenoh") for q in ("p50", "p99")}
+    assert set(section.ratios) == {f"{peer} / dora-rs one-way {q} ({scheduler})" for peer in ("triple buffer", "zenoh")
+                                   for q in ("p50", "p99")}
     assert _dora_processes() == []
     assert _bench_shared_memory() - before == set()
 
@@ -252,3 +254,11 @@ def test_a_dora_run_that_does_not_finish_in_time_is_stopped_with_all_its_nodes_a
         dora_peer.dora_round(5.0, patience=-3.5)  # given 1.5 s for a 5 s run
     assert _dora_processes() == []
     assert _bench_shared_memory() - before == set()
+
+
+@pytest.mark.skipif(bool(DORA_MISSING), reason=DORA_MISSING)
+def test_without_the_right_to_sched_fifo_the_fifo_rows_are_left_out_with_the_reason(monkeypatch):
+    monkeypatch.setattr(dora_peer, "fifo_permitted", lambda: False)
+    section = dora_peer.run(seconds=0.1, rounds=1, schedulers=("fifo",))
+    assert not section.tables and not section.ratios
+    assert "fifo: not measured" in section.text() and "ulimit -r" in section.text()

@@ -36,6 +36,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Set as AbstractSet
 from pathlib import Path
 from typing import Any
 
@@ -138,9 +139,8 @@ def stop_session(process: subprocess.Popen) -> None:
     process.wait()
 
 
-def remove_orphan_segments(before: set[str]) -> list[str]:
-    """Remove the shared-memory segments dora's own zenoh session made (`<number>.zenoh`) since `before`
-    that no process maps any more: dora removes them when it ends, not when it is killed."""
+def orphan_segments(before: AbstractSet[str] = frozenset()) -> list[str]:
+    """Shared-memory segments of a zenoh session (`<number>.zenoh`) made since `before` that no process maps."""
     made = [e for e in set(os.listdir("/dev/shm")) - before if ZENOH_SEGMENT.fullmatch(e)]
     if not made:
         return []
@@ -152,7 +152,13 @@ def remove_orphan_segments(before: set[str]) -> list[str]:
                     mapped |= {line.rsplit("/", 1)[-1].strip() for line in f if "/dev/shm/" in line}
             except OSError:
                 continue
-    removed = [e for e in made if e not in mapped]
+    return [e for e in made if e not in mapped]
+
+
+def remove_orphan_segments(before: AbstractSet[str]) -> list[str]:
+    """Remove the segments dora's own zenoh session made since `before` and left behind: dora removes
+    them when it ends, not when it is killed."""
+    removed = orphan_segments(before)
     for entry in removed:
         Path("/dev/shm", entry).unlink(missing_ok=True)
     return removed
@@ -194,7 +200,8 @@ def dora_round(seconds: float, patience: float = STARTUP_PATIENCE, fifo: bool = 
     finally:
         remove_orphan_segments(shm_before)
     kept = seqs > WARMUP_ITEMS
-    return {"sent": max(0, sent - WARMUP_ITEMS), "seen": int(np.unique(seqs[kept]).size), "latency_ns": latencies[kept]}
+    return {"due": max(0, int(seconds * 1e9 / PERIOD_NS) - WARMUP_ITEMS), "sent": max(0, sent - WARMUP_ITEMS),
+            "seen": int(np.unique(seqs[kept]).size), "latency_ns": latencies[kept]}
 
 
 # --- through our links -------------------------------------------------------------------------
@@ -209,7 +216,8 @@ def link_round(mechanism: str, seconds: float, fifo: bool = False) -> dict[str, 
     if done.returncode != 0:
         raise RuntimeError(f"{mechanism}: " + " / ".join(done.stderr.strip().splitlines()[-2:]))
     answer = json.loads(done.stdout.strip().splitlines()[-1])
-    return {"sent": answer["sent"], "seen": answer["seen"], "latency_ns": np.asarray(answer["latency_ns"], dtype=np.int64)}
+    return {"due": items, "sent": answer["sent"], "seen": answer["seen"],
+            "latency_ns": np.asarray(answer["latency_ns"], dtype=np.int64)}
 
 
 def _link_round_here(mechanism: str, items: int, fifo: bool) -> dict[str, Any]:
@@ -251,11 +259,13 @@ the item arrives in its process, as dora's sink is. A `link_receiver` task reads
 release, so in a running subsystem an item also waits for that task's next cycle (0 to 1 period):
 that wait is the same whatever carries the item, and is left out on both sides.
 
-**Lost**: items sent and never seen by the receiver. For a periodic link an item overwritten
-before the reader took it counts as lost (the link keeps only the newest, by design: a late
+**Lost**: items sent and never seen by the receiver. For a periodic link (either transport) an
+item overwritten before the reader took it counts as lost (the link keeps only the newest, by design: a late
 sender catches up and a late reader skips); for dora, an item dropped or never delivered (its
 sink queues items, so a late sink catches up instead). dora's timer skips the ticks it could not
-deliver on time, so under load its source sends fewer items: lost % is of the items each sent.
+deliver on time, so under load its source sends fewer items: lost % is of the items each sent,
+and **seen of 1 kHz %** is of the items a 1 kHz schedule was due to send over the same seconds
+(what the receiver got, whichever side of the exchange fell behind).
 
 Each side runs under the same scheduler: **fifo**, every process of both (dora's daemon and
 nodes included) at SCHED_FIFO {FIFO_PRIORITY}, the priority of an RTPU, which is how a subsystem's tasks run
@@ -294,15 +304,15 @@ p99 column mostly measures the hypervisor.""",
                     failed[key] = f"failed: {str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__}"
                     continue
                 pooled.setdefault(key, []).append(result)
-    table = Table(["scheduler", "way", "time taken at", "sent", "lost", "lost %", "p50 µs", "p99 µs", "max µs", "p50 / dora",
-                   "p99 / dora"], numeric=(3, 4, 5, 6, 7, 8, 9, 10),
+    table = Table(["scheduler", "way", "time taken at", "sent", "lost", "lost %", "seen of 1 kHz %", "p50 µs", "p99 µs", "max µs",
+                   "p50 / dora", "p99 / dora"], numeric=(3, 4, 5, 6, 7, 8, 9, 10, 11),
                   caption=f"dora-rs {package_version('dora-rs')}; one-way latency at 1 kHz, 48-byte items")
     for scheduler in schedulers:
         figures = {peer: _figures(pooled[scheduler, peer]) for peer in PEERS if (scheduler, peer) in pooled}
         dora = figures.get("dora-rs")
         for peer in PEERS:
             if (scheduler, peer) in failed or peer not in figures:
-                table.add(scheduler, LABELS[peer], MEASURES[peer], failed.get((scheduler, peer), "failed"), "", "", "", "", "", "", "")
+                table.add(scheduler, LABELS[peer], MEASURES[peer], failed.get((scheduler, peer), "failed"), "", "", "", "", "", "", "", "")
                 continue
             f = figures[peer]
             r50 = ratio(f["p50"], dora["p50"]) if dora else None
@@ -312,7 +322,8 @@ p99 column mostly measures the hypervisor.""",
                     if value is not None:
                         section.ratios[f"{peer} / dora-rs one-way {q} ({scheduler})"] = value
             table.add(scheduler, LABELS[peer], MEASURES[peer], f"{int(f['sent']):,}", f"{int(f['lost']):,}",
-                      f"{100 * f['lost'] / f['sent']:.2f}" if f["sent"] else "n/a", us(f["p50"], ns=True), us(f["p99"], ns=True),
+                      f"{100 * f['lost'] / f['sent']:.2f}" if f["sent"] else "n/a",
+                      f"{100 * f['seen'] / f['due']:.1f}" if f["due"] else "n/a", us(f["p50"], ns=True), us(f["p99"], ns=True),
                       us(f["max"], ns=True), "1.00x" if peer == "dora-rs" else fmt_ratio(r50),
                       "1.00x" if peer == "dora-rs" else fmt_ratio(r99))
         if dora and "triple buffer" in figures:
@@ -331,7 +342,7 @@ def _figures(results: list[dict[str, Any]]) -> dict[str, float]:
     latency = np.concatenate([r["latency_ns"] for r in results])
     sent, seen = sum(r["sent"] for r in results), sum(r["seen"] for r in results)
     p50, p99 = percentiles(latency)
-    return {"sent": sent, "seen": seen, "lost": max(0, sent - seen), "p50": p50, "p99": p99,
+    return {"due": sum(r["due"] for r in results), "sent": sent, "seen": seen, "lost": max(0, sent - seen), "p50": p50, "p99": p99,
             "max": float(latency.max()) if latency.size else float("nan")}
 
 

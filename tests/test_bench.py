@@ -213,7 +213,14 @@ def _dora_processes() -> list[str]:
 
 
 def _bench_shared_memory() -> set[str]:
-    return {e for e in os.listdir("/dev/shm") if e.startswith(("pbo.bench.", "sem.pbo.bench.")) or dora_peer.ZENOH_SEGMENT.fullmatch(e)}
+    """Benchmark segments in /dev/shm whose maker is gone (a live benchmark elsewhere on the machine owns its own)."""
+    orphans = set(dora_peer.orphan_segments())
+    for entry in os.listdir("/dev/shm"):
+        if entry.removeprefix("sem.").startswith("pbo.bench."):
+            maker = entry.removeprefix("sem.").removeprefix("pbo.bench.").split("-", 1)[0]
+            if not (maker.isdigit() and os.path.exists(f"/proc/{maker}")):
+                orphans.add(entry)
+    return orphans
 
 
 DORA_MISSING = dora_peer.missing()

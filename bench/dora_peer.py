@@ -230,6 +230,7 @@ def _link_round_here(mechanism: str, items: int, fifo: bool) -> dict[str, Any]:
     results = links.measure(contender, ITEM_BYTES, items, (PERIOD_NS, POLL_NS), sleep=True)
     _samples, sent, _ = results["write"]
     _samples, seen, ages = results["read"]
+    assert ages is not None, f"{contender}: a link that stamps its items gives their ages"
     column = 1 if mechanism == "zenoh" else 0  # zenoh: arrival in the process; triple buffer: the read that got it
     return {"sent": int(sent), "seen": int(seen), "latency_ns": [int(a) for a in ages[:, column]]}
 

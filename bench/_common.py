@@ -181,7 +181,7 @@ def machine_info() -> dict[str, str]:
         "kernel": f"{platform.system()} {platform.release()}",
         "python": f"{platform.python_implementation()} {platform.python_version()}",
         "numpy": np.__version__,
-        "peers": ", ".join(f"{p} {package_version(p)}" for p in ("pyzmq", "iceoryx2", "eclipse-zenoh")),
+        "peers": ", ".join(f"{p} {package_version(p)}" for p in ("pyzmq", "iceoryx2", "eclipse-zenoh", "dora-rs")),
         "load average at start": " ".join(f"{x:.2f}" for x in load),
         "user": "root" if os.geteuid() == 0 else "not root (SCHED_FIFO needs CAP_SYS_NICE)",
     }

@@ -47,6 +47,7 @@ import time
 import numpy as np
 import posix_ipc
 
+from pbo_runtime.clock.clocks import lower_timer_slack
 from pbo_runtime.ipc import messages
 from pbo_runtime.links.triple_buffer import Freshness, LinkLayout, TripleBuffer
 from pbo_runtime.links.zenoh_link import ZenohLink, free_port
@@ -92,10 +93,12 @@ class _TripleEnd:
         else:
             for slot in self._link._payloads:  # fault in all three slots' pages before timing
                 np.copyto(out, slot)
+            self._link.read(out)  # the sender's warm-up items are all written by now: take the newest, as zenoh's reader does
+            self._last = self._link.counter
 
     def items(self) -> int:
         stats = self._link.statistics()
-        return stats.writes - WARM_WRITES if self._role == "sender" else stats.new
+        return stats.writes - WARM_WRITES if self._role == "sender" else stats.new - 1
 
     def age(self) -> tuple[int, int] | None:
         """(now - stamp, -1) in ns after the read that first got an item; None after any other read."""
@@ -322,7 +325,16 @@ def _attach(name: str) -> mmap.mmap:
 # --- the two processes ------------------------------------------------------------------------
 
 
-def _sender(contender, nbytes: int, items: int, period: int, start, finished, results) -> None:
+def _doze(release: int) -> None:
+    """Sleep until `release` (perf_counter ns), as a periodic task does, instead of spinning to it."""
+    delay = release - time.perf_counter_ns()
+    if delay > 0:
+        time.sleep(delay / 1e9)
+
+
+def _sender(contender, nbytes: int, items: int, period: int, start, finished, results, sleep: bool = False) -> None:
+    if sleep:
+        lower_timer_slack()
     end = contender.end(nbytes, "sender")
     value = np.ones(nbytes, dtype=np.uint8)
     samples = np.empty(items, dtype=np.int64)
@@ -333,6 +345,8 @@ def _sender(contender, nbytes: int, items: int, period: int, start, finished, re
         start.wait()
         release = clock()
         for i in range(items):
+            if sleep:
+                _doze(release)
             while clock() < release:
                 pass
             t0 = clock()
@@ -345,7 +359,9 @@ def _sender(contender, nbytes: int, items: int, period: int, start, finished, re
     end.close()
 
 
-def _reader(contender, nbytes: int, items: int, period: int, start, finished, results) -> None:
+def _reader(contender, nbytes: int, items: int, period: int, start, finished, results, sleep: bool = False) -> None:
+    if sleep:
+        lower_timer_slack()
     end = contender.end(nbytes, "reader")
     out = np.ones(nbytes, dtype=np.uint8)
     samples = np.empty(items * READS_PER_WRITE_CAP, dtype=np.int64)
@@ -359,6 +375,8 @@ def _reader(contender, nbytes: int, items: int, period: int, start, finished, re
     count = 0
     release = clock()
     while count == 0 or not finished.value:  # until the sender is done: a queue's sender may be waiting for us
+        if sleep:
+            _doze(release)
         while clock() < release:
             pass
         t0 = clock()
@@ -374,18 +392,20 @@ def _reader(contender, nbytes: int, items: int, period: int, start, finished, re
     end.close()
 
 
-def measure(mechanism: str, nbytes: int, items: int, periods: tuple[int, int]) -> dict[str, tuple[np.ndarray, int, np.ndarray | None]]:
+def measure(mechanism: str, nbytes: int, items: int, periods: tuple[int, int],
+            sleep: bool = False) -> dict[str, tuple[np.ndarray, int, np.ndarray | None]]:
     """{side: (latencies in ns, items written or read, one-way ns per new item)} of one contender, two processes.
 
-    Periods in ns (sender, reader). The one-way array (reader only, stamped links only) has two
+    Periods in ns (sender, reader); each side spins to its next release, or sleeps to it (`sleep`,
+    with the timer slack lowered, as an RTPU does). The one-way array (reader only, stamped links only) has two
     columns: stamp to read, stamp to arrival in the reader's process (-1 where not known).
     """
     contender = CONTENDERS[mechanism](nbytes)
     start, finished = FORK.Barrier(2), FORK.RawValue("b", 0)
     pipes = {side: FORK.Pipe(duplex=False) for side in ("write", "read")}
     children = {
-        "write": FORK.Process(target=_sender, args=(contender, nbytes, items, periods[0], start, finished, pipes["write"][1])),
-        "read": FORK.Process(target=_reader, args=(contender, nbytes, items, periods[1], start, finished, pipes["read"][1])),
+        "write": FORK.Process(target=_sender, args=(contender, nbytes, items, periods[0], start, finished, pipes["write"][1], sleep)),
+        "read": FORK.Process(target=_reader, args=(contender, nbytes, items, periods[1], start, finished, pipes["read"][1], sleep)),
     }
     try:
         for child in children.values():

@@ -16,8 +16,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from bench import (api_stream, check_scale, data_log, faults, hmi_latency, hmi_load, links, peers, placement, realtime, scale,
-                   svar_transfer, switching, wait)
+from bench import (api_stream, check_scale, data_log, dora_peer, faults, hmi_latency, hmi_load, links, peers, placement, realtime,
+                   scale, svar_transfer, switching, wait)
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -30,6 +30,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "check_scale": check_scale.run,
     "placement": placement.run,
     "links": links.section,
+    "dora": dora_peer.run,
     "faults": faults.run,
     "data_log": data_log.run,
     "api_stream": api_stream.run,
@@ -47,6 +48,7 @@ FULL: dict[str, dict[str, Any]] = {
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 3},
     "placement": {"tasks": 102, "repeat": 200, "check_repeat": 5},
     "links": {},
+    "dora": {"seconds": 5.0, "rounds": 3, "schedulers": ("fifo", "other")},
     "faults": {"stop_seconds": 2.0},
     "data_log": {"seconds": 10.0, "rounds": 6},
     "api_stream": {"seconds": 120.0, "rounds": 12},
@@ -64,6 +66,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "check_scale": {"sizes": (102, 1002), "repeat": 1},
     "placement": {"tasks": 102, "repeat": 20, "check_repeat": 1},
     "links": {"quick": True},
+    "dora": {"seconds": 1.0, "rounds": 1, "schedulers": ("fifo",)},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.5, "run_seconds": 2.0},
     "data_log": {"seconds": 2.0, "rounds": 1},
     "api_stream": {"seconds": 2.0, "rounds": 2},
@@ -135,7 +138,7 @@ def render(sections: list[Section], info: dict[str, str], command: str, elapsed:
         "",
         "Each benchmark also runs alone and prints its tables; the command is given in its section.",
         "The peers are the optional `bench` extra (`pip install -e '.[bench]'`: pyzmq, iceoryx2,",
-        "eclipse-zenoh); a peer that is not installed is reported as such.",
+        "eclipse-zenoh, dora-rs); a peer that is not installed is reported as such.",
         "",
     ]
     for s in sections:

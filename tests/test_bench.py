@@ -9,7 +9,7 @@ import os
 import numpy as np
 import pytest
 
-from bench import peers, run_all
+from bench import dora_peer, peers, run_all
 from bench._common import machine_info
 
 TINY = {
@@ -23,6 +23,7 @@ TINY = {
     "check_scale": {"sizes": (12, 30), "repeat": 1},
     "placement": {"tasks": 12, "repeat": 2, "check_repeat": 1},
     "links": {"quick": True, "rounds": 1},
+    "dora": {"seconds": 0.3, "rounds": 1, "schedulers": ("other",)},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.2, "run_seconds": 1.5},
     "data_log": {"seconds": 1.0, "rounds": 1},
     "api_stream": {"seconds": 1.0, "rounds": 1},
@@ -195,3 +196,76 @@ def test_a_round_whose_bare_loops_fail_stops_its_run_and_leaves_no_shared_memory
         paired_round(loops, config_path(1), 1, 0.001, 60.0, fifo=False)  # type: ignore[arg-type]
     assert len(loops.commands) == 1
     assert objects_of_the_run() - before == set()
+
+
+def _dora_processes() -> list[str]:
+    """Command lines of live processes of a dora benchmark run (its work folder is in their arguments)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        try:
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                command = f.read().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if "pbo-bench-dora-" in command:
+            found.append(command)
+    return found
+
+
+def _bench_shared_memory() -> set[str]:
+    """Benchmark segments in /dev/shm whose maker is gone (a live benchmark elsewhere on the machine owns its own)."""
+    orphans = set(dora_peer.orphan_segments())
+    for entry in os.listdir("/dev/shm"):
+        if entry.removeprefix("sem.").startswith("pbo.bench."):
+            maker = entry.removeprefix("sem.").removeprefix("pbo.bench.").split("-", 1)[0]
+            if not (maker.isdigit() and os.path.exists(f"/proc/{maker}")):
+                orphans.add(entry)
+    return orphans
+
+
+DORA_MISSING = dora_peer.missing()
+
+
+def test_the_dora_benchmark_is_skipped_with_its_reason_when_dora_is_not_installed(monkeypatch):
+    import importlib.util
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *rest: None if name == "dora" else find_spec(name, *rest))
+    assert dora_peer.dora_command() is None
+    section = dora_peer.run(seconds=0.1, rounds=1)
+    assert not section.tables and not section.ratios and not section.targets
+    assert "not installed" in section.text() and "pip install" in section.text()
+
+
+@pytest.mark.multiprocess
+@pytest.mark.skipif(bool(DORA_MISSING), reason=DORA_MISSING)
+def test_a_tiny_dora_run_measures_every_way_and_leaves_no_process_or_shared_memory():
+    scheduler = "fifo" if dora_peer.fifo_permitted() else "other"  # fifo: every process of both sides at an RTPU's priority
+    before = _bench_shared_memory()
+    section = dora_peer.run(seconds=0.3, rounds=1, schedulers=(scheduler,))
+
+    (table,) = section.tables
+    assert [row[:2] for row in table.rows] == [[scheduler, dora_peer.LABELS[peer]] for peer in dora_peer.PEERS]
+    assert not any("failed" in cell for row in table.rows for cell in row), table.rows
+    assert set(section.ratios) == {f"{peer} / dora-rs one-way {q} ({scheduler})" for peer in ("triple buffer", "zenoh")
+                                   for q in ("p50", "p99")}
+    assert _dora_processes() == []
+    assert _bench_shared_memory() - before == set()
+
+
+@pytest.mark.multiprocess
+@pytest.mark.skipif(bool(DORA_MISSING), reason=DORA_MISSING)
+def test_a_dora_run_that_does_not_finish_in_time_is_stopped_with_all_its_nodes_and_their_shared_memory():
+    before = _bench_shared_memory()
+    with pytest.raises(RuntimeError, match="did not finish within"):
+        dora_peer.dora_round(5.0, patience=-3.5)  # given 1.5 s for a 5 s run
+    assert _dora_processes() == []
+    assert _bench_shared_memory() - before == set()
+
+
+@pytest.mark.skipif(bool(DORA_MISSING), reason=DORA_MISSING)
+def test_without_the_right_to_sched_fifo_the_fifo_rows_are_left_out_with_the_reason(monkeypatch):
+    monkeypatch.setattr(dora_peer, "fifo_permitted", lambda: False)
+    section = dora_peer.run(seconds=0.1, rounds=1, schedulers=("fifo",))
+    assert not section.tables and not section.ratios
+    assert "fifo: not measured" in section.text() and "ulimit -r" in section.text()

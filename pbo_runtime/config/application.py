@@ -88,6 +88,7 @@ class Application:
     hosts: dict[str, str] = field(default_factory=dict)  # host name -> its address (the file's, or the command line's)
     placement: dict[str, str] = field(default_factory=dict)  # subsystem -> the host it runs on (absent: none named)
     entry_locs: dict[str, Location] = field(default_factory=dict)  # subsystem -> where the application file names it
+    hosts_refused: bool = False  # hosts: was not a mapping (reported once: no error per host named)
 
     def listening_subsystem(self, link: str) -> str:
         """The subsystem whose end of zenoh link `link` listens: the periodic sender, or the message server."""
@@ -223,6 +224,7 @@ def _check_hosts(root: YMap, application: Application, addresses: dict[str, str]
     if not isinstance(entries, YMap):
         error("E809", "hosts must map each host's name to its address", location_of(entries, root.loc),
               "e.g. hosts: {arm-a: 10.0.0.1, arm-b: 10.0.0.2}")
+        application.hosts_refused = True
         return
     for name, address in entries.items():
         loc = entries.value_loc(name)
@@ -232,6 +234,7 @@ def _check_hosts(root: YMap, application: Application, addresses: dict[str, str]
         if not isinstance(address, str) or not _ADDRESS.match(address):
             error("E809", f"host '{name}': address must be a host name or an IPv4 address, got {address!r}", loc,
                   "e.g. arm-a: 10.0.0.1 (or leave it empty, ~, and give it with --address arm-a=10.0.0.1)")
+            application.hosts[name] = str(address)  # reported: its subsystems are not told again
             continue
         application.hosts[name] = address
     for name, address in addresses.items():
@@ -257,6 +260,9 @@ def _place(key: str, entry: YMap, application: Application, error) -> None:
     """Subsystem `key`'s `host:`: a host of `hosts:` with an address."""
     host = entry["host"]
     loc = entry.value_loc("host")
+    if application.hosts_refused:
+        application.placement[key] = str(host)
+        return
     if not isinstance(host, str) or not host:
         error("E810", f"subsystem '{key}': host must name a host of hosts:, got {host!r}", loc, "e.g. host: arm-a")
         return

@@ -151,9 +151,12 @@ def test_a_link_endpoint_in_the_file_wins_over_the_hosts_address(tmp_path):
     (["--host", "arm-bb"], "--host arm-bb: application 'placed' has no such host; did you mean 'arm-b'?"),
     (["--host", "arm-a", "--address", "arm-a"], "--address takes HOST=ADDRESS"),
     (["--host", "arm-b", "--address", "arm-z=10.0.0.3"], "--address names host 'arm-z'"),
+    (["--host", "arm-b"], "is a subsystem file: run it without them"),
 ])
 def test_pbo_run_refuses_a_wrong_host_or_address_in_one_line(tmp_path, arguments, wanted):
-    done = subprocess.run([*PBO, "run", write_placed_app(tmp_path), *arguments, "--duration", "0.1"],
+    app = write_placed_app(tmp_path)
+    file = str(tmp_path / "follower.yaml") if "subsystem file" in wanted else app
+    done = subprocess.run([*PBO, "run", file, *arguments, "--duration", "0.1"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert done.returncode == 1, done.stdout + done.stderr
     assert wanted in " ".join(done.stderr.split()) and "Traceback" not in done.stderr

@@ -388,6 +388,10 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
     if is_application_file(args.file):
         return _run_application(args, console, errors)
+    if args.host is not None or args.address:
+        errors.print(f"error: --host and --address place an application's subsystems on machines; {args.file} is a "
+                     "subsystem file: run it without them, or run the application file that names it", markup=False)
+        return EXIT_CONFIG
     subsystem = load_subsystem(args.file)
     live = console.is_terminal and not args.no_live
     duration = args.duration if args.duration > 0 else None

@@ -49,7 +49,7 @@ def test_the_shipped_application_checks_clean_and_names_each_link_end():
 
 
 def test_a_task_naming_an_undeclared_link_is_located_on_the_task(tmp_path):
-    follower = (REPO / "configs" / "follower.yaml").read_text().replace("params: {link: arm_state,", "params: {link: arm_stat,")
+    follower = (REPO / "configs" / "follower.yaml").read_text().replace("params: {link: arm_state}", "params: {link: arm_stat}")
     result = check_application(write_app(tmp_path, follower=follower))
     assert "E804" in codes(result)
     error = next(e for e in result.errors if e.code == "E804")

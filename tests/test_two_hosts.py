@@ -106,8 +106,13 @@ def two_hosts():
 
 
 def write_two_host_app(folder: Path) -> Path:
-    """configs/leader_follower.yaml with hosts: leader and operator on arm-a, the follower on arm-b, arm_state over zenoh."""
-    (folder / "follower.yaml").write_text((REPO / "configs" / "follower.yaml").read_text())
+    """configs/leader_follower.yaml with hosts: leader and operator on arm-a, the follower on arm-b, arm_state over
+zenoh, the follower's receiver with fresh_within: 0.5, as docs/subsystems.md shows it."""
+    follower = (REPO / "configs" / "follower.yaml").read_text()
+    assert "params: {link: arm_state}" in follower
+    # on another machine than the leader: past 0.5 s without a new item, the follower's robot holds
+    (folder / "follower.yaml").write_text(follower.replace("params: {link: arm_state}",
+                                                           "params: {link: arm_state, fresh_within: 0.5}"))
     # arm-a's loggers left out: a logger starved on a loaded machine fails its subsystem, and arm-a's runner
     # then stops the leader (the leader's figures are in its report; the follower's log has what is asserted)
     leader = (REPO / "configs" / "leader.yaml").read_text()

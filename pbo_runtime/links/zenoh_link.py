@@ -54,7 +54,8 @@ from pbo_runtime.links.triple_buffer import (
 )
 
 LOOPBACK = "127.0.0.1"
-DEFAULT_WAIT = 5.0  # seconds an attaching end waits for the creating end's session
+DEFAULT_WAIT = 5.0  # seconds an attaching end waits for the creating end's session (an application's message sender;
+# its periodic reader does not wait: `wait=None`, it connects whenever the sender listens)
 ANSWER_TIMEOUT = 1.0  # seconds a query of the other end's description waits for replies
 ITEM_FORMAT = 0x5042_4F5F_5A4E_0001  # "PBO_ZN", wire format 1: the first word of every item
 ITEM_HEADER = struct.Struct("<qqqqqq")  # format, layout hash, sender epoch, counter, stamp ns, reserved

@@ -190,8 +190,10 @@ def test_the_follower_on_another_machine_tracks_the_leader_and_rides_out_a_parti
     try:
         wait_for("[operator] run summary", leader_said, leader)  # the operator's tour is done: the leader holds its goal
         wait_for("[follower] pbo: configuration 'follow' is on", follower_said, follower)
-        # the first item came: the follower's wait for the leader ended by itself
-        wait_for("[follower] pbo: task 'receive' is back to its cycle", follower_said, follower)
+        time.sleep(1.0)
+        if "[follower] pbo: task 'receive' has no fresh input" in follower_said.read_text():
+            # it waited for the leader, holding its arm: the first item ends that by itself
+            wait_for("[follower] pbo: task 'receive' is back to its cycle", follower_said, follower)
         time.sleep(1.0)  # the follower tracks the leader a while
         _ip("-n", NETNS["arm-a"], "link", "set", VETH["arm-a"], "down")
         time.sleep(PARTITION)
@@ -223,11 +225,9 @@ def test_the_follower_on_another_machine_tracks_the_leader_and_rides_out_a_parti
     episodes = report["stable_episodes"]
     receiver = [e for e in episodes if e["task"] == "receive" and e["cause"] == "module"]
     robot = [e for e in episodes if e["task"] == "robot" and e["cause"] == "upstream"]
-    # waiting for the leader at the start, then the partition: each ended by itself
-    assert len(receiver) >= 2 and all(e["to"] is not None for e in receiver), episodes
-    assert receiver[0]["while_starting"], episodes  # waiting for the leader is no fault
-    assert all(e["to"] is not None for e in robot), episodes
-    partition = [e for e in receiver if not e["while_starting"]]
+    # waiting for the leader at the start (if the follower came on first), then the partition
+    assert all(e["to"] is not None for e in receiver + robot), episodes  # each ended by itself
+    partition = [e for e in receiver if not e["while_starting"]]  # (waiting for the leader at the start is no fault)
     assert partition, episodes
     # the robot held its arm while the link's item was past its bound, and came back by itself
     assert any(p["from"] <= e["from"] <= p["to"] for p in partition for e in robot), episodes

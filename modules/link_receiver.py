@@ -3,19 +3,40 @@
 Every cycle it copies the newest complete item into its output (the data is placed on its
 output port, TR §5), and publishes how it fared: `link_lost` counts items the sender published
 that this end never read (the sender is faster), `link_reused` cycles that found no new item
-(the sender is slower), and `link_age` the age of what was read, in seconds, from the sender's
-time stamp to this cycle's release (0 for an item published between the release and the read).
-Before the first item arrives the output keeps its initial value.
+(the sender is slower), and `link_age` the age of what was read, in seconds, from the item's
+time stamp on this machine's clock to this cycle's release (0 for an item published between the
+release and the read). Before the first item arrives the output keeps its initial value.
+
+`fresh_within` (seconds, 0: never) bounds how long it may go without a new item, judged on this
+task's own clock from the cycle that got the last one (an arrival: no other machine's clock is
+read). Past it, before the first item too, its cycle returns `Status.STABLE`: it says its input
+is not fresh, and the critical tasks of its configuration run their locally stable behaviour
+until a new item comes (docs/faults.md). Rewriting the last item would hide a partition from them.
 """
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from modules._link_params import LinkParams
 from pbo_runtime import ANY_DTYPE, OutVar, PortBasedObject, Status
 
-LinkReceiverParams = LinkParams
+NEW = 2  # what a link's read returns for an item newer than the last (links.triple_buffer.Freshness.NEW)
+
+
+@dataclass(frozen=True)
+class LinkReceiverParams(LinkParams):
+    link: str  # the link's name in the application file's `links:`
+    fresh_within: float = 0.0  # s without a new item before the critical tasks hold; 0: never (the last item is kept)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not isinstance(self.fresh_within, (int, float)) or isinstance(self.fresh_within, bool) \
+                or not math.isfinite(self.fresh_within) or self.fresh_within < 0:
+            raise ValueError(f"fresh_within must be seconds >= 0 (0: never), got: {self.fresh_within!r}")
 
 
 class LinkReceiver(PortBasedObject):
@@ -30,6 +51,11 @@ class LinkReceiver(PortBasedObject):
         self._value, self._counts = self.bound_arrays[0], self.bound_arrays[1]
         self._link = self.open_link(params.link, self._value, role="reader")
         self._staging = np.zeros_like(self._value)  # read here, so the output keeps its value until an item came
+        self._fresh_within = float(params.fresh_within) if params.fresh_within > 0 else math.inf
+        self._new_at = -math.inf  # this task's time of the cycle that got the newest item (none yet)
+
+    def on(self) -> None:
+        self._new_at = -math.inf if self._link.counter == 0 else self.time  # a bound counts from now, not from before off
 
     def cycle(self) -> Status:
         link = self._link
@@ -39,6 +65,10 @@ class LinkReceiver(PortBasedObject):
             counts = self._counts
             counts[0] = link.lost
             counts[1] = link.reused
-            age = self.time - link.stamp_ns * 1e-9
+            age = self.time - link.local_stamp_ns * 1e-9
             counts[2] = age if age > 0.0 else 0.0  # stamped after this cycle's release (before its read): fresh
+            if fresh == NEW:
+                self._new_at = self.time
+        if self.time - self._new_at > self._fresh_within:
+            return Status.STABLE  # no new item for too long: what this task writes is stale
         return Status.CONTINUE

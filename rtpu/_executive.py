@@ -46,11 +46,12 @@ AGE_TOLERANCE = 1e-7  # seconds: an input exactly one producer period old is fre
 # periods when both run at one rate).
 FRESH_WITHIN_WRITER_PERIODS = 2.0
 # Why a critical task runs its locally stable behaviour (the cycle's `held`)
-NOT_HELD, HELD_ILLEGAL, HELD_STALE_INPUT, HELD_BY_MODULE = 0, 1, 2, 3
+NOT_HELD, HELD_ILLEGAL, HELD_STALE_INPUT, HELD_BY_MODULE, HELD_UPSTREAM = 0, 1, 2, 3, 4
 # Header words read before every release, as plain ints (through a memoryview: no numpy scalar each time)
 _FLAGS, _STOPPING, _STATIC_SWITCH = int(Header.FLAGS), int(Flag.STOPPING), int(Flag.STATIC_SWITCH)
 _PLAN_SEQUENCE, _PLAN_TIME_NS = int(Header.PLAN_SEQUENCE), int(Header.PLAN_TIME_NS)
 _TASKS_IN_ERROR = int(Header.TASKS_IN_ERROR)
+_TASKS_NOT_FRESH = int(Header.TASKS_NOT_FRESH)
 OVERRUNS_KEPT = 8  # the last overruns kept per task (release, lateness, execution time) for the run report
 
 
@@ -332,6 +333,8 @@ class Executive:
             elif expired >= 0:
                 held = HELD_STALE_INPUT
                 s.expired_reads += 1
+            elif self._upstream_not_fresh():
+                held = HELD_UPSTREAM
             if held:
                 result = task.run_read_stable_cycle(release)
             else:
@@ -461,9 +464,17 @@ class Executive:
             cause = "stale"
         elif held == HELD_BY_MODULE:
             reason, cause = "the module's own inputs are not fresh (its cycle returned STABLE)", "module"
+        elif held == HELD_UPSTREAM:
+            reason, cause = ("a task upstream has no fresh input (its cycle returned STABLE: a link's item past its "
+                             "bound)"), "upstream"
         else:
             reason, cause = "the configuration is illegal (a task in ERROR, or a switch that overran a cycle)", "illegal"
         self.report(Stable(s.task.name, True, start, reason, cause))
+
+    def _upstream_not_fresh(self) -> bool:
+        """True while job control counts a task of the configuration whose cycle says its inputs are not fresh."""
+        words = self.header_words
+        return words is not None and words[_TASKS_NOT_FRESH] > 0
 
     def _configuration_illegal(self, now: float, period: float) -> bool:
         """True while a task of the configuration is in ERROR or a switch has overrun a cycle."""

@@ -18,7 +18,7 @@ from pbo_runtime.supervisor.events import STABLE_EPISODES_TOLD, EventHandling
 from pbo_runtime.supervisor.run_report import BRIEF_HOLD_PERIODS, BRIEF_HOLDS_SHARE, RunResult, stable_episode_lines
 from pbo_runtime.table.table import Header, StateTable, TableLayout
 from pbo_runtime.task.lifecycle import Task
-from rtpu._executive import HELD_ILLEGAL, HELD_STALE_INPUT, NOT_HELD, Executive
+from rtpu._executive import HELD_ILLEGAL, HELD_STALE_INPUT, HELD_UPSTREAM, NOT_HELD, Executive
 from tests.support import IdleSignals, step_executives, unique_name
 
 PERIOD = 0.001
@@ -236,6 +236,23 @@ def test_a_module_that_returns_stable_is_reported_as_a_stable_episode_and_resume
     assert actuator.task.state.name == "ON"
 
 
+def test_a_critical_task_holds_while_a_task_upstream_says_its_input_is_not_fresh_and_resumes_by_itself(rig):
+    # job control counts, in the header, the tasks that are not critical and whose cycle returned STABLE
+    # (a link_receiver whose item is past its bound): what they write is stale, so critical tasks hold
+    clock, executives, events, actuator = rig()
+    header = executives["rtpu0"].header
+    step_executives(executives, clock, clock.now() + 0.005)
+    header[Header.TASKS_NOT_FRESH] = 1
+    step_executives(executives, clock, clock.now() + 0.005)
+    assert actuator.held_for == HELD_UPSTREAM and actuator.stable_cycles == 5
+    header[Header.TASKS_NOT_FRESH] = 0
+    step_executives(executives, clock, clock.now() + 0.005)
+    entering, leaving = stable_events(events)
+    assert (entering.cause, entering.entering, leaving.entering) == ("upstream", True, False)
+    assert "a task upstream has no fresh input" in entering.reason
+    assert actuator.held_for == NOT_HELD and len(actuator.task.module.cycles) == 10
+
+
 # --- what the run report makes of the episodes: faults, or timing ---------------------------------
 
 ON_AT = 100.0  # the configuration came on (run clock seconds)
@@ -307,3 +324,12 @@ def test_a_hold_for_an_illegal_configuration_is_told_even_after_many_holds_for_l
     assert heard.lines[2 * STABLE_EPISODES_TOLD - 1].endswith("its further holds for late inputs are counted in the summary, not told")
     assert heard.lines[-1].startswith("critical task 'robot' is back to its cycle after 1.0 ms")
     assert len(heard.result.stable_episodes) == STABLE_EPISODES_TOLD + 4
+
+
+def test_a_receiver_without_fresh_items_is_the_fault_and_the_robots_hold_it_caused_is_not_told_twice():
+    receiver = {**episode(1.0, 0.6, "module"), "task": "receive"}
+    held = episode(1.01, 0.6, "upstream")
+    faults, timing = stable_episode_lines([receiver, held], {"robot": ROBOT_PERIOD, "receive": 0.002}, ON_AT, 5.0,
+                                          critical={"robot"})
+    assert timing == [] and len(faults) == 1
+    assert faults[0].startswith("task 'receive' had no fresh input for 600.0 ms, from 1.000 s into the run")

@@ -381,3 +381,56 @@ def test_messages_from_another_process_round_trip_highest_priority_first_and_a_f
         finally:
             child.join(SAFETY_NET)
         assert child.exitcode == 0
+
+
+# --- clocks of two machines -------------------------------------------------------------------------
+
+SENDER_AHEAD_NS = 1_000 * 10**9  # the sender's CLOCK_MONOTONIC reads 1000 s more than the reader's
+
+
+@pytest.mark.parametrize("sender_clock_offset_ns", [SENDER_AHEAD_NS, -SENDER_AHEAD_NS, 0])
+def test_an_items_local_stamp_is_on_the_readers_clock_whatever_the_senders_clock_reads(lone_reader, sender_clock_offset_ns):
+    # Items sent every 2 ms (sender's clock) arrive 0.3 ms, then 0.1 ms, then 5 ms later (reader's clock): the
+    # stamps are moved by the smallest (arrival - stamp), so the quickest item's local stamp is its arrival and
+    # the late one shows its lateness; the sender's clock offset never makes an item older or younger.
+    layout = lone_reader.layout
+    arrivals = []
+    for counter, (sent_at, transfer) in enumerate([(0, 300_000), (2_000_000, 100_000), (4_000_000, 5_000_000)], start=1):
+        arrived = 50 * 10**9 + sent_at + transfer  # the reader's clock
+        lone_reader._take_item(item_bytes(layout, counter, counter, stamp_ns=sent_at + 50 * 10**9 + sender_clock_offset_ns),
+                               arrived)
+        arrivals.append(arrived)
+        assert lone_reader.read() is Freshness.NEW
+        assert lone_reader.stamp_ns == sent_at + 50 * 10**9 + sender_clock_offset_ns  # the sender's, kept as sent
+    # the last item: sent 4 ms after the first, the quickest transfer seen was 0.1 ms
+    assert lone_reader.local_stamp_ns == 50 * 10**9 + 4_000_000 + 100_000
+    age_at_arrival = (arrivals[-1] - lone_reader.local_stamp_ns) * 1e-9
+    assert age_at_arrival == pytest.approx(0.0049)  # 5 ms in transit, less the 0.1 ms any item takes
+
+
+def test_a_new_sender_brings_a_new_clock_and_its_offset_is_estimated_afresh(lone_reader):
+    layout = lone_reader.layout
+    lone_reader._take_item(item_bytes(layout, 1, 1.0, epoch=7, stamp_ns=SENDER_AHEAD_NS), 10**9)
+    lone_reader.read()
+    lone_reader._take_item(item_bytes(layout, 1, 2.0, epoch=8, stamp_ns=5 * 10**9), 2 * 10**9)  # restarted elsewhere
+    assert lone_reader.read() is Freshness.NEW
+    assert lone_reader.local_stamp_ns == 2 * 10**9  # its own arrival, not the first sender's offset
+
+
+@pytest.mark.multiprocess
+def test_a_reader_that_does_not_wait_opens_before_its_sender_and_reads_once_it_appears():
+    name, port, layout = key("later"), free_port(), LinkLayout("float64", (6,))
+    with ZenohLink.attach(name, layout, "reader", port=port, wait=None) as reader:  # nothing listens yet
+        assert reader.read() is Freshness.NONE
+        with ZenohLink.create(name, layout, "sender", port=port) as sender:
+            def arrived() -> bool:
+                sender.write(np.full(6, 3.0))
+                return reader.read() is Freshness.NEW
+            until(arrived, "an item from the sender that started after the reader")
+            assert (reader.value == 3.0).all()
+
+
+def test_a_session_that_connects_in_the_background_is_a_peer_that_keeps_trying():
+    entries = config_entries([], ["tcp/10.0.0.1:7447"], background=True)
+    assert entries["mode"] == "peer" and entries["connect/exit_on_failure"] is False
+    assert entries["connect/timeout_ms"] == -1 and entries["scouting/multicast/enabled"] is False

@@ -89,6 +89,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="a run's report.json (or its directory): prove or refute each critical deadline with the "
                             "measured execution times (non-preemptive response-time analysis, docs/scheduling.md)")
     schedule.add_arguments(check)
+    _address_argument(check)
     check.set_defaults(handler=_check)
 
     allocate = sub.add_parser("allocate", help="propose the fewest task moves between RTPUs that prove every critical deadline")
@@ -118,6 +119,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--out", type=Path, metavar="DIR",
                      help="the run's output directory: its report (report.json), its data logs and every file it "
                           "writes (default: runs/SUBSYSTEM-DATE-TIME/ in the current directory)")
+    run.add_argument("--host", metavar="NAME",
+                     help="an application placed on hosts: run only the subsystems of this host (default: all, here)")
+    _address_argument(run)
     run.add_argument("--links", help=argparse.SUPPRESS)  # set by an application's runner: JSON, see _links
     run.add_argument("--alternate", metavar="A,B", help="switch test: alternate between these configurations")
     run.add_argument("--switches", type=int, default=100, help="with --alternate: how many switches (default 100)")
@@ -216,6 +220,22 @@ def _parser() -> argparse.ArgumentParser:
 # --- pbo check -------------------------------------------------------------------------------
 
 
+def _address_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--address", action="append", default=[], metavar="HOST=ADDRESS",
+                        help="an application's host address, over the one in its hosts: (repeat for more)")
+
+
+def _addresses(args: argparse.Namespace) -> dict[str, str] | str:
+    """--address HOST=ADDRESS, repeated: {host: address}, or what is wrong with one."""
+    found: dict[str, str] = {}
+    for given in getattr(args, "address", None) or []:
+        host, mark, address = given.partition("=")
+        if not mark or not host or not address:
+            return f"--address takes HOST=ADDRESS, e.g. --address arm-b=10.0.0.2; got {given!r}"
+        found[host] = address
+    return found
+
+
 def _check(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from pbo_runtime.config.application import is_application_file
     from pbo_runtime.config.loader import check_file, format_diagnostics
@@ -247,7 +267,11 @@ def _check_application(args: argparse.Namespace, console: Console, errors: Conso
     from pbo_runtime.config.application import check_application
     from pbo_runtime.config.loader import CheckResult, format_diagnostics
 
-    result = check_application(args.file)
+    addresses = _addresses(args)
+    if isinstance(addresses, str):
+        errors.print(f"error: {addresses}", markup=False)
+        return EXIT_CONFIG
+    result = check_application(args.file, addresses)
     if args.format == "json":
         console.print_json(json.dumps({"file": args.file, "ok": result.ok,
                                        "errors": [_diagnostic_json(e) for e in result.errors],
@@ -259,7 +283,8 @@ def _check_application(args: argparse.Namespace, console: Console, errors: Conso
         lines = [f"{args.file}: ok: application '{app.name}', {len(app.subsystems)} subsystems, {len(app.links)} link(s)"]
         for key, sub in app.subsystems.items():
             runs = "".join(f", runs {'application' if k == 'app' else 'configuration'} '{v}'" for k, v in app.run.get(key, {}).items())
-            lines.append(f"  subsystem {key}: {sub.file} ('{sub.name}', {len(sub.tasks)} task(s){runs})")
+            where = f" on {app.placement[key]} ({app.hosts[app.placement[key]]})" if key in app.placement else ""
+            lines.append(f"  subsystem {key}: {sub.file} ('{sub.name}', {len(sub.tasks)} task(s){runs}){where}")
         for link in app.links.values():
             kind = f"messages, {link.capacity} queued at most" if link.kind == "message" else "periodic"
             lines.append(f"  link {link.name}: {link.sender[0]}.{link.sender[1]} -> {link.receiver[0]}.{link.receiver[1]} "
@@ -363,6 +388,10 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
     if is_application_file(args.file):
         return _run_application(args, console, errors)
+    if args.host is not None or args.address:
+        errors.print(f"error: --host and --address place an application's subsystems on machines; {args.file} is a "
+                     "subsystem file: run it without them, or run the application file that names it", markup=False)
+        return EXIT_CONFIG
     subsystem = load_subsystem(args.file)
     live = console.is_terminal and not args.no_live
     duration = args.duration if args.duration > 0 else None
@@ -512,11 +541,25 @@ def _run_application(args: argparse.Namespace, console: Console, errors: Console
     from pbo_runtime.config.application import check_application
     from pbo_runtime.config.loader import CheckResult, format_diagnostics
 
-    result = check_application(args.file)
+    addresses = _addresses(args)
+    if isinstance(addresses, str):
+        errors.print(f"error: {addresses}", markup=False)
+        return EXIT_CONFIG
+    result = check_application(args.file, addresses)
     if result.application is None:
         errors.print(format_diagnostics(CheckResult(None, result.errors, result.warnings)), markup=False)
         return EXIT_CONFIG
     app = result.application
+    if args.host is not None and args.host not in app.hosts:
+        from pbo_runtime.config.application import did_you_mean
+
+        errors.print(f"error: --host {args.host}: application '{app.name}' has no such host; "
+                     f"{did_you_mean(args.host, app.hosts, 'its hosts')}", markup=False)
+        return EXIT_CONFIG
+    if args.host is not None and not app.on_host(args.host):
+        errors.print(f"error: --host {args.host}: no subsystem of application '{app.name}' is placed on it "
+                     "(place one with {config: FILE, host: NAME})", markup=False)
+        return EXIT_CONFIG
     made = args.out is None
     args.out = args.out or default_run_dir(app.name)  # each subsystem's files in a directory of its own below it
     with _removed_if_empty(args.out if made else None):
@@ -532,9 +575,11 @@ def _run_linked_subsystems(args: argparse.Namespace, console: Console, errors: C
         return EXIT_CONFIG
     say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
     duration = args.duration if args.duration > 0 else None
-    say(f"starting application '{app.name}': {', '.join(app.subsystems)}; "
+    here = app.subsystems if args.host is None else app.on_host(args.host)
+    say(f"starting application '{app.name}'" + ("" if args.host is None else f" on host '{args.host}'")
+        + f": {', '.join(here)}; "
         + ("Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner"))
-    code = ApplicationRunner(app, duration, say, clock=args.clock, out_dir=args.out, fifo=args.fifo).run()
+    code = ApplicationRunner(app, duration, say, clock=args.clock, out_dir=args.out, fifo=args.fifo, host=args.host).run()
     if code:
         errors.print(f"error: application '{app.name}' stopped: a subsystem failed (exit {code}); see its lines above",
                      markup=False)

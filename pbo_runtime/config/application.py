@@ -1,12 +1,13 @@
 """Application files: several subsystems run in parallel, joined by links (TR §5).
 
     application: two_arms
+    hosts: {arm-a: 10.0.0.1, arm-b: 10.0.0.2}   # optional: the machines, by name, with their addresses
     subsystems:                     # name -> its subsystem file (relative to this file), or the subsystem inline
-      leader: leader.yaml
-      follower: follower.yaml
-      operator: {subsystem: operator, rtpus: [rtpu0], ...}
+      leader: {config: leader.yaml, host: arm-a}  # placed on a host (or plain: `leader: leader.yaml`)
+      follower: {config: follower.yaml, host: arm-b}
+      operator: {host: arm-a, subsystem: operator, rtpus: [rtpu0], ...}  # inline: `host:` beside its keys
     links:                          # by name: periodic (triple buffers) or message (queues)
-      arm_state: {type: float64, shape: [6], transport: shm}     # transport: shm | zenoh
+      arm_state: {type: float64, shape: [6], transport: zenoh, port: 7447}  # transport: shm | zenoh
       goal: {kind: message, type: float64, shape: [6], capacity: 4}
       wrist: {type: float64, shape: [6], transport: zenoh, endpoint: "tcp/192.168.1.20:7447"}
     run:                            # optional, per subsystem: its configuration or its application
@@ -20,11 +21,20 @@ loaded by every process as `app.yaml#key` (`config.loader.inline_reference`), so
 point into the application file. `check_application` checks the file like `pbo check` checks a
 subsystem: every subsystem in full, then the links against the tasks, every mistake with
 file:line:col, a code (E8xx, docs/error-codes.md) and a hint.
+
+Placement: once one subsystem names a host, every one must, each host needs an address (in
+`hosts:` or given with `--address HOST=ADDRESS`, `addresses` here), and a link between two hosts
+must be `transport: zenoh`. A zenoh link's listening end (the periodic sender, the message server)
+listens on its host's address at the link's `port:`, by default DEFAULT_LINK_PORT plus the link's
+position among the file's zenoh links: both machines derive the same endpoint from the same file.
 """
 
 from __future__ import annotations
 
+import difflib
 import os
+import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,8 +52,11 @@ SENDER, RECEIVER = "link_sender", "link_receiver"
 MESSAGE_SENDER, SERVER = "message_sender", "message_server"
 ENDS = {"periodic": (SENDER, RECEIVER), "message": (MESSAGE_SENDER, SERVER)}  # kind -> (sending, receiving) module
 _KIND_OF_MODULE = {module: kind for kind, pair in ENDS.items() for module in pair}
-_TOP_KEYS = ("application", "subsystems", "links", "run")
-_LINK_KEYS = ("kind", "type", "shape", "transport", "capacity", "endpoint")
+_TOP_KEYS = ("application", "hosts", "subsystems", "links", "run")
+_LINK_KEYS = ("kind", "type", "shape", "transport", "capacity", "endpoint", "port")
+_PLACED_KEYS = ("config", "host")  # a subsystem entry that places a subsystem file on a host
+DEFAULT_LINK_PORT = 7447  # a zenoh link without port: or endpoint: listens on this plus its position among the zenoh links
+_ADDRESS = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9.-]*[A-Za-z0-9])?$")  # a host name or an IPv4 address
 _RUN_KEYS = ("config", "app")
 MESSAGE_OVERHEAD_BYTES = 32  # msgpack framing, the time stamp and the relay's envelope
 MSGPACK_BYTES_PER_NUMBER = 9  # a float64 or a large integer, encoded
@@ -60,7 +73,9 @@ class LinkSpec:
     loc: Location = NOWHERE
     kind: str = "periodic"  # or "message"
     capacity: int = 0  # a message link's queue: messages it holds (0: the system's most)
-    endpoint: str = ""  # zenoh: where the listening end listens, "tcp/<host>:<port>" ("": a free loopback port)
+    endpoint: str = ""  # zenoh: where the listening end listens, "tcp/<host>:<port>" ("": from its host and port)
+    port: int = 0  # zenoh: the port its listening end listens on when placed on a host (given, or the default)
+    port_given: bool = False  # `port:` was written: used on loopback too when the application runs on one machine
 
 
 @dataclass
@@ -70,6 +85,19 @@ class Application:
     subsystems: dict[str, Subsystem] = field(default_factory=dict)  # by the application's name for it
     links: dict[str, LinkSpec] = field(default_factory=dict)
     run: dict[str, dict[str, str]] = field(default_factory=dict)  # subsystem -> {"config": ..., "app": ...}
+    hosts: dict[str, str] = field(default_factory=dict)  # host name -> its address (the file's, or the command line's)
+    placement: dict[str, str] = field(default_factory=dict)  # subsystem -> the host it runs on (absent: none named)
+    entry_locs: dict[str, Location] = field(default_factory=dict)  # subsystem -> where the application file names it
+    hosts_refused: bool = False  # hosts: was not a mapping (reported once: no error per host named)
+
+    def listening_subsystem(self, link: str) -> str:
+        """The subsystem whose end of zenoh link `link` listens: the periodic sender, or the message server."""
+        spec = self.links[link]
+        return spec.sender[0] if spec.kind == "periodic" else spec.receiver[0]
+
+    def on_host(self, host: str) -> list[str]:
+        """The subsystems placed on `host`, in file order."""
+        return [key for key in self.subsystems if self.placement.get(key) == host]
 
 
 @dataclass
@@ -99,8 +127,11 @@ def is_application_file(path: str | os.PathLike[str]) -> bool:
     return False
 
 
-def check_application(path: str | os.PathLike[str]) -> ApplicationCheck:
-    """Every problem of an application file and of its subsystems' files; never raises on bad input."""
+def check_application(path: str | os.PathLike[str], addresses: Mapping[str, str] | None = None) -> ApplicationCheck:
+    """Every problem of an application file and of its subsystems' files; never raises on bad input.
+
+    `addresses`: host name -> address given on the command line (`--address`), over the file's.
+    """
     file = str(path)
     result = ApplicationCheck(None)
     try:
@@ -126,11 +157,14 @@ def check_application(path: str | os.PathLike[str]) -> ApplicationCheck:
               "e.g. application: two_arms")
         name = "application"
     application = Application(name, file)
+    _check_hosts(root, application, dict(addresses or {}), error)
     _check_subsystems(root, Path(file).parent, application, result, error)
     _check_links(root, application, error)
     _check_run(root, application, error)
     if not result.errors:
         _check_link_ends(application, error)
+    if not result.errors:
+        _check_placement(application, error)
     if not result.errors:
         result.application = application
     return result
@@ -145,6 +179,17 @@ def _check_subsystems(root: YMap, folder: Path, application: Application, result
     names: dict[str, str] = {}
     for key, value in entries.items():
         loc = entries.value_loc(key)
+        application.entry_locs[key] = entries.key_loc(key)
+        if isinstance(value, YMap) and "config" in value and "subsystem" not in value:  # {config: FILE, host: HOST}
+            unknown = [k for k in value if k not in _PLACED_KEYS]
+            if unknown:
+                error("E802", f"subsystem '{key}': unknown key '{unknown[0]}'", value.key_loc(unknown[0]),
+                      f"a placed subsystem has: {', '.join(_PLACED_KEYS)} (e.g. {{config: leader.yaml, host: arm-a}})")
+                continue
+            _place(key, value, application, error)
+            loc, value = value.value_loc("config"), value["config"]
+        elif isinstance(value, YMap) and "host" in value:  # inline, placed: `host:` beside the subsystem's keys
+            _place(key, value, application, error)
         if isinstance(value, YMap):
             path: Path | str = inline_reference(application.file, key)
         elif not isinstance(value, str):
@@ -171,6 +216,65 @@ def _check_subsystems(root: YMap, folder: Path, application: Application, result
             continue
         names[own] = key
         application.subsystems[key] = checked.subsystem
+
+
+def _check_hosts(root: YMap, application: Application, addresses: dict[str, str], error) -> None:
+    """`hosts: {name: ADDRESS}`; an address may be left empty (~) and given on the command line."""
+    entries = root.get("hosts", YMap(root.loc))
+    if not isinstance(entries, YMap):
+        error("E809", "hosts must map each host's name to its address", location_of(entries, root.loc),
+              "e.g. hosts: {arm-a: 10.0.0.1, arm-b: 10.0.0.2}")
+        application.hosts_refused = True
+        return
+    for name, address in entries.items():
+        loc = entries.value_loc(name)
+        if address is None or address == "":
+            application.hosts[name] = ""
+            continue
+        if not isinstance(address, str) or not _ADDRESS.match(address):
+            error("E809", f"host '{name}': address must be a host name or an IPv4 address, got {address!r}", loc,
+                  "e.g. arm-a: 10.0.0.1 (or leave it empty, ~, and give it with --address arm-a=10.0.0.1)")
+            application.hosts[name] = str(address)  # reported: its subsystems are not told again
+            continue
+        application.hosts[name] = address
+    for name, address in addresses.items():
+        if name not in application.hosts:
+            error("E809", f"--address names host '{name}', which the application does not declare",
+                  root.key_loc("hosts") if "hosts" in root else root.loc, did_you_mean(name, application.hosts, "hosts"))
+            continue
+        if not _ADDRESS.match(address):
+            error("E809", f"--address {name}={address}: the address must be a host name or an IPv4 address",
+                  root.key_loc("hosts"), f"e.g. --address {name}=10.0.0.2")
+            continue
+        application.hosts[name] = address
+
+
+def did_you_mean(name: str, known, what: str) -> str:
+    close = difflib.get_close_matches(name, list(known), n=1)
+    if close:
+        return f"did you mean '{close[0]}'? ({what}: {', '.join(known)})"
+    return f"{what}: {', '.join(known) or 'none'}"
+
+
+def _place(key: str, entry: YMap, application: Application, error) -> None:
+    """Subsystem `key`'s `host:`: a host of `hosts:` with an address."""
+    host = entry["host"]
+    loc = entry.value_loc("host")
+    if application.hosts_refused:
+        application.placement[key] = str(host)
+        return
+    if not isinstance(host, str) or not host:
+        error("E810", f"subsystem '{key}': host must name a host of hosts:, got {host!r}", loc, "e.g. host: arm-a")
+        return
+    if host not in application.hosts:
+        error("E810", f"subsystem '{key}' is placed on host '{host}', which hosts: does not declare", loc,
+              did_you_mean(host, application.hosts, "hosts") + "; declare it under hosts: {NAME: ADDRESS}")
+        return
+    if not application.hosts[host]:
+        error("E810", f"host '{host}' of subsystem '{key}' has no address", loc,
+              f"give it in the file (hosts: {{{host}: 10.0.0.2}}) or on the command line: --address {host}=10.0.0.2")
+        return
+    application.placement[key] = host
 
 
 def _check_links(root: YMap, application: Application, error) -> None:
@@ -219,8 +323,18 @@ def _check_links(root: YMap, application: Application, error) -> None:
             error("E803", f"link '{name}': endpoint must be tcp/<host>:<port>, got {endpoint!r}", spec.value_loc("endpoint"),
                   "e.g. endpoint: tcp/192.168.1.20:7447 (the address of the machine whose subsystem listens)")
             continue
+        port = spec.get("port", 0)
+        if "port" in spec and (transport != "zenoh" or endpoint):
+            error("E812", f"link '{name}' takes no port: " + ("its endpoint names one" if endpoint else f"its transport is {transport}"),
+                  spec.key_loc("port"), "a port is where a zenoh link's listening end listens on its host; "
+                                        "give either port: or endpoint:, and only with transport: zenoh")
+            continue
+        if "port" in spec and (not isinstance(port, int) or isinstance(port, bool) or not 0 < port < 65536):
+            error("E812", f"link '{name}': port must be a TCP port from 1 to 65535, got {port!r}", spec.value_loc("port"),
+                  f"e.g. port: {DEFAULT_LINK_PORT}")
+            continue
         application.links[name] = LinkSpec(name, str(np.dtype(dtype)), tuple(shape), transport, loc=loc, kind=kind,
-                                           capacity=capacity, endpoint=str(endpoint))
+                                           capacity=capacity, endpoint=str(endpoint), port=port, port_given="port" in spec)
 
 
 def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error) -> int | None:
@@ -339,4 +453,39 @@ def _check_link_ends(application: Application, error) -> None:
                   "within a subsystem, tasks share state variables: use a variable, not a link")
         if senders and receivers:
             application.links[name] = LinkSpec(name, spec.dtype, spec.shape, spec.transport, senders[0][:2],
-                                               receivers[0][:2], spec.loc, spec.kind, spec.capacity, spec.endpoint)
+                                               receivers[0][:2], spec.loc, spec.kind, spec.capacity, spec.endpoint,
+                                               spec.port, spec.port_given)
+
+
+def _check_placement(application: Application, error) -> None:
+    """Every subsystem on a host once one is; links between hosts over zenoh; one listener per host and port."""
+    placed = [key for key in application.subsystems if application.placement.get(key)]
+    if placed:
+        for key in application.subsystems:
+            if key not in application.placement:
+                error("E810", f"subsystem '{key}' names no host, while '{placed[0]}' is placed on '{application.placement[placed[0]]}'",
+                      application.entry_locs.get(key, NOWHERE),
+                      f"place every subsystem: {key}: {{config: FILE, host: HOST}} (inline: host: HOST beside its keys)")
+        if any(key not in application.placement for key in application.subsystems):
+            return
+    listeners: dict[tuple[str, int], str] = {}
+    zenoh_links = [name for name, spec in application.links.items() if spec.transport == "zenoh"]
+    for name, spec in list(application.links.items()):
+        ends = (application.placement.get(spec.sender[0], ""), application.placement.get(spec.receiver[0], ""))
+        if spec.transport != "zenoh":
+            if ends[0] != ends[1]:
+                error("E811", f"link '{name}' joins {spec.sender[0]} on host '{ends[0]}' and {spec.receiver[0]} on host "
+                              f"'{ends[1]}', but its transport is {spec.transport}", spec.loc,
+                      "shared memory stays on one machine: give the link transport: zenoh")
+            continue
+        port = spec.port or DEFAULT_LINK_PORT + zenoh_links.index(name)
+        application.links[name] = LinkSpec(name, spec.dtype, spec.shape, spec.transport, spec.sender, spec.receiver,
+                                           spec.loc, spec.kind, spec.capacity, spec.endpoint, port, spec.port_given)
+        if spec.endpoint or not placed:
+            continue
+        listening = application.placement[application.listening_subsystem(name)]
+        other = listeners.setdefault((listening, port), name)
+        if other != name:
+            error("E812", f"links '{other}' and '{name}' would both listen on host '{listening}' at port {port}", spec.loc,
+                  f"give one of them another port: (links without one take {DEFAULT_LINK_PORT} plus their position "
+                  "among the zenoh links)")

@@ -241,6 +241,7 @@ def _load_with_includes(file: str, stack: list[str], errors: list[ConfigError]) 
 
 
 _UNREADABLE = object()
+PLACEMENT_KEY = "host"  # an inline subsystem's host (config.application), beside its own keys
 INLINE = "#"  # "app.yaml#operator": the subsystem written inline under `subsystems: {operator: ...}` of app.yaml
 
 
@@ -263,6 +264,12 @@ def _load_document(file: str) -> Any:
     if not isinstance(node, YMap):
         raise ConfigError(f"no inline subsystem '{key}' under subsystems: in {path}", path, 1, 1,
                           "write it as a mapping: subsystems: {name: {subsystem: name, rtpus: [...], ...}}")
+    if PLACEMENT_KEY in node:  # the host it runs on is the application's to read, not a key of the subsystem
+        placed = node
+        node = YMap(placed.loc)
+        for k, v in placed.items():
+            if k != PLACEMENT_KEY:
+                node.put(k, v, placed.key_loc(k), placed.value_loc(k))
     return node
 
 

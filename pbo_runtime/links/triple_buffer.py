@@ -184,7 +184,8 @@ class ReaderTally:
 
     name: str  # the link's, for messages
     counter = 0  # of the last item read; 0 until one is read (published counters start at 1)
-    stamp_ns = 0  # its time stamp, CLOCK_MONOTONIC ns
+    stamp_ns = 0  # its time stamp, CLOCK_MONOTONIC ns of the sender's machine
+    local_stamp_ns = 0  # the same moment on this process's clock: judge an item's age from this one
     lost_in_last_read = 0
     _before_first = 0  # the counter just before the first item this reader counts
     _new = _reused = _lost = _empty = 0
@@ -197,7 +198,7 @@ class ReaderTally:
         assert counter > self.counter, f"link '{self.name}': counter went back from {self.counter} to {counter}"
         lost = counter - max(self.counter, self._before_first) - 1
         self.counter = counter
-        self.stamp_ns = stamp_ns
+        self.stamp_ns = self.local_stamp_ns = stamp_ns  # one machine, one clock (a zenoh reader moves its own)
         self.lost_in_last_read = lost
         self._lost += lost
         self._new += 1

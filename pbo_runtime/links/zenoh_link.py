@@ -54,7 +54,8 @@ from pbo_runtime.links.triple_buffer import (
 )
 
 LOOPBACK = "127.0.0.1"
-DEFAULT_WAIT = 5.0  # seconds an attaching end waits for the creating end's session
+DEFAULT_WAIT = 5.0  # seconds an attaching end waits for the creating end's session (an application's message sender;
+# its periodic reader does not wait: `wait=None`, it connects whenever the sender listens)
 ANSWER_TIMEOUT = 1.0  # seconds a query of the other end's description waits for replies
 ITEM_FORMAT = 0x5042_4F5F_5A4E_0001  # "PBO_ZN", wire format 1: the first word of every item
 ITEM_HEADER = struct.Struct("<qqqqqq")  # format, layout hash, sender epoch, counter, stamp ns, reserved
@@ -92,15 +93,17 @@ def free_port(host: str = LOOPBACK) -> int:
         return probe.getsockname()[1]
 
 
-def config_entries(listen: Sequence[str] = (), connect: Sequence[str] = ()) -> dict[str, Any]:
+def config_entries(listen: Sequence[str] = (), connect: Sequence[str] = (), background: bool = False) -> dict[str, Any]:
     """Every zenoh configuration key a session of ours sets, with its value (JSON).
 
     A session that listens is a router (the hub of its links: it forwards between the ends that
     connect to it, so two of them that do not listen still see each other); one that only
-    connects is a client of it.
+    connects is a client of it. `background`: a session that opens at once and connects to its
+    endpoints whenever they answer (a peer that keeps trying), for an end whose other end may
+    start later, on another machine.
     """
-    return {
-        "mode": "router" if listen else "client",
+    entries = {
+        "mode": "router" if listen else ("peer" if background else "client"),
         "listen/endpoints": list(listen),  # the default would be every interface
         "listen/exit_on_failure": True,  # a port in use fails the open instead of listening nowhere
         "connect/endpoints": list(connect),
@@ -112,13 +115,17 @@ def config_entries(listen: Sequence[str] = (), connect: Sequence[str] = ()) -> d
         "timestamping/enabled": False,  # items carry their own CLOCK_MONOTONIC stamps
         "adminspace/enabled": False,
     }
+    if background:
+        entries["connect/exit_on_failure"] = False  # nothing answers yet: open anyway...
+        entries["connect/timeout_ms"] = -1  # ...and keep trying (connect/retry) for as long as the session lives
+    return entries
 
 
-def session_config(listen: Sequence[str] = (), connect: Sequence[str] = ()) -> Any:
+def session_config(listen: Sequence[str] = (), connect: Sequence[str] = (), background: bool = False) -> Any:
     """A zenoh.Config with `config_entries`."""
     zenoh = _zenoh()
     config = zenoh.Config()
-    for key, value in config_entries(listen, connect).items():
+    for key, value in config_entries(listen, connect, background).items():
         config.insert_json5(key, json.dumps(value))
     return config
 
@@ -126,9 +133,13 @@ def session_config(listen: Sequence[str] = (), connect: Sequence[str] = ()) -> A
 def open_session(listen: Sequence[str] = (), connect: Sequence[str] = (), wait: float | None = 0.0) -> Any:
     """A zenoh session confined to the given endpoints (see `config_entries`).
 
-    A client keeps trying to reach its hub for `wait` seconds (0: one try, None: until it answers).
+    A client keeps trying to reach its hub for `wait` seconds (0: one try). `wait=None`: the session
+    opens at once and connects in the background whenever the hub answers (never waits, never fails
+    for want of it): an end whose other end starts later, maybe on another machine.
     """
     zenoh = _zenoh()
+    if wait is None and connect and not listen:
+        return zenoh.open(session_config(listen, connect, background=True))
     config = session_config(listen, connect)
     give_up = None if wait is None else time.monotonic() + wait
     while True:
@@ -257,7 +268,11 @@ class ZenohLink(_Ends, ReaderTally):
         self._writes = 0
         # reader: the slot the callback fills, under the lock
         self._lock = threading.Lock()
-        self._newest: tuple[bytes, int, int, int] | None = None  # raw item, counter, stamp ns, received ns
+        self._newest: tuple[bytes, int, int, int, int] | None = None  # raw item, counter, stamp ns, received ns, local stamp ns
+        # The sender's clock is not ours (another machine): its stamps are moved onto this clock by
+        # the smallest (arrival - stamp) seen from the current sender: its clock offset plus the
+        # quickest transfer. An item's local stamp is then when it would have arrived at its quickest.
+        self._clock_offset_ns: int | None = None
         self._ring: Any = None  # delivery "ring": the subscriber whose one-sample ring read() drains
         self._newest_epoch = 0
         self._offset = 0  # added to the current sender's counters (see _take_item)
@@ -267,6 +282,7 @@ class ZenohLink(_Ends, ReaderTally):
         self.value = np.zeros(layout.shape, dtype=layout.dtype)  # the reader's copy of the last item read
         self.counter = 0
         self.stamp_ns = 0
+        self.local_stamp_ns = 0  # the same moment on this process's clock (see read)
         self.received_ns = 0  # when the last item read was taken from zenoh in this process (CLOCK_MONOTONIC ns)
         self.lost_in_last_read = 0
         self._before_first = 0
@@ -287,7 +303,8 @@ class ZenohLink(_Ends, ReaderTally):
                delivery: str = "ring") -> ZenohLink:
         """Connect to the creating end's `tcp/<host>:<port>` (or use `session`), trying for up to `wait` s.
 
-        `wait`: 0 one try, None until the creating end answers.
+        `wait`: 0 one try; None: do not wait, connect in the background whenever the creating end
+        appears (a reader then reads NONE until the first item comes).
         """
         listen, connect = _endpoints(name, port, host, session, listening=False)
         return cls._open(name, layout, role, False, session, listen, connect, wait, delivery)
@@ -430,18 +447,26 @@ class ZenohLink(_Ends, ReaderTally):
                 held = newest[1] if newest is not None else 0
                 self._offset = max(0, held - counter + 1)
                 self._newest_epoch = epoch
+                self._clock_offset_ns = None  # another sender: another clock
             counter += self._offset
+            offset = received_ns - stamp_ns
+            if self._clock_offset_ns is None or offset < self._clock_offset_ns:
+                self._clock_offset_ns = offset
+            local_ns = stamp_ns + self._clock_offset_ns
             if newest is None:
                 self._before_first = counter - 1
             elif counter <= newest[1]:
                 return  # not newer than the item held (a duplicate): keep the newest
-            self._newest = (raw, counter, stamp_ns, received_ns)
+            self._newest = (raw, counter, stamp_ns, received_ns, local_ns)
 
     def read(self, out: np.ndarray | None = None) -> Freshness:
         """Copy the newest item received into `out` (default: `self.value`) and say what it was.
 
         As for the triple buffer: `self.counter`, `self.stamp_ns` and `self.lost_in_last_read`
-        describe the item; NONE leaves `out` as it was. Never waits for the network.
+        describe the item; NONE leaves `out` as it was. Never waits for the network. `stamp_ns`
+        is the sender's, on the sender's clock (another machine's, maybe); `local_stamp_ns` is the
+        same moment on this process's CLOCK_MONOTONIC, moved by the offset the link estimates
+        (see `_clock_offset_ns`): ages are judged from it, never from the other machine's clock.
         """
         if not self._is_reader:
             self._refuse(Role.READER, "read")
@@ -462,7 +487,7 @@ class ZenohLink(_Ends, ReaderTally):
         if newest is None:
             self._empty += 1
             return Freshness.NONE
-        raw, counter, stamp_ns, received_ns = newest
+        raw, counter, stamp_ns, received_ns, local_ns = newest
         if raw is not self._source:  # a view per item received, none per read
             self._view = np.frombuffer(raw, dtype=self.layout.dtype, count=self.layout.size, offset=ITEM_HEADER.size).reshape(self.layout.shape)
             self._source = raw
@@ -470,6 +495,7 @@ class ZenohLink(_Ends, ReaderTally):
         freshness = self._tally(counter, stamp_ns)
         if freshness is Freshness.NEW:
             self.received_ns = received_ns
+            self.local_stamp_ns = local_ns
         return freshness
 
     def _foreign_problem(self, foreign: tuple[int, int, int]) -> str:
@@ -722,11 +748,13 @@ def open_periodic(spec: Mapping[str, Any], layout: LinkLayout, role: Role | str)
 
     `spec`: {"key": "pbo/<app>/...", "endpoint": "tcp/<host>:<port>", "wait": seconds (optional)}.
     As the runner arranges it, the sender listens on the endpoint and the reader connects to it.
+    The reader does not wait for the sender by default (its subsystem may start first, on another
+    machine): it connects whenever the sender's end listens, and reads NONE until then.
     """
     host, port = _spec_endpoint(spec)
     if _role(role) is Role.SENDER:
         return ZenohLink.create(spec["key"], layout, Role.SENDER, port=port, host=host)
-    return ZenohLink.attach(spec["key"], layout, role, port=port, host=host, wait=spec.get("wait", DEFAULT_WAIT))
+    return ZenohLink.attach(spec["key"], layout, role, port=port, host=host, wait=spec.get("wait", None))
 
 
 def open_aperiodic(spec: Mapping[str, Any], role: str) -> ZenohMessageLink:

@@ -8,6 +8,12 @@ message link, 0600, named after the runner's run) and removes them last, whateve
 jobs (`--app`); an inline subsystem is run by its `app.yaml#key` reference. Each subsystem's output is shown line by line
 with its name in front. When one subsystem fails, or on Ctrl-C, the others are stopped
 (SIGTERM: their supervisors shut down cleanly); the exit status is the worst of theirs.
+
+On two machines (`hosts:` in the file, `pbo run APP --host NAME` on each), a runner starts only
+its host's subsystems, makes only the shm links both of whose ends are local, and hands its
+zenoh ends an endpoint and a key that follow from the file alone (the listening end's host
+address and the link's port; `pbo/<application>/<link>`), so two runners that never talk to each
+other agree. Without `--host`, every host is this machine: zenoh links listen on loopback.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ import posix_ipc
 from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import shm
 from pbo_runtime.config.application import Application
+from pbo_runtime.links.zenoh_link import link_key
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.links.message_link import SYSTEM_MESSAGE_BYTES, MessageLink, message_link_name
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer, link_name
@@ -53,8 +60,11 @@ def _free_port() -> int:
 
 class ApplicationRunner:
     def __init__(self, application: Application, duration: float | None, say: Callable[[str], None],
-                 clock: str = "real", out_dir: Path | None = None, fifo: bool | None = None) -> None:
+                 clock: str = "real", out_dir: Path | None = None, fifo: bool | None = None,
+                 host: str | None = None) -> None:
         self.application = application
+        self.host = host  # None: every subsystem runs here; else only those placed on this host
+        self.local = list(application.subsystems) if host is None else application.on_host(host)
         self.fifo = fifo  # None: each subsystem's default (SCHED_FIFO on the real clock where allowed)
         self.duration = duration
         self.say = say
@@ -88,13 +98,16 @@ class ApplicationRunner:
 
     def _make_links(self) -> None:
         for name, spec in self.application.links.items():
+            local = [end for end in (spec.sender[0], spec.receiver[0]) if end in self.local]
+            if not local:
+                continue  # both ends on other hosts: theirs to make
             entry: dict[str, Any] = {"kind": spec.kind, "transport": spec.transport, "dtype": spec.dtype,
                                      "shape": list(spec.shape)}
             if spec.kind == "message":
                 entry["capacity"] = spec.capacity
             if spec.transport == "zenoh":  # the sending (periodic) or serving (message) end listens; the other connects
-                entry["key"] = f"pbo/{self.application.name}/{self.run_id}/{name}"
-                entry["endpoint"] = spec.endpoint or f"tcp/127.0.0.1:{_free_port()}"
+                entry["key"] = link_key(self.application.name, name)
+                entry["endpoint"] = self.endpoint(name)
             elif spec.kind == "message":
                 object_name = message_link_name(self.application.name, self.run_id, name)
                 try:
@@ -113,10 +126,23 @@ class ApplicationRunner:
             self.links[name] = entry
             what = f"messages, {spec.capacity} queued at most" if spec.kind == "message" else "periodic"
             self.say(f"link '{name}': {spec.sender[0]}.{spec.sender[1]} -> {spec.receiver[0]}.{spec.receiver[1]} "
-                     f"({spec.dtype} {list(spec.shape)}, {what}, {spec.transport})")
+                     f"({spec.dtype} {list(spec.shape)}, {what}, {spec.transport})"
+                     + (f": {self.application.listening_subsystem(name)} listens on {entry['endpoint']}, key {entry['key']}"
+                        if self.host is not None and spec.transport == "zenoh" else ""))
+
+    def endpoint(self, link: str) -> str:
+        """Where zenoh link `link`'s listening end listens: the file's endpoint; on a host, its address and the
+        link's port; with every host here, loopback (the link's port if written, else a free one)."""
+        spec = self.application.links[link]
+        if spec.endpoint:
+            return spec.endpoint
+        if self.host is not None:
+            listening = self.application.placement[self.application.listening_subsystem(link)]
+            return f"tcp/{self.application.hosts[listening]}:{spec.port}"
+        return f"tcp/127.0.0.1:{spec.port if spec.port_given else _free_port()}"
 
     def _start(self) -> None:
-        for key in self.application.subsystems:
+        for key in self.local:
             child = subprocess.Popen(self.command(key), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      text=True, preexec_fn=_die_with_parent, start_new_session=True)
             self.watch(key, child)

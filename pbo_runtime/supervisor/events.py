@@ -151,14 +151,14 @@ class EventHandling:
             if event.entering:
                 self._stable[task] = (at, event.reason, event.cause)
                 if self._told(task, event.cause):
-                    self.say(f"critical task '{task}' runs its locally stable behaviour: {event.reason or 'the configuration is illegal'}")
+                    self.say(self._stable_news(task, event.reason))
             elif task in self._stable:
                 cause = self._stable[task][2]
                 told = self._told(task, cause)
                 self._end_stable_episode(task, at)
                 began = self.result.stable_episodes[-1]["from"]
                 if told:
-                    self.say(f"critical task '{task}' is back to its cycle after {(at - began) * 1e3:.1f} ms"
+                    self.say(f"{self._kind_of(task)} '{task}' is back to its cycle after {(at - began) * 1e3:.1f} ms"
                              + ("" if self._told(task, cause) else "; its further holds for late inputs are counted in "
                                                                    "the summary, not told"))
             self._count_errors()
@@ -179,6 +179,16 @@ class EventHandling:
             self.staged(source, event.sequence, event.error)
         elif isinstance(event, messages.Crashed):
             raise RunFailure(f"{source} crashed: {event.error}" + (f"\n{event.trace}" if event.trace else ""))
+
+    def _kind_of(self, task: str) -> str:
+        subsystem = getattr(self, "subsystem", None)  # (a handler tested without one: every task is critical)
+        spec = subsystem.tasks.get(task) if subsystem is not None else None
+        return "task" if spec is not None and not spec.critical else "critical task"
+
+    def _stable_news(self, task: str, reason: str) -> str:
+        if self._kind_of(task) == "task":  # not critical: it says its inputs are stale, and the critical tasks hold
+            return f"task '{task}' has no fresh input (its cycle returned STABLE): the critical tasks hold until it has"
+        return f"critical task '{task}' runs its locally stable behaviour: {reason or 'the configuration is illegal'}"
 
     def _told(self, task: str, cause: str) -> bool:
         """Whether a stable episode of `task` for `cause` is told as it happens: always when the

@@ -144,7 +144,8 @@ class RunReporting:
         for task in list(self._stable):
             self._end_stable_episode(task, None)
         periods = {name: task.period for name, task in {**self.every_task, **self.subsystem.tasks}.items()}
-        faults, timing = stable_episode_lines(self.result.stable_episodes, periods, self.started_at, self.result.duration)
+        faults, timing = stable_episode_lines(self.result.stable_episodes, periods, self.started_at, self.result.duration,
+                                              {name for name, task in self.subsystem.tasks.items() if task.critical})
         self.result.faults += faults
         self.result.timing_holds += timing
 
@@ -216,14 +217,17 @@ class RunReporting:
 
 
 def stable_episode_lines(episodes: list[dict[str, Any]], periods: dict[str, float], started_at: float | None,
-                         duration: float) -> tuple[list[str], list[str]]:
+                         duration: float, critical: set[str] | None = None) -> tuple[list[str], list[str]]:
     """(faults, timing holds): one line per critical task and cause, from its stable episodes.
 
     Episodes of stale inputs or of a module's own STABLE count, once the configuration came on:
     while it comes on, task by task, a critical task on first may hold the arm until its writers
     run, which is what it is for (each episode is marked `while_starting`). An episode is brief
     when it ended by itself within BRIEF_HOLD_PERIODS of its task's periods (marked `brief`).
-    Brief ones are timing unless they add up to more than BRIEF_HOLDS_SHARE of the run.
+    Brief ones are timing unless they add up to more than BRIEF_HOLDS_SHARE of the run. A task that
+    is not critical (in `critical`, when given) and returned STABLE had no fresh input (a link's
+    item past its bound); the critical tasks' holds it caused (cause "upstream") are in the
+    episodes, and the fault is told once, at the task that saw the stale input.
     """
     origin = started_at if started_at is not None else 0.0
     grouped: dict[tuple[str, str], list[dict[str, Any]]] = {}
@@ -241,6 +245,9 @@ def stable_episode_lines(episodes: list[dict[str, Any]], periods: dict[str, floa
         if len(brief) == len(group) and held <= BRIEF_HOLDS_SHARE * duration:
             timing.append(f"critical task '{task}' held {_episodes(brief, origin)}, each back to its cycle within "
                           f"{BRIEF_HOLD_PERIODS} periods (a late input: timing, not a fault): {brief[0]['reason']}")
+        elif critical is not None and task not in critical:
+            faults.append(f"task '{task}' had no fresh input {_episodes(group, origin)} (its cycle returned STABLE: "
+                          "a link's item past its bound), and the critical tasks held meanwhile")
         else:
             faults.append(f"critical task '{task}' ran its locally stable behaviour {_episodes(group, origin)}: "
                           f"{group[0]['reason']}")

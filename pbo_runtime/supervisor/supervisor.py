@@ -397,6 +397,11 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         members = self.subsystem.configurations[self.configuration].tasks
         in_error = sum(1 for t in members if self.task_states.get(t) == "ERROR")
         self.table.header[Header.TASKS_IN_ERROR] = in_error
+        # A task that is not critical and says its inputs are not fresh (a link_receiver whose item is past its
+        # bound): what it writes is stale too, so the critical tasks hold until it has fresh inputs again.
+        tasks = self.subsystem.tasks
+        self.table.header[Header.TASKS_NOT_FRESH] = sum(
+            1 for t in members if t in self._stable and t in tasks and not tasks[t].critical and self._stable[t][2] == "module")
         self.table.set_flag(Flag.ILLEGAL_CONFIGURATION, bool(in_error) or bool(self._stable))
 
 

@@ -43,7 +43,7 @@ from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer, link_name
 
 STOP_GRACE = 15.0  # seconds a subsystem gets to shut down after SIGTERM before it is killed
 RELAY_GRACE = 2.0  # seconds to print what an ended subsystem still had in its pipe
-TURN_LIMIT = 120.0  # wall seconds a subsystem may hold the simulated clock's turn (its start-up included)
+TURN_LIMIT = 120.0  # wall seconds a subsystem may hold the simulated clock's turn after its first
 CLEANUP_GRACE = 10.0  # seconds a killed subsystem's plant and RTPUs get to end before its objects are removed
 EXIT_RUN = 2  # the exit status of a run that failed (a subsystem killed by a signal has none of its own)
 
@@ -231,8 +231,9 @@ class ApplicationRunner:
         if self._stopping:
             raise TurnFault(self._stopping)
         assert self.lockstep is not None
-        if self.lockstep.held_for() > TURN_LIMIT:
-            key = self.lockstep.holding
+        key = self.lockstep.holding
+        # (a first turn holds the subsystem's start too, which its own start-up timeouts watch)
+        if key and self.lockstep.turns[key] > 1 and self.lockstep.held_for() > TURN_LIMIT:
             raise TurnFault(f"subsystem '{key}' has held the simulated clock's turn at "
                             f"{self.lockstep.next_time(key) - self.lockstep.tick_ns[key] / 1e9:.3f} s for "
                             f"{self.lockstep.held_for():.0f} s of wall time (its supervisor is stopped or stuck)")

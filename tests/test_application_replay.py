@@ -27,7 +27,8 @@ from pbo_runtime.supervisor.application_runner import unreplayable_links
 from pbo_runtime.table.table import HEADER_WORDS
 from tests.support import PBO, application_copy, assert_nothing_left, children_of, read_until
 
-GOAL_A = np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2])  # the operator's first goal (configs/leader_follower.yaml)
+GOAL_A = np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2])  # the operator's goals (configs/leader_follower.yaml)
+GOAL_B = np.array([-0.2, -0.3, 0.3, -0.2, 0.2, 0.4])
 LOGS = ("leader/leader.mcap", "follower/follower.mcap", "operator/operator.mcap")
 
 
@@ -171,6 +172,12 @@ def test_two_simulated_runs_of_an_application_write_identical_logs(tmp_path):
     assert np.allclose(leader["q_d"][-1], GOAL_A)  # the operator's message reached the leader
     assert np.max(np.abs(follower["q_m"][-1] - follower["q_m"][0])) > 0.1  # and the follower moved after it
     assert np.max(np.abs(follower["q_d"][-1] - leader["q_m"][-1])) < 0.05  # tracking the leader over the link
+    # The operator's 10 ms ticks interleave by time with the arms' 1 ms ones: its second goal, sent after
+    # 1.5 s, never reaches the leader, whose run ends at 1.5 s. (On clocks of their own, the operator ran
+    # ahead of the arms and the leader took both goals.)
+    operator = read_log(tmp_path / "first" / LOGS[2])
+    assert operator["time"][np.argmax(np.all(np.isclose(operator["goal"], GOAL_B), axis=1))] > 1.5
+    assert not np.any(np.all(np.isclose(leader["q_d"], GOAL_B), axis=1))
     for key in ("leader", "follower", "operator"):
         report = json.loads((tmp_path / "first" / key / "report.json").read_text())
         assert report["clock"] == "sim"

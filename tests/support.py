@@ -283,6 +283,12 @@ def demo_copy(folder: Path, subsystem: str, *, source: Path = DEMO, **tasks: dic
 
 
 
+def dead_pid() -> int:
+    """The pid of a process that has ended (a run id with it names a dead run)."""
+    child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    return int(child.stdout)
+
+
 def application_copy(folder: Path, prefix: str, links: str | None = None) -> Path:
     """configs/leader_follower.yaml with its subsystem files, written to `folder`, the application named
     `prefix` and each subsystem `prefix`_<its name> (runs side by side never share one); `links`, if

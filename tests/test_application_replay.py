@@ -24,8 +24,9 @@ from pbo_runtime.clock.run_clock import SimRunClock
 from pbo_runtime.config.application import check_application
 from pbo_runtime.ipc import shm
 from pbo_runtime.supervisor.application_runner import unreplayable_links
+from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.table.table import HEADER_WORDS
-from tests.support import PBO, application_copy, assert_nothing_left, children_of, read_until
+from tests.support import PBO, application_copy, assert_nothing_left, children_of, dead_pid, read_until
 
 GOAL_A = np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2])  # the operator's goals (configs/leader_follower.yaml)
 GOAL_B = np.array([-0.2, -0.3, 0.3, -0.2, 0.2, 0.4])
@@ -88,6 +89,14 @@ def test_the_turn_semaphores_are_private_and_gone_after_close():
     assert all(n.startswith("sem.pbo.locktest.") for n in names)  # the application's name: cleanup finds them
     lockstep.close()
     assert [n for n in os.listdir("/dev/shm") if run_id in n] == []
+
+
+@pytest.mark.multiprocess
+def test_the_turn_semaphores_of_a_runner_that_died_are_removed_by_the_next_cleanup():
+    run_id = f"{dead_pid()}-abc123"
+    ApplicationLockstep("locktest_dead", run_id, {"a": 0.001})  # never closed: its runner was killed
+    assert sorted(remove_dead_runs("locktest_dead").removed) == [
+        f"/pbo.locktest_dead.{run_id}.turn-a.{end}" for end in ("done", "go")]
 
 
 def test_a_gate_of_a_run_asked_to_stop_no_longer_waits_for_the_turn():

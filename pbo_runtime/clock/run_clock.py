@@ -61,6 +61,8 @@ class RunClock(Protocol):
         """Let the run go on for `timeout`: wait for events, or run the ticks that cover it (at least one)."""
     def serve(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
         """Have participant `role` serve the signals queued for it now (a no-op where it serves them itself)."""
+    def take_turn(self, while_waiting: Callable[[], None]) -> None:
+        """In an application on the simulated clock: wait for the application's turn (no-op elsewhere)."""
     def announce_stop(self, announce: Callable[[], None]) -> None:
         """Tell the children the run is stopping before they are signalled (where they run on their own)."""
     def slow_participant(self, limit: float) -> tuple[str, float, float] | None:
@@ -108,6 +110,9 @@ class RealRunClock:
 
     def serve(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
         pass  # an RTPU serves its queue between its own releases
+
+    def take_turn(self, while_waiting: Callable[[], None]) -> None:
+        pass
 
     def announce_stop(self, announce: Callable[[], None]) -> None:
         announce()
@@ -174,6 +179,10 @@ class SimRunClock:
             if self.gate is not None and not self.gate.take(while_waiting):
                 return  # told to stop waiting for the turn (the participant died, or a stop's deadline passed)
             self.lockstep.step(role, while_waiting)  # served now, between ticks: at a known instant
+
+    def take_turn(self, while_waiting: Callable[[], None]) -> None:
+        if self.gate is not None:
+            self.gate.take(while_waiting)
 
     def announce_stop(self, announce: Callable[[], None]) -> None:
         pass  # the stop signal is served in step

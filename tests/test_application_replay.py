@@ -26,7 +26,7 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.supervisor.application_runner import unreplayable_links
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.table.table import HEADER_WORDS
-from tests.support import PBO, application_copy, assert_nothing_left, children_of, dead_pid, read_until
+from tests.support import PBO, REPO, application_copy, assert_nothing_left, children_of, dead_pid, read_until
 
 GOAL_A = np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2])  # the operator's goals (configs/leader_follower.yaml)
 GOAL_B = np.array([-0.2, -0.3, 0.3, -0.2, 0.2, 0.4])
@@ -157,6 +157,32 @@ def test_zenoh_links_are_refused_on_the_simulated_clock_before_anything_starts(t
     err = capsys.readouterr().err
     assert "--clock sim runs an application that replays bit for bit only over shared memory links" in err
     assert "use transport: shm, or --clock real" in err and "Traceback" not in err
+
+
+def test_on_the_simulated_clock_each_subsystem_is_told_its_turn():
+    from pbo_runtime.supervisor.application_runner import ApplicationRunner
+
+    application = check_application(REPO / "configs" / "leader_follower.yaml").application
+    runner = ApplicationRunner(application, 1.0, lambda text: None, clock="sim")
+    runner.lockstep = ApplicationLockstep(application.name, runner.run_id, {key: 0.001 for key in application.subsystems})
+    try:
+        for key in application.subsystems:
+            command = runner.command(key)
+            assert command[command.index("--turn") + 1] == f"/pbo.leader_follower.{runner.run_id}.turn-{key}"
+        assert "--turn" not in ApplicationRunner(application, 1.0, lambda text: None).command("leader")
+    finally:
+        runner.lockstep.close()
+
+
+@pytest.mark.parametrize("codes, worst", [([0, 0, 0], 0), ([0, 2, 0], 2), ([0, -9, 0], 2), ([1, -15, 3], 3)])
+def test_the_runners_status_is_the_worst_of_its_subsystems_and_a_killed_one_counts_as_a_failed_run(codes, worst):
+    from types import SimpleNamespace
+
+    from pbo_runtime.supervisor.application_runner import ApplicationRunner
+
+    runner = ApplicationRunner(check_application(REPO / "configs" / "leader_follower.yaml").application, 1.0, lambda text: None)
+    runner._children = {f"s{i}": SimpleNamespace(returncode=code) for i, code in enumerate(codes)}  # fake processes
+    assert runner._worst() == worst
 
 
 # --- runs of the three subsystems ------------------------------------------------------------

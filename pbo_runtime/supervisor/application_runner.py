@@ -49,7 +49,11 @@ EXIT_RUN = 2  # the exit status of a run that failed (a subsystem killed by a si
 
 
 class TurnFault(Exception):
-    """A subsystem failed, or the application was asked to stop, while the subsystems took turns."""
+    """A subsystem failed (`failed`), or the application was asked to stop, while the subsystems took turns."""
+
+    def __init__(self, reason: str, failed: bool = True) -> None:
+        super().__init__(reason)
+        self.failed = failed
 
 
 def unreplayable_links(application: Application) -> str:
@@ -207,7 +211,7 @@ class ApplicationRunner:
         except TurnFault as fault:
             self.say(f"stopping every subsystem: {fault}")
             self._stop_all()
-            return self._worst() or EXIT_RUN
+            return self._worst() or (EXIT_RUN if fault.failed else 0)  # Ctrl-C: as on the real clock
         return self._worst()
 
     def _ended_in_turn(self, key: str) -> bool:
@@ -229,7 +233,7 @@ class ApplicationRunner:
                 how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit {code}"
                 raise TurnFault(f"subsystem '{key}' (pid {child.pid}) failed ({how}) while waiting for its turn")
         if self._stopping:
-            raise TurnFault(self._stopping)
+            raise TurnFault(self._stopping, failed=False)
         assert self.lockstep is not None
         key = self.lockstep.holding
         # (a first turn holds the subsystem's start too, which its own start-up timeouts watch)

@@ -241,3 +241,29 @@ def test_a_subsystem_killed_in_a_simulated_application_stops_the_others_and_leav
     for key in ("leader", "operator"):  # stopped by the runner, cleanly
         assert_nothing_left(json.loads((tmp_path / "out" / key / "report.json").read_text()))
     assert [n for n in os.listdir("/dev/shm") if "pbo.replay_kill" in n] == []
+
+
+@pytest.mark.multiprocess
+def test_a_participant_stopped_in_a_simulated_application_ends_the_run_with_a_named_fault_not_a_hang(tmp_path):
+    """An RTPU stopped (SIGSTOP) holds every subsystem; past the watchdog's limit (30 s) its run fails, naming it."""
+    app = application_copy(tmp_path, "replay_stall")
+    runner = subprocess.Popen([*PBO, "run", str(app), "--clock", "sim", "--duration", "600", "--no-live", "--out",
+                               str(tmp_path / "out")], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True)
+    try:
+        said = read_until(runner, "[follower] pbo: configuration 'follow' is on", "[leader] pbo: configuration 'lead' is on")
+        (follower,) = [pid for pid, command in children_of(runner.pid).items() if "follower.yaml" in command]
+        (rtpu,) = [pid for pid, command in children_of(follower).items() if "--rtpu rtpu0" in command]
+        os.kill(rtpu, signal.SIGSTOP)
+        out, err = runner.communicate(timeout=300)
+    finally:
+        if runner.poll() is None:
+            runner.kill()
+            runner.wait()
+    assert runner.returncode == 2, said + out + err
+    assert "[follower] error: rtpu0 has not finished the tick at " in out
+    assert "every subsystem of the application waits for it" in out
+    assert f"stopping every subsystem: subsystem 'follower' (pid {follower}) failed (exit 2) while it held" in out
+    for key in ("leader", "follower", "operator"):
+        assert_nothing_left(json.loads((tmp_path / "out" / key / "report.json").read_text()))
+    assert [n for n in os.listdir("/dev/shm") if "pbo.replay_stall" in n] == []

@@ -99,12 +99,16 @@ def main(argv: list[str] | None = None) -> int:
             return {device: driver.figures() for device, driver in with_figures.get(task, {}).items()}
 
         signal_queue = messages.signal_queue_name(name, args.run_id, args.rtpu)
+        pumped: list[Any] = []  # the simulated clock's relays: each forwards its link's messages at every step
 
         def relay(task: str, end):
             # A message link's server task (TR 5.1): each message is a signal to this RTPU.
             from pbo_runtime.links.relay import MessageRelay
 
-            return MessageRelay(end, signal_queue, task)
+            made = MessageRelay(end, signal_queue, task, threaded=not simulated)
+            if simulated:
+                pumped.append(made)
+            return made
 
         rtpu = subsystem.rtpu(args.rtpu)
         realtime = {**_realtime.apply(rtpu.cpu, args.fifo), "spin": f"{args.spin * 1e6:g} µs"}
@@ -150,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
             make = factory(spec)
             executive.add(make(), make)
         if simulated:
-            barrier = LockstepParticipant(name, args.run_id, args.rtpu, table.header)
+            barrier = LockstepParticipant(name, args.run_id, args.rtpu, table.header, before_step=lambda: _pump(pumped))
             realtime = {"clock": f"simulated, {args.tick * 1e3:g} ms ticks"}
         stop_only_at_waits()  # the executive takes the table lock from here on: a stop must not land inside a transfer
         report(messages.Ready(realtime))
@@ -181,6 +185,15 @@ def main(argv: list[str] | None = None) -> int:
         if table is not None:
             table.close()
         events.close()
+
+
+def _pump(relays: list[Any]) -> None:
+    """Each relay of the simulated clock forwards what its link holds now; a closed one (its task killed) is dropped."""
+    for relay in list(relays):
+        if relay.closed:
+            relays.remove(relay)
+        else:
+            relay.pump()
 
 
 if __name__ == "__main__":

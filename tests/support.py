@@ -283,6 +283,30 @@ def demo_copy(folder: Path, subsystem: str, *, source: Path = DEMO, **tasks: dic
 
 
 
+def dead_pid() -> int:
+    """The pid of a process that has ended (a run id with it names a dead run)."""
+    child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    return int(child.stdout)
+
+
+def application_copy(folder: Path, prefix: str, links: str | None = None) -> Path:
+    """configs/leader_follower.yaml with its subsystem files, written to `folder`, the application named
+    `prefix` and each subsystem `prefix`_<its name> (runs side by side never share one); `links`, if
+    given, replaces the file's links section (the lines below `links:`)."""
+    configs = REPO / "configs"
+    for part in ("leader", "follower"):
+        text = (configs / f"{part}.yaml").read_text()
+        (folder / f"{part}.yaml").write_text(text.replace(f"\nsubsystem: {part}\n", f"\nsubsystem: {prefix}_{part}\n"))
+    text = (configs / "leader_follower.yaml").read_text()
+    text = text.replace("application: leader_follower", f"application: {prefix}")
+    text = text.replace("subsystem: operator", f"subsystem: {prefix}_operator")
+    if links is not None:
+        text = text[:text.index("links:\n")] + "links:\n" + links + text[text.index("run:\n"):]
+    path = folder / "app.yaml"
+    path.write_text(text)
+    return path
+
+
 def config_copy(config: Path, folder: Path, subsystem: str, replace: tuple[tuple[str, str], ...] = ()) -> Path:
     """A shipped configs/ file under another subsystem name (runs side by side never share one),
     comments kept, each (old, new) of `replace` applied once it is found, written to `folder`."""

@@ -264,8 +264,8 @@ def assert_the_goal_reached_both_arms(out) -> None:
 
 @pytest.mark.multiprocess
 def test_the_operator_goal_message_moves_the_leader_and_the_follower_tracks_it_over_shared_memory(tmp_path):
-    # The real clock: each subsystem of an application keeps its own simulated clock, so with
-    # --clock sim the follower may end its run while the leader, started later, still moves.
+    # The real clock, where each subsystem starts on its own: the arms are awaited, not a duration
+    # (tests/test_application_replay.py runs the application on the simulated clock).
     status, out, err = run_until_both_arms_settle(tmp_path, str(APP))
     assert_application_ended_well(status, tmp_path / "out", out + err)
     assert "[leader] pbo: configuration 'lead' is on" in out and "[follower] run summary" in out

@@ -16,7 +16,7 @@ from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm as _shm
 from pbo_runtime.supervisor.supervisor import remove_dead_runs
 from pbo_runtime.table.table import Header, StateTable, TableLayout
-from tests.support import DEMO, PBO, REPO, RUNS, Ticker, children_of, read_until, task_spec, unique_name, variables
+from tests.support import DEMO, PBO, REPO, RUNS, Ticker, children_of, dead_pid, read_until, task_spec, unique_name, variables
 
 VARS = variables(("a", "float64", (3,)))
 
@@ -31,11 +31,6 @@ header[4] = __import__("os").getpid()
 print("holding", flush=True)
 time.sleep(60)
 """
-
-
-def dead_pid() -> int:
-    child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
-    return int(child.stdout)
 
 
 @pytest.mark.multiprocess

@@ -92,6 +92,23 @@ def test_the_relay_forwards_each_message_to_the_rtpu_signal_queue_highest_priori
         signals.close()
 
 
+def test_the_simulated_clocks_relay_forwards_what_the_link_holds_only_when_pumped(goal_link):
+    signals = messages.Queue(unique_name("signals-rtpu0"), create=True)
+    try:
+        relay = MessageRelay(MessageLink.attach(goal_link.name), signals.name, "goal", threaded=False)
+        goal_link.send([1.0])
+        goal_link.send([2.0])
+        assert signals.receive(0.2) is None  # no thread: nothing moves between steps
+        relay.pump()
+        assert [signals.receive(0)[2][0] for _ in range(2)] == [[1.0], [2.0]] and relay.forwarded == 2
+        relay.close()
+        goal_link.send([3.0])
+        relay.pump()  # closed: its task was killed
+        assert signals.receive(0) is None and relay.forwarded == 2
+    finally:
+        signals.close()
+
+
 def test_a_server_needs_an_rtpu_to_wake_it(make_table, goal_link):
     table = make_table(variables(("q_d", "float64", (3,))))
     task = make_task(table, MessageServer, "goal", {"value": ("q_d", (3,))}, {"goal": link_spec(goal_link)}, aperiodic=True)

@@ -123,6 +123,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="an application placed on hosts: run only the subsystems of this host (default: all, here)")
     _address_argument(run)
     run.add_argument("--links", help=argparse.SUPPRESS)  # set by an application's runner: JSON, see _links
+    run.add_argument("--turn", help=argparse.SUPPRESS)  # set by an application's runner on --clock sim (clock.application_lockstep)
     run.add_argument("--alternate", metavar="A,B", help="switch test: alternate between these configurations")
     run.add_argument("--switches", type=int, default=100, help="with --alternate: how many switches (default 100)")
     run.add_argument("--interval", type=float, default=0.05, help="with --alternate: seconds between switches (default 0.05)")
@@ -414,7 +415,8 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
     from pbo_runtime.supervisor.supervisor import Supervisor
 
     options = {"application": args.app, "static": args.static, "alternate": alternate, "fifo": args.fifo,
-               "clock": args.clock, "out_dir": str(args.out), "links": json.loads(args.links) if args.links else None}
+               "clock": args.clock, "out_dir": str(args.out), "links": json.loads(args.links) if args.links else None,
+               "turn": args.turn}
     refused = _check_output_paths(args)
     if refused:
         errors.print(f"error: {refused}", markup=False)
@@ -567,9 +569,9 @@ def _run_application(args: argparse.Namespace, console: Console, errors: Console
 
 
 def _run_linked_subsystems(args: argparse.Namespace, console: Console, errors: Console, app: Any) -> int:
-    from pbo_runtime.supervisor.application_runner import ApplicationRunner
+    from pbo_runtime.supervisor.application_runner import ApplicationRunner, unreplayable_links
 
-    refused = _check_output_paths(args)
+    refused = _check_output_paths(args) or (unreplayable_links(app) if args.clock == "sim" else "")
     if refused:
         errors.print(f"error: {refused}", markup=False)
         return EXIT_CONFIG

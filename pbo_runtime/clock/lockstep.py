@@ -106,12 +106,14 @@ class LockstepMaster:
 class LockstepParticipant:
     """A plant's or an RTPU's side: wait for `go`, do the tick's work, post `done`."""
 
-    def __init__(self, subsystem: str, run_id: str, role: str, header: np.ndarray) -> None:
+    def __init__(self, subsystem: str, run_id: str, role: str, header: np.ndarray,
+                 before_step: Callable[[], None] | None = None) -> None:
         go, done = semaphore_names(subsystem, run_id, role)
         self._go = posix_ipc.Semaphore(go)
         self._done = posix_ipc.Semaphore(done)
         self.header = header
         self.last_tick = 0
+        self.before_step = before_step  # run once released, before the step's work (an RTPU's link relays)
 
     def wait(self) -> bool:
         """Block until released; True if a new tick began (False: serve signals only)."""
@@ -121,6 +123,8 @@ class LockstepParticipant:
                 break
             except (posix_ipc.BusyError, posix_ipc.SignalError):
                 process.raise_if_stopping()  # a supervisor that died sent us SIGTERM (PDEATHSIG): Stop ends the wait
+        if self.before_step is not None:
+            self.before_step()
         tick = int(self.header[Header.SIM_TICK])
         if tick != self.last_tick:
             self.last_tick = tick

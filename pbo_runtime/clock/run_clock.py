@@ -10,7 +10,8 @@ here once instead of in branches through the supervisor:
 - `SimRunClock`: the supervisor is the clock master (`clock.lockstep`): time is the tick count,
   moved only by `run_for`; a signal is served in full when its RTPU is stepped, so its answer
   is already queued when `serve` returns; children run with a fixed string hash so a run
-  replays bit for bit.
+  replays bit for bit. In an application on the simulated clock it takes the application's turn
+  (`clock.application_lockstep`) before each tick or step, and gives it back after each tick.
 """
 
 from __future__ import annotations
@@ -22,9 +23,13 @@ from typing import Callable, Protocol
 
 import numpy as np
 
+from pbo_runtime.clock.application_lockstep import TurnGate, TurnStalled
 from pbo_runtime.clock.clocks import release_stagger
 from pbo_runtime.clock.lockstep import LockstepMaster, semaphore_names
 from pbo_runtime.table.table import Header
+
+
+TURN_STALL_SECONDS = 30.0  # wall seconds one participant may take over a tick while a whole application waits
 
 
 class RunClock(Protocol):
@@ -56,6 +61,8 @@ class RunClock(Protocol):
         """Let the run go on for `timeout`: wait for events, or run the ticks that cover it (at least one)."""
     def serve(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
         """Have participant `role` serve the signals queued for it now (a no-op where it serves them itself)."""
+    def take_turn(self, while_waiting: Callable[[], None]) -> None:
+        """In an application on the simulated clock: wait for the application's turn (no-op elsewhere)."""
     def announce_stop(self, announce: Callable[[], None]) -> None:
         """Tell the children the run is stopping before they are signalled (where they run on their own)."""
     def slow_participant(self, limit: float) -> tuple[str, float, float] | None:
@@ -104,6 +111,9 @@ class RealRunClock:
     def serve(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
         pass  # an RTPU serves its queue between its own releases
 
+    def take_turn(self, while_waiting: Callable[[], None]) -> None:
+        pass
+
     def announce_stop(self, announce: Callable[[], None]) -> None:
         announce()
 
@@ -124,10 +134,12 @@ class SimRunClock:
     signals_served_when_sent = True
     plans_need_a_wakeup = False  # the simulated clock's RTPUs read the header every tick anyway
 
-    def __init__(self, tick: float) -> None:
+    def __init__(self, tick: float, gate: TurnGate | None = None, stall_limit: float = TURN_STALL_SECONDS) -> None:
         self.tick = tick
         self.lockstep: LockstepMaster | None = None
         self._slow_tick = -1  # the tick last reported as slow
+        self.gate = gate  # in an application: the application's turn, taken before any lockstep activity
+        self.stall_limit = stall_limit  # in an application: wall seconds one participant may hold every subsystem
 
     def now(self) -> float:
         return self.lockstep.now if self.lockstep is not None else 0.0
@@ -153,22 +165,37 @@ class SimRunClock:
 
     def run_for(self, timeout: float, wait_for_events: Callable[[float], None], while_stepping: Callable[[], None]) -> None:
         assert self.lockstep is not None
+        gate = self.gate
         for _ in range(max(1, math.floor(timeout / self.tick + 1e-9))):
+            if gate is not None:
+                gate.take(while_stepping)
             self.lockstep.advance(while_stepping)
+            if gate is not None:
+                gate.give()  # one tick a turn: the application's next turn may be another subsystem's
             while_stepping()
 
     def serve(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
         if self.lockstep is not None:
+            if self.gate is not None and not self.gate.take(while_waiting):
+                return  # told to stop waiting for the turn (the participant died, or a stop's deadline passed)
             self.lockstep.step(role, while_waiting)  # served now, between ticks: at a known instant
+
+    def take_turn(self, while_waiting: Callable[[], None]) -> None:
+        if self.gate is not None:
+            self.gate.take(while_waiting)
 
     def announce_stop(self, announce: Callable[[], None]) -> None:
         pass  # the stop signal is served in step
 
     def slow_participant(self, limit: float) -> tuple[str, float, float] | None:
-        lockstep = self.lockstep
-        if lockstep is None:
-            return None
+        lockstep, gate = self.lockstep, self.gate
+        if lockstep is None or (gate is not None and not gate.held):
+            return None  # waiting for the application's turn: none of ours is stepping
         waited = time.monotonic() - lockstep.step_started
+        if gate is not None and waited > self.stall_limit:
+            raise TurnStalled(f"{lockstep.stepping} has not finished the tick at {lockstep.now:.3f} s after {waited:.1f} s "
+                              "of wall time, and every subsystem of the application waits for it: a cycle there has "
+                              "not returned")
         if waited > limit and self._slow_tick != lockstep.ticks:
             self._slow_tick = lockstep.ticks
             return lockstep.stepping, lockstep.now, waited
@@ -177,3 +204,5 @@ class SimRunClock:
     def close(self) -> None:
         if self.lockstep is not None:
             self.lockstep.close()
+        if self.gate is not None:
+            self.gate.close()  # the turn is not given back: the master sees this process end

@@ -6,6 +6,10 @@ subscription), so a relay thread blocks on the link and forwards each message to
 queue as `["message", task, [body, sent_ns]]`; the executive then releases the server as it does
 for an operator's event, at most once per min_interarrival, its payload in `self.event`.
 
+On the simulated clock no thread forwards: the RTPU calls `pump` at the start of each lockstep
+step, so a message is served at the first step after it was sent, whatever the scheduler did
+(`clock.application_lockstep` orders the subsystems' steps).
+
 The relay never touches the table or the task: the server's cycle runs on the executive's thread,
 with the usual transfers. Back-pressure is bounded at every step: the signal queue holds
 fs.mqueue.msg_max messages, the executive a server's EVENTS_QUEUED (more are counted as dropped),
@@ -26,14 +30,31 @@ POLL = 0.1  # seconds the relay blocks on the link before it looks at its stop f
 class MessageRelay:
     """Forwards the messages of `link` (a receiving end) to RTPU signal queue `signal_queue` for `task`."""
 
-    def __init__(self, link: Any, signal_queue: str, task: str) -> None:
+    def __init__(self, link: Any, signal_queue: str, task: str, threaded: bool = True) -> None:
         self.link = link
         self.task = task
         self.forwarded = 0
+        self.closed = False
         self._signals = messages.Queue(signal_queue)
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._forward, name=f"relay-{task}", daemon=True)
-        self._thread.start()
+        self._held: list[Any] | None = None  # pump: a message taken from the link that the signal queue had no room for
+        self._thread: threading.Thread | None = None
+        if threaded:
+            self._thread = threading.Thread(target=self._forward, name=f"relay-{task}", daemon=True)
+            self._thread.start()
+
+    def pump(self) -> None:
+        """Forward every message the link holds now, without waiting (the simulated clock's relay)."""
+        while not self.closed:
+            if self._held is None:
+                message = self.link.receive(timeout=0.0)
+                if message is None:
+                    return
+                self._held = [message.body, message.sent_ns]
+            if not self._signals.try_send("message", self.task, self._held, timeout=0.0):
+                return  # the signal queue is full: the rest waits for the next step, in the link's own queue
+            self._held = None
+            self.forwarded += 1
 
     def _forward(self) -> None:
         link, stop, signals = self.link, self._stop, self._signals
@@ -53,6 +74,8 @@ class MessageRelay:
     def close(self) -> None:
         """Stop forwarding, then close the link's end (the task is killed)."""
         self._stop.set()
-        self._thread.join(timeout=5 * POLL)
+        self.closed = True
+        if self._thread is not None:
+            self._thread.join(timeout=5 * POLL)
         self._signals.close()
         self.link.close()

@@ -14,12 +14,18 @@ its host's subsystems, makes only the shm links both of whose ends are local, an
 zenoh ends an endpoint and a key that follow from the file alone (the listening end's host
 address and the link's port; `pbo/<application>/<link>`), so two runners that never talk to each
 other agree. Without `--host`, every host is this machine: zenoh links listen on loopback.
+
+On `--clock sim` the runner is the application's clock master (`clock.application_lockstep`):
+the subsystems take turns, one tick each, in order of simulated time, so the links are read at
+the same ticks in every run and the application replays bit for bit. Zenoh links are refused
+there: what arrives over a network, and when, is not the simulated clock's to order.
 """
 
 from __future__ import annotations
 
 import ctypes
 import json
+import os
 import signal
 import socket
 import subprocess
@@ -32,16 +38,39 @@ from typing import Any, Callable
 import numpy as np
 import posix_ipc
 
+from pbo_runtime.clock.application_lockstep import ApplicationLockstep
 from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import shm
 from pbo_runtime.config.application import Application
 from pbo_runtime.links.zenoh_link import link_key
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
+from pbo_runtime.supervisor.supervisor import simulation_tick
 from pbo_runtime.links.message_link import SYSTEM_MESSAGE_BYTES, MessageLink, message_link_name
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer, link_name
 
 STOP_GRACE = 15.0  # seconds a subsystem gets to shut down after SIGTERM before it is killed
 RELAY_GRACE = 2.0  # seconds to print what an ended subsystem still had in its pipe
+TURN_LIMIT = 120.0  # wall seconds a subsystem may hold the simulated clock's turn after its first
+CLEANUP_GRACE = 10.0  # seconds a killed subsystem's plant and RTPUs get to end before its objects are removed
+EXIT_RUN = 2  # the exit status of a run that failed (a subsystem killed by a signal has none of its own)
+
+
+class TurnFault(Exception):
+    """A subsystem failed (`failed`), or the application was asked to stop, while the subsystems took turns."""
+
+    def __init__(self, reason: str, failed: bool = True) -> None:
+        super().__init__(reason)
+        self.failed = failed
+
+
+def unreplayable_links(application: Application) -> str:
+    """Why the application cannot run on the simulated clock ("" if it can): its Zenoh links."""
+    zenoh = [name for name, link in application.links.items() if link.transport == "zenoh"]
+    if not zenoh:
+        return ""
+    return (f"application '{application.name}': link(s) {', '.join(repr(n) for n in zenoh)} go over Zenoh, whose "
+            "deliveries arrive when the network brings them, not at a tick: --clock sim runs an application "
+            "that replays bit for bit only over shared memory links; use transport: shm, or --clock real")
 
 
 def _die_with_parent() -> None:
@@ -76,6 +105,7 @@ class ApplicationRunner:
         self._children: dict[str, subprocess.Popen] = {}
         self._relays: list[threading.Thread] = []  # one per subsystem: its output, prefixed, until it ends
         self._stopping = ""
+        self.lockstep: ApplicationLockstep | None = None  # on --clock sim: the subsystems' turns
 
     def run(self) -> int:
         previous = {s: signal.signal(s, self._interrupt) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -84,10 +114,15 @@ class ApplicationRunner:
             if removed:
                 self.say(f"removed {len(removed)} link(s) left by a dead run: {', '.join(removed)}")
             self._make_links()
+            if self.clock == "sim":
+                ticks = {key: simulation_tick(self.application.subsystems[key]) for key in self.local}
+                self.lockstep = ApplicationLockstep(self.application.name, self.run_id, ticks)
             self._start()
-            return self._wait()
+            return self._wait() if self.lockstep is None else self._take_turns(self.lockstep)
         finally:
             self._stop_all()
+            if self.lockstep is not None:
+                self.lockstep.close()
             for link in self._links:
                 link.close()
             for s, handler in previous.items():
@@ -142,9 +177,11 @@ class ApplicationRunner:
         return f"tcp/127.0.0.1:{spec.port if spec.port_given else _free_port()}"
 
     def _start(self) -> None:
+        # a replayed run must not depend on string hashing, in the supervisors as in their children
+        environment = {**os.environ, "PYTHONHASHSEED": "0"} if self.clock == "sim" else None
         for key in self.local:
             child = subprocess.Popen(self.command(key), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     text=True, preexec_fn=_die_with_parent, start_new_session=True)
+                                     text=True, preexec_fn=_die_with_parent, start_new_session=True, env=environment)
             self.watch(key, child)
 
     def watch(self, key: str, child: subprocess.Popen) -> None:
@@ -166,6 +203,8 @@ class ApplicationRunner:
             command += ["--app", chosen["app"]]
         if self.out_dir is not None:
             command += ["--out", str(self.out_dir / key)]
+        if self.lockstep is not None:
+            command += ["--turn", self.lockstep.bases[key]]
         if self.fifo is not None:
             command.append("--fifo" if self.fifo else "--no-fifo")
         return command
@@ -185,10 +224,54 @@ class ApplicationRunner:
                 reason = f"subsystem '{failed[0]}' failed (exit {codes[failed[0]]})" if failed else self._stopping
                 self.say(f"stopping every subsystem: {reason}")
                 self._stop_all()
-                return max((c.returncode or 0) for c in self._children.values())  # a fault seen before the stop counts
+                return self._worst()  # a fault seen before the stop counts
             if all(code is not None for code in codes.values()):
                 return 0
             time.sleep(0.05)
+
+    def _take_turns(self, lockstep: ApplicationLockstep) -> int:
+        """The simulated clock: give the subsystems their turns until every one has ended; a failure stops the others."""
+        try:
+            while lockstep.rotation:
+                lockstep.give_turn(lockstep.next_turn(), self._ended_in_turn, self._while_a_turn_lasts)
+        except TurnFault as fault:
+            self.say(f"stopping every subsystem: {fault}")
+            self._stop_all()
+            return self._worst() or (EXIT_RUN if fault.failed else 0)  # Ctrl-C: as on the real clock
+        return self._worst()
+
+    def _ended_in_turn(self, key: str) -> bool:
+        """Whether subsystem `key`, which holds the turn, has ended; TurnFault if it failed."""
+        child = self._children[key]
+        code = child.poll()
+        if code in (None, 0):
+            return code == 0
+        assert self.lockstep is not None
+        how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit {code}"
+        raise TurnFault(f"subsystem '{key}' (pid {child.pid}) failed ({how}) while it held the simulated clock's "
+                        f"turn at {self.lockstep.next_time(key) - self.lockstep.tick_ns[key] / 1e9:.3f} s")
+
+    def _while_a_turn_lasts(self) -> None:
+        """While one subsystem has the turn: another that failed, a stop request or a turn held too long ends the run."""
+        for key, child in self._children.items():
+            code = child.poll()
+            if code not in (None, 0):
+                how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit {code}"
+                raise TurnFault(f"subsystem '{key}' (pid {child.pid}) failed ({how}) while waiting for its turn")
+        if self._stopping:
+            raise TurnFault(self._stopping, failed=False)
+        assert self.lockstep is not None
+        key = self.lockstep.holding
+        # (a first turn holds the subsystem's start too, which its own start-up timeouts watch)
+        if key and self.lockstep.turns[key] > 1 and self.lockstep.held_for() > TURN_LIMIT:
+            raise TurnFault(f"subsystem '{key}' has held the simulated clock's turn at "
+                            f"{self.lockstep.next_time(key) - self.lockstep.tick_ns[key] / 1e9:.3f} s for "
+                            f"{self.lockstep.held_for():.0f} s of wall time (its supervisor is stopped or stuck)")
+
+    def _worst(self) -> int:
+        """The worst exit status of the subsystems: 0, theirs, or EXIT_RUN for one killed by a signal."""
+        codes = [child.returncode for child in self._children.values() if child.returncode]
+        return max((code if code > 0 else EXIT_RUN) for code in codes) if codes else 0
 
     def _stop_all(self) -> None:
         alive = [c for c in self._children.values() if c.poll() is None]
@@ -203,4 +286,26 @@ class ApplicationRunner:
                 child.wait()
         for relay in self._relays:  # a subsystem's last lines (its summary) are printed before the runner's
             relay.join(timeout=RELAY_GRACE)
+        self._remove_what_killed_subsystems_left()
+
+    def _remove_what_killed_subsystems_left(self) -> None:
+        """A subsystem whose supervisor was killed could not remove its table, queues and semaphores: done here.
+
+        Its plant and RTPUs end by themselves once their parent is gone (they are told by SIGTERM);
+        cleanup leaves a run alone while any of its processes lives, so this waits for them a while.
+        """
+        for key, child in self._children.items():
+            if child.returncode is None or child.returncode >= 0:
+                continue
+            name, ours = self.application.subsystems[key].name, f"{child.pid}-"
+            deadline = time.monotonic() + CLEANUP_GRACE
+            removed: list[str] = []
+            while True:
+                cleanup = remove_dead_runs(name)
+                removed += cleanup.removed
+                if not any(run_id.startswith(ours) for run_id in cleanup.live) or time.monotonic() > deadline:
+                    break
+                time.sleep(0.1)
+            if removed:
+                self.say(f"removed {len(removed)} object(s) left by subsystem '{key}' (killed): {', '.join(removed)}")
 

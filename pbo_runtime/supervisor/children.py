@@ -142,6 +142,7 @@ class Children:
 
     def _serve_stop(self, child: Child) -> None:
         """Sim clock: step an RTPU once so it serves its stop; a dead or stuck one is left to SIGTERM."""
+        self.clock.take_turn(lambda: self._drain_events(0.0))  # an application's turn: its wait is not the stop's
         deadline = time.monotonic() + STOP_TIMEOUT
 
         def give_up() -> bool:

@@ -9,7 +9,8 @@ whatever happened. A start first removes what a dead run of the same subsystem l
 The run's clock is a parameter (`clock.run_clock`): real time, or with `clock="sim"` the
 simulated clock, whose master the supervisor then is: time is the tick count, advanced only by
 `pump`, and the plant and the RTPUs run each tick in turn (`clock.lockstep`), so a run replays
-bit for bit. Times that belong to the run (durations, job timeouts, switch times) are read
+bit for bit; in an application, the subsystems' supervisors take turns (`clock.application_lockstep`).
+Times that belong to the run (durations, job timeouts, switch times) are read
 through `now()`, on either clock; waits for processes (start-up, a signal's answer) stay on
 wall time, since a process that hangs must be caught whatever the clock.
 """
@@ -45,6 +46,7 @@ from pbo_runtime.supervisor.job_control import JobControl, JobFailure, applicati
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockWatching
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
+from pbo_runtime.clock.application_lockstep import TurnGate
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.stall_watch import StallWatch
@@ -75,11 +77,17 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         clock: str = "real",
         out_dir: str | None = None,
         links: dict[str, dict[str, Any]] | None = None,
+        turn: str | None = None,
     ) -> None:
         self.subsystem = subsystem
         if clock not in ("real", "sim"):
             raise RunFailure(f"unknown clock '{clock}': use real or sim")
-        self.clock: RunClock = SimRunClock(simulation_tick(subsystem)) if clock == "sim" else RealRunClock()
+        if turn and clock != "sim":
+            raise RunFailure("an application's turn (--turn) is for the simulated clock only: add --clock sim")
+        # in an application on the simulated clock, `turn` names the semaphores of this subsystem's turn
+        # (clock.application_lockstep); it is no longer waited for once the run is stopped or has failed
+        gate = TurnGate(turn, lambda: bool(self._stop_requested or self.result.failure)) if turn else None
+        self.clock: RunClock = SimRunClock(simulation_tick(subsystem), gate) if clock == "sim" else RealRunClock()
         self.out_dir = os.path.abspath(out_dir) if out_dir else ""
         self.links = dict(links or {})  # an application's links, handed to every RTPU (see _links)
         self.application = application

@@ -13,7 +13,7 @@ from pbo_runtime import InVar, OutVar, PortBasedObject, TableLayoutError
 from pbo_runtime.table.directory import DIRECTORY_RECORD, Entry, read_directory
 from pbo_runtime.table.table import HEADER_WORDS, Header, StateTable, TableLayout
 from pbo_runtime.task.transfer import LocalTable
-from tests.support import allocation_peak, one_array, task_spec, unique_name, variables
+from tests.support import task_spec, unique_name, variables
 
 
 class Copier(PortBasedObject):
@@ -25,14 +25,6 @@ class Copier(PortBasedObject):
     d = InVar("d", shape=(6,))
     x = OutVar("x", shape=(6,))
     y = OutVar("y", shape=(6,))
-
-
-class MixedWriter(PortBasedObject):
-    """Fake module: outputs of two dtypes, so a write scatters two groups."""
-
-    a = InVar("a", shape=(6,))
-    x = OutVar("x", shape=(6,))
-    n = OutVar("n", dtype="int32")
 
 
 VARS = variables(*[(n, "float64", (6,)) for n in "abcdxy"], ("n", "int32", ()))
@@ -133,46 +125,3 @@ def test_transfer_indices_do_not_grow_with_the_table(make_table):
     big_vars = VARS + [v.__class__(v.name, len(VARS) + i, v.dtype, v.shape) for i, v in enumerate(big_vars[len(VARS):])]
     big = LocalTable(make_table(big_vars), task_spec(Copier).bindings, 0)
     assert [g.index.size for g in big._in_var.groups] == [g.index.size for g in small._in_var.groups]
-
-
-@pytest.mark.parametrize("module", [Copier, MixedWriter])
-def test_a_write_makes_the_sequence_odd_with_its_first_scattered_word_and_even_after(make_table, module):
-    table = make_table(VARS)
-    local = LocalTable(table, task_spec(module, index=1).bindings, task_index=1)
-    first = local._out_var.groups[0]
-    assert first.local.dtype == np.float64 and int(first.index[0]) == Header.LOCK_SEQUENCE
-    assert int(first.local[:1].view(np.int64)[0]) == table.writer_tag  # odd, naming this process
-    table.write("x", np.ones(6), when=0.0)  # job control's write moves the sequence too
-    before = table.lock_sequence
-    local.write_outputs()
-    assert table.lock_sequence == before + 2
-    assert table.lock_holder == os.getpid()
-
-
-def test_taking_over_the_outputs_at_on_leaves_the_sequence_tag_alone(make_table):
-    table = make_table(VARS)
-    table.write("x", np.full(6, 5.0), when=1.0)
-    local = LocalTable(table, task_spec(Copier, index=2).bindings, task_index=2)
-    local.read_for_on()
-    assert int(local._out_var.groups[0].local[:1].view(np.int64)[0]) == table.writer_tag
-    assert local.port_arrays[4].tolist() == [5.0] * 6  # x, as the table held it
-    local.write_outputs()
-    assert table.read("x")[0].tolist() == [5.0] * 6 and table.lock_sequence % 2 == 0
-
-
-def test_numpy_scatters_a_one_dimensional_index_in_its_order():
-    """What signing a write with its first scattered word relies on: numpy stores a 1-d fancy
-    assignment element by element in index order (repeated indices: the last one stays)."""
-    words = np.zeros(64)
-    words[np.array([15, 40, 15, 3, 15], dtype=np.intp)] = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
-    assert words[15] == 5.0
-
-
-def test_a_cycle_transfer_allocates_no_array(make_table):
-    local = LocalTable(make_table(VARS), task_spec(Copier).bindings, 0)
-
-    def transfer() -> None:
-        local.read_inputs()
-        local.write_outputs()
-
-    assert allocation_peak(transfer) < one_array()

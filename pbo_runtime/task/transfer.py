@@ -3,19 +3,16 @@
 Everything is worked out at spawn: one contiguous local buffer per dtype and direction, each
 port's array a view into it, and for the per-cycle transfers one index array per dtype. A
 cycle's read is then `lock; take(idx, out=local); unlock` and its write is
-`lock; flat[idx] = local; sequence even; unlock`, the scatter's first word making the sequence
-odd: no name lookup, no allocation. The sequence is the seqlock observers read the table under
-without the lock (`table.snapshot`); its odd value names the writer, so it also signs the lock
-(`ipc.segment`): a write costs a load and one integer store besides its scatter, as a read costs
-its one store of the holder word.
+`lock; sequence odd; flat[idx] = local; sequence even; unlock`: no name lookup, no allocation.
+The sequence is the seqlock observers read the table under without the lock (`table.snapshot`);
+its odd value names the writer, so it also signs the lock (`ipc.segment`): a write costs two
+integer stores and a load, as a read costs its one store of the holder word.
 
 Local float64 buffers are laid out as
-    [sequence tag (per-cycle outputs only)][writer x k][float64 data ...][status block (per-cycle outputs only)]
-The tag is this process's odd sequence value (2 pid + 1, its bits in a float64 word), scattered
-to the table's sequence word before anything else of the write, as numpy's scatter stores in
-index order. The writer words name this task on every output; the status block carries the
-cycle count and release time, which are the outputs' sequence number and write time (see
-`table.table`), so a write is stamped by the same scatter that moves it.
+    [writer x k][float64 data ...][status block (per-cycle outputs only)]
+The writer words name this task on every output; the status block carries the cycle count and
+release time, which are the outputs' sequence number and write time (see `table.table`), so a
+write is stamped by the same scatter that moves it.
 """
 
 from __future__ import annotations
@@ -51,15 +48,12 @@ class _Region:
     """The local copies of a set of bindings, with the global indices they map to."""
 
     def __init__(self, table: StateTable, bindings: list[PortBinding], writer: int, status_words: int,
-                 freshness: bool = False, sign_sequence: bool = False) -> None:
+                 freshness: bool = False) -> None:
         layout = table.layout
         slots = [layout.slot(b.variable) for b in bindings]
         k = len(bindings)
         f64 = np.dtype("float64")
-        # A region that signs the write sequence scatters this process's odd tag first, before
-        # any of its words: see `LocalTable._compile`.
-        self.lead = 1 if sign_sequence else 0
-        index64: list[int] = [int(Header.LOCK_SEQUENCE)] * self.lead + [s.meta_word for s in slots]
+        index64: list[int] = [s.meta_word for s in slots]
         other: dict[str, list[int]] = {}
         data_pos: list[tuple[str, int]] = []
         for s in slots:
@@ -83,15 +77,12 @@ class _Region:
             if idx:
                 self.groups.append(_Group(table.dtype_view(np.dtype(dtype_name)), np.asarray(idx, dtype=np.intp), local))
         local64 = locals_by_dtype["float64"]
-        if self.lead:
-            local64[0:1].view(np.int64)[0] = table.writer_tag  # the float64 word holds the int64 tag's bits
-        data_at = self.lead + k
-        self.writer = local64[self.lead : data_at]
+        self.writer = local64[0:k]
         self.writer.fill(writer)
         self.status = local64[self.status_at : self.status_at + status_words]
         self.write_times = local64[self.freshness_at : self.freshness_at + (k if freshness else 0)]
         # the variables' data alone, one contiguous view per float dtype (no writer words, no status)
-        self.float_data = [local64[data_at : self.status_at]]
+        self.float_data = [local64[k : self.status_at]]
         self.float_data += [local for name, local in locals_by_dtype.items() if name != "float64" and local.dtype.kind == "f"]
         self.freshness_index = (
             self.groups[0].index[self.freshness_at : self.freshness_at + k] if freshness and self.groups else None
@@ -119,7 +110,7 @@ class LocalTable:
         self._in_const = _Region(table, in_const, task_index, 0)
         self._in_var = _Region(table, in_var, task_index, 0, freshness=watch_freshness)
         self._out_const = _Region(table, out_const, task_index, 0)
-        self._out_var = _Region(table, out_var, task_index, int(StatusWord.USED), sign_sequence=True)
+        self._out_var = _Region(table, out_var, task_index, int(StatusWord.USED))
         by_binding: dict[int, np.ndarray] = {}
         for region, members in ((self._in_var, in_var), (self._in_const, in_const), (self._out_var, out_var), (self._out_const, out_const)):
             for binding, array in zip(members, region.arrays):
@@ -134,10 +125,11 @@ class LocalTable:
         self.input_write_times = self._in_var.write_times  # with watch_freshness: each writer's last release
         self.bytes_in = sum(a.nbytes for a in self._in_var.arrays)  # the data of the per-cycle ports
         self.bytes_out = sum(a.nbytes for a in self._out_var.arrays)
-        # what a cycle really moves: the data, each variable's writer word, the status block, the sequence's tag
+        # what a cycle really moves: the data, each variable's writer word, the status block
         self.bytes_moved = sum(g.index.size * g.local.itemsize for g in (*self._in_var.groups, *self._out_var.groups))
         self._lock = table.lock
         self._lock_words = table.lock_words
+        self._writer_tag = table.writer_tag
         self._pid = table._pid
         self._compile()
 
@@ -162,6 +154,7 @@ class LocalTable:
         holder = int(Header.LOCK_HOLDER)
         sequence_word = int(Header.LOCK_SEQUENCE)
         pid = self._pid
+        tag = self._writer_tag
         in_groups = tuple((g.flat.take, g.index, g.local) for g in self._in_var.groups)
         out_groups = tuple((g.flat, g.index, g.local) for g in self._out_var.groups)
 
@@ -182,18 +175,14 @@ class LocalTable:
                     take(idx, out=local, mode="clip")
                 release()
 
-        # The write's first scatter begins with the sequence word: it stores this process's odd
-        # tag (observers retry, the lock is signed) before any other word of the write, as
-        # numpy's scatter stores in index order; the even value, 2 past the one before, follows
-        # the last scatter. One store fewer than a separate odd store (~0.4k instructions of a
-        # transfer's ~10k), and the float64 group, which holds the status block, always exists.
         if len(out_groups) == 1:
             (flat, oidx, olocal), = out_groups
 
             def write_outputs() -> None:
                 acquire()
                 before = words[sequence_word]
-                flat[oidx] = olocal  # its first word: the sequence odd, naming this process
+                words[sequence_word] = tag  # odd, and naming this process: observers retry, the lock is signed
+                flat[oidx] = olocal
                 words[sequence_word] = before + 2
                 release()
         else:
@@ -201,7 +190,8 @@ class LocalTable:
             def write_outputs() -> None:
                 acquire()
                 before = words[sequence_word]
-                for flat, idx, local in out_groups:  # the float64 group first: its first word is the odd tag
+                words[sequence_word] = tag
+                for flat, idx, local in out_groups:
                     flat[idx] = local
                 words[sequence_word] = before + 2
                 release()
@@ -266,10 +256,9 @@ class LocalTable:
             for region in (self._in_var, self._out_var):
                 for g in region.groups:
                     if region is self._out_var:
-                        # Leave the status block alone: it is ours, not the table's history; and
-                        # the sequence's tag: the table's sequence is not ours to copy.
-                        first, n = (region.lead, region.status_at) if g.local is region.groups[0].local else (0, len(g.index))
-                        g.flat.take(g.index[first:n], out=g.local[first:n], mode="clip")
+                        # Leave the status block alone: it is ours, not the table's history.
+                        n = region.status_at if g.local is region.groups[0].local else len(g.index)
+                        g.flat.take(g.index[:n], out=g.local[:n], mode="clip")
                     else:
                         g.flat.take(g.index, out=g.local, mode="clip")
         finally:

@@ -262,10 +262,9 @@ it for a cycle's two calls and the three stores and loads of its lock record (th
 are in the note above). Counted in instructions (valgrind, CPython 3.11, numpy 2.4; no timing
 noise): the floor is ~7.0k per transfer (its four semaphore calls ~2.4k, the `take` ~3.0k, the
 scatter ~1.6k); a Python call ~0.35-0.45k; one int64 word through a memoryview, the cheapest store
-or load of a word Python has, ~0.3-0.4k. The table's transfer is ~9.4k, 1.34x the floor (~9.8k,
-1.39x, when its write stored the odd sequence word apart from its scatter); floor + lock record
-is 1.17x and, as two calls, 1.27x (each ±0.03x): in instructions the lock record and the two
-calls alone are past 1.2x. Per-variable stamping with `fill` cost
+or load of a word Python has, ~0.3-0.4k. The table's transfer is ~9.8k, 1.39x the floor; floor
++ lock record is 1.17x and, as two calls, 1.27x (each ±0.03x): in instructions the lock record
+and the two calls alone are past 1.2x. Per-variable stamping with `fill` cost
 0.15 µs more and was replaced by the status-block scheme (see
 [architecture](architecture.md#metadata-without-per-cycle-stamping)); the index arrays are built
 at spawn, so the table's size does not enter (see the scale curves below).""",

@@ -13,7 +13,7 @@ from pbo_runtime import InVar, OutVar, PortBasedObject, TableLayoutError
 from pbo_runtime.table.directory import DIRECTORY_RECORD, Entry, read_directory
 from pbo_runtime.table.table import HEADER_WORDS, Header, StateTable, TableLayout
 from pbo_runtime.task.transfer import LocalTable
-from tests.support import task_spec, unique_name, variables
+from tests.support import allocation_peak, one_array, task_spec, unique_name, variables
 
 
 class Copier(PortBasedObject):
@@ -97,6 +97,16 @@ def test_job_control_write_stamps_sequence_time_and_writer(make_table):
     assert table.read("a")[1:] == (2, 2.5, -1)
     table.write("n", 6, when=2.0)
     assert table.read("n")[0] == 6
+
+
+def test_a_cycle_transfer_allocates_no_array(make_table):
+    local = LocalTable(make_table(VARS), task_spec(Copier).bindings, 0)
+
+    def transfer() -> None:
+        local.read_inputs()
+        local.write_outputs()
+
+    assert allocation_peak(transfer) < one_array()
 
 
 def test_a_cycle_transfer_moves_inputs_and_stamps_outputs(make_table):

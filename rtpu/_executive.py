@@ -51,6 +51,11 @@ NOT_HELD, HELD_ILLEGAL, HELD_STALE_INPUT, HELD_BY_MODULE = 0, 1, 2, 3
 _FLAGS, _STOPPING, _STATIC_SWITCH = int(Header.FLAGS), int(Flag.STOPPING), int(Flag.STATIC_SWITCH)
 _PLAN_SEQUENCE, _PLAN_TIME_NS = int(Header.PLAN_SEQUENCE), int(Header.PLAN_TIME_NS)
 _TASKS_IN_ERROR = int(Header.TASKS_IN_ERROR)
+# An activation comes back from the header's nanoseconds, a boundary is epoch + k x period in
+# floating point near 1e5 s of CLOCK_MONOTONIC: the two agree to a few nanoseconds, not exactly.
+# Within this, a time is on the boundary (without it, half the plans put their entering tasks'
+# first release one period after the activation).
+ON_THE_BOUNDARY = 1e-6
 OVERRUNS_KEPT = 8  # the last overruns kept per task (release, lateness, execution time) for the run report
 
 
@@ -255,7 +260,7 @@ class Executive:
         if words is not None and words[_PLAN_SEQUENCE] != self.plan_seen:
             now = self.clock.now()
             self._read_plan(words[_PLAN_SEQUENCE], now)
-            if now + self.release_slack >= words[_PLAN_TIME_NS] / 1e9:
+            if now + self.release_slack + ON_THE_BOUNDARY >= words[_PLAN_TIME_NS] / 1e9:
                 self.apply_plan()
 
     def _read_plan(self, sequence: int, now: float) -> None:
@@ -275,7 +280,7 @@ class Executive:
         if words is not None and words[_PLAN_SEQUENCE] != self.plan_seen:
             self._read_plan(words[_PLAN_SEQUENCE], now)
             activation = words[_PLAN_TIME_NS] / 1e9
-            if now + self.release_slack >= activation:
+            if now + self.release_slack + ON_THE_BOUNDARY >= activation:
                 self.apply_plan()  # late (this RTPU read the plan after its activation): before any cycle
                 self._run_ready()
                 self._send_held_reports()
@@ -306,7 +311,7 @@ class Executive:
             # read the plan too late for its activation applies it here, at its first boundary
             # after it, before anything runs in the old configuration.
             self._read_plan(words[_PLAN_SEQUENCE], woke)
-            if woke + self.release_slack >= words[_PLAN_TIME_NS] / 1e9:
+            if woke + self.release_slack + ON_THE_BOUNDARY >= words[_PLAN_TIME_NS] / 1e9:
                 self.apply_plan()
                 self._run_ready()
                 self._send_held_reports()
@@ -736,7 +741,7 @@ class Executive:
             self.report(Stats({name: {**s.statistics(), **({"devices": figures} if figures else {})}}))
 
     def _first_release(self, s: Scheduled, at: float) -> float:
-        s.release_index = max(math.ceil((at - self.epoch) / s.period - 1e-9), 0)
+        s.release_index = max(math.ceil((at - ON_THE_BOUNDARY - self.epoch) / s.period), 0)
         return self.epoch + s.release_index * s.period
 
     def _leave_on(self, s: Scheduled) -> None:

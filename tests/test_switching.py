@@ -202,6 +202,18 @@ def test_an_rtpu_that_reads_the_plan_after_its_activation_applies_it_before_its_
     assert actuator.lost_to_switch == 0 and actuator.stable_cycles == 0
 
 
+def test_an_activation_read_back_from_the_headers_nanoseconds_is_the_boundary_it_was_posted_for():
+    """CLOCK_MONOTONIC epochs are ~1e5 s with whole nanoseconds: epoch + k x period, written as ns
+    and read back, may come out a few ns either side of the boundary; it is that boundary."""
+    epoch = 74059.734851116
+    executive = Executive(ManualClock(epoch), IdleSignals(ManualClock(epoch)), lambda event: None, epoch=epoch)
+    task = SimpleNamespace(period=PERIOD, release_index=0)
+    for k in range(10_000, 10_200):
+        boundary = epoch + k * PERIOD
+        activation = int(boundary * 1e9) / 1e9  # as the supervisor posts it and an executive reads it
+        assert executive._first_release(task, activation) == boundary, k
+
+
 def test_a_switch_that_overruns_a_cycle_makes_the_critical_task_hold_still(rig):
     subsystem, table, clock, executives, events = rig
     start(subsystem, executives, clock)

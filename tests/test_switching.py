@@ -164,7 +164,7 @@ def test_the_entering_task_runs_its_first_cycle_at_the_activation_instant(rig):
     assert first and first[-1].task == "ctl_b" and first[-1].at == pytest.approx(activation)
 
 
-def test_the_leaving_task_runs_no_cycle_at_the_activation_boundary(rig):
+def test_the_leaving_task_runs_no_cycle_at_the_activation_boundary_issue_23(rig):
     subsystem, table, clock, executives, events = rig
     start(subsystem, executives, clock)
     step_executives(executives, clock, clock.now() + 0.005)
@@ -202,7 +202,7 @@ def test_an_rtpu_that_reads_the_plan_after_its_activation_applies_it_before_its_
     assert actuator.lost_to_switch == 0 and actuator.stable_cycles == 0
 
 
-def test_an_activation_read_back_from_the_headers_nanoseconds_is_the_boundary_it_was_posted_for():
+def test_an_activation_read_back_from_the_headers_nanoseconds_is_the_boundary_it_was_posted_for_issue_23():
     """CLOCK_MONOTONIC epochs are ~1e5 s with whole nanoseconds: epoch + k x period, written as ns
     and read back, may come out a few ns either side of the boundary; it is that boundary."""
     epoch = 74059.734851116

@@ -12,7 +12,8 @@ where q is the ceil(n / 100)-th largest of the last WINDOW delays (their p99 or 
 while fewer than 100 are known). Until FIRST_SAMPLES plans were read the lead is LEAD_MAX, the fixed
 lead it replaces. A plan an RTPU read too late for its activation is still safe (that RTPU applies
 it at its first cycle boundary after, before anything of it runs in the old configuration:
-docs/reconfiguration.md); its delay, the largest of the window, raises the next leads.
+docs/reconfiguration.md); its delay enters the window like any other, and raises the next leads
+as soon as more than one plan in a hundred was that slow (at once, under 100 plans).
 """
 
 from __future__ import annotations

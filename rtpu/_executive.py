@@ -52,6 +52,11 @@ _FLAGS, _STOPPING, _STATIC_SWITCH = int(Header.FLAGS), int(Flag.STOPPING), int(F
 _PLAN_SEQUENCE, _PLAN_TIME_NS = int(Header.PLAN_SEQUENCE), int(Header.PLAN_TIME_NS)
 _TASKS_IN_ERROR = int(Header.TASKS_IN_ERROR)
 _TASKS_NOT_FRESH = int(Header.TASKS_NOT_FRESH)
+# An activation comes back from the header's nanoseconds, a boundary is epoch + k x period in
+# floating point near 1e5 s of CLOCK_MONOTONIC: the two agree to a few nanoseconds, not exactly.
+# Within this, a time is on the boundary (without it, half the plans put their entering tasks'
+# first release one period after the activation).
+ON_THE_BOUNDARY = 1e-6
 OVERRUNS_KEPT = 8  # the last overruns kept per task (release, lateness, execution time) for the run report
 
 
@@ -206,6 +211,13 @@ class Executive:
         self.rtpu_index = rtpu_index
         self.switching_words = range(int(Header.SWITCHING_SINCE_NS), int(Header.SWITCHING_SINCE_NS) + n_rtpus)
         self.plan_seen = int(header[Header.PLAN_SEQUENCE]) if header is not None else 0
+        # When this RTPU first read the pending plan (off the per-cycle path: only while one is
+        # pending): job control sizes the plan's lead from how long RTPUs take to read a plan.
+        self.plan_read = self.plan_seen
+        self.plan_read_at = 0.0
+        # A switch's reports (its windows, the tasks' new states, Switched) wait until the
+        # boundary's cycles ran: each is a message, and the entering tasks' first cycle comes first.
+        self.held_reports: list[Event] = []
         self.configuration = -1  # index of the configuration last applied here
         self.last_switch = -math.inf  # activation time of the last plan applied
         self.release_slack = getattr(clock, "release_slack", 0.0)  # sim clock: a release a few ulps late is due
@@ -240,14 +252,23 @@ class Executive:
                 if new_tick and self.running:
                     self._plan_if_due()
                     self._run_ready()
+                    self._send_held_reports()
             finally:
                 barrier.done()
 
     def _plan_if_due(self) -> None:
         words = self.header_words
         if words is not None and words[_PLAN_SEQUENCE] != self.plan_seen:
-            if self.clock.now() + self.release_slack >= words[_PLAN_TIME_NS] / 1e9:
+            now = self.clock.now()
+            self._read_plan(words[_PLAN_SEQUENCE], now)
+            if now + self.release_slack + ON_THE_BOUNDARY >= words[_PLAN_TIME_NS] / 1e9:
                 self.apply_plan()
+
+    def _read_plan(self, sequence: int, now: float) -> None:
+        """Stamp the first time this RTPU saw plan `sequence` (reported with its `Switched`)."""
+        if sequence != self.plan_read:
+            self.plan_read = sequence
+            self.plan_read_at = now
 
     def run_once(self) -> None:
         clock = self.clock
@@ -258,9 +279,12 @@ class Executive:
         now = clock.now()
         words = self.header_words
         if words is not None and words[_PLAN_SEQUENCE] != self.plan_seen:
+            self._read_plan(words[_PLAN_SEQUENCE], now)
             activation = words[_PLAN_TIME_NS] / 1e9
-            if now + self.release_slack >= activation:
-                self.apply_plan()
+            if now + self.release_slack + ON_THE_BOUNDARY >= activation:
+                self.apply_plan()  # late (this RTPU read the plan after its activation): before any cycle
+                self._run_ready()
+                self._send_held_reports()
                 return
             if activation < next_release:
                 next_release = activation
@@ -280,7 +304,20 @@ class Executive:
         if words is not None and words[_FLAGS] & _STOPPING:
             self.stop()  # the run is over: a cycle now would only compete with the others' stop work
             return
-        self._run_ready(clock.sleep_until(next_release))
+        woke = clock.sleep_until(next_release)
+        if words is not None and words[_PLAN_SEQUENCE] != self.plan_seen:
+            # A plan posted while this RTPU waited, due by this boundary: applied before the
+            # boundary's cycles, never after them. The RTPU that hosts the entering tasks has a
+            # boundary at the activation, so it needs no wake-up to switch on time; an RTPU that
+            # read the plan too late for its activation applies it here, at its first boundary
+            # after it, before anything runs in the old configuration.
+            self._read_plan(words[_PLAN_SEQUENCE], woke)
+            if woke + self.release_slack + ON_THE_BOUNDARY >= words[_PLAN_TIME_NS] / 1e9:
+                self.apply_plan()
+                self._run_ready()
+                self._send_held_reports()
+                return
+        self._run_ready(woke)
 
     def _run_ready(self, first_now: float | None = None) -> None:
         """Run every released task once, most urgent first (maximum-urgency-first); no allocation.
@@ -506,7 +543,8 @@ class Executive:
             self._swap_in(self.staged, self.staged_tunes)
             self.staged, self.staged_tunes = None, {}
         view = self.reconfiguration.views[configuration]
-        self.report_windows(sequence)
+        held = self.held_reports.append
+        self.report_windows(sequence, held)
         leaving = [s for s in self.on if s.task.name not in view.members]
         entering = [s for s in self.tasks.values() if s.task.name in view.members and s.task.state == TaskState.OFF]
         try:
@@ -525,9 +563,17 @@ class Executive:
         self.last_switch = activation
         done_at = clock.now()
         for s in (*leaving, *entering):
-            self._report_state(s.task)
-        self.report(Switched(sequence, view.name, activation, applied_at, done_at,
-                             [s.task.name for s in leaving], [s.task.name for s in entering]))
+            self._report_state(s.task, held)
+        read_at = self.plan_read_at if self.plan_read == sequence else applied_at
+        held(Switched(sequence, view.name, activation, applied_at, done_at,
+                      [s.task.name for s in leaving], [s.task.name for s in entering], read_at))
+
+    def _send_held_reports(self) -> None:
+        """Send what a switch held back until its boundary's cycles ran (`apply_plan`)."""
+        if self.held_reports:
+            for event in self.held_reports:
+                self.report(event)
+            self.held_reports.clear()
 
     def _swap_in(self, stage: LiveStage, tunes: dict[str, Any]) -> None:
         """The staged live description becomes this RTPU's: who is in which configuration, who writes
@@ -539,15 +585,16 @@ class Executive:
             except Exception as exc:  # noqa: BLE001 - the checker passed the values: a module that refuses them says why
                 self.report(Refused(name, f"tune: {exc}"))
 
-    def report_windows(self, following: int = 0) -> None:
+    def report_windows(self, following: int = 0, send: Callable[[Event], None] | None = None) -> None:
         """Per switch: what each critical task read between that switch and the next (or the stop)."""
+        send = send or self.report
         for s in self.tasks.values():
             if not s.critical:
                 continue
             lost, stale = s.lost_to_switch - s.window_lost, s.stale_reads - s.window_stale
             s.window_lost, s.window_stale = s.lost_to_switch, s.stale_reads
             if self.plan_seen:
-                self.report(Window(self.plan_seen, s.task.name, lost, stale))
+                send(Window(self.plan_seen, s.task.name, lost, stale))
 
     def _watch(self, s: Scheduled, configuration: int, since: float) -> None:
         """Point a critical task's freshness check at the writers of its inputs in `configuration`, on since `since`."""
@@ -685,6 +732,7 @@ class Executive:
     def stop(self) -> None:
         """Turn everything off and kill it (kill runs off first), then report statistics."""
         self.report = self.report_at_stop
+        self._send_held_reports()
         self.report_windows()
         for s in list(self.tasks.values()):
             if s.task.state in (TaskState.ON, TaskState.OFF, TaskState.ERROR):
@@ -704,12 +752,12 @@ class Executive:
             self.report(Stats({name: {**s.statistics(), **({"devices": figures} if figures else {})}}))
 
     def _first_release(self, s: Scheduled, at: float) -> float:
-        s.release_index = max(math.ceil((at - self.epoch) / s.period - 1e-9), 0)
+        s.release_index = max(math.ceil((at - ON_THE_BOUNDARY - self.epoch) / s.period), 0)
         return self.epoch + s.release_index * s.period
 
     def _leave_on(self, s: Scheduled) -> None:
         if s in self.on:
             self.on.remove(s)
 
-    def _report_state(self, task: Task) -> None:
-        self.report(StateChanged(task.name, task.state.name, task.last_error, task.output_failed))
+    def _report_state(self, task: Task, send: Callable[[Event], None] | None = None) -> None:
+        (send or self.report)(StateChanged(task.name, task.state.name, task.last_error, task.output_failed))

@@ -59,6 +59,7 @@ class FakeJobHost:
         self.task_errors: dict[str, str] = {}
         self.plans: list[tuple[int, str, float]] = []  # (sequence, configuration, activation) as posted
         self.rtpus_apply_plans = True
+        self.read_delay: float | None = None  # each RTPU first reads a plan this long after its request (None: not stamped)
         self.signals: list[tuple[str, str]] = []  # (task, op) as sent
         self.clear_fixes_the_fault = True
         self.on_leaves = "ON"  # OFF: the task's on failed and its error component turned it off
@@ -101,7 +102,8 @@ class FakeJobHost:
             for task in on:
                 self.task_states[task] = "ON"
                 self.job_control.first_cycle(record.sequence, task, record.activation)
-            self.job_control.switched(rtpu.name, record.sequence, record.activation, record.activation, off, on)
+            read_at = record.requested_at + self.read_delay if self.read_delay is not None else 0.0
+            self.job_control.switched(rtpu.name, record.sequence, record.activation, record.activation, off, on, read_at)
 
     def read_variable(self, name: str) -> np.ndarray:
         return self.values[name]

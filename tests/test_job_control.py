@@ -8,6 +8,7 @@ import pytest
 from pbo_runtime.errors import PboError
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.supervisor.job_control import POLL, SWITCH_TIMEOUT, JobFailure, application_steps, evaluate
+from pbo_runtime.supervisor.plan_lead import FIRST_SAMPLES, MARGIN, MARGIN_FACTOR
 from tests.fake_job_host import SUBSYSTEM, FakeJobHost, fake_subsystem
 
 GOAL = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]
@@ -38,18 +39,42 @@ def arm_reaches_its_goal_after(seconds: float):
 def test_a_switch_posts_a_plan_on_the_release_grid_and_ends_when_every_rtpu_applied_it(host):
     host.clock.advance(0.0104)
     record = host.job_control.switch("pd")
-    assert host.plans == [(1, "pd", pytest.approx(0.013))]  # 2 ms of lead, rounded up to the 1 ms grid
+    assert host.plans == [(1, "pd", pytest.approx(0.013))]  # the first plans: 2 ms of lead, to the next boundary of the grid
     assert (record.before, record.after, record.off, record.on) == ("pid", "pd", ["pid"], ["pd"])
     assert set(record.applied) == {"rtpu0", "rtpu1"} and record.latency == pytest.approx(0.013 - 0.0104)
     assert host.configuration == "pd" and host.job_control.pending is None
     assert host.job_control.switches == [record]
 
 
+def test_once_plans_were_read_the_lead_follows_the_rtpus_read_delays(host):
+    host.read_delay = 0.0001
+    for configuration in ("pd", "pid") * (FIRST_SAMPLES // 2):
+        host.job_control.switch(configuration)
+    assert host.job_control.lead.value == pytest.approx(MARGIN_FACTOR * 0.0001 + MARGIN)
+    host.clock.time = 1.0104
+    record = host.job_control.switch("pd")
+    assert record.lead == pytest.approx(MARGIN_FACTOR * 0.0001 + MARGIN)
+    assert host.plans[-1][2] == pytest.approx(1.011)  # the next boundary of the 1 ms grid, not two periods later
+    assert record.read_delay == pytest.approx(0.0001) and record.grid_wait == pytest.approx(0.0006 - record.lead)
+
+
+def test_a_plan_read_after_its_activation_is_counted_late_and_raises_the_lead(host):
+    host.read_delay = 0.0001
+    for configuration in ("pd", "pid") * (FIRST_SAMPLES // 2):
+        host.job_control.switch(configuration)
+    before = host.job_control.lead.value
+    host.read_delay = 0.0015  # past the activation, whatever the phase: an RTPU held up
+    host.job_control.switch("pd")
+    assert host.job_control.lead.late == 1 and host.job_control.lead.value > before
+
+
 def test_on_the_simulated_clock_the_plan_activates_at_the_next_tick_of_the_grid(host):
     host.tick = 0.001
     host.clock.advance(0.005)
+    host.read_delay = 0.0
     host.job_control.switch("pd")
     assert host.plans[0][2] == pytest.approx(0.006)
+    assert len(host.job_control.lead.ordered) == 0  # read at the tick by construction: nothing to learn
 
 
 def test_a_switch_no_rtpu_applies_times_out_and_says_where_it_stood(host):

@@ -164,6 +164,56 @@ def test_the_entering_task_runs_its_first_cycle_at_the_activation_instant(rig):
     assert first and first[-1].task == "ctl_b" and first[-1].at == pytest.approx(activation)
 
 
+def test_the_leaving_task_runs_no_cycle_at_the_activation_boundary_issue_23(rig):
+    subsystem, table, clock, executives, events = rig
+    start(subsystem, executives, clock)
+    step_executives(executives, clock, clock.now() + 0.005)
+    leaving = executives["rtpu0"].tasks["ctl_a"]
+    activation = math.ceil((clock.now() + 0.004) / PERIOD) * PERIOD
+    post_plan(table, Reconfiguration(subsystem).index("with_b"), activation)
+    step_executives(executives, clock, activation - 0.0003)
+    executives["rtpu0"].run_once()  # as on the real clock: it waits from before the boundary, then runs it
+    assert clock.now() == pytest.approx(activation)
+    assert leaving.task.state is TaskState.OFF
+    assert leaving.last_release == pytest.approx(activation - PERIOD)  # its last cycle: the boundary before
+
+
+@pytest.mark.parametrize("late", ["rtpu0", "rtpu1"])
+def test_an_rtpu_that_reads_the_plan_after_its_activation_applies_it_before_its_next_cycle(rig, late):
+    """rtpu0 hosts the controllers, rtpu1 the critical consumer; the late one was stalled (not
+    stepped) from before the activation until 0.3 ms past it, so it reads the plan late."""
+    subsystem, table, clock, executives, events = rig
+    start(subsystem, executives, clock)
+    step_executives(executives, clock, clock.now() + 0.005)
+    activation = math.ceil((clock.now() + 0.004) / PERIOD) * PERIOD
+    step_executives(executives, clock, activation - 0.0008)
+    post_plan(table, Reconfiguration(subsystem).index("with_b"), activation)
+    on_time = {name: ex for name, ex in executives.items() if name != late}
+    step_executives(on_time, clock, activation + 0.0003)
+    step_executives(executives, clock, activation + 0.010)
+    switched = {rtpu: e for rtpu, e in events if isinstance(e, messages.Switched)}
+    assert switched[late].activation == switched["rtpu0" if late == "rtpu1" else "rtpu1"].activation == pytest.approx(activation)
+    assert switched[late].applied_at == pytest.approx(activation + 0.0003)  # at once when it ran again: late, and says so
+    assert executives["rtpu0"].tasks["ctl_a"].last_release < activation  # no cycle of the old configuration after it
+    assert executives["rtpu0"].tasks["ctl_b"].task.state is TaskState.ON
+    actuator = executives["rtpu1"].tasks["actuator"]
+    # the consumer's first read after the activation (at +0.45 ms, or at +0.3 ms when it was the late one) is ctl_b's
+    assert actuator.task.module.seen[-10:] == [-1.0] * 10
+    assert actuator.lost_to_switch == 0 and actuator.stable_cycles == 0
+
+
+def test_an_activation_read_back_from_the_headers_nanoseconds_is_the_boundary_it_was_posted_for_issue_23():
+    """CLOCK_MONOTONIC epochs are ~1e5 s with whole nanoseconds: epoch + k x period, written as ns
+    and read back, may come out a few ns either side of the boundary; it is that boundary."""
+    epoch = 74059.734851116
+    executive = Executive(ManualClock(epoch), IdleSignals(ManualClock(epoch)), lambda event: None, epoch=epoch)
+    task = SimpleNamespace(period=PERIOD, release_index=0)
+    for k in range(10_000, 10_200):
+        boundary = epoch + k * PERIOD
+        activation = int(boundary * 1e9) / 1e9  # as the supervisor posts it and an executive reads it
+        assert executive._first_release(task, activation) == boundary, k
+
+
 def test_a_switch_that_overruns_a_cycle_makes_the_critical_task_hold_still(rig):
     subsystem, table, clock, executives, events = rig
     start(subsystem, executives, clock)

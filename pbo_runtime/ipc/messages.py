@@ -230,6 +230,7 @@ class Switched:
     done_at: float
     off: list[str]
     on: list[str]
+    read_at: float = 0.0  # when this RTPU first read the plan in the table's header (0: not stamped)
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

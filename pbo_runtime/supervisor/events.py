@@ -141,7 +141,8 @@ class EventHandling:
             if (state == "ERROR") != (previous == "ERROR"):
                 self._count_errors()
         elif isinstance(event, messages.Switched):
-            self.job_control.switched(source, event.sequence, event.applied_at, event.done_at, event.off, event.on)
+            self.job_control.switched(source, event.sequence, event.applied_at, event.done_at, event.off, event.on,
+                                      event.read_at)
         elif isinstance(event, messages.Window):
             self.job_control.window(event.sequence, event.task, event.lost, event.stale)
         elif isinstance(event, messages.FirstCycle):

@@ -2,7 +2,8 @@
 
 The supervisor owns the processes; this module decides what to switch to and when, through the
 narrow `JobHost` protocol the supervisor implements (a fake host in the unit tests). A dynamic
-switch posts a plan in the table's header (configuration, activation a few milliseconds ahead)
+switch posts a plan in the table's header (configuration, activation on the release grid at least
+the plan's lead ahead: `plan_lead`, sized from how long the RTPUs took to read the last plans)
 and wakes the RTPUs; each applies it at its first cycle boundary at or after the activation,
 so all switch at one instant. A static switch kills the leaving tasks and spawns the entering
 ones. A job writes its object, switches, and waits for its post-condition; an application runs
@@ -23,8 +24,8 @@ from pbo_runtime.config.live import LiveDescription
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.config.expressions import ExpressionError, compile_condition
+from pbo_runtime.supervisor.plan_lead import PlanLead
 
-PLAN_LEAD = 0.002  # seconds from posting a plan to its activation: every RTPU is woken by then (wake-ups take ~0.1 ms)
 SWITCH_TIMEOUT = 5.0
 POLL = 0.01  # how often a job's post-condition is evaluated
 
@@ -50,6 +51,24 @@ class SwitchRecord:
     lost: dict[str, int] = field(default_factory=dict)
     stale: dict[str, int] = field(default_factory=dict)
     change: str = ""  # a live change applied by this plan (`pbo spawn` ...), "" for a switch
+    lead: float = 0.0  # the least time from the request to the activation this plan was given
+    read: dict[str, float] = field(default_factory=dict)  # rtpu -> when it first read the plan
+    posted_at: float = math.nan  # when the plan was in the header and the RTPUs were signalled
+
+    @property
+    def read_delay(self) -> float:
+        """Request to the last RTPU's first read of the plan (what the lead must cover)."""
+        return max(self.read.values()) - self.requested_at if self.read else math.nan
+
+    @property
+    def grid_wait(self) -> float:
+        """What the activation adds to the lead: the wait for the release grid's next boundary."""
+        return self.activation - self.requested_at - self.lead
+
+    @property
+    def work(self) -> float:
+        """Activation to the new configuration's first cycle: the RTPUs' wake-up and switch work."""
+        return self.latency - (self.activation - self.requested_at)
 
     @property
     def latency(self) -> float:
@@ -74,7 +93,9 @@ class SwitchRecord:
     def to_json(self) -> dict[str, Any]:
         return {"sequence": self.sequence, "from": self.before, "to": self.after, "latency": self.latency,
                 "skew": self.skew, "longest": self.longest, "off": self.off, "on": self.on,
-                "cycles_lost": self.lost, "stale_reads": self.stale, **({"change": self.change} if self.change else {})}
+                "cycles_lost": self.lost, "stale_reads": self.stale, "lead": self.lead, "read_delay": self.read_delay,
+                "grid_wait": self.grid_wait, "work": self.work, "posted": self.posted_at - self.requested_at,
+                "read_delays": {rtpu: at - self.requested_at for rtpu, at in self.read.items()}, **({"change": self.change} if self.change else {})}
 
 
 class JobHost(Protocol):
@@ -128,6 +149,16 @@ class JobHost(Protocol):
         """The live change is applied: `live` is the running subsystem's description from now on."""
 
 
+def plan_activation(requested: float, lead: float, epoch: float, grid: float) -> float:
+    """A plan's activation: the first boundary of the first RTPU's release grid at least `lead` after `requested`.
+
+    On the grid, the entering tasks' first cycle is the boundary itself, so the critical consumer's
+    next read already sees their output; a boundary closer than the lead is taken only if the lead
+    fits before it, never by rounding the lead itself up.
+    """
+    return epoch + math.ceil((requested + lead - epoch) / grid - 1e-9) * grid
+
+
 def evaluate(host: JobHost, text: str) -> tuple[bool, dict[str, Any]]:
     """Evaluate a condition on the table's current values: (holds, the values it read)."""
     condition = compile_condition(text)
@@ -177,6 +208,7 @@ class JobControl:
         self.pending: SwitchRecord | None = None
         self.job: str | None = None
         self.application: str | None = None
+        self.lead = PlanLead()  # on the real clock, from the read delays of the plans so far
         # what a plot of the run's logs marks: switches and jobs, at their times on the run's clock
         # (the clock a data log's rows are stamped with: each cycle's release time)
         self.marks: list[dict[str, Any]] = []
@@ -205,13 +237,11 @@ class JobControl:
         host = self.host
         specs = tasks if tasks is not None else self.subsystem.tasks
         requested = host.now()
-        # activate on the first RTPU's release grid: the entering tasks' first cycle is the cycle
-        # boundary itself, so the critical consumer's next read already sees their output
-        grid = host.shortest_period
-        lead = host.tick if host.tick > 0 else PLAN_LEAD  # simulated: the next tick on the grid
-        activation = host.epoch + math.ceil((requested + lead - host.epoch) / grid - 1e-9) * grid
+        lead = host.tick if host.tick > 0 else self.lead.value  # simulated: the next tick on the grid
+        activation = plan_activation(requested, lead, host.epoch, host.shortest_period)
         sequence = host.post_plan(configuration, activation)
-        record = SwitchRecord(sequence, before, configuration, requested, activation, change=change)
+        record = SwitchRecord(sequence, before, configuration, requested, activation, change=change, lead=lead,
+                              posted_at=host.now())
         self.pending = record
         entering_active = [t for t in entering if host.task_states.get(t) == "OFF" and not getattr(specs[t], "aperiodic", False)]
         deadline = host.now() + SWITCH_TIMEOUT
@@ -222,6 +252,8 @@ class JobControl:
                                f"(applied on: {', '.join(record.applied) or 'no RTPU'})")
             host.pump(0.002)
         self.pending = None
+        if host.tick == 0 and record.read:  # (simulated: RTPUs read a plan at the next tick, by construction)
+            self.lead.record(record.read_delay, late=max(record.read.values()) > activation)
         host.set_configuration(configuration)
         self.switches.append(record)
         # the plan's activation: the cycle boundary at which every RTPU switched
@@ -266,12 +298,15 @@ class JobControl:
                 host.kill_task(name)
         return record
 
-    def switched(self, rtpu: str, sequence: int, applied_at: float, done_at: float, off: list[str], on: list[str]) -> None:
-        """An RTPU's report that it applied a plan."""
+    def switched(self, rtpu: str, sequence: int, applied_at: float, done_at: float, off: list[str], on: list[str],
+                 read_at: float = 0.0) -> None:
+        """An RTPU's report that it applied a plan (`read_at`: when it first read it; 0: not known)."""
         record = self.pending
         if record is None or record.sequence != sequence:
             return
         record.applied[rtpu] = (applied_at, done_at)
+        if read_at > 0.0:
+            record.read[rtpu] = read_at
         record.off.extend(off)
         record.on.extend(on)
 

@@ -293,7 +293,10 @@ def _serve(commands: int, replies: int) -> None:
             reply = {"errno": exc.errno, "strerror": exc.strerror or str(exc)}
         except Exception as exc:  # a bug in encoding: said to the logger, whose next cycle raises it
             reply = {"bug": f"{type(exc).__name__}: {exc}"}
-        _send(replies, {"rows": log.rows, **reply})
+        try:
+            _send(replies, {"rows": log.rows, **reply})
+        except BrokenPipeError:
+            return  # the logger's process is gone (killed with its RTPU): the log ends at its last chunk
         if command["buffer"] == FINISH:
             return
 

@@ -120,6 +120,8 @@ class Restarting:
             while queue.receive(0) is not None:  # what the dead process never served is not for the new one
                 pass
             arguments, tasks = self.launched[death.rtpu]
+            if "--restarted" not in arguments:
+                arguments = [*arguments, "--restarted"]  # its tasks continue the run's files (a data log)
             self._launch(death.rtpu, arguments, tasks)
             try:
                 self._await_ready({death.rtpu})

@@ -16,8 +16,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from bench import (api_stream, check_scale, data_log, faults, hmi_latency, hmi_load, links, peers, placement, realtime, scale,
-                   svar_transfer, switching, wait)
+from bench import (api_stream, check_scale, data_log, faults, hmi_latency, hmi_load, links, peers, placement, realtime, restart,
+                   scale, svar_transfer, switching, wait)
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -31,6 +31,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "placement": placement.run,
     "links": links.section,
     "faults": faults.run,
+    "restart": restart.run,
     "data_log": data_log.run,
     "api_stream": api_stream.run,
     "hmi_latency": hmi_latency.run,
@@ -48,6 +49,7 @@ FULL: dict[str, dict[str, Any]] = {
     "placement": {"tasks": 102, "repeat": 200, "check_repeat": 5},
     "links": {},
     "faults": {"stop_seconds": 2.0},
+    "restart": {"kills": 20},
     "data_log": {"seconds": 10.0, "rounds": 6},
     "api_stream": {"seconds": 120.0, "rounds": 12},
     "hmi_latency": {"writes": 1000},
@@ -65,6 +67,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "placement": {"tasks": 102, "repeat": 20, "check_repeat": 1},
     "links": {"quick": True},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.5, "run_seconds": 2.0},
+    "restart": {"kills": 2},
     "data_log": {"seconds": 2.0, "rounds": 1},
     "api_stream": {"seconds": 2.0, "rounds": 2},
     "hmi_latency": {"writes": 100},

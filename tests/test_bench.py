@@ -24,6 +24,7 @@ TINY = {
     "placement": {"tasks": 12, "repeat": 2, "check_repeat": 1},
     "links": {"quick": True, "rounds": 1},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.2, "run_seconds": 1.5},
+    "restart": {"kills": 1},
     "data_log": {"seconds": 1.0, "rounds": 1},
     "api_stream": {"seconds": 1.0, "rounds": 1},
     "hmi_latency": {"writes": 10},

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from bench import (api_stream, check_scale, data_log, dora_peer, faults, hmi_latency, hmi_load, links, peers, placement, realtime,
-                   scale, svar_transfer, switching, wait)
+                   restart, scale, svar_transfer, switching, wait)
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -32,6 +32,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "links": links.section,
     "dora": dora_peer.run,
     "faults": faults.run,
+    "restart": restart.run,
     "data_log": data_log.run,
     "api_stream": api_stream.run,
     "hmi_latency": hmi_latency.run,
@@ -50,6 +51,7 @@ FULL: dict[str, dict[str, Any]] = {
     "links": {},
     "dora": {"seconds": 5.0, "rounds": 3, "schedulers": ("fifo", "other")},
     "faults": {"stop_seconds": 2.0},
+    "restart": {"kills": 20},
     "data_log": {"seconds": 10.0, "rounds": 6},
     "api_stream": {"seconds": 120.0, "rounds": 12},
     "hmi_latency": {"writes": 1000},
@@ -68,6 +70,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "links": {"quick": True},
     "dora": {"seconds": 1.0, "rounds": 1, "schedulers": ("fifo",)},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.5, "run_seconds": 2.0},
+    "restart": {"kills": 2},
     "data_log": {"seconds": 2.0, "rounds": 1},
     "api_stream": {"seconds": 2.0, "rounds": 2},
     "hmi_latency": {"writes": 100},

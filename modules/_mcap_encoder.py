@@ -179,18 +179,49 @@ class PendingBytes:
         self.held.clear()
 
 
+_MAGIC_BYTES = 8  # an MCAP file's leading magic
+_RECORD_HEAD = 9  # a record's opcode (1 byte) and content length (8)
+_MESSAGE_INDEX, _DATA_END, _FOOTER = 0x07, 0x0F, 0x02  # opcodes (mcap.opcode)
+
+
+def resume_point(fd: int) -> tuple[int, int]:
+    """Where a log of this run goes on after its RTPU was restarted: the end of its last whole
+    record before any end of data, and the rows before it (counted from the first channel's
+    message indexes, which every chunk of ours is followed by)."""
+    size = os.fstat(fd).st_size
+    if size < _MAGIC_BYTES:
+        return 0, 0
+    with mmap.mmap(fd, size, prot=mmap.PROT_READ) as data:
+        position, rows = _MAGIC_BYTES, 0
+        while position + _RECORD_HEAD <= size:
+            opcode = data[position]
+            end = position + _RECORD_HEAD + int.from_bytes(data[position + 1:position + _RECORD_HEAD], "little")
+            if end > size or opcode in (_DATA_END, _FOOTER):
+                break
+            if opcode == _MESSAGE_INDEX and int.from_bytes(data[position + 9:position + 11], "little") == 1:
+                rows += int.from_bytes(data[position + 11:position + 15], "little") // 16  # (time, offset) pairs
+            position = end
+    return position, rows
+
+
 class McapLog:
-    """MCAP: a channel per variable, JSON messages, one zstd chunk per chunk of rows."""
+    """MCAP: a channel per variable, JSON messages, one zstd chunk per chunk of rows.
+
+    `resume_at`: the log exists up to that offset (`resume_point`), written by this task before its
+    RTPU died; the same channels go on in new chunks there. Its summary then indexes no chunk and
+    counts nothing (it would know only the new ones): a reader reads it through, as a killed log."""
 
     def __init__(self, fd: int, dtype: np.dtype, columns: Mapping[str, tuple[str, str]], run: Mapping[str, str],
-                 task: str, period: float, preamble_written: bool = False) -> None:
-        from mcap.writer import CompressionType, Writer
+                 task: str, period: float, preamble_written: bool = False, resume_at: tuple[int, int] | None = None) -> None:
+        from mcap.writer import CompressionType, IndexType, Writer
 
         self.rows = 0
         self.pending = 0  # rows encoded into bytes not yet in the file
         self.stream = PendingBytes(fd)
         # never a chunk by size: one per chunk of rows (`flush`), so each is on disk whole as it ends
-        self.writer = Writer(self.stream, chunk_size=1 << 62, compression=CompressionType.ZSTD)  # type: ignore[arg-type]
+        resumed = {} if resume_at is None else {"index_types": IndexType.MESSAGE, "use_statistics": False}
+        self.writer = Writer(self.stream, chunk_size=1 << 62, compression=CompressionType.ZSTD,  # type: ignore[arg-type]
+                             **resumed)
         self.writer.start(profile="", library=f"pbo-runtime {run.get('pbo-runtime', '')}".strip())
         self.names = [name for name in dtype.names or () if name != "time"]
         described = []
@@ -206,7 +237,10 @@ class McapLog:
             self.floats.append(field_dtype.kind == "f")
         self.writer.add_metadata("pbo-run", {str(k): str(v) for k, v in run.items()})
         self.writer.add_metadata("pbo-log", {"task": task, "period": repr(period), "columns": json.dumps(described)})
-        if preamble_written:
+        if resume_at is not None:  # the same preamble is in the file already; what follows goes where it ended
+            self.stream.held.clear()
+            self.stream.committed, self.rows = resume_at
+        elif preamble_written:
             self.stream.count_as_committed()
         else:
             self.stream.commit()
@@ -281,7 +315,9 @@ def _serve(commands: int, replies: int) -> None:
     shared = mmap.mmap(setup["buffers_fd"], 2 * rows * dtype.itemsize, prot=mmap.PROT_READ)
     buffers = [np.frombuffer(shared, dtype, count=rows, offset=i * rows * dtype.itemsize) for i in (0, 1)]
     columns = {name: tuple(note) for name, note in setup["columns"].items()}
-    log = McapLog(setup["log_fd"], dtype, columns, setup["run"], setup["task"], setup["period"], preamble_written=True)
+    resume_at = tuple(setup["resume_at"]) if setup.get("resume_at") else None
+    log = McapLog(setup["log_fd"], dtype, columns, setup["run"], setup["task"], setup["period"], preamble_written=True,
+                  resume_at=resume_at)  # type: ignore[arg-type]
     while (command := _receive(commands)) is not None:
         reply: dict[str, Any] = {}
         try:
@@ -293,7 +329,10 @@ def _serve(commands: int, replies: int) -> None:
             reply = {"errno": exc.errno, "strerror": exc.strerror or str(exc)}
         except Exception as exc:  # a bug in encoding: said to the logger, whose next cycle raises it
             reply = {"bug": f"{type(exc).__name__}: {exc}"}
-        _send(replies, {"rows": log.rows, **reply})
+        try:
+            _send(replies, {"rows": log.rows, **reply})
+        except BrokenPipeError:
+            return  # the logger's process is gone (killed with its RTPU): the log ends at its last chunk
         if command["buffer"] == FINISH:
             return
 

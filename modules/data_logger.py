@@ -25,7 +25,9 @@ in the header (fixed size: numpy leaves room for the count to grow), so the file
 after every chunk. An MCAP log's chunks are encoded (JSON, zstd) by a process of its own
 (modules/_mcap_encoder.py), which reads the buffers from shared memory: the encoding never holds
 the RTPU's GIL, and the writer thread only waits for it with the GIL released. The log is
-readable up to its last chunk, and gets its summary and footer when the task is killed. A write
+readable up to its last chunk, and gets its summary and footer when the task is killed. A logger
+restarted with its RTPU (a restart policy) continues the run's log: new chunks after the last one
+written, the rows of the chunk begun at the death lost. A write
 takes microseconds into the page cache, but milliseconds at times when the kernel throttles
 write-back: that is why it is not the cycle's. `off` and `kill` write the chunk begun.
 
@@ -50,7 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from modules._mcap_encoder import McapEncoder, McapLog, write_all
+from modules._mcap_encoder import McapEncoder, McapLog, resume_point, write_all
 from pbo_runtime import ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status, read_log
 
 __all__ = ["DataLogger", "DataLoggerParams", "read_log"]
@@ -128,14 +130,23 @@ class DataLogger(PortBasedObject):
         self._fd = -1
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
+            # restarted after its RTPU died: the log of the run goes on where it was cut
+            resume = self.restarted and self.path.exists()
+            self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | (0 if resume else os.O_TRUNC), 0o644)
             if mcap:
                 columns = {name: self.variable_note(name) for name in params.variables}
-                McapLog(self._fd, self._dtype, columns, self.run_metadata, self.task_name, self.period)  # the preamble, now
-                setup = {"columns": columns, "run": dict(self.run_metadata), "task": self.task_name, "period": self.period}
-                self._file: _LogFile = _McapProcess(McapEncoder(self._fd, self._shared_fd, self._dtype, self._rows, setup))
+                resume_at = resume_point(self._fd) if resume else None
+                if resume_at is not None:
+                    os.ftruncate(self._fd, resume_at[0])  # a chunk cut short by the death, and any end of data
+                else:
+                    McapLog(self._fd, self._dtype, columns, self.run_metadata, self.task_name, self.period)  # the preamble, now
+                setup = {"columns": columns, "run": dict(self.run_metadata), "task": self.task_name, "period": self.period,
+                         "resume_at": resume_at}
+                encoder = McapEncoder(self._fd, self._shared_fd, self._dtype, self._rows, setup)
+                encoder.rows = resume_at[1] if resume_at is not None else 0
+                self._file: _LogFile = _McapProcess(encoder)
             else:
-                self._file = _NpyFile(self._fd, self._dtype, [chunk for chunk, _, _ in self._buffers])
+                self._file = _NpyFile(self._fd, self._dtype, [chunk for chunk, _, _ in self._buffers], resume)
         except OSError as exc:
             self._close()
             raise OutputError(f"cannot create log {self.path}: {_os_error(exc)}") from None
@@ -290,10 +301,28 @@ class _LogFile:
 class _NpyFile(_LogFile):
     """One structured array: each chunk appended, then the row count in the header rewritten."""
 
-    def __init__(self, fd: int, dtype: np.dtype, buffers: list[np.ndarray]) -> None:
+    def __init__(self, fd: int, dtype: np.dtype, buffers: list[np.ndarray], resume: bool = False) -> None:
         self.fd, self.dtype, self.buffers, self.rows = fd, dtype, buffers, 0
         self.header_bytes = len(self.header(0))
+        if resume and self._resume():
+            return
+        os.ftruncate(fd, 0)
         write_all(fd, self.header(0))
+
+    def _resume(self) -> bool:
+        """Go on after the rows the header counts (False: not a log of these columns; it is replaced)."""
+        with os.fdopen(os.dup(self.fd), "rb") as file:
+            try:
+                version = np.lib.format.read_magic(file)
+                shape, _, dtype = (np.lib.format.read_array_header_1_0(file) if version == (1, 0)
+                                   else np.lib.format.read_array_header_2_0(file))
+            except ValueError:
+                return False
+            if dtype != self.dtype or file.tell() != self.header_bytes or len(shape) != 1:
+                return False
+        self.rows = int(shape[0])
+        os.ftruncate(self.fd, self.header_bytes + self.rows * self.dtype.itemsize)  # no row of a chunk cut short
+        return True
 
     def append(self, index: int, rows: int) -> None:
         if rows == 0:
@@ -327,6 +356,7 @@ class _McapProcess(_LogFile):
 
     def __init__(self, encoder: McapEncoder) -> None:
         self.encoder = encoder
+        self.rows = encoder.rows  # a resumed log's rows so far
 
     def append(self, index: int, rows: int) -> None:
         try:

@@ -61,6 +61,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--configuration", default="", help="the configuration the run started in (for the logs' metadata)")
     parser.add_argument("--application", default="", help="the application the run runs (for the logs' metadata)")
     parser.add_argument("--links", default="{}", help="JSON: the application's links, by name (see _links)")
+    parser.add_argument("--restarted", action="store_true",
+                        help="a restart after this RTPU's process died: its tasks continue the run's files (restart policy)")
     parser.add_argument("--live", default="", help="directory of the run's live descriptions (live-N.json, `LiveUpdate`)")
     args = parser.parse_args(argv)
     if args.parent:
@@ -123,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
 
             def make() -> Task:
                 return Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device,
-                            out_dir=args.out, links=links, relay=relay, run_metadata=about_run, variable_notes=notes)
+                            out_dir=args.out, links=links, relay=relay, run_metadata=about_run, variable_notes=notes,
+                            restarted=args.restarted)
 
             return make
 

@@ -164,6 +164,9 @@ class FakeJobHost:
     def stalled_since(self) -> dict[str, float]:
         return {}
 
+    def restarts(self) -> list[dict]:
+        return []
+
     def signal_task(self, task: str, op: str, states: set[str]) -> str:
         self.signals.append((task, op))
         if op == "on":

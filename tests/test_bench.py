@@ -25,6 +25,7 @@ TINY = {
     "links": {"quick": True, "rounds": 1},
     "dora": {"seconds": 0.3, "rounds": 1, "schedulers": ("other",)},
     "faults": {"cases": ("controller_stop",), "stop_seconds": 0.2, "run_seconds": 1.5},
+    "restart": {"kills": 1},
     "data_log": {"seconds": 1.0, "rounds": 1},
     "api_stream": {"seconds": 1.0, "rounds": 1},
     "hmi_latency": {"writes": 10},

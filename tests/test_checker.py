@@ -516,6 +516,35 @@ def test_an_rtpu_spins_200_us_before_a_release_unless_it_gives_its_own_spin(tmp_
     assert [(r.name, r.spin) for r in result.subsystem.rtpus] == [("rtpu0", pytest.approx(50e-6)), ("rtpu1", 0.0002)]
 
 
+@pytest.mark.parametrize(("rtpus", "policies"), [
+    ("rtpus: [rtpu0, rtpu1]", [None, None]),  # the default: an RTPU's death stops the run
+    ("rtpus: [rtpu0, rtpu1]\nrestart: {max: 3, within: 10 s}", [(3, 10.0), (3, 10.0)]),
+    ("rtpus: {rtpu0: {restart: {max: 2, within: 500 ms}}, rtpu1: null}", [(2, 0.5), None]),
+    ("rtpus: {rtpu0: {restart: {max: 0}}, rtpu1: {}}\nrestart: {max: 3, within: 10 s}", [None, (3, 10.0)]),
+])
+def test_an_rtpus_restart_policy_is_its_own_or_the_subsystems(tmp_path: Path, rtpus: str, policies: list) -> None:
+    result = check(tmp_path, changed("rtpus: [rtpu0, rtpu1]", rtpus))
+    assert result.errors == [] and result.subsystem is not None
+    found = [(r.restart.max, r.restart.within) if r.restart else None for r in result.subsystem.rtpus]
+    assert found == policies
+
+
+@pytest.mark.parametrize(("restart", "needle", "message"), [
+    ("restart: {max: 3}", "{max: 3}", r"the restart of the subsystem has no 'within:', which is required"),
+    ("restart: {max: three, within: 1 s}", "three", r"max of the restart of the subsystem must be an integer"),
+    ("restart: {max: -1, within: 1 s}", "-1", r"max of the restart of the subsystem must be >= 0"),
+    ("restart: {max: 3, within: 1 kHz}", "1 kHz", r"within of the restart of the subsystem"),
+    ("restart: {max: 3, witin: 1 s}", "witin", r"unknown key 'witin' in the restart of the subsystem: did you mean"),
+    ("restart: 3", "3", r"restart of the subsystem must be a mapping"),
+])
+def test_a_wrong_restart_policy_is_one_error_at_its_value(tmp_path: Path, restart: str, needle: str, message: str) -> None:
+    text = changed("rtpus: [rtpu0, rtpu1]", f"rtpus: [rtpu0, rtpu1]\n{restart}")
+    error = only_error(check(tmp_path, text))
+    line = text.splitlines().index(restart) + 1
+    assert (error.line, error.column) == (line, restart.index(needle) + 1), str(error)
+    assert re.match(message, error.message), str(error)
+
+
 # --- undefined names -----------------------------------------------------------------------
 
 

@@ -209,6 +209,26 @@ def test_pbo_status_names_what_each_rtpu_runs_under():
     assert "robot" in console.export_text()
 
 
+def test_pbo_status_shows_each_rtpus_restarts_with_the_last_cause_and_its_time_back_to_on():
+    from rich.console import Console
+
+    from pbo_runtime.cli.operator import status_table
+
+    restarts = [{"rtpu": "rtpu1", "pid": 7, "cause": "killed by SIGKILL", "died_at": 1.0, "on_again_at": 1.4, "seconds": 0.4,
+                 "tasks_on": ["pid"], "attempts": 1},
+                {"rtpu": "rtpu1", "pid": 9, "cause": "killed by SIGABRT", "died_at": 3.0, "on_again_at": None, "seconds": None,
+                 "tasks_on": ["pid"], "attempts": 1}]
+    reply = {"subsystem": "puma", "run_id": "1-ab", "configuration": "pid", "elapsed": 4.0,
+             "tasks": [{"task": "robot", "rtpu": "rtpu0", "state": "ON"}, {"task": "pid", "rtpu": "rtpu1", "state": "NOT_CREATED"}],
+             "realtime": {}, "restarts": restarts[:1]}
+    console = Console(record=True, width=200)
+    console.print(status_table(reply))
+    assert "restarted 1x; last killed by SIGKILL, ON again in 400 ms" in console.export_text()
+    console = Console(record=True, width=200)
+    console.print(status_table({**reply, "restarts": restarts}))
+    assert "restarted 2x; last killed by SIGABRT, coming back" in console.export_text()
+
+
 def test_version_prints_the_version_pyproject_declares(capsys):
     import tomllib
 

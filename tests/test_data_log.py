@@ -39,12 +39,12 @@ def table(make_table) -> StateTable:
     return make_table(LOGGED)
 
 
-def logger(table: StateTable, path, chunk: float = 1.0) -> Task:
+def logger(table: StateTable, path, chunk: float = 1.0, restarted: bool = False) -> Task:
     params = {"variables": ["x", "k", "m"], "path": str(path), "chunk": chunk}
     built = DataLogger.build_params(params)
     bindings = tuple(PortBinding(p, p.variable, table.layout.slot(p.variable).shape) for p in DataLogger.ports_for(built))
     spec = TaskSpec(name="log", module="DataLogger", rtpu="rtpu0", period=DT, params=params, bindings=bindings, index=1)
-    task = Task(spec, DataLogger, table, run_metadata=RUN, variable_notes=NOTES)
+    task = Task(spec, DataLogger, table, run_metadata=RUN, variable_notes=NOTES, restarted=restarted)
     assert task.spawn(0.0), task.last_error
     assert task.turn_on(0.0), task.last_error
     return task
@@ -113,6 +113,39 @@ def test_an_mcap_log_whose_writer_was_killed_reads_up_to_its_last_whole_chunk(ta
     assert not log.complete and len(log.rows) == 6
     np.testing.assert_array_equal(log.rows["x"], [w[1] for w in written[:6]])
     assert log.units["x"] == "m" and log.metadata["subsystem"] == "arm"
+
+
+@pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own
+@pytest.mark.parametrize("suffix", [".mcap", ".npy"])
+def test_a_logger_restarted_with_its_rtpu_goes_on_in_the_same_log_after_its_last_whole_chunk(table, tmp_path, suffix):
+    path = tmp_path / f"log{suffix}"
+    first = logger(table, path, chunk=2 * DT)
+    before = run_cycles(table, first, 5)  # two chunks of two rows written; the fifth row in the chunk begun
+    cut = tmp_path / f"killed{suffix}"
+    shutil.copy(path, cut)  # as the RTPU's SIGKILL leaves it
+    first.kill()
+    again = logger(table, cut, chunk=2 * DT, restarted=True)
+    assert again.module.written == 4  # the rows of the chunks written; the chunk begun died with the RTPU
+    after = run_cycles(table, again, 3)
+    again.kill()
+    rows = read_log(cut)
+    np.testing.assert_array_equal(rows["x"], [w[1] for w in before[:4] + after])
+    np.testing.assert_array_equal(rows["time"], [w[0] for w in before[:4] + after])
+    if suffix == ".mcap":  # the run's metadata written once, and a second death and restart goes on again
+        assert open_log(cut).metadata == RUN
+        third = logger(table, cut, chunk=2 * DT, restarted=True)
+        assert third.module.written == 7
+        third.kill()
+
+
+def test_a_logger_not_restarted_replaces_a_file_left_at_its_path(table, tmp_path):
+    path = tmp_path / "log.npy"
+    run_cycles(table, (old := logger(table, path, chunk=2 * DT)), 4)
+    old.kill()
+    fresh = logger(table, path, chunk=2 * DT)
+    assert fresh.module.written == 0
+    fresh.kill()
+    assert len(read_log(path)) == 0
 
 
 @pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own

@@ -265,6 +265,22 @@ def test_a_plants_options_are_checked_against_what_the_plant_declares(schema, op
     assert (validate(doc, schema) == []) is conforms, validate(doc, schema)
 
 
+@pytest.mark.parametrize(("place", "restart", "conforms"), [
+    ("top", {"max": 3, "within": "10 s"}, True),
+    ("rtpu", {"max": 0}, True),
+    ("top", {"max": 3, "within": "10 kHz"}, False),
+    ("rtpu", {"within": "10 s"}, False),  # max is required
+    ("top", {"max": 3, "witin": "10 s"}, False),
+])
+def test_a_restart_policy_conforms_at_the_top_or_in_an_rtpu(schema, place, restart, conforms):
+    doc = demo()
+    if place == "top":
+        doc["restart"] = restart
+    else:
+        doc["rtpus"] = {name: ({"restart": restart} if i == 0 else None) for i, name in enumerate(doc["rtpus"])}
+    assert (validate(doc, schema) == []) is conforms, validate(doc, schema)
+
+
 def test_wrong_values_do_not_conform(schema):
     for change in (
         lambda d: d["tasks"]["robot"].update(period="1 kHz"),

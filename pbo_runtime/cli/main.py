@@ -633,6 +633,10 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
         console.print(line, markup=False)
     for line in stall_lines(result.stalls):
         console.print(line, markup=False)
+    from pbo_runtime.supervisor.restarts import restart_lines
+
+    for line in restart_lines([restart.to_json() for restart in result.restarts]):
+        console.print(line, markup=False)
     for line in result.timing_holds:
         console.print(line, markup=False)
     for line in processor_lines(result.tasks):

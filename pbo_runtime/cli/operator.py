@@ -84,6 +84,13 @@ def scheduler_brief(settings: dict[str, str]) -> str:
     return brief
 
 
+def restart_brief(restarts: list[dict[str, Any]]) -> str:
+    """An RTPU's restarts in its status label: how many, the last one's cause and its time back to ON."""
+    last = restarts[-1]
+    back = "coming back" if last.get("seconds") is None else f"ON again in {float(last['seconds']) * 1e3:.0f} ms"
+    return f"restarted {len(restarts)}x; last {last.get('cause', '?')}, {back}"
+
+
 def status_table(reply: dict[str, Any]) -> Table:
     """The status reply as a table, one section per RTPU."""
     parts = [f"{reply.get('subsystem', '?')} · run {reply.get('run_id', '?')}",
@@ -100,6 +107,9 @@ def status_table(reply: dict[str, Any]) -> Table:
     tasks = list(reply.get("tasks") or [])
     realtime = reply.get("realtime") or {}
     stalled = reply.get("stalled") or {}
+    restarted: dict[str, list[dict[str, Any]]] = {}
+    for restart in reply.get("restarts") or []:
+        restarted.setdefault(str(restart.get("rtpu")), []).append(restart)
     by_rtpu: dict[str, list[dict[str, Any]]] = {}
     for task in tasks:
         by_rtpu.setdefault(str(task.get("rtpu", "?")), []).append(task)
@@ -113,6 +123,8 @@ def status_table(reply: dict[str, Any]) -> Table:
                 state, style = f"{state}, no cycle for {float(stalled[task['task']]):.1f} s", "bold red"
             rate = task.get("rate")
             label = f"{rtpu}\n[dim]{scheduler_brief(realtime.get(rtpu, {}))}[/]" if rtpu in realtime else rtpu
+            if rtpu in restarted:
+                label += f"\n[yellow]{restart_brief(restarted[rtpu])}[/]"
             table.add_row(label if i == 0 else "", str(task.get("task", "?")), f"[{style}]{state}[/]",
                           str(task.get("cycles", 0)), "—" if rate is None else f"{float(rate):.0f}",
                           _us(task.get("jitter_p50")), _us(task.get("jitter_p99")), _us(task.get("jitter_max")),

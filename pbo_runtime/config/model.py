@@ -33,6 +33,16 @@ DEFAULT_SPIN = 0.0002
 
 
 @dataclass(frozen=True)
+class RestartPolicy:
+    """How often a dead RTPU is restarted before the run stops: at most `max` deaths within `within` s
+    (`restart: {max: 3, within: 10 s}`, per RTPU or for the whole subsystem). None: the run stops."""
+
+    max: int
+    within: float
+    loc: Location = NOWHERE
+
+
+@dataclass(frozen=True)
 class RtpuSpec:
     name: str
     index: int
@@ -40,6 +50,7 @@ class RtpuSpec:
     loc: Location = NOWHERE
     spin: float = DEFAULT_SPIN  # seconds spun before each release after the kernel's wait (bench/wait.py)
     spin_loc: Location = NOWHERE
+    restart: RestartPolicy | None = None  # its own, or the subsystem's; None: its death stops the run
 
 
 @dataclass(frozen=True)

@@ -319,11 +319,20 @@ class Crashed:
     trace: str = ""
 
 
+@dataclasses.dataclass(frozen=True, slots=True)
+class ChildExited:
+    """The supervisor's own child watch: a child process ended; wakes a supervisor waiting for events."""
+
+    KIND: ClassVar[str] = "exited"
+    role: str
+    pid: int
+
+
 Event = Union[Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled, Refused, Staged,
-              Crashed]
+              Crashed, ChildExited]
 EVENT_TYPES: dict[str, type[Event]] = {cls.KIND: cls for cls in
                                        (Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled,
-                                        Refused, Staged, Crashed)}
+                                        Refused, Staged, Crashed, ChildExited)}
 _FIELDS: dict[type, tuple[str, ...]] = {cls: tuple(f.name for f in dataclasses.fields(cls))
                                         for cls in (*SIGNAL_TYPES.values(), *EVENT_TYPES.values())}
 

@@ -54,6 +54,7 @@ class TaskContext(typing.Protocol):
     outputs: list[str]  # the files the task's `output_path` gave out, for the run to say where they went
     run_metadata: Mapping[str, str]  # the run: subsystem, configuration, clock, versions, the YAML file (config.log_notes)
     variable_notes: Mapping[str, tuple[str, str]]  # each variable's (doc, unit) from the YAML
+    restarted: bool  # its RTPU was restarted after a death (restart policy): continue the run's files
 
     def open_device(self, name: str) -> Any: ...
 
@@ -134,6 +135,12 @@ class PortBasedObject:
     def period(self) -> float:
         """The task's period in seconds."""
         return self._pbo_context.period
+
+    @property
+    def restarted(self) -> bool:
+        """True in a task whose RTPU was restarted after its process died (a restart policy):
+        a file it writes for the run should be continued, not replaced (the data logger does)."""
+        return self._pbo_context.restarted
 
     @property
     def bound_arrays(self) -> list[np.ndarray]:

@@ -162,8 +162,15 @@ def json_schema() -> dict[str, Any]:
     plants = registry.names(registry.PLANTS)
     name = {"type": "string", "minLength": 1}
 
+    restart = _obj(
+        {"max": {"type": "integer", "minimum": 0, "description": "deaths restarted within `within` before the run stops (0: never)"},
+         "within": {"$ref": "#/$defs/time", "description": "the window the deaths are counted in, e.g. '10 s'"}},
+        "restart a dead RTPU alone: at most `max` times within `within`, e.g. {max: 3, within: 10 s}",
+        required=("max",),
+    )
     rtpu_entry = _obj(
-        {"cpu": {"type": "integer", "minimum": 0, "description": "the CPU core this RTPU process is pinned to"},
+        {"restart": restart,
+         "cpu": {"type": "integer", "minimum": 0, "description": "the CPU core this RTPU process is pinned to"},
          "spin": {"$ref": "#/$defs/time",
                   "description": "how long before each release the RTPU stops sleeping and spins (default 200 us); "
                                  "shorter than its shortest period"}},
@@ -347,6 +354,7 @@ def json_schema() -> dict[str, Any]:
             "oneOf": [{"type": "string"}, {"type": "array", "items": {"type": "string"}}],
         },
         "rtpus": rtpus,
+        "restart": restart,
         "bus": bus,
         "plant": plant,
         "devices": _map(device, "devices: name -> driver (a registered driver), exclusive, and driver options"),

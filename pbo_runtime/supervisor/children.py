@@ -20,7 +20,8 @@ from pbo_runtime.config.model import Subsystem
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import shm
 from pbo_runtime.ipc.control import ControlServer
-from pbo_runtime.supervisor.failures import RunFailure
+from pbo_runtime.supervisor.child_watch import ChildWatch
+from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
 from pbo_runtime.supervisor.run_report import STOP_TIMEOUT, RunResult
 from pbo_runtime.table.table import StateTable
 
@@ -56,16 +57,27 @@ class Children:
     _report_run: Callable[[], None]
     _look_at_the_lock: Callable[[], None]
     _look_at_the_lock_while_stopping: Callable[[], None]
+    may_restart: Callable[[str], bool]
+    launched: dict[str, tuple[list[str], tuple[str, ...]]]  # role -> its launch arguments and tasks
+    child_watch: ChildWatch | None
 
     def _launch(self, role: str, arguments: list[str], tasks: tuple[str, ...] = ()) -> None:
         command = [sys.executable, *arguments, "--parent", str(os.getpid())]
+        self.launched[role] = (arguments, tasks)  # a restart launches it the same way
         process = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True,
                                    env=self.clock.child_environment())
         self.children.append(Child(role, process, tasks))
-        if self.table is not None:  # cleanup leaves the run alone while any of its processes lives
+        if self.child_watch is not None:
+            self.child_watch.watch(role, process.pid)
+        self._list_children()
+
+    def _list_children(self) -> None:
+        """The manifest names the live children: cleanup leaves the run alone while any of them lives."""
+        if self.table is not None:
             self.table.set_manifest([*self._manifest(), *(f"pid {c.process.pid} {c.role}" for c in self.children)])
 
     def _check_children(self) -> None:
+        """A child that ended: RtpuDied if its RTPU may be restarted (the caller restarts it), else RunFailure."""
         for child in self.children:
             code = child.process.poll()
             if code is not None:
@@ -73,7 +85,10 @@ class Children:
                 how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit status {code}"
                 hosted = f" while hosting tasks: {', '.join(child.tasks)}" if child.tasks else ""
                 what = "the plant" if child.role == "plant" else f"RTPU '{child.role}'"
-                raise RunFailure(f"{what} (pid {child.process.pid}) died ({how}){hosted}")
+                message = f"{what} (pid {child.process.pid}) died ({how}){hosted}"
+                if self.may_restart(child.role):
+                    raise RtpuDied(message, child.role, child.process.pid, how)
+                raise RunFailure(message)
         self._look_at_the_lock()
 
     def _recover_lock_from(self, pid: int) -> None:
@@ -84,6 +99,9 @@ class Children:
 
     def _shutdown(self) -> None:
         """Stop the children (each RTPU by itself first), report, close and unlink everything: on every exit path."""
+        watch, self.child_watch = self.child_watch, None  # from here on, children end because they are told to
+        if watch is not None:
+            watch.close()
         self.result.duration = self.now() - self.started_at if self.started_at is not None else 0.0
         self.result.states_at_stop = dict(self.task_states)
         if self.table is not None:

@@ -83,6 +83,8 @@ class CommandHost(Protocol):
         """The names of the table's flags that are set."""
     def stalled_since(self) -> Mapping[str, float]:
         """Tasks ON whose cycle has not returned, and since when (run time)."""
+    def restarts(self) -> list[dict[str, Any]]:
+        """Each RTPU restart so far (supervisor.restarts.Restart.to_json), in the order they died."""
     def signal_task(self, task: str, op: str, states: set[str]) -> str:
         """Send `op` (on, off, clear) to a task and wait until it is in one of `states`; that state."""
     def send_event(self, task: str, values: Any) -> None:
@@ -231,7 +233,8 @@ def status(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
             "configuration": host.configuration,
             "job": host.job_control.job, "application": host.application, "elapsed": elapsed,
             "tasks": rows, "flags": host.table_flags(), "realtime": dict(host.realtime),
-            "stalled": {name: now - since for name, since in host.stalled_since().items()}}
+            "stalled": {name: now - since for name, since in host.stalled_since().items()},
+            "restarts": host.restarts()}
 
 
 def _task(host: CommandHost, arguments: dict[str, Any]) -> str:

@@ -51,6 +51,9 @@ class ControlService:
     def stalled_since(self) -> dict[str, float]:
         return {name: stall.since for name, stall in self.stall_watch.open.items()}
 
+    def restarts(self) -> list[dict[str, Any]]:
+        return [restart.to_json() for restart in self.result.restarts]
+
     def signal_task(self, task: str, op: str, states: set[str]) -> str:
         """Send on, off or clear to a task; its state once it is one of `states` (a refusal raises PboError)."""
         before = self.task_states.get(task)

@@ -41,6 +41,7 @@ class EventHandling:
     _stats: dict[str, dict[str, Any]]
     _refused: dict[str, str]
     _check_children: Callable[[], None]
+    child_watch: Any  # supervisor.child_watch.ChildWatch while the run is up, else None
     _count_errors: Callable[[], None]
     every_task: dict[str, Any]  # every task the run has had (live changes add some), by name
     staged: Callable[[str, int, str], None]
@@ -178,6 +179,9 @@ class EventHandling:
             self.say(f"{source} refused a signal for '{event.task}': {event.reason}")
         elif isinstance(event, messages.Staged):
             self.staged(source, event.sequence, event.error)
+        elif isinstance(event, messages.ChildExited):
+            if self.child_watch is not None:  # (closed once the run stops: children then end as asked)
+                self._check_children()  # a death handled now, not at the next look
         elif isinstance(event, messages.Crashed):
             raise RunFailure(f"{source} crashed: {event.error}" + (f"\n{event.trace}" if event.trace else ""))
 

@@ -15,3 +15,13 @@ class RunRefused(PboError):
 
 class StopRequested(Exception):
     """Ctrl-C, SIGTERM or `pbo stop` while job control was waiting: stop cleanly, not a failure."""
+
+
+class RtpuDied(RunFailure):
+    """An RTPU whose restart policy may bring it back died: caught where job control can restart it.
+
+    Uncaught, it is the same failure as any child's death, with the same message."""
+
+    def __init__(self, message: str, rtpu: str, pid: int, cause: str) -> None:
+        super().__init__(message)
+        self.rtpu, self.pid, self.cause = rtpu, pid, cause

@@ -83,6 +83,8 @@ class RunResult:
     # configuration came on, and what happened when on it: switches and jobs (JobControl.marks)
     started_at: float = 0.0
     marks: list[dict[str, Any]] = field(default_factory=list)
+    # RTPUs restarted by their restart policy (supervisor.restarts.Restart), in the order they died
+    restarts: list[Any] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -96,6 +98,7 @@ class RunResult:
             "started_monotonic": self.started_monotonic, "stalls": self.stalls, "unstopped": self.unstopped,
             "faults": self.faults, "timing_holds": self.timing_holds, "queue_bytes": self.queue_bytes,
             "lock_events": self.lock_events, "started_at": self.started_at, "marks": self.marks,
+            "restarts": [restart.to_json() for restart in self.restarts],
         }
 
 

@@ -37,14 +37,16 @@ from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.errors import PboError
 from pbo_runtime.config.application import MESSAGE_OVERHEAD_BYTES, MSGPACK_BYTES_PER_NUMBER
 from pbo_runtime.ipc.control import REQUEST_BYTES, ControlServer, control_queue_name, control_queue_size
+from pbo_runtime.supervisor.child_watch import ChildWatch
 from pbo_runtime.supervisor.children import Children, Child
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.supervisor.control_service import ControlService
 from pbo_runtime.supervisor.events import EventHandling
-from pbo_runtime.supervisor.failures import RunFailure, RunRefused, StopRequested
+from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockWatching
+from pbo_runtime.supervisor.restarts import Restarting
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.application_lockstep import TurnGate
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
@@ -60,7 +62,7 @@ __all__ = ["RunFailure", "RunRefused", "RunResult", "StopRequested", "Supervisor
 STALL_CHECK_EVERY = 0.05  # seconds between looks at the cycle counts (StallWatch); job control pumps every 2 ms
 
 
-class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatching, LiveChanges):
+class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatching, LiveChanges, Restarting):
     """Runs one subsystem: a configuration for a duration, or an application's jobs."""
 
     def __init__(
@@ -114,6 +116,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.events: messages.Queue | None = None
         self.signals: dict[str, messages.Queue] = {}
         self.children: list[Child] = []
+        self.launched: dict[str, tuple[list[str], tuple[str, ...]]] = {}
+        self.child_watch: ChildWatch | None = None
         self.task_states: dict[str, str] = {t: TaskState.NOT_CREATED.name for t in subsystem.tasks}
         self.task_errors: dict[str, str] = {}
         self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id)
@@ -286,6 +290,10 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
     def _start(self) -> None:
         sub, run_id = self.subsystem, self.run_id
         self._make_queues()
+        events = self.events
+        assert events is not None
+        if ChildWatch.available():  # a child's death wakes the wait for events at once
+            self.child_watch = ChildWatch(lambda role, pid: events.report("supervisor", messages.ChildExited(role, pid), timeout=0.0))
         self.table = StateTable.create(TableLayout.of(sub), messages.table_name(sub.name, run_id), self._manifest())
         self._refuse_if_devices_in_use()  # again, now that a run started at the same instant sees this one
         self._watch_the_lock(self.table)
@@ -317,12 +325,14 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         members = sub.configurations[self.configuration].tasks
         # dynamic: the union every configuration may need is spawned now (TR 4.4); static: this one's
         spawned = [t for t in sub.init_order if t in members or not self.static]
-        for name in spawned:
-            self.respawn(name)
         ordered = [t for t in sub.init_order if t in members]
         ordered.sort(key=lambda t: not sub.tasks[t].critical)  # the robot interface first: it publishes q_m
-        for name in ordered:
-            self.turn_on(name, self.configuration)
+        while True:
+            try:
+                self.bring_up(spawned, ordered)
+                break
+            except RtpuDied as death:  # its restart policy allows another try (a module that aborts in init)
+                self.restart_rtpu(death)
         self._publish_plan_state()
         self.started_at = self.now()
         self.job_control.mark(self.started_at, "configuration", f"{self.configuration} on")
@@ -441,13 +451,16 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         the ticks that cover `timeout` (at least one), taking every event after each.
         """
         assert self.events is not None
-        self._check_children()
-        if self._stop_requested:
-            raise StopRequested(self._stop_requested)
-        self._check_stalls()
-        if self.lock_watch is not None:  # while the lock is taken, look again soon
-            timeout = self.lock_watch.next_look_in(timeout)
-        self.clock.run_for(timeout, self._take_one_event, self._while_stepping)
+        try:
+            self._check_children()
+            if self._stop_requested:
+                raise StopRequested(self._stop_requested)
+            self._check_stalls()
+            if self.lock_watch is not None:  # while the lock is taken, look again soon
+                timeout = self.lock_watch.next_look_in(timeout)
+            self.clock.run_for(timeout, self._take_one_event, self._while_stepping)
+        except RtpuDied as death:  # its restart policy brings it back; the other RTPUs never stopped
+            self.restart_rtpu(death)
         self._serve_commands()
         if self.on_tick is not None:
             self.on_tick(self)

@@ -59,6 +59,7 @@ class RuntimeTaskContext:
     variable_notes: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # config.log_notes.variable_notes
     links: dict[str, dict[str, Any]] = field(default_factory=dict)  # the application's links, by name
     relay: Relay | None = None  # the RTPU's: wakes this task per message of a link it serves
+    restarted: bool = False  # its RTPU was restarted after a death: the run's files it writes are continued
 
     def open_link(self, name: str, like: np.ndarray, role: str) -> Any:
         """One end of an application's link, carrying items shaped like the array `like`.
@@ -112,6 +113,7 @@ class Task:
         relay: Relay | None = None,
         run_metadata: Mapping[str, str] | None = None,
         variable_notes: Mapping[str, tuple[str, str]] | None = None,
+        restarted: bool = False,
     ) -> None:
         self.spec = spec
         self.name = spec.name
@@ -125,7 +127,8 @@ class Task:
         self.context = RuntimeTaskContext(spec.name, spec.period, dict(dims or {}), spec.resources, dict(devices or {}),
                                           self.open_device if opener is not None else None,
                                           out_dir=out_dir, links=dict(links or {}), relay=relay,
-                                          run_metadata=run_metadata or {}, variable_notes=variable_notes or {})
+                                          run_metadata=run_metadata or {}, variable_notes=variable_notes or {},
+                                          restarted=restarted)
         self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
         self.status = self.local.status
         self._forget_an_earlier_tasks_figures(table.status[spec.index])

@@ -32,6 +32,7 @@ TOP_KEYS = (
     "subsystem",
     "include",
     "rtpus",
+    "restart",
     "bus",
     "plant",
     "devices",
@@ -57,7 +58,8 @@ NO_OBJECT = "none"  # `object: none`: a job that takes no object, its tasks read
 DEVICE_KEYS = ("driver", "exclusive", "io")  # every other key of a device is a driver option
 CLAIM_KEYS = ("device", "channels")  # a resource or an io: given as {device: adc0, channels: 0-5}
 BUS_KEYS = ("bandwidth", "lock_overhead")
-RTPU_KEYS = ("cpu", "spin")
+RTPU_KEYS = ("cpu", "spin", "restart")
+RESTART_KEYS = ("max", "within")
 
 ModuleLookup = Callable[[str], Any]
 DriverLookup = Callable[[str], Any]

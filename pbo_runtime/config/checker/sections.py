@@ -8,10 +8,10 @@ from pathlib import Path
 from typing import Any
 
 from pbo_runtime.config.checker.base import CheckerBase
-from pbo_runtime.config.checker.model import BUS_KEYS, RTPU_KEYS
+from pbo_runtime.config.checker.model import BUS_KEYS, RESTART_KEYS, RTPU_KEYS
 from pbo_runtime.config.checker.words import describe, did_you_mean
 from pbo_runtime.config.limits import MAX_DIM
-from pbo_runtime.config.model import DEFAULT_SPIN, BusSpec, Location, PlantSpec, RtpuSpec
+from pbo_runtime.config.model import DEFAULT_SPIN, BusSpec, Location, PlantSpec, RestartPolicy, RtpuSpec
 from pbo_runtime.config.units import DATA_RATE, SIZE, TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
 from pbo_runtime.errors import ModuleError, ParamError
@@ -76,6 +76,7 @@ class SectionChecks(CheckerBase):
             return
         if not entries:
             self.error("E119", "'rtpus' is empty: a subsystem needs at least one RTPU", location_of(value, loc), "e.g. rtpus: [rtpu0]")
+        everyone = self.restart_policy(top["restart"], top.value_loc("restart"), "the subsystem") if "restart" in top else None
         rtpus: list[RtpuSpec] = []
         for key, key_loc, spec, spec_loc in entries:
             name = self.name(key, key_loc, "RTPU")
@@ -85,6 +86,7 @@ class SectionChecks(CheckerBase):
                 self.error("E202", f"RTPU '{name}' is listed twice", key_loc)
                 continue
             cpu = None
+            restart = everyone
             spin, spin_loc = DEFAULT_SPIN, key_loc
             if spec is not None:
                 m = self.mapping(spec, spec_loc, f"RTPU '{name}'", "e.g. rtpu0: {cpu: 0, spin: 200 us}")
@@ -96,9 +98,28 @@ class SectionChecks(CheckerBase):
                         spin_loc = m.value_loc("spin")
                         given = self.quantity(m["spin"], spin_loc, TIME, f"spin of RTPU '{name}'", positive=False)
                         spin = DEFAULT_SPIN if given is None else given
+                    if "restart" in m:
+                        restart = self.restart_policy(m["restart"], m.value_loc("restart"), f"RTPU '{name}'")
             self.rtpu_names.add(name)
-            rtpus.append(RtpuSpec(name, len(rtpus), cpu, key_loc, spin, spin_loc))
+            rtpus.append(RtpuSpec(name, len(rtpus), cpu, key_loc, spin, spin_loc, restart))
         self.out.rtpus = tuple(rtpus)
+
+    def restart_policy(self, value: Any, loc: Location, owner: str) -> RestartPolicy | None:
+        """`{max: N, within: T}`: restart a dead RTPU at most N times within any T; `max: 0` never."""
+        m = self.mapping(value, loc, f"restart of {owner}", "e.g. restart: {max: 3, within: 10 s}")
+        if m is None:
+            return None
+        limit = self.integer(m["max"], m.value_loc("max"), f"max of the restart of {owner}", minimum=0) if "max" in m else None
+        required = ("max", "within") if limit != 0 else ("max",)
+        self.keys(m, RESTART_KEYS, required, f"in the restart of {owner}", loc)
+        within = None
+        if "within" in m:
+            within = self.quantity(m["within"], m.value_loc("within"), TIME, f"within of the restart of {owner}")
+        if limit == 0:
+            return None  # never restarted: its death stops the run, as with no policy
+        if limit is None or within is None:
+            return None
+        return RestartPolicy(limit, within, location_of(value, loc))
 
     def check_bus(self, top: YMap) -> None:
         bus = self.section(top, "bus", "e.g. bus: {bandwidth: 40 MB/s, lock_overhead: 16 B}")

@@ -1,0 +1,168 @@
+"""A dead RTPU restarted alone, within its restart policy (`restart: {max: 3, within: 10 s}`).
+
+When an RTPU with a policy dies (`failures.RtpuDied`, raised where the supervisor notices the
+exit), job control: counts the death against the policy (past it, the run stops as before, and
+says why); recovers the table lock if the dead process held it (`Children._check_children`);
+launches a new process for the RTPU with the same arguments; spawns its tasks that were alive,
+in const order, so each `init` reads the table's current constants; and turns on, at a cycle
+boundary, those that were ON. Meanwhile the other RTPUs never stop: a critical task whose inputs
+came from the dead RTPU finds them past their freshness bound and runs its locally stable
+behaviour, and resumes by itself once they are fresh again.
+
+Restarts apply on the real clock, once the run's table exists. A death during a switch or a
+job's step still stops the run: only the running configuration is brought back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+from pbo_runtime.config.model import Subsystem
+from pbo_runtime.ipc import messages
+from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
+from pbo_runtime.supervisor.run_report import RunResult
+
+
+@dataclass
+class Restart:
+    """One death of an RTPU and its way back."""
+
+    rtpu: str
+    pid: int
+    cause: str  # "killed by SIGKILL", "exit status 3"
+    died_at: float  # when the death was noticed: seconds since the configuration came on
+    tasks_on: tuple[str, ...]  # what was ON, and is turned on again
+    on_again_at: float | None = None  # when its tasks were all ON again, likewise (None: the run stopped first)
+    attempts: int = 1  # launches it took (a new process that died at once takes another)
+
+    def to_json(self) -> dict[str, Any]:
+        seconds = None if self.on_again_at is None else self.on_again_at - self.died_at
+        return {"rtpu": self.rtpu, "pid": self.pid, "cause": self.cause, "died_at": self.died_at,
+                "on_again_at": self.on_again_at, "seconds": seconds, "tasks_on": list(self.tasks_on),
+                "attempts": self.attempts}
+
+
+class Restarting:
+    """The Supervisor's part that brings a dead RTPU back."""
+
+    subsystem: Subsystem
+    result: RunResult
+    table: Any
+    clock: Any
+    children: list[Any]
+    launched: dict[str, tuple[list[str], tuple[str, ...]]]
+    task_states: dict[str, str]
+    task_errors: dict[str, str]
+    every_task: dict[str, Any]
+    signals: dict[str, messages.Queue]
+    configuration: str
+    started_at: float | None
+    _stop_requested: str
+    say: Callable[[str], None]
+    now: Callable[[], float]
+    respawn: Callable[[str], None]
+    turn_on: Callable[[str, str], None]
+    _launch: Callable[..., None]
+    _await_ready: Callable[[set[str]], None]
+    _list_children: Callable[[], None]
+
+    def may_restart(self, role: str) -> bool:
+        """Whether a death of `role` is restarted rather than stopping the run."""
+        if role == "plant" or self.table is None or self.clock.name != "real" or self._stop_requested:
+            return False
+        spec = next((r for r in self.subsystem.rtpus if r.name == role), None)
+        return spec is not None and spec.restart is not None
+
+    def restart_rtpu(self, death: RtpuDied) -> None:
+        """Bring the dead RTPU's tasks back as they were: spawned, and ON where they were ON."""
+        hosted = self._hosted_by(death.rtpu)
+        alive = [t for t in hosted if self.task_states.get(t) not in (None, "NOT_CREATED", "KILLED")]
+        was_on = tuple(t for t in hosted if self.task_states.get(t) == "ON")
+        started = self.started_at if self.started_at is not None else self.now()
+        record = Restart(death.rtpu, death.pid, death.cause, self.now() - started, was_on)
+        self.result.restarts.append(record)
+        self.say(f"{death}; restarting it")
+        self.relaunch(death, record)
+        while True:
+            try:
+                self.bring_up(alive, list(was_on))
+                break
+            except RtpuDied as again:
+                if again.rtpu != death.rtpu:
+                    raise RunFailure(f"{again}, while RTPU '{death.rtpu}' was restarting") from None
+                record.attempts += 1
+                self.relaunch(again, record)
+        record.on_again_at = self.now() - started
+        self.say(f"RTPU '{death.rtpu}' restarted: {', '.join(was_on) or 'no task'} ON again after "
+                 f"{(record.on_again_at - record.died_at) * 1e3:.0f} ms")
+
+    def bring_up(self, spawn: list[str], turn_on: list[str]) -> None:
+        """Spawn the tasks not yet created (in const order), then turn on those not ON (critical first)."""
+        for name in self._in_init_order(spawn):
+            if self.task_states.get(name) == "NOT_CREATED":
+                self.respawn(name)
+        for name in sorted(self._in_init_order(turn_on), key=lambda t: not self.every_task[t].critical):
+            if self.task_states.get(name) != "ON":
+                self.turn_on(name, self.configuration)
+
+    def relaunch(self, death: RtpuDied, record: Restart) -> None:
+        """Count the death against the policy (RunFailure past it), then start a new process for the RTPU."""
+        while True:
+            self._count_death(death, record)
+            for child in [c for c in self.children if c.role == death.rtpu]:
+                self.children.remove(child)
+            for task in self._hosted_by(death.rtpu):
+                self.task_states[task] = "NOT_CREATED"  # the new process knows none of them
+                self.task_errors.pop(task, None)
+            self._list_children()
+            queue = self.signals[death.rtpu]
+            while queue.receive(0) is not None:  # what the dead process never served is not for the new one
+                pass
+            arguments, tasks = self.launched[death.rtpu]
+            if "--restarted" not in arguments:
+                arguments = [*arguments, "--restarted"]  # its tasks continue the run's files (a data log)
+            self._launch(death.rtpu, arguments, tasks)
+            try:
+                self._await_ready({death.rtpu})
+                return
+            except RtpuDied as again:
+                if again.rtpu != death.rtpu:
+                    raise RunFailure(f"{again}, while RTPU '{death.rtpu}' was restarting") from None
+                record.attempts += 1
+                death = again
+
+    def _count_death(self, death: RtpuDied, record: Restart) -> None:
+        policy = next(r for r in self.subsystem.rtpus if r.name == death.rtpu).restart
+        assert policy is not None
+        now = self.now()
+        deaths = self._deaths.setdefault(death.rtpu, [])
+        deaths.append(now)
+        deaths[:] = [t for t in deaths if now - t <= policy.within]
+        if len(deaths) > policy.max:
+            raise RunFailure(f"{death}: it died {len(deaths)} times within {policy.within:g} s, more than its restart "
+                             f"policy allows (restart: {{max: {policy.max}, within: {policy.within:g} s}}), so the run stops")
+
+    def _hosted_by(self, rtpu: str) -> list[str]:
+        return [name for name, spec in self.every_task.items() if spec.rtpu == rtpu]
+
+    def _in_init_order(self, tasks: list[str]) -> list[str]:
+        """Const producers before their consumers; tasks spawned live (not in the file's order) last."""
+        order = {name: i for i, name in enumerate(self.subsystem.init_order)}
+        return sorted(tasks, key=lambda t: order.get(t, len(order)))
+
+    @property
+    def _deaths(self) -> dict[str, list[float]]:
+        deaths = self.__dict__.setdefault("_deaths_by_rtpu", {})
+        return deaths
+
+
+def restart_lines(restarts: list[dict[str, Any]]) -> list[str]:
+    """The summary's lines: each restart, its cause, and the time from the death to its tasks ON again."""
+    lines = []
+    for r in restarts:
+        back = ("not back before the run stopped" if r["seconds"] is None
+                else f"tasks ON again after {r['seconds'] * 1e3:.0f} ms")
+        tries = f" ({r['attempts']} launches)" if r.get("attempts", 1) > 1 else ""
+        lines.append(f"RTPU '{r['rtpu']}' restarted, {r['died_at']:.2f} s into the run: pid {r['pid']} {r['cause']}; {back}{tries}")
+    return lines

@@ -1,0 +1,137 @@
+"""A dead RTPU restarted alone by its restart policy (`restart: {max, within}`).
+
+Figure 8 (configs/pid_joint.yaml) with a policy: the controller's RTPU is killed mid-move three
+times; each time it comes back with its tasks ON while the robot interface on the other RTPU,
+which never stops, holds the arm (its locally stable behaviour) until the torque is fresh again,
+and the arm still reaches its goal without leaving its path. Past the policy, and for a module
+that aborts its process in `init`, the run stops and says why. Real clock, no timing asserted:
+the test waits for what the run says, and its safety nets only catch a hang.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pbo_runtime import read_log
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.table.table import StateTable, TableLayout
+from tests.support import DEMO, PBO, assert_nothing_left, config_copy, read_until, run_processes, start_run, table_of
+
+pytestmark = pytest.mark.multiprocess
+
+POLICY = ("rtpus: [rtpu0, rtpu1]", "rtpus: [rtpu0, rtpu1]\nrestart: {max: 3, within: 10 min}")
+LOGGER_BESIDE_THE_ROBOT = ("logger: {module: data_logger, rtpu: rtpu0", "logger: {module: data_logger, rtpu: rtpu1")
+SLOW_MOVE = ("params: {max_velocity: 1.0, max_acceleration: 4.0}", "params: {max_velocity: 0.25, max_acceleration: 1.0}")
+GOAL = np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2])  # q_d's initial value in configs/pid_joint.yaml
+REACHED = 0.01  # rad: every joint within this of its goal
+EXCURSION_LIMIT = 0.05  # rad
+REACH_SAFETY_NET = 180.0  # seconds: a net for an arm that never arrives, not a timing
+
+
+def excursion_from_path(q: np.ndarray, start: np.ndarray, goal: np.ndarray) -> float:
+    """How far the arm left its path: each joint travels from start to goal, so any motion back
+    from the farthest it got, or past the goal, is an excursion (rad, the largest over joints)."""
+    direction = np.sign(goal - start)
+    progress = (q - start) * direction  # rad travelled towards the goal, per joint
+    back = np.maximum.accumulate(progress, axis=0) - progress
+    past = progress - np.abs(goal - start)
+    return float(max(back.max(), past.max(), 0.0))
+
+
+def wait_until_reached(config: Path, run, subsystem: str) -> None:
+    table = StateTable.attach(TableLayout.of(load_subsystem(config)), table_of(run, subsystem))
+    try:
+        give_up = time.monotonic() + REACH_SAFETY_NET
+        while np.abs(table.read("q_m")[0] - GOAL).max() > REACHED:
+            assert time.monotonic() < give_up, f"the arm did not reach its goal: q_m = {table.read('q_m')[0]}"
+            time.sleep(0.1)
+    finally:
+        table.close()
+
+
+def test_a_controller_rtpu_killed_three_times_mid_move_comes_back_and_the_arm_reaches_its_goal(tmp_path):
+    config = config_copy(DEMO, tmp_path, "restart_thrice", (POLICY, LOGGER_BESIDE_THE_ROBOT, SLOW_MOVE))
+    report_path = tmp_path / "report.json"
+    run = start_run(config, tmp_path, "--duration", "0", "--report", str(report_path), "--out", str(tmp_path / "out"))
+    try:
+        killed = []
+        for _ in range(3):
+            pid = run_processes(run)["rtpu0"]
+            os.kill(pid, signal.SIGKILL)  # the controller's RTPU: the trajectory, the PID
+            killed.append(pid)
+            said = read_until(run, "restarted:")
+            assert f"RTPU 'rtpu0' (pid {pid}) died (killed by SIGKILL)" in said
+        wait_until_reached(config, run, "restart_thrice")
+        run.send_signal(signal.SIGINT)
+        out, err = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    assert "Traceback" not in err, err
+    report = json.loads(report_path.read_text())
+    assert report["failure"] == "" and report["stopped_by"] == "Ctrl-C"
+    assert [(r["rtpu"], r["pid"], r["cause"]) for r in report["restarts"]] == [("rtpu0", pid, "killed by SIGKILL") for pid in killed]
+    assert all(r["seconds"] > 0 and r["tasks_on"] == ["traj", "pid"] for r in report["restarts"])
+    assert out.count("RTPU 'rtpu0' restarted, ") == 3  # the summary tells each restart
+    # the robot interface never stopped: ON throughout, holding the arm while its torque was stale
+    robot = report["tasks"]["robot"]
+    assert robot["state"] == "ON" and robot["error"] == ""
+    holds = [e for e in report["stable_episodes"] if e["task"] == "robot" and "tau_u" in e["reason"]]
+    assert len(holds) >= 3, report["stable_episodes"]
+    # ... and the arm kept to its path and got there
+    log = read_log(next((tmp_path / "out").rglob("pid_joint.mcap")))
+    assert excursion_from_path(log["q_m"], log["q_m"][0], GOAL) < EXCURSION_LIMIT
+    assert np.abs(log["q_m"][-1] - GOAL).max() < REACHED
+    assert_nothing_left(report)
+
+
+def test_a_module_that_aborts_in_init_ends_in_a_clear_stop_after_max_restarts(tmp_path):
+    config = config_copy(DEMO, tmp_path, "restart_abort", (
+        POLICY,
+        ("  logger: {module: data_logger", "  crash: {module: fault_injector, rtpu: rtpu0, period: 10 ms, "
+                                           "params: {fault: abort, in_init: true}}\n  logger: {module: data_logger"),
+        ("joint_pid: [robot, traj, pid, logger]", "joint_pid: [robot, traj, pid, crash, logger]")))
+    report_path = tmp_path / "report.json"
+    run = subprocess.run([*PBO, "run", str(config), "--no-live", "--duration", "0", "--report", str(report_path),
+                          "--out", str(tmp_path / "out")], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 2, run.stderr
+    assert "Traceback" not in run.stderr, run.stderr
+    assert "died (killed by SIGABRT) while hosting tasks: traj, pid, crash" in run.stderr, run.stderr
+    assert "it died 4 times within 600 s, more than its restart policy allows (restart: {max: 3, within: 600 s})" in run.stderr
+    report = json.loads(report_path.read_text())
+    # three restarts, each dying again as the task's init runs; the fourth death stops the run: no loop
+    assert [r["seconds"] is None for r in report["restarts"]] == [False, False, False, True]
+    assert_nothing_left(report)
+
+
+def test_past_its_policy_an_rtpus_death_stops_the_run_and_says_why(tmp_path):
+    config = config_copy(DEMO, tmp_path, "restart_once", (
+        ("rtpus: [rtpu0, rtpu1]", "rtpus: [rtpu0, rtpu1]\nrestart: {max: 1, within: 10 min}"),))
+    report_path = tmp_path / "report.json"
+    run = start_run(config, tmp_path, "--duration", "0", "--report", str(report_path), "--out", str(tmp_path / "out"))
+    try:
+        first = run_processes(run)["rtpu0"]
+        os.kill(first, signal.SIGKILL)
+        read_until(run, "restarted:")
+        second = run_processes(run)["rtpu0"]
+        os.kill(second, signal.SIGKILL)
+        out, err = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    assert run.returncode == 2, err
+    assert (f"RTPU 'rtpu0' (pid {second}) died (killed by SIGKILL)" in err
+            and "it died 2 times within 600 s, more than its restart policy allows (restart: {max: 1, within: 600 s})" in err), err
+    report = json.loads(report_path.read_text())
+    assert [(r["pid"], r["seconds"] is None) for r in report["restarts"]] == [(first, False), (second, True)]  # not back
+    assert_nothing_left(report)

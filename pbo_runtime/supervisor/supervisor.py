@@ -434,7 +434,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self._check_stalls()
         if self.lock_watch is not None:  # while the lock is taken, look again soon
             timeout = self.lock_watch.next_look_in(timeout)
-        self.clock.run_for(timeout, self._take_one_event, self._while_stepping)
+        self.clock.run_for(timeout, self._take_one_event, self._while_stepping, self._while_ticking)
         self._serve_commands()
         if self.on_tick is not None:
             self.on_tick(self)

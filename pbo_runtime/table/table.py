@@ -96,7 +96,10 @@ class Header(enum.IntEnum):
     # Simulated clock (--clock sim): the supervisor advances time in ticks; every participant reads it here.
     SIM_TIME_NS = 20  # the current tick's time, nanoseconds from the run's start
     SIM_TICK = 21  # ticks released so far: a participant stepped with no new tick only serves its signals
+    SIM_TICK_NS = 22  # the tick's length, nanoseconds: the participant that ends a tick may begin the next
+    SIM_RING_END = 23  # the last tick of the turns the participants pass among themselves (0: each returns to job control)
     SWITCHING_SINCE_NS = 24  # one word per RTPU (up to MAX_RTPUS): when its switch began, 0 if none
+    SIM_TURN = 24 + 32  # (after the switching words) the place in the tick of the participant running, for a slow tick's report
 
 
 MAX_RTPUS = 32

@@ -190,6 +190,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
 
     def run(self) -> RunResult:
         wall_start = time.monotonic()
+        running_since = 0.0  # wall time when the configuration came on
         previous = signal.signal(signal.SIGINT, self._interrupt)
         previous_term = signal.signal(signal.SIGTERM, self._interrupt)
         try:
@@ -197,6 +198,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             if removed:
                 self.say(f"removed {len(removed)} object(s) left by a dead run: {', '.join(removed)}")
             self._start()
+            running_since = time.monotonic()
             if self.application:
                 self.job_control.run_application(self.application)
                 self.result.jobs_done = [job for job, _ in application_steps(self.subsystem, self.application)]
@@ -224,6 +226,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             self.result.failure = str(limit)
             self.result.stopped_by = "failure"
         finally:
+            if running_since:
+                self.result.running_wall_seconds = time.monotonic() - running_since
             self._shutdown()
             self._end_live()
             signal.signal(signal.SIGINT, previous)

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from bench import (api_stream, check_scale, data_log, dora_peer, faults, hmi_latency, hmi_load, links, peers, placement, realtime,
-                   restart, scale, svar_transfer, switching, wait)
+                   restart, scale, sim_speed, svar_transfer, switching, wait)
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -37,6 +37,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "api_stream": api_stream.run,
     "hmi_latency": hmi_latency.run,
     "hmi_load": hmi_load.run,
+    "sim_speed": sim_speed.run,
 }
 
 FULL: dict[str, dict[str, Any]] = {
@@ -56,6 +57,7 @@ FULL: dict[str, dict[str, Any]] = {
     "api_stream": {"seconds": 120.0, "rounds": 12},
     "hmi_latency": {"writes": 1000},
     "hmi_load": {"seconds": 120.0, "rounds": 12},
+    "sim_speed": {"seconds": 10.0, "rounds": 3},
 }
 
 QUICK: dict[str, dict[str, Any]] = {
@@ -75,6 +77,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "api_stream": {"seconds": 2.0, "rounds": 2},
     "hmi_latency": {"writes": 100},
     "hmi_load": {"seconds": 20.0, "rounds": 2},
+    "sim_speed": {"seconds": 1.0, "rounds": 2},
 }
 
 DOC = Path(REPO) / "docs" / "performance.md"

@@ -57,6 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fifo", action="store_true", help="ask for SCHED_FIFO (reported if refused)")
     parser.add_argument("--clock", choices=("real", "sim"), default="real", help="sim: advance in the supervisor's ticks")
     parser.add_argument("--tick", type=float, default=0.001, help="seconds per tick of the simulated clock")
+    parser.add_argument("--ring", default="", help="sim: the participants of a tick, in order (clock.lockstep)")
     parser.add_argument("--out", default="", help="directory the modules write their files into")
     parser.add_argument("--configuration", default="", help="the configuration the run started in (for the logs' metadata)")
     parser.add_argument("--application", default="", help="the application the run runs (for the logs' metadata)")
@@ -157,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
             make = factory(spec)
             executive.add(make(), make)
         if simulated:
-            barrier = LockstepParticipant(name, args.run_id, args.rtpu, table.header, before_step=lambda: _pump(pumped))
+            barrier = LockstepParticipant(name, args.run_id, args.rtpu, table.header, args.ring.split(",") if args.ring else [args.rtpu],
+                                          events.pending, before_step=lambda: _pump(pumped))
             realtime = {"clock": f"simulated, {args.tick * 1e3:g} ms ticks"}
         stop_only_at_waits()  # the executive takes the table lock from here on: a stop must not land inside a transfer
         report(messages.Ready(realtime))

@@ -29,6 +29,7 @@ from typing import Any, Callable, Protocol
 import numpy as np
 
 from pbo_runtime.ipc import messages
+from pbo_runtime.ipc.process import raise_if_stopping
 from pbo_runtime.ipc.messages import Event, FirstCycle, Refused, Stable, StateChanged, Stats, Switched, Window
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.module import Status
@@ -241,10 +242,14 @@ class Executive:
         finished the previous one, so the same inputs give the same cycles, bit for bit.
         """
         signals = self.signals
+        # A queue says whether a signal waits in one cheap system call; a receive that finds none
+        # costs ten times as much (an exception), and most ticks bring no signal.
+        pending: Callable[[], bool] = getattr(signals, "pending", lambda: True)
         while self.running:
             new_tick = barrier.wait()
             try:
-                while self.running:
+                raise_if_stopping()  # a stop that came while this process was not waiting (`stop_only_at_waits`)
+                while self.running and pending():
                     message = signals.receive(0)
                     if message is None:
                         break

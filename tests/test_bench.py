@@ -30,6 +30,7 @@ TINY = {
     "api_stream": {"seconds": 1.0, "rounds": 1},
     "hmi_latency": {"writes": 10},
     "hmi_load": {"seconds": 4.0, "rounds": 1},
+    "sim_speed": {"seconds": 0.2, "rounds": 2},
 }
 
 

@@ -36,15 +36,18 @@ def run_sim(tmp_path, config, *arguments: str, out: str = "out") -> tuple[subpro
 
 @pytest.fixture
 def barrier():
-    """A master with two participants ('plant', 'rtpu0') served by threads that log what they saw."""
+    """A master with two participants ('plant', 'rtpu0') served by threads that log what they saw; a
+    tick whose time (ns) is in `event_at` has an event queued for job control."""
     run_id = shm.new_run_id()
     header = np.zeros(HEADER_WORDS, dtype=np.int64)
     master = LockstepMaster("locktest", run_id, ["plant", "rtpu0"], 0.001, header)
     seen: list[tuple[str, bool, int]] = []
+    event_at: set[int] = set()
     stop = threading.Event()
 
     def serve(role: str) -> None:
-        participant = LockstepParticipant("locktest", run_id, role, header)
+        participant = LockstepParticipant("locktest", run_id, role, header, ["plant", "rtpu0"],
+                                          lambda: int(header[Header.SIM_TIME_NS]) in event_at)
         try:
             while not stop.is_set():
                 new_tick = participant.wait()
@@ -56,7 +59,7 @@ def barrier():
     threads = [threading.Thread(target=serve, args=(role,), daemon=True) for role in ("plant", "rtpu0")]
     for thread in threads:
         thread.start()
-    yield master, seen
+    yield master, seen, event_at
     stop.set()
     for role in ("plant", "rtpu0"):
         master.step(role, lambda: None)  # let each thread see the stop
@@ -66,7 +69,7 @@ def barrier():
 
 
 def test_each_tick_releases_the_plant_then_the_rtpus_in_turn(barrier):
-    master, seen = barrier
+    master, seen, _ = barrier
     for _ in range(3):
         master.advance(lambda: None)
     assert seen == [("plant", True, 0), ("rtpu0", True, 0),
@@ -76,10 +79,31 @@ def test_each_tick_releases_the_plant_then_the_rtpus_in_turn(barrier):
 
 
 def test_a_step_without_a_new_tick_only_serves_signals(barrier):
-    master, seen = barrier
+    master, seen, _ = barrier
     master.advance(lambda: None)
     master.step("rtpu0", lambda: None)
     assert seen[-1] == ("rtpu0", False, 0)
+
+
+def test_the_participants_run_the_ticks_asked_for_among_themselves_in_the_same_order(barrier):
+    master, seen, _ = barrier
+    assert master.advance(lambda: None, ticks=3) == 3
+    assert seen == [("plant", True, 0), ("rtpu0", True, 0),
+                    ("plant", True, 1_000_000), ("rtpu0", True, 1_000_000),
+                    ("plant", True, 2_000_000), ("rtpu0", True, 2_000_000)]
+    assert master.ticks == 3 and master.now == pytest.approx(0.002)
+    master.step("rtpu0", lambda: None)  # and a step between ticks is still one participant's, no new tick
+    assert seen[-1] == ("rtpu0", False, 2_000_000) and master.ticks == 3
+
+
+def test_a_tick_that_queued_an_event_hands_the_turn_back_to_job_control_after_that_tick(barrier):
+    master, seen, event_at = barrier
+    event_at.add(1_000_000)
+    assert master.advance(lambda: None, ticks=5) == 2  # ticks 0 and 1 ms: job control takes the event now
+    assert seen[-1] == ("rtpu0", True, 1_000_000) and master.now == pytest.approx(0.001)
+    event_at.clear()
+    assert master.advance(lambda: None, ticks=3) == 3
+    assert [time for _, _, time in seen] == [t * 1_000_000 for t in range(5) for _ in range(2)]
 
 
 def test_the_barrier_semaphores_are_private_and_gone_after_close():

@@ -74,6 +74,7 @@ _SERVO_MAX_OMEGA_DT = 0.25
 _SERVO_BRAKING_SHARE = 0.5
 
 
+_INT16_MIN, _INT16_MAX = -32768.0, 32767.0  # an ADC's counts
 _PER_JOINT = {"shape": ("NDOF",)}  # a list with one value per joint of the robot
 
 
@@ -176,6 +177,7 @@ class MujocoArmPlant:
         mujoco.mj_forward(self.model, self.data)
 
         self._torque_limits = robot.torque_limits.copy()
+        self._torque_floor = -self._torque_limits  # (made once: the step clips every command to both)
         self._q_min = robot.joint_limits[:, 0].copy()
         self._q_max = robot.joint_limits[:, 1].copy()
         self._tau = np.zeros(n)  # last consistent command, preallocated for step()
@@ -268,7 +270,7 @@ class MujocoArmPlant:
             mode = regs.words[W_MODE]
             if mode == MODE_TORQUE:
                 self._read_command(regs.tau, self._tau)
-                np.clip(self._tau, -self._torque_limits, self._torque_limits, out=data.qfrc_applied)
+                _clip(self._tau, self._torque_floor, self._torque_limits, data.qfrc_applied)
             elif mode == MODE_POSITION:
                 self._read_command(regs.q_cmd, self._q_cmd)
                 self._servo(data)
@@ -305,8 +307,13 @@ class MujocoArmPlant:
         """The contact, turned from the sensor frame into the world frame MuJoCo applies it in.
 
         The hand's orientation is taken for the pose the coming step starts from (after a step,
-        data.xmat still holds the pose before its integration).
+        data.xmat still holds the pose before its integration). No contact (the usual case) is
+        zero in any frame: the kinematics, a third of a step's cost, are then not needed, and
+        the step itself recomputes them from the joints either way.
         """
+        if not self._wrist_wrench.any():
+            self.data.xfrc_applied[self._ft_body] = 0.0
+            return
         mujoco.mj_kinematics(self.model, self.data)
         body = self._ft_body
         rotation = self.data.xmat[body].reshape(3, 3)
@@ -330,7 +337,7 @@ class MujocoArmPlant:
             volts += self._noise
         np.multiply(volts, 1.0 / VOLTS_PER_COUNT, out=counts)
         np.rint(counts, out=counts)
-        np.clip(counts, -32768, 32767, out=counts)
+        _clip(counts, _INT16_MIN, _INT16_MAX, counts)
         words = regs.words
         seq = words[W_BOARD_SEQ]
         words[W_BOARD_SEQ] = seq + 1
@@ -390,7 +397,7 @@ class MujocoArmPlant:
         np.subtract(v_ref, qvel, out=tau)
         np.multiply(tau, self.servo_kd, out=tau)
         np.add(tau, self.gravity_torque(qpos, self._gravity), out=tau)
-        np.clip(tau, -self._torque_limits, self._torque_limits, out=data.qfrc_applied)
+        _clip(tau, self._torque_floor, self._torque_limits, data.qfrc_applied)
 
     def _command_stale(self, words: np.ndarray, now: float) -> bool:
         """The drive's watchdog: no new command for `command_timeout` while the brakes are off."""
@@ -478,6 +485,13 @@ def _positive(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
         raise ValueError(f"plant option {where} must be a finite number > 0, got: {value!r}")
     return float(value)
+
+
+def _clip(values: np.ndarray, low: Any, high: Any, out: np.ndarray) -> None:
+    """`np.clip(values, low, high, out=out)` in two ufunc calls, without np.clip's Python layers
+    (a few microseconds a call, twice a step); NaN stays NaN as it does there."""
+    np.maximum(values, low, out=out)
+    np.minimum(out, high, out=out)
 
 
 def _wrench_option(value: Any) -> np.ndarray:

@@ -649,8 +649,10 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
                           "the timestep or lighten the model", markup=False)
     if result.clock == "sim":
         speed = result.duration / result.wall_seconds if result.wall_seconds else 0.0
+        running = result.running_wall_seconds
+        ticking = f"; {result.duration / running:.2f}x from the configuration on" if running else ""
         console.print(f"clock: simulated, {result.tick * 1e3:g} ms ticks; {result.duration:.2f} s simulated in "
-                      f"{result.wall_seconds:.2f} s of wall time ({speed:.2f}x real time)", markup=False)
+                      f"{result.wall_seconds:.2f} s of wall time ({speed:.2f}x real time{ticking})", markup=False)
     for rtpu, settings in result.realtime.items():
         if "clock" in settings:
             continue  # simulated: no scheduler settings to report

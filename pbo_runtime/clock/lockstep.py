@@ -1,17 +1,25 @@
 """The simulated clock's barrier (`pbo run --clock sim`): every process advances in lockstep ticks.
 
-The supervisor is the clock master. For each tick it writes the tick's time into the table's
-header, then releases the participants one at a time, in a fixed order (the plant first, then
-the RTPUs by index), each through its own `go` semaphore, and waits on that participant's `done`
-semaphore before releasing the next. Running them in turn, never together, is what makes a run
-replay bit for bit: no two processes ever race for the table in the same tick, so what a task
-reads depends only on the tick order, never on the scheduler. The plant steps exactly once per
-tick; an RTPU first serves the signals queued for it, then runs every task released at or
+The supervisor is the clock master. The participants (the plant first, then the RTPUs by
+index) form a ring: within a tick each runs in turn, never two at once, and hands the turn
+straight to the next through that one's `go` semaphore. Running them in turn is what makes a
+run replay bit for bit: no two processes ever race for the table in the same tick, so what a
+task reads depends only on the tick order, never on the scheduler. The plant steps exactly once
+per tick; an RTPU first serves the signals queued for it, then runs every task released at or
 before the tick's time.
 
+The master starts a turn of the ring with the time of its first tick in the table's header and
+the number of the last tick it may run (`Header.SIM_RING_END`). The participant that ends a
+tick begins the next one itself (the next time in the header, then the first participant's
+`go`) until that last tick, or until a participant queued an event for job control during the
+tick, and then hands the turn back through the master's `done` semaphore. Job control so takes
+every event after the very tick it was sent in, as if it had released each tick itself, while
+the ticks between events cost one hand-over per participant and nothing in the supervisor.
+`advance(ticks=1)` gives the master each tick.
+
 A participant can also be stepped with no new tick (the tick counter unchanged): it then only
-serves its signals. Job control uses that to spawn tasks, turn them on and stop them between
-ticks, so a signal takes effect at a known simulated instant.
+serves its signals and hands the turn back to the master. Job control uses that to spawn tasks,
+turn them on and stop them between ticks, so a signal takes effect at a known simulated instant.
 
 Semaphores are created 0600 and named after the run, so the table's manifest lists them and a
 later run removes them if this one died.
@@ -29,13 +37,25 @@ from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm
 from pbo_runtime.table.table import Flag, Header
 
-WAIT_SLICE = 0.05  # seconds between checks for dead children while a participant runs its tick
+WAIT_SLICE = 0.05  # seconds between checks for dead children while the participants run their ticks
+# Header words, as plain ints for the memoryview reads on the per-tick path
+_SIM_TIME_NS, _SIM_TICK, _SIM_TICK_NS = int(Header.SIM_TIME_NS), int(Header.SIM_TICK), int(Header.SIM_TICK_NS)
+_SIM_RING_END, _SIM_TURN = int(Header.SIM_RING_END), int(Header.SIM_TURN)
 
 
-def semaphore_names(subsystem: str, run_id: str, role: str) -> tuple[str, str]:
-    """The (go, done) semaphore names of one participant ('plant' or an RTPU's name)."""
-    base = shm.object_name(subsystem, run_id, f"tick-{role}")
-    return f"{base}.go", f"{base}.done"
+def go_name(subsystem: str, run_id: str, role: str) -> str:
+    """The semaphore that gives participant `role` ('plant' or an RTPU's name) its turn."""
+    return f"{shm.object_name(subsystem, run_id, f'tick-{role}')}.go"
+
+
+def done_name(subsystem: str, run_id: str) -> str:
+    """The semaphore that hands the turn back to the master."""
+    return f"{shm.object_name(subsystem, run_id, 'tick')}.done"
+
+
+def semaphore_names(subsystem: str, run_id: str, roles: list[str]) -> list[str]:
+    """Every semaphore of the barrier: each participant's `go`, then the master's `done`."""
+    return [go_name(subsystem, run_id, role) for role in roles] + [done_name(subsystem, run_id)]
 
 
 class LockstepMaster:
@@ -49,41 +69,72 @@ class LockstepMaster:
         self.ticks = 0
         self.stepping, self.step_started = "", 0.0  # the participant released last, and when (wall clock)
         self._go: dict[str, posix_ipc.Semaphore] = {}
-        self._done: dict[str, posix_ipc.Semaphore] = {}
+        self._done: posix_ipc.Semaphore | None = None
+        self._turn_out = False  # a turn was released and not handed back yet (a wait that was given up)
         try:
             for role in self.roles:
-                go, done = semaphore_names(subsystem, run_id, role)
-                self._go[role] = posix_ipc.Semaphore(go, posix_ipc.O_CREX, mode=0o600, initial_value=0)
-                self._done[role] = posix_ipc.Semaphore(done, posix_ipc.O_CREX, mode=0o600, initial_value=0)
+                self._go[role] = posix_ipc.Semaphore(go_name(subsystem, run_id, role), posix_ipc.O_CREX, mode=0o600,
+                                                     initial_value=0)
+            self._done = posix_ipc.Semaphore(done_name(subsystem, run_id), posix_ipc.O_CREX, mode=0o600, initial_value=0)
         except BaseException:
             self.close()
             raise
         header[Header.SIM_TIME_NS] = 0
         header[Header.SIM_TICK] = 0
+        header[Header.SIM_TICK_NS] = self.tick_ns
+        header[Header.SIM_RING_END] = 0
         # before the run's participants exist: no one else writes the flags yet
         header[Header.FLAGS] = int(header[Header.FLAGS]) | Flag.SIM_CLOCK
 
     @property
     def now(self) -> float:
-        """The simulated time of the last tick released (0 before the first)."""
+        """The simulated time of the tick running or run last (0 before the first)."""
         return int(self.header[Header.SIM_TIME_NS]) / 1e9
 
-    def advance(self, while_waiting: Callable[[], None]) -> None:
-        """One tick: the next time in the header, then every participant in order, each to its end."""
-        self.header[Header.SIM_TIME_NS] = self.ticks * self.tick_ns
-        self.ticks += 1
-        self.header[Header.SIM_TICK] = self.ticks
-        for role in self.roles:
-            self.step(role, while_waiting)
+    @property
+    def tick_running(self) -> int:
+        """The number of the tick running or run last (1 for the first)."""
+        return int(self.header[Header.SIM_TICK])
+
+    def advance(self, while_waiting: Callable[[], bool | None], ticks: int = 1) -> int:
+        """Run up to `ticks` ticks, every participant in order in each; the number of ticks run.
+
+        It stops sooner after a tick in which a participant queued an event, so job control
+        takes it before the next tick. `while_waiting` runs every WAIT_SLICE meanwhile: it must
+        not take events (the ring is still running). It may raise; returning True gives up.
+        """
+        header = self.header
+        first = self.ticks + 1
+        header[Header.SIM_RING_END] = self.ticks + max(ticks, 1)
+        header[Header.SIM_TIME_NS] = self.ticks * self.tick_ns
+        header[Header.SIM_TICK] = first
+        try:
+            self._turn(self.roles[0], while_waiting)
+        finally:
+            header[Header.SIM_RING_END] = 0  # a turn given up: the ring stops at its next hand-over
+            self.ticks = int(header[Header.SIM_TICK])
+        return self.ticks - first + 1
 
     def step(self, role: str, while_waiting: Callable[[], bool | None]) -> bool:
-        """Release one participant and wait until it is done (True); `while_waiting` runs every slice.
+        """Release one participant with no new tick and wait until it is done (True); `while_waiting`
+        runs every slice and may raise (a participant died) or return True to stop waiting (False)."""
+        return self._turn(role, while_waiting)
 
-        `while_waiting` may raise (a participant died) or return True to stop waiting (False).
-        """
+    def _turn(self, role: str, while_waiting: Callable[[], bool | None]) -> bool:
+        done = self._done
+        assert done is not None
+        if self._turn_out and not self._wait(done, while_waiting):  # the last turn first: one participant at a time
+            self._turn_out = False  # given up on: the participant holding it is dead or stuck
         self._go[role].release()
-        done = self._done[role]
+        self._turn_out = True
         self.stepping, self.step_started = role, time.monotonic()  # for a watchdog in `while_waiting`
+        if self._wait(done, while_waiting):
+            self._turn_out = False
+            return True
+        return False
+
+    @staticmethod
+    def _wait(done: posix_ipc.Semaphore, while_waiting: Callable[[], bool | None]) -> bool:
         while True:
             try:
                 done.acquire(WAIT_SLICE)
@@ -92,28 +143,44 @@ class LockstepMaster:
                 if while_waiting():
                     return False
 
+    def running(self) -> str:
+        """The participant whose turn it is (or was last)."""
+        place = int(self.header[Header.SIM_TURN])
+        return self.roles[place] if 0 <= place < len(self.roles) else self.stepping
+
     def close(self) -> None:
-        for semaphore in (*self._go.values(), *self._done.values()):
+        for semaphore in (*self._go.values(), *([self._done] if self._done is not None else [])):
             try:
                 semaphore.unlink()
             except posix_ipc.ExistentialError:
                 pass
             semaphore.close()
         self._go.clear()
-        self._done.clear()
+        self._done = None
 
 
 class LockstepParticipant:
-    """A plant's or an RTPU's side: wait for `go`, do the tick's work, post `done`."""
+    """A plant's or an RTPU's side: wait for `go`, do the tick's work, hand the turn on (`done`).
 
-    def __init__(self, subsystem: str, run_id: str, role: str, header: np.ndarray,
-                 before_step: Callable[[], None] | None = None) -> None:
-        go, done = semaphore_names(subsystem, run_id, role)
-        self._go = posix_ipc.Semaphore(go)
-        self._done = posix_ipc.Semaphore(done)
+    `ring` lists the participants in the order they run in a tick (`role` among them);
+    `events_pending` says whether an event waits in job control's queue: the participant that
+    ends a tick then hands the turn back to the master instead of beginning the next tick.
+    """
+
+    def __init__(self, subsystem: str, run_id: str, role: str, header: np.ndarray, ring: list[str],
+                 events_pending: Callable[[], bool] = lambda: False, before_step: Callable[[], None] | None = None) -> None:
+        place = ring.index(role)
+        self._go = posix_ipc.Semaphore(go_name(subsystem, run_id, role))
+        self._next = posix_ipc.Semaphore(go_name(subsystem, run_id, ring[(place + 1) % len(ring)]))
+        self._done = posix_ipc.Semaphore(done_name(subsystem, run_id))
+        self._place = place
+        self._ends_tick = place == len(ring) - 1
+        self._events_pending = events_pending
         self.header = header
+        self._words = header.data  # the same words as plain ints: no numpy scalar per read
         self.last_tick = 0
         self.before_step = before_step  # run once released, before the step's work (an RTPU's link relays)
+        self._new_tick = False
 
     def wait(self) -> bool:
         """Block until released; True if a new tick began (False: serve signals only)."""
@@ -125,16 +192,35 @@ class LockstepParticipant:
                 process.raise_if_stopping()  # a supervisor that died sent us SIGTERM (PDEATHSIG): Stop ends the wait
         if self.before_step is not None:
             self.before_step()
-        tick = int(self.header[Header.SIM_TICK])
-        if tick != self.last_tick:
+        words = self._words
+        words[_SIM_TURN] = self._place
+        tick = words[_SIM_TICK]
+        self._new_tick = tick != self.last_tick
+        if self._new_tick:
             self.last_tick = tick
-            return True
-        return False
+        return self._new_tick
 
     def done(self) -> None:
+        """Hand the turn on: to the next participant, to the first one for the next tick, or back to the master."""
+        words = self._words
+        end = words[_SIM_RING_END]
+        if self._new_tick and end:
+            if not self._ends_tick:
+                self._next.release()
+                return
+            tick = words[_SIM_TICK]
+            if tick < end and not self._events_pending():
+                words[_SIM_TIME_NS] = tick * words[_SIM_TICK_NS]
+                words[_SIM_TICK] = tick + 1
+                self._next.release()
+                return
         self._done.release()
 
     def close(self) -> None:
-        for semaphore in (self._go, self._done):
+        for semaphore in (self._go, self._next, self._done):
             semaphore.close()
 
+
+def ring_arguments(ring: list[str]) -> list[str]:
+    """What a participant is told on its command line about the ring (`--ring plant,rtpu0,...`)."""
+    return ["--ring", ",".join(ring)]

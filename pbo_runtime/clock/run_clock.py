@@ -8,7 +8,8 @@ here once instead of in branches through the supervisor:
   staggered over the shortest period, a plan needs a wake-up on each RTPU's queue, and the
   supervisor waits for events between its own turns.
 - `SimRunClock`: the supervisor is the clock master (`clock.lockstep`): time is the tick count,
-  moved only by `run_for`; a signal is served in full when its RTPU is stepped, so its answer
+  moved only by `run_for`, which lets the participants run the ticks among themselves until one
+  of them sends an event; a signal is served in full when its RTPU is stepped, so its answer
   is already queued when `serve` returns; children run with a fixed string hash so a run
   replays bit for bit. In an application on the simulated clock it takes the application's turn
   (`clock.application_lockstep`) before each tick or step, and gives it back after each tick.
@@ -25,7 +26,7 @@ import numpy as np
 
 from pbo_runtime.clock.application_lockstep import TurnGate, TurnStalled
 from pbo_runtime.clock.clocks import release_stagger
-from pbo_runtime.clock.lockstep import LockstepMaster, semaphore_names
+from pbo_runtime.clock.lockstep import LockstepMaster, ring_arguments, semaphore_names
 from pbo_runtime.table.table import Header
 
 
@@ -57,8 +58,13 @@ class RunClock(Protocol):
         """What an RTPU is told about the clock on its command line."""
     def child_environment(self) -> dict[str, str] | None:
         """The children's environment (None: the supervisor's own)."""
-    def run_for(self, timeout: float, wait_for_events: Callable[[float], None], while_stepping: Callable[[], None]) -> None:
-        """Let the run go on for `timeout`: wait for events, or run the ticks that cover it (at least one)."""
+    def run_for(self, timeout: float, wait_for_events: Callable[[float], None], while_stepping: Callable[[], None],
+                while_ticking: Callable[[], None]) -> None:
+        """Let the run go on for `timeout`: wait for events, or run the ticks that cover it (at least one).
+
+        `while_stepping` runs after each tick that sent events (and after the last), `while_ticking`
+        while the ticks run, which must take no event.
+        """
     def serve(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
         """Have participant `role` serve the signals queued for it now (a no-op where it serves them itself)."""
     def take_turn(self, while_waiting: Callable[[], None]) -> None:
@@ -105,7 +111,8 @@ class RealRunClock:
     def child_environment(self) -> dict[str, str] | None:
         return None
 
-    def run_for(self, timeout: float, wait_for_events: Callable[[float], None], while_stepping: Callable[[], None]) -> None:
+    def run_for(self, timeout: float, wait_for_events: Callable[[float], None], while_stepping: Callable[[], None],
+                while_ticking: Callable[[], None]) -> None:
         wait_for_events(timeout)
 
     def serve(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
@@ -137,17 +144,27 @@ class SimRunClock:
     def __init__(self, tick: float, gate: TurnGate | None = None, stall_limit: float = TURN_STALL_SECONDS) -> None:
         self.tick = tick
         self.lockstep: LockstepMaster | None = None
+        self.roles: list[str] = []
+        # The most ticks the participants run among themselves before job control looks (None: as
+        # many as `run_for` covers; they stop sooner after a tick that sent an event). 1 gives job
+        # control every tick, for a master that must interleave ticks with others'.
+        self.ticks_per_turn: int | None = None
         self._slow_tick = -1  # the tick last reported as slow
         self.gate = gate  # in an application: the application's turn, taken before any lockstep activity
         self.stall_limit = stall_limit  # in an application: wall seconds one participant may hold every subsystem
+        if gate is not None:
+            self.ticks_per_turn = 1  # the application interleaves its subsystems tick by tick
+        self._watched: tuple[float, int, str] = (0.0, 0, "")  # (turn released at, tick, participant) last looked at
+        self._watched_since = 0.0
 
     def now(self) -> float:
         return self.lockstep.now if self.lockstep is not None else 0.0
 
     def semaphores(self, subsystem: str, run_id: str, roles: list[str]) -> list[str]:
-        return [name for role in roles for name in semaphore_names(subsystem, run_id, role)]
+        return semaphore_names(subsystem, run_id, roles)
 
     def start(self, subsystem: str, run_id: str, roles: list[str], header: np.ndarray) -> float:
+        self.roles = list(roles)
         self.lockstep = LockstepMaster(subsystem, run_id, roles, self.tick, header)
         return self.now()
 
@@ -155,21 +172,24 @@ class SimRunClock:
         return 0.0  # RTPUs run in turn within a tick: they cannot collide on the lock
 
     def plant_arguments(self) -> list[str]:
-        return ["--clock", "sim"]
+        return ["--clock", "sim", *ring_arguments(self.roles)]
 
     def rtpu_arguments(self) -> list[str]:
-        return ["--clock", "sim", "--tick", repr(self.tick)]
+        return ["--clock", "sim", "--tick", repr(self.tick), *ring_arguments(self.roles)]
 
     def child_environment(self) -> dict[str, str] | None:
         return {**os.environ, "PYTHONHASHSEED": "0"}  # a replayed run must not depend on string hashing
 
-    def run_for(self, timeout: float, wait_for_events: Callable[[float], None], while_stepping: Callable[[], None]) -> None:
+    def run_for(self, timeout: float, wait_for_events: Callable[[float], None], while_stepping: Callable[[], None],
+                while_ticking: Callable[[], None]) -> None:
         assert self.lockstep is not None
         gate = self.gate
-        for _ in range(max(1, math.floor(timeout / self.tick + 1e-9))):
+        left = max(1, math.floor(timeout / self.tick + 1e-9))
+        limit = self.ticks_per_turn or left
+        while left > 0:
             if gate is not None:
                 gate.take(while_stepping)
-            self.lockstep.advance(while_stepping)
+            left -= self.lockstep.advance(while_ticking, min(left, limit))
             if gate is not None:
                 gate.give()  # one tick a turn: the application's next turn may be another subsystem's
             while_stepping()
@@ -191,14 +211,22 @@ class SimRunClock:
         lockstep, gate = self.lockstep, self.gate
         if lockstep is None or (gate is not None and not gate.held):
             return None  # waiting for the application's turn: none of ours is stepping
-        waited = time.monotonic() - lockstep.step_started
+        # The participants pass ticks among themselves: a participant's tick is timed from the
+        # turn's release or from the first look that saw it running, whichever is later.
+        now, tick, running = time.monotonic(), lockstep.tick_running, lockstep.running()
+        watched = (lockstep.step_started, tick, running)
+        if watched != self._watched:
+            same_turn = self._watched[0] == lockstep.step_started
+            self._watched = watched
+            self._watched_since = now if same_turn else lockstep.step_started
+        waited = now - self._watched_since
         if gate is not None and waited > self.stall_limit:
-            raise TurnStalled(f"{lockstep.stepping} has not finished the tick at {lockstep.now:.3f} s after {waited:.1f} s "
+            raise TurnStalled(f"{running} has not finished the tick at {lockstep.now:.3f} s after {waited:.1f} s "
                               "of wall time, and every subsystem of the application waits for it: a cycle there has "
                               "not returned")
-        if waited > limit and self._slow_tick != lockstep.ticks:
-            self._slow_tick = lockstep.ticks
-            return lockstep.stepping, lockstep.now, waited
+        if waited > limit and self._slow_tick != tick:
+            self._slow_tick = tick
+            return running, lockstep.now, waited
         return None
 
     def close(self) -> None:

@@ -376,6 +376,10 @@ class Queue:
         """The queue as the kernel made it: its depth and message size."""
         return QueueSize(self.name, self._mq.max_messages, self._mq.max_message_size)
 
+    def pending(self) -> bool:
+        """Whether a message waits in the queue (one system call, nothing received)."""
+        return self._mq.current_messages > 0
+
     def send(self, *message: Any, timeout: float | None = 1.0) -> None:
         raw = self._encode(message)
         while True:

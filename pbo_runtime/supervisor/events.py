@@ -58,14 +58,20 @@ class EventHandling:
         return self._await_state(signal.task, states)
 
     def _while_stepping(self) -> None:
-        """While a participant runs its tick: fail if a child died, stop if asked, keep the event queue
-        drained, and say so once if the tick takes seconds (a cycle there has not returned)."""
-        self._check_children()
-        if self._stop_requested:
-            raise StopRequested(self._stop_requested)  # a tick that never ends must not hold Ctrl-C
+        """Between ticks, and while a participant serves its signals: `_while_ticking`, and keep the
+        event queue drained."""
+        self._while_ticking()
         assert self.events is not None
         while (received := self.events.receive_event(0)) is not None:
             self._absorb(*received)
+
+    def _while_ticking(self) -> None:
+        """While the participants run ticks: fail if a child died, stop if asked, and say so once if
+        a tick takes seconds (a cycle there has not returned). No event is taken: the participants
+        hand the turn back after a tick that sent one, and it is taken then."""
+        self._check_children()
+        if self._stop_requested:
+            raise StopRequested(self._stop_requested)  # a tick that never ends must not hold Ctrl-C
         slow = self.clock.slow_participant(SIM_STALL_SECONDS)
         if slow is not None:
             stepping, at, waited = slow

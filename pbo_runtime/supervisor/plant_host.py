@@ -52,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--parent", type=int, default=0)
     parser.add_argument("--fifo", action="store_true", help="SCHED_FIFO above the RTPUs: the world does not wait")
     parser.add_argument("--clock", choices=("real", "sim"), default="real", help="sim: one step per supervisor tick")
+    parser.add_argument("--ring", default="plant", help="sim: the participants of a tick, in order (clock.lockstep)")
     parser.add_argument("--out", default="", help="the run's output directory: the plant's own log goes there")
     parser.add_argument("--base-dir", default="", help="the YAML file's folder: a robot file's path is relative to it")
     args = parser.parse_args(argv)
@@ -81,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.clock == "sim":
             table = shm.attach_segment(messages.table_name(args.subsystem, args.run_id))
             header = np.frombuffer(table, dtype=np.int64, count=HEADER_WORDS)
-            barrier = LockstepParticipant(args.subsystem, args.run_id, "plant", header)
+            barrier = LockstepParticipant(args.subsystem, args.run_id, "plant", header, args.ring.split(","), events.pending)
         events.report("plant", messages.Ready())
         if barrier is not None:
             while True:

@@ -61,6 +61,8 @@ class RunResult:
     clock: str = "real"
     tick: float = 0.0  # seconds per tick of the simulated clock
     wall_seconds: float = 0.0  # how long the run took on the wall clock (a sim run's speed: duration / this)
+    # of which from the configuration on to the stop: start-up and stop left out (a sim run's ticks: duration / this)
+    running_wall_seconds: float = 0.0
     links: dict[str, dict[str, Any]] = field(default_factory=dict)  # an application's links this run was handed
     # CLOCK_MONOTONIC second the configuration came on (real clock; 0 on the simulated one): the
     # origin of each task's last_overruns times, to match them with a trace of the machine (tools/cpu_trace.py)
@@ -94,7 +96,8 @@ class RunResult:
             "run_id": self.run_id, "objects": self.objects, "states_at_stop": self.states_at_stop,
             "application": self.application, "jobs_done": self.jobs_done, "switches": self.switches,
             "stable_episodes": self.stable_episodes, "realtime": self.realtime,
-            "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds, "links": self.links,
+            "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds,
+            "running_wall_seconds": self.running_wall_seconds, "links": self.links,
             "started_monotonic": self.started_monotonic, "stalls": self.stalls, "unstopped": self.unstopped,
             "faults": self.faults, "timing_holds": self.timing_holds, "queue_bytes": self.queue_bytes,
             "lock_events": self.lock_events, "started_at": self.started_at, "marks": self.marks,

@@ -202,6 +202,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
 
     def run(self) -> RunResult:
         wall_start = time.monotonic()
+        running_since = 0.0  # wall time when the configuration came on
         previous = signal.signal(signal.SIGINT, self._interrupt)
         previous_term = signal.signal(signal.SIGTERM, self._interrupt)
         try:
@@ -209,6 +210,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             if removed:
                 self.say(f"removed {len(removed)} object(s) left by a dead run: {', '.join(removed)}")
             self._start()
+            running_since = time.monotonic()
             if self.application:
                 self.job_control.run_application(self.application)
                 self.result.jobs_done = [job for job, _ in application_steps(self.subsystem, self.application)]
@@ -236,6 +238,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             self.result.failure = str(limit)
             self.result.stopped_by = "failure"
         finally:
+            if running_since:
+                self.result.running_wall_seconds = time.monotonic() - running_since
             self._shutdown()
             self._end_live()
             signal.signal(signal.SIGINT, previous)
@@ -458,7 +462,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             self._check_stalls()
             if self.lock_watch is not None:  # while the lock is taken, look again soon
                 timeout = self.lock_watch.next_look_in(timeout)
-            self.clock.run_for(timeout, self._take_one_event, self._while_stepping)
+            self.clock.run_for(timeout, self._take_one_event, self._while_stepping, self._while_ticking)
         except RtpuDied as death:  # its restart policy brings it back; the other RTPUs never stopped
             self.restart_rtpu(death)
         self._serve_commands()

@@ -96,9 +96,12 @@ class Header(enum.IntEnum):
     # Simulated clock (--clock sim): the supervisor advances time in ticks; every participant reads it here.
     SIM_TIME_NS = 20  # the current tick's time, nanoseconds from the run's start
     SIM_TICK = 21  # ticks released so far: a participant stepped with no new tick only serves its signals
-    TASKS_NOT_FRESH = 22  # set by job control: tasks whose cycle says their inputs are not fresh (a link's item
-    # past its bound); critical tasks run locally stable while > 0, as for TASKS_IN_ERROR, and resume by themselves
+    SIM_TICK_NS = 22  # the tick's length, nanoseconds: the participant that ends a tick may begin the next
+    SIM_RING_END = 23  # the last tick of the turns the participants pass among themselves (0: each returns to job control)
     SWITCHING_SINCE_NS = 24  # one word per RTPU (up to MAX_RTPUS): when its switch began, 0 if none
+    SIM_TURN = 24 + 32  # (after the switching words) the place in the tick of the participant running, for a slow tick's report
+    TASKS_NOT_FRESH = 57  # set by job control: tasks whose cycle says their inputs are not fresh (a link's item
+    # past its bound); critical tasks run locally stable while > 0, as for TASKS_IN_ERROR, and resume by themselves
 
 
 MAX_RTPUS = 32

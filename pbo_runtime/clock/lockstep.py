@@ -125,6 +125,7 @@ class LockstepMaster:
         assert done is not None
         if self._turn_out and not self._wait(done, while_waiting):  # the last turn first: one participant at a time
             self._turn_out = False  # given up on: the participant holding it is dead or stuck
+        self.header[Header.SIM_TURN] = self.roles.index(role)  # whose turn it is, before it wakes (a stopped one is named)
         self._go[role].release()
         self._turn_out = True
         self.stepping, self.step_started = role, time.monotonic()  # for a watchdog in `while_waiting`
@@ -206,12 +207,14 @@ class LockstepParticipant:
         end = words[_SIM_RING_END]
         if self._new_tick and end:
             if not self._ends_tick:
+                words[_SIM_TURN] = self._place + 1  # the turn is the next one's before it wakes: a stopped one is named
                 self._next.release()
                 return
             tick = words[_SIM_TICK]
             if tick < end and not self._events_pending():
                 words[_SIM_TIME_NS] = tick * words[_SIM_TICK_NS]
                 words[_SIM_TICK] = tick + 1
+                words[_SIM_TURN] = 0
                 self._next.release()
                 return
         self._done.release()

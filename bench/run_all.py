@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from bench import (api_stream, check_scale, data_log, faults, hmi_latency, hmi_load, links, peers, placement, realtime, scale,
-                   svar_transfer, switching, wait)
+                   startup, svar_transfer, switching, wait)
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -35,6 +35,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "api_stream": api_stream.run,
     "hmi_latency": hmi_latency.run,
     "hmi_load": hmi_load.run,
+    "startup": startup.run,
 }
 
 FULL: dict[str, dict[str, Any]] = {
@@ -52,6 +53,7 @@ FULL: dict[str, dict[str, Any]] = {
     "api_stream": {"seconds": 120.0, "rounds": 12},
     "hmi_latency": {"writes": 1000},
     "hmi_load": {"seconds": 120.0, "rounds": 12},
+    "startup": {"rounds": 20},
 }
 
 QUICK: dict[str, dict[str, Any]] = {
@@ -69,6 +71,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "api_stream": {"seconds": 2.0, "rounds": 2},
     "hmi_latency": {"writes": 100},
     "hmi_load": {"seconds": 20.0, "rounds": 2},
+    "startup": {"rounds": 2},
 }
 
 DOC = Path(REPO) / "docs" / "performance.md"

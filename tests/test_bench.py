@@ -28,6 +28,7 @@ TINY = {
     "api_stream": {"seconds": 1.0, "rounds": 1},
     "hmi_latency": {"writes": 10},
     "hmi_load": {"seconds": 4.0, "rounds": 1},
+    "startup": {"rounds": 1},
 }
 
 

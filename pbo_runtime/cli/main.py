@@ -12,6 +12,7 @@ import json
 import os
 import signal
 import sys
+import time
 import traceback
 from pathlib import Path
 from typing import Any
@@ -34,8 +35,10 @@ FORMAT_HELP = ("json: print the reply as JSON, a refusal too ({\"ok\": false, \"
 
 
 def main(argv: list[str] | None = None) -> int:
+    entered = time.monotonic()  # the start-up's time line (`pbo run`): the CLI's imports end here
     parser = _parser()
     args = parser.parse_args(argv)
+    args.entered = entered
     console = Console(highlight=False)
     errors = Console(stderr=True, highlight=False, soft_wrap=True)
     if not console.is_terminal:  # logs and CI: wide enough for the summary, no wrapping
@@ -364,6 +367,7 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     if is_application_file(args.file):
         return _run_application(args, console, errors)
     subsystem = load_subsystem(args.file)
+    args.loaded = time.monotonic()
     live = console.is_terminal and not args.no_live
     duration = args.duration if args.duration > 0 else None
     alternate = None
@@ -382,9 +386,11 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, subsystem: Any, live: bool,
                    duration: float | None, alternate: Any) -> int:
+    from pbo_runtime.clock.clocks import process_started
     from pbo_runtime.supervisor.supervisor import Supervisor
 
-    options = {"application": args.app, "static": args.static, "alternate": alternate, "fifo": args.fifo,
+    startup = {"process": process_started(), "cli": args.entered, "loaded": getattr(args, "loaded", args.entered)}
+    options = {"startup": startup, "application": args.app, "static": args.static, "alternate": alternate, "fifo": args.fifo,
                "clock": args.clock, "out_dir": str(args.out), "links": json.loads(args.links) if args.links else None}
     refused = _check_output_paths(args)
     if refused:
@@ -420,8 +426,6 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
 
 def default_run_dir(name: str) -> Path:
     """runs/NAME-DATE-TIME/ under the current directory, made now (a suffix when two runs start in one second)."""
-    import time
-
     stamp = time.strftime("%Y%m%d-%H%M%S")
     for attempt in range(1, 1000):
         candidate = Path("runs") / (f"{name}-{stamp}" + (f"-{attempt}" if attempt > 1 else ""))

@@ -83,6 +83,10 @@ class RunResult:
     # configuration came on, and what happened when on it: switches and jobs (JobControl.marks)
     started_at: float = 0.0
     marks: list[dict[str, Any]] = field(default_factory=list)
+    # the start-up's time line, phase -> CLOCK_MONOTONIC second it ended (wall time, on either run
+    # clock): from the process's start ("process", to the kernel's 10 ms) to "on", the moment every
+    # task of the first configuration was ON (docs/running.md: where start-up time goes)
+    startup: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -96,6 +100,7 @@ class RunResult:
             "started_monotonic": self.started_monotonic, "stalls": self.stalls, "unstopped": self.unstopped,
             "faults": self.faults, "timing_holds": self.timing_holds, "queue_bytes": self.queue_bytes,
             "lock_events": self.lock_events, "started_at": self.started_at, "marks": self.marks,
+            "startup": self.startup,
         }
 
 

@@ -75,8 +75,12 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         clock: str = "real",
         out_dir: str | None = None,
         links: dict[str, dict[str, Any]] | None = None,
+        startup: dict[str, float] | None = None,
     ) -> None:
         self.subsystem = subsystem
+        # the start-up's time line (RunResult.startup): what the caller did before (the CLI: its
+        # imports, the file's load and check), then each phase here, read once, off the cycles' path
+        self._startup = dict(startup or {})
         if clock not in ("real", "sim"):
             raise RunFailure(f"unknown clock '{clock}': use real or sim")
         self.clock: RunClock = SimRunClock(simulation_tick(subsystem)) if clock == "sim" else RealRunClock()
@@ -275,6 +279,11 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         made_sizes = [self.events.size, *(queue.size for queue in self.signals.values()), self.control.size]
         self.result.queue_bytes = sum(size.bytes for size in made_sizes)
 
+    def _startup_mark(self, phase: str) -> None:
+        """The CLOCK_MONOTONIC second a start-up phase ended (RunResult.startup), on either run clock."""
+        self._startup[phase] = time.monotonic()
+        self.result.startup = dict(self._startup)
+
     def _start(self) -> None:
         sub, run_id = self.subsystem, self.run_id
         self._make_queues()
@@ -284,6 +293,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self._start_live(self.table.layout.n_tasks)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()
+        self._startup_mark("table")
         if sub.plant is not None:
             plant = sub.plant
             self._launch("plant", [
@@ -294,6 +304,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                 "--base-dir", str(Path(plant.loc.file or sub.file).resolve().parent),
             ])
             self._await_ready({"plant"})
+            self._startup_mark("plant")
         for rtpu in sub.rtpus:
             hosted = tuple(t.name for t in sub.tasks_on(rtpu.name))
             self._launch(rtpu.name, ["-m", "rtpu", sub.file, "--run-id", run_id, "--rtpu", rtpu.name,
@@ -306,17 +317,20 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                                      "--live", self.live_dir],
                          hosted)
         self._await_ready({r.name for r in sub.rtpus})
+        self._startup_mark("rtpus")
         members = sub.configurations[self.configuration].tasks
         # dynamic: the union every configuration may need is spawned now (TR 4.4); static: this one's
         spawned = [t for t in sub.init_order if t in members or not self.static]
         for name in spawned:
             self.respawn(name)
+        self._startup_mark("spawned")
         ordered = [t for t in sub.init_order if t in members]
         ordered.sort(key=lambda t: not sub.tasks[t].critical)  # the robot interface first: it publishes q_m
         for name in ordered:
             self.turn_on(name, self.configuration)
         self._publish_plan_state()
         self.started_at = self.now()
+        self._startup_mark("on")
         self.job_control.mark(self.started_at, "configuration", f"{self.configuration} on")
         if self.clock.on_monotonic:
             self.result.started_monotonic = self.started_at

@@ -1,0 +1,159 @@
+"""How long `pbo run` takes to turn its first configuration on, and where that time goes.
+
+The figure is wall time on CLOCK_MONOTONIC, from just before this process starts the command
+(`pbo run configs/pid_joint.yaml`, as subsystem `bench_startup` so it never meets another run of
+the demo) to the moment the supervisor saw every task of the first configuration ON: the run
+report's `started_monotonic`. The report's `startup` time line splits it into phases. Each
+round starts every contender once, in an order rotated round by round, so the machine's other
+work falls on all alike; a bare interpreter that imports numpy and exits is the floor, the least
+any Python process of the run costs.
+
+Bytecode is cached, as after a run of the installed package (pip compiles it at install; a
+checkout writes it on its first run): each run's Python caches it under one temporary
+PYTHONPYCACHEPREFIX, written by a first run that is not counted.
+
+    python -m bench.startup [--rounds 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from bench._common import REPO, Section, Table, Target, ratio
+
+SUBSYSTEM = "bench_startup"
+GOAL = 0.3  # seconds, `pbo run` to configuration on (issue 23)
+RUN_SECONDS = 0.05  # how long each run lasts once on: the figure ends at "on"; the rest is the stop
+# The report's time line, in the order the phases run, and what each phase's segment is called
+# (a segment ends at its mark and starts at the one before; "start" is this process's Popen)
+PHASES = (
+    ("cli", "interpreter and the CLI's imports"),
+    ("loaded", "load and check the file"),
+    ("table", "clean-up, queues, table"),
+    ("children", "start the plant and the RTPUs"),
+    ("spawned", "spawn the tasks (each init)"),
+    ("on", "turn the configuration on"),
+)
+# (the report marks the plant's and the RTPUs' readiness apart: both are in "children", which ends
+# when the last of them is ready, since they start side by side)
+CHILDREN = ("plant", "rtpus")
+
+
+def demo_copy(folder: Path) -> Path:
+    text = (Path(REPO) / "configs" / "pid_joint.yaml").read_text()
+    if "\nsubsystem: puma\n" not in text:
+        raise RuntimeError("configs/pid_joint.yaml no longer says 'subsystem: puma': update bench/startup.py")
+    path = folder / f"{SUBSYSTEM}.yaml"
+    path.write_text(text.replace("\nsubsystem: puma\n", f"\nsubsystem: {SUBSYSTEM}\n"))
+    return path
+
+
+def environment(cache: Path) -> dict[str, str]:
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONDONTWRITEBYTECODE"}
+    return {**env, "PYTHONPYCACHEPREFIX": str(cache)}
+
+
+def time_run(file: Path, folder: Path, env: dict[str, str]) -> dict[str, float]:
+    """One `pbo run`: seconds from its start to each mark of its time line ('on' the figure)."""
+    report = folder / "report.json"
+    report.unlink(missing_ok=True)
+    command = [sys.executable, "-m", "pbo_runtime.cli", "run", str(file), "--duration", repr(RUN_SECONDS),
+               "--no-live", "--out", str(folder / "out"), "--report", str(report)]
+    start = time.monotonic()
+    done = subprocess.run(command, cwd=folder, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True)
+    if done.returncode != 0 or not report.exists():
+        said = (done.stderr.strip() or done.stdout.strip()).splitlines()
+        raise RuntimeError(f"`pbo run` did not turn its configuration on (exit {done.returncode}): {' / '.join(said[-2:])}")
+    timeline = json.loads(report.read_text())["startup"]
+    return {phase: at - start for phase, at in timeline.items() if phase != "process"}
+
+
+def time_floor(env: dict[str, str]) -> float:
+    """A bare interpreter that imports numpy and exits: the least any process of the run costs."""
+    start = time.monotonic()
+    subprocess.run([sys.executable, "-c", "import numpy"], env=env, check=True, stdin=subprocess.DEVNULL)
+    return time.monotonic() - start
+
+
+def segments(marks: dict[str, float]) -> dict[str, float]:
+    """Each phase's own seconds, from the one before it ('children': until the last child is ready)."""
+    ends = dict(marks)
+    ends["children"] = max(marks.get(child, marks["table"]) for child in CHILDREN)
+    out, before = {}, 0.0
+    for phase, _ in PHASES:
+        out[phase] = ends[phase] - before
+        before = ends[phase]
+    return out
+
+
+def run(rounds: int = 20) -> Section:
+    section = Section(
+        key="startup",
+        title="Start-up: `pbo run` to configuration on",
+        command=f"python -m bench.startup --rounds {rounds}",
+        method=f"""
+Wall time from just before this process starts `pbo run configs/pid_joint.yaml` (as subsystem
+`{SUBSYSTEM}`, real clock) to the moment the supervisor saw every task of its first configuration
+ON (the run report's `started_monotonic`; `startup` in the report holds each phase's end). Each of
+{rounds} rounds starts `pbo run` and a bare interpreter that imports numpy (the floor: the least a
+Python process costs), in an order rotated round by round. Bytecode is cached, as after the first
+run of an installed package, under a temporary PYTHONPYCACHEPREFIX written by an uncounted run.
+Phases: the interpreter and the CLI's imports; the file's load and check; removing a dead run's
+leftovers, the queues and the table; the plant and the RTPU processes, until the last is ready;
+spawning each task (its init); turning the configuration on.
+""",
+        limits="""The machine's CPUs: the run starts the supervisor, the plant and two RTPUs, each a
+Python process that imports numpy and the runtime, on 2 CPUs shared with whatever else runs. Read
+the figure against the floor of the same rounds.""",
+    )
+    with tempfile.TemporaryDirectory(prefix="pbo-bench-startup-") as tmp:
+        folder = Path(tmp)
+        file = demo_copy(folder)
+        env = environment(folder / "pycache")
+        time_run(file, folder, env)  # writes the bytecode cache; not counted
+        runs: list[dict[str, float]] = []
+        floors: list[float] = []
+        contenders = (lambda: runs.append(time_run(file, folder, env)), lambda: floors.append(time_floor(env)))
+        for index in range(rounds):
+            for k in range(len(contenders)):
+                contenders[(index + k) % len(contenders)]()
+    on = [marks["on"] for marks in runs]
+    p50, worst = statistics.median(on), max(on)
+    floor = statistics.median(floors)
+    table = Table(["phase", "p50 ms", "max ms"], numeric=(1, 2), caption=f"Where the time goes ({rounds} runs):")
+    split = [segments(marks) for marks in runs]
+    for phase, what in PHASES:
+        values = [s[phase] for s in split]
+        table.add(what, f"{statistics.median(values) * 1e3:.0f}", f"{max(values) * 1e3:.0f}")
+    table.add("**`pbo run` → configuration on**", f"**{p50 * 1e3:.0f}**", f"**{worst * 1e3:.0f}**")
+    table.add("floor: `python -c 'import numpy'`", f"{floor * 1e3:.0f}", f"{max(floors) * 1e3:.0f}")
+    section.tables.append(table)
+    section.ratios["configuration on p50 / goal"] = p50 / GOAL
+    on_over_floor = ratio(p50, floor)
+    if on_over_floor is not None:
+        section.ratios["configuration on p50 / floor p50"] = on_over_floor
+    section.notes.append(f"configuration on: p50 {p50:.3f} s, max {worst:.3f} s over {rounds} runs; "
+                         f"goal <= {GOAL:g} s: {'met' if p50 <= GOAL else 'not met'}; "
+                         f"the floor (an interpreter importing numpy) p50 {floor:.3f} s")
+    section.targets.append(Target(f"`pbo run` → configuration on, p50 / {GOAL:g} s", p50 / GOAL, 1.0,
+                                  note=f"p50 {p50:.3f} s, max {worst:.3f} s"))
+    return section
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--rounds", type=int, default=20)
+    args = parser.parse_args()
+    print(run(args.rounds).text())
+
+
+if __name__ == "__main__":
+    main()

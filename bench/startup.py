@@ -27,7 +27,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench._common import REPO, Section, Table, Target, ratio
+from bench._common import REPO, Section, Table, Target, fmt_ratio, ratio
 
 SUBSYSTEM = "bench_startup"
 GOAL = 0.3  # seconds, `pbo run` to configuration on (issue 23)
@@ -42,9 +42,6 @@ PHASES = (
     ("spawned", "spawn the tasks (each init)"),
     ("on", "turn the configuration on"),
 )
-# (the report marks the plant's and the RTPUs' readiness apart: both are in "children", which ends
-# when the last of them is ready, since they start side by side)
-CHILDREN = ("plant", "rtpus")
 
 
 def demo_copy(folder: Path) -> Path:
@@ -61,12 +58,13 @@ def environment(cache: Path) -> dict[str, str]:
     return {**env, "PYTHONPYCACHEPREFIX": str(cache)}
 
 
-def time_run(file: Path, folder: Path, env: dict[str, str]) -> dict[str, float]:
+def time_run(file: Path, folder: Path, env: dict[str, str], fork_server: bool = True) -> dict[str, float]:
     """One `pbo run`: seconds from its start to each mark of its time line ('on' the figure)."""
     report = folder / "report.json"
     report.unlink(missing_ok=True)
     command = [sys.executable, "-m", "pbo_runtime.cli", "run", str(file), "--duration", repr(RUN_SECONDS),
                "--no-live", "--out", str(folder / "out"), "--report", str(report)]
+    env = {**env, "PBO_FORK_SERVER": "1" if fork_server else "0"}
     start = time.monotonic()
     done = subprocess.run(command, cwd=folder, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True)
     if done.returncode != 0 or not report.exists():
@@ -84,13 +82,11 @@ def time_floor(env: dict[str, str]) -> float:
 
 
 def segments(marks: dict[str, float]) -> dict[str, float]:
-    """Each phase's own seconds, from the one before it ('children': until the last child is ready)."""
-    ends = dict(marks)
-    ends["children"] = max(marks.get(child, marks["table"]) for child in CHILDREN)
+    """Each phase's own seconds, from the end of the one before it ('children': until the last child is ready)."""
     out, before = {}, 0.0
     for phase, _ in PHASES:
-        out[phase] = ends[phase] - before
-        before = ends[phase]
+        out[phase] = marks[phase] - before
+        before = marks[phase]
     return out
 
 
@@ -103,8 +99,9 @@ def run(rounds: int = 20) -> Section:
 Wall time from just before this process starts `pbo run configs/pid_joint.yaml` (as subsystem
 `{SUBSYSTEM}`, real clock) to the moment the supervisor saw every task of its first configuration
 ON (the run report's `started_monotonic`; `startup` in the report holds each phase's end). Each of
-{rounds} rounds starts `pbo run` and a bare interpreter that imports numpy (the floor: the least a
-Python process costs), in an order rotated round by round. Bytecode is cached, as after the first
+{rounds} rounds starts `pbo run`, `pbo run` with PBO_FORK_SERVER=0 (the plant and each RTPU a fresh
+interpreter, as before the fork server) and a bare interpreter that imports numpy (the floor: the
+least a Python process costs), in an order rotated round by round. Bytecode is cached, as after the first
 run of an installed package, under a temporary PYTHONPYCACHEPREFIX written by an uncounted run.
 Phases: the interpreter and the CLI's imports; the file's load and check; removing a dead run's
 leftovers, the queues and the table; the plant and the RTPU processes, until the last is ready;
@@ -120,29 +117,40 @@ the figure against the floor of the same rounds.""",
         env = environment(folder / "pycache")
         time_run(file, folder, env)  # writes the bytecode cache; not counted
         runs: list[dict[str, float]] = []
+        fresh: list[dict[str, float]] = []
         floors: list[float] = []
-        contenders = (lambda: runs.append(time_run(file, folder, env)), lambda: floors.append(time_floor(env)))
+        contenders = (lambda: runs.append(time_run(file, folder, env)),
+                      lambda: fresh.append(time_run(file, folder, env, fork_server=False)),
+                      lambda: floors.append(time_floor(env)))
         for index in range(rounds):
             for k in range(len(contenders)):
                 contenders[(index + k) % len(contenders)]()
     on = [marks["on"] for marks in runs]
     p50, worst = statistics.median(on), max(on)
+    fresh_p50 = statistics.median(marks["on"] for marks in fresh)
     floor = statistics.median(floors)
-    table = Table(["phase", "p50 ms", "max ms"], numeric=(1, 2), caption=f"Where the time goes ({rounds} runs):")
+    table = Table(["phase", "p50 ms", "max ms", "fresh interpreters: p50 ms", "max ms"], numeric=(1, 2, 3, 4),
+                  caption=f"Where the time goes ({rounds} runs each; the children forked from the fork server, "
+                          "or each a fresh interpreter, PBO_FORK_SERVER=0):")
     split = [segments(marks) for marks in runs]
+    split_fresh = [segments(marks) for marks in fresh]
     for phase, what in PHASES:
-        values = [s[phase] for s in split]
-        table.add(what, f"{statistics.median(values) * 1e3:.0f}", f"{max(values) * 1e3:.0f}")
-    table.add("**`pbo run` → configuration on**", f"**{p50 * 1e3:.0f}**", f"**{worst * 1e3:.0f}**")
-    table.add("floor: `python -c 'import numpy'`", f"{floor * 1e3:.0f}", f"{max(floors) * 1e3:.0f}")
+        values, others = [s[phase] for s in split], [s[phase] for s in split_fresh]
+        table.add(what, *(f"{f(v) * 1e3:.0f}" for v in (values, others) for f in (statistics.median, max)))
+    table.add("**`pbo run` → configuration on**", f"**{p50 * 1e3:.0f}**", f"**{worst * 1e3:.0f}**",
+              f"{fresh_p50 * 1e3:.0f}", f"{max(marks['on'] for marks in fresh) * 1e3:.0f}")
+    table.add("floor: `python -c 'import numpy'`", f"{floor * 1e3:.0f}", f"{max(floors) * 1e3:.0f}", "", "")
     section.tables.append(table)
     section.ratios["configuration on p50 / goal"] = p50 / GOAL
-    on_over_floor = ratio(p50, floor)
-    if on_over_floor is not None:
-        section.ratios["configuration on p50 / floor p50"] = on_over_floor
+    for name, value in (("configuration on p50 / floor p50", ratio(p50, floor)),
+                        ("configuration on p50, fork server / fresh interpreters", ratio(p50, fresh_p50))):
+        if value is not None:
+            section.ratios[name] = value
     section.notes.append(f"configuration on: p50 {p50:.3f} s, max {worst:.3f} s over {rounds} runs; "
-                         f"goal <= {GOAL:g} s: {'met' if p50 <= GOAL else 'not met'}; "
-                         f"the floor (an interpreter importing numpy) p50 {floor:.3f} s")
+                         f"goal <= {GOAL:g} s: {'met' if p50 <= GOAL else 'not met'}; with fresh interpreters p50 "
+                         f"{fresh_p50:.3f} s ({fmt_ratio(ratio(p50, fresh_p50))} of it with the fork server); "
+                         f"the floor (an interpreter importing numpy) p50 {floor:.3f} s, "
+                         f"the figure {fmt_ratio(ratio(p50, floor))} of it")
     section.targets.append(Target(f"`pbo run` → configuration on, p50 / {GOAL:g} s", p50 / GOAL, 1.0,
                                   note=f"p50 {p50:.3f} s, max {worst:.3f} s"))
     return section

@@ -41,6 +41,7 @@ from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.supervisor.control_service import ControlService
 from pbo_runtime.supervisor.events import EventHandling
 from pbo_runtime.supervisor.failures import RunFailure, RunRefused, StopRequested
+from pbo_runtime.supervisor.fork_server import ForkServer
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockWatching
@@ -76,6 +77,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         out_dir: str | None = None,
         links: dict[str, dict[str, Any]] | None = None,
         startup: dict[str, float] | None = None,
+        fork_server: ForkServer | None = None,
     ) -> None:
         self.subsystem = subsystem
         # the start-up's time line (RunResult.startup): what the caller did before (the CLI: its
@@ -110,6 +112,9 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.events: messages.Queue | None = None
         self.signals: dict[str, messages.Queue] = {}
         self.children: list[Child] = []
+        # what the children are forked from while they start (supervisor.fork_server): one the caller
+        # started early (the CLI, before it loaded the file), or one run() starts; ended once they are
+        self.fork_server: ForkServer | None = fork_server
         self.task_states: dict[str, str] = {t: TaskState.NOT_CREATED.name for t in subsystem.tasks}
         self.task_errors: dict[str, str] = {}
         self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id)
@@ -197,6 +202,9 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         previous = signal.signal(signal.SIGINT, self._interrupt)
         previous_term = signal.signal(signal.SIGTERM, self._interrupt)
         try:
+            # first: it imports and loads what the children need while this process makes the run's objects
+            if self.fork_server is None:
+                self._start_fork_server(["pbo_runtime.supervisor.plant_host"] * (self.subsystem.plant is not None) + ["rtpu"])
             removed = remove_dead_runs(self.subsystem.name).removed
             if removed:
                 self.say(f"removed {len(removed)} object(s) left by a dead run: {', '.join(removed)}")
@@ -279,10 +287,10 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         made_sizes = [self.events.size, *(queue.size for queue in self.signals.values()), self.control.size]
         self.result.queue_bytes = sum(size.bytes for size in made_sizes)
 
-    def _startup_mark(self, phase: str) -> None:
-        """The CLOCK_MONOTONIC second a start-up phase ended (RunResult.startup), on either run clock."""
-        self._startup[phase] = time.monotonic()
-        self.result.startup = dict(self._startup)
+    def _startup_mark(self, phase: str, at: float | None = None) -> None:
+        """The CLOCK_MONOTONIC second a start-up phase ended (RunResult.startup; now if not `at`), on either run clock."""
+        self._startup[phase] = time.monotonic() if at is None else at
+        self.result.startup = dict(sorted(self._startup.items(), key=lambda item: item[1]))
 
     def _start(self) -> None:
         sub, run_id = self.subsystem, self.run_id
@@ -303,8 +311,6 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                 *(["--out", self.out_dir] if self.out_dir else []),
                 "--base-dir", str(Path(plant.loc.file or sub.file).resolve().parent),
             ])
-            self._await_ready({"plant"})
-            self._startup_mark("plant")
         for rtpu in sub.rtpus:
             hosted = tuple(t.name for t in sub.tasks_on(rtpu.name))
             self._launch(rtpu.name, ["-m", "rtpu", sub.file, "--run-id", run_id, "--rtpu", rtpu.name,
@@ -316,8 +322,11 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                                      *(["--links", json.dumps(self.links)] if self.links else []),
                                      "--live", self.live_dir],
                          hosted)
-        self._await_ready({r.name for r in sub.rtpus})
-        self._startup_mark("rtpus")
+        # the plant and the RTPUs start side by side: an RTPU opens the plant's registers only in a
+        # task's init, after every child is ready
+        self._release_fork_server()
+        self._await_ready(set(self._roles()))
+        self._startup_mark("children")
         members = sub.configurations[self.configuration].tasks
         # dynamic: the union every configuration may need is spawned now (TR 4.4); static: this one's
         spawned = [t for t in sub.init_order if t in members or not self.static]

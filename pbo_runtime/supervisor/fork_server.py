@@ -205,6 +205,8 @@ def _main_of(module: str) -> Callable[..., int]:
 
 def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]], Any]:
     """Import each preloaded module's `main`, load the subsystem, look up its modules, plant and drivers."""
+    import setproctitle  # noqa: F401 - imported once here, not in each child
+
     mains = {module: _main_of(module) for module in preload}
     from pbo_runtime.config.loader import load_subsystem
     from pbo_runtime.errors import PboError
@@ -225,10 +227,15 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
     return mains, subsystem
 
 
-def _child(main: Callable[..., int], argv: list[str], subsystem: Any, go: int, parent: int, openblas: str | None) -> None:
+def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: Any, go: int, parent: int,
+           openblas: str | None) -> None:
     """In the forked child: become the supervisor's, wait for the go, run `main`, never return."""
     code = 3
     try:
+        import setproctitle
+
+        # its command line in ps and /proc is the one a fresh interpreter would have had, not the server's
+        setproctitle.setproctitle(" ".join([sys.executable, "-m", module, *argv]))
         deadline = time.monotonic() + REPARENT_TIMEOUT
         while os.getppid() != parent:  # the middle process is exiting; then the supervisor is the parent
             if time.monotonic() > deadline:
@@ -307,7 +314,7 @@ class _Server:
                 if child == 0:
                     os.close(pid_write)
                     os.close(self.channel.fileno())  # the child holds no end of the channel: a dead server reads as EOF
-                    _child(self.mains[module], [str(a) for a in argv], self.subsystem, go_read, self.parent, self.openblas)
+                    _child(module, self.mains[module], [str(a) for a in argv], self.subsystem, go_read, self.parent, self.openblas)
                 os.write(pid_write, str(child).encode())
             finally:
                 os._exit(0)

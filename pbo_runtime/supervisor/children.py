@@ -70,11 +70,11 @@ class Children:
             self.say(f"no fork server ({exc}): the children start as fresh interpreters")
 
     def _release_fork_server(self) -> None:
-        """Once the children are started it has nothing more to do: it is told to end, and reaped at the stop."""
+        """Once the children are started it has nothing more to do: ended (it exits at once, nothing to tear down)."""
         if self.fork_server is not None:
-            self.fork_server.release()
             if self.fork_server.warm_at:
                 self._startup_mark("fork_server", self.fork_server.warm_at)
+            self._end_fork_server()
 
     def _end_fork_server(self) -> None:
         """On every exit path: ended and reaped."""

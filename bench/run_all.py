@@ -53,7 +53,7 @@ FULL: dict[str, dict[str, Any]] = {
     "api_stream": {"seconds": 120.0, "rounds": 12},
     "hmi_latency": {"writes": 1000},
     "hmi_load": {"seconds": 120.0, "rounds": 12},
-    "startup": {"rounds": 20},
+    "startup": {"rounds": 12},
 }
 
 QUICK: dict[str, dict[str, Any]] = {

@@ -109,9 +109,14 @@ Phases: the interpreter and the CLI's imports; the file's load and check; removi
 leftovers, the queues and the table; the plant and the RTPU processes, until the last is ready;
 spawning each task (its init); turning the configuration on.
 """,
-        limits="""The machine's CPUs: the run starts the supervisor, the plant and two RTPUs, each a
-Python process that imports numpy and the runtime, on 2 CPUs shared with whatever else runs. Read
-the figure against the floor of the same rounds.""",
+        limits="""Imports, in a chain no process can shorten for another: the CLI imports numpy and
+the runtime's public surface before it can start the fork server; the server then imports MuJoCo
+and the module library and loads the file, beside the CLI's own load (which imports MuJoCo for the
+plant's number of joints), on the second CPU; only then are the children forked. The figure is
+about five times the floor of the same rounds: two interpreters' imports one after the other, and
+the loads. Shorter would take a launcher that starts the server before the CLI imports numpy, a
+load that does not import MuJoCo, or a lazier public surface. Read the figure against the floor:
+on a busy machine both grow alike.""",
     )
     with tempfile.TemporaryDirectory(prefix="pbo-bench-startup-") as tmp:
         folder = Path(tmp)

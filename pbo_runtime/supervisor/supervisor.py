@@ -202,9 +202,6 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         previous = signal.signal(signal.SIGINT, self._interrupt)
         previous_term = signal.signal(signal.SIGTERM, self._interrupt)
         try:
-            # first: it imports and loads what the children need while this process makes the run's objects
-            if self.fork_server is None:
-                self._start_fork_server(["pbo_runtime.supervisor.plant_host"] * (self.subsystem.plant is not None) + ["rtpu"])
             removed = remove_dead_runs(self.subsystem.name).removed
             if removed:
                 self.say(f"removed {len(removed)} object(s) left by a dead run: {', '.join(removed)}")
@@ -297,6 +294,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self._make_queues()
         self.table = StateTable.create(TableLayout.of(sub), messages.table_name(sub.name, run_id), self._manifest())
         self._refuse_if_devices_in_use()  # again, now that a run started at the same instant sees this one
+        if self.fork_server is None:  # (a refused run starts no process) it loads while this process goes on
+            self._start_fork_server(["pbo_runtime.supervisor.plant_host"] * (sub.plant is not None) + ["rtpu"])
         self._watch_the_lock(self.table)
         self._start_live(self.table.layout.n_tasks)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)

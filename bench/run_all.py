@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from bench import (api_stream, check_scale, data_log, dora_peer, faults, hmi_latency, hmi_load, links, peers, placement, realtime,
-                   restart, scale, sim_speed, svar_transfer, switching, wait)
+                   restart, scale, sim_speed, startup, svar_transfer, switching, wait)
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -38,6 +38,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "hmi_latency": hmi_latency.run,
     "hmi_load": hmi_load.run,
     "sim_speed": sim_speed.run,
+    "startup": startup.run,
 }
 
 FULL: dict[str, dict[str, Any]] = {
@@ -58,6 +59,7 @@ FULL: dict[str, dict[str, Any]] = {
     "hmi_latency": {"writes": 1000},
     "hmi_load": {"seconds": 120.0, "rounds": 12},
     "sim_speed": {"seconds": 10.0, "rounds": 3},
+    "startup": {"rounds": 12},
 }
 
 QUICK: dict[str, dict[str, Any]] = {
@@ -78,6 +80,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "hmi_latency": {"writes": 100},
     "hmi_load": {"seconds": 20.0, "rounds": 2},
     "sim_speed": {"seconds": 1.0, "rounds": 2},
+    "startup": {"rounds": 2},
 }
 
 DOC = Path(REPO) / "docs" / "performance.md"

@@ -26,7 +26,7 @@ from pbo_runtime.clock.clocks import RealClock, SimClock
 from pbo_runtime.config.live import task_from_wire
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.log_notes import run_metadata, variable_notes
-from pbo_runtime.config.model import DEFAULT_SPIN, DeviceSpec, TaskSpec
+from pbo_runtime.config.model import DEFAULT_SPIN, DeviceSpec, Subsystem, TaskSpec
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.clock.lockstep import LockstepParticipant
 from pbo_runtime.ipc.process import Stop, become_child, stop_only_at_waits
@@ -46,7 +46,8 @@ class LiveStage:
     factories: dict[str, Callable[[], Task]]
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, subsystem: Subsystem | None = None) -> int:
+    """Run one RTPU; `subsystem`: the file already loaded and checked (a fork server's), else loaded here."""
     parser = argparse.ArgumentParser(prog="python -m rtpu", description=__doc__)
     parser.add_argument("file")
     parser.add_argument("--run-id", required=True)
@@ -69,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.parent:
         become_child(args.parent)
 
-    subsystem = load_subsystem(args.file)
+    if subsystem is None:
+        subsystem = load_subsystem(args.file)
     links = json.loads(args.links)
     name = subsystem.name
     events = messages.Queue(messages.event_queue_name(name, args.run_id))

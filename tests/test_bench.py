@@ -31,6 +31,7 @@ TINY = {
     "hmi_latency": {"writes": 10},
     "hmi_load": {"seconds": 4.0, "rounds": 1},
     "sim_speed": {"seconds": 0.2, "rounds": 2},
+    "startup": {"rounds": 1},
 }
 
 

@@ -12,6 +12,7 @@ import json
 import os
 import signal
 import sys
+import time
 import traceback
 from pathlib import Path
 from typing import Any
@@ -34,8 +35,13 @@ FORMAT_HELP = ("json: print the reply as JSON, a refusal too ({\"ok\": false, \"
 
 
 def main(argv: list[str] | None = None) -> int:
+    entered = time.monotonic()  # the start-up's time line (`pbo run`): the CLI's imports end here
+    # MuJoCo without its OpenGL context: nothing pbo runs renders, and importing it loads GLFW (0.1-0.3 s
+    # per process: the CLI, the plant, each RTPU). A module that renders sets MUJOCO_GL (egl, glfw) itself.
+    os.environ.setdefault("MUJOCO_GL", "disable")
     parser = _parser()
     args = parser.parse_args(argv)
+    args.entered = entered
     console = Console(highlight=False)
     errors = Console(stderr=True, highlight=False, soft_wrap=True)
     if not console.is_terminal:  # logs and CI: wide enough for the summary, no wrapping
@@ -385,7 +391,6 @@ def _check_json(result: Any) -> dict[str, Any]:
 
 def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from pbo_runtime.config.application import is_application_file
-    from pbo_runtime.config.loader import load_subsystem
 
     if is_application_file(args.file):
         return _run_application(args, console, errors)
@@ -393,7 +398,36 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
         errors.print(f"error: --host and --address place an application's subsystems on machines; {args.file} is a "
                      "subsystem file: run it without them, or run the application file that names it", markup=False)
         return EXIT_CONFIG
+    with _early_fork_server(args) as fork_server:
+        return _load_and_run(args, console, errors, fork_server)
+
+
+@contextlib.contextmanager
+def _early_fork_server(args: argparse.Namespace):
+    """The run's fork server, started before the file is loaded: it imports and loads what the children
+    need on the other CPU meanwhile (supervisor.fork_server). The supervisor ends it once the children
+    are started; this ends it on the paths where no supervisor took it (a bad file, a refused run).
+    On the simulated clock the supervisor starts its own, in the clock's environment."""
+    from pbo_runtime.supervisor.fork_server import ForkServer, forking_enabled
+
+    server = None
+    if args.clock == "real" and forking_enabled():
+        try:
+            server = ForkServer.start(str(Path(args.file).resolve()), ["pbo_runtime.supervisor.plant_host", "rtpu"])
+        except OSError:
+            server = None  # the supervisor tries again, and says why if it cannot
+    try:
+        yield server
+    finally:
+        if server is not None:
+            server.close()
+
+
+def _load_and_run(args: argparse.Namespace, console: Console, errors: Console, fork_server: Any) -> int:
+    from pbo_runtime.config.loader import load_subsystem
+
     subsystem = load_subsystem(args.file)
+    args.loaded = time.monotonic()
     live = console.is_terminal and not args.no_live
     duration = args.duration if args.duration > 0 else None
     alternate = None
@@ -407,16 +441,18 @@ def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     made = args.out is None
     args.out = args.out or default_run_dir(subsystem.name)
     with _removed_if_empty(args.out if made else None):
-        return _run_subsystem(args, console, errors, subsystem, live, duration, alternate)
+        return _run_subsystem(args, console, errors, subsystem, live, duration, alternate, fork_server)
 
 
 def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, subsystem: Any, live: bool,
-                   duration: float | None, alternate: Any) -> int:
+                   duration: float | None, alternate: Any, fork_server: Any = None) -> int:
+    from pbo_runtime.clock.clocks import process_started
     from pbo_runtime.supervisor.supervisor import Supervisor
 
-    options = {"application": args.app, "static": args.static, "alternate": alternate, "fifo": args.fifo,
-               "clock": args.clock, "out_dir": str(args.out), "links": json.loads(args.links) if args.links else None,
-               "turn": args.turn}
+    startup = {"process": process_started(), "cli": args.entered, "loaded": getattr(args, "loaded", args.entered)}
+    options = {"startup": startup, "fork_server": fork_server, "application": args.app, "static": args.static,
+               "alternate": alternate, "fifo": args.fifo, "clock": args.clock, "out_dir": str(args.out),
+               "links": json.loads(args.links) if args.links else None, "turn": args.turn}
     refused = _check_output_paths(args)
     if refused:
         errors.print(f"error: {refused}", markup=False)
@@ -451,8 +487,6 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
 
 def default_run_dir(name: str) -> Path:
     """runs/NAME-DATE-TIME/ under the current directory, made now (a suffix when two runs start in one second)."""
-    import time
-
     stamp = time.strftime("%Y%m%d-%H%M%S")
     for attempt in range(1, 1000):
         candidate = Path("runs") / (f"{name}-{stamp}" + (f"-{attempt}" if attempt > 1 else ""))

@@ -30,14 +30,16 @@ import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import numpy as np
-from rich.table import Table
 
 from pbo_runtime.config.model import PortBinding, Subsystem, TaskSpec
 from pbo_runtime.errors import PboError
 from pbo_runtime.objects.ports import PortKind
+
+if TYPE_CHECKING:
+    from rich.table import Table
 
 __all__ = [
     "BusModelError", "TaskLoad", "BusReport",
@@ -370,6 +372,8 @@ def _pct(share: float) -> str:
 
 def as_table(report: BusReport, measured: BusReport | None = None) -> Table:
     """The report as a rich table: one row per task and a total row; measured values beside the predicted ones."""
+    from rich.table import Table  # here: loading a file (every process of a run) does not need rich
+
     title = (f"bus load · {report.configuration} · bandwidth {report.bandwidth / 1e6:g} MB/s · "
              f"Δ = {report.lock_overhead:g} B")
     if report.kind != "predicted":

@@ -22,6 +22,7 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.ipc.control import ControlServer
 from pbo_runtime.supervisor.child_watch import ChildWatch
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
+from pbo_runtime.supervisor.fork_server import ForkedProcess, ForkServer, ForkServerUnavailable, forking_enabled
 from pbo_runtime.supervisor.run_report import STOP_TIMEOUT, RunResult
 from pbo_runtime.table.table import StateTable
 
@@ -31,7 +32,7 @@ class Child:
     """One child process of the run: the plant or an RTPU, and the tasks it hosts."""
 
     role: str  # 'plant' or the RTPU's name
-    process: subprocess.Popen
+    process: subprocess.Popen[bytes] | ForkedProcess  # a fresh interpreter, or forked by the fork server
     tasks: tuple[str, ...] = ()
 
 
@@ -42,6 +43,7 @@ class Children:
     subsystem: Subsystem
     run_id: str
     children: list[Child]
+    fork_server: ForkServer | None
     table: StateTable | None
     result: RunResult
     signals: dict[str, messages.Queue]
@@ -60,12 +62,45 @@ class Children:
     may_restart: Callable[[str], bool]
     launched: dict[str, tuple[list[str], tuple[str, ...]]]  # role -> its launch arguments and tasks
     child_watch: ChildWatch | None
+    _startup_mark: Callable[..., None]
+
+    def _start_fork_server(self, preload: list[str]) -> None:
+        """The fork server the children are forked from (`supervisor.fork_server`), started before it is needed."""
+        if not forking_enabled():
+            return
+        try:
+            self.fork_server = ForkServer.start(self.subsystem.file, preload, env=self.clock.child_environment())
+        except OSError as exc:
+            self.say(f"no fork server ({exc}): the children start as fresh interpreters")
+
+    def _release_fork_server(self) -> None:
+        """Once the children are started it has nothing more to do: ended (it exits at once, nothing to tear down)."""
+        if self.fork_server is not None:
+            if self.fork_server.warm_at:
+                self._startup_mark("fork_server", self.fork_server.warm_at)
+            self._end_fork_server()
+
+    def _end_fork_server(self) -> None:
+        """On every exit path: ended and reaped."""
+        if self.fork_server is not None:
+            self.fork_server.close()
+            self.fork_server = None
 
     def _launch(self, role: str, arguments: list[str], tasks: tuple[str, ...] = ()) -> None:
-        command = [sys.executable, *arguments, "--parent", str(os.getpid())]
-        self.launched[role] = (arguments, tasks)  # a restart launches it the same way
-        process = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True,
-                                   env=self.clock.child_environment())
+        """Start `python -m MODULE ARGUMENTS...` (`arguments` begins with -m MODULE): forked from the fork
+        server where it serves, else a fresh interpreter."""
+        parent = ["--parent", str(os.getpid())]
+        self.launched[role] = (arguments, tasks)  # a restart launches it the same way (a fresh interpreter then)
+        process: subprocess.Popen[bytes] | ForkedProcess | None = None
+        if self.fork_server is not None and arguments[0] == "-m":
+            try:
+                process = self.fork_server.fork(arguments[1], [*arguments[2:], *parent])
+            except ForkServerUnavailable as exc:
+                self.say(f"{exc}: the children start as fresh interpreters")
+                self._end_fork_server()
+        if process is None:
+            process = subprocess.Popen([sys.executable, *arguments, *parent], stdin=subprocess.DEVNULL,
+                                       start_new_session=True, env=self.clock.child_environment())
         self.children.append(Child(role, process, tasks))
         if self.child_watch is not None:
             self.child_watch.watch(role, process.pid)
@@ -102,6 +137,7 @@ class Children:
         watch, self.child_watch = self.child_watch, None  # from here on, children end because they are told to
         if watch is not None:
             watch.close()
+        self._end_fork_server()
         self.result.duration = self.now() - self.started_at if self.started_at is not None else 0.0
         self.result.states_at_stop = dict(self.task_states)
         if self.table is not None:
@@ -170,7 +206,7 @@ class Children:
         self.clock.serve(child.role, give_up)
 
 
-def _signal_quietly(process: subprocess.Popen, signum: int) -> None:
+def _signal_quietly(process: subprocess.Popen[bytes] | ForkedProcess, signum: int) -> None:
     try:
         process.send_signal(signum)
     except OSError:  # it ended meanwhile

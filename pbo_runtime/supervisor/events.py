@@ -45,6 +45,7 @@ class EventHandling:
     _count_errors: Callable[[], None]
     every_task: dict[str, Any]  # every task the run has had (live changes add some), by name
     staged: Callable[[str, int, str], None]
+    _startup_mark: Callable[..., None]
 
     def _signal(self, signal: messages.TaskSignal) -> None:
         task = signal.task
@@ -85,6 +86,7 @@ class EventHandling:
             source, event = self._next_event(deadline, f"waiting for {', '.join(sorted(waiting))} to start")
             if isinstance(event, messages.Ready):
                 waiting.discard(source)
+                self._startup_mark(source)  # the start-up's time line: when each child was ready
                 if isinstance(event.realtime, dict):
                     self.result.realtime[source] = event.realtime
 

@@ -87,6 +87,10 @@ class RunResult:
     marks: list[dict[str, Any]] = field(default_factory=list)
     # RTPUs restarted by their restart policy (supervisor.restarts.Restart), in the order they died
     restarts: list[Any] = field(default_factory=list)
+    # the start-up's time line, phase -> CLOCK_MONOTONIC second it ended (wall time, on either run
+    # clock): from the process's start ("process", to the kernel's 10 ms) to "on", the moment every
+    # task of the first configuration was ON (docs/running.md: where start-up time goes)
+    startup: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -102,6 +106,7 @@ class RunResult:
             "faults": self.faults, "timing_holds": self.timing_holds, "queue_bytes": self.queue_bytes,
             "lock_events": self.lock_events, "started_at": self.started_at, "marks": self.marks,
             "restarts": [restart.to_json() for restart in self.restarts],
+            "startup": self.startup,
         }
 
 

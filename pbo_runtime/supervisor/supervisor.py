@@ -43,6 +43,7 @@ from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.supervisor.control_service import ControlService
 from pbo_runtime.supervisor.events import EventHandling
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested
+from pbo_runtime.supervisor.fork_server import ForkServer
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockWatching
@@ -80,8 +81,13 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         out_dir: str | None = None,
         links: dict[str, dict[str, Any]] | None = None,
         turn: str | None = None,
+        startup: dict[str, float] | None = None,
+        fork_server: ForkServer | None = None,
     ) -> None:
         self.subsystem = subsystem
+        # the start-up's time line (RunResult.startup): what the caller did before (the CLI: its
+        # imports, the file's load and check), then each phase here, read once, off the cycles' path
+        self._startup = dict(startup or {})
         if clock not in ("real", "sim"):
             raise RunFailure(f"unknown clock '{clock}': use real or sim")
         if turn and clock != "sim":
@@ -118,6 +124,9 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.children: list[Child] = []
         self.launched: dict[str, tuple[list[str], tuple[str, ...]]] = {}
         self.child_watch: ChildWatch | None = None
+        # what the children are forked from while they start (supervisor.fork_server): one the caller
+        # started early (the CLI, before it loaded the file), or one run() starts; ended once they are
+        self.fork_server: ForkServer | None = fork_server
         self.task_states: dict[str, str] = {t: TaskState.NOT_CREATED.name for t in subsystem.tasks}
         self.task_errors: dict[str, str] = {}
         self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id)
@@ -291,6 +300,11 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         made_sizes = [self.events.size, *(queue.size for queue in self.signals.values()), self.control.size]
         self.result.queue_bytes = sum(size.bytes for size in made_sizes)
 
+    def _startup_mark(self, phase: str, at: float | None = None) -> None:
+        """The CLOCK_MONOTONIC second a start-up phase ended (RunResult.startup; now if not `at`), on either run clock."""
+        self._startup[phase] = time.monotonic() if at is None else at
+        self.result.startup = dict(sorted(self._startup.items(), key=lambda item: item[1]))
+
     def _start(self) -> None:
         sub, run_id = self.subsystem, self.run_id
         self._make_queues()
@@ -300,10 +314,13 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             self.child_watch = ChildWatch(lambda role, pid: events.report("supervisor", messages.ChildExited(role, pid), timeout=0.0))
         self.table = StateTable.create(TableLayout.of(sub), messages.table_name(sub.name, run_id), self._manifest())
         self._refuse_if_devices_in_use()  # again, now that a run started at the same instant sees this one
+        if self.fork_server is None:  # (a refused run starts no process) it loads while this process goes on
+            self._start_fork_server(["pbo_runtime.supervisor.plant_host"] * (sub.plant is not None) + ["rtpu"])
         self._watch_the_lock(self.table)
         self._start_live(self.table.layout.n_tasks)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()
+        self._startup_mark("table")
         if sub.plant is not None:
             plant = sub.plant
             self._launch("plant", [
@@ -313,7 +330,6 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                 *(["--out", self.out_dir] if self.out_dir else []),
                 "--base-dir", str(Path(plant.loc.file or sub.file).resolve().parent),
             ])
-            self._await_ready({"plant"})
         for rtpu in sub.rtpus:
             hosted = tuple(t.name for t in sub.tasks_on(rtpu.name))
             self._launch(rtpu.name, ["-m", "rtpu", sub.file, "--run-id", run_id, "--rtpu", rtpu.name,
@@ -325,24 +341,35 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                                      *(["--links", json.dumps(self.links)] if self.links else []),
                                      "--live", self.live_dir],
                          hosted)
-        self._await_ready({r.name for r in sub.rtpus})
+        # the plant and the RTPUs start side by side: an RTPU opens the plant's registers only in a
+        # task's init, after every child is ready
+        self._release_fork_server()
+        self._await_ready(set(self._roles()))
+        self._startup_mark("children")
         members = sub.configurations[self.configuration].tasks
         # dynamic: the union every configuration may need is spawned now (TR 4.4); static: this one's
         spawned = [t for t in sub.init_order if t in members or not self.static]
         ordered = [t for t in sub.init_order if t in members]
         ordered.sort(key=lambda t: not sub.tasks[t].critical)  # the robot interface first: it publishes q_m
-        while True:
-            try:
-                self.bring_up(spawned, ordered)
-                break
-            except RtpuDied as death:  # its restart policy allows another try (a module that aborts in init)
-                self.restart_rtpu(death)
+        self._bring_up_restarting(spawned, [])
+        self._startup_mark("spawned")
+        self._bring_up_restarting(spawned, ordered)
         self._publish_plan_state()
         self.started_at = self.now()
+        self._startup_mark("on")
         self.job_control.mark(self.started_at, "configuration", f"{self.configuration} on")
         if self.clock.on_monotonic:
             self.result.started_monotonic = self.started_at
         self.say(f"configuration '{self.configuration}' is on: {', '.join(ordered)}")
+
+    def _bring_up_restarting(self, spawn: list[str], turn_on: list[str]) -> None:
+        """`bring_up`, through the deaths an RTPU's restart policy allows (a module that aborts in init)."""
+        while True:
+            try:
+                self.bring_up(spawn, turn_on)
+                return
+            except RtpuDied as death:
+                self.restart_rtpu(death)
 
     def respawn(self, name: str) -> None:
         """Spawn a task and wait for its init; an init failure stops the run (no half start)."""

@@ -1,0 +1,174 @@
+"""How long `pbo run` takes to turn its first configuration on, and where that time goes.
+
+The figure is wall time on CLOCK_MONOTONIC, from just before this process starts the command
+(`pbo run configs/pid_joint.yaml`, as subsystem `bench_startup` so it never meets another run of
+the demo) to the moment the supervisor saw every task of the first configuration ON: the run
+report's `started_monotonic`. The report's `startup` time line splits it into phases. Each
+round starts every contender once, in an order rotated round by round, so the machine's other
+work falls on all alike; a bare interpreter that imports numpy and exits is the floor, the least
+any Python process of the run costs.
+
+Bytecode is cached, as after a run of the installed package (pip compiles it at install; a
+checkout writes it on its first run): each run's Python caches it under one temporary
+PYTHONPYCACHEPREFIX, written by a first run that is not counted.
+
+    python -m bench.startup [--rounds 12]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from bench._common import REPO, Section, Table, Target, fmt_ratio, ratio
+
+SUBSYSTEM = "bench_startup"
+GOAL = 0.3  # seconds, `pbo run` to configuration on (issue 23)
+RUN_SECONDS = 0.05  # how long each run lasts once on: the figure ends at "on"; the rest is the stop
+# The report's time line, in the order the phases run, and what each phase's segment is called
+# (a segment ends at its mark and starts at the one before; "start" is this process's Popen)
+PHASES = (
+    ("cli", "interpreter and the CLI's imports"),
+    ("loaded", "load and check the file"),
+    ("table", "clean-up, queues, table"),
+    ("children", "start the plant and the RTPUs"),
+    ("spawned", "spawn the tasks (each init)"),
+    ("on", "turn the configuration on"),
+)
+
+
+def demo_copy(folder: Path) -> Path:
+    text = (Path(REPO) / "configs" / "pid_joint.yaml").read_text()
+    if "\nsubsystem: puma\n" not in text:
+        raise RuntimeError("configs/pid_joint.yaml no longer says 'subsystem: puma': update bench/startup.py")
+    path = folder / f"{SUBSYSTEM}.yaml"
+    path.write_text(text.replace("\nsubsystem: puma\n", f"\nsubsystem: {SUBSYSTEM}\n"))
+    return path
+
+
+def environment(cache: Path) -> dict[str, str]:
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONDONTWRITEBYTECODE"}
+    return {**env, "PYTHONPYCACHEPREFIX": str(cache)}
+
+
+def time_run(file: Path, folder: Path, env: dict[str, str], fork_server: bool = True) -> dict[str, float]:
+    """One `pbo run`: seconds from its start to each mark of its time line ('on' the figure)."""
+    report = folder / "report.json"
+    report.unlink(missing_ok=True)
+    command = [sys.executable, "-m", "pbo_runtime.cli", "run", str(file), "--duration", repr(RUN_SECONDS),
+               "--no-live", "--out", str(folder / "out"), "--report", str(report)]
+    env = {**env, "PBO_FORK_SERVER": "1" if fork_server else "0"}
+    start = time.monotonic()
+    done = subprocess.run(command, cwd=folder, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True)
+    # the figure ends at "on": a run that came on and then failed (exit 2: a busy machine's timing
+    # faults, a stop that overran) still measured it
+    timeline = json.loads(report.read_text()).get("startup", {}) if report.exists() else {}
+    if "on" not in timeline:
+        said = (done.stderr.strip() or done.stdout.strip()).splitlines()
+        raise RuntimeError(f"`pbo run` did not turn its configuration on (exit {done.returncode}): {' / '.join(said[-2:])}")
+    return {phase: at - start for phase, at in timeline.items() if phase != "process"}
+
+
+def time_floor(env: dict[str, str]) -> float:
+    """A bare interpreter that imports numpy and exits: the least any process of the run costs."""
+    start = time.monotonic()
+    subprocess.run([sys.executable, "-c", "import numpy"], env=env, check=True, stdin=subprocess.DEVNULL)
+    return time.monotonic() - start
+
+
+def segments(marks: dict[str, float]) -> dict[str, float]:
+    """Each phase's own seconds, from the end of the one before it ('children': until the last child is ready)."""
+    out, before = {}, 0.0
+    for phase, _ in PHASES:
+        out[phase] = marks[phase] - before
+        before = marks[phase]
+    return out
+
+
+def run(rounds: int = 12) -> Section:
+    section = Section(
+        key="startup",
+        title="Start-up: `pbo run` to configuration on",
+        command=f"python -m bench.startup --rounds {rounds}",
+        method=f"""
+Wall time from just before this process starts `pbo run configs/pid_joint.yaml` (as subsystem
+`{SUBSYSTEM}`, real clock) to the moment the supervisor saw every task of its first configuration
+ON (the run report's `started_monotonic`; `startup` in the report holds each phase's end). Each of
+{rounds} rounds starts `pbo run`, `pbo run` with PBO_FORK_SERVER=0 (the plant and each RTPU a fresh
+interpreter, as before the fork server) and a bare interpreter that imports numpy (the floor: the
+least a Python process costs), in an order rotated round by round. Bytecode is cached, as after the first
+run of an installed package, under a temporary PYTHONPYCACHEPREFIX written by an uncounted run.
+Phases: the interpreter and the CLI's imports; the file's load and check; removing a dead run's
+leftovers, the queues and the table; the plant and the RTPU processes, until the last is ready;
+spawning each task (its init); turning the configuration on.
+""",
+        limits="""Imports, in a chain no process can shorten for another: the CLI imports numpy and
+the runtime's public surface before it can start the fork server; the server then imports MuJoCo
+and the module library and loads the file, beside the CLI's own load (which imports MuJoCo for the
+plant's number of joints), on the second CPU; only then are the children forked. The figure is
+about five times the floor of the same rounds: two interpreters' imports one after the other, and
+the loads. Shorter would take a launcher that starts the server before the CLI imports numpy, a
+load that does not import MuJoCo, or a lazier public surface. Read the figure against the floor:
+on a busy machine both grow alike.""",
+    )
+    with tempfile.TemporaryDirectory(prefix="pbo-bench-startup-") as tmp:
+        folder = Path(tmp)
+        file = demo_copy(folder)
+        env = environment(folder / "pycache")
+        time_run(file, folder, env)  # writes the bytecode cache; not counted
+        runs: list[dict[str, float]] = []
+        fresh: list[dict[str, float]] = []
+        floors: list[float] = []
+        contenders = (lambda: runs.append(time_run(file, folder, env)),
+                      lambda: fresh.append(time_run(file, folder, env, fork_server=False)),
+                      lambda: floors.append(time_floor(env)))
+        for index in range(rounds):
+            for k in range(len(contenders)):
+                contenders[(index + k) % len(contenders)]()
+    on = [marks["on"] for marks in runs]
+    p50, worst = statistics.median(on), max(on)
+    fresh_p50 = statistics.median(marks["on"] for marks in fresh)
+    floor = statistics.median(floors)
+    table = Table(["phase", "p50 ms", "max ms", "fresh interpreters: p50 ms", "max ms"], numeric=(1, 2, 3, 4),
+                  caption=f"Where the time goes ({rounds} runs each; the children forked from the fork server, "
+                          "or each a fresh interpreter, PBO_FORK_SERVER=0):")
+    split = [segments(marks) for marks in runs]
+    split_fresh = [segments(marks) for marks in fresh]
+    for phase, what in PHASES:
+        values, others = [s[phase] for s in split], [s[phase] for s in split_fresh]
+        table.add(what, *(f"{f(v) * 1e3:.0f}" for v in (values, others) for f in (statistics.median, max)))
+    table.add("**`pbo run` → configuration on**", f"**{p50 * 1e3:.0f}**", f"**{worst * 1e3:.0f}**",
+              f"{fresh_p50 * 1e3:.0f}", f"{max(marks['on'] for marks in fresh) * 1e3:.0f}")
+    table.add("floor: `python -c 'import numpy'`", f"{floor * 1e3:.0f}", f"{max(floors) * 1e3:.0f}", "", "")
+    section.tables.append(table)
+    section.ratios["configuration on p50 / goal"] = p50 / GOAL
+    for name, value in (("configuration on p50 / floor p50", ratio(p50, floor)),
+                        ("configuration on p50, fork server / fresh interpreters", ratio(p50, fresh_p50))):
+        if value is not None:
+            section.ratios[name] = value
+    section.notes.append(f"configuration on: p50 {p50:.3f} s, max {worst:.3f} s over {rounds} runs; "
+                         f"goal <= {GOAL:g} s: {'met' if p50 <= GOAL else 'not met'}; with fresh interpreters p50 "
+                         f"{fresh_p50:.3f} s ({fmt_ratio(ratio(p50, fresh_p50))} of it with the fork server); "
+                         f"the floor (an interpreter importing numpy) p50 {floor:.3f} s, "
+                         f"the figure {fmt_ratio(ratio(p50, floor))} of it")
+    section.targets.append(Target(f"`pbo run` → configuration on, p50 / {GOAL:g} s", p50 / GOAL, 1.0,
+                                  note=f"p50 {p50:.3f} s, max {worst:.3f} s"))
+    return section
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--rounds", type=int, default=12)
+    args = parser.parse_args()
+    print(run(args.rounds).text())
+
+
+if __name__ == "__main__":
+    main()

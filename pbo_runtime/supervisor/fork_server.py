@@ -1,0 +1,364 @@
+"""The fork server: the run's children (the plant, each RTPU) forked from one warm interpreter.
+
+A fresh interpreter per child imports numpy, MuJoCo and the runtime and loads and checks the
+YAML file again: on 2 CPUs that was most of `pbo run`'s start-up. The supervisor starts one
+fork server (`python -m pbo_runtime.supervisor.fork_server`) before it needs it; the server
+imports what the children will, loads the subsystem and looks up its modules, plant and
+drivers, then forks a child per request. What keeps that as safe as a fresh interpreter:
+
+- The server holds no thread when it forks (a child would inherit a held lock with no owner):
+  OpenBLAS starts with one thread (OPENBLAS_NUM_THREADS=1, given back to the child's own
+  environment), and the server counts its threads in /proc before every fork and refuses if
+  there is more than one. The supervisor, which has threads, never forks a child itself.
+- The server runs SCHED_OTHER; a child starts so and takes SCHED_FIFO itself (an RTPU with
+  RESET_ON_FORK, `rtpu/_realtime.py`), as a fresh one did.
+- A child is the supervisor's, as a fresh one was: the server forks it twice, and the middle
+  process exits at once, so the child is re-parented to the supervisor, which is a child
+  subreaper while it starts children (PR_SET_CHILD_SUBREAPER). The supervisor reaps it and
+  reads its exit status (`ForkedProcess`, with the `subprocess.Popen` calls the run uses), and
+  the child sets PR_SET_PDEATHSIG against the supervisor once it is re-parented (`become_child`):
+  it dies with the supervisor, not with the server, which may end once the children are started.
+- The request channel is a socketpair: no name in the file system, nobody else can connect.
+  The server dies with the supervisor (PR_SET_PDEATHSIG) and makes no shared object, so its
+  end, a crash included, leaves nothing in /dev/shm or /dev/mqueue; a child it forked starts
+  only on the server's go, sent after the supervisor has its pid, so a server that dies between
+  the two leaves no unknown child running.
+- A server that cannot serve (it died, it refused, a fork failed) is not a failed run: the
+  supervisor starts that child as a fresh interpreter and says why once.
+
+PBO_FORK_SERVER=0 in the environment starts every child as a fresh interpreter (to compare).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import importlib
+import inspect
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from typing import Any, Callable
+
+PR_SET_CHILD_SUBREAPER = 36
+REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy, MuJoCo and the library on a busy machine
+REPARENT_TIMEOUT = 5.0  # seconds a forked child waits to become the supervisor's (its middle process exits at once)
+CLOSE_TIMEOUT = 2.0
+
+
+class ForkServerUnavailable(Exception):
+    """The fork server cannot start this child (it died, refused, or a fork failed): start it fresh."""
+
+
+def forking_enabled() -> bool:
+    """Whether children start from a fork server (PBO_FORK_SERVER=0: each one a fresh interpreter)."""
+    return os.environ.get("PBO_FORK_SERVER", "1") != "0"
+
+
+def _prctl(option: int, value: int) -> bool:
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl(option, value, 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+class ForkedProcess:
+    """A child the fork server started, re-parented to this process: what the run uses of `subprocess.Popen`."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+        self.returncode: int | None = None
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            try:
+                pid, status = os.waitpid(self.pid, os.WNOHANG)
+            except ChildProcessError:  # reaped elsewhere: it has ended, how is not known
+                self.returncode = -signal.SIGKILL
+                return self.returncode
+            if pid == self.pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        pause = 0.0005
+        while self.poll() is None:
+            if deadline is not None and time.monotonic() > deadline:
+                raise subprocess.TimeoutExpired(f"pid {self.pid}", timeout or 0.0)
+            time.sleep(pause)
+            pause = min(pause * 2, 0.02)
+        assert self.returncode is not None
+        return self.returncode
+
+    def send_signal(self, signum: int) -> None:
+        if self.poll() is None:  # never a signal to a pid that may have been reused
+            os.kill(self.pid, signum)
+
+    def terminate(self) -> None:
+        self.send_signal(signal.SIGTERM)
+
+    def kill(self) -> None:
+        self.send_signal(signal.SIGKILL)
+
+
+class ForkServer:
+    """The supervisor's end: start the server, ask it for children, end it."""
+
+    def __init__(self, process: subprocess.Popen[bytes], channel: socket.socket) -> None:
+        self.process = process
+        self._channel: socket.socket | None = channel
+        self._replies = channel.makefile("rb")
+        self._subreaper = False
+        self.warm_at = 0.0  # CLOCK_MONOTONIC second the server was ready to fork (0: not yet heard)
+
+    @classmethod
+    def start(cls, file: str, preload: list[str], env: dict[str, str] | None = None) -> ForkServer:
+        """A server for subsystem `file` that imports the `preload` modules (each one's `main` serves a request)."""
+        ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        environment = dict(os.environ if env is None else env)
+        openblas = environment.get("OPENBLAS_NUM_THREADS")
+        environment["OPENBLAS_NUM_THREADS"] = "1"  # no thread in the server: it forks
+        command = [sys.executable, "-m", "pbo_runtime.supervisor.fork_server", "--fd", str(theirs.fileno()),
+                   "--parent", str(os.getpid()), "--file", file,
+                   *(["--openblas-threads", openblas] if openblas is not None else []),
+                   *(argument for module in preload for argument in ("--preload", module))]
+        try:
+            process = subprocess.Popen(command, stdin=subprocess.DEVNULL, start_new_session=True, env=environment,
+                                       pass_fds=(theirs.fileno(),))
+        except BaseException:
+            ours.close()
+            raise
+        finally:
+            theirs.close()
+        return cls(process, ours)
+
+    def fork(self, module: str, arguments: list[str]) -> ForkedProcess:
+        """Start `python -m module arguments...` as a fork; ForkServerUnavailable if the server cannot."""
+        if not self._subreaper:
+            self._subreaper = _prctl(PR_SET_CHILD_SUBREAPER, 1)
+            if not self._subreaper:
+                raise ForkServerUnavailable("this process cannot be a child subreaper (prctl refused)")
+        if self._channel is None:
+            raise ForkServerUnavailable("the fork server was ended")
+        try:
+            self._channel.settimeout(REQUEST_TIMEOUT)
+            self._channel.sendall(json.dumps({"module": module, "argv": arguments}).encode() + b"\n")
+            line = self._replies.readline()
+        except OSError as exc:
+            raise ForkServerUnavailable(f"the fork server (pid {self.process.pid}) did not answer: {exc}") from None
+        if not line:
+            code = self.process.poll()
+            how = "it ended" if code is None else f"exit status {code}" if code >= 0 else f"killed by {signal.Signals(-code).name}"
+            raise ForkServerUnavailable(f"the fork server (pid {self.process.pid}) is gone ({how})")
+        reply = json.loads(line)
+        self.warm_at = self.warm_at or float(reply.get("warm_at", 0.0))
+        if "error" in reply:
+            raise ForkServerUnavailable(reply["error"])
+        return ForkedProcess(int(reply["pid"]))
+
+    def release(self) -> None:
+        """Tell the server to end (EOF on its channel) without waiting for it; stop being a subreaper
+        (the children it forked are this process's already)."""
+        if self._channel is not None:
+            for closing in (self._replies, self._channel):
+                try:
+                    closing.close()
+                except OSError:
+                    pass
+            self._channel = None
+        if self._subreaper:
+            _prctl(PR_SET_CHILD_SUBREAPER, 0)
+            self._subreaper = False
+
+    def close(self) -> None:
+        """Release the server and reap it (SIGKILL if it has not gone within CLOSE_TIMEOUT)."""
+        self.release()
+        try:
+            self.process.wait(timeout=CLOSE_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+
+
+# --- the server ---------------------------------------------------------------------------------
+
+
+def _threads() -> int:
+    try:
+        return len(os.listdir("/proc/self/task"))
+    except OSError:
+        return 0  # cannot tell: refused below
+
+
+def _main_of(module: str) -> Callable[..., int]:
+    """What `python -m module` runs: the module's main(), or its package's __main__.main()."""
+    imported = importlib.import_module(module)
+    if not hasattr(imported, "main"):
+        imported = importlib.import_module(f"{module}.__main__")
+    return imported.main
+
+
+def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]], Any]:
+    """Import each preloaded module's `main`, load the subsystem, look up its modules, plant and drivers."""
+    import setproctitle  # noqa: F401 - imported once here, not in each child
+
+    mains = {module: _main_of(module) for module in preload}
+    from pbo_runtime.config.loader import load_subsystem
+    from pbo_runtime.errors import PboError
+    from pbo_runtime.objects import registry
+
+    try:
+        subsystem = load_subsystem(file)
+    except (PboError, OSError):
+        return mains, None  # each child loads it and reports what is wrong, as a fresh one would
+    lookups = [(registry.module_class, task.module) for task in subsystem.tasks.values()]
+    lookups += [(registry.driver_class, device.driver) for device in subsystem.devices.values()]
+    lookups += [(registry.plant_class, subsystem.plant.type)] if subsystem.plant is not None else []
+    for look_up, name in lookups:
+        try:
+            look_up(name)
+        except Exception:  # the child that needs it looks it up again and reports the failure
+            pass
+    return mains, subsystem
+
+
+def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: Any, go: int, parent: int,
+           openblas: str | None) -> None:
+    """In the forked child: become the supervisor's, wait for the go, run `main`, never return."""
+    code = 3
+    try:
+        import setproctitle
+
+        # its command line in ps and /proc is the one a fresh interpreter would have had, not the server's
+        setproctitle.setproctitle(" ".join([sys.executable, "-m", module, *argv]))
+        deadline = time.monotonic() + REPARENT_TIMEOUT
+        while os.getppid() != parent:  # the middle process is exiting; then the supervisor is the parent
+            if time.monotonic() > deadline:
+                os._exit(3)
+            time.sleep(0.0002)
+        if os.read(go, 1) != b"g":  # the server died before the supervisor had this pid
+            os._exit(3)
+        os.close(go)
+        os.setsid()
+        for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGCHLD, signal.SIGPIPE):
+            signal.signal(signum, signal.SIG_DFL if signum != signal.SIGPIPE else signal.SIG_IGN)
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # as a fresh interpreter starts
+        if openblas is None:
+            os.environ.pop("OPENBLAS_NUM_THREADS", None)
+        else:
+            os.environ["OPENBLAS_NUM_THREADS"] = openblas
+        import random
+
+        random.seed()  # its own random streams, as a fresh interpreter has
+        if "numpy" in sys.modules:
+            sys.modules["numpy"].random.seed()
+        keywords = {"subsystem": subsystem} if subsystem is not None and "subsystem" in inspect.signature(main).parameters else {}
+        code = main(argv, **keywords)
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else 1
+    except BaseException:
+        import traceback
+
+        traceback.print_exc()
+        code = 1
+    finally:
+        try:
+            sys.stdout.flush()
+            sys.stderr.flush()
+        finally:
+            os._exit(code)
+
+
+class _Server:
+    """The server's state: what a request may run, the loaded subsystem, where replies go."""
+
+    def __init__(self, channel: socket.socket, parent: int, openblas: str | None) -> None:
+        self.channel = channel
+        self.parent = parent
+        self.openblas = openblas
+        self.mains: dict[str, Callable[..., int]] = {}
+        self.subsystem: Any = None
+        self.refusal = ""  # why every request is refused ("": none is)
+        self.warm_at = 0.0
+
+    def reply(self, answer: dict[str, Any]) -> None:
+        self.channel.sendall(json.dumps({**answer, "warm_at": self.warm_at}).encode() + b"\n")
+
+    def serve(self, request: dict[str, Any]) -> None:
+        module, argv = request.get("module"), request.get("argv")
+        if self.refusal:
+            return self.reply({"error": self.refusal})
+        if module not in self.mains or not isinstance(argv, list):
+            return self.reply({"error": f"the fork server does not start {module!r}"})
+        threads = _threads()
+        if threads != 1:
+            return self.reply({"error": f"the fork server holds {threads} threads: a fork would copy their locks"})
+        pid_read, pid_write = os.pipe()
+        go_read, go_write = os.pipe()
+        try:
+            middle = os.fork()
+        except OSError as exc:
+            for fd in (pid_read, pid_write, go_read, go_write):
+                os.close(fd)
+            return self.reply({"error": f"the fork server could not fork: {exc}"})
+        if middle == 0:  # the middle process: fork the child, say its pid, exit (the child is re-parented)
+            try:
+                os.close(pid_read)
+                os.close(go_write)
+                child = os.fork()
+                if child == 0:
+                    os.close(pid_write)
+                    os.close(self.channel.fileno())  # the child holds no end of the channel: a dead server reads as EOF
+                    _child(module, self.mains[module], [str(a) for a in argv], self.subsystem, go_read, self.parent, self.openblas)
+                os.write(pid_write, str(child).encode())
+            finally:
+                os._exit(0)
+        os.close(pid_write)
+        os.close(go_read)
+        with os.fdopen(pid_read, "rb") as stream:
+            said = stream.read()
+        os.waitpid(middle, 0)
+        if not said:
+            os.close(go_write)
+            return self.reply({"error": "the fork server could not fork the child"})
+        self.reply({"pid": int(said)})
+        os.write(go_write, b"g")  # the supervisor has its pid: it may start
+        os.close(go_write)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pbo_runtime.supervisor.fork_server")
+    parser.add_argument("--fd", type=int, required=True, help="this end of the supervisor's socketpair")
+    parser.add_argument("--parent", type=int, required=True)
+    parser.add_argument("--file", required=True, help="the subsystem file the children run")
+    parser.add_argument("--preload", action="append", default=[], help="a module whose main() a request may run")
+    parser.add_argument("--openblas-threads", default=None, help="the children's OPENBLAS_NUM_THREADS (unset if absent)")
+    args = parser.parse_args(argv)
+    from pbo_runtime.ipc.process import Stop, become_child
+
+    become_child(args.parent)
+    server = _Server(socket.socket(fileno=args.fd), args.parent, args.openblas_threads)
+    try:
+        try:
+            server.mains, server.subsystem = _warm(args.file, args.preload)
+        except Exception as exc:  # every request is refused with the reason: the children start fresh
+            server.refusal = f"the fork server could not import what the children run: {type(exc).__name__}: {exc}"
+        server.warm_at = time.monotonic()
+        for line in server.channel.makefile("rb"):
+            server.serve(json.loads(line))
+    except (Stop, BrokenPipeError, ConnectionResetError):
+        pass
+    # EOF: nothing of the server's needs cleaning up (it made no shared object), and tearing down an
+    # interpreter that holds numpy, MuJoCo and the module library takes a while
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

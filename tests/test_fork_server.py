@@ -1,0 +1,159 @@
+"""The fork server: a child it forks is its starter's own, single-threaded, at SCHED_OTHER, dies with
+its starter, and says how it ended; a server that cannot serve says so, and a run then starts fresh
+interpreters and leaves nothing behind."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.supervisor.fork_server import ForkServer, ForkServerUnavailable
+from pbo_runtime.supervisor.supervisor import Supervisor
+from tests.support import REPO, assert_nothing_left, demo_copy
+
+PROBE = "tests.fork_probe"
+SAFETY_NET = 60.0  # seconds for a process to go: a net for a hang, not a timing
+
+
+@pytest.fixture
+def server(monkeypatch):
+    monkeypatch.setenv("PYTHONPATH", str(REPO))  # the server imports tests.fork_probe
+    started = ForkServer.start(str(REPO / "configs" / "pid_joint.yaml"), [PROBE])
+    yield started
+    started.close()
+
+
+def _gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/status", encoding="ascii") as stream:
+            return "zombie" in stream.read().lower()
+    except FileNotFoundError:
+        return True
+
+
+def _wait_until(condition, what: str) -> None:
+    deadline = time.monotonic() + SAFETY_NET
+    while not condition():
+        if time.monotonic() > deadline:
+            pytest.fail(f"{what} did not happen within {SAFETY_NET:.0f} s")
+        time.sleep(0.05)
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("code", [0, 5])
+def test_a_forked_child_is_its_starters_own_single_threaded_at_sched_other_and_says_how_it_ended(server, tmp_path, code):
+    out = tmp_path / "said.json"
+    child = server.fork(PROBE, [str(out), "report", str(code), "--parent", str(os.getpid())])
+    assert child.wait(timeout=SAFETY_NET) == code
+    said = json.loads(out.read_text())
+    assert said["pid"] == child.pid and said["ppid"] == os.getpid()  # re-parented: reaped here, not by the server
+    assert said["death_signal"] == signal.SIGTERM  # dies with its starter
+    assert said["threads"] == 1 and said["scheduler"] == os.SCHED_OTHER
+    assert said["openblas"] == os.environ.get("OPENBLAS_NUM_THREADS")  # the server's own setting given back
+    assert f"-m {PROBE} {out} report" in said["cmdline"]  # its own command line, not the server's
+    assert server.warm_at > 0
+
+
+@pytest.mark.multiprocess
+def test_a_child_that_fails_before_it_is_ready_ends_with_status_1(server, tmp_path):
+    child = server.fork(PROBE, [str(tmp_path / "said.json"), "raise", "0", "--parent", str(os.getpid())])
+    assert child.wait(timeout=SAFETY_NET) == 1
+    assert child.poll() == 1
+
+
+@pytest.mark.multiprocess
+def test_a_dead_fork_server_is_unavailable(server, tmp_path):
+    server.process.kill()
+    server.process.wait()
+    with pytest.raises(ForkServerUnavailable, match=r"^the fork server \(pid \d+\) (is gone|did not answer)"):
+        server.fork(PROBE, [str(tmp_path / "said.json"), "report", "0", "--parent", str(os.getpid())])
+
+
+@pytest.mark.multiprocess
+def test_a_fork_server_that_cannot_import_what_it_runs_refuses_every_request(tmp_path):
+    broken = ForkServer.start(str(REPO / "configs" / "pid_joint.yaml"), ["tests.no_such_module"])
+    try:
+        for _ in range(2):
+            with pytest.raises(ForkServerUnavailable, match=r"^the fork server could not import .*ModuleNotFoundError"):
+                broken.fork("tests.no_such_module", ["--parent", str(os.getpid())])
+    finally:
+        broken.close()
+    assert broken.process.returncode == 0
+
+
+@pytest.mark.multiprocess
+def test_the_fork_servers_channel_is_a_socketpair_with_no_name(server):
+    inode = os.fstat(server._channel.fileno()).st_ino  # type: ignore[union-attr]
+    with open("/proc/net/unix", encoding="ascii") as stream:
+        entries = [line.split() for line in stream.read().splitlines()[1:]]
+    ours = [entry for entry in entries if entry[6] == str(inode)]
+    assert ours and all(len(entry) == 7 for entry in ours)  # no path column: nobody else can connect
+
+
+STARTER = """
+import os, signal, sys
+sys.path.insert(0, {repo!r})
+from pbo_runtime.supervisor.fork_server import ForkServer
+server = ForkServer.start({file!r}, [{probe!r}])
+child = server.fork({probe!r}, [{out!r}, "sleep", "0", "--parent", str(os.getpid())])
+print(server.process.pid, child.pid, flush=True)
+signal.pause()
+"""
+
+
+@pytest.mark.multiprocess
+def test_the_fork_server_and_a_child_it_forked_die_with_the_process_that_started_them(tmp_path):
+    out = tmp_path / "said.json"
+    code = STARTER.format(repo=str(REPO), file=str(REPO / "configs" / "pid_joint.yaml"), probe=PROBE, out=str(out))
+    starter = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                               env={**os.environ, "PYTHONPATH": str(REPO)})
+    try:
+        assert starter.stdout is not None
+        server_pid, child_pid = map(int, starter.stdout.readline().split())
+        _wait_until(out.exists, "the child's report")
+        assert json.loads(out.read_text())["ppid"] == starter.pid
+        starter.send_signal(signal.SIGKILL)
+        starter.wait()
+    finally:
+        if starter.poll() is None:
+            starter.kill()
+            starter.wait()
+    _wait_until(lambda: _gone(server_pid) and _gone(child_pid), "the server's and the child's end")
+
+
+@pytest.mark.multiprocess
+def test_a_run_whose_fork_server_died_starts_fresh_interpreters_and_leaves_nothing(tmp_path):
+    file = demo_copy(tmp_path, "fork_server_died")
+    dead = ForkServer.start(str(file), ["pbo_runtime.supervisor.plant_host", "rtpu"])
+    dead.process.kill()
+    dead.process.wait()
+    said: list[str] = []
+    supervisor = Supervisor(load_subsystem(file), duration=0.05, clock="sim", say=said.append, fork_server=dead,
+                            out_dir=str(tmp_path / "out"))
+    result = supervisor.run()
+    assert result.failure == "", result.failure
+    assert any("fresh interpreters" in line for line in said), said
+    assert result.startup["on"] >= result.startup["children"] >= result.startup["table"]
+    assert_nothing_left(result.to_json())
+    assert not [name for name in os.listdir("/dev/mqueue") if "fork_server_died" in name]
+
+
+@pytest.mark.multiprocess
+def test_a_run_forks_its_children_from_the_fork_server_and_leaves_nothing(tmp_path):
+    file = demo_copy(tmp_path, "fork_server_run")
+    said: list[str] = []
+    supervisor = Supervisor(load_subsystem(file), duration=0.05, clock="sim", say=said.append, out_dir=str(tmp_path / "out"))
+    result = supervisor.run()
+    assert result.failure == "", result.failure
+    assert not any("fresh interpreters" in line for line in said), said
+    assert "fork_server" in result.startup  # the server was warm when the children were forked
+    assert supervisor.fork_server is None  # ended with the run
+    assert_nothing_left(result.to_json())
+    assert not [name for name in os.listdir("/dev/mqueue") if "fork_server_run" in name]

@@ -116,7 +116,13 @@ def main(argv: list[str] | None = None, subsystem: Subsystem | None = None) -> i
             return made
 
         rtpu = subsystem.rtpu(args.rtpu)
-        realtime = {**_realtime.apply(rtpu.cpu, args.fifo), "spin": f"{args.spin * 1e6:g} µs"}
+        # A restarted RTPU spawns its tasks while the other RTPUs run: their inits (imports, models,
+        # files) at SCHED_FIFO would hold a CPU the others' cycles need, so it takes SCHED_FIFO only
+        # when its first task turns on.
+        fifo_later = args.fifo and args.restarted
+        realtime = {**_realtime.apply(rtpu.cpu, args.fifo and not fifo_later), "spin": f"{args.spin * 1e6:g} µs"}
+        if fifo_later:
+            realtime["scheduler"] = f"SCHED_FIFO {_realtime.FIFO_PRIORITY} from its first task on (restarted: inits at SCHED_OTHER)"
         simulated = args.clock == "sim"
         clock = SimClock(table.header, args.tick) if simulated else RealClock(args.spin)
         # what a data log says of the run and its variables: made once, copied by each task's init
@@ -156,6 +162,8 @@ def main(argv: list[str] | None = None, subsystem: Subsystem | None = None) -> i
                               reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
                               n_rtpus=len(subsystem.rtpus), live_loader=live_stage if args.live else None)
         executive.device_figures = device_figures
+        if fifo_later:
+            executive.before_first_on = lambda: _realtime.apply(rtpu.cpu, True) and None
         for spec in subsystem.tasks_on(args.rtpu):
             make = factory(spec)
             executive.add(make(), make)

@@ -201,6 +201,8 @@ class Executive:
         self.epoch = epoch  # releases are aligned to epoch + k * period
         self.tasks: dict[str, Scheduled] = {}
         self.factories: dict[str, Callable[[], Task]] = {}
+        # called once, before the first task is turned on (a restarted RTPU takes SCHED_FIFO then)
+        self.before_first_on: Callable[[], None] | None = None
         self.on: list[Scheduled] = []
         self.running = True
         self.idle_wait = 0.05
@@ -666,6 +668,9 @@ class Executive:
                 # some 30,000 objects in 4-5 ms, several overruns at 1 kHz if it came mid-run.
                 gc.freeze()
             elif isinstance(signal, messages.TurnOn):
+                if self.before_first_on is not None:
+                    first, self.before_first_on = self.before_first_on, None
+                    first()
                 at = signal.at if signal.at is not None else self.clock.now()
                 self._turn_on(s, at)
                 if s.critical and self.reconfiguration is not None and signal.configuration is not None:

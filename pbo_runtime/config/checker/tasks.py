@@ -256,6 +256,11 @@ class TaskChecks(CheckerBase):
         return module_class
 
     def module_ports(self, task: _Task, module_class: Any, spec: YMap) -> tuple[PortSpec, ...] | None:
+        # A module whose ports do not depend on its params (most) lists the same ports for every
+        # task: asked once per check, not once per task.
+        fixed = self._fixed_ports.get(module_class)
+        if fixed is not None:
+            return fixed
         try:
             # ports may depend on params (a data logger's inputs); without valid params, the class's
             built = getattr(task, "built_params", None)
@@ -263,6 +268,8 @@ class TaskChecks(CheckerBase):
         except Exception as exc:  # the module is broken, not the YAML; say so
             self.error("E307", f"module '{task.module}' of task '{task.name}' cannot list its ports: {exc!r}", spec.value_loc("module"))
             return None
+        if not _ports_from_params(module_class):
+            self._fixed_ports[module_class] = ports
         return ports
 
     def port_shape(self, port: PortSpec, variable_shape: tuple[int, ...]) -> tuple[int, ...]:
@@ -548,15 +555,23 @@ class TaskChecks(CheckerBase):
     def check_param_lengths(self, task: _Task, spec: YMap, module_class: Any) -> bool:
         """A list parameter declared with a shape (`metadata={"shape": ("NDOF",)}`: one value per joint)
         has that many values (E308 at the parameter), which the module would otherwise refuse in init."""
-        try:
-            declared = param_fields(module_class.Params)
-        except TypeError:  # Params is not a dataclass: nothing is declared
+        params_type = module_class.Params
+        sized = self._sized_params.get(params_type)
+        if sized is None:  # the fields declared with one size, found once per Params class
+            try:
+                declared = param_fields(params_type)
+            except TypeError:  # Params is not a dataclass: nothing is declared
+                declared = {}
+            sized = self._sized_params[params_type] = tuple(
+                (name, shape) for name, field in declared.items()
+                if isinstance(shape := field.metadata.get("shape"), tuple) and len(shape) == 1)
+        if not sized:
             return True
         raw = spec.get("params")
         ok = True
-        for name, field in declared.items():
-            shape, value = field.metadata.get("shape"), getattr(task.built_params, name, None)
-            if not isinstance(value, tuple) or not isinstance(shape, tuple) or len(shape) != 1:
+        for name, shape in sized:
+            value = getattr(task.built_params, name, None)
+            if not isinstance(value, tuple):
                 continue
             size, dim = shape[0], ""
             if isinstance(size, str):

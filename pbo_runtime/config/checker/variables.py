@@ -195,6 +195,7 @@ def _dtype_name(raw: str) -> str:
     return str(np.dtype(raw))
 
 
+@functools.cache
 def _itemsize(dtype: str) -> int:
     return np.dtype(dtype).itemsize
 

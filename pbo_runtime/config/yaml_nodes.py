@@ -218,7 +218,7 @@ def _load(text: str, file: str, loader_class: type) -> Any:
             if node is None:
                 return None
             # aliases may repeat nodes; a legitimate file has fewer values than characters
-            return _Builder(loader, file, max(MAX_NODES, len(text))).build(node)
+            return _Builder(loader, file, max(MAX_NODES, len(text)), "&" in text).build(node)
         except yaml.MarkedYAMLError as exc:
             raise _marked_error(exc, file) from None
         except yaml.reader.ReaderError as exc:
@@ -268,8 +268,9 @@ class _Builder:
     most of the nodes, take a short path: counted, then looked up among those already built.
     """
 
-    def __init__(self, loader: yaml.SafeLoader, file: str, max_nodes: int = 0) -> None:
+    def __init__(self, loader: yaml.SafeLoader, file: str, max_nodes: int = 0, anchors: bool = True) -> None:
         self._loader = loader
+        self._anchors = anchors  # False: the text has no '&', so no alias can make a node contain itself
         self._file = file
         self._max_nodes = max_nodes or MAX_NODES
         self._scalars: dict[str, dict[str, Any]] = {}  # tag -> written text -> value
@@ -287,7 +288,12 @@ class _Builder:
         if isinstance(node, _ScalarNode):
             return self._scalar(node)
         self._count_node(node)
-        if id(node) in self._active:
+        if not self._anchors:
+            if isinstance(node, _MappingNode):
+                return self._mapping(node, section)
+            if isinstance(node, _SequenceNode):
+                return self._sequence(node, section)
+        elif id(node) in self._active:
             raise ConfigError("an alias refers to a node that contains it (a recursive structure)", self._file, *self._line_col(node))
         self._active.add(id(node))
         try:

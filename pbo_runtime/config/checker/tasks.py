@@ -68,6 +68,7 @@ class TaskChecks(CheckerBase):
             pending.append((task, spec, complete, links))
         self.infer_variables([(task, links[0]) for task, _, _, links in pending if links is not None])
         self.var_links = {}
+        self._mislinked: set[str] = set()  # the variables some port disagrees with, for report_link_mismatches
         bound = []
         for task, spec, complete, links in pending:
             if links is not None:
@@ -390,6 +391,7 @@ class TaskChecks(CheckerBase):
             # ports of a variable agree with each other, it is the declaration that is wrong.
             self.var_links.setdefault(var, []).append(_Linked(task.name, port, shape, loc, own_dtype, own_shape))
             if port.dtype != variable.dtype or shape != variable.shape:
+                self._mislinked.add(var)
                 ok = False
                 continue
             task.bindings.append(_Binding(port, var, shape, loc))
@@ -399,7 +401,10 @@ class TaskChecks(CheckerBase):
         """E301/E302 for the ports whose dtype or shape differs from their variable's. When every port
         that links a variable agrees (on the dtype, or on the shape), the declaration is what is
         wrong: one error at its type: (or shape:), the ports as notes. Otherwise one at each odd port."""
+        mislinked = self._mislinked  # a variable every port agrees with has nothing to report
         for var, every in self.var_links.items():
+            if var not in mislinked:
+                continue
             variable = self.out.variables[var]
             wrong_type = [link for link in every if link.port.dtype != variable.dtype]
             links = [link for link in every if link.own_dtype]  # a port of any dtype agrees with every variable

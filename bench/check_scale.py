@@ -98,12 +98,22 @@ begins. The goal (issue 23: at most {GOAL_S} s for 10,000 tasks) is judged on th
 tasks. The command itself (`pbo check FILE` in a fresh interpreter: start, imports, check, output)
 is timed on the largest file, {repeat} times, in the note below the table.
 """,
-        limits="""Python object creation per YAML node and per rule. What it took to make it
-linear: libyaml's parser with the implicit-tag resolution memoised; YAML locations kept as the
-parser's marks and turned into `file:line:col` only when a message needs one; the cyclic GC
-paused while hundreds of thousands of small objects are built (it rescanned the growing heap,
-making the check quadratic); hints that list at most 12 names; per-configuration work that does
-not touch every variable. Without these, 10,000 tasks took 15-27 s.""",
+        limits="""Python work per YAML node and per rule. What it took to make it linear:
+libyaml's parser with the implicit-tag resolution memoised; YAML locations kept as the parser's
+marks and turned into `file:line:col` only when a message needs one; the cyclic GC paused while
+hundreds of thousands of small objects are built (it rescanned the growing heap, making the check
+quadratic); hints that list at most 12 names; per-configuration work that does not touch every
+variable. Without these, 10,000 tasks took 15-27 s. Against issue 23's 0.5 s, a profile at 10,002
+tasks (about 420,000 YAML nodes) puts a third of the time in loading the YAML and two thirds in the
+rules, spread over many small steps per task (its fields, params built as the module's `Params`,
+ports, links, each variable's type, shape and initial value, the data flow of its configuration).
+Of the loading, libyaml composing its node graph is about half: a Python node object and two marks
+per node, a cost of PyYAML's C loader itself, before anything of ours runs; building the located
+mappings and freeing the node graph are the rest. Taking the per-node and per-task steps out that
+the profile showed (a scalar's path, a module's fixed ports, a Params class's fields, the allowed
+keys as a set, the init order without graphlib's bookkeeping) took 15-20% off; the goal needs
+either a YAML parser that builds located values without a Python object per node or about a third
+of the checker's per-task Python work, and neither is a local change.""",
     )
     t = Table(["tasks", "YAML lines", "best s", "median s", "µs per task", "errors", "warnings"], numeric=tuple(range(7)))
     per_task, medians = [], []

@@ -69,7 +69,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "realtime": {"seconds": 1.0, "rtpus": (1, 2, 4), "rounds": 1, "other_seconds": 1.0, "other_rounds": 1},
     "wait": {"seconds": 0.2, "rounds": 1},
     "switching": {"switches": 20, "interval": 0.02},
-    "check_scale": {"sizes": (102, 1002), "repeat": 1},
+    "check_scale": {"sizes": (102, 1002, 10002), "repeat": 1},
     "placement": {"tasks": 102, "repeat": 20, "check_repeat": 1},
     "links": {"quick": True},
     "dora": {"seconds": 1.0, "rounds": 1, "schedulers": ("fifo",)},

@@ -218,7 +218,7 @@ def _load(text: str, file: str, loader_class: type) -> Any:
             if node is None:
                 return None
             # aliases may repeat nodes; a legitimate file has fewer values than characters
-            return _Builder(loader, file, max(MAX_NODES, len(text))).build(node)
+            return _Builder(loader, file, max(MAX_NODES, len(text)), "&" in text).build(node)
         except yaml.MarkedYAMLError as exc:
             raise _marked_error(exc, file) from None
         except yaml.reader.ReaderError as exc:
@@ -268,8 +268,9 @@ class _Builder:
     most of the nodes, take a short path: counted, then looked up among those already built.
     """
 
-    def __init__(self, loader: yaml.SafeLoader, file: str, max_nodes: int = 0) -> None:
+    def __init__(self, loader: yaml.SafeLoader, file: str, max_nodes: int = 0, anchors: bool = True) -> None:
         self._loader = loader
+        self._anchors = anchors  # False: the text has no '&', so no alias can make a node contain itself
         self._file = file
         self._max_nodes = max_nodes or MAX_NODES
         self._scalars: dict[str, dict[str, Any]] = {}  # tag -> written text -> value
@@ -287,7 +288,12 @@ class _Builder:
         if isinstance(node, _ScalarNode):
             return self._scalar(node)
         self._count_node(node)
-        if id(node) in self._active:
+        if not self._anchors:
+            if isinstance(node, _MappingNode):
+                return self._mapping(node, section)
+            if isinstance(node, _SequenceNode):
+                return self._sequence(node, section)
+        elif id(node) in self._active:
             raise ConfigError("an alias refers to a node that contains it (a recursive structure)", self._file, *self._line_col(node))
         self._active.add(id(node))
         try:
@@ -317,6 +323,16 @@ class _Builder:
         self._count += 1  # as _count_node does, without a call per scalar
         if self._count > self._max_nodes:
             raise self._too_many(node)
+        return self._scalar_value(node)
+
+    def _add_scalars(self, count: int, node: yaml.Node) -> None:
+        """Count the scalars of one container at once (`_count_node` for each of them)."""
+        self._count += count
+        if self._count > self._max_nodes:
+            raise self._too_many(node)
+
+    def _scalar_value(self, node: yaml.ScalarNode) -> Any:
+        """A scalar's value (not counted: the caller counts it)."""
         built = self._scalars.get(node.tag)
         if built is None:
             built = self._scalars[node.tag] = {}
@@ -346,40 +362,63 @@ class _Builder:
             )
 
     def _sequence(self, node: yaml.SequenceNode, section: Any) -> YList:
-        self._check_tag(node, _SEQ_TAG)
+        if node.tag != _SEQ_TAG:
+            self._check_tag(node, _SEQ_TAG)
         result = YList(node.start_mark, self._file)
         item_locs = result._item_locs  # what YList.add fills, without a call per item
+        plain_strings, scalars = self._plain_strings, 0
         for item in node.value:
-            result.append(self.build(item, section))
+            # a scalar (most items) takes the inlined short path of `_scalar`; its count is added below
+            if item.__class__ is _ScalarNode:
+                scalars += 1
+                value = item.value if plain_strings and item.tag == _STR_TAG else self._scalar_value(item)
+            else:
+                value = self.build(item, section)
+            result.append(value)
             item_locs.append(item.start_mark)
+        self._add_scalars(scalars, node)
         return result
 
     def _mapping(self, node: yaml.MappingNode, section: Any) -> YMap:
-        self._check_tag(node, _MAP_TAG)
+        if node.tag != _MAP_TAG:
+            self._check_tag(node, _MAP_TAG)
         result = YMap(node.start_mark, self._file)
         key_locs, value_locs = result._key_locs, result._value_locs  # what YMap.put fills, without a call per key
         merges: list[yaml.Node] = []
+        # Keys and scalar values, most of a file's nodes, take the inlined short path of `_scalar`
+        # (text is its own value), and are counted once per mapping: this loop runs for every
+        # entry of the file.
+        plain_strings, scalars = self._plain_strings, 0
         for key_node, value_node in node.value:
-            if key_node.tag == _MERGE_TAG:
-                merges.append(value_node)
-                continue
-            if not isinstance(key_node, _ScalarNode):
-                raise ConfigError(
-                    "a key must be a plain name, got a " + ("list" if isinstance(key_node, _SequenceNode) else "mapping"),
-                    self._file,
-                    *self._line_col(key_node),
-                )
-            key = self._scalar(key_node)
-            try:
-                hash(key)
-            except TypeError:
-                raise ConfigError(f"a key must be a plain name, got: {key!r}", self._file, *self._line_col(key_node)) from None
+            if plain_strings and key_node.__class__ is _ScalarNode and key_node.tag == _STR_TAG:
+                key = key_node.value
+            else:
+                if key_node.tag == _MERGE_TAG:
+                    merges.append(value_node)
+                    continue
+                if not isinstance(key_node, _ScalarNode):
+                    raise ConfigError(
+                        "a key must be a plain name, got a " + ("list" if isinstance(key_node, _SequenceNode) else "mapping"),
+                        self._file,
+                        *self._line_col(key_node),
+                    )
+                key = self._scalar_value(key_node)
+                try:
+                    hash(key)
+                except TypeError:
+                    raise ConfigError(f"a key must be a plain name, got: {key!r}", self._file, *self._line_col(key_node)) from None
+            scalars += 1
             if key in result:
                 raise self._duplicate_key(result, key, key_node, section)
-            value = self._scalar(value_node) if isinstance(value_node, _ScalarNode) else self.build(value_node, key)
+            if value_node.__class__ is _ScalarNode:
+                scalars += 1
+                value = value_node.value if plain_strings and value_node.tag == _STR_TAG else self._scalar_value(value_node)
+            else:
+                value = self.build(value_node, key)
             result[key] = value
             key_locs[key] = key_node.start_mark
             value_locs[key] = value_node.start_mark
+        self._add_scalars(scalars, node)
         for merge in merges:
             # `<<: *defaults` - explicit keys win over merged ones, as YAML 1.1 says.
             sources: Iterable[yaml.Node] = merge.value if isinstance(merge, _SequenceNode) else [merge]

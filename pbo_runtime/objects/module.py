@@ -247,8 +247,12 @@ def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
     """Build a frozen dataclass of parameters from YAML values, checking names and types."""
     if not isinstance(values, dict):
         raise ParamError(f"params of {owner} must be a mapping, got: {type(values).__name__}")
-    fields = _fields(params_type) if isinstance(params_type, type) else {f.name: f for f in dataclasses.fields(params_type)}
-    unknown = sorted(set(values) - set(fields))
+    if isinstance(params_type, type):
+        fields, required = _fields(params_type), _required(params_type)
+    else:
+        fields = {f.name: f for f in dataclasses.fields(params_type)}
+        required = tuple(name for name, f in fields.items() if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING)
+    unknown = sorted(set(values) - fields.keys())
     if unknown:
         valid = ", ".join(sorted(fields)) or "none"
         raise ParamError(f"unknown parameter(s) {', '.join(repr(u) for u in unknown)} for {owner} (valid: {valid})")
@@ -256,11 +260,7 @@ def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
     converted: dict[str, Any] = {}
     for name, value in values.items():
         converted[name] = _convert(value, hints.get(name, Any), f"{owner}.{name}")
-    missing = [
-        name
-        for name, f in fields.items()
-        if name not in converted and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
-    ]
+    missing = [name for name in required if name not in converted]
     if missing:
         raise ParamError(f"missing parameter(s) {', '.join(repr(m) for m in missing)} for {owner}")
     try:
@@ -287,6 +287,13 @@ def param_fields(params_type: type) -> dict[str, dataclasses.Field[Any]]:
 def _fields(params_type: type) -> dict[str, dataclasses.Field[Any]]:
     """The fields of a Params class by name (the same for every task built with it: read, never changed)."""
     return {f.name: f for f in dataclasses.fields(params_type)}
+
+
+@functools.cache
+def _required(params_type: type) -> tuple[str, ...]:
+    """The fields of a Params class without a default, in declaration order (found once per class)."""
+    return tuple(name for name, f in _fields(params_type).items()
+                 if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING)
 
 
 @functools.cache

@@ -7,6 +7,7 @@ itself, which runs the rules the mixins of this package define, in order, is the
 from __future__ import annotations
 
 import difflib
+import functools
 import re
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
@@ -63,6 +64,8 @@ class CheckerBase:
         self.infer_failed: set[str] = set()  # their ports disagree (reported at each port)
         self.infer_failed_why: dict[str, str] = {}  # their ports cannot define them: why, for the hint
         self._robot_dims: dict[str, int] | None = None
+        self._fixed_ports: dict[Any, tuple[Any, ...]] = {}  # a module class whose ports are not made from params -> its ports
+        self._sized_params: dict[Any, tuple[tuple[str, tuple[Any, ...]], ...]] = {}  # a Params class -> its fields of one size
 
     # --- dims ---------------------------------------------------------------------------------
 
@@ -118,6 +121,10 @@ class CheckerBase:
         return None
 
     def keys(self, m: YMap, allowed: Sequence[str], required: Sequence[str], where: str, owner_loc: Location) -> None:
+        # Nearly always every key is allowed and every required one is there: two C-level set
+        # operations say so (this runs for every task and variable of a file); else find out which.
+        if m.keys() <= (_key_set(allowed) if isinstance(allowed, tuple) else frozenset(allowed)) and all(key in m for key in required):
+            return
         missing = [key for key in required if key not in m]
         for key in m:
             if key not in allowed:
@@ -195,6 +202,12 @@ class CheckerBase:
             name = self.name(raw, key_loc, what)
             if name is not None:
                 yield name, value, key_loc, section.value_loc(raw)
+
+
+@functools.lru_cache(maxsize=64)
+def _key_set(allowed: Sequence[str]) -> frozenset[str]:
+    """The allowed keys of a kind of entry as a set (the tuples of checker.model: a few, made once)."""
+    return frozenset(allowed)
 
 
 def _notes(notes: Iterable[tuple[Location, str]]) -> tuple[Note, ...]:

@@ -68,6 +68,7 @@ class TaskChecks(CheckerBase):
             pending.append((task, spec, complete, links))
         self.infer_variables([(task, links[0]) for task, _, _, links in pending if links is not None])
         self.var_links = {}
+        self._mislinked: set[str] = set()  # the variables some port disagrees with, for report_link_mismatches
         bound = []
         for task, spec, complete, links in pending:
             if links is not None:
@@ -256,6 +257,11 @@ class TaskChecks(CheckerBase):
         return module_class
 
     def module_ports(self, task: _Task, module_class: Any, spec: YMap) -> tuple[PortSpec, ...] | None:
+        # A module whose ports do not depend on its params (most) lists the same ports for every
+        # task: asked once per check, not once per task.
+        fixed = self._fixed_ports.get(module_class)
+        if fixed is not None:
+            return fixed
         try:
             # ports may depend on params (a data logger's inputs); without valid params, the class's
             built = getattr(task, "built_params", None)
@@ -263,6 +269,8 @@ class TaskChecks(CheckerBase):
         except Exception as exc:  # the module is broken, not the YAML; say so
             self.error("E307", f"module '{task.module}' of task '{task.name}' cannot list its ports: {exc!r}", spec.value_loc("module"))
             return None
+        if not _ports_from_params(module_class):
+            self._fixed_ports[module_class] = ports
         return ports
 
     def port_shape(self, port: PortSpec, variable_shape: tuple[int, ...]) -> tuple[int, ...]:
@@ -383,6 +391,7 @@ class TaskChecks(CheckerBase):
             # ports of a variable agree with each other, it is the declaration that is wrong.
             self.var_links.setdefault(var, []).append(_Linked(task.name, port, shape, loc, own_dtype, own_shape))
             if port.dtype != variable.dtype or shape != variable.shape:
+                self._mislinked.add(var)
                 ok = False
                 continue
             task.bindings.append(_Binding(port, var, shape, loc))
@@ -392,7 +401,10 @@ class TaskChecks(CheckerBase):
         """E301/E302 for the ports whose dtype or shape differs from their variable's. When every port
         that links a variable agrees (on the dtype, or on the shape), the declaration is what is
         wrong: one error at its type: (or shape:), the ports as notes. Otherwise one at each odd port."""
+        mislinked = self._mislinked  # a variable every port agrees with has nothing to report
         for var, every in self.var_links.items():
+            if var not in mislinked:
+                continue
             variable = self.out.variables[var]
             wrong_type = [link for link in every if link.port.dtype != variable.dtype]
             links = [link for link in every if link.own_dtype]  # a port of any dtype agrees with every variable
@@ -548,15 +560,23 @@ class TaskChecks(CheckerBase):
     def check_param_lengths(self, task: _Task, spec: YMap, module_class: Any) -> bool:
         """A list parameter declared with a shape (`metadata={"shape": ("NDOF",)}`: one value per joint)
         has that many values (E308 at the parameter), which the module would otherwise refuse in init."""
-        try:
-            declared = param_fields(module_class.Params)
-        except TypeError:  # Params is not a dataclass: nothing is declared
+        params_type = module_class.Params
+        sized = self._sized_params.get(params_type)
+        if sized is None:  # the fields declared with one size, found once per Params class
+            try:
+                declared = param_fields(params_type)
+            except TypeError:  # Params is not a dataclass: nothing is declared
+                declared = {}
+            sized = self._sized_params[params_type] = tuple(
+                (name, shape) for name, field in declared.items()
+                if isinstance(shape := field.metadata.get("shape"), tuple) and len(shape) == 1)
+        if not sized:
             return True
         raw = spec.get("params")
         ok = True
-        for name, field in declared.items():
-            shape, value = field.metadata.get("shape"), getattr(task.built_params, name, None)
-            if not isinstance(value, tuple) or not isinstance(shape, tuple) or len(shape) != 1:
+        for name, shape in sized:
+            value = getattr(task.built_params, name, None)
+            if not isinstance(value, tuple):
                 continue
             size, dim = shape[0], ""
             if isinstance(size, str):

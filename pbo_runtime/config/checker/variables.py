@@ -153,8 +153,9 @@ class VariableChecks(CheckerBase):
                     dtype = _dtype_name(raw)
             shape: tuple[int, ...] | None = ()
             if "shape" in spec and spec["shape"] is not None:
-                shape = self.resolve_shape(spec["shape"], spec.value_loc("shape"), f"variable '{name}'")
-                if shape is not None and dtype is not None and not self.check_variable_size(name, dtype, shape, spec.value_loc("shape")):
+                shape_loc = spec.value_loc("shape")
+                shape = self.resolve_shape(spec["shape"], shape_loc, f"variable '{name}'")
+                if shape is not None and dtype is not None and not self.check_variable_size(name, dtype, shape, shape_loc):
                     shape = None
             doc = ""
             if "doc" in spec and spec["doc"] is not None:
@@ -195,6 +196,7 @@ def _dtype_name(raw: str) -> str:
     return str(np.dtype(raw))
 
 
+@functools.cache
 def _itemsize(dtype: str) -> int:
     return np.dtype(dtype).itemsize
 

@@ -28,6 +28,7 @@ from typing import Callable
 import posix_ipc
 
 from pbo_runtime.errors import PboError
+from pbo_runtime.clock.lockstep import remove_semaphores
 from pbo_runtime.ipc import shm
 
 WAIT_SLICE = 0.05  # seconds between looks at the processes while waiting for a turn or its end
@@ -147,11 +148,6 @@ class ApplicationLockstep:
         return time.monotonic() - self.held_since if self.holding else 0.0
 
     def close(self) -> None:
-        for semaphore in (*self._go.values(), *self._done.values()):
-            try:
-                semaphore.unlink()
-            except posix_ipc.ExistentialError:
-                pass
-            semaphore.close()
+        remove_semaphores([*self._go.values(), *self._done.values()])
         self._go.clear()
         self._done.clear()

@@ -28,6 +28,7 @@ later run removes them if this one died.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from typing import Callable
 
 import numpy as np
@@ -150,12 +151,7 @@ class LockstepMaster:
         return self.roles[place] if 0 <= place < len(self.roles) else self.stepping
 
     def close(self) -> None:
-        for semaphore in (*self._go.values(), *([self._done] if self._done is not None else [])):
-            try:
-                semaphore.unlink()
-            except posix_ipc.ExistentialError:
-                pass
-            semaphore.close()
+        remove_semaphores([*self._go.values(), *([self._done] if self._done is not None else [])])
         self._go.clear()
         self._done = None
 
@@ -222,6 +218,16 @@ class LockstepParticipant:
     def close(self) -> None:
         for semaphore in (self._go, self._next, self._done):
             semaphore.close()
+
+
+def remove_semaphores(semaphores: Iterable[posix_ipc.Semaphore]) -> None:
+    """Unlink and close the semaphores a clock master made (one another process unlinked is passed over)."""
+    for semaphore in semaphores:
+        try:
+            semaphore.unlink()
+        except posix_ipc.ExistentialError:
+            pass
+        semaphore.close()
 
 
 def ring_arguments(ring: list[str]) -> list[str]:

@@ -17,7 +17,7 @@ EVENTS = [messages.Ready({"cpu": "any"}), messages.Ready(), messages.StateChange
           messages.FirstCycle(3, "pd", 1.002), messages.Stable("robot", True, 2.5, "in-var 'tau_u' is 2.5 ms old", "stale"), messages.Stats({"pid": {"cycles": 7}}),
           messages.PlantStats({"steps": 10, "late": 0}), messages.PlantStalled(2.003, 1.271), messages.Refused("pid", "kill: boom"),
           messages.Staged(3), messages.Staged(4, "KeyError: 'nope'"),
-          messages.Crashed("RuntimeError: boom", "Traceback ...")]
+          messages.Crashed("RuntimeError: boom", "Traceback ..."), messages.ChildExited("rtpu0", 4242)]
 
 
 def test_every_signal_and_event_kind_is_in_a_test():

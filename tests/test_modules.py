@@ -163,9 +163,10 @@ def test_trajectory_refuses_limits_that_are_not_positive(params, found):
         JointTrajectory.build_params(params)
 
 
-def test_the_fault_injector_raises_or_hangs_and_refuses_any_other_fault():
+def test_the_fault_injector_raises_hangs_or_aborts_and_refuses_any_other_fault():
     assert FaultInjector.build_params({"fault": "hang"}).fault == "hang"
-    with pytest.raises(ParamError, match=r"FaultInjector.fault must be one of 'raise', 'hang', got: 'freeze'$"):
+    assert FaultInjector.build_params({"fault": "abort", "in_init": True}).in_init is True
+    with pytest.raises(ParamError, match=r"FaultInjector.fault must be one of 'raise', 'hang', 'abort', got: 'freeze'$"):
         FaultInjector.build_params({"fault": "freeze"})
 
 

@@ -103,6 +103,7 @@ class ApplicationRunner:
         self.links: dict[str, dict[str, Any]] = {}
         self._links: list[TripleBuffer | MessageLink] = []  # the shm links this runner made and removes
         self._children: dict[str, subprocess.Popen] = {}
+        self._terminated: set[str] = set()  # subsystems this runner sent SIGTERM to stop them
         self._relays: list[threading.Thread] = []  # one per subsystem: its output, prefixed, until it ends
         self._stopping = ""
         self.lockstep: ApplicationLockstep | None = None  # on --clock sim: the subsystems' turns
@@ -270,11 +271,17 @@ class ApplicationRunner:
 
     def _worst(self) -> int:
         """The worst exit status of the subsystems: 0, theirs, or EXIT_RUN for one killed by a signal."""
-        codes = [child.returncode for child in self._children.values() if child.returncode]
+        codes = [child.returncode for key, child in self._children.items() if child.returncode and not self._stopped_as_asked(key)]
         return max((code if code > 0 else EXIT_RUN) for code in codes) if codes else 0
+
+    def _stopped_as_asked(self, key: str) -> bool:
+        """Ended by the SIGTERM this runner sent it: a subsystem in its last moments (its summary printed,
+        its interpreter ending) may die of it rather than handle it, and has failed in nothing."""
+        return key in self._terminated and self._children[key].returncode == -signal.SIGTERM
 
     def _stop_all(self) -> None:
         alive = [c for c in self._children.values() if c.poll() is None]
+        self._terminated.update(key for key, c in self._children.items() if c in alive)
         for child in alive:
             child.send_signal(signal.SIGTERM)
         deadline = time.monotonic() + STOP_GRACE
@@ -295,7 +302,7 @@ class ApplicationRunner:
         cleanup leaves a run alone while any of its processes lives, so this waits for them a while.
         """
         for key, child in self._children.items():
-            if child.returncode is None or child.returncode >= 0:
+            if child.returncode is None or child.returncode >= 0 or self._stopped_as_asked(key):
                 continue
             name, ours = self.application.subsystems[key].name, f"{child.pid}-"
             deadline = time.monotonic() + CLEANUP_GRACE

@@ -220,15 +220,20 @@ def test_two_simulated_runs_of_an_application_write_identical_logs(tmp_path):
     assert [n for n in os.listdir("/dev/shm") if "pbo.replay" in n] == [], said
 
 
-@pytest.mark.multiprocess
-def test_a_subsystem_killed_in_a_simulated_application_stops_the_others_and_leaves_nothing(tmp_path):
-    app = application_copy(tmp_path, "replay_kill")
+def started_on_the_simulated_clock(app, tmp_path) -> tuple[subprocess.Popen, str, int]:
+    """The application running on the simulated clock with every arm on: its runner, what it said, the follower's pid."""
     runner = subprocess.Popen([*PBO, "run", str(app), "--clock", "sim", "--duration", "600", "--no-live", "--out",
                                str(tmp_path / "out")], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True)
+    said = read_until(runner, "[follower] pbo: configuration 'follow' is on", "[leader] pbo: configuration 'lead' is on")
+    (follower,) = [pid for pid, command in children_of(runner.pid).items() if "follower.yaml" in command]
+    return runner, said, follower
+
+
+@pytest.mark.multiprocess
+def test_a_subsystem_killed_in_a_simulated_application_stops_the_others_and_leaves_nothing(tmp_path):
+    runner, said, follower = started_on_the_simulated_clock(application_copy(tmp_path, "replay_kill"), tmp_path)
     try:
-        said = read_until(runner, "[follower] pbo: configuration 'follow' is on", "[leader] pbo: configuration 'lead' is on")
-        (follower,) = [pid for pid, command in children_of(runner.pid).items() if "follower.yaml" in command]
         os.kill(follower, signal.SIGKILL)
         out, err = runner.communicate(timeout=300)
     finally:
@@ -246,13 +251,8 @@ def test_a_subsystem_killed_in_a_simulated_application_stops_the_others_and_leav
 @pytest.mark.multiprocess
 def test_a_participant_stopped_in_a_simulated_application_ends_the_run_with_a_named_fault_not_a_hang(tmp_path):
     """An RTPU stopped (SIGSTOP) holds every subsystem; past the watchdog's limit (30 s) its run fails, naming it."""
-    app = application_copy(tmp_path, "replay_stall")
-    runner = subprocess.Popen([*PBO, "run", str(app), "--clock", "sim", "--duration", "600", "--no-live", "--out",
-                               str(tmp_path / "out")], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                              text=True)
+    runner, said, follower = started_on_the_simulated_clock(application_copy(tmp_path, "replay_stall"), tmp_path)
     try:
-        said = read_until(runner, "[follower] pbo: configuration 'follow' is on", "[leader] pbo: configuration 'lead' is on")
-        (follower,) = [pid for pid, command in children_of(runner.pid).items() if "follower.yaml" in command]
         (rtpu,) = [pid for pid, command in children_of(follower).items() if "--rtpu rtpu0" in command]
         os.kill(rtpu, signal.SIGSTOP)
         out, err = runner.communicate(timeout=300)

@@ -214,40 +214,27 @@ def _notes(notes: Iterable[tuple[Location, str]]) -> tuple[Note, ...]:
     return tuple(Note(message, loc.file, loc.line, loc.column) for loc, message in notes)
 
 
-def named_in(node: Any, text: str) -> Location | None:
-    """Where a task's params write `text` as a value (a join's input in `inputs:`), or None."""
+def _written_in(node: Any) -> Iterator[tuple[Any, Location, bool]]:
+    """Everything a params tree writes, in document order: (the text, where it is, whether it is a key)."""
     if isinstance(node, YMap):
         for key, value in node.items():
-            if value == text:
-                return node.value_loc(key)
-            found = named_in(value, text)
-            if found is not None:
-                return found
+            yield key, node.key_loc(key), True
+            yield value, node.value_loc(key), False
+            yield from _written_in(value)
     elif isinstance(node, YList):
         for index, item in enumerate(node):
-            if item == text:
-                return node.item_loc(index)
-            found = named_in(item, text)
-            if found is not None:
-                return found
-    return None
+            yield item, node.item_loc(index), False
+            yield from _written_in(item)
+
+
+def named_in(node: Any, text: str) -> Location | None:
+    """Where a task's params write `text` as a value (a join's input in `inputs:`), or None."""
+    return next((loc for written, loc, is_key in _written_in(node) if not is_key and written == text), None)
 
 
 def key_in(node: Any, text: str) -> Location | None:
     """Where a task's params give a key named `text` (a parameter, a member's key), or None."""
-    if isinstance(node, YMap):
-        for key, value in node.items():
-            if key == text:
-                return node.key_loc(key)
-            found = key_in(value, text)
-            if found is not None:
-                return found
-    elif isinstance(node, YList):
-        for item in node:
-            found = key_in(item, text)
-            if found is not None:
-                return found
-    return None
+    return next((loc for written, loc, is_key in _written_in(node) if is_key and written == text), None)
 
 
 def named_by(node: YMap, message: str, skip: Sequence[str] = ()) -> Location | None:

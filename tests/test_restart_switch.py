@@ -12,12 +12,15 @@ the run to end, and the safety nets only catch a hang.
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 from pathlib import Path
 
 import pytest
 
-from tests.support import PBO, REPO, assert_ended_well, assert_nothing_left, config_copy
+from tests.support import (PBO, REPO, assert_ended_well, assert_nothing_left, config_copy, read_until, run_processes,
+                           start_run)
 
 pytestmark = pytest.mark.multiprocess
 
@@ -95,4 +98,38 @@ def test_past_its_policy_an_rtpu_that_dies_during_a_switch_stops_the_run_and_say
            "so the run stops" in run.stderr, run.stderr
     assert report["stopped_by"] == "failure" and "restart policy" in report["failure"]
     assert [r["seconds"] is None for r in report["restarts"]] == [True]  # its restart died too, and was not brought back
+    assert_nothing_left(report)
+
+
+def test_an_rtpu_that_dies_turning_on_a_task_spawned_live_comes_back_with_the_live_description(tmp_path):
+    # `pbo spawn` a fault injector that aborts in on: its plan kills rtpu0, which comes back knowing the
+    # spawned task (the description the plan swapped in, not the file's); killed once more later, it
+    # comes back with it again
+    config = config_copy(SWITCH_JOINT, tmp_path, "restart_live", (policy(2),))
+    report_path = tmp_path / "report.json"
+    run = start_run(config, tmp_path, "--duration", "0", "--report", str(report_path), "--out", str(tmp_path / "out"),
+                    live=True)
+    try:
+        spawned = subprocess.run([*PBO, "spawn", "crash", "--module", "fault_injector", "--rtpu", "rtpu0", "--period", "10ms",
+                                  "--param", "fault=abort", "in_on=true", "--subsystem", "restart_live"],
+                                 capture_output=True, text=True, timeout=RUN_SAFETY_NET)
+        assert spawned.returncode == 0 and "task 'crash' on rtpu0" in spawned.stdout, spawned
+        read_until(run, "restarted:")  # (said before the spawn's answer: the plan waited for it)
+        pid = run_processes(run)["rtpu0"]
+        os.kill(pid, signal.SIGKILL)
+        assert f"RTPU 'rtpu0' (pid {pid}) died (killed by SIGKILL)" in read_until(run, "restarted:")
+        run.send_signal(signal.SIGINT)
+        out, err = run.communicate(timeout=RUN_SAFETY_NET)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    assert "Traceback" not in err, err
+    report = json.loads(report_path.read_text())
+    assert report["failure"] == "" and report["stopped_by"] == "Ctrl-C", report["failure"]
+    assert [(r["rtpu"], r["cause"]) for r in report["restarts"]] == [("rtpu0", "killed by SIGABRT"), ("rtpu0", "killed by SIGKILL")]
+    assert all(sorted(r["tasks_on"]) == ["crash", "pid", "traj"] for r in report["restarts"]), report["restarts"]
+    assert [s.get("restarted") for s in report["switches"] if s.get("change") == "spawn 'crash'"] == [["rtpu0"]]
+    assert {name: report["tasks"][name]["state"] for name in ("robot", "traj", "pid", "crash")} == dict.fromkeys(
+        ("robot", "traj", "pid", "crash"), "ON")
     assert_nothing_left(report)

@@ -216,6 +216,7 @@ class JobControl:
         self.switches: list[SwitchRecord] = []
         self.pending: SwitchRecord | None = None  # a dynamic switch's plan, waiting for the RTPUs' reports
         self.switching: SwitchRecord | None = None  # the switch under way (static or dynamic): a restart comes back in its `after`
+        self.switching_subsystem = self.subsystem  # what a live change's plan swaps in, while it is under way
         self.job: str | None = None
         self.application: str | None = None
         self.lead = PlanLead()  # on the real clock, from the read delays of the plans so far
@@ -241,11 +242,12 @@ class JobControl:
         return self._switch_dynamic(before, configuration, entering)
 
     def _switch_dynamic(self, before: str, configuration: str, entering: list[str], change: str = "",
-                        tasks: Mapping[str, Any] | None = None) -> SwitchRecord:
+                        described: Subsystem | None = None) -> SwitchRecord:
         """Post a plan for `configuration` and wait until every RTPU applied it and `entering` tasks ran
-        (`tasks`: their specs, when they are new in a live change)."""
+        (`described`: the subsystem as a live change makes it, its new tasks included)."""
         host = self.host
-        specs = tasks if tasks is not None else self.subsystem.tasks
+        self.switching_subsystem = described or self.subsystem
+        specs = self.switching_subsystem.tasks
         requested = host.now()
         lead = host.tick if host.tick > 0 else self.lead.value  # simulated: the next tick on the grid
         activation = plan_activation(requested, lead, host.epoch, host.shortest_period)
@@ -297,23 +299,30 @@ class JobControl:
         now = after.configurations[configuration].tasks
         added = [name for name in after.init_order if name not in before.tasks]
         removed = [name for name in before.tasks if name not in after.tasks]
-        host.stage_live(live)
+        try:
+            host.stage_live(live)
+        except RtpuDied as death:  # restarted as the run is described now; the others forget what they staged
+            host.restart_rtpu(death)
+            host.stage_live(LiveDescription(live.file, live.doc, before, live.slots))
+            raise PboError(f"{change} is refused: {death}, and was restarted; nothing else changed") from None
         spawned: list[str] = []
         try:
             for name in added:
                 host.respawn(name)
                 spawned.append(name)
         except PboError as exc:
+            if isinstance(exc, RtpuDied):  # restarted as the run is described now (without the new tasks)
+                host.restart_rtpu(exc)
+                exc = PboError(f"{exc}, and was restarted")
             for name in spawned:
-                host.kill_task(name)
+                self._through_restarts(lambda: self._kill(name))
             host.stage_live(LiveDescription(live.file, live.doc, before, live.slots))  # what the RTPUs had
             raise PboError(f"{change} is refused: {exc}; nothing else changed") from None
-        record = self._switch_dynamic(configuration, configuration, [t for t in now if t not in was], change, after.tasks)
+        record = self._switch_dynamic(configuration, configuration, [t for t in now if t not in was], change, after)
         self.subsystem = after
         host.adopt(live)
         for name in removed:
-            if host.task_states.get(name) not in ("KILLED", "NOT_CREATED"):
-                host.kill_task(name)
+            self._through_restarts(lambda: self._kill(name))
         return record
 
     def switched(self, rtpu: str, sequence: int, applied_at: float, done_at: float, off: list[str], on: list[str],
@@ -348,10 +357,6 @@ class JobControl:
         record = SwitchRecord(len(self.switches) + 1, before, after, requested, requested, off=list(leaving), on=list(entering))
         states = host.task_states
 
-        def kill(name: str) -> None:
-            if states.get(name) not in ("NOT_CREATED", "KILLED"):  # (a restarted RTPU no longer has it)
-                host.kill_task(name)
-
         def bring_on(name: str) -> None:
             if states.get(name) in ("NOT_CREATED", "KILLED"):
                 host.respawn(name)
@@ -362,7 +367,7 @@ class JobControl:
         host.hold_critical_tasks(True)  # their writers stop now: holding is the switch's doing, not a fault
         try:
             for name in leaving:
-                self._through_restarts(lambda: kill(name))
+                self._through_restarts(lambda: self._kill(name))
             for name in [t for t in self.subsystem.init_order if t in entering]:
                 self._through_restarts(lambda: bring_on(name))
             for name in self.subsystem.configurations[after].tasks:
@@ -377,9 +382,14 @@ class JobControl:
         self.mark(record.applied["job control"][1], "switch", f"{before} -> {after}")
         return record
 
+    def _kill(self, name: str) -> None:
+        if self.host.task_states.get(name) not in ("NOT_CREATED", "KILLED"):  # (a restarted RTPU no longer has it)
+            self.host.kill_task(name)
+
     def _through_restarts(self, step: Callable[[], None]) -> None:
-        """A step of a static switch; an RTPU that died meanwhile is restarted in the switch's configuration, and
-        the step done again (each step does only what is not done yet). Past the policy, RunFailure stops the run."""
+        """A step of a static switch or a live change; an RTPU that died meanwhile is restarted (in the switch's
+        configuration), and the step done again (each step does only what is not done yet). Past the policy,
+        RunFailure stops the run."""
         while True:
             try:
                 step()

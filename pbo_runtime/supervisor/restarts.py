@@ -79,6 +79,8 @@ class Restarting:
     _take_one_event: Callable[[float], None]
     job_control: Any  # supervisor.job_control.JobControl: its `switching` is the switch under way, if any
     static: bool
+    _live_sequence: int  # the live description staged last (live-N.json)
+    _live_adopted: int  # the one the run lives by (0: the file)
 
     def may_restart(self, role: str) -> bool:
         """Whether a death of `role` is restarted rather than stopping the run."""
@@ -90,13 +92,16 @@ class Restarting:
     def restart_rtpu(self, death: RtpuDied) -> None:
         """Bring the dead RTPU's tasks back as they were: spawned, and ON where they were ON; during a
         switch, as the configuration the switch goes to has them."""
-        hosted = self._hosted_by(death.rtpu)
+        switch = self.job_control.switching
+        # what the new process knows: the running description, or the one a live change's plan swaps in
+        described = self.subsystem if switch is None or not switch.change else self.job_control.switching_subsystem
+        live = self._live_sequence if switch is not None and switch.change else self._live_adopted
+        hosted = [t for t in self._hosted_by(death.rtpu) if t in described.tasks]
         alive = [t for t in hosted if self.task_states.get(t) not in (None, "NOT_CREATED", "KILLED")]
         was_on = tuple(t for t in hosted if self.task_states.get(t) == "ON")
-        switch = self.job_control.switching
         configuration = self.configuration if switch is None else switch.after
         if switch is not None:
-            members = self.subsystem.configurations[configuration].tasks
+            members = described.configurations[configuration].tasks
             # static: only the new configuration's tasks exist; dynamic: what was spawned stays spawned
             alive = [t for t in hosted if t in members] if self.static else alive
             was_on = tuple(t for t in alive if t in members)
@@ -105,7 +110,7 @@ class Restarting:
         self.result.restarts.append(record)
         during = "" if switch is None else f" in '{configuration}', the configuration it was switching to"
         self.say(f"{death}; restarting it{during}")
-        self.relaunch(death, record)
+        self.relaunch(death, record, live)
         if switch is not None:
             switch.restarted.append(death.rtpu)
             self._until_activation(switch.activation)
@@ -117,7 +122,7 @@ class Restarting:
                 if again.rtpu != death.rtpu:
                     raise RunFailure(f"{again}, while RTPU '{death.rtpu}' was restarting") from None
                 record.attempts += 1
-                self.relaunch(again, record)
+                self.relaunch(again, record, live)
         record.on_again_at = self.now() - started
         self.say(f"RTPU '{death.rtpu}' restarted: {', '.join(was_on) or 'no task'} ON again after "
                  f"{(record.on_again_at - record.died_at) * 1e3:.0f} ms")
@@ -138,8 +143,9 @@ class Restarting:
         while self.now() < activation:
             self._take_one_event(min(activation - self.now(), 0.01))
 
-    def relaunch(self, death: RtpuDied, record: Restart) -> None:
-        """Count the death against the policy (RunFailure past it), then start a new process for the RTPU."""
+    def relaunch(self, death: RtpuDied, record: Restart, live: int = 0) -> None:
+        """Count the death against the policy (RunFailure past it), then start a new process for the RTPU
+        (`live`: the live description it starts from, live-N.json; 0: the subsystem's file)."""
         while True:
             self._count_death(death, record)
             for child in [c for c in self.children if c.role == death.rtpu]:
@@ -158,6 +164,11 @@ class Restarting:
             arguments, tasks = self.launched[death.rtpu]
             if "--restarted" not in arguments:
                 arguments = [*arguments, "--restarted"]  # its tasks continue the run's files (a data log)
+            if "--live-now" in arguments:
+                at = arguments.index("--live-now")
+                arguments = arguments[:at] + arguments[at + 2:]
+            if live:  # after live changes, the file no longer describes the run
+                arguments = [*arguments, "--live-now", str(live)]
             self._launch(death.rtpu, arguments, tasks)
             try:
                 self._await_ready({death.rtpu})

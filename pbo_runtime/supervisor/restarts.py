@@ -77,6 +77,8 @@ class Restarting:
     _await_ready: Callable[[set[str]], None]
     _list_children: Callable[[], None]
     _take_one_event: Callable[[float], None]
+    _while_stepping: Callable[[], None]
+    _while_ticking: Callable[[], None]
     job_control: Any  # supervisor.job_control.JobControl: its `switching` is the switch under way, if any
     static: bool
     _live_sequence: int  # the live description staged last (live-N.json)
@@ -113,9 +115,10 @@ class Restarting:
         self.relaunch(death, record, live)
         if switch is not None:
             switch.restarted.append(death.rtpu)
-            self._until_activation(switch.activation)
         while True:
             try:
+                if switch is not None:
+                    self._until_activation(switch.activation)
                 self.bring_up(alive, list(was_on), configuration)
                 break
             except RtpuDied as again:
@@ -140,8 +143,8 @@ class Restarting:
     def _until_activation(self, activation: float) -> None:
         """A dynamic switch's tasks come on at its activation, not before: wait for it (a restart takes far
         longer than a plan's lead, so this is a safeguard), taking events meanwhile."""
-        while self.now() < activation:
-            self._take_one_event(min(activation - self.now(), 0.01))
+        while self.now() < activation:  # (on the simulated clock, the ticks up to it)
+            self.clock.run_for(activation - self.now(), self._take_one_event, self._while_stepping, self._while_ticking)
 
     def relaunch(self, death: RtpuDied, record: Restart, live: int = 0) -> None:
         """Count the death against the policy (RunFailure past it), then start a new process for the RTPU

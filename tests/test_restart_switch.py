@@ -72,6 +72,7 @@ def test_an_rtpu_that_dies_applying_a_switch_is_restarted_in_the_new_configurati
                                  *(["--static"] if how == "static" else []))
     assert report["stopped_by"] == "1 switches done", report["stopped_by"]
     assert_restarted_once_into_pd(run, report)
+    assert "switches through an RTPU's restart: 1 (rtpu0)" in run.stdout, run.stdout
 
 
 def test_an_rtpu_that_dies_in_a_jobs_switch_is_restarted_and_the_application_goes_on(tmp_path):

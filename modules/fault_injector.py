@@ -8,7 +8,11 @@ never returns instead, as a driver call waiting for a device that never answers:
 its RTPU stops with it, and the critical tasks that read their outputs hold the arm. With
 `fault: abort` it crashes its whole process natively (`os.abort()`, as a segfault in an
 extension would): its RTPU dies, and a restart policy (`restart:`) decides what follows. With
-`in_init: true` the fault happens in `init` instead of a cycle. Shipped as real code (not a
+`in_init: true` the fault happens in `init` instead of a cycle; with `in_on: true` it happens in
+`on`, when the task is turned on (a switch to a configuration that has it, `pbo on`), and only
+in the run's first process of its RTPU: a task whose RTPU was restarted (`self.restarted`) does
+not fail again, so `fault: abort, in_on: true` crashes the RTPU once, in the middle of a switch,
+and its restart succeeds. Shipped as real code (not a
 mock) so operators can rehearse the procedure on the simulated arm.
 """
 
@@ -28,10 +32,13 @@ class FaultInjectorParams:
     recoverable: bool = False  # True: the error component recovers by itself (the task stays ON)
     fault: Literal["raise", "hang", "abort"] = "raise"  # raises once; never returns; or crashes the process (os.abort)
     in_init: bool = False  # the fault happens in init (every time the task is spawned), not after fail_after cycles
+    in_on: bool = False  # the fault happens in on (once per run: not in a restarted RTPU), not after fail_after cycles
 
     def __post_init__(self) -> None:
         if self.fail_after < 0:
             raise ValueError(f"fail_after must be >= 0, got: {self.fail_after}")
+        if self.in_init and self.in_on:
+            raise ValueError("in_init and in_on are exclusive: the fault happens in one place")
 
 
 class FaultInjector(PortBasedObject):
@@ -47,12 +54,18 @@ class FaultInjector(PortBasedObject):
         self._fail_after = params.fail_after
         self._recoverable = params.recoverable
         self._fault = params.fault
+        self._in_on = params.in_on
         self.cycles = 0
         self.failed = False
 
+    def on(self) -> None:
+        if self._in_on and not self.restarted and not self.failed:
+            self.failed = True
+            self._fail(self._fault, "in on")
+
     def cycle(self) -> Status:
         self.cycles += 1
-        if not self.failed and self.cycles > self._fail_after:
+        if not self.failed and not self._in_on and self.cycles > self._fail_after:
             self.failed = True
             self._fail(self._fault, f"after {self._fail_after} cycles")
         return Status.CONTINUE

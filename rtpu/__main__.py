@@ -66,6 +66,8 @@ def main(argv: list[str] | None = None, subsystem: Subsystem | None = None) -> i
     parser.add_argument("--restarted", action="store_true",
                         help="a restart after this RTPU's process died: its tasks continue the run's files (restart policy)")
     parser.add_argument("--live", default="", help="directory of the run's live descriptions (live-N.json, `LiveUpdate`)")
+    parser.add_argument("--live-now", type=int, default=0, metavar="N",
+                        help="a restart after live changes: live-N.json describes the run from the start, not the file")
     args = parser.parse_args(argv)
     if args.parent:
         become_child(args.parent)
@@ -164,8 +166,13 @@ def main(argv: list[str] | None = None, subsystem: Subsystem | None = None) -> i
         executive.device_figures = device_figures
         if fifo_later:
             executive.before_first_on = lambda: _realtime.apply(rtpu.cpu, True) and None
-        for spec in subsystem.tasks_on(args.rtpu):
-            make = factory(spec)
+        if args.live_now:  # restarted after live changes: its tasks and configurations are the live description's
+            described = live_stage(args.live_now)
+            executive.reconfiguration = described.reconfiguration
+            hosted = dict(described.factories)
+        else:
+            hosted = {spec.name: factory(spec) for spec in subsystem.tasks_on(args.rtpu)}
+        for make in hosted.values():
             executive.add(make(), make)
         if simulated:
             barrier = LockstepParticipant(name, args.run_id, args.rtpu, table.header, args.ring.split(",") if args.ring else [args.rtpu],

@@ -5,7 +5,9 @@ are numpy arrays in a dict, tasks are states in a dict, and its RTPUs apply a po
 the clock reaches the plan's activation (as the executives do at that cycle boundary), unless
 told they never will. `pump` moves the clock; `on_pump` lets a test change the world meanwhile
 (the arm reaching its goal). Live changes are staged (`staged`) and adopted as the supervisor
-does; `init_fails` names tasks whose spawn fails. Nothing is started, nothing sleeps.
+does; `init_fails` names tasks whose spawn fails. `dies_at` names a (task, op) whose signal kills
+its RTPU (once): `restart_rtpu` then brings the RTPU's tasks back as the switch under way has them
+(ON where its configuration has them, else not created). Nothing is started, nothing sleeps.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from pbo_runtime.config.live import LiveDescription
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
+from pbo_runtime.supervisor.failures import RtpuDied
 from pbo_runtime.supervisor.job_control import JobControl
 from pbo_runtime.table.table import SPARE_TASK_SLOTS
 from tests.support import REPO
@@ -76,6 +79,7 @@ class FakeJobHost:
         self.live: LiveDescription | None = LiveDescription.start(subsystem, len(subsystem.tasks) + SPARE_TASK_SLOTS)
         self.staged: Subsystem | None = None
         self.init_fails: set[str] = set()
+        self.dies_at: set[tuple[str, str]] = set()  # (task, op): that signal kills the task's RTPU, once
         self.started_applications: list[str] = []
 
     # --- JobHost ----------------------------------------------------------------------------
@@ -119,12 +123,29 @@ class FakeJobHost:
     def set_configuration(self, configuration: str) -> None:
         self.configuration = configuration
 
+    def _maybe_die(self, task: str, op: str) -> None:
+        if (task, op) in self.dies_at:
+            self.dies_at.discard((task, op))
+            rtpu = self.subsystem.tasks[task].rtpu
+            raise RtpuDied(f"RTPU '{rtpu}' (pid 1) died (killed by SIGABRT)", rtpu, 1, "killed by SIGABRT")
+
+    def restart_rtpu(self, death: RtpuDied) -> None:
+        self.signals.append((death.rtpu, "restart"))
+        switch = self.job_control.switching
+        members = self.subsystem.configurations[self.configuration if switch is None else switch.after].tasks
+        for spec in self.subsystem.tasks_on(death.rtpu):
+            self.task_states[spec.name] = "ON" if spec.name in members else "NOT_CREATED"
+        if switch is not None:
+            switch.restarted.append(death.rtpu)
+
     def kill_task(self, task: str) -> None:
         self.signals.append((task, "kill"))
+        self._maybe_die(task, "kill")
         self.task_states[task] = "KILLED"
 
     def respawn(self, task: str) -> None:
         self.signals.append((task, "spawn"))
+        self._maybe_die(task, "spawn")
         if task in self.init_fails:
             self.task_states[task] = "KILLED"
             raise PboError(f"task '{task}' failed in init and was not created: the fake's init_fails")
@@ -132,6 +153,7 @@ class FakeJobHost:
 
     def turn_on(self, task: str, configuration: str) -> None:
         self.signals.append((task, "on"))
+        self._maybe_die(task, "on")
         self.task_states[task] = "ON"
 
     def hold_critical_tasks(self, hold: bool) -> None:

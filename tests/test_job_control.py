@@ -99,6 +99,22 @@ def test_a_static_switch_kills_the_leaving_tasks_and_spawns_and_turns_on_the_ent
     assert host.plans == [] and host.configuration == "pd" and (record.off, record.on) == (["pid"], ["pd"])
 
 
+@pytest.mark.parametrize("op", ["kill", "spawn", "on"])
+def test_a_static_switch_whose_rtpu_dies_restarts_it_and_does_only_what_is_left(subsystem, op):
+    host = FakeJobHost(subsystem, "pid", static=True)
+    host.task_states["pd"] = "NOT_CREATED"
+    host.dies_at = {("pid" if op == "kill" else "pd", op)}  # rtpu0 (pid, pd, traj) dies at that signal
+    record = host.job_control.switch("pd")
+    done = {"kill": [("pid", "kill")], "spawn": [("pid", "kill"), ("pd", "spawn")],
+            "on": [("pid", "kill"), ("pd", "spawn"), ("pd", "on")]}[op]
+    # the restart brought pd back ON: nothing after it spawns or turns it on again; the hold is released
+    assert host.signals == [("critical tasks", "hold"), *done, ("rtpu0", "restart"), ("robot", "watch pd"),
+                            ("critical tasks", "release")]
+    assert record.restarted == ["rtpu0"] and record.to_json()["restarted"] == ["rtpu0"]
+    assert host.configuration == "pd" and host.job_control.switching is None
+    assert [host.task_states[t] for t in ("robot", "traj", "pd", "pid")] == ["ON", "ON", "ON", "NOT_CREATED"]
+
+
 def test_alternate_switches_the_given_number_of_times_one_interval_apart(host):
     host.job_control.alternate(["pid", "pd"], 4, 0.05)
     assert [r.after for r in host.job_control.switches] == ["pd", "pid", "pd", "pid"]

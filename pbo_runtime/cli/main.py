@@ -774,6 +774,9 @@ def _print_switches(console: Console, result: Any) -> None:
         f"switches: {len(result.switches)}; latency ms p50 {np.median(latency):.2f}, p99 {np.percentile(latency, 99):.2f}, "
         f"max {latency.max():.2f}; RTPU skew ms max {skew.max():.3f}; longest switch on one RTPU {longest.max():.3f} ms",
         markup=False)
+    restarted = [f"{s['sequence']} ({', '.join(s['restarted'])})" for s in result.switches if s.get("restarted")]
+    if restarted:  # (their latency includes the restart)
+        console.print(f"switches through an RTPU's restart: {', '.join(restarted)}", markup=False)
     windows = [s for s in result.switches if s.get("cycles_lost") or s.get("stale_reads")]
     lost_in = [s["sequence"] for s in windows if any(s.get("cycles_lost", {}).values())]
     if lost_in:

@@ -9,6 +9,10 @@ so all switch at one instant. A static switch kills the leaving tasks and spawns
 ones. A job writes its object, switches, and waits for its post-condition; an application runs
 its jobs one at a time, and stops in the configuration it is in when a pre-condition fails or a
 job times out.
+
+An RTPU with a restart policy that dies during a switch is restarted in the configuration the
+switch goes to (`Restarting.restart_rtpu` reads `JobControl.switching`): the switch waits for
+no report from it, the other RTPUs' part stands, and its record names the restart (`restarted`).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import numpy as np
 from pbo_runtime.config.live import LiveDescription
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
+from pbo_runtime.supervisor.failures import RtpuDied
 from pbo_runtime.config.expressions import ExpressionError, compile_condition
 from pbo_runtime.supervisor.plan_lead import PlanLead
 
@@ -54,6 +59,7 @@ class SwitchRecord:
     lead: float = 0.0  # the least time from the request to the activation this plan was given
     read: dict[str, float] = field(default_factory=dict)  # rtpu -> when it first read the plan
     posted_at: float = math.nan  # when the plan was in the header and the RTPUs were signalled
+    restarted: list[str] = field(default_factory=list)  # RTPUs that died during the switch and came back in `after`
 
     @property
     def read_delay(self) -> float:
@@ -95,7 +101,8 @@ class SwitchRecord:
                 "skew": self.skew, "longest": self.longest, "off": self.off, "on": self.on,
                 "cycles_lost": self.lost, "stale_reads": self.stale, "lead": self.lead, "read_delay": self.read_delay,
                 "grid_wait": self.grid_wait, "work": self.work, "posted": self.posted_at - self.requested_at,
-                "read_delays": {rtpu: at - self.requested_at for rtpu, at in self.read.items()}, **({"change": self.change} if self.change else {})}
+                "read_delays": {rtpu: at - self.requested_at for rtpu, at in self.read.items()}, **({"change": self.change} if self.change else {}),
+                **({"restarted": self.restarted} if self.restarted else {})}
 
 
 class JobHost(Protocol):
@@ -139,6 +146,8 @@ class JobHost(Protocol):
         """Spawn a task and wait for its init."""
     def turn_on(self, task: str, configuration: str) -> None:
         """Turn a task on in `configuration` and wait until it is ON."""
+    def restart_rtpu(self, death: RtpuDied) -> None:
+        """Restart an RTPU that died (its restart policy allows it; RunFailure past it), in the switch's configuration."""
     def hold_critical_tasks(self, hold: bool) -> None:
         """While a static switch kills and spawns tasks, critical tasks run their locally stable behaviour."""
     def watch(self, task: str, configuration: str) -> None:
@@ -205,7 +214,9 @@ class JobControl:
         self.subsystem = host.subsystem
         self.static = static
         self.switches: list[SwitchRecord] = []
-        self.pending: SwitchRecord | None = None
+        self.pending: SwitchRecord | None = None  # a dynamic switch's plan, waiting for the RTPUs' reports
+        self.switching: SwitchRecord | None = None  # the switch under way (static or dynamic): a restart comes back in its `after`
+        self.switching_subsystem = self.subsystem  # what a live change's plan swaps in, while it is under way
         self.job: str | None = None
         self.application: str | None = None
         self.lead = PlanLead()  # on the real clock, from the read delays of the plans so far
@@ -231,27 +242,36 @@ class JobControl:
         return self._switch_dynamic(before, configuration, entering)
 
     def _switch_dynamic(self, before: str, configuration: str, entering: list[str], change: str = "",
-                        tasks: Mapping[str, Any] | None = None) -> SwitchRecord:
+                        described: Subsystem | None = None) -> SwitchRecord:
         """Post a plan for `configuration` and wait until every RTPU applied it and `entering` tasks ran
-        (`tasks`: their specs, when they are new in a live change)."""
+        (`described`: the subsystem as a live change makes it, its new tasks included)."""
         host = self.host
-        specs = tasks if tasks is not None else self.subsystem.tasks
+        self.switching_subsystem = described or self.subsystem
+        specs = self.switching_subsystem.tasks
         requested = host.now()
         lead = host.tick if host.tick > 0 else self.lead.value  # simulated: the next tick on the grid
         activation = plan_activation(requested, lead, host.epoch, host.shortest_period)
         sequence = host.post_plan(configuration, activation)
         record = SwitchRecord(sequence, before, configuration, requested, activation, change=change, lead=lead,
                               posted_at=host.now())
-        self.pending = record
+        self.pending = self.switching = record
         entering_active = [t for t in entering if host.task_states.get(t) == "OFF" and not getattr(specs[t], "aperiodic", False)]
         deadline = host.now() + SWITCH_TIMEOUT
         rtpus = len(self.subsystem.rtpus)
-        while len(record.applied) < rtpus or any(t not in record.first_cycles for t in entering_active):
-            if host.now() > deadline:
-                raise PboError(f"switch to '{configuration}' did not complete within {SWITCH_TIMEOUT:g} s "
-                               f"(applied on: {', '.join(record.applied) or 'no RTPU'})")
-            host.pump(0.002)
-        self.pending = None
+        restarts = 0
+        try:
+            # an RTPU restarted during the switch (in `pump`) came back in `configuration` with its
+            # tasks ON: no report of the plan comes from it, and none is waited for
+            while (len(record.applied.keys() | set(record.restarted)) < rtpus
+                   or any(t not in record.first_cycles and specs[t].rtpu not in record.restarted for t in entering_active)):
+                if len(record.restarted) != restarts:  # the restart's own time is not the switch's
+                    restarts, deadline = len(record.restarted), host.now() + SWITCH_TIMEOUT
+                if host.now() > deadline:
+                    raise PboError(f"switch to '{configuration}' did not complete within {SWITCH_TIMEOUT:g} s "
+                                   f"(applied on: {', '.join(record.applied) or 'no RTPU'})")
+                host.pump(0.002)
+        finally:
+            self.pending = self.switching = None
         if host.tick == 0 and record.read:  # (simulated: RTPUs read a plan at the next tick, by construction)
             self.lead.record(record.read_delay, late=max(record.read.values()) > activation)
         host.set_configuration(configuration)
@@ -279,23 +299,30 @@ class JobControl:
         now = after.configurations[configuration].tasks
         added = [name for name in after.init_order if name not in before.tasks]
         removed = [name for name in before.tasks if name not in after.tasks]
-        host.stage_live(live)
+        try:
+            host.stage_live(live)
+        except RtpuDied as death:  # restarted as the run is described now; the others forget what they staged
+            host.restart_rtpu(death)
+            host.stage_live(LiveDescription(live.file, live.doc, before, live.slots))
+            raise PboError(f"{change} is refused: {death}, and was restarted; nothing else changed") from None
         spawned: list[str] = []
         try:
             for name in added:
                 host.respawn(name)
                 spawned.append(name)
         except PboError as exc:
+            if isinstance(exc, RtpuDied):  # restarted as the run is described now (without the new tasks)
+                host.restart_rtpu(exc)
+                exc = PboError(f"{exc}, and was restarted")
             for name in spawned:
-                host.kill_task(name)
+                self._through_restarts(lambda: self._kill(name))
             host.stage_live(LiveDescription(live.file, live.doc, before, live.slots))  # what the RTPUs had
             raise PboError(f"{change} is refused: {exc}; nothing else changed") from None
-        record = self._switch_dynamic(configuration, configuration, [t for t in now if t not in was], change, after.tasks)
+        record = self._switch_dynamic(configuration, configuration, [t for t in now if t not in was], change, after)
         self.subsystem = after
         host.adopt(live)
         for name in removed:
-            if host.task_states.get(name) not in ("KILLED", "NOT_CREATED"):
-                host.kill_task(name)
+            self._through_restarts(lambda: self._kill(name))
         return record
 
     def switched(self, rtpu: str, sequence: int, applied_at: float, done_at: float, off: list[str], on: list[str],
@@ -328,24 +355,47 @@ class JobControl:
         host = self.host
         requested = host.now()
         record = SwitchRecord(len(self.switches) + 1, before, after, requested, requested, off=list(leaving), on=list(entering))
+        states = host.task_states
+
+        def bring_on(name: str) -> None:
+            if states.get(name) in ("NOT_CREATED", "KILLED"):
+                host.respawn(name)
+            if states.get(name) != "ON":  # (a restarted RTPU turned it on already)
+                host.turn_on(name, after)
+
+        self.switching = record
         host.hold_critical_tasks(True)  # their writers stop now: holding is the switch's doing, not a fault
         try:
             for name in leaving:
-                host.kill_task(name)
+                self._through_restarts(lambda: self._kill(name))
             for name in [t for t in self.subsystem.init_order if t in entering]:
-                if host.task_states.get(name) in ("NOT_CREATED", "KILLED"):
-                    host.respawn(name)
-                host.turn_on(name, after)
+                self._through_restarts(lambda: bring_on(name))
             for name in self.subsystem.configurations[after].tasks:
                 if self.subsystem.tasks[name].critical and name not in entering:
-                    host.watch(name, after)
+                    self._through_restarts(lambda: host.watch(name, after))
         finally:
+            self.switching = None
             host.hold_critical_tasks(False)
         record.applied["job control"] = (requested, host.now())
         host.set_configuration(after)
         self.switches.append(record)
         self.mark(record.applied["job control"][1], "switch", f"{before} -> {after}")
         return record
+
+    def _kill(self, name: str) -> None:
+        if self.host.task_states.get(name) not in ("NOT_CREATED", "KILLED"):  # (a restarted RTPU no longer has it)
+            self.host.kill_task(name)
+
+    def _through_restarts(self, step: Callable[[], None]) -> None:
+        """A step of a static switch or a live change; an RTPU that died meanwhile is restarted (in the switch's
+        configuration), and the step done again (each step does only what is not done yet). Past the policy,
+        RunFailure stops the run."""
+        while True:
+            try:
+                step()
+                return
+            except RtpuDied as death:
+                self.host.restart_rtpu(death)  # (which names it in the switch's record)
 
     def alternate(self, configurations: list[str], switches: int, interval: float) -> None:
         """Switch between configurations `switches` times, one every `interval` seconds (a switch test)."""

@@ -83,6 +83,7 @@ class LiveChanges:
     every_task: dict[str, TaskSpec]  # every task the run has had, by name (the last spec of a name)
     _live_sequence: int
     _staged: dict[str, tuple[int, str]]  # rtpu -> (sequence, error) of its last Staged answer
+    _live_adopted: int  # the live description the run lives by (live-N.json; 0: the file's)
     _queued_application: str | None
     run_id: str
     _while_stepping: Callable[[], None]
@@ -135,6 +136,7 @@ class LiveChanges:
     def adopt(self, live: LiveDescription) -> None:
         """The change is applied: `live` describes the running subsystem from now on."""
         self.live = live
+        self._live_adopted = self._live_sequence  # (the description staged last: a restart starts from it)
         self.subsystem = live.subsystem
         self.reconfiguration = Reconfiguration(live.subsystem)
         self.every_task.update(live.subsystem.tasks)

@@ -9,8 +9,17 @@ boundary, those that were ON. Meanwhile the other RTPUs never stop: a critical t
 came from the dead RTPU finds them past their freshness bound and runs its locally stable
 behaviour, and resumes by itself once they are fresh again.
 
-Restarts apply on the real clock, once the run's table exists. A death during a switch or a
-job's step still stops the run: only the running configuration is brought back.
+A death during a switch (a job's step, `--alternate`, `pbo switch`; dynamic or static) is
+restarted the same way, in the configuration the switch goes to (`JobControl.switching`): the
+new process starts with the plan already in the table's header, which it takes as seen, so it
+never applies the plan; its tasks are spawned (static: those of the new configuration) and,
+once the plan's activation has passed, those of the new configuration turned on. The other
+RTPUs' part of the switch stands (they applied the plan, or apply it, once); the switch waits
+for no report from the restarted RTPU, a static switch does what is left of its kills and
+spawns (none twice) and releases its hold on the critical tasks, and the switch's record names
+the restart (`restarted`). Past the policy, the run stops as at any other time, and says why.
+
+Restarts apply on the real clock, once the run's table exists.
 """
 
 from __future__ import annotations
@@ -22,6 +31,7 @@ from pbo_runtime.config.model import Subsystem
 from pbo_runtime.ipc import messages
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
 from pbo_runtime.supervisor.run_report import RunResult
+from pbo_runtime.table.table import Header
 
 
 @dataclass
@@ -66,6 +76,13 @@ class Restarting:
     _launch: Callable[..., None]
     _await_ready: Callable[[set[str]], None]
     _list_children: Callable[[], None]
+    _take_one_event: Callable[[float], None]
+    _while_stepping: Callable[[], None]
+    _while_ticking: Callable[[], None]
+    job_control: Any  # supervisor.job_control.JobControl: its `switching` is the switch under way, if any
+    static: bool
+    _live_sequence: int  # the live description staged last (live-N.json)
+    _live_adopted: int  # the one the run lives by (0: the file)
 
     def may_restart(self, role: str) -> bool:
         """Whether a death of `role` is restarted rather than stopping the run."""
@@ -75,39 +92,63 @@ class Restarting:
         return spec is not None and spec.restart is not None
 
     def restart_rtpu(self, death: RtpuDied) -> None:
-        """Bring the dead RTPU's tasks back as they were: spawned, and ON where they were ON."""
-        hosted = self._hosted_by(death.rtpu)
+        """Bring the dead RTPU's tasks back as they were: spawned, and ON where they were ON; during a
+        switch, as the configuration the switch goes to has them."""
+        switch = self.job_control.switching
+        # what the new process knows: the running description, or the one a live change's plan swaps in
+        described = self.subsystem if switch is None or not switch.change else self.job_control.switching_subsystem
+        live = self._live_sequence if switch is not None and switch.change else self._live_adopted
+        hosted = [t for t in self._hosted_by(death.rtpu) if t in described.tasks]
         alive = [t for t in hosted if self.task_states.get(t) not in (None, "NOT_CREATED", "KILLED")]
         was_on = tuple(t for t in hosted if self.task_states.get(t) == "ON")
+        configuration = self.configuration if switch is None else switch.after
+        if switch is not None:
+            members = described.configurations[configuration].tasks
+            # static: only the new configuration's tasks exist; dynamic: what was spawned stays spawned
+            alive = [t for t in hosted if t in members] if self.static else alive
+            was_on = tuple(t for t in alive if t in members)
         started = self.started_at if self.started_at is not None else self.now()
         record = Restart(death.rtpu, death.pid, death.cause, self.now() - started, was_on)
         self.result.restarts.append(record)
-        self.say(f"{death}; restarting it")
-        self.relaunch(death, record)
+        during = "" if switch is None else f" in '{configuration}', the configuration it was switching to"
+        self.say(f"{death}; restarting it{during}")
+        self.relaunch(death, record, live)
+        if switch is not None:
+            switch.restarted.append(death.rtpu)
         while True:
             try:
-                self.bring_up(alive, list(was_on))
+                if switch is not None:
+                    self._until_activation(switch.activation)
+                self.bring_up(alive, list(was_on), configuration)
                 break
             except RtpuDied as again:
                 if again.rtpu != death.rtpu:
                     raise RunFailure(f"{again}, while RTPU '{death.rtpu}' was restarting") from None
                 record.attempts += 1
-                self.relaunch(again, record)
+                self.relaunch(again, record, live)
         record.on_again_at = self.now() - started
         self.say(f"RTPU '{death.rtpu}' restarted: {', '.join(was_on) or 'no task'} ON again after "
                  f"{(record.on_again_at - record.died_at) * 1e3:.0f} ms")
 
-    def bring_up(self, spawn: list[str], turn_on: list[str]) -> None:
-        """Spawn the tasks not yet created (in const order), then turn on those not ON (critical first)."""
+    def bring_up(self, spawn: list[str], turn_on: list[str], configuration: str | None = None) -> None:
+        """Spawn the tasks not yet created (in const order), then turn on those not ON (critical first),
+        in `configuration` (default: the running one)."""
         for name in self._in_init_order(spawn):
             if self.task_states.get(name) == "NOT_CREATED":
                 self.respawn(name)
         for name in sorted(self._in_init_order(turn_on), key=lambda t: not self.every_task[t].critical):
             if self.task_states.get(name) != "ON":
-                self.turn_on(name, self.configuration)
+                self.turn_on(name, configuration or self.configuration)
 
-    def relaunch(self, death: RtpuDied, record: Restart) -> None:
-        """Count the death against the policy (RunFailure past it), then start a new process for the RTPU."""
+    def _until_activation(self, activation: float) -> None:
+        """A dynamic switch's tasks come on at its activation, not before: wait for it (a restart takes far
+        longer than a plan's lead, so this is a safeguard), taking events meanwhile."""
+        while self.now() < activation:  # (on the simulated clock, the ticks up to it)
+            self.clock.run_for(activation - self.now(), self._take_one_event, self._while_stepping, self._while_ticking)
+
+    def relaunch(self, death: RtpuDied, record: Restart, live: int = 0) -> None:
+        """Count the death against the policy (RunFailure past it), then start a new process for the RTPU
+        (`live`: the live description it starts from, live-N.json; 0: the subsystem's file)."""
         while True:
             self._count_death(death, record)
             for child in [c for c in self.children if c.role == death.rtpu]:
@@ -116,12 +157,21 @@ class Restarting:
                 self.task_states[task] = "NOT_CREATED"  # the new process knows none of them
                 self.task_errors.pop(task, None)
             self._list_children()
+            # a process that died applying a plan (a task's `on` crashed) left its "switching since" word
+            # set: the critical tasks would take the configuration for illegal, for good
+            index = next(r.index for r in self.subsystem.rtpus if r.name == death.rtpu)
+            self.table.header[int(Header.SWITCHING_SINCE_NS) + index] = 0
             queue = self.signals[death.rtpu]
             while queue.receive(0) is not None:  # what the dead process never served is not for the new one
                 pass
             arguments, tasks = self.launched[death.rtpu]
             if "--restarted" not in arguments:
                 arguments = [*arguments, "--restarted"]  # its tasks continue the run's files (a data log)
+            if "--live-now" in arguments:
+                at = arguments.index("--live-now")
+                arguments = arguments[:at] + arguments[at + 2:]
+            if live:  # after live changes, the file no longer describes the run
+                arguments = [*arguments, "--live-now", str(live)]
             self._launch(death.rtpu, arguments, tasks)
             try:
                 self._await_ready({death.rtpu})

@@ -163,6 +163,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.live_dir = ""
         self.every_task: dict[str, TaskSpec] = dict(subsystem.tasks)
         self._live_sequence = 0
+        self._live_adopted = 0
         self._staged: dict[str, tuple[int, str]] = {}
         self._queued_application: str | None = None
         self._refuse_if_devices_in_use()  # before anything starts

@@ -18,11 +18,16 @@ drivers, then forks a child per request. What keeps that as safe as a fresh inte
   reads its exit status (`ForkedProcess`, with the `subprocess.Popen` calls the run uses), and
   the child sets PR_SET_PDEATHSIG against the supervisor once it is re-parented (`become_child`):
   it dies with the supervisor, not with the server, which may end once the children are started.
+  The supervisor is a subreaper only while a fork is under way (`ForkServer.idle`).
 - The request channel is a socketpair: no name in the file system, nobody else can connect.
   The server dies with the supervisor (PR_SET_PDEATHSIG) and makes no shared object, so its
   end, a crash included, leaves nothing in /dev/shm or /dev/mqueue; a child it forked starts
   only on the server's go, sent after the supervisor has its pid, so a server that dies between
   the two leaves no unknown child running.
+- The supervisor ends the server once the children are started, unless an RTPU has a restart
+  policy: then it is kept for the run, and a restarted RTPU is forked from it (a fresh interpreter
+  would import and load everything again, most of a restart's time). It costs a process and its
+  memory, and ends as it would have: with the run (`Children._shutdown`) or with the supervisor.
 - A server that cannot serve (it died, it refused, a fork failed) is not a failed run: the
   supervisor starts that child as a fresh interpreter and says why once.
 
@@ -33,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import gc
 import importlib
 import inspect
 import json
@@ -48,6 +54,10 @@ PR_SET_CHILD_SUBREAPER = 36
 REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy, MuJoCo and the library on a busy machine
 REPARENT_TIMEOUT = 5.0  # seconds a forked child waits to become the supervisor's (its middle process exits at once)
 CLOSE_TIMEOUT = 2.0
+# What the runtime's public surface imports on first use (`pbo_runtime.arm_model` imports Pinocchio),
+# imported by a server kept for restarts once the run is on: a restarted controller's init would
+# otherwise import it again, some 150-200 ms of the restart on 2 CPUs (cProfile of a restart's spawn).
+WARM_FOR_RESTARTS = ("pinocchio",)
 
 
 class ForkServerUnavailable(Exception):
@@ -151,6 +161,9 @@ class ForkServer:
             line = self._replies.readline()
         except OSError as exc:
             raise ForkServerUnavailable(f"the fork server (pid {self.process.pid}) did not answer: {exc}") from None
+        finally:
+            # the server reaped the middle process before it answered: the child is this process's already
+            self.idle()
         if not line:
             code = self.process.poll()
             how = "it ended" if code is None else f"exit status {code}" if code >= 0 else f"killed by {signal.Signals(-code).name}"
@@ -161,9 +174,24 @@ class ForkServer:
             raise ForkServerUnavailable(reply["error"])
         return ForkedProcess(int(reply["pid"]))
 
+    def warm_for_restarts(self) -> None:
+        """Ask the server, kept for restarts, to import WARM_FOR_RESTARTS now (no answer: it imports
+        them before it serves the next fork)."""
+        if self._channel is None:
+            return
+        try:
+            self._channel.sendall(json.dumps({"warm": list(WARM_FOR_RESTARTS)}).encode() + b"\n")
+        except OSError:
+            pass  # a server that is gone says so at the next fork
+
+    def idle(self) -> None:
+        """Between forks: not a subreaper (an orphan of a child's own child is not this process's to reap)."""
+        if self._subreaper:
+            _prctl(PR_SET_CHILD_SUBREAPER, 0)
+            self._subreaper = False
+
     def release(self) -> None:
-        """Tell the server to end (EOF on its channel) without waiting for it; stop being a subreaper
-        (the children it forked are this process's already)."""
+        """Tell the server to end (EOF on its channel) without waiting for it."""
         if self._channel is not None:
             for closing in (self._replies, self._channel):
                 try:
@@ -171,9 +199,7 @@ class ForkServer:
                 except OSError:
                     pass
             self._channel = None
-        if self._subreaper:
-            _prctl(PR_SET_CHILD_SUBREAPER, 0)
-            self._subreaper = False
+        self.idle()
 
     def close(self) -> None:
         """Release the server and reap it (SIGKILL if it has not gone within CLOSE_TIMEOUT)."""
@@ -290,6 +316,8 @@ class _Server:
         self.channel.sendall(json.dumps({**answer, "warm_at": self.warm_at}).encode() + b"\n")
 
     def serve(self, request: dict[str, Any]) -> None:
+        if "warm" in request:
+            return self.warm(request["warm"])
         module, argv = request.get("module"), request.get("argv")
         if self.refusal:
             return self.reply({"error": self.refusal})
@@ -331,6 +359,19 @@ class _Server:
         os.close(go_write)
 
 
+    def warm(self, modules: Any) -> None:
+        """Import what a restarted child would import on first use; nothing if it is missing or fails
+        (the child imports it then, as before). The forks after it check the threads again."""
+        if self.refusal or not isinstance(modules, list):
+            return
+        for module in modules:
+            try:
+                importlib.import_module(str(module))
+            except Exception:
+                pass
+        gc.freeze()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m pbo_runtime.supervisor.fork_server")
     parser.add_argument("--fd", type=int, required=True, help="this end of the supervisor's socketpair")
@@ -348,6 +389,9 @@ def main(argv: list[str] | None = None) -> int:
             server.mains, server.subsystem = _warm(args.file, args.preload)
         except Exception as exc:  # every request is refused with the reason: the children start fresh
             server.refusal = f"the fork server could not import what the children run: {type(exc).__name__}: {exc}"
+        # what the children inherit stays out of their collections: a collection walking it would
+        # write to each object's header, copying every page of it (most of a forked child's start)
+        gc.freeze()
         server.warm_at = time.monotonic()
         for line in server.channel.makefile("rb"):
             server.serve(json.loads(line))

@@ -35,12 +35,16 @@ class Restart:
     tasks_on: tuple[str, ...]  # what was ON, and is turned on again
     on_again_at: float | None = None  # when its tasks were all ON again, likewise (None: the run stopped first)
     attempts: int = 1  # launches it took (a new process that died at once takes another)
+    launched_at: float | None = None  # when the new process was started (forked), likewise
+    ready_at: float | None = None  # when the new process said it was ready, likewise
+    spawned_at: float | None = None  # when its tasks had all been spawned (their inits done), likewise
+    origin: float = 0.0  # the run time these times count from (the configuration's on, or this start-up's death)
 
     def to_json(self) -> dict[str, Any]:
         seconds = None if self.on_again_at is None else self.on_again_at - self.died_at
         return {"rtpu": self.rtpu, "pid": self.pid, "cause": self.cause, "died_at": self.died_at,
                 "on_again_at": self.on_again_at, "seconds": seconds, "tasks_on": list(self.tasks_on),
-                "attempts": self.attempts}
+                "attempts": self.attempts, "launched_at": self.launched_at, "ready_at": self.ready_at, "spawned_at": self.spawned_at}
 
 
 class Restarting:
@@ -80,12 +84,15 @@ class Restarting:
         alive = [t for t in hosted if self.task_states.get(t) not in (None, "NOT_CREATED", "KILLED")]
         was_on = tuple(t for t in hosted if self.task_states.get(t) == "ON")
         started = self.started_at if self.started_at is not None else self.now()
-        record = Restart(death.rtpu, death.pid, death.cause, self.now() - started, was_on)
+        record = Restart(death.rtpu, death.pid, death.cause, self.now() - started, was_on, origin=started)
         self.result.restarts.append(record)
         self.say(f"{death}; restarting it")
         self.relaunch(death, record)
         while True:
             try:
+                record.ready_at = self.now() - started
+                self.bring_up(alive, [])
+                record.spawned_at = self.now() - started
                 self.bring_up(alive, list(was_on))
                 break
             except RtpuDied as again:
@@ -123,6 +130,7 @@ class Restarting:
             if "--restarted" not in arguments:
                 arguments = [*arguments, "--restarted"]  # its tasks continue the run's files (a data log)
             self._launch(death.rtpu, arguments, tasks)
+            record.launched_at = self.now() - record.origin
             try:
                 self._await_ready({death.rtpu})
                 return

@@ -235,6 +235,7 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
 
     mains = {module: _main_of(module) for module in preload}
     from pbo_runtime.config.loader import load_subsystem
+    from pbo_runtime.config.log_notes import run_metadata
     from pbo_runtime.errors import PboError
     from pbo_runtime.objects import registry
 
@@ -242,6 +243,7 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
         subsystem = load_subsystem(file)
     except (PboError, OSError):
         return mains, None  # each child loads it and reports what is wrong, as a fresh one would
+    run_metadata(subsystem, "real")  # the packages' versions it reads, read once here (each a parse of METADATA)
     lookups = [(registry.module_class, task.module) for task in subsystem.tasks.values()]
     lookups += [(registry.driver_class, device.driver) for device in subsystem.devices.values()]
     lookups += [(registry.plant_class, subsystem.plant.type)] if subsystem.plant is not None else []

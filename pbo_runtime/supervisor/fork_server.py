@@ -55,8 +55,8 @@ REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy, MuJoCo and the
 REPARENT_TIMEOUT = 5.0  # seconds a forked child waits to become the supervisor's (its middle process exits at once)
 CLOSE_TIMEOUT = 2.0
 # What the runtime's public surface imports on first use (`pbo_runtime.arm_model` imports Pinocchio),
-# imported by a server kept for restarts once the run is on: a restarted controller's init would
-# otherwise import it again, some 150-200 ms of the restart on 2 CPUs (cProfile of a restart's spawn).
+# imported by the server of a subsystem with a restart policy: a restarted controller's init would
+# otherwise import it again, 140-200 ms of a ~210 ms spawn on 2 CPUs (cProfile of a forked restart).
 WARM_FOR_RESTARTS = ("pinocchio",)
 
 
@@ -174,16 +174,6 @@ class ForkServer:
             raise ForkServerUnavailable(reply["error"])
         return ForkedProcess(int(reply["pid"]))
 
-    def warm_for_restarts(self) -> None:
-        """Ask the server, kept for restarts, to import WARM_FOR_RESTARTS now (no answer: it imports
-        them before it serves the next fork)."""
-        if self._channel is None:
-            return
-        try:
-            self._channel.sendall(json.dumps({"warm": list(WARM_FOR_RESTARTS)}).encode() + b"\n")
-        except OSError:
-            pass  # a server that is gone says so at the next fork
-
     def idle(self) -> None:
         """Between forks: not a subreaper (an orphan of a child's own child is not this process's to reap)."""
         if self._subreaper:
@@ -244,6 +234,12 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
     except (PboError, OSError):
         return mains, None  # each child loads it and reports what is wrong, as a fresh one would
     run_metadata(subsystem, "real")  # the packages' versions it reads, read once here (each a parse of METADATA)
+    if any(rtpu.restart is not None for rtpu in subsystem.rtpus):
+        for module in WARM_FOR_RESTARTS:  # (the run's first children skip the import too)
+            try:
+                importlib.import_module(module)
+            except Exception:  # a child that needs it imports it, and reports a failure, as a fresh one would
+                pass
     lookups = [(registry.module_class, task.module) for task in subsystem.tasks.values()]
     lookups += [(registry.driver_class, device.driver) for device in subsystem.devices.values()]
     lookups += [(registry.plant_class, subsystem.plant.type)] if subsystem.plant is not None else []
@@ -318,8 +314,6 @@ class _Server:
         self.channel.sendall(json.dumps({**answer, "warm_at": self.warm_at}).encode() + b"\n")
 
     def serve(self, request: dict[str, Any]) -> None:
-        if "warm" in request:
-            return self.warm(request["warm"])
         module, argv = request.get("module"), request.get("argv")
         if self.refusal:
             return self.reply({"error": self.refusal})
@@ -359,19 +353,6 @@ class _Server:
         self.reply({"pid": int(said)})
         os.write(go_write, b"g")  # the supervisor has its pid: it may start
         os.close(go_write)
-
-
-    def warm(self, modules: Any) -> None:
-        """Import what a restarted child would import on first use; nothing if it is missing or fails
-        (the child imports it then, as before). The forks after it check the threads again."""
-        if self.refusal or not isinstance(modules, list):
-            return
-        for module in modules:
-            try:
-                importlib.import_module(str(module))
-            except Exception:
-                pass
-        gc.freeze()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -357,8 +357,6 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self._publish_plan_state()
         self.started_at = self.now()
         self._startup_mark("on")
-        if self.fork_server is not None:  # kept for restarts: it imports what a restarted task would
-            self.fork_server.warm_for_restarts()
         self.job_control.mark(self.started_at, "configuration", f"{self.configuration} on")
         if self.clock.on_monotonic:
             self.result.started_monotonic = self.started_at

@@ -95,7 +95,8 @@ def finish(process: subprocess.Popen, report_path: Path, stop: bool) -> dict:
 def robot_figures(report: dict) -> dict:
     robot = report["tasks"].get("robot", {})
     return {"missed": robot.get("missed", 0), "overruns": robot.get("overruns", 0), "cycles": robot.get("cycles", 0),
-            "failure": report["failure"], "running": report.get("running_wall_seconds", 0.0)}
+            "failure": report["failure"], "running": report.get("running_wall_seconds", 0.0),
+            "lock_recoveries": report.get("lock_recoveries", 0)}
 
 
 def measure(kills: int, fresh: bool = False) -> dict:
@@ -214,7 +215,8 @@ without kills says how many.""",
                          f"{'met' if missed == 0 else 'NOT met'} ({forked['cycles']:,} cycles, {forked['overruns']} overruns); "
                          f"baseline without kills, {quiet['running']:.1f} s on: {quiet['missed']} missed "
                          f"({quiet['cycles']:,} cycles, {quiet['overruns']} overruns); fresh-interpreter restarts: "
-                         f"{fresh['missed']} missed ({fresh['cycles']:,} cycles)")
+                         f"{fresh['missed']} missed ({fresh['cycles']:,} cycles); table lock released from a dead "
+                         f"RTPU {forked['lock_recoveries']} + {fresh['lock_recoveries']} times")
     for label, figures in (("kept fork server", forked), ("fresh interpreter", fresh), ("no kill", quiet)):
         if figures["failure"]:
             section.notes.append(f"the run ({label}) failed: {figures['failure']}")

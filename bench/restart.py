@@ -29,12 +29,17 @@ import numpy as np
 import yaml
 
 from bench._common import REPO, Section, Table, fmt_ratio, percentiles, ratio
+from bench._inject import table_of
+from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc import shm
+from pbo_runtime.table.table import StateTable, TableLayout
+from pbo_runtime.table.table import Status as W
 
 DEMO = Path(REPO) / "configs" / "pid_joint.yaml"
 SUBSYSTEM = "puma_restart"
 ROBOT_PERIOD = 0.001  # s, the robot interface's, as in the demo
 SAFETY_NET = 120.0  # s a run may take to say what the benchmark waits for: a net for a hang
+SETTLE = 0.1  # s after its tasks are ON again that still count as the restart's (its first cycles at SCHED_FIFO)
 
 
 def bench_config(folder: Path, kills: int) -> Path:
@@ -99,23 +104,54 @@ def robot_figures(report: dict) -> dict:
             "lock_recoveries": report.get("lock_recoveries", 0)}
 
 
-def measure(kills: int, fresh: bool = False) -> dict:
-    """One run with `kills` kills of rtpu0: per kill, its phases (seconds from the kill); the robot's figures."""
+class RobotCounts:
+    """The robot interface's cycle and missed-release counts, read from the run's table as it runs."""
+
+    def __init__(self, config: Path, supervisor: int) -> None:
+        subsystem = load_subsystem(config)
+        self.table = StateTable.attach(TableLayout.of(subsystem), table_of(SUBSYSTEM, supervisor))
+        self.index = subsystem.tasks["robot"].index
+
+    def now(self) -> np.ndarray:
+        words = self.table.status[self.index]
+        return np.array([words[W.CYCLES], words[W.MISSED]], dtype=float)
+
+
+def measure(kills: int, fresh: bool = False, quiet_windows: bool = False) -> dict:
+    """One run with `kills` kills of rtpu0: per kill, its phases (seconds from the kill); the robot's figures.
+    `quiet_windows`: before each kill, as long without one as the last restart took (its SETTLE included):
+    the robot's cycles and misses in the restarts' windows and in those, from its counts in the table."""
+    windows = {"restart": np.zeros(3), "quiet": np.zeros(3)}  # cycles, missed, seconds
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
         report_path = folder / "report.json"
         started = time.monotonic()
-        process = start_run(bench_config(folder, kills), folder, report_path, 0, fresh)
+        config = bench_config(folder, kills)
+        process = start_run(config, folder, report_path, 0, fresh)
         killed_at = []
+        counts = None
         try:
             said_until(process, "is on")
             cold_start = time.monotonic() - started
+            counts = RobotCounts(config, process.pid) if quiet_windows else None
+            last = 0.2
             for _ in range(kills):
                 pid = rtpu0(process)
+                if counts is not None:
+                    begin, at = counts.now(), time.monotonic()
+                    time.sleep(last)
+                    windows["quiet"] += [*(counts.now() - begin), time.monotonic() - at]
+                    begin = counts.now()
                 killed_at.append(time.monotonic())
                 os.kill(pid, signal.SIGKILL)
                 said_until(process, "restarted:")
+                if counts is not None:
+                    time.sleep(SETTLE)
+                    last = time.monotonic() - killed_at[-1]
+                    windows["restart"] += [*(counts.now() - begin), last]
         finally:
+            if counts is not None:
+                counts.table.close()
             report = finish(process, report_path, stop=True)
     origin = report["started_monotonic"]
     phases: dict[str, list[float]] = {phase: [] for phase in PHASES}
@@ -128,7 +164,7 @@ def measure(kills: int, fresh: bool = False) -> dict:
                 if e["task"] == "robot" and kill <= e["from"] <= marks[-1] and e["to"] is not None]
         stable.append(sum(e["to"] - e["from"] for e in held) / ROBOT_PERIOD)
     back = [restart["on_again_at"] + origin - kill for kill, restart in zip(killed_at, report["restarts"])]
-    return {"cold_start": cold_start, "phases": phases, "back": back, "stable": stable,
+    return {"cold_start": cold_start, "phases": phases, "back": back, "stable": stable, "windows": windows,
             "restarts": len(report["restarts"]), **robot_figures(report)}
 
 
@@ -181,7 +217,7 @@ server. The robot interface holds the arm from its input's freshness bound (2 ms
 PID writes again. Missed releases on a shared 2-CPU machine come from the machine too: the run
 without kills says how many.""",
     )
-    forked = measure(kills)
+    forked = measure(kills, quiet_windows=True)
     fresh = measure(kills, fresh=True)
     quiet = measure_without_kills(forked["running"])
     table = Table(["restart from", "kills", "ON again p50 ms", "ON again max ms", "stable cycles p50", "stable cycles max",
@@ -217,6 +253,10 @@ without kills says how many.""",
                          f"({quiet['cycles']:,} cycles, {quiet['overruns']} overruns); fresh-interpreter restarts: "
                          f"{fresh['missed']} missed ({fresh['cycles']:,} cycles); table lock released from a dead "
                          f"RTPU {forked['lock_recoveries']} + {fresh['lock_recoveries']} times")
+    (r_cycles, r_missed, r_seconds), (q_cycles, q_missed, q_seconds) = forked["windows"]["restart"], forked["windows"]["quiet"]
+    section.notes.append(f"robot interface, same run: {r_missed:.0f} missed of {r_cycles:,.0f} releases in the {kills} restarts' "
+                         f"windows (kill to ON again + {SETTLE * 1e3:.0f} ms, {r_seconds:.1f} s in all), {q_missed:.0f} of "
+                         f"{q_cycles:,.0f} in as long without a kill before each ({q_seconds:.1f} s)")
     for label, figures in (("kept fork server", forked), ("fresh interpreter", fresh), ("no kill", quiet)):
         if figures["failure"]:
             section.notes.append(f"the run ({label}) failed: {figures['failure']}")

@@ -391,7 +391,7 @@ def run_processes(run: subprocess.Popen) -> dict[str, int]:
         words = command.split()
         if "--rtpu" in words:
             roles[words[words.index("--rtpu") + 1]] = pid
-        elif "pbo_runtime.supervisor.plant_host" in command:
+        elif "pbo_runtime.supervisor.plant_host" in command and "fork_server" not in command:  # (the kept server preloads it)
             roles["plant"] = pid
     return roles
 

@@ -1,6 +1,7 @@
 """The fork server: a child it forks is its starter's own, single-threaded, at SCHED_OTHER, dies with
 its starter, and says how it ended; a server that cannot serve says so, and a run then starts fresh
-interpreters and leaves nothing behind."""
+interpreters and leaves nothing behind; a run with a restart policy keeps its server, restarts an
+RTPU from it, and leaves nothing whether it ends or its supervisor is killed."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ import pytest
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.supervisor.fork_server import ForkServer, ForkServerUnavailable
 from pbo_runtime.supervisor.supervisor import Supervisor
-from tests.support import REPO, assert_nothing_left, demo_copy
+from tests.support import DEMO, PBO, REPO, assert_nothing_left, children_of, config_copy, demo_copy, read_until, run_processes, start_run
 
 PROBE = "tests.fork_probe"
 SAFETY_NET = 60.0  # seconds for a process to go: a net for a hang, not a timing
@@ -157,3 +158,35 @@ def test_a_run_forks_its_children_from_the_fork_server_and_leaves_nothing(tmp_pa
     assert supervisor.fork_server is None  # ended with the run
     assert_nothing_left(result.to_json())
     assert not [name for name in os.listdir("/dev/mqueue") if "fork_server_run" in name]
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("ending", ["ctrl-c", "supervisor killed"])
+def test_a_run_with_a_restart_policy_keeps_its_fork_server_restarts_from_it_and_leaves_nothing(tmp_path, ending):
+    name = f"fork_kept_{ending.split()[0].replace('-', '_')}"
+    config = config_copy(DEMO, tmp_path, name, (("rtpus: [rtpu0, rtpu1]", "rtpus: [rtpu0, rtpu1]\nrestart: {max: 3, within: 10 min}"),))
+    report_path = tmp_path / "report.json"
+    run = start_run(config, tmp_path, "--duration", "0", "--report", str(report_path), "--out", str(tmp_path / "out"))
+    try:
+        kept = [pid for pid, command in children_of(run.pid).items() if "pbo_runtime.supervisor.fork_server" in command]
+        assert len(kept) == 1, children_of(run.pid)  # kept once the children are up: an RTPU may be restarted
+        os.kill(run_processes(run)["rtpu0"], signal.SIGKILL)
+        said = read_until(run, "restarted:")
+        assert "fresh interpreter" not in said, said  # the new rtpu0 was forked from the kept server
+        children = list(children_of(run.pid))
+        table = next(n for n in os.listdir("/dev/shm") if f"pbo.{name}.{run.pid}-" in n)
+        run.send_signal(signal.SIGINT if ending == "ctrl-c" else signal.SIGKILL)
+        out, err = run.communicate(timeout=SAFETY_NET)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    _wait_until(lambda: all(_gone(pid) for pid in children), "the fork server's and the children's end")
+    if ending == "ctrl-c":
+        assert "fresh interpreter" not in out + err, err
+        assert_nothing_left(json.loads(report_path.read_text()))
+    else:  # the server and the children died with the supervisor; what the run made is `pbo clean`'s
+        cleaned = subprocess.run([*PBO, "clean", "--subsystem", name], capture_output=True, text=True, timeout=SAFETY_NET)
+        assert cleaned.returncode == 0, cleaned.stderr
+        assert [n for n in os.listdir("/dev/shm") if table.split(".")[2] in n] == []
+    assert [n for n in os.listdir("/dev/mqueue") if name in n] == []

@@ -14,6 +14,7 @@ writes it, as its module declares it.
 
 from __future__ import annotations
 
+import functools
 import platform
 import re
 from importlib import metadata
@@ -90,6 +91,7 @@ def run_metadata(subsystem: Subsystem, clock: str, configuration: str = "", appl
     }
 
 
+@functools.cache  # read once per process (metadata parses the package's METADATA file: ~10 ms each)
 def _version(package: str) -> str:
     try:
         return metadata.version(package)

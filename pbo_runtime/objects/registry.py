@@ -22,6 +22,7 @@ ROBOTS = "pbo.robots"
 _KIND = {MODULES: "module", DRIVERS: "driver", PLANTS: "plant", ROBOTS: "robot model"}
 
 
+@functools.cache  # read once per process: a forked RTPU has it from its fork server
 def installed_version() -> str:
     """pbo-runtime's version as installed (pyproject.toml's): the one source of `pbo --version`."""
     try:

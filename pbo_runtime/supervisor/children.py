@@ -74,11 +74,13 @@ class Children:
             self.say(f"no fork server ({exc}): the children start as fresh interpreters")
 
     def _release_fork_server(self) -> None:
-        """Once the children are started it has nothing more to do: ended (it exits at once, nothing to tear down)."""
+        """Once the children are started: kept for the run if an RTPU may be restarted (it is forked
+        from it again), else ended (it exits at once, nothing to tear down)."""
         if self.fork_server is not None:
             if self.fork_server.warm_at:
                 self._startup_mark("fork_server", self.fork_server.warm_at)
-            self._end_fork_server()
+            if not any(self.may_restart(rtpu.name) for rtpu in self.subsystem.rtpus):
+                self._end_fork_server()
 
     def _end_fork_server(self) -> None:
         """On every exit path: ended and reaped."""
@@ -90,7 +92,7 @@ class Children:
         """Start `python -m MODULE ARGUMENTS...` (`arguments` begins with -m MODULE): forked from the fork
         server where it serves, else a fresh interpreter."""
         parent = ["--parent", str(os.getpid())]
-        self.launched[role] = (arguments, tasks)  # a restart launches it the same way (a fresh interpreter then)
+        self.launched[role] = (arguments, tasks)  # a restart launches it the same way (from the kept fork server)
         process: subprocess.Popen[bytes] | ForkedProcess | None = None
         if self.fork_server is not None and arguments[0] == "-m":
             try:

@@ -18,11 +18,16 @@ drivers, then forks a child per request. What keeps that as safe as a fresh inte
   reads its exit status (`ForkedProcess`, with the `subprocess.Popen` calls the run uses), and
   the child sets PR_SET_PDEATHSIG against the supervisor once it is re-parented (`become_child`):
   it dies with the supervisor, not with the server, which may end once the children are started.
+  The supervisor is a subreaper only while a fork is under way (`ForkServer.idle`).
 - The request channel is a socketpair: no name in the file system, nobody else can connect.
   The server dies with the supervisor (PR_SET_PDEATHSIG) and makes no shared object, so its
   end, a crash included, leaves nothing in /dev/shm or /dev/mqueue; a child it forked starts
   only on the server's go, sent after the supervisor has its pid, so a server that dies between
   the two leaves no unknown child running.
+- The supervisor ends the server once the children are started, unless an RTPU has a restart
+  policy: then it is kept for the run, and a restarted RTPU is forked from it (a fresh interpreter
+  would import and load everything again, most of a restart's time). It costs a process and its
+  memory, and ends as it would have: with the run (`Children._shutdown`) or with the supervisor.
 - A server that cannot serve (it died, it refused, a fork failed) is not a failed run: the
   supervisor starts that child as a fresh interpreter and says why once.
 
@@ -33,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import gc
 import importlib
 import inspect
 import json
@@ -48,6 +54,10 @@ PR_SET_CHILD_SUBREAPER = 36
 REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy, MuJoCo and the library on a busy machine
 REPARENT_TIMEOUT = 5.0  # seconds a forked child waits to become the supervisor's (its middle process exits at once)
 CLOSE_TIMEOUT = 2.0
+# What the runtime's public surface imports on first use (`pbo_runtime.arm_model` imports Pinocchio),
+# imported by the server of a subsystem with a restart policy: a restarted controller's init would
+# otherwise import it again, 140-200 ms of a ~210 ms spawn on 2 CPUs (cProfile of a forked restart).
+WARM_FOR_RESTARTS = ("pinocchio",)
 
 
 class ForkServerUnavailable(Exception):
@@ -151,6 +161,9 @@ class ForkServer:
             line = self._replies.readline()
         except OSError as exc:
             raise ForkServerUnavailable(f"the fork server (pid {self.process.pid}) did not answer: {exc}") from None
+        finally:
+            # the server reaped the middle process before it answered: the child is this process's already
+            self.idle()
         if not line:
             code = self.process.poll()
             how = "it ended" if code is None else f"exit status {code}" if code >= 0 else f"killed by {signal.Signals(-code).name}"
@@ -161,9 +174,14 @@ class ForkServer:
             raise ForkServerUnavailable(reply["error"])
         return ForkedProcess(int(reply["pid"]))
 
+    def idle(self) -> None:
+        """Between forks: not a subreaper (an orphan of a child's own child is not this process's to reap)."""
+        if self._subreaper:
+            _prctl(PR_SET_CHILD_SUBREAPER, 0)
+            self._subreaper = False
+
     def release(self) -> None:
-        """Tell the server to end (EOF on its channel) without waiting for it; stop being a subreaper
-        (the children it forked are this process's already)."""
+        """Tell the server to end (EOF on its channel) without waiting for it."""
         if self._channel is not None:
             for closing in (self._replies, self._channel):
                 try:
@@ -171,9 +189,7 @@ class ForkServer:
                 except OSError:
                     pass
             self._channel = None
-        if self._subreaper:
-            _prctl(PR_SET_CHILD_SUBREAPER, 0)
-            self._subreaper = False
+        self.idle()
 
     def close(self) -> None:
         """Release the server and reap it (SIGKILL if it has not gone within CLOSE_TIMEOUT)."""
@@ -209,6 +225,7 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
 
     mains = {module: _main_of(module) for module in preload}
     from pbo_runtime.config.loader import load_subsystem
+    from pbo_runtime.config.log_notes import run_metadata
     from pbo_runtime.errors import PboError
     from pbo_runtime.objects import registry
 
@@ -216,6 +233,13 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
         subsystem = load_subsystem(file)
     except (PboError, OSError):
         return mains, None  # each child loads it and reports what is wrong, as a fresh one would
+    run_metadata(subsystem, "real")  # the packages' versions it reads, read once here (each a parse of METADATA)
+    if any(rtpu.restart is not None for rtpu in subsystem.rtpus):
+        for module in WARM_FOR_RESTARTS:  # (the run's first children skip the import too)
+            try:
+                importlib.import_module(module)
+            except Exception:  # a child that needs it imports it, and reports a failure, as a fresh one would
+                pass
     lookups = [(registry.module_class, task.module) for task in subsystem.tasks.values()]
     lookups += [(registry.driver_class, device.driver) for device in subsystem.devices.values()]
     lookups += [(registry.plant_class, subsystem.plant.type)] if subsystem.plant is not None else []
@@ -348,6 +372,9 @@ def main(argv: list[str] | None = None) -> int:
             server.mains, server.subsystem = _warm(args.file, args.preload)
         except Exception as exc:  # every request is refused with the reason: the children start fresh
             server.refusal = f"the fork server could not import what the children run: {type(exc).__name__}: {exc}"
+        # what the children inherit stays out of their collections: a collection walking it would
+        # write to each object's header, copying every page of it (most of a forked child's start)
+        gc.freeze()
         server.warm_at = time.monotonic()
         for line in server.channel.makefile("rb"):
             server.serve(json.loads(line))

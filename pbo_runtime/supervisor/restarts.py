@@ -45,12 +45,16 @@ class Restart:
     tasks_on: tuple[str, ...]  # what was ON, and is turned on again
     on_again_at: float | None = None  # when its tasks were all ON again, likewise (None: the run stopped first)
     attempts: int = 1  # launches it took (a new process that died at once takes another)
+    launched_at: float | None = None  # when the new process was started (forked), likewise
+    ready_at: float | None = None  # when the new process said it was ready, likewise
+    spawned_at: float | None = None  # when its tasks had all been spawned (their inits done), likewise
+    origin: float = 0.0  # the run time these times count from (the configuration's on, or this start-up's death)
 
     def to_json(self) -> dict[str, Any]:
         seconds = None if self.on_again_at is None else self.on_again_at - self.died_at
         return {"rtpu": self.rtpu, "pid": self.pid, "cause": self.cause, "died_at": self.died_at,
                 "on_again_at": self.on_again_at, "seconds": seconds, "tasks_on": list(self.tasks_on),
-                "attempts": self.attempts}
+                "attempts": self.attempts, "launched_at": self.launched_at, "ready_at": self.ready_at, "spawned_at": self.spawned_at}
 
 
 class Restarting:
@@ -108,7 +112,7 @@ class Restarting:
             alive = [t for t in hosted if t in members] if self.static else alive
             was_on = tuple(t for t in alive if t in members)
         started = self.started_at if self.started_at is not None else self.now()
-        record = Restart(death.rtpu, death.pid, death.cause, self.now() - started, was_on)
+        record = Restart(death.rtpu, death.pid, death.cause, self.now() - started, was_on, origin=started)
         self.result.restarts.append(record)
         during = "" if switch is None else f" in '{configuration}', the configuration it was switching to"
         self.say(f"{death}; restarting it{during}")
@@ -117,6 +121,9 @@ class Restarting:
             switch.restarted.append(death.rtpu)
         while True:
             try:
+                record.ready_at = self.now() - started
+                self.bring_up(alive, [])
+                record.spawned_at = self.now() - started
                 if switch is not None:
                     self._until_activation(switch.activation)
                 self.bring_up(alive, list(was_on), configuration)
@@ -173,6 +180,7 @@ class Restarting:
             if live:  # after live changes, the file no longer describes the run
                 arguments = [*arguments, "--live-now", str(live)]
             self._launch(death.rtpu, arguments, tasks)
+            record.launched_at = self.now() - record.origin
             try:
                 self._await_ready({death.rtpu})
                 return

@@ -117,6 +117,21 @@ def test_a_lock_whose_holder_died_is_recovered_and_counted(segment):
 
 
 @pytest.mark.multiprocess
+def test_a_lock_whose_holder_died_mid_write_is_recovered_without_settling(no_leftover_ipc, monkeypatch):
+    # only the holder makes the write sequence odd: an odd one naming the dead process proves it held the lock
+    made = LockedSegment.create(unique_name("segment"), 4096, **WORDS, sequence_word=3)
+    try:
+        gone = dead_pid()
+        made.lock.acquire()
+        made.words[3] = 2 * gone + 1
+        monkeypatch.setattr("pbo_runtime.ipc.segment.time.sleep", lambda _: pytest.fail("settled on a proven holder"))
+        assert made.recover_lock_from(gone, settle=3600.0)
+        assert made.lock.value == 1 and made.recoveries == 1 and made.words[3] % 2 == 0
+    finally:
+        made.close()
+
+
+@pytest.mark.multiprocess
 def test_a_lock_another_process_took_since_is_not_taken_away(segment):
     segment.acquire()  # signed by this live process, after the dead one
     try:

@@ -187,13 +187,17 @@ class LockedSegment:
 
         The lock record is signed right after each acquire, so a live process that took the
         lock after the dead one would have overwritten it within microseconds: it is checked
-        over `settle` seconds before the lock is released.
+        over `settle` seconds before the lock is released. A write sequence left odd by the
+        dead process needs no settling: only the holder makes it odd, and evens it before it
+        releases, so the dead process died holding the lock.
         """
         lock, words = self.lock, self.words
-        for _ in range(5):
+        died_writing = self.sequence_word is not None and words[self.sequence_word] == 2 * dead_pid + 1
+        for _ in range(1 if died_writing else 5):
             if lock.value > 0 or self.holder != dead_pid:
                 return False
-            time.sleep(settle / 5)
+            if not died_writing:
+                time.sleep(settle / 5)
         words[self.holder_word] = 0
         words[self.recoveries_word] += 1
         if self.sequence_word is not None and words[self.sequence_word] & 1:

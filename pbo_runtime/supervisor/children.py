@@ -26,6 +26,11 @@ from pbo_runtime.supervisor.fork_server import ForkedProcess, ForkServer, ForkSe
 from pbo_runtime.supervisor.run_report import STOP_TIMEOUT, RunResult
 from pbo_runtime.table.table import StateTable
 
+# Seconds the lock record of a reaped child is watched before its lock is released: only a taker
+# that has not signed yet could be mistaken for it, a window of microseconds, while every other
+# RTPU waits for the lock meanwhile. (A child that died mid-write is released at once.)
+DEAD_HOLDER_SETTLE = 0.01
+
 
 @dataclass
 class Child:
@@ -130,7 +135,7 @@ class Children:
 
     def _recover_lock_from(self, pid: int) -> None:
         """A process that died holding the table lock must not wedge the others."""
-        if self.table is not None and self.table.recover_lock_from(pid):
+        if self.table is not None and self.table.recover_lock_from(pid, settle=DEAD_HOLDER_SETTLE):
             self.result.lock_recoveries += 1
             self.say(f"released the table lock held by dead process {pid}")
 

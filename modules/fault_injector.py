@@ -8,12 +8,19 @@ never returns instead, as a driver call waiting for a device that never answers:
 its RTPU stops with it, and the critical tasks that read their outputs hold the arm. With
 `fault: abort` it crashes its whole process natively (`os.abort()`, as a segfault in an
 extension would): its RTPU dies, and a restart policy (`restart:`) decides what follows. With
-`in_init: true` the fault happens in `init` instead of a cycle. Shipped as real code (not a
+`in_init: true` the fault happens in `init` instead of a cycle. With `at: [0.5, 1.0, 1.5]`
+(seconds on the run's clock) the fault happens at given times instead of after `fail_after`
+cycles: in the first cycle released at or after the first listed time not before the task's
+`init`, once each. A task spawned again after its RTPU was restarted (`restarted`) takes the
+next listed time after its `init`, never again the one it just faulted at: with `fault: abort`
+and a restart policy, a run so crashes its RTPU at each listed time, and on the simulated clock
+(`--clock sim`) at the same ticks every run. Shipped as real code (not a
 mock) so operators can rehearse the procedure on the simulated arm.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import threading
 from dataclasses import dataclass
@@ -28,14 +35,19 @@ class FaultInjectorParams:
     recoverable: bool = False  # True: the error component recovers by itself (the task stays ON)
     fault: Literal["raise", "hang", "abort"] = "raise"  # raises once; never returns; or crashes the process (os.abort)
     in_init: bool = False  # the fault happens in init (every time the task is spawned), not after fail_after cycles
+    at: tuple[float, ...] = ()  # s on the run's clock: fault at each of these times (once each), not after fail_after
 
     def __post_init__(self) -> None:
         if self.fail_after < 0:
             raise ValueError(f"fail_after must be >= 0, got: {self.fail_after}")
+        times = tuple(float(t) for t in self.at)
+        if any(t < 0 for t in times) or list(times) != sorted(set(times)):
+            raise ValueError(f"at must list times in seconds, >= 0 and increasing, got: {list(self.at)}")
+        object.__setattr__(self, "at", times)
 
 
 class FaultInjector(PortBasedObject):
-    """Raises once in `cycle` after `fail_after` cycles (or hangs, or aborts the process); `clear` then returns it to OFF."""
+    """Raises once in `cycle` after `fail_after` cycles or at each time of `at` (or hangs, or aborts the process); `clear` then returns it to OFF."""
 
     Params = FaultInjectorParams
 
@@ -49,10 +61,19 @@ class FaultInjector(PortBasedObject):
         self._fault = params.fault
         self.cycles = 0
         self.failed = False
+        # The time this task faults at (inf: never): the first listed at or after its init; after a
+        # restart, the first listed after it, since the init runs at the instant of the last fault.
+        later = [t for t in params.at if t > self.time or (t == self.time and not self.restarted)]
+        self._fail_at = later[0] if later else math.inf
+        self._timed = bool(params.at)
 
     def cycle(self) -> Status:
         self.cycles += 1
-        if not self.failed and self.cycles > self._fail_after:
+        if self._timed:
+            if self.time >= self._fail_at:
+                at, self._fail_at = self._fail_at, math.inf
+                self._fail(self._fault, f"at {at:g} s")
+        elif not self.failed and self.cycles > self._fail_after:
             self.failed = True
             self._fail(self._fault, f"after {self._fail_after} cycles")
         return Status.CONTINUE

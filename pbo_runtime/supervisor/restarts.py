@@ -9,8 +9,17 @@ boundary, those that were ON. Meanwhile the other RTPUs never stop: a critical t
 came from the dead RTPU finds them past their freshness bound and runs its locally stable
 behaviour, and resumes by itself once they are fresh again.
 
-Restarts apply on the real clock, once the run's table exists. A death during a switch or a
-job's step still stops the run: only the running configuration is brought back.
+On the simulated clock (`--clock sim`) the death happens inside some tick N, while the
+participants pass the turn among themselves: the ring is first brought to a stop where it stood
+(`clock.stop_ring`), the new process is launched, tick N is finished for the live participants
+after the point where it stopped (`clock.finish_tick`: no other RTPU loses a tick), and the tasks
+are spawned and turned on in steps between ticks N and N + 1. The restart so takes no simulated
+time, the dead RTPU's tasks lose their cycles of tick N from the crash on and run again from
+their first release after it, and a run with deaths at the same ticks replays bit for bit. In an
+application on the simulated clock, a death stops the run and says so (`restart_refusal`).
+
+Restarts apply once the run's table exists. A death during a switch or a job's step still stops
+the run: only the running configuration is brought back.
 """
 
 from __future__ import annotations
@@ -66,13 +75,21 @@ class Restarting:
     _launch: Callable[..., None]
     _await_ready: Callable[[set[str]], None]
     _list_children: Callable[[], None]
+    _while_ticking: Callable[[], None]
 
     def may_restart(self, role: str) -> bool:
         """Whether a death of `role` is restarted rather than stopping the run."""
-        if role == "plant" or self.table is None or self.clock.name != "real" or self._stop_requested:
+        if role == "plant" or self.table is None or self.clock.restart_refusal or self._stop_requested:
             return False
         spec = next((r for r in self.subsystem.rtpus if r.name == role), None)
         return spec is not None and spec.restart is not None
+
+    def restart_refused(self, role: str) -> str:
+        """Why a death of `role`, which has a restart policy, stops the run anyway ("": it does not)."""
+        spec = next((r for r in self.subsystem.rtpus if r.name == role), None)
+        if spec is None or spec.restart is None or not self.clock.restart_refusal:
+            return ""
+        return f"; its restart policy does not apply: {self.clock.restart_refusal}"
 
     def restart_rtpu(self, death: RtpuDied) -> None:
         """Bring the dead RTPU's tasks back as they were: spawned, and ON where they were ON."""
@@ -116,6 +133,7 @@ class Restarting:
                 self.task_states[task] = "NOT_CREATED"  # the new process knows none of them
                 self.task_errors.pop(task, None)
             self._list_children()
+            self.clock.stop_ring(death.rtpu, self._while_ticking)  # the simulated clock's ticks, where they stood
             queue = self.signals[death.rtpu]
             while queue.receive(0) is not None:  # what the dead process never served is not for the new one
                 pass
@@ -123,8 +141,10 @@ class Restarting:
             if "--restarted" not in arguments:
                 arguments = [*arguments, "--restarted"]  # its tasks continue the run's files (a data log)
             self._launch(death.rtpu, arguments, tasks)
+            self.clock.forget_turn(death.rtpu)  # a hand-over to the dead one may land after the ring stopped
             try:
                 self._await_ready({death.rtpu})
+                self.clock.finish_tick(self._while_ticking)  # the others' share of the tick the death cut
                 return
             except RtpuDied as again:
                 if again.rtpu != death.rtpu:

@@ -63,15 +63,16 @@ class FaultInjector(PortBasedObject):
         self.failed = False
         # The time this task faults at (inf: never): the first listed at or after its init; after a
         # restart, the first listed after it, since the init runs at the instant of the last fault.
-        later = [t for t in params.at if t > self.time or (t == self.time and not self.restarted)]
-        self._fail_at = later[0] if later else math.inf
+        self._times = [t for t in params.at if t > self.time or (t == self.time and not self.restarted)]
+        self._times.append(math.inf)  # past the last: never again
+        self._fail_at = self._times.pop(0)
         self._timed = bool(params.at)
 
     def cycle(self) -> Status:
         self.cycles += 1
         if self._timed:
             if self.time >= self._fail_at:
-                at, self._fail_at = self._fail_at, math.inf
+                at, self._fail_at = self._fail_at, self._times.pop(0)  # the next listed time, from the list made in init
                 self._fail(self._fault, f"at {at:g} s")
         elif not self.failed and self.cycles > self._fail_after:
             self.failed = True

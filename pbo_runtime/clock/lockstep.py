@@ -250,8 +250,11 @@ class LockstepParticipant:
         self._events_pending = events_pending
         self.header = header
         self._words = header.data  # the same words as plain ints: no numpy scalar per read
-        # a participant started mid-run (for one that died) has no part in the ticks before it joined
+        # A participant started mid-run (for one that died) has no part in the ticks before it joined,
+        # nor in a turn handed to the dead one (the master drains it too, but a hand-over may land late).
         self.last_tick = int(header[Header.SIM_TICK])
+        while _acquired(self._go, 0.0):
+            pass
         self.before_step = before_step  # run once released, before the step's work (an RTPU's link relays)
         self._new_tick = False
 

@@ -12,6 +12,8 @@ second run writes the same log, bit for bit. Past the policy the run stops and s
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import threading
 from pathlib import Path
@@ -26,7 +28,8 @@ from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc import shm
 from pbo_runtime.supervisor.restarts import Restarting
 from pbo_runtime.table.table import HEADER_WORDS
-from tests.support import DEMO, PBO, assert_nothing_left, config_copy, excursion_from_path
+from tests.support import (DEMO, PBO, assert_nothing_left, config_copy, excursion_from_path, read_until, run_processes,
+                           start_run)
 
 ROLES = ["plant", "a", "b"]
 
@@ -183,6 +186,7 @@ SETTLED_NEAR = 0.05  # rad: every joint within this of its goal at the end (REAC
 EXCURSION_LIMIT = 0.05  # rad
 CRASH_TIMES = (0.5, 1.0, 1.5)  # s: mid-move (it takes 2.25 s)
 DURATION = 8.0  # s simulated: the move and its settling end well before
+RUN_SAFETY_NET = 300.0  # wall seconds: a net for a run that never ends, not a timing
 
 
 def crashing_copy(folder: Path, subsystem: str, policy: tuple[str, str] = POLICY) -> Path:
@@ -233,6 +237,36 @@ def test_on_the_simulated_clock_three_crashes_cost_the_robot_no_cycle_and_replay
     assert again["variables"] == report["variables"]
     assert [r["died_at"] for r in again["restarts"]] == [r["died_at"] for r in restarts]
     assert_nothing_left(again)
+
+
+@pytest.mark.multiprocess
+def test_on_the_simulated_clock_an_rtpu_killed_anywhere_in_a_tick_costs_the_robot_no_cycle(tmp_path):
+    """SIGKILL lands wherever the ring is: in rtpu0's turn, or while it waits and the turn is handed to it."""
+    config = config_copy(DEMO, tmp_path, "simrestart_killed", (POLICY, LOGGER_BESIDE_THE_ROBOT))
+    report_path = tmp_path / "report.json"
+    # it ends by its duration, not Ctrl-C (which may cut its last tick after the plant's step); a
+    # restart takes no simulated time, so the kills use little of it
+    run = start_run(config, tmp_path, "--clock", "sim", "--duration", "10", "--report", str(report_path),
+                    "--out", str(tmp_path / "out"))
+    try:
+        killed = []
+        for _ in range(3):
+            pid = run_processes(run)["rtpu0"]
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
+            assert f"RTPU 'rtpu0' (pid {pid}) died (killed by SIGKILL)" in read_until(run, "restarted:")
+        _, err = run.communicate(timeout=RUN_SAFETY_NET)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    assert "Traceback" not in err, err
+    report = json.loads(report_path.read_text())
+    assert report["failure"] == "" and report["stopped_by"] == "duration"
+    assert [r["pid"] for r in report["restarts"]] == killed
+    assert report["tasks"]["robot"]["cycles"] == report["plant"]["steps"] == 10_001  # ticks 0 .. 10 s, each ran in full
+    assert report["tasks"]["pid"]["state"] == "ON"
+    assert_nothing_left(report)
 
 
 @pytest.mark.multiprocess

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from pbo_runtime import read_log
-from pbo_runtime.clock.lockstep import LockstepMaster, LockstepParticipant, RingStop
+from pbo_runtime.clock.lockstep import LockstepMaster, LockstepParticipant, RingStop, RingStuck
 from pbo_runtime.clock.run_clock import SimRunClock
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc import shm
@@ -142,6 +142,17 @@ def test_a_turn_a_live_participant_held_when_the_ring_stopped_comes_back_and_the
     ring.master.advance(lambda: None, ticks=1)
     assert ring.ticks_of("plant") == ring.ticks_of("b") == [1, 2, 3, 4]
     assert ring.ticks_of("a") == [1, 2, 4]
+
+
+def test_a_live_participant_that_never_hands_the_turn_back_fails_the_recovery_when_the_master_gives_up(ring):
+    ring.join("plant", holds=3)
+    ring.join("a", dies_after=2)
+    ring.join("b")
+    with pytest.raises(Died):
+        ring.master.advance(ring.death_of("a"), ticks=5)
+    with pytest.raises(RingStuck, match="^plant did not hand the turn back after a died$"):
+        ring.master.recover("a", lambda: True)
+    ring.release.set()  # (for the fixture's stop)
 
 
 def test_a_participant_dead_in_a_step_between_ticks_leaves_no_tick_to_finish(ring):

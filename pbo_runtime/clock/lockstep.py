@@ -43,6 +43,7 @@ from typing import Callable
 import numpy as np
 import posix_ipc
 
+from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm
 from pbo_runtime.table.table import Flag, Header
@@ -77,7 +78,7 @@ class RingStop:
     stuck_at_dead: bool  # the turn was with the dead one (it died holding it, or was handed it): it never came back
 
 
-class RingStuck(Exception):
+class RingStuck(PboError):
     """A live participant never handed the turn back while the ring was brought to a stop."""
 
 

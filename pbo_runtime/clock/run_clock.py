@@ -28,7 +28,7 @@ import numpy as np
 
 from pbo_runtime.clock.application_lockstep import TurnGate, TurnStalled
 from pbo_runtime.clock.clocks import release_stagger
-from pbo_runtime.clock.lockstep import LockstepMaster, RingStop, RingStuck, ring_arguments, semaphore_names
+from pbo_runtime.clock.lockstep import LockstepMaster, RingStop, ring_arguments, semaphore_names
 from pbo_runtime.table.table import Header
 
 
@@ -256,10 +256,7 @@ class SimRunClock:
     def stop_ring(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
         if self.lockstep is None:
             return
-        try:
-            stop = self.lockstep.recover(role, while_waiting)
-        except RingStuck as exc:
-            raise TurnStalled(str(exc)) from None
+        stop = self.lockstep.recover(role, while_waiting)  # (RingStuck, a PboError, fails the run)
         if self.ring_stop is None or stop.unfinished:  # a new process that died at once keeps the first stop's tick
             self.ring_stop = stop
 

@@ -12,12 +12,19 @@ extension would): its RTPU dies, and a restart policy (`restart:`) decides what 
 `on`, when the task is turned on (a switch to a configuration that has it, `pbo on`), and only
 in the run's first process of its RTPU: a task whose RTPU was restarted (`self.restarted`) does
 not fail again, so `fault: abort, in_on: true` crashes the RTPU once, in the middle of a switch,
-and its restart succeeds. Shipped as real code (not a
+and its restart succeeds. With `at: [0.5, 1.0, 1.5]` (seconds on the run's clock) the fault
+happens at given times instead of after `fail_after` cycles: in the first cycle released at or
+after the first listed time not before the task's `init`, once each. A task spawned again after
+its RTPU was restarted (`restarted`) takes the next listed time after its `init`, never again the
+one it just faulted at: with `fault: abort` and a restart policy, a run so crashes its RTPU at
+each listed time, and on the simulated clock (`--clock sim`) at the same ticks every run.
+Shipped as real code (not a
 mock) so operators can rehearse the procedure on the simulated arm.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import threading
 from dataclasses import dataclass
@@ -33,16 +40,21 @@ class FaultInjectorParams:
     fault: Literal["raise", "hang", "abort"] = "raise"  # raises once; never returns; or crashes the process (os.abort)
     in_init: bool = False  # the fault happens in init (every time the task is spawned), not after fail_after cycles
     in_on: bool = False  # the fault happens in on (once per run: not in a restarted RTPU), not after fail_after cycles
+    at: tuple[float, ...] = ()  # s on the run's clock: fault at each of these times (once each), not after fail_after
 
     def __post_init__(self) -> None:
         if self.fail_after < 0:
             raise ValueError(f"fail_after must be >= 0, got: {self.fail_after}")
-        if self.in_init and self.in_on:
-            raise ValueError("in_init and in_on are exclusive: the fault happens in one place")
+        if [self.in_init, self.in_on, bool(self.at)].count(True) > 1:
+            raise ValueError("in_init, in_on and at are exclusive: the fault happens in one place")
+        times = tuple(float(t) for t in self.at)
+        if any(t < 0 for t in times) or list(times) != sorted(set(times)):
+            raise ValueError(f"at must list times in seconds, >= 0 and increasing, got: {list(self.at)}")
+        object.__setattr__(self, "at", times)
 
 
 class FaultInjector(PortBasedObject):
-    """Raises once in `cycle` after `fail_after` cycles (or hangs, or aborts the process); `clear` then returns it to OFF."""
+    """Raises once in `cycle` after `fail_after` cycles or at each time of `at` (or hangs, or aborts the process); `clear` then returns it to OFF."""
 
     Params = FaultInjectorParams
 
@@ -57,6 +69,12 @@ class FaultInjector(PortBasedObject):
         self._in_on = params.in_on
         self.cycles = 0
         self.failed = False
+        # The time this task faults at (inf: never): the first listed at or after its init; after a
+        # restart, the first listed after it, since the init runs at the instant of the last fault.
+        self._times = [t for t in params.at if t > self.time or (t == self.time and not self.restarted)]
+        self._times.append(math.inf)  # past the last: never again
+        self._fail_at = self._times.pop(0)
+        self._timed = bool(params.at)
 
     def on(self) -> None:
         if self._in_on and not self.restarted and not self.failed:
@@ -65,7 +83,11 @@ class FaultInjector(PortBasedObject):
 
     def cycle(self) -> Status:
         self.cycles += 1
-        if not self.failed and not self._in_on and self.cycles > self._fail_after:
+        if self._timed:
+            if self.time >= self._fail_at:
+                at, self._fail_at = self._fail_at, self._times.pop(0)  # the next listed time, from the list made in init
+                self._fail(self._fault, f"at {at:g} s")
+        elif not self.failed and not self._in_on and self.cycles > self._fail_after:
             self.failed = True
             self._fail(self._fault, f"after {self._fail_after} cycles")
         return Status.CONTINUE

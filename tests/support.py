@@ -663,3 +663,13 @@ def write_values(table, when: float = 0.0, **values) -> None:
     """Write each keyword's value to the variable of that name, stamped `when`."""
     for name, value in values.items():
         table.write(name, value, when=when)
+
+
+def excursion_from_path(q: np.ndarray, start: np.ndarray, goal: np.ndarray) -> float:
+    """How far the arm left its path: each joint travels from start to goal, so any motion back
+    from the farthest it got, or past the goal, is an excursion (rad, the largest over joints)."""
+    direction = np.sign(goal - start)
+    progress = (q - start) * direction  # rad travelled towards the goal, per joint
+    back = np.maximum.accumulate(progress, axis=0) - progress
+    past = progress - np.abs(goal - start)
+    return float(max(back.max(), past.max(), 0.0))

@@ -170,6 +170,31 @@ def test_the_fault_injector_raises_hangs_or_aborts_and_refuses_any_other_fault()
         FaultInjector.build_params({"fault": "freeze"})
 
 
+@pytest.mark.parametrize("spawned_at, restarted, faults_at", [
+    (0.0, False, [0.5, 1.0]),  # each listed time once
+    (0.5, False, [0.5, 1.0]),  # spawned at a listed time: that one counts
+    (0.5, True, [1.0]),  # spawned again after faulting at it: the next one
+    (1.2, True, []),  # past the last: never
+], ids=["from the start", "spawned at a time", "restarted at a time", "restarted past the last"])
+def test_a_fault_injector_with_times_faults_once_at_each_listed_time_after_its_init(table, spawned_at, restarted, faults_at):
+    spec = task_spec(FaultInjector, params={"at": [0.5, 1.0], "recoverable": True}, ports={"watched": "q_m"}, period=0.1)
+    task = Task(spec, FaultInjector, table, DIMS, restarted=restarted)
+    assert task.spawn(spawned_at), task.last_error
+    assert task.turn_on(spawned_at), task.last_error
+    faulted = []
+    for k in range(round(spawned_at * 10), 15):
+        task.run_cycle(k / 10)
+        if task.last_error and task.last_error not in faulted:
+            faulted.append(task.last_error)
+    assert [float(re.search(r"injected fault at (\S+) s", error)[1]) for error in faulted] == faults_at
+
+
+@pytest.mark.parametrize("at", [[0.5, 0.2], [-1.0], [0.5, 0.5]])
+def test_a_fault_injectors_times_must_be_increasing_and_not_negative(at):
+    with pytest.raises(ParamError, match=r"at must list times in seconds, >= 0 and increasing"):
+        FaultInjector.build_params({"at": at})
+
+
 def test_a_hanging_fault_injectors_cycle_does_not_return(table):
     task = Task(task_spec(FaultInjector, params={"fail_after": 1, "fault": "hang"}, ports={"watched": "q_m"}),
                 FaultInjector, table, DIMS)

@@ -23,7 +23,8 @@ import pytest
 from pbo_runtime import read_log
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.table.table import StateTable, TableLayout
-from tests.support import DEMO, PBO, assert_nothing_left, config_copy, read_until, run_processes, start_run, table_of
+from tests.support import (DEMO, PBO, assert_nothing_left, config_copy, excursion_from_path, read_until, run_processes,
+                           start_run, table_of)
 
 pytestmark = pytest.mark.multiprocess
 
@@ -34,16 +35,6 @@ GOAL = np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2])  # q_d's initial value in confi
 REACHED = 0.01  # rad: every joint within this of its goal
 EXCURSION_LIMIT = 0.05  # rad
 REACH_SAFETY_NET = 180.0  # seconds: a net for an arm that never arrives, not a timing
-
-
-def excursion_from_path(q: np.ndarray, start: np.ndarray, goal: np.ndarray) -> float:
-    """How far the arm left its path: each joint travels from start to goal, so any motion back
-    from the farthest it got, or past the goal, is an excursion (rad, the largest over joints)."""
-    direction = np.sign(goal - start)
-    progress = (q - start) * direction  # rad travelled towards the goal, per joint
-    back = np.maximum.accumulate(progress, axis=0) - progress
-    past = progress - np.abs(goal - start)
-    return float(max(back.max(), past.max(), 0.0))
 
 
 def wait_until_reached(config: Path, run, subsystem: str) -> None:

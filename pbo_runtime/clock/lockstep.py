@@ -21,6 +21,14 @@ A participant can also be stepped with no new tick (the tick counter unchanged):
 serves its signals and hands the turn back to the master. Job control uses that to spawn tasks,
 turn them on and stop them between ticks, so a signal takes effect at a known simulated instant.
 
+A participant that dies (an RTPU whose restart policy brings it back) stops the ring in some
+tick N: the turn is stuck at it, or came back to the master from the one before it.
+`LockstepMaster.recover` brings the ring to a known stop and says where tick N stands
+(`RingStop`): who has not run it yet. `finish_tick` then runs tick N for those, each as its own
+turn, so no other participant loses a tick; the dead one's tick N is lost. A participant started
+for the dead one counts the ticks before it joined as seen: it runs from tick N + 1 on, and the
+steps between (spawning its tasks) are steps, not ticks.
+
 Semaphores are created 0600 and named after the run, so the table's manifest lists them and a
 later run removes them if this one died.
 """
@@ -29,11 +37,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 import posix_ipc
 
+from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm
 from pbo_runtime.table.table import Flag, Header
@@ -59,6 +69,19 @@ def semaphore_names(subsystem: str, run_id: str, roles: list[str]) -> list[str]:
     return [go_name(subsystem, run_id, role) for role in roles] + [done_name(subsystem, run_id)]
 
 
+@dataclass(frozen=True)
+class RingStop:
+    """Where the ring stood when a participant died: tick `tick`, and who has yet to run it."""
+
+    tick: int  # the tick running when it stopped (0: none had begun)
+    unfinished: tuple[str, ...]  # the live participants after the stop, in ring order: tick `tick` is still theirs
+    stuck_at_dead: bool  # the turn was with the dead one (it died holding it, or was handed it): it never came back
+
+
+class RingStuck(PboError):
+    """A live participant never handed the turn back while the ring was brought to a stop."""
+
+
 class LockstepMaster:
     """The supervisor's side: owns the semaphores, the tick counter and the time in the header."""
 
@@ -72,6 +95,7 @@ class LockstepMaster:
         self._go: dict[str, posix_ipc.Semaphore] = {}
         self._done: posix_ipc.Semaphore | None = None
         self._turn_out = False  # a turn was released and not handed back yet (a wait that was given up)
+        self._turn_ticks = False  # the turn out runs ticks (`advance`), not a step between ticks
         try:
             for role in self.roles:
                 self._go[role] = posix_ipc.Semaphore(go_name(subsystem, run_id, role), posix_ipc.O_CREX, mode=0o600,
@@ -110,7 +134,7 @@ class LockstepMaster:
         header[Header.SIM_TIME_NS] = self.ticks * self.tick_ns
         header[Header.SIM_TICK] = first
         try:
-            self._turn(self.roles[0], while_waiting)
+            self._turn(self.roles[0], while_waiting, ticks=True)
         finally:
             header[Header.SIM_RING_END] = 0  # a turn given up: the ring stops at its next hand-over
             self.ticks = int(header[Header.SIM_TICK])
@@ -121,12 +145,64 @@ class LockstepMaster:
         runs every slice and may raise (a participant died) or return True to stop waiting (False)."""
         return self._turn(role, while_waiting)
 
-    def _turn(self, role: str, while_waiting: Callable[[], bool | None]) -> bool:
+    def recover(self, dead: str, while_waiting: Callable[[], bool | None]) -> RingStop:
+        """Bring the ring to a stop after participant `dead` died, and say where the tick stands.
+
+        The turn either comes back through `done` from a live participant (the ring's end is
+        cleared, so the next hand-over gives it back), or is stuck at the dead one: its place in
+        the header's turn word with `done` never released, whether it died holding the turn or
+        a live one handed it over before the end was cleared. The dead one's `go` is drained
+        (`forget`, again once its new process is launched: a hand-over may land just after),
+        and no turn is out any more. `while_waiting` runs every WAIT_SLICE meanwhile; it may
+        raise, or return True to give up (RingStuck).
+        """
+        header, done = self.header, self._done
+        assert done is not None
+        place = self.roles.index(dead)
+        header[Header.SIM_RING_END] = 0  # a participant ending its turn from now on gives it back to the master
+        came_back = True
+        if self._turn_out:
+            while not _acquired(done, 0.0):
+                if int(header[Header.SIM_TURN]) == place:
+                    came_back = False
+                    break
+                if _acquired(done, WAIT_SLICE):
+                    break
+                if while_waiting():
+                    raise RingStuck(f"{self.running()} did not hand the turn back after {dead} died")
+        self.forget(dead)
+        self._turn_out = False
+        tick = int(header[Header.SIM_TICK])
+        self.ticks = tick
+        unfinished: tuple[str, ...] = ()
+        if self._turn_ticks:
+            last = place if not came_back else int(header[Header.SIM_TURN])  # the last one to have had tick N
+            unfinished = tuple(role for role in self.roles[last + 1:] if role != dead)
+        self._turn_ticks = False
+        return RingStop(tick, unfinished, not came_back)
+
+    def forget(self, role: str) -> None:
+        """Drain `role`'s `go`: a turn handed to a dead participant is not its new process's."""
+        while _acquired(self._go[role], 0.0):
+            pass
+
+    def finish_tick(self, stop: RingStop, while_waiting: Callable[[], bool | None]) -> None:
+        """Run tick `stop.tick` for the participants that had not run it, one turn each, in ring order.
+
+        Each sees a tick it has not run (the header's tick is past its last), runs it in full, and
+        gives the turn back (the ring's end is cleared): the time and the tick stay those of tick N.
+        """
+        self.header[Header.SIM_RING_END] = 0
+        for role in stop.unfinished:
+            self._turn(role, while_waiting, ticks=True)
+
+    def _turn(self, role: str, while_waiting: Callable[[], bool | None], ticks: bool = False) -> bool:
         done = self._done
         assert done is not None
         if self._turn_out and not self._wait(done, while_waiting):  # the last turn first: one participant at a time
             self._turn_out = False  # given up on: the participant holding it is dead or stuck
         self.header[Header.SIM_TURN] = self.roles.index(role)  # whose turn it is, before it wakes (a stopped one is named)
+        self._turn_ticks = ticks
         self._go[role].release()
         self._turn_out = True
         self.stepping, self.step_started = role, time.monotonic()  # for a watchdog in `while_waiting`
@@ -175,7 +251,11 @@ class LockstepParticipant:
         self._events_pending = events_pending
         self.header = header
         self._words = header.data  # the same words as plain ints: no numpy scalar per read
-        self.last_tick = 0
+        # A participant started mid-run (for one that died) has no part in the ticks before it joined,
+        # nor in a turn handed to the dead one (the master drains it too, but a hand-over may land late).
+        self.last_tick = int(header[Header.SIM_TICK])
+        while _acquired(self._go, 0.0):
+            pass
         self.before_step = before_step  # run once released, before the step's work (an RTPU's link relays)
         self._new_tick = False
 
@@ -218,6 +298,14 @@ class LockstepParticipant:
     def close(self) -> None:
         for semaphore in (self._go, self._next, self._done):
             semaphore.close()
+
+
+def _acquired(semaphore: posix_ipc.Semaphore, timeout: float) -> bool:
+    try:
+        semaphore.acquire(timeout)
+        return True
+    except (posix_ipc.BusyError, posix_ipc.SignalError):
+        return False
 
 
 def remove_semaphores(semaphores: Iterable[posix_ipc.Semaphore]) -> None:

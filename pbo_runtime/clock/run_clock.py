@@ -11,7 +11,9 @@ here once instead of in branches through the supervisor:
   moved only by `run_for`, which lets the participants run the ticks among themselves until one
   of them sends an event; a signal is served in full when its RTPU is stepped, so its answer
   is already queued when `serve` returns; children run with a fixed string hash so a run
-  replays bit for bit. In an application on the simulated clock it takes the application's turn
+  replays bit for bit. A participant that dies is brought back between ticks: the ring is
+  stopped where it stood, the tick the death happened in is finished for the live participants
+  after it (`clock.lockstep`, `RingStop`), and its new process joins from the next tick. In an application on the simulated clock it takes the application's turn
   (`clock.application_lockstep`) before each tick or step, and gives it back after each tick.
 """
 
@@ -26,7 +28,7 @@ import numpy as np
 
 from pbo_runtime.clock.application_lockstep import TurnGate, TurnStalled
 from pbo_runtime.clock.clocks import release_stagger
-from pbo_runtime.clock.lockstep import LockstepMaster, ring_arguments, semaphore_names
+from pbo_runtime.clock.lockstep import LockstepMaster, RingStop, ring_arguments, semaphore_names
 from pbo_runtime.table.table import Header
 
 
@@ -43,6 +45,7 @@ class RunClock(Protocol):
     watches_stalls: bool  # a task whose cycle count stops moving is reported (StallWatch)
     signals_served_when_sent: bool  # a signal's answer is queued when `serve` returns (no waiting for it)
     plans_need_a_wakeup: bool  # RTPUs must be woken to read a plan in the header
+    restart_refusal: str  # why a dead RTPU is not restarted on this clock ("": it is)
 
     def now(self) -> float:
         """The run's time."""
@@ -73,6 +76,12 @@ class RunClock(Protocol):
         """Tell the children the run is stopping before they are signalled (where they run on their own)."""
     def slow_participant(self, limit: float) -> tuple[str, float, float] | None:
         """Once per tick: (who, at what time, for how long) when one participant took over `limit` wall seconds."""
+    def stop_ring(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
+        """Participant `role` died: stop the ticks where they stood (a no-op where there are none)."""
+    def forget_turn(self, role: str) -> None:
+        """A turn handed to the dead `role` is not for its new process (a no-op where there are none)."""
+    def finish_tick(self, while_waiting: Callable[[], bool | None]) -> None:
+        """Run the tick a death interrupted for the participants that had not run it (a no-op where there are none)."""
     def close(self) -> None:
         """Remove what the clock made."""
 
@@ -87,6 +96,7 @@ class RealRunClock:
     watches_stalls = True
     signals_served_when_sent = False
     plans_need_a_wakeup = True
+    restart_refusal = ""
 
     def now(self) -> float:
         return time.monotonic()
@@ -127,6 +137,15 @@ class RealRunClock:
     def slow_participant(self, limit: float) -> tuple[str, float, float] | None:
         return None
 
+    def stop_ring(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
+        pass
+
+    def forget_turn(self, role: str) -> None:
+        pass
+
+    def finish_tick(self, while_waiting: Callable[[], bool | None]) -> None:
+        pass
+
     def close(self) -> None:
         pass
 
@@ -156,6 +175,11 @@ class SimRunClock:
             self.ticks_per_turn = 1  # the application interleaves its subsystems tick by tick
         self._watched: tuple[float, int, str] = (0.0, 0, "")  # (turn released at, tick, participant) last looked at
         self._watched_since = 0.0
+        self.ring_stop: RingStop | None = None  # where a death stopped the ring, until its tick is finished
+        # An application's turn is held through the restart, but the runner's stall watchdog would see
+        # a restart's seconds as a stuck subsystem: refused there, until the runner knows restarts.
+        self.restart_refusal = ("" if gate is None else "an application on the simulated clock does not restart "
+                               "RTPUs (its subsystems take turns tick by tick)")
 
     def now(self) -> float:
         return self.lockstep.now if self.lockstep is not None else 0.0
@@ -228,6 +252,22 @@ class SimRunClock:
             self._slow_tick = tick
             return running, lockstep.now, waited
         return None
+
+    def stop_ring(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
+        if self.lockstep is None:
+            return
+        stop = self.lockstep.recover(role, while_waiting)  # (RingStuck, a PboError, fails the run)
+        if self.ring_stop is None or stop.unfinished:  # a new process that died at once keeps the first stop's tick
+            self.ring_stop = stop
+
+    def forget_turn(self, role: str) -> None:
+        if self.lockstep is not None:
+            self.lockstep.forget(role)
+
+    def finish_tick(self, while_waiting: Callable[[], bool | None]) -> None:
+        stop, self.ring_stop = self.ring_stop, None
+        if stop is not None and self.lockstep is not None:
+            self.lockstep.finish_tick(stop, while_waiting)
 
     def close(self) -> None:
         if self.lockstep is not None:

@@ -19,7 +19,16 @@ for no report from the restarted RTPU, a static switch does what is left of its 
 spawns (none twice) and releases its hold on the critical tasks, and the switch's record names
 the restart (`restarted`). Past the policy, the run stops as at any other time, and says why.
 
-Restarts apply on the real clock, once the run's table exists.
+On the simulated clock (`--clock sim`) the death happens inside some tick N, while the
+participants pass the turn among themselves: the ring is first brought to a stop where it stood
+(`clock.stop_ring`), the new process is launched, tick N is finished for the live participants
+after the point where it stopped (`clock.finish_tick`: no other RTPU loses a tick), and the tasks
+are spawned and turned on in steps between ticks N and N + 1. The restart so takes no simulated
+time, the dead RTPU's tasks lose their cycles of tick N from the crash on and run again from
+their first release after it, and a run with deaths at the same ticks replays bit for bit. In an
+application on the simulated clock, a death stops the run and says so (`restart_refusal`).
+
+Restarts apply once the run's table exists.
 """
 
 from __future__ import annotations
@@ -83,6 +92,7 @@ class Restarting:
     _take_one_event: Callable[[float], None]
     _while_stepping: Callable[[], None]
     _while_ticking: Callable[[], None]
+    _deaths: dict[str, list[float]]  # per RTPU, when it died within its policy's window
     job_control: Any  # supervisor.job_control.JobControl: its `switching` is the switch under way, if any
     static: bool
     _live_sequence: int  # the live description staged last (live-N.json)
@@ -90,10 +100,17 @@ class Restarting:
 
     def may_restart(self, role: str) -> bool:
         """Whether a death of `role` is restarted rather than stopping the run."""
-        if role == "plant" or self.table is None or self.clock.name != "real" or self._stop_requested:
+        if role == "plant" or self.table is None or self.clock.restart_refusal or self._stop_requested:
             return False
         spec = next((r for r in self.subsystem.rtpus if r.name == role), None)
         return spec is not None and spec.restart is not None
+
+    def restart_refused(self, role: str) -> str:
+        """Why a death of `role`, which has a restart policy, stops the run anyway ("": it does not)."""
+        spec = next((r for r in self.subsystem.rtpus if r.name == role), None)
+        if spec is None or spec.restart is None or not self.clock.restart_refusal:
+            return ""
+        return f"; its restart policy does not apply: {self.clock.restart_refusal}"
 
     def restart_rtpu(self, death: RtpuDied) -> None:
         """Bring the dead RTPU's tasks back as they were: spawned, and ON where they were ON; during a
@@ -168,6 +185,7 @@ class Restarting:
             # set: the critical tasks would take the configuration for illegal, for good
             index = next(r.index for r in self.subsystem.rtpus if r.name == death.rtpu)
             self.table.header[int(Header.SWITCHING_SINCE_NS) + index] = 0
+            self.clock.stop_ring(death.rtpu, self._while_ticking)  # the simulated clock's ticks, where they stood
             queue = self.signals[death.rtpu]
             while queue.receive(0) is not None:  # what the dead process never served is not for the new one
                 pass
@@ -181,8 +199,10 @@ class Restarting:
                 arguments = [*arguments, "--live-now", str(live)]
             self._launch(death.rtpu, arguments, tasks)
             record.launched_at = self.now() - record.origin
+            self.clock.forget_turn(death.rtpu)  # a hand-over to the dead one may land after the ring stopped
             try:
                 self._await_ready({death.rtpu})
+                self.clock.finish_tick(self._while_ticking)  # the others' share of the tick the death cut
                 return
             except RtpuDied as again:
                 if again.rtpu != death.rtpu:
@@ -208,11 +228,6 @@ class Restarting:
         """Const producers before their consumers; tasks spawned live (not in the file's order) last."""
         order = {name: i for i, name in enumerate(self.subsystem.init_order)}
         return sorted(tasks, key=lambda t: order.get(t, len(order)))
-
-    @property
-    def _deaths(self) -> dict[str, list[float]]:
-        deaths = self.__dict__.setdefault("_deaths_by_rtpu", {})
-        return deaths
 
 
 def restart_lines(restarts: list[dict[str, Any]]) -> list[str]:

@@ -129,6 +129,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.fork_server: ForkServer | None = fork_server
         self.task_states: dict[str, str] = {t: TaskState.NOT_CREATED.name for t in subsystem.tasks}
         self.task_errors: dict[str, str] = {}
+        self._deaths: dict[str, list[float]] = {}  # per RTPU, when it died within its restart policy's window
         self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id)
         self.result.objects = self._manifest()
         self.result.links = self.links

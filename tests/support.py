@@ -6,6 +6,7 @@ test file imports from elsewhere in tests/ comes from here, never from another t
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import os
@@ -17,6 +18,7 @@ import threading
 import time
 import tracemalloc
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -396,6 +398,37 @@ def run_processes(run: subprocess.Popen) -> dict[str, int]:
     return roles
 
 
+def kill_and_await_restart(run: subprocess.Popen, rtpu: str = "rtpu0") -> int:
+    """SIGKILL a live run's RTPU, then read on until the run says it restarted it; the killed pid."""
+    pid = run_processes(run)[rtpu]
+    os.kill(pid, signal.SIGKILL)
+    said = read_until(run, "restarted:")
+    assert f"RTPU '{rtpu}' (pid {pid}) died (killed by SIGKILL)" in said, said
+    return pid
+
+
+@contextlib.contextmanager
+def killed_on_failure(run: subprocess.Popen) -> Iterator[None]:
+    """A test that fails while its run goes on kills the run: nothing is left behind."""
+    try:
+        yield
+    except BaseException:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+        raise
+
+
+def run_output(run: subprocess.Popen, timeout: float = 120.0) -> tuple[str, str]:
+    """(stdout, stderr) of a run once it ends; one still going after `timeout` (a net for a hang) is killed."""
+    try:
+        return run.communicate(timeout=timeout)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+
+
 def table_of(run: subprocess.Popen, subsystem: str) -> str:
     """The POSIX name of the table of the run whose supervisor is `run`."""
     return _inject.table_of(subsystem, run.pid)
@@ -404,12 +437,7 @@ def table_of(run: subprocess.Popen, subsystem: str) -> str:
 def assert_ended_cleanly(run: subprocess.Popen, subsystem: str, report_path: Path, status: int | None) -> tuple[str, str]:
     """The run ends (a generous safety net, no timing), with `status` (None: 0, or 2 for the faults
     of stopped processes only, see `assert_ended_well`), no traceback, and nothing left; (stdout, stderr)."""
-    try:
-        out, err = run.communicate(timeout=120)
-    finally:
-        if run.poll() is None:
-            run.kill()
-            run.wait()
+    out, err = run_output(run)
     if status is None:
         assert_ended_well(run.returncode, json.loads(report_path.read_text()), err)
     else:

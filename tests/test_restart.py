@@ -23,8 +23,8 @@ import pytest
 from pbo_runtime import read_log
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.table.table import StateTable, TableLayout
-from tests.support import (DEMO, PBO, assert_nothing_left, config_copy, excursion_from_path, read_until, run_processes,
-                           start_run, table_of)
+from tests.support import (DEMO, PBO, assert_nothing_left, config_copy, excursion_from_path, kill_and_await_restart,
+                           killed_on_failure, read_until, run_output, run_processes, start_run, table_of)
 
 pytestmark = pytest.mark.multiprocess
 
@@ -52,21 +52,11 @@ def test_a_controller_rtpu_killed_three_times_mid_move_comes_back_and_the_arm_re
     config = config_copy(DEMO, tmp_path, "restart_thrice", (POLICY, LOGGER_BESIDE_THE_ROBOT, SLOW_MOVE))
     report_path = tmp_path / "report.json"
     run = start_run(config, tmp_path, "--duration", "0", "--report", str(report_path), "--out", str(tmp_path / "out"))
-    try:
-        killed = []
-        for _ in range(3):
-            pid = run_processes(run)["rtpu0"]
-            os.kill(pid, signal.SIGKILL)  # the controller's RTPU: the trajectory, the PID
-            killed.append(pid)
-            said = read_until(run, "restarted:")
-            assert f"RTPU 'rtpu0' (pid {pid}) died (killed by SIGKILL)" in said
+    with killed_on_failure(run):
+        killed = [kill_and_await_restart(run) for _ in range(3)]  # the controller's RTPU: the trajectory, the PID
         wait_until_reached(config, run, "restart_thrice")
         run.send_signal(signal.SIGINT)
-        out, err = run.communicate(timeout=120)
-    finally:
-        if run.poll() is None:
-            run.kill()
-            run.wait()
+        out, err = run_output(run)
     assert "Traceback" not in err, err
     report = json.loads(report_path.read_text())
     assert report["failure"] == "" and report["stopped_by"] == "Ctrl-C"

@@ -12,8 +12,6 @@ second run writes the same log, bit for bit. Past the policy the run stops and s
 from __future__ import annotations
 
 import json
-import os
-import signal
 import subprocess
 import threading
 from pathlib import Path
@@ -28,8 +26,8 @@ from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc import shm
 from pbo_runtime.supervisor.restarts import Restarting
 from pbo_runtime.table.table import HEADER_WORDS
-from tests.support import (DEMO, PBO, assert_nothing_left, config_copy, excursion_from_path, read_until, run_processes,
-                           start_run)
+from tests.support import (DEMO, PBO, assert_nothing_left, config_copy, excursion_from_path, kill_and_await_restart,
+                           killed_on_failure, run_output, start_run)
 
 ROLES = ["plant", "a", "b"]
 
@@ -259,18 +257,9 @@ def test_on_the_simulated_clock_an_rtpu_killed_anywhere_in_a_tick_costs_the_robo
     # restart takes no simulated time, so the kills use little of it
     run = start_run(config, tmp_path, "--clock", "sim", "--duration", "10", "--report", str(report_path),
                     "--out", str(tmp_path / "out"))
-    try:
-        killed = []
-        for _ in range(3):
-            pid = run_processes(run)["rtpu0"]
-            os.kill(pid, signal.SIGKILL)
-            killed.append(pid)
-            assert f"RTPU 'rtpu0' (pid {pid}) died (killed by SIGKILL)" in read_until(run, "restarted:")
-        _, err = run.communicate(timeout=RUN_SAFETY_NET)
-    finally:
-        if run.poll() is None:
-            run.kill()
-            run.wait()
+    with killed_on_failure(run):
+        killed = [kill_and_await_restart(run) for _ in range(3)]
+        _, err = run_output(run, RUN_SAFETY_NET)
     assert "Traceback" not in err, err
     report = json.loads(report_path.read_text())
     assert report["failure"] == "" and report["stopped_by"] == "duration"

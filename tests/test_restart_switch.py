@@ -12,15 +12,14 @@ the run to end, and the safety nets only catch a hang.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 from pathlib import Path
 
 import pytest
 
-from tests.support import (PBO, REPO, assert_ended_well, assert_nothing_left, config_copy, read_until, run_processes,
-                           start_run)
+from tests.support import (PBO, REPO, assert_ended_well, assert_nothing_left, config_copy, kill_and_await_restart,
+                           killed_on_failure, read_until, run_output, start_run)
 
 pytestmark = pytest.mark.multiprocess
 
@@ -110,21 +109,15 @@ def test_an_rtpu_that_dies_turning_on_a_task_spawned_live_comes_back_with_the_li
     report_path = tmp_path / "report.json"
     run = start_run(config, tmp_path, "--duration", "0", "--report", str(report_path), "--out", str(tmp_path / "out"),
                     live=True)
-    try:
+    with killed_on_failure(run):
         spawned = subprocess.run([*PBO, "spawn", "crash", "--module", "fault_injector", "--rtpu", "rtpu0", "--period", "10ms",
                                   "--param", "fault=abort", "in_on=true", "--subsystem", "restart_live"],
                                  capture_output=True, text=True, timeout=RUN_SAFETY_NET)
         assert spawned.returncode == 0 and "task 'crash' on rtpu0" in spawned.stdout, spawned
         read_until(run, "restarted:")  # (said before the spawn's answer: the plan waited for it)
-        pid = run_processes(run)["rtpu0"]
-        os.kill(pid, signal.SIGKILL)
-        assert f"RTPU 'rtpu0' (pid {pid}) died (killed by SIGKILL)" in read_until(run, "restarted:")
+        kill_and_await_restart(run)
         run.send_signal(signal.SIGINT)
-        out, err = run.communicate(timeout=RUN_SAFETY_NET)
-    finally:
-        if run.poll() is None:
-            run.kill()
-            run.wait()
+        out, err = run_output(run, RUN_SAFETY_NET)
     assert "Traceback" not in err, err
     report = json.loads(report_path.read_text())
     assert report["failure"] == "" and report["stopped_by"] == "Ctrl-C", report["failure"]

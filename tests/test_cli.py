@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import re
 import subprocess
@@ -9,8 +10,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from rich.console import Console
 
 from pbo_runtime.cli import main
+from pbo_runtime.cli.main import _sayer
 from tests.support import REPO, assert_nothing_left, demo_copy
 
 DEMO = (REPO / "configs" / "pid_joint.yaml").read_text()
@@ -272,3 +275,11 @@ def test_a_file_over_the_size_limit_is_refused_before_it_is_parsed(tmp_path, cap
     err = capsys.readouterr().err
     assert err.startswith(f"{path}: error[E106]: the file is {size:,} bytes (4 MiB); a configuration file may be at most "
                           f"4,194,304 bytes (4 MiB)\n  hint: ")
+
+
+def test_a_runs_line_stays_one_line_however_long_and_keeps_its_brackets():
+    out = io.StringIO()
+    say = _sayer(Console(file=out, width=40, highlight=False))
+    line = "RTPU 'rtpu0' died while hosting tasks: traj, pid; restarting it in 'pd' [rtpu0] {max: 3}"
+    say(line)
+    assert out.getvalue() == f"pbo: {line}\n"

@@ -15,9 +15,10 @@ import sys
 import time
 import traceback
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from rich.console import Console
+from rich.markup import escape
 from rich.live import Live
 from rich.table import Table
 
@@ -79,6 +80,14 @@ def _internal_error(args: argparse.Namespace, errors: Console) -> int:
     errors.print("internal error: pbo failed in a way it should not; please report this with the command you ran:", markup=False)
     errors.print(traceback.format_exc(limit=-3).rstrip(), markup=False)
     return EXIT_INTERNAL
+
+
+def _sayer(console: Console) -> Callable[[str], None]:
+    """How a run's lines are printed: one line each however long (a log is read by line, and
+    grepped), and the text as written, brackets included (not taken for markup)."""
+    def say(text: str) -> None:
+        console.print(f"[dim]pbo:[/dim] {escape(text)}", markup=True, soft_wrap=True)
+    return say
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -457,7 +466,7 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
     if refused:
         errors.print(f"error: {refused}", markup=False)
         return EXIT_CONFIG
-    say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
+    say = _sayer(console)
     supervisor = Supervisor(subsystem, args.config, duration, say=say, **options)  # refuses a bad request here
     what = (f"application '{args.app}'" if args.app else f"{args.switches} switches" if alternate
             else "Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner")
@@ -609,7 +618,7 @@ def _run_linked_subsystems(args: argparse.Namespace, console: Console, errors: C
     if refused:
         errors.print(f"error: {refused}", markup=False)
         return EXIT_CONFIG
-    say = lambda text: console.print(f"[dim]pbo:[/dim] {text}", markup=True)  # noqa: E731
+    say = _sayer(console)
     duration = args.duration if args.duration > 0 else None
     here = app.subsystems if args.host is None else app.on_host(args.host)
     say(f"starting application '{app.name}'" + ("" if args.host is None else f" on host '{args.host}'")

@@ -26,7 +26,8 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.supervisor.application_runner import unreplayable_links
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.table.table import HEADER_WORDS
-from tests.support import PBO, REPO, application_copy, assert_nothing_left, children_of, dead_pid, read_until
+from tests.support import (PBO, REPO, application_copy, assert_nothing_left, children_of, dead_pid, killed_on_failure, read_until,
+                           run_output)
 
 GOAL_A = np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2])  # the operator's goals (configs/leader_follower.yaml)
 GOAL_B = np.array([-0.2, -0.3, 0.3, -0.2, 0.2, 0.4])
@@ -233,13 +234,9 @@ def started_on_the_simulated_clock(app, tmp_path) -> tuple[subprocess.Popen, str
 @pytest.mark.multiprocess
 def test_a_subsystem_killed_in_a_simulated_application_stops_the_others_and_leaves_nothing(tmp_path):
     runner, said, follower = started_on_the_simulated_clock(application_copy(tmp_path, "replay_kill"), tmp_path)
-    try:
+    with killed_on_failure(runner):
         os.kill(follower, signal.SIGKILL)
-        out, err = runner.communicate(timeout=300)
-    finally:
-        if runner.poll() is None:
-            runner.kill()
-            runner.wait()
+        out, err = run_output(runner, 300)
     assert runner.returncode == 2, said + out + err
     assert f"stopping every subsystem: subsystem 'follower' (pid {follower}) failed (killed by SIGKILL) while " in out
     assert "error: application 'replay_kill' stopped" in err
@@ -252,14 +249,10 @@ def test_a_subsystem_killed_in_a_simulated_application_stops_the_others_and_leav
 def test_a_participant_stopped_in_a_simulated_application_ends_the_run_with_a_named_fault_not_a_hang(tmp_path):
     """An RTPU stopped (SIGSTOP) holds every subsystem; past the watchdog's limit (30 s) its run fails, naming it."""
     runner, said, follower = started_on_the_simulated_clock(application_copy(tmp_path, "replay_stall"), tmp_path)
-    try:
+    with killed_on_failure(runner):
         (rtpu,) = [pid for pid, command in children_of(follower).items() if "--rtpu rtpu0" in command]
         os.kill(rtpu, signal.SIGSTOP)
-        out, err = runner.communicate(timeout=300)
-    finally:
-        if runner.poll() is None:
-            runner.kill()
-            runner.wait()
+        out, err = run_output(runner, 300)
     assert runner.returncode == 2, said + out + err
     assert "[follower] error: rtpu0 has not finished the tick at " in out
     assert "every subsystem of the application waits for it" in out

@@ -99,17 +99,13 @@ def test_past_its_policy_an_rtpus_death_stops_the_run_and_says_why(tmp_path):
         ("rtpus: [rtpu0, rtpu1]", "rtpus: [rtpu0, rtpu1]\nrestart: {max: 1, within: 10 min}"),))
     report_path = tmp_path / "report.json"
     run = start_run(config, tmp_path, "--duration", "0", "--report", str(report_path), "--out", str(tmp_path / "out"))
-    try:
+    with killed_on_failure(run):
         first = run_processes(run)["rtpu0"]
         os.kill(first, signal.SIGKILL)
         read_until(run, "restarted:")
         second = run_processes(run)["rtpu0"]
         os.kill(second, signal.SIGKILL)
-        out, err = run.communicate(timeout=120)
-    finally:
-        if run.poll() is None:
-            run.kill()
-            run.wait()
+        out, err = run_output(run)
     assert run.returncode == 2, err
     assert (f"RTPU 'rtpu0' (pid {second}) died (killed by SIGKILL)" in err
             and "it died 2 times within 600 s, more than its restart policy allows (restart: {max: 1, within: 600 s})" in err), err

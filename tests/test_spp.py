@@ -26,8 +26,8 @@ from drivers.spp.driver import ProcessorError, SpecialPurposeProcessor
 from pbo_runtime import arm_model
 from pbo_runtime.ipc.shm import children_of, pid_alive
 from pbo_runtime.reports.lexicon import drivers
-from tests.support import (PBO, REPO, allocation_peak, arm_tables, assert_nothing_left, one_array, read_until, run_processes,
-                           start_run, unique_name, until)
+from tests.support import (PBO, REPO, allocation_peak, arm_tables, assert_nothing_left, killed_on_failure, one_array, read_until,
+                           run_output, run_processes, start_run, unique_name, until)
 
 CONFIG = REPO / "configs" / "visual_servoing_spp.yaml"
 Q = np.array([0.1, -0.5, 0.4, 0.1, 0.2, 0.3])
@@ -217,7 +217,7 @@ def test_killing_the_processor_mid_run_puts_its_task_in_error_naming_it_and_leav
     subsystem = "spp_killed"
     run = start_run(_config_copy(tmp_path, subsystem), tmp_path, "--clock", "sim", "--duration", "600",
                     "--out", str(tmp_path / "out"))
-    try:
+    with killed_on_failure(run):
         rtpu = run_processes(run)["rtpu1"]
         processors = [pid for pid, command in children_of(rtpu).items() if "drivers.spp.processor" in command]
         assert len(processors) == 1
@@ -225,11 +225,7 @@ def test_killing_the_processor_mid_run_puts_its_task_in_error_naming_it_and_leav
         said = read_until(run, "task 'fk' on rtpu1 is in ERROR")
         assert f"the special-purpose processor (pid {processors[0]}) died (killed by SIGKILL)" in said
         run.send_signal(signal.SIGINT)
-        out, err = run.communicate(timeout=120)
-    finally:
-        if run.poll() is None:
-            run.kill()
-            run.wait()
+        out, err = run_output(run)
     assert run.returncode == 2, err
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["tasks"]["fk"]["state"] == "ERROR"

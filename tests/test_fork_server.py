@@ -10,14 +10,14 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.supervisor.fork_server import ForkServer, ForkServerUnavailable
 from pbo_runtime.supervisor.supervisor import Supervisor
-from tests.support import DEMO, PBO, REPO, assert_nothing_left, children_of, config_copy, demo_copy, read_until, run_processes, start_run
+from tests.support import (DEMO, PBO, REPO, assert_nothing_left, children_of, config_copy, demo_copy, read_until, run_processes,
+                           start_run, until)
 
 PROBE = "tests.fork_probe"
 SAFETY_NET = 60.0  # seconds for a process to go: a net for a hang, not a timing
@@ -37,14 +37,6 @@ def _gone(pid: int) -> bool:
             return "zombie" in stream.read().lower()
     except FileNotFoundError:
         return True
-
-
-def _wait_until(condition, what: str) -> None:
-    deadline = time.monotonic() + SAFETY_NET
-    while not condition():
-        if time.monotonic() > deadline:
-            pytest.fail(f"{what} did not happen within {SAFETY_NET:.0f} s")
-        time.sleep(0.05)
 
 
 @pytest.mark.multiprocess
@@ -118,7 +110,7 @@ def test_the_fork_server_and_a_child_it_forked_die_with_the_process_that_started
     try:
         assert starter.stdout is not None
         server_pid, child_pid = map(int, starter.stdout.readline().split())
-        _wait_until(out.exists, "the child's report")
+        until(out.exists, "the child's report", SAFETY_NET)
         assert json.loads(out.read_text())["ppid"] == starter.pid
         starter.send_signal(signal.SIGKILL)
         starter.wait()
@@ -126,7 +118,7 @@ def test_the_fork_server_and_a_child_it_forked_die_with_the_process_that_started
         if starter.poll() is None:
             starter.kill()
             starter.wait()
-    _wait_until(lambda: _gone(server_pid) and _gone(child_pid), "the server's and the child's end")
+    until(lambda: _gone(server_pid) and _gone(child_pid), "the server's and the child's end", SAFETY_NET)
 
 
 @pytest.mark.multiprocess
@@ -181,7 +173,7 @@ def test_a_run_with_a_restart_policy_keeps_its_fork_server_restarts_from_it_and_
         if run.poll() is None:
             run.kill()
             run.wait()
-    _wait_until(lambda: all(_gone(pid) for pid in children), "the fork server's and the children's end")
+    until(lambda: all(_gone(pid) for pid in children), "the fork server's and the children's end", SAFETY_NET)
     if ending == "ctrl-c":
         assert "fresh interpreter" not in out + err, err
         assert_nothing_left(json.loads(report_path.read_text()))

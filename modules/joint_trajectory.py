@@ -6,6 +6,10 @@ v (v + a·dt) / (2a) = |e|, i.e. v = sqrt((a·dt/2)² + 2a|e|) − a·dt/2 (the 
 braking curve; the continuous sqrt(2a|e|) overshoots), capped by v_max. A joint lands exactly
 on the goal only from a speed one acceleration step can stop, so the limits hold on every
 cycle, arrival included.
+
+It starts from the arm's measured position and velocity, so a trajectory that takes over a moving
+arm (a restarted RTPU, a switch mid-move) brakes it along the curve instead of commanding a stop.
+From a speed above max_velocity it slows at max_acceleration.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ class JointTrajectory(PortBasedObject):
 
     q_d = InVar("q_d", shape=("NDOF",), doc="desired joint position (the goal), rad")
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad: where the reference starts")
+    qd_m = InVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s: the reference's first velocity")
     q_r = OutVar("q_r", shape=("NDOF",), doc="reference joint position this cycle, rad")
     qd_r = OutVar("qd_r", shape=("NDOF",), doc="reference joint velocity this cycle, rad/s")
 
@@ -42,8 +47,8 @@ class JointTrajectory(PortBasedObject):
         self._law = BrakingLaw(self.q_r.shape[0], params.max_velocity, params.max_acceleration, self.period)
 
     def on(self) -> None:
-        self.q_r = self.q_m  # start from where the arm is, at rest
-        self.qd_r = 0.0
+        self.q_r = self.q_m  # start from where the arm is, as fast as it goes
+        self.qd_r = self.qd_m
 
     def cycle(self) -> Status:
         self._law.step(self.q_d, self.q_r, self.qd_r)

@@ -174,11 +174,11 @@ def test_the_demo_file_gives_a_table_with_one_row_per_task():
     assert "272.0" in text and "0.680 %" in text
 
 
-def test_the_demo_predicts_b_of_577_6_kb_per_second():
+def test_the_demo_predicts_b_of_601_6_kb_per_second():
     report = _bus.predict(load_subsystem(str(DEMO)), "joint_pid")
-    # robot 176 B / 1 ms + traj 224 B / 2 ms + pid 272 B / 1 ms + logger 176 B / 10 ms
-    assert report.total == pytest.approx(176_000 + 112_000 + 272_000 + 17_600)
-    assert report.share == pytest.approx(577_600 / 40e6)
+    # robot 176 B / 1 ms + traj 272 B / 2 ms + pid 272 B / 1 ms + logger 176 B / 10 ms
+    assert report.total == pytest.approx(176_000 + 136_000 + 272_000 + 17_600)
+    assert report.share == pytest.approx(601_600 / 40e6)
 
 
 # --- measured --------------------------------------------------------------------------------------
@@ -341,5 +341,5 @@ def test_combining_the_demo_trajectory_and_pid_saves_the_trajectory_outputs_read
     before, after = _bus.combined_saving(sub, "joint_pid", ["traj", "pid"])
     # in: q_d, q_m, qd_m (144 B); out: q_r (the logger reads it) and tau_u (96 B); qd_r stays local
     assert after.task("traj+pid").rate_bytes_per_s == pytest.approx((144 + 96 + 32) / 0.001)
-    assert after.total == pytest.approx(577_600 - 112_000)
-    assert "saves 112.0 kB/s" in _bus.describe_saving(before, after)
+    assert after.total == pytest.approx(601_600 - 136_000)
+    assert "saves 136.0 kB/s" in _bus.describe_saving(before, after)

@@ -123,7 +123,7 @@ def test_bus_prints_each_tasks_load_and_the_total_and_draws_the_plot(tmp_path, c
     plot = tmp_path / "bus.png"
     assert main(["bus", str(REPO / "configs" / "pid_joint.yaml"), "--plot", str(plot)]) == 0
     out = capsys.readouterr().out
-    assert "272.0" in out and "B (total)" in out and "577.6" in out  # pid: (192 + 48 + 32 B) / 1 ms
+    assert "272.0" in out and "B (total)" in out and "601.6" in out  # pid: (192 + 48 + 32 B) / 1 ms
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -27,6 +27,7 @@ dims: {NDOF: 6}
 variables:
   q_d: {type: float64, shape: [NDOF], initial: 0}
   q_m: {type: float64, shape: [NDOF], initial: 0}
+  qd_m: {type: float64, shape: [NDOF], initial: 0}
 tasks:
   traj: {module: joint_trajectory, rtpu: rtpu0, period: 2 ms, params: {max_velocity: 1.0}}
   pos:  {module: time_integrator, rtpu: rtpu0, period: 1 ms}

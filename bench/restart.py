@@ -101,7 +101,7 @@ def robot_figures(report: dict) -> dict:
     robot = report["tasks"].get("robot", {})
     return {"missed": robot.get("missed", 0), "overruns": robot.get("overruns", 0), "cycles": robot.get("cycles", 0),
             "failure": report["failure"], "running": report.get("running_wall_seconds", 0.0),
-            "lock_recoveries": report.get("lock_recoveries", 0)}
+            "lock_recoveries": report.get("lock_recoveries", 0), "lock_waits_given_up": robot.get("lock_waits_given_up", 0)}
 
 
 class RobotCounts:
@@ -208,7 +208,12 @@ cold start (`pbo run` to its configuration on) is its same-run baseline. A resta
 from the run's report: *noticed* (the kill to the supervisor handling the death), *launch* (the
 new process started), *ready* (it opened the table and its queues), *spawn* (its tasks' inits),
 *on* (its tasks ON, each at a cycle boundary). *Stable cycles*: the robot interface's cycles in
-its locally stable behaviour (the arm held) over a restart.
+its locally stable behaviour (the arm held) over a restart. The goal, no release of the robot
+interface missed, is judged in the restarts' windows (each kill to its tasks ON again + 100 ms),
+from its counts in the table as the run goes; before each kill as long a window without one says
+what the machine alone costs. A kill that lands while the controller's RTPU holds the table lock
+is counted: the robot's RTPU then gives up its wait for the lock (an eighth of its period) and
+runs the stable cycle until job control releases the lock.
 """,
         limits="""A fresh interpreter imports numpy, MuJoCo's and Pinocchio's bindings and the
 module library before its tasks can be spawned (most of a restart when forking is off); forked,
@@ -246,17 +251,19 @@ without kills says how many.""",
                          f"max {max(forked['back']) * 1e3:.0f} ms: {fmt_ratio(share)} of the same run's cold start "
                          f"({forked['cold_start'] * 1e3:.0f} ms); from a fresh interpreter p50 {f50 * 1e3:.0f} ms, "
                          f"max {max(fresh['back']) * 1e3:.0f} ms ({fmt_ratio(ratio(b50, f50))})")
-    missed = forked["missed"]
-    section.notes.append(f"robot interface: {missed} releases missed over the restarts (goal 0) -> "
-                         f"{'met' if missed == 0 else 'NOT met'} ({forked['cycles']:,} cycles, {forked['overruns']} overruns); "
-                         f"baseline without kills, {quiet['running']:.1f} s on: {quiet['missed']} missed "
-                         f"({quiet['cycles']:,} cycles, {quiet['overruns']} overruns); fresh-interpreter restarts: "
-                         f"{fresh['missed']} missed ({fresh['cycles']:,} cycles); table lock released from a dead "
-                         f"RTPU {forked['lock_recoveries']} + {fresh['lock_recoveries']} times")
     (r_cycles, r_missed, r_seconds), (q_cycles, q_missed, q_seconds) = forked["windows"]["restart"], forked["windows"]["quiet"]
-    section.notes.append(f"robot interface, same run: {r_missed:.0f} missed of {r_cycles:,.0f} releases in the {kills} restarts' "
-                         f"windows (kill to ON again + {SETTLE * 1e3:.0f} ms, {r_seconds:.1f} s in all), {q_missed:.0f} of "
-                         f"{q_cycles:,.0f} in as long without a kill before each ({q_seconds:.1f} s)")
+    section.notes.append(f"robot interface: {r_missed:.0f} releases missed in the {kills} restarts' windows (goal 0) -> "
+                         f"{'met' if r_missed == 0 else 'NOT met'} ({r_cycles:,.0f} releases: from each kill to its tasks "
+                         f"ON again + {SETTLE * 1e3:.0f} ms, {r_seconds:.1f} s in all); {q_missed:.0f} of {q_cycles:,.0f} "
+                         f"in as long without a kill before each ({q_seconds:.1f} s)")
+    section.notes.append(f"robot interface over the whole runs, their starts included: {forked['missed']} missed "
+                         f"({forked['cycles']:,} cycles, {forked['overruns']} overruns); without kills, "
+                         f"{quiet['running']:.1f} s on: {quiet['missed']} missed ({quiet['cycles']:,} cycles, "
+                         f"{quiet['overruns']} overruns); fresh-interpreter restarts: {fresh['missed']} missed "
+                         f"({fresh['cycles']:,} cycles)")
+    section.notes.append(f"a killed RTPU held the table lock {forked['lock_recoveries']} + {fresh['lock_recoveries']} times "
+                         f"(released by job control); the robot's RTPU gave up its wait for it in "
+                         f"{forked['lock_waits_given_up']} + {fresh['lock_waits_given_up']} cycles (its stable behaviour ran instead)")
     for label, figures in (("kept fork server", forked), ("fresh interpreter", fresh), ("no kill", quiet)):
         if figures["failure"]:
             section.notes.append(f"the run ({label}) failed: {figures['failure']}")

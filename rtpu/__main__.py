@@ -122,9 +122,10 @@ def main(argv: list[str] | None = None, subsystem: Subsystem | None = None) -> i
         # files) at SCHED_FIFO would hold a CPU the others' cycles need, so it takes SCHED_FIFO only
         # when its first task turns on.
         fifo_later = args.fifo and args.restarted
-        realtime = {**_realtime.apply(rtpu.cpu, args.fifo and not fifo_later), "spin": f"{args.spin * 1e6:g} µs"}
+        priority = _realtime.fifo_priority(any(t.critical for t in subsystem.tasks_on(args.rtpu)))
+        realtime = {**_realtime.apply(rtpu.cpu, args.fifo and not fifo_later, priority), "spin": f"{args.spin * 1e6:g} µs"}
         if fifo_later:
-            realtime["scheduler"] = f"SCHED_FIFO {_realtime.FIFO_PRIORITY} from its first task on (restarted: inits at SCHED_OTHER)"
+            realtime["scheduler"] = f"SCHED_FIFO {priority} from its first task on (restarted: inits at SCHED_OTHER)"
         simulated = args.clock == "sim"
         clock = SimClock(table.header, args.tick) if simulated else RealClock(args.spin)
         # what a data log says of the run and its variables: made once, copied by each task's init
@@ -162,10 +163,11 @@ def main(argv: list[str] | None = None, subsystem: Subsystem | None = None) -> i
 
         executive = Executive(clock, signals, report, epoch=args.epoch, header=table.header, report_at_stop=report_at_stop,
                               reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
-                              n_rtpus=len(subsystem.rtpus), live_loader=live_stage if args.live else None)
+                              n_rtpus=len(subsystem.rtpus), live_loader=live_stage if args.live else None,
+                              cycle_lock_wait=None if simulated else table.cycle_lock_wait)
         executive.device_figures = device_figures
         if fifo_later:
-            executive.before_first_on = lambda: _realtime.apply(rtpu.cpu, True) and None
+            executive.before_first_on = lambda: _realtime.apply(rtpu.cpu, True, priority) and None
         if args.live_now:  # restarted after live changes: its tasks and configurations are the live description's
             described = live_stage(args.live_now)
             executive.reconfiguration = described.reconfiguration

@@ -47,7 +47,12 @@ AGE_TOLERANCE = 1e-7  # seconds: an input exactly one producer period old is fre
 # periods when both run at one rate).
 FRESH_WITHIN_WRITER_PERIODS = 2.0
 # Why a critical task runs its locally stable behaviour (the cycle's `held`)
-NOT_HELD, HELD_ILLEGAL, HELD_STALE_INPUT, HELD_BY_MODULE, HELD_UPSTREAM = 0, 1, 2, 3, 4
+NOT_HELD, HELD_ILLEGAL, HELD_STALE_INPUT, HELD_BY_MODULE, HELD_UPSTREAM, HELD_LOCKED = 0, 1, 2, 3, 4, 5
+# On the real clock, a per-cycle transfer on an RTPU hosting a critical task waits for the table
+# lock at most this share of the shortest critical period there: the lock is held for microseconds,
+# so a wait this long means its holder died holding it (until job control releases it) or stalled.
+# Read and write together then leave the cycle three quarters of its period.
+LOCK_WAIT_PERIODS = 0.125
 # Header words read before every release, as plain ints (through a memoryview: no numpy scalar each time)
 _FLAGS, _STOPPING, _STATIC_SWITCH = int(Header.FLAGS), int(Flag.STOPPING), int(Flag.STATIC_SWITCH)
 _PLAN_SEQUENCE, _PLAN_TIME_NS = int(Header.PLAN_SEQUENCE), int(Header.PLAN_TIME_NS)
@@ -84,7 +89,7 @@ class Scheduled:
                  "held_for", "first_cycle_of_plan", "last_stale", "expected_writers", "input_writers",
                  "lost_to_switch", "last_lost", "window_lost", "window_stale", "shared_status", "overrun_log",
                  "long_cycles", "fresh_bounds", "fresh_within", "writer_names", "expired_reads",
-                 "fresh_since")
+                 "fresh_since", "lock_waits_given_up")
 
     def __init__(self, task: Task) -> None:
         self.task = task
@@ -134,6 +139,7 @@ class Scheduled:
         # then, so each writer has its bound from the switch (or start) to write a first value.
         self.fresh_since = 0.0
         self.expired_reads = 0  # cycles a critical task ran stable because an input was past its bound
+        self.lock_waits_given_up = 0  # releases whose read found the table lock held past `cycle_lock_wait`
         self.first_cycle_of_plan = 0  # a plan's sequence until this entering task ran its first cycle
 
     def statistics(self) -> dict[str, Any]:
@@ -159,6 +165,7 @@ class Scheduled:
             "last_cycle_lost": self.last_lost,
             "stable_cycles": self.stable_cycles,
             "expired_reads": self.expired_reads,
+            "lock_waits_given_up": self.lock_waits_given_up,
             "dropped_events": self.dropped_events,
             "overruns_long_cycle": self.long_cycles,
             "overruns_late_release": self.overruns - self.long_cycles,
@@ -191,8 +198,12 @@ class Executive:
     def __init__(self, clock: Clock, signals: SignalSource, report: Callable[[Event], None], epoch: float = 0.0,
                  header: np.ndarray | None = None, reconfiguration: Reconfiguration | None = None,
                  rtpu_index: int = 0, n_rtpus: int = 1, report_at_stop: Callable[[Event], None] | None = None,
-                 live_loader: Callable[[int], LiveStage] | None = None) -> None:
+                 live_loader: Callable[[int], LiveStage] | None = None,
+                 cycle_lock_wait: list[float | None] | None = None) -> None:
         self.clock = clock
+        # The table's bound on a per-cycle transfer's wait for the lock (`StateTable.cycle_lock_wait`),
+        # set when a critical task turns on; None on the simulated clock, whose turns never contend.
+        self.cycle_lock_wait = cycle_lock_wait
         self.signals = signals
         self.report = report  # report(event): events to job control (ipc.messages), on state changes only
         # At stop no cycle waits on a report, and the last windows, states and statistics must
@@ -370,21 +381,30 @@ class Executive:
         held = NOT_HELD
         expired = -1
         if s.critical:
-            task.read_inputs()  # first: whether the cycle may use them depends on how old they are
-            expired = self._check_freshness(s, release)
-            if self._configuration_illegal(start, s.period):
-                held = HELD_ILLEGAL  # (a stale input then is the switch's doing, not a fault)
-            elif expired >= 0:
-                held = HELD_STALE_INPUT
-                s.expired_reads += 1
-            elif self._upstream_not_fresh():
-                held = HELD_UPSTREAM
+            # first: whether the cycle may use them depends on how old they are
+            if not task.read_inputs():
+                held = HELD_LOCKED  # its stable behaviour does without them (the last ones read stay)
+                s.lock_waits_given_up += 1
+            else:
+                expired = self._check_freshness(s, release)
+                if self._configuration_illegal(start, s.period):
+                    held = HELD_ILLEGAL  # (a stale input then is the switch's doing, not a fault)
+                elif expired >= 0:
+                    held = HELD_STALE_INPUT
+                    s.expired_reads += 1
+                elif self._upstream_not_fresh():
+                    held = HELD_UPSTREAM
             if held:
                 result = task.run_read_stable_cycle(release)
             else:
                 result = task.run_read_cycle(release)
-        else:
-            result = task.run_cycle(release)
+        elif task.read_inputs():
+            result = task.run_read_cycle(release)
+        else:  # the lock stayed held past the wait: this release is lost, the RTPU's critical cycles are not
+            s.lock_waits_given_up += 1
+            s.missed += 1
+            s.shared_status[W.MISSED] = s.missed
+            result = Status.CONTINUE
         if result is Status.STABLE:
             held = held or HELD_BY_MODULE
             result = Status.CONTINUE
@@ -434,6 +454,7 @@ class Executive:
                 skipped = int((end - release) // s.period)
                 s.missed += skipped - 1 if skipped > 1 else 0
                 status[W.OVERRUNS] = s.overruns
+                s.shared_status[W.MISSED] = s.missed  # straight into the table: not one of the words a cycle carries
                 s.release_index += skipped - 1
                 following = self.epoch + s.release_index * s.period
                 if following <= end:
@@ -455,7 +476,6 @@ class Executive:
         shared[W.JITTER_P99] = jitter[RECENT * 99 // 100]
         shared[W.EXEC_P50] = exec_time[RECENT // 2]
         shared[W.EXEC_P99] = exec_time[RECENT * 99 // 100]
-        shared[W.MISSED] = s.missed
 
     def _check_freshness(self, s: Scheduled, release: float) -> int:
         """Classify each input the critical task just read; the first past its bound, or -1 (no allocation).
@@ -508,6 +528,9 @@ class Executive:
             cause = "stale"
         elif held == HELD_BY_MODULE:
             reason, cause = "the module's own inputs are not fresh (its cycle returned STABLE)", "module"
+        elif held == HELD_LOCKED:
+            reason, cause = (f"the table lock was held past its wait of {self.cycle_lock_wait[0] * 1e3:.3g} ms "
+                             "(its holder died holding it, or stalled)"), "lock"
         elif held == HELD_UPSTREAM:
             reason, cause = ("a task upstream has no fresh input (its cycle returned STABLE: a link's item past its "
                              "bound)"), "upstream"
@@ -624,6 +647,9 @@ class Executive:
         if s.task.turn_on(self.clock.now()):
             self.on.append(s)
             s.first_cycle_of_plan = plan
+            if s.critical and self.cycle_lock_wait is not None:
+                wait = self.cycle_lock_wait
+                wait[0] = min(wait[0] or math.inf, LOCK_WAIT_PERIODS * s.period)
 
     # --- signals ----------------------------------------------------------------------------
 

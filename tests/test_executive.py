@@ -9,8 +9,9 @@ import pytest
 from pbo_runtime import OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.ipc import messages
-from pbo_runtime.ipc.messages import Refused, StateChanged, Stats
+from pbo_runtime.ipc.messages import Refused, Stable, StateChanged, Stats
 from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.table.table import Status as W
 from pbo_runtime.table.table import TaskState
 from rtpu._executive import Executive
 from tests.support import REPO, RUNS, FakeSignals, Ticker, run_until, task_spec, variables
@@ -52,6 +53,47 @@ class StallingClock(ManualClock):
         if abs(deadline - self.stall_at) < 1e-12:
             deadline += self.stall
         return super().sleep_until(deadline)
+
+
+class Holder(Ticker):
+    """Fake critical module: records its stable cycles apart from its cycles."""
+
+    def stable_cycle(self) -> Status:
+        RUNS.append((self.task_name + " held", self.time))
+        return Status.CONTINUE
+
+
+def test_while_a_dead_holder_keeps_the_table_lock_the_critical_task_holds_and_the_others_lose_their_release(make_table):
+    RUNS.clear()
+    table = make_table(variables(("o0", "float64", ()), ("o1", "float64", ())))
+    clock = ManualClock(0.0)
+    events: list[messages.Event] = []
+    script = [(0.0, ["spawn", "robot"]), (0.0, ["spawn", "logger"]), (0.0, ["on", "robot", 0.0]), (0.0, ["on", "logger", 0.0])]
+    ex = Executive(clock, FakeSignals(clock, script), events.append, epoch=0.0, cycle_lock_wait=table.cycle_lock_wait)
+    for i, (name, module, critical) in enumerate([("robot", Holder, True), ("logger", Ticker, False)]):
+        spec = dataclasses.replace(task_spec(module, name=name, index=i, ports={"out": f"o{i}"}, period=0.002), critical=critical)
+        ex.add(Task(spec, module, table))
+    run_until(ex, clock, 0.0)
+    assert table.cycle_lock_wait == [pytest.approx(0.125 * 0.002)]  # an eighth of the critical period
+    table.acquire()  # the lock held by a process that died holding it
+    run_until(ex, clock, 0.005)
+    table.release()  # job control recovered it
+    run_until(ex, clock, 0.007)
+    assert RUNS == [("robot", 0.0), ("logger", 0.0), ("robot held", 0.002), ("robot held", 0.004),
+                    ("robot", 0.006), ("logger", 0.006)]
+    robot, logger = ex.tasks["robot"], ex.tasks["logger"]
+    assert (robot.missed, robot.lock_waits_given_up, robot.stable_cycles) == (0, 2, 2)
+    assert (logger.missed, logger.lock_waits_given_up) == (2, 2)
+    held = [e for e in events if isinstance(e, Stable)]
+    assert [(e.task, e.entering, e.cause) for e in held] == [("robot", True, "lock"), ("robot", False, "")]
+    assert "the table lock was held past its wait of 0.25 ms" in held[0].reason
+
+
+def test_on_the_simulated_clock_a_cycle_waits_for_the_lock_as_long_as_it_takes(setup):
+    build, clock, _ = setup
+    ex = build([("robot", Ticker, 0.001, True)], [(0.0, ["spawn", "robot"]), (0.0, ["on", "robot", 0.0])])
+    run_until(ex, clock, 0.0)
+    assert ex.cycle_lock_wait is None and ex.tasks["robot"].task.local.table.cycle_lock_wait == [None]
 
 
 def test_releases_follow_absolute_times_without_drift(setup):
@@ -101,6 +143,7 @@ def test_an_overrun_is_counted_and_the_phase_is_kept(setup):
     scheduled = ex.tasks["a"]
     assert scheduled.overruns == 1
     assert scheduled.missed == 1
+    assert scheduled.shared_status[W.MISSED] == 1  # in the table at once, for pbo status (not with the next percentiles)
     assert [t for _, t in RUNS] == pytest.approx([0.0, 0.003, 0.004])
 
 
@@ -176,7 +219,6 @@ def test_an_event_for_a_periodic_task_is_refused(setup):
 
 
 def test_the_percentiles_of_the_last_1024_cycles_reach_the_table_for_pbo_status(setup):
-    from pbo_runtime.table.table import Status as W
 
     build, clock, _ = setup
     ex = build([("a", Ticker, 0.001, False)], [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0])])

@@ -13,11 +13,12 @@ import pytest
 
 from tests.support import REPO, assert_ended_well
 
-APPLY = "import json, sys; from rtpu import _realtime; print(json.dumps(_realtime.apply({cpu}, {fifo})))"
+APPLY = ("import json, sys; from rtpu import _realtime; print(json.dumps(_realtime.apply({cpu}, {fifo}, "
+         "_realtime.fifo_priority({critical}))))")
 
 
-def applied(cpu, fifo: bool) -> dict:
-    done = subprocess.run([sys.executable, "-c", APPLY.format(cpu=cpu, fifo=fifo)], capture_output=True, text=True,
+def applied(cpu, fifo: bool, critical: bool = False) -> dict:
+    done = subprocess.run([sys.executable, "-c", APPLY.format(cpu=cpu, fifo=fifo, critical=critical)], capture_output=True, text=True,
                           cwd=REPO, timeout=60)
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout)
@@ -37,6 +38,16 @@ def test_a_cpu_the_machine_does_not_have_is_reported_not_fatal():
 def test_sched_fifo_is_reported_as_granted_or_refused_with_the_reason():
     scheduler = applied(None, True)["scheduler"]
     assert scheduler == "SCHED_FIFO 50" or scheduler.startswith("SCHED_OTHER: SCHED_FIFO refused (")
+
+
+@pytest.mark.multiprocess
+def test_an_rtpu_hosting_a_critical_task_runs_above_the_others_and_below_the_plant():
+    from pbo_runtime.supervisor.plant_host import PLANT_FIFO_PRIORITY
+    from rtpu._realtime import FIFO_PRIORITY
+
+    scheduler = applied(None, True, critical=True)["scheduler"]
+    assert scheduler == "SCHED_FIFO 55" or scheduler.startswith("SCHED_OTHER: SCHED_FIFO refused (")
+    assert FIFO_PRIORITY < 55 < PLANT_FIFO_PRIORITY
 
 
 CHILD_POLICY = ("import json, os, subprocess, sys; from rtpu import _realtime; granted = _realtime.apply(None, True)['scheduler']; "

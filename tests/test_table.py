@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import stat
+import threading
 
 import numpy as np
 import posix_ipc
@@ -127,6 +128,36 @@ def test_a_cycle_transfer_moves_inputs_and_stamps_outputs(make_table):
     assert value[0] == ord("a") + ord("b")
     assert (seq, when, writer) == (7, 3.25, 2)
     assert table.header[Header.LOCK_HOLDER] == os.getpid()
+
+
+def test_a_cycle_transfer_gives_up_a_lock_held_past_the_tables_wait_and_moves_nothing(make_table):
+    table = make_table(VARS)
+    table.write("a", np.full(6, 1.0), when=0.0)
+    local = LocalTable(table, task_spec(Copier, index=2).bindings, task_index=2)
+    a, _, _, _, x, _ = local.port_arrays
+    table.cycle_lock_wait[0] = 0.0001  # as an RTPU hosting a critical task sets it
+    table.acquire()  # held, as by a process that died holding it
+    try:
+        x[:] = 5.0
+        assert local.read_inputs() is False and local.write_outputs() is False
+        assert a[0] == 0.0 and table.read("x")[0][0] == 0.0
+    finally:
+        table.release()
+    assert local.read_inputs() is True and a[0] == 1.0
+    assert local.write_outputs() is True and table.read("x")[0][0] == 5.0
+
+
+def test_the_values_on_and_off_leave_are_written_however_long_the_lock_is_held(make_table):
+    table = make_table(VARS)
+    local = LocalTable(table, task_spec(Copier, index=2).bindings, task_index=2)
+    local.port_arrays[4][:] = 7.0
+    table.cycle_lock_wait[0] = 0.0  # a per-cycle transfer would not wait at all
+    table.acquire()
+    releaser = threading.Timer(0.05, table.release)  # the holder lets go (or job control recovers the lock)
+    releaser.start()
+    local.publish_outputs()  # waits for it
+    releaser.join()
+    assert table.read("x")[0][0] == 7.0
 
 
 def test_transfer_indices_do_not_grow_with_the_table(make_table):

@@ -263,7 +263,8 @@ class Stable:
     entering: bool
     at: float
     reason: str = ""  # what the operator reads
-    cause: str = ""  # "illegal" (configuration), "stale" (an in-var past its freshness bound), "module" (it said so)
+    cause: str = ""  # "illegal" (configuration), "stale" (an in-var past its freshness bound), "module" (it said so),
+    #                  "upstream" (a task before it said so), "lock" (the table lock held past its per-cycle wait)
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

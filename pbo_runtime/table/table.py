@@ -127,9 +127,10 @@ class Status(enum.IntEnum):
     RELEASE = 7  # the release time of the last cycle, clock seconds: its outputs' write time
     ERRORS = 8
     USED = 9  # words in use: only these travel with each cycle's outputs
-    # Written by the executive straight into the table (one writer, aligned words), every
-    # RECENT cycles, never with the outputs: what `pbo status` shows of the recent cycles.
-    MISSED = 10  # releases skipped after overruns
+    # Written by the executive straight into the table (one writer, aligned words), never with
+    # the outputs: the count of missed releases as it changes, the rest every RECENT cycles (what
+    # `pbo status` shows of the recent cycles).
+    MISSED = 10  # releases skipped: after overruns, or while the table lock was held past the cycle's wait
     JITTER_P50 = 11  # over the last RECENT cycles, seconds
     JITTER_P99 = 12
     EXEC_P50 = 13
@@ -269,6 +270,11 @@ class StateTable:
         # How this process waits for the lock: None blocks (an RTPU); job control sets a bounded
         # wait that looks after the holder meanwhile (`supervisor.lock_watch`).
         self.lock_wait: Callable[[], None] | None = None
+        # How long a task's per-cycle transfer waits for the lock, in seconds (None: as long as it
+        # takes). An RTPU hosting a critical task on the real clock bounds it, so that a lock a
+        # dying process holds costs a cycle's stable behaviour, not missed releases (the executive
+        # sets it; the transfers read it through this one-element list, set once per turn-on).
+        self.cycle_lock_wait: list[float | None] = [None]
         self.header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
         self._views = {code: np.frombuffer(mapping, dtype=code, count=layout.total_bytes // np.dtype(code).itemsize) for code in DTYPE_CODES}
         self.words = self._views["float64"]

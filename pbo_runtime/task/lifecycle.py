@@ -218,7 +218,7 @@ class Task:
         self.state = TaskState.ON
         self.status[StatusWord.STATE] = TaskState.ON
         self.status[StatusWord.RELEASE] = now
-        self.write_outputs()
+        self.local.publish_outputs()
 
     def _on_failed(self, now: float, exc: BaseException | None, problem: str = "") -> bool:
         verdict = self._error_component("on", exc, problem)
@@ -297,7 +297,7 @@ class Task:
         self.status[StatusWord.STATE] = TaskState.OFF
         if now is not None:
             self.status[StatusWord.RELEASE] = now
-        self.write_outputs()
+        self.local.publish_outputs()
 
     def _off_failed(self, now: float | None, exc: BaseException | None, problem: str = "") -> None:
         """`off` failed: the task is stopping either way; `error` says whether it stops OFF or in ERROR."""

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+import posix_ipc
 
 from pbo_runtime.config.model import PortBinding
 from pbo_runtime.objects.ports import PortKind
@@ -147,9 +148,15 @@ class LocalTable:
             index[position] = status_base + writer * STATUS_WORDS + int(StatusWord.RELEASE) if writer >= 0 else HEADER_WORDS - 1
 
     def _compile(self) -> None:
-        """Bind the per-cycle transfers to locals so a call does no attribute chasing."""
+        """Bind the per-cycle transfers to locals so a call does no attribute chasing.
+
+        Each waits for the lock as long as the table's `cycle_lock_wait` says, and returns
+        False, having moved nothing, when that wait ran out (a holder that died holding it).
+        """
         acquire = self._lock.acquire
         release = self._lock.release
+        wait = self.table.cycle_lock_wait  # [seconds or None], read at every transfer
+        busy = posix_ipc.BusyError
         words = self._lock_words  # a memoryview: its stores cost about half a numpy array's
         holder = int(Header.LOCK_HOLDER)
         sequence_word = int(Header.LOCK_SEQUENCE)
@@ -161,40 +168,56 @@ class LocalTable:
         if len(in_groups) == 1:
             (take, idx, local), = in_groups
 
-            def read_inputs() -> None:
-                acquire()
+            def read_inputs() -> bool:
+                try:
+                    acquire(wait[0])
+                except busy:
+                    return False
                 words[holder] = pid
                 take(idx, out=local, mode="clip")
                 release()
+                return True
         else:
 
-            def read_inputs() -> None:
-                acquire()
+            def read_inputs() -> bool:
+                try:
+                    acquire(wait[0])
+                except busy:
+                    return False
                 words[holder] = pid
                 for take, idx, local in in_groups:
                     take(idx, out=local, mode="clip")
                 release()
+                return True
 
         if len(out_groups) == 1:
             (flat, oidx, olocal), = out_groups
 
-            def write_outputs() -> None:
-                acquire()
+            def write_outputs() -> bool:
+                try:
+                    acquire(wait[0])
+                except busy:
+                    return False
                 before = words[sequence_word]
                 words[sequence_word] = tag  # odd, and naming this process: observers retry, the lock is signed
                 flat[oidx] = olocal
                 words[sequence_word] = before + 2
                 release()
+                return True
         else:
 
-            def write_outputs() -> None:
-                acquire()
+            def write_outputs() -> bool:
+                try:
+                    acquire(wait[0])
+                except busy:
+                    return False
                 before = words[sequence_word]
                 words[sequence_word] = tag
                 for flat, idx, local in out_groups:
                     flat[idx] = local
                 words[sequence_word] = before + 2
                 release()
+                return True
 
         self.read_inputs = read_inputs
         self.write_outputs = write_outputs
@@ -264,6 +287,11 @@ class LocalTable:
         finally:
             self.table.release()
         self._out_var.writer.fill(self.task_index)
+
+    def publish_outputs(self) -> None:
+        """The out-vars and the status block, waiting for the lock as long as it takes: the values
+        `on` and `off` leave must reach the table, however long a per-cycle transfer may wait."""
+        self._scatter(self._out_var)
 
     def write_status(self) -> None:
         """Publish the status block alone (a state change outside the cycle)."""

@@ -293,6 +293,14 @@ def test_brief_holds_adding_up_to_more_than_a_twentieth_of_the_run_are_a_fault()
     assert timing == []
 
 
+def test_a_hold_for_the_table_lock_is_timing_told_with_its_reason_not_a_fault():
+    reason = "the table lock was held past its wait of 0.125 ms (its holder died holding it, or stalled)"
+    faults, timing = lines({**episode(1.0, 0.004, "lock"), "reason": reason}, {**episode(2.0, 0.001, "lock"), "reason": reason})
+    assert faults == []
+    assert timing == [f"critical task 'robot' held 2 times (the longest 4.0 ms), the first from 1.000 s into the run, rather "
+                      f"than wait for the table lock: {reason}"]
+
+
 def test_a_hold_while_the_configuration_comes_on_is_neither_and_is_marked():
     held = episode(-0.5, 0.3)
     assert lines(held) == ([], []) and held["while_starting"] is True

@@ -238,10 +238,13 @@ def stable_episode_lines(episodes: list[dict[str, Any]], periods: dict[str, floa
     Brief ones are timing unless they add up to more than BRIEF_HOLDS_SHARE of the run. A task that
     is not critical (in `critical`, when given) and returned STABLE had no fresh input (a link's
     item past its bound); the critical tasks' holds it caused (cause "upstream") are in the
-    episodes, and the fault is told once, at the task that saw the stale input.
+    episodes, and the fault is told once, at the task that saw the stale input. Holds because the
+    table lock stayed held past the cycle's wait (cause "lock": a process died holding it) are
+    timing, told with how often: the fault is the death, which the run tells.
     """
     origin = started_at if started_at is not None else 0.0
     grouped: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    locked: dict[str, list[dict[str, Any]]] = {}
     for episode in episodes:
         episode["while_starting"] = (started_at is not None and episode["from"] < started_at
                                      and episode["to"] is not None)  # (one still open at the stop is a fault)
@@ -249,6 +252,8 @@ def stable_episode_lines(episodes: list[dict[str, Any]], periods: dict[str, floa
                             and episode["seconds"] < BRIEF_HOLD_PERIODS * periods.get(episode["task"], 0.0))
         if episode["cause"] in ("stale", "module") and not episode["while_starting"]:
             grouped.setdefault((episode["task"], episode["cause"]), []).append(episode)
+        elif episode["cause"] == "lock":
+            locked.setdefault(episode["task"], []).append(episode)
     faults, timing = [], []
     for (task, _), group in grouped.items():
         brief = [e for e in group if e["brief"]]
@@ -262,6 +267,9 @@ def stable_episode_lines(episodes: list[dict[str, Any]], periods: dict[str, floa
         else:
             faults.append(f"critical task '{task}' ran its locally stable behaviour {_episodes(group, origin)}: "
                           f"{group[0]['reason']}")
+    for task, group in locked.items():
+        timing.append(f"critical task '{task}' held {_episodes(group, origin)}, rather than wait for the table lock: "
+                      f"{group[0]['reason']}")
     return faults, timing
 
 

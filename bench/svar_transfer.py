@@ -146,18 +146,28 @@ class Floor:
             words[sequence] = before + 2
             release()
 
-        def read_signed() -> None:
-            acquire()
+        wait, busy = [None], posix_ipc.BusyError  # the table's bounded wait (`StateTable.cycle_lock_wait`)
+
+        def read_signed() -> bool:
+            try:
+                acquire(wait[0])
+            except busy:
+                return False
             words[holder] = pid
             take(idx_in, out=local_in, mode="clip")
             release()
+            return True
 
-        def write_signed() -> None:
-            acquire()
+        def write_signed() -> bool:
+            try:
+                acquire(wait[0])
+            except busy:
+                return False
             before = words[sequence]
             flat[idx_signed] = local_signed
             words[sequence] = before + 2
             release()
+            return True
 
         self.signed, self.read_signed, self.write_signed = signed, read_signed, write_signed
 
@@ -249,7 +259,8 @@ then {rounds} rounds x {iterations:,} individually timed transfers for the per-c
   word and even again after it), in the floor's one function: what the words the lock watch and
   the seqlock need cost;
 - **{SIGNED_TWO_CALLS}**: the same as the two functions a task's cycle calls (it reads, runs
-  its module, then writes), called from one as the table's are. This is the least a transfer
+  its module, then writes), called from one as the table's are, each waiting for the lock as
+  long as the table's bound says (`StateTable.cycle_lock_wait`) and saying whether it got it. This is the least a transfer
   with the table's guarantees can cost in Python; the floor itself signs nothing and is one call.
 
 The batch median (the median over batches of the mean time per transfer, no clock read inside a

@@ -221,9 +221,9 @@ def test_two_simulated_runs_of_an_application_write_identical_logs(tmp_path):
     assert [n for n in os.listdir("/dev/shm") if "pbo.replay" in n] == [], said
 
 
-def started_on_the_simulated_clock(app, tmp_path) -> tuple[subprocess.Popen, str, int]:
+def started_on_the_simulated_clock(app, tmp_path, duration: str = "600") -> tuple[subprocess.Popen, str, int]:
     """The application running on the simulated clock with every arm on: its runner, what it said, the follower's pid."""
-    runner = subprocess.Popen([*PBO, "run", str(app), "--clock", "sim", "--duration", "600", "--no-live", "--out",
+    runner = subprocess.Popen([*PBO, "run", str(app), "--clock", "sim", "--duration", duration, "--no-live", "--out",
                                str(tmp_path / "out")], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True)
     said = read_until(runner, "[follower] pbo: configuration 'follow' is on", "[leader] pbo: configuration 'lead' is on")
@@ -260,3 +260,61 @@ def test_a_participant_stopped_in_a_simulated_application_ends_the_run_with_a_na
     for key in ("leader", "follower", "operator"):
         assert_nothing_left(json.loads((tmp_path / "out" / key / "report.json").read_text()))
     assert [n for n in os.listdir("/dev/shm") if "pbo.replay_stall" in n] == []
+
+
+OPERATOR_ABORTS = (  # the operator's RTPU, with a restart policy, aborts 0.5 s into the run, inside its tick
+    ("    rtpus: [rtpu0]\n", "    rtpus: [rtpu0]\n    restart: {max: 3, within: 10 min}\n"),
+    ("    configurations:\n      operate: [console, logger]",
+     "      crash: {module: fault_injector, rtpu: rtpu0, period: 10 ms, params: {fault: abort, at: [0.5]}, "
+     "ports: {watched: goal}}\n    configurations:\n      operate: [console, logger, crash]"))
+
+
+def with_changes(path, changes) -> None:
+    text = path.read_text()
+    for old, new in changes:
+        assert old in text, old
+        text = text.replace(old, new, 1)
+    path.write_text(text)
+
+
+@pytest.mark.multiprocess
+def test_an_rtpu_that_dies_in_a_simulated_application_is_restarted_in_its_turn_and_the_run_replays(tmp_path):
+    app = application_copy(tmp_path, "replay_restart")
+    with_changes(app, OPERATOR_ABORTS)
+    said = run_application(tmp_path, app, "first")
+    assert "[operator] RTPU 'rtpu0' restarted, 0.50 s into the run: pid " in said and "killed by SIGABRT" in said
+    run_application(tmp_path, app, "second")
+    for log in LOGS:
+        assert (tmp_path / "first" / log).read_bytes() == (tmp_path / "second" / log).read_bytes(), log
+    operator = json.loads((tmp_path / "first" / "operator" / "report.json").read_text())
+    assert [(r["rtpu"], r["died_at"], r["seconds"], r["tasks_on"]) for r in operator["restarts"]] == [
+        ("rtpu0", pytest.approx(0.5), 0, ["console", "logger", "crash"])]  # between two of its ticks
+    leader = read_log(tmp_path / "first" / LOGS[0])
+    assert np.allclose(leader["q_d"][-1], GOAL_A)  # the operator's goal still reached the leader
+    for key in ("leader", "follower", "operator"):
+        report = json.loads((tmp_path / "first" / key / "report.json").read_text())
+        assert report["failure"] == ""
+        assert report["tasks"].get("robot", {}).get("cycles", 1501) == 1501  # the arms ran every tick: 0 .. 1.5 s
+        assert_nothing_left(report)
+
+
+@pytest.mark.multiprocess
+def test_an_rtpu_killed_from_outside_a_simulated_application_is_restarted_and_the_others_go_on(tmp_path):
+    app = application_copy(tmp_path, "replay_killed")
+    with_changes(tmp_path / "leader.yaml", (("\nrtpus: [rtpu0]\n", "\nrtpus: [rtpu0]\nrestart: {max: 3, within: 10 min}\n"),))
+    # it ends by its duration (a restart takes no simulated time), not Ctrl-C, which may cut a last tick
+    runner, said, _ = started_on_the_simulated_clock(app, tmp_path, duration="3")
+    with killed_on_failure(runner):
+        (leader,) = [pid for pid, command in children_of(runner.pid).items() if "leader.yaml" in command]
+        (rtpu,) = [pid for pid, command in children_of(leader).items() if "--rtpu rtpu0" in command]
+        os.kill(rtpu, signal.SIGKILL)  # wherever the application's turn is
+        out, err = run_output(runner, 300)
+    assert runner.returncode == 0, said + out + err
+    assert "[leader] pbo: RTPU 'rtpu0' restarted: robot, goal, traj, pid, send, logger ON again after 0 ms" in out
+    reports = {key: json.loads((tmp_path / "out" / key / "report.json").read_text()) for key in ("leader", "follower", "operator")}
+    assert [(r["rtpu"], r["pid"], r["cause"]) for r in reports["leader"]["restarts"]] == [("rtpu0", rtpu, "killed by SIGKILL")]
+    follower = reports["follower"]["tasks"]["robot"]
+    assert follower["state"] == "ON" and follower["cycles"] == reports["follower"]["plant"]["steps"]  # never held up
+    for report in reports.values():
+        assert_nothing_left(report)
+    assert [n for n in os.listdir("/dev/shm") if "pbo.replay_killed" in n] == []

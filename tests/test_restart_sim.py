@@ -21,10 +21,7 @@ import pytest
 
 from pbo_runtime import read_log
 from pbo_runtime.clock.lockstep import LockstepMaster, LockstepParticipant, RingStop, RingStuck
-from pbo_runtime.clock.run_clock import SimRunClock
-from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc import shm
-from pbo_runtime.supervisor.restarts import Restarting
 from pbo_runtime.table.table import HEADER_WORDS
 from tests.support import (DEMO, PBO, assert_nothing_left, config_copy, excursion_from_path, kill_and_await_restart,
                            killed_on_failure, run_output, start_run)
@@ -164,25 +161,6 @@ def test_a_participant_dead_in_a_step_between_ticks_leaves_no_tick_to_finish(rin
     ring.join("a")
     ring.master.advance(lambda: None, ticks=1)
     assert ring.ticks_of("a") == [1, 2, 3] and ring.ticks_of("b") == [1, 2, 3]
-
-
-class FakeTurnGate:
-    """Stands for an application's turn (`clock.application_lockstep.TurnGate`) in a unit test."""
-
-    held = False
-
-
-@pytest.mark.parametrize("gate, refused", [(None, ""), (FakeTurnGate(), "an application on the simulated clock")],
-                         ids=["a subsystem run", "an application's subsystem"])
-def test_a_death_on_the_simulated_clock_is_restarted_except_in_an_application_which_says_why(tmp_path, gate, refused):
-    supervisor = Restarting()
-    supervisor.subsystem = load_subsystem(config_copy(DEMO, tmp_path, "simrestart_policy", (POLICY,)))
-    supervisor.table, supervisor._stop_requested = object(), ""
-    supervisor.clock = SimRunClock(0.001, gate)
-    assert supervisor.may_restart("rtpu0") == (not refused)
-    assert refused in supervisor.restart_refused("rtpu0")
-    assert supervisor.restart_refused("rtpu0").startswith("; its restart policy does not apply: ") == bool(refused)
-    assert not supervisor.may_restart("plant")
 
 
 # --- whole runs ------------------------------------------------------------------------------

@@ -13,7 +13,8 @@ here once instead of in branches through the supervisor:
   is already queued when `serve` returns; children run with a fixed string hash so a run
   replays bit for bit. A participant that dies is brought back between ticks: the ring is
   stopped where it stood, the tick the death happened in is finished for the live participants
-  after it (`clock.lockstep`, `RingStop`), and its new process joins from the next tick. In an application on the simulated clock it takes the application's turn
+  after it (`clock.lockstep`, `RingStop`), and its new process joins from the next tick. In an
+  application on the simulated clock it takes the application's turn
   (`clock.application_lockstep`) before each tick or step, and gives it back after each tick.
 """
 
@@ -45,7 +46,6 @@ class RunClock(Protocol):
     watches_stalls: bool  # a task whose cycle count stops moving is reported (StallWatch)
     signals_served_when_sent: bool  # a signal's answer is queued when `serve` returns (no waiting for it)
     plans_need_a_wakeup: bool  # RTPUs must be woken to read a plan in the header
-    restart_refusal: str  # why a dead RTPU is not restarted on this clock ("": it is)
 
     def now(self) -> float:
         """The run's time."""
@@ -96,7 +96,6 @@ class RealRunClock:
     watches_stalls = True
     signals_served_when_sent = False
     plans_need_a_wakeup = True
-    restart_refusal = ""
 
     def now(self) -> float:
         return time.monotonic()
@@ -176,10 +175,6 @@ class SimRunClock:
         self._watched: tuple[float, int, str] = (0.0, 0, "")  # (turn released at, tick, participant) last looked at
         self._watched_since = 0.0
         self.ring_stop: RingStop | None = None  # where a death stopped the ring, until its tick is finished
-        # An application's turn is held through the restart, but the runner's stall watchdog would see
-        # a restart's seconds as a stuck subsystem: refused there, until the runner knows restarts.
-        self.restart_refusal = ("" if gate is None else "an application on the simulated clock does not restart "
-                               "RTPUs (its subsystems take turns tick by tick)")
 
     def now(self) -> float:
         return self.lockstep.now if self.lockstep is not None else 0.0

@@ -65,7 +65,6 @@ class Children:
     _look_at_the_lock: Callable[[], None]
     _look_at_the_lock_while_stopping: Callable[[], None]
     may_restart: Callable[[str], bool]
-    restart_refused: Callable[[str], str]
     launched: dict[str, tuple[list[str], tuple[str, ...]]]  # role -> its launch arguments and tasks
     child_watch: ChildWatch | None
     _startup_mark: Callable[..., None]
@@ -131,7 +130,7 @@ class Children:
                 message = f"{what} (pid {child.process.pid}) died ({how}){hosted}"
                 if self.may_restart(child.role):
                     raise RtpuDied(message, child.role, child.process.pid, how)
-                raise RunFailure(message + self.restart_refused(child.role))
+                raise RunFailure(message)
         self._look_at_the_lock()
 
     def _recover_lock_from(self, pid: int) -> None:

@@ -26,7 +26,10 @@ after the point where it stopped (`clock.finish_tick`: no other RTPU loses a tic
 are spawned and turned on in steps between ticks N and N + 1. The restart so takes no simulated
 time, the dead RTPU's tasks lose their cycles of tick N from the crash on and run again from
 their first release after it, and a run with deaths at the same ticks replays bit for bit. In an
-application on the simulated clock, a death stops the run and says so (`restart_refusal`).
+application on the simulated clock a death in a tick is noticed while the subsystem holds the
+application's turn, and the restart is done before it gives the turn back: the other subsystems
+see no tick of difference. A death noticed while another subsystem has the turn (a kill from
+outside) is restarted at once; the tasks' steps wait for the subsystem's next turn.
 
 Restarts apply once the run's table exists.
 """
@@ -100,17 +103,10 @@ class Restarting:
 
     def may_restart(self, role: str) -> bool:
         """Whether a death of `role` is restarted rather than stopping the run."""
-        if role == "plant" or self.table is None or self.clock.restart_refusal or self._stop_requested:
+        if role == "plant" or self.table is None or self._stop_requested:
             return False
         spec = next((r for r in self.subsystem.rtpus if r.name == role), None)
         return spec is not None and spec.restart is not None
-
-    def restart_refused(self, role: str) -> str:
-        """Why a death of `role`, which has a restart policy, stops the run anyway ("": it does not)."""
-        spec = next((r for r in self.subsystem.rtpus if r.name == role), None)
-        if spec is None or spec.restart is None or not self.clock.restart_refusal:
-            return ""
-        return f"; its restart policy does not apply: {self.clock.restart_refusal}"
 
     def restart_rtpu(self, death: RtpuDied) -> None:
         """Bring the dead RTPU's tasks back as they were: spawned, and ON where they were ON; during a

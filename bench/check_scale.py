@@ -62,7 +62,7 @@ def generate(n_tasks: int) -> str:
     for i in range(loops):
         rtpu = f"rtpu{i % 4}"
         lines.append(f"  traj{i}: {{module: joint_trajectory, rtpu: {rtpu}, period: 2 ms, "
-                     f"ports: {{q_d: q_d{i}, q_m: q_m{i}, q_r: q_r{i}, qd_r: qd_r{i}}}}}")
+                     f"ports: {{q_d: q_d{i}, q_m: q_m{i}, qd_m: qd_m{i}, q_r: q_r{i}, qd_r: qd_r{i}}}}}")
         lines.append(f"  pid{i}: {{module: pid_joint, rtpu: {rtpu}, period: 1 ms, params: {{kp: 400, kd: 40, gravity_feedforward: false}}, "
                      f"ports: {{q_r: q_r{i}, qd_r: qd_r{i}, q_m: q_m{i}, qd_m: qd_m{i}, tau: tau{i}}}}}")
         lines.append(f"  log{i}: {{module: data_logger, rtpu: {rtpu}, period: 10 ms, params: {{variables: [tau{i}], path: runs/log{i}.npy}}}}")

@@ -32,8 +32,9 @@ def main(argv: list[str] | None = None) -> int:
     said = {"pid": os.getpid(), "ppid": os.getppid(), "death_signal": death.value,
             "threads": len(os.listdir("/proc/self/task")), "scheduler": os.sched_getscheduler(0),
             "openblas": os.environ.get("OPENBLAS_NUM_THREADS"), "cmdline": cmdline}
-    with open(out, "w", encoding="utf-8") as stream:
+    with open(out + ".part", "w", encoding="utf-8") as stream:
         json.dump(said, stream)
+    os.replace(out + ".part", out)  # whole: a test waits for the file, then reads it
     if mode == "sleep":
         signal.pause()
     return int(code)

@@ -255,6 +255,12 @@ def subsystem_copy(directory: Path, subsystem: str, exclusive: bool = True) -> P
     return path
 
 
+def ipc_names(fragment: str) -> list[str]:
+    """The names in /dev/shm, and in /dev/mqueue where it is mounted (not on every machine), that hold `fragment`."""
+    folders = ["/dev/shm", *(["/dev/mqueue"] if os.path.ismount("/dev/mqueue") else [])]
+    return [name for folder in folders for name in os.listdir(folder) if fragment in name]
+
+
 def assert_nothing_left(report: dict) -> None:
     """Every object the run made is gone: opened by name, since /dev/mqueue may not be mounted."""
     assert report["objects"], "the report lists the run's objects"

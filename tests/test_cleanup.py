@@ -157,7 +157,7 @@ class SignalInsideTheLock:
         self.real = real
         self.armed = False
 
-    def acquire(self) -> None:
+    def acquire(self, timeout: float | None = None) -> None:  # (the table's per-cycle wait, None here)
         self.real.acquire(5.0)  # a process waiting on its own lock fails the test (BusyError) instead of hanging it
         if self.armed:
             self.armed = False

@@ -217,9 +217,10 @@ class PortBasedObject:
 
     def stable_cycle(self) -> Status:
         """Instead of `cycle`, for a critical task while the configuration is illegal (a switch
-        that overran a cycle, a task in ERROR) or while an in-var is older than its freshness
-        bound (its writer stalled): keep the plant locally stable (TR 4.4), e.g. a robot
-        interface holds position. Real-time safe. By default, the ordinary cycle."""
+        that overran a cycle, a task in ERROR), while an in-var is older than its freshness
+        bound (its writer stalled), or when the table lock stayed held past the cycle's wait (its
+        in-vars are then the last ones read): keep the plant locally stable (TR 4.4), e.g. a
+        robot interface holds position. Real-time safe. By default, the ordinary cycle."""
         return self.cycle()
 
     def off(self) -> None:

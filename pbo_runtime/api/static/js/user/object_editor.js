@@ -1,7 +1,7 @@
 // A named object's values (Onika §4.4.1, "the values of objects are edited"): one typed field per
 // element of the object type's shape, labelled by element, checked here for numbers of the type
 // and then by the file's own checker when saved (POST /api/workspace/objects writes the YAML file).
-import { html, useState, useEffect } from "../html.js";
+import { html, useState, useEffect, useRef } from "../html.js";
 import { post } from "../api.js";
 
 const INTEGER = /^u?int/;
@@ -54,8 +54,18 @@ export function ObjectEditor({ dictionary, name, where, onSaved, onClose }) {
   const [texts, setTexts] = useState(fresh);
   const [message, setMessage] = useState({ text: "", error: false });
   const [saving, setSaving] = useState(false);
-  useEffect(() => { setTexts(fresh()); }, [name, obj && JSON.stringify(obj.value)]);  // the file's values, once saved
-  useEffect(() => { setMessage({ text: "", error: false }); }, [name]);
+  // The fields start from the file's values (useState above) and go back to them only when the object
+  // or its saved value changes: an effect that ran after the first paint too could overwrite what was
+  // typed in the meantime, and Save then wrote the old values.
+  const shown = useRef({ name, value: obj && JSON.stringify(obj.value) });
+  const value = obj && JSON.stringify(obj.value);
+  useEffect(() => {
+    const before = shown.current;
+    if (before.name === name && before.value === value) return;
+    shown.current = { name, value };
+    setTexts(fresh());
+    if (before.name !== name) setMessage({ text: "", error: false });
+  }, [name, value]);
   if (!obj) return null;
 
   const save = async (event) => {

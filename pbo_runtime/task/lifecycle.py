@@ -234,8 +234,10 @@ class Task:
     def run_cycle(self, now: float, component: Callable[[], Status] | None = None) -> Status:
         """One cycle released at `now`: in-vars, cycle, out-vars; errors go to `error`.
 
-        The executive calls this only while ON; it is the per-cycle path. The outputs' write
-        time and sequence are this release time and cycle count, in the status block.
+        Only while ON. The outputs' write time and sequence are this release time and cycle
+        count, in the status block. The executive reads the in-vars itself and then calls
+        `run_read_cycle`, since a read that gave up its wait for the lock (`cycle_lock_wait`)
+        changes what the release does; a task stepped here waits for the lock as its table says.
         """
         self.read_inputs()
         return self.run_read_cycle(now, component)

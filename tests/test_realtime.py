@@ -43,11 +43,11 @@ def test_sched_fifo_is_reported_as_granted_or_refused_with_the_reason():
 @pytest.mark.multiprocess
 def test_an_rtpu_hosting_a_critical_task_runs_above_the_others_and_below_the_plant():
     from pbo_runtime.supervisor.plant_host import PLANT_FIFO_PRIORITY
-    from rtpu._realtime import FIFO_PRIORITY
+    from rtpu._realtime import CRITICAL_FIFO_PRIORITY, FIFO_PRIORITY
 
     scheduler = applied(None, True, critical=True)["scheduler"]
-    assert scheduler == "SCHED_FIFO 55" or scheduler.startswith("SCHED_OTHER: SCHED_FIFO refused (")
-    assert FIFO_PRIORITY < 55 < PLANT_FIFO_PRIORITY
+    assert scheduler == f"SCHED_FIFO {CRITICAL_FIFO_PRIORITY}" or scheduler.startswith("SCHED_OTHER: SCHED_FIFO refused (")
+    assert FIFO_PRIORITY < CRITICAL_FIFO_PRIORITY < PLANT_FIFO_PRIORITY
 
 
 CHILD_POLICY = ("import json, os, subprocess, sys; from rtpu import _realtime; granted = _realtime.apply(None, True)['scheduler']; "

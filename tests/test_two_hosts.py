@@ -28,7 +28,7 @@ import pytest
 
 from pbo_runtime import read_log
 from pbo_runtime.config.application import check_application
-from tests.support import PBO, REPO
+from tests.support import PBO, REPO, until
 
 PREFIX = "pbohosts"  # every namespace and link this test makes starts with it (at most 15 characters a link name)
 NETNS = {"arm-a": f"{PREFIX}-a", "arm-b": f"{PREFIX}-b"}
@@ -162,22 +162,18 @@ def wait_for(text: str, said: Path, process: subprocess.Popen, seconds: float = 
         time.sleep(0.1)
 
 
-def wait_until_settled(process: subprocess.Popen, said: Path, seconds: float = 120.0) -> None:
-    """Until the follower's arm is within SETTLED / 2 of its goal, read with `pbo svar` inside its host's
-    namespaces (its /dev/shm is its own); the safety net catches an arm that never settles, it times nothing."""
-    deadline = time.monotonic() + seconds
+def follower_settled(process: subprocess.Popen, said: Path) -> bool:
+    """Whether the follower's arm is within SETTLED / 2 of its goal, read with `pbo svar` inside its host's
+    namespaces (its /dev/shm is its own)."""
+    assert process.poll() is None, said.read_text()
     command = ["nsenter", "--target", str(process.pid), "--mount", "--ipc", "--net",
                *PBO, "svar", "--subsystem", "follower", "--format", "json", "q_m", "q_d"]
-    while True:
-        assert process.poll() is None, said.read_text()
-        done = subprocess.run(command, capture_output=True, text=True, timeout=60)
-        if done.returncode == 0:
-            rows = {row["name"]: np.array([float(x) for x in row["value"].strip("[]").split(",")])  # shown to 4 decimals
-                    for row in json.loads(done.stdout)["variables"]}
-            if np.max(np.abs(rows["q_m"] - rows["q_d"])) < SETTLED / 2:
-                return
-        assert time.monotonic() < deadline, f"the follower's arm did not settle: {done.stdout}{done.stderr}"
-        time.sleep(0.2)
+    done = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    if done.returncode != 0:
+        return False
+    rows = {row["name"]: np.array([float(x) for x in row["value"].strip("[]").split(",")])  # shown to 4 decimals
+            for row in json.loads(done.stdout)["variables"]}
+    return bool(np.max(np.abs(rows["q_m"] - rows["q_d"])) < SETTLED / 2)
 
 
 def stop(process: subprocess.Popen) -> int:
@@ -220,7 +216,8 @@ def test_the_follower_on_another_machine_tracks_the_leader_and_rides_out_a_parti
         _ip("-n", NETNS["arm-a"], "link", "set", VETH["arm-a"], "up")
         # the link comes back by itself (TCP retransmits): the receiver says it is back, however long that takes
         wait_for(back, follower_said, follower, times=resumed + 1)
-        wait_until_settled(follower, follower_said)  # the robot resumed at its next cycle; the held arm settles
+        # the robot resumed at its next cycle; the held arm settles (the net catches an arm that never does)
+        until(lambda: follower_settled(follower, follower_said), "the follower's arm settled", 120.0)
     finally:
         statuses["arm-b"] = stop(follower)  # the follower first: a leader gone first would look like a partition
         statuses["arm-a"] = stop(leader)

@@ -94,3 +94,24 @@ def test_a_module_that_never_returns_stops_its_rtpu_and_the_robot_holds_the_arm_
     assert report["tasks"]["stuck"]["cycles"] == 100 and report["unstopped"] == ["rtpu0"]
     assert "error: rtpu0 did not stop within 5 s and was killed" in done.stderr
     assert_nothing_left(report)
+
+
+INJECTED = {"module": "fault_injector", "rtpu": "rtpu0", "period": "2 ms", "params": {"fail_after": 150},
+            "ports": {"watched": "q_m"}}
+
+
+def test_a_task_left_in_error_and_the_arm_held_for_it_are_faults_and_the_run_exits_2(tmp_path):
+    config = demo_copy(tmp_path, "fault_left", inj=INJECTED)
+    report_path = tmp_path / "report.json"
+    done = subprocess.run([*PBO, "run", str(config), "--clock", "sim", "--duration", "1", "--no-live",
+                           "--report", str(report_path)], cwd=tmp_path, capture_output=True, text=True, timeout=240)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "Traceback" not in done.stdout + done.stderr
+    report = json.loads(report_path.read_text())
+    assert report["states_at_stop"]["inj"] == "ERROR"
+    assert report["faults"] == [
+        "task 'inj' on rtpu0 was in ERROR at the stop: cycle raised RuntimeError: injected fault after 150 cycles at "
+        f"{report['tasks']['inj']['error'].rsplit(' at ', 1)[1]} (while a run goes on: pbo clear inj, then pbo on inj)",
+        "critical task 'robot' ran its locally stable behaviour until the stop, from 0.301 s into the run: the "
+        "configuration is illegal (a task in ERROR, or a switch that overran a cycle)"]
+    assert done.stderr.splitlines()[-2:] == [f"fault: {line}" for line in report["faults"]]

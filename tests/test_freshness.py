@@ -301,6 +301,15 @@ def test_a_hold_for_the_table_lock_is_timing_told_with_its_reason_not_a_fault():
                       f"than wait for the table lock: {reason}"]
 
 
+def test_a_hold_for_an_illegal_configuration_the_operator_ended_is_neither_and_one_until_the_stop_is_a_fault():
+    illegal = "the configuration is illegal (a task in ERROR, or a switch that overran a cycle)"
+    cleared = {**episode(1.0, 2.0, "illegal"), "reason": illegal}  # pbo clear, pbo on: the operator's procedure
+    assert lines(cleared) == ([], [])
+    braked = {**episode(1.0, None, "illegal"), "reason": illegal}  # nobody brought the configuration back
+    assert lines(cleared, braked) == ([f"critical task 'robot' ran its locally stable behaviour until the stop, from "
+                                       f"1.000 s into the run: {illegal}"], [])
+
+
 def test_a_hold_while_the_configuration_comes_on_is_neither_and_is_marked():
     held = episode(-0.5, 0.3)
     assert lines(held) == ([], []) and held["while_starting"] is True

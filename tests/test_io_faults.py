@@ -214,13 +214,15 @@ def test_a_disk_that_fills_during_the_run_fails_the_log_and_the_report_with_the_
                      r"\(100 rows after the 0 written\): \[Errno 28\] No space left on device at data_logger\.py:\d+", said)
     assert re.fullmatch(r"fault: task 'logger' on rtpu0 could not write its output: cycle raised OutputError: cannot write "
                         r"log \S+/pid_joint\.npy \(100 rows after the 0 written\): \[Errno 28\] No space left on device at "
-                        r"data_logger\.py:\d+.*", errors[-2]), done.stderr
+                        r"data_logger\.py:\d+.*", errors[-3]), done.stderr
+    # the logger is part of the configuration: the robot held the arm from its error to the stop, and says so
+    assert errors[-2].startswith("fault: critical task 'robot' ran its locally stable behaviour until the stop"), done.stderr
     assert re.fullmatch(r"error: cannot write the run report \S+/report\.json: \[Errno 28\] No space left on device; free "
                         r"space on that file system \(df -h shows it\) or name another place", errors[-1]), done.stderr
     assert sorted(p.name for p in small_disk.iterdir()) == ["filler", "pid_joint.npy"]  # no report.json, no temporary file
     assert len(np.load(small_disk / "pid_joint.npy")) == 0  # the header alone: a valid, empty log
     written = json.loads(report.read_text())  # the report that could be written has it all
-    assert written["faults"] == [errors[-2].removeprefix("fault: ")]
+    assert written["faults"] == [line.removeprefix("fault: ") for line in errors[-3:-1]]
     assert written["queue_bytes"] == PID_JOINT_QUEUE_BYTES
     assert_nothing_left(written)
 

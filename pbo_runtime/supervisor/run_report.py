@@ -131,6 +131,7 @@ class RunReporting:
         self.result.marks = list(self.job_control.marks)
         self.result.started_at = self.started_at if self.started_at is not None else 0.0
         started = self.started_at if self.started_at is not None else 0.0
+        self._report_tasks_left_in_error()
         self._report_stable_episodes(started)
         for name, stats in self._stats.items():
             # an overrun's release as seconds since the configuration came on, as the summary reads it
@@ -149,6 +150,20 @@ class RunReporting:
                 f"the arm's drive watchdog held the arm {trips} time{'s' if trips > 1 else ''}: no command came within "
                 "its timeout (the plant's command_timeout) while the brakes were off; the task that drives it was "
                 "stopped, starved or blocked")
+
+    def _report_tasks_left_in_error(self) -> None:
+        """A task still in ERROR at the stop is a fault of the run: nobody cleared it, and a critical task
+        that needs it held the arm meanwhile (its own line says so)."""
+        for name, state in self.result.states_at_stop.items():
+            if state != "ERROR":
+                continue
+            spec = self.subsystem.tasks.get(name) or self.every_task.get(name)
+            where = f" on {spec.rtpu}" if spec is not None else ""
+            if any(fault.startswith(f"task '{name}'{where} ") for fault in self.result.faults):
+                continue  # its failure was told as a fault when it happened (a log it could not write)
+            error = self.task_errors.get(name, "") or "its module reported an error"
+            self.result.faults.append(f"task '{name}'{where} was in ERROR at the stop: {error} "
+                                      f"(while a run goes on: pbo clear {name}, then pbo on {name})")
 
     def _report_stable_episodes(self, started: float) -> None:
         """Close the episodes still open at the stop; tell each task's faults and timing holds (`stable_episode_lines`)."""
@@ -240,11 +255,14 @@ def stable_episode_lines(episodes: list[dict[str, Any]], periods: dict[str, floa
     item past its bound); the critical tasks' holds it caused (cause "upstream") are in the
     episodes, and the fault is told once, at the task that saw the stale input. Holds because the
     table lock stayed held past the cycle's wait (cause "lock": a process died holding it) are
-    timing, told with how often: the fault is the death, which the run tells.
+    timing, told with how often: the fault is the death, which the run tells. A hold because the
+    configuration is illegal (a task in ERROR) is the operator's to end; one still going at the stop
+    is a fault: the arm stayed braked.
     """
     origin = started_at if started_at is not None else 0.0
     grouped: dict[tuple[str, str], list[dict[str, Any]]] = {}
     locked: dict[str, list[dict[str, Any]]] = {}
+    braked: list[dict[str, Any]] = []
     for episode in episodes:
         episode["while_starting"] = (started_at is not None and episode["from"] < started_at
                                      and episode["to"] is not None)  # (one still open at the stop is a fault)
@@ -254,7 +272,12 @@ def stable_episode_lines(episodes: list[dict[str, Any]], periods: dict[str, floa
             grouped.setdefault((episode["task"], episode["cause"]), []).append(episode)
         elif episode["cause"] == "lock":
             locked.setdefault(episode["task"], []).append(episode)
+        elif episode["cause"] == "illegal" and episode["to"] is None:
+            braked.append(episode)
     faults, timing = [], []
+    for episode in braked:  # the operator did not bring the configuration back: the arm stayed held
+        faults.append(f"critical task '{episode['task']}' ran its locally stable behaviour "
+                      f"{_episodes([episode], origin)}: {episode['reason']}")
     for (task, _), group in grouped.items():
         brief = [e for e in group if e["brief"]]
         held = sum(e["seconds"] for e in brief)

@@ -5,11 +5,11 @@ by the plant options, never widened: docs/robots.md). Each cycle the robot inter
 command to them before the driver, so no value past a limit reaches the arm: a torque to the
 joint's effort limit; a position to the joint's range, moving at most the velocity limit in a
 period. It also watches for divergence: a torque command at its effort limit for longer than
-`saturation_bound`, a measured velocity past its limit (where the robot gives one), or a measured
-position past its range by more than `position_tolerance`. Divergence is a fault: the interface
-returns ERROR with a message naming the joint and the limit, its `error` component engages the
-brakes, and the driver keeps the message for the run's summary (a `fault:` line naming the task
-that wrote the command).
+`saturation_bound`, a measured velocity past its limit (where the robot gives one) by more than
+`VELOCITY_TOLERANCE`, or a measured position past its range by more than `position_tolerance`.
+Divergence is a fault: the interface returns ERROR with a message naming the joint and the limit,
+its `error` component engages the brakes, and the driver keeps the message for the run's summary
+(a `fault:` line naming the task that wrote the command).
 
 Every array is made here, once; the per-cycle checks are ufuncs into them (no allocation).
 """
@@ -27,6 +27,9 @@ SATURATION_BOUND = 0.05
 #: How far past its range a measured position may be before it is a fault, rad (m for a slide
 #: joint): the simulated joint limits are soft, and a joint driven against its stop goes a little past.
 POSITION_TOLERANCE = 0.02
+#: How far past its velocity limit a measured velocity may be before it is a fault, as a share of
+#: the limit: a servo or a controller tracking a reference at the limit overshoots it a little.
+VELOCITY_TOLERANCE = 0.1
 
 
 class ArmLimits:
@@ -42,6 +45,7 @@ class ArmLimits:
         self.q_min = np.where(limited, arm[:, Arm.Q_MIN], -np.inf)
         self.q_max = np.where(limited, arm[:, Arm.Q_MAX], np.inf)
         self.velocity = np.where(arm[:, Arm.VELOCITY] > 0, arm[:, Arm.VELOCITY], np.inf)
+        self._velocity_fault = self.velocity * (1.0 + VELOCITY_TOLERANCE)
         self.position_tolerance = position_tolerance
         self._q_centre = np.where(limited, 0.5 * (self.q_min + self.q_max), 0.0)
         self._q_reach = np.where(limited, 0.5 * (self.q_max - self.q_min) + position_tolerance, np.inf)
@@ -87,7 +91,7 @@ class ArmLimits:
         """Whether a measured velocity is past its limit or a position past its range and the tolerance."""
         scratch, flags = self._scratch, self._flags
         np.abs(qd, out=scratch)
-        np.greater(scratch, self.velocity, out=flags)
+        np.greater(scratch, self._velocity_fault, out=flags)
         np.subtract(q, self._q_centre, out=scratch)
         np.abs(scratch, out=scratch)
         np.greater(scratch, self._q_reach, out=self._long)
@@ -117,9 +121,10 @@ class ArmLimits:
         """The fault of the first joint past a velocity limit, else past its range."""
         for joint in range(self.ndof):
             _, position, velocity = self.units(joint)
-            if abs(qd[joint]) > self.velocity[joint]:
+            if abs(qd[joint]) > self._velocity_fault[joint]:
                 return (f"joint {joint + 1}: measured velocity {qd[joint]:.4g} {velocity} is past its limit of "
-                        f"{self.velocity[joint]:.4g} {velocity} at {now:.3f} s; the arm is braked")
+                        f"{self.velocity[joint]:.4g} {velocity} (tolerance {VELOCITY_TOLERANCE:.0%}) at {now:.3f} s; "
+                        "the arm is braked")
         for joint in range(self.ndof):
             _, position, _ = self.units(joint)
             if abs(q[joint] - self._q_centre[joint]) > self._q_reach[joint]:

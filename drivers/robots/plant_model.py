@@ -26,9 +26,9 @@ import mujoco
 import numpy as np
 
 from drivers.robots.arm_table import ArmTables
-from drivers.robots.description import RobotDescription
+from drivers.robots.description import RobotDescription, limit_rows
 from drivers.robots.files import RobotFileError, RobotSource, read_robot, resolve
-from pbo_runtime import GRAVITY, is_robot_file, registered_robot
+from pbo_runtime import GRAVITY, Arm, is_robot_file, registered_robot
 
 _LIMIT_OPTIONS = ("torque_limits", "velocity_limits")
 _RESERVED_SITES = ("ft", "target")
@@ -61,6 +61,11 @@ class PlantRobot:
     @property
     def dims(self) -> dict[str, int]:
         return {"NDOF": self.ndof}
+
+    def limit_rows(self) -> list[dict[str, object]]:
+        """Each joint's limits as `pbo check` shows them (`description.limit_rows`): the ARM table's."""
+        return limit_rows(self.joint_names, self.arm[:, Arm.TYPE] == Arm.SLIDE, self.torque_limits, self.velocity_limits,
+                          self.joint_limits)
 
 
 def load_robot(model: str, base_dir: Path, timestep: float, options: Mapping[str, Any], target: bool = False) -> PlantRobot:
@@ -108,7 +113,8 @@ def _source(model: str, base_dir: Path) -> tuple[RobotSource, RobotDescription |
         from drivers.robots.mjcf import to_mjcf
 
         spec = mujoco.MjSpec.from_string(to_mjcf(made, 0.001))
-        return RobotSource(Path(f"{model}.xml"), spec, "mjcf"), made, "ee"
+        velocity = {f"joint{j + 1}": float(v) for j, v in enumerate(made.velocity_limits) if v > 0}
+        return RobotSource(Path(f"{model}.xml"), spec, "mjcf", velocity=velocity), made, "ee"
     path = Path(str(made))
     return read_robot(path), None, None
 
@@ -214,15 +220,10 @@ def _find(elements: Any, name: str) -> Any:
 
 def _torque_limits(model: mujoco.MjModel, names: tuple[str, ...], actuators: dict[str, float],
                    options: Mapping[str, Any], source: RobotSource) -> np.ndarray:
-    given = _per_joint(options, "torque_limits", names)
-    limits = np.zeros(len(names))
-    for j, name in enumerate(names):
-        if given is not None:
-            limits[j] = given[j]
-        elif model.jnt_actfrclimited[j]:
-            limits[j] = float(np.max(np.abs(model.jnt_actfrcrange[j])))
-        else:
-            limits[j] = actuators.get(name, 0.0)
+    """Each joint's effort limit: the file's, or the plant option's where the file gives none or it is lower."""
+    given = np.array([float(np.max(np.abs(model.jnt_actfrcrange[j]))) if model.jnt_actfrclimited[j] else actuators.get(name, 0.0)
+                      for j, name in enumerate(names)])
+    limits = _tightened(given, _per_joint(options, "torque_limits", names), "torque_limits", "N m", names, source)
     missing = [name for name, limit in zip(names, limits) if not limit > 0]
     if missing:
         raise RobotFileError(
@@ -233,10 +234,25 @@ def _torque_limits(model: mujoco.MjModel, names: tuple[str, ...], actuators: dic
 
 
 def _velocity_limits(names: tuple[str, ...], options: Mapping[str, Any], source: RobotSource) -> np.ndarray:
-    given = _per_joint(options, "velocity_limits", names)
-    if given is not None:
+    """Each joint's speed limit (0: none): the file's, or the plant option's where the file gives none or it is lower."""
+    given = np.array([source.velocity.get(name, 0.0) for name in names])
+    return _tightened(given, _per_joint(options, "velocity_limits", names), "velocity_limits", "rad/s", names, source)
+
+
+def _tightened(given: np.ndarray, option: np.ndarray | None, key: str, unit: str, names: tuple[str, ...],
+               source: RobotSource) -> np.ndarray:
+    """The robot's limits `given` (0: none), tightened by the plant option `key`; RobotFileError where
+    the option would widen one: a file may lower a limit the robot gives, never raise it."""
+    if option is None:
         return given
-    return np.array([source.velocity.get(name, 0.0) for name in names])
+    wider = [j for j in range(len(names)) if given[j] > 0 and option[j] > given[j]]
+    if wider:
+        listed = ", ".join(f"{names[j]} ({option[j]:g} > {given[j]:g} {unit})" for j in wider)
+        raise RobotFileError(
+            f"plant option {key} would widen the limit {source.path.name} gives for {listed}: a file may tighten "
+            "the robot's limits, never widen them", key=key,
+            hint=f"give at most the robot's own: [{', '.join(f'{g:g}' if g > 0 else '...' for g in given)}]")
+    return option.copy()
 
 
 def _per_joint(options: Mapping[str, Any], key: str, names: tuple[str, ...]) -> np.ndarray | None:

@@ -47,12 +47,15 @@ class ArmLimits:
         self.velocity = np.where(arm[:, Arm.VELOCITY] > 0, arm[:, Arm.VELOCITY], np.inf)
         self._velocity_fault = self.velocity * (1.0 + VELOCITY_TOLERANCE)
         self.position_tolerance = position_tolerance
-        self._q_centre = np.where(limited, 0.5 * (self.q_min + self.q_max), 0.0)
-        self._q_reach = np.where(limited, 0.5 * (self.q_max - self.q_min) + position_tolerance, np.inf)
+        low, high = arm[:, Arm.Q_MIN], arm[:, Arm.Q_MAX]
+        self._q_centre = np.where(limited, 0.5 * (low + high), 0.0)
+        self._q_reach = np.where(limited, 0.5 * (high - low) + position_tolerance, np.inf)
         self.saturation_bound = saturation_bound
         # cycles a command may stay saturated: past this many in a row it is a fault
         self.saturated_cycles_allowed = max(1, math.ceil(saturation_bound / period - 1e-9))
-        self.saturated_for = np.zeros(n, dtype=np.int64)  # consecutive cycles each joint's command was at its limit
+        self._allowed = np.full(n, self.saturated_cycles_allowed, dtype=np.int64)
+        self.saturated_for = np.zeros(n, dtype=np.int64)
+        self._counted = np.zeros(n, dtype=np.int64)  # consecutive cycles each joint's command was at its limit
         self._scratch = np.zeros(n)
         self._flags = np.zeros(n, dtype=bool)
         self._long = np.zeros(n, dtype=bool)
@@ -64,15 +67,18 @@ class ArmLimits:
         """`out` = `tau` clipped to the effort limits; each joint at or past its limit counts a
         cycle towards the saturation bound, one within it starts its count again. True when a
         joint is at its limit."""
-        np.clip(tau, self.effort_low, self.effort, out=out)
+        np.maximum(tau, self.effort_low, out=out)  # np.clip's Python layers allocate; NaN stays NaN here too
+        np.minimum(out, self.effort, out=out)
         flags = self._flags
         np.abs(tau, out=self._scratch)
         np.greater_equal(self._scratch, self.effort, out=flags)
         if not np.count_nonzero(flags):
             self.saturated_for.fill(0)
             return False
-        np.multiply(self.saturated_for, flags, out=self.saturated_for)
-        np.add(self.saturated_for, flags, out=self.saturated_for)
+        counted = self._counted
+        np.copyto(counted, flags)  # as integers: a ufunc mixing bool and int64 allocates a cast buffer
+        np.multiply(self.saturated_for, counted, out=self.saturated_for)
+        np.add(self.saturated_for, counted, out=self.saturated_for)
         return True
 
     def limit_position(self, q_r: np.ndarray, previous: np.ndarray, step: np.ndarray, out: np.ndarray) -> None:
@@ -80,12 +86,14 @@ class ArmLimits:
         low, high = self._scratch, self._q_step_high
         np.subtract(previous, step, out=low)
         np.add(previous, step, out=high)
-        np.clip(q_r, low, high, out=out)
-        np.clip(out, self.q_min, self.q_max, out=out)
+        np.maximum(q_r, low, out=out)
+        np.minimum(out, high, out=out)
+        np.maximum(out, self.q_min, out=out)
+        np.minimum(out, self.q_max, out=out)
 
     def saturated_too_long(self) -> bool:
         """Whether a joint's command has stayed at its limit past the bound (after `clip`)."""
-        return bool(np.count_nonzero(np.greater(self.saturated_for, self.saturated_cycles_allowed, out=self._long)))
+        return bool(np.count_nonzero(np.greater(self.saturated_for, self._allowed, out=self._long)))
 
     def outside(self, q: np.ndarray, qd: np.ndarray) -> bool:
         """Whether a measured velocity is past its limit or a position past its range and the tolerance."""

@@ -80,5 +80,6 @@ class RobotPosition(RobotInterface):
 
     def _command_held(self, q: np.ndarray) -> None:
         """Command `q` as it is, within the range: the arm is already there."""
-        np.clip(q, self._limits.q_min, self._limits.q_max, out=self._command)
+        np.maximum(q, self._limits.q_min, out=self._command)
+        np.minimum(self._command, self._limits.q_max, out=self._command)
         self._write(self._command)

@@ -54,12 +54,19 @@ class ArmLimits:
         # cycles a command may stay saturated: past this many in a row it is a fault
         self.saturated_cycles_allowed = max(1, math.ceil(saturation_bound / period - 1e-9))
         self._allowed = np.full(n, self.saturated_cycles_allowed, dtype=np.int64)
-        self.saturated_for = np.zeros(n, dtype=np.int64)
-        self._counted = np.zeros(n, dtype=np.int64)  # consecutive cycles each joint's command was at its limit
+        self.saturated_for = np.zeros(n, dtype=np.int64)  # consecutive cycles each joint's command was at its limit
+        self._counting = False  # some joint's count is not 0
+        self._counted = np.zeros(n, dtype=np.int64)
         self._scratch = np.zeros(n)
         self._flags = np.zeros(n, dtype=bool)
         self._long = np.zeros(n, dtype=bool)
         self._q_step_high = np.zeros(n)
+        # the measured state as one array: position from the range's centre, then velocity; and
+        # how far from zero each may be (one comparison checks both)
+        self._state = np.zeros(2 * n)
+        self._state_bound = np.concatenate([self._q_reach, self._velocity_fault])
+        self._state_flags = np.zeros(2 * n, dtype=bool)
+        self._state_q, self._state_qd = self._state[:n], self._state[n:]  # views made once: a slice per cycle allocates
 
     # per cycle: no allocation --------------------------------------------------------------------
 
@@ -67,18 +74,22 @@ class ArmLimits:
         """`out` = `tau` clipped to the effort limits; each joint at or past its limit counts a
         cycle towards the saturation bound, one within it starts its count again. True when a
         joint is at its limit."""
-        np.maximum(tau, self.effort_low, out=out)  # np.clip's Python layers allocate; NaN stays NaN here too
-        np.minimum(out, self.effort, out=out)
         flags = self._flags
         np.abs(tau, out=self._scratch)
         np.greater_equal(self._scratch, self.effort, out=flags)
-        if not np.count_nonzero(flags):
-            self.saturated_for.fill(0)
+        if not np.count_nonzero(flags):  # the usual cycle: nothing to clip (a NaN is left for the driver to refuse)
+            np.copyto(out, tau)
+            if self._counting:
+                self.saturated_for.fill(0)
+                self._counting = False
             return False
+        np.maximum(tau, self.effort_low, out=out)  # np.clip's Python layers allocate
+        np.minimum(out, self.effort, out=out)
         counted = self._counted
         np.copyto(counted, flags)  # as integers: a ufunc mixing bool and int64 allocates a cast buffer
         np.multiply(self.saturated_for, counted, out=self.saturated_for)
         np.add(self.saturated_for, counted, out=self.saturated_for)
+        self._counting = True
         return True
 
     def limit_position(self, q_r: np.ndarray, previous: np.ndarray, step: np.ndarray, out: np.ndarray) -> None:
@@ -97,18 +108,16 @@ class ArmLimits:
 
     def outside(self, q: np.ndarray, qd: np.ndarray) -> bool:
         """Whether a measured velocity is past its limit or a position past its range and the tolerance."""
-        scratch, flags = self._scratch, self._flags
-        np.abs(qd, out=scratch)
-        np.greater(scratch, self._velocity_fault, out=flags)
-        np.subtract(q, self._q_centre, out=scratch)
-        np.abs(scratch, out=scratch)
-        np.greater(scratch, self._q_reach, out=self._long)
-        np.logical_or(flags, self._long, out=flags)
-        return bool(np.count_nonzero(flags))
+        state = self._state
+        np.subtract(q, self._q_centre, out=self._state_q)
+        np.copyto(self._state_qd, qd)
+        np.abs(state, out=state)
+        return bool(np.count_nonzero(np.greater(state, self._state_bound, out=self._state_flags)))
 
     def reset(self) -> None:
         """No command is being saturated (on, a hold): the bound counts afresh."""
         self.saturated_for.fill(0)
+        self._counting = False
 
     # once, at a fault: what is wrong, in words --------------------------------------------------------
 

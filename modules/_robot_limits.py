@@ -83,6 +83,9 @@ class ArmLimits:
                 self.saturated_for.fill(0)
                 self._counting = False
             return False
+        if np.count_nonzero(np.isfinite(tau, out=self._long)) != self.ndof:  # not a command to clip: the driver refuses it as it is
+            np.copyto(out, tau)
+            return False
         np.maximum(tau, self.effort_low, out=out)  # np.clip's Python layers allocate
         np.minimum(out, self.effort, out=out)
         counted = self._counted
@@ -93,7 +96,11 @@ class ArmLimits:
         return True
 
     def limit_position(self, q_r: np.ndarray, previous: np.ndarray, step: np.ndarray, out: np.ndarray) -> None:
-        """`out` = `q_r` within `step` of `previous` (the velocity limit over a period) and within the range."""
+        """`out` = `q_r` within `step` of `previous` (the velocity limit over a period) and within the
+        range; `q_r` as it is when it is not finite, for the driver to refuse."""
+        if np.count_nonzero(np.isfinite(q_r, out=self._flags)) != self.ndof:
+            np.copyto(out, q_r)
+            return
         low, high = self._scratch, self._q_step_high
         np.subtract(previous, step, out=low)
         np.add(previous, step, out=high)

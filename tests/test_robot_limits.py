@@ -67,11 +67,17 @@ def test_a_torque_saturated_past_the_bound_is_divergence_and_not_before():
     assert message.startswith("joint 1: the torque command 'tau_u' stayed at its effort limit of 97.6 N m for 51 ms")
 
 
-def test_a_nan_torque_is_never_counted_as_saturated_and_stays_nan_for_the_driver_to_refuse():
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_a_command_that_is_not_finite_is_never_clipped_and_reaches_the_driver_to_be_refused(bad):
     limits = limits_of("puma560")
     out = np.zeros(6)
-    assert not limits.saturate_torque(np.full(6, np.nan), out)
-    assert np.isnan(out).all()
+    tau = np.full(6, 1e6)
+    tau[2] = bad
+    assert not limits.saturate_torque(tau, out)
+    np.testing.assert_array_equal(out, tau)
+    np.testing.assert_array_equal(limits.saturated_for, 0)
+    limits.limit_position(tau, np.zeros(6), np.full(6, 0.001), out)
+    np.testing.assert_array_equal(out, tau)
 
 
 @pytest.mark.parametrize(("joint", "q_offset", "qd", "fault"), [

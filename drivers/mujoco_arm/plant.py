@@ -6,7 +6,7 @@ step and applies whatever the driver last commanded, in torque or position mode 
 with the brakes engaged so the arm does not fall before a controller is on. It does no real-time
 pacing: the host calls `step()` once per `timestep` of wall time (or as fast as it likes, in tests).
 Options: `ee` (the end effector: a link or site of the robot's file), `q0`, `torque_limits` and
-`velocity_limits` (where the file gives none), `target` (a moving marker for the camera),
+`velocity_limits` (where the file gives none, or lower than it gives: never higher), `target` (a moving marker for the camera),
 `wrist_wrench` (a contact), `adc_noise` and `seed` (the I/O boards that carry the wrist
 force/torque sensor), `command_timeout` (the drive's watchdog: with the brakes released and no
 new command for that long, the arm holds on its brakes until one comes).
@@ -88,8 +88,8 @@ class MujocoArmPlantOptions:
 
     ee: str | None = None  # the end effector: a link or site of the robot's file
     q0: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # rad: the braked start pose
-    torque_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # N m, where the file gives none
-    velocity_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # rad/s
+    torque_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # N m: tightens the file's, or gives one
+    velocity_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # rad/s: tightens the file's, or gives one
     target: Mapping[str, Any] | None = None  # a moving target for a camera: {center, radius, period, phase, orientation}
     wrist_wrench: tuple[float, ...] = field(default=(0.0,) * 6, metadata={"shape": (6,)})  # N, N m, sensor frame
     adc_noise: float = 0.0  # V: standard deviation of each ADC conversion

@@ -76,11 +76,11 @@ class RobotInterface(PortBasedObject):
         """ERROR, the arm braked, if the measured state left the arm's limits; None while within them."""
         if not self._limits.outside(self.q_m, self.qd_m):
             return None
-        return self.divergence_fault(self._limits.divergence_message(self.q_m, self.qd_m, self.time), command)
+        return self.divergence_fault(self._limits.divergence_message(self.q_m, self.qd_m), command)
 
     def divergence_fault(self, message: str, command: str) -> Status:
         """Brake the arm for a divergence and say which: the run's summary names the writer of `command`."""
-        self._arm.brake_for_fault(message, command)
+        self._arm.brake_for_fault(message, command, self.time)
         return self.fault(message)
 
     def watch_plant_from_now(self) -> None:

@@ -132,27 +132,26 @@ class ArmLimits:
         """(force, position, velocity) units of `joint`."""
         return ("N", "m", "m/s") if self.slide[joint] else ("N m", "rad", "rad/s")
 
-    def saturation_message(self, tau: np.ndarray, port: str, now: float, period: float) -> str:
+    def saturation_message(self, tau: np.ndarray, port: str, period: float) -> str:
         """The fault of the joint saturated longest: its limit, for how long, what was asked."""
         joint = int(np.argmax(self.saturated_for))
         unit = self.units(joint)[0]
         held = self.saturated_for[joint] * period
         return (f"joint {joint + 1}: the torque command '{port}' stayed at its effort limit of {self.effort[joint]:.4g} "
                 f"{unit} for {held * 1e3:.0f} ms, past the saturation bound of {self.saturation_bound * 1e3:.0f} ms "
-                f"(it asked {tau[joint]:.4g} {unit} at {now:.3f} s); the arm is braked")
+                f"(it asked {tau[joint]:.4g} {unit}); the arm is braked")
 
-    def divergence_message(self, q: np.ndarray, qd: np.ndarray, now: float) -> str:
+    def divergence_message(self, q: np.ndarray, qd: np.ndarray) -> str:
         """The fault of the first joint past a velocity limit, else past its range."""
         for joint in range(self.ndof):
             _, position, velocity = self.units(joint)
             if abs(qd[joint]) > self._velocity_fault[joint]:
                 return (f"joint {joint + 1}: measured velocity {qd[joint]:.4g} {velocity} is past its limit of "
-                        f"{self.velocity[joint]:.4g} {velocity} (tolerance {VELOCITY_TOLERANCE:.0%}) at {now:.3f} s; "
-                        "the arm is braked")
+                        f"{self.velocity[joint]:.4g} {velocity} (tolerance {VELOCITY_TOLERANCE:.0%}); the arm is braked")
         for joint in range(self.ndof):
             _, position, _ = self.units(joint)
             if abs(q[joint] - self._q_centre[joint]) > self._q_reach[joint]:
                 return (f"joint {joint + 1}: measured position {q[joint]:.4g} {position} is past its range "
                         f"[{self.q_min[joint]:.4g}, {self.q_max[joint]:.4g}] {position} (tolerance "
-                        f"{self.position_tolerance:g}) at {now:.3f} s; the arm is braked")
+                        f"{self.position_tolerance:g}); the arm is braked")
         return "the arm left its limits; the arm is braked"

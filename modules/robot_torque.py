@@ -60,7 +60,7 @@ class RobotTorque(RobotInterface):
             return fault
         limits = self._limits
         if limits.saturate_torque(self.tau_u, self._tau) and limits.saturated_too_long():
-            return self.divergence_fault(limits.saturation_message(self.tau_u, "tau_u", self.time, self.period), "tau_u")
+            return self.divergence_fault(limits.saturation_message(self.tau_u, "tau_u", self.period), "tau_u")
         self._write(self._tau)
         return Status.CONTINUE
 

@@ -63,7 +63,7 @@ def test_a_torque_saturated_past_the_bound_is_divergence_and_not_before():
         assert not limits.saturated_too_long()
     limits.saturate_torque(asked, out)
     assert limits.saturated_too_long()
-    message = limits.saturation_message(asked, "tau_u", 0.051, TIMESTEP)
+    message = limits.saturation_message(asked, "tau_u", TIMESTEP)
     assert message.startswith("joint 1: the torque command 'tau_u' stayed at its effort limit of 97.6 N m for 51 ms")
 
 
@@ -96,7 +96,7 @@ def test_a_joint_past_its_velocity_limit_or_range_is_divergence(joint, q_offset,
     qdot[joint] = qd
     assert limits.outside(q, qdot) is (fault is not None)
     if fault is not None:
-        assert limits.divergence_message(q, qdot, 1.0).startswith(fault)
+        assert limits.divergence_message(q, qdot).startswith(fault)
 
 
 def test_a_joint_without_a_velocity_limit_or_range_never_diverges():

@@ -87,7 +87,7 @@ class MujocoArmDriver(DeviceDriver):
         self._q_cmd = self._regs.q_cmd
         self._stuck_deadline = 0.0
         self._finite = np.zeros(self.ndof, dtype=bool)  # per element of a command: finite (filled per write, no allocation)
-        self._faults: list[dict[str, str]] = []  # the divergences its task braked the arm for (brake_for_fault)
+        self._faults: list[dict[str, Any]] = []  # the divergences its task braked the arm for (brake_for_fault)
 
     # constants -------------------------------------------------------------------------------
 
@@ -219,17 +219,18 @@ class MujocoArmDriver(DeviceDriver):
         """Hold the arm where it is from the plant's next step (commands are then ignored)."""
         self._words[W_BRAKE] = 1
 
-    def brake_for_fault(self, message: str, command: str) -> None:
+    def brake_for_fault(self, message: str, command: str, at: float) -> None:
         """Engage the brakes for a fault of the arm the commanding task found (a divergence), and keep
         what it was: `figures()` hands it to the run's summary, which names the task that wrote
-        `command` (the commanding task's in-var port that carried the command)."""
+        `command` (the commanding task's in-var port that carried the command) and when (`at`, s on
+        the run's clock)."""
         self.engage_brakes()
         if len(self._faults) < _FAULTS_KEPT:
-            self._faults.append({"fault": message, "command": command})
+            self._faults.append({"fault": message, "command": command, "at": at})
 
     def figures(self) -> dict[str, Any]:
-        """For the run's summary: the faults the arm was braked for, the first with `fault` and
-        `command` (what `brake_for_fault` was given) and every one in `faults`; {} without one."""
+        """For the run's summary: the faults the arm was braked for, the first with `fault`, `command`
+        and `at` (what `brake_for_fault` was given) and every one in `faults`; {} without one."""
         if not self._faults:
             return {}
         return {**self._faults[0], "faults": list(self._faults)}

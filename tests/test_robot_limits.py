@@ -277,18 +277,34 @@ def test_a_plant_option_may_tighten_a_limit(tmp_path):
     assert [row["velocity"] for row in result.robot_limits] == [1, 1, 1, 2, 2, 2]  # puma560 gives none: the option gives them
 
 
-@pytest.mark.parametrize(("option", "message"), [
-    ("torque_limits: [97.6, 300, 89.4, 24.2, 20.1, 21.3]", r"torque_limits would widen .* joint2 \(300 > 186.4 N m\)"),
-    ("torque_limits: [98, 186.4, 89.4, 24.2, 20.1, 21.3]", r"torque_limits would widen .* joint1 \(98 > 97.6 N m\)"),
+def test_a_plant_option_may_narrow_a_joint_range_and_the_arm_table_carries_it(tmp_path):
+    ranges = [[-1, 1], [-0.5, 3], [-3, 0.5], [-1, 2], [-1, 1], [-4, 4]]
+    result = check_file(subsystem(tmp_path, f"{{model: puma560, joint_limits: {ranges}}}"))
+    assert result.ok, [str(e) for e in result.errors]
+    assert [[row["lower"], row["upper"]] for row in result.robot_limits] == ranges
+    with MujocoArmPlant(unique_name("plant"), "puma560", TIMESTEP, {**NO_WATCHDOG, "joint_limits": ranges}) as plant:
+        arm = plant.robot.arm
+        np.testing.assert_array_equal(arm[:, [Arm.Q_MIN, Arm.Q_MAX]], ranges)
+        np.testing.assert_array_equal(plant.model.jnt_range, ranges)  # the simulated joint stops too
+
+
+@pytest.mark.parametrize(("option", "message", "hint"), [
+    ("torque_limits: [97.6, 300, 89.4, 24.2, 20.1, 21.3]", r"torque_limits would widen .* joint2 \(300 > 186.4 N m\)",
+     "give at most the robot's own: [97.6, 186.4, 89.4, 24.2, 20.1, 21.3]"),
+    ("torque_limits: [98, 186.4, 89.4, 24.2, 20.1, 21.3]", r"torque_limits would widen .* joint1 \(98 > 97.6 N m\)",
+     "give at most the robot's own: [97.6, 186.4, 89.4, 24.2, 20.1, 21.3]"),
+    ("joint_limits: [[-1, 1], [-1, 1], [-1, 1], [-1, 1], [-1, 1], [-5, 1]]",
+     r"joint_limits would widen the range .* joint6 \(\[-5, 1\] past \[-4.643, 4.643\]\)",
+     "give each joint a range within the robot's own (pbo check lists them)"),
 ])
-def test_a_plant_option_that_would_widen_a_limit_is_an_error_at_its_line(tmp_path, option, message):
+def test_a_plant_option_that_would_widen_a_limit_is_an_error_at_its_line(tmp_path, option, message, hint):
     import re
 
     result = check_file(subsystem(tmp_path, f"{{model: puma560, {option}}}"))
     error = next(e for e in result.errors if e.code == "E216")
     assert (error.line, error.column) == (3, len("plant: {model: puma560, ") + option.index(":") + 3)  # at its value
     assert re.search(message, error.message), error.message
-    assert error.hint == "give at most the robot's own: [97.6, 186.4, 89.4, 24.2, 20.1, 21.3]"
+    assert error.hint == hint
 
 
 # --- a whole run ------------------------------------------------------------------------------------------

@@ -30,7 +30,7 @@ from drivers.robots.description import RobotDescription, limit_rows
 from drivers.robots.files import RobotFileError, RobotSource, read_robot, resolve
 from pbo_runtime import GRAVITY, Arm, is_robot_file, registered_robot
 
-_LIMIT_OPTIONS = ("torque_limits", "velocity_limits")
+_LIMIT_OPTIONS = ("torque_limits", "velocity_limits", "joint_limits")
 _RESERVED_SITES = ("ft", "target")
 _RESERVED_BODIES = ("ft", "target")
 _TARGET_RADIUS = 0.02  # the camera target's marker, for looks only (m)
@@ -93,6 +93,7 @@ def load_robot(model: str, base_dir: Path, timestep: float, options: Mapping[str
         raise RobotFileError(f"{source.path.name} has no joints: there is no arm to move")
     torque = _torque_limits(compiled, names, actuator_limits, options, source)
     velocity = _velocity_limits(names, options, source)
+    _tighten_ranges(compiled, names, options, source)
     limits = np.where(compiled.jnt_limited[:, None] > 0, compiled.jnt_range, [-np.inf, np.inf])
     home = _start_pose(compiled, spec, {}, description, limits, source)
     q0 = _start_pose(compiled, spec, options, description, limits, source) if "q0" in options else home
@@ -253,6 +254,32 @@ def _tightened(given: np.ndarray, option: np.ndarray | None, key: str, unit: str
             "the robot's limits, never widen them", key=key,
             hint=f"give at most the robot's own: [{', '.join(f'{g:g}' if g > 0 else '...' for g in given)}]")
     return option.copy()
+
+
+def _tighten_ranges(model: mujoco.MjModel, names: tuple[str, ...], options: Mapping[str, Any], source: RobotSource) -> None:
+    """The plant option joint_limits, [lower, upper] per joint, made the compiled model's ranges:
+    within the file's range, never past it (a joint the file leaves unlimited takes any)."""
+    if options.get("joint_limits") is None:
+        return
+    value = options["joint_limits"]
+    try:
+        ranges = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        ranges = np.zeros(0)
+    if ranges.shape != (len(names), 2) or not np.all(np.isfinite(ranges)) or np.any(ranges[:, 0] >= ranges[:, 1]):
+        raise RobotFileError(f"plant option joint_limits must be {len(names)} pairs [lower, upper] of finite numbers, lower < "
+                             f"upper (rad, m for a slide joint; one per joint: {', '.join(names)}), got: {value!r}",
+                             key="joint_limits")
+    own = np.where(model.jnt_limited[:, None] > 0, model.jnt_range, [-np.inf, np.inf])
+    wider = [j for j in range(len(names)) if ranges[j, 0] < own[j, 0] or ranges[j, 1] > own[j, 1]]
+    if wider:
+        listed = ", ".join(f"{names[j]} ([{ranges[j, 0]:g}, {ranges[j, 1]:g}] past [{own[j, 0]:.4g}, {own[j, 1]:.4g}])"
+                           for j in wider)
+        raise RobotFileError(f"plant option joint_limits would widen the range {source.path.name} gives for {listed}: a file may "
+                             "tighten the robot's limits, never widen them", key="joint_limits",
+                             hint="give each joint a range within the robot's own (pbo check lists them)")
+    model.jnt_range[:] = ranges
+    model.jnt_limited[:] = 1
 
 
 def _per_joint(options: Mapping[str, Any], key: str, names: tuple[str, ...]) -> np.ndarray | None:

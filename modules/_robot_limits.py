@@ -121,6 +121,12 @@ class ArmLimits:
         np.abs(state, out=state)
         return bool(np.count_nonzero(np.greater(state, self._state_bound, out=self._state_flags)))
 
+    def allow_from(self, q: np.ndarray) -> None:
+        """At `on`: a joint already past its range (braked there after a fault) may be driven back,
+        not further out: its bound is where it is now, until the next `on`."""
+        n = self.ndof
+        self._state_bound[:n] = np.maximum(self._q_reach, np.abs(q - self._q_centre))
+
     def reset(self) -> None:
         """No command is being saturated (on, a hold): the bound counts afresh."""
         self.saturated_for.fill(0)

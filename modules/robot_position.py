@@ -51,6 +51,7 @@ class RobotPosition(RobotInterface):
     def on(self) -> None:
         self._read(self.q_m, self.qd_m)
         self.watch_plant_from_now()
+        self._limits.allow_from(self.q_m)
         self._command_held(self.q_m)  # hold where the arm is: q_r may be stale or another arm's
         self._arm.release_brakes()
 

@@ -46,6 +46,7 @@ class RobotTorque(RobotInterface):
         self._read(self.q_m, self.qd_m)
         self.watch_plant_from_now()
         self._limits.reset()
+        self._limits.allow_from(self.q_m)
         self._arm.release_brakes()
 
     def cycle(self) -> Status:

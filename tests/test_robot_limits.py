@@ -229,6 +229,24 @@ def test_a_joint_past_its_range_brakes_the_arm(make_table, plant):
     assert "joint 5: measured position" in task.last_error and "past its range [-1.745, 1.745] rad" in task.last_error
 
 
+def test_after_a_range_fault_the_arm_may_be_driven_back_but_not_further_out(make_table, plant):
+    task, table, _ = robot_task(make_table, plant, params={"position_tolerance": 0.0})
+    push = np.zeros(6)
+    push[4] = 15.0
+    assert drive(task, table, plant, "tau_u", push, 3000, []) is Status.ERROR  # joint 5 past its upper limit
+    for _ in range(100):  # the brakes hold it there until the operator comes
+        plant.step()
+    assert plant.data.qpos[4] > 1.745
+    assert task.clear() and task.turn_on(0.0), task.last_error  # the operator's clear, then on: braked past the range
+    back = np.zeros(6)
+    back[4] = -5.0
+    assert drive(task, table, plant, "tau_u", back, 200, []) is Status.CONTINUE  # driven back: no fault
+    assert plant.data.qpos[4] < 1.745
+    task.turn_off()
+    assert task.turn_on(0.0), task.last_error
+    assert drive(task, table, plant, "tau_u", push, 3000, []) is Status.ERROR  # out again past the range: a fault again
+
+
 @pytest.mark.parametrize("plant", [("redundant7", {})], indirect=True)
 def test_a_position_command_reaches_the_plant_within_range_and_at_most_the_velocity_limit_a_period(make_table, plant):
     task, table, _ = robot_task(make_table, plant, module=RobotPosition)

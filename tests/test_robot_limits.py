@@ -258,6 +258,17 @@ def test_a_position_command_reaches_the_plant_within_range_and_at_most_the_veloc
     assert np.all(commands <= arm[:, Arm.Q_MAX])
 
 
+@pytest.mark.parametrize(("module", "command", "value"), [(RobotTorque, "tau_u", 10.0), (RobotTorque, "tau_u", 1e6),
+                                                        (RobotPosition, "q_r", 0.1)])
+def test_a_robot_interface_cycle_with_its_limits_allocates_no_array(make_table, plant, module, command, value):
+    from tests.support import allocation_peak, one_array
+
+    task, table, _ = robot_task(make_table, plant, module=module)
+    table.write(command, np.full(plant.ndof, value), when=TIMESTEP)
+    assert task.run_cycle(TIMESTEP) is Status.CONTINUE, task.last_error
+    assert allocation_peak(task.module.cycle, times=20) < one_array()  # 41 cycles saturated: within the bound
+
+
 # --- where the limits come from: pbo check -------------------------------------------------------------
 
 

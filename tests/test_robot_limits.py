@@ -336,6 +336,18 @@ def test_a_plant_option_that_would_widen_a_limit_is_an_error_at_its_line(tmp_pat
     assert error.hint == hint
 
 
+@pytest.mark.parametrize(("writer", "said"), [("ctl", "task 'ctl'"), ("job control", "job control"), ("", "no task")])
+def test_a_divergence_line_names_the_writer_of_the_variable_the_command_port_reads(writer, said):
+    from pbo_runtime.supervisor.run_report import divergence_lines
+
+    spec = task_spec(RobotTorque, name="arm_if", ports={"tau_u": "tau_cmd"}, dims={"NDOF": 6})
+    figures = {"faults": [{"fault": "joint 2: it diverged; the arm is braked", "command": "tau_u", "at": 12.5}]}
+    variables = {"tau_cmd": {"writer": writer}} if writer else {}
+    assert divergence_lines("arm_if", spec, figures, variables, 10.0) == [
+        f"joint 2: it diverged; the arm is braked at 2.500 s into the run (robot interface 'arm_if'; its 'tau_cmd' was "
+        f"written by {said})"]
+
+
 # --- a whole run ------------------------------------------------------------------------------------------
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from bench import (api_stream, check_scale, data_log, dora_peer, faults, hmi_latency, hmi_load, links, peers, placement, realtime,
-                   restart, scale, sim_speed, startup, svar_transfer, switching, wait)
+                   restart, robot_limits, scale, sim_speed, startup, svar_transfer, switching, wait)
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -39,6 +39,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "hmi_load": hmi_load.run,
     "sim_speed": sim_speed.run,
     "startup": startup.run,
+    "robot_limits": robot_limits.run,
 }
 
 FULL: dict[str, dict[str, Any]] = {
@@ -60,6 +61,7 @@ FULL: dict[str, dict[str, Any]] = {
     "hmi_load": {"seconds": 120.0, "rounds": 12},
     "sim_speed": {"seconds": 10.0, "rounds": 3},
     "startup": {"rounds": 12},
+    "robot_limits": {"cycles": 2000, "rounds": 10},
 }
 
 QUICK: dict[str, dict[str, Any]] = {
@@ -81,6 +83,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "hmi_load": {"seconds": 20.0, "rounds": 2},
     "sim_speed": {"seconds": 1.0, "rounds": 2},
     "startup": {"rounds": 2},
+    "robot_limits": {"cycles": 500, "rounds": 2},
 }
 
 DOC = Path(REPO) / "docs" / "performance.md"

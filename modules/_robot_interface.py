@@ -9,12 +9,17 @@ It also watches the plant: a measurement whose simulated time has not moved for
 `PLANT_STALL_PERIODS` of the slower of the task and the plant's timestep (the plant process
 stopped or starved) is not fresh, so the cycle holds the arm instead of commanding it and says
 so (`Status.STABLE`) until the plant steps again.
+
+Every command is clipped to the arm's limits before it reaches the driver, and leaving them is a
+fault that brakes the arm (`_robot_limits`).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+
+from modules._robot_limits import POSITION_TOLERANCE, SATURATION_BOUND, ArmLimits
 from pbo_runtime import Arm, ModuleError, OutConst, OutVar, PortBasedObject, Status
 
 PLANT_STALL_PERIODS = 3  # cycles (or plant steps, if slower) without a new step before the plant counts as stalled
@@ -29,8 +34,10 @@ class RobotInterface(PortBasedObject):
     q_m = OutVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
     qd_m = OutVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s")
 
-    def open_arm(self, device: str, mode: str | None = None) -> Any:
-        """Open the arm, check its mode and joints, publish its constants; binds `self._read`."""
+    def open_arm(self, device: str, mode: str | None = None, saturation_bound: float = SATURATION_BOUND,
+                 position_tolerance: float = POSITION_TOLERANCE) -> Any:
+        """Open the arm, check its mode and joints, publish its constants, make its limits
+        (`self._limits`); binds `self._read`."""
         self._arm = self.open_device(device)
         if mode is not None and getattr(self._arm, "mode", None) != mode:
             raise ModuleError(
@@ -42,7 +49,12 @@ class RobotInterface(PortBasedObject):
                 f"the arm on device '{device}' has {self._arm.ndof} joints, but the configuration says NDOF = {self.q_m.shape[0]}"
             )
         self.ndof = self._arm.ndof
-        self.arm_table = self._arm.arm()
+        arm = self._arm.arm()
+        self.arm_table = arm
+        if not saturation_bound > 0 or not position_tolerance >= 0:
+            raise ModuleError(f"saturation_bound must be > 0 s and position_tolerance >= 0, got: {saturation_bound!r}, "
+                              f"{position_tolerance!r}")
+        self._limits = ArmLimits(arm, self.period, saturation_bound, position_tolerance)
         self.end_effector = self._arm.end_effector()
         self._read = self._arm.read_state
         self._holding = False
@@ -59,6 +71,17 @@ class RobotInterface(PortBasedObject):
             self._sim_time_seen_at = now
             return True
         return now - self._sim_time_seen_at <= self._plant_stall_after
+
+    def diverged(self, command: str) -> Status | None:
+        """ERROR, the arm braked, if the measured state left the arm's limits; None while within them."""
+        if not self._limits.outside(self.q_m, self.qd_m):
+            return None
+        return self.divergence_fault(self._limits.divergence_message(self.q_m, self.qd_m), command)
+
+    def divergence_fault(self, message: str, command: str) -> Status:
+        """Brake the arm for a divergence and say which: the run's summary names the writer of `command`."""
+        self._arm.brake_for_fault(message, command, self.time)
+        return self.fault(message)
 
     def watch_plant_from_now(self) -> None:
         """On `on`: the stall bound counts from this moment, not from before the task was off."""

@@ -18,8 +18,11 @@ after the first listed time not before the task's `init`, once each. A task spaw
 its RTPU was restarted (`restarted`) takes the next listed time after its `init`, never again the
 one it just faulted at: with `fault: abort` and a restart policy, a run so crashes its RTPU at
 each listed time, and on the simulated clock (`--clock sim`) at the same ticks every run.
-Shipped as real code (not a
-mock) so operators can rehearse the procedure on the simulated arm.
+With `command: 1.0e6` it does not fail itself: it drives the arm wrongly, writing that value to
+every joint of its output port `command` (bind it to the arm's command: `ports: {command: tau_u}`,
+in place of the controller) every cycle, so the robot interface's limits are seen at work: the
+command clipped to the effort limits, then the saturation fault that brakes the arm.
+Shipped as real code (not a mock) so operators can rehearse the procedure on the simulated arm.
 """
 
 from __future__ import annotations
@@ -30,7 +33,9 @@ import threading
 from dataclasses import dataclass
 from typing import Literal
 
-from pbo_runtime import InVar, PortBasedObject, Status
+import numpy as np
+
+from pbo_runtime import InVar, OutVar, PortBasedObject, PortSpec, Status
 
 
 @dataclass(frozen=True)
@@ -41,6 +46,7 @@ class FaultInjectorParams:
     in_init: bool = False  # the fault happens in init (every time the task is spawned), not after fail_after cycles
     in_on: bool = False  # the fault happens in on (once per run: not in a restarted RTPU), not after fail_after cycles
     at: tuple[float, ...] = ()  # s on the run's clock: fault at each of these times (once each), not after fail_after
+    command: float | None = None  # writes this to every joint of the port `command` each cycle (N m, rad), and never fails
 
     def __post_init__(self) -> None:
         if self.fail_after < 0:
@@ -51,6 +57,8 @@ class FaultInjectorParams:
         if any(t < 0 for t in times) or list(times) != sorted(set(times)):
             raise ValueError(f"at must list times in seconds, >= 0 and increasing, got: {list(self.at)}")
         object.__setattr__(self, "at", times)
+        if self.command is not None and not math.isfinite(self.command):
+            raise ValueError(f"command must be a finite number, got: {self.command}")
 
 
 class FaultInjector(PortBasedObject):
@@ -60,7 +68,17 @@ class FaultInjector(PortBasedObject):
 
     watched = InVar("q_m", dtype="any", shape=None, doc="any variable: read every cycle, not used")
 
+    @classmethod
+    def ports_for(cls, params: FaultInjectorParams) -> tuple[PortSpec, ...]:
+        """With `command`, an out-var `command` (one value per joint) besides the watched variable."""
+        if params.command is None:
+            return cls.ports()
+        port = OutVar("tau_u", shape=("NDOF",), doc="the wrong command written every cycle (bind it with ports:)").spec
+        return cls.ports() + (PortSpec("command", port.kind, port.variable, port.dtype, port.shape, port.doc),)
+
     def init(self, params: FaultInjectorParams) -> None:
+        self._command = params.command
+        self._out = self.bound_arrays[-1] if params.command is not None else np.zeros(0)
         if params.in_init:
             self._fail(params.fault, "in init")
         self._fail_after = params.fail_after
@@ -83,6 +101,9 @@ class FaultInjector(PortBasedObject):
 
     def cycle(self) -> Status:
         self.cycles += 1
+        if self._command is not None:
+            self._out.fill(self._command)
+            return Status.CONTINUE
         if self._timed:
             if self.time >= self._fail_at:
                 at, self._fail_at = self._fail_at, self._times.pop(0)  # the next listed time, from the list made in init

@@ -14,12 +14,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from modules._robot_interface import RobotInterface
+from modules._robot_limits import POSITION_TOLERANCE
 from pbo_runtime import InVar, Status
 
 
 @dataclass(frozen=True)
 class RobotPositionParams:
     device: str = "arm"  # the YAML device this task opens (listed in its resources), mode: position
+    position_tolerance: float = POSITION_TOLERANCE  # rad (m): how far past its range a joint may go before it is a fault
 
 
 class RobotPosition(RobotInterface):
@@ -28,7 +30,10 @@ class RobotPosition(RobotInterface):
     `on` commands the position the arm is at before it releases the brakes, so the arm does not
     jump to a stale reference; `off` and `kill` engage the brakes. While the configuration is
     illegal, `stable_cycle` holds the position the arm had when it became so and ignores `q_r`.
-    Real-time safe cycle: two driver calls, no allocation.
+    Every position commanded is within the joint's range and within its velocity limit times the
+    period of the one before (where the robot gives a velocity limit); a joint past its velocity
+    limit or range is a fault that brakes the arm. Real-time safe cycle: two driver calls and the
+    limit checks, no allocation.
     """
 
     Params = RobotPositionParams
@@ -37,13 +42,17 @@ class RobotPosition(RobotInterface):
     q_r = InVar("q_r", shape=("NDOF",), doc="joint position reference the arm's servo tracks, rad")
 
     def init(self, params: RobotPositionParams) -> None:
-        self._write = self.open_arm(params.device, mode="position").write_position
-        self._hold = np.zeros(self._arm.ndof)  # the position stable_cycle holds
+        self._write = self.open_arm(params.device, "position", position_tolerance=params.position_tolerance).write_position
+        n = self._arm.ndof
+        self._hold = np.zeros(n)  # the position stable_cycle holds
+        self._command = np.zeros(n)  # the position last commanded, within the limits
+        self._step = self._limits.velocity * self.period  # the most a command moves in a period (inf: no velocity limit)
 
     def on(self) -> None:
         self._read(self.q_m, self.qd_m)
         self.watch_plant_from_now()
-        self._write(self.q_m)  # hold where the arm is: q_r may be stale or another arm's
+        self._limits.allow_from(self.q_m)
+        self._command_held(self.q_m)  # hold where the arm is: q_r may be stale or another arm's
         self._arm.release_brakes()
 
     def cycle(self) -> Status:
@@ -51,7 +60,11 @@ class RobotPosition(RobotInterface):
             self._hold_still()  # the plant stopped stepping: hold what it last showed
             return Status.STABLE
         self._holding = False
-        self._write(self.q_r)
+        fault = self.diverged("q_r")
+        if fault is not None:
+            return fault
+        self._limits.limit_position(self.q_r, self._command, self._step, out=self._command)
+        self._write(self._command)
         return Status.CONTINUE
 
     def stable_cycle(self) -> Status:
@@ -64,4 +77,10 @@ class RobotPosition(RobotInterface):
         if not self._holding:
             self._holding = True
             np.copyto(self._hold, self.q_m)
-        self._write(self._hold)
+        self._command_held(self._hold)
+
+    def _command_held(self, q: np.ndarray) -> None:
+        """Command `q` as it is, within the range: the arm is already there."""
+        np.maximum(q, self._limits.q_min, out=self._command)
+        np.minimum(self._command, self._limits.q_max, out=self._command)
+        self._write(self._command)

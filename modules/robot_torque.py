@@ -9,21 +9,28 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from modules._robot_interface import RobotInterface
+from modules._robot_limits import POSITION_TOLERANCE, SATURATION_BOUND
 from pbo_runtime import InVar, Status
 
 
 @dataclass(frozen=True)
 class RobotTorqueParams:
     device: str = "arm"  # the YAML device this task opens (listed in its resources)
+    saturation_bound: float = SATURATION_BOUND  # s: a torque at its effort limit longer than this is a fault
+    position_tolerance: float = POSITION_TOLERANCE  # rad (m): how far past its range a joint may go before it is a fault
 
 
 class RobotTorque(RobotInterface):
     """Torque-mode robot interface over a joint-level arm driver.
 
     Brakes are released on `on` and engaged on `off` and `kill`, so the arm holds still
-    whenever no controller drives it, and while the plant has stopped stepping. Real-time safe
-    cycle: two driver calls, no allocation.
+    whenever no controller drives it, and while the plant has stopped stepping. `tau_u` is clipped
+    to the effort limits before the driver; a torque held at its limit past `saturation_bound`, or a
+    joint past its velocity limit or range, is a fault that brakes the arm. Real-time safe cycle:
+    two driver calls and the limit checks, no allocation.
     """
 
     Params = RobotTorqueParams
@@ -32,11 +39,14 @@ class RobotTorque(RobotInterface):
     tau_u = InVar("tau_u", shape=("NDOF",), doc="joint torque command, N m")
 
     def init(self, params: RobotTorqueParams) -> None:
-        self._write = self.open_arm(params.device, mode="torque").write_torque
+        self._write = self.open_arm(params.device, "torque", params.saturation_bound, params.position_tolerance).write_torque
+        self._tau = np.zeros(self._arm.ndof)  # tau_u within the effort limits: what the driver is given
 
     def on(self) -> None:
         self._read(self.q_m, self.qd_m)
         self.watch_plant_from_now()
+        self._limits.reset()
+        self._limits.allow_from(self.q_m)
         self._arm.release_brakes()
 
     def cycle(self) -> Status:
@@ -46,12 +56,19 @@ class RobotTorque(RobotInterface):
         if self._holding:  # back from locally stable behaviour: a controller drives the arm again
             self._holding = False
             self._arm.release_brakes()
-        self._write(self.tau_u)
+        fault = self.diverged("tau_u")
+        if fault is not None:
+            return fault
+        limits = self._limits
+        if limits.saturate_torque(self.tau_u, self._tau) and limits.saturated_too_long():
+            return self.divergence_fault(limits.saturation_message(self.tau_u, "tau_u", self.period), "tau_u")
+        self._write(self._tau)
         return Status.CONTINUE
 
     def _hold(self) -> None:
         if not self._holding:
             self._holding = True
+            self._limits.reset()
             self._arm.engage_brakes()
 
     def stable_cycle(self) -> Status:

@@ -49,6 +49,7 @@ _OPTIONS = ("mode",)
 # the CPU), and how long it waits before calling the plant stuck.
 _SPINS_BEFORE_YIELD = 100
 _STUCK_AFTER_S = 0.5
+_FAULTS_KEPT = 10  # the faults a driver keeps for the summary (an operator may clear and turn on again)
 
 
 class MujocoArmDriver(DeviceDriver):
@@ -86,6 +87,7 @@ class MujocoArmDriver(DeviceDriver):
         self._q_cmd = self._regs.q_cmd
         self._stuck_deadline = 0.0
         self._finite = np.zeros(self.ndof, dtype=bool)  # per element of a command: finite (filled per write, no allocation)
+        self._faults: list[dict[str, Any]] = []  # the divergences its task braked the arm for (brake_for_fault)
 
     # constants -------------------------------------------------------------------------------
 
@@ -216,6 +218,22 @@ class MujocoArmDriver(DeviceDriver):
     def engage_brakes(self) -> None:
         """Hold the arm where it is from the plant's next step (commands are then ignored)."""
         self._words[W_BRAKE] = 1
+
+    def brake_for_fault(self, message: str, command: str, at: float) -> None:
+        """Engage the brakes for a fault of the arm the commanding task found (a divergence), and keep
+        what it was: `figures()` hands it to the run's summary, which names the task that wrote
+        `command` (the commanding task's in-var port that carried the command) and when (`at`, s on
+        the run's clock)."""
+        self.engage_brakes()
+        if len(self._faults) < _FAULTS_KEPT:
+            self._faults.append({"fault": message, "command": command, "at": at})
+
+    def figures(self) -> dict[str, Any]:
+        """For the run's summary: the faults the arm was braked for, the first with `fault`, `command`
+        and `at` (what `brake_for_fault` was given) and every one in `faults`; {} without one."""
+        if not self._faults:
+            return {}
+        return {**self._faults[0], "faults": list(self._faults)}
 
     def close(self) -> None:
         """Unmap the registers (idempotent); the plant owns and removes the segment."""

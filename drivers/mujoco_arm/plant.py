@@ -6,7 +6,8 @@ step and applies whatever the driver last commanded, in torque or position mode 
 with the brakes engaged so the arm does not fall before a controller is on. It does no real-time
 pacing: the host calls `step()` once per `timestep` of wall time (or as fast as it likes, in tests).
 Options: `ee` (the end effector: a link or site of the robot's file), `q0`, `torque_limits` and
-`velocity_limits` (where the file gives none), `target` (a moving marker for the camera),
+`velocity_limits` (where the file gives none, or lower than it gives: never higher), `joint_limits`
+(a narrower range than the file's), `target` (a moving marker for the camera),
 `wrist_wrench` (a contact), `adc_noise` and `seed` (the I/O boards that carry the wrist
 force/torque sensor), `command_timeout` (the drive's watchdog: with the brakes released and no
 new command for that long, the arm holds on its brakes until one comes).
@@ -83,13 +84,14 @@ class MujocoArmPlantOptions:
     """The plant's options (the `plant:` keys besides type, model and timestep), declared as a module's
     parameters are, so `pbo check` checks their names, types and lengths before anything runs.
 
-    The robot options (ee, q0, torque_limits, velocity_limits) are checked against the robot itself
+    The robot options (ee, q0, torque_limits, velocity_limits, joint_limits) are checked against the robot itself
     too, when it is loaded (`describe_robot`)."""
 
     ee: str | None = None  # the end effector: a link or site of the robot's file
     q0: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # rad: the braked start pose
-    torque_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # N m, where the file gives none
-    velocity_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # rad/s
+    torque_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # N m: tightens the file's, or gives one
+    velocity_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # rad/s: tightens the file's, or gives one
+    joint_limits: tuple[tuple[float, ...], ...] | None = field(default=None, metadata=_PER_JOINT)  # rad: [lower, upper] per joint, within the file's
     target: Mapping[str, Any] | None = None  # a moving target for a camera: {center, radius, period, phase, orientation}
     wrist_wrench: tuple[float, ...] = field(default=(0.0,) * 6, metadata={"shape": (6,)})  # N, N m, sensor frame
     adc_noise: float = 0.0  # V: standard deviation of each ADC conversion

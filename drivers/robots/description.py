@@ -31,7 +31,7 @@ def _frozen(values: object, shape: tuple[int, ...], what: str, robot: str) -> np
 class RobotDescription:
     """A serial arm of revolute joints, standard (distal) DH: T_i = Rz(q_i+θ_i) Tz(d_i) Tx(a_i) Rx(α_i).
 
-    Units: m, rad, kg, kg m², N m s/rad (damping), N m (torque limits).
+    Units: m, rad, kg, kg m², N m s/rad (damping), N m (torque limits), rad/s (velocity limits).
     """
 
     name: str
@@ -42,6 +42,7 @@ class RobotDescription:
     joint_limits: np.ndarray  # (n, 2) lower, upper
     torque_limits: np.ndarray  # (n,) symmetric: |tau_i| <= torque_limits[i]
     q0: np.ndarray  # (n,) home pose; the plant starts braked here
+    velocity_limits: np.ndarray | None = None  # (n,) |qd_i| <= velocity_limits[i]; None (or 0 for a joint): not given
 
     def __post_init__(self) -> None:
         n = self.ndof
@@ -54,12 +55,20 @@ class RobotDescription:
         set_(self, "joint_limits", _frozen(self.joint_limits, (n, 2), "joint_limits", self.name))
         set_(self, "torque_limits", _frozen(self.torque_limits, (n,), "torque_limits", self.name))
         set_(self, "q0", _frozen(self.q0, (n,), "q0", self.name))
+        velocity = np.zeros(n) if self.velocity_limits is None else self.velocity_limits
+        set_(self, "velocity_limits", _frozen(velocity, (n,), "velocity_limits", self.name))
         self._check_physical()
 
     @property
     def dims(self) -> dict[str, int]:
         """The named sizes a subsystem's ports may use without `dims:` giving them (the checker asks)."""
         return {"NDOF": self.ndof}
+
+    def limit_rows(self) -> list[dict[str, object]]:
+        """Each joint's limits as `pbo check` shows them (`limit_rows`): what the robot interface enforces."""
+        names = tuple(f"joint{j + 1}" for j in range(self.ndof))
+        return limit_rows(names, np.zeros(self.ndof, dtype=bool), self.torque_limits, self.velocity_limits,  # type: ignore[arg-type]
+                          self.joint_limits)
 
     def _check_physical(self) -> None:
         """Refuse what a simulator cannot integrate, naming the link and the rule."""
@@ -83,6 +92,8 @@ class RobotDescription:
                 raise ValueError(f"robot {self.name!r}: link {i} armature must be >= 0, got: {row[10]}")
         if np.any(self.damping < 0):
             raise ValueError(f"robot {self.name!r}: damping must be >= 0, got: {self.damping}")
+        if np.any(self.velocity_limits < 0):  # type: ignore[operator]
+            raise ValueError(f"robot {self.name!r}: velocity limits must be >= 0 (0: none given), got: {self.velocity_limits}")
         if np.any(self.torque_limits <= 0):
             raise ValueError(f"robot {self.name!r}: torque limits must be > 0, got: {self.torque_limits}")
         lower, upper = self.joint_limits[:, 0], self.joint_limits[:, 1]
@@ -90,6 +101,20 @@ class RobotDescription:
             raise ValueError(f"robot {self.name!r}: joint limits must have lower < upper, got: {self.joint_limits}")
         if np.any(self.q0 < lower) or np.any(self.q0 > upper):
             raise ValueError(f"robot {self.name!r}: q0 must lie within the joint limits, got: {self.q0}")
+
+
+def limit_rows(names: tuple[str, ...], slide: np.ndarray, effort: np.ndarray, velocity: np.ndarray,
+               joint_limits: np.ndarray) -> list[dict[str, object]]:
+    """One row a joint: name, unit of position (rad or m), effort, velocity (None: none given),
+    lower and upper (None: no range). The robot interface clips commands to these and brakes past them."""
+    rows: list[dict[str, object]] = []
+    for j, name in enumerate(names):
+        lower, upper = (float(x) for x in joint_limits[j])
+        ranged = bool(np.isfinite(lower) and np.isfinite(upper))
+        rows.append({"joint": name, "unit": "m" if slide[j] else "rad", "effort": float(effort[j]),
+                     "velocity": float(velocity[j]) if velocity[j] > 0 else None,
+                     "lower": lower if ranged else None, "upper": upper if ranged else None})
+    return rows
 
 
 def inertia_matrix(dyn_row: np.ndarray) -> np.ndarray:

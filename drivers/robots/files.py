@@ -36,11 +36,13 @@ _URDF_TAGS = {"link", "joint", "material"}  # what a URDF's <robot> holds for Mu
 
 
 class RobotFileError(ValueError):
-    """A robot that cannot be used; the message says what and how to fix it, `key` which plant key is at fault."""
+    """A robot that cannot be used; the message says what and how to fix it, `key` which plant key is
+    at fault, `hint` (if any) what to write instead."""
 
-    def __init__(self, message: str, key: str = "model") -> None:
+    def __init__(self, message: str, key: str = "model", hint: str = "") -> None:
         super().__init__(message)
         self.key = key
+        self.hint = hint
 
 
 @dataclass

@@ -26,11 +26,11 @@ import mujoco
 import numpy as np
 
 from drivers.robots.arm_table import ArmTables
-from drivers.robots.description import RobotDescription
+from drivers.robots.description import RobotDescription, limit_rows
 from drivers.robots.files import RobotFileError, RobotSource, read_robot, resolve
-from pbo_runtime import GRAVITY, is_robot_file, registered_robot
+from pbo_runtime import GRAVITY, Arm, is_robot_file, registered_robot
 
-_LIMIT_OPTIONS = ("torque_limits", "velocity_limits")
+_LIMIT_OPTIONS = ("torque_limits", "velocity_limits", "joint_limits")
 _RESERVED_SITES = ("ft", "target")
 _RESERVED_BODIES = ("ft", "target")
 _TARGET_RADIUS = 0.02  # the camera target's marker, for looks only (m)
@@ -62,6 +62,11 @@ class PlantRobot:
     def dims(self) -> dict[str, int]:
         return {"NDOF": self.ndof}
 
+    def limit_rows(self) -> list[dict[str, object]]:
+        """Each joint's limits as `pbo check` shows them (`description.limit_rows`): the ARM table's."""
+        return limit_rows(self.joint_names, self.arm[:, Arm.TYPE] == Arm.SLIDE, self.torque_limits, self.velocity_limits,
+                          self.joint_limits)
+
 
 def load_robot(model: str, base_dir: Path, timestep: float, options: Mapping[str, Any], target: bool = False) -> PlantRobot:
     """The robot `model` names (a registered name, a path from `base_dir`, a `package://` URI),
@@ -88,6 +93,7 @@ def load_robot(model: str, base_dir: Path, timestep: float, options: Mapping[str
         raise RobotFileError(f"{source.path.name} has no joints: there is no arm to move")
     torque = _torque_limits(compiled, names, actuator_limits, options, source)
     velocity = _velocity_limits(names, options, source)
+    _tighten_ranges(compiled, names, options, source)
     limits = np.where(compiled.jnt_limited[:, None] > 0, compiled.jnt_range, [-np.inf, np.inf])
     home = _start_pose(compiled, spec, {}, description, limits, source)
     q0 = _start_pose(compiled, spec, options, description, limits, source) if "q0" in options else home
@@ -108,7 +114,8 @@ def _source(model: str, base_dir: Path) -> tuple[RobotSource, RobotDescription |
         from drivers.robots.mjcf import to_mjcf
 
         spec = mujoco.MjSpec.from_string(to_mjcf(made, 0.001))
-        return RobotSource(Path(f"{model}.xml"), spec, "mjcf"), made, "ee"
+        velocity = {f"joint{j + 1}": float(v) for j, v in enumerate(made.velocity_limits) if v > 0}
+        return RobotSource(Path(f"{model}.xml"), spec, "mjcf", velocity=velocity), made, "ee"
     path = Path(str(made))
     return read_robot(path), None, None
 
@@ -214,15 +221,10 @@ def _find(elements: Any, name: str) -> Any:
 
 def _torque_limits(model: mujoco.MjModel, names: tuple[str, ...], actuators: dict[str, float],
                    options: Mapping[str, Any], source: RobotSource) -> np.ndarray:
-    given = _per_joint(options, "torque_limits", names)
-    limits = np.zeros(len(names))
-    for j, name in enumerate(names):
-        if given is not None:
-            limits[j] = given[j]
-        elif model.jnt_actfrclimited[j]:
-            limits[j] = float(np.max(np.abs(model.jnt_actfrcrange[j])))
-        else:
-            limits[j] = actuators.get(name, 0.0)
+    """Each joint's effort limit: the file's, or the plant option's where the file gives none or it is lower."""
+    given = np.array([float(np.max(np.abs(model.jnt_actfrcrange[j]))) if model.jnt_actfrclimited[j] else actuators.get(name, 0.0)
+                      for j, name in enumerate(names)])
+    limits = _tightened(given, _per_joint(options, "torque_limits", names), "torque_limits", "N m", names, source)
     missing = [name for name, limit in zip(names, limits) if not limit > 0]
     if missing:
         raise RobotFileError(
@@ -233,10 +235,51 @@ def _torque_limits(model: mujoco.MjModel, names: tuple[str, ...], actuators: dic
 
 
 def _velocity_limits(names: tuple[str, ...], options: Mapping[str, Any], source: RobotSource) -> np.ndarray:
-    given = _per_joint(options, "velocity_limits", names)
-    if given is not None:
+    """Each joint's speed limit (0: none): the file's, or the plant option's where the file gives none or it is lower."""
+    given = np.array([source.velocity.get(name, 0.0) for name in names])
+    return _tightened(given, _per_joint(options, "velocity_limits", names), "velocity_limits", "rad/s", names, source)
+
+
+def _tightened(given: np.ndarray, option: np.ndarray | None, key: str, unit: str, names: tuple[str, ...],
+               source: RobotSource) -> np.ndarray:
+    """The robot's limits `given` (0: none), tightened by the plant option `key`; RobotFileError where
+    the option would widen one: a file may lower a limit the robot gives, never raise it."""
+    if option is None:
         return given
-    return np.array([source.velocity.get(name, 0.0) for name in names])
+    wider = [j for j in range(len(names)) if given[j] > 0 and option[j] > given[j]]
+    if wider:
+        listed = ", ".join(f"{names[j]} ({option[j]:g} > {given[j]:g} {unit})" for j in wider)
+        raise RobotFileError(
+            f"plant option {key} would widen the limit {source.path.name} gives for {listed}: a file may tighten "
+            "the robot's limits, never widen them", key=key,
+            hint=f"give at most the robot's own: [{', '.join(f'{g:g}' if g > 0 else '...' for g in given)}]")
+    return option.copy()
+
+
+def _tighten_ranges(model: mujoco.MjModel, names: tuple[str, ...], options: Mapping[str, Any], source: RobotSource) -> None:
+    """The plant option joint_limits, [lower, upper] per joint, made the compiled model's ranges:
+    within the file's range, never past it (a joint the file leaves unlimited takes any)."""
+    if options.get("joint_limits") is None:
+        return
+    value = options["joint_limits"]
+    try:
+        ranges = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        ranges = np.zeros(0)
+    if ranges.shape != (len(names), 2) or not np.all(np.isfinite(ranges)) or np.any(ranges[:, 0] >= ranges[:, 1]):
+        raise RobotFileError(f"plant option joint_limits must be {len(names)} pairs [lower, upper] of finite numbers, lower < "
+                             f"upper (rad, m for a slide joint; one per joint: {', '.join(names)}), got: {value!r}",
+                             key="joint_limits")
+    own = np.where(model.jnt_limited[:, None] > 0, model.jnt_range, [-np.inf, np.inf])
+    wider = [j for j in range(len(names)) if ranges[j, 0] < own[j, 0] or ranges[j, 1] > own[j, 1]]
+    if wider:
+        listed = ", ".join(f"{names[j]} ([{ranges[j, 0]:g}, {ranges[j, 1]:g}] past [{own[j, 0]:.4g}, {own[j, 1]:.4g}])"
+                           for j in wider)
+        raise RobotFileError(f"plant option joint_limits would widen the range {source.path.name} gives for {listed}: a file may "
+                             "tighten the robot's limits, never widen them", key="joint_limits",
+                             hint="give each joint a range within the robot's own (pbo check lists them)")
+    model.jnt_range[:] = ranges
+    model.jnt_limited[:] = 1
 
 
 def _per_joint(options: Mapping[str, Any], key: str, names: tuple[str, ...]) -> np.ndarray | None:

@@ -17,6 +17,8 @@ Sources:
   stay diagonal (permuted) and each COM is the URDF COM permuted, sign-changed and shifted.
 - Joint limits (±170, ±120, ±170, ±120, ±170, ±120, ±175 deg) and peak torques (320, 320, 176,
   176, 110, 40, 40 N m): KUKA's LBR iiwa brochure, as quoted in Drake's iiwa_description README.
+- Speed limits (85, 85, 100, 75, 130, 135, 135 deg/s): KUKA's LBR iiwa 14 R820 data sheet, the
+  `<limit velocity>` of Drake's iiwa14 URDF.
 - Joint damping 0.5 N m s/rad on every joint: Drake's URDF `<dynamics damping>`.
 - Armature: ESTIMATED (KUKA publishes no rotor data). Gear ratio 160 (the usual harmonic-drive
   ratio of such joints) and rotor inertias of 30, 15, 7.5 and 4 e-6 kg m² for the four motor
@@ -85,6 +87,8 @@ _JOINT_LIMITS = np.array([[-170, 170], [-120, 120], [-170, 170], [-120, 120], [-
 
 _TORQUE_LIMITS = np.array([320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0])
 
+_VELOCITY_LIMITS = np.array([85.0, 85.0, 100.0, 75.0, 130.0, 135.0, 135.0]) * _DEG
+
 #: Home pose: shoulder pitched 30 deg forward, elbow bent 60 deg back, wrist pitched 60 deg, so
 #: the shoulder, elbow and wrist are all away from their singularities (q2, q4, q6 != 0 keeps
 #: joints 1 and 3, the upper arm and forearm, and joints 5 and 7 from lining up).
@@ -107,4 +111,5 @@ def redundant7() -> RobotDescription:
         joint_limits=_JOINT_LIMITS,
         torque_limits=_TORQUE_LIMITS,
         q0=_Q0,
+        velocity_limits=_VELOCITY_LIMITS,
     )

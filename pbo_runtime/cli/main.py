@@ -344,6 +344,7 @@ def _inferred_lines(result: Any) -> str:
         model = sub.plant.model if sub.plant is not None else "?"
         lines.append(f"  dims from the plant's robot '{model}': " + ", ".join(f"{k} = {v}" for k, v in result.robot_dims.items()))
     lines += [f"  {note}" for note in result.robot_notes]
+    lines += limit_lines(result.robot_limits)
     if result.inferred:
         lines.append(f"  inferred from their ports: {len(result.inferred)} variable(s)")
         width = max(len(name) for name in result.inferred)
@@ -353,6 +354,21 @@ def _inferred_lines(result: Any) -> str:
     return "".join("\n" + line for line in lines)
 
 
+def limit_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """The robot's limits, a joint a line: what the robot interface clips commands to and brakes past."""
+    if not rows:
+        return []
+    cells = [(str(r["joint"]), f"{r['effort']:g} {'N' if r['unit'] == 'm' else 'N m'}",
+              f"{r['velocity']:g} {r['unit']}/s" if r["velocity"] is not None else "none given",
+              f"[{r['lower']:.4g}, {r['upper']:.4g}] {r['unit']}" if r["lower"] is not None else "none (continuous)")
+             for r in rows]
+    widths = [max(len(row[i]) for row in [("joint", "effort", "velocity", "range"), *cells]) for i in range(3)]
+    lines = ["  the robot's limits (commands are clipped to them; a joint past them is a fault):"]
+    for row in [("joint", "effort", "velocity", "range"), *cells]:
+        lines.append("    " + "  ".join(cell.ljust(width) for cell, width in zip(row, widths)) + "  " + row[3])
+    return lines
+
+
 def _inferred_json(result: Any) -> dict[str, Any]:
     """The same, for --format json: present only when the file relies on it."""
     out: dict[str, Any] = {}
@@ -360,6 +376,8 @@ def _inferred_json(result: Any) -> dict[str, Any]:
         out["robot_dims"] = dict(result.robot_dims)
     if result.robot_notes:
         out["robot_notes"] = list(result.robot_notes)
+    if result.robot_limits:
+        out["robot_limits"] = list(result.robot_limits)
     if result.inferred:
         variables = result.subsystem.variables
         out["inferred"] = {name: {"type": variables[name].dtype, "shape": list(variables[name].shape)} for name in result.inferred}

@@ -37,6 +37,7 @@ class CheckResult:
     inferred: tuple[str, ...] = ()  # variables whose type or shape came from their ports, when there is no error
     robot_dims: dict[str, int] = field(default_factory=dict)  # dims taken from the plant's robot, when there is no error
     robot_notes: list[str] = field(default_factory=list)  # what loading the plant's robot file changed
+    robot_limits: list[dict[str, Any]] = field(default_factory=list)  # each joint's limits: what the robot interface enforces
 
     @property
     def ok(self) -> bool:
@@ -112,7 +113,7 @@ def _result(checked: Checked, file: str, errors: list[ConfigError]) -> CheckResu
     if errors:
         return CheckResult(subsystem, errors, warnings)
     return CheckResult(subsystem, errors, warnings, dict(checked.initial_values), tuple(checked.inferred), dict(checked.robot_dims),
-                       list(checked.robot_notes))
+                       list(checked.robot_notes), list(checked.robot_limits))
 
 
 def _bus_errors(subsystem: Subsystem) -> list[ConfigError]:

@@ -59,7 +59,7 @@ GRAVITY = (0.0, 0.0, -9.81)
 #: What a robot file's name ends with: a URDF, or an MJCF.
 ROBOT_SUFFIXES = (".urdf", ".xml", ".mjcf")
 #: Plant options that change the robot itself (the rest change the world around it).
-ROBOT_OPTIONS = ("ee", "q0", "torque_limits", "velocity_limits")
+ROBOT_OPTIONS = ("ee", "q0", "torque_limits", "velocity_limits", "joint_limits")
 
 
 def is_robot_file(model: str) -> bool:

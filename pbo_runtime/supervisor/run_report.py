@@ -141,7 +141,9 @@ class RunReporting:
                                        "state": self.result.states_at_stop.get(name, "?"),
                                        "error": self.task_errors.get(name, ""), **stats, "last_overruns": overruns}
             for device, figures in stats.get("devices", {}).items():
-                if figures.get("fault"):  # a special-purpose processor that died under its task: the task said so too
+                if figures.get("command"):  # a robot interface braked the arm: its limits were left
+                    self.result.faults += divergence_lines(name, spec, figures, self.result.variables, started)
+                elif figures.get("fault"):  # a special-purpose processor that died under its task: the task said so too
                     self.result.faults.append(f"device '{device}' of task '{name}': {figures['fault']}")
         self._report_stalls(started)
         trips = self.result.plant.get("watchdog_trips", 0)
@@ -240,6 +242,20 @@ class RunReporting:
             rows.append({"task": task.name, "rtpu": task.rtpu, "state": TaskState(int(words[W.STATE])).name,
                          **_table_figures(words), "exec_last": float(words[W.EXEC_LAST])})
         return rows
+
+
+def divergence_lines(task: str, spec: Any, figures: dict[str, Any], variables: dict[str, Any], started: float) -> list[str]:
+    """One line per time the robot interface `task` braked the arm for leaving its limits, naming
+    when (from `started`, the run's clock when the configuration came on) and the task that wrote
+    the command it was given (the last writer of that in-var's variable)."""
+    lines = []
+    for fault in figures.get("faults", [figures]):
+        variable = next((b.variable for b in spec.bindings if b.port.name == fault["command"]), fault["command"])
+        writer = variables.get(variable, {}).get("writer", "")
+        by = f"task '{writer}'" if writer and writer != "job control" else "job control" if writer else "no task"
+        lines.append(f"{fault['fault']} at {fault.get('at', started) - started:.3f} s into the run (robot interface "
+                     f"'{task}'; its '{variable}' was written by {by})")
+    return lines
 
 
 def stable_episode_lines(episodes: list[dict[str, Any]], periods: dict[str, float], started_at: float | None,

@@ -89,6 +89,7 @@ class Checked:
     inferred: list[str] = field(default_factory=list)  # variables whose type or shape came from their ports
     robot_dims: dict[str, int] = field(default_factory=dict)  # dims 'dims:' left out, taken from the plant's robot
     robot_notes: list[str] = field(default_factory=list)  # what loading the plant's robot file changed (dropped meshes...)
+    robot_limits: list[dict[str, Any]] = field(default_factory=list)  # each joint's limits (the robot's, tightened by plant options)
 
 
 class _Link(NamedTuple):

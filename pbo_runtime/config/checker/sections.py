@@ -239,8 +239,9 @@ class SectionChecks(CheckerBase):
                        + "; or give a URDF (.urdf) or MJCF (.xml) file, relative to this file")
             return
         described = {} if is_robot_file(spec.model) or robot_options else self._plant_robot_dims()
-        if described:  # a registered DH robot: its dims are known without loading a simulator
+        if described:  # a registered DH robot: its dims (and limits) are known without loading a simulator
             self._robot_dims = described
+            self._robot_limits(registry.registered_robot(spec.model))
         else:
             try:
                 describe = registry.plant_class(spec.type).describe_robot
@@ -265,7 +266,14 @@ class SectionChecks(CheckerBase):
             self.out.robot_notes = [f"robot {name}: {robot.ndof} joints ({', '.join(robot.joint_names)}), "
                                     f"end effector {robot.ee_name}"]
             self.out.robot_notes += [f"robot {name}: {note}" for note in robot.notes]
+            self._robot_limits(robot)
         self._check_robot_ndof(plant)
+
+    def _robot_limits(self, robot: Any) -> None:
+        """The joints' limits the robot gives (`limit_rows`: the robot's, tightened by the plant options), for the output."""
+        rows = getattr(robot, "limit_rows", None)
+        if callable(rows):
+            self.out.robot_limits = list(rows())
 
     @staticmethod
     def _plant_describes_robots(kind: str) -> bool:

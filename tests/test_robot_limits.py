@@ -360,8 +360,9 @@ def test_a_run_whose_controller_asks_1e6_n_m_ends_with_a_fault_naming_the_joint_
                           "--report", str(report)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert run.returncode == 2, run.stdout + run.stderr
     faults = json.loads(report.read_text())["faults"]
-    assert any(f.startswith("joint 1: the torque command 'tau_u' stayed at its effort limit of 97.6 N m") and
-               f.endswith("(robot interface 'robot'; its 'tau_u' was written by task 'pid')") for f in faults), faults
+    assert len(faults) == 1, faults  # told once: not again as a task left in ERROR
+    assert faults[0].startswith("joint 1: the torque command 'tau_u' stayed at its effort limit of 97.6 N m"), faults
+    assert faults[0].endswith("(robot interface 'robot'; its 'tau_u' was written by task 'pid')"), faults
     assert "fault: joint 1: the torque command 'tau_u'" in run.stderr, run.stderr
     assert "Traceback" not in run.stdout + run.stderr
 

@@ -10,6 +10,10 @@ cycle, arrival included.
 It starts from the arm's measured position and velocity, so a trajectory that takes over a moving
 arm (a restarted RTPU, a switch mid-move) brakes it along the curve instead of commanding a stop.
 From a speed above max_velocity it slows at max_acceleration.
+
+While the actuators are held (`actuators_held`: the plant stopped, the controller's torque
+stale, the table lock held) the reference holds still where it is, instead of running on to the
+goal without the arm; once they are not, it starts again from the measured state, as on `on`.
 """
 
 from __future__ import annotations
@@ -47,9 +51,21 @@ class JointTrajectory(PortBasedObject):
         self._law = BrakingLaw(self.q_r.shape[0], params.max_velocity, params.max_acceleration, self.period)
 
     def on(self) -> None:
+        self._held = False
+        self._start_from_measured()
+
+    def _start_from_measured(self) -> None:
         self.q_r = self.q_m  # start from where the arm is, as fast as it goes
         self.qd_r = self.qd_m
 
     def cycle(self) -> Status:
+        if self.actuators_held:
+            if not self._held:
+                self._held = True
+                self.qd_r[:] = 0.0  # the reference stands still with the arm
+            return Status.CONTINUE
+        if self._held:
+            self._held = False
+            self._start_from_measured()
         self._law.step(self.q_d, self.q_r, self.qd_r)
         return Status.CONTINUE

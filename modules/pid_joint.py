@@ -1,15 +1,25 @@
 """PID joint position controller (TR Figure 8), with optional gravity feed-forward.
 
-tau_u = kp (q_r - q_m) + kd (qd_r - qd_m) + ki ∫(q_r - q_m) dt + g(q_m)
+tau_u = kp (q_r - q_m) + kd (qd_r - qd_m) + ki ∫(q_r - q_m) dt + g(q_m) + handover
 
 The gravity term comes from Pinocchio, built in `init` from the robot's in-consts ARM and EE,
-so the same module drives whatever arm the robot interface reports. On `on` the integral is
-set so that the first output equals the torque already in the table (bumpless transfer when
-this controller takes over from another).
+so the same module drives whatever arm the robot interface reports.
+
+On `on` the integral starts from its steady-state estimate, not from the torque in the table:
+zero with gravity feed-forward (the model holds the arm), g(q_m) without it (the integral has to
+hold the arm). That torque is the previous controller's proportional and derivative terms of a
+moment ago as well, which in an integral would stay for kp / ki seconds. When that torque is
+being applied (the actuators are not held), the difference goes to a handover term that fades
+out with HANDOVER_TIME_CONSTANT: the first output equals it (no bump on a take-over), and no
+offset is left. When it is not (a restarted controller: the robot interface held the arm on its
+brakes meanwhile), the controller starts from the measured state alone. While the actuators are
+held (`actuators_held`: a stopped plant, a stale torque, the table lock held) the integral does
+not integrate: the arm does not answer, and q_m may stand still.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,6 +27,7 @@ import numpy as np
 from pbo_runtime import Arm, InConst, InVar, OutVar, PortBasedObject, Status, arm_model
 
 Gain = float | tuple[float, ...]
+HANDOVER_TIME_CONSTANT = 0.1  # s: the previous controller's torque beyond this one's fades out this fast
 
 
 @dataclass(frozen=True)
@@ -55,6 +66,8 @@ class PidJoint(PortBasedObject):
     tau = OutVar("tau_u", shape=("NDOF",), doc="joint torque command, N m")
 
     def init(self, params: PidJointParams) -> None:
+        import pinocchio
+
         n = int(self.ndof)
         self._kp = self._gains("kp", params.kp, n)
         self._kd = self._gains("kd", params.kd, n)
@@ -63,14 +76,12 @@ class PidJoint(PortBasedObject):
         self._error = np.zeros(n)
         self._term = np.zeros(n)
         self._integral = np.zeros(n)  # the integral term itself, N m
-        self._previous = np.zeros(n)
-        self._gravity = None
-        if params.gravity_feedforward:
-            import pinocchio
-
-            model = arm_model(self.arm_table, self.end_effector)
-            data = model.createData()
-            self._gravity = lambda q: pinocchio.computeGeneralizedGravity(model, data, q)
+        self._handover = np.zeros(n)  # the previous controller's torque beyond this one's, fading out, N m
+        self._fade = math.exp(-self.period / HANDOVER_TIME_CONSTANT)
+        self._feedforward = params.gravity_feedforward
+        model = arm_model(self.arm_table, self.end_effector)
+        data = model.createData()
+        self._gravity = lambda q: pinocchio.computeGeneralizedGravity(model, data, q)
 
     @staticmethod
     def _gains(name: str, value: Gain, n: int) -> np.ndarray:
@@ -87,35 +98,37 @@ class PidJoint(PortBasedObject):
         np.copyto(self._integral, 0.0, where=self._ki == 0)  # no integral action left: it would never decay
 
     def on(self) -> None:
-        # Bumpless take-over: with an integral term, start it where it reproduces the torque
-        # the previous controller left in the table (read before `on`, TR §4.3).
-        np.copyto(self._previous, self.tau)
+        previous = self.tau.copy()  # what the previous controller left in the table (read before `on`)
+        self._handover[:] = 0.0
         self._integral[:] = 0.0
-        self._compute()
-        if np.any(self._ki > 0) and np.any(self._previous):
-            np.subtract(self._previous, self._term, out=self._integral)
-            np.clip(self._integral, -self._limit, self._limit, out=self._integral)
+        if not self._feedforward:  # the integral holds the arm up: start it at the arm's gravity torque
+            np.clip(self._gravity(self.q_m), -self._limit, self._limit, out=self._integral)
             np.copyto(self._integral, 0.0, where=self._ki == 0)  # no integral action: it would never decay
+        self._compute()
+        if np.any(previous) and not self.actuators_held:  # that torque drives the arm now: take it over
+            np.subtract(previous, self.tau, out=self._handover)
             self._compute()
 
     def cycle(self) -> Status:
-        np.subtract(self.q_r, self.q_m, out=self._error)
-        np.multiply(self._error, self._ki, out=self._term)
-        np.multiply(self._term, self.period, out=self._term)
-        np.add(self._integral, self._term, out=self._integral)
-        np.clip(self._integral, -self._limit, self._limit, out=self._integral)
+        if not self.actuators_held:  # the arm answers: integrate
+            np.subtract(self.q_r, self.q_m, out=self._error)
+            np.multiply(self._error, self._ki, out=self._term)
+            np.multiply(self._term, self.period, out=self._term)
+            np.add(self._integral, self._term, out=self._integral)
+            np.clip(self._integral, -self._limit, self._limit, out=self._integral)
+        np.multiply(self._handover, self._fade, out=self._handover)
         self._compute()
         return Status.CONTINUE
 
     def _compute(self) -> None:
-        """tau = kp e + kd ed + integral + g(q_m); leaves the part without the integral in _term."""
+        """tau = kp e + kd ed + integral + handover (+ g(q_m) with feed-forward)."""
         tau, term = self.tau, self._term
         np.subtract(self.q_r, self.q_m, out=self._error)
         np.multiply(self._kp, self._error, out=tau)
         np.subtract(self.qd_r, self.qd_m, out=self._error)
         np.multiply(self._kd, self._error, out=term)
         np.add(tau, term, out=tau)
-        if self._gravity is not None:
+        if self._feedforward:
             np.add(tau, self._gravity(self.q_m), out=tau)
-        np.copyto(term, tau)
         np.add(tau, self._integral, out=tau)
+        np.add(tau, self._handover, out=tau)

@@ -55,6 +55,7 @@ class TaskContext(typing.Protocol):
     run_metadata: Mapping[str, str]  # the run: subsystem, configuration, clock, versions, the YAML file (config.log_notes)
     variable_notes: Mapping[str, tuple[str, str]]  # each variable's (doc, unit) from the YAML
     restarted: bool  # its RTPU was restarted after a death (restart policy): continue the run's files
+    actuators_held: bool  # a critical task runs its locally stable behaviour, or a task is in ERROR (job control's flag)
 
     def open_device(self, name: str) -> Any: ...
 
@@ -141,6 +142,16 @@ class PortBasedObject:
         """True in a task whose RTPU was restarted after its process died (a restart policy):
         a file it writes for the run should be continued, not replaced (the data logger does)."""
         return self._pbo_context.restarted
+
+    @property
+    def actuators_held(self) -> bool:
+        """True while the run's critical tasks hold the plant (a robot interface's brakes): one of them
+        runs its locally stable behaviour (a stale input, a stopped plant, the table lock held past
+        its wait), or a task is in ERROR. This task's outputs then reach no actuator and measurements
+        may stand still: a controller does not integrate meanwhile, and a reference generator
+        starts again from the measured state once it is over. Cheap enough for `cycle` (one word
+        of the table's header); job control sets it once it hears of the hold."""
+        return self._pbo_context.actuators_held
 
     @property
     def bound_arrays(self) -> list[np.ndarray]:

@@ -27,7 +27,7 @@ import numpy as np
 from pbo_runtime import Arm, InConst, InVar, OutVar, PortBasedObject, Status, arm_model
 
 Gain = float | tuple[float, ...]
-HANDOVER_TIME_CONSTANT = 0.1  # s: the previous controller's torque beyond this one's fades out this fast
+HANDOVER_TIME_CONSTANT = 0.02  # s: the previous controller's torque beyond this one's fades out this fast
 
 
 @dataclass(frozen=True)

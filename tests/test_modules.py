@@ -80,8 +80,30 @@ def run_trajectory(table: StateTable, task: Task, cycles: int, first: int = 1) -
 
 
 def test_trajectory_starts_from_q_m_at_rest_when_turned_on(table):
-    table.write("q_r", np.full(N, 9.0), when=0.0)  # stale values another task left
-    table.write("qd_r", np.full(N, 5.0), when=0.0)
+    table.write("q_r", np.full(N, 9.0), when=-1.0)  # stale values another task left a second ago
+    table.write("qd_r", np.full(N, 5.0), when=-1.0)
+    trajectory_task(table)
+    np.testing.assert_array_equal(table.read("q_r")[0], Q0)
+    np.testing.assert_array_equal(table.read("qd_r")[0], np.zeros(N))
+
+
+def test_trajectory_goes_on_from_a_reference_that_drives_the_arm_now_when_turned_on(table):
+    """A restart that took no time (the simulated clock), a switch mid-move: the path goes on as planned."""
+    q_r, qd_r = Q0 + 0.01, np.full(N, 0.5)
+    table.write("q_r", q_r, when=-DT)  # its predecessor's last cycle
+    table.write("qd_r", qd_r, when=-DT)
+    task = trajectory_task(table)
+    np.testing.assert_array_equal(table.read("q_r")[0], q_r)
+    np.testing.assert_array_equal(table.read("qd_r")[0], qd_r)
+    _, velocity = run_trajectory(table, task, 1)
+    assert velocity_steps(velocity, start=qd_r).max() <= A_MAX * DT + EPS
+
+
+def test_trajectory_turned_on_while_the_actuators_are_held_starts_from_the_measured_state(table):
+    """A restart on the real clock: the robot interface held the arm on its brakes meanwhile."""
+    table.write("q_r", Q0 + 0.01, when=0.0)
+    table.write("qd_r", np.full(N, 0.5), when=0.0)
+    table.set_flag(Flag.ILLEGAL_CONFIGURATION)
     trajectory_task(table)
     np.testing.assert_array_equal(table.read("q_r")[0], Q0)
     np.testing.assert_array_equal(table.read("qd_r")[0], np.zeros(N))

@@ -59,6 +59,8 @@ class TaskContext(typing.Protocol):
 
     def open_device(self, name: str) -> Any: ...
 
+    def written_at(self, port: str) -> float: ...
+
     def open_link(self, name: str, like: np.ndarray, role: str) -> Any: ...
 
 
@@ -195,6 +197,12 @@ class PortBasedObject:
     def variable_note(self, name: str) -> tuple[str, str]:
         """A variable's (doc, unit) as its YAML gives them (unit "" when it names none)."""
         return self._pbo_context.variable_notes.get(name, ("", ""))
+
+    def written_at(self, port: str) -> float:
+        """When the value now in `port`'s variable was written: its writer's release time, seconds on
+        the run's clock (-inf if nothing wrote it). For `on`, to judge whether the value it takes
+        over is what drives the plant now; not for `cycle` (it reads the table)."""
+        return self._pbo_context.written_at(port)
 
     def open_link(self, name: str, like: np.ndarray, role: str) -> Any:
         """Open one end of the application's link `name` (call it in `init`).

@@ -5,16 +5,16 @@ tau_u = kp (q_r - q_m) + kd (qd_r - qd_m) + ki ∫(q_r - q_m) dt + g(q_m) + hand
 The gravity term comes from Pinocchio, built in `init` from the robot's in-consts ARM and EE,
 so the same module drives whatever arm the robot interface reports.
 
-On `on` the integral starts from its steady-state estimate, not from the torque in the table:
-zero with gravity feed-forward (the model holds the arm), g(q_m) without it (the integral has to
-hold the arm). That torque is the previous controller's proportional and derivative terms of a
-moment ago as well, which in an integral would stay for kp / ki seconds. When that torque is
-being applied (the actuators are not held), the difference goes to a handover term that fades
-out with HANDOVER_TIME_CONSTANT: the first output equals it (no bump on a take-over), and no
-offset is left. When it is not (a restarted controller: the robot interface held the arm on its
-brakes meanwhile), the controller starts from the measured state alone. While the actuators are
-held (`actuators_held`: a stopped plant, a stale torque, the table lock held) the integral does
-not integrate: the arm does not answer, and q_m may stand still.
+On `on`, with feed-forward, the integral starts at zero, not from the torque in the table: that
+torque holds the previous controller's proportional and derivative terms of a moment ago, which
+in the integral would stay for kp / ki seconds. If that torque drives the arm now (the actuators
+are not held), the difference goes to a handover term that fades out with
+HANDOVER_TIME_CONSTANT: the first output equals it, and none of it stays. If it does not (a
+restarted controller: the robot interface held the arm on its brakes meanwhile), the PID starts
+from the measured state alone. Without feed-forward the integral carries the load, so it takes
+the difference over itself (its joints with integral action only). While the actuators are held
+(`actuators_held`: a stopped plant, a stale torque, the table lock held) nothing is integrated:
+the arm does not answer, and q_m may stand still.
 """
 
 from __future__ import annotations
@@ -66,8 +66,6 @@ class PidJoint(PortBasedObject):
     tau = OutVar("tau_u", shape=("NDOF",), doc="joint torque command, N m")
 
     def init(self, params: PidJointParams) -> None:
-        import pinocchio
-
         n = int(self.ndof)
         self._kp = self._gains("kp", params.kp, n)
         self._kd = self._gains("kd", params.kd, n)
@@ -78,10 +76,13 @@ class PidJoint(PortBasedObject):
         self._integral = np.zeros(n)  # the integral term itself, N m
         self._handover = np.zeros(n)  # the previous controller's torque beyond this one's, fading out, N m
         self._fade = math.exp(-self.period / HANDOVER_TIME_CONSTANT)
-        self._feedforward = params.gravity_feedforward
-        model = arm_model(self.arm_table, self.end_effector)
-        data = model.createData()
-        self._gravity = lambda q: pinocchio.computeGeneralizedGravity(model, data, q)
+        self._gravity = None
+        if params.gravity_feedforward:
+            import pinocchio
+
+            model = arm_model(self.arm_table, self.end_effector)
+            data = model.createData()
+            self._gravity = lambda q: pinocchio.computeGeneralizedGravity(model, data, q)
 
     @staticmethod
     def _gains(name: str, value: Gain, n: int) -> np.ndarray:
@@ -101,13 +102,18 @@ class PidJoint(PortBasedObject):
         previous = self.tau.copy()  # what the previous controller left in the table (read before `on`)
         self._handover[:] = 0.0
         self._integral[:] = 0.0
-        if not self._feedforward:  # the integral holds the arm up: start it at the arm's gravity torque
-            np.clip(self._gravity(self.q_m), -self._limit, self._limit, out=self._integral)
-            np.copyto(self._integral, 0.0, where=self._ki == 0)  # no integral action: it would never decay
         self._compute()
-        if np.any(previous) and not self.actuators_held:  # that torque drives the arm now: take it over
+        if not np.any(previous):  # nothing commanded yet
+            return
+        if self._gravity is None:
+            # Without feed-forward the integral carries the load (gravity): it takes over the
+            # difference, on the joints that have integral action (elsewhere it would never decay).
+            np.subtract(previous, self.tau, out=self._integral)
+            np.clip(self._integral, -self._limit, self._limit, out=self._integral)
+            np.copyto(self._integral, 0.0, where=self._ki == 0)
+        elif not self.actuators_held:  # that torque drives the arm now: take it over, fading
             np.subtract(previous, self.tau, out=self._handover)
-            self._compute()
+        self._compute()
 
     def cycle(self) -> Status:
         if not self.actuators_held:  # the arm answers: integrate
@@ -128,7 +134,7 @@ class PidJoint(PortBasedObject):
         np.subtract(self.qd_r, self.qd_m, out=self._error)
         np.multiply(self._kd, self._error, out=term)
         np.add(tau, term, out=tau)
-        if self._feedforward:
+        if self._gravity is not None:
             np.add(tau, self._gravity(self.q_m), out=tau)
         np.add(tau, self._integral, out=tau)
         np.add(tau, self._handover, out=tau)

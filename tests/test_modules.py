@@ -298,18 +298,6 @@ def test_pid_integral_accumulates_ki_times_error_times_period_every_cycle(table)
         np.testing.assert_allclose(tau_u(table), gravity + k * 10.0 * error * PID_DT, rtol=0, atol=1e-12)
 
 
-def test_pid_without_feed_forward_starts_its_integral_at_the_torque_holding_the_arm_where_it_is(table):
-    q = np.array([0.3, -0.7, 1.2, 0.4, -0.9, 2.0])
-    task = pid_task(table, {"kp": 400.0, "kd": 40.0, "ki": [1.0, 1.0, 1.0, 1.0, 1.0, 0.0], **NO_GRAVITY})
-    assert task.spawn(0.0), task.last_error
-    write_state(table, q_r=q, q_m=q)
-    assert task.turn_on(0.0)
-    held = pinocchio_gravity(q) * [1, 1, 1, 1, 1, 0]  # a joint without integral action has no integral
-    np.testing.assert_allclose(tau_u(table), held, rtol=0, atol=1e-12)
-    task.run_cycle(PID_DT)
-    np.testing.assert_allclose(tau_u(table), held, rtol=0, atol=1e-12)
-
-
 def test_pid_integral_is_clipped_at_integral_limit_and_unwinds_at_once(table):
     task = pid_task(table, {"kp": 0.0, "kd": 0.0, "ki": 100.0, "integral_limit": 2.0, **NO_GRAVITY})
     assert task.spawn(0.0), task.last_error
@@ -392,7 +380,22 @@ def test_pid_takes_over_the_torque_left_in_the_table_without_a_bump(table):
     np.testing.assert_allclose(tau_u(table), left, rtol=0, atol=1e-12)  # no bump
 
 
-def test_pid_take_over_fades_out_the_previous_torque_on_every_joint_and_leaves_no_offset(table):
+def test_pid_without_feed_forward_takes_over_into_its_integral_only_on_joints_with_integral_action(table):
+    """Without feed-forward the integral carries the load: it keeps the torque taken over. A joint
+    with ki = 0 must stay a plain PD joint after `on`, not carry a constant offset."""
+    ki = [1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
+    task = pid_task(table, {"kp": 100.0, "kd": 0.0, "ki": ki, **NO_GRAVITY})
+    assert task.spawn(0.0), task.last_error
+    table.write("tau_u", np.full(N, 7.0), when=0.0)
+    write_state(table, q_r=np.zeros(N), q_m=np.zeros(N))
+    assert task.turn_on(0.0)
+    write_state(table, q_r=np.full(N, 0.1), q_m=np.zeros(N), when=PID_DT)
+    task.run_cycle(PID_DT)
+    np.testing.assert_allclose(tau_u(table)[3:], np.full(3, 10.0), rtol=0, atol=1e-12)  # kp * 0.1, no 7 N m
+    np.testing.assert_allclose(tau_u(table)[:3], np.full(3, 17.0 + 0.1 * PID_DT), rtol=0, atol=1e-12)
+
+
+def test_pid_with_feed_forward_fades_out_the_torque_it_took_over_on_every_joint_and_leaves_no_offset(table):
     """The previous controller's torque beyond this one's fades with HANDOVER_TIME_CONSTANT, whether
     the joint has integral action or not: none of it stays in the integral."""
     ki = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])

@@ -55,7 +55,9 @@ class TaskContext(typing.Protocol):
     run_metadata: Mapping[str, str]  # the run: subsystem, configuration, clock, versions, the YAML file (config.log_notes)
     variable_notes: Mapping[str, tuple[str, str]]  # each variable's (doc, unit) from the YAML
     restarted: bool  # its RTPU was restarted after a death (restart policy): continue the run's files
-    actuators_held: bool  # a critical task runs its locally stable behaviour, or a task is in ERROR (job control's flag)
+
+    @property
+    def actuators_held(self) -> bool: ...  # a critical task holds, or a task is in ERROR (job control's flag)
 
     def open_device(self, name: str) -> Any: ...
 

@@ -146,7 +146,7 @@ class Task:
                                           self.open_device if opener is not None else None,
                                           out_dir=out_dir, links=dict(links or {}), relay=relay,
                                           run_metadata=run_metadata or {}, variable_notes=variable_notes or {},
-                                          restarted=restarted, header_words=memoryview(table.header), table=table,
+                                          restarted=restarted, header_words=table.header.data, table=table,
                                           variable_of={b.port.name: b.variable for b in spec.bindings})
         self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
         self.status = self.local.status

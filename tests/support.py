@@ -735,3 +735,15 @@ def measured_arm(config: Path, run: subprocess.Popen, subsystem: str) -> Iterato
 def travelled(q: np.ndarray) -> float:
     """How far the demo's arm has gone from its start, rad (the joint that went farthest)."""
     return float(np.abs(q - DEMO_START).max())
+
+
+def settling(goal: np.ndarray, within: float, reads: int = 200) -> Callable[[np.ndarray], bool]:
+    """A check of successive readings of q_m: True once `reads` in a row are all within `within`
+    of `goal` (the arm stays there, not just passing through)."""
+    in_a_row = [0]
+
+    def settled(q: np.ndarray) -> bool:
+        in_a_row[0] = in_a_row[0] + 1 if np.abs(q - goal).max() < within else 0
+        return in_a_row[0] >= reads
+
+    return settled

@@ -16,7 +16,7 @@ import pytest
 from pbo_runtime import read_log
 from tests.support import (DEMO, DEMO_GOAL, DEMO_MID_MOVE, PBO, assert_nothing_left, config_copy, demo_copy,
                            excursion_from_path, killed_on_failure, measured_arm, run_output, run_processes, start_run,
-                           stop_process, travelled, until)
+                           settling, stop_process, travelled, until)
 
 pytestmark = pytest.mark.multiprocess
 
@@ -89,7 +89,8 @@ def test_a_plant_stopped_for_2_s_mid_move_leaves_the_arm_on_its_path_and_it_ends
             stop_process(plant)
             time.sleep(PLANT_STOPPED_FOR)
             os.kill(plant, signal.SIGCONT)
-            until(lambda: np.abs(q_m() - DEMO_GOAL).max() < REACHED, "the arm to reach its goal", REACH_SAFETY_NET)
+            settled = settling(DEMO_GOAL, REACHED)
+            until(lambda: settled(q_m()), "the arm to settle on its goal", REACH_SAFETY_NET)
         run.send_signal(signal.SIGINT)
         _, err = run_output(run)
     assert "Traceback" not in err, err

@@ -22,7 +22,7 @@ import pytest
 from pbo_runtime import read_log
 from tests.support import (DEMO, DEMO_GOAL, DEMO_MID_MOVE, PBO, assert_nothing_left, config_copy, excursion_from_path,
                            kill_and_await_restart, killed_on_failure, measured_arm, read_until, run_output,
-                           run_processes, start_run, travelled, until)
+                           run_processes, settling, start_run, travelled, until)
 
 pytestmark = pytest.mark.multiprocess
 
@@ -43,7 +43,8 @@ def test_a_controller_rtpu_killed_mid_move_comes_back_and_the_arm_keeps_to_its_p
             until(lambda: travelled(q_m()) >= DEMO_MID_MOVE, "the arm to be mid-move", REACH_SAFETY_NET)
             killed = [kill_and_await_restart(run, pid=controller)]
             killed += [kill_and_await_restart(run) for _ in range(2)]  # and as soon as it is back, twice
-            until(lambda: np.abs(q_m() - DEMO_GOAL).max() < REACHED, "the arm to reach its goal", REACH_SAFETY_NET)
+            settled = settling(DEMO_GOAL, REACHED)
+            until(lambda: settled(q_m()), "the arm to settle on its goal", REACH_SAFETY_NET)
         run.send_signal(signal.SIGINT)
         out, err = run_output(run)
     assert "Traceback" not in err, err

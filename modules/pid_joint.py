@@ -76,6 +76,9 @@ class PidJoint(PortBasedObject):
         self._integral = np.zeros(n)  # the integral term itself, N m
         self._handover = np.zeros(n)  # the previous controller's torque beyond this one's, fading out, N m
         self._fade = math.exp(-self.period / HANDOVER_TIME_CONSTANT)
+        # cycles until the handover is down to a billionth of itself, then it is dropped
+        self._fade_cycles = math.ceil(math.log(1e-9) / math.log(self._fade)) if self._fade > 0.0 else 1
+        self._fading = 0  # cycles of the handover left
         self._gravity = None
         if params.gravity_feedforward:
             import pinocchio
@@ -101,6 +104,7 @@ class PidJoint(PortBasedObject):
     def on(self) -> None:
         previous = self.tau.copy()  # what the previous controller left in the table (read before `on`)
         self._handover[:] = 0.0
+        self._fading = 0
         self._integral[:] = 0.0
         self._compute()
         if not np.any(previous):  # nothing commanded yet
@@ -113,6 +117,7 @@ class PidJoint(PortBasedObject):
             np.copyto(self._integral, 0.0, where=self._ki == 0)
         elif not self.actuators_held:  # that torque drives the arm now: take it over, fading
             np.subtract(previous, self.tau, out=self._handover)
+            self._fading = self._fade_cycles
         self._compute()
 
     def cycle(self) -> Status:
@@ -122,7 +127,9 @@ class PidJoint(PortBasedObject):
             np.multiply(self._term, self.period, out=self._term)
             np.add(self._integral, self._term, out=self._integral)
             np.clip(self._integral, -self._limit, self._limit, out=self._integral)
-        np.multiply(self._handover, self._fade, out=self._handover)
+        if self._fading:
+            self._fading -= 1
+            np.multiply(self._handover, self._fade if self._fading else 0.0, out=self._handover)
         self._compute()
         return Status.CONTINUE
 
@@ -137,4 +144,5 @@ class PidJoint(PortBasedObject):
         if self._gravity is not None:
             np.add(tau, self._gravity(self.q_m), out=tau)
         np.add(tau, self._integral, out=tau)
-        np.add(tau, self._handover, out=tau)
+        if self._fading:
+            np.add(tau, self._handover, out=tau)

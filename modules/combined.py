@@ -98,8 +98,16 @@ class _MemberContext:
         return getattr(self._context, name)
 
     @property
+    def period(self) -> float:  # (what a cycle reads is a property: no __getattr__ detour per cycle)
+        return self._context.period  # type: ignore[no-any-return]
+
+    @property
     def time(self) -> float:
         return self._context.time  # type: ignore[no-any-return]
+
+    @property
+    def event(self) -> Any:
+        return self._context.event
 
     @property
     def actuators_held(self) -> bool:

@@ -6,7 +6,8 @@ the ring to a stop, says who has yet to run tick N, and runs it for them; the ne
 joins from tick N + 1. Then whole runs: Figure 8 (configs/pid_joint.yaml, at its own speed) with a
 restart policy and a fault_injector that aborts the controller's RTPU at three simulated times
 mid-move: the robot interface on the other RTPU loses no cycle, the arm keeps to its path and
-ends on its goal, and a second run writes the same log, bit for bit. Past the policy the run stops and says why.
+ends on its goal, and a second run writes the same log, bit for bit. Past the policy the run
+stops and says why.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ On `on`, with feed-forward, the integral starts at zero, not from the torque in 
 torque holds the previous controller's proportional and derivative terms of a moment ago, which
 in the integral would stay for kp / ki seconds. If that torque drives the arm now (the actuators
 are not held), the difference goes to a handover term that fades out with
-HANDOVER_TIME_CONSTANT: the first output equals it, and none of it stays. If it does not (a
+`HANDOVER_TIME_CONSTANT`: the first output equals it, and none of it stays. If it does not (a
 restarted controller: the robot interface held the arm on its brakes meanwhile), the PID starts
 from the measured state alone. Without feed-forward the integral carries the load, so it takes
 the difference over itself (its joints with integral action only). While the actuators are held
@@ -19,7 +19,6 @@ the arm does not answer, and q_m may stand still.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,7 +26,6 @@ import numpy as np
 from pbo_runtime import Arm, InConst, InVar, OutVar, PortBasedObject, Status, arm_model
 
 Gain = float | tuple[float, ...]
-HANDOVER_TIME_CONSTANT = 0.02  # s: the previous controller's torque beyond this one's fades out this fast
 
 
 @dataclass(frozen=True)
@@ -65,6 +63,8 @@ class PidJoint(PortBasedObject):
     qd_m = InVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s")
     tau = OutVar("tau_u", shape=("NDOF",), doc="joint torque command, N m")
 
+    HANDOVER_TIME_CONSTANT = 0.02  # s: the previous controller's torque beyond this one's fades out this fast
+
     def init(self, params: PidJointParams) -> None:
         n = int(self.ndof)
         self._kp = self._gains("kp", params.kp, n)
@@ -75,9 +75,9 @@ class PidJoint(PortBasedObject):
         self._term = np.zeros(n)
         self._integral = np.zeros(n)  # the integral term itself, N m
         self._handover = np.zeros(n)  # the previous controller's torque beyond this one's, fading out, N m
-        self._fade = math.exp(-self.period / HANDOVER_TIME_CONSTANT)
+        self._fade = float(np.exp(-self.period / self.HANDOVER_TIME_CONSTANT))
         # cycles until the handover is down to a billionth of itself, then it is dropped
-        self._fade_cycles = math.ceil(math.log(1e-9) / math.log(self._fade)) if self._fade > 0.0 else 1
+        self._fade_cycles = int(np.ceil(np.log(1e-9) / np.log(self._fade))) if self._fade > 0.0 else 1
         self._fading = 0  # cycles of the handover left
         self._gravity = None
         if params.gravity_feedforward:

@@ -24,7 +24,7 @@ from drivers.robots import robot
 from modules.data_logger import DataLogger, read_log
 from modules.fault_injector import FaultInjector
 from modules.joint_trajectory import JointTrajectory
-from modules.pid_joint import HANDOVER_TIME_CONSTANT, PidJoint
+from modules.pid_joint import PidJoint
 from modules.robot_torque import RobotTorque
 from pbo_runtime import OutputError, ParamError, Status
 from pbo_runtime.config.model import DeviceSpec, PortBinding, TaskSpec
@@ -396,7 +396,7 @@ def test_pid_without_feed_forward_takes_over_into_its_integral_only_on_joints_wi
 
 
 def test_pid_with_feed_forward_fades_out_the_torque_it_took_over_on_every_joint_and_leaves_no_offset(table):
-    """The previous controller's torque beyond this one's fades with HANDOVER_TIME_CONSTANT, whether
+    """The previous controller's torque beyond this one's fades with its HANDOVER_TIME_CONSTANT, whether
     the joint has integral action or not: none of it stays in the integral."""
     ki = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
     task = pid_task(table, {"kp": 100.0, "kd": 0.0, "ki": list(ki)})
@@ -406,7 +406,7 @@ def test_pid_with_feed_forward_fades_out_the_torque_it_took_over_on_every_joint_
     assert task.turn_on(0.0)
     np.testing.assert_allclose(tau_u(table), np.full(N, 7.0), rtol=0, atol=1e-12)
     gravity = pinocchio_gravity(np.zeros(N))
-    fade = np.exp(-PID_DT / HANDOVER_TIME_CONSTANT)
+    fade = np.exp(-PID_DT / PidJoint.HANDOVER_TIME_CONSTANT)
     write_state(table, q_r=np.full(N, 0.1), q_m=np.zeros(N), when=PID_DT)
     for k in range(1, 101):  # ten time constants
         task.run_cycle(k * PID_DT)

@@ -14,6 +14,7 @@ combinator, not a module of its own: it only uses what `pbo_runtime` gives every
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -84,6 +85,39 @@ class CombinedParams:
         return self.internal_variables() - set(self.export)
 
 
+class _MemberContext:
+    """A member's view of the task's context: the same services, with `written_at` asked by the
+    member's port name (the task's ports are named by variable; a local link never reaches the table)."""
+
+    def __init__(self, context: Any, variable_of: dict[str, str], exported: set[str]) -> None:
+        self._context = context
+        self._variable_of = variable_of
+        self._exported = exported
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._context, name)
+
+    @property
+    def period(self) -> float:  # (what a cycle reads is a property: no __getattr__ detour per cycle)
+        return self._context.period  # type: ignore[no-any-return]
+
+    @property
+    def time(self) -> float:
+        return self._context.time  # type: ignore[no-any-return]
+
+    @property
+    def event(self) -> Any:
+        return self._context.event
+
+    @property
+    def actuators_held(self) -> bool:
+        return self._context.actuators_held  # type: ignore[no-any-return]
+
+    def written_at(self, port: str) -> float:
+        variable = self._variable_of[port]
+        return self._context.written_at(variable) if variable in self._exported else -math.inf
+
+
 class Combined(PortBasedObject):
     """Runs its members as one task: one local table, member-to-member links kept local (TR §4.5)."""
 
@@ -118,7 +152,8 @@ class Combined(PortBasedObject):
                 # a local link is a private array; an exported one is the writer's output, read in place
                 arrays.append(local[variable] if variable in local else external[variable])
             instance._pbo_ports = arrays
-            instance._pbo_context = self._pbo_context
+            instance._pbo_context = _MemberContext(self._pbo_context, {p.name: v for p, v in member.links},  # type: ignore[assignment]
+                                                   set(external))
             instance.init(member.params)
             self._members.append(instance)
         self._cycles = tuple(m.cycle for m in self._members)

@@ -7,9 +7,17 @@ braking curve; the continuous sqrt(2a|e|) overshoots), capped by v_max. A joint 
 on the goal only from a speed one acceleration step can stop, so the limits hold on every
 cycle, arrival included.
 
-It starts from the arm's measured position and velocity, so a trajectory that takes over a moving
-arm (a restarted RTPU, a switch mid-move) brakes it along the curve instead of commanding a stop.
-From a speed above max_velocity it slows at max_acceleration.
+On `on` it goes on from the reference in the table when that reference drives the arm now
+(written within TAKE_OVER_WITHIN_PERIODS of its periods, the actuators not held: a switch
+mid-move, a restart that took no time on the simulated clock), so the path goes on as planned.
+Otherwise it starts from the arm's measured position and velocity (a restart on the real clock,
+where the robot interface held the arm on its brakes meanwhile), and from a moving arm brakes
+along the curve instead of commanding a stop. From a speed above max_velocity it slows at
+max_acceleration.
+
+While the actuators are held (`actuators_held`: the plant stopped, the controller's torque
+stale, the table lock held) the reference holds still where it is, instead of running on to the
+goal without the arm; once they are not, it starts again from the measured state, as on `on`.
 """
 
 from __future__ import annotations
@@ -18,6 +26,8 @@ from dataclasses import dataclass
 
 from modules._braking import BrakingLaw
 from pbo_runtime import InVar, OutVar, PortBasedObject, Status
+
+TAKE_OVER_WITHIN_PERIODS = 2.0  # a reference written longer ago than this no longer drives the arm
 
 
 @dataclass(frozen=True)
@@ -47,9 +57,24 @@ class JointTrajectory(PortBasedObject):
         self._law = BrakingLaw(self.q_r.shape[0], params.max_velocity, params.max_acceleration, self.period)
 
     def on(self) -> None:
+        self._held = False
+        age = self.time - self.written_at("q_r")
+        if self.actuators_held or age > TAKE_OVER_WITHIN_PERIODS * self.period:
+            self._start_from_measured()
+        # else: q_r and qd_r, read from the table before `on`, go on where they are
+
+    def _start_from_measured(self) -> None:
         self.q_r = self.q_m  # start from where the arm is, as fast as it goes
         self.qd_r = self.qd_m
 
     def cycle(self) -> Status:
+        if self.actuators_held:
+            if not self._held:
+                self._held = True
+                self.qd_r[:] = 0.0  # the reference stands still with the arm
+            return Status.CONTINUE
+        if self._held:
+            self._held = False
+            self._start_from_measured()
         self._law.step(self.q_d, self.q_r, self.qd_r)
         return Status.CONTINUE

@@ -1,11 +1,20 @@
 """PID joint position controller (TR Figure 8), with optional gravity feed-forward.
 
-tau_u = kp (q_r - q_m) + kd (qd_r - qd_m) + ki ∫(q_r - q_m) dt + g(q_m)
+tau_u = kp (q_r - q_m) + kd (qd_r - qd_m) + ki ∫(q_r - q_m) dt + g(q_m) + handover
 
 The gravity term comes from Pinocchio, built in `init` from the robot's in-consts ARM and EE,
-so the same module drives whatever arm the robot interface reports. On `on` the integral is
-set so that the first output equals the torque already in the table (bumpless transfer when
-this controller takes over from another).
+so the same module drives whatever arm the robot interface reports.
+
+On `on`, with feed-forward, the integral starts at zero, not from the torque in the table: that
+torque holds the previous controller's proportional and derivative terms of a moment ago, which
+in the integral would stay for kp / ki seconds. If that torque drives the arm now (the actuators
+are not held), the difference goes to a handover term that fades out with
+`HANDOVER_TIME_CONSTANT`: the first output equals it, and none of it stays. If it does not (a
+restarted controller: the robot interface held the arm on its brakes meanwhile), the PID starts
+from the measured state alone. Without feed-forward the integral carries the load, so it takes
+the difference over itself (its joints with integral action only). While the actuators are held
+(`actuators_held`: a stopped plant, a stale torque, the table lock held) nothing is integrated:
+the arm does not answer, and q_m may stand still.
 """
 
 from __future__ import annotations
@@ -54,6 +63,8 @@ class PidJoint(PortBasedObject):
     qd_m = InVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s")
     tau = OutVar("tau_u", shape=("NDOF",), doc="joint torque command, N m")
 
+    HANDOVER_TIME_CONSTANT = 0.02  # s: the previous controller's torque beyond this one's fades out this fast
+
     def init(self, params: PidJointParams) -> None:
         n = int(self.ndof)
         self._kp = self._gains("kp", params.kp, n)
@@ -63,7 +74,11 @@ class PidJoint(PortBasedObject):
         self._error = np.zeros(n)
         self._term = np.zeros(n)
         self._integral = np.zeros(n)  # the integral term itself, N m
-        self._previous = np.zeros(n)
+        self._handover = np.zeros(n)  # the previous controller's torque beyond this one's, fading out, N m
+        self._fade = float(np.exp(-self.period / self.HANDOVER_TIME_CONSTANT))
+        # cycles until the handover is down to a billionth of itself, then it is dropped
+        self._fade_cycles = int(np.ceil(np.log(1e-9) / np.log(self._fade))) if self._fade > 0.0 else 1
+        self._fading = 0  # cycles of the handover left
         self._gravity = None
         if params.gravity_feedforward:
             import pinocchio
@@ -87,28 +102,39 @@ class PidJoint(PortBasedObject):
         np.copyto(self._integral, 0.0, where=self._ki == 0)  # no integral action left: it would never decay
 
     def on(self) -> None:
-        # Bumpless take-over: with an integral term, start it where it reproduces the torque
-        # the previous controller left in the table (read before `on`, TR §4.3).
-        np.copyto(self._previous, self.tau)
+        previous = self.tau.copy()  # what the previous controller left in the table (read before `on`)
+        self._handover[:] = 0.0
+        self._fading = 0
         self._integral[:] = 0.0
         self._compute()
-        if np.any(self._ki > 0) and np.any(self._previous):
-            np.subtract(self._previous, self._term, out=self._integral)
+        if not np.any(previous):  # nothing commanded yet
+            return
+        if self._gravity is None:
+            # Without feed-forward the integral carries the load (gravity): it takes over the
+            # difference, on the joints that have integral action (elsewhere it would never decay).
+            np.subtract(previous, self.tau, out=self._integral)
             np.clip(self._integral, -self._limit, self._limit, out=self._integral)
-            np.copyto(self._integral, 0.0, where=self._ki == 0)  # no integral action: it would never decay
-            self._compute()
+            np.copyto(self._integral, 0.0, where=self._ki == 0)
+        elif not self.actuators_held:  # that torque drives the arm now: take it over, fading
+            np.subtract(previous, self.tau, out=self._handover)
+            self._fading = self._fade_cycles
+        self._compute()
 
     def cycle(self) -> Status:
-        np.subtract(self.q_r, self.q_m, out=self._error)
-        np.multiply(self._error, self._ki, out=self._term)
-        np.multiply(self._term, self.period, out=self._term)
-        np.add(self._integral, self._term, out=self._integral)
-        np.clip(self._integral, -self._limit, self._limit, out=self._integral)
+        if not self.actuators_held:  # the arm answers: integrate
+            np.subtract(self.q_r, self.q_m, out=self._error)
+            np.multiply(self._error, self._ki, out=self._term)
+            np.multiply(self._term, self.period, out=self._term)
+            np.add(self._integral, self._term, out=self._integral)
+            np.clip(self._integral, -self._limit, self._limit, out=self._integral)
+        if self._fading:
+            self._fading -= 1
+            np.multiply(self._handover, self._fade if self._fading else 0.0, out=self._handover)
         self._compute()
         return Status.CONTINUE
 
     def _compute(self) -> None:
-        """tau = kp e + kd ed + integral + g(q_m); leaves the part without the integral in _term."""
+        """tau = kp e + kd ed + integral + handover (+ g(q_m) with feed-forward)."""
         tau, term = self.tau, self._term
         np.subtract(self.q_r, self.q_m, out=self._error)
         np.multiply(self._kp, self._error, out=tau)
@@ -117,5 +143,6 @@ class PidJoint(PortBasedObject):
         np.add(tau, term, out=tau)
         if self._gravity is not None:
             np.add(tau, self._gravity(self.q_m), out=tau)
-        np.copyto(term, tau)
         np.add(tau, self._integral, out=tau)
+        if self._fading:
+            np.add(tau, self._handover, out=tau)

@@ -7,7 +7,8 @@ It closes the loop of a rate controller (resolved rate, damped least squares) on
 position-mode robot interface. q_r integrates its own previous value, not q_m, so the
 reference does not inherit the servo's tracking lag; `max_lead` keeps it within that many
 radians of q_m on every joint (an anti-windup for when the arm is held back), by default
-unlimited.
+unlimited. While the actuators are held (`actuators_held`: a stopped plant, a stale command,
+the table lock held) it integrates nothing, and once they are not it starts again from q_m.
 
 Real-time safe cycle: no allocation, no library calls that allocate.
 """
@@ -48,10 +49,17 @@ class TimeIntegrator(PortBasedObject):
         self._high = np.zeros(n)
 
     def on(self) -> None:
+        self._held = False
         self.q_r = self.q_m
 
     def cycle(self) -> Status:
+        if self.actuators_held:  # the arm does not follow: the reference must not run on without it
+            self._held = True
+            return Status.CONTINUE
         q_r = self.q_r
+        if self._held:
+            self._held = False
+            np.copyto(q_r, self.q_m)
         np.multiply(self.qd_r, self.period, out=self._step)
         np.add(q_r, self._step, out=q_r)
         if self._lead < math.inf:

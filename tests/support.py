@@ -18,7 +18,7 @@ import threading
 import time
 import tracemalloc
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -404,9 +404,10 @@ def run_processes(run: subprocess.Popen) -> dict[str, int]:
     return roles
 
 
-def kill_and_await_restart(run: subprocess.Popen, rtpu: str = "rtpu0") -> int:
-    """SIGKILL a live run's RTPU, then read on until the run says it restarted it; the killed pid."""
-    pid = run_processes(run)[rtpu]
+def kill_and_await_restart(run: subprocess.Popen, rtpu: str = "rtpu0", pid: int | None = None) -> int:
+    """SIGKILL a live run's RTPU (its `pid`, when looked up already), then read on until the run says
+    it restarted it; the killed pid."""
+    pid = pid or run_processes(run)[rtpu]
     os.kill(pid, signal.SIGKILL)
     said = read_until(run, "restarted:")
     assert f"RTPU '{rtpu}' (pid {pid}) died (killed by SIGKILL)" in said, said
@@ -707,3 +708,42 @@ def excursion_from_path(q: np.ndarray, start: np.ndarray, goal: np.ndarray) -> f
     back = np.maximum.accumulate(progress, axis=0) - progress
     past = progress - np.abs(goal - start)
     return float(max(back.max(), past.max(), 0.0))
+
+
+# --- the demo's arm in a live run ------------------------------------------------------------------
+
+DEMO_GOAL = np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2])  # q_d's initial value in configs/pid_joint.yaml
+DEMO_START = np.zeros(6)  # the PUMA's home pose, where the demo's plant starts
+# The demo's move mid-way: its longest joints (0.5 rad at 1 rad/s, 4 rad/s²) have gone 0.175 rad,
+# 0.3 s into the move and cruising at full speed.
+DEMO_MID_MOVE = 0.175
+
+
+@contextlib.contextmanager
+def measured_arm(config: Path, run: subprocess.Popen, subsystem: str) -> Iterator[Callable[[], np.ndarray]]:
+    """A live run's q_m, read lock-free from its table each call."""
+    from pbo_runtime.config.loader import load_subsystem
+    from pbo_runtime.table.table import StateTable, TableLayout
+
+    table = StateTable.attach(TableLayout.of(load_subsystem(config)), table_of(run, subsystem))
+    try:
+        yield lambda: table.read("q_m")[0]
+    finally:
+        table.close()
+
+
+def travelled(q: np.ndarray) -> float:
+    """How far the demo's arm has gone from its start, rad (the joint that went farthest)."""
+    return float(np.abs(q - DEMO_START).max())
+
+
+def settling(goal: np.ndarray, within: float, reads: int = 200) -> Callable[[np.ndarray], bool]:
+    """A check of successive readings of q_m: True once `reads` in a row are all within `within`
+    of `goal` (the arm stays there, not just passing through)."""
+    in_a_row = [0]
+
+    def settled(q: np.ndarray) -> bool:
+        in_a_row[0] = in_a_row[0] + 1 if np.abs(q - goal).max() < within else 0
+        return in_a_row[0] >= reads
+
+    return settled

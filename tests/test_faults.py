@@ -10,14 +10,22 @@ import signal
 import subprocess
 import time
 
+import numpy as np
 import pytest
 
-from tests.support import PBO, assert_nothing_left, demo_copy, run_processes, start_run, stop_process
+from pbo_runtime import read_log
+from tests.support import (DEMO, DEMO_GOAL, DEMO_MID_MOVE, PBO, assert_nothing_left, config_copy, demo_copy,
+                           excursion_from_path, killed_on_failure, measured_arm, run_output, run_processes, start_run,
+                           settling, stop_process, travelled, until)
 
 pytestmark = pytest.mark.multiprocess
 
 STOPPED_FOR = 0.5  # seconds: hundreds of the robot task's periods, on any machine
 PLANT_STEP = 0.001  # seconds: the demo plant's timestep
+PLANT_STOPPED_FOR = 2.0  # seconds: the plant's stop mid-move
+REACHED = 0.005  # rad: every joint ends within this of its goal
+EXCURSION_LIMIT = 0.05  # rad: off its path, at most
+REACH_SAFETY_NET = 180.0  # seconds: a net for an arm that never arrives, not a timing
 
 
 def run_with_a_stop(tmp_path, subsystem: str, role: str) -> tuple[subprocess.CompletedProcess, dict]:
@@ -67,6 +75,32 @@ def test_a_stopped_plant_resumes_without_integrating_the_backlog_and_the_run_exi
     assert "fault: the plant did not run for" in done.stderr
     assert_nothing_left(report)
 
+
+def test_a_plant_stopped_for_2_s_mid_move_leaves_the_arm_on_its_path_and_it_ends_on_its_goal(tmp_path):
+    """The demo as shipped, at its speed: while the robot interface holds the arm, the trajectory
+    stands still and the PID integrates nothing; after, they go on from where the arm is."""
+    config = config_copy(DEMO, tmp_path, "fault_plant_mid_move")
+    report_path = tmp_path / "report.json"
+    run = start_run(config, tmp_path, "--duration", "0", "--report", str(report_path), "--out", str(tmp_path / "out"))
+    with killed_on_failure(run):
+        with measured_arm(config, run, "fault_plant_mid_move") as q_m:
+            plant = run_processes(run)["plant"]
+            until(lambda: travelled(q_m()) >= DEMO_MID_MOVE, "the arm to be mid-move", REACH_SAFETY_NET)
+            stop_process(plant)
+            time.sleep(PLANT_STOPPED_FOR)
+            os.kill(plant, signal.SIGCONT)
+            settled = settling(DEMO_GOAL, REACHED)
+            until(lambda: settled(q_m()), "the arm to settle on its goal", REACH_SAFETY_NET)
+        run.send_signal(signal.SIGINT)
+        _, err = run_output(run)
+    assert "Traceback" not in err, err
+    report = json.loads(report_path.read_text())
+    held = [e for e in report["stable_episodes"] if e["task"] == "robot" and e["cause"] == "module"]
+    assert held and all(e["to"] is not None for e in held)  # the robot saw the sim time stand still, then go on
+    log = read_log(next((tmp_path / "out").rglob("pid_joint.mcap")))
+    assert excursion_from_path(log["q_m"], log["q_m"][0], DEMO_GOAL) < EXCURSION_LIMIT
+    assert np.abs(log["q_m"][-1] - DEMO_GOAL).max() < REACHED
+    assert_nothing_left(report)
 
 
 def test_a_stopped_robot_interface_leaves_the_arm_to_its_drive_watchdog_and_the_run_exits_2(tmp_path):

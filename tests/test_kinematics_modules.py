@@ -25,7 +25,7 @@ from modules.resolved_rate import ResolvedRate
 from modules.time_integrator import TimeIntegrator
 from pbo_runtime import ParamError, PortBasedObject, Status
 from pbo_runtime.task.lifecycle import Task
-from pbo_runtime.table.table import StateTable, TaskState
+from pbo_runtime.table.table import Flag, StateTable, TaskState
 from tests.support import dh_forward_kinematics, dh_pinocchio_model, robot_state_table, spawned_task, task_spec, write_values
 
 PUMA = robot("puma560")
@@ -350,6 +350,20 @@ def test_time_integrator_keeps_q_r_within_max_lead_of_q_m(table):
     for k in range(1, 201):  # the arm is held at 0 while the reference runs on
         assert task.run_cycle(k * DT) is Status.CONTINUE
     np.testing.assert_allclose(read(table, "q_r"), [0.05, -0.05, 0.05, 0.0, 0.05, -0.05], rtol=0, atol=1e-15)
+
+
+def test_time_integrator_integrates_nothing_while_the_actuators_are_held_then_starts_again_from_q_m(table):
+    task = integrator_task(table, np.zeros(N))
+    write(table, when=DT, qd_r=np.full(N, 1.0))
+    assert task.run_cycle(DT) is Status.CONTINUE
+    table.set_flag(Flag.ILLEGAL_CONFIGURATION)  # the plant stopped: the robot interface holds the arm
+    for k in range(2, 50):
+        assert task.run_cycle(k * DT) is Status.CONTINUE
+    np.testing.assert_allclose(read(table, "q_r"), np.full(N, DT), rtol=0, atol=1e-15)  # no running on
+    table.set_flag(Flag.ILLEGAL_CONFIGURATION, False)
+    write(table, when=50 * DT, q_m=np.full(N, 0.002))  # where the brakes stopped the arm
+    assert task.run_cycle(50 * DT) is Status.CONTINUE
+    np.testing.assert_allclose(read(table, "q_r"), np.full(N, 0.002 + DT), rtol=0, atol=1e-15)
 
 
 # --- CartesianTrajectory --------------------------------------------------------------------------

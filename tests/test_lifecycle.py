@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pbo_runtime import InBoth, InConst, InVar, LifecycleError, OutBoth, OutConst, OutVar, PortBasedObject, Status
+from pbo_runtime import InBoth, InConst, InVar, LifecycleError, ModuleError, OutBoth, OutConst, OutVar, PortBasedObject, Status
 from pbo_runtime.objects.module import TaskContext
 from pbo_runtime.task.lifecycle import Task
-from pbo_runtime.table.table import Status as StatusWord, TaskState
+from pbo_runtime.table.table import Flag, Status as StatusWord, TaskState
 from tests.support import allocation_peak, one_array, task_spec, variables
 
 VARS = variables(
@@ -254,6 +254,26 @@ def test_a_tasks_context_is_the_task_context_modules_see(table):
     task = make_task(table)
     assert isinstance(task.context, TaskContext)
     assert task.module._pbo_context is task.context
+
+
+def test_a_module_sees_actuators_held_while_job_controls_flag_is_set_at_no_allocation(table):
+    task = make_task(table)
+    assert task.module.actuators_held is False
+    table.set_flag(Flag.ILLEGAL_CONFIGURATION)  # a critical task's stable episode is open, or a task is in ERROR
+    assert task.module.actuators_held is True
+    assert allocation_peak(lambda: task.module.actuators_held) < one_array()
+    table.set_flag(Flag.ILLEGAL_CONFIGURATION, False)
+    assert task.module.actuators_held is False
+
+
+def test_a_module_reads_when_a_ports_value_was_written_and_minus_infinity_for_never(table):
+    task = make_task(table)
+    assert task.module.written_at("k_out") == -np.inf  # not spawned: nothing wrote it yet
+    assert task.module.written_at("u") == 0.0  # the fixture's job control wrote it at 0
+    table.write("u", [1.0, 2.0], when=0.25)
+    assert task.module.written_at("u") == 0.25
+    with pytest.raises(ModuleError, match=r"^task 't' has no port 'v' bound to a variable$"):
+        task.module.written_at("v")
 
 
 # --- issue 18: non-finite outputs never reach the table ------------------------------------------

@@ -29,7 +29,7 @@ from modules.robot_torque import RobotTorque
 from pbo_runtime import OutputError, ParamError, Status
 from pbo_runtime.config.model import DeviceSpec, PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task
-from pbo_runtime.table.table import StateTable, TaskState
+from pbo_runtime.table.table import Flag, StateTable, TaskState
 from tests.support import NO_WATCHDOG, arm_constants, arm_tables, dh_pinocchio_model, fill_disk, task_spec, unique_name, variables
 
 PUMA = robot("puma560")
@@ -80,8 +80,30 @@ def run_trajectory(table: StateTable, task: Task, cycles: int, first: int = 1) -
 
 
 def test_trajectory_starts_from_q_m_at_rest_when_turned_on(table):
-    table.write("q_r", np.full(N, 9.0), when=0.0)  # stale values another task left
-    table.write("qd_r", np.full(N, 5.0), when=0.0)
+    table.write("q_r", np.full(N, 9.0), when=-1.0)  # stale values another task left a second ago
+    table.write("qd_r", np.full(N, 5.0), when=-1.0)
+    trajectory_task(table)
+    np.testing.assert_array_equal(table.read("q_r")[0], Q0)
+    np.testing.assert_array_equal(table.read("qd_r")[0], np.zeros(N))
+
+
+def test_trajectory_goes_on_from_a_reference_that_drives_the_arm_now_when_turned_on(table):
+    """A restart that took no time (the simulated clock), a switch mid-move: the path goes on as planned."""
+    q_r, qd_r = Q0 + 0.01, np.full(N, 0.5)
+    table.write("q_r", q_r, when=-DT)  # its predecessor's last cycle
+    table.write("qd_r", qd_r, when=-DT)
+    task = trajectory_task(table)
+    np.testing.assert_array_equal(table.read("q_r")[0], q_r)
+    np.testing.assert_array_equal(table.read("qd_r")[0], qd_r)
+    _, velocity = run_trajectory(table, task, 1)
+    assert velocity_steps(velocity, start=qd_r).max() <= A_MAX * DT + EPS
+
+
+def test_trajectory_turned_on_while_the_actuators_are_held_starts_from_the_measured_state(table):
+    """A restart on the real clock: the robot interface held the arm on its brakes meanwhile."""
+    table.write("q_r", Q0 + 0.01, when=0.0)
+    table.write("qd_r", np.full(N, 0.5), when=0.0)
+    table.set_flag(Flag.ILLEGAL_CONFIGURATION)
     trajectory_task(table)
     np.testing.assert_array_equal(table.read("q_r")[0], Q0)
     np.testing.assert_array_equal(table.read("qd_r")[0], np.zeros(N))
@@ -129,6 +151,24 @@ def test_trajectory_changes_velocity_by_at_most_max_acceleration_times_period(ta
     task = trajectory_task(table)
     _, qd_r = run_trajectory(table, task, 500)
     assert velocity_steps(qd_r).max() <= A_MAX * DT + EPS
+
+
+def test_trajectory_stands_still_while_the_actuators_are_held_and_starts_again_from_the_measured_state(table):
+    task = trajectory_task(table, q_m=np.zeros(N), q_d=np.full(N, 1.0))
+    q_r, qd_r = run_trajectory(table, task, 20)
+    assert (qd_r[-1] > 0).all()
+    table.set_flag(Flag.ILLEGAL_CONFIGURATION)  # the plant stopped: the robot interface holds the arm
+    held, held_velocity = run_trajectory(table, task, 50, first=21)
+    np.testing.assert_array_equal(held, np.broadcast_to(q_r[-1], held.shape))  # no running on without the arm
+    np.testing.assert_array_equal(held_velocity, np.zeros(held.shape))
+    table.set_flag(Flag.ILLEGAL_CONFIGURATION, False)
+    arm = np.full(N, 0.05)  # where the brakes stopped it
+    table.write("q_m", arm, when=0.71)
+    table.write("qd_m", np.zeros(N), when=0.71)
+    again, again_velocity = run_trajectory(table, task, 100, first=71)
+    np.testing.assert_allclose(again[0], arm + again_velocity[0] * DT, rtol=0, atol=EPS)  # from the arm, at rest
+    assert velocity_steps(again_velocity).max() <= A_MAX * DT + EPS
+    assert (np.diff(again, axis=0) >= 0).all()  # on towards the goal, never back
 
 
 def test_a_new_q_d_mid_way_redirects_the_trajectory_smoothly(table):
@@ -246,15 +286,16 @@ def test_pid_output_is_kp_times_position_error_plus_kd_times_velocity_error(tabl
 
 
 def test_pid_integral_accumulates_ki_times_error_times_period_every_cycle(table):
-    task = pid_task(table, {"kp": 0.0, "kd": 0.0, "ki": 10.0, **NO_GRAVITY})
+    task = pid_task(table, {"kp": 0.0, "kd": 0.0, "ki": 10.0})  # with feed-forward the integral starts at zero
     assert task.spawn(0.0), task.last_error
     error = np.array([0.5, -0.5, 1.0, 0.0, 0.1, -2.0])
     write_state(table, q_r=error, q_m=np.zeros(N))
     assert task.turn_on(0.0)
-    np.testing.assert_array_equal(tau_u(table), np.zeros(N))  # nothing integrated yet
+    gravity = pinocchio_gravity(np.zeros(N))
+    np.testing.assert_allclose(tau_u(table), gravity, rtol=0, atol=1e-12)  # nothing integrated yet
     for k in range(1, 6):
         task.run_cycle(k * PID_DT)
-        np.testing.assert_allclose(tau_u(table), k * 10.0 * error * PID_DT, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(tau_u(table), gravity + k * 10.0 * error * PID_DT, rtol=0, atol=1e-12)
 
 
 def test_pid_integral_is_clipped_at_integral_limit_and_unwinds_at_once(table):
@@ -329,7 +370,7 @@ def test_pid_gravity_torque_of_the_puma_shoulder_at_zero_pose_is_37_48_n_m(table
     assert tau_u(table)[1] == pytest.approx(37.48, abs=0.01)
 
 
-def test_pid_with_integral_takes_over_the_torque_left_in_the_table(table):
+def test_pid_takes_over_the_torque_left_in_the_table_without_a_bump(table):
     task = pid_task(table, {"kp": 100.0, "kd": 0.0, "ki": 1.0, "integral_limit": 50.0, **NO_GRAVITY})
     assert task.spawn(0.0), task.last_error
     left = np.array([5.0, -5.0, 10.0, 0.0, 1.0, -1.0])
@@ -339,8 +380,9 @@ def test_pid_with_integral_takes_over_the_torque_left_in_the_table(table):
     np.testing.assert_allclose(tau_u(table), left, rtol=0, atol=1e-12)  # no bump
 
 
-def test_pid_bumpless_take_over_gives_no_offset_to_a_joint_without_integral_action(table):
-    """A joint with ki = 0 must stay a plain PD joint after `on`, not carry a constant offset."""
+def test_pid_without_feed_forward_takes_over_into_its_integral_only_on_joints_with_integral_action(table):
+    """Without feed-forward the integral carries the load: it keeps the torque taken over. A joint
+    with ki = 0 must stay a plain PD joint after `on`, not carry a constant offset."""
     ki = [1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
     task = pid_task(table, {"kp": 100.0, "kd": 0.0, "ki": ki, **NO_GRAVITY})
     assert task.spawn(0.0), task.last_error
@@ -351,6 +393,57 @@ def test_pid_bumpless_take_over_gives_no_offset_to_a_joint_without_integral_acti
     task.run_cycle(PID_DT)
     np.testing.assert_allclose(tau_u(table)[3:], np.full(3, 10.0), rtol=0, atol=1e-12)  # kp * 0.1, no 7 N m
     np.testing.assert_allclose(tau_u(table)[:3], np.full(3, 17.0 + 0.1 * PID_DT), rtol=0, atol=1e-12)
+
+
+def test_pid_with_feed_forward_fades_out_the_torque_it_took_over_on_every_joint_and_leaves_no_offset(table):
+    """The previous controller's torque beyond this one's fades with its HANDOVER_TIME_CONSTANT, whether
+    the joint has integral action or not: none of it stays in the integral."""
+    ki = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
+    task = pid_task(table, {"kp": 100.0, "kd": 0.0, "ki": list(ki)})
+    assert task.spawn(0.0), task.last_error
+    table.write("tau_u", np.full(N, 7.0), when=0.0)
+    write_state(table, q_r=np.zeros(N), q_m=np.zeros(N))
+    assert task.turn_on(0.0)
+    np.testing.assert_allclose(tau_u(table), np.full(N, 7.0), rtol=0, atol=1e-12)
+    gravity = pinocchio_gravity(np.zeros(N))
+    fade = np.exp(-PID_DT / PidJoint.HANDOVER_TIME_CONSTANT)
+    write_state(table, q_r=np.full(N, 0.1), q_m=np.zeros(N), when=PID_DT)
+    for k in range(1, 101):  # ten time constants
+        task.run_cycle(k * PID_DT)
+        expected = 100.0 * 0.1 + gravity + ki * 0.1 * PID_DT * k + (7.0 - gravity) * fade**k
+        np.testing.assert_allclose(tau_u(table), expected, rtol=0, atol=1e-7)  # (dropped at a billionth of itself)
+    left_over = np.abs(tau_u(table) - (10.0 + gravity + ki * 0.1))
+    assert (left_over < np.abs(7.0 - gravity) * 1e-4).all()  # e^-10 of it
+
+
+def test_pid_turned_on_while_the_actuators_are_held_starts_from_the_measured_state_alone(table):
+    """A restarted controller: the torque its dead predecessor left is not what the arm feels (the
+    robot interface holds it on its brakes), so none of it is taken over."""
+    q = np.array([0.3, -0.7, 1.2, 0.4, -0.9, 2.0])
+    task = pid_task(table, {"kp": 400.0, "kd": 40.0, "ki": 10.0})
+    assert task.spawn(0.0), task.last_error
+    table.write("tau_u", np.full(N, 30.0), when=0.0)
+    write_state(table, q_r=q, q_m=q)
+    table.set_flag(Flag.ILLEGAL_CONFIGURATION)
+    assert task.turn_on(0.0)
+    np.testing.assert_allclose(tau_u(table), pinocchio_gravity(q), rtol=0, atol=1e-12)
+
+
+def test_pid_integrates_nothing_while_the_actuators_are_held_and_goes_on_after(table):
+    task = pid_task(table, {"kp": 0.0, "kd": 0.0, "ki": 10.0})
+    assert task.spawn(0.0), task.last_error
+    error = np.array([0.5, -0.5, 1.0, 0.0, 0.1, -2.0])
+    write_state(table, q_r=error, q_m=np.zeros(N))
+    assert task.turn_on(0.0)
+    gravity = pinocchio_gravity(np.zeros(N))
+    task.run_cycle(PID_DT)
+    table.set_flag(Flag.ILLEGAL_CONFIGURATION)  # the plant stopped: q_m stands still, the arm is held
+    for k in range(2, 50):
+        task.run_cycle(k * PID_DT)
+        np.testing.assert_allclose(tau_u(table), gravity + 10.0 * error * PID_DT, rtol=0, atol=1e-12)
+    table.set_flag(Flag.ILLEGAL_CONFIGURATION, False)
+    task.run_cycle(50 * PID_DT)
+    np.testing.assert_allclose(tau_u(table), gravity + 2 * 10.0 * error * PID_DT, rtol=0, atol=1e-12)
 
 
 # --- RobotTorque ---------------------------------------------------------------------------------

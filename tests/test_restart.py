@@ -1,11 +1,12 @@
 """A dead RTPU restarted alone by its restart policy (`restart: {max, within}`).
 
-Figure 8 (configs/pid_joint.yaml) with a policy: the controller's RTPU is killed mid-move three
-times; each time it comes back with its tasks ON while the robot interface on the other RTPU,
-which never stops, holds the arm (its locally stable behaviour) until the torque is fresh again,
-and the arm still reaches its goal without leaving its path. Past the policy, and for a module
-that aborts its process in `init`, the run stops and says why. Real clock, no timing asserted:
-the test waits for what the run says, and its safety nets only catch a hang.
+Figure 8 (configs/pid_joint.yaml, at its own speed) with a policy: the controller's RTPU is
+killed mid-move, then twice more; each time it comes back with its tasks ON while the robot
+interface on the other RTPU, which never stops, holds the arm (its locally stable behaviour)
+until the torque is fresh again. The restarted trajectory and PID start from the arm's measured
+state, so the arm keeps to its path and ends on its goal. Past the policy, and for a module that
+aborts its process in `init`, the run stops and says why. Real clock, no timing asserted: the
+test waits for what the run says and what the arm does, and its safety nets only catch a hang.
 """
 
 from __future__ import annotations
@@ -14,47 +15,36 @@ import json
 import os
 import signal
 import subprocess
-import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from pbo_runtime import read_log
-from pbo_runtime.config.loader import load_subsystem
-from pbo_runtime.table.table import StateTable, TableLayout
-from tests.support import (DEMO, PBO, assert_nothing_left, config_copy, excursion_from_path, kill_and_await_restart,
-                           killed_on_failure, read_until, run_output, run_processes, start_run, table_of)
+from tests.support import (DEMO, DEMO_GOAL, DEMO_MID_MOVE, PBO, assert_nothing_left, config_copy, excursion_from_path,
+                           kill_and_await_restart, killed_on_failure, measured_arm, read_until, run_output,
+                           run_processes, settling, start_run, travelled, until)
 
 pytestmark = pytest.mark.multiprocess
 
 POLICY = ("rtpus: [rtpu0, rtpu1]", "rtpus: [rtpu0, rtpu1]\nrestart: {max: 3, within: 10 min}")
 LOGGER_BESIDE_THE_ROBOT = ("logger: {module: data_logger, rtpu: rtpu0", "logger: {module: data_logger, rtpu: rtpu1")
-SLOW_MOVE = ("params: {max_velocity: 1.0, max_acceleration: 4.0}", "params: {max_velocity: 0.25, max_acceleration: 1.0}")
-GOAL = np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2])  # q_d's initial value in configs/pid_joint.yaml
-REACHED = 0.01  # rad: every joint within this of its goal
-EXCURSION_LIMIT = 0.05  # rad
+REACHED = 0.005  # rad: every joint ends within this of its goal
+EXCURSION_LIMIT = 0.05  # rad: off its path, at most
 REACH_SAFETY_NET = 180.0  # seconds: a net for an arm that never arrives, not a timing
 
 
-def wait_until_reached(config: Path, run, subsystem: str) -> None:
-    table = StateTable.attach(TableLayout.of(load_subsystem(config)), table_of(run, subsystem))
-    try:
-        give_up = time.monotonic() + REACH_SAFETY_NET
-        while np.abs(table.read("q_m")[0] - GOAL).max() > REACHED:
-            assert time.monotonic() < give_up, f"the arm did not reach its goal: q_m = {table.read('q_m')[0]}"
-            time.sleep(0.1)
-    finally:
-        table.close()
-
-
-def test_a_controller_rtpu_killed_three_times_mid_move_comes_back_and_the_arm_reaches_its_goal(tmp_path):
-    config = config_copy(DEMO, tmp_path, "restart_thrice", (POLICY, LOGGER_BESIDE_THE_ROBOT, SLOW_MOVE))
+def test_a_controller_rtpu_killed_mid_move_comes_back_and_the_arm_keeps_to_its_path_and_ends_on_its_goal(tmp_path):
+    config = config_copy(DEMO, tmp_path, "restart_thrice", (POLICY, LOGGER_BESIDE_THE_ROBOT))
     report_path = tmp_path / "report.json"
     run = start_run(config, tmp_path, "--duration", "0", "--report", str(report_path), "--out", str(tmp_path / "out"))
     with killed_on_failure(run):
-        killed = [kill_and_await_restart(run) for _ in range(3)]  # the controller's RTPU: the trajectory, the PID
-        wait_until_reached(config, run, "restart_thrice")
+        with measured_arm(config, run, "restart_thrice") as q_m:
+            controller = run_processes(run)["rtpu0"]  # the trajectory and the PID
+            until(lambda: travelled(q_m()) >= DEMO_MID_MOVE, "the arm to be mid-move", REACH_SAFETY_NET)
+            killed = [kill_and_await_restart(run, pid=controller)]
+            killed += [kill_and_await_restart(run) for _ in range(2)]  # and as soon as it is back, twice
+            settled = settling(DEMO_GOAL, REACHED)
+            until(lambda: settled(q_m()), "the arm to settle on its goal", REACH_SAFETY_NET)
         run.send_signal(signal.SIGINT)
         out, err = run_output(run)
     assert "Traceback" not in err, err
@@ -68,10 +58,10 @@ def test_a_controller_rtpu_killed_three_times_mid_move_comes_back_and_the_arm_re
     assert robot["state"] == "ON" and robot["error"] == ""
     holds = [e for e in report["stable_episodes"] if e["task"] == "robot" and "tau_u" in e["reason"]]
     assert len(holds) >= 3, report["stable_episodes"]
-    # ... and the arm kept to its path and got there
+    # ... and the arm kept to its path and ended on its goal
     log = read_log(next((tmp_path / "out").rglob("pid_joint.mcap")))
-    assert excursion_from_path(log["q_m"], log["q_m"][0], GOAL) < EXCURSION_LIMIT
-    assert np.abs(log["q_m"][-1] - GOAL).max() < REACHED
+    assert excursion_from_path(log["q_m"], log["q_m"][0], DEMO_GOAL) < EXCURSION_LIMIT
+    assert np.abs(log["q_m"][-1] - DEMO_GOAL).max() < REACHED
     assert_nothing_left(report)
 
 

@@ -56,7 +56,12 @@ class TaskContext(typing.Protocol):
     variable_notes: Mapping[str, tuple[str, str]]  # each variable's (doc, unit) from the YAML
     restarted: bool  # its RTPU was restarted after a death (restart policy): continue the run's files
 
+    @property
+    def actuators_held(self) -> bool: ...  # a critical task holds, or a task is in ERROR (job control's flag)
+
     def open_device(self, name: str) -> Any: ...
+
+    def written_at(self, port: str) -> float: ...
 
     def open_link(self, name: str, like: np.ndarray, role: str) -> Any: ...
 
@@ -143,6 +148,16 @@ class PortBasedObject:
         return self._pbo_context.restarted
 
     @property
+    def actuators_held(self) -> bool:
+        """True while the run's critical tasks hold the plant (a robot interface's brakes): one of them
+        runs its locally stable behaviour (a stale input, a stopped plant, the table lock held past
+        its wait), or a task is in ERROR. This task's outputs then reach no actuator and measurements
+        may stand still: a controller does not integrate meanwhile, and a reference generator
+        starts again from the measured state once it is over. Cheap enough for `cycle` (one word
+        of the table's header); job control sets it once it hears of the hold."""
+        return self._pbo_context.actuators_held
+
+    @property
     def bound_arrays(self) -> list[np.ndarray]:
         """The local arrays of every port, in `ports_for` order (class ports first)."""
         return self._pbo_ports
@@ -184,6 +199,12 @@ class PortBasedObject:
     def variable_note(self, name: str) -> tuple[str, str]:
         """A variable's (doc, unit) as its YAML gives them (unit "" when it names none)."""
         return self._pbo_context.variable_notes.get(name, ("", ""))
+
+    def written_at(self, port: str) -> float:
+        """When the value now in `port`'s variable was written: its writer's release time, seconds on
+        the run's clock (-inf if nothing wrote it). For `on`, to judge whether the value it takes
+        over is what drives the plant now; not for `cycle` (it reads the table)."""
+        return self._pbo_context.written_at(port)
 
     def open_link(self, name: str, like: np.ndarray, role: str) -> Any:
         """Open one end of the application's link `name` (call it in `init`).

@@ -108,7 +108,7 @@ MAX_RTPUS = 32
 
 
 class Flag(enum.IntFlag):
-    ILLEGAL_CONFIGURATION = 1  # a task of the configuration is in ERROR, or a switch overran a cycle
+    ILLEGAL_CONFIGURATION = 1  # a task of the configuration is in ERROR, or a task's stable episode is open (job control)
     STOPPING = 2  # job control is stopping the run: RTPUs run no more cycles
     STATIC_SWITCH = 4  # job control is killing and spawning tasks: critical tasks hold until it is done
     SIM_CLOCK = 8  # the run's clock is simulated (--clock sim): its times are SIM_TIME_NS, from the first tick on

@@ -22,6 +22,7 @@ can be unit-tested with a manual clock and no process.
 
 from __future__ import annotations
 
+import math
 import traceback
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
@@ -31,10 +32,11 @@ import numpy as np
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.errors import LifecycleError, ModuleError, OutputError
 from pbo_runtime.objects.module import PortBasedObject, Status
-from pbo_runtime.table.table import StateTable, TaskState
+from pbo_runtime.table.table import Flag, Header, StateTable, TaskState
 from pbo_runtime.table.table import Status as StatusWord
 from pbo_runtime.task.transfer import LocalTable
 
+_FLAGS, _HELD = int(Header.FLAGS), int(Flag.ILLEGAL_CONFIGURATION)
 DeviceOpener = Callable[[DeviceSpec, TaskSpec], Any]  # the RTPU's: opens a device for the task whose init asks
 Relay = Callable[[str, Any], Any]  # (task, a message link's receiving end) -> something with close()
 
@@ -60,6 +62,15 @@ class RuntimeTaskContext:
     links: dict[str, dict[str, Any]] = field(default_factory=dict)  # the application's links, by name
     relay: Relay | None = None  # the RTPU's: wakes this task per message of a link it serves
     restarted: bool = False  # its RTPU was restarted after a death: the run's files it writes are continued
+    header_words: Any = None  # the table's header read as plain ints (a memoryview): the flags of `actuators_held`
+    table: StateTable | None = None  # for `written_at`
+    variable_of: Mapping[str, str] = field(default_factory=dict)  # port name -> the variable it is bound to
+
+    @property
+    def actuators_held(self) -> bool:
+        """Job control's flag: a stable episode is open (a critical task holds) or a task is in ERROR."""
+        words = self.header_words
+        return words is not None and bool(words[_FLAGS] & _HELD)
 
     def open_link(self, name: str, like: np.ndarray, role: str) -> Any:
         """One end of an application's link, carrying items shaped like the array `like`.
@@ -85,6 +96,13 @@ class RuntimeTaskContext:
                 raise
         self.opened.append(end)
         return end
+
+    def written_at(self, port: str) -> float:
+        """When the value of `port`'s variable was written (its writer's release time); -inf if never."""
+        if port not in self.variable_of or self.table is None:
+            raise ModuleError(f"task '{self.task_name}' has no port '{port}' bound to a variable")
+        _, sequence, when, writer = self.table.read(self.variable_of[port])
+        return -math.inf if writer < 0 and sequence == 0 else when
 
     def open_device(self, name: str) -> Any:
         if name not in self.resources:
@@ -128,7 +146,8 @@ class Task:
                                           self.open_device if opener is not None else None,
                                           out_dir=out_dir, links=dict(links or {}), relay=relay,
                                           run_metadata=run_metadata or {}, variable_notes=variable_notes or {},
-                                          restarted=restarted)
+                                          restarted=restarted, header_words=table.header.data, table=table,
+                                          variable_of={b.port.name: b.variable for b in spec.bindings})
         self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
         self.status = self.local.status
         self._forget_an_earlier_tasks_figures(table.status[spec.index])

@@ -29,7 +29,10 @@ readable up to its last chunk, and gets its summary and footer when the task is 
 restarted with its RTPU (a restart policy) continues the run's log: new chunks after the last one
 written, the rows of the chunk begun at the death lost. A write
 takes microseconds into the page cache, but milliseconds at times when the kernel throttles
-write-back: that is why it is not the cycle's. `off` and `kill` write the chunk begun.
+write-back: that is why it is not the cycle's, nor `off`'s and `kill`'s, which run between two
+cycles of the RTPU's other tasks: `off` hands the chunk begun to the writer, and `kill` hands the
+rest (the chunk begun, the MCAP summary and footer, the writer and encoder ended, the file closed)
+to the RTPU's background thread (`hand_off`), which the RTPU waits for before it exits.
 
 When both buffers are full (the writer still writes one), a cycle on the real clock drops its
 row, counted and reported; on the simulated clock it waits for the writer instead, as the
@@ -59,6 +62,10 @@ __all__ = ["DataLogger", "DataLoggerParams", "read_log"]
 
 CHUNK_BYTES = 256 * 1024  # the most one cycle writes at once (tens of microseconds into the page cache)
 FORMATS = (".mcap", ".npy")
+FINISH_PATIENCE = 60.0  # s a logger spawned at a path waits for the one killed before it to end that file
+# Logs being finished in the background, by path: a logger spawned again at the same path (kill,
+# then spawn) waits for the file's end before it replaces it.
+_FINISHING: dict[str, threading.Event] = {}
 
 
 @dataclass(frozen=True)
@@ -121,6 +128,9 @@ class DataLogger(PortBasedObject):
         self._current = 0
         self._chunk, self._times, self._pairs = self._buffers[0]
         self.path = self.output_path(params.path)
+        before = _FINISHING.get(str(self.path))
+        if before is not None and not before.wait(FINISH_PATIENCE):
+            raise OutputError(f"cannot create log {self.path}: the logger killed before is still finishing it")
         self.logged = 0  # rows taken, the chunk begun included
         self.dropped = 0  # rows taken while both buffers were full (the disk took longer than a chunk to write one)
         self._filled = 0  # rows of the chunk begun
@@ -220,22 +230,46 @@ class DataLogger(PortBasedObject):
             time.sleep(0.001)
 
     def off(self) -> None:
-        self.write_chunk()
+        """Hand the chunk begun to the writer if it is free (else it goes with the next chunk or at
+        kill); never waits for the disk or the encoder: the RTPU's other tasks run on."""
+        if self._failure:
+            raise OutputError(self._failure)
+        if self._filled and self._queued < 0:
+            self._hand_over()
+        self._raise_if_dropped()
 
     def kill(self) -> None:
+        """The chunk begun, the MCAP summary and footer, the writer and the encoder ended, the file
+        closed: handed off to the RTPU's background thread (`hand_off`), so kill returns at once."""
         if getattr(self, "_fd", -1) < 0:
             return
+        rows, self._filled = self._filled, 0
+        index = self._current
+        path = str(self.path)
+        finished = _FINISHING[path] = threading.Event()
+        self.hand_off(lambda: self._finish(index, rows, finished), f"finishing log {path}")
+
+    def _finish(self, index: int, rows: int, finished: threading.Event) -> None:
+        """In the background thread: write what is left, end the file and let go of everything."""
         try:
-            self.write_chunk()
-            self._file.finish()
-        except OSError as exc:
-            raise OutputError(f"cannot finish log {self.path}: {_os_error(exc)}") from None
+            self.wait_for_writer()
+            if self._failure:
+                raise OutputError(self._failure)
+            self._append(index, rows)
+            try:
+                self._file.finish()
+            except OSError as exc:
+                raise OutputError(f"cannot finish log {self.path}: {_os_error(exc)}") from None
+            self._raise_if_dropped()
         finally:
             self._stopping = True
             os.eventfd_write(self._wake, 1)
             self._writer.join(timeout=5.0)
             os.close(self._wake)
             self._close()
+            finished.set()
+            if _FINISHING.get(str(self.path)) is finished:
+                del _FINISHING[str(self.path)]
 
     def clear(self) -> bool:
         """After a failed write: back to OFF once the rows kept can be written (space was freed)."""
@@ -254,6 +288,9 @@ class DataLogger(PortBasedObject):
             raise OutputError(self._failure)
         rows, self._filled = self._filled, 0
         self._append(self._current, rows)
+        self._raise_if_dropped()
+
+    def _raise_if_dropped(self) -> None:
         if self.dropped:
             dropped, self.dropped = self.dropped, 0
             raise OutputError(f"log {self.path}: {dropped} rows dropped: writing a chunk of {self._rows} rows took "

@@ -31,6 +31,7 @@ import numpy as np
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.process import raise_if_stopping
 from pbo_runtime.ipc.messages import Event, FirstCycle, Refused, Stable, StateChanged, Stats, Switched, Window
+from pbo_runtime.task import background
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.module import Status
 from pbo_runtime.config.reconfiguration import Reconfiguration
@@ -241,6 +242,9 @@ class Executive:
         self.live_loader = live_loader
         self.staged: LiveStage | None = None
         self.staged_tunes: dict[str, Any] = {}  # hosted task -> (its new spec, its Params), when its parameters changed
+        # What a task's off or kill hands off (a log's last chunk and footer): done by a thread of
+        # lower priority, never between two cycles; waited for at the stop (`stop`).
+        background.process_background().start()
 
     # --- the loop ---------------------------------------------------------------------------
 
@@ -661,6 +665,7 @@ class Executive:
 
     def handle(self, message: list[Any]) -> None:
         """One signal as it came off the queue (`[kind, *fields]`, decoded by `messages.signal_from_wire`)."""
+        self._report_background_failures()
         signal = messages.signal_from_wire(message)
         if isinstance(signal, messages.StopRtpu):
             self.stop()
@@ -778,8 +783,17 @@ class Executive:
                 except Exception as exc:
                     self.report(Refused(s.task.name, f"kill: {exc}"))
                 self._report_state(s.task)
+        self._report_background_failures(background.close_process_background())
         self.report_statistics()
         self.running = False
+
+    def _report_background_failures(self, failures: list[background.Failure] | None = None) -> None:
+        """Work a task handed off that failed (`PortBasedObject.hand_off`): the task's error, reported
+        as a component's would be (an output that could not be written fails the run)."""
+        for failure in background.process_background().take_failures() if failures is None else failures:
+            s = self.tasks.get(failure.task)
+            state = s.task.state.name if s is not None else TaskState.KILLED.name
+            self.report(StateChanged(failure.task, state, f"{failure.what} failed: {failure.error}", failure.output))
 
     def report_statistics(self) -> None:
         """One Stats event per task: an RTPU hosting dozens of tasks would overflow one message."""

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from bench import (api_stream, check_scale, data_log, dora_peer, faults, hmi_latency, hmi_load, links, peers, placement, realtime,
-                   restart, scale, sim_speed, startup, svar_transfer, switching, wait)
+                   restart, scale, sim_speed, startup, svar_transfer, switching, verbs, wait)
 from bench._common import REPO, Section, Table, machine_info
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
@@ -27,6 +27,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "realtime": realtime.run,
     "wait": wait.run,
     "switching": switching.run,
+    "verbs": verbs.run,
     "check_scale": check_scale.run,
     "placement": placement.run,
     "links": links.section,
@@ -48,6 +49,7 @@ FULL: dict[str, dict[str, Any]] = {
     "realtime": {"seconds": 240.0, "rtpus": (1, 2, 4), "rounds": 48, "other_seconds": 60.0, "other_rounds": 12},
     "wait": {"seconds": 1.5, "rounds": 4},
     "switching": {"switches": 1000, "interval": 0.02},
+    "verbs": {"window": 0.6},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 3},
     "placement": {"tasks": 102, "repeat": 200, "check_repeat": 5},
     "links": {},
@@ -69,6 +71,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "realtime": {"seconds": 1.0, "rtpus": (1, 2, 4), "rounds": 1, "other_seconds": 1.0, "other_rounds": 1},
     "wait": {"seconds": 0.2, "rounds": 1},
     "switching": {"switches": 20, "interval": 0.02},
+    "verbs": {"window": 0.4, "configs": verbs.QUICK_CONFIGS},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 1},
     "placement": {"tasks": 102, "repeat": 20, "check_repeat": 1},
     "links": {"quick": True},

@@ -3,10 +3,12 @@
 A task's `off` and `kill` run between two cycles of every task on its RTPU. Whatever is slow
 there (a log's last chunk encoded and its footer written, a helper process or thread joined, a
 file closed) makes the next releases late. A component hands such work to this thread instead
-(`PortBasedObject.hand_off`) and returns at once. The thread runs at SCHED_OTHER, niced: it takes
-the CPU time the executive leaves idle. Its work should spend its time waiting (system calls, a
-child process, a join) with the GIL released: Python computing here for long would hold the
-executive's thread at its next release (CPU-heavy work belongs in a process of its own).
+(`PortBasedObject.hand_off`) and returns at once. The thread runs at SCHED_OTHER: it takes the CPU
+time the executive's SCHED_FIFO thread leaves idle. Its work should spend its time waiting (system
+calls, a child process, a join) with the GIL released: Python computing here holds the GIL, and
+the executive's thread waits for it at its next release (CPU-heavy work belongs in a process of
+its own). For the same reason the thread is not niced: holding the GIL, it must not wait behind
+the machine's other processes for its CPU while the executive waits for it.
 
 Nothing handed off is lost: the work runs in the order handed, the RTPU waits for all of it
 when it stops (`close`), and a failure is kept with the task that handed it (`failures`), for the
@@ -24,7 +26,6 @@ from typing import Callable
 
 from pbo_runtime.errors import OutputError
 
-NICE = 10  # below the RTPU's other threads and processes
 CLOSE_PATIENCE = 60.0  # s the RTPU waits at its stop for the work handed off to end
 
 
@@ -142,15 +143,10 @@ class Background:
 
 
 def step_aside() -> None:
-    """This thread to SCHED_OTHER, niced (it may have inherited the executive's SCHED_FIFO): the
+    """This thread to SCHED_OTHER (it may have inherited the executive's SCHED_FIFO): the
     executive's thread, on the same CPU, then always runs first."""
-    thread = threading.get_native_id()
     try:
-        os.sched_setscheduler(thread, os.SCHED_OTHER, os.sched_param(0))
-    except OSError:
-        pass
-    try:
-        os.setpriority(os.PRIO_PROCESS, thread, NICE)  # Linux: a thread's own nice value
+        os.sched_setscheduler(threading.get_native_id(), os.SCHED_OTHER, os.sched_param(0))
     except OSError:
         pass
 

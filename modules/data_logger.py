@@ -46,6 +46,8 @@ writes them first when the task is cleared).
 
 from __future__ import annotations
 
+import _thread
+import errno
 import io
 import mmap
 import os
@@ -55,7 +57,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from modules._mcap_encoder import McapEncoder, McapLog, resume_point, write_all
+from modules._mcap_encoder import McapEncoder, resume_point, write_all
 from pbo_runtime import ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status, read_log
 
 __all__ = ["DataLogger", "DataLoggerParams", "read_log"]
@@ -148,13 +150,9 @@ class DataLogger(PortBasedObject):
                 resume_at = resume_point(self._fd) if resume else None
                 if resume_at is not None:
                     os.ftruncate(self._fd, resume_at[0])  # a chunk cut short by the death, and any end of data
-                else:
-                    McapLog(self._fd, self._dtype, columns, self.run_metadata, self.task_name, self.period)  # the preamble, now
                 setup = {"columns": columns, "run": dict(self.run_metadata), "task": self.task_name, "period": self.period,
                          "resume_at": resume_at}
-                encoder = McapEncoder(self._fd, self._shared_fd, self._dtype, self._rows, setup)
-                encoder.rows = resume_at[1] if resume_at is not None else 0
-                self._file: _LogFile = _McapProcess(encoder)
+                self._file: _LogFile = _McapProcess(self._fd, self._shared_fd, self._dtype, self._rows, setup)
             else:
                 self._file = _NpyFile(self._fd, self._dtype, [chunk for chunk, _, _ in self._buffers], resume)
         except OSError as exc:
@@ -162,8 +160,12 @@ class DataLogger(PortBasedObject):
             raise OutputError(f"cannot create log {self.path}: {_os_error(exc)}") from None
         self._wake = os.eventfd(0, os.EFD_CLOEXEC)
         self._stopping = False
-        self._writer = threading.Thread(target=self._write_queued, name=f"log-{self.task_name}", daemon=True)
-        self._writer.start()
+        self._ready = threading.Event()  # the writer has set the file up (an MCAP log's preamble and encoder)
+        self._writer_done = threading.Event()
+        # Not threading.Thread.start, which waits for the new thread to run: at SCHED_OTHER on a busy
+        # machine that can take milliseconds, between two cycles of the RTPU's other tasks. What the
+        # cycle hands over before the writer runs waits in the eventfd's count.
+        _thread.start_new_thread(self._write_queued, ())
 
     @property
     def written(self) -> int:
@@ -201,11 +203,25 @@ class DataLogger(PortBasedObject):
         os.eventfd_write(self._wake, 1)
 
     def _write_queued(self) -> None:
-        """The writer thread: append each buffer handed over; a failure is the next cycle's to raise.
+        """The writer thread: set the file up, then append each buffer handed over; a failure is
+        the next cycle's to raise.
 
         Its time is in system calls (the write; for MCAP, the wait for the encoder process), with
         the GIL released: the executive's thread never waits for it. The write's own time (the
-        disk, the kernel's write-back throttling: milliseconds at times) is spent off the cycle."""
+        disk, the kernel's write-back throttling: milliseconds at times) is spent off the cycle.
+        An MCAP log's preamble and its encoder process's start are the writer's too."""
+        try:
+            try:
+                self._file.start()
+            except Exception as exc:
+                self._failure = f"cannot create log {self.path}: {_os_error(exc) if isinstance(exc, OSError) else exc}"
+            finally:
+                self._ready.set()
+            self._serve()
+        finally:
+            self._writer_done.set()
+
+    def _serve(self) -> None:
         while True:
             os.eventfd_read(self._wake)
             if self._stopping:
@@ -222,8 +238,11 @@ class DataLogger(PortBasedObject):
             self._queued = -1
 
     def wait_for_writer(self, patience: float = 30.0) -> None:
-        """Until the writer has written what it was handed (off, kill and clear write after it)."""
+        """Until the writer has set the file up and written what it was handed (off, kill and clear
+        write after it)."""
         give_up = time.monotonic() + patience
+        if not self._ready.wait(patience):
+            raise OutputError(f"cannot write log {self.path}: its writer has not set the file up in {patience:g} s")
         while self._queued >= 0:
             if time.monotonic() > give_up:
                 raise OutputError(f"cannot write log {self.path}: a chunk's write has not returned for {patience:g} s")
@@ -264,7 +283,7 @@ class DataLogger(PortBasedObject):
         finally:
             self._stopping = True
             os.eventfd_write(self._wake, 1)
-            self._writer.join(timeout=5.0)
+            self._writer_done.wait(timeout=5.0)
             os.close(self._wake)
             self._close()
             finished.set()
@@ -328,6 +347,9 @@ class _LogFile:
     def append(self, index: int, rows: int) -> None:
         raise NotImplementedError
 
+    def start(self) -> None:
+        """In the writer thread, before the first chunk: what the format sets up."""
+
     def finish(self) -> None:
         """At the task's kill: what the format writes after the last row."""
 
@@ -389,26 +411,44 @@ class _NpyFile(_LogFile):
 
 
 class _McapProcess(_LogFile):
-    """MCAP, encoded and written by the log's encoder process (modules/_mcap_encoder.py)."""
+    """MCAP, encoded and written by the log's encoder process (modules/_mcap_encoder.py).
 
-    def __init__(self, encoder: McapEncoder) -> None:
-        self.encoder = encoder
-        self.rows = encoder.rows  # a resumed log's rows so far
+    The encoder is started by `start`, in the writer thread, not by the RTPU between two cycles;
+    it writes a new log's preamble first, then the chunks as they are handed over."""
+
+    def __init__(self, fd: int, buffers_fd: int, dtype: np.dtype, rows: int, setup: dict) -> None:
+        self.fd, self.buffers_fd, self.dtype, self.chunk_rows, self.setup = fd, buffers_fd, dtype, rows, setup
+        resume_at = setup["resume_at"]
+        self.rows = resume_at[1] if resume_at is not None else 0  # a resumed log's rows so far
+        self.encoder: McapEncoder | None = None
+
+    def start(self) -> None:
+        self.encoder = McapEncoder(self.fd, self.buffers_fd, self.dtype, self.chunk_rows, self.setup)
+        self.encoder.rows = self.rows
+        self.encoder.begin()  # the child writes the preamble now: a log cut short before its first chunk still says what it holds
 
     def append(self, index: int, rows: int) -> None:
+        encoder = self._started()
         try:
-            self.encoder.append(index, rows)
+            encoder.append(index, rows)
         finally:
-            self.rows = self.encoder.rows
+            self.rows = encoder.rows
 
     def finish(self) -> None:
+        encoder = self._started()
         try:
-            self.encoder.finish()
+            encoder.finish()
         finally:
-            self.rows = self.encoder.rows
+            self.rows = encoder.rows
 
     def stop(self) -> None:
-        self.encoder.stop()
+        if self.encoder is not None:
+            self.encoder.stop()
+
+    def _started(self) -> McapEncoder:
+        if self.encoder is None:
+            raise OSError(errno.ENOENT, "the log's encoder process was not started (its start failed)")
+        return self.encoder
 
 
 def _flat_rows(field: np.ndarray) -> np.ndarray:

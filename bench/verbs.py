@@ -232,11 +232,11 @@ def run(window: float = 0.6, configs: tuple[str, ...] = ()) -> Section:
     paths = shipped(configs)
     section = Section(
         key="verbs",
-        title=f"Operator verbs on running subsystems: {len(VERBS)} verbs on {len(paths)} configurations",
+        title="Operator verbs on running subsystems",
         command=f"python -m bench.verbs --window {window:g}" + (f" --configs {','.join(configs)}" if configs else ""),
         method=f"""
-Each configuration of configs/ that runs on the real clock is started under a name of its own
-(live changes on), and once it is on the benchmark sends the operator's verbs over its control
+{len(VERBS)} verbs on {len(paths)} configurations: each of configs/ that runs on the real clock is
+started under a name of its own (live changes on), and once it is on the benchmark sends the operator's verbs over its control
 queue, as `pbo VERB` does, one at a time: `set` (the first live-tunable number of a task, times
 1.01), `switch` (to another configuration), `job` (one of the configuration on, with its object's
 initial values), `spawn` (a data logger `{LOGGER}` writing MCAP, on the RTPU of the first
@@ -252,8 +252,10 @@ read back (it was killed live: its summary and footer were written off the cycle
         limits="""A window counts what happened in it, whatever caused it: on this shared 2-CPU
 machine the hypervisor and other tenants cause holds and missed releases too, which the
 baselines count. A verb that is not applicable to a configuration (one configuration: no switch)
-is listed as such. `spawn` and `replace` run the new task's `init` on its RTPU between two cycles:
-a module whose init takes longer than the shortest period there makes releases late.""",
+is listed as such. `spawn` and `replace` make the new task on its RTPU between two cycles: the
+executive runs the cycles that come due between its steps (its module's import, its timing rings,
+its `init`), but a step longer than a period makes releases late, and the first spawn of a module
+an RTPU has not imported yet takes its import (a data logger: about 10 ms).""",
     )
     results = []
     for path in paths:

@@ -162,6 +162,7 @@ class DataLogger(PortBasedObject):
         self._stopping = False
         self._ready = threading.Event()  # the writer has set the file up (an MCAP log's preamble and encoder)
         self._writer_done = threading.Event()
+        self.writer_id = 0  # the writer thread's (threading.get_ident), once it runs
         # Not threading.Thread.start, which waits for the new thread to run: at SCHED_OTHER on a busy
         # machine that can take milliseconds, between two cycles of the RTPU's other tasks. What the
         # cycle hands over before the writer runs waits in the eventfd's count.
@@ -210,6 +211,7 @@ class DataLogger(PortBasedObject):
         the GIL released: the executive's thread never waits for it. The write's own time (the
         disk, the kernel's write-back throttling: milliseconds at times) is spent off the cycle.
         An MCAP log's preamble and its encoder process's start are the writer's too."""
+        self.writer_id = threading.get_ident()
         try:
             try:
                 self._file.start()
@@ -253,8 +255,11 @@ class DataLogger(PortBasedObject):
         kill); never waits for the disk or the encoder: the RTPU's other tasks run on."""
         if self._failure:
             raise OutputError(self._failure)
-        if self._filled and self._queued < 0:
-            self._hand_over()
+        if self._filled:
+            if self._queued >= 0 and self._wait_when_full:  # the simulated clock waits for the writer, as the cycle does
+                self.wait_for_writer()
+            if self._queued < 0:
+                self._hand_over()
         self._raise_if_dropped()
 
     def kill(self) -> None:

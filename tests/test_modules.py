@@ -663,6 +663,7 @@ def test_rows_taken_while_the_writer_still_writes_the_other_chunk_are_dropped_co
     written = log_cycles_without_waiting(log_table, task, 7)  # 2 handed over, 2 filling the other, 3 with nowhere to go
     assert task.module.dropped == 3
     release.set()
+    task.module.wait_for_writer()  # (off hands the chunk begun over only to a writer that is free: it never waits for it)
     with pytest.raises(OutputError, match=r"^log \S+/log\.npy: 3 rows dropped: writing a chunk of 2 rows took longer than "
                                           r"filling one \(the disk is too slow for this period\)$"):
         task.module.off()

@@ -43,7 +43,10 @@ QUICK_CONFIGS = ("pid_joint", "switch_joint")
 VERBS = ("set", "switch", "job", "spawn", "off", "on", "kill", "replace", "save")
 SAFETY_NET = 120.0  # s a run may take to say it is on: a net for a hang
 LOGGER = "vlog"  # the data logger the benchmark spawns, turns off and on, and kills
-SKIPPED = {"fault_drill": "injects faults on purpose", "cartesian_teleop_hmi": "driven from the browser HMI"}
+SKIPPED = {"fault_drill": "injects faults on purpose", "cartesian_teleop_hmi": "driven from the browser HMI",
+           "leader": "a subsystem of the application leader_follower.yaml: its links need it",
+           "follower": "a subsystem of the application leader_follower.yaml: its links need it",
+           "leader_follower": "an application of two subsystems (links): not measured here"}
 
 
 @dataclass
@@ -235,9 +238,9 @@ def run(window: float = 0.6, configs: tuple[str, ...] = ()) -> Section:
         title="Operator verbs on running subsystems",
         command=f"python -m bench.verbs --window {window:g}" + (f" --configs {','.join(configs)}" if configs else ""),
         method=f"""
-{len(VERBS)} verbs on {len(paths)} configurations: each of configs/ that runs on the real clock is
-started under a name of its own (live changes on), and once it is on the benchmark sends the operator's verbs over its control
-queue, as `pbo VERB` does, one at a time: `set` (the first live-tunable number of a task, times
+{len(VERBS)} verbs on {len(paths)} configurations: each of configs/ that runs on the real clock
+is started under a name of its own (live changes on), and once it is on the benchmark sends the
+operator's verbs over its control queue, as `pbo VERB` does, one at a time: `set` (the first live-tunable number of a task, times
 1.01), `switch` (to another configuration), `job` (one of the configuration on, with its object's
 initial values), `spawn` (a data logger `{LOGGER}` writing MCAP, on the RTPU of the first
 non-critical task), `off`, `on` and `kill` of that logger, `replace` (a non-critical task by a
@@ -291,6 +294,9 @@ an RTPU has not imported yet takes its import (a data logger: about 10 ms).""",
         for w in r.windows:
             if w.causes:
                 section.notes.append(f"{r.name}, {w.verb}: held {', '.join(w.causes)}")
+    if sys.flags.dont_write_bytecode:
+        section.notes.append("PYTHONDONTWRITEBYTECODE is set where this ran: no module's bytecode is cached, so an RTPU's "
+                             "first import of a module (a `spawn` of one it had not imported) compiles its source too")
     windows = sum(len([w for w in r.windows if not w.outcome]) for r in results)
     section.notes.append(f"holds of a critical task in verbs' windows beyond their baselines: {excess_holds} (goal 0) -> "
                          f"{'met' if excess_holds == 0 else 'NOT met'}; missed releases beyond the baselines: "

@@ -258,7 +258,8 @@ baselines count. A verb that is not applicable to a configuration (one configura
 is listed as such. `spawn` and `replace` make the new task on its RTPU between two cycles: the
 executive runs the cycles that come due between its steps (its module's import, its timing rings,
 its `init`), but a step longer than a period makes releases late, and the first spawn of a module
-an RTPU has not imported yet takes its import (a data logger: about 10 ms).""",
+an RTPU has not imported yet takes its import; an `init` that waits for a process it starts (the
+special-purpose processor's) holds the RTPU that long.""",
     )
     results = []
     for path in paths:

@@ -267,6 +267,9 @@ class DataLogger(PortBasedObject):
         closed: handed off to the RTPU's background thread (`hand_off`), so kill returns at once."""
         if getattr(self, "_fd", -1) < 0:
             return
+        if not hasattr(self, "_wake"):  # init failed after the file was opened: no writer to end
+            self._close()
+            return
         rows, self._filled = self._filled, 0
         index = self._current
         path = str(self.path)

@@ -17,8 +17,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 from bench import (api_stream, check_scale, data_log, dora_peer, faults, hmi_latency, hmi_load, links, peers, placement, realtime,
-                   restart, scale, sim_speed, startup, svar_transfer, switching, verbs, wait)
+                   restart, scale, sim_speed, startup, svar_transfer, switching, wait)
 from bench._common import REPO, Section, Table, machine_info
+from bench import verbs
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
     "svar_transfer": svar_transfer.run,

@@ -32,7 +32,6 @@ from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.errors import LifecycleError, ModuleError, OutputError
 from pbo_runtime.objects.module import PortBasedObject, Status
 from pbo_runtime.table.table import StateTable, TaskState
-from pbo_runtime.task.background import process_background
 from pbo_runtime.table.table import Status as StatusWord
 from pbo_runtime.task.transfer import LocalTable
 
@@ -89,6 +88,8 @@ class RuntimeTaskContext:
 
     def hand_off(self, work: Callable[[], None], what: str) -> None:
         """Run `work` in the RTPU's background thread (`task.background`), not between two cycles."""
+        from pbo_runtime.task.background import process_background
+
         process_background().hand_off(work, self.task_name, what)
 
     def open_device(self, name: str) -> Any:

@@ -19,6 +19,7 @@ from typing import Any, Callable
 from bench import (api_stream, check_scale, data_log, dora_peer, faults, hmi_latency, hmi_load, links, peers, placement, realtime,
                    restart, robot_limits, scale, sim_speed, startup, svar_transfer, switching, wait)
 from bench._common import REPO, Section, Table, machine_info
+from bench import verbs
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
     "svar_transfer": svar_transfer.run,
@@ -27,6 +28,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "realtime": realtime.run,
     "wait": wait.run,
     "switching": switching.run,
+    "verbs": verbs.run,
     "check_scale": check_scale.run,
     "placement": placement.run,
     "links": links.section,
@@ -49,6 +51,7 @@ FULL: dict[str, dict[str, Any]] = {
     "realtime": {"seconds": 240.0, "rtpus": (1, 2, 4), "rounds": 48, "other_seconds": 60.0, "other_rounds": 12},
     "wait": {"seconds": 1.5, "rounds": 4},
     "switching": {"switches": 1000, "interval": 0.02},
+    "verbs": {"window": 0.6},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 3},
     "placement": {"tasks": 102, "repeat": 200, "check_repeat": 5},
     "links": {},
@@ -71,6 +74,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "realtime": {"seconds": 1.0, "rtpus": (1, 2, 4), "rounds": 1, "other_seconds": 1.0, "other_rounds": 1},
     "wait": {"seconds": 0.2, "rounds": 1},
     "switching": {"switches": 20, "interval": 0.02},
+    "verbs": {"window": 0.4, "configs": verbs.QUICK_CONFIGS},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 1},
     "placement": {"tasks": 102, "repeat": 20, "check_repeat": 1},
     "links": {"quick": True},

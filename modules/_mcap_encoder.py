@@ -8,9 +8,9 @@ and the logger's writer thread only says "buffer i holds n rows" down a pipe and
 reply with the GIL released. The child runs at SCHED_OTHER, niced, on the RTPU's CPU: it takes
 the time the executive leaves idle.
 
-The file's preamble (header, schemas, channels, the run's metadata) is written by the logger in
-its `init`, so a log cut short at once still says what it holds; the child builds the same
-writer, which writes those bytes again, identically, and counts them as written instead.
+The file's preamble (header, schemas, channels, the run's metadata) is the child's first write,
+before the first chunk, so a log cut short at once still says what it holds (a resumed log's is in
+the file already: the child builds the same writer and writes after what is there).
 
 The child ends on `finish` (summary and footer written) or when the pipe closes without one (the
 RTPU died): it then leaves the log as a SIGKILL leaves it, readable chunk by chunk up to the last
@@ -41,8 +41,8 @@ class EncoderGone(OSError):
 class McapEncoder:
     """The logger's handle on its encoder process: append a buffer's rows, finish, stop.
 
-    Made in the logger's `init` (a fork and exec, no waiting); the first call, from the writer
-    thread, sends the setup and so waits for the child to have started."""
+    Made by the logger's writer thread as it starts (a fork and exec); the first call sends the
+    setup and so waits for the child to have started."""
 
     def __init__(self, log_fd: int, buffers_fd: int, dtype: np.dtype, rows: int, setup: Mapping[str, Any]) -> None:
         self.rows = 0  # rows in the file, as the child last said
@@ -58,6 +58,35 @@ class McapEncoder:
             os.close(commands_read)
             os.close(replies_write)
 
+    def begin(self) -> None:
+        """Send the setup now and wait for the child to have written the file's preamble (a new
+        log's), without waiting for a first chunk; OSError if it could not."""
+        try:
+            self._send_setup()
+        except BrokenPipeError:
+            self._gone()
+
+    def _send_setup(self) -> None:
+        if self._setup is None:
+            return
+        setup, self._setup = self._setup, None
+        _send(self._commands, setup)
+        self._take(_receive(self._replies))
+
+    def _take(self, reply: dict[str, Any] | None) -> None:
+        if reply is None:
+            self._gone()
+        assert reply is not None
+        self.rows = reply["rows"]
+        if "errno" in reply:
+            raise OSError(reply["errno"], reply["strerror"])
+        if "bug" in reply:
+            raise RuntimeError(reply["bug"])
+
+    def _gone(self) -> None:
+        code = self.process.wait()
+        raise EncoderGone(f"the log's encoder process ended ({_exit_cause(code)})")
+
     def append(self, index: int, rows: int) -> None:
         """Have buffer `index`'s first `rows` rows appended; OSError (with the child's errno) if that failed."""
         self._ask({"buffer": index, "rows": rows})
@@ -67,22 +96,13 @@ class McapEncoder:
 
     def _ask(self, command: dict[str, Any]) -> None:
         try:
-            if self._setup is not None:
-                setup, self._setup = self._setup, None
-                _send(self._commands, setup)
+            self._send_setup()
             _send(self._commands, command)
         except BrokenPipeError:
             reply = None
         else:
             reply = _receive(self._replies)
-        if reply is None:
-            code = self.process.wait()
-            raise EncoderGone(f"the log's encoder process ended ({_exit_cause(code)})")
-        self.rows = reply["rows"]
-        if "errno" in reply:
-            raise OSError(reply["errno"], reply["strerror"])
-        if "bug" in reply:
-            raise RuntimeError(reply["bug"])
+        self._take(reply)
 
     def stop(self, patience: float = 5.0) -> None:
         """Close the pipes; the child ends (having finished or not); killed if it does not within `patience`."""
@@ -316,8 +336,13 @@ def _serve(commands: int, replies: int) -> None:
     buffers = [np.frombuffer(shared, dtype, count=rows, offset=i * rows * dtype.itemsize) for i in (0, 1)]
     columns = {name: tuple(note) for name, note in setup["columns"].items()}
     resume_at = tuple(setup["resume_at"]) if setup.get("resume_at") else None
-    log = McapLog(setup["log_fd"], dtype, columns, setup["run"], setup["task"], setup["period"], preamble_written=True,
-                  resume_at=resume_at)  # type: ignore[arg-type]
+    try:
+        log = McapLog(setup["log_fd"], dtype, columns, setup["run"], setup["task"], setup["period"],
+                      resume_at=resume_at)  # type: ignore[arg-type]
+    except OSError as exc:  # the preamble could not be written: said to the logger, and the log ends here
+        _send(replies, {"rows": 0, "errno": exc.errno, "strerror": exc.strerror or str(exc)})
+        return
+    _send(replies, {"rows": log.rows})  # the preamble is in the file
     while (command := _receive(commands)) is not None:
         reply: dict[str, Any] = {}
         try:

@@ -29,7 +29,10 @@ readable up to its last chunk, and gets its summary and footer when the task is 
 restarted with its RTPU (a restart policy) continues the run's log: new chunks after the last one
 written, the rows of the chunk begun at the death lost. A write
 takes microseconds into the page cache, but milliseconds at times when the kernel throttles
-write-back: that is why it is not the cycle's. `off` and `kill` write the chunk begun.
+write-back: that is why it is not the cycle's, nor `off`'s and `kill`'s, which run between two
+cycles of the RTPU's other tasks: `off` hands the chunk begun to the writer, and `kill` hands the
+rest (the chunk begun, the MCAP summary and footer, the writer and encoder ended, the file closed)
+to the RTPU's background thread (`hand_off`), which the RTPU waits for before it exits.
 
 When both buffers are full (the writer still writes one), a cycle on the real clock drops its
 row, counted and reported; on the simulated clock it waits for the writer instead, as the
@@ -43,6 +46,8 @@ writes them first when the task is cleared).
 
 from __future__ import annotations
 
+import _thread
+import errno
 import io
 import mmap
 import os
@@ -52,13 +57,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from modules._mcap_encoder import McapEncoder, McapLog, resume_point, write_all
+from modules._mcap_encoder import McapEncoder, resume_point, write_all
 from pbo_runtime import ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status, read_log
 
 __all__ = ["DataLogger", "DataLoggerParams", "read_log"]
 
 CHUNK_BYTES = 256 * 1024  # the most one cycle writes at once (tens of microseconds into the page cache)
 FORMATS = (".mcap", ".npy")
+FINISH_PATIENCE = 60.0  # s a logger spawned at a path waits for the one killed before it to end that file
+# Logs being finished in the background, by path: a logger spawned again at the same path (kill,
+# then spawn) waits for the file's end before it replaces it.
+_FINISHING: dict[str, threading.Event] = {}
 
 
 @dataclass(frozen=True)
@@ -121,6 +130,9 @@ class DataLogger(PortBasedObject):
         self._current = 0
         self._chunk, self._times, self._pairs = self._buffers[0]
         self.path = self.output_path(params.path)
+        before = _FINISHING.get(str(self.path))
+        if before is not None and not before.wait(FINISH_PATIENCE):
+            raise OutputError(f"cannot create log {self.path}: the logger killed before is still finishing it")
         self.logged = 0  # rows taken, the chunk begun included
         self.dropped = 0  # rows taken while both buffers were full (the disk took longer than a chunk to write one)
         self._filled = 0  # rows of the chunk begun
@@ -138,13 +150,9 @@ class DataLogger(PortBasedObject):
                 resume_at = resume_point(self._fd) if resume else None
                 if resume_at is not None:
                     os.ftruncate(self._fd, resume_at[0])  # a chunk cut short by the death, and any end of data
-                else:
-                    McapLog(self._fd, self._dtype, columns, self.run_metadata, self.task_name, self.period)  # the preamble, now
                 setup = {"columns": columns, "run": dict(self.run_metadata), "task": self.task_name, "period": self.period,
                          "resume_at": resume_at}
-                encoder = McapEncoder(self._fd, self._shared_fd, self._dtype, self._rows, setup)
-                encoder.rows = resume_at[1] if resume_at is not None else 0
-                self._file: _LogFile = _McapProcess(encoder)
+                self._file: _LogFile = _McapProcess(self._fd, self._shared_fd, self._dtype, self._rows, setup)
             else:
                 self._file = _NpyFile(self._fd, self._dtype, [chunk for chunk, _, _ in self._buffers], resume)
         except OSError as exc:
@@ -152,8 +160,13 @@ class DataLogger(PortBasedObject):
             raise OutputError(f"cannot create log {self.path}: {_os_error(exc)}") from None
         self._wake = os.eventfd(0, os.EFD_CLOEXEC)
         self._stopping = False
-        self._writer = threading.Thread(target=self._write_queued, name=f"log-{self.task_name}", daemon=True)
-        self._writer.start()
+        self._ready = threading.Event()  # the writer has set the file up (an MCAP log's preamble and encoder)
+        self._writer_done = threading.Event()
+        self.writer_id = 0  # the writer thread's (threading.get_ident), once it runs
+        # Not threading.Thread.start, which waits for the new thread to run: at SCHED_OTHER on a busy
+        # machine that can take milliseconds, between two cycles of the RTPU's other tasks. What the
+        # cycle hands over before the writer runs waits in the eventfd's count.
+        _thread.start_new_thread(self._write_queued, ())
 
     @property
     def written(self) -> int:
@@ -191,11 +204,26 @@ class DataLogger(PortBasedObject):
         os.eventfd_write(self._wake, 1)
 
     def _write_queued(self) -> None:
-        """The writer thread: append each buffer handed over; a failure is the next cycle's to raise.
+        """The writer thread: set the file up, then append each buffer handed over; a failure is
+        the next cycle's to raise.
 
         Its time is in system calls (the write; for MCAP, the wait for the encoder process), with
         the GIL released: the executive's thread never waits for it. The write's own time (the
-        disk, the kernel's write-back throttling: milliseconds at times) is spent off the cycle."""
+        disk, the kernel's write-back throttling: milliseconds at times) is spent off the cycle.
+        An MCAP log's preamble and its encoder process's start are the writer's too."""
+        self.writer_id = threading.get_ident()
+        try:
+            try:
+                self._file.start()
+            except Exception as exc:
+                self._failure = f"cannot create log {self.path}: {_os_error(exc) if isinstance(exc, OSError) else exc}"
+            finally:
+                self._ready.set()
+            self._serve()
+        finally:
+            self._writer_done.set()
+
+    def _serve(self) -> None:
         while True:
             os.eventfd_read(self._wake)
             if self._stopping:
@@ -212,30 +240,63 @@ class DataLogger(PortBasedObject):
             self._queued = -1
 
     def wait_for_writer(self, patience: float = 30.0) -> None:
-        """Until the writer has written what it was handed (off, kill and clear write after it)."""
+        """Until the writer has set the file up and written what it was handed (off, kill and clear
+        write after it)."""
         give_up = time.monotonic() + patience
+        if not self._ready.wait(patience):
+            raise OutputError(f"cannot write log {self.path}: its writer has not set the file up in {patience:g} s")
         while self._queued >= 0:
             if time.monotonic() > give_up:
                 raise OutputError(f"cannot write log {self.path}: a chunk's write has not returned for {patience:g} s")
             time.sleep(0.001)
 
     def off(self) -> None:
-        self.write_chunk()
+        """Hand the chunk begun to the writer if it is free (else it goes with the next chunk or at
+        kill); never waits for the disk or the encoder: the RTPU's other tasks run on."""
+        if self._failure:
+            raise OutputError(self._failure)
+        if self._filled:
+            if self._queued >= 0 and self._wait_when_full:  # the simulated clock waits for the writer, as the cycle does
+                self.wait_for_writer()
+            if self._queued < 0:
+                self._hand_over()
+        self._raise_if_dropped()
 
     def kill(self) -> None:
+        """The chunk begun, the MCAP summary and footer, the writer and the encoder ended, the file
+        closed: handed off to the RTPU's background thread (`hand_off`), so kill returns at once."""
         if getattr(self, "_fd", -1) < 0:
             return
+        if not hasattr(self, "_wake"):  # init failed after the file was opened: no writer to end
+            self._close()
+            return
+        rows, self._filled = self._filled, 0
+        index = self._current
+        path = str(self.path)
+        finished = _FINISHING[path] = threading.Event()
+        self.hand_off(lambda: self._finish(index, rows, finished), f"finishing log {path}")
+
+    def _finish(self, index: int, rows: int, finished: threading.Event) -> None:
+        """In the background thread: write what is left, end the file and let go of everything."""
         try:
-            self.write_chunk()
-            self._file.finish()
-        except OSError as exc:
-            raise OutputError(f"cannot finish log {self.path}: {_os_error(exc)}") from None
+            self.wait_for_writer()
+            if self._failure:
+                raise OutputError(self._failure)
+            self._append(index, rows)
+            try:
+                self._file.finish()
+            except OSError as exc:
+                raise OutputError(f"cannot finish log {self.path}: {_os_error(exc)}") from None
+            self._raise_if_dropped()
         finally:
             self._stopping = True
             os.eventfd_write(self._wake, 1)
-            self._writer.join(timeout=5.0)
+            self._writer_done.wait(timeout=5.0)
             os.close(self._wake)
             self._close()
+            finished.set()
+            if _FINISHING.get(str(self.path)) is finished:
+                del _FINISHING[str(self.path)]
 
     def clear(self) -> bool:
         """After a failed write: back to OFF once the rows kept can be written (space was freed)."""
@@ -254,6 +315,9 @@ class DataLogger(PortBasedObject):
             raise OutputError(self._failure)
         rows, self._filled = self._filled, 0
         self._append(self._current, rows)
+        self._raise_if_dropped()
+
+    def _raise_if_dropped(self) -> None:
         if self.dropped:
             dropped, self.dropped = self.dropped, 0
             raise OutputError(f"log {self.path}: {dropped} rows dropped: writing a chunk of {self._rows} rows took "
@@ -290,6 +354,9 @@ class _LogFile:
 
     def append(self, index: int, rows: int) -> None:
         raise NotImplementedError
+
+    def start(self) -> None:
+        """In the writer thread, before the first chunk: what the format sets up."""
 
     def finish(self) -> None:
         """At the task's kill: what the format writes after the last row."""
@@ -352,26 +419,44 @@ class _NpyFile(_LogFile):
 
 
 class _McapProcess(_LogFile):
-    """MCAP, encoded and written by the log's encoder process (modules/_mcap_encoder.py)."""
+    """MCAP, encoded and written by the log's encoder process (modules/_mcap_encoder.py).
 
-    def __init__(self, encoder: McapEncoder) -> None:
-        self.encoder = encoder
-        self.rows = encoder.rows  # a resumed log's rows so far
+    The encoder is started by `start`, in the writer thread, not by the RTPU between two cycles;
+    it writes a new log's preamble first, then the chunks as they are handed over."""
+
+    def __init__(self, fd: int, buffers_fd: int, dtype: np.dtype, rows: int, setup: dict) -> None:
+        self.fd, self.buffers_fd, self.dtype, self.chunk_rows, self.setup = fd, buffers_fd, dtype, rows, setup
+        resume_at = setup["resume_at"]
+        self.rows = resume_at[1] if resume_at is not None else 0  # a resumed log's rows so far
+        self.encoder: McapEncoder | None = None
+
+    def start(self) -> None:
+        self.encoder = McapEncoder(self.fd, self.buffers_fd, self.dtype, self.chunk_rows, self.setup)
+        self.encoder.rows = self.rows
+        self.encoder.begin()  # the child writes the preamble now: a log cut short before its first chunk still says what it holds
 
     def append(self, index: int, rows: int) -> None:
+        encoder = self._started()
         try:
-            self.encoder.append(index, rows)
+            encoder.append(index, rows)
         finally:
-            self.rows = self.encoder.rows
+            self.rows = encoder.rows
 
     def finish(self) -> None:
+        encoder = self._started()
         try:
-            self.encoder.finish()
+            encoder.finish()
         finally:
-            self.rows = self.encoder.rows
+            self.rows = encoder.rows
 
     def stop(self) -> None:
-        self.encoder.stop()
+        if self.encoder is not None:
+            self.encoder.stop()
+
+    def _started(self) -> McapEncoder:
+        if self.encoder is None:
+            raise OSError(errno.ENOENT, "the log's encoder process was not started (its start failed)")
+        return self.encoder
 
 
 def _flat_rows(field: np.ndarray) -> np.ndarray:

@@ -31,6 +31,7 @@ import numpy as np
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.process import raise_if_stopping
 from pbo_runtime.ipc.messages import Event, FirstCycle, Refused, Stable, StateChanged, Stats, Switched, Window
+from pbo_runtime.task import background
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.module import Status
 from pbo_runtime.config.reconfiguration import Reconfiguration
@@ -241,10 +242,15 @@ class Executive:
         self.live_loader = live_loader
         self.staged: LiveStage | None = None
         self.staged_tunes: dict[str, Any] = {}  # hosted task -> (its new spec, its Params), when its parameters changed
+        # What a task's off or kill hands off (a log's last chunk and footer): done by a thread of
+        # lower priority, never between two cycles; waited for at the stop (`stop`).
+        background.process_background().start()
+        self.cycles_between_steps = False  # `run` (the real clock): due cycles run between the steps of a spawn
 
     # --- the loop ---------------------------------------------------------------------------
 
     def run(self) -> None:
+        self.cycles_between_steps = True
         while self.running:
             self.run_once()
 
@@ -661,6 +667,7 @@ class Executive:
 
     def handle(self, message: list[Any]) -> None:
         """One signal as it came off the queue (`[kind, *fields]`, decoded by `messages.signal_from_wire`)."""
+        self._report_background_failures()
         signal = messages.signal_from_wire(message)
         if isinstance(signal, messages.StopRtpu):
             self.stop()
@@ -676,7 +683,7 @@ class Executive:
         name = signal.task if signal is not None else message[1]
         s = self.tasks.get(name)
         if s is None and isinstance(signal, messages.Spawn) and name in self.factories:  # spawned live
-            s = self.tasks[name] = Scheduled(self.factories[name]())
+            s = self.tasks[name] = self._make(name)
         if s is None:
             self.report(Refused(name, f"no task '{name}' on this RTPU"))
             return
@@ -685,9 +692,10 @@ class Executive:
         try:
             if isinstance(signal, messages.Spawn):
                 if task.state == TaskState.KILLED and name in self.factories:
-                    s = self.tasks[name] = Scheduled(self.factories[name]())  # a new instance: TR 4.4, static
+                    s = self.tasks[name] = self._make(name)  # a new instance: TR 4.4, static
                     task = s.task
                 task.spawn(self.clock.now())
+                self._cycles_due()
                 # What the process built up to here (imports, the task and its module) lives as
                 # long as the task: freezing it keeps it out of every later collection, which then
                 # walks only what the run allocates. A full collection of an RTPU process walks
@@ -725,6 +733,25 @@ class Executive:
             self.report(Refused(name, f"{op}: {exc}"))
             return
         self._report_state(task)
+
+    def _make(self, name: str) -> Scheduled:
+        """A new instance of task `name` (its module imported if it was not yet), and its place here.
+
+        Each step may take a millisecond or more (an import, an init, the timing rings written):
+        the cycles that came due meanwhile run between the steps (`_cycles_due`), not after them all."""
+        task = self.factories[name]()
+        self._cycles_due()
+        made = Scheduled(task)
+        self._cycles_due()
+        return made
+
+    def _cycles_due(self) -> None:
+        """On the real clock, between two steps of a signal's slow work (a spawn): run the cycles
+        released meanwhile. (The simulated clock runs cycles on its ticks only; a plan posted
+        meanwhile is the loop's to apply first, at its boundary.)"""
+        words = self.header_words
+        if self.cycles_between_steps and (words is None or words[_PLAN_SEQUENCE] == self.plan_seen):
+            self._run_ready()
 
     def _stage(self, sequence: int) -> None:
         """Read live description `sequence` and keep it for the next plan; its tasks on this RTPU can be spawned now."""
@@ -778,8 +805,17 @@ class Executive:
                 except Exception as exc:
                     self.report(Refused(s.task.name, f"kill: {exc}"))
                 self._report_state(s.task)
+        self._report_background_failures(background.close_process_background())
         self.report_statistics()
         self.running = False
+
+    def _report_background_failures(self, failures: list[background.Failure] | None = None) -> None:
+        """Work a task handed off that failed (`PortBasedObject.hand_off`): the task's error, reported
+        as a component's would be (an output that could not be written fails the run)."""
+        for failure in background.process_background().take_failures() if failures is None else failures:
+            s = self.tasks.get(failure.task)
+            state = s.task.state.name if s is not None else TaskState.KILLED.name
+            self.report(StateChanged(failure.task, state, f"{failure.what} failed: {failure.error}", failure.output))
 
     def report_statistics(self) -> None:
         """One Stats event per task: an RTPU hosting dozens of tasks would overflow one message."""

@@ -20,6 +20,7 @@ TINY = {
     "realtime": {"seconds": 0.4, "rtpus": (1,), "rounds": 1, "other_seconds": 0.4, "other_rounds": 1},
     "wait": {"seconds": 0.05, "rounds": 1, "loads": (1, 2)},
     "switching": {"switches": 4, "interval": 0.02},
+    "verbs": {"window": 0.2, "configs": ("pid_joint",)},
     "check_scale": {"sizes": (12, 30), "repeat": 1},
     "placement": {"tasks": 12, "repeat": 2, "check_repeat": 1},
     "links": {"quick": True, "rounds": 1},
@@ -32,6 +33,7 @@ TINY = {
     "hmi_load": {"seconds": 4.0, "rounds": 1},
     "sim_speed": {"seconds": 0.2, "rounds": 2},
     "startup": {"rounds": 1},
+    "robot_limits": {"cycles": 50, "rounds": 1},
 }
 
 

@@ -10,6 +10,7 @@ import re
 import shutil
 import struct
 import subprocess
+import threading
 
 import numpy as np
 import pytest
@@ -24,6 +25,7 @@ from pbo_runtime.config.model import PortBinding, TaskSpec
 from pbo_runtime.reports.data_log import LogError
 from pbo_runtime.reports.run_plot import csv_text, figure, load_run
 from pbo_runtime.table.table import StateTable
+from pbo_runtime.task.background import process_background
 from pbo_runtime.task.lifecycle import Task
 from tests.support import PBO, REPO, variables
 
@@ -50,6 +52,12 @@ def logger(table: StateTable, path, chunk: float = 1.0, restarted: bool = False)
     return task
 
 
+def kill_and_finish(task: Task) -> None:
+    """Kill the logger and wait for the RTPU's background thread to finish its log (as the RTPU's stop does)."""
+    task.kill()
+    assert process_background().drain()
+
+
 def run_cycles(table: StateTable, task: Task, cycles: int, x=None) -> list[tuple[float, list, int, list]]:
     written = []
     for i in range(cycles):
@@ -70,7 +78,7 @@ def test_an_mcap_log_reads_back_with_the_mcap_library_every_variable_with_its_un
     path = tmp_path / "log.mcap"
     task = logger(table, path, chunk=3 * DT)
     written = run_cycles(table, task, 8)
-    task.kill()
+    kill_and_finish(task)
     with open(path, "rb") as file:
         reader = make_reader(file)
         summary = reader.get_summary()
@@ -108,7 +116,7 @@ def test_an_mcap_log_whose_writer_was_killed_reads_up_to_its_last_whole_chunk(ta
     shutil.copy(path, cut)  # as a SIGKILL leaves it: no summary, no footer
     with open(cut, "ab") as file:
         file.write(b"\x06" + struct.pack("<Q", 4096) + b"half a chunk")  # and a chunk's record cut short
-    task.kill()
+    kill_and_finish(task)
     log = open_log(cut)
     assert not log.complete and len(log.rows) == 6
     np.testing.assert_array_equal(log.rows["x"], [w[1] for w in written[:6]])
@@ -123,11 +131,11 @@ def test_a_logger_restarted_with_its_rtpu_goes_on_in_the_same_log_after_its_last
     before = run_cycles(table, first, 5)  # two chunks of two rows written; the fifth row in the chunk begun
     cut = tmp_path / f"killed{suffix}"
     shutil.copy(path, cut)  # as the RTPU's SIGKILL leaves it
-    first.kill()
+    kill_and_finish(first)
     again = logger(table, cut, chunk=2 * DT, restarted=True)
     assert again.module.written == 4  # the rows of the chunks written; the chunk begun died with the RTPU
     after = run_cycles(table, again, 3)
-    again.kill()
+    kill_and_finish(again)
     rows = read_log(cut)
     np.testing.assert_array_equal(rows["x"], [w[1] for w in before[:4] + after])
     np.testing.assert_array_equal(rows["time"], [w[0] for w in before[:4] + after])
@@ -135,16 +143,16 @@ def test_a_logger_restarted_with_its_rtpu_goes_on_in_the_same_log_after_its_last
         assert open_log(cut).metadata == RUN
         third = logger(table, cut, chunk=2 * DT, restarted=True)
         assert third.module.written == 7
-        third.kill()
+        kill_and_finish(third)
 
 
 def test_a_logger_not_restarted_replaces_a_file_left_at_its_path(table, tmp_path):
     path = tmp_path / "log.npy"
     run_cycles(table, (old := logger(table, path, chunk=2 * DT)), 4)
-    old.kill()
+    kill_and_finish(old)
     fresh = logger(table, path, chunk=2 * DT)
     assert fresh.module.written == 0
-    fresh.kill()
+    kill_and_finish(fresh)
     assert len(read_log(path)) == 0
 
 
@@ -155,7 +163,7 @@ def test_an_mcap_log_killed_before_its_first_chunk_still_says_what_it_holds(tabl
     run_cycles(table, task, 3)  # a second's chunk: nothing written yet
     log = open_log(path)
     assert len(log.rows) == 0 and log.variables == ["x", "k", "m"] and log.units["m"] == "N m"
-    task.kill()
+    kill_and_finish(task)
     assert len(read_log(path)) == 3
 
 
@@ -165,7 +173,7 @@ def test_an_mcap_logs_encoder_process_ends_with_the_task_and_nothing_is_left(tab
     run_cycles(table, task, 3)
     encoder = task.module._file.encoder.process
     assert encoder.poll() is None
-    task.kill()
+    kill_and_finish(task)
     assert encoder.poll() == 0 and open_log(tmp_path / "log.mcap").complete
 
 
@@ -182,9 +190,72 @@ def test_an_mcap_log_whose_encoder_process_dies_fails_the_next_chunk_naming_it_a
     assert task.run_cycle(1.0 + 4 * DT) is Status.ERROR
     assert re.fullmatch(r"cycle raised OutputError: cannot write log .*log\.mcap \(2 rows after the 2 written\): "
                         r"the log's encoder process ended \(killed by SIGKILL\) at data_logger\.py:\d+", task.last_error), task.last_error
-    task.kill()
+    kill_and_finish(task)
     log = open_log(path)
     assert not log.complete and [row.tolist() for row in log.rows["x"]] == [w[1] for w in written]
+
+
+@pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own
+def test_a_loggers_kill_returns_at_once_and_the_background_thread_writes_its_last_chunk_and_footer(table, tmp_path):
+    path = tmp_path / "log.mcap"
+    task = logger(table, path, chunk=2 * DT)
+    written = run_cycles(table, task, 5)  # two chunks written; the fifth row in the chunk begun
+    gate = threading.Event()
+    process_background().hand_off(gate.wait, "test", "holding the background thread")
+    task.kill()  # returns though the background thread cannot start on the log yet (off gave its writer the chunk begun)
+    assert task.state.name == "KILLED" and not open_log(path).complete  # no summary and footer yet
+    gate.set()
+    assert process_background().drain()
+    log = open_log(path)
+    assert log.complete and [row.tolist() for row in log.rows["x"]] == [w[1] for w in written]
+
+
+@pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own
+def test_a_loggers_off_hands_the_chunk_begun_to_its_writer_and_on_goes_on_in_the_same_log(table, tmp_path):
+    path = tmp_path / "log.mcap"
+    task = logger(table, path)
+    before = run_cycles(table, task, 3)  # a second's chunk: nothing written yet
+    task.turn_off(1.5)
+    task.module.wait_for_writer()
+    assert len(read_log(path)) == 3  # on disk while the task is off, though its chunk was not full
+    assert task.turn_on(2.0)
+    after = run_cycles(table, task, 2)
+    kill_and_finish(task)
+    log = open_log(path)
+    assert log.complete and [row.tolist() for row in log.rows["x"]] == [w[1] for w in before + after]
+
+
+@pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own
+def test_a_logger_spawned_at_the_path_of_one_still_being_finished_waits_for_that_file_to_end(table, tmp_path):
+    path = tmp_path / "log.mcap"
+    old = logger(table, path, chunk=2 * DT)
+    run_cycles(table, old, 3)
+    gate = threading.Event()
+    process_background().hand_off(gate.wait, "test", "holding the background thread")
+    old.kill()  # its chunk begun and footer wait behind the gate
+    spawned: list[Task] = []
+    spawning = threading.Thread(target=lambda: spawned.append(logger(table, path, chunk=2 * DT)))
+    spawning.start()
+    gate.set()
+    spawning.join()
+    [fresh] = spawned
+    rows = run_cycles(table, fresh, 3)
+    kill_and_finish(fresh)
+    log = open_log(path)  # the new log alone, whole: the old one's end was written before it replaced the file
+    assert log.complete and [row.tolist() for row in log.rows["x"]] == [w[1] for w in rows]
+
+
+@pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own
+def test_a_log_that_cannot_be_finished_is_reported_as_the_loggers_output_failure(table, tmp_path):
+    directory = tmp_path / "gone"
+    task = logger(table, directory / "log.mcap")
+    run_cycles(table, task, 2)
+    shutil.rmtree(directory)
+    process_background().take_failures()  # (what other tests' logs left)
+    kill_and_finish(task)
+    [failure] = process_background().take_failures()
+    assert failure.task == "log" and failure.what == f"finishing log {directory / 'log.mcap'}" and failure.output
+    assert "OutputError: cannot write log" in failure.error and "the file was removed while the run wrote it" in failure.error
 
 
 @pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own
@@ -192,7 +263,7 @@ def test_non_finite_values_are_logged_as_json_null_and_read_back_as_nan(table, t
     path = tmp_path / "log.mcap"
     task = logger(table, path)
     run_cycles(table, task, 2, x=lambda i: np.array([np.nan, np.inf, i]))
-    task.kill()
+    kill_and_finish(task)
     with open(path, "rb") as file:
         bodies = [json.loads(m.data) for _, c, m in make_reader(file).iter_messages() if c.topic == "x"]
     assert bodies[0]["value"] == [None, None, 0.0]
@@ -404,7 +475,7 @@ def test_the_plot_of_an_npy_log_takes_its_units_from_the_runs_report(table, tmp_
     directory = tmp_path / "run"
     task = logger(table, directory / "log.npy")
     run_cycles(table, task, 5)
-    task.kill()
+    kill_and_finish(task)
     (directory / "report.json").write_text(json.dumps({"started_at": 1.0, "marks": [],
                                                        "variables": {"x": {"unit": "m"}, "m": {"unit": "N m"}}}))
     fig = figure(load_run(directory / "log.npy"), ["x", "m"])

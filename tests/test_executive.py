@@ -396,3 +396,45 @@ def test_the_per_cycle_path_takes_no_page_fault():
     cycles, faults = map(int, done.stdout.split())
     assert cycles >= 4096
     assert faults < 8, f"{faults} page faults in 4,096 cycles"  # 22 before the fix
+
+
+class SlowToSpawn(Ticker):
+    """Fake module whose init takes 3 ms of the manual clock (an init that opens and allocates)."""
+
+    def init(self, params) -> None:
+        RUNS.append((self.task_name + " init", self.clock.now()))
+        self.clock.advance(0.003)
+
+
+@pytest.mark.parametrize("real_clock", [True, False])
+def test_a_task_spawned_live_lets_the_cycles_due_meanwhile_run_between_its_steps_on_the_real_clock(make_table, real_clock):
+    RUNS.clear()
+    table = make_table(variables(("o0", "float64", ()), ("o1", "float64", ())))
+    clock = ManualClock(0.0)
+    events: list[messages.Event] = []
+    script = [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0]), (0.0025, ["spawn", "b"])]
+    executive = Executive(clock, FakeSignals(clock, script), events.append, epoch=0.0)
+    executive.cycles_between_steps = real_clock  # as `run` sets it; the lockstep loop and stepping by hand do not
+    a = Task(task_spec(Ticker, name="a", index=0, ports={"out": "o0"}), Ticker, table)
+    a.module.clock = clock
+    executive.add(a)
+
+    def make_b() -> Task:  # a module imported for the first time: 3 ms of the manual clock
+        clock.advance(0.003)
+        RUNS.append(("b made", clock.now()))
+        made = Task(task_spec(SlowToSpawn, name="b", index=1, ports={"out": "o1"}), SlowToSpawn, table)
+        made.module.clock = clock
+        return made
+
+    executive.factories["b"] = make_b
+    run_until(executive, clock, 0.0026)
+    assert executive.tasks["b"].task.state is TaskState.OFF
+    order = [name for name, _ in RUNS]
+    made, init = order.index("b made"), order.index("b init")
+    between = [at for name, at in RUNS[made:init] if name == "a"]
+    after = [at for name, at in RUNS[init:] if name == "a"]
+    if real_clock:  # the release due at 3 ms ran once b was made, before its init; the one at 6 ms after it (late
+        # releases are run once and the ones already gone skipped, as after any overrun)
+        assert between == pytest.approx([0.003]) and after == pytest.approx([0.006])
+    else:  # every step of the spawn first (the simulated clock's time stood still meanwhile)
+        assert between == [] and after == []

@@ -17,6 +17,7 @@ from pbo_runtime.ipc import messages
 from pbo_runtime.links.message_link import MessageLink
 from pbo_runtime.links.relay import MessageRelay
 from pbo_runtime.table.table import TaskState
+from pbo_runtime.task.background import process_background
 from tests.support import make_task, unique_name, variables
 
 
@@ -153,5 +154,25 @@ def test_a_relay_stops_promptly_while_its_link_is_quiet(goal_link):
         closing.start()
         closing.join(timeout=5)
         assert not closing.is_alive() and not relay._thread.is_alive() and relay.forwarded == 0
+    finally:
+        signals.close()
+
+
+def test_a_killed_servers_relay_is_joined_and_closed_in_the_background_thread_not_by_the_kill(make_table, goal_link):
+    table = make_table(variables(("q_d", "float64", (3,))))
+    signals = messages.Queue(unique_name("signals-rtpu0"), create=True)
+    relays: list[MessageRelay] = []
+    try:
+        task = make_task(table, MessageServer, "goal", {"value": ("q_d", (3,))}, {"goal": link_spec(goal_link)},
+                         relay=lambda name, end: relays.append(MessageRelay(end, signals.name, name)) or relays[-1],
+                         aperiodic=True)
+        assert task.spawn(0.0) and task.turn_on(0.0)
+        gate = threading.Event()
+        process_background().hand_off(gate.wait, "test", "holding the background thread")
+        task.kill()  # returns though the relay's thread still forwards: its join waits behind the gate
+        assert task.state == TaskState.KILLED and relays[0]._thread.is_alive() and not relays[0].closed
+        gate.set()
+        assert process_background().drain()
+        assert relays[0].closed and not relays[0]._thread.is_alive()
     finally:
         signals.close()

@@ -28,6 +28,7 @@ from modules.pid_joint import PidJoint
 from modules.robot_torque import RobotTorque
 from pbo_runtime import OutputError, ParamError, Status
 from pbo_runtime.config.model import DeviceSpec, PortBinding, TaskSpec
+from pbo_runtime.task.background import process_background
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import Flag, StateTable, TaskState
 from tests.support import NO_WATCHDOG, arm_constants, arm_tables, dh_pinocchio_model, fill_disk, task_spec, unique_name, variables
@@ -655,6 +656,12 @@ def log_cycles(table: StateTable, task: Task, cycles: int, t0: float = 1.0) -> l
     return written
 
 
+def kill_and_finish(task: Task) -> None:
+    """Kill the logger and wait for the RTPU's background thread to finish its log (as the RTPU's stop does)."""
+    task.kill()
+    assert process_background().drain()
+
+
 def assert_log_holds(path: Path, written: list, load=np.load) -> None:
     log = load(path)
     assert log.dtype.names == ("time", "x", "k", "m")
@@ -672,6 +679,7 @@ def test_logger_off_writes_one_row_per_cycle_of_every_logged_variable(log_table,
     written = log_cycles(log_table, task, 7)
     assert len(np.load(path)) == 0  # a second's chunk is not full yet: the cycles wrote nothing
     task.turn_off()
+    task.module.wait_for_writer()  # off handed the chunk begun to the writer
     assert_log_holds(path, written)
     assert sorted(p.name for p in path.parent.iterdir()) == ["log.npy"]  # no partial file left behind
     task.kill()
@@ -684,7 +692,7 @@ def test_logger_appends_each_chunk_as_it_fills_and_the_file_is_a_whole_array_aft
     assert len(np.load(path)) == 0
     written += log_cycles(log_table, task, 5, t0=2.0)
     assert_log_holds(path, written[:6])  # two chunks of 3: the 7th row waits in the third
-    task.kill()
+    kill_and_finish(task)
     assert_log_holds(path, written)
 
 
@@ -694,7 +702,7 @@ def test_logger_kill_writes_the_chunk_begun(log_table, tmp_path):
     written = log_cycles(log_table, task, 4)
     task.turn_off()
     written += log_cycles_after_on(log_table, task, 2)
-    task.kill()  # from ON: off, then kill
+    kill_and_finish(task)  # from ON: off, then kill
     assert_log_holds(path, written)
 
 
@@ -710,6 +718,7 @@ def test_logger_keeps_appending_after_off_and_on(log_table, tmp_path):
     task.turn_off()
     written += log_cycles_after_on(log_table, task, 2)
     task.turn_off()
+    task.module.wait_for_writer()
     assert_log_holds(path, written)
     task.kill()
 
@@ -723,7 +732,7 @@ def test_logger_keeps_every_row_of_a_run_longer_than_the_120_s_it_once_kept(log_
         task.run_cycle(1.0 + i * LOG_DT)
         task.module.wait_for_writer()
     assert task.module._rows == 100 and len(np.load(path)) == 13_000  # every chunk of a second written as it filled
-    task.kill()
+    kill_and_finish(task)
     assert len(np.load(path)) == cycles
 
 
@@ -732,7 +741,7 @@ def slowed_writer(task: Task) -> threading.Event:
     release, append = threading.Event(), task.module._append
 
     def slow_disk(index, rows):
-        if threading.current_thread() is task.module._writer:
+        if threading.get_ident() == task.module.writer_id:
             release.wait(30)
         append(index, rows)
 
@@ -747,9 +756,11 @@ def test_rows_taken_while_the_writer_still_writes_the_other_chunk_are_dropped_co
     written = log_cycles_without_waiting(log_table, task, 7)  # 2 handed over, 2 filling the other, 3 with nowhere to go
     assert task.module.dropped == 3
     release.set()
+    task.module.wait_for_writer()  # (off hands the chunk begun over only to a writer that is free: it never waits for it)
     with pytest.raises(OutputError, match=r"^log \S+/log\.npy: 3 rows dropped: writing a chunk of 2 rows took longer than "
                                           r"filling one \(the disk is too slow for this period\)$"):
         task.module.off()
+    task.module.wait_for_writer()
     assert_log_holds(path, written[:4])
     task.kill()
 
@@ -762,6 +773,7 @@ def test_on_the_simulated_clock_a_logger_waits_for_a_slow_writer_and_drops_no_ro
     written = log_cycles_without_waiting(log_table, task, 7)
     assert task.module.dropped == 0 and release.is_set()
     task.module.off()
+    task.module.wait_for_writer()
     assert_log_holds(path, written)
     task.kill()
 
@@ -779,7 +791,7 @@ def test_read_log_gives_back_the_rows_of_a_chunk_whose_count_a_killed_process_di
     path = tmp_path / "log.npy"
     task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "chunk": 2 * LOG_DT})
     written = log_cycles(log_table, task, 6)
-    task.kill()
+    kill_and_finish(task)
     row = task.module._dtype.itemsize
     with open(path, "r+b") as file:  # as if killed after the third chunk's rows, before its count, halfway into a 4th
         file.write(task.module._file.header(4))
@@ -798,7 +810,7 @@ def test_logger_whose_file_is_removed_fails_at_the_next_chunk_with_the_os_error(
     assert task.state is TaskState.ERROR and task.output_failed
     assert re.fullmatch(r"cycle raised OutputError: cannot write log .*/runs/log\.npy \(2 rows after the 2 written\): "
                         r"\[Errno 2\] .*removed.* at data_logger\.py:\d+", task.last_error), task.last_error
-    task.kill()
+    kill_and_finish(task)
     assert not path.parent.exists()  # nothing made again, no partial file
 
 
@@ -815,7 +827,7 @@ def test_logger_on_a_full_disk_fails_at_the_write_keeps_the_rows_written_and_lea
     assert len(kept) >= 2 and len(kept) % 2 == 0
     assert_log_holds(path, written + [(t, x, k, m) for t, x, k, m in log_values(2.0, len(kept) - 2)])
     assert os.path.getsize(path) == task.module._file.header_bytes + len(kept) * kept.dtype.itemsize  # no torn chunk
-    task.kill()
+    kill_and_finish(task)
     assert sorted(p.name for p in small_disk.iterdir()) == ["filler", "log.npy"]
 
 
@@ -861,7 +873,7 @@ def test_logger_cycles_take_no_page_fault_as_its_log_fills(log_table, tmp_path):
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
     assert task.module.logged == 4096
     assert faults < 8, f"{faults} page faults in 4,095 cycles"  # 32 to 40 before the fix
-    task.kill()
+    kill_and_finish(task)
     assert len(np.load(tmp_path / "log.npy")) == 4096
 
 

@@ -2,6 +2,7 @@
 
 The fault drill: a task raises in its cycle, waits in ERROR (the robot holds the arm with its
 brakes meanwhile), and the operator sees it in `pbo status`, clears it and turns it back on.
+The demo's logger turned off or killed: its log is whole, and the arm never held for it.
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ import subprocess
 
 import pytest
 
-from tests.support import PBO, REPO, assert_ended_well, assert_nothing_left, read_until
+from pbo_runtime import open_log
+from tests.support import PBO, REPO, assert_ended_well, assert_nothing_left, demo_copy, read_until
 
 pytestmark = pytest.mark.multiprocess
 
@@ -86,4 +88,37 @@ def test_switch_and_job_commands_reconfigure_a_running_subsystem(tmp_path):
             run.wait()
     report = json.loads(report_path.read_text())
     assert [s["to"] for s in report["switches"]] == ["pd", "pid"]
+    assert_nothing_left(report)
+
+
+@pytest.mark.parametrize("clock", ["real", "sim"])
+@pytest.mark.parametrize("verb", ["off", "kill"])
+def test_turning_off_or_killing_the_logger_of_the_running_demo_leaves_its_log_whole_and_the_arm_undisturbed(tmp_path, verb, clock):
+    subsystem = f"log_{verb}_{clock}"
+    report_path = tmp_path / "report.json"
+    run = subprocess.Popen([*PBO, "run", str(demo_copy(tmp_path, subsystem)), "--clock", clock, "--duration", "0", "--out",
+                            str(tmp_path / "out"), "--report", str(report_path)],
+                           cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        read_until(run, "is on")
+        done = pbo(verb, "logger", "--subsystem", subsystem)
+        assert done.returncode == 0, done.stderr
+        assert pbo("stop", "--subsystem", subsystem).returncode == 0
+        out, err = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    report = json.loads(report_path.read_text())
+    assert report["states_at_stop"]["logger"] == {"off": "OFF", "kill": "KILLED"}[verb]
+    log = open_log(tmp_path / "out" / "pid_joint.mcap")  # summary and footer written, every row the logger took
+    assert log.complete and len(log.rows) == report["tasks"]["logger"]["cycles"] > 0
+    assert "Traceback" not in out + err
+    if clock == "sim":  # the simulated clock replays: no hold, no fault, whatever the machine did
+        assert run.returncode == 0 and "fault:" not in out + err, out + err
+        assert report["tasks"]["robot"]["stable_cycles"] == 0 and report["stable_episodes"] == []
+    else:  # on the real clock, the machine may hold the arm for an input late by timing; the verb never does
+        assert_ended_well(run.returncode, report, err)
+        assert not any("logger" in fault for fault in report["faults"]), report["faults"]
+        assert [e for e in report["stable_episodes"] if e["cause"] == "illegal"] == []  # no switch overran its cycle
     assert_nothing_left(report)

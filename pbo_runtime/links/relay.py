@@ -39,6 +39,10 @@ class MessageRelay:
         self._stop = threading.Event()
         self._held: list[Any] | None = None  # pump: a message taken from the link that the signal queue had no room for
         self._thread: threading.Thread | None = None
+        # `close` joins the forwarding thread (up to POLL): a killed task's RTPU closes it in its
+        # background thread, not between two cycles (`task.lifecycle`); the simulated clock's relay
+        # has no thread and closes at once, in step with the ticks.
+        self.closes_slowly = threaded
         if threaded:
             self._thread = threading.Thread(target=self._forward, name=f"relay-{task}", daemon=True)
             self._thread.start()

@@ -12,7 +12,7 @@ import enum
 import types
 import typing
 from pathlib import Path
-from typing import Any, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping
 
 import numpy as np
 
@@ -64,6 +64,8 @@ class TaskContext(typing.Protocol):
     def written_at(self, port: str) -> float: ...
 
     def open_link(self, name: str, like: np.ndarray, role: str) -> Any: ...
+
+    def hand_off(self, work: Callable[[], None], what: str) -> None: ...
 
 
 class PortBasedObject:
@@ -214,6 +216,19 @@ class PortBasedObject:
         Items are shaped like `like` (a bound port array); the link closes when the task is killed.
         """
         return self._pbo_context.open_link(name, like, role)
+
+    def hand_off(self, work: Callable[[], None], what: str) -> None:
+        """Have `work` done by the RTPU's background thread, after what was handed off before, and
+        return at once: what is slow in `off` or `kill` (a log's last chunk and footer, a helper
+        process joined, a file closed) must not hold the cycles of the RTPU's other tasks.
+
+        The thread runs at a lower priority than the RTPU's tasks; the RTPU waits for all it was
+        handed before it exits, so nothing is lost. `work` must not touch the task's ports (the
+        next cycle may be writing them) and should spend its time waiting (a system call, a join),
+        not computing in Python. If it raises, the error is reported as the task's, naming
+        `what` ("finishing log x.mcap"); an OutputError fails the run's output, as in a component.
+        Outside an RTPU (a task made by hand) the process's own background thread does it."""
+        self._pbo_context.hand_off(work, what)
 
     def fault(self, message: str) -> Status:
         """Return this from `cycle` to report an error with its reason: `return self.fault("...")`."""

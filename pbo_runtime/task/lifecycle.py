@@ -104,6 +104,12 @@ class RuntimeTaskContext:
         _, sequence, when, writer = self.table.read(self.variable_of[port])
         return -math.inf if writer < 0 and sequence == 0 else when
 
+    def hand_off(self, work: Callable[[], None], what: str) -> None:
+        """Run `work` in the RTPU's background thread (`task.background`), not between two cycles."""
+        from pbo_runtime.task.background import process_background
+
+        process_background().hand_off(work, self.task_name, what)
+
     def open_device(self, name: str) -> Any:
         if name not in self.resources:
             listed = ", ".join(self.resources) or "none"
@@ -391,8 +397,9 @@ class Task:
         return Status.ERROR
 
     def _run_kill(self, after_init: bool = False) -> None:
-        """kill, then close what the task opened. After init, a kill that raises goes to the error
-        component too (for the record: the task is killed whatever it answers)."""
+        """kill, then close what the task opened (what `closes_slowly`, a message link's relay, in the
+        RTPU's background thread). After init, a kill that raises goes to the error component too
+        (for the record: the task is killed whatever it answers)."""
         try:
             self.module.kill()
         except Exception as exc:
@@ -403,6 +410,9 @@ class Task:
             else:
                 self.last_error += ("; " if self.last_error else "") + self._describe("kill", exc)
         for device in self.context.opened:
+            if getattr(device, "closes_slowly", False):  # it joins a thread or waits for a process: not between cycles
+                self.context.hand_off(device.close, f"closing the {type(device).__name__} of task '{self.name}'")
+                continue
             try:
                 device.close()
             except Exception as exc:

@@ -1,0 +1,318 @@
+"""Operator verbs on running subsystems: do they disturb a cycle?
+
+Each shipped configuration that runs on the real clock (configs/*.yaml) is started under its own
+name, and the operator's verbs are sent to it one by one over its control queue, as `pbo VERB`
+sends them: set, switch, job, spawn (a data logger writing MCAP), off, on, kill (of that
+logger), replace, save. Each verb has a window of fixed length from its request; the same
+length just before the request, without a verb, is its baseline. Counted in each window: the
+critical tasks' holds (stable episodes beginning in it, from the run's report) and the releases
+of every task missed (late by more than its period, from the table's counts as the run goes).
+
+    python -m bench.verbs [--window 0.6] [--configs pid_joint,switch_joint]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from bench._common import REPO, Section, Table
+from bench._inject import table_of
+from pbo_runtime import module_class, read_log
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.ipc.control import ControlClient
+from pbo_runtime.errors import PboError
+from pbo_runtime.supervisor.commands import COMMANDS
+from pbo_runtime.table.table import StateTable, TableLayout
+from pbo_runtime.table.table import Status as W
+
+CONFIGS = Path(REPO) / "configs"
+QUICK_CONFIGS = ("pid_joint", "switch_joint")
+VERBS = ("set", "switch", "job", "spawn", "off", "on", "kill", "replace", "save")
+SAFETY_NET = 120.0  # s a run may take to say it is on: a net for a hang
+LOGGER = "vlog"  # the data logger the benchmark spawns, turns off and on, and kills
+SKIPPED = {"fault_drill": "injects faults on purpose", "cartesian_teleop_hmi": "driven from the browser HMI",
+           "leader": "a subsystem of the application leader_follower.yaml: its links need it",
+           "follower": "a subsystem of the application leader_follower.yaml: its links need it",
+           "leader_follower": "an application of two subsystems (links): not measured here"}
+
+
+@dataclass
+class Window:
+    verb: str
+    outcome: str = ""  # "" done, else why it was refused or skipped
+    holds: int = 0
+    missed: int = 0
+    took: float = math.nan  # s from request to reply
+    causes: list[str] = field(default_factory=list)  # each hold's cause and length, "stale 2.0 ms"
+    baseline_holds: int = 0
+    baseline_missed: int = 0
+
+
+@dataclass
+class ConfigRun:
+    name: str
+    windows: list[Window] = field(default_factory=list)
+    failure: str = ""
+    exit: int | None = None
+    log_rows: int = -1  # rows of the spawned logger's MCAP log, read back after the run
+
+
+class Counts:
+    """Every task's missed releases, summed, read from the run's table as it runs."""
+
+    def __init__(self, config: Path, subsystem: str, supervisor: int) -> None:
+        self.table = StateTable.attach(TableLayout.of(load_subsystem(config)), table_of(subsystem, supervisor))
+
+    def missed(self) -> int:
+        return int(self.table.status[:, W.MISSED].sum())
+
+
+def copy_of(source: Path, folder: Path) -> tuple[Path, str]:
+    """The configuration under a name of its own (runs side by side never share one)."""
+    config = yaml.safe_load(source.read_text())
+    name = f"verbs_{source.stem}"[:40]
+    config["subsystem"] = name
+    path = folder / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return path, name
+
+
+def requests(config: Path, status: dict[str, Any], folder: Path) -> dict[str, dict[str, Any] | str]:
+    """Each verb's request on this subsystem, or why it has none here."""
+    subsystem = load_subsystem(config)
+    on = [t["task"] for t in status.get("tasks", []) if t.get("state") == "ON"]
+    specs = [subsystem.tasks[name] for name in on if name in subsystem.tasks]
+    critical = [s for s in specs if s.critical]
+    others = [s for s in specs if not s.critical]
+    made: dict[str, dict[str, Any] | str] = {}
+    tunable = next(((s, p, v) for s in others + critical for p, v in tunables(s)), None)
+    made["set"] = ({"task": tunable[0].name, "param": tunable[1], "values": [repr(tunable[2] * 1.01)]}
+                   if tunable else "no tunable number")
+    current = status.get("configuration", "")
+    other = [c for c in subsystem.configurations if c != current]
+    made["switch"] = {"configuration": other[0]} if other else "one configuration"
+    made["job"] = job_request(subsystem, current) or "no job for the configuration on"
+    logged = next((b.variable for s in critical for b in s.bindings if b.port.kind.name in ("OUT_VAR", "OUT_BOTH")), None)
+    if logged is None:
+        logged = next(iter(subsystem.variables))
+    rtpu = (others or critical)[0].rtpu if specs else next(iter(subsystem.rtpus)).name
+    made["spawn"] = {"task": LOGGER, "module": "data_logger", "rtpu": rtpu, "period": "10ms",
+                     "param": [f"variables=[{logged}]", f"path={LOGGER}.mcap"]}
+    made["off"] = made["on"] = made["kill"] = {"task": LOGGER}
+    replaceable = [s for s in others if s.module != "data_logger"]
+    made["replace"] = {"task": replaceable[0].name, "new": f"{replaceable[0].name}_b"} if replaceable else "no task to replace"
+    made["save"] = {"file": str(folder / "saved.yaml"), "force": True}
+    return {verb: request if isinstance(request, str) else COMMANDS[verb].request(request) for verb, request in made.items()}
+
+
+def tunables(spec: Any) -> list[tuple[str, float]]:
+    """A task's live-tunable parameters that are plain numbers, with their values."""
+    module = module_class(spec.module)
+    found = []
+    for param in module.TUNABLE:
+        value = spec.params.get(param, getattr(module.Params, param, None))
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and float(value) > 0:
+            found.append((param, float(value)))
+    return found
+
+
+def job_request(subsystem: Any, current: str) -> dict[str, Any] | None:
+    """A job of the configuration on (no switch), with its object's initial values, or None."""
+    for job in subsystem.jobs.values():
+        if job.configuration != current:
+            continue
+        if job.object is None:
+            return {"name": job.name, "values": None}
+        initial = getattr(subsystem.variables.get(job.object), "initial", None)
+        if initial is not None:
+            return {"name": job.name, "values": [repr(float(v)) for v in np.ravel(initial)]}
+    return None
+
+
+def measure(source: Path, window: float) -> ConfigRun:
+    result = ConfigRun(source.stem)
+    with tempfile.TemporaryDirectory() as scratch:
+        folder = Path(scratch)
+        config, name = copy_of(source, folder)
+        report_path = folder / "report.json"
+        process = subprocess.Popen([sys.executable, "-m", "pbo_runtime.cli", "run", str(config), "--duration", "0",
+                                    "--out", str(folder / "out"), "--report", str(report_path)],
+                                   cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        marks: list[tuple[Window, float, float]] = []  # (window, baseline from, window from)
+        try:
+            if not said(process, "is on"):
+                result.failure = "did not start: " + (process.stderr.read().strip().splitlines() or ["?"])[-1][:160]  # type: ignore[union-attr]
+                return result
+            client = ControlClient(name, next(r for r in _run_ids(name, process.pid)))
+            counts = Counts(config, name, process.pid)
+            try:
+                time.sleep(window)  # the start's own late releases are over
+                made = requests(config, client.call("status"), folder)
+                for verb in VERBS:
+                    entry = Window(verb)
+                    request = made[verb]
+                    if isinstance(request, str):
+                        entry.outcome = request
+                        result.windows.append(entry)
+                        continue
+                    before = counts.missed()
+                    time.sleep(window)
+                    at = time.monotonic()
+                    middle = counts.missed()
+                    entry.baseline_missed = middle - before
+                    try:
+                        client.call(verb, request, timeout=COMMANDS[verb].timeout)
+                    except PboError as exc:
+                        entry.outcome = f"refused: {str(exc)[:100]}"
+                    entry.took = time.monotonic() - at
+                    time.sleep(max(at + window - time.monotonic(), 0.0))
+                    entry.missed = counts.missed() - middle
+                    marks.append((entry, at - window, at))
+                    result.windows.append(entry)
+            finally:
+                counts.table.close()
+        finally:
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+            try:
+                process.communicate(timeout=SAFETY_NET)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.communicate()
+            result.exit = process.returncode
+        if not report_path.exists():
+            result.failure = result.failure or f"no report (exit {process.returncode})"
+            return result
+        report = json.loads(report_path.read_text())
+        critical = {name for name, t in report["tasks"].items() if t.get("critical")} or {"robot"}
+        episodes = [e for e in report.get("stable_episodes", []) if e["task"] in critical]
+        for entry, baseline_from, window_from in marks:
+            entry.baseline_holds = sum(baseline_from <= e["from"] < window_from for e in episodes)
+            held = [e for e in episodes if window_from <= e["from"] < window_from + window]
+            entry.holds = len(held)
+            entry.causes = [f"{e.get('cause', '?')} {((e['to'] or e['from']) - e['from']) * 1e3:.0f} ms" for e in held]
+        log = folder / "out" / f"{LOGGER}.mcap"
+        if log.exists():
+            result.log_rows = len(read_log(log))
+    return result
+
+
+def said(process: subprocess.Popen, text: str) -> bool:
+    assert process.stdout is not None
+    give_up = time.monotonic() + SAFETY_NET
+    for line in process.stdout:
+        if text in line:
+            return True
+        if time.monotonic() > give_up:
+            break
+    return False
+
+
+def _run_ids(subsystem: str, supervisor: int) -> list[str]:
+    from pbo_runtime.ipc.runs import live_runs
+
+    return [run.run_id for run in live_runs() if run.subsystem == subsystem and run.pid == supervisor]
+
+
+def shipped(names: tuple[str, ...] = ()) -> list[Path]:
+    return [path for path in sorted(CONFIGS.glob("*.yaml")) if (not names or path.stem in names)]
+
+
+def run(window: float = 0.6, configs: tuple[str, ...] = ()) -> Section:
+    paths = shipped(configs)
+    section = Section(
+        key="verbs",
+        title="Operator verbs on running subsystems",
+        command=f"python -m bench.verbs --window {window:g}" + (f" --configs {','.join(configs)}" if configs else ""),
+        method=f"""
+{len(VERBS)} verbs on {len(paths)} configurations: each of configs/ that runs on the real clock
+is started under a name of its own (live changes on), and once it is on the benchmark sends the
+operator's verbs over its control queue, as `pbo VERB` does, one at a time: `set` (the first live-tunable number of a task, times
+1.01), `switch` (to another configuration), `job` (one of the configuration on, with its object's
+initial values), `spawn` (a data logger `{LOGGER}` writing MCAP, on the RTPU of the first
+non-critical task), `off`, `on` and `kill` of that logger, `replace` (a non-critical task by a
+copy of itself), `save` (the live subsystem to a file). Each verb's window is {window:g} s from its
+request; the {window:g} s just before the request, without a verb, is its baseline in the same run.
+Counted in each: the **holds** of the critical tasks (stable episodes that begin in it, from the
+run's report) and the **missed** releases of all tasks (a release late by more than its period is
+skipped and counted, from the table as the run goes). The goal: no hold and no missed release
+that a verb's window has and its baseline has not. After the run, the spawned logger's MCAP log is
+read back (it was killed live: its summary and footer were written off the cycle).
+""",
+        limits="""A window counts what happened in it, whatever caused it: on this shared 2-CPU
+machine the hypervisor and other tenants cause holds and missed releases too, which the
+baselines count. A verb that is not applicable to a configuration (one configuration: no switch)
+is listed as such. `spawn` and `replace` make the new task on its RTPU between two cycles: the
+executive runs the cycles that come due between its steps (its module's import, its timing rings,
+its `init`), but a step longer than a period makes releases late, and the first spawn of a module
+an RTPU has not imported yet takes its import; an `init` that waits for a process it starts (the
+special-purpose processor's) holds the RTPU that long.""",
+    )
+    results = []
+    for path in paths:
+        if path.stem in SKIPPED:
+            results.append(ConfigRun(path.stem, failure=f"skipped: {SKIPPED[path.stem]}"))
+            continue
+        results.append(measure(path, window))
+    table = Table(["verb", "configurations", "holds", "baseline holds", "missed", "baseline missed", "reply p50 ms",
+                   "reply max ms"], numeric=(1, 2, 3, 4, 5, 6, 7))
+    excess_holds = excess_missed = 0
+    for verb in VERBS:
+        done = [w for r in results for w in r.windows if w.verb == verb and not w.outcome]
+        holds, base_holds = sum(w.holds for w in done), sum(w.baseline_holds for w in done)
+        missed, base_missed = sum(w.missed for w in done), sum(w.baseline_missed for w in done)
+        excess_holds += max(holds - base_holds, 0)
+        excess_missed += max(missed - base_missed, 0)
+        took = np.array([w.took for w in done]) * 1e3
+        table.add(verb, len(done), holds, base_holds, missed, base_missed, f"{np.median(took):.1f}" if done else "",
+                  f"{took.max():.1f}" if done else "")
+    section.tables.append(table)
+    per_config = Table(["configuration", "verbs done", "holds (baseline)", "missed (baseline)", "exit", "note"],
+                       numeric=(1, 2, 3, 4), caption="Per configuration:")
+    for r in results:
+        done = [w for w in r.windows if not w.outcome]
+        notes = [f"{w.verb}: {w.outcome}" for w in r.windows if w.outcome]
+        if r.log_rows >= 0:
+            notes.append(f"{LOGGER}.mcap read back: {r.log_rows} rows")
+        per_config.add(r.name, len(done), f"{sum(w.holds for w in done)} ({sum(w.baseline_holds for w in done)})",
+                       f"{sum(w.missed for w in done)} ({sum(w.baseline_missed for w in done)})",
+                       "" if r.exit is None else r.exit, r.failure or "; ".join(notes))
+    section.tables.append(per_config)
+    for r in results:
+        for w in r.windows:
+            if w.causes:
+                section.notes.append(f"{r.name}, {w.verb}: held {', '.join(w.causes)}")
+    if sys.flags.dont_write_bytecode:
+        section.notes.append("PYTHONDONTWRITEBYTECODE is set where this ran: no module's bytecode is cached, so an RTPU's "
+                             "first import of a module (a `spawn` of one it had not imported) compiles its source too")
+    windows = sum(len([w for w in r.windows if not w.outcome]) for r in results)
+    section.notes.append(f"holds of a critical task in verbs' windows beyond their baselines: {excess_holds} (goal 0) -> "
+                         f"{'met' if excess_holds == 0 else 'NOT met'}; missed releases beyond the baselines: "
+                         f"{excess_missed} (goal 0) -> {'met' if excess_missed == 0 else 'NOT met'} "
+                         f"({windows} verbs, {window:g} s windows)")
+    return section
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--window", type=float, default=0.6)
+    parser.add_argument("--configs", default="", help="comma-separated names of configs/*.yaml (default: all)")
+    args = parser.parse_args()
+    print(run(args.window, tuple(c for c in args.configs.split(",") if c)).text())
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,125 @@
+"""The RTPU's background thread (`task.background`): slow work a task's off or kill hands off runs
+there, in order, at a lower priority, is waited for at the RTPU's stop, and a failure is reported
+as the task's error, never lost."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import threading
+
+import pytest
+
+from pbo_runtime import OutputError, OutVar, PortBasedObject
+from pbo_runtime.clock.clocks import ManualClock
+from pbo_runtime.ipc import messages
+from pbo_runtime.ipc.messages import StateChanged
+from pbo_runtime.task.background import Background, Failure
+from pbo_runtime.task.lifecycle import Task
+from rtpu._executive import Executive
+from tests.support import FakeSignals, run_until, task_spec, variables
+
+
+def test_work_handed_off_runs_in_another_thread_in_the_order_handed_and_hand_off_does_not_wait_for_it():
+    worker = Background("test-background")
+    gate, ran = threading.Event(), []
+    worker.hand_off(gate.wait, "a", "waiting at the gate")
+    for n in range(3):
+        worker.hand_off(lambda n=n: ran.append((n, threading.current_thread().name)), "a", f"piece {n}")
+    assert ran == [] and worker.pending == 4  # the first still waits at the gate: nothing after it ran
+    gate.set()
+    assert worker.close() == []
+    assert ran == [(0, "test-background"), (1, "test-background"), (2, "test-background")]
+    assert worker.pending == 0 and worker.done == 4
+
+
+def test_close_waits_for_everything_handed_off_and_the_thread_ends():
+    worker = Background()
+    finished = []
+    for n in range(5):
+        worker.hand_off(lambda n=n: finished.append(n), "t", "a piece")
+    assert worker.close() == [] and finished == [0, 1, 2, 3, 4]
+    with pytest.raises(RuntimeError, match="closed"):
+        worker.hand_off(lambda: None, "t", "too late")
+
+
+@pytest.mark.parametrize(("error", "output"), [(OutputError("cannot finish log x.mcap: disk full"), True),
+                                               (RuntimeError("the helper did not answer"), False)])
+def test_a_failure_is_kept_with_its_task_and_what_failed_and_taken_once(error, output):
+    worker = Background()
+
+    def fail() -> None:
+        raise error
+
+    worker.hand_off(fail, "logger", "finishing log x.mcap")
+    worker.hand_off(lambda: None, "logger", "after the failure")  # the thread goes on
+    assert worker.drain()
+    assert worker.take_failures() == [Failure("logger", "finishing log x.mcap", f"{type(error).__name__}: {error}", output)]
+    assert worker.take_failures() == [] and worker.done == 2
+    worker.close()
+
+
+def test_work_that_has_not_ended_when_the_rtpu_stops_is_a_failure_not_a_hang():
+    worker = Background()
+    gate = threading.Event()
+    worker.hand_off(gate.wait, "stuck", "joining a helper that never ends")
+    [failure] = worker.close(patience=0.01)
+    assert (failure.task, failure.what, failure.output) == ("stuck", "joining a helper that never ends", False)
+    assert "had not ended" in failure.error
+    gate.set()
+
+
+def test_the_thread_runs_at_sched_other_though_the_thread_that_starts_it_runs_at_sched_fifo():
+    seen: list[int] = []
+    refused: list[OSError] = []
+
+    def start_as_the_executive() -> None:
+        try:
+            os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO, os.sched_param(1))
+        except OSError as exc:
+            refused.append(exc)
+            return
+        worker = Background()
+        worker.hand_off(lambda: seen.append(os.sched_getscheduler(threading.get_native_id())), "t", "look")
+        worker.close()
+
+    executive = threading.Thread(target=start_as_the_executive)
+    executive.start()
+    executive.join()
+    if refused:
+        pytest.skip(f"SCHED_FIFO refused here: {refused[0]}")
+    assert seen == [os.SCHED_OTHER]
+
+
+class SlowToKill(PortBasedObject):
+    """Fake module: its kill hands its slow part off, as a data logger's does."""
+
+    out = OutVar("out")
+    finished: list[str] = []
+    fail = False
+
+    def kill(self) -> None:
+        def finish() -> None:
+            if self.fail:
+                raise OutputError(f"cannot finish {self.task_name}'s file")
+            SlowToKill.finished.append(self.task_name)
+
+        self.hand_off(finish, "finishing its file")
+
+
+@pytest.mark.parametrize("fail", [False, True])
+def test_the_rtpu_waits_for_what_a_kill_handed_off_at_its_stop_and_reports_a_failure_as_the_tasks_output(make_table, fail):
+    SlowToKill.finished, SlowToKill.fail = [], fail
+    table = make_table(variables(("o0", "float64", ())))
+    clock = ManualClock(0.0)
+    events: list[messages.Event] = []
+    executive = Executive(clock, FakeSignals(clock, [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0]), (0.003, ["stop"])]),
+                          events.append, epoch=0.0)
+    spec = dataclasses.replace(task_spec(SlowToKill, name="a", index=0, ports={"out": "o0"}, period=0.001))
+    executive.add(Task(spec, SlowToKill, table))
+    run_until(executive, clock, 0.01)
+    assert not executive.running
+    assert SlowToKill.finished == ([] if fail else ["a"])  # done before the RTPU's stop returned
+    failed = [e for e in events if isinstance(e, StateChanged) and e.output_failed]
+    assert failed == ([StateChanged("a", "KILLED", "finishing its file failed: OutputError: cannot finish a's file", True)]
+                      if fail else [])

@@ -30,17 +30,17 @@ import threading
 from dataclasses import dataclass
 from typing import Literal
 
-from pbo_runtime import InVar, PortBasedObject, Status
+from pbo_runtime import InVar, PortBasedObject, Status, param
 
 
 @dataclass(frozen=True)
 class FaultInjectorParams:
-    fail_after: int = 1000  # cycles before the fault
+    fail_after: int = param(1000, at_least=0, at_most=1_000_000_000)  # cycles before the fault
     recoverable: bool = False  # True: the error component recovers by itself (the task stays ON)
     fault: Literal["raise", "hang", "abort"] = "raise"  # raises once; never returns; or crashes the process (os.abort)
     in_init: bool = False  # the fault happens in init (every time the task is spawned), not after fail_after cycles
     in_on: bool = False  # the fault happens in on (once per run: not in a restarted RTPU), not after fail_after cycles
-    at: tuple[float, ...] = ()  # s on the run's clock: fault at each of these times (once each), not after fail_after
+    at: tuple[float, ...] = param((), at_least=0, at_most=1e6)  # s on the run's clock: fault at each of these times (once each), not after fail_after
 
     def __post_init__(self) -> None:
         if self.fail_after < 0:

@@ -247,3 +247,15 @@ def named_by(node: YMap, message: str, skip: Sequence[str] = ()) -> Location | N
             return found
     named = next((word for word in re.findall(r"\b\w+\b", message) if word in node and word not in skip), None)
     return location_of(node[named], node.value_loc(named)) if named is not None else None
+
+
+def param_value_at(params: Any, name: str, index: Sequence[int] = ()) -> Location | None:
+    """Where a task's params write parameter `name` (its element `index` in a list), or None."""
+    if not isinstance(params, YMap) or name not in params:
+        return None
+    node, loc = params[name], params.value_loc(name)
+    for i in index:
+        if not isinstance(node, YList) or not 0 <= i < len(node):
+            break
+        node, loc = node[i], node.item_loc(i)
+    return location_of(node, loc)

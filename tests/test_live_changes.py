@@ -188,7 +188,13 @@ def test_a_tunable_parameter_is_set_at_a_cycle_boundary(host):
      r"\(live-tunable: kp, kd, ki\); to change it, replace the task: pbo replace pid NEW --param gravity_feedforward=...$"),
     ({"param": "kq", "values": ["1"]}, r"^module 'pid_joint' of task 'pid' has no parameter 'kq' \(parameters: kp, kd, ki, "
                                        r"integral_limit, gravity_feedforward; live-tunable: kp, kd, ki\)$"),
-    ({"param": "kp", "values": ["-3"]}, r"^setting 'kp' of task 'pid' would break the live configuration:\n.*error\[E308\]: .*kp must be >= 0"),
+    *[({"param": "kp", "values": [value]},
+       rf"^setting 'kp' of task 'pid' would break the live configuration:\n<pbo set pid kp>:1:1: error\[E308\]: parameter kp of "
+       rf"task 'pid' \(module 'pid_joint'\) must be in \[0, 1e\+06\], got: {shown}\n")
+      for value, shown in [("-3", "-3"), ("1.0e+308", r"1e\+308"), (".nan", r"\.nan \(not a number\)"), (".inf", r"\.inf")]],
+    ({"param": "kp", "values": ["1", "2", ".nan", "4", "5", "6"]},
+     r"<pbo set pid kp \(value 3\)>:1:1: error\[E308\]: parameter kp\[2\] of task 'pid' \(module 'pid_joint'\) must be in "
+     r"\[0, 1e\+06\], got: \.nan \(not a number\)"),
     ({"param": "kp", "values": ["fast"]}, r"^setting 'kp' of task 'pid' would break the live configuration:\n.*error\[E308\]: "),
     ({"param": "kp", "values": []}, r"^pbo set pid kp needs a value$"),
 ])

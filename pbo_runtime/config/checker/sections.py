@@ -31,7 +31,7 @@ class SectionChecks(CheckerBase):
             return
         loc = top.value_loc("subsystem")
         name = self.text(top["subsystem"], loc, "'subsystem'")
-        if name is None:
+        if name is None or not self.name_length(name, loc, "subsystem"):
             return
         if not _SUBSYSTEM_NAME.match(name):
             self.error(

@@ -8,6 +8,7 @@ from pbo_runtime.config.checker.base import CheckerBase, named_by, named_in, par
 from pbo_runtime.config.model import PortClaim
 from pbo_runtime.config.checker.model import TASK_KEYS, _Binding, _Link, _Linked, _Task
 from pbo_runtime.config.checker.words import _ms, _show_shape, describe, did_you_mean
+from pbo_runtime.config.limits import MAX_PERIOD, MIN_PERIOD
 from pbo_runtime.config.model import Location, PortBinding, TaskSpec
 from pbo_runtime.errors import ParamError
 from pbo_runtime.objects.module import PortBasedObject, convert_param, param_fields
@@ -185,8 +186,9 @@ class TaskChecks(CheckerBase):
                     "add the shortest time between two of its events, e.g. min_interarrival: 5 ms",
                 )
                 return False
-            gap = self.quantity(spec["min_interarrival"], spec.value_loc("min_interarrival"), TIME, f"min_interarrival of task '{name}'")
-            if gap is None:
+            gap = self.quantity(spec["min_interarrival"], spec.value_loc("min_interarrival"), TIME, f"min_interarrival of task '{name}'",
+                                longest=None)
+            if gap is None or not self.period_bounds(gap, spec, "min_interarrival", name):
                 return False
             task.min_interarrival = gap
             task.period = gap  # the worst case: analysis treats it as periodic at its fastest
@@ -208,12 +210,12 @@ class TaskChecks(CheckerBase):
                 )
                 return False
             if "period" in spec:
-                period = self.quantity(spec["period"], spec.value_loc("period"), TIME, f"period of task '{name}'")
-                ok = ok and period is not None
+                period = self.quantity(spec["period"], spec.value_loc("period"), TIME, f"period of task '{name}'", longest=None)
+                ok = ok and period is not None and self.period_bounds(period, spec, "period", name)
                 task.period = period or 0.0
             elif "rate" in spec:
                 rate = self.quantity(spec["rate"], spec.value_loc("rate"), FREQUENCY, f"rate of task '{name}'")
-                ok = ok and rate is not None
+                ok = ok and rate is not None and self.period_bounds(1.0 / rate, spec, "rate", name)
                 task.period = 1.0 / rate if rate else 0.0
             else:
                 self.error(
@@ -539,6 +541,16 @@ class TaskChecks(CheckerBase):
                 continue
             task.fresh_within[port] = (bound, m.value_loc(port))
         return ok
+
+    def period_bounds(self, period: float, spec: YMap, key: str, name: str) -> bool:
+        """True if a task's period (given as a period, a rate or a min_interarrival) is in
+        [MIN_PERIOD, MAX_PERIOD]; else E513 at the value."""
+        if MIN_PERIOD <= period <= MAX_PERIOD:
+            return True
+        bounds = "between one cycle an hour and 100 kHz" if key == "rate" else "between 10 us and 1 h"
+        self.error("E513", f"{key} of task '{name}' must be {bounds}, got: {spec[key]}", spec.value_loc(key),
+                   "a task runs at least once an hour and at most every 10 us: is the unit right?")
+        return False
 
     def check_task_params(self, task: _Task, spec: YMap, module_class: Any) -> bool:
         raw = spec.get("params")

@@ -194,7 +194,10 @@ def test_every_module_has_a_params_branch_from_its_params_dataclass(schema):
         params = _resolve(schema, ref)
         assert params["type"] == "object" and params["additionalProperties"] is False
     pid = schema["$defs"]["params_pid_joint"]["properties"]
-    assert pid["kp"]["oneOf"] == [{"type": "number"}, {"type": "array", "items": {"type": "number"}}]
+    gain = {"type": "number", "minimum": 0.0, "maximum": 1e6}  # its declared range, each gain of a list too
+    assert pid["kp"]["oneOf"] == [gain, {"type": "array", "items": gain}]
+    trajectory = schema["$defs"]["params_joint_trajectory"]["properties"]
+    assert trajectory["max_velocity"]["exclusiveMinimum"] == 0.0 and trajectory["max_velocity"]["maximum"] == 100.0
     assert pid["kp"]["default"] == 400.0
     assert pid["gravity_feedforward"]["type"] == "boolean"
     logger = schema["$defs"]["params_data_logger"]

@@ -211,11 +211,15 @@ class TaskChecks(CheckerBase):
                 return False
             if "period" in spec:
                 period = self.quantity(spec["period"], spec.value_loc("period"), TIME, f"period of task '{name}'", longest=None)
-                ok = ok and period is not None and self.period_bounds(period, spec, "period", name)
+                if period is not None and not self.period_bounds(period, spec, "period", name):
+                    period = None  # refused: no follow-on error from a period that is not one
+                ok = ok and period is not None
                 task.period = period or 0.0
             elif "rate" in spec:
                 rate = self.quantity(spec["rate"], spec.value_loc("rate"), FREQUENCY, f"rate of task '{name}'")
-                ok = ok and rate is not None and self.period_bounds(1.0 / rate, spec, "rate", name)
+                if rate is not None and not self.period_bounds(1.0 / rate, spec, "rate", name):
+                    rate = None
+                ok = ok and rate is not None
                 task.period = 1.0 / rate if rate else 0.0
             else:
                 self.error(
@@ -565,7 +569,7 @@ class TaskChecks(CheckerBase):
             self.error("E308", f"parameter {exc.param}{element} of task '{task.name}' (module '{task.module}') must be "
                                f"{exc.allowed.text()}, got: {exc.got}",
                        param_value_at(spec.get("params"), exc.param, exc.index) or self.params_loc(task, spec),
-                       f"module '{task.module}' declares this range (pbo lexicon {task.module})" if exc.allowed != FINITE
+                       f"module '{task.module}' declares this range (pbo lexicon lists every parameter's)" if exc.allowed != FINITE
                        else "a number parameter takes finite numbers only: not .nan, not .inf")
             return False
         except ParamError as exc:

@@ -171,6 +171,28 @@ def test_a_replace_that_is_wrong_is_refused(host, arguments, refusal):
     assert host.plans == [] and host.task_states["pid"] == "ON"
 
 
+# --- a parameter's range, at every live door ----------------------------------------------------
+
+
+@pytest.mark.parametrize("value, shown", [("1.0e+308", r"1e\+308"), (".nan", r"\.nan \(not a number\)"), ("-.inf", r"-\.inf")])
+@pytest.mark.parametrize("verb, arguments, where, task", [
+    ("set", {"task": "pid", "param": "kp"}, "<pbo set pid kp>", "pid"),
+    ("replace", {"task": "pid", "new": "pd2"}, "<pbo replace pid pd2 --param kp>", "pd2"),
+    ("spawn", {**LOGGER, "task": "pid2", "module": "pid_joint", "params": ["ki=0"], "ports": ["tau=tau_u"]},
+     "<pbo spawn pid2 --param kp>", "pid2"),
+])
+def test_a_parameter_out_of_its_range_is_refused_with_the_same_words_at_every_live_door(host, verb, arguments, where, task,
+                                                                                         value, shown):
+    if verb == "set":
+        arguments = {**arguments, "values": [value]}
+    else:
+        arguments = {**arguments, "params": [*arguments.get("params", []), f"kp={value}"]}
+    with pytest.raises(BadRequest, match=rf"\n{re.escape(where)}:1:1: error\[E308\]: parameter kp of task '{task}' "
+                                         rf"\(module 'pid_joint'\) must be in \[0, 1e\+06\], got: {shown}\n"):
+        dispatch(host, verb, arguments)
+    assert host.plans == [] and host.subsystem.tasks["pid"].params["kp"] == 400
+
+
 # --- set --------------------------------------------------------------------------------------
 
 

@@ -100,12 +100,14 @@ def param(default: Any = dataclasses.MISSING, *, at_least: float | None = None, 
 
 def number_text(value: float) -> str:
     """A number as an operator reads and writes it: 400, 1e+06, 0.001; .nan and .inf as YAML spells them."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        digits = str(abs(value))
+        sign = "-" if value < 0 else ""
+        return f"{sign}{digits}" if len(digits) <= 20 else f"{sign}{digits[0]}.{digits[1:4]}e+{len(digits) - 1} (an integer)"
     if value != value:
         return ".nan"
     if math.isinf(value):
         return ".inf" if value > 0 else "-.inf"
-    if isinstance(value, int) and not isinstance(value, bool):
-        return str(value)
     short = f"{value:g}"
     return short if float(short) == value else repr(float(value))
 

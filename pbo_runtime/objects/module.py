@@ -260,16 +260,9 @@ def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
     if unknown:
         valid = ", ".join(sorted(fields)) or "none"
         raise ParamError(f"unknown parameter(s) {', '.join(repr(u) for u in unknown)} for {owner} (valid: {valid})")
-    hints, ranges = _type_hints(params_type), param_ranges(params_type)
     converted: dict[str, Any] = {}
     for name, value in values.items():
-        where = f"{owner}.{name}"
-        try:
-            converted[name] = _convert(value, hints.get(name, Any), where, ranges.get(name))
-        except OutOfRange as exc:
-            exc.param = name
-            exc.index = tuple(int(i) for i in re.findall(r"\[(\d+)\]", exc.where[len(where):]))
-            raise
+        converted[name] = convert_param(params_type, name, value, f"{owner}.{name}")
     missing = [name for name in required if name not in converted]
     if missing:
         raise ParamError(f"missing parameter(s) {', '.join(repr(m) for m in missing)} for {owner}")
@@ -282,8 +275,14 @@ def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
 def convert_param(params_type: type, name: str, value: Any, where: str) -> Any:
     """One YAML value as field `name` of a Params class takes it, or ParamError saying what it accepts.
 
-    The checker uses it to report each wrong parameter (a plant's option) at its own place."""
-    return _convert(value, _type_hints(params_type).get(name, Any), where, param_ranges(params_type).get(name))
+    The checker uses it to report each wrong parameter (a plant's option) at its own place; a number
+    out of range says which parameter and which element of a list (`OutOfRange.param`, `.index`)."""
+    try:
+        return _convert(value, _type_hints(params_type).get(name, Any), where, param_ranges(params_type).get(name))
+    except OutOfRange as exc:
+        exc.param = name
+        exc.index = tuple(int(i) for i in re.findall(r"\[(\d+)\]", exc.where[len(where):]))
+        raise
 
 
 def param_fields(params_type: type) -> dict[str, dataclasses.Field[Any]]:

@@ -270,6 +270,8 @@ def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
         return params_type(**converted)
     except (TypeError, ValueError) as exc:
         raise ParamError(f"bad parameters for {owner}: {exc}") from None
+    except OutOfRange as exc:  # a parameter of something the Params builds (a combined module's member): not one of these
+        raise ParamError(f"bad parameters for {owner}: {exc}") from None
 
 
 def convert_param(params_type: type, name: str, value: Any, where: str) -> Any:

@@ -342,6 +342,15 @@ ONE_MISTAKE = [
             changed("params: {kp: 400}", "params: {kp: 400, kd: -.inf}"), "-.inf",
             r"parameter kd of task 'pid' \(module 'fake_pid'\) must be a finite number, got: -\.inf$",
             code="E308", hint=r"finite numbers only"),
+    # an object type's range
+    mistake("an_object_types_range_must_be_two_numbers_low_first",
+            changed("variables:\n", "object_types:\n  joint_position: {type: float64, shape: [NDOF], range: [3, -3]}\nvariables:\n"),
+            "[3, -3]", r"range of object type 'joint_position' must be \[low, high\], two finite numbers with low < high, "
+                       r"got: \[3, -3\]$", code="E321"),
+    mistake("an_applications_object_outside_its_types_range_is_an_error_at_the_element",
+            edited(("variables:\n", "object_types:\n  joint_position: {type: float64, shape: [NDOF], range: [-0.4, 0.4]}\nvariables:\n")),
+            "-0.5", r"object 'q_d' of step 1 of application 'demo': element 2 must be in \[-0\.4, 0\.4\] \(the range of object type "
+                    r"'joint_position'\), got: -0\.5$", code="E322", hint=r"^object type 'joint_position' declares this range"),
     # bounds of names and times
     mistake("a_subsystem_name_of_300_characters_is_an_error",
             changed("subsystem: puma", "subsystem: " + "p" * 300), "ppp",

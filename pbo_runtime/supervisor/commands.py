@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 from pbo_runtime.config.live import LiveChangeRefused, LiveDescription, TaskChange, parse_assignments
 from pbo_runtime.config.live_save import save_live
-from pbo_runtime.config.values import INT_RANGE, as_value, describe, element_problem
+from pbo_runtime.config.values import INT_RANGE, as_value, describe, element_problem, range_problem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import operator_input
 from pbo_runtime.ipc.control import BadRequest
@@ -347,6 +347,10 @@ def job(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
             values[spec.object] = as_value(given, variable.dtype, variable.shape, f"job '{name}': object '{spec.object}'")
         except ValueError as exc:
             raise BadRequest(str(exc)) from None
+        kind = host.subsystem.object_types.get(spec.object_type or "")
+        problem = range_problem(values[spec.object], kind.name, kind.range) if kind is not None else ""
+        if problem:
+            raise BadRequest(f"job '{name}': object '{spec.object}': {problem}")
     elif spec.object:
         raise BadRequest(f"job '{name}' needs its object '{spec.object}': pbo job {name} VALUE ...")
     host.job_control.start_job(name, values)

@@ -155,6 +155,8 @@ def test_an_event_is_sent_with_its_values(goal_host):
     ({"task": "goal", "values": [0.0] * 257}, r"must be at most 256 numbers, got: 257$"),
     ({"task": "goal", "values": [0.1, 0.2, 0.3]}, r"^task 'goal' takes events of 6 values \(goal_input's EVENT_SHAPE\), got 3$"),
     ({"task": "goal", "values": None}, r"^task 'goal' takes events of 6 values \(goal_input's EVENT_SHAPE\), got 0$"),
+    ({"task": "goal", "values": [0.3, -0.5, 1.0e308, 0.2, 0.4, 0.2]},
+     r"^the values of an event for 'goal' must be in \[-100, 100\] \(goal_input's EVENT_RANGE\), got: 1e\+308 \(value 3\)$"),
     ({"task": ["goal"], "values": [0.0]}, r"^task must be named by text, got: a list \(tasks: robot, goal, traj, pid\)$"),
     ({"task": "goal", "values": [0.0], "priority": 1}, r"^'event' takes no argument 'priority' \(its arguments: task, values\)$"),
 ])

@@ -77,6 +77,9 @@ class PortBasedObject:
     # carry, which the supervisor checks before sending it (`pbo event TASK values...`); None: any
     # list of finite numbers. A wrong event is refused to the operator, never a task in ERROR.
     EVENT_SHAPE: ClassVar[tuple[int | str, ...] | None] = None
+    # For an aperiodic task: the closed range [low, high] each value of an event must be in, which
+    # the supervisor checks with the shape; None: any finite number.
+    EVENT_RANGE: ClassVar[tuple[float, float] | None] = None
     # The parameters an operator may change while the task runs (`pbo set TASK PARAM VALUE`): `tune`
     # gets the whole new Params between two cycles. Every other parameter is read in `init` only.
     TUNABLE: ClassVar[tuple[str, ...]] = ()

@@ -15,7 +15,7 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 from pbo_runtime.objects import registry
 from pbo_runtime.config.checker.model import Checked, DriverLookup, ModuleLookup, _Claim, _PartialVariable, _Task
 from pbo_runtime.config.checker.words import describe, did_you_mean
-from pbo_runtime.config.limits import MAX_DIM, MAX_NAME, MAX_TIME
+from pbo_runtime.config.limits import MAX_DIM, MAX_NAME, MAX_PERIOD, MAX_TIME, MIN_PERIOD
 from pbo_runtime.config.model import Location
 from pbo_runtime.errors import ConfigError, Note
 from pbo_runtime.config.units import TIME, parse_quantity
@@ -205,6 +205,16 @@ class CheckerBase:
             self.error("E513", f"{what} is too large to compute with, got: {value}", loc)
             return None
         return number
+
+    def period_bounds(self, period: float, spec: YMap, key: str, name: str) -> bool:
+        """True if a task's period (given as a period, a rate or a min_interarrival) is in
+        [MIN_PERIOD, MAX_PERIOD]; else E513 at the value."""
+        if MIN_PERIOD <= period <= MAX_PERIOD:
+            return True
+        bounds = "between one cycle an hour and 100 kHz" if key == "rate" else "between 10 us and 1 h"
+        self.error("E513", f"{key} of task '{name}' must be {bounds}, got: {spec[key]}", spec.value_loc(key),
+                   "a task runs at least once an hour and at most every 10 us: is the unit right?")
+        return False
 
     def section(self, top: YMap, key: str, example: str) -> YMap | None:
         """A top-level section that maps names to entries; None (and an error) if it is not one."""

@@ -8,7 +8,6 @@ from pbo_runtime.config.checker.base import CheckerBase, named_by, named_in, par
 from pbo_runtime.config.model import PortClaim
 from pbo_runtime.config.checker.model import TASK_KEYS, _Binding, _Link, _Linked, _Task
 from pbo_runtime.config.checker.words import _ms, _show_shape, describe, did_you_mean
-from pbo_runtime.config.limits import MAX_PERIOD, MIN_PERIOD
 from pbo_runtime.config.model import Location, PortBinding, TaskSpec
 from pbo_runtime.errors import ParamError
 from pbo_runtime.objects.module import PortBasedObject, convert_param, param_fields
@@ -545,16 +544,6 @@ class TaskChecks(CheckerBase):
                 continue
             task.fresh_within[port] = (bound, m.value_loc(port))
         return ok
-
-    def period_bounds(self, period: float, spec: YMap, key: str, name: str) -> bool:
-        """True if a task's period (given as a period, a rate or a min_interarrival) is in
-        [MIN_PERIOD, MAX_PERIOD]; else E513 at the value."""
-        if MIN_PERIOD <= period <= MAX_PERIOD:
-            return True
-        bounds = "between one cycle an hour and 100 kHz" if key == "rate" else "between 10 us and 1 h"
-        self.error("E513", f"{key} of task '{name}' must be {bounds}, got: {spec[key]}", spec.value_loc(key),
-                   "a task runs at least once an hour and at most every 10 us: is the unit right?")
-        return False
 
     def check_task_params(self, task: _Task, spec: YMap, module_class: Any) -> bool:
         raw = spec.get("params")

@@ -67,7 +67,7 @@ class OutOfRange(ParamError):
         super().__init__(message)
         self.where = where  # as the message names it: 'PidJoint.kp[2]'
         self.got = got  # the value as the message shows it: '1e+308', '.nan (not a number)'
-        self.param = ""  # the field, set by build_params
+        self.param = ""  # the field, set by convert_param
         self.index: tuple[int, ...] = ()  # the element of a list parameter, outermost first
         self.allowed = allowed
 
@@ -84,12 +84,10 @@ def param(default: Any = dataclasses.MISSING, *, at_least: float | None = None, 
     """
     if at_least is not None and above is not None or at_most is not None and below is not None:
         raise TypeError("give one lower end (at_least or above) and one upper end (at_most or below)")
-    allowed = Range(
-        low=-math.inf if at_least is None and above is None else float(at_least if at_least is not None else above),  # type: ignore[arg-type]
-        high=math.inf if at_most is None and below is None else float(at_most if at_most is not None else below),  # type: ignore[arg-type]
-        low_open=at_least is None,
-        high_open=at_most is None,
-    )
+    low = at_least if at_least is not None else above
+    high = at_most if at_most is not None else below
+    allowed = Range(-math.inf if low is None else float(low), math.inf if high is None else float(high),
+                    low_open=at_least is None, high_open=at_most is None)
     if not allowed.low < allowed.high:
         raise TypeError(f"a parameter's range must not be empty, got: {allowed.text()}")
     metadata: dict[str, Any] = {"range": allowed}

@@ -51,6 +51,9 @@ def test_a_spawned_task_is_checked_spawned_and_turned_on_at_one_cycle_boundary(h
     ({"module": "data_loger"}, r"^spawning task 'logger' would break the live configuration:\n<pbo spawn logger --module>:1:1: error\[E207\]: "
                                r"task 'logger' uses module 'data_loger', which is not registered\n  hint: did you mean 'data_logger'\?"),
     ({"period": "-5 ms"}, r"^spawning task 'logger' would break the live configuration:\n<pbo spawn logger --period>:1:1: error\[E"),
+    ({"period": "1e300 s"}, r"^spawning task 'logger' would break the live configuration:\n<pbo spawn logger --period>:1:1: error\[E513\]: "
+                            r"period of task 'logger' must be between 10 us and 1 h, got: 1e300 s\n"),
+    ({"task": "l" * 41}, r"^a task's name is a letter or '_' then letters, digits or '_', at most 40 characters, got: 'l{41}'$"),
     ({"params": ["variables=[q_m, q_x]", "path=x.npy"]},
      r"^spawning task 'logger' \(a live change cannot add a state variable: add it to the file's variables: and restart\) "
      r"would break the live configuration:\n<pbo spawn logger>:1:1: error\[E206\]: "),

@@ -32,15 +32,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from modules._robot_model import limit_speed, pose_error
-from pbo_runtime import InVar, OutVar, PortBasedObject, Status
+from pbo_runtime import InVar, OutVar, PortBasedObject, Status, param
 
 
 @dataclass(frozen=True)
 class CartesianControllerParams:
-    kp: float = 100.0  # 1/s^2: stiffness of the hand's error dynamics
-    kd: float = 20.0  # 1/s: damping (2 sqrt(kp): critically damped)
-    damping: float = 0.01  # lambda of the Jacobian's damped inverse (m and rad)
-    max_joint_acceleration: float = math.inf  # rad/s^2: no joint of qdd_r exceeds this
+    kp: float = param(100.0, at_least=0, at_most=1e6)  # 1/s^2: stiffness of the hand's error dynamics
+    kd: float = param(20.0, at_least=0, at_most=1e4)  # 1/s: damping (2 sqrt(kp): critically damped)
+    damping: float = param(0.01, above=0, at_most=10)  # lambda of the Jacobian's damped inverse (m and rad)
+    max_joint_acceleration: float = param(math.inf, above=0, at_most=math.inf)  # rad/s^2: no joint of qdd_r exceeds this
 
     def __post_init__(self) -> None:
         for name in ("kp", "kd"):

@@ -31,14 +31,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import InVar, OutVar, PortBasedObject, Status
+from pbo_runtime import InVar, OutVar, PortBasedObject, Status, param
 
 
 @dataclass(frozen=True)
 class CartesianInterpolatorParams:
-    sample_period: float = 0.01  # s: how often x_d changes (the period of the task that writes it)
-    max_linear_velocity: float = 0.5  # m/s, of the position part as a whole
-    max_angular_velocity: float = 2.0  # rad/s, of the rotation-vector part as a whole
+    sample_period: float = param(0.01, above=0, at_most=3600)  # s: how often x_d changes (the period of the task that writes it)
+    max_linear_velocity: float = param(0.5, above=0, at_most=100)  # m/s, of the position part as a whole
+    max_angular_velocity: float = param(2.0, above=0, at_most=100)  # rad/s, of the rotation-vector part as a whole
 
     def __post_init__(self) -> None:
         for name in ("sample_period", "max_linear_velocity", "max_angular_velocity"):

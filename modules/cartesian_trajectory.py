@@ -25,15 +25,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from modules._braking import BrakingLaw
-from pbo_runtime import InVar, OutVar, PortBasedObject, Status
+from pbo_runtime import InVar, OutVar, PortBasedObject, Status, param
 
 
 @dataclass(frozen=True)
 class CartesianTrajectoryParams:
-    max_linear_velocity: float = 0.25  # m/s, each of x, y, z
-    max_linear_acceleration: float = 1.0  # m/s^2, each of x, y, z
-    max_angular_velocity: float = 1.0  # rad/s, each rotation-vector component
-    max_angular_acceleration: float = 4.0  # rad/s^2, each rotation-vector component
+    max_linear_velocity: float = param(0.25, above=0, at_most=100)  # m/s, each of x, y, z
+    max_linear_acceleration: float = param(1.0, above=0, at_most=1e4)  # m/s^2, each of x, y, z
+    max_angular_velocity: float = param(1.0, above=0, at_most=100)  # rad/s, each rotation-vector component
+    max_angular_acceleration: float = param(4.0, above=0, at_most=1e4)  # rad/s^2, each rotation-vector component
 
     def __post_init__(self) -> None:
         for name in ("max_linear_velocity", "max_linear_acceleration", "max_angular_velocity", "max_angular_acceleration"):

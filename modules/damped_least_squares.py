@@ -32,15 +32,16 @@ import numpy as np
 
 from modules._robot_model import END_EFFECTOR_FRAME
 from modules.resolved_rate import ResolvedRate
+from pbo_runtime import param
 
 
 @dataclass(frozen=True)
 class DampedLeastSquaresParams:
-    gain: float = 5.0  # 1/s: the pose error's decay rate away from singularities
-    damping: float = 0.0  # lambda applied everywhere (units of J: m and rad)
-    max_damping: float = 0.05  # lambda_max of the variable damping, reached at w = 0
-    manipulability_threshold: float = 0.01  # w0: below it the variable damping grows
-    max_joint_speed: float = 2.0  # rad/s: no joint of qd_r exceeds this
+    gain: float = param(5.0, above=0, at_most=1e4)  # 1/s: the pose error's decay rate away from singularities
+    damping: float = param(0.0, at_least=0, at_most=10)  # lambda applied everywhere (units of J: m and rad)
+    max_damping: float = param(0.05, at_least=0, at_most=10)  # lambda_max of the variable damping, reached at w = 0
+    manipulability_threshold: float = param(0.01, at_least=0, at_most=10)  # w0: below it the variable damping grows
+    max_joint_speed: float = param(2.0, above=0, at_most=math.inf)  # rad/s: no joint of qd_r exceeds this
     frame: str = END_EFFECTOR_FRAME  # the operational frame whose pose x_d gives
 
     def __post_init__(self) -> None:

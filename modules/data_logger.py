@@ -58,7 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from modules._mcap_encoder import McapEncoder, resume_point, write_all
-from pbo_runtime import ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status, read_log
+from pbo_runtime import ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status, param, read_log
 
 __all__ = ["DataLogger", "DataLoggerParams", "read_log"]
 
@@ -74,7 +74,7 @@ _FINISHING: dict[str, threading.Event] = {}
 class DataLoggerParams:
     variables: tuple[str, ...]
     path: str = "log.mcap"  # relative: under the run's output directory
-    chunk: float = 1.0  # seconds of rows written to the file at a time (at most CHUNK_BYTES)
+    chunk: float = param(1.0, above=0, at_most=86400)  # seconds of rows written to the file at a time (at most CHUNK_BYTES)
 
     def __post_init__(self) -> None:
         if not self.variables:

@@ -21,12 +21,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import InVar, OutVar, PortBasedObject, Status
+from pbo_runtime import InVar, OutVar, PortBasedObject, Status, param
 
 
 @dataclass(frozen=True)
 class DifferentiatorParams:
-    smoothing: float = 0.0  # s: time constant of the low-pass on the derivative; 0: none
+    smoothing: float = param(0.0, at_least=0, at_most=3600)  # s: time constant of the low-pass on the derivative; 0: none
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.smoothing) and self.smoothing >= 0):

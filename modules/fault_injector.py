@@ -35,18 +35,18 @@ from typing import Literal
 
 import numpy as np
 
-from pbo_runtime import InVar, OutVar, PortBasedObject, PortSpec, Status
+from pbo_runtime import InVar, OutVar, PortBasedObject, PortSpec, Status, param
 
 
 @dataclass(frozen=True)
 class FaultInjectorParams:
-    fail_after: int = 1000  # cycles before the fault
+    fail_after: int = param(1000, at_least=0, at_most=1_000_000_000)  # cycles before the fault
     recoverable: bool = False  # True: the error component recovers by itself (the task stays ON)
     fault: Literal["raise", "hang", "abort"] = "raise"  # raises once; never returns; or crashes the process (os.abort)
     in_init: bool = False  # the fault happens in init (every time the task is spawned), not after fail_after cycles
     in_on: bool = False  # the fault happens in on (once per run: not in a restarted RTPU), not after fail_after cycles
-    at: tuple[float, ...] = ()  # s on the run's clock: fault at each of these times (once each), not after fail_after
-    command: float | None = None  # writes this to every joint of the port `command` each cycle (N m, rad), and never fails
+    at: tuple[float, ...] = param((), at_least=0, at_most=1e6)  # s on the run's clock: fault at each of these times (once each), not after fail_after
+    command: float | None = param(None, at_least=-1e9, at_most=1e9)  # writes this to every joint of the port `command` each cycle (N m, rad), and never fails
 
     def __post_init__(self) -> None:
         if self.fail_after < 0:

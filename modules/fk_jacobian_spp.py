@@ -25,14 +25,14 @@ import numpy as np
 
 from modules._model_based import ModelBased
 from modules._robot_model import END_EFFECTOR_FRAME
-from pbo_runtime import InVar, ModuleError, OutVar, Status
+from pbo_runtime import InVar, ModuleError, OutVar, Status, param
 
 
 @dataclass(frozen=True)
 class FkJacobianSppParams:
     device: str = "spp"  # the YAML device this task opens (listed in its resources): driver spp
     frame: str = END_EFFECTOR_FRAME  # the operational frame: "ee" or "link1" ... "link<NDOF>"
-    max_age: int = 25  # cycles: an older result is an error, never published
+    max_age: int = param(25, at_least=1, at_most=1_000_000)  # cycles: an older result is an error, never published
 
     def __post_init__(self) -> None:
         if not self.frame:

@@ -21,12 +21,12 @@ import numpy as np
 import pinocchio
 
 from modules._model_based import ModelBased
-from pbo_runtime import InVar, OutVar, Status
+from pbo_runtime import InVar, OutVar, Status, param
 
 
 @dataclass(frozen=True)
 class GravityCompensationParams:
-    scale: float = 1.0  # fraction of the model's gravity torque to output
+    scale: float = param(1.0, at_least=0, at_most=10)  # fraction of the model's gravity torque to output
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.scale) and self.scale >= 0):

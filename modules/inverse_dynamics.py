@@ -23,12 +23,12 @@ import pinocchio
 
 from modules._robot_model import rnea_includes_armature
 from modules._model_based import ModelBased
-from pbo_runtime import InVar, OutVar, Status
+from pbo_runtime import InVar, OutVar, Status, param
 
 
 @dataclass(frozen=True)
 class InverseDynamicsParams:
-    max_torque: float = math.inf  # N m, every joint: |tau_u| is clipped to this
+    max_torque: float = param(math.inf, above=0, at_most=math.inf)  # N m, every joint: |tau_u| is clipped to this
 
     def __post_init__(self) -> None:
         if not self.max_torque > 0:

@@ -33,15 +33,15 @@ import numpy as np
 
 from modules._model_based import ModelBased
 from modules._robot_model import END_EFFECTOR_FRAME, frame_id, frame_pose_and_jacobian, limit_speed, pose_error
-from pbo_runtime import InVar, OutVar, Status
+from pbo_runtime import InVar, OutVar, Status, param
 
 
 @dataclass(frozen=True)
 class InverseKinematicsParams:
-    tolerance: float = 1e-9  # m and rad: |e| at which the iterations stop
-    max_iterations: int = 20  # per cycle (and at `on`)
-    damping: float = 1e-3  # lambda of the damped Newton step (units of J: m and rad)
-    max_step: float = 0.5  # rad: no joint moves more than this in one iteration
+    tolerance: float = param(1e-9, above=0, at_most=1)  # m and rad: |e| at which the iterations stop
+    max_iterations: int = param(20, at_least=1, at_most=1000)  # per cycle (and at `on`)
+    damping: float = param(1e-3, above=0, at_most=10)  # lambda of the damped Newton step (units of J: m and rad)
+    max_step: float = param(0.5, above=0, at_most=10)  # rad: no joint moves more than this in one iteration
     unreachable: Literal["continue", "error"] = "continue"  # what a cycle that does not converge does
     frame: str = END_EFFECTOR_FRAME  # the operational frame whose pose x_d gives
 

@@ -15,13 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import ANY_DTYPE, InVar, ModuleError, OutVar, PortBasedObject, PortSpec, Status
+from pbo_runtime import ANY_DTYPE, InVar, ModuleError, OutVar, PortBasedObject, PortSpec, Status, param
 
 
 @dataclass(frozen=True)
 class JoinParams:
     inputs: tuple[str, ...]
-    weights: tuple[float, ...] = ()  # default: equal weights
+    weights: tuple[float, ...] = param((), at_least=0, at_most=1e6)  # default: equal weights
     combine: str = "average"  # or "sum": the weights are not normalised
 
     def __post_init__(self) -> None:

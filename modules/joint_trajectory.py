@@ -25,15 +25,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from modules._braking import BrakingLaw
-from pbo_runtime import InVar, OutVar, PortBasedObject, Status
+from pbo_runtime import InVar, OutVar, PortBasedObject, Status, param
 
 TAKE_OVER_WITHIN_PERIODS = 2.0  # a reference written longer ago than this no longer drives the arm
 
 
 @dataclass(frozen=True)
 class JointTrajectoryParams:
-    max_velocity: float = 1.0  # rad/s, every joint
-    max_acceleration: float = 4.0  # rad/s^2, every joint
+    max_velocity: float = param(1.0, above=0, at_most=100)  # rad/s, every joint
+    max_acceleration: float = param(4.0, above=0, at_most=1e4)  # rad/s^2, every joint
 
     def __post_init__(self) -> None:
         if self.max_velocity <= 0 or self.max_acceleration <= 0:

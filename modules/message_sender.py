@@ -15,12 +15,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from modules._link_params import LinkParams
-from pbo_runtime import ANY_DTYPE, MAX_PRIORITY, InVar, LinkFullError, OutVar, PortBasedObject, Status
+from pbo_runtime import ANY_DTYPE, MAX_PRIORITY, InVar, LinkFullError, OutVar, PortBasedObject, Status, param
 
 
 @dataclass(frozen=True)
 class MessageSenderParams(LinkParams):
-    priority: int = 0  # 0..MAX_PRIORITY: the server takes higher priorities first
+    priority: int = param(0, at_least=0, at_most=MAX_PRIORITY)  # 0..MAX_PRIORITY: the server takes higher priorities first
     every_cycle: bool = False  # send every cycle, changed or not (a heartbeat)
 
     def __post_init__(self) -> None:

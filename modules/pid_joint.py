@@ -19,11 +19,11 @@ the arm does not answer, and q_m may stand still.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import Arm, InConst, InVar, OutVar, PortBasedObject, Status, arm_model
+from pbo_runtime import Arm, InConst, InVar, OutVar, PortBasedObject, Status, arm_model, param
 
 Gain = float | tuple[float, ...]
 
@@ -31,10 +31,10 @@ Gain = float | tuple[float, ...]
 @dataclass(frozen=True)
 class PidJointParams:
     # one gain for every joint, or a list of one per joint (pbo check counts them)
-    kp: Gain = field(default=400.0, metadata={"shape": ("NDOF",)})  # N m / rad
-    kd: Gain = field(default=40.0, metadata={"shape": ("NDOF",)})  # N m s / rad
-    ki: Gain = field(default=0.0, metadata={"shape": ("NDOF",)})  # N m / (rad s)
-    integral_limit: float = 50.0  # N m: the integral term never exceeds this (anti-windup)
+    kp: Gain = param(400.0, at_least=0, at_most=1e6, shape=("NDOF",))  # N m / rad
+    kd: Gain = param(40.0, at_least=0, at_most=1e5, shape=("NDOF",))  # N m s / rad
+    ki: Gain = param(0.0, at_least=0, at_most=1e6, shape=("NDOF",))  # N m / (rad s)
+    integral_limit: float = param(50.0, at_least=0, at_most=1e4)  # N m: the integral term never exceeds this (anti-windup)
     gravity_feedforward: bool = True
 
     def __post_init__(self) -> None:

@@ -32,13 +32,13 @@ from modules._robot_model import (
     pose_error,
 )
 from modules._model_based import ModelBased
-from pbo_runtime import InVar, OutVar, Status
+from pbo_runtime import InVar, OutVar, Status, param
 
 
 @dataclass(frozen=True)
 class ResolvedRateParams:
-    gain: float = 5.0  # 1/s: the pose error's decay rate
-    max_joint_speed: float = 2.0  # rad/s: no joint of qd_r exceeds this
+    gain: float = param(5.0, above=0, at_most=1e4)  # 1/s: the pose error's decay rate
+    max_joint_speed: float = param(2.0, above=0, at_most=math.inf)  # rad/s: no joint of qd_r exceeds this
     frame: str = END_EFFECTOR_FRAME  # the operational frame whose pose x_d gives
 
     def __post_init__(self) -> None:

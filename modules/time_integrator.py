@@ -20,12 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import InVar, OutVar, PortBasedObject, Status
+from pbo_runtime import InVar, OutVar, PortBasedObject, Status, param
 
 
 @dataclass(frozen=True)
 class TimeIntegratorParams:
-    max_lead: float = math.inf  # rad: |q_r - q_m| never exceeds this on any joint
+    max_lead: float = param(math.inf, above=0, at_most=math.inf)  # rad: |q_r - q_m| never exceeds this on any joint
 
     def __post_init__(self) -> None:
         if not self.max_lead > 0:

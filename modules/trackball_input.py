@@ -17,12 +17,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import InVar, ModuleError, OutVar, PortBasedObject, Status, Waypoints
+from pbo_runtime import InVar, ModuleError, OutVar, PortBasedObject, Status, Waypoints, param
 
 
 @dataclass(frozen=True)
 class TrackballParams:
-    script: tuple[tuple[float, ...], ...] = ()  # rows: t, dx, dy, dz, rx, ry, rz
+    script: tuple[tuple[float, ...], ...] = param((), at_least=-1e6, at_most=1e6)  # rows: t, dx, dy, dz, rx, ry, rz
     file: str = ""  # a CSV of the same rows (a header line is allowed)
     device: str = ""  # a trackball device (driver trackball) in the task's resources, read each cycle
 

@@ -19,14 +19,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import InVar, ModuleError, OutVar, PortBasedObject, Status
+from pbo_runtime import InVar, ModuleError, OutVar, PortBasedObject, Status, param
 
 
 @dataclass(frozen=True)
 class VisualServoingParams:
     device: str = "camera"  # the YAML device this task opens (listed in its resources)
-    offset: tuple[float, ...] = (0.0, 0.0, 0.0)  # m: the hand's position relative to the target
-    orientation: tuple[float, ...] = ()  # rad, the hand's rotation vector; left out: keep x_m's at `on`
+    offset: tuple[float, ...] = param((0.0, 0.0, 0.0), at_least=-100, at_most=100)  # m: the hand's position relative to the target
+    orientation: tuple[float, ...] = param((), at_least=-10, at_most=10)  # rad, the hand's rotation vector; left out: keep x_m's at `on`
 
     def __post_init__(self) -> None:
         if len(self.offset) != 3 or not all(math.isfinite(v) for v in self.offset):

@@ -26,6 +26,7 @@ from pbo_runtime.objects.arm import ARM_COLUMNS, EE_COLUMNS, GRAVITY, ROBOT_OPTI
 from pbo_runtime.objects.driver import DeviceDriver
 from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
 from pbo_runtime.objects.ports import ANY_DTYPE, InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
+from pbo_runtime.objects.ranges import param
 from pbo_runtime.objects.registry import installed_version, module_class, registered_robot
 from pbo_runtime.objects.waypoints import Waypoints
 from pbo_runtime.reports.data_log import open_log, read_log
@@ -73,6 +74,7 @@ __all__ = [
     "is_robot_file",
     "module_class",
     "open_log",
+    "param",
     "read_log",
     "registered_robot",
     "unlink_quietly",

@@ -221,6 +221,8 @@ def served(subsystem, command: str, arguments: dict[str, Any]) -> dict[str, Any]
     ("job", {"job": "hold"}, 200),
     ("job", {"job": "move", "object": [1, "x"]}, 400),
     ("event", {"task": "pid", "values": [1.0]}, 400),
+    ("set", {"task": "pid", "param": "kp", "values": ["1.0e+308"]}, 400),  # out of its range: the checker's E308, as pbo set
+    ("set", {"task": "pid", "param": "kp", "values": [".nan"]}, 400),
     ("status", {"verbose": True}, 400),  # an argument the verb does not take
     ("stop", {}, 200),
 ])
@@ -235,6 +237,14 @@ def test_a_verbs_route_answers_what_the_supervisors_dispatch_answers(subsystem, 
         reply["message"] = expected["message"] = reply["message"].split(" in ")[0]
     assert reply == expected
     assert reply["ok"] is (status == 200) and reply.get("bad_request", False) is (status == 400)
+
+
+@pytest.mark.parametrize(("verb", "body"), [("job", '{"job": "reach", "object": [0, 0, NaN, 0, 0, 0]}'),
+                                            ("event", '{"task": "pid", "values": [Infinity]}')])
+def test_a_number_that_is_not_finite_in_a_bodys_json_is_refused_as_the_command_line_refuses_it(subsystem, verb, body):
+    host = FakeJobHost(subsystem, "pid")
+    response = TestClient(create_app(FakeRunLink(host), TOKEN)).post(f"/api/verbs/{verb}", content=body, headers=BEARER)
+    assert response.status_code == 400 and "finite" in response.json()["error"], response.json()
 
 
 @pytest.mark.parametrize("verb", [verb for verb in VERBS if verb.handler is not None], ids=lambda verb: verb.name)

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from pbo_runtime import ANY_DTYPE, InBoth, InConst, InVar, ModuleError, OutBoth, OutConst, OutVar, PortBasedObject
+from pbo_runtime import ANY_DTYPE, InBoth, InConst, InVar, ModuleError, OutBoth, OutConst, OutVar, PortBasedObject, param
 from pbo_runtime.config.loader import CheckResult, check_file
 from pbo_runtime.errors import ConfigError
 
@@ -28,8 +28,8 @@ class FakeRobot(PortBasedObject):
 
 @dataclasses.dataclass(frozen=True)
 class FakePidParams:
-    kp: float
-    kd: float = 0.0
+    kp: float | tuple[float, ...] = param(at_least=0, at_most=1e6)  # required, with a range
+    kd: float = 0.0  # no range declared: any finite number
 
 
 class FakePid(PortBasedObject):
@@ -328,6 +328,48 @@ ONE_MISTAKE = [
             r"params of task 'pid' \(module 'fake_pid'\): unknown parameter\(s\) 'ki' for FakePid \(valid: kd, kp\)$"),
     mistake("missing_params_are_an_error",
             changed(", params: {kp: 400}", ""), "pid:", r"params of task 'pid' \(module 'fake_pid'\): missing parameter\(s\) 'kp'"),
+    *[mistake(f"a_parameter_out_of_its_range_is_an_error_at_its_value_naming_the_range_{name}",
+              changed("params: {kp: 400}", f"params: {{kp: {value}}}"), str(value),
+              rf"parameter kp of task 'pid' \(module 'fake_pid'\) must be in \[0, 1e\+06\], got: {shown}$",
+              code="E308", hint=r"^module 'fake_pid' declares this range")
+      for name, value, shown in [("nan", ".nan", r"\.nan \(not a number\)"), ("inf", ".inf", r"\.inf"),
+                                 ("huge", "1.0e+308", r"1e\+308"), ("negative", "-1", "-1")]],
+    mistake("a_list_parameter_out_of_its_range_is_an_error_at_the_element",
+            changed("params: {kp: 400}", "params: {kp: [1, 2, 3, .nan, 5, 6]}"), ".nan",
+            r"parameter kp\[3\] of task 'pid' \(module 'fake_pid'\) must be in \[0, 1e\+06\], got: \.nan \(not a number\)$",
+            code="E308"),
+    mistake("a_number_parameter_without_a_range_is_still_finite",
+            changed("params: {kp: 400}", "params: {kp: 400, kd: -.inf}"), "-.inf",
+            r"parameter kd of task 'pid' \(module 'fake_pid'\) must be a finite number, got: -\.inf$",
+            code="E308", hint=r"finite numbers only"),
+    # an object type's range
+    mistake("an_object_types_range_must_be_two_numbers_low_first",
+            changed("variables:\n", "object_types:\n  joint_position: {type: float64, shape: [NDOF], range: [3, -3]}\nvariables:\n"),
+            "[3, -3]", r"range of object type 'joint_position' must be \[low, high\], two finite numbers with low < high, "
+                       r"got: \[3, -3\]$", code="E321"),
+    mistake("an_applications_object_outside_its_types_range_is_an_error_at_the_element",
+            edited(("variables:\n", "object_types:\n  joint_position: {type: float64, shape: [NDOF], range: [-0.4, 0.4]}\nvariables:\n")),
+            "-0.5", r"object 'q_d' of step 1 of application 'demo': element 2 must be in \[-0\.4, 0\.4\] \(the range of object type "
+                    r"'joint_position'\), got: -0\.5$", code="E322", hint=r"^object type 'joint_position' declares this range"),
+    # bounds of names and times
+    mistake("a_subsystem_name_of_300_characters_is_an_error",
+            changed("subsystem: puma", "subsystem: " + "p" * 300), "ppp",
+            r"subsystem name 'p{30}\.\.\.p{10}' is 300 characters long, more than the 40 a name may have$", code="E218"),
+    mistake("a_variable_name_of_41_characters_is_an_error_at_the_name",
+            changed("variables:\n", "variables:\n  " + "v" * 41 + ": {type: float64, initial: 0}\n"), "v" * 41,
+            rf"variable name '{'v' * 41}' is 41 characters long, more than the 40 a name may have$", code="E218"),
+    mistake("a_period_of_1e300_s_is_an_error",
+            changed("period: 2 ms", "period: 1e300 s"), "1e300 s",
+            r"period of task 'traj' must be between 10 us and 1 h, got: 1e300 s$", code="E513"),
+    mistake("a_period_of_a_microsecond_is_an_error",
+            changed("period: 2 ms", "period: 1 us"), "1 us",
+            r"period of task 'traj' must be between 10 us and 1 h, got: 1 us$", code="E513"),
+    mistake("a_rate_of_1e_minus_300_hz_is_an_error",
+            changed("rate: 1 kHz", "rate: 1e-300 Hz"), "1e-300 Hz",
+            r"rate of task 'pid' must be between one cycle an hour and 100 kHz, got: 1e-300 Hz$", code="E513"),
+    mistake("a_job_timeout_of_a_year_is_an_error",
+            changed("timeout: 10 s", "timeout: 31536000 s"), "31536000 s",
+            r"timeout of job 'move' must be at most a day \(86,400 s\), got: 31536000 s$", code="E513"),
     # jobs and applications
     mistake("a_job_object_must_be_a_variable_marked_as_an_object",
             changed("object: q_d, post", "object: q_m, post"), "q_m, post",

@@ -64,6 +64,34 @@ def test_check_json_gives_the_same_verdict_for_tools(tmp_path, capsys):
     assert {"file", "line", "column", "message", "hint"} <= set(verdict["errors"][0])
 
 
+ISSUE_33_MISTAKES = [  # what an examiner found passing pbo check, then crashing or harming the run
+    pytest.param("kp: 400", "kp: .nan", "E308", r"parameter kp of task 'pid' \(module 'pid_joint'\) must be in \[0, 1e\+06\], "
+                 r"got: \.nan \(not a number\)", id="kp_nan"),
+    pytest.param("kp: 400", "kp: .inf", "E308", r"parameter kp .* got: \.inf", id="kp_inf"),
+    pytest.param("kp: 400", "kp: 1.0e+308", "E308", r"parameter kp .* got: 1e\+308", id="kp_huge"),
+    pytest.param("max_velocity: 1.0", "max_velocity: .nan", "E308",
+                 r"parameter max_velocity of task 'traj' \(module 'joint_trajectory'\) must be in \(0, 100\]", id="max_velocity_nan"),
+    pytest.param("subsystem: puma", "subsystem: " + "p" * 300, "E218", r"subsystem name 'p+\.\.\.p+' is 300 characters long",
+                 id="a_300_character_name"),
+    pytest.param("period: 1 ms, critical", "period: 1e300 s, critical", "E513",
+                 r"period of task 'robot' must be between 10 us and 1 h, got: 1e300 s", id="period_1e300_s"),
+    pytest.param("period: 1 ms, critical", "rate: 1e-300 Hz, critical", "E513",
+                 r"rate of task 'robot' must be between one cycle an hour and 100 kHz, got: 1e-300 Hz", id="rate_1e-300_hz"),
+]
+
+
+@pytest.mark.parametrize(("old", "new", "code", "message"), ISSUE_33_MISTAKES)
+def test_check_refuses_a_value_out_of_its_bounds_at_its_line_and_exits_1(tmp_path, capsys, old, new, code, message):
+    assert old in DEMO
+    text = DEMO.replace(old, new, 1)
+    path = write(tmp_path, text)
+    assert main(["check", str(path)]) == 1
+    err = capsys.readouterr().err
+    column = text.splitlines()[line_of(text, new) - 1].index(new.split(": ", 1)[1].split(",")[0]) + 1
+    assert re.match(rf"^{re.escape(str(path))}:{line_of(text, new)}:{column}: error\[{code}\]: {message}", err), err
+    assert "Traceback" not in err and re.search(r"^1 error, 0 warnings$", err, re.MULTILINE)
+
+
 def test_check_of_a_missing_file_is_an_error_not_a_traceback(tmp_path, capsys):
     assert main(["check", str(tmp_path / "nowhere.yaml")]) == 1
     err = capsys.readouterr().err
@@ -71,11 +99,13 @@ def test_check_of_a_missing_file_is_an_error_not_a_traceback(tmp_path, capsys):
 
 
 @pytest.mark.multiprocess
-def test_run_refuses_a_file_with_errors_and_starts_nothing(tmp_path):
-    done = subprocess.run([sys.executable, "-m", "pbo_runtime.cli", "run", str(write(tmp_path, three_mistakes()))],
+@pytest.mark.parametrize(("text", "errors"), [(three_mistakes(), 3), (DEMO.replace("subsystem: puma", "subsystem: " + "p" * 300), 1)],
+                         ids=["three_mistakes", "a_300_character_name"])
+def test_run_refuses_a_file_with_errors_and_starts_nothing(tmp_path, text, errors):
+    done = subprocess.run([sys.executable, "-m", "pbo_runtime.cli", "run", str(write(tmp_path, text))],
                           capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert done.returncode == 1
-    assert len(re.findall(r": error\[E\d+\]: ", done.stderr)) == 3 and "Traceback" not in done.stderr
+    assert len(re.findall(r": error\[E\d+\]: ", done.stderr)) == errors and "Traceback" not in done.stderr
     assert "starting subsystem" not in done.stdout
 
 

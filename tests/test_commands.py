@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 
 import numpy as np
@@ -15,6 +16,7 @@ from pbo_runtime.cli.main import _parser
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import BadRequest
+from pbo_runtime.objects.ranges import Range
 from pbo_runtime.supervisor.commands import COMMANDS, SERVED, VERBS, WHICH_RUN, dispatch, parse_job_object, verb_table
 from tests.support import REPO
 from tests.fake_job_host import FakeJobHost, fake_subsystem
@@ -153,6 +155,8 @@ def test_an_event_is_sent_with_its_values(goal_host):
     ({"task": "goal", "values": [0.0] * 257}, r"must be at most 256 numbers, got: 257$"),
     ({"task": "goal", "values": [0.1, 0.2, 0.3]}, r"^task 'goal' takes events of 6 values \(goal_input's EVENT_SHAPE\), got 3$"),
     ({"task": "goal", "values": None}, r"^task 'goal' takes events of 6 values \(goal_input's EVENT_SHAPE\), got 0$"),
+    ({"task": "goal", "values": [0.3, -0.5, 1.0e308, 0.2, 0.4, 0.2]},
+     r"^the values of an event for 'goal' must be in \[-100, 100\] \(goal_input's EVENT_RANGE\), got: 1e\+308 \(value 3\)$"),
     ({"task": ["goal"], "values": [0.0]}, r"^task must be named by text, got: a list \(tasks: robot, goal, traj, pid\)$"),
     ({"task": "goal", "values": [0.0], "priority": 1}, r"^'event' takes no argument 'priority' \(its arguments: task, values\)$"),
 ])
@@ -183,6 +187,17 @@ def test_a_job_object_that_is_not_finite_numbers_of_its_shape_is_refused_before_
     with pytest.raises(BadRequest, match=refusal):
         dispatch(host, "job", {"job": "reach", "object": job_object})
     assert host.plans == [] and host.job_control.job is None and (host.values["q_d"] == before).all()
+
+
+def test_a_job_object_outside_its_types_range_is_refused_naming_the_range(subsystem):
+    kind = subsystem.object_types["joint_position"]
+    ranged = dataclasses.replace(kind, range=Range(-3.2, 3.2, low_open=False, high_open=False))  # range: [-3.2, 3.2]
+    host = FakeJobHost(dataclasses.replace(subsystem, object_types={"joint_position": ranged}), "pid")
+    with pytest.raises(BadRequest, match=r"^job 'reach': object 'q_d': element 6 must be in \[-3\.2, 3\.2\] \(the range of object "
+                                         r"type 'joint_position'\), got: 7$"):
+        dispatch(host, "job", {"job": "reach", "object": [0.0] * 5 + [7.0]})
+    assert host.job_control.job is None
+    assert dispatch(host, "job", {"job": "reach", "object": [-3.2] + [0.0] * 4 + [3.2]})["job"] == "reach"  # its ends are in it
 
 
 @pytest.mark.parametrize("command, arguments, refusal", [

@@ -135,8 +135,12 @@ def test_a_robot_interface_on_an_arm_in_the_other_mode_is_refused_at_its_module(
     pytest.param("wrist_wrench: [0]", "[0]", "E320", r"plant option wrist_wrench must have 6 values, got: 1",
                  id="a_wrench_of_one_value"),
     pytest.param("seed: lucky", "lucky", "E320", r"plant option seed must be an integer, got: 'lucky'", id="a_wrong_type"),
-    pytest.param("adc_noise: -1", "-1", "E320", r"plant option adc_noise must be a finite number >= 0 .*, got: -1\.0",
+    pytest.param("adc_noise: -1", "-1", "E320", r"plant option adc_noise must be in \[0, 10\], got: -1",
                  id="a_value_out_of_range"),
+    pytest.param("q0: [0, 0, .nan, 0, 0, 0]", ".nan", "E320", r"plant option q0\[2\] must be a finite number, got: \.nan \(not a number\)",
+                 id="a_value_that_is_not_finite_at_its_element"),
+    pytest.param("command_timeout: 1.0e+300", "1.0e+300", "E320", r"plant option command_timeout must be in \[0, 3600\], got: 1e\+300",
+                 id="a_time_beyond_its_range"),
 ])
 def test_plant_options_are_checked_against_what_the_plant_declares(tmp_path: Path, options, needle, code, message) -> None:
     text = edited(BASE, ("timestep: 1 ms}", f"timestep: 1 ms, {options}}}"))

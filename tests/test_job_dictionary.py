@@ -296,7 +296,7 @@ def test_the_job_dictionary_gives_each_icon_its_class_type_and_edges_as_plain_da
     assert json.loads(json.dumps(dictionary)) == dictionary  # plain data: the API hands it on as it is
     assert dictionary["object_types"]["joint_position"] == {
         "index": 0, "type": "float64", "shape": [6], "unit": "rad", "doc": "a position of the joints", "declared": True,
-        "variables": ["q_d"], "objects": ["home", "ready"]}
+        "variables": ["q_d"], "range": None, "objects": ["home", "ready"]}
     notch = {"left": {"shape": "flat", "object_type": None}, "right": {"shape": "notch", "object_type": "joint_position"}}
     flat = {"left": {"shape": "flat", "object_type": None}, "right": {"shape": "flat", "object_type": None}}
     tab = {"left": {"shape": "tab", "object_type": "joint_position"}, "right": {"shape": "flat", "object_type": None}}

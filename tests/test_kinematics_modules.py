@@ -422,27 +422,31 @@ def test_cartesian_trajectory_respects_linear_and_angular_velocity_and_accelerat
 @pytest.mark.parametrize(
     ("module", "params", "message"),
     [
-        (FkJacobian, {"frame": ""}, r"frame must name a frame of the arm, got: ''"),
-        (InverseDynamics, {"max_torque": 0.0}, r"max_torque must be > 0, got: 0\.0"),
-        (GravityCompensation, {"scale": -1.0}, r"scale must be a finite number >= 0, got: -1\.0"),
-        (GravityCompensation, {"scale": math.nan}, r"scale must be a finite number >= 0, got: nan"),
-        (ResolvedRate, {"gain": 0.0}, r"gain must be a finite number > 0, got: 0\.0"),
-        (ResolvedRate, {"max_joint_speed": -1.0}, r"max_joint_speed must be > 0, got: -1\.0"),
-        (DampedLeastSquares, {"gain": math.inf}, r"gain must be a finite number > 0, got: inf"),
-        (DampedLeastSquares, {"damping": -0.1}, r"damping must be a finite number >= 0, got: -0\.1"),
+        (FkJacobian, {"frame": ""}, r"bad parameters for FkJacobian: frame must name a frame of the arm, got: ''"),
+        (InverseDynamics, {"max_torque": 0.0}, r"InverseDynamics\.max_torque must be a number > 0, or \.inf for no limit, got: 0"),
+        (InverseDynamics, {"max_torque": math.nan}, r"InverseDynamics\.max_torque must be a number > 0, or \.inf for no limit, "
+                                                     r"got: \.nan \(not a number\)"),
+        (GravityCompensation, {"scale": -1.0}, r"GravityCompensation\.scale must be in \[0, 10\], got: -1"),
+        (GravityCompensation, {"scale": math.nan}, r"GravityCompensation\.scale must be in \[0, 10\], got: \.nan \(not a number\)"),
+        (ResolvedRate, {"gain": 0.0}, r"ResolvedRate\.gain must be in \(0, 10000\], got: 0"),
+        (ResolvedRate, {"max_joint_speed": -1.0}, r"ResolvedRate\.max_joint_speed must be a number > 0, or \.inf for no limit, got: -1"),
+        (DampedLeastSquares, {"gain": math.inf}, r"DampedLeastSquares\.gain must be in \(0, 10000\], got: \.inf"),
+        (DampedLeastSquares, {"damping": -0.1}, r"DampedLeastSquares\.damping must be in \[0, 10\], got: -0\.1"),
         (DampedLeastSquares, {"max_damping": 0.0},
-         r"max_damping and manipulability_threshold must both be > 0 \(variable damping\) or both 0, got: 0\.0, 0\.01"),
+         r"bad parameters for DampedLeastSquares: max_damping and manipulability_threshold must both be > 0 \(variable damping\) "
+         r"or both 0, got: 0\.0, 0\.01"),
         (DampedLeastSquares, {"max_damping": 0.0, "manipulability_threshold": 0.0},
-         r"damping or max_damping must be > 0, or J J\^T is singular at a singularity"),
-        (DampedLeastSquares, {"max_joint_speed": 0.0}, r"max_joint_speed must be > 0, got: 0\.0"),
-        (TimeIntegrator, {"max_lead": 0.0}, r"max_lead must be > 0, got: 0\.0"),
-        (CartesianTrajectory, {"max_linear_velocity": 0.0}, r"max_linear_velocity must be a finite number > 0, got: 0\.0"),
+         r"bad parameters for DampedLeastSquares: damping or max_damping must be > 0, or J J\^T is singular at a singularity"),
+        (DampedLeastSquares, {"max_joint_speed": 0.0},
+         r"DampedLeastSquares\.max_joint_speed must be a number > 0, or \.inf for no limit, got: 0"),
+        (TimeIntegrator, {"max_lead": 0.0}, r"TimeIntegrator\.max_lead must be a number > 0, or \.inf for no limit, got: 0"),
+        (CartesianTrajectory, {"max_linear_velocity": 0.0}, r"CartesianTrajectory\.max_linear_velocity must be in \(0, 100\], got: 0"),
         (CartesianTrajectory, {"max_angular_acceleration": -2.0},
-         r"max_angular_acceleration must be a finite number > 0, got: -2\.0"),
+         r"CartesianTrajectory\.max_angular_acceleration must be in \(0, 10000\], got: -2"),
     ],
 )
 def test_modules_refuse_bad_params_saying_which_and_why(module, params, message):
-    with pytest.raises(ParamError, match=rf"^bad parameters for {module.__name__}: {message}$"):
+    with pytest.raises(ParamError, match=rf"^{message}$"):
         module.build_params(params)
 
 

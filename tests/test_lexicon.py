@@ -37,8 +37,9 @@ def test_pid_joint_shows_its_ports_and_gains():
     params = {p["name"]: p for p in pid["params"]}
     assert params["kp"]["default"] == 400.0 and params["kp"]["type"] == "float | tuple[float, ...]"
     assert params["kp"]["doc"] == "N m / rad" and not params["kp"]["required"]
+    assert params["kp"]["range"] == "in [0, 1e+06]" and params["integral_limit"]["range"] == "in [0, 10000]"
     assert params["gravity_feedforward"] == {"name": "gravity_feedforward", "type": "bool", "default": True,
-                                             "required": False, "doc": ""}
+                                             "required": False, "doc": "", "range": ""}
     ports = {p["name"]: p for p in pid["ports"]}
     assert ports["tau"] == {"name": "tau", "kind": "out-var", "variable": "tau_u", "dtype": "float64", "shape": "[NDOF]",
                             "doc": "joint torque command, N m"}

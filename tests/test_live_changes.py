@@ -51,6 +51,9 @@ def test_a_spawned_task_is_checked_spawned_and_turned_on_at_one_cycle_boundary(h
     ({"module": "data_loger"}, r"^spawning task 'logger' would break the live configuration:\n<pbo spawn logger --module>:1:1: error\[E207\]: "
                                r"task 'logger' uses module 'data_loger', which is not registered\n  hint: did you mean 'data_logger'\?"),
     ({"period": "-5 ms"}, r"^spawning task 'logger' would break the live configuration:\n<pbo spawn logger --period>:1:1: error\[E"),
+    ({"period": "1e300 s"}, r"^spawning task 'logger' would break the live configuration:\n<pbo spawn logger --period>:1:1: error\[E513\]: "
+                            r"period of task 'logger' must be between 10 us and 1 h, got: 1e300 s\n"),
+    ({"task": "l" * 41}, r"^a task's name is a letter or '_' then letters, digits or '_', at most 40 characters, got: 'l{41}'$"),
     ({"params": ["variables=[q_m, q_x]", "path=x.npy"]},
      r"^spawning task 'logger' \(a live change cannot add a state variable: add it to the file's variables: and restart\) "
      r"would break the live configuration:\n<pbo spawn logger>:1:1: error\[E206\]: "),
@@ -171,6 +174,28 @@ def test_a_replace_that_is_wrong_is_refused(host, arguments, refusal):
     assert host.plans == [] and host.task_states["pid"] == "ON"
 
 
+# --- a parameter's range, at every live door ----------------------------------------------------
+
+
+@pytest.mark.parametrize("value, shown", [("1.0e+308", r"1e\+308"), (".nan", r"\.nan \(not a number\)"), ("-.inf", r"-\.inf")])
+@pytest.mark.parametrize("verb, arguments, where, task", [
+    ("set", {"task": "pid", "param": "kp"}, "<pbo set pid kp>", "pid"),
+    ("replace", {"task": "pid", "new": "pd2"}, "<pbo replace pid pd2 --param kp>", "pd2"),
+    ("spawn", {**LOGGER, "task": "pid2", "module": "pid_joint", "params": ["ki=0"], "ports": ["tau=tau_u"]},
+     "<pbo spawn pid2 --param kp>", "pid2"),
+])
+def test_a_parameter_out_of_its_range_is_refused_with_the_same_words_at_every_live_door(host, verb, arguments, where, task,
+                                                                                         value, shown):
+    if verb == "set":
+        arguments = {**arguments, "values": [value]}
+    else:
+        arguments = {**arguments, "params": [*arguments.get("params", []), f"kp={value}"]}
+    with pytest.raises(BadRequest, match=rf"\n{re.escape(where)}:1:1: error\[E308\]: parameter kp of task '{task}' "
+                                         rf"\(module 'pid_joint'\) must be in \[0, 1e\+06\], got: {shown}\n"):
+        dispatch(host, verb, arguments)
+    assert host.plans == [] and host.subsystem.tasks["pid"].params["kp"] == 400
+
+
 # --- set --------------------------------------------------------------------------------------
 
 
@@ -188,7 +213,13 @@ def test_a_tunable_parameter_is_set_at_a_cycle_boundary(host):
      r"\(live-tunable: kp, kd, ki\); to change it, replace the task: pbo replace pid NEW --param gravity_feedforward=...$"),
     ({"param": "kq", "values": ["1"]}, r"^module 'pid_joint' of task 'pid' has no parameter 'kq' \(parameters: kp, kd, ki, "
                                        r"integral_limit, gravity_feedforward; live-tunable: kp, kd, ki\)$"),
-    ({"param": "kp", "values": ["-3"]}, r"^setting 'kp' of task 'pid' would break the live configuration:\n.*error\[E308\]: .*kp must be >= 0"),
+    *[({"param": "kp", "values": [value]},
+       rf"^setting 'kp' of task 'pid' would break the live configuration:\n<pbo set pid kp>:1:1: error\[E308\]: parameter kp of "
+       rf"task 'pid' \(module 'pid_joint'\) must be in \[0, 1e\+06\], got: {shown}\n")
+      for value, shown in [("-3", "-3"), ("1.0e+308", r"1e\+308"), (".nan", r"\.nan \(not a number\)"), (".inf", r"\.inf")]],
+    ({"param": "kp", "values": ["1", "2", ".nan", "4", "5", "6"]},
+     r"<pbo set pid kp \(value 3\)>:1:1: error\[E308\]: parameter kp\[2\] of task 'pid' \(module 'pid_joint'\) must be in "
+     r"\[0, 1e\+06\], got: \.nan \(not a number\)"),
     ({"param": "kp", "values": ["fast"]}, r"^setting 'kp' of task 'pid' would break the live configuration:\n.*error\[E308\]: "),
     ({"param": "kp", "values": []}, r"^pbo set pid kp needs a value$"),
 ])

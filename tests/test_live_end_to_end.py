@@ -121,6 +121,11 @@ def test_the_live_verbs_work_from_another_terminal_and_a_refusal_reads_as_pbo_ch
         assert lines[-1] == "3 errors, 0 warnings"
         not_tunable = pbo("set", "pid", "gravity_feedforward", "false")
         assert not_tunable.returncode == 1 and "(live-tunable: kp, kd, ki)" in not_tunable.stderr
+        for value, shown in (("1.0e+308", "1e+308"), (".nan", ".nan (not a number)")):  # the arm never sees it
+            out_of_range = pbo("set", "pid", "kp", value)
+            assert out_of_range.returncode == 1 and "Traceback" not in out_of_range.stderr, out_of_range
+            assert (f"<pbo set pid kp>:1:1: error[E308]: parameter kp of task 'pid' (module 'pid_joint') must be in [0, 1e+06], "
+                    f"got: {shown}\n") in out_of_range.stderr
         assert pbo("set", "pid", "kp", "300").returncode == 0
         saved = tmp_path / "saved.yaml"
         wrote = pbo("save", str(saved))

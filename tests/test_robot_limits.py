@@ -22,7 +22,7 @@ from drivers.mujoco_arm.plant import MujocoArmPlant
 from modules._robot_limits import SATURATION_BOUND, VELOCITY_TOLERANCE, ArmLimits
 from modules.robot_position import RobotPosition
 from modules.robot_torque import RobotTorque
-from pbo_runtime import Arm, Status
+from pbo_runtime import Arm, ParamError, Status
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.table.table import StateTable, TaskState
@@ -375,15 +375,7 @@ def test_the_injector_command_refuses_a_number_that_is_not_finite():
 
 
 @pytest.mark.parametrize("module", [RobotTorque, RobotPosition])
-def test_a_robot_interface_refuses_a_negative_position_tolerance(make_table, plant, module):
-    n = plant.ndof
-    table = make_table(variables(*arm_constants(n), ("q_m", "float64", (n,)), ("qd_m", "float64", (n,)),
-                                 ("tau_u", "float64", (n,)), ("q_r", "float64", (n,))))
-    params = {"position_tolerance": -1.0}
-    mode = "torque" if module is RobotTorque else "position"
-    spec = dataclasses.replace(task_spec(module, dims={"NDOF": n}, params=params), resources=("arm",))
-    task = Task(spec, module, table, {"NDOF": n}, devices={"arm": DeviceSpec("arm", "mujoco_arm", True, {"mode": mode})},
-                opener=lambda s, _t: MujocoArmDriver(plant.name, s.options))
-    assert not task.spawn(0.0)
-    assert "position_tolerance >= 0" in task.last_error
+def test_a_robot_interface_refuses_a_negative_position_tolerance_naming_its_range(module):
+    with pytest.raises(ParamError, match=r"position_tolerance must be in \[0, 1\], got: -1"):
+        module.build_params({"position_tolerance": -1.0})
 

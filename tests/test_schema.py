@@ -194,7 +194,10 @@ def test_every_module_has_a_params_branch_from_its_params_dataclass(schema):
         params = _resolve(schema, ref)
         assert params["type"] == "object" and params["additionalProperties"] is False
     pid = schema["$defs"]["params_pid_joint"]["properties"]
-    assert pid["kp"]["oneOf"] == [{"type": "number"}, {"type": "array", "items": {"type": "number"}}]
+    gain = {"type": "number", "minimum": 0.0, "maximum": 1e6}  # its declared range, each gain of a list too
+    assert pid["kp"]["oneOf"] == [gain, {"type": "array", "items": gain}]
+    trajectory = schema["$defs"]["params_joint_trajectory"]["properties"]
+    assert trajectory["max_velocity"]["exclusiveMinimum"] == 0.0 and trajectory["max_velocity"]["maximum"] == 100.0
     assert pid["kp"]["default"] == 400.0
     assert pid["gravity_feedforward"]["type"] == "boolean"
     logger = schema["$defs"]["params_data_logger"]
@@ -257,7 +260,7 @@ def test_an_unknown_key_does_not_conform(schema):
     ({"q0": [0.0, 0.1, 0.2, 0.0, 0.0, 0.0], "adc_noise": 0.01, "seed": 3}, True),  # declared by the plant's Options
     ({"q_0": [0.0] * 6}, False),  # not an option of mujoco_arm
     ({"seed": "three"}, False),  # an option of the wrong type
-    ({"type": "mujoco_arm", "adc_noise": -0.5}, True),  # a value's range is the checker's (E320), not the schema's
+    ({"type": "mujoco_arm", "adc_noise": -0.5}, False),  # below its declared range: the schema's minimum, as the checker's E320
 ])
 def test_a_plants_options_are_checked_against_what_the_plant_declares(schema, options, conforms):
     doc = demo()

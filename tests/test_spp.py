@@ -65,8 +65,10 @@ def spp():
 
 
 @pytest.mark.parametrize("options, message", [
-    ({"memory": 0}, r"spp option memory must be a whole number >= 1, got: 0"),
-    ({"start_timeout": -1}, r"spp option start_timeout must be a number of seconds > 0"),
+    ({"memory": 0}, r"spp option memory must be a whole number in \[1, 16777216\], got: 0"),
+    ({"memory": 10**15}, r"spp option memory must be a whole number in \[1, 16777216\], got: 1000000000000000"),
+    ({"start_timeout": -1}, r"spp option start_timeout must be a number of seconds in \(0, 3600\]"),
+    ({"start_timeout": float("nan")}, r"spp option start_timeout must be a number of seconds in \(0, 3600\]"),
     ({"cores": 4}, r"unknown spp option\(s\) \['cores'\]; valid options: memory, download_bytes, start_timeout"),
 ])
 def test_bad_spp_options_are_refused_before_any_processor_starts(options, message):

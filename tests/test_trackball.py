@@ -102,7 +102,8 @@ def test_pbo_lexicon_lists_the_trackball_driver_as_a_sensor_actuator_driver():
     ({}, r"source: script takes exactly one of script \(inline waypoints\) or file"),
     ({"source": "hmi", "script": [[1, 0, 0, 0, 0, 0, 0]]}, r"source: hmi is played by the operator; it takes no script"),
     ({"source": "joystick"}, r"source must be one of script, hmi, got: 'joystick'"),
-    ({"source": "hmi", "reach": 0}, r"option reach must be a number > 0 \(m\), got: 0"),
+    ({"source": "hmi", "reach": 0}, r"option reach must be a number in \(0, 10\] \(m\), got: 0"),
+    ({"source": "hmi", "turn": float("inf")}, r"option turn must be a number in \(0, 10\] \(rad\), got: inf"),
     ({"script": [[1.0, 0, 0]]}, r"each waypoint is 7 numbers"),
     ({"source": "hmi", "speed": 1}, r"unknown trackball option\(s\) \['speed'\]"),
 ])

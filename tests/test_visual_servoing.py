@@ -190,13 +190,15 @@ def test_noise_is_gaussian_of_the_given_size_and_seeded(plant, make_camera):
 @pytest.mark.parametrize(
     ("options", "message"),
     [
-        ({"noise": -0.1}, r"^camera option noise must be a finite number >= 0 \(standard deviation, m\), got: -0.1$"),
-        ({"noise": float("nan")}, r"^camera option noise must be a finite number >= 0"),
-        ({"noise": "1 mm"}, r"^camera option noise must be a finite number >= 0 .*got: '1 mm'$"),
-        ({"latency": -1}, r"^camera option latency must be a whole number of frames >= 0, got: -1$"),
-        ({"latency": 1.5}, r"^camera option latency must be a whole number of frames >= 0, got: 1.5$"),
-        ({"latency": True}, r"^camera option latency must be a whole number of frames >= 0, got: True$"),
-        ({"seed": -3}, r"^camera option seed must be an integer >= 0, got: -3$"),
+        ({"noise": -0.1}, r"^camera option noise must be a number in \[0, 10\] \(standard deviation, m\), got: -0.1$"),
+        ({"noise": float("nan")}, r"^camera option noise must be a number in \[0, 10\]"),
+        ({"noise": float("inf")}, r"^camera option noise must be a number in \[0, 10\]"),
+        ({"noise": "1 mm"}, r"^camera option noise must be a number in \[0, 10\] .*got: '1 mm'$"),
+        ({"latency": -1}, r"^camera option latency must be a whole number of frames in \[0, 10000\], got: -1$"),
+        ({"latency": 10**12}, r"^camera option latency must be a whole number of frames in \[0, 10000\], got: 1000000000000$"),
+        ({"latency": 1.5}, r"^camera option latency must be a whole number of frames in \[0, 10000\], got: 1.5$"),
+        ({"latency": True}, r"^camera option latency must be a whole number of frames in \[0, 10000\], got: True$"),
+        ({"seed": -3}, r"^camera option seed must be an integer in \[0, 4294967295\], got: -3$"),
         ({"blur": 1}, r"^unknown camera driver option\(s\) \['blur'\]; valid options: latency, noise, seed$"),
     ],
 )

@@ -5,6 +5,8 @@ on a live subsystem (a fake job host: no process, a manual clock).
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from pbo_runtime.config.live_save import saved_text
@@ -123,6 +125,18 @@ def test_an_objects_value_that_does_not_fit_its_type_is_refused_and_the_file_kep
     with pytest.raises(SaveRefused, match=refusal):
         save_object(subsystem.file, subsystem, name, value)
     assert open(subsystem.file).read() == before
+
+
+def test_an_objects_value_outside_its_types_range_is_refused_as_pbo_check_refuses_it(subsystem):
+    text = open(subsystem.file).read()
+    declared = re.search(r"^  joint_position: \{.*\}$", text, re.MULTILINE)
+    assert declared is not None
+    ranged = text.replace(declared[0], declared[0][:-1] + ", range: [-1, 1]}")
+    open(subsystem.file, "w").write(ranged)
+    with pytest.raises(SaveRefused, match=r"^object 'ready' \(type joint_position\): element 3 must be in \[-1, 1\] \(the range of "
+                                          r"object type 'joint_position'\), got: 1\.5$"):
+        save_object(subsystem.file, load_subsystem(subsystem.file), "ready", [0, 0, 1.5, 0, 0, 0])
+    assert open(subsystem.file).read() == ranged
 
 
 # --- running a row on the live subsystem --------------------------------------------------------------

@@ -41,8 +41,8 @@ class ParallelForceTorque(DeviceDriver):
         if unknown:
             raise ValueError(f"unknown ft_parallel option(s) {unknown}; valid options: {', '.join(_OPTIONS)}")
         timeout = options.get("timeout", 0.5)
-        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not (math.isfinite(timeout) and timeout > 0):
-            raise ValueError(f"ft_parallel option timeout must be a number of seconds > 0, got: {timeout!r}")
+        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not (math.isfinite(timeout) and 0 < timeout <= 3600):
+            raise ValueError(f"ft_parallel option timeout must be a number of seconds in (0, 3600], got: {timeout!r}")
 
     def __init__(self, registers: str, options: Mapping[str, Any], *, channels: tuple[int, ...] | None = None,
                  io: DeviceDriver | None = None) -> None:

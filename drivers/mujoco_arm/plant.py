@@ -52,7 +52,7 @@ from drivers.mujoco_arm.registers import (
     create_registers,
 )
 from drivers.robots.plant_model import PlantRobot, load_robot
-from pbo_runtime import ROBOT_OPTIONS, unlink_quietly
+from pbo_runtime import ROBOT_OPTIONS, param, unlink_quietly
 
 # Simulated seconds without a new command after which the arm holds on its brakes, as a drive's
 # watchdog does when its controller stops (a stopped robot interface cannot engage them itself)
@@ -93,10 +93,10 @@ class MujocoArmPlantOptions:
     velocity_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # rad/s: tightens the file's, or gives one
     joint_limits: tuple[tuple[float, ...], ...] | None = field(default=None, metadata=_PER_JOINT)  # rad: [lower, upper] per joint, within the file's
     target: Mapping[str, Any] | None = None  # a moving target for a camera: {center, radius, period, phase, orientation}
-    wrist_wrench: tuple[float, ...] = field(default=(0.0,) * 6, metadata={"shape": (6,)})  # N, N m, sensor frame
-    adc_noise: float = 0.0  # V: standard deviation of each ADC conversion
-    seed: int = 0  # seeds the ADC noise
-    command_timeout: float = COMMAND_TIMEOUT  # s: the drive's watchdog (0: none)
+    wrist_wrench: tuple[float, ...] = param((0.0,) * 6, at_least=-1e4, at_most=1e4, shape=(6,))  # N, N m, sensor frame
+    adc_noise: float = param(0.0, at_least=0, at_most=10)  # V: standard deviation of each ADC conversion
+    seed: int = param(0, at_least=0, at_most=2**32 - 1)  # seeds the ADC noise
+    command_timeout: float = param(COMMAND_TIMEOUT, at_least=0, at_most=3600)  # s: the drive's watchdog (0: none)
 
     def __post_init__(self) -> None:
         _target_options(self.target)

@@ -48,6 +48,8 @@ from pbo_runtime import DeviceDriver, create_segment, unlink_quietly
 
 _OPTIONS = ("memory", "download_bytes", "start_timeout")
 _DEFAULTS = {"memory": 4096, "download_bytes": 262144, "start_timeout": 60.0}
+_MAX_MEMORY = 1 << 24  # the processor's memory and its downloads are allocated: a typo must not take the machine's
+_MAX_DOWNLOAD_BYTES = 64 << 20
 _POLL = 0.001  # seconds between looks while init or on waits for the processor
 _STOP_TIMEOUT = 2.0
 _opened = 0  # processors this process started: part of their names
@@ -66,13 +68,13 @@ def _check_options(options: Mapping[str, Any]) -> dict[str, Any]:
     if unknown:
         raise ValueError(f"unknown spp option(s) {unknown}; valid options: {', '.join(_OPTIONS)}")
     checked = {**_DEFAULTS, **options}
-    for name in ("memory", "download_bytes"):
+    for name, most in (("memory", _MAX_MEMORY), ("download_bytes", _MAX_DOWNLOAD_BYTES)):
         value = checked[name]
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"spp option {name} must be a whole number >= 1, got: {value!r}")
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= most:
+            raise ValueError(f"spp option {name} must be a whole number in [1, {most}], got: {value!r}")
     timeout = checked["start_timeout"]
-    if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not (math.isfinite(timeout) and timeout > 0):
-        raise ValueError(f"spp option start_timeout must be a number of seconds > 0, got: {timeout!r}")
+    if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not (math.isfinite(timeout) and 0 < timeout <= 3600):
+        raise ValueError(f"spp option start_timeout must be a number of seconds in (0, 3600], got: {timeout!r}")
     return checked
 
 

@@ -52,8 +52,8 @@ def _check_options(options: Mapping[str, Any]) -> tuple[str, float, float]:
     bounds = []
     for key, default, unit in (("reach", 0.3, "m"), ("turn", 1.0, "rad")):
         value = options.get(key, default)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
-            raise ValueError(f"trackball option {key} must be a number > 0 ({unit}), got: {value!r}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and 0 < value <= 10):
+            raise ValueError(f"trackball option {key} must be a number in (0, 10] ({unit}), got: {value!r}")
         bounds.append(float(value))
     return str(source), bounds[0], bounds[1]
 

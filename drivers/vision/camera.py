@@ -37,14 +37,14 @@ def _check_options(options: Mapping[str, Any]) -> tuple[float, int, int]:
     if unknown:
         raise ValueError(f"unknown camera driver option(s) {unknown}; valid options: {', '.join(_OPTIONS)}")
     noise = options.get("noise", 0.0)
-    if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not (math.isfinite(noise) and noise >= 0):
-        raise ValueError(f"camera option noise must be a finite number >= 0 (standard deviation, m), got: {noise!r}")
+    if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not (math.isfinite(noise) and 0 <= noise <= 10):
+        raise ValueError(f"camera option noise must be a number in [0, 10] (standard deviation, m), got: {noise!r}")
     latency = options.get("latency", 0)
-    if isinstance(latency, bool) or not isinstance(latency, int) or latency < 0:
-        raise ValueError(f"camera option latency must be a whole number of frames >= 0, got: {latency!r}")
+    if isinstance(latency, bool) or not isinstance(latency, int) or not 0 <= latency <= 10_000:
+        raise ValueError(f"camera option latency must be a whole number of frames in [0, 10000], got: {latency!r}")
     seed = options.get("seed", 0)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ValueError(f"camera option seed must be an integer >= 0, got: {seed!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= 2**32 - 1:
+        raise ValueError(f"camera option seed must be an integer in [0, 4294967295], got: {seed!r}")
     return float(noise), latency, seed
 
 

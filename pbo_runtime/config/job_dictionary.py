@@ -71,6 +71,7 @@ def job_dictionary(subsystem: Subsystem) -> dict[str, Any]:
     object_types = {
         name: {"index": index, "type": kind.dtype, "shape": list(kind.shape), "unit": kind.unit, "doc": kind.doc,
                "declared": kind.declared, "variables": variables_of.get(name, []),
+               "range": [kind.range.low, kind.range.high] if kind.range is not None else None,
                "objects": [o.name for o in subsystem.objects.values() if o.type == name]}
         for index, (name, kind) in enumerate(subsystem.object_types.items())
     }

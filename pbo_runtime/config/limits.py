@@ -12,6 +12,20 @@ from __future__ import annotations
 # benchmark is 2.7 MB.
 MAX_FILE_BYTES = 4 * 1024 * 1024
 
+# A name: the subsystem, an RTPU, a task, a variable, a configuration, a job, a device, ... The
+# subsystem's name is part of every shared-memory object's name, and task names travel in signals
+# and in queues sized for names this long.
+MAX_NAME = 40
+
+# A task's period (or min_interarrival): at least 10 us (a rate of at most 100 kHz), at most an hour
+# (a rate of at least one cycle an hour). Beyond them a period is a typo or a unit mixed up, and
+# the clock's integer nanoseconds would round it to nothing or overflow.
+MIN_PERIOD = 10e-6
+MAX_PERIOD = 3600.0
+
+# Any other time a file gives (a job's timeout, a restart's window, a freshness bound, a timestep).
+MAX_TIME = 86400.0
+
 # A dim, or a size written in a shape.
 MAX_DIM = 1 << 24
 

@@ -38,15 +38,15 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Mapping
 
 from pbo_runtime.config.checker import ModuleLookup
+from pbo_runtime.config.limits import MAX_NAME
 from pbo_runtime.config.loader import check_loaded, load_document
 from pbo_runtime.config.model import NOWHERE, ConfigurationSpec, Location, PortBinding, Subsystem, TaskSpec
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, plain
 from pbo_runtime.errors import ConfigError, PboError
 from pbo_runtime.objects import registry
 
-# A live task's name: a plain identifier (it travels in signals, queues are sized for names this long)
-NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,39}$")
-MAX_NAME = 40
+# A live task's name: a plain identifier, at most MAX_NAME characters (the checker's bound for every name)
+NAME = re.compile(rf"^[A-Za-z_][A-Za-z0-9_]{{0,{MAX_NAME - 1}}}$")
 SPAWN_KEYS = ("module", "rtpu", "period", "priority", "critical", "aperiodic", "min_interarrival", "wcet", "resources")
 
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping, NamedTuple
 
 from pbo_runtime.objects.ports import PortSpec
+from pbo_runtime.objects.ranges import Range
 
 
 class Location(NamedTuple):
@@ -161,6 +162,7 @@ class ObjectTypeSpec:
     doc: str = ""
     loc: Location = NOWHERE
     declared: bool = True  # False: implied by the variables marked `object: <name>` (no object_types: entry)
+    range: Range | None = None  # `range: [low, high]`: every element of an object of this type (pbo job, objects:, steps)
 
 
 @dataclass(frozen=True)

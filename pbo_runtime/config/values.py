@@ -14,6 +14,8 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
+from pbo_runtime.objects.ranges import Range, number_text
+
 INT_RANGE = {
     "int8": (-(2**7), 2**7 - 1),
     "int16": (-(2**15), 2**15 - 1),
@@ -126,3 +128,21 @@ def as_value(value: Any, dtype: str, shape: Sequence[int], what: str) -> np.ndar
     array = np.empty(tuple(shape), dtype=dtype)
     array[...] = np.asarray(value, dtype=dtype).reshape(found if found == () else tuple(shape))
     return array
+
+
+def outside_range(type_name: str, allowed: Range, value: float, position: int = 0) -> str:
+    """What is wrong with an element of an object outside its type's range: the same words from
+    `pbo check`, `pbo job`, the HMI's object editor. `position` counts from 1 (0: the only one)."""
+    element = f"element {position} " if position else ""
+    return f"{element}must be {allowed.text()} (the range of object type '{type_name}'), got: {number_text(value)}"
+
+
+def range_problem(array: np.ndarray, type_name: str, allowed: Range | None) -> str:
+    """'' if every element of `array` is in `allowed` (or none is declared), else what `outside_range` says of the first."""
+    if allowed is None:
+        return ""
+    flat = array.reshape(-1)
+    for position, element in enumerate(flat.tolist(), 1):
+        if not allowed.admits(element):
+            return outside_range(type_name, allowed, element, position if flat.size > 1 else 0)
+    return ""

@@ -24,7 +24,7 @@ from ruamel.yaml.comments import CommentedMap, CommentedSeq
 from pbo_runtime.config.live_save import merged, round_trip
 from pbo_runtime.config.loader import CheckResult, check_file
 from pbo_runtime.config.model import Subsystem
-from pbo_runtime.config.values import as_value
+from pbo_runtime.config.values import as_value, range_problem
 from pbo_runtime.errors import PboError
 
 
@@ -55,6 +55,9 @@ def save_object(file: str, subsystem: Subsystem, name: str, value: Any) -> Check
         array = as_value(value, kind.dtype, kind.shape, f"object '{name}' (type {obj.type})")
     except ValueError as exc:
         raise SaveRefused(str(exc)) from None
+    problem = range_problem(array, kind.name, kind.range)
+    if problem:
+        raise SaveRefused(f"object '{name}' (type {obj.type}): {problem}")
 
     def change(doc: CommentedMap) -> None:
         objects = doc.get("objects")

@@ -7,8 +7,10 @@ owns the loop: it transfers the ports and calls the components (see `task.lifecy
 from __future__ import annotations
 
 import dataclasses
-import functools
 import enum
+import functools
+import math
+import re
 import types
 import typing
 from pathlib import Path
@@ -18,6 +20,7 @@ import numpy as np
 
 from pbo_runtime.errors import ParamError
 from pbo_runtime.objects.ports import Port, PortSpec
+from pbo_runtime.objects.ranges import OutOfRange, Range, check_number
 
 
 class Status(enum.IntEnum):
@@ -81,6 +84,9 @@ class PortBasedObject:
     # carry, which the supervisor checks before sending it (`pbo event TASK values...`); None: any
     # list of finite numbers. A wrong event is refused to the operator, never a task in ERROR.
     EVENT_SHAPE: ClassVar[tuple[int | str, ...] | None] = None
+    # For an aperiodic task: the closed range [low, high] each value of an event must be in, which
+    # the supervisor checks with the shape; None: any finite number.
+    EVENT_RANGE: ClassVar[tuple[float, float] | None] = None
     # The parameters an operator may change while the task runs (`pbo set TASK PARAM VALUE`): `tune`
     # gets the whole new Params between two cycles. Every other parameter is read in `init` only.
     TUNABLE: ClassVar[tuple[str, ...]] = ()
@@ -293,10 +299,9 @@ def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
     if unknown:
         valid = ", ".join(sorted(fields)) or "none"
         raise ParamError(f"unknown parameter(s) {', '.join(repr(u) for u in unknown)} for {owner} (valid: {valid})")
-    hints = _type_hints(params_type)
     converted: dict[str, Any] = {}
     for name, value in values.items():
-        converted[name] = _convert(value, hints.get(name, Any), f"{owner}.{name}")
+        converted[name] = convert_param(params_type, name, value, f"{owner}.{name}")
     missing = [name for name in required if name not in converted]
     if missing:
         raise ParamError(f"missing parameter(s) {', '.join(repr(m) for m in missing)} for {owner}")
@@ -304,20 +309,37 @@ def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
         return params_type(**converted)
     except (TypeError, ValueError) as exc:
         raise ParamError(f"bad parameters for {owner}: {exc}") from None
+    except OutOfRange as exc:  # a parameter of something the Params builds (a combined module's member): not one of these
+        raise ParamError(f"bad parameters for {owner}: {exc}") from None
 
 
 def convert_param(params_type: type, name: str, value: Any, where: str) -> Any:
     """One YAML value as field `name` of a Params class takes it, or ParamError saying what it accepts.
 
-    The checker uses it to report each wrong parameter (a plant's option) at its own place."""
-    return _convert(value, _type_hints(params_type).get(name, Any), where)
+    The checker uses it to report each wrong parameter (a plant's option) at its own place; a number
+    out of range says which parameter and which element of a list (`OutOfRange.param`, `.index`)."""
+    try:
+        return _convert(value, _type_hints(params_type).get(name, Any), where, param_ranges(params_type).get(name))
+    except OutOfRange as exc:
+        exc.param = name
+        exc.index = tuple(int(i) for i in re.findall(r"\[(\d+)\]", exc.where[len(where):]))
+        raise
 
 
 def param_fields(params_type: type) -> dict[str, dataclasses.Field[Any]]:
     """The fields of a Params class by name; a field's `metadata["shape"]` (sizes or dim names, as a
     port's) says how long a list it takes: `q0: tuple[float, ...] | None = field(default=None,
-    metadata={"shape": ("NDOF",)})`."""
+    metadata={"shape": ("NDOF",)})`; its `metadata["range"]` (an `objects.ranges.Range`, which
+    `objects.ranges.param` writes) which numbers it takes."""
     return dict(_fields(params_type))
+
+
+@functools.cache
+def param_ranges(params_type: type) -> dict[str, Range]:
+    """The declared range of each field of a Params class that declares one (`param(..., at_least=0)`)."""
+    if not dataclasses.is_dataclass(params_type):
+        return {}
+    return {name: f.metadata["range"] for name, f in _fields(params_type).items() if isinstance(f.metadata.get("range"), Range)}
 
 
 @functools.cache
@@ -344,8 +366,9 @@ def _origin_and_args(hint: Any) -> tuple[Any, tuple[Any, ...]]:
     return typing.get_origin(hint), typing.get_args(hint)
 
 
-def _convert(value: Any, hint: Any, where: str) -> Any:
-    """Coerce a YAML scalar or list to the declared type; say what was expected and found."""
+def _convert(value: Any, hint: Any, where: str, allowed: Range | None = None) -> Any:
+    """Coerce a YAML scalar or list to the declared type, each number in `allowed` (a float: finite
+    at least); say what was expected and found."""
     origin, args = _origin_and_args(hint)
     if hint is Any:
         return value
@@ -357,7 +380,9 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
                     return None
                 continue
             try:
-                return _convert(value, option, where)
+                return _convert(value, option, where, allowed)
+            except OutOfRange:
+                raise  # the value is of this kind, only out of range: say so, not every kind the union takes
             except ParamError as exc:
                 errors[option] = str(exc)
         # A list whose items are wrong is best told about its items, if only one option takes a list;
@@ -376,10 +401,17 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
         raise ParamError(f"{where} must be true or false, got: {value!r}")
     if hint is float:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
+            try:
+                number = float(value)
+            except OverflowError:  # an integer beyond any float
+                number = math.inf if value > 0 else -math.inf
+            check_number(number, allowed, where)
+            return number
         raise ParamError(f"{where} must be a number, got: {value!r}")
     if hint is int:
         if isinstance(value, int) and not isinstance(value, bool):
+            if allowed is not None:
+                check_number(value, allowed, where)
             return value
         raise ParamError(f"{where} must be an integer, got: {value!r}")
     if hint is str:
@@ -390,7 +422,7 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
         if not isinstance(value, (list, tuple)):
             raise ParamError(f"{where} must be a list, got: {value!r}")
         item = args[0] if args else Any
-        return tuple(_convert(v, item, f"{where}[{i}]") for i, v in enumerate(value))
+        return tuple(_convert(v, item, f"{where}[{i}]", allowed) for i, v in enumerate(value))
     return value
 
 

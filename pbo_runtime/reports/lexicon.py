@@ -25,7 +25,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from pbo_runtime.objects import registry
-from pbo_runtime.objects.module import PortBasedObject
+from pbo_runtime.objects.module import PortBasedObject, param_ranges
+from pbo_runtime.objects.ranges import FINITE
 from pbo_runtime.objects.ports import PortSpec
 
 PORTS_FROM_PARAMS = "ports depend on params (besides those listed)"
@@ -155,7 +156,10 @@ def _ports_note(cls: type[PortBasedObject]) -> str | None:
 
 
 def params_info(params_type: type | None) -> list[dict[str, Any]]:
-    """The fields of a module's `Params` dataclass: name, type (text), default, required, doc.
+    """The fields of a module's `Params` dataclass: name, type (text), default, required, doc, range.
+
+    The range is the field's declared one in words ('in [0, 1e+06]'; `objects.ranges.param`), or
+    'a finite number' for a number parameter that declares none, else empty.
 
     The doc is the field's `metadata['doc']`, else the comment at the end of its line in the
     source (`kp: Gain = 400.0  # N m / rad`), else empty.
@@ -167,6 +171,7 @@ def params_info(params_type: type | None) -> list[dict[str, Any]]:
     except Exception:  # unresolvable annotations: fall back to the raw ones
         hints = {}
     comments = field_comments(params_type)
+    ranges = param_ranges(params_type)
     out = []
     for f in dataclasses.fields(params_type):
         hint = hints.get(f.name, f.type)
@@ -184,9 +189,17 @@ def params_info(params_type: type | None) -> list[dict[str, Any]]:
                 "default": jsonable(default),
                 "required": required,
                 "doc": str(f.metadata.get("doc", "")) or comments.get(f.name, ""),
+                "range": ranges[f.name].text() if f.name in ranges else FINITE.text() if _takes_numbers(hint) else "",
             }
         )
     return out
+
+
+def _takes_numbers(hint: Any) -> bool:
+    """Whether a field of this type takes floats (a number, a list of them), which are finite at least."""
+    if hint is float:
+        return True
+    return any(_takes_numbers(arg) for arg in typing.get_args(hint) if arg is not Ellipsis)
 
 
 def param_hints(params_type: type | None) -> dict[str, Any]:
@@ -266,7 +279,7 @@ def as_table(entries: list[dict[str, Any]]) -> Table:
     table = Table(title="module library (entry points 'pbo.modules')", title_justify="left", show_lines=True)
     table.add_column("module", max_width=30)
     table.add_column("ports: name, kind, variable, dtype, shape")
-    table.add_column("params: name, type, default")
+    table.add_column("params: name, type, range, default")
     for entry in entries:
         about = [f"[bold]{escape(entry['name'])}[/bold]"]
         for text, style in ((entry.get("summary"), "dim"), (entry.get("note"), "italic"), (entry.get("error"), "red")):
@@ -286,7 +299,8 @@ def as_table(entries: list[dict[str, Any]]) -> Table:
         for q in entry.get("params", []):
             default = "[yellow]required[/yellow]" if q["required"] else escape(_show_default(q["default"]))
             doc = f"[dim]{escape(q['doc'])}[/dim]" if q.get("doc") else ""
-            params.add_row(f"{escape(q['name'])}: {escape(q['type'])}", default, doc)
+            allowed = f" [cyan]{escape(q['range'])}[/cyan]" if q.get("range") else ""
+            params.add_row(f"{escape(q['name'])}: {escape(q['type'])}{allowed}", default, doc)
         if not entry.get("params"):
             params.add_row("[dim](none)[/dim]", "", "")
         table.add_row("\n".join(about), ports, params)

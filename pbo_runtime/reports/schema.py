@@ -24,6 +24,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from pbo_runtime.objects import registry
+from pbo_runtime.objects.module import param_ranges
+from pbo_runtime.objects.ranges import Range
 from pbo_runtime.reports.lexicon import jsonable, param_hints, params_info, ports_depend_on_params
 from pbo_runtime.config.model import PlantSpec
 from pbo_runtime.config.units import DATA_RATE, FREQUENCY, SIZE, TIME, UNITS
@@ -80,14 +82,16 @@ def _map(values: dict[str, Any], description: str) -> dict[str, Any]:
 # --- module parameters ------------------------------------------------------------------------
 
 
-def hint_schema(hint: Any) -> dict[str, Any]:
-    """The JSON type of a `Params` field's type hint, as the checker converts YAML values."""
+def hint_schema(hint: Any, allowed: Range | None = None) -> dict[str, Any]:
+    """The JSON type of a `Params` field's type hint, as the checker converts YAML values; its numbers
+    (each number of a list) with the minimum and maximum of the field's range."""
+    bounds = allowed.schema() if allowed is not None else {}
     if hint is float:
-        return {"type": "number"}
+        return {"type": "number", **bounds}
     if hint is bool:
         return {"type": "boolean"}
     if hint is int:
-        return {"type": "integer"}
+        return {"type": "integer", **bounds}
     if hint is str:
         return {"type": "string"}
     if hint is type(None):
@@ -97,12 +101,12 @@ def hint_schema(hint: Any) -> dict[str, Any]:
     if origin is typing.Literal:
         return {"enum": list(args)}
     if origin in (typing.Union, types.UnionType):
-        return {"oneOf": [hint_schema(a) for a in args]}
+        return {"oneOf": [hint_schema(a, allowed) for a in args]}
     if origin in (tuple, list):
         items = args[0] if args and (len(args) == 2 and args[1] is Ellipsis or origin is list) else None
         node: dict[str, Any] = {"type": "array"}
         if items is not None:
-            node["items"] = hint_schema(items)
+            node["items"] = hint_schema(items, allowed)
         elif args:  # a fixed-length tuple
             node["prefixItems"] = [hint_schema(a) for a in args]
             node["minItems"] = node["maxItems"] = len(args)
@@ -118,12 +122,13 @@ def params_schema(module: str, cls: type) -> dict[str, Any]:
 def fields_schema(params_type: Any, description: str) -> dict[str, Any]:
     """The fields of a dataclass as the checker converts YAML values to them (a module's Params, a plant's Options)."""
     hints = param_hints(params_type)
+    ranges = param_ranges(params_type) if isinstance(params_type, type) else {}
     properties: dict[str, Any] = {}
     required: list[str] = []
     for info in params_info(params_type):
-        node = hint_schema(hints[info["name"]])
+        node = hint_schema(hints[info["name"]], ranges.get(info["name"]))
         doc = info["doc"]
-        node["description"] = f"{info['name']}: {info['type']}" + (f" ({doc})" if doc else "")
+        node["description"] = f"{info['name']}: {info['type']}" + (f", {info['range']}" if info["range"] else "") + (f" ({doc})" if doc else "")
         if info["required"]:
             required.append(info["name"])
         else:

@@ -37,11 +37,12 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 from pbo_runtime.config.live import LiveChangeRefused, LiveDescription, TaskChange, parse_assignments
 from pbo_runtime.config.live_save import save_live
-from pbo_runtime.config.values import INT_RANGE, as_value, describe, element_problem
+from pbo_runtime.config.values import INT_RANGE, as_value, describe, element_problem, range_problem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import operator_input
 from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.objects import registry
+from pbo_runtime.objects.ranges import Range, number_text
 from pbo_runtime.supervisor.job_control import application_steps
 
 if TYPE_CHECKING:
@@ -287,6 +288,11 @@ def event(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     if expected is not None and len(values or ()) != expected:
         raise BadRequest(f"task '{task}' takes events of {expected} values "
                          f"({host.subsystem.tasks[task].module}'s EVENT_SHAPE), got {len(values or ())}")
+    bounds = _event_range(host, task)
+    outside = next(((position, v) for position, v in enumerate(values or (), 1) if not bounds.admits(v)), None) if bounds else None
+    if bounds is not None and outside is not None:
+        raise BadRequest(f"the values of an event for '{task}' must be {bounds.text()} "
+                         f"({host.subsystem.tasks[task].module}'s EVENT_RANGE), got: {number_text(outside[1])} (value {outside[0]})")
     state = host.task_states.get(task)
     if state != "ON":
         raise PboError(f"task '{task}' is {state}, not ON: an event would not run it; turn it on with pbo on {task}")
@@ -315,6 +321,17 @@ def _event_size(host: CommandHost, task: str) -> int | None:
     if any(isinstance(size, str) and size not in dims for size in shape):
         return None  # a dim the subsystem does not define: the module's own cycle judges the count
     return math.prod(dims[size] if isinstance(size, str) else int(size) for size in shape)
+
+
+def _event_range(host: CommandHost, task: str) -> Range | None:
+    """The closed range each value of the task's events must be in (its module's EVENT_RANGE), None if any."""
+    try:
+        bounds = getattr(registry.module_class(host.subsystem.tasks[task].module), "EVENT_RANGE", None)
+    except Exception:  # noqa: BLE001 - the run found the module at start; a fake host's may not exist
+        return None
+    if bounds is None:
+        return None
+    return Range(float(bounds[0]), float(bounds[1]), low_open=False, high_open=False)
 
 
 def _no_application(host: CommandHost) -> None:
@@ -347,6 +364,10 @@ def job(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
             values[spec.object] = as_value(given, variable.dtype, variable.shape, f"job '{name}': object '{spec.object}'")
         except ValueError as exc:
             raise BadRequest(str(exc)) from None
+        kind = host.subsystem.object_types.get(spec.object_type or "")
+        problem = range_problem(values[spec.object], kind.name, kind.range) if kind is not None else ""
+        if problem:
+            raise BadRequest(f"job '{name}': object '{spec.object}': {problem}")
     elif spec.object:
         raise BadRequest(f"job '{name}' needs its object '{spec.object}': pbo job {name} VALUE ...")
     host.job_control.start_job(name, values)

@@ -32,7 +32,8 @@ from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
-from pbo_runtime.config.live import MAX_NAME, LiveDescription
+from pbo_runtime.config.limits import MAX_NAME
+from pbo_runtime.config.live import LiveDescription
 from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.errors import PboError
 from pbo_runtime.config.application import MESSAGE_OVERHEAD_BYTES, MSGPACK_BYTES_PER_NUMBER

@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import difflib
 import functools
+import math
 import re
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from pbo_runtime.objects import registry
 from pbo_runtime.config.checker.model import Checked, DriverLookup, ModuleLookup, _Claim, _PartialVariable, _Task
 from pbo_runtime.config.checker.words import describe, did_you_mean
-from pbo_runtime.config.limits import MAX_DIM
+from pbo_runtime.config.limits import MAX_DIM, MAX_NAME, MAX_PERIOD, MAX_TIME, MIN_PERIOD
 from pbo_runtime.config.model import Location
 from pbo_runtime.errors import ConfigError, Note
 from pbo_runtime.config.units import TIME, parse_quantity
@@ -143,9 +144,19 @@ class CheckerBase:
 
     def name(self, key: object, loc: Location, what: str) -> str | None:
         if isinstance(key, str) and key:
-            return key
+            self.name_length(key, loc, what)
+            return key  # a name too long is reported, and still checked as the name it is
         self.error("E118", f"{what} names must be text, got: {describe(key)}", loc, "write the name as plain text, e.g. q_m")
         return None
+
+    def name_length(self, name: str, loc: Location, what: str) -> bool:
+        """True if `name` is at most MAX_NAME characters long; else E218 at it."""
+        if len(name) <= MAX_NAME:
+            return True
+        shown = name if len(name) <= 60 else f"{name[:30]}...{name[-10:]}"
+        self.error("E218", f"{what} name '{shown}' is {len(name):,} characters long, more than the {MAX_NAME} a name may have",
+                   loc, f"shorten it to at most {MAX_NAME} characters")
+        return False
 
     def text(self, value: Any, loc: Location, what: str) -> str | None:
         if isinstance(value, str):
@@ -168,7 +179,10 @@ class CheckerBase:
             return None
         return value
 
-    def quantity(self, value: Any, loc: Location, kind: str, what: str, positive: bool = True) -> float | None:
+    def quantity(self, value: Any, loc: Location, kind: str, what: str, positive: bool = True,
+                 longest: float | None = MAX_TIME) -> float | None:
+        """The value in SI units, or None and an error: not a quantity of its kind (E501), not > 0 or
+        >= 0 (E502), a time longer than `longest` (the caller's own bounds when None) or too large (E513)."""
         try:
             number = parse_quantity(value, kind)
         except ValueError as exc:
@@ -183,7 +197,24 @@ class CheckerBase:
         if not positive and number < 0:
             self.error("E502", f"{what} must be >= 0, got: {value}", loc)
             return None
+        if kind == TIME and longest is not None and not number <= longest:
+            self.error("E513", f"{what} must be at most a day ({longest:,.0f} s), got: {value}", loc,
+                       "a time longer than a day is a typo or a unit mixed up (ms, s, min, h)")
+            return None
+        if not math.isfinite(number):  # a finite number times its unit: 1e308 GB/s
+            self.error("E513", f"{what} is too large to compute with, got: {value}", loc)
+            return None
         return number
+
+    def period_bounds(self, period: float, spec: YMap, key: str, name: str) -> bool:
+        """True if a task's period (given as a period, a rate or a min_interarrival) is in
+        [MIN_PERIOD, MAX_PERIOD]; else E513 at the value."""
+        if MIN_PERIOD <= period <= MAX_PERIOD:
+            return True
+        bounds = "between one cycle an hour and 100 kHz" if key == "rate" else "between 10 us and 1 h"
+        self.error("E513", f"{key} of task '{name}' must be {bounds}, got: {spec[key]}", spec.value_loc(key),
+                   "a task runs at least once an hour and at most every 10 us: is the unit right?")
+        return False
 
     def section(self, top: YMap, key: str, example: str) -> YMap | None:
         """A top-level section that maps names to entries; None (and an error) if it is not one."""
@@ -247,3 +278,15 @@ def named_by(node: YMap, message: str, skip: Sequence[str] = ()) -> Location | N
             return found
     named = next((word for word in re.findall(r"\b\w+\b", message) if word in node and word not in skip), None)
     return location_of(node[named], node.value_loc(named)) if named is not None else None
+
+
+def param_value_at(params: Any, name: str, index: Sequence[int] = ()) -> Location | None:
+    """Where a task's params write parameter `name` (its element `index` in a list), or None."""
+    if not isinstance(params, YMap) or name not in params:
+        return None
+    node, loc = params[name], params.value_loc(name)
+    for i in index:
+        if not isinstance(node, YList) or not 0 <= i < len(node):
+            break
+        node, loc = node[i], node.item_loc(i)
+    return location_of(node, loc)

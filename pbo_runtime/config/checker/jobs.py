@@ -12,7 +12,7 @@ from pbo_runtime.config.checker.base import CheckerBase
 import numpy as np
 from pbo_runtime.config.checker.model import JOB_KEYS, NO_OBJECT
 from pbo_runtime.config.checker.words import describe, did_you_mean
-from pbo_runtime.config.model import NOWHERE, ApplicationSpec, ApplicationStep, Gap, JobSpec, Location
+from pbo_runtime.config.model import NOWHERE, ApplicationSpec, ApplicationStep, Gap, JobSpec, Location, ObjectTypeSpec
 from pbo_runtime.config.expressions import ALLOWED, ExpressionError, compile_condition
 from pbo_runtime.config.units import TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
@@ -23,7 +23,7 @@ class JobChecks(CheckerBase):
 
     if TYPE_CHECKING:  # rules of other mixins this one calls; the whole checker has them
         def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str,
-                        owner: str = "the variable's shape") -> np.ndarray | None: ...
+                        owner: str = "the variable's shape", kind: ObjectTypeSpec | None = None) -> np.ndarray | None: ...
         def check_object_names(self) -> None: ...
         def objects_of_type(self, type_name: str | None) -> str: ...
         def job_written(self) -> set[str]: ...
@@ -300,7 +300,7 @@ class JobChecks(CheckerBase):
             return self.named_object(app, number, step.job, "application", kind, value, m.value_loc(kind), step)
         object_type = self.out.object_types[kind]
         array = self.check_value(value, m.value_loc(kind), object_type.dtype, object_type.shape,
-                                 f"object of step {number} of application '{app}'", f"the shape of object type '{kind}'")
+                                 f"object of step {number} of application '{app}'", f"the shape of object type '{kind}'", object_type)
         if array is None:
             return None
         return dataclasses.replace(step, fill=plain(value))
@@ -432,7 +432,8 @@ class JobChecks(CheckerBase):
                 if isinstance(val, str):
                     named = self.named_object(app, number, job, "job", kind, val, m.value_loc(var), step)
                     return None if named is None else _Step(named, None)
-                array = self.check_value(val, m.value_loc(var), variable.dtype, variable.shape, f"object '{var}' of step {number} of application '{app}'")
+                array = self.check_value(val, m.value_loc(var), variable.dtype, variable.shape, f"object '{var}' of step {number} of application '{app}'",
+                                         kind=self.out.object_types.get(variable.object or ""))
                 if array is None:
                     return None
                 arguments[str(var)] = plain(val)

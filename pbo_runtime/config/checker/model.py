@@ -52,7 +52,7 @@ TASK_KEYS = (
     "priority", "critical", "params", "ports", "resources", "fresh_within",
 )
 JOB_KEYS = ("configuration", "object", "pre", "post", "timeout")
-OBJECT_TYPE_KEYS = ("type", "shape", "unit", "doc")
+OBJECT_TYPE_KEYS = ("type", "shape", "unit", "doc", "range")
 OBJECT_KEYS = ("type", "value", "doc")
 NO_OBJECT = "none"  # `object: none`: a job that takes no object, its tasks reading the variable as it is
 DEVICE_KEYS = ("driver", "exclusive", "io")  # every other key of a device is a driver option

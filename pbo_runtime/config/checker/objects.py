@@ -10,6 +10,7 @@ the section existed. `objects:` names values of a type, so an application step c
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -18,7 +19,9 @@ from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.model import DTYPES, OBJECT_KEYS, OBJECT_TYPE_KEYS
 from pbo_runtime.config.checker.words import _show_shape, did_you_mean
 from pbo_runtime.config.model import Location, ObjectSpec, ObjectTypeSpec
-from pbo_runtime.config.yaml_nodes import YMap
+from pbo_runtime.config.values import range_problem
+from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
+from pbo_runtime.objects.ranges import Range
 
 _TYPE_EXAMPLE = "e.g. object_types: {joint_position: {type: float64, shape: [NDOF], unit: rad}}"
 _OBJECT_EXAMPLE = "e.g. objects: {home: {type: joint_position, value: [0, 0, 0, 0, 0, 0]}}"
@@ -30,7 +33,7 @@ class ObjectChecks(CheckerBase):
     if TYPE_CHECKING:  # rules of other mixins this one calls; the whole checker has them
         def resolve_shape(self, value: Any, loc: Location, owner: str) -> tuple[int, ...] | None: ...
         def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str,
-                        owner: str = "the variable's shape") -> np.ndarray | None: ...
+                        owner: str = "the variable's shape", kind: ObjectTypeSpec | None = None) -> np.ndarray | None: ...
 
     def check_object_types(self, top: YMap) -> None:
         """The declared types, then each variable's marking against them (or the types it implies)."""
@@ -60,12 +63,24 @@ class ObjectChecks(CheckerBase):
                         unit = text or ""
                     else:
                         doc = text or ""
-            if dtype is None or shape is None:
+            ranged = "range" in spec and spec["range"] is not None
+            allowed = self.object_range(spec, name) if ranged else None
+            if dtype is None or shape is None or ranged and allowed is None:
                 broken.add(name)
                 continue
-            self.out.object_types[name] = ObjectTypeSpec(name, dtype, shape, unit, doc, key_loc)
+            self.out.object_types[name] = ObjectTypeSpec(name, dtype, shape, unit, doc, key_loc, range=allowed)
         self.bad_object_types = broken
         self.check_markings(top, declared)
+
+    def object_range(self, spec: YMap, name: str) -> Range | None:
+        """An object type's `range: [low, high]`: two finite numbers, low < high; else E321 and None."""
+        value, loc = spec["range"], spec.value_loc("range")
+        if (isinstance(value, YList) and len(value) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+                and all(map(math.isfinite, value)) and value[0] < value[1]):
+            return Range(float(value[0]), float(value[1]), low_open=False, high_open=False)
+        self.error("E321", f"range of object type '{name}' must be [low, high], two finite numbers with low < high, "
+                           f"got: {plain(value)!r}", location_of(value, loc), "e.g. range: [-3.2, 3.2]: every element of an object of the type")
+        return None
 
     def check_markings(self, top: YMap, declared: bool) -> None:
         """Each variable marked `object: <type>` holds values of that type: declared, or implied by it."""
@@ -86,6 +101,14 @@ class ObjectChecks(CheckerBase):
                     self.error("E712", f"variable '{variable}' ({spec.dtype} {_show_shape(spec.shape)}) is marked object: '{type_name}', "
                                        f"but objects of type '{type_name}' are {kind.dtype} {_show_shape(kind.shape)}",
                                where, "give the variable the type's dtype and shape, or mark it with another object type")
+                    continue
+                initial = self.out.initial_values.get(variable)
+                problem = range_problem(initial, type_name, kind.range) if initial is not None else ""
+                if problem:  # the first object the run starts with
+                    entry = self.var_nodes.get(variable)
+                    self.error("E322", f"initial value of variable '{variable}': {problem}",
+                               entry.value_loc("initial") if entry is not None and "initial" in entry else where,
+                               f"object type '{type_name}' declares this range (at {kind.loc.line}:{kind.loc.column})")
                 continue
             if spec is None:
                 self.bad_object_types.add(type_name)  # the variable is wrong, and was reported there
@@ -125,7 +148,7 @@ class ObjectChecks(CheckerBase):
             if "value" not in spec:
                 continue
             array = self.check_value(spec["value"], spec.value_loc("value"), kind.dtype, kind.shape,
-                                     f"value of object '{name}'", f"the shape of object type '{type_name}'")
+                                     f"value of object '{name}'", f"the shape of object type '{type_name}'", kind)
             if array is None:
                 continue
             array.setflags(write=False)

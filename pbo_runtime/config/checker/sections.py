@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from pbo_runtime.config.checker.base import CheckerBase
+from pbo_runtime.config.checker.base import CheckerBase, param_value_at
 from pbo_runtime.config.checker.model import BUS_KEYS, RESTART_KEYS, RTPU_KEYS
 from pbo_runtime.config.checker.words import describe, did_you_mean
 from pbo_runtime.config.limits import MAX_DIM
@@ -18,6 +18,7 @@ from pbo_runtime.errors import ModuleError, ParamError
 from pbo_runtime.objects import registry
 from pbo_runtime.objects.arm import ROBOT_OPTIONS, is_robot_file
 from pbo_runtime.objects.module import convert_param, param_fields
+from pbo_runtime.objects.ranges import OutOfRange
 
 
 _SUBSYSTEM_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
@@ -31,7 +32,7 @@ class SectionChecks(CheckerBase):
             return
         loc = top.value_loc("subsystem")
         name = self.text(top["subsystem"], loc, "'subsystem'")
-        if name is None:
+        if name is None or not self.name_length(name, loc, "subsystem"):
             return
         if not _SUBSYSTEM_NAME.match(name):
             self.error(
@@ -187,6 +188,10 @@ class SectionChecks(CheckerBase):
             loc = plant.value_loc(key)
             try:
                 values[key] = convert_param(declared, key, value, f"plant option {key}")
+            except OutOfRange as exc:  # at the very number, an element of a list too
+                self.error("E320", str(exc), param_value_at(plant, key, exc.index) or location_of(plant[key], loc))
+                wrong.add(key)
+                continue
             except ParamError as exc:
                 self.error("E320", str(exc), location_of(plant[key], loc))
                 wrong.add(key)

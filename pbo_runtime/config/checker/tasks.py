@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Mapping
 
-from pbo_runtime.config.checker.base import CheckerBase, named_by, named_in
+from pbo_runtime.config.checker.base import CheckerBase, named_by, named_in, param_value_at
 from pbo_runtime.config.model import PortClaim
 from pbo_runtime.config.checker.model import TASK_KEYS, _Binding, _Link, _Linked, _Task
 from pbo_runtime.config.checker.words import _ms, _show_shape, describe, did_you_mean
 from pbo_runtime.config.model import Location, PortBinding, TaskSpec
 from pbo_runtime.errors import ParamError
 from pbo_runtime.objects.module import PortBasedObject, convert_param, param_fields
+from pbo_runtime.objects.ranges import FINITE, OutOfRange
 from pbo_runtime.objects.ports import ANY_DTYPE, PortSpec
 from pbo_runtime.config.units import FREQUENCY, TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
@@ -184,8 +185,9 @@ class TaskChecks(CheckerBase):
                     "add the shortest time between two of its events, e.g. min_interarrival: 5 ms",
                 )
                 return False
-            gap = self.quantity(spec["min_interarrival"], spec.value_loc("min_interarrival"), TIME, f"min_interarrival of task '{name}'")
-            if gap is None:
+            gap = self.quantity(spec["min_interarrival"], spec.value_loc("min_interarrival"), TIME, f"min_interarrival of task '{name}'",
+                                longest=None)
+            if gap is None or not self.period_bounds(gap, spec, "min_interarrival", name):
                 return False
             task.min_interarrival = gap
             task.period = gap  # the worst case: analysis treats it as periodic at its fastest
@@ -207,11 +209,15 @@ class TaskChecks(CheckerBase):
                 )
                 return False
             if "period" in spec:
-                period = self.quantity(spec["period"], spec.value_loc("period"), TIME, f"period of task '{name}'")
+                period = self.quantity(spec["period"], spec.value_loc("period"), TIME, f"period of task '{name}'", longest=None)
+                if period is not None and not self.period_bounds(period, spec, "period", name):
+                    period = None  # refused: no follow-on error from a period that is not one
                 ok = ok and period is not None
                 task.period = period or 0.0
             elif "rate" in spec:
                 rate = self.quantity(spec["rate"], spec.value_loc("rate"), FREQUENCY, f"rate of task '{name}'")
+                if rate is not None and not self.period_bounds(1.0 / rate, spec, "rate", name):
+                    rate = None
                 ok = ok and rate is not None
                 task.period = 1.0 / rate if rate else 0.0
             else:
@@ -547,6 +553,14 @@ class TaskChecks(CheckerBase):
         values = plain(raw) if raw is not None else {}
         try:
             task.built_params = module_class.build_params(values)
+        except OutOfRange as exc:
+            element = "".join(f"[{i}]" for i in exc.index)
+            self.error("E308", f"parameter {exc.param}{element} of task '{task.name}' (module '{task.module}') must be "
+                               f"{exc.allowed.text()}, got: {exc.got}",
+                       param_value_at(spec.get("params"), exc.param, exc.index) or self.params_loc(task, spec),
+                       f"module '{task.module}' declares this range (pbo lexicon lists every parameter's)" if exc.allowed != FINITE
+                       else "a number parameter takes finite numbers only: not .nan, not .inf")
+            return False
         except ParamError as exc:
             self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {exc}", self.refused_at(task, spec, str(exc)))
             return False

@@ -12,8 +12,8 @@ from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.model import DTYPES, VARIABLE_KEYS, _PartialVariable
 from pbo_runtime.config.checker.words import _show_shape, describe, did_you_mean
 from pbo_runtime.config.limits import MAX_DIM, MAX_TABLE_BYTES, show_bytes
-from pbo_runtime.config.model import Location, VariableSpec
-from pbo_runtime.config.values import element_problem, leaves as _leaves, nested_shape as _nested_shape, non_finite
+from pbo_runtime.config.model import Location, ObjectTypeSpec, VariableSpec
+from pbo_runtime.config.values import element_problem, leaves as _leaves, nested_shape as _nested_shape, non_finite, outside_range
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of
 
 
@@ -87,8 +87,9 @@ class VariableChecks(CheckerBase):
                        "the largest: " + ", ".join(f"'{v.name}' {_show_shape(v.shape)} {v.dtype}" for v in reversed(biggest)))
 
     def check_value(self, value: Any, loc: Location, dtype: str, shape: tuple[int, ...], what: str,
-                    owner: str = "the variable's shape") -> np.ndarray | None:
-        """A value for a variable (initial or a job's argument), or of an object type (`owner`), as an array, or an error."""
+                    owner: str = "the variable's shape", kind: ObjectTypeSpec | None = None) -> np.ndarray | None:
+        """A value for a variable (initial or a job's argument), or of an object type (`owner`), as an array, or an error.
+        An object of a `kind` that declares a range has every element in it (E322, at the element)."""
         if isinstance(value, dict):
             self.error("E310", f"{what} must be a number or a list, got: a mapping", location_of(value, loc))
             return None
@@ -120,6 +121,12 @@ class VariableChecks(CheckerBase):
             if problem:
                 self.error("E313", f"{what}: {problem}", location_of(value, loc))
                 return None
+        if kind is not None and kind.range is not None and not all(map(kind.range.admits, leaves)):
+            position, (leaf, leaf_loc) = next((i, found) for i, found in enumerate(_located_leaves(value, loc), 1)
+                                              if not kind.range.admits(found[0]))
+            self.error("E322", f"{what}: {outside_range(kind.name, kind.range, leaf, position if len(leaves) > 1 else 0)}",
+                       leaf_loc, f"object type '{kind.name}' declares this range (at {kind.loc.line}:{kind.loc.column})")
+            return None
         try:
             array = np.asarray(leaves if not isinstance(value, list) else value, dtype=dtype).reshape(found)
         except (ValueError, TypeError, OverflowError) as exc:

@@ -338,4 +338,7 @@ def _serve(commands: int, replies: int) -> None:
 
 
 if __name__ == "__main__":
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)  # a stop signal ends it as SIGTERM does, with no traceback
     _serve(int(sys.argv[1]), int(sys.argv[2]))

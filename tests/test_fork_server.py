@@ -14,6 +14,7 @@ import sys
 import pytest
 
 from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.ipc.process import DEATH_SIGNAL
 from pbo_runtime.supervisor.fork_server import ForkServer, ForkServerUnavailable
 from pbo_runtime.supervisor.supervisor import Supervisor
 from tests.support import (DEMO, PBO, REPO, assert_nothing_left, children_of, config_copy, demo_copy, ipc_names, read_until, run_processes,
@@ -47,7 +48,7 @@ def test_a_forked_child_is_its_starters_own_single_threaded_at_sched_other_and_s
     assert child.wait(timeout=SAFETY_NET) == code
     said = json.loads(out.read_text())
     assert said["pid"] == child.pid and said["ppid"] == os.getpid()  # re-parented: reaped here, not by the server
-    assert said["death_signal"] == signal.SIGTERM  # dies with its starter
+    assert said["death_signal"] == DEATH_SIGNAL  # dies with its starter
     assert said["threads"] == 1 and said["scheduler"] == os.SCHED_OTHER
     assert said["openblas"] == os.environ.get("OPENBLAS_NUM_THREADS")  # the server's own setting given back
     assert f"-m {PROBE} {out} report" in said["cmdline"]  # its own command line, not the server's

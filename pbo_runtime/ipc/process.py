@@ -89,6 +89,13 @@ def supervisor_gone() -> bool:
         os.close(pidfd)
 
 
+def supervisor_dying() -> None:
+    """This process found its supervisor's death another way (its channel to it closed without a word):
+    as if the death signal came first, which may come only after."""
+    global _hung_up
+    _hung_up = True
+
+
 def stopping_done() -> None:
     """The stop is over (what is left is leaving): the bound no longer applies."""
     signal.setitimer(signal.ITIMER_REAL, 0)

@@ -56,6 +56,7 @@ PR_SET_CHILD_SUBREAPER = 36
 REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy, MuJoCo and the library on a busy machine
 REPARENT_TIMEOUT = 5.0  # seconds a forked child waits to become the supervisor's (its middle process exits at once)
 CLOSE_TIMEOUT = 2.0
+END = b"end\n"  # the supervisor's last line to the server: its channel closing without it means the supervisor died
 # What the runtime's public surface imports on first use (`pbo_runtime.arm_model` imports Pinocchio),
 # imported by the server of a subsystem with a restart policy: a restarted controller's init would
 # otherwise import it again, 140-200 ms of a ~210 ms spawn on 2 CPUs (cProfile of a forked restart).
@@ -187,8 +188,12 @@ class ForkServer:
             self._subreaper = False
 
     def release(self) -> None:
-        """Tell the server to end (EOF on its channel) without waiting for it."""
+        """Tell the server to end (END, then EOF on its channel) without waiting for it."""
         if self._channel is not None:
+            try:
+                self._channel.sendall(END)
+            except OSError:
+                pass  # it is gone already
             for closing in (self._replies, self._channel):
                 try:
                     closing.close()
@@ -385,7 +390,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--openblas-threads", default=None, help="the children's OPENBLAS_NUM_THREADS (unset if absent)")
     parser.add_argument("--run-id", default="", help="the run it serves: it takes part in its end (last_out)")
     args = parser.parse_args(argv)
-    from pbo_runtime.ipc.process import Stop, become_child
+    from pbo_runtime.ipc.process import Stop, become_child, supervisor_dying
     from pbo_runtime.supervisor import last_out
 
     if args.run_id:
@@ -406,8 +411,14 @@ def main(argv: list[str] | None = None) -> int:
         gc.freeze()
         server.warm_at = time.monotonic()
         for line in server.channel.makefile("rb"):
+            if line == END:
+                break
             server.serve(json.loads(line))
-    except (Stop, BrokenPipeError, ConnectionResetError):
+        else:
+            supervisor_dying()  # its end of the channel closed without a word (its death signal may come after)
+    except (BrokenPipeError, ConnectionResetError):
+        supervisor_dying()
+    except Stop:
         pass
     # EOF: the server made no shared object; if the supervisor died, it may be the run's last process
     # out (before the children were started, or with a restart policy). Tearing down an interpreter

@@ -91,7 +91,10 @@ def forget_inherited() -> None:
 
 
 def leave() -> list[str]:
-    """Drop this process's share; the last one out after the supervisor died removes the run. The names removed."""
+    """Drop this process's share; the last one out after the supervisor died removes the run. The names removed.
+
+    From then on a stop signal ends the process at once, quietly (it has nothing left to clean);
+    once the supervisor is gone, its death said again is ignored."""
     global _share, _expected
     forget_inherited()
     share, _share = _share, None
@@ -100,8 +103,10 @@ def leave() -> list[str]:
         return []
     process.stopping_done()
     quiet = signal.pthread_sigmask(signal.SIG_BLOCK, (*process.STOP_SIGNALS, signal.SIGALRM))
+    gone = False
     try:
-        if not process.supervisor_gone():
+        gone = process.supervisor_gone()
+        if not gone:
             return []
         if share is None and expected is not None:
             share = _open(expected[1])
@@ -115,10 +120,9 @@ def leave() -> list[str]:
     finally:
         if share is not None:
             os.close(share.fd)
-        try:
-            signal.pthread_sigmask(signal.SIG_SETMASK, quiet)
-        except process.Stop:
-            pass  # a signal that came while leaving: this process is on its way out already
+        for signum in process.STOP_SIGNALS:
+            signal.signal(signum, signal.SIG_IGN if gone else signal.SIG_DFL)
+        signal.pthread_sigmask(signal.SIG_SETMASK, quiet)
 
 
 def _lock_alone(fd: int) -> bool:

@@ -52,6 +52,8 @@ import sys
 import time
 from typing import Any, Callable
 
+from pbo_runtime.ipc.process import STOP_SIGNALS
+
 PR_SET_CHILD_SUBREAPER = 36
 REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy, MuJoCo and the library on a busy machine
 REPARENT_TIMEOUT = 5.0  # seconds a forked child waits to become the supervisor's (its middle process exits at once)
@@ -291,6 +293,7 @@ def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: An
         os.setsid()
         for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGALRM, signal.SIGCHLD, signal.SIGPIPE):
             signal.signal(signum, signal.SIG_DFL if signum != signal.SIGPIPE else signal.SIG_IGN)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)  # (blocked while the server forked)
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # as a fresh interpreter starts
         if openblas is None:
             os.environ.pop("OPENBLAS_NUM_THREADS", None)
@@ -348,12 +351,18 @@ class _Server:
             return self.reply({"error": f"the fork server holds {threads} threads: a fork would copy their locks"})
         pid_read, pid_write = os.pipe()
         go_read, go_write = os.pipe()
+        # no stop while it forks: raised in the interpreter's fork hooks, it is only printed and lost
+        signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)  # (the child takes them again: `_child`)
+        middle = -1
         try:
             middle = os.fork()
         except OSError as exc:
             for fd in (pid_read, pid_write, go_read, go_write):
                 os.close(fd)
             return self.reply({"error": f"the fork server could not fork: {exc}"})
+        finally:
+            if middle != 0:
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
         if middle == 0:  # the middle process: fork the child, say its pid, exit (the child is re-parented)
             try:
                 os.close(pid_read)

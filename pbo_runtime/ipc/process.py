@@ -18,7 +18,7 @@ import sys
 DEATH_SIGNAL = signal.SIGHUP  # what Linux sends a child when its supervisor dies
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, DEATH_SIGNAL)
 STOP_BOUND = 1.0  # seconds a child whose supervisor died has to stop by itself before it stops at once
-DEATH_WAIT = 0.5  # seconds a child told of its supervisor's death waits for it to be over (it ends thread by thread)
+DEATH_WAIT = 2.0  # seconds a child told of its supervisor's death waits at most for it to be over (it ends thread by thread)
 
 
 class Stop(BaseException):
@@ -67,13 +67,18 @@ def stop_requested() -> str:
     return _requested
 
 
+def supervisor_told_gone() -> bool:
+    """Whether this child was told its supervisor is dying or dead (no waiting: `supervisor_gone` waits)."""
+    return _parent != 0 and (_hung_up or os.getppid() != _parent)
+
+
 def supervisor_gone() -> bool:
     """True once the supervisor this child was started by has died (never, for a process without one).
 
     While it is this process's parent and no death signal came, it lives. Otherwise its end is
     waited for on a pidfd, at most DEATH_WAIT: a supervisor being SIGKILLed sends the death
     signal from each of its threads as it ends, before it is over."""
-    if _parent == 0 or (os.getppid() == _parent and not _hung_up):
+    if not supervisor_told_gone():
         return False
     try:
         pidfd = os.pidfd_open(_parent)

@@ -31,7 +31,7 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.clock.clocks import lower_timer_slack
 from pbo_runtime.clock.lockstep import LockstepParticipant
 from pbo_runtime.table.table import HEADER_WORDS
-from pbo_runtime.ipc.process import Stop, become_child, supervisor_gone
+from pbo_runtime.ipc.process import Stop, become_child, supervisor_told_gone
 from pbo_runtime.supervisor import last_out
 
 
@@ -143,7 +143,7 @@ def _run(argv: list[str] | None) -> int:
         events.report("plant", messages.PlantStats({"steps": steps, "late": late, "stalls": stalls, "stalled_for": stalled_for,
                                                     "watchdog_trips": getattr(plant, "watchdog_trips", 0),
                                                     "left_fifo_behind": behind_when_stepped_down}),
-                      reader_alive=lambda: not supervisor_gone())
+                      reader_alive=lambda: not supervisor_told_gone())
         if barrier is not None:
             barrier.close()
         if plant is not None:

@@ -363,4 +363,10 @@ def _serve(commands: int, replies: int) -> None:
 
 
 if __name__ == "__main__":
-    _serve(int(sys.argv[1]), int(sys.argv[2]))
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)  # a stop signal ends it as SIGTERM does, with no traceback
+    try:
+        _serve(int(sys.argv[1]), int(sys.argv[2]))
+    except BrokenPipeError:  # the logger's process died (its RTPU killed): the log ends at its last chunk
+        pass

@@ -31,6 +31,7 @@ from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.clock.lockstep import LockstepParticipant
 from pbo_runtime.ipc.process import Stop, become_child, stop_only_at_waits
 from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.supervisor import last_out
 from pbo_runtime.table.table import StateTable, TableLayout
 from rtpu import _realtime
 from rtpu._executive import Executive
@@ -48,6 +49,15 @@ class LiveStage:
 
 def main(argv: list[str] | None = None, subsystem: Subsystem | None = None) -> int:
     """Run one RTPU; `subsystem`: the file already loaded and checked (a fork server's), else loaded here."""
+    try:
+        return _run(argv, subsystem)
+    except Stop:  # stopped again while it stopped: a second signal, or the bound once the supervisor died
+        return 0
+    finally:
+        last_out.leave()  # the run's last process out after its supervisor died removes the run
+
+
+def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
     parser = argparse.ArgumentParser(prog="python -m rtpu", description=__doc__)
     parser.add_argument("file")
     parser.add_argument("--run-id", required=True)
@@ -70,7 +80,10 @@ def main(argv: list[str] | None = None, subsystem: Subsystem | None = None) -> i
                         help="a restart after live changes: live-N.json describes the run from the start, not the file")
     args = parser.parse_args(argv)
     if args.parent:
+        last_out.expect(args.run_id)  # (a supervisor that died before this process started leaves it the run's end)
         become_child(args.parent)
+        if not last_out.join(args.run_id):
+            return 3  # the supervisor died and its run was removed before this process started
 
     if subsystem is None:
         subsystem = load_subsystem(args.file)

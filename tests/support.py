@@ -261,6 +261,39 @@ def ipc_names(fragment: str) -> list[str]:
     return [name for folder in folders for name in os.listdir(folder) if fragment in name]
 
 
+def run_objects(table: str) -> list[tuple[str, str]]:
+    """(kind, POSIX name) of every object of the run whose table is `table`, read while the run lives: its
+    table's manifest (which names the queues, not listed where /dev/mqueue is not mounted) and /dev/shm."""
+    from pbo_runtime.ipc.shm import list_objects
+    from pbo_runtime.supervisor.cleanup import read_run_manifest
+
+    run_id = table.split(".")[2]
+    entries, _pids = read_run_manifest(table)
+    return sorted({*entries, *((o.kind, o.name) for o in list_objects() if o.run_id == run_id)})
+
+
+def objects_left(objects: list[tuple[str, str]]) -> list[str]:
+    """The names among `objects` (`run_objects`) that still exist, each opened by name, and whatever
+    else of their run /dev/shm holds."""
+    opener = {"shm": posix_ipc.SharedMemory, "sem": posix_ipc.Semaphore, "mq": posix_ipc.MessageQueue}
+    left = []
+    for kind, name in objects:
+        try:
+            made = opener[kind](name)
+        except posix_ipc.ExistentialError:
+            continue
+        made.close_fd() if kind == "shm" else made.close()
+        left.append(name)
+    runs = {name.split(".")[2] for _kind, name in objects}
+    listed = {"/" + (n[4:] if n.startswith("sem.") else n) for run in runs for n in ipc_names(run)}
+    return sorted({*left, *listed})
+
+
+def process_gone(pid: int) -> bool:
+    """Whether process `pid` has ended (a zombie has)."""
+    return process_state(pid) in ("", "Z", "X")
+
+
 def assert_nothing_left(report: dict) -> None:
     """Every object the run made is gone: opened by name, since /dev/mqueue may not be mounted."""
     assert report["objects"], "the report lists the run's objects"

@@ -16,7 +16,9 @@ from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm as _shm
 from pbo_runtime.supervisor.supervisor import remove_dead_runs
 from pbo_runtime.table.table import Header, StateTable, TableLayout
-from tests.support import DEMO, PBO, REPO, RUNS, Ticker, children_of, dead_pid, read_until, task_spec, unique_name, variables
+from tests.support import (DEMO, PBO, REPO, RUNS, SAYING_SAFETY_NET, Ticker, children_of, config_copy, dead_pid, demo_copy,
+                           ipc_names, killed_on_failure, objects_left, process_gone, read_until, run_objects, table_of,
+                           task_spec, unique_name, until, variables)
 
 VARS = variables(("a", "float64", (3,)))
 
@@ -98,36 +100,137 @@ def test_a_new_run_removes_what_a_dead_run_left_queues_included():
         _shm.unlink_quietly("shm", live_plant)
 
 
+# --- the supervisor SIGKILLed: its children stop, and the last one out removes the run ----------------
+
+# A supervisor (test only) with threads, as `pbo run` has: Linux says its death to a child once per
+# thread that ends. It makes a run's table, lock and event queue, and starts `children` processes.
+FAKE_SUPERVISOR = """
+import os, subprocess, sys, threading, time
+from pbo_runtime.ipc import messages, shm
+from pbo_runtime.table.table import StateTable, TableLayout
+from tests.support import variables
+subsystem, children, child = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+run_id = shm.new_run_id()
+table_name, queue_name = messages.table_name(subsystem, run_id), messages.event_queue_name(subsystem, run_id)
+queue = messages.Queue(queue_name, create=True)
+table = StateTable.create(TableLayout.build(variables(("a", "float64", (3,))), 1), table_name,
+                          [f"shm {table_name}", f"sem {table_name}.lock", f"mq {queue_name}"])
+for _ in range(3):
+    threading.Thread(target=time.sleep, args=(600,), daemon=True).start()
+started = [subprocess.Popen([sys.executable, "-c", child, str(os.getpid()), run_id]) for _ in range(children)]
+print(table_name, *(c.pid for c in started), flush=True)
+time.sleep(600)
+"""
+
+# A process of that run (test only): it joins the run, waits for its stop, and says how many objects it removed.
+RUN_PROCESS = """
+import os, sys, time
+from pbo_runtime.ipc.process import Stop, become_child
+from pbo_runtime.supervisor import last_out
+parent, run_id = int(sys.argv[1]), sys.argv[2]
+try:
+    last_out.expect(run_id)
+    become_child(parent)
+    assert last_out.join(run_id)
+    os.write(1, f"joined {os.getpid()}\\n".encode())  # (one write: the run's processes share the pipe)
+    while True:
+        time.sleep(1)
+except Stop:
+    pass
+finally:
+    os.write(1, f"removed {len(last_out.leave())}\\n".encode())
+"""
+
+
+def start_fake_run(subsystem: str, children: int) -> tuple[subprocess.Popen, str, list[int]]:
+    """FAKE_SUPERVISOR with `children` RUN_PROCESSes, once each has joined: (supervisor, table, their pids)."""
+    supervisor = subprocess.Popen([sys.executable, "-c", FAKE_SUPERVISOR, subsystem, str(children), RUN_PROCESS], cwd=REPO,
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    table, *pids = read_until(supervisor, "/pbo.").split()
+    read_until(supervisor, *(f"joined {pid}" for pid in pids))
+    return supervisor, table, [int(pid) for pid in pids]
+
+
 @pytest.mark.multiprocess
-def test_killing_the_supervisor_takes_its_children_and_pbo_clean_removes_the_rest(tmp_path):
-    pbo = subprocess.Popen([*PBO, "run", str(DEMO), "--duration", "60", "--no-live"], cwd=tmp_path,
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+@pytest.mark.parametrize("children", [1, 2, 3])
+def test_the_processes_of_a_run_whose_supervisor_died_leave_at_once_and_exactly_one_removes_it(children):
+    subsystem = f"lastout{children}"
+    live_run = _shm.new_run_id()  # a run of the same subsystem alive alongside (this process is its supervisor)
+    live_table = StateTable.create(TableLayout.build(VARS, 1), messages.table_name(subsystem, live_run), [])
+    supervisor = None
     try:
-        read_until(pbo, "is on")
+        supervisor, table, pids = start_fake_run(subsystem, children)
+        objects = run_objects(table)
+        assert len(objects) == 3
+        supervisor.send_signal(signal.SIGKILL)  # all of them are told at the same instant
+        out, err = supervisor.communicate(timeout=SAYING_SAFETY_NET)  # until every process of the run closed the pipes
+        removed = sorted(int(line.split()[1]) for line in out.splitlines() if line.startswith("removed"))
+        assert removed == [0] * (children - 1) + [3], out  # the last one out removed the table, its lock and the queue
+        assert objects_left(objects) == []
+        assert "Traceback" not in err, err
+        until(lambda: all(process_gone(pid) for pid in pids), "the processes' end")
+        posix_ipc.SharedMemory(live_table.name).close_fd()  # the other run is untouched
+        assert ipc_names(live_run) != []
+    finally:
+        if supervisor is not None and supervisor.poll() is None:
+            supervisor.kill()
+            supervisor.wait()
+        live_table.close()
+        remove_dead_runs(subsystem)
+
+
+@pytest.mark.multiprocess
+def test_a_process_that_leaves_while_its_supervisor_lives_removes_nothing():
+    supervisor, table, [pid] = start_fake_run("lastoutalive", 1)
+    try:
+        objects = run_objects(table)
+        os.kill(pid, signal.SIGTERM)
+        assert read_until(supervisor, "removed") == "removed 0\n"
+        until(lambda: process_gone(pid), "the process's end")
+        assert sorted(objects_left(objects)) == sorted(name for _kind, name in objects)
+    finally:
+        supervisor.kill()
+        supervisor.wait()
+        remove_dead_runs("lastoutalive")
+
+
+KILLED_WHILE = {
+    "on": ("is on", ()),  # the configuration on, on the real clock
+    "on, simulated clock": ("is on", ("--clock", "sim")),
+    "starting": ("", ()),  # as soon as its table exists: before the children or their tasks are up
+    "on, restart policy": ("is on", ()),  # the fork server is kept for the run: an RTPU may be restarted
+}
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("moment", KILLED_WHILE)
+def test_killing_the_supervisor_leaves_no_process_no_object_and_no_traceback(tmp_path, moment):
+    said, arguments = KILLED_WHILE[moment]
+    name = "killed_" + moment.replace(",", "").replace(" ", "_")
+    file = demo_copy(tmp_path, name)
+    if moment == "on, restart policy":
+        file = config_copy(DEMO, tmp_path, name, (("rtpus: [rtpu0, rtpu1]", "rtpus: [rtpu0, rtpu1]\nrestart: {max: 3, within: 10 min}"),))
+    pbo = subprocess.Popen([*PBO, "run", str(file), "--duration", "60", "--no-live", *arguments], cwd=tmp_path,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    with killed_on_failure(pbo):
+        before = read_until(pbo, said) if said else ""
+
+        def made() -> list[tuple[str, str]]:
+            tables = [n for n in os.listdir("/dev/shm") if f"pbo.{name}.{pbo.pid}-" in n and n.endswith(".table")]
+            return run_objects(table_of(pbo, name)) if tables else []
+
+        until(lambda: {kind for kind, _ in made()} == {"shm", "sem", "mq"}, "the run's table, which names its queues")
+        objects = made()
         children = children_of(pbo.pid)
-        assert len(children) == 3  # the plant and two RTPUs
-        ours = [n for n in os.listdir("/dev/shm") if f".{pbo.pid}-" in n]
-        assert ours, "the run's table and plant segments exist while it runs"
+        if said:
+            assert len([c for c in children.values() if "supervisor.fork_server" not in c]) == 3  # the plant and two RTPUs
+            assert any("supervisor.fork_server" in c for c in children.values()) == (moment == "on, restart policy")
         pbo.send_signal(signal.SIGKILL)
         pbo.wait()
-    finally:
-        if pbo.poll() is None:
-            pbo.kill()
-    deadline = time.monotonic() + 20
-    while any(os.path.exists(f"/proc/{pid}") and "zombie" not in open(f"/proc/{pid}/status").read().lower()
-              for pid in children) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not [pid for pid in children if os.path.exists(f"/proc/{pid}")
-                and "zombie" not in open(f"/proc/{pid}/status").read().lower()], "children outlived the supervisor"
-    run_id = ours[0].split(".")[2]
-    cleaned = subprocess.run([*PBO, "clean", "--subsystem", "puma"], capture_output=True, text=True, timeout=60)
-    assert cleaned.returncode == 0
-    assert [n for n in os.listdir("/dev/shm") if run_id in n] == []
-    for rtpu in ("rtpu0", "rtpu1"):
-        with pytest.raises(posix_ipc.ExistentialError):
-            posix_ipc.MessageQueue(messages.signal_queue_name("puma", run_id, rtpu))
-    with pytest.raises(posix_ipc.ExistentialError):
-        posix_ipc.MessageQueue(messages.event_queue_name("puma", run_id))
+    until(lambda: objects_left(objects) == [], f"the run's objects removed: {objects_left(objects)}")
+    until(lambda: all(process_gone(pid) for pid in children), "the children's end")
+    out, err = pbo.communicate(timeout=SAYING_SAFETY_NET)  # (every child wrote to these pipes: they closed them)
+    assert "Traceback" not in before + out + err, before + out + err
 
 
 @pytest.mark.multiprocess
@@ -169,15 +272,17 @@ class SignalInsideTheLock:
 
 @pytest.fixture
 def stops_only_at_waits():
-    """This process takes SIGTERM/SIGINT as an RTPU does; the handlers and the request are restored after."""
-    saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    """This process takes its stop signals as an RTPU does; the handlers and the request are restored after."""
+    saved = {s: signal.getsignal(s) for s in process.STOP_SIGNALS}
     process.stop_only_at_waits()
     try:
         yield
     finally:
+        process.stopping_done()
         for s, handler in saved.items():
             signal.signal(s, handler)
         process._requested = ""
+        process._hung_up = process._only_at_waits = False
 
 
 def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_wait(make_table,
@@ -225,6 +330,15 @@ def test_a_second_stop_signal_stops_at_once(stops_only_at_waits):
     with pytest.raises(process.Stop):
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(1.0)  # (the handler runs as soon as the call returns)
+
+
+def test_the_supervisors_death_said_again_is_not_a_second_stop(stops_only_at_waits):
+    for signum in (process.DEATH_SIGNAL, process.DEATH_SIGNAL, signal.SIGTERM):  # once per thread of the supervisor that ends
+        os.kill(os.getpid(), signum)
+    time.sleep(0.01)  # (no handler raised)
+    assert process.stop_requested() == process.DEATH_SIGNAL.name  # the stop is taken at the next wait, as asked first
+    with pytest.raises(process.Stop):
+        process.raise_if_stopping()
 
 
 def test_a_report_at_stop_stops_waiting_on_a_full_queue_once_its_reader_is_gone():

@@ -14,9 +14,10 @@ import sys
 import pytest
 
 from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.ipc.process import DEATH_SIGNAL
 from pbo_runtime.supervisor.fork_server import ForkServer, ForkServerUnavailable
 from pbo_runtime.supervisor.supervisor import Supervisor
-from tests.support import (DEMO, PBO, REPO, assert_nothing_left, children_of, config_copy, demo_copy, ipc_names, read_until, run_processes,
+from tests.support import (DEMO, REPO, assert_nothing_left, children_of, config_copy, demo_copy, ipc_names, read_until, run_processes,
                            start_run, until)
 
 PROBE = "tests.fork_probe"
@@ -47,7 +48,7 @@ def test_a_forked_child_is_its_starters_own_single_threaded_at_sched_other_and_s
     assert child.wait(timeout=SAFETY_NET) == code
     said = json.loads(out.read_text())
     assert said["pid"] == child.pid and said["ppid"] == os.getpid()  # re-parented: reaped here, not by the server
-    assert said["death_signal"] == signal.SIGTERM  # dies with its starter
+    assert said["death_signal"] == DEATH_SIGNAL  # dies with its starter
     assert said["threads"] == 1 and said["scheduler"] == os.SCHED_OTHER
     assert said["openblas"] == os.environ.get("OPENBLAS_NUM_THREADS")  # the server's own setting given back
     assert f"-m {PROBE} {out} report" in said["cmdline"]  # its own command line, not the server's
@@ -175,8 +176,7 @@ def test_a_run_with_a_restart_policy_keeps_its_fork_server_restarts_from_it_and_
     if ending == "ctrl-c":
         assert "fresh interpreter" not in out + err, err
         assert_nothing_left(json.loads(report_path.read_text()))
-    else:  # the server and the children died with the supervisor; what the run made is `pbo clean`'s
-        cleaned = subprocess.run([*PBO, "clean", "--subsystem", name], capture_output=True, text=True, timeout=SAFETY_NET)
-        assert cleaned.returncode == 0, cleaned.stderr
-        assert ipc_names(table.split(".")[2]) == []
+    else:  # the server and the children died with the supervisor, and the last of them out removed the run
+        until(lambda: ipc_names(table.split(".")[2]) == [], "the run's objects removed", SAFETY_NET)
+        assert "Traceback" not in out + err, err
     assert ipc_names(name) == []

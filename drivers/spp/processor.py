@@ -33,7 +33,7 @@ WAKE_SLICE = 1.0  # seconds between looks at the parent while no work comes
 
 
 class _Stop(BaseException):
-    """SIGTERM or SIGINT: leave the loop through the `finally` that unlinks."""
+    """SIGTERM, SIGINT or SIGHUP: leave the loop through the `finally` that unlinks."""
 
 
 _stopping = ""
@@ -50,8 +50,8 @@ def _stop(signum: int, _frame) -> None:
 
 
 def _die_with(parent: int) -> None:
-    signal.signal(signal.SIGTERM, _stop)
-    signal.signal(signal.SIGINT, _stop)
+    for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+        signal.signal(signum, _stop)
     try:
         ctypes.CDLL(None).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):

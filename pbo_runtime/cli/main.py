@@ -435,12 +435,14 @@ def _early_fork_server(args: argparse.Namespace):
     need on the other CPU meanwhile (supervisor.fork_server). The supervisor ends it once the children
     are started; this ends it on the paths where no supervisor took it (a bad file, a refused run).
     On the simulated clock the supervisor starts its own, in the clock's environment."""
+    from pbo_runtime.ipc.shm import new_run_id
     from pbo_runtime.supervisor.fork_server import ForkServer, forking_enabled
 
     server = None
     if args.clock == "real" and forking_enabled():
         try:
-            server = ForkServer.start(str(Path(args.file).resolve()), ["pbo_runtime.supervisor.plant_host", "rtpu"])
+            server = ForkServer.start(str(Path(args.file).resolve()), ["pbo_runtime.supervisor.plant_host", "rtpu"],
+                                      run_id=new_run_id())  # the run's id, which the supervisor takes
         except OSError:
             server = None  # the supervisor tries again, and says why if it cannot
     try:

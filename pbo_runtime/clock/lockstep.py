@@ -262,11 +262,12 @@ class LockstepParticipant:
     def wait(self) -> bool:
         """Block until released; True if a new tick began (False: serve signals only)."""
         while True:
+            process.raise_if_stopping()  # a stop that came while this process was not waiting
             try:
                 self._go.acquire(1.0)
                 break
             except (posix_ipc.BusyError, posix_ipc.SignalError):
-                process.raise_if_stopping()  # a supervisor that died sent us SIGTERM (PDEATHSIG): Stop ends the wait
+                process.raise_if_stopping()  # a supervisor that died sent us its death signal (PDEATHSIG): Stop ends the wait
         if self.before_step is not None:
             self.before_step()
         words = self._words

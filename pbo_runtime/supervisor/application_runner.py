@@ -296,9 +296,10 @@ class ApplicationRunner:
         self._remove_what_killed_subsystems_left()
 
     def _remove_what_killed_subsystems_left(self) -> None:
-        """A subsystem whose supervisor was killed could not remove its table, queues and semaphores: done here.
+        """A subsystem whose supervisor was killed could not remove its table, queues and semaphores: its
+        last child out did (`last_out`), and whatever it could not is removed here.
 
-        Its plant and RTPUs end by themselves once their parent is gone (they are told by SIGTERM);
+        Its plant and RTPUs end by themselves once their parent is gone (they are told by SIGHUP);
         cleanup leaves a run alone while any of its processes lives, so this waits for them a while.
         """
         for key, child in self._children.items():

@@ -74,7 +74,8 @@ class Children:
         if not forking_enabled():
             return
         try:
-            self.fork_server = ForkServer.start(self.subsystem.file, preload, env=self.clock.child_environment())
+            self.fork_server = ForkServer.start(self.subsystem.file, preload, env=self.clock.child_environment(),
+                                               run_id=self.run_id)
         except OSError as exc:
             self.say(f"no fork server ({exc}): the children start as fresh interpreters")
 

@@ -58,18 +58,42 @@ def remove_dead_runs(subsystem: str | None = None) -> Cleanup:
         if supervisor or any(shm.pid_alive(pid) for pid in pids):
             cleanup.live.append(run_id)
             continue
-        names = {(o.kind, o.name) for o in objects}
-        names |= {(kind, name) for kind, name in entries if shm.run_of(name) == (sub, run_id)}
-        for kind, name in sorted(names, key=lambda n: n[0] == "shm" and n[1] == table):  # the table last
-            exists, why = shm.look_at(kind, name)
-            if not exists:
-                continue
-            if why is not None:
-                cleanup.ignored[name] = why
-            elif shm.unlink_quietly(kind, name):
-                cleanup.removed.append(name)
+        _remove(sub, run_id, objects, table, entries, cleanup)
     cleanup.removed.sort()
     return cleanup
+
+
+def remove_run(subsystem: str, run_id: str) -> Cleanup:
+    """Unlink every object of one run, alive or not: for the run's last process out (`last_out`), which knows."""
+    cleanup = Cleanup()
+    objects = []
+    for listed in shm.list_objects(subsystem):
+        if listed.run_id != run_id:
+            continue
+        if listed.distrust is not None:
+            cleanup.ignored[listed.name] = listed.distrust
+        else:
+            objects.append(listed)
+    table = next((o.name for o in objects if o.kind == "shm" and o.part == "table"), None)
+    entries = read_run_manifest(table)[0] if table is not None else []
+    _remove(subsystem, run_id, objects, table, entries, cleanup)
+    cleanup.removed.sort()
+    return cleanup
+
+
+def _remove(subsystem: str, run_id: str, objects: list[shm.Listed], table: str | None, entries: list[tuple[str, str]],
+            cleanup: Cleanup) -> None:
+    """Unlink a run's listed objects and those of its manifest's entries that name an object of the run, the table last."""
+    names = {(o.kind, o.name) for o in objects}
+    names |= {(kind, name) for kind, name in entries if shm.run_of(name) == (subsystem, run_id)}
+    for kind, name in sorted(names, key=lambda n: n[0] == "shm" and n[1] == table):  # the table last
+        exists, why = shm.look_at(kind, name)
+        if not exists:
+            continue
+        if why is not None:
+            cleanup.ignored[name] = why
+        elif shm.unlink_quietly(kind, name):
+            cleanup.removed.append(name)
 
 
 def read_run_manifest(table: str) -> tuple[list[tuple[str, str]], list[int]]:

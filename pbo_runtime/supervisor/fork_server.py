@@ -21,7 +21,9 @@ drivers, then forks a child per request. What keeps that as safe as a fresh inte
   The supervisor is a subreaper only while a fork is under way (`ForkServer.idle`).
 - The request channel is a socketpair: no name in the file system, nobody else can connect.
   The server dies with the supervisor (PR_SET_PDEATHSIG) and makes no shared object, so its
-  end, a crash included, leaves nothing in /dev/shm or /dev/mqueue; a child it forked starts
+  end, a crash included, leaves nothing in /dev/shm or /dev/mqueue; it is made with the run's
+  id, and when the supervisor dies it may be the run's last process out, which removes the
+  run's objects (`last_out`: before any child started, say). A child it forked starts
   only on the server's go, sent after the supervisor has its pid, so a server that dies between
   the two leaves no unknown child running.
 - The supervisor ends the server once the children are started, unless an RTPU has a restart
@@ -50,10 +52,13 @@ import sys
 import time
 from typing import Any, Callable
 
+from pbo_runtime.ipc.process import STOP_SIGNALS
+
 PR_SET_CHILD_SUBREAPER = 36
 REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy, MuJoCo and the library on a busy machine
 REPARENT_TIMEOUT = 5.0  # seconds a forked child waits to become the supervisor's (its middle process exits at once)
 CLOSE_TIMEOUT = 2.0
+END = b"end\n"  # the supervisor's last line to the server: its channel closing without it means the supervisor died
 # What the runtime's public surface imports on first use (`pbo_runtime.arm_model` imports Pinocchio),
 # imported by the server of a subsystem with a restart policy: a restarted controller's init would
 # otherwise import it again, 140-200 ms of a ~210 ms spawn on 2 CPUs (cProfile of a forked restart).
@@ -124,17 +129,19 @@ class ForkServer:
         self._channel: socket.socket | None = channel
         self._replies = channel.makefile("rb")
         self._subreaper = False
+        self.run_id = ""  # the run it serves, made with it (the supervisor takes it): the server takes part in its end
         self.warm_at = 0.0  # CLOCK_MONOTONIC second the server was ready to fork (0: not yet heard)
 
     @classmethod
-    def start(cls, file: str, preload: list[str], env: dict[str, str] | None = None) -> ForkServer:
-        """A server for subsystem `file` that imports the `preload` modules (each one's `main` serves a request)."""
+    def start(cls, file: str, preload: list[str], env: dict[str, str] | None = None, run_id: str = "") -> ForkServer:
+        """A server for subsystem `file` that imports the `preload` modules (each one's `main` serves a request),
+        a process of run `run_id` (`last_out`: if the supervisor dies, it may be the run's last one out)."""
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
         environment = dict(os.environ if env is None else env)
         openblas = environment.get("OPENBLAS_NUM_THREADS")
         environment["OPENBLAS_NUM_THREADS"] = "1"  # no thread in the server: it forks
         command = [sys.executable, "-m", "pbo_runtime.supervisor.fork_server", "--fd", str(theirs.fileno()),
-                   "--parent", str(os.getpid()), "--file", file,
+                   "--parent", str(os.getpid()), "--file", file, *(["--run-id", run_id] if run_id else []),
                    *(["--openblas-threads", openblas] if openblas is not None else []),
                    *(argument for module in preload for argument in ("--preload", module))]
         try:
@@ -145,7 +152,9 @@ class ForkServer:
             raise
         finally:
             theirs.close()
-        return cls(process, ours)
+        server = cls(process, ours)
+        server.run_id = run_id
+        return server
 
     def fork(self, module: str, arguments: list[str]) -> ForkedProcess:
         """Start `python -m module arguments...` as a fork; ForkServerUnavailable if the server cannot."""
@@ -181,8 +190,12 @@ class ForkServer:
             self._subreaper = False
 
     def release(self) -> None:
-        """Tell the server to end (EOF on its channel) without waiting for it."""
+        """Tell the server to end (END, then EOF on its channel) without waiting for it."""
         if self._channel is not None:
+            try:
+                self._channel.sendall(END)
+            except OSError:
+                pass  # it is gone already
             for closing in (self._replies, self._channel):
                 try:
                     closing.close()
@@ -251,26 +264,36 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
     return mains, subsystem
 
 
-def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: Any, go: int, parent: int,
-           openblas: str | None) -> None:
-    """In the forked child: become the supervisor's, wait for the go, run `main`, never return."""
+def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: Any, go: int, parent: int, middle: int,
+           openblas: str | None, run_id: str) -> None:
+    """In the forked child: become the supervisor's, wait for the go, run `main`, never return.
+
+    Until its main takes its share of the run, it expects it as the server does (`last_out`): a
+    supervisor that dies while the child starts may leave the child the run's last process."""
     code = 3
+    from pbo_runtime.ipc.process import Stop
+    from pbo_runtime.supervisor import last_out
+
     try:
+        last_out.forget_inherited()
+        if run_id:
+            last_out.expect(run_id)
         import setproctitle
 
         # its command line in ps and /proc is the one a fresh interpreter would have had, not the server's
         setproctitle.setproctitle(" ".join([sys.executable, "-m", module, *argv]))
         deadline = time.monotonic() + REPARENT_TIMEOUT
-        while os.getppid() != parent:  # the middle process is exiting; then the supervisor is the parent
-            if time.monotonic() > deadline:
-                os._exit(3)
+        while (ppid := os.getppid()) != parent:  # the middle process is exiting; then the supervisor is the parent
+            if ppid != middle or time.monotonic() > deadline:  # adopted by another: the supervisor died
+                raise SystemExit(3)
             time.sleep(0.0002)
         if os.read(go, 1) != b"g":  # the server died before the supervisor had this pid
-            os._exit(3)
+            raise SystemExit(3)
         os.close(go)
         os.setsid()
-        for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGCHLD, signal.SIGPIPE):
+        for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGALRM, signal.SIGCHLD, signal.SIGPIPE):
             signal.signal(signum, signal.SIG_DFL if signum != signal.SIGPIPE else signal.SIG_IGN)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)  # (blocked while the server forked)
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # as a fresh interpreter starts
         if openblas is None:
             os.environ.pop("OPENBLAS_NUM_THREADS", None)
@@ -285,6 +308,8 @@ def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: An
         code = main(argv, **keywords)
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else 1
+    except Stop:  # stopped before its main could take the stop (or again, while it stopped): no traceback
+        code = 0
     except BaseException:
         import traceback
 
@@ -292,6 +317,7 @@ def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: An
         code = 1
     finally:
         try:
+            last_out.leave()  # (its main left already, unless it never ran)
             sys.stdout.flush()
             sys.stderr.flush()
         finally:
@@ -301,9 +327,10 @@ def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: An
 class _Server:
     """The server's state: what a request may run, the loaded subsystem, where replies go."""
 
-    def __init__(self, channel: socket.socket, parent: int, openblas: str | None) -> None:
+    def __init__(self, channel: socket.socket, parent: int, openblas: str | None, run_id: str = "") -> None:
         self.channel = channel
         self.parent = parent
+        self.run_id = run_id
         self.openblas = openblas
         self.mains: dict[str, Callable[..., int]] = {}
         self.subsystem: Any = None
@@ -324,21 +351,29 @@ class _Server:
             return self.reply({"error": f"the fork server holds {threads} threads: a fork would copy their locks"})
         pid_read, pid_write = os.pipe()
         go_read, go_write = os.pipe()
+        # no stop while it forks: raised in the interpreter's fork hooks, it is only printed and lost
+        signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)  # (the child takes them again: `_child`)
+        middle = -1
         try:
             middle = os.fork()
         except OSError as exc:
             for fd in (pid_read, pid_write, go_read, go_write):
                 os.close(fd)
             return self.reply({"error": f"the fork server could not fork: {exc}"})
+        finally:
+            if middle != 0:
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
         if middle == 0:  # the middle process: fork the child, say its pid, exit (the child is re-parented)
             try:
                 os.close(pid_read)
                 os.close(go_write)
+                middle_pid = os.getpid()
                 child = os.fork()
                 if child == 0:
                     os.close(pid_write)
                     os.close(self.channel.fileno())  # the child holds no end of the channel: a dead server reads as EOF
-                    _child(module, self.mains[module], [str(a) for a in argv], self.subsystem, go_read, self.parent, self.openblas)
+                    _child(module, self.mains[module], [str(a) for a in argv], self.subsystem, go_read, self.parent,
+                           middle_pid, self.openblas, self.run_id)
                 os.write(pid_write, str(child).encode())
             finally:
                 os._exit(0)
@@ -362,11 +397,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--file", required=True, help="the subsystem file the children run")
     parser.add_argument("--preload", action="append", default=[], help="a module whose main() a request may run")
     parser.add_argument("--openblas-threads", default=None, help="the children's OPENBLAS_NUM_THREADS (unset if absent)")
+    parser.add_argument("--run-id", default="", help="the run it serves: it takes part in its end (last_out)")
     args = parser.parse_args(argv)
-    from pbo_runtime.ipc.process import Stop, become_child
+    from pbo_runtime.ipc.process import Stop, become_child, supervisor_dying
+    from pbo_runtime.supervisor import last_out
 
-    become_child(args.parent)
-    server = _Server(socket.socket(fileno=args.fd), args.parent, args.openblas_threads)
+    if args.run_id:
+        last_out.expect(args.run_id)
+    server = _Server(socket.socket(fileno=args.fd), args.parent, args.openblas_threads, args.run_id)
+    try:
+        become_child(args.parent)
+    except SystemExit:
+        last_out.leave()
+        raise
     try:
         try:
             server.mains, server.subsystem = _warm(args.file, args.preload)
@@ -377,11 +420,19 @@ def main(argv: list[str] | None = None) -> int:
         gc.freeze()
         server.warm_at = time.monotonic()
         for line in server.channel.makefile("rb"):
+            if line == END:
+                break
             server.serve(json.loads(line))
-    except (Stop, BrokenPipeError, ConnectionResetError):
+        else:
+            supervisor_dying()  # its end of the channel closed without a word (its death signal may come after)
+    except (BrokenPipeError, ConnectionResetError):
+        supervisor_dying()
+    except Stop:
         pass
-    # EOF: nothing of the server's needs cleaning up (it made no shared object), and tearing down an
-    # interpreter that holds numpy, MuJoCo and the module library takes a while
+    # EOF: the server made no shared object; if the supervisor died, it may be the run's last process
+    # out (before the children were started, or with a restart policy). Tearing down an interpreter
+    # that holds numpy, MuJoCo and the module library takes a while: it is skipped.
+    last_out.leave()
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(0)

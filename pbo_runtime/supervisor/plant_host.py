@@ -31,7 +31,8 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.clock.clocks import lower_timer_slack
 from pbo_runtime.clock.lockstep import LockstepParticipant
 from pbo_runtime.table.table import HEADER_WORDS
-from pbo_runtime.ipc.process import Stop, become_child
+from pbo_runtime.ipc.process import Stop, become_child, supervisor_told_gone
+from pbo_runtime.supervisor import last_out
 
 
 PLANT_FIFO_PRIORITY = 60  # above the RTPUs' 50: the simulated world steps on time whatever they do
@@ -42,6 +43,15 @@ STALL_AFTER = 0.02
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        return _run(argv)
+    except Stop:  # stopped again while it stopped: a second signal, or the bound once the supervisor died
+        return 0
+    finally:
+        last_out.leave()  # the run's last process out after its supervisor died removes the run
+
+
+def _run(argv: list[str] | None) -> int:
     parser = argparse.ArgumentParser(prog="python -m pbo_runtime.supervisor.plant_host")
     parser.add_argument("--type", required=True)
     parser.add_argument("--model", required=True)
@@ -57,7 +67,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--base-dir", default="", help="the YAML file's folder: a robot file's path is relative to it")
     args = parser.parse_args(argv)
     if args.parent:
+        last_out.expect(args.run_id)  # (a supervisor that died before this process started leaves it the run's end)
         become_child(args.parent)
+        if not last_out.join(args.run_id):
+            return 3  # the supervisor died and its run was removed before this process started
     lower_timer_slack()
     if args.fifo:
         try:
@@ -129,7 +142,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         events.report("plant", messages.PlantStats({"steps": steps, "late": late, "stalls": stalls, "stalled_for": stalled_for,
                                                     "watchdog_trips": getattr(plant, "watchdog_trips", 0),
-                                                    "left_fifo_behind": behind_when_stepped_down}))
+                                                    "left_fifo_behind": behind_when_stepped_down}),
+                      reader_alive=lambda: not supervisor_told_gone())
         if barrier is not None:
             barrier.close()
         if plant is not None:

@@ -118,7 +118,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.duration = duration
         self.on_tick = on_tick
         self.say = say
-        self.run_id = shm.new_run_id()
+        # an early fork server was made with the run's id: it takes part in the run's end (`last_out`)
+        self.run_id = fork_server.run_id if fork_server is not None and fork_server.run_id else shm.new_run_id()
         self.table: StateTable | None = None
         self.events: messages.Queue | None = None
         self.signals: dict[str, messages.Queue] = {}

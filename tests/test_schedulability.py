@@ -283,8 +283,8 @@ def test_a_real_run_report_feeds_check_with_a_profile(tmp_path: Path) -> None:
     checked = subprocess.run([*PBO, "check", str(file), "--profile", str(out)], cwd=tmp_path, capture_output=True,
                              text=True, timeout=60)
     assert checked.returncode == 0, checked.stdout + checked.stderr
-    lines = checked.stdout.splitlines()
     assert "note: the profile is a run on the simulated clock" in checked.stdout
+    lines = checked.stdout.split("\nschedulability ", 1)[1].splitlines()  # the verdicts, after the file's own lines
     verdicts = {line.split()[0]: line for line in lines if line.startswith("    ") and not line.split()[0] == "task"}
     assert set(verdicts) == {"robot*", "traj", "pid", "logger"}, checked.stdout
     assert " proven " in verdicts["robot*"]

@@ -69,8 +69,9 @@ def _run(argv: list[str] | None) -> int:
     if args.parent:
         last_out.expect(args.run_id)  # (a supervisor that died before this process started leaves it the run's end)
         become_child(args.parent)
-        if not last_out.join(args.run_id):
+        if not last_out.join(args.run_id) and os.getppid() != args.parent:
             return 3  # the supervisor died and its run was removed before this process started
+        # (a live parent without a run's table: a plant on its own, as the benchmarks' bare loop runs it)
     lower_timer_slack()
     if args.fifo:
         try:

@@ -44,7 +44,7 @@ import numpy as np
 import posix_ipc
 
 from drivers.spp.segment import MAGIC, RING, State, W, layout, views
-from pbo_runtime import DeviceDriver, create_segment, unlink_quietly
+from pbo_runtime import DeviceDriver, create_segment, sleep_while_cycling, unlink_quietly
 
 _OPTIONS = ("memory", "download_bytes", "start_timeout")
 _DEFAULTS = {"memory": 4096, "download_bytes": 262144, "start_timeout": 60.0}
@@ -248,7 +248,7 @@ class SpecialPurposeProcessor(DeviceDriver):
                                      f"before it could {what}")
             if time.monotonic() > deadline:
                 raise ProcessorError(f"the special-purpose processor did not {what} within {timeout:g} s")
-            time.sleep(_POLL)
+            sleep_while_cycling(_POLL)  # in a live spawn's init, the RTPU's other tasks go on cycling
 
     # --- figures and closing -------------------------------------------------------------------
 

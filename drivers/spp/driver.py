@@ -36,7 +36,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import msgpack
@@ -267,19 +267,19 @@ class SpecialPurposeProcessor(DeviceDriver):
 
     def close(self) -> None:
         """Stop the processor and unlink what it shared (idempotent); `figures()` keeps their last values."""
+        self.close_now()()
+
+    def close_now(self) -> Callable[[], None]:
+        """Ask the processor to stop, unlink and unmap what it shares (the device may be opened
+        again at once: a new processor has names of its own); return the wait for its exit (up to
+        `_STOP_TIMEOUT`, then SIGKILL), which a task's kill hands to its RTPU's background thread."""
         if self._mapping is not None and self.process is not None:
             if not self.fault:
                 self._look_for_death()  # a processor that died under a task that no longer called it
             self.figures()
         process, self.process = self.process, None
-        if process is not None:
-            if process.poll() is None:
-                process.send_signal(signal.SIGTERM)
-                try:
-                    process.wait(timeout=_STOP_TIMEOUT)
-                except subprocess.TimeoutExpired:
-                    process.kill()
-                    process.wait()
+        if process is not None and process.poll() is None:
+            process.send_signal(signal.SIGTERM)
         for name in ("_words", "_ring", "_request", "_result", "_download", "_inputs", "_answer"):
             self.__dict__.pop(name, None)
         unlink_quietly("shm", self.segment)
@@ -293,3 +293,15 @@ class SpecialPurposeProcessor(DeviceDriver):
                 mapping.close()
             except BufferError:  # a view of it outlives the driver (a caller kept one): the mapping goes with it
                 pass
+        return lambda: _wait_for_exit(process)
+
+
+def _wait_for_exit(process: subprocess.Popen | None) -> None:
+    """Reap the processor asked to stop; one that does not stop within `_STOP_TIMEOUT` is killed."""
+    if process is None:
+        return
+    try:
+        process.wait(timeout=_STOP_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()

@@ -104,7 +104,7 @@ class SpecialPurposeProcessor(DeviceDriver):
         self.routine = ""
         self.process: subprocess.Popen | None = None
         self.fault = ""
-        self._figures: dict[str, Any] = {}
+        self._taken: tuple[np.ndarray, tuple[int, int, float, int, int]] | None = None  # `_take_figures`
         # the driver's counters, in an array: updated in place, so a call boxes no new integer to keep
         self._n = np.zeros(_COUNTERS, dtype=np.int64)
         self._mapping = None
@@ -254,32 +254,37 @@ class SpecialPurposeProcessor(DeviceDriver):
 
     def figures(self) -> dict[str, Any]:
         """The processor's own timing: work items, service time p50/p99/max (s), misses, late calls."""
-        if self._mapping is None:
-            return dict(self._figures)
+        if self._mapping is not None:
+            self._take_figures()
+        if self._taken is None:
+            return {}
+        service, (items, missed, service_max, calls, late) = self._taken
+        pct = (lambda q: float(np.percentile(service, q)) / 1e9 if service.size else 0.0)
+        return {"processor": "spp", "routine": self.routine, "items": items, "missed": missed,
+                "service_p50": pct(50), "service_p99": pct(99), "service_max": service_max,
+                "calls": calls, "late_calls": late, "fault": self.fault}
+
+    def _take_figures(self) -> None:
+        """Copy the counts and service times out of the shared memory; the percentiles wait for `figures()`."""
         words = self._words
         items = int(words[W.ITEMS])
-        kept = np.sort(self._ring[:min(items, RING)]) / 1e9
-        pct = (lambda q: float(np.percentile(kept, q)) if kept.size else 0.0)
-        self._figures = {"processor": "spp", "routine": self.routine, "items": items, "missed": int(words[W.MISSED]),
-                         "service_p50": pct(50), "service_p99": pct(99), "service_max": int(words[W.SERVICE_NS_MAX]) / 1e9,
-                         "calls": int(self._n[_CALLS]), "late_calls": int(self._n[_LATE]), "fault": self.fault}
-        return dict(self._figures)
+        self._taken = (self._ring[:min(items, RING)].copy(),
+                       (items, int(words[W.MISSED]), int(words[W.SERVICE_NS_MAX]) / 1e9, int(self._n[_CALLS]), int(self._n[_LATE])))
 
     def close(self) -> None:
         """Stop the processor and unlink what it shared (idempotent); `figures()` keeps their last values."""
         self.close_now()()
 
     def close_now(self) -> Callable[[], None]:
-        """Ask the processor to stop, unlink and unmap what it shares (the device may be opened
-        again at once: a new processor has names of its own); return the wait for its exit (up to
-        `_STOP_TIMEOUT`, then SIGKILL), which a task's kill hands to its RTPU's background thread."""
+        """Unlink and unmap what the processor shares (the device may be opened again at once: a new
+        processor has names of its own), keeping its figures; return the processor's stop (SIGTERM,
+        its exit waited for up to `_STOP_TIMEOUT`, then SIGKILL), which a task's kill hands to its
+        RTPU's background thread."""
         if self._mapping is not None and self.process is not None:
             if not self.fault:
                 self._look_for_death()  # a processor that died under a task that no longer called it
-            self.figures()
+            self._take_figures()
         process, self.process = self.process, None
-        if process is not None and process.poll() is None:
-            process.send_signal(signal.SIGTERM)
         for name in ("_words", "_ring", "_request", "_result", "_download", "_inputs", "_answer"):
             self.__dict__.pop(name, None)
         unlink_quietly("shm", self.segment)
@@ -293,13 +298,15 @@ class SpecialPurposeProcessor(DeviceDriver):
                 mapping.close()
             except BufferError:  # a view of it outlives the driver (a caller kept one): the mapping goes with it
                 pass
-        return lambda: _wait_for_exit(process)
+        return lambda: _stop(process)
 
 
-def _wait_for_exit(process: subprocess.Popen | None) -> None:
-    """Reap the processor asked to stop; one that does not stop within `_STOP_TIMEOUT` is killed."""
+def _stop(process: subprocess.Popen | None) -> None:
+    """Stop the processor and reap it; one that does not stop within `_STOP_TIMEOUT` is killed."""
     if process is None:
         return
+    if process.poll() is None:
+        process.send_signal(signal.SIGTERM)
     try:
         process.wait(timeout=_STOP_TIMEOUT)
     except subprocess.TimeoutExpired:

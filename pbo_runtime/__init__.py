@@ -30,7 +30,7 @@ from pbo_runtime.objects.ranges import param
 from pbo_runtime.objects.registry import installed_version, module_class, registered_robot
 from pbo_runtime.objects.waypoints import Waypoints
 from pbo_runtime.reports.data_log import open_log, read_log
-from pbo_runtime.task.waits import sleep_while_cycling
+from pbo_runtime.objects.waits import sleep_while_cycling
 
 __version__ = installed_version()
 

@@ -32,7 +32,8 @@ import numpy as np
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.process import raise_if_stopping
 from pbo_runtime.ipc.messages import Event, FirstCycle, Refused, Stable, StateChanged, Stats, Switched, Window
-from pbo_runtime.task import background, waits
+from pbo_runtime.objects import waits
+from pbo_runtime.task import background
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.module import Status
 from pbo_runtime.config.reconfiguration import Reconfiguration

@@ -28,7 +28,7 @@ from pbo_runtime.reports.run_plot import csv_text, figure, load_run
 from pbo_runtime.table.table import StateTable
 from pbo_runtime.task.background import process_background
 from pbo_runtime.task.lifecycle import Task
-from pbo_runtime.task.waits import cycles_meanwhile
+from pbo_runtime.objects.waits import cycles_meanwhile
 from tests.support import PBO, REPO, variables
 
 DT = 0.01

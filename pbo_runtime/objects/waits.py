@@ -19,11 +19,15 @@ _cycling: tuple[int, Callable[[float], None]] | None = None  # (the executive's 
 
 
 def sleep_while_cycling(seconds: float) -> None:
-    """Sleep about `seconds`; in a live spawn's init, the RTPU's due cycles run meanwhile."""
+    """Sleep about `seconds`; in a live spawn's init, the RTPU's due cycles run meanwhile.
+
+    0: no sleep, only the cycles due now (a long computation in `init` lets them run between
+    its steps, as `arm_model` does between joints)."""
     global _cycling
     cycling = _cycling
     if cycling is None or cycling[0] != threading.get_ident():
-        time.sleep(seconds)
+        if seconds > 0:
+            time.sleep(seconds)
         return
     _cycling = None  # a cycle run meanwhile that waited itself would only sleep: cycles never nest
     try:

@@ -256,10 +256,10 @@ read back (it was killed live: its summary and footer were written off the cycle
 machine the hypervisor and other tenants cause holds and missed releases too, which the
 baselines count. A verb that is not applicable to a configuration (one configuration: no switch)
 is listed as such. `spawn` and `replace` make the new task on its RTPU between two cycles: the
-executive runs the cycles that come due between its steps (its module's import, its timing rings,
-its `init`), but a step longer than a period makes releases late, and the first spawn of a module
-an RTPU has not imported yet takes its import; an `init` that waits for a process it starts (the
-special-purpose processor's) holds the RTPU that long.""",
+executive runs the cycles that come due between its steps (its timing rings, its `init`) and
+through an `init`'s waits for a device (`sleep_while_cycling`: the special-purpose processor's
+start), and the RTPU imported every module of the library before the run came on; a step longer
+than a period still makes releases late.""",
     )
     results = []
     for path in paths:
@@ -296,8 +296,8 @@ special-purpose processor's) holds the RTPU that long.""",
             if w.causes:
                 section.notes.append(f"{r.name}, {w.verb}: held {', '.join(w.causes)}")
     if sys.flags.dont_write_bytecode:
-        section.notes.append("PYTHONDONTWRITEBYTECODE is set where this ran: no module's bytecode is cached, so an RTPU's "
-                             "first import of a module (a `spawn` of one it had not imported) compiles its source too")
+        section.notes.append("PYTHONDONTWRITEBYTECODE is set where this ran: no module's bytecode is cached, so each RTPU "
+                             "compiles the library it imports at start-up (a `spawn` imports nothing)")
     windows = sum(len([w for w in r.windows if not w.outcome]) for r in results)
     section.notes.append(f"holds of a critical task in verbs' windows beyond their baselines: {excess_holds} (goal 0) -> "
                          f"{'met' if excess_holds == 0 else 'NOT met'}; missed releases beyond the baselines: "

@@ -58,7 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from modules._mcap_encoder import McapEncoder, resume_point, write_all
-from pbo_runtime import ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status, param, read_log
+from pbo_runtime import ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status, param, read_log, sleep_while_cycling
 
 __all__ = ["DataLogger", "DataLoggerParams", "read_log"]
 
@@ -131,7 +131,7 @@ class DataLogger(PortBasedObject):
         self._chunk, self._times, self._pairs = self._buffers[0]
         self.path = self.output_path(params.path)
         before = _FINISHING.get(str(self.path))
-        if before is not None and not before.wait(FINISH_PATIENCE):
+        if before is not None and not _ended_within(before, FINISH_PATIENCE):
             raise OutputError(f"cannot create log {self.path}: the logger killed before is still finishing it")
         self.logged = 0  # rows taken, the chunk begun included
         self.dropped = 0  # rows taken while both buffers were full (the disk took longer than a chunk to write one)
@@ -457,6 +457,17 @@ class _McapProcess(_LogFile):
         if self.encoder is None:
             raise OSError(errno.ENOENT, "the log's encoder process was not started (its start failed)")
         return self.encoder
+
+
+def _ended_within(finished: threading.Event, patience: float) -> bool:
+    """Wait for the logger killed before to end its file: in a live spawn's init, the RTPU's other
+    tasks go on cycling meanwhile (`sleep_while_cycling`)."""
+    give_up = time.monotonic() + patience
+    while not finished.is_set():
+        if time.monotonic() > give_up:
+            return False
+        sleep_while_cycling(0.001)
+    return True
 
 
 def _flat_rows(field: np.ndarray) -> np.ndarray:

@@ -30,6 +30,7 @@ from pbo_runtime.objects.ranges import param
 from pbo_runtime.objects.registry import installed_version, module_class, registered_robot
 from pbo_runtime.objects.waypoints import Waypoints
 from pbo_runtime.reports.data_log import open_log, read_log
+from pbo_runtime.objects.waits import sleep_while_cycling
 
 __version__ = installed_version()
 
@@ -77,5 +78,6 @@ __all__ = [
     "param",
     "read_log",
     "registered_robot",
+    "sleep_while_cycling",
     "unlink_quietly",
 ]

@@ -193,6 +193,8 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
             barrier = LockstepParticipant(name, args.run_id, args.rtpu, table.header, args.ring.split(",") if args.ring else [args.rtpu],
                                           events.pending, before_step=lambda: _pump(pumped))
             realtime = {"clock": f"simulated, {args.tick * 1e3:g} ms ticks"}
+        if args.live and not simulated and not args.restarted:
+            registry.import_library()  # a task spawned live finds its module imported (forked: the server did it)
         stop_only_at_waits()  # the executive takes the table lock from here on: a stop must not land inside a transfer
         report(messages.Ready(realtime))
         if barrier is not None:

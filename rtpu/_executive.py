@@ -22,6 +22,7 @@ events instead of a timer.
 from __future__ import annotations
 
 import collections
+import contextlib
 import gc
 import math
 from typing import Any, Callable, Protocol
@@ -31,6 +32,7 @@ import numpy as np
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.process import raise_if_stopping
 from pbo_runtime.ipc.messages import Event, FirstCycle, Refused, Stable, StateChanged, Stats, Switched, Window
+from pbo_runtime.objects import waits
 from pbo_runtime.task import background
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.module import Status
@@ -683,7 +685,8 @@ class Executive:
         name = signal.task if signal is not None else message[1]
         s = self.tasks.get(name)
         if s is None and isinstance(signal, messages.Spawn) and name in self.factories:  # spawned live
-            s = self.tasks[name] = self._make(name)
+            with self._cycling_meanwhile():
+                s = self.tasks[name] = self._make(name)
         if s is None:
             self.report(Refused(name, f"no task '{name}' on this RTPU"))
             return
@@ -691,10 +694,11 @@ class Executive:
         op = message[0]
         try:
             if isinstance(signal, messages.Spawn):
-                if task.state == TaskState.KILLED and name in self.factories:
-                    s = self.tasks[name] = self._make(name)  # a new instance: TR 4.4, static
-                    task = s.task
-                task.spawn(self.clock.now())
+                with self._cycling_meanwhile():  # an init's waits (a device starting) run the due cycles
+                    if task.state == TaskState.KILLED and name in self.factories:
+                        s = self.tasks[name] = self._make(name)  # a new instance: TR 4.4, static
+                        task = s.task
+                    task.spawn(self.clock.now())
                 self._cycles_due()
                 # What the process built up to here (imports, the task and its module) lives as
                 # long as the task: freezing it keeps it out of every later collection, which then
@@ -747,11 +751,36 @@ class Executive:
 
     def _cycles_due(self) -> None:
         """On the real clock, between two steps of a signal's slow work (a spawn): run the cycles
-        released meanwhile. (The simulated clock runs cycles on its ticks only; a plan posted
-        meanwhile is the loop's to apply first, at its boundary.)"""
+        released meanwhile, after a plan whose boundary came meanwhile, as the loop would. (The
+        simulated clock runs cycles on its ticks only.)"""
+        if not self.cycles_between_steps:
+            return
         words = self.header_words
-        if self.cycles_between_steps and (words is None or words[_PLAN_SEQUENCE] == self.plan_seen):
-            self._run_ready()
+        if words is not None and words[_PLAN_SEQUENCE] != self.plan_seen:
+            now = self.clock.now()
+            self._read_plan(words[_PLAN_SEQUENCE], now)
+            if now + self.release_slack + ON_THE_BOUNDARY >= words[_PLAN_TIME_NS] / 1e9:
+                self.apply_plan()
+                self._run_ready()
+                self._send_held_reports()
+                return
+        self._run_ready()
+
+    def _cycling_meanwhile(self) -> contextlib.AbstractContextManager[None]:
+        """On the real clock, a spawn's waits (`waits.sleep_while_cycling`) run the cycles due
+        meanwhile (`_sleep_cycling`); on the simulated clock they are plain waits (time stands still)."""
+        return waits.cycles_meanwhile(self._sleep_cycling) if self.cycles_between_steps else contextlib.nullcontext()
+
+    def _sleep_cycling(self, seconds: float) -> None:
+        """Wait `seconds` and run each cycle that comes due meanwhile, at its release."""
+        clock = self.clock
+        end = clock.now() + seconds
+        while True:
+            self._cycles_due()
+            if clock.now() >= end:
+                return
+            following = min((s.release for s in self.on), default=math.inf)
+            clock.sleep_until(min(end, following))
 
     def _stage(self, sequence: int) -> None:
         """Read live description `sequence` and keep it for the next plan; its tasks on this RTPU can be spawned now."""

@@ -10,11 +10,12 @@ import threading
 
 import pytest
 
-from pbo_runtime import OutputError, OutVar, PortBasedObject
+from pbo_runtime import DeviceDriver, OutputError, OutVar, PortBasedObject
 from pbo_runtime.clock.clocks import ManualClock
+from pbo_runtime.config.model import DeviceSpec
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.messages import StateChanged
-from pbo_runtime.task.background import Background, Failure
+from pbo_runtime.task.background import Background, Failure, close_process_background
 from pbo_runtime.task.lifecycle import Task
 from rtpu._executive import Executive
 from tests.support import FakeSignals, run_until, task_spec, variables
@@ -123,3 +124,30 @@ def test_the_rtpu_waits_for_what_a_kill_handed_off_at_its_stop_and_reports_a_fai
     failed = [e for e in events if isinstance(e, StateChanged) and e.output_failed]
     assert failed == ([StateChanged("a", "KILLED", "finishing its file failed: OutputError: cannot finish a's file", True)]
                       if fail else [])
+
+
+class SlowToClose(DeviceDriver):
+    """Fake driver: closing it waits for something (a process's exit), the rest `close_now` returns."""
+
+    def close_now(self):
+        SlowToClose.closed.append(("now", threading.current_thread().name))
+        return lambda: SlowToClose.closed.append(("rest", threading.current_thread().name))
+
+
+class OpensADevice(PortBasedObject):
+    out = OutVar("out")
+
+    def init(self, params) -> None:
+        self.open_device("dev")
+
+
+def test_a_killed_tasks_driver_closes_now_between_cycles_and_the_rest_of_closing_runs_in_the_background(make_table):
+    SlowToClose.closed = []
+    table = make_table(variables(("o0", "float64", ())))
+    spec = dataclasses.replace(task_spec(OpensADevice, name="a", ports={"out": "o0"}), resources=("dev",))
+    task = Task(spec, OpensADevice, table, devices={"dev": DeviceSpec("dev", "slow")},
+                opener=lambda device, spec: SlowToClose("registers", {}))
+    assert task.spawn(0.0), task.last_error
+    task.kill(0.0)
+    assert close_process_background() == []
+    assert SlowToClose.closed == [("now", threading.current_thread().name), ("rest", "pbo-background")]

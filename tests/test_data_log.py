@@ -11,6 +11,7 @@ import shutil
 import struct
 import subprocess
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -27,6 +28,7 @@ from pbo_runtime.reports.run_plot import csv_text, figure, load_run
 from pbo_runtime.table.table import StateTable
 from pbo_runtime.task.background import process_background
 from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.objects.waits import cycles_meanwhile
 from tests.support import PBO, REPO, variables
 
 DT = 0.01
@@ -243,6 +245,29 @@ def test_a_logger_spawned_at_the_path_of_one_still_being_finished_waits_for_that
     kill_and_finish(fresh)
     log = open_log(path)  # the new log alone, whole: the old one's end was written before it replaced the file
     assert log.complete and [row.tolist() for row in log.rows["x"]] == [w[1] for w in rows]
+
+
+@pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own
+def test_while_a_logger_spawned_live_waits_for_the_file_of_the_one_before_its_rtpus_cycles_go_on(table, tmp_path):
+    path = tmp_path / "log.mcap"
+    old = logger(table, path, chunk=2 * DT)
+    run_cycles(table, old, 3)
+    gate = threading.Event()
+    process_background().hand_off(gate.wait, "test", "holding the background thread")
+    old.kill()
+    sleeps: list[float] = []
+
+    def run_the_cycles_due(seconds: float) -> None:  # the executive's, in a live spawn: here, each is counted
+        sleeps.append(seconds)
+        if len(sleeps) == 5:
+            gate.set()
+        time.sleep(seconds)
+
+    with cycles_meanwhile(run_the_cycles_due):
+        fresh = logger(table, path, chunk=2 * DT)
+    assert len(sleeps) >= 5  # the spawn waited in steps, cycles due run between them, until the old file ended
+    kill_and_finish(fresh)
+    assert open_log(path).complete
 
 
 @pytest.mark.multiprocess  # an MCAP log is encoded by a process of its own

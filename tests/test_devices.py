@@ -20,6 +20,7 @@ from drivers.io.adc import Adc
 from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.mujoco_arm.registers import DeviceError
 from modules.analog_input import AnalogInput
+from pbo_runtime import DeviceDriver
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.table.devices import DeviceBusyError, DeviceDatabase, DeviceOpenError
 from pbo_runtime.task.lifecycle import Task
@@ -176,6 +177,26 @@ def test_a_second_task_opening_an_exclusive_device_is_refused_naming_the_holder(
             r"^task 'out2' cannot open channels 2-3 of device 'dac_x': the device is exclusive and "
             rf"task 'out1' \(RTPU rtpu0, pid {os.getpid()}\) holds channels 0-1; an exclusive device has one user at a time")):
         database.open_for("dac_x", "out2")
+
+
+class SlowToClose(DeviceDriver):
+    """Fake driver of 4 channels whose close waits (for a process's exit): the rest `close_now` returns."""
+
+    PORTS = 4
+
+    def close_now(self):
+        return lambda: None
+
+
+def test_a_driver_that_closes_in_two_steps_frees_its_device_for_the_next_task_before_the_rest_of_closing(subsystem, table):
+    database = DeviceDatabase(subsystem, table, "registers", driver_lookup=lambda name: SlowToClose)
+    first = database.open("dac_x", subsystem.tasks["out1"])
+    rest = first.close_now()
+    assert held(database) == set()  # released before the wait
+    second = database.open("dac_x", subsystem.tasks["out2"])  # exclusive: refused if out1 still held it
+    rest()
+    assert {h.task for h in database.holders()} == {"out2"}
+    second.close()
 
 
 # --- sensors wired to I/O devices (TR §4.6.2) ------------------------------------------------------

@@ -7,11 +7,12 @@ import threading
 
 import pytest
 
-from pbo_runtime import OutVar, PortBasedObject, Status
+from pbo_runtime import OutVar, PortBasedObject, Status, sleep_while_cycling
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.messages import Refused, Stable, StateChanged, Stats
 from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.objects.waits import cycles_meanwhile
 from pbo_runtime.table.table import Status as W
 from pbo_runtime.table.table import TaskState
 from rtpu._executive import Executive
@@ -438,3 +439,52 @@ def test_a_task_spawned_live_lets_the_cycles_due_meanwhile_run_between_its_steps
         assert between == pytest.approx([0.003]) and after == pytest.approx([0.006])
     else:  # every step of the spawn first (the simulated clock's time stood still meanwhile)
         assert between == [] and after == []
+
+
+class WaitsForItsDevice(Ticker):
+    """Fake module: its init polls a device that answers at the 20th look (a processor starting)."""
+
+    looks = 20
+
+    def init(self, params) -> None:
+        RUNS.append((self.task_name + " init", self.clock.now()))
+        for _ in range(self.looks):
+            sleep_while_cycling(0.001)
+        RUNS.append((self.task_name + " ready", self.clock.now()))
+
+
+@pytest.mark.parametrize("real_clock", [True, False])
+def test_while_a_spawned_tasks_init_waits_for_its_device_the_other_tasks_cycle_at_each_release(make_table, real_clock):
+    RUNS.clear()
+    table = make_table(variables(("o0", "float64", ()), ("o1", "float64", ())))
+    clock = ManualClock(0.0)
+    script = [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0]), (0.0025, ["spawn", "b"])]
+    executive = Executive(clock, FakeSignals(clock, script), [].append, epoch=0.0)
+    executive.cycles_between_steps = real_clock
+    for name, index, module in (("a", 0, Ticker), ("b", 1, WaitsForItsDevice)):
+        task = Task(task_spec(module, name=name, index=index, ports={"out": f"o{index}"}), module, table)
+        task.module.clock = clock
+        executive.add(task)
+    run_until(executive, clock, 0.003)
+    assert executive.tasks["b"].task.state is TaskState.OFF
+    order = [name for name, _ in RUNS]
+    waited = [at for name, at in RUNS[order.index("b init"):order.index("b ready")] if name == "a"]
+    a = executive.tasks["a"]
+    if real_clock:  # every release during the wait ran at its time: none late, none missed
+        assert waited == pytest.approx([0.003 + 0.001 * k for k in range(20)])
+        assert (a.overruns, a.missed, a.jitter_max) == (0, 0, 0.0)
+    else:  # the simulated clock stands still while a signal is served: the cycles wait for its next tick
+        assert waited == []
+
+
+def test_a_wait_outside_a_spawn_or_in_another_thread_is_a_plain_sleep():
+    ran: list[str] = []
+    with cycles_meanwhile(lambda seconds: ran.append("cycles")):
+        helper = threading.Thread(target=sleep_while_cycling, args=(0.0,))
+        helper.start()
+        helper.join()
+        assert ran == []
+        sleep_while_cycling(0.0)
+        assert ran == ["cycles"]
+    sleep_while_cycling(0.0)
+    assert ran == ["cycles"]

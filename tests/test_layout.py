@@ -41,7 +41,7 @@ PUBLIC_NAMES = [
     "OperatorInput", "OutputError", "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec", "ResourceLimitError", "Status",
     "TableLayoutError", "Waypoints",
     "arm_model", "attach_segment", "create_segment", "format_channels", "is_robot_file", "module_class", "open_log", "param", "read_log",
-    "registered_robot", "unlink_quietly",
+    "registered_robot", "sleep_while_cycling", "unlink_quietly",
 ]
 
 

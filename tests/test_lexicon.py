@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import typing
+
+import pytest
 
 from rich.console import Console
 from rich.table import Table
 
 from pbo_runtime.objects import registry
 from pbo_runtime.reports.lexicon import as_table, lexicon, shape_text, type_text
+from tests.support import REPO
 
 
 def _by_name() -> dict[str, dict]:
@@ -73,3 +78,21 @@ def test_table_shows_every_module():
         assert name in text
     assert "kp: float | tuple[float, ...]" in text and "400.0" in text
     assert "as variable" in text or "(none declared)" in text
+
+
+IMPORT_LIBRARY = """
+import json, sys
+from importlib import metadata
+from pbo_runtime.objects import registry
+failed = registry.import_library()
+left = [ep.value for group in (registry.MODULES, registry.DRIVERS) for ep in metadata.entry_points(group=group)
+        if ep.module not in sys.modules]
+print(json.dumps([failed, left]))
+"""
+
+
+@pytest.mark.multiprocess
+def test_an_rtpu_can_import_the_whole_library_before_its_tasks_run_so_a_live_spawn_imports_nothing():
+    done = subprocess.run([sys.executable, "-c", IMPORT_LIBRARY], capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout) == [[], []]

@@ -20,7 +20,8 @@ from drivers.robots import RobotDescription, robot, robot_names, to_mjcf
 from drivers.robots.plant_model import PlantRobot, load_robot
 from modules._robot_model import END_EFFECTOR_FRAME
 from pbo_runtime import Arm, arm_model
-from tests.support import dh_forward_kinematics, dh_pinocchio_model
+from pbo_runtime.objects.waits import cycles_meanwhile
+from tests.support import REPO, dh_forward_kinematics, dh_pinocchio_model
 
 TIMESTEP = 0.001
 ROBOTS = ("puma560", "redundant7")
@@ -317,3 +318,11 @@ def test_every_robot_model_is_registered_for_the_checker_with_its_dims() -> None
     assert registry.names(registry.ROBOTS) == robot_names()
     for name in robot_names():
         assert registry.robot_dims(name) == {"NDOF": robot(name).ndof}
+
+
+def test_building_the_arms_model_in_a_live_spawns_init_lets_the_due_cycles_run_between_its_joints():
+    loaded = load_robot("puma560", REPO, 0.001, {})
+    cycle_points: list[float] = []
+    with cycles_meanwhile(cycle_points.append):  # the executive's, in a live spawn: here, each is counted
+        model = arm_model(loaded.arm, loaded.ee)
+    assert model.njoints - 1 == len(cycle_points) == 6 and cycle_points == [0] * 6

@@ -16,6 +16,8 @@ import signal
 import subprocess
 import sys
 import textwrap
+import time
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -23,11 +25,18 @@ import pinocchio
 import pytest
 
 from drivers.spp.driver import ProcessorError, SpecialPurposeProcessor
+from modules.fk_jacobian_spp import FkJacobianSpp
 from pbo_runtime import arm_model
+from pbo_runtime.clock.clocks import ManualClock
+from pbo_runtime.config.model import DeviceSpec
+from pbo_runtime.table.table import TaskState
+from pbo_runtime.task.lifecycle import Task
+from rtpu._executive import Executive
 from pbo_runtime.ipc.shm import children_of, pid_alive
 from pbo_runtime.reports.lexicon import drivers
-from tests.support import (PBO, REPO, allocation_peak, arm_tables, assert_nothing_left, killed_on_failure, one_array, read_until,
-                           run_output, run_processes, start_run, unique_name, until)
+from tests.support import (PBO, REPO, RUNS, FakeSignals, Ticker, allocation_peak, arm_tables, assert_nothing_left, killed_on_failure,
+                           one_array, read_until, robot_state_table, run_output, run_processes, run_until, start_run, task_spec,
+                           unique_name, until)
 
 CONFIG = REPO / "configs" / "visual_servoing_spp.yaml"
 Q = np.array([0.1, -0.5, 0.4, 0.1, 0.2, 0.3])
@@ -159,6 +168,50 @@ def test_a_killed_processor_is_a_named_fault_and_leaves_nothing(spp):
     spp.close()
     assert spp.figures()["fault"] == spp.fault
     assert _left(spp.segment) == []
+
+
+class PassingClock(ManualClock):
+    """Fake clock: a wait for a release also lets a millisecond of real time pass (the processor
+    starts in real time meanwhile)."""
+
+    def sleep_until(self, deadline: float) -> float:
+        time.sleep(0.001)
+        return super().sleep_until(deadline)
+
+
+@pytest.mark.multiprocess
+def test_while_a_task_spawned_live_starts_its_processor_the_rtpus_other_tasks_go_on_cycling(make_table):
+    RUNS.clear()
+    table = robot_state_table(make_table, "puma560", ("o0", "float64", ()), ("q_m", "float64", (6,)),
+                              ("x_m", "float64", (6,)), ("J", "float64", (6, 6)))
+    clock = PassingClock(0.0)
+    script = [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0]), (0.0025, ["spawn", "fk"]), (0.0035, ["kill", "fk"])]
+    executive = Executive(clock, FakeSignals(clock, script), [].append, epoch=0.0)
+    executive.cycles_between_steps = True  # as on the real clock
+    a = Task(task_spec(Ticker, name="a", index=0, ports={"out": "o0"}), Ticker, table)
+    executive.add(a)
+    processors: list[SpecialPurposeProcessor] = []
+
+    def open_processor(device, spec) -> SpecialPurposeProcessor:
+        processors.append(SpecialPurposeProcessor(_registers(), {}))
+        return processors[-1]
+
+    spec = dataclasses.replace(task_spec(FkJacobianSpp, name="fk", index=1, dims={"NDOF": 6}, params={"device": "fpa"}),
+                               resources=("fpa",))
+    executive.factories["fk"] = lambda: Task(spec, FkJacobianSpp, table, {"NDOF": 6}, {"fpa": DeviceSpec("fpa", "spp")},
+                                             open_processor)
+    run_until(executive, clock, 0.003)
+    assert executive.tasks["fk"].task.state is TaskState.OFF, executive.tasks["fk"].task.last_error
+    started = len(RUNS)
+    assert started > 10  # a's cycles while the processor's interpreter started, each at its release:
+    assert [at for _, at in RUNS] == pytest.approx([0.001 * k for k in range(started)])
+    scheduled = executive.tasks["a"]
+    assert (scheduled.overruns, scheduled.missed) == (0, 0)
+    run_until(executive, clock, clock.now() + 0.001)  # the kill: the wait for the processor's exit is handed off
+    assert executive.tasks["fk"].task.state is TaskState.KILLED
+    executive.stop()
+    [processor] = processors
+    assert processor.process is None and _left(processor.segment) == []
 
 
 @pytest.mark.multiprocess

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from pbo_runtime import InVar, OutVar, PortBasedObject, Status
+from pbo_runtime import InVar, OutVar, PortBasedObject, Status, sleep_while_cycling
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.ipc import messages
 from pbo_runtime.config.live import LiveDescription, TaskChange, to_wire
@@ -284,3 +284,28 @@ def test_a_live_description_an_rtpu_cannot_read_is_answered_with_why(rig):
     executives["rtpu0"].handle(["live", 2])
     staged = [e for _, e in events if isinstance(e, messages.Staged)]
     assert staged == [messages.Staged(2, "FileNotFoundError: live-2.json")] and executives["rtpu0"].staged is None
+
+
+class SlowToStartB(FakeControllerB):
+    """Fake module: its init polls a device that answers at the 10th look (a processor starting)."""
+
+    def init(self, params) -> None:
+        for _ in range(10):
+            sleep_while_cycling(0.001)
+
+
+def test_a_plan_whose_boundary_comes_while_a_spawns_init_waits_is_applied_at_that_boundary(rig):
+    subsystem, table, clock, executives, events = rig
+    start(subsystem, executives, clock)
+    step_executives(executives, clock, clock.now() + 0.005)
+    rtpu0 = executives["rtpu0"]
+    rtpu0.handle(["kill", "ctl_b"])
+    rtpu0.factories["ctl_b"] = lambda: Task(subsystem.tasks["ctl_b"], SlowToStartB, table)
+    activation = math.ceil((clock.now() + 0.004) / PERIOD) * PERIOD
+    post_plan(table, Reconfiguration(subsystem).index("with_a"), activation)
+    rtpu0.cycles_between_steps = True  # as on the real clock
+    spawned_from = clock.now()
+    rtpu0.handle(["spawn", "ctl_b"])  # its init waits 10 ms: the boundary comes meanwhile
+    assert rtpu0.tasks["ctl_b"].task.state is TaskState.OFF and clock.now() > activation
+    [switched] = [e for rtpu, e in events if rtpu == "rtpu0" and isinstance(e, messages.Switched)]
+    assert spawned_from < switched.applied_at == pytest.approx(activation)

@@ -36,7 +36,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import msgpack
@@ -44,7 +44,7 @@ import numpy as np
 import posix_ipc
 
 from drivers.spp.segment import MAGIC, RING, State, W, layout, views
-from pbo_runtime import DeviceDriver, create_segment, unlink_quietly
+from pbo_runtime import DeviceDriver, create_segment, sleep_while_cycling, unlink_quietly
 
 _OPTIONS = ("memory", "download_bytes", "start_timeout")
 _DEFAULTS = {"memory": 4096, "download_bytes": 262144, "start_timeout": 60.0}
@@ -104,7 +104,7 @@ class SpecialPurposeProcessor(DeviceDriver):
         self.routine = ""
         self.process: subprocess.Popen | None = None
         self.fault = ""
-        self._figures: dict[str, Any] = {}
+        self._taken: tuple[np.ndarray, tuple[int, int, float, int, int]] | None = None  # `_take_figures`
         # the driver's counters, in an array: updated in place, so a call boxes no new integer to keep
         self._n = np.zeros(_COUNTERS, dtype=np.int64)
         self._mapping = None
@@ -248,38 +248,43 @@ class SpecialPurposeProcessor(DeviceDriver):
                                      f"before it could {what}")
             if time.monotonic() > deadline:
                 raise ProcessorError(f"the special-purpose processor did not {what} within {timeout:g} s")
-            time.sleep(_POLL)
+            sleep_while_cycling(_POLL)  # in a live spawn's init, the RTPU's other tasks go on cycling
 
     # --- figures and closing -------------------------------------------------------------------
 
     def figures(self) -> dict[str, Any]:
         """The processor's own timing: work items, service time p50/p99/max (s), misses, late calls."""
-        if self._mapping is None:
-            return dict(self._figures)
+        if self._mapping is not None:
+            self._take_figures()
+        if self._taken is None:
+            return {}
+        service, (items, missed, service_max, calls, late) = self._taken
+        pct = (lambda q: float(np.percentile(service, q)) / 1e9 if service.size else 0.0)
+        return {"processor": "spp", "routine": self.routine, "items": items, "missed": missed,
+                "service_p50": pct(50), "service_p99": pct(99), "service_max": service_max,
+                "calls": calls, "late_calls": late, "fault": self.fault}
+
+    def _take_figures(self) -> None:
+        """Copy the counts and service times out of the shared memory; the percentiles wait for `figures()`."""
         words = self._words
         items = int(words[W.ITEMS])
-        kept = np.sort(self._ring[:min(items, RING)]) / 1e9
-        pct = (lambda q: float(np.percentile(kept, q)) if kept.size else 0.0)
-        self._figures = {"processor": "spp", "routine": self.routine, "items": items, "missed": int(words[W.MISSED]),
-                         "service_p50": pct(50), "service_p99": pct(99), "service_max": int(words[W.SERVICE_NS_MAX]) / 1e9,
-                         "calls": int(self._n[_CALLS]), "late_calls": int(self._n[_LATE]), "fault": self.fault}
-        return dict(self._figures)
+        self._taken = (self._ring[:min(items, RING)].copy(),
+                       (items, int(words[W.MISSED]), int(words[W.SERVICE_NS_MAX]) / 1e9, int(self._n[_CALLS]), int(self._n[_LATE])))
 
     def close(self) -> None:
         """Stop the processor and unlink what it shared (idempotent); `figures()` keeps their last values."""
+        self.close_now()()
+
+    def close_now(self) -> Callable[[], None]:
+        """Unlink and unmap what the processor shares (the device may be opened again at once: a new
+        processor has names of its own), keeping its figures; return the processor's stop (SIGTERM,
+        its exit waited for up to `_STOP_TIMEOUT`, then SIGKILL), which a task's kill hands to its
+        RTPU's background thread."""
         if self._mapping is not None and self.process is not None:
             if not self.fault:
                 self._look_for_death()  # a processor that died under a task that no longer called it
-            self.figures()
+            self._take_figures()
         process, self.process = self.process, None
-        if process is not None:
-            if process.poll() is None:
-                process.send_signal(signal.SIGTERM)
-                try:
-                    process.wait(timeout=_STOP_TIMEOUT)
-                except subprocess.TimeoutExpired:
-                    process.kill()
-                    process.wait()
         for name in ("_words", "_ring", "_request", "_result", "_download", "_inputs", "_answer"):
             self.__dict__.pop(name, None)
         unlink_quietly("shm", self.segment)
@@ -293,3 +298,17 @@ class SpecialPurposeProcessor(DeviceDriver):
                 mapping.close()
             except BufferError:  # a view of it outlives the driver (a caller kept one): the mapping goes with it
                 pass
+        return lambda: _stop(process)
+
+
+def _stop(process: subprocess.Popen | None) -> None:
+    """Stop the processor and reap it; one that does not stop within `_STOP_TIMEOUT` is killed."""
+    if process is None:
+        return
+    if process.poll() is None:
+        process.send_signal(signal.SIGTERM)
+    try:
+        process.wait(timeout=_STOP_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from pbo_runtime.objects.waits import sleep_while_cycling
+
 #: The columns of one `ARM` row. A joint's frame is its body's frame moved to the joint's anchor,
 #: placed in its parent joint's frame (or the world's, parent -1) with every joint at zero.
 ARM_COLUMNS = (
@@ -117,6 +119,7 @@ def arm_model(arm: Any, ee: Any, name: str = "arm") -> Any:
         model.appendBodyToJoint(joint_id, inertia, pinocchio.SE3.Identity())
         model.addBodyFrame(f"link{row + 1}", joint_id, pinocchio.SE3.Identity(), int(model.nframes - 1))
         joint_ids.append(joint_id)
+        sleep_while_cycling(0)  # in a live spawn's init, the RTPU's due cycles run between two joints
     parent = int(ee[0])
     model.addFrame(pinocchio.Frame(END_EFFECTOR_FRAME, joint_ids[parent] if parent >= 0 else 0,
                                    _se3(pinocchio, ee[1:4], ee[4:8]), pinocchio.FrameType.OP_FRAME))

@@ -16,13 +16,16 @@ simulated board) and the device's options, and, by what the class declares:
 A driver whose `__init__` takes `device=` also gets the device's YAML name (the trackball names
 its operator input after it).
 
+A driver whose `close` waits (for a process it started to exit, a thread to end) closes in two
+steps, `close_now` and the rest it returns: a task killed live then holds no cycle of its RTPU.
+
 A driver checks its options in `check_options`, which the checker also calls, so `pbo check`
 reports a bad option with the device's YAML location before anything runs.
 """
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping
 
 
 class DeviceDriver:
@@ -49,3 +52,14 @@ class DeviceDriver:
 
     def close(self) -> None:
         """Release the device; called when the task that opened it is killed."""
+
+    def close_now(self) -> Callable[[], None] | None:
+        """Close what must close at once, and return the rest of closing, the part that waits (a
+        process's exit, a thread's join), or None when nothing is left.
+
+        A task's kill runs between two cycles of its RTPU: the runtime calls this there and hands
+        the rest to the RTPU's background thread. Once this returns, the device may be opened
+        again (a task spawned anew): stop it and let go of every name it holds here. The
+        default is `close`, all of it now."""
+        self.close()
+        return None

@@ -79,3 +79,19 @@ def registered_robot(name: str) -> Any:
 def robot_dims(model: str) -> dict[str, int]:
     """The dims a robot model gives (e.g. {"NDOF": 6} for puma560); ModuleError for an unknown model."""
     return dict(registered_robot(model).dims)
+
+
+def import_library() -> list[str]:
+    """Import every registered module and driver now; the names that failed (each says why when used).
+
+    An RTPU does this before its first task turns on: a task spawned live later (`pbo spawn`,
+    `pbo replace`) then finds its module imported, instead of importing (and compiling) it between
+    two cycles of the tasks already running there."""
+    failed = []
+    for group in (MODULES, DRIVERS):
+        for name in names(group):
+            try:
+                load(group, name)
+            except ModuleError:
+                failed.append(name)
+    return failed

@@ -233,7 +233,8 @@ def _main_of(module: str) -> Callable[..., int]:
 
 
 def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]], Any]:
-    """Import each preloaded module's `main`, load the subsystem, look up its modules, plant and drivers."""
+    """Import each preloaded module's `main`, load the subsystem, look up its modules, plant and drivers,
+    and import the rest of the library."""
     import setproctitle  # noqa: F401 - imported once here, not in each child
 
     mains = {module: _main_of(module) for module in preload}
@@ -261,6 +262,7 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
             look_up(name)
         except Exception:  # the child that needs it looks it up again and reports the failure
             pass
+    registry.import_library()  # what a task spawned live may need: a forked RTPU (a restarted one too) has it all
     return mains, subsystem
 
 

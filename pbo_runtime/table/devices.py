@@ -136,19 +136,31 @@ class DeviceDatabase:
         except BaseException:
             self._release(records, task)
             raise
-        close = driver.close
+        close, close_now = driver.close, getattr(driver, "close_now", None)
         released = False
 
-        def close_and_release() -> None:
+        def release() -> None:
             nonlocal released
+            if not released:
+                released = True
+                self._release(records, task)
+
+        def close_and_release() -> None:
             try:
                 close()
             finally:
-                if not released:
-                    released = True
-                    self._release(records, task)
+                release()
+
+        def close_now_and_release() -> Any:
+            assert close_now is not None
+            try:
+                return close_now()  # the rest of closing (a process's exit waited for) needs no claim
+            finally:
+                release()
 
         driver.close = close_and_release  # the task closes what it opened when it is killed
+        if close_now is not None:
+            driver.close_now = close_now_and_release
         return driver
 
     def _build(self, openings: list[Opening]) -> Any:

@@ -397,8 +397,8 @@ class Task:
         return Status.ERROR
 
     def _run_kill(self, after_init: bool = False) -> None:
-        """kill, then close what the task opened (what `closes_slowly`, a message link's relay, in the
-        RTPU's background thread). After init, a kill that raises goes to the error component too
+        """kill, then close what the task opened (what `closes_slowly`, a message link's relay, and the
+        rest of a driver's `close_now`, in the RTPU's background thread). After init, a kill that raises goes to the error component too
         (for the record: the task is killed whatever it answers)."""
         try:
             self.module.kill()
@@ -410,11 +410,18 @@ class Task:
             else:
                 self.last_error += ("; " if self.last_error else "") + self._describe("kill", exc)
         for device in self.context.opened:
+            what = f"closing the {type(device).__name__} of task '{self.name}'"
             if getattr(device, "closes_slowly", False):  # it joins a thread or waits for a process: not between cycles
-                self.context.hand_off(device.close, f"closing the {type(device).__name__} of task '{self.name}'")
+                self.context.hand_off(device.close, what)
                 continue
             try:
-                device.close()
+                close_now = getattr(device, "close_now", None)  # a driver: what waits is the rest it returns
+                if close_now is None:
+                    device.close()
+                    continue
+                rest = close_now()
+                if rest is not None:
+                    self.context.hand_off(rest, what)
             except Exception as exc:
                 self.last_error += ("; " if self.last_error else "") + self._describe("device close", exc)
         self.context.opened.clear()

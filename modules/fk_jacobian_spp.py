@@ -27,6 +27,10 @@ from modules._model_based import ModelBased
 from modules._robot_model import END_EFFECTOR_FRAME
 from pbo_runtime import InVar, ModuleError, OutVar, Status, param
 
+# seconds a task that finds its result too old waits, once, on its way to ERROR, for a processor killed a
+# moment ago to end: its death is then what the task's error says, not its lateness
+DEATH_GRACE = 0.05
+
 
 @dataclass(frozen=True)
 class FkJacobianSppParams:
@@ -78,7 +82,7 @@ class FkJacobianSpp(ModelBased):
         if 0 < age <= self._max_age:
             self._publish()
             return Status.CONTINUE
-        fault = self._spp.fault
+        fault = self._spp.await_death(DEATH_GRACE)
         if fault:
             return self.fault(f"device '{self._device}': {fault}")
         return self.fault(f"device '{self._device}': its newest result is {age} cycles old, more than max_age "

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -237,6 +238,25 @@ class SpecialPurposeProcessor(DeviceDriver):
                else f"exit status {ended.si_status}")
         self.fault = (f"the special-purpose processor (pid {process.pid}) died ({how}); its last result answers call "
                       f"{self._n[_ANSWERED]} of {self._n[_SENT]}")
+
+    def await_death(self, within: float) -> str:
+        """The fault if the processor is found dead within `within` s, else "". For a task about to say the
+        processor does not keep up, once, on its way to ERROR: a processor killed a moment ago may still
+        be ending, and its death, not its lateness, is what the operator must read."""
+        process = self.process
+        if self.fault or process is None:
+            return self.fault
+        try:
+            pidfd = os.pidfd_open(process.pid)
+        except (AttributeError, OSError):
+            pidfd = -1
+        if pidfd >= 0:
+            try:
+                select.select([pidfd], [], [], within)
+            finally:
+                os.close(pidfd)
+        self._look_for_death()
+        return self.fault
 
     def _await(self, done, timeout: float, what: str) -> None:
         deadline = time.monotonic() + timeout

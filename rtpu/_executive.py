@@ -282,13 +282,16 @@ class Executive:
             finally:
                 barrier.done()
 
-    def _plan_if_due(self) -> None:
+    def _plan_if_due(self) -> bool:
+        """Read a newly posted plan; apply it if its boundary has come. True if it was applied."""
         words = self.header_words
         if words is not None and words[_PLAN_SEQUENCE] != self.plan_seen:
             now = self.clock.now()
             self._read_plan(words[_PLAN_SEQUENCE], now)
             if now + self.release_slack + ON_THE_BOUNDARY >= words[_PLAN_TIME_NS] / 1e9:
                 self.apply_plan()
+                return True
+        return False
 
     def _read_plan(self, sequence: int, now: float) -> None:
         """Stamp the first time this RTPU saw plan `sequence` (reported with its `Switched`)."""
@@ -755,16 +758,10 @@ class Executive:
         simulated clock runs cycles on its ticks only.)"""
         if not self.cycles_between_steps:
             return
-        words = self.header_words
-        if words is not None and words[_PLAN_SEQUENCE] != self.plan_seen:
-            now = self.clock.now()
-            self._read_plan(words[_PLAN_SEQUENCE], now)
-            if now + self.release_slack + ON_THE_BOUNDARY >= words[_PLAN_TIME_NS] / 1e9:
-                self.apply_plan()
-                self._run_ready()
-                self._send_held_reports()
-                return
+        applied = self._plan_if_due()
         self._run_ready()
+        if applied:
+            self._send_held_reports()
 
     def _cycling_meanwhile(self) -> contextlib.AbstractContextManager[None]:
         """On the real clock, a spawn's waits (`waits.sleep_while_cycling`) run the cycles due

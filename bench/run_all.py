@@ -16,8 +16,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from bench import (api_stream, check_scale, data_log, dora_peer, faults, hmi_latency, hmi_load, links, peers, placement, realtime,
-                   restart, robot_limits, scale, sim_speed, startup, svar_transfer, switching, wait)
+from bench import (api_stream, check_scale, data_log, dora_peer, faults, helper_threads, hmi_latency, hmi_load, links, peers,
+                   placement, realtime, restart, robot_limits, scale, sim_speed, startup, svar_transfer, switching, wait)
 from bench._common import REPO, Section, Table, machine_info
 from bench import verbs
 
@@ -29,6 +29,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "wait": wait.run,
     "switching": switching.run,
     "verbs": verbs.run,
+    "helper_threads": helper_threads.run,
     "check_scale": check_scale.run,
     "placement": placement.run,
     "links": links.section,
@@ -52,6 +53,7 @@ FULL: dict[str, dict[str, Any]] = {
     "wait": {"seconds": 1.5, "rounds": 4},
     "switching": {"switches": 1000, "interval": 0.02},
     "verbs": {"window": 0.6},
+    "helper_threads": {"seconds": 5.0, "rounds": 5},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 3},
     "placement": {"tasks": 102, "repeat": 200, "check_repeat": 5},
     "links": {},
@@ -75,6 +77,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "wait": {"seconds": 0.2, "rounds": 1},
     "switching": {"switches": 20, "interval": 0.02},
     "verbs": {"window": 0.4, "configs": verbs.QUICK_CONFIGS},
+    "helper_threads": {"seconds": 1.0, "rounds": 1},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 1},
     "placement": {"tasks": 102, "repeat": 20, "check_repeat": 1},
     "links": {"quick": True},

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import signal
 import subprocess
 import sys
@@ -56,7 +57,7 @@ class Window:
     holds: int = 0
     missed: int = 0
     took: float = math.nan  # s from request to reply
-    causes: list[str] = field(default_factory=list)  # each hold's cause and length, "stale 2.0 ms"
+    causes: list[str] = field(default_factory=list)  # each hold's cause and length, "stale q_m of robot 2 ms"
     baseline_holds: int = 0
     baseline_missed: int = 0
 
@@ -203,11 +204,18 @@ def measure(source: Path, window: float) -> ConfigRun:
             entry.baseline_holds = sum(baseline_from <= e["from"] < window_from for e in episodes)
             held = [e for e in episodes if window_from <= e["from"] < window_from + window]
             entry.holds = len(held)
-            entry.causes = [f"{e.get('cause', '?')} {((e['to'] or e['from']) - e['from']) * 1e3:.0f} ms" for e in held]
+            entry.causes = [f"{_cause(e)} {((e['to'] or e['from']) - e['from']) * 1e3:.0f} ms" for e in held]
         log = folder / "out" / f"{LOGGER}.mcap"
         if log.exists():
             result.log_rows = len(read_log(log))
     return result
+
+
+def _cause(episode: dict[str, Any]) -> str:
+    """A hold's cause, and for a stale input its variable and writer: "stale q_m of robot"."""
+    found = re.search(r"in-var '([^']+)'.*\('([^']+)' stopped", episode.get("reason", ""))
+    cause = episode.get("cause", "?")
+    return f"{cause} {found[1]} of {found[2]}" if cause == "stale" and found else cause
 
 
 def said(process: subprocess.Popen, text: str) -> bool:

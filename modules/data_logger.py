@@ -58,7 +58,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from modules._mcap_encoder import McapEncoder, resume_point, write_all
-from pbo_runtime import ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status, param, read_log, sleep_while_cycling
+from pbo_runtime import (ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status, below_the_cycle, param, read_log,
+                         sleep_while_cycling)
 
 __all__ = ["DataLogger", "DataLoggerParams", "read_log"]
 
@@ -212,6 +213,7 @@ class DataLogger(PortBasedObject):
         disk, the kernel's write-back throttling: milliseconds at times) is spent off the cycle.
         An MCAP log's preamble and its encoder process's start are the writer's too."""
         self.writer_id = threading.get_ident()
+        below_the_cycle()  # it shares the executive's GIL: never preempted by the machine while it holds it
         try:
             try:
                 self._file.start()

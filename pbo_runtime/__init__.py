@@ -31,6 +31,7 @@ from pbo_runtime.objects.registry import installed_version, module_class, regist
 from pbo_runtime.objects.waypoints import Waypoints
 from pbo_runtime.reports.data_log import open_log, read_log
 from pbo_runtime.objects.waits import sleep_while_cycling
+from pbo_runtime.objects.helper_threads import below_the_cycle
 
 __version__ = installed_version()
 
@@ -70,6 +71,7 @@ __all__ = [
     "Waypoints",
     "arm_model",
     "attach_segment",
+    "below_the_cycle",
     "create_segment",
     "format_channels",
     "is_robot_file",

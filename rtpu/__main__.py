@@ -27,6 +27,7 @@ from pbo_runtime.config.live import task_from_wire
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.log_notes import run_metadata, variable_notes
 from pbo_runtime.config.model import DEFAULT_SPIN, DeviceSpec, Subsystem, TaskSpec
+from pbo_runtime.objects.helper_threads import GIL_HANDOVER, lower_helpers
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.clock.lockstep import LockstepParticipant
 from pbo_runtime.ipc.process import Stop, become_child, stop_only_at_waits
@@ -140,6 +141,10 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
         if fifo_later:
             realtime["scheduler"] = f"SCHED_FIFO {priority} from its first task on (restarted: inits at SCHED_OTHER)"
         simulated = args.clock == "sim"
+        if not simulated:
+            # A thread of this process holding the GIL (a log's writer, the background work) gives
+            # it back within this interval when the executive wakes for a release: the spin covers it.
+            sys.setswitchinterval(GIL_HANDOVER)
         clock = SimClock(table.header, args.tick) if simulated else RealClock(args.spin)
         # what a data log says of the run and its variables: made once, copied by each task's init
         notes = variable_notes(subsystem)
@@ -180,7 +185,11 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
                               cycle_lock_wait=None if simulated else table.cycle_lock_wait)
         executive.device_figures = device_figures
         if fifo_later:
-            executive.before_first_on = lambda: _realtime.apply(rtpu.cpu, True, priority) and None
+            def take_fifo() -> None:
+                _realtime.apply(rtpu.cpu, True, priority)
+                lower_helpers()
+
+            executive.before_first_on = take_fifo
         if args.live_now:  # restarted after live changes: its tasks and configurations are the live description's
             described = live_stage(args.live_now)
             executive.reconfiguration = described.reconfiguration

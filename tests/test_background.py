@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import subprocess
+import sys
 import threading
 
 import pytest
@@ -18,7 +20,7 @@ from pbo_runtime.ipc.messages import StateChanged
 from pbo_runtime.task.background import Background, Failure, close_process_background
 from pbo_runtime.task.lifecycle import Task
 from rtpu._executive import Executive
-from tests.support import FakeSignals, run_until, task_spec, variables
+from tests.support import REPO, FakeSignals, run_until, task_spec, variables
 
 
 def test_work_handed_off_runs_in_another_thread_in_the_order_handed_and_hand_off_does_not_wait_for_it():
@@ -70,26 +72,30 @@ def test_work_that_has_not_ended_when_the_rtpu_stops_is_a_failure_not_a_hang():
     gate.set()
 
 
-def test_the_thread_runs_at_sched_other_though_the_thread_that_starts_it_runs_at_sched_fifo():
-    seen: list[int] = []
-    refused: list[OSError] = []
+HELPER_POLICY = ("import os, sys, threading; from pbo_runtime.task.background import Background\n"
+                 "if sys.argv[1] == 'fifo':\n"
+                 "    try: os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(50))\n"
+                 "    except OSError as exc: print('refused', exc); sys.exit(0)\n"
+                 "seen = []; worker = Background(); me = threading.get_native_id\n"
+                 "worker.hand_off(lambda: seen.append((os.sched_getscheduler(me()), os.sched_getparam(me()).sched_priority)), 't', 'look')\n"
+                 "worker.close(); print(seen[0] == (os.SCHED_FIFO, 1), seen[0] == (os.SCHED_OTHER, 0), os.sched_getscheduler(0))")
 
-    def start_as_the_executive() -> None:
-        try:
-            os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO, os.sched_param(1))
-        except OSError as exc:
-            refused.append(exc)
-            return
-        worker = Background()
-        worker.hand_off(lambda: seen.append(os.sched_getscheduler(threading.get_native_id())), "t", "look")
-        worker.close()
 
-    executive = threading.Thread(target=start_as_the_executive)
-    executive.start()
-    executive.join()
-    if refused:
-        pytest.skip(f"SCHED_FIFO refused here: {refused[0]}")
-    assert seen == [os.SCHED_OTHER]
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("executive", ["fifo", "other"])
+def test_the_thread_runs_just_below_the_executive_at_the_lowest_real_time_priority_or_at_sched_other(executive):
+    """At SCHED_OTHER under a SCHED_FIFO executive, preempted while it holds the GIL, it would
+    hold the executive off its release: a priority inversion."""
+    done = subprocess.run([sys.executable, "-c", HELPER_POLICY, executive], capture_output=True, text=True, cwd=REPO,
+                          timeout=60)
+    assert done.returncode == 0, done.stderr
+    if done.stdout.startswith("refused"):
+        pytest.skip(f"SCHED_FIFO refused here: {done.stdout.strip()}")
+    lowest_fifo, other, executive_policy = done.stdout.split()
+    if executive == "fifo":
+        assert (lowest_fifo, int(executive_policy) & ~os.SCHED_RESET_ON_FORK) == ("True", os.SCHED_FIFO)
+    else:
+        assert (other, int(executive_policy)) == ("True", os.SCHED_OTHER)
 
 
 class SlowToKill(PortBasedObject):
@@ -151,3 +157,22 @@ def test_a_killed_tasks_driver_closes_now_between_cycles_and_the_rest_of_closing
     task.kill(0.0)
     assert close_process_background() == []
     assert SlowToClose.closed == [("now", threading.current_thread().name), ("rest", "pbo-background")]
+
+
+LATE_FIFO = ("import os, threading; from pbo_runtime.objects.helper_threads import below_the_cycle, lower_helpers\n"
+             "ready, done = threading.Event(), threading.Event(); me = []\n"
+             "def helper(): below_the_cycle(); me.append(threading.get_native_id()); ready.set(); done.wait()\n"
+             "threading.Thread(target=helper).start(); ready.wait()\n"
+             "before = os.sched_getscheduler(me[0])\n"
+             "try: os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(50))\n"
+             "except OSError as exc: print('refused', exc); done.set(); raise SystemExit\n"
+             "lower_helpers(); print(before == os.SCHED_OTHER, (os.sched_getscheduler(me[0]), os.sched_getparam(me[0]).sched_priority) == (os.SCHED_FIFO, 1)); done.set()")
+
+
+@pytest.mark.multiprocess
+def test_a_helper_started_before_a_restarted_rtpu_takes_sched_fifo_is_lowered_below_it_when_it_does():
+    done = subprocess.run([sys.executable, "-c", LATE_FIFO], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert done.returncode == 0, done.stderr
+    if done.stdout.startswith("refused"):
+        pytest.skip(f"SCHED_FIFO refused here: {done.stdout.strip()}")
+    assert done.stdout.split() == ["True", "True"]

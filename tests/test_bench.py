@@ -21,6 +21,7 @@ TINY = {
     "wait": {"seconds": 0.05, "rounds": 1, "loads": (1, 2)},
     "switching": {"switches": 4, "interval": 0.02},
     "verbs": {"window": 0.2, "configs": ("pid_joint",)},
+    "helper_threads": {"seconds": 0.1, "rounds": 1, "hogs": 1},
     "check_scale": {"sizes": (12, 30), "repeat": 1},
     "placement": {"tasks": 12, "repeat": 2, "check_repeat": 1},
     "links": {"quick": True, "rounds": 1},

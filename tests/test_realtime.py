@@ -171,3 +171,27 @@ def test_a_plant_that_cannot_keep_up_leaves_sched_fifo_instead_of_holding_a_cpu_
     # late is counted before a step and steps after it, so the step the stop interrupted may be late but not counted
     assert plant["steps"] - 1 <= plant["late"] <= plant["steps"] and plant["left_fifo_behind"] >= 0.1, plant
     assert "and left SCHED_FIFO, so as not to hold a CPU above the RTPUs" in done.stdout.replace("\n", " ")
+
+
+@pytest.mark.multiprocess
+def test_every_thread_of_a_running_rtpu_but_its_executive_runs_below_every_executive(tmp_path):
+    """A log's writer, the background work: threads that share the executive's GIL run at the lowest
+    SCHED_FIFO priority, so no process of the machine preempts one while it holds the GIL."""
+    from tests.support import demo_copy, run_output, run_processes, start_run
+
+    run = start_run(demo_copy(tmp_path, "threads_below"), tmp_path, "--duration", "30")
+    try:
+        policies = {}
+        for role, pid in run_processes(run).items():
+            if role == "plant":
+                continue
+            for thread in sorted(int(name) for name in os.listdir(f"/proc/{pid}/task")):
+                policies[(role, thread == pid)] = policies.get((role, thread == pid), set()) | {
+                    (os.sched_getscheduler(thread) & ~os.SCHED_RESET_ON_FORK, os.sched_getparam(thread).sched_priority)}
+    finally:
+        run.send_signal(2)
+        run_output(run)
+    if policies[("rtpu0", True)] != {(os.SCHED_FIFO, 50)}:
+        pytest.skip(f"SCHED_FIFO refused here: rtpu0 runs {policies[('rtpu0', True)]}")
+    assert policies[("rtpu0", False)] == {(os.SCHED_FIFO, 1)}  # its logger's writer and the background thread
+    assert policies[("rtpu1", False)] == {(os.SCHED_FIFO, 1)}

@@ -23,6 +23,7 @@ import threading
 from typing import Any
 
 from pbo_runtime.ipc import messages
+from pbo_runtime.objects.helper_threads import below_the_cycle
 
 POLL = 0.1  # seconds the relay blocks on the link before it looks at its stop flag
 
@@ -61,6 +62,7 @@ class MessageRelay:
             self.forwarded += 1
 
     def _forward(self) -> None:
+        below_the_cycle()  # it shares the executive's GIL
         link, stop, signals = self.link, self._stop, self._signals
         while not stop.is_set():
             try:

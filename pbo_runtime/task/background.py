@@ -3,12 +3,13 @@
 A task's `off` and `kill` run between two cycles of every task on its RTPU. Whatever is slow
 there (a log's last chunk encoded and its footer written, a helper process or thread joined, a
 file closed) makes the next releases late. A component hands such work to this thread instead
-(`PortBasedObject.hand_off`) and returns at once. The thread runs at SCHED_OTHER: it takes the CPU
-time the executive's SCHED_FIFO thread leaves idle. Its work should spend its time waiting (system
+(`PortBasedObject.hand_off`) and returns at once. The thread runs below the executive's thread:
+it takes the CPU time the executive leaves idle. Its work should spend its time waiting (system
 calls, a child process, a join) with the GIL released: Python computing here holds the GIL, and
-the executive's thread waits for it at its next release (CPU-heavy work belongs in a process of
-its own). For the same reason the thread is not niced: holding the GIL, it must not wait behind
-the machine's other processes for its CPU while the executive waits for it.
+the executive's thread waits for it at its next release, for at most the RTPU's switch interval
+(CPU-heavy work belongs in a process of its own). For the same reason the thread runs at the
+lowest real-time priority when the executive runs SCHED_FIFO (`below_the_cycle`): holding the
+GIL, it must not wait behind the machine's other processes for its CPU while the executive waits.
 
 Nothing handed off is lost: the work runs in the order handed, the RTPU waits for all of it
 when it stops (`close`), and a failure is kept with the task that handed it (`failures`), for the
@@ -25,6 +26,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from pbo_runtime.errors import OutputError
+from pbo_runtime.objects.helper_threads import below_the_cycle
 
 CLOSE_PATIENCE = 60.0  # s the RTPU waits at its stop for the work handed off to end
 
@@ -120,7 +122,7 @@ class Background:
             self._thread.start()
 
     def _serve(self) -> None:
-        step_aside()
+        below_the_cycle()
         while True:
             with self._changed:
                 while not self._queue and not self._closing:
@@ -140,15 +142,6 @@ class Background:
                 self._pending -= 1
                 self.done += 1
                 self._changed.notify_all()
-
-
-def step_aside() -> None:
-    """This thread to SCHED_OTHER (it may have inherited the executive's SCHED_FIFO): the
-    executive's thread, on the same CPU, then always runs first."""
-    try:
-        os.sched_setscheduler(threading.get_native_id(), os.SCHED_OTHER, os.sched_param(0))
-    except OSError:
-        pass
 
 
 _process: Background | None = None

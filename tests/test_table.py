@@ -166,3 +166,28 @@ def test_transfer_indices_do_not_grow_with_the_table(make_table):
     big_vars = VARS + [v.__class__(v.name, len(VARS) + i, v.dtype, v.shape) for i, v in enumerate(big_vars[len(VARS):])]
     big = LocalTable(make_table(big_vars), task_spec(Copier).bindings, 0)
     assert [g.index.size for g in big._in_var.groups] == [g.index.size for g in small._in_var.groups]
+
+
+@pytest.mark.parametrize("ceiling", [1, None])
+def test_job_control_holds_the_lock_at_its_ceiling_priority_and_runs_as_before_after(make_table, ceiling):
+    """A SCHED_OTHER holder preempted by any process would keep every RTPU waiting for the lock."""
+    table = make_table(variables(("x", "float64", (3,))))
+    table.lock_ceiling = ceiling
+    seen: list[tuple[int, int]] = []
+
+    def hold() -> None:  # (a thread of its own: the test's thread keeps its scheduling whatever happens)
+        me = threading.get_native_id()
+        table.acquire()
+        try:
+            seen.append((os.sched_getscheduler(me), os.sched_getparam(me).sched_priority))
+        finally:
+            table.release()
+        seen.append((os.sched_getscheduler(me), os.sched_getparam(me).sched_priority))
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    holder.join()
+    if ceiling is not None and seen[0] == (os.SCHED_OTHER, 0):
+        pytest.skip("SCHED_FIFO refused here: the holder runs as it did")
+    held_at = (os.SCHED_FIFO, 1) if ceiling else (os.SCHED_OTHER, 0)
+    assert seen == [held_at, (os.SCHED_OTHER, 0)]

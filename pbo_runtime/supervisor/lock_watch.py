@@ -32,6 +32,7 @@ from typing import Any, Callable
 import posix_ipc
 
 from pbo_runtime.ipc import shm
+from pbo_runtime.objects.helper_threads import HELPER_FIFO_PRIORITY
 from pbo_runtime.supervisor.children import Child
 from pbo_runtime.supervisor.failures import RunFailure, StopRequested
 from pbo_runtime.supervisor.fork_server import ForkedProcess
@@ -122,6 +123,8 @@ class LockWatching:
     def _watch_the_lock(self, table: StateTable) -> None:
         """From the table's creation: job control's writes wait through `_take_table_lock`; looks begin."""
         table.lock_wait = self._take_table_lock
+        if getattr(self, "fifo", False):  # (a host tested without processes has none) the RTPUs run SCHED_FIFO:
+            table.lock_ceiling = HELPER_FIFO_PRIORITY  # job control holds the lock above every ordinary process
         self.lock_watch = LockWatch(lock_hold_bound(self.shortest_period),
                                     lambda: LockSample(table.lock_held, table.lock_holder, table.lock_sequence))
 

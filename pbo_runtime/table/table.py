@@ -32,6 +32,7 @@ from __future__ import annotations
 import enum
 import hashlib
 import os
+import threading
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable
 
@@ -270,6 +271,10 @@ class StateTable:
         # How this process waits for the lock: None blocks (an RTPU); job control sets a bounded
         # wait that looks after the holder meanwhile (`supervisor.lock_watch`).
         self.lock_wait: Callable[[], None] | None = None
+        # A process at SCHED_OTHER that takes the lock (job control) holds it at this SCHED_FIFO
+        # priority (a priority ceiling): no ordinary process preempts it while the RTPUs wait. None: as it runs.
+        self.lock_ceiling: int | None = None
+        self._raised: int | None = None  # the thread raised to the ceiling for this hold (native id)
         # How long a task's per-cycle transfer waits for the lock, in seconds (None: as long as it
         # takes). An RTPU hosting a critical task on the real clock bounds it, so that a lock a
         # dying process holds costs a cycle's stable behaviour, not missed releases (the executive
@@ -374,14 +379,22 @@ class StateTable:
 
     def acquire(self) -> None:
         """Take the lock (as `lock_wait` says) and sign the holder word; a write must also `begin_write`."""
-        if self.lock_wait is None:
-            self.lock.acquire()
-        else:
-            self.lock_wait()
+        raised = _raise_to(self.lock_ceiling) if self.lock_ceiling is not None else None
+        try:
+            if self.lock_wait is None:
+                self.lock.acquire()
+            else:
+                self.lock_wait()
+        except BaseException:
+            _lower(raised)
+            raise
+        self._raised = raised  # (under the lock: one holder at a time)
         self.lock_words[Header.LOCK_HOLDER] = self._pid
 
     def release(self) -> None:
+        raised, self._raised = self._raised, None
         self.lock.release()
+        _lower(raised)
 
     def begin_write(self) -> int:
         """Under the lock, before a write observers may read: the sequence odd (`LockedSegment.begin_write`)."""
@@ -474,6 +487,26 @@ class StateTable:
 
     def dtype_view(self, dtype: np.dtype) -> np.ndarray:
         return self._views[np.dtype(dtype).name]
+
+
+def _raise_to(priority: int) -> int | None:
+    """This thread to SCHED_FIFO `priority` if it runs SCHED_OTHER; its native id if it was raised."""
+    thread = threading.get_native_id()
+    try:
+        if os.sched_getscheduler(thread) & ~os.SCHED_RESET_ON_FORK != os.SCHED_OTHER:
+            return None  # (already real time: an executive, a helper)
+        os.sched_setscheduler(thread, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError:
+        return None  # SCHED_FIFO refused: it holds the lock as it runs
+    return thread
+
+
+def _lower(thread: int | None) -> None:
+    if thread is not None:
+        try:
+            os.sched_setscheduler(thread, os.SCHED_OTHER, os.sched_param(0))
+        except OSError:
+            pass
 
 
 def read_manifest(mapping, offset: int) -> list[str]:

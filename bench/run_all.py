@@ -52,7 +52,7 @@ FULL: dict[str, dict[str, Any]] = {
     "realtime": {"seconds": 240.0, "rtpus": (1, 2, 4), "rounds": 48, "other_seconds": 60.0, "other_rounds": 12},
     "wait": {"seconds": 1.5, "rounds": 4},
     "switching": {"switches": 1000, "interval": 0.02},
-    "verbs": {"window": 0.6},
+    "verbs": {"window": 0.6, "rounds": 2},
     "helper_threads": {"seconds": 5.0, "rounds": 5},
     "check_scale": {"sizes": (102, 1002, 10002), "repeat": 3},
     "placement": {"tasks": 102, "repeat": 200, "check_repeat": 5},

@@ -8,7 +8,7 @@ length just before the request, without a verb, is its baseline. Counted in each
 critical tasks' holds (stable episodes beginning in it, from the run's report) and the releases
 of every task missed (late by more than its period, from the table's counts as the run goes).
 
-    python -m bench.verbs [--window 0.6] [--configs pid_joint,switch_joint]
+    python -m bench.verbs [--window 0.6] [--rounds 1] [--configs pid_joint,switch_joint]
 """
 
 from __future__ import annotations
@@ -91,8 +91,8 @@ def copy_of(source: Path, folder: Path) -> tuple[Path, str]:
     return path, name
 
 
-def requests(config: Path, status: dict[str, Any], folder: Path) -> dict[str, dict[str, Any] | str]:
-    """Each verb's request on this subsystem, or why it has none here."""
+def requests(config: Path, status: dict[str, Any], folder: Path, round_index: int = 0) -> dict[str, dict[str, Any] | str]:
+    """Each verb's request on this subsystem in round `round_index`, or why it has none here."""
     subsystem = load_subsystem(config)
     on = [t["task"] for t in status.get("tasks", []) if t.get("state") == "ON"]
     specs = [subsystem.tasks[name] for name in on if name in subsystem.tasks]
@@ -111,7 +111,7 @@ def requests(config: Path, status: dict[str, Any], folder: Path) -> dict[str, di
         logged = next(iter(subsystem.variables))
     rtpu = (others or critical)[0].rtpu if specs else next(iter(subsystem.rtpus)).name
     made["spawn"] = {"task": LOGGER, "module": "data_logger", "rtpu": rtpu, "period": "10ms",
-                     "param": [f"variables=[{logged}]", f"path={LOGGER}.mcap"]}
+                     "param": [f"variables=[{logged}]", f"path={LOGGER}{round_index or ''}.mcap"]}
     made["off"] = made["on"] = made["kill"] = {"task": LOGGER}
     replaceable = [s for s in others if s.module != "data_logger"]
     made["replace"] = {"task": replaceable[0].name, "new": f"{replaceable[0].name}_b"} if replaceable else "no task to replace"
@@ -143,7 +143,7 @@ def job_request(subsystem: Any, current: str) -> dict[str, Any] | None:
     return None
 
 
-def measure(source: Path, window: float) -> ConfigRun:
+def measure(source: Path, window: float, rounds: int = 1) -> ConfigRun:
     result = ConfigRun(source.stem)
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
@@ -161,28 +161,9 @@ def measure(source: Path, window: float) -> ConfigRun:
             counts = Counts(config, name, process.pid)
             try:
                 time.sleep(window)  # the start's own late releases are over
-                made = requests(config, client.call("status"), folder)
-                for verb in VERBS:
-                    entry = Window(verb)
-                    request = made[verb]
-                    if isinstance(request, str):
-                        entry.outcome = request
-                        result.windows.append(entry)
-                        continue
-                    before = counts.missed()
-                    time.sleep(window)
-                    at = time.monotonic()
-                    middle = counts.missed()
-                    entry.baseline_missed = middle - before
-                    try:
-                        client.call(verb, request, timeout=COMMANDS[verb].timeout)
-                    except PboError as exc:
-                        entry.outcome = f"refused: {str(exc)[:100]}"
-                    entry.took = time.monotonic() - at
-                    time.sleep(max(at + window - time.monotonic(), 0.0))
-                    entry.missed = counts.missed() - middle
-                    marks.append((entry, at - window, at))
-                    result.windows.append(entry)
+                for round_index in range(rounds):
+                    made = requests(config, client.call("status"), folder, round_index)
+                    marks += windows(client, counts, made, window, result)
             finally:
                 counts.table.close()
         finally:
@@ -205,9 +186,9 @@ def measure(source: Path, window: float) -> ConfigRun:
             held = [e for e in episodes if window_from <= e["from"] < window_from + window]
             entry.holds = len(held)
             entry.causes = [f"{_cause(e)} {((e['to'] or e['from']) - e['from']) * 1e3:.0f} ms" for e in held]
-        log = folder / "out" / f"{LOGGER}.mcap"
-        if log.exists():
-            result.log_rows = len(read_log(log))
+        logs = sorted((folder / "out").glob(f"{LOGGER}*.mcap"))
+        if logs:
+            result.log_rows = sum(len(read_log(log)) for log in logs)
     return result
 
 
@@ -216,6 +197,34 @@ def _cause(episode: dict[str, Any]) -> str:
     found = re.search(r"in-var '([^']+)'.*\('([^']+)' stopped", episode.get("reason", ""))
     cause = episode.get("cause", "?")
     return f"{cause} {found[1]} of {found[2]}" if cause == "stale" and found else cause
+
+
+def windows(client: ControlClient, counts: Counts, made: dict[str, dict[str, Any] | str], window: float,
+            result: ConfigRun) -> list[tuple[Window, float, float]]:
+    """Each verb sent in its window after a baseline as long; (window, baseline from, window from) of each."""
+    marks = []
+    for verb in VERBS:
+        entry = Window(verb)
+        request = made[verb]
+        if isinstance(request, str):
+            entry.outcome = request
+            result.windows.append(entry)
+            continue
+        before = counts.missed()
+        time.sleep(window)
+        at = time.monotonic()
+        middle = counts.missed()
+        entry.baseline_missed = middle - before
+        try:
+            client.call(verb, request, timeout=COMMANDS[verb].timeout)
+        except PboError as exc:
+            entry.outcome = f"refused: {str(exc)[:400]}"
+        entry.took = time.monotonic() - at
+        time.sleep(max(at + window - time.monotonic(), 0.0))
+        entry.missed = counts.missed() - middle
+        marks.append((entry, at - window, at))
+        result.windows.append(entry)
+    return marks
 
 
 def said(process: subprocess.Popen, text: str) -> bool:
@@ -239,12 +248,12 @@ def shipped(names: tuple[str, ...] = ()) -> list[Path]:
     return [path for path in sorted(CONFIGS.glob("*.yaml")) if (not names or path.stem in names)]
 
 
-def run(window: float = 0.6, configs: tuple[str, ...] = ()) -> Section:
+def run(window: float = 0.6, configs: tuple[str, ...] = (), rounds: int = 1) -> Section:
     paths = shipped(configs)
     section = Section(
         key="verbs",
         title="Operator verbs on running subsystems",
-        command=f"python -m bench.verbs --window {window:g}" + (f" --configs {','.join(configs)}" if configs else ""),
+        command=f"python -m bench.verbs --window {window:g} --rounds {rounds}" + (f" --configs {','.join(configs)}" if configs else ""),
         method=f"""
 {len(VERBS)} verbs on {len(paths)} configurations: each of configs/ that runs on the real clock
 is started under a name of its own (live changes on), and once it is on the benchmark sends the
@@ -252,7 +261,7 @@ operator's verbs over its control queue, as `pbo VERB` does, one at a time: `set
 1.01), `switch` (to another configuration), `job` (one of the configuration on, with its object's
 initial values), `spawn` (a data logger `{LOGGER}` writing MCAP, on the RTPU of the first
 non-critical task), `off`, `on` and `kill` of that logger, `replace` (a non-critical task by a
-copy of itself), `save` (the live subsystem to a file). Each verb's window is {window:g} s from its
+copy of itself), `save` (the live subsystem to a file), {rounds} round(s) of them. Each verb's window is {window:g} s from its
 request; the {window:g} s just before the request, without a verb, is its baseline in the same run.
 Counted in each: the **holds** of the critical tasks (stable episodes that begin in it, from the
 run's report) and the **missed** releases of all tasks (a release late by more than its period is
@@ -274,7 +283,7 @@ than a period still makes releases late.""",
         if path.stem in SKIPPED:
             results.append(ConfigRun(path.stem, failure=f"skipped: {SKIPPED[path.stem]}"))
             continue
-        results.append(measure(path, window))
+        results.append(measure(path, window, rounds))
     table = Table(["verb", "configurations", "holds", "baseline holds", "missed", "baseline missed", "reply p50 ms",
                    "reply max ms"], numeric=(1, 2, 3, 4, 5, 6, 7))
     excess_holds = excess_missed = 0
@@ -292,7 +301,7 @@ than a period still makes releases late.""",
                        numeric=(1, 2, 3, 4), caption="Per configuration:")
     for r in results:
         done = [w for w in r.windows if not w.outcome]
-        notes = [f"{w.verb}: {w.outcome}" for w in r.windows if w.outcome]
+        notes = list(dict.fromkeys(f"{w.verb}: {w.outcome}" for w in r.windows if w.outcome))
         if r.log_rows >= 0:
             notes.append(f"{LOGGER}.mcap read back: {r.log_rows} rows")
         per_config.add(r.name, len(done), f"{sum(w.holds for w in done)} ({sum(w.baseline_holds for w in done)})",
@@ -318,8 +327,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--window", type=float, default=0.6)
     parser.add_argument("--configs", default="", help="comma-separated names of configs/*.yaml (default: all)")
+    parser.add_argument("--rounds", type=int, default=1, help="times each configuration is sent every verb")
     args = parser.parse_args()
-    print(run(args.window, tuple(c for c in args.configs.split(",") if c)).text())
+    print(run(args.window, tuple(c for c in args.configs.split(",") if c), args.rounds).text())
 
 
 if __name__ == "__main__":

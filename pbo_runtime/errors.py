@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import re
-from typing import NamedTuple, Sequence
+from typing import Iterable, NamedTuple, Sequence
 
 
 class Note(NamedTuple):
@@ -143,3 +143,16 @@ class ResourceLimitError(PboError):
 
 class InternalError(PboError):
     """An invariant of the runtime itself broke: please report this with the command you ran."""
+
+
+def closest_name(name: object, choices: Iterable[str]) -> str | None:
+    """The one of `choices` an unknown `name` most likely meant, or None: a truncation first
+    ('prio' for 'priority', which difflib alone may take for 'period'), then the closest spelling."""
+    import difflib
+
+    text, options = str(name), sorted({str(c) for c in choices})
+    truncated = [o for o in options if len(text) >= 3 and o.startswith(text)]
+    if truncated:
+        return truncated[0]
+    close = difflib.get_close_matches(text, options, n=1, cutoff=0.6)
+    return close[0] if close else None

@@ -272,6 +272,40 @@ def test_version_prints_the_version_pyproject_declares(capsys):
     assert capsys.readouterr().out == f"pbo {declared}\n"
 
 
+@pytest.mark.parametrize("argv, said", [
+    (["chekc", "x.yaml"], "invalid choice: 'chekc'"),
+    (["run", "x.yaml", "--durration", "3"], "unrecognized arguments: --durration 3\n  did you mean '--duration'?"),
+    (["run", "x.yaml", "--clokc", "sim", "--statc"], "did you mean '--clock' for '--clokc', '--static' for '--statc'?"),
+    (["run", "x.yaml", "--config"], "argument --config: expected one argument"),
+    (["log", "export"], "the following arguments are required: LOG, --csv"),
+    (["set", "pid"], "the following arguments are required: param, values"),
+])
+def test_a_wrong_argument_exits_1_as_the_readme_says_with_the_closest_verb_or_flag(argv, said, capsys):
+    with pytest.raises(SystemExit) as stopped:
+        main(argv)
+    assert stopped.value.code == 1
+    assert said in capsys.readouterr().err
+
+
+def test_a_misspelt_verb_is_answered_with_the_closest_one(capsys):
+    with pytest.raises(SystemExit):
+        main(["chekc", "x.yaml"])
+    assert capsys.readouterr().err.endswith("  did you mean 'check'?\n")
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["--config", "joint_pdi"], "error: no configuration 'joint_pdi' in {file}: did you mean 'joint_pid'? (configurations: joint_pid)"),
+    (["--app", "tuor"], "error: no application 'tuor' in {file} (applications: none)"),
+])
+def test_a_configuration_or_application_the_file_lacks_is_a_wrong_argument_exit_1_with_no_run_started(argv, said, tmp_path,
+                                                                                                       capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    config = demo_copy(tmp_path, "wrong_argument")
+    assert main(["run", str(config), "--clock", "sim", "--no-live", *argv]) == 1
+    assert said.format(file=config) in capsys.readouterr().err
+    assert list((tmp_path / "runs").glob("*")) == []  # refused before anything started
+
+
 # --- issue 18: files that are not UTF-8, or too large, are bad input: one line, exit 1 ----------------------
 
 

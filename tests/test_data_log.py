@@ -512,6 +512,6 @@ def test_a_run_refused_before_it_starts_leaves_no_run_directory(tmp_path, monkey
     monkeypatch.chdir(tmp_path)
     config = tmp_path / "arm.yaml"
     config.write_text((REPO / "configs" / "pid_joint.yaml").read_text())
-    assert main(["run", str(config), "--clock", "sim", "--no-live", "--config", "no_such"]) == 2
+    assert main(["run", str(config), "--clock", "sim", "--no-live", "--config", "no_such"]) == 1  # a wrong argument
     assert "no configuration 'no_such'" in capsys.readouterr().err
     assert list((tmp_path / "runs").iterdir()) == []

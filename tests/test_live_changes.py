@@ -211,6 +211,7 @@ def test_a_tunable_parameter_is_set_at_a_cycle_boundary(host):
     ({"param": "gravity_feedforward", "values": ["false"]},
      r"^parameter 'gravity_feedforward' of task 'pid' is not live-tunable: module 'pid_joint' reads it in init only "
      r"\(live-tunable: kp, kd, ki\); to change it, replace the task: pbo replace pid NEW --param gravity_feedforward=...$"),
+    ({"param": "kdd", "values": ["1"]}, r"^module 'pid_joint' of task 'pid' has no parameter 'kdd': did you mean 'kd'\? "),
     ({"param": "kq", "values": ["1"]}, r"^module 'pid_joint' of task 'pid' has no parameter 'kq' \(parameters: kp, kd, ki, "
                                        r"integral_limit, gravity_feedforward; live-tunable: kp, kd, ki\)$"),
     *[({"param": "kp", "values": [value]},

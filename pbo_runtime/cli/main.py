@@ -23,10 +23,12 @@ from rich.live import Live
 from rich.table import Table
 
 from pbo_runtime.cli import schedule
+from pbo_runtime.cli.arguments import ArgumentParser
 from pbo_runtime.clock.clocks import scheduler_outcome
 from pbo_runtime.objects import registry
 from pbo_runtime.errors import ConfigErrors, PboError
 from pbo_runtime.ipc.control import BadRequest
+from pbo_runtime.supervisor.failures import WrongArgument
 from pbo_runtime.config.transitions import transitions
 from pbo_runtime.config.job_dictionary import dictionary_lines, job_dictionary
 
@@ -53,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigErrors as exc:
         errors.print(str(exc), markup=False)
         return EXIT_CONFIG
-    except BadRequest as exc:  # an operator command whose arguments the run refused: bad input
+    except (BadRequest, WrongArgument) as exc:  # arguments the run refused (an operator's command, `--config nope`): bad input
         errors.print(f"error: {exc}", markup=False)
         return EXIT_CONFIG
     except PboError as exc:
@@ -91,7 +93,7 @@ def _sayer(console: Console) -> Callable[[str], None]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="pbo", description="Reconfigurable real-time control from port-based objects.")
+    parser = ArgumentParser(prog="pbo", description="Reconfigurable real-time control from port-based objects.")
     parser.add_argument("--debug", action="store_true", help="show Python tracebacks of internal errors")
     parser.add_argument("--version", action="version", version=f"pbo {registry.installed_version()}",
                         help="print the installed pbo-runtime's version and exit")

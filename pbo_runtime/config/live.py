@@ -42,7 +42,7 @@ from pbo_runtime.config.limits import MAX_NAME
 from pbo_runtime.config.loader import check_loaded, load_document
 from pbo_runtime.config.model import NOWHERE, ConfigurationSpec, Location, PortBinding, Subsystem, TaskSpec
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, plain
-from pbo_runtime.errors import ConfigError, PboError
+from pbo_runtime.errors import ConfigError, PboError, closest_name
 from pbo_runtime.objects import registry
 
 # A live task's name: a plain identifier, at most MAX_NAME characters (the checker's bound for every name)
@@ -166,7 +166,9 @@ class LiveDescription:
         fields = [f.name for f in dataclasses.fields(module_class.Params)] if dataclasses.is_dataclass(module_class.Params) else []
         tunable = tuple(getattr(module_class, "TUNABLE", ()))
         if param not in fields:
-            raise LiveChangeRefused(f"module '{spec.module}' of task '{task}' has no parameter '{param}' "
+            close = closest_name(param, fields)
+            raise LiveChangeRefused(f"module '{spec.module}' of task '{task}' has no parameter '{param}'"
+                                    + (f": did you mean '{close}'?" if close else "") + " "
                                     f"(parameters: {', '.join(fields) or 'none'}; live-tunable: {', '.join(tunable) or 'none'})")
         if param not in tunable:
             raise LiveChangeRefused(

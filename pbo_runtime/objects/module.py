@@ -18,7 +18,7 @@ from typing import Any, Callable, ClassVar, Mapping
 
 import numpy as np
 
-from pbo_runtime.errors import ParamError
+from pbo_runtime.errors import ParamError, closest_name
 from pbo_runtime.objects.ports import Port, PortSpec
 from pbo_runtime.objects.ranges import OutOfRange, Range, check_number
 
@@ -298,7 +298,10 @@ def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
     unknown = sorted(set(values) - fields.keys())
     if unknown:
         valid = ", ".join(sorted(fields)) or "none"
-        raise ParamError(f"unknown parameter(s) {', '.join(repr(u) for u in unknown)} for {owner} (valid: {valid})")
+        meant = [f"'{close}'" + (f" for '{u}'" if len(unknown) > 1 else "") for u in unknown
+                 for close in [closest_name(u, fields)] if close]
+        hint = f"; did you mean {', '.join(meant)}?" if meant else ""
+        raise ParamError(f"unknown parameter(s) {', '.join(repr(u) for u in unknown)} for {owner}{hint} (valid: {valid})")
     converted: dict[str, Any] = {}
     for name, value in values.items():
         converted[name] = convert_param(params_type, name, value, f"{owner}.{name}")

@@ -9,6 +9,10 @@ class RunFailure(PboError):
     """The run could not start or had to stop: the message says which process or task, and why."""
 
 
+class WrongArgument(PboError):
+    """An argument of `pbo run` names what the file does not have (`--config nope`): bad input, exit 1."""
+
+
 class RunRefused(PboError):
     """The run may not start: another live run holds what it needs. Nothing of it is left running."""
 

@@ -35,7 +35,7 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.config.limits import MAX_NAME
 from pbo_runtime.config.live import LiveDescription
 from pbo_runtime.config.model import Subsystem, TaskSpec
-from pbo_runtime.errors import PboError
+from pbo_runtime.errors import PboError, closest_name
 from pbo_runtime.config.application import MESSAGE_OVERHEAD_BYTES, MSGPACK_BYTES_PER_NUMBER
 from pbo_runtime.ipc.control import REQUEST_BYTES, ControlServer, control_queue_name, control_queue_size
 from pbo_runtime.supervisor.child_watch import ChildWatch
@@ -43,7 +43,7 @@ from pbo_runtime.supervisor.children import Children, Child
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.supervisor.control_service import ControlService
 from pbo_runtime.supervisor.events import EventHandling
-from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested
+from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested, WrongArgument
 from pbo_runtime.supervisor.fork_server import ForkServer
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
 from pbo_runtime.supervisor.live_changes import LiveChanges
@@ -101,8 +101,10 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.links = dict(links or {})  # an application's links, handed to every RTPU (see _links)
         self.application = application
         if application is not None and application not in subsystem.applications:
-            raise RunFailure(f"no application '{application}' in {subsystem.file} "
-                             f"(applications: {', '.join(subsystem.applications) or 'none'})")
+            close = closest_name(application, subsystem.applications)
+            raise WrongArgument(f"no application '{application}' in {subsystem.file}"
+                                + (f": did you mean '{close}'?" if close else "")
+                                + f" (applications: {', '.join(subsystem.applications) or 'none'})")
         if application is not None and not subsystem.applications[application].complete:
             raise RunFailure(f"application '{application}' is incomplete (a step lacks the object its job needs) and "
                              f"cannot be run; pbo check {subsystem.file} shows which step")
@@ -111,10 +113,10 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             configuration = subsystem.jobs[first[0][0]].configuration if first else None
         self.configuration = configuration or next(iter(subsystem.configurations))
         if self.configuration not in subsystem.configurations:
-            raise RunFailure(
-                f"no configuration '{self.configuration}' in {subsystem.file} "
-                f"(configurations: {', '.join(subsystem.configurations)})"
-            )
+            close = closest_name(self.configuration, subsystem.configurations)
+            raise WrongArgument(f"no configuration '{self.configuration}' in {subsystem.file}"
+                                + (f": did you mean '{close}'?" if close else "")
+                                + f" (configurations: {', '.join(subsystem.configurations)})")
         self.duration = duration
         self.on_tick = on_tick
         self.say = say

@@ -4,10 +4,10 @@ times, shapes and lists as a message shows them.
 
 from __future__ import annotations
 
-import difflib
 from typing import Iterable, Sequence
 
 from pbo_runtime.config.values import describe as describe  # the same words for values wherever they are checked
+from pbo_runtime.errors import closest_name
 
 LISTED = 12  # choices named in a hint; a longer list helps nobody read it
 
@@ -15,14 +15,11 @@ LISTED = 12  # choices named in a hint; a longer list helps nobody read it
 def did_you_mean(name: object, choices: Iterable[str], what: str = "valid") -> str:
     """'did you mean 'x'? (valid: a, b, c)' - the hint for an unknown name."""
     options = sorted({str(c) for c in choices})
-    text = str(name)
-    # A truncation ('prio' for 'priority') is the likeliest slip; difflib alone may prefer 'period'.
-    close = [o for o in options if len(text) >= 3 and o.startswith(text)][:1]
-    close = close or difflib.get_close_matches(text, options, n=1, cutoff=0.6)
+    close = closest_name(name, options)
     shown = options if len(options) <= LISTED else [*options[:LISTED], f"... {len(options) - LISTED} more"]
     listing = f"({what}: {', '.join(shown)})" if options else f"({what}: none)"
     if close:
-        return f"did you mean '{close[0]}'? {listing}"
+        return f"did you mean '{close}'? {listing}"
     return listing
 
 

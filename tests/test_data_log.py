@@ -436,6 +436,23 @@ def test_pbo_log_export_writes_the_file_named_and_says_so(run_dir, tmp_path, cap
     assert out.read_text() == csv_text(open_log(run_dir / "log.mcap"))
 
 
+def test_pbo_log_export_takes_the_run_directory_pbo_plot_takes(run_dir, capsys):
+    assert main(["log", "export", str(run_dir), "--csv"]) == 0
+    assert capsys.readouterr().out == csv_text(open_log(run_dir / "log.mcap"))
+
+
+def test_pbo_log_export_of_a_run_of_several_logs_writes_one_csv_each_into_a_directory_or_says_how(run_dir, tmp_path, capsys):
+    shutil.copy(run_dir / "log.mcap", run_dir / "other.mcap")
+    assert main(["log", "export", str(run_dir), "--csv"]) == 1
+    assert capsys.readouterr().err.strip() == (f"error: {run_dir} holds 2 logs (log.mcap, other.mcap): give one of them, "
+                                               "or -o DIR (an existing directory) for one CSV each")
+    out = tmp_path / "csv"
+    out.mkdir()
+    assert main(["log", "export", str(run_dir), "--csv", "-o", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["log.csv", "other.csv"]
+    assert (out / "other.csv").read_text() == csv_text(open_log(run_dir / "log.mcap"))
+
+
 def test_pbo_log_export_of_what_is_not_a_log_is_one_line_and_exit_1(tmp_path, capsys):
     assert main(["log", "export", str(tmp_path / "none.mcap"), "--csv"]) == 1
     assert capsys.readouterr().err.strip() == f"error: no log {tmp_path / 'none.mcap'}: no such file"

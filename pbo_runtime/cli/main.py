@@ -155,9 +155,10 @@ def _parser() -> argparse.ArgumentParser:
     log = sub.add_parser("log", help="a data log's contents for other tools: pbo log export LOG --csv")
     log_verbs = log.add_subparsers(dest="log_command", required=True, metavar="COMMAND")
     export = log_verbs.add_parser("export", help="write a log as CSV for spreadsheets: one column per element, units in the header")
-    export.add_argument("log", metavar="LOG", help="a .mcap or .npy data log")
+    export.add_argument("log", metavar="RUN_DIR_OR_LOG", help="a run's directory (pbo run prints it) or a .mcap or .npy data log")
     export.add_argument("--csv", action="store_true", required=True, help="as CSV (the one format for now)")
-    export.add_argument("-o", "--output", type=Path, help="write it here (default: stdout)")
+    export.add_argument("-o", "--output", type=Path,
+                        help="write it here (default: stdout); a run of several logs: a directory, one LOG.csv each")
     export.set_defaults(handler=_log_export)
 
     bus = sub.add_parser("bus", help="bus utilisation of each configuration (TR eq. 1-2), predicted and measured")
@@ -898,18 +899,21 @@ def _plot(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 def _log_export(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from pbo_runtime.reports.data_log import LogError, open_log
-    from pbo_runtime.reports.run_plot import csv_text
+    from pbo_runtime.reports.run_plot import csv_text, logs_to_export
 
     try:
-        text = csv_text(open_log(args.log))
+        logs = logs_to_export(Path(args.log), args.output)
         if args.output is None:
-            sys.stdout.write(text)
+            sys.stdout.write(csv_text(open_log(logs[0])))
             return EXIT_OK
-        args.output.write_text(text)
+        for log in logs:
+            output = args.output / f"{log.stem}.csv" if len(logs) > 1 else args.output
+            text = csv_text(open_log(log))
+            output.write_text(text)
+            console.print(f"wrote {output} ({text.count(chr(10)) - 1} rows)", markup=False)
     except (LogError, OSError) as exc:
         errors.print(f"error: {exc}", markup=False)
         return EXIT_CONFIG
-    console.print(f"wrote {args.output} ({text.count(chr(10)) - 1} rows)", markup=False)
     return EXIT_OK
 
 

@@ -73,6 +73,22 @@ def load_run(target: str | Path) -> RunData:
     return RunData(logs, origin, list(report.get("marks", [])), units)
 
 
+def logs_to_export(target: Path, output: Path | None) -> list[Path]:
+    """The logs `pbo log export TARGET -o OUTPUT` writes: a log file, or every log of a run's
+    directory (several only into a directory, one CSV each); LogError saying what to give instead."""
+    if not target.is_dir():
+        return [target]  # (a file that is not there is open_log's to say)
+    logs = find_logs(target)
+    if not logs:
+        raise LogError(f"{target}: no data log in this directory (no *.mcap or *.npy file); "
+                       "give a run's directory (pbo run prints it) or a log file")
+    if len(logs) > 1 and (output is None or not output.is_dir()):
+        names = ", ".join(log.name for log in logs)
+        raise LogError(f"{target} holds {len(logs)} logs ({names}): give one of them, or -o DIR (an existing "
+                       "directory) for one CSV each")
+    return logs
+
+
 def _read_report(path: Path) -> dict[str, Any]:
     try:
         report = json.loads(path.read_text())

@@ -376,6 +376,49 @@ def test_the_plot_has_a_subplot_per_variable_a_line_per_element_units_and_the_ma
     assert first.get_xdata()[0] == pytest.approx(0.0)  # the first row's release is the configuration's start
 
 
+def drawn(ax) -> list:
+    return [line for line in ax.lines if line.get_gid() != "mark"]
+
+
+def test_an_axis_overlays_variables_and_takes_elements_and_differences(run_dir):
+    fig = figure(load_run(run_dir), ["x,k", "x[1]", "x-x", "m[0][1]"])
+    assert [ax.get_ylabel() for ax in fig.axes] == ["x,k", "x[1] [m]", "x-x [m]", "m[0][1] [N m]"]  # one unit, or none
+    assert [len(drawn(ax)) for ax in fig.axes] == [4, 1, 3, 1]
+    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["x[0]", "x[1]", "x[2]", "k"]
+    assert list(drawn(fig.axes[1])[0].get_ydata()) == [-i for i in range(20)]
+    assert all(not line.get_ydata().any() for line in drawn(fig.axes[2]))
+    assert list(drawn(fig.axes[3])[0].get_ydata()) == [1.0 + i for i in range(20)]
+
+
+def test_a_difference_of_variables_of_two_logs_takes_the_second_at_the_firsts_times(run_dir):
+    rows = np.zeros(10, dtype=[("time", np.float64), ("y", np.float64, (3,))])
+    i = np.arange(10)
+    rows["time"] = 1.0 + 2 * i * DT  # half the rate of x's log
+    rows["y"] = np.stack([2 * i, -2 * i, i], axis=1)  # x's own values at those times
+    fd = os.open(run_dir / "slow.mcap", os.O_WRONLY | os.O_CREAT, 0o644)
+    try:
+        log = McapLog(fd, rows.dtype, {"y": ("x again", "m")}, RUN, "slow", 2 * DT)
+        log.append(rows, 10)
+        log.finish()
+    finally:
+        os.close(fd)
+    first = drawn(figure(load_run(run_dir), ["x-y"]).axes[0])[0].get_ydata()
+    assert np.allclose(first[:19], 0.0)  # x's rows between y's are interpolated: x is linear in time
+
+
+@pytest.mark.parametrize("axis, message", [
+    ("x[3]", r"x\[3\]: 'x' has shape \[3\]: no such element"),
+    ("k[0]", r"k\[0\]: 'k' has shape \[\]: no such element"),
+    ("x-m", r"'x-m': x has shape \(3,\) and m \(2, 2\): a difference needs the same shape"),
+    ("x+m", r"'x\+m': a curve is a variable \(q_m\), an element \(q_m\[1\]\) or a difference of two \(q_m-q_r\)"),
+    ("x,q_x", r"no variable 'q_x' in \S+log\.mcap \(logged: x, k, m\)"),
+])
+def test_an_axis_that_cannot_be_drawn_is_one_line_and_exit_1(run_dir, capsys, axis, message):
+    assert main(["plot", str(run_dir), axis, "-o", str(run_dir / "p.png")]) == 1
+    assert re.fullmatch("error: " + message, capsys.readouterr().err.strip())
+    assert not (run_dir / "p.png").exists()
+
+
 def test_marks_at_one_instant_share_one_label_so_none_prints_over_another():
     from pbo_runtime.reports.run_plot import _side_by_side
 

@@ -148,7 +148,9 @@ def _parser() -> argparse.ArgumentParser:
 
     plot = sub.add_parser("plot", help="plot a run's logged variables against time, switches and jobs marked")
     plot.add_argument("target", metavar="RUN_DIR_OR_LOG", help="a run's directory (pbo run prints it) or a log file")
-    plot.add_argument("variables", nargs="*", metavar="VARIABLE", help="the variables to plot (default: every one logged)")
+    plot.add_argument("variables", nargs="*", metavar="AXIS",
+                      help="an axis to plot: a variable (q_m), several overlaid (q_m,q_r), an element (q_m[1]), a "
+                           "difference (q_m-q_r); default: every variable logged, one axis each")
     plot.add_argument("-o", "--output", type=Path, help="write the plot to this .png, .svg or .pdf (default: a window)")
     plot.set_defaults(handler=_plot)
 
@@ -876,11 +878,11 @@ def _completion(parser: argparse.ArgumentParser, args: argparse.Namespace, conso
 
 def _plot(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from pbo_runtime.reports.data_log import LogError
-    from pbo_runtime.reports.run_plot import chosen, figure, load_run, save
+    from pbo_runtime.reports.run_plot import figure, load_run, plot_axes, save
 
     try:
         run = load_run(args.target)
-        chosen(run, args.variables)  # an unknown variable is refused before anything is drawn
+        plot_axes(run, args.variables)  # an unknown variable is refused before anything is drawn
         if args.output is None and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
             raise LogError("no display to show the plot on: write it to a file with -o plot.png (or .svg)")
         if args.output is not None:

@@ -3,9 +3,9 @@
 A run's directory holds its logs and report.json; the report says when the configuration came on
 (`started_at`) and when each switch and job happened (`marks`), on the run's clock, the clock a
 log's rows are stamped with (each cycle's release time). The plot's time axis is seconds since
-the configuration came on (since the first row without a report), one subplot per variable, one
-line per element of a vector, the unit on each axis, and the switches and jobs as labelled
-vertical lines.
+the configuration came on (since the first row without a report), one subplot per argument
+(`plot_terms`: variables overlaid, elements, differences; by default one per variable), one line
+per element of a vector, the unit on each axis, and the switches and jobs as labelled vertical lines.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from pbo_runtime.reports.data_log import DataLog, LogError, find_logs, open_log
+from pbo_runtime.reports.plot_terms import Curves, axis_curves
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -97,16 +98,12 @@ def _read_report(path: Path) -> dict[str, Any]:
     return report if isinstance(report, dict) else {}
 
 
-def chosen(run: RunData, variables: list[str]) -> dict[str, DataLog]:
-    """The variables asked for (all by default), each with its log; LogError naming what exists."""
+def plot_axes(run: RunData, arguments: list[str]) -> list[tuple[str, list[Curves]]]:
+    """Each axis asked for (`plot_terms`: `q_m,q_r`, `q_m[1]`, `q_m-q_r`; by default one per logged
+    variable) with its curves; LogError naming what is wrong and what was logged."""
     columns = run.columns()
-    if not variables:
-        return columns
-    unknown = [name for name in variables if name not in columns]
-    if unknown:
-        raise LogError(f"no variable {', '.join(repr(n) for n in unknown)} in {_where(run)} "
-                       f"(logged: {', '.join(columns) or 'none'})")
-    return {name: columns[name] for name in variables}
+    units = {name: run.unit(log, name) for name, log in columns.items()}
+    return [(argument, axis_curves(argument, columns, units, _where(run))) for argument in (arguments or list(columns))]
 
 
 def _where(run: RunData) -> str:
@@ -119,21 +116,21 @@ def figure(run: RunData, variables: list[str] | None = None, new: Callable[..., 
     `new` makes the figure (pyplot.figure for a window); by default a bare Figure, to be saved."""
     from matplotlib.figure import Figure
 
-    columns = chosen(run, list(variables or []))
-    fig = (new or Figure)(figsize=(10, 1.2 + 2.2 * len(columns)), dpi=100, layout="constrained")
-    axes = fig.subplots(len(columns), 1, sharex=True, squeeze=False)[:, 0]
+    axes_asked = plot_axes(run, list(variables or []))
+    fig = (new or Figure)(figsize=(10, 1.2 + 2.2 * len(axes_asked)), dpi=100, layout="constrained")
+    axes = fig.subplots(len(axes_asked), 1, sharex=True, squeeze=False)[:, 0]
     marks = [(float(m["time"]) - run.origin, str(m.get("label", "")), str(m.get("kind", ""))) for m in run.marks]
-    for ax, (name, log) in zip(axes, columns.items()):
-        t = log.rows["time"] - run.origin
-        values = log.rows[name].reshape(len(log.rows), -1)
-        shape = log.rows.dtype[name].shape
-        for element in range(values.shape[1]):
-            label = name + ("".join(f"[{i}]" for i in np.unravel_index(element, shape)) if shape else "")
-            ax.plot(t, values[:, element], linewidth=1.0, label=label)
-        unit = run.unit(log, name)
-        ax.set_ylabel(f"{name} [{unit}]" if unit else name)
-        if values.shape[1] > 1:
-            ax.legend(loc="upper right", fontsize="x-small", ncol=min(values.shape[1], 6))
+    for ax, (argument, curves) in zip(axes, axes_asked):
+        lines = 0
+        for curve in curves:
+            for element, label in enumerate(curve.labels):
+                ax.plot(curve.time - run.origin, curve.values[:, element], linewidth=1.0, label=label)
+                lines += 1
+        units = {curve.unit for curve in curves}
+        unit = units.pop() if len(units) == 1 else ""
+        ax.set_ylabel(f"{argument} [{unit}]" if unit else argument)
+        if lines > 1:
+            ax.legend(loc="upper right", fontsize="x-small", ncol=min(lines, 6))
         for at, label, kind in marks:
             line = ax.axvline(at, color=MARK_COLOURS.get(kind, "black"), linestyle="--", linewidth=0.8)
             line.set_gid("mark")

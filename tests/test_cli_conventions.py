@@ -141,3 +141,44 @@ def test_the_completion_script_is_generated_from_the_parser_and_knows_every_verb
     for name in [*COMMANDS, "check", "run", "runs", "hmi", "completion"]:
         assert name in script, name
     assert "--format" in script and "--subsystem" in script
+
+
+def test_names_complete_from_the_file_on_the_command_line_its_includes_too(tmp_path):
+    from pbo_runtime.cli.completion import names
+
+    (tmp_path / "jobs.yaml").write_text("jobs: {home: {configuration: a}, reach: {configuration: b}}\n")
+    file = tmp_path / "arm.yaml"
+    file.write_text("include: [jobs.yaml]\ntasks: {robot: {}, pid: {}}\nconfigurations: {a: [robot], b: [pid]}\n"
+                    "applications: {tour: [home]}\n")
+    words = ["pbo", "run", str(file), "--config", ""]
+    assert names("task", words) == ["pid", "robot"]
+    assert names("configuration", words) == ["a", "b"]
+    assert names("job", words) == ["home", "reach"]
+    assert names("application", words) == ["tour"]
+    assert names("variable", words) == []
+    assert names("task", ["pbo", "run", str(tmp_path / "missing.yaml")]) == []  # never an error at a <TAB>
+
+
+def test_a_live_verbs_task_names_come_from_the_live_run(fake_run, capsys):
+    assert main(["__complete", "task", "pbo", "off", "--subsystem", fake_run.subsystem, ""]) == 0
+    assert capsys.readouterr().out.split() == sorted(fake_run.host.subsystem.tasks)
+
+
+@pytest.mark.multiprocess
+def test_bash_completes_a_configuration_from_the_file_typed_before_it(capsys):
+    import shutil
+    import subprocess
+    import sys
+
+    from tests.support import REPO
+
+    if shutil.which("bash") is None:
+        pytest.skip("no bash here")
+    assert main(["completion", "bash"]) == 0
+    script = capsys.readouterr().out
+    line = "pbo run configs/switch_joint.yaml --config "
+    done = subprocess.run(["bash", "-c", f'{script}\nCOMP_WORDS=({line} ""); COMP_CWORD=4; COMP_LINE="{line}"; '
+                                         'COMP_POINT=${#COMP_LINE}; _shtab_pbo pbo "" --config; echo "${COMPREPLY[@]}"'],
+                          capture_output=True, text=True, cwd=REPO, timeout=60,
+                          env={**os.environ, "PATH": f"{os.path.dirname(sys.executable)}:{os.environ['PATH']}"})
+    assert done.stdout.split() == ["pd", "pid"], done.stderr

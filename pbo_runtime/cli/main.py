@@ -24,6 +24,7 @@ from rich.table import Table
 
 from pbo_runtime.cli import schedule
 from pbo_runtime.cli.arguments import ArgumentParser
+from pbo_runtime.cli.completion import HIDDEN_VERB, complete
 from pbo_runtime.clock.clocks import scheduler_outcome
 from pbo_runtime.objects import registry
 from pbo_runtime.errors import ConfigErrors, PboError
@@ -42,6 +43,10 @@ def main(argv: list[str] | None = None) -> int:
     # MuJoCo without its OpenGL context: nothing pbo runs renders, and importing it loads GLFW (0.1-0.3 s
     # per process: the CLI, the plant, each RTPU). A module that renders sets MUJOCO_GL (egl, glfw) itself.
     os.environ.setdefault("MUJOCO_GL", "disable")
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv[:1] == [HIDDEN_VERB]:  # the shell completing a name at the time of a <TAB>
+        return complete(argv[1:])
     parser = _parser()
     args = parser.parse_args(argv)
     args.entered = entered
@@ -867,9 +872,9 @@ def _hmi(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 
 def _completion(parser: argparse.ArgumentParser, args: argparse.Namespace, console: Console) -> int:
-    import shtab
+    from pbo_runtime.cli.completion import script
 
-    console.out(shtab.complete(parser, shell=args.shell), end="")
+    console.out(script(parser, args.shell), end="")
     return EXIT_OK
 
 

@@ -277,7 +277,7 @@ def test_version_prints_the_version_pyproject_declares(capsys):
     (["run", "x.yaml", "--durration", "3"], "unrecognized arguments: --durration 3\n  did you mean '--duration'?"),
     (["run", "x.yaml", "--clokc", "sim", "--statc"], "did you mean '--clock' for '--clokc', '--static' for '--statc'?"),
     (["run", "x.yaml", "--config"], "argument --config: expected one argument"),
-    (["log", "export"], "the following arguments are required: LOG, --csv"),
+    (["log", "export"], "the following arguments are required: RUN_DIR_OR_LOG, --csv"),
     (["set", "pid"], "the following arguments are required: param, values"),
 ])
 def test_a_wrong_argument_exits_1_as_the_readme_says_with_the_closest_verb_or_flag(argv, said, capsys):

@@ -237,6 +237,7 @@ class McapLog:
 
         self.rows = 0
         self.pending = 0  # rows encoded into bytes not yet in the file
+        self.unix_offset_ns = int(run.get("unix_offset_ns", 0))  # log times in Unix ns on the real clock (data_logger)
         self.stream = PendingBytes(fd)
         # never a chunk by size: one per chunk of rows (`flush`), so each is on disk whole as it ends
         resumed = {} if resume_at is None else {"index_types": IndexType.MESSAGE, "use_statistics": False}
@@ -276,7 +277,7 @@ class McapLog:
 
     def encode(self, chunk: np.ndarray) -> None:
         times = chunk["time"].tolist()
-        stamps = np.rint(chunk["time"] * 1e9).astype(np.int64).tolist()
+        stamps = (np.rint(chunk["time"] * 1e9).astype(np.int64) + self.unix_offset_ns).tolist()
         columns = [(channel, _json_values(chunk[name], floating))
                    for channel, name, floating in zip(self.channels, self.names, self.floats)]
         add, dumps = self.writer.add_message, json.dumps

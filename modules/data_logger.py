@@ -54,6 +54,7 @@ import os
 import threading
 import time
 from dataclasses import dataclass
+from typing import Mapping
 
 import numpy as np
 
@@ -151,7 +152,7 @@ class DataLogger(PortBasedObject):
                 resume_at = resume_point(self._fd) if resume else None
                 if resume_at is not None:
                     os.ftruncate(self._fd, resume_at[0])  # a chunk cut short by the death, and any end of data
-                setup = {"columns": columns, "run": dict(self.run_metadata), "task": self.task_name, "period": self.period,
+                setup = {"columns": columns, "run": _with_unix_offset(self.run_metadata), "task": self.task_name, "period": self.period,
                          "resume_at": resume_at}
                 self._file: _LogFile = _McapProcess(self._fd, self._shared_fd, self._dtype, self._rows, setup)
             else:
@@ -347,6 +348,17 @@ class DataLogger(PortBasedObject):
         if self._shared_fd >= 0:
             os.close(self._shared_fd)
             self._shared_fd = -1
+
+
+def _with_unix_offset(run: Mapping[str, str]) -> dict[str, str]:
+    """The run's metadata, on the real clock with `unix_offset_ns`: Unix time minus the run's clock
+    (CLOCK_MONOTONIC), which the MCAP log times add, so that ROS tools and Foxglove line the log up with
+    other recordings; the messages keep the run's own clock. The simulated clock adds nothing (its
+    logs stay the same, byte for byte, from run to run)."""
+    found = dict(run)
+    if run.get("clock") != "sim":
+        found["unix_offset_ns"] = str(time.time_ns() - time.monotonic_ns())
+    return found
 
 
 class _LogFile:

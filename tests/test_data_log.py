@@ -496,6 +496,40 @@ def test_pbo_log_export_of_a_run_of_several_logs_writes_one_csv_each_into_a_dire
     assert (out / "other.csv").read_text() == csv_text(open_log(run_dir / "log.mcap"))
 
 
+def test_pbo_log_info_says_what_ros2_bag_info_says_of_a_log_on_the_runs_clock(run_dir, capsys):
+    assert main(["log", "info", str(run_dir)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == f"Files:             {run_dir / 'log.mcap'}"
+    assert lines[2:7] == ["Storage id:        mcap", "Duration:          0.190000000s",
+                          "Start:             1.000000000 s on the run's clock",
+                          "End:               1.190000000 s on the run's clock", "Messages:          60"]
+    assert lines[7:] == ["Topic information: Topic: x | Type: x (jsonschema) | Count: 20 | Serialization Format: json",
+                         "                   Topic: k | Type: k (jsonschema) | Count: 20 | Serialization Format: json",
+                         "                   Topic: m | Type: m (jsonschema) | Count: 20 | Serialization Format: json"]
+
+
+@pytest.mark.multiprocess
+def test_a_real_clock_logs_times_are_unix_time_and_its_rows_keep_the_runs_clock(tmp_path, capsys):
+    from mcap.reader import make_reader
+
+    from tests.support import demo_copy
+
+    config = demo_copy(tmp_path, "unix_times")
+    before, monotonic_before = time.time_ns(), time.monotonic()
+    done = subprocess.run([*PBO, "run", str(config), "--duration", "0.3", "--no-live", "--out", str(tmp_path / "out")],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    after, monotonic_after = time.time_ns(), time.monotonic()
+    assert done.returncode == 0, done.stderr
+    log = next((tmp_path / "out").glob("*.mcap"))
+    with open(log, "rb") as file:
+        first = next(make_reader(file).iter_messages())[2]
+    assert before <= first.log_time <= after  # Foxglove and rosbag2 line it up with their own recordings
+    assert monotonic_before <= read_log(log)["time"][0] <= monotonic_after  # the run's clock, as the table has it
+    assert main(["log", "info", str(tmp_path / "out")]) == 0
+    start = capsys.readouterr().out.splitlines()[4]
+    assert start.startswith("Start:             ") and start.endswith(f"({first.log_time // 10**9}.{first.log_time % 10**9:09d})")
+
+
 def test_pbo_log_export_of_what_is_not_a_log_is_one_line_and_exit_1(tmp_path, capsys):
     assert main(["log", "export", str(tmp_path / "none.mcap"), "--csv"]) == 1
     assert capsys.readouterr().err.strip() == f"error: no log {tmp_path / 'none.mcap'}: no such file"

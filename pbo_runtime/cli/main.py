@@ -159,7 +159,7 @@ def _parser() -> argparse.ArgumentParser:
     plot.add_argument("-o", "--output", type=Path, help="write the plot to this .png, .svg or .pdf (default: a window)")
     plot.set_defaults(handler=_plot)
 
-    log = sub.add_parser("log", help="a data log's contents for other tools: pbo log export LOG --csv")
+    log = sub.add_parser("log", help="a data log for other tools: pbo log info RUN, pbo log export RUN --csv")
     log_verbs = log.add_subparsers(dest="log_command", required=True, metavar="COMMAND")
     export = log_verbs.add_parser("export", help="write a log as CSV for spreadsheets: one column per element, units in the header")
     export.add_argument("log", metavar="RUN_DIR_OR_LOG", help="a run's directory (pbo run prints it) or a .mcap or .npy data log")
@@ -167,6 +167,9 @@ def _parser() -> argparse.ArgumentParser:
     export.add_argument("-o", "--output", type=Path,
                         help="write it here (default: stdout); a run of several logs: a directory, one LOG.csv each")
     export.set_defaults(handler=_log_export)
+    info = log_verbs.add_parser("info", help="what a log holds, as ros2 bag info prints it: size, duration, start, topics")
+    info.add_argument("log", metavar="RUN_DIR_OR_LOG", help="a run's directory (every log in it) or a .mcap or .npy data log")
+    info.set_defaults(handler=_log_info)
 
     bus = sub.add_parser("bus", help="bus utilisation of each configuration (TR eq. 1-2), predicted and measured")
     bus.add_argument("file")
@@ -921,6 +924,19 @@ def _log_export(args: argparse.Namespace, console: Console, errors: Console) -> 
     except (LogError, OSError) as exc:
         errors.print(f"error: {exc}", markup=False)
         return EXIT_CONFIG
+    return EXIT_OK
+
+
+def _log_info(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    from pbo_runtime.reports.data_log import LogError
+    from pbo_runtime.reports.log_info import infos, text
+
+    try:
+        found = infos(Path(args.log))
+    except (LogError, OSError) as exc:
+        errors.print(f"error: {exc}", markup=False)
+        return EXIT_CONFIG
+    console.out("\n\n".join(text(log) for log in found), highlight=False)
     return EXIT_OK
 
 

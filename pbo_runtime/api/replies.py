@@ -10,12 +10,35 @@ import json
 from typing import Any
 
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel, ConfigDict
 
 from pbo_runtime.api.jsonable import jsonable
 
 # What a refusal's status says: the request was wrong, the run's state refused it, there is no run,
-# the run did not answer.
+# the run did not answer; a path outside the served tree, a body over the size limit.
 BAD_REQUEST, REFUSED, NO_RUN, NO_ANSWER = 400, 409, 404, 503
+FORBIDDEN, TOO_LARGE = 403, 413
+
+
+class Refusal(BaseModel):
+    """What every refusal answers: `ok` false and the reason in one line (some add keys, such as `bad_request`)."""
+
+    model_config = ConfigDict(extra="allow")
+    ok: bool
+    error: str
+
+
+# Every status a route may refuse with, for the OpenAPI description (each route's own answers are in its summary).
+REFUSALS: dict[int | str, dict[str, Any]] = {status: {"model": Refusal, "description": what} for status, what in (
+    (BAD_REQUEST, "the request was wrong (a bad body or parameter, no such task, a file that does not check)"),
+    (401, "no token, or a wrong one"),
+    (FORBIDDEN, "a path that leaves the folder the server reads and writes"),
+    (NO_RUN, "no run is the one meant, or no subsystem file"),
+    (REFUSED, "the run's state refused it"),
+    (TOO_LARGE, "the body is over the size limit"),
+    (500, "a bug of the server, with a reference its terminal logged"),
+    (NO_ANSWER, "the supervisor did not answer in time"),
+)}
 
 
 class Reply(JSONResponse):

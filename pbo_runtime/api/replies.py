@@ -45,7 +45,8 @@ class Reply(JSONResponse):
     """A JSON response whose content may hold numpy values and non-finite floats."""
 
     def render(self, content: Any) -> bytes:
-        return json.dumps(jsonable(content), ensure_ascii=False, separators=(",", ":")).encode("utf-8")
+        text = json.dumps(jsonable(content), ensure_ascii=False, separators=(",", ":"))
+        return text.encode("utf-8", "replace")  # a lone surrogate (YAML can write "\ud800") cannot be UTF-8: "?"
 
 
 def refusal(status: int, error: str, **extra: Any) -> Reply:

@@ -13,12 +13,14 @@ import json
 import logging
 import os
 from pathlib import Path
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
 
 from pbo_runtime.api import files, guard
 from pbo_runtime.api.app import create_app
+from pbo_runtime.api.link import NoRun
 from pbo_runtime.api.server import is_loopback, serve
 from pbo_runtime.config.loader import check_file
 from tests.fake_job_host import FakeJobHost, FakeRunLink, fake_subsystem
@@ -26,6 +28,13 @@ from tests.fake_job_host import FakeJobHost, FakeRunLink, fake_subsystem
 TOKEN = "the-token-of-this-test"
 BEARER = {"Authorization": f"Bearer {TOKEN}"}
 SECRET = "planted-outside: the-content-no-answer-may-show\n"
+
+
+class NoRunLink(FakeRunLink):
+    """A unit test's link when no run is alive, as `LiveRunLink` says it."""
+
+    def request(self, command: str, arguments: dict[str, Any], timeout: float) -> dict[str, Any]:
+        raise NoRun("no subsystem is running")
 
 
 @pytest.fixture
@@ -82,6 +91,13 @@ def test_posted_yaml_that_includes_a_file_outside_the_folder_is_refused_with_403
     assert_refused(refused, 403, "E107", "is outside", str(project))
     assert "root:x:0" not in refused.text
     assert outside_files(project) == before
+
+
+@pytest.mark.parametrize("include", ["../outside/secret.yaml", "/etc/passwd"])
+def test_posted_yaml_with_no_subsystem_file_at_all_includes_nothing(project, include):
+    alone = TestClient(create_app(NoRunLink(None), TOKEN), headers=BEARER)  # type: ignore[arg-type]
+    refused = alone.post("/api/check", content=f"include: [{include}]\n", headers={"content-type": "text/plain"})
+    assert_refused(refused, 403, "E107")
 
 
 def test_posted_yaml_includes_what_is_in_the_folder_relative_to_the_subsystem_file(client):

@@ -1,5 +1,6 @@
 """The API fuzzed against its own OpenAPI description (schemathesis, in-process over ASGI, no sockets):
-every route, with the token, answers no 5xx and nothing its description does not declare.
+every route, with the token, answers no 5xx and nothing its description does not declare, and
+without it nothing but 401.
 
 The app is the one `pbo hmi FILE` serves, over a unit test's fake link (`tests.fake_job_host.FakeRunLink`:
 verbs answered by the command table's dispatch on a fake job host) with a real table, on a copy of
@@ -18,7 +19,7 @@ import schemathesis
 from fastapi import FastAPI
 from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
-from schemathesis.specs.openapi.checks import (content_type_conformance, response_schema_conformance,
+from schemathesis.specs.openapi.checks import (content_type_conformance, ignored_auth, response_schema_conformance,
                                                status_code_conformance)
 
 from pbo_runtime.api.app import create_app
@@ -32,7 +33,7 @@ TOKEN = "the-token-of-this-test"
 BEARER = {"Authorization": f"Bearer {TOKEN}"}
 VARS = variables(("q_m", "float64", (3,)), ("tau_u", "float64", (3,)), ("n", "int32", ()))
 EXAMPLES = 8  # per route: enough to reach every refusal of a route, few enough for CI's budget
-CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance]
+CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance, ignored_auth]
 
 
 # The description as the app serves it, behind the token; it is the same whatever file and run the app has.

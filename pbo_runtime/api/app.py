@@ -125,11 +125,16 @@ def create_app(link: RunLink, token: str, file: str | None = None) -> FastAPI:
 
 
 def without_validation_errors(description: dict[str, Any]) -> dict[str, Any]:
-    """The OpenAPI description without FastAPI's 422 answers and their schemas: a bad parameter is 400 here."""
+    """The OpenAPI description as the app behaves: the token every route needs (`auth`, shown as a bearer
+    token), and without FastAPI's 422 answers and their schemas (a bad parameter is 400 here)."""
     for methods in description.get("paths", {}).values():
         for operation in methods.values():
             operation.get("responses", {}).pop("422", None)
-    schemas = description.get("components", {}).get("schemas", {})
+    components = description.setdefault("components", {})
+    schemas = components.get("schemas", {})
     for name in ("HTTPValidationError", "ValidationError"):
         schemas.pop(name, None)
+    components["securitySchemes"] = {"token": {"type": "http", "scheme": "bearer",
+                                               "description": "the token pbo hmi printed (or its cookie, or ?token=)"}}
+    description["security"] = [{"token": []}]
     return description

@@ -208,8 +208,8 @@ def router() -> APIRouter:
         except ValueError as exc:
             return refusal(BAD_REQUEST, str(exc), bad_request=True)
 
-    @routes.get("/graph", summary="a configuration's block diagram as SVG (pbo graph -o out.svg)",
-                responses={200: {"content": {"image/svg+xml": {}}}})
+    @routes.get("/graph", summary="a configuration's block diagram as SVG (pbo graph -o out.svg)", response_class=Response,
+                responses={200: {"description": "the diagram", "content": {"image/svg+xml": {"schema": {"type": "string"}}}}})
     def get_graph(request: Request, config: str | None = None) -> Response:
         try:
             return Response(graph_svg(subsystem_file(request), config), media_type="image/svg+xml")

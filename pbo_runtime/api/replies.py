@@ -7,7 +7,7 @@ Every answer of the API is a JSON object with `"ok"`, as the supervisor's replie
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import Any, Literal
 
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict
@@ -24,12 +24,20 @@ class Refusal(BaseModel):
     """What every refusal answers: `ok` false and the reason in one line (some add keys, such as `bad_request`)."""
 
     model_config = ConfigDict(extra="allow")
-    ok: bool
+    ok: Literal[False]
     error: str
 
 
+class Answer(BaseModel):
+    """What every JSON answer of a route that did what was asked holds: `ok` true, and the route's own keys."""
+
+    model_config = ConfigDict(extra="allow")
+    ok: Literal[True]
+
+
 # Every status a route may refuse with, for the OpenAPI description (each route's own answers are in its summary).
-REFUSALS: dict[int | str, dict[str, Any]] = {status: {"model": Refusal, "description": what} for status, what in (
+REFUSALS: dict[int | str, dict[str, Any]] = {200: {"model": Answer, "description": "done: `ok` true and the route's keys"}}
+REFUSALS |= {status: {"model": Refusal, "description": what} for status, what in (
     (BAD_REQUEST, "the request was wrong (a bad body or parameter, no such task, a file that does not check)"),
     (401, "no token, or a wrong one"),
     (FORBIDDEN, "a path that leaves the folder the server reads and writes"),

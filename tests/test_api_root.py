@@ -22,7 +22,9 @@ from pbo_runtime.api import files, guard
 from pbo_runtime.api.app import create_app
 from pbo_runtime.api.link import NoRun
 from pbo_runtime.api.server import is_loopback, serve
+from pbo_runtime.api.verbs import FILE_ARGUMENTS
 from pbo_runtime.config.loader import check_file
+from pbo_runtime.supervisor.commands import VERBS
 from tests.fake_job_host import FakeJobHost, FakeRunLink, fake_subsystem
 
 TOKEN = "the-token-of-this-test"
@@ -153,6 +155,12 @@ def test_save_to_a_relative_path_writes_in_the_folder(client, project, link):
     client.post("/api/verbs/save", json={"file": "saved/live.yaml"})
     assert [arguments["file"] for command, arguments in link.requests if command == "save"] == [
         str(project.resolve() / "saved" / "live.yaml")]
+
+
+def test_every_verb_argument_that_names_a_file_is_kept_in_the_folder():
+    named = {(verb.name, argument.key) for verb in VERBS for argument in verb.arguments
+             if argument.key in ("file", "path", "output") or "FILE" in (argument.metavar or "")}
+    assert named == set(FILE_ARGUMENTS.items())
 
 
 # --- no 500 ---------------------------------------------------------------------------------------

@@ -23,9 +23,9 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from pbo_runtime.api import canvas, files, monitor, streams, verbs, workspace
 from pbo_runtime.api.auth import COOKIE, require_token
+from pbo_runtime.api.files import OutsideRoot
 from pbo_runtime.api.guard import Guard
 from pbo_runtime.api.link import RunLink
-from pbo_runtime.api.files import OutsideRoot
 from pbo_runtime.api.replies import BAD_REQUEST, FORBIDDEN, REFUSALS, Reply, refusal
 from pbo_runtime.objects.registry import installed_version
 

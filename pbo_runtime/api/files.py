@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -39,8 +40,8 @@ from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, TOO_LARGE, Reply, refus
 from pbo_runtime.config import bus
 from pbo_runtime.config.job_dictionary import job_dictionary, row_gaps
 from pbo_runtime.config.loader import CheckResult, check_file, format_diagnostics
-from pbo_runtime.config.root import OUTSIDE_ROOT, confined, is_within
 from pbo_runtime.config.placement import placement_report
+from pbo_runtime.config.root import OUTSIDE_ROOT, confined, is_within
 from pbo_runtime.errors import ConfigError, PboError
 from pbo_runtime.reports.graph import draw
 from pbo_runtime.reports.lexicon import lexicon
@@ -79,7 +80,7 @@ def served_root(file: str) -> str:
     return os.path.realpath(os.path.dirname(os.path.abspath(file)))
 
 
-def in_tree(file: str) -> Any:
+def in_tree(file: str) -> AbstractContextManager[None]:
     """Loads and checks confined to `file`'s folder (`config.root`): no file outside it is read."""
     return confined(served_root(file))
 

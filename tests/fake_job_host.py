@@ -8,6 +8,8 @@ told they never will. `pump` moves the clock; `on_pump` lets a test change the w
 does; `init_fails` names tasks whose spawn fails. `dies_at` names a (task, op) whose signal kills
 its RTPU (once): `restart_rtpu` then brings the RTPU's tasks back as the switch under way has them
 (ON where its configuration has them, else not created). Nothing is started, nothing sleeps.
+
+FakeRunLink is the local API's link to one (`api.link.RunLink`), for the API's unit tests.
 """
 
 from __future__ import annotations
@@ -17,13 +19,17 @@ from typing import Any, Callable
 
 import numpy as np
 
+from pbo_runtime.api.link import NoRun
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.live import LiveDescription
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
+from pbo_runtime.ipc.control import answer
 from pbo_runtime.supervisor.failures import RtpuDied
+from pbo_runtime.supervisor.commands import dispatch
 from pbo_runtime.supervisor.job_control import JobControl
+from pbo_runtime.table.svar import TableView, attach
 from pbo_runtime.table.table import SPARE_TASK_SLOTS
 from tests.support import REPO
 
@@ -205,3 +211,26 @@ class FakeJobHost:
 
     def request_stop(self, reason: str) -> None:
         self.stopped_by = reason
+
+
+class FakeRunLink:
+    """A unit test's run: verbs served by `commands.dispatch` on a fake job host, as the supervisor
+    answers them (`ipc.control.answer`), and a real table made by the test."""
+
+    def __init__(self, host: FakeJobHost, table: str | None = None, subsystem: str = "fake") -> None:
+        self.host = host
+        self.table = table
+        self.subsystem = subsystem
+        self.requests: list[tuple[str, dict[str, Any]]] = []
+
+    def request(self, command: str, arguments: dict[str, Any], timeout: float) -> dict[str, Any]:
+        self.requests.append((command, dict(arguments)))
+        return answer(lambda c, a: dispatch(self.host, c, a), command, arguments)
+
+    def open_table(self) -> TableView:
+        if self.table is None:
+            raise NoRun("no subsystem is running")
+        return attach(self.table, self.subsystem, "1234-abcdef")
+
+    def runs(self) -> list[dict[str, Any]]:
+        return [{"subsystem": self.subsystem, "run_id": "1234-abcdef"}]

@@ -2,7 +2,7 @@
 route, the Origin of WebSocket upgrades, a route per verb of the command table answering what the
 supervisor's dispatch answers, the reports of a file, and the live streams of a real table.
 
-The run behind the app is a fake link (`FakeRunLink`, over the fake job host of the command tests)
+The run behind the app is a fake link (`tests.fake_job_host.FakeRunLink`, over the fake job host of the command tests)
 whose table is a real one made with StateTable.create; the last test drives a real `--clock sim` run.
 """
 
@@ -30,37 +30,13 @@ from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.control import answer
 from pbo_runtime.supervisor.commands import VERBS, dispatch
-from pbo_runtime.table.svar import TableView, attach
 from pbo_runtime.table.table import StateTable, TableLayout
-from tests.fake_job_host import FakeJobHost, fake_subsystem
+from tests.fake_job_host import FakeJobHost, FakeRunLink, fake_subsystem
 from tests.support import demo_copy, start_run, variables
 
 TOKEN = "the-token-of-this-test"
 BEARER = {"Authorization": f"Bearer {TOKEN}"}
 VARS = variables(("q_m", "float64", (3,)), ("tau_u", "float64", (3,)), ("n", "int32", ()))
-
-
-class FakeRunLink:
-    """A unit test's run: verbs served by `commands.dispatch` on a fake job host, as the supervisor
-    answers them (`ipc.control.answer`), and a real table made by the test."""
-
-    def __init__(self, host: FakeJobHost, table: str | None = None, subsystem: str = "fake") -> None:
-        self.host = host
-        self.table = table
-        self.subsystem = subsystem
-        self.requests: list[tuple[str, dict[str, Any]]] = []
-
-    def request(self, command: str, arguments: dict[str, Any], timeout: float) -> dict[str, Any]:
-        self.requests.append((command, dict(arguments)))
-        return answer(lambda c, a: dispatch(self.host, c, a), command, arguments)
-
-    def open_table(self) -> TableView:
-        if self.table is None:
-            raise NoRun("no subsystem is running")
-        return attach(self.table, self.subsystem, "1234-abcdef")
-
-    def runs(self) -> list[dict[str, Any]]:
-        return [{"subsystem": self.subsystem, "run_id": "1234-abcdef"}]
 
 
 class NoRunLink(FakeRunLink):

@@ -3,7 +3,9 @@
 `create_app(link, token, file)` assembles the routers (`api.verbs`, `api.files`, `api.streams`)
 under one router whose single dependency is `auth.require_token`: no route is reachable without
 the token, the OpenAPI description (`/openapi.json`) and the page included. Errors answer as the
-routes do, `{"ok": false, "error": "one line"}`.
+routes do, `{"ok": false, "error": "one line"}`, and `api.guard` wraps it all: limits on bodies,
+and one logged line for a bug. The description lists every refusal a route may answer with
+(`replies.REFUSALS`) and not FastAPI's 422, which this app never answers (bad parameters are 400).
 """
 
 from __future__ import annotations
@@ -15,16 +17,20 @@ from typing import Any
 
 from fastapi import APIRouter, Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.utils import get_openapi
 from fastapi.responses import FileResponse, HTMLResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from pbo_runtime.api import canvas, files, monitor, streams, verbs, workspace
 from pbo_runtime.api.auth import COOKIE, require_token
+from pbo_runtime.api.files import OutsideRoot
+from pbo_runtime.api.guard import Guard
 from pbo_runtime.api.link import RunLink
-from pbo_runtime.api.replies import BAD_REQUEST, Reply, refusal
+from pbo_runtime.api.replies import BAD_REQUEST, FORBIDDEN, REFUSALS, Reply, refusal
 from pbo_runtime.objects.registry import installed_version
 
 STATIC = Path(__file__).resolve().parent / "static"  # the HMI: shipped in the package, no build step
+MAX_STATIC_PATH = 200  # characters: the HMI's own paths are far shorter
 MEDIA_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
                ".mjs": "text/javascript; charset=utf-8", ".css": "text/css; charset=utf-8",
                ".json": "application/json", ".svg": "image/svg+xml", ".png": "image/png"}
@@ -40,10 +46,18 @@ def page_policy(page: str) -> str:
 
 
 def static_file(path: str) -> Path:
-    """The file under STATIC that `/static/PATH` names; 404 for anything else (a path out of it included)."""
-    file = (STATIC / path).resolve()
-    if not file.is_relative_to(STATIC) or not file.is_file() or file.suffix not in MEDIA_TYPES:
-        raise StarletteHTTPException(404, f"no file /static/{path}")
+    """The file under STATIC that `/static/PATH` names; 404 for anything else (a path out of it, one
+    the file system cannot take: a NUL character, a name too long)."""
+    missing = StarletteHTTPException(404, f"no file /static/{path[:MAX_STATIC_PATH]!r}")
+    if len(path) > MAX_STATIC_PATH or "\0" in path:
+        raise missing
+    try:
+        file = (STATIC / path).resolve()
+        found = file.is_relative_to(STATIC) and file.is_file() and file.suffix in MEDIA_TYPES
+    except (OSError, ValueError):
+        found = False
+    if not found:
+        raise missing
     return file
 
 
@@ -56,7 +70,7 @@ def create_app(link: RunLink, token: str, file: str | None = None) -> FastAPI:
     app.state.token = token
     app.state.file = file
 
-    protected = APIRouter(dependencies=[Depends(require_token)])
+    protected = APIRouter(dependencies=[Depends(require_token)], responses=REFUSALS)
 
     index = (STATIC / "index.html").read_text(encoding="utf-8")
     policy = page_policy(index)
@@ -77,6 +91,14 @@ def create_app(link: RunLink, token: str, file: str | None = None) -> FastAPI:
     def openapi() -> dict[str, Any]:
         return app.openapi()
 
+    def description() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            app.openapi_schema = without_validation_errors(get_openapi(
+                title=app.title, version=app.version, description=app.description, routes=app.routes))
+        return app.openapi_schema
+
+    app.openapi = description  # type: ignore[method-assign]
+
     protected.include_router(verbs.router())
     protected.include_router(files.router())
     protected.include_router(streams.router())
@@ -89,9 +111,30 @@ def create_app(link: RunLink, token: str, file: str | None = None) -> FastAPI:
     async def http_error(request: Request, exc: StarletteHTTPException) -> Reply:
         return Reply({"ok": False, "error": str(exc.detail)}, status_code=exc.status_code, headers=exc.headers)
 
+    @app.exception_handler(OutsideRoot)
+    async def outside_root(request: Request, exc: OutsideRoot) -> Reply:
+        return refusal(FORBIDDEN, str(exc))
+
     @app.exception_handler(RequestValidationError)
     async def bad_parameters(request: Request, exc: RequestValidationError) -> Reply:
         problems = "; ".join(f"{'.'.join(map(str, e.get('loc', ())))}: {e.get('msg', '')}" for e in exc.errors())
         return refusal(BAD_REQUEST, f"bad parameters: {problems}", bad_request=True)
 
+    app.add_middleware(Guard)
     return app
+
+
+def without_validation_errors(description: dict[str, Any]) -> dict[str, Any]:
+    """The OpenAPI description as the app behaves: the token every route needs (`auth`, shown as a bearer
+    token), and without FastAPI's 422 answers and their schemas (a bad parameter is 400 here)."""
+    for methods in description.get("paths", {}).values():
+        for operation in methods.values():
+            operation.get("responses", {}).pop("422", None)
+    components = description.setdefault("components", {})
+    schemas = components.get("schemas", {})
+    for name in ("HTTPValidationError", "ValidationError"):
+        schemas.pop(name, None)
+    components["securitySchemes"] = {"token": {"type": "http", "scheme": "bearer",
+                                               "description": "the token pbo hmi printed (or its cookie, or ?token=)"}}
+    description["security"] = [{"token": []}]
+    return description

@@ -12,7 +12,8 @@
 
 A task is `{"name", "module", "fields": {rtpu, period, ...: YAML text}, "params": {modifier: YAML
 text}, "ports": {port: variable}, "on": bool}`. The logic is `config.canvas` and
-`config.canvas_job`; the file written is never a path from the request.
+`config.canvas_job`; the file written is never a path from the request, and nothing outside its
+folder is read (`files.in_tree`).
 """
 
 from __future__ import annotations
@@ -22,11 +23,12 @@ from typing import Any, Callable
 from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
-from pbo_runtime.api.files import NoFile, subsystem_file
+from pbo_runtime.api.files import NoFile, OutsideRoot, in_tree, subsystem_file
 from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, REFUSED, Reply, refusal
 from pbo_runtime.config.canvas import CANVAS_CONFIGURATION, CanvasError, check_canvas, file_canvas, tasks_from_json
 from pbo_runtime.config.canvas_job import JobRefused, save_job
 from pbo_runtime.config.live import NAME
+from pbo_runtime.config.root import OUTSIDE_ROOT
 
 
 class CanvasRequest(BaseModel):
@@ -54,7 +56,13 @@ def configuration_name(given: str | None) -> str:
 def answer(request: Request, reply: Callable[[str], dict[str, Any]]) -> Reply:
     """`reply(file)` for the file the HMI edits, or the refusal: 404 no file, 400 a wrong canvas, 409 a job refused."""
     try:
-        return Reply({"ok": True, **reply(subsystem_file(request))})
+        file = subsystem_file(request)
+        with in_tree(file):
+            answered = reply(file)
+        outside = [d for d in answered.get("diagnostics", ()) if d.get("code") == OUTSIDE_ROOT]
+        if outside:
+            raise OutsideRoot(f"refused: error[{OUTSIDE_ROOT}]: {outside[0].get('message')}")  # 403 (api.app)
+        return Reply({"ok": True, **answered})
     except NoFile as exc:
         return refusal(NO_RUN, str(exc))
     except CanvasError as exc:

@@ -14,13 +14,18 @@
                                     and of which object type (the workspace's row, left to right)
 
 The file is the one `pbo hmi FILE` was given, or else the attached run's own (its status reply
-names it); with neither, these answer 404 and say so. The lexicon needs no file.
+names it); with neither, these answer 404 and say so. The lexicon needs no file. Its folder is the
+one tree the API reads and writes (`served_root`): every load here is confined to it
+(`config.root`), so an `include:` that leaves it, in the file or in YAML posted to be checked, is
+an error (E107) and is never read. Posted YAML is checked as if it were a file named posted.yaml
+in that folder; with no file at all, in an empty one.
 """
 
 from __future__ import annotations
 
 import os
 import tempfile
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -30,16 +35,18 @@ from pydantic import BaseModel
 from starlette.concurrency import run_in_threadpool
 
 from pbo_runtime.api.link import RunLink
-from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, Reply, refusal
+from pbo_runtime.api.guard import MAX_BODY_BYTES
+from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, TOO_LARGE, Reply, refusal
 from pbo_runtime.config import bus
 from pbo_runtime.config.job_dictionary import job_dictionary, row_gaps
 from pbo_runtime.config.loader import CheckResult, check_file, format_diagnostics
 from pbo_runtime.config.placement import placement_report
+from pbo_runtime.config.root import OUTSIDE_ROOT, confined, is_within
 from pbo_runtime.errors import ConfigError, PboError
 from pbo_runtime.reports.graph import draw
 from pbo_runtime.reports.lexicon import lexicon
 
-MAX_POSTED_YAML = 1 << 20  # bytes: a subsystem file, not a data set
+MAX_POSTED_YAML = MAX_BODY_BYTES  # a subsystem file, not a data set
 POSTED_NAME = "posted.yaml"  # how messages name YAML sent as a body
 
 
@@ -61,6 +68,31 @@ def subsystem_file(request: Request) -> str:
     if not reply.get("ok") or not reply.get("file"):
         raise NoFile("no subsystem file: pbo hmi was given none and the run did not say its own; start it as pbo hmi FILE")
     return str(reply["file"])
+
+
+class OutsideRoot(PboError):
+    """A path from a request, or an include, that leaves the served tree (`..`, absolute, a symlink
+    out of it): 403 from any route (`api.app`)."""
+
+
+def served_root(file: str) -> str:
+    """The one tree the API reads and writes: the real path of the subsystem file's folder."""
+    return os.path.realpath(os.path.dirname(os.path.abspath(file)))
+
+
+def in_tree(file: str) -> AbstractContextManager[None]:
+    """Loads and checks confined to `file`'s folder (`config.root`): no file outside it is read."""
+    return confined(served_root(file))
+
+
+def within(root: str, given: str) -> str:
+    """`given` (relative to `root`, or absolute) as the real path it names, if that is inside `root`; else OutsideRoot."""
+    if "\0" in given:
+        raise OutsideRoot(f"refused: the path {given[:200]!r} holds a NUL character")
+    path = os.path.join(root, given)  # an absolute path stands alone
+    if not is_within(path, root):
+        raise OutsideRoot(f"refused: {given[:200]!r} is outside {root}, the only folder this server reads and writes")
+    return os.path.realpath(path)
 
 
 def diagnostic(d: ConfigError, rename: tuple[str, str] | None = None) -> dict[str, Any]:
@@ -85,17 +117,33 @@ def check_reply(result: CheckResult, rename: tuple[str, str] | None = None) -> d
     return reply
 
 
-def check_text(text: str) -> dict[str, Any]:
-    """Check YAML text as if it were a file named posted.yaml (an include is looked for beside no file)."""
-    with tempfile.TemporaryDirectory(prefix="pbo-check-") as folder:
-        path = Path(folder) / POSTED_NAME
-        path.write_text(text, encoding="utf-8")
-        return check_reply(check_file(str(path)), (str(path), POSTED_NAME))
+def check_text(text: str, root: str | None) -> dict[str, Any]:
+    """Check YAML text as if it were a file named posted.yaml in `root` (its includes confined to
+    it), or, with no root, in an empty folder of its own; OutsideRoot when it includes a file outside."""
+    if root is None:
+        with tempfile.TemporaryDirectory(prefix="pbo-check-") as folder:
+            return check_text(text, os.path.realpath(folder))
+    path = str(Path(root) / POSTED_NAME)
+    result = check_file(path, root=root, text=text)
+    try:
+        refuse_outside(result)
+    except OutsideRoot as exc:
+        raise OutsideRoot(str(exc).replace(path, POSTED_NAME)) from None
+    return check_reply(result, (path, POSTED_NAME))
+
+
+def refuse_outside(result: CheckResult) -> None:
+    """OutsideRoot (403) naming the first file the check refused to read for leaving the served folder, if any."""
+    outside = [e for e in result.errors if e.code == OUTSIDE_ROOT]
+    if outside:
+        raise OutsideRoot(f"refused: {outside[0].format().splitlines()[0]}")
 
 
 def loaded(file: str, what: str) -> Any:
-    """The checked subsystem of `file`; ValueError naming the first error when it has any."""
-    result = check_file(file)
+    """The checked subsystem of `file`, read within its folder; ValueError naming the first error when
+    it has any, OutsideRoot when that is a file outside the folder."""
+    result = check_file(file, root=served_root(file))
+    refuse_outside(result)
     if result.errors or result.subsystem is None:
         first = result.errors[0].format().splitlines()[0] if result.errors else f"{file}: not a subsystem file"
         raise ValueError(f"cannot {what}: {file} has {len(result.errors)} error(s), the first: {first}; "
@@ -131,7 +179,9 @@ def router() -> APIRouter:
             file = subsystem_file(request)
         except NoFile as exc:
             return refusal(NO_RUN, str(exc))
-        return Reply({**check_reply(check_file(file)), "file": file})
+        result = check_file(file, root=served_root(file))
+        refuse_outside(result)  # 403 (api.app)
+        return Reply({**check_reply(result), "file": file})
 
     @routes.post("/check", summary="check YAML text sent as the body (text/plain or application/yaml)",
                  openapi_extra={"requestBody": {"required": True, "content": {"application/yaml": {"schema": {"type": "string"}},
@@ -139,12 +189,16 @@ def router() -> APIRouter:
     async def post_check(request: Request) -> Reply:
         raw = await request.body()
         if len(raw) > MAX_POSTED_YAML:
-            return refusal(BAD_REQUEST, f"the YAML is {len(raw)} bytes, more than {MAX_POSTED_YAML} taken", bad_request=True)
+            return refusal(TOO_LARGE, f"the YAML is {len(raw)} bytes, more than {MAX_POSTED_YAML} taken")
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError as exc:
             return refusal(BAD_REQUEST, f"the YAML is not UTF-8 text: {exc}", bad_request=True)
-        return Reply(await run_in_threadpool(check_text, text))
+        try:
+            root: str | None = served_root(await run_in_threadpool(subsystem_file, request))
+        except NoFile:
+            root = None
+        return Reply(await run_in_threadpool(check_text, text, root))
 
     @routes.get("/bus", summary="predicted bus utilisation per configuration (pbo bus --format json)")
     def get_bus(request: Request, config: str | None = None) -> Reply:
@@ -155,8 +209,8 @@ def router() -> APIRouter:
         except ValueError as exc:
             return refusal(BAD_REQUEST, str(exc), bad_request=True)
 
-    @routes.get("/graph", summary="a configuration's block diagram as SVG (pbo graph -o out.svg)",
-                responses={200: {"content": {"image/svg+xml": {}}}})
+    @routes.get("/graph", summary="a configuration's block diagram as SVG (pbo graph -o out.svg)", response_class=Response,
+                responses={200: {"description": "the diagram", "content": {"image/svg+xml": {"schema": {"type": "string"}}}}})
     def get_graph(request: Request, config: str | None = None) -> Response:
         try:
             return Response(graph_svg(subsystem_file(request), config), media_type="image/svg+xml")

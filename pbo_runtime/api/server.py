@@ -1,12 +1,14 @@
 """`pbo hmi`: serve the local API on 127.0.0.1 with a fresh token, and say where.
 
 The socket is bound here, before uvicorn starts, so `--port 0` (any free port) prints the port
-it got, and a port in use is refused with a one-line message before anything is served.
+it got, and a port in use is refused with a one-line message before anything is served. An
+address other than loopback is refused, with the risk said, unless `--allow-remote` is given.
 """
 
 from __future__ import annotations
 
 import errno
+import ipaddress
 import socket
 from typing import Callable
 
@@ -37,6 +39,22 @@ def bind(host: str, port: int) -> socket.socket:
         raise PboError(f"cannot listen on {host}:{port}: {exc.strerror or exc}; pass --host {LOOPBACK} or another --port") from None
     sock.set_inheritable(True)
     return sock
+
+
+def is_loopback(host: str) -> bool:
+    """Whether `host` names this machine only: localhost, 127.0.0.0/8, ::1."""
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False  # a host name: it may resolve to any interface
+
+
+def remote_risk(host: str) -> str:
+    return (f"listening on {host} lets other machines reach the API: anyone who can reach the port and has the token "
+            f"can command the run, and the token crosses the network in clear text (plain HTTP); prefer --host "
+            f"{LOOPBACK} and an SSH tunnel (see docs/live.md#security)")
 
 
 def url(host: str, port: int, token: str) -> str:
@@ -70,11 +88,15 @@ def subsystem_of(file: str) -> str | None:
 
 
 def serve(file: str | None, host: str, port: int, subsystem: str | None, run: str | None,
-          say: Callable[[str], None], warn: Callable[[str], None]) -> int:
+          say: Callable[[str], None], warn: Callable[[str], None], allow_remote: bool = False) -> int:
     """Serve until Ctrl-C; the exit status. PboError (exit 2) when the run meant is not there or the port is taken.
 
-    Given FILE and no --subsystem or --run, the run served is the one of FILE's subsystem.
+    Given FILE and no --subsystem or --run, the run served is the one of FILE's subsystem. A host
+    that is not loopback is refused (exit 1) unless `allow_remote`.
     """
+    if not is_loopback(host) and not allow_remote:
+        warn(f"error: {remote_risk(host)}; to accept that, give --allow-remote")
+        return 1
     if file is not None and subsystem is None and run is None:
         subsystem = subsystem_of(file)
     link = LiveRunLink(subsystem, run)
@@ -82,9 +104,8 @@ def serve(file: str | None, host: str, port: int, subsystem: str | None, run: st
     token = new_token()
     sock = bind(host, port)
     port = sock.getsockname()[1]
-    if host != LOOPBACK and host not in ("localhost", "::1"):
-        warn(f"warning: listening on {host}, not only on this machine: anyone who can reach port {port} and has the "
-             f"token can command the run; prefer --host {LOOPBACK} and an SSH tunnel (see docs/live.md)")
+    if not is_loopback(host):
+        warn(f"warning: {remote_risk(host)}")
     say(f"pbo hmi: {attached}; Ctrl-C stops the server (not the run); open:")
     say(url(host, port, token))
     app = create_app(link, token, file)

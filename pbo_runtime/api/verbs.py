@@ -6,7 +6,9 @@ the supervisor's reply dict, as `pbo VERB --format json` prints it. A refusal ke
 one-line `error`; its status says why (`api.replies`): 400 the request was wrong (no such task, a
 value that is not a finite number), 409 the run's state refused it, 404 no run is the one meant,
 503 the supervisor did not answer. A verb the supervisor does not serve (handler None: `svar`
-reads the table itself) is served here by the same code the CLI runs (`LOCAL_VERBS`).
+reads the table itself) is served here by the same code the CLI runs (`LOCAL_VERBS`). A verb's
+argument that names a file (`FILE_ARGUMENTS`: where `save` writes) is taken relative to the served
+folder (`files.served_root`) and refused with 403 when it leaves it.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from typing import Any, Callable
 from fastapi import APIRouter, Request
 from starlette.concurrency import run_in_threadpool
 
+from pbo_runtime.api.files import NoFile, served_root, subsystem_file, within
 from pbo_runtime.api.link import NoRun, RunLink
 from pbo_runtime.api.replies import BAD_REQUEST, NO_ANSWER, NO_RUN, Reply, refusal, supervisor_reply
 from pbo_runtime.errors import PboError
@@ -25,6 +28,7 @@ from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.svar import svar_rows
 
 WRITER_NAMES_TIMEOUT = 0.5  # svar names the writers from the status reply, but never waits long for it
+FILE_ARGUMENTS = {"save": "file"}  # verb -> its argument that names a file the run writes: kept in the served folder
 
 
 def request_schema(verb: Verb) -> dict[str, Any]:
@@ -47,11 +51,22 @@ async def read_body(request: Request) -> dict[str, Any]:
         return {}
     try:
         body = json.loads(raw)
+    except RecursionError:
+        raise ValueError("the body is not JSON a request can take: nested too deeply") from None
     except ValueError as exc:
         raise ValueError(f"the body is not JSON: {exc}") from None
     if not isinstance(body, dict):
         raise ValueError(f"the body must be a JSON object of the verb's arguments, got: {type(body).__name__}")
     return body
+
+
+def confine_file(request: Request, verb: Verb, arguments: dict[str, Any]) -> None:
+    """The verb's file argument made the real path it names in the served folder; OutsideRoot when it leaves it."""
+    key = FILE_ARGUMENTS.get(verb.name)
+    given = arguments.get(key) if key is not None else None
+    if key is None or not isinstance(given, str) or not given:
+        return  # none given, or not text: the supervisor refuses it in its own words
+    arguments[key] = within(served_root(subsystem_file(request)), given)
 
 
 def call_supervisor(link: RunLink, verb: Verb, arguments: dict[str, Any]) -> Reply:
@@ -117,6 +132,10 @@ def verb_route(verb: Verb) -> Callable[[Request], Any]:
             arguments = await read_body(request)
         except ValueError as exc:
             return refusal(BAD_REQUEST, str(exc), bad_request=True)
+        try:
+            await run_in_threadpool(confine_file, request, verb, arguments)
+        except NoFile as exc:
+            return refusal(NO_RUN, f"refused: no folder to write in: {exc}")
         if verb.handler is None:
             return await run_in_threadpool(LOCAL_VERBS[verb.name], link, arguments)
         return await run_in_threadpool(call_supervisor, link, verb, arguments)  # waits on the control queue

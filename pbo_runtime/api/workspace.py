@@ -11,7 +11,7 @@
 
 Every save is checked like `pbo check` before it replaces the file, and answers with the new job
 dictionary. The file written is the one `pbo hmi FILE` was given, or the run's own
-(`files.subsystem_file`), never a path from the request. Refusals: 400 (the row or value is
+(`files.subsystem_file`), never a path from the request, and nothing outside its folder is read. Refusals: 400 (the row or value is
 wrong, or the file would not check clean), 409 (the run refused), 404 (no file, or no run).
 """
 
@@ -24,7 +24,7 @@ from fastapi import APIRouter, Request
 from pydantic import BaseModel
 from starlette.concurrency import run_in_threadpool
 
-from pbo_runtime.api.files import NoFile, loaded, subsystem_file
+from pbo_runtime.api.files import NoFile, in_tree, loaded, subsystem_file
 from pbo_runtime.api.link import NoRun, RunLink
 from pbo_runtime.api.replies import BAD_REQUEST, NO_ANSWER, NO_RUN, Reply, refusal, supervisor_reply
 from pbo_runtime.config.job_dictionary import job_dictionary
@@ -62,7 +62,7 @@ def saved_reply(file: str, result: CheckResult, message: str) -> dict[str, Any]:
 
 def write_application(file: str, body: ApplicationBody) -> dict[str, Any]:
     name = check_name(body.name)
-    with _writing:
+    with _writing, in_tree(file):
         steps = checked_row(loaded(file, "save an application"), body.row, run=False)
         result = save_application(file, name, file_steps(steps), body.replace)
     application = result.subsystem.applications[name] if result.subsystem else None
@@ -72,7 +72,7 @@ def write_application(file: str, body: ApplicationBody) -> dict[str, Any]:
 
 
 def write_object(file: str, body: ObjectBody) -> dict[str, Any]:
-    with _writing:
+    with _writing, in_tree(file):
         result = save_object(file, loaded(file, "save an object"), body.name, body.value)
     return saved_reply(file, result, f"object '{body.name}' saved to {file}")
 

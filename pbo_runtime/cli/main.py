@@ -231,7 +231,9 @@ def _parser() -> argparse.ArgumentParser:
     hmi.add_argument("file", nargs="?", help="the subsystem file for lexicon, check, bus and graph (default: the run's own)")
     hmi.add_argument("--port", type=int, default=8470, help="TCP port (default 8470; 0: any free port, printed)")
     hmi.add_argument("--host", default="127.0.0.1",
-                     help="address to listen on (default 127.0.0.1: this machine only; 0.0.0.0: every interface, with a warning)")
+                     help="address to listen on (default 127.0.0.1: this machine only; another needs --allow-remote)")
+    hmi.add_argument("--allow-remote", action="store_true",
+                     help="accept a --host other machines can reach (the token then crosses the network in clear text)")
     for argument in WHICH_RUN:
         hmi.add_argument(argument.name, **argument.argparse_options())
     hmi.set_defaults(handler=_hmi)
@@ -870,7 +872,7 @@ def _hmi(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
     with contextlib.suppress(KeyboardInterrupt):
         return serve(os.path.abspath(args.file) if args.file else None, args.host, args.port, args.subsystem, args.run,
-                     say, warn)
+                     say, warn, args.allow_remote)
     return EXIT_OK
 
 

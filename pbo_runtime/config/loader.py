@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import gc
 import os
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
@@ -18,8 +19,9 @@ import numpy as np
 from pbo_runtime.objects import registry
 from pbo_runtime.config.checker import Checked, ModuleLookup, check_document, describe
 from pbo_runtime.config.model import Location, Subsystem
+from pbo_runtime.config.root import OUTSIDE_ROOT, confined, leaves_root
 from pbo_runtime.errors import ConfigError, ConfigErrors
-from pbo_runtime.config.yaml_nodes import YList, YMap, load_file
+from pbo_runtime.config.yaml_nodes import YList, YMap, load_file, load_text
 
 # Sections whose entries an included file may add to (names must not clash).
 _MERGED_SECTIONS = ("devices", "dims", "variables", "object_types", "objects", "tasks", "configurations", "jobs",
@@ -53,18 +55,23 @@ def check_file(
     module_lookup: ModuleLookup = registry.module_class,
     *,
     module_names: Callable[[], Iterable[str]] | None = None,
+    root: str | os.PathLike[str] | None = None,
+    text: str | None = None,
 ) -> CheckResult:
     """Check a subsystem file and its includes; every problem ends in the result, never raised.
 
     `module_names` lists the registered modules for "did you mean"; by default the registry's
-    names when `module_lookup` is the registry's.
+    names when `module_lookup` is the registry's. `root`: no file outside this tree is read
+    (`config.root`; by default the confinement in force, none for pbo check). `text`: the file's
+    content when it is not on disk (the HMI editor's unsaved file), its includes found beside `path`.
     """
     # A large file makes hundreds of thousands of small objects and no reference cycles that
     # matter: the cyclic GC would only rescan the growing heap again and again.
     enabled = gc.isenabled()
     gc.disable()
     try:
-        return _check_file(path, module_lookup, module_names)
+        with confined(root) if root is not None else nullcontext():
+            return _check_file(path, module_lookup, module_names, text)
     finally:
         if enabled:
             gc.enable()
@@ -74,13 +81,14 @@ def _check_file(
     path: str | os.PathLike[str],
     module_lookup: ModuleLookup,
     module_names: Callable[[], Iterable[str]] | None,
+    text: str | None,
 ) -> CheckResult:
     if module_names is None and module_lookup is registry.module_class:
         module_names = _default_names
     file = os.fspath(path)
     errors: list[ConfigError] = []
     try:
-        doc = _load_with_includes(file, [], errors)
+        doc = _load_with_includes(file, [], errors, text)
         checked = Checked() if doc is _UNREADABLE else check_document(doc, file, module_lookup, module_names)
     except Exception as exc:  # the promise is "never a traceback"; a bug becomes a message to report
         checked = Checked()
@@ -94,10 +102,11 @@ def check_loaded(doc: Any, file: str, module_lookup: ModuleLookup = registry.mod
     return _result(check_document(doc, file, module_lookup, names), file, [])
 
 
-def load_document(file: str) -> tuple[Any, list[ConfigError]]:
+def load_document(file: str, root: str | os.PathLike[str] | None = None) -> tuple[Any, list[ConfigError]]:
     """A file's document with its includes merged in (what `check_file` checks), and what kept it from loading."""
     errors: list[ConfigError] = []
-    doc = _load_with_includes(file, [], errors)
+    with confined(root) if root is not None else nullcontext():
+        doc = _load_with_includes(file, [], errors)
     return (None if doc is _UNREADABLE else doc), errors
 
 
@@ -190,14 +199,14 @@ def _assemble(checked: Checked, file: str) -> Subsystem:
     )
 
 
-def _load_with_includes(file: str, stack: list[str], errors: list[ConfigError]) -> Any:
+def _load_with_includes(file: str, stack: list[str], errors: list[ConfigError], text: str | None = None) -> Any:
     """The file's document with the mappings of its `include:` files merged in, includes first.
 
-    Problems of the includes themselves (missing file, cycle, clash) go to `errors`; the merged
-    document still gets checked so the user sees everything at once.
+    Problems of the includes themselves (missing file, cycle, clash, outside the root) go to
+    `errors`; the merged document still gets checked so the user sees everything at once.
     """
     try:
-        doc = _load_document(file)
+        doc = _load_document(file) if text is None else load_text(text, file)
     except ConfigError as exc:
         errors.append(exc)
         return _UNREADABLE
@@ -224,6 +233,12 @@ def _load_with_includes(file: str, stack: list[str], errors: list[ConfigError]) 
                                  "write the path as plain text, e.g. include: [common/puma_variables.yaml]"))
             continue
         target = os.path.normpath(os.path.join(here, item))
+        root = leaves_root(target)
+        if root is not None:  # refused before it is opened: neither its content nor whether it exists is told
+            errors.append(ConfigError(f"included file '{item}' is outside {root}, the folder this server reads", loc.file,
+                                      loc.line, loc.column, "the local API reads the subsystem file's folder and below "
+                                      "only; move the included file into it", code=OUTSIDE_ROOT))
+            continue
         if os.path.realpath(target) in chain:
             errors.append(_error(f"'{item}' includes itself (through {' -> '.join(os.path.basename(c) for c in chain)})", loc, "remove one of the includes"))
             continue

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,7 @@ from pbo_runtime.config.checker.model import BUS_KEYS, RESTART_KEYS, RTPU_KEYS
 from pbo_runtime.config.checker.words import describe, did_you_mean
 from pbo_runtime.config.limits import MAX_DIM
 from pbo_runtime.config.model import DEFAULT_SPIN, BusSpec, Location, PlantSpec, RestartPolicy, RtpuSpec
+from pbo_runtime.config.root import leaves_root
 from pbo_runtime.config.units import DATA_RATE, SIZE, TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
 from pbo_runtime.errors import ModuleError, ParamError
@@ -253,6 +255,11 @@ class SectionChecks(CheckerBase):
             except (ModuleError, AttributeError):
                 return  # a plant of another kind checks its own options when it starts
             base_dir = Path(spec.loc.file).resolve().parent if spec.loc.file else Path.cwd()
+            root = robot_file_outside_root(spec.model, base_dir)
+            if root is not None:
+                self.error("E107", f"robot file {spec.model!r} is outside {root}, the folder this server reads", model_loc,
+                           "the local API reads the subsystem file's folder and below only; move the robot file into it")
+                return
             options = dict(spec.options)
             while True:
                 try:
@@ -301,3 +308,11 @@ class SectionChecks(CheckerBase):
                            f"(at {where.file}:{where.line}:{where.column})",
                    self.dims_node.value_loc("NDOF"),
                    f"remove NDOF from dims: (the robot gives it) or set it to {robot}")
+
+
+def robot_file_outside_root(model: str, base_dir: Path) -> str | None:
+    """The root (`config.root`) a plant's robot file leaves, or None. A `package://` URI is looked for
+    in the installed robot packages, so only one that climbs out with `..` is refused."""
+    if model.startswith("package://"):
+        return leaves_root("/") if ".." in Path(model[len("package://"):]).parts else None
+    return leaves_root(base_dir / os.path.expanduser(model))

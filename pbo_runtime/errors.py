@@ -156,3 +156,22 @@ def closest_name(name: object, choices: Iterable[str]) -> str | None:
         return truncated[0]
     close = difflib.get_close_matches(text, options, n=1, cutoff=0.6)
     return close[0] if close else None
+
+
+class MissingExtra(PboError):
+    """A verb needs a part of pbo-runtime the install left out (an optional extra)."""
+
+
+EXTRAS = {"fastapi": "hmi", "uvicorn": "hmi", "websockets": "hmi", "matplotlib": "plot", "zenoh": "links"}
+
+
+def require_extra(module: str, what: str) -> None:
+    """Import `module` or raise MissingExtra: "`what` needs the 'hmi' extra (...): pip install ..."."""
+    import importlib
+
+    try:
+        importlib.import_module(module)
+    except ImportError:
+        extra = EXTRAS[module]
+        raise MissingExtra(f"{what} needs the '{extra}' extra ({module} is not installed): "
+                           f"pip install 'pbo-runtime[{extra}]'") from None

@@ -27,7 +27,7 @@ from pbo_runtime.cli.arguments import ArgumentParser
 from pbo_runtime.cli.completion import HIDDEN_VERB, complete
 from pbo_runtime.clock.clocks import scheduler_outcome
 from pbo_runtime.objects import registry
-from pbo_runtime.errors import ConfigErrors, PboError
+from pbo_runtime.errors import ConfigErrors, MissingExtra, PboError, require_extra
 from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.supervisor.failures import WrongArgument
 from pbo_runtime.config.transitions import transitions
@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigErrors as exc:
         errors.print(str(exc), markup=False)
         return EXIT_CONFIG
-    except (BadRequest, WrongArgument) as exc:  # arguments the run refused (an operator's command, `--config nope`): bad input
+    except (BadRequest, WrongArgument, MissingExtra) as exc:  # arguments the run refused (an operator's command, `--config nope`): bad input
         errors.print(f"error: {exc}", markup=False)
         return EXIT_CONFIG
     except PboError as exc:
@@ -860,6 +860,8 @@ def _hmi(args: argparse.Namespace, console: Console, errors: Console) -> int:
     if not 0 <= args.port <= 65535:
         errors.print(f"error: --port must be 0 to 65535, got: {args.port}", markup=False)
         return EXIT_CONFIG
+    for module in ("fastapi", "uvicorn", "websockets"):
+        require_extra(module, "pbo hmi")
     from pbo_runtime.api.server import serve
 
     def say(text: str) -> None:
@@ -890,6 +892,7 @@ def _plot(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from pbo_runtime.reports.data_log import LogError
     from pbo_runtime.reports.run_plot import figure, load_run, plot_axes, save
 
+    require_extra("matplotlib", "pbo plot")
     try:
         run = load_run(args.target)
         plot_axes(run, args.variables)  # an unknown variable is refused before anything is drawn
@@ -946,6 +949,8 @@ def _log_info(args: argparse.Namespace, console: Console, errors: Console) -> in
 
 
 def _bus(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    if args.plot:
+        require_extra("matplotlib", "pbo bus --plot")
     from pbo_runtime.config import bus
     from pbo_runtime.config.loader import load_subsystem
 
@@ -1041,6 +1046,8 @@ def _graph(args: argparse.Namespace, console: Console, errors: Console) -> int:
     subsystem = load_subsystem(args.file)
     try:
         if args.output:
+            if args.output.suffix.lower() != ".dot":
+                require_extra("matplotlib", f"pbo graph -o {args.output.name}")
             draw(subsystem, args.config, args.output)
             console.print(f"wrote {args.output}", markup=False)
         else:

@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from pbo_runtime.errors import ModuleError
+from pbo_runtime.errors import ModuleError, require_extra
 
 Opener = Callable[[dict[str, Any], np.ndarray, str], Any]  # (the link's spec, an item like the port's, role) -> end
 # Each opener imports its transport when called: a subsystem that uses no zenoh link never loads zenoh.
@@ -37,6 +37,7 @@ def _shm_periodic(spec: dict[str, Any], like: np.ndarray, role: str) -> Any:
 
 
 def _zenoh_periodic(spec: dict[str, Any], like: np.ndarray, role: str) -> Any:
+    require_extra("zenoh", f"the zenoh link '{spec.get('key', '?')}'")
     from pbo_runtime.links import zenoh_link
     from pbo_runtime.links.triple_buffer import LinkLayout
 
@@ -52,6 +53,7 @@ def _shm_message(spec: dict[str, Any], _like: np.ndarray, _role: str) -> Any:
 
 def _zenoh_message(spec: dict[str, Any], _like: np.ndarray, role: str) -> Any:
     """The server listens on the spec's endpoint, the sender connects."""
+    require_extra("zenoh", f"the zenoh link '{spec.get('key', '?')}'")
     from pbo_runtime.links import zenoh_link
 
     return zenoh_link.open_aperiodic(spec, role)

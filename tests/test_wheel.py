@@ -151,3 +151,26 @@ def test_the_demo_copied_out_of_the_wheel_runs_on_the_simulated_clock(installed,
               "--no-live")
     assert ran.returncode == 0, ran.stdout + ran.stderr
     assert "starting subsystem 'wheel_" in ran.stdout and "run summary" in ran.stdout
+
+
+def tutorial_commands() -> list[tuple[str, int]]:
+    """docs/tutorial.md's `$` lines in order, with the exit status each should end with; `# by hand` ones left out."""
+    text = (REPO / "docs" / "tutorial.md").read_text()
+    lines = [line[2:] for block in re.findall(r"```console\n(.*?)```", text, re.S) for line in block.splitlines()
+             if line.startswith("$ ")]
+    return [(line, 1 if "# exits 1" in line else 0) for line in lines if "# by hand" not in line]
+
+
+@pytest.mark.multiprocess
+def test_the_tutorial_runs_command_by_command_from_the_wheel(installed, tmp_path):
+    commands = tutorial_commands()
+    assert [c for c, _ in commands][:2] == ["pbo examples", "pbo check pbo-examples/pid_joint.yaml"]
+    env = {**installed["env"], "PATH": f"{installed['site'] / 'bin'}{os.pathsep}{os.environ['PATH']}"}
+    for command, status in commands:
+        done = subprocess.run(["bash", "-c", command], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+        assert done.returncode == status, f"$ {command}\n{done.stdout}\n{done.stderr}"
+        if command == "pbo examples":  # names of their own: another run of the shipped ones may be live here
+            for example in (tmp_path / "pbo-examples").glob("*.yaml"):
+                example.write_text(re.sub(r"(?m)^subsystem: (.*)$", rf"subsystem: \1_{uuid.uuid4().hex[:6]}",
+                                          example.read_text(), count=1))
+    assert (tmp_path / "first.png").stat().st_size > 0 and (tmp_path / "ur5.png").stat().st_size > 0

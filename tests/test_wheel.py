@@ -174,3 +174,40 @@ def test_the_tutorial_runs_command_by_command_from_the_wheel(installed, tmp_path
                 example.write_text(re.sub(r"(?m)^subsystem: (.*)$", rf"subsystem: \1_{uuid.uuid4().hex[:6]}",
                                           example.read_text(), count=1))
     assert (tmp_path / "first.png").stat().st_size > 0 and (tmp_path / "ur5.png").stat().st_size > 0
+
+
+def comment_commands(folder: Path) -> list[tuple[str, str]]:
+    """(file, command) for each `pbo ...` command the shipped files' comments give, as written there."""
+    found = []
+    for path in sorted(folder.glob("*.yaml")):
+        for line in path.read_text().splitlines():
+            if line.lstrip().startswith("#"):
+                for command in re.findall(r"(pbo (?:check|run|bus|graph) [A-Za-z0-9_]+\.yaml[^`;#)]*)", line):
+                    found.append((path.name, command.strip()))
+    return found
+
+
+@pytest.mark.multiprocess
+def test_every_command_in_the_shipped_files_comments_works_in_the_folder_pbo_examples_makes(installed, examples):
+    """check, bus and graph run as written; a run's arguments are parsed by the CLI and its names (a
+    configuration, an application, the configurations it alternates) found in the file: the files
+    themselves run in the end-to-end tests."""
+    from pbo_runtime.cli.main import _parser
+    from pbo_runtime.config.loader import load_subsystem
+
+    commands = comment_commands(examples)
+    assert len(commands) >= 15 and all("configs/" not in command for _, command in commands)
+    env = {**installed["env"], "PATH": f"{installed['site'] / 'bin'}{os.pathsep}{os.environ['PATH']}"}
+    for file, command in commands:
+        if command.startswith("pbo run"):
+            args = _parser().parse_args(command.split()[1:])
+            assert (examples / args.file).is_file(), command
+            if args.file.endswith(("leader_follower.yaml",)):
+                continue  # an application file: pbo check of it runs above
+            subsystem = load_subsystem(examples / args.file)
+            named = [args.config] + (args.alternate.split(",") if args.alternate else [])
+            assert all(c is None or c in subsystem.configurations for c in named), command
+            assert args.app is None or args.app in subsystem.applications, command
+            continue
+        done = subprocess.run(["bash", "-c", command], cwd=examples, env=env, capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, f"{file}: $ {command}\n{done.stdout}\n{done.stderr}"

@@ -97,3 +97,12 @@ def summary(copied: Copied) -> list[str]:
 
 def _files(count: int) -> str:
     return f"{count} file{'' if count == 1 else 's'}"
+
+
+def missing_example_hint(given: str, examples: Path = EXAMPLES) -> str | None:
+    """For a file that is not there but names a shipped example: where to get it."""
+    path = Path(given)
+    if path.exists() or path.name not in shipped_files(examples):
+        return None
+    return (f"hint: '{path.name}' is a shipped example: `pbo examples` copies them into ./pbo-examples "
+            f"(then: pbo ... pbo-examples/{path.name}); in a checkout it is configs/{path.name}")

@@ -56,9 +56,13 @@ def main(argv: list[str] | None = None) -> int:
         console = Console(highlight=False, width=140)
         errors = Console(stderr=True, highlight=False, width=140, soft_wrap=True)
     try:
-        return args.handler(args, console, errors)
+        status = args.handler(args, console, errors)
+        if status == EXIT_CONFIG:
+            _say_where_an_example_is(args, errors)
+        return status
     except ConfigErrors as exc:
         errors.print(str(exc), markup=False)
+        _say_where_an_example_is(args, errors)
         return EXIT_CONFIG
     except (BadRequest, WrongArgument, MissingExtra) as exc:  # arguments the run refused (an operator's command, `--config nope`): bad input
         errors.print(f"error: {exc}", markup=False)
@@ -78,6 +82,15 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_RUN
     except Exception:
         return _internal_error(args, errors)
+
+
+def _say_where_an_example_is(args: argparse.Namespace, errors: Console) -> None:
+    """A FILE that is not there but names a shipped example (a command copied from a comment): where it is."""
+    from pbo_runtime.cli.examples import missing_example_hint
+
+    hint = missing_example_hint(args.file) if isinstance(getattr(args, "file", None), str) else None
+    if hint is not None:
+        errors.print(hint, markup=False)
 
 
 def _internal_error(args: argparse.Namespace, errors: Console) -> int:

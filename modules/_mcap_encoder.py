@@ -232,7 +232,8 @@ class McapLog:
     counts nothing (it would know only the new ones): a reader reads it through, as a killed log."""
 
     def __init__(self, fd: int, dtype: np.dtype, columns: Mapping[str, tuple[str, str]], run: Mapping[str, str],
-                 task: str, period: float, preamble_written: bool = False, resume_at: tuple[int, int] | None = None) -> None:
+                 task: str, period: float, preamble_written: bool = False, resume_at: tuple[int, int] | None = None,
+                 encoding: str = "json") -> None:
         from mcap.writer import CompressionType, IndexType, Writer
 
         self.rows = 0
@@ -243,7 +244,8 @@ class McapLog:
         resumed = {} if resume_at is None else {"index_types": IndexType.MESSAGE, "use_statistics": False}
         self.writer = Writer(self.stream, chunk_size=1 << 62, compression=CompressionType.ZSTD,  # type: ignore[arg-type]
                              **resumed)
-        self.writer.start(profile="", library=f"pbo-runtime {run.get('pbo-runtime', '')}".strip())
+        self.ros2 = Ros2Messages() if encoding == "ros2" else None
+        self.writer.start(profile="ros2" if self.ros2 else "", library=f"pbo-runtime {run.get('pbo-runtime', '')}".strip())
         self.names = [name for name in dtype.names or () if name != "time"]
         described = []
         self.channels = []
@@ -252,9 +254,15 @@ class McapLog:
             field_dtype, shape = dtype[name].base, dtype[name].shape
             doc, unit = columns.get(name, ("", ""))
             described.append({"name": name, "dtype": str(field_dtype), "shape": list(shape), "unit": unit, "doc": doc})
-            schema = self.writer.register_schema(name, "jsonschema", json.dumps(_json_schema(name, field_dtype, shape, unit, doc)).encode())
-            self.channels.append(self.writer.register_channel(name, "json", schema, {
-                "unit": unit, "doc": doc, "dtype": str(field_dtype), "shape": json.dumps(list(shape))}))
+            metadata = {"unit": unit, "doc": doc, "dtype": str(field_dtype), "shape": json.dumps(list(shape))}
+            if self.ros2 is not None:
+                typename, definition = self.ros2.declare(name, field_dtype, shape)
+                schema = self.writer.register_schema(typename, "ros2msg", definition.encode())
+                self.channels.append(self.writer.register_channel(name, "cdr", schema, metadata))
+            else:
+                schema = self.writer.register_schema(name, "jsonschema",
+                                                     json.dumps(_json_schema(name, field_dtype, shape, unit, doc)).encode())
+                self.channels.append(self.writer.register_channel(name, "json", schema, metadata))
             self.floats.append(field_dtype.kind == "f")
         self.writer.add_metadata("pbo-run", {str(k): str(v) for k, v in run.items()})
         self.writer.add_metadata("pbo-log", {"task": task, "period": repr(period), "columns": json.dumps(described)})
@@ -276,6 +284,9 @@ class McapLog:
         self.pending = 0
 
     def encode(self, chunk: np.ndarray) -> None:
+        if self.ros2 is not None:
+            self._encode_cdr(chunk)
+            return
         times = chunk["time"].tolist()
         stamps = (np.rint(chunk["time"] * 1e9).astype(np.int64) + self.unix_offset_ns).tolist()
         columns = [(channel, _json_values(chunk[name], floating))
@@ -285,6 +296,17 @@ class McapLog:
             for channel, values in columns:
                 data = f'{{"time":{at!r},"value":{dumps(values[row])}}}'.encode()
                 add(channel, log_time=stamp, data=data, publish_time=stamp, sequence=row)
+
+    def _encode_cdr(self, chunk: np.ndarray) -> None:
+        """Each row of each variable as the ROS 2 message `Ros2Messages` declared for it, CDR as rmw writes it."""
+        assert self.ros2 is not None
+        stamps = (np.rint(chunk["time"] * 1e9).astype(np.int64) + self.unix_offset_ns).tolist()
+        add = self.writer.add_message
+        for channel, name in zip(self.channels, self.names):
+            serialize = self.ros2.serializer(name)
+            column = chunk[name].reshape(len(chunk), -1)
+            for row, stamp in enumerate(stamps):
+                add(channel, log_time=stamp, data=serialize(column[row]), publish_time=stamp, sequence=row)
 
     def finish(self) -> None:
         """The summary and footer: the log then opens indexed (a killed run's log is read chunk by chunk)."""
@@ -313,6 +335,37 @@ def _json_schema(name: str, dtype: np.dtype, shape: tuple[int, ...], unit: str, 
                            "value": {**value, "description": description}}}
 
 
+class Ros2Messages:
+    """A variable as a ROS 2 `std_msgs/msg/*MultiArray` of its element type, its layout its shape
+    (a dimension per axis, ROS's strides): what rosbag2 and the ROS 2 tools read. Built with the
+    `rosbags` type store (the `ros2` extra)."""
+
+    TYPES = {"f4": "Float32", "f8": "Float64", "i1": "Int8", "i2": "Int16", "i4": "Int32", "i8": "Int64",
+             "u1": "UInt8", "u2": "UInt16", "u4": "UInt32", "u8": "UInt64", "b1": "UInt8"}
+
+    def __init__(self) -> None:
+        from rosbags.typesys import Stores, get_typestore
+
+        self.store = get_typestore(Stores.ROS2_HUMBLE)
+        self._serializers: dict[str, Any] = {}
+
+    def declare(self, name: str, dtype: np.dtype, shape: tuple[int, ...]) -> tuple[str, str]:
+        """The variable's message type and its definition as rosbag2 stores it (`ros2msg`)."""
+        kind = f"{dtype.kind}{dtype.itemsize}"
+        typename = f"std_msgs/msg/{self.TYPES[kind]}MultiArray"
+        types = self.store.types
+        strides = [int(np.prod(shape[i:], dtype=int)) for i in range(len(shape))]
+        layout = types["std_msgs/msg/MultiArrayLayout"](
+            dim=[types["std_msgs/msg/MultiArrayDimension"](label=f"dim{i}", size=size, stride=stride)
+                 for i, (size, stride) in enumerate(zip(shape, strides))], data_offset=0)
+        message, serialize, wire = types[typename], self.store.serialize_cdr, np.dtype("u1" if kind == "b1" else kind)
+        self._serializers[name] = lambda values: bytes(serialize(message(layout=layout, data=values.astype(wire)), typename))
+        return typename, self.store.generate_msgdef(typename, ros_version=2)[0]
+
+    def serializer(self, name: str) -> Any:
+        return self._serializers[name]
+
+
 def _step_aside() -> None:
     """Leave the CPU to the RTPU: SCHED_OTHER (a child inherits the executive's SCHED_FIFO), niced."""
     try:
@@ -339,7 +392,7 @@ def _serve(commands: int, replies: int) -> None:
     resume_at = tuple(setup["resume_at"]) if setup.get("resume_at") else None
     try:
         log = McapLog(setup["log_fd"], dtype, columns, setup["run"], setup["task"], setup["period"],
-                      resume_at=resume_at)  # type: ignore[arg-type]
+                      resume_at=resume_at, encoding=setup.get("encoding", "json"))  # type: ignore[arg-type]
     except OSError as exc:  # the preamble could not be written: said to the logger, and the log ends here
         _send(replies, {"rows": 0, "errno": exc.errno, "strerror": exc.strerror or str(exc)})
         return

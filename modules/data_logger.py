@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import _thread
 import errno
+import importlib.util
 import io
 import mmap
 import os
@@ -66,6 +67,7 @@ __all__ = ["DataLogger", "DataLoggerParams", "read_log"]
 
 CHUNK_BYTES = 256 * 1024  # the most one cycle writes at once (tens of microseconds into the page cache)
 FORMATS = (".mcap", ".npy")
+ENCODINGS = ("json", "ros2")
 FINISH_PATIENCE = 60.0  # s a logger spawned at a path waits for the one killed before it to end that file
 # Logs being finished in the background, by path: a logger spawned again at the same path (kill,
 # then spawn) waits for the file's end before it replaces it.
@@ -77,6 +79,7 @@ class DataLoggerParams:
     variables: tuple[str, ...]
     path: str = "log.mcap"  # relative: under the run's output directory
     chunk: float = param(1.0, above=0, at_most=86400)  # seconds of rows written to the file at a time (at most CHUNK_BYTES)
+    encoding: str = "json"  # an MCAP log's messages: json (pbo's), or ros2 (CDR, std_msgs MultiArrays, as rosbag2 writes)
 
     def __post_init__(self) -> None:
         if not self.variables:
@@ -87,6 +90,12 @@ class DataLoggerParams:
             raise ValueError("variables must not include 'time': the log's time field is the cycle's release time")
         if not self.chunk > 0:
             raise ValueError(f"chunk must be > 0 s, got: {self.chunk}")
+        if self.encoding not in ENCODINGS:
+            raise ValueError(f"encoding must be one of {', '.join(ENCODINGS)}, got: {self.encoding!r}")
+        if self.encoding == "ros2" and not self.path.endswith(".mcap"):
+            raise ValueError(f"encoding ros2 writes an MCAP log: path must end in .mcap, got: {self.path!r}")
+        if self.encoding == "ros2" and importlib.util.find_spec("rosbags") is None:
+            raise ValueError("encoding ros2 needs the 'ros2' extra (rosbags is not installed): pip install 'pbo-runtime[ros2]'")
         if not self.path.endswith(FORMATS):
             raise ValueError(f"path must end in .mcap (Foxglove, PlotJuggler) or .npy (one numpy structured array), "
                              f"got: {self.path!r}")
@@ -152,7 +161,8 @@ class DataLogger(PortBasedObject):
                 resume_at = resume_point(self._fd) if resume else None
                 if resume_at is not None:
                     os.ftruncate(self._fd, resume_at[0])  # a chunk cut short by the death, and any end of data
-                setup = {"columns": columns, "run": _with_unix_offset(self.run_metadata), "task": self.task_name, "period": self.period,
+                setup = {"columns": columns, "run": _with_unix_offset(self.run_metadata), "task": self.task_name,
+                         "period": self.period, "encoding": params.encoding,
                          "resume_at": resume_at}
                 self._file: _LogFile = _McapProcess(self._fd, self._shared_fd, self._dtype, self._rows, setup)
             else:

@@ -496,6 +496,53 @@ def test_pbo_log_export_of_a_run_of_several_logs_writes_one_csv_each_into_a_dire
     assert (out / "other.csv").read_text() == csv_text(open_log(run_dir / "log.mcap"))
 
 
+def test_a_log_in_ros2_encoding_is_read_back_by_an_independent_ros2_reader_and_by_read_log(tmp_path):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    rows = np.zeros(5, dtype=[("time", np.float64), ("x", np.float64, (3,)), ("k", np.int32), ("m", np.float64, (2, 2))])
+    rows["time"] = 1.0 + np.arange(5) * DT
+    rows["x"] = np.arange(15.0).reshape(5, 3)
+    rows["k"] = [-3, 7, 0, 1, 2]
+    rows["m"] = np.arange(20.0).reshape(5, 2, 2)
+    rows["x"][2, 1] = np.nan
+    path = tmp_path / "ros.mcap"
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT, 0o644)
+    try:
+        log = McapLog(fd, rows.dtype, NOTES, {**RUN, "unix_offset_ns": "1700000000000000000"}, "log", DT, encoding="ros2")
+        log.append(rows, 5)
+        log.finish()
+    finally:
+        os.close(fd)
+    with open(path, "rb") as file:
+        reader = make_reader(file, decoder_factories=[DecoderFactory()])
+        assert reader.get_header().profile == "ros2"
+        decoded = [(channel.topic, schema.name, channel.message_encoding, message.log_time, list(ros.data),
+                    [(d.label, d.size, d.stride) for d in ros.layout.dim])
+                   for schema, channel, message, ros in reader.iter_decoded_messages()]
+    by_topic = {topic: [d for d in decoded if d[0] == topic] for topic in ("x", "k", "m")}
+    assert [d[1:3] for d in (by_topic["x"][0], by_topic["k"][0], by_topic["m"][0])] == [
+        ("std_msgs/msg/Float64MultiArray", "cdr"), ("std_msgs/msg/Int32MultiArray", "cdr"), ("std_msgs/msg/Float64MultiArray", "cdr")]
+    assert [d[3] for d in by_topic["k"]] == [1_700_000_000_000_000_000 + round(t * 1e9) for t in rows["time"]]  # Unix ns
+    assert [d[4] for d in by_topic["k"]] == [[-3], [7], [0], [1], [2]]  # a scalar: one element, no dimension
+    assert by_topic["m"][1][4:] == ([4.0, 5.0, 6.0, 7.0], [("dim0", 2, 4), ("dim1", 2, 2)])  # ROS's strides
+    back = read_log(path)
+    assert np.allclose(back["time"], rows["time"], rtol=0, atol=1e-9)
+    assert np.array_equal(back["x"], rows["x"], equal_nan=True) and np.array_equal(back["m"], rows["m"])
+    assert back["k"].tolist() == rows["k"].tolist()
+
+
+@pytest.mark.parametrize("changes, refusal", [
+    ({"encoding": "cdr"}, "encoding must be one of json, ros2, got: 'cdr'"),
+    ({"encoding": "ros2", "path": "log.npy"}, "encoding ros2 writes an MCAP log: path must end in .mcap, got: 'log.npy'"),
+])
+def test_a_logs_encoding_is_json_or_ros2_and_ros2_only_in_mcap(changes, refusal):
+    from modules.data_logger import DataLoggerParams
+
+    with pytest.raises(ValueError, match=re.escape(refusal)):
+        DataLoggerParams(variables=("x",), **changes)
+
+
 def test_pbo_log_info_says_what_ros2_bag_info_says_of_a_log_on_the_runs_clock(run_dir, capsys):
     assert main(["log", "info", str(run_dir)]) == 0
     lines = capsys.readouterr().out.splitlines()

@@ -17,7 +17,7 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -86,10 +86,12 @@ def _open_npy(path: Path) -> DataLog:
 
 
 def _open_mcap(path: Path) -> DataLog:
-    from mcap.records import Channel, DataEnd, Footer, Message, Metadata
+    from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
 
     channels: dict[int, str] = {}
+    schemas: dict[int, str] = {}
+    cdr: dict[int, Callable[[bytes], Any]] = {}  # channel -> its ROS 2 decoder (encoding: ros2)
     channel_meta: dict[str, dict[str, str]] = {}
     metadata: dict[str, dict[str, str]] = {}
     values: dict[str, list[Any]] = {}
@@ -100,12 +102,20 @@ def _open_mcap(path: Path) -> DataLog:
             for record in StreamReader(file, skip_magic=False).records:
                 if isinstance(record, Message):
                     name = channels.get(record.channel_id)
-                    if name is not None:
+                    if name is not None and record.channel_id in cdr:
+                        values[name].append(cdr[record.channel_id](record.data))
+                        offset = int(metadata.get("pbo-run", {}).get("unix_offset_ns", 0))
+                        times[name].append((record.log_time - offset) / 1e9)
+                    elif name is not None:
                         body = json.loads(record.data)
                         values[name].append(body["value"])
                         times[name].append(body.get("time", record.log_time / 1e9))
+                elif isinstance(record, Schema):
+                    schemas[record.id] = record.name
                 elif isinstance(record, Channel):
                     channels[record.id] = record.topic
+                    if record.message_encoding == "cdr":
+                        cdr[record.id] = _ros2_decoder(schemas.get(record.schema_id, ""))
                     channel_meta[record.topic] = dict(record.metadata)
                     values.setdefault(record.topic, [])
                     times.setdefault(record.topic, [])
@@ -113,6 +123,8 @@ def _open_mcap(path: Path) -> DataLog:
                     metadata[record.name] = dict(record.metadata)
                 elif isinstance(record, (DataEnd, Footer)):
                     complete = True
+        except LogError:
+            raise
         except Exception:  # a record cut short by a kill (or the end of a file never finished): keep what came before
             pass
     columns = _columns(path, metadata.get("pbo-log"), channel_meta)
@@ -162,6 +174,17 @@ def log_rows(path: str | Path) -> int:
         except Exception:  # no summary: a killed run's log, counted by reading it
             pass
     return len(open_log(path).rows)
+
+
+def _ros2_decoder(typename: str) -> Callable[[bytes], Any]:
+    """A `std_msgs/msg/*MultiArray` message (a log written with `encoding: ros2`) to its values."""
+    try:
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError:
+        raise LogError(f"this log's messages are ROS 2 ({typename}): reading them needs the 'ros2' extra: "
+                       "pip install 'pbo-runtime[ros2]'") from None
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    return lambda data: store.deserialize_cdr(data, typename).data.tolist()  # type: ignore[attr-defined]
 
 
 def find_logs(directory: str | Path) -> list[Path]:

@@ -83,6 +83,22 @@ def time_floor(env: dict[str, str]) -> float:
     return time.monotonic() - start
 
 
+CLI_ANSWERS = (  # (what, the command after the interpreter): the CLI's answers a terminal waits for
+    ("floor: `python -c pass`", ["-c", "pass"]),
+    ("`pbo --version`", ["-m", "pbo_runtime.cli", "--version"]),
+    ("`pbo --help`", ["-m", "pbo_runtime.cli", "--help"]),
+    ("`pbo check FILE`", ["-m", "pbo_runtime.cli", "check", "FILE"]),
+)
+
+
+def time_cli(arguments: list[str], file: Path, env: dict[str, str]) -> float:
+    """One CLI command, from its start to its end (its output discarded)."""
+    command = [sys.executable, *(str(file) if a == "FILE" else a for a in arguments)]
+    start = time.monotonic()
+    subprocess.run(command, env=env, check=True, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+    return time.monotonic() - start
+
+
 def segments(marks: dict[str, float]) -> dict[str, float]:
     """Each phase's own seconds, from the end of the one before it ('children': until the last child is ready)."""
     out, before = {}, 0.0
@@ -103,7 +119,9 @@ Wall time from just before this process starts `pbo run configs/pid_joint.yaml` 
 ON (the run report's `started_monotonic`; `startup` in the report holds each phase's end). Each of
 {rounds} rounds starts `pbo run`, `pbo run` with PBO_FORK_SERVER=0 (the plant and each RTPU a fresh
 interpreter, as before the fork server) and a bare interpreter that imports numpy (the floor: the
-least a Python process costs), in an order rotated round by round. Bytecode is cached, as after the first
+least a Python process costs), in an order rotated round by round; then, as many rounds, the CLI's
+quick answers (`pbo --version`, `pbo --help`, `pbo check` of the demo) against a bare interpreter
+that does nothing. Bytecode is cached, as after the first
 run of an installed package, under a temporary PYTHONPYCACHEPREFIX written by an uncounted run.
 Phases: the interpreter and the CLI's imports; the file's load and check; removing a dead run's
 leftovers, the queues and the table; the plant and the RTPU processes, until the last is ready;
@@ -132,6 +150,11 @@ on a busy machine both grow alike.""",
         for index in range(rounds):
             for k in range(len(contenders)):
                 contenders[(index + k) % len(contenders)]()
+        answers: dict[str, list[float]] = {what: [] for what, _ in CLI_ANSWERS}
+        for index in range(rounds):
+            for k in range(len(CLI_ANSWERS)):
+                what, arguments = CLI_ANSWERS[(index + k) % len(CLI_ANSWERS)]
+                answers[what].append(time_cli(arguments, file, env))
     on = [marks["on"] for marks in runs]
     p50, worst = statistics.median(on), max(on)
     fresh_p50 = statistics.median(marks["on"] for marks in fresh)
@@ -148,6 +171,15 @@ on a busy machine both grow alike.""",
               f"{fresh_p50 * 1e3:.0f}", f"{max(marks['on'] for marks in fresh) * 1e3:.0f}")
     table.add("floor: `python -c 'import numpy'`", f"{floor * 1e3:.0f}", f"{max(floors) * 1e3:.0f}", "", "")
     section.tables.append(table)
+    cli = Table(["command", "p50 ms", "max ms", "p50 / floor"], numeric=(1, 2, 3),
+                caption=f"How long the CLI takes to answer ({rounds} rounds, the commands in turn, bytecode cached):")
+    cli_floor = statistics.median(answers[CLI_ANSWERS[0][0]])
+    for what, _ in CLI_ANSWERS:
+        median = statistics.median(answers[what])
+        cli.add(what, f"{median * 1e3:.0f}", f"{max(answers[what]) * 1e3:.0f}", fmt_ratio(ratio(median, cli_floor)))
+        if what != CLI_ANSWERS[0][0] and (value := ratio(median, cli_floor)) is not None:
+            section.ratios[f"{what.strip('`')} p50 / floor"] = value
+    section.tables.append(cli)
     section.ratios["configuration on p50 / goal"] = p50 / GOAL
     for name, value in (("configuration on p50 / floor p50", ratio(p50, floor)),
                         ("configuration on p50, fork server / fresh interpreters", ratio(p50, fresh_p50))):

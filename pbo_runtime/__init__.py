@@ -23,6 +23,7 @@ from pbo_runtime.ipc.operator_input import OperatorInput
 from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
 from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
 from pbo_runtime.objects.arm import ARM_COLUMNS, EE_COLUMNS, GRAVITY, ROBOT_OPTIONS, ROBOT_SUFFIXES, Arm, arm_model, is_robot_file
+from pbo_runtime.objects.arm_inertia import arm_gains, inertia_range
 from pbo_runtime.objects.driver import DeviceDriver
 from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
 from pbo_runtime.objects.ports import ANY_DTYPE, InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
@@ -69,11 +70,13 @@ __all__ = [
     "Status",
     "TableLayoutError",
     "Waypoints",
+    "arm_gains",
     "arm_model",
     "attach_segment",
     "below_the_cycle",
     "create_segment",
     "format_channels",
+    "inertia_range",
     "is_robot_file",
     "module_class",
     "open_log",

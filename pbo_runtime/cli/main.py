@@ -22,7 +22,7 @@ from rich.markup import escape
 from rich.live import Live
 from rich.table import Table
 
-from pbo_runtime.cli import schedule
+from pbo_runtime.cli import robot, schedule
 from pbo_runtime.clock.clocks import scheduler_outcome
 from pbo_runtime.objects import registry
 from pbo_runtime.errors import ConfigErrors, PboError
@@ -196,6 +196,8 @@ def _parser() -> argparse.ArgumentParser:
                           help="where to put them (default: ./pbo-examples; made if missing)")
     examples.add_argument("--force", action="store_true", help="overwrite files there that differ from the shipped ones")
     examples.set_defaults(handler=_examples)
+
+    robot.add_parser(sub)
 
     # operator commands on a running subsystem (another terminal), over its 0600 control queue:
     # every verb as the command table declares it

@@ -1,0 +1,77 @@
+"""Each joint's reflected inertia over the arm's workspace: the range a joint's loop must be stable over.
+
+A joint's reflected inertia is its diagonal element of the joint-space mass matrix (Pinocchio's
+`crba`, armature included): the inertia the joint's motor drives with the other joints held. It
+changes with the pose of the joints beyond it, often twenty-fold on a long arm. The range is taken
+over seeded samples of poses within the joints' position limits (a joint without a range: a whole
+turn), plus the zero pose, so the same arm always gives the same range.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from pbo_runtime.objects.arm import Arm, arm_model, check_arm
+from pbo_runtime.objects.joint_loop import design_gains
+from pbo_runtime.objects.waits import sleep_while_cycling
+
+#: Poses sampled over the workspace, and their seed.
+SAMPLES = 512
+SEED = 36
+
+
+@dataclass(frozen=True)
+class InertiaRange:
+    """Per joint: the lightest and heaviest reflected inertia found, and the poses where (kg m², kg)."""
+
+    low: np.ndarray  # (n,)
+    high: np.ndarray  # (n,)
+    low_pose: np.ndarray  # (n, n): row j is the pose where joint j is lightest
+    high_pose: np.ndarray  # (n, n)
+
+
+def sample_poses(arm: np.ndarray, count: int = SAMPLES, seed: int = SEED) -> np.ndarray:
+    """`count` poses (count, n) uniform within the position limits, the zero pose (clipped into them) first."""
+    limited = arm[:, Arm.LIMITED] > 0
+    low = np.where(limited, arm[:, Arm.Q_MIN], -math.pi)
+    high = np.where(limited, arm[:, Arm.Q_MAX], math.pi)
+    poses = np.random.default_rng(seed).uniform(low, high, size=(count, arm.shape[0]))
+    poses[0] = np.clip(0.0, low, high)
+    return poses
+
+
+def inertia_range(arm: Any, ee: Any, count: int = SAMPLES, seed: int = SEED) -> InertiaRange:
+    """Each joint's reflected inertia range over `count` seeded poses (Pinocchio's `crba`)."""
+    import pinocchio  # type: ignore[import-untyped]
+
+    arm, ee = check_arm(arm, ee)
+    model = arm_model(arm, ee)
+    data = model.createData()
+    poses = sample_poses(arm, count, seed)
+    n = arm.shape[0]
+    low, high = np.full(n, np.inf), np.zeros(n)
+    low_pose, high_pose = np.zeros((n, n)), np.zeros((n, n))
+    for k, q in enumerate(poses):
+        diagonal = np.diag(pinocchio.crba(model, data, q)).copy()
+        lighter, heavier = diagonal < low, diagonal > high
+        low = np.where(lighter, diagonal, low)
+        high = np.where(heavier, diagonal, high)
+        low_pose[lighter], high_pose[heavier] = q, q
+        if k % 64 == 63:
+            sleep_while_cycling(0)  # in a live spawn's init, the RTPU's due cycles run meanwhile
+    return InertiaRange(low, high, low_pose, high_pose)
+
+
+def arm_gains(inertia: InertiaRange, bandwidth: float, damping: float = 1.0, integral_time: float = 0.0,
+              period: float = 0.001) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(kp, kd, ki, design inertia) per joint for a loop of `bandwidth` rad/s and `damping`, sampled
+    at `period` with one period of delay (`joint_loop.design_gains`): made for each joint's heaviest
+    pose unless that would leave a lighter one poorly damped."""
+    made = [design_gains(float(low), float(high), bandwidth, damping, integral_time, period)
+            for low, high in zip(inertia.low, inertia.high)]
+    return (np.array([g.kp for g, _ in made]), np.array([g.kd for g, _ in made]), np.array([g.ki for g, _ in made]),
+            np.array([design for _, design in made]))

@@ -134,6 +134,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--out", type=Path, metavar="DIR",
                      help="the run's output directory: its report (report.json), its data logs and every file it "
                           "writes (default: runs/SUBSYSTEM-DATE-TIME/ in the current directory)")
+    run.add_argument("--allow-unstable-loops", action="store_true",
+                     help="run even when pbo check finds a joint's position loop unstable (E326): to see what it predicts")
     run.add_argument("--host", metavar="NAME",
                      help="an application placed on hosts: run only the subsystems of this host (default: all, here)")
     _address_argument(run)
@@ -420,6 +422,10 @@ def _check_json(result: Any) -> dict[str, Any]:
 
 def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from pbo_runtime.config.application import is_application_file
+    from pbo_runtime.config.loader import ALLOW_UNSTABLE_LOOPS
+
+    if args.allow_unstable_loops:  # for every process of the run: each loads the file
+        os.environ[ALLOW_UNSTABLE_LOOPS] = "1"
 
     if is_application_file(args.file):
         return _run_application(args, console, errors)

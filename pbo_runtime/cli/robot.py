@@ -98,7 +98,7 @@ def describe(robot: Any, args: argparse.Namespace) -> dict[str, Any]:
                                "inertia_max": float(inertia.high[j])}
         if args.bandwidth is not None:
             gains = LoopGains(float(kp[j]), float(kd[j]), float(ki[j]))
-            verdict = analyse(float(inertia.low[j]), float(inertia.high[j]), gains, args.period)
+            verdict = analyse(float(inertia.low[j]), float(inertia.high[j]), gains, args.period, viscous=float(inertia.viscous[j]))
             torque = gains.kp * args.step
             row.update(design_inertia=float(design[j]), kp=gains.kp, kd=gains.kd, ki=gains.ki, step_torque=torque,
                        within_effort=bool(torque <= row["effort"]), stable=verdict.stable,

@@ -32,6 +32,7 @@ class InertiaRange:
     high: np.ndarray  # (n,)
     low_pose: np.ndarray  # (n, n): row j is the pose where joint j is lightest
     high_pose: np.ndarray  # (n, n)
+    viscous: np.ndarray  # (n,) each joint's viscous friction (ARM's damping), N m s/rad: it damps the loop too
 
 
 def sample_poses(arm: np.ndarray, count: int = SAMPLES, seed: int = SEED) -> np.ndarray:
@@ -63,7 +64,7 @@ def inertia_range(arm: Any, ee: Any, count: int = SAMPLES, seed: int = SEED) -> 
         low_pose[lighter], high_pose[heavier] = q, q
         if k % 64 == 63:
             sleep_while_cycling(0)  # in a live spawn's init, the RTPU's due cycles run meanwhile
-    return InertiaRange(low, high, low_pose, high_pose)
+    return InertiaRange(low, high, low_pose, high_pose, arm[:, Arm.DAMPING].copy())
 
 
 def arm_gains(inertia: InertiaRange, bandwidth: float, damping: float = 1.0, integral_time: float = 0.0,
@@ -71,7 +72,7 @@ def arm_gains(inertia: InertiaRange, bandwidth: float, damping: float = 1.0, int
     """(kp, kd, ki, design inertia) per joint for a loop of `bandwidth` rad/s and `damping`, sampled
     at `period` with one period of delay (`joint_loop.design_gains`): made for each joint's heaviest
     pose unless that would leave a lighter one poorly damped."""
-    made = [design_gains(float(low), float(high), bandwidth, damping, integral_time, period)
-            for low, high in zip(inertia.low, inertia.high)]
+    made = [design_gains(float(low), float(high), bandwidth, damping, integral_time, period, viscous=float(b))
+            for low, high, b in zip(inertia.low, inertia.high, inertia.viscous)]
     return (np.array([g.kp for g, _ in made]), np.array([g.kd for g, _ in made]), np.array([g.ki for g, _ in made]),
             np.array([design for _, design in made]))

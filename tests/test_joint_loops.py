@@ -154,7 +154,7 @@ def test_a_bandwidth_of_30_rad_s_checks_clean_and_reaches_its_goal_within_a_mill
     path = write(tmp_path, name, subsystem(name, model, goal, "{bandwidth: 30, damping: 1.0, gravity_feedforward: true}", start))
     result = check_file(path)
     assert not result.errors and not result.warnings, [e.format() for e in result.errors + result.warnings]
-    assert any(note.startswith("task 'pid': bandwidth 30 rad/s, damping 1 make kp [") for note in result.robot_notes)
+    assert any(note.startswith("gains of task 'pid': bandwidth 30 rad/s, damping 1 make kp [") for note in result.robot_notes)
     done = run_demo(path, tmp_path)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "job 'reach' (step 1 of 1 of application 'demo'): done" in done.stdout

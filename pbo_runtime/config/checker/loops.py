@@ -27,6 +27,8 @@ from pbo_runtime.objects.arm import ROBOT_OPTIONS, Arm
 from pbo_runtime.objects.joint_loop import LOW_DAMPING, LoopGains, analyse
 
 RAW_GAINS = ("kp", "kd", "ki")
+#: How a note saying the gains a bandwidth made begins (`pbo status` and the run report pick them out).
+GAINS_NOTE = "gains of task"
 BANDWIDTH_KEYS = ("bandwidth", "damping", "integral_time")
 #: Periods of delay between the sample a controller reads and its torque reaching the arm: the robot
 #: interface applies a command the cycle after it measured what the command answers (on either clock).
@@ -64,7 +66,7 @@ class JointLoopChecks(CheckerBase):
             if p.bandwidth > 0:
                 kp, kd, ki, _ = arm_gains(inertia, p.bandwidth, p.damping, p.integral_time, task.period)
                 self.out.robot_notes.append(
-                    f"task '{task.name}': bandwidth {p.bandwidth:g} rad/s, damping {p.damping:g}"
+                    f"{GAINS_NOTE} '{task.name}': bandwidth {p.bandwidth:g} rad/s, damping {p.damping:g}"
                     + (f", integral time {p.integral_time:g} s" if p.integral_time else "")
                     + f" make kp {_numbers(kp)}, kd {_numbers(kd)}" + (f", ki {_numbers(ki)}" if np.any(ki) else ""))
             else:

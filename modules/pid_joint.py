@@ -63,7 +63,9 @@ class PidJoint(PortBasedObject):
     term is Pinocchio's `computeGeneralizedGravity` on a model built once in `init`."""
 
     Params = PidJointParams
-    TUNABLE = ("kp", "kd", "ki", "bandwidth", "damping", "integral_time")  # pbo set pid kp 300: between two cycles
+    # pbo set pid kp 300: the gains change between two cycles. A bandwidth is not tunable: making
+    # gains from it searches the inertia range, too long between two cycles (pbo replace changes it)
+    TUNABLE = ("kp", "kd", "ki")
 
     ndof = InConst("NDOF", dtype="int32")
     arm_table = InConst("ARM", shape=("NDOF", Arm.WIDTH), doc="the arm's joint table (pbo_runtime.ARM_COLUMNS)")
@@ -78,7 +80,6 @@ class PidJoint(PortBasedObject):
 
     def init(self, params: PidJointParams) -> None:
         n = int(self.ndof)
-        self._inertia = None  # each joint's reflected inertia range, once the bandwidth asks for it
         self._kp, self._kd, self._ki = self._all_gains(params, n)
         self._limit = params.integral_limit
         self._error = np.zeros(n)
@@ -107,9 +108,8 @@ class PidJoint(PortBasedObject):
     def _all_gains(self, params: PidJointParams, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(kp, kd, ki) per joint: the raw gains, or those of the bandwidth at the arm's inertia."""
         if params.bandwidth > 0:
-            if self._inertia is None:  # once: a later `tune` of the bandwidth reuses it
-                self._inertia = inertia_range(self.arm_table, self.end_effector)
-            kp, kd, ki, _ = arm_gains(self._inertia, params.bandwidth, params.damping, params.integral_time, self.period)
+            inertia = inertia_range(self.arm_table, self.end_effector)
+            kp, kd, ki, _ = arm_gains(inertia, params.bandwidth, params.damping, params.integral_time, self.period)
             return kp, kd, ki
         return self._gains("kp", params.kp, n), self._gains("kd", params.kd, n), self._gains("ki", params.ki, n)
 

@@ -137,7 +137,7 @@ def text_lines(report: dict[str, Any]) -> list[str]:
     if gains:
         integral = f", integral time {gains['integral_time']:g} s" if gains["integral_time"] else ""
         lines.append(f"  gains for bandwidth {gains['bandwidth']:g} rad/s, damping {gains['damping']:g}{integral} for inertia I "
-                     f"(kp = I w², kd = 2 ζ I w: I the heaviest, or lighter where a light pose would ring); the loop at a {gains['period'] * 1e3:g} ms period, one "
+                     f"(kp = I w², kd = 2 ζ I w - b, b the joint friction; I the heaviest, or lighter where a light pose would ring); the loop at a {gains['period'] * 1e3:g} ms period, one "
                      f"period of delay; torque for a {gains['step']:g} step:")
         header = ("joint", "I", "kp", "kd", "ki", "step torque", "loop")
         cells = []

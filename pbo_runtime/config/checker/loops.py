@@ -71,7 +71,10 @@ class JointLoopChecks(CheckerBase):
                     + f" make kp {_numbers(kp)}, kd {_numbers(kd)}" + (f", ki {_numbers(ki)}" if np.any(ki) else ""))
             else:
                 n = robot.arm.shape[0]
-                kp, kd, ki = (np.broadcast_to(np.asarray(getattr(p, k), dtype=float), (n,)) for k in RAW_GAINS)
+                raw = [np.asarray(getattr(p, k), dtype=float).reshape(-1) for k in RAW_GAINS]
+                if any(g.size not in (1, n) for g in raw):
+                    continue  # a list of another length than the joints: E308 at the gain
+                kp, kd, ki = (np.broadcast_to(g, (n,)) for g in raw)
             for joint, name in enumerate(robot.joint_names):
                 gains = LoopGains(float(kp[joint]), float(kd[joint]), float(ki[joint]))
                 self._check_loop(task, params, joint, name, gains, float(inertia.low[joint]), float(inertia.high[joint]),

@@ -48,7 +48,7 @@ def test_pbo_robot_lists_every_joint_with_the_limits_the_check_lists(arm):
     assert said["end_effector"] == robot.ee_name
     for row, limits in zip(said["joints"], robot.limit_rows()):
         assert {k: row[k] for k in limits} == limits
-        assert row["mass"] >= 0 and 0 < row["inertia_min"] <= row["inertia_max"]
+        assert row["mass"] >= 0 and 0 < row["inertia_coupled_min"] <= row["inertia_min"] <= row["inertia_max"]
 
 
 def test_the_inertia_range_is_pinocchios_crba_and_mujocos_mass_matrix_at_the_poses_it_names(arm):
@@ -70,7 +70,7 @@ def test_a_bandwidth_gives_gains_from_the_inertia_and_the_torque_of_a_step():
     for row in said["joints"]:
         assert row["kp"] == pytest.approx(row["design_inertia"] * 30 ** 2)
         assert row["kd"] == pytest.approx(2 * row["design_inertia"] * 30)
-        assert row["inertia_min"] <= row["design_inertia"] <= row["inertia_max"]
+        assert row["inertia_coupled_min"] <= row["design_inertia"] <= row["inertia_max"]
         assert row["step_torque"] == pytest.approx(0.1 * row["kp"])
         assert row["within_effort"] == (row["step_torque"] <= row["effort"])
         assert row["stable"] and row["damping_ratio"] >= 0.3

@@ -95,10 +95,11 @@ def describe(robot: Any, args: argparse.Namespace) -> dict[str, Any]:
         kp, kd, ki, design = arm_gains(inertia, args.bandwidth, args.damping, args.integral_time, args.period)
     for j, limits in enumerate(robot.limit_rows()):
         row: dict[str, Any] = {**limits, "mass": float(arm[j, Arm.MASS]), "inertia_min": float(inertia.low[j]),
-                               "inertia_max": float(inertia.high[j])}
+                               "inertia_max": float(inertia.high[j]), "inertia_coupled_min": float(inertia.coupled_low[j])}
         if args.bandwidth is not None:
             gains = LoopGains(float(kp[j]), float(kd[j]), float(ki[j]))
-            verdict = analyse(float(inertia.low[j]), float(inertia.high[j]), gains, args.period, viscous=float(inertia.viscous[j]))
+            verdict = analyse(float(inertia.coupled_low[j]), float(inertia.high[j]), gains, args.period,
+                              viscous=float(inertia.viscous[j]))
             torque = gains.kp * args.step
             row.update(design_inertia=float(design[j]), kp=gains.kp, kd=gains.kd, ki=gains.ki, step_torque=torque,
                        within_effort=bool(torque <= row["effort"]), stable=verdict.stable,
@@ -123,28 +124,31 @@ def text_lines(report: dict[str, Any]) -> list[str]:
              + (f" (moves with {report['end_effector_joint']})" if report["end_effector_joint"] else "")
              + f", {report['mass']:.4g} kg moving",
              f"  from {report['source']}",
-             "  reflected inertia: the mass matrix's diagonal (armature included) over the workspace, kg m² (kg)"]
-    header = ("joint", "effort", "velocity", "range", "mass", "inertia min", "inertia max")
-    cells = []
+             "  reflected inertia over the workspace, kg m² (kg): the mass matrix's diagonal (armature included), "
+             "and its least with the other joints free, 1 / (M⁻¹)_jj"]
+    header: tuple[str, ...] = ("joint", "effort", "velocity", "range", "mass", "inertia min", "inertia max", "free min")
+    cells: list[tuple[str, ...]] = []
     for r in joints:
         force = "N" if r["unit"] == "m" else "N m"
         cells.append((str(r["joint"]), f"{r['effort']:g} {force}",
                       f"{r['velocity']:g} {r['unit']}/s" if r["velocity"] is not None else "none",
                       f"[{r['lower']:.4g}, {r['upper']:.4g}] {r['unit']}" if r["lower"] is not None else "continuous",
-                      f"{r['mass']:.4g} kg", f"{r['inertia_min']:.4g}", f"{r['inertia_max']:.4g}"))
+                      f"{r['mass']:.4g} kg", f"{r['inertia_min']:.4g}", f"{r['inertia_max']:.4g}",
+                      f"{r['inertia_coupled_min']:.4g}"))
     lines += _table(header, cells)
     gains = report.get("gains")
     if gains:
         integral = f", integral time {gains['integral_time']:g} s" if gains["integral_time"] else ""
         lines.append(f"  gains for bandwidth {gains['bandwidth']:g} rad/s, damping {gains['damping']:g}{integral} for inertia I "
-                     f"(kp = I w², kd = 2 ζ I w - b, b the joint friction; I the heaviest, or lighter where a light pose would ring); the loop at a {gains['period'] * 1e3:g} ms period, one "
-                     f"period of delay; torque for a {gains['step']:g} step:")
+                     f"(kp = I w², kd = 2 ζ I w - b, b the joint friction; I the heaviest, or lighter where a light "
+                     f"pose would ring); the loop at a {gains['period'] * 1e3:g} ms period, one period of delay; "
+                     f"torque for a {gains['step']:g} step:")
         header = ("joint", "I", "kp", "kd", "ki", "step torque", "loop")
-        cells = []
+        cells = []  # of the gains table
         for r in joints:
             over = "" if r["within_effort"] else f" > effort {r['effort']:g}"
             if not r["stable"]:
-                loop = "UNSTABLE at its lightest pose: lower the bandwidth"
+                loop = "UNSTABLE at a light pose: lower the bandwidth"
             elif r["damping_ratio"] < LOW_DAMPING:
                 loop = f"damping ratio {r['damping_ratio']:.2f}: rings"
             else:

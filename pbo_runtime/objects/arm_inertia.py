@@ -2,7 +2,10 @@
 
 A joint's reflected inertia is its diagonal element of the joint-space mass matrix (Pinocchio's
 `crba`, armature included): the inertia the joint's motor drives with the other joints held. It
-changes with the pose of the joints beyond it, often twenty-fold on a long arm. The range is taken
+changes with the pose of the joints beyond it, often twenty-fold on a long arm. With the other
+joints free it is lighter still, 1 / (M⁻¹)_jj: much lighter where two joints turn about nearly
+the same axis (a Panda's first and third joints, stretched upright). A loop must be stable down
+to that, so the loop analysis takes its range from there to the heaviest diagonal. The range is taken
 over seeded samples of poses within the joints' position limits (a joint without a range: a whole
 turn), plus the zero pose, so the same arm always gives the same range.
 """
@@ -33,6 +36,7 @@ class InertiaRange:
     low_pose: np.ndarray  # (n, n): row j is the pose where joint j is lightest
     high_pose: np.ndarray  # (n, n)
     viscous: np.ndarray  # (n,) each joint's viscous friction (ARM's damping), N m s/rad: it damps the loop too
+    coupled_low: np.ndarray  # (n,) the lightest 1 / (M⁻¹)_jj found: the joint with the others free
 
 
 def sample_poses(arm: np.ndarray, count: int = SAMPLES, seed: int = SEED) -> np.ndarray:
@@ -56,23 +60,27 @@ def inertia_range(arm: Any, ee: Any, count: int = SAMPLES, seed: int = SEED) -> 
     n = arm.shape[0]
     low, high = np.full(n, np.inf), np.zeros(n)
     low_pose, high_pose = np.zeros((n, n)), np.zeros((n, n))
+    coupled = np.full(n, np.inf)
     for k, q in enumerate(poses):
-        diagonal = np.diag(pinocchio.crba(model, data, q)).copy()
+        upper = pinocchio.crba(model, data, q)  # the upper triangle is filled
+        diagonal = np.diag(upper).copy()
+        full = np.triu(upper) + np.triu(upper, 1).T
+        coupled = np.minimum(coupled, 1.0 / np.diag(np.linalg.inv(full)))
         lighter, heavier = diagonal < low, diagonal > high
         low = np.where(lighter, diagonal, low)
         high = np.where(heavier, diagonal, high)
         low_pose[lighter], high_pose[heavier] = q, q
         if k % 64 == 63:
             sleep_while_cycling(0)  # in a live spawn's init, the RTPU's due cycles run meanwhile
-    return InertiaRange(low, high, low_pose, high_pose, arm[:, Arm.DAMPING].copy())
+    return InertiaRange(low, high, low_pose, high_pose, arm[:, Arm.DAMPING].copy(), np.minimum(coupled, low))
 
 
 def arm_gains(inertia: InertiaRange, bandwidth: float, damping: float = 1.0, integral_time: float = 0.0,
               period: float = 0.001) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(kp, kd, ki, design inertia) per joint for a loop of `bandwidth` rad/s and `damping`, sampled
     at `period` with one period of delay (`joint_loop.design_gains`): made for each joint's heaviest
-    pose unless that would leave a lighter one poorly damped."""
+    pose unless that would leave a lighter one (down to `coupled_low`) poorly damped."""
     made = [design_gains(float(low), float(high), bandwidth, damping, integral_time, period, viscous=float(b))
-            for low, high, b in zip(inertia.low, inertia.high, inertia.viscous)]
+            for low, high, b in zip(inertia.coupled_low, inertia.high, inertia.viscous)]
     return (np.array([g.kp for g, _ in made]), np.array([g.kd for g, _ in made]), np.array([g.ki for g, _ in made]),
             np.array([design for _, design in made]))

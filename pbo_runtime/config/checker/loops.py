@@ -77,7 +77,7 @@ class JointLoopChecks(CheckerBase):
                 kp, kd, ki = (np.broadcast_to(g, (n,)) for g in raw)
             for joint, name in enumerate(robot.joint_names):
                 gains = LoopGains(float(kp[joint]), float(kd[joint]), float(ki[joint]))
-                self._check_loop(task, params, joint, name, gains, float(inertia.low[joint]), float(inertia.high[joint]),
+                self._check_loop(task, params, joint, name, gains, float(inertia.coupled_low[joint]), float(inertia.high[joint]),
                                  period, robot.arm[joint], float(robot.q0[joint]))
 
     def _one_kind_of_gains(self, task: Any, params: Any) -> bool:
@@ -131,7 +131,7 @@ class JointLoopChecks(CheckerBase):
         what = (f"joint {joint + 1} ({name}) under task '{task.name}' (kp {gains.kp:.4g}, kd {gains.kd:.4g}"
                 + (f", ki {gains.ki:.4g}" if gains.ki else "")
                 + (f", from bandwidth {task.built_params.bandwidth:g} rad/s" if bandwidth else "") + ")")
-        workspace = f"over the workspace {low:.4g} to {high:.4g} kg m²"
+        workspace = f"from {low:.4g} with the other joints free to {high:.4g} kg m² over the workspace"
         fix = ("lower the bandwidth (pbo robot MODEL --bandwidth W --period T prints each joint's gains and verdict)"
                if bandwidth else "or give bandwidth: and damping: instead of raw gains (pbo robot MODEL --bandwidth W "
                "prints each joint's)")

@@ -12,6 +12,7 @@ turn), plus the zero pose, so the same arm always gives the same range.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -50,29 +51,38 @@ def sample_poses(arm: np.ndarray, count: int = SAMPLES, seed: int = SEED) -> np.
 
 
 def inertia_range(arm: Any, ee: Any, count: int = SAMPLES, seed: int = SEED) -> InertiaRange:
-    """Each joint's reflected inertia range over `count` seeded poses (Pinocchio's `crba`)."""
+    """Each joint's reflected inertia range over `count` seeded poses (Pinocchio's `crba`). The same
+    arm gives the same range: it is computed once a process (a check, a controller's init)."""
+    arm, ee = check_arm(arm, ee)
+    return _inertia_range(arm.tobytes(), arm.shape, ee.tobytes(), count, seed)
+
+
+@functools.lru_cache(maxsize=16)
+def _inertia_range(arm_bytes: bytes, shape: tuple[int, ...], ee_bytes: bytes, count: int, seed: int) -> InertiaRange:
     import pinocchio  # type: ignore[import-untyped]
 
-    arm, ee = check_arm(arm, ee)
-    model = arm_model(arm, ee)
+    arm = np.frombuffer(arm_bytes).reshape(shape)
+    model = arm_model(arm, np.frombuffer(ee_bytes))
     data = model.createData()
     poses = sample_poses(arm, count, seed)
     n = arm.shape[0]
-    low, high = np.full(n, np.inf), np.zeros(n)
-    low_pose, high_pose = np.zeros((n, n)), np.zeros((n, n))
-    coupled = np.full(n, np.inf)
+    matrices = np.empty((count, n, n))
     for k, q in enumerate(poses):
-        upper = pinocchio.crba(model, data, q)  # the upper triangle is filled
-        diagonal = np.diag(upper).copy()
-        full = np.triu(upper) + np.triu(upper, 1).T
-        coupled = np.minimum(coupled, 1.0 / np.diag(np.linalg.inv(full)))
-        lighter, heavier = diagonal < low, diagonal > high
-        low = np.where(lighter, diagonal, low)
-        high = np.where(heavier, diagonal, high)
-        low_pose[lighter], high_pose[heavier] = q, q
+        matrices[k] = pinocchio.crba(model, data, q)  # the upper triangle is filled
         if k % 64 == 63:
             sleep_while_cycling(0)  # in a live spawn's init, the RTPU's due cycles run meanwhile
-    return InertiaRange(low, high, low_pose, high_pose, arm[:, Arm.DAMPING].copy(), np.minimum(coupled, low))
+    upper = np.triu(matrices)
+    full = upper + np.transpose(np.triu(matrices, 1), (0, 2, 1))
+    diagonals = np.diagonal(full, axis1=1, axis2=2)  # (count, n)
+    coupled = 1.0 / np.diagonal(np.linalg.inv(full), axis1=1, axis2=2)
+    lightest, heaviest = np.argmin(diagonals, axis=0), np.argmax(diagonals, axis=0)
+    joints = np.arange(n)
+    low, high = diagonals[lightest, joints].copy(), diagonals[heaviest, joints].copy()
+    found = InertiaRange(low, high, poses[lightest], poses[heaviest], arm[:, Arm.DAMPING].copy(),
+                         np.minimum(coupled.min(axis=0), low))
+    for values in vars(found).values():
+        values.setflags(write=False)  # shared by every caller of the cache
+    return found
 
 
 def arm_gains(inertia: InertiaRange, bandwidth: float, damping: float = 1.0, integral_time: float = 0.0,

@@ -44,14 +44,18 @@ class JointLoopChecks(CheckerBase):
         if not isinstance(nodes, YMap):
             return
         controllers = [t for t in self.tasks.values() if t.ok and _has_joint_gains(t.built_params)]
+        if not controllers:
+            return
+        torque_readers = self._torque_robots_by_variable()
         looped = []
         for task in controllers:
             params = nodes[task.name].get("params") if isinstance(nodes.get(task.name), YMap) else None
             if not self._one_kind_of_gains(task, params):
                 continue
-            robots = self._torque_robots_reading(task)
+            robots = {r.name: r for b in task.bindings if not b.port.kind.is_input for r in torque_readers.get(b.variable, ())}
+            robots.pop(task.name, None)
             if robots:
-                looped.append((task, params, max(r.period for r in robots)))
+                looped.append((task, params, max(r.period for r in robots.values())))
         if not looped:
             return
         robot = self._arm_of_plant()
@@ -93,16 +97,15 @@ class JointLoopChecks(CheckerBase):
                    [(param_value_at(params, "bandwidth") or task.loc, "the bandwidth is given here")])
         return False
 
-    def _torque_robots_reading(self, task: Any) -> list[Any]:
-        """The robot interface tasks in torque mode that read a variable `task` writes."""
-        written = {b.variable for b in task.bindings if not b.port.kind.is_input}
-        robots = []
-        for other in self.tasks.values():
-            if other is task or not other.ok or not any(self._torque_device(d) for d, _ in other.resources):
-                continue
-            if any(b.port.kind.is_input and b.variable in written for b in other.bindings):
-                robots.append(other)
-        return robots
+    def _torque_robots_by_variable(self) -> dict[str, list[Any]]:
+        """variable -> the robot interface tasks in torque mode (tasks opening a torque-mode device) that read it."""
+        readers: dict[str, list[Any]] = {}
+        for task in self.tasks.values():
+            if task.ok and task.resources and any(self._torque_device(d) for d, _ in task.resources):
+                for b in task.bindings:
+                    if b.port.kind.is_input:
+                        readers.setdefault(b.variable, []).append(task)
+        return readers
 
     def _torque_device(self, name: str) -> bool:
         device = self.out.devices.get(name)

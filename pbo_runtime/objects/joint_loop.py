@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -210,7 +211,7 @@ def _stable_scale(low: float, high: float, gains: LoopGains, period: float, dela
     return _edge(is_ok, lo, hi)
 
 
-def _edge(is_ok, inside: float, outside: float) -> float:  # type: ignore[no-untyped-def]
+def _edge(is_ok: Callable[[float], bool], inside: float, outside: float) -> float:
     """Where `is_ok` changes between `inside` and `outside` (either may be the stable one), to 1e-4."""
     good, bad = (inside, outside) if is_ok(inside) else (outside, inside)
     for _ in range(40):

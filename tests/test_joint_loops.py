@@ -161,3 +161,16 @@ def test_a_bandwidth_of_30_rad_s_checks_clean_and_reaches_its_goal_within_a_mill
     done = run_demo(path, tmp_path)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "job 'reach' (step 1 of 1 of application 'demo'): done" in done.stdout
+
+
+def test_pbo_status_says_the_gains_a_bandwidth_made_and_only_those(tmp_path):
+    from pbo_runtime.config.loader import load_subsystem
+    from pbo_runtime.supervisor.commands import dispatch
+    from tests.fake_job_host import FakeJobHost
+
+    text = (Path(REPO) / "configs" / "switch_joint.yaml").read_text().replace(
+        "params: {kp: 600, kd: 50, ki: 0, gravity_feedforward: true}", "params: {bandwidth: 20, gravity_feedforward: true}")
+    path = write(tmp_path, "switch_joint", text)
+    reply = dispatch(FakeJobHost(load_subsystem(str(path))), "status", {})
+    [gains] = reply["gains"]
+    assert gains.startswith("gains of task 'pd': bandwidth 20 rad/s, damping 1 make kp [")

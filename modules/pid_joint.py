@@ -2,6 +2,13 @@
 
 tau_u = kp (q_r - q_m) + kd (qd_r - qd_m) + ki ∫(q_r - q_m) dt + g(q_m) + handover
 
+The gains are given raw (kp, kd, ki: one for every joint or one per joint) or as a bandwidth:
+`bandwidth: 30` (rad/s), `damping: 1.0` and optionally `integral_time` (s) make each joint's
+kp = I w², kd = 2 ζ I w, ki = kp / integral_time with I the joint's heaviest reflected inertia over
+the workspace, or a lighter one where gains that stiff would leave a light pose poorly damped at
+this task's period (`pbo_runtime.inertia_range`, `arm_gains`: what `pbo robot --bandwidth` prints):
+the same response on a light wrist as on a heavy shoulder. `pbo check` says the gains and whether each loop is stable.
+
 The gravity term comes from Pinocchio, built in `init` from the robot's in-consts ARM and EE,
 so the same module drives whatever arm the robot interface reports.
 
@@ -23,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import Arm, InConst, InVar, OutVar, PortBasedObject, Status, arm_model, param
+from pbo_runtime import Arm, InConst, InVar, OutVar, PortBasedObject, Status, arm_gains, arm_model, inertia_range, param
 
 Gain = float | tuple[float, ...]
 
@@ -34,6 +41,10 @@ class PidJointParams:
     kp: Gain = param(400.0, at_least=0, at_most=1e6, shape=("NDOF",))  # N m / rad
     kd: Gain = param(40.0, at_least=0, at_most=1e5, shape=("NDOF",))  # N m s / rad
     ki: Gain = param(0.0, at_least=0, at_most=1e6, shape=("NDOF",))  # N m / (rad s)
+    # a bandwidth instead of the gains: > 0 makes kp, kd and ki from the arm's inertia (give one or the other)
+    bandwidth: float = param(0.0, at_least=0, at_most=1e4)  # rad/s; 0: the raw gains above
+    damping: float = param(1.0, above=0, at_most=10)  # damping ratio, with bandwidth
+    integral_time: float = param(0.0, at_least=0, at_most=1e4)  # s, with bandwidth: ki = kp / integral_time; 0: no integral
     integral_limit: float = param(50.0, at_least=0, at_most=1e4)  # N m: the integral term never exceeds this (anti-windup)
     gravity_feedforward: bool = True
 
@@ -52,7 +63,9 @@ class PidJoint(PortBasedObject):
     term is Pinocchio's `computeGeneralizedGravity` on a model built once in `init`."""
 
     Params = PidJointParams
-    TUNABLE = ("kp", "kd", "ki")  # pbo set pid kp 300: the gains change between two cycles
+    # pbo set pid kp 300: the gains change between two cycles. A bandwidth is not tunable: making
+    # gains from it searches the inertia range, too long between two cycles (pbo replace changes it)
+    TUNABLE = ("kp", "kd", "ki")
 
     ndof = InConst("NDOF", dtype="int32")
     arm_table = InConst("ARM", shape=("NDOF", Arm.WIDTH), doc="the arm's joint table (pbo_runtime.ARM_COLUMNS)")
@@ -67,9 +80,7 @@ class PidJoint(PortBasedObject):
 
     def init(self, params: PidJointParams) -> None:
         n = int(self.ndof)
-        self._kp = self._gains("kp", params.kp, n)
-        self._kd = self._gains("kd", params.kd, n)
-        self._ki = self._gains("ki", params.ki, n)
+        self._kp, self._kd, self._ki = self._all_gains(params, n)
         self._limit = params.integral_limit
         self._error = np.zeros(n)
         self._term = np.zeros(n)
@@ -94,11 +105,24 @@ class PidJoint(PortBasedObject):
             raise ValueError(f"{name} must have one gain or NDOF = {n} gains, got: {gains.size}")
         return np.broadcast_to(gains, (n,)).copy()
 
+    def _all_gains(self, params: PidJointParams, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(kp, kd, ki) per joint: the raw gains, or those of the bandwidth at the arm's inertia."""
+        if params.bandwidth > 0:
+            inertia = inertia_range(self.arm_table, self.end_effector)
+            kp, kd, ki, _ = arm_gains(inertia, params.bandwidth, params.damping, params.integral_time, self.period)
+            return kp, kd, ki
+        return self._gains("kp", params.kp, n), self._gains("kd", params.kd, n), self._gains("ki", params.ki, n)
+
+    @property
+    def gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(kp, kd, ki) per joint, as the cycle uses them."""
+        return self._kp, self._kd, self._ki
+
     def tune(self, params: PidJointParams) -> None:
-        n = self._kp.size
-        np.copyto(self._kp, self._gains("kp", params.kp, n))
-        np.copyto(self._kd, self._gains("kd", params.kd, n))
-        np.copyto(self._ki, self._gains("ki", params.ki, n))
+        kp, kd, ki = self._all_gains(params, self._kp.size)
+        np.copyto(self._kp, kp)
+        np.copyto(self._kd, kd)
+        np.copyto(self._ki, ki)
         np.copyto(self._integral, 0.0, where=self._ki == 0)  # no integral action left: it would never decay
 
     def on(self) -> None:

@@ -45,11 +45,13 @@ _WHERE = {
     "Status": "pbo_runtime.objects.module",
     "TableLayoutError": "pbo_runtime.errors",
     "Waypoints": "pbo_runtime.objects.waypoints",
+    "arm_gains": "pbo_runtime.objects.arm_inertia",
     "arm_model": "pbo_runtime.objects.arm",
     "attach_segment": "pbo_runtime.ipc.shm",
     "below_the_cycle": "pbo_runtime.objects.helper_threads",
     "create_segment": "pbo_runtime.ipc.shm",
     "format_channels": "pbo_runtime.config.channels",
+    "inertia_range": "pbo_runtime.objects.arm_inertia",
     "is_robot_file": "pbo_runtime.objects.arm",
     "module_class": "pbo_runtime.objects.registry",
     "open_log": "pbo_runtime.reports.data_log",
@@ -78,6 +80,7 @@ if TYPE_CHECKING:  # what the type checkers and editors see: the same names, eag
     from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
     from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
     from pbo_runtime.objects.arm import ARM_COLUMNS, EE_COLUMNS, GRAVITY, ROBOT_OPTIONS, ROBOT_SUFFIXES, Arm, arm_model, is_robot_file
+    from pbo_runtime.objects.arm_inertia import arm_gains, inertia_range
     from pbo_runtime.objects.driver import DeviceDriver
     from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
     from pbo_runtime.objects.ports import ANY_DTYPE, InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
@@ -140,11 +143,13 @@ __all__ = [
     "Status",
     "TableLayoutError",
     "Waypoints",
+    "arm_gains",
     "arm_model",
     "attach_segment",
     "below_the_cycle",
     "create_segment",
     "format_channels",
+    "inertia_range",
     "is_robot_file",
     "module_class",
     "open_log",

@@ -40,7 +40,7 @@ PUBLIC_NAMES = [
     "InternalError", "LifecycleError", "LinkFullError", "ModuleError", "NoParams", "OutBoth", "OutConst", "OutVar",
     "OperatorInput", "OutputError", "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec", "ResourceLimitError", "Status",
     "TableLayoutError", "Waypoints",
-    "arm_model", "attach_segment", "below_the_cycle", "create_segment", "format_channels", "is_robot_file", "module_class", "open_log", "param", "read_log",
+    "arm_gains", "arm_model", "attach_segment", "below_the_cycle", "create_segment", "format_channels", "inertia_range", "is_robot_file", "module_class", "open_log", "param", "read_log",
     "registered_robot", "sleep_while_cycling", "unlink_quietly",
 ]
 

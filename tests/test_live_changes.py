@@ -213,7 +213,13 @@ def test_a_tunable_parameter_is_set_at_a_cycle_boundary(host):
      r"\(live-tunable: kp, kd, ki\); to change it, replace the task: pbo replace pid NEW --param gravity_feedforward=...$"),
     ({"param": "kdd", "values": ["1"]}, r"^module 'pid_joint' of task 'pid' has no parameter 'kdd': did you mean 'kd'\? "),
     ({"param": "kq", "values": ["1"]}, r"^module 'pid_joint' of task 'pid' has no parameter 'kq' \(parameters: kp, kd, ki, "
-                                       r"integral_limit, gravity_feedforward; live-tunable: kp, kd, ki\)$"),
+                                       r"bandwidth, damping, integral_time, integral_limit, gravity_feedforward; "
+                                       r"live-tunable: kp, kd, ki\)$"),
+    ({"param": "kd", "values": ["40", "40", "40", "40", "40", "250"]},
+     r"^setting 'kd' of task 'pid' would break the live configuration:\n<pbo set pid kd \(value 6\)>:1:1: error\[E326\]: the "
+     r"position loop of joint 6 \(joint6\) under task 'pid' \(kp 400, kd 250, ki 10\) is unstable at inertia 0\.1941 kg m² .*\n"
+     r"  hint: stable for kd < 19\d\.?\d* \(at kp 400\)"),
+    ({"param": "bandwidth", "values": ["30"]}, r"^parameter 'bandwidth' of task 'pid' is not live-tunable"),
     *[({"param": "kp", "values": [value]},
        rf"^setting 'kp' of task 'pid' would break the live configuration:\n<pbo set pid kp>:1:1: error\[E308\]: parameter kp of "
        rf"task 'pid' \(module 'pid_joint'\) must be in \[0, 1e\+06\], got: {shown}\n")

@@ -27,7 +27,7 @@ from modules.fault_injector import FaultInjector
 from modules.joint_trajectory import JointTrajectory
 from modules.pid_joint import PidJoint
 from modules.robot_torque import RobotTorque
-from pbo_runtime import OutputError, ParamError, Status
+from pbo_runtime import OutputError, ParamError, Status, arm_gains, inertia_range
 from pbo_runtime.config.model import DeviceSpec, PortBinding, TaskSpec
 from pbo_runtime.task.background import process_background
 from pbo_runtime.task.lifecycle import Task
@@ -323,6 +323,19 @@ def test_pid_takes_one_gain_per_joint_from_a_list(table):
     assert task.turn_on(0.0)
     task.run_cycle(PID_DT)
     np.testing.assert_allclose(tau_u(table), [49.0, 98.0, 147.0, -4.0, 20.0, -5.5], rtol=0, atol=1e-12)
+
+
+def test_pid_with_a_bandwidth_makes_each_joints_gains_from_the_arms_inertia(table):
+    task = pid_task(table, {"bandwidth": 20.0, "damping": 0.8, "integral_time": 0.5, **NO_GRAVITY})
+    assert task.spawn(0.0), task.last_error
+    inertia = inertia_range(PUMA_ARM, PUMA_EE)
+    kp, kd, ki, design = arm_gains(inertia, 20.0, 0.8, 0.5, PID_DT)
+    np.testing.assert_allclose(kp, design * 20.0 ** 2)
+    np.testing.assert_allclose(kd, 2 * 0.8 * design * 20.0 - inertia.viscous)  # the joints' own friction damps too
+    np.testing.assert_allclose(ki, kp / 0.5)
+    write_state(table, q_r=np.full(N, 0.1), q_m=np.zeros(N), qd_r=np.zeros(N), qd_m=np.full(N, 1.0))
+    assert task.turn_on(0.0)  # the integral starts at zero
+    np.testing.assert_allclose(tau_u(table), 0.1 * kp - kd, rtol=1e-12)
 
 
 @pytest.mark.parametrize("gain", ["kp", "kd", "ki"])

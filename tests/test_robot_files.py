@@ -262,6 +262,8 @@ def test_your_robot_reaches_its_goal_within_a_milliradian_on_the_simulated_clock
     np.testing.assert_allclose(goal, [-0.4, -1.6, 1.0, 0.6, -0.5, -0.3])  # the last step's goal
     assert np.max(np.abs(final - goal)) < 1e-3
     assert "dropped meshes MuJoCo cannot read" in run.stdout  # the run says what loading the URDF changed
+    [gains] = report["gains"]  # and the gains its bandwidth made
+    assert gains.startswith("gains of task 'pid': bandwidth 30 rad/s, damping 1 make kp [") and gains in run.stdout
 
 
 def test_a_package_registers_a_robot_file_by_name_and_it_loads_like_a_path(tmp_path, monkeypatch):

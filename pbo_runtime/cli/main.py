@@ -22,7 +22,7 @@ from rich.markup import escape
 from rich.live import Live
 from rich.table import Table
 
-from pbo_runtime.cli import schedule
+from pbo_runtime.cli import robot, schedule
 from pbo_runtime.cli.arguments import ArgumentParser
 from pbo_runtime.cli.completion import HIDDEN_VERB, complete
 from pbo_runtime.clock.clocks import scheduler_outcome
@@ -154,6 +154,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--out", type=Path, metavar="DIR",
                      help="the run's output directory: its report (report.json), its data logs and every file it "
                           "writes (default: runs/SUBSYSTEM-DATE-TIME/ in the current directory)")
+    run.add_argument("--allow-unstable-loops", action="store_true",
+                     help="run even when pbo check finds a joint's position loop unstable (E326): to see what it predicts")
     run.add_argument("--host", metavar="NAME",
                      help="an application placed on hosts: run only the subsystems of this host (default: all, here)")
     _address_argument(run)
@@ -222,6 +224,8 @@ def _parser() -> argparse.ArgumentParser:
                           help="where to put them (default: ./pbo-examples; made if missing)")
     examples.add_argument("--force", action="store_true", help="overwrite files there that differ from the shipped ones")
     examples.set_defaults(handler=_examples)
+
+    robot.add_parser(sub)
 
     # operator commands on a running subsystem (another terminal), over its 0600 control queue:
     # every verb as the command table declares it
@@ -446,6 +450,10 @@ def _check_json(result: Any) -> dict[str, Any]:
 
 def _run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from pbo_runtime.config.application import is_application_file
+    from pbo_runtime.config.loader import ALLOW_UNSTABLE_LOOPS
+
+    if args.allow_unstable_loops:  # for every process of the run: each loads the file
+        os.environ[ALLOW_UNSTABLE_LOOPS] = "1"
 
     if is_application_file(args.file):
         return _run_application(args, console, errors)

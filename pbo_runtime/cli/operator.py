@@ -60,6 +60,8 @@ def status(console: Console, subsystem: str | None = None, run: str | None = Non
     console.print(status_table(reply))
     for flag in reply.get("flags") or []:
         console.print(f"[bold red]flag:[/] {flag}")
+    for note in reply.get("gains") or []:
+        console.print(note, markup=False)
     for task in reply.get("tasks") or []:
         if task.get("error"):
             console.print(f"task '{task['task']}' ({task.get('state', '?')}): {task['error']}", markup=False)

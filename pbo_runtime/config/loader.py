@@ -12,7 +12,7 @@ import gc
 import os
 from contextlib import nullcontext
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Collection, Iterable
 
 import numpy as np
 
@@ -50,6 +50,11 @@ def _default_names() -> Iterable[str]:
     return registry.names(registry.MODULES)
 
 
+#: Set to "1" in a run's environment by `pbo run --allow-unstable-loops`: its processes load the file
+#: with an unstable joint loop (E326) as a warning.
+ALLOW_UNSTABLE_LOOPS = "PBO_ALLOW_UNSTABLE_LOOPS"
+
+
 def check_file(
     path: str | os.PathLike[str],
     module_lookup: ModuleLookup = registry.module_class,
@@ -57,6 +62,7 @@ def check_file(
     module_names: Callable[[], Iterable[str]] | None = None,
     root: str | os.PathLike[str] | None = None,
     text: str | None = None,
+    waive: Collection[str] = (),
 ) -> CheckResult:
     """Check a subsystem file and its includes; every problem ends in the result, never raised.
 
@@ -64,6 +70,7 @@ def check_file(
     names when `module_lookup` is the registry's. `root`: no file outside this tree is read
     (`config.root`; by default the confinement in force, none for pbo check). `text`: the file's
     content when it is not on disk (the HMI editor's unsaved file), its includes found beside `path`.
+    Errors of the codes in `waive` become warnings (`pbo run --allow-unstable-loops`: E326).
     """
     # A large file makes hundreds of thousands of small objects and no reference cycles that
     # matter: the cyclic GC would only rescan the growing heap again and again.
@@ -71,7 +78,7 @@ def check_file(
     gc.disable()
     try:
         with confined(root) if root is not None else nullcontext():
-            return _check_file(path, module_lookup, module_names, text)
+            return _check_file(path, module_lookup, module_names, text, waive)
     finally:
         if enabled:
             gc.enable()
@@ -82,6 +89,7 @@ def _check_file(
     module_lookup: ModuleLookup,
     module_names: Callable[[], Iterable[str]] | None,
     text: str | None,
+    waive: Collection[str] = (),
 ) -> CheckResult:
     if module_names is None and module_lookup is registry.module_class:
         module_names = _default_names
@@ -93,6 +101,10 @@ def _check_file(
     except Exception as exc:  # the promise is "never a traceback"; a bug becomes a message to report
         checked = Checked()
         checked.errors.append(ConfigError(f"internal error while loading: {exc!r}", file, hint="please report this with the file you checked"))
+    waived = [e for e in checked.errors if e.code in waive]
+    if waived:
+        checked.errors = [e for e in checked.errors if e.code not in waive]
+        checked.warnings += [ConfigError(e.message, e.file, e.line, e.column, e.hint, "warning", e.code, e.notes) for e in waived]
     return _result(checked, file, errors)
 
 
@@ -154,9 +166,13 @@ def load_subsystem(
     module_lookup: ModuleLookup = registry.module_class,
     *,
     module_names: Callable[[], Iterable[str]] | None = None,
+    waive: Collection[str] | None = None,
 ) -> Subsystem:
-    """The checked subsystem, or ConfigErrors with every error of the file."""
-    result = check_file(path, module_lookup, module_names=module_names)
+    """The checked subsystem, or ConfigErrors with every error of the file (but those of the codes in `waive`;
+    by default E326 when `pbo run --allow-unstable-loops` set ALLOW_UNSTABLE_LOOPS for the run's processes)."""
+    if waive is None:
+        waive = ("E326",) if os.environ.get(ALLOW_UNSTABLE_LOOPS) == "1" else ()
+    result = check_file(path, module_lookup, module_names=module_names, waive=waive)
     if result.errors or result.subsystem is None:
         raise ConfigErrors(result.errors)
     return result.subsystem

@@ -35,6 +35,7 @@ from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable, Protocol
 
+from pbo_runtime.config.checker.loops import GAINS_NOTE
 from pbo_runtime.config.live import LiveChangeRefused, LiveDescription, TaskChange, parse_assignments
 from pbo_runtime.config.live_save import save_live
 from pbo_runtime.config.values import INT_RANGE, as_value, describe, element_problem, range_problem
@@ -235,7 +236,12 @@ def status(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
             "job": host.job_control.job, "application": host.application, "elapsed": elapsed,
             "tasks": rows, "flags": host.table_flags(), "realtime": dict(host.realtime),
             "stalled": {name: now - since for name, since in host.stalled_since().items()},
-            "restarts": host.restarts()}
+            "restarts": host.restarts(), "gains": gain_notes(host.subsystem.robot_notes)}
+
+
+def gain_notes(notes: Sequence[str]) -> list[str]:
+    """The gains each controller given a bandwidth made from the arm's inertia (the check's notes)."""
+    return [note for note in notes if note.startswith(GAINS_NOTE)]
 
 
 def _task(host: CommandHost, arguments: dict[str, Any]) -> str:
@@ -561,7 +567,8 @@ _TASK_REPLY = '`{"task": str, "state": str}`'
 
 VERBS: tuple[Verb, ...] = (
     Verb("status", "a running subsystem: tasks by RTPU with state, rate, jitter, overruns; current job", (), status,
-         "the status reply: configuration, job, elapsed, per task state, rate, jitter, overruns; flags", STATUS_TIMEOUT),
+         "the status reply: configuration, job, elapsed, per task state, rate, jitter, overruns; flags; the gains a "
+         "bandwidth made", STATUS_TIMEOUT),
     Verb("on", "turn a task on", (_TASK,), task_signal("on"), _TASK_REPLY, COMMAND_TIMEOUT),
     Verb("off", "turn a task off", (_TASK,), task_signal("off"), _TASK_REPLY, COMMAND_TIMEOUT),
     Verb("clear", "clear a task's error (its clear component decides: OFF, or still ERROR)", (_TASK,),

@@ -91,6 +91,7 @@ class RunResult:
     # clock): from the process's start ("process", to the kernel's 10 ms) to "on", the moment every
     # task of the first configuration was ON (docs/running.md: where start-up time goes)
     startup: dict[str, float] = field(default_factory=dict)
+    gains: list[str] = field(default_factory=list)  # the gains each controller given a bandwidth made (the check's notes)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -106,7 +107,7 @@ class RunResult:
             "faults": self.faults, "timing_holds": self.timing_holds, "queue_bytes": self.queue_bytes,
             "lock_events": self.lock_events, "started_at": self.started_at, "marks": self.marks,
             "restarts": [restart.to_json() for restart in self.restarts],
-            "startup": self.startup,
+            "startup": self.startup, "gains": self.gains,
         }
 
 

@@ -32,6 +32,7 @@ from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
+from pbo_runtime.config.checker.loops import GAINS_NOTE
 from pbo_runtime.config.limits import MAX_NAME
 from pbo_runtime.config.live import LiveDescription
 from pbo_runtime.config.model import Subsystem, TaskSpec
@@ -134,7 +135,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.task_states: dict[str, str] = {t: TaskState.NOT_CREATED.name for t in subsystem.tasks}
         self.task_errors: dict[str, str] = {}
         self._deaths: dict[str, list[float]] = {}  # per RTPU, when it died within its restart policy's window
-        self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id)
+        self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id,
+                                gains=[note for note in subsystem.robot_notes if note.startswith(GAINS_NOTE)])
         self.result.objects = self._manifest()
         self.result.links = self.links
         self.started_at: float | None = None  # run time when the configuration came on

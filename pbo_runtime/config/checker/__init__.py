@@ -18,6 +18,7 @@ from pbo_runtime.config.checker.configurations import ConfigurationChecks
 from pbo_runtime.config.checker.devices import DeviceChecks
 from pbo_runtime.config.checker.inference import InferenceChecks
 from pbo_runtime.config.checker.jobs import JobChecks
+from pbo_runtime.config.checker.loops import JointLoopChecks
 from pbo_runtime.config.checker.model import (
     BUS_KEYS,
     CLAIM_KEYS,
@@ -61,7 +62,7 @@ __all__ = [
 
 
 class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, TaskChecks, ConfigurationChecks, ClaimChecks,
-               ObjectChecks, JobChecks, TimingChecks, CheckerBase):
+               ObjectChecks, JobChecks, TimingChecks, JointLoopChecks, CheckerBase):
     """The whole checker: the core (`CheckerBase`) with every rule, one mixin a concept, and the pass."""
 
     def run(self, doc: Any, doc_loc: Location) -> Checked:
@@ -98,6 +99,7 @@ class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, Tas
         self.check_schedulability()
         self.check_spins()
         self.check_const_order()
+        self.check_joint_loops(top)
         self.check_unused()
         return self.out
 

@@ -283,6 +283,7 @@ class SectionChecks(CheckerBase):
 
     def _robot_limits(self, robot: Any) -> None:
         """The joints' limits the robot gives (`limit_rows`: the robot's, tightened by the plant options), for the output."""
+        self.described_robot = robot  # the joint loops' check reads its arm
         rows = getattr(robot, "limit_rows", None)
         if callable(rows):
             self.out.robot_limits = list(rows())

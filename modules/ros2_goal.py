@@ -24,8 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import OutVar, PortBasedObject, Status, below_the_cycle, param
-from pbo_runtime.errors import require_extra
+from pbo_runtime import OutVar, PortBasedObject, Status, below_the_cycle, param, require_extra
 
 TYPES = ("std_msgs/msg/Float64MultiArray", "trajectory_msgs/msg/JointTrajectory")
 POLL = 0.002  # s between two looks at the reader when nothing came: the most a message waits there

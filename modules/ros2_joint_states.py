@@ -18,8 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbo_runtime import InVar, PortBasedObject, Status, below_the_cycle, param
-from pbo_runtime.errors import require_extra
+from pbo_runtime import InVar, PortBasedObject, Status, below_the_cycle, param, require_extra
 
 
 @dataclass(frozen=True)

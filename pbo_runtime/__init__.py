@@ -18,6 +18,7 @@ from pbo_runtime.errors import (
     PboError,
     ResourceLimitError,
     TableLayoutError,
+    require_extra,
 )
 from pbo_runtime.ipc.operator_input import OperatorInput
 from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
@@ -80,6 +81,7 @@ __all__ = [
     "param",
     "read_log",
     "registered_robot",
+    "require_extra",
     "sleep_while_cycling",
     "unlink_quietly",
 ]

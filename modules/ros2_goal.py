@@ -27,7 +27,7 @@ import numpy as np
 from pbo_runtime import OutVar, PortBasedObject, Status, below_the_cycle, param, require_extra
 
 TYPES = ("std_msgs/msg/Float64MultiArray", "trajectory_msgs/msg/JointTrajectory")
-POLL = 0.002  # s between two looks at the reader when nothing came: the most a message waits there
+WAIT = 1_000_000_000  # ns the thread waits for a message or its kill before it looks again
 
 
 @dataclass(frozen=True)
@@ -72,8 +72,9 @@ class Ros2Goal(PortBasedObject):
         self.refused = 0  # messages of another size than the output
         self._fresh_within = float(params.fresh_within) if params.fresh_within > 0 else math.inf
         self._new_at = -math.inf
-        self._stopping = threading.Event()
+        self._stopping = False
 
+        from cyclonedds.core import GuardCondition, InstanceState, ReadCondition, SampleState, ViewState, WaitSet
         from cyclonedds.domain import DomainParticipant
         from cyclonedds.sub import DataReader
         from cyclonedds.topic import Topic
@@ -82,6 +83,10 @@ class Ros2Goal(PortBasedObject):
         kind = ros2.MESSAGES[params.type]
         topic = Topic(self._participant, ros2.dds_topic(params.topic), kind, qos=ros2.ros2_qos())
         reader = DataReader(self._participant, topic, qos=ros2.ros2_qos())
+        self._waitset = WaitSet(self._participant)  # its wait releases the GIL: the thread sleeps until a message or kill
+        self._waitset.attach(ReadCondition(reader, SampleState.NotRead | ViewState.Any | InstanceState.Any))
+        self._wake = GuardCondition(self._participant)
+        self._waitset.attach(self._wake)
         values = self._values_of_array if kind is ros2.Float64MultiArray else self._values_of_trajectory
         self._thread = threading.Thread(target=self._receive, args=(reader, kind, values), daemon=True,
                                         name=f"ros2-{self.task_name}")
@@ -101,7 +106,8 @@ class Ros2Goal(PortBasedObject):
         return Status.CONTINUE
 
     def kill(self) -> None:
-        self._stopping.set()
+        self._stopping = True
+        self._wake.set(True)
         self.hand_off(self._close, f"closing the ROS 2 subscription of {self.task_name}")
 
     def _close(self) -> None:
@@ -126,12 +132,9 @@ class Ros2Goal(PortBasedObject):
     def _receive(self, reader, kind, values_of) -> None:  # type: ignore[no-untyped-def]
         below_the_cycle()
         size = self._staging.size
-        while not self._stopping.is_set():
-            samples = reader.take(N=16)
-            if not samples:
-                self._stopping.wait(POLL)  # waits without the GIL
-                continue
-            for sample in samples:
+        while not self._stopping:
+            self._waitset.wait(WAIT)
+            for sample in reader.take(N=16):
                 if not isinstance(sample, kind):
                     continue  # a writer's end (DDS's invalid sample), not a message
                 values = values_of(sample)

@@ -25,7 +25,7 @@ from modules.ros2_joint_states import Ros2JointStates  # noqa: E402
 from pbo_runtime import Status  # noqa: E402
 from pbo_runtime.errors import EXTRAS, ParamError  # noqa: E402
 from pbo_runtime.task.lifecycle import Task  # noqa: E402
-from tests.support import REPO, assert_ended_well, config_copy, run_output, start_run, task_spec, until, variables  # noqa: E402
+from tests.support import PBO, REPO, assert_ended_well, config_copy, run_output, start_run, task_spec, until, variables  # noqa: E402
 
 _DOMAINS = itertools.count()
 
@@ -188,3 +188,21 @@ def test_ros2_bridge_publishes_joint_states_at_100_hz_and_takes_its_goal_from_a_
         out, err = run_output(run)
     assert "Traceback" not in err, err
     assert_ended_well(run.returncode, json.loads(report_path.read_text()), err)
+
+
+@pytest.mark.multiprocess
+def test_a_silent_goal_topic_past_its_bound_makes_the_robot_hold_and_the_run_say_so(tmp_path, monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(own_domain()))  # no node publishes there
+    config = config_copy(REPO / "configs" / "ros2_bridge.yaml", tmp_path, f"ros2_silent_{os.getpid()}",
+                         replace=(("type: std_msgs/msg/Float64MultiArray}", "type: std_msgs/msg/Float64MultiArray, fresh_within: 0.5}"),))
+    report_path = tmp_path / "report.json"
+    done = subprocess.run([*PBO, "run", str(config), "--clock", "sim", "--duration", "1", "--no-live", "--report", str(report_path)],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=180)
+    assert done.returncode == 2, done.stderr
+    assert ("critical task 'robot' runs its locally stable behaviour: a task upstream has no fresh input (its cycle "
+            "returned STABLE: a link's item or a topic's message past its bound)") in done.stdout + done.stderr
+    report = json.loads(report_path.read_text())
+    assert report["faults"] == ["task 'goal' had no fresh input until the stop, from 0.000 s into the run (its cycle returned "
+                                "STABLE: a link's item or a topic's message past its bound), and the critical tasks held meanwhile"]
+    robot = report["tasks"]["robot"]
+    assert robot["stable_cycles"] == robot["cycles"] - 1  # held from its second cycle on (the first ran before goal's first)

@@ -206,3 +206,14 @@ def test_a_silent_goal_topic_past_its_bound_makes_the_robot_hold_and_the_run_say
                                 "STABLE: a link's item or a topic's message past its bound), and the critical tasks held meanwhile"]
     robot = report["tasks"]["robot"]
     assert robot["stable_cycles"] == robot["cycles"] - 1  # held from its second cycle on (the first ran before goal's first)
+
+
+@pytest.mark.parametrize("module", [Ros2Goal, Ros2JointStates])
+def test_a_bridge_task_without_cyclonedds_fails_its_spawn_naming_the_ros2_extra(make_table, monkeypatch, module):
+    monkeypatch.setitem(sys.modules, "cyclonedds", None)  # as if never installed: importing it raises ImportError
+    table = make_table(variables(("q_d", "float64", (3,)), ("q_m", "float64", (3,)), ("qd_m", "float64", (3,)), ("tau", "float64", (3,))))
+    spec = task_spec(module, name="bridge", dims={"NDOF": 3}, ports={"value": "q_d"}, params={"domain": own_domain()})
+    task = Task(spec, module, table, {"NDOF": 3})
+    assert not task.spawn(0.0)
+    name = module.__module__.split(".")[-1]  # ros2_goal, ros2_joint_states: the module's name in a YAML file
+    assert f"the {name} module needs the 'ros2' extra (cyclonedds is not installed): pip install 'pbo-runtime[ros2]'" in task.last_error

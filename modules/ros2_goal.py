@@ -23,6 +23,7 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
+from numpy import copyto
 
 from pbo_runtime import OutVar, PortBasedObject, Status, below_the_cycle, param, require_extra
 
@@ -66,7 +67,9 @@ class Ros2Goal(PortBasedObject):
         if len(self._names) != size:
             raise ValueError(f"joint_names must name the {size} values of the output, got {len(self._names)}: {self._names}")
         self._staging = np.zeros(size)  # the thread's newest values
+        self._value_flat = self._value.reshape(-1)  # a view of the output, made once
         self._lock = threading.Lock()
+        self._acquire, self._release = self._lock.acquire, self._lock.release
         self._received = 0  # messages the thread copied in
         self._taken = 0  # of them, the count when the cycle last copied out
         self.refused = 0  # messages of another size than the output
@@ -97,9 +100,10 @@ class Ros2Goal(PortBasedObject):
 
     def cycle(self) -> Status:
         if self._received != self._taken:
-            with self._lock:
-                self._value[...] = self._staging.reshape(self._value.shape)
-                self._taken = self._received
+            self._acquire()  # (bound once: `with lock` makes its method objects each time)
+            copyto(self._value_flat, self._staging)
+            self._taken = self._received
+            self._release()
             self._new_at = self.time
         if self.time - self._new_at > self._fresh_within:
             return Status.STABLE  # no new message for too long: what this task writes is stale

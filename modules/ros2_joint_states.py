@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from numpy import copyto
 
 from pbo_runtime import InVar, PortBasedObject, Status, below_the_cycle, param, require_extra
 
@@ -53,10 +54,11 @@ class Ros2JointStates(PortBasedObject):
         names = list(params.joint_names) or [f"joint{i + 1}" for i in range(joints)]
         if len(names) != joints:
             raise ValueError(f"joint_names must name the {joints} joints of q_m, got {len(names)}: {names}")
-        self._sources = sources
         self._rows = np.zeros((3, joints))  # position, velocity, effort: the cycle's copy
+        self._copies = tuple(zip(sources, self._rows))  # (port, its row): the views made once
         self._stamp = np.zeros(1, dtype=np.int64)  # its Unix time, ns
         self._lock = threading.Lock()
+        self._acquire, self._release = self._lock.acquire, self._lock.release
         self._wake = os.eventfd(0, os.EFD_CLOEXEC)
         self._stopping = False
         self.published = 0
@@ -75,13 +77,13 @@ class Ros2JointStates(PortBasedObject):
         self._thread.start()
 
     def cycle(self) -> Status:
-        position, velocity, effort = self._sources
-        rows = self._rows
-        with self._lock:
-            rows[0] = position
-            rows[1] = velocity
-            rows[2] = effort
-            self._stamp[0] = time.time_ns()
+        (position, position_row), (velocity, velocity_row), (effort, effort_row) = self._copies
+        self._acquire()  # (bound once: `with lock` makes its method objects each time)
+        copyto(position_row, position)
+        copyto(velocity_row, velocity)
+        copyto(effort_row, effort)
+        self._stamp[0] = time.time_ns()
+        self._release()
         os.eventfd_write(self._wake, 1)
         return Status.CONTINUE
 

@@ -25,7 +25,7 @@ from modules.ros2_joint_states import Ros2JointStates  # noqa: E402
 from pbo_runtime import Status  # noqa: E402
 from pbo_runtime.errors import EXTRAS, ParamError  # noqa: E402
 from pbo_runtime.task.lifecycle import Task  # noqa: E402
-from tests.support import PBO, REPO, assert_ended_well, config_copy, run_output, start_run, task_spec, until, variables  # noqa: E402
+from tests.support import PBO, REPO, allocation_peak, assert_ended_well, config_copy, one_array, run_output, start_run, task_spec, until, variables  # noqa: E402
 
 _DOMAINS = itertools.count()
 
@@ -217,3 +217,34 @@ def test_a_bridge_task_without_cyclonedds_fails_its_spawn_naming_the_ros2_extra(
     assert not task.spawn(0.0)
     name = module.__module__.split(".")[-1]  # ros2_goal, ros2_joint_states: the module's name in a YAML file
     assert f"the {name} module needs the 'ros2' extra (cyclonedds is not installed): pip install 'pbo-runtime[ros2]'" in task.last_error
+
+
+def _without_its_thread(task: Task) -> None:
+    """End a bridge task's DDS thread: what is measured then is the cycle alone (tracemalloc sees every thread)."""
+    module = task.module
+    module._stopping = True
+    if isinstance(module, Ros2JointStates):
+        os.eventfd_write(module._wake, 1)
+    else:
+        module._wake.set(True)
+    module._thread.join()
+
+
+@pytest.mark.parametrize("module", [Ros2JointStates, Ros2Goal])
+def test_a_bridge_tasks_cycle_allocates_nothing(make_table, module):
+    table = make_table(variables(("q_d", "float64", (6,)), ("q_m", "float64", (6,)), ("qd_m", "float64", (6,)), ("tau", "float64", (6,))))
+    dims = {"NDOF": 6}
+    task = Task(task_spec(module, name="bridge", dims=dims, ports={"value": "q_d"}, params={"domain": own_domain()}), module, table, dims)
+    assert task.spawn(0.0), task.last_error
+    assert task.turn_on(0.0), task.last_error
+    try:
+        _without_its_thread(task)
+        bridge = task.module
+
+        def a_new_message_every_cycle() -> None:
+            bridge._received += 1
+            bridge.cycle()
+
+        assert allocation_peak(bridge.cycle if module is Ros2JointStates else a_new_message_every_cycle) < one_array()
+    finally:
+        task.kill()

@@ -55,7 +55,7 @@ def listen(domain: int, seconds: float) -> None:
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
 
-    from modules import _ros2_types as ros2
+    from pbo_runtime.links import ros2_messages as ros2
 
     participant = DomainParticipant(domain)
     reader = DataReader(participant, Topic(participant, "rt/joint_states", ros2.JointState, qos=ros2.ros2_qos()),

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy import copyto
 
-from pbo_runtime import OutVar, PortBasedObject, Status, below_the_cycle, param, require_extra
+from pbo_runtime import OutVar, PortBasedObject, Status, below_the_cycle, param, ros2_messages
 
 TYPES = ("std_msgs/msg/Float64MultiArray", "trajectory_msgs/msg/JointTrajectory")
 WAIT = 1_000_000_000  # ns the thread waits for a message or its kill before it looks again
@@ -57,8 +57,7 @@ class Ros2Goal(PortBasedObject):
     value = OutVar("value", shape=None, doc="the values of the newest message (a goal, or a job's object)")
 
     def init(self, params: Ros2GoalParams) -> None:
-        require_extra("cyclonedds", "the ros2_goal module")
-        from modules import _ros2_types as ros2
+        ros2 = ros2_messages("the ros2_goal module")
 
         ros2.check_topic(params.topic)
         self._value = self.bound_arrays[0]

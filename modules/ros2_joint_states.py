@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy import copyto
 
-from pbo_runtime import InVar, PortBasedObject, Status, below_the_cycle, param, require_extra
+from pbo_runtime import InVar, PortBasedObject, Status, below_the_cycle, param, ros2_messages
 
 
 @dataclass(frozen=True)
@@ -45,8 +45,7 @@ class Ros2JointStates(PortBasedObject):
     tau = InVar("tau", shape=("NDOF",), doc="joint torque, N m: the message's effort")
 
     def init(self, params: Ros2JointStatesParams) -> None:
-        require_extra("cyclonedds", "the ros2_joint_states module")
-        from modules import _ros2_types as ros2
+        ros2 = ros2_messages("the ros2_joint_states module")
 
         ros2.check_topic(params.topic)
         sources = self.bound_arrays[:3]

@@ -23,6 +23,7 @@ from pbo_runtime.errors import (
 from pbo_runtime.ipc.operator_input import OperatorInput
 from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
 from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
+from pbo_runtime.links.ros2 import ros2_messages
 from pbo_runtime.objects.arm import ARM_COLUMNS, EE_COLUMNS, GRAVITY, ROBOT_OPTIONS, ROBOT_SUFFIXES, Arm, arm_model, is_robot_file
 from pbo_runtime.objects.driver import DeviceDriver
 from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
@@ -82,6 +83,7 @@ __all__ = [
     "read_log",
     "registered_robot",
     "require_extra",
+    "ros2_messages",
     "sleep_while_cycling",
     "unlink_quietly",
 ]

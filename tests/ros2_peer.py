@@ -1,6 +1,6 @@
 """A ROS 2 node's side of the DDS wire, for the bridge's tests: a Cyclone DDS participant of its own,
 in a process of its own, with the message types declared as ROS 2's generated IDL declares them
-(independently of modules/_ros2_types.py) and ROS 2's default QoS.
+(independently of pbo_runtime/links/ros2_messages.py) and ROS 2's default QoS.
 
     python -m tests.ros2_peer listen DOMAIN SECONDS           JointStates on rt/joint_states over a window
     python -m tests.ros2_peer goal DOMAIN SAFETY V1 V2 ...   publish a goal on rt/pbo/q_d until the arm holds it

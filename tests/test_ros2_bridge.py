@@ -19,7 +19,7 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from modules import _ros2_types as ros2  # noqa: E402
+from pbo_runtime.links import ros2_messages as ros2  # noqa: E402
 from modules.ros2_goal import Ros2Goal  # noqa: E402
 from modules.ros2_joint_states import Ros2JointStates  # noqa: E402
 from pbo_runtime import Status  # noqa: E402

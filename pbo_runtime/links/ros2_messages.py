@@ -4,7 +4,8 @@ A ROS 2 topic `/joint_states` is the DDS topic `rt/joint_states`; a message type
 `sensor_msgs/msg/JointState` is the DDS type `sensor_msgs::msg::dds_::JointState_`, serialized
 as CDR in the fields' declaration order (as ROS 2's generated IDL declares them). ROS 2's default
 QoS for topics is reliable, volatile, keep the last 10. Imported only when the 'ros2' extra
-(cyclonedds) is installed: the modules that use it call `require_extra` first.
+(cyclonedds) is installed: modules and drivers get it from `pbo_runtime.ros2_messages`. (No
+`from __future__ import annotations` here: cyclonedds reads the fields' types at run time.)
 """
 
 import os

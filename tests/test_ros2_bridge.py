@@ -7,7 +7,6 @@ takes a DDS domain of its own, so runs side by side never see each other's topic
 
 from __future__ import annotations
 
-import itertools
 import json
 import os
 import signal
@@ -25,15 +24,8 @@ from modules.ros2_joint_states import Ros2JointStates  # noqa: E402
 from pbo_runtime import Status  # noqa: E402
 from pbo_runtime.errors import EXTRAS, ParamError  # noqa: E402
 from pbo_runtime.task.lifecycle import Task  # noqa: E402
-from tests.support import PBO, REPO, allocation_peak, assert_ended_well, config_copy, one_array, run_output, start_run, task_spec, until, variables  # noqa: E402
-
-_DOMAINS = itertools.count()
-
-
-def own_domain() -> int:
-    """A DDS domain id (0-232) of this test's own: from this process's pid and a count."""
-    return 1 + (os.getpid() * 7 + next(_DOMAINS)) % 232
-
+from tests.support import (PBO, REPO, allocation_peak, assert_ended_well, config_copy, one_array, own_dds_domain,  # noqa: E402
+                           run_output, start_run, task_spec, until, variables)
 
 def peer(*arguments: object) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "tests.ros2_peer", *map(str, arguments)], cwd=REPO,
@@ -120,7 +112,7 @@ def _goal_task(table, domain: int, **params) -> Task:
 
 def test_a_joint_states_task_whose_names_do_not_fit_q_m_fails_its_spawn(make_table):
     table = make_table(variables(("q_m", "float64", (3,)), ("qd_m", "float64", (3,)), ("tau", "float64", (3,))))
-    spec = task_spec(Ros2JointStates, name="states", dims={"NDOF": 3}, params={"joint_names": ["a", "b"], "domain": own_domain()})
+    spec = task_spec(Ros2JointStates, name="states", dims={"NDOF": 3}, params={"joint_names": ["a", "b"], "domain": own_dds_domain()})
     task = Task(spec, Ros2JointStates, table, {"NDOF": 3})
     assert not task.spawn(0.0)
     assert "joint_names must name the 3 joints of q_m, got 2" in task.last_error
@@ -136,7 +128,7 @@ def test_a_joint_states_task_whose_names_do_not_fit_q_m_fails_its_spawn(make_tab
 def test_a_goal_published_by_another_node_is_written_and_a_silent_topic_makes_it_stale(make_table, kind, sent, written, refused):
     table = make_table(variables(("q_d", "float64", (3,))))
     table.write("q_d", np.array([9.0, 9.0, 9.0]), when=0.0)
-    domain = own_domain()
+    domain = own_dds_domain()
     task = _goal_task(table, domain, type=kind, fresh_within=0.5)
     assert task.spawn(0.0), task.last_error
     assert task.turn_on(0.0), task.last_error
@@ -167,7 +159,7 @@ def test_a_goal_published_by_another_node_is_written_and_a_silent_topic_makes_it
 
 @pytest.mark.multiprocess
 def test_ros2_bridge_publishes_joint_states_at_100_hz_and_takes_its_goal_from_a_ros2_node(tmp_path, monkeypatch):
-    domain = own_domain()
+    domain = own_dds_domain()
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))  # the run's RTPUs inherit it
     config = config_copy(REPO / "configs" / "ros2_bridge.yaml", tmp_path, f"ros2_{os.getpid()}")
     report_path = tmp_path / "report.json"
@@ -192,7 +184,7 @@ def test_ros2_bridge_publishes_joint_states_at_100_hz_and_takes_its_goal_from_a_
 
 @pytest.mark.multiprocess
 def test_a_silent_goal_topic_past_its_bound_makes_the_robot_hold_and_the_run_say_so(tmp_path, monkeypatch):
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(own_domain()))  # no node publishes there
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(own_dds_domain()))  # no node publishes there
     config = config_copy(REPO / "configs" / "ros2_bridge.yaml", tmp_path, f"ros2_silent_{os.getpid()}",
                          replace=(("type: std_msgs/msg/Float64MultiArray}", "type: std_msgs/msg/Float64MultiArray, fresh_within: 0.5}"),))
     report_path = tmp_path / "report.json"
@@ -212,7 +204,7 @@ def test_a_silent_goal_topic_past_its_bound_makes_the_robot_hold_and_the_run_say
 def test_a_bridge_task_without_cyclonedds_fails_its_spawn_naming_the_ros2_extra(make_table, monkeypatch, module):
     monkeypatch.setitem(sys.modules, "cyclonedds", None)  # as if never installed: importing it raises ImportError
     table = make_table(variables(("q_d", "float64", (3,)), ("q_m", "float64", (3,)), ("qd_m", "float64", (3,)), ("tau", "float64", (3,))))
-    spec = task_spec(module, name="bridge", dims={"NDOF": 3}, ports={"value": "q_d"}, params={"domain": own_domain()})
+    spec = task_spec(module, name="bridge", dims={"NDOF": 3}, ports={"value": "q_d"}, params={"domain": own_dds_domain()})
     task = Task(spec, module, table, {"NDOF": 3})
     assert not task.spawn(0.0)
     name = module.__module__.split(".")[-1]  # ros2_goal, ros2_joint_states: the module's name in a YAML file
@@ -234,7 +226,7 @@ def _without_its_thread(task: Task) -> None:
 def test_a_bridge_tasks_cycle_allocates_nothing(make_table, module):
     table = make_table(variables(("q_d", "float64", (6,)), ("q_m", "float64", (6,)), ("qd_m", "float64", (6,)), ("tau", "float64", (6,))))
     dims = {"NDOF": 6}
-    task = Task(task_spec(module, name="bridge", dims=dims, ports={"value": "q_d"}, params={"domain": own_domain()}), module, table, dims)
+    task = Task(task_spec(module, name="bridge", dims=dims, ports={"value": "q_d"}, params={"domain": own_dds_domain()}), module, table, dims)
     assert task.spawn(0.0), task.last_error
     assert task.turn_on(0.0), task.last_error
     try:

@@ -19,8 +19,7 @@ import pytest
 pytest.importorskip("cyclonedds")
 
 from drivers.ros2_control.driver import Ros2ControlArm  # noqa: E402
-from tests.support import REPO, config_copy, read_until, run_output, start_run  # noqa: E402
-from tests.test_ros2_bridge import own_domain  # noqa: E402
+from tests.support import REPO, config_copy, own_dds_domain, read_until, run_output, start_run  # noqa: E402
 
 GOAL = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]  # configs/ros2_control.yaml's initial q_d: the demo's move
 
@@ -40,7 +39,7 @@ def test_a_ros2_control_option_out_of_its_rules_is_refused(options, wanted):
 
 @pytest.mark.multiprocess
 def test_the_demos_pid_brings_a_ros2_control_arm_to_its_goal_and_holds_when_joint_states_stop(tmp_path, monkeypatch):
-    domain = own_domain()
+    domain = own_dds_domain()
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     arm = subprocess.Popen([sys.executable, "-m", "tests.ros2_control_peer", str(domain), "300", *map(str, GOAL),
                             "--silent-after", "1"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

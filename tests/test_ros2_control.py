@@ -19,7 +19,7 @@ import pytest
 pytest.importorskip("cyclonedds")
 
 from drivers.ros2_control.driver import Ros2ControlArm  # noqa: E402
-from tests.support import REPO, config_copy, own_dds_domain, read_until, run_output, start_run  # noqa: E402
+from tests.support import PBO, REPO, config_copy, own_dds_domain, read_until, run_output, start_run  # noqa: E402
 
 GOAL = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]  # configs/ros2_control.yaml's initial q_d: the demo's move
 
@@ -63,3 +63,16 @@ def test_the_demos_pid_brings_a_ros2_control_arm_to_its_goal_and_holds_when_join
     assert run.returncode == 2, err
     assert any(fault.startswith("critical task 'robot' ran its locally stable behaviour") and fault.endswith(
         "the module's own inputs are not fresh (its cycle returned STABLE)") for fault in report["faults"]), report["faults"]
+
+
+@pytest.mark.multiprocess
+def test_a_robot_whose_joint_states_never_come_is_never_driven_and_the_run_says_why(tmp_path, monkeypatch):
+    domain = own_dds_domain()
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))  # no ros2_control there
+    config = config_copy(REPO / "configs" / "ros2_control.yaml", tmp_path, f"ros2_nobody_{os.getpid()}")
+    done = subprocess.run([*PBO, "run", str(config), "--duration", "1", "--no-live"], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=180)
+    assert done.returncode != 0
+    assert "Traceback" not in done.stderr, done.stderr
+    assert (f"ros2_control driver: no JointState of the joints ['joint1', 'joint2', 'joint3', 'joint4', 'joint5', 'joint6'] "
+            f"on /joint_states (DDS domain {domain}) within 5 s") in done.stdout + done.stderr

@@ -9,9 +9,10 @@ takes (`/forward_effort_controller/commands`), both as a ROS 2 node's topics on 
 `domain` (-1: ROS_DOMAIN_ID, else 0).
 
 No call of a cycle touches DDS. A thread of the driver (below the RTPU's executive) takes each
-JointState into a buffer; `read_state` copies the newest out and returns its header stamp as the
-arm's time, so a `/joint_states` that stops is a plant that stopped: the robot interface holds
-after `stall_after` seconds and the run says so. `write_torque` copies the command into a buffer
+JointState into a buffer; opening the driver waits for the first (up to 5 s, else it fails
+saying so), so no command is ever computed from a state never read. `read_state` copies the
+newest out and returns its header stamp as the arm's time, so a `/joint_states` that stops is a
+plant that stopped: the robot interface holds after `stall_after` seconds and the run says so. `write_torque` copies the command into a buffer
 and wakes the thread (an eventfd write), which publishes it. With the brakes engaged (the task
 off, held, in ERROR) no command goes out: the ros2_control side must then hold the arm (a
 controller's command timeout or the drive's brakes), as a real drive holds when its commands stop.
@@ -24,16 +25,18 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from drivers.mujoco_arm.registers import DeviceError, attach_registers
-from pbo_runtime import DeviceDriver, below_the_cycle, ros2_messages
+from pbo_runtime import DeviceDriver, below_the_cycle, ros2_messages, sleep_while_cycling
 
 _OPTIONS = ("mode", "joint_states", "commands", "joints", "domain", "stall_after")
 _WAIT = 1_000_000_000  # ns the thread waits for a message or the driver's close before it looks again
+FIRST_STATE_PATIENCE = 5.0  # s the driver's opening waits for the first JointState (within the supervisor's 10 s for a spawn)
 
 
 class Ros2ControlArm(DeviceDriver):
@@ -84,6 +87,7 @@ class Ros2ControlArm(DeviceDriver):
         self._state = np.zeros((2, self.ndof))  # q, qd of the newest JointState
         self._stamp = np.zeros(1)  # its header stamp, s
         self._command = np.zeros(self.ndof)
+        self._finite = np.zeros(self.ndof, dtype=bool)  # per element of a command: finite (filled per write)
         self._lock = threading.Lock()
         self._acquire, self._release = self._lock.acquire, self._lock.release
         self._q, self._qd = self._state[0], self._state[1]
@@ -116,6 +120,19 @@ class Ros2ControlArm(DeviceDriver):
                                           name="ros2-commands")]
         for thread in self._threads:
             thread.start()
+        self._wait_for_the_first_state(ros2.domain_id(int(self.options.get("domain", -1))))
+
+    def _wait_for_the_first_state(self, domain: int) -> None:
+        """Open only an arm whose state is known: a command computed from a state never read would move it."""
+        deadline = time.monotonic() + FIRST_STATE_PATIENCE
+        while self.received == 0:
+            if time.monotonic() > deadline:
+                self.close()
+                topic = self.options.get("joint_states", "/joint_states")
+                raise DeviceError(f"ros2_control driver: no JointState of the joints {self._names} on {topic} "
+                                  f"(DDS domain {domain}) within {FIRST_STATE_PATIENCE:g} s: is the robot's "
+                                  "ros2_control (its joint_state_broadcaster) running on that domain?")
+            sleep_while_cycling(0.01)
 
     # constants --------------------------------------------------------------------------------
 
@@ -138,7 +155,7 @@ class Ros2ControlArm(DeviceDriver):
 
     def write_torque(self, tau: np.ndarray) -> None:
         """Send joint efforts to the forward effort controller (with the brakes released)."""
-        if not np.all(np.isfinite(tau)):
+        if np.count_nonzero(np.isfinite(tau, out=self._finite)) != self.ndof:  # a non-finite command never goes out
             raise DeviceError(f"ros2_control driver: write_torque refused a command that is not finite ({tau.tolist()})")
         if self._braked:
             return

@@ -5,6 +5,7 @@ in a process of its own, with the message types declared as ROS 2's generated ID
     python -m tests.ros2_peer listen DOMAIN SECONDS           JointStates on rt/joint_states over a window
     python -m tests.ros2_peer goal DOMAIN SAFETY V1 V2 ...   publish a goal on rt/pbo/q_d until the arm holds it
     python -m tests.ros2_peer publish DOMAIN TOPIC TYPE SECONDS V1 V2 ...   a message every 10 ms, then silence
+      (JointTrajectory, JointState: the joints' numbers, then their positions)
 
 Each prints one JSON line with what it saw.
 """
@@ -160,6 +161,11 @@ def publish(domain: int, topic: str, kind: str, seconds: float, values: list[flo
     if kind == "std_msgs/msg/Float64MultiArray":
         writer = _writer(participant, f"rt/{topic.lstrip('/')}", Float64MultiArray)
         message = Float64MultiArray(layout=MultiArrayLayout(dim=[], data_offset=0), data=values)
+    elif kind == "sensor_msgs/msg/JointState":
+        writer = _writer(participant, f"rt/{topic.lstrip('/')}", JointState)
+        half = len(values) // 2  # names' indexes, then positions (velocities the same values): the joints in the order given
+        message = JointState(header=Header(stamp=Time(sec=1, nanosec=0), frame_id=""), name=[f"joint{int(i)}" for i in values[:half]],
+                             position=values[half:], velocity=values[half:], effort=[0.0] * half)
     else:
         writer = _writer(participant, f"rt/{topic.lstrip('/')}", JointTrajectory)
         half = len(values) // 2  # names' indexes, then positions: the joints in the order given
@@ -172,6 +178,8 @@ def publish(domain: int, topic: str, kind: str, seconds: float, values: list[flo
     end = time.monotonic() + seconds
     written = 0
     while time.monotonic() < end:
+        if isinstance(message, JointState):
+            message.header.stamp.sec += 1  # a new state each time (the stamp is the arm's time)
         writer.write(message)
         written += 1
         time.sleep(0.01)

@@ -19,7 +19,9 @@ import pytest
 pytest.importorskip("cyclonedds")
 
 from drivers.ros2_control.driver import Ros2ControlArm  # noqa: E402
-from tests.support import PBO, REPO, config_copy, own_dds_domain, read_until, run_output, start_run  # noqa: E402
+from drivers.mujoco_arm.registers import DeviceError  # noqa: E402
+from tests.support import (PBO, REPO, allocation_peak, arm_tables, config_copy, one_array, own_dds_domain,  # noqa: E402
+                           read_until, run_output, start_run, unique_name, until)
 
 GOAL = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]  # configs/ros2_control.yaml's initial q_d: the demo's move
 
@@ -76,3 +78,51 @@ def test_a_robot_whose_joint_states_never_come_is_never_driven_and_the_run_says_
     assert "Traceback" not in done.stderr, done.stderr
     assert (f"ros2_control driver: no JointState of the joints ['joint1', 'joint2', 'joint3', 'joint4', 'joint5', 'joint6'] "
             f"on /joint_states (DDS domain {domain}) within 5 s") in done.stdout + done.stderr
+
+
+@pytest.fixture
+def plant_registers():
+    """An arm register segment as a running plant leaves it for drivers: the PUMA 560's constants."""
+    from drivers.mujoco_arm.registers import MAGIC, W_MAGIC, create_registers
+
+    name = unique_name("ros2-regs")
+    shm, registers = create_registers(name, 6)
+    arm, ee = arm_tables("puma560")
+    registers.arm[:] = arm
+    registers.ee[:] = ee
+    registers.words[W_MAGIC] = MAGIC
+    yield name
+    registers.release()
+    shm.unlink()
+
+
+@pytest.mark.multiprocess
+def test_the_driver_takes_the_robots_joints_by_name_in_its_own_order_and_its_cycle_calls_allocate_nothing(plant_registers):
+    domain = own_dds_domain()
+    names_sent = [3, 1, 2, 6, 5, 4]  # the robot's order differs from the driver's
+    positions = [0.3, 0.1, 0.2, 0.6, 0.5, 0.4]
+    robot = subprocess.Popen([sys.executable, "-m", "tests.ros2_peer", "publish", str(domain), "/joint_states",
+                              "sensor_msgs/msg/JointState", "20", *map(str, names_sent + positions)], cwd=REPO,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        driver = Ros2ControlArm(plant_registers, {"domain": domain})  # waits for the first JointState
+        try:
+            q, qd = np.zeros(6), np.zeros(6)
+            stamp = driver.read_state(q, qd)
+            assert stamp >= 1.0  # the header stamp: the arm's time
+            np.testing.assert_array_equal(q, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+            np.testing.assert_array_equal(qd, q)
+            np.testing.assert_array_equal(driver.arm(), arm_tables("puma560")[0])
+            assert allocation_peak(lambda: driver.read_state(q, qd)) < one_array()
+            driver.write_torque(np.full(6, 1.0))
+            assert driver.published == 0  # the brakes are engaged: no command goes out
+            driver.release_brakes()
+            driver.write_torque(np.full(6, 1.0))
+            until(lambda: driver.published == 1, "the command is published")
+            with pytest.raises(DeviceError, match="not finite"):
+                driver.write_torque(np.full(6, np.nan))
+        finally:
+            driver.close()
+    finally:
+        robot.kill()
+        run_output(robot)

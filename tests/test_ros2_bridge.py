@@ -60,6 +60,16 @@ def test_a_float64_multi_array_is_serialized_as_rmw_cyclonedds_writes_it():
                                  "000000000000f03f" "0000000000000040")
 
 
+def test_a_joint_state_is_serialized_with_cdrs_string_and_sequence_alignment():
+    # Offsets from the payload's start: the stamp, frame_id (its length counts the NUL), padding to
+    # 4, the name sequence of one string, padding to 4, position (its double at 32, aligned to 8),
+    # then the empty velocity and effort sequences.
+    message = ros2.JointState(header=ros2.Header(stamp=ros2.Time(sec=1, nanosec=2), frame_id="f"), name=["a"], position=[1.0])
+    assert message.serialize() == bytes.fromhex(
+        "00010000" "01000000" "02000000" "02000000" "6600" "0000" "01000000" "02000000" "6100" "0000"
+        "01000000" "000000000000f03f" "00000000" "00000000")
+
+
 @pytest.mark.parametrize("name, dds", [("/joint_states", "rt/joint_states"), ("pbo/q_d", "rt/pbo/q_d"),
                                        ("/forward_effort_controller/commands", "rt/forward_effort_controller/commands")])
 def test_a_ros2_topic_is_the_dds_topic_under_rt(name, dds):

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from bench import (api_stream, check_scale, data_log, dora_peer, faults, helper_threads, hmi_latency, hmi_load, links, peers,
-                   placement, realtime, restart, robot_limits, scale, sim_speed, startup, svar_transfer, switching, wait)
+                   placement, realtime, restart, robot_limits, ros2_bridge, scale, sim_speed, startup, svar_transfer, switching, wait)
 from bench._common import REPO, Section, Table, machine_info
 from bench import verbs
 
@@ -43,6 +43,7 @@ BENCHMARKS: dict[str, Callable[..., Section]] = {
     "sim_speed": sim_speed.run,
     "startup": startup.run,
     "robot_limits": robot_limits.run,
+    "ros2_bridge": ros2_bridge.run,
 }
 
 FULL: dict[str, dict[str, Any]] = {
@@ -67,6 +68,7 @@ FULL: dict[str, dict[str, Any]] = {
     "sim_speed": {"seconds": 10.0, "rounds": 3},
     "startup": {"rounds": 12},
     "robot_limits": {"cycles": 2000, "rounds": 10},
+    "ros2_bridge": {"seconds": 10.0, "rounds": 6},
 }
 
 QUICK: dict[str, dict[str, Any]] = {
@@ -91,6 +93,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "sim_speed": {"seconds": 1.0, "rounds": 2},
     "startup": {"rounds": 2},
     "robot_limits": {"cycles": 500, "rounds": 2},
+    "ros2_bridge": {"seconds": 2.0, "rounds": 1},
 }
 
 DOC = Path(REPO) / "docs" / "performance.md"

@@ -58,6 +58,8 @@ _WHERE = {
     "param": "pbo_runtime.objects.ranges",
     "read_log": "pbo_runtime.reports.data_log",
     "registered_robot": "pbo_runtime.objects.registry",
+    "require_extra": "pbo_runtime.errors",
+    "ros2_messages": "pbo_runtime.links.ros2",
     "sleep_while_cycling": "pbo_runtime.objects.waits",
     "unlink_quietly": "pbo_runtime.ipc.shm",
 }
@@ -75,10 +77,12 @@ if TYPE_CHECKING:  # what the type checkers and editors see: the same names, eag
         PboError,
         ResourceLimitError,
         TableLayoutError,
+        require_extra,
     )
     from pbo_runtime.ipc.operator_input import OperatorInput
     from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
     from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
+    from pbo_runtime.links.ros2 import ros2_messages
     from pbo_runtime.objects.arm import ARM_COLUMNS, EE_COLUMNS, GRAVITY, ROBOT_OPTIONS, ROBOT_SUFFIXES, Arm, arm_model, is_robot_file
     from pbo_runtime.objects.arm_inertia import arm_gains, inertia_range
     from pbo_runtime.objects.driver import DeviceDriver
@@ -156,6 +160,8 @@ __all__ = [
     "param",
     "read_log",
     "registered_robot",
+    "require_extra",
+    "ros2_messages",
     "sleep_while_cycling",
     "unlink_quietly",
 ]

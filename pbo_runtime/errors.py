@@ -162,7 +162,8 @@ class MissingExtra(PboError):
     """A verb needs a part of pbo-runtime the install left out (an optional extra)."""
 
 
-EXTRAS = {"fastapi": "hmi", "uvicorn": "hmi", "websockets": "hmi", "matplotlib": "plot", "zenoh": "links", "rosbags": "ros2"}
+EXTRAS = {"fastapi": "hmi", "uvicorn": "hmi", "websockets": "hmi", "matplotlib": "plot", "zenoh": "links",
+          "cyclonedds": "ros2", "rosbags": "ros2"}
 
 
 def require_extra(module: str, what: str) -> None:

@@ -543,8 +543,8 @@ class Executive:
             reason, cause = (f"the table lock was held past its wait of {self.cycle_lock_wait[0] * 1e3:.3g} ms "
                              "(its holder died holding it, or stalled)"), "lock"
         elif held == HELD_UPSTREAM:
-            reason, cause = ("a task upstream has no fresh input (its cycle returned STABLE: a link's item past its "
-                             "bound)"), "upstream"
+            reason, cause = ("a task upstream has no fresh input (its cycle returned STABLE: a link's item or a topic's "
+                             "message past its bound)"), "upstream"
         else:
             reason, cause = "the configuration is illegal (a task in ERROR, or a switch that overran a cycle)", "illegal"
         self.report(Stable(s.task.name, True, start, reason, cause))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import itertools
 import json
 import os
 import re
@@ -322,6 +323,15 @@ def demo_copy(folder: Path, subsystem: str, *, source: Path = DEMO, **tasks: dic
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
 
+
+
+_DDS_DOMAINS = itertools.count()
+
+
+def own_dds_domain() -> int:
+    """A DDS domain id (1-232) of the calling test's own, from this process's pid and a count: tests
+    of the ROS 2 bridge running side by side never see each other's topics."""
+    return 1 + (os.getpid() * 7 + next(_DDS_DOMAINS)) % 232
 
 
 def dead_pid() -> int:

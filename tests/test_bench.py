@@ -35,6 +35,7 @@ TINY = {
     "sim_speed": {"seconds": 0.2, "rounds": 2},
     "startup": {"rounds": 1},
     "robot_limits": {"cycles": 50, "rounds": 1},
+    "ros2_bridge": {"seconds": 1.0, "rounds": 1},
 }
 
 

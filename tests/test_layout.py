@@ -41,7 +41,7 @@ PUBLIC_NAMES = [
     "OperatorInput", "OutputError", "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec", "ResourceLimitError", "Status",
     "TableLayoutError", "Waypoints",
     "arm_gains", "arm_model", "attach_segment", "below_the_cycle", "create_segment", "format_channels", "inertia_range", "is_robot_file", "module_class", "open_log", "param", "read_log",
-    "registered_robot", "sleep_while_cycling", "unlink_quietly",
+    "registered_robot", "require_extra", "ros2_messages", "sleep_while_cycling", "unlink_quietly",
 ]
 
 

@@ -305,7 +305,7 @@ def stable_episode_lines(episodes: list[dict[str, Any]], periods: dict[str, floa
                           f"{BRIEF_HOLD_PERIODS} periods (a late input: timing, not a fault): {brief[0]['reason']}")
         elif critical is not None and task not in critical:
             faults.append(f"task '{task}' had no fresh input {_episodes(group, origin)} (its cycle returned STABLE: "
-                          "a link's item past its bound), and the critical tasks held meanwhile")
+                          "a link's item or a topic's message past its bound), and the critical tasks held meanwhile")
         else:
             faults.append(f"critical task '{task}' ran its locally stable behaviour {_episodes(group, origin)}: "
                           f"{group[0]['reason']}")

@@ -1,0 +1,239 @@
+"""An arm behind ros2_control, driven over DDS: its `/joint_states` in, effort commands out.
+
+The driver `robot_torque` opens instead of the simulated arm's (`devices: {arm: {driver:
+ros2_control, mode: torque}}`), so pbo's robot interface, with its limits and its freshness
+rules, drives any arm that has a ros2_control driver: the measured state comes from the robot's
+`sensor_msgs/msg/JointState` topic (joints taken by name, in `joints`' order), and each
+`write_torque` goes out as the `std_msgs/msg/Float64MultiArray` a forward command controller
+takes (`/forward_effort_controller/commands`), both as a ROS 2 node's topics on the DDS domain
+`domain` (-1: ROS_DOMAIN_ID, else 0).
+
+No call of a cycle touches DDS. A thread of the driver (below the RTPU's executive) takes each
+JointState into a buffer; opening the driver waits for the first (up to 5 s, else it fails
+saying so), so no command is ever computed from a state never read. `read_state` copies the
+newest out and returns its header stamp as the arm's time, so a `/joint_states` that stops is a
+plant that stopped: the robot interface holds after `stall_after` seconds and the run says so. `write_torque` copies the command into a buffer
+and wakes the thread (an eventfd write), which publishes it. With the brakes engaged (the task
+off, held, in ERROR) no command goes out: the ros2_control side must then hold the arm (a
+controller's command timeout or the drive's brakes), as a real drive holds when its commands stop.
+
+The arm's constants (ARM, EE) are the plant's robot: the subsystem's `plant:` names the same
+robot model the ros2_control side drives. Needs the 'ros2' extra (cyclonedds).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from drivers.mujoco_arm.registers import DeviceError, attach_registers
+from pbo_runtime import DeviceDriver, below_the_cycle, ros2_messages, sleep_while_cycling
+
+_OPTIONS = ("mode", "joint_states", "commands", "joints", "domain", "stall_after")
+_WAIT = 1_000_000_000  # ns the thread waits for a message or the driver's close before it looks again
+FIRST_STATE_PATIENCE = 5.0  # s the driver's opening waits for the first JointState (within the supervisor's 10 s for a spawn)
+
+
+class Ros2ControlArm(DeviceDriver):
+    """options: `mode` (torque), `joint_states` (/joint_states), `commands` (/forward_effort_controller/commands),
+    `joints` (names, default joint1..jointN), `domain` (-1), `stall_after` (s of silence before the arm counts as stopped, 0.01)."""
+
+    OPTION_DEFAULTS = {"mode": "torque", "joint_states": "/joint_states", "commands": "/forward_effort_controller/commands",
+                       "joints": None, "domain": -1, "stall_after": 0.01}
+
+    @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        unknown = sorted(set(options) - set(_OPTIONS))
+        if unknown:
+            raise ValueError(f"unknown ros2_control driver option(s) {unknown}; valid options: {', '.join(_OPTIONS)}")
+        if options.get("mode", "torque") != "torque":
+            raise ValueError(f"ros2_control driver mode must be torque (an effort controller), got: {options['mode']!r}")
+        for key in ("joint_states", "commands"):
+            topic = options.get(key, cls.OPTION_DEFAULTS[key])
+            if not isinstance(topic, str) or not topic.strip("/"):
+                raise ValueError(f"ros2_control driver option {key} must be a ROS 2 topic name, got: {topic!r}")
+        joints = options.get("joints")
+        if joints is not None and (not isinstance(joints, list) or not all(isinstance(j, str) and j for j in joints)
+                                   or len(set(joints)) != len(joints)):
+            raise ValueError(f"ros2_control driver option joints must be a list of distinct joint names, got: {joints!r}")
+        domain = options.get("domain", -1)
+        if not isinstance(domain, int) or isinstance(domain, bool) or not -1 <= domain <= 232:
+            raise ValueError(f"ros2_control driver option domain must be an integer in [-1, 232], got: {domain!r}")
+        stall = options.get("stall_after", cls.OPTION_DEFAULTS["stall_after"])
+        if isinstance(stall, bool) or not isinstance(stall, (int, float)) or not 0 < stall <= 10:
+            raise ValueError(f"ros2_control driver option stall_after must be seconds in (0, 10], got: {stall!r}")
+
+    def __init__(self, registers: str, options: Mapping[str, Any]) -> None:
+        super().__init__(registers, options)
+        self.check_options(self.options)
+        ros2 = ros2_messages("the ros2_control driver")
+
+        self.mode = "torque"
+        regs = attach_registers(registers)  # the plant's robot: its constants only
+        try:
+            self._arm_table, self._ee = regs.arm.copy(), regs.ee.copy()
+            self.ndof: int = regs.layout.ndof
+        finally:
+            regs.release()
+        self.timestep: float = float(self.options.get("stall_after", 0.01)) / 3  # the robot interface's stall bound: 3 of these
+        self._names = list(self.options.get("joints") or [f"joint{i + 1}" for i in range(self.ndof)])
+        if len(self._names) != self.ndof:
+            raise DeviceError(f"ros2_control driver: joints names {len(self._names)} joints, the robot has {self.ndof}")
+        self._state = np.zeros((2, self.ndof))  # q, qd of the newest JointState
+        self._stamp = np.zeros(1)  # its header stamp, s
+        self._command = np.zeros(self.ndof)
+        self._finite = np.zeros(self.ndof, dtype=bool)  # per element of a command: finite (filled per write)
+        self._lock = threading.Lock()
+        self._acquire, self._release = self._lock.acquire, self._lock.release
+        self._q, self._qd = self._state[0], self._state[1]
+        self._braked = True
+        self._faults: list[dict[str, Any]] = []
+        self.received = 0  # JointStates taken
+        self.refused = 0  # JointStates that lacked one of the joints
+        self.published = 0
+
+        from cyclonedds.core import GuardCondition, InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+        from cyclonedds.domain import DomainParticipant
+        from cyclonedds.pub import DataWriter
+        from cyclonedds.sub import DataReader
+        from cyclonedds.topic import Topic
+
+        self._participant = DomainParticipant(ros2.domain_id(int(self.options.get("domain", -1))))
+        qos = ros2.ros2_qos()
+        reader = DataReader(self._participant, Topic(self._participant, ros2.dds_topic(self.options.get("joint_states", "/joint_states")),
+                                                     ros2.JointState, qos=qos), qos=qos)
+        writer = DataWriter(self._participant, Topic(self._participant, ros2.dds_topic(
+            self.options.get("commands", "/forward_effort_controller/commands")), ros2.Float64MultiArray, qos=qos), qos=qos)
+        self._waitset = WaitSet(self._participant)
+        self._waitset.attach(ReadCondition(reader, SampleState.NotRead | ViewState.Any | InstanceState.Any))
+        self._wake_reader = GuardCondition(self._participant)
+        self._waitset.attach(self._wake_reader)
+        self._wake_writer = os.eventfd(0, os.EFD_CLOEXEC)
+        self._stopping = False
+        self._threads = [threading.Thread(target=self._take_states, args=(reader, ros2.JointState), daemon=True, name="ros2-states"),
+                         threading.Thread(target=self._publish_commands, args=(writer, ros2.Float64MultiArray()), daemon=True,
+                                          name="ros2-commands")]
+        for thread in self._threads:
+            thread.start()
+        self._wait_for_the_first_state(ros2.domain_id(int(self.options.get("domain", -1))))
+
+    def _wait_for_the_first_state(self, domain: int) -> None:
+        """Open only an arm whose state is known: a command computed from a state never read would move it."""
+        deadline = time.monotonic() + FIRST_STATE_PATIENCE
+        while self.received == 0:
+            if time.monotonic() > deadline:
+                self.close()
+                topic = self.options.get("joint_states", "/joint_states")
+                raise DeviceError(f"ros2_control driver: no JointState of the joints {self._names} on {topic} "
+                                  f"(DDS domain {domain}) within {FIRST_STATE_PATIENCE:g} s: is the robot's "
+                                  "ros2_control (its joint_state_broadcaster) running on that domain?")
+            sleep_while_cycling(0.01)
+
+    # constants --------------------------------------------------------------------------------
+
+    def arm(self) -> np.ndarray:
+        return self._arm_table.copy()
+
+    def end_effector(self) -> np.ndarray:
+        return self._ee.copy()
+
+    # per cycle: no allocation, no DDS ------------------------------------------------------------
+
+    def read_state(self, q_out: np.ndarray, qd_out: np.ndarray) -> float:
+        """The newest JointState's positions and velocities; its stamp, s (0 before the first)."""
+        self._acquire()
+        np.copyto(q_out, self._q)
+        np.copyto(qd_out, self._qd)
+        stamp: float = self._stamp[0]
+        self._release()
+        return stamp
+
+    def write_torque(self, tau: np.ndarray) -> None:
+        """Send joint efforts to the forward effort controller (with the brakes released)."""
+        if np.count_nonzero(np.isfinite(tau, out=self._finite)) != self.ndof:  # a non-finite command never goes out
+            raise DeviceError(f"ros2_control driver: write_torque refused a command that is not finite ({tau.tolist()})")
+        if self._braked:
+            return
+        self._acquire()
+        np.copyto(self._command, tau)
+        self._release()
+        os.eventfd_write(self._wake_writer, 1)
+
+    def release_brakes(self) -> None:
+        self._braked = False
+
+    def engage_brakes(self) -> None:
+        self._braked = True  # no more commands: the ros2_control side holds the arm
+
+    def brake_for_fault(self, message: str, command: str, at: float) -> None:
+        self.engage_brakes()
+        if len(self._faults) < 10:
+            self._faults.append({"fault": message, "command": command, "at": at})
+
+    def figures(self) -> dict[str, Any]:
+        figures: dict[str, Any] = {"joint_states": self.received, "commands": self.published, "refused": self.refused}
+        if self._faults:
+            figures.update({**self._faults[0], "faults": list(self._faults)})
+        return figures
+
+    # the threads ------------------------------------------------------------------------------
+
+    def _take_states(self, reader: Any, kind: type) -> None:
+        below_the_cycle()
+        names = self._names
+        while not self._stopping:
+            self._waitset.wait(_WAIT)
+            for sample in reader.take(N=16):
+                if not isinstance(sample, kind):
+                    continue
+                try:
+                    order = [sample.name.index(name) for name in names]
+                    q = [sample.position[i] for i in order]
+                    qd = [sample.velocity[i] for i in order] if len(sample.velocity) == len(sample.name) else [0.0] * len(names)
+                except ValueError:
+                    self.refused += 1
+                    continue
+                stamp = sample.header.stamp.sec + sample.header.stamp.nanosec * 1e-9
+                self._acquire()
+                self._q[:] = q
+                self._qd[:] = qd
+                self._stamp[0] = stamp
+                self._release()
+                self.received += 1
+
+    def _publish_commands(self, writer: Any, message: Any) -> None:
+        below_the_cycle()
+        staging = np.zeros(self.ndof)
+        while True:
+            os.eventfd_read(self._wake_writer)  # waits without the GIL
+            if self._stopping:
+                return
+            self._acquire()
+            np.copyto(staging, self._command)
+            self._release()
+            message.data = staging.tolist()
+            writer.write(message)
+            self.published += 1
+
+    def close_now(self) -> Any:
+        self._braked = True
+        self._stopping = True
+        self._wake_reader.set(True)
+        os.eventfd_write(self._wake_writer, 1)
+
+        def rest() -> None:
+            for thread in self._threads:
+                thread.join()
+            os.close(self._wake_writer)
+            self._participant = None
+
+        return rest
+
+    def close(self) -> None:
+        rest = self.close_now()
+        rest()

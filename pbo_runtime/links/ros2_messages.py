@@ -1,0 +1,123 @@
+"""ROS 2 messages on DDS as a ROS 2 node sees them: the types, the topic names and the QoS rmw_cyclonedds uses.
+
+A ROS 2 topic `/joint_states` is the DDS topic `rt/joint_states`; a message type
+`sensor_msgs/msg/JointState` is the DDS type `sensor_msgs::msg::dds_::JointState_`, serialized
+as CDR in the fields' declaration order (as ROS 2's generated IDL declares them). ROS 2's default
+QoS for topics is reliable, volatile, keep the last 10. Imported only when the 'ros2' extra
+(cyclonedds) is installed: modules and drivers get it from `pbo_runtime.ros2_messages`. (No
+`from __future__ import annotations` here: cyclonedds reads the fields' types at run time.)
+"""
+
+import os
+import re
+from dataclasses import dataclass, field
+
+from cyclonedds.core import Policy, Qos
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl.types import float64, int32, sequence, uint32
+from cyclonedds.util import duration
+
+DEFAULT_DOMAIN = 0  # ROS 2's, when ROS_DOMAIN_ID is not set
+TOPIC_PREFIX = "rt"  # rmw's prefix of a topic's DDS name
+_NAME = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+@dataclass
+class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: int32 = 0
+    nanosec: uint32 = 0
+
+
+@dataclass
+class Duration(IdlStruct, typename="builtin_interfaces::msg::dds_::Duration_"):
+    sec: int32 = 0
+    nanosec: uint32 = 0
+
+
+@dataclass
+class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: Time = field(default_factory=Time)
+    frame_id: str = ""
+
+
+@dataclass
+class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
+    header: Header = field(default_factory=Header)
+    name: sequence[str] = field(default_factory=list)
+    position: sequence[float64] = field(default_factory=list)
+    velocity: sequence[float64] = field(default_factory=list)
+    effort: sequence[float64] = field(default_factory=list)
+
+
+@dataclass
+class MultiArrayDimension(IdlStruct, typename="std_msgs::msg::dds_::MultiArrayDimension_"):
+    label: str = ""
+    size: uint32 = 0
+    stride: uint32 = 0
+
+
+@dataclass
+class MultiArrayLayout(IdlStruct, typename="std_msgs::msg::dds_::MultiArrayLayout_"):
+    dim: sequence[MultiArrayDimension] = field(default_factory=list)
+    data_offset: uint32 = 0
+
+
+@dataclass
+class Float64MultiArray(IdlStruct, typename="std_msgs::msg::dds_::Float64MultiArray_"):
+    layout: MultiArrayLayout = field(default_factory=MultiArrayLayout)
+    data: sequence[float64] = field(default_factory=list)
+
+
+@dataclass
+class JointTrajectoryPoint(IdlStruct, typename="trajectory_msgs::msg::dds_::JointTrajectoryPoint_"):
+    positions: sequence[float64] = field(default_factory=list)
+    velocities: sequence[float64] = field(default_factory=list)
+    accelerations: sequence[float64] = field(default_factory=list)
+    effort: sequence[float64] = field(default_factory=list)
+    time_from_start: Duration = field(default_factory=Duration)
+
+
+@dataclass
+class JointTrajectory(IdlStruct, typename="trajectory_msgs::msg::dds_::JointTrajectory_"):
+    header: Header = field(default_factory=Header)
+    joint_names: sequence[str] = field(default_factory=list)
+    points: sequence[JointTrajectoryPoint] = field(default_factory=list)
+
+
+#: The ROS 2 message types by their ROS names (what `ros2 topic pub` and the YAML's `type:` say).
+MESSAGES = {
+    "sensor_msgs/msg/JointState": JointState,
+    "std_msgs/msg/Float64MultiArray": Float64MultiArray,
+    "trajectory_msgs/msg/JointTrajectory": JointTrajectory,
+}
+
+
+def dds_topic(name: str) -> str:
+    """The DDS name of the ROS 2 topic `name` ('/joint_states' -> 'rt/joint_states')."""
+    return f"{TOPIC_PREFIX}/{name.lstrip('/')}"
+
+
+def check_topic(name: str) -> str:
+    """`name` if it is a ROS 2 topic name (a relative one is taken from the root), else ValueError."""
+    if not _NAME.match(name):
+        raise ValueError(f"topic must be a ROS 2 name: words of letters, digits and _ joined by /, got: {name!r}")
+    return name
+
+
+def domain_id(configured: int) -> int:
+    """The DDS domain: the configured one, or (-1) ROS_DOMAIN_ID as ROS 2 reads it, else 0."""
+    if configured >= 0:
+        return configured
+    text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    return int(text) if text.isdigit() else DEFAULT_DOMAIN
+
+
+def ros2_qos(depth: int = 10) -> Qos:
+    """ROS 2's default QoS for a topic (rmw_qos_profile_default): reliable, volatile, keep last `depth`;
+    the messages in CDR (XCDR1), as rmw_cyclonedds writes them."""
+    return Qos(
+        Policy.Reliability.Reliable(duration(milliseconds=100)),
+        Policy.Durability.Volatile,
+        Policy.History.KeepLast(depth),
+        Policy.DataRepresentation(use_cdrv0_representation=True),
+    )

@@ -1,0 +1,128 @@
+"""The ros2_control driver: pbo's PID demo drives an arm behind ros2_control through DDS alone.
+
+The arm is a MuJoCo PUMA 560 in a process of its own that plays the ros2_control side
+(tests/ros2_control_peer.py: a joint_state_broadcaster's `/joint_states`, a forward effort
+controller's `/forward_effort_controller/commands`), on a DDS domain of this test's own.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip("cyclonedds")
+
+from drivers.ros2_control.driver import Ros2ControlArm  # noqa: E402
+from drivers.mujoco_arm.registers import DeviceError  # noqa: E402
+from tests.support import (PBO, REPO, allocation_peak, arm_tables, config_copy, one_array, own_dds_domain,  # noqa: E402
+                           read_until, run_output, start_run, unique_name, until)
+
+GOAL = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]  # configs/ros2_control.yaml's initial q_d: the demo's move
+
+
+@pytest.mark.parametrize("options, wanted", [
+    ({"mode": "position"}, "mode must be torque"),
+    ({"joints": ["a", "a"]}, "joints must be a list of distinct joint names"),
+    ({"domain": 300}, r"domain must be an integer in \[-1, 232\]"),
+    ({"stall_after": 0}, r"stall_after must be seconds in \(0, 10\]"),
+    ({"commands": "/"}, "commands must be a ROS 2 topic name"),
+    ({"rate": 5}, r"unknown ros2_control driver option\(s\) \['rate'\]"),
+])
+def test_a_ros2_control_option_out_of_its_rules_is_refused(options, wanted):
+    with pytest.raises(ValueError, match=wanted):
+        Ros2ControlArm.check_options(options)
+
+
+@pytest.mark.multiprocess
+def test_the_demos_pid_brings_a_ros2_control_arm_to_its_goal_and_holds_when_joint_states_stop(tmp_path, monkeypatch):
+    domain = own_dds_domain()
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    arm = subprocess.Popen([sys.executable, "-m", "tests.ros2_control_peer", str(domain), "300", *map(str, GOAL),
+                            "--silent-after", "1"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    config = config_copy(REPO / "configs" / "ros2_control.yaml", tmp_path, f"ros2_control_{os.getpid()}")
+    report_path = tmp_path / "report.json"
+    run = start_run(config, tmp_path, "--duration", "300", "--report", str(report_path))
+    try:
+        reached = json.loads(read_until(arm, '"reached"').strip().splitlines()[-1])
+        assert np.abs(np.subtract(reached["q"], GOAL)).max() < 0.01  # held there for 0.5 s, by the arm's own account
+        read_until(arm, '"silent"')  # its /joint_states stop
+        said = read_until(run, "critical task 'robot' runs its locally stable behaviour: the module's own inputs are not fresh")
+        assert "the module's own inputs are not fresh" in said, said
+    finally:
+        if run.poll() is None:
+            run.send_signal(signal.SIGINT)
+        out, err = run_output(run)
+        arm.kill()
+        run_output(arm)
+    assert "Traceback" not in err, err
+    report = json.loads(report_path.read_text())
+    assert run.returncode == 2, err
+    assert any(fault.startswith("critical task 'robot' ran its locally stable behaviour") and fault.endswith(
+        "the module's own inputs are not fresh (its cycle returned STABLE)") for fault in report["faults"]), report["faults"]
+
+
+@pytest.mark.multiprocess
+def test_a_robot_whose_joint_states_never_come_is_never_driven_and_the_run_says_why(tmp_path, monkeypatch):
+    domain = own_dds_domain()
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))  # no ros2_control there
+    config = config_copy(REPO / "configs" / "ros2_control.yaml", tmp_path, f"ros2_nobody_{os.getpid()}")
+    done = subprocess.run([*PBO, "run", str(config), "--duration", "1", "--no-live"], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=180)
+    assert done.returncode != 0
+    assert "Traceback" not in done.stderr, done.stderr
+    assert (f"ros2_control driver: no JointState of the joints ['joint1', 'joint2', 'joint3', 'joint4', 'joint5', 'joint6'] "
+            f"on /joint_states (DDS domain {domain}) within 5 s") in done.stdout + done.stderr
+
+
+@pytest.fixture
+def plant_registers():
+    """An arm register segment as a running plant leaves it for drivers: the PUMA 560's constants."""
+    from drivers.mujoco_arm.registers import MAGIC, W_MAGIC, create_registers
+
+    name = unique_name("ros2-regs")
+    shm, registers = create_registers(name, 6)
+    arm, ee = arm_tables("puma560")
+    registers.arm[:] = arm
+    registers.ee[:] = ee
+    registers.words[W_MAGIC] = MAGIC
+    yield name
+    registers.release()
+    shm.unlink()
+
+
+@pytest.mark.multiprocess
+def test_the_driver_takes_the_robots_joints_by_name_in_its_own_order_and_its_cycle_calls_allocate_nothing(plant_registers):
+    domain = own_dds_domain()
+    names_sent = [3, 1, 2, 6, 5, 4]  # the robot's order differs from the driver's
+    positions = [0.3, 0.1, 0.2, 0.6, 0.5, 0.4]
+    robot = subprocess.Popen([sys.executable, "-m", "tests.ros2_peer", "publish", str(domain), "/joint_states",
+                              "sensor_msgs/msg/JointState", "20", *map(str, names_sent + positions)], cwd=REPO,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        driver = Ros2ControlArm(plant_registers, {"domain": domain})  # waits for the first JointState
+        try:
+            q, qd = np.zeros(6), np.zeros(6)
+            stamp = driver.read_state(q, qd)
+            assert stamp >= 1.0  # the header stamp: the arm's time
+            np.testing.assert_array_equal(q, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+            np.testing.assert_array_equal(qd, q)
+            np.testing.assert_array_equal(driver.arm(), arm_tables("puma560")[0])
+            assert allocation_peak(lambda: driver.read_state(q, qd)) < one_array()
+            driver.write_torque(np.full(6, 1.0))
+            assert driver.published == 0  # the brakes are engaged: no command goes out
+            driver.release_brakes()
+            driver.write_torque(np.full(6, 1.0))
+            until(lambda: driver.published == 1, "the command is published")
+            with pytest.raises(DeviceError, match="not finite"):
+                driver.write_torque(np.full(6, np.nan))
+        finally:
+            driver.close()
+    finally:
+        robot.kill()
+        run_output(robot)

@@ -30,7 +30,8 @@ from pbo_runtime.objects import registry
 from pbo_runtime.errors import ConfigErrors, PboError
 from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.supervisor.failures import WrongArgument
-from pbo_runtime.config.transitions import transitions
+from pbo_runtime.config.decisions import decides, paths
+from pbo_runtime.config.transitions import transitions, transitions_of
 from pbo_runtime.config.job_dictionary import dictionary_lines, job_dictionary
 
 EXIT_OK, EXIT_CONFIG, EXIT_RUN, EXIT_INTERNAL = 0, 1, 2, 3
@@ -337,18 +338,33 @@ def _verdict(subsystem: Any) -> str:
     lines.append(f"  init order: {' -> '.join(subsystem.init_order)}")
     for application in subsystem.applications:
         lines.append(f"  application '{application}':")
-        for t in transitions(subsystem, application):
-            if t.before is None:
-                lines.append(f"    {t.step}. {t.job}: configuration '{t.after}' on: {', '.join(t.on) or 'nothing'}")
-            elif t.before == t.after:
-                lines.append(f"    {t.step}. {t.job}: stays in '{t.after}' (new object only)")
-            else:
-                lines.append(f"    {t.step}. {t.job}: '{t.before}' -> '{t.after}': off {', '.join(t.off) or 'nothing'}; "
-                             f"on {', '.join(t.on) or 'nothing'}")
+        if not decides(subsystem, application):
+            lines.extend(_transition_lines(transitions(subsystem, application), "    "))
+            continue
+        listed, every = paths(subsystem, application)
+        for number, path in enumerate(listed, 1):
+            lines.append(f"    path {number}: {path.label}")
+            lines.extend(_transition_lines(transitions_of(subsystem, path.jobs), "      "))
+        if every > len(listed):
+            lines.append(f"    ... and {every - len(listed)} more path(s)")
     if subsystem.jobs:
         lines.append("  job dictionary:")
         lines.extend(f"    {line}" for line in dictionary_lines(subsystem))
     return "\n".join(lines)
+
+
+def _transition_lines(steps: list[Any], indent: str) -> list[str]:
+    """The switch table of one path: what each job turns off and on."""
+    lines = []
+    for t in steps:
+        if t.before is None:
+            lines.append(f"{indent}{t.step}. {t.job}: configuration '{t.after}' on: {', '.join(t.on) or 'nothing'}")
+        elif t.before == t.after:
+            lines.append(f"{indent}{t.step}. {t.job}: stays in '{t.after}' (new object only)")
+        else:
+            lines.append(f"{indent}{t.step}. {t.job}: '{t.before}' -> '{t.after}': off {', '.join(t.off) or 'nothing'}; "
+                         f"on {', '.join(t.on) or 'nothing'}")
+    return lines
 
 
 def _inferred_lines(result: Any) -> str:
@@ -424,6 +440,10 @@ def _check_json(result: Any) -> dict[str, Any]:
             entry["transitions"] = [
                 {"step": t.step, "job": t.job, "from": t.before, "to": t.after, "off": list(t.off), "on": list(t.on)}
                 for t in transitions(sub, app)]
+            if decides(sub, app):
+                entry["paths"] = [{"label": path.label, "jobs": list(path.jobs), "transitions": [
+                    {"step": t.step, "job": t.job, "from": t.before, "to": t.after, "off": list(t.off), "on": list(t.on)}
+                    for t in transitions_of(sub, path.jobs)]} for path in paths(sub, app)[0]]
         out.update(_inferred_json(result))
     return out
 
@@ -737,6 +757,10 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
         console.print(f"{rtpu}: cpu {settings.get('cpu')}, {settings.get('scheduler')}, timer slack {settings.get('timer_slack')}"
                       + (f", spin {settings['spin']}" if "spin" in settings else ""), markup=False)
     _print_switches(console, result)
+    from pbo_runtime.supervisor.decisions import decision_lines
+
+    for line in decision_lines(result.decisions):
+        console.print(line, markup=False)
 
 
 def processor_lines(tasks: dict[str, dict[str, Any]]) -> list[str]:

@@ -228,7 +228,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             running_since = time.monotonic()
             if self.application:
                 self.job_control.run_application(self.application)
-                self.result.jobs_done = [job for job, _ in application_steps(self.subsystem, self.application)]
+                self.result.jobs_done = list(self.job_control.jobs_done)
                 self.result.stopped_by = f"application '{self.application}' done"
                 self.say(f"application '{self.application}' is done")
             elif self.alternate:

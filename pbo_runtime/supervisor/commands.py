@@ -233,6 +233,7 @@ def status(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     return {"subsystem": host.subsystem.name, "run_id": host.run_id, "file": os.path.abspath(host.subsystem.file),
             "configuration": host.configuration,
             "job": host.job_control.job, "application": host.application, "elapsed": elapsed,
+            "path": " > ".join(host.job_control.path),
             "tasks": rows, "flags": host.table_flags(), "realtime": dict(host.realtime),
             "stalled": {name: now - since for name, since in host.stalled_since().items()},
             "restarts": host.restarts()}

@@ -9,6 +9,7 @@ an index out of range or shapes that do not broadcast are found before a run.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Iterator
 
@@ -75,15 +76,17 @@ class DecisionChecks(CheckerBase):
         """A step that decides, as far as it can be checked before the applications it uses are."""
         where = f"the {kind} of step {number} of application '{app}'"
         ok = True
+        missing = [key for key in REQUIRED[kind] if key not in item]
         for key in item:
             if key not in KEYS[kind]:
-                self.error("E720", f"{where}: unknown key '{key}'", item.key_loc(key),
-                           f"a {kind} step has: {', '.join(KEYS[kind])}; e.g.\n{EXAMPLES[kind]}")
+                close = difflib.get_close_matches(str(key), missing, n=1, cutoff=0.6)
+                missing = [m for m in missing if m not in close]  # one mistake, one error
+                self.error("E720", f"{where}: unknown key '{key}'" + (f": did you mean '{close[0]}'?" if close else ""),
+                           item.key_loc(key), f"a {kind} step has: {', '.join(KEYS[kind])}; e.g.\n{EXAMPLES[kind]}")
                 ok = False
-        for key in REQUIRED[kind]:
-            if key not in item:
-                self.error("E720", f"{where} has no '{key}:'", item.key_loc(kind), f"e.g.\n{EXAMPLES[kind]}")
-                ok = False
+        for key in missing:
+            self.error("E720", f"{where} has no '{key}:'", item.key_loc(kind), f"e.g.\n{EXAMPLES[kind]}")
+            ok = False
         rows: list[tuple[StepDraft, ...]] = []
         for key in ROWS[kind]:
             row = self.decision_row(app, number, item, key, where, kind) if key in item else ()

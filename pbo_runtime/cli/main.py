@@ -146,6 +146,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="an application placed on hosts: run only the subsystems of this host (default: all, here)")
     _address_argument(run)
     run.add_argument("--links", help=argparse.SUPPRESS)  # set by an application's runner: JSON, see _links
+    run.add_argument("--stages", help=argparse.SUPPRESS)  # set by an application's runner: this subsystem's stages
     run.add_argument("--turn", help=argparse.SUPPRESS)  # set by an application's runner on --clock sim (clock.application_lockstep)
     run.add_argument("--alternate", metavar="A,B", help="switch test: alternate between these configurations")
     run.add_argument("--switches", type=int, default=100, help="with --alternate: how many switches (default 100)")
@@ -516,7 +517,8 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
     startup = {"process": process_started(), "cli": args.entered, "loaded": getattr(args, "loaded", args.entered)}
     options = {"startup": startup, "fork_server": fork_server, "application": args.app, "static": args.static,
                "alternate": alternate, "fifo": args.fifo, "clock": args.clock, "out_dir": str(args.out),
-               "links": json.loads(args.links) if args.links else None, "turn": args.turn}
+               "links": json.loads(args.links) if args.links else None, "turn": args.turn,
+               "stages": args.stages}
     refused = _check_output_paths(args)
     if refused:
         errors.print(f"error: {refused}", markup=False)

@@ -46,6 +46,7 @@ from pbo_runtime.supervisor.events import EventHandling
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested, WrongArgument
 from pbo_runtime.supervisor.fork_server import ForkServer
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
+from pbo_runtime.supervisor.stages import run_stages
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockWatching
 from pbo_runtime.supervisor.restarts import Restarting
@@ -82,6 +83,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         out_dir: str | None = None,
         links: dict[str, dict[str, Any]] | None = None,
         turn: str | None = None,
+        stages: str | None = None,
         startup: dict[str, float] | None = None,
         fork_server: ForkServer | None = None,
     ) -> None:
@@ -100,6 +102,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.out_dir = os.path.abspath(out_dir) if out_dir else ""
         self.links = dict(links or {})  # an application's links, handed to every RTPU (see _links)
         self.application = application
+        self.stages = stages  # an application file's stages: this subsystem's part, and the joins (supervisor.stages)
         if application is not None and application not in subsystem.applications:
             close = closest_name(application, subsystem.applications)
             raise WrongArgument(f"no application '{application}' in {subsystem.file}"
@@ -231,6 +234,10 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                 self.result.jobs_done = list(self.job_control.jobs_done)
                 self.result.stopped_by = f"application '{self.application}' done"
                 self.say(f"application '{self.application}' is done")
+            elif self.stages:
+                self.result.jobs_done = run_stages(self.job_control, self.stages, self.say)
+                self.result.stopped_by = "stages done"
+                self.say("every stage is done")
             elif self.alternate:
                 self.job_control.alternate(*self.alternate)
                 self.result.stopped_by = f"{self.alternate[1]} switches done"

@@ -10,14 +10,11 @@ listed by the run's summary and report.json); `JobControl.path` is where the app
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 import numpy as np
 
 from pbo_runtime.config.model import ApplicationStep, Decision
-
-if TYPE_CHECKING:
-    from pbo_runtime.supervisor.job_control import JobControl
 
 
 def plain(values: dict[str, Any]) -> dict[str, Any]:
@@ -43,9 +40,10 @@ def decision_lines(decisions: list[dict[str, Any]]) -> list[str]:
 class DecidingRun:
     """Walks an application's steps, taking the decisions; JobFailure out of it ends the application."""
 
-    def __init__(self, control: JobControl, evaluate: Callable[[Any, str], tuple[bool, dict[str, Any]]],
+    def __init__(self, control: Any, evaluate: Callable[[Any, str], tuple[bool, dict[str, Any]]],
                  failure: type[Exception], poll: float) -> None:
-        """`evaluate`, `failure` and `poll` are job control's: how a condition is read, what a failure is, how often."""
+        """`control` is job control (`supervisor.job_control`, which imports this); `evaluate`, `failure` and
+        `poll` are its: how a condition is read, what a failure is, how often."""
         self.control = control
         self.evaluate, self.failure, self.poll = evaluate, failure, poll
         self.host = control.host

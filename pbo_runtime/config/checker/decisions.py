@@ -144,7 +144,8 @@ class DecisionChecks(CheckerBase):
                 condition.evaluate(zeros)
         except (ExpressionError, ValueError, TypeError) as exc:
             shapes = ", ".join(f"{name} {list(value.shape)}" for name, value in zeros.items())
-            self.error("E722", f"{what} does not fit its variables' shapes ({shapes}): {exc}", loc,
+            why = exc.message if isinstance(exc, ExpressionError) else str(exc)
+            self.error("E722", f"{what} does not fit its variables' shapes ({shapes}): {why}", loc,
                        "index within each variable's shape; combine variables of one shape (or a number)")
             return None
         return text

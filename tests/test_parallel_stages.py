@@ -67,3 +67,11 @@ def test_two_arms_run_their_stages_join_and_replay_bit_for_bit(tmp_path):
     for key in ("left", "right"):
         assert first[key]["decisions"] == second[key]["decisions"] and first[key]["marks"] == second[key]["marks"]
         assert (tmp_path / "first" / key / f"{key}.mcap").read_bytes() == (tmp_path / "second" / key / f"{key}.mcap").read_bytes()
+
+
+def test_pbo_check_lists_the_stages(capsys):
+    from pbo_runtime.cli.main import main
+
+    assert main(["check", str(TWO_ARMS)]) == 0
+    out = capsys.readouterr().out
+    assert "  stage 1, in parallel: left 1 step(s); right 1 step(s)\n  stage 2, in parallel: left application 'wave'\n" in out

@@ -103,3 +103,14 @@ def test_pbo_check_prints_the_switches_of_each_path(capsys):
     out = capsys.readouterr().out
     assert "    path 3: try: fails at 'approach' -> fallback, repeat, if: then\n" in out
     assert "      7. settle: 'pid' -> 'pd': off pid; on pd\n" in out
+
+
+def test_the_job_dictionary_describes_a_step_that_decides_with_its_rows():
+    from pbo_runtime.config.job_dictionary import job_dictionary
+
+    steps = job_dictionary(load_subsystem(str(BRANCHES)))["applications"]["pick"]["steps"]
+    assert [s["job"] for s in steps] == ["try", "repeat", "wait", "if"]
+    attempt, repeat, wait, branch = (s["decision"] for s in steps)
+    assert [[step["job"] for step in row] for row in attempt["rows"]] == [["approach"], ["reach"]]
+    assert attempt["rows"][0][0]["object"] == "far" and repeat["times"] == 2 and wait["timeout"] == 2.0
+    assert branch["condition"] == "max(abs(q_m - q_d)) < 0.005" and len(branch["rows"]) == 2

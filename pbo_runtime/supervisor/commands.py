@@ -44,6 +44,7 @@ from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.objects import registry
 from pbo_runtime.objects.ranges import Range, number_text
 from pbo_runtime.supervisor.job_control import application_steps
+from pbo_runtime.config.decisions import decides
 
 if TYPE_CHECKING:
     from pbo_runtime.config.model import Subsystem
@@ -514,6 +515,9 @@ def app(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
                          f"pbo check {host.subsystem.file} shows which step")
     host.start_application(name)
     steps = [job for job, _ in application_steps(host.subsystem, name)]
+    if decides(host.subsystem, name):
+        return {"application": name, "jobs": [],
+                "message": f"application '{name}' runs its steps, deciding as it goes; pbo status shows where it is"}
     return {"application": name, "jobs": steps,
             "message": f"application '{name}' runs its jobs ({', '.join(steps)}); pbo status shows the current one"}
 

@@ -47,6 +47,7 @@ from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, St
 from pbo_runtime.supervisor.fork_server import ForkServer
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
 from pbo_runtime.supervisor.stages import run_stages
+from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockWatching
 from pbo_runtime.supervisor.restarts import Restarting
@@ -112,8 +113,10 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             raise RunFailure(f"application '{application}' is incomplete (a step lacks the object its job needs) and "
                              f"cannot be run; pbo check {subsystem.file} shows which step")
         if configuration is None and application is not None:
-            first = application_steps(subsystem, application)
-            configuration = subsystem.jobs[first[0][0]].configuration if first else None
+            first = [job for job, _ in application_steps(subsystem, application)]
+            if decides(subsystem, application):  # the first job of its first path
+                first = list(paths(subsystem, application)[0][0].jobs)
+            configuration = subsystem.jobs[first[0]].configuration if first else None
         self.configuration = configuration or next(iter(subsystem.configurations))
         if self.configuration not in subsystem.configurations:
             close = closest_name(self.configuration, subsystem.configurations)

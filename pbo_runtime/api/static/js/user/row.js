@@ -133,6 +133,11 @@ export function move(steps, from, before) {
 /** Application `name` of the dictionary as a row, to change and save again; refused if a step's object is written out as values. */
 export function fromApplication(dictionary, name) {
   const application = dictionary.applications[name];
+  const deciding = application.steps.find((s) => s.decision);
+  if (deciding) {
+    return { refused: `step ${deciding.step} of '${name}' is a ${deciding.decision.kind} step: the workspace builds sequences `
+                      + "of jobs and applications; edit the steps that decide in the file" };
+  }
   const written = application.steps.find((s) => s.object === null && s.value !== null && s.value !== undefined);
   if (written) {
     return { refused: `step ${written.step} of '${name}' gives '${written.job}' its object as values written out in the file; `

@@ -193,3 +193,16 @@ def test_the_same_application_on_the_same_values_decides_the_same_way(subsystem)
         host.job_control.run_application("until_moved")
         runs.append([{k: v for k, v in e.items()} for e in host.job_control.decisions])
     assert runs[0] == runs[1] and len(runs[0]) == 3
+
+
+def test_pbo_status_shows_where_an_application_that_decides_is(host):
+    from pbo_runtime.cli.operator import status_table
+    from pbo_runtime.supervisor.commands import status
+
+    seen: list[str] = []
+    host.on_pump = lambda h: seen.append(status(h, {})["path"])
+    host.job_control.run_application("caught")
+    assert "caught > fallback > dwell" in seen and status(host, {})["path"] == ""
+    title = status_table({"subsystem": "arm", "run_id": "1", "configuration": "pd", "application": "caught",
+                          "job": "dwell", "path": "caught > fallback > dwell", "tasks": []}).title
+    assert "path caught > fallback > dwell" in str(title) and "application caught" not in str(title)

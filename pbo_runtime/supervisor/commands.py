@@ -565,8 +565,9 @@ LIVE_TIMEOUT = 15.0  # a live change spawns (imports, init) and waits for a cycl
 _TASK_REPLY = '`{"task": str, "state": str}`'
 
 VERBS: tuple[Verb, ...] = (
-    Verb("status", "a running subsystem: tasks by RTPU with state, rate, jitter, overruns; current job", (), status,
-         "the status reply: configuration, job, elapsed, per task state, rate, jitter, overruns; flags", STATUS_TIMEOUT),
+    Verb("status", "a running subsystem: tasks by RTPU with state, rate, jitter, overruns; current job, and where an "
+                   "application that decides is (`pick > try > approach`)", (), status,
+         "the status reply: configuration, job, path, elapsed, per task state, rate, jitter, overruns; flags", STATUS_TIMEOUT),
     Verb("on", "turn a task on", (_TASK,), task_signal("on"), _TASK_REPLY, COMMAND_TIMEOUT),
     Verb("off", "turn a task off", (_TASK,), task_signal("off"), _TASK_REPLY, COMMAND_TIMEOUT),
     Verb("clear", "clear a task's error (its clear component decides: OFF, or still ERROR)", (_TASK,),

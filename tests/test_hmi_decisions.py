@@ -62,10 +62,16 @@ def test_one_step_of_each_kind_is_built_from_the_dictionary_saved_and_run(page, 
         screenshot(page, "hmi-workspace-decisions.png")
 
         page.get_by_role("button", name="Save application").click()
-        expect(message(page)).to_contain_text("workspace")
+        expect(message(page)).to_contain_text("application 'workspace' saved to")
         text = file.read_text()
         assert "try:" in text and "fallback:" in text and "repeat:" in text and "wait:" in text and "if:" in text
         check_clean(file)
+        page.get_by_role("button", name="Clear the row").click()
+        page.get_by_role("button", name="open application workspace in the workspace").click()
+        expect(message(page)).to_have_text("application 'workspace' opened in the workspace: Save with replace ticked writes it back")
+        expect(row(page).locator(".unit.decision")).to_have_count(4)
+        expect(row(page).locator(".decision[data-kind=try] [data-object=ready]")).to_be_visible()
+        expect(page.get_by_label("condition of step 4 if")).to_have_value("q_m[0] > 0.1")
 
         page.get_by_role("button", name="Run", exact=True).click()
         expect(message(page)).to_have_text("application 'workspace' runs its steps, deciding as it goes; pbo status shows where it is")

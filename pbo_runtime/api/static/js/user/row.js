@@ -208,17 +208,24 @@ export function move(steps, path, from, before) {
 /** Application `name` of the dictionary as a row, to change and save again; refused if a step's object is written out as values. */
 export function fromApplication(dictionary, name) {
   const application = dictionary.applications[name];
-  const deciding = application.steps.find((s) => s.decision);
-  if (deciding) {
-    return { refused: `step ${deciding.step} of '${name}' is a ${deciding.decision.kind} step: the workspace builds sequences `
-                      + "of jobs and applications; edit the steps that decide in the file" };
-  }
-  const written = application.steps.find((s) => s.object === null && s.value !== null && s.value !== undefined);
-  if (written) {
-    return { refused: `step ${written.step} of '${name}' gives '${written.job}' its object as values written out in the file; `
+  const written = [];
+  const toSteps = (entries) => entries.map((s) => {
+    if (!s.decision) {
+      if (s.object === null && s.value !== null && s.value !== undefined) written.push(s);
+      return { id: nextId++, name: s.job, object: s.object };
+    }
+    const d = s.decision;
+    const settings = d.kind === "repeat"
+      ? (d.condition ? { until: d.condition, max: d.max } : { times: d.times })
+      : { condition: d.condition, ...(d.kind === "wait" && d.timeout !== null ? { timeout: `${d.timeout} s` } : {}) };
+    const rows = DECISIONS[d.kind].rows.map((_, k) => toSteps(d.rows[k] || []));
+    return { id: nextId++, name: d.kind, kind: d.kind, object: null, ...settings, rows };
+  });
+  const steps = toSteps(application.steps);
+  if (written.length) {
+    return { refused: `step ${written[0].step} of '${name}' gives '${written[0].job}' its object as values written out in the file; `
                       + "the workspace takes named objects: name the value under objects: in the file, or build the row anew" };
   }
-  const steps = application.steps.map((s) => ({ id: nextId++, name: s.job, object: s.object }));
   return { steps, message: `application '${name}' opened in the workspace: Save with replace ticked writes it back` };
 }
 

@@ -137,7 +137,9 @@ function DecisionUnit({ dictionary, step, index, count, actions, path, labels, s
           <${IconSvg} edges=${iconOf(dictionary, step.kind).edges} kind="decision" title=${step.kind} subtitle="decides" />
         </button>
         ${step.kind === "if" || step.kind === "wait" ? setting("condition", "condition", { placeholder: "max(abs(q_m - q_d)) < 0.01", size: 26 }) : null}
-        ${step.kind === "repeat" ? setting("times", "times", { type: "number", min: 1, size: 3 }) : null}
+        ${step.kind === "repeat" && step.until === undefined ? setting("times", "times", { type: "number", min: 1, size: 3 }) : null}
+        ${step.kind === "repeat" && step.until !== undefined ? html`${setting("until", "until", { size: 22 })}${
+          setting("max", "max", { type: "number", min: 1, size: 3 })}` : null}
         ${step.kind === "wait" ? setting("timeout", "timeout", { size: 5 }) : null}
         <span class="step-tools">
           <button aria-label=${`remove step ${index + 1} ${step.kind}`} onClick=${() => actions.remove(index, path)}>✕</button>

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import pytest
 
-from tests.support import screenshot, start_hmi, start_run, stop_hmi, user_level_copy
-from tests.test_hmi_user import check_clean, icon, message, open_user_level, row
+from tests.support import (check_clean, icon, message, open_user_level, row, screenshot, start_hmi, start_run, stop_hmi,
+                           user_level_copy)
 
 pytestmark = pytest.mark.multiprocess
 

@@ -74,4 +74,5 @@ def test_pbo_check_lists_the_stages(capsys):
 
     assert main(["check", str(TWO_ARMS)]) == 0
     out = capsys.readouterr().out
-    assert "  stage 1, in parallel: left 1 step(s); right 1 step(s)\n  stage 2, in parallel: left application 'wave'\n" in out
+    assert "  stage 2, in parallel: left application 'wave'\n    left, repeat: reach (move); reach (move); reach (move); reach (move)\n" in out
+    assert "    left, if: then: reach (move)\n    left, if: else: no job\n    right: reach (move)\n" in out

@@ -298,6 +298,7 @@ def _check(args: argparse.Namespace, console: Console, errors: Console) -> int:
 def _check_application(args: argparse.Namespace, console: Console, errors: Console) -> int:
     """An application file: each subsystem's file in full, then its links against their tasks."""
     from pbo_runtime.config.application import check_application
+    from pbo_runtime.config.parallel import stage_lines
     from pbo_runtime.config.loader import CheckResult, format_diagnostics
 
     addresses = _addresses(args)
@@ -318,10 +319,7 @@ def _check_application(args: argparse.Namespace, console: Console, errors: Conso
             runs = "".join(f", runs {'application' if k == 'app' else 'configuration'} '{v}'" for k, v in app.run.get(key, {}).items())
             where = f" on {app.placement[key]} ({app.hosts[app.placement[key]]})" if key in app.placement else ""
             lines.append(f"  subsystem {key}: {sub.file} ('{sub.name}', {len(sub.tasks)} task(s){runs}){where}")
-        for number, stage in enumerate(app.stages, 1):  # run: as parallel stages, joined one after another
-            lines.append(f"  stage {number}, in parallel: " + "; ".join(
-                f"{key} " + (f"application '{part['app']}'" if "app" in part else f"{len(part['steps'])} step(s)")
-                for key, part in stage.items()))
+        lines.extend(stage_lines(app.stages, app.subsystems))  # run: as parallel stages, joined one after another
         for link in app.links.values():
             kind = f"messages, {link.capacity} queued at most" if link.kind == "message" else "periodic"
             lines.append(f"  link {link.name}: {link.sender[0]}.{link.sender[1]} -> {link.receiver[0]}.{link.receiver[1]} "

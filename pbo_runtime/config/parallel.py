@@ -15,7 +15,9 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
+from pbo_runtime.config.decisions import paths
 from pbo_runtime.config.live import LiveChangeRefused, LiveDescription
+from pbo_runtime.config.transitions import transitions_of
 from pbo_runtime.config.model import Location, Subsystem
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
 
@@ -93,3 +95,24 @@ def _branch(number: int, key: str, value: Any, loc: Location, subsystem: Subsyst
               "give each job its object, e.g. reach: ready")
         return None
     return {"steps": steps}
+
+
+def stage_lines(stages: list[dict[str, dict[str, Any]]], subsystems: dict[str, Subsystem]) -> list[str]:
+    """What `pbo check APP` says of the stages: each subsystem's part, and the switches of each of its paths."""
+    lines = []
+    for number, stage in enumerate(stages, 1):
+        lines.append(f"  stage {number}, in parallel: " + "; ".join(
+            f"{key} " + (f"application '{part['app']}'" if "app" in part else f"{len(part['steps'])} step(s)")
+            for key, part in stage.items()))
+        for key, part in stage.items():
+            subsystem, name = subsystems[key], part.get("app")
+            if name is None:
+                subsystem, name = with_stage(subsystem, number, part["steps"]), stage_application(number)
+            listed, every = paths(subsystem, name)
+            for path in listed:
+                switches = "; ".join(f"{t.job} ({t.after if t.before in (None, t.after) else f'{t.before} -> {t.after}'})"
+                                     for t in transitions_of(subsystem, path.jobs))
+                lines.append(f"    {key}" + (f", {path.label}" if path.label else "") + f": {switches or 'no job'}")
+            if every > len(listed):
+                lines.append(f"    {key}: ... and {every - len(listed)} more path(s)")
+    return lines

@@ -142,7 +142,7 @@ class DecisionChecks(CheckerBase):
         try:
             with np.errstate(all="ignore"):
                 condition.evaluate(zeros)
-        except (ExpressionError, ValueError, TypeError) as exc:
+        except (ExpressionError, ValueError, TypeError, ArithmeticError) as exc:
             shapes = ", ".join(f"{name} {list(value.shape)}" for name, value in zeros.items())
             why = exc.message if isinstance(exc, ExpressionError) else str(exc)
             self.error("E722", f"{what} does not fit its variables' shapes ({shapes}): {why}", loc,

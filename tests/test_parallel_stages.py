@@ -76,3 +76,26 @@ def test_pbo_check_lists_the_stages(capsys):
     out = capsys.readouterr().out
     assert "  stage 2, in parallel: left application 'wave'\n    left, repeat: reach (move); reach (move); reach (move); reach (move)\n" in out
     assert "    left, if: then: reach (move)\n    left, if: else: no job\n    right: reach (move)\n" in out
+
+
+def test_a_subsystem_goes_on_after_a_stage_only_once_every_other_is_done_and_the_lag_has_passed(tmp_path):
+    from pbo_runtime.supervisor.stages import run_stages
+    from tests.fake_job_host import FakeJobHost, fake_subsystem
+
+    host = FakeJobHost(fake_subsystem(tmp_path), "pd")
+    host.tick = 0.001  # as on the simulated clock: the join is looked for every tick
+    plan = tmp_path / "me.json"
+    plan.write_text(json.dumps({"join": str(tmp_path), "me": "me", "everyone": ["me", "other"], "lag": 0.003,
+                                "stages": [{"steps": ["dwell"]}, None]}))
+
+    def other_is_done_at_0_2(h) -> None:
+        if h.now() >= 0.2 and not (tmp_path / "1.other").exists():
+            (tmp_path / "1.other").write_text(repr(0.2))
+        if h.now() >= 0.3 and not (tmp_path / "2.other").exists():
+            (tmp_path / "2.other").write_text(repr(0.3))
+    host.on_pump = other_is_done_at_0_2
+    said: list[str] = []
+    assert run_stages(host.job_control, str(plan), said.append) == ["dwell"]
+    joined = [m["time"] for m in host.job_control.marks if re.fullmatch(r"stage \d+ joined", m["label"])]
+    assert joined[0] >= 0.203 - 1e-9 and joined[1] >= 0.303 - 1e-9
+    assert said == ["stage 1 done here; joining me, other", "stage 2 done here; joining me, other"]

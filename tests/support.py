@@ -567,6 +567,38 @@ def screenshot(page, name: str) -> None:
         page.screenshot(path=str(Path(folder) / name), full_page=True)
 
 
+def open_user_level(page, url: str) -> None:
+    """The HMI at `url` on its User tab, once the job dictionary shows."""
+    from playwright.sync_api import expect
+
+    page.goto(url)
+    page.get_by_role("tab", name="User: applications from jobs").click()
+    expect(page.locator("#pane-user")).to_be_visible()
+    expect(page.locator(".dictionary [data-icon=reach]")).to_be_visible()
+
+
+def icon(page, name: str):
+    """The dictionary's icon `name` on the User tab."""
+    return page.locator(f".dictionary [data-icon={name}]")
+
+
+def row(page):
+    """The application workspace's row."""
+    return page.get_by_role("list", name="application workspace")
+
+
+def message(page):
+    """The line under the workspace's row."""
+    return page.locator("[data-test=workspace-message]")
+
+
+def check_clean(file: Path) -> str:
+    """`pbo check FILE`'s output, once it says the file has no error."""
+    checked = subprocess.run([*PBO, "check", str(file)], capture_output=True, text=True, timeout=60)
+    assert checked.returncode == 0 and "error[" not in checked.stdout + checked.stderr, checked.stdout + checked.stderr
+    return checked.stdout
+
+
 def start_hmi(*arguments: str, cwd: Path | None = None) -> tuple[subprocess.Popen, str]:
     """`pbo hmi ARGUMENTS --port 0` and the URL it printed (with its token); the caller stops it (`stop_hmi`)."""
     hmi = subprocess.Popen([*PBO, "hmi", *arguments, "--port", "0"], cwd=cwd, stdout=subprocess.PIPE,

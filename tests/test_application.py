@@ -166,7 +166,7 @@ def test_a_message_too_large_for_a_queue_is_sent_to_a_periodic_link_instead(tmp_
     ("run:\n  operator: {app: grand_tour}\n", "has no application 'grand_tour'"),
     ("run:\n  operator: {config: operate, app: tour}\n", "not both"),
     ("run:\n  operator: {speed: 2}\n", "unknown option 'speed'"),
-    ("run: [operator]\n", "run must map subsystems"),
+    ("run: 3\n", "run must map subsystems"),  # (a list is stages: tests/test_parallel_stages.py)
 ])
 def test_the_run_section_names_a_subsystem_and_one_of_its_configurations_or_applications(tmp_path, run, wanted):
     result = check_application(write_app(tmp_path, run=run))

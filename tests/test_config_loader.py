@@ -460,10 +460,12 @@ def test_every_code_the_checker_uses_is_in_the_doc_and_only_those() -> None:
     used |= set(re.findall(r'"([EW]\d{3})"\)', Path(errors_module.__file__).read_text()))
     import pbo_runtime.config.application as application_module
 
-    used |= set(re.findall(r'"(E8\d{2})"', Path(application_module.__file__).read_text()))
+    import pbo_runtime.config.parallel as parallel_module
+
+    used |= set(re.findall(r'"(E8\d{2})"', Path(application_module.__file__).read_text() + Path(parallel_module.__file__).read_text()))
     rows = doc_rows(ERROR_CODES_DOC.read_text())
     documented = [row["code"] for row in rows]
     assert len(documented) == len(set(documented)), "a code is listed twice"
     assert set(documented) == used
-    application_codes = {f"E8{n:02d}" for n in range(1, 13)}  # examples in tests/test_application*.py
+    application_codes = {f"E8{n:02d}" for n in range(1, 14)}  # examples in tests/test_application*.py, test_parallel_stages.py
     assert {row["code"] for row in rows if not row["example"]} == {"E106", "E107", "E306", "E307", "E406", "E901"} | application_codes

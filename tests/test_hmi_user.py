@@ -9,12 +9,11 @@ With PBO_SCREENSHOTS naming a folder, the workspace with a gap is saved there as
 from __future__ import annotations
 
 import re
-import subprocess
-from pathlib import Path
 
 import pytest
 
-from tests.support import PBO, screenshot, start_hmi, start_run, stop_hmi, user_level_copy
+from tests.support import (check_clean, icon, message, open_user_level, row, screenshot, start_hmi, start_run, stop_hmi,
+                           user_level_copy)
 
 pytestmark = pytest.mark.multiprocess
 
@@ -22,31 +21,6 @@ expect = pytest.importorskip("playwright.sync_api").expect
 
 GAP_REFUSED = ("Run refused: the application has 1 gap: step 1 'reach' needs an object of type joint_position; "
                "drop an object of that type on each gap")
-
-
-def open_user_level(page, url: str):
-    page.goto(url)
-    page.get_by_role("tab", name="User: applications from jobs").click()
-    expect(page.locator("#pane-user")).to_be_visible()
-    expect(page.locator(".dictionary [data-icon=reach]")).to_be_visible()
-
-
-def icon(page, name: str):
-    return page.locator(f".dictionary [data-icon={name}]")
-
-
-def row(page):
-    return page.get_by_role("list", name="application workspace")
-
-
-def message(page):
-    return page.locator("[data-test=workspace-message]")
-
-
-def check_clean(file: Path) -> str:
-    checked = subprocess.run([*PBO, "check", str(file)], capture_output=True, text=True, timeout=60)
-    assert checked.returncode == 0 and "error[" not in checked.stdout + checked.stderr, checked.stdout + checked.stderr
-    return checked.stdout
 
 
 def test_an_application_with_a_gap_is_refused_a_run_until_filled_then_runs_showing_the_current_job(page, tmp_path):

@@ -111,6 +111,8 @@ def _errors(instance: Any, schema: dict, root: dict, path: str = "$") -> list[st
         passing = [s for s in schema["oneOf"] if not _errors(instance, s, root, path)]
         if len(passing) != 1:
             out.append(f"{path}: {instance!r} matches {len(passing)} of oneOf, not exactly one")
+    if "anyOf" in schema and all(_errors(instance, s, root, path) for s in schema["anyOf"]):
+        out.append(f"{path}: {instance!r} matches none of anyOf")
     for sub in schema.get("allOf", []):
         out += _errors(instance, sub, root, path)
     if "not" in schema and not _errors(instance, schema["not"], root, path):
@@ -242,6 +244,13 @@ def test_every_subsystem_file_names_the_committed_schema_by_a_path_that_exists(p
     first = re.fullmatch(r"# yaml-language-server: \$schema=(\S+)", path.read_text().splitlines()[0])
     assert first, f"{path.name}: its first line must be '# yaml-language-server: $schema=<path to the schema>'"
     assert (path.parent / first.group(1)).resolve() == (REPO / "configs" / "pbo-subsystem.schema.json").resolve()
+
+
+def test_an_application_that_decides_conforms_and_a_misspelt_step_does_not(schema):
+    doc = yaml.safe_load((REPO / "configs" / "branches.yaml").read_text())
+    assert validate(doc, schema) == []
+    doc["applications"]["pick"][0]["fallbak"] = doc["applications"]["pick"][0].pop("fallback")
+    assert validate(doc, schema) != []
 
 
 def test_an_unknown_key_does_not_conform(schema):

@@ -169,3 +169,41 @@ def test_the_steps_may_be_given_as_yaml_text_as_the_command_line_sends_them(subs
     dispatch(host, "app", {"application": "again", "steps": "[reach: ready, hold]"})
     assert host.started_applications == ["again"]
     assert check_file(subsystem.file).ok  # the file itself is not written: pbo save does that
+
+
+# --- steps that decide in the row ---------------------------------------------------------------------
+
+
+def deciding_row(fallback_object: str | None) -> list[dict]:
+    return [{"kind": "try", "rows": [row("guarded"), row(("reach", fallback_object) if fallback_object else "reach")]},
+            {"kind": "repeat", "times": 2, "rows": [row("dwell")]},
+            {"kind": "wait", "condition": "q_m[0] > -1", "timeout": "1 s", "rows": []},
+            {"kind": "if", "condition": "q_m[0] > 0.1", "rows": [row("hold"), []]}]
+
+
+def test_steps_that_decide_in_a_row_become_the_steps_a_file_writes_and_run_with_values(subsystem):
+    steps = checked_row(subsystem, deciding_row("ready"), run=True)
+    assert file_steps(steps) == [{"try": ["guarded"], "fallback": [{"reach": "ready"}]}, {"repeat": ["dwell"], "times": 2},
+                                 {"wait": "q_m[0] > -1", "timeout": "1 s"}, {"if": "q_m[0] > 0.1", "then": ["hold"]}]
+    assert run_steps(subsystem, steps)[0] == {"try": ["guarded"], "fallback": [{"reach": {"q_d": READY}}]}
+
+
+def test_a_gap_inside_a_step_that_decides_is_named_by_where_it_is_and_refuses_a_run(subsystem):
+    with pytest.raises(RowRefused, match=re.escape("the application has 1 gap and cannot run: step 1 (try, fallback): step 1 "
+                                                   "'reach' needs an object of type joint_position")):
+        checked_row(subsystem, deciding_row(None), run=True)
+
+
+def test_a_step_that_decides_with_the_wrong_rows_is_refused(subsystem):
+    with pytest.raises(RowRefused, match=r"^step 1 \(try\) must have 2 row\(s\) of steps \(try, fallback\)"):
+        parse_row([{"kind": "try", "rows": [row("hold")]}])
+
+
+def test_a_row_with_steps_that_decide_runs_on_a_live_subsystem(subsystem):
+    host = FakeJobHost(subsystem, "pd")
+    steps = run_steps(subsystem, checked_row(subsystem, deciding_row("ready"), run=True))
+    reply = dispatch(host, "app", {"application": "workspace", "steps": steps})
+    assert host.started_applications == ["workspace"] and reply["jobs"] == []
+    assert reply["message"] == "application 'workspace' runs its steps, deciding as it goes; pbo status shows where it is"
+    assert [step.decision.kind for step in host.subsystem.applications["workspace"].steps if step.decision] == [
+        "try", "repeat", "wait", "if"]

@@ -30,7 +30,8 @@ from pbo_runtime.objects import registry
 from pbo_runtime.errors import ConfigErrors, MissingExtra, PboError, require_extra
 from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.supervisor.failures import WrongArgument
-from pbo_runtime.config.transitions import transitions
+from pbo_runtime.config.decisions import decides, paths
+from pbo_runtime.config.transitions import transitions, transitions_of
 from pbo_runtime.config.job_dictionary import dictionary_lines, job_dictionary
 
 EXIT_OK, EXIT_CONFIG, EXIT_RUN, EXIT_INTERNAL = 0, 1, 2, 3
@@ -160,6 +161,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="an application placed on hosts: run only the subsystems of this host (default: all, here)")
     _address_argument(run)
     run.add_argument("--links", help=argparse.SUPPRESS)  # set by an application's runner: JSON, see _links
+    run.add_argument("--stages", help=argparse.SUPPRESS)  # set by an application's runner: this subsystem's stages
     run.add_argument("--turn", help=argparse.SUPPRESS)  # set by an application's runner on --clock sim (clock.application_lockstep)
     run.add_argument("--alternate", metavar="A,B", help="switch test: alternate between these configurations")
     run.add_argument("--switches", type=int, default=100, help="with --alternate: how many switches (default 100)")
@@ -313,6 +315,7 @@ def _check(args: argparse.Namespace, console: Console, errors: Console) -> int:
 def _check_application(args: argparse.Namespace, console: Console, errors: Console) -> int:
     """An application file: each subsystem's file in full, then its links against their tasks."""
     from pbo_runtime.config.application import check_application
+    from pbo_runtime.config.parallel import stage_lines
     from pbo_runtime.config.loader import CheckResult, format_diagnostics
 
     addresses = _addresses(args)
@@ -333,6 +336,7 @@ def _check_application(args: argparse.Namespace, console: Console, errors: Conso
             runs = "".join(f", runs {'application' if k == 'app' else 'configuration'} '{v}'" for k, v in app.run.get(key, {}).items())
             where = f" on {app.placement[key]} ({app.hosts[app.placement[key]]})" if key in app.placement else ""
             lines.append(f"  subsystem {key}: {sub.file} ('{sub.name}', {len(sub.tasks)} task(s){runs}){where}")
+        lines.extend(stage_lines(app.stages, app.subsystems))  # run: as parallel stages, joined one after another
         for link in app.links.values():
             kind = f"messages, {link.capacity} queued at most" if link.kind == "message" else "periodic"
             lines.append(f"  link {link.name}: {link.sender[0]}.{link.sender[1]} -> {link.receiver[0]}.{link.receiver[1]} "
@@ -354,18 +358,33 @@ def _verdict(subsystem: Any) -> str:
     lines.append(f"  init order: {' -> '.join(subsystem.init_order)}")
     for application in subsystem.applications:
         lines.append(f"  application '{application}':")
-        for t in transitions(subsystem, application):
-            if t.before is None:
-                lines.append(f"    {t.step}. {t.job}: configuration '{t.after}' on: {', '.join(t.on) or 'nothing'}")
-            elif t.before == t.after:
-                lines.append(f"    {t.step}. {t.job}: stays in '{t.after}' (new object only)")
-            else:
-                lines.append(f"    {t.step}. {t.job}: '{t.before}' -> '{t.after}': off {', '.join(t.off) or 'nothing'}; "
-                             f"on {', '.join(t.on) or 'nothing'}")
+        if not decides(subsystem, application):
+            lines.extend(_transition_lines(transitions(subsystem, application), "    "))
+            continue
+        listed, every = paths(subsystem, application)
+        for number, path in enumerate(listed, 1):
+            lines.append(f"    path {number}: {path.label}")
+            lines.extend(_transition_lines(transitions_of(subsystem, path.jobs), "      "))
+        if every > len(listed):
+            lines.append(f"    ... and {every - len(listed)} more path(s)")
     if subsystem.jobs:
         lines.append("  job dictionary:")
         lines.extend(f"    {line}" for line in dictionary_lines(subsystem))
     return "\n".join(lines)
+
+
+def _transition_lines(steps: list[Any], indent: str) -> list[str]:
+    """The switch table of one path: what each job turns off and on."""
+    lines = []
+    for t in steps:
+        if t.before is None:
+            lines.append(f"{indent}{t.step}. {t.job}: configuration '{t.after}' on: {', '.join(t.on) or 'nothing'}")
+        elif t.before == t.after:
+            lines.append(f"{indent}{t.step}. {t.job}: stays in '{t.after}' (new object only)")
+        else:
+            lines.append(f"{indent}{t.step}. {t.job}: '{t.before}' -> '{t.after}': off {', '.join(t.off) or 'nothing'}; "
+                         f"on {', '.join(t.on) or 'nothing'}")
+    return lines
 
 
 def _inferred_lines(result: Any) -> str:
@@ -441,6 +460,10 @@ def _check_json(result: Any) -> dict[str, Any]:
             entry["transitions"] = [
                 {"step": t.step, "job": t.job, "from": t.before, "to": t.after, "off": list(t.off), "on": list(t.on)}
                 for t in transitions(sub, app)]
+            if decides(sub, app):
+                entry["paths"] = [{"label": path.label, "jobs": list(path.jobs), "transitions": [
+                    {"step": t.step, "job": t.job, "from": t.before, "to": t.after, "off": list(t.off), "on": list(t.on)}
+                    for t in transitions_of(sub, path.jobs)]} for path in paths(sub, app)[0]]
         out.update(_inferred_json(result))
     return out
 
@@ -517,7 +540,8 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
     startup = {"process": process_started(), "cli": args.entered, "loaded": getattr(args, "loaded", args.entered)}
     options = {"startup": startup, "fork_server": fork_server, "application": args.app, "static": args.static,
                "alternate": alternate, "fifo": args.fifo, "clock": args.clock, "out_dir": str(args.out),
-               "links": json.loads(args.links) if args.links else None, "turn": args.turn}
+               "links": json.loads(args.links) if args.links else None, "turn": args.turn,
+               "stages": args.stages}
     refused = _check_output_paths(args)
     if refused:
         errors.print(f"error: {refused}", markup=False)
@@ -758,6 +782,10 @@ def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
         console.print(f"{rtpu}: cpu {settings.get('cpu')}, {settings.get('scheduler')}, timer slack {settings.get('timer_slack')}"
                       + (f", spin {settings['spin']}" if "spin" in settings else ""), markup=False)
     _print_switches(console, result)
+    from pbo_runtime.supervisor.decisions import decision_lines
+
+    for line in decision_lines(result.decisions):
+        console.print(line, markup=False)
 
 
 def processor_lines(tasks: dict[str, dict[str, Any]]) -> list[str]:

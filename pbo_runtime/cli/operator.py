@@ -97,9 +97,11 @@ def status_table(reply: dict[str, Any]) -> Table:
     """The status reply as a table, one section per RTPU."""
     parts = [f"{reply.get('subsystem', '?')} · run {reply.get('run_id', '?')}",
              f"configuration {reply.get('configuration') or '—'}"]
-    if reply.get("application"):
+    if reply.get("path"):  # an application that decides: where it is, `pick > try > reach`
+        parts.append(f"path {reply['path']}")
+    elif reply.get("application"):
         parts.append(f"application {reply['application']}")
-    if reply.get("job"):
+    if reply.get("job") and not reply.get("path"):
         parts.append(f"job {reply['job']}")
     parts.append(f"{float(reply.get('elapsed') or 0.0):.1f} s")
     table = Table(title=" · ".join(parts), title_justify="left")

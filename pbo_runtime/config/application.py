@@ -35,6 +35,7 @@ import difflib
 import os
 import re
 from collections.abc import Mapping
+from typing import Any
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,6 +43,7 @@ import numpy as np
 
 from pbo_runtime.config.loader import CheckResult, check_file, inline_reference
 from pbo_runtime.config.model import NOWHERE, Location, Subsystem
+from pbo_runtime.config.parallel import check_stages
 from pbo_runtime.errors import ConfigError
 from pbo_runtime.links.spec import TRANSPORTS, parse_endpoint
 from pbo_runtime.links.message_link import SYSTEM_CAPACITY, SYSTEM_MESSAGE_BYTES
@@ -89,6 +91,7 @@ class Application:
     placement: dict[str, str] = field(default_factory=dict)  # subsystem -> the host it runs on (absent: none named)
     entry_locs: dict[str, Location] = field(default_factory=dict)  # subsystem -> where the application file names it
     hosts_refused: bool = False  # hosts: was not a mapping (reported once: no error per host named)
+    stages: list[dict[str, dict[str, Any]]] = field(default_factory=list)  # run: as parallel stages (config.parallel)
 
     def listening_subsystem(self, link: str) -> str:
         """The subsystem whose end of zenoh link `link` listens: the periodic sender, or the message server."""
@@ -363,6 +366,9 @@ def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error)
 def _check_run(root: YMap, application: Application, error) -> None:
     """`run: {subsystem: {config: NAME} | {app: NAME}}`: what each subsystem runs (default: its first configuration)."""
     entries = root.get("run", YMap(root.loc))
+    if isinstance(entries, YList):  # stages: parallel: {SUBSYSTEM: STEPS, ...}, one after another
+        application.stages = check_stages(entries, application.subsystems, bool(application.placement), error, did_you_mean)
+        return
     if not isinstance(entries, YMap):
         error("E807", "run must map subsystems to {config: NAME} or {app: NAME}", location_of(entries, root.loc),
               "e.g. run: {operator: {app: tour}}")

@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from pbo_runtime.config.model import ACTION, ACTION_REQUIRING_OBJECT, INCOMPLETE, ApplicationSpec, Subsystem
+from pbo_runtime.config.model import ACTION, ACTION_REQUIRING_OBJECT, INCOMPLETE, ApplicationSpec, ApplicationStep, Subsystem
 
 FLAT, NOTCH, TAB = "flat", "notch", "tab"
 OBJECT = "object"  # the class of an object icon
@@ -91,12 +91,7 @@ def job_dictionary(subsystem: Subsystem) -> dict[str, Any]:
 def describe_application(subsystem: Subsystem, name: str) -> dict[str, Any]:
     """An application as plain data: its class and edges as a step of another, its steps, its gaps."""
     application: ApplicationSpec = subsystem.applications[name]
-    steps = []
-    for number, step in enumerate(application.steps, 1):
-        # what fills the step: a named object, or a value written out (a job's, or an application's fill)
-        value = next(iter(step.arguments.values()), None) if step.arguments else step.fill
-        steps.append({"step": number, "job": step.job, "application": step.is_application, "object": step.object,
-                      "value": value})
+    steps = [_step_entry(number, step) for number, step in enumerate(application.steps, 1)]
     return {
         "class": application.kind,
         "complete": application.complete,
@@ -105,6 +100,19 @@ def describe_application(subsystem: Subsystem, name: str) -> dict[str, Any]:
         "steps": steps,
         "gaps": [{"step": g.step, "job": g.job, "object_type": g.object_type} for g in application.gaps],
     }
+
+
+def _step_entry(number: int, step: ApplicationStep) -> dict[str, Any]:
+    """A step as plain data; a step that decides with its kind, condition, bounds and rows (`decision`)."""
+    # what fills the step: a named object, or a value written out (a job's, or an application's fill)
+    value = next(iter(step.arguments.values()), None) if step.arguments else step.fill
+    entry = {"step": number, "job": step.job, "application": step.is_application, "object": step.object, "value": value}
+    decision = step.decision
+    if decision is not None:
+        entry["decision"] = {"kind": decision.kind, "condition": decision.condition, "times": decision.times,
+                             "max": decision.most, "timeout": decision.timeout,
+                             "rows": [[_step_entry(n, s) for n, s in enumerate(row, 1)] for row in decision.rows]}
+    return entry
 
 
 def row_gaps(subsystem: Subsystem, row: Sequence[Any]) -> dict[str, Any]:

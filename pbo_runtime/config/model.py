@@ -206,6 +206,22 @@ class ApplicationStep:
     is_application: bool = False  # the step runs another application (Onika §4.4.2)
     object: str | None = None  # a named object given to the step (its value is read when the step runs)
     fill: Any = field(default=None, compare=False)  # an application's object written out: fills each of its gaps
+    decision: Decision | None = None  # a step that decides (if, try, repeat, wait): `job` is then its kind
+
+
+DECISIONS = ("if", "try", "repeat", "wait")  # the step kinds that decide (DESIGN §16), by their first key
+
+
+@dataclass(frozen=True)
+class Decision:
+    """A step that decides at a cycle boundary, on the table's values (config.decisions)."""
+
+    kind: str  # one of DECISIONS
+    rows: tuple[tuple[ApplicationStep, ...], ...] = ()  # if: (then, else); try: (try, fallback); repeat: (body,)
+    condition: str | None = None  # if; repeat's until; wait
+    times: int | None = None  # repeat: how many times
+    most: int | None = None  # repeat until: how many times at most
+    timeout: float | None = None  # wait: it fails after this long
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,7 @@ This is the dynamic reconfiguration plan of TR §4.4 worked out from the file al
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from pbo_runtime.config.model import Subsystem
@@ -37,9 +38,14 @@ def flatten(subsystem: Subsystem, application: str, _seen: tuple[str, ...] = ())
 
 def transitions(subsystem: Subsystem, application: str) -> list[Transition]:
     """One transition per job of the application, from the previous job's configuration."""
+    return transitions_of(subsystem, flatten(subsystem, application))
+
+
+def transitions_of(subsystem: Subsystem, jobs: Sequence[str]) -> list[Transition]:
+    """One transition per job of `jobs` (one path of an application), from the previous job's configuration."""
     result = []
     previous: str | None = None
-    for step, job in enumerate(flatten(subsystem, application), start=1):
+    for step, job in enumerate(jobs, start=1):
         configuration = subsystem.jobs[job].configuration
         before = set(subsystem.configurations[previous].tasks) if previous else set()
         after_tasks = subsystem.configurations[configuration].tasks

@@ -12,6 +12,11 @@ browser sends the row as `[{"name": step, "object": object name or null}, ...]`,
   values the user sees and edits in the file, whatever the values the run read at its start.
 - `row_problems`: why the row cannot be saved (an icon the file does not have, an object that does
   not interlock) or run (its gaps), each a line the user reads, from `job_dictionary.row_gaps`.
+
+A step that decides (config.decisions) comes as `{"kind": "if" | "try" | "repeat" | "wait",
+"condition": ..., "times": ..., "max": ..., "timeout": "2 s", "rows": [[step, ...], ...]}`, its rows
+rows of the same kind (then/else, try/fallback, the repeated steps); each row is checked as the
+row is, and the whole application again by the checker when it is saved or run.
 """
 
 from __future__ import annotations
@@ -39,6 +44,8 @@ class Step:
 
     name: str
     object: str | None = None
+    decision: Mapping[str, Any] | None = None  # a step that decides: its kind and settings, as the browser sent them
+    rows: tuple[tuple[Step, ...], ...] = ()  # a step that decides: its rows of steps
 
 
 def parse_row(row: Any) -> list[Step]:
@@ -47,14 +54,39 @@ def parse_row(row: Any) -> list[Step]:
         raise RowRefused("the workspace is empty: drop jobs from the dictionary into it first")
     if len(row) > MAX_ROW:
         raise RowRefused(f"the row has {len(row)} steps, more than the {MAX_ROW} an application may have here")
+    return _parse_steps(row, "")
+
+
+ROW_NAMES = {"if": ("then", "else"), "try": ("try", "fallback"), "repeat": ("repeat",), "wait": ()}
+_SETTINGS = {"if": ("condition",), "try": (), "repeat": ("times", "until", "max"), "wait": ("condition", "timeout")}
+
+
+def _parse_steps(row: list[Any], where: str) -> list[Step]:
     steps = []
     for number, item in enumerate(row, 1):
+        if isinstance(item, Mapping) and item.get("kind") in ROW_NAMES:
+            steps.append(_parse_decision(item, f"{where}step {number}"))
+            continue
         name = item.get("name") if isinstance(item, Mapping) else None
         given = item.get("object") if isinstance(item, Mapping) else None
         if not isinstance(name, str) or not name or (given is not None and (not isinstance(given, str) or not given)):
-            raise RowRefused(f"step {number} of the row is not {{\"name\": job, \"object\": object or null}}: {item!r}")
+            raise RowRefused(f"{where}step {number} of the row is not {{\"name\": job, \"object\": object or null}}: {item!r}")
         steps.append(Step(name, given))
     return steps
+
+
+def _parse_decision(item: Mapping[str, Any], where: str) -> Step:
+    kind = str(item["kind"])
+    rows = item.get("rows", [])
+    names = ROW_NAMES[kind]
+    if not isinstance(rows, list) or len(rows) != len(names) or not all(isinstance(r, list) for r in rows):
+        raise RowRefused(f"{where} ({kind}) must have {len(names)} row(s) of steps ({', '.join(names) or 'none'})")
+    settings = {key: item[key] for key in _SETTINGS[kind] if item.get(key) not in (None, "")}
+    for key, value in settings.items():
+        if not isinstance(value, (str, int)) or isinstance(value, bool):
+            raise RowRefused(f"{where} ({kind}): {key} must be text or a whole number, got {value!r}")
+    parsed = tuple(tuple(_parse_steps(r, f"{where} ({kind}, {label}): ")) for r, label in zip(rows, names))
+    return Step(kind, None, {"kind": kind, **settings}, parsed)
 
 
 def check_name(name: Any) -> str:
@@ -65,17 +97,51 @@ def check_name(name: Any) -> str:
     return name
 
 
-def file_steps(steps: Sequence[Step]) -> list[str | dict[str, str]]:
-    """The row as `applications:` writes it: a name alone, or `{name: object}`."""
-    return [step.name if step.object is None else {step.name: step.object} for step in steps]
+def file_steps(steps: Sequence[Step]) -> list[Any]:
+    """The row as `applications:` writes it: a name alone, `{name: object}`, or a step that decides with its rows."""
+    return [_decision_file_step(step, file_steps) if step.decision is not None
+            else step.name if step.object is None else {step.name: step.object} for step in steps]
+
+
+def _decision_file_step(step: Step, written: Any) -> dict[str, Any]:
+    """A step that decides as a file writes it; `written` writes its rows (as names, or with values)."""
+    assert step.decision is not None
+    kind = step.decision["kind"]
+    out: dict[str, Any] = {}
+    if kind in ("if", "wait"):
+        out[kind] = step.decision.get("condition", "")
+    for label, row in zip(ROW_NAMES[kind], step.rows):
+        if row or label != "else":
+            out[label] = written(row)
+    for key in ("times", "until", "max", "timeout"):
+        if key in step.decision:
+            out[key] = step.decision[key]
+    return out  # its kind first: `if`, `wait` put their condition there, `try`, `repeat` their row
+
+
+def _leaves(steps: Sequence[Step]) -> list[tuple[Step, str]]:
+    """The jobs and applications of a row and of the rows inside its steps that decide, each with where it is."""
+    found: list[tuple[Step, str]] = []
+
+    def walk(row: Sequence[Step], where: str) -> None:
+        for number, step in enumerate(row, 1):
+            if step.decision is None:
+                found.append((step, f"{where}step {number}"))
+                continue
+            for label, inner in zip(ROW_NAMES[step.decision["kind"]], step.rows):
+                walk(inner, f"{where}step {number} ({step.name}, {label}): ")
+    walk(steps, "")
+    return found
 
 
 def row_problems(subsystem: Subsystem, steps: Sequence[Step]) -> tuple[list[str], list[str]]:
     """(problems, gaps): why the row is no application of this file; which of its steps lack their object."""
-    answer = row_gaps(subsystem, file_steps(steps))
-    problems = [f"step {problem['item'] + 1}: {problem['message']}" for problem in answer["problems"]]
-    gaps = [f"step {gap['step']} '{gap['job']}' needs an object of type {gap['object_type']}" if gap["object_type"]
-            else f"step {gap['step']} '{gap['job']}' has gaps of several object types inside it" for gap in answer["gaps"]]
+    leaves = _leaves(steps)  # every job and application, wherever it is: each interlocks with its own object
+    answer = row_gaps(subsystem, file_steps([step for step, _ in leaves]))
+    places = [where for _, where in leaves]
+    problems = [f"{places[problem['item']]}: {problem['message']}" for problem in answer["problems"]]
+    gaps = [f"{places[gap['item']]} '{gap['job']}' needs an object of type {gap['object_type']}" if gap["object_type"]
+            else f"{places[gap['item']]} '{gap['job']}' has gaps of several object types inside it" for gap in answer["gaps"]]
     return problems, gaps
 
 
@@ -96,6 +162,9 @@ def run_steps(subsystem: Subsystem, steps: Sequence[Step]) -> list[str | dict[st
     """The row's steps with each named object written out as its value now (see the module's docstring)."""
     written: list[str | dict[str, Any]] = []
     for step in steps:
+        if step.decision is not None:
+            written.append(_decision_file_step(step, lambda row: run_steps(subsystem, row)))
+            continue
         if step.object is None:
             written.append(step.name)
             continue

@@ -310,8 +310,9 @@ def json_schema() -> dict[str, Any]:
         required=("configuration",),
     )
     step = {
-        "description": "a job or application name, {job: object name}, {job: {object variable: value}}, or {application: {object type: value}}",
-        "oneOf": [
+        "description": "a job or application name, {job: object name}, {job: {object variable: value}}, {application: "
+                       "{object type: value}}, or a step that decides (if, try, repeat, wait)",
+        "anyOf": [
             {"type": "string", "minLength": 1},
             {
                 "type": "object",
@@ -323,6 +324,7 @@ def json_schema() -> dict[str, Any]:
                               {"type": "null"}],
                 },
             },
+            *_deciding_steps(),
         ],
     }
     object_type = _obj(
@@ -379,7 +381,7 @@ def json_schema() -> dict[str, Any]:
         ),
         "jobs": _map({"$ref": "#/$defs/job"}, "jobs: a configuration with an object and pre/post conditions"),
         "applications": _map(
-            {"type": "array", "items": step, "description": "the job steps, in order"},
+            {"type": "array", "items": {"$ref": "#/$defs/step"}, "description": "the steps, in order"},
             "applications: sequences of jobs",
         ),
     }
@@ -400,12 +402,44 @@ def json_schema() -> dict[str, Any]:
             "variable": variable,
             "task": task,
             "job": job,
+            "step": step,
             "object_type": object_type,
             "object": named_object,
             **{f"params_{m}": params_schema(m, registry.module_class(m)) for m in modules if _loads(m)},
         },
     }
     return schema
+
+
+def _deciding_steps() -> list[dict[str, Any]]:
+    """The steps that decide (docs/configuration.md#steps-that-decide): if, try, repeat, wait."""
+    def row(what: str) -> dict[str, Any]:
+        return {"type": "array", "items": {"$ref": "#/$defs/step"}, "description": what}
+
+    def condition(what: str) -> dict[str, Any]:
+        return {"type": "string", "description": f"{what}: a condition of the job language, read when the step is reached"}
+
+    def times(what: str) -> dict[str, Any]:
+        return {"type": "integer", "minimum": 1, "description": what}
+
+    def kind(properties: dict[str, Any], required: list[str], description: str) -> dict[str, Any]:
+        return {"type": "object", "properties": properties, "required": required, "additionalProperties": False,
+                "description": description}
+
+    return [
+        kind({"if": condition("the steps of then: run if it holds"), "then": row("the steps run when the condition holds"),
+              "else": row("the steps run when it does not")}, ["if", "then"], "if: CONDITION, then: [steps], else: [steps]"),
+        kind({"try": row("steps that may fail (a pre-condition, a timeout)"),
+              "fallback": row("the steps run if the try failed; the application goes on after them")},
+             ["try", "fallback"], "try: [steps], fallback: [steps]"),
+        kind({"repeat": row("the steps repeated"), "times": times("how many times"),
+              "until": condition("it stops repeating once this holds after a turn"),
+              "max": times("with until: the most turns; still false after them, the repeat fails")},
+             ["repeat"], "repeat: [steps] with times: N, or until: CONDITION with max: N"),
+        kind({"wait": condition("the application goes on once this holds"),
+              "timeout": {"$ref": "#/$defs/time", "description": "the wait fails (as a job does) after this long"}},
+             ["wait"], "wait: CONDITION, timeout: TIME"),
+    ]
 
 
 def _loads(module: str) -> bool:

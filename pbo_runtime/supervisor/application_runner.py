@@ -26,10 +26,12 @@ from __future__ import annotations
 import ctypes
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -107,6 +109,7 @@ class ApplicationRunner:
         self._relays: list[threading.Thread] = []  # one per subsystem: its output, prefixed, until it ends
         self._stopping = ""
         self.lockstep: ApplicationLockstep | None = None  # on --clock sim: the subsystems' turns
+        self._joins: str | None = None  # the folder of the stages' plans and joins, removed at the end
 
     def run(self) -> int:
         previous = {s: signal.signal(s, self._interrupt) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -126,6 +129,8 @@ class ApplicationRunner:
                 self.lockstep.close()
             for link in self._links:
                 link.close()
+            if self._joins is not None:
+                shutil.rmtree(self._joins, ignore_errors=True)
             for s, handler in previous.items():
                 signal.signal(s, handler)
 
@@ -206,9 +211,23 @@ class ApplicationRunner:
             command += ["--out", str(self.out_dir / key)]
         if self.lockstep is not None:
             command += ["--turn", self.lockstep.bases[key]]
+        if self.application.stages:
+            command += ["--stages", self._stage_plan(key)]
         if self.fifo is not None:
             command.append("--fifo" if self.fifo else "--no-fifo")
         return command
+
+    def _stage_plan(self, key: str) -> str:
+        """The file of subsystem `key`'s part of the stages, in the folder of the joins (supervisor.stages)."""
+        if self._joins is None:
+            self._joins = tempfile.mkdtemp(prefix=f"pbo-{self.application.name}-{self.run_id}-")
+        # simulated: each goes on a few ticks after the last was done, when every mark is surely there (supervisor.stages)
+        lag = 3e-9 * max(self.lockstep.tick_ns.values()) if self.lockstep is not None else 0.0
+        plan = {"join": self._joins, "me": key, "everyone": list(self.local), "lag": lag,
+                "stages": [stage.get(key) for stage in self.application.stages]}
+        path = Path(self._joins) / f"{key}.json"
+        path.write_text(json.dumps(plan))
+        return str(path)
 
     def _relay(self, key: str, child: subprocess.Popen) -> None:
         assert child.stdout is not None

@@ -45,6 +45,7 @@ from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.objects import registry
 from pbo_runtime.objects.ranges import Range, number_text
 from pbo_runtime.supervisor.job_control import application_steps
+from pbo_runtime.config.decisions import decides
 
 if TYPE_CHECKING:
     from pbo_runtime.config.model import Subsystem
@@ -234,6 +235,7 @@ def status(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     return {"subsystem": host.subsystem.name, "run_id": host.run_id, "file": os.path.abspath(host.subsystem.file),
             "configuration": host.configuration,
             "job": host.job_control.job, "application": host.application, "elapsed": elapsed,
+            "path": " > ".join(host.job_control.path),
             "tasks": rows, "flags": host.table_flags(), "realtime": dict(host.realtime),
             "stalled": {name: now - since for name, since in host.stalled_since().items()},
             "restarts": host.restarts(), "gains": gain_notes(host.subsystem.robot_notes)}
@@ -519,6 +521,9 @@ def app(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
                          f"pbo check {host.subsystem.file} shows which step")
     host.start_application(name)
     steps = [job for job, _ in application_steps(host.subsystem, name)]
+    if decides(host.subsystem, name):
+        return {"application": name, "jobs": [],
+                "message": f"application '{name}' runs its steps, deciding as it goes; pbo status shows where it is"}
     return {"application": name, "jobs": steps,
             "message": f"application '{name}' runs its jobs ({', '.join(steps)}); pbo status shows the current one"}
 
@@ -566,9 +571,10 @@ LIVE_TIMEOUT = 15.0  # a live change spawns (imports, init) and waits for a cycl
 _TASK_REPLY = '`{"task": str, "state": str}`'
 
 VERBS: tuple[Verb, ...] = (
-    Verb("status", "a running subsystem: tasks by RTPU with state, rate, jitter, overruns; current job", (), status,
-         "the status reply: configuration, job, elapsed, per task state, rate, jitter, overruns; flags; the gains a "
-         "bandwidth made", STATUS_TIMEOUT),
+    Verb("status", "a running subsystem: tasks by RTPU with state, rate, jitter, overruns; current job, and where an "
+                   "application that decides is (`pick > try > approach`)", (), status,
+         "the status reply: configuration, job, path, elapsed, per task state, rate, jitter, overruns; flags; the gains "
+         "a bandwidth made", STATUS_TIMEOUT),
     Verb("on", "turn a task on", (_TASK,), task_signal("on"), _TASK_REPLY, COMMAND_TIMEOUT),
     Verb("off", "turn a task off", (_TASK,), task_signal("off"), _TASK_REPLY, COMMAND_TIMEOUT),
     Verb("clear", "clear a task's error (its clear component decides: OFF, or still ERROR)", (_TASK,),

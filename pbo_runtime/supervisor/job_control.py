@@ -28,7 +28,9 @@ from pbo_runtime.config.live import LiveDescription
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.failures import RtpuDied
+from pbo_runtime.config.decisions import decides
 from pbo_runtime.config.expressions import ExpressionError, compile_condition
+from pbo_runtime.supervisor.decisions import DecidingRun
 from pbo_runtime.supervisor.plan_lead import PlanLead
 
 SWITCH_TIMEOUT = 5.0
@@ -36,7 +38,14 @@ POLL = 0.01  # how often a job's post-condition is evaluated
 
 
 class JobFailure(PboError):
-    """A job's pre-condition failed or it timed out: the application stops, the message says why."""
+    """A job's pre-condition failed or it timed out: the application stops, the message says why.
+
+    `values`: the variables the failed condition read, as it read them.
+    """
+
+    def __init__(self, message: str, values: dict[str, Any] | None = None) -> None:
+        super().__init__(message)
+        self.values = values or {}
 
 
 @dataclass
@@ -223,6 +232,10 @@ class JobControl:
         # what a plot of the run's logs marks: switches and jobs, at their times on the run's clock
         # (the clock a data log's rows are stamped with: each cycle's release time)
         self.marks: list[dict[str, Any]] = []
+        # an application that decides: each decision with its values, and where it is now (`pick > try > reach`)
+        self.decisions: list[dict[str, Any]] = []
+        self.path: list[str] = []
+        self.jobs_done: list[str] = []  # the jobs the application ran to their end, in order
 
     def mark(self, at: float, kind: str, label: str) -> None:
         self.marks.append({"time": at, "kind": kind, "label": label})
@@ -422,7 +435,7 @@ class JobControl:
         if job.pre:
             holds, values = evaluate(host, job.pre)
             if not holds:
-                raise JobFailure(f"{where}: pre-condition '{job.pre}' does not hold ({_show(values)})")
+                raise JobFailure(f"{where}: pre-condition '{job.pre}' does not hold ({_show(values)})", values)
         for variable, value in arguments.items():
             host.write_variable(variable, value)
         if job.configuration != host.configuration:
@@ -445,7 +458,7 @@ class JobControl:
                     return  # a job with a timeout and no post-condition runs for that long
                 self.mark(host.now(), "job", f"job {name} timed out")
                 raise JobFailure(f"{where}: timed out after {job.timeout:g} s; post-condition '{job.post}' "
-                                 f"still false ({_show(values)})")
+                                 f"still false ({_show(values)})", values)
             host.pump(POLL)
 
     def start_job(self, name: str, arguments: dict[str, Any]) -> None:
@@ -474,7 +487,13 @@ class JobControl:
             raise JobFailure(f"application '{application}' is incomplete (a step lacks its object) and cannot run; "
                              f"see pbo check {self.subsystem.file}")
         self.application = application
+        self.jobs_done = []
+        if decides(self.subsystem, application):
+            DecidingRun(self, evaluate, JobFailure, POLL).run(application)
+            self.job = None
+            return
         steps = application_steps(self.subsystem, application)
         for number, (job, arguments) in enumerate(steps, start=1):
             self.run_job(job, arguments, step=f" (step {number} of {len(steps)} of application '{application}')")
+            self.jobs_done.append(job)
         self.job = None

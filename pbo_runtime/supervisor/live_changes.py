@@ -33,7 +33,7 @@ from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import messages, shm
-from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
+from pbo_runtime.supervisor.job_control import JobControl, JobFailure
 from pbo_runtime.supervisor.run_report import RunResult
 from pbo_runtime.supervisor.stall_watch import StallWatch
 
@@ -154,7 +154,7 @@ class LiveChanges:
         self.application = name
         try:
             self.job_control.run_application(name)
-            self.result.jobs_done += [job for job, _ in application_steps(self.subsystem, name)]
+            self.result.jobs_done += self.job_control.jobs_done
             self.say(f"application '{name}' is done")
         except JobFailure as exc:
             self.say(f"application '{name}' stopped: {exc}")

@@ -85,6 +85,7 @@ class RunResult:
     # configuration came on, and what happened when on it: switches and jobs (JobControl.marks)
     started_at: float = 0.0
     marks: list[dict[str, Any]] = field(default_factory=list)
+    decisions: list[dict[str, Any]] = field(default_factory=list)  # an application's decisions, with their values
     # RTPUs restarted by their restart policy (supervisor.restarts.Restart), in the order they died
     restarts: list[Any] = field(default_factory=list)
     # the start-up's time line, phase -> CLOCK_MONOTONIC second it ended (wall time, on either run
@@ -105,7 +106,7 @@ class RunResult:
             "running_wall_seconds": self.running_wall_seconds, "links": self.links,
             "started_monotonic": self.started_monotonic, "stalls": self.stalls, "unstopped": self.unstopped,
             "faults": self.faults, "timing_holds": self.timing_holds, "queue_bytes": self.queue_bytes,
-            "lock_events": self.lock_events, "started_at": self.started_at, "marks": self.marks,
+            "lock_events": self.lock_events, "started_at": self.started_at, "marks": self.marks, "decisions": self.decisions,
             "restarts": [restart.to_json() for restart in self.restarts],
             "startup": self.startup, "gains": self.gains,
         }
@@ -130,6 +131,7 @@ class RunReporting:
         """Switches, each task's figures, stalls, stable episodes: into the result, once the children have reported."""
         self.result.switches = [record.to_json() for record in self.job_control.switches]
         self.result.marks = list(self.job_control.marks)
+        self.result.decisions = list(self.job_control.decisions)
         self.result.started_at = self.started_at if self.started_at is not None else 0.0
         started = self.started_at if self.started_at is not None else 0.0
         self._report_tasks_left_in_error()

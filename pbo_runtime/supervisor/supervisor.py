@@ -47,6 +47,8 @@ from pbo_runtime.supervisor.events import EventHandling
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested, WrongArgument
 from pbo_runtime.supervisor.fork_server import ForkServer
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
+from pbo_runtime.supervisor.stages import run_stages
+from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockWatching
 from pbo_runtime.supervisor.restarts import Restarting
@@ -83,6 +85,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         out_dir: str | None = None,
         links: dict[str, dict[str, Any]] | None = None,
         turn: str | None = None,
+        stages: str | None = None,
         startup: dict[str, float] | None = None,
         fork_server: ForkServer | None = None,
     ) -> None:
@@ -101,6 +104,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.out_dir = os.path.abspath(out_dir) if out_dir else ""
         self.links = dict(links or {})  # an application's links, handed to every RTPU (see _links)
         self.application = application
+        self.stages = stages  # an application file's stages: this subsystem's part, and the joins (supervisor.stages)
         if application is not None and application not in subsystem.applications:
             close = closest_name(application, subsystem.applications)
             raise WrongArgument(f"no application '{application}' in {subsystem.file}"
@@ -110,8 +114,10 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             raise RunFailure(f"application '{application}' is incomplete (a step lacks the object its job needs) and "
                              f"cannot be run; pbo check {subsystem.file} shows which step")
         if configuration is None and application is not None:
-            first = application_steps(subsystem, application)
-            configuration = subsystem.jobs[first[0][0]].configuration if first else None
+            first = [job for job, _ in application_steps(subsystem, application)]
+            if decides(subsystem, application):  # the first job of its first path
+                first = list(paths(subsystem, application)[0][0].jobs)
+            configuration = subsystem.jobs[first[0]].configuration if first else None
         self.configuration = configuration or next(iter(subsystem.configurations))
         if self.configuration not in subsystem.configurations:
             close = closest_name(self.configuration, subsystem.configurations)
@@ -230,9 +236,13 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             running_since = time.monotonic()
             if self.application:
                 self.job_control.run_application(self.application)
-                self.result.jobs_done = [job for job, _ in application_steps(self.subsystem, self.application)]
+                self.result.jobs_done = list(self.job_control.jobs_done)
                 self.result.stopped_by = f"application '{self.application}' done"
                 self.say(f"application '{self.application}' is done")
+            elif self.stages:
+                self.result.jobs_done = run_stages(self.job_control, self.stages, self.say)
+                self.result.stopped_by = "stages done"
+                self.say("every stage is done")
             elif self.alternate:
                 self.job_control.alternate(*self.alternate)
                 self.result.stopped_by = f"{self.alternate[1]} switches done"

@@ -15,6 +15,7 @@ from typing import Any, Callable, Iterable
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.claims import ClaimChecks
 from pbo_runtime.config.checker.configurations import ConfigurationChecks
+from pbo_runtime.config.checker.decisions import DecisionChecks
 from pbo_runtime.config.checker.devices import DeviceChecks
 from pbo_runtime.config.checker.inference import InferenceChecks
 from pbo_runtime.config.checker.jobs import JobChecks
@@ -62,7 +63,7 @@ __all__ = [
 
 
 class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, TaskChecks, ConfigurationChecks, ClaimChecks,
-               ObjectChecks, JobChecks, TimingChecks, JointLoopChecks, CheckerBase):
+               ObjectChecks, JobChecks, DecisionChecks, TimingChecks, JointLoopChecks, CheckerBase):
     """The whole checker: the core (`CheckerBase`) with every rule, one mixin a concept, and the pass."""
 
     def run(self, doc: Any, doc_loc: Location) -> Checked:

@@ -5,10 +5,10 @@ from __future__ import annotations
 import dataclasses
 import graphlib
 import re
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from pbo_runtime.config.checker.base import CheckerBase
+from pbo_runtime.config.checker.decisions import StepDraft as _Step, decision_kind, used_applications
 import numpy as np
 from pbo_runtime.config.checker.model import JOB_KEYS, NO_OBJECT
 from pbo_runtime.config.checker.words import describe, did_you_mean
@@ -27,6 +27,8 @@ class JobChecks(CheckerBase):
         def check_object_names(self) -> None: ...
         def objects_of_type(self, type_name: str | None) -> str: ...
         def job_written(self) -> set[str]: ...
+        def check_decision(self, app: str, number: int, item: YMap, kind: str) -> _Step | None: ...
+        def finish_decision(self, app: str, number: int, item: _Step, gaps: list[Gap]) -> ApplicationStep | None: ...
 
     def check_expression(self, value: Any, loc: Location, what: str) -> str | None:
         """A job condition in the restricted language of `config.expressions`, naming declared variables."""
@@ -216,7 +218,7 @@ class JobChecks(CheckerBase):
                 steps.append(checked)
             if ok:
                 parsed[name] = (steps, key_loc)
-        graph = {name: {s.step.job for s in steps if s.step.is_application} for name, (steps, _) in parsed.items()}
+        graph = {name: {used for s in steps for used in used_applications(s)} for name, (steps, _) in parsed.items()}
         order = self.application_order(graph, {name: loc for name, _, _, loc in entries}, {name: k for name, k, _, _ in entries})
         for name in order:
             steps, key_loc = parsed[name]
@@ -225,6 +227,11 @@ class JobChecks(CheckerBase):
             ok = True
             for number, item in enumerate(steps, 1):
                 step = item.step
+                if step.decision is not None:
+                    decided = self.finish_decision(name, number, item, gaps)
+                    ok = ok and decided is not None
+                    built.extend([decided] if decided is not None else [])
+                    continue
                 if not step.is_application:
                     built.append(step)
                     if item.gap is not None:
@@ -357,6 +364,9 @@ class JobChecks(CheckerBase):
         """One step as far as it can be checked before the applications it uses are: None if it is wrong."""
         args: Any = None
         args_loc = loc
+        decides = decision_kind(item)
+        if decides is not None:
+            return self.check_decision(app, number, item, decides)
         if isinstance(item, str):
             job = item
         elif isinstance(item, YMap) and len(item) == 1:
@@ -447,16 +457,6 @@ class JobChecks(CheckerBase):
                 "an incomplete application may be kept but not run",
             )
         return _Step(dataclasses.replace(step, arguments=arguments), kind if gap else None)
-
-
-@dataclass(frozen=True)
-class _Step:
-    """A step as `check_step` left it: a job's step whole; an application's with what it was given, checked later."""
-
-    step: ApplicationStep
-    gap: str | None  # a job step without its object: the object type it needs
-    given: Any = None  # an application step's object (a name, or {type: value}), as written
-    given_loc: Location = NOWHERE
 
 
 def _inner_gaps(applications: dict[str, ApplicationSpec], name: str) -> list[Gap]:

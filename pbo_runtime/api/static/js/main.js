@@ -36,7 +36,7 @@ function RunHeader({ status }) {
           <div><dt>Subsystem</dt><dd data-test="subsystem">${status.subsystem}</dd></div>
           <div><dt>Run</dt><dd>${status.run_id}</dd></div>
           <div><dt>Configuration</dt><dd data-test="configuration">${status.configuration || "none"}</dd></div>
-          <div><dt>Job</dt><dd data-test="job">${status.job || "none"}${status.application ? ` (application ${status.application})` : ""}</dd></div>
+          <div><dt>Job</dt><dd data-test="job">${status.job || "none"}${status.path ? ` (${status.path})` : status.application ? ` (application ${status.application})` : ""}</dd></div>
         </dl>
         <span class=${"flag " + (illegal ? "flag-on" : "flag-off")} data-test="illegal" role="status">
           ${illegal ? "Configuration illegal: critical tasks hold" : "Configuration legal"}</span>

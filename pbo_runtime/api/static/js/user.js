@@ -8,7 +8,7 @@ import { announceFileChanged, get, onFileChanged } from "./api.js";
 import { Dictionary } from "./user/dictionary.js";
 import { Workspace } from "./user/workspace.js";
 import { ObjectEditor } from "./user/object_editor.js";
-import { fromApplication, insert, move, remove, removeObject } from "./user/row.js";
+import { fromApplication, insert, move, remove, removeObject, setSetting } from "./user/row.js";
 
 export function User({ status }) {
   const [dictionary, setDictionary] = useState(null);
@@ -35,9 +35,10 @@ export function User({ status }) {
       if (!name) { setMessage({ text: "Select an icon of the dictionary first (click it, or Space), or drag one here", error: true }); return; }
       apply(insert(dictionary, steps, name, where));
     },
-    remove: (index) => apply(remove(steps, index)),
-    move: (from, before) => apply(move(steps, from, before)),
-    removeObject: (index) => apply(removeObject(steps, index)),
+    remove: (index, path = []) => apply(remove(steps, path, index)),
+    move: (from, before, path = []) => apply(move(steps, path, from, before)),
+    removeObject: (index, path = []) => apply(removeObject(steps, path, index)),
+    setSetting: (path, index, key, value) => apply(setSetting(steps, path, index, key, value)),
     editObject: (name) => setEditing({ name, where: "workspace" }),
     clear: () => { setSteps([]); setMessage({ text: "The row is empty", error: false }); },
   };

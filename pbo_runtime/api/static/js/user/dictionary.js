@@ -4,6 +4,7 @@
 // workspace, or to pick with the keyboard: Enter appends it to the row, Space selects it for a slot.
 import { html } from "../html.js";
 import { IconSvg, TypeSwatch, typeStyle } from "./edges.js";
+import { DECISIONS, iconOf } from "./row.js";
 
 export const DRAG_ICON = "application/x-pbo-icon";
 
@@ -15,6 +16,7 @@ const SUBTITLES = {
 
 /** What a screen reader says of an icon. */
 export function iconLabel(name, entry, what) {
+  if (what === "decision") return `${name}: a step that decides: ${entry.doc}`;
   if (what === "object") return `${name}: object of type ${entry.type}`;
   const kind = what === "application" ? "application" : "job";
   if (entry.class === "action_requiring_object") return `${name}: ${kind}, an action requiring an object of type ${entry.object_type}`;
@@ -24,8 +26,9 @@ export function iconLabel(name, entry, what) {
 
 /** One icon of the dictionary: a button, draggable; aria-pressed when selected. */
 function DictionaryIcon({ name, entry, what, selected, onSelect, onAppend }) {
-  const kind = what === "object" ? "object" : entry.class;
-  const subtitle = what === "object" ? entry.type : (what === "application" ? "app · " : "") + SUBTITLES[entry.class](entry);
+  const kind = what === "object" ? "object" : what === "decision" ? "decision" : entry.class;
+  const subtitle = what === "object" ? entry.type : what === "decision" ? "decides"
+                 : (what === "application" ? "app · " : "") + SUBTITLES[entry.class](entry);
   return html`
     <button class=${"icon dictionary-icon" + (selected ? " selected" : "")} draggable="true" aria-pressed=${selected}
             aria-label=${iconLabel(name, entry, what)} data-icon=${name} data-class=${kind}
@@ -85,5 +88,8 @@ export function Dictionary({ dictionary, selected, onSelect, onAppend, onEdit, o
       <${Section} title="Incomplete applications (gaps of several types)" test="incomplete"
                   items=${all.filter(([, e]) => e.class === "incomplete")} ...${common} />
       <${Section} title="Objects" test="objects" items=${objects} ...${common} />
+      <${Section} title="Steps that decide" test="decisions" ...${common}
+                  items=${Object.keys(DECISIONS).filter((name) => iconOf(dictionary, name).what === "decision")
+                            .map((name) => [name, { ...iconOf(dictionary, name), doc: DECISIONS[name].doc }, "decision"])} />
     </div>`;
 }

@@ -4,14 +4,69 @@
 // interlock rule is the file's (config/job_dictionary.py): flat against flat, a notch T against a
 // tab T. Each change answers {steps, message} or {refused}: the reason, shown to the user as it is.
 // The server checks the same row again before it saves or runs it.
+//
+// A step that decides (if, try, repeat, wait: docs/configuration.md#steps-that-decide) is
+// {id, name: its kind, kind, condition, times, max, timeout, rows: [[steps], ...]}: an action with
+// flat edges holding rows of steps of their own (then/else, try/fallback, the repeated steps). A
+// row is found by its `path` from the workspace's row: [] for it, [step, row, step, row, ...] inside.
 
 let nextId = 1;
+
+/** The steps that decide: their rows' names, and the settings a new one starts with. */
+export const DECISIONS = {
+  if: { rows: ["then", "else"], settings: { condition: "" }, doc: "runs then: if its condition holds, else: if not" },
+  try: { rows: ["try", "fallback"], settings: {}, doc: "runs fallback: if a step of try: fails; then goes on" },
+  repeat: { rows: ["repeat"], settings: { times: 2 }, doc: "runs its steps a number of times" },
+  wait: { rows: [], settings: { condition: "", timeout: "2 s" }, doc: "goes on once its condition holds; fails after its timeout" },
+};
+const FLAT_EDGES = { left: { shape: "flat", object_type: null }, right: { shape: "flat", object_type: null } };
+
+/** The row at `path` of `steps`. */
+export function rowAt(steps, path = []) {
+  let row = steps;
+  for (let i = 0; i < path.length; i += 2) row = row[path[i]].rows[path[i + 1]];
+  return row;
+}
+
+/** `steps` with the row at `path` replaced by `row`. */
+function withRow(steps, path, row) {
+  if (!path.length) return row;
+  const [index, which, ...rest] = path;
+  return steps.map((s, i) => (i !== index ? s : { ...s, rows: s.rows.map((r, k) => (k === which ? withRow(r, rest, row) : r)) }));
+}
+
+/** A change `change(row)` ({steps, message} or {refused}) made to the row at `path`. */
+function inRow(steps, path, change) {
+  const result = change(rowAt(steps, path));
+  return result.refused ? result : { steps: withRow(steps, path, result.steps), message: result.message };
+}
+
+/** Where a row is, for a message: "" for the workspace's row, "in the fallback of step 2 " inside. */
+export function rowWords(steps, path = []) {
+  if (!path.length) return "";
+  let row = steps;
+  const words = [];
+  for (let i = 0; i < path.length; i += 2) {
+    const step = row[path[i]];
+    words.push(`${DECISIONS[step.kind].rows[path[i + 1]]} of step ${path[i] + 1} (${step.kind})`);
+    row = step.rows[path[i + 1]];
+  }
+  return `in the ${words.reverse().join(" in the ")} `;
+}
+
+/** One setting of the step that decides at `index` of the row at `path`. */
+export function setSetting(steps, path, index, key, value) {
+  return inRow(steps, path, (row) => ({ steps: row.map((s, i) => (i === index ? { ...s, [key]: value } : s)), message: "" }));
+}
 
 const CLASS_WORDS = { action: "an action", action_requiring_object: "an action requiring an object",
                       incomplete: "an application with gaps of several object types" };
 
 /** The icon called `name` in the dictionary: {name, what: "job"|"application"|"object", class, object_type, edges}. */
 export function iconOf(dictionary, name) {
+  if (DECISIONS[name] && !dictionary.jobs[name] && !dictionary.applications[name]) {
+    return { name, what: "decision", class: "action", object_type: null, edges: FLAT_EDGES };
+  }
   if (dictionary.jobs[name]) return { name, what: "job", ...pick(dictionary.jobs[name]) };
   if (dictionary.applications[name]) return { name, what: "application", ...pick(dictionary.applications[name]) };
   if (dictionary.objects[name]) {
@@ -32,13 +87,18 @@ export function needsObject(dictionary, step) {
 }
 
 /** The row's gaps: [{index, step, name, object_type}] (object_type null: gaps of several types inside an application). */
-export function gaps(dictionary, steps) {
+export function gaps(dictionary, steps, where = "") {
   const found = [];
   steps.forEach((step, index) => {
+    if (step.kind) {  // a step that decides: the gaps of its rows are the application's
+      step.rows.forEach((row, which) => found.push(
+        ...gaps(dictionary, row, `${where}${index + 1} (${step.kind}, ${DECISIONS[step.kind].rows[which]}): step `)));
+      return;
+    }
     const icon = iconOf(dictionary, step.name);
     if (!icon) return;
-    if (icon.class === "action_requiring_object" && !step.object) found.push({ index, step: index + 1, name: step.name, object_type: icon.object_type });
-    if (icon.class === "incomplete") found.push({ index, step: index + 1, name: step.name, object_type: null });
+    if (icon.class === "action_requiring_object" && !step.object) found.push({ index, step: where + (index + 1), name: step.name, object_type: icon.object_type });
+    if (icon.class === "incomplete") found.push({ index, step: where + (index + 1), name: step.name, object_type: null });
   });
   return found;
 }
@@ -77,6 +137,13 @@ function fillSlot(dictionary, steps, index, object) {
  * an object meets the right edge of the step on its left.
  */
 export function insert(dictionary, steps, name, where) {
+  const path = where.path || [];
+  const result = inRow(steps, path, (row) => insertInRow(dictionary, row, name, where));
+  if (result.message && path.length) result.message = result.message.replace(/ as step (\d+)/, ` as step $1 ${rowWords(steps, path)}`.trimEnd());
+  return result;
+}
+
+function insertInRow(dictionary, steps, name, where) {
   const icon = iconOf(dictionary, name);
   if (!icon) return { refused: `'${name}' is no icon of the dictionary (reload the page: the file changed?)` };
   if (icon.what === "object") {
@@ -97,52 +164,74 @@ export function insert(dictionary, steps, name, where) {
                       + `${CLASS_WORDS[icon.class]}, not an object: drop it between steps` };
   }
   const at = Math.max(0, Math.min(where.before, steps.length));
-  const changed = [...steps.slice(0, at), { id: nextId++, name, object: null }, ...steps.slice(at)];
+  const made = icon.what === "decision"
+    ? { id: nextId++, name, kind: name, object: null, ...DECISIONS[name].settings, rows: DECISIONS[name].rows.map(() => []) }
+    : { id: nextId++, name, object: null };
+  const changed = [...steps.slice(0, at), made, ...steps.slice(at)];
   let message = `'${name}' inserted as step ${at + 1}`;
   if (icon.class === "action_requiring_object") {
     message += `: it needs an object of type ${icon.object_type} and its right neighbour is no such object, so a gap opened; `
                + `drop an object of that type on the gap`;
+  } else if (icon.what === "decision") {
+    message += DECISIONS[name].rows.length ? `: drop steps into its rows (${DECISIONS[name].rows.join(", ")})` : "";
   } else if (icon.class === "incomplete") {
     message += `: it has gaps of several object types inside, to fill in its own definition before it can run`;
   }
   return { steps: changed, message };
 }
 
-/** The row without step `index` (its object goes with it). */
-export function remove(steps, index) {
-  const step = steps[index];
-  return { steps: steps.filter((_, i) => i !== index), message: `step ${index + 1} '${step.name}' removed` };
+/** The row at `path` without step `index` (its object, or its rows, go with it). */
+export function remove(steps, path, index) {
+  return inRow(steps, path, (row) => ({ steps: row.filter((_, i) => i !== index),
+                                         message: `step ${index + 1} '${row[index].name}' ${rowWords(steps, path)}removed` }));
 }
 
-/** The row with step `index`'s object taken out: its gap opens again. */
-export function removeObject(steps, index) {
-  const step = steps[index];
-  return { steps: steps.map((s, i) => (i === index ? { ...s, object: null } : s)),
-           message: `'${step.object}' taken out of step ${index + 1} '${step.name}': its gap is open again` };
+/** The row at `path` with step `index`'s object taken out: its gap opens again. */
+export function removeObject(steps, path, index) {
+  return inRow(steps, path, (row) => ({
+    steps: row.map((s, i) => (i === index ? { ...s, object: null } : s)),
+    message: `'${row[index].object}' taken out of step ${index + 1} '${row[index].name}' ${rowWords(steps, path)}: its gap is open again`
+      .replace(" :", ":") }));
 }
 
-/** The row with step `from` (and its object) moved to stand before step `before` of the row as it was. */
-export function move(steps, from, before) {
-  if (before === from || before === from + 1) return { steps, message: "" };
-  const step = steps[from];
-  const rest = steps.filter((_, i) => i !== from);
-  const at = before > from ? before - 1 : before;
-  return { steps: [...rest.slice(0, at), step, ...rest.slice(at)], message: `'${step.name}' moved to step ${at + 1}` };
+/** The row at `path` with step `from` (and its object) moved to stand before step `before` of the row as it was. */
+export function move(steps, path, from, before) {
+  return inRow(steps, path, (row) => {
+    if (before === from || before === from + 1) return { steps: row, message: "" };
+    const step = row[from];
+    const rest = row.filter((_, i) => i !== from);
+    const at = before > from ? before - 1 : before;
+    return { steps: [...rest.slice(0, at), step, ...rest.slice(at)], message: `'${step.name}' moved to step ${at + 1}` };
+  });
 }
 
 /** Application `name` of the dictionary as a row, to change and save again; refused if a step's object is written out as values. */
 export function fromApplication(dictionary, name) {
   const application = dictionary.applications[name];
-  const written = application.steps.find((s) => s.object === null && s.value !== null && s.value !== undefined);
-  if (written) {
-    return { refused: `step ${written.step} of '${name}' gives '${written.job}' its object as values written out in the file; `
+  const written = [];
+  const toSteps = (entries) => entries.map((s) => {
+    if (!s.decision) {
+      if (s.object === null && s.value !== null && s.value !== undefined) written.push(s);
+      return { id: nextId++, name: s.job, object: s.object };
+    }
+    const d = s.decision;
+    const settings = d.kind === "repeat"
+      ? (d.condition ? { until: d.condition, max: d.max } : { times: d.times })
+      : { condition: d.condition, ...(d.kind === "wait" && d.timeout !== null ? { timeout: `${d.timeout} s` } : {}) };
+    const rows = DECISIONS[d.kind].rows.map((_, k) => toSteps(d.rows[k] || []));
+    return { id: nextId++, name: d.kind, kind: d.kind, object: null, ...settings, rows };
+  });
+  const steps = toSteps(application.steps);
+  if (written.length) {
+    return { refused: `step ${written[0].step} of '${name}' gives '${written[0].job}' its object as values written out in the file; `
                       + "the workspace takes named objects: name the value under objects: in the file, or build the row anew" };
   }
-  const steps = application.steps.map((s) => ({ id: nextId++, name: s.job, object: s.object }));
   return { steps, message: `application '${name}' opened in the workspace: Save with replace ticked writes it back` };
 }
 
-/** The row as the API takes it: [{name, object}]. */
+/** The row as the API takes it: [{name, object}], a step that decides as {kind, its settings, rows}. */
 export function rowBody(steps) {
-  return steps.map((s) => ({ name: s.name, object: s.object }));
+  return steps.map((s) => (s.kind
+    ? { kind: s.kind, condition: s.condition, times: s.times, max: s.max, until: s.until, timeout: s.timeout, rows: s.rows.map(rowBody) }
+    : { name: s.name, object: s.object }));
 }

@@ -20,7 +20,7 @@ class AnalogInput(PortBasedObject):
     """v = the lent ADC channels' voltages. Real-time safe cycle."""
 
     Params = AnalogInputParams
-    DEVICES = {"device": {}}
+    DEVICES = {"device": {"kind": "adc"}}
 
     v = OutVar("v_in", shape=None, doc="voltages of the lent ADC channels, V, in channel order (one element each)")
 

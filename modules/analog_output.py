@@ -21,7 +21,7 @@ class AnalogOutput(PortBasedObject):
     """The lent DAC channels = v. Real-time safe cycle."""
 
     Params = AnalogOutputParams
-    DEVICES = {"device": {}}
+    DEVICES = {"device": {"kind": "dac"}}
 
     v = InVar("v_out", shape=None, doc="voltages for the lent DAC channels, V, in channel order (one element each)")
 

@@ -49,6 +49,7 @@ class FkJacobianSpp(ModelBased):
     """Forward kinematics and Jacobian of the arm, computed on a special-purpose processor."""
 
     Params = FkJacobianSppParams
+    DEVICES = {"device": {"kind": "spp"}}
 
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
     x_m = OutVar("x_m", shape=(6,), doc="measured pose: position m, then rotation vector rad, base frame")

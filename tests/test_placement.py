@@ -102,7 +102,7 @@ SMALL = """\
 subsystem: placing
 rtpus: [rtpu0, rtpu1]
 devices:
-  arm: {driver: fake_arm, exclusive: true}
+  arm: {driver: mujoco_arm, exclusive: true}
 dims: {N: 3}
 variables:
   g: {type: float64, object: goal}

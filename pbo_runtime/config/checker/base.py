@@ -32,6 +32,7 @@ class CheckerBase:
         self.module_names = module_names
         self.driver_lookup = driver_lookup or registry.driver_class
         self._drivers: dict[str, Any] = {}
+        self._driver_errors: dict[str, str] = {}  # why a driver could not be found, by name
         self._claims: dict[str, list[_Claim]] = {}
         self.out = Checked()
         self.rtpu_names: set[str] = set()

@@ -25,6 +25,7 @@ class TaskChecks(CheckerBase):
         def channels_exist(self, claim: PortClaim, what: str) -> bool: ...
         def infer_variables(self, linked: list[tuple[_Task, list[_Link]]]) -> None: ...
         def driver_class(self, driver: str) -> Any: ...
+        def drivers_of_kind(self, kind: str) -> str: ...
 
     def known_modules(self) -> list[str] | None:
         if self.module_names is None:
@@ -622,8 +623,8 @@ class TaskChecks(CheckerBase):
         ok = True
         for field, needs in uses.items():
             device = getattr(task.built_params, str(field), None)
-            if not isinstance(device, str):
-                continue
+            if not isinstance(device, str) or not device:
+                continue  # no device named: the module opens none
             given = params is not None and field in params
             if device not in resources:
                 ok = False
@@ -647,18 +648,32 @@ class TaskChecks(CheckerBase):
                     self.error("E608", f"task '{task.name}' (module '{task.module}') {what}, which is not among its resources ({listing})",
                                where, fix, notes)
                 continue
-            ok = self.check_device_options(task, spec, device, needs) and ok
+            ok = self.check_device_options(task, spec, device, needs, str(field)) and ok
         return ok
 
-    def check_device_options(self, task: _Task, spec: YMap, device: str, needs: Any) -> bool:
-        """E609: the device has every driver option the module needs (its value, or the driver's default)."""
+    def check_device_options(self, task: _Task, spec: YMap, device: str, needs: Any, field: str = "device") -> bool:
+        """E610: the device is of the kind the module needs (its driver's KIND); E609: it has every
+        driver option the module needs (its value, or the driver's default)."""
         device_spec = self.out.devices.get(device)
         cls = self.driver_class(device_spec.driver) if device_spec is not None else None
         if device_spec is None or cls is None or not isinstance(needs, Mapping):
             return True  # the device or its driver is wrong or unknown: reported there, or checked when opened
+        wanted_kind = needs.get("kind")
+        kind = getattr(cls, "KIND", "")
+        if wanted_kind is not None and kind != wanted_kind:
+            params = spec.get("params")
+            where = params.value_loc(field) if isinstance(params, YMap) and field in params else spec.value_loc("module")
+            found = f"a device of kind {kind}" if kind else "a device of no declared kind"
+            self.error("E610", f"task '{task.name}' (module '{task.module}') opens device '{device}', {found} (driver "
+                               f"{device_spec.driver}), but the module needs a device of kind {wanted_kind}",
+                       where, f"name a device whose driver is of kind {wanted_kind} ({self.drivers_of_kind(wanted_kind)})",
+                       [(device_spec.loc, f"device '{device}' has driver {device_spec.driver}")])
+            return False
         defaults = getattr(cls, "OPTION_DEFAULTS", {}) or {}
         node = self.device_nodes.get(device)
         for option, wanted in needs.items():
+            if option == "kind":
+                continue
             if option in device_spec.options:
                 has, where, how = device_spec.options[option], (node.value_loc(option) if node is not None else device_spec.loc), ""
             elif option in defaults:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import re
 from pathlib import Path
 from typing import Any
@@ -111,7 +112,13 @@ class SectionChecks(CheckerBase):
         if m is None:
             return None
         limit = self.integer(m["max"], m.value_loc("max"), f"max of the restart of {owner}", minimum=0) if "max" in m else None
-        required = ("max", "within") if limit != 0 else ("max",)
+        # only max is always required; within counts the deaths of max > 0: said missing only when
+        # max is a count > 0 and no unknown key is there (a key unlike 'within' is said unknown, with
+        # the valid keys; one like it, as a misspelt within)
+        unknown = [str(k) for k in m if k not in RESTART_KEYS]
+        like_within = bool(difflib.get_close_matches("within", unknown, n=1, cutoff=0.6))
+        wants_within = isinstance(limit, int) and limit > 0 and (not unknown or like_within)
+        required = ("max", "within") if wants_within else ("max",)
         self.keys(m, RESTART_KEYS, required, f"in the restart of {owner}", loc)
         within = None
         if "within" in m:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from typing import TYPE_CHECKING, Any, Mapping
 
 from pbo_runtime.config.checker.base import CheckerBase, named_by, named_in, param_value_at
@@ -699,6 +700,9 @@ class TaskChecks(CheckerBase):
         wrong member 'inverse_dynamix'; a parameter it names: 'ki', PidJoint.kp, "kd must be >= 0"),
         else the params."""
         raw = spec.get("params")
+        member = _member_named_by(raw, message)  # "member 2 ...": a combined module's member, and what in it
+        if member is not None:
+            return member
         found = named_by(raw, message) if isinstance(raw, YMap) else None
         return found or self.params_loc(task, spec)
 
@@ -706,6 +710,19 @@ class TaskChecks(CheckerBase):
     def params_loc(task: _Task, spec: YMap) -> Location:
         """Where a message about a task's params points: the params, or the task when it gives none."""
         return location_of(spec.get("params"), spec.value_loc("params") if "params" in spec else task.loc)
+
+
+def _member_named_by(params: Any, message: str) -> Location | None:
+    """Where a refusal that names a member by number ("member 2 has unknown key(s) 'param'") points:
+    what it quotes inside that member, else the member itself; None when it names no member."""
+    number = re.search(r"\bmembers? (\d+)\b", message)
+    members = params.get("members") if isinstance(params, YMap) else None
+    if number is None or not isinstance(members, YList) or not 1 <= int(number.group(1)) <= len(members):
+        return None
+    index = int(number.group(1)) - 1
+    node = members[index]
+    inside = named_by(node, message[number.end():]) if isinstance(node, YMap) else None
+    return inside or location_of(node, members.item_loc(index))
 
 
 def _ports_from_params(module_class: Any) -> bool:

@@ -36,6 +36,7 @@ tasks:
           resources: [{device: dac0, channels: [0, 1]}]}
 configurations:
   run: [force, aux, drive]
+plant: {model: puma560, timestep: 1 ms}
 """
 
 

@@ -57,6 +57,7 @@ class MujocoArmDriver(DeviceDriver):
 
     KIND = "arm"
     OPTIONS = _OPTIONS
+    NEEDS_PLANT = True
 
     OPTION_DEFAULTS = {"mode": "torque"}
 

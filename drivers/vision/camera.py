@@ -53,6 +53,8 @@ class VisionCamera(DeviceDriver):
 
     KIND = "camera"
     OPTIONS = _OPTIONS
+    NEEDS_PLANT = True
+    PLANT_OPTIONS = ("target",)
 
     @classmethod
     def check_options(cls, options: Mapping[str, Any]) -> None:

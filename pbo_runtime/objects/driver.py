@@ -38,6 +38,11 @@ class DeviceDriver:
     # The names of the options it takes (the YAML keys beside driver, exclusive, io); None: not
     # declared, any (its `check_options` decides). `pbo check` and `pbo lexicon --drivers` read them.
     OPTIONS: ClassVar[tuple[str, ...] | None] = None
+    # What it opens besides the device: True when it attaches to the plant's register segment (the
+    # simulated hardware), so a task opening it needs a `plant:`; and the plant options it reads
+    # (the camera sees the plant's `target`). `pbo check` refuses a file that lacks them (E611).
+    NEEDS_PLANT: ClassVar[bool] = False
+    PLANT_OPTIONS: ClassVar[tuple[str, ...]] = ()
     IO: ClassVar[str] = ""  # a sensor-actuator driver: the KIND of I/O device it is wired to
     IO_CHANNELS: ClassVar[int] = 0  # ... and how many of its channels it needs
     # The options a device has when its YAML leaves them out: what `pbo check` compares with what

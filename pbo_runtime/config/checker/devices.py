@@ -86,6 +86,30 @@ class DeviceChecks(CheckerBase):
             names = []
         return f"drivers of kind {kind}: {', '.join(names)}" if names else f"no registered driver is of kind {kind}"
 
+    def plant_lacks(self, device: str) -> tuple[str, str] | None:
+        """What a device (or the I/O device it is wired through) needs of the plant that the file
+        does not give (its driver's NEEDS_PLANT, PLANT_OPTIONS), with a hint; None when nothing."""
+        seen: set[str] = set()
+        while device in self.out.devices and device not in seen:
+            seen.add(device)
+            spec = self.out.devices[device]
+            cls = self.driver_class(spec.driver)
+            if cls is not None and getattr(cls, "NEEDS_PLANT", False):
+                plant = self.out.plant
+                if plant is None:
+                    if self.plant_written:
+                        return None  # the plant is wrong, and was reported there
+                    return (f"device '{device}' (driver {spec.driver}), hardware the plant simulates, but the file has no plant:",
+                            "add a plant, e.g. plant: {model: puma560, timestep: 1 ms}")
+                missing = [o for o in getattr(cls, "PLANT_OPTIONS", ()) if o not in plant.options]
+                if missing:
+                    return (f"device '{device}' (driver {spec.driver}), which reads the plant's option {', '.join(missing)}, but plant: does not give it",
+                            f"give the plant {', '.join(missing)}: (docs/modules.md, 'Drivers', says what it takes)")
+            if spec.io is None:
+                return None
+            device = spec.io.device
+        return None
+
     def ports_of(self, device: str) -> int | None:
         """How many channels a device has (0: not port-based), or None when its driver is unknown."""
         spec = self.out.devices.get(device)

@@ -145,6 +145,7 @@ class SectionChecks(CheckerBase):
             self.out.bus = BusSpec(bandwidth, overhead, bus.loc)
 
     def check_plant(self, top: YMap) -> None:
+        self.plant_written = "plant" in top and top["plant"] is not None
         plant = self.section(top, "plant", "e.g. plant: {model: puma560, timestep: 1 ms}")
         if plant is None:
             return

@@ -27,6 +27,7 @@ class TaskChecks(CheckerBase):
         def infer_variables(self, linked: list[tuple[_Task, list[_Link]]]) -> None: ...
         def driver_class(self, driver: str) -> Any: ...
         def drivers_of_kind(self, kind: str) -> str: ...
+        def plant_lacks(self, device: str) -> tuple[str, str] | None: ...
 
     def known_modules(self) -> list[str] | None:
         if self.module_names is None:
@@ -668,6 +669,13 @@ class TaskChecks(CheckerBase):
             self.error("E610", f"task '{task.name}' (module '{task.module}') opens device '{device}', {found} (driver "
                                f"{device_spec.driver}), but the module needs a device of kind {wanted_kind}",
                        where, f"name a device whose driver is of kind {wanted_kind} ({self.drivers_of_kind(wanted_kind)})",
+                       [(device_spec.loc, f"device '{device}' has driver {device_spec.driver}")])
+            return False
+        lacks = self.plant_lacks(device)
+        if lacks is not None:
+            params = spec.get("params")
+            where = params.value_loc(field) if isinstance(params, YMap) and field in params else spec.value_loc("module")
+            self.error("E611", f"task '{task.name}' (module '{task.module}') opens {lacks[0]}", where, lacks[1],
                        [(device_spec.loc, f"device '{device}' has driver {device_spec.driver}")])
             return False
         defaults = getattr(cls, "OPTION_DEFAULTS", {}) or {}

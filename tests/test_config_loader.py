@@ -40,7 +40,7 @@ FULL = """\
 subsystem: bench
 rtpus: {rtpu0: {cpu: 0}, rtpu1: {cpu: 1}}
 bus: {bandwidth: 40 MB/s, lock_overhead: 16 B}
-plant: {model: puma560, timestep: 2 ms, seed: 3}
+plant: {model: puma560, timestep: 1 ms, seed: 3}
 devices:
   cam: {driver: camera, latency: 4}
 dims: {N: 3}
@@ -72,7 +72,7 @@ def test_a_legal_file_loads_into_the_frozen_model(tmp_path: Path) -> None:
     assert sub.name == "bench"
     assert [(r.name, r.index, r.cpu) for r in sub.rtpus] == [("rtpu0", 0, 0), ("rtpu1", 1, 1)]
     assert (sub.bus.bandwidth, sub.bus.lock_overhead) == (40e6, 16.0)
-    assert sub.plant is not None and sub.plant.type == "mujoco_arm" and sub.plant.timestep == pytest.approx(2e-3)
+    assert sub.plant is not None and sub.plant.type == "mujoco_arm" and sub.plant.timestep == pytest.approx(1e-3)
     assert sub.plant.options == {"seed": 3}
     assert sub.devices["cam"].driver == "camera" and sub.devices["cam"].options == {"latency": 4}
     assert not sub.devices["cam"].exclusive

@@ -97,6 +97,7 @@ class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, Tas
         self.check_device_union()
         self.check_schedulability()
         self.check_spins()
+        self.check_simulation_grid()
         self.check_const_order()
         self.check_unused()
         return self.out

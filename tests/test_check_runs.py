@@ -14,7 +14,6 @@ found is kept below as regression cases, each a file the checker once accepted a
 
 from __future__ import annotations
 
-import random
 import re
 import subprocess
 from pathlib import Path

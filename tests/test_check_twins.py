@@ -111,6 +111,31 @@ SPP_TASK = "  fk:    {module: fk_jacobian_spp, rtpu: rtpu1, period: 2 ms, params
     pytest.param(edited(COMBINED, ("{module: inverse_dynamics}", "{module: inverse_dynamics, params: {kp: 1}}")), "kp: 1}}", "E308",
                  r".*member 2 \(inverse_dynamics\): unknown parameter\(s\) 'kp'", "",
                  id="a_member_parameter_at_that_member_not_the_first_with_the_name"),
+    pytest.param(edited(BASE, ("plant: {model: puma560, timestep: 1 ms}\n", "dims: {NDOF: 6}\n")), "robot_torque", "E611",
+                 r"task 'robot' \(module 'robot_torque'\) opens device 'arm' \(driver mujoco_arm\), hardware the plant simulates, "
+                 r"but the file has no plant:", "add a plant", id="an_arm_with_no_plant_to_serve_it"),
+    pytest.param(edited(BASE, ("  arm: {driver", "  cam: {driver: camera}\n  arm: {driver"),
+                        ("configurations:", "  fk:    {module: fk_jacobian, rtpu: rtpu1, period: 2 ms}\n"
+                                            "  vision: {module: visual_servoing, rtpu: rtpu0, period: 10 ms, params: {device: cam}, "
+                                            "resources: [cam]}\nconfigurations:"),
+                        ("[robot, traj, pid]", "[robot, traj, pid, fk, vision]")),
+                 "cam}, resources", "E611", r"task 'vision' \(module 'visual_servoing'\) opens device 'cam' \(driver camera\), "
+                 r"which reads the plant's option target, but plant: does not give it", "give the plant target:",
+                 id="a_camera_with_no_target_to_see"),
+    pytest.param(edited(BASE, ("configurations:", "  fk:    {module: fk_jacobian, rtpu: rtpu1, period: 2 ms, params: {frame: link9}}\n"
+                                                  "configurations:"), ("[robot, traj, pid]", "[robot, traj, pid, fk]")),
+                 "link9", "E323", r"task 'fk' \(module 'fk_jacobian'\): frame must be one of the arm's frames \(ee, link1 \.\.\. link6",
+                 "", id="a_frame_the_arm_has_not"),
+    pytest.param(edited(BASE, ("  arm: {driver", "  adc0: {driver: adc}\n  arm: {driver"),
+                        ("configurations:", "  aux:   {module: analog_input, rtpu: rtpu0, period: 1 ms, params: {device: adc0}, "
+                                            "ports: {v: v6}, resources: [{device: adc0, channels: 0-2}]}\nconfigurations:"),
+                        ("[robot, traj, pid]", "[robot, traj, pid, aux]"), ("variables:\n", "variables:\n  v6: {type: float64, shape: [6]}\n")),
+                 "[{device: adc0, channels: 0-2}]", "E323", r"task 'aux' \(module 'analog_input'\): port 'v' links a variable of 6 "
+                 r"elements, but the task opens 3 channels of device 'adc0'", "", id="channels_and_a_variable_of_other_sizes"),
+    pytest.param(edited(BASE, ("configurations:", "  diff:  {module: differentiator, rtpu: rtpu0, period: 1 ms, ports: {z: q_d, zd: zd8}}\n"
+                                                  "configurations:"), ("variables:\n", "variables:\n  zd8: {type: float64, shape: [8]}\n")),
+                 "zd8}}", "E319",
+                 r"task 'diff' \(module 'differentiator'\) needs one shape on ports 'z', 'zd'", "", id="a_derivative_of_another_shape"),
     pytest.param(edited(BASE, ("rtpus: [rtpu0, rtpu1]", "rtpus: {rtpu0: {restart: {withn: 1 s}}, rtpu1: {}}")), "withn", "E111",
                  r"unknown key 'withn' in the restart of RTPU 'rtpu0'", "", id="a_restart_with_an_unknown_key_and_no_max"),
 ])

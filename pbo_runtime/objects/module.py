@@ -129,6 +129,13 @@ class PortBasedObject:
         return cls.ports()
 
     @classmethod
+    def check_links(cls, params: Any, shapes: Mapping[str, tuple[int, ...]], dims: Mapping[str, int],
+                    channels: Mapping[str, int]) -> None:
+        """Raise ValueError for what `init` would refuse that the file already shows: `shapes` of the
+        variables its ports link (by port name), the subsystem's `dims`, and how many `channels` of
+        each device the task opens. `pbo check` calls it (E323); by default all is well."""
+
+    @classmethod
     def same_shape(cls, params: Any) -> tuple[tuple[str, ...], ...]:
         """Groups of port names whose variables must all have one shape (a join's output and
         inputs): ports that take their shape from their variable, but must agree with each other.

@@ -33,6 +33,7 @@ from pbo_runtime.config.checker.model import (
     DriverLookup,
     ModuleLookup,
 )
+from pbo_runtime.config.checker.module_links import ModuleLinkChecks
 from pbo_runtime.config.checker.objects import ObjectChecks
 from pbo_runtime.config.checker.sections import SectionChecks
 from pbo_runtime.config.checker.tasks import TaskChecks
@@ -61,7 +62,7 @@ __all__ = [
 
 
 class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, TaskChecks, ConfigurationChecks, ClaimChecks,
-               ObjectChecks, JobChecks, TimingChecks, CheckerBase):
+               ModuleLinkChecks, ObjectChecks, JobChecks, TimingChecks, CheckerBase):
     """The whole checker: the core (`CheckerBase`) with every rule, one mixin a concept, and the pass."""
 
     def run(self, doc: Any, doc_loc: Location) -> Checked:

@@ -28,6 +28,7 @@ class TaskChecks(CheckerBase):
         def driver_class(self, driver: str) -> Any: ...
         def drivers_of_kind(self, kind: str) -> str: ...
         def plant_lacks(self, device: str) -> tuple[str, str] | None: ...
+        def check_module_links(self, task: _Task, spec: YMap, module_class: Any) -> bool: ...
 
     def known_modules(self) -> list[str] | None:
         if self.module_names is None:
@@ -82,7 +83,8 @@ class TaskChecks(CheckerBase):
         for task, spec, complete, links in bound:
             if links is not None:
                 if task.ok and module_class_of.get(task.name) is not None:
-                    task.ok = self.check_same_shapes(task, spec, module_class_of[task.name])
+                    task.ok = (self.check_same_shapes(task, spec, module_class_of[task.name])
+                               and self.check_module_links(task, spec, module_class_of[task.name]))
                 if task.ok and "fresh_within" in spec:
                     complete = self.check_task_freshness(task, spec) and complete
             if complete and task.ok:

@@ -26,7 +26,7 @@ class ModelBased(PortBasedObject):
 
     @classmethod
     def check_links(cls, params: Any, shapes: Mapping[str, tuple[int, ...]], dims: Mapping[str, int],
-                    channels: Mapping[str, int]) -> None:
+                    channels: Mapping[str, int], options: Mapping[str, Mapping[str, Any]]) -> None:
         """A `frame` param names a frame of the model `arm_model` builds: ee, link<i>, joint<i>."""
         frame, n = getattr(params, "frame", None), dims.get("NDOF")
         if isinstance(frame, str) and frame and isinstance(n, int) and frame not in arm_frames(n):

@@ -30,7 +30,7 @@ class AnalogOutput(PortBasedObject):
 
     @classmethod
     def check_links(cls, params: Any, shapes: Mapping[str, tuple[int, ...]], dims: Mapping[str, int],
-                    channels: Mapping[str, int]) -> None:
+                    channels: Mapping[str, int], options: Mapping[str, Mapping[str, Any]]) -> None:
         """One element of v a channel the task opens (what init checks)."""
         lent, shape = channels.get(params.device), shapes.get("v")
         if lent is not None and shape is not None and math.prod(shape) != lent:

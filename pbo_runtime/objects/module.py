@@ -130,10 +130,11 @@ class PortBasedObject:
 
     @classmethod
     def check_links(cls, params: Any, shapes: Mapping[str, tuple[int, ...]], dims: Mapping[str, int],
-                    channels: Mapping[str, int]) -> None:
+                    channels: Mapping[str, int], options: Mapping[str, Mapping[str, Any]]) -> None:
         """Raise ValueError for what `init` would refuse that the file already shows: `shapes` of the
-        variables its ports link (by port name), the subsystem's `dims`, and how many `channels` of
-        each device the task opens. `pbo check` calls it (E323); by default all is well."""
+        variables its ports link (by port name), the subsystem's `dims`, how many `channels` of each
+        device the task opens and each device's `options` as written. `pbo check` calls it (E323);
+        by default all is well."""
 
     @classmethod
     def same_shape(cls, params: Any) -> tuple[tuple[str, ...], ...]:

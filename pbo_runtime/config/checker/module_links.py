@@ -30,7 +30,8 @@ class ModuleLinkChecks(CheckerBase):
             if count:
                 channels[device] = count
         try:
-            check(task.built_params, shapes, dict(self.out.dims), channels)
+            options = {device: dict(self.out.devices[device].options) for device, _ in task.resources if device in self.out.devices}
+            check(task.built_params, shapes, dict(self.out.dims), channels, options)
         except (ValueError, TypeError) as exc:
             params = spec.get("params")
             where: Location | None

@@ -208,9 +208,19 @@ ARM_WITHOUT_A_PLANT = {  # E611: the arm's driver attaches to the plant's regist
               "grav": {"module": "gravity_compensation", "rtpu": "rtpu0", "period": "1 ms", "ports": {"tau_g": "tau_u"}}},
     "configurations": {"first": ["robot", "grav"]}}
 
+OFF_THE_PLANT_GRID = {  # W504: --clock sim releases tasks on the plant's 1 ms steps, never at 0.5 ms
+    "subsystem": "prop", "rtpus": ["rtpu0"], "plant": {"model": "puma560", "timestep": "1 ms"},
+    "devices": {"arm": {"driver": "mujoco_arm", "mode": "torque"}},
+    "variables": {"q_d": {"type": "float64", "shape": ["NDOF"], "object": "joint_position", "initial": 0}},
+    "tasks": {"robot": {"module": "robot_torque", "rtpu": "rtpu0", "period": "1 ms", "resources": ["arm"]},
+              "traj": {"module": "joint_trajectory", "rtpu": "rtpu0", "period": "0.5 ms"},
+              "pid": {"module": "pid_joint", "rtpu": "rtpu0", "period": "0.5 ms"}},
+    "configurations": {"first": ["robot", "traj", "pid"]}}
+
 
 @pytest.mark.multiprocess
 @example(doc=ARM_WITHOUT_A_PLANT)
+@example(doc=OFF_THE_PLANT_GRID)
 @settings(max_examples=EXAMPLES, deadline=None, derandomize=not LONG,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large])
 @given(doc=subsystem_files())

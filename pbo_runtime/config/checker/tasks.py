@@ -725,7 +725,7 @@ class TaskChecks(CheckerBase):
 def _member_named_by(params: Any, message: str) -> Location | None:
     """Where a refusal that names a member by number ("member 2 has unknown key(s) 'param'") points:
     what it quotes inside that member, else the member itself; None when it names no member."""
-    number = re.search(r"\bmembers? (\d+)\b", message)
+    number = re.search(r"\bmembers \d+:\S+ and (\d+)\b", message) or re.search(r"\bmembers? (\d+)\b", message)  # two: the second
     members = params.get("members") if isinstance(params, YMap) else None
     if number is None or not isinstance(members, YList) or not 1 <= int(number.group(1)) <= len(members):
         return None

@@ -219,6 +219,7 @@ OFF_THE_PLANT_GRID = {  # W504: --clock sim releases tasks on the plant's 1 ms s
 
 
 @pytest.mark.multiprocess
+@pytest.mark.timeout(0 if LONG else 600)  # the long profile runs for an hour; each run has its own net below
 @example(doc=ARM_WITHOUT_A_PLANT)
 @example(doc=OFF_THE_PLANT_GRID)
 @settings(max_examples=EXAMPLES, deadline=None, derandomize=not LONG,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import re
 from pathlib import Path
 from typing import Any
@@ -116,7 +115,7 @@ class SectionChecks(CheckerBase):
         # max is a count > 0 and no unknown key is there (a key unlike 'within' is said unknown, with
         # the valid keys; one like it, as a misspelt within)
         unknown = [str(k) for k in m if k not in RESTART_KEYS]
-        like_within = bool(difflib.get_close_matches("within", unknown, n=1, cutoff=0.6))
+        like_within = any(did_you_mean(key, ("within",)).startswith("did you mean") for key in unknown)
         wants_within = isinstance(limit, int) and limit > 0 and (not unknown or like_within)
         required = ("max", "within") if wants_within else ("max",)
         self.keys(m, RESTART_KEYS, required, f"in the restart of {owner}", loc)

@@ -29,7 +29,7 @@ from pbo_runtime.objects import registry
 from tests.support import PBO, REPO
 
 LONG = settings.default is settings.get_profile("long")  # --hypothesis-profile=long (tests/conftest.py), run by hand
-EXAMPLES = settings.default.max_examples if LONG else 6
+EXAMPLES = settings.default.max_examples if LONG else 10
 RUN_FOR = "0.02"  # simulated seconds once the configuration is on: starting and stopping is the point
 
 PERIODS = ("0.5 ms", "1 ms", "2 ms", "5 ms", "10 ms")

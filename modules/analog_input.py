@@ -6,7 +6,10 @@ output variable has one element per channel, in channel order. Real-time safe cy
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from pbo_runtime import ModuleError, OutVar, PortBasedObject, Status
 
@@ -20,9 +23,18 @@ class AnalogInput(PortBasedObject):
     """v = the lent ADC channels' voltages. Real-time safe cycle."""
 
     Params = AnalogInputParams
-    DEVICES = {"device": {}}
+    DEVICES = {"device": {"kind": "adc"}}
 
     v = OutVar("v_in", shape=None, doc="voltages of the lent ADC channels, V, in channel order (one element each)")
+
+    @classmethod
+    def check_links(cls, params: Any, shapes: Mapping[str, tuple[int, ...]], dims: Mapping[str, int],
+                    channels: Mapping[str, int], options: Mapping[str, Mapping[str, Any]]) -> None:
+        """One element of v a channel the task opens (what init checks)."""
+        lent, shape = channels.get(params.device), shapes.get("v")
+        if lent is not None and shape is not None and math.prod(shape) != lent:
+            raise ValueError(f"port 'v' links a variable of {math.prod(shape)} elements, but the task opens {lent} "
+                             f"channels of device '{params.device}': one element a channel")
 
     def init(self, params: AnalogInputParams) -> None:
         adc = self.open_device(params.device)

@@ -7,7 +7,10 @@ their last value; killed, the driver sets them to 0 V. Real-time safe cycle: one
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from pbo_runtime import InVar, ModuleError, PortBasedObject, Status
 
@@ -21,9 +24,18 @@ class AnalogOutput(PortBasedObject):
     """The lent DAC channels = v. Real-time safe cycle."""
 
     Params = AnalogOutputParams
-    DEVICES = {"device": {}}
+    DEVICES = {"device": {"kind": "dac"}}
 
     v = InVar("v_out", shape=None, doc="voltages for the lent DAC channels, V, in channel order (one element each)")
+
+    @classmethod
+    def check_links(cls, params: Any, shapes: Mapping[str, tuple[int, ...]], dims: Mapping[str, int],
+                    channels: Mapping[str, int], options: Mapping[str, Mapping[str, Any]]) -> None:
+        """One element of v a channel the task opens (what init checks)."""
+        lent, shape = channels.get(params.device), shapes.get("v")
+        if lent is not None and shape is not None and math.prod(shape) != lent:
+            raise ValueError(f"port 'v' links a variable of {math.prod(shape)} elements, but the task opens {lent} "
+                             f"channels of device '{params.device}': one element a channel")
 
     def init(self, params: AnalogOutputParams) -> None:
         dac = self.open_device(params.device)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from pbo_runtime import ModuleError, PortBasedObject, PortSpec, Status, module_class
+from pbo_runtime import ModuleError, ParamError, PortBasedObject, PortSpec, Status, module_class
 
 _MEMBER_KEYS = ("module", "params", "ports")
 
@@ -49,19 +49,23 @@ class CombinedParams:
                 raise ValueError(f"member {number} must be a mapping with a module, got: {entry!r}")
             unknown = sorted(set(entry) - set(_MEMBER_KEYS))
             if unknown:
-                raise ValueError(f"member {number} has unknown key(s) {', '.join(unknown)} (valid: {', '.join(_MEMBER_KEYS)})")
+                raise ValueError(f"member {number} has unknown key(s) {', '.join(repr(k) for k in unknown)} "
+                                 f"(valid: {', '.join(_MEMBER_KEYS)})")
             if entry["module"] == "combined":
                 raise ValueError(f"member {number}: a combined module cannot contain another; list its members instead")
             try:
                 cls = module_class(str(entry["module"]))
             except Exception as exc:
                 raise ValueError(f"member {number}: {exc}") from None
-            params = cls.build_params(dict(entry.get("params") or {}))
+            try:
+                params = cls.build_params(dict(entry.get("params") or {}))
+            except ParamError as exc:  # which member: two may share a parameter's name
+                raise ValueError(f"member {number} ({entry['module']}): {exc}") from None
             relinks = dict(entry.get("ports") or {})
             declared = {p.name: p for p in cls.ports_for(params)}
             unknown_ports = sorted(set(relinks) - set(declared))
             if unknown_ports:
-                raise ValueError(f"member {number} ({entry['module']}) has no port(s) {', '.join(unknown_ports)} "
+                raise ValueError(f"member {number} ({entry['module']}) has no port(s) {', '.join(repr(p) for p in unknown_ports)} "
                                  f"(ports: {', '.join(declared)})")
             links = tuple((port, str(relinks.get(port.name, port.variable))) for port in declared.values())
             built.append(Member(f"{number}:{entry['module']}", cls, params, links))
@@ -73,6 +77,12 @@ class CombinedParams:
                     if variable in writers:
                         raise ValueError(f"members {writers[variable]} and {member.name} both write '{variable}'")
                     writers[variable] = member.name
+        internal = self.internal_variables()
+        for name in self.export:
+            if name not in internal:
+                raise ValueError(f"export names '{name}', which is no member-to-member variable (one member writes it, "
+                                 f"another reads it): internal variables: {', '.join(sorted(internal)) or 'none'}; "
+                                 "a member's other links are the task's own ports, in the table already")
 
     def internal_variables(self) -> set[str]:
         """Variables one member writes and another reads: members read them from the writer, same cycle."""

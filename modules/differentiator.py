@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -40,6 +41,10 @@ class Differentiator(PortBasedObject):
 
     z = InVar("z", shape=None, doc="the signal (any shape; link it with ports: {z: <variable>})")
     zd = OutVar("zd", shape=None, doc="its time derivative, per second (the shape of z)")
+
+    @classmethod
+    def same_shape(cls, params: Any) -> tuple[tuple[str, ...], ...]:
+        return (("z", "zd"),)  # `pbo check` refuses what init would
 
     def init(self, params: DifferentiatorParams) -> None:
         if self.z.shape != self.zd.shape:

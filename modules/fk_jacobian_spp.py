@@ -19,7 +19,9 @@ Real-time safe cycle: one driver call and two copies, no allocation.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -49,10 +51,21 @@ class FkJacobianSpp(ModelBased):
     """Forward kinematics and Jacobian of the arm, computed on a special-purpose processor."""
 
     Params = FkJacobianSppParams
+    DEVICES = {"device": {"kind": "spp"}}
 
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
     x_m = OutVar("x_m", shape=(6,), doc="measured pose: position m, then rotation vector rad, base frame")
     jacobian = OutVar("J", shape=(6, "NDOF"), doc="frame Jacobian, LOCAL_WORLD_ALIGNED, linear rows first")
+
+    @classmethod
+    def check_links(cls, params: Any, shapes: Mapping[str, tuple[int, ...]], dims: Mapping[str, int],
+                    channels: Mapping[str, int], options: Mapping[str, Mapping[str, Any]]) -> None:
+        """The frame (ModelBased), and the processor's memory: x_m and J, 6 + 6 NDOF numbers, must fit it."""
+        super().check_links(params, shapes, dims, channels, options)
+        memory, n = options.get(params.device, {}).get("memory"), dims.get("NDOF")
+        if isinstance(memory, int) and isinstance(n, int) and memory < 6 + 6 * n:
+            raise ValueError(f"routine jacobian answers {6 + 6 * n} numbers (x_m and J of {n} joints), but device "
+                             f"'{params.device}' has memory: {memory}; give it memory: {6 + 6 * n} or more")
 
     def init(self, params: FkJacobianSppParams) -> None:
         self._device = params.device

@@ -22,7 +22,7 @@ class FtSensor(PortBasedObject):
     """f_m from a force/torque sensor's driver (`read_wrench`). Real-time safe cycle."""
 
     Params = FtSensorParams
-    DEVICES = {"device": {}}
+    DEVICES = {"device": {"kind": "force_torque"}}
 
     f_m = OutVar("f_m", shape=(6,), doc="measured wrench on the tool at the wrist sensor: force N, torque N m "
                                         "about the sensor origin, in the tool frame")

@@ -37,7 +37,7 @@ class RobotPosition(RobotInterface):
     """
 
     Params = RobotPositionParams
-    DEVICES = {"device": {"mode": "position"}}
+    DEVICES = {"device": {"kind": "arm", "mode": "position"}}
 
     q_r = InVar("q_r", shape=("NDOF",), doc="joint position reference the arm's servo tracks, rad")
 

@@ -34,7 +34,7 @@ class RobotTorque(RobotInterface):
     """
 
     Params = RobotTorqueParams
-    DEVICES = {"device": {"mode": "torque"}}
+    DEVICES = {"device": {"kind": "arm", "mode": "torque"}}
 
     tau_u = InVar("tau_u", shape=("NDOF",), doc="joint torque command, N m")
 

@@ -38,6 +38,7 @@ class TrackballInput(PortBasedObject):
     """x_d = the pose at `on` + the scripted offset at the time since `on`. Real-time safe cycle."""
 
     Params = TrackballParams
+    DEVICES = {"device": {"kind": "trackball"}}  # when given: a script or a file opens none
 
     x_m = InVar("x_m", shape=(6,), doc="measured Cartesian pose (position m, rotation vector rad)")
     x_d = OutVar("x_d", shape=(6,), doc="desired Cartesian pose")

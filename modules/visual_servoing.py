@@ -41,7 +41,7 @@ class VisualServoing(PortBasedObject):
     """x_d = (target position + offset, fixed orientation). Real-time safe cycle."""
 
     Params = VisualServoingParams
-    DEVICES = {"device": {}}
+    DEVICES = {"device": {"kind": "camera"}}
 
     x_m = InVar("x_m", shape=(6,), doc="measured pose of the hand: position m, rotation vector rad")
     x_d = OutVar("x_d", shape=(6,), doc="desired pose of the hand: position m, rotation vector rad")

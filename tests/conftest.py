@@ -14,10 +14,15 @@ from pathlib import Path
 
 import mujoco  # noqa: F401  (imported before any test: its first import probes the GL library in a child process)
 import pytest
+from hypothesis import settings
 
 from pbo_runtime.config.model import VariableSpec
 from pbo_runtime.table.table import StateTable, TableLayout
 from tests.support import unique_name
+
+# `pytest --hypothesis-profile=long`: the property tests that read the profile (tests/test_check_runs.py)
+# draw this many examples instead of CI's few; PBO_LONG_EXAMPLES sets another count for a run by hand
+settings.register_profile("long", max_examples=int(os.environ.get("PBO_LONG_EXAMPLES", "2000")), deadline=None)
 
 
 @pytest.fixture

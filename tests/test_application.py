@@ -174,6 +174,17 @@ def test_the_run_section_names_a_subsystem_and_one_of_its_configurations_or_appl
     assert wanted in result.errors[0].message
 
 
+def test_the_run_section_refuses_an_incomplete_application_as_pbo_run_would(tmp_path):
+    inline = APP.read_text()
+    inline = inline[inline.index("  operator:"):inline.index("links:\n")]
+    operator = inline.replace("    applications:\n", "    applications:\n      loose: [aim]\n", 1)
+    result = check_application(write_app(tmp_path, operator=operator, run="run:\n  operator: {app: loose}\n"))
+    assert codes(result) == ["E807"], [e.format() for e in result.errors]
+    error = result.errors[0]
+    assert "application 'loose' of subsystem 'operator' is incomplete" in error.message
+    assert error.line == len(open(error.file).read().splitlines()) and "tour" in error.hint
+
+
 @pytest.mark.multiprocess
 def test_a_subsystem_run_alone_says_which_link_it_lacks(tmp_path):
     done = subprocess.run([*PBO, "run", str(REPO / "configs" / "follower.yaml"), "--no-live", "--duration", "1"],

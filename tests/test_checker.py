@@ -121,7 +121,7 @@ LEGAL = """\
 subsystem: puma
 rtpus: [rtpu0, rtpu1]
 devices:
-  arm: {driver: fake_arm, exclusive: true}
+  arm: {driver: mujoco_arm, exclusive: true}
 dims: {NDOF: 6}
 variables:
   NDOF:  {type: int32, initial: 6}

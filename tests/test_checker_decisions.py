@@ -39,8 +39,8 @@ def test_the_shipped_example_checks_without_a_warning():
     ("E721", '    - repeat: [reach: ready]\n', r"the repeat of step 1 of application 'a' is not bounded: it has neither times: nor until:", "- repeat:"),
     ("E721", '    - repeat: [reach: ready]\n      until: "q_m[0] > 0"\n', r"the repeat of step 1 of application 'a' is not bounded: it has until", "- repeat:"),
     ("E721", '    - repeat: [reach: ready]\n      times: 0\n', r"the repeat of step 1 of application 'a': times: must be a whole number", "times:"),
-    ("E722", '    - if: "q_m[6] > 0"\n      then: [reach: ready]\n', r"the condition of the if of step 1 of application 'a' does not fit its variables' shapes \(q_m \[6\]\)", "- if:"),
-    ("E722", '    - wait: "max(q_m + EE) > 0"\n      timeout: 1 s\n', r"the condition of the wait of step 1 of application 'a' does not fit its variables' shapes \(EE \[8\], q_m \[6\]\)", "- wait:"),
+    ("E719", '    - if: "q_m[6] > 0"\n      then: [reach: ready]\n', r"the condition of the if of step 1 of application 'a': index \[6\] is out of range for shape \(6,\)", "q_m[6]"),
+    ("E719", '    - wait: "max(q_m + EE) > 0"\n      timeout: 1 s\n', r"the condition of the wait of step 1 of application 'a' cannot be computed on its variables' shapes: operands could not be broadcast", '"max(q_m + EE) > 0"'),
     ("E704", '    - if: "q_x[0] > 0"\n      then: [reach: ready]\n', r"the condition of the if of step 1 of application 'a' uses 'q_x', which 'variables' does not declare", "- if:"),
     ("E211", '    - try: [reech: ready]\n      fallback: [reach: ready]\n', r"step 1 of application 'a' runs job 'reech'", "- try:"),
 ])

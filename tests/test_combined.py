@@ -81,10 +81,11 @@ def test_a_combined_task_computes_what_its_members_compute_apart(make_table):
 @pytest.mark.parametrize(("params", "message"), [
     ({"members": [MEMBERS[0]]}, r"members must list at least two modules to combine"),
     ({"members": [MEMBERS[0], {"module": "pid_jiont"}]}, r"member 2: no module named 'pid_jiont'"),
-    ({"members": [MEMBERS[0], {"module": "pid_joint", "ports": {"torque": "x"}}]}, r"member 2 \(pid_joint\) has no port\(s\) torque"),
+    ({"members": [MEMBERS[0], {"module": "pid_joint", "ports": {"torque": "x"}}]}, r"member 2 \(pid_joint\) has no port\(s\) 'torque'"),
     ({"members": [MEMBERS[1], MEMBERS[1]]}, r"members 1:pid_joint and 2:pid_joint both write 'tau_u'"),
     ({"members": [MEMBERS[0], {"module": "pid_joint", "params": {"kp": -1}}]},
-     r"^bad parameters for Combined: PidJoint\.kp must be in \[0, 1e\+06\], got: -1$"),
+     r"^bad parameters for Combined: member 2 \(pid_joint\): PidJoint\.kp must be in \[0, 1e\+06\], got: -1$"),
+    ({"members": [MEMBERS[0], MEMBERS[1]], "export": ["tau_u"]}, r"export names 'tau_u', which is no member-to-member variable"),
 ])
 def test_bad_members_are_refused_with_the_reason(params, message):
     with pytest.raises(ParamError, match=message):

@@ -40,9 +40,9 @@ FULL = """\
 subsystem: bench
 rtpus: {rtpu0: {cpu: 0}, rtpu1: {cpu: 1}}
 bus: {bandwidth: 40 MB/s, lock_overhead: 16 B}
-plant: {model: puma560, timestep: 2 ms, seed: 3}
+plant: {model: puma560, timestep: 1 ms, seed: 3}
 devices:
-  adc: {driver: fake_adc, channels: 4}
+  cam: {driver: camera, latency: 4}
 dims: {N: 3}
 variables:
   N:   {type: int32, initial: 3}
@@ -50,7 +50,7 @@ variables:
   y_f: {type: float64, shape: [N], object: filtered, initial: [0, 0, 0]}
 tasks:
   filter: {module: fake_filter, rtpu: rtpu1, rate: 500 Hz, priority: 2}
-  sensor: {module: fake_sensor, rtpu: rtpu0, period: 1 ms, critical: true, resources: [adc]}
+  sensor: {module: fake_sensor, rtpu: rtpu0, period: 1 ms, critical: true, resources: [cam]}
 configurations:
   run: [sensor, filter]
 jobs:
@@ -72,10 +72,10 @@ def test_a_legal_file_loads_into_the_frozen_model(tmp_path: Path) -> None:
     assert sub.name == "bench"
     assert [(r.name, r.index, r.cpu) for r in sub.rtpus] == [("rtpu0", 0, 0), ("rtpu1", 1, 1)]
     assert (sub.bus.bandwidth, sub.bus.lock_overhead) == (40e6, 16.0)
-    assert sub.plant is not None and sub.plant.type == "mujoco_arm" and sub.plant.timestep == pytest.approx(2e-3)
+    assert sub.plant is not None and sub.plant.type == "mujoco_arm" and sub.plant.timestep == pytest.approx(1e-3)
     assert sub.plant.options == {"seed": 3}
-    assert sub.devices["adc"].driver == "fake_adc" and sub.devices["adc"].options == {"channels": 4}
-    assert not sub.devices["adc"].exclusive
+    assert sub.devices["cam"].driver == "camera" and sub.devices["cam"].options == {"latency": 4}
+    assert not sub.devices["cam"].exclusive
     assert sub.dims == {"N": 3}
     assert [(v.name, v.index, v.dtype, v.shape) for v in sub.variables.values()] == [
         ("N", 0, "int32", ()),
@@ -89,7 +89,7 @@ def test_a_legal_file_loads_into_the_frozen_model(tmp_path: Path) -> None:
         ("y", PortKind.IN_VAR, "y", (3,)),
         ("out", PortKind.OUT_VAR, "y_f", (3,)),
     ]
-    assert sub.tasks["sensor"].resources == ("adc",) and sub.tasks["sensor"].critical
+    assert sub.tasks["sensor"].resources == ("cam",) and sub.tasks["sensor"].critical
     assert sub.configurations["run"].tasks == ("sensor", "filter")
     assert sub.jobs["go"].timeout == pytest.approx(1.5) and sub.jobs["go"].object == "y_f"
     assert sub.applications["demo"].steps[0].job == "go"

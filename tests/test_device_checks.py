@@ -36,6 +36,7 @@ tasks:
           resources: [{device: dac0, channels: [0, 1]}]}
 configurations:
   run: [force, aux, drive]
+plant: {model: puma560, timestep: 1 ms}
 """
 
 
@@ -182,6 +183,7 @@ def test_one_mistake_is_reported_at_its_node_with_an_anchored_message(tmp_path, 
 
 def test_claims_in_different_configurations_warn_that_a_dynamic_run_spawns_both(tmp_path):
     text = changed("channels: 6-7}]", "channels: 4-7}]")
+    text = changed("v2:  {type: float64, shape: [2]}", "v2:  {type: float64, shape: [4]}", text)  # one element a channel
     text = changed("  run: [force, aux, drive]", "  run: [force, drive]\n  probe: [aux, drive]", text)
     warning = expect(tmp_path, text, "W601", "{device: adc0, channels: 4-7",
                      r"tasks 'force' \(line 15, through device 'ft_b'\) and 'aux' \(line 17\) both open device 'adc0' "

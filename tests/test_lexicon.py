@@ -13,7 +13,7 @@ from rich.console import Console
 from rich.table import Table
 
 from pbo_runtime.objects import registry
-from pbo_runtime.reports.lexicon import as_table, lexicon, shape_text, type_text
+from pbo_runtime.reports.lexicon import as_table, drivers, lexicon, shape_text, type_text
 from tests.support import REPO
 
 
@@ -58,6 +58,14 @@ def test_modules_whose_ports_depend_on_params_say_so():
     params = {p["name"]: p for p in logger["params"]}
     assert params["variables"]["required"] and params["variables"]["default"] is None
     assert params["variables"]["type"] == "tuple[str, ...]"
+
+
+def test_every_driver_declares_its_kind_its_options_and_whether_it_needs_the_plant():
+    entries = {e["name"]: e for e in drivers()}
+    assert all(e["device_kind"] and e["options"] is not None for e in entries.values()), entries
+    assert (entries["mujoco_arm"]["device_kind"], entries["mujoco_arm"]["options"], entries["mujoco_arm"]["needs_plant"]) == (
+        "arm", ["mode"], True)
+    assert (entries["spp"]["device_kind"], entries["spp"]["needs_plant"]) == ("spp", False)  # a process of its own
 
 
 def test_texts():

@@ -83,11 +83,18 @@ class FakeCameraUser(PortBasedObject):
     Params = CameraParams
 
 
+class FakeCameraOnTheArm(PortBasedObject):
+    """Opens the arm device where it needs a camera."""
+
+    Params = ArmParams
+    DEVICES = {"device": {"kind": "camera"}}
+
+
 FAKES: dict[str, type] = {
     "source": FakeSource, "reader": FakeReader, "const_reader": FakeConstReader, "late_k": FakeLateK,
     "second_writer": FakeSecondWriter, "float32_reader": FakeFloat32Reader, "wide_reader": FakeWideReader,
     "any_reader": FakeAnyReader, "goal_const_reader": FakeGoalConstReader, "new_output": FakeNewOutput,
-    "arm_user": FakeArmUser, "camera_user": FakeCameraUser,
+    "arm_user": FakeArmUser, "camera_user": FakeCameraUser, "camera_on_the_arm": FakeCameraOnTheArm,
 }
 
 
@@ -102,7 +109,7 @@ SMALL = """\
 subsystem: placing
 rtpus: [rtpu0, rtpu1]
 devices:
-  arm: {driver: fake_arm, exclusive: true}
+  arm: {driver: mujoco_arm, exclusive: true}
 dims: {N: 3}
 variables:
   g: {type: float64, object: goal}
@@ -153,6 +160,8 @@ def test_a_port_to_a_variable_nothing_declares_defines_it(small: Subsystem) -> N
     (["arm"], "arm_user", "E601", "module 'arm_user' opens device 'arm', which is exclusive, and task 'arm' holds it in "
                                   "configuration 'flowing'"),
     ([], "camera_user", "E208", "module 'camera_user' opens device 'camera', which 'devices' does not declare"),
+    ([], "camera_on_the_arm", "E610", "module 'camera_on_the_arm' needs a device of kind camera, but device 'arm' is of kind arm "
+                                      "(driver mujoco_arm)"),
     ([], "const_reader", "E403", "port 'k' of module 'const_reader' reads in-const 'k', but no task in configuration 'flowing' writes it"),
     (["late"], "const_reader", "E404",
      "port 'k' of module 'const_reader' reads in-const 'k' before its init, but its writer 'late' in configuration 'flowing' "

@@ -41,6 +41,9 @@ def _matrix(value: Any, shape: tuple[int, ...], name: str, what: str) -> np.ndar
 class AnalogForceTorque(DeviceDriver):
     """Vendor B's F/T sensor on 6 ADC channels. options: `calibration` (6x6), `offset` (6, V). Real-time safe reads."""
 
+    KIND = "force_torque"
+    OPTIONS = _OPTIONS
+
     IO = "adc"
     IO_CHANNELS = models.B_CHANNELS
 

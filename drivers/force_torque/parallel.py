@@ -32,6 +32,9 @@ _OPTIONS = ("timeout",)
 class ParallelForceTorque(DeviceDriver):
     """Vendor A's F/T sensor on 8 parallel-port channels. options: `timeout` (s). Real-time safe reads."""
 
+    KIND = "force_torque"
+    OPTIONS = _OPTIONS
+
     IO = "parallel_port"
     IO_CHANNELS = models.A_CHANNELS
 

@@ -26,6 +26,7 @@ class BoardDriver(DeviceDriver):
     """Base of the ADC, DAC and parallel-port drivers: registers, channels, no options."""
 
     OPTIONS: tuple[str, ...] = ()
+    NEEDS_PLANT = True
 
     @classmethod
     def check_options(cls, options: Mapping[str, Any]) -> None:

@@ -55,6 +55,10 @@ _FAULTS_KEPT = 10  # the faults a driver keeps for the summary (an operator may 
 class MujocoArmDriver(DeviceDriver):
     """Joint-level access to the simulated arm. options: `mode`, 'torque' (default) or 'position'."""
 
+    KIND = "arm"
+    OPTIONS = _OPTIONS
+    NEEDS_PLANT = True
+
     OPTION_DEFAULTS = {"mode": "torque"}
 
     @classmethod

@@ -43,6 +43,8 @@ class Ros2ControlArm(DeviceDriver):
     """options: `mode` (torque), `joint_states` (/joint_states), `commands` (/forward_effort_controller/commands),
     `joints` (names, default joint1..jointN), `domain` (-1), `stall_after` (s of silence before the arm counts as stopped, 0.01)."""
 
+    KIND = "arm"  # what robot_torque opens, as mujoco_arm is
+    OPTIONS = _OPTIONS
     OPTION_DEFAULTS = {"mode": "torque", "joint_states": "/joint_states", "commands": "/forward_effort_controller/commands",
                        "joints": None, "domain": -1, "stall_after": 0.01}
 

@@ -92,6 +92,9 @@ def _names(registers: str) -> tuple[str, str]:
 class SpecialPurposeProcessor(DeviceDriver):
     """An emulated special-purpose processor: download a routine, then call it every cycle without waiting."""
 
+    KIND = "spp"
+    OPTIONS = _OPTIONS
+
     @classmethod
     def check_options(cls, options: Mapping[str, Any]) -> None:
         """ValueError for an unknown or bad option (the checker reports it as E607)."""

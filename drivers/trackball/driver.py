@@ -61,6 +61,9 @@ def _check_options(options: Mapping[str, Any]) -> tuple[str, float, float]:
 class Trackball(DeviceDriver):
     """A 6-DOF trackball, played by a script or by the operator (options: source, script or file, reach, turn)."""
 
+    KIND = "trackball"
+    OPTIONS = _OPTIONS
+
     @classmethod
     def check_options(cls, options: Mapping[str, Any]) -> None:
         """ValueError for an unknown or bad option (the checker reports it as E607)."""

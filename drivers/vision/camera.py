@@ -51,6 +51,11 @@ def _check_options(options: Mapping[str, Any]) -> tuple[float, int, int]:
 class VisionCamera(DeviceDriver):
     """The target's pose as a camera reports it. options: `noise` (m), `latency` (frames), `seed`."""
 
+    KIND = "camera"
+    OPTIONS = _OPTIONS
+    NEEDS_PLANT = True
+    PLANT_OPTIONS = ("target",)
+
     @classmethod
     def check_options(cls, options: Mapping[str, Any]) -> None:
         """ValueError for an unknown or bad option (the checker reports it as E607)."""

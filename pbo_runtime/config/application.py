@@ -395,6 +395,13 @@ def _check_run(root: YMap, application: Application, error) -> None:
                 error("E807", f"run: subsystem '{key}' has no {what} '{value}'", options.value_loc(option),
                       f"its {what}s: {', '.join(known) or 'none'}")
                 continue
+            if option == "app" and not subsystem.applications[value].complete:
+                complete = [name for name, app in subsystem.applications.items() if app.complete]
+                error("E807", f"run: application '{value}' of subsystem '{key}' is incomplete (a step lacks the object its "
+                              "job needs): an incomplete application cannot be run", options.value_loc(option),
+                      f"run a complete application ({', '.join(complete) or 'the subsystem has none'}), or give the step its "
+                      f"object; pbo check {subsystem.file} shows which step")
+                continue
             chosen[option] = value
         if len(chosen) == 2:
             error("E807", f"run: subsystem '{key}' takes a configuration or an application, not both",

@@ -8,9 +8,9 @@ it. The first rule it would break is the answer, worded and coded as `pbo check`
 - E407: the configuration runs the module already writing the variables its outputs would write
   (an instance of a module is the module with its outputs' variables: a second join, or a second
   combined module, writing variables of its own is a second instance);
-- E208, E601, E609: the device it opens (its `device` parameter) is not declared, is exclusive and
-  held by a task of the configuration, or lacks a driver option the module needs (its `DEVICES`:
-  robot_torque on an arm in position mode);
+- E208, E601, E609, E610: the device it opens (its `device` parameter) is not declared, is exclusive and
+  held by a task of the configuration, lacks a driver option the module needs (its `DEVICES`:
+  robot_torque on an arm in position mode), or is of another kind (a camera for fk_jacobian_spp);
 - E301, E302, E304, E206: a port and its variable disagree on dtype or shape, a port's shape names
   an undefined dim, or a port of any dtype names a variable nothing defines;
 - E401: an output port would be a second writer of a variable;
@@ -224,6 +224,13 @@ class Placement:
                                                     f"'{holder}' holds it {where}",
                                "an exclusive device has one user per configuration; remove that task first")
             for option, wanted in module.needs:
+                if option == "kind":
+                    kind = _driver_kind(spec.driver)
+                    if kind is not None and kind != wanted:
+                        return Verdict(name, False, "E610", f"module '{name}' needs a device of kind {wanted}, but device "
+                                                            f"'{device}' is of kind {kind or 'none'} (driver {spec.driver})",
+                                       f"set the task's device parameter to a device of kind {wanted}")
+                    continue
                 has = spec.options.get(option, _driver_default(spec.driver, option))
                 if has is not None and has != wanted:
                     return Verdict(name, False, "E609", f"module '{name}' needs device '{device}' with {option}: {wanted}, "
@@ -354,6 +361,14 @@ def _driver_default(driver: str, option: str) -> Any:
     except Exception:  # an unknown driver: the checker reported it
         return None
     return defaults.get(option)
+
+
+def _driver_kind(driver: str) -> str | None:
+    """The kind of device a driver drives (its KIND), or None for an unknown driver."""
+    try:
+        return str(getattr(registry.driver_class(driver), "KIND", "") or "")
+    except Exception:  # an unknown driver: the checker reported it
+        return None
 
 
 def _default_device(cls: Any) -> str | None:

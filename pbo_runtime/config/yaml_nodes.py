@@ -234,10 +234,57 @@ def _load(text: str, file: str, loader_class: type) -> Any:
         except yaml.YAMLError as exc:
             raise ConfigError(f"invalid YAML: {exc}", file, 1, 1) from None
         except RecursionError:
-            raise ConfigError("YAML is nested too deeply to be a configuration", file, 1, 1) from None
+            line, column, depth = _deep_nesting(text)
+            raise ConfigError(f"YAML is nested too deeply to be a configuration: {depth} lists or mappings inside one "
+                              "another here", file, line, column,
+                              "a configuration nests a few levels (a matrix is a list of lists); is this file generated?") from None
     finally:
         if loader is not None:
             loader.dispose()
+
+
+_DEEP = 100  # levels of nesting no configuration comes near: where a too deep file is reported
+
+
+def _deep_nesting(text: str) -> tuple[int, int, int]:
+    """(line, column, depth) where a file's nesting first reaches `_DEEP` levels of flow lists and
+    mappings ([[[...), else where its block nesting is deepest (the most indented line)."""
+    depth = 0
+    quote = ""
+    line, column = 1, 0
+    deepest = (1, 1, 0)
+    previous = "\n"
+    in_comment = False
+    for char in text:
+        column += 1
+        if char == "\n":
+            line, column, in_comment, previous = line + 1, 0, False, char
+            continue
+        if in_comment:
+            continue
+        if quote:
+            if char == quote:
+                quote = ""
+        elif char in "'\"":
+            quote = char
+        elif char == "#" and previous in " \t\n":
+            in_comment = True
+        elif char in "[{":
+            depth += 1
+            if depth > deepest[2]:
+                deepest = (line, column, depth)
+            if depth >= _DEEP:
+                return deepest
+        elif char in "]}":
+            depth = max(0, depth - 1)
+        previous = char
+    if deepest[2] >= 2:
+        return deepest
+    lines = text.split("\n")  # lines as marks count them: \r or \x0c alone ends no line
+    indents = [len(s) - len(s.lstrip(" -")) for s in lines]
+    number = indents.index(max(indents))
+    written = lines[number]
+    return number + 1, len(written) - len(written.lstrip()) + 1, written[:indents[number]].count("-") + 1
 
 
 def _marked_error(exc: yaml.MarkedYAMLError, file: str) -> ConfigError:

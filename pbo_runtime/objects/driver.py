@@ -32,7 +32,17 @@ class DeviceDriver:
     """Base of driver objects. Reads and writes must be real-time safe (no allocation)."""
 
     PORTS: ClassVar[int] = 0  # > 0: a port-based I/O device with this many channels (0 .. PORTS-1)
-    KIND: ClassVar[str] = ""  # the kind of I/O device, e.g. "adc", that a sensor's `IO` names
+    # The kind of device it drives ("adc", "arm", "camera", "spp"): a sensor's `IO` and a module's
+    # DEVICES name it, so `pbo check` refuses a device of the wrong kind before anything opens it
+    KIND: ClassVar[str] = ""
+    # The names of the options it takes (the YAML keys beside driver, exclusive, io); None: not
+    # declared, any (its `check_options` decides). `pbo check` and `pbo lexicon --drivers` read them.
+    OPTIONS: ClassVar[tuple[str, ...] | None] = None
+    # What it opens besides the device: True when it attaches to the plant's register segment (the
+    # simulated hardware), so a task opening it needs a `plant:`; and the plant options it reads
+    # (the camera sees the plant's `target`). `pbo check` refuses a file that lacks them (E611).
+    NEEDS_PLANT: ClassVar[bool] = False
+    PLANT_OPTIONS: ClassVar[tuple[str, ...]] = ()
     IO: ClassVar[str] = ""  # a sensor-actuator driver: the KIND of I/O device it is wired to
     IO_CHANNELS: ClassVar[int] = 0  # ... and how many of its channels it needs
     # The options a device has when its YAML leaves them out: what `pbo check` compares with what

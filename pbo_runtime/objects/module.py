@@ -90,9 +90,11 @@ class PortBasedObject:
     # The parameters an operator may change while the task runs (`pbo set TASK PARAM VALUE`): `tune`
     # gets the whole new Params between two cycles. Every other parameter is read in `init` only.
     TUNABLE: ClassVar[tuple[str, ...]] = ()
-    # The Params fields that name a YAML device the module opens in `init`, each with the driver
-    # options it needs the device to have: {"device": {"mode": "torque"}}. `pbo check` refuses a
-    # device that is not among the task's resources (E608) or lacks those options (E609).
+    # The Params fields that name a YAML device the module opens in `init` (an empty name: none),
+    # each with the kind of device it needs (its driver's KIND) and the driver options it needs the
+    # device to have: {"device": {"kind": "arm", "mode": "torque"}}. `pbo check` refuses a device
+    # that is not among the task's resources (E608), lacks those options (E609) or is of another
+    # kind (E610).
     DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {}
     _pbo_port_decls: ClassVar[tuple[Port, ...]] = ()
 
@@ -125,6 +127,14 @@ class PortBasedObject:
         Most modules have fixed ports; a data logger adds one input per logged variable.
         """
         return cls.ports()
+
+    @classmethod
+    def check_links(cls, params: Any, shapes: Mapping[str, tuple[int, ...]], dims: Mapping[str, int],
+                    channels: Mapping[str, int], options: Mapping[str, Mapping[str, Any]]) -> None:
+        """Raise ValueError for what `init` would refuse that the file already shows: `shapes` of the
+        variables its ports link (by port name), the subsystem's `dims`, how many `channels` of each
+        device the task opens and each device's `options` as written. `pbo check` calls it (E323);
+        by default all is well."""
 
     @classmethod
     def same_shape(cls, params: Any) -> tuple[tuple[str, ...], ...]:

@@ -55,21 +55,28 @@ def drivers() -> list[dict[str, Any]]:
 
     Each entry: name, class, kind (the report's three classes of driver, TR §4.6, read from what
     the class declares: `PORTS`, an I/O device; `download`, a special-purpose processor; else a
-    sensor-actuator driver, wired through `IO` or not), io (the I/O device kind a sensor is wired
-    to, or ""), channels (an I/O device's) and summary. A driver that fails to import gets an `error`.
+    sensor-actuator driver, wired through `IO` or not), device_kind (its `KIND`, what modules'
+    `DEVICES` name), options (its `OPTIONS`, None when not declared), needs_plant, io (the I/O
+    device kind a sensor is wired to, or ""), channels (an I/O device's) and summary. A driver
+    that fails to import gets an `error`.
     """
     entries: list[dict[str, Any]] = []
     for name in registry.names(registry.DRIVERS):
         try:
             cls = registry.driver_class(name)
         except Exception as exc:  # a broken library is reported, not fatal to the listing
-            entries.append({"name": name, "class": "", "kind": "", "io": "", "channels": 0, "summary": "", "error": str(exc)})
+            entries.append({"name": name, "class": "", "kind": "", "device_kind": "", "options": None, "needs_plant": False,
+                            "io": "", "channels": 0, "summary": "", "error": str(exc)})
             continue
         ports = int(getattr(cls, "PORTS", 0) or 0)
         kind = ("I/O device (TR 4.6.1)" if ports else
                 "special-purpose processor (TR 4.6.3)" if callable(getattr(cls, "download", None)) else
                 "sensor-actuator (TR 4.6.2)")
+        declared = getattr(cls, "OPTIONS", None)
         entries.append({"name": name, "class": f"{cls.__module__}:{cls.__qualname__}", "kind": kind,
+                        "device_kind": str(getattr(cls, "KIND", "") or ""),
+                        "options": list(declared) if declared is not None else None,
+                        "needs_plant": bool(getattr(cls, "NEEDS_PLANT", False)),
                         "io": str(getattr(cls, "IO", "") or ""), "channels": ports, "summary": first_line(cls.__doc__)})
     return entries
 
@@ -77,12 +84,14 @@ def drivers() -> list[dict[str, Any]]:
 def drivers_table(entries: list[dict[str, Any]]) -> Table:
     """The device drivers as a rich Table: one row per driver."""
     table = Table(title="device drivers (entry points 'pbo.drivers')", title_justify="left")
-    for column in ("driver", "kind", "wired to", "summary"):
+    for column in ("driver", "kind", "wired to", "options", "summary"):
         table.add_column(column)
     for entry in entries:
         wired = f"{entry['io']} channels" if entry["io"] else (f"{entry['channels']} channels" if entry["channels"] else "")
         summary = entry.get("error") or entry["summary"]
-        table.add_row(escape(entry["name"]), entry["kind"], wired, escape(summary))
+        options = "any" if entry["options"] is None else ", ".join(entry["options"]) or "none"
+        kind = f"{entry['device_kind']}: {entry['kind']}" if entry["device_kind"] else entry["kind"]
+        table.add_row(escape(entry["name"]), escape(kind), wired, escape(options), escape(summary))
     return table
 
 

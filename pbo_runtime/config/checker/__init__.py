@@ -35,6 +35,7 @@ from pbo_runtime.config.checker.model import (
     DriverLookup,
     ModuleLookup,
 )
+from pbo_runtime.config.checker.module_links import ModuleLinkChecks
 from pbo_runtime.config.checker.objects import ObjectChecks
 from pbo_runtime.config.checker.sections import SectionChecks
 from pbo_runtime.config.checker.tasks import TaskChecks
@@ -63,7 +64,7 @@ __all__ = [
 
 
 class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, TaskChecks, ConfigurationChecks, ClaimChecks,
-               ObjectChecks, JobChecks, DecisionChecks, TimingChecks, JointLoopChecks, CheckerBase):
+               ModuleLinkChecks, ObjectChecks, JobChecks, DecisionChecks, TimingChecks, JointLoopChecks, CheckerBase):
     """The whole checker: the core (`CheckerBase`) with every rule, one mixin a concept, and the pass."""
 
     def run(self, doc: Any, doc_loc: Location) -> Checked:
@@ -99,6 +100,7 @@ class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, Tas
         self.check_device_union()
         self.check_schedulability()
         self.check_spins()
+        self.check_simulation_grid()
         self.check_const_order()
         self.check_joint_loops(top)
         self.check_unused()

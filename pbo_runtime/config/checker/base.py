@@ -32,6 +32,7 @@ class CheckerBase:
         self.module_names = module_names
         self.driver_lookup = driver_lookup or registry.driver_class
         self._drivers: dict[str, Any] = {}
+        self._driver_errors: dict[str, str] = {}  # why a driver could not be found, by name
         self._claims: dict[str, list[_Claim]] = {}
         self.out = Checked()
         self.rtpu_names: set[str] = set()
@@ -53,6 +54,7 @@ class CheckerBase:
         self.device_names: set[str] = set()
         self.var_nodes: dict[str, YMap] = {}  # each variable's YAML entry, for the place of its type: or shape:
         self.var_links: dict[str, list[Any]] = {}  # variable -> every port linked to it (_Linked), for E301/E302
+        self.plant_written = False  # the file gives plant: (right or wrong)
         self.device_nodes: dict[str, YMap] = {}  # each device's YAML entry, for the place of one of its options
         self.sources: dict[str, list[str]] = {}
         self.app_names: set[str] = set()

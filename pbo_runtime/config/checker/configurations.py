@@ -148,17 +148,25 @@ class ConfigurationChecks(CheckerBase):
                 if not ws and b.variable not in job_written:
                     if not complete:
                         continue
+                    inside = self.combined_inside(b.variable)
                     outside = self.writers_outside(b.variable, member_names)
-                    if outside:  # the fix goes in the configuration's list: reported there (E408)
+                    if outside and not inside:  # the fix goes in the configuration's list: reported there (E408)
                         left_out.setdefault(outside, []).append((task, b))
                         continue
+                    if inside:  # a member writes it for another member: the fix is the combined task's export:
+                        combined = inside[0]
+                        hint = (f"'{b.variable}' stays inside combined task '{combined}' (one member writes it for another, "
+                                f"never to the table): add it to the task's params, export: [{b.variable}]")
+                        if combined not in member_names:
+                            hint += f", and add '{combined}' to configuration '{config}'"
+                    else:
+                        hint = ((did_you_mean(b.variable, written, "written") if (written := sorted(set(writers) | job_written))
+                                 else "nothing is written") + f"; add a task that writes '{b.variable}', or give it an initial: value")
                     self.error(
                         "E403",
                         f"task '{task.name}' reads {b.port.kind.value} '{b.variable}', but no task in configuration '{config}' writes it",
-                        b.loc,
-                        (did_you_mean(b.variable, written, "written") if (written := sorted(set(writers) | job_written))
-                         else "nothing is written")
-                        + f"; add a task that writes '{b.variable}', or give it an initial: value",
+                        b.loc, hint,
+                        [(self.tasks[c].loc, f"combined task '{c}' writes '{b.variable}' for its own members only") for c in inside],
                     )
                     continue
                 if not b.port.kind.needs_initial_value or b.variable in self.var_initial:
@@ -185,6 +193,19 @@ class ConfigurationChecks(CheckerBase):
         for outside, readers in left_out.items():
             self.report_left_out(config, outside, readers)
         self.check_device_claims(config, members)
+
+    def combined_inside(self, variable: str) -> list[str]:
+        """The combined tasks whose members pass `variable` among themselves without exporting it
+        (their params' `local_variables()`): a reader outside needs it in their `export:`."""
+        found = []
+        for t in self.tasks.values():
+            local = getattr(t.built_params, "local_variables", None)
+            try:
+                if callable(local) and variable in local():
+                    found.append(t.name)
+            except Exception:  # a module's own helper that fails: no hint from it
+                continue
+        return found
 
     def writers_outside(self, variable: str, members: set[str]) -> tuple[str, ...]:
         """The declared tasks, not in `members`, that write `variable`."""

@@ -13,6 +13,7 @@ from pbo_runtime.config.checker.model import CLAIM_KEYS, DEVICE_KEYS
 from pbo_runtime.config.checker.words import describe, did_you_mean
 from pbo_runtime.config.model import DeviceSpec, Location, PortClaim
 from pbo_runtime.config.yaml_nodes import YMap, location_of, plain
+from pbo_runtime.objects import registry
 
 
 class DeviceChecks(CheckerBase):
@@ -29,6 +30,8 @@ class DeviceChecks(CheckerBase):
                 self.error("E112", f"device '{name}' has no 'driver:', which is required", key_loc, "add 'driver: <name>' (a registered driver)")
                 continue
             driver = self.text(spec["driver"], spec.value_loc("driver"), f"driver of device '{name}'")
+            if driver is not None and not self.driver_registered(name, driver, spec.value_loc("driver")):
+                continue
             exclusive: bool | None = False
             if "exclusive" in spec:
                 exclusive = self.boolean(spec["exclusive"], spec.value_loc("exclusive"), f"'exclusive' of device '{name}'")
@@ -50,14 +53,62 @@ class DeviceChecks(CheckerBase):
     # --- devices: drivers, channels, wiring -------------------------------------------------
 
     def driver_class(self, driver: str) -> Any:
-        """The registered driver class, or None when it cannot be found (then only the YAML is checked)."""
+        """The registered driver class, or None when it cannot be found (reported at the device, E219)."""
         if driver not in self._drivers:
             try:
                 found = self.driver_lookup(driver)
-            except Exception:  # an unknown driver fails when the device is opened; the checker checks what it can
+            except Exception as exc:  # ModuleError, or a library that fails to import: said at the device
+                self._driver_errors[driver] = str(exc)
                 found = None
             self._drivers[driver] = found if isinstance(found, type) else None
         return self._drivers[driver]
+
+    def driver_registered(self, name: str, driver: str, loc: Location) -> bool:
+        """E219 unless `driver` names a registered driver: opening the device would fail in the task's init."""
+        if self.driver_class(driver) is not None:
+            return True
+        reason = self._driver_errors.get(driver, "")
+        if "failed to import" in reason:
+            hint = reason
+        else:
+            try:
+                hint = did_you_mean(driver, registry.names(registry.DRIVERS), "registered")
+            except Exception:  # a broken registry must not hide the user's mistake
+                hint = reason
+        self.error("E219", f"device '{name}' uses driver '{driver}', which is not registered", loc, hint)
+        return False
+
+    def drivers_of_kind(self, kind: str) -> str:
+        """'drivers of kind spp: spp' - the registered drivers a device of `kind` may use, for a hint."""
+        try:
+            names = [n for n in registry.names(registry.DRIVERS) if getattr(self.driver_class(n), "KIND", "") == kind]
+        except Exception:  # a broken registry must not hide the user's mistake
+            names = []
+        return f"drivers of kind {kind}: {', '.join(names)}" if names else f"no registered driver is of kind {kind}"
+
+    def plant_lacks(self, device: str) -> tuple[str, str] | None:
+        """What a device (or the I/O device it is wired through) needs of the plant that the file
+        does not give (its driver's NEEDS_PLANT, PLANT_OPTIONS), with a hint; None when nothing."""
+        seen: set[str] = set()
+        while device in self.out.devices and device not in seen:
+            seen.add(device)
+            spec = self.out.devices[device]
+            cls = self.driver_class(spec.driver)
+            if cls is not None and getattr(cls, "NEEDS_PLANT", False):
+                plant = self.out.plant
+                if plant is None:
+                    if self.plant_written:
+                        return None  # the plant is wrong, and was reported there
+                    return (f"device '{device}' (driver {spec.driver}), hardware the plant simulates, but the file has no plant:",
+                            "add a plant, e.g. plant: {model: puma560, timestep: 1 ms}")
+                missing = [o for o in getattr(cls, "PLANT_OPTIONS", ()) if o not in plant.options]
+                if missing:
+                    return (f"device '{device}' (driver {spec.driver}), which reads the plant's option {', '.join(missing)}, but plant: does not give it",
+                            f"give the plant {', '.join(missing)}: (docs/modules.md, 'Drivers', says what it takes)")
+            if spec.io is None:
+                return None
+            device = spec.io.device
+        return None
 
     def ports_of(self, device: str) -> int | None:
         """How many channels a device has (0: not port-based), or None when its driver is unknown."""
@@ -160,7 +211,7 @@ class DeviceChecks(CheckerBase):
                 io_cls = self.driver_class(io_driver)
                 kind = getattr(io_cls, "KIND", "") if io_cls is not None else None
                 if kind is not None and kind != wants:
-                    found = f"is of kind {kind}" if kind else "is not an I/O device"
+                    found = f"is of kind {kind}" if getattr(io_cls, "PORTS", 0) else "is not an I/O device"
                     problem = (f"{where} (driver {spec.driver}) reads through a device of kind {wants}, but its io: "
                                f"device '{claim.device}' {found} (driver {io_driver})")
                     hint = f"wire it to a device of kind {wants}"

@@ -7,13 +7,14 @@ import graphlib
 import re
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.decisions import StepDraft as _Step, decision_kind, used_applications
-import numpy as np
 from pbo_runtime.config.checker.model import JOB_KEYS, NO_OBJECT
-from pbo_runtime.config.checker.words import describe, did_you_mean
+from pbo_runtime.config.checker.words import _show_shape, describe, did_you_mean
 from pbo_runtime.config.model import NOWHERE, ApplicationSpec, ApplicationStep, Gap, JobSpec, Location, ObjectTypeSpec
-from pbo_runtime.config.expressions import ALLOWED, ExpressionError, compile_condition
+from pbo_runtime.config.expressions import ALLOWED, Condition, ExpressionError, compile_condition
 from pbo_runtime.config.units import TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
 
@@ -63,7 +64,31 @@ class JobChecks(CheckerBase):
                 self.inside_scalar(loc, text, offset),
                 did_you_mean(name, self.var_locs, "declared"),
             )
-        return None if unknown else text
+        if unknown:
+            return None
+        return text if self.condition_computes(condition, text, loc, what) else None
+
+    def condition_computes(self, condition: Condition, text: str, loc: Location, what: str) -> bool:
+        """E719 unless the condition computes on values of its variables' dtypes and shapes: an index
+        past a variable's shape (`q_m[6]` on 6 joints), shapes that do not combine (`q_m - EE`) fail
+        every evaluation, so the job would fail each time it ran. Evaluated once, on zeros."""
+        specs = self.out.variables
+        if not all(name in specs for name in condition.variables):
+            return True  # a variable is wrong itself (reported there): its shape is not known
+        zeros = {name: np.broadcast_to(np.zeros((), dtype=specs[name].dtype), specs[name].shape) for name in condition.variables}
+        shapes = ", ".join(f"{name} {specs[name].dtype} {_show_shape(specs[name].shape)}" for name in sorted(condition.variables))
+        try:
+            with np.errstate(all="ignore"):
+                condition.evaluate(zeros)
+        except ExpressionError as exc:
+            self.error("E719", f"{what}: {exc.message} (column {exc.offset + 1} of {text!r})",
+                       self.inside_scalar(loc, text, exc.offset), f"the variables it reads: {shapes}")
+            return False
+        except (ValueError, TypeError, IndexError) as exc:  # numpy: shapes that do not broadcast
+            self.error("E719", f"{what} cannot be computed on its variables' shapes: {exc} ({text!r})", loc,
+                       f"the variables it reads: {shapes}")
+            return False
+        return True
 
     def inside_scalar(self, loc: Location, text: str, offset: int) -> Location:
         """Where character `offset` of a one-line scalar `text` written at `loc` is, if the file shows it.

@@ -113,7 +113,13 @@ class SectionChecks(CheckerBase):
         if m is None:
             return None
         limit = self.integer(m["max"], m.value_loc("max"), f"max of the restart of {owner}", minimum=0) if "max" in m else None
-        required = ("max", "within") if limit != 0 else ("max",)
+        # only max is always required; within counts the deaths of max > 0: said missing only when
+        # max is a count > 0 and no unknown key is there (a key unlike 'within' is said unknown, with
+        # the valid keys; one like it, as a misspelt within)
+        unknown = [str(k) for k in m if k not in RESTART_KEYS]
+        like_within = any(did_you_mean(key, ("within",)).startswith("did you mean") for key in unknown)
+        wants_within = isinstance(limit, int) and limit > 0 and (not unknown or like_within)
+        required = ("max", "within") if wants_within else ("max",)
         self.keys(m, RESTART_KEYS, required, f"in the restart of {owner}", loc)
         within = None
         if "within" in m:
@@ -140,6 +146,7 @@ class SectionChecks(CheckerBase):
             self.out.bus = BusSpec(bandwidth, overhead, bus.loc)
 
     def check_plant(self, top: YMap) -> None:
+        self.plant_written = "plant" in top and top["plant"] is not None
         plant = self.section(top, "plant", "e.g. plant: {model: puma560, timestep: 1 ms}")
         if plant is None:
             return

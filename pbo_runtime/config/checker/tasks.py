@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from typing import TYPE_CHECKING, Any, Mapping
 
 from pbo_runtime.config.checker.base import CheckerBase, named_by, named_in, param_value_at
@@ -25,6 +26,9 @@ class TaskChecks(CheckerBase):
         def channels_exist(self, claim: PortClaim, what: str) -> bool: ...
         def infer_variables(self, linked: list[tuple[_Task, list[_Link]]]) -> None: ...
         def driver_class(self, driver: str) -> Any: ...
+        def drivers_of_kind(self, kind: str) -> str: ...
+        def plant_lacks(self, device: str) -> tuple[str, str] | None: ...
+        def check_module_links(self, task: _Task, spec: YMap, module_class: Any) -> bool: ...
 
     def known_modules(self) -> list[str] | None:
         if self.module_names is None:
@@ -79,7 +83,8 @@ class TaskChecks(CheckerBase):
         for task, spec, complete, links in bound:
             if links is not None:
                 if task.ok and module_class_of.get(task.name) is not None:
-                    task.ok = self.check_same_shapes(task, spec, module_class_of[task.name])
+                    task.ok = (self.check_same_shapes(task, spec, module_class_of[task.name])
+                               and self.check_module_links(task, spec, module_class_of[task.name]))
                 if task.ok and "fresh_within" in spec:
                     complete = self.check_task_freshness(task, spec) and complete
             if complete and task.ok:
@@ -622,8 +627,8 @@ class TaskChecks(CheckerBase):
         ok = True
         for field, needs in uses.items():
             device = getattr(task.built_params, str(field), None)
-            if not isinstance(device, str):
-                continue
+            if not isinstance(device, str) or not device:
+                continue  # no device named: the module opens none
             given = params is not None and field in params
             if device not in resources:
                 ok = False
@@ -647,18 +652,39 @@ class TaskChecks(CheckerBase):
                     self.error("E608", f"task '{task.name}' (module '{task.module}') {what}, which is not among its resources ({listing})",
                                where, fix, notes)
                 continue
-            ok = self.check_device_options(task, spec, device, needs) and ok
+            ok = self.check_device_options(task, spec, device, needs, str(field)) and ok
         return ok
 
-    def check_device_options(self, task: _Task, spec: YMap, device: str, needs: Any) -> bool:
-        """E609: the device has every driver option the module needs (its value, or the driver's default)."""
+    def check_device_options(self, task: _Task, spec: YMap, device: str, needs: Any, field: str = "device") -> bool:
+        """E610: the device is of the kind the module needs (its driver's KIND); E609: it has every
+        driver option the module needs (its value, or the driver's default)."""
         device_spec = self.out.devices.get(device)
         cls = self.driver_class(device_spec.driver) if device_spec is not None else None
         if device_spec is None or cls is None or not isinstance(needs, Mapping):
             return True  # the device or its driver is wrong or unknown: reported there, or checked when opened
+        wanted_kind = needs.get("kind")
+        kind = getattr(cls, "KIND", "")
+        if wanted_kind is not None and kind != wanted_kind:
+            params = spec.get("params")
+            where = params.value_loc(field) if isinstance(params, YMap) and field in params else spec.value_loc("module")
+            found = f"a device of kind {kind}" if kind else "a device of no declared kind"
+            self.error("E610", f"task '{task.name}' (module '{task.module}') opens device '{device}', {found} (driver "
+                               f"{device_spec.driver}), but the module needs a device of kind {wanted_kind}",
+                       where, f"name a device whose driver is of kind {wanted_kind} ({self.drivers_of_kind(wanted_kind)})",
+                       [(device_spec.loc, f"device '{device}' has driver {device_spec.driver}")])
+            return False
+        lacks = self.plant_lacks(device)
+        if lacks is not None:
+            params = spec.get("params")
+            where = params.value_loc(field) if isinstance(params, YMap) and field in params else spec.value_loc("module")
+            self.error("E611", f"task '{task.name}' (module '{task.module}') opens {lacks[0]}", where, lacks[1],
+                       [(device_spec.loc, f"device '{device}' has driver {device_spec.driver}")])
+            return False
         defaults = getattr(cls, "OPTION_DEFAULTS", {}) or {}
         node = self.device_nodes.get(device)
         for option, wanted in needs.items():
+            if option == "kind":
+                continue
             if option in device_spec.options:
                 has, where, how = device_spec.options[option], (node.value_loc(option) if node is not None else device_spec.loc), ""
             elif option in defaults:
@@ -684,6 +710,9 @@ class TaskChecks(CheckerBase):
         wrong member 'inverse_dynamix'; a parameter it names: 'ki', PidJoint.kp, "kd must be >= 0"),
         else the params."""
         raw = spec.get("params")
+        member = _member_named_by(raw, message)  # "member 2 ...": a combined module's member, and what in it
+        if member is not None:
+            return member
         found = named_by(raw, message) if isinstance(raw, YMap) else None
         return found or self.params_loc(task, spec)
 
@@ -691,6 +720,19 @@ class TaskChecks(CheckerBase):
     def params_loc(task: _Task, spec: YMap) -> Location:
         """Where a message about a task's params points: the params, or the task when it gives none."""
         return location_of(spec.get("params"), spec.value_loc("params") if "params" in spec else task.loc)
+
+
+def _member_named_by(params: Any, message: str) -> Location | None:
+    """Where a refusal that names a member by number ("member 2 has unknown key(s) 'param'") points:
+    what it quotes inside that member, else the member itself; None when it names no member."""
+    number = re.search(r"\bmembers \d+:\S+ and (\d+)\b", message) or re.search(r"\bmembers? (\d+)\b", message)  # two: the second
+    members = params.get("members") if isinstance(params, YMap) else None
+    if number is None or not isinstance(members, YList) or not 1 <= int(number.group(1)) <= len(members):
+        return None
+    index = int(number.group(1)) - 1
+    node = members[index]
+    inside = named_by(node, message[number.end():]) if isinstance(node, YMap) else None
+    return inside or location_of(node, members.item_loc(index))
 
 
 def _ports_from_params(module_class: Any) -> bool:

@@ -38,6 +38,20 @@ class TimingChecks(CheckerBase):
                     "`python -m bench.wait` measures yours",
                 )
 
+    def check_simulation_grid(self) -> None:
+        """W504: `pbo run --clock sim` steps the plant and releases tasks on its timestep, so it refuses
+        a period that is not a whole multiple of it; the real clock runs the file."""
+        plant = self.out.plant
+        if plant is None or plant.timestep is None or plant.timestep <= 0:
+            return
+        tick_ns = int(round(plant.timestep * 1e9))
+        for task in self.out.tasks.values():
+            ns = int(round(task.period * 1e9))
+            if tick_ns and ns % tick_ns:
+                self.warn("W504", f"period of task '{task.name}' ({_ms(task.period)}) is not a whole multiple of the plant's "
+                                  f"timestep ({_ms(plant.timestep)}): pbo run --clock sim refuses the file", task.loc,
+                          f"make it a multiple of {_ms(plant.timestep)} to run it on the simulated clock (the real clock runs it)")
+
     def check_schedulability(self) -> None:
         """Warn where the declared wcets of one RTPU's tasks in a configuration cannot be guaranteed.
 

@@ -22,6 +22,7 @@ READY = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]
 LEGAL = f"""\
 subsystem: dictionary_test
 rtpus: [rtpu0, rtpu1]
+plant: {{model: puma560, timestep: 1 ms}}
 devices:
   arm: {{driver: mujoco_arm, mode: torque, exclusive: true}}
 dims: {{NDOF: 6}}
@@ -381,8 +382,8 @@ def test_check_prints_a_short_job_dictionary(tmp_path, capsys):
     path.write_text(LEGAL)
     assert main(["check", str(path)]) == 0
     out = capsys.readouterr().out
-    assert out.endswith("  job dictionary:\n    actions: hold, tour\n    actions requiring an object: reach, settle (joint_position)\n"
-                        "    objects: home, ready (joint_position)\n")
+    assert ("  job dictionary:\n    actions: hold, tour\n    actions requiring an object: reach, settle (joint_position)\n"
+            "    objects: home, ready (joint_position)\n") in out
 
 
 def test_an_objects_value_is_the_array_job_control_writes(subsystem):
@@ -406,4 +407,4 @@ def test_the_examples_of_the_configuration_guide_check_and_print_the_dictionary_
     assert [line.split("]")[0] for line in out.splitlines() if "warning[" in line] == [
         f"{path}:{line_of(text, 'approach: [reach')[0]}:{c}: warning[W701" for c in (14, 21)]
     shown = guide.split("### The job dictionary\n", 1)[1].split("```\n", 1)[1].split("```", 1)[0]
-    assert out.endswith(shown)
+    assert shown in out

@@ -113,7 +113,8 @@ def test_the_driver_takes_the_robots_joints_by_name_in_its_own_order_and_its_cyc
             np.testing.assert_array_equal(q, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
             np.testing.assert_array_equal(qd, q)
             np.testing.assert_array_equal(driver.arm(), arm_tables("puma560")[0])
-            assert allocation_peak(lambda: driver.read_state(q, qd)) < one_array()
+            # short windows: the robot's JointStates (20 Hz) arrive on the driver's thread meanwhile
+            assert allocation_peak(lambda: driver.read_state(q, qd), times=100) < one_array()
             driver.write_torque(np.full(6, 1.0))
             assert driver.published == 0  # the brakes are engaged: no command goes out
             driver.release_brakes()

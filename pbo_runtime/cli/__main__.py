@@ -2,6 +2,6 @@
 
 import sys
 
-from pbo_runtime.cli import main
+from pbo_runtime.cli.main import main
 
 sys.exit(main())

@@ -35,7 +35,7 @@ export function taskName(module, taken) {
 
 /** A new task of `module` from the lexicon: its defaults for the next drop, on the first RTPU. */
 export function newTask(module, name, { rtpus, devices, defaults, x, y }) {
-  const fields = { rtpu: rtpus[0] || "rtpu0", period: "10 ms" };
+  const fields = { rtpu: rtpus[0] || "rtpu0", period: "1 ms" };  // the demo's rate: a loop sampled slower may be refused as unstable
   const device = (module.params || []).find((p) => p.name === "device");
   const opened = (defaults.params && defaults.params.device) || (device && device.default);
   if (device && opened && devices.includes(opened)) fields.resources = `[${opened}]`;

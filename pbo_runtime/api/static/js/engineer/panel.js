@@ -60,7 +60,7 @@ export function TaskPanel({ task, module, rtpus, live, state, modules, onApply, 
             ${rtpus.map((r) => html`<option value=${r}>${r}</option>`)}
           </select></label>
         <label class="field"><span>Period</span>
-          <input name="period" value=${draft.fields.period || ""} placeholder="10 ms" disabled=${live}
+          <input name="period" value=${draft.fields.period || ""} placeholder="1 ms" disabled=${live}
                  onInput=${(e) => set("fields", "period", e.currentTarget.value)} /></label>
         ${others.map((key) => html`
           <label class="field"><span>${key}</span>

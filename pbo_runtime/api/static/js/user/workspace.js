@@ -122,11 +122,13 @@ function runsAt(statusPath, trail) {
 function DecisionUnit({ dictionary, step, index, count, actions, path, labels, statusPath, keys }) {
   const spec = DECISIONS[step.kind];
   const where = ` of step ${index + 1} ${step.kind}`;
+  // onInput, not onChange: a render between typing and leaving the field (the run's status arrives
+  // several times a second) would put the model's old value back into the field and lose what was typed.
   const setting = (key, label, props = {}) => html`
     <label class="decision-setting">${label}
       <input aria-label=${`${label}${where}`} value=${step[key] === undefined || step[key] === null ? "" : step[key]} ...${props}
-             onChange=${(e) => actions.setSetting(path, index, key, props.type === "number" ? Number(e.currentTarget.value)
-                                                                                             : e.currentTarget.value)} />
+             onInput=${(e) => actions.setSetting(path, index, key, props.type === "number" ? Number(e.currentTarget.value)
+                                                                                            : e.currentTarget.value)} />
     </label>`;
   return html`
     <div class=${"unit decision kind-" + step.kind} role="listitem" data-step=${index + 1} data-kind=${step.kind}>

@@ -391,6 +391,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
 
     def respawn(self, name: str) -> None:
         """Spawn a task and wait for its init; an init failure stops the run (no half start)."""
+        self.task_states[name] = "NOT_CREATED"  # a name killed before must not answer for the new task
         state = self.signal_and_wait(messages.Spawn(name), {"OFF", "KILLED"})
         if state == "KILLED":
             raise RunFailure(f"task '{name}' failed in init and was not created: {self.task_errors.get(name, '')}")

@@ -47,7 +47,9 @@ LOGGER = "vlog"  # the data logger the benchmark spawns, turns off and on, and k
 SKIPPED = {"fault_drill": "injects faults on purpose", "cartesian_teleop_hmi": "driven from the browser HMI",
            "leader": "a subsystem of the application leader_follower.yaml: its links need it",
            "follower": "a subsystem of the application leader_follower.yaml: its links need it",
-           "leader_follower": "an application of two subsystems (links): not measured here"}
+           "leader_follower": "an application of two subsystems (links): not measured here",
+           "two_arms": "an application of parallel stages: not measured here",
+           "ros2_control": "its robot is a ros2_control peer that is not started here"}
 
 
 @dataclass
@@ -100,7 +102,7 @@ def requests(config: Path, status: dict[str, Any], folder: Path, round_index: in
     others = [s for s in specs if not s.critical]
     made: dict[str, dict[str, Any] | str] = {}
     tunable = next(((s, p, v) for s in others + critical for p, v in tunables(s)), None)
-    made["set"] = ({"task": tunable[0].name, "param": tunable[1], "values": [repr(tunable[2] * 1.01)]}
+    made["set"] = ({"task": tunable[0].name, "param": tunable[1], "values": [repr(v * 1.01) for v in tunable[2]]}
                    if tunable else "no tunable number")
     current = status.get("configuration", "")
     other = [c for c in subsystem.configurations if c != current]
@@ -119,14 +121,20 @@ def requests(config: Path, status: dict[str, Any], folder: Path, round_index: in
     return {verb: request if isinstance(request, str) else COMMANDS[verb].request(request) for verb, request in made.items()}
 
 
-def tunables(spec: Any) -> list[tuple[str, float]]:
-    """A task's live-tunable parameters that are plain numbers, with their values."""
+def tunables(spec: Any) -> list[tuple[str, list[float]]]:
+    """A task's live-tunable numeric parameters given in its file (a number or one per element), with
+    their values; none of a task whose gains come from a bandwidth (its raw gains are refused)."""
     module = module_class(spec.module)
+    if spec.params.get("bandwidth"):
+        return []
     found = []
     for param in module.TUNABLE:
-        value = spec.params.get(param, getattr(module.Params, param, None))
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and float(value) > 0:
-            found.append((param, float(value)))
+        value = spec.params.get(param)
+        if isinstance(value, bool) or value is None:
+            continue
+        values = np.ravel(np.asarray(value, dtype=float)) if isinstance(value, (int, float, list, tuple, np.ndarray)) else None
+        if values is not None and values.size and np.all(values > 0):
+            found.append((param, [float(v) for v in values]))
     return found
 
 

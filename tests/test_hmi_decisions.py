@@ -21,8 +21,6 @@ def place(page, text: str):
     return page.get_by_role("button", name=text, exact=True)
 
 
-@pytest.mark.xfail(reason="since main merged the checker's init-time rules, the workspace saves the wait step with an "
-                          "empty condition (E702): the typed condition is not kept; to fix first", strict=False)
 def test_one_step_of_each_kind_is_built_from_the_dictionary_saved_and_run(page, tmp_path):
     # stuck fails at once (its pre-condition never holds); reach and hold run for their seconds of simulated time
     file = user_level_copy(tmp_path, "hmi_decide", reach_seconds=6.0, hold_seconds=4.0)

@@ -241,7 +241,7 @@ class McapLog:
         self.unix_offset_ns = int(run.get("unix_offset_ns", 0))  # log times in Unix ns on the real clock (data_logger)
         self.stream = PendingBytes(fd)
         # never a chunk by size: one per chunk of rows (`flush`), so each is on disk whole as it ends
-        resumed = {} if resume_at is None else {"index_types": IndexType.MESSAGE, "use_statistics": False}
+        resumed: dict[str, Any] = {} if resume_at is None else {"index_types": IndexType.MESSAGE, "use_statistics": False}
         self.writer = Writer(self.stream, chunk_size=1 << 62, compression=CompressionType.ZSTD,  # type: ignore[arg-type]
                              **resumed)
         self.ros2 = Ros2Messages() if encoding == "ros2" else None

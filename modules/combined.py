@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -39,6 +39,8 @@ class Member:
 class CombinedParams:
     members: Any  # a list of {module, params, ports}
     export: tuple[str, ...] = ()  # member-to-member variables other tasks read too: also written to the table
+    if TYPE_CHECKING:  # each instance's own, set by __post_init__; declared so only to stay out of the parameters
+        built: ClassVar[tuple[Member, ...]]
 
     def __post_init__(self) -> None:
         if not isinstance(self.members, (list, tuple)) or len(self.members) < 2:

@@ -81,7 +81,7 @@ class Ros2Goal(PortBasedObject):
         from cyclonedds.sub import DataReader
         from cyclonedds.topic import Topic
 
-        self._participant = DomainParticipant(ros2.domain_id(params.domain))
+        self._participant: DomainParticipant | None = DomainParticipant(ros2.domain_id(params.domain))
         kind = ros2.MESSAGES[params.type]
         topic = Topic(self._participant, ros2.dds_topic(params.topic), kind, qos=ros2.ros2_qos())
         reader = DataReader(self._participant, topic, qos=ros2.ros2_qos())

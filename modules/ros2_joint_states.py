@@ -67,7 +67,7 @@ class Ros2JointStates(PortBasedObject):
         from cyclonedds.pub import DataWriter
         from cyclonedds.topic import Topic
 
-        self._participant = DomainParticipant(ros2.domain_id(params.domain))
+        self._participant: DomainParticipant | None = DomainParticipant(ros2.domain_id(params.domain))
         topic = Topic(self._participant, ros2.dds_topic(params.topic), ros2.JointState, qos=ros2.ros2_qos())
         writer = DataWriter(self._participant, topic, qos=ros2.ros2_qos())
         message = ros2.JointState(header=ros2.Header(frame_id=params.frame_id), name=names)

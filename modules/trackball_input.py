@@ -13,6 +13,7 @@ the task turned on. The motion comes from one of:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,7 +48,7 @@ class TrackballInput(PortBasedObject):
         self._start = np.zeros(6)
         self._offset = np.zeros(6)
         self._started = 0.0
-        self._read_offset = None
+        self._read_offset: Callable[[float, np.ndarray], object] | None = None
         if params.device:
             ball = self.open_device(params.device)
             if not callable(getattr(ball, "read_offset", None)):
@@ -63,6 +64,7 @@ class TrackballInput(PortBasedObject):
         self.x_d = self.x_m
 
     def cycle(self) -> Status:
+        assert self._read_offset is not None  # set by init
         self._read_offset(self.time - self._started, self._offset)
         np.add(self._start, self._offset, out=self.x_d)
         return Status.CONTINUE

@@ -15,11 +15,12 @@ is a conversion the driver had not seen.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from drivers.force_torque import models
+from drivers.io.adc import Adc
 from drivers.mujoco_arm.registers import DeviceError
 from pbo_runtime import DeviceDriver
 
@@ -59,7 +60,7 @@ class AnalogForceTorque(DeviceDriver):
             raise DeviceError(f"ft_analog needs an ADC (io: {{device: <adc device>, channels: 0-5}}), got: {io!r}")
         if len(io.channels) != self.IO_CHANNELS:
             raise DeviceError(f"ft_analog needs {self.IO_CHANNELS} ADC channels, got {len(io.channels)}")
-        self._read = io.read
+        self._read = cast(Adc, io).read  # its KIND says so
         self._volts = np.zeros(self.IO_CHANNELS)
         self._step = -1
 

@@ -18,11 +18,12 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from drivers.force_torque import models
+from drivers.io.parallel_port import ParallelPort
 from drivers.mujoco_arm.registers import DeviceError
 from pbo_runtime import DeviceDriver
 
@@ -56,9 +57,10 @@ class ParallelForceTorque(DeviceDriver):
         if len(io.channels) != self.IO_CHANNELS:
             raise DeviceError(f"ft_parallel needs {self.IO_CHANNELS} parallel-port channels, got {len(io.channels)}")
         self.timeout = float(self.options.get("timeout", 0.5))
-        self._read_channel = io.read_channel
-        self._write_channel = io.write_channel
-        self._read_lines = io.read
+        port = cast(ParallelPort, io)  # its KIND says so
+        self._read_channel = port.read_channel
+        self._write_channel = port.write_channel
+        self._read_lines = port.read
         if not self._read_channel(models.A_STATUS) & models.A_STATUS_POWERED:
             raise DeviceError(
                 f"no vendor A force/torque sensor answers on parallel-port channels {list(io.channels)} (STATUS has "

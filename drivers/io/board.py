@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -25,8 +25,8 @@ _STUCK_AFTER_S = 0.5
 class BoardDriver(DeviceDriver):
     """Base of the ADC, DAC and parallel-port drivers: registers, channels, no options."""
 
-    OPTIONS: tuple[str, ...] = ()
-    NEEDS_PLANT = True
+    OPTIONS: ClassVar[tuple[str, ...]] = ()
+    NEEDS_PLANT: ClassVar[bool] = True
 
     @classmethod
     def check_options(cls, options: Mapping[str, Any]) -> None:

@@ -35,8 +35,8 @@ class ParallelPort(BoardDriver):
         self._out = self._regs.pio_out
         self._in_view = self._lent(self._in)
         # memoryview item access is the cheapest way to move one word from Python
-        self._in_words = memoryview(self._regs.pio_in).cast("B").cast("H")
-        self._out_words = memoryview(self._regs.pio_out).cast("B").cast("H")
+        self._in_words = memoryview(self._regs.pio_in.data).cast("B").cast("H")
+        self._out_words = memoryview(self._regs.pio_out.data).cast("B").cast("H")
         self._numbers = self.channels  # position among the lent channels -> channel number on the board
 
     def read(self, lines_out: np.ndarray) -> None:

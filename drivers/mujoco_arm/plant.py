@@ -401,7 +401,7 @@ class MujocoArmPlant:
         np.add(tau, self.gravity_torque(qpos, self._gravity), out=tau)
         _clip(tau, self._torque_floor, self._torque_limits, data.qfrc_applied)
 
-    def _command_stale(self, words: np.ndarray, now: float) -> bool:
+    def _command_stale(self, words: memoryview[int], now: float) -> bool:
         """The drive's watchdog: no new command for `command_timeout` while the brakes are off."""
         sequence = int(words[W_CMD_SEQ])
         if sequence != self._command_seen or words[W_BRAKE] != 0:  # (braked: nothing is owed)

@@ -126,11 +126,11 @@ class Registers:
 
     def __init__(self, mapping: mmap.mmap, layout: RegisterLayout) -> None:
         self.layout = layout
-        self._mapping = mapping
+        self._mapping: mmap.mmap | None = mapping
         n = layout.ndof
         raw = memoryview(mapping)
         header = raw[: HEADER_WORDS * 8]
-        self._views: list[memoryview] = [raw, header]
+        self._views: list[memoryview[int] | memoryview[float]] = [raw, header]
         # memoryview item access is the cheapest way to read or write one word from Python.
         self.words = header.cast("Q")
         self.reals = header.cast("d")

@@ -100,8 +100,8 @@ def to_mjcf(desc: RobotDescription, timestep: float) -> str:
         closers.append(f"{indent}</body>")
     tool = dh_link_transform(desc.dh[-1])
     indent = "    " + "  " * desc.ndof
-    placement = f'pos="{_num(tool[:3, 3])}" quat="{_num(_quat(tool[:3, :3]))}"'
-    lines.append(f'{indent}<site name="ee" {placement} size="0.01"/>')
+    site = f'pos="{_num(tool[:3, 3])}" quat="{_num(_quat(tool[:3, :3]))}"'
+    lines.append(f'{indent}<site name="ee" {site} size="0.01"/>')
     lines.extend(reversed(closers))
     lines += [
         "  </worldbody>",

@@ -114,7 +114,7 @@ def _source(model: str, base_dir: Path) -> tuple[RobotSource, RobotDescription |
         from drivers.robots.mjcf import to_mjcf
 
         spec = mujoco.MjSpec.from_string(to_mjcf(made, 0.001))
-        velocity = {f"joint{j + 1}": float(v) for j, v in enumerate(made.velocity_limits) if v > 0}
+        velocity = {f"joint{j + 1}": float(v) for j, v in enumerate(made.velocity_limits if made.velocity_limits is not None else ()) if v > 0}
         return RobotSource(Path(f"{model}.xml"), spec, "mjcf", velocity=velocity), made, "ee"
     path = Path(str(made))
     return read_robot(path), None, None

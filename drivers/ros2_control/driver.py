@@ -105,7 +105,7 @@ class Ros2ControlArm(DeviceDriver):
         from cyclonedds.sub import DataReader
         from cyclonedds.topic import Topic
 
-        self._participant = DomainParticipant(ros2.domain_id(int(self.options.get("domain", -1))))
+        self._participant: DomainParticipant | None = DomainParticipant(ros2.domain_id(int(self.options.get("domain", -1))))
         qos = ros2.ros2_qos()
         reader = DataReader(self._participant, Topic(self._participant, ros2.dds_topic(self.options.get("joint_states", "/joint_states")),
                                                      ros2.JointState, qos=qos), qos=qos)
@@ -185,7 +185,7 @@ class Ros2ControlArm(DeviceDriver):
 
     # the threads ------------------------------------------------------------------------------
 
-    def _take_states(self, reader: Any, kind: type) -> None:
+    def _take_states(self, reader: Any, kind: type[Any]) -> None:
         below_the_cycle()
         names = self._names
         while not self._stopping:

@@ -14,10 +14,11 @@ $(STAMP): pyproject.toml
 run: $(STAMP)            ## set up, then run the demo: PID joint control of a simulated PUMA 560
 	$(BIN)/pbo run configs/pid_joint.yaml --duration 5
 
-test: $(STAMP)           ## set up, then lint, type-check and run every test
+test: $(STAMP)           ## set up, then lint, type-check and run every test: those without processes first
 	$(BIN)/ruff check --quiet pbo_runtime rtpu drivers modules bench tests tools
 	$(BIN)/mypy
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -m "not multiprocess"
+	$(BIN)/python -m pytest -q -m multiprocess
 
 check: $(STAMP)          ## check every shipped configuration
 	@for f in configs/*.yaml; do $(BIN)/pbo check $$f || exit 1; done

@@ -27,7 +27,7 @@ GOAL = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]  # configs/ros2_control.yaml's initial q_
 
 
 @pytest.mark.parametrize("options, wanted", [
-    ({"mode": "position"}, "mode must be torque"),
+    ({"mode": "velocity"}, r"mode must be torque \(an effort controller\) or position"),
     ({"joints": ["a", "a"]}, "joints must be a list of distinct joint names"),
     ({"domain": 300}, r"domain must be an integer in \[-1, 232\]"),
     ({"stall_after": 0}, r"stall_after must be seconds in \(0, 10\]"),
@@ -65,6 +65,45 @@ def test_the_demos_pid_brings_a_ros2_control_arm_to_its_goal_and_holds_when_join
     assert run.returncode == 2, err
     assert any(fault.startswith("critical task 'robot' ran its locally stable behaviour") and fault.endswith(
         "the module's own inputs are not fresh (its cycle returned STABLE)") for fault in report["faults"]), report["faults"]
+
+
+def position_mode_copy(folder):
+    """ros2_control.yaml with the arm in position mode: robot_position tracks the trajectory's q_r, no PID."""
+    text = (REPO / "configs" / "ros2_control.yaml").read_text()
+    for old, new in (("subsystem: ros2_control\n", f"subsystem: ros2_position_{os.getpid()}\n"),
+                     ("mode: torque", "mode: position"),
+                     ("commands: /forward_effort_controller/commands", "commands: /forward_position_controller/commands"),
+                     ("module: robot_torque", "module: robot_position"),
+                     ("  joint_pid: [robot, traj, pid]", "  joint_position: [robot, traj]")):
+        assert old in text, old
+        text = text.replace(old, new)
+    text = text.replace(text[text.index("  pid:"):text.index("\nconfigurations:")], "")
+    path = folder / "ros2_position.yaml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.multiprocess
+def test_in_position_mode_the_trajectory_goes_to_a_ros2_control_position_controller_and_the_arm_reaches_its_goal(
+        tmp_path, monkeypatch):
+    domain = own_dds_domain()
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    arm = subprocess.Popen([sys.executable, "-m", "tests.ros2_control_peer", str(domain), "300", *map(str, GOAL), "--position"],
+                           cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    config = position_mode_copy(tmp_path)
+    checked = subprocess.run([*PBO, "check", str(config)], capture_output=True, text=True, timeout=120)
+    assert checked.returncode == 0, checked.stdout + checked.stderr
+    run = start_run(config, tmp_path, "--duration", "300")
+    try:
+        reached = json.loads(read_until(arm, '"reached"').strip().splitlines()[-1])
+        assert np.abs(np.subtract(reached["q"], GOAL)).max() < 0.01  # held there for 0.5 s, by the arm's own account
+    finally:
+        if run.poll() is None:
+            run.send_signal(signal.SIGINT)
+        out, err = run_output(run)
+        arm.kill()
+        run_output(arm)
+    assert "Traceback" not in err, err  # (braked without position commands, the arm would never have left q0)
 
 
 @pytest.mark.multiprocess
@@ -122,8 +161,20 @@ def test_the_driver_takes_the_robots_joints_by_name_in_its_own_order_and_its_cyc
             until(lambda: driver.published == 1, "the command is published")
             with pytest.raises(DeviceError, match="not finite"):
                 driver.write_torque(np.full(6, np.nan))
+            with pytest.raises(DeviceError, match="write_position on an arm opened in torque mode"):
+                driver.write_position(np.zeros(6))
         finally:
             driver.close()
+        positioned = Ros2ControlArm(plant_registers, {"domain": domain, "mode": "position"})
+        try:
+            assert positioned.mode == "position"
+            with pytest.raises(DeviceError, match="write_torque on an arm opened in position mode"):
+                positioned.write_torque(np.zeros(6))
+            positioned.release_brakes()
+            positioned.write_position(np.full(6, 0.1))
+            until(lambda: positioned.published == 1, "the position command is published")
+        finally:
+            positioned.close()
     finally:
         robot.kill()
         run_output(robot)

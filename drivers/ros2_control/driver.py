@@ -1,12 +1,13 @@
-"""An arm behind ros2_control, driven over DDS: its `/joint_states` in, effort commands out.
+"""An arm behind ros2_control, driven over DDS: its `/joint_states` in, effort or position commands out.
 
-The driver `robot_torque` opens instead of the simulated arm's (`devices: {arm: {driver:
-ros2_control, mode: torque}}`), so pbo's robot interface, with its limits and its freshness
-rules, drives any arm that has a ros2_control driver: the measured state comes from the robot's
-`sensor_msgs/msg/JointState` topic (joints taken by name, in `joints`' order), and each
-`write_torque` goes out as the `std_msgs/msg/Float64MultiArray` a forward command controller
-takes (`/forward_effort_controller/commands`), both as a ROS 2 node's topics on the DDS domain
-`domain` (-1: ROS_DOMAIN_ID, else 0).
+The driver `robot_torque` (`mode: torque`) or `robot_position` (`mode: position`) opens instead
+of the simulated arm's (`devices: {arm: {driver: ros2_control, mode: torque}}`), so pbo's robot
+interface, with its limits and its freshness rules, drives any arm that has a ros2_control
+driver: the measured state comes from the robot's `sensor_msgs/msg/JointState` topic (joints
+taken by name, in `joints`' order), and each `write_torque` (`write_position`) goes out as the
+`std_msgs/msg/Float64MultiArray` a forward command controller takes
+(`/forward_effort_controller/commands`, `/forward_position_controller/commands`), both as a ROS 2
+node's topics on the DDS domain `domain` (-1: ROS_DOMAIN_ID, else 0).
 
 No call of a cycle touches DDS. A thread of the driver (below the RTPU's executive) takes each
 JointState into a buffer; opening the driver waits for the first (up to 5 s, else it fails
@@ -39,13 +40,18 @@ _WAIT = 1_000_000_000  # ns the thread waits for a message or the driver's close
 FIRST_STATE_PATIENCE = 5.0  # s the driver's opening waits for the first JointState (within the supervisor's 10 s for a spawn)
 
 
+#: the forward command controller each mode's commands go to, unless `commands` names another topic
+COMMAND_TOPICS = {"torque": "/forward_effort_controller/commands", "position": "/forward_position_controller/commands"}
+
+
 class Ros2ControlArm(DeviceDriver):
-    """options: `mode` (torque), `joint_states` (/joint_states), `commands` (/forward_effort_controller/commands),
-    `joints` (names, default joint1..jointN), `domain` (-1), `stall_after` (s of silence before the arm counts as stopped, 0.01)."""
+    """options: `mode` (torque or position), `joint_states` (/joint_states), `commands` (the mode's forward
+    controller: COMMAND_TOPICS), `joints` (names, default joint1..jointN), `domain` (-1), `stall_after`
+    (s of silence before the arm counts as stopped, 0.01)."""
 
     KIND = "arm"  # what robot_torque opens, as mujoco_arm is
     OPTIONS = _OPTIONS
-    OPTION_DEFAULTS = {"mode": "torque", "joint_states": "/joint_states", "commands": "/forward_effort_controller/commands",
+    OPTION_DEFAULTS = {"mode": "torque", "joint_states": "/joint_states", "commands": COMMAND_TOPICS["torque"],
                        "joints": None, "domain": -1, "stall_after": 0.01}
 
     @classmethod
@@ -53,8 +59,9 @@ class Ros2ControlArm(DeviceDriver):
         unknown = sorted(set(options) - set(_OPTIONS))
         if unknown:
             raise ValueError(f"unknown ros2_control driver option(s) {unknown}; valid options: {', '.join(_OPTIONS)}")
-        if options.get("mode", "torque") != "torque":
-            raise ValueError(f"ros2_control driver mode must be torque (an effort controller), got: {options['mode']!r}")
+        if options.get("mode", "torque") not in COMMAND_TOPICS:
+            raise ValueError("ros2_control driver mode must be torque (an effort controller) or position (a position "
+                             f"controller), got: {options['mode']!r}")
         for key in ("joint_states", "commands"):
             topic = options.get(key, cls.OPTION_DEFAULTS[key])
             if not isinstance(topic, str) or not topic.strip("/"):
@@ -75,7 +82,7 @@ class Ros2ControlArm(DeviceDriver):
         self.check_options(self.options)
         ros2 = ros2_messages("the ros2_control driver")
 
-        self.mode = "torque"
+        self.mode: str = self.options.get("mode", "torque")
         regs = attach_registers(registers)  # the plant's robot: its constants only
         try:
             self._arm_table, self._ee = regs.arm.copy(), regs.ee.copy()
@@ -110,7 +117,7 @@ class Ros2ControlArm(DeviceDriver):
         reader = DataReader(self._participant, Topic(self._participant, ros2.dds_topic(self.options.get("joint_states", "/joint_states")),
                                                      ros2.JointState, qos=qos), qos=qos)
         writer = DataWriter(self._participant, Topic(self._participant, ros2.dds_topic(
-            self.options.get("commands", "/forward_effort_controller/commands")), ros2.Float64MultiArray, qos=qos), qos=qos)
+            self.options.get("commands", COMMAND_TOPICS[self.mode])), ros2.Float64MultiArray, qos=qos), qos=qos)
         self._waitset = WaitSet(self._participant)
         self._waitset.attach(ReadCondition(reader, SampleState.NotRead | ViewState.Any | InstanceState.Any))
         self._wake_reader = GuardCondition(self._participant)
@@ -156,13 +163,22 @@ class Ros2ControlArm(DeviceDriver):
         return stamp
 
     def write_torque(self, tau: np.ndarray) -> None:
-        """Send joint efforts to the forward effort controller (with the brakes released)."""
-        if np.count_nonzero(np.isfinite(tau, out=self._finite)) != self.ndof:  # a non-finite command never goes out
-            raise DeviceError(f"ros2_control driver: write_torque refused a command that is not finite ({tau.tolist()})")
+        """Send joint efforts, N m, to the forward effort controller (with the brakes released). Torque mode only."""
+        self._send("torque", tau)
+
+    def write_position(self, q_cmd: np.ndarray) -> None:
+        """Send joint positions, rad, to the forward position controller (with the brakes released). Position mode only."""
+        self._send("position", q_cmd)
+
+    def _send(self, mode: str, command: np.ndarray) -> None:
+        if mode != self.mode:
+            raise DeviceError(f"ros2_control driver: write_{mode} on an arm opened in {self.mode} mode (its option mode)")
+        if np.count_nonzero(np.isfinite(command, out=self._finite)) != self.ndof:  # a non-finite command never goes out
+            raise DeviceError(f"ros2_control driver: write_{mode} refused a command that is not finite ({command.tolist()})")
         if self._braked:
             return
         self._acquire()
-        np.copyto(self._command, tau)
+        np.copyto(self._command, command)
         self._release()
         os.eventfd_write(self._wake_writer, 1)
 

@@ -38,7 +38,7 @@ from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.module import Status
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Flag, Header, TaskState
-from pbo_runtime.table.table import Status as W
+from pbo_runtime.table.table import StatusWord as W
 
 RING = 1 << 16  # samples kept per task for percentiles (65 s at 1 kHz)
 RECENT = 1 << 10  # every RECENT cycles, the last RECENT samples' percentiles go to the table for pbo status

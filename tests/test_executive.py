@@ -13,7 +13,7 @@ from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.messages import Refused, Stable, StateChanged, Stats
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.waits import cycles_meanwhile
-from pbo_runtime.table.table import Status as W
+from pbo_runtime.table.table import StatusWord as W
 from pbo_runtime.table.table import TaskState
 from rtpu._executive import Executive
 from tests.support import REPO, RUNS, FakeSignals, Ticker, run_until, task_spec, variables

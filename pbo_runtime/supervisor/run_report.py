@@ -12,7 +12,7 @@ from pbo_runtime.config.log_notes import variable_notes
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import StateTable, TaskState, copy_variable
-from pbo_runtime.table.table import Status as W
+from pbo_runtime.table.table import StatusWord as W
 
 if TYPE_CHECKING:
     from pbo_runtime.supervisor.job_control import JobControl

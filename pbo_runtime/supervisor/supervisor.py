@@ -59,7 +59,7 @@ from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.stall_watch import StallWatch
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import Flag, Header, StateTable, TableLayout, TaskState
-from pbo_runtime.table.table import Status as W
+from pbo_runtime.table.table import StatusWord as W
 
 # the run's vocabulary, for whoever imports it from here
 __all__ = ["RunFailure", "RunRefused", "RunResult", "StopRequested", "Supervisor", "remove_dead_runs", "simulation_tick"]

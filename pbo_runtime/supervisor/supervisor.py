@@ -52,6 +52,7 @@ from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockWatching
 from pbo_runtime.supervisor.restarts import Restarting
+from pbo_runtime.ipc.task_statistics import TaskStatistics
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.application_lockstep import TurnGate
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
@@ -147,7 +148,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.result.links = self.links
         self.started_at: float | None = None  # run time when the configuration came on
         self._stop_requested = ""
-        self._stats: dict[str, dict[str, Any]] = {}
+        self._stats: dict[str, TaskStatistics] = {}  # by task, as each RTPU reported them
         self.stall_watch = StallWatch(subsystem.tasks.values(), self._cycles_of, say)
         self._stalls_checked = -math.inf
         self.reconfiguration = Reconfiguration(subsystem)

@@ -1,7 +1,7 @@
 """A task's figures over a run: what its executive counted, the Stats event that carries them, report.json.
 
 The executive builds one `TaskStatistics` per report (at `pbo stats` and at the stop), never per
-cycle. `to_json` gives the keys report.json has always had (docs/running.md), `from_json` reads
+cycle. `to_json` gives the keys report.json has always had (docs/data.md), `from_json` reads
 them back; the summary and the report read the fields, never the keys.
 """
 

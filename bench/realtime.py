@@ -72,7 +72,8 @@ import yaml
 from bench._common import REPO, Section, Table, Target, fmt_ratio, ratio, us
 from bench._processes import Workers
 from pbo_runtime.ipc import messages
-from pbo_runtime.clock.clocks import RealClock, lower_timer_slack, release_stagger, scheduler_outcome
+from pbo_runtime.clock.clocks import RealClock, lower_timer_slack, release_stagger
+from pbo_runtime.reports.run_summary import scheduler_outcome
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import DEFAULT_SPIN
 from pbo_runtime.ipc.control import find_live_run

@@ -33,7 +33,7 @@ from bench._inject import table_of
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc import shm
 from pbo_runtime.table.table import StateTable, TableLayout
-from pbo_runtime.table.table import Status as W
+from pbo_runtime.table.table import StatusWord as W
 
 DEMO = Path(REPO) / "configs" / "pid_joint.yaml"
 SUBSYSTEM = "puma_restart"

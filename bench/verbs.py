@@ -37,7 +37,7 @@ from pbo_runtime.ipc.control import ControlClient
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.commands import COMMANDS
 from pbo_runtime.table.table import StateTable, TableLayout
-from pbo_runtime.table.table import Status as W
+from pbo_runtime.table.table import StatusWord as W
 
 CONFIGS = Path(REPO) / "configs"
 QUICK_CONFIGS = ("pid_joint", "switch_joint")

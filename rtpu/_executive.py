@@ -31,6 +31,7 @@ import numpy as np
 
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.process import raise_if_stopping
+from pbo_runtime.ipc.task_statistics import Overrun, TaskStatistics
 from pbo_runtime.ipc.messages import Event, FirstCycle, Refused, Stable, StateChanged, Stats, Switched, Window
 from pbo_runtime.objects import waits
 from pbo_runtime.task import background
@@ -38,7 +39,7 @@ from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.module import Status
 from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Flag, Header, TaskState
-from pbo_runtime.table.table import Status as W
+from pbo_runtime.table.table import StatusWord as W
 
 RING = 1 << 16  # samples kept per task for percentiles (65 s at 1 kHz)
 RECENT = 1 << 10  # every RECENT cycles, the last RECENT samples' percentiles go to the table for pbo status
@@ -145,45 +146,32 @@ class Scheduled:
         self.lock_waits_given_up = 0  # releases whose read found the table lock held past `cycle_lock_wait`
         self.first_cycle_of_plan = 0  # a plan's sequence until this entering task ran its first cycle
 
-    def statistics(self) -> dict[str, Any]:
+    def statistics(self, devices: dict[str, dict[str, Any]] | None = None) -> TaskStatistics:
+        """Its figures so far, with its drivers' own (`devices`): built for a report, never per cycle."""
         n = min(self.samples, RING)
         jitter = self.jitter[:n]
         exec_time = self.exec_time[:n]
         pct = (lambda a, q: float(np.percentile(a, q)) if n else 0.0)
-        return {
-            "cycles": self.task.cycles,
-            "overruns": self.overruns,
-            "missed": self.missed,
-            "errors": self.task.errors,
-            "jitter_p50": pct(jitter, 50), "jitter_p99": pct(jitter, 99), "jitter_max": self.jitter_max,
-            "exec_p50": pct(exec_time, 50), "exec_p99": pct(exec_time, 99), "exec_max": self.exec_max,
-            "bytes_in": self.task.local.bytes_in,
-            "bytes_out": self.task.local.bytes_out,
-            "bytes_per_cycle": self.task.local.bytes_in + self.task.local.bytes_out,
-            "bytes_moved_per_cycle": self.task.local.bytes_moved,
-            "stale_reads": self.stale_reads,
-            "stale_reads_at_switches": self.stale_at_switch,
-            "last_stale_read": self.last_stale,
-            "cycles_lost_to_switches": self.lost_to_switch,
-            "last_cycle_lost": self.last_lost,
-            "stable_cycles": self.stable_cycles,
-            "expired_reads": self.expired_reads,
-            "lock_waits_given_up": self.lock_waits_given_up,
-            "dropped_events": self.dropped_events,
-            "overruns_long_cycle": self.long_cycles,
-            "overruns_late_release": self.overruns - self.long_cycles,
-            "last_overruns": self.last_overruns(),
-            # the files its module wrote (a data log), for `pbo run` to say where they went
-            **({"outputs": list(dict.fromkeys(self.task.context.outputs))} if self.task.context.outputs else {}),
-        }
+        local = self.task.local
+        return TaskStatistics(
+            cycles=self.task.cycles, overruns=self.overruns, missed=self.missed, errors=self.task.errors,
+            jitter_p50=pct(jitter, 50), jitter_p99=pct(jitter, 99), jitter_max=self.jitter_max,
+            exec_p50=pct(exec_time, 50), exec_p99=pct(exec_time, 99), exec_max=self.exec_max,
+            bytes_in=local.bytes_in, bytes_out=local.bytes_out, bytes_moved_per_cycle=local.bytes_moved,
+            stale_reads=self.stale_reads, stale_reads_at_switches=self.stale_at_switch, last_stale_read=self.last_stale,
+            cycles_lost_to_switches=self.lost_to_switch, last_cycle_lost=self.last_lost,
+            stable_cycles=self.stable_cycles, expired_reads=self.expired_reads,
+            lock_waits_given_up=self.lock_waits_given_up, dropped_events=self.dropped_events,
+            overruns_long_cycle=self.long_cycles, last_overruns=self.last_overruns(),
+            outputs=tuple(dict.fromkeys(self.task.context.outputs)), devices=devices or {})
 
-    def last_overruns(self) -> list[list[float]]:
-        """The last OVERRUNS_KEPT overruns, oldest first: [release, how late it started, how long it ran]."""
+    def last_overruns(self) -> tuple[Overrun, ...]:
+        """The last OVERRUNS_KEPT overruns, oldest first."""
         kept = min(self.overruns, OVERRUNS_KEPT)
         first = self.overruns - kept
         log = self.overrun_log
-        return [[float(log[3 * k]), float(log[3 * k + 1]), float(log[3 * k + 2])]
-                for k in ((first + i) % OVERRUNS_KEPT for i in range(kept))]
+        return tuple(Overrun(float(log[3 * k]), float(log[3 * k + 1]), float(log[3 * k + 2]))
+                     for k in ((first + i) % OVERRUNS_KEPT for i in range(kept)))
 
 
 class LiveStage(Protocol):
@@ -846,8 +834,7 @@ class Executive:
     def report_statistics(self) -> None:
         """One Stats event per task: an RTPU hosting dozens of tasks would overflow one message."""
         for name, s in self.tasks.items():
-            figures = self.device_figures(name)
-            self.report(Stats({name: {**s.statistics(), **({"devices": figures} if figures else {})}}))
+            self.report(Stats(name, s.statistics(self.device_figures(name))))
 
     def _first_release(self, s: Scheduled, at: float) -> float:
         s.release_index = max(math.ceil((at - ON_THE_BOUNDARY - self.epoch) / s.period), 0)

@@ -29,6 +29,7 @@ from pbo_runtime.ipc.control import answer
 from pbo_runtime.supervisor.failures import RtpuDied
 from pbo_runtime.supervisor.commands import dispatch
 from pbo_runtime.supervisor.job_control import JobControl
+from pbo_runtime.supervisor.status_reply import TaskRow
 from pbo_runtime.table.svar import TableView, attach
 from pbo_runtime.table.table import SPARE_TASK_SLOTS
 from tests.support import REPO
@@ -182,9 +183,8 @@ class FakeJobHost:
     def start_application(self, name: str) -> None:
         self.started_applications.append(name)
 
-    def status_rows(self) -> list[dict[str, Any]]:
-        return [{"task": t.name, "rtpu": t.rtpu, "state": self.task_states[t.name], "cycles": 100, "overruns": 0,
-                 "missed": 0, "jitter_max": 0.0, "exec_last": 0.0} for t in self.subsystem.tasks.values()]
+    def status_rows(self) -> list[TaskRow]:
+        return [TaskRow(t.name, t.rtpu, self.task_states[t.name], cycles=100) for t in self.subsystem.tasks.values()]
 
     def table_flags(self) -> list[str]:
         return ["ILLEGAL_CONFIGURATION"] if "ERROR" in self.task_states.values() else []

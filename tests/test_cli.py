@@ -189,24 +189,26 @@ def test_every_shipped_configuration_passes_the_checker(config, capsys):
 
 def test_the_summary_tells_a_late_release_from_a_long_cycle():
     from pbo_runtime.config.loader import load_subsystem
-    from pbo_runtime.cli.main import overrun_lines
+    from pbo_runtime.reports.run_result import RtpuSettings, TaskReport
+    from pbo_runtime.reports.run_summary import overrun_lines
 
     subsystem = load_subsystem(REPO / "configs" / "pid_joint.yaml")
-    tasks = {
+    figures = {
         "robot": {"overruns": 2, "overruns_late_release": 2, "overruns_long_cycle": 0, "jitter_max": 0.0031,
                   "exec_max": 0.00002, "last_overruns": [[0.25, 0.0031, 0.00002], [1.5, 0.0012, 0.00002]]},
         "pid": {"overruns": 9, "overruns_late_release": 0, "overruns_long_cycle": 9, "jitter_max": 0.0,
                 "exec_max": 0.0042, "last_overruns": [[0.001 * i, 0.0, 0.0042] for i in range(8)]},
         "traj": {"overruns": 0},
     }
+    tasks = {name: TaskReport.from_json(entry) for name, entry in figures.items()}
     robot, pid = overrun_lines(subsystem, tasks)
     assert robot == ("overruns of 'robot' (1 ms period): 2 late releases (started up to 3.10 ms late: the machine held the "
                      "RTPU's CPU; SCHED_FIFO (drop --no-fifo) or pinning with rtpus: {cpu: N} help); at 0.250 s, "
                      "1.500 s into the run")
 
     def robot_line_under(scheduler: str) -> str:
-        line, _ = overrun_lines(subsystem, {**tasks, "robot": {**tasks["robot"], "rtpu": "rtpu1"}},
-                                {"rtpu1": {"scheduler": scheduler}})
+        on_rtpu1 = {**tasks, "robot": TaskReport.from_json({**figures["robot"], "rtpu": "rtpu1"})}
+        line, _ = overrun_lines(subsystem, on_rtpu1, {"rtpu1": RtpuSettings.from_json({"scheduler": scheduler})})
         return line
 
     assert "(started up to 3.10 ms late: the machine held the RTPU's CPU; it ran SCHED_FIFO already, so only the " \

@@ -13,7 +13,7 @@ from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.messages import Refused, Stable, StateChanged, Stats
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.waits import cycles_meanwhile
-from pbo_runtime.table.table import Status as W
+from pbo_runtime.table.table import StatusWord as W
 from pbo_runtime.table.table import TaskState
 from rtpu._executive import Executive
 from tests.support import REPO, RUNS, FakeSignals, Ticker, run_until, task_spec, variables
@@ -174,7 +174,7 @@ def test_off_stops_the_releases_and_stop_kills_every_task(setup):
     assert len(RUNS) == 3
     assert not ex.running
     assert ex.tasks["a"].task.state is TaskState.KILLED
-    assert isinstance(events[-1], Stats) and events[-1].tasks["a"]["cycles"] == 3
+    assert isinstance(events[-1], Stats) and (events[-1].task, events[-1].statistics.cycles) == ("a", 3)
 
 
 def test_a_signal_for_an_unknown_task_is_refused_not_fatal(setup):
@@ -276,7 +276,7 @@ def test_link_messages_beyond_what_a_server_holds_are_counted_as_dropped(setup):
     run_until(ex, clock, 1.0)
     assert scheduled.dropped_events == 3
     assert [payload[1] for _, payload in EventRecorder.served] == list(range(3, EVENTS_QUEUED + 3))  # the newest kept
-    assert ex.tasks["server"].statistics()["dropped_events"] == 3
+    assert ex.tasks["server"].statistics().dropped_events == 3
 
 
 def test_each_overrun_is_recorded_with_its_cause_a_late_release_or_a_long_cycle(setup):
@@ -290,8 +290,9 @@ def test_each_overrun_is_recorded_with_its_cause_a_late_release_or_a_long_cycle(
     finally:
         Ticker.cost = 0.0
     stats = ex.tasks["a"].statistics()
-    assert (stats["overruns"], stats["overruns_late_release"], stats["overruns_long_cycle"]) == (2, 1, 1)
-    assert stats["last_overruns"] == [pytest.approx([0.002, 0.0015, 0.0]), pytest.approx([0.004, 0.0, 0.0025])]
+    assert (stats.overruns, stats.overruns_late_release, stats.overruns_long_cycle) == (2, 1, 1)
+    assert [[o.release, o.late, o.took] for o in stats.last_overruns] == [pytest.approx([0.002, 0.0015, 0.0]),
+                                                                          pytest.approx([0.004, 0.0, 0.0025])]
 
 
 def test_the_run_report_keeps_the_last_eight_overruns_oldest_first(setup):
@@ -303,8 +304,8 @@ def test_the_run_report_keeps_the_last_eight_overruns_oldest_first(setup):
     finally:
         Ticker.cost = 0.0
     stats = ex.tasks["a"].statistics()
-    assert stats["overruns"] == 10 and stats["overruns_long_cycle"] == 10
-    assert [release for release, _, _ in stats["last_overruns"]] == pytest.approx([0.004 + 0.002 * i for i in range(8)])
+    assert stats.overruns == 10 and stats.overruns_long_cycle == 10
+    assert [overrun.release for overrun in stats.last_overruns] == pytest.approx([0.004 + 0.002 * i for i in range(8)])
 
 
 def test_a_spawn_freezes_what_the_process_built_so_no_collection_walks_it_mid_run(setup):

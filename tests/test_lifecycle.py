@@ -8,7 +8,7 @@ import pytest
 from pbo_runtime import InBoth, InConst, InVar, LifecycleError, ModuleError, OutBoth, OutConst, OutVar, PortBasedObject, Status
 from pbo_runtime.objects.module import TaskContext
 from pbo_runtime.task.lifecycle import Task
-from pbo_runtime.table.table import Flag, Status as StatusWord, TaskState
+from pbo_runtime.table.table import Flag, StatusWord, TaskState
 from tests.support import allocation_peak, one_array, task_spec, variables
 
 VARS = variables(

@@ -20,7 +20,7 @@ from pbo_runtime.ipc import messages
 from pbo_runtime.cli import operator
 from pbo_runtime.ipc import shm
 from pbo_runtime.table.svar import format_value, open_table, svar_rows, svar_table
-from pbo_runtime.table.table import MAGIC, VERSION, Flag, Header, StateTable, Status, TableLayout, TaskState
+from pbo_runtime.table.table import MAGIC, VERSION, Flag, Header, StateTable, StatusWord, TableLayout, TaskState
 from tests.support import variables
 
 VARS = variables(("q_m", "float64", (3,)), ("n", "int32", ()), ("DH", "float64", (2, 4)), ("gain", "float32", ()))
@@ -93,17 +93,17 @@ def test_on_a_simulated_clock_run_before_its_first_tick_age_is_counted_from_time
 def test_a_task_written_variable_takes_sequence_and_time_from_the_tasks_status_block(run):
     subsystem, table = run()
     table.write("q_m", [1, 2, 3], when=1.0, writer=2)
-    table.status[2][Status.CYCLES] = 42
-    table.status[2][Status.RELEASE] = 7.5
+    table.status[2][StatusWord.CYCLES] = 42
+    table.status[2][StatusWord.RELEASE] = 7.5
     with open_table(subsystem) as view:
         assert view.read("q_m")[1:] == (42, 7.5, 2)
 
 
 def test_task_status_reads_every_tasks_block(run):
     subsystem, table = run(n_tasks=2)
-    table.status[1][Status.STATE] = TaskState.ON
-    table.status[1][Status.CYCLES] = 1000
-    table.status[1][Status.JITTER_MAX] = 90e-6
+    table.status[1][StatusWord.STATE] = TaskState.ON
+    table.status[1][StatusWord.CYCLES] = 1000
+    table.status[1][StatusWord.JITTER_MAX] = 90e-6
     with open_table(subsystem) as view:
         rows = view.task_status()
     assert [r["index"] for r in rows] == [0, 1]
@@ -163,8 +163,8 @@ def test_svar_rows_show_age_sequence_and_writer_by_name_or_index(run):
     now = time.monotonic()
     table.write("q_m", [0.1, 0.2, 0.3], when=now - 0.5)
     table.write("n", 6, when=now - 0.5, writer=1)
-    table.status[1][Status.CYCLES] = 9
-    table.status[1][Status.RELEASE] = now - 0.002
+    table.status[1][StatusWord.CYCLES] = 9
+    table.status[1][StatusWord.RELEASE] = now - 0.002
     table.write("gain", 2.0, when=now, writer=2)
     with open_table(subsystem) as view:
         rows = {r["name"]: r for r in svar_rows(view, writers={1: "pid"}, now=now)}

@@ -27,12 +27,13 @@ from rich.live import Live
 from rich.table import Table
 
 from pbo_runtime.ipc import shm
-from pbo_runtime.clock.clocks import scheduler_outcome
+from pbo_runtime.reports.run_summary import scheduler_outcome
 from pbo_runtime.api.jsonable import jsonable
 from pbo_runtime.ipc.control import BadRequest, ControlClient
 from pbo_runtime.ipc.runs import live_runs
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.commands import COMMANDS, parse_object_values
+from pbo_runtime.supervisor.status_reply import TaskStatusEntry
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.svar import TableView, open_table, svar_rows, svar_table
 
@@ -47,8 +48,8 @@ def _say(console: Console, reply: dict[str, Any], default: str) -> None:
     console.print(str(reply.get("message") or default), markup=False)
 
 
-def _us(seconds: Any) -> str:
-    return "—" if seconds is None else f"{float(seconds) * 1e6:.0f}"
+def _us(seconds: float | None) -> str:
+    return "—" if seconds is None else f"{seconds * 1e6:.0f}"
 
 
 # --- status ---------------------------------------------------------------------------------
@@ -62,9 +63,9 @@ def status(console: Console, subsystem: str | None = None, run: str | None = Non
         console.print(f"[bold red]flag:[/] {flag}")
     for note in reply.get("gains") or []:
         console.print(note, markup=False)
-    for task in reply.get("tasks") or []:
-        if task.get("error"):
-            console.print(f"task '{task['task']}' ({task.get('state', '?')}): {task['error']}", markup=False)
+    for task in map(TaskStatusEntry.from_json, reply.get("tasks") or []):
+        if task.error:
+            console.print(f"task '{task.row.task}' ({task.row.state}): {task.error}", markup=False)
     return 0
 
 
@@ -108,32 +109,32 @@ def status_table(reply: dict[str, Any]) -> Table:
     for column in ("rtpu", "task", "state", "cycles", "rate Hz", "jitter p50 µs", "jitter p99 µs", "jitter max µs",
                    "exec p50 µs", "exec p99 µs", "overruns", "missed"):
         table.add_column(column, justify="left" if column in ("rtpu", "task", "state") else "right")
-    tasks = list(reply.get("tasks") or [])
+    tasks = [TaskStatusEntry.from_json(task) for task in reply.get("tasks") or []]
     realtime = reply.get("realtime") or {}
     stalled = reply.get("stalled") or {}
     restarted: dict[str, list[dict[str, Any]]] = {}
     for restart in reply.get("restarts") or []:
         restarted.setdefault(str(restart.get("rtpu")), []).append(restart)
-    by_rtpu: dict[str, list[dict[str, Any]]] = {}
+    by_rtpu: dict[str, list[TaskStatusEntry]] = {}
     for task in tasks:
-        by_rtpu.setdefault(str(task.get("rtpu", "?")), []).append(task)
+        by_rtpu.setdefault(task.row.rtpu, []).append(task)
     for n, rtpu in enumerate(sorted(by_rtpu)):
         if n:
             table.add_section()
         for i, task in enumerate(by_rtpu[rtpu]):
-            state = str(task.get("state", "?"))
+            row = task.row
+            state = row.state
             style = _STATE_STYLE.get(state, "white")
-            if task.get("task") in stalled:  # ON, but its cycle has not returned (see _stall_watch)
-                state, style = f"{state}, no cycle for {float(stalled[task['task']]):.1f} s", "bold red"
-            rate = task.get("rate")
+            if row.task in stalled:  # ON, but its cycle has not returned (see _stall_watch)
+                state, style = f"{state}, no cycle for {float(stalled[row.task]):.1f} s", "bold red"
+            rate = task.rate
             label = f"{rtpu}\n[dim]{scheduler_brief(realtime.get(rtpu, {}))}[/]" if rtpu in realtime else rtpu
             if rtpu in restarted:
                 label += f"\n[yellow]{restart_brief(restarted[rtpu])}[/]"
-            table.add_row(label if i == 0 else "", str(task.get("task", "?")), f"[{style}]{state}[/]",
-                          str(task.get("cycles", 0)), "—" if rate is None else f"{float(rate):.0f}",
-                          _us(task.get("jitter_p50")), _us(task.get("jitter_p99")), _us(task.get("jitter_max")),
-                          _us(task.get("exec_p50")), _us(task.get("exec_p99")), str(task.get("overruns", 0)),
-                          str(task.get("missed", 0)))
+            table.add_row(label if i == 0 else "", row.task, f"[{style}]{state}[/]",
+                          str(row.cycles), "—" if rate is None else f"{rate:.0f}",
+                          _us(row.jitter_p50), _us(row.jitter_p99), _us(row.jitter_max),
+                          _us(row.exec_p50), _us(row.exec_p99), str(row.overruns), str(row.missed))
     return table
 
 

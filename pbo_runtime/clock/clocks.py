@@ -86,13 +86,6 @@ class SimClock:
         return self.now()  # never waits: the lockstep barrier moves time
 
 
-def scheduler_outcome(reported: str) -> str:
-    """What the scheduler an RTPU reported (rtpu/_realtime.apply) amounts to: 'fifo', 'refused' or 'other'."""
-    if reported.startswith("SCHED_FIFO"):
-        return "fifo"
-    return "refused" if "SCHED_FIFO refused" in reported else "other"
-
-
 def lower_timer_slack(nanoseconds: int = 1) -> bool:
     """Ask Linux for a tighter wake-up (default slack 50 µs makes every wake late). True if done."""
     try:

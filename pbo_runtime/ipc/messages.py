@@ -23,6 +23,7 @@ from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm
 from pbo_runtime.errors import InternalError
 from pbo_runtime.ipc.limits import QueueSize, queue_system_limit
+from pbo_runtime.ipc.task_statistics import TaskStatistics
 
 READER_CHECK = 0.1  # seconds between checks that a queue's reader is alive, while a send waits on it
 
@@ -269,10 +270,13 @@ class Stable:
 
 @dataclasses.dataclass(frozen=True, slots=True)
 class Stats:
-    """Per task (one task a message: an RTPU with dozens would overflow one), its run figures."""
+    """A task's run figures (one task a message: an RTPU with dozens would overflow one).
+
+    On the wire the figures are `TaskStatistics.to_json`'s mapping."""
 
     KIND: ClassVar[str] = "stats"
-    tasks: dict[str, dict[str, Any]]
+    task: str
+    statistics: TaskStatistics
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -340,6 +344,8 @@ _FIELDS: dict[type, tuple[str, ...]] = {cls: tuple(f.name for f in dataclasses.f
 
 def event_to_wire(source: str, event: Event) -> list[Any]:
     """`[kind, source, *fields]`: what goes on the event queue."""
+    if isinstance(event, Stats):
+        return [event.KIND, source, event.task, event.statistics.to_json()]
     return [event.KIND, source, *(getattr(event, name) for name in _FIELDS[type(event)])]
 
 
@@ -351,8 +357,11 @@ def event_from_wire(message: list[Any]) -> tuple[str, Event]:
         raise InternalError(f"an event that is not one of {', '.join(EVENT_TYPES)} came on the event queue: "
                             f"{message!r:.200}; please report this")
     try:
+        if cls is Stats:
+            task, figures = message[2:]
+            return str(message[1]), Stats(task, TaskStatistics.from_json(figures))
         return str(message[1]), cls(*message[2:])
-    except TypeError as exc:
+    except (TypeError, ValueError, AttributeError) as exc:
         raise InternalError(f"a malformed '{kind}' event came on the event queue ({exc}): {message!r:.200}; "
                             "please report this") from None
 

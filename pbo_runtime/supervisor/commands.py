@@ -11,7 +11,8 @@ PboError (or ValueError/KeyError), whose message the operator reads as the refus
 when what was asked is wrong (a name, a value, an argument), not the run's state. Every request
 is checked here, whatever sent it: the CLI, or anything else that writes to the control queue.
 
-The status reply (times in seconds, rates in Hz; keys marked ? may be absent or None):
+The status reply (times in seconds, rates in Hz; keys marked ? may be absent or None; a task's
+entry is `status_reply.TaskStatusEntry`):
 
     {"subsystem": str, "run_id": str, "file": str (the subsystem's YAML file, absolute), "configuration": str,
      "job": str?, "application": str?,
@@ -29,6 +30,7 @@ The status reply (times in seconds, rates in Hz; keys marked ? may be absent or 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections.abc import Collection, Mapping, Sequence
@@ -45,6 +47,7 @@ from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.objects import registry
 from pbo_runtime.objects.ranges import Range, number_text
 from pbo_runtime.supervisor.job_control import application_steps
+from pbo_runtime.supervisor.status_reply import TaskRow, TaskStatusEntry
 from pbo_runtime.config.decisions import decides
 
 if TYPE_CHECKING:
@@ -80,7 +83,7 @@ class CommandHost(Protocol):
 
     def now(self) -> float:
         """The run's time."""
-    def status_rows(self) -> list[dict[str, Any]]:
+    def status_rows(self) -> list[TaskRow]:
         """Per task, in table index order: its status block's figures."""
     def table_flags(self) -> list[str]:
         """The names of the table's flags that are set."""
@@ -229,9 +232,11 @@ def status(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     elapsed = now - host.started_at if host.started_at is not None else 0.0
     rows = []
     for row, spec in zip(host.status_rows(), host.subsystem.tasks.values()):
-        rows.append({**row, "index": spec.index, "state": host.task_states.get(spec.name, row["state"]),
-                     "rate": row["cycles"] / elapsed if elapsed > 0 else 0.0,
-                     "error": host.task_errors.get(spec.name) if host.task_states.get(spec.name) == "ERROR" else None})
+        state = host.task_states.get(spec.name, row.state)
+        rows.append(TaskStatusEntry(dataclasses.replace(row, state=state), spec.index,
+                                    row.cycles / elapsed if elapsed > 0 else 0.0,
+                                    host.task_errors.get(spec.name) if host.task_states.get(spec.name) == "ERROR"
+                                    else None).to_json())
     return {"subsystem": host.subsystem.name, "run_id": host.run_id, "file": os.path.abspath(host.subsystem.file),
             "configuration": host.configuration,
             "job": host.job_control.job, "application": host.application, "elapsed": elapsed,

@@ -15,6 +15,7 @@ from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import messages
 from pbo_runtime.supervisor.failures import RunFailure, StopRequested
 from pbo_runtime.supervisor.job_control import JobControl
+from pbo_runtime.ipc.task_statistics import TaskStatistics
 from pbo_runtime.supervisor.run_report import RunResult
 
 START_TIMEOUT = 60.0  # seconds for a child to import numpy, pinocchio and mujoco on a busy machine
@@ -38,7 +39,7 @@ class EventHandling:
     _stop_requested: str
     _stable: dict[str, tuple[float, str, str]]  # task -> (since, reason, cause) of its open stable episode
     started_at: float | None
-    _stats: dict[str, dict[str, Any]]
+    _stats: dict[str, TaskStatistics]
     _refused: dict[str, str]
     _check_children: Callable[[], None]
     child_watch: Any  # supervisor.child_watch.ChildWatch while the run is up, else None
@@ -173,7 +174,7 @@ class EventHandling:
                                                                    "the summary, not told"))
             self._count_errors()
         elif isinstance(event, messages.Stats):
-            self._stats.update(event.tasks)
+            self._stats[event.task] = event.statistics
         elif isinstance(event, messages.PlantStats):
             self.result.plant = event.figures
         elif isinstance(event, messages.PlantStalled):

@@ -1,18 +1,23 @@
-"""The run's report: what a run did (`RunResult`, the summary's data and the JSON report), and how
-the supervisor fills it from the children's statistics, the stall watch and the table."""
+"""How the supervisor fills the run's report (`RunResult`, reports/run_result.py) from the children's
+statistics, the stall watch and the table."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import dataclasses
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from pbo_runtime.config.log_notes import variable_notes
 from pbo_runtime.config.model import Subsystem
+from pbo_runtime.ipc.task_statistics import Overrun, TaskStatistics
+from pbo_runtime.reports.run_result import RunResult as RunResult  # where the supervisor's parts find it
+from pbo_runtime.reports.run_result import Stall, TaskReport
+from pbo_runtime.supervisor.status_reply import TaskRow
 from pbo_runtime.table.snapshot import TableBusy
-from pbo_runtime.table.table import StateTable, TaskState, copy_variable
-from pbo_runtime.table.table import Status as W
+from pbo_runtime.table.table import StateTable, copy_variable
+from pbo_runtime.table.table import StatusWord as W
 
 if TYPE_CHECKING:
     from pbo_runtime.supervisor.job_control import JobControl
@@ -27,89 +32,13 @@ BRIEF_HOLD_PERIODS = 10
 BRIEF_HOLDS_SHARE = 0.05
 
 
-def _table_figures(words: np.ndarray) -> dict[str, float]:
-    """A task's counters from its status block: what the live view shows, and what a run report
-    gives for a task whose RTPU was killed before it could report. The percentiles are over the
-    last 1,024 cycles, published by the executive every 1,024 cycles (0 before)."""
-    return {"cycles": int(words[W.CYCLES]), "overruns": int(words[W.OVERRUNS]), "missed": int(words[W.MISSED]),
-            "jitter_max": float(words[W.JITTER_MAX]), "jitter_p50": float(words[W.JITTER_P50]),
-            "jitter_p99": float(words[W.JITTER_P99]), "exec_p50": float(words[W.EXEC_P50]),
-            "exec_p99": float(words[W.EXEC_P99])}
-
-
-@dataclass
-class RunResult:
-    """What a run did: the summary's data and the JSON report's content."""
-
-    subsystem: str
-    configuration: str
-    duration: float = 0.0
-    stopped_by: str = "duration"
-    failure: str = ""
-    tasks: dict[str, dict[str, Any]] = field(default_factory=dict)
-    variables: dict[str, Any] = field(default_factory=dict)
-    plant: dict[str, Any] = field(default_factory=dict)
-    lock_recoveries: int = 0
-    run_id: str = ""
-    objects: list[str] = field(default_factory=list)  # every shared object the run made ("kind /name")
-    states_at_stop: dict[str, str] = field(default_factory=dict)
-    application: str = ""
-    jobs_done: list[str] = field(default_factory=list)
-    switches: list[dict[str, Any]] = field(default_factory=list)
-    stable_episodes: list[dict[str, Any]] = field(default_factory=list)
-    realtime: dict[str, dict[str, str]] = field(default_factory=dict)  # per RTPU: cpu, scheduler, timer slack
-    clock: str = "real"
-    tick: float = 0.0  # seconds per tick of the simulated clock
-    wall_seconds: float = 0.0  # how long the run took on the wall clock (a sim run's speed: duration / this)
-    # of which from the configuration on to the stop: start-up and stop left out (a sim run's ticks: duration / this)
-    running_wall_seconds: float = 0.0
-    links: dict[str, dict[str, Any]] = field(default_factory=dict)  # an application's links this run was handed
-    # CLOCK_MONOTONIC second the configuration came on (real clock; 0 on the simulated one): the
-    # origin of each task's last_overruns times, to match them with a trace of the machine (tools/cpu_trace.py)
-    started_monotonic: float = 0.0
-    # tasks ON that finished no cycle for a while: task, rtpu, from and to (seconds since the
-    # configuration came on; to None: until the stop), rtpu_killed (its RTPU did not stop by itself)
-    stalls: list[dict[str, Any]] = field(default_factory=list)
-    unstopped: list[str] = field(default_factory=list)  # RTPUs that did not stop within STOP_TIMEOUT and were killed
-    # What went wrong without stopping the run, one line each (a critical task held stable by
-    # stale inputs, ...): the run ends with exit status 2 and the summary lists them
-    faults: list[str] = field(default_factory=list)
-    # brief holds of critical tasks on late inputs (BRIEF_HOLD_PERIODS), one line per task and cause: timing, not faults
-    timing_holds: list[str] = field(default_factory=list)
-    # holdings of the table lock past its bound (supervisor.lock_watch): pid, holder, role, state
-    # (dead, stopped, running), held_ms, bound_ms, action (killed, released, left), at (run seconds)
-    lock_events: list[dict[str, Any]] = field(default_factory=list)
-    # what the run's queues take of RLIMIT_MSGQUEUE (depth x (message size + the kernel's 96 B)), as made
-    queue_bytes: int = 0
-    # the run's clock (what a data log's time is: CLOCK_MONOTONIC, or simulated seconds) when the
-    # configuration came on, and what happened when on it: switches and jobs (JobControl.marks)
-    started_at: float = 0.0
-    marks: list[dict[str, Any]] = field(default_factory=list)
-    decisions: list[dict[str, Any]] = field(default_factory=list)  # an application's decisions, with their values
-    # RTPUs restarted by their restart policy (supervisor.restarts.Restart), in the order they died
-    restarts: list[Any] = field(default_factory=list)
-    # the start-up's time line, phase -> CLOCK_MONOTONIC second it ended (wall time, on either run
-    # clock): from the process's start ("process", to the kernel's 10 ms) to "on", the moment every
-    # task of the first configuration was ON (docs/running.md: where start-up time goes)
-    startup: dict[str, float] = field(default_factory=dict)
-    gains: list[str] = field(default_factory=list)  # the gains each controller given a bandwidth made (the check's notes)
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "subsystem": self.subsystem, "configuration": self.configuration, "duration": self.duration,
-            "stopped_by": self.stopped_by, "failure": self.failure, "tasks": self.tasks,
-            "variables": self.variables, "plant": self.plant, "lock_recoveries": self.lock_recoveries,
-            "run_id": self.run_id, "objects": self.objects, "states_at_stop": self.states_at_stop,
-            "application": self.application, "jobs_done": self.jobs_done, "switches": self.switches,
-            "stable_episodes": self.stable_episodes, "realtime": self.realtime,
-            "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds,
-            "running_wall_seconds": self.running_wall_seconds, "links": self.links,
-            "started_monotonic": self.started_monotonic, "stalls": self.stalls, "unstopped": self.unstopped,
-            "faults": self.faults, "timing_holds": self.timing_holds, "queue_bytes": self.queue_bytes,
-            "lock_events": self.lock_events, "started_at": self.started_at, "marks": self.marks, "decisions": self.decisions,
-            "restarts": [restart.to_json() for restart in self.restarts],
-            "startup": self.startup, "gains": self.gains,
-        }
+def _table_statistics(words: np.ndarray) -> TaskStatistics:
+    """What a run report gives for a task whose RTPU was killed before it could report: its status
+    block's counters. The percentiles are over the last 1,024 cycles (0 before)."""
+    return TaskStatistics(cycles=int(words[W.CYCLES]), overruns=int(words[W.OVERRUNS]), missed=int(words[W.MISSED]),
+                          jitter_max=float(words[W.JITTER_MAX]), jitter_p50=float(words[W.JITTER_P50]),
+                          jitter_p99=float(words[W.JITTER_P99]), exec_p50=float(words[W.EXEC_P50]),
+                          exec_p99=float(words[W.EXEC_P99]), exec_max=float(words[W.EXEC_MAX]))
 
 
 class RunReporting:
@@ -122,7 +51,7 @@ class RunReporting:
     stall_watch: StallWatch
     started_at: float | None
     task_errors: dict[str, str]
-    _stats: dict[str, dict[str, Any]]
+    _stats: dict[str, TaskStatistics]
     _stable: dict[str, tuple[float, str, str]]
     every_task: dict[str, Any]  # every task the run has had, by name: live changes add and remove some
     _end_stable_episode: Callable[[str, float | None], None]
@@ -138,12 +67,12 @@ class RunReporting:
         self._report_stable_episodes(started)
         for name, stats in self._stats.items():
             # an overrun's release as seconds since the configuration came on, as the summary reads it
-            overruns = [[release - started, late, took] for release, late, took in stats.get("last_overruns", [])]
+            overruns = tuple(Overrun(o.release - started, o.late, o.took) for o in stats.last_overruns)
             spec = self.subsystem.tasks.get(name) or self.every_task[name]
-            self.result.tasks[name] = {"rtpu": spec.rtpu, "critical": spec.critical,
-                                       "state": self.result.states_at_stop.get(name, "?"),
-                                       "error": self.task_errors.get(name, ""), **stats, "last_overruns": overruns}
-            for device, figures in stats.get("devices", {}).items():
+            self.result.tasks[name] = TaskReport(spec.rtpu, spec.critical, self.result.states_at_stop.get(name, "?"),
+                                                 self.task_errors.get(name, ""),
+                                                 dataclasses.replace(stats, last_overruns=overruns))
+            for device, figures in stats.devices.items():
                 if figures.get("command"):  # a robot interface braked the arm: its limits were left
                     self.result.faults += divergence_lines(name, spec, figures, self.result.variables, started)
                 elif figures.get("fault"):  # a special-purpose processor that died under its task: the task said so too
@@ -166,7 +95,7 @@ class RunReporting:
             where = f" on {spec.rtpu}" if spec is not None else ""
             if any(fault.startswith(f"task '{name}'{where} ") for fault in self.result.faults):
                 continue  # its failure was told as a fault when it happened (a log it could not write)
-            if any(figures.get("command") for figures in self._stats.get(name, {}).get("devices", {}).values()):
+            if any(figures.get("command") for figures in self._stats.get(name, TaskStatistics()).devices.values()):
                 continue  # a robot interface that braked the arm past its limits: its divergence line tells it
             error = self.task_errors.get(name, "") or "its module reported an error"
             self.result.faults.append(f"task '{name}'{where} was in ERROR at the stop: {error} "
@@ -186,20 +115,17 @@ class RunReporting:
         """Stalls into the result; the table's counters for tasks whose RTPU was killed before it could report."""
         killed = self.result.unstopped
         for stall in self.stall_watch.episodes:
-            self.result.stalls.append({"task": stall.task, "rtpu": stall.rtpu, "from": stall.since - started,
-                                       "to": None if stall.until is None else stall.until - started,
-                                       "rtpu_killed": stall.rtpu in killed})
+            self.result.stalls.append(Stall(stall.task, stall.rtpu, stall.since - started,
+                                            None if stall.until is None else stall.until - started, stall.rtpu in killed))
         if not killed:
             return
         assert self.table is not None
         for task in self.subsystem.tasks.values():
             if task.name in self.result.tasks or task.rtpu not in killed:
                 continue
-            words = self.table.status[task.index]
-            self.result.tasks[task.name] = {
-                "rtpu": task.rtpu, "critical": task.critical, "state": self.result.states_at_stop.get(task.name, "?"),
-                "error": self.task_errors.get(task.name, ""), "from_table": True,  # its RTPU never reported
-                **_table_figures(words), "exec_max": float(words[W.EXEC_MAX]), "last_overruns": []}
+            self.result.tasks[task.name] = TaskReport(
+                task.rtpu, task.critical, self.result.states_at_stop.get(task.name, "?"), self.task_errors.get(task.name, ""),
+                _table_statistics(self.table.status[task.index]), from_table=True)  # its RTPU never reported
         if not self.result.failure:
             stuck = [s.task for s in self.stall_watch.episodes if s.until is None and s.rtpu in killed]
             were = "was" if len(killed) == 1 else "were"
@@ -229,13 +155,13 @@ class RunReporting:
                 "unit": notes[var.name][1], **({"torn": True} if torn else {}),
             }
 
-    def status_rows(self) -> list[dict[str, Any]]:
+    def status_rows(self) -> list[TaskRow]:
         """The live view's data, from a lock-free copy of the table's status blocks.
 
         A table kept busy gives the blocks as they are: each figure is one word, and the view
         must not wait on a writer.
         """
-        rows: list[dict[str, Any]] = []
+        rows: list[TaskRow] = []
         if self.table is None:
             return rows
         try:
@@ -243,13 +169,11 @@ class RunReporting:
         except TableBusy:
             blocks = self.table.status.copy()
         for task in self.subsystem.tasks.values():
-            words = blocks[task.index]
-            rows.append({"task": task.name, "rtpu": task.rtpu, "state": TaskState(int(words[W.STATE])).name,
-                         **_table_figures(words), "exec_last": float(words[W.EXEC_LAST])})
+            rows.append(TaskRow.from_words(task.name, task.rtpu, blocks[task.index]))
         return rows
 
 
-def divergence_lines(task: str, spec: Any, figures: dict[str, Any], variables: dict[str, Any], started: float) -> list[str]:
+def divergence_lines(task: str, spec: Any, figures: Mapping[str, Any], variables: dict[str, Any], started: float) -> list[str]:
     """One line per time the robot interface `task` braked the arm for leaving its limits, naming
     when (from `started`, the run's clock when the configuration came on) and the task that wrote
     the command it was given (the last writer of that in-var's variable)."""

@@ -52,6 +52,7 @@ from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockWatching
 from pbo_runtime.supervisor.restarts import Restarting
+from pbo_runtime.ipc.task_statistics import TaskStatistics
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.application_lockstep import TurnGate
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
@@ -59,7 +60,7 @@ from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.stall_watch import StallWatch
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import Flag, Header, StateTable, TableLayout, TaskState
-from pbo_runtime.table.table import Status as W
+from pbo_runtime.table.table import StatusWord as W
 
 # the run's vocabulary, for whoever imports it from here
 __all__ = ["RunFailure", "RunRefused", "RunResult", "StopRequested", "Supervisor", "remove_dead_runs", "simulation_tick"]
@@ -147,7 +148,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.result.links = self.links
         self.started_at: float | None = None  # run time when the configuration came on
         self._stop_requested = ""
-        self._stats: dict[str, dict[str, Any]] = {}
+        self._stats: dict[str, TaskStatistics] = {}  # by task, as each RTPU reported them
         self.stall_watch = StallWatch(subsystem.tasks.values(), self._cycles_of, say)
         self._stalls_checked = -math.inf
         self.reconfiguration = Reconfiguration(subsystem)

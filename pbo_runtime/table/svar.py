@@ -35,7 +35,7 @@ from pbo_runtime.table.table import (
     VERSION,
     Flag,
     Header,
-    Status,
+    StatusWord,
     TaskState,
     copy_variable,
 )
@@ -111,14 +111,14 @@ class TableView:
         blocks = self._seqlock.read(self._status[: self.n_tasks].copy)
         rows = []
         for index, words in enumerate(blocks):
-            state = int(words[Status.STATE])
+            state = int(words[StatusWord.STATE])
             rows.append({
                 "index": index,
                 "state": TaskState(state).name if state in TaskState._value2member_map_ else str(state),
-                "cycles": int(words[Status.CYCLES]), "overruns": int(words[Status.OVERRUNS]),
-                "exec_last": float(words[Status.EXEC_LAST]), "exec_max": float(words[Status.EXEC_MAX]),
-                "jitter_last": float(words[Status.JITTER_LAST]), "jitter_max": float(words[Status.JITTER_MAX]),
-                "release": float(words[Status.RELEASE]), "errors": int(words[Status.ERRORS]),
+                "cycles": int(words[StatusWord.CYCLES]), "overruns": int(words[StatusWord.OVERRUNS]),
+                "exec_last": float(words[StatusWord.EXEC_LAST]), "exec_max": float(words[StatusWord.EXEC_MAX]),
+                "jitter_last": float(words[StatusWord.JITTER_LAST]), "jitter_max": float(words[StatusWord.JITTER_MAX]),
+                "release": float(words[StatusWord.RELEASE]), "errors": int(words[StatusWord.ERRORS]),
             })
         return rows
 

@@ -115,7 +115,7 @@ class Flag(enum.IntFlag):
     SIM_CLOCK = 8  # the run's clock is simulated (--clock sim): its times are SIM_TIME_NS, from the first tick on
 
 
-class Status(enum.IntEnum):
+class StatusWord(enum.IntEnum):
     """Word indices in a task's float64 status block."""
 
     STATE = 0
@@ -251,8 +251,8 @@ def copy_variable(value: np.ndarray, words: np.ndarray, meta_word: int, status: 
     copy = value.copy()
     writer, seq, when = (float(w) for w in words[meta_word : meta_word + META_WORDS])
     if 0 <= writer < len(status):
-        seq = float(status[int(writer)][Status.CYCLES])
-        when = float(status[int(writer)][Status.RELEASE])
+        seq = float(status[int(writer)][StatusWord.CYCLES])
+        when = float(status[int(writer)][StatusWord.RELEASE])
     return copy, int(seq), when, int(writer)
 
 

@@ -33,7 +33,7 @@ from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.errors import LifecycleError, ModuleError, OutputError
 from pbo_runtime.objects.module import PortBasedObject, Status
 from pbo_runtime.table.table import Flag, Header, StateTable, TaskState
-from pbo_runtime.table.table import Status as StatusWord
+from pbo_runtime.table.table import StatusWord
 from pbo_runtime.task.transfer import LocalTable
 
 _FLAGS, _HELD = int(Header.FLAGS), int(Flag.ILLEGAL_CONFIGURATION)

@@ -26,7 +26,7 @@ import posix_ipc
 from pbo_runtime.config.model import PortBinding
 from pbo_runtime.objects.ports import PortKind
 from pbo_runtime.table.table import HEADER_WORDS, META_WORDS, STATUS_WORDS, Header, StateTable
-from pbo_runtime.table.table import Status as StatusWord
+from pbo_runtime.table.table import StatusWord
 
 # np.count_nonzero's C function without its Python wrapper, which only dispatches on axis and
 # keepdims: the wrapper cost about 0.3 µs of the finite check's ~1 µs per cycle (2 vCPUs, loaded).

@@ -1,0 +1,186 @@
+"""What a run did: `RunResult`, the summary's data and the JSON report's content (report.json), and
+each task's entry in it (`TaskReport`). The supervisor fills it (supervisor/run_report.py)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from pbo_runtime.ipc.task_statistics import TaskStatistics
+
+# A task whose RTPU was killed before it reported has only what its status block holds
+_TABLE_FIGURES = ("cycles", "overruns", "missed", "jitter_max", "jitter_p50", "jitter_p99", "exec_p50", "exec_p99",
+                  "exec_max", "last_overruns")
+
+
+@dataclass(frozen=True)
+class TaskReport:
+    """A task's entry in the run's report: where it ran, how it ended, its figures."""
+
+    rtpu: str
+    critical: bool
+    state: str  # at the stop ("?" when unknown)
+    error: str  # its last error, "" if none
+    statistics: TaskStatistics
+    from_table: bool = False  # its RTPU never reported (killed): the figures are its status block's last
+
+    def to_json(self) -> dict[str, Any]:
+        figures = self.statistics.to_json()
+        if self.from_table:
+            figures = {key: figures[key] for key in _TABLE_FIGURES}
+        return {"rtpu": self.rtpu, "critical": self.critical, "state": self.state, "error": self.error,
+                **({"from_table": True} if self.from_table else {}), **figures}
+
+    @classmethod
+    def from_json(cls, entry: Mapping[str, Any]) -> TaskReport:
+        return cls(str(entry.get("rtpu", "")), bool(entry.get("critical", False)), str(entry.get("state", "?")),
+                   str(entry.get("error", "")), TaskStatistics.from_json(entry), bool(entry.get("from_table", False)))
+
+
+@dataclass(frozen=True)
+class Stall:
+    """A task ON that finished no cycle for a while (seconds since the configuration came on)."""
+
+    task: str
+    rtpu: str
+    since: float
+    until: float | None  # None: until the stop
+    rtpu_killed: bool  # its RTPU did not stop by itself
+
+    def to_json(self) -> dict[str, Any]:
+        return {"task": self.task, "rtpu": self.rtpu, "from": self.since, "to": self.until, "rtpu_killed": self.rtpu_killed}
+
+
+@dataclass(frozen=True)
+class FinalValue:
+    """A variable's last value, as the summary shows it."""
+
+    value: float | int | list[object]
+    writer: str
+
+    @classmethod
+    def from_json(cls, entry: Mapping[str, Any]) -> FinalValue:
+        return cls(entry["value"], str(entry["writer"]))
+
+
+@dataclass(frozen=True)
+class SwitchFigures:
+    """What the summary tells of a switch (job_control.SwitchRecord.to_json), times in seconds."""
+
+    sequence: int
+    latency: float  # from the request to the first cycle of the new configuration
+    skew: float  # between the RTPUs
+    longest: float  # the longest switch on one RTPU
+    restarted: tuple[str, ...]  # RTPUs restarted through it
+    lost_a_cycle: bool  # a critical task lost a cycle after it
+
+    @classmethod
+    def from_json(cls, entry: Mapping[str, Any]) -> SwitchFigures:
+        return cls(int(entry["sequence"]), float(entry["latency"]), float(entry["skew"]), float(entry["longest"]),
+                   tuple(entry.get("restarted") or ()), any((entry.get("cycles_lost") or {}).values()))
+
+
+@dataclass(frozen=True)
+class PlantFigures:
+    """The plant's figures at its end (messages.PlantStats)."""
+
+    steps: int
+    late: int
+    left_fifo_behind: float  # seconds behind real time when it left SCHED_FIFO (0: it did not)
+
+    @classmethod
+    def from_json(cls, figures: Mapping[str, Any]) -> PlantFigures:
+        return cls(int(figures.get("steps", 0)), int(figures.get("late", 0)), float(figures.get("left_fifo_behind") or 0.0))
+
+
+@dataclass(frozen=True)
+class RtpuSettings:
+    """What an RTPU reported it runs under (rtpu/_realtime.apply); `simulated`: the simulated clock's, no scheduler."""
+
+    simulated: bool
+    cpu: str | None
+    scheduler: str | None
+    timer_slack: str | None
+    spin: str | None
+
+    @classmethod
+    def from_json(cls, settings: Mapping[str, str]) -> RtpuSettings:
+        return cls("clock" in settings, settings.get("cpu"), settings.get("scheduler"), settings.get("timer_slack"),
+                   settings.get("spin"))
+
+
+@dataclass
+class RunResult:
+    """What a run did: the summary's data and the JSON report's content."""
+
+    subsystem: str
+    configuration: str
+    duration: float = 0.0
+    stopped_by: str = "duration"
+    failure: str = ""
+    tasks: dict[str, TaskReport] = field(default_factory=dict)
+    variables: dict[str, Any] = field(default_factory=dict)
+    plant: dict[str, Any] = field(default_factory=dict)
+    lock_recoveries: int = 0
+    run_id: str = ""
+    objects: list[str] = field(default_factory=list)  # every shared object the run made ("kind /name")
+    states_at_stop: dict[str, str] = field(default_factory=dict)
+    application: str = ""
+    jobs_done: list[str] = field(default_factory=list)
+    switches: list[dict[str, Any]] = field(default_factory=list)
+    stable_episodes: list[dict[str, Any]] = field(default_factory=list)
+    realtime: dict[str, dict[str, str]] = field(default_factory=dict)  # per RTPU: cpu, scheduler, timer slack
+    clock: str = "real"
+    tick: float = 0.0  # seconds per tick of the simulated clock
+    wall_seconds: float = 0.0  # how long the run took on the wall clock (a sim run's speed: duration / this)
+    # of which from the configuration on to the stop: start-up and stop left out (a sim run's ticks: duration / this)
+    running_wall_seconds: float = 0.0
+    links: dict[str, dict[str, Any]] = field(default_factory=dict)  # an application's links this run was handed
+    # CLOCK_MONOTONIC second the configuration came on (real clock; 0 on the simulated one): the
+    # origin of each task's last_overruns times, to match them with a trace of the machine (tools/cpu_trace.py)
+    started_monotonic: float = 0.0
+    # tasks ON that finished no cycle for a while: task, rtpu, from and to (seconds since the
+    # configuration came on; to None: until the stop), rtpu_killed (its RTPU did not stop by itself)
+    stalls: list[Stall] = field(default_factory=list)
+    unstopped: list[str] = field(default_factory=list)  # RTPUs that did not stop within STOP_TIMEOUT and were killed
+    # What went wrong without stopping the run, one line each (a critical task held stable by
+    # stale inputs, ...): the run ends with exit status 2 and the summary lists them
+    faults: list[str] = field(default_factory=list)
+    # brief holds of critical tasks on late inputs (BRIEF_HOLD_PERIODS), one line per task and cause: timing, not faults
+    timing_holds: list[str] = field(default_factory=list)
+    # holdings of the table lock past its bound (supervisor.lock_watch): pid, holder, role, state
+    # (dead, stopped, running), held_ms, bound_ms, action (killed, released, left), at (run seconds)
+    lock_events: list[dict[str, Any]] = field(default_factory=list)
+    # what the run's queues take of RLIMIT_MSGQUEUE (depth x (message size + the kernel's 96 B)), as made
+    queue_bytes: int = 0
+    # the run's clock (what a data log's time is: CLOCK_MONOTONIC, or simulated seconds) when the
+    # configuration came on, and what happened when on it: switches and jobs (JobControl.marks)
+    started_at: float = 0.0
+    marks: list[dict[str, Any]] = field(default_factory=list)
+    decisions: list[dict[str, Any]] = field(default_factory=list)  # an application's decisions, with their values
+    # RTPUs restarted by their restart policy (supervisor.restarts.Restart), in the order they died
+    restarts: list[Any] = field(default_factory=list)
+    # the start-up's time line, phase -> CLOCK_MONOTONIC second it ended (wall time, on either run
+    # clock): from the process's start ("process", to the kernel's 10 ms) to "on", the moment every
+    # task of the first configuration was ON (docs/running.md: where start-up time goes)
+    startup: dict[str, float] = field(default_factory=dict)
+    gains: list[str] = field(default_factory=list)  # the gains each controller given a bandwidth made (the check's notes)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "subsystem": self.subsystem, "configuration": self.configuration, "duration": self.duration,
+            "stopped_by": self.stopped_by, "failure": self.failure,
+            "tasks": {name: task.to_json() for name, task in self.tasks.items()},
+            "variables": self.variables, "plant": self.plant, "lock_recoveries": self.lock_recoveries,
+            "run_id": self.run_id, "objects": self.objects, "states_at_stop": self.states_at_stop,
+            "application": self.application, "jobs_done": self.jobs_done, "switches": self.switches,
+            "stable_episodes": self.stable_episodes, "realtime": self.realtime,
+            "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds,
+            "running_wall_seconds": self.running_wall_seconds, "links": self.links,
+            "started_monotonic": self.started_monotonic, "stalls": [stall.to_json() for stall in self.stalls], "unstopped": self.unstopped,
+            "faults": self.faults, "timing_holds": self.timing_holds, "queue_bytes": self.queue_bytes,
+            "lock_events": self.lock_events, "started_at": self.started_at, "marks": self.marks, "decisions": self.decisions,
+            "restarts": [restart.to_json() for restart in self.restarts],
+            "startup": self.startup, "gains": self.gains,
+        }

@@ -99,3 +99,53 @@ def test_a_subsystem_goes_on_after_a_stage_only_once_every_other_is_done_and_the
     joined = [m["time"] for m in host.job_control.marks if re.fullmatch(r"stage \d+ joined", m["label"])]
     assert joined[0] >= 0.203 - 1e-9 and joined[1] >= 0.303 - 1e-9
     assert said == ["stage 1 done here; joining me, other", "stage 2 done here; joining me, other"]
+
+
+def arms_behind_ros2_control(tmp_path, left: str, right: str, run: str):
+    """configs/two_arms.yaml with each arm driven through ros2_control, its options given, and `run:`."""
+    text = TWO_ARMS.read_text()
+    head = text[:text.index("\nrun:\n")]
+    mujoco = "{arm: {driver: mujoco_arm, mode: torque, exclusive: true}}"
+    assert head.count(mujoco) == 2
+    for options in (left, right):
+        head = head.replace(mujoco, "{arm: {driver: ros2_control, mode: torque, exclusive: true%s}}" % options, 1)
+    path = tmp_path / "arms.yaml"
+    path.write_text(head + "\nrun:\n" + run)
+    return check_application(path), path
+
+
+BOTH = "  - parallel: {left: [reach: ready], right: [reach: ready]}\n"
+
+
+@pytest.mark.parametrize("left, right, run", [
+    ("", "", BOTH),
+    (", commands: /cell/commands", ", commands: cell/commands/", BOTH),
+    (", domain: 4", ", domain: 4", "  - parallel: {left: [reach: home]}\n" + BOTH),
+    ("", "", "  - parallel:\n      left: {app: wave}\n      right:\n        - try: [reach: ready]\n          fallback: [reach: home]\n"),
+])
+def test_two_subsystems_of_a_stage_driving_one_arm_are_refused_at_the_stage(tmp_path, left, right, run):
+    result, path = arms_behind_ros2_control(tmp_path, left, right, run)
+    assert [e.code for e in result.errors] == ["E814"], result.errors
+    [error] = result.errors
+    assert re.fullmatch(r"run: stage \d: subsystems 'left' and 'right' both drive the arm commanded on /\S+ \(DDS domain \d\): "
+                        r"device 'arm' of 'left' \(task 'robot'\) and device 'arm' of 'right' \(task 'robot'\)", error.message)
+    assert "its own devices" in error.hint
+    stage = int(error.message.split()[2].rstrip(":"))
+    stages = [number for number, line in enumerate(path.read_text().splitlines(), 1) if line.startswith("  - parallel:")]
+    assert (error.line, error.column) == (stages[stage - 1], 5)  # at the stage's `parallel:`
+
+
+@pytest.mark.parametrize("left, right, run", [
+    (", commands: /left/commands", ", commands: /right/commands", BOTH),  # two arms, two topics
+    (", domain: 1", ", domain: 2", BOTH),  # one topic on two domains
+    ("", "", "  - parallel: {left: [reach: ready]}\n  - parallel: {right: [reach: ready]}\n"),  # one after the other
+])
+def test_subsystems_of_a_stage_with_their_own_arms_are_accepted(tmp_path, left, right, run):
+    result, _ = arms_behind_ros2_control(tmp_path, left, right, run)
+    assert result.errors == [], result.errors
+
+
+def test_simulated_arms_of_the_same_name_are_each_their_own_plants():
+    result = check_application(TWO_ARMS)  # both subsystems name their arm 'arm', each in its own plant
+    assert all(set(result.application.subsystems[key].devices) == {"arm"} for key in ("left", "right"))
+    assert [e.code for e in result.errors] == []

@@ -74,8 +74,32 @@ def test_pbo_check_lists_the_stages(capsys):
 
     assert main(["check", str(TWO_ARMS)]) == 0
     out = capsys.readouterr().out
-    assert "  stage 2, in parallel: left application 'wave'\n    left, repeat: reach (move); reach (move); reach (move); reach (move)\n" in out
-    assert "    left, if: then: reach (move)\n    left, if: else: no job\n    right: reach (move)\n" in out
+    assert ("  stage 1, in parallel: left 1 step(s); right 1 step(s)\n"
+            "    left\n      1. reach: configuration 'move' on: robot, traj, pid, logger\n") in out
+    assert ("  stage 2, in parallel: left application 'wave'\n    left, path 1: repeat\n"
+            + "".join(f"      {n}. reach: stays in 'move' (new object only)\n" for n in range(1, 5))) in out
+    assert ("    left, path 1: if: then\n      1. reach: stays in 'move' (new object only)\n"
+            "    left, path 2: if: else: no job\n    right\n      1. reach: stays in 'move' (new object only)\n") in out
+
+
+def test_pbo_check_gives_each_path_of_a_stage_its_switch_table_from_where_the_stage_before_left_it(tmp_path, capsys):
+    from pbo_runtime.cli.main import main
+
+    _, path = with_run(tmp_path, "  - parallel: {left: [reach: ready, rest]}\n"
+                                 "  - parallel:\n      left:\n        - if: \"q_m[0] > 0.1\"\n          then: [reach: home]\n"
+                                 "          else: [rest]\n  - parallel: {left: [reach: ready]}\n")
+    text = path.read_text().replace("      move: [robot, traj, pid, logger]\n    jobs:\n",
+                                    "      move: [robot, traj, pid, logger]\n      still: [robot, traj, pid]\n    jobs:\n"
+                                    "      rest: {configuration: still, object: none}\n", 1)
+    path.write_text(text)
+    assert main(["check", str(path)]) == 0, capsys.readouterr()
+    out = capsys.readouterr().out
+    assert ("    left\n      1. reach: configuration 'move' on: robot, traj, pid, logger\n"
+            "      2. rest: 'move' -> 'still': off logger; on nothing\n") in out
+    assert ("    left, path 1: if: then\n      1. reach: 'still' -> 'move': off nothing; on logger\n"
+            "    left, path 2: if: else\n      1. rest: stays in 'still' (new object only)\n") in out
+    # stage 2 may leave either configuration on: stage 3's first switch is from nothing known
+    assert out.endswith("  stage 3, in parallel: left 1 step(s)\n    left\n      1. reach: configuration 'move' on: robot, traj, pid, logger\n")
 
 
 def test_a_subsystem_goes_on_after_a_stage_only_once_every_other_is_done_and_the_lag_has_passed(tmp_path):

@@ -19,11 +19,12 @@ would both drive it.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Callable, Optional
 
 from pbo_runtime.config.decisions import paths
 from pbo_runtime.config.live import LiveChangeRefused, LiveDescription
-from pbo_runtime.config.transitions import transitions_of
+from pbo_runtime.config.transitions import Transition, transitions_of
 from pbo_runtime.config.model import ApplicationStep, Location, Subsystem
 from pbo_runtime.objects import registry
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
@@ -176,9 +177,14 @@ def _branch(number: int, key: str, value: Any, loc: Location, subsystem: Subsyst
     return {"steps": steps}
 
 
-def stage_lines(stages: list[dict[str, dict[str, Any]]], subsystems: dict[str, Subsystem]) -> list[str]:
-    """What `pbo check APP` says of the stages: each subsystem's part, and the switches of each of its paths."""
+def stage_lines(stages: list[dict[str, dict[str, Any]]], subsystems: dict[str, Subsystem],
+                table: Callable[[list[Transition], str], list[str]]) -> list[str]:
+    """What `pbo check APP` says of the stages: each subsystem's part, and for each of its paths the switch
+    table `table` writes (what each job turns off and on), as `pbo check` writes an application's. A part's
+    first job switches from the configuration the subsystem's part of an earlier stage left on, when
+    every path of it leaves the same one."""
     lines = []
+    holding: dict[str, set[str | None]] = {}  # subsystem -> the configurations its earlier parts may leave on
     for number, stage in enumerate(stages, 1):
         lines.append(f"  stage {number}, in parallel: " + "; ".join(
             f"{key} " + (f"application '{part['app']}'" if "app" in part else f"{len(part['steps'])} step(s)")
@@ -188,10 +194,22 @@ def stage_lines(stages: list[dict[str, dict[str, Any]]], subsystems: dict[str, S
             if name is None:
                 subsystem, name = with_stage(subsystem, number, part["steps"]), stage_application(number)
             listed, every = paths(subsystem, name)
-            for path in listed:
-                switches = "; ".join(f"{t.job} ({t.after if t.before in (None, t.after) else f'{t.before} -> {t.after}'})"
-                                     for t in transitions_of(subsystem, path.jobs))
-                lines.append(f"    {key}" + (f", {path.label}" if path.label else "") + f": {switches or 'no job'}")
+            held = holding.get(key, {None})
+            before = next(iter(held)) if len(held) == 1 else None
+            for path_number, path in enumerate(listed, 1):
+                label = f", path {path_number}: {path.label}" if len(listed) > 1 or path.label else ""
+                lines.append(f"    {key}{label}" + ("" if path.jobs else ": no job"))
+                lines.extend(table(_switches(subsystem, path.jobs, before), "      "))
             if every > len(listed):
                 lines.append(f"    {key}: ... and {every - len(listed)} more path(s)")
+            holding[key] = {None} if every > len(listed) else {
+                subsystem.jobs[path.jobs[-1]].configuration if path.jobs else was for path in listed for was in held}
     return lines
+
+
+def _switches(subsystem: Subsystem, jobs: tuple[str, ...], before: str | None) -> list[Transition]:
+    """The transitions of `jobs`, the first from configuration `before` (None: from nothing on)."""
+    opener = next((job for job, spec in subsystem.jobs.items() if spec.configuration == before), None)
+    if opener is None or not jobs:
+        return transitions_of(subsystem, jobs)
+    return [dataclasses.replace(t, step=t.step - 1) for t in transitions_of(subsystem, (opener, *jobs))[1:]]

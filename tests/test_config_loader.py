@@ -424,7 +424,23 @@ def run_example(directory: Path, reference: str, example: str) -> CheckResult:
     return check_file(path)
 
 
+def run_stage_example(directory: Path, reference: str, example: str) -> Any:
+    """An application code's example: two subsystems made from the reference with `example` merged in,
+    `left` and `right`, whose `demo`s run in one parallel stage."""
+    from pbo_runtime.config.application import check_application
+
+    merged = _merge(yaml.safe_load(reference), plain(load_text(example, "example")))
+    for key in ("left", "right"):
+        (directory / f"{key}.yaml").write_text(yaml.safe_dump({**merged, "subsystem": key}, sort_keys=False))
+    path = directory / "application.yaml"
+    path.write_text(yaml.safe_dump({"application": "example", "subsystems": {"left": "left.yaml", "right": "right.yaml"},
+                                    "run": [{"parallel": {"left": {"app": "demo"}, "right": {"app": "demo"}}}]}, sort_keys=False))
+    return check_application(path)
+
+
 def example_messages(directory: Path, reference: str, example: str, code: str) -> list[str]:
+    if code.startswith("E8"):
+        return [e.message for e in run_stage_example(directory, reference, example).errors if e.code == code]
     result = run_example(directory, reference, example)
     return [d.message.replace(str(directory), "<dir>") for d in sorted([*result.errors, *result.warnings], key=lambda d: (d.line, d.column)) if d.code == code]
 
@@ -468,4 +484,5 @@ def test_every_code_the_checker_uses_is_in_the_doc_and_only_those() -> None:
     assert len(documented) == len(set(documented)), "a code is listed twice"
     assert set(documented) == used
     application_codes = {f"E8{n:02d}" for n in range(1, 14)}  # examples in tests/test_application*.py, test_parallel_stages.py
+    # (E814's example runs here: run_stage_example)
     assert {row["code"] for row in rows if not row["example"]} == {"E106", "E107", "E306", "E307", "E406", "E901"} | application_codes

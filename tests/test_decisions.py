@@ -57,6 +57,12 @@ APPLICATIONS = """
         - wait: "q_m[0] > 0.2"
           timeout: 100 ms
       fallback: [hold]
+  twins:
+    - if: "max(abs(q_m)) < 1"
+      then: [dwell]
+    - hold
+    - if: "max(abs(q_m)) < 1"
+      then: [dwell]
   nested:
     - try:
         - repeat: [dwell]
@@ -203,6 +209,21 @@ def test_pbo_status_shows_where_an_application_that_decides_is(host):
     host.on_pump = lambda h: seen.append(status(h, {})["path"])
     host.job_control.run_application("caught")
     assert "caught > fallback > dwell" in seen and status(host, {})["path"] == ""
+    assert status(host, {})["place"] == []
     title = status_table({"subsystem": "arm", "run_id": "1", "configuration": "pd", "application": "caught",
                           "job": "dwell", "path": "caught > fallback > dwell", "tasks": []}).title
     assert "path caught > fallback > dwell" in str(title) and "application caught" not in str(title)
+
+
+@pytest.mark.parametrize("application, places", [
+    ("twins", [[0, 0, 0], [2, 0, 0]]),  # two identical rows: the path alone says 'twins > then > dwell' for both
+    ("caught", [[0, 1, 0]]),  # step 0, its row 1 (the fallback), step 0 of that row
+])
+def test_the_status_says_which_step_runs_by_its_place_in_the_rows(host, application, places):
+    from pbo_runtime.supervisor.commands import status
+
+    seen: list[list[int]] = []
+    host.on_pump = lambda h: seen.append(status(h, {})["place"]) if h.job_control.job == "dwell" else None
+    host.job_control.run_application(application)
+    assert [place for i, place in enumerate(seen) if place not in seen[:i]] == places
+    assert status(host, {})["place"] == []

@@ -87,3 +87,26 @@ def test_one_step_of_each_kind_is_built_from_the_dictionary_saved_and_run(page, 
         said, _ = run.communicate(timeout=120)
     assert "try failed -> fallback: job 'stuck' (workspace > try): pre-condition" in said
     assert "if q_m[0] > 0.1: then" in said
+
+
+def test_of_two_identical_rows_only_the_running_one_is_lit(page, tmp_path):
+    file = user_level_copy(tmp_path, "hmi_twins", hold_seconds=6.0)
+    file.write_text(file.read_text() + "\napplications:\n  twins:\n"
+                    + "".join('    - if: "q_m[0] > -10"\n      then: [hold]\n' for _ in range(2)))
+    run = start_run(file, tmp_path, "--clock", "sim", "--duration", "0")
+    hmi, url = start_hmi(str(file), cwd=tmp_path)
+    try:
+        open_user_level(page, url)
+        page.get_by_role("button", name="open application twins in the workspace").click()
+        expect(row(page).locator(".unit.decision")).to_have_count(2)
+        first, second = (row(page).locator(f".decision[data-step='{n}'] .unit[data-name=hold]") for n in (1, 2))
+        page.get_by_role("button", name="Run", exact=True).click()
+        expect(first).to_have_attribute("aria-current", "step")  # the status path, 'twins > then > hold', fits both
+        expect(second).not_to_have_attribute("aria-current", "step")
+        expect(second).to_have_attribute("aria-current", "step")
+        expect(first).not_to_have_attribute("aria-current", "step")
+        expect(page.locator("[data-test=workspace-running]")).to_have_text("No application is running.")
+    finally:
+        stop_hmi(hmi)
+        run.send_signal(2)
+        run.communicate(timeout=120)

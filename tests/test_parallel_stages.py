@@ -74,8 +74,32 @@ def test_pbo_check_lists_the_stages(capsys):
 
     assert main(["check", str(TWO_ARMS)]) == 0
     out = capsys.readouterr().out
-    assert "  stage 2, in parallel: left application 'wave'\n    left, repeat: reach (move); reach (move); reach (move); reach (move)\n" in out
-    assert "    left, if: then: reach (move)\n    left, if: else: no job\n    right: reach (move)\n" in out
+    assert ("  stage 1, in parallel: left 1 step(s); right 1 step(s)\n"
+            "    left\n      1. reach: configuration 'move' on: robot, traj, pid, logger\n") in out
+    assert ("  stage 2, in parallel: left application 'wave'\n    left, path 1: repeat\n"
+            + "".join(f"      {n}. reach: stays in 'move' (new object only)\n" for n in range(1, 5))) in out
+    assert ("    left, path 1: if: then\n      1. reach: stays in 'move' (new object only)\n"
+            "    left, path 2: if: else: no job\n    right\n      1. reach: stays in 'move' (new object only)\n") in out
+
+
+def test_pbo_check_gives_each_path_of_a_stage_its_switch_table_from_where_the_stage_before_left_it(tmp_path, capsys):
+    from pbo_runtime.cli.main import main
+
+    _, path = with_run(tmp_path, "  - parallel: {left: [reach: ready, rest]}\n"
+                                 "  - parallel:\n      left:\n        - if: \"q_m[0] > 0.1\"\n          then: [reach: home]\n"
+                                 "          else: [rest]\n  - parallel: {left: [reach: ready]}\n")
+    text = path.read_text().replace("      move: [robot, traj, pid, logger]\n    jobs:\n",
+                                    "      move: [robot, traj, pid, logger]\n      still: [robot, traj, pid]\n    jobs:\n"
+                                    "      rest: {configuration: still, object: none}\n", 1)
+    path.write_text(text)
+    assert main(["check", str(path)]) == 0, capsys.readouterr()
+    out = capsys.readouterr().out
+    assert ("    left\n      1. reach: configuration 'move' on: robot, traj, pid, logger\n"
+            "      2. rest: 'move' -> 'still': off logger; on nothing\n") in out
+    assert ("    left, path 1: if: then\n      1. reach: 'still' -> 'move': off nothing; on logger\n"
+            "    left, path 2: if: else\n      1. rest: stays in 'still' (new object only)\n") in out
+    # stage 2 may leave either configuration on: stage 3's first switch is from nothing known
+    assert out.endswith("  stage 3, in parallel: left 1 step(s)\n    left\n      1. reach: configuration 'move' on: robot, traj, pid, logger\n")
 
 
 def test_a_subsystem_goes_on_after_a_stage_only_once_every_other_is_done_and_the_lag_has_passed(tmp_path):
@@ -99,3 +123,53 @@ def test_a_subsystem_goes_on_after_a_stage_only_once_every_other_is_done_and_the
     joined = [m["time"] for m in host.job_control.marks if re.fullmatch(r"stage \d+ joined", m["label"])]
     assert joined[0] >= 0.203 - 1e-9 and joined[1] >= 0.303 - 1e-9
     assert said == ["stage 1 done here; joining me, other", "stage 2 done here; joining me, other"]
+
+
+def arms_behind_ros2_control(tmp_path, left: str, right: str, run: str):
+    """configs/two_arms.yaml with each arm driven through ros2_control, its options given, and `run:`."""
+    text = TWO_ARMS.read_text()
+    head = text[:text.index("\nrun:\n")]
+    mujoco = "{arm: {driver: mujoco_arm, mode: torque, exclusive: true}}"
+    assert head.count(mujoco) == 2
+    for options in (left, right):
+        head = head.replace(mujoco, "{arm: {driver: ros2_control, mode: torque, exclusive: true%s}}" % options, 1)
+    path = tmp_path / "arms.yaml"
+    path.write_text(head + "\nrun:\n" + run)
+    return check_application(path), path
+
+
+BOTH = "  - parallel: {left: [reach: ready], right: [reach: ready]}\n"
+
+
+@pytest.mark.parametrize("left, right, run", [
+    ("", "", BOTH),
+    (", commands: /cell/commands", ", commands: cell/commands/", BOTH),
+    (", domain: 4", ", domain: 4", "  - parallel: {left: [reach: home]}\n" + BOTH),
+    ("", "", "  - parallel:\n      left: {app: wave}\n      right:\n        - try: [reach: ready]\n          fallback: [reach: home]\n"),
+])
+def test_two_subsystems_of_a_stage_driving_one_arm_are_refused_at_the_stage(tmp_path, left, right, run):
+    result, path = arms_behind_ros2_control(tmp_path, left, right, run)
+    assert [e.code for e in result.errors] == ["E814"], result.errors
+    [error] = result.errors
+    assert re.fullmatch(r"run: stage \d: subsystems 'left' and 'right' both drive the arm commanded on /\S+ \(DDS domain \d\): "
+                        r"device 'arm' of 'left' \(task 'robot'\) and device 'arm' of 'right' \(task 'robot'\)", error.message)
+    assert "its own devices" in error.hint
+    stage = int(error.message.split()[2].rstrip(":"))
+    stages = [number for number, line in enumerate(path.read_text().splitlines(), 1) if line.startswith("  - parallel:")]
+    assert (error.line, error.column) == (stages[stage - 1], 5)  # at the stage's `parallel:`
+
+
+@pytest.mark.parametrize("left, right, run", [
+    (", commands: /left/commands", ", commands: /right/commands", BOTH),  # two arms, two topics
+    (", domain: 1", ", domain: 2", BOTH),  # one topic on two domains
+    ("", "", "  - parallel: {left: [reach: ready]}\n  - parallel: {right: [reach: ready]}\n"),  # one after the other
+])
+def test_subsystems_of_a_stage_with_their_own_arms_are_accepted(tmp_path, left, right, run):
+    result, _ = arms_behind_ros2_control(tmp_path, left, right, run)
+    assert result.errors == [], result.errors
+
+
+def test_simulated_arms_of_the_same_name_are_each_their_own_plants():
+    result = check_application(TWO_ARMS)  # both subsystems name their arm 'arm', each in its own plant
+    assert all(set(result.application.subsystems[key].devices) == {"arm"} for key in ("left", "right"))
+    assert [e.code for e in result.errors] == []

@@ -77,6 +77,16 @@ class Ros2ControlArm(DeviceDriver):
         if isinstance(stall, bool) or not isinstance(stall, (int, float)) or not 0 < stall <= 10:
             raise ValueError(f"ros2_control driver option stall_after must be seconds in (0, 10], got: {stall!r}")
 
+    @classmethod
+    def outside_device(cls, options: Mapping[str, Any]) -> str:
+        """The arm it drives, as its commands' topic on its DDS domain: two devices naming one drive one arm."""
+        domain = int(options.get("domain", -1))
+        if domain < 0:  # as ros2_messages.domain_id reads it, without the 'ros2' extra
+            text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+            domain = int(text) if text.isdigit() else 0
+        topic = "/" + str(options.get("commands", cls.OPTION_DEFAULTS["commands"])).strip("/")
+        return f"the arm commanded on {topic} (DDS domain {domain})"
+
     def __init__(self, registers: str, options: Mapping[str, Any]) -> None:
         super().__init__(registers, options)
         self.check_options(self.options)

@@ -335,7 +335,7 @@ def _check_application(args: argparse.Namespace, console: Console, errors: Conso
             runs = "".join(f", runs {'application' if k == 'app' else 'configuration'} '{v}'" for k, v in app.run.get(key, {}).items())
             where = f" on {app.placement[key]} ({app.hosts[app.placement[key]]})" if key in app.placement else ""
             lines.append(f"  subsystem {key}: {sub.file} ('{sub.name}', {len(sub.tasks)} task(s){runs}){where}")
-        lines.extend(stage_lines(app.stages, app.subsystems))  # run: as parallel stages, joined one after another
+        lines.extend(stage_lines(app.stages, app.subsystems, _transition_lines))  # run: as parallel stages, joined one after another
         for link in app.links.values():
             kind = f"messages, {link.capacity} queued at most" if link.kind == "message" else "periodic"
             lines.append(f"  link {link.name}: {link.sender[0]}.{link.sender[1]} -> {link.receiver[0]}.{link.receiver[1]} "

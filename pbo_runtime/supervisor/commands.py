@@ -240,7 +240,7 @@ def status(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     return {"subsystem": host.subsystem.name, "run_id": host.run_id, "file": os.path.abspath(host.subsystem.file),
             "configuration": host.configuration,
             "job": host.job_control.job, "application": host.application, "elapsed": elapsed,
-            "path": " > ".join(host.job_control.path),
+            "path": " > ".join(host.job_control.path), "place": list(host.job_control.place),
             "tasks": rows, "flags": host.table_flags(), "realtime": dict(host.realtime),
             "stalled": {name: now - since for name, since in host.stalled_since().items()},
             "restarts": host.restarts(), "gains": gain_notes(host.subsystem.robot_notes)}
@@ -578,7 +578,8 @@ _TASK_REPLY = '`{"task": str, "state": str}`'
 VERBS: tuple[Verb, ...] = (
     Verb("status", "a running subsystem: tasks by RTPU with state, rate, jitter, overruns; current job, and where an "
                    "application that decides is (`pick > try > approach`)", (), status,
-         "the status reply: configuration, job, path, elapsed, per task state, rate, jitter, overruns; flags; the gains "
+         "the status reply: configuration, job, path (and its place: positions in the rows), elapsed, per task state, "
+         "rate, jitter, overruns; flags; the gains "
          "a bandwidth made", STATUS_TIMEOUT),
     Verb("on", "turn a task on", (_TASK,), task_signal("on"), _TASK_REPLY, COMMAND_TIMEOUT),
     Verb("off", "turn a task off", (_TASK,), task_signal("off"), _TASK_REPLY, COMMAND_TIMEOUT),

@@ -5,7 +5,8 @@ between two of the host's pumps, which on the simulated clock is a tick boundary
 replays its decisions bit for bit. Each decision, each failure that sent a `try` to its
 fallback, each turn of a repeat is recorded with the values that made it (`JobControl.decisions`,
 listed by the run's summary and report.json); `JobControl.path` is where the application is now
-(`pick > try > approach`), which `pbo status` shows.
+(`pick > try > approach`), which `pbo status` shows, and `JobControl.place` the same as positions
+(step 2, row 1 (the fallback), step 0: `[2, 1, 0]`), which tells two identical rows apart.
 """
 
 from __future__ import annotations
@@ -57,8 +58,13 @@ class DecidingRun:
             self.control.path.pop()
 
     def row(self, steps: tuple[ApplicationStep, ...], fill: Any, application: str) -> None:
-        for step in steps:
-            self.step(step, fill, application)
+        place = self.control.place
+        for index, step in enumerate(steps):
+            place.append(index)
+            try:
+                self.step(step, fill, application)
+            finally:
+                place.pop()
 
     def step(self, step: ApplicationStep, fill: Any, application: str) -> None:
         given = self.subsystem.objects[step.object].value if step.object is not None else step.fill
@@ -96,24 +102,27 @@ class DecidingRun:
             taken = "then" if holds else "else"
             self.record("if", condition=decision.condition, values=plain(values), taken=taken)
             host.say(f"{' > '.join(control.path)}: if {decision.condition}: {taken}")
-            self.nested(taken, decision.rows[0 if holds else 1], fill, application)
+            self.nested(taken, decision.rows[0 if holds else 1], fill, application, 0 if holds else 1)
         elif decision.kind == "try":
             try:
                 self.nested("try", decision.rows[0], fill, application)
             except self.failure as failure:
                 self.record("try", taken="fallback", failure=str(failure), values=plain(getattr(failure, "values", {})))
                 host.say(f"{' > '.join(control.path)}: try failed, fallback: {failure}")
-                self.nested("fallback", decision.rows[1], fill, application)
+                self.nested("fallback", decision.rows[1], fill, application, 1)
         elif decision.kind == "repeat":
             self.repeat(decision, fill, application)
         else:
             self.wait(decision)
 
-    def nested(self, label: str, steps: tuple[ApplicationStep, ...], fill: Any, application: str) -> None:
+    def nested(self, label: str, steps: tuple[ApplicationStep, ...], fill: Any, application: str, which: int = 0) -> None:
+        """Row `which` of a step that decides (if: then 0, else 1; try: try 0, fallback 1; repeat: 0)."""
         self.control.path.append(label)
+        self.control.place.append(which)
         try:
             self.row(steps, fill, application)
         finally:
+            self.control.place.pop()
             self.control.path.pop()
 
     def repeat(self, decision: Decision, fill: Any, application: str) -> None:

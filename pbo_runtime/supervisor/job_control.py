@@ -235,6 +235,7 @@ class JobControl:
         # an application that decides: each decision with its values, and where it is now (`pick > try > reach`)
         self.decisions: list[dict[str, Any]] = []
         self.path: list[str] = []
+        self.place: list[int] = []  # the same as positions: a step's index in its row, a row's in its step (the HMI's)
         self.jobs_done: list[str] = []  # the jobs the application ran to their end, in order
 
     def mark(self, at: float, kind: str, label: str) -> None:

@@ -106,20 +106,18 @@ function useRunningStep(dictionary, steps, job, active) {
   return active && position >= 0 && order[position] ? order[position][1] : null;
 }
 
-/** The words of the status's path that name where a step is: the rows it is in, then its name ("try", "reach"). */
-function trailOf(labels, name) {
-  return [...labels, name].join(" > ");
-}
-
-/** Whether the status's path (`app > try > reach`, `app > repeat 2/3 > reach`) ends at the step with `trail`. */
-function runsAt(statusPath, trail) {
-  if (!statusPath) return false;
-  const words = statusPath.split(" > ").slice(1).map((w) => w.replace(/^repeat \d+\/\d+$/, "repeat"));
-  return words.join(" > ") === trail;
+/**
+ * Whether the step at `at` ([...row path, index]) runs now: the status's place is where the running
+ * job is, as positions ([step, row, step, ...]: step 2, its fallback row 1, step 0 of it), so two
+ * identical rows (two `then: [hold]`) are told apart; a step that uses an application runs while
+ * any job inside it does.
+ */
+function runsAt(statusPlace, at) {
+  return Boolean(statusPlace) && statusPlace.length >= at.length && at.every((value, i) => statusPlace[i] === value);
 }
 
 /** A step that decides: its icon and settings, then each of its rows of steps. */
-function DecisionUnit({ dictionary, step, index, count, actions, path, labels, statusPath, keys }) {
+function DecisionUnit({ dictionary, step, index, count, actions, path, statusPlace, keys }) {
   const spec = DECISIONS[step.kind];
   const where = ` of step ${index + 1} ${step.kind}`;
   // onInput, not onChange: a render between typing and leaving the field (the run's status arrives
@@ -151,29 +149,28 @@ function DecisionUnit({ dictionary, step, index, count, actions, path, labels, s
         <div class="decision-row" key=${label}>
           <span class="decision-label">${label}</span>
           <${RowView} dictionary=${dictionary} steps=${step.rows[which]} actions=${actions} path=${[...path, index, which]}
-                      labels=${[...labels, label]}
-                      statusPath=${statusPath} name=${`${label}${where}`} />
+                      statusPlace=${statusPlace} name=${`${label}${where}`} />
         </div>`)}
     </div>`;
 }
 
 /** A row of steps at `path` (the workspace's own, or one of a step that decides), with places between them. */
-function RowView({ dictionary, steps, actions, path, labels, statusPath, runningStep = null, name }) {
+function RowView({ dictionary, steps, actions, path, statusPlace, runningStep = null, name }) {
   const where = path.length ? ` in ${name}` : "";
   return html`
     <div class="nested-row" role="list" aria-label=${name} data-path=${path.join(".")}>
       <${Place} before=${0} count=${steps.length} onInsert=${actions.insert} onMove=${actions.move} path=${path} where=${where} />
       ${steps.map((step, index) => html`
         <${Unit} key=${step.id} dictionary=${dictionary} step=${step} index=${index} count=${steps.length}
-                 running=${runningStep === index || (statusPath && !step.kind && runsAt(statusPath, trailOf(labels, step.name)))}
-                 actions=${actions} path=${path} labels=${labels} statusPath=${statusPath} />
+                 running=${runningStep === index || (!step.kind && runsAt(statusPlace, [...path, index]))}
+                 actions=${actions} path=${path} statusPlace=${statusPlace} />
         <${Place} key=${"place" + step.id} before=${index + 1} count=${steps.length} onInsert=${actions.insert}
                   onMove=${actions.move} path=${path} where=${where} />`)}
     </div>`;
 }
 
 /** One step of the row: its icon (focusable: Delete removes it, Alt+arrows move it), its slot, its tools. */
-function Unit({ dictionary, step, index, count, running, actions, path = [], labels = [], statusPath = "" }) {
+function Unit({ dictionary, step, index, count, running, actions, path = [], statusPlace = null }) {
   const keys = (e) => {
     if (e.key === "Delete" || e.key === "Backspace") { e.preventDefault(); actions.remove(index, path); }
     else if (e.altKey && e.key === "ArrowLeft" && index > 0) { e.preventDefault(); actions.move(index, index - 1, path); }
@@ -181,7 +178,7 @@ function Unit({ dictionary, step, index, count, running, actions, path = [], lab
   };
   if (step.kind) {
     return html`<${DecisionUnit} dictionary=${dictionary} step=${step} index=${index} count=${count} actions=${actions}
-                                 path=${path} labels=${labels} statusPath=${statusPath} keys=${keys} />`;
+                                 path=${path} statusPlace=${statusPlace} keys=${keys} />`;
   }
   const icon = iconOf(dictionary, step.name);
   if (!icon) {
@@ -269,7 +266,7 @@ export function Workspace({ dictionary, steps, actions, message, setMessage, sta
   const mine = Boolean(running && running === (runName || name));  // the row it runs: started here, or named as it is
   const decides = steps.some((s) => s.kind);
   const runningStep = useRunningStep(dictionary, steps, status ? status.job : null, mine && !decides);
-  const statusPath = mine && decides && status.path ? status.path : "";  // where an application that decides is
+  const statusPlace = mine && decides && status.place && status.place.length ? status.place : null;  // where one that decides is
 
   return html`
     <div class="workspace">
@@ -279,8 +276,8 @@ export function Workspace({ dictionary, steps, actions, message, setMessage, sta
         <${Place} before=${0} count=${steps.length} onInsert=${actions.insert} onMove=${actions.move} />
         ${steps.map((step, index) => html`
           <${Unit} key=${step.id} dictionary=${dictionary} step=${step} index=${index} count=${steps.length}
-                   running=${runningStep === index || (statusPath && !step.kind && runsAt(statusPath, trailOf([], step.name)))}
-                   actions=${actions} statusPath=${statusPath} />
+                   running=${runningStep === index || (!step.kind && runsAt(statusPlace, [index]))}
+                   actions=${actions} statusPlace=${statusPlace} />
           <${Place} key=${"place" + step.id} before=${index + 1} count=${steps.length} onInsert=${actions.insert} onMove=${actions.move} />`)}
       </div>
       <p class="readiness" data-test="run-readiness">${readiness}</p>

@@ -43,6 +43,7 @@ class Argument:
     negatable: bool = False  # --x and --no-x (None when neither is given)
     hidden: bool = False  # not in the help (set by a program, or an older spelling)
     complete: str | None = None  # the kind of name the shell completes it with (cli.completion)
+    short: str | None = None  # an option's one-letter spelling: -o for --output
 
     def argparse_options(self) -> dict[str, Any]:
         """The keywords of argparse's add_argument that declare it."""
@@ -65,11 +66,18 @@ class Argument:
             options["required"] = True
         if self.default is not None:
             options["default"] = list(self.default) if self.append else self.default  # append adds to a copy
-        if self.help is not None:
-            options["help"] = argparse.SUPPRESS if self.hidden else self.help
+        if self.hidden:
+            options["help"] = argparse.SUPPRESS
+        elif self.help is not None:
+            options["help"] = self.help
         if self.metavar is not None:
             options["metavar"] = self.metavar
         return options
+
+    @property
+    def flags(self) -> tuple[str, ...]:
+        """What argparse's add_argument takes first: the name, after the short spelling if any."""
+        return (self.short, self.name) if self.short else (self.name,)
 
     @property
     def dest(self) -> str:

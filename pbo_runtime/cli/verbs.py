@@ -178,7 +178,7 @@ def verb_lines(commands: tuple[Command, ...], prefix: str = "pbo") -> list[str]:
         if command.verbs:
             lines.extend(verb_lines(command.verbs, f"{prefix} {command.name}"))
             continue
-        shown = [f"`{_usage(argument)}`" for argument in command.arguments if not argument.hidden]
+        shown = [f"`{_usage(argument).replace('|', '/')}`" for argument in command.arguments if not argument.hidden]
         lines.append(f"| `{prefix} {command.name}` | {' '.join(shown) or '–'} | {command.help.replace('|', '/')} |")
     return lines
 

@@ -28,7 +28,6 @@ Handler = Callable[[argparse.Namespace, "Console", "Console"], int]
 
 
 def main(argv: list[str] | None = None) -> int:
-    entered = time.monotonic()  # the start-up's time line (`pbo run`): the CLI's imports end here
     # MuJoCo without its OpenGL context: nothing pbo runs renders, and importing it loads GLFW (0.1-0.3 s
     # per process: the CLI, the plant, each RTPU). A module that renders sets MUJOCO_GL (egl, glfw) itself.
     os.environ.setdefault("MUJOCO_GL", "disable")
@@ -37,20 +36,21 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == [HIDDEN_VERB]:  # the shell completing a name at the time of a <TAB>
         return complete(argv[1:])
     args = _parser().parse_args(argv)
-    args.entered = entered
+    handler = _handler(args.handler)  # the verb's own code, imported only now
     from rich.console import Console
 
     from pbo_runtime.errors import ConfigErrors, MissingExtra, PboError
     from pbo_runtime.ipc.control import BadRequest
     from pbo_runtime.supervisor.failures import WrongArgument
 
+    args.entered = time.monotonic()  # the start-up's time line (`pbo run`): the CLI's imports end here
     console = Console(highlight=False)
     errors = Console(stderr=True, highlight=False, soft_wrap=True)
     if not console.is_terminal:  # logs and CI: wide enough for the summary, no wrapping
         console = Console(highlight=False, width=140)
         errors = Console(stderr=True, highlight=False, width=140, soft_wrap=True)
     try:
-        status = _handler(args.handler)(args, console, errors)
+        status = handler(args, console, errors)
         if status == EXIT_CONFIG:
             _say_where_an_example_is(args, errors)
         return status

@@ -13,7 +13,7 @@ import pytest
 from rich.console import Console
 
 from pbo_runtime.cli import main
-from pbo_runtime.cli.main import _sayer
+from pbo_runtime.cli.running import _sayer
 from tests.support import REPO, assert_nothing_left, demo_copy
 
 DEMO = (REPO / "configs" / "pid_joint.yaml").read_text()
@@ -114,15 +114,16 @@ def test_run_refuses_a_file_with_errors_and_starts_nothing(tmp_path, text, error
 STOPPED_WHILE_SUMMARISING = """
 import importlib, os, signal, sys
 cli = importlib.import_module("pbo_runtime.cli.main")  # the package exports the function of the same name
+summary = importlib.import_module("pbo_runtime.cli.summary")
 
-summarise = cli._print_summary
+summarise = summary._print_summary
 
 def stopped_twice_while_summarising(*args):
     os.kill(os.getpid(), signal.SIGTERM)
     os.kill(os.getpid(), signal.SIGINT)
     summarise(*args)
 
-cli._print_summary = stopped_twice_while_summarising
+summary._print_summary = stopped_twice_while_summarising
 sys.exit(cli.main(sys.argv[1:]))
 """
 

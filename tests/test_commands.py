@@ -29,7 +29,7 @@ def subparsers() -> dict[str, argparse.ArgumentParser]:
 
 def test_the_docs_verb_table_is_the_one_the_command_table_makes():
     text = (REPO / "docs" / "operator-commands.md").read_text()
-    assert verb_table() in text, "regenerate it: python -c 'from pbo_runtime.supervisor.commands import verb_table; print(verb_table())'"
+    assert verb_table() in text, "regenerate it: python -c 'from pbo_runtime.supervisor.command_table import verb_table; print(verb_table())'"
 
 
 @pytest.mark.parametrize("verb", VERBS, ids=lambda verb: verb.name)

@@ -53,3 +53,14 @@ class ArgumentParser(argparse.ArgumentParser):
                 if isinstance(chosen, ArgumentParser):
                     return chosen._chosen_subparser(parsed) or chosen
         return None
+
+
+def host_addresses(args: argparse.Namespace) -> dict[str, str] | str:
+    """--address HOST=ADDRESS, repeated: {host: address}, or what is wrong with one."""
+    found: dict[str, str] = {}
+    for given in getattr(args, "address", None) or []:
+        host, mark, address = given.partition("=")
+        if not mark or not host or not address:
+            return f"--address takes HOST=ADDRESS, e.g. --address arm-b=10.0.0.2; got {given!r}"
+        found[host] = address
+    return found

@@ -11,17 +11,23 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any, Iterable
+from typing import TYPE_CHECKING, Any, Iterable
 
-import yaml
+if TYPE_CHECKING:
+    from rich.console import Console
 
 HIDDEN_VERB = "__complete"  # not a verb of the parser: main() answers it before parsing
 SECTIONS = {"configuration": "configurations", "job": "jobs", "application": "applications", "variable": "variables",
             "device": "devices"}
-BY_DEST = {"task": "task", "configuration": "configuration", "config": "configuration", "app": "application",
-           "subsystem": "subsystem", "run": "run", "names": "variable", "device": "device"}
-BY_VERB_AND_DEST = {("job", "name"): "job", ("app", "name"): "application", ("event", "task"): "task"}
 LIVE_PATIENCE = 0.5  # s the live run's status may take before completion makes do with its file
+
+
+def print_script(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    """`pbo completion SHELL`."""
+    from pbo_runtime.cli.parser import build_parser
+
+    console.out(script(build_parser(), args.shell), end="")
+    return 0
 
 
 def script(parser: argparse.ArgumentParser, shell: str) -> str:
@@ -33,13 +39,13 @@ def script(parser: argparse.ArgumentParser, shell: str) -> str:
 
 
 def _attach(parser: argparse.ArgumentParser) -> None:
+    """Each argument the verb tables say completes a kind of name (`cli.parser` marks it): how each shell asks for them."""
     for action in parser._actions:
+        kind = getattr(action, "complete_kind", None)
+        if kind is not None:
+            action.complete = _names(kind)  # type: ignore[attr-defined]
         if isinstance(action, argparse._SubParsersAction):
-            for verb, sub in action.choices.items():
-                for argument in sub._actions:
-                    kind = BY_VERB_AND_DEST.get((verb, argument.dest)) or BY_DEST.get(argument.dest)
-                    if kind is not None:
-                        argument.complete = _names(kind)  # type: ignore[attr-defined]
+            for sub in action.choices.values():
                 _attach(sub)
 
 
@@ -85,6 +91,8 @@ def names(kind: str, words: Iterable[str]) -> list[str]:
 def _in_file(kind: str, file: Path, depth: int = 0) -> list[str]:
     """The names of a section of the file and of the files it includes (read as YAML, not checked: a
     file being written still completes)."""
+    import yaml
+
     if kind not in (*SECTIONS, "task") or depth > 8:
         return []
     document = yaml.safe_load(file.read_text())

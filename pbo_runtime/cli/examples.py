@@ -12,10 +12,17 @@ edits) is never overwritten without `force`, and then nothing at all is written.
 
 from __future__ import annotations
 
+import argparse
 import shlex
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pbo_runtime.cli.exits import EXIT_CONFIG, EXIT_OK
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 EXAMPLES = Path(__file__).resolve().parent / "example_configs"
 
@@ -32,6 +39,17 @@ class Copied:
     written: tuple[str, ...]
     overwritten: tuple[str, ...]
     unchanged: tuple[str, ...]
+
+
+def copy(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    """`pbo examples [DIR]`."""
+    try:
+        copied = copy_examples(args.dir, force=args.force)
+    except ExamplesRefused as exc:
+        errors.print(f"error: {exc}", markup=False)
+        return EXIT_CONFIG
+    console.print("\n".join(summary(copied)), markup=False, soft_wrap=True)
+    return EXIT_OK
 
 
 def shipped_files(examples: Path = EXAMPLES) -> list[str]:

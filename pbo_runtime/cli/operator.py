@@ -32,7 +32,7 @@ from pbo_runtime.api.jsonable import jsonable
 from pbo_runtime.ipc.control import BadRequest, ControlClient
 from pbo_runtime.ipc.runs import live_runs
 from pbo_runtime.errors import PboError
-from pbo_runtime.supervisor.commands import COMMANDS, parse_object_values
+from pbo_runtime.supervisor.command_table import COMMANDS, parse_object_values
 from pbo_runtime.supervisor.status_reply import TaskStatusEntry
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.svar import TableView, open_table, svar_rows, svar_table
@@ -270,6 +270,16 @@ _RUNNERS: dict[str, Callable[[argparse.Namespace, Console], int]] = {
 }
 for _live_verb in ("spawn", "kill", "replace", "set", "app", "save"):
     _RUNNERS[_live_verb] = functools.partial(lambda verb, a, c: live_change(c, verb, a), _live_verb)
+
+
+def command(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    """`pbo VERB ...` for any verb of the command table."""
+    return run_verb(args.command, args, console)
+
+
+def list_runs(args: argparse.Namespace, console: Console, errors: Console) -> int:
+    """`pbo runs`."""
+    return runs(console, args.subsystem, args.json or args.format == "json")
 
 
 def run_verb(name: str, args: argparse.Namespace, console: Console) -> int:

@@ -22,25 +22,6 @@ from rich.console import Console
 PLANT_TYPE = "mujoco_arm"
 
 
-def add_parser(sub: Any) -> None:
-    """The `robot` verb and its arguments."""
-    robot = sub.add_parser("robot", help="an arm's joints, limits, masses and inertia range; with --bandwidth, its gains")
-    robot.add_argument("model", metavar="MODEL|FILE",
-                       help="a registered robot (puma560, redundant7), a URDF or MJCF file, or a package:// URI")
-    robot.add_argument("--ee", help="the end effector: a link or site of the file (default: the tip of the chain)")
-    robot.add_argument("--bandwidth", type=float, metavar="W",
-                       help="rad/s: print each joint's gains for this closed-loop bandwidth (as pid_joint's bandwidth: makes them)")
-    robot.add_argument("--damping", type=float, default=1.0, metavar="Z", help="damping ratio for --bandwidth (default 1.0)")
-    robot.add_argument("--integral-time", type=float, default=0.0, metavar="S",
-                       help="s: add integral action ki = kp / S (default: none)")
-    robot.add_argument("--step", type=float, default=0.1, metavar="RAD",
-                       help="rad (m): the position step whose torque kp * step is compared with the effort limit (default 0.1)")
-    robot.add_argument("--period", type=float, default=0.001, metavar="S",
-                       help="s: the controller's period for the loop's verdict (default 0.001; one period of delay)")
-    robot.add_argument("--format", choices=("text", "json"), default="text")
-    robot.set_defaults(handler=run)
-
-
 def run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     problem = _argument_problem(args)
     if problem:

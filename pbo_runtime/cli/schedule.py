@@ -26,13 +26,6 @@ EXEC_MEANING = {"max": "the longest cycle measured: safe", "p99": "the 99th perc
 MODEL = "non-preemptive: critical first, then earliest deadline; a cycle runs to its end"
 
 
-def add_arguments(parser: Any) -> None:
-    """--profile and --exec-time, shared by check and allocate."""
-    parser.add_argument("--exec-time", choices=tuple(EXEC_TIMES), default="max",
-                        help="with --profile: each task's execution time C is its longest cycle (max, the default: safe) "
-                             "or its 99th percentile (p99)")
-
-
 def load_profile(path: Path, subsystem: Subsystem, exec_time: str) -> tuple[dict[str, Cost], list[str], Path]:
     """(costs, notes, the report's path): each task's C from a run report, or its wcet: where it did not run.
 

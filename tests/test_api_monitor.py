@@ -1,5 +1,5 @@
 """The monitor's logic and routes, in-process: the bus load measured from a live run's task rates
-(config.bus.measured_live), the arm's joint frames by forward kinematics of the ARM and EE tables
+(analysis.bus.measured_live), the arm's joint frames by forward kinematics of the ARM and EE tables
 (reports.arm, held to the DH product of the tests' own oracle), what the
 monitor reads of a file (reports.monitor), and the routes over them (api.monitor) with FastAPI's
 TestClient. The run behind the app is a unit test's link (`StatusLink`): a fixed status reply and a
@@ -21,7 +21,7 @@ from starlette.websockets import WebSocketDisconnect
 from pbo_runtime import Arm
 from pbo_runtime.api.app import create_app
 from pbo_runtime.api.link import NoRun
-from pbo_runtime.config import bus
+from pbo_runtime.analysis import bus
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.ipc import messages
@@ -275,4 +275,4 @@ def test_the_monitors_files_are_served_and_packaged():
     client = TestClient(create_app(StatusLink(None), TOKEN))
     for path in ("js/monitor.js", "js/monitor/plot.js", "js/monitor/arm.js", "css/monitor.css"):
         assert client.get(f"/static/{path}", headers=BEARER).status_code == 200, path
-    assert '"static/js/*/*"' in (REPO / "pyproject.toml").read_text()
+    assert '"hmi/js/*/*"' in (REPO / "pyproject.toml").read_text()

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from pbo_runtime.config import bus as _bus
-from pbo_runtime.config.bus import BusModelError
+from pbo_runtime.analysis import bus as _bus
+from pbo_runtime.analysis.bus import BusModelError
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import BusSpec, ConfigurationSpec, PortBinding, RtpuSpec, Subsystem, TaskSpec, VariableSpec
 from pbo_runtime.objects.ports import PortKind, PortSpec

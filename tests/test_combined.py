@@ -12,7 +12,7 @@ from modules.combined import Combined
 from modules.joint_trajectory import JointTrajectory
 from modules.pid_joint import PidJoint
 from pbo_runtime import ParamError
-from pbo_runtime.config import bus
+from pbo_runtime.analysis import bus
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task

@@ -32,7 +32,7 @@ from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.supervisor.failures import WrongArgument
 from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.config.transitions import transitions, transitions_of
-from pbo_runtime.config.job_dictionary import dictionary_lines, job_dictionary
+from pbo_runtime.edit.job_dictionary import dictionary_lines, job_dictionary
 
 EXIT_OK, EXIT_CONFIG, EXIT_RUN, EXIT_INTERNAL = 0, 1, 2, 3
 FORMAT_HELP = ("json: print the reply as JSON, a refusal too ({\"ok\": false, \"error\": ...}), on stdout; "
@@ -1000,7 +1000,7 @@ def _log_info(args: argparse.Namespace, console: Console, errors: Console) -> in
 def _bus(args: argparse.Namespace, console: Console, errors: Console) -> int:
     if args.plot:
         require_extra("matplotlib", "pbo bus --plot")
-    from pbo_runtime.config import bus
+    from pbo_runtime.analysis import bus
     from pbo_runtime.config.loader import load_subsystem
 
     subsystem = load_subsystem(args.file)
@@ -1059,7 +1059,7 @@ def _lexicon(args: argparse.Namespace, console: Console, errors: Console) -> int
 
 def _place(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from pbo_runtime.config.loader import load_subsystem
-    from pbo_runtime.config.placement import placement_report
+    from pbo_runtime.analysis.placement import placement_report
 
     subsystem = load_subsystem(args.file)
     tasks = [t.strip() for t in args.tasks.split(",") if t.strip()] if args.tasks is not None else None

@@ -109,7 +109,7 @@ def _check_file(
 
 
 def check_loaded(doc: Any, file: str, module_lookup: ModuleLookup = registry.module_class) -> CheckResult:
-    """Check a document already loaded (and changed: a live change, `config.live`) as `check_file` checks a file."""
+    """Check a document already loaded (and changed: a live change, `edit.live`) as `check_file` checks a file."""
     names = _default_names if module_lookup is registry.module_class else None
     return _result(check_document(doc, file, module_lookup, names), file, [])
 
@@ -139,7 +139,7 @@ def _result(checked: Checked, file: str, errors: list[ConfigError]) -> CheckResu
 
 def _bus_errors(subsystem: Subsystem) -> list[ConfigError]:
     """Configurations whose predicted bus load (TR eq. 1-2) exceeds the bandwidth: E510."""
-    from pbo_runtime.config import bus as _bus
+    from pbo_runtime.analysis import bus as _bus
 
     errors = []
     try:

@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import Any, Callable
 
 from pbo_runtime.config.decisions import paths
-from pbo_runtime.config.live import LiveChangeRefused, LiveDescription
+from pbo_runtime.edit.live import LiveChangeRefused, LiveDescription
 from pbo_runtime.config.transitions import transitions_of
 from pbo_runtime.config.model import Location, Subsystem
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain

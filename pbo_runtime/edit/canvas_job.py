@@ -8,7 +8,7 @@ an *action* or an *action requiring an object* is the job model's to infer (`pbo
 reads a variable marked `object:` that no task of the configuration writes); `object: none` makes
 it an action that leaves such a variable as it is.
 
-The file is written the way `pbo save` writes one (`config.live_save`): ruamel.yaml's round trip
+The file is written the way `pbo save` writes one (`edit.live_save`): ruamel.yaml's round trip
 for the entries that change, the original text everywhere else, comments and order kept. The new
 text is written beside the file and checked by `pbo check`'s own loader first; only a file that
 checks clean replaces the original (one rename), so a refused save leaves the file as it was.
@@ -25,9 +25,9 @@ from typing import Any
 
 from ruamel.yaml.comments import CommentedMap
 
-from pbo_runtime.config.canvas import CanvasError, CanvasTask
-from pbo_runtime.config.live import NAME
-from pbo_runtime.config.live_save import chunks, flow, merged, round_trip
+from pbo_runtime.edit.canvas import CanvasError, CanvasTask
+from pbo_runtime.edit.live import NAME
+from pbo_runtime.edit.live_save import chunks, flow, merged, round_trip
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import ACTION_REQUIRING_OBJECT
 from pbo_runtime.config.yaml_nodes import load_text, plain

@@ -23,7 +23,7 @@ Decisions this module makes, and why:
 - How RTPUs learn it: `to_wire` is the description an RTPU needs (task specs and configuration
   members, no YAML), written by the supervisor to a file of the run and read back by each RTPU
   with `from_wire`, outside any cycle; nothing of the per-cycle path changes.
-- `edits` records each change in order, for `pbo save` (`config.live_save`).
+- `edits` records each change in order, for `pbo save` (`edit.live_save`).
 - An application given with its steps (`pbo app NAME --steps`, the HMI's workspace) is a change
   too: it is put in the description's `applications:` and checked with the whole file, so a step
   that does not interlock, or an object of the wrong type, is refused before any job runs.

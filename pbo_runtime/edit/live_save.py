@@ -11,7 +11,7 @@ ruamel.yaml only writes here: every file is still loaded by the project's own sa
 ruamel.yaml re-flows what it writes (the alignment of `q_m:   {...}`, a flow mapping over two
 lines), so the saved text takes from the round trip only what the changes touched: the entries of
 `tasks:`, `configurations:` and `applications:` that changed; every other section and entry is the
-original's text. `round_trip` and `merged` serve the HMI's saves too (`config.workspace_file`).
+original's text. `round_trip` and `merged` serve the HMI's saves too (`edit.workspace_file`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from typing import Any
 from ruamel.yaml import YAML
 from ruamel.yaml.comments import CommentedMap, CommentedSeq
 
-from pbo_runtime.config.live import Edit, LiveChangeRefused, LiveDescription
+from pbo_runtime.edit.live import Edit, LiveChangeRefused, LiveDescription
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import Subsystem
 

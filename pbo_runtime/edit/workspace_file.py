@@ -1,6 +1,6 @@
 """What the HMI's user level writes to the subsystem file: an application, a named object's value.
 
-Both go through ruamel.yaml's round trip as `pbo save` does (`config.live_save`): comments, key
+Both go through ruamel.yaml's round trip as `pbo save` does (`edit.live_save`): comments, key
 order and flow style are kept, and only the entry that changed is taken from the dump; every other
 line is the file's own. The new text is checked by the checker of `pbo check` before it replaces
 the file: it is written beside the file (its includes are found the same way), checked there, and
@@ -21,7 +21,7 @@ from typing import Any, Callable
 
 from ruamel.yaml.comments import CommentedMap, CommentedSeq
 
-from pbo_runtime.config.live_save import merged, round_trip
+from pbo_runtime.edit.live_save import merged, round_trip
 from pbo_runtime.config.loader import CheckResult, check_file
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.config.values import as_value, range_problem

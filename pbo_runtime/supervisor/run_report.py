@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from pbo_runtime.config.log_notes import variable_notes
+from pbo_runtime.reports.log_notes import variable_notes
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import StateTable, TaskState, copy_variable

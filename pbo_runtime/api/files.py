@@ -38,6 +38,7 @@ from pbo_runtime.api.link import RunLink
 from pbo_runtime.api.guard import MAX_BODY_BYTES
 from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, TOO_LARGE, Reply, refusal
 from pbo_runtime.analysis import bus
+from pbo_runtime.config import bus_model
 from pbo_runtime.edit.job_dictionary import job_dictionary, row_gaps
 from pbo_runtime.config.loader import CheckResult, check_file, format_diagnostics
 from pbo_runtime.analysis.placement import placement_report
@@ -156,7 +157,7 @@ def bus_reply(file: str, configuration: str | None) -> dict[str, Any]:
     if configuration is not None and configuration not in subsystem.configurations:
         raise ValueError(f"no configuration '{configuration}' in {file} (configurations: {', '.join(subsystem.configurations)})")
     names = [configuration] if configuration else list(subsystem.configurations)
-    return {"ok": True, "file": file, "configurations": {name: bus.as_json(bus.predict(subsystem, name)) for name in names}}
+    return {"ok": True, "file": file, "configurations": {name: bus.as_json(bus_model.predict(subsystem, name)) for name in names}}
 
 
 def graph_svg(file: str, configuration: str | None) -> bytes:

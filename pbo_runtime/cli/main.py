@@ -1001,6 +1001,7 @@ def _bus(args: argparse.Namespace, console: Console, errors: Console) -> int:
     if args.plot:
         require_extra("matplotlib", "pbo bus --plot")
     from pbo_runtime.analysis import bus
+    from pbo_runtime.config import bus_model
     from pbo_runtime.config.loader import load_subsystem
 
     subsystem = load_subsystem(args.file)
@@ -1009,7 +1010,7 @@ def _bus(args: argparse.Namespace, console: Console, errors: Console) -> int:
                      f"(configurations: {', '.join(subsystem.configurations)})", markup=False)
         return EXIT_CONFIG
     names = [args.config] if args.config else list(subsystem.configurations)
-    reports = {name: bus.predict(subsystem, name) for name in names}
+    reports = {name: bus_model.predict(subsystem, name) for name in names}
     seen = None
     if args.run_report:
         seen = bus.measured(subsystem, json.loads(args.run_report.read_text()))

@@ -17,6 +17,7 @@ from typing import Any, Callable, Collection, Iterable
 import numpy as np
 
 from pbo_runtime.objects import registry
+from pbo_runtime.config import bus_model
 from pbo_runtime.config.checker import Checked, ModuleLookup, check_document, describe
 from pbo_runtime.config.model import Location, Subsystem
 from pbo_runtime.config.root import OUTSIDE_ROOT, confined, leaves_root
@@ -139,12 +140,10 @@ def _result(checked: Checked, file: str, errors: list[ConfigError]) -> CheckResu
 
 def _bus_errors(subsystem: Subsystem) -> list[ConfigError]:
     """Configurations whose predicted bus load (TR eq. 1-2) exceeds the bandwidth: E510."""
-    from pbo_runtime.analysis import bus as _bus
-
     errors = []
     try:
-        over = _bus.over_bandwidth(subsystem)
-    except _bus.BusModelError as exc:  # the rules above should have caught it: say so, don't crash
+        over = bus_model.over_bandwidth(subsystem)
+    except bus_model.BusModelError as exc:  # the rules above should have caught it: say so, don't crash
         return [ConfigError(f"cannot predict the bus load: {exc}", subsystem.file, 1, 1, code="E901",
                             hint="please report this with the file you checked")]
     for name, report in over:

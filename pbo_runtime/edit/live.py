@@ -39,7 +39,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from pbo_runtime.config.checker import ModuleLookup
 from pbo_runtime.config.limits import MAX_NAME
-from pbo_runtime.config.loader import check_loaded, load_document
+from pbo_runtime.config.loader import check_loaded, load_document, with_application
 from pbo_runtime.config.model import NOWHERE, ConfigurationSpec, Location, PortBinding, Subsystem, TaskSpec
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, plain
 from pbo_runtime.errors import ConfigError, PboError, closest_name
@@ -206,13 +206,8 @@ class LiveDescription:
         if not isinstance(node, YList) or not node:
             raise LiveChangeRefused(f"application '{name}': its steps are a non-empty list, e.g. [reach: ready, hold], "
                                     f"got: {plain(node)!r}")
-        doc = _copy(self.doc)
-        existing = doc.get("applications")
-        applications = _copy(existing) if isinstance(existing, YMap) else YMap(loc)
-        applications.put(name, node, loc, loc)
-        where = (self.doc.key_loc("applications"), self.doc.value_loc("applications")) if "applications" in self.doc else (loc, loc)
-        doc.put("applications", applications, *where)
-        return self._checked(doc, f"application '{name}'", Edit("application", name, plain(node)))
+        return self._checked(with_application(self.doc, name, node, loc), f"application '{name}'",
+                             Edit("application", name, plain(node)))
 
     # --- checking -----------------------------------------------------------------------------
 

@@ -25,8 +25,8 @@ from ruamel.yaml import YAML
 from ruamel.yaml.comments import CommentedMap, CommentedSeq
 
 from pbo_runtime.edit.live import Edit, LiveChangeRefused, LiveDescription
-from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import Subsystem
+from pbo_runtime.edit.write_back import WriteRefused, write_checked
 
 
 def saved_text(live: LiveDescription) -> str:
@@ -94,13 +94,10 @@ def merged(original: str, dumped: str, touched: dict[str, set[str]]) -> str:
 
 def save_live(live: LiveDescription, path: str) -> bool:
     """Write the live subsystem to `path`; True if `pbo check` on it gives the live subsystem back."""
-    text = saved_text(live)
-    try:
-        with open(path, "w", encoding="utf-8") as stream:
-            stream.write(text)
-    except OSError as exc:
-        raise LiveChangeRefused(f"cannot write {path}: {exc.strerror or exc}") from None
-    result = check_file(path)
+    try:  # written even if it does not check clean: the reply warns
+        result = write_checked(path, saved_text(live), even_with_errors=True)
+    except WriteRefused as exc:
+        raise LiveChangeRefused(str(exc)) from None
     return result.subsystem is not None and same_subsystem(result.subsystem, live.subsystem)
 
 

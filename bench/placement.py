@@ -1,7 +1,7 @@
 """How fast a placement query answers: every lexicon module against a configuration of a 100-task subsystem.
 
 Onika's canvas asks, at every mouse drop, which modules of the lexicon can still be placed
-(`pbo_runtime.config.placement`). The subsystem is check_scale's generator (joint control loops
+(`pbo_runtime.analysis.placement`). The subsystem is check_scale's generator (joint control loops
 of the real module library over 4 RTPUs, one configuration each); the baseline is a full
 `pbo check` of the same file in the same run. Target (issue 19): one query of every lexicon
 module under 10 ms for a subsystem of 100 tasks.
@@ -21,7 +21,7 @@ from typing import Callable
 from bench._common import Section, Table
 from bench.check_scale import generate
 from pbo_runtime.config.loader import check_file
-from pbo_runtime.config.placement import Placement
+from pbo_runtime.analysis.placement import Placement
 from pbo_runtime.objects import registry
 
 TARGET_S = 0.010  # one query of every lexicon module (issue 19)

@@ -23,15 +23,15 @@ from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import messages, process
 from pbo_runtime.objects import registry
 from pbo_runtime.clock.clocks import RealClock, SimClock
-from pbo_runtime.config.live import task_from_wire
+from pbo_runtime.edit.live import task_from_wire
 from pbo_runtime.config.loader import load_subsystem
-from pbo_runtime.config.log_notes import run_metadata, variable_notes
+from pbo_runtime.reports.log_notes import run_metadata, variable_notes
 from pbo_runtime.config.model import DEFAULT_SPIN, DeviceSpec, Subsystem, TaskSpec
 from pbo_runtime.objects.helper_threads import GIL_HANDOVER, lower_helpers
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.clock.lockstep import LockstepParticipant
 from pbo_runtime.ipc.process import Stop, become_child, stop_only_at_waits
-from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor import last_out
 from pbo_runtime.table.table import StateTable, TableLayout
 from rtpu import _realtime
@@ -161,7 +161,7 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
             return make
 
         def live_stage(sequence: int) -> LiveStage:
-            # A live change: the description job control checked, as plain data (config.live.to_wire),
+            # A live change: the description job control checked, as plain data (edit.live.to_wire),
             # read between cycles. No module is looked up here but for a task this RTPU will spawn or
             # tune (`spec`): the RTPU of a critical task spends well under a millisecond on it.
             with open(os.path.join(args.live, f"live-{sequence}.json"), encoding="utf-8") as stream:

@@ -37,7 +37,7 @@ from pbo_runtime.objects import waits
 from pbo_runtime.task import background
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.module import Status
-from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Flag, Header, TaskState
 from pbo_runtime.table.table import StatusWord as W
 

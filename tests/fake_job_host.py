@@ -21,7 +21,7 @@ import numpy as np
 
 from pbo_runtime.api.link import NoRun
 from pbo_runtime.clock.clocks import ManualClock
-from pbo_runtime.config.live import LiveDescription
+from pbo_runtime.edit.live import LiveDescription
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError

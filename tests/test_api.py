@@ -133,7 +133,7 @@ def test_the_hmis_files_are_served_behind_the_token_with_their_media_type(client
     assert served.status_code == 200 and served.headers["content-type"].startswith(media_type)
 
 
-@pytest.mark.parametrize("path", ["../app.py", "..%2Fapp.py", "vendor/../../auth.py", "vendor/vendored.json.missing",
+@pytest.mark.parametrize("path", ["../api/app.py", "..%2Fapi%2Fapp.py", "vendor/../../api/auth.py", "vendor/vendored.json.missing",
                                   "js", "../../../../../etc/passwd"])
 def test_no_file_outside_the_hmis_own_is_served(client, path):
     refused = client.get(f"/static/{path}", headers=BEARER)

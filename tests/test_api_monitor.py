@@ -1,5 +1,5 @@
 """The monitor's logic and routes, in-process: the bus load measured from a live run's task rates
-(config.bus.measured_live), the arm's joint frames by forward kinematics of the ARM and EE tables
+(analysis.bus.measured_live), the arm's joint frames by forward kinematics of the ARM and EE tables
 (reports.arm, held to the DH product of the tests' own oracle), what the
 monitor reads of a file (reports.monitor), and the routes over them (api.monitor) with FastAPI's
 TestClient. The run behind the app is a unit test's link (`StatusLink`): a fixed status reply and a
@@ -21,7 +21,8 @@ from starlette.websockets import WebSocketDisconnect
 from pbo_runtime import Arm
 from pbo_runtime.api.app import create_app
 from pbo_runtime.api.link import NoRun
-from pbo_runtime.config import bus
+from pbo_runtime.analysis import bus
+from pbo_runtime.config import bus_model
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.ipc import messages
@@ -57,7 +58,7 @@ def running(rates: dict[str, float], states: dict[str, str] | None = None, confi
 def test_the_live_bus_load_is_each_tasks_measured_rate_times_its_bytes_per_cycle(demo):
     rates = {"robot": 990.0, "traj": 500.0, "pid": 1001.0, "logger": 100.0}
     measured = bus.measured_live(demo, running(rates))
-    predicted = bus.predict(demo, "joint_pid")
+    predicted = bus_model.predict(demo, "joint_pid")
     assert measured.kind == "measured" and measured.configuration == "joint_pid"
     for load in measured.tasks:
         per_cycle = predicted.task(load.task).per_cycle_bytes
@@ -69,7 +70,7 @@ def test_the_live_bus_load_is_each_tasks_measured_rate_times_its_bytes_per_cycle
 
 
 def test_at_the_nominal_rates_the_live_load_is_the_predicted_one(demo):
-    predicted = bus.predict(demo, "joint_pid")
+    predicted = bus_model.predict(demo, "joint_pid")
     measured = bus.measured_live(demo, running({load.task: 1 / load.period for load in predicted.tasks}))
     assert measured.total == pytest.approx(predicted.total)
 
@@ -89,7 +90,7 @@ def test_a_task_the_status_does_not_list_ran_no_cycle(demo):
 
 
 def test_a_configuration_the_file_lacks_is_refused_by_name(demo):
-    with pytest.raises(bus.BusModelError, match="no configuration 'elsewhere'"):
+    with pytest.raises(bus_model.BusModelError, match="no configuration 'elsewhere'"):
         bus.measured_live(demo, running({}, configuration="elsewhere"))
 
 
@@ -192,9 +193,9 @@ def test_the_bus_route_gives_predicted_beside_measured_for_the_running_configura
     reply = client.get("/api/monitor/bus", headers=BEARER).json()
     assert reply["ok"] and reply["configuration"] == "joint_pid" and reply["file"] == str(DEMO)
     assert reply["predicted"]["kind"] == "predicted" and reply["measured"]["kind"] == "measured"
-    assert reply["predicted"]["total"] == pytest.approx(bus.predict(demo, "joint_pid").total)
+    assert reply["predicted"]["total"] == pytest.approx(bus_model.predict(demo, "joint_pid").total)
     logger = next(t for t in reply["measured"]["tasks"] if t["task"] == "logger")
-    assert logger["rate_bytes_per_s"] == pytest.approx(50.0 * bus.predict(demo, "joint_pid").task("logger").per_cycle_bytes)
+    assert logger["rate_bytes_per_s"] == pytest.approx(50.0 * bus_model.predict(demo, "joint_pid").task("logger").per_cycle_bytes)
 
 
 @pytest.mark.parametrize(("path", "status"), [("/api/monitor/bus", 404), ("/api/monitor/layout", 404)])
@@ -275,4 +276,4 @@ def test_the_monitors_files_are_served_and_packaged():
     client = TestClient(create_app(StatusLink(None), TOKEN))
     for path in ("js/monitor.js", "js/monitor/plot.js", "js/monitor/arm.js", "css/monitor.css"):
         assert client.get(f"/static/{path}", headers=BEARER).status_code == 200, path
-    assert '"static/js/*/*"' in (REPO / "pyproject.toml").read_text()
+    assert '"hmi/js/*/*"' in (REPO / "pyproject.toml").read_text()

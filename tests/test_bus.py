@@ -11,8 +11,9 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from pbo_runtime.config import bus as _bus
-from pbo_runtime.config.bus import BusModelError
+from pbo_runtime.analysis import bus as _bus
+from pbo_runtime.config import bus_model
+from pbo_runtime.config.bus_model import BusModelError
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import BusSpec, ConfigurationSpec, PortBinding, RtpuSpec, Subsystem, TaskSpec, VariableSpec
 from pbo_runtime.objects.ports import PortKind, PortSpec
@@ -66,7 +67,7 @@ def small(period: float = 0.004, delta: float = 8.0, bandwidth: float = 1e6) -> 
 
 def test_z_of_a_task_equals_the_hand_computed_value():
     # in: a (24 B) + c (4 B); out: b (16 B); 2Δ = 16 B; T = 4 ms -> 60 B / 0.004 s = 15,000 B/s
-    load = _bus.predict(small(), "run").task("ctl")
+    load = bus_model.predict(small(), "run").task("ctl")
     assert load.bytes_in == 28
     assert load.bytes_out == 16
     assert load.per_cycle_bytes == 60
@@ -76,7 +77,7 @@ def test_z_of_a_task_equals_the_hand_computed_value():
 
 
 def test_consts_are_not_counted_in_the_per_cycle_load():
-    report = _bus.predict(small(), "run")
+    report = bus_model.predict(small(), "run")
     # k (80 B) is an in-const of ctl and an out-const of src: neither counts
     assert report.task("ctl").bytes_in == 28
     # src writes a (24 B) and c (4 B) per cycle, k only at init: (28 + 16) / 0.001 = 44,000 B/s
@@ -89,27 +90,27 @@ def test_in_both_and_out_both_ports_count_every_cycle():
         bind("in-both", "a", (3,)), bind("out-both", "b", (4,), "float32"),
     ))
     sub = subsystem(SMALL_VARIABLES, [both], {"run": ["both"]}, delta=8.0)
-    load = _bus.predict(sub, "run").task("both")
+    load = bus_model.predict(sub, "run").task("both")
     assert (load.bytes_in, load.bytes_out) == (24, 16)
     assert load.rate_bytes_per_s == pytest.approx((24 + 16 + 16) / 0.002)  # 28,000 B/s
 
 
 def test_a_task_with_no_per_cycle_ports_still_pays_the_two_locks():
     idle = TaskSpec("idle", "m", "rtpu0", 0.01, bindings=(bind("in-const", "k", (10,)),))
-    load = _bus.predict(subsystem(SMALL_VARIABLES, [idle], {"run": ["idle"]}, delta=8.0), "run").task("idle")
+    load = bus_model.predict(subsystem(SMALL_VARIABLES, [idle], {"run": ["idle"]}, delta=8.0), "run").task("idle")
     assert load.rate_bytes_per_s == pytest.approx(16 / 0.01)
 
 
 def test_the_transfer_size_uses_the_bound_shape_and_the_variable_dtype():
     sub = small()
-    assert _bus.transfer_bytes(sub, bind("in-var", "b", (4,), "float32")) == 16
-    assert _bus.transfer_bytes(sub, bind("in-var", "c", (), "int32")) == 4
+    assert bus_model.transfer_bytes(sub, bind("in-var", "b", (4,), "float32")) == 16
+    assert bus_model.transfer_bytes(sub, bind("in-var", "c", (), "int32")) == 4
 
 
 def test_an_aperiodic_task_uses_its_minimum_interarrival_time():
     sporadic = _AperiodicTask("sporadic", "m", "rtpu0", 1.0, bindings=(bind("in-var", "a", (3,)),),
                               aperiodic=True, min_interarrival=0.005)
-    load = _bus.predict(subsystem(SMALL_VARIABLES, [sporadic], {"run": ["sporadic"]}, delta=8.0), "run").task("sporadic")
+    load = bus_model.predict(subsystem(SMALL_VARIABLES, [sporadic], {"run": ["sporadic"]}, delta=8.0), "run").task("sporadic")
     assert load.aperiodic
     assert load.period == 0.005
     assert load.rate_bytes_per_s == pytest.approx((24 + 16) / 0.005)  # 8,000 B/s, not 40 B/s
@@ -119,41 +120,41 @@ def test_an_aperiodic_task_without_a_minimum_interarrival_time_is_an_error():
     unbounded = _AperiodicTask("unbounded", "m", "rtpu0", 1.0, aperiodic=True, min_interarrival=None)
     sub = subsystem(SMALL_VARIABLES, [unbounded], {"run": ["unbounded"]})
     with pytest.raises(BusModelError, match="unbounded.*inter-arrival"):
-        _bus.predict(sub, "run")
+        bus_model.predict(sub, "run")
 
 
 # --- eq. 2 ---------------------------------------------------------------------------------------
 
 
 def test_b_is_the_sum_of_the_tasks_z():
-    report = _bus.predict(small(), "run")
+    report = bus_model.predict(small(), "run")
     assert report.total == pytest.approx(44_000.0 + 15_000.0)
     assert report.total == pytest.approx(sum(t.rate_bytes_per_s for t in report.tasks))
 
 
 def test_share_is_b_over_the_bandwidth():
-    report = _bus.predict(small(bandwidth=2e6), "run")
+    report = bus_model.predict(small(bandwidth=2e6), "run")
     assert report.bandwidth == 2e6
     assert report.share == pytest.approx(59_000.0 / 2e6)
 
 
 def test_an_unknown_configuration_is_named_in_the_error():
     with pytest.raises(BusModelError, match="no configuration 'nope'.*run"):
-        _bus.predict(small(), "nope")
+        bus_model.predict(small(), "nope")
 
 
 def test_predict_all_gives_one_report_per_configuration():
     sub = dataclasses.replace(small(), configurations={
         "run": ConfigurationSpec("run", ("src", "ctl")), "alone": ConfigurationSpec("alone", ("ctl",))})
-    reports = _bus.predict_all(sub)
+    reports = bus_model.predict_all(sub)
     assert list(reports) == ["run", "alone"]
     assert reports["alone"].total == pytest.approx(15_000.0)
 
 
 def test_over_bandwidth_finds_a_configuration_when_the_bandwidth_is_tiny():
-    assert _bus.over_bandwidth(small()) == []
+    assert bus_model.over_bandwidth(small()) == []
     tiny = small(bandwidth=1000.0)
-    found = _bus.over_bandwidth(tiny)
+    found = bus_model.over_bandwidth(tiny)
     assert [name for name, _ in found] == ["run"]
     assert found[0][1].share == pytest.approx(59.0)
 
@@ -163,7 +164,7 @@ def test_over_bandwidth_finds_a_configuration_when_the_bandwidth_is_tiny():
 
 def test_the_demo_file_gives_a_table_with_one_row_per_task():
     sub = load_subsystem(str(DEMO))
-    report = _bus.predict(sub, "joint_pid")
+    report = bus_model.predict(sub, "joint_pid")
     # pid: 4 in-vars of 6 float64 = 192 B, 1 out-var of 48 B, Δ = 16 B, T = 1 ms
     assert report.task("pid").rate_bytes_per_s == pytest.approx((192 + 48 + 32) / 0.001)  # 272,000 B/s
     table = _bus.as_table(report)
@@ -175,7 +176,7 @@ def test_the_demo_file_gives_a_table_with_one_row_per_task():
 
 
 def test_the_demo_predicts_b_of_601_6_kb_per_second():
-    report = _bus.predict(load_subsystem(str(DEMO)), "joint_pid")
+    report = bus_model.predict(load_subsystem(str(DEMO)), "joint_pid")
     # robot 176 B / 1 ms + traj 272 B / 2 ms + pid 272 B / 1 ms + logger 176 B / 10 ms
     assert report.total == pytest.approx(176_000 + 136_000 + 272_000 + 17_600)
     assert report.share == pytest.approx(601_600 / 40e6)
@@ -220,7 +221,7 @@ def test_measured_needs_a_positive_duration():
 
 def test_the_table_shows_predicted_and_measured_side_by_side():
     sub = small()
-    table = _bus.as_table(_bus.predict(sub, "run"), _bus.measured(sub, synthetic_run()))
+    table = _bus.as_table(bus_model.predict(sub, "run"), _bus.measured(sub, synthetic_run()))
     headers = [c.header for c in table.columns]
     assert "Z_j kB/s predicted" in headers and "Z_j kB/s measured" in headers
     cells = {c.header: list(c.cells) for c in table.columns}
@@ -229,7 +230,7 @@ def test_the_table_shows_predicted_and_measured_side_by_side():
 
 
 def test_csv_has_a_header_and_one_line_per_task_plus_total():
-    text = _bus.as_csv(_bus.predict(small(), "run"))
+    text = _bus.as_csv(bus_model.predict(small(), "run"))
     rows = list(csv.DictReader(io.StringIO(text)))
     assert text.splitlines()[0].startswith("configuration,task,rtpu,period_s")
     assert [r["task"] for r in rows] == ["src", "ctl", "TOTAL"]
@@ -239,7 +240,7 @@ def test_csv_has_a_header_and_one_line_per_task_plus_total():
 
 def test_csv_with_measured_adds_the_measured_columns():
     sub = small()
-    text = _bus.as_csv(_bus.predict(sub, "run"), _bus.measured(sub, synthetic_run()))
+    text = _bus.as_csv(bus_model.predict(sub, "run"), _bus.measured(sub, synthetic_run()))
     rows = list(csv.DictReader(io.StringIO(text)))
     assert float(rows[1]["measured_rate_bytes_per_s"]) == pytest.approx(12_000.0)
     assert float(rows[2]["measured_rate_bytes_per_s"]) == pytest.approx(55_780.0)
@@ -247,7 +248,7 @@ def test_csv_with_measured_adds_the_measured_columns():
 
 def test_json_round_trips_through_json_dumps():
     sub = small()
-    data = _bus.as_json(_bus.predict(sub, "run"), _bus.measured(sub, synthetic_run()))
+    data = _bus.as_json(bus_model.predict(sub, "run"), _bus.measured(sub, synthetic_run()))
     again = json.loads(json.dumps(data, allow_nan=False))
     assert again == data
     assert again["predicted"]["total"] == pytest.approx(59_000.0)
@@ -257,14 +258,14 @@ def test_json_round_trips_through_json_dumps():
 def test_json_of_a_task_that_never_ran_has_no_infinite_period():
     run = synthetic_run()
     del run["tasks"]["ctl"]
-    data = _bus.as_json(_bus.predict(small(), "run"), _bus.measured(small(), run))
+    data = _bus.as_json(bus_model.predict(small(), "run"), _bus.measured(small(), run))
     json.dumps(data, allow_nan=False)
     assert data["measured"]["tasks"][1]["period"] is None
 
 
 def test_plot_writes_a_non_empty_png(tmp_path):
     sub = load_subsystem(str(DEMO))
-    report = _bus.predict(sub, "joint_pid")
+    report = bus_model.predict(sub, "joint_pid")
     path = _bus.plot({"joint_pid": report}, tmp_path / "bus.png")
     data = path.read_bytes()
     assert len(data) > 1000
@@ -273,7 +274,7 @@ def test_plot_writes_a_non_empty_png(tmp_path):
 
 def test_plot_accepts_several_reports_and_measured_ones(tmp_path):
     sub = small()
-    path = _bus.plot([_bus.predict(sub, "run"), _bus.predict(small(bandwidth=1e5), "run")], tmp_path / "two.png",
+    path = _bus.plot([bus_model.predict(sub, "run"), bus_model.predict(small(bandwidth=1e5), "run")], tmp_path / "two.png",
                      measured={"run": _bus.measured(sub, synthetic_run())})
     assert path.read_bytes()[:8] == PNG_SIGNATURE
 

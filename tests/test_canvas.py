@@ -1,4 +1,4 @@
-"""The job canvas checked like a file (config.canvas) and saved as a job (config.canvas_job): the canvas's
+"""The job canvas checked like a file (edit.canvas) and saved as a job (edit.canvas_job): the canvas's
 tasks composed onto a file's base, each diagnostic traced back to its task, modifier and pin, the
 placement query on unsaved tasks, and the job written into the file with its comments kept.
 """
@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from pbo_runtime.config.canvas import (CanvasError, Origin, Pin, check_canvas, file_canvas, origin_file, origin_of, pin_of,
+from pbo_runtime.edit.canvas import (CanvasError, Origin, Pin, check_canvas, file_canvas, origin_file, origin_of, pin_of,
                                        tasks_from_json, yaml_text)
-from pbo_runtime.config.canvas_job import JobRefused, save_job
+from pbo_runtime.edit.canvas_job import JobRefused, save_job
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.yaml_nodes import load_text
 from tests.support import FIGURE_8_CANVAS, REPO, canvas_base_file

@@ -106,7 +106,7 @@ def test_pbo_check_prints_the_switches_of_each_path(capsys):
 
 
 def test_the_job_dictionary_describes_a_step_that_decides_with_its_rows():
-    from pbo_runtime.config.job_dictionary import job_dictionary
+    from pbo_runtime.edit.job_dictionary import job_dictionary
 
     steps = job_dictionary(load_subsystem(str(BRANCHES)))["applications"]["pick"]["steps"]
     assert [s["job"] for s in steps] == ["try", "repeat", "wait", "if"]

@@ -12,7 +12,7 @@ from modules.combined import Combined
 from modules.joint_trajectory import JointTrajectory
 from modules.pid_joint import PidJoint
 from pbo_runtime import ParamError
-from pbo_runtime.config import bus
+from pbo_runtime.config import bus_model
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import PortBinding, TaskSpec
 from pbo_runtime.task.lifecycle import Task
@@ -96,8 +96,8 @@ def test_the_computed_torque_configuration_checks_and_the_bus_shows_what_combini
     result = check_file(REPO / "configs" / "computed_torque.yaml")
     assert result.errors == [], [e.format() for e in result.errors]
     subsystem = result.subsystem
-    apart = bus.predict(subsystem, "separate")
-    together = bus.predict(subsystem, "combined")
+    apart = bus_model.predict(subsystem, "separate")
+    together = bus_model.predict(subsystem, "combined")
     assert together.total < apart.total  # qdd_r never crosses the bus when PID and inverse dynamics are one task
     ctc = subsystem.tasks["ctc"]
     assert "qdd_r" not in {b.variable for b in ctc.bindings}

@@ -21,7 +21,7 @@ from modules._mcap_encoder import McapLog
 from modules.data_logger import DataLogger
 from pbo_runtime import Status, open_log, read_log
 from pbo_runtime.cli.main import main
-from pbo_runtime.config.log_notes import split_unit
+from pbo_runtime.reports.log_notes import split_unit
 from pbo_runtime.config.model import PortBinding, TaskSpec
 from pbo_runtime.reports.data_log import LogError
 from pbo_runtime.reports.run_plot import csv_text, figure, load_run
@@ -309,7 +309,7 @@ def test_a_variables_unit_is_the_last_clause_of_its_doc_when_that_is_made_of_uni
 
 def test_a_variable_the_file_gives_no_doc_takes_the_unit_of_the_port_that_writes_it():
     from pbo_runtime.config.loader import load_subsystem
-    from pbo_runtime.config.log_notes import variable_notes
+    from pbo_runtime.reports.log_notes import variable_notes
 
     notes = variable_notes(load_subsystem(str(REPO / "configs" / "pid_joint_minimal.yaml")))
     assert notes["q_m"] == ("measured joint position", "rad")  # robot_torque's out-var, no entry in the file

@@ -12,7 +12,7 @@ import pytest
 from pbo_runtime import InVar, OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.loader import check_file
-from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.ipc import messages
 from pbo_runtime.supervisor.events import STABLE_EPISODES_TOLD, EventHandling
 from pbo_runtime.supervisor.run_report import BRIEF_HOLD_PERIODS, BRIEF_HOLDS_SHARE, RunResult, stable_episode_lines

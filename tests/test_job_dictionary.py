@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from pbo_runtime.cli import main
-from pbo_runtime.config.job_dictionary import edges, interlocks, job_dictionary, may_follow, row_gaps
+from pbo_runtime.edit.job_dictionary import edges, interlocks, job_dictionary, may_follow, row_gaps
 from pbo_runtime.config.loader import CheckResult, check_file, load_subsystem
 from pbo_runtime.config.model import ACTION, ACTION_REQUIRING_OBJECT, INCOMPLETE, Gap, Subsystem
 

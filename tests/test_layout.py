@@ -1,7 +1,8 @@
 """The house: pbo_runtime's wings, the one-way imports between them, and the public surface.
 
 A newcomer finds where a change goes by the folder names alone; these tests keep it so. Wings are
-ranked low to high, and a file may import its own wing or a lower one only.
+ranked low to high, and a file may import its own wing or a lower one only: config/ (the format and
+its checker) under analysis/ (what a file predicts) under edit/ (changing a file and writing it back).
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 import ast
 import graphlib
 import re
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -25,8 +27,10 @@ WING_RANK = {
     "ipc": 1,
     "links": 2,
     "config": 3,
+    "analysis": 4,
     "table": 4,
     "reports": 4,
+    "edit": 5,
     "clock": 5,
     "task": 5,
     "supervisor": 6,
@@ -34,6 +38,9 @@ WING_RANK = {
     "cli": 8,
     "__init__": 9,
 }
+
+# wings of files, not code: the browser HMI's page, served by api/ and shipped in the package
+ASSET_WINGS = ("hmi",)
 
 PUBLIC_NAMES = [
     "ANY_DTYPE", "ARM_COLUMNS", "Arm", "EE_COLUMNS", "GRAVITY", "ROBOT_OPTIONS", "ROBOT_SUFFIXES", "MAX_PRIORITY", "ConfigError", "ConfigErrors", "DeviceDriver", "InBoth", "InConst", "InVar",
@@ -81,7 +88,7 @@ def test_the_package_root_holds_only_the_public_surface_and_the_wings():
     files = sorted(p.name for p in PACKAGE.iterdir() if p.is_file() and p.suffix == ".py")
     wings = sorted(p.name for p in PACKAGE.iterdir() if p.is_dir() and p.name != "__pycache__")
     assert files == ["__init__.py", "errors.py"]
-    assert wings == sorted(w for w in WING_RANK if w not in ("errors", "__init__"))
+    assert wings == sorted([*(w for w in WING_RANK if w not in ("errors", "__init__")), *ASSET_WINGS])
 
 
 def test_every_wing_and_file_says_what_it_is_for():
@@ -99,6 +106,28 @@ def test_a_wing_imports_only_its_own_and_lower_wings():
                     for module, imports in runtime_imports().items() for imported in imports
                     if wing_of(module) != wing_of(imported) and WING_RANK[wing_of(imported)] >= WING_RANK[wing_of(module)])
     assert upward == []
+
+
+def test_the_format_imports_neither_what_a_file_predicts_nor_how_a_file_is_edited():
+    """config/ is the format and its checker; analysis/ and edit/ are built on it, never the other way."""
+    wrong = sorted(f"{module} imports {imported}" for module, imports in runtime_imports().items() if wing_of(module) == "config"
+                   for imported in imports if wing_of(imported) in ("analysis", "edit"))
+    assert wrong == []
+
+
+def test_a_subsystem_file_is_written_back_in_one_place():
+    """A draft is moved over a subsystem file by edit/write_back.py alone; the rest of edit/ writes through it."""
+    movers = sorted(p.relative_to(PACKAGE).as_posix() for p in (PACKAGE / "edit").rglob("*.py") if "os.replace(" in p.read_text())
+    assert movers == ["edit/write_back.py"]
+
+
+def test_the_hmis_files_are_served_from_their_wing_and_every_one_is_shipped():
+    from pbo_runtime.api import app
+
+    patterns = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["pbo_runtime"]
+    shipped = {path for pattern in patterns for path in PACKAGE.glob(pattern) if path.is_file()}
+    assert app.STATIC == PACKAGE / "hmi"
+    assert shipped == {path for path in app.STATIC.rglob("*") if path.is_file()}
 
 
 @pytest.mark.parametrize("folder", ["modules", "drivers"])

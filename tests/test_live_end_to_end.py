@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from pbo_runtime.config.loader import check_file, load_subsystem
-from pbo_runtime.config.live_save import same_subsystem
+from pbo_runtime.edit.live_save import same_subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.commands import dispatch
 from pbo_runtime.supervisor.supervisor import Supervisor

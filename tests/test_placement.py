@@ -16,7 +16,7 @@ from pbo_runtime import ANY_DTYPE, InConst, InVar, ModuleError, OutConst, OutVar
 from pbo_runtime.cli import main
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import Subsystem
-from pbo_runtime.config.placement import Placement, placement_report
+from pbo_runtime.analysis.placement import Placement, placement_report
 from tests.support import REPO
 
 # --- fake modules ----------------------------------------------------------------------------

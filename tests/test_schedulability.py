@@ -18,9 +18,9 @@ from pathlib import Path
 import pytest
 
 from pbo_runtime.cli.main import main
-from pbo_runtime.config.allocation import pinned_tasks, propose
+from pbo_runtime.analysis.allocation import pinned_tasks, propose
 from pbo_runtime.config.loader import load_subsystem
-from pbo_runtime.config.schedulability import Cost, Load, analyse_configuration, response_times
+from pbo_runtime.analysis.schedulability import Cost, Load, analyse_configuration, response_times
 from tests.support import PBO, REPO, demo_copy
 
 # --- the analysis, known answers ---------------------------------------------------------------

@@ -16,10 +16,10 @@ import pytest
 from pbo_runtime import InVar, OutVar, PortBasedObject, Status, sleep_while_cycling
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.ipc import messages
-from pbo_runtime.config.live import LiveDescription, TaskChange, to_wire
+from pbo_runtime.edit.live import LiveDescription, TaskChange, to_wire
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.task.lifecycle import Task
-from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Header, StateTable, TableLayout, TaskState
 from rtpu._executive import HELD_ILLEGAL, NOT_HELD, Executive
 from tests.support import IdleSignals, step_executives, unique_name

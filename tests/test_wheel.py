@@ -211,3 +211,11 @@ def test_every_command_in_the_shipped_files_comments_works_in_the_folder_pbo_exa
             continue
         done = subprocess.run(["bash", "-c", command], cwd=examples, env=env, capture_output=True, text=True, timeout=120)
         assert done.returncode == 0, f"{file}: $ {command}\n{done.stdout}\n{done.stderr}"
+
+
+@pytest.mark.multiprocess
+def test_the_wheel_ships_every_file_of_the_hmi(installed):
+    def files(folder: Path) -> list[str]:
+        return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file())
+
+    assert files(installed["site"] / "pbo_runtime" / "hmi") == files(REPO / "pbo_runtime" / "hmi")

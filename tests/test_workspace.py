@@ -9,10 +9,10 @@ import re
 
 import pytest
 
-from pbo_runtime.config.live_save import saved_text
+from pbo_runtime.edit.live_save import saved_text
 from pbo_runtime.config.loader import check_file, format_diagnostics, load_subsystem
-from pbo_runtime.config.workspace import RowRefused, Step, check_name, checked_row, file_steps, parse_row, run_steps
-from pbo_runtime.config.workspace_file import SaveRefused, save_application, save_object
+from pbo_runtime.edit.workspace import RowRefused, Step, check_name, checked_row, file_steps, parse_row, run_steps
+from pbo_runtime.edit.workspace_file import SaveRefused, save_application, save_object
 from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.supervisor.commands import dispatch
 from tests.fake_job_host import FakeJobHost, fake_subsystem

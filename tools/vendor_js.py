@@ -5,7 +5,7 @@
     python tools/vendor_js.py --check         # offline: every vendored file is the one recorded
 
 The HMI is static files shipped inside `pbo_runtime` (no build step, no CDN, works offline), so
-its libraries live in `pbo_runtime/api/static/vendor/`, one folder per package. What is there,
+its libraries live in `pbo_runtime/hmi/vendor/`, one folder per package. What is there,
 from which version, under which licence and why, is written in `vendor/vendored.json`: this
 script is the only writer of the folders, and reads the manifest for what to copy. It runs
 `npm pack NAME@VERSION` (the registry's own tarball, its integrity checked by npm), copies the
@@ -26,7 +26,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-VENDOR = Path(__file__).resolve().parent.parent / "pbo_runtime" / "api" / "static" / "vendor"
+VENDOR = Path(__file__).resolve().parent.parent / "pbo_runtime" / "hmi" / "vendor"
 MANIFEST = VENDOR / "vendored.json"
 LICENCE_FILES = ("LICENSE", "LICENSE.md", "LICENCE", "license")
 

@@ -29,7 +29,7 @@ from pbo_runtime.api.link import RunLink
 from pbo_runtime.api.replies import BAD_REQUEST, FORBIDDEN, REFUSALS, Reply, refusal
 from pbo_runtime.objects.registry import installed_version
 
-STATIC = Path(__file__).resolve().parent / "static"  # the HMI: shipped in the package, no build step
+STATIC = Path(__file__).resolve().parent.parent / "hmi"  # the HMI: shipped in the package, no build step
 MAX_STATIC_PATH = 200  # characters: the HMI's own paths are far shorter
 MEDIA_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
                ".mjs": "text/javascript; charset=utf-8", ".css": "text/css; charset=utf-8",

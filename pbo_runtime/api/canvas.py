@@ -11,8 +11,8 @@
                               given (or the run's own), if the file then checks clean
 
 A task is `{"name", "module", "fields": {rtpu, period, ...: YAML text}, "params": {modifier: YAML
-text}, "ports": {port: variable}, "on": bool}`. The logic is `config.canvas` and
-`config.canvas_job`; the file written is never a path from the request, and nothing outside its
+text}, "ports": {port: variable}, "on": bool}`. The logic is `edit.canvas` and
+`edit.canvas_job`; the file written is never a path from the request, and nothing outside its
 folder is read (`files.in_tree`).
 """
 
@@ -25,9 +25,9 @@ from pydantic import BaseModel
 
 from pbo_runtime.api.files import NoFile, OutsideRoot, in_tree, subsystem_file
 from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, REFUSED, Reply, refusal
-from pbo_runtime.config.canvas import CANVAS_CONFIGURATION, CanvasError, check_canvas, file_canvas, tasks_from_json
-from pbo_runtime.config.canvas_job import JobRefused, save_job
-from pbo_runtime.config.live import NAME
+from pbo_runtime.edit.canvas import CANVAS_CONFIGURATION, CanvasError, check_canvas, file_canvas, tasks_from_json
+from pbo_runtime.edit.canvas_job import JobRefused, save_job
+from pbo_runtime.edit.live import NAME
 from pbo_runtime.config.root import OUTSIDE_ROOT
 
 

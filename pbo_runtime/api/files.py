@@ -37,10 +37,11 @@ from starlette.concurrency import run_in_threadpool
 from pbo_runtime.api.link import RunLink
 from pbo_runtime.api.guard import MAX_BODY_BYTES
 from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, TOO_LARGE, Reply, refusal
-from pbo_runtime.config import bus
-from pbo_runtime.config.job_dictionary import job_dictionary, row_gaps
+from pbo_runtime.analysis import bus
+from pbo_runtime.config import bus_model
+from pbo_runtime.edit.job_dictionary import job_dictionary, row_gaps
 from pbo_runtime.config.loader import CheckResult, check_file, format_diagnostics
-from pbo_runtime.config.placement import placement_report
+from pbo_runtime.analysis.placement import placement_report
 from pbo_runtime.config.root import OUTSIDE_ROOT, confined, is_within
 from pbo_runtime.errors import ConfigError, PboError
 from pbo_runtime.reports.graph import draw
@@ -156,7 +157,7 @@ def bus_reply(file: str, configuration: str | None) -> dict[str, Any]:
     if configuration is not None and configuration not in subsystem.configurations:
         raise ValueError(f"no configuration '{configuration}' in {file} (configurations: {', '.join(subsystem.configurations)})")
     names = [configuration] if configuration else list(subsystem.configurations)
-    return {"ok": True, "file": file, "configurations": {name: bus.as_json(bus.predict(subsystem, name)) for name in names}}
+    return {"ok": True, "file": file, "configurations": {name: bus.as_json(bus_model.predict(subsystem, name)) for name in names}}
 
 
 def graph_svg(file: str, configuration: str | None) -> bytes:

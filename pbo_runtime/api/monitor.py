@@ -3,7 +3,7 @@
     GET /api/monitor/layout         tasks (module, RTPU, parameters tunable live and their values),
                                     configurations and variables (shapes) of the subsystem file
     GET /api/monitor/bus            the running configuration's bus load, predicted from the file
-                                    beside measured from the run's task rates now (config.bus)
+                                    beside measured from the run's task rates now (analysis.bus)
     WS  /api/streams/arm?rate=20    the arm's joint frame origins, base to tool, from q_m by forward
          [&q=q_m]                   kinematics of the table's ARM and EE (reports.arm): {"time", "q", "frames": [[x, y, z], ...]}
 
@@ -25,7 +25,8 @@ from pbo_runtime.api.jsonable import jsonable
 from pbo_runtime.api.link import NoRun, RunLink
 from pbo_runtime.api.replies import BAD_REQUEST, NO_ANSWER, NO_RUN, Reply, refusal
 from pbo_runtime.api.streams import accept_at_rate, open_view, refuse, ticks
-from pbo_runtime.config import bus
+from pbo_runtime.analysis import bus
+from pbo_runtime.config import bus_model
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.reports.arm import ArmFrames
@@ -95,7 +96,7 @@ def router() -> APIRouter:
                 raise NoFile("no subsystem file: pbo hmi was given none and the run did not say its own; start it as pbo hmi FILE")
             subsystem = checked(file, "report the bus")
             measured = bus.measured_live(subsystem, reply)
-            predicted = bus.predict(subsystem, measured.configuration)
+            predicted = bus_model.predict(subsystem, measured.configuration)
         except NoFile as exc:
             return refusal(NO_RUN, str(exc))
         except ValueError as exc:  # BusModelError included: a configuration the file does not have

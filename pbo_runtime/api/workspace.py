@@ -27,10 +27,10 @@ from starlette.concurrency import run_in_threadpool
 from pbo_runtime.api.files import NoFile, in_tree, loaded, subsystem_file
 from pbo_runtime.api.link import NoRun, RunLink
 from pbo_runtime.api.replies import BAD_REQUEST, NO_ANSWER, NO_RUN, Reply, refusal, supervisor_reply
-from pbo_runtime.config.job_dictionary import job_dictionary
+from pbo_runtime.edit.job_dictionary import job_dictionary
 from pbo_runtime.config.loader import CheckResult
-from pbo_runtime.config.workspace import RowRefused, check_name, checked_row, file_steps, run_steps
-from pbo_runtime.config.workspace_file import SaveRefused, save_application, save_object
+from pbo_runtime.edit.workspace import RowRefused, check_name, checked_row, file_steps, run_steps
+from pbo_runtime.edit.workspace_file import SaveRefused, save_application, save_object
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.commands import COMMANDS
 

@@ -12,7 +12,7 @@ from pbo_runtime.cli import schedule
 from pbo_runtime.cli.arguments import host_addresses
 from pbo_runtime.cli.exits import EXIT_CONFIG, EXIT_OK
 from pbo_runtime.config.decisions import decides, paths
-from pbo_runtime.config.job_dictionary import dictionary_lines, job_dictionary
+from pbo_runtime.edit.job_dictionary import dictionary_lines, job_dictionary
 from pbo_runtime.config.transitions import transitions, transitions_of
 
 

@@ -14,7 +14,8 @@ from pbo_runtime.errors import require_extra
 def bus(args: argparse.Namespace, console: Console, errors: Console) -> int:
     if args.plot:
         require_extra("matplotlib", "pbo bus --plot")
-    from pbo_runtime.config import bus
+    from pbo_runtime.analysis import bus
+    from pbo_runtime.config import bus_model
     from pbo_runtime.config.loader import load_subsystem
 
     subsystem = load_subsystem(args.file)
@@ -23,7 +24,7 @@ def bus(args: argparse.Namespace, console: Console, errors: Console) -> int:
                      f"(configurations: {', '.join(subsystem.configurations)})", markup=False)
         return EXIT_CONFIG
     names = [args.config] if args.config else list(subsystem.configurations)
-    reports = {name: bus.predict(subsystem, name) for name in names}
+    reports = {name: bus_model.predict(subsystem, name) for name in names}
     seen = None
     if args.run_report:
         seen = bus.measured(subsystem, json.loads(args.run_report.read_text()))
@@ -70,7 +71,7 @@ def lexicon(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 def place(args: argparse.Namespace, console: Console, errors: Console) -> int:
     from pbo_runtime.config.loader import load_subsystem
-    from pbo_runtime.config.placement import placement_report
+    from pbo_runtime.analysis.placement import placement_report
 
     subsystem = load_subsystem(args.file)
     tasks = [t.strip() for t in args.tasks.split(",") if t.strip()] if args.tasks is not None else None

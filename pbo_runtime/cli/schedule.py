@@ -2,7 +2,7 @@
 
 The profile is a run's report (report.json in the run's directory, which `pbo run` prints): each
 task's longest cycle (`exec_max`) or 99th percentile (`exec_p99`). The analysis itself is
-`config.schedulability`; the search for an assignment, `config.allocation`. docs/scheduling.md
+`analysis.schedulability`; the search for an assignment, `analysis.allocation`. docs/scheduling.md
 explains the model and how to read the verdicts.
 """
 
@@ -15,9 +15,9 @@ from typing import Any, Mapping
 
 from rich.console import Console
 
-from pbo_runtime.config.allocation import pinned_tasks, period_needed, propose
+from pbo_runtime.analysis.allocation import pinned_tasks, period_needed, propose
 from pbo_runtime.config.model import Subsystem
-from pbo_runtime.config.schedulability import (MAY_MISS, MEETS, PROVEN, REFUTED, UNKNOWN, Cost, Verdict, analyse,
+from pbo_runtime.analysis.schedulability import (MAY_MISS, MEETS, PROVEN, REFUTED, UNKNOWN, Cost, Verdict, analyse,
                                                analyse_configuration, measured_configurations)
 from pbo_runtime.errors import ConfigError, ConfigErrors
 

@@ -17,6 +17,7 @@ from typing import Any, Callable, Collection, Iterable
 import numpy as np
 
 from pbo_runtime.objects import registry
+from pbo_runtime.config import bus_model
 from pbo_runtime.config.checker import Checked, ModuleLookup, check_document, describe
 from pbo_runtime.config.model import Location, Subsystem
 from pbo_runtime.config.root import OUTSIDE_ROOT, confined, leaves_root
@@ -109,9 +110,28 @@ def _check_file(
 
 
 def check_loaded(doc: Any, file: str, module_lookup: ModuleLookup = registry.module_class) -> CheckResult:
-    """Check a document already loaded (and changed: a live change, `config.live`) as `check_file` checks a file."""
+    """Check a document already loaded (and changed: a live change, `edit.live`) as `check_file` checks a file."""
     names = _default_names if module_lookup is registry.module_class else None
     return _result(check_document(doc, file, module_lookup, names), file, [])
+
+
+def with_application(doc: YMap, name: str, steps: YList, loc: Location) -> YMap:
+    """A copy of `doc` with application `name` (replaced if it has one) of `steps`, written at `loc`;
+    `doc` stays as it was, and every other key keeps where it was written."""
+    copy = _copied(doc)
+    existing = doc.get("applications")
+    applications = _copied(existing) if isinstance(existing, YMap) else YMap(loc)
+    applications.put(name, steps, loc, loc)
+    where = (doc.key_loc("applications"), doc.value_loc("applications")) if "applications" in doc else (loc, loc)
+    copy.put("applications", applications, *where)
+    return copy
+
+
+def _copied(node: YMap) -> YMap:
+    copy = YMap(node.loc)
+    for key, value in node.items():
+        copy.put(key, value, node.key_loc(key), node.value_loc(key))
+    return copy
 
 
 def load_document(file: str, root: str | os.PathLike[str] | None = None) -> tuple[Any, list[ConfigError]]:
@@ -139,12 +159,10 @@ def _result(checked: Checked, file: str, errors: list[ConfigError]) -> CheckResu
 
 def _bus_errors(subsystem: Subsystem) -> list[ConfigError]:
     """Configurations whose predicted bus load (TR eq. 1-2) exceeds the bandwidth: E510."""
-    from pbo_runtime.config import bus as _bus
-
     errors = []
     try:
-        over = _bus.over_bandwidth(subsystem)
-    except _bus.BusModelError as exc:  # the rules above should have caught it: say so, don't crash
+        over = bus_model.over_bandwidth(subsystem)
+    except bus_model.BusModelError as exc:  # the rules above should have caught it: say so, don't crash
         return [ConfigError(f"cannot predict the bus load: {exc}", subsystem.file, 1, 1, code="E901",
                             hint="please report this with the file you checked")]
     for name, report in over:

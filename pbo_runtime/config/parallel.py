@@ -20,14 +20,16 @@ would both drive it.
 from __future__ import annotations
 
 import dataclasses
+import json
 from typing import Any, Callable, Optional
 
 from pbo_runtime.config.decisions import paths
-from pbo_runtime.config.live import LiveChangeRefused, LiveDescription
+from pbo_runtime.config.loader import check_loaded, load_document, with_application
 from pbo_runtime.config.transitions import Transition, transitions_of
 from pbo_runtime.config.model import ApplicationStep, Location, Subsystem
+from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, location_of, plain
+from pbo_runtime.errors import ConfigError, ConfigErrors
 from pbo_runtime.objects import registry
-from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
 
 Error = Callable[..., None]  # (code, message, loc, hint)
 EXAMPLE = "e.g. run: [{parallel: {left: [reach: ready], right: [reach: home]}}, {parallel: {left: {app: wave}}}]"
@@ -39,9 +41,20 @@ def stage_application(number: int) -> str:
 
 
 def with_stage(subsystem: Subsystem, number: int, steps: list[Any]) -> Subsystem:
-    """The subsystem with stage `number`'s steps as one more application; LiveChangeRefused says what is wrong."""
-    live = LiveDescription.start(subsystem, len(subsystem.tasks))
-    return live.with_application(stage_application(number), steps).subsystem
+    """The subsystem of `subsystem`'s file with stage `number`'s steps as one more application, checked
+    with the whole file; ConfigErrors says what is wrong."""
+    doc, errors = load_document(subsystem.file)
+    if errors or not isinstance(doc, YMap):
+        raise ConfigErrors(errors or [ConfigError("the file is not a mapping", subsystem.file, 0, 0)])
+    where = Location(f"<run: stage {number}>", 1, 1)
+    try:  # JSON is YAML on one line: the safe loader reads it, each step located in it
+        node = load_text(f"value: {json.dumps(steps)}\n", where.file)["value"]
+    except ConfigError as exc:
+        raise ConfigErrors([exc]) from None
+    result = check_loaded(with_application(doc, stage_application(number), node, where), subsystem.file)
+    if result.errors or result.subsystem is None:
+        raise ConfigErrors(result.errors)
+    return result.subsystem
 
 
 def check_stages(entries: YList, subsystems: dict[str, Subsystem], placed: bool, error: Error,
@@ -165,7 +178,7 @@ def _branch(number: int, key: str, value: Any, loc: Location, subsystem: Subsyst
     steps = plain(value)
     try:
         staged = with_stage(subsystem, number, steps)
-    except LiveChangeRefused as refused:
+    except ConfigErrors as refused:
         found = [line.split("]: ", 1)[1] for line in str(refused).splitlines() if "error[" in line and "]: " in line]
         error("E813", f"run: stage {number}: the steps of subsystem '{key}' do not interlock: {'; '.join(found) or refused}", loc,
               f"the steps are checked as an application of {subsystem.file}")

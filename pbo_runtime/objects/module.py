@@ -55,7 +55,7 @@ class TaskContext(typing.Protocol):
     event: Any  # an aperiodic task's event this cycle (None if none)
     out_dir: str  # the run's output directory (`pbo run --out DIR`, or its default), or "" when paths stay as given
     outputs: list[str]  # the files the task's `output_path` gave out, for the run to say where they went
-    run_metadata: Mapping[str, str]  # the run: subsystem, configuration, clock, versions, the YAML file (config.log_notes)
+    run_metadata: Mapping[str, str]  # the run: subsystem, configuration, clock, versions, the YAML file (reports.log_notes)
     variable_notes: Mapping[str, tuple[str, str]]  # each variable's (doc, unit) from the YAML
     restarted: bool  # its RTPU was restarted after a death (restart policy): continue the run's files
 

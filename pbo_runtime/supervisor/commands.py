@@ -36,9 +36,9 @@ from collections.abc import Collection, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 from pbo_runtime.config.checker.loops import GAINS_NOTE
-from pbo_runtime.config.live import LiveChangeRefused, LiveDescription, TaskChange, parse_assignments
-from pbo_runtime.config.live_save import save_live
-from pbo_runtime.config.values import as_value, describe, element_problem, range_problem
+from pbo_runtime.edit.live import LiveChangeRefused, LiveDescription, TaskChange, parse_assignments
+from pbo_runtime.edit.live_save import save_live
+from pbo_runtime.config.values import INT_RANGE, as_value, describe, element_problem, range_problem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import operator_input
 from pbo_runtime.ipc.control import BadRequest
@@ -323,7 +323,7 @@ def stop(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     return {"message": f"stopping '{host.subsystem.name}'"}
 
 
-# --- live changes (config.live checks them, job control applies them at a cycle boundary) ------
+# --- live changes (edit.live checks them, job control applies them at a cycle boundary) ------
 
 
 def _text(arguments: dict[str, Any], key: str, what: str, optional: bool = False) -> str | None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any, Callable, cast
 
-from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.control import ControlServer
 from pbo_runtime.supervisor.commands import CommandHost, dispatch

@@ -239,7 +239,7 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
 
     mains = {module: _main_of(module) for module in preload}
     from pbo_runtime.config.loader import load_subsystem
-    from pbo_runtime.config.log_notes import run_metadata
+    from pbo_runtime.reports.log_notes import run_metadata
     from pbo_runtime.errors import PboError
     from pbo_runtime.objects import registry
 

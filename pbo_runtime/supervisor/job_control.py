@@ -24,7 +24,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from pbo_runtime.config.live import LiveDescription
+from pbo_runtime.edit.live import LiveDescription
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.failures import RtpuDied
@@ -295,7 +295,7 @@ class JobControl:
         return record
 
     def apply_live(self, live: LiveDescription, change: str) -> SwitchRecord:
-        """A live change, checked already (`config.live`): applied at one cycle boundary, as a switch is.
+        """A live change, checked already (`edit.live`): applied at one cycle boundary, as a switch is.
 
         Every RTPU stages the new description; new tasks are spawned (their init runs, they wait
         OFF); one plan for the running configuration then turns leaving tasks off and entering ones

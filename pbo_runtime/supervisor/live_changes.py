@@ -2,7 +2,7 @@
 
 How a change reaches the RTPUs: each RTPU loaded the YAML file itself at start, and a live change
 must not make it check YAML again (a check takes milliseconds, on the RTPU of a critical task).
-So the supervisor writes the checked live description as plain data (`config.live.to_wire`,
+So the supervisor writes the checked live description as plain data (`edit.live.to_wire`,
 JSON) to `live-N.json` in a 0700 directory of the run, and sends each RTPU a typed `LiveUpdate(N)`
 signal; the RTPU reads it between cycles, builds the task specs and the configurations' writers,
 stages them and answers `Staged(N)`. Job control then spawns the new tasks and posts a plan; each
@@ -11,7 +11,7 @@ untouched. The directory goes with the run; one a run killed outright left (its 
 run id, so its supervisor's pid) is removed by the next run's start.
 
 Where a spawned task's status block comes from: the table is laid out at start with spare blocks
-(`table.SPARE_TASK_SLOTS`); `config.live` gives a new task a free one, and refuses a spawn past them.
+(`table.SPARE_TASK_SLOTS`); `edit.live` gives a new task a free one, and refuses a spawn past them.
 
 An application started live (`pbo app`) runs from the supervisor's watch loop, between commands,
 the way `pbo run --app` runs one at start; switches and jobs are refused while it runs.
@@ -28,9 +28,9 @@ import time
 from typing import Any, Callable
 
 from pbo_runtime.clock.run_clock import RunClock
-from pbo_runtime.config.live import LiveDescription, to_wire
+from pbo_runtime.edit.live import LiveDescription, to_wire
 from pbo_runtime.config.model import Subsystem, TaskSpec
-from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import messages, shm
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from pbo_runtime.config.log_notes import variable_notes
+from pbo_runtime.reports.log_notes import variable_notes
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.ipc.task_statistics import Overrun, TaskStatistics
 from pbo_runtime.reports.run_result import RunResult as RunResult  # where the supervisor's parts find it

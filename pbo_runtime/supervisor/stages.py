@@ -16,7 +16,8 @@ import os
 from pathlib import Path
 from typing import Any, Callable
 
-from pbo_runtime.config.parallel import stage_application, with_stage
+from pbo_runtime.config.parallel import stage_application
+from pbo_runtime.edit.live import LiveDescription
 from pbo_runtime.supervisor.job_control import POLL, JobControl
 
 
@@ -31,7 +32,8 @@ def run_stages(control: JobControl, plan_file: str, say: Callable[[str], None]) 
                 control.run_application(stage["app"])
             else:
                 base = control.subsystem
-                control.subsystem = with_stage(base, number, stage["steps"])  # one more application, nothing else
+                live = LiveDescription.start(base, len(base.tasks))  # one more application, nothing else
+                control.subsystem = live.with_application(stage_application(number), stage["steps"]).subsystem
                 try:
                     control.run_application(stage_application(number))
                 finally:

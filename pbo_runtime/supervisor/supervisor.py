@@ -34,7 +34,7 @@ from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
 from pbo_runtime.config.checker.loops import GAINS_NOTE
 from pbo_runtime.config.limits import MAX_NAME
-from pbo_runtime.config.live import LiveDescription
+from pbo_runtime.edit.live import LiveDescription
 from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.errors import PboError, closest_name
 from pbo_runtime.config.application import MESSAGE_OVERHEAD_BYTES, MSGPACK_BYTES_PER_NUMBER
@@ -56,7 +56,7 @@ from pbo_runtime.ipc.task_statistics import TaskStatistics
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.application_lockstep import TurnGate
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
-from pbo_runtime.config.reconfiguration import Reconfiguration
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.stall_watch import StallWatch
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import Flag, Header, StateTable, TableLayout, TaskState

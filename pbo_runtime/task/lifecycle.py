@@ -57,8 +57,8 @@ class RuntimeTaskContext:
     opened: list[Any] = field(default_factory=list)
     out_dir: str = ""  # the run's output directory: where the run's files go ("" : paths stay as given)
     outputs: list[str] = field(default_factory=list)  # the files `output_path` gave out
-    run_metadata: Mapping[str, str] = field(default_factory=dict)  # config.log_notes.run_metadata
-    variable_notes: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # config.log_notes.variable_notes
+    run_metadata: Mapping[str, str] = field(default_factory=dict)  # reports.log_notes.run_metadata
+    variable_notes: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # reports.log_notes.variable_notes
     links: dict[str, dict[str, Any]] = field(default_factory=dict)  # the application's links, by name
     relay: Relay | None = None  # the RTPU's: wakes this task per message of a link it serves
     restarted: bool = False  # its RTPU was restarted after a death: the run's files it writes are continued
@@ -180,7 +180,7 @@ class Task:
 
     def tune_params(self, spec: TaskSpec) -> Any:
         """The module's Params for a live change of `spec` (`pbo set`): built when the change is
-        staged, so the cycle boundary only hands them over (`tune`). The spec was checked (`config.live`)."""
+        staged, so the cycle boundary only hands them over (`tune`). The spec was checked (`edit.live`)."""
         return type(self.module).build_params(dict(spec.params))
 
     def tune(self, spec: TaskSpec, params: Any) -> None:

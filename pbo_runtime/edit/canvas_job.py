@@ -8,27 +8,25 @@ an *action* or an *action requiring an object* is the job model's to infer (`pbo
 reads a variable marked `object:` that no task of the configuration writes); `object: none` makes
 it an action that leaves such a variable as it is.
 
-The file is written the way `pbo save` writes one (`config.live_save`): ruamel.yaml's round trip
+The file is written the way `pbo save` writes one (`edit.live_save`): ruamel.yaml's round trip
 for the entries that change, the original text everywhere else, comments and order kept. The new
-text is written beside the file and checked by `pbo check`'s own loader first; only a file that
-checks clean replaces the original (one rename), so a refused save leaves the file as it was.
+text goes through `edit.write_back`: checked beside the file first, so a refused save leaves the
+file as it was.
 """
 
 from __future__ import annotations
 
 import io
-import os
 import re
-import tempfile
 from collections.abc import Sequence
 from typing import Any
 
 from ruamel.yaml.comments import CommentedMap
 
-from pbo_runtime.config.canvas import CanvasError, CanvasTask
-from pbo_runtime.config.live import NAME
-from pbo_runtime.config.live_save import chunks, flow, merged, round_trip
-from pbo_runtime.config.loader import check_file
+from pbo_runtime.edit.canvas import CanvasError, CanvasTask
+from pbo_runtime.edit.live import NAME
+from pbo_runtime.edit.live_save import chunks, flow, merged, round_trip
+from pbo_runtime.edit.write_back import WriteRefused, write_checked
 from pbo_runtime.config.model import ACTION_REQUIRING_OBJECT
 from pbo_runtime.config.yaml_nodes import load_text, plain
 from pbo_runtime.errors import ConfigError
@@ -145,23 +143,14 @@ def save_job(file: str, name: str, tasks: Sequence[CanvasTask], loaded_from: str
         text, configuration, touched = job_text(original, name, tasks, loaded_from, object_choice)
     except CanvasError as exc:
         raise JobRefused(str(exc)) from None
-    folder = os.path.dirname(os.path.abspath(file))
     try:
-        handle, draft = tempfile.mkstemp(prefix=".pbo-job-", suffix=".yaml", dir=folder)  # beside it: includes resolve
-    except OSError as exc:
-        raise JobRefused(f"cannot write beside {file}: {exc.strerror or exc}") from None
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as stream:
-            stream.write(text)
-        result = check_file(draft)
-        if result.errors or result.subsystem is None:
-            first = result.errors[0].format().splitlines()[0].replace(draft, file) if result.errors else "it does not load"
-            raise JobRefused(f"saving job '{name}' would leave {file} with {len(result.errors)} error(s), the first: {first}")
-        os.chmod(draft, os.stat(file).st_mode & 0o777)
-        os.replace(draft, file)
-    finally:
-        if os.path.exists(draft):
-            os.unlink(draft)
+        result = write_checked(file, text)
+    except WriteRefused as refused:
+        if not refused.first:
+            raise JobRefused(str(refused)) from None
+        raise JobRefused(f"saving job '{name}' would leave {file} with {len(refused.errors)} error(s), the first: "
+                         f"{refused.first}") from None
+    assert result.subsystem is not None  # write_checked refuses a file that does not load
     job = result.subsystem.jobs[name]
     kind = "an action requiring an object" + (f" of type {job.object_type}" if job.object_type else "") \
         if job.kind == ACTION_REQUIRING_OBJECT else "an action"

@@ -26,7 +26,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from pbo_runtime.config.job_dictionary import row_gaps
+from pbo_runtime.edit.job_dictionary import row_gaps
 from pbo_runtime.config.model import Subsystem
 
 # An application's name: a plain identifier, as a live application's (it travels in the control queue)

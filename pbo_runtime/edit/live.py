@@ -23,7 +23,7 @@ Decisions this module makes, and why:
 - How RTPUs learn it: `to_wire` is the description an RTPU needs (task specs and configuration
   members, no YAML), written by the supervisor to a file of the run and read back by each RTPU
   with `from_wire`, outside any cycle; nothing of the per-cycle path changes.
-- `edits` records each change in order, for `pbo save` (`config.live_save`).
+- `edits` records each change in order, for `pbo save` (`edit.live_save`).
 - An application given with its steps (`pbo app NAME --steps`, the HMI's workspace) is a change
   too: it is put in the description's `applications:` and checked with the whole file, so a step
   that does not interlock, or an object of the wrong type, is refused before any job runs.
@@ -39,7 +39,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from pbo_runtime.config.checker import ModuleLookup
 from pbo_runtime.config.limits import MAX_NAME
-from pbo_runtime.config.loader import check_loaded, load_document
+from pbo_runtime.config.loader import check_loaded, load_document, with_application
 from pbo_runtime.config.model import NOWHERE, ConfigurationSpec, Location, PortBinding, Subsystem, TaskSpec
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, plain
 from pbo_runtime.errors import ConfigError, PboError, closest_name
@@ -206,13 +206,8 @@ class LiveDescription:
         if not isinstance(node, YList) or not node:
             raise LiveChangeRefused(f"application '{name}': its steps are a non-empty list, e.g. [reach: ready, hold], "
                                     f"got: {plain(node)!r}")
-        doc = _copy(self.doc)
-        existing = doc.get("applications")
-        applications = _copy(existing) if isinstance(existing, YMap) else YMap(loc)
-        applications.put(name, node, loc, loc)
-        where = (self.doc.key_loc("applications"), self.doc.value_loc("applications")) if "applications" in self.doc else (loc, loc)
-        doc.put("applications", applications, *where)
-        return self._checked(doc, f"application '{name}'", Edit("application", name, plain(node)))
+        return self._checked(with_application(self.doc, name, node, loc), f"application '{name}'",
+                             Edit("application", name, plain(node)))
 
     # --- checking -----------------------------------------------------------------------------
 

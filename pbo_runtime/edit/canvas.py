@@ -17,7 +17,7 @@ A diagnostic located anywhere else is the base file's own, at its line.
 Placement (which lexicon modules could still be dropped, and why not the rest) needs a checked
 subsystem. When the canvas has errors, the tasks whose own entries are sound are checked again in
 no configuration (a configuration's rules, such as one writer per variable, then hold vacuously)
-and the placement query (`config.placement`) indexes them as the canvas's configuration.
+and the placement query (`analysis.placement`) indexes them as the canvas's configuration.
 """
 
 from __future__ import annotations
@@ -30,10 +30,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from pbo_runtime.config.checker import ModuleLookup
-from pbo_runtime.config.live import NAME
+from pbo_runtime.edit.live import NAME
 from pbo_runtime.config.loader import CheckResult, check_loaded, load_document
 from pbo_runtime.config.model import Location, Subsystem
-from pbo_runtime.config.placement import placement_report
+from pbo_runtime.analysis.placement import placement_report
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, plain
 from pbo_runtime.errors import ConfigError, Note
 from pbo_runtime.objects import registry

@@ -11,7 +11,7 @@ ruamel.yaml only writes here: every file is still loaded by the project's own sa
 ruamel.yaml re-flows what it writes (the alignment of `q_m:   {...}`, a flow mapping over two
 lines), so the saved text takes from the round trip only what the changes touched: the entries of
 `tasks:`, `configurations:` and `applications:` that changed; every other section and entry is the
-original's text. `round_trip` and `merged` serve the HMI's saves too (`config.workspace_file`).
+original's text. `round_trip` and `merged` serve the HMI's saves too (`edit.workspace_file`).
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ from typing import Any
 from ruamel.yaml import YAML
 from ruamel.yaml.comments import CommentedMap, CommentedSeq
 
-from pbo_runtime.config.live import Edit, LiveChangeRefused, LiveDescription
-from pbo_runtime.config.loader import check_file
+from pbo_runtime.edit.live import Edit, LiveChangeRefused, LiveDescription
 from pbo_runtime.config.model import Subsystem
+from pbo_runtime.edit.write_back import WriteRefused, write_checked
 
 
 def saved_text(live: LiveDescription) -> str:
@@ -94,13 +94,10 @@ def merged(original: str, dumped: str, touched: dict[str, set[str]]) -> str:
 
 def save_live(live: LiveDescription, path: str) -> bool:
     """Write the live subsystem to `path`; True if `pbo check` on it gives the live subsystem back."""
-    text = saved_text(live)
-    try:
-        with open(path, "w", encoding="utf-8") as stream:
-            stream.write(text)
-    except OSError as exc:
-        raise LiveChangeRefused(f"cannot write {path}: {exc.strerror or exc}") from None
-    result = check_file(path)
+    try:  # written even if it does not check clean: the reply warns
+        result = write_checked(path, saved_text(live), even_with_errors=True)
+    except WriteRefused as exc:
+        raise LiveChangeRefused(str(exc)) from None
     return result.subsystem is not None and same_subsystem(result.subsystem, live.subsystem)
 
 

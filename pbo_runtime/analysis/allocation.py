@@ -2,7 +2,7 @@
 
 The report's future work: "a global scheduling algorithm which can automatically map these tasks
 to the RTPUs based on the timing and resource constraints of each task". Timing: the
-non-preemptive response-time analysis of `config.schedulability`, in every configuration judged
+non-preemptive response-time analysis of `analysis.schedulability`, in every configuration judged
 (a task has one RTPU in all of them). Resources: a task that uses an exclusive device keeps its
 RTPU (the device is taken as wired to the board that RTPU drives), and so does every task the
 caller pins.
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 from pbo_runtime.config.model import Subsystem, TaskSpec
-from pbo_runtime.config.schedulability import Cost, Load, response_times
+from pbo_runtime.analysis.schedulability import Cost, Load, response_times
 
 SEARCH_LIMIT = 200_000  # partial assignments tried before the search gives up
 

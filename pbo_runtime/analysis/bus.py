@@ -1,201 +1,31 @@
-"""Bus utilisation of a configuration: TR eq. 1-2, predicted from the file and measured from a run.
+"""Bus utilisation beside a run: measured loads, combined modules' saving, and the report's forms.
 
-Every task j copies its per-cycle inputs from the global state variable table into its local
-table before each cycle and its per-cycle outputs back after it, locking the table once for
-each set of transfers (TR §4.2, Figure 11). Its load on the bus, in bytes per second, is
-
-    Z_j = (Σ_i S(x_ij) + Σ_i S(y_ij) + 2Δ) / T_j                                   (eq. 1)
-
-x_ij: the task's per-cycle inputs (in-var and in-both ports); y_ij: its per-cycle outputs
-(out-var and out-both); S(v): the bytes one transfer of v moves (elements × itemsize);
-Δ: the bus's lock overhead in bytes (locking and releasing the table, counted twice a cycle);
-T_j: the task's period, or for an aperiodic task its minimum inter-arrival time (the worst case).
-Consts (in-const, out-const) move once around `init`, not per cycle, and do not count. A
-configuration loads the bus with
-
-    B = Σ_j Z_j                                                                    (eq. 2)
-
-which must stay below the backplane's bandwidth (`bus: {bandwidth: ...}`).
-
-Combined modules (TR §4.5) run several objects as one task with one local table: the group runs
-at its fastest member's period, reads each outside variable once, and keeps variables that only
-link members local; `combined_saving` shows what that would save on the bus.
+The prediction, TR eq. 1-2, is `config.bus_model` (with it the checker refuses a configuration
+over the bandwidth). Here a run's figures are set beside it: `measured` from a run's report,
+`measured_live` from a running subsystem's status. Combined modules (TR §4.5) run several objects
+as one task with one local table: the group runs at its fastest member's period, reads each
+outside variable once, and keeps variables that only link members local; `combined_saving` shows
+what that would save on the bus. `as_table`, `as_json`, `as_csv` and `plot` are what `pbo bus`,
+the API and the HMI's monitor show.
 """
 
 from __future__ import annotations
 
 import csv
-import functools
 import io
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
-import numpy as np
-
+from pbo_runtime.config.bus_model import (LOCKS_PER_CYCLE, PER_CYCLE_IN, PER_CYCLE_OUT, BusModelError, BusReport, TaskLoad,
+                                          bus_report, interval_of, members_of, predict, task_load, transfer_bytes)
 from pbo_runtime.config.model import PortBinding, Subsystem, TaskSpec
-from pbo_runtime.errors import PboError
 from pbo_runtime.objects.ports import PortKind
 
 if TYPE_CHECKING:
     from rich.table import Table
 
-__all__ = [
-    "BusModelError", "TaskLoad", "BusReport",
-    "transfer_bytes", "task_load", "predict", "predict_all", "measured", "measured_live", "over_bandwidth", "combined_saving",
-    "describe_saving", "as_table", "as_json", "as_csv", "plot",
-]
-
-PER_CYCLE_IN = (PortKind.IN_VAR, PortKind.IN_BOTH)
-PER_CYCLE_OUT = (PortKind.OUT_VAR, PortKind.OUT_BOTH)
-LOCKS_PER_CYCLE = 2  # one lock for all inputs, one for all outputs (a single lock for the whole table)
-
-
-class BusModelError(PboError, ValueError):
-    """The bus model cannot be evaluated as asked: the message names the configuration or task."""
-
-
-@dataclass(frozen=True)
-class TaskLoad:
-    """One task's term of eq. 1. Sizes are bytes per cycle; `period` is T_j in seconds."""
-
-    task: str
-    rtpu: str
-    period: float  # T_j: the period, or the minimum inter-arrival time of an aperiodic task
-    bytes_in: int | None  # Σ S(x_ij); None when a measured report does not split in from out
-    bytes_out: int | None  # Σ S(y_ij)
-    per_cycle_bytes: float  # Σ S(x_ij) + Σ S(y_ij) + 2Δ
-    rate_bytes_per_s: float  # Z_j
-    aperiodic: bool = False
-    cycles: int | None = None  # measured reports only
-
-    @property
-    def lock_bytes(self) -> float:
-        """The 2Δ of this task's cycle (bytes)."""
-        known = (self.bytes_in or 0) + (self.bytes_out or 0)
-        return self.per_cycle_bytes - known if self.bytes_in is not None else math.nan
-
-
-@dataclass(frozen=True)
-class BusReport:
-    """Eq. 2 for one configuration: every task's Z_j, their sum B and B's share of the bandwidth."""
-
-    configuration: str
-    tasks: tuple[TaskLoad, ...]
-    total: float  # B, bytes per second
-    bandwidth: float  # bytes per second
-    share: float  # B / bandwidth
-    lock_overhead: float = 0.0  # Δ, bytes
-    kind: str = "predicted"  # or "measured", "combined"
-    duration: float | None = None  # measured reports: the run's duration, seconds
-
-    def task(self, name: str) -> TaskLoad:
-        for load in self.tasks:
-            if load.task == name:
-                return load
-        raise KeyError(name)
-
-    @property
-    def over(self) -> bool:
-        return self.total > self.bandwidth
-
-
-# --- the model ---------------------------------------------------------------------------------
-
-
-def transfer_bytes(subsystem: Subsystem, binding: PortBinding) -> int:
-    """S(v): the bytes one transfer of the bound variable moves (elements of the bound shape × itemsize)."""
-    var = subsystem.variables[binding.variable]
-    n = 1
-    for d in binding.shape:
-        n *= int(d)
-    return n * _itemsize(var.dtype)
-
-
-@functools.cache
-def _itemsize(dtype: Any) -> int:
-    """Bytes per element of a dtype (np.dtype() costs microseconds: once per dtype, not per binding)."""
-    return np.dtype(dtype).itemsize
-
-
-def _interval(task: TaskSpec) -> tuple[float, bool]:
-    """T_j and whether the task is aperiodic (then T_j is its minimum inter-arrival time)."""
-    aperiodic = bool(getattr(task, "aperiodic", False))
-    interval = getattr(task, "min_interarrival", None) if aperiodic else task.period
-    if aperiodic and interval is None:
-        raise BusModelError(
-            f"task '{task.name}' is aperiodic without a minimum inter-arrival time: its bus load has no bound "
-            "(give it 'min_interarrival')"
-        )
-    if interval is None or not interval > 0:
-        what = "minimum inter-arrival time" if aperiodic else "period"
-        raise BusModelError(f"task '{task.name}' has {what} {interval!r}: eq. 1 needs a positive time")
-    return float(interval), aperiodic
-
-
-def task_load(subsystem: Subsystem, task: TaskSpec) -> TaskLoad:
-    """Z_j of one task (eq. 1), from its bindings; consts are left out (they move once, at init)."""
-    bytes_in, bytes_out, per_cycle, interval, aperiodic = _eq1_terms(subsystem, task)
-    return TaskLoad(task.name, task.rtpu, interval, bytes_in, bytes_out, per_cycle, per_cycle / interval, aperiodic)
-
-
-def _eq1_terms(subsystem: Subsystem, task: TaskSpec) -> tuple[int, int, float, float, bool]:
-    """The terms of eq. 1: bytes in, bytes out, bytes per cycle, T_j, and whether the task is aperiodic."""
-    bytes_in = sum(transfer_bytes(subsystem, b) for b in task.bindings if b.port.kind in PER_CYCLE_IN)
-    bytes_out = sum(transfer_bytes(subsystem, b) for b in task.bindings if b.port.kind in PER_CYCLE_OUT)
-    interval, aperiodic = _interval(task)
-    per_cycle = bytes_in + bytes_out + LOCKS_PER_CYCLE * subsystem.bus.lock_overhead
-    return bytes_in, bytes_out, per_cycle, interval, aperiodic
-
-
-def _rate(subsystem: Subsystem, task: TaskSpec) -> float:
-    """Z_j alone, as task_load computes it (without making the TaskLoad)."""
-    _, _, per_cycle, interval, _ = _eq1_terms(subsystem, task)
-    return per_cycle / interval
-
-
-def _report(subsystem: Subsystem, configuration: str, loads: Iterable[TaskLoad], kind: str,
-            duration: float | None = None) -> BusReport:
-    loads = tuple(loads)
-    total = float(sum(load.rate_bytes_per_s for load in loads))
-    bandwidth = float(subsystem.bus.bandwidth)
-    share = total / bandwidth if bandwidth > 0 else math.inf
-    return BusReport(configuration, loads, total, bandwidth, share, float(subsystem.bus.lock_overhead), kind, duration)
-
-
-def _members(subsystem: Subsystem, configuration: str) -> tuple[str, ...]:
-    try:
-        return subsystem.configurations[configuration].tasks
-    except KeyError:
-        known = ", ".join(subsystem.configurations) or "none"
-        raise BusModelError(f"no configuration '{configuration}' in {subsystem.file} (configurations: {known})") from None
-
-
-def predict(subsystem: Subsystem, configuration: str) -> BusReport:
-    """B of one configuration (eq. 2), every task's Z_j (eq. 1), and B's share of the bandwidth."""
-    names = _members(subsystem, configuration)
-    return _report(subsystem, configuration, (task_load(subsystem, subsystem.tasks[n]) for n in names), "predicted")
-
-
-def predict_all(subsystem: Subsystem) -> dict[str, BusReport]:
-    """`predict` for every configuration, in file order."""
-    return {name: predict(subsystem, name) for name in subsystem.configurations}
-
-
-def over_bandwidth(subsystem: Subsystem) -> list[tuple[str, BusReport]]:
-    """The configurations whose predicted B exceeds the bus bandwidth, in file order.
-
-    `pbo check` asks this of every file, and most configurations fit: B is summed from the
-    tasks' Z_j alone (the same sum as `predict`'s), and the full report is made only for those over.
-    """
-    bandwidth = float(subsystem.bus.bandwidth)
-    over = []
-    for name in subsystem.configurations:
-        total = float(sum(_rate(subsystem, subsystem.tasks[n]) for n in _members(subsystem, name)))
-        if total > bandwidth:
-            over.append((name, predict(subsystem, name)))
-    return over
+__all__ = ["measured", "measured_live", "combined_saving", "describe_saving", "as_table", "as_json", "as_csv", "plot"]
 
 
 def measured(subsystem: Subsystem, report_json: Mapping[str, Any], configuration: str | None = None) -> BusReport:
@@ -208,7 +38,7 @@ def measured(subsystem: Subsystem, report_json: Mapping[str, Any], configuration
     saw (duration / cycles; inf for a task that never ran).
     """
     configuration = configuration or report_json.get("configuration") or next(iter(subsystem.configurations), "")
-    names = _members(subsystem, configuration)
+    names = members_of(subsystem, configuration)
     duration = float(report_json.get("duration") or 0.0)
     if not duration > 0:
         raise BusModelError(f"the run report of '{configuration}' has duration {duration!r}: no rate can be measured")
@@ -238,7 +68,7 @@ def measured(subsystem: Subsystem, report_json: Mapping[str, Any], configuration
         interval = duration / cycles if cycles else math.inf
         loads.append(TaskLoad(name, str(row.get("rtpu") or spec.rtpu), interval, bytes_in, bytes_out, per_cycle,
                               cycles * per_cycle / duration, predicted.aperiodic, cycles))
-    return _report(subsystem, configuration, loads, "measured", duration)
+    return bus_report(subsystem, configuration, loads, "measured", duration)
 
 
 def measured_live(subsystem: Subsystem, status: Mapping[str, Any]) -> BusReport:
@@ -251,7 +81,7 @@ def measured_live(subsystem: Subsystem, status: Mapping[str, Any]) -> BusReport:
     per-cycle bindings, from the file. `period` is the measured mean interval (inf when not running).
     """
     configuration = str(status.get("configuration") or next(iter(subsystem.configurations), ""))
-    names = _members(subsystem, configuration)
+    names = members_of(subsystem, configuration)
     rows = {str(row.get("task")): row for row in status.get("tasks") or ()}
     loads = []
     for name in names:
@@ -264,7 +94,7 @@ def measured_live(subsystem: Subsystem, status: Mapping[str, Any]) -> BusReport:
         loads.append(TaskLoad(name, str(row.get("rtpu") or predicted.rtpu), interval, predicted.bytes_in, predicted.bytes_out,
                               predicted.per_cycle_bytes, rate * predicted.per_cycle_bytes, predicted.aperiodic,
                               int(row.get("cycles") or 0)))
-    return _report(subsystem, configuration, loads, "measured")
+    return bus_report(subsystem, configuration, loads, "measured")
 
 
 # --- combined modules (TR §4.5) ----------------------------------------------------------------
@@ -281,7 +111,7 @@ def combined_saving(subsystem: Subsystem, configuration: str, members: list[str]
     bus. A variable written by a member but also read by another task is still written; the
     member that reads it takes it from the local table.
     """
-    names = _members(subsystem, configuration)
+    names = members_of(subsystem, configuration)
     if not members:
         raise BusModelError("combined_saving needs at least one member task")
     if len(set(members)) != len(members):
@@ -319,7 +149,7 @@ def combined_saving(subsystem: Subsystem, configuration: str, members: list[str]
     bytes_in = sum(transfer_bytes(subsystem, b) for v, b in member_in.items() if v not in internal)
     bytes_out = sum(transfer_bytes(subsystem, b) for v, b in member_out.items() if v not in local_only)
 
-    intervals = [_interval(t) for t in specs]
+    intervals = [interval_of(t) for t in specs]
     interval = min(i for i, _ in intervals)
     aperiodic = all(a for _, a in intervals)
     per_cycle_bytes = bytes_in + bytes_out + LOCKS_PER_CYCLE * subsystem.bus.lock_overhead
@@ -328,7 +158,7 @@ def combined_saving(subsystem: Subsystem, configuration: str, members: list[str]
     # the combined task takes the place of its first member in the configuration's order
     first = next(n for n in names if n in group)
     loads = [combined if load.task == first else load for load in before.tasks if load.task not in group or load.task == first]
-    after = _report(subsystem, f"{configuration} ({combined.task} combined)", loads, "combined")
+    after = bus_report(subsystem, f"{configuration} ({combined.task} combined)", loads, "combined")
     return before, after
 
 

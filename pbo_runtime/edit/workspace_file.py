@@ -1,10 +1,10 @@
 """What the HMI's user level writes to the subsystem file: an application, a named object's value.
 
-Both go through ruamel.yaml's round trip as `pbo save` does (`config.live_save`): comments, key
+Both go through ruamel.yaml's round trip as `pbo save` does (`edit.live_save`): comments, key
 order and flow style are kept, and only the entry that changed is taken from the dump; every other
-line is the file's own. The new text is checked by the checker of `pbo check` before it replaces
-the file: it is written beside the file (its includes are found the same way), checked there, and
-moved over the file only when it has no error, so a refused save leaves the file as it was. A
+line is the file's own. The new text goes through `edit.write_back`: written beside the file,
+checked there by the checker of `pbo check`, and moved over the file only when it has no error, so
+a refused save leaves the file as it was. A
 warning stays a warning (an incomplete application is W701: kept, reusable, not runnable).
 
 The file is the one `pbo hmi FILE` was given or the run's own, never a path from a request: the
@@ -14,14 +14,12 @@ API passes it in.
 from __future__ import annotations
 
 import io
-import os
-import shutil
-import tempfile
 from typing import Any, Callable
 
 from ruamel.yaml.comments import CommentedMap, CommentedSeq
 
-from pbo_runtime.config.live_save import merged, round_trip
+from pbo_runtime.edit.live_save import merged, round_trip
+from pbo_runtime.edit.write_back import WriteRefused, write_checked
 from pbo_runtime.config.loader import CheckResult, check_file
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.config.values import as_value, range_problem
@@ -95,24 +93,8 @@ def _write_checked(file: str, change: Callable[[CommentedMap], None], touched: d
     out = io.StringIO()
     yaml.dump(doc, out)
     text = merged(original, out.getvalue(), touched).rstrip("\n") + "\n"  # a blank line ruamel moved to the end
-    folder, base = os.path.split(os.path.abspath(file))
     try:
-        handle, draft = tempfile.mkstemp(prefix=f".{base}.", suffix=".draft.yaml", dir=folder)
-    except OSError as exc:
-        raise SaveRefused(f"cannot write beside {file}: {exc.strerror or exc}") from None
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as stream:
-            stream.write(text)
-        result = check_file(draft)
-        if result.errors:
-            first = result.errors[0].format().replace(draft, file).splitlines()[0]
-            count = f"{len(result.errors)} error" + ("" if len(result.errors) == 1 else "s")
-            raise SaveRefused(f"not saved: {file} would have {count}, the first: {first}")
-        shutil.copymode(file, draft)
-        os.replace(draft, file)
-    except OSError as exc:
-        raise SaveRefused(f"cannot write {file}: {exc.strerror or exc}") from None
-    finally:
-        if os.path.exists(draft):
-            os.unlink(draft)
+        write_checked(file, text)
+    except WriteRefused as refused:
+        raise SaveRefused(str(refused)) from None
     return check_file(file)

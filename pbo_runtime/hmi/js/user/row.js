@@ -1,7 +1,7 @@
 // The application workspace's row (Onika §4.4.2, Fig. 4) as plain data and the rules that change it.
 // A row is a list of steps, left to right: {id, name, object}, `name` a job or an application of
 // the dictionary, `object` the named object that fills it (null: none needed, or a gap). The
-// interlock rule is the file's (config/job_dictionary.py): flat against flat, a notch T against a
+// interlock rule is the file's (edit/job_dictionary.py): flat against flat, a notch T against a
 // tab T. Each change answers {steps, message} or {refused}: the reason, shown to the user as it is.
 // The server checks the same row again before it saves or runs it.
 //

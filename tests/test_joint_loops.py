@@ -107,6 +107,51 @@ def test_pbo_check_names_the_ur5_wrist_the_demo_gains_make_unstable_and_a_kd_tha
     assert error.hint.startswith("stable for kd < 15.7")
 
 
+def combined_subsystem(gains: str) -> str:
+    """The UR5 subsystem with its trajectory and PID as members of one combined task, `ctl`."""
+    return f"""
+subsystem: ur5_combined
+rtpus: [rtpu0, rtpu1]
+plant: {{model: "{UR5}", timestep: 1 ms}}
+devices:
+  arm: {{driver: mujoco_arm, mode: torque, exclusive: true}}
+variables:
+  q_d: {{object: joint_position, initial: {UR5_START}}}
+tasks:
+  robot: {{module: robot_torque, rtpu: rtpu1, period: 1 ms, critical: true, resources: [arm]}}
+  ctl:   {{module: combined, rtpu: rtpu0, period: 1 ms, params: {{members: [
+            {{module: joint_trajectory, params: {{max_velocity: 0.8, max_acceleration: 2.0}}}},
+            {{module: pid_joint, params: {{{gains}}}}}]}}}}
+configurations:
+  joint_pid: [robot, ctl]
+"""
+
+
+@pytest.mark.parametrize("gains, code, at, said", [
+    ("kp: 400, kd: 40, ki: 10, gravity_feedforward: true", "E326", "40, ki: 10",
+     "the position loop of joint 6 (wrist_3_joint) under member 2 (pid_joint) of task 'ctl' (kp 400, kd 40, ki 10) is unstable"),
+    (UR5_WRIST.format(kd=1.0), "W301", "1.0]",
+     "the position loop of joint 6 (wrist_3_joint) under member 2 (pid_joint) of task 'ctl' (kp 400, kd 1) rings"),
+    ("bandwidth: 30, kp: 400, gravity_feedforward: true", "E325", "400,",
+     "member 2 (pid_joint) of task 'ctl' gives both a bandwidth and raw gains (kp)"),
+])
+def test_a_pid_inside_a_combined_task_is_checked_at_its_gain_like_a_task_of_its_own(tmp_path, gains, code, at, said):
+    path = write(tmp_path, "ur5_combined", combined_subsystem(gains))
+    result = check_file(path)
+    [found] = result.errors + result.warnings
+    assert found.code == code and found.message.startswith(said), found.format()
+    assert path.read_text().splitlines()[found.line - 1][found.column - 1:].startswith(at)  # at the member's gain
+    if code == "E326":
+        assert found.hint.startswith("stable for kd < 15.7")
+
+
+def test_a_pid_inside_a_combined_task_given_a_bandwidth_checks_clean_and_says_its_gains(tmp_path):
+    result = check_file(write(tmp_path, "ur5_combined", combined_subsystem("bandwidth: 30, damping: 1.0, gravity_feedforward: true")))
+    assert not result.errors and not result.warnings, [e.format() for e in result.errors + result.warnings]
+    assert any(note.startswith("gains of task 'ctl', member 2 (pid_joint): bandwidth 30 rad/s, damping 1 make kp [")
+               for note in result.robot_notes), result.robot_notes
+
+
 def wrist_bound() -> float:
     robot = load_robot(UR5, Path(REPO), 0.001, {})
     inertia = inertia_range(robot.arm, robot.ee)

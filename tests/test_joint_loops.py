@@ -107,8 +107,11 @@ def test_pbo_check_names_the_ur5_wrist_the_demo_gains_make_unstable_and_a_kd_tha
     assert error.hint.startswith("stable for kd < 15.7")
 
 
-def combined_subsystem(gains: str) -> str:
-    """The UR5 subsystem with its trajectory and PID as members of one combined task, `ctl`."""
+TRAJECTORY_MEMBER = "{module: joint_trajectory, params: {max_velocity: 0.8, max_acceleration: 2.0}}"
+
+
+def combined_subsystem(gains: str, first: str = TRAJECTORY_MEMBER, pid_ports: str = "{}") -> str:
+    """The UR5 subsystem with `first` (a trajectory from the goal q_d) and a PID as the members of one combined task, `ctl`."""
     return f"""
 subsystem: ur5_combined
 rtpus: [rtpu0, rtpu1]
@@ -116,12 +119,12 @@ plant: {{model: "{UR5}", timestep: 1 ms}}
 devices:
   arm: {{driver: mujoco_arm, mode: torque, exclusive: true}}
 variables:
-  q_d: {{object: joint_position, initial: {UR5_START}}}
+  q_d: {{type: float64, shape: [NDOF], initial: {UR5_GOAL}}}
 tasks:
   robot: {{module: robot_torque, rtpu: rtpu1, period: 1 ms, critical: true, resources: [arm]}}
   ctl:   {{module: combined, rtpu: rtpu0, period: 1 ms, params: {{members: [
-            {{module: joint_trajectory, params: {{max_velocity: 0.8, max_acceleration: 2.0}}}},
-            {{module: pid_joint, params: {{{gains}}}}}]}}}}
+            {first},
+            {{module: pid_joint, params: {{{gains}}}, ports: {pid_ports}}}]}}}}
 configurations:
   joint_pid: [robot, ctl]
 """
@@ -150,6 +153,17 @@ def test_a_pid_inside_a_combined_task_given_a_bandwidth_checks_clean_and_says_it
     assert not result.errors and not result.warnings, [e.format() for e in result.errors + result.warnings]
     assert any(note.startswith("gains of task 'ctl', member 2 (pid_joint): bandwidth 30 rad/s, damping 1 make kp [")
                for note in result.robot_notes), result.robot_notes
+
+
+def test_a_pid_inside_a_combined_task_that_reads_its_goal_directly_is_warned_of_the_torque_the_step_asks(tmp_path):
+    path = write(tmp_path, "ur5_combined", combined_subsystem(
+        UR5_WRIST.format(kd=10), first="{module: differentiator, ports: {z: q_d, zd: qd_r}}", pid_ports="{q_r: q_d}"))
+    result = check_file(path)
+    assert not result.errors, [e.format() for e in result.errors]
+    warned = [w for w in result.warnings if w.code == "W302"]
+    assert len(warned) == 6, [w.format() for w in result.warnings]  # every joint: the plant starts at zero
+    assert warned[1].message == ("the goal of joint 2 (shoulder_lift_joint) is 1 from the start: member 2 (pid_joint) of task "
+                                 "'ctl' asks kp 3000 x 1 = 3000 at once, past the effort limit 150")
 
 
 def wrist_bound() -> float:

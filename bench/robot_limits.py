@@ -46,7 +46,7 @@ class NoLimits:
     def outside(self, q: np.ndarray, qd: np.ndarray) -> bool:
         return False
 
-    def saturate_torque(self, tau: np.ndarray, out: np.ndarray) -> bool:
+    def saturate_torque(self, tau: np.ndarray, out: np.ndarray, now: float = 0.0) -> bool:
         np.copyto(out, tau)
         return False
 

@@ -4,9 +4,12 @@ Every limit comes from the `ARM` table the arm's driver gives (the robot's descr
 by the plant options, never widened: docs/robots.md). Each cycle the robot interface clips the
 command to them before the driver, so no value past a limit reaches the arm: a torque to the
 joint's effort limit; a position to the joint's range, moving at most the velocity limit in a
-period. It also watches for divergence: a torque command at its effort limit for longer than
-`saturation_bound`, a measured velocity past its limit (where the robot gives one) by more than
-`VELOCITY_TOLERANCE`, or a measured position past its range by more than `position_tolerance`.
+period. It also watches for divergence: a torque command at its effort limit (in either direction)
+for longer than `saturation_bound`, a measured velocity past its limit (where the robot gives one)
+by more than `VELOCITY_TOLERANCE`, or a measured position past its range by more than
+`position_tolerance`. The time at the limit is a leaky count: a cycle at it adds, a cycle within
+drains `DRAIN_SLOWER` times slower, so a loop in a limit cycle (its torque swinging from one limit
+to the other faster than the bound) is caught as surely as a torque held at one.
 Divergence is a fault: the interface returns ERROR with a message naming the joint and the limit,
 its `error` component engages the brakes, and the driver keeps the message for the run's summary
 (a `fault:` line naming the task that wrote the command).
@@ -30,6 +33,10 @@ POSITION_TOLERANCE = 0.02
 #: How far past its velocity limit a measured velocity may be before it is a fault, as a share of
 #: the limit: a servo or a controller tracking a reference at the limit overshoots it a little.
 VELOCITY_TOLERANCE = 0.1
+#: A cycle whose command is within its limit takes this many times less off a joint's count than a
+#: cycle at the limit adds: a command that keeps coming back to its limit fills the count however
+#: briefly it leaves it, while one back within for good drains it.
+DRAIN_SLOWER = 2
 
 
 class ArmLimits:
@@ -53,9 +60,17 @@ class ArmLimits:
         self.saturation_bound = saturation_bound
         # cycles a command may stay saturated: past this many in a row it is a fault
         self.saturated_cycles_allowed = max(1, math.ceil(saturation_bound / period - 1e-9))
-        self._allowed = np.full(n, self.saturated_cycles_allowed, dtype=np.int64)
-        self.saturated_for = np.zeros(n, dtype=np.int64)  # consecutive cycles each joint's command was at its limit
+        # each joint's leaky count, in cycles at the limit times DRAIN_SLOWER: a cycle at its limit adds
+        # DRAIN_SLOWER, one within takes 1 off (never below 0); past the bound's worth it is a fault
+        self.saturation_count = np.zeros(n, dtype=np.int64)
+        self._count_bound = np.full(n, self.saturated_cycles_allowed * DRAIN_SLOWER, dtype=np.int64)
+        self._rise = np.full(n, DRAIN_SLOWER + 1, dtype=np.int64)  # a cycle at the limit: +DRAIN_SLOWER after the drain of 1
+        self._one = np.ones(n, dtype=np.int64)
+        self._zero = np.zeros(n, dtype=np.int64)
+        self._step = np.zeros(n, dtype=np.int64)
+        self.at_limit = np.zeros(n, dtype=np.int64)  # cycles each joint's command was at its limit since every count was 0
         self._counting = False  # some joint's count is not 0
+        self._since = 0.0  # when the counts left 0 (the run's time): what the message's "of the last" spans
         self._counted = np.zeros(n, dtype=np.int64)
         self._scratch = np.zeros(n)
         self._flags = np.zeros(n, dtype=bool)
@@ -70,30 +85,43 @@ class ArmLimits:
 
     # per cycle: no allocation --------------------------------------------------------------------
 
-    def saturate_torque(self, tau: np.ndarray, out: np.ndarray) -> bool:
-        """`out` = `tau` clipped to the effort limits; each joint at or past its limit counts a
-        cycle towards the saturation bound, one within it starts its count again. True when a
-        joint is at its limit."""
+    def saturate_torque(self, tau: np.ndarray, out: np.ndarray, now: float = 0.0) -> bool:
+        """`out` = `tau` clipped to the effort limits; each joint at or past its limit (either sign)
+        adds to its count towards the saturation bound, one within drains it, slower. True when a
+        joint is at its limit. `now` is the cycle's time, for the fault's message."""
         flags = self._flags
         np.abs(tau, out=self._scratch)
         np.greater_equal(self._scratch, self.effort, out=flags)
         if not np.count_nonzero(flags):  # the usual cycle: nothing to clip (a NaN is left for the driver to refuse)
             np.copyto(out, tau)
             if self._counting:
-                self.saturated_for.fill(0)
-                self._counting = False
+                self._drain()
             return False
         if np.count_nonzero(np.isfinite(tau, out=self._long)) != self.ndof:  # not a command to clip: the driver refuses it as it is
             np.copyto(out, tau)
             return False
         np.maximum(tau, self.effort_low, out=out)  # np.clip's Python layers allocate
         np.minimum(out, self.effort, out=out)
-        counted = self._counted
+        counted, count = self._counted, self.saturation_count
         np.copyto(counted, flags)  # as integers: a ufunc mixing bool and int64 allocates a cast buffer
-        np.multiply(self.saturated_for, counted, out=self.saturated_for)
-        np.add(self.saturated_for, counted, out=self.saturated_for)
-        self._counting = True
+        np.multiply(counted, self._rise, out=self._step)
+        np.add(count, self._step, out=count)
+        np.subtract(count, self._one, out=count)
+        np.maximum(count, self._zero, out=count)
+        np.add(self.at_limit, counted, out=self.at_limit)
+        if not self._counting:
+            self._counting = True
+            self._since = now
         return True
+
+    def _drain(self) -> None:
+        """A cycle with every command within its limit: each count drains by one; at 0 they start afresh."""
+        count = self.saturation_count
+        np.subtract(count, self._one, out=count)
+        np.maximum(count, self._zero, out=count)
+        if not np.count_nonzero(count):
+            self.at_limit.fill(0)
+            self._counting = False
 
     def limit_position(self, q_r: np.ndarray, previous: np.ndarray, step: np.ndarray, out: np.ndarray) -> None:
         """`out` = `q_r` within `step` of `previous` (the velocity limit over a period) and within the
@@ -110,8 +138,8 @@ class ArmLimits:
         np.minimum(out, self.q_max, out=out)
 
     def saturated_too_long(self) -> bool:
-        """Whether a joint's command has stayed at its limit past the bound (after `clip`)."""
-        return bool(np.count_nonzero(np.greater(self.saturated_for, self._allowed, out=self._long)))
+        """Whether a joint's count has passed the bound (after `saturate_torque`)."""
+        return bool(np.count_nonzero(np.greater(self.saturation_count, self._count_bound, out=self._long)))
 
     def outside(self, q: np.ndarray, qd: np.ndarray) -> bool:
         """Whether a measured velocity is past its limit or a position past its range and the tolerance."""
@@ -129,7 +157,8 @@ class ArmLimits:
 
     def reset(self) -> None:
         """No command is being saturated (on, a hold): the bound counts afresh."""
-        self.saturated_for.fill(0)
+        self.saturation_count.fill(0)
+        self.at_limit.fill(0)
         self._counting = False
 
     # once, at a fault: what is wrong, in words --------------------------------------------------------
@@ -138,14 +167,19 @@ class ArmLimits:
         """(force, position, velocity) units of `joint`."""
         return ("N", "m", "m/s") if self.slide[joint] else ("N m", "rad", "rad/s")
 
-    def saturation_message(self, tau: np.ndarray, port: str, period: float) -> str:
-        """The fault of the joint saturated longest: its limit, for how long, what was asked."""
-        joint = int(np.argmax(self.saturated_for))
+    def saturation_message(self, tau: np.ndarray, port: str, period: float, now: float = 0.0) -> str:
+        """The fault of the joint whose count is highest: its limit, how long at it, what was asked."""
+        joint = int(np.argmax(self.saturation_count))
         unit = self.units(joint)[0]
-        held = self.saturated_for[joint] * period
-        return (f"joint {joint + 1}: the torque command '{port}' stayed at its effort limit of {self.effort[joint]:.4g} "
-                f"{unit} for {held * 1e3:.0f} ms, past the saturation bound of {self.saturation_bound * 1e3:.0f} ms "
-                f"(it asked {tau[joint]:.4g} {unit}); the arm is braked")
+        held = int(self.at_limit[joint]) * period
+        span = max(now - self._since + period, held)
+        bound, limit = f"the saturation bound of {self.saturation_bound * 1e3:.0f} ms", f"{self.effort[joint]:.4g} {unit}"
+        if held >= span - 0.5 * period:  # at the limit every cycle
+            return (f"joint {joint + 1}: the torque command '{port}' stayed at its effort limit of {limit} for "
+                    f"{held * 1e3:.0f} ms, past {bound} (it asked {tau[joint]:.4g} {unit}); the arm is braked")
+        return (f"joint {joint + 1}: the torque command '{port}' kept coming back to its effort limit of ±{limit}: at it "
+                f"{held * 1e3:.0f} ms of the last {span * 1e3:.0f} ms, past {bound} (a limit cycle: is the loop within "
+                f"its stability bound? pbo check says; it asked {tau[joint]:.4g} {unit}); the arm is braked")
 
     def divergence_message(self, q: np.ndarray, qd: np.ndarray) -> str:
         """The fault of the first joint past a velocity limit, else past its range."""

@@ -28,8 +28,9 @@ class RobotTorque(RobotInterface):
 
     Brakes are released on `on` and engaged on `off` and `kill`, so the arm holds still
     whenever no controller drives it, and while the plant has stopped stepping. `tau_u` is clipped
-    to the effort limits before the driver; a torque held at its limit past `saturation_bound`, or a
-    joint past its velocity limit or range, is a fault that brakes the arm. Real-time safe cycle:
+    to the effort limits before the driver; a torque at its limit past `saturation_bound` (held there, or
+    coming back to it in a limit cycle), or a joint past its velocity limit or range, is a fault that
+    brakes the arm. Real-time safe cycle:
     two driver calls and the limit checks, no allocation.
     """
 
@@ -60,8 +61,8 @@ class RobotTorque(RobotInterface):
         if fault is not None:
             return fault
         limits = self._limits
-        if limits.saturate_torque(self.tau_u, self._tau) and limits.saturated_too_long():
-            return self.divergence_fault(limits.saturation_message(self.tau_u, "tau_u", self.period), "tau_u")
+        if limits.saturate_torque(self.tau_u, self._tau, self.time) and limits.saturated_too_long():
+            return self.divergence_fault(limits.saturation_message(self.tau_u, "tau_u", self.period, self.time), "tau_u")
         self._write(self._tau)
         return Status.CONTINUE
 

@@ -2,13 +2,13 @@
 
 The analysis (`objects.joint_loop`) against the closed form of the simplest case; `pbo check` on a
 UR5 whose wrist the demo's gains make unstable; then runs on the simulated clock: a gain just
-inside the bound settles, one just outside is caught by the robot interface's saturation fault,
-and gains given as a bandwidth reach their goals on a UR5 and on a 7-joint arm from a package.
+inside the bound settles, one just outside swings between its torque limits and is caught by the
+robot interface's saturation fault, and gains given as a bandwidth reach their goals on a UR5 and
+on a 7-joint arm from a package. A PID inside a combined task is checked as one of its own.
 """
 
 from __future__ import annotations
 
-import re
 import subprocess
 from pathlib import Path
 
@@ -107,6 +107,65 @@ def test_pbo_check_names_the_ur5_wrist_the_demo_gains_make_unstable_and_a_kd_tha
     assert error.hint.startswith("stable for kd < 15.7")
 
 
+TRAJECTORY_MEMBER = "{module: joint_trajectory, params: {max_velocity: 0.8, max_acceleration: 2.0}}"
+
+
+def combined_subsystem(gains: str, first: str = TRAJECTORY_MEMBER, pid_ports: str = "{}") -> str:
+    """The UR5 subsystem with `first` (a trajectory from the goal q_d) and a PID as the members of one combined task, `ctl`."""
+    return f"""
+subsystem: ur5_combined
+rtpus: [rtpu0, rtpu1]
+plant: {{model: "{UR5}", timestep: 1 ms}}
+devices:
+  arm: {{driver: mujoco_arm, mode: torque, exclusive: true}}
+variables:
+  q_d: {{type: float64, shape: [NDOF], initial: {UR5_GOAL}}}
+tasks:
+  robot: {{module: robot_torque, rtpu: rtpu1, period: 1 ms, critical: true, resources: [arm]}}
+  ctl:   {{module: combined, rtpu: rtpu0, period: 1 ms, params: {{members: [
+            {first},
+            {{module: pid_joint, params: {{{gains}}}, ports: {pid_ports}}}]}}}}
+configurations:
+  joint_pid: [robot, ctl]
+"""
+
+
+@pytest.mark.parametrize("gains, code, at, said", [
+    ("kp: 400, kd: 40, ki: 10, gravity_feedforward: true", "E326", "40, ki: 10",
+     "the position loop of joint 6 (wrist_3_joint) under member 2 (pid_joint) of task 'ctl' (kp 400, kd 40, ki 10) is unstable"),
+    (UR5_WRIST.format(kd=1.0), "W301", "1.0]",
+     "the position loop of joint 6 (wrist_3_joint) under member 2 (pid_joint) of task 'ctl' (kp 400, kd 1) rings"),
+    ("bandwidth: 30, kp: 400, gravity_feedforward: true", "E325", "400,",
+     "member 2 (pid_joint) of task 'ctl' gives both a bandwidth and raw gains (kp)"),
+])
+def test_a_pid_inside_a_combined_task_is_checked_at_its_gain_like_a_task_of_its_own(tmp_path, gains, code, at, said):
+    path = write(tmp_path, "ur5_combined", combined_subsystem(gains))
+    result = check_file(path)
+    [found] = result.errors + result.warnings
+    assert found.code == code and found.message.startswith(said), found.format()
+    assert path.read_text().splitlines()[found.line - 1][found.column - 1:].startswith(at)  # at the member's gain
+    if code == "E326":
+        assert found.hint.startswith("stable for kd < 15.7")
+
+
+def test_a_pid_inside_a_combined_task_given_a_bandwidth_checks_clean_and_says_its_gains(tmp_path):
+    result = check_file(write(tmp_path, "ur5_combined", combined_subsystem("bandwidth: 30, damping: 1.0, gravity_feedforward: true")))
+    assert not result.errors and not result.warnings, [e.format() for e in result.errors + result.warnings]
+    assert any(note.startswith("gains of task 'ctl', member 2 (pid_joint): bandwidth 30 rad/s, damping 1 make kp [")
+               for note in result.robot_notes), result.robot_notes
+
+
+def test_a_pid_inside_a_combined_task_that_reads_its_goal_directly_is_warned_of_the_torque_the_step_asks(tmp_path):
+    path = write(tmp_path, "ur5_combined", combined_subsystem(
+        UR5_WRIST.format(kd=10), first="{module: differentiator, ports: {z: q_d, zd: qd_r}}", pid_ports="{q_r: q_d}"))
+    result = check_file(path)
+    assert not result.errors, [e.format() for e in result.errors]
+    warned = [w for w in result.warnings if w.code == "W302"]
+    assert len(warned) == 6, [w.format() for w in result.warnings]  # every joint: the plant starts at zero
+    assert warned[1].message == ("the goal of joint 2 (shoulder_lift_joint) is 1 from the start: member 2 (pid_joint) of task "
+                                 "'ctl' asks kp 3000 x 1 = 3000 at once, past the effort limit 150")
+
+
 def wrist_bound() -> float:
     robot = load_robot(UR5, Path(REPO), 0.001, {})
     inertia = inertia_range(robot.arm, robot.ee)
@@ -130,18 +189,15 @@ def test_the_verdict_agrees_with_the_simulated_arm_on_either_side_of_the_bound(t
     assert not check_file(inside).errors
     assert [e.code for e in check_file(outside).errors] == ["E326"]
     settled = run_demo(inside, tmp_path)
-    assert settled.returncode == 0, settled.stdout + settled.stderr
+    assert settled.returncode == 0 and "fault:" not in settled.stderr, settled.stdout + settled.stderr
     assert "job 'reach' (step 1 of 1 of application 'demo'): done" in settled.stdout
     refused = subprocess.run([*PBO, "run", str(outside), "--clock", "sim"], capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert refused.returncode == 1 and "E326" in refused.stderr
-    diverged = run_demo(outside, tmp_path, "--allow-unstable-loops")  # the wrist swings at its torque limit
-    said = diverged.stdout + diverged.stderr
-    assert diverged.returncode == 2
-    assert "job 'reach' (step 1 of 1 of application 'demo'): timed out after 6 s" in said
-    q_m, qd_m = (re.search(rf"{name} = \[([^\]]*)\]", said) for name in ("q_m", "qd_m"))
-    assert q_m is not None and qd_m is not None, said
-    wrist = float(q_m.group(1).split(",")[5]), float(qd_m.group(1).split(",")[5])
-    assert abs(wrist[0] - UR5_GOAL[5]) > 1e-3 or abs(wrist[1]) > 1e-3, said  # joint 6 is what never settles
+    diverged = run_demo(outside, tmp_path, "--allow-unstable-loops")  # the wrist swings from one torque limit to the other
+    assert diverged.returncode == 2, diverged.stdout + diverged.stderr
+    [fault] = [line for line in diverged.stderr.splitlines() if line.startswith("fault:")]
+    assert fault.startswith("fault: joint 6: the torque command 'tau_u' kept coming back to its effort limit of ±28 N m"), fault
+    assert fault.endswith("(robot interface 'robot'; its 'tau_u' was written by task 'pid')"), fault
 
 
 @pytest.mark.multiprocess

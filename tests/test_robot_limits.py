@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,7 +20,7 @@ import pytest
 
 from drivers.mujoco_arm.driver import MujocoArmDriver
 from drivers.mujoco_arm.plant import MujocoArmPlant
-from modules._robot_limits import SATURATION_BOUND, VELOCITY_TOLERANCE, ArmLimits
+from modules._robot_limits import DRAIN_SLOWER, SATURATION_BOUND, VELOCITY_TOLERANCE, ArmLimits
 from modules.robot_position import RobotPosition
 from modules.robot_torque import RobotTorque
 from pbo_runtime import Arm, ParamError, Status
@@ -48,9 +49,14 @@ def test_a_torque_past_the_effort_limit_is_clipped_to_it_and_counted_while_it_st
     for cycle in range(1, 4):
         assert limits.saturate_torque(asked, out)
         np.testing.assert_array_equal(out, [97.6, -186.4, 10.0, -10.0, 20.1, 0.0])
-        np.testing.assert_array_equal(limits.saturated_for, [cycle, cycle, 0, 0, cycle, 0])  # at the limit counts
+        np.testing.assert_array_equal(limits.at_limit, [cycle, cycle, 0, 0, cycle, 0])  # at the limit, either sign, counts
+    np.testing.assert_array_equal(limits.saturation_count, [6, 6, 0, 0, 6, 0])
+    for drained in range(1, 7):  # back within: each count drains, DRAIN_SLOWER times slower than it rose
+        assert not limits.saturate_torque(np.zeros(6), out)
+        np.testing.assert_array_equal(limits.saturation_count, [6 - drained, 6 - drained, 0, 0, 6 - drained, 0])
+    np.testing.assert_array_equal(limits.at_limit, 0)  # every count at 0: the next saturation is counted afresh
     assert not limits.saturate_torque(np.zeros(6), out)
-    np.testing.assert_array_equal(limits.saturated_for, 0)  # back within: each count starts again
+    np.testing.assert_array_equal(limits.saturation_count, 0)  # never below 0
 
 
 def test_a_torque_saturated_past_the_bound_is_divergence_and_not_before():
@@ -63,8 +69,44 @@ def test_a_torque_saturated_past_the_bound_is_divergence_and_not_before():
         assert not limits.saturated_too_long()
     limits.saturate_torque(asked, out)
     assert limits.saturated_too_long()
-    message = limits.saturation_message(asked, "tau_u", TIMESTEP)
+    message = limits.saturation_message(asked, "tau_u", TIMESTEP, allowed * TIMESTEP)
     assert message.startswith("joint 1: the torque command 'tau_u' stayed at its effort limit of 97.6 N m for 51 ms")
+
+
+def limit_cycle(at_limit: int, within: int, cycles: int) -> Iterator[np.ndarray]:
+    """Joint 6's torque at its limit `at_limit` cycles of every `at_limit + within`, its sign turning
+    each time it comes back (the others at rest)."""
+    tau = np.zeros(6)
+    for k in range(cycles):
+        phase, swing = k % (at_limit + within), k // (at_limit + within)
+        tau[5] = (-1) ** swing * (40.0 if phase < at_limit else 10.0)
+        yield tau
+
+
+@pytest.mark.parametrize("at_limit, within", [(2, 1), (1, 1)])
+def test_a_torque_that_keeps_coming_back_to_its_limit_in_either_direction_is_divergence(at_limit, within):
+    limits = limits_of("puma560")
+    out = np.zeros(6)
+    for k, tau in enumerate(limit_cycle(at_limit, within, 2000)):
+        if limits.saturate_torque(tau, out, k * TIMESTEP) and limits.saturated_too_long():
+            break
+    else:
+        pytest.fail("the limit cycle was never caught")
+    swing, net = at_limit + within, DRAIN_SLOWER * at_limit - within  # what each swing adds to the count
+    assert k + 1 <= swing * math.ceil((limits.saturated_cycles_allowed + 1) * DRAIN_SLOWER / net)  # once past the bound's worth
+    message = limits.saturation_message(tau, "tau_u", TIMESTEP, k * TIMESTEP)
+    held, span = limits.at_limit[5], k + 1
+    assert message.startswith(f"joint 6: the torque command 'tau_u' kept coming back to its effort limit of ±21.3 N m: at it "
+                              f"{held} ms of the last {span} ms, past the saturation bound of 50 ms"), message
+    assert held == pytest.approx(span * at_limit / swing, abs=at_limit)
+
+
+def test_a_torque_at_its_limit_one_cycle_in_three_is_never_divergence():
+    limits = limits_of("puma560")
+    out = np.zeros(6)
+    for tau in limit_cycle(1, DRAIN_SLOWER, 5000):  # what a cycle at the limit adds, the cycles within take off
+        limits.saturate_torque(tau, out)
+        assert not limits.saturated_too_long()
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
@@ -75,7 +117,7 @@ def test_a_command_that_is_not_finite_is_never_clipped_and_reaches_the_driver_to
     tau[2] = bad
     assert not limits.saturate_torque(tau, out)
     np.testing.assert_array_equal(out, tau)
-    np.testing.assert_array_equal(limits.saturated_for, 0)
+    np.testing.assert_array_equal(limits.saturation_count, 0)
     limits.limit_position(tau, np.zeros(6), np.full(6, 0.001), out)
     np.testing.assert_array_equal(out, tau)
 
@@ -129,8 +171,9 @@ def test_the_checks_allocate_nothing():
 
     def cycle() -> None:
         limits.outside(q, qd)
-        limits.saturate_torque(tau, out)
+        limits.saturate_torque(tau, out, 0.5)
         limits.saturated_too_long()
+        limits.saturate_torque(q, out, 0.5)  # within: the counts drain
         limits.limit_position(q, out, step, out)
 
     assert allocation_peak(cycle) == 0

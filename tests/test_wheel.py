@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shlex
 import shutil
 import subprocess
 import sys
@@ -187,27 +188,34 @@ def comment_commands(folder: Path) -> list[tuple[str, str]]:
     return found
 
 
-@pytest.mark.multiprocess
-def test_every_command_in_the_shipped_files_comments_works_in_the_folder_pbo_examples_makes(installed, examples):
-    """check, bus and graph run as written; a run's arguments are parsed by the CLI and its names (a
-    configuration, an application, the configurations it alternates) found in the file: the files
-    themselves run in the end-to-end tests."""
-    from pbo_runtime.cli.main import _parser
+def assert_a_runs_names_are_in_its_file(folder: Path, command: str) -> None:
+    """`pbo run ...` parsed by the CLI's own parser in `folder`: its file is there, and the names it
+    gives (a configuration, an application, the configurations it alternates) are in that file. An
+    application file's names are checked by `pbo check` of it; the files themselves run in the end-to-end tests."""
     from pbo_runtime.config.loader import load_subsystem
 
+    try:
+        args = parse_cli(command_words(command)[1:])
+    except SystemExit as refused:
+        raise AssertionError(f"the CLI refuses its arguments: {command}") from refused
+    assert (folder / args.file).is_file(), command
+    if re.search(r"(?m)^subsystems:", (folder / args.file).read_text()):
+        return
+    subsystem = load_subsystem(folder / args.file)
+    named = [args.config] + (args.alternate.split(",") if args.alternate else [])
+    assert all(c is None or c in subsystem.configurations for c in named), command
+    assert args.app is None or args.app in subsystem.applications, command
+
+
+@pytest.mark.multiprocess
+def test_every_command_in_the_shipped_files_comments_works_in_the_folder_pbo_examples_makes(installed, examples):
+    """check, bus and graph run as written; a run's arguments are parsed and its names found in the file."""
     commands = comment_commands(examples)
     assert len(commands) >= 15 and all("configs/" not in command for _, command in commands)
     env = {**installed["env"], "PATH": f"{installed['site'] / 'bin'}{os.pathsep}{os.environ['PATH']}"}
     for file, command in commands:
         if command.startswith("pbo run"):
-            args = _parser().parse_args(command.split()[1:])
-            assert (examples / args.file).is_file(), command
-            if args.file.endswith(("leader_follower.yaml",)):
-                continue  # an application file: pbo check of it runs above
-            subsystem = load_subsystem(examples / args.file)
-            named = [args.config] + (args.alternate.split(",") if args.alternate else [])
-            assert all(c is None or c in subsystem.configurations for c in named), command
-            assert args.app is None or args.app in subsystem.applications, command
+            assert_a_runs_names_are_in_its_file(examples, command)
             continue
         done = subprocess.run(["bash", "-c", command], cwd=examples, env=env, capture_output=True, text=True, timeout=120)
         assert done.returncode == 0, f"{file}: $ {command}\n{done.stdout}\n{done.stderr}"
@@ -219,3 +227,185 @@ def test_the_wheel_ships_every_file_of_the_hmi(installed):
         return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file())
 
     assert files(installed["site"] / "pbo_runtime" / "hmi") == files(REPO / "pbo_runtime" / "hmi")
+
+
+USER_PAGES_LEFT_OUT = {"contributing.md": "for a checkout", "performance.md": "the benchmarks' own commands",
+                       "tutorial.md": "followed command by command above"}
+NOT_COMMANDS = {"pbo run (supervisor, job control) ── signal queue per RTPU ──▶ python -m rtpu ... (one per RTPU)":
+                "architecture.md's diagram"}
+LIVE_VERBS = {"status", "on", "off", "clear", "switch", "job", "event", "play", "spawn", "kill", "replace", "set",
+              "app", "save", "svar", "stop", "clean"}
+RAN_VERBS = {"check", "bus", "graph", "lexicon", "place", "schema", "robot", "examples", "runs", "completion", "plot", "log",
+             "allocate", "--help"}
+FILE_TOKEN = re.compile(r"/|\.(ya?ml|json|mcap|csv|png|svg|pdf|urdf|npy)$")
+OUTPUT_FLAGS = {"-o", "--out", "--report"}
+
+
+def docs_commands(docs: Path = REPO / "docs") -> list[tuple[str, str]]:
+    """(page, command) for each `pbo` command of docs/'s user pages (all but USER_PAGES_LEFT_OUT), as written.
+
+    In a fenced code block: every line that starts with `pbo ` (or `.venv/bin/pbo `) after an
+    optional prompt (`$ `, `host$ `), but not output (`pbo: ...`, `pbo hmi: ...`); `&&` and `;` split
+    a line into its commands. Inline: a backticked `pbo ...` that names a file (a word with a `/` or
+    a file's extension), its whitespace joined across line breaks. What each one then gets is
+    what_to_do's.
+    """
+    found = []
+    for page in sorted(docs.glob("*.md")):
+        if page.name in USER_PAGES_LEFT_OUT:
+            continue
+        text = page.read_text()
+        lines = [line.strip() for block in re.findall(r"(?ms)^ *```[^\n]*\n(.*?)^ *```", text) for line in block.splitlines()]
+        for line in lines:
+            line = re.sub(r"^\S*\$ ", "", line)
+            if re.match(r"(\.venv/bin/)?pbo [^:\s]+(\s|$)", line):
+                found += [(page.name, part.strip()) for part in re.split(r"&&|;", line) if "pbo " in part]
+        prose = re.sub(r"(?ms)^ *```.*?^ *```", "", text)
+        for span in re.findall(r"`(pbo [^`]+)`", prose):
+            command = " ".join(span.split())
+            if any(FILE_TOKEN.search(word) for word in command.split()):
+                found.append((page.name, command))
+    return found
+
+
+def command_words(command: str) -> list[str]:
+    """The command's words, up to a comment or a shell redirection, pipe or `&`."""
+    words = shlex.split(command, comments=True)
+    return words[:next((i for i, w in enumerate(words) if w in {">", ">>", "|", "&", "2>"}), len(words))]
+
+
+def input_files(words: list[str]) -> list[str]:
+    """The files a command reads: its words that name a file, but not those after an output flag."""
+    return [w for before, w in zip(words, words[1:]) if before not in OUTPUT_FLAGS and FILE_TOKEN.search(w)
+            and not w.startswith("package://")]
+
+
+def runs_read(commands: list[str]) -> set[str]:
+    """The run directories (`runs/NAME`) and run reports (`run.json`) the commands read."""
+    found = set()
+    for command in commands:
+        if command not in NOT_COMMANDS and what_to_do(command) == "run":
+            for word in input_files(command_words(command)):
+                found |= {m.group(0) for m in [re.match(r"runs/[^/]+|run\.json$", word)] if m}
+    return found
+
+
+def what_to_do(command: str) -> str:
+    """`run` (as written, exit status 0), `parse-run` (a `pbo run`: the CLI's parser takes its
+    arguments, its file and the names it gives are there), or why it is not run ("not run: ...": a
+    synopsis with placeholders such as FILE; a live run's verb; the HMI; a file the reader writes,
+    i.e. a .yaml not under pbo-examples/), its arguments parsed all the same. A command that names
+    configs/ or .venv/, that the parser refuses, or that fits none of these fails the test."""
+    if command in NOT_COMMANDS:
+        return f"not run: {NOT_COMMANDS[command]}, not a command"
+    words = command_words(command)
+    assert words[0] == "pbo" and not any(w.startswith(("configs/", ".venv/")) for w in words), \
+        f"written for a checkout, not for a wheel user after `pbo examples`: {command}"
+    if any(re.search(r"\b[A-Z][A-Z_]{2,}\b|^\[|\.\.\.", w) for w in words[1:]):
+        return "not run: a synopsis (placeholders)"
+    verb = words[1]
+    try:
+        if verb != "--help":
+            parse_cli(words[1:])
+    except SystemExit as refused:
+        raise AssertionError(f"the CLI refuses its arguments: {command}") from refused
+    inputs = input_files(words)
+    if verb in LIVE_VERBS:
+        return "not run: acts on a live run (arguments parsed)"
+    if verb == "hmi":
+        return "not run: serves the browser HMI (arguments parsed)"
+    if any(not w.startswith("pbo-examples/") and not w.startswith("runs/") and w.endswith((".yaml", ".yml")) for w in inputs):
+        return "not run: names a file of the reader's own (arguments parsed)"
+    if verb == "run":
+        return "parse-run"
+    if verb in RAN_VERBS:
+        return "run"
+    raise AssertionError(f"cannot classify this docs command: say in tests/test_wheel.py how to test it: {command}")
+
+
+def parse_cli(words: list[str]):
+    """The CLI's own parser on a command's words (the one place this test file reaches for it)."""
+    from pbo_runtime.cli.main import _parser
+
+    return _parser().parse_args(words)
+
+
+def make_the_runs_read(installed: dict, folder: Path, made: set[str]) -> None:
+    """The run directories and reports the docs' commands read, made in `folder` by one run of
+    pbo-examples/pid_joint.yaml on the simulated clock."""
+    if made:
+        ran = run(installed, installed["pbo"], "run", str(folder / "pbo-examples" / "pid_joint.yaml"), "--clock", "sim",
+                  "--duration", "1", "--no-live", "--out", str(folder / "runs" / "made"), "--report", str(folder / "made.json"))
+        assert ran.returncode == 0, ran.stdout + ran.stderr
+    for name in made:
+        (folder / name).symlink_to(folder / ("made.json" if name.endswith(".json") else "runs/made"))
+
+
+@pytest.mark.multiprocess
+def test_every_pbo_command_in_the_docs_works_for_a_wheel_user_in_the_folder_pbo_examples_makes(installed, tmp_path):
+    """The user pages' commands (docs_commands says which lines) are run as written in a folder of
+    their own, `pbo examples` first: each must end with status 0; the run directories and reports
+    they read are made first by a run of the demo. A `pbo run` is parsed and its names found in its
+    file (the files run in the end-to-end tests). What needs a live run, a browser or the reader's
+    own file is parsed and listed, not run; a command the test cannot classify fails it."""
+    commands = sorted(dict.fromkeys(command for _, command in docs_commands()),
+                      key=lambda command: command_words(command) != ["pbo", "examples"])
+    assert command_words(commands[0]) == ["pbo", "examples"], "no page says `pbo examples`"
+    env = {**installed["env"], "PATH": f"{installed['site'] / 'bin'}{os.pathsep}{os.environ['PATH']}"}
+    ran, not_run = [], []
+    for command in commands:
+        action = what_to_do(command)
+        if action == "parse-run":
+            assert_a_runs_names_are_in_its_file(tmp_path, command)
+            ran.append(command)
+        elif action == "run":
+            words = command_words(command)
+            done = subprocess.run([installed["pbo"], *words[1:]], cwd=tmp_path, env=env, capture_output=True, text=True,
+                                  timeout=120)
+            assert done.returncode == 0, f"$ {command}\n{done.stdout}\n{done.stderr}"
+            ran.append(command)
+        else:
+            not_run.append(f"{command}: {action}")
+        if command == commands[0]:  # names of their own: another run of the shipped ones may be live here
+            for example in (tmp_path / "pbo-examples").glob("*.yaml"):
+                example.write_text(re.sub(r"(?m)^subsystem: (.*)$", rf"subsystem: \1_{uuid.uuid4().hex[:6]}",
+                                          example.read_text(), count=1))
+            make_the_runs_read(installed, tmp_path, runs_read(commands))
+    print("not run:", *not_run, sep="\n  ")
+    assert len(ran) >= 25, (ran, not_run)
+
+
+@pytest.mark.parametrize(("command", "said"), [
+    ("pbo check configs/pid_joint.yaml", "written for a checkout"),
+    (".venv/bin/pbo check pbo-examples/pid_joint.yaml", "written for a checkout"),
+    ("pbo chekc pbo-examples/pid_joint.yaml", "the CLI refuses its arguments"),
+    ("pbo run pbo-examples/pid_joint.yaml --durration 3", "the CLI refuses its arguments"),
+])
+def test_a_docs_command_written_for_a_checkout_or_that_the_cli_refuses_fails(command, said):
+    with pytest.raises(AssertionError, match=said):
+        what_to_do(command)
+
+
+def test_a_docs_command_of_a_verb_the_test_does_not_know_fails_it(monkeypatch):
+    monkeypatch.setattr(sys.modules[__name__], "RAN_VERBS", RAN_VERBS - {"graph"})
+    with pytest.raises(AssertionError, match="cannot classify"):
+        what_to_do("pbo graph pbo-examples/pid_joint.yaml")
+
+
+def test_docs_commands_takes_prompted_and_bare_lines_of_code_blocks_and_inline_ones_naming_a_file(tmp_path):
+    (tmp_path / "page.md").write_text("""Run `pbo check FILE`, then `pbo bus
+pbo-examples/pid_joint.yaml`; `pbo status` needs a run.
+
+```
+$ pbo check pbo-examples/a.yaml && pbo graph pbo-examples/a.yaml  # two
+pbo: a message, not a command
+host$ pbo run pbo-examples/a.yaml
+pbo lexicon
+```
+""")
+    assert [command for _, command in docs_commands(tmp_path)] == [
+        "pbo check pbo-examples/a.yaml", "pbo graph pbo-examples/a.yaml  # two", "pbo run pbo-examples/a.yaml",
+        "pbo lexicon", "pbo bus pbo-examples/pid_joint.yaml"]
+    assert [what_to_do(c) for c in ("pbo check FILE", "pbo status", "pbo check arm.yaml", "pbo lexicon")] == [
+        "not run: a synopsis (placeholders)", "not run: acts on a live run (arguments parsed)",
+        "not run: names a file of the reader's own (arguments parsed)", "run"]

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol
 from pbo_runtime.config.checker.loops import GAINS_NOTE
 from pbo_runtime.edit.live import LiveChangeRefused, LiveDescription, TaskChange, parse_assignments
 from pbo_runtime.edit.live_save import save_live
-from pbo_runtime.config.values import INT_RANGE, as_value, describe, element_problem, range_problem
+from pbo_runtime.config.values import as_value, describe, element_problem, range_problem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import operator_input
 from pbo_runtime.ipc.control import BadRequest

@@ -183,7 +183,7 @@ def comment_commands(folder: Path) -> list[tuple[str, str]]:
     for path in sorted(folder.glob("*.yaml")):
         for line in path.read_text().splitlines():
             if line.lstrip().startswith("#"):
-                for command in re.findall(r"(pbo (?:check|run|bus|graph) [A-Za-z0-9_]+\.yaml[^`;#)]*)", line):
+                for command in re.findall(r"(pbo (?:check|run|bus|graph) [A-Za-z0-9_/]+\.yaml[^`;#)]*)", line):
                     found.append((path.name, command.strip()))
     return found
 

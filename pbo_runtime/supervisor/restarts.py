@@ -1,37 +1,10 @@
 """A dead RTPU restarted alone, within its restart policy (`restart: {max: 3, within: 10 s}`).
 
-When an RTPU with a policy dies (`failures.RtpuDied`, raised where the supervisor notices the
-exit), job control: counts the death against the policy (past it, the run stops as before, and
-says why); recovers the table lock if the dead process held it (`Children._check_children`);
-launches a new process for the RTPU with the same arguments; spawns its tasks that were alive,
-in const order, so each `init` reads the table's current constants; and turns on, at a cycle
-boundary, those that were ON. Meanwhile the other RTPUs never stop: a critical task whose inputs
-came from the dead RTPU finds them past their freshness bound and runs its locally stable
-behaviour, and resumes by itself once they are fresh again.
-
-A death during a switch (a job's step, `--alternate`, `pbo switch`; dynamic or static) is
-restarted the same way, in the configuration the switch goes to (`JobControl.switching`): the
-new process starts with the plan already in the table's header, which it takes as seen, so it
-never applies the plan; its tasks are spawned (static: those of the new configuration) and,
-once the plan's activation has passed, those of the new configuration turned on. The other
-RTPUs' part of the switch stands (they applied the plan, or apply it, once); the switch waits
-for no report from the restarted RTPU, a static switch does what is left of its kills and
-spawns (none twice) and releases its hold on the critical tasks, and the switch's record names
-the restart (`restarted`). Past the policy, the run stops as at any other time, and says why.
-
-On the simulated clock (`--clock sim`) the death happens inside some tick N, while the
-participants pass the turn among themselves: the ring is first brought to a stop where it stood
-(`clock.stop_ring`), the new process is launched, tick N is finished for the live participants
-after the point where it stopped (`clock.finish_tick`: no other RTPU loses a tick), and the tasks
-are spawned and turned on in steps between ticks N and N + 1. The restart so takes no simulated
-time, the dead RTPU's tasks lose their cycles of tick N from the crash on and run again from
-their first release after it, and a run with deaths at the same ticks replays bit for bit. In an
-application on the simulated clock a death in a tick is noticed while the subsystem holds the
-application's turn, and the restart is done before it gives the turn back: the other subsystems
-see no tick of difference. A death noticed while another subsystem has the turn (a kill from
-outside) is restarted at once; the tasks' steps wait for the subsystem's next turn.
-
-Restarts apply once the run's table exists.
+The decisions are pure functions of the run's state: `count_death` (past the policy, or not) and
+`restart_plan` (which of its tasks come back spawned, which ON, in which configuration). `Restarts`
+carries them out: a new process from the RTPU's launch description (`restarted` set), its tasks
+spawned in const order and turned on at a cycle boundary, while the other RTPUs run on.
+docs/faults.md says what the operator sees, during a switch and on the simulated clock too.
 """
 
 from __future__ import annotations

@@ -9,12 +9,13 @@ docs/faults.md says what the operator sees, during a switch and on the simulated
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable
 
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.ipc import messages
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
+from pbo_runtime.supervisor.launch import RtpuLaunch
 from pbo_runtime.supervisor.run_report import RunResult
 from pbo_runtime.table.table import Header
 
@@ -51,6 +52,7 @@ class Restarting:
     clock: Any
     children: list[Any]
     launched: dict[str, tuple[list[str], tuple[str, ...]]]
+    rtpu_launches: dict[str, RtpuLaunch]
     task_states: dict[str, str]
     task_errors: dict[str, str]
     every_task: dict[str, Any]
@@ -158,15 +160,10 @@ class Restarting:
             queue = self.signals[death.rtpu]
             while queue.receive(0) is not None:  # what the dead process never served is not for the new one
                 pass
-            arguments, tasks = self.launched[death.rtpu]
-            if "--restarted" not in arguments:
-                arguments = [*arguments, "--restarted"]  # its tasks continue the run's files (a data log)
-            if "--live-now" in arguments:
-                at = arguments.index("--live-now")
-                arguments = arguments[:at] + arguments[at + 2:]
-            if live:  # after live changes, the file no longer describes the run
-                arguments = [*arguments, "--live-now", str(live)]
-            self._launch(death.rtpu, arguments, tasks)
+            _, tasks = self.launched[death.rtpu]
+            # its tasks continue the run's files (a data log); after live changes, the file no longer describes the run
+            launch = replace(self.rtpu_launches[death.rtpu], restarted=True, live_now=live)
+            self._launch(death.rtpu, ["-m", "rtpu", *launch.to_argv()], tasks)
             record.launched_at = self.now() - record.origin
             self.clock.forget_turn(death.rtpu)  # a hand-over to the dead one may land after the ring stopped
             try:

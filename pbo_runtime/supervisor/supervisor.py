@@ -47,6 +47,7 @@ from pbo_runtime.supervisor.events import EventHandling
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested, WrongArgument
 from pbo_runtime.supervisor.fork_server import ForkServer
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
+from pbo_runtime.supervisor.launch import SIM_TICK_DEFAULT, RtpuLaunch
 from pbo_runtime.supervisor.stages import run_stages
 from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.supervisor.live_changes import LiveChanges
@@ -134,6 +135,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.signals: dict[str, messages.Queue] = {}
         self.children: list[Child] = []
         self.launched: dict[str, tuple[list[str], tuple[str, ...]]] = {}
+        self.rtpu_launches: dict[str, RtpuLaunch] = {}  # what each RTPU was started with (a restart changes a field)
         self.child_watch: ChildWatch | None = None
         # what the children are forked from while they start (supervisor.fork_server): one the caller
         # started early (the CLI, before it loaded the file), or one run() starts; ended once they are
@@ -348,17 +350,15 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                 *(["--out", self.out_dir] if self.out_dir else []),
                 "--base-dir", str(Path(plant.loc.file or sub.file).resolve().parent),
             ])
+        ring = tuple(self._roles()) if self.clock.name == "sim" else ()
         for rtpu in sub.rtpus:
             hosted = tuple(t.name for t in sub.tasks_on(rtpu.name))
-            self._launch(rtpu.name, ["-m", "rtpu", sub.file, "--run-id", run_id, "--rtpu", rtpu.name,
-                                     "--epoch", repr(epoch + self.stagger * rtpu.index), "--spin", repr(rtpu.spin),
-                                     *(["--fifo"] if self.fifo else []),
-                                     *self.clock.rtpu_arguments(),
-                                     *(["--out", self.out_dir] if self.out_dir else []),
-                                     "--configuration", self.configuration, "--application", self.application or "",
-                                     *(["--links", json.dumps(self.links)] if self.links else []),
-                                     "--live", self.live_dir],
-                         hosted)
+            launch = self.rtpu_launches[rtpu.name] = RtpuLaunch(
+                sub.file, run_id, rtpu.name, epoch=epoch + self.stagger * rtpu.index, spin=rtpu.spin, fifo=self.fifo,
+                clock=self.clock.name, tick=self.tick or SIM_TICK_DEFAULT, ring=ring, out=self.out_dir,
+                configuration=self.configuration, application=self.application or "", links=self.links,
+                live=self.live_dir)
+            self._launch(rtpu.name, ["-m", "rtpu", *launch.to_argv()], hosted)
         # the plant and the RTPUs start side by side: an RTPU opens the plant's registers only in a
         # task's init, after every child is ready
         self._release_fork_server()

@@ -105,6 +105,35 @@ class LockWatch:
         self.holding = None
 
 
+@dataclass(frozen=True)
+class LockVerdict:
+    """What is done about a holding past the bound, decided from its holder alone."""
+
+    action: str  # "released" (dead holder), "killed" (a live process of this run), "left" (any other)
+    state: str  # the holder: "dead", "stopped" or "running"
+    why_left: str = ""  # for "left": what the run's line says
+
+
+def holder_alive(state: str) -> bool:
+    """Whether a process in this /proc state (`shm.pid_state`; "" when gone) still holds what it took."""
+    return bool(state) and state not in ("Z", "X")
+
+
+def lock_verdict(pid: int, own_pid: int, state: str, ours: bool) -> LockVerdict:
+    """What is done to the holder `pid` (in /proc `state`; `ours`: a child of this run) of a lock held
+    past the bound: an unsigned lock or one of another process is left and the run stops, a dead
+    holder's lock is released, a live child of the run is killed."""
+    alive = holder_alive(state)
+    how = "stopped" if state in ("T", "t") else "running" if alive else "dead"
+    if pid in (0, own_pid):
+        return LockVerdict("left", how, "it cannot be told who holds it; the run is stopped")
+    if not alive:
+        return LockVerdict("released", how)
+    if ours:
+        return LockVerdict("killed", how)
+    return LockVerdict("left", how, "it is not a process of this run, so it was not signalled; the run is stopped")
+
+
 class LockWatching:
     """The Supervisor's part that watches the table lock and takes it for job control's writes."""
 
@@ -162,27 +191,23 @@ class LockWatching:
         pid = holding.holder
         child = next((c for c in self.children if c.process.pid == pid), None)
         state = shm.pid_state(pid) if pid not in (0, os.getpid()) else ""
-        alive = bool(state) and state not in ("Z", "X")
-        if alive and self._lock_comes_free():
+        if holder_alive(state) and self._lock_comes_free():
             self.lock_watch.forget()  # it was taken again and again, not held: no wedge
             return
-        how = "stopped" if state in ("T", "t") else "running" if alive else "dead"
+        verdict = lock_verdict(pid, os.getpid(), state, child is not None)
+        how, action, done = verdict.state, verdict.action, verdict.why_left
         who = _describe(child, pid)
         released = False
-        if pid in (0, os.getpid()):
-            action, done = "left", "it cannot be told who holds it; the run is stopped"
-        elif not alive:
+        if action == "released":
             released = self.table.recover_lock_from(pid)
             action, done = ("released", "the lock was released") if released else ("left", "it could not be released")
-        elif child is not None:
+        elif action == "killed":
+            assert child is not None
             _kill(child.process)
             # reaped, and it held the lock up to the last look: only a taker that has not signed yet
             # could be mistaken for it, a window of microseconds; the arm waits meanwhile
             released = self.table.recover_lock_from(pid, settle=LOCK_LOOK_EVERY)
-            action = "killed"
             done = "it was killed (SIGKILL) and the lock released" if released else "it was killed (SIGKILL)"
-        else:
-            action, done = "left", "it is not a process of this run, so it was not signalled; the run is stopped"
         if released:
             self.result.lock_recoveries += 1
         held_ms = holding.seconds * 1e3

@@ -10,9 +10,9 @@ docs/faults.md says what the operator sees, during a switch and on the simulated
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any, Callable
+from typing import Any, Callable, Mapping, Sequence
 
-from pbo_runtime.config.model import Subsystem
+from pbo_runtime.config.model import RestartPolicy, RtpuSpec, Subsystem
 from pbo_runtime.ipc import messages
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
 from pbo_runtime.supervisor.launch import RtpuLaunch
@@ -41,6 +41,45 @@ class Restart:
         return {"rtpu": self.rtpu, "pid": self.pid, "cause": self.cause, "died_at": self.died_at,
                 "on_again_at": self.on_again_at, "seconds": seconds, "tasks_on": list(self.tasks_on),
                 "attempts": self.attempts, "launched_at": self.launched_at, "ready_at": self.ready_at, "spawned_at": self.spawned_at}
+
+
+def may_restart(role: str, rtpus: Sequence[RtpuSpec], table_made: bool, stop_requested: str) -> bool:
+    """Whether a death of `role` is restarted rather than stopping the run: an RTPU with a policy, once
+    the run's table exists, unless the run is stopping."""
+    if role == "plant" or not table_made or stop_requested:
+        return False
+    spec = next((r for r in rtpus if r.name == role), None)
+    return spec is not None and spec.restart is not None
+
+
+def count_death(deaths: Sequence[float], now: float, policy: RestartPolicy) -> tuple[list[float], bool]:
+    """The deaths within the policy's window once this one (at `now`) is counted, and whether they are
+    past the policy (the run then stops)."""
+    within = [t for t in [*deaths, now] if now - t <= policy.within]
+    return within, len(within) > policy.max
+
+
+@dataclass(frozen=True)
+class RestartPlan:
+    """What a restart brings back: tasks spawned (const order), those turned on, and in which configuration."""
+
+    spawn: list[str]
+    turn_on: tuple[str, ...]
+    configuration: str
+
+
+def restart_plan(hosted: Sequence[str], states: Mapping[str, str], configuration: str,
+                 switching_to: Sequence[str] | None = None, static: bool = False) -> RestartPlan:
+    """The dead RTPU's tasks (`hosted`, those of the description the new process knows) as they were:
+    spawned if they were alive, ON where they were ON. During a switch (`switching_to`: the members of
+    the configuration it goes to, named `configuration`), as that configuration has them: its members
+    ON, and, static, only they spawned."""
+    alive = [t for t in hosted if states.get(t) not in (None, "NOT_CREATED", "KILLED")]
+    if switching_to is None:
+        return RestartPlan(alive, tuple(t for t in hosted if states.get(t) == "ON"), configuration)
+    if static:  # only the new configuration's tasks exist; dynamic: what was spawned stays spawned
+        alive = [t for t in hosted if t in switching_to]
+    return RestartPlan(alive, tuple(t for t in alive if t in switching_to), configuration)
 
 
 class Restarting:
@@ -78,10 +117,7 @@ class Restarting:
 
     def may_restart(self, role: str) -> bool:
         """Whether a death of `role` is restarted rather than stopping the run."""
-        if role == "plant" or self.table is None or self._stop_requested:
-            return False
-        spec = next((r for r in self.subsystem.rtpus if r.name == role), None)
-        return spec is not None and spec.restart is not None
+        return may_restart(role, self.subsystem.rtpus, self.table is not None, self._stop_requested)
 
     def restart_rtpu(self, death: RtpuDied) -> None:
         """Bring the dead RTPU's tasks back as they were: spawned, and ON where they were ON; during a
@@ -91,14 +127,10 @@ class Restarting:
         described = self.subsystem if switch is None or not switch.change else self.job_control.switching_subsystem
         live = self._live_sequence if switch is not None and switch.change else self._live_adopted
         hosted = [t for t in self._hosted_by(death.rtpu) if t in described.tasks]
-        alive = [t for t in hosted if self.task_states.get(t) not in (None, "NOT_CREATED", "KILLED")]
-        was_on = tuple(t for t in hosted if self.task_states.get(t) == "ON")
         configuration = self.configuration if switch is None else switch.after
-        if switch is not None:
-            members = described.configurations[configuration].tasks
-            # static: only the new configuration's tasks exist; dynamic: what was spawned stays spawned
-            alive = [t for t in hosted if t in members] if self.static else alive
-            was_on = tuple(t for t in alive if t in members)
+        members = None if switch is None else described.configurations[configuration].tasks
+        plan = restart_plan(hosted, self.task_states, configuration, members, self.static)
+        alive, was_on = plan.spawn, plan.turn_on
         started = self.started_at if self.started_at is not None else self.now()
         record = Restart(death.rtpu, death.pid, death.cause, self.now() - started, was_on, origin=started)
         self.result.restarts.append(record)
@@ -179,11 +211,9 @@ class Restarting:
     def _count_death(self, death: RtpuDied, record: Restart) -> None:
         policy = next(r for r in self.subsystem.rtpus if r.name == death.rtpu).restart
         assert policy is not None
-        now = self.now()
-        deaths = self._deaths.setdefault(death.rtpu, [])
-        deaths.append(now)
-        deaths[:] = [t for t in deaths if now - t <= policy.within]
-        if len(deaths) > policy.max:
+        deaths, past_policy = count_death(self._deaths.get(death.rtpu, []), self.now(), policy)
+        self._deaths[death.rtpu] = deaths
+        if past_policy:
             raise RunFailure(f"{death}: it died {len(deaths)} times within {policy.within:g} s, more than its restart "
                              f"policy allows (restart: {{max: {policy.max}, within: {policy.within:g} s}}), so the run stops")
 

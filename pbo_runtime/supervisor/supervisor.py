@@ -53,6 +53,7 @@ from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockWatching
 from pbo_runtime.supervisor.restarts import Restarting
+from pbo_runtime.supervisor.run_options import RunOptions
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.application_lockstep import TurnGate
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
@@ -78,22 +79,15 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         duration: float | None = 5.0,
         on_tick: Callable[[Supervisor], None] | None = None,
         say: Callable[[str], None] = lambda text: None,
-        application: str | None = None,
-        static: bool = False,
-        alternate: tuple[list[str], int, float] | None = None,
-        fifo: bool | None = None,
-        clock: str = "real",
-        out_dir: str | None = None,
-        links: dict[str, dict[str, Any]] | None = None,
-        turn: str | None = None,
-        stages: str | None = None,
-        startup: dict[str, float] | None = None,
+        options: RunOptions | None = None,
         fork_server: ForkServer | None = None,
     ) -> None:
         self.subsystem = subsystem
+        options = options or RunOptions()
         # the start-up's time line (RunResult.startup): what the caller did before (the CLI: its
         # imports, the file's load and check), then each phase here, read once, off the cycles' path
-        self._startup = dict(startup or {})
+        self._startup = dict(options.startup)
+        application, clock, turn = options.application, options.clock, options.turn
         if clock not in ("real", "sim"):
             raise RunFailure(f"unknown clock '{clock}': use real or sim")
         if turn and clock != "sim":
@@ -102,10 +96,10 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         # (clock.application_lockstep); it is no longer waited for once the run is stopped or has failed
         gate = TurnGate(turn, lambda: bool(self._stop_requested or self.result.failure)) if turn else None
         self.clock: RunClock = SimRunClock(simulation_tick(subsystem), gate) if clock == "sim" else RealRunClock()
-        self.out_dir = os.path.abspath(out_dir) if out_dir else ""
-        self.links = dict(links or {})  # an application's links, handed to every RTPU (see _links)
+        self.out_dir = os.path.abspath(options.out_dir) if options.out_dir else ""
+        self.links = dict(options.links or {})  # an application's links, handed to every RTPU (see _links)
         self.application = application
-        self.stages = stages  # an application file's stages: this subsystem's part, and the joins (supervisor.stages)
+        self.stages = options.stages  # an application file's stages: this subsystem's part, and the joins (supervisor.stages)
         if application is not None and application not in subsystem.applications:
             close = closest_name(application, subsystem.applications)
             raise WrongArgument(f"no application '{application}' in {subsystem.file}"
@@ -161,14 +155,14 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.tick = self.clock.tick
         self.result.clock = clock
         self.result.tick = self.tick
-        self.static = static
-        self.job_control = JobControl(self, static=static)
+        self.static = options.static
+        self.job_control = JobControl(self, static=options.static)
         self.result.application = application or ""
-        self.alternate = alternate
+        self.alternate = options.alternate
         # SCHED_FIFO where the OS allows it, on the real clock unless asked otherwise: under SCHED_OTHER
         # the machine's own threads take a CPU for milliseconds and RTPUs overrun several times as
         # often (8 to 14 in docs/performance.md). The simulated clock waits on ticks: it needs none.
-        self.fifo = self.clock.fifo_by_default if fifo is None else fifo
+        self.fifo = self.clock.fifo_by_default if options.fifo is None else options.fifo
         self._stable: dict[str, tuple[float, str, str]] = {}
         self.control: ControlServer | None = None
         self._serving = False
@@ -246,8 +240,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                 self.result.stopped_by = "stages done"
                 self.say("every stage is done")
             elif self.alternate:
-                self.job_control.alternate(*self.alternate)
-                self.result.stopped_by = f"{self.alternate[1]} switches done"
+                self.job_control.alternate(self.alternate.configurations, self.alternate.switches, self.alternate.interval)
+                self.result.stopped_by = f"{self.alternate.switches} switches done"
             else:
                 self._watch()
         except RunRefused:

@@ -43,6 +43,7 @@ from pbo_runtime.supervisor.child_watch import ChildWatch
 from pbo_runtime.supervisor.children import Children, Child
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.supervisor.control_service import ControlService
+from pbo_runtime.supervisor.event_ledger import EventLedger, EventOutlets
 from pbo_runtime.supervisor.events import EventHandling
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested, WrongArgument
 from pbo_runtime.supervisor.fork_server import ForkServer
@@ -134,8 +135,6 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         # what the children are forked from while they start (supervisor.fork_server): one the caller
         # started early (the CLI, before it loaded the file), or one run() starts; ended once they are
         self.fork_server: ForkServer | None = fork_server
-        self.task_states: dict[str, str] = {t: TaskState.NOT_CREATED.name for t in subsystem.tasks}
-        self.task_errors: dict[str, str] = {}
         self._deaths: dict[str, list[float]] = {}  # per RTPU, when it died within its restart policy's window
         self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id,
                                 gains=[note for note in subsystem.robot_notes if note.startswith(GAINS_NOTE)])
@@ -143,7 +142,6 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.result.links = self.links
         self.started_at: float | None = None  # run time when the configuration came on
         self._stop_requested = ""
-        self._stats: dict[str, dict[str, Any]] = {}
         self.stall_watch = StallWatch(subsystem.tasks.values(), self._cycles_of, say)
         self._stalls_checked = -math.inf
         self.reconfiguration = Reconfiguration(subsystem)
@@ -157,16 +155,24 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.result.tick = self.tick
         self.static = options.static
         self.job_control = JobControl(self, static=options.static)
+        # what the children's events change (supervisor.event_ledger); the parts share its dicts
+        self.ledger = EventLedger(self.result, say, EventOutlets(
+            switches=self.job_control, staged=self.staged, count_errors=self._count_errors,
+            child_exited=self._child_exited, running=lambda: self.started_at is not None), self._is_critical)
+        self.task_states = self.ledger.task_states
+        self.task_states.update({t: TaskState.NOT_CREATED.name for t in subsystem.tasks})
+        self.task_errors = self.ledger.task_errors
+        self._stats = self.ledger.stats
+        self._stable = self.ledger.stable
+        self._refused = self.ledger.refused
         self.result.application = application or ""
         self.alternate = options.alternate
         # SCHED_FIFO where the OS allows it, on the real clock unless asked otherwise: under SCHED_OTHER
         # the machine's own threads take a CPU for milliseconds and RTPUs overrun several times as
         # often (8 to 14 in docs/performance.md). The simulated clock waits on ticks: it needs none.
         self.fifo = self.clock.fifo_by_default if options.fifo is None else options.fifo
-        self._stable: dict[str, tuple[float, str, str]] = {}
         self.control: ControlServer | None = None
         self._serving = False
-        self._refused: dict[str, str] = {}  # task -> why its RTPU refused the last signal
         # live changes (supervisor.live_changes): the description the run lives by, made at start
         self.live: LiveDescription | None = None
         self.live_dir = ""
@@ -450,6 +456,14 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         """Mark the starting configuration as applied, so executives start in step with job control."""
         assert self.table is not None
         self.table.header[Header.PLAN_CONFIGURATION] = self.reconfiguration.index(self.configuration)
+
+    def _is_critical(self, task: str) -> bool:
+        spec = self.subsystem.tasks.get(task)  # (one the running description does not know: counted critical)
+        return spec is None or spec.critical
+
+    def _child_exited(self) -> None:
+        if self.child_watch is not None:  # (closed once the run stops: children then end as asked)
+            self._check_children()  # a death handled now, not at the next look
 
     def _count_errors(self) -> None:
         """Critical tasks run locally stable while a task of the configuration is in ERROR."""

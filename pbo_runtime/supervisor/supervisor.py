@@ -52,7 +52,7 @@ from pbo_runtime.supervisor.launch import SIM_TICK_DEFAULT, RtpuLaunch
 from pbo_runtime.supervisor.stages import run_stages
 from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.supervisor.live_changes import LiveChanges
-from pbo_runtime.supervisor.lock_watch import LockWatching
+from pbo_runtime.supervisor.lock_watch import LockGuard
 from pbo_runtime.supervisor.restarts import Restarting
 from pbo_runtime.supervisor.run_options import RunOptions
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
@@ -70,7 +70,7 @@ __all__ = ["RunFailure", "RunRefused", "RunResult", "StopRequested", "Supervisor
 STALL_CHECK_EVERY = 0.05  # seconds between looks at the cycle counts (StallWatch); job control pumps every 2 ms
 
 
-class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatching, LiveChanges, Restarting):
+class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChanges, Restarting):
     """Runs one subsystem: a configuration for a duration, or an application's jobs."""
 
     def __init__(
@@ -172,6 +172,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         # often (8 to 14 in docs/performance.md). The simulated clock waits on ticks: it needs none.
         self.fifo = self.clock.fifo_by_default if options.fifo is None else options.fifo
         self.control: ControlServer | None = None
+        self.lock_guard: LockGuard | None = None  # made with the table (supervisor.lock_watch)
         self._serving = False
         # live changes (supervisor.live_changes): the description the run lives by, made at start
         self.live: LiveDescription | None = None
@@ -336,7 +337,9 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self._refuse_if_devices_in_use()  # again, now that a run started at the same instant sees this one
         if self.fork_server is None:  # (a refused run starts no process) it loads while this process goes on
             self._start_fork_server(["pbo_runtime.supervisor.plant_host"] * (sub.plant is not None) + ["rtpu"])
-        self._watch_the_lock(self.table)
+        # from the table's creation: job control's writes wait through the guard; looks begin
+        self.lock_guard = LockGuard(self.table, self.shortest_period, self.result, self.children, self.say, self._run_time,
+                                    self._check_children, lambda: self._stop_requested, lambda: self._serving, self.fifo)
         self._start_live(self.table.layout.n_tasks)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()
@@ -457,6 +460,22 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         assert self.table is not None
         self.table.header[Header.PLAN_CONFIGURATION] = self.reconfiguration.index(self.configuration)
 
+    def _run_time(self) -> float:
+        """Seconds since the configuration came on (0 before)."""
+        return self.now() - self.started_at if self.started_at is not None else 0.0
+
+    def _look_at_the_lock(self) -> None:
+        if self.lock_guard is not None:
+            self.lock_guard.look()
+
+    def _look_at_the_lock_while_stopping(self) -> None:
+        if self.lock_guard is not None:
+            self.lock_guard.look_while_stopping()
+
+    def _while_waiting_for_the_lock(self) -> None:
+        assert self.lock_guard is not None
+        self.lock_guard.while_waiting_for_the_lock()
+
     def _is_critical(self, task: str) -> bool:
         spec = self.subsystem.tasks.get(task)  # (one the running description does not know: counted critical)
         return spec is None or spec.critical
@@ -513,8 +532,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             if self._stop_requested:
                 raise StopRequested(self._stop_requested)
             self._check_stalls()
-            if self.lock_watch is not None:  # while the lock is taken, look again soon
-                timeout = self.lock_watch.next_look_in(timeout)
+            if self.lock_guard is not None:  # while the lock is taken, look again soon
+                timeout = self.lock_guard.watch.next_look_in(timeout)
             self.clock.run_for(timeout, self._take_one_event, self._while_stepping, self._while_ticking)
         except RtpuDied as death:  # its restart policy brings it back; the other RTPUs never stopped
             self.restart_rtpu(death)

@@ -12,11 +12,15 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Any, Callable, Mapping, Sequence
 
-from pbo_runtime.config.model import RestartPolicy, RtpuSpec, Subsystem
+from pbo_runtime.clock.run_clock import RunClock
+from pbo_runtime.config.model import RestartPolicy, RtpuSpec, Subsystem, TaskSpec
+from pbo_runtime.supervisor.children import Child
+from pbo_runtime.supervisor.job_control import JobControl
 from pbo_runtime.ipc import messages
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
 from pbo_runtime.supervisor.launch import RtpuLaunch
 from pbo_runtime.supervisor.run_report import RunResult
+from pbo_runtime.table.table import StateTable
 from pbo_runtime.table.table import Header
 
 
@@ -82,57 +86,78 @@ def restart_plan(hosted: Sequence[str], states: Mapping[str, str], configuration
     return RestartPlan(alive, tuple(t for t in alive if t in switching_to), configuration)
 
 
-class Restarting:
-    """The Supervisor's part that brings a dead RTPU back."""
+@dataclass(frozen=True)
+class RunView:
+    """What a restart reads of the run as it is now (the description and configuration change as it goes)."""
 
-    subsystem: Subsystem
-    result: RunResult
-    table: Any
-    clock: Any
-    children: list[Any]
-    launched: dict[str, tuple[list[str], tuple[str, ...]]]
-    rtpu_launches: dict[str, RtpuLaunch]
-    task_states: dict[str, str]
-    task_errors: dict[str, str]
-    every_task: dict[str, Any]
-    signals: dict[str, messages.Queue]
-    configuration: str
-    started_at: float | None
-    _stop_requested: str
-    say: Callable[[str], None]
+    subsystem: Callable[[], Subsystem]  # the description the run lives by
+    configuration: Callable[[], str]  # the running configuration
+    started_at: Callable[[], float | None]  # run time when the configuration came on
+    table: Callable[[], StateTable | None]  # the run's table, once made
+    stop_requested: Callable[[], str]  # why the run is asked to stop ("" while it is not)
+    live: Callable[[], tuple[int, int]]  # the live descriptions staged last and adopted (live-N.json; 0: the file)
     now: Callable[[], float]
-    respawn: Callable[[str], None]
-    turn_on: Callable[[str, str], None]
-    _launch: Callable[..., None]
-    _await_ready: Callable[[set[str]], None]
-    _list_children: Callable[[], None]
-    _take_one_event: Callable[[float], None]
-    _while_stepping: Callable[[], None]
-    _while_ticking: Callable[[], None]
-    _deaths: dict[str, list[float]]  # per RTPU, when it died within its policy's window
-    job_control: Any  # supervisor.job_control.JobControl: its `switching` is the switch under way, if any
-    static: bool
-    _live_sequence: int  # the live description staged last (live-N.json)
-    _live_adopted: int  # the one the run lives by (0: the file)
+
+
+@dataclass(frozen=True)
+class RunSteps:
+    """What a restart does through the rest of the supervisor."""
+
+    launch: Callable[[str, list[str], tuple[str, ...]], None]  # start a child (role, `-m MODULE ...`, its tasks)
+    await_ready: Callable[[set[str]], None]
+    list_children: Callable[[], None]  # the table's manifest names the live children
+    respawn: Callable[[str], None]  # spawn a task and wait for its init
+    turn_on: Callable[[str, str], None]  # turn a task on in a configuration
+    take_one_event: Callable[[float], None]
+    while_stepping: Callable[[], None]
+    while_ticking: Callable[[], None]
+
+
+class Restarter:
+    """The supervisor's part that brings a dead RTPU back; it keeps each RTPU's deaths in its policy's window."""
+
+    def __init__(self, run: RunView, steps: RunSteps, clock: RunClock, result: RunResult, job_control: JobControl,
+                 children: list[Child], task_states: dict[str, str], task_errors: dict[str, str],
+                 every_task: dict[str, TaskSpec], signals: dict[str, messages.Queue],
+                 launched: dict[str, tuple[list[str], tuple[str, ...]]], rtpu_launches: dict[str, RtpuLaunch],
+                 static: bool, say: Callable[[str], None]) -> None:
+        self.run = run
+        self.steps = steps
+        self.clock = clock
+        self.result = result
+        self.job_control = job_control  # its `switching` is the switch under way, if any
+        # the run's own collections, shared with the parts that fill them
+        self.children = children
+        self.task_states = task_states
+        self.task_errors = task_errors
+        self.every_task = every_task  # every task the run has had, by name
+        self.signals = signals
+        self.launched = launched
+        self.rtpu_launches = rtpu_launches
+        self.static = static
+        self.say = say
+        self.deaths: dict[str, list[float]] = {}  # per RTPU, when it died within its policy's window
 
     def may_restart(self, role: str) -> bool:
         """Whether a death of `role` is restarted rather than stopping the run."""
-        return may_restart(role, self.subsystem.rtpus, self.table is not None, self._stop_requested)
+        return may_restart(role, self.run.subsystem().rtpus, self.run.table() is not None, self.run.stop_requested())
 
     def restart_rtpu(self, death: RtpuDied) -> None:
         """Bring the dead RTPU's tasks back as they were: spawned, and ON where they were ON; during a
         switch, as the configuration the switch goes to has them."""
         switch = self.job_control.switching
         # what the new process knows: the running description, or the one a live change's plan swaps in
-        described = self.subsystem if switch is None or not switch.change else self.job_control.switching_subsystem
-        live = self._live_sequence if switch is not None and switch.change else self._live_adopted
+        described = self.run.subsystem() if switch is None or not switch.change else self.job_control.switching_subsystem
+        staged, adopted = self.run.live()
+        live = staged if switch is not None and switch.change else adopted
         hosted = [t for t in self._hosted_by(death.rtpu) if t in described.tasks]
-        configuration = self.configuration if switch is None else switch.after
+        configuration = self.run.configuration() if switch is None else switch.after
         members = None if switch is None else described.configurations[configuration].tasks
         plan = restart_plan(hosted, self.task_states, configuration, members, self.static)
         alive, was_on = plan.spawn, plan.turn_on
-        started = self.started_at if self.started_at is not None else self.now()
-        record = Restart(death.rtpu, death.pid, death.cause, self.now() - started, was_on, origin=started)
+        started_at = self.run.started_at()
+        started = started_at if started_at is not None else self.run.now()
+        record = Restart(death.rtpu, death.pid, death.cause, self.run.now() - started, was_on, origin=started)
         self.result.restarts.append(record)
         during = "" if switch is None else f" in '{configuration}', the configuration it was switching to"
         self.say(f"{death}; restarting it{during}")
@@ -141,9 +166,9 @@ class Restarting:
             switch.restarted.append(death.rtpu)
         while True:
             try:
-                record.ready_at = self.now() - started
+                record.ready_at = self.run.now() - started
                 self.bring_up(alive, [])
-                record.spawned_at = self.now() - started
+                record.spawned_at = self.run.now() - started
                 if switch is not None:
                     self._until_activation(switch.activation)
                 self.bring_up(alive, list(was_on), configuration)
@@ -153,7 +178,7 @@ class Restarting:
                     raise RunFailure(f"{again}, while RTPU '{death.rtpu}' was restarting") from None
                 record.attempts += 1
                 self.relaunch(again, record, live)
-        record.on_again_at = self.now() - started
+        record.on_again_at = self.run.now() - started
         self.say(f"RTPU '{death.rtpu}' restarted: {', '.join(was_on) or 'no task'} ON again after "
                  f"{(record.on_again_at - record.died_at) * 1e3:.0f} ms")
 
@@ -162,16 +187,17 @@ class Restarting:
         in `configuration` (default: the running one)."""
         for name in self._in_init_order(spawn):
             if self.task_states.get(name) == "NOT_CREATED":
-                self.respawn(name)
+                self.steps.respawn(name)
         for name in sorted(self._in_init_order(turn_on), key=lambda t: not self.every_task[t].critical):
             if self.task_states.get(name) != "ON":
-                self.turn_on(name, configuration or self.configuration)
+                self.steps.turn_on(name, configuration or self.run.configuration())
 
     def _until_activation(self, activation: float) -> None:
         """A dynamic switch's tasks come on at its activation, not before: wait for it (a restart takes far
         longer than a plan's lead, so this is a safeguard), taking events meanwhile."""
-        while self.now() < activation:  # (on the simulated clock, the ticks up to it)
-            self.clock.run_for(activation - self.now(), self._take_one_event, self._while_stepping, self._while_ticking)
+        while self.run.now() < activation:  # (on the simulated clock, the ticks up to it)
+            self.clock.run_for(activation - self.run.now(), self.steps.take_one_event, self.steps.while_stepping,
+                               self.steps.while_ticking)
 
     def relaunch(self, death: RtpuDied, record: Restart, live: int = 0) -> None:
         """Count the death against the policy (RunFailure past it), then start a new process for the RTPU
@@ -183,24 +209,26 @@ class Restarting:
             for task in self._hosted_by(death.rtpu):
                 self.task_states[task] = "NOT_CREATED"  # the new process knows none of them
                 self.task_errors.pop(task, None)
-            self._list_children()
+            self.steps.list_children()
             # a process that died applying a plan (a task's `on` crashed) left its "switching since" word
             # set: the critical tasks would take the configuration for illegal, for good
-            index = next(r.index for r in self.subsystem.rtpus if r.name == death.rtpu)
-            self.table.header[int(Header.SWITCHING_SINCE_NS) + index] = 0
-            self.clock.stop_ring(death.rtpu, self._while_ticking)  # the simulated clock's ticks, where they stood
+            index = next(r.index for r in self.run.subsystem().rtpus if r.name == death.rtpu)
+            table = self.run.table()
+            assert table is not None  # (restarts apply once the run's table exists)
+            table.header[int(Header.SWITCHING_SINCE_NS) + index] = 0
+            self.clock.stop_ring(death.rtpu, self.steps.while_ticking)  # the simulated clock's ticks, where they stood
             queue = self.signals[death.rtpu]
             while queue.receive(0) is not None:  # what the dead process never served is not for the new one
                 pass
             _, tasks = self.launched[death.rtpu]
             # its tasks continue the run's files (a data log); after live changes, the file no longer describes the run
             launch = replace(self.rtpu_launches[death.rtpu], restarted=True, live_now=live)
-            self._launch(death.rtpu, ["-m", "rtpu", *launch.to_argv()], tasks)
-            record.launched_at = self.now() - record.origin
+            self.steps.launch(death.rtpu, ["-m", "rtpu", *launch.to_argv()], tasks)
+            record.launched_at = self.run.now() - record.origin
             self.clock.forget_turn(death.rtpu)  # a hand-over to the dead one may land after the ring stopped
             try:
-                self._await_ready({death.rtpu})
-                self.clock.finish_tick(self._while_ticking)  # the others' share of the tick the death cut
+                self.steps.await_ready({death.rtpu})
+                self.clock.finish_tick(self.steps.while_ticking)  # the others' share of the tick the death cut
                 return
             except RtpuDied as again:
                 if again.rtpu != death.rtpu:
@@ -209,10 +237,10 @@ class Restarting:
                 death = again
 
     def _count_death(self, death: RtpuDied, record: Restart) -> None:
-        policy = next(r for r in self.subsystem.rtpus if r.name == death.rtpu).restart
+        policy = next(r for r in self.run.subsystem().rtpus if r.name == death.rtpu).restart
         assert policy is not None
-        deaths, past_policy = count_death(self._deaths.get(death.rtpu, []), self.now(), policy)
-        self._deaths[death.rtpu] = deaths
+        deaths, past_policy = count_death(self.deaths.get(death.rtpu, []), self.run.now(), policy)
+        self.deaths[death.rtpu] = deaths
         if past_policy:
             raise RunFailure(f"{death}: it died {len(deaths)} times within {policy.within:g} s, more than its restart "
                              f"policy allows (restart: {{max: {policy.max}, within: {policy.within:g} s}}), so the run stops")
@@ -222,7 +250,7 @@ class Restarting:
 
     def _in_init_order(self, tasks: list[str]) -> list[str]:
         """Const producers before their consumers; tasks spawned live (not in the file's order) last."""
-        order = {name: i for i, name in enumerate(self.subsystem.init_order)}
+        order = {name: i for i, name in enumerate(self.run.subsystem().init_order)}
         return sorted(tasks, key=lambda t: order.get(t, len(order)))
 
 

@@ -53,7 +53,7 @@ from pbo_runtime.supervisor.stages import run_stages
 from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockGuard
-from pbo_runtime.supervisor.restarts import Restarting
+from pbo_runtime.supervisor.restarts import Restarter, RunSteps, RunView
 from pbo_runtime.supervisor.run_options import RunOptions
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.application_lockstep import TurnGate
@@ -70,7 +70,7 @@ __all__ = ["RunFailure", "RunRefused", "RunResult", "StopRequested", "Supervisor
 STALL_CHECK_EVERY = 0.05  # seconds between looks at the cycle counts (StallWatch); job control pumps every 2 ms
 
 
-class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChanges, Restarting):
+class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChanges):
     """Runs one subsystem: a configuration for a duration, or an application's jobs."""
 
     def __init__(
@@ -135,7 +135,6 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChan
         # what the children are forked from while they start (supervisor.fork_server): one the caller
         # started early (the CLI, before it loaded the file), or one run() starts; ended once they are
         self.fork_server: ForkServer | None = fork_server
-        self._deaths: dict[str, list[float]] = {}  # per RTPU, when it died within its restart policy's window
         self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id,
                                 gains=[note for note in subsystem.robot_notes if note.startswith(GAINS_NOTE)])
         self.result.objects = self._manifest()
@@ -182,6 +181,15 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChan
         self._live_adopted = 0
         self._staged: dict[str, tuple[int, str]] = {}
         self._queued_application: str | None = None
+        self.restarter = Restarter(  # brings a dead RTPU back, within its restart policy (supervisor.restarts)
+            RunView(subsystem=lambda: self.subsystem, configuration=lambda: self.configuration,
+                    started_at=lambda: self.started_at, table=lambda: self.table, stop_requested=lambda: self._stop_requested,
+                    live=lambda: (self._live_sequence, self._live_adopted), now=self.now),
+            RunSteps(launch=self._launch, await_ready=self._await_ready, list_children=self._list_children,
+                     respawn=self.respawn, turn_on=self.turn_on, take_one_event=self._take_one_event,
+                     while_stepping=self._while_stepping, while_ticking=self._while_ticking),
+            self.clock, self.result, self.job_control, self.children, self.task_states, self.task_errors, self.every_task,
+            self.signals, self.launched, self.rtpu_launches, self.static, say)
         self._refuse_if_devices_in_use()  # before anything starts
 
     # --- names ------------------------------------------------------------------------------
@@ -391,6 +399,15 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChan
                 return
             except RtpuDied as death:
                 self.restart_rtpu(death)
+
+    def may_restart(self, role: str) -> bool:
+        return self.restarter.may_restart(role)
+
+    def restart_rtpu(self, death: RtpuDied) -> None:
+        self.restarter.restart_rtpu(death)
+
+    def bring_up(self, spawn: list[str], turn_on: list[str], configuration: str | None = None) -> None:
+        self.restarter.bring_up(spawn, turn_on, configuration)
 
     def respawn(self, name: str) -> None:
         """Spawn a task and wait for its init; an init failure stops the run (no half start)."""

@@ -5,12 +5,12 @@ real clock by waiting for events, on the simulated clock by stepping the RTPU th
 from __future__ import annotations
 
 import time
-from typing import Any, Callable
+from typing import Callable
 
 import posix_ipc
 
 from pbo_runtime.clock.run_clock import RunClock
-from pbo_runtime.config.model import Subsystem
+from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import messages
 from pbo_runtime.supervisor.event_ledger import EventLedger
@@ -39,7 +39,7 @@ class EventHandling:
     ledger: EventLedger  # what the events change
     _refused: dict[str, str]
     _check_children: Callable[[], None]
-    every_task: dict[str, Any]  # every task the run has had (live changes add some), by name
+    every_task: dict[str, TaskSpec]  # every task the run has had (live changes add some), by name
     _startup_mark: Callable[..., None]
 
     def _signal(self, signal: messages.TaskSignal) -> None:

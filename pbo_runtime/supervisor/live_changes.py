@@ -25,7 +25,7 @@ import re
 import shutil
 import tempfile
 import time
-from typing import Any, Callable
+from typing import Callable
 
 from pbo_runtime.clock.run_clock import RunClock
 from pbo_runtime.config.live import LiveDescription, to_wire
@@ -87,7 +87,7 @@ class LiveChanges:
     _queued_application: str | None
     run_id: str
     _while_stepping: Callable[[], None]
-    _next_event: Callable[[float, str], Any]
+    _next_event: Callable[[float, str], tuple[str, messages.Event]]
 
     def _start_live(self, slots: int) -> None:
         """Before the RTPUs start: the directory of the run's live descriptions; the description itself."""

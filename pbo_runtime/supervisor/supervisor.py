@@ -33,12 +33,10 @@ from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
 from pbo_runtime.config.checker.loops import GAINS_NOTE
-from pbo_runtime.config.limits import MAX_NAME
 from pbo_runtime.config.live import LiveDescription
 from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.errors import PboError, closest_name
-from pbo_runtime.config.application import MESSAGE_OVERHEAD_BYTES, MSGPACK_BYTES_PER_NUMBER
-from pbo_runtime.ipc.control import REQUEST_BYTES, ControlServer, control_queue_name, control_queue_size
+from pbo_runtime.ipc.control import ControlServer, control_queue_name
 from pbo_runtime.supervisor.child_watch import ChildWatch
 from pbo_runtime.supervisor.children import Children, Child
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
@@ -55,6 +53,7 @@ from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockGuard
 from pbo_runtime.supervisor.restarts import Restarter, RunSteps, RunView
 from pbo_runtime.supervisor.run_options import RunOptions
+from pbo_runtime.supervisor.run_queues import queue_plan
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.application_lockstep import TurnGate
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
@@ -292,23 +291,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChan
         self._stop_requested = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
 
     def queue_plan(self) -> list[limits.QueueSize]:
-        """The run's queues, each sized for what it carries: the events, a signal queue per RTPU, the control queue."""
-        sub, run_id = self.subsystem, self.run_id
-        plan = [messages.event_queue_size(messages.event_queue_name(sub.name, run_id),
-                                          [[t.name for t in sub.tasks_on(rtpu.name)] for rtpu in sub.rtpus])]
-        # what an aperiodic task's event may carry: an operator's values (a control request at most),
-        # or a message of one of the application's links, as the checker bounds it
-        payload = max([REQUEST_BYTES] + [MSGPACK_BYTES_PER_NUMBER * int(np.prod(link.get("shape", [1])))
-                                         + MESSAGE_OVERHEAD_BYTES for link in self.links.values()
-                                         if link.get("kind") == "message"])
-        for rtpu in sub.rtpus:
-            hosted = sub.tasks_on(rtpu.name)
-            # (room for the longest name a task spawned live may have: `pbo spawn` may put one on any RTPU)
-            plan.append(messages.signal_queue_size(messages.signal_queue_name(sub.name, run_id, rtpu.name),
-                                                   [t.name for t in hosted] + ["x" * MAX_NAME],
-                                                   payload if any(t.aperiodic for t in hosted) else 0))
-        plan.append(control_queue_size(sub.name, run_id))
-        return plan
+        """The run's queues, each sized for what it carries (`supervisor.run_queues`)."""
+        return queue_plan(self.subsystem, self.run_id, self.links)
 
     def _make_queues(self) -> None:
         """Every queue of the run, refused whole before the first is made if they cannot fit."""

@@ -69,7 +69,7 @@ __all__ = ["RunFailure", "RunRefused", "RunResult", "StopRequested", "Supervisor
 STALL_CHECK_EVERY = 0.05  # seconds between looks at the cycle counts (StallWatch); job control pumps every 2 ms
 
 
-class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChanges):
+class Supervisor(Children, EventHandling, ControlService, RunReporting):
     """Runs one subsystem: a configuration for a duration, or an application's jobs."""
 
     def __init__(
@@ -155,7 +155,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChan
         self.job_control = JobControl(self, static=options.static)
         # what the children's events change (supervisor.event_ledger); the parts share its dicts
         self.ledger = EventLedger(self.result, say, EventOutlets(
-            switches=self.job_control, staged=self.staged, count_errors=self._count_errors,
+            switches=self.job_control, staged=lambda *answer: self.live_changes.staged(*answer), count_errors=self._count_errors,
             child_exited=self._child_exited, running=lambda: self.started_at is not None), self._is_critical)
         self.task_states = self.ledger.task_states
         self.task_states.update({t: TaskState.NOT_CREATED.name for t in subsystem.tasks})
@@ -172,18 +172,15 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChan
         self.control: ControlServer | None = None
         self.lock_guard: LockGuard | None = None  # made with the table (supervisor.lock_watch)
         self._serving = False
-        # live changes (supervisor.live_changes): the description the run lives by, made at start
-        self.live: LiveDescription | None = None
-        self.live_dir = ""
         self.every_task: dict[str, TaskSpec] = dict(subsystem.tasks)
-        self._live_sequence = 0
-        self._live_adopted = 0
-        self._staged: dict[str, tuple[int, str]] = {}
-        self._queued_application: str | None = None
+        self.live_changes = LiveChanges(  # pbo spawn, kill, replace, set, app (supervisor.live_changes)
+            self.run_id, lambda: self.subsystem, self.clock, self.signals, self.result, self.job_control, self.task_states,
+            self.every_task, self.stall_watch, say, self._while_stepping, self._next_event, self._adopted,
+            lambda name: setattr(self, "application", name))
         self.restarter = Restarter(  # brings a dead RTPU back, within its restart policy (supervisor.restarts)
             RunView(subsystem=lambda: self.subsystem, configuration=lambda: self.configuration,
                     started_at=lambda: self.started_at, table=lambda: self.table, stop_requested=lambda: self._stop_requested,
-                    live=lambda: (self._live_sequence, self._live_adopted), now=self.now),
+                    live=lambda: (self.live_changes.sequence, self.live_changes.adopted_sequence), now=self.now),
             RunSteps(launch=self._launch, await_ready=self._await_ready, list_children=self._list_children,
                      respawn=self.respawn, turn_on=self.turn_on, take_one_event=self._take_one_event,
                      while_stepping=self._while_stepping, while_ticking=self._while_ticking),
@@ -278,7 +275,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChan
             if running_since:
                 self.result.running_wall_seconds = time.monotonic() - running_since
             self._shutdown()
-            self._end_live()
+            self.live_changes.end()
             signal.signal(signal.SIGINT, previous)
             signal.signal(signal.SIGTERM, previous_term)
             self.result.wall_seconds = time.monotonic() - wall_start
@@ -332,7 +329,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChan
         # from the table's creation: job control's writes wait through the guard; looks begin
         self.lock_guard = LockGuard(self.table, self.shortest_period, self.result, self.children, self.say, self._run_time,
                                     self._check_children, lambda: self._stop_requested, lambda: self._serving, self.fifo)
-        self._start_live(self.table.layout.n_tasks)
+        self.live_changes.start(self.table.layout.n_tasks)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()
         self._startup_mark("table")
@@ -352,7 +349,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChan
                 sub.file, run_id, rtpu.name, epoch=epoch + self.stagger * rtpu.index, spin=rtpu.spin, fifo=self.fifo,
                 clock=self.clock.name, tick=self.tick or SIM_TICK_DEFAULT, ring=ring, out=self.out_dir,
                 configuration=self.configuration, application=self.application or "", links=self.links,
-                live=self.live_dir)
+                live=self.live_changes.live_dir)
             self._launch(rtpu.name, ["-m", "rtpu", *launch.to_argv()], hosted)
         # the plant and the RTPUs start side by side: an RTPU opens the plant's registers only in a
         # task's init, after every child is ready
@@ -383,6 +380,25 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChan
                 return
             except RtpuDied as death:
                 self.restart_rtpu(death)
+
+    @property
+    def live(self) -> LiveDescription | None:
+        """The description the run lives by (None: live changes are off for this run)."""
+        return self.live_changes.live
+
+    def stage_live(self, live: LiveDescription) -> None:
+        self.live_changes.stage(live)
+
+    def adopt(self, live: LiveDescription) -> None:
+        self.live_changes.adopt(live)
+
+    def _adopted(self, subsystem: Subsystem) -> None:
+        self.subsystem = subsystem
+        self.reconfiguration = Reconfiguration(subsystem)
+
+    def start_application(self, name: str) -> None:
+        """Run application `name` from the watch loop, as soon as the command is answered."""
+        self.live_changes.queued_application = name
 
     def may_restart(self, role: str) -> bool:
         return self.restarter.may_restart(role)
@@ -514,8 +530,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LiveChan
         """Serve events and commands until the duration is over (StopRequested ends it sooner)."""
         assert self.started_at is not None
         while self.duration is None or self.now() - self.started_at < self.duration - self.tick / 2:
-            if self._queued_application is not None:
-                self._run_queued_application()
+            if self.live_changes.queued_application is not None:
+                self.live_changes.run_queued_application()
                 continue
             left = self.duration - (self.now() - self.started_at) if self.duration is not None else 0.1
             self.pump(min(0.1, left))

@@ -1,9 +1,10 @@
 """A dead RTPU restarted alone, within its restart policy (`restart: {max: 3, within: 10 s}`).
 
-The decisions are pure functions of the run's state: `count_death` (past the policy, or not) and
-`restart_plan` (which of its tasks come back spawned, which ON, in which configuration). `Restarts`
-carries them out: a new process from the RTPU's launch description (`restarted` set), its tasks
-spawned in const order and turned on at a cycle boundary, while the other RTPUs run on.
+The decisions are pure functions of the run's state: `may_restart` (restart, or stop the run),
+`count_death` (past the policy, or not) and `restart_plan` (which of its tasks come back spawned,
+which ON, in which configuration). `Restarter` carries them out: a new process from the RTPU's
+launch description (`restarted` set), its tasks spawned in const order and turned on at a cycle
+boundary, while the other RTPUs run on.
 docs/faults.md says what the operator sees, during a switch and on the simulated clock too.
 """
 
@@ -20,8 +21,7 @@ from pbo_runtime.ipc import messages
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
 from pbo_runtime.supervisor.launch import RtpuLaunch
 from pbo_runtime.supervisor.run_report import RunResult
-from pbo_runtime.table.table import StateTable
-from pbo_runtime.table.table import Header
+from pbo_runtime.table.table import Header, StateTable
 
 
 @dataclass

@@ -9,7 +9,6 @@ written by job control) and stages it for the next plan.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import os
@@ -26,13 +25,14 @@ from pbo_runtime.clock.clocks import RealClock, SimClock
 from pbo_runtime.edit.live import task_from_wire
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.reports.log_notes import run_metadata, variable_notes
-from pbo_runtime.config.model import DEFAULT_SPIN, DeviceSpec, Subsystem, TaskSpec
+from pbo_runtime.config.model import DeviceSpec, Subsystem, TaskSpec
 from pbo_runtime.objects.helper_threads import GIL_HANDOVER, lower_helpers
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.clock.lockstep import LockstepParticipant
 from pbo_runtime.ipc.process import Stop, become_child, stop_only_at_waits
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor import last_out
+from pbo_runtime.supervisor.launch import RtpuLaunch
 from pbo_runtime.table.table import StateTable, TableLayout
 from rtpu import _realtime
 from rtpu._executive import Executive
@@ -59,49 +59,29 @@ def main(argv: list[str] | None = None, subsystem: Subsystem | None = None) -> i
 
 
 def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m rtpu", description=__doc__)
-    parser.add_argument("file")
-    parser.add_argument("--run-id", required=True)
-    parser.add_argument("--rtpu", required=True)
-    parser.add_argument("--epoch", type=float, default=0.0, help="CLOCK_MONOTONIC time releases align to")
-    parser.add_argument("--parent", type=int, default=0)
-    parser.add_argument("--spin", type=float, default=DEFAULT_SPIN, help="seconds spun before each release")
-    parser.add_argument("--fifo", action="store_true", help="ask for SCHED_FIFO (reported if refused)")
-    parser.add_argument("--clock", choices=("real", "sim"), default="real", help="sim: advance in the supervisor's ticks")
-    parser.add_argument("--tick", type=float, default=0.001, help="seconds per tick of the simulated clock")
-    parser.add_argument("--ring", default="", help="sim: the participants of a tick, in order (clock.lockstep)")
-    parser.add_argument("--out", default="", help="directory the modules write their files into")
-    parser.add_argument("--configuration", default="", help="the configuration the run started in (for the logs' metadata)")
-    parser.add_argument("--application", default="", help="the application the run runs (for the logs' metadata)")
-    parser.add_argument("--links", default="{}", help="JSON: the application's links, by name (see _links)")
-    parser.add_argument("--restarted", action="store_true",
-                        help="a restart after this RTPU's process died: its tasks continue the run's files (restart policy)")
-    parser.add_argument("--live", default="", help="directory of the run's live descriptions (live-N.json, `LiveUpdate`)")
-    parser.add_argument("--live-now", type=int, default=0, metavar="N",
-                        help="a restart after live changes: live-N.json describes the run from the start, not the file")
-    args = parser.parse_args(argv)
-    if args.parent:
-        last_out.expect(args.run_id)  # (a supervisor that died before this process started leaves it the run's end)
-        become_child(args.parent)
-        if not last_out.join(args.run_id):
+    launch = RtpuLaunch.parse(argv, __doc__)
+    if launch.parent:
+        last_out.expect(launch.run_id)  # (a supervisor that died before this process started leaves it the run's end)
+        become_child(launch.parent)
+        if not last_out.join(launch.run_id):
             return 3  # the supervisor died and its run was removed before this process started
 
     if subsystem is None:
-        subsystem = load_subsystem(args.file)
-    links = json.loads(args.links)
+        subsystem = load_subsystem(launch.file)
+    links = launch.links
     name = subsystem.name
-    events = messages.Queue(messages.event_queue_name(name, args.run_id))
-    report = lambda event: events.report(args.rtpu, event)  # noqa: E731
+    events = messages.Queue(messages.event_queue_name(name, launch.run_id))
+    report = lambda event: events.report(launch.rtpu, event)  # noqa: E731
     # at stop: job control drains its queue while every RTPU reports, so a full queue is waited out
     # (while job control lives: after it was killed nobody drains the queue, and the wait would only hang)
-    supervisor_alive = (lambda: os.getppid() == args.parent) if args.parent else None
-    report_at_stop = lambda event: events.report(args.rtpu, event, timeout=5.0, reader_alive=supervisor_alive)  # noqa: E731
+    supervisor_alive = (lambda: os.getppid() == launch.parent) if launch.parent else None
+    report_at_stop = lambda event: events.report(launch.rtpu, event, timeout=5.0, reader_alive=supervisor_alive)  # noqa: E731
     table = signals = barrier = None
     executive = None
     try:
-        table = StateTable.attach(TableLayout.of(subsystem), messages.table_name(name, args.run_id))
-        signals = messages.Queue(messages.signal_queue_name(name, args.run_id, args.rtpu))
-        registers = messages.plant_registers_name(name, args.run_id)
+        table = StateTable.attach(TableLayout.of(subsystem), messages.table_name(name, launch.run_id))
+        signals = messages.Queue(messages.signal_queue_name(name, launch.run_id, launch.rtpu))
+        registers = messages.plant_registers_name(name, launch.run_id)
 
         # drivers that keep figures of their own (a special-purpose processor's timing), by task and
         # device: their figures go with the task's statistics into the run's summary
@@ -119,7 +99,7 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
         def device_figures(task: str) -> dict[str, Any]:
             return {device: driver.figures() for device, driver in with_figures.get(task, {}).items()}
 
-        signal_queue = messages.signal_queue_name(name, args.run_id, args.rtpu)
+        signal_queue = messages.signal_queue_name(name, launch.run_id, launch.rtpu)
         pumped: list[Any] = []  # the simulated clock's relays: each forwards its link's messages at every step
 
         def relay(task: str, end):
@@ -131,32 +111,32 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
                 pumped.append(made)
             return made
 
-        rtpu = subsystem.rtpu(args.rtpu)
+        rtpu = subsystem.rtpu(launch.rtpu)
         # A restarted RTPU spawns its tasks while the other RTPUs run: their inits (imports, models,
         # files) at SCHED_FIFO would hold a CPU the others' cycles need, so it takes SCHED_FIFO only
         # when its first task turns on.
-        fifo_later = args.fifo and args.restarted
-        priority = _realtime.fifo_priority(any(t.critical for t in subsystem.tasks_on(args.rtpu)))
-        realtime = {**_realtime.apply(rtpu.cpu, args.fifo and not fifo_later, priority), "spin": f"{args.spin * 1e6:g} µs"}
+        fifo_later = launch.fifo and launch.restarted
+        priority = _realtime.fifo_priority(any(t.critical for t in subsystem.tasks_on(launch.rtpu)))
+        realtime = {**_realtime.apply(rtpu.cpu, launch.fifo and not fifo_later, priority), "spin": f"{launch.spin * 1e6:g} µs"}
         if fifo_later:
             realtime["scheduler"] = f"SCHED_FIFO {priority} from its first task on (restarted: inits at SCHED_OTHER)"
-        simulated = args.clock == "sim"
+        simulated = launch.clock == "sim"
         if not simulated:
             # A thread of this process holding the GIL (a log's writer, the background work) gives
             # it back within this interval when the executive wakes for a release: the spin covers it.
             sys.setswitchinterval(GIL_HANDOVER)
-        clock = SimClock(table.header, args.tick) if simulated else RealClock(args.spin)
+        clock = SimClock(table.header, launch.tick) if simulated else RealClock(launch.spin)
         # what a data log says of the run and its variables: made once, copied by each task's init
         notes = variable_notes(subsystem)
-        about_run = run_metadata(subsystem, args.clock, args.configuration, args.application)
+        about_run = run_metadata(subsystem, launch.clock, launch.configuration, launch.application)
 
         def factory(spec: TaskSpec):
             module_class = registry.module_class(spec.module)
 
             def make() -> Task:
                 return Task(spec, module_class, table, dict(subsystem.dims), dict(subsystem.devices), open_device,
-                            out_dir=args.out, links=links, relay=relay, run_metadata=about_run, variable_notes=notes,
-                            restarted=args.restarted)
+                            out_dir=launch.out, links=links, relay=relay, run_metadata=about_run, variable_notes=notes,
+                            restarted=launch.restarted)
 
             return make
 
@@ -164,7 +144,7 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
             # A live change: the description job control checked, as plain data (edit.live.to_wire),
             # read between cycles. No module is looked up here but for a task this RTPU will spawn or
             # tune (`spec`): the RTPU of a critical task spends well under a millisecond on it.
-            with open(os.path.join(args.live, f"live-{sequence}.json"), encoding="utf-8") as stream:
+            with open(os.path.join(launch.live, f"live-{sequence}.json"), encoding="utf-8") as stream:
                 data = json.load(stream)
             tasks = data["tasks"]
             reconfiguration = Reconfiguration.of_members(
@@ -177,11 +157,11 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
                 return lambda: factory(spec(name))()
 
             return LiveStage(reconfiguration, {name: (t["index"], t["params"]) for name, t in tasks.items()}, spec,
-                             {name: lazy(name) for name, t in tasks.items() if t["rtpu"] == args.rtpu})
+                             {name: lazy(name) for name, t in tasks.items() if t["rtpu"] == launch.rtpu})
 
-        executive = Executive(clock, signals, report, epoch=args.epoch, header=table.header, report_at_stop=report_at_stop,
+        executive = Executive(clock, signals, report, epoch=launch.epoch, header=table.header, report_at_stop=report_at_stop,
                               reconfiguration=Reconfiguration(subsystem), rtpu_index=rtpu.index,
-                              n_rtpus=len(subsystem.rtpus), live_loader=live_stage if args.live else None,
+                              n_rtpus=len(subsystem.rtpus), live_loader=live_stage if launch.live else None,
                               cycle_lock_wait=None if simulated else table.cycle_lock_wait)
         executive.device_figures = device_figures
         if fifo_later:
@@ -190,19 +170,19 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
                 lower_helpers()
 
             executive.before_first_on = take_fifo
-        if args.live_now:  # restarted after live changes: its tasks and configurations are the live description's
-            described = live_stage(args.live_now)
+        if launch.live_now:  # restarted after live changes: its tasks and configurations are the live description's
+            described = live_stage(launch.live_now)
             executive.reconfiguration = described.reconfiguration
             hosted = dict(described.factories)
         else:
-            hosted = {spec.name: factory(spec) for spec in subsystem.tasks_on(args.rtpu)}
+            hosted = {spec.name: factory(spec) for spec in subsystem.tasks_on(launch.rtpu)}
         for make in hosted.values():
             executive.add(make(), make)
         if simulated:
-            barrier = LockstepParticipant(name, args.run_id, args.rtpu, table.header, args.ring.split(",") if args.ring else [args.rtpu],
+            barrier = LockstepParticipant(name, launch.run_id, launch.rtpu, table.header, list(launch.ring) or [launch.rtpu],
                                           events.pending, before_step=lambda: _pump(pumped))
-            realtime = {"clock": f"simulated, {args.tick * 1e3:g} ms ticks"}
-        if args.live and not simulated and not args.restarted:
+            realtime = {"clock": f"simulated, {launch.tick * 1e3:g} ms ticks"}
+        if launch.live and not simulated and not launch.restarted:
             registry.import_library()  # a task spawned live finds its module imported (forked: the server did it)
         stop_only_at_waits()  # the executive takes the table lock from here on: a stop must not land inside a transfer
         report(messages.Ready(realtime))
@@ -221,7 +201,7 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
         report(messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
         return 1
     except Exception as exc:
-        limit = limits.explain(exc, f"{args.rtpu} starting" if executive is None else args.rtpu)
+        limit = limits.explain(exc, f"{launch.rtpu} starting" if executive is None else launch.rtpu)
         report(messages.Crashed(str(limit), "") if limit is not None
                else messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
         return 1

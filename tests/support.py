@@ -825,3 +825,35 @@ def settling(goal: np.ndarray, within: float, reads: int = 200) -> Callable[[np.
         return in_a_row[0] >= reads
 
     return settled
+
+
+class EventsHeard:
+    """An `EventLedger` with fake outlets, for the supervisor's event handling without a process: the
+    lines it says, and what it handed on (`handed`: the outlets' calls, in order)."""
+
+    def __init__(self, not_critical: tuple[str, ...] = (), running: bool = True) -> None:
+        from pbo_runtime.supervisor.event_ledger import EventLedger, EventOutlets
+        from pbo_runtime.supervisor.run_report import RunResult
+
+        self.lines: list[str] = []
+        self.handed: list[tuple] = []
+        self.running = running
+        outlets = EventOutlets(switches=self, staged=lambda *staged: self.handed.append(("staged", *staged)),
+                               count_errors=lambda: self.handed.append(("count_errors",)),
+                               child_exited=lambda: self.handed.append(("child_exited",)),
+                               running=lambda: self.running)
+        self.result = RunResult("test", "c")
+        self.ledger = EventLedger(self.result, self.lines.append, outlets, lambda task: task not in not_critical)
+
+    def hear(self, source: str, *events) -> None:
+        for event in events:
+            self.ledger.absorb(source, event)
+
+    def switched(self, *report) -> None:
+        self.handed.append(("switched", *report))
+
+    def window(self, *counts) -> None:
+        self.handed.append(("window", *counts))
+
+    def first_cycle(self, *first) -> None:
+        self.handed.append(("first_cycle", *first))

@@ -17,6 +17,7 @@ from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc.process import DEATH_SIGNAL
 from pbo_runtime.supervisor.fork_server import ForkServer, ForkServerUnavailable
 from pbo_runtime.supervisor.supervisor import Supervisor
+from pbo_runtime.supervisor.run_options import RunOptions
 from tests.support import (DEMO, REPO, assert_nothing_left, children_of, config_copy, demo_copy, ipc_names, read_until, run_processes,
                            start_run, until)
 
@@ -129,8 +130,8 @@ def test_a_run_whose_fork_server_died_starts_fresh_interpreters_and_leaves_nothi
     dead.process.kill()
     dead.process.wait()
     said: list[str] = []
-    supervisor = Supervisor(load_subsystem(file), duration=0.05, clock="sim", say=said.append, fork_server=dead,
-                            out_dir=str(tmp_path / "out"))
+    supervisor = Supervisor(load_subsystem(file), duration=0.05, say=said.append, fork_server=dead,
+                            options=RunOptions(clock="sim", out_dir=str(tmp_path / "out")))
     result = supervisor.run()
     assert result.failure == "", result.failure
     assert any("fresh interpreters" in line for line in said), said
@@ -142,7 +143,8 @@ def test_a_run_whose_fork_server_died_starts_fresh_interpreters_and_leaves_nothi
 def test_a_run_forks_its_children_from_the_fork_server_and_leaves_nothing(tmp_path):
     file = demo_copy(tmp_path, "fork_server_run")
     said: list[str] = []
-    supervisor = Supervisor(load_subsystem(file), duration=0.05, clock="sim", say=said.append, out_dir=str(tmp_path / "out"))
+    supervisor = Supervisor(load_subsystem(file), duration=0.05, say=said.append,
+                            options=RunOptions(clock="sim", out_dir=str(tmp_path / "out")))
     result = supervisor.run()
     assert result.failure == "", result.failure
     assert not any("fresh interpreters" in line for line in said), said

@@ -14,12 +14,12 @@ from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.ipc import messages
-from pbo_runtime.supervisor.events import STABLE_EPISODES_TOLD, EventHandling
-from pbo_runtime.supervisor.run_report import BRIEF_HOLD_PERIODS, BRIEF_HOLDS_SHARE, RunResult, stable_episode_lines
+from pbo_runtime.supervisor.event_ledger import STABLE_EPISODES_TOLD
+from pbo_runtime.supervisor.run_report import BRIEF_HOLD_PERIODS, BRIEF_HOLDS_SHARE, stable_episode_lines
 from pbo_runtime.table.table import Header, StateTable, TableLayout
 from pbo_runtime.task.lifecycle import Task
 from rtpu._executive import HELD_ILLEGAL, HELD_STALE_INPUT, HELD_UPSTREAM, NOT_HELD, Executive
-from tests.support import IdleSignals, step_executives, unique_name
+from tests.support import EventsHeard, IdleSignals, step_executives, unique_name
 
 PERIOD = 0.001
 STAGGER = 0.00045  # rtpu1's releases come 0.45 ms after rtpu0's
@@ -315,19 +315,12 @@ def test_a_hold_while_the_configuration_comes_on_is_neither_and_is_marked():
     assert lines(held) == ([], []) and held["while_starting"] is True
 
 
-class StableEpisodesHeard(EventHandling):
-    """The Supervisor's part that hears stable episodes, with a list for its lines."""
-
-    def __init__(self) -> None:
-        self.result = RunResult("test", "c")
-        self._stable = {}
-        self.lines: list[str] = []
-        self.say = self.lines.append
-        self._count_errors = lambda: None
+class StableEpisodesHeard(EventsHeard):
+    """The supervisor's event handling hearing stable episodes, with a list for its lines."""
 
     def hold(self, cause: str, at: float) -> None:
-        self._absorb("rtpu1", messages.Stable("robot", True, at, f"held for {cause}", cause))
-        self._absorb("rtpu1", messages.Stable("robot", False, at + 0.001))
+        self.hear("rtpu1", messages.Stable("robot", True, at, f"held for {cause}", cause),
+                  messages.Stable("robot", False, at + 0.001))
 
 
 def test_a_hold_for_an_illegal_configuration_is_told_even_after_many_holds_for_late_inputs():

@@ -20,6 +20,7 @@ from pbo_runtime.edit.live_save import same_subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.commands import dispatch
 from pbo_runtime.supervisor.supervisor import Supervisor
+from pbo_runtime.supervisor.run_options import RunOptions
 from tests.support import PBO, assert_nothing_left, live_demo_copy, read_until
 
 pytestmark = pytest.mark.multiprocess
@@ -61,8 +62,8 @@ def test_live_changes_cost_the_critical_task_no_cycle_and_no_fresh_input(tmp_pat
             busy[0] = False
 
     said: list[str] = []
-    supervisor = Supervisor(load_subsystem(str(file)), duration=DURATION, clock="sim", on_tick=on_tick, say=said.append,
-                            out_dir=str(tmp_path))
+    supervisor = Supervisor(load_subsystem(str(file)), duration=DURATION, on_tick=on_tick, say=said.append,
+                            options=RunOptions(clock="sim", out_dir=str(tmp_path)))
     result = supervisor.run().to_json()
     assert result["failure"] == "" and result["faults"] == [], (result["failure"], result["faults"], said)
     assert script == [] and [verb for verb, _ in replies] == [verb for _, verb, _ in SCRIPT]

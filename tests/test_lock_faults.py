@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pbo_runtime.supervisor.failures import RunFailure, StopRequested
-from pbo_runtime.supervisor.lock_watch import LOCK_HOLD_FLOOR, LOCK_LOOK_EVERY, LockSample, LockWatch, LockWatching, lock_hold_bound
+from pbo_runtime.supervisor.lock_watch import LOCK_HOLD_FLOOR, LOCK_LOOK_EVERY, LockGuard, LockSample, LockWatch, lock_hold_bound
 from pbo_runtime.supervisor.run_report import RunResult
 from pbo_runtime.table import svar
 from pbo_runtime.table.snapshot import TableBusy
@@ -266,24 +266,15 @@ def test_a_run_with_a_stopped_rtpu_and_a_stopped_plant_always_ends_cleanly(tmp_p
 # --- job control's own writes wait for the lock, never for good ----------------------------------
 
 
-class JobControlHost(LockWatching):
-    """The Supervisor's parts the lock watch needs, around a real table: no children, a list for its lines."""
+class JobControlHost:
+    """The lock guard around a real table, as job control has it: no children, a list for its lines."""
 
     def __init__(self, table) -> None:
-        self.table = table
-        self.children = []
         self.result = RunResult("test", "c")
         self.lines: list[str] = []
-        self.say = self.lines.append
-        self.now = lambda: 0.0
-        self.started_at = None
-        self.shortest_period = 0.001
         self._stop_requested = ""
-        self._serving = False
-        self._watch_the_lock(table)
-
-    def _check_children(self) -> None:
-        self._look_at_the_lock()
+        self.guard = LockGuard(table, 0.001, self.result, [], self.lines.append, lambda: 0.0,
+                               lambda: self.guard.look(), lambda: self._stop_requested, lambda: False)
 
 
 @pytest.mark.multiprocess
@@ -318,7 +309,7 @@ def test_a_stop_asked_for_while_job_control_waits_for_the_lock_ends_the_wait(mak
     try:
         host._stop_requested = "Ctrl-C"
         with pytest.raises(StopRequested):
-            host._take_table_lock()
+            host.guard.take_table_lock()
     finally:
         table.release()
 

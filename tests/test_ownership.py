@@ -27,6 +27,7 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.ipc.runs import live_runs
 from pbo_runtime.supervisor.cleanup import read_run_manifest, remove_dead_runs
 from pbo_runtime.supervisor.supervisor import RunRefused, Supervisor
+from pbo_runtime.supervisor.run_options import RunOptions
 from pbo_runtime.table.table import HEADER_WORDS, MAGIC, MANIFEST_BYTES, VERSION, Header, StateTable, TableLayout
 from tests.support import PBO, read_until, subsystem_copy, variables
 
@@ -260,19 +261,19 @@ def test_a_second_run_of_a_subsystem_whose_exclusive_device_is_in_use_is_refused
     with pytest.raises(RunRefused, match=rf"^subsystem '{sub}' is already running as run {other_id} \(pid {os.getpid()}, "
                                           rf"started [0-9:]+\), which holds its exclusive device\(s\) 'arm': a second run "
                                           rf"would drive them too; stop that run first: pbo stop --run {other_id}$"):
-        Supervisor(load_subsystem(subsystem_file(tmp_path, sub, exclusive=True)), clock="sim")
+        Supervisor(load_subsystem(subsystem_file(tmp_path, sub, exclusive=True)), options=RunOptions(clock="sim"))
 
 
 def test_a_second_run_of_a_subsystem_without_exclusive_devices_is_not_refused(tables, tmp_path):
     sub = new_subsystem()
     tables(sub, os.getpid())
-    supervisor = Supervisor(load_subsystem(subsystem_file(tmp_path, sub, exclusive=False)), clock="sim")
+    supervisor = Supervisor(load_subsystem(subsystem_file(tmp_path, sub, exclusive=False)), options=RunOptions(clock="sim"))
     assert supervisor.subsystem.name == sub
 
 
 def test_a_run_that_finds_another_run_started_at_the_same_instant_refuses_and_leaves_nothing(tables, tmp_path):
     sub = new_subsystem()
-    supervisor = Supervisor(load_subsystem(subsystem_file(tmp_path, sub, exclusive=True)), clock="sim")
+    supervisor = Supervisor(load_subsystem(subsystem_file(tmp_path, sub, exclusive=True)), options=RunOptions(clock="sim"))
     other = tables(sub, os.getpid())  # appeared after the first check: the second one, with the table made, sees it
     with pytest.raises(RunRefused, match=rf"already running as run {other.name.split('.')[2]} "):
         supervisor.run()

@@ -68,13 +68,14 @@ def test_a_process_a_task_starts_begins_at_sched_other_not_at_the_rtpus_sched_fi
 def test_the_real_clock_asks_for_sched_fifo_by_default_and_the_simulated_clock_does_not():
     from pbo_runtime.config.loader import load_subsystem
     from pbo_runtime.supervisor.supervisor import Supervisor
+    from pbo_runtime.supervisor.run_options import RunOptions
     from pbo_runtime.cli.main import _parser
 
     subsystem = load_subsystem(REPO / "configs" / "pid_joint.yaml")
     assert Supervisor(subsystem).fifo is True
-    assert Supervisor(subsystem, clock="sim").fifo is False  # it waits on ticks, not on time
-    assert Supervisor(subsystem, fifo=False).fifo is False
-    assert Supervisor(subsystem, clock="sim", fifo=True).fifo is True
+    assert Supervisor(subsystem, options=RunOptions(clock="sim")).fifo is False  # it waits on ticks, not on time
+    assert Supervisor(subsystem, options=RunOptions(fifo=False)).fifo is False
+    assert Supervisor(subsystem, options=RunOptions(clock="sim", fifo=True)).fifo is True
     fifo_of = {tuple(flags): _parser().parse_args(["run", "x.yaml", *flags]).fifo for flags in ([], ["--no-fifo"], ["--fifo"])}
     assert fifo_of == {(): None, ("--no-fifo",): False, ("--fifo",): True}
 

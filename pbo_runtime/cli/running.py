@@ -23,6 +23,7 @@ from rich.table import Table
 from pbo_runtime.cli import summary
 from pbo_runtime.cli.arguments import host_addresses
 from pbo_runtime.cli.exits import EXIT_CONFIG, EXIT_OK, EXIT_RUN
+from pbo_runtime.supervisor.run_options import Alternation, RunOptions
 
 
 def run(args: argparse.Namespace, console: Console, errors: Console) -> int:
@@ -78,7 +79,7 @@ def _load_and_run(args: argparse.Namespace, console: Console, errors: Console, f
         if len(names) < 2:
             errors.print("error: --alternate takes two or more configurations, e.g. --alternate pid,pd", markup=False)
             return EXIT_CONFIG
-        alternate = (names, args.switches, args.interval)
+        alternate = Alternation(names, args.switches, args.interval)
         args.config = args.config or names[0]
     made = args.out is None
     args.out = args.out or default_run_dir(subsystem.name)
@@ -87,21 +88,20 @@ def _load_and_run(args: argparse.Namespace, console: Console, errors: Console, f
 
 
 def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, subsystem: Any, live: bool,
-                   duration: float | None, alternate: Any, fork_server: Any = None) -> int:
+                   duration: float | None, alternate: Alternation | None, fork_server: Any = None) -> int:
     from pbo_runtime.clock.clocks import process_started
     from pbo_runtime.supervisor.supervisor import Supervisor
 
     startup = {"process": process_started(), "cli": args.entered, "loaded": getattr(args, "loaded", args.entered)}
-    options = {"startup": startup, "fork_server": fork_server, "application": args.app, "static": args.static,
-               "alternate": alternate, "fifo": args.fifo, "clock": args.clock, "out_dir": str(args.out),
-               "links": json.loads(args.links) if args.links else None, "turn": args.turn,
-               "stages": args.stages}
+    options = RunOptions(application=args.app, static=args.static, alternate=alternate, fifo=args.fifo, clock=args.clock,
+                         out_dir=str(args.out), links=json.loads(args.links) if args.links else None, turn=args.turn,
+                         stages=args.stages, startup=startup)
     refused = _check_output_paths(args)
     if refused:
         errors.print(f"error: {refused}", markup=False)
         return EXIT_CONFIG
     say = _sayer(console)
-    supervisor = Supervisor(subsystem, args.config, duration, say=say, **options)  # refuses a bad request here
+    supervisor = Supervisor(subsystem, args.config, duration, say=say, options=options, fork_server=fork_server)  # refuses a bad request here
     what = (f"application '{args.app}'" if args.app else f"{args.switches} switches" if alternate
             else "Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner")
     rtpus = f"{len(subsystem.rtpus)} RTPU{'s' if len(subsystem.rtpus) != 1 else ''}"

@@ -57,8 +57,6 @@ class RunClock(Protocol):
         """The offset between consecutive RTPUs' release grids."""
     def plant_arguments(self) -> list[str]:
         """What the plant is told about the clock on its command line."""
-    def rtpu_arguments(self) -> list[str]:
-        """What an RTPU is told about the clock on its command line."""
     def child_environment(self) -> dict[str, str] | None:
         """The children's environment (None: the supervisor's own)."""
     def run_for(self, timeout: float, wait_for_events: Callable[[float], None], while_stepping: Callable[[], None],
@@ -112,9 +110,6 @@ class RealRunClock:
         return release_stagger(shortest_period, n_rtpus)
 
     def plant_arguments(self) -> list[str]:
-        return []
-
-    def rtpu_arguments(self) -> list[str]:
         return []
 
     def child_environment(self) -> dict[str, str] | None:
@@ -192,9 +187,6 @@ class SimRunClock:
 
     def plant_arguments(self) -> list[str]:
         return ["--clock", "sim", *ring_arguments(self.roles)]
-
-    def rtpu_arguments(self) -> list[str]:
-        return ["--clock", "sim", "--tick", repr(self.tick), *ring_arguments(self.roles)]
 
     def child_environment(self) -> dict[str, str] | None:
         return {**os.environ, "PYTHONHASHSEED": "0"}  # a replayed run must not depend on string hashing

@@ -1,39 +1,12 @@
 """The fork server: the run's children (the plant, each RTPU) forked from one warm interpreter.
 
-A fresh interpreter per child imports numpy, MuJoCo and the runtime and loads and checks the
-YAML file again: on 2 CPUs that was most of `pbo run`'s start-up. The supervisor starts one
-fork server (`python -m pbo_runtime.supervisor.fork_server`) before it needs it; the server
-imports what the children will, loads the subsystem and looks up its modules, plant and
-drivers, then forks a child per request. What keeps that as safe as a fresh interpreter:
-
-- The server holds no thread when it forks (a child would inherit a held lock with no owner):
-  OpenBLAS starts with one thread (OPENBLAS_NUM_THREADS=1, given back to the child's own
-  environment), and the server counts its threads in /proc before every fork and refuses if
-  there is more than one. The supervisor, which has threads, never forks a child itself.
-- The server runs SCHED_OTHER; a child starts so and takes SCHED_FIFO itself (an RTPU with
-  RESET_ON_FORK, `rtpu/_realtime.py`), as a fresh one did.
-- A child is the supervisor's, as a fresh one was: the server forks it twice, and the middle
-  process exits at once, so the child is re-parented to the supervisor, which is a child
-  subreaper while it starts children (PR_SET_CHILD_SUBREAPER). The supervisor reaps it and
-  reads its exit status (`ForkedProcess`, with the `subprocess.Popen` calls the run uses), and
-  the child sets PR_SET_PDEATHSIG against the supervisor once it is re-parented (`become_child`):
-  it dies with the supervisor, not with the server, which may end once the children are started.
-  The supervisor is a subreaper only while a fork is under way (`ForkServer.idle`).
-- The request channel is a socketpair: no name in the file system, nobody else can connect.
-  The server dies with the supervisor (PR_SET_PDEATHSIG) and makes no shared object, so its
-  end, a crash included, leaves nothing in /dev/shm or /dev/mqueue; it is made with the run's
-  id, and when the supervisor dies it may be the run's last process out, which removes the
-  run's objects (`last_out`: before any child started, say). A child it forked starts
-  only on the server's go, sent after the supervisor has its pid, so a server that dies between
-  the two leaves no unknown child running.
-- The supervisor ends the server once the children are started, unless an RTPU has a restart
-  policy: then it is kept for the run, and a restarted RTPU is forked from it (a fresh interpreter
-  would import and load everything again, most of a restart's time). It costs a process and its
-  memory, and ends as it would have: with the run (`Children._shutdown`) or with the supervisor.
-- A server that cannot serve (it died, it refused, a fork failed) is not a failed run: the
-  supervisor starts that child as a fresh interpreter and says why once.
-
-PBO_FORK_SERVER=0 in the environment starts every child as a fresh interpreter (to compare).
+A fresh interpreter per child imports numpy, MuJoCo and the runtime and loads the file again:
+most of a start-up, and of a restart. The server does that once and forks a child per request,
+as safely as a fresh interpreter: it forks only while single-threaded, runs SCHED_OTHER, forks
+twice so the child is the supervisor's (a subreaper meanwhile), talks over a socketpair, makes no
+shared object and dies with the supervisor. A server that cannot serve costs time, not the run:
+that child starts as a fresh interpreter. docs/architecture.md ("A fork server") says why each
+holds; PBO_FORK_SERVER=0 starts every child fresh.
 """
 
 from __future__ import annotations
@@ -61,7 +34,7 @@ CLOSE_TIMEOUT = 2.0
 END = b"end\n"  # the supervisor's last line to the server: its channel closing without it means the supervisor died
 # What the runtime's public surface imports on first use (`pbo_runtime.arm_model` imports Pinocchio),
 # imported by the server of a subsystem with a restart policy: a restarted controller's init would
-# otherwise import it again, 140-200 ms of a ~210 ms spawn on 2 CPUs (cProfile of a forked restart).
+# otherwise import it again, most of its spawn (docs/performance.md, a dead RTPU restarted alone).
 WARM_FOR_RESTARTS = ("pinocchio",)
 
 

@@ -11,7 +11,7 @@ its jobs one at a time, and stops in the configuration it is in when a pre-condi
 job times out.
 
 An RTPU with a restart policy that dies during a switch is restarted in the configuration the
-switch goes to (`Restarting.restart_rtpu` reads `JobControl.switching`): the switch waits for
+switch goes to (`Restarter.restart_rtpu` reads `JobControl.switching`): the switch waits for
 no report from it, the other RTPUs' part stands, and its record names the restart (`restarted`).
 """
 

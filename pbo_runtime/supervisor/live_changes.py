@@ -25,12 +25,11 @@ import re
 import shutil
 import tempfile
 import time
-from typing import Any, Callable
+from typing import Callable
 
 from pbo_runtime.clock.run_clock import RunClock
 from pbo_runtime.edit.live import LiveDescription, to_wire
 from pbo_runtime.config.model import Subsystem, TaskSpec
-from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import messages, shm
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure
@@ -66,47 +65,52 @@ def remove_dead_live_dirs(root: str | None = None) -> list[str]:
 
 
 class LiveChanges:
-    """The Supervisor's part that stages, adopts and runs live changes."""
+    """The supervisor's part that stages, adopts and runs live changes; it owns the run's live descriptions."""
 
-    subsystem: Subsystem
-    clock: RunClock
-    signals: dict[str, messages.Queue]
-    result: RunResult
-    job_control: JobControl
-    task_states: dict[str, str]
-    reconfiguration: Reconfiguration
-    stall_watch: StallWatch
-    application: str | None
-    say: Callable[[str], None]
-    live: LiveDescription | None
-    live_dir: str
-    every_task: dict[str, TaskSpec]  # every task the run has had, by name (the last spec of a name)
-    _live_sequence: int
-    _staged: dict[str, tuple[int, str]]  # rtpu -> (sequence, error) of its last Staged answer
-    _live_adopted: int  # the live description the run lives by (live-N.json; 0: the file's)
-    _queued_application: str | None
-    run_id: str
-    _while_stepping: Callable[[], None]
-    _next_event: Callable[[float, str], Any]
+    def __init__(self, run_id: str, subsystem: Callable[[], Subsystem], clock: RunClock, signals: dict[str, messages.Queue],
+                 result: RunResult, job_control: JobControl, task_states: dict[str, str], every_task: dict[str, TaskSpec],
+                 stall_watch: StallWatch, say: Callable[[str], None], while_stepping: Callable[[], None],
+                 next_event: Callable[[float, str], tuple[str, messages.Event]],
+                 adopted: Callable[[Subsystem], None], set_application: Callable[[str | None], None]) -> None:
+        self.run_id = run_id
+        self.subsystem = subsystem  # the description the run lives by
+        self.clock = clock
+        self.signals = signals
+        self.result = result
+        self.job_control = job_control
+        self.task_states = task_states
+        self.every_task = every_task  # every task the run has had, by name (the last spec of a name)
+        self.stall_watch = stall_watch
+        self.say = say
+        self.while_stepping = while_stepping
+        self.next_event = next_event
+        self.adopted = adopted  # the run lives by this description from now on
+        self.set_application = set_application  # the application the run is running (None: none)
+        self.live: LiveDescription | None = None  # made at start
+        self.live_dir = ""
+        self.sequence = 0  # the live description staged last (live-N.json)
+        self.adopted_sequence = 0  # the one the run lives by (0: the file's)
+        self._staged: dict[str, tuple[int, str]] = {}  # rtpu -> (sequence, error) of its last Staged answer
+        self.queued_application: str | None = None
 
-    def _start_live(self, slots: int) -> None:
+    def start(self, slots: int) -> None:
         """Before the RTPUs start: the directory of the run's live descriptions; the description itself."""
         remove_dead_live_dirs()
         self.live_dir = tempfile.mkdtemp(prefix=f"{LIVE_DIR_PREFIX}{self.run_id}-")
         try:
-            self.live = LiveDescription.start(self.subsystem, slots)
+            self.live = LiveDescription.start(self.subsystem(), slots)
         except PboError as exc:  # the run goes on; live changes are refused, saying why
             self.live = None
             self.say(f"live changes are off for this run: {exc}")
 
-    def _end_live(self) -> None:
+    def end(self) -> None:
         if self.live_dir:
             shutil.rmtree(self.live_dir, ignore_errors=True)
 
-    def stage_live(self, live: LiveDescription) -> None:
+    def stage(self, live: LiveDescription) -> None:
         """Every RTPU reads `live` and keeps it for the next plan (see the module's docstring)."""
-        self._live_sequence += 1
-        sequence = self._live_sequence
+        self.sequence += 1
+        sequence = self.sequence
         path = os.path.join(self.live_dir, f"live-{sequence}.json")
         with open(path + ".tmp", "w", encoding="utf-8") as stream:
             json.dump(to_wire(live.subsystem), stream)
@@ -116,15 +120,15 @@ class LiveChanges:
             self.task_states.setdefault(name, "NOT_CREATED")
         for rtpu, queue in self.signals.items():
             queue.signal(messages.LiveUpdate(sequence))
-            self.clock.serve(rtpu, self._while_stepping)
+            self.clock.serve(rtpu, self.while_stepping)
         deadline = time.monotonic() + STAGE_TIMEOUT
         while any(self._staged.get(rtpu, (0, ""))[0] != sequence for rtpu in self.signals):
             if self.clock.signals_served_when_sent:
-                self._while_stepping()
+                self.while_stepping()
                 if any(self._staged.get(rtpu, (0, ""))[0] != sequence for rtpu in self.signals):
                     raise PboError(f"an RTPU did not read live description {sequence}")
                 break
-            self._next_event(deadline, f"waiting for the RTPUs to read live description {sequence}")
+            self.next_event(deadline, f"waiting for the RTPUs to read live description {sequence}")
         errors = [f"{rtpu}: {error}" for rtpu, (seen, error) in self._staged.items() if seen == sequence and error]
         if errors:
             raise PboError(f"the RTPUs could not read the live description: {'; '.join(errors)}")
@@ -136,22 +140,17 @@ class LiveChanges:
     def adopt(self, live: LiveDescription) -> None:
         """The change is applied: `live` describes the running subsystem from now on."""
         self.live = live
-        self._live_adopted = self._live_sequence  # (the description staged last: a restart starts from it)
-        self.subsystem = live.subsystem
-        self.reconfiguration = Reconfiguration(live.subsystem)
+        self.adopted_sequence = self.sequence  # (the description staged last: a restart starts from it)
+        self.adopted(live.subsystem)
         self.every_task.update(live.subsystem.tasks)
         self.stall_watch.watch_tasks(live.subsystem.tasks.values())
 
-    def start_application(self, name: str) -> None:
-        """Run application `name` from the watch loop, as soon as the command is answered."""
-        self._queued_application = name
-
-    def _run_queued_application(self) -> None:
+    def run_queued_application(self) -> None:
         """An application started with `pbo app`: its jobs one at a time; a failure ends it, not the run."""
-        name, self._queued_application = self._queued_application, None
+        name, self.queued_application = self.queued_application, None
         if name is None:
             return
-        self.application = name
+        self.set_application(name)
         try:
             self.job_control.run_application(name)
             self.result.jobs_done += self.job_control.jobs_done
@@ -160,5 +159,5 @@ class LiveChanges:
             self.say(f"application '{name}' stopped: {exc}")
             self.result.faults.append(f"application '{name}' started with pbo app stopped: {exc}")
         finally:
-            self.application = None
+            self.set_application(None)
             self.job_control.job = None

@@ -12,7 +12,7 @@ periods of the fastest task, never under LOCK_HOLD_FLOOR. The bound is wall time
 clock: the simulated clock does not advance while a participant holds the lock, since job
 control waits for it.
 
-What is then done (`LockWatching`): a live holder gets one last look, job control waiting
+What is then done (`LockGuard`): a live holder gets one last look, job control waiting
 LOCK_LOOK_EVERY for the lock itself (a holder that only took it again and again is no wedge); a
 dead holder's lock is released; a live one that is one of this run's processes is SIGKILLed and
 its lock released once it is dead; any other process is never signalled. Each case is a
@@ -105,96 +105,115 @@ class LockWatch:
         self.holding = None
 
 
-class LockWatching:
-    """The Supervisor's part that watches the table lock and takes it for job control's writes."""
+@dataclass(frozen=True)
+class LockVerdict:
+    """What is done about a holding past the bound, decided from its holder alone."""
 
-    table: StateTable | None
-    children: list[Child]
-    result: RunResult
-    say: Callable[[str], None]
-    now: Callable[[], float]
-    started_at: float | None
-    shortest_period: float
-    _stop_requested: str
-    _serving: bool  # an operator's command is being served (`ControlService`)
-    _check_children: Callable[[], None]
-    lock_watch: LockWatch | None = None
+    action: str  # "released" (dead holder), "killed" (a live process of this run), "left" (any other)
+    state: str  # the holder: "dead", "stopped" or "running"
+    why_left: str = ""  # for "left": what the run's line says
 
-    def _watch_the_lock(self, table: StateTable) -> None:
-        """From the table's creation: job control's writes wait through `_take_table_lock`; looks begin."""
-        table.lock_wait = self._take_table_lock
-        if getattr(self, "fifo", False):  # (a host tested without processes has none) the RTPUs run SCHED_FIFO:
-            table.lock_ceiling = HELPER_FIFO_PRIORITY  # job control holds the lock above every ordinary process
-        self.lock_watch = LockWatch(lock_hold_bound(self.shortest_period),
-                                    lambda: LockSample(table.lock_held, table.lock_holder, table.lock_sequence))
 
-    def _take_table_lock(self) -> None:
+def holder_alive(state: str) -> bool:
+    """Whether a process in this /proc state (`shm.pid_state`; "" when gone) still holds what it took."""
+    return bool(state) and state not in ("Z", "X")
+
+
+def lock_verdict(pid: int, own_pid: int, state: str, ours: bool) -> LockVerdict:
+    """What is done to the holder `pid` (in /proc `state`; `ours`: a child of this run) of a lock held
+    past the bound: an unsigned lock or one of another process is left and the run stops, a dead
+    holder's lock is released, a live child of the run is killed."""
+    alive = holder_alive(state)
+    how = "stopped" if state in ("T", "t") else "running" if alive else "dead"
+    if pid in (0, own_pid):
+        return LockVerdict("left", how, "it cannot be told who holds it; the run is stopped")
+    if not alive:
+        return LockVerdict("released", how)
+    if ours:
+        return LockVerdict("killed", how)
+    return LockVerdict("left", how, "it is not a process of this run, so it was not signalled; the run is stopped")
+
+
+class LockGuard:
+    """Job control's guard of the table lock: its own writes wait through it, never for good, and a
+    holding past the bound is ended (`lock_verdict`) with RunFailure. Made with the run's table."""
+
+    def __init__(self, table: StateTable, shortest_period: float, result: RunResult, children: list[Child],
+                 say: Callable[[str], None], run_time: Callable[[], float], check_children: Callable[[], None],
+                 stop_requested: Callable[[], str], serving: Callable[[], bool], fifo: bool = False) -> None:
+        self.table = table
+        self.result = result
+        self.children = children  # the run's children (the list the supervisor keeps up to date)
+        self.say = say
+        self.run_time = run_time  # seconds since the configuration came on (0 before)
+        self.check_children = check_children  # looks at the lock too: a wedge is ended rather than waited out
+        self.stop_requested = stop_requested  # why the run is asked to stop ("" while it is not)
+        self.serving = serving  # whether an operator's command is being served (`ControlService`)
+        table.lock_wait = self.take_table_lock
+        if fifo:  # the RTPUs run SCHED_FIFO: job control holds the lock above every ordinary process
+            table.lock_ceiling = HELPER_FIFO_PRIORITY
+        self.watch = LockWatch(lock_hold_bound(shortest_period),
+                               lambda: LockSample(table.lock_held, table.lock_holder, table.lock_sequence))
+
+    def take_table_lock(self) -> None:
         """Job control's wait for the lock: never for good, and a Ctrl-C or a dead child ends it."""
-        assert self.table is not None
-        self.table.acquire_watching(LOCK_LOOK_EVERY, self._while_waiting_for_the_lock)
+        self.table.acquire_watching(LOCK_LOOK_EVERY, self.while_waiting_for_the_lock)
 
-    def _while_waiting_for_the_lock(self) -> None:
-        self._check_children()  # looks at the lock too: a wedge is ended (RunFailure) rather than waited out
-        if self._stop_requested:
-            if self._serving:  # a PboError is what an operator's command answers with; the next turn of the loop stops
-                raise RunFailure(f"stopped by {self._stop_requested} while waiting for the table lock")
-            raise StopRequested(self._stop_requested)
+    def while_waiting_for_the_lock(self) -> None:
+        self.check_children()
+        stop = self.stop_requested()
+        if stop:
+            if self.serving():  # a PboError is what an operator's command answers with; the next turn of the loop stops
+                raise RunFailure(f"stopped by {stop} while waiting for the table lock")
+            raise StopRequested(stop)
 
-    def _look_at_the_lock(self) -> None:
+    def look(self) -> None:
         """One look (every turn of job control's loop); ends a holding past the bound with RunFailure."""
-        if self.table is None or self.lock_watch is None:
-            return
-        holding = self.lock_watch.look()
+        holding = self.watch.look()
         if holding is not None:
             self._end_holding(holding)
 
-    def _look_at_the_lock_while_stopping(self) -> None:
+    def look_while_stopping(self) -> None:
         """The same while the run stops: a wedge must not hold up the children's stop; the first failure is kept."""
         try:
-            self._look_at_the_lock()
+            self.look()
         except RunFailure as exc:
             if not self.result.failure:
                 self.result.failure = str(exc)
                 self.result.stopped_by = "failure"
 
     def _end_holding(self, holding: Holding) -> None:
-        assert self.table is not None and self.lock_watch is not None
         pid = holding.holder
         child = next((c for c in self.children if c.process.pid == pid), None)
         state = shm.pid_state(pid) if pid not in (0, os.getpid()) else ""
-        alive = bool(state) and state not in ("Z", "X")
-        if alive and self._lock_comes_free():
-            self.lock_watch.forget()  # it was taken again and again, not held: no wedge
+        if holder_alive(state) and self._lock_comes_free():
+            self.watch.forget()  # it was taken again and again, not held: no wedge
             return
-        how = "stopped" if state in ("T", "t") else "running" if alive else "dead"
+        verdict = lock_verdict(pid, os.getpid(), state, child is not None)
+        how, action, done = verdict.state, verdict.action, verdict.why_left
         who = _describe(child, pid)
         released = False
-        if pid in (0, os.getpid()):
-            action, done = "left", "it cannot be told who holds it; the run is stopped"
-        elif not alive:
+        if action == "released":
             released = self.table.recover_lock_from(pid)
             action, done = ("released", "the lock was released") if released else ("left", "it could not be released")
-        elif child is not None:
+        elif action == "killed":
+            assert child is not None
             _kill(child.process)
             # reaped, and it held the lock up to the last look: only a taker that has not signed yet
             # could be mistaken for it, a window of microseconds; the arm waits meanwhile
             released = self.table.recover_lock_from(pid, settle=LOCK_LOOK_EVERY)
-            action = "killed"
             done = "it was killed (SIGKILL) and the lock released" if released else "it was killed (SIGKILL)"
-        else:
-            action, done = "left", "it is not a process of this run, so it was not signalled; the run is stopped"
         if released:
             self.result.lock_recoveries += 1
         held_ms = holding.seconds * 1e3
         self.result.lock_events.append({
             "pid": pid, "holder": who, "role": child.role if child is not None else "", "state": how,
-            "held_ms": held_ms, "bound_ms": self.lock_watch.bound * 1e3, "action": action,
-            "at": self.now() - self.started_at if self.started_at is not None else 0.0,
+            "held_ms": held_ms, "bound_ms": self.watch.bound * 1e3, "action": action, "at": self.run_time(),
         })
         holding.ended = True
         if action != "left":
-            self.lock_watch.forget()  # the lock is free again
-        message = (f"the table lock was held for {held_ms:.0f} ms (bound {self.lock_watch.bound * 1e3:.0f} ms) by {who}, "
+            self.watch.forget()  # the lock is free again
+        message = (f"the table lock was held for {held_ms:.0f} ms (bound {self.watch.bound * 1e3:.0f} ms) by {who}, "
                    f"{how}: {done}" + (f"; it hosted tasks: {', '.join(child.tasks)}" if child is not None and child.tasks else ""))
         self.say(message)
         if not self.result.failure:  # the run fails even where the raise is answered to a command instead
@@ -203,7 +222,6 @@ class LockWatching:
 
     def _lock_comes_free(self) -> bool:
         """The last look: can job control take the lock within LOCK_LOOK_EVERY? (released at once)"""
-        assert self.table is not None
         try:
             self.table.lock.acquire(LOCK_LOOK_EVERY)
         except (posix_ipc.BusyError, posix_ipc.SignalError):

@@ -1,49 +1,27 @@
 """A dead RTPU restarted alone, within its restart policy (`restart: {max: 3, within: 10 s}`).
 
-When an RTPU with a policy dies (`failures.RtpuDied`, raised where the supervisor notices the
-exit), job control: counts the death against the policy (past it, the run stops as before, and
-says why); recovers the table lock if the dead process held it (`Children._check_children`);
-launches a new process for the RTPU with the same arguments; spawns its tasks that were alive,
-in const order, so each `init` reads the table's current constants; and turns on, at a cycle
-boundary, those that were ON. Meanwhile the other RTPUs never stop: a critical task whose inputs
-came from the dead RTPU finds them past their freshness bound and runs its locally stable
-behaviour, and resumes by itself once they are fresh again.
-
-A death during a switch (a job's step, `--alternate`, `pbo switch`; dynamic or static) is
-restarted the same way, in the configuration the switch goes to (`JobControl.switching`): the
-new process starts with the plan already in the table's header, which it takes as seen, so it
-never applies the plan; its tasks are spawned (static: those of the new configuration) and,
-once the plan's activation has passed, those of the new configuration turned on. The other
-RTPUs' part of the switch stands (they applied the plan, or apply it, once); the switch waits
-for no report from the restarted RTPU, a static switch does what is left of its kills and
-spawns (none twice) and releases its hold on the critical tasks, and the switch's record names
-the restart (`restarted`). Past the policy, the run stops as at any other time, and says why.
-
-On the simulated clock (`--clock sim`) the death happens inside some tick N, while the
-participants pass the turn among themselves: the ring is first brought to a stop where it stood
-(`clock.stop_ring`), the new process is launched, tick N is finished for the live participants
-after the point where it stopped (`clock.finish_tick`: no other RTPU loses a tick), and the tasks
-are spawned and turned on in steps between ticks N and N + 1. The restart so takes no simulated
-time, the dead RTPU's tasks lose their cycles of tick N from the crash on and run again from
-their first release after it, and a run with deaths at the same ticks replays bit for bit. In an
-application on the simulated clock a death in a tick is noticed while the subsystem holds the
-application's turn, and the restart is done before it gives the turn back: the other subsystems
-see no tick of difference. A death noticed while another subsystem has the turn (a kill from
-outside) is restarted at once; the tasks' steps wait for the subsystem's next turn.
-
-Restarts apply once the run's table exists.
+The decisions are pure functions of the run's state: `may_restart` (restart, or stop the run),
+`count_death` (past the policy, or not) and `restart_plan` (which of its tasks come back spawned,
+which ON, in which configuration). `Restarter` carries them out: a new process from the RTPU's
+launch description (`restarted` set), its tasks spawned in const order and turned on at a cycle
+boundary, while the other RTPUs run on.
+docs/faults.md says what the operator sees, during a switch and on the simulated clock too.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, Callable
+from dataclasses import dataclass, replace
+from typing import Any, Callable, Mapping, Sequence
 
-from pbo_runtime.config.model import Subsystem
+from pbo_runtime.clock.run_clock import RunClock
+from pbo_runtime.config.model import RestartPolicy, RtpuSpec, Subsystem, TaskSpec
+from pbo_runtime.supervisor.children import Child
+from pbo_runtime.supervisor.job_control import JobControl
 from pbo_runtime.ipc import messages
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
+from pbo_runtime.supervisor.launch import RtpuLaunch
 from pbo_runtime.supervisor.run_report import RunResult
-from pbo_runtime.table.table import Header
+from pbo_runtime.table.table import Header, StateTable
 
 
 @dataclass
@@ -69,63 +47,117 @@ class Restart:
                 "attempts": self.attempts, "launched_at": self.launched_at, "ready_at": self.ready_at, "spawned_at": self.spawned_at}
 
 
-class Restarting:
-    """The Supervisor's part that brings a dead RTPU back."""
+def may_restart(role: str, rtpus: Sequence[RtpuSpec], table_made: bool, stop_requested: str) -> bool:
+    """Whether a death of `role` is restarted rather than stopping the run: an RTPU with a policy, once
+    the run's table exists, unless the run is stopping."""
+    if role == "plant" or not table_made or stop_requested:
+        return False
+    spec = next((r for r in rtpus if r.name == role), None)
+    return spec is not None and spec.restart is not None
 
-    subsystem: Subsystem
-    result: RunResult
-    table: Any
-    clock: Any
-    children: list[Any]
-    launched: dict[str, tuple[list[str], tuple[str, ...]]]
-    task_states: dict[str, str]
-    task_errors: dict[str, str]
-    every_task: dict[str, Any]
-    signals: dict[str, messages.Queue]
+
+def count_death(deaths: Sequence[float], now: float, policy: RestartPolicy) -> tuple[list[float], bool]:
+    """The deaths within the policy's window once this one (at `now`) is counted, and whether they are
+    past the policy (the run then stops)."""
+    within = [t for t in [*deaths, now] if now - t <= policy.within]
+    return within, len(within) > policy.max
+
+
+@dataclass(frozen=True)
+class RestartPlan:
+    """What a restart brings back: tasks spawned (const order), those turned on, and in which configuration."""
+
+    spawn: list[str]
+    turn_on: tuple[str, ...]
     configuration: str
-    started_at: float | None
-    _stop_requested: str
-    say: Callable[[str], None]
+
+
+def restart_plan(hosted: Sequence[str], states: Mapping[str, str], configuration: str,
+                 switching_to: Sequence[str] | None = None, static: bool = False) -> RestartPlan:
+    """The dead RTPU's tasks (`hosted`, those of the description the new process knows) as they were:
+    spawned if they were alive, ON where they were ON. During a switch (`switching_to`: the members of
+    the configuration it goes to, named `configuration`), as that configuration has them: its members
+    ON, and, static, only they spawned."""
+    alive = [t for t in hosted if states.get(t) not in (None, "NOT_CREATED", "KILLED")]
+    if switching_to is None:
+        return RestartPlan(alive, tuple(t for t in hosted if states.get(t) == "ON"), configuration)
+    if static:  # only the new configuration's tasks exist; dynamic: what was spawned stays spawned
+        alive = [t for t in hosted if t in switching_to]
+    return RestartPlan(alive, tuple(t for t in alive if t in switching_to), configuration)
+
+
+@dataclass(frozen=True)
+class RunView:
+    """What a restart reads of the run as it is now (the description and configuration change as it goes)."""
+
+    subsystem: Callable[[], Subsystem]  # the description the run lives by
+    configuration: Callable[[], str]  # the running configuration
+    started_at: Callable[[], float | None]  # run time when the configuration came on
+    table: Callable[[], StateTable | None]  # the run's table, once made
+    stop_requested: Callable[[], str]  # why the run is asked to stop ("" while it is not)
+    live: Callable[[], tuple[int, int]]  # the live descriptions staged last and adopted (live-N.json; 0: the file)
     now: Callable[[], float]
-    respawn: Callable[[str], None]
-    turn_on: Callable[[str, str], None]
-    _launch: Callable[..., None]
-    _await_ready: Callable[[set[str]], None]
-    _list_children: Callable[[], None]
-    _take_one_event: Callable[[float], None]
-    _while_stepping: Callable[[], None]
-    _while_ticking: Callable[[], None]
-    _deaths: dict[str, list[float]]  # per RTPU, when it died within its policy's window
-    job_control: Any  # supervisor.job_control.JobControl: its `switching` is the switch under way, if any
-    static: bool
-    _live_sequence: int  # the live description staged last (live-N.json)
-    _live_adopted: int  # the one the run lives by (0: the file)
+
+
+@dataclass(frozen=True)
+class RunSteps:
+    """What a restart does through the rest of the supervisor."""
+
+    launch: Callable[[str, list[str], tuple[str, ...]], None]  # start a child (role, `-m MODULE ...`, its tasks)
+    await_ready: Callable[[set[str]], None]
+    list_children: Callable[[], None]  # the table's manifest names the live children
+    respawn: Callable[[str], None]  # spawn a task and wait for its init
+    turn_on: Callable[[str, str], None]  # turn a task on in a configuration
+    take_one_event: Callable[[float], None]
+    while_stepping: Callable[[], None]
+    while_ticking: Callable[[], None]
+
+
+class Restarter:
+    """The supervisor's part that brings a dead RTPU back; it keeps each RTPU's deaths in its policy's window."""
+
+    def __init__(self, run: RunView, steps: RunSteps, clock: RunClock, result: RunResult, job_control: JobControl,
+                 children: list[Child], task_states: dict[str, str], task_errors: dict[str, str],
+                 every_task: dict[str, TaskSpec], signals: dict[str, messages.Queue],
+                 launched: dict[str, tuple[list[str], tuple[str, ...]]], rtpu_launches: dict[str, RtpuLaunch],
+                 static: bool, say: Callable[[str], None]) -> None:
+        self.run = run
+        self.steps = steps
+        self.clock = clock
+        self.result = result
+        self.job_control = job_control  # its `switching` is the switch under way, if any
+        # the run's own collections, shared with the parts that fill them
+        self.children = children
+        self.task_states = task_states
+        self.task_errors = task_errors
+        self.every_task = every_task  # every task the run has had, by name
+        self.signals = signals
+        self.launched = launched
+        self.rtpu_launches = rtpu_launches
+        self.static = static
+        self.say = say
+        self.deaths: dict[str, list[float]] = {}  # per RTPU, when it died within its policy's window
 
     def may_restart(self, role: str) -> bool:
         """Whether a death of `role` is restarted rather than stopping the run."""
-        if role == "plant" or self.table is None or self._stop_requested:
-            return False
-        spec = next((r for r in self.subsystem.rtpus if r.name == role), None)
-        return spec is not None and spec.restart is not None
+        return may_restart(role, self.run.subsystem().rtpus, self.run.table() is not None, self.run.stop_requested())
 
     def restart_rtpu(self, death: RtpuDied) -> None:
         """Bring the dead RTPU's tasks back as they were: spawned, and ON where they were ON; during a
         switch, as the configuration the switch goes to has them."""
         switch = self.job_control.switching
         # what the new process knows: the running description, or the one a live change's plan swaps in
-        described = self.subsystem if switch is None or not switch.change else self.job_control.switching_subsystem
-        live = self._live_sequence if switch is not None and switch.change else self._live_adopted
+        described = self.run.subsystem() if switch is None or not switch.change else self.job_control.switching_subsystem
+        staged, adopted = self.run.live()
+        live = staged if switch is not None and switch.change else adopted
         hosted = [t for t in self._hosted_by(death.rtpu) if t in described.tasks]
-        alive = [t for t in hosted if self.task_states.get(t) not in (None, "NOT_CREATED", "KILLED")]
-        was_on = tuple(t for t in hosted if self.task_states.get(t) == "ON")
-        configuration = self.configuration if switch is None else switch.after
-        if switch is not None:
-            members = described.configurations[configuration].tasks
-            # static: only the new configuration's tasks exist; dynamic: what was spawned stays spawned
-            alive = [t for t in hosted if t in members] if self.static else alive
-            was_on = tuple(t for t in alive if t in members)
-        started = self.started_at if self.started_at is not None else self.now()
-        record = Restart(death.rtpu, death.pid, death.cause, self.now() - started, was_on, origin=started)
+        configuration = self.run.configuration() if switch is None else switch.after
+        members = None if switch is None else described.configurations[configuration].tasks
+        plan = restart_plan(hosted, self.task_states, configuration, members, self.static)
+        alive, was_on = plan.spawn, plan.turn_on
+        started_at = self.run.started_at()
+        started = started_at if started_at is not None else self.run.now()
+        record = Restart(death.rtpu, death.pid, death.cause, self.run.now() - started, was_on, origin=started)
         self.result.restarts.append(record)
         during = "" if switch is None else f" in '{configuration}', the configuration it was switching to"
         self.say(f"{death}; restarting it{during}")
@@ -134,9 +166,9 @@ class Restarting:
             switch.restarted.append(death.rtpu)
         while True:
             try:
-                record.ready_at = self.now() - started
+                record.ready_at = self.run.now() - started
                 self.bring_up(alive, [])
-                record.spawned_at = self.now() - started
+                record.spawned_at = self.run.now() - started
                 if switch is not None:
                     self._until_activation(switch.activation)
                 self.bring_up(alive, list(was_on), configuration)
@@ -146,7 +178,7 @@ class Restarting:
                     raise RunFailure(f"{again}, while RTPU '{death.rtpu}' was restarting") from None
                 record.attempts += 1
                 self.relaunch(again, record, live)
-        record.on_again_at = self.now() - started
+        record.on_again_at = self.run.now() - started
         self.say(f"RTPU '{death.rtpu}' restarted: {', '.join(was_on) or 'no task'} ON again after "
                  f"{(record.on_again_at - record.died_at) * 1e3:.0f} ms")
 
@@ -155,16 +187,17 @@ class Restarting:
         in `configuration` (default: the running one)."""
         for name in self._in_init_order(spawn):
             if self.task_states.get(name) == "NOT_CREATED":
-                self.respawn(name)
+                self.steps.respawn(name)
         for name in sorted(self._in_init_order(turn_on), key=lambda t: not self.every_task[t].critical):
             if self.task_states.get(name) != "ON":
-                self.turn_on(name, configuration or self.configuration)
+                self.steps.turn_on(name, configuration or self.run.configuration())
 
     def _until_activation(self, activation: float) -> None:
         """A dynamic switch's tasks come on at its activation, not before: wait for it (a restart takes far
         longer than a plan's lead, so this is a safeguard), taking events meanwhile."""
-        while self.now() < activation:  # (on the simulated clock, the ticks up to it)
-            self.clock.run_for(activation - self.now(), self._take_one_event, self._while_stepping, self._while_ticking)
+        while self.run.now() < activation:  # (on the simulated clock, the ticks up to it)
+            self.clock.run_for(activation - self.run.now(), self.steps.take_one_event, self.steps.while_stepping,
+                               self.steps.while_ticking)
 
     def relaunch(self, death: RtpuDied, record: Restart, live: int = 0) -> None:
         """Count the death against the policy (RunFailure past it), then start a new process for the RTPU
@@ -176,29 +209,26 @@ class Restarting:
             for task in self._hosted_by(death.rtpu):
                 self.task_states[task] = "NOT_CREATED"  # the new process knows none of them
                 self.task_errors.pop(task, None)
-            self._list_children()
+            self.steps.list_children()
             # a process that died applying a plan (a task's `on` crashed) left its "switching since" word
             # set: the critical tasks would take the configuration for illegal, for good
-            index = next(r.index for r in self.subsystem.rtpus if r.name == death.rtpu)
-            self.table.header[int(Header.SWITCHING_SINCE_NS) + index] = 0
-            self.clock.stop_ring(death.rtpu, self._while_ticking)  # the simulated clock's ticks, where they stood
+            index = next(r.index for r in self.run.subsystem().rtpus if r.name == death.rtpu)
+            table = self.run.table()
+            assert table is not None  # (restarts apply once the run's table exists)
+            table.header[int(Header.SWITCHING_SINCE_NS) + index] = 0
+            self.clock.stop_ring(death.rtpu, self.steps.while_ticking)  # the simulated clock's ticks, where they stood
             queue = self.signals[death.rtpu]
             while queue.receive(0) is not None:  # what the dead process never served is not for the new one
                 pass
-            arguments, tasks = self.launched[death.rtpu]
-            if "--restarted" not in arguments:
-                arguments = [*arguments, "--restarted"]  # its tasks continue the run's files (a data log)
-            if "--live-now" in arguments:
-                at = arguments.index("--live-now")
-                arguments = arguments[:at] + arguments[at + 2:]
-            if live:  # after live changes, the file no longer describes the run
-                arguments = [*arguments, "--live-now", str(live)]
-            self._launch(death.rtpu, arguments, tasks)
-            record.launched_at = self.now() - record.origin
+            _, tasks = self.launched[death.rtpu]
+            # its tasks continue the run's files (a data log); after live changes, the file no longer describes the run
+            launch = replace(self.rtpu_launches[death.rtpu], restarted=True, live_now=live)
+            self.steps.launch(death.rtpu, ["-m", "rtpu", *launch.to_argv()], tasks)
+            record.launched_at = self.run.now() - record.origin
             self.clock.forget_turn(death.rtpu)  # a hand-over to the dead one may land after the ring stopped
             try:
-                self._await_ready({death.rtpu})
-                self.clock.finish_tick(self._while_ticking)  # the others' share of the tick the death cut
+                self.steps.await_ready({death.rtpu})
+                self.clock.finish_tick(self.steps.while_ticking)  # the others' share of the tick the death cut
                 return
             except RtpuDied as again:
                 if again.rtpu != death.rtpu:
@@ -207,13 +237,11 @@ class Restarting:
                 death = again
 
     def _count_death(self, death: RtpuDied, record: Restart) -> None:
-        policy = next(r for r in self.subsystem.rtpus if r.name == death.rtpu).restart
+        policy = next(r for r in self.run.subsystem().rtpus if r.name == death.rtpu).restart
         assert policy is not None
-        now = self.now()
-        deaths = self._deaths.setdefault(death.rtpu, [])
-        deaths.append(now)
-        deaths[:] = [t for t in deaths if now - t <= policy.within]
-        if len(deaths) > policy.max:
+        deaths, past_policy = count_death(self.deaths.get(death.rtpu, []), self.run.now(), policy)
+        self.deaths[death.rtpu] = deaths
+        if past_policy:
             raise RunFailure(f"{death}: it died {len(deaths)} times within {policy.within:g} s, more than its restart "
                              f"policy allows (restart: {{max: {policy.max}, within: {policy.within:g} s}}), so the run stops")
 
@@ -222,7 +250,7 @@ class Restarting:
 
     def _in_init_order(self, tasks: list[str]) -> list[str]:
         """Const producers before their consumers; tasks spawned live (not in the file's order) last."""
-        order = {name: i for i, name in enumerate(self.subsystem.init_order)}
+        order = {name: i for i, name in enumerate(self.run.subsystem().init_order)}
         return sorted(tasks, key=lambda t: order.get(t, len(order)))
 
 

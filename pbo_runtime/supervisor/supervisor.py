@@ -33,26 +33,27 @@ from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
 from pbo_runtime.config.checker.loops import GAINS_NOTE
-from pbo_runtime.config.limits import MAX_NAME
 from pbo_runtime.edit.live import LiveDescription
 from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.errors import PboError, closest_name
-from pbo_runtime.config.application import MESSAGE_OVERHEAD_BYTES, MSGPACK_BYTES_PER_NUMBER
-from pbo_runtime.ipc.control import REQUEST_BYTES, ControlServer, control_queue_name, control_queue_size
+from pbo_runtime.ipc.control import ControlServer, control_queue_name
 from pbo_runtime.supervisor.child_watch import ChildWatch
 from pbo_runtime.supervisor.children import Children, Child
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.supervisor.control_service import ControlService
+from pbo_runtime.supervisor.event_ledger import EventLedger, EventOutlets
 from pbo_runtime.supervisor.events import EventHandling
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested, WrongArgument
 from pbo_runtime.supervisor.fork_server import ForkServer
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
+from pbo_runtime.supervisor.launch import SIM_TICK_DEFAULT, RtpuLaunch
 from pbo_runtime.supervisor.stages import run_stages
 from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.supervisor.live_changes import LiveChanges
-from pbo_runtime.supervisor.lock_watch import LockWatching
-from pbo_runtime.supervisor.restarts import Restarting
-from pbo_runtime.ipc.task_statistics import TaskStatistics
+from pbo_runtime.supervisor.lock_watch import LockGuard
+from pbo_runtime.supervisor.restarts import Restarter, RunSteps, RunView
+from pbo_runtime.supervisor.run_options import RunOptions
+from pbo_runtime.supervisor.run_queues import queue_plan
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.application_lockstep import TurnGate
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
@@ -68,7 +69,7 @@ __all__ = ["RunFailure", "RunRefused", "RunResult", "StopRequested", "Supervisor
 STALL_CHECK_EVERY = 0.05  # seconds between looks at the cycle counts (StallWatch); job control pumps every 2 ms
 
 
-class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatching, LiveChanges, Restarting):
+class Supervisor(Children, EventHandling, ControlService, RunReporting):
     """Runs one subsystem: a configuration for a duration, or an application's jobs."""
 
     def __init__(
@@ -78,22 +79,15 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         duration: float | None = 5.0,
         on_tick: Callable[[Supervisor], None] | None = None,
         say: Callable[[str], None] = lambda text: None,
-        application: str | None = None,
-        static: bool = False,
-        alternate: tuple[list[str], int, float] | None = None,
-        fifo: bool | None = None,
-        clock: str = "real",
-        out_dir: str | None = None,
-        links: dict[str, dict[str, Any]] | None = None,
-        turn: str | None = None,
-        stages: str | None = None,
-        startup: dict[str, float] | None = None,
+        options: RunOptions | None = None,
         fork_server: ForkServer | None = None,
     ) -> None:
         self.subsystem = subsystem
+        options = options or RunOptions()
         # the start-up's time line (RunResult.startup): what the caller did before (the CLI: its
         # imports, the file's load and check), then each phase here, read once, off the cycles' path
-        self._startup = dict(startup or {})
+        self._startup = dict(options.startup)
+        application, clock, turn = options.application, options.clock, options.turn
         if clock not in ("real", "sim"):
             raise RunFailure(f"unknown clock '{clock}': use real or sim")
         if turn and clock != "sim":
@@ -102,10 +96,10 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         # (clock.application_lockstep); it is no longer waited for once the run is stopped or has failed
         gate = TurnGate(turn, lambda: bool(self._stop_requested or self.result.failure)) if turn else None
         self.clock: RunClock = SimRunClock(simulation_tick(subsystem), gate) if clock == "sim" else RealRunClock()
-        self.out_dir = os.path.abspath(out_dir) if out_dir else ""
-        self.links = dict(links or {})  # an application's links, handed to every RTPU (see _links)
+        self.out_dir = os.path.abspath(options.out_dir) if options.out_dir else ""
+        self.links = dict(options.links or {})  # an application's links, handed to every RTPU (see _links)
         self.application = application
-        self.stages = stages  # an application file's stages: this subsystem's part, and the joins (supervisor.stages)
+        self.stages = options.stages  # an application file's stages: this subsystem's part, and the joins (supervisor.stages)
         if application is not None and application not in subsystem.applications:
             close = closest_name(application, subsystem.applications)
             raise WrongArgument(f"no application '{application}' in {subsystem.file}"
@@ -135,20 +129,17 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.signals: dict[str, messages.Queue] = {}
         self.children: list[Child] = []
         self.launched: dict[str, tuple[list[str], tuple[str, ...]]] = {}
+        self.rtpu_launches: dict[str, RtpuLaunch] = {}  # what each RTPU was started with (a restart changes a field)
         self.child_watch: ChildWatch | None = None
         # what the children are forked from while they start (supervisor.fork_server): one the caller
         # started early (the CLI, before it loaded the file), or one run() starts; ended once they are
         self.fork_server: ForkServer | None = fork_server
-        self.task_states: dict[str, str] = {t: TaskState.NOT_CREATED.name for t in subsystem.tasks}
-        self.task_errors: dict[str, str] = {}
-        self._deaths: dict[str, list[float]] = {}  # per RTPU, when it died within its restart policy's window
         self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id,
                                 gains=[note for note in subsystem.robot_notes if note.startswith(GAINS_NOTE)])
         self.result.objects = self._manifest()
         self.result.links = self.links
         self.started_at: float | None = None  # run time when the configuration came on
         self._stop_requested = ""
-        self._stats: dict[str, TaskStatistics] = {}  # by task, as each RTPU reported them
         self.stall_watch = StallWatch(subsystem.tasks.values(), self._cycles_of, say)
         self._stalls_checked = -math.inf
         self.reconfiguration = Reconfiguration(subsystem)
@@ -160,26 +151,41 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self.tick = self.clock.tick
         self.result.clock = clock
         self.result.tick = self.tick
-        self.static = static
-        self.job_control = JobControl(self, static=static)
+        self.static = options.static
+        self.job_control = JobControl(self, static=options.static)
+        # what the children's events change (supervisor.event_ledger); the parts share its dicts
+        self.ledger = EventLedger(self.result, say, EventOutlets(
+            switches=self.job_control, staged=lambda *answer: self.live_changes.staged(*answer), count_errors=self._count_errors,
+            child_exited=self._child_exited, running=lambda: self.started_at is not None), self._is_critical)
+        self.task_states = self.ledger.task_states
+        self.task_states.update({t: TaskState.NOT_CREATED.name for t in subsystem.tasks})
+        self.task_errors = self.ledger.task_errors
+        self._stats = self.ledger.stats
+        self._stable = self.ledger.stable
+        self._refused = self.ledger.refused
         self.result.application = application or ""
-        self.alternate = alternate
+        self.alternate = options.alternate
         # SCHED_FIFO where the OS allows it, on the real clock unless asked otherwise: under SCHED_OTHER
         # the machine's own threads take a CPU for milliseconds and RTPUs overrun several times as
         # often (8 to 14 in docs/performance.md). The simulated clock waits on ticks: it needs none.
-        self.fifo = self.clock.fifo_by_default if fifo is None else fifo
-        self._stable: dict[str, tuple[float, str, str]] = {}
+        self.fifo = self.clock.fifo_by_default if options.fifo is None else options.fifo
         self.control: ControlServer | None = None
+        self.lock_guard: LockGuard | None = None  # made with the table (supervisor.lock_watch)
         self._serving = False
-        self._refused: dict[str, str] = {}  # task -> why its RTPU refused the last signal
-        # live changes (supervisor.live_changes): the description the run lives by, made at start
-        self.live: LiveDescription | None = None
-        self.live_dir = ""
         self.every_task: dict[str, TaskSpec] = dict(subsystem.tasks)
-        self._live_sequence = 0
-        self._live_adopted = 0
-        self._staged: dict[str, tuple[int, str]] = {}
-        self._queued_application: str | None = None
+        self.live_changes = LiveChanges(  # pbo spawn, kill, replace, set, app (supervisor.live_changes)
+            self.run_id, lambda: self.subsystem, self.clock, self.signals, self.result, self.job_control, self.task_states,
+            self.every_task, self.stall_watch, say, self._while_stepping, self._next_event, self._adopted,
+            lambda name: setattr(self, "application", name))
+        self.restarter = Restarter(  # brings a dead RTPU back, within its restart policy (supervisor.restarts)
+            RunView(subsystem=lambda: self.subsystem, configuration=lambda: self.configuration,
+                    started_at=lambda: self.started_at, table=lambda: self.table, stop_requested=lambda: self._stop_requested,
+                    live=lambda: (self.live_changes.sequence, self.live_changes.adopted_sequence), now=self.now),
+            RunSteps(launch=self._launch, await_ready=self._await_ready, list_children=self._list_children,
+                     respawn=self.respawn, turn_on=self.turn_on, take_one_event=self._take_one_event,
+                     while_stepping=self._while_stepping, while_ticking=self._while_ticking),
+            self.clock, self.result, self.job_control, self.children, self.task_states, self.task_errors, self.every_task,
+            self.signals, self.launched, self.rtpu_launches, self.static, say)
         self._refuse_if_devices_in_use()  # before anything starts
 
     # --- names ------------------------------------------------------------------------------
@@ -245,8 +251,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                 self.result.stopped_by = "stages done"
                 self.say("every stage is done")
             elif self.alternate:
-                self.job_control.alternate(*self.alternate)
-                self.result.stopped_by = f"{self.alternate[1]} switches done"
+                self.job_control.alternate(self.alternate.configurations, self.alternate.switches, self.alternate.interval)
+                self.result.stopped_by = f"{self.alternate.switches} switches done"
             else:
                 self._watch()
         except RunRefused:
@@ -269,7 +275,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             if running_since:
                 self.result.running_wall_seconds = time.monotonic() - running_since
             self._shutdown()
-            self._end_live()
+            self.live_changes.end()
             signal.signal(signal.SIGINT, previous)
             signal.signal(signal.SIGTERM, previous_term)
             self.result.wall_seconds = time.monotonic() - wall_start
@@ -282,23 +288,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self._stop_requested = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
 
     def queue_plan(self) -> list[limits.QueueSize]:
-        """The run's queues, each sized for what it carries: the events, a signal queue per RTPU, the control queue."""
-        sub, run_id = self.subsystem, self.run_id
-        plan = [messages.event_queue_size(messages.event_queue_name(sub.name, run_id),
-                                          [[t.name for t in sub.tasks_on(rtpu.name)] for rtpu in sub.rtpus])]
-        # what an aperiodic task's event may carry: an operator's values (a control request at most),
-        # or a message of one of the application's links, as the checker bounds it
-        payload = max([REQUEST_BYTES] + [MSGPACK_BYTES_PER_NUMBER * int(np.prod(link.get("shape", [1])))
-                                         + MESSAGE_OVERHEAD_BYTES for link in self.links.values()
-                                         if link.get("kind") == "message"])
-        for rtpu in sub.rtpus:
-            hosted = sub.tasks_on(rtpu.name)
-            # (room for the longest name a task spawned live may have: `pbo spawn` may put one on any RTPU)
-            plan.append(messages.signal_queue_size(messages.signal_queue_name(sub.name, run_id, rtpu.name),
-                                                   [t.name for t in hosted] + ["x" * MAX_NAME],
-                                                   payload if any(t.aperiodic for t in hosted) else 0))
-        plan.append(control_queue_size(sub.name, run_id))
-        return plan
+        """The run's queues, each sized for what it carries (`supervisor.run_queues`)."""
+        return queue_plan(self.subsystem, self.run_id, self.links)
 
     def _make_queues(self) -> None:
         """Every queue of the run, refused whole before the first is made if they cannot fit."""
@@ -335,8 +326,10 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         self._refuse_if_devices_in_use()  # again, now that a run started at the same instant sees this one
         if self.fork_server is None:  # (a refused run starts no process) it loads while this process goes on
             self._start_fork_server(["pbo_runtime.supervisor.plant_host"] * (sub.plant is not None) + ["rtpu"])
-        self._watch_the_lock(self.table)
-        self._start_live(self.table.layout.n_tasks)
+        # from the table's creation: job control's writes wait through the guard; looks begin
+        self.lock_guard = LockGuard(self.table, self.shortest_period, self.result, self.children, self.say, self._run_time,
+                                    self._check_children, lambda: self._stop_requested, lambda: self._serving, self.fifo)
+        self.live_changes.start(self.table.layout.n_tasks)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()
         self._startup_mark("table")
@@ -349,17 +342,15 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                 *(["--out", self.out_dir] if self.out_dir else []),
                 "--base-dir", str(Path(plant.loc.file or sub.file).resolve().parent),
             ])
+        ring = tuple(self._roles()) if self.clock.name == "sim" else ()
         for rtpu in sub.rtpus:
             hosted = tuple(t.name for t in sub.tasks_on(rtpu.name))
-            self._launch(rtpu.name, ["-m", "rtpu", sub.file, "--run-id", run_id, "--rtpu", rtpu.name,
-                                     "--epoch", repr(epoch + self.stagger * rtpu.index), "--spin", repr(rtpu.spin),
-                                     *(["--fifo"] if self.fifo else []),
-                                     *self.clock.rtpu_arguments(),
-                                     *(["--out", self.out_dir] if self.out_dir else []),
-                                     "--configuration", self.configuration, "--application", self.application or "",
-                                     *(["--links", json.dumps(self.links)] if self.links else []),
-                                     "--live", self.live_dir],
-                         hosted)
+            launch = self.rtpu_launches[rtpu.name] = RtpuLaunch(
+                sub.file, run_id, rtpu.name, epoch=epoch + self.stagger * rtpu.index, spin=rtpu.spin, fifo=self.fifo,
+                clock=self.clock.name, tick=self.tick or SIM_TICK_DEFAULT, ring=ring, out=self.out_dir,
+                configuration=self.configuration, application=self.application or "", links=self.links,
+                live=self.live_changes.live_dir)
+            self._launch(rtpu.name, ["-m", "rtpu", *launch.to_argv()], hosted)
         # the plant and the RTPUs start side by side: an RTPU opens the plant's registers only in a
         # task's init, after every child is ready
         self._release_fork_server()
@@ -389,6 +380,34 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
                 return
             except RtpuDied as death:
                 self.restart_rtpu(death)
+
+    @property
+    def live(self) -> LiveDescription | None:
+        """The description the run lives by (None: live changes are off for this run)."""
+        return self.live_changes.live
+
+    def stage_live(self, live: LiveDescription) -> None:
+        self.live_changes.stage(live)
+
+    def adopt(self, live: LiveDescription) -> None:
+        self.live_changes.adopt(live)
+
+    def _adopted(self, subsystem: Subsystem) -> None:
+        self.subsystem = subsystem
+        self.reconfiguration = Reconfiguration(subsystem)
+
+    def start_application(self, name: str) -> None:
+        """Run application `name` from the watch loop, as soon as the command is answered."""
+        self.live_changes.queued_application = name
+
+    def may_restart(self, role: str) -> bool:
+        return self.restarter.may_restart(role)
+
+    def restart_rtpu(self, death: RtpuDied) -> None:
+        self.restarter.restart_rtpu(death)
+
+    def bring_up(self, spawn: list[str], turn_on: list[str], configuration: str | None = None) -> None:
+        self.restarter.bring_up(spawn, turn_on, configuration)
 
     def respawn(self, name: str) -> None:
         """Spawn a task and wait for its init; an init failure stops the run (no half start)."""
@@ -459,6 +478,30 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         assert self.table is not None
         self.table.header[Header.PLAN_CONFIGURATION] = self.reconfiguration.index(self.configuration)
 
+    def _run_time(self) -> float:
+        """Seconds since the configuration came on (0 before)."""
+        return self.now() - self.started_at if self.started_at is not None else 0.0
+
+    def _look_at_the_lock(self) -> None:
+        if self.lock_guard is not None:
+            self.lock_guard.look()
+
+    def _look_at_the_lock_while_stopping(self) -> None:
+        if self.lock_guard is not None:
+            self.lock_guard.look_while_stopping()
+
+    def _while_waiting_for_the_lock(self) -> None:
+        assert self.lock_guard is not None
+        self.lock_guard.while_waiting_for_the_lock()
+
+    def _is_critical(self, task: str) -> bool:
+        spec = self.subsystem.tasks.get(task)  # (one the running description does not know: counted critical)
+        return spec is None or spec.critical
+
+    def _child_exited(self) -> None:
+        if self.child_watch is not None:  # (closed once the run stops: children then end as asked)
+            self._check_children()  # a death handled now, not at the next look
+
     def _count_errors(self) -> None:
         """Critical tasks run locally stable while a task of the configuration is in ERROR."""
         if self.table is None:
@@ -488,8 +531,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
         """Serve events and commands until the duration is over (StopRequested ends it sooner)."""
         assert self.started_at is not None
         while self.duration is None or self.now() - self.started_at < self.duration - self.tick / 2:
-            if self._queued_application is not None:
-                self._run_queued_application()
+            if self.live_changes.queued_application is not None:
+                self.live_changes.run_queued_application()
                 continue
             left = self.duration - (self.now() - self.started_at) if self.duration is not None else 0.1
             self.pump(min(0.1, left))
@@ -507,8 +550,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting, LockWatc
             if self._stop_requested:
                 raise StopRequested(self._stop_requested)
             self._check_stalls()
-            if self.lock_watch is not None:  # while the lock is taken, look again soon
-                timeout = self.lock_watch.next_look_in(timeout)
+            if self.lock_guard is not None:  # while the lock is taken, look again soon
+                timeout = self.lock_guard.watch.next_look_in(timeout)
             self.clock.run_for(timeout, self._take_one_event, self._while_stepping, self._while_ticking)
         except RtpuDied as death:  # its restart policy brings it back; the other RTPUs never stopped
             self.restart_rtpu(death)

@@ -1,0 +1,181 @@
+"""The supervisor's decisions on restarts, the table lock and its children's events, from the run's state: no process."""
+
+import pytest
+
+from pbo_runtime.config.model import RestartPolicy, RtpuSpec
+from pbo_runtime.ipc import messages
+from pbo_runtime.supervisor.failures import RunFailure
+from pbo_runtime.supervisor.lock_watch import LockVerdict, holder_alive, lock_verdict
+from pbo_runtime.supervisor.restarts import RestartPlan, count_death, may_restart, restart_plan
+from tests.support import EventsHeard
+
+POLICY = RestartPolicy(max=3, within=10.0)
+RTPUS = [RtpuSpec("rtpu0", 0, restart=POLICY), RtpuSpec("rtpu1", 1)]
+
+
+# --- whether a death is restarted ------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("role", "table_made", "stopping", "restarted"), [
+    ("rtpu0", True, "", True),
+    ("rtpu1", True, "", False),  # no policy: the run stops
+    ("plant", True, "", False),  # the plant is never restarted
+    ("rtpu0", False, "", False),  # before the table exists: a start that failed
+    ("rtpu0", True, "Ctrl-C", False),  # the run is stopping anyway
+    ("rtpu9", True, "", False),  # not an RTPU of this subsystem
+])
+def test_only_an_rtpu_with_a_policy_is_restarted_and_only_while_the_run_goes_on(role, table_made, stopping, restarted):
+    assert may_restart(role, RTPUS, table_made, stopping) is restarted
+
+
+# --- the policy's count ----------------------------------------------------------------------
+
+
+def test_the_deaths_past_max_within_the_window_stop_the_run():
+    deaths: list[float] = []
+    verdicts = []
+    for at in (1.0, 2.0, 3.0, 4.0):
+        deaths, past = count_death(deaths, at, POLICY)
+        verdicts.append(past)
+    assert verdicts == [False, False, False, True]
+    assert deaths == [1.0, 2.0, 3.0, 4.0]
+
+
+def test_a_death_that_left_the_window_is_no_longer_counted():
+    deaths, past = count_death([1.0, 2.0, 3.0], 11.5, POLICY)  # 1.0 is 10.5 s before: out of the 10 s window
+    assert (deaths, past) == ([2.0, 3.0, 11.5], False)
+
+
+def test_a_policy_of_no_restart_stops_the_run_at_the_first_death():
+    assert count_death([], 0.5, RestartPolicy(max=0, within=10.0)) == ([0.5], True)
+
+
+def test_counting_leaves_the_deaths_it_was_given_alone():
+    before = [1.0]
+    count_death(before, 2.0, POLICY)
+    assert before == [1.0]
+
+
+# --- what a restart brings back --------------------------------------------------------------
+
+
+STATES = {"traj": "ON", "pid": "ON", "spare": "OFF", "gone": "KILLED", "never": "NOT_CREATED"}
+HOSTED = ["traj", "pid", "spare", "gone", "never"]
+
+
+def test_a_restart_brings_back_what_was_alive_and_turns_on_what_was_on():
+    assert restart_plan(HOSTED, STATES, "run") == RestartPlan(["traj", "pid", "spare"], ("traj", "pid"), "run")
+
+
+def test_a_task_the_supervisor_never_heard_of_is_not_spawned():
+    assert restart_plan(["traj", "late"], {"traj": "ERROR"}, "run") == RestartPlan(["traj"], (), "run")
+
+
+def test_a_dynamic_switch_keeps_what_was_spawned_and_turns_on_the_new_configurations_members():
+    plan = restart_plan(HOSTED, STATES, "hold", switching_to=["spare", "never"], static=False)
+    assert plan == RestartPlan(["traj", "pid", "spare"], ("spare",), "hold")
+
+
+def test_a_static_switch_spawns_only_the_new_configurations_members():
+    plan = restart_plan(HOSTED, STATES, "hold", switching_to=["spare", "never"], static=True)
+    assert plan == RestartPlan(["spare", "never"], ("spare", "never"), "hold")
+
+
+# --- a holding of the table lock past its bound ----------------------------------------------
+
+
+OWN = 100
+
+
+@pytest.mark.parametrize(("pid", "state", "ours", "verdict"), [
+    (0, "", False, LockVerdict("left", "dead", "it cannot be told who holds it; the run is stopped")),
+    (OWN, "", False, LockVerdict("left", "dead", "it cannot be told who holds it; the run is stopped")),
+    (200, "", True, LockVerdict("released", "dead")),  # gone: its lock is released
+    (200, "Z", True, LockVerdict("released", "dead")),  # a zombie holds nothing
+    (200, "T", True, LockVerdict("killed", "stopped")),  # a child stopped by SIGSTOP
+    (200, "R", True, LockVerdict("killed", "running")),
+    (300, "S", False, LockVerdict("left", "running",
+                                  "it is not a process of this run, so it was not signalled; the run is stopped")),
+    (300, "", False, LockVerdict("released", "dead")),  # any dead holder's lock is released
+])
+def test_a_wedged_lock_is_released_from_the_dead_and_taken_from_the_runs_own_never_from_another(pid, state, ours, verdict):
+    assert lock_verdict(pid, OWN, state, ours) == verdict
+
+
+@pytest.mark.parametrize(("state", "alive"), [("", False), ("Z", False), ("X", False), ("R", True), ("S", True),
+                                              ("D", True), ("T", True), ("t", True)])
+def test_only_a_live_holder_gets_a_last_look(state, alive):
+    assert holder_alive(state) is alive
+
+
+# --- what an event changes -------------------------------------------------------------------
+
+
+def test_a_task_entering_error_is_told_once_and_the_error_words_follow_each_change():
+    heard = EventsHeard()
+    heard.hear("rtpu0", messages.StateChanged("pid", "ON"), messages.StateChanged("pid", "ERROR", "gain NaN"),
+               messages.StateChanged("pid", "ERROR", "gain NaN"), messages.StateChanged("pid", "OFF"))
+    assert heard.ledger.task_states == {"pid": "OFF"} and heard.ledger.task_errors == {"pid": "gain NaN"}
+    assert heard.lines == ["task 'pid' on rtpu0 is in ERROR: gain NaN (operator intervention required: pbo clear pid)"]
+    assert heard.handed == [("count_errors",), ("count_errors",)]  # into ERROR, out of it
+
+
+def test_an_output_that_failed_is_one_fault_per_task():
+    heard = EventsHeard()
+    failed = messages.StateChanged("logger", "ERROR", "disk full", output_failed=True)
+    heard.hear("rtpu1", failed, messages.StateChanged("logger", "OFF"), failed)
+    assert heard.result.faults == ["task 'logger' on rtpu1 could not write its output: disk full"]
+
+
+def test_a_switchs_reports_go_to_job_control_as_they_came():
+    heard = EventsHeard()
+    heard.hear("rtpu0", messages.Switched(3, "pd", 1.0, 1.001, 1.002, ["pid"], ["pd"], read_at=0.9),
+               messages.Window(3, "robot", 0, 2), messages.FirstCycle(3, "pd", 1.0015))
+    assert heard.handed == [("switched", "rtpu0", 3, 1.001, 1.002, ["pid"], ["pd"], 0.9), ("window", 3, "robot", 0, 2),
+                            ("first_cycle", 3, "pd", 1.0015)]
+
+
+def test_a_refusal_is_kept_for_the_waiter_and_told():
+    heard = EventsHeard()
+    heard.hear("rtpu0", messages.Refused("pid", "it is ON"))
+    assert heard.ledger.refused == {"pid": "it is ON"}
+    assert heard.lines == ["rtpu0 refused a signal for 'pid': it is ON"]
+
+
+@pytest.mark.parametrize(("running", "faults"), [(True, 1), (False, 0)])
+def test_a_plant_stall_is_a_fault_only_once_the_configuration_is_on(running, faults):
+    heard = EventsHeard(running=running)
+    heard.hear("plant", messages.PlantStalled(0.25, 3.0))
+    assert len(heard.result.faults) == faults and len(heard.lines) == 1
+    assert heard.lines[0].startswith("the plant did not run for 0.250 s")
+
+
+def test_a_childs_crash_fails_the_run_with_its_trace():
+    heard = EventsHeard()
+    with pytest.raises(RunFailure, match=r"^rtpu1 crashed: ValueError: bad\nTraceback"):
+        heard.hear("rtpu1", messages.Crashed("ValueError: bad", "Traceback ..."))
+
+
+def test_what_concerns_other_parts_is_handed_on():
+    heard = EventsHeard()
+    heard.hear("rtpu0", messages.Staged(2, ""), messages.ChildExited("rtpu1", 4321), messages.Stats({"pid": {"cycles": 5}}))
+    assert heard.handed == [("staged", "rtpu0", 2, ""), ("child_exited",)]
+    assert heard.ledger.stats == {"pid": {"cycles": 5}}
+
+
+def test_a_stable_episode_of_a_task_that_is_not_critical_says_the_critical_tasks_hold():
+    heard = EventsHeard(not_critical=("receive",))
+    heard.hear("rtpu0", messages.Stable("receive", True, 1.0, "", "module"), messages.Stable("receive", False, 1.5))
+    assert heard.lines == [
+        "task 'receive' has no fresh input (its cycle returned STABLE): the critical tasks hold until it has",
+        "task 'receive' is back to its cycle after 500.0 ms"]
+    assert heard.result.stable_episodes == [{"task": "receive", "from": 1.0, "to": 1.5, "seconds": 0.5, "reason": "",
+                                             "cause": "module"}]
+    assert heard.ledger.stable == {} and heard.handed == [("count_errors",)] * 2
+
+
+def test_an_episode_open_at_the_stop_is_ended_without_an_end():
+    heard = EventsHeard()
+    heard.hear("rtpu0", messages.Stable("robot", True, 2.0, "stale q_m", "stale"))
+    heard.ledger.end_stable_episode("robot", None)
+    assert heard.result.stable_episodes[0]["to"] is None and heard.result.stable_episodes[0]["seconds"] is None

@@ -4,6 +4,7 @@ import pytest
 
 from pbo_runtime.config.model import RestartPolicy, RtpuSpec
 from pbo_runtime.ipc import messages
+from pbo_runtime.ipc.task_statistics import TaskStatistics
 from pbo_runtime.supervisor.failures import RunFailure
 from pbo_runtime.supervisor.lock_watch import LockVerdict, holder_alive, lock_verdict
 from pbo_runtime.supervisor.restarts import RestartPlan, count_death, may_restart, restart_plan
@@ -158,9 +159,9 @@ def test_a_childs_crash_fails_the_run_with_its_trace():
 
 def test_what_concerns_other_parts_is_handed_on():
     heard = EventsHeard()
-    heard.hear("rtpu0", messages.Staged(2, ""), messages.ChildExited("rtpu1", 4321), messages.Stats({"pid": {"cycles": 5}}))
+    heard.hear("rtpu0", messages.Staged(2, ""), messages.ChildExited("rtpu1", 4321), messages.Stats("pid", TaskStatistics(cycles=5)))
     assert heard.handed == [("staged", "rtpu0", 2, ""), ("child_exited",)]
-    assert heard.ledger.stats == {"pid": {"cycles": 5}}
+    assert heard.ledger.stats == {"pid": TaskStatistics(cycles=5)}
 
 
 def test_a_stable_episode_of_a_task_that_is_not_critical_says_the_critical_tasks_hold():

@@ -7,7 +7,7 @@ handling is tested event by event without a process."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol
+from typing import Callable, Protocol
 
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.task_statistics import TaskStatistics

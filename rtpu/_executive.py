@@ -69,8 +69,8 @@ class Scheduled:
         self.missed = 0
         self.long_cycles = 0  # overruns the cycle alone caused (it took more than a period)
         self.overrun_log = np.zeros(3 * OVERRUNS_KEPT)  # flat ring: release, lateness, execution time
-        # Written now, not zeroed lazily: a lazily zeroed page is faulted in at its first write,
-        # which was every 512 cycles on the per-cycle path (4 page faults a second at 1 kHz).
+        # Written now, not zeroed lazily: a lazily zeroed page would be faulted in at its first
+        # write, on the per-cycle path.
         self.jitter = np.full(RING, 0.0)
         self.exec_time = np.full(RING, 0.0)
         self.samples = 0

@@ -23,8 +23,7 @@ from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Flag, Header, TaskState
 from pbo_runtime.task import background
 from pbo_runtime.task.lifecycle import Task
-from rtpu import holds, signals
-from rtpu.holds import HELD_BY_MODULE, NOT_HELD, Holds, release_lost_to_the_lock
+from rtpu.holds import HELD_BY_MODULE, NOT_HELD, Holds, release_lost_to_the_lock, watch_inputs
 from rtpu.plans import PLAN_SEQUENCE, LiveStage, Plans
 from rtpu.releases import (
     ON_THE_BOUNDARY,
@@ -38,7 +37,7 @@ from rtpu.releases import (
     record_cycle,
     record_jitter,
 )
-from rtpu.signals import EVENTS_QUEUED, SignalSource
+from rtpu.signals import EVENTS_QUEUED, SignalSource, handle_signal
 
 # Header words read before every release, as plain ints (through a memoryview: no numpy scalar each time)
 _FLAGS, _STOPPING = int(Header.FLAGS), int(Flag.STOPPING)
@@ -340,8 +339,8 @@ class Executive:
             self.factories[task.name] = factory
 
     def handle(self, message: list[Any]) -> None:
-        """One signal as it came off the queue (`signals.handle`)."""
-        signals.handle(self, message)
+        """One signal as it came off the queue (`signals.handle_signal`)."""
+        handle_signal(self, message)
 
     def apply_plan(self) -> None:
         """Switch this RTPU's tasks to the planned configuration, at this cycle boundary (`plans`)."""
@@ -364,9 +363,9 @@ class Executive:
                 self.holds.bound_lock_wait(s.period)
 
     def watch(self, s: Scheduled, configuration: int, since: float) -> None:
-        """A critical task's freshness check follows the writers of `configuration`, from `since` on (`holds.watch`)."""
+        """A critical task's freshness check follows the writers of `configuration`, from `since` on (`holds.watch_inputs`)."""
         if s.critical and self.plans.reconfiguration is not None:
-            holds.watch(s, self.plans.reconfiguration, configuration, since)
+            watch_inputs(s, self.plans.reconfiguration, configuration, since)
 
     def leave_on(self, s: Scheduled) -> None:
         if s in self.on:

@@ -171,7 +171,7 @@ class Holds:
             wait[0] = min(wait[0] or math.inf, LOCK_WAIT_PERIODS * period)
 
 
-def watch(s: Scheduled, reconfiguration: Reconfiguration, configuration: int, since: float) -> None:
+def watch_inputs(s: Scheduled, reconfiguration: Reconfiguration, configuration: int, since: float) -> None:
     """Point a critical task's freshness check at the writers of its inputs in `configuration`, from `since` on."""
     variables = s.task.local.input_variables
     s.fresh_since = since

@@ -29,7 +29,7 @@ class SignalSource(Protocol):
     def receive(self, timeout: float | None) -> list[Any] | None: ...
 
 
-def handle(executive: Executive, message: list[Any]) -> None:
+def handle_signal(executive: Executive, message: list[Any]) -> None:
     """One signal as it came off the queue (`[kind, *fields]`, decoded by `messages.signal_from_wire`)."""
     executive.report_background_failures()
     signal = messages.signal_from_wire(message)

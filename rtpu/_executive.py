@@ -31,10 +31,8 @@ from rtpu.releases import (
     RING,
     Barrier,
     Clock,
+    close_cycle,
     first_release,
-    most_urgent,
-    next_release,
-    record_cycle,
     record_jitter,
 )
 from rtpu.signals import EVENTS_QUEUED, SignalSource, handle_signal
@@ -285,16 +283,30 @@ class Executive:
         self.plans.send_held_reports()
 
     def run_ready(self, first_now: float | None = None) -> None:
-        """Run every released task once, most urgent first (`releases.most_urgent`); no allocation.
+        """Run every released task once, most urgent first (maximum-urgency-first); no allocation.
 
-        `first_now`: the time the wait ended (`Clock.sleep_until`), so the first cycle's jitter is
-        timed where a bare loop times it; later picks read the clock.
+        Urgency: critical before not; then the earlier deadline (release + period); then the
+        higher user priority. `first_now`: the time the wait ended (`Clock.sleep_until`), so the
+        first cycle's jitter is timed where a bare loop times it; later picks read the clock.
         """
         clock = self.clock
         on = self.on
         slack = self.release_slack
         now = clock.now() if first_now is None else first_now
-        while (best := most_urgent(on, now + slack)) is not None:
+        while True:
+            due = now + slack
+            best = None
+            for s in on:
+                if s.release > due:
+                    continue
+                if best is None or s.critical > best.critical:
+                    best = s
+                elif s.critical == best.critical:
+                    deadline, best_deadline = s.release + s.period, best.release + best.period
+                    if deadline < best_deadline or (deadline == best_deadline and s.priority > best.priority):
+                        best = s
+            if best is None:
+                return
             self._cycle(best, now)
             now = clock.now()
 
@@ -319,13 +331,10 @@ class Executive:
         if held or s.held_for:
             self.holds.after_cycle(s, held, result, start, release)
         end = self.clock.now()
-        took = end - start
-        record_cycle(s, jitter, took)
+        s.release = close_cycle(s, release, jitter, start, end, self.epoch)
         if s.first_cycle_of_plan:
             self.report(FirstCycle(s.first_cycle_of_plan, task.name, start))
             s.first_cycle_of_plan = 0
-        s.last_release = release
-        s.release = next_release(s, release, end, self.epoch, jitter, took)
         if result != Status.CONTINUE:
             self.leave_on(s)
             self.report_state(task)

@@ -61,12 +61,21 @@ class Holds:
             s.lock_waits_given_up += 1
             return HELD_LOCKED  # its stable behaviour does without them (the last ones read stay)
         expired = self.expired = self.check_freshness(s, release)
-        if self.configuration_illegal(start, s.period):
-            return HELD_ILLEGAL  # (a stale input then is the switch's doing, not a fault)
+        words = self.words  # (plain ints: no numpy scalar per read, on every critical cycle)
+        if words is not None:
+            # Illegal while a task of the configuration is in ERROR or a switch overran a cycle
+            # (a stale input then is the switch's doing, not a fault)
+            if words[_TASKS_IN_ERROR] > 0 or words[_FLAGS] & _STATIC_SWITCH:
+                return HELD_ILLEGAL
+            limit = (start - s.period) * 1e9
+            for word in self.switching_words:
+                since = words[word]
+                if since and since < limit:
+                    return HELD_ILLEGAL
         if expired >= 0:
             s.expired_reads += 1
             return HELD_STALE_INPUT
-        if self.upstream_not_fresh():
+        if words is not None and words[_TASKS_NOT_FRESH] > 0:  # job control counts a task upstream not fresh
             return HELD_UPSTREAM
         return NOT_HELD
 
@@ -121,25 +130,6 @@ class Holds:
                 s.last_stale = f"{s.task.local.input_variables[i]} at {release:.6f}: age {(release - written_at) * 1e3:.3f} ms"
                 counted = True
         return -1
-
-    def configuration_illegal(self, now: float, period: float) -> bool:
-        """True while a task of the configuration is in ERROR or a switch has overrun a cycle."""
-        words = self.words
-        if words is None:
-            return False
-        if words[_TASKS_IN_ERROR] > 0 or words[_FLAGS] & _STATIC_SWITCH:
-            return True
-        limit = (now - period) * 1e9
-        for word in self.switching_words:
-            since = words[word]
-            if since and since < limit:
-                return True
-        return False
-
-    def upstream_not_fresh(self) -> bool:
-        """True while job control counts a task of the configuration whose cycle says its inputs are not fresh."""
-        words = self.words
-        return words is not None and words[_TASKS_NOT_FRESH] > 0
 
     def report_stable(self, s: Scheduled, held: int, start: float, release: float) -> None:
         """A stable episode begins, `held` for one of the HELD_ reasons: say why (once per episode)."""

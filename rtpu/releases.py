@@ -1,17 +1,14 @@
-"""When a task is released, which released task runs first, and what each cycle's timing records.
+"""When a task is released, and what each cycle's timing records.
 
 The k-th release of a periodic task is epoch + k x period, counted, never summed, so the rate does
-not drift and rounding does not pile up. Among the released tasks the most urgent runs first
-(maximum-urgency-first): critical before not, then the earlier deadline, then the higher priority.
-A cycle that ends past its next release is an overrun: the releases already gone are skipped,
-keeping the phase. Jitter and execution time go to the table's status words and to preallocated
+not drift and rounding does not pile up. A cycle that ends past its next release is an overrun:
+the releases already gone are skipped, keeping the phase. Jitter and execution time go to the table's status words and to preallocated
 rings, whose recent percentiles reach the table once per RECENT cycles. Nothing here allocates.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -49,21 +46,6 @@ def first_release(s: Scheduled, at: float, epoch: float) -> float:
     return epoch + s.release_index * s.period
 
 
-def most_urgent(on: Iterable[Scheduled], due: float) -> Scheduled | None:
-    """The released task (release <= `due`) to run first, or None: critical, earliest deadline, highest priority."""
-    best = None
-    for s in on:
-        if s.release > due:
-            continue
-        if best is None or s.critical > best.critical:
-            best = s
-        elif s.critical == best.critical:
-            deadline, best_deadline = s.release + s.period, best.release + best.period
-            if deadline < best_deadline or (deadline == best_deadline and s.priority > best.priority):
-                best = s
-    return best
-
-
 def record_jitter(s: Scheduled, jitter: float) -> float:
     """How late the cycle started after its release (never below zero) into the status words; returned."""
     if jitter < 0.0:
@@ -76,8 +58,15 @@ def record_jitter(s: Scheduled, jitter: float) -> float:
     return jitter
 
 
-def record_cycle(s: Scheduled, jitter: float, took: float) -> None:
-    """The cycle's jitter and execution time into the rings and the status words."""
+def close_cycle(s: Scheduled, release: float, jitter: float, start: float, end: float, epoch: float) -> float:
+    """Record the timing of the cycle of `release` that ran from `start` to `end`; return the next release.
+
+    A periodic task's next release is the first of its grid after `end`: past its deadline, the
+    overrun is counted and the releases already gone are skipped, keeping the phase (next =
+    epoch + k x period, never end + period). An aperiodic task is released again by its next
+    queued event, after its minimum inter-arrival time.
+    """
+    took = end - start
     k = s.samples & (RING - 1)
     s.jitter[k] = jitter
     s.exec_time[k] = took
@@ -89,6 +78,20 @@ def record_cycle(s: Scheduled, jitter: float, took: float) -> None:
     if took > s.exec_max:
         s.exec_max = took
         status[W.EXEC_MAX] = took
+    s.last_release = release
+    if s.aperiodic:
+        return max(release + s.period, end) if s.events else math.inf
+    s.release_index += 1
+    following = epoch + s.release_index * s.period
+    if end > following:
+        skipped = int((end - release) // s.period)
+        record_overrun(s, release, jitter, took, skipped)
+        s.release_index += skipped - 1
+        following = epoch + s.release_index * s.period
+        if following <= end:
+            s.release_index += 1
+            following = epoch + s.release_index * s.period
+    return following
 
 
 def publish_recent(s: Scheduled) -> None:
@@ -101,27 +104,6 @@ def publish_recent(s: Scheduled) -> None:
     shared[W.JITTER_P99] = jitter[RECENT * 99 // 100]
     shared[W.EXEC_P50] = exec_time[RECENT // 2]
     shared[W.EXEC_P99] = exec_time[RECENT * 99 // 100]
-
-
-def next_release(s: Scheduled, release: float, end: float, epoch: float, jitter: float, took: float) -> float:
-    """The release after the cycle of `release` that ended at `end`; an overrun is counted and recorded.
-
-    An aperiodic task is released again by its next queued event, after its minimum inter-arrival time.
-    """
-    if s.aperiodic:
-        return max(release + s.period, end) if s.events else math.inf
-    s.release_index += 1
-    following = epoch + s.release_index * s.period
-    if end > following:
-        # The deadline passed: skip the releases already gone (next = epoch + k x period, never end + period)
-        skipped = int((end - release) // s.period)
-        record_overrun(s, release, jitter, took, skipped)
-        s.release_index += skipped - 1
-        following = epoch + s.release_index * s.period
-        if following <= end:
-            s.release_index += 1
-            following = epoch + s.release_index * s.period
-    return following
 
 
 def record_overrun(s: Scheduled, release: float, jitter: float, took: float, skipped: int) -> None:

@@ -16,10 +16,10 @@ from typing import Any, Callable
 
 import numpy as np
 
+from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.ipc.messages import Event, FirstCycle, Refused, StateChanged, Stats
 from pbo_runtime.ipc.process import raise_if_stopping
 from pbo_runtime.objects.module import Status
-from pbo_runtime.config.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Flag, Header, TaskState
 from pbo_runtime.task import background
 from pbo_runtime.task.lifecycle import Task

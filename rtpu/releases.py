@@ -2,8 +2,9 @@
 
 The k-th release of a periodic task is epoch + k x period, counted, never summed, so the rate does
 not drift and rounding does not pile up. A cycle that ends past its next release is an overrun:
-the releases already gone are skipped, keeping the phase. Jitter and execution time go to the table's status words and to preallocated
-rings, whose recent percentiles reach the table once per RECENT cycles. Nothing here allocates.
+the releases already gone are skipped, keeping the phase. Jitter and execution time go to the
+table's status words and to preallocated rings, whose recent percentiles reach the table once
+per RECENT cycles. Nothing on a cycle's path allocates.
 """
 
 from __future__ import annotations

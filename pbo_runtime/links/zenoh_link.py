@@ -147,7 +147,7 @@ class ZenohLink(SessionEnd, ReaderTally):
     def __enter__(self) -> ZenohLink:
         return self
 
-    def __exit__(self, *_exc) -> None:
+    def __exit__(self, *_exc: object) -> None:
         self.close()
 
     # --- roles --------------------------------------------------------------------------------
@@ -179,7 +179,7 @@ class ZenohLink(SessionEnd, ReaderTally):
         self._answer_as(role.value, self._describe)
         self._set_role(role)
 
-    def _describe(self) -> dict:
+    def _describe(self) -> dict[str, Any]:
         counter = self._published if self._is_sender else (self._newest[1] if self._newest else 0)
         return {"role": self.role.value if self.role else None, "pid": self._pid, "host": socket.gethostname(),
                 "layout_hash": self._layout_hash, "layout": self.layout.description, "counter": counter}
@@ -210,7 +210,7 @@ class ZenohLink(SessionEnd, ReaderTally):
             self._refuse(Role.SENDER, "publish")
         return self._publish(time.monotonic_ns() if stamp_ns is None else stamp_ns)
 
-    def write(self, value, stamp_ns: int | None = None) -> int:
+    def write(self, value: Any, stamp_ns: int | None = None) -> int:
         """Copy `value` into the item and send it; return its counter. `stamp_ns` defaults to the call's time."""
         if not self._is_sender:
             self._refuse(Role.SENDER, "write")

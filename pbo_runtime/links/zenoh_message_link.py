@@ -119,7 +119,7 @@ class ZenohMessageLink(SessionEnd):
     def _missing(self, detail: str) -> PboError:
         return MessageLinkError(f"no message link '{self.name}': {detail}: has the subsystem that creates it started?")
 
-    def _describe(self) -> dict:
+    def _describe(self) -> dict[str, Any]:
         return {"format": MESSAGE_FORMAT, "capacity": self.capacity, "max_message_bytes": self.max_message_bytes,
                 "pid": os.getpid(), "host": socket.gethostname()}
 
@@ -223,7 +223,7 @@ class ZenohMessageLink(SessionEnd):
     def __enter__(self) -> ZenohMessageLink:
         return self
 
-    def __exit__(self, *_exc) -> None:
+    def __exit__(self, *_exc: object) -> None:
         self.close()
 
 

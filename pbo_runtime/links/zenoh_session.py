@@ -52,7 +52,7 @@ def free_port(host: str = LOOPBACK) -> int:
     """A TCP port nothing listens on now (for tests and benchmarks: another process may take it later)."""
     with socket.socket() as probe:
         probe.bind((host, 0))
-        return probe.getsockname()[1]
+        return int(probe.getsockname()[1])
 
 
 def config_entries(listen: Sequence[str] = (), connect: Sequence[str] = (), background: bool = False) -> dict[str, Any]:
@@ -172,7 +172,7 @@ class SessionEnd:
     def _missing(self, detail: str) -> PboError:
         return LinkError(f"no link '{self.name}': {detail}: has the subsystem that creates it started?")
 
-    def _answer_as(self, role: str, describe: Callable[[], dict]) -> None:
+    def _answer_as(self, role: str, describe: Callable[[], dict[str, Any]]) -> None:
         """Answer queries on `<key>/end/<role>` with `describe()` (msgpack): who holds this end, with what."""
         key = f"{self.key}/end/{role}"
 
@@ -184,7 +184,7 @@ class SessionEnd:
 
         self._entities.append(self._session.declare_queryable(key, answer))
 
-    def _other_ends(self, selector: str) -> list[dict]:
+    def _other_ends(self, selector: str) -> list[dict[str, Any]]:
         """The descriptions answered on `selector` by ends already open (none if nobody answers)."""
         found = []
         zenoh = zenoh_module()

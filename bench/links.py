@@ -50,7 +50,8 @@ import posix_ipc
 from pbo_runtime.clock.clocks import lower_timer_slack
 from pbo_runtime.ipc import messages
 from pbo_runtime.links.triple_buffer import Freshness, LinkLayout, TripleBuffer
-from pbo_runtime.links.zenoh_link import ZenohLink, free_port
+from pbo_runtime.links.zenoh_link import ZenohLink
+from pbo_runtime.links.zenoh_session import free_port
 
 PAYLOADS = (48, 4096, 1 << 20)
 ITEMS = {48: 50_000, 4096: 50_000, 1 << 20: 2_000}

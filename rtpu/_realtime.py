@@ -37,7 +37,7 @@ def apply(cpu: int | None, fifo: bool, priority: int = FIFO_PRIORITY) -> dict[st
         try:
             # RESET_ON_FORK: a process a task starts (a log's encoder, a special-purpose processor)
             # begins at SCHED_OTHER. Inheriting SCHED_FIFO at the RTPU's priority, its interpreter's
-            # start-up (tens to hundreds of ms of CPU) would hold the executive off its CPU.
+            # start-up would hold the executive off its CPU.
             os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
             outcome["scheduler"] = f"SCHED_FIFO {priority}"
         except (OSError, AttributeError) as exc:

@@ -145,7 +145,7 @@ def next_event(executive) -> float:
     from pbo_runtime.table.table import Header
 
     times = [s.release for s in executive.on]
-    if executive.header[Header.PLAN_SEQUENCE] != executive.plan_seen:
+    if executive.header[Header.PLAN_SEQUENCE] != executive.plans.seen:
         times.append(executive.header[Header.PLAN_TIME_NS] / 1e9)
     return min(times, default=float("inf"))
 

@@ -18,7 +18,8 @@ from pbo_runtime.supervisor.event_ledger import STABLE_EPISODES_TOLD
 from pbo_runtime.supervisor.run_report import BRIEF_HOLD_PERIODS, BRIEF_HOLDS_SHARE, stable_episode_lines
 from pbo_runtime.table.table import Header, StateTable, TableLayout
 from pbo_runtime.task.lifecycle import Task
-from rtpu._executive import HELD_ILLEGAL, HELD_STALE_INPUT, HELD_UPSTREAM, NOT_HELD, Executive
+from rtpu._executive import Executive
+from rtpu.holds import HELD_ILLEGAL, HELD_STALE_INPUT, HELD_UPSTREAM, NOT_HELD
 from tests.support import EventsHeard, IdleSignals, step_executives, unique_name
 
 PERIOD = 0.001

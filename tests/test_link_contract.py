@@ -29,7 +29,9 @@ from hypothesis import strategies as st
 
 from pbo_runtime.links.message_link import MAX_PRIORITY, SYSTEM_CAPACITY, LinkFullError, Message, MessageLink, MessageLinkError
 from pbo_runtime.links.triple_buffer import Freshness, LinkError, LinkLayout, LinkLayoutError, TripleBuffer
-from pbo_runtime.links.zenoh_link import ZenohLink, ZenohMessageLink, free_port, link_key
+from pbo_runtime.links.zenoh_link import ZenohLink
+from pbo_runtime.links.zenoh_message_link import ZenohMessageLink
+from pbo_runtime.links.zenoh_session import free_port, link_key
 from tests.support import assert_complete, fill, unique_name, until
 
 ARM = LinkLayout("float64", (6,))

@@ -21,7 +21,9 @@ from pbo_runtime.config.loader import check_file
 from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Header, StateTable, TableLayout, TaskState
-from rtpu._executive import HELD_ILLEGAL, NOT_HELD, Executive
+from rtpu._executive import Executive
+from rtpu.holds import HELD_ILLEGAL, NOT_HELD
+from rtpu.releases import first_release
 from tests.support import IdleSignals, step_executives, unique_name
 
 PERIOD = 0.001
@@ -211,7 +213,7 @@ def test_an_activation_read_back_from_the_headers_nanoseconds_is_the_boundary_it
     for k in range(10_000, 10_200):
         boundary = epoch + k * PERIOD
         activation = int(boundary * 1e9) / 1e9  # as the supervisor posts it and an executive reads it
-        assert executive._first_release(task, activation) == boundary, k
+        assert first_release(task, activation, executive.epoch) == boundary, k
 
 
 def test_a_switch_that_overruns_a_cycle_makes_the_critical_task_hold_still(rig):
@@ -253,7 +255,7 @@ def test_a_live_replace_is_staged_then_applied_at_the_plans_boundary_losing_no_c
                             spec=new.tasks.__getitem__,
                             factories={"ctl_c": lambda: Task(new.tasks["ctl_c"], LIBRARY["b"], table)})
     for executive in executives.values():
-        executive.live_loader = lambda sequence: stage
+        executive.plans.live_loader = lambda sequence: stage
     start(subsystem, executives, clock)
     step_executives(executives, clock, clock.now() + 0.005)
     for executive in executives.values():
@@ -280,10 +282,10 @@ def test_a_live_description_an_rtpu_cannot_read_is_answered_with_why(rig):
     def unreadable(sequence):
         raise FileNotFoundError(f"live-{sequence}.json")
 
-    executives["rtpu0"].live_loader = unreadable
+    executives["rtpu0"].plans.live_loader = unreadable
     executives["rtpu0"].handle(["live", 2])
     staged = [e for _, e in events if isinstance(e, messages.Staged)]
-    assert staged == [messages.Staged(2, "FileNotFoundError: live-2.json")] and executives["rtpu0"].staged is None
+    assert staged == [messages.Staged(2, "FileNotFoundError: live-2.json")] and executives["rtpu0"].plans.staged is None
 
 
 class SlowToStartB(FakeControllerB):

@@ -31,19 +31,10 @@ import pytest
 
 from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError, MessageLink, MessageLinkError
 from pbo_runtime.links.triple_buffer import Freshness, LinkError, LinkLayout, LinkLayoutError, TripleBuffer
-from pbo_runtime.links.zenoh_link import (
-    DELIVERIES,
-    ITEM_FORMAT,
-    ITEM_HEADER,
-    ZenohLink,
-    ZenohMessageLink,
-    config_entries,
-    free_port,
-    link_key,
-    open_link,
-    open_message_link,
-    open_periodic,
-)
+from pbo_runtime.links.ends import open_link, open_message_link
+from pbo_runtime.links.zenoh_link import DELIVERIES, ITEM_FORMAT, ITEM_HEADER, ZenohLink, open_periodic
+from pbo_runtime.links.zenoh_message_link import ZenohMessageLink
+from pbo_runtime.links.zenoh_session import config_entries, free_port, link_key
 from tests.support import assert_complete, fill, unique_name, until
 
 SPAWN = multiprocessing.get_context("spawn")  # zenoh's threads do not survive a fork

@@ -1,11 +1,11 @@
 """Lock-free snapshots of the state table, for everyone who reads it without being an RTPU.
 
 `pbo svar`, `pbo status` and job control's own reads (conditions, final values) never take the
-table lock: a process stopped or killed while holding it would otherwise wedge every RTPU (and a
-reader stopped by the operator did). They read under the table's seqlock instead: every writer,
-under the lock it takes anyway, makes the header's sequence word odd before it writes and even
-after (`LockedSegment.begin_write`); a reader reads the sequence, copies the bytes it needs, and
-keeps the copy only if the sequence was even and has not moved. Otherwise it tries again, a
+table lock: a process stopped or killed while holding it would otherwise wedge every RTPU. They
+read under the table's seqlock instead: every writer, under the lock it takes anyway, makes the
+header's sequence word odd before it writes and even after (`LockedSegment.begin_write`); a reader
+reads the sequence, copies the bytes it needs, and keeps the copy only if the sequence was even
+and has not moved. Otherwise it tries again, a
 bounded number of times, and then gives up with `TableBusy`: a reader never waits on a writer.
 
 Aligned 8-byte words are read and written whole and x86 keeps loads, and stores, in program

@@ -442,9 +442,9 @@ class StateTable:
         """Tell every RTPU at once that the run is over, before any is sent its stop signal.
 
         Job control is the only writer of the flags, so this takes no lock: a wedged lock cannot
-        hold up a stop. Without it, RTPUs stopped first did their stop work (killing tasks,
-        percentiles of 65,536 samples) while the others still ran cycles, and those cycles
-        overran for want of a CPU: overruns of the shutdown, counted as the run's.
+        hold up a stop. Otherwise RTPUs stopped first would do their stop work (killing tasks,
+        percentiles) while the others still run cycles, which would overrun for want of a CPU:
+        overruns of the shutdown, counted as the run's.
         """
         self.header[Header.FLAGS] = int(self.header[Header.FLAGS]) | Flag.STOPPING
 

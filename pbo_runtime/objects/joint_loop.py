@@ -21,6 +21,8 @@ from typing import Callable
 
 import numpy as np
 
+from pbo_runtime.objects.waits import sleep_while_cycling
+
 #: The damping ratio under which a stable loop is worth a warning: it rings.
 LOW_DAMPING = 0.3
 #: The damping ratio `design_gains` keeps at every pose, when the damping asked is at least that.
@@ -63,6 +65,7 @@ def design_gains(low: float, high: float, bandwidth: float, damping: float, inte
     wanted = min(DESIGN_DAMPING, damping)
     best, best_damping = high, -math.inf
     for design in np.geomspace(high, low, _DESIGN_POINTS) if high > low else (high,):
+        sleep_while_cycling(0)  # in a live spawn's init (a controller's gains), the RTPU's due cycles run meanwhile
         gains = bandwidth_gains(float(design), bandwidth, damping, integral_time, viscous)
         worst = min(damping_ratio(i, gains, period, delay, viscous) for i in inertias(low, high))
         if not stable(low, high, gains, period, delay, viscous):

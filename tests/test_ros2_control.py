@@ -55,16 +55,22 @@ def test_the_demos_pid_brings_a_ros2_control_arm_to_its_goal_and_holds_when_join
         said = read_until(run, "critical task 'robot' runs its locally stable behaviour: the module's own inputs are not fresh")
         assert "the module's own inputs are not fresh" in said, said
     finally:
-        if run.poll() is None:
-            run.send_signal(signal.SIGINT)
-        out, err = run_output(run)
-        arm.kill()
-        run_output(arm)
+        out, err = stop_run_and_arm(run, arm)
     assert "Traceback" not in err, err
     report = json.loads(report_path.read_text())
     assert run.returncode == 2, err
     assert any(fault.startswith("critical task 'robot' ran its locally stable behaviour") and fault.endswith(
         "the module's own inputs are not fresh (its cycle returned STABLE)") for fault in report["faults"]), report["faults"]
+
+
+def stop_run_and_arm(run: subprocess.Popen, arm: subprocess.Popen) -> tuple[str, str]:
+    """Stop the run as Ctrl-C does (if it still runs) and kill the stand-in arm: the run's (stdout, stderr)."""
+    if run.poll() is None:
+        run.send_signal(signal.SIGINT)
+    out, err = run_output(run)
+    arm.kill()
+    run_output(arm)
+    return out, err
 
 
 def position_mode_copy(folder):
@@ -98,11 +104,7 @@ def test_in_position_mode_the_trajectory_goes_to_a_ros2_control_position_control
         reached = json.loads(read_until(arm, '"reached"').strip().splitlines()[-1])
         assert np.abs(np.subtract(reached["q"], GOAL)).max() < 0.01  # held there for 0.5 s, by the arm's own account
     finally:
-        if run.poll() is None:
-            run.send_signal(signal.SIGINT)
-        out, err = run_output(run)
-        arm.kill()
-        run_output(arm)
+        out, err = stop_run_and_arm(run, arm)
     assert "Traceback" not in err, err  # (braked without position commands, the arm would never have left q0)
 
 

@@ -118,20 +118,14 @@ def check_loaded(doc: Any, file: str, module_lookup: ModuleLookup = registry.mod
 def with_application(doc: YMap, name: str, steps: YList, loc: Location) -> YMap:
     """A copy of `doc` with application `name` (replaced if it has one) of `steps`, written at `loc`;
     `doc` stays as it was, and every other key keeps where it was written."""
-    copy = _copied(doc)
+    copy = doc.shallow_copy()
     existing = doc.get("applications")
-    applications = _copied(existing) if isinstance(existing, YMap) else YMap(loc)
+    applications = existing.shallow_copy() if isinstance(existing, YMap) else YMap(loc)
     applications.put(name, steps, loc, loc)
     where = (doc.key_loc("applications"), doc.value_loc("applications")) if "applications" in doc else (loc, loc)
     copy.put("applications", applications, *where)
     return copy
 
-
-def _copied(node: YMap) -> YMap:
-    copy = YMap(node.loc)
-    for key, value in node.items():
-        copy.put(key, value, node.key_loc(key), node.value_loc(key))
-    return copy
 
 
 def load_document(file: str, root: str | os.PathLike[str] | None = None) -> tuple[Any, list[ConfigError]]:

@@ -99,6 +99,13 @@ class YMap(dict):  # type: ignore[type-arg]
         self._key_locs[key] = key_loc
         self._value_locs[key] = value_loc
 
+    def shallow_copy(self) -> YMap:
+        """A new mapping of the same keys and values (not copies of them), each still where it was written."""
+        copy = YMap(self.loc)
+        for key, value in self.items():
+            copy.put(key, value, self.key_loc(key), self.value_loc(key))
+        return copy
+
     def key_loc(self, key: Any) -> Location:
         where: Where = self._key_locs.get(key, self._where)
         if isinstance(where, Location):

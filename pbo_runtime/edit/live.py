@@ -106,12 +106,12 @@ class LiveDescription:
         if not change.module or not change.rtpu:
             raise LiveChangeRefused(f"a spawned task needs --module and --rtpu (pbo spawn {name} --module M --rtpu R)")
         entry = _entry(YMap(Location(f"<pbo spawn {name}>", 1, 1)), change, f"pbo spawn {name}")
-        doc = _copy(self.doc)
-        tasks = _copy(doc["tasks"])
+        doc = self.doc.shallow_copy()
+        tasks = doc["tasks"].shallow_copy()
         tasks.put(name, entry, entry.loc, entry.loc)
         doc.put("tasks", tasks, self.doc.key_loc("tasks"), self.doc.value_loc("tasks"))
         joined = tuple(configurations)
-        configs = _copy(doc["configurations"])
+        configs = doc["configurations"].shallow_copy()
         for configuration in joined:
             members = _copy_list(configs[configuration])
             members.add(name, entry.loc)
@@ -122,11 +122,11 @@ class LiveDescription:
     def kill(self, name: str) -> LiveDescription:
         """The task gone from the description and from every configuration that has it."""
         self._task(name)
-        doc = _copy(self.doc)
-        tasks = _copy(doc["tasks"])
+        doc = self.doc.shallow_copy()
+        tasks = doc["tasks"].shallow_copy()
         _remove(tasks, name)
         doc.put("tasks", tasks, self.doc.key_loc("tasks"), self.doc.value_loc("tasks"))
-        configs = _copy(doc["configurations"])
+        configs = doc["configurations"].shallow_copy()
         for configuration, members in list(configs.items()):
             if isinstance(members, YList) and name in members:
                 configs.put(configuration, _copy_list(members, without=name), configs.key_loc(configuration),
@@ -140,9 +140,9 @@ class LiveDescription:
         self._task(old)
         self._new_name(new, "replace")
         original = self.doc["tasks"][old]
-        base = _copy(original) if isinstance(original, YMap) else YMap(Location(f"<pbo replace {old} {new}>", 1, 1))
+        base = original.shallow_copy() if isinstance(original, YMap) else YMap(Location(f"<pbo replace {old} {new}>", 1, 1))
         entry = _entry(base, change, f"pbo replace {old} {new}")
-        doc = _copy(self.doc)
+        doc = self.doc.shallow_copy()
         tasks_before = doc["tasks"]
         tasks = YMap(tasks_before.loc)
         for key, value in tasks_before.items():  # the new entry where the old one was: the file's order kept
@@ -151,7 +151,7 @@ class LiveDescription:
             else:
                 tasks.put(key, value, tasks_before.key_loc(key), tasks_before.value_loc(key))
         doc.put("tasks", tasks, self.doc.key_loc("tasks"), self.doc.value_loc("tasks"))
-        configs = _copy(doc["configurations"])
+        configs = doc["configurations"].shallow_copy()
         for configuration, members in list(configs.items()):
             if isinstance(members, YList) and old in members:
                 configs.put(configuration, _copy_list(members, swap=(old, new)), configs.key_loc(configuration),
@@ -184,10 +184,10 @@ class LiveDescription:
             for position, text in enumerate(texts, 1):
                 item, loc = _snippet(text, f"{where} (value {position})")
                 value.add(item, loc)
-        doc = _copy(self.doc)
-        tasks = _copy(doc["tasks"])
-        entry = _copy(tasks[task])
-        params = _copy(entry["params"]) if isinstance(entry.get("params"), YMap) else YMap(Location(f"<{where}>", 1, 1))
+        doc = self.doc.shallow_copy()
+        tasks = doc["tasks"].shallow_copy()
+        entry = tasks[task].shallow_copy()
+        params = entry["params"].shallow_copy() if isinstance(entry.get("params"), YMap) else YMap(Location(f"<{where}>", 1, 1))
         params.put(param, value, Location(f"<{where}>", 1, 1), Location(f"<{where}>", 1, 1))
         entry.put("params", params, tasks[task].key_loc("params") if "params" in tasks[task] else params.loc,
                   tasks[task].value_loc("params") if "params" in tasks[task] else params.loc)
@@ -303,20 +303,13 @@ def _entry(base: YMap, change: TaskChange, where: str) -> YMap:
         if not given:
             continue
         existing = entry.get(section)
-        mapping = _copy(existing) if isinstance(existing, YMap) else YMap(Location(f"<{where} --{section[:-1]}>", 1, 1))
+        mapping = existing.shallow_copy() if isinstance(existing, YMap) else YMap(Location(f"<{where} --{section[:-1]}>", 1, 1))
         for key, text in given.items():
             value, loc = _snippet(text, f"{where} --{section[:-1]} {key}")
             mapping.put(key, value, loc, loc)
         entry.put(section, mapping, mapping.loc, mapping.loc)
     return entry
 
-
-def _copy(node: YMap) -> YMap:
-    """A shallow copy of a mapping that keeps where each key and value was written."""
-    copy = YMap(node.loc)
-    for key, value in node.items():
-        copy.put(key, value, node.key_loc(key), node.value_loc(key))
-    return copy
 
 
 def _remove(node: YMap, key: str) -> None:

@@ -38,6 +38,8 @@ from pbo_runtime.config.checker.model import (
 from pbo_runtime.config.checker.module_links import ModuleLinkChecks
 from pbo_runtime.config.checker.objects import ObjectChecks
 from pbo_runtime.config.checker.sections import SectionChecks
+from pbo_runtime.config.checker.task_devices import TaskDeviceChecks
+from pbo_runtime.config.checker.task_ports import TaskPortChecks
 from pbo_runtime.config.checker.tasks import TaskChecks
 from pbo_runtime.config.checker.timing import TimingChecks
 from pbo_runtime.config.checker.variables import VariableChecks
@@ -63,8 +65,8 @@ __all__ = [
 ]
 
 
-class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, TaskChecks, ConfigurationChecks, ClaimChecks,
-               ModuleLinkChecks, ObjectChecks, JobChecks, DecisionChecks, TimingChecks, JointLoopChecks, CheckerBase):
+class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, TaskChecks, TaskPortChecks, TaskDeviceChecks,
+               ConfigurationChecks, ClaimChecks, ModuleLinkChecks, ObjectChecks, JobChecks, DecisionChecks, TimingChecks, JointLoopChecks, CheckerBase):
     """The whole checker: the core (`CheckerBase`) with every rule, one mixin a concept, and the pass."""
 
     def run(self, doc: Any, doc_loc: Location) -> Checked:

@@ -1,19 +1,20 @@
-"""Tasks: their fields and timing, their module, its params, and the links of its ports to variables."""
+"""Tasks: their fields and timing, their module and its params, and the pass over them all
+(`check_tasks`); their ports are checked in `task_ports`, the devices their modules open in `task_devices`."""
 
 from __future__ import annotations
 
 import re
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import TYPE_CHECKING, Any
 
-from pbo_runtime.config.checker.base import CheckerBase, named_by, named_in, param_value_at
+from pbo_runtime.config.checker.base import CheckerBase, named_by, param_value_at
 from pbo_runtime.config.model import PortClaim
-from pbo_runtime.config.checker.model import TASK_KEYS, _Binding, _Link, _Linked, _Task
-from pbo_runtime.config.checker.words import _ms, _show_shape, describe, did_you_mean
+from pbo_runtime.config.checker.model import TASK_KEYS, _Link, _Task
+from pbo_runtime.config.checker.task_ports import _ports_from_params
+from pbo_runtime.config.checker.words import _ms, describe, did_you_mean
 from pbo_runtime.config.model import Location, PortBinding, TaskSpec
 from pbo_runtime.errors import ParamError
-from pbo_runtime.objects.module import PortBasedObject, convert_param, param_fields
+from pbo_runtime.objects.module import convert_param, param_fields
 from pbo_runtime.objects.ranges import FINITE, OutOfRange
-from pbo_runtime.objects.ports import ANY_DTYPE, PortSpec
 from pbo_runtime.config.units import FREQUENCY, TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
 
@@ -25,10 +26,12 @@ class TaskChecks(CheckerBase):
         def port_claim(self, value: Any, loc: Location, what: str, owner: str, allow_name: bool) -> PortClaim | None: ...
         def channels_exist(self, claim: PortClaim, what: str) -> bool: ...
         def infer_variables(self, linked: list[tuple[_Task, list[_Link]]]) -> None: ...
-        def driver_class(self, driver: str) -> Any: ...
-        def drivers_of_kind(self, kind: str) -> str: ...
-        def plant_lacks(self, device: str) -> tuple[str, str] | None: ...
         def check_module_links(self, task: _Task, spec: YMap, module_class: Any) -> bool: ...
+        def task_links(self, task: _Task, spec: YMap, module_class: Any) -> tuple[list[_Link], bool] | None: ...
+        def bind_task_ports(self, task: _Task, links: list[_Link], ok: bool) -> bool: ...
+        def report_link_mismatches(self) -> None: ...
+        def check_same_shapes(self, task: _Task, spec: YMap, module_class: Any) -> bool: ...
+        def check_task_devices(self, task: _Task, spec: YMap, module_class: Any) -> bool: ...
 
     def known_modules(self) -> list[str] | None:
         if self.module_names is None:
@@ -267,262 +270,6 @@ class TaskChecks(CheckerBase):
             return None
         return module_class
 
-    def module_ports(self, task: _Task, module_class: Any, spec: YMap) -> tuple[PortSpec, ...] | None:
-        # A module whose ports do not depend on its params (most) lists the same ports for every
-        # task: asked once per check, not once per task.
-        fixed = self._fixed_ports.get(module_class)
-        if fixed is not None:
-            return fixed
-        try:
-            # ports may depend on params (a data logger's inputs); without valid params, the class's
-            built = getattr(task, "built_params", None)
-            ports = tuple(module_class.ports_for(built) if built is not None else module_class.ports())
-        except Exception as exc:  # the module is broken, not the YAML; say so
-            self.error("E307", f"module '{task.module}' of task '{task.name}' cannot list its ports: {exc!r}", spec.value_loc("module"))
-            return None
-        if not _ports_from_params(module_class):
-            self._fixed_ports[module_class] = ports
-        return ports
-
-    def port_shape(self, port: PortSpec, variable_shape: tuple[int, ...]) -> tuple[int, ...]:
-        """`port.resolved_shape` with this file's dims; a declared shape is resolved once, not per task.
-
-        Raises what `resolved_shape` raises (a shape that fails is never remembered).
-        """
-        declared = port.shape
-        try:
-            shape = self._port_shapes.get(declared) if declared is not None else None
-        except TypeError:  # an unhashable declared shape: resolved afresh each time
-            shape = declared = None
-        if shape is None:
-            while True:
-                try:
-                    shape = port.resolved_shape(self.out.dims, variable_shape)
-                    break
-                except KeyError as exc:  # a dim 'dims:' leaves out may be the plant's robot's (NDOF)
-                    if not isinstance(exc.args[0], str) or self.robot_dim(exc.args[0]) is None:
-                        raise
-            if declared is not None:
-                self._port_shapes[declared] = shape
-        return shape
-
-    def task_links(self, task: _Task, spec: YMap, module_class: Any) -> tuple[list[_Link], bool] | None:
-        """Each port of the task and the variable it links to (`ports:`, else the port's own name),
-        and whether `ports:` was right; None when the module cannot list its ports."""
-        name = task.name
-        ports = self.module_ports(task, module_class, spec)
-        if ports is None:
-            return None
-        declared = {p.name: p for p in ports}
-        relinked: dict[str, tuple[str, Location]] = {}
-        ok = True
-        if "ports" in spec and spec["ports"] is not None:
-            m = self.mapping(spec["ports"], spec.value_loc("ports"), f"ports of task '{name}'", "e.g. ports: {tau: tau_u}")
-            if m is None:
-                ok = False
-            else:
-                for port_name, var in m.items():
-                    if port_name not in declared:
-                        self.error(
-                            "E212",
-                            f"module '{task.module}' of task '{name}' has no port '{port_name}'",
-                            m.key_loc(port_name),
-                            did_you_mean(port_name, declared, "ports"),
-                        )
-                        ok = False
-                        continue
-                    var_loc = m.value_loc(port_name)
-                    var_name = var if isinstance(var, str) else self.text(var, var_loc, f"variable of port '{port_name}' of task '{name}'")
-                    if var_name is None:
-                        ok = False
-                        continue
-                    relinked[port_name] = (var_name, var_loc)
-        links = []
-        for port in ports:
-            link = relinked.get(port.name)
-            if link is None:
-                links.append(_Link(port, port.variable, task.loc, False))
-            else:
-                links.append(_Link(port, link[0], link[1], True))
-        return links, ok
-
-    def bind_task_ports(self, task: _Task, links: list[_Link], ok: bool) -> bool:
-        """Each link checked against its variable (declared, or inferred from the ports): dtype and shape."""
-        name = task.name
-        var_locs, var_ok, variables = self.var_locs, self.var_ok, self.out.variables
-        for link in links:
-            port, var, loc, explicit = link.port, link.variable, link.loc, link.explicit
-            if var not in var_locs:
-                if var in self.infer_failed:
-                    ok = False  # its ports disagree, and each was reported
-                    continue
-                if port.shape is not None and not self.port_shape_resolves(task, port, loc):
-                    ok = False
-                    continue
-                why = self.infer_failed_why.get(var)
-                if explicit:
-                    self.error(
-                        "E205",
-                        f"task '{name}' links port '{port.name}' to variable '{var}', which 'variables' does not declare",
-                        loc,
-                        (f"{why}; declare it under variables:" if why else
-                         f"{did_you_mean(var, self.var_locs, 'declared')}; a new variable that only one task's ports: "
-                         f"names needs an entry under variables: (so that a typo never makes one)"),
-                    )
-                else:
-                    self.error(
-                        "E206",
-                        f"task '{name}' (module '{task.module}') links port '{port.name}' by default to variable '{var}', "
-                        "which 'variables' does not declare and its ports cannot define",
-                        loc,
-                        f"{why}; declare '{var}' under variables: (e.g. {var}: {{type: float64, shape: [NDOF]}}), "
-                        f"or link the port with ports: {{{port.name}: <variable>}}",
-                    )
-                ok = False
-                continue
-            if var not in var_ok:
-                ok = False  # the variable itself is wrong and was reported
-                continue
-            variable = variables[var]
-            own_dtype, own_shape = port.dtype != ANY_DTYPE, port.shape is not None
-            if port.dtype == ANY_DTYPE:  # a port that takes whatever its variable is
-                port = PortSpec(port.name, port.kind, port.variable, variable.dtype,
-                                variable.shape if port.shape is None else port.shape, port.doc)
-            try:
-                shape = self.port_shape(port, variable.shape)
-            except KeyError as exc:
-                self.report_unknown_port_dim(task, port, loc, exc)
-                ok = False
-                continue
-            except (TypeError, ValueError) as exc:
-                self.error("E306", f"port '{port.name}' of module '{task.module}' has a bad shape {port.shape!r}: {exc}", loc)
-                ok = False
-                continue
-            # A mismatch is reported once every task is linked (`report_link_mismatches`): where all the
-            # ports of a variable agree with each other, it is the declaration that is wrong.
-            self.var_links.setdefault(var, []).append(_Linked(task.name, port, shape, loc, own_dtype, own_shape))
-            if port.dtype != variable.dtype or shape != variable.shape:
-                self._mislinked.add(var)
-                ok = False
-                continue
-            task.bindings.append(_Binding(port, var, shape, loc))
-        return ok
-
-    def report_link_mismatches(self) -> None:
-        """E301/E302 for the ports whose dtype or shape differs from their variable's. When every port
-        that links a variable agrees (on the dtype, or on the shape), the declaration is what is
-        wrong: one error at its type: (or shape:), the ports as notes. Otherwise one at each odd port."""
-        mislinked = self._mislinked  # a variable every port agrees with has nothing to report
-        for var, every in self.var_links.items():
-            if var not in mislinked:
-                continue
-            variable = self.out.variables[var]
-            wrong_type = [link for link in every if link.port.dtype != variable.dtype]
-            links = [link for link in every if link.own_dtype]  # a port of any dtype agrees with every variable
-            if wrong_type:
-                dtypes = {link.port.dtype for link in links}
-                if len(dtypes) == 1:
-                    dtype = dtypes.pop()
-                    self.error("E301", f"variable '{var}' is {variable.dtype}, but {_ports_that_link(links)} {dtype}",
-                               self.declared_at(var, "type"), f"change the type of '{var}' to {dtype}",
-                               [(link.loc, f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) is {link.port.dtype}")
-                                for link in links])
-                    continue
-                for link in wrong_type:
-                    self.error("E301", f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) is {link.port.dtype}, "
-                                       f"but variable '{var}' is {variable.dtype}",
-                               link.loc, f"link the port to a {link.port.dtype} variable",
-                               [(self.declared_at(var, "type"), f"variable '{var}' is declared {variable.dtype} here")])
-            typed = [link for link in every if link.port.dtype == variable.dtype and link.own_shape]
-            wrong_shape = [link for link in typed if link.shape != variable.shape]
-            if not wrong_shape:
-                continue
-            shapes = {link.shape for link in typed}
-            if len(shapes) == 1 and not wrong_type:
-                shape = shapes.pop()
-                written = next((link.port.shape for link in typed if link.port.shape is not None and link.port.shape != shape), shape)
-                self.error("E302", f"variable '{var}' has shape {_show_shape(variable.shape)}, but {_ports_that_link(typed)} "
-                                   f"of shape {_show_shape(shape)}",
-                           self.declared_at(var, "shape"), f"change the shape of '{var}' to [{', '.join(str(d) for d in written)}]",
-                           [(link.loc, f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) has shape "
-                                       f"{_show_shape(link.shape)}" + ("" if link.shape == link.port.shape else f" = {_show_shape(link.port.shape)}"))
-                            for link in typed])
-                continue
-            for link in wrong_shape:
-                named = "" if link.shape == link.port.shape else f" = {_show_shape(link.port.shape)}"
-                self.error("E302", f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) has shape {_show_shape(link.shape)}{named}, "
-                                   f"but variable '{var}' has shape {_show_shape(variable.shape)}",
-                           link.loc, f"link the port to a variable of shape {_show_shape(link.shape)}",
-                           [(self.declared_at(var, "shape"), f"variable '{var}' is declared with shape {_show_shape(variable.shape)} here")])
-
-    def declared_at(self, var: str, key: str) -> Location:
-        """Where a variable's entry gives `key` (type, shape), else where the entry is."""
-        node = self.var_nodes.get(var)
-        if node is not None and key in node:
-            return node.value_loc(key)
-        return self.var_locs.get(var, self.out.variables[var].loc)
-
-    def check_same_shapes(self, task: _Task, spec: YMap, module_class: Any) -> bool:
-        """E319: the ports a module groups as one shape (`same_shape`: a join's output and inputs) link
-        variables of one shape. Reported where the odd port is named (a join's `inputs:` item), with
-        the variable's declaration and the port it disagrees with as notes."""
-        try:
-            groups = tuple(module_class.same_shape(task.built_params)) if task.built_params is not None else ()
-        except Exception as exc:  # the module is broken, not the YAML
-            self.error("E307", f"module '{task.module}' of task '{task.name}' cannot say which ports share a shape: {exc!r}",
-                       spec.value_loc("module"))
-            return False
-        bound = {b.port.name: b for b in task.bindings}
-        ok = True
-        for group in groups:
-            members = [bound[port] for port in group if port in bound]
-            shapes = [b.shape for b in members]
-            if len(set(shapes)) < 2:
-                continue
-            # the shape most of them have is the one meant (the first port's on a tie: a join's output)
-            meant = max(shapes, key=lambda shape: (shapes.count(shape), -shapes.index(shape)))
-            reference = next(b for b in members if b.shape == meant)
-            for b in members:
-                if b.shape == meant:
-                    continue
-                ok = False
-                where = named_in(spec.get("params"), b.port.name) or b.loc
-                notes = [(reference.loc, f"port '{reference.port.name}' links variable '{reference.variable}', of shape {_show_shape(meant)}")]
-                if b.variable in self.var_locs:
-                    notes.append((self.var_locs[b.variable], f"variable '{b.variable}' is declared here, with shape {_show_shape(b.shape)}"))
-                self.error(
-                    "E319",
-                    f"task '{task.name}' (module '{task.module}') needs one shape on ports {', '.join(repr(p) for p in group)}: "
-                    f"port '{b.port.name}' links variable '{b.variable}', of shape {_show_shape(b.shape)}, "
-                    f"where port '{reference.port.name}' links '{reference.variable}', of shape {_show_shape(meant)}",
-                    where,
-                    f"link port '{b.port.name}' to a variable of shape {_show_shape(meant)}, or change the shape of '{b.variable}'",
-                    notes,
-                )
-        return ok
-
-    def port_shape_resolves(self, task: _Task, port: PortSpec, loc: Location) -> bool:
-        """True if the port's declared shape resolves with the dims; else E304 or E306, reported here."""
-        try:
-            self.port_shape(port, ())
-        except KeyError as exc:
-            self.report_unknown_port_dim(task, port, loc, exc)
-            return False
-        except (TypeError, ValueError) as exc:
-            self.error("E306", f"port '{port.name}' of module '{task.module}' has a bad shape {port.shape!r}: {exc}", loc)
-            return False
-        return True
-
-    def report_unknown_port_dim(self, task: _Task, port: PortSpec, loc: Location, exc: KeyError) -> None:
-        self.error(
-            "E304",
-            f"port '{port.name}' of module '{task.module}' (task '{task.name}') has shape {_show_shape(port.shape)} "
-            f"with dim {exc}, which 'dims' does not define",
-            loc,
-            did_you_mean(str(exc.args[0]), self.out.dims, "defined")
-            + ("" if self.out.plant is not None else "; or add a plant: whose robot gives it (e.g. plant: {model: puma560} gives NDOF)"),
-        )
-
     def check_task_freshness(self, task: _Task, spec: YMap) -> bool:
         """`fresh_within: {port: time}`: in-var ports of a critical task, each a time > 0."""
         name = task.name
@@ -613,98 +360,6 @@ class TaskChecks(CheckerBase):
             ok = False
         return ok
 
-    def check_task_devices(self, task: _Task, spec: YMap, module_class: Any) -> bool:
-        """The devices a module opens by a param (its DEVICES): among the task's resources (E608), with
-        the driver options the module needs (E609). What `pbo run` would refuse in init or in on."""
-        uses = getattr(module_class, "DEVICES", None)
-        listed = spec.get("resources")
-        if not isinstance(uses, Mapping) or not uses or task.built_params is None:
-            return True
-        if isinstance(listed, YList) and len(listed) != len(task.resources):
-            return True  # a resource is wrong, and was reported there: which ones it meant is unknown
-        resources = [device for device, _ in task.resources]
-        params = spec.get("params") if isinstance(spec.get("params"), YMap) else None
-        ok = True
-        for field, needs in uses.items():
-            device = getattr(task.built_params, str(field), None)
-            if not isinstance(device, str) or not device:
-                continue  # no device named: the module opens none
-            given = params is not None and field in params
-            if device not in resources:
-                ok = False
-                declared = device in self.device_names
-                listing = ", ".join(resources) if resources else "none"
-                what = f"opens device '{device}' (params: {field}" + ("" if given else ", by default") + ")"
-                notes = []
-                if "resources" in spec:
-                    notes.append((spec.value_loc("resources"), f"the resources of task '{task.name}': {listing}"))
-                if given:
-                    assert params is not None
-                    hint = (did_you_mean(device, resources, "resources") if resources else "the task has no resources")
-                    hint += f"; or add '{device}' to resources:" if declared else f"; 'devices' does not declare '{device}'"
-                    self.error("E608", f"task '{task.name}' (module '{task.module}') {what}, which is not among its resources",
-                               params.value_loc(field), hint, notes)
-                else:
-                    where = spec.value_loc("resources") if "resources" in spec else task.loc
-                    fix = (f"add '{device}' to resources:" if declared else f"declare device '{device}' under devices: and add it to resources:")
-                    if resources:
-                        fix += f", or name one of its resources with params: {{{field}: {resources[0]}}}"
-                    self.error("E608", f"task '{task.name}' (module '{task.module}') {what}, which is not among its resources ({listing})",
-                               where, fix, notes)
-                continue
-            ok = self.check_device_options(task, spec, device, needs, str(field)) and ok
-        return ok
-
-    def check_device_options(self, task: _Task, spec: YMap, device: str, needs: Any, field: str = "device") -> bool:
-        """E610: the device is of the kind the module needs (its driver's KIND); E609: it has every
-        driver option the module needs (its value, or the driver's default)."""
-        device_spec = self.out.devices.get(device)
-        cls = self.driver_class(device_spec.driver) if device_spec is not None else None
-        if device_spec is None or cls is None or not isinstance(needs, Mapping):
-            return True  # the device or its driver is wrong or unknown: reported there, or checked when opened
-        wanted_kind = needs.get("kind")
-        kind = getattr(cls, "KIND", "")
-        if wanted_kind is not None and kind != wanted_kind:
-            params = spec.get("params")
-            where = params.value_loc(field) if isinstance(params, YMap) and field in params else spec.value_loc("module")
-            found = f"a device of kind {kind}" if kind else "a device of no declared kind"
-            self.error("E610", f"task '{task.name}' (module '{task.module}') opens device '{device}', {found} (driver "
-                               f"{device_spec.driver}), but the module needs a device of kind {wanted_kind}",
-                       where, f"name a device whose driver is of kind {wanted_kind} ({self.drivers_of_kind(wanted_kind)})",
-                       [(device_spec.loc, f"device '{device}' has driver {device_spec.driver}")])
-            return False
-        lacks = self.plant_lacks(device)
-        if lacks is not None:
-            params = spec.get("params")
-            where = params.value_loc(field) if isinstance(params, YMap) and field in params else spec.value_loc("module")
-            self.error("E611", f"task '{task.name}' (module '{task.module}') opens {lacks[0]}", where, lacks[1],
-                       [(device_spec.loc, f"device '{device}' has driver {device_spec.driver}")])
-            return False
-        defaults = getattr(cls, "OPTION_DEFAULTS", {}) or {}
-        node = self.device_nodes.get(device)
-        for option, wanted in needs.items():
-            if option == "kind":
-                continue
-            if option in device_spec.options:
-                has, where, how = device_spec.options[option], (node.value_loc(option) if node is not None else device_spec.loc), ""
-            elif option in defaults:
-                has, where, how = defaults[option], device_spec.loc, f" (driver {device_spec.driver}'s default)"
-            else:
-                continue  # a driver without the option: it cannot be checked here
-            if has == wanted:
-                continue
-            self.error(
-                "E609",
-                f"task '{task.name}' (module '{task.module}') needs device '{device}' with {option}: {wanted}, "
-                f"but the device has {option}: {has}{how}",
-                spec.value_loc("module"),
-                f"choose a module for a device with {option}: {has}, or give device '{device}' {option}: {wanted} "
-                f"(if no other task needs it as it is)",
-                [(where, f"device '{device}' has {option}: {has}{how}")],
-            )
-            return False
-        return True
-
     def refused_at(self, task: _Task, spec: YMap, message: str) -> Location:
         """Where the parameter a refusal names is written (a value it quotes, as a combined module's
         wrong member 'inverse_dynamix'; a parameter it names: 'ki', PidJoint.kp, "kd must be >= 0"),
@@ -735,11 +390,6 @@ def _member_named_by(params: Any, message: str) -> Location | None:
     return inside or location_of(node, members.item_loc(index))
 
 
-def _ports_from_params(module_class: Any) -> bool:
-    """Whether a module's ports depend on its params (it overrides `ports_for`)."""
-    own = getattr(getattr(module_class, "ports_for", None), "__func__", None)
-    return own is not None and own is not PortBasedObject.ports_for.__func__  # type: ignore[attr-defined]
-
 
 def _takes_a_number(params_type: type, name: str) -> bool:
     """Whether a parameter declared as a list also takes one number (a gain for every joint)."""
@@ -748,10 +398,3 @@ def _takes_a_number(params_type: type, name: str) -> bool:
     except ParamError:
         return False
     return True
-
-
-def _ports_that_link(links: list[_Linked]) -> str:
-    """'the port that links it is' / 'all 3 ports that link it are' (the dtype or shape follows)."""
-    if len(links) == 1:
-        return "the one port that links it is"
-    return f"all {len(links)} ports that link it are"

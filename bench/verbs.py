@@ -348,6 +348,9 @@ than a period still makes releases late.""",
         for w in r.windows:
             if w.causes:
                 section.notes.append(f"{r.name}, {w.verb}: held {', '.join(w.causes)}")
+            if w.missed > 0:
+                section.notes.append(f"{r.name}, {w.verb}: {w.missed} missed release(s) in its window, "
+                                     f"{w.baseline_missed} in its baseline")
     if sys.flags.dont_write_bytecode:
         section.notes.append("PYTHONDONTWRITEBYTECODE is set where this ran: no module's bytecode is cached, so each RTPU "
                              "compiles the library it imports at start-up (a `spawn` imports nothing)")

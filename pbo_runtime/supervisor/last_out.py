@@ -121,8 +121,20 @@ def leave() -> list[str]:
         if share is not None:
             os.close(share.fd)
         for signum in process.STOP_SIGNALS:
-            signal.signal(signum, signal.SIG_IGN if gone else signal.SIG_DFL)
+            signal.signal(signum, _ignored if gone else _ended)
         signal.pthread_sigmask(signal.SIG_SETMASK, quiet)
+
+
+# Python handlers, not SIG_IGN and SIG_DFL: a signal another thread took just before the switch is
+# handled in the main thread after it, and CPython would raise "ignored due to race condition" there.
+def _ignored(_signum: int, _frame: object) -> None:
+    """The supervisor's death said again: nothing left to do."""
+
+
+def _ended(signum: int, _frame: object) -> None:
+    """End the process by the signal itself, as its default action would."""
+    signal.signal(signum, signal.SIG_DFL)
+    os.kill(os.getpid(), signum)
 
 
 def _lock_alone(fd: int) -> bool:

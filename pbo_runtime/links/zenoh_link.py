@@ -130,16 +130,9 @@ class ZenohLink(SessionEnd, ReaderTally):
             raise
         return link
 
-    def close(self) -> None:
-        """Undeclare this end and close its session (unless it was given one). Twice is harmless."""
-        if getattr(self, "_session", None) is None:
-            return
-        try:
-            self._close_session()
-        finally:
-            self._session = None
-            self._publisher = self._ring = None
-            self._set_role(None)
+    def _forget(self) -> None:
+        self._publisher = self._ring = None
+        self._set_role(None)
 
     def unlink(self) -> None:
         """Nothing to remove: a zenoh link leaves no name behind (kept for the shm link's interface)."""

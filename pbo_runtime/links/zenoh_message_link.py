@@ -207,15 +207,8 @@ class ZenohMessageLink(SessionEnd):
         with self._room:
             return len(self._queue) if self.owner else self._sent - self._consumed
 
-    def close(self) -> None:
-        """Undeclare this end and close its session (unless given one); a receiver's waiting messages are dropped."""
-        if getattr(self, "_session", None) is None:
-            return
-        try:
-            self._close_session()
-        finally:
-            self._session = None
-            self._publisher = None
+    def _forget(self) -> None:
+        self._publisher = None  # (a receiver's waiting messages are dropped with its session)
 
     def unlink(self) -> None:
         """Nothing to remove (kept for the shm link's interface)."""

@@ -197,6 +197,19 @@ class SessionEnd:
                 continue
         return found
 
+    def close(self) -> None:
+        """Undeclare this end and close its session (unless it was given one). Twice is harmless."""
+        if getattr(self, "_session", None) is None:
+            return
+        try:
+            self._close_session()
+        finally:
+            self._session = None
+            self._forget()
+
+    def _forget(self) -> None:
+        """Drop what this end declared beside its session (its publisher, ...)."""
+
     def _close_session(self) -> None:
         entities, self._entities = self._entities, []
         for entity in reversed(entities):

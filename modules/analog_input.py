@@ -6,12 +6,12 @@ output variable has one element per channel, in channel order. Real-time safe cy
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from pbo_runtime import ModuleError, OutVar, PortBasedObject, Status
+from modules._channels import check_one_element_a_channel, open_channels
+from pbo_runtime import OutVar, PortBasedObject, Status
 
 
 @dataclass(frozen=True)
@@ -31,18 +31,10 @@ class AnalogInput(PortBasedObject):
     def check_links(cls, params: Any, shapes: Mapping[str, tuple[int, ...]], dims: Mapping[str, int],
                     channels: Mapping[str, int], options: Mapping[str, Mapping[str, Any]]) -> None:
         """One element of v a channel the task opens (what init checks)."""
-        lent, shape = channels.get(params.device), shapes.get("v")
-        if lent is not None and shape is not None and math.prod(shape) != lent:
-            raise ValueError(f"port 'v' links a variable of {math.prod(shape)} elements, but the task opens {lent} "
-                             f"channels of device '{params.device}': one element a channel")
+        check_one_element_a_channel(params.device, shapes, channels)
 
     def init(self, params: AnalogInputParams) -> None:
-        adc = self.open_device(params.device)
-        if not callable(getattr(adc, "read", None)) or getattr(adc, "KIND", "") != "adc":
-            raise ModuleError(f"device '{params.device}' is not an ADC; give it driver: adc")
-        if self.v.size != len(adc.channels):
-            raise ModuleError(f"the output variable has {self.v.size} elements, but device '{params.device}' lends "
-                              f"{len(adc.channels)} channels {list(adc.channels)}: make them agree")
+        adc = open_channels(self, params.device, "adc", "read", "output", self.v.size)
         self._read = adc.read
         self._flat = self.v.reshape(-1)
 

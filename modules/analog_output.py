@@ -7,12 +7,12 @@ their last value; killed, the driver sets them to 0 V. Real-time safe cycle: one
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from pbo_runtime import InVar, ModuleError, PortBasedObject, Status
+from modules._channels import check_one_element_a_channel, open_channels
+from pbo_runtime import InVar, PortBasedObject, Status
 
 
 @dataclass(frozen=True)
@@ -32,18 +32,10 @@ class AnalogOutput(PortBasedObject):
     def check_links(cls, params: Any, shapes: Mapping[str, tuple[int, ...]], dims: Mapping[str, int],
                     channels: Mapping[str, int], options: Mapping[str, Mapping[str, Any]]) -> None:
         """One element of v a channel the task opens (what init checks)."""
-        lent, shape = channels.get(params.device), shapes.get("v")
-        if lent is not None and shape is not None and math.prod(shape) != lent:
-            raise ValueError(f"port 'v' links a variable of {math.prod(shape)} elements, but the task opens {lent} "
-                             f"channels of device '{params.device}': one element a channel")
+        check_one_element_a_channel(params.device, shapes, channels)
 
     def init(self, params: AnalogOutputParams) -> None:
-        dac = self.open_device(params.device)
-        if not callable(getattr(dac, "write", None)) or getattr(dac, "KIND", "") != "dac":
-            raise ModuleError(f"device '{params.device}' is not a DAC; give it driver: dac")
-        if self.v.size != len(dac.channels):
-            raise ModuleError(f"the input variable has {self.v.size} elements, but device '{params.device}' lends "
-                              f"{len(dac.channels)} channels {list(dac.channels)}: make them agree")
+        dac = open_channels(self, params.device, "dac", "write", "input", self.v.size)
         self._write = dac.write
         self._flat = self.v.reshape(-1)
 

@@ -84,7 +84,7 @@ class _Loop:
 
 
 class JointLoopChecks(CheckerBase):
-    """E325, E326, W301, W302: the joint loops of the subsystem's torque-mode robots."""
+    """E325, E326, W301, W302, W303: the joint loops of the subsystem's torque-mode robots."""
 
     def check_joint_loops(self, top: YMap) -> None:
         """Every joint-space controller's loops, for every robot interface in torque mode it drives."""
@@ -127,6 +127,8 @@ class JointLoopChecks(CheckerBase):
                         + f" make kp {_numbers(kp)}, kd {_numbers(kd)}" + (f", ki {_numbers(ki)}" if np.any(ki) else ""))
                 if note not in self.out.robot_notes:
                     self.out.robot_notes.append(note)
+                if loop.through is not None:
+                    self._bandwidth_through_inverse_dynamics(loop, np.sqrt(kp))
             else:
                 n = robot.arm.shape[0]
                 raw = [np.asarray(getattr(p, k), dtype=float).reshape(-1) for k in RAW_GAINS]
@@ -325,6 +327,19 @@ class JointLoopChecks(CheckerBase):
                       where, "raise kd towards 2 sqrt(kp I), or give bandwidth: and damping: 1.0" if through is None
                       else f"raise kd towards 2 sqrt(kp); {fix}")
         self._check_step_torque(loop, joint, name, gains, row, start, high)
+
+    def _bandwidth_through_inverse_dynamics(self, loop: _Loop, bandwidths: np.ndarray) -> None:
+        """W303: a bandwidth makes torque gains for each joint's inertia (kp = I w²); the inverse dynamics
+        multiplies the PID's output by the inertia again, so each joint gets sqrt(kp), not w."""
+        controller, p = loop.controller, loop.controller.params
+        assert loop.through is not None
+        wanted = p.bandwidth
+        self.warn("W303", f"{controller.who} is given bandwidth {wanted:g} rad/s but drives the arm through the inverse "
+                          f"dynamics of {loop.through.who}: a bandwidth makes torques for each joint's inertia, which the "
+                          f"inverse dynamics multiplies by the inertia again: the joints get {_numbers(bandwidths)} rad/s",
+                  self._gain_at(controller, "bandwidth", 0),
+                  f"under computed torque the gains are accelerations: give kp: {wanted * wanted:.4g}, kd: "
+                  f"{2 * p.damping * wanted:.4g} (kp = w², kd = 2 ζ w) instead of bandwidth:")
 
     def _check_step_torque(self, loop: _Loop, joint: int, name: str, gains: LoopGains, row: np.ndarray,
                            start: float, high: float) -> None:

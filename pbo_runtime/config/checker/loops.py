@@ -17,7 +17,8 @@ A controller whose output is the acceleration inverse dynamics reads (a module w
 is a computed-torque loop: the model cancels each joint's inertia, so the gains act on a unit
 inertia, with the delay the configuration adds between the two (none when the inverse dynamics runs
 after the controller in the same cycle: later in the same combined task, or on the same RTPU at the
-same period and ahead in the order the executive runs them; a period otherwise).
+same period and ahead in the order the executive runs them; a period otherwise). A bandwidth given
+to such a controller is W303: it makes torque gains, which the inverse dynamics scales again.
 """
 
 from __future__ import annotations

@@ -168,6 +168,7 @@ class Combined(PortBasedObject):
                                                    set(external))
             instance.init(member.params)
             self._members.append(instance)
+        self._params = [member.params for member in params.built]
         self._cycles = tuple(m.cycle for m in self._members)
         self._stable = tuple(m.stable_cycle for m in self._members)
 
@@ -188,6 +189,13 @@ class Combined(PortBasedObject):
             if result != Status.CONTINUE:
                 return result
         return Status.CONTINUE
+
+    def tune(self, params: CombinedParams) -> None:
+        """`pbo set TASK N.kp`: each member whose parameters changed takes its new ones."""
+        for index, (member, new) in enumerate(zip(self._members, params.built)):
+            if new.params != self._params[index]:
+                member.tune(new.params)
+                self._params[index] = new.params
 
     def off(self) -> None:
         for member in self._members:

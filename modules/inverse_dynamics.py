@@ -39,6 +39,7 @@ class InverseDynamics(ModelBased):
     """tau_u = RNEA(q_m, qd_m, qdd_r), rotor inertia included, clipped to max_torque."""
 
     Params = InverseDynamicsParams
+    ACCELERATION_INPUT = "qdd_r"  # a joint controller feeding it is checked as a computed-torque loop
 
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
     qd_m = InVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s")

@@ -63,6 +63,7 @@ class Edit:
     entry: Any = None  # spawn, replace: the new task's entry (plain); set: the parameter's value; application: its steps
     new: str = ""  # replace: the new task's name
     param: str = ""  # set: the parameter
+    member: int = 0  # set: the number of the member of a combined task whose parameter it is; 0: the task's own
     configurations: tuple[str, ...] = ()  # spawn: the configurations it joined
 
 
@@ -160,23 +161,34 @@ class LiveDescription:
         return self._checked(doc, f"replacing task '{old}' by '{new}'", Edit("replace", old, plain(entry), new=new))
 
     def set_param(self, task: str, param: str, texts: list[str]) -> LiveDescription:
-        """A live-tunable parameter of a task set to the value the operator wrote (one value, or a list)."""
+        """A live-tunable parameter of a task set to the value the operator wrote (one value, or a list).
+        In a combined task, a member's: `kp` when one member has it, else `N.kp` or `MODULE.kp`."""
         spec = self._task(task)
         module_class = self.module_lookup(spec.module)
-        fields = [f.name for f in dataclasses.fields(module_class.Params)] if dataclasses.is_dataclass(module_class.Params) else []
+        owner, reader, member = f"module '{spec.module}' of task '{task}'", f"module '{spec.module}'", 0
+        members = _members(module_class, spec)
+        if members:
+            member, param = _member_param(task, members, param, _fields(module_class.Params))
+            if member:
+                module_class = members[member - 1].cls
+                reader = f"module '{members[member - 1].name.split(':', 1)[1]}' of member {member}"
+                owner = f"{reader} of task '{task}'"
+        fields = _fields(module_class.Params)
         tunable = tuple(getattr(module_class, "TUNABLE", ()))
         if param not in fields:
             close = closest_name(param, fields)
-            raise LiveChangeRefused(f"module '{spec.module}' of task '{task}' has no parameter '{param}'"
+            raise LiveChangeRefused(f"{owner} has no parameter '{param}'"
                                     + (f": did you mean '{close}'?" if close else "") + " "
                                     f"(parameters: {', '.join(fields) or 'none'}; live-tunable: {', '.join(tunable) or 'none'})")
+        address = f"{member}.{param}" if member else param
         if param not in tunable:
             raise LiveChangeRefused(
-                f"parameter '{param}' of task '{task}' is not live-tunable: module '{spec.module}' reads it in init only "
-                f"(live-tunable: {', '.join(tunable) or 'none'}); to change it, replace the task: pbo replace {task} NEW --param {param}=...")
+                f"parameter '{address}' of task '{task}' is not live-tunable: {reader} reads it in init only "
+                f"(live-tunable: {', '.join(tunable) or 'none'}); to change it, replace the task: pbo replace {task} NEW --param "
+                + (f"{param}=..." if not member else "members=[...]"))
         if not texts:
-            raise LiveChangeRefused(f"pbo set {task} {param} needs a value")
-        where = f"pbo set {task} {param}"
+            raise LiveChangeRefused(f"pbo set {task} {address} needs a value")
+        where = f"pbo set {task} {address}"
         if len(texts) == 1:
             value, _ = _snippet(texts[0], where)
         else:
@@ -184,16 +196,22 @@ class LiveDescription:
             for position, text in enumerate(texts, 1):
                 item, loc = _snippet(text, f"{where} (value {position})")
                 value.add(item, loc)
+        here = Location(f"<{where}>", 1, 1)
         doc = self.doc.shallow_copy()
         tasks = doc["tasks"].shallow_copy()
         entry = tasks[task].shallow_copy()
-        params = entry["params"].shallow_copy() if isinstance(entry.get("params"), YMap) else YMap(Location(f"<{where}>", 1, 1))
-        params.put(param, value, Location(f"<{where}>", 1, 1), Location(f"<{where}>", 1, 1))
+        params = entry["params"].shallow_copy() if isinstance(entry.get("params"), YMap) else YMap(here)
+        if member:
+            params.put("members", _with_member_param(params["members"], member - 1, param, value, here),
+                       params.key_loc("members"), params.value_loc("members"))
+        else:
+            params.put(param, value, here, here)
         entry.put("params", params, tasks[task].key_loc("params") if "params" in tasks[task] else params.loc,
                   tasks[task].value_loc("params") if "params" in tasks[task] else params.loc)
         tasks.put(task, entry, self.doc["tasks"].key_loc(task), self.doc["tasks"].value_loc(task))
         doc.put("tasks", tasks, self.doc.key_loc("tasks"), self.doc.value_loc("tasks"))
-        return self._checked(doc, f"setting '{param}' of task '{task}'", Edit("set", task, plain(value), param=param))
+        return self._checked(doc, f"setting '{address}' of task '{task}'",
+                             Edit("set", task, plain(value), param=param, member=member))
 
     def with_application(self, name: str, steps: str | list[Any]) -> LiveDescription:
         """The description with application `name` (replaced if it has one) of `steps`: a list as a file
@@ -314,6 +332,63 @@ def _entry(base: YMap, change: TaskChange, where: str) -> YMap:
 
 def _remove(node: YMap, key: str) -> None:
     del node[key]
+
+
+def _fields(params_type: Any) -> list[str]:
+    return [f.name for f in dataclasses.fields(params_type)] if dataclasses.is_dataclass(params_type) else []
+
+
+def _members(module_class: Any, spec: TaskSpec) -> tuple[Any, ...]:
+    """The members of a combined task (each with its name 'N:module', class and params), else ()."""
+    if "members" not in _fields(module_class.Params):
+        return ()
+    try:
+        return tuple(getattr(module_class.build_params(dict(spec.params)), "built", ()))
+    except Exception:  # the live description checked clean: its members build
+        return ()
+
+
+def _member_param(task: str, members: tuple[Any, ...], address: str, own: list[str]) -> tuple[int, str]:
+    """(member number, parameter) that `address` names in a combined task: `N.param`, `module.param`, or
+    `param` alone when one member has it (the one member with it live-tunable, when several have it);
+    (0, address) for the task's own parameters."""
+    listed = ", ".join(f"{m.name.split(':', 1)[0]} ({m.name.split(':', 1)[1]})" for m in members)
+    prefix, dot, param = address.rpartition(".")
+    if dot:
+        named = [n for n, m in enumerate(members, 1) if prefix in (str(n), m.name, m.name.split(":", 1)[1])]
+        if len(named) == 1:
+            return named[0], param
+        if not named:
+            raise LiveChangeRefused(f"task '{task}' has no member '{prefix}' (members: {listed}): name one by its number "
+                                    f"or its module: pbo set {task} 1.{param or 'PARAM'} VALUE")
+        raise LiveChangeRefused(f"members {' and '.join(map(str, named))} of task '{task}' are both module '{prefix}': "
+                                f"name one by its number: {' or '.join(f'{n}.{param}' for n in named)}")
+    if address in own:
+        return 0, address
+    having = [n for n, m in enumerate(members, 1) if address in _fields(m.cls.Params)]
+    tunable = [n for n in having if address in getattr(members[n - 1].cls, "TUNABLE", ())]
+    if len(having) == 1 or len(tunable) == 1:
+        return (having if len(having) == 1 else tunable)[0], address
+    if not having:
+        offered = [f"{n}.{name}" for n, m in enumerate(members, 1) for name in getattr(m.cls, "TUNABLE", ())]
+        raise LiveChangeRefused(f"no member of combined task '{task}' has a parameter '{address}' (members: {listed}; "
+                                f"live-tunable: {', '.join(offered) or 'none'})")
+    raise LiveChangeRefused(f"members {' and '.join(map(str, having))} of task '{task}' both have a parameter '{address}': "
+                            f"name one by its number: {' or '.join(f'{n}.{address}' for n in having)}")
+
+
+def _with_member_param(members: Any, index: int, param: str, value: Any, here: Location) -> YList:
+    """A copy of a combined task's `members:` list with `param` of member `index` set to `value`."""
+    copy = YList(members.loc)
+    for position, item in enumerate(members):
+        if position == index:
+            item = item.shallow_copy()
+            params = item["params"].shallow_copy() if isinstance(item.get("params"), YMap) else YMap(here)
+            params.put(param, value, here, here)
+            item.put("params", params, item.key_loc("params") if "params" in item else here,
+                     item.value_loc("params") if "params" in item else here)
+        copy.add(item, members.item_loc(position))
+    return copy
 
 
 def _copy_list(node: YList, without: str | None = None, swap: tuple[str, str] | None = None) -> YList:

@@ -159,6 +159,10 @@ def _replay(doc: Any, edit: Edit) -> None:
         entry = tasks[edit.task]
         if "params" not in entry or entry["params"] is None:
             entry["params"] = flow({})
+        if edit.member:  # a member of a combined task: its own params
+            entry = entry["params"]["members"][edit.member - 1]
+            if "params" not in entry or entry["params"] is None:
+                entry["params"] = flow({})
         entry["params"][edit.param] = flow(edit.entry)
     else:
         raise AssertionError(f"unknown live edit {edit.kind!r}")

@@ -7,7 +7,9 @@ between two tasks: the robot interface publishes q_m, the controller answers, th
 it the next cycle). The closed loop's eigenvalues say whether it is stable (all inside the unit
 circle) and how well damped (the damping ratio of each pole, mapped back by s = ln z / T). A joint's
 inertia changes with the pose: a loop is checked at inertias spanning the arm's range, since the
-lightest pose is where a gain is most likely to be too high.
+lightest pose is where a gain is most likely to be too high. Under computed torque (the controller's
+output an acceleration that inverse dynamics multiplies by the arm's mass matrix) the model cancels
+the inertia: the gains act on a unit inertia, and only the uncancelled friction b / I changes with the pose.
 
 No simulator is needed: this is numpy only, for `pbo check`, `pbo set`, `pbo robot` and the
 controllers' init.
@@ -77,9 +79,14 @@ def design_gains(low: float, high: float, bandwidth: float, damping: float, inte
     return bandwidth_gains(best, bandwidth, damping, integral_time, viscous), best
 
 
-def closed_loop(inertia: float, gains: LoopGains, period: float, delay: int = 1, viscous: float = 0.0) -> np.ndarray:
+def closed_loop(inertia: float, gains: LoopGains, period: float, delay: int = 1, viscous: float = 0.0,
+                computed_torque: bool = False) -> np.ndarray:
     """The closed loop's state matrix: state (q, qd, [integral], the commands on their way). The
-    joint I qdd + b qd = torque, held over each period (exact zero-order hold)."""
+    joint I qdd + b qd = torque, held over each period (exact zero-order hold). `computed_torque`:
+    the controller's output is an acceleration that inverse dynamics turns into torque through the
+    arm's model (times I), so its gains act on a unit inertia, the friction b / I left uncancelled."""
+    if computed_torque:
+        gains = LoopGains(gains.kp * inertia, gains.kd * inertia, gains.ki * inertia)
     t = period
     rate = viscous / inertia
     if rate * t > 1e-9:
@@ -112,14 +119,16 @@ def closed_loop(inertia: float, gains: LoopGains, period: float, delay: int = 1,
     return a
 
 
-def spectral_radius(inertia: float, gains: LoopGains, period: float, delay: int = 1, viscous: float = 0.0) -> float:
+def spectral_radius(inertia: float, gains: LoopGains, period: float, delay: int = 1, viscous: float = 0.0,
+                    computed_torque: bool = False) -> float:
     """The largest eigenvalue's magnitude: < 1 stable."""
-    return float(np.max(np.abs(np.linalg.eigvals(closed_loop(inertia, gains, period, delay, viscous)))))
+    return float(np.max(np.abs(np.linalg.eigvals(closed_loop(inertia, gains, period, delay, viscous, computed_torque)))))
 
 
-def damping_ratio(inertia: float, gains: LoopGains, period: float, delay: int = 1, viscous: float = 0.0) -> float:
+def damping_ratio(inertia: float, gains: LoopGains, period: float, delay: int = 1, viscous: float = 0.0,
+                  computed_torque: bool = False) -> float:
     """The smallest damping ratio of the loop's poles (1 for real poles, < 0 unstable)."""
-    poles = np.linalg.eigvals(closed_loop(inertia, gains, period, delay, viscous))
+    poles = np.linalg.eigvals(closed_loop(inertia, gains, period, delay, viscous, computed_torque))
     ratios = []
     for z in poles:
         if abs(z) < 1e-12:
@@ -136,9 +145,10 @@ def inertias(low: float, high: float) -> np.ndarray:
     return np.geomspace(low, high, _INERTIA_POINTS)
 
 
-def stable(low: float, high: float, gains: LoopGains, period: float, delay: int = 1, viscous: float = 0.0) -> bool:
+def stable(low: float, high: float, gains: LoopGains, period: float, delay: int = 1, viscous: float = 0.0,
+           computed_torque: bool = False) -> bool:
     """Whether the loop is stable at every inertia from `low` to `high`."""
-    return all(spectral_radius(i, gains, period, delay, viscous) < 1.0 - 1e-9 for i in inertias(low, high))
+    return all(spectral_radius(i, gains, period, delay, viscous, computed_torque) < 1.0 - 1e-9 for i in inertias(low, high))
 
 
 @dataclass(frozen=True)
@@ -163,34 +173,38 @@ class LoopVerdict:
                 f"with kd < {gains.kd * self.scale:.4g}" + (f" and ki < {gains.ki * self.scale:.4g}" if gains.ki else ""))
 
 
-def analyse(low: float, high: float, gains: LoopGains, period: float, delay: int = 1, viscous: float = 0.0) -> LoopVerdict:
-    """The verdict on one joint's loop, inertia from `low` to `high` kg m², viscous friction `viscous`."""
+def analyse(low: float, high: float, gains: LoopGains, period: float, delay: int = 1, viscous: float = 0.0,
+            computed_torque: bool = False) -> LoopVerdict:
+    """The verdict on one joint's loop, inertia from `low` to `high` kg m², viscous friction `viscous`
+    (`computed_torque`: the gains are accelerations, `closed_loop`)."""
+    ct = computed_torque
     points = inertias(low, high)
-    radii = [spectral_radius(i, gains, period, delay, viscous) for i in points]
+    radii = [spectral_radius(i, gains, period, delay, viscous, ct) for i in points]
     worst = int(np.argmax(radii))
     is_stable = radii[worst] < 1.0 - 1e-9
-    damping = min(damping_ratio(i, gains, period, delay, viscous) for i in points) if is_stable else -1.0
+    damping = min(damping_ratio(i, gains, period, delay, viscous, ct) for i in points) if is_stable else -1.0
     if is_stable:
         return LoopVerdict(True, float(points[worst]), float(radii[worst]), damping, None, 1.0)
-    kd_range = _stable_kd(low, high, gains, period, delay, viscous)
-    scale = _stable_scale(low, high, gains, period, delay, viscous)
+    kd_range = _stable_kd(low, high, gains, period, delay, viscous, ct)
+    scale = _stable_scale(low, high, gains, period, delay, viscous, ct)
     return LoopVerdict(is_stable, float(points[worst]), float(radii[worst]), damping, kd_range, scale)
 
 
 def _stable_kd(low: float, high: float, gains: LoopGains, period: float, delay: int,
-               viscous: float) -> tuple[float, float] | None:
+               viscous: float, computed_torque: bool) -> tuple[float, float] | None:
     """The interval of kd that keeps the loop stable at this kp and ki over the range, found on a
     logarithmic scan and refined by bisection at its ends; None when no kd on the scan is stable."""
-    top = 4.0 * high / period  # no loop with one period of delay is stable past kd T / I of a few
+    top = 4.0 * (1.0 if computed_torque else high) / period  # no loop with a period of delay is stable past kd T / I of a few
     candidates = np.geomspace(top * 1e-9, top, 160)
-    ok = [stable(low, high, LoopGains(gains.kp, float(kd), gains.ki), period, delay, viscous) for kd in candidates]
+    ok = [stable(low, high, LoopGains(gains.kp, float(kd), gains.ki), period, delay, viscous, computed_torque)
+          for kd in candidates]
     if not any(ok):
         return None
     first = ok.index(True)
     last = len(ok) - 1 - ok[::-1].index(True)
 
     def is_ok(kd: float) -> bool:
-        return stable(low, high, LoopGains(gains.kp, kd, gains.ki), period, delay, viscous)
+        return stable(low, high, LoopGains(gains.kp, kd, gains.ki), period, delay, viscous, computed_torque)
 
     lower = 0.0 if first == 0 and is_ok(0.0) else _edge(is_ok, float(candidates[first - 1]) if first else 0.0,
                                                          float(candidates[first]))
@@ -198,10 +212,11 @@ def _stable_kd(low: float, high: float, gains: LoopGains, period: float, delay: 
     return lower, upper
 
 
-def _stable_scale(low: float, high: float, gains: LoopGains, period: float, delay: int, viscous: float) -> float:
+def _stable_scale(low: float, high: float, gains: LoopGains, period: float, delay: int, viscous: float,
+                  computed_torque: bool) -> float:
     """The largest s with the gains times s stable over the range (bisection on a log scale)."""
     def is_ok(s: float) -> bool:
-        return stable(low, high, LoopGains(gains.kp * s, gains.kd * s, gains.ki * s), period, delay, viscous)
+        return stable(low, high, LoopGains(gains.kp * s, gains.kd * s, gains.ki * s), period, delay, viscous, computed_torque)
 
     if not (gains.kp or gains.kd or gains.ki):
         return math.inf

@@ -96,6 +96,10 @@ class PortBasedObject:
     # that is not among the task's resources (E608), lacks those options (E609) or is of another
     # kind (E610).
     DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {}
+    # For inverse dynamics: the in-var port of the joint acceleration it turns into torque through the
+    # arm's model (tau = M(q) qdd + ...). A joint controller writing that acceleration is analysed by
+    # `pbo check` as a computed-torque loop: each joint a unit inertia. Empty: the module is none.
+    ACCELERATION_INPUT: ClassVar[str] = ""
     _pbo_port_decls: ClassVar[tuple[Port, ...]] = ()
 
     _pbo_ports: list[np.ndarray]

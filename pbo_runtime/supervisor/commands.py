@@ -419,7 +419,11 @@ def set_parameter(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any
     texts = _texts(arguments, "values", "the values")
     new = _checked(lambda: live.set_param(name, param, texts))
     reply = _applied(host, new, f"set '{param}' of '{name}'", name)
-    value = host.subsystem.tasks[name].params.get(param)
+    edit = new.edits[-1]
+    params = host.subsystem.tasks[name].params
+    if edit.member:  # a member's parameter, in the combined task's members
+        params = (params["members"][edit.member - 1] or {}).get("params") or {}
+    value = params.get(edit.param)
     return {**reply, "param": param, "value": value,
             "message": f"'{param}' of task '{name}' is {value} from the cycle boundary at {reply['at']:.3f} s"}
 

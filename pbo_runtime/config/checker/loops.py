@@ -11,6 +11,14 @@ stable; a ringing one (damping ratio under 0.3) a warning (W301); so is a goal t
 whose step asks more torque than the joint's limit (W302). Giving a bandwidth and raw gains at once
 is E325. `pbo set` re-checks the file with the new gain, so it refuses an unstable one in the same
 words. The gains a bandwidth makes are said with the robot's notes (`pbo check`, `pbo run`).
+
+A controller whose output is the acceleration inverse dynamics reads (a module with an
+`ACCELERATION_INPUT`, as a task or as a member of a combined task) whose torque goes to such a robot
+is a computed-torque loop: the model cancels each joint's inertia, so the gains act on a unit
+inertia, with the delay the configuration adds between the two (none when the inverse dynamics runs
+after the controller in the same cycle: later in the same combined task, or on the same RTPU at the
+same period and ahead in the order the executive runs them; a period otherwise). A bandwidth given
+to such a controller is W303: it makes torque gains, which the inverse dynamics scales again.
 """
 
 from __future__ import annotations
@@ -49,10 +57,35 @@ class _Controller:
     outputs: tuple[str, ...]  # the table variables it writes
     reference: str | None  # the table variable its q_r reads; None when a member of its task computes it
     gains_of: str = ""  # how the note of the gains a bandwidth made names it, when not as `who`
+    writes: tuple[str, ...] = ()  # a member: every variable it writes as its links name them (those kept local too)
+    member: int = -1  # a member: its place in its combined task
+
+
+@dataclass(frozen=True)
+class _InverseDynamics:
+    """A module turning a joint acceleration into torque through the arm's model: a task, or a member."""
+
+    task: Any
+    who: str
+    reads: str  # the variable its acceleration port reads, as its links name it
+    reads_table: str | None  # that variable in the table; None when a member of its task writes it
+    outputs: tuple[str, ...]  # the table variables it writes
+    member: int = -1
+
+
+@dataclass(frozen=True)
+class _Loop:
+    """A controller's loops on a torque-mode robot: directly, or through inverse dynamics."""
+
+    controller: _Controller
+    period: float  # the slowest of the tasks on the way
+    delay: int  # periods between the measurement and the torque
+    through: _InverseDynamics | None = None
+    late: str = ""  # why the inverse dynamics reads the controller's acceleration a period late
 
 
 class JointLoopChecks(CheckerBase):
-    """E325, E326, W301, W302: the joint loops of the subsystem's torque-mode robots."""
+    """E325, E326, W301, W302, W303: the joint loops of the subsystem's torque-mode robots."""
 
     def check_joint_loops(self, top: YMap) -> None:
         """Every joint-space controller's loops, for every robot interface in torque mode it drives."""
@@ -63,14 +96,20 @@ class JointLoopChecks(CheckerBase):
         if not controllers:
             return
         torque_readers = self._torque_robots_by_variable()
-        looped = []
+        dynamics = self._inverse_dynamics()
+        looped: list[_Loop] = []
         for controller in controllers:
             if not self._one_kind_of_gains(controller):
                 continue
-            robots = {r.name: r for v in controller.outputs for r in torque_readers.get(v, ())}
-            robots.pop(controller.task.name, None)
+            robots = _robots_reading(controller.outputs, torque_readers, controller.task.name)
             if robots:
-                looped.append((controller, max(r.period for r in robots.values())))
+                looped.append(_Loop(controller, max(controller.task.period, *robots), DELAY))
+            for stage in dynamics:
+                late = self._feeds(controller, stage)
+                robots = _robots_reading(stage.outputs, torque_readers, stage.task.name) if late is not None else []
+                if late is not None and robots:
+                    looped.append(_Loop(controller, max(controller.task.period, stage.task.period, *robots),
+                                        DELAY + bool(late), stage, late))
         if not looped:
             return
         robot = self._arm_of_plant()
@@ -79,15 +118,18 @@ class JointLoopChecks(CheckerBase):
         from pbo_runtime.objects.arm_inertia import arm_gains, inertia_range  # Pinocchio: only when there is a loop
 
         inertia = inertia_range(robot.arm, robot.ee)
-        for controller, robot_period in looped:
+        for loop in looped:
+            controller = loop.controller
             p, task = controller.params, controller.task
-            period = max(task.period, robot_period)
             if p.bandwidth > 0:
                 kp, kd, ki, _ = arm_gains(inertia, p.bandwidth, p.damping, p.integral_time, task.period)
-                self.out.robot_notes.append(
-                    f"gains of {controller.gains_of or controller.who}: bandwidth {p.bandwidth:g} rad/s, damping {p.damping:g}"
-                    + (f", integral time {p.integral_time:g} s" if p.integral_time else "")
-                    + f" make kp {_numbers(kp)}, kd {_numbers(kd)}" + (f", ki {_numbers(ki)}" if np.any(ki) else ""))
+                note = (f"gains of {controller.gains_of or controller.who}: bandwidth {p.bandwidth:g} rad/s, damping {p.damping:g}"
+                        + (f", integral time {p.integral_time:g} s" if p.integral_time else "")
+                        + f" make kp {_numbers(kp)}, kd {_numbers(kd)}" + (f", ki {_numbers(ki)}" if np.any(ki) else ""))
+                if note not in self.out.robot_notes:
+                    self.out.robot_notes.append(note)
+                if loop.through is not None:
+                    self._bandwidth_through_inverse_dynamics(loop, np.sqrt(kp))
             else:
                 n = robot.arm.shape[0]
                 raw = [np.asarray(getattr(p, k), dtype=float).reshape(-1) for k in RAW_GAINS]
@@ -96,8 +138,8 @@ class JointLoopChecks(CheckerBase):
                 kp, kd, ki = (np.broadcast_to(g, (n,)) for g in raw)
             for joint, name in enumerate(robot.joint_names):
                 gains = LoopGains(float(kp[joint]), float(kd[joint]), float(ki[joint]))
-                self._check_loop(controller, joint, name, gains, float(inertia.coupled_low[joint]), float(inertia.high[joint]),
-                                 period, robot.arm[joint], float(robot.q0[joint]))
+                self._check_loop(loop, joint, name, gains, float(inertia.coupled_low[joint]), float(inertia.high[joint]),
+                                 robot.arm[joint], float(robot.q0[joint]))
 
     def _controllers(self, nodes: YMap) -> list[_Controller]:
         """The tasks with joint gains, and the members with them of combined tasks."""
@@ -108,9 +150,10 @@ class JointLoopChecks(CheckerBase):
             node = nodes.get(task.name)
             params = node.get("params") if isinstance(node, YMap) else None
             if _has_joint_gains(task.built_params):
-                found.append(_Controller(task, f"task '{task.name}'", task.built_params, task.params, params,
-                                         tuple(b.variable for b in task.bindings if not b.port.kind.is_input),
-                                         next((b.variable for b in task.bindings if b.port.name == "q_r"), None)))
+                outputs = tuple(b.variable for b in task.bindings if not b.port.kind.is_input)
+                found.append(_Controller(task, f"task '{task.name}'", task.built_params, task.params, params, outputs,
+                                         next((b.variable for b in task.bindings if b.port.name == "q_r"), None),
+                                         writes=outputs))
             found.extend(self._members_with_gains(task, params))
         return found
 
@@ -137,8 +180,72 @@ class JointLoopChecks(CheckerBase):
             found.append(_Controller(task, f"member {number} ({module}) of task '{task.name}'", member.params, dict(given or {}),
                                      node if isinstance(node, YMap) else None, outputs,
                                      None if reference is None or reference in internal else table_variable.get(reference),
-                                     f"task '{task.name}', member {number} ({module})"))
+                                     f"task '{task.name}', member {number} ({module})",
+                                     tuple(v for port, v in member.links if not port.kind.is_input), index))
         return found
+
+    def _inverse_dynamics(self) -> list[_InverseDynamics]:
+        """The tasks and members of combined tasks that turn a joint acceleration into torque (`ACCELERATION_INPUT`)."""
+        found = []
+        for task in self.tasks.values():
+            if not task.ok:
+                continue
+            members = getattr(task.built_params, "built", None)
+            if members:
+                table_variable = {b.port.name: b.variable for b in task.bindings}
+                internal = task.built_params.internal_variables()
+                for index, member in enumerate(members):
+                    port = getattr(member.cls, "ACCELERATION_INPUT", "")
+                    reads = next((v for p, v in member.links if p.name == port), None) if port else None
+                    if reads is None:
+                        continue
+                    number, module = member.name.split(":", 1)
+                    found.append(_InverseDynamics(
+                        task, f"member {number} ({module}) of task '{task.name}'", reads,
+                        None if reads in internal else table_variable.get(reads),
+                        tuple(table_variable[v] for p, v in member.links if not p.kind.is_input and v in table_variable), index))
+                continue
+            try:
+                port = getattr(self.module_lookup(task.module), "ACCELERATION_INPUT", "")
+            except Exception:  # an unknown module is reported where the task is checked
+                continue
+            reads = next((b.variable for b in task.bindings if port and b.port.name == port), None)
+            if reads is not None:
+                found.append(_InverseDynamics(task, f"task '{task.name}'", reads, reads,
+                                              tuple(b.variable for b in task.bindings if not b.port.kind.is_input)))
+        return found
+
+    def _feeds(self, controller: _Controller, stage: _InverseDynamics) -> str | None:
+        """None when `controller` does not write what `stage` reads (or they never run together); else why
+        `stage` reads it a period late, or "" when it reads it in the same cycle."""
+        if stage.task is controller.task:
+            if controller.member < 0 or stage.member < 0 or stage.reads not in controller.writes:
+                return None
+            return "" if controller.member < stage.member else (
+                f"{stage.who} reads '{stage.reads}' of the cycle before: it is listed before the controller, so runs first")
+        if stage.reads_table is None or stage.reads_table not in controller.outputs:
+            return None
+        writer, reader = controller.task, stage.task
+        configurations = [{name for name, _ in members} for members in self.config_members.values()]
+        if not any(writer.name in names and reader.name in names for names in configurations):
+            return None
+        why = f"{stage.who} reads '{stage.reads_table}' of the cycle before"
+        if writer.rtpu != reader.rtpu:
+            return f"{why}: it runs on another RTPU"
+        if writer.period != reader.period:
+            return f"{why}: it runs at another period"
+        if writer.critical != reader.critical:
+            return "" if writer.critical else f"{why}: it is critical, so runs first"
+        if writer.priority != reader.priority:
+            return "" if writer.priority > reader.priority else f"{why}: its priority is higher, so it runs first"
+        order = self.out.init_order  # equal tasks run in the order they came on: the init order, one switch at a time
+        if writer.name in order and reader.name in order and order.index(writer.name) > order.index(reader.name):
+            return f"{why}: it comes before '{writer.name}' in the init order, so runs first"
+        alone = next((c for c, members in self.config_members.items()
+                      if reader.name in {n for n, _ in members} and writer.name not in {n for n, _ in members}), None)
+        if alone is not None:
+            return f"{why}: configuration '{alone}' runs it without '{writer.name}', which comes on after it"
+        return ""
 
     def _one_kind_of_gains(self, controller: _Controller) -> bool:
         """E325: a bandwidth and raw gains at once (the module would use only one)."""
@@ -183,35 +290,64 @@ class JointLoopChecks(CheckerBase):
         except Exception:  # a robot that does not load is reported where the plant is checked
             return None
 
-    def _check_loop(self, controller: _Controller, joint: int, name: str, gains: LoopGains, low: float, high: float,
-                    period: float, row: np.ndarray, start: float) -> None:
+    def _check_loop(self, loop: _Loop, joint: int, name: str, gains: LoopGains, low: float, high: float,
+                    row: np.ndarray, start: float) -> None:
+        controller, through = loop.controller, loop.through
         bandwidth = controller.params.bandwidth > 0
         where = self._gain_at(controller, "bandwidth" if bandwidth else "kd", joint)
         what = (f"joint {joint + 1} ({name}) under {controller.who} (kp {gains.kp:.4g}, kd {gains.kd:.4g}"
                 + (f", ki {gains.ki:.4g}" if gains.ki else "")
                 + (f", from bandwidth {controller.params.bandwidth:g} rad/s" if bandwidth else "") + ")")
-        workspace = f"from {low:.4g} with the other joints free to {high:.4g} kg m² over the workspace"
+        if through is None:
+            workspace = f"from {low:.4g} with the other joints free to {high:.4g} kg m² over the workspace"
+        else:
+            what += f" through the inverse dynamics of {through.who}"
+            workspace = f"computed torque cancels its {low:.4g} to {high:.4g} kg m², not its viscous friction"
         fix = ("lower the bandwidth (pbo robot MODEL --bandwidth W --period T prints each joint's gains and verdict)"
                if bandwidth else "or give bandwidth: and damping: instead of raw gains (pbo robot MODEL --bandwidth W "
                "prints each joint's)")
+        if through is not None:
+            fix = ("under computed torque the gains are accelerations: kp = w², kd = 2 ζ w for a bandwidth w "
+                   + ("(bandwidth: makes torques for the arm's inertia, which the inverse dynamics multiplies by it again)"
+                      if bandwidth else "(pbo robot's gains are torques)"))
         viscous = float(row[Arm.DAMPING])
-        verdict = analyse(low, high, gains, period, DELAY, viscous)
-        sampled = f"sampled every {period * 1e3:g} ms with one period of delay"
+        verdict = analyse(low, high, gains, loop.period, loop.delay, viscous, computed_torque=through is not None)
+        sampled = (f"sampled every {loop.period * 1e3:g} ms with "
+                   + ("one period of delay" if loop.delay == 1 else f"{loop.delay} periods of delay")
+                   + (f" ({loop.late})" if loop.late else ""))
         if not verdict.stable:
-            self.error("E326", f"the position loop of {what} is unstable at inertia {verdict.worst_inertia:.4g} kg m² "
-                               f"({workspace}), {sampled}: a pole at |z| = {verdict.spectral_radius:.3g} > 1", where,
+            at = " as a unit inertia" if through is not None else f" at inertia {verdict.worst_inertia:.4g} kg m²"
+            self.error("E326", f"the position loop of {what} is unstable{at} ({workspace}), {sampled}: a pole at "
+                               f"|z| = {verdict.spectral_radius:.3g} > 1", where,
                        fix if bandwidth else f"{verdict.bound_text(gains)}; {fix}")
             return
         if verdict.damping < LOW_DAMPING:
             self.warn("W301", f"the position loop of {what} rings: damping ratio {verdict.damping:.2f} < {LOW_DAMPING:g} "
-                              f"somewhere {workspace}, {sampled}",
-                      where, "raise kd towards 2 sqrt(kp I), or give bandwidth: and damping: 1.0")
-        self._check_step_torque(controller, joint, name, gains, row, start)
+                              + (f"somewhere {workspace}" if through is None else f"as a unit inertia ({workspace})")
+                              + f", {sampled}",
+                      where, "raise kd towards 2 sqrt(kp I), or give bandwidth: and damping: 1.0" if through is None
+                      else f"raise kd towards 2 sqrt(kp); {fix}")
+        self._check_step_torque(loop, joint, name, gains, row, start, high)
 
-    def _check_step_torque(self, controller: _Controller, joint: int, name: str, gains: LoopGains, row: np.ndarray,
-                           start: float) -> None:
+    def _bandwidth_through_inverse_dynamics(self, loop: _Loop, bandwidths: np.ndarray) -> None:
+        """W303: a bandwidth makes torque gains for each joint's inertia (kp = I w²); the inverse dynamics
+        multiplies the PID's output by the inertia again, so each joint gets sqrt(kp), not w."""
+        controller, p = loop.controller, loop.controller.params
+        assert loop.through is not None
+        wanted = p.bandwidth
+        self.warn("W303", f"{controller.who} is given bandwidth {wanted:g} rad/s but drives the arm through the inverse "
+                          f"dynamics of {loop.through.who}: a bandwidth makes torques for each joint's inertia, which the "
+                          f"inverse dynamics multiplies by the inertia again: the joints get {_numbers(bandwidths)} rad/s",
+                  self._gain_at(controller, "bandwidth", 0),
+                  f"under computed torque the gains are accelerations: give kp: {wanted * wanted:.4g}, kd: "
+                  f"{2 * p.damping * wanted:.4g} (kp = w², kd = 2 ζ w) instead of bandwidth:")
+
+    def _check_step_torque(self, loop: _Loop, joint: int, name: str, gains: LoopGains, row: np.ndarray,
+                           start: float, high: float) -> None:
         """W302: a goal the controller reads as it is (no task writes its reference) whose step from the
-        robot's start asks kp * step past the joint's effort limit: the command saturates."""
+        robot's start asks kp * step past the joint's effort limit (under computed torque, times the
+        joint's heaviest inertia): the command saturates."""
+        controller = loop.controller
         reference = controller.reference
         if reference is None:
             return
@@ -220,10 +356,13 @@ class JointLoopChecks(CheckerBase):
             return
         values = np.asarray(goal, dtype=float).reshape(-1)
         step = abs(float(values[joint] if values.size > joint else values[0]) - start)
-        torque, effort = gains.kp * step, float(row[Arm.EFFORT])
+        inertia = 1.0 if loop.through is None else high
+        torque, effort = gains.kp * step * inertia, float(row[Arm.EFFORT])
         if torque > effort:
+            asks = (f"kp {gains.kp:.4g} x {step:.4g} = {torque:.4g}" if loop.through is None else
+                    f"kp {gains.kp:.4g} x {step:.4g} x {inertia:.4g} kg m² = {torque:.4g} (through the inverse dynamics)")
             self.warn("W302", f"the goal of joint {joint + 1} ({name}) is {step:.4g} from the start: {controller.who} "
-                              f"asks kp {gains.kp:.4g} x {step:.4g} = {torque:.4g} at once, past the effort limit {effort:g}",
+                              f"asks {asks} at once, past the effort limit {effort:g}",
                       self._gain_at(controller, "bandwidth" if controller.params.bandwidth > 0 else "kp", joint),
                       "put a joint_trajectory between the goal and the controller, or lower the gain")
 
@@ -233,6 +372,12 @@ class JointLoopChecks(CheckerBase):
         params = controller.node
         return (param_value_at(params, key, (joint,)) or param_value_at(params, key)
                 or (params.loc if isinstance(params, YMap) else controller.task.loc))
+
+
+def _robots_reading(variables: tuple[str, ...], readers: dict[str, list[Any]], writer: str) -> list[float]:
+    """The periods of the torque-mode robot interfaces (other than `writer`) that read any of `variables`."""
+    robots = {r.name: r.period for v in variables for r in readers.get(v, ()) if r.name != writer}
+    return list(robots.values())
 
 
 def _has_joint_gains(params: Any) -> bool:

@@ -4,6 +4,7 @@ in a process of its own, with the message types declared as ROS 2's generated ID
 
     python -m tests.ros2_peer listen DOMAIN SECONDS           JointStates on rt/joint_states over a window
     python -m tests.ros2_peer goal DOMAIN SAFETY V1 V2 ...   publish a goal on rt/pbo/q_d until the arm holds it
+    python -m tests.ros2_peer watch DOMAIN SAFETY V1 V2 ...  the same without publishing: until the arm holds V1 V2 ...
     python -m tests.ros2_peer publish DOMAIN TOPIC TYPE SECONDS V1 V2 ...   a message every 10 ms, then silence
       (JointTrajectory, JointState: the joints' numbers, then their positions)
     python -m tests.ros2_peer discovery DOMAIN NODE          the node on ros_discovery_info, its endpoints' topics
@@ -155,19 +156,19 @@ def listen(domain: int, seconds: float) -> dict:
             "age_median": ages[len(ages) // 2], "age_max": ages[-1]}
 
 
-def goal(domain: int, safety_net: float, values: list[float]) -> dict:
-    """Publish `values` on rt/pbo/q_d every 100 ms (as `ros2 topic pub -r 10`) until 50 JointStates
-    in a row are within 0.01 rad of them; the time that took and the last positions."""
+def goal(domain: int, safety_net: float, values: list[float], publish: bool = True) -> dict:
+    """Publish `values` on rt/pbo/q_d every 100 ms (as `ros2 topic pub -r 10`; not if not `publish`)
+    until 50 JointStates in a row are within 0.01 rad of them; the time that took and the last positions."""
     participant = DomainParticipant(domain)
     messages = _messages(_reader(participant, "rt/joint_states", JointState))
-    writer = _writer(participant, "rt/pbo/q_d", Float64MultiArray)
+    writer = _writer(participant, "rt/pbo/q_d", Float64MultiArray) if publish else None
     message = Float64MultiArray(layout=MultiArrayLayout(dim=[], data_offset=0), data=values)
     start = time.monotonic()
     published_at = -1.0
     in_a_row = 0
     for state, _ in messages:
         now = time.monotonic()
-        if now - published_at >= 0.1:
+        if writer is not None and now - published_at >= 0.1:
             writer.write(message)
             published_at = now
         error = max(abs(p - v) for p, v in zip(state.position, values))
@@ -245,8 +246,8 @@ def main(argv: list[str]) -> None:
         result = listen(domain, float(argv[2]))
     elif verb == "discovery":
         result = discovery(domain, argv[2])
-    elif verb == "goal":
-        result = goal(domain, float(argv[2]), [float(v) for v in argv[3:]])
+    elif verb in ("goal", "watch"):
+        result = goal(domain, float(argv[2]), [float(v) for v in argv[3:]], publish=verb == "goal")
     else:
         result = publish(domain, argv[2], argv[3], float(argv[4]), [float(v) for v in argv[5:]])
     print(json.dumps(result), flush=True)

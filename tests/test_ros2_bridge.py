@@ -26,18 +26,8 @@ from pbo_runtime import Status  # noqa: E402
 from pbo_runtime.errors import EXTRAS, ParamError  # noqa: E402
 from pbo_runtime.task.lifecycle import Task  # noqa: E402
 from tests.support import (PBO, REPO, allocation_peak, assert_ended_well, config_copy, one_array, own_dds_domain,  # noqa: E402
-                           run_output, start_run, task_spec, until, variables)
-
-def peer(*arguments: object) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "tests.ros2_peer", *map(str, arguments)], cwd=REPO,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def peer_said(process: subprocess.Popen, safety_net: float = 120.0) -> dict:
-    out, err = run_output(process, timeout=safety_net)
-    assert process.returncode == 0, err
-    return json.loads(out.strip().splitlines()[-1])
-
+                           ros2_peer as peer, ros2_peer_said as peer_said, run_output, start_run, task_spec,
+                           until, variables)
 
 # --- the wire: names, types, CDR ----------------------------------------------------------------
 

@@ -114,6 +114,24 @@ MESSAGES = {
 }
 
 
+def goal_values(message: Any, names: Sequence[str]) -> list[float]:
+    """A goal's values: a Float64MultiArray's `data`; a JointTrajectory's last point's `positions`
+    (the trajectory's end), in the order of `names` when the message names its joints. [] when
+    the message has no such values, or names other joints."""
+    if isinstance(message, Float64MultiArray):
+        return list(message.data)
+    if not message.points:
+        return []
+    positions = list(message.points[-1].positions)
+    given = list(message.joint_names)
+    if not given or given == list(names):
+        return positions
+    if sorted(given) != sorted(names) or len(positions) != len(given):
+        return []
+    order = {name: index for index, name in enumerate(given)}
+    return [positions[order[name]] for name in names]
+
+
 def dds_topic(name: str) -> str:
     """The DDS name of the ROS 2 topic `name` ('/joint_states' -> 'rt/joint_states')."""
     return f"{TOPIC_PREFIX}/{name.lstrip('/')}"

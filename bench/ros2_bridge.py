@@ -6,8 +6,10 @@
 With the bridge, a separate process (a Cyclone DDS participant, as a ROS 2 node) subscribes to
 `/joint_states` for the whole run, so every message is really sent; it counts them. Each round
 runs the two back to back in alternating order, on a DDS domain of its own; a round's ratio is
-taken within the round, the verdict is the median. Figures from the run report: the release
-jitter (p99) of `pid` (1 kHz, on rtpu0 beside the bridge's tasks) and of `robot` (1 kHz, rtpu1).
+taken within the round, the verdict is the median. Figures from the run report: the missed
+releases and overruns of the tasks both variants run (`robot`, `traj`, `pid`), the release jitter
+(p99, max) of `pid` (1 kHz, on rtpu0 beside the bridge's tasks) and of `robot` (1 kHz, rtpu1), and
+the cycle time of the bridge's `joint_states` task.
 
     python -m bench.ros2_bridge [--seconds 10] [--rounds 4]
 """
@@ -32,7 +34,8 @@ from bench._common import REPO, Section, Table, Target, fmt_ratio, ratio, us
 CONFIG = Path(REPO) / "configs" / "ros2_bridge.yaml"
 VARIANTS = ("without", "with")
 BRIDGE_TASKS = ("goal", "joint_states")
-TASKS = ("pid", "robot")
+TASKS = ("pid", "robot")  # their jitter
+COMMON = ("robot", "traj", "pid")  # the tasks both variants run: their missed releases and overruns
 
 
 def variant_file(variant: str, folder: Path, index: int) -> Path:
@@ -89,10 +92,17 @@ def run_variant(variant: str, seconds: float, folder: Path, index: int) -> dict[
         tail = (done.stderr or done.stdout).strip().splitlines()[-1:]
         raise RuntimeError(f"`pbo run` of {variant} failed (exit {done.returncode}): {' / '.join(tail)}")
     tasks = json.loads(report.read_text())["tasks"]
-    figures = {f"{name} jitter_p99": tasks[name]["jitter_p99"] for name in TASKS}
-    figures["overruns"] = sum(tasks[name]["overruns"] for name in TASKS)
+    figures = {f"{name} jitter_{q}": tasks[name][f"jitter_{q}"] for name in TASKS for q in ("p99", "max")}
+    figures["missed"] = sum(tasks[name]["missed"] + tasks[name]["overruns"] for name in COMMON)
     figures["published"] = tasks["joint_states"]["cycles"] if variant == "with" else 0
+    figures["bridge exec"] = (tasks["joint_states"]["exec_p99"], tasks["joint_states"]["exec_max"]) if variant == "with" else None
     return figures
+
+
+def count_ratio(with_bridge: int, without: int) -> float:
+    """Missed releases and overruns with the bridge against without it (at least one, so that none
+    against none is 0x and some against none is a ratio, not a division by zero)."""
+    return with_bridge / max(without, 1)
 
 
 def run(seconds: float = 10.0, rounds: int = 4) -> Section:
@@ -106,12 +116,16 @@ def run(seconds: float = 10.0, rounds: int = 4) -> Section:
 subscribed to `/joint_states` all along), against the same file less its two ROS 2 tasks
 (`without`). {rounds} rounds, each running the two back to back in alternating order; each ratio
 is taken within a round, and the table gives the median over the rounds with their range. The
-figures are the p99 release jitter of `pid` (1 kHz, rtpu0, the bridge's RTPU) and `robot`
-(1 kHz, rtpu1), from the run report.
+figures, from the run report: the missed releases and overruns of the tasks both run (`robot`,
+`traj`, `pid`; a count with the bridge against at least one without), the p99 and largest release
+jitter of `pid` (1 kHz, rtpu0, the bridge's RTPU) and `robot` (1 kHz, rtpu1), and the cycle time of
+`joint_states` (its copy into the record its publisher process reads, and the wake).
 """,
-        limits="""The DDS work runs in the bridge tasks' own threads (below the executive)
-and Cyclone DDS's threads, on the same two CPUs as the RTPUs and the plant: on this 2-core machine
-shared with other work, round-to-round swings of the jitter are larger than the bridge's cost.""",
+        limits="""The JointState publisher (encoding and DDS write) is a process of its own at
+SCHED_OTHER; the goal's subscriber is a thread of rtpu0 that takes the GIL only when a message
+comes (and once a second). Both, the listening process and Cyclone DDS's threads run on the same
+two CPUs as the RTPUs and the plant: on this 2-core machine shared with other work, round-to-round
+swings of the counts and the jitter can be larger than the bridge's cost.""",
     )
     per_round: list[dict[str, dict[str, Any]]] = []
     failures: list[str] = []
@@ -126,27 +140,34 @@ shared with other work, round-to-round swings of the jitter are larger than the 
                     failures.append(f"round {index + 1}, {variant}: {exc}")
             if len(round_figures) == len(VARIANTS):
                 per_round.append(round_figures)
-    figures = Table(["variant", "pid jitter p99, µs (median)", "robot jitter p99, µs (median)", "overruns (sum)",
-                     "JointStates published (sum)"], numeric=(1, 2, 3, 4),
-                    caption=f"{len(per_round)} rounds of {seconds:g} s each:")
+    figures = Table(["variant", "missed + overruns (sum)", "pid jitter p99 / max, µs (median)",
+                     "robot jitter p99 / max, µs (median)", "joint_states cycle p99 / max, µs (median)", "JointStates published (sum)"],
+                    numeric=(1, 2, 3, 4, 5), caption=f"{len(per_round)} rounds of {seconds:g} s each; missed releases and "
+                    f"overruns of {', '.join(COMMON)}:")
     for variant in VARIANTS:
         runs = [r[variant] for r in per_round]
         if runs:
-            figures.add(variant, *(us(statistics.median(r[f"{name} jitter_p99"] for r in runs)) for name in TASKS),
-                        sum(r["overruns"] for r in runs), f"{sum(r['published'] for r in runs):,}")
+            jitter = [f"{us(statistics.median(r[f'{name} jitter_p99'] for r in runs))} / "
+                      f"{us(statistics.median(r[f'{name} jitter_max'] for r in runs))}" for name in TASKS]
+            bridge = (f"{us(statistics.median(r['bridge exec'][0] for r in runs))} / {us(statistics.median(r['bridge exec'][1] for r in runs))}"
+                      if variant == "with" else "-")
+            figures.add(variant, sum(r["missed"] for r in runs), *jitter, bridge, f"{sum(r['published'] for r in runs):,}")
     section.tables.append(figures)
     ratios = Table(["ratio with / without (within each round)", "median", "range"], numeric=(1, 2),
-                   caption="Ratios of the p99 release jitter, taken within each round:")
+                   caption="Ratios taken within each round (missed + overruns: against at least one):")
     medians: dict[str, float | None] = {}
-    for name in TASKS:
-        key = f"{name} jitter_p99"
-        values = [v for r in per_round if (v := ratio(r["with"][key], r["without"][key])) is not None]
+    for key, of_round in [("overrun_rate (missed + overruns)", lambda r: count_ratio(r["with"]["missed"], r["without"]["missed"])),
+                          *[(f"{name} jitter_p99", lambda r, k=f"{name} jitter_p99": ratio(r["with"][k], r["without"][k]))
+                            for name in TASKS]]:
+        values = [v for r in per_round if (v := of_round(r)) is not None]
         medians[key] = statistics.median(values) if values else None
-        ratios.add(name, fmt_ratio(medians[key]), f"{fmt_ratio(min(values))} - {fmt_ratio(max(values))}" if values else "-")
+        ratios.add(key, fmt_ratio(medians[key]), f"{fmt_ratio(min(values))} - {fmt_ratio(max(values))}" if values else "-")
     section.tables.append(ratios)
     section.ratios.update({f"with/without {key}": value for key, value in medians.items() if value is not None})
     for failure in failures:
         section.notes.append(f"failed: {failure}")
+    section.targets.append(Target("ROS 2 bridge on: the RTPUs' missed releases and overruns against without it",
+                                  medians.get("overrun_rate (missed + overruns)"), 1.05))
     section.targets.append(Target("ROS 2 bridge on: the RTPUs' p99 release jitter against without it (pid, rtpu0)",
                                   medians.get("pid jitter_p99"), 1.05))
     return section

@@ -85,12 +85,12 @@ class Ros2Goal(PortBasedObject):
         kind = ros2.MESSAGES[params.type]
         topic = Topic(self._participant, ros2.dds_topic(params.topic), kind, qos=ros2.ros2_qos())
         reader = DataReader(self._participant, topic, qos=ros2.ros2_qos())
+        self._node = ros2.announce_node(self._participant, f"pbo_{self.task_name}", readers=[reader])  # kept: `ros2 node list` sees it
         self._waitset = WaitSet(self._participant)  # its wait releases the GIL: the thread sleeps until a message or kill
         self._waitset.attach(ReadCondition(reader, SampleState.NotRead | ViewState.Any | InstanceState.Any))
         self._wake = GuardCondition(self._participant)
         self._waitset.attach(self._wake)
-        values = self._values_of_array if kind is ros2.Float64MultiArray else self._values_of_trajectory
-        self._thread = threading.Thread(target=self._receive, args=(reader, kind, values), daemon=True,
+        self._thread = threading.Thread(target=self._receive, args=(reader, kind, ros2.goal_values), daemon=True,
                                         name=f"ros2-{self.task_name}")
         self._thread.start()
 
@@ -115,22 +115,8 @@ class Ros2Goal(PortBasedObject):
 
     def _close(self) -> None:
         self._thread.join()
+        self._node = None
         self._participant = None  # deleting it ends its DDS entities
-
-    def _values_of_array(self, message) -> list[float]:  # type: ignore[no-untyped-def]
-        return list(message.data)
-
-    def _values_of_trajectory(self, message) -> list[float]:  # type: ignore[no-untyped-def]
-        if not message.points:
-            return []
-        positions = list(message.points[-1].positions)
-        names = list(message.joint_names)
-        if not names or names == self._names:
-            return positions
-        if sorted(names) != sorted(self._names) or len(positions) != len(names):
-            return []
-        order = {name: index for index, name in enumerate(names)}
-        return [positions[order[name]] for name in self._names]
 
     def _receive(self, reader, kind, values_of) -> None:  # type: ignore[no-untyped-def]
         below_the_cycle()
@@ -140,7 +126,7 @@ class Ros2Goal(PortBasedObject):
             for sample in reader.take(N=16):
                 if not isinstance(sample, kind):
                     continue  # a writer's end (DDS's invalid sample), not a message
-                values = values_of(sample)
+                values = values_of(sample, self._names)
                 if len(values) != size or not all(math.isfinite(v) for v in values):
                     self.refused += 1
                     continue

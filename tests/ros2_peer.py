@@ -4,8 +4,10 @@ in a process of its own, with the message types declared as ROS 2's generated ID
 
     python -m tests.ros2_peer listen DOMAIN SECONDS           JointStates on rt/joint_states over a window
     python -m tests.ros2_peer goal DOMAIN SAFETY V1 V2 ...   publish a goal on rt/pbo/q_d until the arm holds it
+    python -m tests.ros2_peer watch DOMAIN SAFETY V1 V2 ...  the same without publishing: until the arm holds V1 V2 ...
     python -m tests.ros2_peer publish DOMAIN TOPIC TYPE SECONDS V1 V2 ...   a message every 10 ms, then silence
       (JointTrajectory, JointState: the joints' numbers, then their positions)
+    python -m tests.ros2_peer discovery DOMAIN NODE          the node on ros_discovery_info, its endpoints' topics
 
 Each prints one JSON line with what it saw.
 """
@@ -18,7 +20,8 @@ from dataclasses import dataclass, field
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import float64, int32, sequence, uint32
+from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication, BuiltinTopicDcpsSubscription
+from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint32
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
@@ -88,6 +91,26 @@ class JointTrajectory(IdlStruct, typename="trajectory_msgs::msg::dds_::JointTraj
     points: sequence[JointTrajectoryPoint] = field(default_factory=list)
 
 
+# rmw_dds_common/msg/Gid (Iron and later), NodeEntitiesInfo, ParticipantEntitiesInfo
+@dataclass
+class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    data: array[uint8, 16]
+
+
+@dataclass
+class NodeEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+    node_namespace: str
+    node_name: str
+    reader_gid_seq: sequence[Gid]
+    writer_gid_seq: sequence[Gid]
+
+
+@dataclass
+class ParticipantEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
+    gid: Gid
+    node_entities_info_seq: sequence[NodeEntitiesInfo]
+
+
 QOS = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.Durability.Volatile, Policy.History.KeepLast(10))
 FIRST_MESSAGE_NET = 60.0  # s to wait for the first message: a net for a run that never publishes, not a timing
 
@@ -133,19 +156,19 @@ def listen(domain: int, seconds: float) -> dict:
             "age_median": ages[len(ages) // 2], "age_max": ages[-1]}
 
 
-def goal(domain: int, safety_net: float, values: list[float]) -> dict:
-    """Publish `values` on rt/pbo/q_d every 100 ms (as `ros2 topic pub -r 10`) until 50 JointStates
-    in a row are within 0.01 rad of them; the time that took and the last positions."""
+def goal(domain: int, safety_net: float, values: list[float], publish: bool = True) -> dict:
+    """Publish `values` on rt/pbo/q_d every 100 ms (as `ros2 topic pub -r 10`; not if not `publish`)
+    until 50 JointStates in a row are within 0.01 rad of them; the time that took and the last positions."""
     participant = DomainParticipant(domain)
     messages = _messages(_reader(participant, "rt/joint_states", JointState))
-    writer = _writer(participant, "rt/pbo/q_d", Float64MultiArray)
+    writer = _writer(participant, "rt/pbo/q_d", Float64MultiArray) if publish else None
     message = Float64MultiArray(layout=MultiArrayLayout(dim=[], data_offset=0), data=values)
     start = time.monotonic()
     published_at = -1.0
     in_a_row = 0
     for state, _ in messages:
         now = time.monotonic()
-        if now - published_at >= 0.1:
+        if writer is not None and now - published_at >= 0.1:
             writer.write(message)
             published_at = now
         error = max(abs(p - v) for p, v in zip(state.position, values))
@@ -186,12 +209,45 @@ def publish(domain: int, topic: str, kind: str, seconds: float, values: list[flo
     return {"written": written}
 
 
+def discovery(domain: int, node: str) -> dict:
+    """Wait for `node` on ros_discovery_info (read as rmw reads it: transient local, so a description
+    written before this participant joined comes too); the DDS topics of the endpoints its gids name,
+    found among the endpoints DDS discovery announces, and whether its participant gid is a participant's."""
+    participant = DomainParticipant(domain)
+    qos = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.Durability.TransientLocal, Policy.History.KeepLast(1))
+    infos = DataReader(participant, Topic(participant, "ros_discovery_info", ParticipantEntitiesInfo, qos=qos), qos=qos)
+    publications = BuiltinDataReader(participant, BuiltinTopicDcpsPublication)
+    subscriptions = BuiltinDataReader(participant, BuiltinTopicDcpsSubscription)
+    topics: dict[bytes, str] = {}
+    found: dict | None = None
+    deadline = time.monotonic() + FIRST_MESSAGE_NET
+    while time.monotonic() < deadline:
+        for sample in infos.take(N=16):
+            for entry in getattr(sample, "node_entities_info_seq", []):
+                if entry.node_name == node:
+                    found = {"participant": bytes(sample.gid.data), "namespace": entry.node_namespace,
+                             "readers": [bytes(g.data) for g in entry.reader_gid_seq],
+                             "writers": [bytes(g.data) for g in entry.writer_gid_seq]}
+        for endpoint in [*publications.take(N=64), *subscriptions.take(N=64)]:
+            if hasattr(endpoint, "topic_name"):
+                topics[endpoint.key.bytes] = endpoint.topic_name
+        if found is not None and all(g in topics for g in found["readers"] + found["writers"]):
+            break
+        time.sleep(0.01)
+    if found is None:
+        return {"found": False}
+    return {"found": True, "namespace": found["namespace"], "participant_gid_bytes": len(found["participant"]),
+            "readers": [topics.get(g, "?") for g in found["readers"]], "writers": [topics.get(g, "?") for g in found["writers"]]}
+
+
 def main(argv: list[str]) -> None:
     verb, domain = argv[0], int(argv[1])
     if verb == "listen":
         result = listen(domain, float(argv[2]))
-    elif verb == "goal":
-        result = goal(domain, float(argv[2]), [float(v) for v in argv[3:]])
+    elif verb == "discovery":
+        result = discovery(domain, argv[2])
+    elif verb in ("goal", "watch"):
+        result = goal(domain, float(argv[2]), [float(v) for v in argv[3:]], publish=verb == "goal")
     else:
         result = publish(domain, argv[2], argv[3], float(argv[4]), [float(v) for v in argv[5:]])
     print(json.dumps(result), flush=True)

@@ -331,6 +331,19 @@ def demo_copy(folder: Path, subsystem: str, *, source: Path = DEMO, **tasks: dic
 _DDS_DOMAINS = itertools.count()
 
 
+def ros2_peer(*arguments: object) -> subprocess.Popen:
+    """`python -m tests.ros2_peer ARGUMENTS`: a ROS 2 node's side of the DDS wire, in a process of its own."""
+    return subprocess.Popen([sys.executable, "-m", "tests.ros2_peer", *map(str, arguments)], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def ros2_peer_said(process: subprocess.Popen, safety_net: float = 120.0) -> dict:
+    """The JSON line a ros2_peer printed last, once it ended well."""
+    out, err = run_output(process, timeout=safety_net)
+    assert process.returncode == 0, err
+    return json.loads(out.strip().splitlines()[-1])
+
+
 def own_dds_domain() -> int:
     """A DDS domain id (1-232) of the calling test's own, from this process's pid and a count: tests
     of the ROS 2 bridge running side by side never see each other's topics."""

@@ -13,7 +13,7 @@ import pytest
 
 from tests.support import PBO, REPO, demo_copy
 
-WITHOUT = ("fastapi", "uvicorn", "websockets", "starlette", "matplotlib", "zenoh")
+WITHOUT = ("fastapi", "uvicorn", "websockets", "starlette", "matplotlib", "zenoh", "cyclonedds")
 
 
 @pytest.fixture
@@ -44,6 +44,7 @@ def test_the_core_install_checks_and_runs_a_subsystem(core_only, tmp_path):
     (["plot", "CONFIG", "-o", "p.png"], "pbo plot", "plot", "matplotlib"),
     (["graph", "CONFIG", "-o", "g.svg"], "pbo graph -o g.svg", "plot", "matplotlib"),
     (["bus", "CONFIG", "--plot", "b.png"], "pbo bus --plot", "plot", "matplotlib"),
+    (["ros2", "jobs", "reach"], "pbo ros2 jobs", "ros2", "cyclonedds"),
 ])
 def test_a_verb_that_needs_a_missing_extra_says_which_in_one_line_and_exits_1(core_only, tmp_path, arguments, verb, extra,
                                                                              missing):

@@ -20,23 +20,14 @@ pytest.importorskip("cyclonedds")
 
 from pbo_runtime.links import ros2_messages as ros2  # noqa: E402
 from modules.ros2_goal import Ros2Goal  # noqa: E402
+from modules._joint_states_publisher import JointStatesPublisher, PublisherGone  # noqa: E402
 from modules.ros2_joint_states import Ros2JointStates  # noqa: E402
 from pbo_runtime import Status  # noqa: E402
 from pbo_runtime.errors import EXTRAS, ParamError  # noqa: E402
 from pbo_runtime.task.lifecycle import Task  # noqa: E402
 from tests.support import (PBO, REPO, allocation_peak, assert_ended_well, config_copy, one_array, own_dds_domain,  # noqa: E402
-                           run_output, start_run, task_spec, until, variables)
-
-def peer(*arguments: object) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "tests.ros2_peer", *map(str, arguments)], cwd=REPO,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def peer_said(process: subprocess.Popen, safety_net: float = 120.0) -> dict:
-    out, err = run_output(process, timeout=safety_net)
-    assert process.returncode == 0, err
-    return json.loads(out.strip().splitlines()[-1])
-
+                           ros2_peer as peer, ros2_peer_said as peer_said, run_output, start_run, task_spec,
+                           until, variables)
 
 # --- the wire: names, types, CDR ----------------------------------------------------------------
 
@@ -129,6 +120,13 @@ def test_a_joint_states_task_whose_names_do_not_fit_q_m_fails_its_spawn(make_tab
 
 
 @pytest.mark.multiprocess
+def test_a_joint_states_publisher_that_cannot_start_says_why():
+    setup = {"domain": 300, "topic": "/joint_states", "names": ["a"], "frame_id": "", "node": "pbo_states"}  # past DDS's ports
+    with pytest.raises(PublisherGone, match="the JointState publisher process did not start: DDSException: .*DomainParticipant"):
+        JointStatesPublisher(setup, 1)
+
+
+@pytest.mark.multiprocess
 @pytest.mark.parametrize("kind, sent, written, refused", [
     ("std_msgs/msg/Float64MultiArray", [0.1, 0.2, 0.3], [0.1, 0.2, 0.3], False),
     # a trajectory's last point, its joints named out of order: written in the output's order
@@ -162,6 +160,37 @@ def test_a_goal_published_by_another_node_is_written_and_a_silent_topic_makes_it
         np.testing.assert_array_equal(table.read("q_d")[0], written)  # the last goal stays written
     finally:
         task.kill()
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("module, readers, writers", [
+    (Ros2JointStates, [], ["rt/joint_states"]),  # announced by its publisher process
+    (Ros2Goal, ["rt/pbo/q_d"], []),
+], ids=["joint states", "goal"])
+def test_a_bridge_task_is_a_ros2_node_that_another_node_sees_on_ros_discovery_info(make_table, module, readers, writers):
+    table = make_table(variables(("q_d", "float64", (3,)), ("q_m", "float64", (3,)), ("qd_m", "float64", (3,)), ("tau", "float64", (3,))))
+    domain = own_dds_domain()
+    task = Task(task_spec(module, name="bridge", dims={"NDOF": 3}, ports={"value": "q_d"}, params={"domain": domain}), module,
+                table, {"NDOF": 3})
+    assert task.spawn(0.0), task.last_error
+    try:
+        seen = peer_said(peer("discovery", domain, "pbo_bridge"))  # joins after the node said it: transient local
+    finally:
+        task.kill()
+    assert seen == {"found": True, "namespace": "/", "participant_gid_bytes": 16, "readers": readers, "writers": writers}
+
+
+@pytest.mark.parametrize("text, name", [("pbo_goal", "pbo_goal"), ("pbo_arm-1.x", "pbo_arm_1_x"), ("2arm", "pbo_2arm")])
+def test_a_node_name_is_made_of_letters_digits_and_underscores(text, name):
+    assert ros2.node_name(text) == name
+
+
+def test_ros_discovery_info_is_serialized_as_rmw_dds_common_declares_it():
+    # The participant's 16-byte gid, one node: namespace, name, an empty reader sequence, one writer gid.
+    node = ros2.NodeEntitiesInfo(node_namespace="/", node_name="n", writer_gid_seq=[ros2.Gid(data=[7] * 16)])
+    wire = ros2.ParticipantEntitiesInfo(gid=ros2.Gid(data=list(range(16))), node_entities_info_seq=[node]).serialize()
+    assert wire == bytes.fromhex("00010000" + bytes(range(16)).hex() + "01000000" "02000000" "2f000000" "02000000" "6e000000"
+                                 "00000000" "01000000" + "07" * 16)
 
 
 # --- the shipped bridge on the real clock -------------------------------------------------------
@@ -222,17 +251,16 @@ def test_a_bridge_task_without_cyclonedds_fails_its_spawn_naming_the_ros2_extra(
 
 
 def _without_its_thread(task: Task) -> None:
-    """End a bridge task's DDS thread: what is measured then is the cycle alone (tracemalloc sees every thread)."""
+    """End a goal task's DDS thread: what is measured then is the cycle alone (tracemalloc sees every
+    thread); a joint states task's publisher is another process already."""
     module = task.module
-    module._stopping = True
-    if isinstance(module, Ros2JointStates):
-        os.eventfd_write(module._wake, 1)
-    else:
+    if isinstance(module, Ros2Goal):
+        module._stopping = True
         module._wake.set(True)
-    module._thread.join()
+        module._thread.join()
 
 
-@pytest.mark.parametrize("module", [Ros2JointStates, Ros2Goal])
+@pytest.mark.parametrize("module", [pytest.param(Ros2JointStates, marks=pytest.mark.multiprocess), Ros2Goal])  # (its publisher: a process)
 def test_a_bridge_tasks_cycle_allocates_nothing(make_table, module):
     table = make_table(variables(("q_d", "float64", (6,)), ("q_m", "float64", (6,)), ("qd_m", "float64", (6,)), ("tau", "float64", (6,))))
     dims = {"NDOF": 6}

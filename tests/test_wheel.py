@@ -234,7 +234,7 @@ USER_PAGES_LEFT_OUT = {"contributing.md": "for a checkout", "performance.md": "t
 NOT_COMMANDS = {"pbo run (supervisor, job control) ── signal queue per RTPU ──▶ python -m rtpu ... (one per RTPU)":
                 "architecture.md's diagram"}
 LIVE_VERBS = {"status", "on", "off", "clear", "switch", "job", "event", "play", "spawn", "kill", "replace", "set",
-              "app", "save", "svar", "stop", "clean"}
+              "app", "save", "svar", "stop", "clean", "ros2"}
 RAN_VERBS = {"check", "bus", "graph", "lexicon", "place", "schema", "robot", "examples", "runs", "completion", "plot", "log",
              "allocate", "--help"}
 FILE_TOKEN = re.compile(r"/|\.(ya?ml|json|mcap|csv|png|svg|pdf|urdf|npy)$")

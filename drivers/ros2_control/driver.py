@@ -128,6 +128,7 @@ class Ros2ControlArm(DeviceDriver):
                                                      ros2.JointState, qos=qos), qos=qos)
         writer = DataWriter(self._participant, Topic(self._participant, ros2.dds_topic(
             self.options.get("commands", COMMAND_TOPICS[self.mode])), ros2.Float64MultiArray, qos=qos), qos=qos)
+        self._node = ros2.announce_node(self._participant, "pbo_ros2_control", readers=[reader], writers=[writer])
         self._waitset = WaitSet(self._participant)
         self._waitset.attach(ReadCondition(reader, SampleState.NotRead | ViewState.Any | InstanceState.Any))
         self._wake_reader = GuardCondition(self._participant)
@@ -258,6 +259,7 @@ class Ros2ControlArm(DeviceDriver):
             for thread in self._threads:
                 thread.join()
             os.close(self._wake_writer)
+            self._node = None
             self._participant = None
 
         return rest

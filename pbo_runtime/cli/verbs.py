@@ -163,6 +163,18 @@ HOUSEKEEPING: tuple[Command, ...] = (
         Argument("--allow-remote", flag=True,
                  help="accept a --host other machines can reach (the token then crosses the network in clear text)"),
         *WHICH_RUN), "pbo_runtime.cli.hmi:serve_api"),
+    Command("ros2", "a ROS 2 node beside a live run: pbo ros2 jobs reach (needs the ros2 extra)", verbs=(
+        Command("jobs", "start a job of the live run with each ROS 2 message's values as its object", (
+            Argument("job", help="the job each message starts", complete="job"),
+            Argument("--topic", help="the ROS 2 topic (default: /pbo/JOB)"),
+            Argument("--type", choices=("trajectory_msgs/msg/JointTrajectory", "std_msgs/msg/Float64MultiArray"),
+                     default="trajectory_msgs/msg/JointTrajectory",
+                     help="the message type (default: a JointTrajectory, whose last point is the object)"),
+            Argument("--joint-names", nargs="+", metavar="NAME",
+                     help="the object's joints in its order, for a trajectory that names them (default: joint1..jointN)"),
+            Argument("--domain", type=int, default=-1, help="the DDS domain (default: ROS_DOMAIN_ID, else 0)"),
+            Argument("--once", flag=True, help="end after the first job started"),
+            *WHICH_RUN), "pbo_runtime.cli.ros2_jobs:serve"),)),
     Command("completion", "print the shell completion script: eval \"$(pbo completion bash)\"", (
         Argument("shell", choices=("bash", "zsh", "tcsh")),), "pbo_runtime.cli.completion:print_script"),
     Command("clean", "remove your shared memory, semaphores and queues left by dead runs", (

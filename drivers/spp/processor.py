@@ -62,7 +62,9 @@ def _die_with(parent: int) -> None:
 
 def _own_processor() -> None:
     """Leave what the task's RTPU process handed down: its SCHED_FIFO priority and its CPU. The
-    processor is another piece of hardware; here it must never take an RTPU's CPU from it."""
+    processor is another piece of hardware; here it must never take an RTPU's CPU from it. It
+    starts (imports, builds its routine) at SCHED_OTHER; once it has loaded, its driver puts it
+    just below every executive (`process_below_the_cycle`)."""
     try:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     except (OSError, AttributeError):

@@ -223,6 +223,10 @@ def periods_held(episode: dict[str, Any], periods: dict[str, float]) -> int:
     return round(_length(episode) / period)
 
 
+def _periods(count: int) -> str:
+    return f"{count} period{'' if count == 1 else 's'}"
+
+
 def more_than_chance(in_windows: int, in_baselines: int) -> float:
     """One-sided p-value that events fell in the verbs' windows rather than their baselines (of
     equal length) by chance: P(X >= in_windows) for X ~ Binomial(in_windows + in_baselines, 1/2)."""
@@ -351,8 +355,8 @@ than a period still makes releases late.""",
             if p < 0.05 / len(VERBS):
                 blamed.append(f"{verb}: {what} {seen} against {base} in its baselines (p = {p:.2g})")
         if longest.longest_periods > longest_baseline.baseline_longest_periods:
-            blamed.append(f"{verb}: a hold of {longest.longest_periods} periods ({longest.longest * 1e3:.0f} ms), longer than "
-                          f"any in a baseline ({longest_baseline.baseline_longest_periods} periods, "
+            blamed.append(f"{verb}: a hold of {_periods(longest.longest_periods)} ({longest.longest * 1e3:.0f} ms), longer "
+                          f"than any in a baseline ({_periods(longest_baseline.baseline_longest_periods)}, "
                           f"{longest_baseline.baseline_longest * 1e3:.0f} ms)")
     section.tables.append(table)
     per_config = Table(["configuration", "verbs done", "holds (baseline)", "missed (baseline)", "exit", "note"],

@@ -171,6 +171,22 @@ def test_a_killed_processor_is_a_named_fault_and_leaves_nothing(spp):
     assert _left(spp.segment) == []
 
 
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("grace, waits", [(3600.0, True), (1e-9, False)])
+def test_a_task_on_its_way_to_error_waits_for_a_death_only_what_is_left_of_the_grace_since_the_newest_result(
+        spp, monkeypatch, grace, waits):
+    """On the real clock a task finds its result too old only after `max_age` cycles: the grace for a
+    processor killed a moment ago has passed by then, and the cycle must not wait (its RTPU's other
+    tasks would start late)."""
+    import drivers.spp.driver as driver
+
+    spp.call_and_wait(Q, np.zeros(42))
+    waited: list[float] = []
+    monkeypatch.setattr(driver.select, "select", lambda r, w, x, timeout: waited.append(timeout) or ([], [], []))
+    assert spp.await_death(grace) == ""  # alive: stopped or slow is not dead
+    assert bool(waited) == waits and all(0 < timeout <= grace for timeout in waited)
+
+
 class PassingClock(ManualClock):
     """Fake clock: a wait for a release also lets a millisecond of real time pass (the processor
     starts in real time meanwhile)."""

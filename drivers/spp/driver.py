@@ -249,14 +249,20 @@ class SpecialPurposeProcessor(DeviceDriver):
                       f"{self._n[_ANSWERED]} of {self._n[_SENT]}")
 
     def await_death(self, within: float) -> str:
-        """The fault if the processor is found dead within `within` s, else "". For a task about to say the
-        processor does not keep up, once, on its way to ERROR: a processor killed a moment ago may still
-        be ending, and its death, not its lateness, is what the operator must read."""
+        """The fault if the processor is found dead within `within` s of its newest result, else "". For a
+        task about to say the processor does not keep up, once, on its way to ERROR: a processor killed a
+        moment ago may still be ending, and its death, not its lateness, is what the operator must read.
+        Only what is left of `within` since that result is waited: on the real clock a task whose
+        `max_age` cycles last that long finds its result too old no sooner, and does not wait in its
+        cycle; on the simulated clock its cycles come faster than the processor's end."""
         process = self.process
         if self.fault or process is None:
             return self.fault
+        newest = int(self._words[W.RESULT_NS]) / 1e9 if self._mapping is not None else 0.0
+        if newest:
+            within = max(0.0, newest + within - time.monotonic())
         try:
-            pidfd = os.pidfd_open(process.pid)
+            pidfd = os.pidfd_open(process.pid) if within > 0 else -1
         except (AttributeError, OSError):
             pidfd = -1
         if pidfd >= 0:

@@ -144,6 +144,7 @@ def serve(mapping, semaphore, memory: int, download_bytes: int, parent: int) -> 
         result[:routine.out_size] = outputs
         words[W.RESULT_ID] = number
         words[W.RESULT_SEQ] += 1
+        words[W.RESULT_NS] = time.monotonic_ns()
         ring[int(words[W.ITEMS]) % RING] = took
         words[W.ITEMS] += 1
         if took > words[W.SERVICE_NS_MAX]:

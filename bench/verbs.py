@@ -64,6 +64,8 @@ class Window:
     baseline_missed: int = 0
     longest: float = 0.0  # s, the longest hold that began in the window
     baseline_longest: float = 0.0
+    longest_periods: int = 0  # the same, in whole periods of the held task (`periods_held`)
+    baseline_longest_periods: int = 0
 
 
 @dataclass
@@ -191,12 +193,15 @@ def measure(source: Path, window: float, rounds: int = 1) -> ConfigRun:
         report = json.loads(report_path.read_text())
         critical = {name for name, t in report["tasks"].items() if t.get("critical")} or {"robot"}
         episodes = [e for e in report.get("stable_episodes", []) if e["task"] in critical]
+        periods = {name: spec.period for name, spec in load_subsystem(config).tasks.items()}
         for entry, baseline_from, window_from in marks:
             before = [e for e in episodes if baseline_from <= e["from"] < window_from]
             held = [e for e in episodes if window_from <= e["from"] < window_from + window]
             entry.baseline_holds, entry.holds = len(before), len(held)
             entry.baseline_longest = max((_length(e) for e in before), default=0.0)
             entry.longest = max((_length(e) for e in held), default=0.0)
+            entry.baseline_longest_periods = max((periods_held(e, periods) for e in before), default=0)
+            entry.longest_periods = max((periods_held(e, periods) for e in held), default=0)
             entry.causes = [f"{_cause(e)} {_length(e) * 1e3:.0f} ms" for e in held]
         logs = sorted((folder / "out").glob(f"{LOGGER}*.mcap"))
         if logs:
@@ -206,6 +211,20 @@ def measure(source: Path, window: float, rounds: int = 1) -> ConfigRun:
 
 def _length(episode: dict[str, Any]) -> float:
     return float((episode["to"] or episode["from"]) - episode["from"])
+
+
+def periods_held(episode: dict[str, Any], periods: dict[str, float]) -> int:
+    """A hold's length in whole periods of the held task: the cycles it ran stable instead of its
+    cycle. Its ends are release times, so the length is a whole number of periods up to the
+    clock's reading; rounding makes two holds of as many cycles equal however they were read."""
+    period = periods.get(episode["task"])
+    if not period:
+        return 0
+    return round(_length(episode) / period)
+
+
+def _periods(count: int) -> str:
+    return f"{count} period{'' if count == 1 else 's'}"
 
 
 def more_than_chance(in_windows: int, in_baselines: int) -> float:
@@ -292,7 +311,8 @@ skipped and counted, from the table as the run goes). The goal: none caused by a
 that holds now and then without any verb does so in windows and baselines alike, so a verb is
 blamed when its windows hold (or have a missed release) more often than its baselines beyond
 chance (one-sided binomial test at p < 0.05 over the {len(VERBS)} verbs), or when a hold in its windows
-lasts longer than any hold in any baseline. After the run, the spawned logger's MCAP log is
+lasts at least one whole period of the held task longer than any hold in any baseline (a hold is
+a whole number of periods the task ran stable: lengths are compared in periods, not in ms). After the run, the spawned logger's MCAP log is
 read back (it was killed live: its summary and footer were written off the cycle).
 """,
         limits="""A window counts what happened in it, whatever caused it: on this shared 2-CPU
@@ -310,28 +330,34 @@ than a period still makes releases late.""",
             results.append(ConfigRun(path.stem, failure=f"skipped: {SKIPPED[path.stem]}"))
             continue
         results.append(measure(path, window, rounds))
-    table = Table(["verb", "verbs sent", "holds", "baseline holds", "longest hold ms", "baseline longest ms",
+    table = Table(["verb", "verbs sent", "holds", "baseline holds", "longest hold periods (ms)", "baseline longest periods (ms)",
                    "windows with a missed release", "baselines with one", "reply p50 ms", "reply max ms"],
                   numeric=(1, 2, 3, 4, 5, 6, 7, 8, 9))
     blamed: list[str] = []
     all_done = [w for r in results for w in r.windows if not w.outcome]
-    baseline_longest = max((w.baseline_longest for w in all_done), default=0.0)
+    # the longest hold of any baseline, in periods of its task (its length in ms for the reader)
+    longest_baseline = max(all_done, key=lambda w: (w.baseline_longest_periods, w.baseline_longest), default=Window(""))
     for verb in VERBS:
         done = [w for r in results for w in r.windows if w.verb == verb and not w.outcome]
         holds, base_holds = sum(w.holds for w in done), sum(w.baseline_holds for w in done)
         missing, base_missing = sum(w.missed > 0 for w in done), sum(w.baseline_missed > 0 for w in done)
-        longest = max((w.longest for w in done), default=0.0)
+        longest = max(done, key=lambda w: (w.longest_periods, w.longest), default=Window(verb))
+        base_longest = max(done, key=lambda w: (w.baseline_longest_periods, w.baseline_longest), default=Window(verb))
         took = np.array([w.took for w in done]) * 1e3
-        table.add(verb, len(done), holds, base_holds, f"{longest * 1e3:.0f}", f"{max((w.baseline_longest for w in done), default=0.0) * 1e3:.0f}",
+        table.add(verb, len(done), holds, base_holds, f"{longest.longest_periods} ({longest.longest * 1e3:.0f})",
+                  f"{base_longest.baseline_longest_periods} ({base_longest.baseline_longest * 1e3:.0f})",
                   missing, base_missing, f"{np.median(took):.1f}" if done else "", f"{took.max():.1f}" if done else "")
         # a verb is blamed when its windows hold or miss more often than chance allows beside their baselines
-        # (one-sided binomial test, p < 0.05 over the verbs: Bonferroni), or hold longer than any baseline did
+        # (one-sided binomial test, p < 0.05 over the verbs: Bonferroni), or hold at least one whole period
+        # of the held task longer than any baseline did
         for what, seen, base in (("holds", holds, base_holds), ("windows with a missed release", missing, base_missing)):
             p = more_than_chance(seen, base)
             if p < 0.05 / len(VERBS):
                 blamed.append(f"{verb}: {what} {seen} against {base} in its baselines (p = {p:.2g})")
-        if longest > baseline_longest:
-            blamed.append(f"{verb}: a hold of {longest * 1e3:.0f} ms, longer than any in a baseline ({baseline_longest * 1e3:.0f} ms)")
+        if longest.longest_periods > longest_baseline.baseline_longest_periods:
+            blamed.append(f"{verb}: a hold of {_periods(longest.longest_periods)} ({longest.longest * 1e3:.0f} ms), longer "
+                          f"than any in a baseline ({_periods(longest_baseline.baseline_longest_periods)}, "
+                          f"{longest_baseline.baseline_longest * 1e3:.0f} ms)")
     section.tables.append(table)
     per_config = Table(["configuration", "verbs done", "holds (baseline)", "missed (baseline)", "exit", "note"],
                        numeric=(1, 2, 3, 4), caption="Per configuration:")

@@ -29,8 +29,8 @@ from modules._model_based import ModelBased
 from modules._robot_model import END_EFFECTOR_FRAME
 from pbo_runtime import InVar, ModuleError, OutVar, Status, param
 
-# seconds a task that finds its result too old waits, once, on its way to ERROR, for a processor killed a
-# moment ago to end: its death is then what the task's error says, not its lateness
+# seconds from the processor's newest result that a task finding it too old gives, once, on its way to
+# ERROR, a processor killed a moment ago to end: its death is then what the task's error says, not its lateness
 DEATH_GRACE = 0.05
 
 

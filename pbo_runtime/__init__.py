@@ -49,6 +49,7 @@ _WHERE = {
     "arm_model": "pbo_runtime.objects.arm",
     "attach_segment": "pbo_runtime.ipc.shm",
     "below_the_cycle": "pbo_runtime.objects.helper_threads",
+    "process_below_the_cycle": "pbo_runtime.objects.helper_threads",
     "create_segment": "pbo_runtime.ipc.shm",
     "format_channels": "pbo_runtime.config.channels",
     "inertia_range": "pbo_runtime.objects.arm_inertia",
@@ -93,7 +94,7 @@ if TYPE_CHECKING:  # what the type checkers and editors see: the same names, eag
     from pbo_runtime.objects.waypoints import Waypoints
     from pbo_runtime.reports.data_log import open_log, read_log
     from pbo_runtime.objects.waits import sleep_while_cycling
-    from pbo_runtime.objects.helper_threads import below_the_cycle
+    from pbo_runtime.objects.helper_threads import below_the_cycle, process_below_the_cycle
 
 
 def __getattr__(name: str) -> Any:
@@ -158,6 +159,7 @@ __all__ = [
     "module_class",
     "open_log",
     "param",
+    "process_below_the_cycle",
     "read_log",
     "registered_robot",
     "require_extra",

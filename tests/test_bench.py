@@ -83,6 +83,15 @@ def test_the_overrun_interval_resamples_rounds_so_one_burst_widens_it():
     assert round_bootstrap_interval(rounds([2], [0])) == (math.inf, math.inf)
 
 
+@pytest.mark.parametrize("seconds, periods", [(0.00304, 3), (0.00298, 3), (0.0034, 3), (0.0036, 4), (0.0, 0)])
+def test_a_hold_after_a_verb_is_measured_in_whole_periods_of_the_held_task(seconds, periods):
+    """Two holds of as many cycles, read a few µs apart, are equally long: only a whole period more blames a verb."""
+    from bench.verbs import periods_held
+
+    assert periods_held({"task": "robot", "from": 10.0, "to": 10.0 + seconds}, {"robot": 0.001}) == periods
+    assert periods_held({"task": "robot", "from": 10.0, "to": 10.0 + 2 * seconds}, {"robot": 0.002}) == periods
+
+
 def test_an_executive_without_overruns_against_a_bare_loop_with_some_reads_zero_not_n_a():
     from bench.realtime import _overrun_cell, _overrun_ratio
 

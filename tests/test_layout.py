@@ -47,7 +47,7 @@ PUBLIC_NAMES = [
     "InternalError", "LifecycleError", "LinkFullError", "ModuleError", "NoParams", "OutBoth", "OutConst", "OutVar",
     "OperatorInput", "OutputError", "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec", "ResourceLimitError", "Status",
     "TableLayoutError", "Waypoints",
-    "arm_gains", "arm_model", "attach_segment", "below_the_cycle", "create_segment", "format_channels", "inertia_range", "is_robot_file", "module_class", "open_log", "param", "read_log",
+    "arm_gains", "arm_model", "attach_segment", "below_the_cycle", "create_segment", "format_channels", "inertia_range", "is_robot_file", "module_class", "open_log", "param", "process_below_the_cycle", "read_log",
     "registered_robot", "require_extra", "ros2_messages", "sleep_while_cycling", "unlink_quietly",
 ]
 

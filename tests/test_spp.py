@@ -6,6 +6,7 @@ nothing and never waits, even on a stopped processor; a dead processor is a name
 nothing is left in /dev/shm whichever side dies. End to end on the simulated clock:
 configs/visual_servoing_spp.yaml (Figure 13 with fk on the processor) tracks its target with the
 processor's timing in the summary, and killing the processor mid-run puts fk in ERROR naming it.
+On the real clock, under SCHED_FIFO RTPUs, the processor runs just below them once loaded and keeps up.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from pbo_runtime.task.lifecycle import Task
 from rtpu._executive import Executive
 from pbo_runtime.ipc.shm import children_of, pid_alive
 from pbo_runtime.reports.lexicon import drivers
-from tests.support import (PBO, REPO, RUNS, FakeSignals, Ticker, allocation_peak, arm_tables, assert_nothing_left, killed_on_failure,
+from tests.support import (PBO, REPO, RUNS, FakeSignals, Ticker, allocation_peak, arm_tables, assert_ended_well, assert_nothing_left, killed_on_failure,
                            one_array, read_until, robot_state_table, run_output, run_processes, run_until, start_run, task_spec,
                            unique_name, until)
 
@@ -170,6 +171,22 @@ def test_a_killed_processor_is_a_named_fault_and_leaves_nothing(spp):
     assert _left(spp.segment) == []
 
 
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("grace, waits", [(3600.0, True), (1e-9, False)])
+def test_a_task_on_its_way_to_error_waits_for_a_death_only_what_is_left_of_the_grace_since_the_newest_result(
+        spp, monkeypatch, grace, waits):
+    """On the real clock a task finds its result too old only after `max_age` cycles: the grace for a
+    processor killed a moment ago has passed by then, and the cycle must not wait (its RTPU's other
+    tasks would start late)."""
+    import drivers.spp.driver as driver
+
+    spp.call_and_wait(Q, np.zeros(42))
+    waited: list[float] = []
+    monkeypatch.setattr(driver.select, "select", lambda r, w, x, timeout: waited.append(timeout) or ([], [], []))
+    assert spp.await_death(grace) == ""  # alive: stopped or slow is not dead
+    assert bool(waited) == waits and all(0 < timeout <= grace for timeout in waited)
+
+
 class PassingClock(ManualClock):
     """Fake clock: a wait for a release also lets a millisecond of real time pass (the processor
     starts in real time meanwhile)."""
@@ -265,6 +282,21 @@ def test_figure_13_with_fk_on_the_processor_tracks_and_the_summary_shows_the_pro
     assert np.linalg.norm(final["x_m"][:3] - final["x_d"][:3]) < 0.03  # the hand follows the target
     assert_nothing_left(report)
     assert [n for n in os.listdir("/dev/shm") if f"pbo.{subsystem}." in n] == []
+
+
+@pytest.mark.multiprocess
+def test_on_the_real_clock_the_processor_runs_just_below_the_rtpus_once_loaded_and_keeps_up(tmp_path):
+    """At SCHED_OTHER it waited behind every ordinary process, a log encoder's start-up at a real-time
+    priority among them, and fk found its result more than max_age cycles old."""
+    subsystem = "spp_real"
+    done = subprocess.run([*PBO, "run", str(_config_copy(tmp_path, subsystem)), "--no-live", "--duration", "1",
+                           "--out", str(tmp_path / "out")], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert_ended_well(done.returncode, report, done.stderr + done.stdout)
+    assert report["tasks"]["fk"]["state"] == "ON" and not [f for f in report["faults"] if "'fk'" in f or "'fpa'" in f]
+    fifo = report["realtime"]["rtpu1"]["scheduler"].startswith("SCHED_FIFO")
+    assert report["tasks"]["fk"]["devices"]["fpa"]["scheduler"] == ("SCHED_FIFO 1" if fifo else "SCHED_OTHER")
+    assert_nothing_left(report)
 
 
 @pytest.mark.multiprocess

@@ -45,7 +45,7 @@ import numpy as np
 import posix_ipc
 
 from drivers.spp.segment import MAGIC, RING, State, W, layout, views
-from pbo_runtime import DeviceDriver, create_segment, sleep_while_cycling, unlink_quietly
+from pbo_runtime import DeviceDriver, create_segment, process_below_the_cycle, sleep_while_cycling, unlink_quietly
 
 _OPTIONS = ("memory", "download_bytes", "start_timeout")
 _DEFAULTS = {"memory": 4096, "download_bytes": 262144, "start_timeout": 60.0}
@@ -109,6 +109,7 @@ class SpecialPurposeProcessor(DeviceDriver):
         self.process: subprocess.Popen | None = None
         self.fault = ""
         self._taken: tuple[np.ndarray, tuple[int, int, float, int, int]] | None = None  # `_take_figures`
+        self._scheduler = ""  # the processor's scheduling policy, as `_take_figures` last saw it
         # the driver's counters, in an array: updated in place, so a call boxes no new integer to keep
         self._n = np.zeros(_COUNTERS, dtype=np.int64)
         self._mapping = None
@@ -161,6 +162,11 @@ class SpecialPurposeProcessor(DeviceDriver):
         self._newest = np.zeros(self.out_size)  # the newest complete result
         self._taking = np.zeros(self.out_size)
         self._n[:] = 0
+        if self.process is not None:
+            # Built, its imports done: from here it runs above every ordinary process (at SCHED_OTHER the
+            # machine's other work, or a helper's start-up, could hold it off for tens of cycles), below
+            # every executive. A restarted RTPU raises it again when it takes SCHED_FIFO itself.
+            process_below_the_cycle(self.process.pid)
         return self.in_size, self.out_size
 
     # --- the per-cycle call ---------------------------------------------------------------------
@@ -243,14 +249,20 @@ class SpecialPurposeProcessor(DeviceDriver):
                       f"{self._n[_ANSWERED]} of {self._n[_SENT]}")
 
     def await_death(self, within: float) -> str:
-        """The fault if the processor is found dead within `within` s, else "". For a task about to say the
-        processor does not keep up, once, on its way to ERROR: a processor killed a moment ago may still
-        be ending, and its death, not its lateness, is what the operator must read."""
+        """The fault if the processor is found dead within `within` s of its newest result, else "". For a
+        task about to say the processor does not keep up, once, on its way to ERROR: a processor killed a
+        moment ago may still be ending, and its death, not its lateness, is what the operator must read.
+        Only what is left of `within` since that result is waited: on the real clock a task whose
+        `max_age` cycles last that long finds its result too old no sooner, and does not wait in its
+        cycle; on the simulated clock its cycles come faster than the processor's end."""
         process = self.process
         if self.fault or process is None:
             return self.fault
+        newest = int(self._words[W.RESULT_NS]) / 1e9 if self._mapping is not None else 0.0
+        if newest:
+            within = max(0.0, newest + within - time.monotonic())
         try:
-            pidfd = os.pidfd_open(process.pid)
+            pidfd = os.pidfd_open(process.pid) if within > 0 else -1
         except (AttributeError, OSError):
             pidfd = -1
         if pidfd >= 0:
@@ -285,7 +297,7 @@ class SpecialPurposeProcessor(DeviceDriver):
         pct = (lambda q: float(np.percentile(service, q)) / 1e9 if service.size else 0.0)
         return {"processor": "spp", "routine": self.routine, "items": items, "missed": missed,
                 "service_p50": pct(50), "service_p99": pct(99), "service_max": service_max,
-                "calls": calls, "late_calls": late, "fault": self.fault}
+                "calls": calls, "late_calls": late, "fault": self.fault, "scheduler": self._scheduler}
 
     def _take_figures(self) -> None:
         """Copy the counts and service times out of the shared memory; the percentiles wait for `figures()`."""
@@ -293,6 +305,7 @@ class SpecialPurposeProcessor(DeviceDriver):
         items = int(words[W.ITEMS])
         self._taken = (self._ring[:min(items, RING)].copy(),
                        (items, int(words[W.MISSED]), int(words[W.SERVICE_NS_MAX]) / 1e9, int(self._n[_CALLS]), int(self._n[_LATE])))
+        self._scheduler = _scheduler(self.process) or self._scheduler
 
     def close(self) -> None:
         """Stop the processor and unlink what it shared (idempotent); `figures()` keeps their last values."""
@@ -322,6 +335,18 @@ class SpecialPurposeProcessor(DeviceDriver):
             except BufferError:  # a view of it outlives the driver (a caller kept one): the mapping goes with it
                 pass
         return lambda: _stop(process)
+
+
+def _scheduler(process: subprocess.Popen | None) -> str:
+    """The processor's scheduling policy, for its figures: "SCHED_FIFO 1", "SCHED_OTHER"; "" once it ended."""
+    if process is None:
+        return ""
+    try:
+        policy = os.sched_getscheduler(process.pid) & ~os.SCHED_RESET_ON_FORK
+        priority = os.sched_getparam(process.pid).sched_priority
+    except OSError:
+        return ""
+    return f"SCHED_FIFO {priority}" if policy == os.SCHED_FIFO else "SCHED_OTHER"
 
 
 def _stop(process: subprocess.Popen | None) -> None:

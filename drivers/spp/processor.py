@@ -62,7 +62,9 @@ def _die_with(parent: int) -> None:
 
 def _own_processor() -> None:
     """Leave what the task's RTPU process handed down: its SCHED_FIFO priority and its CPU. The
-    processor is another piece of hardware; here it must never take an RTPU's CPU from it."""
+    processor is another piece of hardware; here it must never take an RTPU's CPU from it. It
+    starts (imports, builds its routine) at SCHED_OTHER; once it has loaded, its driver puts it
+    just below every executive (`process_below_the_cycle`)."""
     try:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     except (OSError, AttributeError):
@@ -142,6 +144,7 @@ def serve(mapping, semaphore, memory: int, download_bytes: int, parent: int) -> 
         result[:routine.out_size] = outputs
         words[W.RESULT_ID] = number
         words[W.RESULT_SEQ] += 1
+        words[W.RESULT_NS] = time.monotonic_ns()
         ring[int(words[W.ITEMS]) % RING] = took
         words[W.ITEMS] += 1
         if took > words[W.SERVICE_NS_MAX]:

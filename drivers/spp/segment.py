@@ -40,6 +40,7 @@ class W:
     ITEMS = 13  # processor: work items done
     MISSED = 14  # processor: requests overwritten before it took them
     SERVICE_NS_MAX = 15  # processor: the longest service time, ns
+    RESULT_NS = 16  # processor: CLOCK_MONOTONIC ns at which it published its newest result
 
 
 class State:

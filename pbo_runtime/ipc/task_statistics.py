@@ -35,6 +35,7 @@ class ProcessorTiming:
     late_calls: int
     calls: int
     fault: str
+    scheduler: str = ""  # its policy at the stop ("SCHED_FIFO 1"); "" where it had ended
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -82,7 +83,8 @@ class TaskStatistics:
         """Its special-purpose processors' timing, from their drivers' figures."""
         return [ProcessorTiming(device, str(f.get("routine") or "none"), int(f["items"]), float(f["service_p50"]),
                                 float(f["service_p99"]), float(f["service_max"]), int(f["missed"]),
-                                int(f["late_calls"]), int(f["calls"]), str(f.get("fault") or ""))
+                                int(f["late_calls"]), int(f["calls"]), str(f.get("fault") or ""),
+                                str(f.get("scheduler") or ""))
                 for device, f in self.devices.items() if f.get("processor") == "spp"]
 
     def to_json(self) -> dict[str, Any]:

@@ -88,7 +88,8 @@ def processor_lines(tasks: Mapping[str, TaskReport]) -> list[str]:
         for p in task.statistics.processors():
             line = (f"special-purpose processor '{p.device}' (task '{name}', routine {p.routine}): "
                     f"{p.items} work items, service p50 {p.service_p50 * 1e6:.0f} µs, p99 {p.service_p99 * 1e6:.0f} µs, "
-                    f"max {p.service_max * 1e6:.0f} µs; {p.missed} missed, {p.late_calls} of {p.calls} calls late")
+                    f"max {p.service_max * 1e6:.0f} µs; {p.missed} missed, {p.late_calls} of {p.calls} calls late"
+                    + (f"; ran {p.scheduler}" if p.scheduler else ""))
             lines.append(line + (f"; {p.fault}" if p.fault else ""))
     return lines
 

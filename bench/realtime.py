@@ -78,6 +78,7 @@ from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import DEFAULT_SPIN
 from pbo_runtime.ipc.control import find_live_run
 from pbo_runtime.ipc.shm import attach_segment
+from pbo_runtime.supervisor.cleanup import remove_run
 from pbo_runtime.table.table import Header
 from rtpu._realtime import FIFO_PRIORITY  # as the RTPUs take it (the plant host takes its own, above)
 
@@ -193,6 +194,7 @@ class _Plant:
             if message[0] == "plant_stats":
                 self.stats = message[2]
         self.events.close()
+        remove_run(self.subsystem, self.run_id)  # a plant killed after its grace leaves its segment to us
         return self.stats
 
 

@@ -46,7 +46,6 @@ from pbo_runtime.config.model import NOWHERE, Location, Subsystem
 from pbo_runtime.config.parallel import check_stages
 from pbo_runtime.errors import ConfigError
 from pbo_runtime.links.spec import TRANSPORTS, parse_endpoint
-from pbo_runtime.links.message_link import SYSTEM_CAPACITY, SYSTEM_MESSAGE_BYTES
 from pbo_runtime.config.limits import MAX_FILE_BYTES
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_file, location_of
 
@@ -348,6 +347,8 @@ def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error)
                   "a triple buffer holds the newest item only; capacity is for kind: message")
             return None
         return 0
+    from pbo_runtime.links.message_link import SYSTEM_CAPACITY, SYSTEM_MESSAGE_BYTES  # the machine's queues: read for message links only
+
     capacity = spec.get("capacity", SYSTEM_CAPACITY)
     if not isinstance(capacity, int) or isinstance(capacity, bool) or not 1 <= capacity <= SYSTEM_CAPACITY:
         error("E803", f"link '{name}': capacity must be a whole number of messages from 1 to {SYSTEM_CAPACITY}, "

@@ -16,7 +16,7 @@ from pbo_runtime.config.transitions import transitions, transitions_of
 
 
 def check(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    from pbo_runtime.config.application import is_application_file
+    from pbo_runtime.config.file_kind import is_application_file
     from pbo_runtime.config.loader import check_file, format_diagnostics
 
     if is_application_file(args.file):

@@ -9,19 +9,21 @@ Exit status: 0 done, 1 the file has errors (or an operator command's arguments w
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import os
 import sys
 import time
-from typing import TYPE_CHECKING, Callable
 
 from pbo_runtime.cli.exits import EXIT_CONFIG, EXIT_INTERNAL, EXIT_RUN
 
+TYPE_CHECKING = False  # typing's, without importing typing (nor argparse): `pbo --version` answers first
 if TYPE_CHECKING:
+    import argparse
+    from collections.abc import Callable
+
     from rich.console import Console
 
-Handler = Callable[[argparse.Namespace, "Console", "Console"], int]
+    Handler = Callable[[argparse.Namespace, Console, Console], int]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -31,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:
         argv = sys.argv[1:]
     if argv == ["--version"]:  # what argparse's --version prints, without building every verb's parser first
-        from pbo_runtime.objects.registry import installed_version
+        from pbo_runtime.objects.version import installed_version
 
         print(f"pbo {installed_version()}")
         return 0

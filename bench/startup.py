@@ -130,21 +130,37 @@ ON (the run report's `started_monotonic`; `startup` in the report holds each pha
 {rounds} rounds starts `pbo run`, `pbo run` with PBO_FORK_SERVER=0 (the plant and each RTPU a fresh
 interpreter, as before the fork server) and a bare interpreter that imports numpy (the floor: the
 least a Python process costs), in an order rotated round by round; then, as many rounds, the CLI's
-quick answers (`pbo --version`, `pbo --help`, `pbo check` of the demo) against a bare interpreter
-that does nothing. Bytecode is cached, as after the first
-run of an installed package, under a temporary PYTHONPYCACHEPREFIX written by an uncounted run.
+quick answers (`pbo --version`, `pbo --help`, `pbo check` of the demo, and the same check with no
+result cache: a machine's first) against a bare interpreter that does nothing. Bytecode is cached,
+as after the first run of an installed package, under a temporary PYTHONPYCACHEPREFIX written by an
+uncounted run, which also fills a temporary result cache (PBO_CACHE_DIR). Goals (issue 40), each
+the p50 of a whole process: `pbo --version` <= 0.1 s, `pbo check` <= 0.3 s, configuration on <= 0.3 s.
 Phases: the interpreter and the CLI's imports; the file's load and check; removing a dead run's
 leftovers, the queues and the table; the plant and the RTPU processes, until the last is ready;
 spawning each task (its init); turning the configuration on.
 """,
-        limits="""Imports, in a chain no process can shorten for another: the CLI imports numpy and
-the runtime's public surface before it can start the fork server; the server then imports MuJoCo
-and the module library and loads the file, beside the CLI's own load (which imports MuJoCo for the
-plant's number of joints), on the second CPU; only then are the children forked. The figure is
-about five times the floor of the same rounds: two interpreters' imports one after the other, and
-the loads. Shorter would take a launcher that starts the server before the CLI imports numpy, a
-load that does not import MuJoCo, or a lazier public surface. Read the figure against the floor:
-on a busy machine both grow alike.""",
+        limits="""What is left at each floor (`python -X importtime`, shares of a process's imports;
+the absolute times move with the machine's load, the shares hardly):
+`pbo --version` imports only `pbo_runtime.objects.version` and reads one METADATA file: what is left
+is the interpreter and `site` (about 1.1x the floor `python -c pass`); an editable install's finder
+(pathlib, importlib.util), which a wheel does not have, is most of the rest.
+`pbo --help` builds every verb's parser (argparse, the verb and command tables: about 2x the floor).
+`pbo check FILE`, after a first check of the robot on this machine (its MuJoCo description and
+Pinocchio inertia range kept in the result cache): numpy is about a third of its imports (the
+ports, the model and the checker compute with it), rich's console about an eighth, the parser a
+tenth, the checker's own modules, PyYAML and the entry points' metadata most of the rest; the
+check itself (the modules and the plant's Options imported, the file checked) is a few tens of ms.
+The line "the machine's first" is the same check with no result cache: it imports MuJoCo for the
+plant's description and Pinocchio for the inertia range, and computes both. Below this floor
+would take a checker without numpy, or printing without rich.
+`pbo run`: the CLI imports its parser and rich, then starts the fork server (before numpy, the
+loader and the checker: `config/file_kind.py`) and loads the file beside it; the server imports
+numpy, MuJoCo (through the plant's `warm()`) and the module library and loads the file again, on
+the second CPU; then the children are forked and each task's init runs. The chain is two
+interpreters' imports, one started by the other, and a load: several times the floor
+`python -c 'import numpy'`. Shorter would take a server started before the CLI's own imports (a
+launcher), or a server kept warm between runs. Read each figure against its floor: on a busy
+machine both grow alike.""",
     )
     with tempfile.TemporaryDirectory(prefix="pbo-bench-startup-") as tmp:
         folder = Path(tmp)

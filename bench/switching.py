@@ -3,7 +3,7 @@
     pbo run configs/switch_joint.yaml --alternate pid,pd --switches 1000 --interval 0.020382 --report FILE
 
 on the running arm (plant and two RTPUs), summarised from the run report: the latency against
-one period of the critical task (goal: p99 at most one period), and what it is made of (the
+one period of the critical task (goal: p99 at most 1.5 periods), and what it is made of (the
 plan's lead, the wait for the release grid, the RTPUs' switch work).
 
     python -m bench.switching [--switches 1000] [--interval 0.02]
@@ -29,7 +29,7 @@ PERIOD = 0.001  # the critical task's period in configs/switch_joint.yaml
 # the same phase of the release grid, and the run's first phase would decide every latency. A
 # golden-ratio fraction of the period spreads the requests evenly over it, as an operator's fall.
 PHASE_STEP = 0.381966 * PERIOD
-GOAL = 1.0  # latency p99 / the critical task's period
+GOAL = 1.5  # latency p99 / the critical task's period (issue 40: the next boundary's wait, up to one period, and half a period more)
 TARGET = "switch latency p99 / the critical task's period"
 
 
@@ -65,12 +65,12 @@ switch work); **skew** (between the RTPUs applying the same plan), the **longest
 RTPU (turning tasks off and on with their transfers), and for the critical task (`robot`) the
 **cycles lost** (it read an output of a task switched out) and **stale reads** (the
 configuration's writer wrote more than one of its periods ago: a late writer, timing rather than
-reconfiguration). Goal (issue 23): latency p99 at most one period of the critical task.
+reconfiguration). Goal (issue 40): latency p99 at most 1.5 periods of the critical task.
 """,
         limits="""The entering controller's first cycle is a release on its own grid (so the
 critical consumer, half a period later, reads it): from a request at a random phase the wait for
 that boundary alone is up to one period (p99 0.99 of it), and the lead and the switch work come on
-top, so the p99 goal of one period is out of reach of a switch at a cycle boundary; p50 is about
+top: the goal of 1.5 periods leaves half a period at p99 for the lead and the switch work; p50 is about
 half a period plus the lead and the work. The lead follows the measured read delays: on a loaded
 machine (other runs' real-time RTPUs on the same 2 CPUs) they grow, and so does the lead, up to its
 2 ms bound. The skew is the RTPUs' timer wake-up precision, or a late read. A lost cycle needs the
@@ -129,8 +129,10 @@ loses none.""",
     section.notes.append(f"{len(records):,} of {switches:,} switches done (stopped by: {report.get('stopped_by', '?')}); "
                          f"latency p50 = {fmt_ratio(section.ratios.get('latency p50 / period'))} the critical task's 1 ms period; "
                          f"{late} plan(s) read by some RTPU after their activation (applied by it at once, before its next cycle).")
+    leads = np.array([s["lead"] for s in records if "lead" in s])
+    lead_note = f"; the plan's lead p50 {np.median(leads) * 1e3:.3f} ms (measured)" if leads.size else ""
     section.targets.append(Target(TARGET, section.ratios.get("latency p99 / period"),
-                                  GOAL, note=f"p50 {fmt_ratio(section.ratios.get('latency p50 / period'))}"))
+                                  GOAL, note=f"p50 {fmt_ratio(section.ratios.get('latency p50 / period'))}{lead_note}"))
     if report.get("failure"):
         section.notes.append(f"the run reported a failure: {report['failure']}")
     return section

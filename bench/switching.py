@@ -58,7 +58,8 @@ plant and two RTPUs running, the controller switched between a PID and a PD conf
 {spaced * 1e3:.4g} ms ({interval * 1e3:g} ms and 0.382 of the 1 ms period, so the requests fall at phases
 spread evenly over the release grid, as an operator's do), {switches:,} times. From the run report, per
 switch: **latency** (operator request to the first cycle of the new configuration), and what it is
-made of: the plan's **lead** (sized from the measured read delays: [reconfiguration](reconfiguration.md)),
+made of: the plan's **lead** (sized from the measured post and read delays, met by each RTPU at its own
+boundary: [reconfiguration](reconfiguration.md#the-plans-lead)),
 the **read delay** (request to the last RTPU's first read of the plan), the **wait for the grid**
 (activation minus request minus lead) and **activation to first cycle** (the RTPUs' wake-up and
 switch work); **skew** (between the RTPUs applying the same plan), the **longest** switch on one
@@ -71,9 +72,10 @@ reconfiguration). Goal (issue 40): latency p99 at most 1.5 periods of the critic
 critical consumer, half a period later, reads it): from a request at a random phase the wait for
 that boundary alone is up to one period (p99 0.99 of it), and the lead and the switch work come on
 top: the goal of 1.5 periods leaves half a period at p99 for the lead and the switch work; p50 is about
-half a period plus the lead and the work. The lead follows the measured read delays: on a loaded
-machine (other runs' real-time RTPUs on the same 2 CPUs) they grow, and so does the lead, up to its
-2 ms bound. The skew is the RTPUs' timer wake-up precision, or a late read. A lost cycle needs the
+half a period plus the lead and the work. The lead follows the measured post delays (the supervisor's request to
+the plan in the header: every RTPU here is brought to its boundary by its own 1 ms task): on a
+loaded machine (other runs' real-time RTPUs on the same 2 CPUs) the supervisor waits for a CPU
+more often, and the lead grows with the delays' p99, up to its 2 ms bound. The skew is the RTPUs' timer wake-up precision, or a late read. A lost cycle needs the
 switch to overrun the gap between the writers' release and the critical consumer's read (the RTPUs'
 stagger, half the 1 ms period with two RTPUs): on a loaded machine a late release can do that, and
 the count shows it; the simulated-time test (`tests/test_switching.py`) shows the protocol itself
@@ -128,7 +130,8 @@ loses none.""",
             section.ratios[key] = value
     section.notes.append(f"{len(records):,} of {switches:,} switches done (stopped by: {report.get('stopped_by', '?')}); "
                          f"latency p50 = {fmt_ratio(section.ratios.get('latency p50 / period'))} the critical task's 1 ms period; "
-                         f"{late} plan(s) read by some RTPU after their activation (applied by it at once, before its next cycle).")
+                         f"{late} plan(s) read by some RTPU after their activation (at its own boundary after it, or late: "
+                         "applied by it at once, before its next cycle).")
     leads = np.array([s["lead"] for s in records if "lead" in s])
     lead_note = f"; the plan's lead p50 {np.median(leads) * 1e3:.3f} ms (measured)" if leads.size else ""
     section.targets.append(Target(TARGET, section.ratios.get("latency p99 / period"),

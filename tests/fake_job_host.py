@@ -128,6 +128,9 @@ class FakeJobHost:
         self.plans.append((sequence, configuration, activation))
         return sequence
 
+    def wake_rtpus(self) -> None:
+        pass  # each fake RTPU reads a plan `read_delay` after its request
+
     def set_configuration(self, configuration: str) -> None:
         self.configuration = configuration
 

@@ -67,7 +67,7 @@ class SwitchRecord:
     change: str = ""  # a live change applied by this plan (`pbo spawn` ...), "" for a switch
     lead: float = 0.0  # the least time from the request to the activation this plan was given
     read: dict[str, float] = field(default_factory=dict)  # rtpu -> when it first read the plan
-    posted_at: float = math.nan  # when the plan was in the header and the RTPUs were signalled
+    posted_at: float = math.nan  # when the plan was in the header (the RTPUs were signalled after)
     restarted: list[str] = field(default_factory=list)  # RTPUs that died during the switch and came back in `after`
 
     @property
@@ -149,7 +149,9 @@ class JobHost(Protocol):
     def write_variable(self, name: str, value: Any) -> None:
         """Write a state variable as job control (a job's object)."""
     def post_plan(self, configuration: str, activation: float) -> int:
-        """Post a switch plan in the table's header, wake the RTPUs; the plan's sequence number."""
+        """Post a switch plan in the table's header; the plan's sequence number."""
+    def wake_rtpus(self) -> None:
+        """Tell every RTPU a plan was posted."""
     def set_configuration(self, configuration: str) -> None:
         """The switch is done: `configuration` is the running one."""
     def kill_task(self, task: str) -> None:
@@ -275,8 +277,10 @@ class JobControl:
                                                    self._around(before, entering), self.post_lead.value,
                                                    self.lead.value)
         sequence = host.post_plan(configuration, activation)
+        posted_at = host.now()
+        host.wake_rtpus()
         record = SwitchRecord(sequence, before, configuration, requested, activation, change=change, lead=lead,
-                              posted_at=host.now())
+                              posted_at=posted_at)
         self.pending = self.switching = record
         entering_active = [t for t in entering if host.task_states.get(t) == "OFF" and not getattr(specs[t], "aperiodic", False)]
         deadline = host.now() + SWITCH_TIMEOUT

@@ -3,7 +3,7 @@
     pbo run configs/switch_joint.yaml --alternate pid,pd --switches 1000 --interval 0.020382 --report FILE
 
 on the running arm (plant and two RTPUs), summarised from the run report: the latency against
-one period of the critical task (goal: p99 at most one period), and what it is made of (the
+one period of the critical task (goal: p99 at most 1.5 periods), and what it is made of (the
 plan's lead, the wait for the release grid, the RTPUs' switch work).
 
     python -m bench.switching [--switches 1000] [--interval 0.02]
@@ -29,7 +29,7 @@ PERIOD = 0.001  # the critical task's period in configs/switch_joint.yaml
 # the same phase of the release grid, and the run's first phase would decide every latency. A
 # golden-ratio fraction of the period spreads the requests evenly over it, as an operator's fall.
 PHASE_STEP = 0.381966 * PERIOD
-GOAL = 1.0  # latency p99 / the critical task's period
+GOAL = 1.5  # latency p99 / the critical task's period (issue 40: the next boundary's wait, up to one period, and half a period more)
 TARGET = "switch latency p99 / the critical task's period"
 
 
@@ -58,22 +58,24 @@ plant and two RTPUs running, the controller switched between a PID and a PD conf
 {spaced * 1e3:.4g} ms ({interval * 1e3:g} ms and 0.382 of the 1 ms period, so the requests fall at phases
 spread evenly over the release grid, as an operator's do), {switches:,} times. From the run report, per
 switch: **latency** (operator request to the first cycle of the new configuration), and what it is
-made of: the plan's **lead** (sized from the measured read delays: [reconfiguration](reconfiguration.md)),
+made of: the plan's **lead** (sized from the measured post and read delays, met by each RTPU at its own
+boundary: [reconfiguration](reconfiguration.md#the-plans-lead)),
 the **read delay** (request to the last RTPU's first read of the plan), the **wait for the grid**
 (activation minus request minus lead) and **activation to first cycle** (the RTPUs' wake-up and
 switch work); **skew** (between the RTPUs applying the same plan), the **longest** switch on one
 RTPU (turning tasks off and on with their transfers), and for the critical task (`robot`) the
 **cycles lost** (it read an output of a task switched out) and **stale reads** (the
 configuration's writer wrote more than one of its periods ago: a late writer, timing rather than
-reconfiguration). Goal (issue 23): latency p99 at most one period of the critical task.
+reconfiguration). Goal (issue 40): latency p99 at most 1.5 periods of the critical task.
 """,
         limits="""The entering controller's first cycle is a release on its own grid (so the
 critical consumer, half a period later, reads it): from a request at a random phase the wait for
 that boundary alone is up to one period (p99 0.99 of it), and the lead and the switch work come on
-top, so the p99 goal of one period is out of reach of a switch at a cycle boundary; p50 is about
-half a period plus the lead and the work. The lead follows the measured read delays: on a loaded
-machine (other runs' real-time RTPUs on the same 2 CPUs) they grow, and so does the lead, up to its
-2 ms bound. The skew is the RTPUs' timer wake-up precision, or a late read. A lost cycle needs the
+top: the goal of 1.5 periods leaves half a period at p99 for the lead and the switch work; p50 is about
+half a period plus the lead and the work. The lead follows the measured post delays (the supervisor's request to
+the plan in the header: every RTPU here is brought to its boundary by its own 1 ms task): on a
+loaded machine (other runs' real-time RTPUs on the same 2 CPUs) the supervisor waits for a CPU
+more often, and the lead grows with the delays' p99, up to its 2 ms bound. The skew is the RTPUs' timer wake-up precision, or a late read. A lost cycle needs the
 switch to overrun the gap between the writers' release and the critical consumer's read (the RTPUs'
 stagger, half the 1 ms period with two RTPUs): on a loaded machine a late release can do that, and
 the count shows it; the simulated-time test (`tests/test_switching.py`) shows the protocol itself
@@ -128,9 +130,12 @@ loses none.""",
             section.ratios[key] = value
     section.notes.append(f"{len(records):,} of {switches:,} switches done (stopped by: {report.get('stopped_by', '?')}); "
                          f"latency p50 = {fmt_ratio(section.ratios.get('latency p50 / period'))} the critical task's 1 ms period; "
-                         f"{late} plan(s) read by some RTPU after their activation (applied by it at once, before its next cycle).")
+                         f"{late} plan(s) read by some RTPU after their activation (at its own boundary after it, or late: "
+                         "applied by it at once, before its next cycle).")
+    leads = np.array([s["lead"] for s in records if "lead" in s])
+    lead_note = f"; the plan's lead p50 {np.median(leads) * 1e3:.3f} ms (measured)" if leads.size else ""
     section.targets.append(Target(TARGET, section.ratios.get("latency p99 / period"),
-                                  GOAL, note=f"p50 {fmt_ratio(section.ratios.get('latency p50 / period'))}"))
+                                  GOAL, note=f"p50 {fmt_ratio(section.ratios.get('latency p50 / period'))}{lead_note}"))
     if report.get("failure"):
         section.notes.append(f"the run reported a failure: {report['failure']}")
     return section

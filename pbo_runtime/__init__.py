@@ -7,7 +7,7 @@ The names module, driver and plant authors import; everything else lives in the 
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING, Any
+TYPE_CHECKING = False  # typing's, without importing typing: `pbo --version` imports only what it needs
 
 # name -> the wing that defines it: imported when first used (`pbo --version` and `pbo --help` load no
 # numpy), as `from pbo_runtime import PortBasedObject` always did.
@@ -66,6 +66,8 @@ _WHERE = {
 }
 
 if TYPE_CHECKING:  # what the type checkers and editors see: the same names, eagerly
+    from typing import Any
+
     from pbo_runtime.config.channels import format_channels
     from pbo_runtime.errors import (
         ConfigError,

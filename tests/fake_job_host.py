@@ -59,6 +59,7 @@ class FakeJobHost:
         self.clock = ManualClock(0.0)
         self.epoch = 0.0
         self.shortest_period = min(t.period for t in subsystem.tasks.values())
+        self.stagger = 0.0  # every RTPU on the first one's grid (a test sets another)
         self.tick = 0.0
         self.said: list[str] = []
         self.say: Callable[[str], None] = self.said.append
@@ -126,6 +127,9 @@ class FakeJobHost:
         sequence = len(self.plans) + 1
         self.plans.append((sequence, configuration, activation))
         return sequence
+
+    def wake_rtpus(self) -> None:
+        pass  # each fake RTPU reads a plan `read_delay` after its request
 
     def set_configuration(self, configuration: str) -> None:
         self.configuration = configuration

@@ -3,7 +3,7 @@
     main([OUT, MODE, CODE, "--parent", PID])
 
 MODE report: writes what a child must be (its pid and parent, its parent-death signal, its
-threads, its scheduler, OPENBLAS_NUM_THREADS, its command line) to OUT as JSON and returns CODE;
+threads, its scheduler, OPENBLAS_NUM_THREADS, its command line, the modules it has) to OUT as JSON and returns CODE;
 raise: fails before it is ready (an exception out of main); sleep: writes its pid, then waits to be killed.
 """
 
@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
         cmdline = stream.read().replace("\0", " ")
     said = {"pid": os.getpid(), "ppid": os.getppid(), "death_signal": death.value,
             "threads": len(os.listdir("/proc/self/task")), "scheduler": os.sched_getscheduler(0),
-            "openblas": os.environ.get("OPENBLAS_NUM_THREADS"), "cmdline": cmdline}
+            "openblas": os.environ.get("OPENBLAS_NUM_THREADS"), "cmdline": cmdline, "modules": sorted(sys.modules)}
     with open(out + ".part", "w", encoding="utf-8") as stream:
         json.dump(said, stream)
     os.replace(out + ".part", out)  # whole: a test waits for the file, then reads it

@@ -13,7 +13,8 @@ import posix_ipc
 import pytest
 
 from pbo_runtime import read_log
-from pbo_runtime.config.application import check_application, is_application_file
+from pbo_runtime.config.application import check_application
+from pbo_runtime.config.file_kind import is_application_file
 from tests.support import PBO, REPO, assert_ended_well, assert_nothing_left, children_of
 
 APP = REPO / "configs" / "leader_follower.yaml"

@@ -13,7 +13,7 @@ import pytest
 
 from pbo_runtime.cli.examples import EXAMPLES, shipped_files
 from pbo_runtime.cli.main import main
-from pbo_runtime.config.application import is_application_file
+from pbo_runtime.config.file_kind import is_application_file
 from pbo_runtime.reports.schema import schema_text
 from tests.support import REPO
 

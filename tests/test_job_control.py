@@ -46,14 +46,15 @@ def test_a_switch_posts_a_plan_on_the_release_grid_and_ends_when_every_rtpu_appl
     assert host.job_control.switches == [record]
 
 
-def test_once_plans_were_read_the_lead_follows_the_rtpus_read_delays(host):
+def test_once_plans_were_posted_the_lead_follows_the_post_delays_when_each_rtpus_own_release_brings_it(host):
     host.read_delay = 0.0001
     for configuration in ("pd", "pid") * (FIRST_SAMPLES // 2):
         host.job_control.switch(configuration)
     assert host.job_control.lead.value == pytest.approx(MARGIN_FACTOR * 0.0001 + MARGIN)
     host.clock.time = 1.0104
     record = host.job_control.switch("pd")
-    assert record.lead == pytest.approx(MARGIN_FACTOR * 0.0001 + MARGIN)
+    # the fake posts at its request (no post delay): every RTPU has a task ON releasing at the activation
+    assert record.lead == pytest.approx(host.job_control.post_lead.value) == pytest.approx(MARGIN)
     assert host.plans[-1][2] == pytest.approx(1.011)  # the next boundary of the 1 ms grid, not two periods later
     assert record.read_delay == pytest.approx(0.0001) and record.grid_wait == pytest.approx(0.0006 - record.lead)
 

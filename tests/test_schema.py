@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 import yaml
 
-from pbo_runtime.config.application import is_application_file
+from pbo_runtime.config.file_kind import is_application_file
 from pbo_runtime.objects import registry
 from pbo_runtime.config.checker import BUS_KEYS, JOB_KEYS, TASK_KEYS, TOP_KEYS, VARIABLE_KEYS
 from pbo_runtime.reports.schema import json_schema, quantity_pattern, schema_text, write_schema

@@ -25,9 +25,8 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import mujoco
 import numpy as np
 
 from drivers.force_torque import models as ft_models
@@ -51,8 +50,12 @@ from drivers.mujoco_arm.registers import (
     W_TIMESTEP,
     create_registers,
 )
-from drivers.robots.plant_model import PlantRobot, load_robot
 from pbo_runtime import ROBOT_OPTIONS, param, unlink_quietly
+
+if TYPE_CHECKING:
+    import mujoco
+
+    from drivers.robots.plant_model import PlantRobot
 
 # Simulated seconds without a new command after which the arm holds on its brakes, as a drive's
 # watchdog does when its controller stops (a stopped robot interface cannot engage them itself)
@@ -125,9 +128,12 @@ class MujocoArmPlant:
     """
 
     Options = MujocoArmPlantOptions
+    DESCRIBED_WITH = ("mujoco",)  # the libraries `describe_robot`'s answer depends on (`pbo check` keeps it by them)
 
     def __init__(self, registers_name: str, model: str, timestep: float, options: Mapping[str, Any],
                  log_dir: str = "", base_dir: str = ".") -> None:
+        from drivers.robots.plant_model import load_robot
+
         route_mujoco_log(log_dir)
         unknown = sorted(set(options) - set(_OPTIONS))
         if unknown:
@@ -224,9 +230,18 @@ class MujocoArmPlant:
             raise
 
     @staticmethod
+    def warm() -> None:
+        """Import what a plant imports once made (MuJoCo, the robot loader): a fork server calls it, so
+        the plant it forks has them."""
+        _import_mujoco()
+        import drivers.robots.plant_model  # noqa: F401
+
+    @staticmethod
     def describe_robot(model: str, base_dir: str, options: Mapping[str, Any]) -> PlantRobot:
         """The robot a plant of these options would simulate, as `pbo check` sees it; RobotFileError
         (a ValueError whose `key` names the plant key at fault) if it cannot."""
+        from drivers.robots.plant_model import load_robot
+
         return load_robot(model, Path(base_dir), 0.001, {k: v for k, v in options.items() if k in ROBOT_OPTIONS})
 
     @property
@@ -458,6 +473,7 @@ def route_mujoco_log(log_dir: str) -> None:
     """MuJoCo's warnings (an unstable simulation, a contact buffer full) go to this process's stderr,
     as one line each, and to `log_dir`/MUJOCO_LOG.TXT when the run has an output directory (`pbo run
     --out`); MuJoCo's own handler would write MUJOCO_LOG.TXT into the operator's working directory."""
+    _import_mujoco()
     log = Path(log_dir) / "MUJOCO_LOG.TXT" if log_dir else None
 
     def warn(message: str) -> None:
@@ -471,6 +487,13 @@ def route_mujoco_log(log_dir: str) -> None:
                 print(f"plant: cannot write {log}: {exc}", file=sys.stderr, flush=True)
 
     mujoco.set_mju_user_warning(warn)
+
+
+def _import_mujoco() -> None:
+    """MuJoCo, imported by the first plant made (each plant routes its log first), not with this module:
+    `pbo check` reads the plant's `Options` and loads no simulator."""
+    global mujoco
+    import mujoco
 
 
 def _vector(value: Any, where: str) -> np.ndarray:

@@ -8,7 +8,6 @@ from typing import Any
 
 from rich.console import Console
 
-from pbo_runtime.cli import schedule
 from pbo_runtime.cli.arguments import host_addresses
 from pbo_runtime.cli.exits import EXIT_CONFIG, EXIT_OK
 from pbo_runtime.config.decisions import decides, paths
@@ -17,7 +16,7 @@ from pbo_runtime.config.transitions import transitions, transitions_of
 
 
 def check(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    from pbo_runtime.config.application import is_application_file
+    from pbo_runtime.config.file_kind import is_application_file
     from pbo_runtime.config.loader import check_file, format_diagnostics
 
     if is_application_file(args.file):
@@ -30,6 +29,8 @@ def check(args: argparse.Namespace, console: Console, errors: Console) -> int:
     refuted, timing = EXIT_OK, dict[str, Any]()  # the verdicts of --profile, for --format json
     if args.format == "json":
         if args.profile and result.subsystem is not None and not result.errors:
+            from pbo_runtime.cli import schedule
+
             refuted, timing = schedule.check_profile(args, console, errors, result.subsystem)
         console.print_json(json.dumps({**_check_json(result), **({"schedulability": timing} if timing else {})}))
     else:
@@ -38,6 +39,8 @@ def check(args: argparse.Namespace, console: Console, errors: Console) -> int:
             text = (text + "\n" if result.warnings else "") + _verdict(result.subsystem) + _inferred_lines(result)
         (errors if result.errors else console).print(text, markup=False)
         if args.profile and result.subsystem is not None and not result.errors:
+            from pbo_runtime.cli import schedule
+
             refuted, _ = schedule.check_profile(args, console, errors, result.subsystem)
     return EXIT_CONFIG if result.errors or refuted else EXIT_OK
 

@@ -9,22 +9,21 @@ Exit status: 0 done, 1 the file has errors (or an operator command's arguments w
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import os
 import sys
 import time
-import traceback
-from typing import TYPE_CHECKING, Callable
 
-from pbo_runtime.cli.completion import HIDDEN_VERB, complete
 from pbo_runtime.cli.exits import EXIT_CONFIG, EXIT_INTERNAL, EXIT_RUN
-from pbo_runtime.cli.parser import build_parser
 
+TYPE_CHECKING = False  # typing's, without importing typing (nor argparse): `pbo --version` answers first
 if TYPE_CHECKING:
+    import argparse
+    from collections.abc import Callable
+
     from rich.console import Console
 
-Handler = Callable[[argparse.Namespace, "Console", "Console"], int]
+    Handler = Callable[[argparse.Namespace, Console, Console], int]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -33,15 +32,20 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "disable")
     if argv is None:
         argv = sys.argv[1:]
+    if argv == ["--version"]:  # what argparse's --version prints, without building every verb's parser first
+        from pbo_runtime.objects.version import installed_version
+
+        print(f"pbo {installed_version()}")
+        return 0
+    from pbo_runtime.cli.completion import HIDDEN_VERB, complete
+
     if argv[:1] == [HIDDEN_VERB]:  # the shell completing a name at the time of a <TAB>
         return complete(argv[1:])
     args = _parser().parse_args(argv)
     handler = _handler(args.handler)  # the verb's own code, imported only now
     from rich.console import Console
 
-    from pbo_runtime.errors import ConfigErrors, MissingExtra, PboError
-    from pbo_runtime.ipc.control import BadRequest
-    from pbo_runtime.supervisor.failures import WrongArgument
+    from pbo_runtime.errors import ConfigErrors, PboError
 
     args.entered = time.monotonic()  # the start-up's time line (`pbo run`): the CLI's imports end here
     console = Console(highlight=False)
@@ -58,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
         errors.print(str(exc), markup=False)
         _say_where_an_example_is(args, errors)
         return EXIT_CONFIG
-    except (BadRequest, WrongArgument, MissingExtra) as exc:  # arguments the run refused (an operator's command, `--config nope`): bad input
+    except _refused_arguments() as exc:  # arguments the run refused (an operator's command, `--config nope`): bad input
         errors.print(f"error: {exc}", markup=False)
         return EXIT_CONFIG
     except PboError as exc:
@@ -78,8 +82,20 @@ def main(argv: list[str] | None = None) -> int:
         return _internal_error(args, errors)
 
 
+def _refused_arguments() -> tuple[type[Exception], ...]:
+    """The errors that mean the arguments were refused, imported only once one was raised (the operator
+    commands' module is most of what `pbo check` would otherwise import for this line)."""
+    from pbo_runtime.errors import MissingExtra
+    from pbo_runtime.ipc.control import BadRequest
+    from pbo_runtime.supervisor.failures import WrongArgument
+
+    return BadRequest, WrongArgument, MissingExtra
+
+
 def _parser() -> argparse.ArgumentParser:
     """Every verb's parser, from the verb tables (`cli.parser`)."""
+    from pbo_runtime.cli.parser import build_parser
+
     return build_parser()
 
 
@@ -101,6 +117,8 @@ def _say_where_an_example_is(args: argparse.Namespace, errors: Console) -> None:
 
 def _internal_error(args: argparse.Namespace, errors: Console) -> int:
     """A bug: the last frames of the traceback and a request to report it (the whole traceback with --debug)."""
+    import traceback
+
     if getattr(args, "debug", False):
         raise
     errors.print("internal error: pbo failed in a way it should not; please report this with the command you ran:", markup=False)

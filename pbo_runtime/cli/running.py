@@ -27,8 +27,7 @@ from pbo_runtime.supervisor.run_options import Alternation, RunOptions
 
 
 def run(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    from pbo_runtime.config.application import is_application_file
-    from pbo_runtime.config.loader import ALLOW_UNSTABLE_LOOPS
+    from pbo_runtime.config.file_kind import ALLOW_UNSTABLE_LOOPS, is_application_file
 
     if args.allow_unstable_loops:  # for every process of the run: each loads the file
         os.environ[ALLOW_UNSTABLE_LOOPS] = "1"

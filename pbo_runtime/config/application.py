@@ -46,8 +46,6 @@ from pbo_runtime.config.model import NOWHERE, Location, Subsystem
 from pbo_runtime.config.parallel import check_stages
 from pbo_runtime.errors import ConfigError
 from pbo_runtime.links.spec import TRANSPORTS, parse_endpoint
-from pbo_runtime.links.message_link import SYSTEM_CAPACITY, SYSTEM_MESSAGE_BYTES
-from pbo_runtime.config.limits import MAX_FILE_BYTES
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_file, location_of
 
 SENDER, RECEIVER = "link_sender", "link_receiver"
@@ -112,22 +110,6 @@ class ApplicationCheck:
     @property
     def ok(self) -> bool:
         return not self.errors
-
-
-def is_application_file(path: str | os.PathLike[str]) -> bool:
-    """True if the file's first top-level key is `application:` (a subsystem file starts otherwise)."""
-    try:
-        # undecodable bytes and a file too large are the loader's to report: here they only must not raise
-        if os.path.getsize(path) > MAX_FILE_BYTES:
-            return False
-        with open(path, encoding="utf-8", errors="replace") as text:
-            for line in text:
-                stripped = line.strip()
-                if stripped and not stripped.startswith("#") and not line[0].isspace():
-                    return stripped.startswith("application:")
-    except OSError:
-        return False
-    return False
 
 
 def check_application(path: str | os.PathLike[str], addresses: Mapping[str, str] | None = None) -> ApplicationCheck:
@@ -348,6 +330,8 @@ def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error)
                   "a triple buffer holds the newest item only; capacity is for kind: message")
             return None
         return 0
+    from pbo_runtime.links.message_link import SYSTEM_CAPACITY, SYSTEM_MESSAGE_BYTES  # the machine's queues: read for message links only
+
     capacity = spec.get("capacity", SYSTEM_CAPACITY)
     if not isinstance(capacity, int) or isinstance(capacity, bool) or not 1 <= capacity <= SYSTEM_CAPACITY:
         error("E803", f"link '{name}': capacity must be a whole number of messages from 1 to {SYSTEM_CAPACITY}, "

@@ -18,6 +18,7 @@ import numpy as np
 
 from pbo_runtime.objects import registry
 from pbo_runtime.config import bus_model
+from pbo_runtime.config.file_kind import ALLOW_UNSTABLE_LOOPS
 from pbo_runtime.config.checker import Checked, ModuleLookup, check_document, describe
 from pbo_runtime.config.model import Location, Subsystem
 from pbo_runtime.config.root import OUTSIDE_ROOT, confined, leaves_root
@@ -53,7 +54,6 @@ def _default_names() -> Iterable[str]:
 
 #: Set to "1" in a run's environment by `pbo run --allow-unstable-loops`: its processes load the file
 #: with an unstable joint loop (E326) as a warning.
-ALLOW_UNSTABLE_LOOPS = "PBO_ALLOW_UNSTABLE_LOOPS"
 
 
 def check_file(

@@ -52,13 +52,27 @@ def sample_poses(arm: np.ndarray, count: int = SAMPLES, seed: int = SEED) -> np.
 
 def inertia_range(arm: Any, ee: Any, count: int = SAMPLES, seed: int = SEED) -> InertiaRange:
     """Each joint's reflected inertia range over `count` seeded poses (Pinocchio's `crba`). The same
-    arm gives the same range: it is computed once a process (a check, a controller's init)."""
+    arm gives the same range: it is computed once a machine and kept on disk (`result_cache`), read
+    once a process (a check, a controller's init)."""
     arm, ee = check_arm(arm, ee)
     return _inertia_range(arm.tobytes(), arm.shape, ee.tobytes(), count, seed)
 
 
 @functools.lru_cache(maxsize=16)
 def _inertia_range(arm_bytes: bytes, shape: tuple[int, ...], ee_bytes: bytes, count: int, seed: int) -> InertiaRange:
+    """The range kept on disk by an earlier process (`result_cache`), else computed with Pinocchio and kept."""
+    from pbo_runtime.objects import arm as arm_module, result_cache
+
+    name = result_cache.fingerprint("inertia range", arm_bytes, repr(shape), ee_bytes, repr((count, seed)),
+                                    sources=(__file__, arm_module.__file__), libraries=("pinocchio",))
+    kept = result_cache.cached_arrays(name, lambda: vars(_computed_range(arm_bytes, shape, ee_bytes, count, seed)))
+    found = InertiaRange(**{key: np.array(kept[key]) for key in ("low", "high", "low_pose", "high_pose", "viscous", "coupled_low")})
+    for values in vars(found).values():
+        values.setflags(write=False)  # shared by every caller of the cache
+    return found
+
+
+def _computed_range(arm_bytes: bytes, shape: tuple[int, ...], ee_bytes: bytes, count: int, seed: int) -> InertiaRange:
     import pinocchio  # type: ignore[import-untyped]
 
     arm = np.frombuffer(arm_bytes).reshape(shape)
@@ -78,11 +92,8 @@ def _inertia_range(arm_bytes: bytes, shape: tuple[int, ...], ee_bytes: bytes, co
     lightest, heaviest = np.argmin(diagonals, axis=0), np.argmax(diagonals, axis=0)
     joints = np.arange(n)
     low, high = diagonals[lightest, joints].copy(), diagonals[heaviest, joints].copy()
-    found = InertiaRange(low, high, poses[lightest], poses[heaviest], arm[:, Arm.DAMPING].copy(),
-                         np.minimum(coupled.min(axis=0), low))
-    for values in vars(found).values():
-        values.setflags(write=False)  # shared by every caller of the cache
-    return found
+    return InertiaRange(low, high, poses[lightest], poses[heaviest], arm[:, Arm.DAMPING].copy(),
+                        np.minimum(coupled.min(axis=0), low))
 
 
 def arm_gains(inertia: InertiaRange, bandwidth: float, damping: float = 1.0, integral_time: float = 0.0,

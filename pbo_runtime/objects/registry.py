@@ -9,10 +9,13 @@ Third-party libraries register in the same groups.
 from __future__ import annotations
 
 import functools
-from importlib import metadata
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pbo_runtime.errors import ModuleError
+from pbo_runtime.objects.version import installed_version as installed_version  # looked up here too
+
+if TYPE_CHECKING:
+    from importlib import metadata
 
 MODULES = "pbo.modules"
 DRIVERS = "pbo.drivers"
@@ -22,24 +25,24 @@ ROBOTS = "pbo.robots"
 _KIND = {MODULES: "module", DRIVERS: "driver", PLANTS: "plant", ROBOTS: "robot model"}
 
 
-@functools.cache  # read once per process: a forked RTPU has it from its fork server
-def installed_version() -> str:
-    """pbo-runtime's version as installed (pyproject.toml's): the one source of `pbo --version`."""
-    try:
-        return metadata.version("pbo-runtime")
-    except metadata.PackageNotFoundError:  # a checkout imported without installing it
-        return "0+unknown"
-
-
 @functools.cache
 def _registered(group: str) -> dict[str, metadata.EntryPoint]:
     """A group's entry points by name (the first of a name), read once: reading them parses every
     installed distribution's metadata, milliseconds that a task spawned live would spend between
     two cycles of its RTPU for each module not looked up before."""
     found: dict[str, metadata.EntryPoint] = {}
-    for ep in metadata.entry_points(group=group):
+    for ep in _entry_points().select(group=group):
         found.setdefault(ep.name, ep)
     return found
+
+
+@functools.cache
+def _entry_points() -> Any:
+    """Every installed distribution's entry points, read once for all four groups (what `select(group=)`
+    takes: EntryPoints, or the SelectableGroups Python 3.11 returns)."""
+    from importlib import metadata
+
+    return metadata.entry_points()
 
 
 def names(group: str) -> tuple[str, ...]:

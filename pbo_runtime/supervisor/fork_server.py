@@ -232,7 +232,10 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
     lookups += [(registry.plant_class, subsystem.plant.type)] if subsystem.plant is not None else []
     for look_up, name in lookups:
         try:
-            look_up(name)
+            found = look_up(name)
+            warm = getattr(found, "warm", None)  # what the class imports only once one is made (a plant's simulator)
+            if callable(warm):
+                warm()
         except Exception:  # the child that needs it looks it up again and reports the failure
             pass
     registry.import_library()  # what a task spawned live may need: a forked RTPU (a restarted one too) has it all

@@ -31,7 +31,7 @@ from pbo_runtime.supervisor.failures import RtpuDied
 from pbo_runtime.config.decisions import decides
 from pbo_runtime.config.expressions import ExpressionError, compile_condition
 from pbo_runtime.supervisor.decisions import DecidingRun
-from pbo_runtime.supervisor.plan_lead import PlanLead
+from pbo_runtime.supervisor.plan_lead import POST_LEAD_MIN, PlanLead, RtpuAround, earliest_activation
 
 SWITCH_TIMEOUT = 5.0
 POLL = 0.01  # how often a job's post-condition is evaluated
@@ -67,7 +67,7 @@ class SwitchRecord:
     change: str = ""  # a live change applied by this plan (`pbo spawn` ...), "" for a switch
     lead: float = 0.0  # the least time from the request to the activation this plan was given
     read: dict[str, float] = field(default_factory=dict)  # rtpu -> when it first read the plan
-    posted_at: float = math.nan  # when the plan was in the header and the RTPUs were signalled
+    posted_at: float = math.nan  # when the plan was in the header (the RTPUs were signalled after)
     restarted: list[str] = field(default_factory=list)  # RTPUs that died during the switch and came back in `after`
 
     @property
@@ -133,6 +133,9 @@ class JobHost(Protocol):
     @property
     def shortest_period(self) -> float: ...
     @property
+    def stagger(self) -> float:
+        """RTPU i releases at epoch + i x stagger + k x period (0 on the simulated clock)."""
+    @property
     def tick(self) -> float: ...
     @property
     def say(self) -> Callable[[str], None]: ...
@@ -146,7 +149,9 @@ class JobHost(Protocol):
     def write_variable(self, name: str, value: Any) -> None:
         """Write a state variable as job control (a job's object)."""
     def post_plan(self, configuration: str, activation: float) -> int:
-        """Post a switch plan in the table's header, wake the RTPUs; the plan's sequence number."""
+        """Post a switch plan in the table's header; the plan's sequence number."""
+    def wake_rtpus(self) -> None:
+        """Tell every RTPU a plan was posted."""
     def set_configuration(self, configuration: str) -> None:
         """The switch is done: `configuration` is the running one."""
     def kill_task(self, task: str) -> None:
@@ -229,6 +234,7 @@ class JobControl:
         self.job: str | None = None
         self.application: str | None = None
         self.lead = PlanLead()  # on the real clock, from the read delays of the plans so far
+        self.post_lead = PlanLead(minimum=POST_LEAD_MIN)  # from the post delays (request to the plan in the header)
         # what a plot of the run's logs marks: switches and jobs, at their times on the run's clock
         # (the clock a data log's rows are stamped with: each cycle's release time)
         self.marks: list[dict[str, Any]] = []
@@ -263,11 +269,18 @@ class JobControl:
         self.switching_subsystem = described or self.subsystem
         specs = self.switching_subsystem.tasks
         requested = host.now()
-        lead = host.tick if host.tick > 0 else self.lead.value  # simulated: the next tick on the grid
-        activation = plan_activation(requested, lead, host.epoch, host.shortest_period)
+        if host.tick > 0:  # simulated: the next tick on the grid
+            lead = host.tick
+            activation = plan_activation(requested, lead, host.epoch, host.shortest_period)
+        else:
+            activation, lead = earliest_activation(requested, host.epoch, host.shortest_period,
+                                                   self._around(before, entering), self.post_lead.value,
+                                                   self.lead.value)
         sequence = host.post_plan(configuration, activation)
+        posted_at = host.now()
+        host.wake_rtpus()
         record = SwitchRecord(sequence, before, configuration, requested, activation, change=change, lead=lead,
-                              posted_at=host.now())
+                              posted_at=posted_at)
         self.pending = self.switching = record
         entering_active = [t for t in entering if host.task_states.get(t) == "OFF" and not getattr(specs[t], "aperiodic", False)]
         deadline = host.now() + SWITCH_TIMEOUT
@@ -288,11 +301,27 @@ class JobControl:
             self.pending = self.switching = None
         if host.tick == 0 and record.read:  # (simulated: RTPUs read a plan at the next tick, by construction)
             self.lead.record(record.read_delay, late=max(record.read.values()) > activation)
+        if host.tick == 0:
+            self.post_lead.record(record.posted_at - requested, late=record.posted_at > activation)
         host.set_configuration(configuration)
         self.switches.append(record)
         # the plan's activation: the cycle boundary at which every RTPU switched
         self.mark(record.activation, "change" if change else "switch", change or f"{before} -> {configuration}")
         return record
+
+    def _around(self, before: str, entering: list[str]) -> list[RtpuAround]:
+        """Each RTPU around a switch from `before`: what it releases (`plan_lead.deadline`), its tasks
+        ON now from the running description, those entering from the one the switch goes to."""
+        running, described = self.subsystem, self.switching_subsystem
+        states = self.host.task_states
+        on = [running.tasks[name] for name in running.configurations[before].tasks
+              if name not in entering and states.get(name) == "ON"]
+        coming = [described.tasks[name] for name in entering if name in described.tasks]
+        return [RtpuAround(self.host.epoch + self.host.stagger * rtpu.index,
+                           tuple(t.period for t in on if t.rtpu == rtpu.name and not t.aperiodic),
+                           tuple(t.period for t in coming if t.rtpu == rtpu.name and not t.aperiodic),
+                           any(t.aperiodic for t in (*on, *coming) if t.rtpu == rtpu.name))
+                for rtpu in described.rtpus]
 
     def apply_live(self, live: LiveDescription, change: str) -> SwitchRecord:
         """A live change, checked already (`edit.live`): applied at one cycle boundary, as a switch is.

@@ -1,8 +1,12 @@
-"""The plan's lead: how far ahead of its posting a switch plan activates, sized from measured read delays.
+"""The plan's lead: how far ahead of its posting a switch plan activates, sized from measured delays.
 
-Job control posts a plan in the table's header and wakes the RTPUs; each must have read it by its
-activation for all of them to switch at that one instant. How long that takes is measured on every
-plan, not assumed: each RTPU stamps when it first read the plan (`Switched.read_at`), and the
+Job control posts a plan in the table's header and wakes the RTPUs; each must have it by its own
+deadline, the first release at or after the activation of a task ON there or entering (its
+boundary), for all of them to switch at that one instant. An RTPU whose own timer wakes it then
+reads the header before that boundary's cycles: it needs only the plan written by then, and the
+time from the request to the plan in the header (the post delay) is measured on every plan. One
+that only the plan's wake-up brings (its next release is later, or an aperiodic task may run at
+any time) needs the plan read by then. How long that takes is measured on every plan too: each RTPU stamps when it first read the plan (`Switched.read_at`), and the
 plan's read delay is its slowest RTPU's stamp minus the clock reading job control took the lead
 from. The lead is a high quantile of the recent read delays plus a margin, within bounds:
 
@@ -13,7 +17,9 @@ while fewer than 100 are known). Until FIRST_SAMPLES plans were read the lead is
 lead it replaces. A plan an RTPU read too late for its activation is still safe (that RTPU applies
 it at its first cycle boundary after, before anything of it runs in the old configuration:
 docs/reconfiguration.md); its delay enters the window like any other, and raises the next leads
-as soon as more than one plan in a hundred was that slow (at once, under 100 plans).
+as soon as more than one plan in a hundred was that slow (at once, under 100 plans). The post
+delays make a second estimate the same way, bounded below by POST_LEAD_MIN; the activation is the
+first boundary of the grid every RTPU meets with the estimate it needs (`earliest_activation`).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from __future__ import annotations
 import bisect
 import collections
 import math
+from dataclasses import dataclass
 
 LEAD_MIN = 0.0002  # seconds: below this a preempted supervisor or RTPU would miss it too often
 LEAD_MAX = 0.002  # seconds: the fixed lead this estimate replaces, and its bound
@@ -67,3 +74,59 @@ class PlanLead:
         if len(self.ordered) < self.first_samples:
             return self.maximum
         return min(max(MARGIN_FACTOR * self.quantile() + MARGIN, self.minimum), self.maximum)
+
+
+POST_LEAD_MIN = 0.00005  # seconds: the least time given for a plan to be in the header before an RTPU's boundary
+LOOKAHEAD = 64  # grid boundaries tried before the plan takes the first one every RTPU meets by a wake-up
+_ON_THE_BOUNDARY = 1e-9  # a release this close to a time is at it (the executive's first_release)
+
+
+@dataclass(frozen=True)
+class RtpuAround:
+    """One RTPU around a plan: its release epoch, the periods of its periodic tasks ON before the
+    switch (staying or leaving) and of those entering, and whether an aperiodic task is ON or enters
+    (one may run at any time)."""
+
+    epoch: float
+    on_periods: tuple[float, ...]
+    entering_periods: tuple[float, ...]
+    aperiodic: bool
+
+
+def deadline(rtpu: RtpuAround, activation: float) -> tuple[float, bool]:
+    """By when `rtpu` must have a plan activating at `activation`, and whether its own timer wakes it
+    then (True: a release of a task ON there, after which it reads the header before any cycle; False:
+    only the plan's wake-up brings it). inf: nothing runs there around the plan."""
+    if rtpu.aperiodic:
+        return activation, False
+
+    def first(period: float) -> float:
+        return rtpu.epoch + max(math.ceil((activation - _ON_THE_BOUNDARY - rtpu.epoch) / period), 0) * period
+
+    own = min((first(p) for p in rtpu.on_periods), default=math.inf)
+    entering = min((first(p) for p in rtpu.entering_periods), default=math.inf)
+    return min(own, entering), own <= entering
+
+
+def earliest_activation(requested: float, epoch: float, grid: float, rtpus: list[RtpuAround], post_lead: float,
+                        wake_lead: float) -> tuple[float, float]:
+    """(activation, the lead it gives): the first boundary of the grid (epoch + k x grid) at least
+    `post_lead` after `requested` that every RTPU meets: one its own timer wakes by its deadline
+    needs the plan in the header by then (`post_lead`), one only the wake-up brings needs it read
+    (`wake_lead`). The lead is the most any RTPU needed, counted back from the activation."""
+    activation = epoch + math.ceil((requested + post_lead - epoch) / grid - 1e-9) * grid
+    for _ in range(LOOKAHEAD):
+        lead, met = post_lead, True
+        for rtpu in rtpus:
+            due, woken_by_itself = deadline(rtpu, activation)
+            need = post_lead if woken_by_itself else wake_lead
+            if requested + need > due + 1e-12:
+                met = False
+                break
+            if math.isfinite(due):
+                lead = max(lead, need - (due - activation))
+        if met:
+            return activation, lead
+        activation += grid
+    first = epoch + math.ceil((requested + wake_lead - epoch) / grid - 1e-9) * grid
+    return first, wake_lead

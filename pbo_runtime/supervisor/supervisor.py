@@ -455,17 +455,20 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         self.table.write(name, value, when=self.now(), writer=-1)
 
     def post_plan(self, configuration: str, activation: float) -> int:
-        """Post a switch plan in the table's header and wake the RTPUs; the plan's sequence number."""
+        """Post a switch plan in the table's header; the plan's sequence number."""
         assert self.table is not None
         header = self.table.header
         sequence = int(header[Header.PLAN_SEQUENCE]) + 1
         header[Header.PLAN_CONFIGURATION] = self.reconfiguration.index(configuration)
         header[Header.PLAN_TIME_NS] = int(activation * 1e9)
         header[Header.PLAN_SEQUENCE] = sequence  # last: an executive that sees it sees the whole plan
+        return sequence
+
+    def wake_rtpus(self) -> None:
+        """Tell every RTPU a plan was posted (on the real clock: one may wait past the activation)."""
         if self.clock.plans_need_a_wakeup:
             for queue in self.signals.values():
                 queue.try_signal(messages.PlanPosted(), timeout=0.0)
-        return sequence
 
 
     def set_configuration(self, configuration: str) -> None:

@@ -30,9 +30,9 @@ from typing import Any
 import numpy as np
 
 from pbo_runtime.config.checker.base import CheckerBase, param_value_at
+from pbo_runtime.config.checker.plant_arm import describe_plant_arm
 from pbo_runtime.config.model import Location
 from pbo_runtime.config.yaml_nodes import YList, YMap
-from pbo_runtime.objects import registry
 from pbo_runtime.objects.arm import ROBOT_OPTIONS, Arm
 from pbo_runtime.objects.joint_loop import LOW_DAMPING, LoopGains, analyse
 
@@ -283,10 +283,9 @@ class JointLoopChecks(CheckerBase):
         if known is not None and hasattr(known, "arm"):
             return known
         try:
-            describe = registry.plant_class(spec.type).describe_robot
             base_dir = Path(spec.loc.file).resolve().parent if spec.loc.file else Path.cwd()
             options = {k: v for k, v in spec.options.items() if k in ROBOT_OPTIONS}
-            return describe(spec.model, str(base_dir), options)
+            return describe_plant_arm(spec.type, spec.model, base_dir, options)
         except Exception:  # a robot that does not load is reported where the plant is checked
             return None
 

@@ -1,0 +1,83 @@
+"""Arrays computed once per machine and kept on disk, so a later process reads them instead of
+importing what computed them (`pbo check` of a file with a joint loop reads its arm's inertia
+range without Pinocchio).
+
+An entry is named by a hash of everything its value depends on: the caller's inputs, and the
+source files and installed libraries that compute it, so a changed input, a changed computation
+or another library version reads as a miss, never as a stale value. The folder is
+$PBO_CACHE_DIR, else $XDG_CACHE_HOME/pbo-runtime, else ~/.cache/pbo-runtime; PBO_CACHE_DIR=off
+keeps nothing. A folder that cannot be read or written costs the computation, never the answer.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+FORMAT = 1  # what an entry holds and how: a change here names every entry anew
+
+
+def cache_dir() -> Path | None:
+    """Where entries are kept (None: PBO_CACHE_DIR=off)."""
+    chosen = os.environ.get("PBO_CACHE_DIR", "")
+    if chosen == "off":
+        return None
+    if chosen:
+        return Path(chosen)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "pbo-runtime"
+
+
+def fingerprint(*parts: bytes | str, sources: tuple[str, ...] = (), libraries: tuple[str, ...] = ()) -> str:
+    """The entry's name: a hash of `parts`, of the `sources` files' bytes, and of where each of the
+    `libraries` is installed and when (found without importing it)."""
+    digest = hashlib.sha256(f"format {FORMAT}".encode())
+    for part in parts:
+        digest.update(part.encode() if isinstance(part, str) else part)
+        digest.update(b"\0")
+    for source in sources:
+        digest.update(Path(source).read_bytes())
+    for library in libraries:
+        spec = importlib.util.find_spec(library)
+        origin = spec.origin if spec is not None and spec.origin else ""
+        digest.update(f"{library} {origin} {os.stat(origin).st_mtime_ns if origin else ''}".encode())
+    return digest.hexdigest()
+
+
+def cached_arrays(name: str, compute: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """The arrays (numbers or text, no objects) kept under `name`, else `compute()`'s, kept for the next process."""
+    folder = cache_dir()
+    path = folder / f"{name}.npz" if folder is not None else None
+    if path is not None:
+        try:
+            with np.load(path, allow_pickle=False) as kept:
+                return {key: kept[key] for key in kept.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile):  # not there yet, or unreadable: computed again
+            pass
+    value = compute()
+    if path is not None:
+        _keep(path, value)
+    return value
+
+
+def _keep(path: Path, value: dict[str, np.ndarray]) -> None:
+    """Written whole or not at all: to a temporary file beside it, then renamed over it."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "wb") as file:
+                np.savez(file, **value)  # type: ignore[arg-type]  # (the stubs read a name as savez's allow_pickle)
+            os.replace(temporary, path)
+        except BaseException:
+            os.unlink(temporary)
+            raise
+    except OSError:
+        pass  # a read-only home: the next process computes it again

@@ -10,6 +10,7 @@ from __future__ import annotations
 import multiprocessing.process
 import os
 import sys
+import tempfile
 from pathlib import Path
 
 import mujoco  # noqa: F401  (imported before any test: its first import probes the GL library in a child process)
@@ -23,6 +24,10 @@ from tests.support import unique_name
 # `pytest --hypothesis-profile=long`: the property tests that read the profile (tests/test_check_runs.py)
 # draw this many examples instead of CI's few; PBO_LONG_EXAMPLES sets another count for a run by hand
 settings.register_profile("long", max_examples=int(os.environ.get("PBO_LONG_EXAMPLES", "2000")), deadline=None)
+
+# the suite's own result cache (pbo_runtime.objects.result_cache): nothing read from the user's, nothing left in it
+_RESULT_CACHE = tempfile.TemporaryDirectory(prefix="pbo-test-cache-")
+os.environ.setdefault("PBO_CACHE_DIR", _RESULT_CACHE.name)
 
 
 @pytest.fixture

@@ -46,7 +46,7 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.config.application import Application
 from pbo_runtime.links.zenoh_session import link_key
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
-from pbo_runtime.supervisor.supervisor import simulation_tick
+from pbo_runtime.supervisor.sim_tick import simulation_tick
 from pbo_runtime.links.message_link import SYSTEM_MESSAGE_BYTES, MessageLink, message_link_name
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer, link_name
 

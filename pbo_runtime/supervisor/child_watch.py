@@ -3,7 +3,7 @@
 A thread waits in poll(2) on a pidfd per child (Linux 5.3: readable once the process has
 exited) and, when one becomes readable, puts a `ChildExited` event on the supervisor's own
 event queue, so a supervisor waiting for events wakes at once and handles the death in its own
-thread (`Children._check_children`). The thread never touches the run's state: it only wakes.
+thread (`Children.check`). The thread never touches the run's state: it only wakes.
 Where pidfds are missing the supervisor still finds the death at its next look, as before.
 """
 

@@ -63,6 +63,18 @@ def remove_dead_runs(subsystem: str | None = None) -> Cleanup:
     return cleanup
 
 
+def unlink_run(manifest: list[str], subsystem: str, run_id: str) -> None:
+    """At a run's end, once every child is gone: what its manifest lists (a backstop: whatever a child
+    could not remove), and what a child made under the run's name that the manifest does not list (a
+    special-purpose processor's memory, made by its driver in a task)."""
+    for entry in manifest:
+        kind, _, name = entry.partition(" ")
+        shm.unlink_quietly(kind, name)
+    for listed in shm.list_objects(subsystem):
+        if listed.run_id == run_id and listed.distrust is None:
+            shm.unlink_quietly(listed.kind, listed.name)
+
+
 def remove_run(subsystem: str, run_id: str) -> Cleanup:
     """Unlink every object of one run, alive or not: for the run's last process out (`last_out`), which knows."""
     cleanup = Cleanup()

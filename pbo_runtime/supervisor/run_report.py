@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from pbo_runtime.reports.log_notes import variable_notes
-from pbo_runtime.config.model import Subsystem
+from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.ipc.task_statistics import Overrun, TaskStatistics
 from pbo_runtime.reports.run_result import RunResult as RunResult  # where the supervisor's parts find it
 from pbo_runtime.reports.run_result import Stall, TaskReport
@@ -41,22 +42,54 @@ def _table_statistics(words: np.ndarray) -> TaskStatistics:
                           exec_p99=float(words[W.EXEC_P99]), exec_max=float(words[W.EXEC_MAX]))
 
 
+class EventsTold(Protocol):
+    """What the run's report takes from the children's events (`supervisor.event_ledger.EventLedger`)."""
+
+    @property
+    def task_errors(self) -> dict[str, str]: ...
+    @property
+    def stats(self) -> dict[str, TaskStatistics]: ...
+    @property
+    def stable(self) -> dict[str, tuple[float, str, str]]: ...
+    def end_stable_episode(self, task: str, at: float | None) -> None: ...
+
+
 class RunReporting:
-    """The Supervisor's part that fills its RunResult and reads the live view's rows from the table."""
+    """The supervisor's part that fills its RunResult and reads the live view's rows from the table.
 
-    subsystem: Subsystem
-    table: StateTable | None
-    result: RunResult
-    job_control: JobControl
-    stall_watch: StallWatch
-    started_at: float | None
-    task_errors: dict[str, str]
-    _stats: dict[str, TaskStatistics]
-    _stable: dict[str, tuple[float, str, str]]
-    every_task: dict[str, Any]  # every task the run has had, by name: live changes add and remove some
-    _end_stable_episode: Callable[[str, float | None], None]
+    `subsystem`, `table` and `started_at` give the run's as they are now (a live change replaces
+    the subsystem); `told` is what the children's events told (the supervisor's event ledger).
+    """
 
-    def _report_run(self) -> None:
+    def __init__(self, result: RunResult, told: EventsTold, job_control: JobControl, stall_watch: StallWatch,
+                 every_task: dict[str, TaskSpec], subsystem: Callable[[], Subsystem],
+                 table: Callable[[], StateTable | None], started_at: Callable[[], float | None]) -> None:
+        self.result = result
+        self.ledger = told
+        self.job_control = job_control
+        self.stall_watch = stall_watch
+        self.every_task = every_task  # every task the run has had, by name: live changes add and remove some
+        self._subsystem = subsystem
+        self._table = table
+        self._started_at = started_at
+
+    @property
+    def subsystem(self) -> Subsystem:
+        return self._subsystem()
+
+    @property
+    def table(self) -> StateTable | None:
+        return self._table()
+
+    @property
+    def started_at(self) -> float | None:
+        return self._started_at()
+
+    @property
+    def task_errors(self) -> dict[str, str]:
+        return self.ledger.task_errors
+
+    def report_run(self) -> None:
         """Switches, each task's figures, stalls, stable episodes: into the result, once the children have reported."""
         self.result.switches = [record.to_json() for record in self.job_control.switches]
         self.result.marks = list(self.job_control.marks)
@@ -65,7 +98,7 @@ class RunReporting:
         started = self.started_at if self.started_at is not None else 0.0
         self._report_tasks_left_in_error()
         self._report_stable_episodes(started)
-        for name, stats in self._stats.items():
+        for name, stats in self.ledger.stats.items():
             # an overrun's release as seconds since the configuration came on, as the summary reads it
             overruns = tuple(Overrun(o.release - started, o.late, o.took) for o in stats.last_overruns)
             spec = self.subsystem.tasks.get(name) or self.every_task[name]
@@ -95,7 +128,7 @@ class RunReporting:
             where = f" on {spec.rtpu}" if spec is not None else ""
             if any(fault.startswith(f"task '{name}'{where} ") for fault in self.result.faults):
                 continue  # its failure was told as a fault when it happened (a log it could not write)
-            if any(figures.get("command") for figures in self._stats.get(name, TaskStatistics()).devices.values()):
+            if any(figures.get("command") for figures in self.ledger.stats.get(name, TaskStatistics()).devices.values()):
                 continue  # a robot interface that braked the arm past its limits: its divergence line tells it
             error = self.task_errors.get(name, "") or "its module reported an error"
             self.result.faults.append(f"task '{name}'{where} was in ERROR at the stop: {error} "
@@ -103,8 +136,8 @@ class RunReporting:
 
     def _report_stable_episodes(self, started: float) -> None:
         """Close the episodes still open at the stop; tell each task's faults and timing holds (`stable_episode_lines`)."""
-        for task in list(self._stable):
-            self._end_stable_episode(task, None)
+        for task in list(self.ledger.stable):
+            self.ledger.end_stable_episode(task, None)
         periods = {name: task.period for name, task in {**self.every_task, **self.subsystem.tasks}.items()}
         faults, timing = stable_episode_lines(self.result.stable_episodes, periods, self.started_at, self.result.duration,
                                               {name for name, task in self.subsystem.tasks.items() if task.critical})
@@ -133,7 +166,7 @@ class RunReporting:
                 f"{', '.join(killed)} did not stop within {STOP_TIMEOUT:g} s and {were} killed: the kill components of its "
                 "tasks did not run" + (f" (stalled: {', '.join(stuck)})" if stuck else ""))
 
-    def _read_final_values(self) -> None:
+    def read_final_values(self) -> None:
         """Every variable's last value, lock-free; if a writer left the table mid-write, as it is, marked torn."""
         if self.table is None:
             return

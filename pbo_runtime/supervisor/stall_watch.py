@@ -39,6 +39,10 @@ class StallWatch:
         self.open: dict[str, Stall] = {}
         self.episodes: list[Stall] = []
 
+    def stalled_since(self) -> dict[str, float]:
+        """Each task stalled now, and since when (run time)."""
+        return {name: stall.since for name, stall in self.open.items()}
+
     def watch_tasks(self, tasks: Iterable[TaskSpec]) -> None:
         """Watch these tasks from now on (a live change added or removed some); episodes are kept."""
         self._watched = [(t.name, t.rtpu, t.index, t.period, max(STALL_PERIODS * t.period, STALL_FLOOR))

@@ -13,7 +13,6 @@ from rich.table import Table
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.reports.run_result import (
     FinalValue,
-    PlantFigures,
     RtpuSettings,
     RunResult,
     Stall,
@@ -54,12 +53,12 @@ def print_summary(console: Console, subsystem: Subsystem, result: RunResult, res
     for name, task in result.tasks.items():
         if task.error:
             console.print(f"task '{name}': {task.error}", markup=False)
-    realtime = {rtpu: RtpuSettings.from_json(settings) for rtpu, settings in result.realtime.items()}
+    realtime = result.realtime
     for line in [*overrun_lines(subsystem, result.tasks, realtime), *stall_lines(result.stalls), *restart_lines,
                  *result.timing_holds, *processor_lines(result.tasks)]:
         console.print(line, markup=False)
-    if result.plant:
-        plant = PlantFigures.from_json(result.plant)
+    if result.plant is not None:
+        plant = result.plant
         console.print(f"plant: {plant.steps} steps, {plant.late} late", markup=False)
         if plant.left_fifo_behind:
             console.print(f"plant: it fell {plant.left_fifo_behind:.2f} s behind real time (a step takes longer "
@@ -158,7 +157,7 @@ def print_switches(console: Console, result: RunResult) -> None:
     """Per switch: latency (request to the first cycle of the new configuration); stale reads."""
     if not result.switches:
         return
-    switches = [SwitchFigures.from_json(s) for s in result.switches]
+    switches = [SwitchFigures.of(s) for s in result.switches]
     latency = np.array([s.latency for s in switches]) * 1e3
     skew = np.array([s.skew for s in switches]) * 1e3
     longest = np.array([s.longest for s in switches]) * 1e3

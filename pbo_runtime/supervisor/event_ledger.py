@@ -14,7 +14,7 @@ from pbo_runtime.config.model import TaskSpec
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.task_statistics import TaskStatistics
 from pbo_runtime.supervisor.failures import RunFailure
-from pbo_runtime.supervisor.run_report import RunResult
+from pbo_runtime.supervisor.run_report import PlantFigures, RunResult
 
 STABLE_EPISODES_TOLD = 5  # holds for late inputs per critical task told as they happen; the summary counts them all
 
@@ -95,7 +95,7 @@ class EventLedger:
         elif isinstance(event, messages.Stats):
             self.stats[event.task] = event.statistics
         elif isinstance(event, messages.PlantStats):
-            self.result.plant = event.figures
+            self.result.plant = PlantFigures.from_json(event.figures)
         elif isinstance(event, messages.PlantStalled):
             stall = (f"the plant did not run for {event.seconds:.3f} s (its process was stopped or starved) and resumed at "
                      f"simulated time {event.sim_time:.3f} s without integrating the backlog")

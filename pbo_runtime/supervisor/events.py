@@ -18,7 +18,7 @@ from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import messages
 from pbo_runtime.supervisor.event_ledger import EventLedger
 from pbo_runtime.supervisor.failures import RunFailure, StopRequested
-from pbo_runtime.supervisor.run_report import RunResult
+from pbo_runtime.supervisor.run_report import RtpuSettings, RunResult
 
 START_TIMEOUT = 60.0  # seconds for a child to import numpy, pinocchio and mujoco on a busy machine
 SIGNAL_TIMEOUT = 10.0
@@ -114,7 +114,7 @@ class EventHandling:
                 waiting.discard(source)
                 self.mark(source)  # the start-up's time line: when each child was ready
                 if isinstance(event.realtime, dict):
-                    self.result.realtime[source] = event.realtime
+                    self.result.realtime[source] = RtpuSettings.from_json(event.realtime)
 
     def _served_state(self, task: str, states: set[str], failure: type[PboError]) -> str:
         """Sim clock: the signal was served in full when `signal` returned; its events are all queued."""

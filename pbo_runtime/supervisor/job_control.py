@@ -27,6 +27,7 @@ import numpy as np
 from pbo_runtime.edit.live import LiveDescription
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
+from pbo_runtime.reports.run_result import SwitchReport
 from pbo_runtime.supervisor.failures import RtpuDied
 from pbo_runtime.config.decisions import decides
 from pbo_runtime.config.expressions import ExpressionError, compile_condition
@@ -105,13 +106,15 @@ class SwitchRecord:
         """The longest time one RTPU spent switching (off + on components and transfers)."""
         return max((done - applied for applied, done in self.applied.values()), default=0.0)
 
+    def report(self) -> SwitchReport:
+        return SwitchReport(self.sequence, self.before, self.after, self.latency, self.skew, self.longest, tuple(self.off),
+                            tuple(self.on), dict(self.lost), dict(self.stale), self.lead, self.read_delay, self.grid_wait,
+                            self.work, self.posted_at - self.requested_at,
+                            {rtpu: at - self.requested_at for rtpu, at in self.read.items()}, self.change,
+                            tuple(self.restarted))
+
     def to_json(self) -> dict[str, Any]:
-        return {"sequence": self.sequence, "from": self.before, "to": self.after, "latency": self.latency,
-                "skew": self.skew, "longest": self.longest, "off": self.off, "on": self.on,
-                "cycles_lost": self.lost, "stale_reads": self.stale, "lead": self.lead, "read_delay": self.read_delay,
-                "grid_wait": self.grid_wait, "work": self.work, "posted": self.posted_at - self.requested_at,
-                "read_delays": {rtpu: at - self.requested_at for rtpu, at in self.read.items()}, **({"change": self.change} if self.change else {}),
-                **({"restarted": self.restarted} if self.restarted else {})}
+        return self.report().to_json()
 
 
 class JobHost(Protocol):

@@ -14,6 +14,8 @@ from pbo_runtime.reports.log_notes import variable_notes
 from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.ipc.task_statistics import Overrun, TaskStatistics
 from pbo_runtime.reports.run_result import RunResult as RunResult  # where the supervisor's parts find it
+from pbo_runtime.reports.run_result import PlantFigures as PlantFigures
+from pbo_runtime.reports.run_result import RtpuSettings as RtpuSettings
 from pbo_runtime.reports.run_result import Stall, TaskReport
 from pbo_runtime.supervisor.status_reply import TaskRow
 from pbo_runtime.table.snapshot import TableBusy
@@ -91,7 +93,7 @@ class RunReporting:
 
     def report_run(self) -> None:
         """Switches, each task's figures, stalls, stable episodes: into the result, once the children have reported."""
-        self.result.switches = [record.to_json() for record in self.job_control.switches]
+        self.result.switches = [record.report() for record in self.job_control.switches]
         self.result.marks = list(self.job_control.marks)
         self.result.decisions = list(self.job_control.decisions)
         self.result.started_at = self.started_at if self.started_at is not None else 0.0
@@ -111,7 +113,7 @@ class RunReporting:
                 elif figures.get("fault"):  # a special-purpose processor that died under its task: the task said so too
                     self.result.faults.append(f"device '{device}' of task '{name}': {figures['fault']}")
         self._report_stalls(started)
-        trips = self.result.plant.get("watchdog_trips", 0)
+        trips = self.result.plant.watchdog_trips if self.result.plant is not None else 0
         if trips:  # no task of the run commanded the arm: only the drive itself held it
             self.result.faults.append(
                 f"the arm's drive watchdog held the arm {trips} time{'s' if trips > 1 else ''}: no command came within "

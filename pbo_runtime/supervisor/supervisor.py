@@ -487,7 +487,7 @@ class Supervisor:
 
     @property
     def realtime(self) -> dict[str, dict[str, str]]:
-        return self.result.realtime
+        return {rtpu: settings.to_json() for rtpu, settings in self.result.realtime.items()}
 
     def table_flags(self) -> list[str]:
         return table_flags(self.table)

@@ -86,7 +86,8 @@ def _die_with_parent() -> None:
 def _free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
         probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
+        port: int = probe.getsockname()[1]
+        return port
 
 
 class ApplicationRunner:
@@ -104,7 +105,7 @@ class ApplicationRunner:
         self.run_id = shm.new_run_id()
         self.links: dict[str, dict[str, Any]] = {}
         self._links: list[TripleBuffer | MessageLink] = []  # the shm links this runner made and removes
-        self._children: dict[str, subprocess.Popen] = {}
+        self._children: dict[str, subprocess.Popen[str]] = {}
         self._terminated: set[str] = set()  # subsystems this runner sent SIGTERM to stop them
         self._relays: list[threading.Thread] = []  # one per subsystem: its output, prefixed, until it ends
         self._stopping = ""
@@ -190,7 +191,7 @@ class ApplicationRunner:
                                      text=True, preexec_fn=_die_with_parent, start_new_session=True, env=environment)
             self.watch(key, child)
 
-    def watch(self, key: str, child: subprocess.Popen) -> None:
+    def watch(self, key: str, child: subprocess.Popen[str]) -> None:
         """Take subsystem `key`'s process: its output is relayed, prefixed with `[key]`, until it ends."""
         self._children[key] = child
         relay = threading.Thread(target=self._relay, args=(key, child), daemon=True)
@@ -229,7 +230,7 @@ class ApplicationRunner:
         path.write_text(json.dumps(plan))
         return str(path)
 
-    def _relay(self, key: str, child: subprocess.Popen) -> None:
+    def _relay(self, key: str, child: subprocess.Popen[str]) -> None:
         assert child.stdout is not None
         for line in child.stdout:
             sys.stdout.write(f"[{key}] {line}")

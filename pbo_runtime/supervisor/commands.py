@@ -315,7 +315,8 @@ def _named_object(host: CommandHost, job: str, object_type: str | None, name: st
     if found.type != object_type:
         raise BadRequest(f"object '{name}' is of type {found.type}, but job '{job}' takes one of type {object_type} "
                          f"({', '.join(fitting) or 'the file names none'})")
-    return found.value.tolist()
+    values: list[Any] = found.value.tolist()
+    return values
 
 
 def stop(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:

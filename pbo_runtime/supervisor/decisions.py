@@ -87,7 +87,7 @@ class DecidingRun:
             self.control.jobs_done.append(step.job)
 
     def fail(self, message: str, values: dict[str, Any]) -> Exception:
-        return self.failure(message, values)  # type: ignore[call-arg]
+        return self.failure(message, values)
 
     def record(self, kind: str, **facts: Any) -> None:
         entry = {"time": self.host.now(), "path": " > ".join(self.control.path), "kind": kind, **facts}

@@ -49,7 +49,7 @@ def forking_enabled() -> bool:
 
 def _prctl(option: int, value: int) -> bool:
     try:
-        return ctypes.CDLL(None, use_errno=True).prctl(option, value, 0, 0, 0) == 0
+        return bool(ctypes.CDLL(None, use_errno=True).prctl(option, value, 0, 0, 0) == 0)
     except (OSError, AttributeError):
         return False
 
@@ -202,7 +202,8 @@ def _main_of(module: str) -> Callable[..., int]:
     imported = importlib.import_module(module)
     if not hasattr(imported, "main"):
         imported = importlib.import_module(f"{module}.__main__")
-    return imported.main
+    main: Callable[..., int] = imported.main
+    return main
 
 
 def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]], Any]:

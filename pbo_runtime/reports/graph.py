@@ -125,7 +125,7 @@ def to_dot(subsystem: Subsystem, configuration: str | None = None) -> str:
         '  node [shape=box, style="rounded,filled", fillcolor="white", fontname="Helvetica"];',
         '  edge [fontname="Helvetica", fontsize=10];',
     ]
-    for i, (rtpu, tasks) in enumerate(d.rtpus.items()):
+    for rtpu, tasks in d.rtpus.items():
         lines.append(f"  subgraph {_q(f'cluster_{rtpu}')} {{")
         lines.append(f"    label={_q(rtpu)};")
         lines.append('    style="rounded,filled"; fillcolor="#eef2f8"; color="#9aa8bd";')
@@ -251,7 +251,7 @@ def _layout(d: Diagram) -> tuple[dict[str, _Node], list[tuple[str, float, float,
             per_column.setdefault(layer[task], []).append(task)
         rows = max(len(v) for v in per_column.values())
         height = rows * _NODE_H + (rows - 1) * _ROW_GAP + 2 * _BAND_PAD + 0.35  # room for the RTPU's name
-        for col, members in per_column.items():
+        for members in per_column.values():
             for i, task in enumerate(members):
                 # centre the stack in the band, below the name
                 span = len(members) * _NODE_H + (len(members) - 1) * _ROW_GAP

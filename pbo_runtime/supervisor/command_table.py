@@ -241,6 +241,7 @@ def verb_table() -> str:
             text = argument.name.upper() if not argument.name.startswith("-") else argument.name
             text += " ..." if argument.nargs in ("*", "+") else ""
             shown.append(f"`{text}`" if not argument.name.startswith("-") else f"`[{text}]`")
-        lines.append(f"| `pbo {verb.name}` | {' '.join(shown) or '–'} | {verb.help.replace('|', '/')} | {verb.result} |")
+        arguments = " ".join(shown) or "\u2013"  # an en dash: no arguments
+        lines.append(f"| `pbo {verb.name}` | {arguments} | {verb.help.replace('|', '/')} | {verb.result} |")
     which = "; ".join(f"`{a.name} {a.metavar}`: {a.help}" for a in WHICH_RUN)
     return "\n".join(lines) + f"\n\nEvery verb also takes {which}.\n"

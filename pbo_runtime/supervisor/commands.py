@@ -147,7 +147,7 @@ def status(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     now = host.now()
     elapsed = now - host.started_at if host.started_at is not None else 0.0
     rows = []
-    for row, spec in zip(host.status_rows(), host.subsystem.tasks.values()):
+    for row, spec in zip(host.status_rows(), host.subsystem.tasks.values(), strict=True):
         state = host.task_states.get(spec.name, row.state)
         rows.append(TaskStatusEntry(dataclasses.replace(row, state=state), spec.index,
                                     row.cycles / elapsed if elapsed > 0 else 0.0,

@@ -179,9 +179,9 @@ class RunReporting:
             try:
                 if torn:
                     raise TableBusy("busy for the variables before")  # one wait for "busy" is enough
-                value, seq, when, writer = table.read(var.name)
+                value, seq, _when, writer = table.read(var.name)
             except TableBusy:
-                value, seq, when, writer = copy_variable(table.view(var.name), table.words, slot.meta_word, table.status)
+                value, seq, _when, writer = copy_variable(table.view(var.name), table.words, slot.meta_word, table.status)
                 torn = True
             self.result.variables[var.name] = {
                 "value": value.tolist(), "sequence": seq,

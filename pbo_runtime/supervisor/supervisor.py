@@ -296,7 +296,7 @@ class Supervisor:
         events, *signals, _control = plan
         try:
             self.events = messages.Queue(events.name, create=True, size=events)
-            for rtpu, size in zip(self.subsystem.rtpus, signals):
+            for rtpu, size in zip(self.subsystem.rtpus, signals, strict=True):
                 self.signals[rtpu.name] = messages.Queue(size.name, create=True, size=size)
             self.control = ControlServer(self.subsystem.name, self.run_id)
         except (OSError, ValueError, posix_ipc.Error) as exc:

@@ -23,6 +23,7 @@ there: what arrives over a network, and when, is not the simulated clock's to or
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import json
 import os
@@ -77,10 +78,8 @@ def unreplayable_links(application: Application) -> str:
 
 def _die_with_parent() -> None:
     """In the child, before exec: SIGTERM when the runner dies, so no subsystem outlives it."""
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
 
 
 def _free_port() -> int:

@@ -7,6 +7,7 @@ not stopped after STOP_TIMEOUT is resumed and sent SIGTERM, then SIGKILL after a
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -210,7 +211,5 @@ class Children:
 
 
 def _signal_quietly(process: subprocess.Popen[bytes] | ForkedProcess, signum: int) -> None:
-    try:
+    with contextlib.suppress(OSError):  # it ended meanwhile
         process.send_signal(signum)
-    except OSError:  # it ended meanwhile
-        pass

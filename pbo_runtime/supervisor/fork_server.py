@@ -11,6 +11,7 @@ holds; PBO_FORK_SERVER=0 starts every child fresh.
 
 from __future__ import annotations
 
+import contextlib
 import argparse
 import ctypes
 import gc
@@ -165,15 +166,11 @@ class ForkServer:
     def release(self) -> None:
         """Tell the server to end (END, then EOF on its channel) without waiting for it."""
         if self._channel is not None:
-            try:
+            with contextlib.suppress(OSError):  # it is gone already
                 self._channel.sendall(END)
-            except OSError:
-                pass  # it is gone already
             for closing in (self._replies, self._channel):
-                try:
+                with contextlib.suppress(OSError):
                     closing.close()
-                except OSError:
-                    pass
             self._channel = None
         self.idle()
 
@@ -224,18 +221,14 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
     run_metadata(subsystem, "real")  # the packages' versions it reads, read once here (each a parse of METADATA)
     if any(rtpu.restart is not None for rtpu in subsystem.rtpus):
         for module in WARM_FOR_RESTARTS:  # (the run's first children skip the import too)
-            try:
+            with contextlib.suppress(Exception):  # a child that needs it imports it, and reports a failure, as a fresh one would
                 importlib.import_module(module)
-            except Exception:  # a child that needs it imports it, and reports a failure, as a fresh one would
-                pass
     lookups = [(registry.module_class, task.module) for task in subsystem.tasks.values()]
     lookups += [(registry.driver_class, device.driver) for device in subsystem.devices.values()]
     lookups += [(registry.plant_class, subsystem.plant.type)] if subsystem.plant is not None else []
     for look_up, name in lookups:
-        try:
+        with contextlib.suppress(Exception):  # the child that needs it looks it up again and reports the failure
             look_up(name)
-        except Exception:  # the child that needs it looks it up again and reports the failure
-            pass
     registry.import_library()  # what a task spawned live may need: a forked RTPU (a restarted one too) has it all
     return mains, subsystem
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import partial
 from collections.abc import Mapping
 from typing import Any, Callable, Protocol
 
@@ -332,14 +333,14 @@ class JobControl:
                 host.restart_rtpu(exc)
                 exc = PboError(f"{exc}, and was restarted")
             for name in spawned:
-                self._through_restarts(lambda name=name: self._kill(name))
+                self._through_restarts(partial(self._kill, name))
             host.stage_live(LiveDescription(live.file, live.doc, before, live.slots))  # what the RTPUs had
             raise PboError(f"{change} is refused: {exc}; nothing else changed") from None
         record = self._switch_dynamic(configuration, configuration, [t for t in now if t not in was], change, after)
         self.subsystem = after
         host.adopt(live)
         for name in removed:
-            self._through_restarts(lambda name=name: self._kill(name))
+            self._through_restarts(partial(self._kill, name))
         return record
 
     def switched(self, rtpu: str, sequence: int, applied_at: float, done_at: float, off: list[str], on: list[str],
@@ -384,12 +385,12 @@ class JobControl:
         host.hold_critical_tasks(True)  # their writers stop now: holding is the switch's doing, not a fault
         try:
             for name in leaving:
-                self._through_restarts(lambda name=name: self._kill(name))
+                self._through_restarts(partial(self._kill, name))
             for name in [t for t in self.subsystem.init_order if t in entering]:
-                self._through_restarts(lambda name=name: bring_on(name))
+                self._through_restarts(partial(bring_on, name))
             for name in self.subsystem.configurations[after].tasks:
                 if self.subsystem.tasks[name].critical and name not in entering:
-                    self._through_restarts(lambda name=name: host.watch(name, after))
+                    self._through_restarts(partial(host.watch, name, after))
         finally:
             self.switching = None
             host.hold_critical_tasks(False)

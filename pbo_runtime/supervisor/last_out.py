@@ -18,6 +18,7 @@ lives: the supervisor removes its run itself.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
 import signal
@@ -81,10 +82,8 @@ def forget_inherited() -> None:
     """In a forked child: close the share its parent held (closing it keeps the parent's; unlocking would not)."""
     global _share, _expected
     if _share is not None and _share.pid != os.getpid():
-        try:
+        with contextlib.suppress(OSError):
             os.close(_share.fd)
-        except OSError:
-            pass
         _share = None
     if _expected is not None and _expected[0] != os.getpid():
         _expected = None

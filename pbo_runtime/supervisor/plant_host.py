@@ -14,6 +14,7 @@ With `--clock sim` it steps exactly once per tick of the supervisor's simulated 
 
 from __future__ import annotations
 
+import contextlib
 import argparse
 import inspect
 import json
@@ -74,10 +75,8 @@ def _run(argv: list[str] | None) -> int:
         # (a live parent without a run's table: a plant on its own, as the benchmarks' bare loop runs it)
     lower_timer_slack()
     if args.fifo:
-        try:
+        with contextlib.suppress(OSError, AttributeError):  # the RTPUs report whether SCHED_FIFO was granted; the plant then runs as they do
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(PLANT_FIFO_PRIORITY))
-        except (OSError, AttributeError):
-            pass  # the RTPUs report whether SCHED_FIFO was granted; the plant then runs as they do
     events = messages.Queue(messages.event_queue_name(args.subsystem, args.run_id))
     plant = barrier = None
     steps = late = stalls = 0

@@ -186,8 +186,9 @@ class ApplicationRunner:
         # a replayed run must not depend on string hashing, in the supervisors as in their children
         environment = {**os.environ, "PYTHONHASHSEED": "0"} if self.clock == "sim" else None
         for key in self.local:
-            child = subprocess.Popen(self.command(key), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     text=True, preexec_fn=_die_with_parent, start_new_session=True, env=environment)
+            child = subprocess.Popen(self.command(key), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, text=True, preexec_fn=_die_with_parent,
+                                     start_new_session=True, env=environment)
             self.watch(key, child)
 
     def watch(self, key: str, child: subprocess.Popen[str]) -> None:
@@ -290,7 +291,8 @@ class ApplicationRunner:
 
     def _worst(self) -> int:
         """The worst exit status of the subsystems: 0, theirs, or EXIT_RUN for one killed by a signal."""
-        codes = [child.returncode for key, child in self._children.items() if child.returncode and not self._stopped_as_asked(key)]
+        codes = [child.returncode for key, child in self._children.items()
+                 if child.returncode and not self._stopped_as_asked(key)]
         return max((code if code > 0 else EXIT_RUN) for code in codes) if codes else 0
 
     def _stopped_as_asked(self, key: str) -> bool:

@@ -171,7 +171,8 @@ def _task(host: CommandHost, arguments: dict[str, Any]) -> str:
     return _name(arguments, "task", "task", host.subsystem.tasks)
 
 
-_EXPECTED = {"on": {"ON", "ERROR", "OFF"}, "off": {"OFF", "ERROR"}, "clear": {"OFF", "ERROR"}}  # on: OFF when its error component turned it off
+# on: OFF too, when its error component turned it off
+_EXPECTED = {"on": {"ON", "ERROR", "OFF"}, "off": {"OFF", "ERROR"}, "clear": {"OFF", "ERROR"}}
 
 
 def task_signal(command: str) -> Handler:
@@ -218,10 +219,12 @@ def event(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
         raise BadRequest(f"task '{task}' takes events of {expected} values "
                          f"({host.subsystem.tasks[task].module}'s EVENT_SHAPE), got {len(values or ())}")
     bounds = _event_range(host, task)
-    outside = next(((position, v) for position, v in enumerate(values or (), 1) if not bounds.admits(v)), None) if bounds else None
+    outside = (next(((position, v) for position, v in enumerate(values or (), 1) if not bounds.admits(v)), None)
+               if bounds else None)
     if bounds is not None and outside is not None:
         raise BadRequest(f"the values of an event for '{task}' must be {bounds.text()} "
-                         f"({host.subsystem.tasks[task].module}'s EVENT_RANGE), got: {number_text(outside[1])} (value {outside[0]})")
+                         f"({host.subsystem.tasks[task].module}'s EVENT_RANGE), got: {number_text(outside[1])} "
+                         f"(value {outside[0]})")
     state = host.task_states.get(task)
     if state != "ON":
         raise PboError(f"task '{task}' is {state}, not ON: an event would not run it; turn it on with pbo on {task}")
@@ -353,8 +356,9 @@ def _task_change(arguments: dict[str, Any]) -> TaskChange:
     if resources:
         fields["resources"] = f"[{', '.join(resources)}]"
     try:
-        return TaskChange(_text(arguments, "module", "--module", optional=True), _text(arguments, "rtpu", "--rtpu", optional=True),
-                          fields, parse_assignments(_texts(arguments, "params", "--param"), "--param"),
+        return TaskChange(_text(arguments, "module", "--module", optional=True),
+                          _text(arguments, "rtpu", "--rtpu", optional=True), fields,
+                          parse_assignments(_texts(arguments, "params", "--param"), "--param"),
                           parse_assignments(_texts(arguments, "ports", "--port"), "--port"))
     except LiveChangeRefused as exc:
         raise BadRequest(str(exc)) from None

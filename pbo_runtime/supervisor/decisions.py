@@ -27,7 +27,8 @@ def decision_lines(decisions: list[dict[str, Any]]) -> list[str]:
     """The summary's lines: each decision, where it was taken, which way it went and on what values."""
     lines = []
     for entry in decisions:
-        values = "; ".join(f"{name} = {np.round(np.asarray(value), 4).tolist()}" for name, value in entry.get("values", {}).items())
+        values = "; ".join(f"{name} = {np.round(np.asarray(value), 4).tolist()}"
+                           for name, value in entry.get("values", {}).items())
         what = {"if": f"if {entry.get('condition')}: {entry.get('taken')}",
                 "try": f"try failed -> fallback: {entry.get('failure')}",
                 "repeat": f"repeat {entry.get('turn')}/{entry.get('of')}" + (f" until {entry['condition']}: {entry['taken']}"

@@ -149,7 +149,8 @@ class ForkServer:
             self.idle()
         if not line:
             code = self.process.poll()
-            how = "it ended" if code is None else f"exit status {code}" if code >= 0 else f"killed by {signal.Signals(-code).name}"
+            how = ("it ended" if code is None else f"exit status {code}" if code >= 0
+                   else f"killed by {signal.Signals(-code).name}")
             raise ForkServerUnavailable(f"the fork server (pid {self.process.pid}) is gone ({how})")
         reply = json.loads(line)
         self.warm_at = self.warm_at or float(reply.get("warm_at", 0.0))

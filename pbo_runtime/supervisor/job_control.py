@@ -192,7 +192,8 @@ def evaluate(host: JobHost, text: str) -> tuple[bool, dict[str, Any]]:
 
 
 def _show(values: dict[str, Any]) -> str:
-    return "; ".join(f"{name} = {np.array2string(np.asarray(v), precision=4, separator=', ', max_line_width=10**6)}" for name, v in values.items())
+    return "; ".join(f"{name} = {np.array2string(np.asarray(v), precision=4, separator=', ', max_line_width=10**6)}"
+                     for name, v in values.items())
 
 
 def application_steps(subsystem: Subsystem, application: str, _seen: tuple[str, ...] = (),
@@ -228,7 +229,8 @@ class JobControl:
         self.static = static
         self.switches: list[SwitchRecord] = []
         self.pending: SwitchRecord | None = None  # a dynamic switch's plan, waiting for the RTPUs' reports
-        self.switching: SwitchRecord | None = None  # the switch under way (static or dynamic): a restart comes back in its `after`
+        # the switch under way (static or dynamic): a restart comes back in its `after`
+        self.switching: SwitchRecord | None = None
         self.switching_subsystem = self.subsystem  # what a live change's plan swaps in, while it is under way
         self.job: str | None = None
         self.application: str | None = None
@@ -252,7 +254,8 @@ class JobControl:
         if configuration not in self.subsystem.configurations:
             raise PboError(f"no configuration '{configuration}' (configurations: {', '.join(self.subsystem.configurations)})")
         before = host.configuration
-        leaving = [t for t in self.subsystem.configurations[before].tasks if t not in self.subsystem.configurations[configuration].tasks]
+        configurations = self.subsystem.configurations
+        leaving = [t for t in configurations[before].tasks if t not in configurations[configuration].tasks]
         entering = [t for t in self.subsystem.configurations[configuration].tasks
                     if t not in self.subsystem.configurations[before].tasks]
         if self.static:

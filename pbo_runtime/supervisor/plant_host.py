@@ -75,7 +75,8 @@ def _run(argv: list[str] | None) -> int:
         # (a live parent without a run's table: a plant on its own, as the benchmarks' bare loop runs it)
     lower_timer_slack()
     if args.fifo:
-        with contextlib.suppress(OSError, AttributeError):  # the RTPUs report whether SCHED_FIFO was granted; the plant then runs as they do
+        # the RTPUs report whether SCHED_FIFO was granted; the plant then runs as they do
+        with contextlib.suppress(OSError, AttributeError):
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(PLANT_FIFO_PRIORITY))
     events = messages.Queue(messages.event_queue_name(args.subsystem, args.run_id))
     plant = barrier = None

@@ -44,7 +44,8 @@ class Restart:
         seconds = None if self.on_again_at is None else self.on_again_at - self.died_at
         return {"rtpu": self.rtpu, "pid": self.pid, "cause": self.cause, "died_at": self.died_at,
                 "on_again_at": self.on_again_at, "seconds": seconds, "tasks_on": list(self.tasks_on),
-                "attempts": self.attempts, "launched_at": self.launched_at, "ready_at": self.ready_at, "spawned_at": self.spawned_at}
+                "attempts": self.attempts, "launched_at": self.launched_at, "ready_at": self.ready_at,
+                "spawned_at": self.spawned_at}
 
 
 def may_restart(role: str, rtpus: Sequence[RtpuSpec], table_made: bool, stop_requested: str) -> bool:
@@ -261,5 +262,6 @@ def restart_lines(restarts: list[dict[str, Any]]) -> list[str]:
         back = ("not back before the run stopped" if r["seconds"] is None
                 else f"tasks ON again after {r['seconds'] * 1e3:.0f} ms")
         tries = f" ({r['attempts']} launches)" if r.get("attempts", 1) > 1 else ""
-        lines.append(f"RTPU '{r['rtpu']}' restarted, {r['died_at']:.2f} s into the run: pid {r['pid']} {r['cause']}; {back}{tries}")
+        lines.append(f"RTPU '{r['rtpu']}' restarted, {r['died_at']:.2f} s into the run: pid {r['pid']} {r['cause']}; "
+                     f"{back}{tries}")
     return lines

@@ -166,16 +166,15 @@ class Supervisor:
                                       lambda: self.subsystem, lambda: self.table, lambda: self.started_at)
         self.control_service = ControlService(self, lambda: self.control)
         self.alternate = options.alternate
-        # SCHED_FIFO where the OS allows it, on the real clock unless asked otherwise: under SCHED_OTHER
-        # the machine's own threads take a CPU for milliseconds and RTPUs overrun several times as
-        # often (8 to 14 in docs/performance.md). The simulated clock waits on ticks: it needs none.
+        # SCHED_FIFO where the OS allows it, on the real clock unless asked otherwise (docs/performance.md
+        # says why); the simulated clock waits on ticks: it needs none
         self.fifo = self.clock.fifo_by_default if options.fifo is None else options.fifo
         self.control: ControlServer | None = None
         self.lock_guard: LockGuard | None = None  # made with the table (supervisor.lock_watch)
         self.live_changes: LiveChanges = LiveChanges(  # pbo spawn, kill, replace, set, app (supervisor.live_changes)
             self.run_id, lambda: self.subsystem, self.clock, self.signals, self.result, self.job_control, self.task_states,
-            self.every_task, self.stall_watch, say, self.event_handling.while_stepping, self.event_handling.next_event, self._adopted,
-            lambda name: setattr(self, "application", name))
+            self.every_task, self.stall_watch, say, self.event_handling.while_stepping, self.event_handling.next_event,
+            self._adopted, lambda name: setattr(self, "application", name))
         self.restarter = Restarter(  # brings a dead RTPU back, within its restart policy (supervisor.restarts)
             RunView(subsystem=lambda: self.subsystem, configuration=lambda: self.configuration,
                     started_at=lambda: self.started_at, table=lambda: self.table, stop_requested=lambda: self._stop_requested,
@@ -319,14 +318,16 @@ class Supervisor:
         events = self.events
         assert events is not None
         if ChildWatch.available():  # a child's death wakes the wait for events at once
-            self.processes.child_watch = ChildWatch(lambda role, pid: events.report("supervisor", messages.ChildExited(role, pid), timeout=0.0))
+            self.processes.child_watch = ChildWatch(
+                lambda role, pid: events.report("supervisor", messages.ChildExited(role, pid), timeout=0.0))
         self.table = StateTable.create(TableLayout.of(sub), messages.table_name(sub.name, run_id), self._manifest())
         refuse_if_devices_in_use(self.subsystem, self.run_id)  # again, now that a run started at the same instant sees this one
         if self.processes.fork_server is None:  # (a refused run starts no process) it loads while this process goes on
             self.processes.start_fork_server(sub.file, ["pbo_runtime.supervisor.plant_host"] * (sub.plant is not None) + ["rtpu"])
         # from the table's creation: job control's writes wait through the guard; looks begin
         self.lock_guard = LockGuard(self.table, self.shortest_period, self.result, self.children, self.say, self._run_time,
-                                    self._check_children, lambda: self._stop_requested, lambda: self.control_service.serving, self.fifo)
+                                    self._check_children, lambda: self._stop_requested,
+                                    lambda: self.control_service.serving, self.fifo)
         self.live_changes.start(self.table.layout.n_tasks)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()

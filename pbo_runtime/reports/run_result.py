@@ -54,14 +54,23 @@ class Stall:
 
 @dataclass(frozen=True)
 class FinalValue:
-    """A variable's last value, as the summary shows it."""
+    """A variable's last value at the run's end: who wrote it, in which unit; `torn` if a writer left
+    the table mid-write and it was copied as it was."""
 
-    value: float | int | list[object]
-    writer: str
+    value: float | int | bool | list[Any]
+    sequence: int
+    writer: str  # a task's name, or "job control"
+    unit: str
+    torn: bool = False
+
+    def to_json(self) -> dict[str, Any]:
+        return {"value": self.value, "sequence": self.sequence, "writer": self.writer, "unit": self.unit,
+                **({"torn": True} if self.torn else {})}
 
     @classmethod
     def from_json(cls, entry: Mapping[str, Any]) -> FinalValue:
-        return cls(entry["value"], str(entry["writer"]))
+        return cls(entry["value"], int(entry.get("sequence", 0)), str(entry["writer"]), str(entry.get("unit", "")),
+                   bool(entry.get("torn", False)))
 
 
 @dataclass(frozen=True)
@@ -177,7 +186,7 @@ class RunResult:
     stopped_by: str = "duration"
     failure: str = ""
     tasks: dict[str, TaskReport] = field(default_factory=dict)
-    variables: dict[str, Any] = field(default_factory=dict)
+    variables: dict[str, FinalValue] = field(default_factory=dict)
     plant: PlantFigures | None = None  # None: the run had no plant, or it never reported
     lock_recoveries: int = 0
     run_id: str = ""
@@ -229,7 +238,8 @@ class RunResult:
             "subsystem": self.subsystem, "configuration": self.configuration, "duration": self.duration,
             "stopped_by": self.stopped_by, "failure": self.failure,
             "tasks": {name: task.to_json() for name, task in self.tasks.items()},
-            "variables": self.variables, "plant": self.plant.to_json() if self.plant is not None else {},
+            "variables": {name: final.to_json() for name, final in self.variables.items()},
+            "plant": self.plant.to_json() if self.plant is not None else {},
             "lock_recoveries": self.lock_recoveries,
             "run_id": self.run_id, "objects": self.objects, "states_at_stop": self.states_at_stop,
             "application": self.application, "jobs_done": self.jobs_done,

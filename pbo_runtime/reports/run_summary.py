@@ -12,7 +12,6 @@ from rich.table import Table
 
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.reports.run_result import (
-    FinalValue,
     RtpuSettings,
     RunResult,
     Stall,
@@ -44,10 +43,9 @@ def print_summary(console: Console, subsystem: Subsystem, result: RunResult, res
     values.add_column("variable")
     values.add_column("value")
     values.add_column("writer")
-    for name, entry in result.variables.items():
+    for name, final in result.variables.items():
         if subsystem.variables[name].size > 12:
             continue
-        final = FinalValue.from_json(entry)
         values.add_row(name, format_value(final.value), final.writer)
     console.print(values)
     for name, task in result.tasks.items():

@@ -245,7 +245,7 @@ def _event_size(host: CommandHost, task: str) -> int | None:
     spec = host.subsystem.tasks[task]
     try:
         shape = getattr(registry.module_class(spec.module), "EVENT_SHAPE", None)
-    except Exception:  # noqa: BLE001 - the run found the module at start; a fake host's may not exist
+    except Exception:  # the run found the module at start; a fake host's may not exist
         return None
     if shape is None:
         return None
@@ -259,7 +259,7 @@ def _event_range(host: CommandHost, task: str) -> Range | None:
     """The closed range each value of the task's events must be in (its module's EVENT_RANGE), None if any."""
     try:
         bounds = getattr(registry.module_class(host.subsystem.tasks[task].module), "EVENT_RANGE", None)
-    except Exception:  # noqa: BLE001 - the run found the module at start; a fake host's may not exist
+    except Exception:  # the run found the module at start; a fake host's may not exist
         return None
     if bounds is None:
         return None

@@ -207,7 +207,7 @@ def _main_of(module: str) -> Callable[..., int]:
 def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]], Any]:
     """Import each preloaded module's `main`, load the subsystem, look up its modules, plant and drivers,
     and import the rest of the library."""
-    import setproctitle  # noqa: F401 - imported once here, not in each child
+    importlib.import_module("setproctitle")  # imported once here, not in each child
 
     mains = {module: _main_of(module) for module in preload}
     from pbo_runtime.config.loader import load_subsystem

@@ -16,7 +16,7 @@ from pbo_runtime.ipc.task_statistics import Overrun, TaskStatistics
 from pbo_runtime.reports.run_result import RunResult as RunResult  # where the supervisor's parts find it
 from pbo_runtime.reports.run_result import PlantFigures as PlantFigures
 from pbo_runtime.reports.run_result import RtpuSettings as RtpuSettings
-from pbo_runtime.reports.run_result import Stall, TaskReport
+from pbo_runtime.reports.run_result import FinalValue, Stall, TaskReport
 from pbo_runtime.supervisor.status_reply import TaskRow
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import StateTable, copy_variable
@@ -109,7 +109,8 @@ class RunReporting:
                                                  dataclasses.replace(stats, last_overruns=overruns))
             for device, figures in stats.devices.items():
                 if figures.get("command"):  # a robot interface braked the arm: its limits were left
-                    self.result.faults += divergence_lines(name, spec, figures, self.result.variables, started)
+                    writers = {variable: final.writer for variable, final in self.result.variables.items()}
+                    self.result.faults += divergence_lines(name, spec, figures, writers, started)
                 elif figures.get("fault"):  # a special-purpose processor that died under its task: the task said so too
                     self.result.faults.append(f"device '{device}' of task '{name}': {figures['fault']}")
         self._report_stalls(started)
@@ -174,6 +175,7 @@ class RunReporting:
             return
         table, torn = self.table, False
         notes = variable_notes(self.subsystem)  # a plot of an .npy log takes its units from here
+        tasks = (*self.subsystem.tasks.values(), *self.every_task.values())
         for var in self.subsystem.variables.values():
             slot = table.layout.slot(var.name)
             try:
@@ -183,12 +185,9 @@ class RunReporting:
             except TableBusy:
                 value, seq, _when, writer = copy_variable(table.view(var.name), table.words, slot.meta_word, table.status)
                 torn = True
-            self.result.variables[var.name] = {
-                "value": value.tolist(), "sequence": seq,
-                "writer": next((t.name for t in (*self.subsystem.tasks.values(), *self.every_task.values()) if t.index == writer),
-                               "job control"),
-                "unit": notes[var.name][1], **({"torn": True} if torn else {}),
-            }
+            self.result.variables[var.name] = FinalValue(
+                value.tolist(), seq, next((t.name for t in tasks if t.index == writer), "job control"), notes[var.name][1],
+                torn)
 
     def status_rows(self) -> list[TaskRow]:
         """The live view's data, from a lock-free copy of the table's status blocks.
@@ -208,14 +207,15 @@ class RunReporting:
         return rows
 
 
-def divergence_lines(task: str, spec: Any, figures: Mapping[str, Any], variables: dict[str, Any], started: float) -> list[str]:
+def divergence_lines(task: str, spec: Any, figures: Mapping[str, Any], writers: Mapping[str, str],
+                     started: float) -> list[str]:
     """One line per time the robot interface `task` braked the arm for leaving its limits, naming
     when (from `started`, the run's clock when the configuration came on) and the task that wrote
-    the command it was given (the last writer of that in-var's variable)."""
+    the command it was given (the last writer of that in-var's variable, from `writers`)."""
     lines = []
     for fault in figures.get("faults", [figures]):
         variable = next((b.variable for b in spec.bindings if b.port.name == fault["command"]), fault["command"])
-        writer = variables.get(variable, {}).get("writer", "")
+        writer = writers.get(variable, "")
         by = f"task '{writer}'" if writer and writer != "job control" else "job control" if writer else "no task"
         lines.append(f"{fault['fault']} at {fault.get('at', started) - started:.3f} s into the run (robot interface "
                      f"'{task}'; its '{variable}' was written by {by})")

@@ -19,16 +19,16 @@ import json
 import re
 import types
 import typing
-from pathlib import Path
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
+from pbo_runtime.config.model import PlantSpec
+from pbo_runtime.config.units import DATA_RATE, FREQUENCY, SIZE, TIME, UNITS
 from pbo_runtime.objects import registry
 from pbo_runtime.objects.module import param_ranges
 from pbo_runtime.objects.ranges import Range
 from pbo_runtime.reports.lexicon import jsonable, param_hints, params_info, ports_depend_on_params
-from pbo_runtime.config.model import PlantSpec
-from pbo_runtime.config.units import DATA_RATE, FREQUENCY, SIZE, TIME, UNITS
 
 SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 SCHEMA_ID = "urn:pbo-runtime:subsystem-schema"
@@ -103,7 +103,7 @@ def hint_schema(hint: Any, allowed: Range | None = None) -> dict[str, Any]:
     if origin in (typing.Union, types.UnionType):
         return {"oneOf": [hint_schema(a, allowed) for a in args]}
     if origin in (tuple, list):
-        items = args[0] if args and (len(args) == 2 and args[1] is Ellipsis or origin is list) else None
+        items = args[0] if args and ((len(args) == 2 and args[1] is Ellipsis) or origin is list) else None
         node: dict[str, Any] = {"type": "array"}
         if items is not None:
             node["items"] = hint_schema(items, allowed)

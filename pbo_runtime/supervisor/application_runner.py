@@ -35,21 +35,21 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import posix_ipc
 
 from pbo_runtime.clock.application_lockstep import ApplicationLockstep
-from pbo_runtime.ipc import limits
-from pbo_runtime.ipc import shm
 from pbo_runtime.config.application import Application
+from pbo_runtime.ipc import limits, shm
+from pbo_runtime.links.message_link import SYSTEM_MESSAGE_BYTES, MessageLink, message_link_name
+from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer, link_name
 from pbo_runtime.links.zenoh_session import link_key
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.supervisor.sim_tick import simulation_tick
-from pbo_runtime.links.message_link import SYSTEM_MESSAGE_BYTES, MessageLink, message_link_name
-from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer, link_name
 
 STOP_GRACE = 15.0  # seconds a subsystem gets to shut down after SIGTERM before it is killed
 RELAY_GRACE = 2.0  # seconds to print what an ended subsystem still had in its pipe

@@ -13,7 +13,7 @@ import contextlib
 import os
 import select
 import threading
-from typing import Callable
+from collections.abc import Callable
 
 
 class ChildWatch:

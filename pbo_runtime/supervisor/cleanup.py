@@ -21,8 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import posix_ipc
 
-from pbo_runtime.ipc import runs
-from pbo_runtime.ipc import shm
+from pbo_runtime.ipc import runs, shm
 from pbo_runtime.table.table import HEADER_WORDS, Header, read_manifest
 
 KINDS = ("shm", "sem", "mq")

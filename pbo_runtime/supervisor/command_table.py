@@ -12,9 +12,9 @@ from __future__ import annotations
 import argparse
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 STATUS_TIMEOUT = 2.0
 COMMAND_TIMEOUT = 5.0  # a switch or a task signal may wait for RTPUs to confirm

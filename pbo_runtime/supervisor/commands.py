@@ -32,18 +32,20 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from collections.abc import Collection, Mapping, Sequence
-from typing import TYPE_CHECKING, Any, Callable, Protocol
+from collections.abc import Callable, Collection, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 from pbo_runtime.config.checker.loops import GAINS_NOTE
+from pbo_runtime.config.decisions import decides
+from pbo_runtime.config.values import as_value, describe, element_problem, range_problem
 from pbo_runtime.edit.live import LiveChangeRefused, LiveDescription, TaskChange, parse_assignments
 from pbo_runtime.edit.live_save import save_live
-from pbo_runtime.config.values import as_value, describe, element_problem, range_problem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import operator_input
 from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.objects import registry
 from pbo_runtime.objects.ranges import Range, number_text
+
 # the table, for whoever serves or tests the verbs from here
 from pbo_runtime.supervisor.command_table import COMMAND_TIMEOUT as COMMAND_TIMEOUT
 from pbo_runtime.supervisor.command_table import COMMANDS as COMMANDS
@@ -59,7 +61,6 @@ from pbo_runtime.supervisor.command_table import parse_object_values as parse_ob
 from pbo_runtime.supervisor.command_table import verb_table as verb_table
 from pbo_runtime.supervisor.job_control import application_steps
 from pbo_runtime.supervisor.status_reply import TaskRow, TaskStatusEntry
-from pbo_runtime.config.decisions import decides
 
 if TYPE_CHECKING:
     from pbo_runtime.config.model import Subsystem

@@ -11,7 +11,8 @@ listed by the run's summary and report.json); `JobControl.path` is where the app
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

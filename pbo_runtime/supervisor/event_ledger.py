@@ -6,8 +6,8 @@ handling is tested event by event without a process."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
 from typing import Protocol
 
 from pbo_runtime.config.model import TaskSpec

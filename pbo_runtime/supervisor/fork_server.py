@@ -11,8 +11,8 @@ holds; PBO_FORK_SERVER=0 starts every child fresh.
 
 from __future__ import annotations
 
-import contextlib
 import argparse
+import contextlib
 import ctypes
 import gc
 import importlib
@@ -24,7 +24,8 @@ import socket
 import subprocess
 import sys
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from pbo_runtime.ipc.process import STOP_SIGNALS
 
@@ -211,9 +212,9 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
 
     mains = {module: _main_of(module) for module in preload}
     from pbo_runtime.config.loader import load_subsystem
-    from pbo_runtime.reports.log_notes import run_metadata
     from pbo_runtime.errors import PboError
     from pbo_runtime.objects import registry
+    from pbo_runtime.reports.log_notes import run_metadata
 
     try:
         subsystem = load_subsystem(file)

@@ -18,21 +18,21 @@ no report from it, the other RTPUs' part stands, and its record names the restar
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import partial
-from collections.abc import Mapping
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
-from pbo_runtime.edit.live import LiveDescription
-from pbo_runtime.config.model import Subsystem
-from pbo_runtime.errors import PboError
-from pbo_runtime.reports.run_result import SwitchReport
-from pbo_runtime.supervisor.failures import RtpuDied
 from pbo_runtime.config.decisions import decides
 from pbo_runtime.config.expressions import ExpressionError, compile_condition
+from pbo_runtime.config.model import Subsystem
+from pbo_runtime.edit.live import LiveDescription
+from pbo_runtime.errors import PboError
+from pbo_runtime.reports.run_result import SwitchReport
 from pbo_runtime.supervisor.decisions import DecidingRun
+from pbo_runtime.supervisor.failures import RtpuDied
 from pbo_runtime.supervisor.plan_lead import PlanLead
 
 SWITCH_TIMEOUT = 5.0

@@ -25,8 +25,7 @@ import signal
 import threading
 from dataclasses import dataclass
 
-from pbo_runtime.ipc import process
-from pbo_runtime.ipc import shm
+from pbo_runtime.ipc import process, shm
 from pbo_runtime.supervisor.cleanup import remove_run
 
 # seconds a leaving process waits to be the last one: the others stop within process.STOP_BOUND

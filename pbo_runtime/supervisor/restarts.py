@@ -10,15 +10,16 @@ docs/faults.md says what the operator sees, during a switch and on the simulated
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 from pbo_runtime.clock.run_clock import RunClock
 from pbo_runtime.config.model import RestartPolicy, RtpuSpec, Subsystem, TaskSpec
-from pbo_runtime.supervisor.children import Child
-from pbo_runtime.supervisor.job_control import JobControl
 from pbo_runtime.ipc import messages
+from pbo_runtime.supervisor.children import Child
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
+from pbo_runtime.supervisor.job_control import JobControl
 from pbo_runtime.supervisor.launch import RtpuLaunch
 from pbo_runtime.supervisor.run_report import RunResult
 from pbo_runtime.table.table import Header, StateTable

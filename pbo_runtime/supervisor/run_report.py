@@ -4,19 +4,18 @@ statistics, the stall watch and the table."""
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from pbo_runtime.reports.log_notes import variable_notes
 from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.ipc.task_statistics import Overrun, TaskStatistics
-from pbo_runtime.reports.run_result import RunResult as RunResult  # where the supervisor's parts find it
+from pbo_runtime.reports.log_notes import variable_notes
+from pbo_runtime.reports.run_result import FinalValue, Stall, TaskReport
 from pbo_runtime.reports.run_result import PlantFigures as PlantFigures
 from pbo_runtime.reports.run_result import RtpuSettings as RtpuSettings
-from pbo_runtime.reports.run_result import FinalValue, Stall, TaskReport
+from pbo_runtime.reports.run_result import RunResult as RunResult  # where the supervisor's parts find it
 from pbo_runtime.supervisor.status_reply import TaskRow
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import StateTable, copy_variable

@@ -8,8 +8,8 @@ only: an aperiodic task waits for events by design.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Callable, Iterable
 
 from pbo_runtime.config.model import TaskSpec
 

@@ -17,45 +17,44 @@ import math
 import os
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import posix_ipc
 
-from pbo_runtime.ipc import limits
-from pbo_runtime.ipc import messages
-from pbo_runtime.ipc import shm
+from pbo_runtime.clock.application_lockstep import TurnGate
+from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
 from pbo_runtime.config.checker.loops import GAINS_NOTE
-from pbo_runtime.edit.live import LiveDescription
+from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.config.model import Subsystem, TaskSpec
+from pbo_runtime.edit.live import LiveDescription
 from pbo_runtime.errors import PboError, closest_name
+from pbo_runtime.ipc import limits, messages, shm
 from pbo_runtime.ipc.control import ControlServer
 from pbo_runtime.supervisor.child_watch import ChildWatch
 from pbo_runtime.supervisor.children import Children
 from pbo_runtime.supervisor.cleanup import remove_dead_runs, unlink_run
-from pbo_runtime.supervisor.exclusive_devices import refuse_if_devices_in_use
 from pbo_runtime.supervisor.control_service import ControlService, table_flags
 from pbo_runtime.supervisor.event_ledger import EventLedger, EventOutlets, error_words
 from pbo_runtime.supervisor.events import EventHandling
+from pbo_runtime.supervisor.exclusive_devices import refuse_if_devices_in_use
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested, WrongArgument
 from pbo_runtime.supervisor.fork_server import ForkServer
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
 from pbo_runtime.supervisor.launch import SIM_TICK_DEFAULT, RtpuLaunch
-from pbo_runtime.supervisor.stages import run_stages
-from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockGuard
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.restarts import Restarter, RunSteps, RunView
 from pbo_runtime.supervisor.run_options import RunOptions
 from pbo_runtime.supervisor.run_queues import queue_plan, run_manifest
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
-from pbo_runtime.supervisor.status_reply import TaskRow
-from pbo_runtime.clock.application_lockstep import TurnGate
-from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
-from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.sim_tick import simulation_tick
+from pbo_runtime.supervisor.stages import run_stages
 from pbo_runtime.supervisor.stall_watch import StallWatch
+from pbo_runtime.supervisor.status_reply import TaskRow
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import Flag, Header, StateTable, TableLayout, TaskState
 from pbo_runtime.table.table import StatusWord as W

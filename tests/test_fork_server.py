@@ -150,7 +150,7 @@ def test_a_run_forks_its_children_from_the_fork_server_and_leaves_nothing(tmp_pa
     assert result.failure == "", result.failure
     assert not any("fresh interpreters" in line for line in said), said
     assert "fork_server" in result.startup  # the server was warm when the children were forked
-    assert supervisor.fork_server is None  # ended with the run
+    assert supervisor.processes.fork_server is None  # ended with the run
     assert_nothing_left(result.to_json())  # (every queue and segment it names, opened by name)
 
 

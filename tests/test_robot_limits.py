@@ -385,8 +385,8 @@ def test_a_divergence_line_names_the_writer_of_the_variable_the_command_port_rea
 
     spec = task_spec(RobotTorque, name="arm_if", ports={"tau_u": "tau_cmd"}, dims={"NDOF": 6})
     figures = {"faults": [{"fault": "joint 2: it diverged; the arm is braked", "command": "tau_u", "at": 12.5}]}
-    variables = {"tau_cmd": {"writer": writer}} if writer else {}
-    assert divergence_lines("arm_if", spec, figures, variables, 10.0) == [
+    writers = {"tau_cmd": writer} if writer else {}
+    assert divergence_lines("arm_if", spec, figures, writers, 10.0) == [
         f"joint 2: it diverged; the arm is braked at 2.500 s into the run (robot interface 'arm_if'; its 'tau_cmd' was "
         f"written by {said})"]
 

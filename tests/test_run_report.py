@@ -3,7 +3,9 @@ keys users read stay what they were, and what is written reads back the same."""
 
 from __future__ import annotations
 
+import dataclasses
 import io
+import json
 import re
 
 import msgpack
@@ -14,8 +16,9 @@ from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.errors import InternalError
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.task_statistics import Overrun, TaskStatistics
-from pbo_runtime.reports.run_result import RunResult, Stall, TaskReport
+from pbo_runtime.reports.run_result import PlantFigures, RtpuSettings, RunResult, Stall, SwitchReport, TaskReport
 from pbo_runtime.reports.run_summary import print_summary
+from pbo_runtime.supervisor.job_control import SwitchRecord
 from pbo_runtime.supervisor.status_reply import TaskRow, TaskStatusEntry
 from tests.support import DEMO
 
@@ -58,6 +61,34 @@ def test_a_task_whose_rtpu_was_killed_has_only_its_status_blocks_figures():
     assert entry["last_overruns"] == [] and entry["from_table"] is True
 
 
+@pytest.mark.parametrize("settings", [
+    {"timer_slack": "1 ns", "cpu": "any", "scheduler": "SCHED_FIFO 50", "spin": "50 µs"},  # the real clock's, in its order
+    {"clock": "simulated, 1 ms ticks"},
+], ids=["real", "sim"])
+def test_an_rtpus_settings_give_report_json_what_the_rtpu_said_in_its_order(settings):
+    typed = RtpuSettings.from_json(settings)
+    assert json.dumps(typed.to_json()) == json.dumps(settings)
+    assert typed.simulated is ("clock" in settings)
+
+
+def test_the_plants_figures_give_report_json_what_the_plant_host_sent_in_its_order():
+    sent = {"steps": 1001, "late": 2, "stalls": 1, "stalled_for": 0.25, "watchdog_trips": 0, "left_fifo_behind": 0.0}
+    assert json.dumps(PlantFigures.from_json(sent).to_json()) == json.dumps(sent)
+    assert RunResult("s", "c").to_json()["plant"] == {}  # no plant
+
+
+def test_a_switchs_report_keeps_the_keys_report_json_always_had():
+    record = SwitchRecord(3, "pid", "pd", requested_at=1.0, activation=1.002, applied={"rtpu0": (1.002, 1.0025)},
+                          first_cycles={"pd": 1.003}, off=["pid"], on=["pd"], lost={"robot": 0}, stale={"robot": 1},
+                          lead=0.001, read={"rtpu0": 1.0005}, posted_at=1.0001)
+    assert list(record.report().to_json()) == ["sequence", "from", "to", "latency", "skew", "longest", "off", "on",
+                                               "cycles_lost", "stale_reads", "lead", "read_delay", "grid_wait", "work",
+                                               "posted", "read_delays"]
+    changed = dataclasses.replace(record, change="spawn log", restarted=["rtpu1"]).report().to_json()
+    assert (changed["change"], changed["restarted"], list(changed)[-2:]) == ("spawn log", ["rtpu1"], ["change", "restarted"])
+    assert RunResult("s", "c", switches=[record.report()]).to_json()["switches"] == [record.to_json()]
+
+
 def test_the_stats_event_carries_the_figures_over_the_wire_as_report_json_has_them():
     wire = msgpack.unpackb(msgpack.packb(messages.event_to_wire("rtpu0", messages.Stats("pid", FIGURES))))
     assert wire == ["stats", "rtpu0", "pid", msgpack.unpackb(msgpack.packb(FIGURES.to_json()))]
@@ -98,8 +129,10 @@ def test_the_summary_tells_each_task_that_ran_and_what_the_operator_should_know(
                               "traj": TaskReport("rtpu0", False, "OFF", "", TaskStatistics()),
                               "robot": TaskReport("rtpu1", True, "?", "", TaskStatistics(cycles=9, overruns=1), True)},
                        stalls=[Stall("robot", "rtpu1", 1.0, None, True)],
-                       switches=[{"sequence": 1, "latency": 1e-3, "skew": 1e-5, "longest": 2e-4, "cycles_lost": {"pid": 1}}],
-                       realtime={"rtpu0": {"cpu": "1", "scheduler": "SCHED_FIFO 50", "timer_slack": "1 ns"}})
+                       switches=[SwitchReport(1, "pid", "pd", latency=1e-3, skew=1e-5, longest=2e-4, off=("pid",), on=("pd",),
+                                              cycles_lost={"pid": 1}, stale_reads={}, lead=0.0, read_delay=0.0,
+                                              grid_wait=0.0, work=0.0, posted=0.0, read_delays={})],
+                       realtime={"rtpu0": RtpuSettings(cpu="1", scheduler="SCHED_FIFO 50", timer_slack="1 ns")})
     text = summary(result)
     assert re.search(r"│ pid +│ rtpu0 +│ ON +│ +5001 │ +1000 │ +3 │ +1 │", text)
     assert "│ traj " not in text  # a task that ran no cycle is left out

@@ -1,11 +1,17 @@
 """The supervisor's decisions on restarts, the table lock and its children's events, from the run's state: no process."""
 
+from types import SimpleNamespace
+
 import pytest
 
 from pbo_runtime.config.model import RestartPolicy, RtpuSpec
+from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.task_statistics import TaskStatistics
-from pbo_runtime.supervisor.failures import RunFailure
+from pbo_runtime.supervisor.children import Child, death_failure
+from pbo_runtime.supervisor.event_ledger import ErrorWords, error_words
+from pbo_runtime.supervisor.events import change_seen, state_served
+from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
 from pbo_runtime.supervisor.lock_watch import LockVerdict, holder_alive, lock_verdict
 from pbo_runtime.supervisor.restarts import RestartPlan, count_death, may_restart, restart_plan
 from tests.support import EventsHeard
@@ -180,3 +186,79 @@ def test_an_episode_open_at_the_stop_is_ended_without_an_end():
     heard.hear("rtpu0", messages.Stable("robot", True, 2.0, "stale q_m", "stale"))
     heard.ledger.end_stable_episode("robot", None)
     assert heard.result.stable_episodes[0]["to"] is None and heard.result.stable_episodes[0]["seconds"] is None
+
+
+# --- which child died, and what that means ---------------------------------------------------
+
+
+class FakeProcess:
+    """A child's process as the death decision sees it: its pid only (no process is started)."""
+
+    pid = 4321
+
+
+@pytest.mark.parametrize(("role", "tasks", "code", "restartable", "failure", "message"), [
+    ("rtpu0", ("pid", "log"), -9, True, RtpuDied,
+     "RTPU 'rtpu0' (pid 4321) died (killed by SIGKILL) while hosting tasks: pid, log"),
+    ("rtpu1", (), 3, False, RunFailure, "RTPU 'rtpu1' (pid 4321) died (exit status 3)"),
+    ("plant", (), -11, False, RunFailure, "the plant (pid 4321) died (killed by SIGSEGV)"),
+])
+def test_a_childs_death_is_a_restart_only_where_its_policy_allows_and_says_who_and_how(
+        role, tasks, code, restartable, failure, message):
+    death = death_failure(Child(role, FakeProcess(), tasks), code, restartable)  # type: ignore[arg-type]
+    assert type(death) is failure and str(death) == message
+
+
+def test_a_restartable_death_carries_what_the_restart_needs():
+    death = death_failure(Child("rtpu0", FakeProcess()), -6, True)  # type: ignore[arg-type]
+    assert isinstance(death, RtpuDied) and (death.rtpu, death.pid, death.cause) == ("rtpu0", 4321, "killed by SIGABRT")
+
+
+# --- when a wait for a task's state ends -----------------------------------------------------
+
+
+@pytest.mark.parametrize(("event", "state", "ends"), [
+    (messages.StateChanged("pid", "ON"), "ON", True),
+    (messages.StateChanged("pid", "OFF"), "OFF", False),  # a change, but not to a state waited for
+    (messages.StateChanged("log", "ON"), "ON", False),  # another task's change
+    (messages.Refused("log", "it is ON"), "OFF", False),  # another task's refusal
+    (messages.PlanPosted(), "ON", False),  # no change at all, even if the state already is one waited for
+])
+def test_a_wait_for_a_change_ends_on_the_tasks_own_change_into_a_state_waited_for(event, state, ends):
+    assert change_seen("pid", {"ON", "ERROR"}, event, state) is ends
+
+
+def test_a_refusal_of_the_tasks_signal_ends_the_wait_with_its_reason():
+    with pytest.raises(PboError, match=r"^task 'pid': it is ON$"):
+        change_seen("pid", {"ON"}, messages.Refused("pid", "it is ON"), "ON")
+
+
+@pytest.mark.parametrize(("refused", "state", "answer"), [
+    ({}, "ON", "ON"),
+    ({"pid": "it is ON"}, "ON", "task 'pid': it is ON"),  # a refusal wins over the state
+    ({}, "ERROR", "task 'pid' is ERROR after the signal, not OFF or ON"),
+])
+def test_a_served_signal_leaves_the_task_in_a_state_waited_for_or_fails(refused, state, answer):
+    if answer == state:
+        assert state_served("pid", {"ON", "OFF"}, refused, {"pid": state}, RunFailure) == state
+    else:
+        with pytest.raises(RunFailure, match=f"^{answer}$"):
+            state_served("pid", {"ON", "OFF"}, refused, {"pid": state}, RunFailure)
+
+
+# --- the table's error words -----------------------------------------------------------------
+
+
+TASKS = {"robot": SimpleNamespace(critical=True), "pid": SimpleNamespace(critical=False),
+         "receive": SimpleNamespace(critical=False)}
+
+
+@pytest.mark.parametrize(("states", "stable", "words"), [
+    ({"robot": "ON", "pid": "ON"}, {}, ErrorWords(0, 0, False)),
+    ({"robot": "ON", "pid": "ERROR", "other": "ERROR"}, {}, ErrorWords(1, 0, True)),  # only the configuration's count
+    ({}, {"receive": (1.0, "", "module")}, ErrorWords(0, 1, True)),  # a task that is not critical said it is not fresh
+    ({}, {"robot": (1.0, "stale q_m", "stale")}, ErrorWords(0, 0, True)),  # a critical task's own hold
+    ({}, {"pid": (1.0, "", "stale")}, ErrorWords(0, 0, True)),  # stale, not its module's word: not counted
+])
+def test_the_error_words_count_the_configurations_tasks_in_error_and_not_fresh(states, stable, words):
+    assert error_words(["robot", "pid", "receive"], states, stable, TASKS) == words  # type: ignore[arg-type]

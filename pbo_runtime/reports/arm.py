@@ -18,7 +18,7 @@ class ArmFrames:
     """An arm's kinematic tree as a Pinocchio model: `positions(q)` gives its joint frames' origins."""
 
     def __init__(self, arm: Any, ee: Any, name: str = "arm") -> None:
-        import pinocchio  # type: ignore[import-untyped]  # imported here: only a drawing of an arm needs Pinocchio
+        import pinocchio  # imported here: only a drawing of an arm needs Pinocchio
 
         try:
             self._model = arm_model(arm, ee, name)

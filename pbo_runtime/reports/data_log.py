@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -147,7 +148,8 @@ def _open_mcap(path: Path) -> DataLog:
 def _columns(path: Path, log: dict[str, str] | None, channels: dict[str, dict[str, str]]) -> list[dict[str, Any]]:
     """The logged variables, in order: from the pbo-log record, or else from the channels' metadata."""
     if log is not None and "columns" in log:
-        return json.loads(log["columns"])
+        columns: list[dict[str, Any]] = json.loads(log["columns"])
+        return columns
     if not channels:
         raise LogError(f"{path}: an MCAP file, but not a pbo data log (no pbo-log record and no channels)")
     try:

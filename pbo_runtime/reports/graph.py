@@ -125,7 +125,7 @@ def to_dot(subsystem: Subsystem, configuration: str | None = None) -> str:
         '  node [shape=box, style="rounded,filled", fillcolor="white", fontname="Helvetica"];',
         '  edge [fontname="Helvetica", fontsize=10];',
     ]
-    for i, (rtpu, tasks) in enumerate(d.rtpus.items()):
+    for rtpu, tasks in d.rtpus.items():
         lines.append(f"  subgraph {_q(f'cluster_{rtpu}')} {{")
         lines.append(f"    label={_q(rtpu)};")
         lines.append('    style="rounded,filled"; fillcolor="#eef2f8"; color="#9aa8bd";')
@@ -136,7 +136,8 @@ def to_dot(subsystem: Subsystem, configuration: str | None = None) -> str:
     if d.has_job_control:
         lines.append(f'  {_q(JOB_CONTROL)} [shape=ellipse, style="filled", fillcolor="#e8f4e8", fontsize=10];')
     for device, driver in d.devices.items():
-        lines.append(f'  {_q(_device_id(device))} [label={_q(f"{device} ({driver})")}, shape=cylinder, style="filled", fillcolor="#f6efe4"];')
+        label = _q(f"{device} ({driver})")
+        lines.append(f'  {_q(_device_id(device))} [label={label}, shape=cylinder, style="filled", fillcolor="#f6efe4"];')
     for link in d.links:
         attrs = [f"label={_q(link.variable)}"]
         if link.const:
@@ -218,7 +219,8 @@ def layers(d: Diagram) -> dict[str, int]:
     return layer
 
 
-def _layout(d: Diagram) -> tuple[dict[str, _Node], list[tuple[str, float, float, float, float]], tuple[float, float, float, float]]:
+def _layout(d: Diagram) -> tuple[dict[str, _Node], list[tuple[str, float, float, float, float]],
+                                 tuple[float, float, float, float]]:
     """Node boxes and RTPU bands (name, x0, y0, x1, y1) in layout units, and the extent."""
     layer = layers(d)
     nodes: dict[str, _Node] = {}
@@ -251,7 +253,7 @@ def _layout(d: Diagram) -> tuple[dict[str, _Node], list[tuple[str, float, float,
             per_column.setdefault(layer[task], []).append(task)
         rows = max(len(v) for v in per_column.values())
         height = rows * _NODE_H + (rows - 1) * _ROW_GAP + 2 * _BAND_PAD + 0.35  # room for the RTPU's name
-        for col, members in per_column.items():
+        for members in per_column.values():
             for i, task in enumerate(members):
                 # centre the stack in the band, below the name
                 span = len(members) * _NODE_H + (len(members) - 1) * _ROW_GAP
@@ -384,7 +386,8 @@ def _inside(x: float, y: float, node: _Node, margin: float) -> bool:
     return abs(x - node.x) < node.w / 2 + margin and abs(y - node.y) < node.h / 2 + margin
 
 
-def _route(nodes: dict[str, _Node], a: _Node, b: _Node, drawn: list[list[tuple[float, float]]]) -> tuple[float, list[tuple[float, float]]]:
+def _route(nodes: dict[str, _Node], a: _Node, b: _Node,
+           drawn: list[list[tuple[float, float]]]) -> tuple[float, list[tuple[float, float]]]:
     """The bend of an arrow from a to b: through no other box, away from the arrows drawn so far,
     and as straight as that allows."""
     import numpy as np
@@ -397,7 +400,8 @@ def _route(nodes: dict[str, _Node], a: _Node, b: _Node, drawn: list[list[tuple[f
     for rad in (0.08, -0.08, 0.2, -0.2, 0.32, -0.32, 0.45, -0.45, 0.6, -0.6):
         points = _curve(a, b, rad)
         inner = np.array([p for p in points if not _inside(*p, a, 0.05) and not _inside(*p, b, 0.05)]).reshape(-1, 2)
-        hits = int(np.all(np.abs(inner[:, None, :] - centres[None, :, :]) < halves[None, :, :], axis=2).sum()) if len(centres) else 0
+        hits = (int(np.all(np.abs(inner[:, None, :] - centres[None, :, :]) < halves[None, :, :], axis=2).sum())
+                if len(centres) else 0)
         crowd = 0
         if len(previous) and len(inner):
             nearest = np.sqrt(((inner[:, None, :] - previous[None, :, :]) ** 2).sum(axis=2)).min(axis=1)
@@ -422,7 +426,8 @@ def _label_spot(text: str, points: list[tuple[float, float]], taken: list[tuple[
         blocked = any(_overlap(box, t) for t in taken) or any(
             _overlap(box, (n.x - n.w / 2, n.y - n.h / 2, n.x + n.w / 2, n.y + n.h / 2)) for n in nodes.values()
         )
-        crossing = sum(1 for other in drawn if other is not points for px, py in other if box[0] < px < box[2] and box[1] < py < box[3])
+        crossing = sum(1 for other in drawn if other is not points
+                       for px, py in other if box[0] < px < box[2] and box[1] < py < box[3])
         score = 100 * blocked + 3 * crossing + abs(offset)
         if best is None or score < best[0]:
             best = (score, x, y)

@@ -26,8 +26,8 @@ from rich.table import Table
 
 from pbo_runtime.objects import registry
 from pbo_runtime.objects.module import PortBasedObject, param_ranges
-from pbo_runtime.objects.ranges import FINITE
 from pbo_runtime.objects.ports import PortSpec
+from pbo_runtime.objects.ranges import FINITE
 
 PORTS_FROM_PARAMS = "ports depend on params (besides those listed)"
 

@@ -50,7 +50,7 @@ def info(path: Path) -> LogInfo:
     log = open_log(path)  # (refuses what is not a log, in the words every log verb uses)
     if log.format == "npy":
         times = log.rows["time"]
-        start, end = (int(round(times[0] * 1e9)), int(round(times[-1] * 1e9))) if len(times) else (0, 0)
+        start, end = (round(times[0] * 1e9), round(times[-1] * 1e9)) if len(times) else (0, 0)
         topics = [TopicInfo(name, str(log.rows.dtype[name]), len(log.rows), "npy") for name in log.variables]
         return LogInfo(path, path.stat().st_size, "npy", start, end, False, len(log.rows), log.complete, topics)
     return _mcap_info(path, log.metadata.get("unix_offset_ns") is not None)

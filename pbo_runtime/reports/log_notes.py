@@ -24,9 +24,9 @@ from pbo_runtime.config.model import Subsystem
 from pbo_runtime.objects.registry import installed_version
 
 # Unit symbols a doc's last clause may be made of (SI and the few others control engineers write)
-UNIT_SYMBOLS = frozenset(
-    "rad deg m mm cm km s ms us µs ns min h Hz kHz N kN Nm kg g A mA V mV W kW J Pa kPa bar K °C "
-    "px pixel pixels rpm count counts".split())
+UNIT_SYMBOLS = frozenset((
+    "rad", "deg", "m", "mm", "cm", "km", "s", "ms", "us", "µs", "ns", "min", "h", "Hz", "kHz", "N", "kN", "Nm", "kg", "g",
+    "A", "mA", "V", "mV", "W", "kW", "J", "Pa", "kPa", "bar", "K", "°C", "px", "pixel", "pixels", "rpm", "count", "counts"))
 _UNIT_TOKEN = re.compile(r"[A-Za-zµ°]+|[0-9²³^*/·()\-. ]")
 
 

@@ -69,7 +69,7 @@ def _term(name: str, index: str, columns: dict[str, DataLog], where: str) -> tup
     values = log.rows[name]
     indices = [int(i) for i in re.findall(r"\d+", index)]
     shape = values.shape[1:]
-    if len(indices) > len(shape) or any(i >= size for i, size in zip(indices, shape)):
+    if len(indices) > len(shape) or any(i >= size for i, size in zip(indices, shape, strict=False)):
         raise LogError(f"{name}{index}: '{name}' has shape {list(shape)}: no such element")
     for i in indices:
         values = values[:, i]

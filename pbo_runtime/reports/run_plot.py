@@ -13,9 +13,10 @@ from __future__ import annotations
 import csv
 import io
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -120,7 +121,7 @@ def figure(run: RunData, variables: list[str] | None = None, new: Callable[..., 
     fig = (new or Figure)(figsize=(10, 1.2 + 2.2 * len(axes_asked)), dpi=100, layout="constrained")
     axes = fig.subplots(len(axes_asked), 1, sharex=True, squeeze=False)[:, 0]
     marks = [(float(m["time"]) - run.origin, str(m.get("label", "")), str(m.get("kind", ""))) for m in run.marks]
-    for ax, (argument, curves) in zip(axes, axes_asked):
+    for ax, (argument, curves) in zip(axes, axes_asked, strict=False):
         lines = 0
         for curve in curves:
             for element, label in enumerate(curve.labels):
@@ -131,7 +132,7 @@ def figure(run: RunData, variables: list[str] | None = None, new: Callable[..., 
         ax.set_ylabel(f"{argument} [{unit}]" if unit else argument)
         if lines > 1:
             ax.legend(loc="upper right", fontsize="x-small", ncol=min(lines, 6))
-        for at, label, kind in marks:
+        for at, _label, kind in marks:
             line = ax.axvline(at, color=MARK_COLOURS.get(kind, "black"), linestyle="--", linewidth=0.8)
             line.set_gid("mark")
         ax.grid(True, linewidth=0.3)
@@ -186,6 +187,6 @@ def csv_text(log: DataLog) -> str:
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(header)
-    for row in zip(*(c.tolist() for c in columns)):
+    for row in zip(*(c.tolist() for c in columns), strict=False):
         writer.writerow([value for part in row for value in part])
     return out.getvalue()

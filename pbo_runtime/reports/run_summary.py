@@ -12,8 +12,6 @@ from rich.table import Table
 
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.reports.run_result import (
-    FinalValue,
-    PlantFigures,
     RtpuSettings,
     RunResult,
     Stall,
@@ -45,21 +43,20 @@ def print_summary(console: Console, subsystem: Subsystem, result: RunResult, res
     values.add_column("variable")
     values.add_column("value")
     values.add_column("writer")
-    for name, entry in result.variables.items():
+    for name, final in result.variables.items():
         if subsystem.variables[name].size > 12:
             continue
-        final = FinalValue.from_json(entry)
         values.add_row(name, format_value(final.value), final.writer)
     console.print(values)
     for name, task in result.tasks.items():
         if task.error:
             console.print(f"task '{name}': {task.error}", markup=False)
-    realtime = {rtpu: RtpuSettings.from_json(settings) for rtpu, settings in result.realtime.items()}
+    realtime = result.realtime
     for line in [*overrun_lines(subsystem, result.tasks, realtime), *stall_lines(result.stalls), *restart_lines,
                  *result.timing_holds, *processor_lines(result.tasks)]:
         console.print(line, markup=False)
-    if result.plant:
-        plant = PlantFigures.from_json(result.plant)
+    if result.plant is not None:
+        plant = result.plant
         console.print(f"plant: {plant.steps} steps, {plant.late} late", markup=False)
         if plant.left_fifo_behind:
             console.print(f"plant: it fell {plant.left_fifo_behind:.2f} s behind real time (a step takes longer "
@@ -159,7 +156,7 @@ def print_switches(console: Console, result: RunResult) -> None:
     """Per switch: latency (request to the first cycle of the new configuration); stale reads."""
     if not result.switches:
         return
-    switches = [SwitchFigures.from_json(s) for s in result.switches]
+    switches = [SwitchFigures.of(s) for s in result.switches]
     latency = np.array([s.latency for s in switches]) * 1e3
     skew = np.array([s.skew for s in switches]) * 1e3
     longest = np.array([s.longest for s in switches]) * 1e3

@@ -19,16 +19,16 @@ import json
 import re
 import types
 import typing
-from pathlib import Path
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
+from pbo_runtime.config.model import PlantSpec
+from pbo_runtime.config.units import DATA_RATE, FREQUENCY, SIZE, TIME, UNITS
 from pbo_runtime.objects import registry
 from pbo_runtime.objects.module import param_ranges
 from pbo_runtime.objects.ranges import Range
 from pbo_runtime.reports.lexicon import jsonable, param_hints, params_info, ports_depend_on_params
-from pbo_runtime.config.model import PlantSpec
-from pbo_runtime.config.units import DATA_RATE, FREQUENCY, SIZE, TIME, UNITS
 
 SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 SCHEMA_ID = "urn:pbo-runtime:subsystem-schema"
@@ -103,7 +103,7 @@ def hint_schema(hint: Any, allowed: Range | None = None) -> dict[str, Any]:
     if origin in (typing.Union, types.UnionType):
         return {"oneOf": [hint_schema(a, allowed) for a in args]}
     if origin in (tuple, list):
-        items = args[0] if args and (len(args) == 2 and args[1] is Ellipsis or origin is list) else None
+        items = args[0] if args and ((len(args) == 2 and args[1] is Ellipsis) or origin is list) else None
         node: dict[str, Any] = {"type": "array"}
         if items is not None:
             node["items"] = hint_schema(items, allowed)
@@ -128,7 +128,8 @@ def fields_schema(params_type: Any, description: str) -> dict[str, Any]:
     for info in params_info(params_type):
         node = hint_schema(hints[info["name"]], ranges.get(info["name"]))
         doc = info["doc"]
-        node["description"] = f"{info['name']}: {info['type']}" + (f", {info['range']}" if info["range"] else "") + (f" ({doc})" if doc else "")
+        node["description"] = (f"{info['name']}: {info['type']}" + (f", {info['range']}" if info["range"] else "")
+                               + (f" ({doc})" if doc else ""))
         if info["required"]:
             required.append(info["name"])
         else:
@@ -168,7 +169,8 @@ def json_schema() -> dict[str, Any]:
     name = {"type": "string", "minLength": 1}
 
     restart = _obj(
-        {"max": {"type": "integer", "minimum": 0, "description": "deaths restarted within `within` before the run stops (0: never)"},
+        {"max": {"type": "integer", "minimum": 0,
+                 "description": "deaths restarted within `within` before the run stops (0: never)"},
          "within": {"$ref": "#/$defs/time", "description": "the window the deaths are counted in, e.g. '10 s'"}},
         "restart a dead RTPU alone: at most `max` times within `within`, e.g. {max: 3, within: 10 s}",
         required=("max",),
@@ -182,7 +184,8 @@ def json_schema() -> dict[str, Any]:
         "an RTPU's options",
     )
     rtpus = {
-        "description": "the RTPU processes; tasks name the one that hosts them: a list of names, or a mapping {name: {cpu: N, spin: 200 us}}",
+        "description": "the RTPU processes; tasks name the one that hosts them: a list of names, or a mapping {name: {cpu: N, "
+                       "spin: 200 us}}",
         "oneOf": [
             {"type": "array", "items": name, "minItems": 1, "uniqueItems": True},
             {"type": "object", "minProperties": 1, "additionalProperties": {"oneOf": [rtpu_entry, {"type": "null"}]}},
@@ -195,7 +198,8 @@ def json_schema() -> dict[str, Any]:
         },
         "the backplane's bandwidth and the lock overhead Δ of TR eq. 1",
     )
-    plant_type: dict[str, Any] = {"type": "string", "description": "the registered plant (entry point group 'pbo.plants'), default mujoco_arm"}
+    plant_type: dict[str, Any] = {"type": "string", "description": "the registered plant (entry point group 'pbo.plants'), "
+                                                                   "default mujoco_arm"}
     if plants:
         plant_type["enum"] = list(plants)
     plant = _obj(
@@ -230,7 +234,8 @@ def json_schema() -> dict[str, Any]:
     device = _obj(
         {
             "driver": driver,
-            "exclusive": {"type": "boolean", "default": False, "description": "true: at most one task of a configuration may use it"},
+            "exclusive": {"type": "boolean", "default": False,
+                          "description": "true: at most one task of a configuration may use it"},
             "io": {**claim, "description": "a sensor-actuator device: the I/O device channels its cable is wired to, "
                                            "e.g. {device: adc0, channels: 0-5}"},
         },
@@ -238,7 +243,8 @@ def json_schema() -> dict[str, Any]:
         required=("driver",),
         closed=False,
     )
-    shape_item = {"oneOf": [{"type": "integer", "minimum": 1}, {"type": "string", "minLength": 1, "description": "a name from 'dims'"}]}
+    shape_item = {"oneOf": [{"type": "integer", "minimum": 1},
+                            {"type": "string", "minLength": 1, "description": "a name from 'dims'"}]}
     variable = _obj(
         {
             "type": {"type": "string", "enum": list(DTYPES), "description": "the numpy dtype of the variable"},
@@ -247,21 +253,25 @@ def json_schema() -> dict[str, Any]:
                 "oneOf": [{"type": "array", "items": shape_item}, shape_item, {"type": "null"}],
             },
             "doc": {"type": "string", "description": "what the variable means, with its unit"},
-            "object": {"type": "string", "description": "the object type a job may set this variable as (it counts as written by job control)"},
+            "object": {"type": "string", "description": "the object type a job may set this variable as (it counts as written by "
+                                                        "job control)"},
             "initial": {
-                "description": "the value job control writes before any task starts: a number for every element, or a nested list of the shape",
+                "description": "the value job control writes before any task starts: a number for every element, or a nested "
+                               "list of the shape",
                 "type": ["number", "boolean", "array"],
             },
         },
         "a variable of the global state variable table (no type: the ports that link it give type and shape)",
     )
     task_properties = {
-        "module": {"type": "string", "enum": list(modules), "description": "the module's library name (`pbo lexicon` lists them)"},
+        "module": {"type": "string", "enum": list(modules),
+                   "description": "the module's library name (`pbo lexicon` lists them)"},
         "rtpu": {"type": "string", "description": "the RTPU that hosts this task (one of 'rtpus')"},
         "period": {"$ref": "#/$defs/time", "description": "the task's period, e.g. '1 ms' (or give a rate)"},
         "rate": {"$ref": "#/$defs/frequency", "description": "the task's rate, e.g. '1 kHz' (or give a period)"},
         "priority": {"type": "integer", "description": "higher runs first among ready tasks of equal criticality"},
-        "critical": {"type": "boolean", "description": "runs before ready tasks that are not critical, and is turned on first (e.g. the robot interface)"},
+        "critical": {"type": "boolean", "description": "runs before ready tasks that are not critical, and is turned on first "
+                                                       "(e.g. the robot interface)"},
         "params": {"type": "object", "description": "the module's parameters (`pbo lexicon` lists them)"},
         "ports": {
             "type": "object",
@@ -274,7 +284,8 @@ def json_schema() -> dict[str, Any]:
             "uniqueItems": True,
             "description": "the devices this task may open, e.g. [arm, {device: adc0, channels: 6-7}]",
         },
-        "wcet": {"$ref": "#/$defs/time", "description": "the task's worst-case execution time per cycle, for the schedulability check"},
+        "wcet": {"$ref": "#/$defs/time", "description": "the task's worst-case execution time per cycle, for the schedulability "
+                                                        "check"},
         "aperiodic": {"type": "boolean", "description": "true: the task is released by events, not by a period"},
         "min_interarrival": {"$ref": "#/$defs/time", "description": "an aperiodic task's least time between two releases"},
         "fresh_within": {
@@ -302,9 +313,12 @@ def json_schema() -> dict[str, Any]:
             "configuration": {"type": "string", "description": "the configuration the job runs"},
             "object": {"type": "string", "description": "the variable (marked with object:) an application step gives the job; "
                                                         "left out: inferred from the tasks that read one; none: no object"},
-            "pre": {"type": "string", "description": "a pre-condition: an expression over variables that must hold before the job starts"},
-            "post": {"type": "string", "description": "a post-condition: the job is done when it holds, e.g. \"max(abs(q_m - q_d)) < 1e-3\""},
-            "timeout": {"$ref": "#/$defs/time", "description": "the job fails if its post-condition does not hold within this time"},
+            "pre": {"type": "string", "description": "a pre-condition: an expression over variables that must hold before the "
+                                                     "job starts"},
+            "post": {"type": "string", "description": "a post-condition: the job is done when it holds, e.g. \"max(abs(q_m - "
+                                                      "q_d)) < 1e-3\""},
+            "timeout": {"$ref": "#/$defs/time", "description": "the job fails if its post-condition does not hold within this "
+                                                               "time"},
         },
         "a job: a configuration with an object and pre/post conditions",
         required=("configuration",),
@@ -342,7 +356,8 @@ def json_schema() -> dict[str, Any]:
     )
     named_object = _obj(
         {
-            "type": {"type": "string", "description": "its object type (one of 'object_types', or a type a variable is marked with)"},
+            "type": {"type": "string", "description": "its object type (one of 'object_types', or a type a variable is marked "
+                                                      "with)"},
             "value": {"description": "a number for every element, or a nested list of the type's shape",
                       "type": ["number", "boolean", "array"]},
             "doc": {"type": "string", "description": "what the object is, e.g. the home pose"},
@@ -370,11 +385,14 @@ def json_schema() -> dict[str, Any]:
             "description": "named sizes used in shapes, e.g. {NDOF: 6}",
             "additionalProperties": {"type": "integer", "minimum": 1},
         },
-        "variables": _map({"$ref": "#/$defs/variable"}, "the global state variable table: name -> type, shape, doc, object, initial; "
-                                                        "a variable that only connects ports needs no entry"),
-        "object_types": _map({"$ref": "#/$defs/object_type"}, "object types: what a job's object may be, name -> type, shape, unit, doc"),
+        "variables": _map({"$ref": "#/$defs/variable"},
+                          "the global state variable table: name -> type, shape, doc, object, initial; "
+                          "a variable that only connects ports needs no entry"),
+        "object_types": _map({"$ref": "#/$defs/object_type"}, "object types: what a job's object may be, name -> type, shape, "
+                                                              "unit, doc"),
         "objects": _map({"$ref": "#/$defs/object"}, "named objects: name -> type and value, given to jobs by name"),
-        "tasks": _map({"$ref": "#/$defs/task"}, "every task any configuration may use: name -> module, rtpu, period or rate, ..."),
+        "tasks": _map({"$ref": "#/$defs/task"},
+                      "every task any configuration may use: name -> module, rtpu, period or rate, ..."),
         "configurations": _map(
             {"type": "array", "items": name, "uniqueItems": True, "description": "the tasks that run together"},
             "configurations: name -> the tasks that run together",

@@ -23,6 +23,7 @@ there: what arrives over a network, and when, is not the simulated clock's to or
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import json
 import os
@@ -34,21 +35,21 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import posix_ipc
 
 from pbo_runtime.clock.application_lockstep import ApplicationLockstep
-from pbo_runtime.ipc import limits
-from pbo_runtime.ipc import shm
 from pbo_runtime.config.application import Application
-from pbo_runtime.links.zenoh_session import link_key
-from pbo_runtime.supervisor.cleanup import remove_dead_runs
-from pbo_runtime.supervisor.supervisor import simulation_tick
+from pbo_runtime.ipc import limits, shm
 from pbo_runtime.links.message_link import SYSTEM_MESSAGE_BYTES, MessageLink, message_link_name
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer, link_name
+from pbo_runtime.links.zenoh_session import link_key
+from pbo_runtime.supervisor.cleanup import remove_dead_runs
+from pbo_runtime.supervisor.sim_tick import simulation_tick
 
 STOP_GRACE = 15.0  # seconds a subsystem gets to shut down after SIGTERM before it is killed
 RELAY_GRACE = 2.0  # seconds to print what an ended subsystem still had in its pipe
@@ -77,16 +78,15 @@ def unreplayable_links(application: Application) -> str:
 
 def _die_with_parent() -> None:
     """In the child, before exec: SIGTERM when the runner dies, so no subsystem outlives it."""
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
 
 
 def _free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
         probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
+        port: int = probe.getsockname()[1]
+        return port
 
 
 class ApplicationRunner:
@@ -104,7 +104,7 @@ class ApplicationRunner:
         self.run_id = shm.new_run_id()
         self.links: dict[str, dict[str, Any]] = {}
         self._links: list[TripleBuffer | MessageLink] = []  # the shm links this runner made and removes
-        self._children: dict[str, subprocess.Popen] = {}
+        self._children: dict[str, subprocess.Popen[str]] = {}
         self._terminated: set[str] = set()  # subsystems this runner sent SIGTERM to stop them
         self._relays: list[threading.Thread] = []  # one per subsystem: its output, prefixed, until it ends
         self._stopping = ""
@@ -186,11 +186,12 @@ class ApplicationRunner:
         # a replayed run must not depend on string hashing, in the supervisors as in their children
         environment = {**os.environ, "PYTHONHASHSEED": "0"} if self.clock == "sim" else None
         for key in self.local:
-            child = subprocess.Popen(self.command(key), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     text=True, preexec_fn=_die_with_parent, start_new_session=True, env=environment)
+            child = subprocess.Popen(self.command(key), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, text=True, preexec_fn=_die_with_parent,
+                                     start_new_session=True, env=environment)
             self.watch(key, child)
 
-    def watch(self, key: str, child: subprocess.Popen) -> None:
+    def watch(self, key: str, child: subprocess.Popen[str]) -> None:
         """Take subsystem `key`'s process: its output is relayed, prefixed with `[key]`, until it ends."""
         self._children[key] = child
         relay = threading.Thread(target=self._relay, args=(key, child), daemon=True)
@@ -229,7 +230,7 @@ class ApplicationRunner:
         path.write_text(json.dumps(plan))
         return str(path)
 
-    def _relay(self, key: str, child: subprocess.Popen) -> None:
+    def _relay(self, key: str, child: subprocess.Popen[str]) -> None:
         assert child.stdout is not None
         for line in child.stdout:
             sys.stdout.write(f"[{key}] {line}")
@@ -290,7 +291,8 @@ class ApplicationRunner:
 
     def _worst(self) -> int:
         """The worst exit status of the subsystems: 0, theirs, or EXIT_RUN for one killed by a signal."""
-        codes = [child.returncode for key, child in self._children.items() if child.returncode and not self._stopped_as_asked(key)]
+        codes = [child.returncode for key, child in self._children.items()
+                 if child.returncode and not self._stopped_as_asked(key)]
         return max((code if code > 0 else EXIT_RUN) for code in codes) if codes else 0
 
     def _stopped_as_asked(self, key: str) -> bool:

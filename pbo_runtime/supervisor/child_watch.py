@@ -3,16 +3,17 @@
 A thread waits in poll(2) on a pidfd per child (Linux 5.3: readable once the process has
 exited) and, when one becomes readable, puts a `ChildExited` event on the supervisor's own
 event queue, so a supervisor waiting for events wakes at once and handles the death in its own
-thread (`Children._check_children`). The thread never touches the run's state: it only wakes.
+thread (`Children.check`). The thread never touches the run's state: it only wakes.
 Where pidfds are missing the supervisor still finds the death at its next look, as before.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import threading
-from typing import Callable
+from collections.abc import Callable
 
 
 class ChildWatch:
@@ -48,16 +49,12 @@ class ChildWatch:
     def close(self) -> None:
         with self._lock:
             self._closed = True
-        try:
+        with contextlib.suppress(OSError):
             os.write(self._wake_write, b"q")
-        except OSError:
-            pass
         self._thread.join(timeout=1.0)
         for fd in (*self._watched, self._wake_read, self._wake_write):
-            try:
+            with contextlib.suppress(OSError):
                 os.close(fd)
-            except OSError:
-                pass
         self._watched.clear()
 
     def _run(self) -> None:
@@ -69,10 +66,8 @@ class ChildWatch:
                 ended = [self._watched.pop(fd) for fd, _ in ready if fd in self._watched]
                 for fd, _ in ready:
                     if fd == self._wake_read:
-                        try:
+                        with contextlib.suppress(BlockingIOError):
                             os.read(self._wake_read, 64)
-                        except BlockingIOError:
-                            pass
                     elif fd not in self._watched:
                         self._poll.unregister(fd)
                         os.close(fd)

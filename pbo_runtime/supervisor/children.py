@@ -7,19 +7,18 @@ not stopped after STOP_TIMEOUT is resumed and sent SIGTERM, then SIGKILL after a
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Callable
 
 from pbo_runtime.clock.run_clock import RunClock
-from pbo_runtime.config.model import Subsystem
-from pbo_runtime.ipc import messages
-from pbo_runtime.ipc import shm
-from pbo_runtime.ipc.control import ControlServer
+from pbo_runtime.config.model import RtpuSpec
+from pbo_runtime.ipc import messages, shm
 from pbo_runtime.supervisor.child_watch import ChildWatch
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
 from pbo_runtime.supervisor.fork_server import ForkedProcess, ForkServer, ForkServerUnavailable, forking_enabled
@@ -41,60 +40,79 @@ class Child:
     tasks: tuple[str, ...] = ()
 
 
+def death_message(child: Child, code: int) -> str:
+    """What the run tells of a child that ended with `code` (Popen's: negative, the signal that killed it)."""
+    hosted = f" while hosting tasks: {', '.join(child.tasks)}" if child.tasks else ""
+    return f"{_what(child.role)} (pid {child.process.pid}) died ({death_cause(code)}){hosted}"
+
+
+def death_cause(code: int) -> str:
+    return f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit status {code}"
+
+
+def death_failure(child: Child, code: int, restartable: bool) -> RunFailure:
+    """A child's death: RtpuDied if its restart policy may bring it back (the caller restarts it), else RunFailure."""
+    message = death_message(child, code)
+    if restartable:
+        return RtpuDied(message, child.role, child.process.pid, death_cause(code))
+    return RunFailure(message)
+
+
+def _what(role: str) -> str:
+    return "the plant" if role == "plant" else f"RTPU '{role}'"
+
+
 class Children:
-    """The Supervisor's part that starts, watches and stops its child processes."""
+    """The supervisor's part that starts, watches and stops its child processes.
 
-    clock: RunClock
-    subsystem: Subsystem
-    run_id: str
-    children: list[Child]
-    fork_server: ForkServer | None
-    table: StateTable | None
-    result: RunResult
-    signals: dict[str, messages.Queue]
-    events: messages.Queue | None
-    control: ControlServer | None
-    task_states: dict[str, str]
-    started_at: float | None
-    say: Callable[[str], None]
-    now: Callable[[], float]
-    _manifest: Callable[[], list[str]]
-    _drain_events: Callable[[float], None]
-    _read_final_values: Callable[[], None]
-    _report_run: Callable[[], None]
-    _look_at_the_lock: Callable[[], None]
-    _look_at_the_lock_while_stopping: Callable[[], None]
-    may_restart: Callable[[str], bool]
-    launched: dict[str, tuple[list[str], tuple[str, ...]]]  # role -> its launch arguments and tasks
-    child_watch: ChildWatch | None
-    _startup_mark: Callable[..., None]
+    `table` gives the run's table once it is made; `manifest` the shared objects the run makes;
+    `may_restart` whether a role's restart policy brings it back; `mark` notes a start-up phase.
+    """
 
-    def _start_fork_server(self, preload: list[str]) -> None:
+    def __init__(self, run_id: str, clock: RunClock, result: RunResult, say: Callable[[str], None],
+                 table: Callable[[], StateTable | None], manifest: Callable[[], list[str]],
+                 may_restart: Callable[[str], bool], mark: Callable[[str, float], None],
+                 fork_server: ForkServer | None = None) -> None:
+        self.run_id = run_id
+        self.clock = clock
+        self.result = result
+        self.say = say
+        self.table = table
+        self.manifest = manifest
+        self.may_restart = may_restart
+        self.mark = mark
+        self.children: list[Child] = []
+        self.launched: dict[str, tuple[list[str], tuple[str, ...]]] = {}  # role -> its launch arguments and tasks
+        self.child_watch: ChildWatch | None = None
+        # what the children are forked from while they start (supervisor.fork_server): one the caller
+        # started early (the CLI, before it loaded the file), or one the run starts; ended once they are
+        self.fork_server = fork_server
+
+    def start_fork_server(self, file: str, preload: list[str]) -> None:
         """The fork server the children are forked from (`supervisor.fork_server`), started before it is needed."""
         if not forking_enabled():
             return
         try:
-            self.fork_server = ForkServer.start(self.subsystem.file, preload, env=self.clock.child_environment(),
-                                               run_id=self.run_id)
+            self.fork_server = ForkServer.start(file, preload, env=self.clock.child_environment(), run_id=self.run_id)
         except OSError as exc:
             self.say(f"no fork server ({exc}): the children start as fresh interpreters")
 
-    def _release_fork_server(self) -> None:
+    def release_fork_server(self, rtpus: Iterable[RtpuSpec]) -> None:
         """Once the children are started: kept for the run if an RTPU may be restarted (it is forked
         from it again), else ended (it exits at once, nothing to tear down)."""
         if self.fork_server is not None:
             if self.fork_server.warm_at:
-                self._startup_mark("fork_server", self.fork_server.warm_at)
-            if not any(self.may_restart(rtpu.name) for rtpu in self.subsystem.rtpus):
-                self._end_fork_server()
+                self.mark("fork_server", self.fork_server.warm_at)
+            if not any(self.may_restart(rtpu.name) for rtpu in rtpus):
+                self.end_fork_server()
 
-    def _end_fork_server(self) -> None:
+    def end_fork_server(self) -> None:
         """On every exit path: ended and reaped."""
         if self.fork_server is not None:
             self.fork_server.close()
             self.fork_server = None
 
-    def _launch(self, role: str, arguments: list[str], tasks: tuple[str, ...] = ()) -> None:
+    def launch(self, role: str, arguments: list[str], tasks: tuple[str, ...] = ()) -> None:
         """Start `python -m MODULE ARGUMENTS...` (`arguments` begins with -m MODULE): forked from the fork
         server where it serves, else a fresh interpreter."""
         parent = ["--parent", str(os.getpid())]
@@ -105,65 +123,63 @@ class Children:
                 process = self.fork_server.fork(arguments[1], [*arguments[2:], *parent])
             except ForkServerUnavailable as exc:
                 self.say(f"{exc}: the children start as fresh interpreters")
-                self._end_fork_server()
+                self.end_fork_server()
         if process is None:
             process = subprocess.Popen([sys.executable, *arguments, *parent], stdin=subprocess.DEVNULL,
                                        start_new_session=True, env=self.clock.child_environment())
         self.children.append(Child(role, process, tasks))
         if self.child_watch is not None:
             self.child_watch.watch(role, process.pid)
-        self._list_children()
+        self.list_children()
 
-    def _list_children(self) -> None:
+    def list_children(self) -> None:
         """The manifest names the live children: cleanup leaves the run alone while any of them lives."""
-        if self.table is not None:
-            self.table.set_manifest([*self._manifest(), *(f"pid {c.process.pid} {c.role}" for c in self.children)])
+        table = self.table()
+        if table is not None:
+            table.set_manifest([*self.manifest(), *(f"pid {c.process.pid} {c.role}" for c in self.children)])
 
-    def _check_children(self) -> None:
+    def check(self) -> None:
         """A child that ended: RtpuDied if its RTPU may be restarted (the caller restarts it), else RunFailure."""
         for child in self.children:
             code = child.process.poll()
             if code is not None:
-                self._recover_lock_from(child.process.pid)
-                how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit status {code}"
-                hosted = f" while hosting tasks: {', '.join(child.tasks)}" if child.tasks else ""
-                what = "the plant" if child.role == "plant" else f"RTPU '{child.role}'"
-                message = f"{what} (pid {child.process.pid}) died ({how}){hosted}"
-                if self.may_restart(child.role):
-                    raise RtpuDied(message, child.role, child.process.pid, how)
-                raise RunFailure(message)
-        self._look_at_the_lock()
+                self.recover_lock_from(child.process.pid)
+                raise death_failure(child, code, self.may_restart(child.role))
 
-    def _recover_lock_from(self, pid: int) -> None:
+    def recover_lock_from(self, pid: int) -> None:
         """A process that died holding the table lock must not wedge the others."""
-        if self.table is not None and self.table.recover_lock_from(pid, settle=DEAD_HOLDER_SETTLE):
+        table = self.table()
+        if table is not None and table.recover_lock_from(pid, settle=DEAD_HOLDER_SETTLE):
             self.result.lock_recoveries += 1
             self.say(f"released the table lock held by dead process {pid}")
 
-    def _shutdown(self) -> None:
-        """Stop the children (each RTPU by itself first), report, close and unlink everything: on every exit path."""
-        watch, self.child_watch = self.child_watch, None  # from here on, children end because they are told to
+    def stop_watching(self) -> None:
+        """From here on, children end because they are told to: the child watch and the fork server end."""
+        watch, self.child_watch = self.child_watch, None
         if watch is not None:
             watch.close()
-        self._end_fork_server()
-        self.result.duration = self.now() - self.started_at if self.started_at is not None else 0.0
-        self.result.states_at_stop = dict(self.task_states)
-        if self.table is not None:
-            self.clock.announce_stop(self.table.announce_stop)
+        self.end_fork_server()
+
+    def stop_rtpus(self, signals: dict[str, messages.Queue], drain: Callable[[float], None],
+                   look_at_the_lock: Callable[[], None]) -> None:
+        """Ask each RTPU to stop by itself (the table's stop flag is up), `drain`ing events meanwhile;
+        those that did not within STOP_TIMEOUT go to `result.unstopped`."""
         alive = [c for c in self.children if c.process.poll() is None]
-        self._resume_stopped(alive)  # the flag is up: a resumed RTPU runs no more cycles, it only stops
+        self.resume_stopped(alive)  # the flag is up: a resumed RTPU runs no more cycles, it only stops
         for child in alive:
             if child.role != "plant":
-                self.signals[child.role].try_signal(messages.StopRtpu())
-                self._serve_stop(child)
+                signals[child.role].try_signal(messages.StopRtpu())
+                self.serve_stop(child, drain)
         deadline = time.monotonic() + STOP_TIMEOUT
         rtpus = [c for c in alive if c.role != "plant"]
         while any(c.process.poll() is None for c in rtpus) and time.monotonic() < deadline:
-            self._drain_events(0.05)
-            self._look_at_the_lock_while_stopping()  # an RTPU whose stop waits on a wedged lock must not wait for good
-        self._drain_events(0.0)
+            drain(0.05)
+            look_at_the_lock()  # an RTPU whose stop waits on a wedged lock must not wait for good
+        drain(0.0)
         self.result.unstopped = [c.role for c in rtpus if c.process.poll() is None]
-        self._read_final_values()
+
+    def end_all(self) -> None:
+        """SIGTERM to every child still alive (resumed first), then SIGKILL to one that outlives STOP_TIMEOUT."""
         for child in self.children:
             if child.process.poll() is None:
                 _signal_quietly(child.process, signal.SIGCONT)  # a stopped process takes SIGTERM only once resumed
@@ -174,48 +190,26 @@ class Children:
             except subprocess.TimeoutExpired:
                 child.process.kill()
                 child.process.wait()
-        self._drain_events(0.0)
-        self.clock.close()
-        self._report_run()
-        if self.control is not None:
-            self.control.close()
-        for queue in self.signals.values():
-            queue.close()
-        if self.events is not None:
-            self.events.close()
-        if self.table is not None:
-            self.table.close()
-        for entry in self._manifest():  # a backstop: whatever a child could not remove
-            kind, _, name = entry.partition(" ")
-            shm.unlink_quietly(kind, name)
-        # ... and what a child made under the run's name that the manifest does not list (a special-purpose
-        # processor's memory, made by its driver in a task): every child is gone, so all of it is the run's
-        for listed in shm.list_objects(self.subsystem.name):
-            if listed.run_id == self.run_id and listed.distrust is None:
-                shm.unlink_quietly(listed.kind, listed.name)
 
-    def _resume_stopped(self, children: list[Child]) -> None:
+    def resume_stopped(self, children: list[Child]) -> None:
         """SIGCONT to every child stopped (SIGSTOP) when the run stops: a stopped process cannot stop by itself."""
         for child in children:
             if shm.pid_state(child.process.pid) in ("T", "t"):
                 _signal_quietly(child.process, signal.SIGCONT)
-                what = "the plant" if child.role == "plant" else f"RTPU '{child.role}'"
-                self.say(f"{what} (pid {child.process.pid}) was stopped (SIGSTOP): resumed it so it can stop")
+                self.say(f"{_what(child.role)} (pid {child.process.pid}) was stopped (SIGSTOP): resumed it so it can stop")
 
-    def _serve_stop(self, child: Child) -> None:
+    def serve_stop(self, child: Child, drain: Callable[[float], None]) -> None:
         """Sim clock: step an RTPU once so it serves its stop; a dead or stuck one is left to SIGTERM."""
-        self.clock.take_turn(lambda: self._drain_events(0.0))  # an application's turn: its wait is not the stop's
+        self.clock.take_turn(lambda: drain(0.0))  # an application's turn: its wait is not the stop's
         deadline = time.monotonic() + STOP_TIMEOUT
 
         def give_up() -> bool:
-            self._drain_events(0.0)
+            drain(0.0)
             return child.process.poll() is not None or time.monotonic() > deadline
 
         self.clock.serve(child.role, give_up)
 
 
 def _signal_quietly(process: subprocess.Popen[bytes] | ForkedProcess, signum: int) -> None:
-    try:
+    with contextlib.suppress(OSError):  # it ended meanwhile
         process.send_signal(signum)
-    except OSError:  # it ended meanwhile
-        pass

@@ -21,8 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import posix_ipc
 
-from pbo_runtime.ipc import runs
-from pbo_runtime.ipc import shm
+from pbo_runtime.ipc import runs, shm
 from pbo_runtime.table.table import HEADER_WORDS, Header, read_manifest
 
 KINDS = ("shm", "sem", "mq")
@@ -61,6 +60,18 @@ def remove_dead_runs(subsystem: str | None = None) -> Cleanup:
         _remove(sub, run_id, objects, table, entries, cleanup)
     cleanup.removed.sort()
     return cleanup
+
+
+def unlink_run(manifest: list[str], subsystem: str, run_id: str) -> None:
+    """At a run's end, once every child is gone: what its manifest lists (a backstop: whatever a child
+    could not remove), and what a child made under the run's name that the manifest does not list (a
+    special-purpose processor's memory, made by its driver in a task)."""
+    for entry in manifest:
+        kind, _, name = entry.partition(" ")
+        shm.unlink_quietly(kind, name)
+    for listed in shm.list_objects(subsystem):
+        if listed.run_id == run_id and listed.distrust is None:
+            shm.unlink_quietly(listed.kind, listed.name)
 
 
 def remove_run(subsystem: str, run_id: str) -> Cleanup:

@@ -12,9 +12,9 @@ from __future__ import annotations
 import argparse
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 STATUS_TIMEOUT = 2.0
 COMMAND_TIMEOUT = 5.0  # a switch or a task signal may wait for RTPUs to confirm
@@ -171,7 +171,8 @@ VERBS: tuple[Verb, ...] = (
     Verb("clear", "clear a task's error (its clear component decides: OFF, or still ERROR)", (_TASK,),
          "clear", _TASK_REPLY, COMMAND_TIMEOUT),
     Verb("switch", "switch the running subsystem to another configuration (dynamic, TR 4.4)",
-         (Argument("configuration", help="the configuration to switch to", key="configuration", complete="configuration"),), "switch",
+         (Argument("configuration", help="the configuration to switch to", key="configuration",
+                   complete="configuration"),), "switch",
          '`{"configuration": str, "entered": [str], "left": [str], "took": seconds}`', COMMAND_TIMEOUT),
     Verb("job", "start a job, with its object: pbo job reach ready, or its values: pbo job reach 0.3 -0.5 0.5 0 0.4 0.2",
          (Argument("name", help="the job's name", key="job", complete="job"),
@@ -189,13 +190,15 @@ VERBS: tuple[Verb, ...] = (
          "play", '`{"device": str, "writes": int}`'),
     Verb("spawn", "spawn a task on the live subsystem, checked first, on at a cycle boundary: "
                   "pbo spawn logger --module data_logger --rtpu rtpu0 --period 10ms --param variables=[q_m]",
-         (Argument("task", help="the new task's name", key="task", complete="task"), *_NEW_TASK), "spawn", _LIVE_REPLY, LIVE_TIMEOUT),
+         (Argument("task", help="the new task's name", key="task", complete="task"), *_NEW_TASK), "spawn", _LIVE_REPLY,
+         LIVE_TIMEOUT),
     Verb("kill", "kill a task of the live subsystem, checked first: off at a cycle boundary, then killed", (_TASK,), "kill",
          _LIVE_REPLY, LIVE_TIMEOUT),
     Verb("replace", "replace a task by a new one in one switch, checked first: pbo replace pid pd --param ki=0 "
                     "(the new task is the old one's entry with what is given)",
-         (Argument("task", help="the task to replace", key="task", complete="task"), Argument("new", help="the new task's name", key="new"),
-          *_NEW_TASK), "replace", _LIVE_REPLY + ' and `"replaced": str`', LIVE_TIMEOUT),
+         (Argument("task", help="the task to replace", key="task", complete="task"),
+          Argument("new", help="the new task's name", key="new"), *_NEW_TASK), "replace",
+         _LIVE_REPLY + ' and `"replaced": str`', LIVE_TIMEOUT),
     Verb("set", "set a live-tunable parameter of a task, checked as in YAML, applied at a cycle boundary: pbo set pid kp 300",
          (_TASK, Argument("param", help="the parameter (its module declares it tunable); of a combined task, a member's: kp, 1.kp or pid_joint.kp", key="param"),
           Argument("values", help="its value (YAML); several make a list", key="values", nargs="+")),
@@ -241,6 +244,7 @@ def verb_table() -> str:
             text = argument.name.upper() if not argument.name.startswith("-") else argument.name
             text += " ..." if argument.nargs in ("*", "+") else ""
             shown.append(f"`{text}`" if not argument.name.startswith("-") else f"`[{text}]`")
-        lines.append(f"| `pbo {verb.name}` | {' '.join(shown) or '–'} | {verb.help.replace('|', '/')} | {verb.result} |")
+        arguments = " ".join(shown) or "\u2013"  # an en dash: no arguments
+        lines.append(f"| `pbo {verb.name}` | {arguments} | {verb.help.replace('|', '/')} | {verb.result} |")
     which = "; ".join(f"`{a.name} {a.metavar}`: {a.help}" for a in WHICH_RUN)
     return "\n".join(lines) + f"\n\nEvery verb also takes {which}.\n"

@@ -32,18 +32,20 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from collections.abc import Collection, Mapping, Sequence
-from typing import TYPE_CHECKING, Any, Callable, Protocol
+from collections.abc import Callable, Collection, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 from pbo_runtime.config.checker.loops import GAINS_NOTE
+from pbo_runtime.config.decisions import decides
+from pbo_runtime.config.values import as_value, describe, element_problem, range_problem
 from pbo_runtime.edit.live import LiveChangeRefused, LiveDescription, TaskChange, parse_assignments
 from pbo_runtime.edit.live_save import save_live
-from pbo_runtime.config.values import as_value, describe, element_problem, range_problem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import operator_input
 from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.objects import registry
 from pbo_runtime.objects.ranges import Range, number_text
+
 # the table, for whoever serves or tests the verbs from here
 from pbo_runtime.supervisor.command_table import COMMAND_TIMEOUT as COMMAND_TIMEOUT
 from pbo_runtime.supervisor.command_table import COMMANDS as COMMANDS
@@ -59,7 +61,6 @@ from pbo_runtime.supervisor.command_table import parse_object_values as parse_ob
 from pbo_runtime.supervisor.command_table import verb_table as verb_table
 from pbo_runtime.supervisor.job_control import application_steps
 from pbo_runtime.supervisor.status_reply import TaskRow, TaskStatusEntry
-from pbo_runtime.config.decisions import decides
 
 if TYPE_CHECKING:
     from pbo_runtime.config.model import Subsystem
@@ -147,7 +148,7 @@ def status(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
     now = host.now()
     elapsed = now - host.started_at if host.started_at is not None else 0.0
     rows = []
-    for row, spec in zip(host.status_rows(), host.subsystem.tasks.values()):
+    for row, spec in zip(host.status_rows(), host.subsystem.tasks.values(), strict=True):
         state = host.task_states.get(spec.name, row.state)
         rows.append(TaskStatusEntry(dataclasses.replace(row, state=state), spec.index,
                                     row.cycles / elapsed if elapsed > 0 else 0.0,
@@ -171,7 +172,8 @@ def _task(host: CommandHost, arguments: dict[str, Any]) -> str:
     return _name(arguments, "task", "task", host.subsystem.tasks)
 
 
-_EXPECTED = {"on": {"ON", "ERROR", "OFF"}, "off": {"OFF", "ERROR"}, "clear": {"OFF", "ERROR"}}  # on: OFF when its error component turned it off
+# on: OFF too, when its error component turned it off
+_EXPECTED = {"on": {"ON", "ERROR", "OFF"}, "off": {"OFF", "ERROR"}, "clear": {"OFF", "ERROR"}}
 
 
 def task_signal(command: str) -> Handler:
@@ -218,10 +220,12 @@ def event(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
         raise BadRequest(f"task '{task}' takes events of {expected} values "
                          f"({host.subsystem.tasks[task].module}'s EVENT_SHAPE), got {len(values or ())}")
     bounds = _event_range(host, task)
-    outside = next(((position, v) for position, v in enumerate(values or (), 1) if not bounds.admits(v)), None) if bounds else None
+    outside = (next(((position, v) for position, v in enumerate(values or (), 1) if not bounds.admits(v)), None)
+               if bounds else None)
     if bounds is not None and outside is not None:
         raise BadRequest(f"the values of an event for '{task}' must be {bounds.text()} "
-                         f"({host.subsystem.tasks[task].module}'s EVENT_RANGE), got: {number_text(outside[1])} (value {outside[0]})")
+                         f"({host.subsystem.tasks[task].module}'s EVENT_RANGE), got: {number_text(outside[1])} "
+                         f"(value {outside[0]})")
     state = host.task_states.get(task)
     if state != "ON":
         raise PboError(f"task '{task}' is {state}, not ON: an event would not run it; turn it on with pbo on {task}")
@@ -242,7 +246,7 @@ def _event_size(host: CommandHost, task: str) -> int | None:
     spec = host.subsystem.tasks[task]
     try:
         shape = getattr(registry.module_class(spec.module), "EVENT_SHAPE", None)
-    except Exception:  # noqa: BLE001 - the run found the module at start; a fake host's may not exist
+    except Exception:  # the run found the module at start; a fake host's may not exist
         return None
     if shape is None:
         return None
@@ -256,7 +260,7 @@ def _event_range(host: CommandHost, task: str) -> Range | None:
     """The closed range each value of the task's events must be in (its module's EVENT_RANGE), None if any."""
     try:
         bounds = getattr(registry.module_class(host.subsystem.tasks[task].module), "EVENT_RANGE", None)
-    except Exception:  # noqa: BLE001 - the run found the module at start; a fake host's may not exist
+    except Exception:  # the run found the module at start; a fake host's may not exist
         return None
     if bounds is None:
         return None
@@ -315,7 +319,8 @@ def _named_object(host: CommandHost, job: str, object_type: str | None, name: st
     if found.type != object_type:
         raise BadRequest(f"object '{name}' is of type {found.type}, but job '{job}' takes one of type {object_type} "
                          f"({', '.join(fitting) or 'the file names none'})")
-    return found.value.tolist()
+    values: list[Any] = found.value.tolist()
+    return values
 
 
 def stop(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
@@ -352,8 +357,9 @@ def _task_change(arguments: dict[str, Any]) -> TaskChange:
     if resources:
         fields["resources"] = f"[{', '.join(resources)}]"
     try:
-        return TaskChange(_text(arguments, "module", "--module", optional=True), _text(arguments, "rtpu", "--rtpu", optional=True),
-                          fields, parse_assignments(_texts(arguments, "params", "--param"), "--param"),
+        return TaskChange(_text(arguments, "module", "--module", optional=True),
+                          _text(arguments, "rtpu", "--rtpu", optional=True), fields,
+                          parse_assignments(_texts(arguments, "params", "--param"), "--param"),
                           parse_assignments(_texts(arguments, "ports", "--port"), "--port"))
     except LiveChangeRefused as exc:
         raise BadRequest(str(exc)) from None

@@ -11,7 +11,8 @@ listed by the run's summary and report.json); `JobControl.path` is where the app
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -27,7 +28,8 @@ def decision_lines(decisions: list[dict[str, Any]]) -> list[str]:
     """The summary's lines: each decision, where it was taken, which way it went and on what values."""
     lines = []
     for entry in decisions:
-        values = "; ".join(f"{name} = {np.round(np.asarray(value), 4).tolist()}" for name, value in entry.get("values", {}).items())
+        values = "; ".join(f"{name} = {np.round(np.asarray(value), 4).tolist()}"
+                           for name, value in entry.get("values", {}).items())
         what = {"if": f"if {entry.get('condition')}: {entry.get('taken')}",
                 "try": f"try failed -> fallback: {entry.get('failure')}",
                 "repeat": f"repeat {entry.get('turn')}/{entry.get('of')}" + (f" until {entry['condition']}: {entry['taken']}"
@@ -87,7 +89,7 @@ class DecidingRun:
             self.control.jobs_done.append(step.job)
 
     def fail(self, message: str, values: dict[str, Any]) -> Exception:
-        return self.failure(message, values)  # type: ignore[call-arg]
+        return self.failure(message, values)
 
     def record(self, kind: str, **facts: Any) -> None:
         entry = {"time": self.host.now(), "path": " > ".join(self.control.path), "kind": kind, **facts}

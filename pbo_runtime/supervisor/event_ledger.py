@@ -6,15 +6,39 @@ handling is tested event by event without a process."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Protocol
 
+from pbo_runtime.config.model import TaskSpec
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.task_statistics import TaskStatistics
 from pbo_runtime.supervisor.failures import RunFailure
-from pbo_runtime.supervisor.run_report import RunResult
+from pbo_runtime.supervisor.run_report import PlantFigures, RunResult
 
 STABLE_EPISODES_TOLD = 5  # holds for late inputs per critical task told as they happen; the summary counts them all
+
+
+@dataclass(frozen=True)
+class ErrorWords:
+    """What the table's header tells the critical tasks: they run locally stable while `illegal`."""
+
+    in_error: int  # tasks of the configuration in ERROR
+    not_fresh: int  # tasks of it, not critical, whose module said its inputs are not fresh
+    illegal: bool
+
+
+def error_words(members: Iterable[str], task_states: Mapping[str, str], stable: Mapping[str, tuple[float, str, str]],
+                tasks: Mapping[str, TaskSpec]) -> ErrorWords:
+    """The header's error words for the configuration of `members`, from the tasks' states and open stable episodes.
+
+    A task that is not critical and says its inputs are not fresh (a link_receiver whose item is past
+    its bound): what it writes is stale too, so the critical tasks hold until it has fresh inputs again.
+    """
+    members = list(members)
+    in_error = sum(1 for t in members if task_states.get(t) == "ERROR")
+    not_fresh = sum(1 for t in members if t in stable and t in tasks and not tasks[t].critical and stable[t][2] == "module")
+    return ErrorWords(in_error, not_fresh, bool(in_error) or bool(stable))
 
 
 class SwitchReports(Protocol):
@@ -71,7 +95,7 @@ class EventLedger:
         elif isinstance(event, messages.Stats):
             self.stats[event.task] = event.statistics
         elif isinstance(event, messages.PlantStats):
-            self.result.plant = event.figures
+            self.result.plant = PlantFigures.from_json(event.figures)
         elif isinstance(event, messages.PlantStalled):
             stall = (f"the plant did not run for {event.seconds:.3f} s (its process was stopped or starved) and resumed at "
                      f"simulated time {event.sim_time:.3f} s without integrating the backlog")

@@ -12,6 +12,7 @@ holds; PBO_FORK_SERVER=0 starts every child fresh.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ctypes
 import gc
 import importlib
@@ -23,7 +24,8 @@ import socket
 import subprocess
 import sys
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from pbo_runtime.ipc.process import STOP_SIGNALS
 
@@ -49,7 +51,7 @@ def forking_enabled() -> bool:
 
 def _prctl(option: int, value: int) -> bool:
     try:
-        return ctypes.CDLL(None, use_errno=True).prctl(option, value, 0, 0, 0) == 0
+        return bool(ctypes.CDLL(None, use_errno=True).prctl(option, value, 0, 0, 0) == 0)
     except (OSError, AttributeError):
         return False
 
@@ -148,7 +150,8 @@ class ForkServer:
             self.idle()
         if not line:
             code = self.process.poll()
-            how = "it ended" if code is None else f"exit status {code}" if code >= 0 else f"killed by {signal.Signals(-code).name}"
+            how = ("it ended" if code is None else f"exit status {code}" if code >= 0
+                   else f"killed by {signal.Signals(-code).name}")
             raise ForkServerUnavailable(f"the fork server (pid {self.process.pid}) is gone ({how})")
         reply = json.loads(line)
         self.warm_at = self.warm_at or float(reply.get("warm_at", 0.0))
@@ -165,15 +168,11 @@ class ForkServer:
     def release(self) -> None:
         """Tell the server to end (END, then EOF on its channel) without waiting for it."""
         if self._channel is not None:
-            try:
+            with contextlib.suppress(OSError):  # it is gone already
                 self._channel.sendall(END)
-            except OSError:
-                pass  # it is gone already
             for closing in (self._replies, self._channel):
-                try:
+                with contextlib.suppress(OSError):
                     closing.close()
-                except OSError:
-                    pass
             self._channel = None
         self.idle()
 
@@ -202,19 +201,20 @@ def _main_of(module: str) -> Callable[..., int]:
     imported = importlib.import_module(module)
     if not hasattr(imported, "main"):
         imported = importlib.import_module(f"{module}.__main__")
-    return imported.main
+    main: Callable[..., int] = imported.main
+    return main
 
 
 def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]], Any]:
     """Import each preloaded module's `main`, load the subsystem, look up its modules, plant and drivers,
     and import the rest of the library."""
-    import setproctitle  # noqa: F401 - imported once here, not in each child
+    importlib.import_module("setproctitle")  # imported once here, not in each child
 
     mains = {module: _main_of(module) for module in preload}
     from pbo_runtime.config.loader import load_subsystem
-    from pbo_runtime.reports.log_notes import run_metadata
     from pbo_runtime.errors import PboError
     from pbo_runtime.objects import registry
+    from pbo_runtime.reports.log_notes import run_metadata
 
     try:
         subsystem = load_subsystem(file)
@@ -223,21 +223,17 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
     run_metadata(subsystem, "real")  # the packages' versions it reads, read once here (each a parse of METADATA)
     if any(rtpu.restart is not None for rtpu in subsystem.rtpus):
         for module in WARM_FOR_RESTARTS:  # (the run's first children skip the import too)
-            try:
+            with contextlib.suppress(Exception):  # a child that needs it imports it, and reports a failure, as a fresh one would
                 importlib.import_module(module)
-            except Exception:  # a child that needs it imports it, and reports a failure, as a fresh one would
-                pass
     lookups = [(registry.module_class, task.module) for task in subsystem.tasks.values()]
     lookups += [(registry.driver_class, device.driver) for device in subsystem.devices.values()]
     lookups += [(registry.plant_class, subsystem.plant.type)] if subsystem.plant is not None else []
     for look_up, name in lookups:
-        try:
+        with contextlib.suppress(Exception):  # the child that needs it looks it up again and reports the failure
             found = look_up(name)
             warm = getattr(found, "warm", None)  # what the class imports only once one is made (a plant's simulator)
             if callable(warm):
                 warm()
-        except Exception:  # the child that needs it looks it up again and reports the failure
-            pass
     registry.import_library()  # what a task spawned live may need: a forked RTPU (a restarted one too) has it all
     return mains, subsystem
 

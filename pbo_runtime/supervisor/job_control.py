@@ -18,19 +18,21 @@ no report from it, the other RTPUs' part stands, and its record names the restar
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from collections.abc import Mapping
-from typing import Any, Callable, Protocol
+from functools import partial
+from typing import Any, Protocol
 
 import numpy as np
 
-from pbo_runtime.edit.live import LiveDescription
-from pbo_runtime.config.model import Subsystem
-from pbo_runtime.errors import PboError
-from pbo_runtime.supervisor.failures import RtpuDied
 from pbo_runtime.config.decisions import decides
 from pbo_runtime.config.expressions import ExpressionError, compile_condition
+from pbo_runtime.config.model import Subsystem
+from pbo_runtime.edit.live import LiveDescription
+from pbo_runtime.errors import PboError
+from pbo_runtime.reports.run_result import SwitchReport
 from pbo_runtime.supervisor.decisions import DecidingRun
+from pbo_runtime.supervisor.failures import RtpuDied
 from pbo_runtime.supervisor.plan_lead import POST_LEAD_MIN, PlanLead, RtpuAround, earliest_activation
 
 SWITCH_TIMEOUT = 5.0
@@ -105,13 +107,15 @@ class SwitchRecord:
         """The longest time one RTPU spent switching (off + on components and transfers)."""
         return max((done - applied for applied, done in self.applied.values()), default=0.0)
 
+    def report(self) -> SwitchReport:
+        return SwitchReport(self.sequence, self.before, self.after, self.latency, self.skew, self.longest, tuple(self.off),
+                            tuple(self.on), dict(self.lost), dict(self.stale), self.lead, self.read_delay, self.grid_wait,
+                            self.work, self.posted_at - self.requested_at,
+                            {rtpu: at - self.requested_at for rtpu, at in self.read.items()}, self.change,
+                            tuple(self.restarted))
+
     def to_json(self) -> dict[str, Any]:
-        return {"sequence": self.sequence, "from": self.before, "to": self.after, "latency": self.latency,
-                "skew": self.skew, "longest": self.longest, "off": self.off, "on": self.on,
-                "cycles_lost": self.lost, "stale_reads": self.stale, "lead": self.lead, "read_delay": self.read_delay,
-                "grid_wait": self.grid_wait, "work": self.work, "posted": self.posted_at - self.requested_at,
-                "read_delays": {rtpu: at - self.requested_at for rtpu, at in self.read.items()}, **({"change": self.change} if self.change else {}),
-                **({"restarted": self.restarted} if self.restarted else {})}
+        return self.report().to_json()
 
 
 class JobHost(Protocol):
@@ -193,7 +197,8 @@ def evaluate(host: JobHost, text: str) -> tuple[bool, dict[str, Any]]:
 
 
 def _show(values: dict[str, Any]) -> str:
-    return "; ".join(f"{name} = {np.array2string(np.asarray(v), precision=4, separator=', ', max_line_width=10**6)}" for name, v in values.items())
+    return "; ".join(f"{name} = {np.array2string(np.asarray(v), precision=4, separator=', ', max_line_width=10**6)}"
+                     for name, v in values.items())
 
 
 def application_steps(subsystem: Subsystem, application: str, _seen: tuple[str, ...] = (),
@@ -229,7 +234,8 @@ class JobControl:
         self.static = static
         self.switches: list[SwitchRecord] = []
         self.pending: SwitchRecord | None = None  # a dynamic switch's plan, waiting for the RTPUs' reports
-        self.switching: SwitchRecord | None = None  # the switch under way (static or dynamic): a restart comes back in its `after`
+        # the switch under way (static or dynamic): a restart comes back in its `after`
+        self.switching: SwitchRecord | None = None
         self.switching_subsystem = self.subsystem  # what a live change's plan swaps in, while it is under way
         self.job: str | None = None
         self.application: str | None = None
@@ -254,7 +260,8 @@ class JobControl:
         if configuration not in self.subsystem.configurations:
             raise PboError(f"no configuration '{configuration}' (configurations: {', '.join(self.subsystem.configurations)})")
         before = host.configuration
-        leaving = [t for t in self.subsystem.configurations[before].tasks if t not in self.subsystem.configurations[configuration].tasks]
+        configurations = self.subsystem.configurations
+        leaving = [t for t in configurations[before].tasks if t not in configurations[configuration].tasks]
         entering = [t for t in self.subsystem.configurations[configuration].tasks
                     if t not in self.subsystem.configurations[before].tasks]
         if self.static:
@@ -358,14 +365,14 @@ class JobControl:
                 host.restart_rtpu(exc)
                 exc = PboError(f"{exc}, and was restarted")
             for name in spawned:
-                self._through_restarts(lambda: self._kill(name))
+                self._through_restarts(partial(self._kill, name))
             host.stage_live(LiveDescription(live.file, live.doc, before, live.slots))  # what the RTPUs had
             raise PboError(f"{change} is refused: {exc}; nothing else changed") from None
         record = self._switch_dynamic(configuration, configuration, [t for t in now if t not in was], change, after)
         self.subsystem = after
         host.adopt(live)
         for name in removed:
-            self._through_restarts(lambda: self._kill(name))
+            self._through_restarts(partial(self._kill, name))
         return record
 
     def switched(self, rtpu: str, sequence: int, applied_at: float, done_at: float, off: list[str], on: list[str],
@@ -410,12 +417,12 @@ class JobControl:
         host.hold_critical_tasks(True)  # their writers stop now: holding is the switch's doing, not a fault
         try:
             for name in leaving:
-                self._through_restarts(lambda: self._kill(name))
+                self._through_restarts(partial(self._kill, name))
             for name in [t for t in self.subsystem.init_order if t in entering]:
-                self._through_restarts(lambda: bring_on(name))
+                self._through_restarts(partial(bring_on, name))
             for name in self.subsystem.configurations[after].tasks:
                 if self.subsystem.tasks[name].critical and name not in entering:
-                    self._through_restarts(lambda: host.watch(name, after))
+                    self._through_restarts(partial(host.watch, name, after))
         finally:
             self.switching = None
             host.hold_critical_tasks(False)

@@ -18,14 +18,14 @@ lives: the supervisor removes its run itself.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
 import signal
 import threading
 from dataclasses import dataclass
 
-from pbo_runtime.ipc import process
-from pbo_runtime.ipc import shm
+from pbo_runtime.ipc import process, shm
 from pbo_runtime.supervisor.cleanup import remove_run
 
 # seconds a leaving process waits to be the last one: the others stop within process.STOP_BOUND
@@ -81,10 +81,8 @@ def forget_inherited() -> None:
     """In a forked child: close the share its parent held (closing it keeps the parent's; unlocking would not)."""
     global _share, _expected
     if _share is not None and _share.pid != os.getpid():
-        try:
+        with contextlib.suppress(OSError):
             os.close(_share.fd)
-        except OSError:
-            pass
         _share = None
     if _expected is not None and _expected[0] != os.getpid():
         _expected = None

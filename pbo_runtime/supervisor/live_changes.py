@@ -25,11 +25,11 @@ import re
 import shutil
 import tempfile
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from pbo_runtime.clock.run_clock import RunClock
-from pbo_runtime.edit.live import LiveDescription, to_wire
 from pbo_runtime.config.model import Subsystem, TaskSpec
+from pbo_runtime.edit.live import LiveDescription, to_wire
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import messages, shm
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure

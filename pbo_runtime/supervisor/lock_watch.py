@@ -26,8 +26,9 @@ import os
 import signal
 import subprocess
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import posix_ipc
 
@@ -214,7 +215,8 @@ class LockGuard:
         if action != "left":
             self.watch.forget()  # the lock is free again
         message = (f"the table lock was held for {held_ms:.0f} ms (bound {self.watch.bound * 1e3:.0f} ms) by {who}, "
-                   f"{how}: {done}" + (f"; it hosted tasks: {', '.join(child.tasks)}" if child is not None and child.tasks else ""))
+                   f"{how}: {done}"
+                   + (f"; it hosted tasks: {', '.join(child.tasks)}" if child is not None and child.tasks else ""))
         self.say(message)
         if not self.result.failure:  # the run fails even where the raise is answered to a command instead
             self.result.failure, self.result.stopped_by = message, "failure"

@@ -15,6 +15,7 @@ With `--clock sim` it steps exactly once per tick of the supervisor's simulated 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import inspect
 import json
 import os
@@ -24,16 +25,13 @@ import traceback
 
 import numpy as np
 
-from pbo_runtime.ipc import limits
-from pbo_runtime.ipc import messages
-from pbo_runtime.objects import registry
-from pbo_runtime.ipc import shm
 from pbo_runtime.clock.clocks import lower_timer_slack
 from pbo_runtime.clock.lockstep import LockstepParticipant
-from pbo_runtime.table.table import HEADER_WORDS
+from pbo_runtime.ipc import limits, messages, shm
 from pbo_runtime.ipc.process import Stop, become_child, supervisor_told_gone
+from pbo_runtime.objects import registry
 from pbo_runtime.supervisor import last_out
-
+from pbo_runtime.table.table import HEADER_WORDS
 
 PLANT_FIFO_PRIORITY = 60  # above the RTPUs' 50: the simulated world steps on time whatever they do
 BEHIND_LIMIT = 0.1  # seconds behind wall time at which a SCHED_FIFO plant gives up its priority
@@ -74,10 +72,9 @@ def _run(argv: list[str] | None) -> int:
         # (a live parent without a run's table: a plant on its own, as the benchmarks' bare loop runs it)
     lower_timer_slack()
     if args.fifo:
-        try:
+        # the RTPUs report whether SCHED_FIFO was granted; the plant then runs as they do
+        with contextlib.suppress(OSError, AttributeError):
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(PLANT_FIFO_PRIORITY))
-        except (OSError, AttributeError):
-            pass  # the RTPUs report whether SCHED_FIFO was granted; the plant then runs as they do
     events = messages.Queue(messages.event_queue_name(args.subsystem, args.run_id))
     plant = barrier = None
     steps = late = stalls = 0

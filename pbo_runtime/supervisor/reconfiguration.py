@@ -7,8 +7,8 @@ to carry only a configuration's index and an activation time.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Iterable, Mapping
 
 from pbo_runtime.config.model import Subsystem
 

@@ -10,15 +10,16 @@ docs/faults.md says what the operator sees, during a switch and on the simulated
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 from pbo_runtime.clock.run_clock import RunClock
 from pbo_runtime.config.model import RestartPolicy, RtpuSpec, Subsystem, TaskSpec
-from pbo_runtime.supervisor.children import Child
-from pbo_runtime.supervisor.job_control import JobControl
 from pbo_runtime.ipc import messages
+from pbo_runtime.supervisor.children import Child
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
+from pbo_runtime.supervisor.job_control import JobControl
 from pbo_runtime.supervisor.launch import RtpuLaunch
 from pbo_runtime.supervisor.run_report import RunResult
 from pbo_runtime.table.table import Header, StateTable
@@ -44,7 +45,8 @@ class Restart:
         seconds = None if self.on_again_at is None else self.on_again_at - self.died_at
         return {"rtpu": self.rtpu, "pid": self.pid, "cause": self.cause, "died_at": self.died_at,
                 "on_again_at": self.on_again_at, "seconds": seconds, "tasks_on": list(self.tasks_on),
-                "attempts": self.attempts, "launched_at": self.launched_at, "ready_at": self.ready_at, "spawned_at": self.spawned_at}
+                "attempts": self.attempts, "launched_at": self.launched_at, "ready_at": self.ready_at,
+                "spawned_at": self.spawned_at}
 
 
 def may_restart(role: str, rtpus: Sequence[RtpuSpec], table_made: bool, stop_requested: str) -> bool:
@@ -261,5 +263,6 @@ def restart_lines(restarts: list[dict[str, Any]]) -> list[str]:
         back = ("not back before the run stopped" if r["seconds"] is None
                 else f"tasks ON again after {r['seconds'] * 1e3:.0f} ms")
         tries = f" ({r['attempts']} launches)" if r.get("attempts", 1) > 1 else ""
-        lines.append(f"RTPU '{r['rtpu']}' restarted, {r['died_at']:.2f} s into the run: pid {r['pid']} {r['cause']}; {back}{tries}")
+        lines.append(f"RTPU '{r['rtpu']}' restarted, {r['died_at']:.2f} s into the run: pid {r['pid']} {r['cause']}; "
+                     f"{back}{tries}")
     return lines

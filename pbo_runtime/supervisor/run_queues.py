@@ -1,4 +1,5 @@
-"""The run's POSIX queues, each sized for what it carries: the events, a signal queue per RTPU, the control queue."""
+"""The run's POSIX objects: their names (the manifest), and the queues, each sized for what it carries:
+the events, a signal queue per RTPU, the control queue."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from pbo_runtime.config.application import MESSAGE_OVERHEAD_BYTES, MSGPACK_BYTES
 from pbo_runtime.config.limits import MAX_NAME
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.ipc import limits, messages
-from pbo_runtime.ipc.control import REQUEST_BYTES, control_queue_size
+from pbo_runtime.ipc.control import REQUEST_BYTES, control_queue_name, control_queue_size
 
 
 def queue_plan(sub: Subsystem, run_id: str, links: dict[str, dict[str, Any]]) -> list[limits.QueueSize]:
@@ -30,3 +31,16 @@ def queue_plan(sub: Subsystem, run_id: str, links: dict[str, dict[str, Any]]) ->
                                                payload if any(t.aperiodic for t in hosted) else 0))
     plan.append(control_queue_size(sub.name, run_id))
     return plan
+
+
+def run_manifest(sub: Subsystem, run_id: str, semaphores: list[str]) -> list[str]:
+    """Every shared object the run makes ("kind /name"), with the run clock's `semaphores`."""
+    s, r = sub.name, run_id
+    table = messages.table_name(s, r)
+    entries = [f"shm {table}", f"sem {table}.lock", f"mq {messages.event_queue_name(s, r)}"]
+    entries += [f"mq {messages.signal_queue_name(s, r, rtpu.name)}" for rtpu in sub.rtpus]
+    if sub.plant is not None:
+        entries.append(f"shm {messages.plant_registers_name(s, r)}")
+    entries.append(f"mq {control_queue_name(s, r)}")
+    entries += [f"sem {name}" for name in semaphores]
+    return entries

@@ -4,16 +4,18 @@ statistics, the stall watch and the table."""
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Callable
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from pbo_runtime.reports.log_notes import variable_notes
-from pbo_runtime.config.model import Subsystem
+from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.ipc.task_statistics import Overrun, TaskStatistics
+from pbo_runtime.reports.log_notes import variable_notes
+from pbo_runtime.reports.run_result import FinalValue, Stall, TaskReport
+from pbo_runtime.reports.run_result import PlantFigures as PlantFigures
+from pbo_runtime.reports.run_result import RtpuSettings as RtpuSettings
 from pbo_runtime.reports.run_result import RunResult as RunResult  # where the supervisor's parts find it
-from pbo_runtime.reports.run_result import Stall, TaskReport
 from pbo_runtime.supervisor.status_reply import TaskRow
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import StateTable, copy_variable
@@ -41,31 +43,63 @@ def _table_statistics(words: np.ndarray) -> TaskStatistics:
                           exec_p99=float(words[W.EXEC_P99]), exec_max=float(words[W.EXEC_MAX]))
 
 
+class EventsTold(Protocol):
+    """What the run's report takes from the children's events (`supervisor.event_ledger.EventLedger`)."""
+
+    @property
+    def task_errors(self) -> dict[str, str]: ...
+    @property
+    def stats(self) -> dict[str, TaskStatistics]: ...
+    @property
+    def stable(self) -> dict[str, tuple[float, str, str]]: ...
+    def end_stable_episode(self, task: str, at: float | None) -> None: ...
+
+
 class RunReporting:
-    """The Supervisor's part that fills its RunResult and reads the live view's rows from the table."""
+    """The supervisor's part that fills its RunResult and reads the live view's rows from the table.
 
-    subsystem: Subsystem
-    table: StateTable | None
-    result: RunResult
-    job_control: JobControl
-    stall_watch: StallWatch
-    started_at: float | None
-    task_errors: dict[str, str]
-    _stats: dict[str, TaskStatistics]
-    _stable: dict[str, tuple[float, str, str]]
-    every_task: dict[str, Any]  # every task the run has had, by name: live changes add and remove some
-    _end_stable_episode: Callable[[str, float | None], None]
+    `subsystem`, `table` and `started_at` give the run's as they are now (a live change replaces
+    the subsystem); `told` is what the children's events told (the supervisor's event ledger).
+    """
 
-    def _report_run(self) -> None:
+    def __init__(self, result: RunResult, told: EventsTold, job_control: JobControl, stall_watch: StallWatch,
+                 every_task: dict[str, TaskSpec], subsystem: Callable[[], Subsystem],
+                 table: Callable[[], StateTable | None], started_at: Callable[[], float | None]) -> None:
+        self.result = result
+        self.ledger = told
+        self.job_control = job_control
+        self.stall_watch = stall_watch
+        self.every_task = every_task  # every task the run has had, by name: live changes add and remove some
+        self._subsystem = subsystem
+        self._table = table
+        self._started_at = started_at
+
+    @property
+    def subsystem(self) -> Subsystem:
+        return self._subsystem()
+
+    @property
+    def table(self) -> StateTable | None:
+        return self._table()
+
+    @property
+    def started_at(self) -> float | None:
+        return self._started_at()
+
+    @property
+    def task_errors(self) -> dict[str, str]:
+        return self.ledger.task_errors
+
+    def report_run(self) -> None:
         """Switches, each task's figures, stalls, stable episodes: into the result, once the children have reported."""
-        self.result.switches = [record.to_json() for record in self.job_control.switches]
+        self.result.switches = [record.report() for record in self.job_control.switches]
         self.result.marks = list(self.job_control.marks)
         self.result.decisions = list(self.job_control.decisions)
         self.result.started_at = self.started_at if self.started_at is not None else 0.0
         started = self.started_at if self.started_at is not None else 0.0
         self._report_tasks_left_in_error()
         self._report_stable_episodes(started)
-        for name, stats in self._stats.items():
+        for name, stats in self.ledger.stats.items():
             # an overrun's release as seconds since the configuration came on, as the summary reads it
             overruns = tuple(Overrun(o.release - started, o.late, o.took) for o in stats.last_overruns)
             spec = self.subsystem.tasks.get(name) or self.every_task[name]
@@ -74,11 +108,12 @@ class RunReporting:
                                                  dataclasses.replace(stats, last_overruns=overruns))
             for device, figures in stats.devices.items():
                 if figures.get("command"):  # a robot interface braked the arm: its limits were left
-                    self.result.faults += divergence_lines(name, spec, figures, self.result.variables, started)
+                    writers = {variable: final.writer for variable, final in self.result.variables.items()}
+                    self.result.faults += divergence_lines(name, spec, figures, writers, started)
                 elif figures.get("fault"):  # a special-purpose processor that died under its task: the task said so too
                     self.result.faults.append(f"device '{device}' of task '{name}': {figures['fault']}")
         self._report_stalls(started)
-        trips = self.result.plant.get("watchdog_trips", 0)
+        trips = self.result.plant.watchdog_trips if self.result.plant is not None else 0
         if trips:  # no task of the run commanded the arm: only the drive itself held it
             self.result.faults.append(
                 f"the arm's drive watchdog held the arm {trips} time{'s' if trips > 1 else ''}: no command came within "
@@ -95,7 +130,7 @@ class RunReporting:
             where = f" on {spec.rtpu}" if spec is not None else ""
             if any(fault.startswith(f"task '{name}'{where} ") for fault in self.result.faults):
                 continue  # its failure was told as a fault when it happened (a log it could not write)
-            if any(figures.get("command") for figures in self._stats.get(name, TaskStatistics()).devices.values()):
+            if any(figures.get("command") for figures in self.ledger.stats.get(name, TaskStatistics()).devices.values()):
                 continue  # a robot interface that braked the arm past its limits: its divergence line tells it
             error = self.task_errors.get(name, "") or "its module reported an error"
             self.result.faults.append(f"task '{name}'{where} was in ERROR at the stop: {error} "
@@ -103,8 +138,8 @@ class RunReporting:
 
     def _report_stable_episodes(self, started: float) -> None:
         """Close the episodes still open at the stop; tell each task's faults and timing holds (`stable_episode_lines`)."""
-        for task in list(self._stable):
-            self._end_stable_episode(task, None)
+        for task in list(self.ledger.stable):
+            self.ledger.end_stable_episode(task, None)
         periods = {name: task.period for name, task in {**self.every_task, **self.subsystem.tasks}.items()}
         faults, timing = stable_episode_lines(self.result.stable_episodes, periods, self.started_at, self.result.duration,
                                               {name for name, task in self.subsystem.tasks.items() if task.critical})
@@ -133,27 +168,25 @@ class RunReporting:
                 f"{', '.join(killed)} did not stop within {STOP_TIMEOUT:g} s and {were} killed: the kill components of its "
                 "tasks did not run" + (f" (stalled: {', '.join(stuck)})" if stuck else ""))
 
-    def _read_final_values(self) -> None:
+    def read_final_values(self) -> None:
         """Every variable's last value, lock-free; if a writer left the table mid-write, as it is, marked torn."""
         if self.table is None:
             return
         table, torn = self.table, False
         notes = variable_notes(self.subsystem)  # a plot of an .npy log takes its units from here
+        tasks = (*self.subsystem.tasks.values(), *self.every_task.values())
         for var in self.subsystem.variables.values():
             slot = table.layout.slot(var.name)
             try:
                 if torn:
                     raise TableBusy("busy for the variables before")  # one wait for "busy" is enough
-                value, seq, when, writer = table.read(var.name)
+                value, seq, _when, writer = table.read(var.name)
             except TableBusy:
-                value, seq, when, writer = copy_variable(table.view(var.name), table.words, slot.meta_word, table.status)
+                value, seq, _when, writer = copy_variable(table.view(var.name), table.words, slot.meta_word, table.status)
                 torn = True
-            self.result.variables[var.name] = {
-                "value": value.tolist(), "sequence": seq,
-                "writer": next((t.name for t in (*self.subsystem.tasks.values(), *self.every_task.values()) if t.index == writer),
-                               "job control"),
-                "unit": notes[var.name][1], **({"torn": True} if torn else {}),
-            }
+            self.result.variables[var.name] = FinalValue(
+                value.tolist(), seq, next((t.name for t in tasks if t.index == writer), "job control"), notes[var.name][1],
+                torn)
 
     def status_rows(self) -> list[TaskRow]:
         """The live view's data, from a lock-free copy of the table's status blocks.
@@ -173,14 +206,15 @@ class RunReporting:
         return rows
 
 
-def divergence_lines(task: str, spec: Any, figures: Mapping[str, Any], variables: dict[str, Any], started: float) -> list[str]:
+def divergence_lines(task: str, spec: Any, figures: Mapping[str, Any], writers: Mapping[str, str],
+                     started: float) -> list[str]:
     """One line per time the robot interface `task` braked the arm for leaving its limits, naming
     when (from `started`, the run's clock when the configuration came on) and the task that wrote
-    the command it was given (the last writer of that in-var's variable)."""
+    the command it was given (the last writer of that in-var's variable, from `writers`)."""
     lines = []
     for fault in figures.get("faults", [figures]):
         variable = next((b.variable for b in spec.bindings if b.port.name == fault["command"]), fault["command"])
-        writer = variables.get(variable, {}).get("writer", "")
+        writer = writers.get(variable, "")
         by = f"task '{writer}'" if writer and writer != "job control" else "job control" if writer else "no task"
         lines.append(f"{fault['fault']} at {fault.get('at', started) - started:.3f} s into the run (robot interface "
                      f"'{task}'; its '{variable}' was written by {by})")

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from pbo_runtime.config.parallel import stage_application
 from pbo_runtime.edit.live import LiveDescription

@@ -8,8 +8,8 @@ only: an aperiodic task waits for events by design.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Callable, Iterable
 
 from pbo_runtime.config.model import TaskSpec
 
@@ -38,6 +38,10 @@ class StallWatch:
         self._seen: dict[str, tuple[float, float]] = {}  # task -> (cycle count, when it was first seen)
         self.open: dict[str, Stall] = {}
         self.episodes: list[Stall] = []
+
+    def stalled_since(self) -> dict[str, float]:
+        """Each task stalled now, and since when (run time)."""
+        return {name: stall.since for name, stall in self.open.items()}
 
     def watch_tasks(self, tasks: Iterable[TaskSpec]) -> None:
         """Watch these tasks from now on (a live change added or removed some); episodes are kept."""

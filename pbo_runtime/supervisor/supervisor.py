@@ -1,18 +1,13 @@
 """Job control: starts a subsystem, sequences its tasks, watches it, and always cleans up.
 
-`Supervisor.run` creates the table and queues, starts the plant and the RTPU processes,
-spawns every task in const-dependency order (waiting for each `init`), turns the
-configuration on, watches until the duration ends, Ctrl-C, or a failure, and then turns
-everything off, kills the tasks, stops the children and unlinks every object it made,
-whatever happened. A start first removes what a dead run of the same subsystem left.
+`Supervisor.run` makes the table and queues, starts the plant and the RTPUs, spawns the tasks in
+const-dependency order, turns the configuration on, watches until the duration ends, Ctrl-C or a
+failure, then stops the children and unlinks what it made, whatever happened. Its parts are fields:
+the children's processes (`Children`), signals and events (`EventHandling`), the report
+(`RunReporting`), the operator's commands (`ControlService`), restarts, the lock, live changes.
 
-The run's clock is a parameter (`clock.run_clock`): real time, or with `clock="sim"` the
-simulated clock, whose master the supervisor then is: time is the tick count, advanced only by
-`pump`, and the plant and the RTPUs run each tick in turn (`clock.lockstep`), so a run replays
-bit for bit; in an application, the subsystems' supervisors take turns (`clock.application_lockstep`).
-Times that belong to the run (durations, job timeouts, switch times) are read
-through `now()`, on either clock; waits for processes (start-up, a signal's answer) stay on
-wall time, since a process that hangs must be caught whatever the clock.
+The run's clock (`clock.run_clock`) is real time or the simulated clock, whose master the supervisor
+is (`pump` advances it): run times are read through `now()`; waits for processes stay on wall time.
 """
 
 from __future__ import annotations
@@ -22,43 +17,44 @@ import math
 import os
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import posix_ipc
 
-from pbo_runtime.ipc import limits
-from pbo_runtime.ipc import messages
-from pbo_runtime.ipc import runs
-from pbo_runtime.ipc import shm
+from pbo_runtime.clock.application_lockstep import TurnGate
+from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
 from pbo_runtime.config.checker.loops import GAINS_NOTE
-from pbo_runtime.edit.live import LiveDescription
+from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.config.model import Subsystem, TaskSpec
+from pbo_runtime.edit.live import LiveDescription
 from pbo_runtime.errors import PboError, closest_name
-from pbo_runtime.ipc.control import ControlServer, control_queue_name
+from pbo_runtime.ipc import limits, messages, shm
+from pbo_runtime.ipc.control import ControlServer
 from pbo_runtime.supervisor.child_watch import ChildWatch
-from pbo_runtime.supervisor.children import Children, Child
-from pbo_runtime.supervisor.cleanup import remove_dead_runs
-from pbo_runtime.supervisor.control_service import ControlService
-from pbo_runtime.supervisor.event_ledger import EventLedger, EventOutlets
+from pbo_runtime.supervisor.children import Children
+from pbo_runtime.supervisor.cleanup import remove_dead_runs, unlink_run
+from pbo_runtime.supervisor.control_service import ControlService, table_flags
+from pbo_runtime.supervisor.event_ledger import EventLedger, EventOutlets, error_words
 from pbo_runtime.supervisor.events import EventHandling
+from pbo_runtime.supervisor.exclusive_devices import refuse_if_devices_in_use
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested, WrongArgument
 from pbo_runtime.supervisor.fork_server import ForkServer
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
 from pbo_runtime.supervisor.launch import SIM_TICK_DEFAULT, RtpuLaunch
-from pbo_runtime.supervisor.stages import run_stages
-from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockGuard
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.restarts import Restarter, RunSteps, RunView
 from pbo_runtime.supervisor.run_options import RunOptions
-from pbo_runtime.supervisor.run_queues import queue_plan
+from pbo_runtime.supervisor.run_queues import queue_plan, run_manifest
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
-from pbo_runtime.clock.application_lockstep import TurnGate
-from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
-from pbo_runtime.supervisor.reconfiguration import Reconfiguration
+from pbo_runtime.supervisor.sim_tick import simulation_tick
+from pbo_runtime.supervisor.stages import run_stages
 from pbo_runtime.supervisor.stall_watch import StallWatch
+from pbo_runtime.supervisor.status_reply import TaskRow
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.table import Flag, Header, StateTable, TableLayout, TaskState
 from pbo_runtime.table.table import StatusWord as W
@@ -69,7 +65,7 @@ __all__ = ["RunFailure", "RunRefused", "RunResult", "StopRequested", "Supervisor
 STALL_CHECK_EVERY = 0.05  # seconds between looks at the cycle counts (StallWatch); job control pumps every 2 ms
 
 
-class Supervisor(Children, EventHandling, ControlService, RunReporting):
+class Supervisor:
     """Runs one subsystem: a configuration for a duration, or an application's jobs."""
 
     def __init__(
@@ -127,13 +123,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         self.table: StateTable | None = None
         self.events: messages.Queue | None = None
         self.signals: dict[str, messages.Queue] = {}
-        self.children: list[Child] = []
-        self.launched: dict[str, tuple[list[str], tuple[str, ...]]] = {}
         self.rtpu_launches: dict[str, RtpuLaunch] = {}  # what each RTPU was started with (a restart changes a field)
-        self.child_watch: ChildWatch | None = None
-        # what the children are forked from while they start (supervisor.fork_server): one the caller
-        # started early (the CLI, before it loaded the file), or one run() starts; ended once they are
-        self.fork_server: ForkServer | None = fork_server
         self.result = RunResult(subsystem.name, self.configuration, run_id=self.run_id,
                                 gains=[note for note in subsystem.robot_notes if note.startswith(GAINS_NOTE)])
         self.result.objects = self._manifest()
@@ -151,6 +141,9 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         self.tick = self.clock.tick
         self.result.clock = clock
         self.result.tick = self.tick
+        self.processes = Children(self.run_id, self.clock, self.result, say, lambda: self.table, self._manifest,
+                                  self.may_restart, self._startup_mark, fork_server)  # the plant and the RTPUs
+        self.children, self.launched = self.processes.children, self.processes.launched
         self.static = options.static
         self.job_control = JobControl(self, static=options.static)
         # what the children's events change (supervisor.event_ledger); the parts share its dicts
@@ -164,61 +157,39 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         self._stable = self.ledger.stable
         self._refused = self.ledger.refused
         self.result.application = application or ""
+        self.every_task: dict[str, TaskSpec] = dict(subsystem.tasks)
+        self.event_handling = EventHandling(  # signals out, events in (supervisor.events)
+            self.clock, self.ledger, self.result, self.signals, self.every_task, lambda: self.events, self._check_children,
+            lambda: self._stop_requested, self._startup_mark, say)
+        self.reporting = RunReporting(self.result, self.ledger, self.job_control, self.stall_watch, self.every_task,
+                                      lambda: self.subsystem, lambda: self.table, lambda: self.started_at)
+        self.control_service = ControlService(self, lambda: self.control)
         self.alternate = options.alternate
-        # SCHED_FIFO where the OS allows it, on the real clock unless asked otherwise: under SCHED_OTHER
-        # the machine's own threads take a CPU for milliseconds and RTPUs overrun several times as
-        # often (8 to 14 in docs/performance.md). The simulated clock waits on ticks: it needs none.
+        # SCHED_FIFO where the OS allows it, on the real clock unless asked otherwise (docs/performance.md
+        # says why); the simulated clock waits on ticks: it needs none
         self.fifo = self.clock.fifo_by_default if options.fifo is None else options.fifo
         self.control: ControlServer | None = None
         self.lock_guard: LockGuard | None = None  # made with the table (supervisor.lock_watch)
-        self._serving = False
-        self.every_task: dict[str, TaskSpec] = dict(subsystem.tasks)
-        self.live_changes = LiveChanges(  # pbo spawn, kill, replace, set, app (supervisor.live_changes)
+        self.live_changes: LiveChanges = LiveChanges(  # pbo spawn, kill, replace, set, app (supervisor.live_changes)
             self.run_id, lambda: self.subsystem, self.clock, self.signals, self.result, self.job_control, self.task_states,
-            self.every_task, self.stall_watch, say, self._while_stepping, self._next_event, self._adopted,
-            lambda name: setattr(self, "application", name))
+            self.every_task, self.stall_watch, say, self.event_handling.while_stepping, self.event_handling.next_event,
+            self._adopted, lambda name: setattr(self, "application", name))
         self.restarter = Restarter(  # brings a dead RTPU back, within its restart policy (supervisor.restarts)
             RunView(subsystem=lambda: self.subsystem, configuration=lambda: self.configuration,
                     started_at=lambda: self.started_at, table=lambda: self.table, stop_requested=lambda: self._stop_requested,
                     live=lambda: (self.live_changes.sequence, self.live_changes.adopted_sequence), now=self.now),
-            RunSteps(launch=self._launch, await_ready=self._await_ready, list_children=self._list_children,
-                     respawn=self.respawn, turn_on=self.turn_on, take_one_event=self._take_one_event,
-                     while_stepping=self._while_stepping, while_ticking=self._while_ticking),
+            RunSteps(launch=self.processes.launch, await_ready=self.event_handling.await_ready,
+                     list_children=self.processes.list_children, respawn=self.respawn, turn_on=self.turn_on,
+                     take_one_event=self.event_handling.take_one_event, while_stepping=self.event_handling.while_stepping,
+                     while_ticking=self.event_handling.while_ticking),
             self.clock, self.result, self.job_control, self.children, self.task_states, self.task_errors, self.every_task,
             self.signals, self.launched, self.rtpu_launches, self.static, say)
-        self._refuse_if_devices_in_use()  # before anything starts
+        refuse_if_devices_in_use(self.subsystem, self.run_id)  # before anything starts
 
     # --- names ------------------------------------------------------------------------------
 
     def _manifest(self) -> list[str]:
-        s, r = self.subsystem.name, self.run_id
-        table = messages.table_name(s, r)
-        entries = [f"shm {table}", f"sem {table}.lock", f"mq {messages.event_queue_name(s, r)}"]
-        entries += [f"mq {messages.signal_queue_name(s, r, rtpu.name)}" for rtpu in self.subsystem.rtpus]
-        if self.subsystem.plant is not None:
-            entries.append(f"shm {messages.plant_registers_name(s, r)}")
-        entries.append(f"mq {control_queue_name(s, r)}")
-        entries += [f"sem {name}" for name in self.clock.semaphores(s, r, self._roles())]
-        return entries
-
-    def _refuse_if_devices_in_use(self) -> None:
-        """RunRefused if a live run of this subsystem holds its exclusive devices (the arm has one master).
-
-        Checked before anything starts, and again once this run's table exists, before any child
-        starts: two runs started at the same instant then each see the other's table, and at most
-        one goes on (both may refuse; neither runs alongside the other). A subsystem without
-        exclusive devices may run several times side by side.
-        """
-        exclusive = [name for name, device in self.subsystem.devices.items() if device.exclusive]
-        if not exclusive:
-            return
-        others = [run for run in runs.live_runs(self.subsystem.name) if run.run_id != self.run_id]
-        if not others:
-            return
-        devices = ", ".join(f"'{name}'" for name in exclusive)
-        raise RunRefused(f"subsystem '{self.subsystem.name}' is already running as {' and '.join(run.brief() for run in others)}, "
-                         f"which holds its exclusive device(s) {devices}: a second run would drive them too; "
-                         f"stop that run first: pbo stop --run {others[0].run_id}")
+        return run_manifest(self.subsystem, self.run_id, self.clock.semaphores(self.subsystem.name, self.run_id, self._roles()))
 
     def _roles(self) -> list[str]:
         """The children, in the order the simulated clock steps them: the plant first, then the RTPUs."""
@@ -281,6 +252,31 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
             self.result.wall_seconds = time.monotonic() - wall_start
         return self.result
 
+    def _shutdown(self) -> None:
+        """Stop the children (each RTPU by itself first), report, close and unlink everything: on every exit path."""
+        processes, drain = self.processes, self.event_handling.drain
+        processes.stop_watching()
+        self.result.duration = self.now() - self.started_at if self.started_at is not None else 0.0
+        self.result.states_at_stop = dict(self.task_states)
+        if self.table is not None:
+            self.clock.announce_stop(self.table.announce_stop)
+        guard = self.lock_guard  # an RTPU whose stop waits on a wedged lock must not wait for good
+        processes.stop_rtpus(self.signals, drain, guard.look_while_stopping if guard is not None else lambda: None)
+        self.reporting.read_final_values()
+        processes.end_all()
+        drain(0.0)
+        self.clock.close()
+        self.reporting.report_run()
+        if self.control is not None:
+            self.control.close()
+        for queue in self.signals.values():
+            queue.close()
+        if self.events is not None:
+            self.events.close()
+        if self.table is not None:
+            self.table.close()
+        unlink_run(self._manifest(), self.subsystem.name, self.run_id)
+
     def request_stop(self, reason: str) -> None:
         self._stop_requested = reason
 
@@ -298,7 +294,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         events, *signals, _control = plan
         try:
             self.events = messages.Queue(events.name, create=True, size=events)
-            for rtpu, size in zip(self.subsystem.rtpus, signals):
+            for rtpu, size in zip(self.subsystem.rtpus, signals, strict=True):
                 self.signals[rtpu.name] = messages.Queue(size.name, create=True, size=size)
             self.control = ControlServer(self.subsystem.name, self.run_id)
         except (OSError, ValueError, posix_ipc.Error) as exc:
@@ -321,21 +317,23 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         events = self.events
         assert events is not None
         if ChildWatch.available():  # a child's death wakes the wait for events at once
-            self.child_watch = ChildWatch(lambda role, pid: events.report("supervisor", messages.ChildExited(role, pid), timeout=0.0))
+            self.processes.child_watch = ChildWatch(
+                lambda role, pid: events.report("supervisor", messages.ChildExited(role, pid), timeout=0.0))
         self.table = StateTable.create(TableLayout.of(sub), messages.table_name(sub.name, run_id), self._manifest())
-        self._refuse_if_devices_in_use()  # again, now that a run started at the same instant sees this one
-        if self.fork_server is None:  # (a refused run starts no process) it loads while this process goes on
-            self._start_fork_server(["pbo_runtime.supervisor.plant_host"] * (sub.plant is not None) + ["rtpu"])
+        refuse_if_devices_in_use(self.subsystem, self.run_id)  # again, now that a run started at the same instant sees this one
+        if self.processes.fork_server is None:  # (a refused run starts no process) it loads while this process goes on
+            self.processes.start_fork_server(sub.file, ["pbo_runtime.supervisor.plant_host"] * (sub.plant is not None) + ["rtpu"])
         # from the table's creation: job control's writes wait through the guard; looks begin
         self.lock_guard = LockGuard(self.table, self.shortest_period, self.result, self.children, self.say, self._run_time,
-                                    self._check_children, lambda: self._stop_requested, lambda: self._serving, self.fifo)
+                                    self._check_children, lambda: self._stop_requested,
+                                    lambda: self.control_service.serving, self.fifo)
         self.live_changes.start(self.table.layout.n_tasks)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()
         self._startup_mark("table")
         if sub.plant is not None:
             plant = sub.plant
-            self._launch("plant", [
+            self.processes.launch("plant", [
                 "-m", "pbo_runtime.supervisor.plant_host", "--type", plant.type, "--model", plant.model,
                 "--timestep", repr(plant.timestep), "--options", json.dumps(dict(plant.options)),
                 "--subsystem", sub.name, "--run-id", run_id, *(["--fifo"] if self.fifo else []), *self.clock.plant_arguments(),
@@ -350,11 +348,11 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
                 clock=self.clock.name, tick=self.tick or SIM_TICK_DEFAULT, ring=ring, out=self.out_dir,
                 configuration=self.configuration, application=self.application or "", links=self.links,
                 live=self.live_changes.live_dir)
-            self._launch(rtpu.name, ["-m", "rtpu", *launch.to_argv()], hosted)
+            self.processes.launch(rtpu.name, ["-m", "rtpu", *launch.to_argv()], hosted)
         # the plant and the RTPUs start side by side: an RTPU opens the plant's registers only in a
         # task's init, after every child is ready
-        self._release_fork_server()
-        self._await_ready(set(self._roles()))
+        self.processes.release_fork_server(sub.rtpus)
+        self.event_handling.await_ready(set(self._roles()))
         self._startup_mark("children")
         members = sub.configurations[self.configuration].tasks
         # dynamic: the union every configuration may need is spawned now (TR 4.4); static: this one's
@@ -412,16 +410,16 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
     def respawn(self, name: str) -> None:
         """Spawn a task and wait for its init; an init failure stops the run (no half start)."""
         self.task_states[name] = "NOT_CREATED"  # a name killed before must not answer for the new task
-        state = self.signal_and_wait(messages.Spawn(name), {"OFF", "KILLED"})
+        state = self.event_handling.signal_and_wait(messages.Spawn(name), {"OFF", "KILLED"})
         if state == "KILLED":
             raise RunFailure(f"task '{name}' failed in init and was not created: {self.task_errors.get(name, '')}")
 
     def turn_on(self, name: str, configuration: str) -> None:
         """Turn a task on; critical tasks learn who writes their inputs in `configuration`."""
         index = self.reconfiguration.index(configuration)
-        self._signal(messages.TurnOn(name, None, index))
+        self.event_handling.signal(messages.TurnOn(name, None, index))
         try:  # the state its on left: OFF too, when on failed and its error component turned it off
-            state = self._await_change(name, "OFF", {"ON", "ERROR", "OFF"})
+            state = self.event_handling.await_change(name, {"ON", "ERROR", "OFF"})
         except RunFailure:
             raise
         except PboError as exc:
@@ -430,16 +428,15 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
             raise RunFailure(f"task '{name}' failed in on{' and its error component turned it off' if state == 'OFF' else ''}: "
                              f"{self.task_errors.get(name, '')}")
 
-
     def hold_critical_tasks(self, hold: bool) -> None:
         assert self.table is not None
         self.table.set_flag(Flag.STATIC_SWITCH, hold)
 
     def watch(self, name: str, configuration: str) -> None:
-        self.signal_and_wait(messages.Watch(name, self.reconfiguration.index(configuration)), {"ON"})
+        self.event_handling.signal_and_wait(messages.Watch(name, self.reconfiguration.index(configuration)), {"ON"})
 
     def kill_task(self, name: str) -> None:
-        self.signal_and_wait(messages.Kill(name), {"KILLED"})
+        self.event_handling.signal_and_wait(messages.Kill(name), {"KILLED"})
 
     def read_variable(self, name: str) -> np.ndarray:
         """A variable's value, lock-free; while a writer keeps the table busy, the lock watch decides."""
@@ -470,7 +467,6 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
             for queue in self.signals.values():
                 queue.try_signal(messages.PlanPosted(), timeout=0.0)
 
-
     def set_configuration(self, configuration: str) -> None:
         self.configuration = configuration
         self.result.configuration = configuration
@@ -485,13 +481,47 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         """Seconds since the configuration came on (0 before)."""
         return self.now() - self.started_at if self.started_at is not None else 0.0
 
+    def _check_children(self) -> None:
+        """A child that ended: RtpuDied if its RTPU may be restarted (the caller restarts it), else RunFailure."""
+        self.processes.check()
+        self._look_at_the_lock()
+
+    # --- what the operator's verbs ask (CommandHost) ----------------------------------------
+
+    @property
+    def realtime(self) -> dict[str, dict[str, str]]:
+        return {rtpu: settings.to_json() for rtpu, settings in self.result.realtime.items()}
+
+    def table_flags(self) -> list[str]:
+        return table_flags(self.table)
+
+    def stalled_since(self) -> dict[str, float]:
+        return self.stall_watch.stalled_since()
+
+    def restarts(self) -> list[dict[str, Any]]:
+        return [restart.to_json() for restart in self.result.restarts]
+
+    def status_rows(self) -> list[TaskRow]:
+        return self.reporting.status_rows()
+
+    def signal_task(self, task: str, op: str, states: set[str]) -> str:
+        """Send on, off or clear to a task; its state once it is one of `states` (a refusal raises PboError)."""
+        signal: messages.TaskSignal
+        if op == "on":  # a critical task learns who writes its inputs in the running configuration
+            signal = messages.TurnOn(task, None, self.reconfiguration.index(self.configuration))
+        else:
+            signal = messages.TurnOff(task) if op == "off" else messages.Clear(task)
+        self.event_handling.signal(signal)
+        state = self.event_handling.await_change(task, states)
+        self._count_errors()
+        return state
+
+    def send_event(self, task: str, values: Any) -> None:
+        self.event_handling.signal(messages.OperatorEvent(task, values))
+
     def _look_at_the_lock(self) -> None:
         if self.lock_guard is not None:
             self.lock_guard.look()
-
-    def _look_at_the_lock_while_stopping(self) -> None:
-        if self.lock_guard is not None:
-            self.lock_guard.look_while_stopping()
 
     def _while_waiting_for_the_lock(self) -> None:
         assert self.lock_guard is not None
@@ -502,23 +532,18 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         return spec is None or spec.critical
 
     def _child_exited(self) -> None:
-        if self.child_watch is not None:  # (closed once the run stops: children then end as asked)
+        if self.processes.child_watch is not None:  # (closed once the run stops: children then end as asked)
             self._check_children()  # a death handled now, not at the next look
 
     def _count_errors(self) -> None:
-        """Critical tasks run locally stable while a task of the configuration is in ERROR."""
+        """Critical tasks run locally stable while a task of the configuration is in ERROR or not fresh."""
         if self.table is None:
             return
         members = self.subsystem.configurations[self.configuration].tasks
-        in_error = sum(1 for t in members if self.task_states.get(t) == "ERROR")
-        self.table.header[Header.TASKS_IN_ERROR] = in_error
-        # A task that is not critical and says its inputs are not fresh (a link_receiver whose item is past its
-        # bound): what it writes is stale too, so the critical tasks hold until it has fresh inputs again.
-        tasks = self.subsystem.tasks
-        self.table.header[Header.TASKS_NOT_FRESH] = sum(
-            1 for t in members if t in self._stable and t in tasks and not tasks[t].critical and self._stable[t][2] == "module")
-        self.table.set_flag(Flag.ILLEGAL_CONFIGURATION, bool(in_error) or bool(self._stable))
-
+        words = error_words(members, self.task_states, self._stable, self.subsystem.tasks)
+        self.table.header[Header.TASKS_IN_ERROR] = words.in_error
+        self.table.header[Header.TASKS_NOT_FRESH] = words.not_fresh
+        self.table.set_flag(Flag.ILLEGAL_CONFIGURATION, words.illegal)
 
     def _write_initial_values(self) -> None:
         assert self.table is not None
@@ -526,7 +551,6 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
             initial = var.initial
             if initial is not None:
                 self.table.write(var.name, initial, when=self.now(), writer=-1)
-
 
     # --- running ----------------------------------------------------------------------------
 
@@ -555,13 +579,13 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
             self._check_stalls()
             if self.lock_guard is not None:  # while the lock is taken, look again soon
                 timeout = self.lock_guard.watch.next_look_in(timeout)
-            self.clock.run_for(timeout, self._take_one_event, self._while_stepping, self._while_ticking)
+            events = self.event_handling
+            self.clock.run_for(timeout, events.take_one_event, events.while_stepping, events.while_ticking)
         except RtpuDied as death:  # its restart policy brings it back; the other RTPUs never stopped
             self.restart_rtpu(death)
-        self._serve_commands()
+        self.control_service.serve()
         if self.on_tick is not None:
             self.on_tick(self)
-
 
     def _cycles_of(self, index: int) -> float:
         assert self.table is not None
@@ -575,20 +599,3 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         if now - self._stalls_checked >= STALL_CHECK_EVERY:
             self._stalls_checked = now
             self.stall_watch.check(now, self.task_states)
-
-
-def simulation_tick(subsystem: Subsystem) -> float:
-    """The simulated clock's tick: the plant's timestep, or else the periods' greatest common divisor.
-
-    Every period must be a whole number of ticks, or a task would be released between ticks.
-    """
-    periods_ns = {name: int(round(task.period * 1e9)) for name, task in subsystem.tasks.items()}
-    if subsystem.plant is not None:
-        tick_ns = int(round(subsystem.plant.timestep * 1e9))
-        off_grid = [f"{name} ({ns / 1e6:g} ms)" for name, ns in periods_ns.items() if ns % tick_ns]
-        if off_grid:
-            raise RunFailure(f"--clock sim steps the plant every {tick_ns / 1e6:g} ms and releases tasks on those ticks, "
-                             f"but these periods are not whole multiples of it: {', '.join(off_grid)}; "
-                             f"make each period a multiple of the plant's timestep")
-        return tick_ns / 1e9
-    return math.gcd(*periods_ns.values()) / 1e9

@@ -3,11 +3,10 @@
 `Supervisor.run` makes the table and queues, starts the plant and the RTPUs, spawns the tasks in
 const-dependency order, turns the configuration on, watches until the duration ends, Ctrl-C or a
 failure, then stops the children and unlinks what it made, whatever happened. Its parts are fields:
-the children's processes (`Children`), signals and events (`EventHandling`), the report
-(`RunReporting`), the operator's commands (`ControlService`), restarts, the lock, live changes.
+the children (`Children`), signals and events (`EventHandling`), the report (`RunReporting`), the
+operator's commands (`ControlService`), restarts, the lock, live changes.
 
-The run's clock (`clock.run_clock`) is real time or the simulated clock, whose master the supervisor
-is (`pump` advances it): run times are read through `now()`; waits for processes stay on wall time.
+The run's clock (`clock.run_clock`): real, or simulated and advanced by `pump`; run times are `now()`, waits for processes wall time.
 """
 
 from __future__ import annotations

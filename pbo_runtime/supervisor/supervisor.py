@@ -6,7 +6,7 @@ failure, then stops the children and unlinks what it made, whatever happened. It
 the children (`Children`), signals and events (`EventHandling`), the report (`RunReporting`), the
 operator's commands (`ControlService`), restarts, the lock, live changes.
 
-The run's clock (`clock.run_clock`): real, or simulated and advanced by `pump`; run times are `now()`, waits for processes wall time.
+The run's clock (`clock.run_clock`): real, or simulated and advanced by `pump`; run times are `now()`, process waits wall time.
 """
 
 from __future__ import annotations

@@ -22,6 +22,7 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.ipc.control import ControlServer
 from pbo_runtime.supervisor.child_watch import ChildWatch
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
+from pbo_runtime.supervisor.in_process import InProcessChild
 from pbo_runtime.supervisor.fork_server import ForkedProcess, ForkServer, ForkServerUnavailable, forking_enabled
 from pbo_runtime.supervisor.run_report import STOP_TIMEOUT, RunResult
 from pbo_runtime.table.table import StateTable
@@ -37,7 +38,7 @@ class Child:
     """One child process of the run: the plant or an RTPU, and the tasks it hosts."""
 
     role: str  # 'plant' or the RTPU's name
-    process: subprocess.Popen[bytes] | ForkedProcess  # a fresh interpreter, or forked by the fork server
+    process: subprocess.Popen[bytes] | ForkedProcess | InProcessChild  # a fresh interpreter, forked, or hosted here
     tasks: tuple[str, ...] = ()
 
 
@@ -71,7 +72,7 @@ class Children:
 
     def _start_fork_server(self, preload: list[str]) -> None:
         """The fork server the children are forked from (`supervisor.fork_server`), started before it is needed."""
-        if not forking_enabled():
+        if not forking_enabled() or self.clock.one_process:
             return
         try:
             self.fork_server = ForkServer.start(self.subsystem.file, preload, env=self.clock.child_environment(),
@@ -99,8 +100,12 @@ class Children:
         server where it serves, else a fresh interpreter."""
         parent = ["--parent", str(os.getpid())]
         self.launched[role] = (arguments, tasks)  # a restart launches it the same way (from the kept fork server)
-        process: subprocess.Popen[bytes] | ForkedProcess | None = None
-        if self.fork_server is not None and arguments[0] == "-m":
+        process: subprocess.Popen[bytes] | ForkedProcess | InProcessChild | None = None
+        if self.clock.one_process:  # hosted here, joining the simulated clock's ring (`supervisor.in_process`)
+            assert self.events is not None
+            process = InProcessChild.start(arguments, self.subsystem, self.events,
+                                           lambda step: self.clock.join(role, step))
+        elif self.fork_server is not None and arguments[0] == "-m":
             try:
                 process = self.fork_server.fork(arguments[1], [*arguments[2:], *parent])
             except ForkServerUnavailable as exc:
@@ -214,7 +219,7 @@ class Children:
         self.clock.serve(child.role, give_up)
 
 
-def _signal_quietly(process: subprocess.Popen[bytes] | ForkedProcess, signum: int) -> None:
+def _signal_quietly(process: subprocess.Popen[bytes] | ForkedProcess | InProcessChild, signum: int) -> None:
     try:
         process.send_signal(signum)
     except OSError:  # it ended meanwhile

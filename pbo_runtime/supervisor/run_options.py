@@ -24,6 +24,7 @@ class RunOptions:
     alternate: Alternation | None = None
     fifo: bool | None = None  # SCHED_FIFO for the RTPUs; None: the clock's default
     clock: str = "real"  # "real", or "sim": the simulated clock, replayed bit for bit
+    one_process: bool = False  # sim: the plant and every RTPU hosted in the supervisor's process
     out_dir: str | None = None  # where the modules write their files
     links: dict[str, dict[str, Any]] | None = None  # an application's links, handed to every RTPU
     turn: str | None = None  # an application on the simulated clock: the semaphores of this subsystem's turn

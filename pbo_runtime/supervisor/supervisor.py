@@ -30,6 +30,7 @@ import posix_ipc
 
 from pbo_runtime.ipc import limits
 from pbo_runtime.ipc import messages
+from pbo_runtime.ipc.local_queue import LocalQueue
 from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
 from pbo_runtime.config.checker.loops import GAINS_NOTE
@@ -56,6 +57,7 @@ from pbo_runtime.supervisor.run_options import RunOptions
 from pbo_runtime.supervisor.run_queues import queue_plan
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.application_lockstep import TurnGate
+from pbo_runtime.clock.local_ring import LocalRing
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.stall_watch import StallWatch
@@ -95,7 +97,10 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         # in an application on the simulated clock, `turn` names the semaphores of this subsystem's turn
         # (clock.application_lockstep); it is no longer waited for once the run is stopped or has failed
         gate = TurnGate(turn, lambda: bool(self._stop_requested or self.result.failure)) if turn else None
-        self.clock: RunClock = SimRunClock(simulation_tick(subsystem), gate) if clock == "sim" else RealRunClock()
+        if options.one_process and clock != "sim":
+            raise WrongArgument("one process (--one-process) is for the simulated clock only: add --clock sim")
+        self.clock: RunClock = (SimRunClock(simulation_tick(subsystem), gate, one_process=options.one_process)
+                                if clock == "sim" else RealRunClock())
         self.out_dir = os.path.abspath(options.out_dir) if options.out_dir else ""
         self.links = dict(options.links or {})  # an application's links, handed to every RTPU (see _links)
         self.application = application
@@ -297,7 +302,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         limits.check_queue_room(plan)
         events, *signals, _control = plan
         try:
-            self.events = messages.Queue(events.name, create=True, size=events)
+            self.events = (LocalQueue(events.name, events) if self.clock.one_process
+                           else messages.Queue(events.name, create=True, size=events))
             for rtpu, size in zip(self.subsystem.rtpus, signals):
                 self.signals[rtpu.name] = messages.Queue(size.name, create=True, size=size)
             self.control = ControlServer(self.subsystem.name, self.run_id)
@@ -320,7 +326,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         self._make_queues()
         events = self.events
         assert events is not None
-        if ChildWatch.available():  # a child's death wakes the wait for events at once
+        if ChildWatch.available() and not self.clock.one_process:  # a child's death wakes the wait for events at once
             self.child_watch = ChildWatch(lambda role, pid: events.report("supervisor", messages.ChildExited(role, pid), timeout=0.0))
         self.table = StateTable.create(TableLayout.of(sub), messages.table_name(sub.name, run_id), self._manifest())
         self._refuse_if_devices_in_use()  # again, now that a run started at the same instant sees this one
@@ -331,6 +337,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
                                     self._check_children, lambda: self._stop_requested, lambda: self._serving, self.fifo)
         self.live_changes.start(self.table.layout.n_tasks)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
+        if isinstance(self.clock, SimRunClock) and isinstance(self.clock.lockstep, LocalRing):
+            self.clock.lockstep.events_pending = events.pending  # the ring stops after a tick that sent an event
         self._write_initial_values()
         self._startup_mark("table")
         if sub.plant is not None:
@@ -401,7 +409,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         self.live_changes.queued_application = name
 
     def may_restart(self, role: str) -> bool:
-        return self.restarter.may_restart(role)
+        return not self.clock.one_process and self.restarter.may_restart(role)  # hosted here, it ended with the run
 
     def restart_rtpu(self, death: RtpuDied) -> None:
         self.restarter.restart_rtpu(death)

@@ -1,0 +1,65 @@
+"""Children hosted in the supervisor's own process (`pbo run --clock sim --one-process`).
+
+The plant and each RTPU are built by the code their processes run (found by module name, as
+the fork server finds them: the runtime never imports `rtpu`), and take their turns when the
+simulated clock's ring calls them (`clock.local_ring`). `InProcessChild` stands where a child
+process stands in `Children`: it answers `poll`, `send_signal`, `wait` and `kill` as the
+process would, so stopping a run, its summary and its report take the path they always take.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import signal
+from typing import Any, Callable, Protocol
+
+from pbo_runtime.config.model import Subsystem
+from pbo_runtime.ipc import messages
+
+PLANT_MODULE = "pbo_runtime.supervisor.plant_host"
+RTPU_IN_PROCESS = "rtpu.in_process"  # what hosts an RTPU here, for `python -m rtpu`
+
+
+class Hosted(Protocol):
+    """A participant hosted here: its turn, its exit status, and its end on SIGTERM."""
+
+    def step(self, new_tick: bool) -> None: ...
+    def poll(self) -> int | None: ...
+    def terminate(self) -> None: ...
+
+
+class InProcessChild:
+    """A participant hosted in this process, seen as a child process (`Children`)."""
+
+    def __init__(self, hosted: Hosted) -> None:
+        self.hosted = hosted
+        self.pid = os.getpid()
+
+    @classmethod
+    def start(cls, arguments: list[str], subsystem: Subsystem, events: messages.Queue,
+              join: Callable[[Callable[[bool], None]], None]) -> InProcessChild:
+        """Host what `python ARGUMENTS` (`-m MODULE ...`) would run; it joins the ring through `join`."""
+        module, argv = arguments[1], arguments[2:]
+        hosted: Any
+        if module == PLANT_MODULE:
+            hosted = importlib.import_module(PLANT_MODULE).in_process(argv, events)
+        else:
+            hosted = importlib.import_module(RTPU_IN_PROCESS).start(argv, subsystem, events)
+        join(hosted.step)
+        return cls(hosted)
+
+    def poll(self) -> int | None:
+        return self.hosted.poll()
+
+    def send_signal(self, signum: int) -> None:
+        if signum in (signal.SIGTERM, signal.SIGKILL, signal.SIGINT):
+            self.hosted.terminate()
+
+    def wait(self, timeout: float | None = None) -> int:
+        self.hosted.terminate()  # (only ever waited for once told to end)
+        code = self.hosted.poll()
+        return 0 if code is None else code
+
+    def kill(self) -> None:
+        self.hosted.terminate()

@@ -1,0 +1,78 @@
+"""`pbo run --clock sim --one-process`: the plant and every RTPU in one process, the same run as with processes.
+
+Each file is run twice on the simulated clock, with processes and in one process, and what the
+runs wrote is compared: every file of the output directory byte for byte, and the report but
+for what names the run or times it on the wall clock.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from pbo_runtime.cli.main import main
+from tests.support import DEMO, PBO, REPO, assert_nothing_left, config_copy
+
+# What differs between any two runs of one file: the run's id and the names made from it, and wall times.
+RUN_OWN = ("run_id", "objects", "startup", "wall_seconds", "running_wall_seconds")
+
+# Shipped subsystem files that do not run on the simulated clock by themselves, and why.
+NOT_ON_THE_SIMULATED_CLOCK: dict[str, str] = {}
+
+
+def subsystem_files() -> list[Path]:
+    files = sorted(path for path in (REPO / "configs").glob("*.yaml")
+                   if any(line.startswith("subsystem:") for line in path.read_text().splitlines()))
+    return [path for path in files if path.stem not in NOT_ON_THE_SIMULATED_CLOCK]
+
+
+def run_sim(config: Path, folder: Path, out: str, *arguments: str) -> tuple[dict, dict[str, bytes]]:
+    """A run on the simulated clock: its report with what is the run's own taken out, and every other file it wrote."""
+    directory = folder / out
+    done = subprocess.run([*PBO, "run", str(config), "--clock", "sim", "--no-live", "--out", str(directory), *arguments],
+                          cwd=folder, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    report = json.loads((directory / "report.json").read_text().replace(str(directory), "OUT"))
+    assert_nothing_left(report)
+    files = {str(path.relative_to(directory)): path.read_bytes()
+             for path in sorted(directory.rglob("*")) if path.is_file() and path.name != "report.json"}
+    return {key: value for key, value in report.items() if key not in RUN_OWN}, files
+
+
+def assert_same_run(config: Path, folder: Path, *arguments: str) -> tuple[dict, dict[str, bytes]]:
+    processes = run_sim(config, folder, "processes", *arguments)
+    one = run_sim(config, folder, "one", "--one-process", *arguments)
+    assert one[1].keys() == processes[1].keys()
+    for name in processes[1]:
+        assert one[1][name] == processes[1][name], name
+    assert one[0] == processes[0]
+    return one
+
+
+@pytest.mark.multiprocess
+def test_figure_8_in_one_process_is_the_run_of_processes_bit_for_bit(tmp_path):
+    report, files = assert_same_run(config_copy(DEMO, tmp_path, "oneproc_fig8"), tmp_path, "--duration", "2")
+    assert report["plant"]["steps"] == 2001 and report["tasks"]["pid"]["cycles"] == 2001
+    assert len(files["pid_joint.mcap"]) > 0
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("config", subsystem_files(), ids=lambda path: path.stem)
+def test_every_shipped_subsystem_runs_the_same_in_one_process(tmp_path, config):
+    assert_same_run(config_copy(config, tmp_path, f"oneproc_{config.stem}"), tmp_path, "--duration", "0.5")
+
+
+def test_one_process_is_refused_without_the_simulated_clock(tmp_path, capsys):
+    assert main(["run", str(DEMO), "--one-process", "--no-live", "--out", str(tmp_path / "out")]) == 1
+    said = capsys.readouterr().err
+    assert "--one-process" in said and "add --clock sim" in said
+    assert not (tmp_path / "out").exists()
+
+
+def test_one_process_is_refused_for_an_application_file(tmp_path, capsys):
+    application = REPO / "configs" / "leader_follower.yaml"
+    assert main(["run", str(application), "--clock", "sim", "--one-process", "--no-live", "--out", str(tmp_path / "out")]) == 1
+    assert "application file" in capsys.readouterr().err

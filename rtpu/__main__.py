@@ -240,6 +240,8 @@ def host_tasks(launch: RtpuLaunch, subsystem: Subsystem, table: StateTable, sign
 
 def pump(relays: list[Any]) -> None:
     """Each relay of the simulated clock forwards what its link holds now; a closed one (its task killed) is dropped."""
+    if not relays:  # (every tick, and most runs have none)
+        return
     for relay in list(relays):
         if relay.closed:
             relays.remove(relay)

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from pbo_runtime.cli.main import main
-from tests.support import DEMO, PBO, REPO, assert_nothing_left, config_copy
+from tests.support import DEMO, PBO, REPO, application_copy, assert_nothing_left, config_copy
 
 # What differs between any two runs of one file: the run's id and the names made from it, and wall times.
 RUN_OWN = ("run_id", "objects", "startup", "wall_seconds", "running_wall_seconds")
@@ -41,11 +41,16 @@ def run_sim(config: Path, folder: Path, out: str, *arguments: str) -> tuple[dict
     done = subprocess.run([*PBO, "run", str(config), "--clock", "sim", "--no-live", "--out", str(directory), *arguments],
                           cwd=folder, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout + done.stderr
-    report = json.loads((directory / "report.json").read_text().replace(str(directory), "OUT"))
-    assert_nothing_left(report)
+    assert_nothing_left(json.loads((directory / "report.json").read_text()))
     files = {str(path.relative_to(directory)): path.read_bytes()
              for path in sorted(directory.rglob("*")) if path.is_file() and path.name != "report.json"}
-    return {key: value for key, value in report.items() if key not in RUN_OWN}, files
+    return _comparable(directory / "report.json", directory), files
+
+
+def _comparable(report: Path, directory: Path, own: tuple[str, ...] = RUN_OWN) -> dict:
+    """A run's report without what is the run's own, its output directory written OUT."""
+    return {key: value for key, value in json.loads(report.read_text().replace(str(directory), "OUT")).items()
+            if key not in own}
 
 
 def assert_same_run(config: Path, folder: Path, *arguments: str) -> tuple[dict, dict[str, bytes]]:
@@ -78,7 +83,22 @@ def test_one_process_is_refused_without_the_simulated_clock(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
-def test_one_process_is_refused_for_an_application_file(tmp_path, capsys):
-    application = REPO / "configs" / "leader_follower.yaml"
-    assert main(["run", str(application), "--clock", "sim", "--one-process", "--no-live", "--out", str(tmp_path / "out")]) == 1
-    assert "application file" in capsys.readouterr().err
+@pytest.mark.multiprocess
+def test_an_application_with_a_process_a_subsystem_is_the_run_of_processes_bit_for_bit(tmp_path):
+    """leader_follower.yaml: three subsystems joined by links, each subsystem in its supervisor's process."""
+    app = application_copy(tmp_path, "oneproc")
+    outputs: dict[str, dict[str, bytes]] = {}
+    reports: dict[str, dict[str, dict]] = {}
+    for out, arguments in (("processes", ()), ("one", ("--one-process",))):
+        done = subprocess.run([*PBO, "run", str(app), "--clock", "sim", "--duration", "1", "--no-live",
+                               "--out", str(tmp_path / out), *arguments], cwd=tmp_path, capture_output=True, text=True,
+                              timeout=600)
+        assert done.returncode == 0, done.stdout + done.stderr
+        outputs[out] = {str(path.relative_to(tmp_path / out)): path.read_bytes()
+                        for path in sorted((tmp_path / out).rglob("*.mcap"))}
+        # (the links' objects are named after the application's run)
+        reports[out] = {path.parent.name: _comparable(path, path.parent, (*RUN_OWN, "links"))
+                        for path in (tmp_path / out).glob("*/report.json")}
+    assert len(outputs["processes"]) == 3 and len(reports["processes"]) == 3
+    assert outputs["one"] == outputs["processes"]
+    assert reports["one"] == reports["processes"]

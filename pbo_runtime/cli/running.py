@@ -38,10 +38,6 @@ def run(args: argparse.Namespace, console: Console, errors: Console) -> int:
         return EXIT_CONFIG
 
     if is_application_file(args.file):
-        if args.one_process:
-            errors.print(f"error: --one-process runs one subsystem; {args.file} is an application file: run it "
-                         "without --one-process", markup=False)
-            return EXIT_CONFIG
         return _run_application(args, console, errors)
     if args.host is not None or args.address:
         errors.print(f"error: --host and --address place an application's subsystems on machines; {args.file} is a "
@@ -267,7 +263,8 @@ def _run_linked_subsystems(args: argparse.Namespace, console: Console, errors: C
     say(f"starting application '{app.name}'" + ("" if args.host is None else f" on host '{args.host}'")
         + f": {', '.join(here)}; "
         + ("Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner"))
-    code = ApplicationRunner(app, duration, say, clock=args.clock, out_dir=args.out, fifo=args.fifo, host=args.host).run()
+    code = ApplicationRunner(app, duration, say, clock=args.clock, out_dir=args.out, fifo=args.fifo, host=args.host,
+                             one_process=args.one_process).run()
     if code:
         errors.print(f"error: application '{app.name}' stopped: a subsystem failed (exit {code}); see its lines above",
                      markup=False)

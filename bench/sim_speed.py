@@ -103,6 +103,7 @@ the start-up (interpreter, imports, MuJoCo's model) is then a larger share of a 
     fixed: dict[str, Any] | None = None  # a run of one tick: the CPU time of starting and stopping
     in_one: list[dict[str, Any]] = []  # the same runs with --one-process, each right after its run of processes
     long_one: dict[str, Any] | None = None  # --one-process over ONE_PROCESS_SECONDS: the goal's run
+    fixed_one: dict[str, Any] | None = None  # a run of one tick in one process: its start-up and stop
     with tempfile.TemporaryDirectory() as folder:
         try:
             fixed = run_once(0.001, Path(folder), rounds)
@@ -117,6 +118,10 @@ the start-up (interpreter, imports, MuJoCo's model) is then a larger share of a 
                 in_one.append(run_once(seconds, Path(folder), rounds + 1 + index, one_process=True))
             except (RuntimeError, subprocess.TimeoutExpired) as exc:
                 failures.append(f"run {index + 1} in one process: {exc}")
+        try:
+            fixed_one = run_once(0.001, Path(folder), 2 * rounds + 2, one_process=True)
+        except (RuntimeError, subprocess.TimeoutExpired) as exc:
+            failures.append(f"the run of one tick in one process: {exc}")
         try:
             long_one = run_once(goal_seconds, Path(folder), 2 * rounds + 1, one_process=True)
         except (RuntimeError, subprocess.TimeoutExpired) as exc:
@@ -148,7 +153,7 @@ the start-up (interpreter, imports, MuJoCo's model) is then a larger share of a 
     if len(results) > 1:
         identical = all(r["log"] == results[0]["log"] for r in results[1:])
         section.notes.append(f"the {len(results)} runs' logs are {'byte-identical' if identical else 'NOT identical'}")
-    _one_process_figures(section, results, in_one, long_one, goal_seconds)
+    _one_process_figures(section, results, in_one, long_one, fixed_one, goal_seconds)
     for failure in failures:
         section.notes.append(f"failed: {failure}")
     section.targets.append(Target("Figure 8 on the simulated clock: simulated time / wall time (baseline: real time, 1x)",
@@ -158,7 +163,7 @@ the start-up (interpreter, imports, MuJoCo's model) is then a larger share of a 
 
 
 def _one_process_figures(section: Section, results: list[dict[str, Any]], in_one: list[dict[str, Any]],
-                         long_one: dict[str, Any] | None, goal_seconds: float) -> None:
+                         long_one: dict[str, Any] | None, fixed_one: dict[str, Any] | None, goal_seconds: float) -> None:
     """`--one-process` beside the runs of processes: its speed, the ratio between the two, the same log, the goal."""
     if in_one:
         table = Table(["run", "mode", "simulated, s", "wall from configuration on, s", "whole process, s",
@@ -182,8 +187,21 @@ def _one_process_figures(section: Section, results: list[dict[str, Any]], in_one
             same = all(p["log"] == o["log"] for p, o in pairs)
             section.notes.append(f"in one process, the logs are {'byte-identical' if same else 'NOT identical'} to the "
                                  "runs of processes'")
-            per_tick = statistics.median(o["running"] / max(o["steps"], 1) for o in in_one)
-            section.notes.append(f"in one process, one tick took {per_tick * 1e6:,.0f} µs of wall time (median)")
+            section.notes.append("one process / processes, wall time of the whole process: "
+                                 f"{fmt_ratio(section.ratios['one process / processes, whole process'])} faster "
+                                 f"(from the configuration on: {fmt_ratio(section.ratios['one process / processes, from configuration on'])})")
+        per_tick = statistics.median(o["running"] / max(o["steps"], 1) for o in in_one)
+        section.notes.append(f"in one process, one tick took {per_tick * 1e6:,.0f} µs of wall time (median)")
+    if long_one is not None and fixed_one is not None:
+        ticks_cpu = (long_one["cpu"] - fixed_one["cpu"]) / long_one["duration"]
+        if ticks_cpu > 0:
+            section.ratios["one process: sim/cpu of the ticks"] = 1.0 / ticks_cpu
+            section.notes.append(
+                f"in one process, over {long_one['duration']:g} s: the ticks took {ticks_cpu:.2f} s of CPU time per simulated "
+                f"second ({ticks_cpu * 1e3:,.0f} µs a tick), start-up and stop ({fixed_one['cpu']:.1f} s of CPU, a run of one "
+                f"tick) taken out; on a machine with a CPU free for it the whole process would take about "
+                f"{fixed_one['cpu'] + ticks_cpu * long_one['duration']:.1f} s: "
+                f"{fmt_ratio(long_one['duration'] / (fixed_one['cpu'] + ticks_cpu * long_one['duration']))} real time")
     speed = long_one["duration"] / long_one["process"] if long_one is not None else None
     section.targets.append(Target(f"Figure 8 with --one-process: {goal_seconds:g} simulated s / wall time of the "
                                   "whole process, start-up included (baseline: real time, 1x)", speed, ONE_PROCESS_GOAL,

@@ -102,3 +102,20 @@ def test_an_application_with_a_process_a_subsystem_is_the_run_of_processes_bit_f
     assert len(outputs["processes"]) == 3 and len(reports["processes"]) == 3
     assert outputs["one"] == outputs["processes"]
     assert reports["one"] == reports["processes"]
+
+
+@pytest.mark.multiprocess
+def test_a_task_failing_in_init_fails_the_run_in_one_process_as_with_processes(tmp_path):
+    """follower.yaml alone: its link receiver finds no application's link in init, and the run fails (exit 2)."""
+    config = config_copy(REPO / "configs" / "follower.yaml", tmp_path, "oneproc_fails")
+    said, reports = {}, {}
+    for out, arguments in (("processes", ()), ("one", ("--one-process",))):
+        done = subprocess.run([*PBO, "run", str(config), "--clock", "sim", "--duration", "0.5", "--no-live",
+                               "--out", str(tmp_path / out), *arguments], cwd=tmp_path, capture_output=True, text=True,
+                              timeout=300)
+        assert done.returncode == 2, done.stdout + done.stderr
+        said[out] = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+        reports[out] = _comparable(tmp_path / out / "report.json", tmp_path / out)
+        assert_nothing_left(json.loads((tmp_path / out / "report.json").read_text()))
+    assert said["one"] == said["processes"] and "opens link 'arm_state'" in said["one"][0]
+    assert reports["one"] == reports["processes"]

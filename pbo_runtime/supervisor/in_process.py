@@ -12,10 +12,11 @@ from __future__ import annotations
 import importlib
 import os
 import signal
+import traceback
 from typing import Any, Callable, Protocol
 
 from pbo_runtime.config.model import Subsystem
-from pbo_runtime.ipc import messages
+from pbo_runtime.ipc import limits, messages
 
 PLANT_MODULE = "pbo_runtime.supervisor.plant_host"
 RTPU_IN_PROCESS = "rtpu.in_process"  # what hosts an RTPU here, for `python -m rtpu`
@@ -27,6 +28,19 @@ class Hosted(Protocol):
     def step(self, new_tick: bool) -> None: ...
     def poll(self) -> int | None: ...
     def terminate(self) -> None: ...
+
+
+class NeverStarted:
+    """A participant whose start failed: no turns, ended with exit status 1."""
+
+    def step(self, new_tick: bool) -> None:
+        pass
+
+    def poll(self) -> int | None:
+        return 1
+
+    def terminate(self) -> None:
+        pass
 
 
 class InProcessChild:
@@ -42,10 +56,17 @@ class InProcessChild:
         """Host what `python ARGUMENTS` (`-m MODULE ...`) would run; it joins the ring through `join`."""
         module, argv = arguments[1], arguments[2:]
         hosted: Any
-        if module == PLANT_MODULE:
-            hosted = importlib.import_module(PLANT_MODULE).in_process(argv, events)
-        else:
-            hosted = importlib.import_module(RTPU_IN_PROCESS).start(argv, subsystem, events)
+        try:
+            if module == PLANT_MODULE:
+                hosted = importlib.import_module(PLANT_MODULE).in_process(argv, events)
+            else:
+                hosted = importlib.import_module(RTPU_IN_PROCESS).start(argv, subsystem, events)
+        except Exception as exc:  # as its process would: reported, and it has ended (exit status 1)
+            role = "plant" if module == PLANT_MODULE else argv[argv.index("--rtpu") + 1]
+            limit = limits.explain(exc, f"{role} starting")
+            events.report(role, messages.Crashed(str(limit), "") if limit is not None
+                          else messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
+            hosted = NeverStarted()
         join(hosted.step)
         return cls(hosted)
 

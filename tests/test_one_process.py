@@ -71,6 +71,14 @@ def test_figure_8_in_one_process_is_the_run_of_processes_bit_for_bit(tmp_path):
 
 
 @pytest.mark.multiprocess
+def test_twenty_switches_in_one_process_are_the_run_of_processes_bit_for_bit(tmp_path):
+    """Job control's plans, the executives' switches at a boundary, and each switch's report."""
+    config = config_copy(REPO / "configs" / "switch_joint.yaml", tmp_path, "oneproc_switch")
+    report, _ = assert_same_run(config, tmp_path, "--alternate", "pid,pd", "--switches", "20", "--interval", "0.02")
+    assert len(report["switches"]) == 20
+
+
+@pytest.mark.multiprocess
 @pytest.mark.parametrize("config", subsystem_files(), ids=lambda path: path.stem)
 def test_every_shipped_subsystem_runs_the_same_in_one_process(tmp_path, config):
     assert_same_run(config_copy(config, tmp_path, f"oneproc_{config.stem}"), tmp_path, "--duration", "0.5")

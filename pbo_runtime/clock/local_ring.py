@@ -44,9 +44,11 @@ class LocalRing:
         header[Header.SIM_RING_END] = 0
         header[Header.FLAGS] = int(header[Header.FLAGS]) | Flag.SIM_CLOCK
 
-    def join(self, role: str, step: Step) -> None:
-        """Participant `role` takes its turns through `step` from now on."""
+    def join(self, role: str, step: Step, events_pending: Callable[[], bool]) -> None:
+        """Participant `role` takes its turns through `step` from now on; `events_pending` says whether
+        job control's queue (where the participants report) holds an event."""
         self._steps[self.roles.index(role)] = step
+        self.events_pending = events_pending
 
     @property
     def now(self) -> float:

@@ -84,8 +84,9 @@ class RunClock(Protocol):
         """A turn handed to the dead `role` is not for its new process (a no-op where there are none)."""
     def finish_tick(self, while_waiting: Callable[[], bool | None]) -> None:
         """Run the tick a death interrupted for the participants that had not run it (a no-op where there are none)."""
-    def join(self, role: str, step: Callable[[bool], None]) -> None:
-        """One process: participant `role`, hosted here, takes its turns through `step`."""
+    def join(self, role: str, step: Callable[[bool], None], events_pending: Callable[[], bool]) -> None:
+        """One process: participant `role`, hosted here, takes its turns through `step`; `events_pending`:
+        job control's queue holds an event."""
     def close(self) -> None:
         """Remove what the clock made."""
 
@@ -147,7 +148,7 @@ class RealRunClock:
     def finish_tick(self, while_waiting: Callable[[], bool | None]) -> None:
         pass
 
-    def join(self, role: str, step: Callable[[bool], None]) -> None:
+    def join(self, role: str, step: Callable[[bool], None], events_pending: Callable[[], bool]) -> None:
         raise NotImplementedError("one process is for the simulated clock only")
 
     def close(self) -> None:
@@ -271,9 +272,9 @@ class SimRunClock:
         if stop is not None and self.lockstep is not None:
             self.lockstep.finish_tick(stop, while_waiting)
 
-    def join(self, role: str, step: Callable[[bool], None]) -> None:
+    def join(self, role: str, step: Callable[[bool], None], events_pending: Callable[[], bool]) -> None:
         assert isinstance(self.lockstep, LocalRing), "a participant joins the ring only in one process"
-        self.lockstep.join(role, step)
+        self.lockstep.join(role, step, events_pending)
 
     def close(self) -> None:
         if self.lockstep is not None:

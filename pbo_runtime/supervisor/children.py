@@ -103,8 +103,9 @@ class Children:
         process: subprocess.Popen[bytes] | ForkedProcess | InProcessChild | None = None
         if self.clock.one_process:  # hosted here, joining the simulated clock's ring (`supervisor.in_process`)
             assert self.events is not None
-            process = InProcessChild.start(arguments, self.subsystem, self.events,
-                                           lambda step: self.clock.join(role, step))
+            events = self.events  # (the ring stops after a tick that sent job control an event)
+            process = InProcessChild.start(arguments, self.subsystem, events,
+                                           lambda step: self.clock.join(role, step, events.pending))
         elif self.fork_server is not None and arguments[0] == "-m":
             try:
                 process = self.fork_server.fork(arguments[1], [*arguments[2:], *parent])

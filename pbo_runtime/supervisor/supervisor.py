@@ -57,7 +57,6 @@ from pbo_runtime.supervisor.run_options import RunOptions
 from pbo_runtime.supervisor.run_queues import queue_plan
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.clock.application_lockstep import TurnGate
-from pbo_runtime.clock.local_ring import LocalRing
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.stall_watch import StallWatch
@@ -337,8 +336,6 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
                                     self._check_children, lambda: self._stop_requested, lambda: self._serving, self.fifo)
         self.live_changes.start(self.table.layout.n_tasks)
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
-        if isinstance(self.clock, SimRunClock) and isinstance(self.clock.lockstep, LocalRing):
-            self.clock.lockstep.events_pending = events.pending  # the ring stops after a tick that sent an event
         self._write_initial_values()
         self._startup_mark("table")
         if sub.plant is not None:

@@ -8,13 +8,17 @@ for what names the run or times it on the wall clock.
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 from pathlib import Path
 
 import pytest
 
 from pbo_runtime.cli.main import main
-from tests.support import DEMO, PBO, REPO, application_copy, assert_nothing_left, config_copy
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.table.table import Header, StateTable, StatusWord, TableLayout
+from tests.support import (DEMO, PBO, REPO, application_copy, assert_nothing_left, config_copy, demo_copy, ipc_names,
+                           killed_on_failure, start_run, table_of, until)
 
 # What differs between any two runs of one file: the run's id and the names made from it, and wall times.
 RUN_OWN = ("run_id", "objects", "startup", "wall_seconds", "running_wall_seconds")
@@ -127,3 +131,25 @@ def test_a_task_failing_in_init_fails_the_run_in_one_process_as_with_processes(t
         assert_nothing_left(json.loads((tmp_path / out / "report.json").read_text()))
     assert said["one"] == said["processes"] and "opens link 'arm_state'" in said["one"][0]
     assert reports["one"] == reports["processes"]
+
+
+@pytest.mark.multiprocess
+def test_a_cycle_that_never_returns_in_one_process_is_ended_by_a_second_ctrl_c(tmp_path):
+    """In one process a hung cycle holds the whole run: the first Ctrl-C cannot be served, the second ends it at once."""
+    config = demo_copy(tmp_path, "oneproc_hang", stuck={"module": "fault_injector", "rtpu": "rtpu0", "period": "2 ms",
+                                                         "params": {"fail_after": 50, "fault": "hang"}})
+    subsystem = load_subsystem(config)
+    run = start_run(config, tmp_path, "--clock", "sim", "--one-process", "--duration", "60", "--out", str(tmp_path / "out"))
+    with killed_on_failure(run):
+        table = StateTable.attach(TableLayout.of(subsystem), table_of(run, "oneproc_hang"))
+        index = subsystem.tasks["stuck"].index
+        try:  # the tick of its 51st release (every 2 ms from 0) has begun, and it has not ended that cycle
+            until(lambda: table.header[Header.SIM_TIME_NS] >= 100_000_000, "the stuck task's 51st release")
+            assert table.status[index][StatusWord.CYCLES] == 50
+        finally:
+            table.close()
+        run.send_signal(signal.SIGINT)
+        run.send_signal(signal.SIGTERM)  # (a second SIGINT sent at once could be taken as one with the first)
+        _, said = run.communicate(timeout=60)
+    assert run.returncode == 2 and "stopped at once" in said and "Traceback" not in said
+    assert ipc_names("oneproc_hang") == []

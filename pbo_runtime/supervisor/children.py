@@ -200,6 +200,20 @@ class Children:
             if listed.run_id == self.run_id and listed.distrust is None:
                 shm.unlink_quietly(listed.kind, listed.name)
 
+    def _end_at_once(self) -> None:
+        """One process (`--one-process`), told twice to stop: a participant hosted here may be in a cycle
+        that never returns, and nothing else would end the run. Its objects are removed; what the data
+        logs had not written yet is lost (they are written in chunks); the process exits 2."""
+        sys.stderr.write("error: stopped at once (told twice to stop, in one process): the last data of the logs "
+                         "may be lost\n")
+        for entry in self._manifest():
+            kind, _, name = entry.partition(" ")
+            shm.unlink_quietly(kind, name)
+        for listed in shm.list_objects(self.subsystem.name):  # what a driver made under the run's name
+            if listed.run_id == self.run_id and listed.distrust is None:
+                shm.unlink_quietly(listed.kind, listed.name)
+        os._exit(2)
+
     def _resume_stopped(self, children: list[Child]) -> None:
         """SIGCONT to every child stopped (SIGSTOP) when the run stops: a stopped process cannot stop by itself."""
         for child in children:

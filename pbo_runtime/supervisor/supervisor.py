@@ -289,6 +289,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         self._stop_requested = reason
 
     def _interrupt(self, signum: int, _frame: Any) -> None:
+        if self._stop_requested and self.clock.one_process:
+            self._end_at_once()  # a second one: a cycle that never returns keeps the run from its stop
         self._stop_requested = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
 
     def queue_plan(self) -> list[limits.QueueSize]:

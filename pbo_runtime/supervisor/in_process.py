@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib
 import os
 import signal
+import threading
 import traceback
 from typing import Any, Callable, Protocol
 
@@ -84,3 +85,33 @@ class InProcessChild:
 
     def kill(self) -> None:
         self.hosted.terminate()
+
+
+class SecondStop:
+    """Two stop signals (Ctrl-C, SIGTERM) end the one process at once, whatever its main thread is doing.
+
+    A cycle that never returns holds the main thread, where Python runs signal handlers, and a
+    signal the kernel gives another thread does not even wake it. The C handler still writes each
+    signal's number to the wake-up pipe, which a thread of this class reads.
+    """
+
+    def __init__(self, on_second: Callable[[], None]) -> None:
+        self._read, self._write = os.pipe()
+        os.set_blocking(self._write, False)
+        self._previous = signal.set_wakeup_fd(self._write, warn_on_full_buffer=False)
+        self._on_second = on_second
+        threading.Thread(target=self._watch, name="pbo-second-stop", daemon=True).start()
+
+    def _watch(self) -> None:
+        stops = 0
+        try:
+            while data := os.read(self._read, 64):
+                stops += sum(1 for signum in data if signum in (signal.SIGINT, signal.SIGTERM))
+                if stops >= 2:
+                    self._on_second()
+        except OSError:  # closed: the run is over
+            pass
+
+    def close(self) -> None:
+        signal.set_wakeup_fd(self._previous)
+        os.close(self._write)  # the watch reads the end of the pipe and returns

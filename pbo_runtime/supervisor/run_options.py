@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from pbo_runtime.supervisor.failures import WrongArgument
+
 
 @dataclass(frozen=True)
 class Alternation:
@@ -31,3 +33,7 @@ class RunOptions:
     stages: str | None = None  # an application file's stages: this subsystem's part and the joins
     # the start-up's time line before the supervisor (the CLI's imports, the file's load and check)
     startup: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.one_process and self.clock != "sim":
+            raise WrongArgument("one process (--one-process) is for the simulated clock only: add --clock sim")

@@ -46,6 +46,7 @@ from pbo_runtime.supervisor.event_ledger import EventLedger, EventOutlets
 from pbo_runtime.supervisor.events import EventHandling
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested, WrongArgument
 from pbo_runtime.supervisor.fork_server import ForkServer
+from pbo_runtime.supervisor.in_process import SecondStop
 from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
 from pbo_runtime.supervisor.launch import SIM_TICK_DEFAULT, RtpuLaunch
 from pbo_runtime.supervisor.stages import run_stages
@@ -96,8 +97,6 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         # in an application on the simulated clock, `turn` names the semaphores of this subsystem's turn
         # (clock.application_lockstep); it is no longer waited for once the run is stopped or has failed
         gate = TurnGate(turn, lambda: bool(self._stop_requested or self.result.failure)) if turn else None
-        if options.one_process and clock != "sim":
-            raise WrongArgument("one process (--one-process) is for the simulated clock only: add --clock sim")
         self.clock: RunClock = (SimRunClock(simulation_tick(subsystem), gate, one_process=options.one_process)
                                 if clock == "sim" else RealRunClock())
         self.out_dir = os.path.abspath(options.out_dir) if options.out_dir else ""
@@ -239,6 +238,7 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         running_since = 0.0  # wall time when the configuration came on
         previous = signal.signal(signal.SIGINT, self._interrupt)
         previous_term = signal.signal(signal.SIGTERM, self._interrupt)
+        second_stop = SecondStop(self._end_at_once) if self.clock.one_process else None  # a hung cycle holds it all
         try:
             removed = remove_dead_runs(self.subsystem.name).removed
             if removed:
@@ -282,6 +282,8 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
             self.live_changes.end()
             signal.signal(signal.SIGINT, previous)
             signal.signal(signal.SIGTERM, previous_term)
+            if second_stop is not None:
+                second_stop.close()
             self.result.wall_seconds = time.monotonic() - wall_start
         return self.result
 
@@ -289,8 +291,6 @@ class Supervisor(Children, EventHandling, ControlService, RunReporting):
         self._stop_requested = reason
 
     def _interrupt(self, signum: int, _frame: Any) -> None:
-        if self._stop_requested and self.clock.one_process:
-            self._end_at_once()  # a second one: a cycle that never returns keeps the run from its stop
         self._stop_requested = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
 
     def queue_plan(self) -> list[limits.QueueSize]:

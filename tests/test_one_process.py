@@ -83,6 +83,14 @@ def test_twenty_switches_in_one_process_are_the_run_of_processes_bit_for_bit(tmp
 
 
 @pytest.mark.multiprocess
+def test_an_application_that_decides_runs_the_same_jobs_in_one_process(tmp_path):
+    """branches.yaml's `pick`: a try that times out, a repeat, a wait and an if, decided on the table's values."""
+    config = config_copy(REPO / "configs" / "branches.yaml", tmp_path, "oneproc_pick")
+    report, _ = assert_same_run(config, tmp_path, "--app", "pick")
+    assert report["jobs_done"]
+
+
+@pytest.mark.multiprocess
 @pytest.mark.parametrize("config", subsystem_files(), ids=lambda path: path.stem)
 def test_every_shipped_subsystem_runs_the_same_in_one_process(tmp_path, config):
     assert_same_run(config_copy(config, tmp_path, f"oneproc_{config.stem}"), tmp_path, "--duration", "0.5")

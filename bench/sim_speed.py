@@ -21,6 +21,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,8 @@ from bench._common import REPO, Section, Table, Target, fmt_ratio
 CONFIG = "configs/pid_joint.yaml"
 SUBSYSTEM = "bench_sim_speed"  # its own name: a run of Figure 8 elsewhere on the machine does not refuse this one
 GOAL = 10.0
+ONE_PROCESS_GOAL = 20.0  # --one-process, whole process (start-up included), over ONE_PROCESS_SECONDS
+ONE_PROCESS_SECONDS = 60.0
 
 
 def children_cpu() -> float:
@@ -37,16 +40,19 @@ def children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def run_once(seconds: float, folder: Path, index: int) -> dict[str, Any]:
-    """One simulated run of Figure 8: its durations, the CPU time of its processes, and its log's bytes."""
+def run_once(seconds: float, folder: Path, index: int, one_process: bool = False) -> dict[str, Any]:
+    """One simulated run of Figure 8: its durations, the CPU time of its processes, and its log's bytes;
+    `one_process`: the plant and the RTPUs in the supervisor's process (`--one-process`)."""
     text = (Path(REPO) / CONFIG).read_text().replace("\nsubsystem: puma\n", f"\nsubsystem: {SUBSYSTEM}\n")
     config = folder / "pid_joint.yaml"
     config.write_text(text)
     out = folder / f"run{index}"
     command = [sys.executable, "-m", "pbo_runtime.cli", "run", str(config), "--clock", "sim", "--duration", f"{seconds:g}",
-               "--no-live", "--out", str(out)]
+               "--no-live", "--out", str(out), *(["--one-process"] if one_process else [])]
     cpu = children_cpu()
+    started = time.monotonic()
     done = subprocess.run(command, cwd=folder, capture_output=True, text=True, timeout=seconds * 50 + 300)
+    process_wall = time.monotonic() - started
     cpu = children_cpu() - cpu
     report_path = out / "report.json"
     if done.returncode != 0 or not report_path.exists():
@@ -55,14 +61,15 @@ def run_once(seconds: float, folder: Path, index: int) -> dict[str, Any]:
     report = json.loads(report_path.read_text())
     log = out / "pid_joint.mcap"
     return {"duration": report["duration"], "wall": report["wall_seconds"], "running": report["running_wall_seconds"],
-            "steps": report["plant"].get("steps", 0), "cpu": cpu, "log": log.read_bytes() if log.exists() else b""}
+            "steps": report["plant"].get("steps", 0), "cpu": cpu, "log": log.read_bytes() if log.exists() else b"",
+            "process": process_wall}
 
 
-def run(seconds: float = 10.0, rounds: int = 3) -> Section:
+def run(seconds: float = 10.0, rounds: int = 3, goal_seconds: float = ONE_PROCESS_SECONDS) -> Section:
     section = Section(
         key="sim_speed",
         title="The simulated clock on Figure 8: simulated time / wall time",
-        command=f"python -m bench.sim_speed --seconds {seconds:g} --rounds {rounds}",
+        command=f"python -m bench.sim_speed --seconds {seconds:g} --rounds {rounds} --goal-seconds {goal_seconds:g}",
         method=f"""
 `pbo run {CONFIG} --clock sim --duration {seconds:g}` (the arm's plant, two RTPUs, four tasks at
 1 to 10 ms, a data logger), {rounds} runs back to back. Each tick the plant steps once, then
@@ -76,15 +83,27 @@ subtracted), which on a busy machine says what the wall time cannot. The baselin
 1x. Before this benchmark existed (job control releasing each participant in turn and taking
 its turn back, every tick), the run summary read 3.4x for 10 s on a quiet machine, start-up
 included.
+
+Each run is followed by the same run with `--one-process` (the plant and both RTPUs in the
+supervisor's process, given their turns by calls in the same order): the ratio of the two wall
+times, measured as whole processes from outside, and whether their logs are byte-identical. Then
+one run of Figure 8 with `--one-process` over {goal_seconds:g} simulated seconds is judged against
+its goal: simulated time over the whole process's wall time, start-up included.
 """,
         limits="""One tick is three processes run one after the other: the plant's MuJoCo step and
 its I/O boards, rtpu0's trajectory, PID (with Pinocchio's gravity) and logger, rtpu1's robot
 interface, each in Python, plus three hand-overs between processes (a semaphore post and a
-wake-up). On a 2-CPU machine shared with other work every hand-over also waits for the CPU.""",
+wake-up). On a 2-CPU machine shared with other work every hand-over also waits for the CPU.
+In one process the hand-overs are calls, and a tick is the plant's step and the tasks' cycles
+(their transfers through the table included) with a few µs of ring and executive around them;
+the start-up (interpreter, imports, MuJoCo's model) is then a larger share of a short run.""",
     )
     results: list[dict[str, Any]] = []
     failures: list[str] = []
     fixed: dict[str, Any] | None = None  # a run of one tick: the CPU time of starting and stopping
+    in_one: list[dict[str, Any]] = []  # the same runs with --one-process, each right after its run of processes
+    long_one: dict[str, Any] | None = None  # --one-process over ONE_PROCESS_SECONDS: the goal's run
+    fixed_one: dict[str, Any] | None = None  # a run of one tick in one process: its start-up and stop
     with tempfile.TemporaryDirectory() as folder:
         try:
             fixed = run_once(0.001, Path(folder), rounds)
@@ -95,6 +114,18 @@ wake-up). On a 2-CPU machine shared with other work every hand-over also waits f
                 results.append(run_once(seconds, Path(folder), index))
             except (RuntimeError, subprocess.TimeoutExpired) as exc:
                 failures.append(f"run {index + 1}: {exc}")
+            try:
+                in_one.append(run_once(seconds, Path(folder), rounds + 1 + index, one_process=True))
+            except (RuntimeError, subprocess.TimeoutExpired) as exc:
+                failures.append(f"run {index + 1} in one process: {exc}")
+        try:
+            fixed_one = run_once(0.001, Path(folder), 2 * rounds + 2, one_process=True)
+        except (RuntimeError, subprocess.TimeoutExpired) as exc:
+            failures.append(f"the run of one tick in one process: {exc}")
+        try:
+            long_one = run_once(goal_seconds, Path(folder), 2 * rounds + 1, one_process=True)
+        except (RuntimeError, subprocess.TimeoutExpired) as exc:
+            failures.append(f"the run of {goal_seconds:g} s in one process: {exc}")
     table = Table(["run", "simulated, s", "plant steps", "wall from configuration on, s", "speed", "whole run, s",
                    "speed (whole run)"], numeric=(1, 2, 3, 4, 5, 6),
                   caption=f"Figure 8 on the simulated clock, {len(results)} runs of {seconds:g} simulated seconds:")
@@ -122,6 +153,7 @@ wake-up). On a 2-CPU machine shared with other work every hand-over also waits f
     if len(results) > 1:
         identical = all(r["log"] == results[0]["log"] for r in results[1:])
         section.notes.append(f"the {len(results)} runs' logs are {'byte-identical' if identical else 'NOT identical'}")
+    _one_process_figures(section, results, in_one, long_one, fixed_one, goal_seconds)
     for failure in failures:
         section.notes.append(f"failed: {failure}")
     section.targets.append(Target("Figure 8 on the simulated clock: simulated time / wall time (baseline: real time, 1x)",
@@ -130,12 +162,60 @@ wake-up). On a 2-CPU machine shared with other work every hand-over also waits f
     return section
 
 
+def _one_process_figures(section: Section, results: list[dict[str, Any]], in_one: list[dict[str, Any]],
+                         long_one: dict[str, Any] | None, fixed_one: dict[str, Any] | None, goal_seconds: float) -> None:
+    """`--one-process` beside the runs of processes: its speed, the ratio between the two, the same log, the goal."""
+    if in_one:
+        table = Table(["run", "mode", "simulated, s", "wall from configuration on, s", "whole process, s",
+                       "speed (whole process)"], numeric=(2, 3, 4, 5),
+                      caption="The same runs with processes and in one process (`--one-process`), whole process "
+                              "measured from outside (start-up included):")
+        for index, (processes, one) in enumerate(zip(results, in_one)):
+            for mode, r in (("processes", processes), ("one process", one)):
+                table.add(index + 1, mode, f"{r['duration']:.2f}", f"{r['running']:.2f}", f"{r['process']:.2f}",
+                          fmt_ratio(r["duration"] / r["process"]))
+        if long_one is not None:
+            table.add("goal", "one process", f"{long_one['duration']:.2f}", f"{long_one['running']:.2f}",
+                      f"{long_one['process']:.2f}", fmt_ratio(long_one["duration"] / long_one["process"]))
+        section.tables.append(table)
+        pairs = list(zip(results, in_one))
+        if pairs:
+            section.ratios["one process / processes, whole process"] = statistics.median(
+                p["process"] / o["process"] for p, o in pairs)
+            section.ratios["one process / processes, from configuration on"] = statistics.median(
+                p["running"] / o["running"] for p, o in pairs)
+            same = all(p["log"] == o["log"] for p, o in pairs)
+            section.notes.append(f"in one process, the logs are {'byte-identical' if same else 'NOT identical'} to the "
+                                 "runs of processes'")
+            section.notes.append("one process / processes, wall time of the whole process: "
+                                 f"{fmt_ratio(section.ratios['one process / processes, whole process'])} faster "
+                                 f"(from the configuration on: {fmt_ratio(section.ratios['one process / processes, from configuration on'])})")
+        per_tick = statistics.median(o["running"] / max(o["steps"], 1) for o in in_one)
+        section.notes.append(f"in one process, one tick took {per_tick * 1e6:,.0f} µs of wall time (median)")
+    if long_one is not None and fixed_one is not None:
+        ticks_cpu = (long_one["cpu"] - fixed_one["cpu"]) / long_one["duration"]
+        if ticks_cpu > 0:
+            section.ratios["one process: sim/cpu of the ticks"] = 1.0 / ticks_cpu
+            section.notes.append(
+                f"in one process, over {long_one['duration']:g} s: the ticks took {ticks_cpu:.2f} s of CPU time per simulated "
+                f"second ({ticks_cpu * 1e3:,.0f} µs a tick), start-up and stop ({fixed_one['cpu']:.1f} s of CPU, a run of one "
+                f"tick) taken out; on a machine with a CPU free for it the whole process would take about "
+                f"{fixed_one['cpu'] + ticks_cpu * long_one['duration']:.1f} s: "
+                f"{fmt_ratio(long_one['duration'] / (fixed_one['cpu'] + ticks_cpu * long_one['duration']))} real time")
+    speed = long_one["duration"] / long_one["process"] if long_one is not None else None
+    section.targets.append(Target(f"Figure 8 with --one-process: {goal_seconds:g} simulated s / wall time of the "
+                                  "whole process, start-up included (baseline: real time, 1x)", speed, ONE_PROCESS_GOAL,
+                                  at_least=True))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--goal-seconds", type=float, default=ONE_PROCESS_SECONDS,
+                        help="simulated seconds of the --one-process run judged against its goal")
     args = parser.parse_args()
-    print(run(args.seconds, args.rounds).text())
+    print(run(args.seconds, args.rounds, args.goal_seconds).text())
 
 
 if __name__ == "__main__":

@@ -169,6 +169,9 @@ class Executive:
         # What a task's off or kill hands off (a log's last chunk and footer): done by a thread of
         # lower priority, never between two cycles; waited for at the stop (`stop`).
         background.process_background().start()
+        # A queue says whether a signal waits in one cheap system call; a receive that finds none
+        # costs far more (an exception), and most ticks bring no signal.
+        self._signal_pending: Callable[[], bool] = getattr(signals, "pending", lambda: True)
         self.cycles_between_steps = False  # `run` (the real clock): due cycles run between the steps of a spawn
 
     @property
@@ -193,25 +196,30 @@ class Executive:
         Nothing here waits on time: the supervisor releases a tick only when every participant
         finished the previous one, so the same inputs give the same cycles, bit for bit.
         """
-        signal_queue = self.signals
-        # A queue says whether a signal waits in one cheap system call; a receive that finds none
-        # costs far more (an exception), and most ticks bring no signal.
-        pending: Callable[[], bool] = getattr(signal_queue, "pending", lambda: True)
         while self.running:
             new_tick = barrier.wait()
             try:
                 raise_if_stopping()  # a stop that came while this process was not waiting (`stop_only_at_waits`)
-                while self.running and pending():
-                    message = signal_queue.receive(0)
-                    if message is None:
-                        break
-                    self.handle(message)
-                if new_tick and self.running:
-                    self.plan_if_due()
-                    self.run_ready()
-                    self.plans.send_held_reports()
+                self.step_lockstep(new_tick)
             finally:
                 barrier.done()
+
+    def step_lockstep(self, new_tick: bool) -> None:
+        """One turn on the simulated clock: serve the queued signals; on a new tick, the plan and the cycles.
+
+        The whole of a turn, whoever gives it: this RTPU's own process (`run_lockstep`), or the
+        one process that runs every participant of a simulated run in turn (`rtpu.in_process`).
+        """
+        signal_queue = self.signals
+        while self.running and self._signal_pending():
+            message = signal_queue.receive(0)
+            if message is None:
+                break
+            self.handle(message)
+        if new_tick and self.running:
+            self.plan_if_due()
+            self.run_ready()
+            self.plans.send_held_reports()
 
     def run_once(self) -> None:
         """Wait for the earliest release (or a signal, or a plan's boundary), then run what is due."""

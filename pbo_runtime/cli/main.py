@@ -30,6 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     # MuJoCo without its OpenGL context: nothing pbo runs renders, and importing it loads GLFW (0.1-0.3 s
     # per process: the CLI, the plant, each RTPU). A module that renders sets MUJOCO_GL (egl, glfw) itself.
     os.environ.setdefault("MUJOCO_GL", "disable")
+    command_line = argv is None
     if argv is None:
         argv = sys.argv[1:]
     if argv == ["--version"]:  # what argparse's --version prints, without building every verb's parser first
@@ -42,6 +43,9 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == [HIDDEN_VERB]:  # the shell completing a name at the time of a <TAB>
         return complete(argv[1:])
     args = _parser().parse_args(argv)
+    if command_line and getattr(args, "one_process", False) and os.environ.get("PYTHONHASHSEED") != "0":
+        # the tasks run in this interpreter: with the string hashing the run's processes have (`clock.run_clock`)
+        os.execve(sys.executable, [sys.executable, "-m", "pbo_runtime.cli", *argv], {**os.environ, "PYTHONHASHSEED": "0"})
     handler = _handler(args.handler)  # the verb's own code, imported only now
     from rich.console import Console
 

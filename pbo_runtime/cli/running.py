@@ -31,6 +31,10 @@ def run(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
     if args.allow_unstable_loops:  # for every process of the run: each loads the file
         os.environ[ALLOW_UNSTABLE_LOOPS] = "1"
+    if args.one_process and args.clock != "sim":
+        errors.print("error: --one-process runs the plant and the RTPUs in turn in one process, which only the "
+                     "simulated clock allows: add --clock sim", markup=False)
+        return EXIT_CONFIG
 
     if is_application_file(args.file):
         return _run_application(args, console, errors)
@@ -52,7 +56,7 @@ def _early_fork_server(args: argparse.Namespace):
     from pbo_runtime.supervisor.fork_server import ForkServer, forking_enabled
 
     server = None
-    if args.clock == "real" and forking_enabled():
+    if args.clock == "real" and forking_enabled():  # (--one-process is on the simulated clock: no children to fork)
         try:
             server = ForkServer.start(str(Path(args.file).resolve()), ["pbo_runtime.supervisor.plant_host", "rtpu"],
                                       run_id=new_run_id())  # the run's id, which the supervisor takes
@@ -93,6 +97,7 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
 
     startup = {"process": process_started(), "cli": args.entered, "loaded": getattr(args, "loaded", args.entered)}
     options = RunOptions(application=args.app, static=args.static, alternate=alternate, fifo=args.fifo, clock=args.clock,
+                         one_process=args.one_process,
                          out_dir=str(args.out), links=json.loads(args.links) if args.links else None, turn=args.turn,
                          stages=args.stages, startup=startup)
     refused = _check_output_paths(args)
@@ -257,7 +262,8 @@ def _run_linked_subsystems(args: argparse.Namespace, console: Console, errors: C
     say(f"starting application '{app.name}'" + ("" if args.host is None else f" on host '{args.host}'")
         + f": {', '.join(here)}; "
         + ("Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner"))
-    code = ApplicationRunner(app, duration, say, clock=args.clock, out_dir=args.out, fifo=args.fifo, host=args.host).run()
+    code = ApplicationRunner(app, duration, say, clock=args.clock, out_dir=args.out, fifo=args.fifo, host=args.host,
+                             one_process=args.one_process).run()
     if code:
         errors.print(f"error: application '{app.name}' stopped: a subsystem failed (exit {code}); see its lines above",
                      markup=False)

@@ -66,6 +66,9 @@ OFFLINE: tuple[Command, ...] = (
                  help="static reconfiguration: only the current configuration's tasks exist (kill and spawn between jobs)"),
         Argument("--clock", choices=("real", "sim"), default="real",
                  help="sim: simulated time in lockstep ticks, as fast as the machine allows; the run replays bit for bit"),
+        Argument("--one-process", flag=True,
+                 help="with --clock sim: the plant and every RTPU in this one process, taking their turns in the "
+                      "same order: the same run (logs and report), without a process hand-over per tick"),
         Argument("--out", type=Path, metavar="DIR",
                  help="the run's output directory: its report (report.json), its data logs and every file it "
                       "writes (default: runs/SUBSYSTEM-DATE-TIME/ in the current directory)"),

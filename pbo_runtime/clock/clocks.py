@@ -77,10 +77,12 @@ class SimClock:
 
     def __init__(self, header, tick: float) -> None:
         self.header = header
+        self._words = header.data  # the header's words as plain ints: no numpy scalar per read
+        self._time_word = int(Header.SIM_TIME_NS)
         self.release_slack = tick * 1e-3
 
     def now(self) -> float:
-        return int(self.header[Header.SIM_TIME_NS]) / 1e9
+        return self._words[self._time_word] / 1e9
 
     def sleep_until(self, deadline: float) -> float:
         return self.now()  # never waits: the lockstep barrier moves time

@@ -16,6 +16,8 @@ here once instead of in branches through the supervisor:
   after it (`clock.lockstep`, `RingStop`), and its new process joins from the next tick. In an
   application on the simulated clock it takes the application's turn
   (`clock.application_lockstep`) before each tick or step, and gives it back after each tick.
+  With `one_process` the participants are hosted in the supervisor's process and the ring is
+  a loop of calls (`clock.local_ring`), the same turns in the same order.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import numpy as np
 
 from pbo_runtime.clock.application_lockstep import TurnGate, TurnStalled
 from pbo_runtime.clock.clocks import release_stagger
+from pbo_runtime.clock.local_ring import LocalRing
 from pbo_runtime.clock.lockstep import LockstepMaster, RingStop, ring_arguments, semaphore_names
 from pbo_runtime.table.table import Header
 
@@ -46,6 +49,7 @@ class RunClock(Protocol):
     watches_stalls: bool  # a task whose cycle count stops moving is reported (StallWatch)
     signals_served_when_sent: bool  # a signal's answer is queued when `serve` returns (no waiting for it)
     plans_need_a_wakeup: bool  # RTPUs must be woken to read a plan in the header
+    one_process: bool  # the participants are hosted in the supervisor's process (`--one-process`)
 
     def now(self) -> float:
         """The run's time."""
@@ -80,6 +84,9 @@ class RunClock(Protocol):
         """A turn handed to the dead `role` is not for its new process (a no-op where there are none)."""
     def finish_tick(self, while_waiting: Callable[[], bool | None]) -> None:
         """Run the tick a death interrupted for the participants that had not run it (a no-op where there are none)."""
+    def join(self, role: str, step: Callable[[bool], None], events_pending: Callable[[], bool]) -> None:
+        """One process: participant `role`, hosted here, takes its turns through `step`; `events_pending`:
+        job control's queue holds an event."""
     def close(self) -> None:
         """Remove what the clock made."""
 
@@ -94,6 +101,7 @@ class RealRunClock:
     watches_stalls = True
     signals_served_when_sent = False
     plans_need_a_wakeup = True
+    one_process = False
 
     def now(self) -> float:
         return time.monotonic()
@@ -140,6 +148,9 @@ class RealRunClock:
     def finish_tick(self, while_waiting: Callable[[], bool | None]) -> None:
         pass
 
+    def join(self, role: str, step: Callable[[bool], None], events_pending: Callable[[], bool]) -> None:
+        raise NotImplementedError("one process is for the simulated clock only")
+
     def close(self) -> None:
         pass
 
@@ -154,9 +165,13 @@ class SimRunClock:
     signals_served_when_sent = True
     plans_need_a_wakeup = False  # the simulated clock's RTPUs read the header every tick anyway
 
-    def __init__(self, tick: float, gate: TurnGate | None = None, stall_limit: float = TURN_STALL_SECONDS) -> None:
+    def __init__(self, tick: float, gate: TurnGate | None = None, stall_limit: float = TURN_STALL_SECONDS,
+                 one_process: bool = False) -> None:
         self.tick = tick
-        self.lockstep: LockstepMaster | None = None
+        # `--one-process`: the participants are hosted in this process and take their turns by calls
+        # (`clock.local_ring`), in the order the processes would take them
+        self.one_process = one_process
+        self.lockstep: LockstepMaster | LocalRing | None = None
         self.roles: list[str] = []
         # The most ticks the participants run among themselves before job control looks (None: as
         # many as `run_for` covers; they stop sooner after a tick that sent an event). 1 gives job
@@ -175,11 +190,12 @@ class SimRunClock:
         return self.lockstep.now if self.lockstep is not None else 0.0
 
     def semaphores(self, subsystem: str, run_id: str, roles: list[str]) -> list[str]:
-        return semaphore_names(subsystem, run_id, roles)
+        return [] if self.one_process else semaphore_names(subsystem, run_id, roles)
 
     def start(self, subsystem: str, run_id: str, roles: list[str], header: np.ndarray) -> float:
         self.roles = list(roles)
-        self.lockstep = LockstepMaster(subsystem, run_id, roles, self.tick, header)
+        self.lockstep = (LocalRing(roles, self.tick, header) if self.one_process
+                         else LockstepMaster(subsystem, run_id, roles, self.tick, header))
         return self.now()
 
     def stagger(self, shortest_period: float, n_rtpus: int) -> float:
@@ -255,6 +271,10 @@ class SimRunClock:
         stop, self.ring_stop = self.ring_stop, None
         if stop is not None and self.lockstep is not None:
             self.lockstep.finish_tick(stop, while_waiting)
+
+    def join(self, role: str, step: Callable[[bool], None], events_pending: Callable[[], bool]) -> None:
+        assert isinstance(self.lockstep, LocalRing), "a participant joins the ring only in one process"
+        self.lockstep.join(role, step, events_pending)
 
     def close(self) -> None:
         if self.lockstep is not None:

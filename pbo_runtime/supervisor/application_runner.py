@@ -18,7 +18,8 @@ other agree. Without `--host`, every host is this machine: zenoh links listen on
 On `--clock sim` the runner is the application's clock master (`clock.application_lockstep`):
 the subsystems take turns, one tick each, in order of simulated time, so the links are read at
 the same ticks in every run and the application replays bit for bit. Zenoh links are refused
-there: what arrives over a network, and when, is not the simulated clock's to order.
+there: what arrives over a network, and when, is not the simulated clock's to order. With
+`--one-process` each subsystem's supervisor hosts its plant and RTPUs (one process a subsystem).
 """
 
 from __future__ import annotations
@@ -92,8 +93,9 @@ def _free_port() -> int:
 class ApplicationRunner:
     def __init__(self, application: Application, duration: float | None, say: Callable[[str], None],
                  clock: str = "real", out_dir: Path | None = None, fifo: bool | None = None,
-                 host: str | None = None) -> None:
+                 host: str | None = None, one_process: bool = False) -> None:
         self.application = application
+        self.one_process = one_process  # sim: each subsystem's plant and RTPUs in its supervisor's process
         self.host = host  # None: every subsystem runs here; else only those placed on this host
         self.local = list(application.subsystems) if host is None else application.on_host(host)
         self.fifo = fifo  # None: each subsystem's default (SCHED_FIFO on the real clock where allowed)
@@ -216,6 +218,8 @@ class ApplicationRunner:
             command += ["--stages", self._stage_plan(key)]
         if self.fifo is not None:
             command.append("--fifo" if self.fifo else "--no-fifo")
+        if self.one_process:
+            command.append("--one-process")
         return command
 
     def _stage_plan(self, key: str) -> str:

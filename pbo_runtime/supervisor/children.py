@@ -17,10 +17,11 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from pbo_runtime.clock.run_clock import RunClock
-from pbo_runtime.config.model import RtpuSpec
+from pbo_runtime.config.model import RtpuSpec, Subsystem
 from pbo_runtime.ipc import messages, shm
 from pbo_runtime.supervisor.child_watch import ChildWatch
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
+from pbo_runtime.supervisor.in_process import InProcessChild
 from pbo_runtime.supervisor.fork_server import ForkedProcess, ForkServer, ForkServerUnavailable, forking_enabled
 from pbo_runtime.supervisor.run_report import STOP_TIMEOUT, RunResult
 from pbo_runtime.table.table import StateTable
@@ -36,7 +37,7 @@ class Child:
     """One child process of the run: the plant or an RTPU, and the tasks it hosts."""
 
     role: str  # 'plant' or the RTPU's name
-    process: subprocess.Popen[bytes] | ForkedProcess  # a fresh interpreter, or forked by the fork server
+    process: subprocess.Popen[bytes] | ForkedProcess | InProcessChild  # a fresh interpreter, forked, or hosted here
     tasks: tuple[str, ...] = ()
 
 
@@ -66,14 +67,18 @@ class Children:
     """The supervisor's part that starts, watches and stops its child processes.
 
     `table` gives the run's table once it is made; `manifest` the shared objects the run makes;
-    `may_restart` whether a role's restart policy brings it back; `mark` notes a start-up phase.
+    `may_restart` whether a role's restart policy brings it back; `mark` notes a start-up phase;
+    `subsystem` and `events` are what a child hosted in this process (`--one-process`) is given.
     """
 
     def __init__(self, run_id: str, clock: RunClock, result: RunResult, say: Callable[[str], None],
                  table: Callable[[], StateTable | None], manifest: Callable[[], list[str]],
                  may_restart: Callable[[str], bool], mark: Callable[[str, float], None],
-                 fork_server: ForkServer | None = None) -> None:
+                 fork_server: ForkServer | None = None, subsystem: Subsystem | None = None,
+                 events: Callable[[], messages.Queue | None] = lambda: None) -> None:
         self.run_id = run_id
+        self.subsystem = subsystem
+        self.events = events
         self.clock = clock
         self.result = result
         self.say = say
@@ -90,7 +95,7 @@ class Children:
 
     def start_fork_server(self, file: str, preload: list[str]) -> None:
         """The fork server the children are forked from (`supervisor.fork_server`), started before it is needed."""
-        if not forking_enabled():
+        if not forking_enabled() or self.clock.one_process:
             return
         try:
             self.fork_server = ForkServer.start(file, preload, env=self.clock.child_environment(), run_id=self.run_id)
@@ -117,8 +122,14 @@ class Children:
         server where it serves, else a fresh interpreter."""
         parent = ["--parent", str(os.getpid())]
         self.launched[role] = (arguments, tasks)  # a restart launches it the same way (from the kept fork server)
-        process: subprocess.Popen[bytes] | ForkedProcess | None = None
-        if self.fork_server is not None and arguments[0] == "-m":
+        process: subprocess.Popen[bytes] | ForkedProcess | InProcessChild | None = None
+        if self.clock.one_process:  # hosted here, joining the simulated clock's ring (`supervisor.in_process`)
+            events = self.events()
+            assert events is not None and self.subsystem is not None
+            # (the ring stops after a tick that sent job control an event)
+            process = InProcessChild.start(arguments, self.subsystem, events,
+                                           lambda step: self.clock.join(role, step, events.pending))
+        elif self.fork_server is not None and arguments[0] == "-m":
             try:
                 process = self.fork_server.fork(arguments[1], [*arguments[2:], *parent])
             except ForkServerUnavailable as exc:
@@ -210,6 +221,6 @@ class Children:
         self.clock.serve(child.role, give_up)
 
 
-def _signal_quietly(process: subprocess.Popen[bytes] | ForkedProcess, signum: int) -> None:
+def _signal_quietly(process: subprocess.Popen[bytes] | ForkedProcess | InProcessChild, signum: int) -> None:
     with contextlib.suppress(OSError):  # it ended meanwhile
         process.send_signal(signum)

@@ -37,6 +37,7 @@ from pbo_runtime.objects.helper_threads import HELPER_FIFO_PRIORITY
 from pbo_runtime.supervisor.children import Child
 from pbo_runtime.supervisor.failures import RunFailure, StopRequested
 from pbo_runtime.supervisor.fork_server import ForkedProcess
+from pbo_runtime.supervisor.in_process import InProcessChild
 from pbo_runtime.supervisor.run_report import STOP_TIMEOUT, RunResult
 from pbo_runtime.table.table import StateTable
 
@@ -240,7 +241,7 @@ def _describe(child: Child | None, pid: int) -> str:
     return f"the plant (pid {pid})" if child.role == "plant" else f"RTPU '{child.role}' (pid {pid})"
 
 
-def _kill(process: subprocess.Popen[Any] | ForkedProcess) -> None:
+def _kill(process: subprocess.Popen[Any] | ForkedProcess | InProcessChild) -> None:
     """SIGKILL (it ends a stopped process too) and reap, so the lock's holder is dead when it is recovered."""
     try:
         process.send_signal(signal.SIGKILL)

@@ -22,6 +22,7 @@ import os
 import sys
 import time
 import traceback
+from typing import Any
 
 import numpy as np
 
@@ -49,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
         last_out.leave()  # the run's last process out after its supervisor died removes the run
 
 
-def _run(argv: list[str] | None) -> int:
+def _arguments(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m pbo_runtime.supervisor.plant_host")
     parser.add_argument("--type", required=True)
     parser.add_argument("--model", required=True)
@@ -63,7 +64,31 @@ def _run(argv: list[str] | None) -> int:
     parser.add_argument("--ring", default="plant", help="sim: the participants of a tick, in order (clock.lockstep)")
     parser.add_argument("--out", default="", help="the run's output directory: the plant's own log goes there")
     parser.add_argument("--base-dir", default="", help="the YAML file's folder: a robot file's path is relative to it")
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
+
+
+def _make_plant(args: argparse.Namespace) -> Any:
+    """The registered plant the arguments name, on the run's registers."""
+    plant_class = registry.plant_class(args.type)
+    # A plant that keeps a log of its own (MuJoCo's) takes the run's output directory for it;
+    # one that reads files (a robot's) takes the YAML file's folder, where relative paths start.
+    parameters = inspect.signature(plant_class).parameters
+    return plant_class(
+        messages.plant_registers_name(args.subsystem, args.run_id), args.model, args.timestep, json.loads(args.options),
+        **({"log_dir": args.out} if "log_dir" in parameters else {}),
+        **({"base_dir": args.base_dir} if "base_dir" in parameters and args.base_dir else {}),
+    )
+
+
+def _stats(plant: Any, steps: int, late: int = 0, stalls: int = 0, stalled_for: float = 0.0,
+           behind_when_stepped_down: float = 0.0) -> messages.PlantStats:
+    return messages.PlantStats({"steps": steps, "late": late, "stalls": stalls, "stalled_for": stalled_for,
+                                "watchdog_trips": getattr(plant, "watchdog_trips", 0),
+                                "left_fifo_behind": behind_when_stepped_down})
+
+
+def _run(argv: list[str] | None) -> int:
+    args = _arguments(argv)
     if args.parent:
         last_out.expect(args.run_id)  # (a supervisor that died before this process started leaves it the run's end)
         become_child(args.parent)
@@ -81,15 +106,7 @@ def _run(argv: list[str] | None) -> int:
     stalled_for = 0.0  # seconds of wall time the plant did not integrate (its stalls)
     behind_when_stepped_down = 0.0  # seconds behind wall time when it left SCHED_FIFO (0: it did not)
     try:
-        plant_class = registry.plant_class(args.type)
-        # A plant that keeps a log of its own (MuJoCo's) takes the run's output directory for it;
-        # one that reads files (a robot's) takes the YAML file's folder, where relative paths start.
-        parameters = inspect.signature(plant_class).parameters
-        plant = plant_class(
-            messages.plant_registers_name(args.subsystem, args.run_id), args.model, args.timestep, json.loads(args.options),
-            **({"log_dir": args.out} if "log_dir" in parameters else {}),
-            **({"base_dir": args.base_dir} if "base_dir" in parameters and args.base_dir else {}),
-        )
+        plant = _make_plant(args)
         if args.clock == "sim":
             table = shm.attach_segment(messages.table_name(args.subsystem, args.run_id))
             header = np.frombuffer(table, dtype=np.int64, count=HEADER_WORDS)
@@ -138,15 +155,51 @@ def _run(argv: list[str] | None) -> int:
                       else messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
         return 1
     finally:
-        events.report("plant", messages.PlantStats({"steps": steps, "late": late, "stalls": stalls, "stalled_for": stalled_for,
-                                                    "watchdog_trips": getattr(plant, "watchdog_trips", 0),
-                                                    "left_fifo_behind": behind_when_stepped_down}),
+        events.report("plant", _stats(plant, steps, late, stalls, stalled_for, behind_when_stepped_down),
                       reader_alive=lambda: not supervisor_told_gone())
         if barrier is not None:
             barrier.close()
         if plant is not None:
             plant.close()
         events.close()
+
+
+class HostedPlant:
+    """The plant in the supervisor's own process (`--clock sim --one-process`): one step per tick, called
+    by the one process's ring where the plant's process would have been woken (`rtpu.in_process` says why)."""
+
+    def __init__(self, plant: Any, events: messages.Queue) -> None:
+        self.plant = plant
+        self.events = events
+        self.steps = 0
+        self.returncode: int | None = None
+
+    def step(self, new_tick: bool) -> None:
+        if new_tick and self.returncode is None:
+            try:
+                self.plant.step()
+            except Exception as exc:
+                self.events.report("plant", messages.Crashed(f"{type(exc).__name__}: {exc}", traceback.format_exc()))
+                self.terminate(1)
+                return
+            self.steps += 1
+
+    def poll(self) -> int | None:
+        return self.returncode
+
+    def terminate(self, code: int = 0) -> None:
+        """Stop as its process does at the end of a run: its figures reported, the plant closed."""
+        if self.returncode is None:
+            self.returncode = code
+            self.events.report("plant", _stats(self.plant, self.steps))
+            self.plant.close()
+
+
+def in_process(argv: list[str], events: messages.Queue) -> HostedPlant:
+    """The plant `python -m pbo_runtime.supervisor.plant_host ARGV --clock sim` runs, hosted in this process."""
+    plant = _make_plant(_arguments(argv))
+    events.report("plant", messages.Ready())
+    return HostedPlant(plant, events)
 
 
 if __name__ == "__main__":

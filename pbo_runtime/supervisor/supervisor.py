@@ -26,12 +26,12 @@ import posix_ipc
 from pbo_runtime.clock.application_lockstep import TurnGate
 from pbo_runtime.clock.run_clock import RealRunClock, RunClock, SimRunClock
 from pbo_runtime.config.checker.loops import GAINS_NOTE
-from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.edit.live import LiveDescription
-from pbo_runtime.errors import PboError, closest_name
+from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import limits, messages, shm
 from pbo_runtime.ipc.control import ControlServer
+from pbo_runtime.ipc.local_queue import LocalQueue
 from pbo_runtime.supervisor.child_watch import ChildWatch
 from pbo_runtime.supervisor.children import Children
 from pbo_runtime.supervisor.cleanup import remove_dead_runs, unlink_run
@@ -39,15 +39,16 @@ from pbo_runtime.supervisor.control_service import ControlService, table_flags
 from pbo_runtime.supervisor.event_ledger import EventLedger, EventOutlets, error_words
 from pbo_runtime.supervisor.events import EventHandling
 from pbo_runtime.supervisor.exclusive_devices import refuse_if_devices_in_use
-from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested, WrongArgument
+from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested
 from pbo_runtime.supervisor.fork_server import ForkServer
-from pbo_runtime.supervisor.job_control import JobControl, JobFailure, application_steps
+from pbo_runtime.supervisor.in_process import SecondStop, end_at_once
+from pbo_runtime.supervisor.job_control import JobControl, JobFailure
 from pbo_runtime.supervisor.launch import SIM_TICK_DEFAULT, RtpuLaunch
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockGuard
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.restarts import Restarter, RunSteps, RunView
-from pbo_runtime.supervisor.run_options import RunOptions
+from pbo_runtime.supervisor.run_options import RunOptions, starting_configuration
 from pbo_runtime.supervisor.run_queues import queue_plan, run_manifest
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.supervisor.sim_tick import simulation_tick
@@ -90,30 +91,13 @@ class Supervisor:
         # in an application on the simulated clock, `turn` names the semaphores of this subsystem's turn
         # (clock.application_lockstep); it is no longer waited for once the run is stopped or has failed
         gate = TurnGate(turn, lambda: bool(self._stop_requested or self.result.failure)) if turn else None
-        self.clock: RunClock = SimRunClock(simulation_tick(subsystem), gate) if clock == "sim" else RealRunClock()
+        self.clock: RunClock = (SimRunClock(simulation_tick(subsystem), gate, one_process=options.one_process)
+                                if clock == "sim" else RealRunClock())
         self.out_dir = os.path.abspath(options.out_dir) if options.out_dir else ""
         self.links = dict(options.links or {})  # an application's links, handed to every RTPU (see _links)
         self.application = application
         self.stages = options.stages  # an application file's stages: this subsystem's part, and the joins (supervisor.stages)
-        if application is not None and application not in subsystem.applications:
-            close = closest_name(application, subsystem.applications)
-            raise WrongArgument(f"no application '{application}' in {subsystem.file}"
-                                + (f": did you mean '{close}'?" if close else "")
-                                + f" (applications: {', '.join(subsystem.applications) or 'none'})")
-        if application is not None and not subsystem.applications[application].complete:
-            raise RunFailure(f"application '{application}' is incomplete (a step lacks the object its job needs) and "
-                             f"cannot be run; pbo check {subsystem.file} shows which step")
-        if configuration is None and application is not None:
-            first = [job for job, _ in application_steps(subsystem, application)]
-            if decides(subsystem, application):  # the first job of its first path
-                first = list(paths(subsystem, application)[0][0].jobs)
-            configuration = subsystem.jobs[first[0]].configuration if first else None
-        self.configuration = configuration or next(iter(subsystem.configurations))
-        if self.configuration not in subsystem.configurations:
-            close = closest_name(self.configuration, subsystem.configurations)
-            raise WrongArgument(f"no configuration '{self.configuration}' in {subsystem.file}"
-                                + (f": did you mean '{close}'?" if close else "")
-                                + f" (configurations: {', '.join(subsystem.configurations)})")
+        self.configuration = starting_configuration(subsystem, configuration, application)
         self.duration = duration
         self.on_tick = on_tick
         self.say = say
@@ -141,7 +125,8 @@ class Supervisor:
         self.result.clock = clock
         self.result.tick = self.tick
         self.processes = Children(self.run_id, self.clock, self.result, say, lambda: self.table, self._manifest,
-                                  self.may_restart, self._startup_mark, fork_server)  # the plant and the RTPUs
+                                  self.may_restart, self._startup_mark, fork_server,  # the plant and the RTPUs
+                                  subsystem=subsystem, events=lambda: self.events)
         self.children, self.launched = self.processes.children, self.processes.launched
         self.static = options.static
         self.job_control = JobControl(self, static=options.static)
@@ -205,6 +190,8 @@ class Supervisor:
         running_since = 0.0  # wall time when the configuration came on
         previous = signal.signal(signal.SIGINT, self._interrupt)
         previous_term = signal.signal(signal.SIGTERM, self._interrupt)
+        second_stop = (SecondStop(lambda: end_at_once(self._manifest(), self.subsystem.name, self.run_id))
+                       if self.clock.one_process else None)  # a hung cycle holds it all
         try:
             removed = remove_dead_runs(self.subsystem.name).removed
             if removed:
@@ -248,6 +235,8 @@ class Supervisor:
             self.live_changes.end()
             signal.signal(signal.SIGINT, previous)
             signal.signal(signal.SIGTERM, previous_term)
+            if second_stop is not None:
+                second_stop.close()
             self.result.wall_seconds = time.monotonic() - wall_start
         return self.result
 
@@ -292,7 +281,8 @@ class Supervisor:
         limits.check_queue_room(plan)
         events, *signals, _control = plan
         try:
-            self.events = messages.Queue(events.name, create=True, size=events)
+            self.events = (LocalQueue(events.name, events) if self.clock.one_process
+                           else messages.Queue(events.name, create=True, size=events))
             for rtpu, size in zip(self.subsystem.rtpus, signals, strict=True):
                 self.signals[rtpu.name] = messages.Queue(size.name, create=True, size=size)
             self.control = ControlServer(self.subsystem.name, self.run_id)
@@ -315,7 +305,7 @@ class Supervisor:
         self._make_queues()
         events = self.events
         assert events is not None
-        if ChildWatch.available():  # a child's death wakes the wait for events at once
+        if ChildWatch.available() and not self.clock.one_process:  # a child's death wakes the wait for events at once
             self.processes.child_watch = ChildWatch(
                 lambda role, pid: events.report("supervisor", messages.ChildExited(role, pid), timeout=0.0))
         self.table = StateTable.create(TableLayout.of(sub), messages.table_name(sub.name, run_id), self._manifest())
@@ -398,7 +388,7 @@ class Supervisor:
         self.live_changes.queued_application = name
 
     def may_restart(self, role: str) -> bool:
-        return self.restarter.may_restart(role)
+        return not self.clock.one_process and self.restarter.may_restart(role)  # hosted here, it ended with the run
 
     def restart_rtpu(self, death: RtpuDied) -> None:
         self.restarter.restart_rtpu(death)

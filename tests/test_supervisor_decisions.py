@@ -10,7 +10,7 @@ from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.task_statistics import TaskStatistics
 from pbo_runtime.supervisor.children import Child, death_failure
 from pbo_runtime.supervisor.event_ledger import ErrorWords, error_words
-from pbo_runtime.supervisor.events import change_seen, state_served
+from pbo_runtime.supervisor.events import EventHandling, change_seen, state_served
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
 from pbo_runtime.supervisor.lock_watch import LockVerdict, holder_alive, lock_verdict
 from pbo_runtime.supervisor.restarts import RestartPlan, count_death, may_restart, restart_plan
@@ -262,3 +262,45 @@ TASKS = {"robot": SimpleNamespace(critical=True), "pid": SimpleNamespace(critica
 ])
 def test_the_error_words_count_the_configurations_tasks_in_error_and_not_fresh(states, stable, words):
     assert error_words(["robot", "pid", "receive"], states, stable, TASKS) == words  # type: ignore[arg-type]
+
+
+# --- a spawn's wait, on the real clock ---------------------------------------------------------
+
+
+class SignalsSentToFake:
+    """An RTPU's signal queue in a unit test: what was sent."""
+
+    def __init__(self) -> None:
+        self.sent: list[messages.TaskSignal] = []
+
+    def signal(self, signal: messages.TaskSignal, timeout: float) -> None:
+        self.sent.append(signal)
+
+
+class EventsQueueFake:
+    """The run's event queue in a unit test: the events given, in order, then nothing."""
+
+    def __init__(self, *events: tuple[str, messages.Event]) -> None:
+        self.events = list(events)
+
+    def receive_event(self, timeout: float) -> tuple[str, messages.Event] | None:
+        return self.events.pop(0) if self.events else None
+
+
+def real_clock_event_handling(heard: EventsHeard, events: EventsQueueFake, rtpu0: SignalsSentToFake) -> EventHandling:
+    clock = SimpleNamespace(signals_served_when_sent=False, serve=lambda rtpu, while_waiting: None)
+    tasks = {name: SimpleNamespace(rtpu="rtpu0") for name in ("logger", "pid")}
+    return EventHandling(clock, heard.ledger, heard.result, {"rtpu0": rtpu0}, tasks, lambda: events,  # type: ignore[arg-type]
+                         check_children=lambda: None, stop_requested=lambda: "", mark=lambda role: None, say=heard.lines.append)
+
+
+@pytest.mark.parametrize("answer", ["OFF", "KILLED"])
+def test_a_task_spawned_again_under_a_killed_tasks_name_is_answered_by_its_own_event_not_the_old_state(answer):
+    heard = EventsHeard()
+    heard.hear("rtpu0", messages.StateChanged("logger", "KILLED"))  # the task of that name killed before
+    events = EventsQueueFake(("rtpu0", messages.StateChanged("pid", "ON")),  # another task's event comes first
+                             ("rtpu0", messages.StateChanged("logger", answer)))
+    rtpu0 = SignalsSentToFake()
+    handling = real_clock_event_handling(heard, events, rtpu0)
+    assert handling.spawn_and_wait("logger") == answer
+    assert rtpu0.sent == [messages.Spawn("logger")] and events.events == []  # it waited for the new task's own event

@@ -83,6 +83,12 @@ class EventHandling:
         self.signal(signal)
         return self.await_state(signal.task, states)
 
+    def spawn_and_wait(self, task: str) -> str:
+        """Spawn `task`; OFF once its init ran, KILLED if it failed. A state kept from a task of the
+        same name killed before is forgotten first: it must not answer for the new one."""
+        self.ledger.task_states[task] = "NOT_CREATED"
+        return self.signal_and_wait(messages.Spawn(task), {"OFF", "KILLED"})
+
     def while_stepping(self) -> None:
         """Between ticks, and while a participant serves its signals: `while_ticking`, and keep the
         event queue drained."""

@@ -398,8 +398,7 @@ class Supervisor:
 
     def respawn(self, name: str) -> None:
         """Spawn a task and wait for its init; an init failure stops the run (no half start)."""
-        self.task_states[name] = "NOT_CREATED"  # a name killed before must not answer for the new task
-        state = self.event_handling.signal_and_wait(messages.Spawn(name), {"OFF", "KILLED"})
+        state = self.event_handling.spawn_and_wait(name)
         if state == "KILLED":
             raise RunFailure(f"task '{name}' failed in init and was not created: {self.task_errors.get(name, '')}")
 

@@ -292,6 +292,7 @@ class ControlClient:
 
     @staticmethod
     def _await_reply(replies: posix_ipc.MessageQueue, deadline: float) -> bytes | None:
+        raw: bytes
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0:

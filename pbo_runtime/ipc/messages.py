@@ -388,7 +388,8 @@ class Queue:
 
     def pending(self) -> bool:
         """Whether a message waits in the queue (one system call, nothing received)."""
-        return self._mq.current_messages > 0
+        waiting: int = self._mq.current_messages
+        return waiting > 0
 
     def send(self, *message: Any, timeout: float | None = 1.0) -> None:
         raw = self._encode(message)
@@ -447,7 +448,7 @@ class Queue:
         until it fits the queue. One that does not fit even so is our bug, named, never a bare ValueError.
         """
         limit = self._mq.max_message_size
-        raw = msgpack.packb(list(message))
+        raw: bytes = msgpack.packb(list(message))
         for longest in CUT_STRINGS_TO if cut_to_fit else ():
             if len(raw) <= limit:
                 break
@@ -472,7 +473,8 @@ class Queue:
             # a child it raised Stop, which posix_ipc replaced by SignalError: raise it again.
             process.raise_if_stopping()
             return None
-        return msgpack.unpackb(raw)
+        message: list[Any] = msgpack.unpackb(raw)
+        return message
 
     def close(self) -> None:
         try:

@@ -34,7 +34,7 @@ from pbo_runtime.ipc import shm
 Check = Callable[[mmap.mmap | memoryview], None]  # raises when a mapped segment is not what its user expects
 
 
-class MissingLockError(posix_ipc.ExistentialError):
+class MissingLockError(posix_ipc.ExistentialError):  # type: ignore[misc]  # posix_ipc ships no types
     """The segment is there, its lock is not: it is half removed (its run is ending or crashed)."""
 
 
@@ -140,7 +140,8 @@ class LockedSegment:
     @property
     def held(self) -> bool:
         """Whether someone holds the lock now (a look, not a wait)."""
-        return self.lock.value == 0
+        value: int = self.lock.value
+        return value == 0
 
     @property
     def writer_tag(self) -> int:

@@ -75,7 +75,7 @@ def encode_message(name: str, priority: int, fields: list[Any], max_message_byte
     if not 0 <= priority <= MAX_PRIORITY:
         raise MessageLinkError(f"message link '{name}': priority must be in 0..{MAX_PRIORITY}, got: {priority}")
     try:
-        raw = msgpack.packb(fields, use_bin_type=True)
+        raw: bytes = msgpack.packb(fields, use_bin_type=True)
     except (TypeError, ValueError, OverflowError) as exc:
         raise MessageLinkError(
             f"message link '{name}': cannot encode the message: {exc}",
@@ -160,7 +160,8 @@ class MessageLink:
     @property
     def waiting(self) -> int:
         """Messages in the queue now."""
-        return self._queue.current_messages
+        waiting: int = self._queue.current_messages
+        return waiting
 
     def close(self) -> None:
         """Close this end (and, for the creator, unlink the queue: messages still in it are dropped)."""
@@ -177,7 +178,7 @@ class MessageLink:
     def __enter__(self) -> MessageLink:
         return self
 
-    def __exit__(self, *_exc) -> None:
+    def __exit__(self, *_exc: object) -> None:
         self.close()
 
 

@@ -12,6 +12,7 @@ one, checking every record against the segment it lies in: both through this mod
 
 from __future__ import annotations
 
+import mmap
 from dataclasses import dataclass
 from typing import Iterable
 
@@ -54,14 +55,14 @@ def encode_record(entry: Entry) -> bytes:
     return bytes(record)
 
 
-def write_directory(buffer, offset: int, entries: Iterable[Entry]) -> None:
+def write_directory(buffer: mmap.mmap, offset: int, entries: Iterable[Entry]) -> None:
     """Write the records of `entries` into `buffer` (a writable mapping) from byte `offset` on."""
     for i, entry in enumerate(entries):
         base = offset + i * DIRECTORY_RECORD
         buffer[base : base + DIRECTORY_RECORD] = encode_record(entry)
 
 
-def read_directory(table: str, buffer, count: int, offset: int, total: int, header_bytes: int) -> dict[str, Entry]:
+def read_directory(table: str, buffer: mmap.mmap, count: int, offset: int, total: int, header_bytes: int) -> dict[str, Entry]:
     """The `count` records at byte `offset` of table `table`'s segment of `total` bytes, by name.
 
     The directory lies after the segment's header of `header_bytes`.

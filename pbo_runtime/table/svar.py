@@ -14,6 +14,7 @@ directory's own consistency (offsets inside the segment, sizes matching shapes) 
 from __future__ import annotations
 
 import math
+import mmap
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -143,7 +144,7 @@ def open_table(subsystem: str | None = None, run: str | None = None) -> TableVie
 def attach(name: str, subsystem: str = "", run_id: str = "") -> TableView:
     """Attach read-only to the table segment `name`, checking that it is a table this code can read."""
 
-    def check(mapping) -> None:
+    def check(mapping: mmap.mmap | memoryview) -> None:
         if len(mapping) < HEADER_WORDS * 8:
             raise TableLayoutError(f"'{name}' ({len(mapping)} bytes) is too small to be a pbo state variable table")
         header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)

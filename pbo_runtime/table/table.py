@@ -31,12 +31,14 @@ from __future__ import annotations
 
 import enum
 import hashlib
+import mmap
 import os
 import threading
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable
 
 import numpy as np
+from numpy.typing import ArrayLike
 import posix_ipc
 
 from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
@@ -328,7 +330,7 @@ class StateTable:
     def attach(cls, layout: TableLayout, name: str) -> StateTable:
         """Attach to a running table; a different layout fails clearly instead of corrupting it."""
 
-        def check(mapping) -> None:
+        def check(mapping: mmap.mmap | memoryview) -> None:
             header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
             magic, version, found_hash, total = (int(header[i]) for i in (Header.MAGIC, Header.VERSION, Header.LAYOUT_HASH, Header.TOTAL_BYTES))
             del header  # no view may outlive a mapping the segment closes
@@ -465,7 +467,7 @@ class StateTable:
         """A lock-free copy of every task's status block (TableBusy if the table stays busy)."""
         return self.seqlock.read(self.status.copy)
 
-    def write(self, name: str, value, when: float, writer: int = -1) -> None:
+    def write(self, name: str, value: ArrayLike, when: float, writer: int = -1) -> None:
         """Write a whole variable as job control (writer -1) would: under the lock, stamped."""
         s = self.layout.slot(name)
         view = self.view(name)
@@ -509,6 +511,6 @@ def _lower(thread: int | None) -> None:
             pass
 
 
-def read_manifest(mapping, offset: int) -> list[str]:
+def read_manifest(mapping: mmap.mmap, offset: int) -> list[str]:
     raw = bytes(mapping[offset : offset + MANIFEST_BYTES]).split(b"\0", 1)[0]
     return [line for line in raw.decode(errors="replace").split("\n") if line]

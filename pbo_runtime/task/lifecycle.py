@@ -272,7 +272,7 @@ class Task:
         first, to choose between `cycle` and `stable_cycle` by how fresh they are."""
         self.context.time = now
         try:
-            result = (component or self._cycle)()
+            result: Status | int = (component or self._cycle)()  # a module may return a plain 0
         except Exception as exc:
             return self._cycle_failed(exc, now)
         if not self._outputs_finite():  # NaN or Inf never reaches the table, nor an actuator after it

@@ -25,7 +25,8 @@ import posix_ipc
 
 from pbo_runtime.config.model import PortBinding
 from pbo_runtime.objects.ports import PortKind
-from pbo_runtime.table.table import HEADER_WORDS, META_WORDS, STATUS_WORDS, Header, StateTable
+from pbo_runtime.table.directory import META_WORDS
+from pbo_runtime.table.table import HEADER_WORDS, STATUS_WORDS, Header, StateTable
 from pbo_runtime.table.table import StatusWord
 
 # np.count_nonzero's C function without its Python wrapper, which only dispatches on axis and

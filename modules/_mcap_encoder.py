@@ -319,7 +319,8 @@ def _json_values(column: np.ndarray, floating: bool) -> list[Any]:
     if floating and not np.isfinite(column).all():
         column = column.astype(object)
         column[~np.isfinite(column.astype(np.float64))] = None
-    return column.tolist()
+    values: list[Any] = column.tolist()
+    return values
 
 
 def _json_schema(name: str, dtype: np.dtype, shape: tuple[int, ...], unit: str, doc: str) -> dict[str, Any]:
@@ -392,7 +393,7 @@ def _serve(commands: int, replies: int) -> None:
     resume_at = tuple(setup["resume_at"]) if setup.get("resume_at") else None
     try:
         log = McapLog(setup["log_fd"], dtype, columns, setup["run"], setup["task"], setup["period"],
-                      resume_at=resume_at, encoding=setup.get("encoding", "json"))  # type: ignore[arg-type]
+                      resume_at=resume_at, encoding=setup.get("encoding", "json"))
     except OSError as exc:  # the preamble could not be written: said to the logger, and the log ends here
         _send(replies, {"rows": 0, "errno": exc.errno, "strerror": exc.strerror or str(exc)})
         return

@@ -164,7 +164,7 @@ class Combined(PortBasedObject):
                 # a local link is a private array; an exported one is the writer's output, read in place
                 arrays.append(local[variable] if variable in local else external[variable])
             instance._pbo_ports = arrays
-            instance._pbo_context = _MemberContext(self._pbo_context, {p.name: v for p, v in member.links},  # type: ignore[assignment]
+            instance._pbo_context = _MemberContext(self._pbo_context, {p.name: v for p, v in member.links},
                                                    set(external))
             instance.init(member.params)
             self._members.append(instance)

@@ -55,7 +55,7 @@ import os
 import threading
 import time
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -448,7 +448,7 @@ class _McapProcess(_LogFile):
     The encoder is started by `start`, in the writer thread, not by the RTPU between two cycles;
     it writes a new log's preamble first, then the chunks as they are handed over."""
 
-    def __init__(self, fd: int, buffers_fd: int, dtype: np.dtype, rows: int, setup: dict) -> None:
+    def __init__(self, fd: int, buffers_fd: int, dtype: np.dtype, rows: int, setup: dict[str, Any]) -> None:
         self.fd, self.buffers_fd, self.dtype, self.chunk_rows, self.setup = fd, buffers_fd, dtype, rows, setup
         resume_at = setup["resume_at"]
         self.rows = resume_at[1] if resume_at is not None else 0  # a resumed log's rows so far

@@ -23,7 +23,7 @@ class GoalInput(PortBasedObject):
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad: the goal until one arrives")
     q_d = OutVar("q_d", shape=("NDOF",), doc="desired joint position, rad")
 
-    def init(self, params) -> None:
+    def init(self, params: object) -> None:
         self._goal = np.zeros(self.q_d.shape)
 
     def on(self) -> None:

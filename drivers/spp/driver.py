@@ -106,7 +106,7 @@ class SpecialPurposeProcessor(DeviceDriver):
         self.memory, self.download_bytes = int(checked["memory"]), int(checked["download_bytes"])
         self.segment, self.semaphore_name = _names(registers)
         self.routine = ""
-        self.process: subprocess.Popen | None = None
+        self.process: subprocess.Popen[bytes] | None = None
         self.fault = ""
         self._taken: tuple[np.ndarray, tuple[int, int, float, int, int]] | None = None  # `_take_figures`
         # the driver's counters, in an array: updated in place, so a call boxes no new integer to keep
@@ -261,7 +261,7 @@ class SpecialPurposeProcessor(DeviceDriver):
         self._look_for_death()
         return self.fault
 
-    def _await(self, done, timeout: float, what: str) -> None:
+    def _await(self, done: Callable[[], bool], timeout: float, what: str) -> None:
         deadline = time.monotonic() + timeout
         while not done():
             if self.process is not None and self.process.poll() is not None:
@@ -282,7 +282,10 @@ class SpecialPurposeProcessor(DeviceDriver):
         if self._taken is None:
             return {}
         service, (items, missed, service_max, calls, late) = self._taken
-        pct = (lambda q: float(np.percentile(service, q)) / 1e9 if service.size else 0.0)
+
+        def pct(q: float) -> float:
+            return float(np.percentile(service, q)) / 1e9 if service.size else 0.0
+
         return {"processor": "spp", "routine": self.routine, "items": items, "missed": missed,
                 "service_p50": pct(50), "service_p99": pct(99), "service_max": service_max,
                 "calls": calls, "late_calls": late, "fault": self.fault}
@@ -324,7 +327,7 @@ class SpecialPurposeProcessor(DeviceDriver):
         return lambda: _stop(process)
 
 
-def _stop(process: subprocess.Popen | None) -> None:
+def _stop(process: subprocess.Popen[bytes] | None) -> None:
     """Stop the processor and reap it; one that does not stop within `_STOP_TIMEOUT` is killed."""
     if process is None:
         return

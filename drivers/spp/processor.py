@@ -16,10 +16,12 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import mmap
 import os
 import signal
 import sys
 import time
+from types import FrameType
 
 import msgpack
 import numpy as np
@@ -39,7 +41,7 @@ class _Stop(BaseException):
 _stopping = ""
 
 
-def _stop(signum: int, _frame) -> None:
+def _stop(signum: int, _frame: FrameType | None) -> None:
     """Raise once: a second signal (the parent's death signal after a SIGTERM) must not break into
     the `finally` that unlinks."""
     global _stopping
@@ -98,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def serve(mapping, semaphore, memory: int, download_bytes: int, parent: int) -> None:
+def serve(mapping: mmap.mmap, semaphore: posix_ipc.Semaphore, memory: int, download_bytes: int, parent: int) -> None:
     words, ring, request, result, download = views(mapping, memory, download_bytes)
     if words[W.MAGIC] != MAGIC:
         raise SystemExit("not a special-purpose processor's segment")
@@ -148,7 +150,7 @@ def serve(mapping, semaphore, memory: int, download_bytes: int, parent: int) -> 
             words[W.SERVICE_NS_MAX] = took
 
 
-def _download(words: np.ndarray, download: np.ndarray, memory: int):
+def _download(words: np.ndarray, download: np.ndarray, memory: int) -> routines.Jacobian | None:
     """Build the routine the download names; answer its sizes, or the reason in the download area."""
     seq = int(words[W.DOWNLOAD_SEQ])
     words[W.STATE] = State.READY

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 from pbo_runtime.config.model import Subsystem, TaskSpec
 
@@ -154,7 +154,7 @@ def _np_edf_response(i: _Scaled, higher: list[_Scaled], same: list[_Scaled], low
     return worst, worst_who, worst_block
 
 
-def _fixed_point(step, start: int, limit: int) -> int | None:
+def _fixed_point(step: Callable[[int], int], start: int, limit: int) -> int | None:
     """The least fixed point of a non-decreasing step from `start`, or None past `limit` ticks."""
     t = start
     while True:

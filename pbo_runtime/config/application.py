@@ -34,7 +34,7 @@ from __future__ import annotations
 import difflib
 import os
 import re
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from typing import Any
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,7 +43,7 @@ import numpy as np
 
 from pbo_runtime.config.loader import CheckResult, check_file, inline_reference
 from pbo_runtime.config.model import NOWHERE, Location, Subsystem
-from pbo_runtime.config.parallel import check_stages
+from pbo_runtime.config.parallel import Error, check_stages
 from pbo_runtime.errors import ConfigError
 from pbo_runtime.links.spec import TRANSPORTS, parse_endpoint
 from pbo_runtime.links.message_link import SYSTEM_CAPACITY, SYSTEM_MESSAGE_BYTES
@@ -173,7 +173,7 @@ def check_application(path: str | os.PathLike[str], addresses: Mapping[str, str]
     return result
 
 
-def _check_subsystems(root: YMap, folder: Path, application: Application, result: ApplicationCheck, error) -> None:
+def _check_subsystems(root: YMap, folder: Path, application: Application, result: ApplicationCheck, error: Error) -> None:
     entries = root.get("subsystems")
     if not isinstance(entries, YMap) or not entries:
         error("E801", "subsystems must map each subsystem's name to its file",
@@ -221,7 +221,7 @@ def _check_subsystems(root: YMap, folder: Path, application: Application, result
         application.subsystems[key] = checked.subsystem
 
 
-def _check_hosts(root: YMap, application: Application, addresses: dict[str, str], error) -> None:
+def _check_hosts(root: YMap, application: Application, addresses: dict[str, str], error: Error) -> None:
     """`hosts: {name: ADDRESS}`; an address may be left empty (~) and given on the command line."""
     entries = root.get("hosts", YMap(root.loc))
     if not isinstance(entries, YMap):
@@ -252,14 +252,14 @@ def _check_hosts(root: YMap, application: Application, addresses: dict[str, str]
         application.hosts[name] = address
 
 
-def did_you_mean(name: str, known, what: str) -> str:
+def did_you_mean(name: str, known: Collection[str], what: str) -> str:
     close = difflib.get_close_matches(name, list(known), n=1)
     if close:
         return f"did you mean '{close[0]}'? ({what}: {', '.join(known)})"
     return f"{what}: {', '.join(known) or 'none'}"
 
 
-def _place(key: str, entry: YMap, application: Application, error) -> None:
+def _place(key: str, entry: YMap, application: Application, error: Error) -> None:
     """Subsystem `key`'s `host:`: a host of `hosts:` with an address."""
     host = entry["host"]
     loc = entry.value_loc("host")
@@ -280,7 +280,7 @@ def _place(key: str, entry: YMap, application: Application, error) -> None:
     application.placement[key] = host
 
 
-def _check_links(root: YMap, application: Application, error) -> None:
+def _check_links(root: YMap, application: Application, error: Error) -> None:
     entries = root.get("links", YMap(root.loc))
     if not isinstance(entries, YMap):
         error("E803", "links must map each link's name to its kind, type, shape and transport", location_of(entries, root.loc))
@@ -340,7 +340,7 @@ def _check_links(root: YMap, application: Application, error) -> None:
                                            capacity=capacity, endpoint=str(endpoint), port=port, port_given="port" in spec)
 
 
-def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error) -> int | None:
+def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error: Error) -> int | None:
     """A message link's capacity (default: the system's most), checked; None after an error."""
     if kind != "message":
         if "capacity" in spec:
@@ -363,7 +363,7 @@ def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error)
     return capacity
 
 
-def _check_run(root: YMap, application: Application, error) -> None:
+def _check_run(root: YMap, application: Application, error: Error) -> None:
     """`run: {subsystem: {config: NAME} | {app: NAME}}`: what each subsystem runs (default: its first configuration)."""
     entries = root.get("run", YMap(root.loc))
     if isinstance(entries, YList):  # stages: parallel: {SUBSYSTEM: STEPS, ...}, one after another
@@ -410,7 +410,7 @@ def _check_run(root: YMap, application: Application, error) -> None:
         application.run[key] = chosen
 
 
-def _check_link_ends(application: Application, error) -> None:
+def _check_link_ends(application: Application, error: Error) -> None:
     """Each link: one sending and one receiving task of its kind, in different subsystems, ports of its payload."""
     ends: dict[str, dict[str, list[tuple[str, str, Location]]]] = {
         n: {module: [] for module in ENDS[spec.kind]} for n, spec in application.links.items()}
@@ -470,7 +470,7 @@ def _check_link_ends(application: Application, error) -> None:
                                                spec.port, spec.port_given)
 
 
-def _check_placement(application: Application, error) -> None:
+def _check_placement(application: Application, error: Error) -> None:
     """Every subsystem on a host once one is; links between hosts over zenoh; one listener per host and port."""
     placed = [key for key in application.subsystems if application.placement.get(key)]
     if placed:

@@ -106,7 +106,7 @@ def transfer_bytes(subsystem: Subsystem, binding: PortBinding) -> int:
 @functools.cache
 def _itemsize(dtype: Any) -> int:
     """Bytes per element of a dtype (np.dtype() costs microseconds: once per dtype, not per binding)."""
-    return np.dtype(dtype).itemsize
+    return int(np.dtype(dtype).itemsize)
 
 
 def interval_of(task: TaskSpec) -> tuple[float, bool]:

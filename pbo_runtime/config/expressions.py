@@ -264,7 +264,7 @@ class _Validator:
                 return None  # a float, as 10**-3 is
             if abs(left) > 1 and right * (abs(left).bit_length() - 1) > 63:  # 2**bits <= |left|: a lower bound of the result
                 raise self.too_large(node, f"the integer {ast.get_source_segment(self.text, node) or 'power'}")
-            result = left**right
+            result: int = left**right  # right >= 0 here: an int
         elif isinstance(node.op, ast.Mult):
             result = left * right  # operands are bounded: the product has at most 126 bits
         else:

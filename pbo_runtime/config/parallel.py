@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, Protocol
 
 from pbo_runtime.config.decisions import paths
 from pbo_runtime.config.loader import check_loaded, load_document, with_application
@@ -31,7 +31,13 @@ from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, location_of, p
 from pbo_runtime.errors import ConfigError, ConfigErrors
 from pbo_runtime.objects import registry
 
-Error = Callable[..., None]  # (code, message, loc, hint)
+
+class Error(Protocol):
+    """Reports one mistake of the file: its code, what is wrong, where, and a hint."""
+
+    def __call__(self, code: str, message: str, loc: Location, hint: str = "") -> None: ...
+
+
 EXAMPLE = "e.g. run: [{parallel: {left: [reach: ready], right: [reach: home]}}, {parallel: {left: {app: wave}}}]"
 
 

@@ -156,6 +156,7 @@ def pin_of(origin: Origin, message: str, pins: Sequence[Pin]) -> str | None:
         return origin.key
     if origin.section is not None:
         return None  # a modifier's or a field's value: the block's, not a pin's
+    name: str
     for name in _PORT_NAMED.findall(message):
         if name in by_port:
             return name

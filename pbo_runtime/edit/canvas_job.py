@@ -126,7 +126,7 @@ def merged_sections(original: str, dumped: str, changed: dict[str, set[str]]) ->
     new = dict(chunks(dumped, 0))
     block = {key for key, text in chunks(original, 0) if key in changed
              and re.match(rf"^{re.escape(key)}\s*:\s*(#.*)?$", text.splitlines()[0] if text else "")}
-    base = "".join(new.get(key, text) if key in changed and key not in block else text  # type: ignore[arg-type]
+    base = "".join(new.get(key, text) if key in changed and key not in block else text
                    for key, text in chunks(original, 0))
     return merged(base, dumped, {key: entries for key, entries in changed.items() if key in block})
 

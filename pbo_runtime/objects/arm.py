@@ -104,7 +104,7 @@ def arm_model(arm: Any, ee: Any, name: str = "arm") -> Any:
 
     Made at `init`, never in `cycle`: building a model allocates.
     """
-    import pinocchio  # type: ignore[import-untyped]  # here: `pbo check` never needs it
+    import pinocchio  # here: `pbo check` never needs it
 
     arm, ee = check_arm(arm, ee)
     model = pinocchio.Model()

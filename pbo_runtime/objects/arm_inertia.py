@@ -59,7 +59,7 @@ def inertia_range(arm: Any, ee: Any, count: int = SAMPLES, seed: int = SEED) -> 
 
 @functools.lru_cache(maxsize=16)
 def _inertia_range(arm_bytes: bytes, shape: tuple[int, ...], ee_bytes: bytes, count: int, seed: int) -> InertiaRange:
-    import pinocchio  # type: ignore[import-untyped]
+    import pinocchio
 
     arm = np.frombuffer(arm_bytes).reshape(shape)
     model = arm_model(arm, np.frombuffer(ee_bytes))

@@ -9,12 +9,11 @@ written by job control) and stages it for the next plan.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import sys
 import traceback
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import posix_ipc
 
@@ -36,16 +35,10 @@ from pbo_runtime.supervisor.launch import RtpuLaunch
 from pbo_runtime.table.table import StateTable, TableLayout
 from rtpu import _realtime
 from rtpu._executive import Executive
+from rtpu.plans import LiveStage
 
-
-@dataclasses.dataclass
-class LiveStage:
-    """A live description this RTPU read, staged for the next plan (`_executive.LiveStage`)."""
-
-    reconfiguration: Reconfiguration
-    tasks: dict[str, tuple[int, Any]]  # every task of the live description: (status block, params)
-    spec: Callable[[str], TaskSpec]  # a task's full spec (its module looked up)
-    factories: dict[str, Callable[[], Task]]
+if TYPE_CHECKING:
+    from pbo_runtime.links.relay import MessageRelay
 
 
 def main(argv: list[str] | None = None, subsystem: Subsystem | None = None) -> int:
@@ -71,11 +64,17 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
     links = launch.links
     name = subsystem.name
     events = messages.Queue(messages.event_queue_name(name, launch.run_id))
-    report = lambda event: events.report(launch.rtpu, event)  # noqa: E731
+
+    def report(event: messages.Event) -> None:
+        events.report(launch.rtpu, event)
+
     # at stop: job control drains its queue while every RTPU reports, so a full queue is waited out
     # (while job control lives: after it was killed nobody drains the queue, and the wait would only hang)
     supervisor_alive = (lambda: os.getppid() == launch.parent) if launch.parent else None
-    report_at_stop = lambda event: events.report(launch.rtpu, event, timeout=5.0, reader_alive=supervisor_alive)  # noqa: E731
+
+    def report_at_stop(event: messages.Event) -> None:
+        events.report(launch.rtpu, event, timeout=5.0, reader_alive=supervisor_alive)
+
     table = signals = barrier = None
     executive = None
     try:
@@ -87,7 +86,7 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
         # device: their figures go with the task's statistics into the run's summary
         with_figures: dict[str, dict[str, Any]] = {}
 
-        def open_device(device: DeviceSpec, task: TaskSpec):
+        def open_device(device: DeviceSpec, task: TaskSpec) -> Any:  # a driver, as `DeviceOpener` says
             # The device database (TR 4.6.1) records the opening in the table, for every RTPU to see.
             from pbo_runtime.table.devices import DeviceDatabase
 
@@ -100,9 +99,9 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
             return {device: driver.figures() for device, driver in with_figures.get(task, {}).items()}
 
         signal_queue = messages.signal_queue_name(name, launch.run_id, launch.rtpu)
-        pumped: list[Any] = []  # the simulated clock's relays: each forwards its link's messages at every step
+        pumped: list[MessageRelay] = []  # the simulated clock's relays: each forwards its link's messages at every step
 
-        def relay(task: str, end):
+        def relay(task: str, end: Any) -> MessageRelay:  # `end`: a message link's receiving end
             # A message link's server task (TR 5.1): each message is a signal to this RTPU.
             from pbo_runtime.links.relay import MessageRelay
 
@@ -130,7 +129,7 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
         notes = variable_notes(subsystem)
         about_run = run_metadata(subsystem, launch.clock, launch.configuration, launch.application)
 
-        def factory(spec: TaskSpec):
+        def factory(spec: TaskSpec) -> Callable[[], Task]:
             module_class = registry.module_class(spec.module)
 
             def make() -> Task:
@@ -215,7 +214,7 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
         events.close()
 
 
-def _pump(relays: list[Any]) -> None:
+def _pump(relays: list[MessageRelay]) -> None:
     """Each relay of the simulated clock forwards what its link holds now; a closed one (its task killed) is dropped."""
     for relay in list(relays):
         if relay.closed:

@@ -109,7 +109,10 @@ class Scheduled:
         n = min(self.samples, RING)
         jitter = self.jitter[:n]
         exec_time = self.exec_time[:n]
-        pct = (lambda a, q: float(np.percentile(a, q)) if n else 0.0)
+
+        def pct(a: np.ndarray, q: float) -> float:
+            return float(np.percentile(a, q)) if n else 0.0
+
         local = self.task.local
         return TaskStatistics(
             cycles=self.task.cycles, overruns=self.overruns, missed=self.missed, errors=self.task.errors,

@@ -10,12 +10,14 @@ A switch's reports wait until the boundary's cycles ran: the entering tasks' fir
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
+from pbo_runtime.config.model import TaskSpec
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.messages import Event, Refused, Switched, Window
 from pbo_runtime.table.table import Header, TaskState
@@ -28,12 +30,13 @@ if TYPE_CHECKING:
 PLAN_SEQUENCE, PLAN_TIME_NS = int(Header.PLAN_SEQUENCE), int(Header.PLAN_TIME_NS)
 
 
-class LiveStage(Protocol):
+@dataclasses.dataclass(frozen=True)
+class LiveStage:
     """A live description an RTPU read (`LiveUpdate`), staged until the next plan applies it."""
 
     reconfiguration: Reconfiguration
     tasks: dict[str, tuple[int, Any]]  # every task of the live description: (status block, params)
-    spec: Callable[[str], Any]  # a task's full TaskSpec (its module looked up: only for a task hosted here)
+    spec: Callable[[str], TaskSpec]  # a task's full spec (its module looked up: only for a task hosted here)
     factories: dict[str, Callable[[], Task]]  # this RTPU's tasks, each made afresh from its live spec
 
 

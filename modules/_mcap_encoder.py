@@ -28,6 +28,7 @@ import sys
 from typing import Any, Mapping
 
 import numpy as np
+import contextlib
 
 FINISH = -1  # the command's buffer index that asks for the summary and footer
 NICE = 10  # below the RTPU's other processes: the encoder takes the CPU the executive leaves
@@ -107,10 +108,8 @@ class McapEncoder:
     def stop(self, patience: float = 5.0) -> None:
         """Close the pipes; the child ends (having finished or not); killed if it does not within `patience`."""
         for fd in (self._commands, self._replies):
-            try:
+            with contextlib.suppress(OSError):
                 os.close(fd)
-            except OSError:
-                pass
         try:
             self.process.wait(timeout=patience)
         except subprocess.TimeoutExpired:
@@ -185,10 +184,8 @@ class PendingBytes:
             os.lseek(self.fd, self.committed, os.SEEK_SET)
             write_all(self.fd, self.held)
         except OSError:
-            try:
+            with contextlib.suppress(OSError):
                 os.ftruncate(self.fd, self.committed)
-            except OSError:
-                pass
             raise
         self.committed += len(self.held)
         self.held.clear()
@@ -369,14 +366,10 @@ class Ros2Messages:
 
 def _step_aside() -> None:
     """Leave the CPU to the RTPU: SCHED_OTHER (a child inherits the executive's SCHED_FIFO), niced."""
-    try:
+    with contextlib.suppress(OSError):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except OSError:
-        pass
-    try:
+    with contextlib.suppress(OSError):
         os.nice(NICE)
-    except OSError:
-        pass
 
 
 def _serve(commands: int, replies: int) -> None:
@@ -421,7 +414,5 @@ if __name__ == "__main__":
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_DFL)  # a stop signal ends it as SIGTERM does, with no traceback
-    try:
+    with contextlib.suppress(BrokenPipeError):  # the logger's process died (its RTPU killed): the log ends at its last chunk
         _serve(int(sys.argv[1]), int(sys.argv[2]))
-    except BrokenPipeError:  # the logger's process died (its RTPU killed): the log ends at its last chunk
-        pass

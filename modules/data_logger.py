@@ -46,6 +46,7 @@ writes them first when the task is cleared).
 
 from __future__ import annotations
 
+import contextlib
 import _thread
 import errno
 import importlib.util
@@ -424,10 +425,8 @@ class _NpyFile(_LogFile):
             write_all(self.fd, self.buffers[index].data.cast("B")[: rows * self.dtype.itemsize])
             os.pwrite(self.fd, self.header(self.rows + rows), 0)
         except OSError:
-            try:
+            with contextlib.suppress(OSError):
                 os.ftruncate(self.fd, committed)  # no partial chunk after the rows the header counts
-            except OSError:
-                pass
             raise
         self.rows += rows
 

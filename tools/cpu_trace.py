@@ -32,6 +32,7 @@ import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+import contextlib
 
 TRACEFS = Path("/sys/kernel/tracing")
 EVENTS = "sched:sched_switch\nsched:sched_wakeup\n"
@@ -230,14 +231,10 @@ class SchedulerTrace:
     def _restore(self) -> None:
         for name in ("set_event", "trace_clock", "buffer_size_kb", "tracing_on"):
             if name in self.saved:
-                try:
+                with contextlib.suppress(OSError):
                     self._write(name, self.saved[name])
-                except OSError:
-                    pass
-        try:
+        with contextlib.suppress(OSError):
             self._write("trace", "")
-        except OSError:
-            pass
         if self.mounted_here:
             subprocess.run(["umount", str(self.tracefs)], capture_output=True)
             self.mounted_here = False

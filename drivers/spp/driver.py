@@ -30,6 +30,7 @@ processor imports numpy and Pinocchio on a machine that may be busy).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import select
@@ -213,7 +214,7 @@ class SpecialPurposeProcessor(DeviceDriver):
         return int(n[_ANSWERED])
 
     def _post(self) -> None:
-        try:
+        try:  # noqa: SIM105 - per call of a cycle: contextlib.suppress would allocate each time
             self._wake.release()  # type: ignore[union-attr]
         except posix_ipc.Error:  # the count is at its most: the processor has posts enough to wake on
             pass
@@ -320,10 +321,8 @@ class SpecialPurposeProcessor(DeviceDriver):
             wake.close()
         mapping, self._mapping = self._mapping, None
         if mapping is not None:
-            try:
+            with contextlib.suppress(BufferError):  # a view of it outlives the driver (a caller kept one): the mapping goes with it
                 mapping.close()
-            except BufferError:  # a view of it outlives the driver (a caller kept one): the mapping goes with it
-                pass
         return lambda: _stop(process)
 
 

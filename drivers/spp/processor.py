@@ -30,6 +30,7 @@ import posix_ipc
 from drivers.spp import routines
 from drivers.spp.segment import MAGIC, RING, State, W, views
 from pbo_runtime import attach_segment, unlink_quietly
+import contextlib
 
 WAKE_SLICE = 1.0  # seconds between looks at the parent while no work comes
 
@@ -54,10 +55,8 @@ def _stop(signum: int, _frame: FrameType | None) -> None:
 def _die_with(parent: int) -> None:
     for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(signum, _stop)
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
     if os.getppid() != parent:  # the parent died before the request took effect
         raise _Stop("parent gone")
 
@@ -65,14 +64,10 @@ def _die_with(parent: int) -> None:
 def _own_processor() -> None:
     """Leave what the task's RTPU process handed down: its SCHED_FIFO priority and its CPU. The
     processor is another piece of hardware; here it must never take an RTPU's CPU from it."""
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (OSError, AttributeError):
-        pass
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         os.sched_setaffinity(0, range(os.cpu_count() or 1))
-    except (OSError, AttributeError):
-        pass
 
 
 def main(argv: list[str] | None = None) -> int:

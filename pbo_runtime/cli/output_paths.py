@@ -18,6 +18,7 @@ import tempfile
 from pathlib import Path
 
 from pbo_runtime.errors import PboError
+import contextlib
 
 PSEUDO_FILE_SYSTEMS = (Path("/proc"), Path("/sys"))  # files there are kernel knobs, never a run's results
 PROBE = b"{}\n"  # a few bytes: a full file system refuses even these (a page to allocate)
@@ -93,10 +94,8 @@ def _replace_atomically(path: Path, data: bytes) -> None:
         os.chmod(temporary, 0o644)  # mkstemp's 0600 would make a report the operator's group cannot read
         os.replace(temporary, path)
     except BaseException:
-        try:
+        with contextlib.suppress(OSError):
             os.unlink(temporary)
-        except OSError:
-            pass
         raise
 
 
@@ -116,10 +115,8 @@ def _probe_directory(directory: Path, option: str, named: Path) -> None:
         raise OutputPathError(f"{option} {named}: cannot write in {directory}: {_os_error(exc)}; "
                               f"{_hint(exc)}") from None
     finally:
-        try:
+        with contextlib.suppress(OSError):
             os.unlink(temporary)
-        except OSError:
-            pass
 
 
 def _probe_in_place(path: Path, option: str) -> None:

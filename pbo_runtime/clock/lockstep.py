@@ -47,6 +47,7 @@ from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm
 from pbo_runtime.table.table import Flag, Header
+import contextlib
 
 WAIT_SLICE = 0.05  # seconds between checks for dead children while the participants run their ticks
 # Header words, as plain ints for the memoryview reads on the per-tick path
@@ -312,10 +313,8 @@ def _acquired(semaphore: posix_ipc.Semaphore, timeout: float) -> bool:
 def remove_semaphores(semaphores: Iterable[posix_ipc.Semaphore]) -> None:
     """Unlink and close the semaphores a clock master made (one another process unlinked is passed over)."""
     for semaphore in semaphores:
-        try:
+        with contextlib.suppress(posix_ipc.ExistentialError):
             semaphore.unlink()
-        except posix_ipc.ExistentialError:
-            pass
         semaphore.close()
 
 

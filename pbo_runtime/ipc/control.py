@@ -43,6 +43,7 @@ from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import runs
 from pbo_runtime.ipc import shm
 from pbo_runtime.errors import PboError
+import contextlib
 
 # Requests are small (a command, a name, at most a job's object values) and each client waits for
 # its answer: a short queue of 4 KiB messages keeps the run's share of the per-user queue memory
@@ -175,10 +176,8 @@ class ControlServer:
         """Close and unlink the queue (idempotent)."""
         if self._mq is None:
             return
-        try:
+        with contextlib.suppress(posix_ipc.ExistentialError):
             self._mq.close()
-        except posix_ipc.ExistentialError:
-            pass
         self._mq = None
         shm.unlink_quietly("mq", self.name)
 

@@ -24,6 +24,7 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.errors import InternalError
 from pbo_runtime.ipc.limits import QueueSize, queue_system_limit
 from pbo_runtime.ipc.task_statistics import TaskStatistics
+import contextlib
 
 READER_CHECK = 0.1  # seconds between checks that a queue's reader is alive, while a send waits on it
 
@@ -477,10 +478,8 @@ class Queue:
         return message
 
     def close(self) -> None:
-        try:
+        with contextlib.suppress(posix_ipc.ExistentialError):
             self._mq.close()
-        except posix_ipc.ExistentialError:
-            pass
         if self.owner:
             shm.unlink_quietly("mq", self.name)
 

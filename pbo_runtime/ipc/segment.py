@@ -30,6 +30,7 @@ import posix_ipc
 
 from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm
+import contextlib
 
 Check = Callable[[mmap.mmap | memoryview], None]  # raises when a mapped segment is not what its user expects
 
@@ -220,15 +221,11 @@ class LockedSegment:
         if self.mapping is None:
             return
         self.words.release()
-        try:
+        with contextlib.suppress(BufferError):
             self.mapping.close()
-        except BufferError:
-            pass
         self.mapping = None  # type: ignore[assignment]
-        try:
+        with contextlib.suppress(posix_ipc.ExistentialError):
             self.lock.close()
-        except posix_ipc.ExistentialError:
-            pass
         if self.owner:
             self.unlink()
 

@@ -23,6 +23,7 @@ from pbo_runtime.ipc import messages
 from pbo_runtime.ipc import process
 from pbo_runtime.ipc import shm
 from pbo_runtime.errors import PboError
+import contextlib
 
 MAX_PRIORITY = posix_ipc.QUEUE_PRIORITY_MAX
 SYSTEM_CAPACITY = messages.MAX_MESSAGES  # fs.mqueue.msg_max (10 by default), capped at 64
@@ -165,10 +166,8 @@ class MessageLink:
 
     def close(self) -> None:
         """Close this end (and, for the creator, unlink the queue: messages still in it are dropped)."""
-        try:
+        with contextlib.suppress(posix_ipc.ExistentialError):
             self._queue.close()
-        except posix_ipc.ExistentialError:
-            pass
         if self.owner:
             self.unlink()
 

@@ -46,6 +46,7 @@ from pbo_runtime.config.model import Subsystem, VariableSpec
 from pbo_runtime.errors import InternalError, TableLayoutError
 from pbo_runtime.table.directory import DIRECTORY_RECORD, DTYPE_CODES, META_WORDS, Entry, write_directory
 from pbo_runtime.table.snapshot import Seqlock
+import contextlib
 
 MAGIC = 0x5042_4F5F_5441_424C  # "PBO_TABL"
 VERSION = 2  # 2: the lock record's sequence word (observers read without the lock)
@@ -505,10 +506,8 @@ def _raise_to(priority: int) -> int | None:
 
 def _lower(thread: int | None) -> None:
     if thread is not None:
-        try:
+        with contextlib.suppress(OSError):
             os.sched_setscheduler(thread, os.SCHED_OTHER, os.sched_param(0))
-        except OSError:
-            pass
 
 
 def read_manifest(mapping: mmap.mmap, offset: int) -> list[str]:

@@ -287,9 +287,9 @@ class McapLog:
         times = chunk["time"].tolist()
         stamps = (np.rint(chunk["time"] * 1e9).astype(np.int64) + self.unix_offset_ns).tolist()
         columns = [(channel, _json_values(chunk[name], floating))
-                   for channel, name, floating in zip(self.channels, self.names, self.floats)]
+                   for channel, name, floating in zip(self.channels, self.names, self.floats, strict=True)]
         add, dumps = self.writer.add_message, json.dumps
-        for row, (at, stamp) in enumerate(zip(times, stamps)):
+        for row, (at, stamp) in enumerate(zip(times, stamps, strict=True)):
             for channel, values in columns:
                 data = f'{{"time":{at!r},"value":{dumps(values[row])}}}'.encode()
                 add(channel, log_time=stamp, data=data, publish_time=stamp, sequence=row)
@@ -299,7 +299,7 @@ class McapLog:
         assert self.ros2 is not None
         stamps = (np.rint(chunk["time"] * 1e9).astype(np.int64) + self.unix_offset_ns).tolist()
         add = self.writer.add_message
-        for channel, name in zip(self.channels, self.names):
+        for channel, name in zip(self.channels, self.names, strict=True):
             serialize = self.ros2.serializer(name)
             column = chunk[name].reshape(len(chunk), -1)
             for row, stamp in enumerate(stamps):
@@ -355,7 +355,7 @@ class Ros2Messages:
         strides = [int(np.prod(shape[i:], dtype=int)) for i in range(len(shape))]
         layout = types["std_msgs/msg/MultiArrayLayout"](
             dim=[types["std_msgs/msg/MultiArrayDimension"](label=f"dim{i}", size=size, stride=stride)
-                 for i, (size, stride) in enumerate(zip(shape, strides))], data_offset=0)
+                 for i, (size, stride) in enumerate(zip(shape, strides, strict=True))], data_offset=0)
         message, serialize, wire = types[typename], self.store.serialize_cdr, np.dtype("u1" if kind == "b1" else kind)
         self._serializers[name] = lambda values: bytes(serialize(message(layout=layout, data=values.astype(wire)), typename))
         return typename, self.store.generate_msgdef(typename, ros_version=2)[0]

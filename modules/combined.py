@@ -148,7 +148,7 @@ class Combined(PortBasedObject):
         return tuple(ports.values())
 
     def init(self, params: CombinedParams) -> None:
-        external = {spec.variable: array for spec, array in zip(type(self).ports_for(params), self.bound_arrays)}
+        external = {spec.variable: array for spec, array in zip(type(self).ports_for(params), self.bound_arrays, strict=True)}
         dims = self._pbo_context.dims
         local: dict[str, np.ndarray] = {}
         for variable in params.local_variables():

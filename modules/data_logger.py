@@ -110,12 +110,12 @@ class DataLogger(PortBasedObject):
     @classmethod
     def ports_for(cls, params: DataLoggerParams) -> tuple[PortSpec, ...]:
         extra = tuple(InVar(name, dtype=ANY_DTYPE, shape=None, doc=f"logged variable {name}").spec for name in params.variables)
-        named = tuple(PortSpec(name, p.kind, p.variable, p.dtype, p.shape, p.doc) for name, p in zip(params.variables, extra))
+        named = tuple(PortSpec(name, p.kind, p.variable, p.dtype, p.shape, p.doc) for name, p in zip(params.variables, extra, strict=True))
         return cls.ports() + named
 
     def init(self, params: DataLoggerParams) -> None:
         arrays = self.bound_arrays[-len(params.variables):]
-        self._dtype = np.dtype([("time", np.float64)] + [(name, a.dtype, a.shape) for name, a in zip(params.variables, arrays)])
+        self._dtype = np.dtype([("time", np.float64)] + [(name, a.dtype, a.shape) for name, a in zip(params.variables, arrays, strict=True)])
         self._rows = max(1, min(int(round(params.chunk / self.period)), CHUNK_BYTES // self._dtype.itemsize))
         # Two chunk buffers: the cycle fills one while the writer writes the other. An MCAP log's
         # are shared with its encoder process (a memfd: nothing to clean up in /dev/shm). Written
@@ -136,7 +136,7 @@ class DataLogger(PortBasedObject):
                 chunk.fill(0)
             else:
                 chunk = np.full(self._rows, 0, dtype=self._dtype)
-            pairs = [(_flat_rows(chunk[name]), source) for name, source in zip(params.variables, sources)]
+            pairs = [(_flat_rows(chunk[name]), source) for name, source in zip(params.variables, sources, strict=True)]
             self._buffers.append((chunk, chunk["time"], pairs))
         self._wait_when_full = self.run_metadata.get("clock") == "sim"
         self._current = 0

@@ -57,7 +57,7 @@ class Join(PortBasedObject):
 
     def init(self, params: JoinParams) -> None:
         self._inputs = self.bound_arrays[1:]
-        for name, array in zip(params.inputs, self._inputs):
+        for name, array in zip(params.inputs, self._inputs, strict=True):
             if array.shape != self.out.shape:
                 raise ModuleError(f"join input '{name}' has shape {array.shape}, but the output has shape {self.out.shape}")
         weights = np.asarray(params.weights or [1.0] * len(params.inputs), dtype=float)
@@ -69,7 +69,7 @@ class Join(PortBasedObject):
     def cycle(self) -> Status:
         out, term = self.out, self._term
         out.fill(0)
-        for weight, source in zip(self._weights, self._inputs):
+        for weight, source in zip(self._weights, self._inputs):  # noqa: B905 - the cycle: equal by init, no check per cycle
             np.multiply(source, weight, out=term, casting="unsafe")
             np.add(out, term, out=out, casting="unsafe")
         return Status.CONTINUE

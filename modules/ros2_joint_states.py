@@ -54,7 +54,7 @@ class Ros2JointStates(PortBasedObject):
         if len(names) != joints:
             raise ValueError(f"joint_names must name the {joints} joints of q_m, got {len(names)}: {names}")
         self._rows = np.zeros((3, joints))  # position, velocity, effort: the cycle's copy
-        self._copies = tuple(zip(sources, self._rows))  # (port, its row): the views made once
+        self._copies = tuple(zip(sources, self._rows, strict=True))  # (port, its row): the views made once
         self._stamp = np.zeros(1, dtype=np.int64)  # its Unix time, ns
         self._lock = threading.Lock()
         self._acquire, self._release = self._lock.acquire, self._lock.release

@@ -225,7 +225,7 @@ def _torque_limits(model: mujoco.MjModel, names: tuple[str, ...], actuators: dic
     given = np.array([float(np.max(np.abs(model.jnt_actfrcrange[j]))) if model.jnt_actfrclimited[j] else actuators.get(name, 0.0)
                       for j, name in enumerate(names)])
     limits = _tightened(given, _per_joint(options, "torque_limits", names), "torque_limits", "N m", names, source)
-    missing = [name for name, limit in zip(names, limits) if not limit > 0]
+    missing = [name for name, limit in zip(names, limits, strict=True) if not limit > 0]
     if missing:
         raise RobotFileError(
             f"{source.path.name} gives no torque limit for joint{'s' if len(missing) > 1 else ''} {', '.join(missing)}: "

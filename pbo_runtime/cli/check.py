@@ -146,7 +146,7 @@ def limit_lines(rows: list[dict[str, Any]]) -> list[str]:
     widths = [max(len(row[i]) for row in [("joint", "effort", "velocity", "range"), *cells]) for i in range(3)]
     lines = ["  the robot's limits (commands are clipped to them; a joint past them is a fault):"]
     for row in [("joint", "effort", "velocity", "range"), *cells]:
-        lines.append("    " + "  ".join(cell.ljust(width) for cell, width in zip(row, widths)) + "  " + row[3])
+        lines.append("    " + "  ".join(cell.ljust(width) for cell, width in zip(row[:3], widths, strict=True)) + "  " + row[3])
     return lines
 
 

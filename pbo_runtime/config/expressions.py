@@ -341,7 +341,7 @@ class _Evaluator:
         if isinstance(node, ast.Compare):
             left = self.value(node.left)
             result: Any = True
-            for op, comparator in zip(node.ops, node.comparators):
+            for op, comparator in zip(node.ops, node.comparators, strict=True):
                 right = self.value(comparator)
                 result = np.logical_and(result, _COMPARE[type(op)](left, right))
                 left = right

@@ -91,6 +91,6 @@ def arm_gains(inertia: InertiaRange, bandwidth: float, damping: float = 1.0, int
     at `period` with one period of delay (`joint_loop.design_gains`): made for each joint's heaviest
     pose unless that would leave a lighter one (down to `coupled_low`) poorly damped."""
     made = [design_gains(float(low), float(high), bandwidth, damping, integral_time, period, viscous=float(b))
-            for low, high, b in zip(inertia.coupled_low, inertia.high, inertia.viscous)]
+            for low, high, b in zip(inertia.coupled_low, inertia.high, inertia.viscous, strict=True)]
     return (np.array([g.kp for g, _ in made]), np.array([g.kd for g, _ in made]), np.array([g.ki for g, _ in made]),
             np.array([design for _, design in made]))

@@ -91,7 +91,7 @@ class _Region:
         )
         self.arrays = [
             locals_by_dtype[dtype_name][pos : pos + s.size].reshape(s.shape)
-            for (dtype_name, pos), s in zip(data_pos, slots)
+            for (dtype_name, pos), s in zip(data_pos, slots, strict=True)
         ]
 
 
@@ -115,7 +115,7 @@ class LocalTable:
         self._out_var = _Region(table, out_var, task_index, int(StatusWord.USED))
         by_binding: dict[int, np.ndarray] = {}
         for region, members in ((self._in_var, in_var), (self._in_const, in_const), (self._out_var, out_var), (self._out_const, out_const)):
-            for binding, array in zip(members, region.arrays):
+            for binding, array in zip(members, region.arrays, strict=True):
                 by_binding.setdefault(id(binding), array)
         self._both_in = [(self._in_const.arrays[in_const.index(b)], by_binding[id(b)]) for b in in_const if b in in_var]
         self._both_out = [(self._out_const.arrays[out_const.index(b)], by_binding[id(b)]) for b in out_const if b in out_var]
@@ -255,7 +255,7 @@ class LocalTable:
 
     def non_finite_outputs(self) -> list[str]:
         """The out-vars that hold NaN or Inf now, for the error message (not per cycle)."""
-        return [variable for variable, array in zip(self._out_variables, self._out_var.arrays)
+        return [variable for variable, array in zip(self._out_variables, self._out_var.arrays, strict=True)
                 if array.dtype.kind == "f" and not np.isfinite(array).all()]
 
     # --- the transfers of Figure 11 that are not per cycle -----------------------------------

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import graphlib
 import heapq
+import itertools
 from typing import Sequence
 
 from pbo_runtime.config.checker.base import CheckerBase
@@ -143,7 +144,7 @@ class TimingChecks(CheckerBase):
         except graphlib.CycleError as exc:
             cycle: list[str] = list(exc.args[1])
             links = "; ".join(
-                f"'{a}' writes '{via.get((a, b), '?')}' that '{b}' reads before its init" for a, b in zip(cycle, cycle[1:])
+                f"'{a}' writes '{via.get((a, b), '?')}' that '{b}' reads before its init" for a, b in itertools.pairwise(cycle)
             )
             self.error(
                 "E406",

@@ -25,7 +25,7 @@ import os
 import struct
 import subprocess
 import sys
-from typing import Any, Mapping
+from typing import Any, ClassVar, Mapping
 
 import numpy as np
 import contextlib
@@ -338,8 +338,9 @@ class Ros2Messages:
     (a dimension per axis, ROS's strides): what rosbag2 and the ROS 2 tools read. Built with the
     `rosbags` type store (the `ros2` extra)."""
 
-    TYPES = {"f4": "Float32", "f8": "Float64", "i1": "Int8", "i2": "Int16", "i4": "Int32", "i8": "Int64",
-             "u1": "UInt8", "u2": "UInt16", "u4": "UInt32", "u8": "UInt64", "b1": "UInt8"}
+    TYPES: ClassVar[Mapping[str, str]] = {
+        "f4": "Float32", "f8": "Float64", "i1": "Int8", "i2": "Int16", "i4": "Int32", "i8": "Int64",
+        "u1": "UInt8", "u2": "UInt16", "u4": "UInt32", "u8": "UInt64", "b1": "UInt8"}
 
     def __init__(self) -> None:
         from rosbags.typesys import Stores, get_typestore

@@ -6,6 +6,7 @@ output variable has one element per channel, in channel order. Real-time safe cy
 
 from __future__ import annotations
 
+from typing import ClassVar
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -23,7 +24,7 @@ class AnalogInput(PortBasedObject):
     """v = the lent ADC channels' voltages. Real-time safe cycle."""
 
     Params = AnalogInputParams
-    DEVICES = {"device": {"kind": "adc"}}
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "adc"}}
 
     v = OutVar("v_in", shape=None, doc="voltages of the lent ADC channels, V, in channel order (one element each)")
 

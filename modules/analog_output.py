@@ -7,6 +7,7 @@ their last value; killed, the driver sets them to 0 V. Real-time safe cycle: one
 
 from __future__ import annotations
 
+from typing import ClassVar
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -24,7 +25,7 @@ class AnalogOutput(PortBasedObject):
     """The lent DAC channels = v. Real-time safe cycle."""
 
     Params = AnalogOutputParams
-    DEVICES = {"device": {"kind": "dac"}}
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "dac"}}
 
     v = InVar("v_out", shape=None, doc="voltages for the lent DAC channels, V, in channel order (one element each)")
 

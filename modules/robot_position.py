@@ -9,6 +9,9 @@ configuration drives: the controllers above it compute where the joints should b
 
 from __future__ import annotations
 
+from typing import ClassVar
+from typing import Any
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,7 +40,7 @@ class RobotPosition(RobotInterface):
     """
 
     Params = RobotPositionParams
-    DEVICES = {"device": {"kind": "arm", "mode": "position"}}
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "arm", "mode": "position"}}
 
     q_r = InVar("q_r", shape=("NDOF",), doc="joint position reference the arm's servo tracks, rad")
 

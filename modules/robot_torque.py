@@ -7,6 +7,9 @@ state every cycle, and sends the control signal `tau_u` to the arm's driver.
 
 from __future__ import annotations
 
+from typing import ClassVar
+from typing import Any
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,7 +38,7 @@ class RobotTorque(RobotInterface):
     """
 
     Params = RobotTorqueParams
-    DEVICES = {"device": {"kind": "arm", "mode": "torque"}}
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "arm", "mode": "torque"}}
 
     tau_u = InVar("tau_u", shape=("NDOF",), doc="joint torque command, N m")
 

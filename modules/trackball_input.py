@@ -13,6 +13,9 @@ the task turned on. The motion comes from one of:
 
 from __future__ import annotations
 
+from typing import ClassVar
+from typing import Any
+from collections.abc import Mapping
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -39,7 +42,7 @@ class TrackballInput(PortBasedObject):
     """x_d = the pose at `on` + the scripted offset at the time since `on`. Real-time safe cycle."""
 
     Params = TrackballParams
-    DEVICES = {"device": {"kind": "trackball"}}  # when given: a script or a file opens none
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "trackball"}}  # when given: a script or a file opens none
 
     x_m = InVar("x_m", shape=(6,), doc="measured Cartesian pose (position m, rotation vector rad)")
     x_d = OutVar("x_d", shape=(6,), doc="desired Cartesian pose")

@@ -14,6 +14,9 @@ Real-time safe cycle: one driver call and two copies, no allocation.
 
 from __future__ import annotations
 
+from typing import ClassVar
+from typing import Any
+from collections.abc import Mapping
 import math
 from dataclasses import dataclass
 
@@ -41,7 +44,7 @@ class VisualServoing(PortBasedObject):
     """x_d = (target position + offset, fixed orientation). Real-time safe cycle."""
 
     Params = VisualServoingParams
-    DEVICES = {"device": {"kind": "camera"}}
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "camera"}}
 
     x_m = InVar("x_m", shape=(6,), doc="measured pose of the hand: position m, rotation vector rad")
     x_d = OutVar("x_d", shape=(6,), doc="desired pose of the hand: position m, rotation vector rad")

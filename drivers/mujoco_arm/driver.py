@@ -20,6 +20,7 @@ ERROR, and the robot interface's error component engages the brakes.
 
 from __future__ import annotations
 
+from typing import ClassVar
 import os
 import time
 from collections.abc import Mapping
@@ -59,7 +60,7 @@ class MujocoArmDriver(DeviceDriver):
     OPTIONS = _OPTIONS
     NEEDS_PLANT = True
 
-    OPTION_DEFAULTS = {"mode": "torque"}
+    OPTION_DEFAULTS: ClassVar[Mapping[str, Any]] = {"mode": "torque"}
 
     @classmethod
     def check_options(cls, options: Mapping[str, Any]) -> None:

@@ -24,6 +24,7 @@ robot model the ros2_control side drives. Needs the 'ros2' extra (cyclonedds).
 
 from __future__ import annotations
 
+from typing import ClassVar
 import os
 import threading
 import time
@@ -51,8 +52,10 @@ class Ros2ControlArm(DeviceDriver):
 
     KIND = "arm"  # what robot_torque opens, as mujoco_arm is
     OPTIONS = _OPTIONS
-    OPTION_DEFAULTS = {"mode": "torque", "joint_states": "/joint_states", "commands": COMMAND_TOPICS["torque"],
-                       "joints": None, "domain": -1, "stall_after": 0.01}
+    OPTION_DEFAULTS: ClassVar[Mapping[str, Any]] = {
+        "mode": "torque", "joint_states": "/joint_states", "commands": COMMAND_TOPICS["torque"],
+        "joints": None, "domain": -1, "stall_after": 0.01,
+    }
 
     @classmethod
     def check_options(cls, options: Mapping[str, Any]) -> None:

@@ -160,7 +160,7 @@ class Combined(PortBasedObject):
         for member in params.built:
             instance = member.cls.__new__(member.cls)
             arrays = []
-            for port, variable in member.links:
+            for _port, variable in member.links:
                 # a local link is a private array; an exported one is the writer's output, read in place
                 arrays.append(local[variable] if variable in local else external[variable])
             instance._pbo_ports = arrays

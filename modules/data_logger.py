@@ -116,7 +116,7 @@ class DataLogger(PortBasedObject):
     def init(self, params: DataLoggerParams) -> None:
         arrays = self.bound_arrays[-len(params.variables):]
         self._dtype = np.dtype([("time", np.float64)] + [(name, a.dtype, a.shape) for name, a in zip(params.variables, arrays, strict=True)])
-        self._rows = max(1, min(int(round(params.chunk / self.period)), CHUNK_BYTES // self._dtype.itemsize))
+        self._rows = max(1, min(round(params.chunk / self.period), CHUNK_BYTES // self._dtype.itemsize))
         # Two chunk buffers: the cycle fills one while the writer writes the other. An MCAP log's
         # are shared with its encoder process (a memfd: nothing to clean up in /dev/shm). Written
         # now: a row in a page never touched would be faulted in by the cycle that writes it.

@@ -74,7 +74,7 @@ class FaultInjector(PortBasedObject):
         if params.command is None:
             return cls.ports()
         port = OutVar("tau_u", shape=("NDOF",), doc="the wrong command written every cycle (bind it with ports:)").spec
-        return cls.ports() + (PortSpec("command", port.kind, port.variable, port.dtype, port.shape, port.doc),)
+        return (*cls.ports(), PortSpec("command", port.kind, port.variable, port.dtype, port.shape, port.doc))
 
     def init(self, params: FaultInjectorParams) -> None:
         self._command = params.command

@@ -251,10 +251,10 @@ class Executive:
         # cycles, never after them. The RTPU that hosts the entering tasks has a boundary at the
         # activation; one that read the plan too late for its activation applies it here, at its
         # first boundary after it, before anything runs in the old configuration.
-        if words is not None and words[PLAN_SEQUENCE] != plans.seen:
-            if woke + self.release_slack + ON_THE_BOUNDARY >= plans.notice(woke):
-                self._switch_and_run()
-                return
+        if (words is not None and words[PLAN_SEQUENCE] != plans.seen
+                and woke + self.release_slack + ON_THE_BOUNDARY >= plans.notice(woke)):
+            self._switch_and_run()
+            return
         self.run_ready(woke)
 
     def plan_if_due(self) -> bool:

@@ -125,7 +125,7 @@ def _probe_in_place(path: Path, option: str) -> None:
         handle = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_NONBLOCK)
     except OSError as exc:
         if exc.errno == errno.ENXIO:
-            raise OutputPathError(f"{option} {path}: is a pipe with no reader; start its reader first, or name a file")
+            raise OutputPathError(f"{option} {path}: is a pipe with no reader; start its reader first, or name a file") from None
         raise OutputPathError(f"{option} {path}: cannot open it for writing: {_os_error(exc)}; {_hint(exc)}") from None
     try:
         os.write(handle, b"")

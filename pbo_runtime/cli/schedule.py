@@ -238,7 +238,7 @@ def allocate(args: Any, console: Console, errors: Console) -> int:
     out = [f"allocation ({MODEL}), C = {key} of {report} ({EXEC_MEANING[args.exec_time]}):"]
     out += [f"note: {n}" for n in notes]
     if not judged:
-        errors.print("\n".join(out + [f"error: no configuration of {args.file} has an execution time for every task"]),
+        errors.print("\n".join([*out, f"error: no configuration of {args.file} has an execution time for every task"]),
                      markup=False, soft_wrap=True)
         return 1
     kept = pinned_tasks(subsystem, pins, free)
@@ -247,7 +247,8 @@ def allocate(args: Any, console: Console, errors: Console) -> int:
         why = (f"the search gave up after {search.tried:,} partial assignments" if search.gave_up else
                "no assignment of the tasks to the RTPUs proves every critical deadline")
         held = "; ".join(f"'{t}' {reason}" for t, reason in kept.items() if t in subsystem.tasks)
-        errors.print("\n".join(out + [
+        errors.print("\n".join([
+            *out,
             f"error: {why} of configuration(s) {', '.join(map(repr, judged))} on {len(subsystem.rtpus)} RTPU(s)"
             + (f" (kept: {held})" if held else ""),
             "  hint: lengthen a period, shorten a cycle, add an RTPU to `rtpus:`, or free a kept task (--free TASK)"]),

@@ -88,7 +88,7 @@ class LockstepMaster:
 
     def __init__(self, subsystem: str, run_id: str, roles: list[str], tick: float, header: np.ndarray) -> None:
         self.roles = list(roles)
-        self.tick_ns = int(round(tick * 1e9))
+        self.tick_ns = round(tick * 1e9)
         self.tick = self.tick_ns / 1e9
         self.header = header
         self.ticks = 0

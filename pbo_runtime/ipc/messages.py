@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, Callable, ClassVar, Union
+from typing import Any, Callable, ClassVar
 
 import msgpack
 import posix_ipc
@@ -169,9 +169,8 @@ class LiveUpdate:
     sequence: int
 
 
-TaskSignal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch]  # the signals for one task
-Signal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch, StopRtpu, SendStats, PlanPosted,
-               LiveUpdate]
+TaskSignal = Spawn | TurnOn | TurnOff | Kill | Clear | OperatorEvent | LinkMessage | Watch  # the signals for one task
+Signal = TaskSignal | StopRtpu | SendStats | PlanPosted | LiveUpdate
 SIGNAL_TYPES: dict[str, type[Signal]] = {cls.KIND: cls for cls in
                                          (Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch, StopRtpu,
                                           SendStats, PlanPosted, LiveUpdate)}
@@ -334,8 +333,8 @@ class ChildExited:
     pid: int
 
 
-Event = Union[Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled, Refused, Staged,
-              Crashed, ChildExited]
+Event = (Ready | StateChanged | Switched | Window | FirstCycle | Stable | Stats | PlantStats | PlantStalled | Refused | Staged
+         | Crashed | ChildExited)
 EVENT_TYPES: dict[str, type[Event]] = {cls.KIND: cls for cls in
                                        (Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled,
                                         Refused, Staged, Crashed, ChildExited)}

@@ -138,9 +138,9 @@ class ZenohMessageLink(SessionEnd):
             raise MessageLinkError(f"message link '{self.name}' has no receiver connected: the message was not sent",
                                    hint="has the receiving subsystem stopped? send again once it is back")
         with self._room:
-            if self._sent - self._consumed >= self.capacity:
-                if timeout == 0 or not self._room.wait_for(lambda: self._sent - self._consumed < self.capacity, timeout):
-                    raise LinkFullError(self.name, self.capacity, timeout or 0.0, bound="")
+            full = self._sent - self._consumed >= self.capacity
+            if full and (timeout == 0 or not self._room.wait_for(lambda: self._sent - self._consumed < self.capacity, timeout)):
+                raise LinkFullError(self.name, self.capacity, timeout or 0.0, bound="")
             self._sent += 1
             if self._publisher is None:  # the receiving end sends to itself
                 self._enqueue(self._id, sent_ns, priority, body)

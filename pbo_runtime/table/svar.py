@@ -190,11 +190,7 @@ def _part(name: str, index: int) -> str:
 def format_value(value: np.ndarray) -> str:
     """A value as text: floats with 4 decimals, integers as they are, long arrays summarised."""
     array = np.asarray(value)
-    formatter: Any
-    if array.dtype.kind == "f":
-        formatter = {"float_kind": lambda x: f"{x:+.4f}"}
-    else:
-        formatter = None
+    formatter: Any = {"float_kind": lambda x: f"{x:+.4f}"} if array.dtype.kind == "f" else None
     if array.ndim == 0:
         return formatter["float_kind"](array.item()) if formatter else str(array.item())
     return np.array2string(array, separator=", ", formatter=formatter, max_line_width=10**6, threshold=24, edgeitems=4)
@@ -216,8 +212,10 @@ def svar_rows(view: TableView, names: Sequence[str] | None = None, writers: Mapp
         written = writer >= 0 or seq > 0
         if not written:
             who = "—"
+        elif writer < 0:
+            who = "job control"
         else:
-            who = "job control" if writer < 0 else (writers or {}).get(writer, f"task #{writer}")
+            who = (writers or {}).get(writer, f"task #{writer}")
         rows.append({"name": name, "value": format_value(value), "sequence": seq, "age_ms": age_ms, "writer": who,
                      "written": written})
     return rows
@@ -233,7 +231,9 @@ def svar_table(rows: Sequence[Mapping[str, Any]], title: str | None = None) -> T
     for row in rows:
         if row["age_ms"] is not None:
             age = f"{row['age_ms']:.1f}"
+        elif row.get("written", True):
+            age = "—"
         else:
-            age = "—" if row.get("written", True) else "never"
+            age = "never"
         table.add_row(row["name"], row["value"], str(row["sequence"]), age, row["writer"])
     return table

@@ -60,7 +60,7 @@ class ConfigurationChecks(CheckerBase):
                 writes = frozenset(variable for _, variable in record.outputs) if record is not None else frozenset()
                 instance = (module, writes)
                 if module and writes and instance in instances:
-                    other, other_loc = instances[instance]
+                    other, _other_loc = instances[instance]
                     assert record is not None
                     relink = ", ".join(f"{port}: {variable}_{task}" for port, variable in record.outputs)
                     declare = _and_list([f"'{variable}_{task}'" for _, variable in record.outputs])

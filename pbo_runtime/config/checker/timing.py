@@ -23,9 +23,9 @@ class TimingChecks(CheckerBase):
         never sleeps: it would spin through every period, a whole CPU for nothing."""
         shortest: dict[str, _Task] = {}
         for task in self.tasks.values():
-            if task.rtpu and task.period > 0 and not task.aperiodic:
-                if task.rtpu not in shortest or task.period < shortest[task.rtpu].period:
-                    shortest[task.rtpu] = task
+            if (task.rtpu and task.period > 0 and not task.aperiodic
+                    and (task.rtpu not in shortest or task.period < shortest[task.rtpu].period)):
+                shortest[task.rtpu] = task
         for rtpu in self.out.rtpus:
             fastest = shortest.get(rtpu.name)
             if fastest is not None and rtpu.spin >= fastest.period:
@@ -45,9 +45,9 @@ class TimingChecks(CheckerBase):
         plant = self.out.plant
         if plant is None or plant.timestep is None or plant.timestep <= 0:
             return
-        tick_ns = int(round(plant.timestep * 1e9))
+        tick_ns = round(plant.timestep * 1e9)
         for task in self.out.tasks.values():
-            ns = int(round(task.period * 1e9))
+            ns = round(task.period * 1e9)
             if tick_ns and ns % tick_ns:
                 self.warn("W504", f"period of task '{task.name}' ({_ms(task.period)}) is not a whole multiple of the plant's "
                                   f"timestep ({_ms(plant.timestep)}): pbo run --clock sim refuses the file", task.loc,

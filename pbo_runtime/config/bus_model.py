@@ -7,7 +7,7 @@ each set of transfers (TR §4.2, Figure 11). Its load on the bus, in bytes per s
     Z_j = (Σ_i S(x_ij) + Σ_i S(y_ij) + 2Δ) / T_j                                   (eq. 1)
 
 x_ij: the task's per-cycle inputs (in-var and in-both ports); y_ij: its per-cycle outputs
-(out-var and out-both); S(v): the bytes one transfer of v moves (elements × itemsize);
+(out-var and out-both); S(v): the bytes one transfer of v moves (elements x itemsize);
 Δ: the bus's lock overhead in bytes (locking and releasing the table, counted twice a cycle);
 T_j: the task's period, or for an aperiodic task its minimum inter-arrival time (the worst case).
 Consts (in-const, out-const) move once around `init`, not per cycle, and do not count. A
@@ -95,7 +95,7 @@ class BusReport:
 
 
 def transfer_bytes(subsystem: Subsystem, binding: PortBinding) -> int:
-    """S(v): the bytes one transfer of the bound variable moves (elements of the bound shape × itemsize)."""
+    """S(v): the bytes one transfer of the bound variable moves (elements of the bound shape x itemsize)."""
     var = subsystem.variables[binding.variable]
     n = 1
     for d in binding.shape:

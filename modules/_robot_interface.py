@@ -29,7 +29,9 @@ class RobotInterface(PortBasedObject):
     """Base of robot_torque and robot_position: consts, measured state, brakes."""
 
     ndof = OutConst("NDOF", dtype="int32", doc="number of joints")
-    arm_table = OutConst("ARM", shape=("NDOF", Arm.WIDTH), doc="the arm's joint table: a row per joint (pbo_runtime.ARM_COLUMNS, SI)")
+    arm_table = OutConst(
+        "ARM", shape=("NDOF", Arm.WIDTH), doc="the arm's joint table: a row per joint (pbo_runtime.ARM_COLUMNS, SI)"
+    )
     end_effector = OutConst("EE", shape=(Arm.EE_WIDTH,), doc="where the end effector is (pbo_runtime.EE_COLUMNS, m)")
     q_m = OutVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
     qd_m = OutVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s")

@@ -67,8 +67,10 @@ class CombinedParams:
             declared = {p.name: p for p in cls.ports_for(params)}
             unknown_ports = sorted(set(relinks) - set(declared))
             if unknown_ports:
-                raise ValueError(f"member {number} ({entry['module']}) has no port(s) {', '.join(repr(p) for p in unknown_ports)} "
-                                 f"(ports: {', '.join(declared)})")
+                raise ValueError(
+                    f"member {number} ({entry['module']}) has no port(s) {', '.join(repr(p) for p in unknown_ports)} "
+                    f"(ports: {', '.join(declared)})"
+                )
             links = tuple((port, str(relinks.get(port.name, port.variable))) for port in declared.values())
             built.append(Member(f"{number}:{entry['module']}", cls, params, links))
         object.__setattr__(self, "built", tuple(built))

@@ -110,12 +110,16 @@ class DataLogger(PortBasedObject):
     @classmethod
     def ports_for(cls, params: DataLoggerParams) -> tuple[PortSpec, ...]:
         extra = tuple(InVar(name, dtype=ANY_DTYPE, shape=None, doc=f"logged variable {name}").spec for name in params.variables)
-        named = tuple(PortSpec(name, p.kind, p.variable, p.dtype, p.shape, p.doc) for name, p in zip(params.variables, extra, strict=True))
+        named = tuple(
+            PortSpec(name, p.kind, p.variable, p.dtype, p.shape, p.doc) for name, p in zip(params.variables, extra, strict=True)
+        )
         return cls.ports() + named
 
     def init(self, params: DataLoggerParams) -> None:
         arrays = self.bound_arrays[-len(params.variables):]
-        self._dtype = np.dtype([("time", np.float64)] + [(name, a.dtype, a.shape) for name, a in zip(params.variables, arrays, strict=True)])
+        self._dtype = np.dtype(
+            [("time", np.float64)] + [(name, a.dtype, a.shape) for name, a in zip(params.variables, arrays, strict=True)]
+        )
         self._rows = max(1, min(round(params.chunk / self.period), CHUNK_BYTES // self._dtype.itemsize))
         # Two chunk buffers: the cycle fills one while the writer writes the other. An MCAP log's
         # are shared with its encoder process (a memfd: nothing to clean up in /dev/shm). Written
@@ -132,7 +136,9 @@ class DataLogger(PortBasedObject):
         self._buffers = []
         for index in range(2):
             if self._shared is not None:
-                chunk = np.frombuffer(self._shared, self._dtype, count=self._rows, offset=index * self._rows * self._dtype.itemsize)
+                chunk = np.frombuffer(
+                    self._shared, self._dtype, count=self._rows, offset=index * self._rows * self._dtype.itemsize
+                )
                 chunk.fill(0)
             else:
                 chunk = np.full(self._rows, 0, dtype=self._dtype)

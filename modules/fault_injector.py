@@ -45,8 +45,10 @@ class FaultInjectorParams:
     fault: Literal["raise", "hang", "abort"] = "raise"  # raises once; never returns; or crashes the process (os.abort)
     in_init: bool = False  # the fault happens in init (every time the task is spawned), not after fail_after cycles
     in_on: bool = False  # the fault happens in on (once per run: not in a restarted RTPU), not after fail_after cycles
-    at: tuple[float, ...] = param((), at_least=0, at_most=1e6)  # s on the run's clock: fault at each of these times (once each), not after fail_after
-    command: float | None = param(None, at_least=-1e9, at_most=1e9)  # writes this to every joint of the port `command` each cycle (N m, rad), and never fails
+    at: tuple[float, ...] = param(
+        (), at_least=0, at_most=1e6)  # s on the run's clock: fault at each of these times (once each), not after fail_after
+    command: float | None = param(
+        None, at_least=-1e9, at_most=1e9)  # written to every joint of the port `command` each cycle (N m, rad); never fails
 
     def __post_init__(self) -> None:
         if self.fail_after < 0:
@@ -62,7 +64,8 @@ class FaultInjectorParams:
 
 
 class FaultInjector(PortBasedObject):
-    """Raises once in `cycle` after `fail_after` cycles or at each time of `at` (or hangs, or aborts the process); `clear` then returns it to OFF."""
+    """Raises once in `cycle` after `fail_after` cycles or at each time of `at` (or hangs, or aborts the
+    process); `clear` then returns it to OFF."""
 
     Params = FaultInjectorParams
 

@@ -32,7 +32,9 @@ class JoinParams:
         if len(set(self.inputs)) != len(self.inputs):
             raise ValueError(f"inputs must not repeat, got: {list(self.inputs)}")
         if self.weights and len(self.weights) != len(self.inputs):
-            raise ValueError(f"weights and inputs must have equal length: |weights| = {len(self.weights)}, |inputs| = {len(self.inputs)}")
+            raise ValueError(
+                f"weights and inputs must have equal length: |weights| = {len(self.weights)}, |inputs| = {len(self.inputs)}"
+            )
         if self.weights and (any(w < 0 for w in self.weights) or sum(self.weights) <= 0):
             raise ValueError(f"weights must be >= 0 and not all zero, got: {list(self.weights)}")
 

@@ -24,7 +24,8 @@ from pbo_runtime import InVar, Status, param
 @dataclass(frozen=True)
 class RobotPositionParams:
     device: str = "arm"  # the YAML device this task opens (listed in its resources), mode: position
-    position_tolerance: float = param(POSITION_TOLERANCE, at_least=0, at_most=1.0)  # rad (m): how far past its range a joint may go before it is a fault
+    position_tolerance: float = param(
+        POSITION_TOLERANCE, at_least=0, at_most=1.0)  # rad (m): how far past its range a joint may go before it is a fault
 
 
 class RobotPosition(RobotInterface):

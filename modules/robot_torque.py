@@ -22,8 +22,10 @@ from pbo_runtime import InVar, Status, param
 @dataclass(frozen=True)
 class RobotTorqueParams:
     device: str = "arm"  # the YAML device this task opens (listed in its resources)
-    saturation_bound: float = param(SATURATION_BOUND, above=0, at_most=10.0)  # s: a torque at its effort limit longer than this is a fault
-    position_tolerance: float = param(POSITION_TOLERANCE, at_least=0, at_most=1.0)  # rad (m): how far past its range a joint may go before it is a fault
+    saturation_bound: float = param(
+        SATURATION_BOUND, above=0, at_most=10.0)  # s: a torque at its effort limit longer than this is a fault
+    position_tolerance: float = param(
+        POSITION_TOLERANCE, at_least=0, at_most=1.0)  # rad (m): how far past its range a joint may go before it is a fault
 
 
 class RobotTorque(RobotInterface):

@@ -42,7 +42,8 @@ class TrackballInput(PortBasedObject):
     """x_d = the pose at `on` + the scripted offset at the time since `on`. Real-time safe cycle."""
 
     Params = TrackballParams
-    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "trackball"}}  # when given: a script or a file opens none
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {
+        "device": {"kind": "trackball"}}  # when given: a script or a file opens none
 
     x_m = InVar("x_m", shape=(6,), doc="measured Cartesian pose (position m, rotation vector rad)")
     x_d = OutVar("x_d", shape=(6,), doc="desired Cartesian pose")
@@ -55,7 +56,9 @@ class TrackballInput(PortBasedObject):
         if params.device:
             ball = self.open_device(params.device)
             if not callable(getattr(ball, "read_offset", None)):
-                raise ModuleError(f"device '{params.device}' is not a trackball (it has no read_offset); give it driver: trackball")
+                raise ModuleError(
+                    f"device '{params.device}' is not a trackball (it has no read_offset); give it driver: trackball"
+                )
             self._read_offset = ball.read_offset
             return
         waypoints = Waypoints.from_csv(params.file) if params.file else Waypoints.from_script(params.script)

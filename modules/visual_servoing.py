@@ -28,8 +28,10 @@ from pbo_runtime import InVar, ModuleError, OutVar, PortBasedObject, Status, par
 @dataclass(frozen=True)
 class VisualServoingParams:
     device: str = "camera"  # the YAML device this task opens (listed in its resources)
-    offset: tuple[float, ...] = param((0.0, 0.0, 0.0), at_least=-100, at_most=100)  # m: the hand's position relative to the target
-    orientation: tuple[float, ...] = param((), at_least=-10, at_most=10)  # rad, the hand's rotation vector; left out: keep x_m's at `on`
+    offset: tuple[float, ...] = param(
+        (0.0, 0.0, 0.0), at_least=-100, at_most=100)  # m: the hand's position relative to the target
+    orientation: tuple[float, ...] = param(
+        (), at_least=-10, at_most=10)  # rad, the hand's rotation vector; left out: keep x_m's at `on`
 
     def __post_init__(self) -> None:
         if len(self.offset) != 3 or not all(math.isfinite(v) for v in self.offset):

@@ -83,7 +83,16 @@ if TYPE_CHECKING:  # what the type checkers and editors see: the same names, eag
     from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
     from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
     from pbo_runtime.links.ros2 import ros2_messages
-    from pbo_runtime.objects.arm import ARM_COLUMNS, EE_COLUMNS, GRAVITY, ROBOT_OPTIONS, ROBOT_SUFFIXES, Arm, arm_model, is_robot_file
+    from pbo_runtime.objects.arm import (
+        ARM_COLUMNS,
+        EE_COLUMNS,
+        GRAVITY,
+        ROBOT_OPTIONS,
+        ROBOT_SUFFIXES,
+        Arm,
+        arm_model,
+        is_robot_file,
+    )
     from pbo_runtime.objects.arm_inertia import arm_gains, inertia_range
     from pbo_runtime.objects.driver import DeviceDriver
     from pbo_runtime.objects.module import NoParams, PortBasedObject, Status

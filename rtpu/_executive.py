@@ -45,13 +45,14 @@ _FLAGS, _STOPPING = int(Header.FLAGS), int(Flag.STOPPING)
 class Scheduled:
     """A task's place in the executive: its next release and its timing record."""
 
-    __slots__ = ("task", "period", "critical", "priority", "release", "release_index", "overruns", "missed", "jitter", "exec_time",
-                 "samples", "jitter_max", "exec_max", "status", "aperiodic", "events", "dropped_events",
-                 "last_release", "stale_reads", "stale_at_switch", "input_periods", "write_times", "stable_cycles",
-                 "held_for", "first_cycle_of_plan", "last_stale", "expected_writers", "input_writers",
-                 "lost_to_switch", "last_lost", "window_lost", "window_stale", "shared_status", "overrun_log",
-                 "long_cycles", "fresh_bounds", "fresh_within", "writer_names", "expired_reads",
-                 "fresh_since", "lock_waits_given_up")
+    __slots__ = (
+        "task", "period", "critical", "priority", "release", "release_index", "overruns", "missed", "jitter", "exec_time",
+        "samples", "jitter_max", "exec_max", "status", "aperiodic", "events", "dropped_events", "last_release", "stale_reads",
+        "stale_at_switch", "input_periods", "write_times", "stable_cycles", "held_for", "first_cycle_of_plan", "last_stale",
+        "expected_writers", "input_writers", "lost_to_switch", "last_lost", "window_lost", "window_stale", "shared_status",
+        "overrun_log", "long_cycles", "fresh_bounds", "fresh_within", "writer_names", "expired_reads", "fresh_since",
+        "lock_waits_given_up",
+    )
 
     def __init__(self, task: Task) -> None:
         self.task = task

@@ -289,8 +289,10 @@ def render(rows: list[dict], report: dict) -> str:
             for name, seconds in held.items():
                 if name != IDLE and not name.startswith("RTPU"):
                     across[name] += seconds
-    lines.append("Besides the RTPUs, across these overruns (ms): "
-                 + (", ".join(f"{name} {s * 1e3:.2f}" for name, s in sorted(across.items(), key=lambda kv: -kv[1])[:6]) or "nobody"))
+    lines.append(
+        "Besides the RTPUs, across these overruns (ms): "
+        + (", ".join(f"{name} {s * 1e3:.2f}" for name, s in sorted(across.items(), key=lambda kv: -kv[1])[:6]) or "nobody")
+    )
     return "\n".join(lines)
 
 

@@ -173,7 +173,9 @@ class MujocoArmDriver(DeviceDriver):
                 f"command: fix the task that computes it")
 
     def _wrong_mode(self, call: str, needs: str) -> str:
-        return f"arm registers {self.registers!r}: {call} needs a driver opened with mode: {needs}; this one has mode: {self.mode}"
+        return (
+            f"arm registers {self.registers!r}: {call} needs a driver opened with mode: {needs}; this one has mode: {self.mode}"
+        )
 
     # occasional ---------------------------------------------------------------------------------
 

@@ -114,7 +114,11 @@ def _source(model: str, base_dir: Path) -> tuple[RobotSource, RobotDescription |
         from drivers.robots.mjcf import to_mjcf
 
         spec = mujoco.MjSpec.from_string(to_mjcf(made, 0.001))
-        velocity = {f"joint{j + 1}": float(v) for j, v in enumerate(made.velocity_limits if made.velocity_limits is not None else ()) if v > 0}
+        velocity = {
+            f"joint{j + 1}": float(v)
+            for j, v in enumerate(made.velocity_limits if made.velocity_limits is not None else ())
+            if v > 0
+        }
         return RobotSource(Path(f"{model}.xml"), spec, "mjcf", velocity=velocity), made, "ee"
     path = Path(str(made))
     return read_robot(path), None, None
@@ -304,7 +308,9 @@ def _start_pose(model: mujoco.MjModel, spec: mujoco.MjSpec, options: Mapping[str
         try:
             q0 = np.array(options["q0"], dtype=np.float64).reshape(-1)
         except (TypeError, ValueError):
-            raise RobotFileError(f"plant option q0 must be a list of {n} numbers (rad), got: {options['q0']!r}", key="q0") from None
+            raise RobotFileError(
+                f"plant option q0 must be a list of {n} numbers (rad), got: {options['q0']!r}", key="q0"
+            ) from None
         if q0.shape != (n,):
             raise RobotFileError(f"plant option q0 must have {n} values for {source.path.name} "
                                  f"({', '.join(model.joint(j).name for j in range(n))}), got: {q0.size}", key="q0")

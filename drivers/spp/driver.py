@@ -295,8 +295,10 @@ class SpecialPurposeProcessor(DeviceDriver):
         """Copy the counts and service times out of the shared memory; the percentiles wait for `figures()`."""
         words = self._words
         items = int(words[W.ITEMS])
-        self._taken = (self._ring[:min(items, RING)].copy(),
-                       (items, int(words[W.MISSED]), int(words[W.SERVICE_NS_MAX]) / 1e9, int(self._n[_CALLS]), int(self._n[_LATE])))
+        self._taken = (
+            self._ring[: min(items, RING)].copy(),
+            (items, int(words[W.MISSED]), int(words[W.SERVICE_NS_MAX]) / 1e9, int(self._n[_CALLS]), int(self._n[_LATE])),
+        )
 
     def close(self) -> None:
         """Stop the processor and unlink what it shared (idempotent); `figures()` keeps their last values."""
@@ -321,7 +323,8 @@ class SpecialPurposeProcessor(DeviceDriver):
             wake.close()
         mapping, self._mapping = self._mapping, None
         if mapping is not None:
-            with contextlib.suppress(BufferError):  # a view of it outlives the driver (a caller kept one): the mapping goes with it
+            # a view of it outlives the driver (a caller kept one): the mapping goes with it
+            with contextlib.suppress(BufferError):
                 mapping.close()
         return lambda: _stop(process)
 

@@ -234,9 +234,13 @@ def as_table(report: BusReport, measured: BusReport | None = None) -> Table:
             row += [_kbs(load.rate_bytes_per_s), _pct(load.rate_bytes_per_s / report.bandwidth)]
         else:
             m = seen.get(load.task)
-            row += [str(m.cycles) if m is not None and m.cycles is not None else NO_VALUE,
-                    _kbs(load.rate_bytes_per_s), _kbs(m.rate_bytes_per_s) if m is not None else NO_VALUE,
-                    _pct(load.rate_bytes_per_s / report.bandwidth), _pct(m.rate_bytes_per_s / measured.bandwidth) if m is not None else NO_VALUE]
+            row += [
+                str(m.cycles) if m is not None and m.cycles is not None else NO_VALUE,
+                _kbs(load.rate_bytes_per_s),
+                _kbs(m.rate_bytes_per_s) if m is not None else NO_VALUE,
+                _pct(load.rate_bytes_per_s / report.bandwidth),
+                _pct(m.rate_bytes_per_s / measured.bandwidth) if m is not None else NO_VALUE,
+            ]
         table.add_row(*row)
     table.add_section()
     style = "bold red" if report.over else "bold"

@@ -11,8 +11,9 @@
 
 Every save is checked like `pbo check` before it replaces the file, and answers with the new job
 dictionary. The file written is the one `pbo hmi FILE` was given, or the run's own
-(`files.subsystem_file`), never a path from the request, and nothing outside its folder is read. Refusals: 400 (the row or value is
-wrong, or the file would not check clean), 409 (the run refused), 404 (no file, or no run).
+(`files.subsystem_file`), never a path from the request, and nothing outside its folder is read.
+Refusals: 400 (the row or value is wrong, or the file would not check clean), 409 (the run refused),
+404 (no file, or no run).
 """
 
 from __future__ import annotations

@@ -63,10 +63,13 @@ def _check_application(args: argparse.Namespace, console: Console, errors: Conso
         app = result.application
         lines = [f"{args.file}: ok: application '{app.name}', {len(app.subsystems)} subsystems, {len(app.links)} link(s)"]
         for key, sub in app.subsystems.items():
-            runs = "".join(f", runs {'application' if k == 'app' else 'configuration'} '{v}'" for k, v in app.run.get(key, {}).items())
+            runs = "".join(
+                f", runs {'application' if k == 'app' else 'configuration'} '{v}'" for k, v in app.run.get(key, {}).items()
+            )
             where = f" on {app.placement[key]} ({app.hosts[app.placement[key]]})" if key in app.placement else ""
             lines.append(f"  subsystem {key}: {sub.file} ('{sub.name}', {len(sub.tasks)} task(s){runs}){where}")
-        lines.extend(stage_lines(app.stages, app.subsystems, _transition_lines))  # run: as parallel stages, joined one after another
+        # run: as parallel stages, joined one after another
+        lines.extend(stage_lines(app.stages, app.subsystems, _transition_lines))
         for link in app.links.values():
             kind = f"messages, {link.capacity} queued at most" if link.kind == "message" else "periodic"
             lines.append(f"  link {link.name}: {link.sender[0]}.{link.sender[1]} -> {link.receiver[0]}.{link.receiver[1]} "
@@ -161,7 +164,9 @@ def _inferred_json(result: Any) -> dict[str, Any]:
         out["robot_limits"] = list(result.robot_limits)
     if result.inferred:
         variables = result.subsystem.variables
-        out["inferred"] = {name: {"type": variables[name].dtype, "shape": list(variables[name].shape)} for name in result.inferred}
+        out["inferred"] = {
+            name: {"type": variables[name].dtype, "shape": list(variables[name].shape)} for name in result.inferred
+        }
     return out
 
 

@@ -54,9 +54,11 @@ def _names(kind: str) -> dict[str, Any]:
     function = f"_pbo_complete_{kind}"
     return {
         "bash": function,
-        "zsh": f"(${{(f)\"$(pbo {HIDDEN_VERB} {kind} ${{words[@]}} 2>/dev/null)\"}})",
+        "zsh": f'(${{(f)"$(pbo {HIDDEN_VERB} {kind} ${{words[@]}} 2>/dev/null)"}})',
         "tcsh": f"`pbo {HIDDEN_VERB} {kind} $COMMAND_LINE`",
-        "preamble": {"bash": f'{function}() {{ compgen -W "$(pbo {HIDDEN_VERB} {kind} "${{COMP_WORDS[@]}}" 2>/dev/null)" -- "$1"; }}'},
+        "preamble": {
+            "bash": f'{function}() {{ compgen -W "$(pbo {HIDDEN_VERB} {kind} "${{COMP_WORDS[@]}}" 2>/dev/null)" -- "$1"; }}'
+        },
     }
 
 

@@ -58,7 +58,8 @@ def main(argv: list[str] | None = None) -> int:
         errors.print(str(exc), markup=False)
         _say_where_an_example_is(args, errors)
         return EXIT_CONFIG
-    except (BadRequest, WrongArgument, MissingExtra) as exc:  # arguments the run refused (an operator's command, `--config nope`): bad input
+    # arguments the run refused (an operator's command, `--config nope`): bad input
+    except (BadRequest, WrongArgument, MissingExtra) as exc:
         errors.print(f"error: {exc}", markup=False)
         return EXIT_CONFIG
     except PboError as exc:

@@ -105,7 +105,8 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
         errors.print(f"error: {refused}", markup=False)
         return EXIT_CONFIG
     say = _sayer(console)
-    supervisor = Supervisor(subsystem, args.config, duration, say=say, options=options, fork_server=fork_server)  # refuses a bad request here
+    # refuses a bad request here
+    supervisor = Supervisor(subsystem, args.config, duration, say=say, options=options, fork_server=fork_server)
     what = (f"application '{args.app}'" if args.app else f"{args.switches} switches" if alternate
             else "Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner")
     rtpus = f"{len(subsystem.rtpus)} RTPU{'s' if len(subsystem.rtpus) != 1 else ''}"

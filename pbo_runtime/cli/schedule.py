@@ -124,11 +124,17 @@ def diagnostics(subsystem: Subsystem, costs: Mapping[str, Cost], results: Mappin
                         loc.file, loc.line, loc.column,
                         hint=_remedy(subsystem, costs, configuration, v, kept, verdicts, profile)))
                 elif v.status == MAY_MISS and v.response is not None:
-                    warnings.append(ConfigError(
-                        f"task '{v.task}' can miss its deadline on RTPU '{rtpu}' {where}: {_late(v, verdicts)}",
-                        loc.file, loc.line, loc.column,
-                        hint="not critical: the executive runs it after every critical cycle; it overruns, the critical tasks do not",
-                        severity="warning"))
+                    warnings.append(
+                        ConfigError(
+                            f"task '{v.task}' can miss its deadline on RTPU '{rtpu}' {where}: {_late(v, verdicts)}",
+                            loc.file,
+                            loc.line,
+                            loc.column,
+                            hint="not critical: the executive runs it after every critical cycle; it overruns, "
+                            "the critical tasks do not",
+                            severity="warning",
+                        )
+                    )
                 elif v.status == UNKNOWN and v.critical:
                     missing = [u.task for u in verdicts if u.cost is None]
                     warnings.append(ConfigError(
@@ -170,7 +176,8 @@ def _remedy(subsystem: Subsystem, costs: Mapping[str, Cost], configuration: str,
 
 
 def check_profile(args: Any, console: Console, errors: Console, subsystem: Subsystem) -> tuple[int, dict[str, Any]]:
-    """`pbo check FILE --profile RUN`: print (or return, for --format json) the verdicts; exit 1 on a refuted critical deadline."""
+    """`pbo check FILE --profile RUN`: print (or return, for --format json) the verdicts; exit 1 on a
+    refuted critical deadline."""
     costs, notes, report = load_profile(Path(args.profile), subsystem, args.exec_time)
     results = analyse(subsystem, costs)
     found, warned = diagnostics(subsystem, costs, results, report)

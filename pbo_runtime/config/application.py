@@ -328,9 +328,13 @@ def _check_links(root: YMap, application: Application, error: Error) -> None:
             continue
         port = spec.get("port", 0)
         if "port" in spec and (transport != "zenoh" or endpoint):
-            error("E812", f"link '{name}' takes no port: " + ("its endpoint names one" if endpoint else f"its transport is {transport}"),
-                  spec.key_loc("port"), "a port is where a zenoh link's listening end listens on its host; "
-                                        "give either port: or endpoint:, and only with transport: zenoh")
+            error(
+                "E812",
+                f"link '{name}' takes no port: " + ("its endpoint names one" if endpoint else f"its transport is {transport}"),
+                spec.key_loc("port"),
+                "a port is where a zenoh link's listening end listens on its host; "
+                "give either port: or endpoint:, and only with transport: zenoh",
+            )
             continue
         if "port" in spec and (not isinstance(port, int) or isinstance(port, bool) or not 0 < port < 65536):
             error("E812", f"link '{name}': port must be a TCP port from 1 to 65535, got {port!r}", spec.value_loc("port"),
@@ -422,8 +426,12 @@ def _check_link_ends(application: Application, error: Error) -> None:
                 continue
             link = task.params.get("link")
             if link not in application.links:
-                error("E804", f"task '{task.name}' of subsystem '{key}' uses link '{link}', which the application does not declare",
-                      task.loc, f"links: {', '.join(application.links) or 'none'}; declare it under links:")
+                error(
+                    "E804",
+                    f"task '{task.name}' of subsystem '{key}' uses link '{link}', which the application does not declare",
+                    task.loc,
+                    f"links: {', '.join(application.links) or 'none'}; declare it under links:",
+                )
                 continue
             spec = application.links[link]
             if spec.kind != kind:
@@ -476,9 +484,12 @@ def _check_placement(application: Application, error: Error) -> None:
     if placed:
         for key in application.subsystems:
             if key not in application.placement:
-                error("E810", f"subsystem '{key}' names no host, while '{placed[0]}' is placed on '{application.placement[placed[0]]}'",
-                      application.entry_locs.get(key, NOWHERE),
-                      f"place every subsystem: {key}: {{config: FILE, host: HOST}} (inline: host: HOST beside its keys)")
+                error(
+                    "E810",
+                    f"subsystem '{key}' names no host, while '{placed[0]}' is placed on '{application.placement[placed[0]]}'",
+                    application.entry_locs.get(key, NOWHERE),
+                    f"place every subsystem: {key}: {{config: FILE, host: HOST}} (inline: host: HOST beside its keys)",
+                )
         if any(key not in application.placement for key in application.subsystems):
             return
     listeners: dict[tuple[str, int], str] = {}

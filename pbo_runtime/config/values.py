@@ -63,7 +63,8 @@ def element_problem(leaf: Any, dtype: str) -> str:
     if isinstance(leaf, float) and not math.isfinite(leaf):
         return f"{dtype} elements must be finite numbers, got: {_written(leaf)}"
     if isinstance(leaf, int) and abs(leaf) > int(np.finfo(dtype).max):
-        return f"{dtype} elements must be finite numbers, got: an integer of {len(str(abs(leaf)))} digits, beyond the largest {dtype}"
+        digits = len(str(abs(leaf)))
+        return f"{dtype} elements must be finite numbers, got: an integer of {digits} digits, beyond the largest {dtype}"
     return ""
 
 

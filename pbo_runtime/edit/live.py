@@ -163,7 +163,9 @@ class LiveDescription:
         """A live-tunable parameter of a task set to the value the operator wrote (one value, or a list)."""
         spec = self._task(task)
         module_class = self.module_lookup(spec.module)
-        fields = [f.name for f in dataclasses.fields(module_class.Params)] if dataclasses.is_dataclass(module_class.Params) else []
+        fields = (
+            [f.name for f in dataclasses.fields(module_class.Params)] if dataclasses.is_dataclass(module_class.Params) else []
+        )
         tunable = tuple(getattr(module_class, "TUNABLE", ()))
         if param not in fields:
             close = closest_name(param, fields)
@@ -173,7 +175,9 @@ class LiveDescription:
         if param not in tunable:
             raise LiveChangeRefused(
                 f"parameter '{param}' of task '{task}' is not live-tunable: module '{spec.module}' reads it in init only "
-                f"(live-tunable: {', '.join(tunable) or 'none'}); to change it, replace the task: pbo replace {task} NEW --param {param}=...")
+                f"(live-tunable: {', '.join(tunable) or 'none'}); to change it, replace the task: "
+                f"pbo replace {task} NEW --param {param}=..."
+            )
         if not texts:
             raise LiveChangeRefused(f"pbo set {task} {param} needs a value")
         where = f"pbo set {task} {param}"

@@ -259,7 +259,9 @@ class ControlClient:
                 raise limits.explain(exc, doing, [reply_queue]) or PboError(f"{doing}: {exc}") from None
             raw = msgpack.packb([command, reply_name, dict(arguments or {})], default=plain)
             if len(raw) > REQUEST_BYTES:
-                raise PboError(f"the request '{command}' has {len(raw)} bytes, more than the control queue takes ({REQUEST_BYTES})")
+                raise PboError(
+                    f"the request '{command}' has {len(raw)} bytes, more than the control queue takes ({REQUEST_BYTES})"
+                )
             try:
                 control.send(raw, timeout=max(deadline - time.monotonic(), 0.0))
             except posix_ipc.BusyError:

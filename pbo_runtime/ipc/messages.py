@@ -335,9 +335,10 @@ class ChildExited:
 
 Event = (Ready | StateChanged | Switched | Window | FirstCycle | Stable | Stats | PlantStats | PlantStalled | Refused | Staged
          | Crashed | ChildExited)
-EVENT_TYPES: dict[str, type[Event]] = {cls.KIND: cls for cls in
-                                       (Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled,
-                                        Refused, Staged, Crashed, ChildExited)}
+EVENT_TYPES: dict[str, type[Event]] = {cls.KIND: cls for cls in (
+    Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled, Refused, Staged, Crashed,
+    ChildExited,
+)}
 _FIELDS: dict[type, tuple[str, ...]] = {cls: tuple(f.name for f in dataclasses.fields(cls))
                                         for cls in (*SIGNAL_TYPES.values(), *EVENT_TYPES.values())}
 

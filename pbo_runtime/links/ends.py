@@ -133,4 +133,6 @@ def _transport(transport: str) -> str:
 def _no_zenoh_options(name: str, port: int | None, session: Any) -> None:
     given = [what for what, value in (("port", port), ("session", session)) if value is not None]
     if given:
-        raise LinkError(f"link '{name}' uses transport 'shm', which takes no {' or '.join(given)} (those are for transport 'zenoh')")
+        raise LinkError(
+            f"link '{name}' uses transport 'shm', which takes no {' or '.join(given)} (those are for transport 'zenoh')"
+        )

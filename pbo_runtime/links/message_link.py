@@ -106,7 +106,9 @@ class MessageLink:
         if capacity < 1:
             raise MessageLinkError(f"message link '{name}': capacity must be >= 1, got: {capacity}")
         if max_message_bytes < ENVELOPE_BYTES:
-            raise MessageLinkError(f"message link '{name}': max_message_bytes must be >= {ENVELOPE_BYTES}, got: {max_message_bytes}")
+            raise MessageLinkError(
+                f"message link '{name}': max_message_bytes must be >= {ENVELOPE_BYTES}, got: {max_message_bytes}"
+            )
         try:
             queue = posix_ipc.MessageQueue(
                 name, posix_ipc.O_CREX, mode=0o600, max_messages=capacity, max_message_size=max_message_bytes

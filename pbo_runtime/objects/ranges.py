@@ -36,7 +36,8 @@ class Range:
         """The range in words an engineer reads at once: 'in [0, 1e+06]', 'in (0, 100]', '> 0, or .inf for no limit'."""
         low_finite, high_finite = math.isfinite(self.low), math.isfinite(self.high)
         if low_finite and high_finite:
-            return f"in {'(' if self.low_open else '['}{number_text(self.low)}, {number_text(self.high)}{')' if self.high_open else ']'}"
+            opening, closing = "(" if self.low_open else "[", ")" if self.high_open else "]"
+            return f"in {opening}{number_text(self.low)}, {number_text(self.high)}{closing}"
         words = "a finite number" if self.high_open or high_finite else "a number"
         if low_finite:
             words += f" {'>' if self.low_open else '>='} {number_text(self.low)}"

@@ -119,7 +119,9 @@ class DeviceDatabase:
             if spec.io is None:
                 return openings
             if spec.io.device not in devices or any(o.device.name == spec.io.device for o in openings):
-                raise DeviceOpenError(f"device '{spec.name}' is wired (io:) to '{spec.io.device}', which is not an I/O device of this subsystem")
+                raise DeviceOpenError(
+                    f"device '{spec.name}' is wired (io:) to '{spec.io.device}', which is not an I/O device of this subsystem"
+                )
             io = spec.io
             spec, channels = devices[io.device], io.channels
 

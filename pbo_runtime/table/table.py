@@ -284,7 +284,9 @@ class StateTable:
         # sets it; the transfers read it through this one-element list, set once per turn-on).
         self.cycle_lock_wait: list[float | None] = [None]
         self.header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
-        self._views = {code: np.frombuffer(mapping, dtype=code, count=layout.total_bytes // np.dtype(code).itemsize) for code in DTYPE_CODES}
+        self._views = {
+            code: np.frombuffer(mapping, dtype=code, count=layout.total_bytes // np.dtype(code).itemsize) for code in DTYPE_CODES
+        }
         self.words = self._views["float64"]
         status = layout.status_offset // 8
         self.status = self.words[status : status + STATUS_WORDS * max(layout.n_tasks, 1)].reshape(-1, STATUS_WORDS)
@@ -333,7 +335,9 @@ class StateTable:
 
         def check(mapping: mmap.mmap | memoryview) -> None:
             header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
-            magic, version, found_hash, total = (int(header[i]) for i in (Header.MAGIC, Header.VERSION, Header.LAYOUT_HASH, Header.TOTAL_BYTES))
+            magic, version, found_hash, total = (
+                int(header[i]) for i in (Header.MAGIC, Header.VERSION, Header.LAYOUT_HASH, Header.TOTAL_BYTES)
+            )
             del header  # no view may outlive a mapping the segment closes
             if magic != MAGIC or version != VERSION:
                 raise TableLayoutError(f"'{name}' is not a pbo state variable table of version {VERSION}")

@@ -397,9 +397,9 @@ class Task:
         return Status.ERROR
 
     def _run_kill(self, after_init: bool = False) -> None:
-        """kill, then close what the task opened (what `closes_slowly`, a message link's relay, and the
-        rest of a driver's `close_now`, in the RTPU's background thread). After init, a kill that raises goes to the error component too
-        (for the record: the task is killed whatever it answers)."""
+        """kill, then close what the task opened (what `closes_slowly`, a message link's relay, and the rest
+        of a driver's `close_now`, in the RTPU's background thread). After init, a kill that raises goes to
+        the error component too (for the record: the task is killed whatever it answers)."""
         try:
             self.module.kill()
         except Exception as exc:

@@ -114,7 +114,12 @@ class LocalTable:
         self._out_const = _Region(table, out_const, task_index, 0)
         self._out_var = _Region(table, out_var, task_index, int(StatusWord.USED))
         by_binding: dict[int, np.ndarray] = {}
-        for region, members in ((self._in_var, in_var), (self._in_const, in_const), (self._out_var, out_var), (self._out_const, out_const)):
+        for region, members in (
+            (self._in_var, in_var),
+            (self._in_const, in_const),
+            (self._out_var, out_var),
+            (self._out_const, out_const),
+        ):
             for binding, array in zip(members, region.arrays, strict=True):
                 by_binding.setdefault(id(binding), array)
         self._both_in = [(self._in_const.arrays[in_const.index(b)], by_binding[id(b)]) for b in in_const if b in in_var]

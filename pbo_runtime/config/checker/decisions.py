@@ -187,6 +187,10 @@ class DecisionChecks(CheckerBase):
             return self.fill_application(app, number, used, inner)
         if used.gaps:
             gaps.append(Gap(number, step.job, used.object_type))
-            self.warn("W702", f"application '{app}' is incomplete: step {number} uses the incomplete application '{step.job}'",
-                      step.loc, f"fill the gaps of '{step.job}', or give it an object; an incomplete application may be kept but not run")
+            self.warn(
+                "W702",
+                f"application '{app}' is incomplete: step {number} uses the incomplete application '{step.job}'",
+                step.loc,
+                f"fill the gaps of '{step.job}', or give it an object; an incomplete application may be kept but not run",
+            )
         return step

@@ -139,7 +139,9 @@ class VariableChecks(CheckerBase):
         return filled
 
     def check_variables(self, top: YMap) -> None:
-        for name, value, key_loc, value_loc in self.entries(top, "variables", "variable", "e.g. variables: {q_m: {type: float64, shape: [NDOF]}}"):
+        for name, value, key_loc, value_loc in self.entries(
+            top, "variables", "variable", "e.g. variables: {q_m: {type: float64, shape: [NDOF]}}"
+        ):
             self.var_locs[name] = key_loc
             # (a mapping, as nearly always, needs no location and no message: they are made for the error only)
             spec = value if isinstance(value, YMap) else self.mapping(
@@ -155,7 +157,9 @@ class VariableChecks(CheckerBase):
                 if not isinstance(raw, str):
                     self.text(raw, spec.value_loc("type"), f"type of variable '{name}'")
                 elif raw not in DTYPES:
-                    self.error("E303", f"variable '{name}' has unknown type '{raw}'", spec.value_loc("type"), did_you_mean(raw, DTYPES))
+                    self.error(
+                        "E303", f"variable '{name}' has unknown type '{raw}'", spec.value_loc("type"), did_you_mean(raw, DTYPES)
+                    )
                 else:
                     dtype = _dtype_name(raw)
             shape: tuple[int, ...] | None = ()

@@ -143,7 +143,7 @@ class Plans:
                 if index == s.task.index and params != s.task.spec.params and s.task.state != TaskState.KILLED:
                     spec = stage.spec(name)
                     tunes[name] = (spec, s.task.tune_params(spec))  # built now: the boundary only calls tune
-        except Exception as exc:  # noqa: BLE001 - job control refuses the change and says why
+        except Exception as exc:  # job control refuses the change and says why
             self.report(messages.Staged(sequence, f"{type(exc).__name__}: {exc}"))
             return
         self.staged, self.staged_tunes = stage, tunes
@@ -157,5 +157,5 @@ class Plans:
         for name, (spec, params) in tunes.items():
             try:
                 tasks[name].task.tune(spec, params)
-            except Exception as exc:  # noqa: BLE001 - the checker passed the values: a module that refuses them says why
+            except Exception as exc:  # the checker passed the values: a module that refuses them says why
                 self.report(Refused(name, f"tune: {exc}"))

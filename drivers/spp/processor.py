@@ -156,7 +156,7 @@ def _download(words: np.ndarray, download: np.ndarray, memory: int) -> routines.
         if max(routine.in_size, routine.out_size) > memory:
             raise ValueError(f"routine {blob['routine']} needs {max(routine.in_size, routine.out_size)} numbers of memory "
                              f"for its inputs or outputs; the processor has {memory}: raise the device's option memory")
-    except Exception as exc:  # noqa: BLE001 - the driver raises it in the task's init, with the reason
+    except Exception as exc:  # the driver raises it in the task's init, with the reason
         text = f"{type(exc).__name__}: {exc}".encode()[: download.size]
         download[:len(text)] = np.frombuffer(text, dtype=np.uint8)
         words[W.ANSWER_BYTES] = len(text)

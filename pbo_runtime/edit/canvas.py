@@ -304,7 +304,7 @@ def task_pins(subsystem: Subsystem | None, tasks: Sequence[CanvasTask],
             continue
         try:
             declared = module_lookup(task.module).ports()
-        except Exception:  # noqa: BLE001 - an unknown module is the checker's error (E207), shown on the block
+        except Exception:  # an unknown module is the checker's error (E207), shown on the block
             declared = []
         pins[task.name] = [Pin(p.name, p.kind.value, task.ports.get(p.name, "").strip() or p.variable, p.dtype,
                                "as variable" if p.shape is None else _shape(p.shape)) for p in declared]

@@ -135,7 +135,7 @@ class ControlServer:
     def _serve(self, raw: bytes, handler: Handler) -> None:
         try:
             request = msgpack.unpackb(raw)
-        except Exception:  # noqa: BLE001 - any garbage on the queue: nobody to answer
+        except Exception:  # any garbage on the queue: nobody to answer
             self.dropped += 1
             return
         reply_to = request[1] if isinstance(request, list) and len(request) >= 2 else None
@@ -205,7 +205,7 @@ def answer(handler: Handler, command: str, arguments: dict[str, Any]) -> dict[st
         return {"ok": False, "error": str(exc.args[0]) if len(exc.args) == 1 else str(exc)}
     except (PboError, ValueError) as exc:
         return {"ok": False, "error": str(exc)}
-    except Exception as exc:  # noqa: BLE001 - an operator's request must never bring the run down
+    except Exception as exc:  # an operator's request must never bring the run down
         return {"ok": False, "error": f"internal error in the supervisor serving '{command}' "
                                       f"(please report this): {type(exc).__name__}: {exc}"}
 
@@ -277,7 +277,7 @@ class ControlClient:
                 shm.unlink_quietly("mq", reply_name)
         try:
             reply = msgpack.unpackb(answer, strict_map_key=False)
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             raise PboError(f"{who} sent a reply that is not msgpack: {exc}") from None
         if not isinstance(reply, dict) or "ok" not in reply:
             raise PboError(f"{who} sent a malformed reply to '{command}': {reply!r:.200}")

@@ -48,7 +48,8 @@ class FaultInjectorParams:
     at: tuple[float, ...] = param(
         (), at_least=0, at_most=1e6)  # s on the run's clock: fault at each of these times (once each), not after fail_after
     command: float | None = param(
-        None, at_least=-1e9, at_most=1e9)  # written to every joint of the port `command` each cycle (N m, rad); never fails
+        None, at_least=-1e9,
+        at_most=1e9)  # writes this to every joint of the port `command` each cycle (N m, rad), and never fails
 
     def __post_init__(self) -> None:
         if self.fail_after < 0:

@@ -1,7 +1,7 @@
 """The velocity- and acceleration-limited motion law shared by the trajectory generators.
 
 Every cycle each component steers towards the largest speed from which steps of a·dt can still
-stop at the goal, v (v + a·dt) / (2a) = |e|, i.e. v = sqrt((a·dt/2)² + 2a|e|) − a·dt/2 (the
+stop at the goal, v (v + a·dt) / (2a) = |e|, i.e. v = sqrt((a·dt/2)² + 2a|e|) - a·dt/2 (the
 discrete-time braking curve; the continuous sqrt(2a|e|) overshoots), capped by v_max; it lands
 exactly on the goal only from a speed one acceleration step can stop, so both limits hold on
 every cycle, arrival included. Limits may differ per component (linear and angular parts of a

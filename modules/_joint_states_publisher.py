@@ -18,6 +18,7 @@ the RTPU died.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import mmap
 import os
@@ -61,7 +62,8 @@ class JointStatesPublisher:
         child_fds = (self._memfd, self._wake, hangup_read, ready_write)
         try:
             self.process = subprocess.Popen(
-                [sys.executable, "-m", "modules._joint_states_publisher", *map(str, child_fds), json.dumps({**setup, "joints": joints})],
+                [sys.executable, "-m", "modules._joint_states_publisher", *map(str, child_fds),
+                 json.dumps({**setup, "joints": joints})],
                 pass_fds=child_fds, stdin=subprocess.DEVNULL)
         finally:
             os.close(hangup_read)
@@ -116,10 +118,8 @@ def _read_until_closed(fd: int, patience: float) -> bytes:
 
 def _serve(memfd: int, wake: int, hangup: int, ready: int, setup: dict[str, Any]) -> None:
     """The child: make the node's writer, say ready, publish the newest record at each wake until the hang-up."""
-    try:
+    with contextlib.suppress(OSError):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # (the RTPU's children start there already)
-    except OSError:
-        pass
     try:
         from pbo_runtime import ros2_messages
 

@@ -19,13 +19,15 @@ whole one, and not marked complete.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import mmap
 import os
 import struct
 import subprocess
 import sys
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -107,10 +109,8 @@ class McapEncoder:
     def stop(self, patience: float = 5.0) -> None:
         """Close the pipes; the child ends (having finished or not); killed if it does not within `patience`."""
         for fd in (self._commands, self._replies):
-            try:
+            with contextlib.suppress(OSError):
                 os.close(fd)
-            except OSError:
-                pass
         try:
             self.process.wait(timeout=patience)
         except subprocess.TimeoutExpired:
@@ -185,10 +185,8 @@ class PendingBytes:
             os.lseek(self.fd, self.committed, os.SEEK_SET)
             write_all(self.fd, self.held)
         except OSError:
-            try:
+            with contextlib.suppress(OSError):
                 os.ftruncate(self.fd, self.committed)
-            except OSError:
-                pass
             raise
         self.committed += len(self.held)
         self.held.clear()
@@ -290,9 +288,9 @@ class McapLog:
         times = chunk["time"].tolist()
         stamps = (np.rint(chunk["time"] * 1e9).astype(np.int64) + self.unix_offset_ns).tolist()
         columns = [(channel, _json_values(chunk[name], floating))
-                   for channel, name, floating in zip(self.channels, self.names, self.floats)]
+                   for channel, name, floating in zip(self.channels, self.names, self.floats, strict=True)]
         add, dumps = self.writer.add_message, json.dumps
-        for row, (at, stamp) in enumerate(zip(times, stamps)):
+        for row, (at, stamp) in enumerate(zip(times, stamps, strict=True)):
             for channel, values in columns:
                 data = f'{{"time":{at!r},"value":{dumps(values[row])}}}'.encode()
                 add(channel, log_time=stamp, data=data, publish_time=stamp, sequence=row)
@@ -302,7 +300,7 @@ class McapLog:
         assert self.ros2 is not None
         stamps = (np.rint(chunk["time"] * 1e9).astype(np.int64) + self.unix_offset_ns).tolist()
         add = self.writer.add_message
-        for channel, name in zip(self.channels, self.names):
+        for channel, name in zip(self.channels, self.names, strict=True):
             serialize = self.ros2.serializer(name)
             column = chunk[name].reshape(len(chunk), -1)
             for row, stamp in enumerate(stamps):
@@ -319,7 +317,8 @@ def _json_values(column: np.ndarray, floating: bool) -> list[Any]:
     if floating and not np.isfinite(column).all():
         column = column.astype(object)
         column[~np.isfinite(column.astype(np.float64))] = None
-    return column.tolist()
+    values: list[Any] = column.tolist()
+    return values
 
 
 def _json_schema(name: str, dtype: np.dtype, shape: tuple[int, ...], unit: str, doc: str) -> dict[str, Any]:
@@ -340,8 +339,9 @@ class Ros2Messages:
     (a dimension per axis, ROS's strides): what rosbag2 and the ROS 2 tools read. Built with the
     `rosbags` type store (the `ros2` extra)."""
 
-    TYPES = {"f4": "Float32", "f8": "Float64", "i1": "Int8", "i2": "Int16", "i4": "Int32", "i8": "Int64",
-             "u1": "UInt8", "u2": "UInt16", "u4": "UInt32", "u8": "UInt64", "b1": "UInt8"}
+    TYPES: ClassVar[Mapping[str, str]] = {
+        "f4": "Float32", "f8": "Float64", "i1": "Int8", "i2": "Int16", "i4": "Int32", "i8": "Int64",
+        "u1": "UInt8", "u2": "UInt16", "u4": "UInt32", "u8": "UInt64", "b1": "UInt8"}
 
     def __init__(self) -> None:
         from rosbags.typesys import Stores, get_typestore
@@ -357,7 +357,7 @@ class Ros2Messages:
         strides = [int(np.prod(shape[i:], dtype=int)) for i in range(len(shape))]
         layout = types["std_msgs/msg/MultiArrayLayout"](
             dim=[types["std_msgs/msg/MultiArrayDimension"](label=f"dim{i}", size=size, stride=stride)
-                 for i, (size, stride) in enumerate(zip(shape, strides))], data_offset=0)
+                 for i, (size, stride) in enumerate(zip(shape, strides, strict=True))], data_offset=0)
         message, serialize, wire = types[typename], self.store.serialize_cdr, np.dtype("u1" if kind == "b1" else kind)
         self._serializers[name] = lambda values: bytes(serialize(message(layout=layout, data=values.astype(wire)), typename))
         return typename, self.store.generate_msgdef(typename, ros_version=2)[0]
@@ -368,14 +368,10 @@ class Ros2Messages:
 
 def _step_aside() -> None:
     """Leave the CPU to the RTPU: SCHED_OTHER (a child inherits the executive's SCHED_FIFO), niced."""
-    try:
+    with contextlib.suppress(OSError):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except OSError:
-        pass
-    try:
+    with contextlib.suppress(OSError):
         os.nice(NICE)
-    except OSError:
-        pass
 
 
 def _serve(commands: int, replies: int) -> None:
@@ -392,7 +388,7 @@ def _serve(commands: int, replies: int) -> None:
     resume_at = tuple(setup["resume_at"]) if setup.get("resume_at") else None
     try:
         log = McapLog(setup["log_fd"], dtype, columns, setup["run"], setup["task"], setup["period"],
-                      resume_at=resume_at, encoding=setup.get("encoding", "json"))  # type: ignore[arg-type]
+                      resume_at=resume_at, encoding=setup.get("encoding", "json"))
     except OSError as exc:  # the preamble could not be written: said to the logger, and the log ends here
         _send(replies, {"rows": 0, "errno": exc.errno, "strerror": exc.strerror or str(exc)})
         return
@@ -420,7 +416,5 @@ if __name__ == "__main__":
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_DFL)  # a stop signal ends it as SIGTERM does, with no traceback
-    try:
+    with contextlib.suppress(BrokenPipeError):  # the logger's process died (its RTPU killed): the log ends at its last chunk
         _serve(int(sys.argv[1]), int(sys.argv[2]))
-    except BrokenPipeError:  # the logger's process died (its RTPU killed): the log ends at its last chunk
-        pass

@@ -30,7 +30,9 @@ class ModelBased(PortBasedObject):
         """A `frame` param names a frame of the model `arm_model` builds: ee, link<i>, joint<i>."""
         frame, n = getattr(params, "frame", None), dims.get("NDOF")
         if isinstance(frame, str) and frame and isinstance(n, int) and frame not in arm_frames(n):
-            raise ValueError(f"frame must be one of the arm's frames (ee, link1 ... link{n}, joint1 ... joint{n}), got: {frame!r}")
+            raise ValueError(
+                f"frame must be one of the arm's frames (ee, link1 ... link{n}, joint1 ... joint{n}), got: {frame!r}"
+            )
 
     def build_model(self) -> None:
         self._model = arm_model(self.arm_table, self.end_effector)

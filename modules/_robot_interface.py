@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from typing import Any
 
-
 from modules._robot_limits import POSITION_TOLERANCE, SATURATION_BOUND, ArmLimits
 from pbo_runtime import Arm, ModuleError, OutConst, OutVar, PortBasedObject, Status
 
@@ -29,7 +28,9 @@ class RobotInterface(PortBasedObject):
     """Base of robot_torque and robot_position: consts, measured state, brakes."""
 
     ndof = OutConst("NDOF", dtype="int32", doc="number of joints")
-    arm_table = OutConst("ARM", shape=("NDOF", Arm.WIDTH), doc="the arm's joint table: a row per joint (pbo_runtime.ARM_COLUMNS, SI)")
+    arm_table = OutConst(
+        "ARM", shape=("NDOF", Arm.WIDTH), doc="the arm's joint table: a row per joint (pbo_runtime.ARM_COLUMNS, SI)"
+    )
     end_effector = OutConst("EE", shape=(Arm.EE_WIDTH,), doc="where the end effector is (pbo_runtime.EE_COLUMNS, m)")
     q_m = OutVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
     qd_m = OutVar("qd_m", shape=("NDOF",), doc="measured joint velocity, rad/s")

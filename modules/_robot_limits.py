@@ -97,7 +97,8 @@ class ArmLimits:
             if self._counting:
                 self._drain()
             return False
-        if np.count_nonzero(np.isfinite(tau, out=self._long)) != self.ndof:  # not a command to clip: the driver refuses it as it is
+        # not a command to clip: the driver refuses it as it is
+        if np.count_nonzero(np.isfinite(tau, out=self._long)) != self.ndof:
             np.copyto(out, tau)
             return False
         np.maximum(tau, self.effort_low, out=out)  # np.clip's Python layers allocate

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from modules._channels import check_one_element_a_channel, open_channels
 from pbo_runtime import OutVar, PortBasedObject, Status
@@ -23,7 +23,7 @@ class AnalogInput(PortBasedObject):
     """v = the lent ADC channels' voltages. Real-time safe cycle."""
 
     Params = AnalogInputParams
-    DEVICES = {"device": {"kind": "adc"}}
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "adc"}}
 
     v = OutVar("v_in", shape=None, doc="voltages of the lent ADC channels, V, in channel order (one element each)")
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from modules._channels import check_one_element_a_channel, open_channels
 from pbo_runtime import InVar, PortBasedObject, Status
@@ -24,7 +24,7 @@ class AnalogOutput(PortBasedObject):
     """The lent DAC channels = v. Real-time safe cycle."""
 
     Params = AnalogOutputParams
-    DEVICES = {"device": {"kind": "dac"}}
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "dac"}}
 
     v = InVar("v_out", shape=None, doc="voltages for the lent DAC channels, V, in channel order (one element each)")
 

@@ -4,7 +4,7 @@ A smooth Cartesian reference x_r from where the arm is (x_m, when turned on) to 
 x_d. Each of the six components moves independently with bounded velocity and acceleration,
 by the same discrete-time braking law as joint_trajectory: every cycle it steers towards the
 largest speed from which steps of a·dt can still stop at the goal,
-v = sqrt((a·dt/2)² + 2a|e|) − a·dt/2, capped by v_max, and it lands exactly on the goal only
+v = sqrt((a·dt/2)² + 2a|e|) - a·dt/2, capped by v_max, and it lands exactly on the goal only
 from a speed one acceleration step can stop, so the limits hold on every cycle. The position
 components (m) use the linear limits, the rotation-vector components (rad) the angular ones.
 

@@ -67,8 +67,10 @@ class CombinedParams:
             declared = {p.name: p for p in cls.ports_for(params)}
             unknown_ports = sorted(set(relinks) - set(declared))
             if unknown_ports:
-                raise ValueError(f"member {number} ({entry['module']}) has no port(s) {', '.join(repr(p) for p in unknown_ports)} "
-                                 f"(ports: {', '.join(declared)})")
+                raise ValueError(
+                    f"member {number} ({entry['module']}) has no port(s) {', '.join(repr(p) for p in unknown_ports)} "
+                    f"(ports: {', '.join(declared)})"
+                )
             links = tuple((port, str(relinks.get(port.name, port.variable))) for port in declared.values())
             built.append(Member(f"{number}:{entry['module']}", cls, params, links))
         object.__setattr__(self, "built", tuple(built))
@@ -148,7 +150,7 @@ class Combined(PortBasedObject):
         return tuple(ports.values())
 
     def init(self, params: CombinedParams) -> None:
-        external = {spec.variable: array for spec, array in zip(type(self).ports_for(params), self.bound_arrays)}
+        external = {spec.variable: array for spec, array in zip(type(self).ports_for(params), self.bound_arrays, strict=True)}
         dims = self._pbo_context.dims
         local: dict[str, np.ndarray] = {}
         for variable in params.local_variables():
@@ -160,11 +162,11 @@ class Combined(PortBasedObject):
         for member in params.built:
             instance = member.cls.__new__(member.cls)
             arrays = []
-            for port, variable in member.links:
+            for _port, variable in member.links:
                 # a local link is a private array; an exported one is the writer's output, read in place
                 arrays.append(local[variable] if variable in local else external[variable])
             instance._pbo_ports = arrays
-            instance._pbo_context = _MemberContext(self._pbo_context, {p.name: v for p, v in member.links},  # type: ignore[assignment]
+            instance._pbo_context = _MemberContext(self._pbo_context, {p.name: v for p, v in member.links},
                                                    set(external))
             instance.init(member.params)
             self._members.append(instance)
@@ -192,7 +194,7 @@ class Combined(PortBasedObject):
 
     def tune(self, params: CombinedParams) -> None:
         """`pbo set TASK N.kp`: each member whose parameters changed takes its new ones."""
-        for index, (member, new) in enumerate(zip(self._members, params.built)):
+        for index, (member, new) in enumerate(zip(self._members, params.built, strict=True)):
             if new.params != self._params[index]:
                 member.tune(new.params)
                 self._params[index] = new.params

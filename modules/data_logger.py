@@ -47,6 +47,7 @@ writes them first when the task is cleared).
 from __future__ import annotations
 
 import _thread
+import contextlib
 import errno
 import importlib.util
 import io
@@ -54,14 +55,25 @@ import mmap
 import os
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Any
 
 import numpy as np
 
 from modules._mcap_encoder import McapEncoder, resume_point, write_all
-from pbo_runtime import (ANY_DTYPE, InVar, OutputError, PortBasedObject, PortSpec, Status, below_the_cycle, param, read_log,
-                         sleep_while_cycling)
+from pbo_runtime import (
+    ANY_DTYPE,
+    InVar,
+    OutputError,
+    PortBasedObject,
+    PortSpec,
+    Status,
+    below_the_cycle,
+    param,
+    read_log,
+    sleep_while_cycling,
+)
 
 __all__ = ["DataLogger", "DataLoggerParams", "read_log"]
 
@@ -109,13 +121,17 @@ class DataLogger(PortBasedObject):
     @classmethod
     def ports_for(cls, params: DataLoggerParams) -> tuple[PortSpec, ...]:
         extra = tuple(InVar(name, dtype=ANY_DTYPE, shape=None, doc=f"logged variable {name}").spec for name in params.variables)
-        named = tuple(PortSpec(name, p.kind, p.variable, p.dtype, p.shape, p.doc) for name, p in zip(params.variables, extra))
+        named = tuple(
+            PortSpec(name, p.kind, p.variable, p.dtype, p.shape, p.doc) for name, p in zip(params.variables, extra, strict=True)
+        )
         return cls.ports() + named
 
     def init(self, params: DataLoggerParams) -> None:
         arrays = self.bound_arrays[-len(params.variables):]
-        self._dtype = np.dtype([("time", np.float64)] + [(name, a.dtype, a.shape) for name, a in zip(params.variables, arrays)])
-        self._rows = max(1, min(int(round(params.chunk / self.period)), CHUNK_BYTES // self._dtype.itemsize))
+        self._dtype = np.dtype(
+            [("time", np.float64)] + [(name, a.dtype, a.shape) for name, a in zip(params.variables, arrays, strict=True)]
+        )
+        self._rows = max(1, min(round(params.chunk / self.period), CHUNK_BYTES // self._dtype.itemsize))
         # Two chunk buffers: the cycle fills one while the writer writes the other. An MCAP log's
         # are shared with its encoder process (a memfd: nothing to clean up in /dev/shm). Written
         # now: a row in a page never touched would be faulted in by the cycle that writes it.
@@ -131,11 +147,13 @@ class DataLogger(PortBasedObject):
         self._buffers = []
         for index in range(2):
             if self._shared is not None:
-                chunk = np.frombuffer(self._shared, self._dtype, count=self._rows, offset=index * self._rows * self._dtype.itemsize)
+                chunk = np.frombuffer(
+                    self._shared, self._dtype, count=self._rows, offset=index * self._rows * self._dtype.itemsize
+                )
                 chunk.fill(0)
             else:
                 chunk = np.full(self._rows, 0, dtype=self._dtype)
-            pairs = [(_flat_rows(chunk[name]), source) for name, source in zip(params.variables, sources)]
+            pairs = [(_flat_rows(chunk[name]), source) for name, source in zip(params.variables, sources, strict=True)]
             self._buffers.append((chunk, chunk["time"], pairs))
         self._wait_when_full = self.run_metadata.get("clock") == "sim"
         self._current = 0
@@ -424,10 +442,8 @@ class _NpyFile(_LogFile):
             write_all(self.fd, self.buffers[index].data.cast("B")[: rows * self.dtype.itemsize])
             os.pwrite(self.fd, self.header(self.rows + rows), 0)
         except OSError:
-            try:
+            with contextlib.suppress(OSError):
                 os.ftruncate(self.fd, committed)  # no partial chunk after the rows the header counts
-            except OSError:
-                pass
             raise
         self.rows += rows
 
@@ -448,7 +464,7 @@ class _McapProcess(_LogFile):
     The encoder is started by `start`, in the writer thread, not by the RTPU between two cycles;
     it writes a new log's preamble first, then the chunks as they are handed over."""
 
-    def __init__(self, fd: int, buffers_fd: int, dtype: np.dtype, rows: int, setup: dict) -> None:
+    def __init__(self, fd: int, buffers_fd: int, dtype: np.dtype, rows: int, setup: dict[str, Any]) -> None:
         self.fd, self.buffers_fd, self.dtype, self.chunk_rows, self.setup = fd, buffers_fd, dtype, rows, setup
         resume_at = setup["resume_at"]
         self.rows = resume_at[1] if resume_at is not None else 0  # a resumed log's rows so far

@@ -45,8 +45,11 @@ class FaultInjectorParams:
     fault: Literal["raise", "hang", "abort"] = "raise"  # raises once; never returns; or crashes the process (os.abort)
     in_init: bool = False  # the fault happens in init (every time the task is spawned), not after fail_after cycles
     in_on: bool = False  # the fault happens in on (once per run: not in a restarted RTPU), not after fail_after cycles
-    at: tuple[float, ...] = param((), at_least=0, at_most=1e6)  # s on the run's clock: fault at each of these times (once each), not after fail_after
-    command: float | None = param(None, at_least=-1e9, at_most=1e9)  # writes this to every joint of the port `command` each cycle (N m, rad), and never fails
+    at: tuple[float, ...] = param(
+        (), at_least=0, at_most=1e6)  # s on the run's clock: fault at each of these times (once each), not after fail_after
+    command: float | None = param(
+        None, at_least=-1e9,
+        at_most=1e9)  # writes this to every joint of the port `command` each cycle (N m, rad), and never fails
 
     def __post_init__(self) -> None:
         if self.fail_after < 0:
@@ -62,7 +65,8 @@ class FaultInjectorParams:
 
 
 class FaultInjector(PortBasedObject):
-    """Raises once in `cycle` after `fail_after` cycles or at each time of `at` (or hangs, or aborts the process); `clear` then returns it to OFF."""
+    """Raises once in `cycle` after `fail_after` cycles or at each time of `at` (or hangs, or aborts the
+    process); `clear` then returns it to OFF."""
 
     Params = FaultInjectorParams
 
@@ -74,7 +78,7 @@ class FaultInjector(PortBasedObject):
         if params.command is None:
             return cls.ports()
         port = OutVar("tau_u", shape=("NDOF",), doc="the wrong command written every cycle (bind it with ports:)").spec
-        return cls.ports() + (PortSpec("command", port.kind, port.variable, port.dtype, port.shape, port.doc),)
+        return (*cls.ports(), PortSpec("command", port.kind, port.variable, port.dtype, port.shape, port.doc))
 
     def init(self, params: FaultInjectorParams) -> None:
         self._command = params.command

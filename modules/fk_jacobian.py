@@ -18,9 +18,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-
-from modules._robot_model import END_EFFECTOR_FRAME, frame_id, frame_pose_and_jacobian
 from modules._model_based import ModelBased
+from modules._robot_model import END_EFFECTOR_FRAME, frame_id, frame_pose_and_jacobian
 from pbo_runtime import InVar, OutVar, Status
 
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -51,7 +51,7 @@ class FkJacobianSpp(ModelBased):
     """Forward kinematics and Jacobian of the arm, computed on a special-purpose processor."""
 
     Params = FkJacobianSppParams
-    DEVICES = {"device": {"kind": "spp"}}
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "spp"}}
 
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad")
     x_m = OutVar("x_m", shape=(6,), doc="measured pose: position m, then rotation vector rad, base frame")

@@ -8,7 +8,9 @@ swapping the sensor is a change of the device's YAML only. Real-time safe cycle:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
 from pbo_runtime import ModuleError, OutVar, PortBasedObject, Status
 
@@ -22,7 +24,7 @@ class FtSensor(PortBasedObject):
     """f_m from a force/torque sensor's driver (`read_wrench`). Real-time safe cycle."""
 
     Params = FtSensorParams
-    DEVICES = {"device": {"kind": "force_torque"}}
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "force_torque"}}
 
     f_m = OutVar("f_m", shape=(6,), doc="measured wrench on the tool at the wrist sensor: force N, torque N m "
                                         "about the sensor origin, in the tool frame")

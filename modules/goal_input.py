@@ -18,12 +18,13 @@ class GoalInput(PortBasedObject):
     """Writes each event's values into q_d. Run it with `aperiodic: true, min_interarrival: ...`."""
 
     EVENT_SHAPE = ("NDOF",)  # the supervisor refuses an event of another count before it is sent
-    EVENT_RANGE = (-100.0, 100.0)  # rad (m for a prismatic joint): a typo, never a goal; the arm's limits are the robot interface's
+    # rad (m for a prismatic joint): a typo, never a goal; the arm's limits are the robot interface's
+    EVENT_RANGE = (-100.0, 100.0)
 
     q_m = InVar("q_m", shape=("NDOF",), doc="measured joint position, rad: the goal until one arrives")
     q_d = OutVar("q_d", shape=("NDOF",), doc="desired joint position, rad")
 
-    def init(self, params) -> None:
+    def init(self, params: object) -> None:
         self._goal = np.zeros(self.q_d.shape)
 
     def on(self) -> None:

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio
 
-from modules._robot_model import rnea_includes_armature
 from modules._model_based import ModelBased
+from modules._robot_model import rnea_includes_armature
 from pbo_runtime import InVar, OutVar, Status, param
 
 

@@ -32,7 +32,9 @@ class JoinParams:
         if len(set(self.inputs)) != len(self.inputs):
             raise ValueError(f"inputs must not repeat, got: {list(self.inputs)}")
         if self.weights and len(self.weights) != len(self.inputs):
-            raise ValueError(f"weights and inputs must have equal length: |weights| = {len(self.weights)}, |inputs| = {len(self.inputs)}")
+            raise ValueError(
+                f"weights and inputs must have equal length: |weights| = {len(self.weights)}, |inputs| = {len(self.inputs)}"
+            )
         if self.weights and (any(w < 0 for w in self.weights) or sum(self.weights) <= 0):
             raise ValueError(f"weights must be >= 0 and not all zero, got: {list(self.weights)}")
 
@@ -57,7 +59,7 @@ class Join(PortBasedObject):
 
     def init(self, params: JoinParams) -> None:
         self._inputs = self.bound_arrays[1:]
-        for name, array in zip(params.inputs, self._inputs):
+        for name, array in zip(params.inputs, self._inputs, strict=True):
             if array.shape != self.out.shape:
                 raise ModuleError(f"join input '{name}' has shape {array.shape}, but the output has shape {self.out.shape}")
         weights = np.asarray(params.weights or [1.0] * len(params.inputs), dtype=float)
@@ -69,7 +71,7 @@ class Join(PortBasedObject):
     def cycle(self) -> Status:
         out, term = self.out, self._term
         out.fill(0)
-        for weight, source in zip(self._weights, self._inputs):
+        for weight, source in zip(self._weights, self._inputs):  # noqa: B905 - the cycle: equal by init, no check per cycle
             np.multiply(source, weight, out=term, casting="unsafe")
             np.add(out, term, out=out, casting="unsafe")
         return Status.CONTINUE

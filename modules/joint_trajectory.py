@@ -2,7 +2,7 @@
 
 Each joint moves with bounded velocity and acceleration. Every cycle it steers towards the
 largest speed from which steps of a·dt can still stop at the goal,
-v (v + a·dt) / (2a) = |e|, i.e. v = sqrt((a·dt/2)² + 2a|e|) − a·dt/2 (the discrete-time
+v (v + a·dt) / (2a) = |e|, i.e. v = sqrt((a·dt/2)² + 2a|e|) - a·dt/2 (the discrete-time
 braking curve; the continuous sqrt(2a|e|) overshoots), capped by v_max. A joint lands exactly
 on the goal only from a speed one acceleration step can stop, so the limits hold on every
 cycle, arrival included.

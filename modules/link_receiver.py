@@ -30,7 +30,8 @@ NEW = 2  # what a link's read returns for an item newer than the last (links.tri
 @dataclass(frozen=True)
 class LinkReceiverParams(LinkParams):
     link: str  # the link's name in the application file's `links:`
-    fresh_within: float = param(0.0, at_least=0, at_most=3600)  # s without a new item before the critical tasks hold; 0: never (the last item is kept)
+    fresh_within: float = param(
+        0.0, at_least=0, at_most=3600)  # s without a new item before the critical tasks hold; 0: never (the last item is kept)
 
     def __post_init__(self) -> None:
         super().__post_init__()

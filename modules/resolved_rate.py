@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from modules._model_based import ModelBased
 from modules._robot_model import (
     END_EFFECTOR_FRAME,
     frame_id,
@@ -31,7 +32,6 @@ from modules._robot_model import (
     limit_speed,
     pose_error,
 )
-from modules._model_based import ModelBased
 from pbo_runtime import InVar, OutVar, Status, param
 
 

@@ -9,7 +9,9 @@ configuration drives: the controllers above it compute where the joints should b
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -21,7 +23,8 @@ from pbo_runtime import InVar, Status, param
 @dataclass(frozen=True)
 class RobotPositionParams:
     device: str = "arm"  # the YAML device this task opens (listed in its resources), mode: position
-    position_tolerance: float = param(POSITION_TOLERANCE, at_least=0, at_most=1.0)  # rad (m): how far past its range a joint may go before it is a fault
+    position_tolerance: float = param(
+        POSITION_TOLERANCE, at_least=0, at_most=1.0)  # rad (m): how far past its range a joint may go before it is a fault
 
 
 class RobotPosition(RobotInterface):
@@ -37,7 +40,7 @@ class RobotPosition(RobotInterface):
     """
 
     Params = RobotPositionParams
-    DEVICES = {"device": {"kind": "arm", "mode": "position"}}
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "arm", "mode": "position"}}
 
     q_r = InVar("q_r", shape=("NDOF",), doc="joint position reference the arm's servo tracks, rad")
 

@@ -7,7 +7,9 @@ state every cycle, and sends the control signal `tau_u` to the arm's driver.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -19,8 +21,10 @@ from pbo_runtime import InVar, Status, param
 @dataclass(frozen=True)
 class RobotTorqueParams:
     device: str = "arm"  # the YAML device this task opens (listed in its resources)
-    saturation_bound: float = param(SATURATION_BOUND, above=0, at_most=10.0)  # s: a torque at its effort limit longer than this is a fault
-    position_tolerance: float = param(POSITION_TOLERANCE, at_least=0, at_most=1.0)  # rad (m): how far past its range a joint may go before it is a fault
+    saturation_bound: float = param(
+        SATURATION_BOUND, above=0, at_most=10.0)  # s: a torque at its effort limit longer than this is a fault
+    position_tolerance: float = param(
+        POSITION_TOLERANCE, at_least=0, at_most=1.0)  # rad (m): how far past its range a joint may go before it is a fault
 
 
 class RobotTorque(RobotInterface):
@@ -35,7 +39,7 @@ class RobotTorque(RobotInterface):
     """
 
     Params = RobotTorqueParams
-    DEVICES = {"device": {"kind": "arm", "mode": "torque"}}
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "arm", "mode": "torque"}}
 
     tau_u = InVar("tau_u", shape=("NDOF",), doc="joint torque command, N m")
 

@@ -85,7 +85,8 @@ class Ros2Goal(PortBasedObject):
         kind = ros2.MESSAGES[params.type]
         topic = Topic(self._participant, ros2.dds_topic(params.topic), kind, qos=ros2.ros2_qos())
         reader = DataReader(self._participant, topic, qos=ros2.ros2_qos())
-        self._node = ros2.announce_node(self._participant, f"pbo_{self.task_name}", readers=[reader])  # kept: `ros2 node list` sees it
+        # kept: `ros2 node list` sees it
+        self._node = ros2.announce_node(self._participant, f"pbo_{self.task_name}", readers=[reader])
         self._waitset = WaitSet(self._participant)  # its wait releases the GIL: the thread sleeps until a message or kill
         self._waitset.attach(ReadCondition(reader, SampleState.NotRead | ViewState.Any | InstanceState.Any))
         self._wake = GuardCondition(self._participant)

@@ -55,7 +55,8 @@ class Ros2JointStates(PortBasedObject):
         setup = {"domain": ros2.domain_id(params.domain), "topic": params.topic, "names": names,
                  "frame_id": params.frame_id, "node": f"pbo_{self.task_name}"}
         self._publisher = JointStatesPublisher(setup, joints)
-        self._copies = tuple(zip(sources, self._publisher.rows))  # (port, its row in the record): the views made once
+        # (port, its row in the record): the views made once
+        self._copies = tuple(zip(sources, self._publisher.rows, strict=True))
         self._stamp = self._publisher.stamp  # the record's Unix time, ns
         self._begin, self._send = self._publisher.begin, self._publisher.send
 

@@ -13,8 +13,9 @@ the task turned on. The motion comes from one of:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -39,7 +40,8 @@ class TrackballInput(PortBasedObject):
     """x_d = the pose at `on` + the scripted offset at the time since `on`. Real-time safe cycle."""
 
     Params = TrackballParams
-    DEVICES = {"device": {"kind": "trackball"}}  # when given: a script or a file opens none
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {
+        "device": {"kind": "trackball"}}  # when given: a script or a file opens none
 
     x_m = InVar("x_m", shape=(6,), doc="measured Cartesian pose (position m, rotation vector rad)")
     x_d = OutVar("x_d", shape=(6,), doc="desired Cartesian pose")
@@ -52,7 +54,9 @@ class TrackballInput(PortBasedObject):
         if params.device:
             ball = self.open_device(params.device)
             if not callable(getattr(ball, "read_offset", None)):
-                raise ModuleError(f"device '{params.device}' is not a trackball (it has no read_offset); give it driver: trackball")
+                raise ModuleError(
+                    f"device '{params.device}' is not a trackball (it has no read_offset); give it driver: trackball"
+                )
             self._read_offset = ball.read_offset
             return
         waypoints = Waypoints.from_csv(params.file) if params.file else Waypoints.from_script(params.script)

@@ -15,7 +15,9 @@ Real-time safe cycle: one driver call and two copies, no allocation.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -25,8 +27,10 @@ from pbo_runtime import InVar, ModuleError, OutVar, PortBasedObject, Status, par
 @dataclass(frozen=True)
 class VisualServoingParams:
     device: str = "camera"  # the YAML device this task opens (listed in its resources)
-    offset: tuple[float, ...] = param((0.0, 0.0, 0.0), at_least=-100, at_most=100)  # m: the hand's position relative to the target
-    orientation: tuple[float, ...] = param((), at_least=-10, at_most=10)  # rad, the hand's rotation vector; left out: keep x_m's at `on`
+    offset: tuple[float, ...] = param(
+        (0.0, 0.0, 0.0), at_least=-100, at_most=100)  # m: the hand's position relative to the target
+    orientation: tuple[float, ...] = param(
+        (), at_least=-10, at_most=10)  # rad, the hand's rotation vector; left out: keep x_m's at `on`
 
     def __post_init__(self) -> None:
         if len(self.offset) != 3 or not all(math.isfinite(v) for v in self.offset):
@@ -41,7 +45,7 @@ class VisualServoing(PortBasedObject):
     """x_d = (target position + offset, fixed orientation). Real-time safe cycle."""
 
     Params = VisualServoingParams
-    DEVICES = {"device": {"kind": "camera"}}
+    DEVICES: ClassVar[Mapping[str, Mapping[str, Any]]] = {"device": {"kind": "camera"}}
 
     x_m = InVar("x_m", shape=(6,), doc="measured pose of the hand: position m, rotation vector rad")
     x_d = OutVar("x_d", shape=(6,), doc="desired pose of the hand: position m, rotation vector rad")

@@ -7,6 +7,7 @@ The names module, driver and plant authors import; everything else lives in the 
 from __future__ import annotations
 
 import importlib
+
 TYPE_CHECKING = False  # typing's, without importing typing: `pbo --version` imports only what it needs
 
 # name -> the wing that defines it: imported when first used (`pbo --version` and `pbo --help` load no
@@ -86,17 +87,26 @@ if TYPE_CHECKING:  # what the type checkers and editors see: the same names, eag
     from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
     from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
     from pbo_runtime.links.ros2 import ros2_messages
-    from pbo_runtime.objects.arm import ARM_COLUMNS, EE_COLUMNS, GRAVITY, ROBOT_OPTIONS, ROBOT_SUFFIXES, Arm, arm_model, is_robot_file
+    from pbo_runtime.objects.arm import (
+        ARM_COLUMNS,
+        EE_COLUMNS,
+        GRAVITY,
+        ROBOT_OPTIONS,
+        ROBOT_SUFFIXES,
+        Arm,
+        arm_model,
+        is_robot_file,
+    )
     from pbo_runtime.objects.arm_inertia import arm_gains, inertia_range
     from pbo_runtime.objects.driver import DeviceDriver
+    from pbo_runtime.objects.helper_threads import below_the_cycle, process_below_the_cycle
     from pbo_runtime.objects.module import NoParams, PortBasedObject, Status
     from pbo_runtime.objects.ports import ANY_DTYPE, InBoth, InConst, InVar, OutBoth, OutConst, OutVar, PortKind, PortSpec
     from pbo_runtime.objects.ranges import param
     from pbo_runtime.objects.registry import module_class, registered_robot
+    from pbo_runtime.objects.waits import sleep_while_cycling
     from pbo_runtime.objects.waypoints import Waypoints
     from pbo_runtime.reports.data_log import open_log, read_log
-    from pbo_runtime.objects.waits import sleep_while_cycling
-    from pbo_runtime.objects.helper_threads import below_the_cycle, process_below_the_cycle
 
 
 def __getattr__(name: str) -> Any:
@@ -119,12 +129,12 @@ def __dir__() -> list[str]:
 __all__ = [
     "ANY_DTYPE",
     "ARM_COLUMNS",
-    "Arm",
     "EE_COLUMNS",
     "GRAVITY",
+    "MAX_PRIORITY",
     "ROBOT_OPTIONS",
     "ROBOT_SUFFIXES",
-    "MAX_PRIORITY",
+    "Arm",
     "ConfigError",
     "ConfigErrors",
     "DeviceDriver",

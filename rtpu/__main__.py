@@ -14,38 +14,32 @@ import json
 import os
 import sys
 import traceback
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import posix_ipc
 
-from pbo_runtime.ipc import limits
-from pbo_runtime.ipc import messages, process
-from pbo_runtime.objects import registry
 from pbo_runtime.clock.clocks import RealClock, SimClock
-from pbo_runtime.edit.live import task_from_wire
-from pbo_runtime.config.loader import load_subsystem
-from pbo_runtime.reports.log_notes import run_metadata, variable_notes
-from pbo_runtime.config.model import DeviceSpec, Subsystem, TaskSpec
-from pbo_runtime.objects.helper_threads import GIL_HANDOVER, lower_helpers
-from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.clock.lockstep import LockstepParticipant
+from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.config.model import DeviceSpec, Subsystem, TaskSpec
+from pbo_runtime.edit.live import task_from_wire
+from pbo_runtime.ipc import limits, messages, process
 from pbo_runtime.ipc.process import Stop, become_child, stop_only_at_waits
-from pbo_runtime.supervisor.reconfiguration import Reconfiguration
+from pbo_runtime.objects import registry
+from pbo_runtime.objects.helper_threads import GIL_HANDOVER, lower_helpers
+from pbo_runtime.reports.log_notes import run_metadata, variable_notes
 from pbo_runtime.supervisor import last_out
 from pbo_runtime.supervisor.launch import RtpuLaunch
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import StateTable, TableLayout
+from pbo_runtime.task.lifecycle import Task
 from rtpu import _realtime
 from rtpu._executive import Executive
+from rtpu.plans import LiveStage
 
-
-@dataclasses.dataclass
-class LiveStage:
-    """A live description this RTPU read, staged for the next plan (`_executive.LiveStage`)."""
-
-    reconfiguration: Reconfiguration
-    tasks: dict[str, tuple[int, Any]]  # every task of the live description: (status block, params)
-    spec: Callable[[str], TaskSpec]  # a task's full spec (its module looked up)
-    factories: dict[str, Callable[[], Task]]
+if TYPE_CHECKING:
+    from pbo_runtime.links.relay import MessageRelay
 
 
 def main(argv: list[str] | None = None, subsystem: Subsystem | None = None) -> int:
@@ -70,11 +64,17 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
         subsystem = load_subsystem(launch.file)
     name = subsystem.name
     events = messages.Queue(messages.event_queue_name(name, launch.run_id))
-    report = lambda event: events.report(launch.rtpu, event)  # noqa: E731
+
+    def report(event: messages.Event) -> None:
+        events.report(launch.rtpu, event)
+
     # at stop: job control drains its queue while every RTPU reports, so a full queue is waited out
     # (while job control lives: after it was killed nobody drains the queue, and the wait would only hang)
     supervisor_alive = (lambda: os.getppid() == launch.parent) if launch.parent else None
-    report_at_stop = lambda event: events.report(launch.rtpu, event, timeout=5.0, reader_alive=supervisor_alive)  # noqa: E731
+
+    def report_at_stop(event: messages.Event) -> None:
+        events.report(launch.rtpu, event, timeout=5.0, reader_alive=supervisor_alive)
+
     table = signals = barrier = None
     executive = None
     try:
@@ -124,7 +124,7 @@ class Hosting:
     """An RTPU's executive with its tasks added, and what its turns need besides (the simulated clock's relays)."""
 
     executive: Executive
-    pumped: list[Any]  # the simulated clock's relays: each forwards its link's messages at every step
+    pumped: list[MessageRelay]  # the simulated clock's relays: each forwards its link's messages at every step
     realtime: dict[str, Any]  # what it got of the OS (scheduler, CPU), for its Ready event
 
 
@@ -140,7 +140,7 @@ def host_tasks(launch: RtpuLaunch, subsystem: Subsystem, table: StateTable, sign
     # device: their figures go with the task's statistics into the run's summary
     with_figures: dict[str, dict[str, Any]] = {}
 
-    def open_device(device: DeviceSpec, task: TaskSpec):
+    def open_device(device: DeviceSpec, task: TaskSpec) -> Any:  # a driver, as `DeviceOpener` says
         # The device database (TR 4.6.1) records the opening in the table, for every RTPU to see.
         from pbo_runtime.table.devices import DeviceDatabase
 
@@ -153,9 +153,9 @@ def host_tasks(launch: RtpuLaunch, subsystem: Subsystem, table: StateTable, sign
         return {device: driver.figures() for device, driver in with_figures.get(task, {}).items()}
 
     signal_queue = messages.signal_queue_name(name, launch.run_id, launch.rtpu)
-    pumped: list[Any] = []  # the simulated clock's relays: each forwards its link's messages at every step
+    pumped: list[MessageRelay] = []  # the simulated clock's relays: each forwards its link's messages at every step
 
-    def relay(task: str, end):
+    def relay(task: str, end: Any) -> MessageRelay:  # `end`: a message link's receiving end
         # A message link's server task (TR 5.1): each message is a signal to this RTPU.
         from pbo_runtime.links.relay import MessageRelay
 
@@ -187,7 +187,7 @@ def host_tasks(launch: RtpuLaunch, subsystem: Subsystem, table: StateTable, sign
     notes = variable_notes(subsystem)
     about_run = run_metadata(subsystem, launch.clock, launch.configuration, launch.application)
 
-    def factory(spec: TaskSpec):
+    def factory(spec: TaskSpec) -> Callable[[], Task]:
         module_class = registry.module_class(spec.module)
 
         def make() -> Task:
@@ -238,7 +238,7 @@ def host_tasks(launch: RtpuLaunch, subsystem: Subsystem, table: StateTable, sign
     return Hosting(executive, pumped, realtime)
 
 
-def pump(relays: list[Any]) -> None:
+def pump(relays: list[MessageRelay]) -> None:
     """Each relay of the simulated clock forwards what its link holds now; a closed one (its task killed) is dropped."""
     if not relays:  # (every tick, and most runs have none)
         return

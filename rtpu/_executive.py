@@ -12,15 +12,16 @@ from __future__ import annotations
 
 import collections
 import math
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
-from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.ipc.messages import Event, FirstCycle, Refused, StateChanged, Stats
 from pbo_runtime.ipc.process import raise_if_stopping
 from pbo_runtime.ipc.task_statistics import Overrun, TaskStatistics
 from pbo_runtime.objects.module import Status
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Flag, Header, TaskState
 from pbo_runtime.task import background
 from pbo_runtime.task.lifecycle import Task
@@ -45,13 +46,49 @@ _FLAGS, _STOPPING = int(Header.FLAGS), int(Flag.STOPPING)
 class Scheduled:
     """A task's place in the executive: its next release and its timing record."""
 
-    __slots__ = ("task", "period", "critical", "priority", "release", "release_index", "overruns", "missed", "jitter", "exec_time",
-                 "samples", "jitter_max", "exec_max", "status", "aperiodic", "events", "dropped_events",
-                 "last_release", "stale_reads", "stale_at_switch", "input_periods", "write_times", "stable_cycles",
-                 "held_for", "first_cycle_of_plan", "last_stale", "expected_writers", "input_writers",
-                 "lost_to_switch", "last_lost", "window_lost", "window_stale", "shared_status", "overrun_log",
-                 "long_cycles", "fresh_bounds", "fresh_within", "writer_names", "expired_reads",
-                 "fresh_since", "lock_waits_given_up")
+    __slots__ = (
+        "aperiodic",
+        "critical",
+        "dropped_events",
+        "events",
+        "exec_max",
+        "exec_time",
+        "expected_writers",
+        "expired_reads",
+        "first_cycle_of_plan",
+        "fresh_bounds",
+        "fresh_since",
+        "fresh_within",
+        "held_for",
+        "input_periods",
+        "input_writers",
+        "jitter",
+        "jitter_max",
+        "last_lost",
+        "last_release",
+        "last_stale",
+        "lock_waits_given_up",
+        "long_cycles",
+        "lost_to_switch",
+        "missed",
+        "overrun_log",
+        "overruns",
+        "period",
+        "priority",
+        "release",
+        "release_index",
+        "samples",
+        "shared_status",
+        "stable_cycles",
+        "stale_at_switch",
+        "stale_reads",
+        "status",
+        "task",
+        "window_lost",
+        "window_stale",
+        "write_times",
+        "writer_names",
+    )
 
     def __init__(self, task: Task) -> None:
         self.task = task
@@ -109,7 +146,10 @@ class Scheduled:
         n = min(self.samples, RING)
         jitter = self.jitter[:n]
         exec_time = self.exec_time[:n]
-        pct = (lambda a, q: float(np.percentile(a, q)) if n else 0.0)
+
+        def pct(a: np.ndarray, q: float) -> float:
+            return float(np.percentile(a, q)) if n else 0.0
+
         local = self.task.local
         return TaskStatistics(
             cycles=self.task.cycles, overruns=self.overruns, missed=self.missed, errors=self.task.errors,
@@ -256,10 +296,10 @@ class Executive:
         # cycles, never after them. The RTPU that hosts the entering tasks has a boundary at the
         # activation; one that read the plan too late for its activation applies it here, at its
         # first boundary after it, before anything runs in the old configuration.
-        if words is not None and words[PLAN_SEQUENCE] != plans.seen:
-            if woke + self.release_slack + ON_THE_BOUNDARY >= plans.notice(woke):
-                self._switch_and_run()
-                return
+        if (words is not None and words[PLAN_SEQUENCE] != plans.seen
+                and woke + self.release_slack + ON_THE_BOUNDARY >= plans.notice(woke)):
+            self._switch_and_run()
+            return
         self.run_ready(woke)
 
     def plan_if_due(self) -> bool:

@@ -16,9 +16,9 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.ipc.messages import Event, Stable
 from pbo_runtime.objects.module import Status
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Flag, Header
 from pbo_runtime.table.table import StatusWord as W
 

@@ -74,7 +74,10 @@ def start(argv: list[str], subsystem: Subsystem, events: messages.Queue) -> Host
     """Host the RTPU `python -m rtpu ARGV` would run, in this process; it reports Ready as that process does."""
     launch = RtpuLaunch.parse(argv)
     name = subsystem.name
-    report = lambda event: events.report(launch.rtpu, event)  # noqa: E731
+
+    def report(event: messages.Event) -> None:
+        events.report(launch.rtpu, event)
+
     table = StateTable.attach(TableLayout.of(subsystem), messages.table_name(name, launch.run_id))
     try:
         signals = messages.Queue(messages.signal_queue_name(name, launch.run_id, launch.rtpu))

@@ -10,14 +10,16 @@ A switch's reports wait until the boundary's cycles ran: the entering tasks' fir
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pbo_runtime.supervisor.reconfiguration import Reconfiguration
+from pbo_runtime.config.model import TaskSpec
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.messages import Event, Refused, Switched, Window
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Header, TaskState
 from pbo_runtime.task.lifecycle import Task
 
@@ -28,12 +30,13 @@ if TYPE_CHECKING:
 PLAN_SEQUENCE, PLAN_TIME_NS = int(Header.PLAN_SEQUENCE), int(Header.PLAN_TIME_NS)
 
 
-class LiveStage(Protocol):
+@dataclasses.dataclass(frozen=True)
+class LiveStage:
     """A live description an RTPU read (`LiveUpdate`), staged until the next plan applies it."""
 
     reconfiguration: Reconfiguration
     tasks: dict[str, tuple[int, Any]]  # every task of the live description: (status block, params)
-    spec: Callable[[str], Any]  # a task's full TaskSpec (its module looked up: only for a task hosted here)
+    spec: Callable[[str], TaskSpec]  # a task's full spec (its module looked up: only for a task hosted here)
     factories: dict[str, Callable[[], Task]]  # this RTPU's tasks, each made afresh from its live spec
 
 
@@ -140,7 +143,7 @@ class Plans:
                 if index == s.task.index and params != s.task.spec.params and s.task.state != TaskState.KILLED:
                     spec = stage.spec(name)
                     tunes[name] = (spec, s.task.tune_params(spec))  # built now: the boundary only calls tune
-        except Exception as exc:  # noqa: BLE001 - job control refuses the change and says why
+        except Exception as exc:  # job control refuses the change and says why
             self.report(messages.Staged(sequence, f"{type(exc).__name__}: {exc}"))
             return
         self.staged, self.staged_tunes = stage, tunes
@@ -154,5 +157,5 @@ class Plans:
         for name, (spec, params) in tunes.items():
             try:
                 tasks[name].task.tune(spec, params)
-            except Exception as exc:  # noqa: BLE001 - the checker passed the values: a module that refuses them says why
+            except Exception as exc:  # the checker passed the values: a module that refuses them says why
                 self.report(Refused(name, f"tune: {exc}"))

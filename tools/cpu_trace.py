@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import bisect
 import collections
+import contextlib
 import json
 import os
 import re
@@ -230,14 +231,10 @@ class SchedulerTrace:
     def _restore(self) -> None:
         for name in ("set_event", "trace_clock", "buffer_size_kb", "tracing_on"):
             if name in self.saved:
-                try:
+                with contextlib.suppress(OSError):
                     self._write(name, self.saved[name])
-                except OSError:
-                    pass
-        try:
+        with contextlib.suppress(OSError):
             self._write("trace", "")
-        except OSError:
-            pass
         if self.mounted_here:
             subprocess.run(["umount", str(self.tracefs)], capture_output=True)
             self.mounted_here = False
@@ -292,8 +289,10 @@ def render(rows: list[dict], report: dict) -> str:
             for name, seconds in held.items():
                 if name != IDLE and not name.startswith("RTPU"):
                     across[name] += seconds
-    lines.append("Besides the RTPUs, across these overruns (ms): "
-                 + (", ".join(f"{name} {s * 1e3:.2f}" for name, s in sorted(across.items(), key=lambda kv: -kv[1])[:6]) or "nobody"))
+    lines.append(
+        "Besides the RTPUs, across these overruns (ms): "
+        + (", ".join(f"{name} {s * 1e3:.2f}" for name, s in sorted(across.items(), key=lambda kv: -kv[1])[:6]) or "nobody")
+    )
     return "\n".join(lines)
 
 

@@ -35,7 +35,10 @@ def comparison_file(folder: Path) -> Path:
                           "params": {"kp": 400, "kd": 40, "ki": 10, "gravity_feedforward": True}}
     tasks["logger"] = {"module": "data_logger", "rtpu": "rtpu0", "period": "2 ms",
                        "params": {"variables": ["q_m", "q_r"], "path": "tracking.npy"}}
-    spec["configurations"] = {"combined": ["robot", "traj", "ctc", "logger"], "pid_alone": ["robot", "traj", "pid_alone", "logger"]}
+    spec["configurations"] = {
+        "combined": ["robot", "traj", "ctc", "logger"],
+        "pid_alone": ["robot", "traj", "pid_alone", "logger"],
+    }
     path = folder / "computed_torque_vs_pid.yaml"
     path.write_text(yaml.safe_dump(spec, sort_keys=False))
     return path

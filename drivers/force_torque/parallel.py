@@ -45,7 +45,11 @@ class ParallelForceTorque(DeviceDriver):
         if unknown:
             raise ValueError(f"unknown ft_parallel option(s) {unknown}; valid options: {', '.join(_OPTIONS)}")
         timeout = options.get("timeout", 0.5)
-        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not (math.isfinite(timeout) and 0 < timeout <= 3600):
+        if (
+            isinstance(timeout, bool)
+            or not isinstance(timeout, (int, float))
+            or not (math.isfinite(timeout) and 0 < timeout <= 3600)
+        ):
             raise ValueError(f"ft_parallel option timeout must be a number of seconds in (0, 3600], got: {timeout!r}")
 
     def __init__(self, registers: str, options: Mapping[str, Any], *, channels: tuple[int, ...] | None = None,
@@ -53,7 +57,9 @@ class ParallelForceTorque(DeviceDriver):
         super().__init__(registers, options, io=io)
         self.check_options(self.options)
         if io is None or getattr(io, "KIND", "") != self.IO:
-            raise DeviceError(f"ft_parallel needs a parallel port (io: {{device: <parallel_port device>, channels: 0-7}}), got: {io!r}")
+            raise DeviceError(
+                f"ft_parallel needs a parallel port (io: {{device: <parallel_port device>, channels: 0-7}}), got: {io!r}"
+            )
         if len(io.channels) != self.IO_CHANNELS:
             raise DeviceError(f"ft_parallel needs {self.IO_CHANNELS} parallel-port channels, got {len(io.channels)}")
         self.timeout = float(self.options.get("timeout", 0.5))

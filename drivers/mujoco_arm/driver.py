@@ -23,7 +23,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -59,7 +59,7 @@ class MujocoArmDriver(DeviceDriver):
     OPTIONS = _OPTIONS
     NEEDS_PLANT = True
 
-    OPTION_DEFAULTS = {"mode": "torque"}
+    OPTION_DEFAULTS: ClassVar[Mapping[str, Any]] = {"mode": "torque"}
 
     @classmethod
     def check_options(cls, options: Mapping[str, Any]) -> None:
@@ -172,7 +172,9 @@ class MujocoArmDriver(DeviceDriver):
                 f"command: fix the task that computes it")
 
     def _wrong_mode(self, call: str, needs: str) -> str:
-        return f"arm registers {self.registers!r}: {call} needs a driver opened with mode: {needs}; this one has mode: {self.mode}"
+        return (
+            f"arm registers {self.registers!r}: {call} needs a driver opened with mode: {needs}; this one has mode: {self.mode}"
+        )
 
     # occasional ---------------------------------------------------------------------------------
 

@@ -93,8 +93,10 @@ class MujocoArmPlantOptions:
     ee: str | None = None  # the end effector: a link or site of the robot's file
     q0: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # rad: the braked start pose
     torque_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # N m: tightens the file's, or gives one
-    velocity_limits: tuple[float, ...] | None = field(default=None, metadata=_PER_JOINT)  # rad/s: tightens the file's, or gives one
-    joint_limits: tuple[tuple[float, ...], ...] | None = field(default=None, metadata=_PER_JOINT)  # rad: [lower, upper] per joint, within the file's
+    velocity_limits: tuple[float, ...] | None = field(
+        default=None, metadata=_PER_JOINT)  # rad/s: tightens the file's, or gives one
+    joint_limits: tuple[tuple[float, ...], ...] | None = field(
+        default=None, metadata=_PER_JOINT)  # rad: [lower, upper] per joint, within the file's
     target: Mapping[str, Any] | None = None  # a moving target for a camera: {center, radius, period, phase, orientation}
     wrist_wrench: tuple[float, ...] = param((0.0,) * 6, at_least=-1e4, at_most=1e4, shape=(6,))  # N, N m, sensor frame
     adc_noise: float = param(0.0, at_least=0, at_most=10)  # V: standard deviation of each ADC conversion
@@ -105,12 +107,18 @@ class MujocoArmPlantOptions:
         _target_options(self.target)
         _wrench_option(self.wrist_wrench)
         adc_noise, seed, command_timeout = self.adc_noise, self.seed, self.command_timeout
-        if isinstance(adc_noise, bool) or not isinstance(adc_noise, (int, float)) or not (math.isfinite(adc_noise) and adc_noise >= 0):
+        if (
+            isinstance(adc_noise, bool)
+            or not isinstance(adc_noise, (int, float))
+            or not (math.isfinite(adc_noise) and adc_noise >= 0)
+        ):
             raise ValueError(f"plant option adc_noise must be a finite number >= 0 (V, standard deviation), got: {adc_noise!r}")
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             raise ValueError(f"plant option seed must be an integer >= 0, got: {seed!r}")
         if isinstance(command_timeout, bool) or not isinstance(command_timeout, (int, float)) or not command_timeout >= 0:
-            raise ValueError(f"plant option command_timeout must be a number of seconds >= 0 (0: no watchdog), got: {command_timeout!r}")
+            raise ValueError(
+                f"plant option command_timeout must be a number of seconds >= 0 (0: no watchdog), got: {command_timeout!r}"
+            )
 
 
 _OPTIONS = tuple(f.name for f in fields(MujocoArmPlantOptions))
@@ -140,8 +148,9 @@ class MujocoArmPlant:
             raise ValueError(f"unknown mujoco_arm plant option(s) {unknown}; valid options: {', '.join(_OPTIONS)}")
         if not timestep > 0:
             raise ValueError(f"plant timestep must be > 0, got: {timestep}")
-        declared = MujocoArmPlantOptions(**{k: v for k, v in options.items() if k in ("target", "wrist_wrench", "adc_noise", "seed",
-                                                                                    "command_timeout")})
+        declared = MujocoArmPlantOptions(
+            **{k: v for k, v in options.items() if k in ("target", "wrist_wrench", "adc_noise", "seed", "command_timeout")}
+        )
         target = _target_options(declared.target)
         wrench = _wrench_option(declared.wrist_wrench)
         adc_noise, seed, command_timeout = declared.adc_noise, declared.seed, declared.command_timeout

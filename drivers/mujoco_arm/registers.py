@@ -41,6 +41,7 @@ so the seqlocks need no fences there. Layout (byte offsets, n = ndof, all little
 
 from __future__ import annotations
 
+import contextlib
 import mmap
 from dataclasses import dataclass
 
@@ -163,11 +164,9 @@ class Registers:
             view.release()
         self._views.clear()
         mapping, self._mapping = self._mapping, None
-        try:
+        # Someone kept a view (e.g. a test holding `registers.q`): the mapping goes when it does.
+        with contextlib.suppress(BufferError):
             mapping.close()
-        except BufferError:
-            # Someone kept a view (e.g. a test holding `registers.q`): the mapping goes when it does.
-            pass
 
 
 def create_registers(name: str, ndof: int) -> tuple[posix_ipc.SharedMemory, Registers]:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-
 from typing import Any
 
 from drivers.robots.description import DH_COLUMNS, DYN_COLUMNS, RobotDescription

@@ -101,4 +101,11 @@ class ArmTables:
             com = first_moment / mass
             about_com = about_origin - mass * (com @ com * np.eye(3) - np.outer(com, com))
             row[Arm.COM] = com
-            row[Arm.INERTIA] = [about_com[0, 0], about_com[1, 1], about_com[2, 2], about_com[0, 1], about_com[0, 2], about_com[1, 2]]
+            row[Arm.INERTIA] = [
+                about_com[0, 0],
+                about_com[1, 1],
+                about_com[2, 2],
+                about_com[0, 1],
+                about_com[0, 2],
+                about_com[1, 2],
+            ]

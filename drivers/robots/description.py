@@ -29,7 +29,7 @@ def _frozen(values: object, shape: tuple[int, ...], what: str, robot: str) -> np
 
 @dataclass(frozen=True, eq=False)
 class RobotDescription:
-    """A serial arm of revolute joints, standard (distal) DH: T_i = Rz(q_i+θ_i) Tz(d_i) Tx(a_i) Rx(α_i).
+    """A serial arm of revolute joints, standard (distal) DH: T_i = Rz(q_i+theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i).
 
     Units: m, rad, kg, kg m², N m s/rad (damping), N m (torque limits), rad/s (velocity limits).
     """

@@ -58,10 +58,7 @@ class RobotSource:
 
 def resolve(model: str, base_dir: Path) -> Path:
     """The file `model` names, from `base_dir` (the YAML file's folder); RobotFileError if there is none."""
-    if model.startswith("package://"):
-        path = _package_path(model, base_dir)
-    else:
-        path = (base_dir / os.path.expanduser(model)).resolve()
+    path = _package_path(model, base_dir) if model.startswith("package://") else (base_dir / os.path.expanduser(model)).resolve()
     if not path.is_file():
         raise RobotFileError(f"robot file {path} does not exist")
     if path.suffix.lower() not in ROBOT_SUFFIXES:

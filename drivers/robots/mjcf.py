@@ -42,7 +42,8 @@ def _quat(rotation: np.ndarray) -> np.ndarray:
 def _body_placement(desc: RobotDescription, i: int) -> np.ndarray:
     """Body i (0-based) in its parent: the previous link's fixed DH transform, then this joint's offset."""
     parent_link = dh_link_transform(desc.dh[i - 1]) if i > 0 else np.eye(4)
-    return parent_link @ rot_z(desc.dh[i, 0])
+    placement: np.ndarray = parent_link @ rot_z(desc.dh[i, 0])
+    return placement
 
 
 def _inertial_xml(desc: RobotDescription, i: int) -> str:

@@ -114,7 +114,11 @@ def _source(model: str, base_dir: Path) -> tuple[RobotSource, RobotDescription |
         from drivers.robots.mjcf import to_mjcf
 
         spec = mujoco.MjSpec.from_string(to_mjcf(made, 0.001))
-        velocity = {f"joint{j + 1}": float(v) for j, v in enumerate(made.velocity_limits if made.velocity_limits is not None else ()) if v > 0}
+        velocity = {
+            f"joint{j + 1}": float(v)
+            for j, v in enumerate(made.velocity_limits if made.velocity_limits is not None else ())
+            if v > 0
+        }
         return RobotSource(Path(f"{model}.xml"), spec, "mjcf", velocity=velocity), made, "ee"
     path = Path(str(made))
     return read_robot(path), None, None
@@ -225,7 +229,7 @@ def _torque_limits(model: mujoco.MjModel, names: tuple[str, ...], actuators: dic
     given = np.array([float(np.max(np.abs(model.jnt_actfrcrange[j]))) if model.jnt_actfrclimited[j] else actuators.get(name, 0.0)
                       for j, name in enumerate(names)])
     limits = _tightened(given, _per_joint(options, "torque_limits", names), "torque_limits", "N m", names, source)
-    missing = [name for name, limit in zip(names, limits) if not limit > 0]
+    missing = [name for name, limit in zip(names, limits, strict=True) if not limit > 0]
     if missing:
         raise RobotFileError(
             f"{source.path.name} gives no torque limit for joint{'s' if len(missing) > 1 else ''} {', '.join(missing)}: "
@@ -304,7 +308,9 @@ def _start_pose(model: mujoco.MjModel, spec: mujoco.MjSpec, options: Mapping[str
         try:
             q0 = np.array(options["q0"], dtype=np.float64).reshape(-1)
         except (TypeError, ValueError):
-            raise RobotFileError(f"plant option q0 must be a list of {n} numbers (rad), got: {options['q0']!r}", key="q0") from None
+            raise RobotFileError(
+                f"plant option q0 must be a list of {n} numbers (rad), got: {options['q0']!r}", key="q0"
+            ) from None
         if q0.shape != (n,):
             raise RobotFileError(f"plant option q0 must have {n} values for {source.path.name} "
                                  f"({', '.join(model.joint(j).name for j in range(n))}), got: {q0.size}", key="q0")
@@ -342,7 +348,7 @@ def _compile(spec: mujoco.MjSpec, source: RobotSource) -> mujoco.MjModel:
 def _failed_mesh(spec: mujoco.MjSpec, message: str) -> Any:
     """The mesh a compile error is about ("... Element name 'upper', id 0"), if it is one."""
     match = re.search(r"Element name '([^']*)'", message)
-    if match is None or "mesh" not in message.lower() and "stl" not in message.lower() and "obj" not in message.lower():
+    if match is None or ("mesh" not in message.lower() and "stl" not in message.lower() and "obj" not in message.lower()):
         return None
     return _find(spec.meshes, match.group(1))
 

@@ -10,13 +10,14 @@ taken by name, in `joints`' order), and each `write_torque` (`write_position`) g
 node's topics on the DDS domain `domain` (-1: ROS_DOMAIN_ID, else 0).
 
 No call of a cycle touches DDS. A thread of the driver (below the RTPU's executive) takes each
-JointState into a buffer; opening the driver waits for the first (up to 5 s, else it fails
-saying so), so no command is ever computed from a state never read. `read_state` copies the
-newest out and returns its header stamp as the arm's time, so a `/joint_states` that stops is a
-plant that stopped: the robot interface holds after `stall_after` seconds and the run says so. `write_torque` copies the command into a buffer
-and wakes the thread (an eventfd write), which publishes it. With the brakes engaged (the task
-off, held, in ERROR) no command goes out: the ros2_control side must then hold the arm (a
-controller's command timeout or the drive's brakes), as a real drive holds when its commands stop.
+JointState into a buffer; opening the driver waits for the first (up to 5 s, else it fails saying
+so), so no command is ever computed from a state never read. `read_state` copies the newest out and
+returns its header stamp as the arm's time, so a `/joint_states` that stops is a plant that stopped:
+the robot interface holds after `stall_after` seconds and the run says so. `write_torque` copies the
+command into a buffer and wakes the thread (an eventfd write), which publishes it. With the brakes
+engaged (the task off, held, in ERROR) no command goes out: the ros2_control side must then hold the
+arm (a controller's command timeout or the drive's brakes), as a real drive holds when its commands
+stop.
 
 The arm's constants (ARM, EE) are the plant's robot: the subsystem's `plant:` names the same
 robot model the ros2_control side drives. Needs the 'ros2' extra (cyclonedds).
@@ -28,7 +29,7 @@ import os
 import threading
 import time
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -51,8 +52,10 @@ class Ros2ControlArm(DeviceDriver):
 
     KIND = "arm"  # what robot_torque opens, as mujoco_arm is
     OPTIONS = _OPTIONS
-    OPTION_DEFAULTS = {"mode": "torque", "joint_states": "/joint_states", "commands": COMMAND_TOPICS["torque"],
-                       "joints": None, "domain": -1, "stall_after": 0.01}
+    OPTION_DEFAULTS: ClassVar[Mapping[str, Any]] = {
+        "mode": "torque", "joint_states": "/joint_states", "commands": COMMAND_TOPICS["torque"],
+        "joints": None, "domain": -1, "stall_after": 0.01,
+    }
 
     @classmethod
     def check_options(cls, options: Mapping[str, Any]) -> None:
@@ -124,8 +127,11 @@ class Ros2ControlArm(DeviceDriver):
 
         self._participant: DomainParticipant | None = DomainParticipant(ros2.domain_id(int(self.options.get("domain", -1))))
         qos = ros2.ros2_qos()
-        reader = DataReader(self._participant, Topic(self._participant, ros2.dds_topic(self.options.get("joint_states", "/joint_states")),
-                                                     ros2.JointState, qos=qos), qos=qos)
+        reader = DataReader(
+            self._participant,
+            Topic(self._participant, ros2.dds_topic(self.options.get("joint_states", "/joint_states")), ros2.JointState, qos=qos),
+            qos=qos,
+        )
         writer = DataWriter(self._participant, Topic(self._participant, ros2.dds_topic(
             self.options.get("commands", COMMAND_TOPICS[self.mode])), ros2.Float64MultiArray, qos=qos), qos=qos)
         self._node = ros2.announce_node(self._participant, "pbo_ros2_control", readers=[reader], writers=[writer])
@@ -135,9 +141,12 @@ class Ros2ControlArm(DeviceDriver):
         self._waitset.attach(self._wake_reader)
         self._wake_writer = os.eventfd(0, os.EFD_CLOEXEC)
         self._stopping = False
-        self._threads = [threading.Thread(target=self._take_states, args=(reader, ros2.JointState), daemon=True, name="ros2-states"),
-                         threading.Thread(target=self._publish_commands, args=(writer, ros2.Float64MultiArray()), daemon=True,
-                                          name="ros2-commands")]
+        self._threads = [
+            threading.Thread(target=self._take_states, args=(reader, ros2.JointState), daemon=True, name="ros2-states"),
+            threading.Thread(
+                target=self._publish_commands, args=(writer, ros2.Float64MultiArray()), daemon=True, name="ros2-commands"
+            ),
+        ]
         for thread in self._threads:
             thread.start()
         self._wait_for_the_first_state(ros2.domain_id(int(self.options.get("domain", -1))))

@@ -30,6 +30,7 @@ processor imports numpy and Pinocchio on a machine that may be busy).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import select
@@ -106,7 +107,7 @@ class SpecialPurposeProcessor(DeviceDriver):
         self.memory, self.download_bytes = int(checked["memory"]), int(checked["download_bytes"])
         self.segment, self.semaphore_name = _names(registers)
         self.routine = ""
-        self.process: subprocess.Popen | None = None
+        self.process: subprocess.Popen[bytes] | None = None
         self.fault = ""
         self._taken: tuple[np.ndarray, tuple[int, int, float, int, int]] | None = None  # `_take_figures`
         self._scheduler = ""  # the processor's scheduling policy, as `_take_figures` last saw it
@@ -219,7 +220,7 @@ class SpecialPurposeProcessor(DeviceDriver):
         return int(n[_ANSWERED])
 
     def _post(self) -> None:
-        try:
+        try:  # noqa: SIM105 - per call of a cycle: contextlib.suppress would allocate each time
             self._wake.release()  # type: ignore[union-attr]
         except posix_ipc.Error:  # the count is at its most: the processor has posts enough to wake on
             pass
@@ -273,7 +274,7 @@ class SpecialPurposeProcessor(DeviceDriver):
         self._look_for_death()
         return self.fault
 
-    def _await(self, done, timeout: float, what: str) -> None:
+    def _await(self, done: Callable[[], bool], timeout: float, what: str) -> None:
         deadline = time.monotonic() + timeout
         while not done():
             if self.process is not None and self.process.poll() is not None:
@@ -294,7 +295,10 @@ class SpecialPurposeProcessor(DeviceDriver):
         if self._taken is None:
             return {}
         service, (items, missed, service_max, calls, late) = self._taken
-        pct = (lambda q: float(np.percentile(service, q)) / 1e9 if service.size else 0.0)
+
+        def pct(q: float) -> float:
+            return float(np.percentile(service, q)) / 1e9 if service.size else 0.0
+
         return {"processor": "spp", "routine": self.routine, "items": items, "missed": missed,
                 "service_p50": pct(50), "service_p99": pct(99), "service_max": service_max,
                 "calls": calls, "late_calls": late, "fault": self.fault, "scheduler": self._scheduler}
@@ -303,8 +307,10 @@ class SpecialPurposeProcessor(DeviceDriver):
         """Copy the counts and service times out of the shared memory; the percentiles wait for `figures()`."""
         words = self._words
         items = int(words[W.ITEMS])
-        self._taken = (self._ring[:min(items, RING)].copy(),
-                       (items, int(words[W.MISSED]), int(words[W.SERVICE_NS_MAX]) / 1e9, int(self._n[_CALLS]), int(self._n[_LATE])))
+        self._taken = (
+            self._ring[: min(items, RING)].copy(),
+            (items, int(words[W.MISSED]), int(words[W.SERVICE_NS_MAX]) / 1e9, int(self._n[_CALLS]), int(self._n[_LATE])),
+        )
         self._scheduler = _scheduler(self.process) or self._scheduler
 
     def close(self) -> None:
@@ -330,14 +336,13 @@ class SpecialPurposeProcessor(DeviceDriver):
             wake.close()
         mapping, self._mapping = self._mapping, None
         if mapping is not None:
-            try:
+            # a view of it outlives the driver (a caller kept one): the mapping goes with it
+            with contextlib.suppress(BufferError):
                 mapping.close()
-            except BufferError:  # a view of it outlives the driver (a caller kept one): the mapping goes with it
-                pass
         return lambda: _stop(process)
 
 
-def _scheduler(process: subprocess.Popen | None) -> str:
+def _scheduler(process: subprocess.Popen[bytes] | None) -> str:
     """The processor's scheduling policy, for its figures: "SCHED_FIFO 1", "SCHED_OTHER"; "" once it ended."""
     if process is None:
         return ""
@@ -349,7 +354,7 @@ def _scheduler(process: subprocess.Popen | None) -> str:
     return f"SCHED_FIFO {priority}" if policy == os.SCHED_FIFO else "SCHED_OTHER"
 
 
-def _stop(process: subprocess.Popen | None) -> None:
+def _stop(process: subprocess.Popen[bytes] | None) -> None:
     """Stop the processor and reap it; one that does not stop within `_STOP_TIMEOUT` is killed."""
     if process is None:
         return

@@ -15,11 +15,14 @@ process was killed) leaves nothing behind either.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ctypes
+import mmap
 import os
 import signal
 import sys
 import time
+from types import FrameType
 
 import msgpack
 import numpy as np
@@ -39,7 +42,7 @@ class _Stop(BaseException):
 _stopping = ""
 
 
-def _stop(signum: int, _frame) -> None:
+def _stop(signum: int, _frame: FrameType | None) -> None:
     """Raise once: a second signal (the parent's death signal after a SIGTERM) must not break into
     the `finally` that unlinks."""
     global _stopping
@@ -52,10 +55,8 @@ def _stop(signum: int, _frame) -> None:
 def _die_with(parent: int) -> None:
     for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(signum, _stop)
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
     if os.getppid() != parent:  # the parent died before the request took effect
         raise _Stop("parent gone")
 
@@ -65,14 +66,10 @@ def _own_processor() -> None:
     processor is another piece of hardware; here it must never take an RTPU's CPU from it. It
     starts (imports, builds its routine) at SCHED_OTHER; once it has loaded, its driver puts it
     just below every executive (`process_below_the_cycle`)."""
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (OSError, AttributeError):
-        pass
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         os.sched_setaffinity(0, range(os.cpu_count() or 1))
-    except (OSError, AttributeError):
-        pass
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -100,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def serve(mapping, semaphore, memory: int, download_bytes: int, parent: int) -> None:
+def serve(mapping: mmap.mmap, semaphore: posix_ipc.Semaphore, memory: int, download_bytes: int, parent: int) -> None:
     words, ring, request, result, download = views(mapping, memory, download_bytes)
     if words[W.MAGIC] != MAGIC:
         raise SystemExit("not a special-purpose processor's segment")
@@ -151,7 +148,7 @@ def serve(mapping, semaphore, memory: int, download_bytes: int, parent: int) -> 
             words[W.SERVICE_NS_MAX] = took
 
 
-def _download(words: np.ndarray, download: np.ndarray, memory: int):
+def _download(words: np.ndarray, download: np.ndarray, memory: int) -> routines.Jacobian | None:
     """Build the routine the download names; answer its sizes, or the reason in the download area."""
     seq = int(words[W.DOWNLOAD_SEQ])
     words[W.STATE] = State.READY
@@ -162,7 +159,7 @@ def _download(words: np.ndarray, download: np.ndarray, memory: int):
         if max(routine.in_size, routine.out_size) > memory:
             raise ValueError(f"routine {blob['routine']} needs {max(routine.in_size, routine.out_size)} numbers of memory "
                              f"for its inputs or outputs; the processor has {memory}: raise the device's option memory")
-    except Exception as exc:  # noqa: BLE001 - the driver raises it in the task's init, with the reason
+    except Exception as exc:  # the driver raises it in the task's init, with the reason
         text = f"{type(exc).__name__}: {exc}".encode()[: download.size]
         download[:len(text)] = np.frombuffer(text, dtype=np.uint8)
         words[W.ANSWER_BYTES] = len(text)

@@ -27,7 +27,7 @@ class Jacobian:
     """x and J of one frame of the arm, per joint vector; `batch` vectors a work item."""
 
     def __init__(self, arrays: Mapping[str, np.ndarray], options: Mapping[str, Any], batch: int = 1) -> None:
-        import pinocchio  # type: ignore[import-untyped]  # the processor's own import: the driver never needs it
+        import pinocchio  # the processor's own import: the driver never needs it
 
         missing = [name for name in ("ARM", "EE") if name not in arrays]
         if missing:

@@ -14,6 +14,8 @@ processor has not taken yet (a miss), and a result the driver finds mid-write is
 
 from __future__ import annotations
 
+import mmap
+
 import numpy as np
 
 MAGIC = 0x5050_5350  # "PPSP"
@@ -61,7 +63,9 @@ def layout(memory: int, download_bytes: int) -> dict[str, tuple[int, int]]:
     return areas
 
 
-def views(buffer, memory: int, download_bytes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def views(
+    buffer: mmap.mmap, memory: int, download_bytes: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(header words, service-time ring ns, request area, result area, download bytes) over a mapping."""
     areas = layout(memory, download_bytes)
     words = np.frombuffer(buffer, dtype=np.int64, count=HEADER_WORDS)

@@ -16,11 +16,11 @@ as few tasks as any assignment does.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
-from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.analysis.schedulability import Cost, Load, response_times
+from pbo_runtime.config.model import Subsystem, TaskSpec
 
 SEARCH_LIMIT = 200_000  # partial assignments tried before the search gives up
 

@@ -14,22 +14,35 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable, Mapping
+from typing import TYPE_CHECKING, Any
 
-from pbo_runtime.config.bus_model import (LOCKS_PER_CYCLE, PER_CYCLE_IN, PER_CYCLE_OUT, BusModelError, BusReport, TaskLoad,
-                                          bus_report, interval_of, members_of, predict, task_load, transfer_bytes)
+from pbo_runtime.config.bus_model import (
+    LOCKS_PER_CYCLE,
+    PER_CYCLE_IN,
+    PER_CYCLE_OUT,
+    BusModelError,
+    BusReport,
+    TaskLoad,
+    bus_report,
+    interval_of,
+    members_of,
+    predict,
+    task_load,
+    transfer_bytes,
+)
 from pbo_runtime.config.model import PortBinding, Subsystem, TaskSpec
 from pbo_runtime.objects.ports import PortKind
 
 if TYPE_CHECKING:
     from rich.table import Table
 
-__all__ = ["measured", "measured_live", "combined_saving", "describe_saving", "as_table", "as_json", "as_csv", "plot"]
+__all__ = ["as_csv", "as_json", "as_table", "combined_saving", "describe_saving", "measured", "measured_live", "plot"]
 
 
 def measured(subsystem: Subsystem, report_json: Mapping[str, Any], configuration: str | None = None) -> BusReport:
-    """Z_j as a run saw it: cycles × (bytes per cycle + 2Δ) / duration, for every task of the run's configuration.
+    """Z_j as a run saw it: cycles x (bytes per cycle + 2Δ) / duration, for every task of the run's configuration.
 
     `report_json` is what `pbo run --report` writes (RunResult.to_json): its `duration`, and per
     task `cycles` and `bytes_moved_per_cycle` (what the table really moved per cycle: the data,
@@ -72,7 +85,7 @@ def measured(subsystem: Subsystem, report_json: Mapping[str, Any], configuration
 
 
 def measured_live(subsystem: Subsystem, status: Mapping[str, Any]) -> BusReport:
-    """Z_j of a running configuration, now: each task's measured rate × (bytes per cycle + 2Δ).
+    """Z_j of a running configuration, now: each task's measured rate x (bytes per cycle + 2Δ).
 
     `status` is the status reply of a live run (`supervisor.commands`): its `configuration`, and
     per task its measured `rate` (Hz) and `state`. A task not ON moves nothing now (rate 0); a
@@ -173,10 +186,12 @@ def describe_saving(before: BusReport, after: BusReport) -> str:
 
 # --- output ------------------------------------------------------------------------------------
 
+NO_VALUE = "–"  # noqa: RUF001 - an en dash, deliberately: what a table shows in a cell with no figure
+
 
 def _seconds(value: float) -> str:
     if not math.isfinite(value):
-        return "–"
+        return NO_VALUE
     if value >= 1:
         return f"{value:g} s"
     if value >= 1e-3:
@@ -232,9 +247,13 @@ def as_table(report: BusReport, measured: BusReport | None = None) -> Table:
             row += [_kbs(load.rate_bytes_per_s), _pct(load.rate_bytes_per_s / report.bandwidth)]
         else:
             m = seen.get(load.task)
-            row += [str(m.cycles) if m is not None and m.cycles is not None else "–",
-                    _kbs(load.rate_bytes_per_s), _kbs(m.rate_bytes_per_s) if m is not None else "–",
-                    _pct(load.rate_bytes_per_s / report.bandwidth), _pct(m.rate_bytes_per_s / measured.bandwidth) if m is not None else "–"]
+            row += [
+                str(m.cycles) if m is not None and m.cycles is not None else NO_VALUE,
+                _kbs(load.rate_bytes_per_s),
+                _kbs(m.rate_bytes_per_s) if m is not None else NO_VALUE,
+                _pct(load.rate_bytes_per_s / report.bandwidth),
+                _pct(m.rate_bytes_per_s / measured.bandwidth) if m is not None else NO_VALUE,
+            ]
         table.add_row(*row)
     table.add_section()
     style = "bold red" if report.over else "bold"

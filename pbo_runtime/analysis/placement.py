@@ -33,8 +33,9 @@ once wcets are given): the RTPU is checked to exist and reported back.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any
 
 from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.objects import registry
@@ -256,14 +257,25 @@ class Placement:
             else:
                 dtype, shape = known
                 if port.dtype != ANY_DTYPE and port.dtype != dtype:
-                    return Verdict(name, False, "E301", f"port '{port.name}' ({port.kind_text}) of module '{name}' is "
-                                                        f"{port.dtype}, but variable '{var}' is {dtype}",
-                                   f"link the port to a {port.dtype} variable with ports: {{{port.name}: <variable>}}", links=links)
+                    return Verdict(
+                        name,
+                        False,
+                        "E301",
+                        f"port '{port.name}' ({port.kind_text}) of module '{name}' is "
+                        f"{port.dtype}, but variable '{var}' is {dtype}",
+                        f"link the port to a {port.dtype} variable with ports: {{{port.name}: <variable>}}",
+                        links=links,
+                    )
                 if port.shape is not None and port.shape != shape:
-                    return Verdict(name, False, "E302", f"port '{port.name}' ({port.kind_text}) of module '{name}' has shape "
-                                                        f"{_show(port.shape)}, but variable '{var}' has shape {_show(shape)}",
-                                   f"link the port to a variable of shape {_show(port.shape)} with ports: {{{port.name}: <variable>}}",
-                                   links=links)
+                    return Verdict(
+                        name,
+                        False,
+                        "E302",
+                        f"port '{port.name}' ({port.kind_text}) of module '{name}' has shape "
+                        f"{_show(port.shape)}, but variable '{var}' has shape {_show(shape)}",
+                        f"link the port to a variable of shape {_show(port.shape)} with ports: {{{port.name}: <variable>}}",
+                        links=links,
+                    )
             written = writers.get(var)
             if not port.is_input:
                 if written:

@@ -21,9 +21,10 @@ Times are counted in whole ticks (1 ns) so that "started one tick before" is exa
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
 
 from pbo_runtime.config.model import Subsystem, TaskSpec
 
@@ -140,11 +141,7 @@ def _np_edf_response(i: _Scaled, higher: list[_Scaled], same: list[_Scaled], low
                 block, who = j.c - 1, j.name
         fixed = block + (a // i.t) * i.c
         eligible = [(j, 1 + (deadline - j.t) // j.t) for j in same if j.t <= deadline]
-
-        def start(t: int) -> int:
-            return (fixed + sum((1 + t // j.t) * j.c for j in higher)
-                    + sum(min(1 + t // j.t, jobs) * j.c for j, jobs in eligible))
-
+        start = functools.partial(_job_start, fixed, higher, eligible)
         begins = _fixed_point(start, start(0), limit)
         if begins is None:
             return math.inf, "", 0
@@ -154,7 +151,13 @@ def _np_edf_response(i: _Scaled, higher: list[_Scaled], same: list[_Scaled], low
     return worst, worst_who, worst_block
 
 
-def _fixed_point(step, start: int, limit: int) -> int | None:
+def _job_start(fixed: int, higher: list[_Scaled], eligible: list[tuple[_Scaled, int]], t: int) -> int:
+    """The right side of the start equation of `_np_edf_response` at `t` (`eligible`: same-level tasks with their job bound)."""
+    return (fixed + sum((1 + t // j.t) * j.c for j in higher)
+            + sum(min(1 + t // j.t, jobs) * j.c for j, jobs in eligible))
+
+
+def _fixed_point(step: Callable[[int], int], start: int, limit: int) -> int | None:
     """The least fixed point of a non-decreasing step from `start`, or None past `limit` ticks."""
     t = start
     while True:

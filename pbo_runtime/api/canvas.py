@@ -18,17 +18,18 @@ folder is read (`files.in_tree`).
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
 from pbo_runtime.api.files import NoFile, OutsideRoot, in_tree, subsystem_file
 from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, REFUSED, Reply, refusal
+from pbo_runtime.config.root import OUTSIDE_ROOT
 from pbo_runtime.edit.canvas import CANVAS_CONFIGURATION, CanvasError, check_canvas, file_canvas, tasks_from_json
 from pbo_runtime.edit.canvas_job import JobRefused, save_job
 from pbo_runtime.edit.live import NAME
-from pbo_runtime.config.root import OUTSIDE_ROOT
 
 
 class CanvasRequest(BaseModel):

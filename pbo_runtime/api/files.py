@@ -34,15 +34,15 @@ from fastapi.responses import Response
 from pydantic import BaseModel
 from starlette.concurrency import run_in_threadpool
 
-from pbo_runtime.api.link import RunLink
-from pbo_runtime.api.guard import MAX_BODY_BYTES
-from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, TOO_LARGE, Reply, refusal
 from pbo_runtime.analysis import bus
-from pbo_runtime.config import bus_model
-from pbo_runtime.edit.job_dictionary import job_dictionary, row_gaps
-from pbo_runtime.config.loader import CheckResult, check_file, format_diagnostics
 from pbo_runtime.analysis.placement import placement_report
+from pbo_runtime.api.guard import MAX_BODY_BYTES
+from pbo_runtime.api.link import RunLink
+from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, TOO_LARGE, Reply, refusal
+from pbo_runtime.config import bus_model
+from pbo_runtime.config.loader import CheckResult, check_file, format_diagnostics
 from pbo_runtime.config.root import OUTSIDE_ROOT, confined, is_within
+from pbo_runtime.edit.job_dictionary import job_dictionary, row_gaps
 from pbo_runtime.errors import ConfigError, PboError
 from pbo_runtime.reports.graph import draw
 from pbo_runtime.reports.lexicon import lexicon

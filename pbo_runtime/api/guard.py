@@ -21,7 +21,8 @@ from pbo_runtime.api.replies import BAD_REQUEST, TOO_LARGE, refusal
 
 MAX_BODY_BYTES = 1 << 20  # a request carries a subsystem file at most, or a verb's arguments
 MAX_JSON_DEPTH = 32  # a verb's arguments, a canvas, a workspace's row or an object's value nest a few levels
-TEXT_TYPES = ("text/plain", "application/yaml", "application/x-yaml", "text/yaml")  # parsed by the YAML loader, which has its limits
+# parsed by the YAML loader, which has its limits
+TEXT_TYPES = ("text/plain", "application/yaml", "application/x-yaml", "text/yaml")
 
 log = logging.getLogger("pbo_runtime.api")
 

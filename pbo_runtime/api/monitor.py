@@ -20,12 +20,12 @@ from typing import Any
 from fastapi import APIRouter, Request, WebSocket, WebSocketDisconnect
 from starlette.concurrency import run_in_threadpool
 
+from pbo_runtime.analysis import bus
 from pbo_runtime.api.files import NoFile, loaded, subsystem_file
 from pbo_runtime.api.jsonable import jsonable
 from pbo_runtime.api.link import NoRun, RunLink
 from pbo_runtime.api.replies import BAD_REQUEST, NO_ANSWER, NO_RUN, Reply, refusal
 from pbo_runtime.api.streams import accept_at_rate, open_view, refuse, ticks
-from pbo_runtime.analysis import bus
 from pbo_runtime.config import bus_model
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.errors import PboError
@@ -69,7 +69,9 @@ def arm_in(view: Any, name: str) -> ArmFrames:
 def router() -> APIRouter:
     routes = APIRouter(tags=["monitor"])
 
-    @routes.get("/api/monitor/layout", summary="the file's tasks (tunable parameters), configurations and variables, for the monitor")
+    @routes.get(
+        "/api/monitor/layout", summary="the file's tasks (tunable parameters), configurations and variables, for the monitor"
+    )
     def get_layout(request: Request) -> Reply:
         try:
             file = subsystem_file(request)
@@ -93,7 +95,9 @@ def router() -> APIRouter:
         try:
             file = str(request.app.state.file or reply.get("file") or "")
             if not file:
-                raise NoFile("no subsystem file: pbo hmi was given none and the run did not say its own; start it as pbo hmi FILE")
+                raise NoFile(
+                    "no subsystem file: pbo hmi was given none and the run did not say its own; start it as pbo hmi FILE"
+                )
             subsystem = checked(file, "report the bus")
             measured = bus.measured_live(subsystem, reply)
             predicted = bus_model.predict(subsystem, measured.configuration)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import errno
 import ipaddress
 import socket
-from typing import Callable
+from collections.abc import Callable
 
 import uvicorn
 import yaml
@@ -35,8 +35,12 @@ def bind(host: str, port: int) -> socket.socket:
     except OSError as exc:
         sock.close()
         if exc.errno == errno.EADDRINUSE:
-            raise PboError(f"port {port} on {host} is in use (another pbo hmi?): pass --port N, or --port 0 for any free one") from None
-        raise PboError(f"cannot listen on {host}:{port}: {exc.strerror or exc}; pass --host {LOOPBACK} or another --port") from None
+            raise PboError(
+                f"port {port} on {host} is in use (another pbo hmi?): pass --port N, or --port 0 for any free one"
+            ) from None
+        raise PboError(
+            f"cannot listen on {host}:{port}: {exc.strerror or exc}; pass --host {LOOPBACK} or another --port"
+        ) from None
     sock.set_inheritable(True)
     return sock
 
@@ -68,7 +72,9 @@ def describe_run(link: LiveRunLink) -> str:
     try:
         subsystem, run_id, _table = link.find()
     except NoRun as exc:
-        if link.run is None and ("no subsystem is running" in str(exc) or f"subsystem '{link.subsystem}' is not running" in str(exc)):
+        if link.run is None and (
+            "no subsystem is running" in str(exc) or f"subsystem '{link.subsystem}' is not running" in str(exc)
+        ):
             which = f"'{link.subsystem}'" if link.subsystem else "any subsystem"
             return (f"no run of {which} yet: lexicon, check, bus and graph are served, and a run started later "
                     f"is found at the next request")

@@ -21,8 +21,8 @@ from typing import Any
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect, status
 from starlette.concurrency import run_in_threadpool
 
-from pbo_runtime.api.link import NoRun, RunLink
 from pbo_runtime.api.jsonable import jsonable
+from pbo_runtime.api.link import NoRun, RunLink
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import shm
 from pbo_runtime.supervisor.commands import STATUS_TIMEOUT

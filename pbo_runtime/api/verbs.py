@@ -14,7 +14,8 @@ folder (`files.served_root`) and refused with 403 when it leaves it.
 from __future__ import annotations
 
 import json
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from fastapi import APIRouter, Request
 from starlette.concurrency import run_in_threadpool

@@ -11,8 +11,9 @@
 
 Every save is checked like `pbo check` before it replaces the file, and answers with the new job
 dictionary. The file written is the one `pbo hmi FILE` was given, or the run's own
-(`files.subsystem_file`), never a path from the request, and nothing outside its folder is read. Refusals: 400 (the row or value is
-wrong, or the file would not check clean), 409 (the run refused), 404 (no file, or no run).
+(`files.subsystem_file`), never a path from the request, and nothing outside its folder is read.
+Refusals: 400 (the row or value is wrong, or the file would not check clean), 409 (the run refused),
+404 (no file, or no run).
 """
 
 from __future__ import annotations
@@ -27,8 +28,8 @@ from starlette.concurrency import run_in_threadpool
 from pbo_runtime.api.files import NoFile, in_tree, loaded, subsystem_file
 from pbo_runtime.api.link import NoRun, RunLink
 from pbo_runtime.api.replies import BAD_REQUEST, NO_ANSWER, NO_RUN, Reply, refusal, supervisor_reply
-from pbo_runtime.edit.job_dictionary import job_dictionary
 from pbo_runtime.config.loader import CheckResult
+from pbo_runtime.edit.job_dictionary import job_dictionary
 from pbo_runtime.edit.workspace import RowRefused, check_name, checked_row, file_steps, run_steps
 from pbo_runtime.edit.workspace_file import SaveRefused, save_application, save_object
 from pbo_runtime.errors import PboError

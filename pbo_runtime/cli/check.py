@@ -11,8 +11,8 @@ from rich.console import Console
 from pbo_runtime.cli.arguments import host_addresses
 from pbo_runtime.cli.exits import EXIT_CONFIG, EXIT_OK
 from pbo_runtime.config.decisions import decides, paths
-from pbo_runtime.edit.job_dictionary import dictionary_lines, job_dictionary
 from pbo_runtime.config.transitions import transitions, transitions_of
+from pbo_runtime.edit.job_dictionary import dictionary_lines, job_dictionary
 
 
 def check(args: argparse.Namespace, console: Console, errors: Console) -> int:
@@ -48,8 +48,8 @@ def check(args: argparse.Namespace, console: Console, errors: Console) -> int:
 def _check_application(args: argparse.Namespace, console: Console, errors: Console) -> int:
     """An application file: each subsystem's file in full, then its links against their tasks."""
     from pbo_runtime.config.application import check_application
-    from pbo_runtime.config.parallel import stage_lines
     from pbo_runtime.config.loader import CheckResult, format_diagnostics
+    from pbo_runtime.config.parallel import stage_lines
 
     addresses = host_addresses(args)
     if isinstance(addresses, str):
@@ -66,10 +66,13 @@ def _check_application(args: argparse.Namespace, console: Console, errors: Conso
         app = result.application
         lines = [f"{args.file}: ok: application '{app.name}', {len(app.subsystems)} subsystems, {len(app.links)} link(s)"]
         for key, sub in app.subsystems.items():
-            runs = "".join(f", runs {'application' if k == 'app' else 'configuration'} '{v}'" for k, v in app.run.get(key, {}).items())
+            runs = "".join(
+                f", runs {'application' if k == 'app' else 'configuration'} '{v}'" for k, v in app.run.get(key, {}).items()
+            )
             where = f" on {app.placement[key]} ({app.hosts[app.placement[key]]})" if key in app.placement else ""
             lines.append(f"  subsystem {key}: {sub.file} ('{sub.name}', {len(sub.tasks)} task(s){runs}){where}")
-        lines.extend(stage_lines(app.stages, app.subsystems, _transition_lines))  # run: as parallel stages, joined one after another
+        # run: as parallel stages, joined one after another
+        lines.extend(stage_lines(app.stages, app.subsystems, _transition_lines))
         for link in app.links.values():
             kind = f"messages, {link.capacity} queued at most" if link.kind == "message" else "periodic"
             lines.append(f"  link {link.name}: {link.sender[0]}.{link.sender[1]} -> {link.receiver[0]}.{link.receiver[1]} "
@@ -149,7 +152,7 @@ def limit_lines(rows: list[dict[str, Any]]) -> list[str]:
     widths = [max(len(row[i]) for row in [("joint", "effort", "velocity", "range"), *cells]) for i in range(3)]
     lines = ["  the robot's limits (commands are clipped to them; a joint past them is a fault):"]
     for row in [("joint", "effort", "velocity", "range"), *cells]:
-        lines.append("    " + "  ".join(cell.ljust(width) for cell, width in zip(row, widths)) + "  " + row[3])
+        lines.append("    " + "  ".join(cell.ljust(width) for cell, width in zip(row[:3], widths, strict=True)) + "  " + row[3])
     return lines
 
 
@@ -164,7 +167,9 @@ def _inferred_json(result: Any) -> dict[str, Any]:
         out["robot_limits"] = list(result.robot_limits)
     if result.inferred:
         variables = result.subsystem.variables
-        out["inferred"] = {name: {"type": variables[name].dtype, "shape": list(variables[name].shape)} for name in result.inferred}
+        out["inferred"] = {
+            name: {"type": variables[name].dtype, "shape": list(variables[name].shape)} for name in result.inferred
+        }
     return out
 
 

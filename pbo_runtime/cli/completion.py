@@ -10,8 +10,9 @@ subsystem file among them (`pbo run FILE --config <TAB>`), else from the one liv
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -54,9 +55,11 @@ def _names(kind: str) -> dict[str, Any]:
     function = f"_pbo_complete_{kind}"
     return {
         "bash": function,
-        "zsh": f"(${{(f)\"$(pbo {HIDDEN_VERB} {kind} ${{words[@]}} 2>/dev/null)\"}})",
+        "zsh": f'(${{(f)"$(pbo {HIDDEN_VERB} {kind} ${{words[@]}} 2>/dev/null)"}})',
         "tcsh": f"`pbo {HIDDEN_VERB} {kind} $COMMAND_LINE`",
-        "preamble": {"bash": f'{function}() {{ compgen -W "$(pbo {HIDDEN_VERB} {kind} "${{COMP_WORDS[@]}}" 2>/dev/null)" -- "$1"; }}'},
+        "preamble": {
+            "bash": f'{function}() {{ compgen -W "$(pbo {HIDDEN_VERB} {kind} "${{COMP_WORDS[@]}}" 2>/dev/null)" -- "$1"; }}'
+        },
     }
 
 

@@ -70,8 +70,8 @@ def lexicon(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 
 def place(args: argparse.Namespace, console: Console, errors: Console) -> int:
-    from pbo_runtime.config.loader import load_subsystem
     from pbo_runtime.analysis.placement import placement_report
+    from pbo_runtime.config.loader import load_subsystem
 
     subsystem = load_subsystem(args.file)
     tasks = [t.strip() for t in args.tasks.split(",") if t.strip()] if args.tasks is not None else None

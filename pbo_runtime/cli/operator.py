@@ -19,25 +19,37 @@ import difflib
 import functools
 import json
 import time
-from collections.abc import Sequence
-from typing import Any, Callable
+from collections.abc import Callable, Sequence
+from typing import Any
 
 from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from pbo_runtime.ipc import shm
-from pbo_runtime.reports.run_summary import scheduler_outcome
 from pbo_runtime.api.jsonable import jsonable
+from pbo_runtime.errors import PboError
+from pbo_runtime.ipc import shm
 from pbo_runtime.ipc.control import BadRequest, ControlClient
 from pbo_runtime.ipc.runs import live_runs
-from pbo_runtime.errors import PboError
+from pbo_runtime.reports.run_summary import scheduler_outcome
 from pbo_runtime.supervisor.command_table import COMMANDS, parse_object_values
 from pbo_runtime.supervisor.status_reply import TaskStatusEntry
 from pbo_runtime.table.snapshot import TableBusy
 from pbo_runtime.table.svar import TableView, open_table, svar_rows, svar_table
 
-__all__ = ["parse_object_values", "run_verb", "run_verb_json", "runs", "status", "task_signal", "switch", "job", "event", "stop", "svar"]
+__all__ = [
+    "event",
+    "job",
+    "parse_object_values",
+    "run_verb",
+    "run_verb_json",
+    "runs",
+    "status",
+    "stop",
+    "svar",
+    "switch",
+    "task_signal",
+]
 
 WRITER_MAP_TIMEOUT = 0.5  # svar asks for task names, but must not wait long for a busy supervisor
 TASK_COMMANDS = ("on", "off", "clear")
@@ -155,7 +167,9 @@ def task_signal(console: Console, command: str, task: str, subsystem: str | None
 def switch(console: Console, configuration: str, subsystem: str | None = None, run: str | None = None) -> int:
     """Switch the running subsystem to another configuration (a dynamic reconfiguration, TR §4.4)."""
     verb = COMMANDS["switch"]
-    reply = ControlClient.connect(subsystem, run).call("switch", verb.request({"configuration": configuration}), timeout=verb.timeout)
+    reply = ControlClient.connect(subsystem, run).call(
+        "switch", verb.request({"configuration": configuration}), timeout=verb.timeout
+    )
     text = f"configuration '{reply.get('configuration', configuration)}' is on"
     if reply.get("entered") or reply.get("left"):
         text += f" (on: {', '.join(reply.get('entered') or []) or '—'}; off: {', '.join(reply.get('left') or []) or '—'})"

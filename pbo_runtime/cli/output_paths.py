@@ -11,6 +11,7 @@ never a truncated one; a device or pipe (`/dev/stdout`) is written in place.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import stat
@@ -93,10 +94,8 @@ def _replace_atomically(path: Path, data: bytes) -> None:
         os.chmod(temporary, 0o644)  # mkstemp's 0600 would make a report the operator's group cannot read
         os.replace(temporary, path)
     except BaseException:
-        try:
+        with contextlib.suppress(OSError):
             os.unlink(temporary)
-        except OSError:
-            pass
         raise
 
 
@@ -116,10 +115,8 @@ def _probe_directory(directory: Path, option: str, named: Path) -> None:
         raise OutputPathError(f"{option} {named}: cannot write in {directory}: {_os_error(exc)}; "
                               f"{_hint(exc)}") from None
     finally:
-        try:
+        with contextlib.suppress(OSError):
             os.unlink(temporary)
-        except OSError:
-            pass
 
 
 def _probe_in_place(path: Path, option: str) -> None:
@@ -128,7 +125,7 @@ def _probe_in_place(path: Path, option: str) -> None:
         handle = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_NONBLOCK)
     except OSError as exc:
         if exc.errno == errno.ENXIO:
-            raise OutputPathError(f"{option} {path}: is a pipe with no reader; start its reader first, or name a file")
+            raise OutputPathError(f"{option} {path}: is a pipe with no reader; start its reader first, or name a file") from None
         raise OutputPathError(f"{option} {path}: cannot open it for writing: {_os_error(exc)}; {_hint(exc)}") from None
     try:
         os.write(handle, b"")

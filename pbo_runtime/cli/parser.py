@@ -57,5 +57,5 @@ def _add_verb(sub: Any, name: str, help: str, arguments: tuple[Argument, ...], h
     for argument in arguments:
         action = parser.add_argument(*argument.flags, **argument.argparse_options())
         if argument.complete is not None:
-            action.complete_kind = argument.complete  # type: ignore[attr-defined]
+            action.complete_kind = argument.complete
     parser.set_defaults(handler=handler)

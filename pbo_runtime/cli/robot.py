@@ -13,11 +13,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from rich.console import Console
-
 
 PLANT_TYPE = "mujoco_arm"
 
@@ -148,4 +148,4 @@ def text_lines(report: dict[str, Any]) -> list[str]:
 def _table(header: tuple[str, ...], cells: Sequence[tuple[str, ...]]) -> list[str]:
     rows = [header, *cells]
     widths = [max(len(row[i]) for row in rows) for i in range(len(header))]
-    return ["    " + "  ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip() for row in rows]
+    return ["    " + "  ".join(cell.ljust(width) for cell, width in zip(row, widths, strict=True)).rstrip() for row in rows]

@@ -59,7 +59,10 @@ def serve(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 def _start(client: ControlClient, args: argparse.Namespace, ros2: Any, message: Any, console: Console, errors: Console) -> bool:
     """Ask for the job with the message's values; say what the supervisor answered. True: started."""
-    count = len(message.data) if isinstance(message, ros2.Float64MultiArray) else len(message.points[-1].positions) if message.points else 0
+    if isinstance(message, ros2.Float64MultiArray):
+        count = len(message.data)
+    else:
+        count = len(message.points[-1].positions) if message.points else 0
     names = list(args.joint_names or [f"joint{i + 1}" for i in range(count)])
     values = ros2.goal_values(message, names)
     if not values or not all(math.isfinite(v) for v in values):

@@ -12,8 +12,9 @@ import json
 import os
 import signal
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.live import Live
@@ -24,6 +25,9 @@ from pbo_runtime.cli import summary
 from pbo_runtime.cli.arguments import host_addresses
 from pbo_runtime.cli.exits import EXIT_CONFIG, EXIT_OK, EXIT_RUN
 from pbo_runtime.supervisor.run_options import Alternation, RunOptions
+
+if TYPE_CHECKING:
+    from pbo_runtime.supervisor.fork_server import ForkServer
 
 
 def run(args: argparse.Namespace, console: Console, errors: Console) -> int:
@@ -47,7 +51,7 @@ def run(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 
 @contextlib.contextmanager
-def _early_fork_server(args: argparse.Namespace):
+def _early_fork_server(args: argparse.Namespace) -> Iterator[ForkServer | None]:
     """The run's fork server, started before the file is loaded: it imports and loads what the children
     need on the other CPU meanwhile (supervisor.fork_server). The supervisor ends it once the children
     are started; this ends it on the paths where no supervisor took it (a bad file, a refused run).
@@ -55,7 +59,7 @@ def _early_fork_server(args: argparse.Namespace):
     from pbo_runtime.ipc.shm import new_run_id
     from pbo_runtime.supervisor.fork_server import ForkServer, forking_enabled
 
-    server = None
+    server: ForkServer | None = None
     if args.clock == "real" and forking_enabled():  # (--one-process is on the simulated clock: no children to fork)
         try:
             server = ForkServer.start(str(Path(args.file).resolve()), ["pbo_runtime.supervisor.plant_host", "rtpu"],
@@ -69,7 +73,7 @@ def _early_fork_server(args: argparse.Namespace):
             server.close()
 
 
-def _load_and_run(args: argparse.Namespace, console: Console, errors: Console, fork_server: Any) -> int:
+def _load_and_run(args: argparse.Namespace, console: Console, errors: Console, fork_server: ForkServer | None) -> int:
     from pbo_runtime.config.loader import load_subsystem
 
     subsystem = load_subsystem(args.file)
@@ -105,7 +109,8 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
         errors.print(f"error: {refused}", markup=False)
         return EXIT_CONFIG
     say = _sayer(console)
-    supervisor = Supervisor(subsystem, args.config, duration, say=say, options=options, fork_server=fork_server)  # refuses a bad request here
+    # refuses a bad request here
+    supervisor = Supervisor(subsystem, args.config, duration, say=say, options=options, fork_server=fork_server)
     what = (f"application '{args.app}'" if args.app else f"{args.switches} switches" if alternate
             else "Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner")
     rtpus = f"{len(subsystem.rtpus)} RTPU{'s' if len(subsystem.rtpus) != 1 else ''}"
@@ -148,7 +153,7 @@ def default_run_dir(name: str) -> Path:
 
 
 @contextlib.contextmanager
-def _removed_if_empty(made: Path | None):
+def _removed_if_empty(made: Path | None) -> Iterator[None]:
     """The default run directory made for a run that was refused before it wrote anything goes again."""
     try:
         yield
@@ -175,7 +180,7 @@ def _print_outputs(console: Console, out: Path, result: Any) -> None:
 
 
 @contextlib.contextmanager
-def _results_outlive_a_second_stop():
+def _results_outlive_a_second_stop() -> Iterator[None]:
     """Once the run has ended, Ctrl-C and SIGTERM no longer cut its summary and report short.
 
     The supervisor handles both while the run lasts and puts these back when it ends. An

@@ -10,15 +10,26 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from rich.console import Console
 
-from pbo_runtime.analysis.allocation import pinned_tasks, period_needed, propose
+from pbo_runtime.analysis.allocation import period_needed, pinned_tasks, propose
+from pbo_runtime.analysis.schedulability import (
+    MAY_MISS,
+    MEETS,
+    PROVEN,
+    REFUTED,
+    UNKNOWN,
+    Cost,
+    Verdict,
+    analyse,
+    analyse_configuration,
+    measured_configurations,
+)
 from pbo_runtime.config.model import Subsystem
-from pbo_runtime.analysis.schedulability import (MAY_MISS, MEETS, PROVEN, REFUTED, UNKNOWN, Cost, Verdict, analyse,
-                                               analyse_configuration, measured_configurations)
 from pbo_runtime.errors import ConfigError, ConfigErrors
 
 EXEC_TIMES = {"max": "exec_max", "p99": "exec_p99"}
@@ -124,11 +135,17 @@ def diagnostics(subsystem: Subsystem, costs: Mapping[str, Cost], results: Mappin
                         loc.file, loc.line, loc.column,
                         hint=_remedy(subsystem, costs, configuration, v, kept, verdicts, profile)))
                 elif v.status == MAY_MISS and v.response is not None:
-                    warnings.append(ConfigError(
-                        f"task '{v.task}' can miss its deadline on RTPU '{rtpu}' {where}: {_late(v, verdicts)}",
-                        loc.file, loc.line, loc.column,
-                        hint="not critical: the executive runs it after every critical cycle; it overruns, the critical tasks do not",
-                        severity="warning"))
+                    warnings.append(
+                        ConfigError(
+                            f"task '{v.task}' can miss its deadline on RTPU '{rtpu}' {where}: {_late(v, verdicts)}",
+                            loc.file,
+                            loc.line,
+                            loc.column,
+                            hint="not critical: the executive runs it after every critical cycle; it overruns, "
+                            "the critical tasks do not",
+                            severity="warning",
+                        )
+                    )
                 elif v.status == UNKNOWN and v.critical:
                     missing = [u.task for u in verdicts if u.cost is None]
                     warnings.append(ConfigError(
@@ -170,7 +187,8 @@ def _remedy(subsystem: Subsystem, costs: Mapping[str, Cost], configuration: str,
 
 
 def check_profile(args: Any, console: Console, errors: Console, subsystem: Subsystem) -> tuple[int, dict[str, Any]]:
-    """`pbo check FILE --profile RUN`: print (or return, for --format json) the verdicts; exit 1 on a refuted critical deadline."""
+    """`pbo check FILE --profile RUN`: print (or return, for --format json) the verdicts; exit 1 on a
+    refuted critical deadline."""
     costs, notes, report = load_profile(Path(args.profile), subsystem, args.exec_time)
     results = analyse(subsystem, costs)
     found, warned = diagnostics(subsystem, costs, results, report)
@@ -238,7 +256,7 @@ def allocate(args: Any, console: Console, errors: Console) -> int:
     out = [f"allocation ({MODEL}), C = {key} of {report} ({EXEC_MEANING[args.exec_time]}):"]
     out += [f"note: {n}" for n in notes]
     if not judged:
-        errors.print("\n".join(out + [f"error: no configuration of {args.file} has an execution time for every task"]),
+        errors.print("\n".join([*out, f"error: no configuration of {args.file} has an execution time for every task"]),
                      markup=False, soft_wrap=True)
         return 1
     kept = pinned_tasks(subsystem, pins, free)
@@ -247,7 +265,8 @@ def allocate(args: Any, console: Console, errors: Console) -> int:
         why = (f"the search gave up after {search.tried:,} partial assignments" if search.gave_up else
                "no assignment of the tasks to the RTPUs proves every critical deadline")
         held = "; ".join(f"'{t}' {reason}" for t, reason in kept.items() if t in subsystem.tasks)
-        errors.print("\n".join(out + [
+        errors.print("\n".join([
+            *out,
             f"error: {why} of configuration(s) {', '.join(map(repr, judged))} on {len(subsystem.rtpus)} RTPU(s)"
             + (f" (kept: {held})" if held else ""),
             "  hint: lengthen a period, shorten a cycle, add an RTPU to `rtpus:`, or free a kept task (--free TASK)"]),

@@ -194,7 +194,7 @@ def verb_lines(commands: tuple[Command, ...], prefix: str = "pbo") -> list[str]:
             lines.extend(verb_lines(command.verbs, f"{prefix} {command.name}"))
             continue
         shown = [f"`{_usage(argument).replace('|', '/')}`" for argument in command.arguments if not argument.hidden]
-        lines.append(f"| `{prefix} {command.name}` | {' '.join(shown) or '–'} | {command.help.replace('|', '/')} |")
+        lines.append(f"| `{prefix} {command.name}` | {' '.join(shown) or '–'} | {command.help.replace('|', '/')} |")  # noqa: RUF001 - an en dash: no arguments
     return lines
 
 

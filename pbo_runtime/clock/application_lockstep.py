@@ -23,12 +23,12 @@ runner then stops every subsystem at once, and the run is no longer one that rep
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import posix_ipc
 
-from pbo_runtime.errors import PboError
 from pbo_runtime.clock.lockstep import remove_semaphores
+from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import shm
 
 WAIT_SLICE = 0.05  # seconds between looks at the processes while waiting for a turn or its end
@@ -97,7 +97,7 @@ class ApplicationLockstep:
     def __init__(self, application: str, run_id: str, ticks: dict[str, float]) -> None:
         """`ticks`: each subsystem's tick in seconds, in the order of the application file."""
         self.order = {key: index for index, key in enumerate(ticks)}
-        self.tick_ns = {key: int(round(tick * 1e9)) for key, tick in ticks.items()}
+        self.tick_ns = {key: round(tick * 1e9) for key, tick in ticks.items()}
         self.turns = {key: 0 for key in ticks}  # turns given so far: the next one ends with tick number `turns`
         self.rotation = list(ticks)  # the subsystems still running
         self.bases = {key: turn_base(application, run_id, key) for key in ticks}

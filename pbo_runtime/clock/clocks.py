@@ -10,6 +10,8 @@ from __future__ import annotations
 import ctypes
 import time
 
+import numpy as np
+
 from pbo_runtime.table.table import Header
 
 
@@ -75,7 +77,7 @@ class SimClock:
     ulps past the tick) still count as due at its tick.
     """
 
-    def __init__(self, header, tick: float) -> None:
+    def __init__(self, header: np.ndarray, tick: float) -> None:
         self.header = header
         self._words = header.data  # the header's words as plain ints: no numpy scalar per read
         self._time_word = int(Header.SIM_TIME_NS)
@@ -93,7 +95,8 @@ def lower_timer_slack(nanoseconds: int = 1) -> bool:
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         PR_SET_TIMERSLACK = 29
-        return libc.prctl(PR_SET_TIMERSLACK, nanoseconds, 0, 0, 0) == 0
+        done: int = libc.prctl(PR_SET_TIMERSLACK, nanoseconds, 0, 0, 0)
+        return done == 0
     except (OSError, AttributeError):
         return False
 

@@ -13,7 +13,7 @@ stop with nothing left to run), and an RTPU hosted here is never restarted.
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -30,7 +30,7 @@ class LocalRing:
 
     def __init__(self, roles: list[str], tick: float, header: np.ndarray) -> None:
         self.roles = list(roles)
-        self.tick_ns = int(round(tick * 1e9))
+        self.tick_ns = round(tick * 1e9)
         self.tick = self.tick_ns / 1e9
         self.header = header
         self._words = header.data  # the same words as plain ints: no numpy scalar per write

@@ -35,17 +35,16 @@ later run removes them if this one died.
 
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import posix_ipc
 
 from pbo_runtime.errors import PboError
-from pbo_runtime.ipc import process
-from pbo_runtime.ipc import shm
+from pbo_runtime.ipc import process, shm
 from pbo_runtime.table.table import Flag, Header
 
 WAIT_SLICE = 0.05  # seconds between checks for dead children while the participants run their ticks
@@ -87,7 +86,7 @@ class LockstepMaster:
 
     def __init__(self, subsystem: str, run_id: str, roles: list[str], tick: float, header: np.ndarray) -> None:
         self.roles = list(roles)
-        self.tick_ns = int(round(tick * 1e9))
+        self.tick_ns = round(tick * 1e9)
         self.tick = self.tick_ns / 1e9
         self.header = header
         self.ticks = 0
@@ -312,10 +311,8 @@ def _acquired(semaphore: posix_ipc.Semaphore, timeout: float) -> bool:
 def remove_semaphores(semaphores: Iterable[posix_ipc.Semaphore]) -> None:
     """Unlink and close the semaphores a clock master made (one another process unlinked is passed over)."""
     for semaphore in semaphores:
-        try:
+        with contextlib.suppress(posix_ipc.ExistentialError):
             semaphore.unlink()
-        except posix_ipc.ExistentialError:
-            pass
         semaphore.close()
 
 

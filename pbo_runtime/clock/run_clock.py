@@ -25,7 +25,8 @@ from __future__ import annotations
 import math
 import os
 import time
-from typing import Callable, Protocol
+from collections.abc import Callable
+from typing import Protocol
 
 import numpy as np
 
@@ -34,7 +35,6 @@ from pbo_runtime.clock.clocks import release_stagger
 from pbo_runtime.clock.local_ring import LocalRing
 from pbo_runtime.clock.lockstep import LockstepMaster, RingStop, ring_arguments, semaphore_names
 from pbo_runtime.table.table import Header
-
 
 TURN_STALL_SECONDS = 30.0  # wall seconds one participant may take over a tick while a whole application waits
 

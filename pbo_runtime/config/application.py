@@ -34,19 +34,19 @@ from __future__ import annotations
 import difflib
 import os
 import re
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from pbo_runtime.config.loader import CheckResult, check_file, inline_reference
 from pbo_runtime.config.model import NOWHERE, Location, Subsystem
-from pbo_runtime.config.parallel import check_stages
+from pbo_runtime.config.parallel import Error, check_stages
+from pbo_runtime.config.yaml_nodes import YList, YMap, load_file, location_of
 from pbo_runtime.errors import ConfigError
 from pbo_runtime.links.spec import TRANSPORTS, parse_endpoint
-from pbo_runtime.config.yaml_nodes import YList, YMap, load_file, location_of
 
 SENDER, RECEIVER = "link_sender", "link_receiver"
 MESSAGE_SENDER, SERVER = "message_sender", "message_server"
@@ -155,7 +155,7 @@ def check_application(path: str | os.PathLike[str], addresses: Mapping[str, str]
     return result
 
 
-def _check_subsystems(root: YMap, folder: Path, application: Application, result: ApplicationCheck, error) -> None:
+def _check_subsystems(root: YMap, folder: Path, application: Application, result: ApplicationCheck, error: Error) -> None:
     entries = root.get("subsystems")
     if not isinstance(entries, YMap) or not entries:
         error("E801", "subsystems must map each subsystem's name to its file",
@@ -203,7 +203,7 @@ def _check_subsystems(root: YMap, folder: Path, application: Application, result
         application.subsystems[key] = checked.subsystem
 
 
-def _check_hosts(root: YMap, application: Application, addresses: dict[str, str], error) -> None:
+def _check_hosts(root: YMap, application: Application, addresses: dict[str, str], error: Error) -> None:
     """`hosts: {name: ADDRESS}`; an address may be left empty (~) and given on the command line."""
     entries = root.get("hosts", YMap(root.loc))
     if not isinstance(entries, YMap):
@@ -234,14 +234,14 @@ def _check_hosts(root: YMap, application: Application, addresses: dict[str, str]
         application.hosts[name] = address
 
 
-def did_you_mean(name: str, known, what: str) -> str:
+def did_you_mean(name: str, known: Collection[str], what: str) -> str:
     close = difflib.get_close_matches(name, list(known), n=1)
     if close:
         return f"did you mean '{close[0]}'? ({what}: {', '.join(known)})"
     return f"{what}: {', '.join(known) or 'none'}"
 
 
-def _place(key: str, entry: YMap, application: Application, error) -> None:
+def _place(key: str, entry: YMap, application: Application, error: Error) -> None:
     """Subsystem `key`'s `host:`: a host of `hosts:` with an address."""
     host = entry["host"]
     loc = entry.value_loc("host")
@@ -262,7 +262,7 @@ def _place(key: str, entry: YMap, application: Application, error) -> None:
     application.placement[key] = host
 
 
-def _check_links(root: YMap, application: Application, error) -> None:
+def _check_links(root: YMap, application: Application, error: Error) -> None:
     entries = root.get("links", YMap(root.loc))
     if not isinstance(entries, YMap):
         error("E803", "links must map each link's name to its kind, type, shape and transport", location_of(entries, root.loc))
@@ -310,9 +310,13 @@ def _check_links(root: YMap, application: Application, error) -> None:
             continue
         port = spec.get("port", 0)
         if "port" in spec and (transport != "zenoh" or endpoint):
-            error("E812", f"link '{name}' takes no port: " + ("its endpoint names one" if endpoint else f"its transport is {transport}"),
-                  spec.key_loc("port"), "a port is where a zenoh link's listening end listens on its host; "
-                                        "give either port: or endpoint:, and only with transport: zenoh")
+            error(
+                "E812",
+                f"link '{name}' takes no port: " + ("its endpoint names one" if endpoint else f"its transport is {transport}"),
+                spec.key_loc("port"),
+                "a port is where a zenoh link's listening end listens on its host; "
+                "give either port: or endpoint:, and only with transport: zenoh",
+            )
             continue
         if "port" in spec and (not isinstance(port, int) or isinstance(port, bool) or not 0 < port < 65536):
             error("E812", f"link '{name}': port must be a TCP port from 1 to 65535, got {port!r}", spec.value_loc("port"),
@@ -322,7 +326,7 @@ def _check_links(root: YMap, application: Application, error) -> None:
                                            capacity=capacity, endpoint=str(endpoint), port=port, port_given="port" in spec)
 
 
-def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error) -> int | None:
+def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error: Error) -> int | None:
     """A message link's capacity (default: the system's most), checked; None after an error."""
     if kind != "message":
         if "capacity" in spec:
@@ -330,7 +334,10 @@ def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error)
                   "a triple buffer holds the newest item only; capacity is for kind: message")
             return None
         return 0
-    from pbo_runtime.links.message_link import SYSTEM_CAPACITY, SYSTEM_MESSAGE_BYTES  # the machine's queues: read for message links only
+    from pbo_runtime.links.message_link import (  # the machine's queues: read for message links only
+        SYSTEM_CAPACITY,
+        SYSTEM_MESSAGE_BYTES,
+    )
 
     capacity = spec.get("capacity", SYSTEM_CAPACITY)
     if not isinstance(capacity, int) or isinstance(capacity, bool) or not 1 <= capacity <= SYSTEM_CAPACITY:
@@ -347,7 +354,7 @@ def _message_capacity(name: str, kind: str, spec: YMap, shape: list[int], error)
     return capacity
 
 
-def _check_run(root: YMap, application: Application, error) -> None:
+def _check_run(root: YMap, application: Application, error: Error) -> None:
     """`run: {subsystem: {config: NAME} | {app: NAME}}`: what each subsystem runs (default: its first configuration)."""
     entries = root.get("run", YMap(root.loc))
     if isinstance(entries, YList):  # stages: parallel: {SUBSYSTEM: STEPS, ...}, one after another
@@ -394,7 +401,7 @@ def _check_run(root: YMap, application: Application, error) -> None:
         application.run[key] = chosen
 
 
-def _check_link_ends(application: Application, error) -> None:
+def _check_link_ends(application: Application, error: Error) -> None:
     """Each link: one sending and one receiving task of its kind, in different subsystems, ports of its payload."""
     ends: dict[str, dict[str, list[tuple[str, str, Location]]]] = {
         n: {module: [] for module in ENDS[spec.kind]} for n, spec in application.links.items()}
@@ -406,8 +413,12 @@ def _check_link_ends(application: Application, error) -> None:
                 continue
             link = task.params.get("link")
             if link not in application.links:
-                error("E804", f"task '{task.name}' of subsystem '{key}' uses link '{link}', which the application does not declare",
-                      task.loc, f"links: {', '.join(application.links) or 'none'}; declare it under links:")
+                error(
+                    "E804",
+                    f"task '{task.name}' of subsystem '{key}' uses link '{link}', which the application does not declare",
+                    task.loc,
+                    f"links: {', '.join(application.links) or 'none'}; declare it under links:",
+                )
                 continue
             spec = application.links[link]
             if spec.kind != kind:
@@ -454,15 +465,18 @@ def _check_link_ends(application: Application, error) -> None:
                                                spec.port, spec.port_given)
 
 
-def _check_placement(application: Application, error) -> None:
+def _check_placement(application: Application, error: Error) -> None:
     """Every subsystem on a host once one is; links between hosts over zenoh; one listener per host and port."""
     placed = [key for key in application.subsystems if application.placement.get(key)]
     if placed:
         for key in application.subsystems:
             if key not in application.placement:
-                error("E810", f"subsystem '{key}' names no host, while '{placed[0]}' is placed on '{application.placement[placed[0]]}'",
-                      application.entry_locs.get(key, NOWHERE),
-                      f"place every subsystem: {key}: {{config: FILE, host: HOST}} (inline: host: HOST beside its keys)")
+                error(
+                    "E810",
+                    f"subsystem '{key}' names no host, while '{placed[0]}' is placed on '{application.placement[placed[0]]}'",
+                    application.entry_locs.get(key, NOWHERE),
+                    f"place every subsystem: {key}: {{config: FILE, host: HOST}} (inline: host: HOST beside its keys)",
+                )
         if any(key not in application.placement for key in application.subsystems):
             return
     listeners: dict[tuple[str, int], str] = {}

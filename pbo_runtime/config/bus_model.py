@@ -7,7 +7,7 @@ each set of transfers (TR §4.2, Figure 11). Its load on the bus, in bytes per s
     Z_j = (Σ_i S(x_ij) + Σ_i S(y_ij) + 2Δ) / T_j                                   (eq. 1)
 
 x_ij: the task's per-cycle inputs (in-var and in-both ports); y_ij: its per-cycle outputs
-(out-var and out-both); S(v): the bytes one transfer of v moves (elements × itemsize);
+(out-var and out-both); S(v): the bytes one transfer of v moves (elements x itemsize);
 Δ: the bus's lock overhead in bytes (locking and releasing the table, counted twice a cycle);
 T_j: the task's period, or for an aperiodic task its minimum inter-arrival time (the worst case).
 Consts (in-const, out-const) move once around `init`, not per cycle, and do not count. A
@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -33,8 +34,20 @@ from pbo_runtime.errors import PboError
 from pbo_runtime.objects.ports import PortKind
 
 __all__ = [
-    "LOCKS_PER_CYCLE", "PER_CYCLE_IN", "PER_CYCLE_OUT", "BusModelError", "TaskLoad", "BusReport",
-    "transfer_bytes", "interval_of", "task_load", "bus_report", "members_of", "predict", "predict_all", "over_bandwidth",
+    "LOCKS_PER_CYCLE",
+    "PER_CYCLE_IN",
+    "PER_CYCLE_OUT",
+    "BusModelError",
+    "BusReport",
+    "TaskLoad",
+    "bus_report",
+    "interval_of",
+    "members_of",
+    "over_bandwidth",
+    "predict",
+    "predict_all",
+    "task_load",
+    "transfer_bytes",
 ]
 
 PER_CYCLE_IN = (PortKind.IN_VAR, PortKind.IN_BOTH)
@@ -95,7 +108,7 @@ class BusReport:
 
 
 def transfer_bytes(subsystem: Subsystem, binding: PortBinding) -> int:
-    """S(v): the bytes one transfer of the bound variable moves (elements of the bound shape × itemsize)."""
+    """S(v): the bytes one transfer of the bound variable moves (elements of the bound shape x itemsize)."""
     var = subsystem.variables[binding.variable]
     n = 1
     for d in binding.shape:
@@ -106,7 +119,7 @@ def transfer_bytes(subsystem: Subsystem, binding: PortBinding) -> int:
 @functools.cache
 def _itemsize(dtype: Any) -> int:
     """Bytes per element of a dtype (np.dtype() costs microseconds: once per dtype, not per binding)."""
-    return np.dtype(dtype).itemsize
+    return int(np.dtype(dtype).itemsize)
 
 
 def interval_of(task: TaskSpec) -> tuple[float, bool]:

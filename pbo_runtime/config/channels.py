@@ -15,7 +15,8 @@ in the state table, a 64-bit mask (so a device has at most `MAX_CHANNELS` channe
 from __future__ import annotations
 
 import re
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
 MAX_CHANNELS = 64  # one int64 mask per holder in the table's device region
 _RANGE = re.compile(r"^\s*(\d+)\s*-\s*(\d+)\s*$")

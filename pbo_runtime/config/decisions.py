@@ -20,8 +20,9 @@ check` prints the switches each path makes. Job control takes the decisions at r
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Iterable
+from typing import Any
 
 from pbo_runtime.config.model import ApplicationStep, Subsystem
 

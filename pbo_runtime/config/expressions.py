@@ -16,8 +16,9 @@ joint is below 1.
 from __future__ import annotations
 
 import ast
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -264,7 +265,7 @@ class _Validator:
                 return None  # a float, as 10**-3 is
             if abs(left) > 1 and right * (abs(left).bit_length() - 1) > 63:  # 2**bits <= |left|: a lower bound of the result
                 raise self.too_large(node, f"the integer {ast.get_source_segment(self.text, node) or 'power'}")
-            result = left**right
+            result: int = left**right  # right >= 0 here: an int
         elif isinstance(node.op, ast.Mult):
             result = left * right  # operands are bounded: the product has at most 126 bits
         else:
@@ -341,7 +342,7 @@ class _Evaluator:
         if isinstance(node, ast.Compare):
             left = self.value(node.left)
             result: Any = True
-            for op, comparator in zip(node.ops, node.comparators):
+            for op, comparator in zip(node.ops, node.comparators, strict=True):
                 right = self.value(comparator)
                 result = np.logical_and(result, _COMPARE[type(op)](left, right))
                 left = right

@@ -10,20 +10,21 @@ from __future__ import annotations
 
 import gc
 import os
+from collections.abc import Callable, Collection, Iterable
 from contextlib import nullcontext
 from dataclasses import dataclass, field
-from typing import Any, Callable, Collection, Iterable
+from typing import Any
 
 import numpy as np
 
-from pbo_runtime.objects import registry
 from pbo_runtime.config import bus_model
-from pbo_runtime.config.file_kind import ALLOW_UNSTABLE_LOOPS
 from pbo_runtime.config.checker import Checked, ModuleLookup, check_document, describe
+from pbo_runtime.config.file_kind import ALLOW_UNSTABLE_LOOPS
 from pbo_runtime.config.model import Location, Subsystem
 from pbo_runtime.config.root import OUTSIDE_ROOT, confined, leaves_root
-from pbo_runtime.errors import ConfigError, ConfigErrors
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_file, load_text
+from pbo_runtime.errors import ConfigError, ConfigErrors
+from pbo_runtime.objects import registry
 
 # Sections whose entries an included file may add to (names must not clash).
 _MERGED_SECTIONS = ("devices", "dims", "variables", "object_types", "objects", "tasks", "configurations", "jobs",
@@ -101,7 +102,9 @@ def _check_file(
         checked = Checked() if doc is _UNREADABLE else check_document(doc, file, module_lookup, module_names)
     except Exception as exc:  # the promise is "never a traceback"; a bug becomes a message to report
         checked = Checked()
-        checked.errors.append(ConfigError(f"internal error while loading: {exc!r}", file, hint="please report this with the file you checked"))
+        checked.errors.append(
+            ConfigError(f"internal error while loading: {exc!r}", file, hint="please report this with the file you checked")
+        )
     waived = [e for e in checked.errors if e.code in waive]
     if waived:
         checked.errors = [e for e in checked.errors if e.code not in waive]
@@ -147,8 +150,16 @@ def _result(checked: Checked, file: str, errors: list[ConfigError]) -> CheckResu
             subsystem = None
     if errors:
         return CheckResult(subsystem, errors, warnings)
-    return CheckResult(subsystem, errors, warnings, dict(checked.initial_values), tuple(checked.inferred), dict(checked.robot_dims),
-                       list(checked.robot_notes), list(checked.robot_limits))
+    return CheckResult(
+        subsystem,
+        errors,
+        warnings,
+        dict(checked.initial_values),
+        tuple(checked.inferred),
+        dict(checked.robot_dims),
+        list(checked.robot_notes),
+        list(checked.robot_limits),
+    )
 
 
 def _bus_errors(subsystem: Subsystem) -> list[ConfigError]:
@@ -247,7 +258,13 @@ def _load_with_includes(file: str, stack: list[str], errors: list[ConfigError], 
     elif isinstance(includes, YList):
         includes_list = [(item, includes.item_loc(i)) for i, item in enumerate(includes)]
     else:
-        errors.append(_error(f"'include' must be a list of file paths, got: {describe(includes)}", inc_loc, "e.g. include: [common/puma_variables.yaml]"))
+        errors.append(
+            _error(
+                f"'include' must be a list of file paths, got: {describe(includes)}",
+                inc_loc,
+                "e.g. include: [common/puma_variables.yaml]",
+            )
+        )
         return doc
     merged = YMap(doc.loc)
     here = os.path.dirname(file)
@@ -268,10 +285,22 @@ def _load_with_includes(file: str, stack: list[str], errors: list[ConfigError], 
                                       "only; move the included file into it", code=OUTSIDE_ROOT))
             continue
         if os.path.realpath(target) in chain:
-            errors.append(_error(f"'{item}' includes itself (through {' -> '.join(os.path.basename(c) for c in chain)})", loc, "remove one of the includes"))
+            errors.append(
+                _error(
+                    f"'{item}' includes itself (through {' -> '.join(os.path.basename(c) for c in chain)})",
+                    loc,
+                    "remove one of the includes",
+                )
+            )
             continue
         if not os.path.isfile(target):
-            errors.append(_error(f"included file '{item}' does not exist (looked for {target})", loc, "include paths are relative to the including file"))
+            errors.append(
+                _error(
+                    f"included file '{item}' does not exist (looked for {target})",
+                    loc,
+                    "include paths are relative to the including file",
+                )
+            )
             continue
         part = _load_with_includes(target, chain, errors)
         if part is _UNREADABLE:
@@ -332,7 +361,13 @@ def _merge_into(target: YMap, source: YMap, errors: list[ConfigError]) -> None:
             for k, v in value.items():
                 if k in combined:
                     first = combined.key_loc(k)
-                    errors.append(_error(f"'{k}' in '{key}' is defined twice: here and at {first}", value.key_loc(k), "an included file and the including file must not define the same name"))
+                    errors.append(
+                        _error(
+                            f"'{k}' in '{key}' is defined twice: here and at {first}",
+                            value.key_loc(k),
+                            "an included file and the including file must not define the same name",
+                        )
+                    )
                     continue
                 combined.put(k, v, value.key_loc(k), value.value_loc(k))
             target.put(key, combined, target.key_loc(key), target.value_loc(key))

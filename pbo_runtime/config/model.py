@@ -6,8 +6,9 @@ Every spec keeps the `Location` of its YAML node so later errors can still point
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping, NamedTuple
+from typing import Any, NamedTuple
 
 from pbo_runtime.objects.ports import PortSpec
 from pbo_runtime.objects.ranges import Range

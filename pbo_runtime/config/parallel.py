@@ -21,17 +21,24 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from typing import Any, Callable, Optional
+from collections.abc import Callable
+from typing import Any, Protocol
 
 from pbo_runtime.config.decisions import paths
 from pbo_runtime.config.loader import check_loaded, load_document, with_application
-from pbo_runtime.config.transitions import Transition, transitions_of
 from pbo_runtime.config.model import ApplicationStep, Location, Subsystem
+from pbo_runtime.config.transitions import Transition, transitions_of
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, location_of, plain
 from pbo_runtime.errors import ConfigError, ConfigErrors
 from pbo_runtime.objects import registry
 
-Error = Callable[..., None]  # (code, message, loc, hint)
+
+class Error(Protocol):
+    """Reports one mistake of the file: its code, what is wrong, where, and a hint."""
+
+    def __call__(self, code: str, message: str, loc: Location, hint: str = "") -> None: ...
+
+
 EXAMPLE = "e.g. run: [{parallel: {left: [reach: ready], right: [reach: home]}}, {parallel: {left: {app: wave}}}]"
 
 
@@ -88,7 +95,7 @@ def check_stages(entries: YList, subsystems: dict[str, Subsystem], placed: bool,
     return stages
 
 
-_Driven = tuple[str, str, str, Optional[tuple[int, ...]]]  # (subsystem, device, task, its channels: None for all)
+_Driven = tuple[str, str, str, tuple[int, ...] | None]  # (subsystem, device, task, its channels: None for all)
 
 
 def _refuse_shared_devices(number: int, chosen: dict[str, dict[str, Any]], subsystems: dict[str, Subsystem],

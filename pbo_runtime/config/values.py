@@ -10,7 +10,8 @@ would travel on to an actuator, so it is refused where it enters, never carried.
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable, Sequence
+from collections.abc import Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -63,7 +64,8 @@ def element_problem(leaf: Any, dtype: str) -> str:
     if isinstance(leaf, float) and not math.isfinite(leaf):
         return f"{dtype} elements must be finite numbers, got: {_written(leaf)}"
     if isinstance(leaf, int) and abs(leaf) > int(np.finfo(dtype).max):
-        return f"{dtype} elements must be finite numbers, got: an integer of {len(str(abs(leaf)))} digits, beyond the largest {dtype}"
+        digits = len(str(abs(leaf)))
+        return f"{dtype} elements must be finite numbers, got: an integer of {digits} digits, beyond the largest {dtype}"
     return ""
 
 

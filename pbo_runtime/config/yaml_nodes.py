@@ -12,7 +12,8 @@ import functools
 import gc
 import operator
 import os
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
 import yaml
 
@@ -81,7 +82,7 @@ def _located(file: str, where: Where) -> Location:
 class YMap(dict):  # type: ignore[type-arg]
     """A YAML mapping: a dict that knows where it, each key and each value were written."""
 
-    __slots__ = ("_where", "_file", "_key_locs", "_value_locs")  # no per-instance __dict__: a file has tens of thousands
+    __slots__ = ("_file", "_key_locs", "_value_locs", "_where")  # no per-instance __dict__: a file has tens of thousands
 
     def __init__(self, loc: Where, file: str | None = None) -> None:
         super().__init__()
@@ -122,7 +123,7 @@ class YMap(dict):  # type: ignore[type-arg]
 class YList(list):  # type: ignore[type-arg]
     """A YAML sequence: a list that knows where it and each item were written."""
 
-    __slots__ = ("_where", "_file", "_item_locs")
+    __slots__ = ("_file", "_item_locs", "_where")
 
     def __init__(self, loc: Where, file: str | None = None) -> None:
         super().__init__()
@@ -242,9 +243,13 @@ def _load(text: str, file: str, loader_class: type) -> Any:
             raise ConfigError(f"invalid YAML: {exc}", file, 1, 1) from None
         except RecursionError:
             line, column, depth = _deep_nesting(text)
-            raise ConfigError(f"YAML is nested too deeply to be a configuration: {depth} lists or mappings inside one "
-                              "another here", file, line, column,
-                              "a configuration nests a few levels (a matrix is a list of lists); is this file generated?") from None
+            raise ConfigError(
+                f"YAML is nested too deeply to be a configuration: {depth} lists or mappings inside one another here",
+                file,
+                line,
+                column,
+                "a configuration nests a few levels (a matrix is a list of lists); is this file generated?",
+            ) from None
     finally:
         if loader is not None:
             loader.dispose()
@@ -348,7 +353,9 @@ class _Builder:
             if isinstance(node, _SequenceNode):
                 return self._sequence(node, section)
         elif id(node) in self._active:
-            raise ConfigError("an alias refers to a node that contains it (a recursive structure)", self._file, *self._line_col(node))
+            raise ConfigError(
+                "an alias refers to a node that contains it (a recursive structure)", self._file, *self._line_col(node)
+            )
         self._active.add(id(node))
         try:
             if isinstance(node, _SequenceNode):
@@ -460,7 +467,9 @@ class _Builder:
                 try:
                     hash(key)
                 except TypeError:
-                    raise ConfigError(f"a key must be a plain name, got: {key!r}", self._file, *self._line_col(key_node)) from None
+                    raise ConfigError(
+                        f"a key must be a plain name, got: {key!r}", self._file, *self._line_col(key_node)
+                    ) from None
             scalars += 1
             if key in result:
                 raise self._duplicate_key(result, key, key_node, section)
@@ -479,7 +488,9 @@ class _Builder:
             for source_node in sources:
                 source = self.build(source_node, section)
                 if not isinstance(source, YMap):
-                    raise ConfigError("a merge key (<<) takes a mapping or a list of mappings", self._file, *self._line_col(source_node))
+                    raise ConfigError(
+                        "a merge key (<<) takes a mapping or a list of mappings", self._file, *self._line_col(source_node)
+                    )
                 for key, value in source.items():
                     if key not in result:
                         result.put(key, value, source.key_loc(key), source.value_loc(key))

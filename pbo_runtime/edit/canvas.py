@@ -29,12 +29,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from pbo_runtime.analysis.placement import placement_report
 from pbo_runtime.config.checker import ModuleLookup
-from pbo_runtime.edit.live import NAME
 from pbo_runtime.config.loader import CheckResult, check_loaded, load_document
 from pbo_runtime.config.model import Location, Subsystem
-from pbo_runtime.analysis.placement import placement_report
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, plain
+from pbo_runtime.edit.live import NAME
 from pbo_runtime.errors import ConfigError, Note
 from pbo_runtime.objects import registry
 
@@ -156,6 +156,7 @@ def pin_of(origin: Origin, message: str, pins: Sequence[Pin]) -> str | None:
         return origin.key
     if origin.section is not None:
         return None  # a modifier's or a field's value: the block's, not a pin's
+    name: str
     for name in _PORT_NAMED.findall(message):
         if name in by_port:
             return name
@@ -303,7 +304,7 @@ def task_pins(subsystem: Subsystem | None, tasks: Sequence[CanvasTask],
             continue
         try:
             declared = module_lookup(task.module).ports()
-        except Exception:  # noqa: BLE001 - an unknown module is the checker's error (E207), shown on the block
+        except Exception:  # an unknown module is the checker's error (E207), shown on the block
             declared = []
         pins[task.name] = [Pin(p.name, p.kind.value, task.ports.get(p.name, "").strip() or p.variable, p.dtype,
                                "as variable" if p.shape is None else _shape(p.shape)) for p in declared]

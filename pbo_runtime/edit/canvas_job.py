@@ -23,12 +23,12 @@ from typing import Any
 
 from ruamel.yaml.comments import CommentedMap
 
+from pbo_runtime.config.model import ACTION_REQUIRING_OBJECT
+from pbo_runtime.config.yaml_nodes import load_text, plain
 from pbo_runtime.edit.canvas import CanvasError, CanvasTask
 from pbo_runtime.edit.live import NAME
 from pbo_runtime.edit.live_save import chunks, flow, merged, round_trip
 from pbo_runtime.edit.write_back import WriteRefused, write_checked
-from pbo_runtime.config.model import ACTION_REQUIRING_OBJECT
-from pbo_runtime.config.yaml_nodes import load_text, plain
 from pbo_runtime.errors import ConfigError
 
 OBJECT_CHOICES = ("inferred", "none")  # the job model infers it; or an action that leaves the object variable as it is
@@ -126,7 +126,7 @@ def merged_sections(original: str, dumped: str, changed: dict[str, set[str]]) ->
     new = dict(chunks(dumped, 0))
     block = {key for key, text in chunks(original, 0) if key in changed
              and re.match(rf"^{re.escape(key)}\s*:\s*(#.*)?$", text.splitlines()[0] if text else "")}
-    base = "".join(new.get(key, text) if key in changed and key not in block else text  # type: ignore[arg-type]
+    base = "".join(new.get(key, text) if key in changed and key not in block else text
                    for key, text in chunks(original, 0))
     return merged(base, dumped, {key: entries for key, entries in changed.items() if key in block})
 

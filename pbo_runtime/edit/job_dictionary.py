@@ -39,8 +39,8 @@ def interlocks(left: Mapping[str, Any], right: Mapping[str, Any]) -> bool:
     """Whether an icon with edges `right` may sit just right of one with edges `left` (both as `edges` makes them)."""
     a, b = left["right"], right["left"]
     if a["shape"] == FLAT:
-        return b["shape"] == FLAT
-    return a["shape"] == NOTCH and b["shape"] == TAB and a["object_type"] == b["object_type"]
+        return bool(b["shape"] == FLAT)
+    return bool(a["shape"] == NOTCH and b["shape"] == TAB and a["object_type"] == b["object_type"])
 
 
 def icon_edges(subsystem: Subsystem, name: str) -> dict[str, dict[str, Any]] | None:

@@ -34,8 +34,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any
 
 from pbo_runtime.config.checker import ModuleLookup
 from pbo_runtime.config.limits import MAX_NAME

@@ -24,8 +24,8 @@ from typing import Any
 from ruamel.yaml import YAML
 from ruamel.yaml.comments import CommentedMap, CommentedSeq
 
-from pbo_runtime.edit.live import Edit, LiveChangeRefused, LiveDescription
 from pbo_runtime.config.model import Subsystem
+from pbo_runtime.edit.live import Edit, LiveChangeRefused, LiveDescription
 from pbo_runtime.edit.write_back import WriteRefused, write_checked
 
 

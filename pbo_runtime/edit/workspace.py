@@ -26,8 +26,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from pbo_runtime.edit.job_dictionary import row_gaps
 from pbo_runtime.config.model import Subsystem
+from pbo_runtime.edit.job_dictionary import row_gaps
 
 # An application's name: a plain identifier, as a live application's (it travels in the control queue)
 NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,39}$")
@@ -85,7 +85,7 @@ def _parse_decision(item: Mapping[str, Any], where: str) -> Step:
     for key, value in settings.items():
         if not isinstance(value, (str, int)) or isinstance(value, bool):
             raise RowRefused(f"{where} ({kind}): {key} must be text or a whole number, got {value!r}")
-    parsed = tuple(tuple(_parse_steps(r, f"{where} ({kind}, {label}): ")) for r, label in zip(rows, names))
+    parsed = tuple(tuple(_parse_steps(r, f"{where} ({kind}, {label}): ")) for r, label in zip(rows, names, strict=True))
     return Step(kind, None, {"kind": kind, **settings}, parsed)
 
 
@@ -110,7 +110,7 @@ def _decision_file_step(step: Step, written: Any) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if kind in ("if", "wait"):
         out[kind] = step.decision.get("condition", "")
-    for label, row in zip(ROW_NAMES[kind], step.rows):
+    for label, row in zip(ROW_NAMES[kind], step.rows, strict=True):
         if row or label != "else":
             out[label] = written(row)
     for key in ("times", "until", "max", "timeout"):
@@ -128,7 +128,7 @@ def _leaves(steps: Sequence[Step]) -> list[tuple[Step, str]]:
             if step.decision is None:
                 found.append((step, f"{where}step {number}"))
                 continue
-            for label, inner in zip(ROW_NAMES[step.decision["kind"]], step.rows):
+            for label, inner in zip(ROW_NAMES[step.decision["kind"]], step.rows, strict=True):
                 walk(inner, f"{where}step {number} ({step.name}, {label}): ")
     walk(steps, "")
     return found

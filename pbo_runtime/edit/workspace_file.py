@@ -14,15 +14,16 @@ API passes it in.
 from __future__ import annotations
 
 import io
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from ruamel.yaml.comments import CommentedMap, CommentedSeq
 
-from pbo_runtime.edit.live_save import merged, round_trip
-from pbo_runtime.edit.write_back import WriteRefused, write_checked
 from pbo_runtime.config.loader import CheckResult, check_file
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.config.values import as_value, range_problem
+from pbo_runtime.edit.live_save import merged, round_trip
+from pbo_runtime.edit.write_back import WriteRefused, write_checked
 from pbo_runtime.errors import PboError
 
 

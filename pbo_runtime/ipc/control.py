@@ -31,18 +31,17 @@ The verbs, their arguments and replies are declared in `supervisor.commands`.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import msgpack
 import posix_ipc
 
-from pbo_runtime.ipc import limits
-from pbo_runtime.ipc import messages
-from pbo_runtime.ipc import runs
-from pbo_runtime.ipc import shm
 from pbo_runtime.errors import PboError
+from pbo_runtime.ipc import limits, messages, runs, shm
 
 # Requests are small (a command, a name, at most a job's object values) and each client waits for
 # its answer: a short queue of 4 KiB messages keeps the run's share of the per-user queue memory
@@ -134,7 +133,7 @@ class ControlServer:
     def _serve(self, raw: bytes, handler: Handler) -> None:
         try:
             request = msgpack.unpackb(raw)
-        except Exception:  # noqa: BLE001 - any garbage on the queue: nobody to answer
+        except Exception:  # any garbage on the queue: nobody to answer
             self.dropped += 1
             return
         reply_to = request[1] if isinstance(request, list) and len(request) >= 2 else None
@@ -175,10 +174,8 @@ class ControlServer:
         """Close and unlink the queue (idempotent)."""
         if self._mq is None:
             return
-        try:
+        with contextlib.suppress(posix_ipc.ExistentialError):
             self._mq.close()
-        except posix_ipc.ExistentialError:
-            pass
         self._mq = None
         shm.unlink_quietly("mq", self.name)
 
@@ -206,7 +203,7 @@ def answer(handler: Handler, command: str, arguments: dict[str, Any]) -> dict[st
         return {"ok": False, "error": str(exc.args[0]) if len(exc.args) == 1 else str(exc)}
     except (PboError, ValueError) as exc:
         return {"ok": False, "error": str(exc)}
-    except Exception as exc:  # noqa: BLE001 - an operator's request must never bring the run down
+    except Exception as exc:  # an operator's request must never bring the run down
         return {"ok": False, "error": f"internal error in the supervisor serving '{command}' "
                                       f"(please report this): {type(exc).__name__}: {exc}"}
 
@@ -260,7 +257,9 @@ class ControlClient:
                 raise limits.explain(exc, doing, [reply_queue]) or PboError(f"{doing}: {exc}") from None
             raw = msgpack.packb([command, reply_name, dict(arguments or {})], default=plain)
             if len(raw) > REQUEST_BYTES:
-                raise PboError(f"the request '{command}' has {len(raw)} bytes, more than the control queue takes ({REQUEST_BYTES})")
+                raise PboError(
+                    f"the request '{command}' has {len(raw)} bytes, more than the control queue takes ({REQUEST_BYTES})"
+                )
             try:
                 control.send(raw, timeout=max(deadline - time.monotonic(), 0.0))
             except posix_ipc.BusyError:
@@ -276,7 +275,7 @@ class ControlClient:
                 shm.unlink_quietly("mq", reply_name)
         try:
             reply = msgpack.unpackb(answer, strict_map_key=False)
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             raise PboError(f"{who} sent a reply that is not msgpack: {exc}") from None
         if not isinstance(reply, dict) or "ok" not in reply:
             raise PboError(f"{who} sent a malformed reply to '{command}': {reply!r:.200}")
@@ -292,6 +291,7 @@ class ControlClient:
 
     @staticmethod
     def _await_reply(replies: posix_ipc.MessageQueue, deadline: float) -> bytes | None:
+        raw: bytes
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0:

@@ -136,7 +136,9 @@ def error_number(exc: BaseException) -> int | None:
     return None
 
 
-def explain(exc: BaseException, doing: str, queues: list[QueueSize] | None = None, shm_bytes: int = 0) -> ResourceLimitError | None:
+def explain(
+    exc: BaseException, doing: str, queues: list[QueueSize] | None = None, shm_bytes: int = 0
+) -> ResourceLimitError | None:
     """The OS limit behind `exc`, raised while `doing` (e.g. "creating queue /pbo.x.events"), or None if none is.
 
     `queues`: the run's queues, when a queue was being made (what the run needs); `shm_bytes`:

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import collections
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import msgpack
 
@@ -42,7 +43,8 @@ class LocalQueue(Queue):
         """The next message; none held waits out `timeout` (nothing in the process can send meanwhile)."""
         process.raise_if_stopping()
         if self._held:
-            return msgpack.unpackb(self._held.popleft())
+            message: list[Any] = msgpack.unpackb(self._held.popleft())
+            return message
         if timeout:
             time.sleep(timeout)
         return None

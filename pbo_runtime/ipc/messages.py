@@ -12,16 +12,17 @@ changes (a task's state, a switch, a stable episode's start and end), never per 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
-from typing import Any, Callable, ClassVar, Union
+from collections.abc import Callable
+from typing import Any, ClassVar
 
 import msgpack
 import posix_ipc
 
-from pbo_runtime.ipc import process
-from pbo_runtime.ipc import shm
 from pbo_runtime.errors import InternalError
+from pbo_runtime.ipc import process, shm
 from pbo_runtime.ipc.limits import QueueSize, queue_system_limit
 from pbo_runtime.ipc.task_statistics import TaskStatistics
 
@@ -168,9 +169,8 @@ class LiveUpdate:
     sequence: int
 
 
-TaskSignal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch]  # the signals for one task
-Signal = Union[Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch, StopRtpu, SendStats, PlanPosted,
-               LiveUpdate]
+TaskSignal = Spawn | TurnOn | TurnOff | Kill | Clear | OperatorEvent | LinkMessage | Watch  # the signals for one task
+Signal = TaskSignal | StopRtpu | SendStats | PlanPosted | LiveUpdate
 SIGNAL_TYPES: dict[str, type[Signal]] = {cls.KIND: cls for cls in
                                          (Spawn, TurnOn, TurnOff, Kill, Clear, OperatorEvent, LinkMessage, Watch, StopRtpu,
                                           SendStats, PlanPosted, LiveUpdate)}
@@ -333,11 +333,12 @@ class ChildExited:
     pid: int
 
 
-Event = Union[Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled, Refused, Staged,
-              Crashed, ChildExited]
-EVENT_TYPES: dict[str, type[Event]] = {cls.KIND: cls for cls in
-                                       (Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled,
-                                        Refused, Staged, Crashed, ChildExited)}
+Event = (Ready | StateChanged | Switched | Window | FirstCycle | Stable | Stats | PlantStats | PlantStalled | Refused | Staged
+         | Crashed | ChildExited)
+EVENT_TYPES: dict[str, type[Event]] = {cls.KIND: cls for cls in (
+    Ready, StateChanged, Switched, Window, FirstCycle, Stable, Stats, PlantStats, PlantStalled, Refused, Staged, Crashed,
+    ChildExited,
+)}
 _FIELDS: dict[type, tuple[str, ...]] = {cls: tuple(f.name for f in dataclasses.fields(cls))
                                         for cls in (*SIGNAL_TYPES.values(), *EVENT_TYPES.values())}
 
@@ -388,7 +389,8 @@ class Queue:
 
     def pending(self) -> bool:
         """Whether a message waits in the queue (one system call, nothing received)."""
-        return self._mq.current_messages > 0
+        waiting: int = self._mq.current_messages
+        return waiting > 0
 
     def send(self, *message: Any, timeout: float | None = 1.0) -> None:
         raw = self._encode(message)
@@ -447,7 +449,7 @@ class Queue:
         until it fits the queue. One that does not fit even so is our bug, named, never a bare ValueError.
         """
         limit = self._mq.max_message_size
-        raw = msgpack.packb(list(message))
+        raw: bytes = msgpack.packb(list(message))
         for longest in CUT_STRINGS_TO if cut_to_fit else ():
             if len(raw) <= limit:
                 break
@@ -472,13 +474,12 @@ class Queue:
             # a child it raised Stop, which posix_ipc replaced by SignalError: raise it again.
             process.raise_if_stopping()
             return None
-        return msgpack.unpackb(raw)
+        message: list[Any] = msgpack.unpackb(raw)
+        return message
 
     def close(self) -> None:
-        try:
+        with contextlib.suppress(posix_ipc.ExistentialError):
             self._mq.close()
-        except posix_ipc.ExistentialError:
-            pass
         if self.owner:
             shm.unlink_quietly("mq", self.name)
 

@@ -12,6 +12,7 @@ The driver unlinks it on close; the supervisor's stop removes what a dead task l
 
 from __future__ import annotations
 
+import contextlib
 import math
 import mmap
 
@@ -67,10 +68,8 @@ class OperatorInput:
         for name in ("_words", "_values"):
             self.__dict__.pop(name, None)
         shm.unlink_quietly("shm", self.name)
-        try:
+        with contextlib.suppress(BufferError):  # a view outlives it: the mapping goes with that view
             mapping.close()
-        except BufferError:  # a view outlives it: the mapping goes with that view
-            pass
 
 
 def play(subsystem: str, run_id: str, device: str, values: list[float]) -> int:

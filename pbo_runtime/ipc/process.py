@@ -14,6 +14,7 @@ import os
 import select
 import signal
 import sys
+from types import FrameType
 
 DEATH_SIGNAL = signal.SIGHUP  # what Linux sends a child when its supervisor dies
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, DEATH_SIGNAL)
@@ -35,7 +36,7 @@ _hung_up = False  # the death signal came: the supervisor is dying or dead
 _only_at_waits = False
 
 
-def _stop_signal(signum: int, _frame) -> None:
+def _stop_signal(signum: int, _frame: FrameType | None) -> None:
     """The first stop signal raises Stop (only records it, once `stop_only_at_waits`); a second one
     raises at once, unless the supervisor's death was said (then `STOP_BOUND` takes over)."""
     global _requested, _hung_up
@@ -51,7 +52,7 @@ def _stop_signal(signum: int, _frame) -> None:
         raise Stop(_requested)
 
 
-def _stop_now(_signum: int, _frame) -> None:
+def _stop_now(_signum: int, _frame: FrameType | None) -> None:
     raise Stop(f"{_requested or 'stop'}, not stopped within {STOP_BOUND:g} s")
 
 

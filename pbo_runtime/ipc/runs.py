@@ -1,9 +1,10 @@
 """Finding this user's live runs: what `pbo runs` lists and how every operator verb picks its run.
 
-A run is its state table, `/dev/shm/pbo.<subsystem>.<pid>-<nonce>.table`, and it is live while
-its supervisor (the pid in the run id, started before the table was made: not a reused pid) is. Only tables this process may trust count
-(`shm.distrust`: owned by its effective uid, mode 0600): a table another user planted, however
-it is named, is neither listed, nor talked to, nor in the way of a run.
+A run is its state table, `/dev/shm/pbo.<subsystem>.<pid>-<nonce>.table`, and it is live while its
+supervisor (the pid in the run id, started before the table was made: not a reused pid) is. Only
+tables this process may trust count (`shm.distrust`: owned by its effective uid, mode 0600): a table
+another user planted, however it is named, is neither listed, nor talked to, nor in the way of a
+run.
 
 Several runs may be alive at once, of one subsystem too (one without exclusive devices); an
 operator names one with `--subsystem NAME` or `--run ID` (a unique prefix of its run id).

@@ -21,20 +21,20 @@ header words directly; nothing here stands between them and the semaphore.
 
 from __future__ import annotations
 
+import contextlib
 import mmap
 import os
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import posix_ipc
 
-from pbo_runtime.ipc import process
-from pbo_runtime.ipc import shm
+from pbo_runtime.ipc import process, shm
 
 Check = Callable[[mmap.mmap | memoryview], None]  # raises when a mapped segment is not what its user expects
 
 
-class MissingLockError(posix_ipc.ExistentialError):
+class MissingLockError(posix_ipc.ExistentialError):  # type: ignore[misc]  # posix_ipc ships no types
     """The segment is there, its lock is not: it is half removed (its run is ending or crashed)."""
 
 
@@ -140,7 +140,8 @@ class LockedSegment:
     @property
     def held(self) -> bool:
         """Whether someone holds the lock now (a look, not a wait)."""
-        return self.lock.value == 0
+        value: int = self.lock.value
+        return value == 0
 
     @property
     def writer_tag(self) -> int:
@@ -219,15 +220,11 @@ class LockedSegment:
         if self.mapping is None:
             return
         self.words.release()
-        try:
+        with contextlib.suppress(BufferError):
             self.mapping.close()
-        except BufferError:
-            pass
         self.mapping = None  # type: ignore[assignment]
-        try:
+        with contextlib.suppress(posix_ipc.ExistentialError):
             self.lock.close()
-        except posix_ipc.ExistentialError:
-            pass
         if self.owner:
             self.unlink()
 

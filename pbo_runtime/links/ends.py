@@ -21,7 +21,8 @@ entry there (and its name in `links.spec.TRANSPORTS`, which a test keeps equal t
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -133,4 +134,6 @@ def _transport(transport: str) -> str:
 def _no_zenoh_options(name: str, port: int | None, session: Any) -> None:
     given = [what for what, value in (("port", port), ("session", session)) if value is not None]
     if given:
-        raise LinkError(f"link '{name}' uses transport 'shm', which takes no {' or '.join(given)} (those are for transport 'zenoh')")
+        raise LinkError(
+            f"link '{name}' uses transport 'shm', which takes no {' or '.join(given)} (those are for transport 'zenoh')"
+        )

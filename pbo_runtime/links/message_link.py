@@ -12,6 +12,7 @@ errors are the sender's to handle, never swallowed.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -19,10 +20,8 @@ from typing import Any
 import msgpack
 import posix_ipc
 
-from pbo_runtime.ipc import messages
-from pbo_runtime.ipc import process
-from pbo_runtime.ipc import shm
 from pbo_runtime.errors import PboError
+from pbo_runtime.ipc import messages, process, shm
 
 MAX_PRIORITY = posix_ipc.QUEUE_PRIORITY_MAX
 SYSTEM_CAPACITY = messages.MAX_MESSAGES  # fs.mqueue.msg_max (10 by default), capped at 64
@@ -75,7 +74,7 @@ def encode_message(name: str, priority: int, fields: list[Any], max_message_byte
     if not 0 <= priority <= MAX_PRIORITY:
         raise MessageLinkError(f"message link '{name}': priority must be in 0..{MAX_PRIORITY}, got: {priority}")
     try:
-        raw = msgpack.packb(fields, use_bin_type=True)
+        raw: bytes = msgpack.packb(fields, use_bin_type=True)
     except (TypeError, ValueError, OverflowError) as exc:
         raise MessageLinkError(
             f"message link '{name}': cannot encode the message: {exc}",
@@ -105,7 +104,9 @@ class MessageLink:
         if capacity < 1:
             raise MessageLinkError(f"message link '{name}': capacity must be >= 1, got: {capacity}")
         if max_message_bytes < ENVELOPE_BYTES:
-            raise MessageLinkError(f"message link '{name}': max_message_bytes must be >= {ENVELOPE_BYTES}, got: {max_message_bytes}")
+            raise MessageLinkError(
+                f"message link '{name}': max_message_bytes must be >= {ENVELOPE_BYTES}, got: {max_message_bytes}"
+            )
         try:
             queue = posix_ipc.MessageQueue(
                 name, posix_ipc.O_CREX, mode=0o600, max_messages=capacity, max_message_size=max_message_bytes
@@ -160,14 +161,13 @@ class MessageLink:
     @property
     def waiting(self) -> int:
         """Messages in the queue now."""
-        return self._queue.current_messages
+        waiting: int = self._queue.current_messages
+        return waiting
 
     def close(self) -> None:
         """Close this end (and, for the creator, unlink the queue: messages still in it are dropped)."""
-        try:
+        with contextlib.suppress(posix_ipc.ExistentialError):
             self._queue.close()
-        except posix_ipc.ExistentialError:
-            pass
         if self.owner:
             self.unlink()
 
@@ -177,7 +177,7 @@ class MessageLink:
     def __enter__(self) -> MessageLink:
         return self
 
-    def __exit__(self, *_exc) -> None:
+    def __exit__(self, *_exc: object) -> None:
         self.close()
 
 

@@ -10,8 +10,9 @@ QoS for topics is reliable, volatile, keep the last 10. Imported only when the '
 
 import os
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 from cyclonedds.core import Policy, Qos
 from cyclonedds.idl import IdlStruct

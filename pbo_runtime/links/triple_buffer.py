@@ -32,10 +32,11 @@ from typing import Any
 
 import numpy as np
 import posix_ipc
+from numpy.typing import ArrayLike
 
+from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import shm as _shm
 from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
-from pbo_runtime.errors import PboError
 
 MAGIC = 0x5042_4F5F_5452_4942  # "PBO_TRIB"
 VERSION = 1
@@ -295,7 +296,7 @@ class TripleBuffer(ReaderTally):
         """Open an existing link; a different payload fails clearly instead of corrupting it."""
         role = _role(role)
 
-        def check(mapping) -> None:
+        def check(mapping: mmap.mmap | memoryview) -> None:
             problem = _layout_problem(name, mapping, layout)
             if problem:
                 raise LinkLayoutError(problem)
@@ -329,7 +330,7 @@ class TripleBuffer(ReaderTally):
     def __enter__(self) -> TripleBuffer:
         return self
 
-    def __exit__(self, *_exc) -> None:
+    def __exit__(self, *_exc: object) -> None:
         self.close()
 
     # --- the sender ---------------------------------------------------------------------------
@@ -353,7 +354,7 @@ class TripleBuffer(ReaderTally):
             self._refuse(Role.SENDER, "publish")
         return self._publish(time.monotonic_ns() if stamp_ns is None else stamp_ns)
 
-    def write(self, value, stamp_ns: int | None = None) -> int:
+    def write(self, value: ArrayLike, stamp_ns: int | None = None) -> int:
         """Copy `value` into the free slot and publish it; return its counter.
 
         `stamp_ns` defaults to the time of the call, before the copy.
@@ -533,7 +534,7 @@ def _role(role: Role | str | None) -> Role | None:
         raise LinkError(f"role must be one of {', '.join(r.value for r in Role)} (or None), got: {role!r}") from None
 
 
-def _layout_problem(name: str, mapping, layout: LinkLayout) -> str:
+def _layout_problem(name: str, mapping: mmap.mmap | memoryview, layout: LinkLayout) -> str:
     if len(mapping) < HEADER_BYTES:
         return f"'{name}' is not a pbo link of version {VERSION} (only {len(mapping)} bytes)"
     header = memoryview(mapping)[: HEADER_WORDS * 8].cast("q")

@@ -67,7 +67,8 @@ class ZenohLink(SessionEnd, ReaderTally):
         # sender: one wire buffer, header then payload, filled in place and put as it is
         self._wire = bytearray(ITEM_HEADER.size + layout.nbytes)
         self._words = np.frombuffer(self._wire, dtype="<i8", count=ITEM_HEADER.size // 8)
-        self._payload = np.frombuffer(self._wire, dtype=layout.dtype, count=layout.size, offset=ITEM_HEADER.size).reshape(layout.shape)
+        payload = np.frombuffer(self._wire, dtype=layout.dtype, count=layout.size, offset=ITEM_HEADER.size)
+        self._payload = payload.reshape(layout.shape)
         self._layout_hash = layout.layout_hash  # computed once: the property hashes the layout's text at each use
         self._words[:3] = (ITEM_FORMAT, self._layout_hash, int.from_bytes(os.urandom(7), "little"))
         self._publisher: Any = None
@@ -187,7 +188,8 @@ class ZenohLink(SessionEnd, ReaderTally):
         raise LinkError(f"cannot {action} link '{self.name}': this process opened it {held}; only its {role} may")
 
     def _mismatch(self, found: str) -> str:
-        return f"link '{self.name}' carries {found}, this process expects {self.layout.description}: do both ends declare the same payload?"
+        return (f"link '{self.name}' carries {found}, this process expects {self.layout.description}: "
+                "do both ends declare the same payload?")
 
     # --- the sender ---------------------------------------------------------------------------
 
@@ -289,7 +291,8 @@ class ZenohLink(SessionEnd, ReaderTally):
             return Freshness.NONE
         raw, counter, stamp_ns, received_ns, local_ns = newest
         if raw is not self._source:  # a view per item received, none per read
-            self._view = np.frombuffer(raw, dtype=self.layout.dtype, count=self.layout.size, offset=ITEM_HEADER.size).reshape(self.layout.shape)
+            view = np.frombuffer(raw, dtype=self.layout.dtype, count=self.layout.size, offset=ITEM_HEADER.size)
+            self._view = view.reshape(self.layout.shape)
             self._source = raw
         np.copyto(self.value if out is None else out, self._view)  # type: ignore[arg-type]  # set with _source
         freshness = self._tally(counter, stamp_ns)
@@ -301,8 +304,11 @@ class ZenohLink(SessionEnd, ReaderTally):
     def _foreign_problem(self, foreign: tuple[int, int, int]) -> str:
         form, layout_hash, size = foreign
         if form != ITEM_FORMAT:
-            return f"link '{self.name}' received an item that is not a pbo zenoh item of format {ITEM_FORMAT & 0xFFFF} ({size} bytes)"
-        found: list[Any] = [o.get("layout") for o in self._other_ends(f"{self.key}/end/sender") if o.get("layout_hash") == layout_hash]
+            return (f"link '{self.name}' received an item that is not a pbo zenoh item of format {ITEM_FORMAT & 0xFFFF} "
+                    f"({size} bytes)")
+        found: list[Any] = [
+            o.get("layout") for o in self._other_ends(f"{self.key}/end/sender") if o.get("layout_hash") == layout_hash
+        ]
         return self._mismatch(found[0] if found else f"items of {size - ITEM_HEADER.size} bytes of another payload")
 
     def statistics(self) -> LinkStatistics:

@@ -138,9 +138,9 @@ class ZenohMessageLink(SessionEnd):
             raise MessageLinkError(f"message link '{self.name}' has no receiver connected: the message was not sent",
                                    hint="has the receiving subsystem stopped? send again once it is back")
         with self._room:
-            if self._sent - self._consumed >= self.capacity:
-                if timeout == 0 or not self._room.wait_for(lambda: self._sent - self._consumed < self.capacity, timeout):
-                    raise LinkFullError(self.name, self.capacity, timeout or 0.0, bound="")
+            full = self._sent - self._consumed >= self.capacity
+            if full and (timeout == 0 or not self._room.wait_for(lambda: self._sent - self._consumed < self.capacity, timeout)):
+                raise LinkFullError(self.name, self.capacity, timeout or 0.0, bound="")
             self._sent += 1
             if self._publisher is None:  # the receiving end sends to itself
                 self._enqueue(self._id, sent_ns, priority, body)
@@ -180,7 +180,9 @@ class ZenohMessageLink(SessionEnd):
     def receive(self, timeout: float | None = None) -> Message | None:
         """The waiting message of highest priority (oldest first within one), or None after `timeout` s (0: do not wait)."""
         if not self.owner:
-            raise MessageLinkError(f"message link '{self.name}': only the end that created it receives; this one attached to send")
+            raise MessageLinkError(
+                f"message link '{self.name}': only the end that created it receives; this one attached to send"
+            )
         with self._room:
             if not self._queue and timeout != 0:
                 self._room.wait_for(lambda: self._queue or self._malformed, timeout)
@@ -196,9 +198,13 @@ class ZenohMessageLink(SessionEnd):
                 self._consumed = consumed
                 self._room.notify_all()
         if sender != self._id and self._session is not None:
-            self._session.put(f"{self.key}/credit/{sender:x}", msgpack.packb(consumed),
-                              congestion_control=zenoh_module().CongestionControl.BLOCK, priority=getattr(zenoh_module().Priority, MESSAGE_PRIORITY),
-                              express=True)
+            self._session.put(
+                f"{self.key}/credit/{sender:x}",
+                msgpack.packb(consumed),
+                congestion_control=zenoh_module().CongestionControl.BLOCK,
+                priority=getattr(zenoh_module().Priority, MESSAGE_PRIORITY),
+                express=True,
+            )
         return Message(body, -negative_priority, sent_ns)
 
     @property

@@ -10,6 +10,7 @@ given), the entities declared on it, and the queryable through which an end desc
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import time
@@ -177,10 +178,8 @@ class SessionEnd:
         key = f"{self.key}/end/{role}"
 
         def answer(query: Any) -> None:
-            try:
+            with contextlib.suppress(Exception):  # a reply to a peer that left: nothing to tell anyone
                 query.reply(key, msgpack.packb(describe()))
-            except Exception:  # noqa: BLE001 - a reply to a peer that left: nothing to tell anyone
-                pass
 
         self._entities.append(self._session.declare_queryable(key, answer))
 
@@ -213,9 +212,7 @@ class SessionEnd:
     def _close_session(self) -> None:
         entities, self._entities = self._entities, []
         for entity in reversed(entities):
-            try:
+            with contextlib.suppress(Exception):  # already undeclared by a closed session
                 entity.undeclare()
-            except Exception:  # noqa: BLE001 - already undeclared by a closed session
-                pass
         if self._owns_session and self._session is not None and not self._session.is_closed():
             self._session.close()

@@ -84,7 +84,9 @@ def check_arm(arm: Any, ee: Any) -> tuple[np.ndarray, np.ndarray]:
         if parent != int(parent) or not -1 <= parent < row:
             raise ValueError(f"ARM row {row}: parent must be -1 or an earlier row, got: {parent:g}")
         if arm[row, Arm.TYPE] not in (Arm.HINGE, Arm.SLIDE):
-            raise ValueError(f"ARM row {row}: type must be {Arm.HINGE:g} (hinge) or {Arm.SLIDE:g} (slide), got: {arm[row, Arm.TYPE]:g}")
+            raise ValueError(
+                f"ARM row {row}: type must be {Arm.HINGE:g} (hinge) or {Arm.SLIDE:g} (slide), got: {arm[row, Arm.TYPE]:g}"
+            )
         if arm[row, Arm.MASS] < 0 or arm[row, Arm.EFFORT] <= 0:
             raise ValueError(f"ARM row {row}: mass must be >= 0 and effort > 0")
     if ee[0] != int(ee[0]) or not -1 <= ee[0] < arm.shape[0]:
@@ -104,7 +106,7 @@ def arm_model(arm: Any, ee: Any, name: str = "arm") -> Any:
 
     Made at `init`, never in `cycle`: building a model allocates.
     """
-    import pinocchio  # type: ignore[import-untyped]  # here: `pbo check` never needs it
+    import pinocchio  # here: `pbo check` never needs it
 
     arm, ee = check_arm(arm, ee)
     model = pinocchio.Model()

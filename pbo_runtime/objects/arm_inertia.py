@@ -61,19 +61,21 @@ def inertia_range(arm: Any, ee: Any, count: int = SAMPLES, seed: int = SEED) -> 
 @functools.lru_cache(maxsize=16)
 def _inertia_range(arm_bytes: bytes, shape: tuple[int, ...], ee_bytes: bytes, count: int, seed: int) -> InertiaRange:
     """The range kept on disk by an earlier process (`result_cache`), else computed with Pinocchio and kept."""
-    from pbo_runtime.objects import arm as arm_module, result_cache
+    from pbo_runtime.objects import arm as arm_module
+    from pbo_runtime.objects import result_cache
 
     name = result_cache.fingerprint("inertia range", arm_bytes, repr(shape), ee_bytes, repr((count, seed)),
                                     sources=(__file__, arm_module.__file__), libraries=("pinocchio",))
     kept = result_cache.cached_arrays(name, lambda: vars(_computed_range(arm_bytes, shape, ee_bytes, count, seed)))
-    found = InertiaRange(**{key: np.array(kept[key]) for key in ("low", "high", "low_pose", "high_pose", "viscous", "coupled_low")})
+    keys = ("low", "high", "low_pose", "high_pose", "viscous", "coupled_low")
+    found = InertiaRange(**{key: np.array(kept[key]) for key in keys})
     for values in vars(found).values():
         values.setflags(write=False)  # shared by every caller of the cache
     return found
 
 
 def _computed_range(arm_bytes: bytes, shape: tuple[int, ...], ee_bytes: bytes, count: int, seed: int) -> InertiaRange:
-    import pinocchio  # type: ignore[import-untyped]
+    import pinocchio
 
     arm = np.frombuffer(arm_bytes).reshape(shape)
     model = arm_model(arm, np.frombuffer(ee_bytes))
@@ -102,6 +104,6 @@ def arm_gains(inertia: InertiaRange, bandwidth: float, damping: float = 1.0, int
     at `period` with one period of delay (`joint_loop.design_gains`): made for each joint's heaviest
     pose unless that would leave a lighter one (down to `coupled_low`) poorly damped."""
     made = [design_gains(float(low), float(high), bandwidth, damping, integral_time, period, viscous=float(b))
-            for low, high, b in zip(inertia.coupled_low, inertia.high, inertia.viscous)]
+            for low, high, b in zip(inertia.coupled_low, inertia.high, inertia.viscous, strict=True)]
     return (np.array([g.kp for g, _ in made]), np.array([g.kd for g, _ in made]), np.array([g.ki for g, _ in made]),
             np.array([design for _, design in made]))

@@ -25,7 +25,8 @@ reports a bad option with the device's YAML location before anything runs.
 
 from __future__ import annotations
 
-from typing import Any, Callable, ClassVar, Mapping
+from collections.abc import Callable, Mapping
+from typing import Any, ClassVar
 
 
 class DeviceDriver:

@@ -1,15 +1,16 @@
 """A joint's position loop as a sampled system: the gains a bandwidth asks for, and whether they are stable.
 
-Each joint is a double integrator 1/(I s² + b s), I its reflected inertia (the mass matrix's diagonal
-element, armature included) and b its viscous friction (the robot file's damping), driven by a PD(+I) controller through a zero-order hold of period T,
-with `delay` periods between the sample the controller reads and the torque reaching the arm (one
-between two tasks: the robot interface publishes q_m, the controller answers, the interface applies
-it the next cycle). The closed loop's eigenvalues say whether it is stable (all inside the unit
-circle) and how well damped (the damping ratio of each pole, mapped back by s = ln z / T). A joint's
-inertia changes with the pose: a loop is checked at inertias spanning the arm's range, since the
-lightest pose is where a gain is most likely to be too high. Under computed torque (the controller's
-output an acceleration that inverse dynamics multiplies by the arm's mass matrix) the model cancels
-the inertia: the gains act on a unit inertia, and only the uncancelled friction b / I changes with the pose.
+Each joint is a double integrator 1/(I s² + b s), I its reflected inertia (the mass matrix's
+diagonal element, armature included) and b its viscous friction (the robot file's damping), driven
+by a PD(+I) controller through a zero-order hold of period T, with `delay` periods between the
+sample the controller reads and the torque reaching the arm (one between two tasks: the robot
+interface publishes q_m, the controller answers, the interface applies it the next cycle). The
+closed loop's eigenvalues say whether it is stable (all inside the unit circle) and how well damped
+(the damping ratio of each pole, mapped back by s = ln z / T). A joint's inertia changes with the
+pose: a loop is checked at inertias spanning the arm's range, since the lightest pose is where a
+gain is most likely to be too high. Under computed torque (the controller's output an acceleration
+that inverse dynamics multiplies by the arm's mass matrix) the model cancels the inertia: the gains
+act on a unit inertia, and only the uncancelled friction b / I changes with the pose.
 
 No simulator is needed: this is numpy only, for `pbo check`, `pbo set`, `pbo robot` and the
 controllers' init.
@@ -18,8 +19,8 @@ controllers' init.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 

@@ -13,8 +13,9 @@ import math
 import re
 import types
 import typing
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, Callable, ClassVar, Mapping
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -308,7 +309,9 @@ def build_params(params_type: type, values: dict[str, Any], owner: str) -> Any:
         fields, required = _fields(params_type), _required(params_type)
     else:
         fields = {f.name: f for f in dataclasses.fields(params_type)}
-        required = tuple(name for name, f in fields.items() if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING)
+        required = tuple(
+            name for name, f in fields.items() if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+        )
     unknown = sorted(set(values) - fields.keys())
     if unknown:
         valid = ", ".join(sorted(fields)) or "none"
@@ -459,4 +462,10 @@ def _accepted(hint: Any) -> str:
 
 
 _WORDS: dict[Any, str] = {float: "a number", int: "an integer", str: "a string", bool: "true or false", Any: "any value"}
-_PLURAL = {"a number": "numbers", "an integer": "integers", "a string": "strings", "true or false": "flags", "any value": "values"}
+_PLURAL = {
+    "a number": "numbers",
+    "an integer": "integers",
+    "a string": "strings",
+    "true or false": "flags",
+    "any value": "values",
+}

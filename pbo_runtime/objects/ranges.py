@@ -36,7 +36,8 @@ class Range:
         """The range in words an engineer reads at once: 'in [0, 1e+06]', 'in (0, 100]', '> 0, or .inf for no limit'."""
         low_finite, high_finite = math.isfinite(self.low), math.isfinite(self.high)
         if low_finite and high_finite:
-            return f"in {'(' if self.low_open else '['}{number_text(self.low)}, {number_text(self.high)}{')' if self.high_open else ']'}"
+            opening, closing = "(" if self.low_open else "[", ")" if self.high_open else "]"
+            return f"in {opening}{number_text(self.low)}, {number_text(self.high)}{closing}"
         words = "a finite number" if self.high_open or high_finite else "a number"
         if low_finite:
             words += f" {'>' if self.low_open else '>='} {number_text(self.low)}"
@@ -82,7 +83,7 @@ def param(default: Any = dataclasses.MISSING, *, at_least: float | None = None, 
 
     A list parameter's range holds for each of its numbers; an integer's as a float's.
     """
-    if at_least is not None and above is not None or at_most is not None and below is not None:
+    if (at_least is not None and above is not None) or (at_most is not None and below is not None):
         raise TypeError("give one lower end (at_least or above) and one upper end (at_most or below)")
     low = at_least if at_least is not None else above
     high = at_most if at_most is not None else below

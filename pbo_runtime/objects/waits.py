@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from typing import Callable, Iterator
+from collections.abc import Callable, Iterator
 
 _cycling: tuple[int, Callable[[float], None]] | None = None  # (the executive's thread, its sleep)
 

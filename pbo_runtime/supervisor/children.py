@@ -21,8 +21,8 @@ from pbo_runtime.config.model import RtpuSpec, Subsystem
 from pbo_runtime.ipc import messages, shm
 from pbo_runtime.supervisor.child_watch import ChildWatch
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure
-from pbo_runtime.supervisor.in_process import InProcessChild
 from pbo_runtime.supervisor.fork_server import ForkedProcess, ForkServer, ForkServerUnavailable, forking_enabled
+from pbo_runtime.supervisor.in_process import InProcessChild
 from pbo_runtime.supervisor.run_report import STOP_TIMEOUT, RunResult
 from pbo_runtime.table.table import StateTable
 

@@ -200,7 +200,8 @@ VERBS: tuple[Verb, ...] = (
           Argument("new", help="the new task's name", key="new"), *_NEW_TASK), "replace",
          _LIVE_REPLY + ' and `"replaced": str`', LIVE_TIMEOUT),
     Verb("set", "set a live-tunable parameter of a task, checked as in YAML, applied at a cycle boundary: pbo set pid kp 300",
-         (_TASK, Argument("param", help="the parameter (its module declares it tunable); of a combined task, a member's: kp, 1.kp or pid_joint.kp", key="param"),
+         (_TASK, Argument("param", help="the parameter (its module declares it tunable); of a combined task, "
+                                        "a member's: kp, 1.kp or pid_joint.kp", key="param"),
           Argument("values", help="its value (YAML); several make a list", key="values", nargs="+")),
          "set_parameter", _LIVE_REPLY + ' and `"param": str, "value": any`', LIVE_TIMEOUT),
     Verb("app", "run one of the file's applications on the live subsystem; with --steps, an application given here "

@@ -15,7 +15,8 @@ import signal
 import sys
 import threading
 import traceback
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.ipc import limits, messages

@@ -25,14 +25,14 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from pbo_runtime.config.decisions import decides
+from pbo_runtime.config.decisions import decides, paths
 from pbo_runtime.config.expressions import ExpressionError, compile_condition
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.edit.live import LiveDescription
-from pbo_runtime.errors import PboError
+from pbo_runtime.errors import PboError, closest_name
 from pbo_runtime.reports.run_result import SwitchReport
 from pbo_runtime.supervisor.decisions import DecidingRun
-from pbo_runtime.supervisor.failures import RtpuDied
+from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, WrongArgument
 from pbo_runtime.supervisor.plan_lead import POST_LEAD_MIN, PlanLead, RtpuAround, earliest_activation
 
 SWITCH_TIMEOUT = 5.0
@@ -534,3 +534,28 @@ class JobControl:
             self.run_job(job, arguments, step=f" (step {number} of {len(steps)} of application '{application}')")
             self.jobs_done.append(job)
         self.job = None
+
+
+def starting_configuration(subsystem: Subsystem, configuration: str | None, application: str | None) -> str:
+    """The configuration a run starts in: the one asked for, else the application's first job's, else
+    the file's first; WrongArgument for a name the file does not have, RunFailure for an incomplete application."""
+    if application is not None and application not in subsystem.applications:
+        close = closest_name(application, subsystem.applications)
+        raise WrongArgument(f"no application '{application}' in {subsystem.file}"
+                            + (f": did you mean '{close}'?" if close else "")
+                            + f" (applications: {', '.join(subsystem.applications) or 'none'})")
+    if application is not None and not subsystem.applications[application].complete:
+        raise RunFailure(f"application '{application}' is incomplete (a step lacks the object its job needs) and "
+                         f"cannot be run; pbo check {subsystem.file} shows which step")
+    if configuration is None and application is not None:
+        first = [job for job, _ in application_steps(subsystem, application)]
+        if decides(subsystem, application):  # the first job of its first path
+            first = list(paths(subsystem, application)[0][0].jobs)
+        configuration = subsystem.jobs[first[0]].configuration if first else None
+    chosen = configuration or next(iter(subsystem.configurations))
+    if chosen not in subsystem.configurations:
+        close = closest_name(chosen, subsystem.configurations)
+        raise WrongArgument(f"no configuration '{chosen}' in {subsystem.file}"
+                            + (f": did you mean '{close}'?" if close else "")
+                            + f" (configurations: {', '.join(subsystem.configurations)})")
+    return chosen

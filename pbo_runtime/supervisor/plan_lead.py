@@ -6,9 +6,10 @@ boundary), for all of them to switch at that one instant. An RTPU whose own time
 reads the header before that boundary's cycles: it needs only the plan written by then, and the
 time from the request to the plan in the header (the post delay) is measured on every plan. One
 that only the plan's wake-up brings (its next release is later, or an aperiodic task may run at
-any time) needs the plan read by then. How long that takes is measured on every plan too: each RTPU stamps when it first read the plan (`Switched.read_at`), and the
-plan's read delay is its slowest RTPU's stamp minus the clock reading job control took the lead
-from. The lead is a high quantile of the recent read delays plus a margin, within bounds:
+any time) needs the plan read by then. How long that takes is measured on every plan too: each
+RTPU stamps when it first read the plan (`Switched.read_at`), and the plan's read delay is its
+slowest RTPU's stamp minus the clock reading job control took the lead from. The lead is a high
+quantile of the recent read delays plus a margin, within bounds:
 
     lead = clamp(MARGIN_FACTOR x q + MARGIN, LEAD_MIN, LEAD_MAX)
 

@@ -5,11 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from pbo_runtime.config.decisions import decides, paths
-from pbo_runtime.config.model import Subsystem
-from pbo_runtime.errors import closest_name
-from pbo_runtime.supervisor.failures import RunFailure, WrongArgument
-from pbo_runtime.supervisor.job_control import application_steps
+from pbo_runtime.supervisor.failures import WrongArgument
 
 
 @dataclass(frozen=True)
@@ -41,28 +37,3 @@ class RunOptions:
     def __post_init__(self) -> None:
         if self.one_process and self.clock != "sim":
             raise WrongArgument("one process (--one-process) is for the simulated clock only: add --clock sim")
-
-
-def starting_configuration(subsystem: Subsystem, configuration: str | None, application: str | None) -> str:
-    """The configuration a run starts in: the one asked for, else the application's first job's, else
-    the file's first; WrongArgument for a name the file does not have, RunFailure for an incomplete application."""
-    if application is not None and application not in subsystem.applications:
-        close = closest_name(application, subsystem.applications)
-        raise WrongArgument(f"no application '{application}' in {subsystem.file}"
-                            + (f": did you mean '{close}'?" if close else "")
-                            + f" (applications: {', '.join(subsystem.applications) or 'none'})")
-    if application is not None and not subsystem.applications[application].complete:
-        raise RunFailure(f"application '{application}' is incomplete (a step lacks the object its job needs) and "
-                         f"cannot be run; pbo check {subsystem.file} shows which step")
-    if configuration is None and application is not None:
-        first = [job for job, _ in application_steps(subsystem, application)]
-        if decides(subsystem, application):  # the first job of its first path
-            first = list(paths(subsystem, application)[0][0].jobs)
-        configuration = subsystem.jobs[first[0]].configuration if first else None
-    chosen = configuration or next(iter(subsystem.configurations))
-    if chosen not in subsystem.configurations:
-        close = closest_name(chosen, subsystem.configurations)
-        raise WrongArgument(f"no configuration '{chosen}' in {subsystem.file}"
-                            + (f": did you mean '{close}'?" if close else "")
-                            + f" (configurations: {', '.join(subsystem.configurations)})")
-    return chosen

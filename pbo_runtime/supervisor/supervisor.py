@@ -42,13 +42,13 @@ from pbo_runtime.supervisor.exclusive_devices import refuse_if_devices_in_use
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, RunRefused, StopRequested
 from pbo_runtime.supervisor.fork_server import ForkServer
 from pbo_runtime.supervisor.in_process import SecondStop, end_at_once
-from pbo_runtime.supervisor.job_control import JobControl, JobFailure
+from pbo_runtime.supervisor.job_control import JobControl, JobFailure, starting_configuration
 from pbo_runtime.supervisor.launch import SIM_TICK_DEFAULT, RtpuLaunch
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockGuard
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.restarts import Restarter, RunSteps, RunView
-from pbo_runtime.supervisor.run_options import RunOptions, starting_configuration
+from pbo_runtime.supervisor.run_options import RunOptions
 from pbo_runtime.supervisor.run_queues import queue_plan, run_manifest
 from pbo_runtime.supervisor.run_report import RunReporting, RunResult
 from pbo_runtime.supervisor.sim_tick import simulation_tick

@@ -26,14 +26,15 @@ from __future__ import annotations
 
 import inspect
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
-from pbo_runtime.objects import registry
 from pbo_runtime.config.channels import channels_of, format_channels, mask_of
 from pbo_runtime.config.model import DeviceSpec, Subsystem, TaskSpec
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.shm import pid_alive
+from pbo_runtime.objects import registry
 from pbo_runtime.table.table import DEVICE_HOLDERS, Holder, StateTable
 
 DriverLookup = Callable[[str], Any]
@@ -119,7 +120,9 @@ class DeviceDatabase:
             if spec.io is None:
                 return openings
             if spec.io.device not in devices or any(o.device.name == spec.io.device for o in openings):
-                raise DeviceOpenError(f"device '{spec.name}' is wired (io:) to '{spec.io.device}', which is not an I/O device of this subsystem")
+                raise DeviceOpenError(
+                    f"device '{spec.name}' is wired (io:) to '{spec.io.device}', which is not an I/O device of this subsystem"
+                )
             io = spec.io
             spec, channels = devices[io.device], io.channels
 

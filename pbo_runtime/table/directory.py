@@ -12,8 +12,9 @@ one, checking every record against the segment it lies in: both through this mod
 
 from __future__ import annotations
 
+import mmap
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Iterable
 
 import numpy as np
 
@@ -54,14 +55,14 @@ def encode_record(entry: Entry) -> bytes:
     return bytes(record)
 
 
-def write_directory(buffer, offset: int, entries: Iterable[Entry]) -> None:
+def write_directory(buffer: mmap.mmap, offset: int, entries: Iterable[Entry]) -> None:
     """Write the records of `entries` into `buffer` (a writable mapping) from byte `offset` on."""
     for i, entry in enumerate(entries):
         base = offset + i * DIRECTORY_RECORD
         buffer[base : base + DIRECTORY_RECORD] = encode_record(entry)
 
 
-def read_directory(table: str, buffer, count: int, offset: int, total: int, header_bytes: int) -> dict[str, Entry]:
+def read_directory(table: str, buffer: mmap.mmap, count: int, offset: int, total: int, header_bytes: int) -> dict[str, Entry]:
     """The `count` records at byte `offset` of table `table`'s segment of `total` bytes, by name.
 
     The directory lies after the segment's header of `header_bytes`.
@@ -93,7 +94,7 @@ def _decode_record(table: str, index: int, record: bytes, total: int) -> Entry:
         raise TableLayoutError(f"{where}: shape {shape} of {ndim} dimensions is not valid")
     if nbytes != int(np.prod(shape, dtype=np.int64)) * dtype.itemsize:
         raise TableLayoutError(f"{where}: {nbytes} bytes do not hold a {dtype.name} array of shape {shape}")
-    if not (0 <= meta_word and (meta_word + META_WORDS) * 8 <= total and data_byte % dtype.itemsize == 0
-            and 0 <= data_byte and data_byte + nbytes <= total):
+    if not (meta_word >= 0 and (meta_word + META_WORDS) * 8 <= total and data_byte % dtype.itemsize == 0
+            and data_byte >= 0 and data_byte + nbytes <= total):
         raise TableLayoutError(f"{where}: its offsets (metadata word {meta_word}, data byte {data_byte}) lie outside the segment")
     return Entry(name, dtype, shape, meta_word, data_byte, nbytes)

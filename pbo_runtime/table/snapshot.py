@@ -16,7 +16,8 @@ loads of the sequence.
 from __future__ import annotations
 
 import time
-from typing import Callable, TypeVar
+from collections.abc import Callable
+from typing import TypeVar
 
 from pbo_runtime.errors import PboError
 

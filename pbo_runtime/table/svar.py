@@ -14,6 +14,7 @@ directory's own consistency (offsets inside the segment, sizes matching shapes) 
 from __future__ import annotations
 
 import math
+import mmap
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -22,9 +23,9 @@ import numpy as np
 import posix_ipc
 from rich.table import Table
 
+from pbo_runtime.errors import TableLayoutError
 from pbo_runtime.ipc.control import find_live_run
 from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
-from pbo_runtime.errors import TableLayoutError
 from pbo_runtime.table.directory import Entry, read_directory
 from pbo_runtime.table.snapshot import Seqlock
 from pbo_runtime.table.table import (
@@ -143,7 +144,7 @@ def open_table(subsystem: str | None = None, run: str | None = None) -> TableVie
 def attach(name: str, subsystem: str = "", run_id: str = "") -> TableView:
     """Attach read-only to the table segment `name`, checking that it is a table this code can read."""
 
-    def check(mapping) -> None:
+    def check(mapping: mmap.mmap | memoryview) -> None:
         if len(mapping) < HEADER_WORDS * 8:
             raise TableLayoutError(f"'{name}' ({len(mapping)} bytes) is too small to be a pbo state variable table")
         header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
@@ -189,11 +190,7 @@ def _part(name: str, index: int) -> str:
 def format_value(value: np.ndarray) -> str:
     """A value as text: floats with 4 decimals, integers as they are, long arrays summarised."""
     array = np.asarray(value)
-    formatter: Any
-    if array.dtype.kind == "f":
-        formatter = {"float_kind": lambda x: f"{x:+.4f}"}
-    else:
-        formatter = None
+    formatter: Any = {"float_kind": lambda x: f"{x:+.4f}"} if array.dtype.kind == "f" else None
     if array.ndim == 0:
         return formatter["float_kind"](array.item()) if formatter else str(array.item())
     return np.array2string(array, separator=", ", formatter=formatter, max_line_width=10**6, threshold=24, edgeitems=4)
@@ -215,8 +212,10 @@ def svar_rows(view: TableView, names: Sequence[str] | None = None, writers: Mapp
         written = writer >= 0 or seq > 0
         if not written:
             who = "—"
+        elif writer < 0:
+            who = "job control"
         else:
-            who = "job control" if writer < 0 else (writers or {}).get(writer, f"task #{writer}")
+            who = (writers or {}).get(writer, f"task #{writer}")
         rows.append({"name": name, "value": format_value(value), "sequence": seq, "age_ms": age_ms, "writer": who,
                      "written": written})
     return rows
@@ -232,7 +231,9 @@ def svar_table(rows: Sequence[Mapping[str, Any]], title: str | None = None) -> T
     for row in rows:
         if row["age_ms"] is not None:
             age = f"{row['age_ms']:.1f}"
+        elif row.get("written", True):
+            age = "—"
         else:
-            age = "—" if row.get("written", True) else "never"
+            age = "never"
         table.add_row(row["name"], row["value"], str(row["sequence"]), age, row["writer"])
     return table

@@ -29,19 +29,23 @@ write under the lock makes `Header.LOCK_SEQUENCE` odd first and even after.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import hashlib
+import mmap
 import os
 import threading
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable
+from typing import Any
 
 import numpy as np
 import posix_ipc
+from numpy.typing import ArrayLike
 
-from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
 from pbo_runtime.config.model import Subsystem, VariableSpec
 from pbo_runtime.errors import InternalError, TableLayoutError
+from pbo_runtime.ipc.segment import LockedSegment, MissingLockError
 from pbo_runtime.table.directory import DIRECTORY_RECORD, DTYPE_CODES, META_WORDS, Entry, write_directory
 from pbo_runtime.table.snapshot import Seqlock
 
@@ -281,7 +285,9 @@ class StateTable:
         # sets it; the transfers read it through this one-element list, set once per turn-on).
         self.cycle_lock_wait: list[float | None] = [None]
         self.header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
-        self._views = {code: np.frombuffer(mapping, dtype=code, count=layout.total_bytes // np.dtype(code).itemsize) for code in DTYPE_CODES}
+        self._views = {
+            code: np.frombuffer(mapping, dtype=code, count=layout.total_bytes // np.dtype(code).itemsize) for code in DTYPE_CODES
+        }
         self.words = self._views["float64"]
         status = layout.status_offset // 8
         self.status = self.words[status : status + STATUS_WORDS * max(layout.n_tasks, 1)].reshape(-1, STATUS_WORDS)
@@ -328,9 +334,11 @@ class StateTable:
     def attach(cls, layout: TableLayout, name: str) -> StateTable:
         """Attach to a running table; a different layout fails clearly instead of corrupting it."""
 
-        def check(mapping) -> None:
+        def check(mapping: mmap.mmap | memoryview) -> None:
             header = np.frombuffer(mapping, dtype=np.int64, count=HEADER_WORDS)
-            magic, version, found_hash, total = (int(header[i]) for i in (Header.MAGIC, Header.VERSION, Header.LAYOUT_HASH, Header.TOTAL_BYTES))
+            magic, version, found_hash, total = (
+                int(header[i]) for i in (Header.MAGIC, Header.VERSION, Header.LAYOUT_HASH, Header.TOTAL_BYTES)
+            )
             del header  # no view may outlive a mapping the segment closes
             if magic != MAGIC or version != VERSION:
                 raise TableLayoutError(f"'{name}' is not a pbo state variable table of version {VERSION}")
@@ -465,7 +473,7 @@ class StateTable:
         """A lock-free copy of every task's status block (TableBusy if the table stays busy)."""
         return self.seqlock.read(self.status.copy)
 
-    def write(self, name: str, value, when: float, writer: int = -1) -> None:
+    def write(self, name: str, value: ArrayLike, when: float, writer: int = -1) -> None:
         """Write a whole variable as job control (writer -1) would: under the lock, stamped."""
         s = self.layout.slot(name)
         view = self.view(name)
@@ -503,12 +511,10 @@ def _raise_to(priority: int) -> int | None:
 
 def _lower(thread: int | None) -> None:
     if thread is not None:
-        try:
+        with contextlib.suppress(OSError):
             os.sched_setscheduler(thread, os.SCHED_OTHER, os.sched_param(0))
-        except OSError:
-            pass
 
 
-def read_manifest(mapping, offset: int) -> list[str]:
+def read_manifest(mapping: mmap.mmap, offset: int) -> list[str]:
     raw = bytes(mapping[offset : offset + MANIFEST_BYTES]).split(b"\0", 1)[0]
     return [line for line in raw.decode(errors="replace").split("\n") if line]

@@ -22,8 +22,8 @@ import collections
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from pbo_runtime.errors import OutputError
 from pbo_runtime.objects.helper_threads import below_the_cycle

@@ -24,16 +24,16 @@ from __future__ import annotations
 
 import math
 import traceback
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.errors import LifecycleError, ModuleError, OutputError
 from pbo_runtime.objects.module import PortBasedObject, Status
-from pbo_runtime.table.table import Flag, Header, StateTable, TaskState
-from pbo_runtime.table.table import StatusWord
+from pbo_runtime.table.table import Flag, Header, StateTable, StatusWord, TaskState
 from pbo_runtime.task.transfer import LocalTable
 
 _FLAGS, _HELD = int(Header.FLAGS), int(Flag.ILLEGAL_CONFIGURATION)
@@ -272,7 +272,7 @@ class Task:
         first, to choose between `cycle` and `stable_cycle` by how fresh they are."""
         self.context.time = now
         try:
-            result = (component or self._cycle)()
+            result: Status | int = (component or self._cycle)()  # a module may return a plain 0
         except Exception as exc:
             return self._cycle_failed(exc, now)
         if not self._outputs_finite():  # NaN or Inf never reaches the table, nor an actuator after it
@@ -397,9 +397,9 @@ class Task:
         return Status.ERROR
 
     def _run_kill(self, after_init: bool = False) -> None:
-        """kill, then close what the task opened (what `closes_slowly`, a message link's relay, and the
-        rest of a driver's `close_now`, in the RTPU's background thread). After init, a kill that raises goes to the error component too
-        (for the record: the task is killed whatever it answers)."""
+        """kill, then close what the task opened (what `closes_slowly`, a message link's relay, and the rest
+        of a driver's `close_now`, in the RTPU's background thread). After init, a kill that raises goes to
+        the error component too (for the record: the task is killed whatever it answers)."""
         try:
             self.module.kill()
         except Exception as exc:

@@ -17,16 +17,16 @@ write is stamped by the same scatter that moves it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import posix_ipc
 
 from pbo_runtime.config.model import PortBinding
 from pbo_runtime.objects.ports import PortKind
-from pbo_runtime.table.table import HEADER_WORDS, META_WORDS, STATUS_WORDS, Header, StateTable
-from pbo_runtime.table.table import StatusWord
+from pbo_runtime.table.directory import META_WORDS
+from pbo_runtime.table.table import HEADER_WORDS, STATUS_WORDS, Header, StateTable, StatusWord
 
 # np.count_nonzero's C function without its Python wrapper, which only dispatches on axis and
 # keepdims: the wrapper cost about 0.3 µs of the finite check's ~1 µs per cycle (2 vCPUs, loaded).
@@ -90,7 +90,7 @@ class _Region:
         )
         self.arrays = [
             locals_by_dtype[dtype_name][pos : pos + s.size].reshape(s.shape)
-            for (dtype_name, pos), s in zip(data_pos, slots)
+            for (dtype_name, pos), s in zip(data_pos, slots, strict=True)
         ]
 
 
@@ -113,8 +113,13 @@ class LocalTable:
         self._out_const = _Region(table, out_const, task_index, 0)
         self._out_var = _Region(table, out_var, task_index, int(StatusWord.USED))
         by_binding: dict[int, np.ndarray] = {}
-        for region, members in ((self._in_var, in_var), (self._in_const, in_const), (self._out_var, out_var), (self._out_const, out_const)):
-            for binding, array in zip(members, region.arrays):
+        for region, members in (
+            (self._in_var, in_var),
+            (self._in_const, in_const),
+            (self._out_var, out_var),
+            (self._out_const, out_const),
+        ):
+            for binding, array in zip(members, region.arrays, strict=True):
                 by_binding.setdefault(id(binding), array)
         self._both_in = [(self._in_const.arrays[in_const.index(b)], by_binding[id(b)]) for b in in_const if b in in_var]
         self._both_out = [(self._out_const.arrays[out_const.index(b)], by_binding[id(b)]) for b in out_const if b in out_var]
@@ -254,7 +259,7 @@ class LocalTable:
 
     def non_finite_outputs(self) -> list[str]:
         """The out-vars that hold NaN or Inf now, for the error message (not per cycle)."""
-        return [variable for variable, array in zip(self._out_variables, self._out_var.arrays)
+        return [variable for variable, array in zip(self._out_variables, self._out_var.arrays, strict=True)
                 if array.dtype.kind == "f" and not np.isfinite(array).all()]
 
     # --- the transfers of Figure 11 that are not per cycle -----------------------------------
@@ -324,4 +329,4 @@ class LocalTable:
             self.table.release()
 
 
-__all__ = ["LocalTable", "META_WORDS"]
+__all__ = ["META_WORDS", "LocalTable"]

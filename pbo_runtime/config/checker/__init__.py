@@ -1,4 +1,5 @@
-"""The configuration checker: every rule of the format (docs/configuration.md, docs/error-codes.md), all errors of a file in one pass.
+"""The configuration checker: every rule of the format (docs/configuration.md, docs/error-codes.md), all
+errors of a file in one pass.
 
 It walks a loaded YAML document (`config.yaml_nodes.YMap`), reports each mistake like a compiler
 (`file:line:col: error[E403]: ...` with the objects, what was found, the valid choices and a hint;
@@ -10,7 +11,8 @@ of the later rules so one typo does not cascade into a page of follow-on errors.
 
 from __future__ import annotations
 
-from typing import Any, Callable, Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.claims import ClaimChecks
@@ -65,8 +67,24 @@ __all__ = [
 ]
 
 
-class _Checker(SectionChecks, DeviceChecks, VariableChecks, InferenceChecks, TaskChecks, TaskPortChecks, TaskDeviceChecks,
-               ConfigurationChecks, ClaimChecks, ModuleLinkChecks, ObjectChecks, JobChecks, DecisionChecks, TimingChecks, JointLoopChecks, CheckerBase):
+class _Checker(
+    SectionChecks,
+    DeviceChecks,
+    VariableChecks,
+    InferenceChecks,
+    TaskChecks,
+    TaskPortChecks,
+    TaskDeviceChecks,
+    ConfigurationChecks,
+    ClaimChecks,
+    ModuleLinkChecks,
+    ObjectChecks,
+    JobChecks,
+    DecisionChecks,
+    TimingChecks,
+    JointLoopChecks,
+    CheckerBase,
+):
     """The whole checker: the core (`CheckerBase`) with every rule, one mixin a concept, and the pass."""
 
     def run(self, doc: Any, doc_loc: Location) -> Checked:

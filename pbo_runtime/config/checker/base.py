@@ -10,16 +10,17 @@ import difflib
 import functools
 import math
 import re
-from typing import Any, Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Any
 
-from pbo_runtime.objects import registry
 from pbo_runtime.config.checker.model import Checked, DriverLookup, ModuleLookup, _Claim, _PartialVariable, _Task
 from pbo_runtime.config.checker.words import describe, did_you_mean
 from pbo_runtime.config.limits import MAX_DIM, MAX_NAME, MAX_PERIOD, MAX_TIME, MIN_PERIOD
 from pbo_runtime.config.model import Location
-from pbo_runtime.errors import ConfigError, Note
 from pbo_runtime.config.units import TIME, parse_quantity
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of
+from pbo_runtime.errors import ConfigError, Note
+from pbo_runtime.objects import registry
 
 
 class CheckerBase:
@@ -126,7 +127,9 @@ class CheckerBase:
     def keys(self, m: YMap, allowed: Sequence[str], required: Sequence[str], where: str, owner_loc: Location) -> None:
         # Nearly always every key is allowed and every required one is there: two C-level set
         # operations say so (this runs for every task and variable of a file); else find out which.
-        if m.keys() <= (_key_set(allowed) if isinstance(allowed, tuple) else frozenset(allowed)) and all(key in m for key in required):
+        if m.keys() <= (_key_set(allowed) if isinstance(allowed, tuple) else frozenset(allowed)) and all(
+            key in m for key in required
+        ):
             return
         missing = [key for key in required if key not in m]
         for key in m:
@@ -134,15 +137,21 @@ class CheckerBase:
                 close = difflib.get_close_matches(str(key), missing, n=1, cutoff=0.6)
                 if close:  # one mistake, one error: a misspelt required key
                     missing.remove(close[0])
-                    self.error("E111", f"unknown key '{key}' {where}: did you mean the required key '{close[0]}'?", m.key_loc(key),
-                               f"rename it '{close[0]}:'")
+                    self.error(
+                        "E111",
+                        f"unknown key '{key}' {where}: did you mean the required key '{close[0]}'?",
+                        m.key_loc(key),
+                        f"rename it '{close[0]}:'",
+                    )
                 else:
                     self.error("E111", f"unknown key '{key}' {where}", m.key_loc(key), did_you_mean(key, allowed))
         if not missing:
             return
         subject = where[3:] if where.startswith("in ") else "the file" if where == "at the top level" else where
         for key in missing:
-            self.error("E112", f"{subject} has no '{key}:', which is required", owner_loc, f"add '{key}:' (keys: {', '.join(allowed)})")
+            self.error(
+                "E112", f"{subject} has no '{key}:', which is required", owner_loc, f"add '{key}:' (keys: {', '.join(allowed)})"
+            )
 
     def name(self, key: object, loc: Location, what: str) -> str | None:
         if isinstance(key, str) and key:

@@ -66,7 +66,8 @@ class ClaimChecks(CheckerBase):
             if len(us) > 1:
                 self.error(
                     "E601",
-                    f"device '{device}' is exclusive, but configuration '{config}' gives it to {_and_list([u.who() for u in us])}",
+                    f"device '{device}' is exclusive, but configuration '{config}' gives it to "
+                    f"{_and_list([u.who() for u in us])}",
                     us[1].loc,
                     "an exclusive device has one user per configuration; move one task to another configuration, "
                     "or set exclusive: false if the driver can be shared",

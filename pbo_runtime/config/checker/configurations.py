@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.model import _Binding, _Task
-from pbo_runtime.config.checker.words import _ms, _and_list, describe, did_you_mean
+from pbo_runtime.config.checker.words import _and_list, _ms, describe, did_you_mean
 from pbo_runtime.config.model import ConfigurationSpec, Location
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of
 
@@ -22,11 +22,18 @@ class ConfigurationChecks(CheckerBase):
         def check_device_claims(self, config: str, members: list[_Task]) -> None: ...
 
     def check_configurations(self, top: YMap) -> None:
-        for name, value, key_loc, value_loc in self.entries(top, "configurations", "configuration", "e.g. configurations: {joint_pid: [robot, pid]}"):
+        for name, value, key_loc, value_loc in self.entries(
+            top, "configurations", "configuration", "e.g. configurations: {joint_pid: [robot, pid]}"
+        ):
             self.config_names.add(name)
             if not isinstance(value, YList):
                 loc = value_loc
-                self.error("E113", f"configuration '{name}' must be a list of task names, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [robot, pid]")
+                self.error(
+                    "E113",
+                    f"configuration '{name}' must be a list of task names, got: {describe(value)}",
+                    location_of(value, loc),
+                    f"e.g. {name}: [robot, pid]",
+                )
                 continue
             members: list[tuple[str, Location]] = []
             first: dict[str, Location] = {}
@@ -42,13 +49,19 @@ class ConfigurationChecks(CheckerBase):
                     ok = False
                     continue
                 if task not in self.task_names:
-                    self.error("E209", f"configuration '{name}' names task '{task}', which 'tasks' does not declare", item_loc, did_you_mean(task, self.task_names, "declared"))
+                    self.error(
+                        "E209",
+                        f"configuration '{name}' names task '{task}', which 'tasks' does not declare",
+                        item_loc,
+                        did_you_mean(task, self.task_names, "declared"),
+                    )
                     ok = False
                     continue
                 if task in first:
                     self.error(
                         "E402",
-                        f"task '{task}' appears twice in configuration '{name}' (first at line {first[task].line}, column {first[task].column})",
+                        f"task '{task}' appears twice in configuration '{name}' (first at line "
+                        f"{first[task].line}, column {first[task].column})",
                         item_loc,
                         "a task runs at most once in a configuration; to run its module twice, declare a second task",
                         [(first[task], f"task '{task}' is first listed here")],
@@ -60,13 +73,14 @@ class ConfigurationChecks(CheckerBase):
                 writes = frozenset(variable for _, variable in record.outputs) if record is not None else frozenset()
                 instance = (module, writes)
                 if module and writes and instance in instances:
-                    other, other_loc = instances[instance]
+                    other, _other_loc = instances[instance]
                     assert record is not None
                     relink = ", ".join(f"{port}: {variable}_{task}" for port, variable in record.outputs)
                     declare = _and_list([f"'{variable}_{task}'" for _, variable in record.outputs])
                     self.error(
                         "E407",
-                        f"configuration '{name}' runs module '{module}' twice: as task '{other}' (line {self.tasks[other].loc.line}) "
+                        f"configuration '{name}' runs module '{module}' twice: as task '{other}' (line "
+                        f"{self.tasks[other].loc.line}) "
                         f"and as task '{task}' (line {record.loc.line}), both writing {_and_list(sorted(writes))}",
                         item_loc,
                         f"one set of output ports has one writer: give task '{task}' outputs of its own (declare {declare} "
@@ -103,7 +117,9 @@ class ConfigurationChecks(CheckerBase):
         # A task with an unresolved port may be the missing writer: report no "nobody writes it"
         # errors then, only what the resolved links prove.
         repeats = self.config_repeats.get(config, set())
-        complete = all(t.ok for t in members if t.name not in repeats) and len(members) == len(self.config_members.get(config, []))
+        complete = all(t.ok for t in members if t.name not in repeats) and len(members) == len(
+            self.config_members.get(config, [])
+        )
         # A repeated module's task (E407) is not judged again: its writes satisfy readers (no
         # follow-on E403/E405), but are not counted as second writers (E401) or as the kind of
         # write a const needs (E404); its own reads repeat the first task's.
@@ -120,8 +136,13 @@ class ConfigurationChecks(CheckerBase):
             if len(ws) > 1:
                 detail = _and_list([f"'{t.name}' (line {b.loc.line})" for t, b in ws])
                 count = "two" if len(ws) == 2 else str(len(ws))
-                self.error("E401", f"variable '{var}' has {count} writers in configuration '{config}': {detail}", ws[1][1].loc, _JOIN_HINT,
-                           [(b.loc, f"task '{t.name}' writes '{var}' (port '{b.port.name}')") for t, b in ws if b is not ws[1][1]])
+                self.error(
+                    "E401",
+                    f"variable '{var}' has {count} writers in configuration '{config}': {detail}",
+                    ws[1][1].loc,
+                    _JOIN_HINT,
+                    [(b.loc, f"task '{t.name}' writes '{var}' (port '{b.port.name}')") for t, b in ws if b is not ws[1][1]],
+                )
         job_written = self.job_written()
         member_names = {t.name for t in members}
         left_out: dict[tuple[str, ...], list[tuple[_Task, _Binding]]] = {}  # the tasks that would write them -> their readers
@@ -138,7 +159,8 @@ class ConfigurationChecks(CheckerBase):
                     self.error(
                         "E512",
                         f"fresh_within of port '{b.port.name}' of task '{task.name}' ({_ms(given[0])}) is not longer than the "
-                        f"period of its writer '{w_task.name}' ({_ms(w_task.period)}) in configuration '{config}': every read would be stale",
+                        f"period of its writer '{w_task.name}' ({_ms(w_task.period)}) in "
+                        f"configuration '{config}': every read would be stale",
                         given[1],
                         f"give at least two periods of '{w_task.name}' ({_ms(2 * w_task.period)}: one missed write tolerated), "
                         "or leave it out for that default",
@@ -160,13 +182,21 @@ class ConfigurationChecks(CheckerBase):
                         if combined not in member_names:
                             hint += f", and add '{combined}' to configuration '{config}'"
                     else:
-                        hint = ((did_you_mean(b.variable, written, "written") if (written := sorted(set(writers) | job_written))
-                                 else "nothing is written") + f"; add a task that writes '{b.variable}', or give it an initial: value")
+                        hint = (
+                            did_you_mean(b.variable, written, "written")
+                            if (written := sorted(set(writers) | job_written))
+                            else "nothing is written"
+                        ) + f"; add a task that writes '{b.variable}', or give it an initial: value"
                     self.error(
                         "E403",
-                        f"task '{task.name}' reads {b.port.kind.value} '{b.variable}', but no task in configuration '{config}' writes it",
-                        b.loc, hint,
-                        [(self.tasks[c].loc, f"combined task '{c}' writes '{b.variable}' for its own members only") for c in inside],
+                        f"task '{task.name}' reads {b.port.kind.value} '{b.variable}', but no "
+                        f"task in configuration '{config}' writes it",
+                        b.loc,
+                        hint,
+                        [
+                            (self.tasks[c].loc, f"combined task '{c}' writes '{b.variable}' for its own members only")
+                            for c in inside
+                        ],
                     )
                     continue
                 if not b.port.kind.needs_initial_value or b.variable in self.var_initial:
@@ -175,7 +205,8 @@ class ConfigurationChecks(CheckerBase):
                     w_task, w_binding = ws[0]
                     self.error(
                         "E404",
-                        f"task '{task.name}' reads {b.port.kind.value} '{b.variable}' before its init, but its writer '{w_task.name}' "
+                        f"task '{task.name}' reads {b.port.kind.value} '{b.variable}' before "
+                        f"its init, but its writer '{w_task.name}' "
                         f"in configuration '{config}' writes it as {w_binding.port.kind.value} (only after each cycle)",
                         b.loc,
                         f"make port '{w_binding.port.name}' of module '{w_task.module}' out-const or out-both, "
@@ -185,7 +216,8 @@ class ConfigurationChecks(CheckerBase):
                 elif not ws and complete:
                     self.error(
                         "E405",
-                        f"task '{task.name}' reads {b.port.kind.value} '{b.variable}' before its init, but in configuration '{config}' "
+                        f"task '{task.name}' reads {b.port.kind.value} '{b.variable}' before "
+                        f"its init, but in configuration '{config}' "
                         "only job control sets it, as a job's object, after tasks are spawned",
                         b.loc,
                         f"give variable '{b.variable}' an initial: value",
@@ -224,18 +256,33 @@ class ConfigurationChecks(CheckerBase):
         notes += [(self.tasks[w].loc, f"task '{w}' writes {_and_list([repr(v) for v in variables])}") for w in outside]
         if len(outside) == 1:
             members = [t for t, _ in self.config_members.get(config, [])]
-            self.error("E408", f"configuration '{config}' leaves out task '{outside[0]}', which writes {shown}, read by {readers_named}",
-                       self.config_list_locs[config], f"add it: {config}: [{', '.join([*members, outside[0]])}]", notes)
+            self.error(
+                "E408",
+                f"configuration '{config}' leaves out task '{outside[0]}', which writes {shown}, read by {readers_named}",
+                self.config_list_locs[config],
+                f"add it: {config}: [{', '.join([*members, outside[0]])}]",
+                notes,
+            )
         else:
-            self.error("E408", f"configuration '{config}' has no writer of {shown}, read by {readers_named}; "
-                               f"{_and_list([repr(w) for w in outside])} write {'it' if len(variables) == 1 else 'them'}",
-                       self.config_list_locs[config], f"add one of {', '.join(repr(w) for w in outside)} to configuration '{config}'", notes)
+            self.error(
+                "E408",
+                f"configuration '{config}' has no writer of {shown}, read by {readers_named}; "
+                f"{_and_list([repr(w) for w in outside])} write {'it' if len(variables) == 1 else 'them'}",
+                self.config_list_locs[config],
+                f"add one of {', '.join(repr(w) for w in outside)} to configuration '{config}'",
+                notes,
+            )
 
     def check_unused(self) -> None:
         in_a_config = {t for members in self.config_members.values() for t, _ in members}
         for task in self.tasks.values():
             if task.name not in in_a_config:
-                self.warn("W201", f"task '{task.name}' is in no configuration", task.loc, "it is spawned but never turned on; add it to a configuration or remove it")
+                self.warn(
+                    "W201",
+                    f"task '{task.name}' is in no configuration",
+                    task.loc,
+                    "it is spawned but never turned on; add it to a configuration or remove it",
+                )
         if any(not t.ok for t in self.tasks.values()):
             return  # who reads what is unknown while a task's ports are unknown
         read = {b.variable for t in self.tasks.values() for b in t.bindings if b.port.kind.is_input}

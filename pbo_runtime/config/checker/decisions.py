@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Iterator
-
+from typing import TYPE_CHECKING, Any
 
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.words import describe
@@ -187,6 +187,10 @@ class DecisionChecks(CheckerBase):
             return self.fill_application(app, number, used, inner)
         if used.gaps:
             gaps.append(Gap(number, step.job, used.object_type))
-            self.warn("W702", f"application '{app}' is incomplete: step {number} uses the incomplete application '{step.job}'",
-                      step.loc, f"fill the gaps of '{step.job}', or give it an object; an incomplete application may be kept but not run")
+            self.warn(
+                "W702",
+                f"application '{app}' is incomplete: step {number} uses the incomplete application '{step.job}'",
+                step.loc,
+                f"fill the gaps of '{step.job}', or give it an object; an incomplete application may be kept but not run",
+            )
         return step

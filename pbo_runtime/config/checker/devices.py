@@ -20,14 +20,21 @@ class DeviceChecks(CheckerBase):
     """Rules for `devices:`, and the driver lookups and channel checks tasks share."""
 
     def check_devices(self, top: YMap) -> None:
-        for name, value, key_loc, value_loc in self.entries(top, "devices", "device", "e.g. devices: {arm: {driver: mujoco_arm, exclusive: true}}"):
+        for name, value, key_loc, value_loc in self.entries(
+            top, "devices", "device", "e.g. devices: {arm: {driver: mujoco_arm, exclusive: true}}"
+        ):
             self.device_names.add(name)
             spec = self.mapping(value, value_loc, f"device '{name}'", "e.g. arm: {driver: mujoco_arm, exclusive: true}")
             if spec is None:
                 continue
             self.device_nodes[name] = spec
             if "driver" not in spec:
-                self.error("E112", f"device '{name}' has no 'driver:', which is required", key_loc, "add 'driver: <name>' (a registered driver)")
+                self.error(
+                    "E112",
+                    f"device '{name}' has no 'driver:', which is required",
+                    key_loc,
+                    "add 'driver: <name>' (a registered driver)",
+                )
                 continue
             driver = self.text(spec["driver"], spec.value_loc("driver"), f"driver of device '{name}'")
             if driver is not None and not self.driver_registered(name, driver, spec.value_loc("driver")):
@@ -38,7 +45,9 @@ class DeviceChecks(CheckerBase):
             io: PortClaim | None = None
             io_ok = True
             if "io" in spec:
-                io = self.port_claim(spec["io"], spec.value_loc("io"), f"io of device '{name}'", f"device '{name}' (io:)", allow_name=False)
+                io = self.port_claim(
+                    spec["io"], spec.value_loc("io"), f"io of device '{name}'", f"device '{name}' (io:)", allow_name=False
+                )
                 io_ok = io is not None
             options = {k: plain(v) for k, v in spec.items() if k not in DEVICE_KEYS}
             bad = [k for k in options if not isinstance(k, str)]
@@ -103,8 +112,11 @@ class DeviceChecks(CheckerBase):
                             "add a plant, e.g. plant: {model: puma560, timestep: 1 ms}")
                 missing = [o for o in getattr(cls, "PLANT_OPTIONS", ()) if o not in plant.options]
                 if missing:
-                    return (f"device '{device}' (driver {spec.driver}), which reads the plant's option {', '.join(missing)}, but plant: does not give it",
-                            f"give the plant {', '.join(missing)}: (docs/modules.md, 'Drivers', says what it takes)")
+                    return (
+                        f"device '{device}' (driver {spec.driver}), which reads the plant's option {', '.join(missing)}, but "
+                        "plant: does not give it",
+                        f"give the plant {', '.join(missing)}: (docs/modules.md, 'Drivers', says what it takes)",
+                    )
             if spec.io is None:
                 return None
             device = spec.io.device
@@ -128,8 +140,12 @@ class DeviceChecks(CheckerBase):
         try:
             check(options)
         except (ValueError, TypeError) as exc:
-            self.error("E607", f"device '{name}' (driver {driver}): {exc}", (named_by(node, str(exc), DEVICE_KEYS) if node is not None else None) or loc,
-                       "the driver's docstring lists its options (docs/modules.md, 'Drivers')")
+            self.error(
+                "E607",
+                f"device '{name}' (driver {driver}): {exc}",
+                (named_by(node, str(exc), DEVICE_KEYS) if node is not None else None) or loc,
+                "the driver's docstring lists its options (docs/modules.md, 'Drivers')",
+            )
             return False
         return True
 
@@ -139,7 +155,11 @@ class DeviceChecks(CheckerBase):
             return PortClaim(value, None, loc)
         example = "e.g. {device: adc0, channels: 0-5}"
         if not isinstance(value, YMap):
-            expected = "a device name or a mapping {device: ..., channels: ...}" if allow_name else "a mapping {device: ..., channels: ...}"
+            expected = (
+                "a device name or a mapping {device: ..., channels: ...}"
+                if allow_name
+                else "a mapping {device: ..., channels: ...}"
+            )
             self.error("E113", f"{what} must be {expected}, got: {describe(value)}", location_of(value, loc), example)
             return None
         self.keys(value, CLAIM_KEYS, ("device",), f"in {what}", loc)
@@ -190,8 +210,12 @@ class DeviceChecks(CheckerBase):
             claim = spec.io
             if claim is None:
                 if wants:
-                    self.error("E606", f"device '{name}' (driver {spec.driver}) reads through a device of kind {wants}, but it has no io:",
-                               spec.loc, f"say where it is wired, e.g. io: {{device: <a device of kind {wants}>, channels: 0-5}}")
+                    self.error(
+                        "E606",
+                        f"device '{name}' (driver {spec.driver}) reads through a device of kind {wants}, but it has no io:",
+                        spec.loc,
+                        f"say where it is wired, e.g. io: {{device: <a device of kind {wants}>, channels: 0-5}}",
+                    )
                     del self.out.devices[name]
                 continue
             where = f"device '{name}'"

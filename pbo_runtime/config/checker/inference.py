@@ -63,9 +63,11 @@ class InferenceChecks(CheckerBase):
                 shaped.append((task, link, self.port_shape(link.port, ())))
             except (KeyError, TypeError, ValueError):
                 continue  # reported at that port when it is bound (E304, E306)
-        if not typed or (entry is None or entry.shape is None) and not shaped:
+        if not typed or ((entry is None or entry.shape is None) and not shaped):
             missing = "a dtype" if not typed else "a shape"
-            ports = _and_list([f"port '{link.port.name}' of task '{task.name}' is {_declared(link.port)}" for task, link in uses[:3]])
+            ports = _and_list(
+                [f"port '{link.port.name}' of task '{task.name}' is {_declared(link.port)}" for task, link in uses[:3]]
+            )
             why = f"no port that links '{var}' declares {missing} ({ports})"
             if entry is not None:
                 self.error("E112", f"variable '{var}' has no 'type:', and its ports cannot give one", entry.loc,

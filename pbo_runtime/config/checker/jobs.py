@@ -10,11 +10,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pbo_runtime.config.checker.base import CheckerBase
-from pbo_runtime.config.checker.decisions import StepDraft as _Step, decision_kind, used_applications
+from pbo_runtime.config.checker.decisions import StepDraft as _Step
+from pbo_runtime.config.checker.decisions import decision_kind, used_applications
 from pbo_runtime.config.checker.model import JOB_KEYS, NO_OBJECT
 from pbo_runtime.config.checker.words import _show_shape, describe, did_you_mean
-from pbo_runtime.config.model import NOWHERE, ApplicationSpec, ApplicationStep, Gap, JobSpec, Location, ObjectTypeSpec
 from pbo_runtime.config.expressions import ALLOWED, Condition, ExpressionError, compile_condition
+from pbo_runtime.config.model import NOWHERE, ApplicationSpec, ApplicationStep, Gap, JobSpec, Location, ObjectTypeSpec
 from pbo_runtime.config.units import TIME
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
 
@@ -116,7 +117,9 @@ class JobChecks(CheckerBase):
         return lines[loc.line - 1] if 0 < loc.line <= len(lines) else None
 
     def check_jobs(self, top: YMap) -> None:
-        for name, value, key_loc, value_loc in self.entries(top, "jobs", "job", "e.g. jobs: {move: {configuration: joint_pid, object: q_d}}"):
+        for name, value, key_loc, value_loc in self.entries(
+            top, "jobs", "job", "e.g. jobs: {move: {configuration: joint_pid, object: q_d}}"
+        ):
             self.job_names.add(name)
             spec = self.mapping(value, value_loc, f"job '{name}'", "e.g. move: {configuration: joint_pid, object: q_d}")
             if spec is None:
@@ -128,7 +131,12 @@ class JobChecks(CheckerBase):
                 loc = spec.value_loc("configuration")
                 config = self.text(spec["configuration"], loc, f"configuration of job '{name}'")
                 if config is not None and config not in self.config_names:
-                    self.error("E210", f"job '{name}' runs configuration '{config}', which 'configurations' does not declare", loc, did_you_mean(config, self.config_names, "declared"))
+                    self.error(
+                        "E210",
+                        f"job '{name}' runs configuration '{config}', which 'configurations' does not declare",
+                        loc,
+                        did_you_mean(config, self.config_names, "declared"),
+                    )
                     ok = False
                 ok = ok and config is not None
             obj = None
@@ -139,7 +147,12 @@ class JobChecks(CheckerBase):
                 if obj is None or obj == NO_OBJECT:
                     pass  # not text (reported), or `object: none`: the job is an action
                 elif obj not in self.var_locs:
-                    self.error("E213", f"job '{name}' takes object '{obj}', which 'variables' does not declare", loc, did_you_mean(obj, self.var_object or self.var_locs, "objects"))
+                    self.error(
+                        "E213",
+                        f"job '{name}' takes object '{obj}', which 'variables' does not declare",
+                        loc,
+                        did_you_mean(obj, self.var_object or self.var_locs, "objects"),
+                    )
                     ok = False
                 elif obj not in self.var_object:
                     self.error(
@@ -183,7 +196,9 @@ class JobChecks(CheckerBase):
             # a task's ports are unknown, so what it reads is too (reported at the task): no
             # inferred class, lest the steps that give the job an object be refused as well
             return "" if written is None else written
-        outputs = {b.variable: task.name for task in members if task is not None for b in task.bindings if not b.port.kind.is_input}
+        outputs = {
+            b.variable: task.name for task in members if task is not None for b in task.bindings if not b.port.kind.is_input
+        }
         needed: dict[str, str] = {}  # object variable -> the first task that reads it
         for task in members:
             assert task is not None
@@ -201,9 +216,14 @@ class JobChecks(CheckerBase):
                          if b.port.kind.is_input and b.variable not in outputs} - self.job_written()
             if unwritten:
                 return written  # the configuration is broken itself (E403 there): what it needs is not known
-            self.error("E715", f"job '{job}' takes object '{written}', but no task of configuration '{config}' reads or writes it", loc,
-                       f"its tasks need {need}: write that, or leave object: out to infer it" if needed
-                       else "its tasks need no object: remove object:, and the job is an action")
+            self.error(
+                "E715",
+                f"job '{job}' takes object '{written}', but no task of configuration '{config}' reads or writes it",
+                loc,
+                f"its tasks need {need}: write that, or leave object: out to infer it"
+                if needed
+                else "its tasks need no object: remove object:, and the job is an action",
+            )
             return ""
         if len(needed) > 1:
             self.error("E716", f"job '{job}' needs more than one object: configuration '{config}' reads {need}, "
@@ -216,7 +236,9 @@ class JobChecks(CheckerBase):
     def check_applications(self, top: YMap) -> None:
         """Steps interlock (Onika §4.4.1-4.4.2); applications nest without cycles; gaps make them incomplete."""
         entries: list[tuple[str, Location, Any, Location]] = []
-        for name, value, key_loc, value_loc in self.entries(top, "applications", "application", "e.g. applications: {demo: [move, {move: home}]}"):
+        for name, value, key_loc, value_loc in self.entries(
+            top, "applications", "application", "e.g. applications: {demo: [move, {move: home}]}"
+        ):
             if name in self.job_names:
                 self.error(
                     "E214",
@@ -231,7 +253,12 @@ class JobChecks(CheckerBase):
         parsed: dict[str, tuple[list[_Step], Location]] = {}
         for name, key_loc, value, loc in entries:
             if not isinstance(value, YList):
-                self.error("E113", f"application '{name}' must be a list of job steps, got: {describe(value)}", location_of(value, loc), f"e.g. {name}: [move, {{move: home}}]")
+                self.error(
+                    "E113",
+                    f"application '{name}' must be a list of job steps, got: {describe(value)}",
+                    location_of(value, loc),
+                    f"e.g. {name}: [move, {{move: home}}]",
+                )
                 continue
             steps: list[_Step] = []
             ok = True
@@ -276,11 +303,16 @@ class JobChecks(CheckerBase):
                 built.append(step)
                 if inner.gaps:
                     gaps.append(Gap(number, step.job, inner.object_type))
-                    fix = (f"give it an object of type {inner.object_type} ('- {step.job}: <object>') or fill the gaps of '{step.job}'"
-                           if inner.object_type else f"fill the gaps of '{step.job}' first")
+                    fix = (
+                        f"give it an object of type {inner.object_type} ('- {step.job}: "
+                        f"<object>') or fill the gaps of '{step.job}'"
+                        if inner.object_type
+                        else f"fill the gaps of '{step.job}' first"
+                    )
                     self.warn(
                         "W702",
-                        f"application '{name}' is incomplete: step {number} '{step.job}' is the incomplete application '{step.job}'",
+                        f"application '{name}' is incomplete: step {number} '{step.job}' "
+                        f"is the incomplete application '{step.job}'",
                         step.loc,
                         f"{fix}; an incomplete application may be kept but not run",
                     )
@@ -331,8 +363,15 @@ class JobChecks(CheckerBase):
         if isinstance(value, str):
             return self.named_object(app, number, step.job, "application", kind, value, m.value_loc(kind), step)
         object_type = self.out.object_types[kind]
-        array = self.check_value(value, m.value_loc(kind), object_type.dtype, object_type.shape,
-                                 f"object of step {number} of application '{app}'", f"the shape of object type '{kind}'", object_type)
+        array = self.check_value(
+            value,
+            m.value_loc(kind),
+            object_type.dtype,
+            object_type.shape,
+            f"object of step {number} of application '{app}'",
+            f"the shape of object type '{kind}'",
+            object_type,
+        )
         if array is None:
             return None
         return dataclasses.replace(step, fill=plain(value))
@@ -359,7 +398,9 @@ class JobChecks(CheckerBase):
             return None
         return dataclasses.replace(step, object=name)
 
-    def application_order(self, graph: dict[str, set[str]], locs: dict[str, Location], key_locs: dict[str, Location]) -> list[str]:
+    def application_order(
+        self, graph: dict[str, set[str]], locs: dict[str, Location], key_locs: dict[str, Location]
+    ) -> list[str]:
         """Applications with the ones they use first; those on a cycle are reported and left out."""
         known = {name: {s for s in subs if s in graph} for name, subs in graph.items()}
         sorter = graphlib.TopologicalSorter(known)
@@ -424,14 +465,23 @@ class JobChecks(CheckerBase):
         kind = spec.object_type
         if isinstance(args, str):
             if spec.object is None:
-                self.error("E705", f"step {number} of application '{app}' gives object '{args}' to job '{job}', which takes no object",
-                           args_loc, f"write '- {job}', or give job '{job}' an object: in 'jobs'")
+                self.error(
+                    "E705",
+                    f"step {number} of application '{app}' gives object '{args}' to job '{job}', which takes no object",
+                    args_loc,
+                    f"write '- {job}', or give job '{job}' an object: in 'jobs'",
+                )
                 return None
             named = self.named_object(app, number, job, "job", kind, args, args_loc, step)
             return None if named is None else _Step(named, None)
         arguments: dict[str, Any] = {}
         if args is not None:
-            m = self.mapping(args, args_loc, f"arguments of job '{job}' in application '{app}'", f"e.g. - {job}: home, or - {job}: {{q_d: [0, 0, 0]}}")
+            m = self.mapping(
+                args,
+                args_loc,
+                f"arguments of job '{job}' in application '{app}'",
+                f"e.g. - {job}: home, or - {job}: {{q_d: [0, 0, 0]}}",
+            )
             if m is None:
                 return None
             names = list(m)
@@ -456,9 +506,11 @@ class JobChecks(CheckerBase):
                 if var != spec.object:
                     self.error(
                         "E707",
-                        f"step {number} of application '{app}' gives '{var}' to job '{job}', but its object is '{spec.object}' (type {kind})",
+                        f"step {number} of application '{app}' gives '{var}' to job '{job}', but "
+                        f"its object is '{spec.object}' (type {kind})",
                         m.key_loc(var),
-                        f"write '- {job}: {{{spec.object}: <value>}}', or name an object of type {kind}: {self.objects_of_type(kind)}",
+                        f"write '- {job}: {{{spec.object}: <value>}}', or name an object of type {kind}: "
+                        f"{self.objects_of_type(kind)}",
                     )
                     return None
                 variable = self.out.variables.get(str(var))
@@ -467,8 +519,14 @@ class JobChecks(CheckerBase):
                 if isinstance(val, str):
                     named = self.named_object(app, number, job, "job", kind, val, m.value_loc(var), step)
                     return None if named is None else _Step(named, None)
-                array = self.check_value(val, m.value_loc(var), variable.dtype, variable.shape, f"object '{var}' of step {number} of application '{app}'",
-                                         kind=self.out.object_types.get(variable.object or ""))
+                array = self.check_value(
+                    val,
+                    m.value_loc(var),
+                    variable.dtype,
+                    variable.shape,
+                    f"object '{var}' of step {number} of application '{app}'",
+                    kind=self.out.object_types.get(variable.object or ""),
+                )
                 if array is None:
                     return None
                 arguments[str(var)] = plain(val)
@@ -478,8 +536,8 @@ class JobChecks(CheckerBase):
                 "W701",
                 f"application '{app}' is incomplete: step {number} '{job}' needs an object of type {kind}",
                 loc,
-                f"give it as '- {job}: <object>' (of type {kind}: {self.objects_of_type(kind)}) or '- {job}: {{{spec.object}: <value>}}'; "
-                "an incomplete application may be kept but not run",
+                f"give it as '- {job}: <object>' (of type {kind}: {self.objects_of_type(kind)}) "
+                f"or '- {job}: {{{spec.object}: <value>}}'; an incomplete application may be kept but not run",
             )
         return _Step(dataclasses.replace(step, arguments=arguments), kind if gap else None)
 

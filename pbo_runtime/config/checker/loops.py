@@ -123,7 +123,8 @@ class JointLoopChecks(CheckerBase):
             p, task = controller.params, controller.task
             if p.bandwidth > 0:
                 kp, kd, ki, _ = arm_gains(inertia, p.bandwidth, p.damping, p.integral_time, task.period)
-                note = (f"gains of {controller.gains_of or controller.who}: bandwidth {p.bandwidth:g} rad/s, damping {p.damping:g}"
+                note = (f"gains of {controller.gains_of or controller.who}: "
+                        f"bandwidth {p.bandwidth:g} rad/s, damping {p.damping:g}"
                         + (f", integral time {p.integral_time:g} s" if p.integral_time else "")
                         + f" make kp {_numbers(kp)}, kd {_numbers(kd)}" + (f", ki {_numbers(ki)}" if np.any(ki) else ""))
                 if note not in self.out.robot_notes:

@@ -4,8 +4,9 @@ the records it keeps while it works (a task as far as it resolved, its port link
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -26,7 +27,8 @@ from pbo_runtime.config.model import (
 from pbo_runtime.errors import ConfigError
 from pbo_runtime.objects.ports import PortSpec
 
-DTYPES = ("float64", "float32", "int64", "int32", "int16", "int8", "uint64", "uint32", "uint16", "uint8", "bool")  # what the table holds
+# what the table holds
+DTYPES = ("float64", "float32", "int64", "int32", "int16", "int8", "uint64", "uint32", "uint16", "uint8", "bool")
 
 TOP_KEYS = (
     "subsystem",
@@ -89,7 +91,8 @@ class Checked:
     inferred: list[str] = field(default_factory=list)  # variables whose type or shape came from their ports
     robot_dims: dict[str, int] = field(default_factory=dict)  # dims 'dims:' left out, taken from the plant's robot
     robot_notes: list[str] = field(default_factory=list)  # what loading the plant's robot file changed (dropped meshes...)
-    robot_limits: list[dict[str, Any]] = field(default_factory=list)  # each joint's limits (the robot's, tightened by plant options)
+    robot_limits: list[dict[str, Any]] = field(
+        default_factory=list)  # each joint's limits (the robot's, tightened by plant options)
 
 
 class _Link(NamedTuple):

@@ -30,7 +30,9 @@ class ModuleLinkChecks(CheckerBase):
             if count:
                 channels[device] = count
         try:
-            options = {device: dict(self.out.devices[device].options) for device, _ in task.resources if device in self.out.devices}
+            options = {
+                device: dict(self.out.devices[device].options) for device, _ in task.resources if device in self.out.devices
+            }
             check(task.built_params, shapes, dict(self.out.dims), channels, options)
         except (ValueError, TypeError) as exc:
             params = spec.get("params")

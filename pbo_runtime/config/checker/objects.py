@@ -40,7 +40,9 @@ class ObjectChecks(CheckerBase):
         declared = "object_types" in top and top["object_types"] is not None
         broken: set[str] = set()  # declared but wrong (reported there): no follow-on "not declared"
         for name, value, key_loc, value_loc in self.entries(top, "object_types", "object type", _TYPE_EXAMPLE):
-            spec = self.mapping(value, value_loc, f"object type '{name}'", f"e.g. {name}: {{type: float64, shape: [NDOF], unit: rad}}")
+            spec = self.mapping(
+                value, value_loc, f"object type '{name}'", f"e.g. {name}: {{type: float64, shape: [NDOF], unit: rad}}"
+            )
             if spec is None:
                 broken.add(name)
                 continue
@@ -49,7 +51,12 @@ class ObjectChecks(CheckerBase):
             if "type" in spec:
                 raw = self.text(spec["type"], spec.value_loc("type"), f"type of object type '{name}'")
                 if raw is not None and raw not in DTYPES:
-                    self.error("E303", f"object type '{name}' has unknown type '{raw}'", spec.value_loc("type"), did_you_mean(raw, DTYPES))
+                    self.error(
+                        "E303",
+                        f"object type '{name}' has unknown type '{raw}'",
+                        spec.value_loc("type"),
+                        did_you_mean(raw, DTYPES),
+                    )
                 elif raw is not None:
                     dtype = str(np.dtype(raw))
             shape: tuple[int, ...] | None = ()
@@ -65,7 +72,7 @@ class ObjectChecks(CheckerBase):
                         doc = text or ""
             ranged = "range" in spec and spec["range"] is not None
             allowed = self.object_range(spec, name) if ranged else None
-            if dtype is None or shape is None or ranged and allowed is None:
+            if dtype is None or shape is None or (ranged and allowed is None):
                 broken.add(name)
                 continue
             self.out.object_types[name] = ObjectTypeSpec(name, dtype, shape, unit, doc, key_loc, range=allowed)
@@ -75,11 +82,20 @@ class ObjectChecks(CheckerBase):
     def object_range(self, spec: YMap, name: str) -> Range | None:
         """An object type's `range: [low, high]`: two finite numbers, low < high; else E321 and None."""
         value, loc = spec["range"], spec.value_loc("range")
-        if (isinstance(value, YList) and len(value) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
-                and all(map(math.isfinite, value)) and value[0] < value[1]):
+        if (
+            isinstance(value, YList)
+            and len(value) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            and all(map(math.isfinite, value))
+            and value[0] < value[1]
+        ):
             return Range(float(value[0]), float(value[1]), low_open=False, high_open=False)
-        self.error("E321", f"range of object type '{name}' must be [low, high], two finite numbers with low < high, "
-                           f"got: {plain(value)!r}", location_of(value, loc), "e.g. range: [-3.2, 3.2]: every element of an object of the type")
+        self.error(
+            "E321",
+            f"range of object type '{name}' must be [low, high], two finite numbers with low < high, got: {plain(value)!r}",
+            location_of(value, loc),
+            "e.g. range: [-3.2, 3.2]: every element of an object of the type",
+        )
         return None
 
     def check_markings(self, top: YMap, declared: bool) -> None:
@@ -93,14 +109,22 @@ class ObjectChecks(CheckerBase):
                     continue
                 kind = self.out.object_types.get(type_name)
                 if kind is None:
-                    self.error("E711", f"variable '{variable}' is marked object: '{type_name}', which 'object_types' does not declare",
-                               where, did_you_mean(type_name, self.out.object_types, "declared"))
+                    self.error(
+                        "E711",
+                        f"variable '{variable}' is marked object: '{type_name}', which 'object_types' does not declare",
+                        where,
+                        did_you_mean(type_name, self.out.object_types, "declared"),
+                    )
                     self.bad_object_types.add(type_name)
                     continue
                 if spec is not None and (spec.dtype, spec.shape) != (kind.dtype, kind.shape):
-                    self.error("E712", f"variable '{variable}' ({spec.dtype} {_show_shape(spec.shape)}) is marked object: '{type_name}', "
-                                       f"but objects of type '{type_name}' are {kind.dtype} {_show_shape(kind.shape)}",
-                               where, "give the variable the type's dtype and shape, or mark it with another object type")
+                    self.error(
+                        "E712",
+                        f"variable '{variable}' ({spec.dtype} {_show_shape(spec.shape)}) is marked object: '{type_name}', "
+                        f"but objects of type '{type_name}' are {kind.dtype} {_show_shape(kind.shape)}",
+                        where,
+                        "give the variable the type's dtype and shape, or mark it with another object type",
+                    )
                     continue
                 initial = self.out.initial_values.get(variable)
                 problem = range_problem(initial, type_name, kind.range) if initial is not None else ""
@@ -129,7 +153,9 @@ class ObjectChecks(CheckerBase):
     def check_objects(self, top: YMap) -> None:
         for name, value, key_loc, value_loc in self.entries(top, "objects", "object", _OBJECT_EXAMPLE):
             self.object_locs[name] = key_loc
-            spec = self.mapping(value, value_loc, f"object '{name}'", f"e.g. {name}: {{type: joint_position, value: [0, 0, 0, 0, 0, 0]}}")
+            spec = self.mapping(
+                value, value_loc, f"object '{name}'", f"e.g. {name}: {{type: joint_position, value: [0, 0, 0, 0, 0, 0]}}"
+            )
             if spec is None:
                 continue
             self.keys(spec, OBJECT_KEYS, ("type", "value"), f"in object '{name}'", key_loc)
@@ -141,9 +167,14 @@ class ObjectChecks(CheckerBase):
                 continue
             kind = self.out.object_types.get(type_name)
             if kind is None:
-                self.error("E711", f"object '{name}' has type '{type_name}', which no object type declares", spec.value_loc("type"),
-                           did_you_mean(type_name, self.out.object_types, "object types")
-                           if self.out.object_types else "declare it under object_types:, or mark a variable object: " + type_name)
+                self.error(
+                    "E711",
+                    f"object '{name}' has type '{type_name}', which no object type declares",
+                    spec.value_loc("type"),
+                    did_you_mean(type_name, self.out.object_types, "object types")
+                    if self.out.object_types
+                    else "declare it under object_types:, or mark a variable object: " + type_name,
+                )
                 continue
             if "value" not in spec:
                 continue

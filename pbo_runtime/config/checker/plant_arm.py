@@ -67,7 +67,10 @@ def _entry_name(plant: type, plant_type: str, model: str, options: dict[str, Any
     for field in dataclasses.fields(description):
         value = getattr(description, field.name)
         parts.append(field.name)
-        parts.append(value.tobytes() + repr((value.dtype.str, value.shape)).encode() if isinstance(value, np.ndarray) else repr(value))
+        if isinstance(value, np.ndarray):
+            parts.append(value.tobytes() + repr((value.dtype.str, value.shape)).encode())
+        else:
+            parts.append(repr(value))
     sources = _package_sources(plant)
     if not sources:
         return None

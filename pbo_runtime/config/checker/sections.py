@@ -22,7 +22,6 @@ from pbo_runtime.objects.arm import ROBOT_OPTIONS, is_robot_file
 from pbo_runtime.objects.module import convert_param, param_fields
 from pbo_runtime.objects.ranges import OutOfRange
 
-
 _SUBSYSTEM_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
 
 
@@ -78,7 +77,9 @@ class SectionChecks(CheckerBase):
             )
             return
         if not entries:
-            self.error("E119", "'rtpus' is empty: a subsystem needs at least one RTPU", location_of(value, loc), "e.g. rtpus: [rtpu0]")
+            self.error(
+                "E119", "'rtpus' is empty: a subsystem needs at least one RTPU", location_of(value, loc), "e.g. rtpus: [rtpu0]"
+            )
         everyone = self.restart_policy(top["restart"], top.value_loc("restart"), "the subsystem") if "restart" in top else None
         rtpus: list[RtpuSpec] = []
         for key, key_loc, spec, spec_loc in entries:
@@ -141,7 +142,9 @@ class SectionChecks(CheckerBase):
         if "bandwidth" in bus:
             bandwidth = self.quantity(bus["bandwidth"], bus.value_loc("bandwidth"), DATA_RATE, "bus bandwidth")
         if "lock_overhead" in bus:
-            overhead = self.quantity(bus["lock_overhead"], bus.value_loc("lock_overhead"), SIZE, "bus lock_overhead", positive=False)
+            overhead = self.quantity(
+                bus["lock_overhead"], bus.value_loc("lock_overhead"), SIZE, "bus lock_overhead", positive=False
+            )
         if bandwidth is not None and overhead is not None:
             self.out.bus = BusSpec(bandwidth, overhead, bus.loc)
 
@@ -207,8 +210,14 @@ class SectionChecks(CheckerBase):
                 continue
             problem = self._option_length(key, values[key], fields[key].metadata.get("shape"), spec)
             if problem:
-                self.error("E320", problem, location_of(plant[key], loc),
-                           "give one value per joint, or leave the option out for the robot's own" if fields[key].metadata.get("shape") == ("NDOF",) else "")
+                self.error(
+                    "E320",
+                    problem,
+                    location_of(plant[key], loc),
+                    "give one value per joint, or leave the option out for the robot's own"
+                    if fields[key].metadata.get("shape") == ("NDOF",)
+                    else "",
+                )
                 wrong.add(key)
         if wrong:
             return wrong

@@ -4,7 +4,8 @@ kind the module needs, with the driver options it needs.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Mapping
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.model import _Task
@@ -53,11 +54,20 @@ class TaskDeviceChecks(CheckerBase):
                                params.value_loc(field), hint, notes)
                 else:
                     where = spec.value_loc("resources") if "resources" in spec else task.loc
-                    fix = (f"add '{device}' to resources:" if declared else f"declare device '{device}' under devices: and add it to resources:")
+                    fix = (
+                        f"add '{device}' to resources:"
+                        if declared
+                        else f"declare device '{device}' under devices: and add it to resources:"
+                    )
                     if resources:
                         fix += f", or name one of its resources with params: {{{field}: {resources[0]}}}"
-                    self.error("E608", f"task '{task.name}' (module '{task.module}') {what}, which is not among its resources ({listing})",
-                               where, fix, notes)
+                    self.error(
+                        "E608",
+                        f"task '{task.name}' (module '{task.module}') {what}, which is not among its resources ({listing})",
+                        where,
+                        fix,
+                        notes,
+                    )
                 continue
             ok = self.check_device_options(task, spec, device, needs, str(field)) and ok
         return ok
@@ -93,7 +103,11 @@ class TaskDeviceChecks(CheckerBase):
             if option == "kind":
                 continue
             if option in device_spec.options:
-                has, where, how = device_spec.options[option], (node.value_loc(option) if node is not None else device_spec.loc), ""
+                has, where, how = (
+                    device_spec.options[option],
+                    (node.value_loc(option) if node is not None else device_spec.loc),
+                    "",
+                )
             elif option in defaults:
                 has, where, how = defaults[option], device_spec.loc, f" (driver {device_spec.driver}'s default)"
             else:

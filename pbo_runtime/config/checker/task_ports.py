@@ -31,7 +31,9 @@ class TaskPortChecks(CheckerBase):
             built = getattr(task, "built_params", None)
             ports = tuple(module_class.ports_for(built) if built is not None else module_class.ports())
         except Exception as exc:  # the module is broken, not the YAML; say so
-            self.error("E307", f"module '{task.module}' of task '{task.name}' cannot list its ports: {exc!r}", spec.value_loc("module"))
+            self.error(
+                "E307", f"module '{task.module}' of task '{task.name}' cannot list its ports: {exc!r}", spec.value_loc("module")
+            )
             return None
         if not _ports_from_params(module_class):
             self._fixed_ports[module_class] = ports
@@ -85,7 +87,11 @@ class TaskPortChecks(CheckerBase):
                         ok = False
                         continue
                     var_loc = m.value_loc(port_name)
-                    var_name = var if isinstance(var, str) else self.text(var, var_loc, f"variable of port '{port_name}' of task '{name}'")
+                    var_name = (
+                        var
+                        if isinstance(var, str)
+                        else self.text(var, var_loc, f"variable of port '{port_name}' of task '{name}'")
+                    )
                     if var_name is None:
                         ok = False
                         continue
@@ -176,16 +182,29 @@ class TaskPortChecks(CheckerBase):
                 dtypes = {link.port.dtype for link in links}
                 if len(dtypes) == 1:
                     dtype = dtypes.pop()
-                    self.error("E301", f"variable '{var}' is {variable.dtype}, but {_ports_that_link(links)} {dtype}",
-                               self.declared_at(var, "type"), f"change the type of '{var}' to {dtype}",
-                               [(link.loc, f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) is {link.port.dtype}")
-                                for link in links])
+                    self.error(
+                        "E301",
+                        f"variable '{var}' is {variable.dtype}, but {_ports_that_link(links)} {dtype}",
+                        self.declared_at(var, "type"),
+                        f"change the type of '{var}' to {dtype}",
+                        [
+                            (
+                                link.loc,
+                                f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) is {link.port.dtype}",
+                            )
+                            for link in links
+                        ],
+                    )
                     continue
                 for link in wrong_type:
-                    self.error("E301", f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) is {link.port.dtype}, "
-                                       f"but variable '{var}' is {variable.dtype}",
-                               link.loc, f"link the port to a {link.port.dtype} variable",
-                               [(self.declared_at(var, "type"), f"variable '{var}' is declared {variable.dtype} here")])
+                    self.error(
+                        "E301",
+                        f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) is {link.port.dtype}, "
+                        f"but variable '{var}' is {variable.dtype}",
+                        link.loc,
+                        f"link the port to a {link.port.dtype} variable",
+                        [(self.declared_at(var, "type"), f"variable '{var}' is declared {variable.dtype} here")],
+                    )
             typed = [link for link in every if link.port.dtype == variable.dtype and link.own_shape]
             wrong_shape = [link for link in typed if link.shape != variable.shape]
             if not wrong_shape:
@@ -193,20 +212,42 @@ class TaskPortChecks(CheckerBase):
             shapes = {link.shape for link in typed}
             if len(shapes) == 1 and not wrong_type:
                 shape = shapes.pop()
-                written = next((link.port.shape for link in typed if link.port.shape is not None and link.port.shape != shape), shape)
-                self.error("E302", f"variable '{var}' has shape {_show_shape(variable.shape)}, but {_ports_that_link(typed)} "
-                                   f"of shape {_show_shape(shape)}",
-                           self.declared_at(var, "shape"), f"change the shape of '{var}' to [{', '.join(str(d) for d in written)}]",
-                           [(link.loc, f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) has shape "
-                                       f"{_show_shape(link.shape)}" + ("" if link.shape == link.port.shape else f" = {_show_shape(link.port.shape)}"))
-                            for link in typed])
+                written = next(
+                    (link.port.shape for link in typed if link.port.shape is not None and link.port.shape != shape), shape
+                )
+                self.error(
+                    "E302",
+                    f"variable '{var}' has shape {_show_shape(variable.shape)}, but {_ports_that_link(typed)} "
+                    f"of shape {_show_shape(shape)}",
+                    self.declared_at(var, "shape"),
+                    f"change the shape of '{var}' to [{', '.join(str(d) for d in written)}]",
+                    [
+                        (
+                            link.loc,
+                            f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) has shape "
+                            f"{_show_shape(link.shape)}"
+                            + ("" if link.shape == link.port.shape else f" = {_show_shape(link.port.shape)}"),
+                        )
+                        for link in typed
+                    ],
+                )
                 continue
             for link in wrong_shape:
                 named = "" if link.shape == link.port.shape else f" = {_show_shape(link.port.shape)}"
-                self.error("E302", f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) has shape {_show_shape(link.shape)}{named}, "
-                                   f"but variable '{var}' has shape {_show_shape(variable.shape)}",
-                           link.loc, f"link the port to a variable of shape {_show_shape(link.shape)}",
-                           [(self.declared_at(var, "shape"), f"variable '{var}' is declared with shape {_show_shape(variable.shape)} here")])
+                self.error(
+                    "E302",
+                    f"task '{link.task}' port '{link.port.name}' ({link.port.kind.value}) has shape "
+                    f"{_show_shape(link.shape)}{named}, "
+                    f"but variable '{var}' has shape {_show_shape(variable.shape)}",
+                    link.loc,
+                    f"link the port to a variable of shape {_show_shape(link.shape)}",
+                    [
+                        (
+                            self.declared_at(var, "shape"),
+                            f"variable '{var}' is declared with shape {_show_shape(variable.shape)} here",
+                        )
+                    ],
+                )
 
     def declared_at(self, var: str, key: str) -> Location:
         """Where a variable's entry gives `key` (type, shape), else where the entry is."""
@@ -240,16 +281,27 @@ class TaskPortChecks(CheckerBase):
                     continue
                 ok = False
                 where = named_in(spec.get("params"), b.port.name) or b.loc
-                notes = [(reference.loc, f"port '{reference.port.name}' links variable '{reference.variable}', of shape {_show_shape(meant)}")]
+                notes = [
+                    (
+                        reference.loc,
+                        f"port '{reference.port.name}' links variable '{reference.variable}', of shape {_show_shape(meant)}",
+                    )
+                ]
                 if b.variable in self.var_locs:
-                    notes.append((self.var_locs[b.variable], f"variable '{b.variable}' is declared here, with shape {_show_shape(b.shape)}"))
+                    notes.append(
+                        (
+                            self.var_locs[b.variable],
+                            f"variable '{b.variable}' is declared here, with shape {_show_shape(b.shape)}",
+                        )
+                    )
                 self.error(
                     "E319",
                     f"task '{task.name}' (module '{task.module}') needs one shape on ports {', '.join(repr(p) for p in group)}: "
                     f"port '{b.port.name}' links variable '{b.variable}', of shape {_show_shape(b.shape)}, "
                     f"where port '{reference.port.name}' links '{reference.variable}', of shape {_show_shape(meant)}",
                     where,
-                    f"link port '{b.port.name}' to a variable of shape {_show_shape(meant)}, or change the shape of '{b.variable}'",
+                    f"link port '{b.port.name}' to a variable of shape "
+                    f"{_show_shape(meant)}, or change the shape of '{b.variable}'",
                     notes,
                 )
         return ok
@@ -273,7 +325,11 @@ class TaskPortChecks(CheckerBase):
             f"with dim {exc}, which 'dims' does not define",
             loc,
             did_you_mean(str(exc.args[0]), self.out.dims, "defined")
-            + ("" if self.out.plant is not None else "; or add a plant: whose robot gives it (e.g. plant: {model: puma560} gives NDOF)"),
+            + (
+                ""
+                if self.out.plant is not None
+                else "; or add a plant: whose robot gives it (e.g. plant: {model: puma560} gives NDOF)"
+            ),
         )
 
 

@@ -7,16 +7,15 @@ import re
 from typing import TYPE_CHECKING, Any
 
 from pbo_runtime.config.checker.base import CheckerBase, named_by, param_value_at
-from pbo_runtime.config.model import PortClaim
 from pbo_runtime.config.checker.model import TASK_KEYS, _Link, _Task
 from pbo_runtime.config.checker.task_ports import _ports_from_params
 from pbo_runtime.config.checker.words import _ms, describe, did_you_mean
-from pbo_runtime.config.model import Location, PortBinding, TaskSpec
+from pbo_runtime.config.model import Location, PortBinding, PortClaim, TaskSpec
+from pbo_runtime.config.units import FREQUENCY, TIME
+from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
 from pbo_runtime.errors import ParamError
 from pbo_runtime.objects.module import convert_param, param_fields
 from pbo_runtime.objects.ranges import FINITE, OutOfRange
-from pbo_runtime.config.units import FREQUENCY, TIME
-from pbo_runtime.config.yaml_nodes import YList, YMap, location_of, plain
 
 
 class TaskChecks(CheckerBase):
@@ -46,7 +45,9 @@ class TaskChecks(CheckerBase):
         # shape from all the ports that link it (`infer_variables`); then each link is checked.
         pending: list[tuple[_Task, YMap, bool, tuple[list[_Link], bool] | None]] = []
         module_class_of: dict[str, Any] = {}
-        for index, (name, value, key_loc, value_loc) in enumerate(self.entries(top, "tasks", "task", "e.g. tasks: {pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}}")):
+        for index, (name, value, key_loc, value_loc) in enumerate(
+            self.entries(top, "tasks", "task", "e.g. tasks: {pid: {module: pid_joint, rtpu: rtpu0, period: 1 ms}}")
+        ):
             self.task_names.add(name)
             # (a mapping, as nearly always, needs no location and no message: they are made for the error only)
             spec = value if isinstance(value, YMap) else self.mapping(
@@ -61,9 +62,7 @@ class TaskChecks(CheckerBase):
             links = None
             if module_class is not None:
                 params_ok = self.check_task_params(task, spec, module_class)
-                if not params_ok:
-                    complete = False
-                elif not self.check_task_devices(task, spec, module_class):
+                if not params_ok or not self.check_task_devices(task, spec, module_class):
                     complete = False
                 # Ports made from the params (a combined module's members, a join's inputs) are unknown
                 # while the params are wrong: the task is left unresolved, so no reader of what it
@@ -140,7 +139,12 @@ class TaskChecks(CheckerBase):
             value = spec["resources"]
             loc = spec.value_loc("resources")
             if not isinstance(value, YList):
-                self.error("E113", f"resources of task '{name}' must be a list of devices, got: {describe(value)}", location_of(value, loc), "e.g. resources: [arm, {device: adc0, channels: 6-7}]")
+                self.error(
+                    "E113",
+                    f"resources of task '{name}' must be a list of devices, got: {describe(value)}",
+                    location_of(value, loc),
+                    "e.g. resources: [arm, {device: adc0, channels: 6-7}]",
+                )
                 return False
             seen: set[str] = set()
             for i, item in enumerate(value):
@@ -150,7 +154,12 @@ class TaskChecks(CheckerBase):
                 if claim is None or device is None:
                     ok = False
                 elif device not in self.device_names:
-                    self.error("E208", f"task '{name}' uses device '{device}', which 'devices' does not declare", claim.loc, did_you_mean(device, self.device_names, "declared"))
+                    self.error(
+                        "E208",
+                        f"task '{name}' uses device '{device}', which 'devices' does not declare",
+                        claim.loc,
+                        did_you_mean(device, self.device_names, "declared"),
+                    )
                     ok = False
                 elif device in seen:
                     self.error("E602", f"task '{name}' lists device '{device}' twice", item_loc)
@@ -182,7 +191,8 @@ class TaskChecks(CheckerBase):
                         "E506",
                         f"task '{name}' is aperiodic, so it takes no {key}",
                         spec.key_loc(key),
-                        "an aperiodic task runs when an event arrives; give its min_interarrival: instead (e.g. min_interarrival: 5 ms)",
+                        "an aperiodic task runs when an event arrives; give its min_interarrival: instead (e.g. "
+                        "min_interarrival: 5 ms)",
                     )
                     ok = False
             if "min_interarrival" not in spec:
@@ -193,8 +203,13 @@ class TaskChecks(CheckerBase):
                     "add the shortest time between two of its events, e.g. min_interarrival: 5 ms",
                 )
                 return False
-            gap = self.quantity(spec["min_interarrival"], spec.value_loc("min_interarrival"), TIME, f"min_interarrival of task '{name}'",
-                                longest=None)
+            gap = self.quantity(
+                spec["min_interarrival"],
+                spec.value_loc("min_interarrival"),
+                TIME,
+                f"min_interarrival of task '{name}'",
+                longest=None,
+            )
             if gap is None or not self.period_bounds(gap, spec, "min_interarrival", name):
                 return False
             task.min_interarrival = gap
@@ -266,7 +281,9 @@ class TaskChecks(CheckerBase):
         except Exception as exc:  # ModuleError, or a library that fails to import
             known = self.known_modules()
             hint = did_you_mean(module, known, "registered") if known is not None else str(exc)
-            self.error("E207", f"task '{task.name}' uses module '{module}', which is not registered", spec.value_loc("module"), hint)
+            self.error(
+                "E207", f"task '{task.name}' uses module '{module}', which is not registered", spec.value_loc("module"), hint
+            )
             return None
         return module_class
 
@@ -285,9 +302,14 @@ class TaskChecks(CheckerBase):
         ok = True
         for port, value in m.items():
             if port not in inputs:
-                self.error("E511", f"fresh_within of task '{name}' names '{port}', which is not an in-var port of module '{task.module}'",
-                           m.key_loc(port), did_you_mean(str(port), sorted(inputs), "in-var ports") if inputs else
-                           f"module '{task.module}' reads no in-var, so fresh_within has nothing to watch")
+                self.error(
+                    "E511",
+                    f"fresh_within of task '{name}' names '{port}', which is not an in-var port of module '{task.module}'",
+                    m.key_loc(port),
+                    did_you_mean(str(port), sorted(inputs), "in-var ports")
+                    if inputs
+                    else f"module '{task.module}' reads no in-var, so fresh_within has nothing to watch",
+                )
                 ok = False
                 continue
             bound = self.quantity(value, m.value_loc(port), TIME, f"fresh_within of port '{port}' of task '{name}'")
@@ -300,21 +322,32 @@ class TaskChecks(CheckerBase):
     def check_task_params(self, task: _Task, spec: YMap, module_class: Any) -> bool:
         raw = spec.get("params")
         if raw is not None and not isinstance(raw, YMap):
-            self.error("E113", f"params of task '{task.name}' must be a mapping, got: {describe(raw)}", self.params_loc(task, spec), "e.g. params: {kp: 400, kd: 40}")
+            self.error(
+                "E113",
+                f"params of task '{task.name}' must be a mapping, got: {describe(raw)}",
+                self.params_loc(task, spec),
+                "e.g. params: {kp: 400, kd: 40}",
+            )
             return False
         values = plain(raw) if raw is not None else {}
         try:
             task.built_params = module_class.build_params(values)
         except OutOfRange as exc:
             element = "".join(f"[{i}]" for i in exc.index)
-            self.error("E308", f"parameter {exc.param}{element} of task '{task.name}' (module '{task.module}') must be "
-                               f"{exc.allowed.text()}, got: {exc.got}",
-                       param_value_at(spec.get("params"), exc.param, exc.index) or self.params_loc(task, spec),
-                       f"module '{task.module}' declares this range (pbo lexicon lists every parameter's)" if exc.allowed != FINITE
-                       else "a number parameter takes finite numbers only: not .nan, not .inf")
+            self.error(
+                "E308",
+                f"parameter {exc.param}{element} of task '{task.name}' (module '{task.module}') must be "
+                f"{exc.allowed.text()}, got: {exc.got}",
+                param_value_at(spec.get("params"), exc.param, exc.index) or self.params_loc(task, spec),
+                f"module '{task.module}' declares this range (pbo lexicon lists every parameter's)"
+                if exc.allowed != FINITE
+                else "a number parameter takes finite numbers only: not .nan, not .inf",
+            )
             return False
         except ParamError as exc:
-            self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {exc}", self.refused_at(task, spec, str(exc)))
+            self.error(
+                "E308", f"params of task '{task.name}' (module '{task.module}'): {exc}", self.refused_at(task, spec, str(exc))
+            )
             return False
         except Exception as exc:  # a module's own validation may raise anything
             self.error("E308", f"params of task '{task.name}' (module '{task.module}') were refused: {exc!r}",
@@ -353,10 +386,14 @@ class TaskChecks(CheckerBase):
             if len(value) == size:
                 continue
             where = raw.value_loc(name) if isinstance(raw, YMap) and name in raw else self.params_loc(task, spec)
-            self.error("E308", f"params of task '{task.name}' (module '{task.module}'): {name} must have "
-                               f"{size} values{f' ({dim})' if dim else ''}, got: {len(value)}",
-                       location_of(raw.get(name) if isinstance(raw, YMap) else None, where),
-                       f"give a list of {size} values" + (", or one number for all" if _takes_a_number(module_class.Params, name) else ""))
+            self.error(
+                "E308",
+                f"params of task '{task.name}' (module '{task.module}'): {name} must have "
+                f"{size} values{f' ({dim})' if dim else ''}, got: {len(value)}",
+                location_of(raw.get(name) if isinstance(raw, YMap) else None, where),
+                f"give a list of {size} values"
+                + (", or one number for all" if _takes_a_number(module_class.Params, name) else ""),
+            )
             ok = False
         return ok
 

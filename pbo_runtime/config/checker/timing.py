@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import graphlib
 import heapq
-from typing import Sequence
+import itertools
+from collections.abc import Sequence
 
 from pbo_runtime.config.checker.base import CheckerBase
 from pbo_runtime.config.checker.model import _Task
@@ -22,9 +23,9 @@ class TimingChecks(CheckerBase):
         never sleeps: it would spin through every period, a whole CPU for nothing."""
         shortest: dict[str, _Task] = {}
         for task in self.tasks.values():
-            if task.rtpu and task.period > 0 and not task.aperiodic:
-                if task.rtpu not in shortest or task.period < shortest[task.rtpu].period:
-                    shortest[task.rtpu] = task
+            if (task.rtpu and task.period > 0 and not task.aperiodic
+                    and (task.rtpu not in shortest or task.period < shortest[task.rtpu].period)):
+                shortest[task.rtpu] = task
         for rtpu in self.out.rtpus:
             fastest = shortest.get(rtpu.name)
             if fastest is not None and rtpu.spin >= fastest.period:
@@ -44,13 +45,17 @@ class TimingChecks(CheckerBase):
         plant = self.out.plant
         if plant is None or plant.timestep is None or plant.timestep <= 0:
             return
-        tick_ns = int(round(plant.timestep * 1e9))
+        tick_ns = round(plant.timestep * 1e9)
         for task in self.out.tasks.values():
-            ns = int(round(task.period * 1e9))
+            ns = round(task.period * 1e9)
             if tick_ns and ns % tick_ns:
-                self.warn("W504", f"period of task '{task.name}' ({_ms(task.period)}) is not a whole multiple of the plant's "
-                                  f"timestep ({_ms(plant.timestep)}): pbo run --clock sim refuses the file", task.loc,
-                          f"make it a multiple of {_ms(plant.timestep)} to run it on the simulated clock (the real clock runs it)")
+                self.warn(
+                    "W504",
+                    f"period of task '{task.name}' ({_ms(task.period)}) is not a whole multiple of the plant's "
+                    f"timestep ({_ms(plant.timestep)}): pbo run --clock sim refuses the file",
+                    task.loc,
+                    f"make it a multiple of {_ms(plant.timestep)} to run it on the simulated clock (the real clock runs it)",
+                )
 
     def check_schedulability(self) -> None:
         """Warn where the declared wcets of one RTPU's tasks in a configuration cannot be guaranteed.
@@ -95,12 +100,14 @@ class TimingChecks(CheckerBase):
                         "W502",
                         f"{where} is overloaded: {_loads(timed)}; U = {total:.3f} > 1",
                         loc,
-                        "no schedule meets every deadline; move a task to another RTPU, lengthen a period or shorten a cycle" + note,
+                        "no schedule meets every deadline; move a task to another RTPU, lengthen a period or shorten a cycle"
+                        + note,
                     )
                 elif total > bound:
                     self.warn(
                         "W501",
-                        f"{where} exceeds the rate-monotonic bound: {_loads(timed)}; U = {total:.3f} > {bound:.3f} = n(2^(1/n) - 1) for n = {n}",
+                        f"{where} exceeds the rate-monotonic bound: {_loads(timed)}; U = {total:.3f} "
+                        f"> {bound:.3f} = n(2^(1/n) - 1) for n = {n}",
                         loc,
                         "Liu & Layland's test cannot guarantee these deadlines (it is sufficient, not necessary); "
                         "move a task to another RTPU or lengthen a period" + note,
@@ -111,7 +118,8 @@ class TimingChecks(CheckerBase):
                     if critical_total > 1:
                         self.warn(
                             "W503",
-                            f"critical tasks of {where} are not guaranteed: {_loads(critical)}; U_critical = {critical_total:.3f} > 1",
+                            f"critical tasks of {where} are not guaranteed: {_loads(critical)}; U_critical = "
+                            f"{critical_total:.3f} > 1",
                             loc,
                             "maximum-urgency-first (Stewart & Khosla) guarantees the critical set only when it fits the RTPU "
                             "on its own (EDF within the set); make fewer tasks critical, or spread them over RTPUs",
@@ -143,7 +151,7 @@ class TimingChecks(CheckerBase):
         except graphlib.CycleError as exc:
             cycle: list[str] = list(exc.args[1])
             links = "; ".join(
-                f"'{a}' writes '{via.get((a, b), '?')}' that '{b}' reads before its init" for a, b in zip(cycle, cycle[1:])
+                f"'{a}' writes '{via.get((a, b), '?')}' that '{b}' reads before its init" for a, b in itertools.pairwise(cycle)
             )
             self.error(
                 "E406",

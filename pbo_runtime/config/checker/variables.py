@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Any, Callable, Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -13,7 +14,9 @@ from pbo_runtime.config.checker.model import DTYPES, VARIABLE_KEYS, _PartialVari
 from pbo_runtime.config.checker.words import _show_shape, describe, did_you_mean
 from pbo_runtime.config.limits import MAX_DIM, MAX_TABLE_BYTES, show_bytes
 from pbo_runtime.config.model import Location, ObjectTypeSpec, VariableSpec
-from pbo_runtime.config.values import element_problem, leaves as _leaves, nested_shape as _nested_shape, non_finite, outside_range
+from pbo_runtime.config.values import element_problem, non_finite, outside_range
+from pbo_runtime.config.values import leaves as _leaves
+from pbo_runtime.config.values import nested_shape as _nested_shape
 from pbo_runtime.config.yaml_nodes import YList, YMap, location_of
 
 
@@ -139,7 +142,9 @@ class VariableChecks(CheckerBase):
         return filled
 
     def check_variables(self, top: YMap) -> None:
-        for name, value, key_loc, value_loc in self.entries(top, "variables", "variable", "e.g. variables: {q_m: {type: float64, shape: [NDOF]}}"):
+        for name, value, key_loc, value_loc in self.entries(
+            top, "variables", "variable", "e.g. variables: {q_m: {type: float64, shape: [NDOF]}}"
+        ):
             self.var_locs[name] = key_loc
             # (a mapping, as nearly always, needs no location and no message: they are made for the error only)
             spec = value if isinstance(value, YMap) else self.mapping(
@@ -155,7 +160,9 @@ class VariableChecks(CheckerBase):
                 if not isinstance(raw, str):
                     self.text(raw, spec.value_loc("type"), f"type of variable '{name}'")
                 elif raw not in DTYPES:
-                    self.error("E303", f"variable '{name}' has unknown type '{raw}'", spec.value_loc("type"), did_you_mean(raw, DTYPES))
+                    self.error(
+                        "E303", f"variable '{name}' has unknown type '{raw}'", spec.value_loc("type"), did_you_mean(raw, DTYPES)
+                    )
                 else:
                     dtype = _dtype_name(raw)
             shape: tuple[int, ...] | None = ()

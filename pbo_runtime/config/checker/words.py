@@ -4,7 +4,7 @@ times, shapes and lists as a message shows them.
 
 from __future__ import annotations
 
-from typing import Iterable, Sequence
+from collections.abc import Iterable, Sequence
 
 from pbo_runtime.config.values import describe as describe  # the same words for values wherever they are checked
 from pbo_runtime.errors import closest_name

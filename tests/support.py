@@ -155,7 +155,7 @@ def step_executives(executives: dict, clock: ManualClock, end: float) -> None:
     whose next event is earliest, until `end`. Leaving one out of `executives` is an RTPU that
     stopped (SIGSTOP): its tasks release nothing, its outputs age."""
     while True:
-        name, executive = min(executives.items(), key=lambda item: next_event(item[1]))
+        _name, executive = min(executives.items(), key=lambda item: next_event(item[1]))
         due = next_event(executive)
         if due > end:
             clock.time = max(clock.time, end)

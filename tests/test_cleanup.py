@@ -71,7 +71,7 @@ def test_a_new_run_removes_what_a_dead_run_left_queues_included():
         queue_name = messages.event_queue_name(subsystem, run)
         plant_name = messages.plant_registers_name(subsystem, run)
         queue = messages.Queue(queue_name, create=True)
-        shm, mapping = _shm.create_segment(plant_name, 4096)
+        _segment, mapping = _shm.create_segment(plant_name, 4096)
         mapping.close()
         table = StateTable.create(TableLayout.build(VARS, 1), table_name,
                                   [f"shm {table_name}", f"sem {table_name}.lock", f"mq {queue_name}", f"shm {plant_name}"])
@@ -241,7 +241,7 @@ def test_an_rtpu_stops_on_sigterm_even_while_waiting_on_its_queue(tmp_path):
         read_until(pbo, "is on")
         rtpu0 = [pid for pid, cmd in children_of(pbo.pid).items() if "--rtpu rtpu0" in cmd][0]
         os.kill(rtpu0, signal.SIGTERM)
-        out, err = pbo.communicate(timeout=60)
+        _out, err = pbo.communicate(timeout=60)
     finally:
         if pbo.poll() is None:
             pbo.kill()

@@ -527,7 +527,7 @@ def test_pbo_event_to_a_periodic_task_is_refused_with_exit_status_1_and_a_hint(g
 
 
 def test_pbo_job_with_values_that_are_not_numbers_exits_1_before_sending(goal_run, capsys):
-    sub, host = goal_run
+    sub, _host = goal_run
     assert main(["job", "reach", "0", "nan", "--subsystem", sub]) == 1
     assert "error: values must be finite numbers, got: 'nan' (value 2)" in capsys.readouterr().err
 

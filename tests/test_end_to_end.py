@@ -67,7 +67,7 @@ def test_killing_an_rtpu_stops_everything_and_names_the_rtpu_and_its_tasks(tmp_p
         rtpu1 = [pid for pid, cmd in children_of(pbo.pid).items() if "--rtpu rtpu1" in cmd]
         assert len(rtpu1) == 1
         os.kill(rtpu1[0], signal.SIGKILL)
-        out, err = pbo.communicate(timeout=60)
+        _out, err = pbo.communicate(timeout=60)
     finally:
         if pbo.poll() is None:
             pbo.kill()

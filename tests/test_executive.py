@@ -178,14 +178,14 @@ def test_off_stops_the_releases_and_stop_kills_every_task(setup):
 
 
 def test_a_signal_for_an_unknown_task_is_refused_not_fatal(setup):
-    build, clock, events = setup
+    build, _clock, events = setup
     ex = build([("a", Ticker, 0.001, False)], [(0.0, ["on", "nobody"])])
     ex.run_once()
     assert events == [Refused("nobody", "no task 'nobody' on this RTPU")]
 
 
 def test_on_before_spawn_is_refused_with_the_reason(setup):
-    build, clock, events = setup
+    build, _clock, events = setup
     ex = build([("a", Ticker, 0.001, False)], [(0.0, ["on", "a"])])
     ex.run_once()
     assert isinstance(events[0], Refused) and "cannot take 'on' in state NOT_CREATED" in events[0].reason
@@ -219,7 +219,7 @@ def test_an_aperiodic_task_runs_on_events_no_faster_than_its_min_interarrival(se
 
 
 def test_an_event_for_a_periodic_task_is_refused(setup):
-    build, clock, events = setup
+    build, _clock, events = setup
     ex = build([("a", Ticker, 0.001, False)], [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0]), (0.0, ["event", "a", [1]])])
     ex.run_once()
     ex.run_once()

@@ -97,7 +97,7 @@ def test_in_consts_are_read_before_init(table):
 def test_out_consts_are_written_after_init(table):
     task = make_task(table)
     task.spawn(0.5)
-    value, seq, when, writer = table.read("k_out")
+    value, _seq, when, writer = table.read("k_out")
     assert value.tolist() == [2.0, 4.0] and writer == 1 and when == 0.5
     assert table.read("b_out")[0] == 5.0
 
@@ -157,7 +157,7 @@ def test_in_vars_are_read_before_each_cycle_and_out_vars_written_after(table):
     assert task.run_cycle(1.001) is Status.CONTINUE
     assert task.module.seen["cycle"][0].tolist() == [1.0, 2.0]
     assert task.module.seen["cycle"][1] == 9.0  # in-both is also read every cycle
-    value, seq, when, writer = table.read("y")
+    value, seq, when, _writer = table.read("y")
     assert value.tolist() == [2.0, 3.0] and seq == 1 and when == 1.001
     assert table.read("b_out")[0] == 10.0  # out-both is also written every cycle
 
@@ -353,7 +353,7 @@ def test_an_error_component_that_recovers_keeps_the_task_on_but_writes_nothing_n
 
 
 def test_outputs_that_are_not_finite_after_on_put_the_task_in_error_before_they_are_written(emitter, make_table):
-    make, table = emitter
+    _make, table = emitter
     task = Task(task_spec(Emitter, name="emitter", index=0), Emitter, table)
     task.module.emit = {"x": [0.0, np.inf, 0.0], "w": [0.0, 0.0]}
     assert task.spawn(0.0)
@@ -453,7 +453,7 @@ def test_off_places_its_final_values_on_the_output_ports_issue_22(offender):
     task = cycled(make())
     assert table.read("y")[0].tolist() == [1.0, 1.0]
     task.turn_off(0.0015)
-    value, seq, when, writer = table.read("y")
+    value, _seq, when, writer = table.read("y")
     assert value.tolist() == [0.0, 0.0] and when == 0.0015 and writer == 0
     assert task.state is TaskState.OFF and table.status[0][StatusWord.STATE] == TaskState.OFF
 

@@ -63,7 +63,7 @@ def bounded_receiver(make_table):
 
 
 def test_a_bounded_receiver_says_stable_until_the_first_item_then_continues(bounded_receiver):
-    link, table, task = bounded_receiver
+    link, _table, task = bounded_receiver
     assert task.run_cycle(10.0) is Status.STABLE  # nothing came yet: the critical tasks hold
     link.write(np.array([0.1, 0.2, 0.3]), stamp_ns=10_000_000_000)
     assert task.run_cycle(10.01) is Status.CONTINUE

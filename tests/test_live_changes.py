@@ -36,7 +36,7 @@ def test_a_spawned_task_is_checked_spawned_and_turned_on_at_one_cycle_boundary(h
     reply = dispatch(host, "spawn", LOGGER)
     assert reply["state"] == "ON" and reply["entered"] == ["logger"] and reply["left"] == []
     assert host.signals[:2] == [("every RTPU", "live robot, traj, pid, pd, logger"), ("logger", "spawn")]
-    (sequence, configuration, activation), = host.plans
+    (_sequence, configuration, activation), = host.plans
     assert configuration == "pid" and reply["at"] == activation
     spec = host.subsystem.tasks["logger"]
     assert spec.index == 4 and spec.params == {"variables": ["q_m", "tau_u"], "path": "runs/live.npy"}  # the first spare block

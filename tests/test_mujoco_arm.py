@@ -81,7 +81,7 @@ def test_driver_reads_the_constants_the_plant_wrote(plant, driver) -> None:
 
 def test_the_plant_starts_braked_at_its_home_pose(plant, driver) -> None:
     assert plant.brakes_engaged and driver.brakes_engaged
-    q, qd, sim_time = read(driver)
+    q, _qd, sim_time = read(driver)
     np.testing.assert_array_equal(q, robot("puma560").q0)
     assert sim_time == 0.0
 

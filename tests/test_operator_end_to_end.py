@@ -49,7 +49,7 @@ def test_a_task_that_raises_shows_as_error_and_recovers_after_clear(tmp_path):
         assert values.returncode == 0 and "q_m" in values.stdout and "robot" in values.stdout
         stopped = pbo("stop", "--subsystem", "drill")
         assert stopped.returncode == 0, stopped.stderr
-        out, err = run.communicate(timeout=60)
+        _out, err = run.communicate(timeout=60)
     finally:
         if run.poll() is None:
             run.kill()

@@ -95,7 +95,7 @@ def test_past_its_policy_an_rtpus_death_stops_the_run_and_says_why(tmp_path):
         read_until(run, "restarted:")
         second = run_processes(run)["rtpu0"]
         os.kill(second, signal.SIGKILL)
-        out, err = run_output(run)
+        _out, err = run_output(run)
     assert run.returncode == 2, err
     assert (f"RTPU 'rtpu0' (pid {second}) died (killed by SIGKILL)" in err
             and "it died 2 times within 600 s, more than its restart policy allows (restart: {max: 1, within: 600 s})" in err), err

@@ -117,7 +117,7 @@ def test_an_rtpu_that_dies_turning_on_a_task_spawned_live_comes_back_with_the_li
         read_until(run, "restarted:")  # (said before the spawn's answer: the plan waited for it)
         kill_and_await_restart(run)
         run.send_signal(signal.SIGINT)
-        out, err = run_output(run, RUN_SAFETY_NET)
+        _out, err = run_output(run, RUN_SAFETY_NET)
     assert "Traceback" not in err, err
     report = json.loads(report_path.read_text())
     assert report["failure"] == "" and report["stopped_by"] == "Ctrl-C", report["failure"]

@@ -187,7 +187,7 @@ def test_ros2_bridge_publishes_joint_states_at_100_hz_and_takes_its_goal_from_a_
     finally:
         if run.poll() is None:
             run.send_signal(signal.SIGINT)
-        out, err = run_output(run)
+        _out, err = run_output(run)
     assert "Traceback" not in err, err
     assert_ended_well(run.returncode, json.loads(report_path.read_text()), err)
 

@@ -55,7 +55,7 @@ def test_the_demos_pid_brings_a_ros2_control_arm_to_its_goal_and_holds_when_join
         said = read_until(run, "critical task 'robot' runs its locally stable behaviour: the module's own inputs are not fresh")
         assert "the module's own inputs are not fresh" in said, said
     finally:
-        out, err = stop_run_and_arm(run, arm)
+        _out, err = stop_run_and_arm(run, arm)
     assert "Traceback" not in err, err
     report = json.loads(report_path.read_text())
     assert run.returncode == 2, err
@@ -104,7 +104,7 @@ def test_in_position_mode_the_trajectory_goes_to_a_ros2_control_position_control
         reached = json.loads(read_until(arm, '"reached"').strip().splitlines()[-1])
         assert np.abs(np.subtract(reached["q"], GOAL)).max() < 0.01  # held there for 0.5 s, by the arm's own account
     finally:
-        out, err = stop_run_and_arm(run, arm)
+        _out, err = stop_run_and_arm(run, arm)
     assert "Traceback" not in err, err  # (braked without position commands, the arm would never have left q0)
 
 

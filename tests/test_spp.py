@@ -280,7 +280,7 @@ def test_killing_the_processor_mid_run_puts_its_task_in_error_naming_it_and_leav
         said = read_until(run, "task 'fk' on rtpu1 is in ERROR")
         assert f"the special-purpose processor (pid {processors[0]}) died (killed by SIGKILL)" in said
         run.send_signal(signal.SIGINT)
-        out, err = run_output(run)
+        _out, err = run_output(run)
     assert run.returncode == 2, err
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["tasks"]["fk"]["state"] == "ERROR"

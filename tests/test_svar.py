@@ -50,7 +50,7 @@ def test_open_table_reads_names_values_sequence_and_job_control_as_writer(run):
     table.write("n", 6, when=time.monotonic())
     with open_table(subsystem) as view:
         assert view.variables() == ["q_m", "n", "DH", "gain"]
-        value, seq, when, writer = view.read("q_m")
+        value, seq, _when, writer = view.read("q_m")
         assert value.tolist() == [0.5, -0.2, 0.3]
         assert (seq, writer) == (2, -1)
         assert value.dtype == np.float64 and value.flags.writeable  # a copy, not a view of the table

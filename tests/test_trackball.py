@@ -238,7 +238,7 @@ def test_cartesian_teleoperation_follows_the_ball_the_operator_plays_while_it_ru
         until(lambda: np.linalg.norm(_svar(subsystem, "x_m")[:3] - start[:3] - [0.05, 0, 0.03]) < 0.01, "the hand followed", safety_net=150)
     finally:
         run.send_signal(signal.SIGINT)
-        out, err = run.communicate(timeout=120)
+        _out, err = run.communicate(timeout=120)
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["tasks"]["trackball"]["state"] == "ON" and run.returncode == 0, err
     assert_nothing_left(report)

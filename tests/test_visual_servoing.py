@@ -381,7 +381,7 @@ def pbo_run(tmp_path: Path, *arguments: str) -> tuple[subprocess.CompletedProces
 @needs_entry_points
 @pytest.mark.multiprocess
 def test_dls_tracks_the_target_through_the_wrist_singularity(tmp_path):
-    done, report = pbo_run(tmp_path, "--config", "dls", "--duration", "4")
+    _done, report = pbo_run(tmp_path, "--config", "dls", "--duration", "4")
     assert report["stopped_by"] == "duration" and report["failure"] == ""
     x_m = np.array(report["variables"]["x_m"]["value"])
     x_d = np.array(report["variables"]["x_d"]["value"])
@@ -396,7 +396,7 @@ def test_dls_tracks_the_target_through_the_wrist_singularity(tmp_path):
 @needs_entry_points
 @pytest.mark.multiprocess
 def test_switching_between_ik_and_dls_while_servoing_completes(tmp_path):
-    done, report = pbo_run(tmp_path, "--alternate", "ik,dls", "--switches", "4", "--interval", "1")
+    _done, report = pbo_run(tmp_path, "--alternate", "ik,dls", "--switches", "4", "--interval", "1")
     assert len(report["switches"]) == 4
     assert [s["to"] for s in report["switches"]] == ["dls", "ik", "dls", "ik"]
     assert report["failure"] == ""

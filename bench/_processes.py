@@ -42,7 +42,7 @@ class Workers:
 
     def send_each(self, commands: list[Any]) -> None:
         """One command per worker, in order."""
-        for here, command in zip(self.pipes, commands):
+        for here, command in zip(self.pipes, commands, strict=True):
             here.send(command)
 
     def answers(self, timeout: float) -> list[Any]:

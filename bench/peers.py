@@ -122,7 +122,7 @@ class _TableEndpoint:
         module = PeerSide if role == "peer" else BenchTask
         bindings = tuple(PortBinding(p, p.variable, (SIZE,)) for p in module.ports())
         local = LocalTable(table, bindings, task_index=0 if role == "peer" else 1)
-        arrays = dict(zip((b.variable for b in bindings), local.port_arrays))
+        arrays = dict(zip((b.variable for b in bindings), local.port_arrays, strict=True))
         mine, theirs = ("a", "x") if role == "peer" else ("x", "a")
         self.stamp, self.read_first = arrays[mine], arrays[theirs]
         self.read, self.write = local.read_inputs, local.write_outputs

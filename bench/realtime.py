@@ -251,7 +251,7 @@ def pinned_config(yaml_path: Path, cpus: list[int], folder: Path) -> tuple[Path,
     """A copy of the benchmark's file with RTPU i pinned to `cpus[i]` (`rtpus: {name: {cpu: N}}`), and its subsystem's name."""
     document = yaml.safe_load(yaml_path.read_text())
     names = list(document["rtpus"])
-    document["rtpus"] = {name: {"cpu": cpu} for name, cpu in zip(names, cpus)}
+    document["rtpus"] = {name: {"cpu": cpu} for name, cpu in zip(names, cpus, strict=True)}
     pinned = folder / yaml_path.name
     pinned.write_text(yaml.safe_dump(document, sort_keys=False))
     return pinned, document["subsystem"]
@@ -289,7 +289,7 @@ def paired_round(workers: Workers, yaml_path: Path, n: int, period: float, secon
         try:
             epoch = release_epoch(subsystem)
             first = epoch + math.ceil((on + 0.01 - epoch) / period) * period  # a release of RTPU 0 after the start
-            workers.send_each([(first + phase, on + seconds, cpu) for phase, cpu in zip(bare_phases(where, period), where)])
+            workers.send_each([(first + phase, on + seconds, cpu) for phase, cpu in zip(bare_phases(where, period), where, strict=True)])
             records = workers.answers(seconds + 60)
             said, _ = run.communicate(timeout=120)
         finally:
@@ -390,7 +390,7 @@ def measure(n: int, seconds: float, fifo: bool, rounds: int = 8) -> dict[str, An
                 if cpu not in seen:
                     seen.append(cpu)
                 realtime[rtpu] = {**settings, "cpu": " then ".join(seen)}
-    return {"pbo": _over_rounds(pbo_runs), "bare": _over_rounds(bare_runs), "rounds": list(zip(pbo_runs, bare_runs)),
+    return {"pbo": _over_rounds(pbo_runs), "bare": _over_rounds(bare_runs), "rounds": list(zip(pbo_runs, bare_runs, strict=True)),
             "exec_p50": float(np.median(exec_p50s)), "plant_late": (plant_late, plant_steps), "realtime": realtime}
 
 

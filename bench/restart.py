@@ -16,6 +16,7 @@ releases there are the machine's. Each run's cold start is its same-run baseline
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import signal
@@ -156,14 +157,14 @@ def measure(kills: int, fresh: bool = False, quiet_windows: bool = False) -> dic
     origin = report["started_monotonic"]
     phases: dict[str, list[float]] = {phase: [] for phase in PHASES}
     stable = []
-    for kill, restart in zip(killed_at, report["restarts"]):
+    for kill, restart in zip(killed_at, report["restarts"], strict=True):
         marks = [kill] + [origin + restart[key] for key in ("died_at", "launched_at", "ready_at", "spawned_at", "on_again_at")]
-        for phase, (begin, end) in zip(PHASES, zip(marks, marks[1:])):
+        for phase, (begin, end) in zip(PHASES, itertools.pairwise(marks), strict=True):
             phases[phase].append(end - begin)
         held = [e for e in report["stable_episodes"]
                 if e["task"] == "robot" and kill <= e["from"] <= marks[-1] and e["to"] is not None]
         stable.append(sum(e["to"] - e["from"] for e in held) / ROBOT_PERIOD)
-    back = [restart["on_again_at"] + origin - kill for kill, restart in zip(killed_at, report["restarts"])]
+    back = [restart["on_again_at"] + origin - kill for kill, restart in zip(killed_at, report["restarts"], strict=True)]
     return {"cold_start": cold_start, "phases": phases, "back": back, "stable": stable, "windows": windows,
             "restarts": len(report["restarts"]), **robot_figures(report)}
 

@@ -202,8 +202,8 @@ def run(rounds: int = 21, iterations: int = 20000, table_variables: int = 1000) 
         flat = floor.flat
         global_views = [flat[4096 + i * SIZE: 4096 + (i + 1) * SIZE] for i in range(N_IN + N_OUT)]
         local_views = [np.zeros(SIZE) for _ in range(N_IN + N_OUT)]
-        pairs_in = list(zip(local_views[:N_IN], global_views[:N_IN]))
-        pairs_out = list(zip(global_views[N_IN:], local_views[N_IN:]))
+        pairs_in = list(zip(local_views[:N_IN], global_views[:N_IN], strict=True))
+        pairs_out = list(zip(global_views[N_IN:], local_views[N_IN:], strict=True))
         copyto, acquire, release = np.copyto, floor._sem.acquire, floor._sem.release
 
         def naive() -> None:

@@ -148,7 +148,7 @@ def goal(domain: int, safety_net: float, values: list[float]) -> dict:
         if now - published_at >= 0.1:
             writer.write(message)
             published_at = now
-        error = max(abs(p - v) for p, v in zip(state.position, values))
+        error = max(abs(p - v) for p, v in zip(state.position, values, strict=True))
         in_a_row = in_a_row + 1 if error < 0.01 else 0
         if in_a_row >= 50 or now - start > safety_net:
             break

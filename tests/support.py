@@ -692,7 +692,7 @@ def dh_pinocchio_model(dh: np.ndarray, dyn: np.ndarray):  # type: ignore[no-unty
 
     model = pinocchio.Model()
     parent, parent_link = 0, np.eye(4)
-    for i, (dh_row, dyn_row) in enumerate(zip(np.asarray(dh, float), np.asarray(dyn, float)), start=1):
+    for i, (dh_row, dyn_row) in enumerate(zip(np.asarray(dh, float), np.asarray(dyn, float), strict=True), start=1):
         joint = model.addJoint(parent, pinocchio.JointModelRZ(), se3(parent_link @ rot_z(dh_row[0])), f"joint{i}")
         link = dh_link_transform(dh_row)
         rotation, offset = link[:3, :3], link[:3, 3]
@@ -712,7 +712,7 @@ def dh_forward_kinematics(dh: np.ndarray, q: np.ndarray) -> np.ndarray:
     from drivers.robots.description import dh_link_transform, rot_z
 
     pose = np.eye(4)
-    for dh_row, qi in zip(np.asarray(dh, float), np.asarray(q, float)):
+    for dh_row, qi in zip(np.asarray(dh, float), np.asarray(q, float), strict=True):
         pose = pose @ rot_z(qi + dh_row[0]) @ dh_link_transform(dh_row)
     return pose
 

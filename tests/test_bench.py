@@ -73,7 +73,7 @@ def test_the_overrun_interval_resamples_rounds_so_one_burst_widens_it():
     from bench.realtime import round_bootstrap_interval
 
     def rounds(pbo: list[int], bare: list[int]) -> list[tuple[dict, dict]]:
-        return [({"overruns": p, "cycles": 5000}, {"overruns": b, "cycles": 5000}) for p, b in zip(pbo, bare)]
+        return [({"overruns": p, "cycles": 5000}, {"overruns": b, "cycles": 5000}) for p, b in zip(pbo, bare, strict=True)]
 
     steady_low, steady_high = round_bootstrap_interval(rounds([10] * 12, [10] * 12))
     assert steady_low == steady_high == 1.0  # every round alike: nothing to resample
@@ -148,7 +148,7 @@ def test_bare_loops_are_released_midway_between_the_releases_of_the_rtpus_on_the
                 stagger = release_stagger(period, n)
                 for cpu in set(where):
                     rtpus = sorted(i * stagger for i in range(n) if where[i] == cpu)
-                    bares = [phase % period for phase, c in zip(bare_phases(where, period), where) if c == cpu]
+                    bares = [phase % period for phase, c in zip(bare_phases(where, period), where, strict=True) if c == cpu]
                     for bare in bares:  # midway between the RTPU releases around it, on its CPU
                         before = max((r for r in rtpus if r <= bare), default=rtpus[-1] - period)
                         after = min((r for r in rtpus if r > bare), default=rtpus[0] + period)

@@ -394,7 +394,7 @@ def test_the_checker_reports_exactly_the_data_flow_errors_the_rules_call_for(ts:
 
     for cycle in cycles:  # the printed cycle is one: each task writes a const the next one reads
         assert cycle[0] == cycle[-1], cycle
-        assert all(link in verdict.edges for link in zip(cycle, cycle[1:])), (cycle, verdict.edges, text)
+        assert all(link in verdict.edges for link in itertools.pairwise(cycle)), (cycle, verdict.edges, text)
 
     if not verdict.errors and all(verdict.resolved.values()):
         assert result.errors == [], "\n".join(e.format() for e in result.errors) + "\n" + text

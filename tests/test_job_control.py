@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -120,7 +122,7 @@ def test_alternate_switches_the_given_number_of_times_one_interval_apart(host):
     assert [r.after for r in host.job_control.switches] == ["pd", "pid", "pd", "pid"]
     requested = [r.requested_at for r in host.job_control.switches]
     assert requested[0] == pytest.approx(0.05, abs=0.003) and all(
-        0.045 < b - a < 0.055 for a, b in zip(requested, requested[1:]))
+        0.045 < b - a < 0.055 for a, b in itertools.pairwise(requested))
 
 
 # --- jobs -------------------------------------------------------------------------------------

@@ -57,7 +57,7 @@ def test_an_overloaded_rtpu_has_unbounded_response_times() -> None:
 
 def _simulate(loads: list[Load], offsets: tuple[int, ...], horizon: int) -> dict[str, int]:
     """A fake of the executive's policy in whole ticks: critical first, then the earliest deadline; no preemption."""
-    jobs = sorted((o + k * int(x.period), i) for i, (x, o) in enumerate(zip(loads, offsets))
+    jobs = sorted((o + k * int(x.period), i) for i, (x, o) in enumerate(zip(loads, offsets, strict=True))
                   for k in range((horizon - o) // int(x.period) + 1))
     pending: list[tuple[int, int]] = []  # (release, task)
     worst = {x.name: 0 for x in loads}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import os
 import stat
 import threading
@@ -64,7 +65,7 @@ def test_variables_are_aligned_and_do_not_overlap():
     layout = TableLayout.build(VARS, 2)
     spans = sorted((s.data_byte, s.data_byte + s.nbytes) for s in layout.slots)
     assert all(start % 8 == 0 for start, _ in spans)
-    assert all(end <= nxt for (_, end), (nxt, _) in zip(spans, spans[1:]))
+    assert all(end <= nxt for (_, end), (nxt, _) in itertools.pairwise(spans))
     assert layout.status_offset >= spans[-1][1]
 
 

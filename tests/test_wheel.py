@@ -13,6 +13,7 @@ simulated clock.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import re
@@ -276,7 +277,7 @@ def command_words(command: str) -> list[str]:
 
 def input_files(words: list[str]) -> list[str]:
     """The files a command reads: its words that name a file, but not those after an output flag."""
-    return [w for before, w in zip(words, words[1:]) if before not in OUTPUT_FLAGS and FILE_TOKEN.search(w)
+    return [w for before, w in itertools.pairwise(words) if before not in OUTPUT_FLAGS and FILE_TOKEN.search(w)
             and not w.startswith("package://")]
 
 

@@ -333,7 +333,7 @@ PRIORITIES = [0, 5, 5, MAX_PRIORITY, 1, 0, 5, 1]
 def _message_sender(name: str, port: int, talk) -> None:
     with ZenohMessageLink.attach(name, port=port) as link:
         until(lambda: link._publisher.matching_status.matching, "the receiver")
-        for order, (body, priority) in enumerate(zip(BODIES, PRIORITIES)):
+        for order, (body, priority) in enumerate(zip(BODIES, PRIORITIES, strict=True)):
             link.send({"order": order, "body": body}, priority=priority)
         try:
             link.send("one too many")

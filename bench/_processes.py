@@ -7,6 +7,7 @@ on `conn` until it receives None. The spawn start method gives every worker a fr
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 from multiprocessing.connection import Connection
 from typing import Any, Callable
@@ -54,10 +55,8 @@ class Workers:
 
     def close(self) -> None:
         for here in self.pipes:
-            try:
+            with contextlib.suppress(OSError):
                 here.send(None)
-            except OSError:
-                pass
         for process in self.procs:
             process.join(5)
             if process.is_alive():

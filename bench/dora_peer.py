@@ -25,6 +25,7 @@ whatever happens.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
 import json
 import os
@@ -126,10 +127,8 @@ def stop_session(process: subprocess.Popen) -> None:
     """Stop `dora run` and every node it started, whatever state they are in: SIGTERM, then SIGKILL."""
     for sig in (signal.SIGTERM, signal.SIGKILL):
         for pid in _session(process.pid):
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, sig)
-            except ProcessLookupError:
-                pass
         give_up = time.monotonic() + 3.0
         while _session(process.pid) and time.monotonic() < give_up:
             process.poll()  # reaps `dora run`; the nodes are its children, reaped by it or by init

@@ -20,6 +20,7 @@ and reads what happened from the run's report and log:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import signal
@@ -132,10 +133,8 @@ def plant_process(pid: int) -> int:
 
 
 def resume(pid: int) -> None:
-    try:
+    with contextlib.suppress(ProcessLookupError):  # the supervisor killed it
         os.kill(pid, signal.SIGCONT)
-    except ProcessLookupError:  # the supervisor killed it
-        pass
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ Both sides spin on their transport's non-blocking read on two different CPUs, yi
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ctypes
 import glob
 import importlib.util
@@ -163,10 +164,8 @@ class FloorContender:
 
     def teardown(self, spec: dict[str, Any]) -> None:
         for kind, name in (("shm", spec["shm"]), ("sem", spec["sem"])):
-            try:
+            with contextlib.suppress(posix_ipc.ExistentialError):
                 (posix_ipc.unlink_shared_memory if kind == "shm" else posix_ipc.unlink_semaphore)(name)
-            except posix_ipc.ExistentialError:
-                pass
 
 
 class _FloorEndpoint:
@@ -320,10 +319,8 @@ class ZmqContender:
         return _ZmqEndpoint(spec["address"], role)
 
     def teardown(self, spec: dict[str, Any]) -> None:
-        try:
+        with contextlib.suppress(FileNotFoundError):
             os.unlink(self.path)
-        except FileNotFoundError:
-            pass
 
 
 class _ZmqEndpoint:
@@ -372,10 +369,8 @@ class Iceoryx2Contender:
     def teardown(self, spec: dict[str, Any]) -> None:
         # iceoryx2 leaves its global management segment (and /tmp/iceoryx2) behind: remove what we made.
         for path in set(glob.glob("/dev/shm/iox2_*")) - self.before:
-            try:
+            with contextlib.suppress(OSError):
                 os.unlink(path)
-            except OSError:
-                pass
         if not self.tmp_existed:
             shutil.rmtree("/tmp/iceoryx2", ignore_errors=True)
 

@@ -12,6 +12,7 @@ module under 10 ms for a subsystem of 100 tasks.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import statistics
 import tempfile
 import time
@@ -66,10 +67,8 @@ parameters) once.""",
         raise RuntimeError("the generated subsystem does not check: " + "; ".join(e.format() for e in result.errors))
     t0 = time.perf_counter()
     for name in modules:  # what any first use of the library costs a process, lexicon and check alike
-        try:
+        with contextlib.suppress(Exception):  # a broken library is a verdict of its own, below
             registry.module_class(name)
-        except Exception:  # a broken library is a verdict of its own, below
-            pass
     import_s = time.perf_counter() - t0
     configuration = next(iter(subsystem.configurations))
     members = subsystem.configurations[configuration].tasks

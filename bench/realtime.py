@@ -53,6 +53,7 @@ the targets judge; then under SCHED_OTHER (`pbo run --no-fifo`), reported beside
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -98,10 +99,8 @@ def _bare_main(period: float, fifo: bool, conn: Connection) -> None:
     """
     lower_timer_slack()
     if fifo:
-        try:
+        with contextlib.suppress(OSError, AttributeError):
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
-        except (OSError, AttributeError):
-            pass
     clock = RealClock(SPIN)
     every_cpu = os.sched_getaffinity(0)
     conn.send("ready")
@@ -110,10 +109,8 @@ def _bare_main(period: float, fifo: bool, conn: Connection) -> None:
         if command is None:
             return
         first_release, end, cpu = command  # set once every loop is ready: a slow start must not count as jitter
-        try:
+        with contextlib.suppress(OSError, ValueError):  # as an RTPU refused its CPU, it runs on where it is
             os.sched_setaffinity(0, every_cpu if cpu is None else {cpu})
-        except (OSError, ValueError):
-            pass  # as an RTPU refused its CPU, it runs on where it is
         conn.send(_bare_stretch(clock, period, first_release, end))
 
 

@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import time
+from pathlib import Path
 
 import numpy as np
 import posix_ipc
@@ -62,7 +63,7 @@ def test_a_link_without_a_receiver_is_an_error_with_a_hint(tmp_path):
     result = check_application(path)
     assert codes(result) == ["E805", "E805"]
     assert {e.message for e in result.errors} == {"link 'spare' has no link_sender task", "link 'spare' has no link_receiver task"}
-    spare_line = open(path).read().splitlines().index("  spare: {type: float64, shape: [6]}") + 1
+    spare_line = Path(path).read_text().splitlines().index("  spare: {type: float64, shape: [6]}") + 1
     assert all(e.line == spare_line for e in result.errors)
     assert "module: link_receiver" in result.errors[1].hint + result.errors[0].hint
 
@@ -75,8 +76,8 @@ def test_a_variable_of_another_shape_than_its_link_is_refused(tmp_path):
 
 def test_an_unknown_transport_and_a_missing_subsystem_file_are_reported_together(tmp_path):
     path = write_app(tmp_path, links=SHIPPED_LINKS.replace("[6], transport: shm}", "[6], transport: carrier-pigeon}"))
-    text = open(path).read().replace("follower: follower.yaml", "follower: nowhere.yaml")
-    open(path, "w").write(text)
+    text = Path(path).read_text().replace("follower: follower.yaml", "follower: nowhere.yaml")
+    Path(path).write_text(text)
     result = check_application(path)
     assert set(codes(result)) == {"E802", "E803"}
     assert any("unknown transport 'carrier-pigeon'" in e.message and "shm, zenoh" in e.hint for e in result.errors)
@@ -100,8 +101,8 @@ def test_pbo_check_on_an_application_prints_every_link(tmp_path):
 
 def test_an_inline_subsystem_is_checked_in_full_and_its_errors_point_into_the_application_file(tmp_path):
     path = write_app(tmp_path)
-    text = open(path).read().replace("period: 10 ms, params: {link: goal}", "period: 10 weeks, params: {link: goal}")
-    open(path, "w").write(text)
+    text = Path(path).read_text().replace("period: 10 ms, params: {link: goal}", "period: 10 weeks, params: {link: goal}")
+    Path(path).write_text(text)
     result = check_application(path)
     assert result.errors and all(e.file == path for e in result.errors)
     error = result.errors[0]
@@ -182,7 +183,7 @@ def test_the_run_section_refuses_an_incomplete_application_as_pbo_run_would(tmp_
     assert codes(result) == ["E807"], [e.format() for e in result.errors]
     error = result.errors[0]
     assert "application 'loose' of subsystem 'operator' is incomplete" in error.message
-    assert error.line == len(open(error.file).read().splitlines()) and "tour" in error.hint
+    assert error.line == len(Path(error.file).read_text().splitlines()) and "tour" in error.hint
 
 
 @pytest.mark.multiprocess

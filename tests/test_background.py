@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 import threading
+from typing import ClassVar
 
 import pytest
 
@@ -102,8 +103,8 @@ class SlowToKill(PortBasedObject):
     """Fake module: its kill hands its slow part off, as a data logger's does."""
 
     out = OutVar("out")
-    finished: list[str] = []
-    fail = False
+    finished: ClassVar[list[str]] = []
+    fail: ClassVar[bool] = False
 
     def kill(self) -> None:
         def finish() -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+from typing import ClassVar
 
 import pytest
 
@@ -196,7 +197,7 @@ class EventRecorder(PortBasedObject):
     """Fake aperiodic module: records (release time, payload) of every event it serves."""
 
     out = OutVar("out")
-    served: list = []
+    served: ClassVar[list] = []
 
     def cycle(self) -> Status:
         EventRecorder.served.append((self.time, self.event))

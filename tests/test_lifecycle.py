@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from types import MappingProxyType
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -289,7 +293,7 @@ class Emitter(PortBasedObject):
     w = OutVar("w", dtype="float32", shape=(2,))
     count = OutVar("count", dtype="int32", shape=(2,))
 
-    emit: dict = {}
+    emit: Mapping[str, Any] = MappingProxyType({})  # make() gives each instance a dict of its own
     verdict = Status.ERROR
     errors_seen: list
 

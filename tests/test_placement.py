@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
@@ -87,7 +88,7 @@ class FakeCameraOnTheArm(PortBasedObject):
     """Opens the arm device where it needs a camera."""
 
     Params = ArmParams
-    DEVICES = {"device": {"kind": "camera"}}
+    DEVICES: ClassVar = {"device": {"kind": "camera"}}
 
 
 FAKES: dict[str, type] = {

@@ -443,5 +443,5 @@ def test_pbo_hmi_serves_the_run_of_the_files_subsystem(tmp_path, subsystem):
     assert subsystem_of(str(tmp_path / "broken.yaml")) is None
     said = describe_run(LiveRunLink("no_such_subsystem_here"))
     assert said.startswith("no run of 'no_such_subsystem_here' yet: lexicon, check, bus and graph are served")
-    with pytest.raises(NoRun, match="^no live run has run id"):
+    with pytest.raises(NoRun, match=r"^no live run has run id"):
         describe_run(LiveRunLink(None, "0-no-such-run"))

@@ -137,7 +137,7 @@ def test_a_participant_stuck_past_the_limit_is_a_named_fault_in_an_application_a
         else:
             assert clock.slow_participant(0.1) is None  # while waiting for the turn, none of ours steps
             gate.held = True
-            with pytest.raises(TurnStalled, match="rtpu0 has not finished the tick at 0.000 s .* every subsystem"):
+            with pytest.raises(TurnStalled, match=r"rtpu0 has not finished the tick at 0\.000 s .* every subsystem"):
                 clock.slow_participant(0.1)
     finally:
         clock.close()

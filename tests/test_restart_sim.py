@@ -146,7 +146,7 @@ def test_a_live_participant_that_never_hands_the_turn_back_fails_the_recovery_wh
     ring.join("b")
     with pytest.raises(Died):
         ring.master.advance(ring.death_of("a"), ticks=5)
-    with pytest.raises(RingStuck, match="^plant did not hand the turn back after a died$"):
+    with pytest.raises(RingStuck, match=r"^plant did not hand the turn back after a died$"):
         ring.master.recover("a", lambda: True)
     ring.release.set()  # (for the fixture's stop)
 

@@ -151,17 +151,16 @@ def test_the_openapi_description_lists_every_route_behind_the_token(client):
 
 @pytest.mark.parametrize("path", ["/api/streams/status", "/api/streams/variables"])
 def test_a_websocket_upgrade_from_a_foreign_origin_is_refused_even_with_the_token(client, path):
-    with pytest.raises(WebSocketDisconnect) as refused:
-        with client.websocket_connect(path, headers={**BEARER, "Origin": "http://evil.example"}):
-            pass
+    with (pytest.raises(WebSocketDisconnect) as refused,
+          client.websocket_connect(path, headers={**BEARER, "Origin": "http://evil.example"})):
+        pass
     assert refused.value.code == 1008 and "origin 'http://evil.example' is not this server's" in refused.value.reason
 
 
 @pytest.mark.parametrize("path", ["/api/streams/status", "/api/streams/variables"])
 def test_a_websocket_upgrade_without_the_token_is_refused(client, path):
-    with pytest.raises(WebSocketDisconnect) as refused:
-        with client.websocket_connect(path, headers={"Origin": "http://testserver"}):
-            pass
+    with pytest.raises(WebSocketDisconnect) as refused, client.websocket_connect(path, headers={"Origin": "http://testserver"}):
+        pass
     assert (refused.value.code, refused.value.reason) == (1008, "unauthorized: no token")
 
 
@@ -374,9 +373,8 @@ def test_every_websocket_route_is_behind_the_token(client):
     sockets = websocket_routes()
     assert sockets == ["/api/streams/status", "/api/streams/variables"]
     for path in sockets:
-        with pytest.raises(WebSocketDisconnect):
-            with client.websocket_connect(path, headers={"Authorization": "Bearer wrong"}):
-                pass
+        with pytest.raises(WebSocketDisconnect), client.websocket_connect(path, headers={"Authorization": "Bearer wrong"}):
+            pass
 
 
 # --- a real run ---------------------------------------------------------------------------------

@@ -267,9 +267,9 @@ def test_the_arm_stream_refuses_what_it_cannot_draw_with_a_message(table, query,
 
 def test_the_arm_stream_is_behind_the_token(table):
     client = TestClient(create_app(StatusLink(running({}), table.name), TOKEN, str(DEMO)))
-    with pytest.raises(WebSocketDisconnect):
-        with client.websocket_connect("/api/streams/arm", headers={"Authorization": "Bearer wrong"}):
-            pass
+    with (pytest.raises(WebSocketDisconnect),
+          client.websocket_connect("/api/streams/arm", headers={"Authorization": "Bearer wrong"})):
+        pass
 
 
 def test_the_monitors_files_are_served_and_packaged():

@@ -176,9 +176,9 @@ def test_an_unexpected_handler_exception_is_reported_and_does_not_escape_poll(se
 
 
 def test_call_raises_the_supervisors_refusal(server):
-    with FakeSupervisor(server):
-        with pytest.raises(CommandRefused, match=r"^'ctl\w+' refused 'on': task 'pid' is in ERROR: clear it first$"):
-            client_of(server).call("on", {"task": "pid"})
+    with (FakeSupervisor(server),
+          pytest.raises(CommandRefused, match=r"^'ctl\w+' refused 'on': task 'pid' is in ERROR: clear it first$")):
+        client_of(server).call("on", {"task": "pid"})
 
 
 def test_a_malformed_request_does_not_crash_poll(server):

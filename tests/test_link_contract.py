@@ -206,10 +206,10 @@ def test_a_structured_payload_round_trips_field_by_field(transport):
 
 
 def test_another_payload_is_refused_at_attach_and_the_error_names_both(transport):
-    with transport.create(ARM, "reader"):
-        with pytest.raises(LinkLayoutError, match=rf"^link '{transport.name}' carries float64 \(6,\), this process expects "
-                                                  r"float32 \(3,\): do both ends declare the same payload\?$"):
-            transport.attach(LinkLayout("float32", (3,)), "sender")
+    with (transport.create(ARM, "reader"),
+          pytest.raises(LinkLayoutError, match=rf"^link '{transport.name}' carries float64 \(6,\), this process expects "
+                                               r"float32 \(3,\): do both ends declare the same payload\?$")):
+        transport.attach(LinkLayout("float32", (3,)), "sender")
 
 
 def test_attaching_to_a_missing_link_names_it(transport):

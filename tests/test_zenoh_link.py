@@ -138,13 +138,13 @@ def test_a_delivery_must_be_ring_or_callback():
 def test_the_creating_end_forwards_between_two_ends_that_attach_to_it(delivery):
     """As when a supervisor makes the link and its tasks attach: the creating session is their hub."""
     name, port, layout = key("hub"), free_port(), LinkLayout("int64", (2,))
-    with ZenohLink.create(name, layout, port=port):
-        with (ZenohLink.attach(name, layout, "reader", port=port, delivery=delivery) as reader,
-              ZenohLink.attach(name, layout, "sender", port=port) as sender):
-            wait_for_reader(sender)
-            assert sender.write([4, 2]) == 1
-            read_until(reader, 1)
-            assert reader.value.tolist() == [4, 2]
+    with (ZenohLink.create(name, layout, port=port),
+          ZenohLink.attach(name, layout, "reader", port=port, delivery=delivery) as reader,
+          ZenohLink.attach(name, layout, "sender", port=port) as sender):
+        wait_for_reader(sender)
+        assert sender.write([4, 2]) == 1
+        read_until(reader, 1)
+        assert reader.value.tolist() == [4, 2]
 
 
 def test_sessions_stay_on_loopback_and_close_with_their_link():

@@ -154,7 +154,7 @@ def test_bare_loops_are_released_midway_between_the_releases_of_the_rtpus_on_the
                         after = min((r for r in rtpus if r > bare), default=rtpus[0] + period)
                         assert bare - before == pytest.approx(after - bare), (n_cpus, n, bare, rtpus)
                     releases = sorted(rtpus + bares)
-                    assert min(np.diff(releases + [releases[0] + period])) > 0.1 * period  # none spins with another
+                    assert min(np.diff([*releases, releases[0] + period])) > 0.1 * period  # none spins with another
 
 
 def test_every_rtpu_visits_every_cpu_as_the_rounds_turn():

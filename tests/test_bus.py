@@ -195,7 +195,7 @@ def synthetic_run() -> dict:
 def test_measured_uses_cycles_bytes_per_cycle_the_locks_and_the_duration():
     report = _bus.measured(small(), synthetic_run())
     assert report.kind == "measured"
-    # ctl: 400 cycles × (44 B + 2Δ = 16 B) / 2 s = 12,000 B/s; src: 1990 × 44 / 2 = 43,780 B/s
+    # ctl: 400 cycles * (44 B + 2Δ = 16 B) / 2 s = 12,000 B/s; src: 1990 * 44 / 2 = 43,780 B/s
     assert report.task("ctl").rate_bytes_per_s == pytest.approx(12_000.0)
     assert report.task("src").rate_bytes_per_s == pytest.approx(43_780.0)
     assert report.total == pytest.approx(55_780.0)

@@ -239,7 +239,7 @@ def test_an_rtpu_stops_on_sigterm_even_while_waiting_on_its_queue(tmp_path):
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         read_until(pbo, "is on")
-        rtpu0 = [pid for pid, cmd in children_of(pbo.pid).items() if "--rtpu rtpu0" in cmd][0]
+        rtpu0 = next(pid for pid, cmd in children_of(pbo.pid).items() if "--rtpu rtpu0" in cmd)
         os.kill(rtpu0, signal.SIGTERM)
         _out, err = pbo.communicate(timeout=60)
     finally:

@@ -64,7 +64,7 @@ def test_each_overrun_the_report_kept_is_matched_with_the_cpus_holders():
     rows = explain(report, parse_switches(EXCERPT), names())
     assert len(rows) == 1
     cpu0 = rows[0]["cpus"][0]
-    assert list(cpu0)[0] == "[kdamond.0]" and cpu0["[kdamond.0]"] == pytest.approx(0.0014)
+    assert next(iter(cpu0)) == "[kdamond.0]" and cpu0["[kdamond.0]"] == pytest.approx(0.0014)
     text = cpu_trace.render(rows, report)
     assert "pid (rtpu0) at 1.000 s: started 1.40 ms late, ran 0.05 ms" in text
     assert "CPU 0 (ms): [kdamond.0] 1.40, RTPU rtpu0 0.05" in text

@@ -372,7 +372,7 @@ def test_the_plot_has_a_subplot_per_variable_a_line_per_element_units_and_the_ma
     marks = [line for line in axes[2].lines if line.get_gid() == "mark"]
     assert [round(line.get_xdata()[0], 9) for line in marks] == [0.0, 0.05, 0.1]  # seconds since the configuration came on
     assert [t.get_text() for t in axes[0].texts if t.get_gid() == "mark"] == ["joint_pid on", "job move starts", "joint_pid -> pd"]
-    first = [line for line in axes[0].lines if line.get_gid() != "mark"][0]
+    first = next(line for line in axes[0].lines if line.get_gid() != "mark")
     assert first.get_xdata()[0] == pytest.approx(0.0)  # the first row's release is the configuration's start
 
 

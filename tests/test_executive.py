@@ -273,7 +273,7 @@ def test_link_messages_beyond_what_a_server_holds_are_counted_as_dropped(setup):
     build, clock, _ = setup
     EventRecorder.served = []
     script = [(0.0, ["spawn", "server"])] + [(0.001, ["message", "server", [[float(i)], i]]) for i in range(EVENTS_QUEUED + 3)]
-    ex, scheduled = aperiodic_recorder(build, script + [(0.002, ["on", "server", 0.002])])
+    ex, scheduled = aperiodic_recorder(build, [*script, (0.002, ["on", "server", 0.002])])
     run_until(ex, clock, 1.0)
     assert scheduled.dropped_events == 3
     assert [payload[1] for _, payload in EventRecorder.served] == list(range(3, EVENTS_QUEUED + 3))  # the newest kept

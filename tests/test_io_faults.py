@@ -253,7 +253,7 @@ def test_a_sigkill_of_the_loggers_rtpu_loses_at_most_the_chunk_it_was_filling(tm
     assert re.search(r"error: RTPU 'rtpu0' \(pid \d+\) died \(killed by SIGKILL\) while hosting tasks: traj, pid, logger", stderr)
     result = json.loads(report.read_text())
     rows = read_log(log)
-    taken = int(round(result["duration"] / 0.01)) + 1  # the logger's cycles, every 10 ms from 0 to the death
+    taken = round(result["duration"] / 0.01) + 1  # the logger's cycles, every 10 ms from 0 to the death
     assert seen <= len(rows)
     # Lost: the chunk it was filling, and the rows taken while the writer thread wrote the last one
     # handed over (milliseconds of wall time: a tick or two of the simulated clock; 20 is the margin).

@@ -63,7 +63,7 @@ class Recorder(PortBasedObject):
         self.calls.append("off")
 
     def kill(self):
-        self.calls = getattr(self, "calls", []) + ["kill"]
+        self.calls = [*getattr(self, "calls", []), "kill"]
 
     def error(self, exc):
         self.calls.append("error")

@@ -264,7 +264,11 @@ def pid_task(table: StateTable, params: dict, period: float = PID_DT) -> Task:
     return Task(task_spec(PidJoint, dims=DIMS, params=params, period=period), PidJoint, table, DIMS)
 
 
-def write_state(table: StateTable, q_r, q_m, qd_r=np.zeros(N), qd_m=np.zeros(N), when: float = 0.0) -> None:
+def write_state(table: StateTable, q_r, q_m, qd_r=None, qd_m=None, when: float = 0.0) -> None:
+    """The PID's inputs; the velocities are zero unless given."""
+    still = np.zeros(N)
+    qd_r = still if qd_r is None else qd_r
+    qd_m = still if qd_m is None else qd_m
     for name, value in (("q_r", q_r), ("q_m", q_m), ("qd_r", qd_r), ("qd_m", qd_m)):
         table.write(name, value, when=when)
 

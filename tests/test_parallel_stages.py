@@ -132,7 +132,7 @@ def arms_behind_ros2_control(tmp_path, left: str, right: str, run: str):
     mujoco = "{arm: {driver: mujoco_arm, mode: torque, exclusive: true}}"
     assert head.count(mujoco) == 2
     for options in (left, right):
-        head = head.replace(mujoco, "{arm: {driver: ros2_control, mode: torque, exclusive: true%s}}" % options, 1)
+        head = head.replace(mujoco, "{arm: {driver: ros2_control, mode: torque, exclusive: true" + options + "}}", 1)
     path = tmp_path / "arms.yaml"
     path.write_text(head + "\nrun:\n" + run)
     return check_application(path), path

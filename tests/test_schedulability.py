@@ -285,7 +285,7 @@ def test_a_real_run_report_feeds_check_with_a_profile(tmp_path: Path) -> None:
     assert checked.returncode == 0, checked.stdout + checked.stderr
     assert "note: the profile is a run on the simulated clock" in checked.stdout
     lines = checked.stdout.split("\nschedulability ", 1)[1].splitlines()  # the verdicts, after the file's own lines
-    verdicts = {line.split()[0]: line for line in lines if line.startswith("    ") and not line.split()[0] == "task"}
+    verdicts = {line.split()[0]: line for line in lines if line.startswith("    ") and line.split()[0] != "task"}
     assert set(verdicts) == {"robot*", "traj", "pid", "logger"}, checked.stdout
     assert " proven " in verdicts["robot*"]
     assert "critical deadlines: 1 task(s) proven" in checked.stdout

@@ -68,7 +68,7 @@ def _errors(instance: Any, schema: dict, root: dict, path: str = "$") -> list[st
             "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
         }
         if not any(checks[t](instance) for t in names):
-            return out + [f"{path}: {instance!r} is not of type {types}"]
+            return [*out, f"{path}: {instance!r} is not of type {types}"]
     if "enum" in schema and instance not in schema["enum"]:
         out.append(f"{path}: {instance!r} is not one of {schema['enum']}")
     if "const" in schema and instance != schema["const"]:

@@ -119,7 +119,7 @@ def start(subsystem, executives, clock) -> None:
 def post_plan(table: StateTable, configuration: int, activation: float) -> None:
     header = table.header
     header[Header.PLAN_CONFIGURATION] = configuration
-    header[Header.PLAN_TIME_NS] = int(round(activation * 1e9))
+    header[Header.PLAN_TIME_NS] = round(activation * 1e9)
     header[Header.PLAN_SEQUENCE] += 1
 
 

@@ -86,7 +86,7 @@ def two_hosts():
         pytest.skip(reason)
     _remove_ours()
     try:
-        for host, netns in NETNS.items():
+        for netns in NETNS.values():
             _ip("netns", "add", netns)
             _ip("-n", netns, "link", "set", "lo", "up")
         _ip("link", "add", VETH["arm-a"], "type", "veth", "peer", "name", VETH["arm-b"])

@@ -252,13 +252,13 @@ def test_the_module_writes_target_plus_offset_and_keeps_the_hands_orientation(ta
     task, opened = vision_task(table, plant, {"offset": [0.0, 0.01, 0.1]})
     assert task.spawn(0.0), task.last_error
     assert task.turn_on(0.0), task.last_error
-    np.testing.assert_allclose(table.read("x_d")[0], [*(circle(0.0) + [0, 0.01, 0.1]), 0.1, -0.2, 0.3], atol=1e-12)
+    np.testing.assert_allclose(table.read("x_d")[0], [*(circle(0.0) + np.array([0, 0.01, 0.1])), 0.1, -0.2, 0.3], atol=1e-12)
     for k in range(1, 6):
         run(plant, 0.01)
         table.write("x_m", x_m + k, when=k * 0.01)  # the hand moves: the orientation stays the one at `on`
         assert task.run_cycle(k * 0.01) is Status.CONTINUE, task.last_error
         x_d = table.read("x_d")[0]
-        np.testing.assert_allclose(x_d[:3], circle(plant.sim_time) + [0, 0.01, 0.1], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(x_d[:3], circle(plant.sim_time) + np.array([0, 0.01, 0.1]), rtol=0, atol=1e-12)
         np.testing.assert_array_equal(x_d[3:], x_m[3:])
     task.kill()
     assert [c.frames for c in opened] == [6] and task.state is TaskState.KILLED

@@ -39,11 +39,11 @@ sys.path_hooks[:] = [h for h in sys.path_hooks if "__editable__" not in getattr(
 sys.path[:] = [p for p in sys.path if "__editable__" not in p]
 '''
 
-PROBE = '''
+PROBE = f"GROUPS = {GROUPS!r}\n" + '''
 import importlib, importlib.metadata, json, sys
 found = {"packages": {name: importlib.import_module(name).__file__ for name in ("pbo_runtime", "rtpu", "modules", "drivers")},
          "entry_points": {}}
-for group in %r:
+for group in GROUPS:
     for point in importlib.metadata.entry_points(group=group):
         loaded = point.load()
         found["entry_points"].setdefault(group, {})[point.name] = [str(point.dist.locate_file("")),
@@ -51,7 +51,7 @@ for group in %r:
 found["imported"] = sorted(str(getattr(m, "__file__", None)) for n, m in list(sys.modules.items())
                            if n.split(".")[0] in ("pbo_runtime", "rtpu", "modules", "drivers"))
 print(json.dumps(found))
-''' % (GROUPS,)
+'''
 
 CHECK_ALL = '''
 import json, sys

@@ -204,7 +204,8 @@ def _tables(section: Section, results: list[dict[str, dict[str, Any]]], per_run:
             if not kept:
                 continue
             t.add(rtpu, what if side == "client" else "none", us(float(np.median([f["p50"] for f in kept]))),
-                  us(float(np.median([f["p99"] for f in kept]))), sum(f["overruns"] for f in kept), f"{sum(f['cycles'] for f in kept):,}")
+                  us(float(np.median([f["p99"] for f in kept]))), sum(f["overruns"] for f in kept),
+                  f"{sum(f['cycles'] for f in kept):,}")
             pooled[side][0] += sum(f["overruns"] for f in kept)
             pooled[side][1] += sum(f["cycles"] for f in kept)
         for r in results:

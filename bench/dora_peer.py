@@ -286,7 +286,8 @@ p99 column mostly measures the hypervisor.""",
         return section
     if "fifo" in schedulers and not fifo_permitted():
         schedulers = tuple(k for k in schedulers if k != "fifo")
-        section.notes.append(f"fifo: not measured: SCHED_FIFO {FIFO_PRIORITY} needs root or a real-time priority limit (ulimit -r)")
+        section.notes.append(f"fifo: not measured: SCHED_FIFO {FIFO_PRIORITY} needs root "
+                             "or a real-time priority limit (ulimit -r)")
         if not schedulers:
             return section
     pooled: dict[tuple[str, str], list[dict[str, Any]]] = {}
@@ -312,7 +313,8 @@ p99 column mostly measures the hypervisor.""",
         dora = figures.get("dora-rs")
         for peer in PEERS:
             if (scheduler, peer) in failed or peer not in figures:
-                table.add(scheduler, LABELS[peer], MEASURES[peer], failed.get((scheduler, peer), "failed"), "", "", "", "", "", "", "", "")
+                table.add(scheduler, LABELS[peer], MEASURES[peer], failed.get((scheduler, peer), "failed"), "",
+                          "", "", "", "", "", "", "")
                 continue
             f = figures[peer]
             r50 = ratio(f["p50"], dora["p50"]) if dora else None
@@ -342,7 +344,8 @@ def _figures(results: list[dict[str, Any]]) -> dict[str, float]:
     latency = np.concatenate([r["latency_ns"] for r in results])
     sent, seen = sum(r["sent"] for r in results), sum(r["seen"] for r in results)
     p50, p99 = percentiles(latency)
-    return {"due": sum(r["due"] for r in results), "sent": sent, "seen": seen, "lost": max(0, sent - seen), "p50": p50, "p99": p99,
+    return {"due": sum(r["due"] for r in results), "sent": sent, "seen": seen,
+            "lost": max(0, sent - seen), "p50": p50, "p99": p99,
             "max": float(latency.max()) if latency.size else float("nan")}
 
 

@@ -463,7 +463,8 @@ class _ZenohEndpoint:
 
         listen, connect = ([spec["endpoint"]], []) if role == "peer" else ([], [spec["endpoint"]])
         self.session = zenoh.open(zenoh_config(listen, connect))
-        write_key, read_key = (f"{spec['key']}/in", f"{spec['key']}/out") if role == "peer" else (f"{spec['key']}/out", f"{spec['key']}/in")
+        inbound, outbound = f"{spec['key']}/in", f"{spec['key']}/out"
+        write_key, read_key = (inbound, outbound) if role == "peer" else (outbound, inbound)
         self.publisher = self.session.declare_publisher(write_key, express=True)
         self.subscriber = self.session.declare_subscriber(read_key)
         n_write, n_read = _words(role)
@@ -621,7 +622,8 @@ def measure(key: str, iterations: int, seconds: float, warmup: int, table_variab
         costs, seqs = answer
         return {"name": contender.name, "status": "ok", "rtt": rtt[:n], "cost": costs[seqs > warmup]}
     except Exception as exc:
-        return {"name": contender.name, "status": f"failed: {type(exc).__name__}: {str(exc).strip().splitlines()[-1] if str(exc).strip() else ''}"}
+        return {"name": contender.name,
+                "status": f"failed: {type(exc).__name__}: {str(exc).strip().splitlines()[-1] if str(exc).strip() else ''}"}
     finally:
         os.sched_setaffinity(0, affinity)
         if process is not None:
@@ -718,12 +720,13 @@ floor and the table gather and scatter, as any task's variables sit anywhere in 
     manager = results.get("manager")
     if manager and base:
         ok = manager["status"] == "ok" and base["status"] == "ok"
-        section.targets.append(Target("Manager dict / pbo table, task cost p50", ratio(float(np.median(manager["cost"])), base_cost) if ok else None,
+        section.targets.append(Target("Manager dict / pbo table, task cost p50",
+                                      ratio(float(np.median(manager["cost"])), base_cost) if ok else None,
                                       100, at_least=True, note="" if ok else manager["status"]))
         if ok:
             section.notes.append(
-                f"Round trip, Manager dict / pbo table: {fmt_ratio(ratio(float(np.median(manager['rtt'])), base_rtt))} (two hand-offs "
-                "between spinning processes; a running subsystem never puts a hand-off on a cycle's path)")
+                f"Round trip, Manager dict / pbo table: {fmt_ratio(ratio(float(np.median(manager['rtt'])), base_rtt))} "
+                "(two hand-offs between spinning processes; a running subsystem never puts a hand-off on a cycle's path)")
     return section
 
 

@@ -45,10 +45,11 @@ def run(tasks: int = 102, repeat: int = 200, check_repeat: int = 5) -> Section:
         method=f"""
 A generated subsystem of {tasks} tasks (check_scale's joint control loops, 4 RTPUs, one
 configuration per loop). Timed: a full `pbo check` of the file (the baseline, median of
-{check_repeat}); importing every module class (once per process, as `pbo lexicon` does); indexing one configuration for placement (writers, const readers, modules and
-devices in use) and resolving every module's ports once (the first query); then one placement
-query of every registered module, and a drop (a task added to the index, every module queried,
-the task removed), each the median of {repeat}.
+{check_repeat}); importing every module class (once per process, as `pbo lexicon` does); indexing
+one configuration for placement (writers, const readers, modules and devices in use) and resolving
+every module's ports once (the first query); then one placement query of every registered module,
+and a drop (a task added to the index, every module queried, the task removed), each the median
+of {repeat}.
 """,
         limits="""A query walks the module's ports with a few dictionary lookups each; the
 index is built once per configuration and kept current by add_task/remove_task, so a drop never

@@ -286,7 +286,8 @@ def paired_round(workers: Workers, yaml_path: Path, n: int, period: float, secon
         try:
             epoch = release_epoch(subsystem)
             first = epoch + math.ceil((on + 0.01 - epoch) / period) * period  # a release of RTPU 0 after the start
-            workers.send_each([(first + phase, on + seconds, cpu) for phase, cpu in zip(bare_phases(where, period), where, strict=True)])
+            phase_cpus = zip(bare_phases(where, period), where, strict=True)
+            workers.send_each([(first + phase, on + seconds, cpu) for phase, cpu in phase_cpus])
             records = workers.answers(seconds + 60)
             said, _ = run.communicate(timeout=120)
         finally:
@@ -632,9 +633,11 @@ def _rows(section: Section, t: Table, r_table: Table, per_round: Table, schedule
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--duration", type=float, default=240.0,
-                        help="seconds of pbo run per RTPU count under the default scheduler (the bare loops run at the same time)")
+                        help="seconds of pbo run per RTPU count under the default scheduler "
+                             "(the bare loops run at the same time)")
     parser.add_argument("--rtpus", type=int, nargs="+", default=[1, 2, 4], choices=[1, 2, 4])
-    parser.add_argument("--rounds", type=int, default=48, help="paired rounds (a pbo run with the bare loops beside it); the duration is split over them")
+    parser.add_argument("--rounds", type=int, default=48,
+                        help="paired rounds (a pbo run with the bare loops beside it); the duration is split over them")
     parser.add_argument("--other-duration", type=float, default=60.0,
                         help="seconds per RTPU count under SCHED_OTHER (--no-fifo), reported beside; 0 leaves it out")
     parser.add_argument("--other-rounds", type=int, default=12, help="rounds under SCHED_OTHER")

@@ -234,7 +234,8 @@ without kills says how many.""",
         table.add(label, len(back), f"{percentiles(back)[0]:.0f}", f"{back.max():.0f}", f"{percentiles(stable)[0]:.0f}",
                   f"{stable.max():.0f}", f"{figures['cold_start'] * 1e3:.0f}", figures["cycles"], figures["missed"],
                   per_10k(figures), figures["overruns"])
-    table.add("no kill (same time on)", 0, "", "", "", "", "", quiet["cycles"], quiet["missed"], per_10k(quiet), quiet["overruns"])
+    table.add("no kill (same time on)", 0, "", "", "", "", "", quiet["cycles"], quiet["missed"],
+              per_10k(quiet), quiet["overruns"])
     section.tables.append(table)
     steps = Table(["phase", "p50 ms", "max ms", "fresh p50 ms", "fresh max ms", "what"], numeric=(1, 2, 3, 4),
                   caption="Where a restart's time goes, per phase (each from the end of the one before):")
@@ -264,7 +265,8 @@ without kills says how many.""",
                          f"({fresh['cycles']:,} cycles)")
     section.notes.append(f"a killed RTPU held the table lock {forked['lock_recoveries']} + {fresh['lock_recoveries']} times "
                          f"(released by job control); the robot's RTPU gave up its wait for it in "
-                         f"{forked['lock_waits_given_up']} + {fresh['lock_waits_given_up']} cycles (its stable behaviour ran instead)")
+                         f"{forked['lock_waits_given_up']} + {fresh['lock_waits_given_up']} cycles "
+                         "(its stable behaviour ran instead)")
     for label, figures in (("kept fork server", forked), ("fresh interpreter", fresh), ("no kill", quiet)):
         if figures["failure"]:
             section.notes.append(f"the run ({label}) failed: {figures['failure']}")

@@ -92,7 +92,8 @@ loses none.""",
     t = Table(["switches", "latency p50 ms", "latency p99 ms", "latency max ms", "skew p50 ms", "skew p99 ms", "skew max ms",
                "longest on one RTPU p50 ms", "longest max ms"], numeric=tuple(range(9)))
     if not records:
-        section.notes.append(f"the run reported no switch (stopped by: {report.get('stopped_by', '?')}; {report.get('failure', '')})")
+        section.notes.append(f"the run reported no switch "
+                             f"(stopped by: {report.get('stopped_by', '?')}; {report.get('failure', '')})")
         section.targets.append(Target(TARGET, None, GOAL, note="no switch was reported"))
         return section
     latency = np.array([s["latency"] for s in records])
@@ -127,8 +128,9 @@ loses none.""",
         if value is not None:
             section.ratios[key] = value
     section.notes.append(f"{len(records):,} of {switches:,} switches done (stopped by: {report.get('stopped_by', '?')}); "
-                         f"latency p50 = {fmt_ratio(section.ratios.get('latency p50 / period'))} the critical task's 1 ms period; "
-                         f"{late} plan(s) read by some RTPU after their activation (applied by it at once, before its next cycle).")
+                         f"latency p50 = {fmt_ratio(section.ratios.get('latency p50 / period'))} "
+                         f"the critical task's 1 ms period; {late} plan(s) read by some RTPU after their activation "
+                         "(applied by it at once, before its next cycle).")
     section.targets.append(Target(TARGET, section.ratios.get("latency p99 / period"),
                                   GOAL, note=f"p50 {fmt_ratio(section.ratios.get('latency p50 / period'))}"))
     if report.get("failure"):

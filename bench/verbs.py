@@ -276,7 +276,8 @@ def run(window: float = 0.6, configs: tuple[str, ...] = (), rounds: int = 1) -> 
     section = Section(
         key="verbs",
         title="Operator verbs on running subsystems",
-        command=f"python -m bench.verbs --window {window:g} --rounds {rounds}" + (f" --configs {','.join(configs)}" if configs else ""),
+        command=f"python -m bench.verbs --window {window:g} --rounds {rounds}"
+                + (f" --configs {','.join(configs)}" if configs else ""),
         method=f"""
 {len(VERBS)} verbs on {len(paths)} configurations: each of configs/ that runs on the real clock
 is started under a name of its own (live changes on), and once it is on the benchmark sends the
@@ -322,7 +323,8 @@ than a period still makes releases late.""",
         missing, base_missing = sum(w.missed > 0 for w in done), sum(w.baseline_missed > 0 for w in done)
         longest = max((w.longest for w in done), default=0.0)
         took = np.array([w.took for w in done]) * 1e3
-        table.add(verb, len(done), holds, base_holds, f"{longest * 1e3:.0f}", f"{max((w.baseline_longest for w in done), default=0.0) * 1e3:.0f}",
+        table.add(verb, len(done), holds, base_holds, f"{longest * 1e3:.0f}",
+                  f"{max((w.baseline_longest for w in done), default=0.0) * 1e3:.0f}",
                   missing, base_missing, f"{np.median(took):.1f}" if done else "", f"{took.max():.1f}" if done else "")
         # a verb is blamed when its windows hold or miss more often than chance allows beside their baselines
         # (one-sided binomial test, p < 0.05 over the verbs: Bonferroni), or hold longer than any baseline did
@@ -331,7 +333,8 @@ than a period still makes releases late.""",
             if p < 0.05 / len(VERBS):
                 blamed.append(f"{verb}: {what} {seen} against {base} in its baselines (p = {p:.2g})")
         if longest > baseline_longest:
-            blamed.append(f"{verb}: a hold of {longest * 1e3:.0f} ms, longer than any in a baseline ({baseline_longest * 1e3:.0f} ms)")
+            blamed.append(f"{verb}: a hold of {longest * 1e3:.0f} ms, "
+                          f"longer than any in a baseline ({baseline_longest * 1e3:.0f} ms)")
     section.tables.append(table)
     per_config = Table(["configuration", "verbs done", "holds (baseline)", "missed (baseline)", "exit", "note"],
                        numeric=(1, 2, 3, 4), caption="Per configuration:")

@@ -164,7 +164,8 @@ def publish(domain: int, topic: str, kind: str, seconds: float, values: list[flo
     elif kind == "sensor_msgs/msg/JointState":
         writer = _writer(participant, f"rt/{topic.lstrip('/')}", JointState)
         half = len(values) // 2  # names' indexes, then positions (velocities the same values): the joints in the order given
-        message = JointState(header=Header(stamp=Time(sec=1, nanosec=0), frame_id=""), name=[f"joint{int(i)}" for i in values[:half]],
+        message = JointState(header=Header(stamp=Time(sec=1, nanosec=0), frame_id=""),
+                             name=[f"joint{int(i)}" for i in values[:half]],
                              position=values[half:], velocity=values[half:], effort=[0.0] * half)
     else:
         writer = _writer(participant, f"rt/{topic.lstrip('/')}", JointTrajectory)

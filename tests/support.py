@@ -530,7 +530,8 @@ def live_demo_copy(folder: Path, subsystem: str) -> Path:
               "           params: {variables: [q_m, q_r, tau_u], path: pid_joint.mcap}}\n")
     for old, new in (("\nsubsystem: puma\n", f"\nsubsystem: {subsystem}\n"), (logger, ""),
                      ("  joint_pid: [robot, traj, pid, logger]\n",
-                      "  joint_pid: [robot, traj, pid]  # the PID loop\n\njobs:\n  hold: {configuration: joint_pid, object: none, timeout: 100 ms}\n"
+                      "  joint_pid: [robot, traj, pid]  # the PID loop\n"
+                      "\njobs:\n  hold: {configuration: joint_pid, object: none, timeout: 100 ms}\n"
                       "\napplications:\n  settle: [hold]\n")):
         assert old in text, old
         text = text.replace(old, new)

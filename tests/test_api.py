@@ -133,7 +133,8 @@ def test_the_hmis_files_are_served_behind_the_token_with_their_media_type(client
     assert served.status_code == 200 and served.headers["content-type"].startswith(media_type)
 
 
-@pytest.mark.parametrize("path", ["../api/app.py", "..%2Fapi%2Fapp.py", "vendor/../../api/auth.py", "vendor/vendored.json.missing",
+@pytest.mark.parametrize("path", ["../api/app.py", "..%2Fapi%2Fapp.py", "vendor/../../api/auth.py",
+                                  "vendor/vendored.json.missing",
                                   "js", "../../../../../etc/passwd"])
 def test_no_file_outside_the_hmis_own_is_served(client, path):
     refused = client.get(f"/static/{path}", headers=BEARER)
@@ -281,7 +282,8 @@ def test_lexicon_check_bus_and_graph_of_the_file_pbo_hmi_was_given(client, subsy
     graph = client.get("/api/graph", params={"config": "pd"}, headers=BEARER)
     assert graph.headers["content-type"] == "image/svg+xml" and b"<svg" in graph.content
     wrong = client.get("/api/bus", params={"config": "nope"}, headers=BEARER)
-    assert wrong.status_code == 400 and wrong.json()["error"] == f"no configuration 'nope' in {subsystem.file} (configurations: pid, pd)"
+    assert wrong.status_code == 400
+    assert wrong.json()["error"] == f"no configuration 'nope' in {subsystem.file} (configurations: pid, pd)"
 
 
 def test_placement_queries_say_which_modules_the_canvas_may_place_and_why_not_the_rest(client):

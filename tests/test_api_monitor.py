@@ -151,7 +151,8 @@ class StatusLink:
 
     def request(self, command: str, arguments: dict[str, Any], timeout: float) -> dict[str, Any]:
         if self.status is None:
-            raise NoRun("no subsystem is running (no live state variable table of yours in /dev/shm): start one with `pbo run FILE`")
+            raise NoRun("no subsystem is running (no live state variable table of yours in /dev/shm): "
+                        "start one with `pbo run FILE`")
         return self.status
 
     def open_table(self) -> TableView:

@@ -77,7 +77,8 @@ def test_an_incomplete_application_is_saved_and_comes_back_as_an_action_requirin
     assert body["message"].startswith(f"application 'approach' saved to {subsystem.file}, incomplete (1 gap(s))")
     assert [w.split("warning[")[1][:4] for w in body["warnings"]] == ["W701"]
     icon = body["dictionary"]["applications"]["approach"]
-    assert icon["class"] == "action_requiring_object" and icon["edges"]["right"] == {"shape": "notch", "object_type": "joint_position"}
+    assert icon["class"] == "action_requiring_object" and icon["edges"]["right"] == {"shape": "notch",
+                                                                                     "object_type": "joint_position"}
     assert check_file(subsystem.file).ok
 
 

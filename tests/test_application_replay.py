@@ -311,7 +311,8 @@ def test_an_rtpu_killed_from_outside_a_simulated_application_is_restarted_and_th
         out, err = run_output(runner, 300)
     assert runner.returncode == 0, said + out + err
     assert "[leader] pbo: RTPU 'rtpu0' restarted: robot, goal, traj, pid, send, logger ON again after 0 ms" in out
-    reports = {key: json.loads((tmp_path / "out" / key / "report.json").read_text()) for key in ("leader", "follower", "operator")}
+    reports = {key: json.loads((tmp_path / "out" / key / "report.json").read_text())
+               for key in ("leader", "follower", "operator")}
     assert [(r["rtpu"], r["pid"], r["cause"]) for r in reports["leader"]["restarts"]] == [("rtpu0", rtpu, "killed by SIGKILL")]
     follower = reports["follower"]["tasks"]["robot"]
     assert follower["state"] == "ON" and follower["cycles"] == reports["follower"]["plant"]["steps"]  # never held up

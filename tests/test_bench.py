@@ -53,7 +53,8 @@ def test_every_benchmark_runs_on_tiny_counts_and_renders_its_tables(tmp_path):
             assert table.rows, f"{section.key}: empty table {table.headers}"
             assert all(len(row) == len(table.headers) for row in table.rows), section.key
         for name, value in section.ratios.items():  # 0 only for a count: an executive without overruns
-            assert (value > 0 or "overrun_rate" in name) and value >= 0 and math.isfinite(value), f"{section.key}: {name} = {value}"
+            assert (value > 0 or "overrun_rate" in name) and value >= 0 and math.isfinite(value), \
+                f"{section.key}: {name} = {value}"
         for target in section.targets:
             assert target.value is None or (target.value >= 0 and math.isfinite(target.value)), target.what
     by_key = {s.key: s for s in sections}

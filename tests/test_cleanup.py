@@ -209,7 +209,8 @@ def test_killing_the_supervisor_leaves_no_process_no_object_and_no_traceback(tmp
     name = "killed_" + moment.replace(",", "").replace(" ", "_")
     file = demo_copy(tmp_path, name)
     if moment == "on, restart policy":
-        file = config_copy(DEMO, tmp_path, name, (("rtpus: [rtpu0, rtpu1]", "rtpus: [rtpu0, rtpu1]\nrestart: {max: 3, within: 10 min}"),))
+        file = config_copy(DEMO, tmp_path, name, (("rtpus: [rtpu0, rtpu1]",
+                                                   "rtpus: [rtpu0, rtpu1]\nrestart: {max: 3, within: 10 min}"),))
     pbo = subprocess.Popen([*PBO, "run", str(file), "--duration", "60", "--no-live", *arguments], cwd=tmp_path,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     with killed_on_failure(pbo):

@@ -499,14 +499,18 @@ def raw_request(server_name: str, reply_name: str, payload: bytes) -> dict[str, 
 
 @pytest.mark.parametrize("request_, error", [
     (["on", {"task": [1, 2]}], r"^task must be named by text, got: a list \(tasks: robot, goal, traj, pid\)$"),
-    (["event", {"task": "goal", "values": "abc"}], r"^the values of an event for 'goal' must be a list of numbers, got: the text 'abc'$"),
+    (["event", {"task": "goal", "values": "abc"}],
+     r"^the values of an event for 'goal' must be a list of numbers, got: the text 'abc'$"),
     (["event", {"task": "pid", "values": [1, 2, 3]}], r"^task 'pid' is periodic: .* \(goal\)$"),
-    (["event", {"task": "goal", "values": [float("nan")] * 6}], r"values must be finite numbers, got: \.nan \(not a number\) \(value 1\)$"),
+    (["event", {"task": "goal", "values": [float("nan")] * 6}],
+     r"values must be finite numbers, got: \.nan \(not a number\) \(value 1\)$"),
     (["job", {"job": "go", "object": [0.0] * 6}], r"^no job 'go' \(jobs: none\)$"),
-    (["switch", {"configuration": {"a": 1}}], r"^configuration must be named by text, got: a mapping \(configurations: operated\)$"),
+    (["switch", {"configuration": {"a": 1}}],
+     r"^configuration must be named by text, got: a mapping \(configurations: operated\)$"),
     (["stop", {"now": True}], r"^'stop' takes no argument 'now' \(its arguments: none\)$"),
     (["fly", {}], r"^unknown command 'fly' \(commands: "),
-    (["status", [1, 2]], r"^malformed request: expected \[command, reply queue, arguments\], got a list of 3 \(str, str, list\)$"),
+    (["status", [1, 2]],
+     r"^malformed request: expected \[command, reply queue, arguments\], got a list of 3 \(str, str, list\)$"),
 ], ids=["task-list", "event-text", "event-periodic", "event-nan", "job-unknown", "switch-mapping", "stop-argument",
         "unknown", "arguments-list"])
 def test_a_malformed_request_on_the_control_queue_is_refused_clearly_never_an_internal_error(goal_run, request_, error):

@@ -235,7 +235,8 @@ def test_a_disk_that_fills_during_the_run_fails_the_log_and_the_report_with_the_
 def test_a_sigkill_of_the_loggers_rtpu_loses_at_most_the_chunk_it_was_filling(tmp_path, name):
     """The log, MCAP or .npy, reads back with every row of the chunks written before the kill (issue 21)."""
     out, report = tmp_path / "out", tmp_path / "report.json"
-    config = demo_copy(tmp_path, f"kill_{name.split('.')[1]}", logger={"params": {"variables": ["q_m", "q_r", "tau_u"], "path": name}})
+    config = demo_copy(tmp_path, f"kill_{name.split('.')[1]}",
+                       logger={"params": {"variables": ["q_m", "q_r", "tau_u"], "path": name}})
     run = subprocess.Popen([*PBO, "run", str(config), "--clock", "sim", "--duration", "0", "--no-live", "--out", str(out),
                             "--report", str(report)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     log = out / name

@@ -145,7 +145,8 @@ def test_a_job_whose_pre_condition_fails_is_refused_with_the_values_it_read(host
 
 def test_a_job_that_times_out_says_its_post_condition_is_still_false(host):
     with pytest.raises(JobFailure, match=r"^job 'reach': timed out after 10 s; post-condition "
-                                         r"'max\(abs\(q_m - q_d\)\) < 0\.01' still false \(q_d = \[ 0\.3, -0\.5, .*; q_m = \[0\., "):
+                                         r"'max\(abs\(q_m - q_d\)\) < 0\.01' still false "
+                                         r"\(q_d = \[ 0\.3, -0\.5, .*; q_m = \[0\., "):
         host.job_control.run_job("reach", {"q_d": GOAL})
     assert host.now() == pytest.approx(10.0, abs=0.02)
 
@@ -233,8 +234,9 @@ def test_an_incomplete_application_given_an_object_fills_each_of_its_gaps_with_i
     host.on_pump = arm_reaches_its_goal_after(0.0)
     host.job_control.run_application("visit")
     assert writes == [("q_d", READY), ("q_d", READY), ("q_d", ELSEWHERE), ("q_d", ELSEWHERE)]
+    visit = ["reach", "settle", "reach", "settle", "hold"]
     assert [line.split(":")[0] for line in host.said if "running in" in line] == [
-        f"job '{job}' (step {n} of 5 of application 'visit')" for n, job in enumerate(["reach", "settle", "reach", "settle", "hold"], 1)]
+        f"job '{job}' (step {n} of 5 of application 'visit')" for n, job in enumerate(visit, 1)]
     assert [(r.before, r.after) for r in host.job_control.switches] == [("pid", "pd"), ("pd", "pid"), ("pid", "pd")]
 
 

@@ -121,7 +121,8 @@ def test_a_task_spawned_into_a_killed_tasks_status_block_keeps_none_of_its_count
     task = make_task(table)
     expected = [0.0] * len(block)
     expected[StatusWord.RELEASE] = 12.5
-    assert block.tolist() == expected and task.status.tolist() == expected[:len(task.status)] and len(task.status) > StatusWord.RELEASE
+    assert block.tolist() == expected
+    assert task.status.tolist() == expected[:len(task.status)] and len(task.status) > StatusWord.RELEASE
     task.spawn(13.0)
     assert table.status[1][StatusWord.STATE] == TaskState.OFF and table.status[1][StatusWord.CYCLES] == 0
 

@@ -93,7 +93,8 @@ def test_switch_and_job_commands_reconfigure_a_running_subsystem(tmp_path):
 
 @pytest.mark.parametrize("clock", ["real", "sim"])
 @pytest.mark.parametrize("verb", ["off", "kill"])
-def test_turning_off_or_killing_the_logger_of_the_running_demo_leaves_its_log_whole_and_the_arm_undisturbed(tmp_path, verb, clock):
+def test_turning_off_or_killing_the_logger_of_the_running_demo_leaves_its_log_whole_and_the_arm_undisturbed(tmp_path, verb,
+                                                                                                           clock):
     subsystem = f"log_{verb}_{clock}"
     report_path = tmp_path / "report.json"
     run = subprocess.Popen([*PBO, "run", str(demo_copy(tmp_path, subsystem)), "--clock", clock, "--duration", "0", "--out",

@@ -122,7 +122,8 @@ def _goal_task(table, domain: int, **params) -> Task:
 
 def test_a_joint_states_task_whose_names_do_not_fit_q_m_fails_its_spawn(make_table):
     table = make_table(variables(("q_m", "float64", (3,)), ("qd_m", "float64", (3,)), ("tau", "float64", (3,))))
-    spec = task_spec(Ros2JointStates, name="states", dims={"NDOF": 3}, params={"joint_names": ["a", "b"], "domain": own_dds_domain()})
+    spec = task_spec(Ros2JointStates, name="states", dims={"NDOF": 3},
+                     params={"joint_names": ["a", "b"], "domain": own_dds_domain()})
     task = Task(spec, Ros2JointStates, table, {"NDOF": 3})
     assert not task.spawn(0.0)
     assert "joint_names must name the 3 joints of q_m, got 2" in task.last_error
@@ -196,16 +197,19 @@ def test_ros2_bridge_publishes_joint_states_at_100_hz_and_takes_its_goal_from_a_
 def test_a_silent_goal_topic_past_its_bound_makes_the_robot_hold_and_the_run_say_so(tmp_path, monkeypatch):
     monkeypatch.setenv("ROS_DOMAIN_ID", str(own_dds_domain()))  # no node publishes there
     config = config_copy(REPO / "configs" / "ros2_bridge.yaml", tmp_path, f"ros2_silent_{os.getpid()}",
-                         replace=(("type: std_msgs/msg/Float64MultiArray}", "type: std_msgs/msg/Float64MultiArray, fresh_within: 0.5}"),))
+                         replace=(("type: std_msgs/msg/Float64MultiArray}",
+                                   "type: std_msgs/msg/Float64MultiArray, fresh_within: 0.5}"),))
     report_path = tmp_path / "report.json"
-    done = subprocess.run([*PBO, "run", str(config), "--clock", "sim", "--duration", "1", "--no-live", "--report", str(report_path)],
+    done = subprocess.run([*PBO, "run", str(config), "--clock", "sim", "--duration", "1", "--no-live",
+                           "--report", str(report_path)],
                           cwd=tmp_path, capture_output=True, text=True, timeout=180)
     assert done.returncode == 2, done.stderr
     assert ("critical task 'robot' runs its locally stable behaviour: a task upstream has no fresh input (its cycle "
             "returned STABLE: a link's item or a topic's message past its bound)") in done.stdout + done.stderr
     report = json.loads(report_path.read_text())
     assert report["faults"] == ["task 'goal' had no fresh input until the stop, from 0.000 s into the run (its cycle returned "
-                                "STABLE: a link's item or a topic's message past its bound), and the critical tasks held meanwhile"]
+                                "STABLE: a link's item or a topic's message past its bound), "
+                                "and the critical tasks held meanwhile"]
     robot = report["tasks"]["robot"]
     assert robot["stable_cycles"] == robot["cycles"] - 1  # held from its second cycle on (the first ran before goal's first)
 
@@ -213,12 +217,14 @@ def test_a_silent_goal_topic_past_its_bound_makes_the_robot_hold_and_the_run_say
 @pytest.mark.parametrize("module", [Ros2Goal, Ros2JointStates])
 def test_a_bridge_task_without_cyclonedds_fails_its_spawn_naming_the_ros2_extra(make_table, monkeypatch, module):
     monkeypatch.setitem(sys.modules, "cyclonedds", None)  # as if never installed: importing it raises ImportError
-    table = make_table(variables(("q_d", "float64", (3,)), ("q_m", "float64", (3,)), ("qd_m", "float64", (3,)), ("tau", "float64", (3,))))
+    table = make_table(variables(("q_d", "float64", (3,)), ("q_m", "float64", (3,)), ("qd_m", "float64", (3,)),
+                                 ("tau", "float64", (3,))))
     spec = task_spec(module, name="bridge", dims={"NDOF": 3}, ports={"value": "q_d"}, params={"domain": own_dds_domain()})
     task = Task(spec, module, table, {"NDOF": 3})
     assert not task.spawn(0.0)
     name = module.__module__.split(".")[-1]  # ros2_goal, ros2_joint_states: the module's name in a YAML file
-    assert f"the {name} module needs the 'ros2' extra (cyclonedds is not installed): pip install 'pbo-runtime[ros2]'" in task.last_error
+    assert (f"the {name} module needs the 'ros2' extra (cyclonedds is not installed): "
+            "pip install 'pbo-runtime[ros2]'") in task.last_error
 
 
 def _without_its_thread(task: Task) -> None:
@@ -234,9 +240,11 @@ def _without_its_thread(task: Task) -> None:
 
 @pytest.mark.parametrize("module", [Ros2JointStates, Ros2Goal])
 def test_a_bridge_tasks_cycle_allocates_nothing(make_table, module):
-    table = make_table(variables(("q_d", "float64", (6,)), ("q_m", "float64", (6,)), ("qd_m", "float64", (6,)), ("tau", "float64", (6,))))
+    table = make_table(variables(("q_d", "float64", (6,)), ("q_m", "float64", (6,)), ("qd_m", "float64", (6,)),
+                                 ("tau", "float64", (6,))))
     dims = {"NDOF": 6}
-    task = Task(task_spec(module, name="bridge", dims=dims, ports={"value": "q_d"}, params={"domain": own_dds_domain()}), module, table, dims)
+    spec = task_spec(module, name="bridge", dims=dims, ports={"value": "q_d"}, params={"domain": own_dds_domain()})
+    task = Task(spec, module, table, dims)
     assert task.spawn(0.0), task.last_error
     assert task.turn_on(0.0), task.last_error
     try:

@@ -34,7 +34,8 @@ from pbo_runtime.task.lifecycle import Task
 from rtpu._executive import Executive
 from pbo_runtime.ipc.shm import children_of, pid_alive
 from pbo_runtime.reports.lexicon import drivers
-from tests.support import (PBO, REPO, RUNS, FakeSignals, Ticker, allocation_peak, arm_tables, assert_nothing_left, killed_on_failure,
+from tests.support import (PBO, REPO, RUNS, FakeSignals, Ticker, allocation_peak, arm_tables,
+                           assert_nothing_left, killed_on_failure,
                            one_array, read_until, robot_state_table, run_output, run_processes, run_until, start_run, task_spec,
                            unique_name, until)
 
@@ -121,7 +122,8 @@ def test_a_batch_of_jacobians_is_one_work_item():
 
 @pytest.mark.multiprocess
 @pytest.mark.parametrize("routine, options, message", [
-    ("fft", {}, r"could not load routine 'fft': ValueError: no routine 'fft' on this processor; routines: jacobian, jacobian_batch"),
+    ("fft", {},
+     r"could not load routine 'fft': ValueError: no routine 'fft' on this processor; routines: jacobian, jacobian_batch"),
     ("jacobian_batch", {"batch": 0}, r"needs option batch, a whole number >= 1, got: 0"),
     ("jacobian", {"frame": "hand"}, r"the arm has no frame 'hand'"),
 ])

@@ -113,7 +113,8 @@ def test_task_status_reads_every_tasks_block(run):
 
 def test_an_unknown_variable_names_the_choices(run):
     subsystem, _ = run()
-    with open_table(subsystem) as view, pytest.raises(KeyError, match=r"no variable 'q_x' in the table of 'svar\w+' \(variables: q_m, n, DH, gain\)"):
+    with (open_table(subsystem) as view,
+          pytest.raises(KeyError, match=r"no variable 'q_x' in the table of 'svar\w+' \(variables: q_m, n, DH, gain\)")):
         view.read("q_x")
 
 
@@ -122,7 +123,8 @@ def test_a_segment_with_a_wrong_magic_fails_clearly():
     name = messages.table_name(subsystem, f"{os.getpid()}-{uuid.uuid4().hex[:6]}")
     _shm_object, mapping = shm.create_segment(name, 4096)
     try:
-        with pytest.raises(TableLayoutError, match=rf"^'{name}' is not a pbo state variable table \(magic 0x0, expected {MAGIC:#x}\)"):
+        with pytest.raises(TableLayoutError,
+                           match=rf"^'{name}' is not a pbo state variable table \(magic 0x0, expected {MAGIC:#x}\)"):
             open_table(subsystem)
     finally:
         mapping.close()

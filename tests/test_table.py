@@ -85,7 +85,8 @@ def test_a_directory_record_with_a_dtype_no_table_holds_is_refused(make_table):
     offset = table.layout.directory_offset
     record = bytearray(table._mapping[offset : offset + DIRECTORY_RECORD])
     record[48:64] = b"complex128".ljust(16, b"\0")
-    with pytest.raises(TableLayoutError, match=r"^table 'T', directory record 0 \('a'\): dtype 'complex128' is not one a table holds \(float64, "):
+    with pytest.raises(TableLayoutError,
+                       match=r"^table 'T', directory record 0 \('a'\): dtype 'complex128' is not one a table holds \(float64, "):
         read_directory("T", bytes(record), 1, 0, DIRECTORY_RECORD, 0)
 
 

@@ -307,7 +307,8 @@ N = PUMA.ndof
 
 
 def controller(make_table, module: type[PortBasedObject], params: dict) -> tuple[Task, StateTable]:
-    table = make_table(variables(*arm_constants(N), ("q_m", "float64", (N,)), ("x_d", "float64", (6,)), ("qd_r", "float64", (N,))))
+    table = make_table(variables(*arm_constants(N), ("q_m", "float64", (N,)), ("x_d", "float64", (6,)),
+                                 ("qd_r", "float64", (N,))))
     table.write("NDOF", N, when=0.0)
     table.write("ARM", PUMA_ARM, when=0.0)
     table.write("EE", PUMA_EE, when=0.0)

@@ -134,8 +134,9 @@ def test_an_objects_value_outside_its_types_range_is_refused_as_pbo_check_refuse
     assert declared is not None
     ranged = text.replace(declared[0], declared[0][:-1] + ", range: [-1, 1]}")
     Path(subsystem.file).write_text(ranged)
-    with pytest.raises(SaveRefused, match=r"^object 'ready' \(type joint_position\): element 3 must be in \[-1, 1\] \(the range of "
-                                          r"object type 'joint_position'\), got: 1\.5$"):
+    with pytest.raises(SaveRefused,
+                       match=r"^object 'ready' \(type joint_position\): element 3 must be in \[-1, 1\] \(the range of "
+                             r"object type 'joint_position'\), got: 1\.5$"):
         save_object(subsystem.file, load_subsystem(subsystem.file), "ready", [0, 0, 1.5, 0, 0, 0])
     assert Path(subsystem.file).read_text() == ranged
 

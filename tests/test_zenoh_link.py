@@ -176,14 +176,16 @@ def test_open_link_chooses_the_transport():
         assert isinstance(messages, ZenohMessageLink)
     with pytest.raises(LinkError, match=r"^transport must be one of shm, zenoh, got: 'udp'$"):
         open_link("udp", name, layout, create=True)
-    with pytest.raises(LinkError, match=r"^link '.*' uses transport 'shm', which takes no port \(those are for transport 'zenoh'\)$"):
+    with pytest.raises(LinkError,
+                       match=r"^link '.*' uses transport 'shm', which takes no port \(those are for transport 'zenoh'\)$"):
         open_link("shm", name, layout, create=True, port=7447)
     with pytest.raises(LinkError, match=r"^link 'pbo/a/b' uses transport 'zenoh' and needs a port"):
         open_link("zenoh", "pbo/a/b", layout, create=True)
 
 
 def test_an_application_links_spec_opens_the_sender_listening_and_the_reader_connecting():
-    spec = {"transport": "zenoh", "key": key("spec"), "endpoint": f"tcp/127.0.0.1:{free_port()}", "dtype": "float64", "shape": [3]}
+    spec = {"transport": "zenoh", "key": key("spec"), "endpoint": f"tcp/127.0.0.1:{free_port()}",
+            "dtype": "float64", "shape": [3]}
     layout = LinkLayout("float64", (3,))
     with open_periodic(spec, layout, "sender") as sender, open_periodic(spec, layout, "reader") as reader:
         assert (sender.owner, reader.owner) == (True, False)
@@ -202,7 +204,8 @@ def test_a_message_to_a_receiver_that_left_is_refused_not_lost():
         until(lambda: sender._publisher.matching_status.matching, "the receiver's subscription")
         receiver.close()
         until(lambda: not sender._publisher.matching_status.matching, "the receiver to leave")
-        with pytest.raises(MessageLinkError, match=rf"^message link '{name}' has no receiver connected: the message was not sent\n  hint: "):
+        with pytest.raises(MessageLinkError,
+                           match=rf"^message link '{name}' has no receiver connected: the message was not sent\n  hint: "):
             sender.send({"x": 1})
 
 
@@ -355,7 +358,8 @@ def test_messages_from_another_process_round_trip_highest_priority_first_and_a_f
         child.start()
         try:
             assert mine.poll(SAFETY_NET)
-            assert mine.recv() == f"{len(BODIES)} message link '{name}' is full: {len(BODIES)} of {len(BODIES)} messages waiting (the sender asked not to wait)"
+            assert mine.recv() == (f"{len(BODIES)} message link '{name}' is full: "
+                                   f"{len(BODIES)} of {len(BODIES)} messages waiting (the sender asked not to wait)")
             until(lambda: receiver.waiting == len(BODIES), "every message in the receiver's queue")
             before = time.monotonic_ns()
             received = [receiver.receive(timeout=0) for _ in BODIES]

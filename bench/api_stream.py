@@ -85,7 +85,7 @@ class StreamingClient:
                     if message.get("ended"):
                         return
                     self.messages += 1
-        except Exception as exc:  # noqa: BLE001 - reported in the section, never a crash of the benchmark
+        except Exception as exc:  # reported in the section, never a crash of the benchmark
             if not self._stop.is_set():
                 self.problem = f"{type(exc).__name__}: {exc}"
 
@@ -183,7 +183,7 @@ machine before judging a few percent.""",
                 except subprocess.TimeoutExpired:
                     server.kill()
                     server.wait()
-    except Exception as exc:  # noqa: BLE001 - a benchmark that cannot run says why in its section
+    except Exception as exc:  # a benchmark that cannot run says why in its section
         section.notes.append(f"not measured: {type(exc).__name__}: {exc}")
         return section
     _tables(section, results, per_run)

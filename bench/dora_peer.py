@@ -301,7 +301,7 @@ p99 column mostly measures the hypervisor.""",
                 fifo = scheduler == "fifo"
                 try:
                     result = dora_round(seconds, fifo=fifo) if peer == "dora-rs" else link_round(peer, seconds, fifo=fifo)
-                except Exception as exc:  # noqa: BLE001 - a way that fails is reported in its row, never a crash
+                except Exception as exc:  # a way that fails is reported in its row, never a crash
                     failed[key] = f"failed: {str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__}"
                     continue
                 pooled.setdefault(key, []).append(result)

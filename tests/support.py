@@ -32,7 +32,7 @@ from pbo_runtime import OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.model import PortBinding, TaskSpec, VariableSpec
 from pbo_runtime.ipc.shm import children_of
-from pbo_runtime.ipc.shm import pid_state as process_state  # noqa: F401 (for the tests)
+from pbo_runtime.ipc.shm import pid_state as process_state  # (for the tests)
 from pbo_runtime.task.lifecycle import Task
 
 REPO = Path(__file__).resolve().parent.parent

@@ -386,7 +386,7 @@ def plant_as(uid: int, files: list[tuple[Path, int, bytes]]) -> None:
                 os.close(descriptor)
             os.write(writer, str(os.geteuid()).encode())
             status = 0
-        except BaseException as exc:  # noqa: BLE001 - reported to the parent through the pipe
+        except BaseException as exc:  # reported to the parent through the pipe
             os.write(writer, repr(exc).encode())
         finally:
             os._exit(status)

@@ -42,8 +42,8 @@ JOINED = BASE.replace("""  tau_u: {type: float64, shape: [NDOF]}
   tau_g: {type: float64, shape: [NDOF]}
 """).replace("ports: {tau: tau_u}}", """params: {gravity_feedforward: false}, ports: {tau: tau_pid}}
   gravity: {module: gravity_compensation, rtpu: rtpu1, period: 1 ms}
-  join:  {module: join, rtpu: rtpu1, period: 1 ms, params: {inputs: [tau_pid, tau_g], combine: sum},
-          ports: {out: tau_u}}""").replace(
+  join:  {module: join, rtpu: rtpu1, period: 1 ms, params: {inputs: [tau_pid, tau_g], combine: sum}, \
+ports: {out: tau_u}}""").replace(
     "params: {kp: 400, kd: 40}, params:", "params:").replace("[robot, traj, pid]", "[robot, traj, pid, gravity, join]")
 
 

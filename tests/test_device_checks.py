@@ -22,8 +22,8 @@ devices:
   dac0: {driver: dac}
   pio0: {driver: parallel_port}
   ft_a: {driver: ft_parallel, io: {device: pio0, channels: 0-7}}
-  ft_b: {driver: ft_analog, io: {device: adc0, channels: 0-5}, calibration: [[1, 0, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0],
-         [0, 0, 1, 0, 0, 0], [0, 0, 0, 1, 0, 0], [0, 0, 0, 0, 1, 0], [0, 0, 0, 0, 0, 1]], offset: [0, 0, 0, 0, 0, 0]}
+  ft_b: {driver: ft_analog, io: {device: adc0, channels: 0-5}, calibration: [[1, 0, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0], \
+[0, 0, 1, 0, 0, 0], [0, 0, 0, 1, 0, 0], [0, 0, 0, 0, 1, 0], [0, 0, 0, 0, 0, 1]], offset: [0, 0, 0, 0, 0, 0]}
 variables:
   v2:  {type: float64, shape: [2]}
   v2b: {type: float64, shape: [2]}

@@ -13,9 +13,9 @@ import math
 import os
 import platform
 import subprocess
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from importlib import metadata
-from typing import Iterable
 
 import numpy as np
 
@@ -176,7 +176,7 @@ def machine_info() -> dict[str, str]:
     load = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
     virt = hypervisor()
     return {
-        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "cpu": f"{cpu_model()}, {os.cpu_count()} CPUs" + (f" ({virt} guest)" if virt else ""),
         "kernel": f"{platform.system()} {platform.release()}",
         "python": f"{platform.python_implementation()} {platform.python_version()}",

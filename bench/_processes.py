@@ -7,9 +7,11 @@ on `conn` until it receives None. The spawn start method gives every worker a fr
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
+from collections.abc import Callable
 from multiprocessing.connection import Connection
-from typing import Any, Callable
+from typing import Any
 
 
 class Workers:
@@ -42,7 +44,7 @@ class Workers:
 
     def send_each(self, commands: list[Any]) -> None:
         """One command per worker, in order."""
-        for here, command in zip(self.pipes, commands):
+        for here, command in zip(self.pipes, commands, strict=True):
             here.send(command)
 
     def answers(self, timeout: float) -> list[Any]:
@@ -54,10 +56,8 @@ class Workers:
 
     def close(self) -> None:
         for here in self.pipes:
-            try:
+            with contextlib.suppress(OSError):
                 here.send(None)
-            except OSError:
-                pass
         for process in self.procs:
             process.join(5)
             if process.is_alive():

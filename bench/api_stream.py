@@ -19,8 +19,9 @@ import subprocess
 import sys
 import tempfile
 import threading
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -85,7 +86,7 @@ class StreamingClient:
                     if message.get("ended"):
                         return
                     self.messages += 1
-        except Exception as exc:  # noqa: BLE001 - reported in the section, never a crash of the benchmark
+        except Exception as exc:  # reported in the section, never a crash of the benchmark
             if not self._stop.is_set():
                 self.problem = f"{type(exc).__name__}: {exc}"
 
@@ -183,7 +184,7 @@ machine before judging a few percent.""",
                 except subprocess.TimeoutExpired:
                     server.kill()
                     server.wait()
-    except Exception as exc:  # noqa: BLE001 - a benchmark that cannot run says why in its section
+    except Exception as exc:  # a benchmark that cannot run says why in its section
         section.notes.append(f"not measured: {type(exc).__name__}: {exc}")
         return section
     _tables(section, results, per_run)
@@ -204,7 +205,8 @@ def _tables(section: Section, results: list[dict[str, dict[str, Any]]], per_run:
             if not kept:
                 continue
             t.add(rtpu, what if side == "client" else "none", us(float(np.median([f["p50"] for f in kept]))),
-                  us(float(np.median([f["p99"] for f in kept]))), sum(f["overruns"] for f in kept), f"{sum(f['cycles'] for f in kept):,}")
+                  us(float(np.median([f["p99"] for f in kept]))), sum(f["overruns"] for f in kept),
+                  f"{sum(f['cycles'] for f in kept):,}")
             pooled[side][0] += sum(f["overruns"] for f in kept)
             pooled[side][1] += sum(f["cycles"] for f in kept)
         for r in results:

@@ -63,9 +63,11 @@ def generate(n_tasks: int) -> str:
         rtpu = f"rtpu{i % 4}"
         lines.append(f"  traj{i}: {{module: joint_trajectory, rtpu: {rtpu}, period: 2 ms, "
                      f"ports: {{q_d: q_d{i}, q_m: q_m{i}, qd_m: qd_m{i}, q_r: q_r{i}, qd_r: qd_r{i}}}}}")
-        lines.append(f"  pid{i}: {{module: pid_joint, rtpu: {rtpu}, period: 1 ms, params: {{kp: 400, kd: 40, gravity_feedforward: false}}, "
+        lines.append(f"  pid{i}: {{module: pid_joint, rtpu: {rtpu}, period: 1 ms, "
+                     f"params: {{kp: 400, kd: 40, gravity_feedforward: false}}, "
                      f"ports: {{q_r: q_r{i}, qd_r: qd_r{i}, q_m: q_m{i}, qd_m: qd_m{i}, tau: tau{i}}}}}")
-        lines.append(f"  log{i}: {{module: data_logger, rtpu: {rtpu}, period: 10 ms, params: {{variables: [tau{i}], path: runs/log{i}.npy}}}}")
+        lines.append(f"  log{i}: {{module: data_logger, rtpu: {rtpu}, period: 10 ms, "
+                     f"params: {{variables: [tau{i}], path: runs/log{i}.npy}}}}")
     lines.append("configurations:")
     for i in range(loops):
         lines.append(f"  loop{i}: [traj{i}, pid{i}, log{i}]")
@@ -163,8 +165,8 @@ the rules' per-task Python work; neither is a local change.""",
     section.notes.append(f"the `pbo check` command on {largest:,} tasks, interpreter start and imports included: "
                          f"median {statistics.median(command):.2f} s of {repeat} (best {min(command):.2f} s)")
     if compose:
-        section.notes.append(f"PyYAML's C loader (yaml.CSafeLoader) only composing the {largest:,}-task file's node graph, before "
-                             f"anything of pbo's runs: median {statistics.median(compose):.2f} s of {repeat}")
+        section.notes.append(f"PyYAML's C loader (yaml.CSafeLoader) only composing the {largest:,}-task file's node graph, "
+                             f"before anything of pbo's runs: median {statistics.median(compose):.2f} s of {repeat}")
     if largest >= GOAL_TASKS:
         median = medians[sizes.index(largest)]
         section.notes.append(f"{largest:,} tasks: median {median:.2f} s (goal of issue 23 for 10,000 tasks: <= {GOAL_S} s) -> "

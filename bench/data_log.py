@@ -10,9 +10,10 @@ fall on all three alike; a round's ratio is taken within the round, the verdict 
 
 Figures for `watch`, from the run report: its release jitter and its execution time (p99), and
 its overruns. The target is on the execution time: the p99 release jitter is a few microseconds
-in every variant (the spin's precision), and ratios of such small figures swing with the machine. The logger's cycle itself (a copy of 24 values into its chunk buffer) is the same
-in both formats, so `mcap / npy` is the cost of encoding MCAP on the cycles of the RTPU's other
-tasks, which this benchmark exists to watch.
+in every variant (the spin's precision), and ratios of such small figures swing with the machine.
+The logger's cycle itself (a copy of 24 values into its chunk buffer) is the same in both formats,
+so `mcap / npy` is the cost of encoding MCAP on the cycles of the RTPU's other tasks, which this
+benchmark exists to watch.
 
     python -m bench.data_log [--seconds 10] [--rounds 6]
 """
@@ -74,9 +75,9 @@ def run(seconds: float = 10.0, rounds: int = 6) -> Section:
 trivial 1 kHz task (`watch`), alone (`none`, the logger spawned but off) or beside a 1 kHz data
 logger of four 6-vectors writing MCAP (4,000 JSON messages a second, zstd chunks, encoded by the
 logger's own process) or, in a copy of the file that differs only in the path, `.npy` (a copy per
-chunk). The three variants spawn the same tasks in the same order. {rounds} rounds, each running the three back to back in a rotated
-order; each ratio is taken within a round, and the table gives the median over the rounds, with
-the rounds' range. The figures are `watch`'s release jitter and execution time, p99, from the run
+chunk). The three variants spawn the same tasks in the same order. {rounds} rounds, each running
+the three back to back in a rotated order; each ratio is taken within a round, and the table gives
+the median over the rounds, with the rounds' range. The figures are `watch`'s release jitter and execution time, p99, from the run
 report: what the logger does to a task it shares an RTPU with. The target is on the execution
 time: the p99 release jitter is a few microseconds in every variant (the spin's precision), so
 its ratios swing with the machine and are shown, not judged. This benchmark, run once on the code
@@ -110,11 +111,13 @@ logger's writer thread.""",
         runs = [r[variant] for r in per_round]
         if not runs:
             continue
-        figures.add(variant, us(statistics.median(r["jitter_p99"] for r in runs)), us(statistics.median(r["exec_p99"] for r in runs)),
+        figures.add(variant, us(statistics.median(r["jitter_p99"] for r in runs)),
+                    us(statistics.median(r["exec_p99"] for r in runs)),
                     sum(r["overruns"] for r in runs), f"{sum(r['logged'] for r in runs):,}",
                     f"{runs[-1]['log_bytes'] / 1024:,.0f} KiB" if runs[-1]["log_bytes"] else "-")
     section.tables.append(figures)
-    ratios = Table(["ratio (within each round)", "jitter p99: median", "range", "exec p99: median", "range"], numeric=(1, 2, 3, 4),
+    ratios = Table(["ratio (within each round)", "jitter p99: median", "range", "exec p99: median", "range"],
+                   numeric=(1, 2, 3, 4),
                    caption="Ratios of the trivial task's p99 figures, taken within each round:")
     medians: dict[str, float | None] = {}
     for over, under in (("npy", "none"), ("mcap", "none"), ("mcap", "npy")):

@@ -25,6 +25,7 @@ whatever happens.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
 import json
 import os
@@ -126,10 +127,8 @@ def stop_session(process: subprocess.Popen) -> None:
     """Stop `dora run` and every node it started, whatever state they are in: SIGTERM, then SIGKILL."""
     for sig in (signal.SIGTERM, signal.SIGKILL):
         for pid in _session(process.pid):
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, sig)
-            except ProcessLookupError:
-                pass
         give_up = time.monotonic() + 3.0
         while _session(process.pid) and time.monotonic() < give_up:
             process.poll()  # reaps `dora run`; the nodes are its children, reaped by it or by init
@@ -287,7 +286,8 @@ p99 column mostly measures the hypervisor.""",
         return section
     if "fifo" in schedulers and not fifo_permitted():
         schedulers = tuple(k for k in schedulers if k != "fifo")
-        section.notes.append(f"fifo: not measured: SCHED_FIFO {FIFO_PRIORITY} needs root or a real-time priority limit (ulimit -r)")
+        section.notes.append(f"fifo: not measured: SCHED_FIFO {FIFO_PRIORITY} needs root "
+                             "or a real-time priority limit (ulimit -r)")
         if not schedulers:
             return section
     pooled: dict[tuple[str, str], list[dict[str, Any]]] = {}
@@ -301,7 +301,7 @@ p99 column mostly measures the hypervisor.""",
                 fifo = scheduler == "fifo"
                 try:
                     result = dora_round(seconds, fifo=fifo) if peer == "dora-rs" else link_round(peer, seconds, fifo=fifo)
-                except Exception as exc:  # noqa: BLE001 - a way that fails is reported in its row, never a crash
+                except Exception as exc:  # a way that fails is reported in its row, never a crash
                     failed[key] = f"failed: {str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__}"
                     continue
                 pooled.setdefault(key, []).append(result)
@@ -313,7 +313,8 @@ p99 column mostly measures the hypervisor.""",
         dora = figures.get("dora-rs")
         for peer in PEERS:
             if (scheduler, peer) in failed or peer not in figures:
-                table.add(scheduler, LABELS[peer], MEASURES[peer], failed.get((scheduler, peer), "failed"), "", "", "", "", "", "", "", "")
+                table.add(scheduler, LABELS[peer], MEASURES[peer], failed.get((scheduler, peer), "failed"), "",
+                          "", "", "", "", "", "", "")
                 continue
             f = figures[peer]
             r50 = ratio(f["p50"], dora["p50"]) if dora else None
@@ -343,7 +344,8 @@ def _figures(results: list[dict[str, Any]]) -> dict[str, float]:
     latency = np.concatenate([r["latency_ns"] for r in results])
     sent, seen = sum(r["sent"] for r in results), sum(r["seen"] for r in results)
     p50, p99 = percentiles(latency)
-    return {"due": sum(r["due"] for r in results), "sent": sent, "seen": seen, "lost": max(0, sent - seen), "p50": p50, "p99": p99,
+    return {"due": sum(r["due"] for r in results), "sent": sent, "seen": seen,
+            "lost": max(0, sent - seen), "p50": p50, "p99": p99,
             "max": float(latency.max()) if latency.size else float("nan")}
 
 

@@ -20,6 +20,7 @@ and reads what happened from the run's report and log:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import signal
@@ -27,9 +28,9 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import yaml
@@ -132,10 +133,8 @@ def plant_process(pid: int) -> int:
 
 
 def resume(pid: int) -> None:
-    try:
+    with contextlib.suppress(ProcessLookupError):  # the supervisor killed it
         os.kill(pid, signal.SIGCONT)
-    except ProcessLookupError:  # the supervisor killed it
-        pass
 
 
 @dataclass(frozen=True)

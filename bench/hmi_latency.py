@@ -161,7 +161,7 @@ never showed (a later one overtook it between two frames) is counted apart.""",
                     shown[case] = one_case(browser, folder, file, CASES[case][0], writes)
             finally:
                 browser.close()
-    except Exception as exc:  # noqa: BLE001 - a benchmark that cannot run says why in its section
+    except Exception as exc:  # a benchmark that cannot run says why in its section
         section.notes.append(f"not measured: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
         if not shown:
             return section

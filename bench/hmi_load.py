@@ -38,7 +38,7 @@ class PageClient:
         try:
             specs = [{"a": name, "b": None, "index": 0} for name in api_stream.VARIABLES]
             self._page = self.browser.open_monitor(self.url, specs, RATE, wait=False)
-        except Exception as exc:  # noqa: BLE001 - reported in the section
+        except Exception as exc:  # reported in the section
             self.problem = f"{type(exc).__name__}: {str(exc).splitlines()[0]}"
         return self
 
@@ -47,7 +47,7 @@ class PageClient:
             return
         try:
             self.messages = int(self._page.evaluate("() => (window.pboMonitor.plot || {samples: 0}).samples"))
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             self.problem = f"{type(exc).__name__}: {str(exc).splitlines()[0]}"
         self._page.close()
 
@@ -96,7 +96,7 @@ runs; read the medians over the rounds, and rerun on a quiet machine before judg
                     server.kill()
                     server.wait()
                 browser.close()
-    except Exception as exc:  # noqa: BLE001 - a benchmark that cannot run says why in its section
+    except Exception as exc:  # a benchmark that cannot run says why in its section
         section.notes.append(f"not measured: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
         return section
     api_stream._tables(section, results, per_run, who="the page plotting", what="page: 10 variables at 100 Hz",

@@ -405,8 +405,10 @@ def measure(mechanism: str, nbytes: int, items: int, periods: tuple[int, int],
     start, finished = FORK.Barrier(2), FORK.RawValue("b", 0)
     pipes = {side: FORK.Pipe(duplex=False) for side in ("write", "read")}
     children = {
-        "write": FORK.Process(target=_sender, args=(contender, nbytes, items, periods[0], start, finished, pipes["write"][1], sleep)),
-        "read": FORK.Process(target=_reader, args=(contender, nbytes, items, periods[1], start, finished, pipes["read"][1], sleep)),
+        "write": FORK.Process(target=_sender, args=(contender, nbytes, items, periods[0], start, finished,
+                                                    pipes["write"][1], sleep)),
+        "read": FORK.Process(target=_reader, args=(contender, nbytes, items, periods[1], start, finished,
+                                                   pipes["read"][1], sleep)),
     }
     try:
         for child in children.values():
@@ -475,14 +477,16 @@ def run(quick: bool = False, items: int | None = None, back_to_back: bool = Fals
 
 
 def table(rows: list[dict]) -> str:
-    headers = ("payload", "period µs", "mechanism", "side", "ops", "items", "p50 µs", "p99 µs", "max µs", "p50 x", "p99 x", "max x")
+    headers = ("payload", "period µs", "mechanism", "side", "ops", "items", "p50 µs", "p99 µs", "max µs",
+               "p50 x", "p99 x", "max x")
     lines = [
         f"Link latency between two processes ({os.cpu_count()} CPUs, {platform.python_implementation()} "
         f"{platform.python_version()}); x = ratio to the triple buffer, same payload and side",
         "period: of the side's calls (0: back to back); items: written by the sender, newest items the reader got",
     ]
     body = [
-        (r["payload"], f"{r['sender_period_us' if r['side'] == 'write' else 'reader_period_us']:g}", r["mechanism"], r["side"], str(r["operations"]), str(r["items"]), f"{r['p50_us']:.2f}",
+        (r["payload"], f"{r['sender_period_us' if r['side'] == 'write' else 'reader_period_us']:g}", r["mechanism"], r["side"],
+         str(r["operations"]), str(r["items"]), f"{r['p50_us']:.2f}",
          f"{r['p99_us']:.2f}", f"{r['max_us']:.1f}", f"{r['p50_ratio']:.2f}", f"{r['p99_ratio']:.2f}", f"{r['max_ratio']:.2f}")
         for r in rows
     ]
@@ -517,13 +521,13 @@ if __name__ == "__main__":
 
 def section(quick: bool = False, rounds: int | None = None):
     """The benchmark as a section of docs/performance.md (`python -m bench` runs it)."""
-    from bench._common import Section, Table
-
     # In a fresh interpreter: the runner's process has threads by now (other benchmarks'), and
     # this benchmark forks its two ends.
     import json
     import subprocess
     import sys
+
+    from bench._common import Section, Table
 
     code = f"import json; from bench.links import run; print(json.dumps(run(quick={quick!r}, rounds={rounds!r})))"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900, check=True)

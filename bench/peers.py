@@ -27,6 +27,7 @@ Both sides spin on their transport's non-blocking read on two different CPUs, yi
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ctypes
 import glob
 import importlib.util
@@ -38,8 +39,9 @@ import shutil
 import socket
 import time
 import traceback
+from collections.abc import Callable
 from multiprocessing.connection import Connection
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import posix_ipc
@@ -122,7 +124,7 @@ class _TableEndpoint:
         module = PeerSide if role == "peer" else BenchTask
         bindings = tuple(PortBinding(p, p.variable, (SIZE,)) for p in module.ports())
         local = LocalTable(table, bindings, task_index=0 if role == "peer" else 1)
-        arrays = dict(zip((b.variable for b in bindings), local.port_arrays))
+        arrays = dict(zip((b.variable for b in bindings), local.port_arrays, strict=True))
         mine, theirs = ("a", "x") if role == "peer" else ("x", "a")
         self.stamp, self.read_first = arrays[mine], arrays[theirs]
         self.read, self.write = local.read_inputs, local.write_outputs
@@ -163,10 +165,8 @@ class FloorContender:
 
     def teardown(self, spec: dict[str, Any]) -> None:
         for kind, name in (("shm", spec["shm"]), ("sem", spec["sem"])):
-            try:
+            with contextlib.suppress(posix_ipc.ExistentialError):
                 (posix_ipc.unlink_shared_memory if kind == "shm" else posix_ipc.unlink_semaphore)(name)
-            except posix_ipc.ExistentialError:
-                pass
 
 
 class _FloorEndpoint:
@@ -320,10 +320,8 @@ class ZmqContender:
         return _ZmqEndpoint(spec["address"], role)
 
     def teardown(self, spec: dict[str, Any]) -> None:
-        try:
+        with contextlib.suppress(FileNotFoundError):
             os.unlink(self.path)
-        except FileNotFoundError:
-            pass
 
 
 class _ZmqEndpoint:
@@ -372,10 +370,8 @@ class Iceoryx2Contender:
     def teardown(self, spec: dict[str, Any]) -> None:
         # iceoryx2 leaves its global management segment (and /tmp/iceoryx2) behind: remove what we made.
         for path in set(glob.glob("/dev/shm/iox2_*")) - self.before:
-            try:
+            with contextlib.suppress(OSError):
                 os.unlink(path)
-            except OSError:
-                pass
         if not self.tmp_existed:
             shutil.rmtree("/tmp/iceoryx2", ignore_errors=True)
 
@@ -468,7 +464,8 @@ class _ZenohEndpoint:
 
         listen, connect = ([spec["endpoint"]], []) if role == "peer" else ([], [spec["endpoint"]])
         self.session = zenoh.open(zenoh_config(listen, connect))
-        write_key, read_key = (f"{spec['key']}/in", f"{spec['key']}/out") if role == "peer" else (f"{spec['key']}/out", f"{spec['key']}/in")
+        inbound, outbound = f"{spec['key']}/in", f"{spec['key']}/out"
+        write_key, read_key = (inbound, outbound) if role == "peer" else (outbound, inbound)
         self.publisher = self.session.declare_publisher(write_key, express=True)
         self.subscriber = self.session.declare_subscriber(read_key)
         n_write, n_read = _words(role)
@@ -626,7 +623,8 @@ def measure(key: str, iterations: int, seconds: float, warmup: int, table_variab
         costs, seqs = answer
         return {"name": contender.name, "status": "ok", "rtt": rtt[:n], "cost": costs[seqs > warmup]}
     except Exception as exc:
-        return {"name": contender.name, "status": f"failed: {type(exc).__name__}: {str(exc).strip().splitlines()[-1] if str(exc).strip() else ''}"}
+        return {"name": contender.name,
+                "status": f"failed: {type(exc).__name__}: {str(exc).strip().splitlines()[-1] if str(exc).strip() else ''}"}
     finally:
         os.sched_setaffinity(0, affinity)
         if process is not None:
@@ -723,12 +721,13 @@ floor and the table gather and scatter, as any task's variables sit anywhere in 
     manager = results.get("manager")
     if manager and base:
         ok = manager["status"] == "ok" and base["status"] == "ok"
-        section.targets.append(Target("Manager dict / pbo table, task cost p50", ratio(float(np.median(manager["cost"])), base_cost) if ok else None,
+        section.targets.append(Target("Manager dict / pbo table, task cost p50",
+                                      ratio(float(np.median(manager["cost"])), base_cost) if ok else None,
                                       100, at_least=True, note="" if ok else manager["status"]))
         if ok:
             section.notes.append(
-                f"Round trip, Manager dict / pbo table: {fmt_ratio(ratio(float(np.median(manager['rtt'])), base_rtt))} (two hand-offs "
-                "between spinning processes; a running subsystem never puts a hand-off on a cycle's path)")
+                f"Round trip, Manager dict / pbo table: {fmt_ratio(ratio(float(np.median(manager['rtt'])), base_rtt))} "
+                "(two hand-offs between spinning processes; a running subsystem never puts a hand-off on a cycle's path)")
     return section
 
 

@@ -12,16 +12,17 @@ module under 10 ms for a subsystem of 100 tasks.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from bench._common import Section, Table
 from bench.check_scale import generate
-from pbo_runtime.config.loader import check_file
 from pbo_runtime.analysis.placement import Placement
+from pbo_runtime.config.loader import check_file
 from pbo_runtime.objects import registry
 
 TARGET_S = 0.010  # one query of every lexicon module (issue 19)
@@ -44,10 +45,11 @@ def run(tasks: int = 102, repeat: int = 200, check_repeat: int = 5) -> Section:
         method=f"""
 A generated subsystem of {tasks} tasks (check_scale's joint control loops, 4 RTPUs, one
 configuration per loop). Timed: a full `pbo check` of the file (the baseline, median of
-{check_repeat}); importing every module class (once per process, as `pbo lexicon` does); indexing one configuration for placement (writers, const readers, modules and
-devices in use) and resolving every module's ports once (the first query); then one placement
-query of every registered module, and a drop (a task added to the index, every module queried,
-the task removed), each the median of {repeat}.
+{check_repeat}); importing every module class (once per process, as `pbo lexicon` does); indexing
+one configuration for placement (writers, const readers, modules and devices in use) and resolving
+every module's ports once (the first query); then one placement query of every registered module,
+and a drop (a task added to the index, every module queried, the task removed), each the median
+of {repeat}.
 """,
         limits="""A query walks the module's ports with a few dictionary lookups each; the
 index is built once per configuration and kept current by add_task/remove_task, so a drop never
@@ -66,10 +68,8 @@ parameters) once.""",
         raise RuntimeError("the generated subsystem does not check: " + "; ".join(e.format() for e in result.errors))
     t0 = time.perf_counter()
     for name in modules:  # what any first use of the library costs a process, lexicon and check alike
-        try:
+        with contextlib.suppress(Exception):  # a broken library is a verdict of its own, below
             registry.module_class(name)
-        except Exception:  # a broken library is a verdict of its own, below
-            pass
     import_s = time.perf_counter() - t0
     configuration = next(iter(subsystem.configurations))
     members = subsystem.configurations[configuration].tasks

@@ -53,6 +53,7 @@ the targets judge; then under SCHED_OTHER (`pbo run --no-fifo`), reported beside
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -71,13 +72,13 @@ import yaml
 
 from bench._common import REPO, Section, Table, Target, fmt_ratio, ratio, us
 from bench._processes import Workers
-from pbo_runtime.ipc import messages
 from pbo_runtime.clock.clocks import RealClock, lower_timer_slack, release_stagger
-from pbo_runtime.reports.run_summary import scheduler_outcome
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import DEFAULT_SPIN
+from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.control import find_live_run
 from pbo_runtime.ipc.shm import attach_segment
+from pbo_runtime.reports.run_summary import scheduler_outcome
 from pbo_runtime.supervisor.cleanup import remove_run
 from pbo_runtime.table.table import Header
 from rtpu._realtime import FIFO_PRIORITY  # as the RTPUs take it (the plant host takes its own, above)
@@ -99,10 +100,8 @@ def _bare_main(period: float, fifo: bool, conn: Connection) -> None:
     """
     lower_timer_slack()
     if fifo:
-        try:
+        with contextlib.suppress(OSError, AttributeError):
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
-        except (OSError, AttributeError):
-            pass
     clock = RealClock(SPIN)
     every_cpu = os.sched_getaffinity(0)
     conn.send("ready")
@@ -111,10 +110,8 @@ def _bare_main(period: float, fifo: bool, conn: Connection) -> None:
         if command is None:
             return
         first_release, end, cpu = command  # set once every loop is ready: a slow start must not count as jitter
-        try:
+        with contextlib.suppress(OSError, ValueError):  # as an RTPU refused its CPU, it runs on where it is
             os.sched_setaffinity(0, every_cpu if cpu is None else {cpu})
-        except (OSError, ValueError):
-            pass  # as an RTPU refused its CPU, it runs on where it is
         conn.send(_bare_stretch(clock, period, first_release, end))
 
 
@@ -253,7 +250,7 @@ def pinned_config(yaml_path: Path, cpus: list[int], folder: Path) -> tuple[Path,
     """A copy of the benchmark's file with RTPU i pinned to `cpus[i]` (`rtpus: {name: {cpu: N}}`), and its subsystem's name."""
     document = yaml.safe_load(yaml_path.read_text())
     names = list(document["rtpus"])
-    document["rtpus"] = {name: {"cpu": cpu} for name, cpu in zip(names, cpus)}
+    document["rtpus"] = {name: {"cpu": cpu} for name, cpu in zip(names, cpus, strict=True)}
     pinned = folder / yaml_path.name
     pinned.write_text(yaml.safe_dump(document, sort_keys=False))
     return pinned, document["subsystem"]
@@ -291,7 +288,8 @@ def paired_round(workers: Workers, yaml_path: Path, n: int, period: float, secon
         try:
             epoch = release_epoch(subsystem)
             first = epoch + math.ceil((on + 0.01 - epoch) / period) * period  # a release of RTPU 0 after the start
-            workers.send_each([(first + phase, on + seconds, cpu) for phase, cpu in zip(bare_phases(where, period), where)])
+            phase_cpus = zip(bare_phases(where, period), where, strict=True)
+            workers.send_each([(first + phase, on + seconds, cpu) for phase, cpu in phase_cpus])
             records = workers.answers(seconds + 60)
             said, _ = run.communicate(timeout=120)
         finally:
@@ -392,7 +390,7 @@ def measure(n: int, seconds: float, fifo: bool, rounds: int = 8) -> dict[str, An
                 if cpu not in seen:
                     seen.append(cpu)
                 realtime[rtpu] = {**settings, "cpu": " then ".join(seen)}
-    return {"pbo": _over_rounds(pbo_runs), "bare": _over_rounds(bare_runs), "rounds": list(zip(pbo_runs, bare_runs)),
+    return {"pbo": _over_rounds(pbo_runs), "bare": _over_rounds(bare_runs), "rounds": list(zip(pbo_runs, bare_runs, strict=True)),
             "exec_p50": float(np.median(exec_p50s)), "plant_late": (plant_late, plant_steps), "realtime": realtime}
 
 
@@ -637,9 +635,11 @@ def _rows(section: Section, t: Table, r_table: Table, per_round: Table, schedule
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--duration", type=float, default=240.0,
-                        help="seconds of pbo run per RTPU count under the default scheduler (the bare loops run at the same time)")
+                        help="seconds of pbo run per RTPU count under the default scheduler "
+                             "(the bare loops run at the same time)")
     parser.add_argument("--rtpus", type=int, nargs="+", default=[1, 2, 4], choices=[1, 2, 4])
-    parser.add_argument("--rounds", type=int, default=48, help="paired rounds (a pbo run with the bare loops beside it); the duration is split over them")
+    parser.add_argument("--rounds", type=int, default=48,
+                        help="paired rounds (a pbo run with the bare loops beside it); the duration is split over them")
     parser.add_argument("--other-duration", type=float, default=60.0,
                         help="seconds per RTPU count under SCHED_OTHER (--no-fifo), reported beside; 0 leaves it out")
     parser.add_argument("--other-rounds", type=int, default=12, help="rounds under SCHED_OTHER")

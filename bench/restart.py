@@ -16,6 +16,7 @@ releases there are the machine's. Each run's cold start is its same-run baseline
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import signal
@@ -156,14 +157,14 @@ def measure(kills: int, fresh: bool = False, quiet_windows: bool = False) -> dic
     origin = report["started_monotonic"]
     phases: dict[str, list[float]] = {phase: [] for phase in PHASES}
     stable = []
-    for kill, restart in zip(killed_at, report["restarts"]):
+    for kill, restart in zip(killed_at, report["restarts"], strict=True):
         marks = [kill] + [origin + restart[key] for key in ("died_at", "launched_at", "ready_at", "spawned_at", "on_again_at")]
-        for phase, (begin, end) in zip(PHASES, zip(marks, marks[1:])):
+        for phase, (begin, end) in zip(PHASES, itertools.pairwise(marks), strict=True):
             phases[phase].append(end - begin)
         held = [e for e in report["stable_episodes"]
                 if e["task"] == "robot" and kill <= e["from"] <= marks[-1] and e["to"] is not None]
         stable.append(sum(e["to"] - e["from"] for e in held) / ROBOT_PERIOD)
-    back = [restart["on_again_at"] + origin - kill for kill, restart in zip(killed_at, report["restarts"])]
+    back = [restart["on_again_at"] + origin - kill for kill, restart in zip(killed_at, report["restarts"], strict=True)]
     return {"cold_start": cold_start, "phases": phases, "back": back, "stable": stable, "windows": windows,
             "restarts": len(report["restarts"]), **robot_figures(report)}
 
@@ -233,7 +234,8 @@ without kills says how many.""",
         table.add(label, len(back), f"{percentiles(back)[0]:.0f}", f"{back.max():.0f}", f"{percentiles(stable)[0]:.0f}",
                   f"{stable.max():.0f}", f"{figures['cold_start'] * 1e3:.0f}", figures["cycles"], figures["missed"],
                   per_10k(figures), figures["overruns"])
-    table.add("no kill (same time on)", 0, "", "", "", "", "", quiet["cycles"], quiet["missed"], per_10k(quiet), quiet["overruns"])
+    table.add("no kill (same time on)", 0, "", "", "", "", "", quiet["cycles"], quiet["missed"],
+              per_10k(quiet), quiet["overruns"])
     section.tables.append(table)
     steps = Table(["phase", "p50 ms", "max ms", "fresh p50 ms", "fresh max ms", "what"], numeric=(1, 2, 3, 4),
                   caption="Where a restart's time goes, per phase (each from the end of the one before):")
@@ -263,7 +265,8 @@ without kills says how many.""",
                          f"({fresh['cycles']:,} cycles)")
     section.notes.append(f"a killed RTPU held the table lock {forked['lock_recoveries']} + {fresh['lock_recoveries']} times "
                          f"(released by job control); the robot's RTPU gave up its wait for it in "
-                         f"{forked['lock_waits_given_up']} + {fresh['lock_waits_given_up']} cycles (its stable behaviour ran instead)")
+                         f"{forked['lock_waits_given_up']} + {fresh['lock_waits_given_up']} cycles "
+                         "(its stable behaviour ran instead)")
     for label, figures in (("kept fork server", forked), ("fresh interpreter", fresh), ("no kill", quiet)):
         if figures["failure"]:
             section.notes.append(f"the run ({label}) failed: {figures['failure']}")

@@ -141,7 +141,8 @@ swings of the counts and the jitter can be larger than the bridge's cost.""",
             if len(round_figures) == len(VARIANTS):
                 per_round.append(round_figures)
     figures = Table(["variant", "missed + overruns (sum)", "pid jitter p99 / max, µs (median)",
-                     "robot jitter p99 / max, µs (median)", "joint_states cycle p99 / max, µs (median)", "JointStates published (sum)"],
+                     "robot jitter p99 / max, µs (median)", "joint_states cycle p99 / max, µs (median)",
+                     "JointStates published (sum)"],
                     numeric=(1, 2, 3, 4, 5), caption=f"{len(per_round)} rounds of {seconds:g} s each; missed releases and "
                     f"overruns of {', '.join(COMMON)}:")
     for variant in VARIANTS:
@@ -149,14 +150,15 @@ swings of the counts and the jitter can be larger than the bridge's cost.""",
         if runs:
             jitter = [f"{us(statistics.median(r[f'{name} jitter_p99'] for r in runs))} / "
                       f"{us(statistics.median(r[f'{name} jitter_max'] for r in runs))}" for name in TASKS]
-            bridge = (f"{us(statistics.median(r['bridge exec'][0] for r in runs))} / {us(statistics.median(r['bridge exec'][1] for r in runs))}"
-                      if variant == "with" else "-")
+            bridge = (f"{us(statistics.median(r['bridge exec'][0] for r in runs))} / "
+                      f"{us(statistics.median(r['bridge exec'][1] for r in runs))}" if variant == "with" else "-")
             figures.add(variant, sum(r["missed"] for r in runs), *jitter, bridge, f"{sum(r['published'] for r in runs):,}")
     section.tables.append(figures)
     ratios = Table(["ratio with / without (within each round)", "median", "range"], numeric=(1, 2),
                    caption="Ratios taken within each round (missed + overruns: against at least one):")
     medians: dict[str, float | None] = {}
-    for key, of_round in [("overrun_rate (missed + overruns)", lambda r: count_ratio(r["with"]["missed"], r["without"]["missed"])),
+    for key, of_round in [("overrun_rate (missed + overruns)",
+                           lambda r: count_ratio(r["with"]["missed"], r["without"]["missed"])),
                           *[(f"{name} jitter_p99", lambda r, k=f"{name} jitter_p99": ratio(r["with"][k], r["without"][k]))
                             for name in TASKS]]:
         values = [v for r in per_round if (v := of_round(r)) is not None]

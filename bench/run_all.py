@@ -13,13 +13,35 @@ import argparse
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
-from bench import (api_stream, check_scale, data_log, dora_peer, faults, helper_threads, hmi_latency, hmi_load, links, peers,
-                   placement, realtime, restart, robot_limits, ros2_bridge, scale, sim_speed, startup, svar_transfer, switching, wait)
+from bench import (
+    api_stream,
+    check_scale,
+    data_log,
+    dora_peer,
+    faults,
+    helper_threads,
+    hmi_latency,
+    hmi_load,
+    links,
+    peers,
+    placement,
+    realtime,
+    restart,
+    robot_limits,
+    ros2_bridge,
+    scale,
+    sim_speed,
+    startup,
+    svar_transfer,
+    switching,
+    verbs,
+    wait,
+)
 from bench._common import REPO, Section, Table, machine_info
-from bench import verbs
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
     "svar_transfer": svar_transfer.run,
@@ -196,7 +218,8 @@ def main(argv: list[str] | None = None) -> int:
     if out:
         command = "python -m bench" + (" --quick" if args.quick else "") + (f" --only {args.only}" if only else "")
         Path(out).write_text(render(sections, info, command, elapsed))
-        print(f"wrote {os.path.relpath(out)}" + (f" and {os.path.relpath(plot_path)}" if plot_path and Path(plot_path).exists() else ""))
+        plotted = f" and {os.path.relpath(plot_path)}" if plot_path and Path(plot_path).exists() else ""
+        print(f"wrote {os.path.relpath(out)}{plotted}")
     missed = [t for s in sections for t in s.targets if t.met is False]
     print(f"{sum(len(s.targets) for s in sections)} targets: {len(missed)} not met; {elapsed:.0f} s")
     return 0

@@ -20,8 +20,9 @@ import argparse
 import multiprocessing
 import os
 import time
+from collections.abc import Callable
 from multiprocessing.connection import Connection
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -73,7 +74,8 @@ def table_size_curve(rounds: int, iterations: int, sizes: tuple[int, ...] = TABL
         floor.close()
 
 
-def port_curve(rounds: int, iterations: int, counts: tuple[int, ...] = PORT_COUNTS, filler: int = 1000) -> dict[int, tuple[float, float, int, int]]:
+def port_curve(rounds: int, iterations: int, counts: tuple[int, ...] = PORT_COUNTS,
+               filler: int = 1000) -> dict[int, tuple[float, float, int, int]]:
     """Per port count: (pbo ns, floor ns for the same words, in-vars, out-vars)."""
     top = max(counts)
     names = [f"p{i}" for i in range(top)] + [f"filler{i}" for i in range(filler)]
@@ -160,7 +162,8 @@ def _rtpu_main(table_name: str, n_rtpus: int, tasks: int, rtpu: int, cycles: int
         table.close()
 
 
-def rtpu_curve(seconds: float, counts: tuple[int, ...] = RTPU_COUNTS, tasks: int = TASKS_PER_RTPU) -> dict[tuple[int, str], np.ndarray]:
+def rtpu_curve(seconds: float, counts: tuple[int, ...] = RTPU_COUNTS,
+               tasks: int = TASKS_PER_RTPU) -> dict[tuple[int, str], np.ndarray]:
     """Per (RTPUs, 'aligned'|'staggered'): every transfer's ns."""
     ctx = multiprocessing.get_context("spawn")
     cycles = max(10, int(seconds / PERIOD))
@@ -233,7 +236,8 @@ def plot(path: str, sizes: dict, ports: dict, tasks: dict, rtpus: dict) -> None:
         ax.plot(xs, [np.percentile(rtpus[k], 99) / 1e3 for k in key], marker, label=f"p99, {mode}")
     xs = sorted({n for n, _ in rtpus})
     ax.plot(xs, [np.percentile(rtpus[(n, "aligned")], 50) / 1e3 for n in xs], "^:", label="p50, aligned")
-    ax.set(yscale="log", xlabel="RTPUs (10 tasks each, 1 kHz)", ylabel="µs per transfer", title="RTPUs sharing the lock", xticks=xs)
+    ax.set(yscale="log", xlabel="RTPUs (10 tasks each, 1 kHz)", ylabel="µs per transfer",
+           title="RTPUs sharing the lock", xticks=xs)
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -322,7 +326,8 @@ offsets keeps transfers apart.""",
         r = ratio(p99, base99)
         section.ratios[f"rtpus {n} {mode} p99 / 1"] = r or float("nan")
         slow = float(np.mean(samples > 20_000)) * 100
-        t.add(n, mode if n > 1 else "-", f"{samples.size:,}", us(p50, ns=True), us(p99, ns=True), us(float(samples.max()), ns=True),
+        t.add(n, mode if n > 1 else "-", f"{samples.size:,}", us(p50, ns=True), us(p99, ns=True),
+              us(float(samples.max()), ns=True),
               f"{slow:.2f}%", fmt_ratio(r))
     section.tables.append(t)
     section.ratios = {k: v for k, v in section.ratios.items() if v == v}  # drop the unmeasurable (nan)

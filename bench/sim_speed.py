@@ -170,7 +170,7 @@ def _one_process_figures(section: Section, results: list[dict[str, Any]], in_one
                        "speed (whole process)"], numeric=(2, 3, 4, 5),
                       caption="The same runs with processes and in one process (`--one-process`), whole process "
                               "measured from outside (start-up included):")
-        for index, (processes, one) in enumerate(zip(results, in_one)):
+        for index, (processes, one) in enumerate(zip(results, in_one, strict=True)):
             for mode, r in (("processes", processes), ("one process", one)):
                 table.add(index + 1, mode, f"{r['duration']:.2f}", f"{r['running']:.2f}", f"{r['process']:.2f}",
                           fmt_ratio(r["duration"] / r["process"]))
@@ -178,7 +178,7 @@ def _one_process_figures(section: Section, results: list[dict[str, Any]], in_one
             table.add("goal", "one process", f"{long_one['duration']:.2f}", f"{long_one['running']:.2f}",
                       f"{long_one['process']:.2f}", fmt_ratio(long_one["duration"] / long_one["process"]))
         section.tables.append(table)
-        pairs = list(zip(results, in_one))
+        pairs = list(zip(results, in_one, strict=True))
         if pairs:
             section.ratios["one process / processes, whole process"] = statistics.median(
                 p["process"] / o["process"] for p, o in pairs)
@@ -189,7 +189,8 @@ def _one_process_figures(section: Section, results: list[dict[str, Any]], in_one
                                  "runs of processes'")
             section.notes.append("one process / processes, wall time of the whole process: "
                                  f"{fmt_ratio(section.ratios['one process / processes, whole process'])} faster "
-                                 f"(from the configuration on: {fmt_ratio(section.ratios['one process / processes, from configuration on'])})")
+                                 "(from the configuration on: "
+                                 f"{fmt_ratio(section.ratios['one process / processes, from configuration on'])})")
         per_tick = statistics.median(o["running"] / max(o["steps"], 1) for o in in_one)
         section.notes.append(f"in one process, one tick took {per_tick * 1e6:,.0f} µs of wall time (median)")
     if long_one is not None and fixed_one is not None:

@@ -16,7 +16,8 @@ import mmap
 import os
 import statistics
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import posix_ipc
@@ -202,8 +203,8 @@ def run(rounds: int = 21, iterations: int = 20000, table_variables: int = 1000) 
         flat = floor.flat
         global_views = [flat[4096 + i * SIZE: 4096 + (i + 1) * SIZE] for i in range(N_IN + N_OUT)]
         local_views = [np.zeros(SIZE) for _ in range(N_IN + N_OUT)]
-        pairs_in = list(zip(local_views[:N_IN], global_views[:N_IN]))
-        pairs_out = list(zip(global_views[N_IN:], local_views[N_IN:]))
+        pairs_in = list(zip(local_views[:N_IN], global_views[:N_IN], strict=True))
+        pairs_out = list(zip(global_views[N_IN:], local_views[N_IN:], strict=True))
         copyto, acquire, release = np.copyto, floor._sem.acquire, floor._sem.release
 
         def naive() -> None:
@@ -289,7 +290,8 @@ at spawn, so the table's size does not enter (see the scale curves below).""",
         r = ratio(med, floor_batch)
         if r is not None:
             section.ratios[key] = r
-        t.add(key, f"{med / 1000:.3f}", f"{np.median(samples) / 1000:.3f}", f"{np.percentile(samples, 99) / 1000:.3f}", fmt_ratio(r))
+        t.add(key, f"{med / 1000:.3f}", f"{np.median(samples) / 1000:.3f}",
+              f"{np.percentile(samples, 99) / 1000:.3f}", fmt_ratio(r))
     section.tables.append(t)
     signed, two_calls, table = (section.ratios.get(k) for k in (SIGNED, SIGNED_TWO_CALLS, "pbo table"))
     if signed is not None and two_calls is not None and table is not None:
@@ -307,7 +309,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rounds", type=int, default=21)
     parser.add_argument("--iterations", type=int, default=20000)
-    parser.add_argument("--table-variables", type=int, default=1000, help="extra variables in the table (a task pays for its own ports only)")
+    parser.add_argument("--table-variables", type=int, default=1000,
+                        help="extra variables in the table (a task pays for its own ports only)")
     args = parser.parse_args()
     print(run(args.rounds, args.iterations, args.table_variables).text())
 

@@ -29,7 +29,8 @@ PERIOD = 0.001  # the critical task's period in configs/switch_joint.yaml
 # the same phase of the release grid, and the run's first phase would decide every latency. A
 # golden-ratio fraction of the period spreads the requests evenly over it, as an operator's fall.
 PHASE_STEP = 0.381966 * PERIOD
-GOAL = 1.5  # latency p99 / the critical task's period (issue 40: the next boundary's wait, up to one period, and half a period more)
+# latency p99 / the critical task's period: the next boundary's wait (up to one period), and half a period more
+GOAL = 1.5
 TARGET = "switch latency p99 / the critical task's period"
 
 
@@ -75,7 +76,8 @@ top: the goal of 1.5 periods leaves half a period at p99 for the lead and the sw
 half a period plus the lead and the work. The lead follows the measured post delays (the supervisor's request to
 the plan in the header: every RTPU here is brought to its boundary by its own 1 ms task): on a
 loaded machine (other runs' real-time RTPUs on the same 2 CPUs) the supervisor waits for a CPU
-more often, and the lead grows with the delays' p99, up to its 2 ms bound. The skew is the RTPUs' timer wake-up precision, or a late read. A lost cycle needs the
+more often, and the lead grows with the delays' p99, up to its 2 ms bound. The skew is the RTPUs'
+timer wake-up precision, or a late read. A lost cycle needs the
 switch to overrun the gap between the writers' release and the critical consumer's read (the RTPUs'
 stagger, half the 1 ms period with two RTPUs): on a loaded machine a late release can do that, and
 the count shows it; the simulated-time test (`tests/test_switching.py`) shows the protocol itself
@@ -94,7 +96,8 @@ loses none.""",
     t = Table(["switches", "latency p50 ms", "latency p99 ms", "latency max ms", "skew p50 ms", "skew p99 ms", "skew max ms",
                "longest on one RTPU p50 ms", "longest max ms"], numeric=tuple(range(9)))
     if not records:
-        section.notes.append(f"the run reported no switch (stopped by: {report.get('stopped_by', '?')}; {report.get('failure', '')})")
+        section.notes.append(f"the run reported no switch "
+                             f"(stopped by: {report.get('stopped_by', '?')}; {report.get('failure', '')})")
         section.targets.append(Target(TARGET, None, GOAL, note="no switch was reported"))
         return section
     latency = np.array([s["latency"] for s in records])
@@ -129,9 +132,9 @@ loses none.""",
         if value is not None:
             section.ratios[key] = value
     section.notes.append(f"{len(records):,} of {switches:,} switches done (stopped by: {report.get('stopped_by', '?')}); "
-                         f"latency p50 = {fmt_ratio(section.ratios.get('latency p50 / period'))} the critical task's 1 ms period; "
-                         f"{late} plan(s) read by some RTPU after their activation (at its own boundary after it, or late: "
-                         "applied by it at once, before its next cycle).")
+                         f"latency p50 = {fmt_ratio(section.ratios.get('latency p50 / period'))} "
+                         f"the critical task's 1 ms period; {late} plan(s) read by some RTPU after their activation "
+                         "(at its own boundary after it, or late: applied by it at once, before its next cycle).")
     leads = np.array([s["lead"] for s in records if "lead" in s])
     lead_note = f"; the plan's lead p50 {np.median(leads) * 1e3:.3f} ms (measured)" if leads.size else ""
     section.targets.append(Target(TARGET, section.ratios.get("latency p99 / period"),

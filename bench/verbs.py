@@ -33,8 +33,8 @@ from bench._common import REPO, Section, Table
 from bench._inject import table_of
 from pbo_runtime import module_class, read_log
 from pbo_runtime.config.loader import load_subsystem
-from pbo_runtime.ipc.control import ControlClient
 from pbo_runtime.errors import PboError
+from pbo_runtime.ipc.control import ControlClient
 from pbo_runtime.supervisor.commands import COMMANDS
 from pbo_runtime.table.table import StateTable, TableLayout
 from pbo_runtime.table.table import StatusWord as W
@@ -295,7 +295,8 @@ def run(window: float = 0.6, configs: tuple[str, ...] = (), rounds: int = 1) -> 
     section = Section(
         key="verbs",
         title="Operator verbs on running subsystems",
-        command=f"python -m bench.verbs --window {window:g} --rounds {rounds}" + (f" --configs {','.join(configs)}" if configs else ""),
+        command=f"python -m bench.verbs --window {window:g} --rounds {rounds}"
+                + (f" --configs {','.join(configs)}" if configs else ""),
         method=f"""
 {len(VERBS)} verbs on {len(paths)} configurations: each of configs/ that runs on the real clock
 is started under a name of its own (live changes on), and once it is on the benchmark sends the
@@ -312,7 +313,8 @@ that holds now and then without any verb does so in windows and baselines alike,
 blamed when its windows hold (or have a missed release) more often than its baselines beyond
 chance (one-sided binomial test at p < 0.05 over the {len(VERBS)} verbs), or when a hold in its windows
 lasts at least one whole period of the held task longer than any hold in any baseline (a hold is
-a whole number of periods the task ran stable: lengths are compared in periods, not in ms). After the run, the spawned logger's MCAP log is
+a whole number of periods the task ran stable: lengths are compared in periods, not in ms). After
+the run, the spawned logger's MCAP log is
 read back (it was killed live: its summary and footer were written off the cycle).
 """,
         limits="""A window counts what happened in it, whatever caused it: on this shared 2-CPU

@@ -51,9 +51,9 @@ def no_leftover_ipc():
 
     That is every name `unique_name` makes (`pbo.test.<pid>-...`) and every run this process starts or
     fakes (`pbo.<subsystem>.<pid>-...`); objects of other processes, other test runs on the machine
-    included, do not count (queues only where /dev/mqueue is mounted). Autouse, and so set up before and torn down after every fixture a test
-    asks for: whatever made the object has closed it by then. Leftovers are removed before the
-    failure is reported, so one test's leak does not fail the next.
+    included, do not count (queues only where /dev/mqueue is mounted). Autouse, and so set up before
+    and torn down after every fixture a test asks for: whatever made the object has closed it by then.
+    Leftovers are removed before the failure is reported, so one test's leak does not fail the next.
     """
     mine = f".{os.getpid()}-"
 
@@ -170,7 +170,8 @@ def browser():
         pytest.skip(f"no browser for the HMI's tests: {why}")
 
     try:
-        from playwright.sync_api import Error as PlaywrightError, sync_playwright
+        from playwright.sync_api import Error as PlaywrightError
+        from playwright.sync_api import sync_playwright
     except ImportError as exc:
         unavailable(f"playwright is not installed ({exc}); make .venv/.installed installs it")
     executable = chromium_executable()

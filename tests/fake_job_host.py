@@ -14,20 +14,21 @@ FakeRunLink is the local API's link to one (`api.link.RunLink`), for the API's u
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from pbo_runtime.api.link import NoRun
 from pbo_runtime.clock.clocks import ManualClock
-from pbo_runtime.edit.live import LiveDescription
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import Subsystem
+from pbo_runtime.edit.live import LiveDescription
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import answer
-from pbo_runtime.supervisor.failures import RtpuDied
 from pbo_runtime.supervisor.commands import dispatch
+from pbo_runtime.supervisor.failures import RtpuDied
 from pbo_runtime.supervisor.job_control import JobControl
 from pbo_runtime.supervisor.status_reply import TaskRow
 from pbo_runtime.table.svar import TableView, attach
@@ -203,9 +204,7 @@ class FakeJobHost:
         self.signals.append((task, op))
         if op == "on":
             self.task_states[task] = self.on_leaves
-        elif op == "off":
-            self.task_states[task] = "OFF"
-        elif op == "clear" and self.clear_fixes_the_fault:
+        elif op == "off" or (op == "clear" and self.clear_fixes_the_fault):
             self.task_states[task] = "OFF"
         assert self.task_states[task] in states
         return self.task_states[task]

@@ -21,7 +21,6 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader

@@ -17,10 +17,10 @@ import sys
 import time
 from dataclasses import dataclass, field
 
+from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication, BuiltinTopicDcpsSubscription
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
-from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication, BuiltinTopicDcpsSubscription
 from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint32
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
@@ -171,7 +171,7 @@ def goal(domain: int, safety_net: float, values: list[float], publish: bool = Tr
         if writer is not None and now - published_at >= 0.1:
             writer.write(message)
             published_at = now
-        error = max(abs(p - v) for p, v in zip(state.position, values))
+        error = max(abs(p - v) for p, v in zip(state.position, values, strict=True))
         in_a_row = in_a_row + 1 if error < 0.01 else 0
         if in_a_row >= 50 or now - start > safety_net:
             break
@@ -187,7 +187,8 @@ def publish(domain: int, topic: str, kind: str, seconds: float, values: list[flo
     elif kind == "sensor_msgs/msg/JointState":
         writer = _writer(participant, f"rt/{topic.lstrip('/')}", JointState)
         half = len(values) // 2  # names' indexes, then positions (velocities the same values): the joints in the order given
-        message = JointState(header=Header(stamp=Time(sec=1, nanosec=0), frame_id=""), name=[f"joint{int(i)}" for i in values[:half]],
+        message = JointState(header=Header(stamp=Time(sec=1, nanosec=0), frame_id=""),
+                             name=[f"joint{int(i)}" for i in values[:half]],
                              position=values[half:], velocity=values[half:], effort=[0.0] * half)
     else:
         writer = _writer(participant, f"rt/{topic.lstrip('/')}", JointTrajectory)
@@ -214,7 +215,8 @@ def discovery(domain: int, node: str) -> dict:
     written before this participant joined comes too); the DDS topics of the endpoints its gids name,
     found among the endpoints DDS discovery announces, and whether its participant gid is a participant's."""
     participant = DomainParticipant(domain)
-    qos = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.Durability.TransientLocal, Policy.History.KeepLast(1))
+    qos = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.Durability.TransientLocal,
+              Policy.History.KeepLast(1))
     infos = DataReader(participant, Topic(participant, "ros_discovery_info", ParticipantEntitiesInfo, qos=qos), qos=qos)
     publications = BuiltinDataReader(participant, BuiltinTopicDcpsPublication)
     subscriptions = BuiltinDataReader(participant, BuiltinTopicDcpsSubscription)

@@ -12,8 +12,8 @@ import itertools
 import json
 import os
 import re
-import subprocess
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -32,7 +32,7 @@ from pbo_runtime import OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.model import PortBinding, TaskSpec, VariableSpec
 from pbo_runtime.ipc.shm import children_of
-from pbo_runtime.ipc.shm import pid_state as process_state  # noqa: F401 (for the tests)
+from pbo_runtime.ipc.shm import pid_state as process_state  # (for the tests)
 from pbo_runtime.task.lifecycle import Task
 
 REPO = Path(__file__).resolve().parent.parent
@@ -155,7 +155,7 @@ def step_executives(executives: dict, clock: ManualClock, end: float) -> None:
     whose next event is earliest, until `end`. Leaving one out of `executives` is an RTPU that
     stopped (SIGSTOP): its tasks release nothing, its outputs age."""
     while True:
-        name, executive = min(executives.items(), key=lambda item: next_event(item[1]))
+        _name, executive = min(executives.items(), key=lambda item: next_event(item[1]))
         due = next_event(executive)
         if due > end:
             clock.time = max(clock.time, end)
@@ -543,7 +543,8 @@ def live_demo_copy(folder: Path, subsystem: str) -> Path:
               "           params: {variables: [q_m, q_r, tau_u], path: pid_joint.mcap}}\n")
     for old, new in (("\nsubsystem: puma\n", f"\nsubsystem: {subsystem}\n"), (logger, ""),
                      ("  joint_pid: [robot, traj, pid, logger]\n",
-                      "  joint_pid: [robot, traj, pid]  # the PID loop\n\njobs:\n  hold: {configuration: joint_pid, object: none, timeout: 100 ms}\n"
+                      "  joint_pid: [robot, traj, pid]  # the PID loop\n"
+                      "\njobs:\n  hold: {configuration: joint_pid, object: none, timeout: 100 ms}\n"
                       "\napplications:\n  settle: [hold]\n")):
         assert old in text, old
         text = text.replace(old, new)
@@ -705,7 +706,7 @@ def dh_pinocchio_model(dh: np.ndarray, dyn: np.ndarray):  # type: ignore[no-unty
 
     model = pinocchio.Model()
     parent, parent_link = 0, np.eye(4)
-    for i, (dh_row, dyn_row) in enumerate(zip(np.asarray(dh, float), np.asarray(dyn, float)), start=1):
+    for i, (dh_row, dyn_row) in enumerate(zip(np.asarray(dh, float), np.asarray(dyn, float), strict=True), start=1):
         joint = model.addJoint(parent, pinocchio.JointModelRZ(), se3(parent_link @ rot_z(dh_row[0])), f"joint{i}")
         link = dh_link_transform(dh_row)
         rotation, offset = link[:3, :3], link[:3, 3]
@@ -725,7 +726,7 @@ def dh_forward_kinematics(dh: np.ndarray, q: np.ndarray) -> np.ndarray:
     from drivers.robots.description import dh_link_transform, rot_z
 
     pose = np.eye(4)
-    for dh_row, qi in zip(np.asarray(dh, float), np.asarray(q, float)):
+    for dh_row, qi in zip(np.asarray(dh, float), np.asarray(q, float), strict=True):
         pose = pose @ rot_z(qi + dh_row[0]) @ dh_link_transform(dh_row)
     return pose
 
@@ -746,7 +747,7 @@ def example_robot(name: str) -> str:
     return f"package://example-robot-data/{EXAMPLE_ROBOTS[name]}"
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def arm_tables(model: str) -> tuple[np.ndarray, np.ndarray]:
     """The ARM and EE constants the plant publishes for a registered robot (as its robot interface
     writes them to the table), read-only: for tests that write the robot's constants themselves."""

@@ -11,7 +11,8 @@ from __future__ import annotations
 import json
 import os
 import uuid
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import pytest
@@ -22,8 +23,8 @@ from starlette.websockets import WebSocketDisconnect
 from pbo_runtime.api import streams
 from pbo_runtime.api.app import create_app
 from pbo_runtime.api.auth import COOKIE
-from pbo_runtime.api.link import LiveRunLink, NoRun
 from pbo_runtime.api.jsonable import jsonable
+from pbo_runtime.api.link import LiveRunLink, NoRun
 from pbo_runtime.api.streams import MAX_VARIABLE_RATE
 from pbo_runtime.api.verbs import LOCAL_VERBS
 from pbo_runtime.errors import PboError
@@ -133,7 +134,8 @@ def test_the_hmis_files_are_served_behind_the_token_with_their_media_type(client
     assert served.status_code == 200 and served.headers["content-type"].startswith(media_type)
 
 
-@pytest.mark.parametrize("path", ["../api/app.py", "..%2Fapi%2Fapp.py", "vendor/../../api/auth.py", "vendor/vendored.json.missing",
+@pytest.mark.parametrize("path", ["../api/app.py", "..%2Fapi%2Fapp.py", "vendor/../../api/auth.py",
+                                  "vendor/vendored.json.missing",
                                   "js", "../../../../../etc/passwd"])
 def test_no_file_outside_the_hmis_own_is_served(client, path):
     refused = client.get(f"/static/{path}", headers=BEARER)
@@ -151,17 +153,16 @@ def test_the_openapi_description_lists_every_route_behind_the_token(client):
 
 @pytest.mark.parametrize("path", ["/api/streams/status", "/api/streams/variables"])
 def test_a_websocket_upgrade_from_a_foreign_origin_is_refused_even_with_the_token(client, path):
-    with pytest.raises(WebSocketDisconnect) as refused:
-        with client.websocket_connect(path, headers={**BEARER, "Origin": "http://evil.example"}):
-            pass
+    with (pytest.raises(WebSocketDisconnect) as refused,
+          client.websocket_connect(path, headers={**BEARER, "Origin": "http://evil.example"})):
+        pass
     assert refused.value.code == 1008 and "origin 'http://evil.example' is not this server's" in refused.value.reason
 
 
 @pytest.mark.parametrize("path", ["/api/streams/status", "/api/streams/variables"])
 def test_a_websocket_upgrade_without_the_token_is_refused(client, path):
-    with pytest.raises(WebSocketDisconnect) as refused:
-        with client.websocket_connect(path, headers={"Origin": "http://testserver"}):
-            pass
+    with pytest.raises(WebSocketDisconnect) as refused, client.websocket_connect(path, headers={"Origin": "http://testserver"}):
+        pass
     assert (refused.value.code, refused.value.reason) == (1008, "unauthorized: no token")
 
 
@@ -282,7 +283,8 @@ def test_lexicon_check_bus_and_graph_of_the_file_pbo_hmi_was_given(client, subsy
     graph = client.get("/api/graph", params={"config": "pd"}, headers=BEARER)
     assert graph.headers["content-type"] == "image/svg+xml" and b"<svg" in graph.content
     wrong = client.get("/api/bus", params={"config": "nope"}, headers=BEARER)
-    assert wrong.status_code == 400 and wrong.json()["error"] == f"no configuration 'nope' in {subsystem.file} (configurations: pid, pd)"
+    assert wrong.status_code == 400
+    assert wrong.json()["error"] == f"no configuration 'nope' in {subsystem.file} (configurations: pid, pd)"
 
 
 def test_placement_queries_say_which_modules_the_canvas_may_place_and_why_not_the_rest(client):
@@ -374,9 +376,8 @@ def test_every_websocket_route_is_behind_the_token(client):
     sockets = websocket_routes()
     assert sockets == ["/api/streams/status", "/api/streams/variables"]
     for path in sockets:
-        with pytest.raises(WebSocketDisconnect):
-            with client.websocket_connect(path, headers={"Authorization": "Bearer wrong"}):
-                pass
+        with pytest.raises(WebSocketDisconnect), client.websocket_connect(path, headers={"Authorization": "Bearer wrong"}):
+            pass
 
 
 # --- a real run ---------------------------------------------------------------------------------
@@ -443,5 +444,5 @@ def test_pbo_hmi_serves_the_run_of_the_files_subsystem(tmp_path, subsystem):
     assert subsystem_of(str(tmp_path / "broken.yaml")) is None
     said = describe_run(LiveRunLink("no_such_subsystem_here"))
     assert said.startswith("no run of 'no_such_subsystem_here' yet: lexicon, check, bus and graph are served")
-    with pytest.raises(NoRun, match="^no live run has run id"):
+    with pytest.raises(NoRun, match=r"^no live run has run id"):
         describe_run(LiveRunLink(None, "0-no-such-run"))

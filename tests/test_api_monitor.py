@@ -11,7 +11,8 @@ from __future__ import annotations
 import math
 import os
 import uuid
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import pytest
@@ -19,9 +20,9 @@ from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
 from pbo_runtime import Arm
+from pbo_runtime.analysis import bus
 from pbo_runtime.api.app import create_app
 from pbo_runtime.api.link import NoRun
-from pbo_runtime.analysis import bus
 from pbo_runtime.config import bus_model
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.model import Subsystem
@@ -151,7 +152,8 @@ class StatusLink:
 
     def request(self, command: str, arguments: dict[str, Any], timeout: float) -> dict[str, Any]:
         if self.status is None:
-            raise NoRun("no subsystem is running (no live state variable table of yours in /dev/shm): start one with `pbo run FILE`")
+            raise NoRun("no subsystem is running (no live state variable table of yours in /dev/shm): "
+                        "start one with `pbo run FILE`")
         return self.status
 
     def open_table(self) -> TableView:
@@ -267,9 +269,9 @@ def test_the_arm_stream_refuses_what_it_cannot_draw_with_a_message(table, query,
 
 def test_the_arm_stream_is_behind_the_token(table):
     client = TestClient(create_app(StatusLink(running({}), table.name), TOKEN, str(DEMO)))
-    with pytest.raises(WebSocketDisconnect):
-        with client.websocket_connect("/api/streams/arm", headers={"Authorization": "Bearer wrong"}):
-            pass
+    with (pytest.raises(WebSocketDisconnect),
+          client.websocket_connect("/api/streams/arm", headers={"Authorization": "Bearer wrong"})):
+        pass
 
 
 def test_the_monitors_files_are_served_and_packaged():

@@ -165,12 +165,14 @@ def test_every_verb_argument_that_names_a_file_is_kept_in_the_folder():
 
 # --- no 500 ---------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("path", ["/static/%00", "/static/" + "a" * 5000, "/static/js/%00main.js", "/static/js/" + "a" * 300 + ".js"])
+@pytest.mark.parametrize("path", ["/static/%00", "/static/" + "a" * 5000, "/static/js/%00main.js",
+                                  "/static/js/" + "a" * 300 + ".js"])
 def test_a_static_path_the_file_system_cannot_take_is_404(client, path):
     assert_refused(client.get(path), 404, "no file /static/")
 
 
-@pytest.mark.parametrize("route", ["/api/verbs/status", "/api/verbs/on", "/api/gaps", "/api/workspace/objects", "/api/canvas/check"])
+@pytest.mark.parametrize("route", ["/api/verbs/status", "/api/verbs/on", "/api/gaps",
+                                   "/api/workspace/objects", "/api/canvas/check"])
 def test_a_json_body_nested_too_deeply_is_400(client, route):
     refused = client.post(route, content="[" * 100_000, headers={"content-type": "application/json"})
     assert_refused(refused, 400, f"deeper than {guard.MAX_JSON_DEPTH}")

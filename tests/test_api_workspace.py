@@ -6,6 +6,7 @@ workspace's row on the run, each refusal answered with its one-line reason.
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -76,7 +77,8 @@ def test_an_incomplete_application_is_saved_and_comes_back_as_an_action_requirin
     assert body["message"].startswith(f"application 'approach' saved to {subsystem.file}, incomplete (1 gap(s))")
     assert [w.split("warning[")[1][:4] for w in body["warnings"]] == ["W701"]
     icon = body["dictionary"]["applications"]["approach"]
-    assert icon["class"] == "action_requiring_object" and icon["edges"]["right"] == {"shape": "notch", "object_type": "joint_position"}
+    assert icon["class"] == "action_requiring_object" and icon["edges"]["right"] == {"shape": "notch",
+                                                                                     "object_type": "joint_position"}
     assert check_file(subsystem.file).ok
 
 
@@ -87,12 +89,12 @@ def test_an_incomplete_application_is_saved_and_comes_back_as_an_action_requirin
     ({"name": "x", "row": [step("hold", "ready")]}, r"the icons do not interlock: step 1: 'hold' takes no object"),
 ])
 def test_a_save_that_is_wrong_is_refused_with_its_reason_and_the_file_kept(client, subsystem, body, refusal):
-    before = open(subsystem.file).read()
+    before = Path(subsystem.file).read_text()
     reply = post(client, "applications", body)
     assert reply.status_code == 400
     assert reply.json()["ok"] is False
     assert re.search(refusal, reply.json()["error"]), reply.json()["error"]
-    assert open(subsystem.file).read() == before
+    assert Path(subsystem.file).read_text() == before
 
 
 def test_an_objects_value_is_saved_to_the_file_and_the_dictionary_shows_it(client, subsystem):

@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import time
+from pathlib import Path
 
 import numpy as np
 import posix_ipc
@@ -62,22 +63,24 @@ def test_a_link_without_a_receiver_is_an_error_with_a_hint(tmp_path):
     path = write_app(tmp_path, links=SHIPPED_LINKS + "  spare: {type: float64, shape: [6]}\n")
     result = check_application(path)
     assert codes(result) == ["E805", "E805"]
-    assert {e.message for e in result.errors} == {"link 'spare' has no link_sender task", "link 'spare' has no link_receiver task"}
-    spare_line = open(path).read().splitlines().index("  spare: {type: float64, shape: [6]}") + 1
+    assert {e.message for e in result.errors} == {"link 'spare' has no link_sender task",
+                                                  "link 'spare' has no link_receiver task"}
+    spare_line = Path(path).read_text().splitlines().index("  spare: {type: float64, shape: [6]}") + 1
     assert all(e.line == spare_line for e in result.errors)
     assert "module: link_receiver" in result.errors[1].hint + result.errors[0].hint
 
 
 def test_a_variable_of_another_shape_than_its_link_is_refused(tmp_path):
-    result = check_application(write_app(tmp_path, links=SHIPPED_LINKS.replace("shape: [6], transport: shm}", "shape: [7], transport: shm}")))
+    result = check_application(write_app(tmp_path, links=SHIPPED_LINKS.replace("shape: [6], transport: shm}",
+                                                                               "shape: [7], transport: shm}")))
     assert codes(result).count("E806") == 2
     assert "carries float64 [7]" in result.errors[0].message
 
 
 def test_an_unknown_transport_and_a_missing_subsystem_file_are_reported_together(tmp_path):
     path = write_app(tmp_path, links=SHIPPED_LINKS.replace("[6], transport: shm}", "[6], transport: carrier-pigeon}"))
-    text = open(path).read().replace("follower: follower.yaml", "follower: nowhere.yaml")
-    open(path, "w").write(text)
+    text = Path(path).read_text().replace("follower: follower.yaml", "follower: nowhere.yaml")
+    Path(path).write_text(text)
     result = check_application(path)
     assert set(codes(result)) == {"E802", "E803"}
     assert any("unknown transport 'carrier-pigeon'" in e.message and "shm, zenoh" in e.hint for e in result.errors)
@@ -85,7 +88,8 @@ def test_an_unknown_transport_and_a_missing_subsystem_file_are_reported_together
 
 
 def test_an_error_in_a_subsystem_file_is_reported_with_its_own_location(tmp_path):
-    follower = (REPO / "configs" / "follower.yaml").read_text().replace("period: 2 ms, params: {link", "period: 2 fortnights, params: {link")
+    follower = (REPO / "configs" / "follower.yaml").read_text().replace("period: 2 ms, params: {link",
+                                                                        "period: 2 fortnights, params: {link")
     result = check_application(write_app(tmp_path, follower=follower))
     assert result.errors and all(e.file.endswith("follower.yaml") for e in result.errors)
 
@@ -101,8 +105,8 @@ def test_pbo_check_on_an_application_prints_every_link(tmp_path):
 
 def test_an_inline_subsystem_is_checked_in_full_and_its_errors_point_into_the_application_file(tmp_path):
     path = write_app(tmp_path)
-    text = open(path).read().replace("period: 10 ms, params: {link: goal}", "period: 10 weeks, params: {link: goal}")
-    open(path, "w").write(text)
+    text = Path(path).read_text().replace("period: 10 ms, params: {link: goal}", "period: 10 weeks, params: {link: goal}")
+    Path(path).write_text(text)
     result = check_application(path)
     assert result.errors and all(e.file == path for e in result.errors)
     error = result.errors[0]
@@ -127,10 +131,12 @@ def test_a_missing_inline_subsystem_reference_is_a_clear_error(tmp_path):
 
 
 def test_a_message_sender_on_a_periodic_link_is_refused_with_the_fitting_modules(tmp_path):
-    result = check_application(write_app(tmp_path, links=SHIPPED_LINKS.replace("kind: message, ", "").replace("capacity: 4, ", "")))
+    result = check_application(write_app(tmp_path,
+                                         links=SHIPPED_LINKS.replace("kind: message, ", "").replace("capacity: 4, ", "")))
     errors = [e for e in result.errors if e.code == "E808"]
     assert len(errors) == 2 and codes(result) == ["E808", "E808"]  # the operator's sender and the leader's server
-    assert "is a message_sender, a message link's end, but link 'goal' is a periodic link" in errors[1].message + errors[0].message
+    periodic = "is a message_sender, a message link's end, but link 'goal' is a periodic link"
+    assert periodic in errors[1].message + errors[0].message
     assert "kind: message" in errors[0].hint
 
 
@@ -183,7 +189,7 @@ def test_the_run_section_refuses_an_incomplete_application_as_pbo_run_would(tmp_
     assert codes(result) == ["E807"], [e.format() for e in result.errors]
     error = result.errors[0]
     assert "application 'loose' of subsystem 'operator' is incomplete" in error.message
-    assert error.line == len(open(error.file).read().splitlines()) and "tour" in error.hint
+    assert error.line == len(Path(error.file).read_text().splitlines()) and "tour" in error.hint
 
 
 @pytest.mark.multiprocess

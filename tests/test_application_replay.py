@@ -26,8 +26,17 @@ from pbo_runtime.ipc import shm
 from pbo_runtime.supervisor.application_runner import unreplayable_links
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
 from pbo_runtime.table.table import HEADER_WORDS
-from tests.support import (PBO, REPO, application_copy, assert_nothing_left, children_of, dead_pid, killed_on_failure, read_until,
-                           run_output)
+from tests.support import (
+    PBO,
+    REPO,
+    application_copy,
+    assert_nothing_left,
+    children_of,
+    dead_pid,
+    killed_on_failure,
+    read_until,
+    run_output,
+)
 
 GOAL_A = np.array([0.3, -0.5, 0.5, 0.2, 0.4, 0.2])  # the operator's goals (configs/leader_follower.yaml)
 GOAL_B = np.array([-0.2, -0.3, 0.3, -0.2, 0.2, 0.4])
@@ -137,7 +146,7 @@ def test_a_participant_stuck_past_the_limit_is_a_named_fault_in_an_application_a
         else:
             assert clock.slow_participant(0.1) is None  # while waiting for the turn, none of ours steps
             gate.held = True
-            with pytest.raises(TurnStalled, match="rtpu0 has not finished the tick at 0.000 s .* every subsystem"):
+            with pytest.raises(TurnStalled, match=r"rtpu0 has not finished the tick at 0\.000 s .* every subsystem"):
                 clock.slow_participant(0.1)
     finally:
         clock.close()
@@ -311,7 +320,8 @@ def test_an_rtpu_killed_from_outside_a_simulated_application_is_restarted_and_th
         out, err = run_output(runner, 300)
     assert runner.returncode == 0, said + out + err
     assert "[leader] pbo: RTPU 'rtpu0' restarted: robot, goal, traj, pid, send, logger ON again after 0 ms" in out
-    reports = {key: json.loads((tmp_path / "out" / key / "report.json").read_text()) for key in ("leader", "follower", "operator")}
+    reports = {key: json.loads((tmp_path / "out" / key / "report.json").read_text())
+               for key in ("leader", "follower", "operator")}
     assert [(r["rtpu"], r["pid"], r["cause"]) for r in reports["leader"]["restarts"]] == [("rtpu0", rtpu, "killed by SIGKILL")]
     follower = reports["follower"]["tasks"]["robot"]
     assert follower["state"] == "ON" and follower["cycles"] == reports["follower"]["plant"]["steps"]  # never held up

@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 import threading
+from typing import ClassVar
 
 import pytest
 
@@ -77,7 +78,8 @@ HELPER_POLICY = ("import os, sys, threading; from pbo_runtime.task.background im
                  "    try: os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(50))\n"
                  "    except OSError as exc: print('refused', exc); sys.exit(0)\n"
                  "seen = []; worker = Background(); me = threading.get_native_id\n"
-                 "worker.hand_off(lambda: seen.append((os.sched_getscheduler(me()) & ~os.SCHED_RESET_ON_FORK, os.sched_getparam(me()).sched_priority)), 't', 'look')\n"
+                 "worker.hand_off(lambda: seen.append((os.sched_getscheduler(me()) & ~os.SCHED_RESET_ON_FORK, "
+                 "os.sched_getparam(me()).sched_priority)), 't', 'look')\n"
                  "worker.close(); print(seen[0] == (os.SCHED_FIFO, 1), seen[0] == (os.SCHED_OTHER, 0), os.sched_getscheduler(0))")
 
 
@@ -102,8 +104,8 @@ class SlowToKill(PortBasedObject):
     """Fake module: its kill hands its slow part off, as a data logger's does."""
 
     out = OutVar("out")
-    finished: list[str] = []
-    fail = False
+    finished: ClassVar[list[str]] = []
+    fail: ClassVar[bool] = False
 
     def kill(self) -> None:
         def finish() -> None:
@@ -166,7 +168,8 @@ LATE_FIFO = ("import os, threading; from pbo_runtime.objects.helper_threads impo
              "before = os.sched_getscheduler(me[0])\n"
              "try: os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(50))\n"
              "except OSError as exc: print('refused', exc); done.set(); raise SystemExit\n"
-             "lower_helpers(); print(before == os.SCHED_OTHER, (os.sched_getscheduler(me[0]) & ~os.SCHED_RESET_ON_FORK, os.sched_getparam(me[0]).sched_priority) == (os.SCHED_FIFO, 1)); done.set()")
+             "lower_helpers(); print(before == os.SCHED_OTHER, (os.sched_getscheduler(me[0]) & ~os.SCHED_RESET_ON_FORK, "
+             "os.sched_getparam(me[0]).sched_priority) == (os.SCHED_FIFO, 1)); done.set()")
 
 
 CHILD_OF_A_HELPER = ("import os, subprocess, sys, threading; from pbo_runtime.objects.helper_threads import below_the_cycle\n"

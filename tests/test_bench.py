@@ -53,7 +53,8 @@ def test_every_benchmark_runs_on_tiny_counts_and_renders_its_tables(tmp_path):
             assert table.rows, f"{section.key}: empty table {table.headers}"
             assert all(len(row) == len(table.headers) for row in table.rows), section.key
         for name, value in section.ratios.items():  # 0 only for a count: an executive without overruns
-            assert (value > 0 or "overrun_rate" in name) and value >= 0 and math.isfinite(value), f"{section.key}: {name} = {value}"
+            assert (value > 0 or "overrun_rate" in name) and value >= 0 and math.isfinite(value), \
+                f"{section.key}: {name} = {value}"
         for target in section.targets:
             assert target.value is None or (target.value >= 0 and math.isfinite(target.value)), target.what
     by_key = {s.key: s for s in sections}
@@ -73,7 +74,7 @@ def test_the_overrun_interval_resamples_rounds_so_one_burst_widens_it():
     from bench.realtime import round_bootstrap_interval
 
     def rounds(pbo: list[int], bare: list[int]) -> list[tuple[dict, dict]]:
-        return [({"overruns": p, "cycles": 5000}, {"overruns": b, "cycles": 5000}) for p, b in zip(pbo, bare)]
+        return [({"overruns": p, "cycles": 5000}, {"overruns": b, "cycles": 5000}) for p, b in zip(pbo, bare, strict=True)]
 
     steady_low, steady_high = round_bootstrap_interval(rounds([10] * 12, [10] * 12))
     assert steady_low == steady_high == 1.0  # every round alike: nothing to resample
@@ -157,13 +158,13 @@ def test_bare_loops_are_released_midway_between_the_releases_of_the_rtpus_on_the
                 stagger = release_stagger(period, n)
                 for cpu in set(where):
                     rtpus = sorted(i * stagger for i in range(n) if where[i] == cpu)
-                    bares = [phase % period for phase, c in zip(bare_phases(where, period), where) if c == cpu]
+                    bares = [phase % period for phase, c in zip(bare_phases(where, period), where, strict=True) if c == cpu]
                     for bare in bares:  # midway between the RTPU releases around it, on its CPU
                         before = max((r for r in rtpus if r <= bare), default=rtpus[-1] - period)
                         after = min((r for r in rtpus if r > bare), default=rtpus[0] + period)
                         assert bare - before == pytest.approx(after - bare), (n_cpus, n, bare, rtpus)
                     releases = sorted(rtpus + bares)
-                    assert min(np.diff(releases + [releases[0] + period])) > 0.1 * period  # none spins with another
+                    assert min(np.diff([*releases, releases[0] + period])) > 0.1 * period  # none spins with another
 
 
 def test_every_rtpu_visits_every_cpu_as_the_rounds_turn():

@@ -119,7 +119,7 @@ def test_an_aperiodic_task_uses_its_minimum_interarrival_time():
 def test_an_aperiodic_task_without_a_minimum_interarrival_time_is_an_error():
     unbounded = _AperiodicTask("unbounded", "m", "rtpu0", 1.0, aperiodic=True, min_interarrival=None)
     sub = subsystem(SMALL_VARIABLES, [unbounded], {"run": ["unbounded"]})
-    with pytest.raises(BusModelError, match="unbounded.*inter-arrival"):
+    with pytest.raises(BusModelError, match=r"unbounded.*inter-arrival"):
         bus_model.predict(sub, "run")
 
 
@@ -139,7 +139,7 @@ def test_share_is_b_over_the_bandwidth():
 
 
 def test_an_unknown_configuration_is_named_in_the_error():
-    with pytest.raises(BusModelError, match="no configuration 'nope'.*run"):
+    with pytest.raises(BusModelError, match=r"no configuration 'nope'.*run"):
         bus_model.predict(small(), "nope")
 
 
@@ -195,7 +195,7 @@ def synthetic_run() -> dict:
 def test_measured_uses_cycles_bytes_per_cycle_the_locks_and_the_duration():
     report = _bus.measured(small(), synthetic_run())
     assert report.kind == "measured"
-    # ctl: 400 cycles × (44 B + 2Δ = 16 B) / 2 s = 12,000 B/s; src: 1990 × 44 / 2 = 43,780 B/s
+    # ctl: 400 cycles * (44 B + 2Δ = 16 B) / 2 s = 12,000 B/s; src: 1990 * 44 / 2 = 43,780 B/s
     assert report.task("ctl").rate_bytes_per_s == pytest.approx(12_000.0)
     assert report.task("src").rate_bytes_per_s == pytest.approx(43_780.0)
     assert report.total == pytest.approx(55_780.0)

@@ -9,11 +9,21 @@ from pathlib import Path
 
 import pytest
 
-from pbo_runtime.edit.canvas import (CanvasError, Origin, Pin, check_canvas, file_canvas, origin_file, origin_of, pin_of,
-                                       tasks_from_json, yaml_text)
-from pbo_runtime.edit.canvas_job import JobRefused, save_job
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.config.yaml_nodes import load_text
+from pbo_runtime.edit.canvas import (
+    CanvasError,
+    Origin,
+    Pin,
+    check_canvas,
+    file_canvas,
+    origin_file,
+    origin_of,
+    pin_of,
+    tasks_from_json,
+    yaml_text,
+)
+from pbo_runtime.edit.canvas_job import JobRefused, save_job
 from tests.support import FIGURE_8_CANVAS, REPO, canvas_base_file
 
 FIGURE_8 = FIGURE_8_CANVAS

@@ -107,11 +107,12 @@ def subsystem_files(draw: st.DrawFn) -> dict[str, Any]:
     names = list(dict.fromkeys(chain + tuple(e for e in extras if not (e == "fk" and "fpa_fk" in chain))))
     if mistake != "no plant":
         plant: dict[str, Any] = {"model": draw(st.sampled_from(("puma560", "puma560", "redundant7"))), "timestep": "1 ms"}
-        if "vision" in names and mistake != "no target" or chance.random() < 0.25:
+        if ("vision" in names and mistake != "no target") or chance.random() < 0.25:
             plant["target"] = {"center": [0.45, -0.15, 0.1], "radius": 0.05, "period": 8}
         doc["plant"] = plant
     needed = {TASKS[n][2] for n in names} - {None}
-    devices = {name: dict(spec) for name, spec in DEVICES.items() if (name in needed and mistake != "no device") or chance.random() < 0.2}
+    devices = {name: dict(spec) for name, spec in DEVICES.items()
+               if (name in needed and mistake != "no device") or chance.random() < 0.2}
     if "arm" in devices:
         devices["arm"]["mode"] = "position" if "robot_p" in names else "torque"
         if mistake == "arm mode":
@@ -137,14 +138,16 @@ def subsystem_files(draw: st.DrawFn) -> dict[str, Any]:
             task["resources"] = [device]
         if module == "analog_input":
             task["ports"] = {"v": "v_in"}
-            task["resources"] = [{"device": "adc0", "channels": "6-8" if mistake == "channels" else draw(st.sampled_from(("6-7", "0-1")))}]
+            task["resources"] = [{"device": "adc0",
+                                  "channels": "6-8" if mistake == "channels" else draw(st.sampled_from(("6-7", "0-1")))}]
         if module == "analog_output":
             task["ports"] = {"v": "v_out"}
             task["resources"] = [{"device": "dac0", "channels": "0-1"}]
         if module == "differentiator":
             task["ports"] = {"z": "z", "zd": "zd"}
         if module == "data_logger":
-            task["params"]["variables"] = draw(st.lists(st.sampled_from(("q_m", "qd_m", "NDOF", "ARM")), min_size=1, max_size=3, unique=True))
+            task["params"]["variables"] = draw(st.lists(st.sampled_from(("q_m", "qd_m", "NDOF", "ARM")), min_size=1,
+                                                        max_size=3, unique=True))
         if mistake == "relink" and PORTS[module] and chance.random() < 0.5:  # a port relinked to another variable
             task.setdefault("ports", {})[draw(st.sampled_from(PORTS[module]))] = draw(st.sampled_from(POOL))
         if mistake == "param" and chance.random() < 0.5:  # a parameter out of its range, or of the wrong kind

@@ -87,7 +87,8 @@ SPP_TASK = "  fk:    {module: fk_jacobian_spp, rtpu: rtpu1, period: 2 ms, params
                  r"task 'fk' \(module 'fk_jacobian_spp'\) opens device 'cam', a device of kind camera \(driver camera\), "
                  r"but the module needs a device of kind spp", "drivers of kind spp: spp",
                  id="a_special_purpose_processor_module_on_a_camera"),
-    pytest.param(edited(BASE, ("  arm: {driver", "  fpa: {driver: spp}\n  arm: {driver"), ("configurations:", SPP_TASK + "configurations:"),
+    pytest.param(edited(BASE, ("  arm: {driver", "  fpa: {driver: spp}\n  arm: {driver"),
+                        ("configurations:", SPP_TASK + "configurations:"),
                         ("[robot, traj, pid]", "[robot, traj, pid, fk]")),
                  "fpa}}", "E608", r"task 'fk' \(module 'fk_jacobian_spp'\) opens device 'fpa' \(params: device\), which is not "
                  r"among its resources", "add 'fpa' to resources:", id="a_special_purpose_processor_not_in_the_resources"),
@@ -98,7 +99,8 @@ SPP_TASK = "  fk:    {module: fk_jacobian_spp, rtpu: rtpu1, period: 2 ms, params
     pytest.param(edited(BASE, ('post: "max(abs(q_m - q_d)) < 1e-3"', 'post: "q_m[6] < 1"')), "q_m[6]", "E719",
                  r"post-condition of job 'move': index \[6\] is out of range for shape \(6,\)", "q_m float64 (6,)",
                  id="a_condition_indexing_past_a_variable"),
-    pytest.param(edited(BASE, ('post: "max(abs(q_m - q_d)) < 1e-3"', 'post: "max(abs(q_m - EE)) < 1"')), '"max(abs(q_m - EE', "E719",
+    pytest.param(edited(BASE, ('post: "max(abs(q_m - q_d)) < 1e-3"', 'post: "max(abs(q_m - EE)) < 1"')),
+                 '"max(abs(q_m - EE', "E719",
                  r"post-condition of job 'move' cannot be computed on its variables' shapes: operands could not be broadcast",
                  "EE float64 (8,)", id="a_condition_of_shapes_that_do_not_combine"),
     pytest.param(edited(COMBINED, ("params: {members: [", "params: {export: [qd_r], members: [")), "qd_r], members", "E308",
@@ -111,34 +113,42 @@ SPP_TASK = "  fk:    {module: fk_jacobian_spp, rtpu: rtpu1, period: 2 ms, params
     pytest.param(edited(COMBINED, ("{module: inverse_dynamics}", "{module: pid_joint}"), (", ports: {tau: qdd_r}}", "}")),
                  "{module: pid_joint}]", "E308", r".*members 1:pid_joint and 2:pid_joint both write 'tau_u'", "",
                  id="two_members_writing_one_variable_at_the_second"),
-    pytest.param(edited(COMBINED, ("{module: inverse_dynamics}", "{module: inverse_dynamics, params: {kp: 1}}")), "kp: 1}}", "E308",
+    pytest.param(edited(COMBINED,
+                        ("{module: inverse_dynamics}", "{module: inverse_dynamics, params: {kp: 1}}")), "kp: 1}}", "E308",
                  r".*member 2 \(inverse_dynamics\): unknown parameter\(s\) 'kp'", "",
                  id="a_member_parameter_at_that_member_not_the_first_with_the_name"),
     pytest.param(edited(BASE, ("plant: {model: puma560, timestep: 1 ms}\n", "dims: {NDOF: 6}\n")), "robot_torque", "E611",
-                 r"task 'robot' \(module 'robot_torque'\) opens device 'arm' \(driver mujoco_arm\), hardware the plant simulates, "
-                 r"but the file has no plant:", "add a plant", id="an_arm_with_no_plant_to_serve_it"),
+                 r"task 'robot' \(module 'robot_torque'\) opens device 'arm' \(driver mujoco_arm\), "
+                 r"hardware the plant simulates, but the file has no plant:", "add a plant",
+                 id="an_arm_with_no_plant_to_serve_it"),
     pytest.param(edited(BASE, ("  arm: {driver", "  cam: {driver: camera}\n  arm: {driver"),
                         ("configurations:", "  fk:    {module: fk_jacobian, rtpu: rtpu1, period: 2 ms}\n"
-                                            "  vision: {module: visual_servoing, rtpu: rtpu0, period: 10 ms, params: {device: cam}, "
-                                            "resources: [cam]}\nconfigurations:"),
+                                  "  vision: {module: visual_servoing, rtpu: rtpu0, period: 10 ms, params: {device: cam}, "
+                                  "resources: [cam]}\nconfigurations:"),
                         ("[robot, traj, pid]", "[robot, traj, pid, fk, vision]")),
                  "cam}, resources", "E611", r"task 'vision' \(module 'visual_servoing'\) opens device 'cam' \(driver camera\), "
                  r"which reads the plant's option target, but plant: does not give it", "give the plant target:",
                  id="a_camera_with_no_target_to_see"),
-    pytest.param(edited(BASE, ("configurations:", "  fk:    {module: fk_jacobian, rtpu: rtpu1, period: 2 ms, params: {frame: link9}}\n"
-                                                  "configurations:"), ("[robot, traj, pid]", "[robot, traj, pid, fk]")),
-                 "link9", "E323", r"task 'fk' \(module 'fk_jacobian'\): frame must be one of the arm's frames \(ee, link1 \.\.\. link6",
+    pytest.param(edited(BASE,
+                        ("configurations:", "  fk:    {module: fk_jacobian, rtpu: rtpu1, period: 2 ms, params: {frame: link9}}\n"
+                                  "configurations:"), ("[robot, traj, pid]", "[robot, traj, pid, fk]")),
+                 "link9", "E323",
+                 r"task 'fk' \(module 'fk_jacobian'\): frame must be one of the arm's frames \(ee, link1 \.\.\. link6",
                  "", id="a_frame_the_arm_has_not"),
     pytest.param(edited(BASE, ("  arm: {driver", "  adc0: {driver: adc}\n  arm: {driver"),
                         ("configurations:", "  aux:   {module: analog_input, rtpu: rtpu0, period: 1 ms, params: {device: adc0}, "
-                                            "ports: {v: v6}, resources: [{device: adc0, channels: 0-2}]}\nconfigurations:"),
-                        ("[robot, traj, pid]", "[robot, traj, pid, aux]"), ("variables:\n", "variables:\n  v6: {type: float64, shape: [6]}\n")),
-                 "[{device: adc0, channels: 0-2}]", "E323", r"task 'aux' \(module 'analog_input'\): port 'v' links a variable of 6 "
+                            "ports: {v: v6}, resources: [{device: adc0, channels: 0-2}]}\nconfigurations:"),
+                        ("[robot, traj, pid]", "[robot, traj, pid, aux]"),
+                        ("variables:\n", "variables:\n  v6: {type: float64, shape: [6]}\n")),
+                 "[{device: adc0, channels: 0-2}]", "E323",
+                 r"task 'aux' \(module 'analog_input'\): port 'v' links a variable of 6 "
                  r"elements, but the task opens 3 channels of device 'adc0'", "", id="channels_and_a_variable_of_other_sizes"),
-    pytest.param(edited(BASE, ("configurations:", "  diff:  {module: differentiator, rtpu: rtpu0, period: 1 ms, ports: {z: q_d, zd: zd8}}\n"
-                                                  "configurations:"), ("variables:\n", "variables:\n  zd8: {type: float64, shape: [8]}\n")),
+    pytest.param(edited(BASE, ("configurations:",
+                               "  diff:  {module: differentiator, rtpu: rtpu0, period: 1 ms, ports: {z: q_d, zd: zd8}}\n"
+                 "configurations:"), ("variables:\n", "variables:\n  zd8: {type: float64, shape: [8]}\n")),
                  "zd8}}", "E319",
-                 r"task 'diff' \(module 'differentiator'\) needs one shape on ports 'z', 'zd'", "", id="a_derivative_of_another_shape"),
+                 r"task 'diff' \(module 'differentiator'\) needs one shape on ports 'z', 'zd'", "",
+                 id="a_derivative_of_another_shape"),
     pytest.param(edited(BASE, ("rtpus: [rtpu0, rtpu1]", "rtpus: {rtpu0: {restart: {withn: 1 s}}, rtpu1: {}}")), "withn", "E111",
                  r"unknown key 'withn' in the restart of RTPU 'rtpu0'", "", id="a_restart_with_an_unknown_key_and_no_max"),
 ])
@@ -157,9 +167,12 @@ def test_what_a_run_would_refuse_is_one_located_error_with_a_hint(tmp_path: Path
 
 
 def test_a_combined_task_s_internal_variable_read_outside_is_told_to_be_exported(tmp_path: Path) -> None:
-    text = edited(COMBINED, ("configurations:", "  spy:   {module: data_logger, rtpu: rtpu0, period: 10 ms, params: {variables: [tau_u], path: spy.mcap},\n"
-                                      "          ports: {tau_u: qdd_r}}\nconfigurations:"),
-                  ("[robot, traj, ctc]", "[robot, traj, ctc, spy]"), ("variables:\n", "variables:\n  qdd_r: {type: float64, shape: [NDOF]}\n"))
+    text = edited(COMBINED, ("configurations:",
+                             "  spy:   {module: data_logger, rtpu: rtpu0, period: 10 ms, "
+                             "params: {variables: [tau_u], path: spy.mcap},\n"
+                             "          ports: {tau_u: qdd_r}}\nconfigurations:"),
+                  ("[robot, traj, ctc]", "[robot, traj, ctc, spy]"), ("variables:\n",
+                                                                      "variables:\n  qdd_r: {type: float64, shape: [NDOF]}\n"))
     error = only_error(check(tmp_path, text))
     assert error.code == "E403" and "reads in-var 'qdd_r'" in error.message, error.format()
     assert "export: [qdd_r]" in error.hint and "combined task 'ctc'" in error.hint, error.format()
@@ -171,7 +184,8 @@ def test_a_combined_task_s_internal_variable_read_outside_is_told_to_be_exported
     ("{a: " * 20_000 + "1" + "}" * 20_000, "{a: " * 98 + "{"),
 ])
 def test_lists_nested_too_deep_are_reported_where_the_nesting_is(tmp_path: Path, value: str, needle: str) -> None:
-    text = edited(BASE, ("  tau_u: {type: float64, shape: [NDOF]}\n", f"  tau_u: {{type: float64, shape: [NDOF]}}\n  deep: {{type: float64, initial: {value}}}\n"))
+    text = edited(BASE, ("  tau_u: {type: float64, shape: [NDOF]}\n",
+                         f"  tau_u: {{type: float64, shape: [NDOF]}}\n  deep: {{type: float64, initial: {value}}}\n"))
     error = only_error(check(tmp_path, text))
     assert error.code == "E101" and "nested too deeply" in error.message
     line, column = at(text, needle)

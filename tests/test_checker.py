@@ -328,9 +328,11 @@ ONE_MISTAKE = [
             r"params of task 'pid' \(module 'fake_pid'\): unknown parameter\(s\) 'ki' for FakePid \(valid: kd, kp\)$"),
     mistake("a_misspelt_parameter_is_answered_with_the_closest_one",
             changed("params: {kp: 400}", "params: {kpp: 400}"), "kpp: 400",
-            r"params of task 'pid' \(module 'fake_pid'\): unknown parameter\(s\) 'kpp' for FakePid; did you mean 'kp'\? \(valid: kd, kp\)$"),
+            r"params of task 'pid' \(module 'fake_pid'\): unknown parameter\(s\) 'kpp' for FakePid; "
+            r"did you mean 'kp'\? \(valid: kd, kp\)$"),
     mistake("missing_params_are_an_error",
-            changed(", params: {kp: 400}", ""), "pid:", r"params of task 'pid' \(module 'fake_pid'\): missing parameter\(s\) 'kp'"),
+            changed(", params: {kp: 400}", ""), "pid:",
+            r"params of task 'pid' \(module 'fake_pid'\): missing parameter\(s\) 'kp'"),
     *[mistake(f"a_parameter_out_of_its_range_is_an_error_at_its_value_naming_the_range_{name}",
               changed("params: {kp: 400}", f"params: {{kp: {value}}}"), str(value),
               rf"parameter kp of task 'pid' \(module 'fake_pid'\) must be in \[0, 1e\+06\], got: {shown}$",
@@ -347,13 +349,16 @@ ONE_MISTAKE = [
             code="E308", hint=r"finite numbers only"),
     # an object type's range
     mistake("an_object_types_range_must_be_two_numbers_low_first",
-            changed("variables:\n", "object_types:\n  joint_position: {type: float64, shape: [NDOF], range: [3, -3]}\nvariables:\n"),
+            changed("variables:\n",
+                    "object_types:\n  joint_position: {type: float64, shape: [NDOF], range: [3, -3]}\nvariables:\n"),
             "[3, -3]", r"range of object type 'joint_position' must be \[low, high\], two finite numbers with low < high, "
                        r"got: \[3, -3\]$", code="E321"),
     mistake("an_applications_object_outside_its_types_range_is_an_error_at_the_element",
-            edited(("variables:\n", "object_types:\n  joint_position: {type: float64, shape: [NDOF], range: [-0.4, 0.4]}\nvariables:\n")),
-            "-0.5", r"object 'q_d' of step 1 of application 'demo': element 2 must be in \[-0\.4, 0\.4\] \(the range of object type "
-                    r"'joint_position'\), got: -0\.5$", code="E322", hint=r"^object type 'joint_position' declares this range"),
+            edited(("variables:\n",
+                    "object_types:\n  joint_position: {type: float64, shape: [NDOF], range: [-0.4, 0.4]}\nvariables:\n")),
+            "-0.5",
+            r"object 'q_d' of step 1 of application 'demo': element 2 must be in \[-0\.4, 0\.4\] \(the range of object type "
+            r"'joint_position'\), got: -0\.5$", code="E322", hint=r"^object type 'joint_position' declares this range"),
     # bounds of names and times
     mistake("a_subsystem_name_of_300_characters_is_an_error",
             changed("subsystem: puma", "subsystem: " + "p" * 300), "ppp",
@@ -381,14 +386,16 @@ ONE_MISTAKE = [
             changed('"max(abs(q_m - q_d)) < 1e-3"', '"max(abs(q_m - q_d) < 1e-3"'), "(abs",
             r"post-condition of job 'move' is not an expression: '\(' was never closed: "),
     mistake("an_application_step_must_name_a_job",
-            changed("- move:", "- mvoe:"), "mvoe", r"step 1 of application 'demo' runs job 'mvoe', which 'jobs' does not declare$",
+            changed("- move:", "- mvoe:"), "mvoe",
+            r"step 1 of application 'demo' runs job 'mvoe', which 'jobs' does not declare$",
             hint=r"^did you mean 'move'\?"),
     mistake("an_application_object_must_match_the_variable_shape",
             changed("[0, -0.5, 0.5, 0, 0, 0]", "[0, -0.5, 0.5]"), "[0, -0.5, 0.5]",
             r"object 'q_d' of step 1 of application 'demo' has shape \(3,\), but the variable's shape is \(6,\)$"),
     # issue 18: non-finite values, at the value itself
     mistake("an_initial_value_may_not_be_nan",
-            changed("tau_u: {type: float64, shape: [NDOF]}", "tau_u: {type: float64, shape: [NDOF], initial: [0, 0, .nan, 0, 0, 0]}"),
+            changed("tau_u: {type: float64, shape: [NDOF]}",
+                    "tau_u: {type: float64, shape: [NDOF], initial: [0, 0, .nan, 0, 0, 0]}"),
             ".nan", r"initial value of variable 'tau_u': float64 elements must be finite numbers, got: \.nan \(not a number\)$",
             code="E314", hint=r"^write a finite number; NaN and Inf would travel on to the actuators$"),
     mistake("a_scalar_initial_value_may_not_be_infinite",
@@ -421,11 +428,12 @@ ONE_MISTAKE = [
                    ("  pid:   {", "  k:     {module: fake_k_reader, rtpu: rtpu0, period: 1 ms}\n  pid:   {"),
                    ("[robot, traj, pid]", "[robot, traj, pid, k]")),
             "[4096, 4096]", r"variable 'K' \(float64, shape \(4096, 4096\)\) would take 134,217,728 bytes \(128 MiB\), more than "
-                            r"the whole state variable table may hold, 67,108,864 bytes \(64 MiB\)$", code="E315"),
+                    r"the whole state variable table may hold, 67,108,864 bytes \(64 MiB\)$", code="E315"),
     mistake("variables_that_together_exceed_the_table_are_an_error_at_variables",  # (unread: warnings only)
-            changed("variables:\n", "variables:\n  K: {type: float64, shape: [2100, 2100]}\n  L: {type: float64, shape: [2100, 2100]}\n"),
+            changed("variables:\n",
+                    "variables:\n  K: {type: float64, shape: [2100, 2100]}\n  L: {type: float64, shape: [2100, 2100]}\n"),
             "variables:", r"the variables take 70,560,\d+ bytes \(67.3 MiB\) of state variable table, more than its limit of "
-                          r"67,108,864 bytes \(64 MiB\)$", code="E316", hint=r"^the largest: '[KL]' \(2100, 2100\) float64"),
+                  r"67,108,864 bytes \(64 MiB\)$", code="E316", hint=r"^the largest: '[KL]' \(2100, 2100\) float64"),
     # issue 18: integers in conditions are bounded, never wrapped
     mistake("a_condition_may_not_compute_an_integer_beyond_int64",
             changed('"max(abs(q_m - q_d)) < 1e-3"', '"10**10**10 > 1"'), "10**10**10",
@@ -442,7 +450,7 @@ ONE_MISTAKE = [
     mistake("a_module_runs_at_most_once_in_a_configuration",
             edited(("configurations:\n", TRAJ2 + "configurations:\n"), ("[robot, traj, pid]", "[robot, traj, pid, traj2]")),
             "traj2]", r"configuration 'joint_pid' runs module 'fake_traj' twice: as task 'traj' \(line 14\) and as task 'traj2' "
-                      r"\(line 16\), both writing q_r$", code="E407",
+              r"\(line 16\), both writing q_r$", code="E407",
             hint=r"declare 'q_r_traj2' under variables:, link them with ports: \{q_r: q_r_traj2\}\) and join each"),
     # job conditions
     mistake("a_condition_may_not_access_attributes_and_says_where",
@@ -463,21 +471,25 @@ ONE_MISTAKE = [
             r"step 1 of application 'demo' gives object 'q_d' to job 'hold', which takes no object$", code="E705"),
     mistake("two_objects_for_one_job_are_an_error",
             with_apps(f"  demo:\n    - move: {{q_d: {Q}, q_r: {Q}}}\n"), "q_r: [0",
-            r"step 1 of application 'demo' gives 2 objects to job 'move' \(q_d, q_r\), but a job takes exactly one$", code="E706"),
+            r"step 1 of application 'demo' gives 2 objects to job 'move' \(q_d, q_r\), but a job takes exactly one$",
+            code="E706"),
     mistake("an_object_that_is_not_the_jobs_is_an_error",
             with_apps(f"  demo:\n    - move: {{q_m: {Q}}}\n"), "q_m: [0",
-            r"step 1 of application 'demo' gives 'q_m' to job 'move', but its object is 'q_d' \(type joint_position\)$", code="E707"),
+            r"step 1 of application 'demo' gives 'q_m' to job 'move', but its object is 'q_d' \(type joint_position\)$",
+            code="E707"),
     mistake("an_application_step_takes_no_objects",
             with_apps(f"  demo: [{{move: {{q_d: {Q}}}}}]\n  outer:\n    - demo: {{q_d: {Q}}}\n"), "{q_d",
             r"step 1 of application 'outer' gives objects to application 'demo', which takes none$", nth=1, code="E709"),
     mistake("a_job_and_an_application_may_not_share_a_name",
-            with_apps(f"  move: [{{move: {{q_d: {Q}}}}}]\n"), "move: [", r"'move' names both a job and an application$", code="E214"),
+            with_apps(f"  move: [{{move: {{q_d: {Q}}}}}]\n"), "move: [",
+            r"'move' names both a job and an application$", code="E214"),
     # timing
     mistake("a_wcet_longer_than_the_period_is_an_error",
             changed("period: 2 ms}", "period: 2 ms, wcet: 3 ms}"), "3 ms",
             r"wcet of task 'traj' must be <= its period \(2 ms\), got: 3 ms$", code="E505"),
     mistake("a_wcet_must_be_positive",
-            changed("period: 2 ms}", "period: 2 ms, wcet: 0 ms}"), "0 ms", r"wcet of task 'traj' must be > 0, got: 0 ms$", code="E502"),
+            changed("period: 2 ms}", "period: 2 ms, wcet: 0 ms}"), "0 ms",
+            r"wcet of task 'traj' must be > 0, got: 0 ms$", code="E502"),
     # aperiodic tasks
     mistake("an_aperiodic_task_takes_no_period",
             changed("period: 2 ms}", "aperiodic: true, min_interarrival: 5 ms, period: 2 ms}"), "period: 2 ms}",
@@ -486,7 +498,8 @@ ONE_MISTAKE = [
             changed("rate: 1 kHz", "rate: 1 kHz, aperiodic: true, min_interarrival: 5 ms"), "rate:",
             r"task 'pid' is aperiodic, so it takes no rate$", code="E506"),
     mistake("an_aperiodic_task_needs_a_min_interarrival",
-            changed("period: 2 ms}", "aperiodic: true}"), "aperiodic", r"aperiodic task 'traj' needs a min_interarrival$", code="E507"),
+            changed("period: 2 ms}", "aperiodic: true}"), "aperiodic",
+            r"aperiodic task 'traj' needs a min_interarrival$", code="E507"),
     mistake("a_min_interarrival_must_be_positive",
             changed("period: 2 ms}", "aperiodic: true, min_interarrival: 0 s}"), "0 s}",
             r"min_interarrival of task 'traj' must be > 0, got: 0 s$", code="E502"),
@@ -600,7 +613,8 @@ def test_a_port_shape_naming_an_undefined_dim_is_an_error(tmp_path: Path) -> Non
     text = changed("[robot, traj, pid]", "[robot, traj, pid, needs]", text)
     result = check(tmp_path, text)
     error = only_error(result)
-    assert re.match(r"^port 'x' of module 'fake_needs_dim' \(task 'needs'\) has shape \(NJOINTS,\) with dim 'NJOINTS'", error.message)
+    assert re.match(r"^port 'x' of module 'fake_needs_dim' \(task 'needs'\) has shape \(NJOINTS,\) with dim 'NJOINTS'",
+                    error.message)
 
 
 # --- ports and variables agree ---------------------------------------------------------------
@@ -608,7 +622,8 @@ def test_a_port_shape_naming_an_undefined_dim_is_an_error(tmp_path: Path) -> Non
 
 def test_a_port_and_its_variable_must_have_the_same_resolved_shape(tmp_path: Path) -> None:
     text = changed("q_r:   {type: float64, shape: [NDOF]}", "q_r:   {type: float64, shape: [7]}")
-    error = expect_error(tmp_path, text, "[7]", r"variable 'q_r' has shape \(7,\), but all 2 ports that link it are of shape \(6,\)$",
+    error = expect_error(tmp_path, text, "[7]",
+                         r"variable 'q_r' has shape \(7,\), but all 2 ports that link it are of shape \(6,\)$",
                          code="E302")
     assert error.hint == "change the shape of 'q_r' to [NDOF]"
     assert [(n.line, n.message) for n in error.notes] == [  # traj writes it, pid reads it
@@ -622,7 +637,8 @@ def test_a_port_and_its_variable_must_have_the_same_resolved_shape(tmp_path: Pat
 def test_an_input_nobody_writes_is_an_error_naming_the_configuration(tmp_path: Path) -> None:
     text = edited(("ports: {tau: tau_u}", "ports: {tau: tau_u, q_r: q_x}"),
                   ("  tau_u:", "  q_x:   {type: float64, shape: [NDOF]}\n  tau_u:"))
-    error = expect_error(tmp_path, text, "q_x}", r"task 'pid' reads in-var 'q_x', but no task in configuration 'joint_pid' writes it$",
+    error = expect_error(tmp_path, text, "q_x}",
+                         r"task 'pid' reads in-var 'q_x', but no task in configuration 'joint_pid' writes it$",
                          code="E403")
     assert "written: " in error.hint
 
@@ -669,8 +685,8 @@ def test_in_const_cannot_take_an_out_var(tmp_path: Path) -> None:
     assert len(result.errors) == 2  # robot and pid both read NDOF as in-const
     line, column = at(text, "robot:")
     assert re.match(
-        rf"^.*bad\.yaml:{line}:{column}: error\[E404\]: task 'robot' reads in-const 'NDOF' before its init, but its writer 'dims' "
-        r"in configuration 'joint_pid' writes it as out-var \(only after each cycle\)",
+        rf"^.*bad\.yaml:{line}:{column}: error\[E404\]: task 'robot' reads in-const 'NDOF' before its init, "
+        r"but its writer 'dims' in configuration 'joint_pid' writes it as out-var \(only after each cycle\)",
         str(result.errors[0]),
     )
 
@@ -686,19 +702,24 @@ def test_in_const_cannot_take_a_job_object_without_an_initial_value(tmp_path: Pa
     text = changed("NDOF:  {type: int32, initial: 6}", "NDOF:  {type: int32, object: count}")
     result = check(tmp_path, text)
     assert len(result.errors) == 2
-    assert re.match(r"^task 'robot' reads in-const 'NDOF' before its init, but in configuration 'joint_pid' only job control", result.errors[0].message)
+    assert re.match(r"^task 'robot' reads in-const 'NDOF' before its init, but in configuration 'joint_pid' only job control",
+                    result.errors[0].message)
 
 
 def test_in_both_takes_an_out_both(tmp_path: Path) -> None:
     text = changed("variables:\n", "variables:\n  c: {type: float64}\n")
-    text = changed("tasks:\n", "tasks:\n  w: {module: fake_both_writer, rtpu: rtpu0, period: 1 ms}\n  r: {module: fake_both_reader, rtpu: rtpu0, period: 1 ms}\n", text)
+    text = changed("tasks:\n",
+                   "tasks:\n  w: {module: fake_both_writer, rtpu: rtpu0, period: 1 ms}\n"
+                   "  r: {module: fake_both_reader, rtpu: rtpu0, period: 1 ms}\n", text)
     text = changed("configurations:\n", "configurations:\n  both: [w, r]\n", text)
     assert check(tmp_path, text).errors == []
 
 
 def test_a_cycle_of_const_dependencies_is_an_error_that_prints_the_cycle(tmp_path: Path) -> None:
     text = changed("variables:\n", "variables:\n  a: {type: float64}\n  b: {type: float64}\n")
-    text = changed("tasks:\n", "tasks:\n  ta: {module: fake_const_a, rtpu: rtpu0, period: 1 ms}\n  tb: {module: fake_const_b, rtpu: rtpu0, period: 1 ms}\n", text)
+    text = changed("tasks:\n",
+                   "tasks:\n  ta: {module: fake_const_a, rtpu: rtpu0, period: 1 ms}\n"
+                   "  tb: {module: fake_const_b, rtpu: rtpu0, period: 1 ms}\n", text)
     text = changed("configurations:\n", "configurations:\n  consts: [ta, tb]\n", text)
     error = only_error(check(tmp_path, text))
     assert re.match(r"^const dependencies form a cycle: (ta -> tb -> ta|tb -> ta -> tb)$", error.message)
@@ -755,8 +776,8 @@ def test_a_ragged_initial_value_is_an_error(tmp_path: Path) -> None:
 def test_a_module_that_cannot_list_its_ports_is_reported_not_raised(tmp_path: Path) -> None:
     text = changed("module: fake_traj", "module: fake_broken")
     result = check(tmp_path, text)
-    assert any(re.match(r"^module 'fake_broken' of task 'traj' cannot list its ports: RuntimeError", e.message) and e.code == "E307"
-               for e in result.errors)
+    assert any(re.match(r"^module 'fake_broken' of task 'traj' cannot list its ports: RuntimeError", e.message)
+               and e.code == "E307" for e in result.errors)
 
 
 class FakeBadShape(PortBasedObject):
@@ -791,7 +812,8 @@ def test_an_application_step_without_its_object_is_only_a_warning_and_makes_it_i
     [warning] = result.warnings
     line, column = at(text, "move", 2)
     assert re.match(
-        rf"^.*bad\.yaml:{line}:{column}: warning\[W701\]: application 'demo' is incomplete: step 2 'move' needs an object of type joint_position$",
+        rf"^.*bad\.yaml:{line}:{column}: warning\[W701\]: application 'demo' is incomplete: "
+        r"step 2 'move' needs an object of type joint_position$",
         str(warning), re.MULTILINE,
     ), str(warning)
     assert result.subsystem is not None and result.subsystem.applications["demo"].complete is False
@@ -806,7 +828,8 @@ def test_a_variable_nobody_reads_is_a_warning(tmp_path: Path) -> None:
     assert result.errors == []
     [warning] = result.warnings
     line, column = at(text, "spare")
-    assert str(warning) == f"{tmp_path / 'bad.yaml'}:{line}:{column}: warning[W202]: variable 'spare' is read by no task\n  hint: remove it, or link a task's input port to it"
+    assert str(warning) == (f"{tmp_path / 'bad.yaml'}:{line}:{column}: warning[W202]: variable 'spare' is read by no task\n"
+                            "  hint: remove it, or link a task's input port to it")
 
 
 def test_a_task_in_no_configuration_is_a_warning(tmp_path: Path) -> None:
@@ -841,18 +864,22 @@ def test_three_different_mistakes_are_all_reported_with_their_lines(tmp_path: Pa
     [
         ("E111", "critical: true", "critcal: true", "critcal", r"unknown key 'critcal' in task 'robot'$"),
         ("E112", "module: fake_traj, ", "", "traj:", r"task 'traj' has no 'module:', which is required$"),
-        ("E115", "critical: true", "critical: 1", "1, resources", r"'critical' of task 'robot' must be true or false, got: the integer 1$"),
+        ("E115", "critical: true", "critical: 1", "1, resources",
+         r"'critical' of task 'robot' must be true or false, got: the integer 1$"),
         ("E203", "rtpu: rtpu1", "rtpu: rtpu2", "rtpu2", r"task 'robot' runs on RTPU 'rtpu2', which 'rtpus' does not declare$"),
         ("E204", "q_d:   {type: float64, shape: [NDOF]", "q_d:   {type: float64, shape: [NDFO]", "NDFO",
          r"shape of variable 'q_d' uses dim 'NDFO', which 'dims' does not define$"),
         ("E303", "q_d:   {type: float64", "q_d:   {type: float46", "float46", r"variable 'q_d' has unknown type 'float46'$"),
-        ("E501", "period: 2 ms", "period: 2 kg", "2 kg", r"period of task 'traj': expected a time like '1 ms' or a number of seconds, got: '2 kg'"),
+        ("E501", "period: 2 ms", "period: 2 kg", "2 kg",
+         r"period of task 'traj': expected a time like '1 ms' or a number of seconds, got: '2 kg'"),
         ("E501", "period: 2 ms", "period: 500 Hz", "500 Hz", r"period of task 'traj': .* \(that is a frequency\)$"),
         ("E502", "period: 2 ms", "period: -5 ms", "-5 ms", r"period of task 'traj' must be > 0, got: -5 ms$"),
         ("E503", "rate: 1 kHz", "rate: 1 kHz, period: 1 ms", "rate:", r"task 'pid' gives both a period and a rate$"),
         ("E504", ", period: 2 ms", "", "traj:", r"task 'traj' needs a period or a rate$"),
-        ("E701", "object: q_d, post", "object: q_m, post", "q_m, post", r"job 'move' takes variable 'q_m' as its object, but the variable is not marked as an object$"),
-        ("E210", "configuration: joint_pid", "configuration: joint_pd", "joint_pd,", r"job 'move' runs configuration 'joint_pd', which 'configurations' does not declare$"),
+        ("E701", "object: q_d, post", "object: q_m, post", "q_m, post",
+         r"job 'move' takes variable 'q_m' as its object, but the variable is not marked as an object$"),
+        ("E210", "configuration: joint_pid", "configuration: joint_pd", "joint_pd,",
+         r"job 'move' runs configuration 'joint_pd', which 'configurations' does not declare$"),
     ],
 )
 def test_each_rule_has_its_own_code(tmp_path: Path, code: str, old: str, new: str, needle: str, message: str) -> None:
@@ -872,7 +899,8 @@ def test_two_tasks_with_one_name_are_a_duplicate_key_error_at_the_second(tmp_pat
     text = changed("  pid:   {module", "  traj:  {module")
     error = only_error(check(tmp_path, text))
     line, column = at(text, "traj:", 1)
-    assert re.match(rf"^.*bad\.yaml:{line}:{column}: error\[E102\]: duplicate key 'traj' in tasks \(first at line 14, column 3\)$", str(error), re.MULTILINE)
+    assert re.match(rf"^.*bad\.yaml:{line}:{column}: error\[E102\]: "
+                    r"duplicate key 'traj' in tasks \(first at line 14, column 3\)$", str(error), re.MULTILINE)
 
 
 def test_one_module_may_run_as_different_tasks_in_different_configurations(tmp_path: Path) -> None:
@@ -909,7 +937,8 @@ def test_a_condition_in_block_style_is_reported_at_its_value(tmp_path: Path) -> 
 
 
 def test_applications_may_nest_and_stay_complete(tmp_path: Path) -> None:
-    text = with_apps(f"  demo:\n    - move: {{q_d: {Q}}}\n  outer:\n    - demo\n    - hold\n", "  hold: {configuration: joint_pid, object: none}\n")
+    text = with_apps(f"  demo:\n    - move: {{q_d: {Q}}}\n  outer:\n    - demo\n    - hold\n",
+                     "  hold: {configuration: joint_pid, object: none}\n")
     result = check(tmp_path, text)
     assert result.errors == [] and result.warnings == []
     assert result.subsystem is not None
@@ -921,7 +950,8 @@ def test_an_application_using_an_incomplete_one_is_incomplete(tmp_path: Path) ->
     text = with_apps("  demo: [move]\n  outer: [demo]\n")
     result = check(tmp_path, text)
     warnings = expect_warnings(result, "W701", "W702")
-    assert re.match(r"^application 'outer' is incomplete: step 1 'demo' is the incomplete application 'demo'$", warnings[1].message)
+    assert re.match(r"^application 'outer' is incomplete: step 1 'demo' is the incomplete application 'demo'$",
+                    warnings[1].message)
     assert result.subsystem is not None
     assert not result.subsystem.applications["outer"].complete and not result.subsystem.applications["demo"].complete
 
@@ -970,8 +1000,8 @@ def test_an_overloaded_rtpu_is_a_warning(tmp_path: Path) -> None:
 def test_critical_tasks_that_do_not_fit_alone_are_not_guaranteed_by_muf(tmp_path: Path) -> None:
     warnings = expect_warnings(check(tmp_path, loads("1 ms", "0.6 ms", True, True)), "W502", "W503")
     [muf] = [w for w in warnings if w.code == "W503"]
-    assert re.match(r"^critical tasks of RTPU 'rtpu0' in configuration 'joint_pid' are not guaranteed: traj 0\.500 \(1 ms / 2 ms\), "
-                    r"pid 0\.600 \(0\.6 ms / 1 ms\); U_critical = 1\.100 > 1$", muf.message)
+    assert re.match(r"^critical tasks of RTPU 'rtpu0' in configuration 'joint_pid' are not guaranteed: "
+                    r"traj 0\.500 \(1 ms / 2 ms\), pid 0\.600 \(0\.6 ms / 1 ms\); U_critical = 1\.100 > 1$", muf.message)
     assert "Stewart & Khosla" in muf.hint
 
 
@@ -1026,7 +1056,8 @@ def test_the_hint_of_e407_when_followed_gives_two_instances_of_one_module_issue_
     text = edited(("configurations:\n", TRAJ2 + "configurations:\n"), ("[robot, traj, pid]", "[robot, traj, pid, traj2]"))
     hint = only_error(check(tmp_path, text)).hint
     declared, linked = re.search(r"declare '(\w+)' under variables:, link them with ports: (\{.*?\})\)", hint).groups()
-    followed = edited(("  traj2: {module: fake_traj, rtpu: rtpu0, period: 2 ms}", f"  traj2: {{module: fake_traj, rtpu: rtpu0, period: 2 ms, ports: {linked}}}"),
+    followed = edited(("  traj2: {module: fake_traj, rtpu: rtpu0, period: 2 ms}",
+                       f"  traj2: {{module: fake_traj, rtpu: rtpu0, period: 2 ms, ports: {linked}}}"),
                       ("variables:\n", f"variables:\n  {declared}: {{type: float64, shape: [NDOF]}}\n"), text=text)
     assert check(tmp_path, followed).errors == []
 
@@ -1040,7 +1071,8 @@ def test_tasks_of_a_module_that_writes_nothing_may_run_side_by_side_issue_22(tmp
 
 
 def test_a_second_pid_on_the_same_torque_is_still_one_module_twice_at_its_place_in_the_list_issue_22(tmp_path: Path) -> None:
-    text = edited(("configurations:\n", "  pid2: {module: fake_pid, rtpu: rtpu0, period: 1 ms, params: {kp: 1}, ports: {tau: tau_u}}\n"
+    text = edited(("configurations:\n",
+                   "  pid2: {module: fake_pid, rtpu: rtpu0, period: 1 ms, params: {kp: 1}, ports: {tau: tau_u}}\n"
                    "configurations:\n"), ("[robot, traj, pid]", "[robot, traj, pid, pid2]"))
     error = expect_error(tmp_path, text, "pid2]", r"configuration 'joint_pid' runs module 'fake_pid' twice: as task 'pid' "
                                                   r"\(line 15\) and as task 'pid2' \(line 16\), both writing tau_u$", code="E407")

@@ -33,16 +33,26 @@ def test_the_shipped_example_checks_without_a_warning():
 
 
 @pytest.mark.parametrize("code, steps, message, marker", [
-    ("E720", '    - if: "q_m[0] > 0"\n      than: [reach: ready]\n', r"the if of step 1 of application 'a': unknown key 'than'", "than:"),
+    ("E720", '    - if: "q_m[0] > 0"\n      than: [reach: ready]\n',
+     r"the if of step 1 of application 'a': unknown key 'than'", "than:"),
     ("E720", '    - try: [reach: ready]\n', r"the try of step 1 of application 'a' has no 'fallback:'", "- try:"),
-    ("E720", '    - repeat: reach\n      times: 2\n', r"the repeat of step 1 of application 'a': 'repeat:' must be a list of steps", "- repeat:"),
-    ("E721", '    - repeat: [reach: ready]\n', r"the repeat of step 1 of application 'a' is not bounded: it has neither times: nor until:", "- repeat:"),
-    ("E721", '    - repeat: [reach: ready]\n      until: "q_m[0] > 0"\n', r"the repeat of step 1 of application 'a' is not bounded: it has until", "- repeat:"),
-    ("E721", '    - repeat: [reach: ready]\n      times: 0\n', r"the repeat of step 1 of application 'a': times: must be a whole number", "times:"),
-    ("E719", '    - if: "q_m[6] > 0"\n      then: [reach: ready]\n', r"the condition of the if of step 1 of application 'a': index \[6\] is out of range for shape \(6,\)", "q_m[6]"),
-    ("E719", '    - wait: "max(q_m + EE) > 0"\n      timeout: 1 s\n', r"the condition of the wait of step 1 of application 'a' cannot be computed on its variables' shapes: operands could not be broadcast", '"max(q_m + EE) > 0"'),
-    ("E704", '    - if: "q_x[0] > 0"\n      then: [reach: ready]\n', r"the condition of the if of step 1 of application 'a' uses 'q_x', which 'variables' does not declare", "- if:"),
-    ("E211", '    - try: [reech: ready]\n      fallback: [reach: ready]\n', r"step 1 of application 'a' runs job 'reech'", "- try:"),
+    ("E720", '    - repeat: reach\n      times: 2\n',
+     r"the repeat of step 1 of application 'a': 'repeat:' must be a list of steps", "- repeat:"),
+    ("E721", '    - repeat: [reach: ready]\n',
+     r"the repeat of step 1 of application 'a' is not bounded: it has neither times: nor until:", "- repeat:"),
+    ("E721", '    - repeat: [reach: ready]\n      until: "q_m[0] > 0"\n',
+     r"the repeat of step 1 of application 'a' is not bounded: it has until", "- repeat:"),
+    ("E721", '    - repeat: [reach: ready]\n      times: 0\n',
+     r"the repeat of step 1 of application 'a': times: must be a whole number", "times:"),
+    ("E719", '    - if: "q_m[6] > 0"\n      then: [reach: ready]\n',
+     r"the condition of the if of step 1 of application 'a': index \[6\] is out of range for shape \(6,\)", "q_m[6]"),
+    ("E719", '    - wait: "max(q_m + EE) > 0"\n      timeout: 1 s\n',
+     r"the condition of the wait of step 1 of application 'a' cannot be computed on its variables' shapes: "
+     r"operands could not be broadcast", '"max(q_m + EE) > 0"'),
+    ("E704", '    - if: "q_x[0] > 0"\n      then: [reach: ready]\n',
+     r"the condition of the if of step 1 of application 'a' uses 'q_x', which 'variables' does not declare", "- if:"),
+    ("E211", '    - try: [reech: ready]\n      fallback: [reach: ready]\n',
+     r"step 1 of application 'a' runs job 'reech'", "- try:"),
 ])
 def test_a_step_that_decides_written_wrong_is_one_located_error(tmp_path, code, steps, message, marker):
     result, path = checked(tmp_path, "  a:\n" + steps)
@@ -54,7 +64,8 @@ def test_a_step_that_decides_written_wrong_is_one_located_error(tmp_path, code, 
 
 @pytest.mark.parametrize("code, steps, message", [
     ("W703", "    - try: [drift: ready]\n      fallback: [reach: ready]\n", r"the try of step 1 of application 'a' cannot fail"),
-    ("W704", '    - if: "1 < 2"\n      then: [reach: ready]\n', r"the condition of the if of step 1 of application 'a' is constant"),
+    ("W704", '    - if: "1 < 2"\n      then: [reach: ready]\n',
+     r"the condition of the if of step 1 of application 'a' is constant"),
     ("W705", '    - wait: "q_m[0] > 0"\n', r"the wait of step 1 of application 'a' has no timeout"),
 ])
 def test_a_step_that_decides_suspiciously_is_warned(tmp_path, code, steps, message):
@@ -65,7 +76,8 @@ def test_a_step_that_decides_suspiciously_is_warned(tmp_path, code, steps, messa
 
 
 def test_a_try_of_a_job_with_a_pre_condition_or_a_wait_with_a_timeout_can_fail(tmp_path):
-    result, _ = checked(tmp_path, '  a:\n    - try:\n        - wait: "q_m[0] > 0"\n          timeout: 1 s\n      fallback: [reach: ready]\n')
+    result, _ = checked(tmp_path, '  a:\n    - try:\n        - wait: "q_m[0] > 0"\n          timeout: 1 s\n'
+                                  '      fallback: [reach: ready]\n')
     assert result.errors == [] and result.warnings == []
 
 
@@ -74,7 +86,8 @@ def test_a_gap_on_one_path_makes_the_application_incomplete(tmp_path):
     assert [w.code for w in result.warnings] == ["W701"]
     assert result.subsystem is not None
     application = result.subsystem.applications["a"]
-    assert not application.complete and [(g.step, g.job, g.object_type) for g in application.gaps] == [(1, "reach", "joint_position")]
+    assert not application.complete
+    assert [(g.step, g.job, g.object_type) for g in application.gaps] == [(1, "reach", "joint_position")]
 
 
 def test_an_application_used_inside_a_branch_interlocks_and_takes_part_in_the_cycle_check(tmp_path):
@@ -92,7 +105,8 @@ def test_each_path_of_an_application_is_listed_with_the_jobs_it_runs():
     assert [(p.label, p.jobs) for p in listed] == [
         ("try: ok, repeat, if: then", ("approach", "reach", "reach", "reach", "reach", "settle")),
         ("try: ok, repeat, if: else", ("approach", "reach", "reach", "reach", "reach", "reach", "settle")),
-        ("try: fails at 'approach' -> fallback, repeat, if: then", ("approach", "reach", "reach", "reach", "reach", "reach", "settle")),
+        ("try: fails at 'approach' -> fallback, repeat, if: then", ("approach", "reach", "reach", "reach",
+                                                                    "reach", "reach", "settle")),
         ("try: fails at 'approach' -> fallback, repeat, if: else",
          ("approach", "reach", "reach", "reach", "reach", "reach", "reach", "settle")),
     ]

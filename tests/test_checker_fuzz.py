@@ -162,7 +162,8 @@ _CODE = re.compile(r"^[EW]\d{3}$")
 @seed(20240611)
 @settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(mutations=MUTATIONS)
-def test_a_mutated_shipped_config_gets_located_diagnostics_never_an_exception(config: Path, mutations: list[tuple[Any, ...]]) -> None:
+def test_a_mutated_shipped_config_gets_located_diagnostics_never_an_exception(config: Path,
+                                                                             mutations: list[tuple[Any, ...]]) -> None:
     path, data = write_mutant(config, mutations)
     result = check_file(path)  # raising here fails the test
     try:
@@ -189,7 +190,8 @@ def test_a_mutated_shipped_config_gets_located_diagnostics_never_an_exception(co
 @seed(20240612)
 @settings(max_examples=CLI_RUNS, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(mutations=MUTATIONS)
-def test_pbo_check_of_a_mutated_shipped_config_exits_0_or_1_without_a_traceback(config: Path, mutations: list[tuple[Any, ...]]) -> None:
+def test_pbo_check_of_a_mutated_shipped_config_exits_0_or_1_without_a_traceback(config: Path,
+                                                                                mutations: list[tuple[Any, ...]]) -> None:
     path, _ = write_mutant(config, mutations)
     run = subprocess.run(
         [sys.executable, "-m", "pbo_runtime.cli", "check", str(path)],

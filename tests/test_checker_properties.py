@@ -47,7 +47,8 @@ UNREGISTERED = "m_missing"
 INPUTS = frozenset({"in-const", "in-var", "in-both"})
 NEEDS_INIT = frozenset({"in-const", "in-both"})  # read before init
 SUPPLIES_INIT = frozenset({"out-const", "out-both"})  # written after init
-_PORT_CLASS = {"in-const": InConst, "out-const": OutConst, "in-var": InVar, "out-var": OutVar, "in-both": InBoth, "out-both": OutBoth}
+_PORT_CLASS = {"in-const": InConst, "out-const": OutConst, "in-var": InVar, "out-var": OutVar,
+               "in-both": InBoth, "out-both": OutBoth}
 
 
 def _shape(var: str) -> tuple[str, ...]:
@@ -321,11 +322,15 @@ def _has_cycle(edges: set[tuple[str, str]]) -> bool:
 _SUBJECT = {
     "E401": re.compile(r"^variable '(?P<var>\w+)' has \w+ writers in configuration '(?P<config>\w+)'"),
     "E403": re.compile(r"^task '(?P<task>\w+)' reads [\w-]+ '(?P<var>\w+)', but no task in configuration '(?P<config>\w+)'"),
-    "E404": re.compile(r"^task '(?P<task>\w+)' reads [\w-]+ '(?P<var>\w+)' before its init, but its writer '\w+' in configuration '(?P<config>\w+)'"),
-    "E405": re.compile(r"^task '(?P<task>\w+)' reads [\w-]+ '(?P<var>\w+)' before its init, but in configuration '(?P<config>\w+)' only job control"),
-    "E407": re.compile(r"^configuration '(?P<config>\w+)' runs module '\w+' twice: as task '\w+' \(line \d+\) and as task '(?P<task>\w+)'"),
+    "E404": re.compile(r"^task '(?P<task>\w+)' reads [\w-]+ '(?P<var>\w+)' before its init, "
+                       r"but its writer '\w+' in configuration '(?P<config>\w+)'"),
+    "E405": re.compile(r"^task '(?P<task>\w+)' reads [\w-]+ '(?P<var>\w+)' before its init, "
+                       r"but in configuration '(?P<config>\w+)' only job control"),
+    "E407": re.compile(r"^configuration '(?P<config>\w+)' runs module '\w+' twice: "
+                       r"as task '\w+' \(line \d+\) and as task '(?P<task>\w+)'"),
     "E406": re.compile(r"^const dependencies form a cycle: (?P<cycle>\w+( -> \w+)+)$"),
-    "E408": re.compile(r"^configuration '(?P<config>\w+)' (leaves out task '\w+', which writes|has no writer of) (?P<vars>.*?), read by "),
+    "E408": re.compile(r"^configuration '(?P<config>\w+)' (leaves out task '\w+', which writes|has no writer of) "
+                       r"(?P<vars>.*?), read by "),
 }
 _UNRESOLVED = re.compile(r"^task '(?P<task>\w+)' (links port|\(module|port '\w+' \(|uses module)")
 _UNRESOLVED_CODES = ("E205", "E206", "E301", "E302", "E207", "E317")
@@ -394,7 +399,7 @@ def test_the_checker_reports_exactly_the_data_flow_errors_the_rules_call_for(ts:
 
     for cycle in cycles:  # the printed cycle is one: each task writes a const the next one reads
         assert cycle[0] == cycle[-1], cycle
-        assert all(link in verdict.edges for link in zip(cycle, cycle[1:])), (cycle, verdict.edges, text)
+        assert all(link in verdict.edges for link in itertools.pairwise(cycle)), (cycle, verdict.edges, text)
 
     if not verdict.errors and all(verdict.resolved.values()):
         assert result.errors == [], "\n".join(e.format() for e in result.errors) + "\n" + text
@@ -434,6 +439,7 @@ def test_two_tasks_of_one_module_writing_variables_of_their_own_are_two_instance
 
 def test_a_second_instance_writing_the_same_variables_is_one_e407_and_nothing_else() -> None:
     result = check_text(TWO_INSTANCES.replace("  s2: {module: m_source, rtpu: rtpu0, period: 1 ms, ports: {k: b, y: v}}\n",
-                                              "  s2: {module: m_source, rtpu: rtpu0, period: 1 ms}\n  s3: {module: m_filter, rtpu: rtpu0, period: 1 ms}\n")
+                                              "  s2: {module: m_source, rtpu: rtpu0, period: 1 ms}\n"
+                                              "  s3: {module: m_filter, rtpu: rtpu0, period: 1 ms}\n")
                         .replace("[s1, s2, r]", "[s1, s2, s3, r]"))
     assert [e.code for e in result.errors] == ["E407"], "\n".join(e.format() for e in result.errors)

@@ -11,14 +11,33 @@ import time
 import posix_ipc
 import pytest
 
-from pbo_runtime.ipc import messages
-from pbo_runtime.ipc import process
+from pbo_runtime.ipc import messages, process
 from pbo_runtime.ipc import shm as _shm
 from pbo_runtime.supervisor.supervisor import remove_dead_runs
 from pbo_runtime.table.table import Header, StateTable, TableLayout
-from tests.support import (DEMO, PBO, REPO, RUNS, SAYING_SAFETY_NET, Ticker, children_of, config_copy, dead_pid, demo_copy,
-                           ipc_names, killed_on_failure, objects_left, process_gone, read_until, run_objects, table_of,
-                           task_spec, unique_name, until, variables)
+from tests.support import (
+    DEMO,
+    PBO,
+    REPO,
+    RUNS,
+    SAYING_SAFETY_NET,
+    Ticker,
+    children_of,
+    config_copy,
+    dead_pid,
+    demo_copy,
+    ipc_names,
+    killed_on_failure,
+    objects_left,
+    process_gone,
+    read_until,
+    run_objects,
+    table_of,
+    task_spec,
+    unique_name,
+    until,
+    variables,
+)
 
 VARS = variables(("a", "float64", (3,)))
 
@@ -71,7 +90,7 @@ def test_a_new_run_removes_what_a_dead_run_left_queues_included():
         queue_name = messages.event_queue_name(subsystem, run)
         plant_name = messages.plant_registers_name(subsystem, run)
         queue = messages.Queue(queue_name, create=True)
-        shm, mapping = _shm.create_segment(plant_name, 4096)
+        _segment, mapping = _shm.create_segment(plant_name, 4096)
         mapping.close()
         table = StateTable.create(TableLayout.build(VARS, 1), table_name,
                                   [f"shm {table_name}", f"sem {table_name}.lock", f"mq {queue_name}", f"shm {plant_name}"])
@@ -209,7 +228,8 @@ def test_killing_the_supervisor_leaves_no_process_no_object_and_no_traceback(tmp
     name = "killed_" + moment.replace(",", "").replace(" ", "_")
     file = demo_copy(tmp_path, name)
     if moment == "on, restart policy":
-        file = config_copy(DEMO, tmp_path, name, (("rtpus: [rtpu0, rtpu1]", "rtpus: [rtpu0, rtpu1]\nrestart: {max: 3, within: 10 min}"),))
+        file = config_copy(DEMO, tmp_path, name, (("rtpus: [rtpu0, rtpu1]",
+                                                   "rtpus: [rtpu0, rtpu1]\nrestart: {max: 3, within: 10 min}"),))
     pbo = subprocess.Popen([*PBO, "run", str(file), "--duration", "60", "--no-live", *arguments], cwd=tmp_path,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     with killed_on_failure(pbo):
@@ -239,9 +259,9 @@ def test_an_rtpu_stops_on_sigterm_even_while_waiting_on_its_queue(tmp_path):
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         read_until(pbo, "is on")
-        rtpu0 = [pid for pid, cmd in children_of(pbo.pid).items() if "--rtpu rtpu0" in cmd][0]
+        rtpu0 = next(pid for pid, cmd in children_of(pbo.pid).items() if "--rtpu rtpu0" in cmd)
         os.kill(rtpu0, signal.SIGTERM)
-        out, err = pbo.communicate(timeout=60)
+        _out, err = pbo.communicate(timeout=60)
     finally:
         if pbo.poll() is None:
             pbo.kill()
@@ -291,8 +311,8 @@ def test_a_stop_signal_that_lands_inside_a_table_transfer_is_taken_at_the_next_w
     # stop path (kill -> publish the state) then waited on the RTPU's own lock for ever, and a
     # killed supervisor's RTPU outlived it (test_killing_the_supervisor..., seen once in CI).
     from pbo_runtime.clock.clocks import RealClock
-    from pbo_runtime.task.lifecycle import Task
     from pbo_runtime.table.table import TaskState
+    from pbo_runtime.task.lifecycle import Task
     from rtpu._executive import Executive
 
     table = make_table(variables(("o0", "float64", ())))

@@ -70,7 +70,8 @@ ISSUE_33_MISTAKES = [  # what an examiner found passing pbo check, then crashing
     pytest.param("kp: 400", "kp: .inf", "E308", r"parameter kp .* got: \.inf", id="kp_inf"),
     pytest.param("kp: 400", "kp: 1.0e+308", "E308", r"parameter kp .* got: 1e\+308", id="kp_huge"),
     pytest.param("max_velocity: 1.0", "max_velocity: .nan", "E308",
-                 r"parameter max_velocity of task 'traj' \(module 'joint_trajectory'\) must be in \(0, 100\]", id="max_velocity_nan"),
+                 r"parameter max_velocity of task 'traj' \(module 'joint_trajectory'\) must be in \(0, 100\]",
+                 id="max_velocity_nan"),
     pytest.param("subsystem: puma", "subsystem: " + "p" * 300, "E218", r"subsystem name 'p+\.\.\.p+' is 300 characters long",
                  id="a_300_character_name"),
     pytest.param("period: 1 ms, critical", "period: 1e300 s, critical", "E513",
@@ -99,7 +100,8 @@ def test_check_of_a_missing_file_is_an_error_not_a_traceback(tmp_path, capsys):
 
 
 @pytest.mark.multiprocess
-@pytest.mark.parametrize(("text", "errors"), [(three_mistakes(), 3), (DEMO.replace("subsystem: puma", "subsystem: " + "p" * 300), 1)],
+@pytest.mark.parametrize(("text", "errors"),
+                         [(three_mistakes(), 3), (DEMO.replace("subsystem: puma", "subsystem: " + "p" * 300), 1)],
                          ids=["three_mistakes", "a_300_character_name"])
 def test_run_refuses_a_file_with_errors_and_starts_nothing(tmp_path, text, errors):
     done = subprocess.run([sys.executable, "-m", "pbo_runtime.cli", "run", str(write(tmp_path, text))],
@@ -255,7 +257,8 @@ def test_pbo_status_shows_each_rtpus_restarts_with_the_last_cause_and_its_time_b
                 {"rtpu": "rtpu1", "pid": 9, "cause": "killed by SIGABRT", "died_at": 3.0, "on_again_at": None, "seconds": None,
                  "tasks_on": ["pid"], "attempts": 1}]
     reply = {"subsystem": "puma", "run_id": "1-ab", "configuration": "pid", "elapsed": 4.0,
-             "tasks": [{"task": "robot", "rtpu": "rtpu0", "state": "ON"}, {"task": "pid", "rtpu": "rtpu1", "state": "NOT_CREATED"}],
+             "tasks": [{"task": "robot", "rtpu": "rtpu0", "state": "ON"},
+                       {"task": "pid", "rtpu": "rtpu1", "state": "NOT_CREATED"}],
              "realtime": {}, "restarts": restarts[:1]}
     console = Console(record=True, width=200)
     console.print(status_table(reply))
@@ -300,7 +303,8 @@ def test_a_misspelt_verb_is_answered_with_the_closest_one(capsys):
 
 
 @pytest.mark.parametrize("argv, said", [
-    (["--config", "joint_pdi"], "error: no configuration 'joint_pdi' in {file}: did you mean 'joint_pid'? (configurations: joint_pid)"),
+    (["--config", "joint_pdi"],
+     "error: no configuration 'joint_pdi' in {file}: did you mean 'joint_pid'? (configurations: joint_pid)"),
     (["--app", "tuor"], "error: no application 'tuor' in {file} (applications: none)"),
 ])
 def test_a_configuration_or_application_the_file_lacks_is_a_wrong_argument_exit_1_with_no_run_started(argv, said, tmp_path,
@@ -322,7 +326,8 @@ def latin1(text: str) -> bytes:
 @pytest.mark.parametrize("verb", [["check"], ["run", "--clock", "sim", "--duration", "0.01", "--no-live"]], ids=["check", "run"])
 @pytest.mark.parametrize("what", ["subsystem", "application"])
 def test_a_yaml_file_that_is_not_utf8_is_one_clear_error_with_exit_1(tmp_path, capsys, verb, what):
-    text = DEMO + "# réglé\n" if what == "subsystem" else f"application: demo\n# réglé\nsubsystems: {{a: {REPO / 'configs' / 'pid_joint.yaml'}}}\n"
+    application = f"application: demo\n# réglé\nsubsystems: {{a: {REPO / 'configs' / 'pid_joint.yaml'}}}\n"
+    text = DEMO + "# réglé\n" if what == "subsystem" else application
     path = tmp_path / "latin.yaml"
     path.write_bytes(latin1(text))
     offset = latin1(text).index(b"\xe9")

@@ -12,7 +12,8 @@ import json
 import os
 import threading
 import uuid
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import pytest
 
@@ -96,7 +97,7 @@ def test_a_verb_with_format_json_prints_the_reply_dict_the_supervisor_sent_with_
     verb = COMMANDS[arguments[0]]
     try:
         request = verb.request(vars(_parser().parse_args(arguments)))
-    except Exception as exc:  # noqa: BLE001 - the command line's own refusal
+    except Exception as exc:  # the command line's own refusal
         expected = {"ok": False, "error": str(exc), "bad_request": True}
     else:
         expected = jsonable(answer(lambda c, a: dispatch(FakeJobHost(subsystem, "pid"), c, a), verb.name, request))

@@ -11,9 +11,9 @@ import pytest
 
 from pbo_runtime import OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock, RealClock, SimClock, release_stagger
-from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import HEADER_WORDS, Header
 from pbo_runtime.table.table import StatusWord as W
+from pbo_runtime.task.lifecycle import Task
 from rtpu._executive import Executive
 from tests.support import task_spec, variables
 

@@ -66,7 +66,8 @@ def test_a_combined_task_computes_what_its_members_compute_apart(make_table):
     task = Task(combined_spec({"members": MEMBERS}), Combined, together, DIMS)
     apart = arm_table()
     traj = Task(task_spec(JointTrajectory, "traj", 0, dims=DIMS, params=MEMBERS[0]["params"]), JointTrajectory, apart, DIMS)
-    pid = Task(task_spec(PidJoint, "pid", 1, dims=DIMS, ports={"tau": "tau_u"}, params=MEMBERS[1]["params"]), PidJoint, apart, DIMS)
+    pid = Task(task_spec(PidJoint, "pid", 1, dims=DIMS, ports={"tau": "tau_u"},
+                         params=MEMBERS[1]["params"]), PidJoint, apart, DIMS)
     for t in (task, traj, pid):
         assert t.spawn(0.0), t.last_error
         assert t.turn_on(0.0), t.last_error
@@ -81,7 +82,8 @@ def test_a_combined_task_computes_what_its_members_compute_apart(make_table):
 @pytest.mark.parametrize(("params", "message"), [
     ({"members": [MEMBERS[0]]}, r"members must list at least two modules to combine"),
     ({"members": [MEMBERS[0], {"module": "pid_jiont"}]}, r"member 2: no module named 'pid_jiont'"),
-    ({"members": [MEMBERS[0], {"module": "pid_joint", "ports": {"torque": "x"}}]}, r"member 2 \(pid_joint\) has no port\(s\) 'torque'"),
+    ({"members": [MEMBERS[0], {"module": "pid_joint", "ports": {"torque": "x"}}]},
+     r"member 2 \(pid_joint\) has no port\(s\) 'torque'"),
     ({"members": [MEMBERS[1], MEMBERS[1]]}, r"members 1:pid_joint and 2:pid_joint both write 'tau_u'"),
     ({"members": [MEMBERS[0], {"module": "pid_joint", "params": {"kp": -1}}]},
      r"^bad parameters for Combined: member 2 \(pid_joint\): PidJoint\.kp must be in \[0, 1e\+06\], got: -1$"),

@@ -18,8 +18,8 @@ from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.objects.ranges import Range
 from pbo_runtime.supervisor.commands import COMMANDS, SERVED, VERBS, WHICH_RUN, dispatch, parse_job_object, verb_table
-from tests.support import REPO
 from tests.fake_job_host import FakeJobHost, fake_subsystem
+from tests.support import REPO
 
 
 def subparsers() -> dict[str, argparse.ArgumentParser]:
@@ -29,7 +29,8 @@ def subparsers() -> dict[str, argparse.ArgumentParser]:
 
 def test_the_docs_verb_table_is_the_one_the_command_table_makes():
     text = (REPO / "docs" / "operator-commands.md").read_text()
-    assert verb_table() in text, "regenerate it: python -c 'from pbo_runtime.supervisor.command_table import verb_table; print(verb_table())'"
+    assert verb_table() in text, \
+        "regenerate it: python -c 'from pbo_runtime.supervisor.command_table import verb_table; print(verb_table())'"
 
 
 @pytest.mark.parametrize("verb", VERBS, ids=lambda verb: verb.name)
@@ -43,7 +44,8 @@ def test_every_verb_is_a_cli_command_with_its_declared_arguments_and_a_runner(ve
 @pytest.mark.parametrize("verb", VERBS, ids=lambda verb: verb.name)
 def test_every_verb_picks_its_run_with_the_arguments_the_table_declares_once(verb):
     assert [a.name for a in WHICH_RUN] == ["--subsystem", "--run"]
-    arguments = {"on": ["x"], "off": ["x"], "clear": ["x"], "switch": ["x"], "job": ["x"], "event": ["x"], "play": ["x"], "spawn": ["x"],
+    arguments = {"on": ["x"], "off": ["x"], "clear": ["x"], "switch": ["x"], "job": ["x"], "event": ["x"],
+                 "play": ["x"], "spawn": ["x"],
                  "kill": ["x"], "replace": ["x", "y"], "set": ["x", "kp", "1"], "app": ["x"], "save": ["x"]}.get(verb.name, [])
     parsed = _parser().parse_args([verb.name, *arguments, "--run", "1234-ab", "--subsystem", "puma"])
     assert (parsed.run, parsed.subsystem) == ("1234-ab", "puma")
@@ -97,7 +99,8 @@ def test_an_on_whose_error_component_turned_the_task_off_says_so_issue_22(subsys
     host.task_states["pid"], host.on_leaves, host.task_errors["pid"] = "OFF", "OFF", "on raised RuntimeError: no arm"
     reply = dispatch(host, "on", {"task": "pid"})
     assert reply["state"] == "OFF"
-    assert reply["message"] == "task 'pid' is OFF; its on failed and its error component turned it off (on raised RuntimeError: no arm)"
+    assert reply["message"] == ("task 'pid' is OFF; its on failed and its error component turned it off "
+                                "(on raised RuntimeError: no arm)")
 
 
 @pytest.mark.parametrize("verb, task, state, refusal", [
@@ -168,13 +171,15 @@ def test_a_malformed_event_is_refused_as_a_bad_request_and_nothing_is_sent(goal_
 
 def test_an_event_for_an_aperiodic_task_that_is_not_on_is_refused_for_the_runs_state(goal_host):
     goal_host.task_states["goal"] = "OFF"
-    with pytest.raises(PboError, match=r"^task 'goal' is OFF, not ON: an event would not run it; turn it on with pbo on goal$") as refused:
+    with pytest.raises(PboError,
+                       match=r"^task 'goal' is OFF, not ON: an event would not run it; turn it on with pbo on goal$") as refused:
         dispatch(goal_host, "event", {"task": "goal", "values": [0.0] * 6})
     assert not isinstance(refused.value, BadRequest) and goal_host.events == []
 
 
 @pytest.mark.parametrize("job_object, refusal", [
-    ([float("nan")] + [0.0] * 5, r"^job 'reach': object 'q_d': float64 elements must be finite numbers, got: \.nan \(not a number\) \(value 1\)$"),
+    ([float("nan")] + [0.0] * 5,
+     r"^job 'reach': object 'q_d': float64 elements must be finite numbers, got: \.nan \(not a number\) \(value 1\)$"),
     ([0.0] * 5 + [float("inf")], r"got: \.inf \(value 6\)$"),
     ([0.0] * 5, r"^job 'reach': object 'q_d': the variable takes 6 values \(shape \[6\]\), got 5$"),
     (["a"] * 6, r"float64 elements must be numbers, got: the text 'a' \(value 1\)$"),
@@ -193,8 +198,9 @@ def test_a_job_object_outside_its_types_range_is_refused_naming_the_range(subsys
     kind = subsystem.object_types["joint_position"]
     ranged = dataclasses.replace(kind, range=Range(-3.2, 3.2, low_open=False, high_open=False))  # range: [-3.2, 3.2]
     host = FakeJobHost(dataclasses.replace(subsystem, object_types={"joint_position": ranged}), "pid")
-    with pytest.raises(BadRequest, match=r"^job 'reach': object 'q_d': element 6 must be in \[-3\.2, 3\.2\] \(the range of object "
-                                         r"type 'joint_position'\), got: 7$"):
+    with pytest.raises(BadRequest,
+                       match=r"^job 'reach': object 'q_d': element 6 must be in \[-3\.2, 3\.2\] \(the range of object "
+                             r"type 'joint_position'\), got: 7$"):
         dispatch(host, "job", {"job": "reach", "object": [0.0] * 5 + [7.0]})
     assert host.job_control.job is None
     assert dispatch(host, "job", {"job": "reach", "object": [-3.2] + [0.0] * 4 + [3.2]})["job"] == "reach"  # its ends are in it

@@ -68,7 +68,8 @@ def variant(folder: Path, gains: str = GAINS, *, id_first: bool = False, id_rtpu
 
 @pytest.mark.parametrize("who", [
     "task 'pid' (kp 2500, kd 1500) through the inverse dynamics of task 'id'",
-    "member 1 (pid_joint) of task 'ctc' (kp 2500, kd 1500) through the inverse dynamics of member 2 (inverse_dynamics) of task 'ctc'",
+    "member 1 (pid_joint) of task 'ctc' (kp 2500, kd 1500) through the inverse dynamics of member 2 (inverse_dynamics) "
+    "of task 'ctc'",
 ])
 def test_a_kd_too_high_for_a_unit_inertia_is_an_error_at_the_gain_with_the_bound_in_accelerations(tmp_path, who):
     path = variant(tmp_path, "kp: 2500, kd: 1500")
@@ -94,7 +95,8 @@ def test_a_kd_too_low_for_a_unit_inertia_rings(tmp_path):
                                        "so runs first"),
     ({"id_rtpu": "rtpu1"}, "task 'pid'", "task 'id' reads 'qdd_r' of the cycle before: it runs on another RTPU"),
     ({"members_swapped": True}, "member 2 (pid_joint) of task 'ctc'",
-     "member 1 (inverse_dynamics) of task 'ctc' reads 'qdd_r' of the cycle before: it is listed before the controller, so runs first"),
+     "member 1 (inverse_dynamics) of task 'ctc' reads 'qdd_r' of the cycle before: it is listed before the controller, "
+     "so runs first"),
 ])
 def test_inverse_dynamics_that_reads_the_pids_acceleration_a_period_late_costs_a_period_of_delay(tmp_path, change, task, why):
     # kd 700 at kp 2500: stable with one period of delay (below 999), not with two (above 616)

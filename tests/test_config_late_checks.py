@@ -42,7 +42,8 @@ JOINED = BASE.replace("""  tau_u: {type: float64, shape: [NDOF]}
   tau_g: {type: float64, shape: [NDOF]}
 """).replace("ports: {tau: tau_u}}", """params: {gravity_feedforward: false}, ports: {tau: tau_pid}}
   gravity: {module: gravity_compensation, rtpu: rtpu1, period: 1 ms}
-  join:  {module: join, rtpu: rtpu1, period: 1 ms, params: {inputs: [tau_pid, tau_g], combine: sum}, ports: {out: tau_u}}""").replace(
+  join:  {module: join, rtpu: rtpu1, period: 1 ms, params: {inputs: [tau_pid, tau_g], combine: sum}, \
+ports: {out: tau_u}}""").replace(
     "params: {kp: 400, kd: 40}, params:", "params:").replace("[robot, traj, pid]", "[robot, traj, pid, gravity, join]")
 
 
@@ -101,10 +102,12 @@ def test_join_inputs_of_a_shape_other_than_the_output_are_refused_where_the_inpu
 
 
 @pytest.mark.parametrize(("edit", "needle", "message"), [
-    pytest.param(("critical: true, resources: [arm]}", "critical: true}"), "robot:", r"task 'robot' \(module 'robot_torque'\) opens "
+    pytest.param(("critical: true, resources: [arm]}", "critical: true}"), "robot:",
+                 r"task 'robot' \(module 'robot_torque'\) opens "
                  r"device 'arm' \(params: device, by default\), which is not among its resources \(none\)", id="by_default"),
     pytest.param(("critical: true, resources: [arm]}", "critical: true, params: {device: arm}}"), "arm}}",
-                 r"task 'robot' \(module 'robot_torque'\) opens device 'arm' \(params: device\), which is not among its resources",
+                 r"task 'robot' \(module 'robot_torque'\) opens device 'arm' \(params: device\), "
+                 r"which is not among its resources",
                  id="named_in_its_params"),
 ])
 def test_a_device_a_module_opens_outside_its_tasks_resources_is_refused(tmp_path: Path, edit, needle, message) -> None:
@@ -117,8 +120,10 @@ def test_a_device_a_module_opens_outside_its_tasks_resources_is_refused(tmp_path
     pytest.param("{driver: mujoco_arm, exclusive: true}", "robot_position", "torque (driver mujoco_arm's default)", "position",
                  id="robot_position_on_an_arm_in_the_default_torque_mode"),
 ])
-def test_a_robot_interface_on_an_arm_in_the_other_mode_is_refused_at_its_module(tmp_path: Path, device, module, has, needs) -> None:
-    text = edited(BASE, ("{driver: mujoco_arm, mode: torque, exclusive: true}", device), ("module: robot_torque", f"module: {module}"))
+def test_a_robot_interface_on_an_arm_in_the_other_mode_is_refused_at_its_module(tmp_path: Path, device, module, has,
+                                                                               needs) -> None:
+    text = edited(BASE, ("{driver: mujoco_arm, mode: torque, exclusive: true}", device),
+                  ("module: robot_torque", f"module: {module}"))
     if module == "robot_position":  # it reads q_r, not tau_u
         text = edited(text, ("tau_u: {type: float64, shape: [NDOF]}", "tau_u: {type: float64, shape: [NDOF], initial: 0}"))
     error = expect(tmp_path, text, module, "E609", rf"task 'robot' \(module '{module}'\) needs device 'arm' with mode: {needs}, "
@@ -137,9 +142,11 @@ def test_a_robot_interface_on_an_arm_in_the_other_mode_is_refused_at_its_module(
     pytest.param("seed: lucky", "lucky", "E320", r"plant option seed must be an integer, got: 'lucky'", id="a_wrong_type"),
     pytest.param("adc_noise: -1", "-1", "E320", r"plant option adc_noise must be in \[0, 10\], got: -1",
                  id="a_value_out_of_range"),
-    pytest.param("q0: [0, 0, .nan, 0, 0, 0]", ".nan", "E320", r"plant option q0\[2\] must be a finite number, got: \.nan \(not a number\)",
+    pytest.param("q0: [0, 0, .nan, 0, 0, 0]", ".nan", "E320",
+                 r"plant option q0\[2\] must be a finite number, got: \.nan \(not a number\)",
                  id="a_value_that_is_not_finite_at_its_element"),
-    pytest.param("command_timeout: 1.0e+300", "1.0e+300", "E320", r"plant option command_timeout must be in \[0, 3600\], got: 1e\+300",
+    pytest.param("command_timeout: 1.0e+300", "1.0e+300", "E320",
+                 r"plant option command_timeout must be in \[0, 3600\], got: 1e\+300",
                  id="a_time_beyond_its_range"),
 ])
 def test_plant_options_are_checked_against_what_the_plant_declares(tmp_path: Path, options, needle, code, message) -> None:
@@ -177,15 +184,17 @@ def test_two_plant_mistakes_are_two_errors_in_one_pass(tmp_path: Path) -> None:
 
 
 def test_a_wrong_member_of_a_combined_module_is_one_error_without_a_nobody_writes_it_follow_on(tmp_path: Path) -> None:
-    text = edited(BASE, ("  pid:   {module: pid_joint, rtpu: rtpu0, period: 1 ms, params: {kp: 400, kd: 40}, ports: {tau: tau_u}}",
-                         "  pid:   {module: combined, rtpu: rtpu0, period: 1 ms, params: {members: [\n"
-                         "            {module: pid_joint, ports: {tau: qdd_r}}, {module: inverse_dynamix}]}}"))
+    text = edited(BASE,
+                  ("  pid:   {module: pid_joint, rtpu: rtpu0, period: 1 ms, params: {kp: 400, kd: 40}, ports: {tau: tau_u}}",
+                   "  pid:   {module: combined, rtpu: rtpu0, period: 1 ms, params: {members: [\n"
+                   "            {module: pid_joint, ports: {tau: qdd_r}}, {module: inverse_dynamix}]}}"))
     error = only_error(check(tmp_path, text))
     assert error.code == "E308" and "member 2" in error.message and "inverse_dynamix" in error.message
     assert (error.line, error.column) == at(text, "inverse_dynamix")  # the member to fix, not the whole params
 
 
-@pytest.mark.parametrize(("params", "needle"), [("{kp: 400, kq: 1}", "kq"), ("{kp: stiff}", "stiff"), ("{kp: 400, kd: -1}", "-1")])
+@pytest.mark.parametrize(("params", "needle"), [("{kp: 400, kq: 1}", "kq"), ("{kp: stiff}", "stiff"),
+                                                ("{kp: 400, kd: -1}", "-1")])
 def test_a_refused_parameter_is_reported_at_the_parameter(tmp_path: Path, params: str, needle: str) -> None:
     text = edited(BASE, ("params: {kp: 400, kd: 40}", f"params: {params}"))
     error = only_error(check(tmp_path, text))
@@ -233,11 +242,13 @@ def test_a_task_the_configuration_leaves_out_is_reported_at_the_configurations_l
     error = expect(tmp_path, text, "[robot, pid]", "E408",
                    r"configuration 'joint_pid' leaves out task 'traj', which writes 'q_r' and 'qd_r', read by 'pid'")
     assert error.hint == "add it: joint_pid: [robot, pid, traj]"
-    assert [n.message for n in error.notes] == ["task 'pid' reads in-var 'q_r' and in-var 'qd_r'", "task 'traj' writes 'q_r' and 'qd_r'"]
+    assert [n.message for n in error.notes] == ["task 'pid' reads in-var 'q_r' and in-var 'qd_r'",
+                                                "task 'traj' writes 'q_r' and 'qd_r'"]
 
 
 def test_an_input_no_task_writes_anywhere_is_still_reported_at_its_reader(tmp_path: Path) -> None:
-    text = edited(BASE, ("ports: {tau: tau_u}", "ports: {tau: tau_u, q_r: q_x}"), ("  tau_u:", "  q_x:   {type: float64, shape: [NDOF]}\n  tau_u:"))
+    text = edited(BASE, ("ports: {tau: tau_u}", "ports: {tau: tau_u, q_r: q_x}"),
+                  ("  tau_u:", "  q_x:   {type: float64, shape: [NDOF]}\n  tau_u:"))
     expect(tmp_path, text, "q_x}", "E403", r"task 'pid' reads in-var 'q_x', but no task in configuration 'joint_pid' writes it")
 
 
@@ -245,15 +256,18 @@ def test_an_input_no_task_writes_anywhere_is_still_reported_at_its_reader(tmp_pa
 
 
 @pytest.mark.parametrize(("edits", "needle", "code", "note_at", "note"), [
-    pytest.param([("configurations:", "  gravity: {module: gravity_compensation, rtpu: rtpu1, period: 1 ms, ports: {tau_g: tau_u}}\n"
-                                      "configurations:"), ("[robot, traj, pid]", "[robot, traj, pid, gravity]")],
-                 "tau_u}}\nconfigurations", "E401", "tau_u}}\n  gravity", "task 'pid' writes 'tau_u' (port 'tau')", id="the_other_writer"),
+    pytest.param([("configurations:",
+                   "  gravity: {module: gravity_compensation, rtpu: rtpu1, period: 1 ms, ports: {tau_g: tau_u}}\n"
+                   "configurations:"), ("[robot, traj, pid]", "[robot, traj, pid, gravity]")],
+                 "tau_u}}\nconfigurations", "E401", "tau_u}}\n  gravity",
+                 "task 'pid' writes 'tau_u' (port 'tau')", id="the_other_writer"),
     pytest.param([("[robot, traj, pid]", "[robot, traj, pid, pid]")], "pid]", "E402", "pid,", "task 'pid' is first listed here",
                  id="the_first_listing"),
     pytest.param([("params: {max_velocity: 1.0}}", "params: {max_velocity: 1.0}, resources: [arm]}")], "arm]}\n  pid", "E601",
                  "arm]}", "task 'robot' opens it here", id="the_other_user_of_an_exclusive_device"),
 ])
-def test_a_conflict_is_reported_at_its_second_party_with_the_first_as_a_note(tmp_path: Path, edits, needle, code, note_at, note) -> None:
+def test_a_conflict_is_reported_at_its_second_party_with_the_first_as_a_note(tmp_path: Path, edits, needle, code, note_at,
+                                                                             note) -> None:
     text = edited(BASE, *edits)
     error = only_error(check(tmp_path, text))
     assert (error.code, (error.line, error.column)) == (code, at(text, needle)), error.format()

@@ -134,14 +134,17 @@ def test_a_yaml_syntax_error_is_a_config_error_at_its_mark() -> None:
 
 
 def test_a_duplicate_key_is_an_error_at_the_second_key() -> None:
-    with pytest.raises(ConfigError, match=r"^f\.yaml:3:3: error\[E102\]: duplicate key 'x' in tasks \(first at line 2, column 3\)\n  hint: task names are unique"):
+    with pytest.raises(ConfigError,
+                       match=r"^f\.yaml:3:3: error\[E102\]: duplicate key 'x' in tasks \(first at line 2, column 3\)\n"
+                             r"  hint: task names are unique"):
         load_text("tasks:\n  x: 1\n  x: 2\n", "f.yaml")
 
 
 def test_unsafe_tags_are_refused() -> None:
     with pytest.raises(ConfigError, match=r"^f\.yaml:1:4: error\[E101\]: invalid YAML: could not determine a constructor"):
         load_text("a: !!python/name:os.system x\n", "f.yaml")
-    with pytest.raises(ConfigError, match=r"^f\.yaml:1:4: error\[E103\]: YAML tag '.*python/object/apply:os\.system' is not supported here"):
+    with pytest.raises(ConfigError,
+                       match=r"^f\.yaml:1:4: error\[E103\]: YAML tag '.*python/object/apply:os\.system' is not supported here"):
         load_text("a: !!python/object/apply:os.system [echo hi]\n", "f.yaml")
 
 
@@ -235,7 +238,8 @@ def test_a_missing_include_is_an_error_at_the_include(tmp_path: Path) -> None:
 def test_an_include_with_a_nul_character_is_an_error_at_the_include_not_an_internal_one(tmp_path: Path) -> None:
     main = FULL.replace("dims: {N: 3}\n", 'dims: {N: 3}\ninclude: ["a\\0b.yaml"]\n')
     result = check_file(write(tmp_path, main), fake_lookup)
-    assert [e.message for e in result.errors] == ["an include must be a file path, got: 'a\\x00b.yaml', which holds a NUL character"]
+    assert [e.message for e in result.errors] == [
+        "an include must be a file path, got: 'a\\x00b.yaml', which holds a NUL character"]
     assert (result.errors[0].line, result.errors[0].column) == (8, 11)
 
 
@@ -282,7 +286,8 @@ def test_a_clean_file_reports_zero_counts(tmp_path: Path) -> None:
 def _never_raises(path: Path) -> CheckResult:
     result = check_file(path, fake_lookup)
     assert all(isinstance(e, ConfigError) for e in result.errors + result.warnings)
-    assert not any(e.message.startswith("internal error") for e in result.errors), format_diagnostics(result)  # not the text echoed
+    # not the text echoed
+    assert not any(e.message.startswith("internal error") for e in result.errors), format_diagnostics(result)
     assert all(re.match(r"^[EW]\d{3}$", d.code) for d in result.errors + result.warnings), format_diagnostics(result)
     if result.subsystem is None:
         with pytest.raises(ConfigErrors):
@@ -314,7 +319,8 @@ _NAMES = st.sampled_from(
         "fake_sensor", "fake_filter", "rtpu0", "float64", "int32", "1 ms", "cpu", "exclusive", "driver",
     ]
 )
-_SCALARS = st.one_of(st.none(), st.booleans(), st.integers(-(2**70), 2**70), st.floats(allow_nan=True), _NAMES, st.text(max_size=8))
+_SCALARS = st.one_of(st.none(), st.booleans(), st.integers(-(2**70), 2**70), st.floats(allow_nan=True),
+                     _NAMES, st.text(max_size=8))
 _TREES = st.recursive(
     _SCALARS,
     lambda children: st.one_of(st.lists(children, max_size=4), st.dictionaries(_NAMES, children, max_size=5)),
@@ -331,7 +337,7 @@ def _same(a: Any, b: Any) -> bool:
     if isinstance(a, dict):
         return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
     if isinstance(a, list):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
     return a == b
 
 
@@ -360,7 +366,8 @@ def test_arbitrary_yaml_structures_never_raise_anything_but_config_errors(tmp_pa
 
 
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(section=st.sampled_from(["variables", "tasks", "configurations", "jobs", "applications", "rtpus", "devices"]), value=_TREES)
+@given(section=st.sampled_from(["variables", "tasks", "configurations", "jobs", "applications", "rtpus",
+                                "devices"]), value=_TREES)
 def test_a_legal_file_with_one_section_replaced_by_garbage_never_raises(tmp_path: Path, section: str, value: Any) -> None:
     doc = yaml.safe_load(FULL)
     doc[section] = value
@@ -442,7 +449,8 @@ def example_messages(directory: Path, reference: str, example: str, code: str) -
     if code.startswith("E8"):
         return [e.message for e in run_stage_example(directory, reference, example).errors if e.code == code]
     result = run_example(directory, reference, example)
-    return [d.message.replace(str(directory), "<dir>") for d in sorted([*result.errors, *result.warnings], key=lambda d: (d.line, d.column)) if d.code == code]
+    located = sorted([*result.errors, *result.warnings], key=lambda d: (d.line, d.column))
+    return [d.message.replace(str(directory), "<dir>") for d in located if d.code == code]
 
 
 def test_the_reference_file_of_the_error_codes_is_clean(tmp_path: Path) -> None:
@@ -466,23 +474,23 @@ def test_every_code_in_the_doc_is_produced_by_its_example_with_the_message_shown
 
 def test_every_code_the_checker_uses_is_in_the_doc_and_only_those() -> None:
     import pbo_runtime.config.checker as checker_module
-    import pbo_runtime.errors as errors_module
-
     import pbo_runtime.config.loader as loader_module
+    import pbo_runtime.errors as errors_module
 
     checker_files = Path(checker_module.__file__).parent.glob("*.py")  # the checker is a package
     used = set(re.findall(r'"([EW]\d{3})"', "".join(p.read_text() for p in checker_files)))
     used |= set(re.findall(r'code="([EW]\d{3})"', Path(loader_module.__file__).read_text()))
     used |= set(re.findall(r'"([EW]\d{3})"\)', Path(errors_module.__file__).read_text()))
     import pbo_runtime.config.application as application_module
-
     import pbo_runtime.config.parallel as parallel_module
 
-    used |= set(re.findall(r'"(E8\d{2})"', Path(application_module.__file__).read_text() + Path(parallel_module.__file__).read_text()))
+    used |= set(re.findall(r'"(E8\d{2})"',
+                           Path(application_module.__file__).read_text() + Path(parallel_module.__file__).read_text()))
     rows = doc_rows(ERROR_CODES_DOC.read_text())
     documented = [row["code"] for row in rows]
     assert len(documented) == len(set(documented)), "a code is listed twice"
     assert set(documented) == used
     application_codes = {f"E8{n:02d}" for n in range(1, 14)}  # examples in tests/test_application*.py, test_parallel_stages.py
     # (E814's example runs here: run_stage_example)
-    assert {row["code"] for row in rows if not row["example"]} == {"E106", "E107", "E306", "E307", "E406", "E901"} | application_codes
+    without_example = {row["code"] for row in rows if not row["example"]}
+    assert without_example == {"E106", "E107", "E306", "E307", "E406", "E901"} | application_codes

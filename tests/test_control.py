@@ -13,8 +13,9 @@ import subprocess
 import sys
 import threading
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import msgpack
 import posix_ipc
@@ -22,11 +23,11 @@ import pytest
 from rich.console import Console
 
 from pbo_runtime import PboError
-from pbo_runtime.ipc import messages
 from pbo_runtime.cli import operator
-from pbo_runtime.ipc import runs
-from pbo_runtime.ipc import shm
+from pbo_runtime.cli.main import main
+from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.errors import InternalError
+from pbo_runtime.ipc import messages, runs, shm
 from pbo_runtime.ipc.control import (
     MAX_REQUESTS_PER_POLL,
     BadRequest,
@@ -37,8 +38,6 @@ from pbo_runtime.ipc.control import (
     find_live_run,
     reply_queue_prefix,
 )
-from pbo_runtime.cli.main import main
-from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.supervisor.commands import dispatch
 from pbo_runtime.table.table import StateTable, TableLayout
 from tests.fake_job_host import FakeJobHost
@@ -176,9 +175,9 @@ def test_an_unexpected_handler_exception_is_reported_and_does_not_escape_poll(se
 
 
 def test_call_raises_the_supervisors_refusal(server):
-    with FakeSupervisor(server):
-        with pytest.raises(CommandRefused, match=r"^'ctl\w+' refused 'on': task 'pid' is in ERROR: clear it first$"):
-            client_of(server).call("on", {"task": "pid"})
+    with (FakeSupervisor(server),
+          pytest.raises(CommandRefused, match=r"^'ctl\w+' refused 'on': task 'pid' is in ERROR: clear it first$")):
+        client_of(server).call("on", {"task": "pid"})
 
 
 def test_a_malformed_request_does_not_crash_poll(server):
@@ -499,14 +498,18 @@ def raw_request(server_name: str, reply_name: str, payload: bytes) -> dict[str, 
 
 @pytest.mark.parametrize("request_, error", [
     (["on", {"task": [1, 2]}], r"^task must be named by text, got: a list \(tasks: robot, goal, traj, pid\)$"),
-    (["event", {"task": "goal", "values": "abc"}], r"^the values of an event for 'goal' must be a list of numbers, got: the text 'abc'$"),
+    (["event", {"task": "goal", "values": "abc"}],
+     r"^the values of an event for 'goal' must be a list of numbers, got: the text 'abc'$"),
     (["event", {"task": "pid", "values": [1, 2, 3]}], r"^task 'pid' is periodic: .* \(goal\)$"),
-    (["event", {"task": "goal", "values": [float("nan")] * 6}], r"values must be finite numbers, got: \.nan \(not a number\) \(value 1\)$"),
+    (["event", {"task": "goal", "values": [float("nan")] * 6}],
+     r"values must be finite numbers, got: \.nan \(not a number\) \(value 1\)$"),
     (["job", {"job": "go", "object": [0.0] * 6}], r"^no job 'go' \(jobs: none\)$"),
-    (["switch", {"configuration": {"a": 1}}], r"^configuration must be named by text, got: a mapping \(configurations: operated\)$"),
+    (["switch", {"configuration": {"a": 1}}],
+     r"^configuration must be named by text, got: a mapping \(configurations: operated\)$"),
     (["stop", {"now": True}], r"^'stop' takes no argument 'now' \(its arguments: none\)$"),
     (["fly", {}], r"^unknown command 'fly' \(commands: "),
-    (["status", [1, 2]], r"^malformed request: expected \[command, reply queue, arguments\], got a list of 3 \(str, str, list\)$"),
+    (["status", [1, 2]],
+     r"^malformed request: expected \[command, reply queue, arguments\], got a list of 3 \(str, str, list\)$"),
 ], ids=["task-list", "event-text", "event-periodic", "event-nan", "job-unknown", "switch-mapping", "stop-argument",
         "unknown", "arguments-list"])
 def test_a_malformed_request_on_the_control_queue_is_refused_clearly_never_an_internal_error(goal_run, request_, error):
@@ -527,7 +530,7 @@ def test_pbo_event_to_a_periodic_task_is_refused_with_exit_status_1_and_a_hint(g
 
 
 def test_pbo_job_with_values_that_are_not_numbers_exits_1_before_sending(goal_run, capsys):
-    sub, host = goal_run
+    sub, _host = goal_run
     assert main(["job", "reach", "0", "nan", "--subsystem", sub]) == 1
     assert "error: values must be finite numbers, got: 'nan' (value 2)" in capsys.readouterr().err
 

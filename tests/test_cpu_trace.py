@@ -8,8 +8,16 @@ import pytest
 
 from tests.support import REPO
 from tools import cpu_trace
-from tools.cpu_trace import (ProcessNames, SchedulerTrace, TraceUnavailable, explain, holders, occupancy, parse_switches,
-                              parse_wakeups)
+from tools.cpu_trace import (
+    ProcessNames,
+    SchedulerTrace,
+    TraceUnavailable,
+    explain,
+    holders,
+    occupancy,
+    parse_switches,
+    parse_wakeups,
+)
 
 
 def line(cpu: int, time: float, prev: int, state: str, following: int) -> str:
@@ -64,7 +72,7 @@ def test_each_overrun_the_report_kept_is_matched_with_the_cpus_holders():
     rows = explain(report, parse_switches(EXCERPT), names())
     assert len(rows) == 1
     cpu0 = rows[0]["cpus"][0]
-    assert list(cpu0)[0] == "[kdamond.0]" and cpu0["[kdamond.0]"] == pytest.approx(0.0014)
+    assert next(iter(cpu0)) == "[kdamond.0]" and cpu0["[kdamond.0]"] == pytest.approx(0.0014)
     text = cpu_trace.render(rows, report)
     assert "pid (rtpu0) at 1.000 s: started 1.40 ms late, ran 0.05 ms" in text
     assert "CPU 0 (ms): [kdamond.0] 1.40, RTPU rtpu0 0.05" in text
@@ -113,9 +121,8 @@ def test_a_report_of_the_simulated_clock_is_refused_with_the_reason():
 
 
 def test_without_tracefs_the_trace_says_what_to_do(tmp_path):
-    with pytest.raises(TraceUnavailable, match=r"^no tracefs at .*missing: mount it"):
-        with SchedulerTrace(tmp_path / "missing"):
-            pass
+    with pytest.raises(TraceUnavailable, match=r"^no tracefs at .*missing: mount it"), SchedulerTrace(tmp_path / "missing"):
+        pass
 
 
 @pytest.mark.multiprocess

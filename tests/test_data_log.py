@@ -21,14 +21,14 @@ from modules._mcap_encoder import McapLog
 from modules.data_logger import DataLogger
 from pbo_runtime import Status, open_log, read_log
 from pbo_runtime.cli.main import main
-from pbo_runtime.reports.log_notes import split_unit
 from pbo_runtime.config.model import PortBinding, TaskSpec
+from pbo_runtime.objects.waits import cycles_meanwhile
 from pbo_runtime.reports.data_log import LogError
+from pbo_runtime.reports.log_notes import split_unit
 from pbo_runtime.reports.run_plot import csv_text, figure, load_run
 from pbo_runtime.table.table import StateTable
 from pbo_runtime.task.background import process_background
 from pbo_runtime.task.lifecycle import Task
-from pbo_runtime.objects.waits import cycles_meanwhile
 from tests.support import PBO, REPO, variables
 
 DT = 0.01
@@ -191,7 +191,8 @@ def test_an_mcap_log_whose_encoder_process_dies_fails_the_next_chunk_naming_it_a
     task.module.wait_for_writer()
     assert task.run_cycle(1.0 + 4 * DT) is Status.ERROR
     assert re.fullmatch(r"cycle raised OutputError: cannot write log .*log\.mcap \(2 rows after the 2 written\): "
-                        r"the log's encoder process ended \(killed by SIGKILL\) at data_logger\.py:\d+", task.last_error), task.last_error
+                        r"the log's encoder process ended \(killed by SIGKILL\) at data_logger\.py:\d+",
+                        task.last_error), task.last_error
     kill_and_finish(task)
     log = open_log(path)
     assert not log.complete and [row.tolist() for row in log.rows["x"]] == [w[1] for w in written]
@@ -322,7 +323,8 @@ def test_a_variable_the_file_gives_no_doc_takes_the_unit_of_the_port_that_writes
 @pytest.mark.parametrize(("make", "message"), [
     (lambda d: d / "missing.mcap", r"no log .*missing\.mcap: no such file"),
     (lambda d: d, r"no log .*: it is a directory"),
-    (lambda d: (d / "notes.txt").write_text("hello") and d / "notes.txt", r".*notes\.txt: not a data log \(neither MCAP nor \.npy\)"),
+    (lambda d: (d / "notes.txt").write_text("hello") and d / "notes.txt",
+     r".*notes\.txt: not a data log \(neither MCAP nor \.npy\)"),
     (lambda d: np.save(d / "plain.npy", np.zeros(3)) or d / "plain.npy",
      r".*plain\.npy: not a data log \(a 1-D structured array with a time field\), got shape \(3,\) of float64"),
 ])
@@ -371,8 +373,9 @@ def test_the_plot_has_a_subplot_per_variable_a_line_per_element_units_and_the_ma
     assert [t.get_text() for t in axes[0].get_legend().get_texts()] == ["x[0]", "x[1]", "x[2]"]
     marks = [line for line in axes[2].lines if line.get_gid() == "mark"]
     assert [round(line.get_xdata()[0], 9) for line in marks] == [0.0, 0.05, 0.1]  # seconds since the configuration came on
-    assert [t.get_text() for t in axes[0].texts if t.get_gid() == "mark"] == ["joint_pid on", "job move starts", "joint_pid -> pd"]
-    first = [line for line in axes[0].lines if line.get_gid() != "mark"][0]
+    assert [t.get_text() for t in axes[0].texts if t.get_gid() == "mark"] == [
+        "joint_pid on", "job move starts", "joint_pid -> pd"]
+    first = next(line for line in axes[0].lines if line.get_gid() != "mark")
     assert first.get_xdata()[0] == pytest.approx(0.0)  # the first row's release is the configuration's start
 
 
@@ -522,7 +525,8 @@ def test_a_log_in_ros2_encoding_is_read_back_by_an_independent_ros2_reader_and_b
                    for schema, channel, message, ros in reader.iter_decoded_messages()]
     by_topic = {topic: [d for d in decoded if d[0] == topic] for topic in ("x", "k", "m")}
     assert [d[1:3] for d in (by_topic["x"][0], by_topic["k"][0], by_topic["m"][0])] == [
-        ("std_msgs/msg/Float64MultiArray", "cdr"), ("std_msgs/msg/Int32MultiArray", "cdr"), ("std_msgs/msg/Float64MultiArray", "cdr")]
+        ("std_msgs/msg/Float64MultiArray", "cdr"), ("std_msgs/msg/Int32MultiArray", "cdr"),
+        ("std_msgs/msg/Float64MultiArray", "cdr")]
     assert [d[3] for d in by_topic["k"]] == [1_700_000_000_000_000_000 + round(t * 1e9) for t in rows["time"]]  # Unix ns
     assert [d[4] for d in by_topic["k"]] == [[-3], [7], [0], [1], [2]]  # a scalar: one element, no dimension
     assert by_topic["m"][1][4:] == ([4.0, 5.0, 6.0, 7.0], [("dim0", 2, 4), ("dim1", 2, 2)])  # ROS's strides
@@ -625,11 +629,13 @@ def test_a_run_writes_its_report_and_mcap_log_into_its_own_directory_says_where_
     assert [m["label"] for m in marks] == ["pid on", "job reach starts", "job reach done", "pid -> pd", "job settle starts",
                                            "job settle done", "pd -> pid", "job reach starts", "job reach done"]
     times = [m["time"] for m in marks]
-    assert report["started_at"] == times[0] and times == sorted(times) and log["time"][0] <= times[1] < times[-1] <= log["time"][-1] + 0.01
+    assert report["started_at"] == times[0] and times == sorted(times)
+    assert log["time"][0] <= times[1] < times[-1] <= log["time"][-1] + 0.01
     # one clock: each job's object is in the log from its switch on
     first, second = marks[3]["time"], marks[6]["time"]
     np.testing.assert_allclose(log["q_d"][log["time"] < first - 0.05][-1], [0.3, -0.5, 0.5, 0.2, 0.4, 0.2])
-    np.testing.assert_allclose(log["q_d"][(log["time"] > first) & (log["time"] < second - 0.05)][-1], [0.0, -0.3, 0.3, 0.0, 0.2, 0.0])
+    np.testing.assert_allclose(log["q_d"][(log["time"] > first) & (log["time"] < second - 0.05)][-1],
+                               [0.0, -0.3, 0.3, 0.0, 0.2, 0.0])
     np.testing.assert_allclose(log["q_d"][-1], [-0.2, -0.6, 0.4, 0.1, 0.3, -0.1])
     png = tmp_path / "tour.png"
     plotted = subprocess.run([*PBO, "plot", str(run_dir), "-o", str(png)], cwd=tmp_path, capture_output=True, text=True,

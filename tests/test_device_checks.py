@@ -22,7 +22,8 @@ devices:
   dac0: {driver: dac}
   pio0: {driver: parallel_port}
   ft_a: {driver: ft_parallel, io: {device: pio0, channels: 0-7}}
-  ft_b: {driver: ft_analog, io: {device: adc0, channels: 0-5}, calibration: [[1, 0, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0], [0, 0, 1, 0, 0, 0], [0, 0, 0, 1, 0, 0], [0, 0, 0, 0, 1, 0], [0, 0, 0, 0, 0, 1]], offset: [0, 0, 0, 0, 0, 0]}
+  ft_b: {driver: ft_analog, io: {device: adc0, channels: 0-5}, calibration: [[1, 0, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0], \
+[0, 0, 1, 0, 0, 0], [0, 0, 0, 1, 0, 0], [0, 0, 0, 0, 1, 0], [0, 0, 0, 0, 0, 1]], offset: [0, 0, 0, 0, 0, 0]}
 variables:
   v2:  {type: float64, shape: [2]}
   v2b: {type: float64, shape: [2]}
@@ -130,7 +131,8 @@ ONE_MISTAKE = [
     # malformed channel lists, reported at the list
     malformed_channels("a_reversed_channel_range", "7-6",
                        r"task 'aux': channels of device 'adc0': channel range '7-6' is reversed: write it low-high, e.g. '6-7'$"),
-    malformed_channels("a_channel_listed_twice", "[6, 6]", r"task 'aux': channels of device 'adc0': channel\(s\) 6 listed twice$"),
+    malformed_channels("a_channel_listed_twice", "[6, 6]",
+                       r"task 'aux': channels of device 'adc0': channel\(s\) 6 listed twice$"),
     malformed_channels("a_channel_that_is_not_a_number", "six",
                        r"task 'aux': channels of device 'adc0': a channel must be an integer or a range 'a-b', got: 'six'"),
     malformed_channels("an_empty_channel_list", "[]", r"task 'aux': channels of device 'adc0': the channel list is empty"),
@@ -151,10 +153,12 @@ ONE_MISTAKE = [
              r"device 'ft_b' is wired \(io:\) to device 'adc9', which 'devices' does not declare"),
     wrong_io("io_wired_to_a_device_of_the_wrong_kind",
              "{device: adc0, channels: 0-5}", "{device: pio0, channels: 0-5}", "pio0, channels: 0-5",
-             r"device 'ft_b' \(driver ft_analog\) reads through a device of kind adc, but its io: device 'pio0' is of kind parallel_port"),
+             r"device 'ft_b' \(driver ft_analog\) reads through a device of kind adc, "
+             r"but its io: device 'pio0' is of kind parallel_port"),
     wrong_io("io_wired_to_a_device_that_is_not_an_io_device",
              "{device: adc0, channels: 0-5}", "{device: ft_a}", "ft_a}, calibration",
-             r"device 'ft_b' \(driver ft_analog\) reads through a device of kind adc, but its io: device 'ft_a' is not an I/O device"),
+             r"device 'ft_b' \(driver ft_analog\) reads through a device of kind adc, "
+             r"but its io: device 'ft_a' is not an I/O device"),
     wrong_io("io_given_to_a_driver_that_reads_no_io_device",
              "  dac0: {driver: dac}", "  dac0: {driver: dac, io: {device: adc0}}", "adc0}}",
              r"device 'dac0': driver dac reads no I/O device, so it takes no io:$"),
@@ -164,7 +168,8 @@ ONE_MISTAKE = [
             r"device 'ft_a' \(driver ft_parallel\) reads through a device of kind parallel_port, but it has no io:$",
             hint=r"^say where it is wired, e\.g\. io: \{device:"),
     mistake("sensors_wired_to_each_other_are_a_loop",
-            changed("  ft_a: {driver: ft_parallel, io: {device: pio0, channels: 0-7}}", "  ft_a: {driver: ft_parallel, io: {device: ft_a}}"),
+            changed("  ft_a: {driver: ft_parallel, io: {device: pio0, channels: 0-7}}",
+                    "  ft_a: {driver: ft_parallel, io: {device: ft_a}}"),
             "E606", "ft_a}}", r"device 'ft_a' is wired \(io:\) to itself through ft_a$"),
     # driver options
     mistake("a_calibration_matrix_of_the_wrong_shape_is_an_error_at_the_option",
@@ -195,7 +200,8 @@ def test_claims_in_different_configurations_warn_that_a_dynamic_run_spawns_both(
 @pytest.mark.parametrize(("resource", "code", "message"), [
     ("{device: adc0, chanels: 6-7}", "E111", r"unknown key 'chanels' in resource of task 'aux'"),
     ("{channels: 6-7}", "E112", r"resource of task 'aux' has no 'device:', which is required"),
-    ("7", "E113", r"resource of task 'aux' must be a device name or a mapping \{device: \.\.\., channels: \.\.\.\}, got: the integer 7"),
+    ("7", "E113",
+     r"resource of task 'aux' must be a device name or a mapping \{device: \.\.\., channels: \.\.\.\}, got: the integer 7"),
 ])
 def test_a_malformed_resource_says_what_a_resource_is(tmp_path, resource, code, message):
     text = changed("[{device: adc0, channels: 6-7}]", f"[{resource}]")

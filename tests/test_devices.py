@@ -23,8 +23,8 @@ from modules.analog_input import AnalogInput
 from pbo_runtime import DeviceDriver
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.table.devices import DeviceBusyError, DeviceDatabase, DeviceOpenError
-from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TableLayout, TaskState
+from pbo_runtime.task.lifecycle import Task
 from tests.support import NO_WATCHDOG, REPO, unique_name
 
 SHEET = """\
@@ -148,7 +148,8 @@ def test_overlapping_channels_are_refused_naming_who_holds_which(database):
     pid = os.getpid()
     with pytest.raises(DeviceBusyError, match=(
             r"^task 'middle' cannot open channels 4-7 of device 'adc0': "
-            rf"task 'low' \(RTPU rtpu0, pid {pid}\) holds channels 0-5; task 'high' \(RTPU rtpu1, pid {pid}\) holds channels 6-7; "
+            rf"task 'low' \(RTPU rtpu0, pid {pid}\) holds channels 0-5; "
+            rf"task 'high' \(RTPU rtpu1, pid {pid}\) holds channels 6-7; "
             r"they overlap on 4-7; a channel has one user at a time")):
         database.open_for("adc0", "middle")
     assert {h.task for h in database.holders()} == {"low", "high"}  # the refused opening left nothing behind
@@ -156,7 +157,9 @@ def test_overlapping_channels_are_refused_naming_who_holds_which(database):
 
 def test_opening_a_port_based_device_whole_takes_every_channel(database):
     database.open_for("adc0", "high")
-    with pytest.raises(DeviceBusyError, match=r"^task 'whole' cannot open channels 0-7 of device 'adc0': task 'high' .* holds channels 6-7; they overlap on 6-7"):
+    with pytest.raises(DeviceBusyError,
+                       match=r"^task 'whole' cannot open channels 0-7 of device 'adc0': "
+                             r"task 'high' .* holds channels 6-7; they overlap on 6-7"):
         database.open_for("adc0", "whole")
 
 
@@ -206,7 +209,8 @@ def test_opening_a_sensor_takes_the_channels_it_is_wired_to(database):
     sensor = database.open_for("ft_b", "force_b")
     assert held(database) == {("ft_b", "force_b", "ft_b", ()), ("adc0", "force_b", "ft_b", (0, 1, 2, 3, 4, 5))}
     with pytest.raises(DeviceBusyError, match=r"^task 'middle' cannot open channels 4-7 of device 'adc0': task 'force_b' "
-                                              r"\(RTPU rtpu1, pid \d+\) holds channels 0-5 through device 'ft_b'; they overlap on 4-5"):
+                                              r"\(RTPU rtpu1, pid \d+\) holds channels 0-5 through device 'ft_b'; "
+                                              r"they overlap on 4-5"):
         database.open_for("adc0", "middle")
     database.open_for("adc0", "high")  # 6-7 are free
     sensor.close()
@@ -215,8 +219,9 @@ def test_opening_a_sensor_takes_the_channels_it_is_wired_to(database):
 
 def test_a_sensor_whose_io_channels_are_held_cannot_be_opened(database):
     database.open_for("adc0", "whole")
-    with pytest.raises(DeviceBusyError, match=r"^task 'force_b' cannot open device 'ft_b', wired to channels 0-5 of device 'adc0': "
-                                              r"task 'whole' .* holds channels 0-7"):
+    with pytest.raises(DeviceBusyError,
+                       match=r"^task 'force_b' cannot open device 'ft_b', wired to channels 0-5 of device 'adc0': "
+                             r"task 'whole' .* holds channels 0-7"):
         database.open_for("ft_b", "force_b")
 
 
@@ -320,7 +325,8 @@ def test_channels_held_by_another_process_are_refused_and_recovered_when_it_dies
 
 def test_the_table_layout_has_a_device_region_per_device(subsystem, table):
     assert table.devices.shape[0] == len(subsystem.devices) == 5
-    assert TableLayout.of(subsystem).total_bytes > TableLayout.build(subsystem.variables.values(), len(subsystem.tasks)).total_bytes
+    without_devices = TableLayout.build(subsystem.variables.values(), len(subsystem.tasks))
+    assert TableLayout.of(subsystem).total_bytes > without_devices.total_bytes
     assert not np.any(table.devices)
 
 

@@ -32,9 +32,11 @@ def test_make_run_s_demo_runs_for_its_duration_on_the_real_clock_and_leaves_noth
     assert_ended_well(done.returncode, report, done.stderr)
     assert report["stopped_by"] == "duration" and report["failure"] == "" and report["clock"] == "real"
     for settings in report["realtime"].values():  # asked for by default on the real clock: granted, or refused and why
-        assert settings["scheduler"] in ("SCHED_FIFO 50", "SCHED_FIFO 55") or settings["scheduler"].startswith("SCHED_OTHER: SCHED_FIFO refused (")
+        assert settings["scheduler"] in ("SCHED_FIFO 50", "SCHED_FIFO 55") \
+            or settings["scheduler"].startswith("SCHED_OTHER: SCHED_FIFO refused (")
     if report["realtime"]["rtpu1"]["scheduler"].startswith("SCHED_FIFO"):  # the robot interface's RTPU preempts the controller's
-        assert (report["realtime"]["rtpu0"]["scheduler"], report["realtime"]["rtpu1"]["scheduler"]) == ("SCHED_FIFO 50", "SCHED_FIFO 55")
+        assert (report["realtime"]["rtpu0"]["scheduler"],
+                report["realtime"]["rtpu1"]["scheduler"]) == ("SCHED_FIFO 50", "SCHED_FIFO 55")
     assert all(report["states_at_stop"][name] == "ON" for name in report["tasks"])
     assert only_file(tmp_path, "runs/puma-*/pid_joint.mcap").stat().st_size > 0  # the run's own directory
     assert_nothing_left(report)
@@ -67,7 +69,7 @@ def test_killing_an_rtpu_stops_everything_and_names_the_rtpu_and_its_tasks(tmp_p
         rtpu1 = [pid for pid, cmd in children_of(pbo.pid).items() if "--rtpu rtpu1" in cmd]
         assert len(rtpu1) == 1
         os.kill(rtpu1[0], signal.SIGKILL)
-        out, err = pbo.communicate(timeout=60)
+        _out, err = pbo.communicate(timeout=60)
     finally:
         if pbo.poll() is None:
             pbo.kill()
@@ -133,7 +135,8 @@ def test_cartesian_teleoperation_follows_the_trackball(tmp_path):
     assert np.max(np.abs(x_m[:3] - x_d[:3])) < 0.002, f"hand at {x_m[:3]}, goal {x_d[:3]}"
     log = read_log(only_file(tmp_path, "runs/*/teleop.mcap"))
     moved = log["x_d"][-1, :3] - log["x_d"][0, :3]
-    assert moved == pytest.approx([0.05, 0.0, 0.05], abs=1e-3)  # the script: 5 cm along x, then 5 cm up (logging starts a tick late)
+    # the script: 5 cm along x, then 5 cm up (logging starts a tick late)
+    assert moved == pytest.approx([0.05, 0.0, 0.05], abs=1e-3)
     assert_nothing_left(report)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+from typing import ClassVar
 
 import pytest
 
@@ -11,10 +12,10 @@ from pbo_runtime import OutVar, PortBasedObject, Status, sleep_while_cycling
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.messages import Refused, Stable, StateChanged, Stats
-from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.objects.waits import cycles_meanwhile
 from pbo_runtime.table.table import StatusWord as W
 from pbo_runtime.table.table import TaskState
+from pbo_runtime.task.lifecycle import Task
 from rtpu._executive import Executive
 from tests.support import REPO, RUNS, FakeSignals, Quiet, Ticker, allocation_peak, one_array, run_until, task_spec, variables
 
@@ -178,14 +179,14 @@ def test_off_stops_the_releases_and_stop_kills_every_task(setup):
 
 
 def test_a_signal_for_an_unknown_task_is_refused_not_fatal(setup):
-    build, clock, events = setup
+    build, _clock, events = setup
     ex = build([("a", Ticker, 0.001, False)], [(0.0, ["on", "nobody"])])
     ex.run_once()
     assert events == [Refused("nobody", "no task 'nobody' on this RTPU")]
 
 
 def test_on_before_spawn_is_refused_with_the_reason(setup):
-    build, clock, events = setup
+    build, _clock, events = setup
     ex = build([("a", Ticker, 0.001, False)], [(0.0, ["on", "a"])])
     ex.run_once()
     assert isinstance(events[0], Refused) and "cannot take 'on' in state NOT_CREATED" in events[0].reason
@@ -196,7 +197,7 @@ class EventRecorder(PortBasedObject):
     """Fake aperiodic module: records (release time, payload) of every event it serves."""
 
     out = OutVar("out")
-    served: list = []
+    served: ClassVar[list] = []
 
     def cycle(self) -> Status:
         EventRecorder.served.append((self.time, self.event))
@@ -219,7 +220,7 @@ def test_an_aperiodic_task_runs_on_events_no_faster_than_its_min_interarrival(se
 
 
 def test_an_event_for_a_periodic_task_is_refused(setup):
-    build, clock, events = setup
+    build, _clock, events = setup
     ex = build([("a", Ticker, 0.001, False)], [(0.0, ["spawn", "a"]), (0.0, ["on", "a", 0.0]), (0.0, ["event", "a", [1]])])
     ex.run_once()
     ex.run_once()
@@ -272,7 +273,7 @@ def test_link_messages_beyond_what_a_server_holds_are_counted_as_dropped(setup):
     build, clock, _ = setup
     EventRecorder.served = []
     script = [(0.0, ["spawn", "server"])] + [(0.001, ["message", "server", [[float(i)], i]]) for i in range(EVENTS_QUEUED + 3)]
-    ex, scheduled = aperiodic_recorder(build, script + [(0.002, ["on", "server", 0.002])])
+    ex, scheduled = aperiodic_recorder(build, [*script, (0.002, ["on", "server", 0.002])])
     run_until(ex, clock, 1.0)
     assert scheduled.dropped_events == 3
     assert [payload[1] for _, payload in EventRecorder.served] == list(range(3, EVENTS_QUEUED + 3))  # the newest kept

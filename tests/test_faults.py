@@ -14,9 +14,25 @@ import numpy as np
 import pytest
 
 from pbo_runtime import read_log
-from tests.support import (DEMO, DEMO_GOAL, DEMO_MID_MOVE, PBO, assert_nothing_left, config_copy, demo_copy,
-                           excursion_from_path, killed_on_failure, measured_arm, run_output, run_processes, start_run,
-                           settling, stop_process, travelled, until)
+from tests.support import (
+    DEMO,
+    DEMO_GOAL,
+    DEMO_MID_MOVE,
+    PBO,
+    assert_nothing_left,
+    config_copy,
+    demo_copy,
+    excursion_from_path,
+    killed_on_failure,
+    measured_arm,
+    run_output,
+    run_processes,
+    settling,
+    start_run,
+    stop_process,
+    travelled,
+    until,
+)
 
 pytestmark = pytest.mark.multiprocess
 

@@ -72,7 +72,8 @@ def test_the_two_vendors_give_the_same_f_m_for_the_same_contact(runs):
     print(f"\nforce_sensing.yaml, applied wrench {APPLIED.tolist()} (N, N m):")
     print(f"  vendor A f_m {np.array2string(f_a, precision=4)}")
     print(f"  vendor B f_m {np.array2string(f_b, precision=4)}")
-    print(f"  |A - B| {np.array2string(np.abs(f_a - f_b), precision=4)}  allowed {np.array2string(A_BOUND + B_BOUND, precision=4)}")
+    print(f"  |A - B| {np.array2string(np.abs(f_a - f_b), precision=4)}  "
+          f"allowed {np.array2string(A_BOUND + B_BOUND, precision=4)}")
     assert np.all(np.abs(f_a - f_b) <= A_BOUND + B_BOUND)
 
 

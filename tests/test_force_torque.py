@@ -122,7 +122,9 @@ def test_without_a_contact_the_sensor_reads_nothing(make_plant):
 
 
 def test_a_bad_wrist_wrench_is_refused_saying_what_it_must_be(make_plant):
-    with pytest.raises(ValueError, match=r"^plant option wrist_wrench must be 6 finite numbers \[fx, fy, fz, tx, ty, tz\] \(N, N m\), got: \[1, 2\]$"):
+    with pytest.raises(ValueError,
+                       match=r"^plant option wrist_wrench must be 6 finite numbers \[fx, fy, fz, tx, ty, tz\] \(N, N m\), "
+                             r"got: \[1, 2\]$"):
         make_plant(wrist_wrench=[1, 2])
 
 
@@ -159,7 +161,9 @@ def test_vendor_a_marks_a_reading_beyond_its_full_scale_as_clipped(make_plant, o
 
 def test_vendor_a_on_channels_where_its_cable_is_not_is_refused(make_plant, opened):
     plant = make_plant()
-    with pytest.raises(DeviceError, match=r"no vendor A force/torque sensor answers on parallel-port channels \[8, 9, 10, 11, 12, 13, 14, 15\]"):
+    with pytest.raises(DeviceError,
+                       match=r"no vendor A force/torque sensor answers on parallel-port channels "
+                             r"\[8, 9, 10, 11, 12, 13, 14, 15\]"):
         vendor_a(plant, opened, channels=tuple(range(8, 16)))
 
 
@@ -196,7 +200,8 @@ def test_vendor_b_with_another_sensor_s_calibration_sheet_reads_wrong(make_plant
 
 @pytest.mark.parametrize(("options", "message"), [
     ({"offset": [0.0] * 6}, r"^ft_analog needs option\(s\) calibration: the sensor's calibration sheet"),
-    ({**SHEET, "calibration": [[1.0] * 6] * 5}, r"^ft_analog option calibration must be a 6x6 matrix \(6 rows of 6 numbers\), got shape \(5, 6\)"),
+    ({**SHEET, "calibration": [[1.0] * 6] * 5},
+     r"^ft_analog option calibration must be a 6x6 matrix \(6 rows of 6 numbers\), got shape \(5, 6\)"),
     ({**SHEET, "calibration": [[1.0] * 6] * 5 + [[1.0] * 5]}, r"^ft_analog option calibration must be a 6x6 matrix"),
     ({**SHEET, "offset": [0.0] * 5}, r"^ft_analog option offset must be 6 voltages, got shape \(5,\)"),
     ({**SHEET, "offset": ["a"] * 6}, r"^ft_analog option offset must be 6 voltages, got: \['a'"),
@@ -247,8 +252,10 @@ def test_the_two_vendors_give_the_same_f_m_for_the_same_contact(make_plant, open
         worst_ab = np.maximum(worst_ab, np.abs(f_a - f_b))
     bound_b = B_RESOLUTION + b_noise_bound(sigma)
     print("\nF/T vendors, 50 contacts, worst |error| per axis (Fx Fy Fz N, Tx Ty Tz N m):")
-    print(f"  vendor A (parallel port) vs applied: {np.array2string(worst_a, precision=5)}  bound {np.array2string(A_RESOLUTION, precision=5)}")
-    print(f"  vendor B (ADC, 0.5 mV noise) vs applied: {np.array2string(worst_b, precision=5)}  bound {np.array2string(bound_b, precision=5)}")
+    print(f"  vendor A (parallel port) vs applied: {np.array2string(worst_a, precision=5)}  "
+          f"bound {np.array2string(A_RESOLUTION, precision=5)}")
+    print(f"  vendor B (ADC, 0.5 mV noise) vs applied: {np.array2string(worst_b, precision=5)}  "
+          f"bound {np.array2string(bound_b, precision=5)}")
     print(f"  |vendor A - vendor B|: {np.array2string(worst_ab, precision=5)}")
     assert np.all(worst_a <= A_RESOLUTION + 1e-12)
     assert np.all(worst_b <= bound_b)
@@ -305,7 +312,8 @@ def test_the_ft_sensor_module_refuses_a_device_that_is_no_force_sensor(make_plan
     spec = dataclasses.replace(task_spec(FtSensor, params={"device": "adc0"}), resources=("adc0",))
     task = Task(spec, FtSensor, table, {}, {"adc0": None}, lambda device, opener: adc)
     assert not task.spawn(0.0)
-    assert "device 'adc0' is not a force/torque sensor (its driver has no read_wrench); give it driver: ft_parallel or ft_analog" in task.last_error
+    assert ("device 'adc0' is not a force/torque sensor (its driver has no read_wrench); "
+            "give it driver: ft_parallel or ft_analog") in task.last_error
 
 
 def test_the_shipped_calibration_sheet_in_the_config_is_the_plant_s_sensor():

@@ -16,10 +16,21 @@ import pytest
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc.process import DEATH_SIGNAL
 from pbo_runtime.supervisor.fork_server import ForkServer, ForkServerUnavailable
-from pbo_runtime.supervisor.supervisor import Supervisor
 from pbo_runtime.supervisor.run_options import RunOptions
-from tests.support import (DEMO, REPO, assert_nothing_left, children_of, config_copy, demo_copy, ipc_names, read_until, run_processes,
-                           start_run, until)
+from pbo_runtime.supervisor.supervisor import Supervisor
+from tests.support import (
+    DEMO,
+    REPO,
+    assert_nothing_left,
+    children_of,
+    config_copy,
+    demo_copy,
+    ipc_names,
+    read_until,
+    run_processes,
+    start_run,
+    until,
+)
 
 PROBE = "tests.fork_probe"
 SAFETY_NET = 60.0  # seconds for a process to go: a net for a hang, not a timing
@@ -158,7 +169,8 @@ def test_a_run_forks_its_children_from_the_fork_server_and_leaves_nothing(tmp_pa
 @pytest.mark.parametrize("ending", ["ctrl-c", "supervisor killed"])
 def test_a_run_with_a_restart_policy_keeps_its_fork_server_restarts_from_it_and_leaves_nothing(tmp_path, ending):
     name = f"fork_kept_{ending.split()[0].replace('-', '_')}"
-    config = config_copy(DEMO, tmp_path, name, (("rtpus: [rtpu0, rtpu1]", "rtpus: [rtpu0, rtpu1]\nrestart: {max: 3, within: 10 min}"),))
+    config = config_copy(DEMO, tmp_path, name, (("rtpus: [rtpu0, rtpu1]",
+                                                 "rtpus: [rtpu0, rtpu1]\nrestart: {max: 3, within: 10 min}"),))
     report_path = tmp_path / "report.json"
     run = start_run(config, tmp_path, "--duration", "0", "--report", str(report_path), "--out", str(tmp_path / "out"))
     try:

@@ -12,9 +12,9 @@ import pytest
 from pbo_runtime import InVar, OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.loader import check_file
-from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.ipc import messages
 from pbo_runtime.supervisor.event_ledger import STABLE_EPISODES_TOLD
+from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.run_report import BRIEF_HOLD_PERIODS, BRIEF_HOLDS_SHARE, stable_episode_lines
 from pbo_runtime.table.table import Header, StateTable, TableLayout
 from pbo_runtime.task.lifecycle import Task
@@ -215,7 +215,8 @@ def test_the_cycle_never_reads_a_value_older_than_the_bound(rig):
 
 
 def test_fresh_within_gives_one_port_a_longer_bound(rig):
-    clock, executives, events, actuator = rig("{module: actuator, rtpu: rtpu1, period: 1 ms, critical: true, fresh_within: {u: 5 ms}}")
+    clock, executives, events, actuator = rig("{module: actuator, rtpu: rtpu1, period: 1 ms, critical: true, "
+                                              "fresh_within: {u: 5 ms}}")
     step_executives(executives, clock, clock.now() + 0.01)
     written = last_write(executives)
     step_executives({"rtpu1": executives["rtpu1"]}, clock, clock.now() + 0.01)
@@ -332,7 +333,8 @@ def test_a_hold_for_an_illegal_configuration_is_told_even_after_many_holds_for_l
     told = [line for line in heard.lines if "runs its locally stable behaviour" in line]
     assert told == ["critical task 'robot' runs its locally stable behaviour: held for stale"] * STABLE_EPISODES_TOLD + [
         "critical task 'robot' runs its locally stable behaviour: held for illegal"]
-    assert heard.lines[2 * STABLE_EPISODES_TOLD - 1].endswith("its further holds for late inputs are counted in the summary, not told")
+    assert heard.lines[2 * STABLE_EPISODES_TOLD - 1].endswith(
+        "its further holds for late inputs are counted in the summary, not told")
     assert heard.lines[-1].startswith("critical task 'robot' is back to its cycle after 1.0 ms")
     assert len(heard.result.stable_episodes) == STABLE_EPISODES_TOLD + 4
 

@@ -9,8 +9,18 @@ from __future__ import annotations
 
 import pytest
 
-from tests.support import (check_clean, icon, message, open_user_level, row, screenshot, start_hmi, start_run, stop_hmi,
-                           user_level_copy)
+from tests.support import (
+    check_clean,
+    icon,
+    message,
+    open_user_level,
+    row,
+    screenshot,
+    start_hmi,
+    start_run,
+    stop_hmi,
+    user_level_copy,
+)
 
 pytestmark = pytest.mark.multiprocess
 
@@ -38,7 +48,8 @@ def test_one_step_of_each_kind_is_built_from_the_dictionary_saved_and_run(page, 
         icon(page, "stuck").drag_to(place(page, "insert the first step here in try of step 1 try"))
         icon(page, "reach").drag_to(place(page, "insert the first step here in fallback of step 1 try"))
         expect(message(page)).to_contain_text("a gap opened")
-        icon(page, "ready").drag_to(row(page).get_by_role("button", name="gap: an object of type joint_position for step 1 reach"))
+        gap = row(page).get_by_role("button", name="gap: an object of type joint_position for step 1 reach")
+        icon(page, "ready").drag_to(gap)
         # repeat: [hold] twice, by the keyboard: Enter appends the focused icon, Space selects, Enter on a place puts it
         icon(page, "repeat").focus()
         page.keyboard.press("Enter")
@@ -68,13 +79,15 @@ def test_one_step_of_each_kind_is_built_from_the_dictionary_saved_and_run(page, 
         check_clean(file)
         page.get_by_role("button", name="Clear the row").click()
         page.get_by_role("button", name="open application workspace in the workspace").click()
-        expect(message(page)).to_have_text("application 'workspace' opened in the workspace: Save with replace ticked writes it back")
+        expect(message(page)).to_have_text(
+            "application 'workspace' opened in the workspace: Save with replace ticked writes it back")
         expect(row(page).locator(".unit.decision")).to_have_count(4)
         expect(row(page).locator(".decision[data-kind=try] [data-object=ready]")).to_be_visible()
         expect(page.get_by_label("condition of step 4 if")).to_have_value("q_m[0] > 0.1")
 
         page.get_by_role("button", name="Run", exact=True).click()
-        expect(message(page)).to_have_text("application 'workspace' runs its steps, deciding as it goes; pbo status shows where it is")
+        expect(message(page)).to_have_text(
+            "application 'workspace' runs its steps, deciding as it goes; pbo status shows where it is")
         expect(page.locator("[data-test=job]")).to_have_text("reach (workspace > fallback > reach)")
         fallback_reach = row(page).locator(".decision[data-kind=try] .unit[data-name=reach]")
         expect(fallback_reach).to_have_attribute("aria-current", "step")

@@ -57,7 +57,8 @@ def drag_figure_8(page) -> None:
         expect(placed).to_have_count(1)
         frame, box = canvas.bounding_box(), placed.bounding_box()
         drop = (frame["x"] + x, frame["y"] + y)  # rendered where the mouse button was let up
-        assert box["x"] <= drop[0] <= box["x"] + box["width"] and box["y"] <= drop[1] <= box["y"] + box["height"], (module, box, drop)
+        assert box["x"] <= drop[0] <= box["x"] + box["width"], (module, box, drop)
+        assert box["y"] <= drop[1] <= box["y"] + box["height"], (module, box, drop)
 
 
 def drawn_links(page) -> set[str]:
@@ -99,9 +100,10 @@ def test_with_figure_8_on_the_canvas_a_second_writer_of_tau_u_is_dimmed_with_the
         drag_figure_8(page)
         verdicts_current(page)
         expect(second).to_have_attribute("aria-disabled", "true")
-        expect(second).to_have_attribute("title", "E401: variable 'tau_u' would have two writers on the canvas: 'pid_joint' and port "
-                                                  "'tau' of module 'inverse_dynamics' (an output has one writer; join them with "
-                                                  "a join connector (TR Figure 6))")
+        expect(second).to_have_attribute("title",
+                                         "E401: variable 'tau_u' would have two writers on the canvas: 'pid_joint' and port "
+                                         "'tau' of module 'inverse_dynamics' (an output has one writer; join them with "
+                                         "a join connector (TR Figure 6))")
         expect(second).to_have_attribute("draggable", "false")
         second.hover()
         expect(second.locator(".lex-why")).to_be_visible()
@@ -178,7 +180,8 @@ def test_a_tasks_modifiers_are_checked_as_in_yaml_and_it_can_be_turned_off_and_r
         panel.get_by_role("button", name="Replace").click()
         expect(canvas.locator("g.task[data-task=inverse_dynamics]")).to_have_count(1)
         expect(pid).to_have_count(0)
-        expect(canvas.locator("g.task[data-task=inverse_dynamics] .pin-badge[data-port=qdd_r]")).to_have_attribute("data-code", "E403")
+        badge = canvas.locator("g.task[data-task=inverse_dynamics] .pin-badge[data-port=qdd_r]")
+        expect(badge).to_have_attribute("data-code", "E403")
     finally:
         stop_hmi(hmi)
 
@@ -202,7 +205,8 @@ def test_figure_8_placed_by_keyboard_is_saved_as_a_job_that_pbo_check_finds_clea
             f"saved job 'reach' (an action requiring an object of type joint_position) to {base}: configuration 'reach'")
         # saved again under the same name: refused, with the API's one line, and the file kept
         job.get_by_role("button", name="Save as job").click()
-        expect(page.get_by_role("alert")).to_contain_text("save job reach: the file has a job 'reach' already: choose another name")
+        expect(page.get_by_role("alert")).to_contain_text(
+            "save job reach: the file has a job 'reach' already: choose another name")
     finally:
         stop_hmi(hmi)
     checked = subprocess.run([*PBO, "check", str(base)], capture_output=True, text=True, timeout=60)

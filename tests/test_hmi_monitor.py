@@ -119,7 +119,8 @@ def test_a_gain_changed_live_changes_the_plotted_tracking_error_and_the_arm_is_d
             "data-series", ";".join(f"q_r[{i}] - q_m[{i}]" for i in range(6)))
         expect(page.locator("[data-test=arm]")).to_have_attribute("data-frames", "7")  # six joints and the tool
         expect(page.get_by_role("img", name="arm, side (x, z)").locator("circle")).to_have_count(7)
-        steady = page.wait_for_function(f"() => {{ const e = ({ERROR_NOW})(); return e && e.spread < 1e-4 && e; }}", timeout=NET).json_value()
+        settled = f"() => {{ const e = ({ERROR_NOW})(); return e && e.spread < 1e-4 && e; }}"
+        steady = page.wait_for_function(settled, timeout=NET).json_value()
 
         kp = page.get_by_label("pid kp", exact=True)
         expect(kp).to_have_value("400")

@@ -12,8 +12,18 @@ import re
 
 import pytest
 
-from tests.support import (check_clean, icon, message, open_user_level, row, screenshot, start_hmi, start_run, stop_hmi,
-                           user_level_copy)
+from tests.support import (
+    check_clean,
+    icon,
+    message,
+    open_user_level,
+    row,
+    screenshot,
+    start_hmi,
+    start_run,
+    stop_hmi,
+    user_level_copy,
+)
 
 pytestmark = pytest.mark.multiprocess
 
@@ -50,7 +60,8 @@ def test_an_application_with_a_gap_is_refused_a_run_until_filled_then_runs_showi
         expect(page.locator("[data-test=run-readiness]")).to_have_text("Complete: ready to run on the attached run.")
 
         page.get_by_role("button", name="Run", exact=True).click()
-        expect(message(page)).to_have_text("application 'workspace' runs its jobs (reach, hold); pbo status shows the current one")
+        expect(message(page)).to_have_text(
+            "application 'workspace' runs its jobs (reach, hold); pbo status shows the current one")
         expect(page.locator("[data-test=job]")).to_have_text("reach (application workspace)")
         expect(row(page).locator(".unit[data-step='1']")).to_have_attribute("aria-current", "step")
         expect(page.locator("[data-test=running-job]")).to_have_text("reach")
@@ -111,7 +122,8 @@ def test_an_objects_value_edited_in_the_dictionary_and_in_the_workspace_is_saved
         field.fill("0.7")
         field.press("Enter")
         expect(editor.locator("[data-test=object-message]")).to_have_text(f"object 'ready' saved to {file}")
-        assert "ready: {type: joint_position, value: [0.7, -0.5, 0.5, 0.2, 0.4, 0.2], doc: \"upper arm raised\"}" in file.read_text()
+        saved = "ready: {type: joint_position, value: [0.7, -0.5, 0.5, 0.2, 0.4, 0.2], doc: \"upper arm raised\"}"
+        assert saved in file.read_text()
         assert "  joint_pid: [robot, traj, pid]  # the PID loop\n" in file.read_text()  # comments kept
         check_clean(file)
 
@@ -169,7 +181,8 @@ def test_an_incomplete_application_is_saved_to_the_file_and_reused_as_an_icon(pa
 
         page.get_by_role("button", name="open application approach in the workspace").click()  # back in the row, to change
         expect(row(page).locator(".unit")).to_have_count(2)
-        expect(row(page).get_by_role("button", name=re.compile("^gap: an object of type joint_position for step 1 reach"))).to_be_visible()
+        gap = row(page).get_by_role("button", name=re.compile("^gap: an object of type joint_position for step 1 reach"))
+        expect(gap).to_be_visible()
         expect(page.get_by_label("Application name", exact=True)).to_have_value("approach")
     finally:
         stop_hmi(hmi)

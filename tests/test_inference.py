@@ -104,7 +104,8 @@ def test_a_declared_variable_wins_and_its_ports_are_checked_against_it(tmp_path:
 
 
 def test_an_entry_without_a_type_takes_it_from_its_ports_and_its_initial_value_is_checked_against_it(tmp_path: Path) -> None:
-    good = check(tmp_path, SMALL.replace("q_d: {type: float64, shape: [NDOF], initial: 0}", "q_d: {initial: [1, 2, 3, 4, 5, 6], doc: goal}"))
+    good = check(tmp_path, SMALL.replace("q_d: {type: float64, shape: [NDOF], initial: 0}",
+                                         "q_d: {initial: [1, 2, 3, 4, 5, 6], doc: goal}"))
     assert good.errors == [] and good.subsystem is not None
     assert (good.subsystem.variables["q_d"].dtype, good.subsystem.variables["q_d"].doc) == ("float64", "goal")
     assert list(good.initial_values["q_d"]) == [1, 2, 3, 4, 5, 6]
@@ -122,13 +123,15 @@ def test_ports_that_disagree_on_an_undeclared_variable_are_each_an_error(tmp_pat
     text = SMALL.replace("dims: {NDOF: 6}", "dims: {NDOF: 7}").replace("initial: 0}", "initial: 0}", 2)
     text = text.replace("  pos:  {module: time_integrator, rtpu: rtpu0, period: 1 ms}",
                         "  pos:  {module: time_integrator, rtpu: rtpu0, period: 1 ms}\n"
-                        "  cart: {module: cartesian_trajectory, rtpu: rtpu0, period: 1 ms, ports: {x_r: q_r, x_d: q_d, x_m: q_m}}")
+                        "  cart: {module: cartesian_trajectory, rtpu: rtpu0, period: 1 ms, "
+                        "ports: {x_r: q_r, x_d: q_d, x_m: q_m}}")
     result = check(tmp_path, text)
     shapes = [(code, message) for code, _, message in errors(result) if "'q_r'" in message]
     assert [code for code, _ in shapes] == ["E317"] * 3, errors(result)
-    assert "task 'cart' port 'x_r' (out-var) gives undeclared variable 'q_r' shape (6,), but task 'traj' port 'q_r' gives it shape (7,)" \
-        in [message for _, message in shapes]
-    assert all(e.hint.startswith("ports that share a variable agree on its shape: declare 'q_r'") for e in result.errors if e.code == "E317")
+    assert ("task 'cart' port 'x_r' (out-var) gives undeclared variable 'q_r' shape (6,), "
+            "but task 'traj' port 'q_r' gives it shape (7,)") in [message for _, message in shapes]
+    assert all(e.hint.startswith("ports that share a variable agree on its shape: declare 'q_r'")
+               for e in result.errors if e.code == "E317")
 
 
 def test_a_port_of_any_dtype_cannot_define_a_variable_and_the_hint_says_to_declare_it(tmp_path: Path) -> None:
@@ -149,7 +152,8 @@ def test_a_name_only_one_tasks_ports_mapping_uses_is_not_made_a_variable(tmp_pat
 
 
 def test_two_tasks_may_name_a_new_variable_in_their_ports_mappings(tmp_path: Path) -> None:
-    text = SMALL.replace("period: 1 ms}", "period: 1 ms, ports: {q_r: q_a}}").replace("max_velocity: 1.0}", "max_velocity: 1.0}, ports: {q_r: q_a}")
+    text = (SMALL.replace("period: 1 ms}", "period: 1 ms, ports: {q_r: q_a}}")
+            .replace("max_velocity: 1.0}", "max_velocity: 1.0}, ports: {q_r: q_a}"))
     result = check(tmp_path, text)
     assert "q_a" in result.inferred, errors(result)
 

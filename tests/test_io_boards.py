@@ -73,7 +73,8 @@ def test_a_dac_writes_only_its_channels_clips_at_full_scale_and_returns_them_to_
         low.write(np.array([20.0, -20.0]))
         registers = attach_registers(plant.name)
         try:
-            np.testing.assert_allclose(registers.dac * VOLTS_PER_COUNT, [10.0 - VOLTS_PER_COUNT, 4.0, -10.0, 5.0], atol=VOLTS_PER_COUNT)
+            np.testing.assert_allclose(registers.dac * VOLTS_PER_COUNT,
+                                       [10.0 - VOLTS_PER_COUNT, 4.0, -10.0, 5.0], atol=VOLTS_PER_COUNT)
             low.close()
             np.testing.assert_allclose(registers.dac * VOLTS_PER_COUNT, [0.0, 4.0, 0.0, 5.0], atol=VOLTS_PER_COUNT)
         finally:
@@ -142,7 +143,8 @@ def test_a_dac_refuses_voltages_that_are_not_finite_and_writes_nothing(plant, op
     try:
         counts = before.dac[:2].copy()
         with pytest.raises(DeviceError, match=rf"^dac on registers '{plant.name}': refused voltages that are not finite "
-                                              rf"\(\[2\.5, -?(nan|inf)\]\) for channels \[0, 1\]; the channels keep their values"):
+                                              rf"\(\[2\.5, -?(nan|inf)\]\) for channels \[0, 1\]; "
+                                              r"the channels keep their values"):
             dac.write(np.array([2.5, bad]))
         np.testing.assert_array_equal(before.dac[:2], counts)
     finally:

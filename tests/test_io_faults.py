@@ -23,12 +23,12 @@ import pytest
 
 from drivers.mujoco_arm.plant import MujocoArmPlant
 from pbo_runtime import open_log, read_log
-from pbo_runtime.reports.data_log import LogError
 from pbo_runtime.cli.main import main
 from pbo_runtime.cli.output_paths import OutputPathError, write_report
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.limits import KERNEL_BYTES_PER_MESSAGE
+from pbo_runtime.reports.data_log import LogError
 from pbo_runtime.supervisor.supervisor import Supervisor
 from tests.support import DEMO, NO_WATCHDOG, PBO, assert_nothing_left, children_of, demo_copy, fill_disk, unique_name, until
 
@@ -235,7 +235,8 @@ def test_a_disk_that_fills_during_the_run_fails_the_log_and_the_report_with_the_
 def test_a_sigkill_of_the_loggers_rtpu_loses_at_most_the_chunk_it_was_filling(tmp_path, name):
     """The log, MCAP or .npy, reads back with every row of the chunks written before the kill (issue 21)."""
     out, report = tmp_path / "out", tmp_path / "report.json"
-    config = demo_copy(tmp_path, f"kill_{name.split('.')[1]}", logger={"params": {"variables": ["q_m", "q_r", "tau_u"], "path": name}})
+    config = demo_copy(tmp_path, f"kill_{name.split('.')[1]}",
+                       logger={"params": {"variables": ["q_m", "q_r", "tau_u"], "path": name}})
     run = subprocess.Popen([*PBO, "run", str(config), "--clock", "sim", "--duration", "0", "--no-live", "--out", str(out),
                             "--report", str(report)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     log = out / name
@@ -253,7 +254,7 @@ def test_a_sigkill_of_the_loggers_rtpu_loses_at_most_the_chunk_it_was_filling(tm
     assert re.search(r"error: RTPU 'rtpu0' \(pid \d+\) died \(killed by SIGKILL\) while hosting tasks: traj, pid, logger", stderr)
     result = json.loads(report.read_text())
     rows = read_log(log)
-    taken = int(round(result["duration"] / 0.01)) + 1  # the logger's cycles, every 10 ms from 0 to the death
+    taken = round(result["duration"] / 0.01) + 1  # the logger's cycles, every 10 ms from 0 to the death
     assert seen <= len(rows)
     # Lost: the chunk it was filling, and the rows taken while the writer thread wrote the last one
     # handed over (milliseconds of wall time: a tick or two of the simulated clock; 20 is the margin).

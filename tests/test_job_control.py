@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
-from pbo_runtime.errors import PboError
 from pbo_runtime.config.loader import load_subsystem
+from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.job_control import POLL, SWITCH_TIMEOUT, JobFailure, application_steps, evaluate
 from pbo_runtime.supervisor.plan_lead import FIRST_SAMPLES, MARGIN, MARGIN_FACTOR
 from tests.fake_job_host import SUBSYSTEM, FakeJobHost, fake_subsystem
@@ -121,7 +123,7 @@ def test_alternate_switches_the_given_number_of_times_one_interval_apart(host):
     assert [r.after for r in host.job_control.switches] == ["pd", "pid", "pd", "pid"]
     requested = [r.requested_at for r in host.job_control.switches]
     assert requested[0] == pytest.approx(0.05, abs=0.003) and all(
-        0.045 < b - a < 0.055 for a, b in zip(requested, requested[1:]))
+        0.045 < b - a < 0.055 for a, b in itertools.pairwise(requested))
 
 
 # --- jobs -------------------------------------------------------------------------------------
@@ -144,7 +146,8 @@ def test_a_job_whose_pre_condition_fails_is_refused_with_the_values_it_read(host
 
 def test_a_job_that_times_out_says_its_post_condition_is_still_false(host):
     with pytest.raises(JobFailure, match=r"^job 'reach': timed out after 10 s; post-condition "
-                                         r"'max\(abs\(q_m - q_d\)\) < 0\.01' still false \(q_d = \[ 0\.3, -0\.5, .*; q_m = \[0\., "):
+                                         r"'max\(abs\(q_m - q_d\)\) < 0\.01' still false "
+                                         r"\(q_d = \[ 0\.3, -0\.5, .*; q_m = \[0\., "):
         host.job_control.run_job("reach", {"q_d": GOAL})
     assert host.now() == pytest.approx(10.0, abs=0.02)
 
@@ -232,8 +235,9 @@ def test_an_incomplete_application_given_an_object_fills_each_of_its_gaps_with_i
     host.on_pump = arm_reaches_its_goal_after(0.0)
     host.job_control.run_application("visit")
     assert writes == [("q_d", READY), ("q_d", READY), ("q_d", ELSEWHERE), ("q_d", ELSEWHERE)]
+    visit = ["reach", "settle", "reach", "settle", "hold"]
     assert [line.split(":")[0] for line in host.said if "running in" in line] == [
-        f"job '{job}' (step {n} of 5 of application 'visit')" for n, job in enumerate(["reach", "settle", "reach", "settle", "hold"], 1)]
+        f"job '{job}' (step {n} of 5 of application 'visit')" for n, job in enumerate(visit, 1)]
     assert [(r.before, r.after) for r in host.job_control.switches] == [("pid", "pd"), ("pd", "pid"), ("pid", "pd")]
 
 

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from pbo_runtime.cli import main
-from pbo_runtime.edit.job_dictionary import edges, interlocks, job_dictionary, may_follow, row_gaps
 from pbo_runtime.config.loader import CheckResult, check_file, load_subsystem
 from pbo_runtime.config.model import ACTION, ACTION_REQUIRING_OBJECT, INCOMPLETE, Gap, Subsystem
+from pbo_runtime.edit.job_dictionary import edges, interlocks, job_dictionary, may_follow, row_gaps
 
 READY = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]
 LEGAL = f"""\
@@ -116,11 +116,13 @@ def test_a_legal_file_checks_clean_with_its_object_types_objects_and_job_classes
     ]
     tour = sub.applications["tour"]
     assert tour.complete and tour.gaps == () and tour.kind == ACTION
-    assert [(s.job, s.object, dict(s.arguments)) for s in tour.steps] == [("reach", "home", {}), ("settle", "ready", {}), ("hold", None, {})]
+    assert [(s.job, s.object, dict(s.arguments)) for s in tour.steps] == [
+        ("reach", "home", {}), ("settle", "ready", {}), ("hold", None, {})]
 
 
 def test_without_object_types_each_type_is_implied_by_the_variables_marked_with_it(tmp_path):
-    text = changed("object_types:\n  joint_position: {type: float64, shape: [NDOF], unit: rad, doc: a position of the joints}\n", "")
+    text = changed("object_types:\n  joint_position: {type: float64, shape: [NDOF], unit: rad, doc: a position of the joints}\n",
+                   "")
     result = check(tmp_path, text)
     assert result.errors == [] and result.subsystem is not None
     kind = result.subsystem.object_types["joint_position"]
@@ -129,19 +131,23 @@ def test_without_object_types_each_type_is_implied_by_the_variables_marked_with_
 
 
 def test_object_types_and_objects_may_come_from_an_included_file_and_a_name_given_twice_is_located(tmp_path):
-    library = "object_types:\n  joint_position: {type: float64, shape: [6], unit: rad}\nobjects:\n  home: {type: joint_position, value: 0}\n"
+    library = ("object_types:\n  joint_position: {type: float64, shape: [6], unit: rad}\n"
+               "objects:\n  home: {type: joint_position, value: 0}\n")
     (tmp_path / "poses.yaml").write_text(library)
-    text = changed("object_types:\n  joint_position: {type: float64, shape: [NDOF], unit: rad, doc: a position of the joints}\n", "")
+    text = changed("object_types:\n  joint_position: {type: float64, shape: [NDOF], unit: rad, doc: a position of the joints}\n",
+                   "")
     text = changed("objects:\n  home:  {type: joint_position, value: 0}\n", "objects:\n", text)
     result = check(tmp_path, "include: [poses.yaml]\n" + text)
     assert result.errors == [] and result.subsystem is not None
     assert result.subsystem.objects["home"].loc.file.endswith("poses.yaml")
+    without_types = LEGAL.replace("object_types:\n  joint_position: {type: float64, shape: [NDOF], unit: rad, "
+                                  "doc: a position of the joints}\n", "")
     twice = check(tmp_path, "include: [poses.yaml]\n" + changed("objects:\n  home:  {type: joint_position, value: 0}\n",
-                                                                "objects:\n  home:  {type: joint_position, value: 1}\n", text=LEGAL.replace(
-                                                                    "object_types:\n  joint_position: {type: float64, shape: [NDOF], unit: rad, "
-                                                                    "doc: a position of the joints}\n", "")), name="twice.yaml")
+                                                                "objects:\n  home:  {type: joint_position, value: 1}\n",
+                                                                text=without_types), name="twice.yaml")
     error = only_error(twice)
-    assert error.code == "E215" and re.match(r"^'home' in 'objects' is defined twice: here and at .*poses\.yaml:4:3$", error.message)
+    assert error.code == "E215" and re.match(r"^'home' in 'objects' is defined twice: here and at .*poses\.yaml:4:3$",
+                                             error.message)
 
 
 # --- one mistake, one located error ----------------------------------------------------------------
@@ -153,14 +159,16 @@ STILL = changed("configurations:\n", "configurations:\n  still: [robot, pid]\n",
 
 MISTAKES = [
     pytest.param(changed("  home:  {type: joint_position,", "  home:  {type: joint_positon,"), "joint_positon",
-                 r"^object 'home' has type 'joint_positon', which no object type declares$", "E711", r"did you mean 'joint_position'",
+                 r"^object 'home' has type 'joint_positon', which no object type declares$", "E711",
+                 r"did you mean 'joint_position'",
                  id="an_objects_type_must_be_declared"),
     pytest.param(changed("object: joint_position, initial: 0", "object: joint_pos, initial: 0"), "joint_pos",
                  r"^variable 'q_d' is marked object: 'joint_pos', which 'object_types' does not declare$", "E711", "did you mean",
                  id="once_object_types_is_given_a_marking_must_name_one"),
     pytest.param(changed("joint_position: {type: float64, shape: [NDOF]", "joint_position: {type: float64, shape: [3]",
                          changed(f"value: {READY}", "value: [1, 2, 3]")), "object: joint_position, initial>>joint_position",
-                 r"^variable 'q_d' \(float64 \(6,\)\) is marked object: 'joint_position', but objects of type 'joint_position' are float64 \(3,\)$",
+                 r"^variable 'q_d' \(float64 \(6,\)\) is marked object: 'joint_position', "
+                 r"but objects of type 'joint_position' are float64 \(3,\)$",
                  "E712", None, id="a_marked_variable_has_its_types_dtype_and_shape"),
     pytest.param(changed("joint_position: {type: float64,", "joint_position: {type: float46,"), "float46",
                  r"^object type 'joint_position' has unknown type 'float46'$", "E303", "did you mean 'float64'",
@@ -169,7 +177,8 @@ MISTAKES = [
                  r"^shape of object type 'joint_position' uses dim 'NDFO', which 'dims' does not define$", "E204", None,
                  id="an_object_types_shape_uses_defined_dims"),
     pytest.param(changed("value: [0.3, -0.5,", "value: [0.3, -0.5, 0.1,"), "[0.3, -0.5, 0.1",
-                 r"^value of object 'ready' has shape \(7,\), but the shape of object type 'joint_position' is \(6,\)$", "E312", None,
+                 r"^value of object 'ready' has shape \(7,\), but the shape of object type 'joint_position' is \(6,\)$", "E312",
+                 None,
                  id="an_objects_value_has_its_types_shape"),
     pytest.param(changed("value: [0.3, -0.5,", "value: [.nan, -0.5,"), ".nan",
                  r"^value of object 'ready': float64 elements must be finite numbers, got: \.nan", "E314", None,
@@ -177,7 +186,8 @@ MISTAKES = [
     pytest.param(changed("  home:  {type: joint_position, value: 0}", "  home:  {type: joint_position}"), "home:",
                  r"^object 'home' has no 'value:', which is required$", "E112", None, id="an_object_has_a_value"),
     pytest.param(changed("    - reach: home", "    - reach: hmoe"), "hmoe",
-                 r"^step 1 of application 'tour' gives object 'hmoe' to job 'reach', but 'objects' declares no such object$", "E714",
+                 r"^step 1 of application 'tour' gives object 'hmoe' to job 'reach', but 'objects' declares no such object$",
+                 "E714",
                  "did you mean 'home'", id="a_step_names_a_declared_object"),
     pytest.param(changed("    - hold\n", "    - hold: home\n"), "- hold: home>>home",
                  r"^step 3 of application 'tour' gives object 'home' to job 'hold', which takes no object$", "E705", None,
@@ -185,14 +195,17 @@ MISTAKES = [
     pytest.param(changed("  settle: {configuration: pd, object: q_d}", "  settle: {configuration: pd, object: qd_m}"), "qd_m}",
                  r"^job 'settle' takes variable 'qd_m' as its object, but the variable is not marked as an object$", "E701", None,
                  id="a_written_object_is_a_marked_variable"),
-    pytest.param(changed("jobs:\n", "jobs:\n  fixed: {configuration: still, object: q_d}\n", STILL), "fixed: {configuration: still, object: q_d}>>q_d}",
+    pytest.param(changed("jobs:\n", "jobs:\n  fixed: {configuration: still, object: q_d}\n", STILL),
+                 "fixed: {configuration: still, object: q_d}>>q_d}",
                  r"^job 'fixed' takes object 'q_d', but no task of configuration 'still' reads or writes it$", "E715",
                  r"^its tasks need no object: remove object:, and the job is an action$", id="a_written_object_some_task_uses"),
     pytest.param(changed("jobs:\n", "jobs:\n  servo: {configuration: still}\n", STILL.replace(
-                     "initial: 0}", "object: joint_position, initial: 0}").replace("object: joint_position, object: joint_position", "object: joint_position")),
+                     "initial: 0}", "object: joint_position, initial: 0}")
+                         .replace("object: joint_position, object: joint_position", "object: joint_position")),
                  "servo:",
-                 r"^job 'servo' needs more than one object: configuration 'still' reads 'q_r' \(type joint_position, read by 'pid'\), "
-                 r"'qd_r' \(type joint_position, read by 'pid'\), but a job takes one$", "E716", "object: <variable>",
+                 r"^job 'servo' needs more than one object: configuration 'still' reads "
+                 r"'q_r' \(type joint_position, read by 'pid'\), 'qd_r' \(type joint_position, read by 'pid'\), "
+                 r"but a job takes one$", "E716", "object: <variable>",
                  id="a_job_reading_two_objects_chooses_one"),
     pytest.param(changed("objects:\n", "objects:\n  reach: {type: joint_position, value: 1}\n"), "reach: {type",
                  r"^'reach' names both an object and a job$", "E717", None, id="an_object_and_a_job_have_different_names"),
@@ -218,8 +231,10 @@ def test_a_named_object_of_another_type_does_not_interlock(tmp_path):
 
 
 def test_two_variables_implying_one_type_differently_is_an_error_at_the_second(tmp_path):
-    text = changed("object_types:\n  joint_position: {type: float64, shape: [NDOF], unit: rad, doc: a position of the joints}\n", "")
-    text = changed("  q_r:   {type: float64, shape: [NDOF]}", "  q_r:   {type: float64, shape: [NDOF]}\n  g:     {type: float64, object: joint_position}", text)
+    text = changed("object_types:\n  joint_position: {type: float64, shape: [NDOF], unit: rad, doc: a position of the joints}\n",
+                   "")
+    text = changed("  q_r:   {type: float64, shape: [NDOF]}",
+                   "  q_r:   {type: float64, shape: [NDOF]}\n  g:     {type: float64, object: joint_position}", text)
     result = check(tmp_path, text)
     e712 = [e for e in result.errors if e.code == "E712"]
     assert len(e712) == 1 and e712[0].message == (
@@ -256,11 +271,14 @@ def test_an_incomplete_application_used_unfilled_leaves_its_user_incomplete_with
     ("  whole: [hold]\n  outer: [{whole: home}]\n", "home}]",
      r"^step 1 of application 'outer' gives objects to application 'whole', which takes none$", "E709"),
     ("  approach: [reach]\n  outer: [{approach: {q_d: 0}}]\n", "q_d: 0",
-     r"^step 1 of application 'outer' gives q_d to application 'approach', whose gaps take one object of type joint_position$", "E707"),
+     r"^step 1 of application 'outer' gives q_d to application 'approach', whose gaps take one object of type joint_position$",
+     "E707"),
     ("  approach: [reach]\n  outer: [{approach: {joint_position: [1, 2]}}]\n", "[1, 2]",
-     r"^object of step 1 of application 'outer' has shape \(2,\), but the shape of object type 'joint_position' is \(6,\)$", "E312"),
+     r"^object of step 1 of application 'outer' has shape \(2,\), but the shape of object type 'joint_position' is \(6,\)$",
+     "E312"),
     ("  approach: [reach]\n  outer: [{approach: nowhere}]\n", "nowhere",
-     r"^step 1 of application 'outer' gives object 'nowhere' to application 'approach', but 'objects' declares no such object$", "E714"),
+     r"^step 1 of application 'outer' gives object 'nowhere' to application 'approach', but 'objects' declares no such object$",
+     "E714"),
 ])
 def test_what_an_application_is_given_must_fill_its_gaps(tmp_path, extra, needle, message, code):
     text = with_applications(extra)
@@ -281,7 +299,8 @@ def test_one_object_for_gaps_of_several_types_is_refused(tmp_path):
     error = only_error(result)
     assert error.code == "E718" and error.message == (
         "step 1 of application 'outer' gives an object to application 'both', whose gaps need objects of types "
-        "joint_position, joint_reference: no one object fills them (step 1 'reach' (joint_position), step 2 'servo' (joint_reference))")
+        "joint_position, joint_reference: no one object fills them "
+        "(step 1 'reach' (joint_position), step 2 'servo' (joint_reference))")
     # kept, not refused: the mixed application itself is incomplete, with a gap of each type
     clean = check(tmp_path, text.replace("  outer: [{both: home}]\n", "  outer: [both]\n"), name="clean.yaml")
     assert clean.errors == [] and clean.subsystem is not None
@@ -349,7 +368,8 @@ def test_a_partial_application_tells_where_each_gap_is_and_of_which_type(subsyst
 @pytest.mark.parametrize(("row", "message"), [
     (["hold", "home"], "object 'home' (type joint_position) does not interlock with 'hold', which takes no object there"),
     (["home"], "object 'home' (type joint_position) does not interlock with the start of the application"),
-    (["reach", "home", "ready"], "object 'ready' (type joint_position) does not interlock with 'home', which takes no object there"),
+    (["reach", "home", "ready"],
+     "object 'ready' (type joint_position) does not interlock with 'home', which takes no object there"),
     (["fly"], "'fly' is no job, application or object of this subsystem"),
     ([{"hold": "home"}], "'hold' takes no object"),
     ([{"reach": "nowhere"}], "'reach' is given object 'nowhere', which is no object of this subsystem"),
@@ -387,7 +407,8 @@ def test_check_prints_a_short_job_dictionary(tmp_path, capsys):
 
 
 def test_an_objects_value_is_the_array_job_control_writes(subsystem):
-    assert np.array_equal(subsystem.objects["ready"].value, np.array(READY)) and subsystem.objects["ready"].value.dtype == np.float64
+    assert np.array_equal(subsystem.objects["ready"].value, np.array(READY))
+    assert subsystem.objects["ready"].value.dtype == np.float64
 
 
 def test_the_examples_of_the_configuration_guide_check_and_print_the_dictionary_it_shows(tmp_path, capsys):

@@ -120,7 +120,8 @@ def test_the_figure_6_file_without_its_join_connectors_has_two_writers_of_each_s
     text = FIGURE_6.read_text()
     for task in ("traj_a", "traj_b"):
         text = text.replace(f"ports: {{q_r: q_r_{task[-1]}, qd_r: qd_r_{task[-1]}}}", "ports: {q_r: q_r, qd_r: qd_r}")
-    text = text.replace("  figure_6:   [robot, traj_a, traj_b, join_q, join_qd, pid]", "  figure_6:   [robot, traj_a, traj_b, pid]")
+    text = text.replace("  figure_6:   [robot, traj_a, traj_b, join_q, join_qd, pid]",
+                        "  figure_6:   [robot, traj_a, traj_b, pid]")
     path = tmp_path / "no_join.yaml"
     path.write_text(text)
     errors = check_file(path).errors

@@ -161,7 +161,8 @@ def test_a_pid_inside_a_combined_task_is_checked_at_its_gain_like_a_task_of_its_
 
 
 def test_a_pid_inside_a_combined_task_given_a_bandwidth_checks_clean_and_says_its_gains(tmp_path):
-    result = check_file(write(tmp_path, "ur5_combined", combined_subsystem("bandwidth: 30, damping: 1.0, gravity_feedforward: true")))
+    result = check_file(write(tmp_path, "ur5_combined",
+                              combined_subsystem("bandwidth: 30, damping: 1.0, gravity_feedforward: true")))
     assert not result.errors and not result.warnings, [e.format() for e in result.errors + result.warnings]
     assert any(note.startswith("gains of task 'ctl', member 2 (pid_joint): bandwidth 30 rad/s, damping 1 make kp [")
                for note in result.robot_notes), result.robot_notes
@@ -203,7 +204,8 @@ def test_the_verdict_agrees_with_the_simulated_arm_on_either_side_of_the_bound(t
     settled = run_demo(inside, tmp_path)
     assert settled.returncode == 0 and "fault:" not in settled.stderr, settled.stdout + settled.stderr
     assert "job 'reach' (step 1 of 1 of application 'demo'): done" in settled.stdout
-    refused = subprocess.run([*PBO, "run", str(outside), "--clock", "sim"], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    refused = subprocess.run([*PBO, "run", str(outside), "--clock", "sim"], capture_output=True, text=True,
+                             cwd=tmp_path, timeout=120)
     assert refused.returncode == 1 and "E326" in refused.stderr
     diverged = run_demo(outside, tmp_path, "--allow-unstable-loops")  # the wrist swings from one torque limit to the other
     assert diverged.returncode == 2, diverged.stdout + diverged.stderr

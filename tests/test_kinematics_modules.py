@@ -3,7 +3,8 @@
 fk_jacobian, inverse_dynamics, gravity_compensation, resolved_rate, damped_least_squares,
 time_integrator and cartesian_trajectory, with the PUMA 560's ARM and EE as the robot
 interface would publish them. References come from Pinocchio's own algorithms on the tests' own
-model of the PUMA (built from its DH rows, not from the ARM table) and from finite differences; the rate controllers are closed with a plain Euler loop standing in for the arm.
+model of the PUMA (built from its DH rows, not from the ARM table) and from finite differences;
+the rate controllers are closed with a plain Euler loop standing in for the arm.
 """
 
 from __future__ import annotations
@@ -24,8 +25,8 @@ from modules.inverse_dynamics import InverseDynamics
 from modules.resolved_rate import ResolvedRate
 from modules.time_integrator import TimeIntegrator
 from pbo_runtime import ParamError, PortBasedObject, Status
-from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import Flag, StateTable, TaskState
+from pbo_runtime.task.lifecycle import Task
 from tests.support import dh_forward_kinematics, dh_pinocchio_model, robot_state_table, spawned_task, task_spec, write_values
 
 PUMA = robot("puma560")
@@ -423,13 +424,16 @@ def test_cartesian_trajectory_respects_linear_and_angular_velocity_and_accelerat
     ("module", "params", "message"),
     [
         (FkJacobian, {"frame": ""}, r"bad parameters for FkJacobian: frame must name a frame of the arm, got: ''"),
-        (InverseDynamics, {"max_torque": 0.0}, r"InverseDynamics\.max_torque must be a number > 0, or \.inf for no limit, got: 0"),
+        (InverseDynamics, {"max_torque": 0.0},
+         r"InverseDynamics\.max_torque must be a number > 0, or \.inf for no limit, got: 0"),
         (InverseDynamics, {"max_torque": math.nan}, r"InverseDynamics\.max_torque must be a number > 0, or \.inf for no limit, "
-                                                     r"got: \.nan \(not a number\)"),
+               r"got: \.nan \(not a number\)"),
         (GravityCompensation, {"scale": -1.0}, r"GravityCompensation\.scale must be in \[0, 10\], got: -1"),
-        (GravityCompensation, {"scale": math.nan}, r"GravityCompensation\.scale must be in \[0, 10\], got: \.nan \(not a number\)"),
+        (GravityCompensation, {"scale": math.nan},
+         r"GravityCompensation\.scale must be in \[0, 10\], got: \.nan \(not a number\)"),
         (ResolvedRate, {"gain": 0.0}, r"ResolvedRate\.gain must be in \(0, 10000\], got: 0"),
-        (ResolvedRate, {"max_joint_speed": -1.0}, r"ResolvedRate\.max_joint_speed must be a number > 0, or \.inf for no limit, got: -1"),
+        (ResolvedRate, {"max_joint_speed": -1.0},
+         r"ResolvedRate\.max_joint_speed must be a number > 0, or \.inf for no limit, got: -1"),
         (DampedLeastSquares, {"gain": math.inf}, r"DampedLeastSquares\.gain must be in \(0, 10000\], got: \.inf"),
         (DampedLeastSquares, {"damping": -0.1}, r"DampedLeastSquares\.damping must be in \[0, 10\], got: -0\.1"),
         (DampedLeastSquares, {"max_damping": 0.0},
@@ -440,7 +444,8 @@ def test_cartesian_trajectory_respects_linear_and_angular_velocity_and_accelerat
         (DampedLeastSquares, {"max_joint_speed": 0.0},
          r"DampedLeastSquares\.max_joint_speed must be a number > 0, or \.inf for no limit, got: 0"),
         (TimeIntegrator, {"max_lead": 0.0}, r"TimeIntegrator\.max_lead must be a number > 0, or \.inf for no limit, got: 0"),
-        (CartesianTrajectory, {"max_linear_velocity": 0.0}, r"CartesianTrajectory\.max_linear_velocity must be in \(0, 100\], got: 0"),
+        (CartesianTrajectory, {"max_linear_velocity": 0.0},
+         r"CartesianTrajectory\.max_linear_velocity must be in \(0, 100\], got: 0"),
         (CartesianTrajectory, {"max_angular_acceleration": -2.0},
          r"CartesianTrajectory\.max_angular_acceleration must be in \(0, 10000\], got: -2"),
     ],

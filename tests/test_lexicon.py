@@ -8,7 +8,6 @@ import sys
 import typing
 
 import pytest
-
 from rich.console import Console
 from rich.table import Table
 

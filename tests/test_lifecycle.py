@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from types import MappingProxyType
+from typing import Any
+
 import numpy as np
 import pytest
 
 from pbo_runtime import InBoth, InConst, InVar, LifecycleError, ModuleError, OutBoth, OutConst, OutVar, PortBasedObject, Status
 from pbo_runtime.objects.module import TaskContext
-from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import Flag, StatusWord, TaskState
+from pbo_runtime.task.lifecycle import Task
 from tests.support import allocation_peak, one_array, task_spec, variables
 
 VARS = variables(
@@ -59,7 +63,7 @@ class Recorder(PortBasedObject):
         self.calls.append("off")
 
     def kill(self):
-        self.calls = getattr(self, "calls", []) + ["kill"]
+        self.calls = [*getattr(self, "calls", []), "kill"]
 
     def error(self, exc):
         self.calls.append("error")
@@ -97,7 +101,7 @@ def test_in_consts_are_read_before_init(table):
 def test_out_consts_are_written_after_init(table):
     task = make_task(table)
     task.spawn(0.5)
-    value, seq, when, writer = table.read("k_out")
+    value, _seq, when, writer = table.read("k_out")
     assert value.tolist() == [2.0, 4.0] and writer == 1 and when == 0.5
     assert table.read("b_out")[0] == 5.0
 
@@ -117,7 +121,8 @@ def test_a_task_spawned_into_a_killed_tasks_status_block_keeps_none_of_its_count
     task = make_task(table)
     expected = [0.0] * len(block)
     expected[StatusWord.RELEASE] = 12.5
-    assert block.tolist() == expected and task.status.tolist() == expected[:len(task.status)] and len(task.status) > StatusWord.RELEASE
+    assert block.tolist() == expected
+    assert task.status.tolist() == expected[:len(task.status)] and len(task.status) > StatusWord.RELEASE
     task.spawn(13.0)
     assert table.status[1][StatusWord.STATE] == TaskState.OFF and table.status[1][StatusWord.CYCLES] == 0
 
@@ -157,7 +162,7 @@ def test_in_vars_are_read_before_each_cycle_and_out_vars_written_after(table):
     assert task.run_cycle(1.001) is Status.CONTINUE
     assert task.module.seen["cycle"][0].tolist() == [1.0, 2.0]
     assert task.module.seen["cycle"][1] == 9.0  # in-both is also read every cycle
-    value, seq, when, writer = table.read("y")
+    value, seq, when, _writer = table.read("y")
     assert value.tolist() == [2.0, 3.0] and seq == 1 and when == 1.001
     assert table.read("b_out")[0] == 10.0  # out-both is also written every cycle
 
@@ -289,7 +294,7 @@ class Emitter(PortBasedObject):
     w = OutVar("w", dtype="float32", shape=(2,))
     count = OutVar("count", dtype="int32", shape=(2,))
 
-    emit: dict = {}
+    emit: Mapping[str, Any] = MappingProxyType({})  # make() gives each instance a dict of its own
     verdict = Status.ERROR
     errors_seen: list
 
@@ -353,7 +358,7 @@ def test_an_error_component_that_recovers_keeps_the_task_on_but_writes_nothing_n
 
 
 def test_outputs_that_are_not_finite_after_on_put_the_task_in_error_before_they_are_written(emitter, make_table):
-    make, table = emitter
+    _make, table = emitter
     task = Task(task_spec(Emitter, name="emitter", index=0), Emitter, table)
     task.module.emit = {"x": [0.0, np.inf, 0.0], "w": [0.0, 0.0]}
     assert task.spawn(0.0)
@@ -453,7 +458,7 @@ def test_off_places_its_final_values_on_the_output_ports_issue_22(offender):
     task = cycled(make())
     assert table.read("y")[0].tolist() == [1.0, 1.0]
     task.turn_off(0.0015)
-    value, seq, when, writer = table.read("y")
+    value, _seq, when, writer = table.read("y")
     assert value.tolist() == [0.0, 0.0] and when == 0.0015 and writer == 0
     assert task.state is TaskState.OFF and table.status[0][StatusWord.STATE] == TaskState.OFF
 

@@ -206,10 +206,10 @@ def test_a_structured_payload_round_trips_field_by_field(transport):
 
 
 def test_another_payload_is_refused_at_attach_and_the_error_names_both(transport):
-    with transport.create(ARM, "reader"):
-        with pytest.raises(LinkLayoutError, match=rf"^link '{transport.name}' carries float64 \(6,\), this process expects "
-                                                  r"float32 \(3,\): do both ends declare the same payload\?$"):
-            transport.attach(LinkLayout("float32", (3,)), "sender")
+    with (transport.create(ARM, "reader"),
+          pytest.raises(LinkLayoutError, match=rf"^link '{transport.name}' carries float64 \(6,\), this process expects "
+                                               r"float32 \(3,\): do both ends declare the same payload\?$")):
+        transport.attach(LinkLayout("float32", (3,)), "sender")
 
 
 def test_attaching_to_a_missing_link_names_it(transport):
@@ -314,14 +314,16 @@ def test_a_sender_that_waits_gets_the_error_once_the_link_stayed_full(transport)
     with transport.messages(capacity=2) as small:
         small.send(1)
         small.send(2)
-        with pytest.raises(LinkFullError, match=r"^message link '.*' is full: 2 of 2 messages waiting \(it stayed full for 0\.01 s\)\n  hint: "):
+        with pytest.raises(LinkFullError,
+                           match=r"^message link '.*' is full: 2 of 2 messages waiting \(it stayed full for 0\.01 s\)\n  hint: "):
             small.send(3, timeout=0.01)
 
 
 def test_a_message_too_large_for_the_link_is_refused_before_it_is_sent(transport):
     with transport.messages(max_message_bytes=64) as small:
-        with pytest.raises(MessageLinkError, match=r"^message link '.*': a message of \d+ bytes \(encoded\) exceeds its 64 bytes\n"
-                                                   r"  hint: send bulk data through a triple buffer"):
+        with pytest.raises(MessageLinkError,
+                           match=r"^message link '.*': a message of \d+ bytes \(encoded\) exceeds its 64 bytes\n"
+                                 r"  hint: send bulk data through a triple buffer"):
             small.send("x" * 100)
         assert small.waiting == 0
 
@@ -343,6 +345,7 @@ def test_a_bad_capacity_is_refused(transport):
 
 def test_attaching_to_a_missing_message_link_names_it(transport):
     port = getattr(transport, "port", None)
-    with pytest.raises(MessageLinkError, match=rf"^no message link '{transport.name}': (nothing answered on tcp/127\.0\.0\.1:{port}: )?"
-                                               r"has the subsystem that creates it started\?$"):
+    with pytest.raises(MessageLinkError,
+                       match=rf"^no message link '{transport.name}': (nothing answered on tcp/127\.0\.0\.1:{port}: )?"
+                             r"has the subsystem that creates it started\?$"):
         transport.attach_messages(transport.name, wait=0)

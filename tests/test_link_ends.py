@@ -44,12 +44,12 @@ def test_a_message_link_has_no_reader():
 
 def test_a_periodic_shm_end_attaches_to_the_runners_triple_buffer():
     name = unique_name("link")
-    with TripleBuffer.create(name, LinkLayout(LIKE.dtype, LIKE.shape), "sender") as sender:
-        with open_link_end("l", spec(object=name), LIKE, "reader") as reader:
-            assert isinstance(reader, TripleBuffer) and reader.role == "reader"
-            sender.write(np.arange(3.0))
-            reader.read()
-            assert list(reader.value) == [0.0, 1.0, 2.0]
+    with (TripleBuffer.create(name, LinkLayout(LIKE.dtype, LIKE.shape), "sender") as sender,
+          open_link_end("l", spec(object=name), LIKE, "reader") as reader):
+        assert isinstance(reader, TripleBuffer) and reader.role == "reader"
+        sender.write(np.arange(3.0))
+        reader.read()
+        assert list(reader.value) == [0.0, 1.0, 2.0]
 
 
 def test_a_message_shm_end_attaches_to_the_runners_queue():

@@ -37,7 +37,8 @@ def test_a_full_link_refuses_a_sender_that_asks_not_to_wait(link):
     with pytest.raises(LinkFullError) as raised:
         link.send("one too many")
     assert str(raised.value) == (
-        f"message link '{link.name}' is full: {link.capacity} of {link.capacity} messages waiting (the sender asked not to wait)\n"
+        f"message link '{link.name}' is full: {link.capacity} of {link.capacity} messages waiting "
+        "(the sender asked not to wait)\n"
         "  hint: the receiver is not keeping up: receive more often, send with a timeout to wait for room, "
         f"or create the link with a larger capacity (at most fs.mqueue.msg_max = {SYSTEM_CAPACITY})"
     )
@@ -48,7 +49,8 @@ def test_a_full_link_refuses_a_sender_that_asks_not_to_wait(link):
 def test_a_link_longer_than_the_system_allows_fails_with_the_limits():
     if os.geteuid() == 0 and _can_exceed_msg_max():
         pytest.skip("this process may exceed fs.mqueue.msg_max (CAP_SYS_RESOURCE)")
-    with pytest.raises(MessageLinkError, match=rf"refused a queue of {SYSTEM_CAPACITY + 1} messages .*\n  hint: at most fs\.mqueue\.msg_max"):
+    with pytest.raises(MessageLinkError,
+                       match=rf"refused a queue of {SYSTEM_CAPACITY + 1} messages .*\n  hint: at most fs\.mqueue\.msg_max"):
         MessageLink.create(unique_name("msg"), capacity=SYSTEM_CAPACITY + 1)
 
 

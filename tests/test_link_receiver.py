@@ -63,7 +63,7 @@ def bounded_receiver(make_table):
 
 
 def test_a_bounded_receiver_says_stable_until_the_first_item_then_continues(bounded_receiver):
-    link, table, task = bounded_receiver
+    link, _table, task = bounded_receiver
     assert task.run_cycle(10.0) is Status.STABLE  # nothing came yet: the critical tasks hold
     link.write(np.array([0.1, 0.2, 0.3]), stamp_ns=10_000_000_000)
     assert task.run_cycle(10.01) is Status.CONTINUE
@@ -71,7 +71,8 @@ def test_a_bounded_receiver_says_stable_until_the_first_item_then_continues(boun
 
 @pytest.mark.parametrize("last_cycle, status", [(10.1, Status.CONTINUE), (10.11, Status.STABLE)],
                          ids=["at its bound", "past its bound"])
-def test_a_bounded_receiver_is_stale_past_its_bound_without_a_new_item_judged_on_its_own_clock(bounded_receiver, last_cycle, status):
+def test_a_bounded_receiver_is_stale_past_its_bound_without_a_new_item_judged_on_its_own_clock(bounded_receiver, last_cycle,
+                                                                                              status):
     link, table, task = bounded_receiver
     link.write(np.array([0.1, 0.2, 0.3]), stamp_ns=999_000_000_000)  # the stamp plays no part: only arrivals count
     assert task.run_cycle(10.0) is Status.CONTINUE

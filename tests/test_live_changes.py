@@ -8,8 +8,8 @@ import re
 
 import pytest
 
-from pbo_runtime.edit.live import LiveDescription, TaskChange, from_wire, to_wire
 from pbo_runtime.config.loader import check_file, format_diagnostics, load_subsystem
+from pbo_runtime.edit.live import LiveDescription, TaskChange, from_wire, to_wire
 from pbo_runtime.edit.live_save import same_subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import BadRequest
@@ -36,7 +36,7 @@ def test_a_spawned_task_is_checked_spawned_and_turned_on_at_one_cycle_boundary(h
     reply = dispatch(host, "spawn", LOGGER)
     assert reply["state"] == "ON" and reply["entered"] == ["logger"] and reply["left"] == []
     assert host.signals[:2] == [("every RTPU", "live robot, traj, pid, pd, logger"), ("logger", "spawn")]
-    (sequence, configuration, activation), = host.plans
+    (_sequence, configuration, activation), = host.plans
     assert configuration == "pid" and reply["at"] == activation
     spec = host.subsystem.tasks["logger"]
     assert spec.index == 4 and spec.params == {"variables": ["q_m", "tau_u"], "path": "runs/live.npy"}  # the first spare block
@@ -47,12 +47,16 @@ def test_a_spawned_task_is_checked_spawned_and_turned_on_at_one_cycle_boundary(h
 @pytest.mark.parametrize("change, refusal", [
     ({"module": None}, r"^a spawned task needs --module and --rtpu"),
     ({"task": "pid"}, r"^task 'pid' exists already \(module 'pid_joint' on rtpu0\): choose another name, or kill it first$"),
-    ({"task": "bad name"}, r"^a task's name is a letter or '_' then letters, digits or '_', at most 40 characters, got: 'bad name'$"),
-    ({"module": "data_loger"}, r"^spawning task 'logger' would break the live configuration:\n<pbo spawn logger --module>:1:1: error\[E207\]: "
-                               r"task 'logger' uses module 'data_loger', which is not registered\n  hint: did you mean 'data_logger'\?"),
-    ({"period": "-5 ms"}, r"^spawning task 'logger' would break the live configuration:\n<pbo spawn logger --period>:1:1: error\[E"),
-    ({"period": "1e300 s"}, r"^spawning task 'logger' would break the live configuration:\n<pbo spawn logger --period>:1:1: error\[E513\]: "
-                            r"period of task 'logger' must be between 10 us and 1 h, got: 1e300 s\n"),
+    ({"task": "bad name"},
+     r"^a task's name is a letter or '_' then letters, digits or '_', at most 40 characters, got: 'bad name'$"),
+    ({"module": "data_loger"},
+     r"^spawning task 'logger' would break the live configuration:\n<pbo spawn logger --module>:1:1: error\[E207\]: "
+         r"task 'logger' uses module 'data_loger', which is not registered\n  hint: did you mean 'data_logger'\?"),
+    ({"period": "-5 ms"},
+     r"^spawning task 'logger' would break the live configuration:\n<pbo spawn logger --period>:1:1: error\[E"),
+    ({"period": "1e300 s"},
+     r"^spawning task 'logger' would break the live configuration:\n<pbo spawn logger --period>:1:1: error\[E513\]: "
+      r"period of task 'logger' must be between 10 us and 1 h, got: 1e300 s\n"),
     ({"task": "l" * 41}, r"^a task's name is a letter or '_' then letters, digits or '_', at most 40 characters, got: 'l{41}'$"),
     ({"params": ["variables=[q_m, q_x]", "path=x.npy"]},
      r"^spawning task 'logger' \(a live change cannot add a state variable: add it to the file's variables: and restart\) "
@@ -116,8 +120,9 @@ def test_a_killed_task_leaves_at_a_cycle_boundary_and_is_killed_after(host):
 
 
 def test_killing_the_only_controller_of_a_configuration_is_refused_even_when_it_is_not_running(host):
-    with pytest.raises(BadRequest, match=r"^killing task 'pd' would break the live configuration:\n.*error\[E408\]: configuration 'pd' "
-                                         r"leaves out task 'pid', which writes 'tau_u', read by 'robot'"):
+    with pytest.raises(BadRequest,
+                       match=r"^killing task 'pd' would break the live configuration:\n.*error\[E408\]: configuration 'pd' "
+                             r"leaves out task 'pid', which writes 'tau_u', read by 'robot'"):
         dispatch(host, "kill", {"task": "pd"})
 
 
@@ -134,7 +139,8 @@ def test_killing_the_trajectory_generator_while_the_pid_reads_q_r_is_refused_whe
 def test_a_refused_change_prints_the_messages_pbo_check_prints_for_the_same_file(host, tmp_path):
     with pytest.raises(BadRequest) as refused:
         dispatch(host, "kill", {"task": "traj"})
-    without = SUBSYSTEM.replace("  traj:", "  # traj:").replace("[robot, traj, pid]", "[robot, pid]").replace("[robot, traj, pd]", "[robot, pd]")
+    without = (SUBSYSTEM.replace("  traj:", "  # traj:")
+               .replace("[robot, traj, pid]", "[robot, pid]").replace("[robot, traj, pd]", "[robot, pd]"))
     assert without.count("# traj:") == 1
     (tmp_path / "switch_joint.yaml").write_text(without)  # the same path: the same locations
     checked = format_diagnostics(check_file(file_of(host))).splitlines()
@@ -166,7 +172,8 @@ def test_a_replaced_task_hands_over_to_the_new_one_in_one_switch(host):
 @pytest.mark.parametrize("arguments, refusal", [
     ({"task": "pid", "new": "pd"}, r"^task 'pd' exists already"),
     ({"task": "nope", "new": "x"}, r"^no task 'nope'"),
-    ({"task": "pid", "new": "p2", "module": "joint_trajectory"}, r"^replacing task 'pid' by 'p2' would break the live configuration:\n"),
+    ({"task": "pid", "new": "p2", "module": "joint_trajectory"},
+     r"^replacing task 'pid' by 'p2' would break the live configuration:\n"),
 ])
 def test_a_replace_that_is_wrong_is_refused(host, arguments, refusal):
     with pytest.raises(BadRequest, match=refusal):

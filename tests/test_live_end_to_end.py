@@ -19,8 +19,8 @@ from pbo_runtime.config.loader import check_file, load_subsystem
 from pbo_runtime.edit.live_save import same_subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.commands import dispatch
-from pbo_runtime.supervisor.supervisor import Supervisor
 from pbo_runtime.supervisor.run_options import RunOptions
+from pbo_runtime.supervisor.supervisor import Supervisor
 from tests.support import PBO, assert_nothing_left, live_demo_copy, read_until
 
 pytestmark = pytest.mark.multiprocess
@@ -67,7 +67,7 @@ def test_live_changes_cost_the_critical_task_no_cycle_and_no_fresh_input(tmp_pat
     result = supervisor.run().to_json()
     assert result["failure"] == "" and result["faults"] == [], (result["failure"], result["faults"], said)
     assert script == [] and [verb for verb, _ in replies] == [verb for _, verb, _ in SCRIPT]
-    outcome = dict(zip(range(len(replies)), replies))
+    outcome = dict(enumerate(replies))
     refused = outcome[2][1]
     assert isinstance(refused, PboError), refused
     pid_line = file.read_text().splitlines().index(next(line for line in file.read_text().splitlines()

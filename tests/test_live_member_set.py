@@ -9,9 +9,9 @@ import shutil
 import pytest
 
 from pbo_runtime.config.loader import check_file, format_diagnostics, load_subsystem
+from pbo_runtime.edit.live_save import same_subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import BadRequest
-from pbo_runtime.edit.live_save import same_subsystem
 from pbo_runtime.supervisor.commands import dispatch
 from pbo_runtime.supervisor.run_options import RunOptions
 from pbo_runtime.supervisor.supervisor import Supervisor
@@ -104,7 +104,8 @@ def run_with_sets(file, sets: list[tuple[float, str, list[str]]]) -> tuple[dict,
 
     def on_tick(supervisor: Supervisor) -> None:
         # job control ticks on while it applies a change: one set at a time, as the control queue serves them
-        if busy[0] or not script or supervisor.started_at is None or supervisor.now() - supervisor.started_at < script[0][0] - 1e-9:
+        started = supervisor.started_at
+        if busy[0] or not script or started is None or supervisor.now() - started < script[0][0] - 1e-9:
             return
         _, address, values = script.pop(0)
         busy[0] = True

@@ -15,8 +15,10 @@ SIGNALS = [messages.Spawn("pid"), messages.TurnOn("pid", 0.25, 1), messages.Turn
            messages.LiveUpdate(3)]
 EVENTS = [messages.Ready({"cpu": "any"}), messages.Ready(), messages.StateChanged("pid", "ERROR", "boom"),
           messages.Switched(3, "pd", 1.002, 1.002, 1.0021, ["pid"], ["pd"]), messages.Window(3, "robot", 0, 2),
-          messages.FirstCycle(3, "pd", 1.002), messages.Stable("robot", True, 2.5, "in-var 'tau_u' is 2.5 ms old", "stale"), messages.Stats("pid", TaskStatistics(cycles=7, devices={"spp0": {"items": 3}})),
-          messages.PlantStats({"steps": 10, "late": 0}), messages.PlantStalled(2.003, 1.271), messages.Refused("pid", "kill: boom"),
+          messages.FirstCycle(3, "pd", 1.002), messages.Stable("robot", True, 2.5, "in-var 'tau_u' is 2.5 ms old", "stale"),
+          messages.Stats("pid", TaskStatistics(cycles=7, devices={"spp0": {"items": 3}})),
+          messages.PlantStats({"steps": 10, "late": 0}), messages.PlantStalled(2.003, 1.271),
+          messages.Refused("pid", "kill: boom"),
           messages.Staged(3), messages.Staged(4, "KeyError: 'nope'"),
           messages.Crashed("RuntimeError: boom", "Traceback ..."), messages.ChildExited("rtpu0", 4242)]
 

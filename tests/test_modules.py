@@ -29,9 +29,9 @@ from modules.pid_joint import PidJoint
 from modules.robot_torque import RobotTorque
 from pbo_runtime import OutputError, ParamError, Status, arm_gains, inertia_range
 from pbo_runtime.config.model import DeviceSpec, PortBinding, TaskSpec
+from pbo_runtime.table.table import Flag, StateTable, TaskState
 from pbo_runtime.task.background import process_background
 from pbo_runtime.task.lifecycle import Task
-from pbo_runtime.table.table import Flag, StateTable, TaskState
 from tests.support import NO_WATCHDOG, arm_constants, arm_tables, dh_pinocchio_model, fill_disk, task_spec, unique_name, variables
 
 PUMA = robot("puma560")
@@ -264,7 +264,11 @@ def pid_task(table: StateTable, params: dict, period: float = PID_DT) -> Task:
     return Task(task_spec(PidJoint, dims=DIMS, params=params, period=period), PidJoint, table, DIMS)
 
 
-def write_state(table: StateTable, q_r, q_m, qd_r=np.zeros(N), qd_m=np.zeros(N), when: float = 0.0) -> None:
+def write_state(table: StateTable, q_r, q_m, qd_r=None, qd_m=None, when: float = 0.0) -> None:
+    """The PID's inputs; the velocities are zero unless given."""
+    still = np.zeros(N)
+    qd_r = still if qd_r is None else qd_r
+    qd_m = still if qd_m is None else qd_m
     for name, value in (("q_r", q_r), ("q_m", q_m), ("qd_r", qd_r), ("qd_m", qd_m)):
         table.write(name, value, when=when)
 
@@ -343,7 +347,8 @@ def test_pid_refuses_a_gain_list_of_the_wrong_length_at_init(table, gain):
     task = pid_task(table, {gain: [1.0] * 5, **NO_GRAVITY})
     assert not task.spawn(0.0)
     assert task.state is TaskState.KILLED
-    assert task.last_error.startswith(f"init raised ValueError: {gain} must have one gain or NDOF = 6 gains, got: 5 at pid_joint.py:")
+    assert task.last_error.startswith(
+        f"init raised ValueError: {gain} must have one gain or NDOF = 6 gains, got: 5 at pid_joint.py:")
 
 
 @pytest.mark.parametrize(
@@ -369,7 +374,8 @@ def pinocchio_gravity(q: np.ndarray) -> np.ndarray:
     return pinocchio.computeGeneralizedGravity(model, model.createData(), q).copy()
 
 
-@pytest.mark.parametrize("q", [np.zeros(N), np.array([0.3, -0.7, 1.2, 0.4, -0.9, 2.0]), np.array([-1.0, 0.5, -0.4, 2.5, 1.3, 0.0])])
+@pytest.mark.parametrize("q", [np.zeros(N), np.array([0.3, -0.7, 1.2, 0.4, -0.9, 2.0]),
+                               np.array([-1.0, 0.5, -0.4, 2.5, 1.3, 0.0])])
 def test_pid_with_gravity_feedforward_on_target_outputs_pinocchios_generalized_gravity(table, q):
     task = pid_task(table, {"kp": 400.0, "kd": 40.0, "ki": 5.0})  # gravity_feedforward is the default
     assert task.spawn(0.0), task.last_error
@@ -588,7 +594,8 @@ def test_robot_refuses_a_non_finite_torque_goes_to_error_and_the_brakes_hold_the
     table.write("tau_u", tau, when=2 * plant.timestep)
     assert task.run_cycle(2 * plant.timestep) is Status.ERROR
     assert task.state is TaskState.ERROR and observer.brakes_engaged and observer.commands_written == written
-    assert task.last_error.startswith("cycle raised DeviceError: arm registers ") and "write_torque refused a torque command that is not finite" in task.last_error
+    assert task.last_error.startswith("cycle raised DeviceError: arm registers ")
+    assert "write_torque refused a torque command that is not finite" in task.last_error
     plant.step()
     assert plant.brakes_engaged and np.isfinite(plant.data.qpos).all()
     assert task.clear() and task.state is TaskState.OFF  # the operator's clear, then on: it drives the arm again
@@ -633,7 +640,8 @@ def test_robot_fails_init_when_ndof_differs_from_the_arms_joints(make_table, pla
     assert not task.spawn(0.0)
     assert task.state is TaskState.KILLED
     assert task.last_error.startswith(
-        "init raised ModuleError: the arm on device 'arm' has 6 joints, but the configuration says NDOF = 5 at _robot_interface.py:"
+        "init raised ModuleError: the arm on device 'arm' has 6 joints, "
+        "but the configuration says NDOF = 5 at _robot_interface.py:"
     )
     assert [d.closed for d in opened] == [True]  # kill ran and the driver was not leaked
     assert observer.brakes_engaged

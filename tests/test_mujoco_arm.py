@@ -81,7 +81,7 @@ def test_driver_reads_the_constants_the_plant_wrote(plant, driver) -> None:
 
 def test_the_plant_starts_braked_at_its_home_pose(plant, driver) -> None:
     assert plant.brakes_engaged and driver.brakes_engaged
-    q, qd, sim_time = read(driver)
+    q, _qd, sim_time = read(driver)
     np.testing.assert_array_equal(q, robot("puma560").q0)
     assert sim_time == 0.0
 
@@ -333,7 +333,8 @@ def test_servo_gravity_is_mujocos_inverse_dynamics_at_rest(any_plant) -> None:
         mujoco.mj_inverse(any_plant.model, data)  # qvel = qacc = 0
         np.testing.assert_allclose(any_plant.gravity_torque(q, np.zeros(desc.ndof)), data.qfrc_inverse, atol=1e-10)
         for model in models:
-            np.testing.assert_allclose(data.qfrc_inverse, pinocchio.computeGeneralizedGravity(model, model.createData(), q), atol=1e-9)
+            np.testing.assert_allclose(data.qfrc_inverse,
+                                       pinocchio.computeGeneralizedGravity(model, model.createData(), q), atol=1e-9)
 
 
 def test_position_commands_are_clipped_to_the_joint_limits(any_plant, positioner) -> None:
@@ -367,9 +368,11 @@ def test_a_position_driver_must_command_a_position_before_releasing_the_brakes(p
 def test_each_driver_writes_only_its_own_mode(plant, driver) -> None:
     positioner = MujocoArmDriver(plant.name, {"mode": "position"})
     try:
-        with pytest.raises(DeviceError, match=r"write_position needs a driver opened with mode: position; this one has mode: torque$"):
+        with pytest.raises(DeviceError,
+                           match=r"write_position needs a driver opened with mode: position; this one has mode: torque$"):
             driver.write_position(np.zeros(NDOF))
-        with pytest.raises(DeviceError, match=r"write_torque needs a driver opened with mode: torque; this one has mode: position$"):
+        with pytest.raises(DeviceError,
+                           match=r"write_torque needs a driver opened with mode: torque; this one has mode: position$"):
             positioner.write_torque(np.zeros(NDOF))
         assert driver.commands_written == 0
     finally:
@@ -417,7 +420,9 @@ def test_a_position_driver_never_moves_an_arm_a_torque_driver_commands(plant, dr
         driver.write_torque(np.full(NDOF, 1.0))
         driver.release_brakes()
         positioner.write_position(np.full(NDOF, 0.5))
-        with pytest.raises(DeviceError, match=r"cannot release the brakes in position mode, another driver is commanding the arm in torque mode"):
+        with pytest.raises(DeviceError,
+                           match=r"cannot release the brakes in position mode, "
+                                 r"another driver is commanding the arm in torque mode"):
             positioner.release_brakes()
         plant.step()
         np.testing.assert_array_equal(plant.data.qfrc_applied, np.full(NDOF, 1.0))
@@ -439,8 +444,8 @@ def test_a_command_that_is_not_finite_is_refused_and_never_written(plant, mode, 
         command = good.copy()
         command[3] = bad
         with pytest.raises(DeviceError, match=rf"^arm registers '{plant.name}': write_{mode} refused a {mode} command that is "
-                                              rf"not finite \(\[0\.25, 0\.25, 0\.25, -?(nan|inf), 0\.25, 0\.25\]\); the arm keeps "
-                                              rf"its previous command: fix the task that computes it$"):
+                                              rf"not finite \(\[0\.25, 0\.25, 0\.25, -?(nan|inf), 0\.25, 0\.25\]\); "
+                                              rf"the arm keeps its previous command: fix the task that computes it$"):
             write(command)
         assert arm.commands_written == written
         registers = plant._registers.tau if mode == "torque" else plant._registers.q_cmd

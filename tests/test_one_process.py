@@ -17,8 +17,20 @@ import pytest
 from pbo_runtime.cli.main import main
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.table.table import Header, StateTable, StatusWord, TableLayout
-from tests.support import (DEMO, PBO, REPO, application_copy, assert_nothing_left, config_copy, demo_copy, ipc_names,
-                           killed_on_failure, start_run, table_of, until)
+from tests.support import (
+    DEMO,
+    PBO,
+    REPO,
+    application_copy,
+    assert_nothing_left,
+    config_copy,
+    demo_copy,
+    ipc_names,
+    killed_on_failure,
+    start_run,
+    table_of,
+    until,
+)
 
 # What differs between any two runs of one file: the run's id and the names made from it, and wall times.
 RUN_OWN = ("run_id", "objects", "startup", "wall_seconds", "running_wall_seconds")

@@ -49,7 +49,7 @@ def test_a_task_that_raises_shows_as_error_and_recovers_after_clear(tmp_path):
         assert values.returncode == 0 and "q_m" in values.stdout and "robot" in values.stdout
         stopped = pbo("stop", "--subsystem", "drill")
         assert stopped.returncode == 0, stopped.stderr
-        out, err = run.communicate(timeout=60)
+        _out, err = run.communicate(timeout=60)
     finally:
         if run.poll() is None:
             run.kill()
@@ -93,7 +93,8 @@ def test_switch_and_job_commands_reconfigure_a_running_subsystem(tmp_path):
 
 @pytest.mark.parametrize("clock", ["real", "sim"])
 @pytest.mark.parametrize("verb", ["off", "kill"])
-def test_turning_off_or_killing_the_logger_of_the_running_demo_leaves_its_log_whole_and_the_arm_undisturbed(tmp_path, verb, clock):
+def test_turning_off_or_killing_the_logger_of_the_running_demo_leaves_its_log_whole_and_the_arm_undisturbed(tmp_path, verb,
+                                                                                                           clock):
     subsystem = f"log_{verb}_{clock}"
     report_path = tmp_path / "report.json"
     run = subprocess.Popen([*PBO, "run", str(demo_copy(tmp_path, subsystem)), "--clock", clock, "--duration", "0", "--out",

@@ -12,8 +12,9 @@ import json
 import os
 import subprocess
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import posix_ipc
@@ -21,13 +22,12 @@ import pytest
 
 from pbo_runtime.cli.main import main
 from pbo_runtime.config.loader import load_subsystem
-from pbo_runtime.ipc import messages
+from pbo_runtime.ipc import messages, shm
 from pbo_runtime.ipc import runs as run_finding
-from pbo_runtime.ipc import shm
 from pbo_runtime.ipc.runs import live_runs
 from pbo_runtime.supervisor.cleanup import read_run_manifest, remove_dead_runs
-from pbo_runtime.supervisor.supervisor import RunRefused, Supervisor
 from pbo_runtime.supervisor.run_options import RunOptions
+from pbo_runtime.supervisor.supervisor import RunRefused, Supervisor
 from pbo_runtime.table.table import HEADER_WORDS, MAGIC, MANIFEST_BYTES, VERSION, Header, StateTable, TableLayout
 from tests.support import PBO, read_until, subsystem_copy, variables
 
@@ -386,7 +386,7 @@ def plant_as(uid: int, files: list[tuple[Path, int, bytes]]) -> None:
                 os.close(descriptor)
             os.write(writer, str(os.geteuid()).encode())
             status = 0
-        except BaseException as exc:  # noqa: BLE001 - reported to the parent through the pipe
+        except BaseException as exc:  # reported to the parent through the pipe
             os.write(writer, repr(exc).encode())
         finally:
             os._exit(status)

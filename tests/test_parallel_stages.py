@@ -34,7 +34,8 @@ def test_the_shipped_two_arms_check_with_three_stages():
      r"run: stage 1 runs subsystem 'middle', which this application does not have", "middle"),
     ("  - both: {left: [reach: ready]}\n", r"run: stage 1 must be parallel: \{SUBSYSTEM: STEPS, \.\.\.\}", "both"),
     ("  - parallel: {left: {app: dance}}\n", r"run: stage 1: subsystem 'left' has no application 'dance'", "dance"),
-    ("  - parallel: {left: [reach: nowhere]}\n", r"run: stage 1: the steps of subsystem 'left' do not interlock: .*nowhere", "left"),
+    ("  - parallel: {left: [reach: nowhere]}\n",
+     r"run: stage 1: the steps of subsystem 'left' do not interlock: .*nowhere", "left"),
     ("  - parallel: {right: [reach]}\n", r"run: stage 1: a step of subsystem 'right' lacks its object", "right"),
     ("  - parallel: {right: reach}\n", r"run: stage 1: subsystem 'right' takes a list of steps or \{app: NAME\}", "right"),
 ])
@@ -58,9 +59,12 @@ def test_two_arms_run_their_stages_join_and_replay_bit_for_bit(tmp_path):
     first, second = reports
     assert first["left"]["stopped_by"] == first["right"]["stopped_by"] == "stages done"
     assert first["left"]["jobs_done"] == ["reach"] * 6 and first["right"]["jobs_done"] == ["reach"] * 2
-    assert [(d["kind"], d.get("taken")) for d in first["left"]["decisions"]] == [("repeat", None), ("repeat", None), ("if", "then")]
-    done = {key: [m["time"] for m in first[key]["marks"] if re.fullmatch(r"stage \d+ done", m["label"])] for key in ("left", "right")}
-    joined = {key: [m["time"] for m in first[key]["marks"] if re.fullmatch(r"stage \d+ joined", m["label"])] for key in ("left", "right")}
+    decisions = [(d["kind"], d.get("taken")) for d in first["left"]["decisions"]]
+    assert decisions == [("repeat", None), ("repeat", None), ("if", "then")]
+    done = {key: [m["time"] for m in first[key]["marks"] if re.fullmatch(r"stage \d+ done", m["label"])]
+            for key in ("left", "right")}
+    joined = {key: [m["time"] for m in first[key]["marks"] if re.fullmatch(r"stage \d+ joined", m["label"])]
+              for key in ("left", "right")}
     assert len(done["left"]) == len(joined["right"]) == 3
     for stage in range(3):  # no arm goes on before both are done with the stage
         assert min(joined["left"][stage], joined["right"][stage]) >= max(done["left"][stage], done["right"][stage])
@@ -99,7 +103,8 @@ def test_pbo_check_gives_each_path_of_a_stage_its_switch_table_from_where_the_st
     assert ("    left, path 1: if: then\n      1. reach: 'still' -> 'move': off nothing; on logger\n"
             "    left, path 2: if: else\n      1. rest: stays in 'still' (new object only)\n") in out
     # stage 2 may leave either configuration on: stage 3's first switch is from nothing known
-    assert out.endswith("  stage 3, in parallel: left 1 step(s)\n    left\n      1. reach: configuration 'move' on: robot, traj, pid, logger\n")
+    assert out.endswith("  stage 3, in parallel: left 1 step(s)\n"
+                        "    left\n      1. reach: configuration 'move' on: robot, traj, pid, logger\n")
 
 
 def test_a_subsystem_goes_on_after_a_stage_only_once_every_other_is_done_and_the_lag_has_passed(tmp_path):
@@ -132,7 +137,7 @@ def arms_behind_ros2_control(tmp_path, left: str, right: str, run: str):
     mujoco = "{arm: {driver: mujoco_arm, mode: torque, exclusive: true}}"
     assert head.count(mujoco) == 2
     for options in (left, right):
-        head = head.replace(mujoco, "{arm: {driver: ros2_control, mode: torque, exclusive: true%s}}" % options, 1)
+        head = head.replace(mujoco, "{arm: {driver: ros2_control, mode: torque, exclusive: true" + options + "}}", 1)
     path = tmp_path / "arms.yaml"
     path.write_text(head + "\nrun:\n" + run)
     return check_application(path), path
@@ -145,7 +150,8 @@ BOTH = "  - parallel: {left: [reach: ready], right: [reach: ready]}\n"
     ("", "", BOTH),
     (", commands: /cell/commands", ", commands: cell/commands/", BOTH),
     (", domain: 4", ", domain: 4", "  - parallel: {left: [reach: home]}\n" + BOTH),
-    ("", "", "  - parallel:\n      left: {app: wave}\n      right:\n        - try: [reach: ready]\n          fallback: [reach: home]\n"),
+    ("", "",
+     "  - parallel:\n      left: {app: wave}\n      right:\n        - try: [reach: ready]\n          fallback: [reach: home]\n"),
 ])
 def test_two_subsystems_of_a_stage_driving_one_arm_are_refused_at_the_stage(tmp_path, left, right, run):
     result, path = arms_behind_ros2_control(tmp_path, left, right, run)

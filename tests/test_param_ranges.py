@@ -65,7 +65,7 @@ def _as_written(hint: typing.Any, number: float, in_a_list: bool) -> typing.Any:
 @settings(max_examples=300, deadline=None, derandomize=True)
 @given(entry=st.sampled_from(FLOAT_PARAMS), value=st.sampled_from([math.nan, math.inf, -math.inf]), in_a_list=st.booleans())
 def test_no_float_parameter_accepts_a_value_that_is_not_finite_unless_it_says_inf_is_no_limit(entry, value, in_a_list):
-    module, cls, field, hint = entry
+    _module, cls, field, hint = entry
     in_a_list = in_a_list and _takes_a_list(hint)
     allowed = param_ranges(cls.Params)[field]
     if value == math.inf and allowed.admits(math.inf):  # 'no limit': max_torque, max_lead, ...
@@ -79,7 +79,7 @@ def test_no_float_parameter_accepts_a_value_that_is_not_finite_unless_it_says_in
 @given(entry=st.sampled_from(NUMBER_PARAMS),
        value=st.one_of(st.floats(allow_nan=False, allow_infinity=False), st.integers(-10**400, 10**400)))
 def test_a_number_outside_a_parameters_range_is_refused_naming_the_range_and_one_inside_is_not(entry, value):
-    module, cls, field, hint = entry
+    _module, cls, field, hint = entry
     allowed = param_ranges(cls.Params)[field]
     if not _takes(hint, float) and isinstance(value, float):
         return  # an integer parameter refuses a float for its type, not its range

@@ -9,14 +9,15 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
 from pbo_runtime import ANY_DTYPE, InConst, InVar, ModuleError, OutConst, OutVar, PortBasedObject
+from pbo_runtime.analysis.placement import Placement, placement_report
 from pbo_runtime.cli import main
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import Subsystem
-from pbo_runtime.analysis.placement import Placement, placement_report
 from tests.support import REPO
 
 # --- fake modules ----------------------------------------------------------------------------
@@ -87,7 +88,7 @@ class FakeCameraOnTheArm(PortBasedObject):
     """Opens the arm device where it needs a camera."""
 
     Params = ArmParams
-    DEVICES = {"device": {"kind": "camera"}}
+    DEVICES: ClassVar = {"device": {"kind": "camera"}}
 
 
 FAKES: dict[str, type] = {
@@ -153,16 +154,18 @@ def test_a_port_to_a_variable_nothing_declares_defines_it(small: Subsystem) -> N
 
 
 @pytest.mark.parametrize(("tasks", "module", "code", "reason"), [
-    (["src"], "source", "E407", "module 'source' runs already in configuration 'flowing', as task 'src' writing the same variables"),
+    (["src"], "source", "E407",
+     "module 'source' runs already in configuration 'flowing', as task 'src' writing the same variables"),
     (["src"], "second_writer", "E401",
      "variable 'u' would have two writers in configuration 'flowing': 'src' and port 'u' of module 'second_writer'"),
     # a second instance of a module that writes nothing is no repeat (issue 22): its device decides
     (["arm"], "arm_user", "E601", "module 'arm_user' opens device 'arm', which is exclusive, and task 'arm' holds it in "
-                                  "configuration 'flowing'"),
+       "configuration 'flowing'"),
     ([], "camera_user", "E208", "module 'camera_user' opens device 'camera', which 'devices' does not declare"),
     ([], "camera_on_the_arm", "E610", "module 'camera_on_the_arm' needs a device of kind camera, but device 'arm' is of kind arm "
-                                      "(driver mujoco_arm)"),
-    ([], "const_reader", "E403", "port 'k' of module 'const_reader' reads in-const 'k', but no task in configuration 'flowing' writes it"),
+           "(driver mujoco_arm)"),
+    ([], "const_reader", "E403",
+     "port 'k' of module 'const_reader' reads in-const 'k', but no task in configuration 'flowing' writes it"),
     (["late"], "const_reader", "E404",
      "port 'k' of module 'const_reader' reads in-const 'k' before its init, but its writer 'late' in configuration 'flowing' "
      "writes it only after each cycle"),
@@ -186,10 +189,12 @@ def test_each_refusal_names_the_first_rule_the_module_would_break(small: Subsyst
 
 
 def test_an_exclusive_device_in_use_refuses_a_second_module_that_opens_it(small: Subsystem) -> None:
-    placement = Placement(small, ["arm"], "flowing", module_lookup=lambda name: FAKES["arm_user"] if name == "other_arm" else fake_lookup(name))
+    placement = Placement(small, ["arm"], "flowing",
+                          module_lookup=lambda name: FAKES["arm_user"] if name == "other_arm" else fake_lookup(name))
     found = placement.query("other_arm")
-    assert (found.code, found.reason) == ("E601", "module 'other_arm' opens device 'arm', which is exclusive, and task 'arm' holds "
-                                                  "it in configuration 'flowing'")
+    assert (found.code, found.reason) == ("E601",
+                                          "module 'other_arm' opens device 'arm', which is exclusive, and task 'arm' holds "
+                                          "it in configuration 'flowing'")
 
 
 def test_the_index_follows_tasks_placed_and_removed(small: Subsystem) -> None:
@@ -243,7 +248,8 @@ def test_pbo_place_prints_each_module_and_exits_0_or_1_for_an_unknown_configurat
     assert main(["place", figure_8, "--module", "pid_joint", "--module", "gravity_compensation"]) == 0
     out = capsys.readouterr().out
     assert "configuration 'joint_pid' on rtpu0: 1 of 2 modules can be placed" in out
-    assert "no  pid_joint             [E407] module 'pid_joint' runs already in configuration 'joint_pid', as task 'pid' writing the same variables" in out
+    assert ("no  pid_joint             [E407] module 'pid_joint' runs already in configuration 'joint_pid', "
+            "as task 'pid' writing the same variables") in out
     assert "ok  gravity_compensation  (new variables: tau_g)" in out
     assert main(["place", figure_8, "--format", "json", "--tasks", "robot"]) == 0
     assert json.loads(capsys.readouterr().out)["tasks"] == ["robot"]

@@ -18,7 +18,8 @@ APPLY = ("import json, sys; from rtpu import _realtime; print(json.dumps(_realti
 
 
 def applied(cpu, fifo: bool, critical: bool = False) -> dict:
-    done = subprocess.run([sys.executable, "-c", APPLY.format(cpu=cpu, fifo=fifo, critical=critical)], capture_output=True, text=True,
+    done = subprocess.run([sys.executable, "-c", APPLY.format(cpu=cpu, fifo=fifo, critical=critical)],
+                          capture_output=True, text=True,
                           cwd=REPO, timeout=60)
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout)
@@ -50,9 +51,10 @@ def test_an_rtpu_hosting_a_critical_task_runs_above_the_others_and_below_the_pla
     assert FIFO_PRIORITY < CRITICAL_FIFO_PRIORITY < PLANT_FIFO_PRIORITY
 
 
-CHILD_POLICY = ("import json, os, subprocess, sys; from rtpu import _realtime; granted = _realtime.apply(None, True)['scheduler']; "
-                "child = subprocess.run([sys.executable, '-c', 'import os; print(os.sched_getscheduler(0))'], capture_output=True, "
-                "text=True).stdout; print(json.dumps([granted, int(child)]))")
+CHILD_POLICY = ("import json, os, subprocess, sys; from rtpu import _realtime; "
+                "granted = _realtime.apply(None, True)['scheduler']; "
+                "child = subprocess.run([sys.executable, '-c', 'import os; print(os.sched_getscheduler(0))'], "
+                "capture_output=True, text=True).stdout; print(json.dumps([granted, int(child)]))")
 
 
 @pytest.mark.multiprocess
@@ -66,10 +68,10 @@ def test_a_process_a_task_starts_begins_at_sched_other_not_at_the_rtpus_sched_fi
 
 
 def test_the_real_clock_asks_for_sched_fifo_by_default_and_the_simulated_clock_does_not():
-    from pbo_runtime.config.loader import load_subsystem
-    from pbo_runtime.supervisor.supervisor import Supervisor
-    from pbo_runtime.supervisor.run_options import RunOptions
     from pbo_runtime.cli.main import _parser
+    from pbo_runtime.config.loader import load_subsystem
+    from pbo_runtime.supervisor.run_options import RunOptions
+    from pbo_runtime.supervisor.supervisor import Supervisor
 
     subsystem = load_subsystem(REPO / "configs" / "pid_joint.yaml")
     assert Supervisor(subsystem).fifo is True

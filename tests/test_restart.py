@@ -20,9 +20,25 @@ import numpy as np
 import pytest
 
 from pbo_runtime import read_log
-from tests.support import (DEMO, DEMO_GOAL, DEMO_MID_MOVE, PBO, assert_nothing_left, config_copy, excursion_from_path,
-                           kill_and_await_restart, killed_on_failure, measured_arm, read_until, run_output,
-                           run_processes, settling, start_run, travelled, until)
+from tests.support import (
+    DEMO,
+    DEMO_GOAL,
+    DEMO_MID_MOVE,
+    PBO,
+    assert_nothing_left,
+    config_copy,
+    excursion_from_path,
+    kill_and_await_restart,
+    killed_on_failure,
+    measured_arm,
+    read_until,
+    run_output,
+    run_processes,
+    settling,
+    start_run,
+    travelled,
+    until,
+)
 
 pytestmark = pytest.mark.multiprocess
 
@@ -50,7 +66,8 @@ def test_a_controller_rtpu_killed_mid_move_comes_back_and_the_arm_keeps_to_its_p
     assert "Traceback" not in err, err
     report = json.loads(report_path.read_text())
     assert report["failure"] == "" and report["stopped_by"] == "Ctrl-C"
-    assert [(r["rtpu"], r["pid"], r["cause"]) for r in report["restarts"]] == [("rtpu0", pid, "killed by SIGKILL") for pid in killed]
+    assert [(r["rtpu"], r["pid"], r["cause"]) for r in report["restarts"]] == [
+        ("rtpu0", pid, "killed by SIGKILL") for pid in killed]
     assert all(r["seconds"] > 0 and r["tasks_on"] == ["traj", "pid"] for r in report["restarts"])
     assert out.count("RTPU 'rtpu0' restarted, ") == 3  # the summary tells each restart
     # the robot interface never stopped: ON throughout, holding the arm while its torque was stale
@@ -95,10 +112,11 @@ def test_past_its_policy_an_rtpus_death_stops_the_run_and_says_why(tmp_path):
         read_until(run, "restarted:")
         second = run_processes(run)["rtpu0"]
         os.kill(second, signal.SIGKILL)
-        out, err = run_output(run)
+        _out, err = run_output(run)
     assert run.returncode == 2, err
     assert (f"RTPU 'rtpu0' (pid {second}) died (killed by SIGKILL)" in err
-            and "it died 2 times within 600 s, more than its restart policy allows (restart: {max: 1, within: 600 s})" in err), err
+            and "it died 2 times within 600 s, more than its restart policy allows (restart: {max: 1, within: 600 s})"
+            in err), err
     report = json.loads(report_path.read_text())
     assert [(r["pid"], r["seconds"] is None) for r in report["restarts"]] == [(first, False), (second, True)]  # not back
     assert_nothing_left(report)

@@ -24,8 +24,18 @@ from pbo_runtime import read_log
 from pbo_runtime.clock.lockstep import LockstepMaster, LockstepParticipant, RingStop, RingStuck
 from pbo_runtime.ipc import shm
 from pbo_runtime.table.table import HEADER_WORDS
-from tests.support import (DEMO, DEMO_GOAL, PBO, assert_nothing_left, config_copy, excursion_from_path, kill_and_await_restart,
-                           killed_on_failure, run_output, start_run)
+from tests.support import (
+    DEMO,
+    DEMO_GOAL,
+    PBO,
+    assert_nothing_left,
+    config_copy,
+    excursion_from_path,
+    kill_and_await_restart,
+    killed_on_failure,
+    run_output,
+    start_run,
+)
 
 ROLES = ["plant", "a", "b"]
 
@@ -146,7 +156,7 @@ def test_a_live_participant_that_never_hands_the_turn_back_fails_the_recovery_wh
     ring.join("b")
     with pytest.raises(Died):
         ring.master.advance(ring.death_of("a"), ticks=5)
-    with pytest.raises(RingStuck, match="^plant did not hand the turn back after a died$"):
+    with pytest.raises(RingStuck, match=r"^plant did not hand the turn back after a died$"):
         ring.master.recover("a", lambda: True)
     ring.release.set()  # (for the fixture's stop)
 

@@ -5,8 +5,8 @@ aborts its process when it is turned on (`fault: abort, in_on: true`), once per 
 `pid` to `pd` kills rtpu0 while it applies the switch. Its restart brings it back in `pd` (its tasks
 of `pd` ON, `pid` not), the switch's record names the restart, and the run ends as asked, having
 left nothing behind; dynamic and static switches alike, and a switch made by an application's step.
-Past the policy (a module whose init aborts, spawned by a static switch), the run stops and says why. Real clock, no timing asserted: each test waits for
-the run to end, and the safety nets only catch a hang.
+Past the policy (a module whose init aborts, spawned by a static switch), the run stops and says
+why. Real clock, no timing asserted: each test waits for the run to end, and the safety nets only catch a hang.
 """
 
 from __future__ import annotations
@@ -18,8 +18,18 @@ from pathlib import Path
 
 import pytest
 
-from tests.support import (PBO, REPO, assert_ended_well, assert_nothing_left, config_copy, kill_and_await_restart,
-                           killed_on_failure, read_until, run_output, start_run)
+from tests.support import (
+    PBO,
+    REPO,
+    assert_ended_well,
+    assert_nothing_left,
+    config_copy,
+    kill_and_await_restart,
+    killed_on_failure,
+    read_until,
+    run_output,
+    start_run,
+)
 
 pytestmark = pytest.mark.multiprocess
 
@@ -52,14 +62,16 @@ def run_to_the_end(config: Path, folder: Path, *arguments: str) -> tuple[subproc
 def assert_restarted_once_into_pd(run: subprocess.CompletedProcess[str], report: dict) -> None:
     assert_ended_well(run.returncode, report, run.stderr)
     assert report["failure"] == "", report["failure"]
-    assert [(r["rtpu"], r["cause"], r["seconds"] is not None) for r in report["restarts"]] == [("rtpu0", "killed by SIGABRT", True)]
+    restarts = [(r["rtpu"], r["cause"], r["seconds"] is not None) for r in report["restarts"]]
+    assert restarts == [("rtpu0", "killed by SIGABRT", True)]
     assert sorted(report["restarts"][0]["tasks_on"]) == ["crash", "pd", "traj"]  # pd's tasks of rtpu0, not pid
     said = (run.stdout + run.stderr).replace("\n", "")  # (the console wraps long lines)
     assert "restarting it in 'pd', the configuration it was switching to" in said, said
     into_pd = [s for s in report["switches"] if s["to"] == "pd"]
     assert [s.get("restarted") for s in into_pd] == [["rtpu0"]]
     states = {name: task["state"] for name, task in report["tasks"].items()}
-    assert {name: states[name] for name in ("robot", "traj", "pd", "crash")} == dict.fromkeys(("robot", "traj", "pd", "crash"), "ON")
+    on = ("robot", "traj", "pd", "crash")
+    assert {name: states[name] for name in on} == dict.fromkeys(on, "ON")
     assert states["pid"] != "ON"
     assert_nothing_left(report)
 
@@ -117,11 +129,12 @@ def test_an_rtpu_that_dies_turning_on_a_task_spawned_live_comes_back_with_the_li
         read_until(run, "restarted:")  # (said before the spawn's answer: the plan waited for it)
         kill_and_await_restart(run)
         run.send_signal(signal.SIGINT)
-        out, err = run_output(run, RUN_SAFETY_NET)
+        _out, err = run_output(run, RUN_SAFETY_NET)
     assert "Traceback" not in err, err
     report = json.loads(report_path.read_text())
     assert report["failure"] == "" and report["stopped_by"] == "Ctrl-C", report["failure"]
-    assert [(r["rtpu"], r["cause"]) for r in report["restarts"]] == [("rtpu0", "killed by SIGABRT"), ("rtpu0", "killed by SIGKILL")]
+    assert [(r["rtpu"], r["cause"]) for r in report["restarts"]] == [("rtpu0", "killed by SIGABRT"),
+                                                                     ("rtpu0", "killed by SIGKILL")]
     assert all(sorted(r["tasks_on"]) == ["crash", "pid", "traj"] for r in report["restarts"]), report["restarts"]
     assert [s.get("restarted") for s in report["switches"] if s.get("change") == "spawn 'crash'"] == [["rtpu0"]]
     assert {name: report["tasks"][name]["state"] for name in ("robot", "traj", "pid", "crash")} == dict.fromkeys(

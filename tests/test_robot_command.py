@@ -46,7 +46,7 @@ def test_pbo_robot_lists_every_joint_with_the_limits_the_check_lists(arm):
     robot, said = arm
     assert said["ndof"] == robot.ndof == len(said["joints"])
     assert said["end_effector"] == robot.ee_name
-    for row, limits in zip(said["joints"], robot.limit_rows()):
+    for row, limits in zip(said["joints"], robot.limit_rows(), strict=True):
         assert {k: row[k] for k in limits} == limits
         assert row["mass"] >= 0 and 0 < row["inertia_coupled_min"] <= row["inertia_min"] <= row["inertia_max"]
 

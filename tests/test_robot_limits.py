@@ -264,7 +264,7 @@ def test_a_joint_past_its_velocity_limit_brakes_the_arm(make_table, plant):
 
 
 def test_a_joint_past_its_range_brakes_the_arm(make_table, plant):
-    task, table, opened = robot_task(make_table, plant, params={"position_tolerance": 0.0})
+    task, table, _opened = robot_task(make_table, plant, params={"position_tolerance": 0.0})
     push = np.zeros(6)
     push[4] = 15.0  # joint 5 towards its upper limit, within its effort limit
     status = drive(task, table, plant, "tau_u", push, 3000, [])

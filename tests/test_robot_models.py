@@ -281,7 +281,7 @@ _URDF_LINKS = [
 def urdf_as_mjcf(desc: RobotDescription) -> str:
     """The Drake URDF's chain in MuJoCo, with our armature: an independent build of the same arm."""
     text = '<mujoco><compiler angle="radian" eulerseq="XYZ"/><option gravity="0 0 -9.81"/><worldbody>'
-    for i, ((xyz, rpy), (mass, com, inertia)) in enumerate(zip(_URDF_JOINTS, _URDF_LINKS)):
+    for i, ((xyz, rpy), (mass, com, inertia)) in enumerate(zip(_URDF_JOINTS, _URDF_LINKS, strict=True)):
         text += (
             f'<body pos="{" ".join(map(str, xyz))}" euler="{" ".join(map(str, rpy))}">'
             f'<joint type="hinge" axis="0 0 1" armature="{desc.dyn[i, 10]}"/>'

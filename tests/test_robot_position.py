@@ -19,8 +19,8 @@ from drivers.robots import RobotDescription, robot
 from modules.robot_position import RobotPosition
 from pbo_runtime import Status
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
-from pbo_runtime.task.lifecycle import Task
 from pbo_runtime.table.table import StateTable, TaskState
+from pbo_runtime.task.lifecycle import Task
 from tests.support import NO_WATCHDOG, arm_constants, arm_tables, task_spec, unique_name, variables
 
 ROBOTS = ("puma560", "redundant7")

@@ -18,16 +18,29 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from pbo_runtime.links import ros2_messages as ros2  # noqa: E402
-from modules.ros2_goal import Ros2Goal  # noqa: E402
-from modules._joint_states_publisher import JointStatesPublisher, PublisherGone  # noqa: E402
-from modules.ros2_joint_states import Ros2JointStates  # noqa: E402
-from pbo_runtime import Status  # noqa: E402
-from pbo_runtime.errors import EXTRAS, ParamError  # noqa: E402
-from pbo_runtime.task.lifecycle import Task  # noqa: E402
-from tests.support import (PBO, REPO, allocation_peak, assert_ended_well, config_copy, one_array, own_dds_domain,  # noqa: E402
-                           ros2_peer as peer, ros2_peer_said as peer_said, run_output, start_run, task_spec,
-                           until, variables)
+from modules._joint_states_publisher import JointStatesPublisher, PublisherGone
+from modules.ros2_goal import Ros2Goal
+from modules.ros2_joint_states import Ros2JointStates
+from pbo_runtime import Status
+from pbo_runtime.errors import EXTRAS, ParamError
+from pbo_runtime.links import ros2_messages as ros2
+from pbo_runtime.task.lifecycle import Task
+from tests.support import (
+    PBO,
+    REPO,
+    allocation_peak,
+    assert_ended_well,
+    config_copy,
+    one_array,
+    own_dds_domain,
+    run_output,
+    start_run,
+    task_spec,
+    until,
+    variables,
+)
+from tests.support import ros2_peer as peer
+from tests.support import ros2_peer_said as peer_said
 
 # --- the wire: names, types, CDR ----------------------------------------------------------------
 
@@ -113,7 +126,8 @@ def _goal_task(table, domain: int, **params) -> Task:
 
 def test_a_joint_states_task_whose_names_do_not_fit_q_m_fails_its_spawn(make_table):
     table = make_table(variables(("q_m", "float64", (3,)), ("qd_m", "float64", (3,)), ("tau", "float64", (3,))))
-    spec = task_spec(Ros2JointStates, name="states", dims={"NDOF": 3}, params={"joint_names": ["a", "b"], "domain": own_dds_domain()})
+    spec = task_spec(Ros2JointStates, name="states", dims={"NDOF": 3},
+                     params={"joint_names": ["a", "b"], "domain": own_dds_domain()})
     task = Task(spec, Ros2JointStates, table, {"NDOF": 3})
     assert not task.spawn(0.0)
     assert "joint_names must name the 3 joints of q_m, got 2" in task.last_error
@@ -122,7 +136,7 @@ def test_a_joint_states_task_whose_names_do_not_fit_q_m_fails_its_spawn(make_tab
 @pytest.mark.multiprocess
 def test_a_joint_states_publisher_that_cannot_start_says_why():
     setup = {"domain": 300, "topic": "/joint_states", "names": ["a"], "frame_id": "", "node": "pbo_states"}  # past DDS's ports
-    with pytest.raises(PublisherGone, match="the JointState publisher process did not start: DDSException: .*DomainParticipant"):
+    with pytest.raises(PublisherGone, match=r"the JointState publisher process did not start: DDSException: .*DomainParticipant"):
         JointStatesPublisher(setup, 1)
 
 
@@ -168,7 +182,8 @@ def test_a_goal_published_by_another_node_is_written_and_a_silent_topic_makes_it
     (Ros2Goal, ["rt/pbo/q_d"], []),
 ], ids=["joint states", "goal"])
 def test_a_bridge_task_is_a_ros2_node_that_another_node_sees_on_ros_discovery_info(make_table, module, readers, writers):
-    table = make_table(variables(("q_d", "float64", (3,)), ("q_m", "float64", (3,)), ("qd_m", "float64", (3,)), ("tau", "float64", (3,))))
+    table = make_table(variables(("q_d", "float64", (3,)), ("q_m", "float64", (3,)), ("qd_m", "float64", (3,)),
+                                 ("tau", "float64", (3,))))
     domain = own_dds_domain()
     task = Task(task_spec(module, name="bridge", dims={"NDOF": 3}, ports={"value": "q_d"}, params={"domain": domain}), module,
                 table, {"NDOF": 3})
@@ -216,7 +231,7 @@ def test_ros2_bridge_publishes_joint_states_at_100_hz_and_takes_its_goal_from_a_
     finally:
         if run.poll() is None:
             run.send_signal(signal.SIGINT)
-        out, err = run_output(run)
+        _out, err = run_output(run)
     assert "Traceback" not in err, err
     assert_ended_well(run.returncode, json.loads(report_path.read_text()), err)
 
@@ -225,16 +240,19 @@ def test_ros2_bridge_publishes_joint_states_at_100_hz_and_takes_its_goal_from_a_
 def test_a_silent_goal_topic_past_its_bound_makes_the_robot_hold_and_the_run_say_so(tmp_path, monkeypatch):
     monkeypatch.setenv("ROS_DOMAIN_ID", str(own_dds_domain()))  # no node publishes there
     config = config_copy(REPO / "configs" / "ros2_bridge.yaml", tmp_path, f"ros2_silent_{os.getpid()}",
-                         replace=(("type: std_msgs/msg/Float64MultiArray}", "type: std_msgs/msg/Float64MultiArray, fresh_within: 0.5}"),))
+                         replace=(("type: std_msgs/msg/Float64MultiArray}",
+                                   "type: std_msgs/msg/Float64MultiArray, fresh_within: 0.5}"),))
     report_path = tmp_path / "report.json"
-    done = subprocess.run([*PBO, "run", str(config), "--clock", "sim", "--duration", "1", "--no-live", "--report", str(report_path)],
+    done = subprocess.run([*PBO, "run", str(config), "--clock", "sim", "--duration", "1", "--no-live",
+                           "--report", str(report_path)],
                           cwd=tmp_path, capture_output=True, text=True, timeout=180)
     assert done.returncode == 2, done.stderr
     assert ("critical task 'robot' runs its locally stable behaviour: a task upstream has no fresh input (its cycle "
             "returned STABLE: a link's item or a topic's message past its bound)") in done.stdout + done.stderr
     report = json.loads(report_path.read_text())
     assert report["faults"] == ["task 'goal' had no fresh input until the stop, from 0.000 s into the run (its cycle returned "
-                                "STABLE: a link's item or a topic's message past its bound), and the critical tasks held meanwhile"]
+                                "STABLE: a link's item or a topic's message past its bound), "
+                                "and the critical tasks held meanwhile"]
     robot = report["tasks"]["robot"]
     assert robot["stable_cycles"] == robot["cycles"] - 1  # held from its second cycle on (the first ran before goal's first)
 
@@ -242,12 +260,14 @@ def test_a_silent_goal_topic_past_its_bound_makes_the_robot_hold_and_the_run_say
 @pytest.mark.parametrize("module", [Ros2Goal, Ros2JointStates])
 def test_a_bridge_task_without_cyclonedds_fails_its_spawn_naming_the_ros2_extra(make_table, monkeypatch, module):
     monkeypatch.setitem(sys.modules, "cyclonedds", None)  # as if never installed: importing it raises ImportError
-    table = make_table(variables(("q_d", "float64", (3,)), ("q_m", "float64", (3,)), ("qd_m", "float64", (3,)), ("tau", "float64", (3,))))
+    table = make_table(variables(("q_d", "float64", (3,)), ("q_m", "float64", (3,)), ("qd_m", "float64", (3,)),
+                                 ("tau", "float64", (3,))))
     spec = task_spec(module, name="bridge", dims={"NDOF": 3}, ports={"value": "q_d"}, params={"domain": own_dds_domain()})
     task = Task(spec, module, table, {"NDOF": 3})
     assert not task.spawn(0.0)
     name = module.__module__.split(".")[-1]  # ros2_goal, ros2_joint_states: the module's name in a YAML file
-    assert f"the {name} module needs the 'ros2' extra (cyclonedds is not installed): pip install 'pbo-runtime[ros2]'" in task.last_error
+    assert (f"the {name} module needs the 'ros2' extra (cyclonedds is not installed): "
+            "pip install 'pbo-runtime[ros2]'") in task.last_error
 
 
 def _without_its_thread(task: Task) -> None:
@@ -260,11 +280,14 @@ def _without_its_thread(task: Task) -> None:
         module._thread.join()
 
 
-@pytest.mark.parametrize("module", [pytest.param(Ros2JointStates, marks=pytest.mark.multiprocess), Ros2Goal])  # (its publisher: a process)
+# (the joint states' publisher: a process)
+@pytest.mark.parametrize("module", [pytest.param(Ros2JointStates, marks=pytest.mark.multiprocess), Ros2Goal])
 def test_a_bridge_tasks_cycle_allocates_nothing(make_table, module):
-    table = make_table(variables(("q_d", "float64", (6,)), ("q_m", "float64", (6,)), ("qd_m", "float64", (6,)), ("tau", "float64", (6,))))
+    table = make_table(variables(("q_d", "float64", (6,)), ("q_m", "float64", (6,)), ("qd_m", "float64", (6,)),
+                                 ("tau", "float64", (6,))))
     dims = {"NDOF": 6}
-    task = Task(task_spec(module, name="bridge", dims=dims, ports={"value": "q_d"}, params={"domain": own_dds_domain()}), module, table, dims)
+    spec = task_spec(module, name="bridge", dims=dims, ports={"value": "q_d"}, params={"domain": own_dds_domain()})
+    task = Task(spec, module, table, dims)
     assert task.spawn(0.0), task.last_error
     assert task.turn_on(0.0), task.last_error
     try:

@@ -18,10 +18,22 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from drivers.ros2_control.driver import Ros2ControlArm  # noqa: E402
-from drivers.mujoco_arm.registers import DeviceError  # noqa: E402
-from tests.support import (PBO, REPO, allocation_peak, arm_tables, config_copy, one_array, own_dds_domain,  # noqa: E402
-                           read_until, run_output, start_run, unique_name, until)
+from drivers.mujoco_arm.registers import DeviceError
+from drivers.ros2_control.driver import Ros2ControlArm
+from tests.support import (
+    PBO,
+    REPO,
+    allocation_peak,
+    arm_tables,
+    config_copy,
+    one_array,
+    own_dds_domain,
+    read_until,
+    run_output,
+    start_run,
+    unique_name,
+    until,
+)
 
 GOAL = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]  # configs/ros2_control.yaml's initial q_d: the demo's move
 
@@ -55,7 +67,7 @@ def test_the_demos_pid_brings_a_ros2_control_arm_to_its_goal_and_holds_when_join
         said = read_until(run, "critical task 'robot' runs its locally stable behaviour: the module's own inputs are not fresh")
         assert "the module's own inputs are not fresh" in said, said
     finally:
-        out, err = stop_run_and_arm(run, arm)
+        _out, err = stop_run_and_arm(run, arm)
     assert "Traceback" not in err, err
     report = json.loads(report_path.read_text())
     assert run.returncode == 2, err
@@ -104,7 +116,7 @@ def test_in_position_mode_the_trajectory_goes_to_a_ros2_control_position_control
         reached = json.loads(read_until(arm, '"reached"').strip().splitlines()[-1])
         assert np.abs(np.subtract(reached["q"], GOAL)).max() < 0.01  # held there for 0.5 s, by the arm's own account
     finally:
-        out, err = stop_run_and_arm(run, arm)
+        _out, err = stop_run_and_arm(run, arm)
     assert "Traceback" not in err, err  # (braked without position commands, the arm would never have left q0)
 
 

@@ -16,16 +16,18 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from pbo_runtime.cli.main import main  # noqa: E402
-from tests.support import (PBO, REPO, assert_ended_well, config_copy, own_dds_domain, read_until, ros2_peer as peer,  # noqa: E402
-                           ros2_peer_said as peer_said, run_output, start_run)
+from pbo_runtime.cli.main import main
+from tests.support import PBO, REPO, assert_ended_well, config_copy, own_dds_domain, read_until, run_output, start_run
+from tests.support import ros2_peer as peer
+from tests.support import ros2_peer_said as peer_said
 
 GOAL_TASK = """  goal:   {module: ros2_goal, rtpu: rtpu0, period: 10 ms,
            params: {topic: /pbo/q_d, type: std_msgs/msg/Float64MultiArray}, ports: {value: q_d}}
 """
 # The bridge's demo less its goal task: q_d is then the `reach` job's object, as an operator gives it.
 WITH_A_JOB = ((GOAL_TASK, ""), ("bridge: [robot, goal, traj, pid, joint_states]",
-                                 'bridge: [robot, traj, pid, joint_states]\njobs:\n  reach: {configuration: bridge, post: "max(abs(q_m - q_d)) < 0.01"}'))
+                                 'bridge: [robot, traj, pid, joint_states]\njobs:\n'
+                                 '  reach: {configuration: bridge, post: "max(abs(q_m - q_d)) < 0.01"}'))
 
 
 def jobs_node(subsystem: str, *arguments: str) -> subprocess.Popen:

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import pytest
 
-from pbo_runtime.cli.main import main
 from pbo_runtime.analysis.allocation import pinned_tasks, propose
-from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.analysis.schedulability import Cost, Load, analyse_configuration, response_times
+from pbo_runtime.cli.main import main
+from pbo_runtime.config.loader import load_subsystem
 from tests.support import PBO, REPO, demo_copy
 
 # --- the analysis, known answers ---------------------------------------------------------------
@@ -57,7 +57,7 @@ def test_an_overloaded_rtpu_has_unbounded_response_times() -> None:
 
 def _simulate(loads: list[Load], offsets: tuple[int, ...], horizon: int) -> dict[str, int]:
     """A fake of the executive's policy in whole ticks: critical first, then the earliest deadline; no preemption."""
-    jobs = sorted((o + k * int(x.period), i) for i, (x, o) in enumerate(zip(loads, offsets))
+    jobs = sorted((o + k * int(x.period), i) for i, (x, o) in enumerate(zip(loads, offsets, strict=True))
                   for k in range((horizon - o) // int(x.period) + 1))
     pending: list[tuple[int, int]] = []  # (release, task)
     worst = {x.name: 0 for x in loads}
@@ -285,7 +285,7 @@ def test_a_real_run_report_feeds_check_with_a_profile(tmp_path: Path) -> None:
     assert checked.returncode == 0, checked.stdout + checked.stderr
     assert "note: the profile is a run on the simulated clock" in checked.stdout
     lines = checked.stdout.split("\nschedulability ", 1)[1].splitlines()  # the verdicts, after the file's own lines
-    verdicts = {line.split()[0]: line for line in lines if line.startswith("    ") and not line.split()[0] == "task"}
+    verdicts = {line.split()[0]: line for line in lines if line.startswith("    ") and line.split()[0] != "task"}
     assert set(verdicts) == {"robot*", "traj", "pid", "logger"}, checked.stdout
     assert " proven " in verdicts["robot*"]
     assert "critical deadlines: 1 task(s) proven" in checked.stdout

@@ -14,9 +14,9 @@ from typing import Any
 import pytest
 import yaml
 
+from pbo_runtime.config.checker import BUS_KEYS, JOB_KEYS, TASK_KEYS, TOP_KEYS, VARIABLE_KEYS
 from pbo_runtime.config.file_kind import is_application_file
 from pbo_runtime.objects import registry
-from pbo_runtime.config.checker import BUS_KEYS, JOB_KEYS, TASK_KEYS, TOP_KEYS, VARIABLE_KEYS
 from pbo_runtime.reports.schema import json_schema, quantity_pattern, schema_text, write_schema
 
 REPO = Path(__file__).resolve().parents[1]
@@ -68,7 +68,7 @@ def _errors(instance: Any, schema: dict, root: dict, path: str = "$") -> list[st
             "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
         }
         if not any(checks[t](instance) for t in names):
-            return out + [f"{path}: {instance!r} is not of type {types}"]
+            return [*out, f"{path}: {instance!r} is not of type {types}"]
     if "enum" in schema and instance not in schema["enum"]:
         out.append(f"{path}: {instance!r} is not one of {schema['enum']}")
     if "const" in schema and instance != schema["const"]:

@@ -93,7 +93,7 @@ def test_the_check_sees_the_mapping_even_of_an_empty_segment_and_its_refusal_sta
         raise LookupError("not mine")
 
     try:
-        with pytest.raises(LookupError, match="^not mine$"):
+        with pytest.raises(LookupError, match=r"^not mine$"):
             LockedSegment.attach(name, check=check, **WORDS)
     finally:
         posix_ipc.unlink_shared_memory(name)

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from pbo_runtime import read_log
-from pbo_runtime.ipc import shm
 from pbo_runtime.clock.lockstep import LockstepMaster, LockstepParticipant
+from pbo_runtime.ipc import shm
 from pbo_runtime.table.table import HEADER_WORDS, Header
 from tests.support import DEMO, PBO, REPO, assert_nothing_left, children_of, read_until
 
@@ -158,7 +158,7 @@ def test_a_simulated_run_releases_every_cycle_and_steps_the_plant_once_per_tick(
 def test_two_hundred_switches_on_the_arm_read_no_stale_input(tmp_path):
     """Issue 4's acceptance run, exact: no cycle of the critical task lost, no stale read, arm in tolerance."""
     config = REPO / "configs" / "switch_joint.yaml"
-    done, report = run_sim(tmp_path, config, "--alternate", "pid,pd", "--switches", "200", "--interval", "0.02")
+    _done, report = run_sim(tmp_path, config, "--alternate", "pid,pd", "--switches", "200", "--interval", "0.02")
     switches = report["switches"]
     assert len(switches) == 200
     assert [s["cycles_lost"]["robot"] for s in switches] == [0] * 200

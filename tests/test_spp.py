@@ -11,6 +11,7 @@ On the real clock, under SCHED_FIFO RTPUs, the processor runs just below them on
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -18,7 +19,6 @@ import subprocess
 import sys
 import textwrap
 import time
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -30,14 +30,33 @@ from modules.fk_jacobian_spp import FkJacobianSpp
 from pbo_runtime import arm_model
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.model import DeviceSpec
+from pbo_runtime.ipc.shm import children_of, pid_alive
+from pbo_runtime.reports.lexicon import drivers
 from pbo_runtime.table.table import TaskState
 from pbo_runtime.task.lifecycle import Task
 from rtpu._executive import Executive
-from pbo_runtime.ipc.shm import children_of, pid_alive
-from pbo_runtime.reports.lexicon import drivers
-from tests.support import (PBO, REPO, RUNS, FakeSignals, Ticker, allocation_peak, arm_tables, assert_ended_well, assert_nothing_left, killed_on_failure,
-                           one_array, read_until, robot_state_table, run_output, run_processes, run_until, start_run, task_spec,
-                           unique_name, until)
+from tests.support import (
+    PBO,
+    REPO,
+    RUNS,
+    FakeSignals,
+    Ticker,
+    allocation_peak,
+    arm_tables,
+    assert_ended_well,
+    assert_nothing_left,
+    killed_on_failure,
+    one_array,
+    read_until,
+    robot_state_table,
+    run_output,
+    run_processes,
+    run_until,
+    start_run,
+    task_spec,
+    unique_name,
+    until,
+)
 
 CONFIG = REPO / "configs" / "visual_servoing_spp.yaml"
 Q = np.array([0.1, -0.5, 0.4, 0.1, 0.2, 0.3])
@@ -122,7 +141,8 @@ def test_a_batch_of_jacobians_is_one_work_item():
 
 @pytest.mark.multiprocess
 @pytest.mark.parametrize("routine, options, message", [
-    ("fft", {}, r"could not load routine 'fft': ValueError: no routine 'fft' on this processor; routines: jacobian, jacobian_batch"),
+    ("fft", {},
+     r"could not load routine 'fft': ValueError: no routine 'fft' on this processor; routines: jacobian, jacobian_batch"),
     ("jacobian_batch", {"batch": 0}, r"needs option batch, a whole number >= 1, got: 0"),
     ("jacobian", {"frame": "hand"}, r"the arm has no frame 'hand'"),
 ])
@@ -312,7 +332,7 @@ def test_killing_the_processor_mid_run_puts_its_task_in_error_naming_it_and_leav
         said = read_until(run, "task 'fk' on rtpu1 is in ERROR")
         assert f"the special-purpose processor (pid {processors[0]}) died (killed by SIGKILL)" in said
         run.send_signal(signal.SIGINT)
-        out, err = run_output(run)
+        _out, err = run_output(run)
     assert run.returncode == 2, err
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["tasks"]["fk"]["state"] == "ERROR"

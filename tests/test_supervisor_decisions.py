@@ -165,7 +165,8 @@ def test_a_childs_crash_fails_the_run_with_its_trace():
 
 def test_what_concerns_other_parts_is_handed_on():
     heard = EventsHeard()
-    heard.hear("rtpu0", messages.Staged(2, ""), messages.ChildExited("rtpu1", 4321), messages.Stats("pid", TaskStatistics(cycles=5)))
+    heard.hear("rtpu0", messages.Staged(2, ""), messages.ChildExited("rtpu1", 4321),
+               messages.Stats("pid", TaskStatistics(cycles=5)))
     assert heard.handed == [("staged", "rtpu0", 2, ""), ("child_exited",)]
     assert heard.ledger.stats == {"pid": TaskStatistics(cycles=5)}
 

@@ -9,16 +9,16 @@ import math
 import os
 import time
 import uuid
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import pytest
 from rich.console import Console
 
 from pbo_runtime import PboError, TableLayoutError
-from pbo_runtime.ipc import messages
 from pbo_runtime.cli import operator
-from pbo_runtime.ipc import shm
+from pbo_runtime.ipc import messages, shm
 from pbo_runtime.table.svar import format_value, open_table, svar_rows, svar_table
 from pbo_runtime.table.table import MAGIC, VERSION, Flag, Header, StateTable, StatusWord, TableLayout, TaskState
 from tests.support import variables
@@ -50,7 +50,7 @@ def test_open_table_reads_names_values_sequence_and_job_control_as_writer(run):
     table.write("n", 6, when=time.monotonic())
     with open_table(subsystem) as view:
         assert view.variables() == ["q_m", "n", "DH", "gain"]
-        value, seq, when, writer = view.read("q_m")
+        value, seq, _when, writer = view.read("q_m")
         assert value.tolist() == [0.5, -0.2, 0.3]
         assert (seq, writer) == (2, -1)
         assert value.dtype == np.float64 and value.flags.writeable  # a copy, not a view of the table
@@ -113,7 +113,8 @@ def test_task_status_reads_every_tasks_block(run):
 
 def test_an_unknown_variable_names_the_choices(run):
     subsystem, _ = run()
-    with open_table(subsystem) as view, pytest.raises(KeyError, match=r"no variable 'q_x' in the table of 'svar\w+' \(variables: q_m, n, DH, gain\)"):
+    with (open_table(subsystem) as view,
+          pytest.raises(KeyError, match=r"no variable 'q_x' in the table of 'svar\w+' \(variables: q_m, n, DH, gain\)")):
         view.read("q_x")
 
 
@@ -122,7 +123,8 @@ def test_a_segment_with_a_wrong_magic_fails_clearly():
     name = messages.table_name(subsystem, f"{os.getpid()}-{uuid.uuid4().hex[:6]}")
     _shm_object, mapping = shm.create_segment(name, 4096)
     try:
-        with pytest.raises(TableLayoutError, match=rf"^'{name}' is not a pbo state variable table \(magic 0x0, expected {MAGIC:#x}\)"):
+        with pytest.raises(TableLayoutError,
+                           match=rf"^'{name}' is not a pbo state variable table \(magic 0x0, expected {MAGIC:#x}\)"):
             open_table(subsystem)
     finally:
         mapping.close()

@@ -15,12 +15,12 @@ import pytest
 
 from pbo_runtime import InVar, OutVar, PortBasedObject, Status, sleep_while_cycling
 from pbo_runtime.clock.clocks import ManualClock
-from pbo_runtime.ipc import messages
-from pbo_runtime.edit.live import LiveDescription, TaskChange, to_wire
 from pbo_runtime.config.loader import check_file
-from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.edit.live import LiveDescription, TaskChange, to_wire
+from pbo_runtime.ipc import messages
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.table.table import Header, StateTable, TableLayout, TaskState
+from pbo_runtime.task.lifecycle import Task
 from rtpu._executive import Executive
 from rtpu.holds import HELD_ILLEGAL, NOT_HELD
 from rtpu.releases import first_release
@@ -119,7 +119,7 @@ def start(subsystem, executives, clock) -> None:
 def post_plan(table: StateTable, configuration: int, activation: float) -> None:
     header = table.header
     header[Header.PLAN_CONFIGURATION] = configuration
-    header[Header.PLAN_TIME_NS] = int(round(activation * 1e9))
+    header[Header.PLAN_TIME_NS] = round(activation * 1e9)
     header[Header.PLAN_SEQUENCE] += 1
 
 
@@ -167,7 +167,7 @@ def test_the_entering_task_runs_its_first_cycle_at_the_activation_instant(rig):
 
 
 def test_the_leaving_task_runs_no_cycle_at_the_activation_boundary_issue_23(rig):
-    subsystem, table, clock, executives, events = rig
+    subsystem, table, clock, executives, _events = rig
     start(subsystem, executives, clock)
     step_executives(executives, clock, clock.now() + 0.005)
     leaving = executives["rtpu0"].tasks["ctl_a"]
@@ -233,7 +233,7 @@ def test_a_switch_that_overruns_a_cycle_makes_the_critical_task_hold_still(rig):
 
 
 def test_a_task_in_error_makes_the_critical_task_hold_still_until_it_is_cleared(rig):
-    subsystem, table, clock, executives, events = rig
+    subsystem, table, clock, executives, _events = rig
     start(subsystem, executives, clock)
     table.header[Header.TASKS_IN_ERROR] = 1  # as job control sets it when a task reports ERROR
     step_executives(executives, clock, clock.now() + 0.003)
@@ -277,7 +277,7 @@ def test_a_live_replace_is_staged_then_applied_at_the_plans_boundary_losing_no_c
 
 
 def test_a_live_description_an_rtpu_cannot_read_is_answered_with_why(rig):
-    subsystem, table, clock, executives, events = rig
+    _subsystem, _table, _clock, executives, events = rig
 
     def unreadable(sequence):
         raise FileNotFoundError(f"live-{sequence}.json")

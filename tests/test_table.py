@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import os
 import stat
 import threading
@@ -64,7 +65,7 @@ def test_variables_are_aligned_and_do_not_overlap():
     layout = TableLayout.build(VARS, 2)
     spans = sorted((s.data_byte, s.data_byte + s.nbytes) for s in layout.slots)
     assert all(start % 8 == 0 for start, _ in spans)
-    assert all(end <= nxt for (_, end), (nxt, _) in zip(spans, spans[1:]))
+    assert all(end <= nxt for (_, end), (nxt, _) in itertools.pairwise(spans))
     assert layout.status_offset >= spans[-1][1]
 
 
@@ -84,7 +85,8 @@ def test_a_directory_record_with_a_dtype_no_table_holds_is_refused(make_table):
     offset = table.layout.directory_offset
     record = bytearray(table._mapping[offset : offset + DIRECTORY_RECORD])
     record[48:64] = b"complex128".ljust(16, b"\0")
-    with pytest.raises(TableLayoutError, match=r"^table 'T', directory record 0 \('a'\): dtype 'complex128' is not one a table holds \(float64, "):
+    with pytest.raises(TableLayoutError,
+                       match=r"^table 'T', directory record 0 \('a'\): dtype 'complex128' is not one a table holds \(float64, "):
         read_directory("T", bytes(record), 1, 0, DIRECTORY_RECORD, 0)
 
 

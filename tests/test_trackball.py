@@ -234,11 +234,13 @@ def test_cartesian_teleoperation_follows_the_ball_the_operator_plays_while_it_ru
                                 capture_output=True, text=True, timeout=60)
         assert played.returncode == 0, played.stderr
         assert "device 'ball' plays [0.05, 0, 0.03, 0, 0, 0]" in played.stdout
-        until(lambda: np.allclose(_svar(subsystem, "x_d") - start, [0.05, 0, 0.03, 0, 0, 0], atol=2e-3), "x_d moved by what was played", safety_net=150)
-        until(lambda: np.linalg.norm(_svar(subsystem, "x_m")[:3] - start[:3] - [0.05, 0, 0.03]) < 0.01, "the hand followed", safety_net=150)
+        until(lambda: np.allclose(_svar(subsystem, "x_d") - start, [0.05, 0, 0.03, 0, 0, 0], atol=2e-3),
+              "x_d moved by what was played", safety_net=150)
+        until(lambda: np.linalg.norm(_svar(subsystem, "x_m")[:3] - start[:3] - [0.05, 0, 0.03]) < 0.01,
+              "the hand followed", safety_net=150)
     finally:
         run.send_signal(signal.SIGINT)
-        out, err = run.communicate(timeout=120)
+        _out, err = run.communicate(timeout=120)
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["tasks"]["trackball"]["state"] == "ON" and run.returncode == 0, err
     assert_nothing_left(report)

@@ -86,7 +86,7 @@ def two_hosts():
         pytest.skip(reason)
     _remove_ours()
     try:
-        for host, netns in NETNS.items():
+        for netns in NETNS.values():
             _ip("netns", "add", netns)
             _ip("-n", netns, "link", "set", "lo", "up")
         _ip("link", "add", VETH["arm-a"], "type", "veth", "peer", "name", VETH["arm-b"])
@@ -236,7 +236,7 @@ def test_the_follower_on_another_machine_tracks_the_leader_and_rides_out_a_parti
     assert np.max(np.abs(leader_at - GOAL_B)) < SETTLED, said
     assert np.max(np.abs(final["q_d"] - leader_at)) < SETTLED, said
     assert np.max(np.abs(final["q_m"] - leader_at)) < SETTLED, said
-    lost, reused, _ = final["link_counts"]
+    lost, _reused, _ = final["link_counts"]
     assert lost > 0, said  # items sent into the partition never reached the follower's reads
     counts = read_log(out / "arm-b" / "follower" / "follower.mcap")["link_counts"]
     assert (np.diff(counts[:, :2], axis=0) >= 0).all()  # running totals: they never go back

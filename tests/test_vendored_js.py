@@ -19,7 +19,8 @@ def test_a_vendored_file_changed_by_hand_is_named(tmp_path, monkeypatch):
     (vendor / "tiny").mkdir(parents=True)
     (vendor / "tiny" / "tiny.mjs").write_text("export const x = 1;\n")
     (vendor / "tiny" / "LICENSE").write_text("MIT\n")
-    recorded = {"tiny.mjs": vendor_js.sha256(vendor / "tiny" / "tiny.mjs"), "LICENSE": vendor_js.sha256(vendor / "tiny" / "LICENSE")}
+    recorded = {"tiny.mjs": vendor_js.sha256(vendor / "tiny" / "tiny.mjs"),
+                "LICENSE": vendor_js.sha256(vendor / "tiny" / "LICENSE")}
     manifest = {"packages": [{"name": "tiny", "version": "1.0.0", "license": "MIT", "why": "a test", "integrity": "sha512-x",
                               "files": {"tiny.mjs": "tiny.mjs"}, "sha256": recorded}]}
     (vendor / "vendored.json").write_text(json.dumps(manifest))

@@ -29,12 +29,22 @@ from modules.damped_least_squares import DampedLeastSquares
 from modules.resolved_rate import ResolvedRate
 from modules.visual_servoing import VisualServoing
 from pbo_runtime import ParamError, PortBasedObject, Status, read_log
-from pbo_runtime.objects import registry
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
-from pbo_runtime.task.lifecycle import Task
+from pbo_runtime.objects import registry
 from pbo_runtime.table.table import StateTable, TaskState
-from tests.support import (NO_WATCHDOG, PBO, REPO, arm_constants, arm_tables, assert_nothing_left, dh_pinocchio_model, task_spec,
-                           unique_name, variables)
+from pbo_runtime.task.lifecycle import Task
+from tests.support import (
+    NO_WATCHDOG,
+    PBO,
+    REPO,
+    arm_constants,
+    arm_tables,
+    assert_nothing_left,
+    dh_pinocchio_model,
+    task_spec,
+    unique_name,
+    variables,
+)
 
 TIMESTEP = 0.001
 CONFIG = REPO / "configs" / "visual_servoing.yaml"
@@ -252,13 +262,13 @@ def test_the_module_writes_target_plus_offset_and_keeps_the_hands_orientation(ta
     task, opened = vision_task(table, plant, {"offset": [0.0, 0.01, 0.1]})
     assert task.spawn(0.0), task.last_error
     assert task.turn_on(0.0), task.last_error
-    np.testing.assert_allclose(table.read("x_d")[0], [*(circle(0.0) + [0, 0.01, 0.1]), 0.1, -0.2, 0.3], atol=1e-12)
+    np.testing.assert_allclose(table.read("x_d")[0], [*(circle(0.0) + np.array([0, 0.01, 0.1])), 0.1, -0.2, 0.3], atol=1e-12)
     for k in range(1, 6):
         run(plant, 0.01)
         table.write("x_m", x_m + k, when=k * 0.01)  # the hand moves: the orientation stays the one at `on`
         assert task.run_cycle(k * 0.01) is Status.CONTINUE, task.last_error
         x_d = table.read("x_d")[0]
-        np.testing.assert_allclose(x_d[:3], circle(plant.sim_time) + [0, 0.01, 0.1], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(x_d[:3], circle(plant.sim_time) + np.array([0, 0.01, 0.1]), rtol=0, atol=1e-12)
         np.testing.assert_array_equal(x_d[3:], x_m[3:])
     task.kill()
     assert [c.frames for c in opened] == [6] and task.state is TaskState.KILLED
@@ -307,7 +317,8 @@ N = PUMA.ndof
 
 
 def controller(make_table, module: type[PortBasedObject], params: dict) -> tuple[Task, StateTable]:
-    table = make_table(variables(*arm_constants(N), ("q_m", "float64", (N,)), ("x_d", "float64", (6,)), ("qd_r", "float64", (N,))))
+    table = make_table(variables(*arm_constants(N), ("q_m", "float64", (N,)), ("x_d", "float64", (6,)),
+                                 ("qd_r", "float64", (N,))))
     table.write("NDOF", N, when=0.0)
     table.write("ARM", PUMA_ARM, when=0.0)
     table.write("EE", PUMA_EE, when=0.0)
@@ -381,7 +392,7 @@ def pbo_run(tmp_path: Path, *arguments: str) -> tuple[subprocess.CompletedProces
 @needs_entry_points
 @pytest.mark.multiprocess
 def test_dls_tracks_the_target_through_the_wrist_singularity(tmp_path):
-    done, report = pbo_run(tmp_path, "--config", "dls", "--duration", "4")
+    _done, report = pbo_run(tmp_path, "--config", "dls", "--duration", "4")
     assert report["stopped_by"] == "duration" and report["failure"] == ""
     x_m = np.array(report["variables"]["x_m"]["value"])
     x_d = np.array(report["variables"]["x_d"]["value"])
@@ -396,7 +407,7 @@ def test_dls_tracks_the_target_through_the_wrist_singularity(tmp_path):
 @needs_entry_points
 @pytest.mark.multiprocess
 def test_switching_between_ik_and_dls_while_servoing_completes(tmp_path):
-    done, report = pbo_run(tmp_path, "--alternate", "ik,dls", "--switches", "4", "--interval", "1")
+    _done, report = pbo_run(tmp_path, "--alternate", "ik,dls", "--switches", "4", "--interval", "1")
     assert len(report["switches"]) == 4
     assert [s["to"] for s in report["switches"]] == ["dls", "ik", "dls", "ik"]
     assert report["failure"] == ""

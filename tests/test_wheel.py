@@ -13,6 +13,7 @@ simulated clock.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import re
@@ -38,11 +39,11 @@ sys.path_hooks[:] = [h for h in sys.path_hooks if "__editable__" not in getattr(
 sys.path[:] = [p for p in sys.path if "__editable__" not in p]
 '''
 
-PROBE = '''
+PROBE = f"GROUPS = {GROUPS!r}\n" + '''
 import importlib, importlib.metadata, json, sys
 found = {"packages": {name: importlib.import_module(name).__file__ for name in ("pbo_runtime", "rtpu", "modules", "drivers")},
          "entry_points": {}}
-for group in %r:
+for group in GROUPS:
     for point in importlib.metadata.entry_points(group=group):
         loaded = point.load()
         found["entry_points"].setdefault(group, {})[point.name] = [str(point.dist.locate_file("")),
@@ -50,7 +51,7 @@ for group in %r:
 found["imported"] = sorted(str(getattr(m, "__file__", None)) for n, m in list(sys.modules.items())
                            if n.split(".")[0] in ("pbo_runtime", "rtpu", "modules", "drivers"))
 print(json.dumps(found))
-''' % (GROUPS,)
+'''
 
 CHECK_ALL = '''
 import json, sys
@@ -276,7 +277,7 @@ def command_words(command: str) -> list[str]:
 
 def input_files(words: list[str]) -> list[str]:
     """The files a command reads: its words that name a file, but not those after an output flag."""
-    return [w for before, w in zip(words, words[1:]) if before not in OUTPUT_FLAGS and FILE_TOKEN.search(w)
+    return [w for before, w in itertools.pairwise(words) if before not in OUTPUT_FLAGS and FILE_TOKEN.search(w)
             and not w.startswith("package://")]
 
 

@@ -6,11 +6,12 @@ on a live subsystem (a fake job host: no process, a manual clock).
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import pytest
 
-from pbo_runtime.edit.live_save import saved_text
 from pbo_runtime.config.loader import check_file, format_diagnostics, load_subsystem
+from pbo_runtime.edit.live_save import saved_text
 from pbo_runtime.edit.workspace import RowRefused, Step, check_name, checked_row, file_steps, parse_row, run_steps
 from pbo_runtime.edit.workspace_file import SaveRefused, save_application, save_object
 from pbo_runtime.ipc.control import BadRequest
@@ -72,9 +73,9 @@ def test_an_application_name_must_be_an_identifier(name):
 
 def test_an_incomplete_application_is_saved_with_comments_kept_and_becomes_an_action_requiring_an_object(subsystem):
     file = subsystem.file
-    before = open(file).read()
+    before = Path(file).read_text()
     result = save_application(file, "approach", file_steps([Step("reach"), Step("hold")]))
-    text = open(file).read()
+    text = Path(file).read_text()
     assert result.ok and [w.code for w in result.warnings] == ["W701"], format_diagnostics(result)
     assert text.startswith(before.rstrip("\n").rsplit("\napplications:", 1)[0])  # every line above as it was
     assert "# Both jobs need an object (a joint_position)" in text
@@ -85,22 +86,22 @@ def test_an_incomplete_application_is_saved_with_comments_kept_and_becomes_an_ac
 
 def test_an_application_is_saved_under_applications_when_the_file_has_none(tmp_path):
     subsystem = fake_subsystem(tmp_path)
-    text = open(subsystem.file).read()
+    text = Path(subsystem.file).read_text()
     start = text.index("\napplications:")
-    open(subsystem.file, "w").write(text[:start + 1])
+    Path(subsystem.file).write_text(text[:start + 1])
     result = save_application(subsystem.file, "demo", [{"reach": "ready"}, "hold"])
     assert result.ok and list(result.subsystem.applications) == ["demo"]
-    assert open(subsystem.file).read().endswith("applications:\n  demo:\n    - reach: ready\n    - hold\n")
+    assert Path(subsystem.file).read_text().endswith("applications:\n  demo:\n    - reach: ready\n    - hold\n")
 
 
 def test_saving_over_an_application_needs_replace_and_a_refused_save_leaves_the_file_as_it_was(subsystem):
     file = subsystem.file
-    before = open(file).read()
+    before = Path(file).read_text()
     with pytest.raises(SaveRefused, match=r"^application 'tour' exists in .*: choose another name, or replace it$"):
         save_application(file, "tour", ["hold"])
     with pytest.raises(SaveRefused, match=r"^not saved: .* would have 1 error, the first: .*error\[E717\]"):
         save_application(file, "ready", ["hold"])  # named like an object
-    assert open(file).read() == before
+    assert Path(file).read_text() == before
     assert save_application(file, "tour", ["hold"], replace=True).ok
     assert load_subsystem(file).applications["tour"].steps[0].job == "hold"
 
@@ -110,7 +111,7 @@ def test_an_objects_value_is_saved_in_its_entry_and_checked_against_its_type_fir
     result = save_object(file, subsystem, "ready", [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
     assert result.ok
     assert "  ready: {type: joint_position, value: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6], doc: \"upper arm raised, elbow bent\"}\n" \
-        in open(file).read()
+        in Path(file).read_text()
     assert result.subsystem.objects["ready"].value.tolist() == [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
 
 
@@ -121,22 +122,23 @@ def test_an_objects_value_is_saved_in_its_entry_and_checked_against_its_type_fir
     ("nope", 0, r"^no object 'nope' in .* \(objects: ready\)$"),
 ])
 def test_an_objects_value_that_does_not_fit_its_type_is_refused_and_the_file_kept(subsystem, name, value, refusal):
-    before = open(subsystem.file).read()
+    before = Path(subsystem.file).read_text()
     with pytest.raises(SaveRefused, match=refusal):
         save_object(subsystem.file, subsystem, name, value)
-    assert open(subsystem.file).read() == before
+    assert Path(subsystem.file).read_text() == before
 
 
 def test_an_objects_value_outside_its_types_range_is_refused_as_pbo_check_refuses_it(subsystem):
-    text = open(subsystem.file).read()
+    text = Path(subsystem.file).read_text()
     declared = re.search(r"^  joint_position: \{.*\}$", text, re.MULTILINE)
     assert declared is not None
     ranged = text.replace(declared[0], declared[0][:-1] + ", range: [-1, 1]}")
-    open(subsystem.file, "w").write(ranged)
-    with pytest.raises(SaveRefused, match=r"^object 'ready' \(type joint_position\): element 3 must be in \[-1, 1\] \(the range of "
-                                          r"object type 'joint_position'\), got: 1\.5$"):
+    Path(subsystem.file).write_text(ranged)
+    with pytest.raises(SaveRefused,
+                       match=r"^object 'ready' \(type joint_position\): element 3 must be in \[-1, 1\] \(the range of "
+                             r"object type 'joint_position'\), got: 1\.5$"):
         save_object(subsystem.file, load_subsystem(subsystem.file), "ready", [0, 0, 1.5, 0, 0, 0])
-    assert open(subsystem.file).read() == ranged
+    assert Path(subsystem.file).read_text() == ranged
 
 
 # --- running a row on the live subsystem --------------------------------------------------------------

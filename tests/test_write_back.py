@@ -46,7 +46,8 @@ def test_a_new_file_gets_the_mode_any_new_file_gets(tmp_path):
 
 def test_a_text_that_does_not_check_clean_leaves_the_file_as_it_was_and_names_the_first_error_in_it(tmp_path):
     file = a_file(tmp_path)
-    with pytest.raises(WriteRefused, match=rf"^not saved: {file} would have 1 error, the first: {file}:\d+:\d+: error\[E1\d\d\]") \
+    with pytest.raises(WriteRefused,
+                       match=rf"^not saved: {file} would have 1 error, the first: {file}:\d+:\d+: error\[E1\d\d\]") \
             as refused:
         write_checked(str(file), BROKEN)
     assert len(refused.value.errors) == 1 and refused.value.first.startswith(f"{file}:")

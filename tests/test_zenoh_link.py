@@ -29,9 +29,9 @@ import time
 import numpy as np
 import pytest
 
+from pbo_runtime.links.ends import open_link, open_message_link
 from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError, MessageLink, MessageLinkError
 from pbo_runtime.links.triple_buffer import Freshness, LinkError, LinkLayout, LinkLayoutError, TripleBuffer
-from pbo_runtime.links.ends import open_link, open_message_link
 from pbo_runtime.links.zenoh_link import DELIVERIES, ITEM_FORMAT, ITEM_HEADER, ZenohLink, open_periodic
 from pbo_runtime.links.zenoh_message_link import ZenohMessageLink
 from pbo_runtime.links.zenoh_session import config_entries, free_port, link_key
@@ -138,13 +138,13 @@ def test_a_delivery_must_be_ring_or_callback():
 def test_the_creating_end_forwards_between_two_ends_that_attach_to_it(delivery):
     """As when a supervisor makes the link and its tasks attach: the creating session is their hub."""
     name, port, layout = key("hub"), free_port(), LinkLayout("int64", (2,))
-    with ZenohLink.create(name, layout, port=port):
-        with (ZenohLink.attach(name, layout, "reader", port=port, delivery=delivery) as reader,
-              ZenohLink.attach(name, layout, "sender", port=port) as sender):
-            wait_for_reader(sender)
-            assert sender.write([4, 2]) == 1
-            read_until(reader, 1)
-            assert reader.value.tolist() == [4, 2]
+    with (ZenohLink.create(name, layout, port=port),
+          ZenohLink.attach(name, layout, "reader", port=port, delivery=delivery) as reader,
+          ZenohLink.attach(name, layout, "sender", port=port) as sender):
+        wait_for_reader(sender)
+        assert sender.write([4, 2]) == 1
+        read_until(reader, 1)
+        assert reader.value.tolist() == [4, 2]
 
 
 def test_sessions_stay_on_loopback_and_close_with_their_link():
@@ -176,14 +176,16 @@ def test_open_link_chooses_the_transport():
         assert isinstance(messages, ZenohMessageLink)
     with pytest.raises(LinkError, match=r"^transport must be one of shm, zenoh, got: 'udp'$"):
         open_link("udp", name, layout, create=True)
-    with pytest.raises(LinkError, match=r"^link '.*' uses transport 'shm', which takes no port \(those are for transport 'zenoh'\)$"):
+    with pytest.raises(LinkError,
+                       match=r"^link '.*' uses transport 'shm', which takes no port \(those are for transport 'zenoh'\)$"):
         open_link("shm", name, layout, create=True, port=7447)
     with pytest.raises(LinkError, match=r"^link 'pbo/a/b' uses transport 'zenoh' and needs a port"):
         open_link("zenoh", "pbo/a/b", layout, create=True)
 
 
 def test_an_application_links_spec_opens_the_sender_listening_and_the_reader_connecting():
-    spec = {"transport": "zenoh", "key": key("spec"), "endpoint": f"tcp/127.0.0.1:{free_port()}", "dtype": "float64", "shape": [3]}
+    spec = {"transport": "zenoh", "key": key("spec"), "endpoint": f"tcp/127.0.0.1:{free_port()}",
+            "dtype": "float64", "shape": [3]}
     layout = LinkLayout("float64", (3,))
     with open_periodic(spec, layout, "sender") as sender, open_periodic(spec, layout, "reader") as reader:
         assert (sender.owner, reader.owner) == (True, False)
@@ -202,7 +204,8 @@ def test_a_message_to_a_receiver_that_left_is_refused_not_lost():
         until(lambda: sender._publisher.matching_status.matching, "the receiver's subscription")
         receiver.close()
         until(lambda: not sender._publisher.matching_status.matching, "the receiver to leave")
-        with pytest.raises(MessageLinkError, match=rf"^message link '{name}' has no receiver connected: the message was not sent\n  hint: "):
+        with pytest.raises(MessageLinkError,
+                           match=rf"^message link '{name}' has no receiver connected: the message was not sent\n  hint: "):
             sender.send({"x": 1})
 
 
@@ -333,7 +336,7 @@ PRIORITIES = [0, 5, 5, MAX_PRIORITY, 1, 0, 5, 1]
 def _message_sender(name: str, port: int, talk) -> None:
     with ZenohMessageLink.attach(name, port=port) as link:
         until(lambda: link._publisher.matching_status.matching, "the receiver")
-        for order, (body, priority) in enumerate(zip(BODIES, PRIORITIES)):
+        for order, (body, priority) in enumerate(zip(BODIES, PRIORITIES, strict=True)):
             link.send({"order": order, "body": body}, priority=priority)
         try:
             link.send("one too many")
@@ -355,7 +358,8 @@ def test_messages_from_another_process_round_trip_highest_priority_first_and_a_f
         child.start()
         try:
             assert mine.poll(SAFETY_NET)
-            assert mine.recv() == f"{len(BODIES)} message link '{name}' is full: {len(BODIES)} of {len(BODIES)} messages waiting (the sender asked not to wait)"
+            assert mine.recv() == (f"{len(BODIES)} message link '{name}' is full: "
+                                   f"{len(BODIES)} of {len(BODIES)} messages waiting (the sender asked not to wait)")
             until(lambda: receiver.waiting == len(BODIES), "every message in the receiver's queue")
             before = time.monotonic_ns()
             received = [receiver.receive(timeout=0) for _ in BODIES]

@@ -93,6 +93,15 @@ def test_check_refuses_a_value_out_of_its_bounds_at_its_line_and_exits_1(tmp_pat
     assert "Traceback" not in err and re.search(r"^1 error, 0 warnings$", err, re.MULTILINE)
 
 
+def test_check_of_a_loop_whose_every_period_is_out_of_bounds_reports_the_periods_only(tmp_path, capsys):
+    # the joint loops' check must not analyse a loop whose periods were refused (it divided by them)
+    text = DEMO.replace("period: 1 ms", "period: 1e300 s")
+    assert main(["check", str(write(tmp_path, text))]) == 1
+    err = capsys.readouterr().err
+    codes = re.findall(r": error\[(E\d+)\]: ", err)
+    assert codes and set(codes) == {"E513"} and "Traceback" not in err, err
+
+
 def test_check_of_a_missing_file_is_an_error_not_a_traceback(tmp_path, capsys):
     assert main(["check", str(tmp_path / "nowhere.yaml")]) == 1
     err = capsys.readouterr().err

@@ -31,6 +31,7 @@ import numpy as np
 
 from pbo_runtime.config.checker.base import CheckerBase, param_value_at
 from pbo_runtime.config.checker.plant_arm import describe_plant_arm
+from pbo_runtime.config.limits import MAX_PERIOD, MIN_PERIOD
 from pbo_runtime.config.model import Location
 from pbo_runtime.config.yaml_nodes import YList, YMap
 from pbo_runtime.objects.arm import ROBOT_OPTIONS, Arm
@@ -102,12 +103,12 @@ class JointLoopChecks(CheckerBase):
             if not self._one_kind_of_gains(controller):
                 continue
             robots = _robots_reading(controller.outputs, torque_readers, controller.task.name)
-            if robots:
+            if robots and _periods_valid(controller.task.period, *robots):
                 looped.append(_Loop(controller, max(controller.task.period, *robots), DELAY))
             for stage in dynamics:
                 late = self._feeds(controller, stage)
                 robots = _robots_reading(stage.outputs, torque_readers, stage.task.name) if late is not None else []
-                if late is not None and robots:
+                if late is not None and robots and _periods_valid(controller.task.period, stage.task.period, *robots):
                     looped.append(_Loop(controller, max(controller.task.period, stage.task.period, *robots),
                                         DELAY + bool(late), stage, late))
         if not looped:
@@ -372,6 +373,11 @@ class JointLoopChecks(CheckerBase):
         params = controller.node
         return (param_value_at(params, key, (joint,)) or param_value_at(params, key)
                 or (params.loc if isinstance(params, YMap) else controller.task.loc))
+
+
+def _periods_valid(*periods: float) -> bool:
+    """Whether every period on a loop's way is one a task may have: one out of bounds is E513 already."""
+    return all(MIN_PERIOD <= period <= MAX_PERIOD for period in periods)
 
 
 def _robots_reading(variables: tuple[str, ...], readers: dict[str, list[Any]], writer: str) -> list[float]:

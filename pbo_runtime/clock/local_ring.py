@@ -17,7 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from pbo_runtime.clock.lockstep import RingStop
+from pbo_runtime.clock.lockstep import RingStop, RingTime
 from pbo_runtime.table.table import Flag, Header
 
 _SIM_TIME_NS, _SIM_TICK, _SIM_TURN = int(Header.SIM_TIME_NS), int(Header.SIM_TICK), int(Header.SIM_TURN)
@@ -25,7 +25,7 @@ _SIM_TIME_NS, _SIM_TICK, _SIM_TURN = int(Header.SIM_TIME_NS), int(Header.SIM_TIC
 Step = Callable[[bool], None]  # a participant's turn: True on a new tick, False to serve its signals only
 
 
-class LocalRing:
+class LocalRing(RingTime):
     """`LockstepMaster`'s interface over participants hosted in this process (`join`)."""
 
     def __init__(self, roles: list[str], tick: float, header: np.ndarray) -> None:
@@ -49,14 +49,6 @@ class LocalRing:
         job control's queue (where the participants report) holds an event."""
         self._steps[self.roles.index(role)] = step
         self.events_pending = events_pending
-
-    @property
-    def now(self) -> float:
-        return int(self.header[Header.SIM_TIME_NS]) / 1e9
-
-    @property
-    def tick_running(self) -> int:
-        return int(self.header[Header.SIM_TICK])
 
     def advance(self, while_waiting: Callable[[], bool | None], ticks: int = 1) -> int:
         """Run up to `ticks` ticks, every participant in order in each; sooner after a tick that queued an event."""

@@ -81,7 +81,23 @@ class RingStuck(PboError):
     """A live participant never handed the turn back while the ring was brought to a stop."""
 
 
-class LockstepMaster:
+class RingTime:
+    """What a ring's master reads of the simulated clock in the table's header."""
+
+    header: np.ndarray
+
+    @property
+    def now(self) -> float:
+        """The simulated time of the tick running or run last (0 before the first)."""
+        return int(self.header[Header.SIM_TIME_NS]) / 1e9
+
+    @property
+    def tick_running(self) -> int:
+        """The number of the tick running or run last (1 for the first)."""
+        return int(self.header[Header.SIM_TICK])
+
+
+class LockstepMaster(RingTime):
     """The supervisor's side: owns the semaphores, the tick counter and the time in the header."""
 
     def __init__(self, subsystem: str, run_id: str, roles: list[str], tick: float, header: np.ndarray) -> None:
@@ -109,16 +125,6 @@ class LockstepMaster:
         header[Header.SIM_RING_END] = 0
         # before the run's participants exist: no one else writes the flags yet
         header[Header.FLAGS] = int(header[Header.FLAGS]) | Flag.SIM_CLOCK
-
-    @property
-    def now(self) -> float:
-        """The simulated time of the tick running or run last (0 before the first)."""
-        return int(self.header[Header.SIM_TIME_NS]) / 1e9
-
-    @property
-    def tick_running(self) -> int:
-        """The number of the tick running or run last (1 for the first)."""
-        return int(self.header[Header.SIM_TICK])
 
     def advance(self, while_waiting: Callable[[], bool | None], ticks: int = 1) -> int:
         """Run up to `ticks` ticks, every participant in order in each; the number of ticks run.

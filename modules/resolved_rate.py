@@ -71,7 +71,9 @@ class ResolvedRate(ModelBased):
         self._scratch = np.zeros(n)
 
     def on(self) -> None:
-        self._compute()
+        # At rest until the first cycle, which runs at the same boundary: an SVD here would only
+        # lengthen the switch that turns this task on, before any cycle of the boundary runs.
+        self.qd_r[:] = 0.0
 
     def cycle(self) -> Status:
         self._compute()

@@ -219,9 +219,12 @@ RATE_MODULES = [ResolvedRate, DampedLeastSquares]
 
 def rate_task(table: StateTable, module: type[PortBasedObject], q: np.ndarray, x_d: np.ndarray,
               params: dict | None = None) -> Task:
+    """A rate controller turned on and run once at time 0: its qd_r is in the table."""
     write(table, q_m=q, x_d=x_d)
     task = spawned(table, module, params)
     assert task.turn_on(0.0), task.last_error
+    assert not read(table, "qd_r").any()  # at rest until its first cycle (a switch's work stays short)
+    assert task.run_cycle(0.0) is Status.CONTINUE
     return task
 
 

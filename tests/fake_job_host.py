@@ -14,7 +14,8 @@ FakeRunLink is the local API's link to one (`api.link.RunLink`), for the API's u
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -71,6 +72,8 @@ class FakeJobHost:
         self.task_errors: dict[str, str] = {}
         self.plans: list[tuple[int, str, float]] = []  # (sequence, configuration, activation) as posted
         self.rtpus_apply_plans = True
+        self.posting_delay = 0.0  # how long a switch's request waits before its posting runs
+        self.in_posting = False
         self.read_delay: float | None = None  # each RTPU first reads a plan this long after its request (None: not stamped)
         self.signals: list[tuple[str, str]] = []  # (task, op) as sent
         self.clear_fixes_the_fault = True
@@ -115,7 +118,7 @@ class FakeJobHost:
             for task in on:
                 self.task_states[task] = "ON"
                 self.job_control.first_cycle(record.sequence, task, record.activation)
-            read_at = record.requested_at + self.read_delay if self.read_delay is not None else 0.0
+            read_at = record.posted_at + self.read_delay if self.read_delay is not None else 0.0
             self.job_control.switched(rtpu.name, record.sequence, record.activation, record.activation, off, on, read_at)
 
     def read_variable(self, name: str) -> np.ndarray:
@@ -125,12 +128,22 @@ class FakeJobHost:
         self.values[name] = np.asarray(value, dtype=self.subsystem.variables[name].dtype)
 
     def post_plan(self, configuration: str, activation: float) -> int:
+        assert self.in_posting or self.tick > 0, "a plan on the real clock is posted inside the host's posting()"
         sequence = len(self.plans) + 1
         self.plans.append((sequence, configuration, activation))
         return sequence
 
+    @contextmanager
+    def posting(self) -> Iterator[None]:
+        self.clock.advance(self.posting_delay)  # the request waited this long for a CPU
+        self.in_posting = True
+        try:
+            yield
+        finally:
+            self.in_posting = False
+
     def wake_rtpus(self) -> None:
-        pass  # each fake RTPU reads a plan `read_delay` after its request
+        pass  # each fake RTPU reads a plan `read_delay` after it was posted
 
     def set_configuration(self, configuration: str) -> None:
         self.configuration = configuration

@@ -61,6 +61,19 @@ def test_once_plans_were_posted_the_lead_follows_the_post_delays_when_each_rtpus
     assert record.read_delay == pytest.approx(0.0001) and record.grid_wait == pytest.approx(0.0006 - record.lead)
 
 
+def test_a_request_that_waited_for_the_cpu_counts_its_plans_lead_from_the_posting_not_from_the_request(host):
+    host.read_delay = 0.0001
+    for configuration in ("pd", "pid") * (FIRST_SAMPLES // 2):
+        host.job_control.switch(configuration)
+    host.clock.time = 1.0104
+    host.posting_delay = 0.0003  # the supervisor was preempted before the posting began
+    record = host.job_control.switch("pd")
+    assert record.requested_at == pytest.approx(1.0104) and record.counted_from == pytest.approx(1.0107)
+    assert host.plans[-1][2] == pytest.approx(1.011)  # still the next boundary: the lead counts from 1.0107
+    assert record.read_delay == pytest.approx(0.0001)  # from the clock reading the lead was added to
+    assert record.latency == pytest.approx(0.0006)  # the operator's wait counts from the request
+
+
 def test_a_plan_read_after_its_activation_is_counted_late_and_raises_the_lead(host):
     host.read_delay = 0.0001
     for configuration in ("pd", "pid") * (FIRST_SAMPLES // 2):

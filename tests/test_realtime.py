@@ -67,6 +67,29 @@ def test_a_process_a_task_starts_begins_at_sched_other_not_at_the_rtpus_sched_fi
     assert child_policy == os.SCHED_OTHER, (granted, child_policy)
 
 
+POSTING = """
+import json, os
+from pbo_runtime.supervisor.posting import POSTING_FIFO_PRIORITY, at_realtime_priority
+before = os.sched_getscheduler(0)
+with at_realtime_priority() as raised:
+    inside = [os.sched_getscheduler(0), os.sched_getparam(0).sched_priority]
+print(json.dumps([raised, before, inside, os.sched_getscheduler(0), POSTING_FIFO_PRIORITY]))
+"""
+
+
+@pytest.mark.multiprocess
+def test_a_plan_is_posted_at_real_time_priority_below_the_rtpus_and_the_supervisor_goes_back_after():
+    from rtpu._realtime import FIFO_PRIORITY
+
+    done = subprocess.run([sys.executable, "-c", POSTING], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert done.returncode == 0, done.stderr
+    raised, before, inside, after, priority = json.loads(done.stdout)
+    assert after == before == os.SCHED_OTHER
+    assert priority < FIFO_PRIORITY
+    # refused (no CAP_SYS_NICE, no ulimit -r): the block runs all the same, as the supervisor ran
+    assert inside == ([os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, priority] if raised else [os.SCHED_OTHER, 0])
+
+
 def test_the_real_clock_asks_for_sched_fifo_by_default_and_the_simulated_clock_does_not():
     from pbo_runtime.cli.main import _parser
     from pbo_runtime.config.loader import load_subsystem

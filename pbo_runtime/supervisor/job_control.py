@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Any, Protocol
@@ -70,12 +71,15 @@ class SwitchRecord:
     lead: float = 0.0  # the least time from the request to the activation this plan was given
     read: dict[str, float] = field(default_factory=dict)  # rtpu -> when it first read the plan
     posted_at: float = math.nan  # when the plan was in the header (the RTPUs were signalled after)
+    counted_from: float = math.nan  # the clock reading the activation was counted from (the request, or later)
     restarted: list[str] = field(default_factory=list)  # RTPUs that died during the switch and came back in `after`
 
     @property
     def read_delay(self) -> float:
-        """Request to the last RTPU's first read of the plan (what the lead must cover)."""
-        return max(self.read.values()) - self.requested_at if self.read else math.nan
+        """From the clock reading the activation was counted from to the last RTPU's first read of the
+        plan (what the lead must cover)."""
+        start = self.requested_at if math.isnan(self.counted_from) else self.counted_from
+        return max(self.read.values()) - start if self.read else math.nan
 
     @property
     def grid_wait(self) -> float:
@@ -154,6 +158,8 @@ class JobHost(Protocol):
         """Write a state variable as job control (a job's object)."""
     def post_plan(self, configuration: str, activation: float) -> int:
         """Post a switch plan in the table's header; the plan's sequence number."""
+    def posting(self) -> AbstractContextManager[object]:
+        """Around a plan's activation, its posting and the RTPUs' wake-up (the real clock: at real-time priority)."""
     def wake_rtpus(self) -> None:
         """Tell every RTPU a plan was posted."""
     def set_configuration(self, configuration: str) -> None:
@@ -279,15 +285,20 @@ class JobControl:
         if host.tick > 0:  # simulated: the next tick on the grid
             lead = host.tick
             activation = plan_activation(requested, lead, host.epoch, host.shortest_period)
+            sequence = host.post_plan(configuration, activation)
+            counted_from, posted_at = requested, host.now()
+            host.wake_rtpus()
         else:
-            activation, lead = earliest_activation(requested, host.epoch, host.shortest_period,
-                                                   self._around(before, entering), self.post_lead.value,
-                                                   self.lead.value)
-        sequence = host.post_plan(configuration, activation)
-        posted_at = host.now()
-        host.wake_rtpus()
+            with host.posting():  # from the request to the plan in the header: no ordinary process runs first
+                around = self._around(before, entering)
+                counted_from = host.now()
+                activation, lead = earliest_activation(counted_from, host.epoch, host.shortest_period, around,
+                                                       self.post_lead.value, self.lead.value)
+                sequence = host.post_plan(configuration, activation)
+                posted_at = host.now()
+                host.wake_rtpus()
         record = SwitchRecord(sequence, before, configuration, requested, activation, change=change, lead=lead,
-                              posted_at=posted_at)
+                              posted_at=posted_at, counted_from=counted_from)
         self.pending = self.switching = record
         entering_active = [t for t in entering if host.task_states.get(t) == "OFF" and not getattr(specs[t], "aperiodic", False)]
         deadline = host.now() + SWITCH_TIMEOUT
@@ -309,7 +320,7 @@ class JobControl:
         if host.tick == 0 and record.read:  # (simulated: RTPUs read a plan at the next tick, by construction)
             self.lead.record(record.read_delay, late=max(record.read.values()) > activation)
         if host.tick == 0:
-            self.post_lead.record(record.posted_at - requested, late=record.posted_at > activation)
+            self.post_lead.record(record.posted_at - counted_from, late=record.posted_at > activation)
         host.set_configuration(configuration)
         self.switches.append(record)
         # the plan's activation: the cycle boundary at which every RTPU switched

@@ -17,6 +17,7 @@ import os
 import signal
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +47,7 @@ from pbo_runtime.supervisor.job_control import JobControl, JobFailure, starting_
 from pbo_runtime.supervisor.launch import SIM_TICK_DEFAULT, RtpuLaunch
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockGuard
+from pbo_runtime.supervisor.posting import at_realtime_priority
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.restarts import Restarter, RunSteps, RunView
 from pbo_runtime.supervisor.run_options import RunOptions
@@ -448,6 +450,10 @@ class Supervisor:
         header[Header.PLAN_TIME_NS] = int(activation * 1e9)
         header[Header.PLAN_SEQUENCE] = sequence  # last: an executive that sees it sees the whole plan
         return sequence
+
+    def posting(self) -> AbstractContextManager[object]:
+        """A plan's posting: at real-time priority on the real clock (`posting.at_realtime_priority`)."""
+        return at_realtime_priority() if self.clock.plans_need_a_wakeup else nullcontext()
 
     def wake_rtpus(self) -> None:
         """Tell every RTPU a plan was posted (on the real clock: one may wait past the activation)."""

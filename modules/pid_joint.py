@@ -86,6 +86,7 @@ class PidJoint(PortBasedObject):
         self._term = np.zeros(n)
         self._integral = np.zeros(n)  # the integral term itself, N m
         self._handover = np.zeros(n)  # the previous controller's torque beyond this one's, fading out, N m
+        self._previous = np.zeros(n)  # what the previous controller left in the table, read at `on`
         self._fade = float(np.exp(-self.period / self.HANDOVER_TIME_CONSTANT))
         # cycles until the handover is down to a billionth of itself, then it is dropped
         self._fade_cycles = int(np.ceil(np.log(1e-9) / np.log(self._fade))) if self._fade > 0.0 else 1
@@ -126,23 +127,28 @@ class PidJoint(PortBasedObject):
         np.copyto(self._integral, 0.0, where=self._ki == 0)  # no integral action left: it would never decay
 
     def on(self) -> None:
-        previous = self.tau.copy()  # what the previous controller left in the table (read before `on`)
+        previous = self._previous
+        np.copyto(previous, self.tau)  # what the previous controller left in the table (read before `on`)
         self._handover[:] = 0.0
         self._fading = 0
         self._integral[:] = 0.0
         self._compute()
         if not np.any(previous):  # nothing commanded yet
             return
+        # (the take-over is added to the torque just computed: a second pass through the
+        # dynamics would only lengthen the switch that turns this task on)
         if self._gravity is None:
             # Without feed-forward the integral carries the load (gravity): it takes over the
             # difference, on the joints that have integral action (elsewhere it would never decay).
             np.subtract(previous, self.tau, out=self._integral)
             np.clip(self._integral, -self._limit, self._limit, out=self._integral)
             np.copyto(self._integral, 0.0, where=self._ki == 0)
+            np.add(self.tau, self._integral, out=self.tau)
         elif not self.actuators_held:  # that torque drives the arm now: take it over, fading
             np.subtract(previous, self.tau, out=self._handover)
             self._fading = self._fade_cycles
-        self._compute()
+            if self._fading:
+                np.add(self.tau, self._handover, out=self.tau)
 
     def cycle(self) -> Status:
         if not self.actuators_held:  # the arm answers: integrate

@@ -31,6 +31,7 @@ import yaml
 
 from bench._common import REPO, Section, Table
 from bench._inject import table_of
+from bench.platform_probe import GAP_BEYOND, PROBE_PRIORITY, WAKE_EVERY, Gaps, PlatformProbe
 from pbo_runtime import module_class, read_log
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.errors import PboError
@@ -43,6 +44,7 @@ CONFIGS = Path(REPO) / "configs"
 QUICK_CONFIGS = ("pid_joint", "switch_joint")
 VERBS = ("set", "switch", "job", "spawn", "off", "on", "kill", "replace", "save")
 SAFETY_NET = 120.0  # s a run may take to say it is on: a net for a hang
+MACHINE_MARGIN = 0.001  # s: a hold this soon (and two periods of the held task) after a gap of the machine is its doing
 LOGGER = "vlog"  # the data logger the benchmark spawns, turns off and on, and kills
 SKIPPED = {"fault_drill": "injects faults on purpose", "cartesian_teleop_hmi": "driven from the browser HMI",
            "leader": "a subsystem of the application leader_follower.yaml: its links need it",
@@ -66,6 +68,8 @@ class Window:
     baseline_longest: float = 0.0
     longest_periods: int = 0  # the same, in whole periods of the held task (`periods_held`)
     baseline_longest_periods: int = 0
+    machine_holds: int = 0  # holds that began while the machine held a CPU from the probe (not counted above)
+    baseline_machine_holds: int = 0
 
 
 @dataclass
@@ -75,6 +79,7 @@ class ConfigRun:
     failure: str = ""
     exit: int | None = None
     log_rows: int = -1  # rows of the spawned logger's MCAP log, read back after the run
+    machine: Gaps = field(default_factory=Gaps)  # the platform probe's gaps while it ran
 
 
 class Counts:
@@ -161,52 +166,71 @@ def measure(source: Path, window: float, rounds: int = 1) -> ConfigRun:
         folder = Path(scratch)
         config, name = copy_of(source, folder)
         report_path = folder / "report.json"
-        process = subprocess.Popen([sys.executable, "-m", "pbo_runtime.cli", "run", str(config), "--duration", "0",
-                                    "--out", str(folder / "out"), "--report", str(report_path)],
-                                   cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         marks: list[tuple[Window, float, float]] = []  # (window, baseline from, window from)
-        try:
-            if not said(process, "is on"):
-                result.failure = "did not start: " + (process.stderr.read().strip().splitlines() or ["?"])[-1][:160]  # type: ignore[union-attr]
-                return result
-            client = ControlClient(name, next(r for r in _run_ids(name, process.pid)))
-            counts = Counts(config, name, process.pid)
-            try:
-                time.sleep(window)  # the start's own late releases are over
-                for round_index in range(rounds):
-                    made = requests(config, client.call("status"), folder, round_index)
-                    marks += windows(client, counts, made, window, result)
-            finally:
-                counts.table.close()
-        finally:
-            if process.poll() is None:
-                process.send_signal(signal.SIGINT)
-            try:
-                process.communicate(timeout=SAFETY_NET)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.communicate()
-            result.exit = process.returncode
+        with PlatformProbe() as probe:
+            process = run_verbs(config, name, folder, report_path, window, rounds, marks, result)
+        result.machine = probe.gaps
         if not report_path.exists():
             result.failure = result.failure or f"no report (exit {process.returncode})"
             return result
         report = json.loads(report_path.read_text())
         critical = {name for name, t in report["tasks"].items() if t.get("critical")} or {"robot"}
-        episodes = [e for e in report.get("stable_episodes", []) if e["task"] in critical]
         periods = {name: spec.period for name, spec in load_subsystem(config).tasks.items()}
+        episodes: list[dict[str, Any]] = []
+        machine: list[dict[str, Any]] = []
+        for e in report.get("stable_episodes", []):
+            if e["task"] in critical:
+                # a hold begins at the first release after its input went stale: up to two writer periods after the gap
+                began_by = e["from"] - 2 * periods.get(e["task"], 0.0) - MACHINE_MARGIN
+                (machine if probe.gaps.during(began_by, e["to"] or e["from"]) else episodes).append(e)
         for entry, baseline_from, window_from in marks:
             before = [e for e in episodes if baseline_from <= e["from"] < window_from]
             held = [e for e in episodes if window_from <= e["from"] < window_from + window]
             entry.baseline_holds, entry.holds = len(before), len(held)
+            entry.baseline_machine_holds = sum(baseline_from <= e["from"] < window_from for e in machine)
+            entry.machine_holds = sum(window_from <= e["from"] < window_from + window for e in machine)
             entry.baseline_longest = max((_length(e) for e in before), default=0.0)
             entry.longest = max((_length(e) for e in held), default=0.0)
             entry.baseline_longest_periods = max((periods_held(e, periods) for e in before), default=0)
             entry.longest_periods = max((periods_held(e, periods) for e in held), default=0)
             entry.causes = [f"{_cause(e)} {_length(e) * 1e3:.0f} ms" for e in held]
+            entry.causes += [f"{_cause(e)} {_length(e) * 1e3:.0f} ms (the machine's)" for e in machine
+                             if window_from <= e["from"] < window_from + window]
         logs = sorted((folder / "out").glob(f"{LOGGER}*.mcap"))
         if logs:
             result.log_rows = sum(len(read_log(log)) for log in logs)
     return result
+
+
+def run_verbs(config: Path, name: str, folder: Path, report_path: Path, window: float, rounds: int,
+              marks: list[tuple[Window, float, float]], result: ConfigRun) -> subprocess.Popen[str]:
+    """Start the run, send it every verb `rounds` times in its windows (`marks`), stop it; the ended process."""
+    process = subprocess.Popen([sys.executable, "-m", "pbo_runtime.cli", "run", str(config), "--duration", "0",
+                                "--out", str(folder / "out"), "--report", str(report_path)],
+                               cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        if not said(process, "is on"):
+            result.failure = "did not start: " + (process.stderr.read().strip().splitlines() or ["?"])[-1][:160]  # type: ignore[union-attr]
+            return process
+        client = ControlClient(name, next(r for r in _run_ids(name, process.pid)))
+        counts = Counts(config, name, process.pid)
+        try:
+            time.sleep(window)  # the start's own late releases are over
+            for round_index in range(rounds):
+                made = requests(config, client.call("status"), folder, round_index)
+                marks += windows(client, counts, made, window, result)
+        finally:
+            counts.table.close()
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+        try:
+            process.communicate(timeout=SAFETY_NET)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.communicate()
+        result.exit = process.returncode
+    return process
 
 
 def _length(episode: dict[str, Any]) -> float:
@@ -308,7 +332,11 @@ copy of itself), `save` (the live subsystem to a file), {rounds} round(s) of the
 request; the {window:g} s just before the request, without a verb, is its baseline in the same run.
 Counted in each: the **holds** of the critical tasks (stable episodes that begin in it, from the
 run's report) and the **missed** releases of all tasks (a release late by more than its period is
-skipped and counted, from the table as the run goes). The goal: none caused by a verb. A machine
+skipped and counted, from the table as the run goes). The goal: none caused by a verb. Beside
+each run, a probe at SCHED_FIFO {PROBE_PRIORITY} on each CPU (`bench.platform_probe`, as cyclictest) records when the
+machine itself (the kernel, the hypervisor) held a CPU from the highest priority for more than
+{GAP_BEYOND * 1e3:g} ms: a hold that began within such a gap (or two periods of the held task after it) is listed
+as the machine's and counted neither for nor against a verb. A machine
 that holds now and then without any verb does so in windows and baselines alike, so a verb is
 blamed when its windows hold (or have a missed release) more often than its baselines beyond
 chance (one-sided binomial test at p < 0.05 over the {len(VERBS)} verbs), or when a hold in its windows
@@ -391,6 +419,18 @@ and the largest with a stall of the plant: the machine's, not the verbs'.""",
     if sys.flags.dont_write_bytecode:
         section.notes.append("PYTHONDONTWRITEBYTECODE is set where this ran: no module's bytecode is cached, so each RTPU "
                              "compiles the library it imports at start-up (a `spawn` imports nothing)")
+    machine_holds = sum(w.machine_holds for w in all_done)
+    base_machine_holds = sum(w.baseline_machine_holds for w in all_done)
+    probed = [r.machine for r in results if r.machine.seconds]
+    gaps = [g for m in probed for g in m.gaps]
+    longest_gap = max((g.length for g in gaps), default=0.0)
+    section.notes.append(
+        f"the machine itself (a SCHED_FIFO {PROBE_PRIORITY} probe on each CPU, waking every {WAKE_EVERY * 1e3:g} ms): "
+        + (f"{len(gaps)} gaps over {GAP_BEYOND * 1e3:g} ms in {sum(m.seconds for m in probed):.0f} s, the longest "
+           f"{longest_gap * 1e3:.2f} ms; holds that began within one: {machine_holds} in the verbs' windows, "
+           f"{base_machine_holds} in their baselines (listed as the machine's, not counted against the verbs)"
+           if probed and all(m.realtime for m in probed)
+           else "not measured: SCHED_FIFO refused to the probe, every hold is counted"))
     holds, base_holds = sum(w.holds for w in all_done), sum(w.baseline_holds for w in all_done)
     missing, base_missing = sum(w.missed > 0 for w in all_done), sum(w.baseline_missed > 0 for w in all_done)
     section.notes.append(f"all verbs: holds of a critical task {holds} in the verbs' windows, {base_holds} in their baselines "

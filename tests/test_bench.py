@@ -286,3 +286,37 @@ def test_without_the_right_to_sched_fifo_the_fifo_rows_are_left_out_with_the_rea
     section = dora_peer.run(seconds=0.1, rounds=1, schedulers=("fifo",))
     assert not section.tables and not section.ratios
     assert "fifo: not measured" in section.text() and "ulimit -r" in section.text()
+
+
+def test_a_hold_is_the_machines_when_it_overlaps_a_gap_of_a_real_time_probe_and_never_when_the_probe_was_not():
+    from bench.platform_probe import WAKE_EVERY, Gap, Gaps
+
+    gaps = Gaps([Gap(0, 10.0, 0.002), Gap(1, 10.001, 0.006), Gap(1, 20.0, 0.001)], realtime=True)
+    assert gaps.during(10.005, 10.006) == Gap(1, 10.001, 0.006)  # the longer of two that overlap
+    assert gaps.during(10.0075 + WAKE_EVERY, 10.02) is None  # after the gap (and the probe's sleep) ended
+    assert gaps.during(9.0, 9.999) is None
+    assert Gaps(gaps.gaps, realtime=False).during(10.005, 10.006) is None  # a SCHED_OTHER probe proves nothing
+
+
+@pytest.mark.multiprocess
+def test_the_platform_probe_runs_one_process_per_cpu_and_reports_what_it_was_granted():
+    import time
+
+    from bench.platform_probe import PlatformProbe
+
+    with PlatformProbe() as probe:
+        time.sleep(0.2)
+    assert len(probe.processes) == len(os.sched_getaffinity(0))
+    assert all(p.returncode == 0 for p in probe.processes)
+    assert all(g.cpu in os.sched_getaffinity(0) and g.length > 0 for g in probe.gaps.gaps)
+    assert probe.gaps.realtime == (os.sched_getscheduler(0) is not None and _fifo_allowed())
+    assert probe.gaps.summary().startswith(f"{len(probe.gaps.gaps)} gaps over" if probe.gaps.gaps else "no gap over")
+
+
+def _fifo_allowed() -> bool:
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    except OSError:
+        return False
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return True

@@ -12,11 +12,13 @@ import threading
 import msgpack
 import pytest
 
+from pbo_runtime.ipc import messages
 from pbo_runtime.links import zenoh_message_link
 from pbo_runtime.links.message_link import LinkFullError, MessageLinkError
+from pbo_runtime.links.relay import MessageRelay
 from pbo_runtime.links.zenoh_message_link import SENDER_WINDOWS, ZenohMessageLink
 from pbo_runtime.links.zenoh_session import endpoint, free_port, link_key, open_session
-from tests.support import until
+from tests.support import unique_name, until
 
 pytest.importorskip("zenoh")
 
@@ -178,3 +180,57 @@ def test_messages_and_credits_are_decoded_in_the_callers_thread_never_in_zenohs(
             sender.send(order, timeout=SAFETY_NET)  # takes credits once the window is full
             assert receiver.receive(timeout=SAFETY_NET).body == order
     assert decoded_in == {threading.get_ident()}
+
+
+def _blocked_receive(receiver: ZenohMessageLink) -> tuple[threading.Thread, list]:
+    """A thread blocked in `receive()` without a timeout; what it got (or raised) lands in the list."""
+    outcome: list = []
+
+    def wait() -> None:
+        try:
+            outcome.append(receiver.receive())
+        except MessageLinkError as exc:
+            outcome.append(exc)
+
+    waiter = threading.Thread(target=wait)
+    waiter.start()
+    until(lambda: receiver._blocked == 1, "the receive to block in the channel")
+    return waiter, outcome
+
+
+@pytest.mark.parametrize("waker", ["a sender", "the receiver itself", "a close"])
+def test_a_receive_without_a_timeout_blocks_in_the_channel_until_a_message_or_a_close(hub, waker):
+    receiver, session = hub
+    with ZenohMessageLink.attach(receiver.name, session=session) as sender:
+        connected(sender)
+        waiter, outcome = _blocked_receive(receiver)
+        if waker == "a sender":
+            sender.send("from a sender")
+        elif waker == "the receiver itself":
+            receiver.send("from itself")
+        else:
+            receiver.close()
+        waiter.join(SAFETY_NET)
+    assert not waiter.is_alive() and len(outcome) == 1
+    if waker == "a close":
+        assert str(outcome[0]) == f"message link '{receiver.name}' is closed"
+    else:
+        assert outcome[0].body == {"a sender": "from a sender", "the receiver itself": "from itself"}[waker]
+
+
+def test_a_servers_relay_waits_in_the_channel_forwards_each_message_and_ends_at_close(hub):
+    receiver, session = hub
+    signals = messages.Queue(unique_name("signals-rtpu0"), create=True)
+    try:
+        relay = MessageRelay(receiver, signals.name, "goal")
+        with ZenohMessageLink.attach(receiver.name, session=session) as sender:
+            connected(sender)
+            sender.send([1.0])
+            sender.send([2.0], priority=3)
+            got = [signals.receive(SAFETY_NET) for _ in range(2)]
+        relay.close()
+        relay._thread.join(SAFETY_NET)
+        assert sorted(m[2][0] for m in got) == [[1.0], [2.0]]
+        assert relay.forwarded == 2 and not relay._thread.is_alive() and receiver._session is None
+    finally:
+        signals.close()

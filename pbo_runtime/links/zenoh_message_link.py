@@ -62,6 +62,7 @@ class ZenohMessageLink(SessionEnd):
     """
 
     transport = "zenoh"
+    wakes_on_close = True  # a `receive()` without a timeout returns (raising) when another thread closes the end
 
     def __init__(self, name: str, owner: bool, capacity: int, max_message_bytes: int) -> None:
         self.name = name
@@ -79,7 +80,9 @@ class ZenohMessageLink(SessionEnd):
         self._credit_options: dict[str, Any] = {}
         self._malformed = 0
         self._publisher: Any = None
-        self._messages: Any = None  # receiver: the subscriber whose FIFO channel receive() drains
+        self._inbox: Any = None  # receiver: the FIFO channel receive() drains (and blocks in, without a timeout)
+        self._blocked = 0  # receiver: receives blocked in the FIFO now (a send to itself wakes them)
+        self._closed_channel: type[Exception] = Exception  # receiver: what a closed channel raises (zenoh.ZError)
         self._drain_at_most = 0  # receiver: the FIFO's size, the most one drain takes
         self._credits: Any = None  # sender: the subscriber whose one-credit ring send() drains
         self._statuses: Any = None  # sender: the matching listener whose ring of statuses send() drains
@@ -95,12 +98,13 @@ class ZenohMessageLink(SessionEnd):
         zenoh = zenoh_module()
         listen, connect = endpoints(name, port, host, session, listening=True)
         link = cls(name, True, capacity, max_message_bytes)
+        link._closed_channel = zenoh.ZError
         link._open_session(session, listen, connect)
         try:
             link._drain_at_most = capacity * SENDER_WINDOWS
-            link._messages = link._session.declare_subscriber(f"{link.key}/message",
-                                                              zenoh.handlers.FifoChannel(link._drain_at_most))
-            link._entities.append(link._messages)
+            messages = link._session.declare_subscriber(f"{link.key}/message", zenoh.handlers.FifoChannel(link._drain_at_most))
+            link._entities.append(messages)
+            link._inbox = messages.handler  # its handler, not the subscriber: a close from another thread wakes a recv
             link._credit_options = {"congestion_control": zenoh.CongestionControl.BLOCK,
                                     "priority": getattr(zenoh.Priority, MESSAGE_PRIORITY), "express": True}
             link._answer_as("receiver", link._describe)
@@ -169,6 +173,7 @@ class ZenohMessageLink(SessionEnd):
             raise self._no_receiver()
         deadline = None if timeout is None else time.monotonic() + timeout
         pause = WAIT_FIRST
+        wake = False
         while True:
             with self._mine:
                 gone = self._take_credits() and not publisher.matching_status.matching  # it left since the check
@@ -176,14 +181,17 @@ class ZenohMessageLink(SessionEnd):
                     self._sent += 1
                     if publisher is None:  # the receiving end sends to itself
                         self._enqueue(self._id, sent_ns, priority, body)
-                        return
+                        wake = self._blocked > 0
                     break
             if gone:
                 raise self._no_receiver()
             pause = _pause(deadline, pause)
             if pause < 0:
                 raise LinkFullError(self.name, self.capacity, timeout or 0.0, bound="")
-        publisher.put(raw)
+        if publisher is not None:
+            publisher.put(raw)
+        elif wake:  # an empty sample in its own FIFO (local delivery is at once): a blocked receive looks again
+            self._session.put(f"{self.key}/message", b"")
 
     def _no_receiver(self) -> MessageLinkError:
         return MessageLinkError(f"message link '{self.name}' has no receiver connected: the message was not sent",
@@ -211,30 +219,44 @@ class ZenohMessageLink(SessionEnd):
 
     # --- receiving ----------------------------------------------------------------------------
 
-    def _take_messages(self) -> None:
-        """Decode what zenoh put in the FIFO since the last look into the priority queue (under `_mine`)."""
-        messages = self._messages
-        if messages is None:
+    def _take_messages(self, first: Any = None) -> None:
+        """Decode `first` and what zenoh put in the FIFO since the last look into the priority queue (under `_mine`)."""
+        inbox = self._inbox
+        if first is not None:
+            self._decode(first.payload.to_bytes())
+        if inbox is None:
             return
-        for _ in range(self._drain_at_most):
-            sample = messages.try_recv()
-            if sample is None:
-                return
-            try:
-                sender, sent_ns, priority, body = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
-            except (ValueError, TypeError, msgpack.UnpackException):
-                self._malformed += 1
-                continue
-            if type(sender) is not int or type(sent_ns) is not int or type(priority) is not int:
-                self._malformed += 1
-                continue
-            self._enqueue(sender, sent_ns, priority, body)
+        try:
+            for _ in range(self._drain_at_most):
+                sample = inbox.try_recv()
+                if sample is None:
+                    return
+                self._decode(sample.payload.to_bytes())
+        except self._closed_channel:  # another thread closed this end: nothing more will come
+            return
+
+    def _decode(self, raw: bytes) -> None:
+        if not raw:
+            return  # a wake-up (see send)
+        try:
+            sender, sent_ns, priority, body = msgpack.unpackb(raw, raw=False)
+        except (ValueError, TypeError, msgpack.UnpackException):
+            self._malformed += 1
+            return
+        if type(sender) is not int or type(sent_ns) is not int or type(priority) is not int:
+            self._malformed += 1
+            return
+        self._enqueue(sender, sent_ns, priority, body)
 
     def _enqueue(self, sender: int, sent_ns: int, priority: int, body: Any) -> None:
         heapq.heappush(self._queue, (-priority, next(self._arrival), sender, sent_ns, body))
 
     def receive(self, timeout: float | None = None) -> Message | None:
-        """The waiting message of highest priority (oldest first within one), or None after `timeout` s (0: do not wait)."""
+        """The waiting message of highest priority (oldest first within one), or None after `timeout` s (0: do not wait).
+
+        Without a timeout it blocks in zenoh's channel, the GIL released, until a message comes or
+        another thread closes this end (`MessageLinkError`); with one it looks again after pauses.
+        """
         if not self.owner:
             raise MessageLinkError(
                 f"message link '{self.name}': only the end that created it receives; this one attached to send"
@@ -254,12 +276,32 @@ class ZenohMessageLink(SessionEnd):
                     if sender == self._id:
                         self._consumed = consumed
                     break
+                inbox = self._inbox
+                if timeout is None and inbox is not None:
+                    self._blocked += 1
+            if timeout is None:
+                self._block_in(inbox)
+                continue
             pause = _pause(deadline, pause)
             if pause < 0:
                 return None
         if sender != self._id and self._session is not None:
             self._session.put(self._credit_key(sender), msgpack.packb(consumed), **self._credit_options)
         return Message(body, -negative_priority, sent_ns)
+
+    def _block_in(self, inbox: Any) -> None:
+        """Wait in the FIFO, the GIL released, for the next sample; it goes to the queue."""
+        if inbox is None:
+            raise MessageLinkError(f"message link '{self.name}' is closed")
+        sample = None
+        try:
+            sample = inbox.recv()
+        except self._closed_channel:  # the channel closed: another thread closed this end
+            raise MessageLinkError(f"message link '{self.name}' is closed") from None
+        finally:
+            with self._mine:
+                self._blocked -= 1
+                self._take_messages(sample)
 
     def _credit_key(self, sender: int) -> str:
         key = self._credit_keys.get(sender)
@@ -278,7 +320,7 @@ class ZenohMessageLink(SessionEnd):
             return self._sent - self._consumed
 
     def _forget(self) -> None:
-        self._publisher = self._messages = self._credits = self._statuses = None  # (waiting messages go with the session)
+        self._publisher = self._inbox = self._credits = self._statuses = None  # (waiting messages go with the session)
 
     def unlink(self) -> None:
         """Nothing to remove (kept for the shm link's interface)."""

@@ -6,8 +6,8 @@ two ways, each side sleeping to its releases as an RTPU does:
 
 - "cycle": `receive(timeout=0)` every READER_PERIOD_NS, taking every waiting message, as a task's
   cycle would (a call that finds nothing is timed apart: "receive (empty)");
-- "waiting": `receive(timeout=WAIT)` in a loop, as the relay thread of a server task does (only
-  its one-way latency is kept: the call lasts until a message comes).
+- "waiting": `receive()` without a timeout in a loop, as the relay thread of a server task does
+  (only its one-way latency is kept: the call lasts until a message comes).
 
 Every call is timed (`perf_counter_ns`); one-way is from the message's `sent_ns` to the return of
 the `receive` that took it (CLOCK_MONOTONIC on both sides). Ratios are to the POSIX queue's same
@@ -34,7 +34,6 @@ MESSAGES, QUICK_MESSAGES = 4_000, 400
 ROUNDS = 3  # turns the contenders take (--quick: 1)
 SENDER_PERIOD_NS = 500_000
 READER_PERIOD_NS = 325_000  # 0.65 of the sender's: the two drift through every phase
-WAIT = 0.1  # seconds a "waiting" receive blocks, as the relay's does
 END = "end"  # the sender's last message (priority 0: after everything it sent)
 ZENOH = importlib.util.find_spec("zenoh") is not None  # found, not imported: children open sessions after the fork
 CONTENDERS = ("posix queue",) + (("zenoh",) if ZENOH else ())
@@ -92,7 +91,7 @@ def _receiver(contender: str, where: tuple[str, int], count: int, mode: str, lis
     one_way = np.empty(count + 1, dtype=np.int64)
     n_got = n_empty = 0
     clock, now, receive = time.perf_counter_ns, time.monotonic_ns, link.receive
-    timeout = 0.0 if mode == "cycle" else WAIT
+    timeout = 0.0 if mode == "cycle" else None
     release = clock()
     done = False
     while not done:

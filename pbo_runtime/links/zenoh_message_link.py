@@ -197,8 +197,12 @@ class ZenohMessageLink(SessionEnd):
         return MessageLinkError(f"message link '{self.name}' has no receiver connected: the message was not sent",
                                 hint="has the receiving subsystem stopped? send again once it is back")
 
-    def _take_credits(self) -> bool:
-        """Drain the statuses and the credit (under `_mine`); True if the receiver left since the last look."""
+    def _take_credits(self, always: bool = False) -> bool:
+        """Drain the statuses, and the credit if the window is full (or `always`), under `_mine`.
+
+        True if the receiver left since the last look. A credit left in its ring while there is
+        room loses nothing: the next one counts it too.
+        """
         statuses, credits = self._statuses, self._credits
         if credits is None:
             return False
@@ -210,6 +214,8 @@ class ZenohMessageLink(SessionEnd):
             while credits.try_recv() is not None:  # the old receiver's, sent before it left
                 pass
             return True
+        if not always and self._sent - self._consumed < self.capacity:
+            return False
         sample = credits.try_recv()
         if sample is not None:
             consumed = msgpack.unpackb(sample.payload.to_bytes())
@@ -316,7 +322,7 @@ class ZenohMessageLink(SessionEnd):
             if self.owner:
                 self._take_messages()
                 return len(self._queue)
-            self._take_credits()
+            self._take_credits(always=True)
             return self._sent - self._consumed
 
     def _forget(self) -> None:

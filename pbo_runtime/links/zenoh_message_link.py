@@ -9,8 +9,9 @@ application runner hands down (`links.ends`).
 No Python runs in zenoh's threads: they only push samples into channels (messages into a FIFO,
 credits and the receiver's comings and goings into rings), and the thread that calls `send` or
 `receive` drains them, so a real-time caller never waits for a lock or the GIL held by one of
-zenoh's threads at normal priority. A call that waits looks at its channels again after a pause
-that doubles from 20 µs to 1 ms (the binding has no timed wait on a channel).
+zenoh's threads at normal priority. A `receive()` without a timeout blocks in the FIFO with the
+GIL released; a timed wait looks at its channels again after a pause that doubles from 20 µs to
+1 ms (the binding has no timed wait on a channel).
 """
 
 from __future__ import annotations

@@ -537,13 +537,24 @@ def section(quick: bool = False, rounds: int | None = None):
     for r in rows:
         result.add(r["payload"], r["mechanism"], r["side"], r["operations"], r["items"], f"{r['p50_us']:.2f}",
                    f"{r['p99_us']:.2f}", f"{r['max_us']:.1f}", f"{r['p50_ratio']:.2f}", f"{r['p99_ratio']:.2f}")
+    code = f"import json; from bench.message_links import run; print(json.dumps(run(quick={quick!r}, rounds={rounds!r})))"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900, check=True)
+    messages = Table(["mode", "mechanism", "side", "calls", "p50 µs", "p99 µs", "max µs", "p50 x", "p99 x", "refused"],
+                     numeric=(3, 4, 5, 6, 7, 8, 9),
+                     caption="Message links (`python -m bench.message_links`): ratios to the POSIX queue, same mode and side.")
+    for r in json.loads(done.stdout.strip().splitlines()[-1]):
+        messages.add(r["mode"], r["mechanism"], r["side"], r["calls"], f"{r['p50_us']:.1f}", f"{r['p99_us']:.1f}",
+                     f"{r['max_us']:.0f}", f"{r['p50_ratio']:.2f}", f"{r['p99_ratio']:.2f}", r["refused"])
     return Section(
         key="links", title="Links between subsystems: triple buffer, locked buffer, queue, Zenoh (TR §5)",
         command="python -m bench.links",
         method="Two processes, a sender and a reader at their own periods (the reader at 0.65 of the sender's), "
                "for 48 B, 4 KiB and 1 MiB items; write and read are the cost of one call on each side, one-way "
                "is from the sender's time stamp to the reader's first read of the item. The contenders take "
-               "turns round by round so the machine's other work falls on all alike.",
+               "turns round by round so the machine's other work falls on all alike. Message links: a sender "
+               "every 500 µs, a receiver that takes what waits every 325 µs (cycle) or waits in `receive` as "
+               "a server's relay does (waiting); send and receive are the cost of one call, one-way from the "
+               "message's sending time to the receive that took it.",
         limits="On 2 shared vCPUs the maxima are the scheduler's; the 1 MiB queue is split into 8 KiB messages "
                "(fs.mqueue.msgsize_max), and its sender waits whenever the queue is full.",
-        tables=[result])
+        tables=[result, messages])

@@ -4,7 +4,9 @@ The executive waits in one place, a timed receive on its RTPU's signal queue, so
 timers share one wait (rtpu/_executive.py). A message link is another queue (or a Zenoh
 subscription), so a relay thread blocks on the link and forwards each message to that signal
 queue as `["message", task, [body, sent_ns]]`; the executive then releases the server as it does
-for an operator's event, at most once per min_interarrival, its payload in `self.event`.
+for an operator's event, at most once per min_interarrival, its payload in `self.event`. On a
+link whose blocked `receive()` a close wakes (`wakes_on_close`: zenoh's), the relay blocks without
+a timeout, so it wakes only for a message; on a POSIX queue it looks at its stop flag every POLL.
 
 On the simulated clock no thread forwards: the RTPU calls `pump` at the start of each lockstep
 step, so a message is served at the first step after it was sent, whatever the scheduler did
@@ -40,6 +42,7 @@ class MessageRelay:
         self._stop = threading.Event()
         self._held: list[Any] | None = None  # pump: a message taken from the link that the signal queue had no room for
         self._thread: threading.Thread | None = None
+        self._wakes = bool(getattr(link, "wakes_on_close", False))  # closing the link ends a receive without timeout
         # `close` joins the forwarding thread (up to POLL): a killed task's RTPU closes it in its
         # background thread, not between two cycles (`task.lifecycle`); the simulated clock's relay
         # has no thread and closes at once, in step with the ticks.
@@ -64,9 +67,10 @@ class MessageRelay:
     def _forward(self) -> None:
         below_the_cycle()  # it shares the executive's GIL
         link, stop, signals = self.link, self._stop, self._signals
+        wait = None if self._wakes else POLL
         while not stop.is_set():
             try:
-                message = link.receive(timeout=POLL)
+                message = link.receive(timeout=wait)
             except Exception:  # the link closed under us: the task is being killed
                 return
             if message is None:
@@ -81,7 +85,9 @@ class MessageRelay:
         """Stop forwarding, then close the link's end (the task is killed)."""
         self._stop.set()
         self.closed = True
+        if self._wakes:
+            self.link.close()  # first: it wakes the thread blocked in receive()
         if self._thread is not None:
             self._thread.join(timeout=5 * POLL)
         self._signals.close()
-        self.link.close()
+        self.link.close()  # (twice is harmless)

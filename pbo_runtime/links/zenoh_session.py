@@ -174,7 +174,13 @@ class SessionEnd:
         return LinkError(f"no link '{self.name}': {detail}: has the subsystem that creates it started?")
 
     def _answer_as(self, role: str, describe: Callable[[], dict[str, Any]]) -> None:
-        """Answer queries on `<key>/end/<role>` with `describe()` (msgpack): who holds this end, with what."""
+        """Answer queries on `<key>/end/<role>` with `describe()` (msgpack): who holds this end, with what.
+
+        The one Python callback our ends leave in zenoh's threads: a query comes only when another
+        end opens (set-up, a restart), and `describe` reads attributes without taking any lock a
+        cycle takes; answering from a channel would need this end's owner to poll it, and an end
+        whose owner is busy elsewhere would then look absent to the end that opens.
+        """
         key = f"{self.key}/end/{role}"
 
         def answer(query: Any) -> None:

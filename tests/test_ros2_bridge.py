@@ -18,10 +18,10 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from modules._joint_states_publisher import JointStatesPublisher, PublisherGone
+from modules._joint_states_publisher import record_size
 from modules.ros2_goal import Ros2Goal
 from modules.ros2_joint_states import Ros2JointStates
-from pbo_runtime import Status
+from pbo_runtime import DdsProcess, ModuleError, Status
 from pbo_runtime.errors import EXTRAS, ParamError
 from pbo_runtime.links import ros2_messages as ros2
 from pbo_runtime.task.lifecycle import Task
@@ -136,8 +136,8 @@ def test_a_joint_states_task_whose_names_do_not_fit_q_m_fails_its_spawn(make_tab
 @pytest.mark.multiprocess
 def test_a_joint_states_publisher_that_cannot_start_says_why():
     setup = {"domain": 300, "topic": "/joint_states", "names": ["a"], "frame_id": "", "node": "pbo_states"}  # past DDS's ports
-    with pytest.raises(PublisherGone, match=r"the JointState publisher process did not start: DDSException: .*DomainParticipant"):
-        JointStatesPublisher(setup, 1)
+    with pytest.raises(ModuleError, match=r"states: its JointState publisher process did not start: DDSException: .*Participant"):
+        DdsProcess("modules._joint_states_publisher", setup, [record_size(1)], "states: its JointState publisher", "")
 
 
 @pytest.mark.multiprocess
@@ -147,7 +147,8 @@ def test_a_joint_states_publisher_that_cannot_start_says_why():
     ("trajectory_msgs/msg/JointTrajectory", [3, 1, 2, 0.3, 0.1, 0.2], [0.1, 0.2, 0.3], False),
     ("std_msgs/msg/Float64MultiArray", [0.1, 0.2], [9.0, 9.0, 9.0], True),  # another size: never written
 ], ids=["array", "trajectory", "wrong size"])
-def test_a_goal_published_by_another_node_is_written_and_a_silent_topic_makes_it_stale(make_table, kind, sent, written, refused):
+def test_a_goal_published_by_another_node_is_written_and_a_silent_topic_makes_it_stale(make_table, capfd, kind, sent, written,
+                                                                                       refused):
     table = make_table(variables(("q_d", "float64", (3,))))
     table.write("q_d", np.array([9.0, 9.0, 9.0]), when=0.0)
     domain = own_dds_domain()
@@ -174,6 +175,29 @@ def test_a_goal_published_by_another_node_is_written_and_a_silent_topic_makes_it
         np.testing.assert_array_equal(table.read("q_d")[0], written)  # the last goal stays written
     finally:
         task.kill()
+    said = capfd.readouterr().err  # (the subscriber process's stderr is the RTPU's)
+    if refused:
+        assert f"task 'goal' refused a {kind} on /pbo/q_d (2 values, the output takes 3); 1 refused so far" in said, said
+    else:
+        assert "refused" not in said, said
+
+
+@pytest.mark.multiprocess
+def test_a_goal_whose_subscriber_process_dies_is_stale_from_then_on_and_the_run_says_so(make_table, capfd):
+    table = make_table(variables(("q_d", "float64", (3,))))
+    task = _goal_task(table, own_dds_domain())  # fresh_within 0: a silent topic alone is never stale
+    assert task.spawn(0.0), task.last_error
+    assert task.turn_on(0.0), task.last_error
+    try:
+        assert task.run_cycle(0.0) is Status.CONTINUE
+        subscriber = task.module._subscriber
+        subscriber.process.kill()
+        until(lambda: subscriber.ended, "the task learns that its subscriber process ended")
+        assert task.run_cycle(0.01) is Status.STABLE
+    finally:
+        task.kill()
+    assert (f"task 'goal': its ROS 2 subscriber process (pid {subscriber.process.pid}) ended with exit status -9: "
+            "/pbo/q_d is a stale input from now on") in capfd.readouterr().err
 
 
 @pytest.mark.multiprocess
@@ -270,18 +294,8 @@ def test_a_bridge_task_without_cyclonedds_fails_its_spawn_naming_the_ros2_extra(
             "pip install 'pbo-runtime[ros2]'") in task.last_error
 
 
-def _without_its_thread(task: Task) -> None:
-    """End a goal task's DDS thread: what is measured then is the cycle alone (tracemalloc sees every
-    thread); a joint states task's publisher is another process already."""
-    module = task.module
-    if isinstance(module, Ros2Goal):
-        module._stopping = True
-        module._wake.set(True)
-        module._thread.join()
-
-
-# (the joint states' publisher: a process)
-@pytest.mark.parametrize("module", [pytest.param(Ros2JointStates, marks=pytest.mark.multiprocess), Ros2Goal])
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("module", [Ros2JointStates, Ros2Goal])
 def test_a_bridge_tasks_cycle_allocates_nothing(make_table, module):
     table = make_table(variables(("q_d", "float64", (6,)), ("q_m", "float64", (6,)), ("qd_m", "float64", (6,)),
                                  ("tau", "float64", (6,))))
@@ -291,11 +305,11 @@ def test_a_bridge_tasks_cycle_allocates_nothing(make_table, module):
     assert task.spawn(0.0), task.last_error
     assert task.turn_on(0.0), task.last_error
     try:
-        _without_its_thread(task)
         bridge = task.module
 
-        def a_new_message_every_cycle() -> None:
-            bridge._received += 1
+        def a_new_message_every_cycle() -> None:  # (as the subscriber process writes one: the record's number moves)
+            bridge._record.begin()
+            bridge._record.end()
             bridge.cycle()
 
         assert allocation_peak(bridge.cycle if module is Ros2JointStates else a_new_message_every_cycle) < one_array()

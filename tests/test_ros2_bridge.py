@@ -33,6 +33,7 @@ from tests.support import (
     config_copy,
     one_array,
     own_dds_domain,
+    process_gone,
     run_output,
     start_run,
     task_spec,
@@ -138,6 +139,25 @@ def test_a_joint_states_publisher_that_cannot_start_says_why():
     setup = {"domain": 300, "topic": "/joint_states", "names": ["a"], "frame_id": "", "node": "pbo_states"}  # past DDS's ports
     with pytest.raises(ModuleError, match=r"states: its JointState publisher process did not start: DDSException: .*Participant"):
         DdsProcess("modules._joint_states_publisher", setup, [record_size(1)], "states: its JointState publisher", "")
+
+
+@pytest.mark.multiprocess
+def test_a_dds_process_ends_when_its_rtpu_dies_and_shares_nothing_through_dev_shm():
+    setup = {"domain": own_dds_domain(), "topic": "/joint_states", "names": ["a"], "frame_id": "", "node": "pbo_states"}
+    holder = subprocess.Popen(  # an RTPU's part: it holds the publisher process, then dies at once (SIGKILL)
+        [sys.executable, "-c", "import json, sys, time; from pbo_runtime import DdsProcess; "
+         "process = DdsProcess('modules._joint_states_publisher', json.loads(sys.argv[1]), [4], 'states', ''); "
+         "print(process.process.pid, flush=True); time.sleep(600)", json.dumps(setup)],
+        cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        child = int(holder.stdout.readline())
+        files = [os.readlink(f"/proc/{child}/fd/{fd}") for fd in os.listdir(f"/proc/{child}/fd")]
+    finally:
+        holder.kill()
+        run_output(holder)
+    until(lambda: process_gone(child), "the publisher process ends with its holder")
+    assert "/memfd:pbo-dds (deleted)" in files  # what they share has no name: nothing to leave in /dev/shm
+    assert [file for file in files if file.startswith("/dev/shm")] == []
 
 
 @pytest.mark.multiprocess

@@ -10,13 +10,15 @@ taken by name, in `joints`' order), and each `write_torque` (`write_position`) g
 node's topics on the DDS domain `domain` (-1: ROS_DOMAIN_ID, else 0).
 
 No call of a cycle touches DDS, and no DDS work runs in the RTPU's process: a process of the
-driver's own (drivers/ros2_control/dds_side.py, through `DdsProcess`, at SCHED_OTHER) takes each
+driver's own (drivers/ros2_control/dds_side.py, through `DdsProcess`) takes each
 JointState into a record both share; opening the driver waits for the first (up to 5 s, else it
 fails saying so), so no command is ever computed from a state never read. `read_state` copies the
 newest out (no lock: a copy torn by a write in progress is dropped, the one before kept) and
 returns its header stamp as the arm's time, so a `/joint_states` that stops is a plant that
 stopped: the robot interface holds after `stall_after` seconds and the run says so; so it does
-when that process ends, which the run says on stderr too. `write_torque` writes the command into
+when that process ends, which the run says on stderr too. Once started, the process runs just
+below every executive (`keep_up`): the arm's state is an input the robot interface needs fresh, and
+behind every ordinary process of a loaded machine it would come late. `write_torque` writes the command into
 another record and wakes the process (an eventfd write), which publishes it. With the brakes
 engaged (the task off, held, in ERROR) no command goes out: the ros2_control side must then hold the
 arm (a controller's command timeout or the drive's brakes), as a real drive holds when its commands
@@ -117,7 +119,7 @@ class Ros2ControlArm(DeviceDriver):
         try:
             self._dds = DdsProcess("drivers.ros2_control.dds_side", setup, [state_size(self.ndof), self.ndof],
                                    "ros2_control driver: its DDS",
-                                   "the arm's state is stale from now on, and no command goes out")
+                                   "the arm's state is stale from now on, and no command goes out", keep_up=True)
         except ModuleError as exc:
             raise DeviceError(str(exc)) from None
         self._state, self._command = self._dds.records

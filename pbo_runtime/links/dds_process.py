@@ -2,7 +2,7 @@
 
 Cyclone DDS's threads and the encoding of messages are Python work that holds the GIL; inside an
 RTPU they would take it from the executive and delay its releases. So the DDS participant, its
-readers and writers live in a child process (`python -m PROGRAM`, at SCHED_OTHER), and the RTPU
+readers and writers live in a child process (`python -m PROGRAM`, started at SCHED_OTHER), and the RTPU
 and the child share only a memfd of records, each a sequence number then its values. The writer
 of a record makes the number odd, writes the values, makes it even again; a reader copies the
 values and uses them only when the number was even and the same before and after the copy, so a
@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from pbo_runtime.errors import ModuleError
-from pbo_runtime.objects.helper_threads import below_the_cycle
+from pbo_runtime.objects.helper_threads import below_the_cycle, process_below_the_cycle
 from pbo_runtime.objects.waits import sleep_while_cycling
 
 READY = b"ready"
@@ -97,9 +97,13 @@ class DdsProcess:
     """The RTPU's handle on a child running `python -m program`: its `records`, `counters`, `wake`, `ended`, `close`.
 
     `what` names the child in messages ("task 'goal': its ROS 2 subscriber"); `if_it_ends` says what
-    its ending means for the run. ModuleError when the child could not start, saying why."""
+    its ending means for the run. `keep_up`: once started, its threads run just below every
+    executive (`process_below_the_cycle`), for an input a cycle needs fresh, which a child at
+    SCHED_OTHER behind every ordinary process of a loaded machine would deliver late. ModuleError
+    when the child could not start, saying why."""
 
-    def __init__(self, program: str, setup: Mapping[str, Any], sizes: Sequence[int], what: str, if_it_ends: str) -> None:
+    def __init__(self, program: str, setup: Mapping[str, Any], sizes: Sequence[int], what: str, if_it_ends: str,
+                 keep_up: bool = False) -> None:
         self.what, self._if_it_ends = what, if_it_ends
         self.ended = ""  # why the child ended on its own; "" while it runs (or was closed)
         self._closing = False
@@ -127,6 +131,9 @@ class DdsProcess:
             self.close()
             reason = said.decode(errors="replace").strip() or f"it ended with exit status {self.process.returncode}"
             raise ModuleError(f"{what} process did not start: {reason}")
+        if keep_up:
+            for thread in os.listdir(f"/proc/{self.process.pid}/task"):
+                process_below_the_cycle(int(thread))
         self._watcher = threading.Thread(target=self._watch, args=(os.pidfd_open(self.process.pid),), daemon=True,
                                          name=f"watch-{self.process.pid}")
         self._watcher.start()

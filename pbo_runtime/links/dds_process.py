@@ -8,7 +8,9 @@ of a record makes the number odd, writes the values, makes it even again; a read
 values and uses them only when the number was even and the same before and after the copy, so a
 record torn mid-write is never used. The RTPU's side reads once and, when the copy was torn,
 keeps what it had (the child at SCHED_OTHER may be preempted mid-write: waiting for it could
-hold a cycle); the child retries. An eventfd wakes the child for what the RTPU wrote.
+hold a cycle); the child retries. An eventfd wakes the child for what the RTPU wrote. The lock
+counts on each side's stores being seen in the order made, as x86-64 orders them; a weakly
+ordered CPU (ARM) would want a fence around the values' copy.
 
 The child says "ready" (or why it could not start) on a pipe before the task's init returns, and
 ends when the other pipe, whose write end only the RTPU holds, closes: at the task's kill, or when

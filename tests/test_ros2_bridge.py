@@ -23,6 +23,7 @@ from modules.ros2_goal import Ros2Goal
 from modules.ros2_joint_states import Ros2JointStates
 from pbo_runtime import DdsProcess, ModuleError, Status
 from pbo_runtime.errors import EXTRAS, ParamError
+from pbo_runtime.ipc.shm import children_of
 from pbo_runtime.links import ros2_messages as ros2
 from pbo_runtime.task.lifecycle import Task
 from tests.support import (
@@ -34,7 +35,9 @@ from tests.support import (
     one_array,
     own_dds_domain,
     process_gone,
+    read_until,
     run_output,
+    run_processes,
     start_run,
     task_spec,
     until,
@@ -299,6 +302,29 @@ def test_a_silent_goal_topic_past_its_bound_makes_the_robot_hold_and_the_run_say
                                 "and the critical tasks held meanwhile"]
     robot = report["tasks"]["robot"]
     assert robot["stable_cycles"] == robot["cycles"] - 1  # held from its second cycle on (the first ran before goal's first)
+
+
+@pytest.mark.multiprocess
+def test_a_goal_subscriber_process_killed_in_a_run_makes_the_robot_hold_and_the_run_say_why(tmp_path, monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(own_dds_domain()))
+    config = config_copy(REPO / "configs" / "ros2_bridge.yaml", tmp_path, f"ros2_killed_{os.getpid()}")  # fresh_within: 0
+    report_path = tmp_path / "report.json"
+    run = start_run(config, tmp_path, "--duration", "120", "--report", str(report_path))
+    try:
+        rtpu0 = run_processes(run)["rtpu0"]
+        [subscriber] = [pid for pid, command in children_of(rtpu0).items() if "modules._ros2_goal_subscriber" in command]
+        os.kill(subscriber, signal.SIGKILL)
+        read_until(run, "critical task 'robot' runs its locally stable behaviour: a task upstream has no fresh input")
+    finally:
+        if run.poll() is None:
+            run.send_signal(signal.SIGINT)
+        _out, err = run_output(run)
+    assert (f"task 'goal': its ROS 2 subscriber process (pid {subscriber}) ended with exit status -9: "
+            "/pbo/q_d is a stale input from now on") in err, err
+    assert "Traceback" not in err, err
+    assert run.returncode == 2, err
+    faults = json.loads(report_path.read_text())["faults"]
+    assert any(fault.startswith("task 'goal' had no fresh input until the stop") for fault in faults), faults
 
 
 @pytest.mark.parametrize("module", [Ros2Goal, Ros2JointStates])

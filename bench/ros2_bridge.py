@@ -121,11 +121,11 @@ figures, from the run report: the missed releases and overruns of the tasks both
 jitter of `pid` (1 kHz, rtpu0, the bridge's RTPU) and `robot` (1 kHz, rtpu1), and the cycle time of
 `joint_states` (its copy into the record its publisher process reads, and the wake).
 """,
-        limits="""The JointState publisher (encoding and DDS write) is a process of its own at
-SCHED_OTHER; the goal's subscriber is a thread of rtpu0 that takes the GIL only when a message
-comes (and once a second). Both, the listening process and Cyclone DDS's threads run on the same
-two CPUs as the RTPUs and the plant: on this 2-core machine shared with other work, round-to-round
-swings of the counts and the jitter can be larger than the bridge's cost.""",
+        limits="""The JointState publisher (encoding and DDS write) and the goal's subscriber are
+processes of their own at SCHED_OTHER: no DDS thread runs in rtpu0. They, the listening process and
+Cyclone DDS's threads run on the same two CPUs as the RTPUs and the plant: on this 2-core machine
+shared with other work, round-to-round swings of the counts and the jitter can be larger than the
+bridge's cost.""",
     )
     per_round: list[dict[str, dict[str, Any]]] = []
     failures: list[str] = []

@@ -1,34 +1,36 @@
 """ROS 2 goal in: the newest `std_msgs/msg/Float64MultiArray` or `trajectory_msgs/msg/JointTrajectory`
 of a ROS 2 topic into a state variable (a goal, or the object of a job), over DDS.
 
-A thread of its own, running below the RTPU's executive, subscribes as a ROS 2 node would (DDS
-topic `rt/<topic>`, the type's `pkg::msg::dds_::Type_` name, ROS 2's default QoS, on `domain`;
--1: ROS_DOMAIN_ID, else 0) and copies each message's values into a buffer allocated in `init`:
-a Float64MultiArray's `data`, a JointTrajectory's last point's `positions` (the trajectory's end,
-in `joint_names`' order when the message names the joints). The cycle does no DDS call: it copies
-the newest values into its output when a new message came. A message of another size than the
-output is refused (counted in `refused`), never written.
+A process of its own (modules/_ros2_goal_subscriber.py, through `DdsProcess`, at SCHED_OTHER)
+subscribes as a ROS 2 node would (DDS topic `rt/<topic>`, the type's `pkg::msg::dds_::Type_` name,
+ROS 2's default QoS, on `domain`; -1: ROS_DOMAIN_ID, else 0) and writes each message's values into
+a record both share: a Float64MultiArray's `data`, a JointTrajectory's last point's `positions`
+(the trajectory's end, in `joint_names`' order when the message names the joints). The cycle does
+no DDS call and takes no lock: when the record's sequence number moved, it copies the record out
+(a copy torn by a write in progress is dropped and taken the next cycle). A message of another
+size than the output is refused (counted in `refused`, said on stderr), never written.
 
 Before the first message the output keeps its initial value. `fresh_within` (seconds, 0: never)
 bounds how long it may go without a new message, on this task's own clock from the cycle that got
 the last one: past it, before the first message too, its cycle returns `Status.STABLE`, so the
 critical tasks of its configuration hold until a message comes (docs/faults.md). A goal sent once
-(`ros2 topic pub --once`) wants 0; a stream of set points, a bound. Needs the 'ros2' extra.
+(`ros2 topic pub --once`) wants 0; a stream of set points, a bound. If the subscriber process
+ends, the run says so on stderr and the output is stale from then on, whatever the bound.
+Needs the 'ros2' extra.
 """
 
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass
 
 import numpy as np
 from numpy import copyto
 
-from pbo_runtime import OutVar, PortBasedObject, Status, below_the_cycle, param, ros2_messages
+from modules._ros2_goal_subscriber import REFUSED
+from pbo_runtime import DdsProcess, OutVar, PortBasedObject, Status, param, ros2_messages
 
 TYPES = ("std_msgs/msg/Float64MultiArray", "trajectory_msgs/msg/JointTrajectory")
-WAIT = 1_000_000_000  # ns the thread waits for a message or its kill before it looks again
 
 
 @dataclass(frozen=True)
@@ -62,75 +64,40 @@ class Ros2Goal(PortBasedObject):
         ros2.check_topic(params.topic)
         self._value = self.bound_arrays[0]
         size = self._value.size
-        self._names = list(params.joint_names) or [f"joint{i + 1}" for i in range(size)]
-        if len(self._names) != size:
-            raise ValueError(f"joint_names must name the {size} values of the output, got {len(self._names)}: {self._names}")
-        self._staging = np.zeros(size)  # the thread's newest values
-        self._value_flat = self._value.reshape(-1)  # a view of the output, made once
-        self._lock = threading.Lock()
-        self._acquire, self._release = self._lock.acquire, self._lock.release
-        self._received = 0  # messages the thread copied in
-        self._taken = 0  # of them, the count when the cycle last copied out
-        self.refused = 0  # messages of another size than the output
+        names = list(params.joint_names) or [f"joint{i + 1}" for i in range(size)]
+        if len(names) != size:
+            raise ValueError(f"joint_names must name the {size} values of the output, got {len(names)}: {names}")
         self._fresh_within = float(params.fresh_within) if params.fresh_within > 0 else math.inf
         self._new_at = -math.inf
-        self._stopping = False
+        setup = {"domain": ros2.domain_id(params.domain), "topic": params.topic, "type": params.type, "names": names,
+                 "node": f"pbo_{self.task_name}", "who": f"task '{self.task_name}'"}
+        self._subscriber = DdsProcess("modules._ros2_goal_subscriber", setup, [size],
+                                      f"task '{self.task_name}': its ROS 2 subscriber",
+                                      f"{params.topic} is a stale input from now on")
+        self._record = self._subscriber.records[0]
+        self._sequence = self._record.sequence  # the record's number: moved when a message came
+        self._read = self._record.read
+        self._copy = np.zeros(size)  # the record copied out, kept only when whole
+        self._value_flat = self._value.reshape(-1)  # a view of the output, made once
+        self._taken = 0  # the sequence number of the values last written out (0: none yet)
 
-        from cyclonedds.core import GuardCondition, InstanceState, ReadCondition, SampleState, ViewState, WaitSet
-        from cyclonedds.domain import DomainParticipant
-        from cyclonedds.sub import DataReader
-        from cyclonedds.topic import Topic
-
-        self._participant: DomainParticipant | None = DomainParticipant(ros2.domain_id(params.domain))
-        kind = ros2.MESSAGES[params.type]
-        topic = Topic(self._participant, ros2.dds_topic(params.topic), kind, qos=ros2.ros2_qos())
-        reader = DataReader(self._participant, topic, qos=ros2.ros2_qos())
-        # kept: `ros2 node list` sees it
-        self._node = ros2.announce_node(self._participant, f"pbo_{self.task_name}", readers=[reader])
-        self._waitset = WaitSet(self._participant)  # its wait releases the GIL: the thread sleeps until a message or kill
-        self._waitset.attach(ReadCondition(reader, SampleState.NotRead | ViewState.Any | InstanceState.Any))
-        self._wake = GuardCondition(self._participant)
-        self._waitset.attach(self._wake)
-        self._thread = threading.Thread(target=self._receive, args=(reader, kind, ros2.goal_values), daemon=True,
-                                        name=f"ros2-{self.task_name}")
-        self._thread.start()
+    @property
+    def refused(self) -> int:
+        """Messages of another size than the output (or not finite), never written."""
+        return int(self._subscriber.counters[REFUSED])
 
     def on(self) -> None:
-        self._new_at = -math.inf if self._received == 0 else self.time  # a bound counts from now, not from before off
+        self._new_at = -math.inf if self._taken == 0 else self.time  # a bound counts from now, not from before off
 
     def cycle(self) -> Status:
-        if self._received != self._taken:
-            self._acquire()  # (bound once: `with lock` makes its method objects each time)
-            copyto(self._value_flat, self._staging)
-            self._taken = self._received
-            self._release()
+        if self._sequence[0] != self._taken and (taken := self._read(self._copy)) > 0:
+            copyto(self._value_flat, self._copy)
+            self._taken = taken
             self._new_at = self.time
-        if self.time - self._new_at > self._fresh_within:
-            return Status.STABLE  # no new message for too long: what this task writes is stale
+        if self.time - self._new_at > self._fresh_within or self._subscriber.ended:
+            return Status.STABLE  # no new message for too long, or none can come: what this task writes is stale
         return Status.CONTINUE
 
     def kill(self) -> None:
-        self._stopping = True
-        self._wake.set(True)
-        self.hand_off(self._close, f"closing the ROS 2 subscription of {self.task_name}")
-
-    def _close(self) -> None:
-        self._thread.join()
-        self._node = None
-        self._participant = None  # deleting it ends its DDS entities
-
-    def _receive(self, reader, kind, values_of) -> None:  # type: ignore[no-untyped-def]
-        below_the_cycle()
-        size = self._staging.size
-        while not self._stopping:
-            self._waitset.wait(WAIT)
-            for sample in reader.take(N=16):
-                if not isinstance(sample, kind):
-                    continue  # a writer's end (DDS's invalid sample), not a message
-                values = values_of(sample, self._names)
-                if len(values) != size or not all(math.isfinite(v) for v in values):
-                    self.refused += 1
-                    continue
-                with self._lock:
-                    self._staging[:] = values
-                    self._received += 1
+        self._subscriber.hang_up()
+        self.hand_off(self._subscriber.close, f"closing the ROS 2 subscription of {self.task_name}")

@@ -1,8 +1,9 @@
 """ROS 2 joint states out: the arm's joints as `sensor_msgs/msg/JointState` on a ROS 2 topic, over DDS.
 
 Every cycle it copies `q_m`, `qd_m` and the effort, with the Unix time of the copy, into a record
-it shares with its publisher process (modules/_joint_states_publisher.py) and wakes that process;
-the cycle does no DDS call, and no DDS work or encoding runs in the RTPU's process to take its GIL.
+it shares with its publisher process (modules/_joint_states_publisher.py, through `DdsProcess`)
+and wakes that process; the cycle does no DDS call, and no DDS work or encoding runs in the RTPU's
+process to take its GIL. If that process ends, the run says so on stderr and nothing is published.
 The publisher, a ROS 2 node named `pbo_<task>`, builds the message (names `joint_names`, or
 `joint1`..`jointN` as `arm_model` names the joints) and writes it as a ROS 2 node's publisher would:
 DDS topic `rt/<topic>`, type `sensor_msgs::msg::dds_::JointState_`, ROS 2's default QoS, on the
@@ -17,8 +18,8 @@ from dataclasses import dataclass
 
 from numpy import copyto
 
-from modules._joint_states_publisher import JointStatesPublisher
-from pbo_runtime import InVar, PortBasedObject, Status, param, ros2_messages
+from modules._joint_states_publisher import record_size
+from pbo_runtime import DdsProcess, InVar, PortBasedObject, Status, param, ros2_messages
 
 
 @dataclass(frozen=True)
@@ -54,11 +55,13 @@ class Ros2JointStates(PortBasedObject):
             raise ValueError(f"joint_names must name the {joints} joints of q_m, got {len(names)}: {names}")
         setup = {"domain": ros2.domain_id(params.domain), "topic": params.topic, "names": names,
                  "frame_id": params.frame_id, "node": f"pbo_{self.task_name}"}
-        self._publisher = JointStatesPublisher(setup, joints)
+        self._publisher = DdsProcess("modules._joint_states_publisher", setup, [record_size(joints)],
+                                     f"task '{self.task_name}': its JointState publisher", f"{params.topic} is not published")
+        record = self._publisher.records[0]
         # (port, its row in the record): the views made once
-        self._copies = tuple(zip(sources, self._publisher.rows, strict=True))
-        self._stamp = self._publisher.stamp  # the record's Unix time, ns
-        self._begin, self._send = self._publisher.begin, self._publisher.send
+        self._copies = tuple(zip(sources, record.values[1:].reshape(3, joints), strict=True))
+        self._stamp = record.words[:1]  # the record's Unix time, ns
+        self._begin, self._end, self._wake = record.begin, record.end, self._publisher.wake
 
     def cycle(self) -> Status:
         (position, position_row), (velocity, velocity_row), (effort, effort_row) = self._copies
@@ -67,7 +70,8 @@ class Ros2JointStates(PortBasedObject):
         copyto(velocity_row, velocity)
         copyto(effort_row, effort)
         self._stamp[0] = time.time_ns()
-        self._send()
+        self._end()
+        self._wake()
         return Status.CONTINUE
 
     def kill(self) -> None:

@@ -18,6 +18,7 @@ _WHERE = {
     "Arm": "pbo_runtime.objects.arm",
     "ConfigError": "pbo_runtime.errors",
     "ConfigErrors": "pbo_runtime.errors",
+    "DdsProcess": "pbo_runtime.links.dds_process",
     "DeviceDriver": "pbo_runtime.objects.driver",
     "EE_COLUMNS": "pbo_runtime.objects.arm",
     "GRAVITY": "pbo_runtime.objects.arm",
@@ -62,6 +63,7 @@ _WHERE = {
     "registered_robot": "pbo_runtime.objects.registry",
     "require_extra": "pbo_runtime.errors",
     "ros2_messages": "pbo_runtime.links.ros2",
+    "serve_dds_process": "pbo_runtime.links.dds_process",
     "sleep_while_cycling": "pbo_runtime.objects.waits",
     "unlink_quietly": "pbo_runtime.ipc.shm",
 }
@@ -85,6 +87,7 @@ if TYPE_CHECKING:  # what the type checkers and editors see: the same names, eag
     )
     from pbo_runtime.ipc.operator_input import OperatorInput
     from pbo_runtime.ipc.shm import attach_segment, create_segment, unlink_quietly
+    from pbo_runtime.links.dds_process import DdsProcess, serve_dds_process
     from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError
     from pbo_runtime.links.ros2 import ros2_messages
     from pbo_runtime.objects.arm import (
@@ -137,6 +140,7 @@ __all__ = [
     "Arm",
     "ConfigError",
     "ConfigErrors",
+    "DdsProcess",
     "DeviceDriver",
     "InBoth",
     "InConst",
@@ -176,6 +180,7 @@ __all__ = [
     "registered_robot",
     "require_extra",
     "ros2_messages",
+    "serve_dds_process",
     "sleep_while_cycling",
     "unlink_quietly",
 ]

@@ -44,14 +44,14 @@ ASSET_WINGS = ("hmi",)
 
 PUBLIC_NAMES = [
     "ANY_DTYPE", "ARM_COLUMNS", "Arm", "EE_COLUMNS", "GRAVITY", "ROBOT_OPTIONS", "ROBOT_SUFFIXES", "MAX_PRIORITY", "ConfigError",
-    "ConfigErrors", "DeviceDriver", "InBoth", "InConst", "InVar",
+    "ConfigErrors", "DdsProcess", "DeviceDriver", "InBoth", "InConst", "InVar",
     "InternalError", "LifecycleError", "LinkFullError", "ModuleError", "NoParams", "OutBoth", "OutConst", "OutVar",
     "OperatorInput", "OutputError", "ParamError", "PboError", "PortBasedObject", "PortKind", "PortSpec",
     "ResourceLimitError", "Status",
     "TableLayoutError", "Waypoints",
     "arm_gains", "arm_model", "attach_segment", "below_the_cycle", "create_segment", "format_channels", "inertia_range",
     "is_robot_file", "module_class", "open_log", "param", "process_below_the_cycle", "read_log",
-    "registered_robot", "require_extra", "ros2_messages", "sleep_while_cycling", "unlink_quietly",
+    "registered_robot", "require_extra", "ros2_messages", "serve_dds_process", "sleep_while_cycling", "unlink_quietly",
 ]
 
 

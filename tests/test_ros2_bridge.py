@@ -18,11 +18,12 @@ import pytest
 
 pytest.importorskip("cyclonedds")
 
-from modules._joint_states_publisher import JointStatesPublisher, PublisherGone
+from modules._joint_states_publisher import record_size
 from modules.ros2_goal import Ros2Goal
 from modules.ros2_joint_states import Ros2JointStates
-from pbo_runtime import Status
+from pbo_runtime import DdsProcess, ModuleError, Status
 from pbo_runtime.errors import EXTRAS, ParamError
+from pbo_runtime.ipc.shm import children_of
 from pbo_runtime.links import ros2_messages as ros2
 from pbo_runtime.task.lifecycle import Task
 from tests.support import (
@@ -33,7 +34,10 @@ from tests.support import (
     config_copy,
     one_array,
     own_dds_domain,
+    process_gone,
+    read_until,
     run_output,
+    run_processes,
     start_run,
     task_spec,
     until,
@@ -136,8 +140,27 @@ def test_a_joint_states_task_whose_names_do_not_fit_q_m_fails_its_spawn(make_tab
 @pytest.mark.multiprocess
 def test_a_joint_states_publisher_that_cannot_start_says_why():
     setup = {"domain": 300, "topic": "/joint_states", "names": ["a"], "frame_id": "", "node": "pbo_states"}  # past DDS's ports
-    with pytest.raises(PublisherGone, match=r"the JointState publisher process did not start: DDSException: .*DomainParticipant"):
-        JointStatesPublisher(setup, 1)
+    with pytest.raises(ModuleError, match=r"states: its JointState publisher process did not start: DDSException: .*Participant"):
+        DdsProcess("modules._joint_states_publisher", setup, [record_size(1)], "states: its JointState publisher", "")
+
+
+@pytest.mark.multiprocess
+def test_a_dds_process_ends_when_its_rtpu_dies_and_shares_nothing_through_dev_shm():
+    setup = {"domain": own_dds_domain(), "topic": "/joint_states", "names": ["a"], "frame_id": "", "node": "pbo_states"}
+    holder = subprocess.Popen(  # an RTPU's part: it holds the publisher process, then dies at once (SIGKILL)
+        [sys.executable, "-c", "import json, sys, time; from pbo_runtime import DdsProcess; "
+         "process = DdsProcess('modules._joint_states_publisher', json.loads(sys.argv[1]), [4], 'states', ''); "
+         "print(process.process.pid, flush=True); time.sleep(600)", json.dumps(setup)],
+        cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        child = int(holder.stdout.readline())
+        files = [os.readlink(f"/proc/{child}/fd/{fd}") for fd in os.listdir(f"/proc/{child}/fd")]
+    finally:
+        holder.kill()
+        run_output(holder)
+    until(lambda: process_gone(child), "the publisher process ends with its holder")
+    assert "/memfd:pbo-dds (deleted)" in files  # what they share has no name: nothing to leave in /dev/shm
+    assert [file for file in files if file.startswith("/dev/shm")] == []
 
 
 @pytest.mark.multiprocess
@@ -147,7 +170,8 @@ def test_a_joint_states_publisher_that_cannot_start_says_why():
     ("trajectory_msgs/msg/JointTrajectory", [3, 1, 2, 0.3, 0.1, 0.2], [0.1, 0.2, 0.3], False),
     ("std_msgs/msg/Float64MultiArray", [0.1, 0.2], [9.0, 9.0, 9.0], True),  # another size: never written
 ], ids=["array", "trajectory", "wrong size"])
-def test_a_goal_published_by_another_node_is_written_and_a_silent_topic_makes_it_stale(make_table, kind, sent, written, refused):
+def test_a_goal_published_by_another_node_is_written_and_a_silent_topic_makes_it_stale(make_table, capfd, kind, sent, written,
+                                                                                       refused):
     table = make_table(variables(("q_d", "float64", (3,))))
     table.write("q_d", np.array([9.0, 9.0, 9.0]), when=0.0)
     domain = own_dds_domain()
@@ -174,6 +198,29 @@ def test_a_goal_published_by_another_node_is_written_and_a_silent_topic_makes_it
         np.testing.assert_array_equal(table.read("q_d")[0], written)  # the last goal stays written
     finally:
         task.kill()
+    said = capfd.readouterr().err  # (the subscriber process's stderr is the RTPU's)
+    if refused:
+        assert f"task 'goal' refused a {kind} on /pbo/q_d (2 values, the output takes 3); 1 refused so far" in said, said
+    else:
+        assert "refused" not in said, said
+
+
+@pytest.mark.multiprocess
+def test_a_goal_whose_subscriber_process_dies_is_stale_from_then_on_and_the_run_says_so(make_table, capfd):
+    table = make_table(variables(("q_d", "float64", (3,))))
+    task = _goal_task(table, own_dds_domain())  # fresh_within 0: a silent topic alone is never stale
+    assert task.spawn(0.0), task.last_error
+    assert task.turn_on(0.0), task.last_error
+    try:
+        assert task.run_cycle(0.0) is Status.CONTINUE
+        subscriber = task.module._subscriber
+        subscriber.process.kill()
+        until(lambda: subscriber.ended, "the task learns that its subscriber process ended")
+        assert task.run_cycle(0.01) is Status.STABLE
+    finally:
+        task.kill()
+    assert (f"task 'goal': its ROS 2 subscriber process (pid {subscriber.process.pid}) ended with exit status -9: "
+            "/pbo/q_d is a stale input from now on") in capfd.readouterr().err
 
 
 @pytest.mark.multiprocess
@@ -257,6 +304,29 @@ def test_a_silent_goal_topic_past_its_bound_makes_the_robot_hold_and_the_run_say
     assert robot["stable_cycles"] == robot["cycles"] - 1  # held from its second cycle on (the first ran before goal's first)
 
 
+@pytest.mark.multiprocess
+def test_a_goal_subscriber_process_killed_in_a_run_makes_the_robot_hold_and_the_run_say_why(tmp_path, monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(own_dds_domain()))
+    config = config_copy(REPO / "configs" / "ros2_bridge.yaml", tmp_path, f"ros2_killed_{os.getpid()}")  # fresh_within: 0
+    report_path = tmp_path / "report.json"
+    run = start_run(config, tmp_path, "--duration", "120", "--report", str(report_path))
+    try:
+        rtpu0 = run_processes(run)["rtpu0"]
+        [subscriber] = [pid for pid, command in children_of(rtpu0).items() if "modules._ros2_goal_subscriber" in command]
+        os.kill(subscriber, signal.SIGKILL)
+        read_until(run, "critical task 'robot' runs its locally stable behaviour: a task upstream has no fresh input")
+    finally:
+        if run.poll() is None:
+            run.send_signal(signal.SIGINT)
+        _out, err = run_output(run)
+    assert (f"task 'goal': its ROS 2 subscriber process (pid {subscriber}) ended with exit status -9: "
+            "/pbo/q_d is a stale input from now on") in err, err
+    assert "Traceback" not in err, err
+    assert run.returncode == 2, err
+    faults = json.loads(report_path.read_text())["faults"]
+    assert any(fault.startswith("task 'goal' had no fresh input until the stop") for fault in faults), faults
+
+
 @pytest.mark.parametrize("module", [Ros2Goal, Ros2JointStates])
 def test_a_bridge_task_without_cyclonedds_fails_its_spawn_naming_the_ros2_extra(make_table, monkeypatch, module):
     monkeypatch.setitem(sys.modules, "cyclonedds", None)  # as if never installed: importing it raises ImportError
@@ -270,18 +340,8 @@ def test_a_bridge_task_without_cyclonedds_fails_its_spawn_naming_the_ros2_extra(
             "pip install 'pbo-runtime[ros2]'") in task.last_error
 
 
-def _without_its_thread(task: Task) -> None:
-    """End a goal task's DDS thread: what is measured then is the cycle alone (tracemalloc sees every
-    thread); a joint states task's publisher is another process already."""
-    module = task.module
-    if isinstance(module, Ros2Goal):
-        module._stopping = True
-        module._wake.set(True)
-        module._thread.join()
-
-
-# (the joint states' publisher: a process)
-@pytest.mark.parametrize("module", [pytest.param(Ros2JointStates, marks=pytest.mark.multiprocess), Ros2Goal])
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("module", [Ros2JointStates, Ros2Goal])
 def test_a_bridge_tasks_cycle_allocates_nothing(make_table, module):
     table = make_table(variables(("q_d", "float64", (6,)), ("q_m", "float64", (6,)), ("qd_m", "float64", (6,)),
                                  ("tau", "float64", (6,))))
@@ -291,11 +351,11 @@ def test_a_bridge_tasks_cycle_allocates_nothing(make_table, module):
     assert task.spawn(0.0), task.last_error
     assert task.turn_on(0.0), task.last_error
     try:
-        _without_its_thread(task)
         bridge = task.module
 
-        def a_new_message_every_cycle() -> None:
-            bridge._received += 1
+        def a_new_message_every_cycle() -> None:  # (as the subscriber process writes one: the record's number moves)
+            bridge._record.begin()
+            bridge._record.end()
             bridge.cycle()
 
         assert allocation_peak(bridge.cycle if module is Ros2JointStates else a_new_message_every_cycle) < one_array()

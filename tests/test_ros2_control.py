@@ -192,3 +192,50 @@ def test_the_driver_takes_the_robots_joints_by_name_in_its_own_order_and_its_cyc
     finally:
         robot.kill()
         run_output(robot)
+
+
+def joint_states_of(domain: int, names: list[int], positions: list[float]) -> subprocess.Popen:
+    """A robot's joint_state_broadcaster stand-in: JointStates of joints `names` (joint<n>) at 100 Hz."""
+    return subprocess.Popen([sys.executable, "-m", "tests.ros2_peer", "publish", str(domain), "/joint_states",
+                             "sensor_msgs/msg/JointState", "60", *map(str, names + positions)], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.multiprocess
+def test_a_driver_whose_dds_process_dies_keeps_the_last_state_and_the_run_says_so(plant_registers, capfd):
+    domain = own_dds_domain()
+    robot = joint_states_of(domain, [1, 2, 3, 4, 5, 6], [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+    try:
+        driver = Ros2ControlArm(plant_registers, {"domain": domain})
+        try:
+            q, qd = np.zeros(6), np.zeros(6)
+            until(lambda: driver.read_state(q, qd) >= 1.0, "a whole state is read")
+            dds = driver._dds
+            dds.process.kill()
+            until(lambda: dds.ended, "the driver learns that its DDS process ended")
+            stamp = driver.read_state(q, qd)
+            assert driver.read_state(q, qd) == stamp >= 1.0  # no new state can come: the arm's time stands still
+            np.testing.assert_array_equal(q, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+            ended = f"ros2_control driver: its DDS process (pid {dds.process.pid}) ended with exit status -9"
+            assert driver.figures()["dds_process"] == ended
+        finally:
+            driver.close()
+    finally:
+        robot.kill()
+        run_output(robot)
+    assert f"{ended}: the arm's state is stale from now on, and no command goes out" in capfd.readouterr().err
+
+
+@pytest.mark.multiprocess
+def test_a_joint_state_that_lacks_a_joint_is_refused_naming_what_it_has_and_what_is_needed(plant_registers, capfd):
+    domain = own_dds_domain()
+    robot = joint_states_of(domain, [1, 2, 3], [0.1, 0.2, 0.3])  # three joints of the six
+    try:
+        with pytest.raises(DeviceError, match="no JointState of the joints"):
+            Ros2ControlArm(plant_registers, {"domain": domain})
+    finally:
+        robot.kill()
+        run_output(robot)
+    assert ("ros2_control driver: refused a JointState on /joint_states (names ['joint1', 'joint2', 'joint3'], 3 positions; "
+            "it needs the joints ['joint1', 'joint2', 'joint3', 'joint4', 'joint5', 'joint6']); 1 refused so far"
+            ) in capfd.readouterr().err

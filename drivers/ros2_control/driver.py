@@ -9,12 +9,17 @@ taken by name, in `joints`' order), and each `write_torque` (`write_position`) g
 (`/forward_effort_controller/commands`, `/forward_position_controller/commands`), both as a ROS 2
 node's topics on the DDS domain `domain` (-1: ROS_DOMAIN_ID, else 0).
 
-No call of a cycle touches DDS. A thread of the driver (below the RTPU's executive) takes each
-JointState into a buffer; opening the driver waits for the first (up to 5 s, else it fails saying
-so), so no command is ever computed from a state never read. `read_state` copies the newest out and
-returns its header stamp as the arm's time, so a `/joint_states` that stops is a plant that stopped:
-the robot interface holds after `stall_after` seconds and the run says so. `write_torque` copies the
-command into a buffer and wakes the thread (an eventfd write), which publishes it. With the brakes
+No call of a cycle touches DDS, and no DDS work runs in the RTPU's process: a process of the
+driver's own (drivers/ros2_control/dds_side.py, through `DdsProcess`) takes each
+JointState into a record both share; opening the driver waits for the first (up to 5 s, else it
+fails saying so), so no command is ever computed from a state never read. `read_state` copies the
+newest out (no lock: a copy torn by a write in progress is dropped, the one before kept) and
+returns its header stamp as the arm's time, so a `/joint_states` that stops is a plant that
+stopped: the robot interface holds after `stall_after` seconds and the run says so; so it does
+when that process ends, which the run says on stderr too. Once started, the process runs just
+below every executive (`keep_up`): the arm's state is an input the robot interface needs fresh, and
+behind every ordinary process of a loaded machine it would come late. `write_torque` writes the command into
+another record and wakes the process (an eventfd write), which publishes it. With the brakes
 engaged (the task off, held, in ERROR) no command goes out: the ros2_control side must then hold the
 arm (a controller's command timeout or the drive's brakes), as a real drive holds when its commands
 stop.
@@ -26,7 +31,6 @@ robot model the ros2_control side drives. Needs the 'ros2' extra (cyclonedds).
 from __future__ import annotations
 
 import os
-import threading
 import time
 from collections.abc import Mapping
 from typing import Any, ClassVar
@@ -34,10 +38,10 @@ from typing import Any, ClassVar
 import numpy as np
 
 from drivers.mujoco_arm.registers import DeviceError, attach_registers
-from pbo_runtime import DeviceDriver, below_the_cycle, ros2_messages, sleep_while_cycling
+from drivers.ros2_control.dds_side import PUBLISHED, RECEIVED, REFUSED, state_size
+from pbo_runtime import DdsProcess, DeviceDriver, ModuleError, ros2_messages, sleep_while_cycling
 
 _OPTIONS = ("mode", "joint_states", "commands", "joints", "domain", "stall_after")
-_WAIT = 1_000_000_000  # ns the thread waits for a message or the driver's close before it looks again
 FIRST_STATE_PATIENCE = 5.0  # s the driver's opening waits for the first JointState (within the supervisor's 10 s for a spawn)
 
 
@@ -106,55 +110,50 @@ class Ros2ControlArm(DeviceDriver):
         self._names = list(self.options.get("joints") or [f"joint{i + 1}" for i in range(self.ndof)])
         if len(self._names) != self.ndof:
             raise DeviceError(f"ros2_control driver: joints names {len(self._names)} joints, the robot has {self.ndof}")
-        self._state = np.zeros((2, self.ndof))  # q, qd of the newest JointState
-        self._stamp = np.zeros(1)  # its header stamp, s
-        self._command = np.zeros(self.ndof)
         self._finite = np.zeros(self.ndof, dtype=bool)  # per element of a command: finite (filled per write)
-        self._lock = threading.Lock()
-        self._acquire, self._release = self._lock.acquire, self._lock.release
-        self._q, self._qd = self._state[0], self._state[1]
         self._braked = True
         self._faults: list[dict[str, Any]] = []
-        self.received = 0  # JointStates taken
-        self.refused = 0  # JointStates that lacked one of the joints
-        self.published = 0
+        domain = ros2.domain_id(int(self.options.get("domain", -1)))
+        setup = {"domain": domain, "joint_states": self.options.get("joint_states", "/joint_states"),
+                 "commands": self.options.get("commands", COMMAND_TOPICS[self.mode]), "joints": self._names}
+        try:
+            self._dds = DdsProcess("drivers.ros2_control.dds_side", setup, [state_size(self.ndof), self.ndof],
+                                   "ros2_control driver: its DDS",
+                                   "the arm's state is stale from now on, and no command goes out", keep_up=True)
+        except ModuleError as exc:
+            raise DeviceError(str(exc)) from None
+        self._state, self._command = self._dds.records
+        self._state_sequence, self._read = self._state.sequence, self._state.read
+        self._copy = np.zeros(state_size(self.ndof))  # the record copied out, kept only when whole
+        self._kept = np.zeros(state_size(self.ndof))  # the newest whole copy: stamp, q, qd
+        self._q, self._qd = self._kept[1:1 + self.ndof], self._kept[1 + self.ndof:]
+        self._taken = 0  # the sequence number of the copy kept
+        self._begin_command, self._end_command = self._command.begin, self._command.end
+        self._command_values, self._wake = self._command.values, self._dds.wake
+        self._wait_for_the_first_state(domain)
 
-        from cyclonedds.core import GuardCondition, InstanceState, ReadCondition, SampleState, ViewState, WaitSet
-        from cyclonedds.domain import DomainParticipant
-        from cyclonedds.pub import DataWriter
-        from cyclonedds.sub import DataReader
-        from cyclonedds.topic import Topic
+    @property
+    def received(self) -> int:
+        """JointStates taken."""
+        return int(self._dds.counters[RECEIVED])
 
-        self._participant: DomainParticipant | None = DomainParticipant(ros2.domain_id(int(self.options.get("domain", -1))))
-        qos = ros2.ros2_qos()
-        reader = DataReader(
-            self._participant,
-            Topic(self._participant, ros2.dds_topic(self.options.get("joint_states", "/joint_states")), ros2.JointState, qos=qos),
-            qos=qos,
-        )
-        writer = DataWriter(self._participant, Topic(self._participant, ros2.dds_topic(
-            self.options.get("commands", COMMAND_TOPICS[self.mode])), ros2.Float64MultiArray, qos=qos), qos=qos)
-        self._node = ros2.announce_node(self._participant, "pbo_ros2_control", readers=[reader], writers=[writer])
-        self._waitset = WaitSet(self._participant)
-        self._waitset.attach(ReadCondition(reader, SampleState.NotRead | ViewState.Any | InstanceState.Any))
-        self._wake_reader = GuardCondition(self._participant)
-        self._waitset.attach(self._wake_reader)
-        self._wake_writer = os.eventfd(0, os.EFD_CLOEXEC)
-        self._stopping = False
-        self._threads = [
-            threading.Thread(target=self._take_states, args=(reader, ros2.JointState), daemon=True, name="ros2-states"),
-            threading.Thread(
-                target=self._publish_commands, args=(writer, ros2.Float64MultiArray()), daemon=True, name="ros2-commands"
-            ),
-        ]
-        for thread in self._threads:
-            thread.start()
-        self._wait_for_the_first_state(ros2.domain_id(int(self.options.get("domain", -1))))
+    @property
+    def refused(self) -> int:
+        """JointStates that lacked one of the joints."""
+        return int(self._dds.counters[REFUSED])
+
+    @property
+    def published(self) -> int:
+        """Commands published."""
+        return int(self._dds.counters[PUBLISHED])
 
     def _wait_for_the_first_state(self, domain: int) -> None:
         """Open only an arm whose state is known: a command computed from a state never read would move it."""
         deadline = time.monotonic() + FIRST_STATE_PATIENCE
         while self.received == 0:
+            if self._dds.ended:
+                self.close()
+                raise DeviceError(self._dds.ended)
             if time.monotonic() > deadline:
                 self.close()
                 topic = self.options.get("joint_states", "/joint_states")
@@ -175,11 +174,12 @@ class Ros2ControlArm(DeviceDriver):
 
     def read_state(self, q_out: np.ndarray, qd_out: np.ndarray) -> float:
         """The newest JointState's positions and velocities; its stamp, s (0 before the first)."""
-        self._acquire()
+        if self._state_sequence[0] != self._taken and (taken := self._read(self._copy)) > 0:
+            np.copyto(self._kept, self._copy)
+            self._taken = taken
         np.copyto(q_out, self._q)
         np.copyto(qd_out, self._qd)
-        stamp: float = self._stamp[0]
-        self._release()
+        stamp: float = self._kept[0]
         return stamp
 
     def write_torque(self, tau: np.ndarray) -> None:
@@ -197,10 +197,10 @@ class Ros2ControlArm(DeviceDriver):
             raise DeviceError(f"ros2_control driver: write_{mode} refused a command that is not finite ({command.tolist()})")
         if self._braked:
             return
-        self._acquire()
-        np.copyto(self._command, command)
-        self._release()
-        os.eventfd_write(self._wake_writer, 1)
+        self._begin_command()
+        np.copyto(self._command_values, command)
+        self._end_command()
+        self._wake()
 
     def release_brakes(self) -> None:
         self._braked = False
@@ -215,64 +215,16 @@ class Ros2ControlArm(DeviceDriver):
 
     def figures(self) -> dict[str, Any]:
         figures: dict[str, Any] = {"joint_states": self.received, "commands": self.published, "refused": self.refused}
+        if self._dds.ended:
+            figures["dds_process"] = self._dds.ended
         if self._faults:
             figures.update({**self._faults[0], "faults": list(self._faults)})
         return figures
 
-    # the threads ------------------------------------------------------------------------------
-
-    def _take_states(self, reader: Any, kind: type[Any]) -> None:
-        below_the_cycle()
-        names = self._names
-        while not self._stopping:
-            self._waitset.wait(_WAIT)
-            for sample in reader.take(N=16):
-                if not isinstance(sample, kind):
-                    continue
-                try:
-                    order = [sample.name.index(name) for name in names]
-                    q = [sample.position[i] for i in order]
-                    qd = [sample.velocity[i] for i in order] if len(sample.velocity) == len(sample.name) else [0.0] * len(names)
-                except ValueError:
-                    self.refused += 1
-                    continue
-                stamp = sample.header.stamp.sec + sample.header.stamp.nanosec * 1e-9
-                self._acquire()
-                self._q[:] = q
-                self._qd[:] = qd
-                self._stamp[0] = stamp
-                self._release()
-                self.received += 1
-
-    def _publish_commands(self, writer: Any, message: Any) -> None:
-        below_the_cycle()
-        staging = np.zeros(self.ndof)
-        while True:
-            os.eventfd_read(self._wake_writer)  # waits without the GIL
-            if self._stopping:
-                return
-            self._acquire()
-            np.copyto(staging, self._command)
-            self._release()
-            message.data = staging.tolist()
-            writer.write(message)
-            self.published += 1
-
     def close_now(self) -> Any:
         self._braked = True
-        self._stopping = True
-        self._wake_reader.set(True)
-        os.eventfd_write(self._wake_writer, 1)
-
-        def rest() -> None:
-            for thread in self._threads:
-                thread.join()
-            os.close(self._wake_writer)
-            self._node = None
-            self._participant = None
-
-        return rest
+        self._dds.hang_up()
+        return self._dds.close
 
     def close(self) -> None:
-        rest = self.close_now()
-        rest()
+        self.close_now()()

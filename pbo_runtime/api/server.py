@@ -120,4 +120,6 @@ def serve(file: str | None, host: str, port: int, subsystem: str | None, run: st
         uvicorn.Server(config).run(sockets=[sock])
     finally:
         sock.close()
+        if app.state.application_run is not None:  # a run the page started ends with the server
+            app.state.application_run.stop()
     return 0

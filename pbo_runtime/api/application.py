@@ -24,7 +24,7 @@ from fastapi import APIRouter, FastAPI, Request
 from pydantic import BaseModel
 from starlette.concurrency import run_in_threadpool
 
-from pbo_runtime.api.application_run import ApplicationRun, RunRefused
+from pbo_runtime.api.application_run import CLOCKS, ApplicationRun, RunRefused
 from pbo_runtime.api.files import in_tree, served_root
 from pbo_runtime.api.replies import BAD_REQUEST, NO_RUN, REFUSED, Reply, refusal
 from pbo_runtime.config.application import Application, check_application
@@ -113,6 +113,9 @@ def router() -> APIRouter:
 
     @routes.post("/run", summary="run the application file as pbo run APP.yaml does (one supervisor per subsystem)")
     async def post_run(request: Request, body: RunBody) -> Reply:
+        if body.clock not in CLOCKS:
+            return refusal(BAD_REQUEST, f"not started: clock must be one of {', '.join(CLOCKS)}, got {body.clock!r}",
+                           bad_request=True)
         try:
             file = application_file(request.app)
             await run_in_threadpool(checked, request.app, file)  # a file that does not check is not started

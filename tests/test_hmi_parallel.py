@@ -2,7 +2,8 @@
 subsystem, a stage built from the dictionary (grouped by subsystem), saved (the file then checks clean)
 and run on the simulated clock as `pbo run APP.yaml` runs it, each arm lighting its running step.
 
-With PBO_SCREENSHOTS naming a folder, the workspace with the new stage is saved there as hmi-workspace-parallel.png.
+With PBO_SCREENSHOTS naming a folder, the workspace with the new stage is saved there as hmi-workspace-parallel.png,
+and the run in its second stage as hmi-workspace-parallel-running.png.
 """
 
 from __future__ import annotations
@@ -77,6 +78,9 @@ def test_a_parallel_stage_is_built_from_the_dictionary_saved_and_run_arm_by_arm(
         for stage, subsystem, name in ((1, "left", "reach"), (1, "right", "reach"), (2, "left", "wave"),
                                        (4, "left", "reach"), (4, "right", "reach")):
             expect(arm(page, stage, subsystem).locator(f".unit[data-name={name}]")).to_have_attribute("aria-current", "step")
+            if name == "wave":
+                expect(page.locator("[data-test=subsystem-path-left]")).to_contain_text("(stage 2: wave > repeat")
+                screenshot(page, "hmi-workspace-parallel-running.png")
         expect(page.locator("[data-test=subsystem-path-right]")).to_have_text("reach (stage 4)")
         expect(page.locator("[data-test=workspace-running]")).to_contain_text(
             "Ended: every subsystem ran its stages to the end (exit 0)")

@@ -127,3 +127,17 @@ def test_a_subsystem_file_has_no_application_routes(tmp_path):
     reply = TestClient(create_app(NoRunLink(), TOKEN, str(copy))).get("/api/application", headers=BEARER)  # type: ignore[arg-type]
     assert reply.status_code == 404
     assert reply.json()["error"].startswith("pbo hmi was given no application file")
+
+
+def test_a_run_that_picks_each_subsystems_application_is_not_overwritten_by_stages(tmp_path):
+    for name in ("leader_follower.yaml", "leader.yaml", "follower.yaml"):
+        shutil.copy(REPO / "configs" / name, tmp_path / name)
+    file = tmp_path / "leader_follower.yaml"
+    before = file.read_text()
+    client = TestClient(create_app(NoRunLink(), TOKEN, str(file)))  # type: ignore[arg-type]
+    assert client.get("/api/application", headers=BEARER).json()["stages"] == []
+    reply = client.post("/api/application/stages", headers=BEARER,
+                        json={"stages": [{"arms": {"operator": [{"name": "tour", "object": None}]}}]})
+    assert reply.status_code == 400
+    assert "picks each subsystem's configuration or application" in reply.json()["error"]
+    assert file.read_text() == before

@@ -124,6 +124,10 @@ def save_stages(file: str, stages: list[dict[str, Any]]) -> ApplicationCheck:
     if not isinstance(doc, CommentedMap):
         raise WriteRefused(f"not saved: {file} is not a mapping of sections: run pbo check {file}")
     before = doc.get("run")
+    if isinstance(before, CommentedMap):
+        raise WriteRefused(f"not saved: run: of {file} picks each subsystem's configuration or application (run: "
+                           "{SUBSYSTEM: {config: NAME}}); the workspace writes stages (run: [parallel: ...]): change "
+                           "one into the other in the file first")
     old = list(before) if isinstance(before, CommentedSeq) else []
     # a stage as it was keeps its node, with its comments and layout; a changed one is written anew
     doc["run"] = CommentedSeq(old[i] if i < len(old) and _plain(old[i]) == stage else

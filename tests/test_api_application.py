@@ -141,3 +141,17 @@ def test_a_run_that_picks_each_subsystems_application_is_not_overwritten_by_stag
     assert reply.status_code == 400
     assert "picks each subsystem's configuration or application" in reply.json()["error"]
     assert file.read_text() == before
+
+
+@pytest.mark.multiprocess
+def test_run_starts_pbo_run_of_the_file_and_every_subsystem_does_every_stage(client, file):
+    reply = client.post("/api/application/run", headers=BEARER, json={"clock": "sim"})
+    assert reply.status_code == 200, reply.text
+    assert reply.json()["message"].startswith("pbo run two_arms.yaml --clock sim started (pid ")
+    again = client.post("/api/application/run", headers=BEARER, json={"clock": "sim"})
+    assert again.status_code == 409 and "the application runs already" in again.json()["error"]
+    assert client.app.state.application_run.wait(timeout=600) == 0  # a net for a hang, never a timing
+    state = client.get("/api/application/run", headers=BEARER).json()["run"]
+    assert (state["running"], state["exit"], state["stages_done"]) == (False, 0, {"left": 3, "right": 3})
+    assert "[left] pbo: every stage is done" in state["lines"] and "[right] pbo: every stage is done" in state["lines"]
+    assert [p.name[:9] for p in (file.parent / "runs").iterdir()] == ["two_arms-"]  # in the served folder

@@ -40,6 +40,7 @@ class ApplicationRun:
         self._lines: collections.deque[str] = collections.deque(maxlen=KEPT_LINES)
         self._done: dict[str, int] = {}  # subsystem -> the stages it has done in this run
         self._lock = threading.Lock()
+        self._reader: threading.Thread | None = None
 
     def start(self, clock: str) -> dict[str, Any]:
         if clock not in CLOCKS:
@@ -55,7 +56,8 @@ class ApplicationRun:
             self._process = subprocess.Popen(command, cwd=self.folder, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                              stderr=subprocess.STDOUT, text=True, start_new_session=True,
                                              env={**os.environ, "PYTHONUNBUFFERED": "1"})
-            threading.Thread(target=self._keep_output, args=(self._process,), daemon=True).start()
+            self._reader = threading.Thread(target=self._keep_output, args=(self._process,), daemon=True)
+            self._reader.start()
         return self.state()
 
     def _keep_output(self, process: subprocess.Popen[str]) -> None:
@@ -74,6 +76,18 @@ class ApplicationRun:
         return {"started": process is not None, "running": process is not None and code is None,
                 "pid": None if process is None else process.pid, "exit": code, "clock": self.clock,
                 "stages_done": dict(self._done), "lines": list(self._lines)}
+
+    def wait(self, timeout: float) -> int | None:
+        """The exit status once the run has ended and its output is read; None if it did not end in `timeout` s."""
+        process, reader = self._process, self._reader
+        if process is None or reader is None:
+            return None
+        try:
+            code = process.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return None
+        reader.join()
+        return code
 
     def stop(self) -> bool:
         """SIGINT to the runner (its Ctrl-C: every subsystem stops cleanly); killed after STOP_GRACE. False: none ran."""

@@ -233,9 +233,10 @@ export function ApplicationUser({ workspace, setWorkspace }) {
     try { const reply = await post("application/stop"); setRun(reply.run); } catch (e) { setMessage({ text: e.message, error: true }); }
   };
   const progress = useRef({});
-  const places = Object.fromEntries(keys.map((key) => [key, run && run.running
-    ? placeOf(statuses[key], key, keys, steps, Math.max(joined[key] || 0, run.stages_done[key] || 0),
-              workspace.subsystems[key].dictionary, progress.current) : null]));
+  // a run started here says how many stages each subsystem has done; one started elsewhere, only its joins
+  const done = (key) => (run && run.running ? run.stages_done[key] || 0 : 0);
+  const places = Object.fromEntries(keys.map((key) => [key, placeOf(statuses[key], key, keys, steps,
+    Math.max(joined[key] || 0, done(key)), workspace.subsystems[key].dictionary, progress.current)]));
   const [over, setOver] = useState(false);
   const ended = run && run.started && !run.running;
   const lastLine = run && run.lines.length ? run.lines[run.lines.length - 1] : "";

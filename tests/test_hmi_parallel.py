@@ -63,8 +63,19 @@ def test_a_parallel_stage_is_built_from_the_dictionary_saved_and_run_arm_by_arm(
         right_gap.click()
         expect(arm(page, 4, "right").locator("[data-object=ready]")).to_be_visible()
         expect(page.locator("[data-test=run-readiness]")).to_have_text("Changed: save the stages to run them.")
+        page.locator(".dictionary-pane").evaluate("pane => { pane.scrollTop = 0; }")  # the picture shows the Stages section
         screenshot(page, "hmi-workspace-parallel.png")
 
+        # a condition the left subsystem cannot read: every arm interlocks, but the file would not check
+        condition = arm(page, 3, "left").get_by_label("condition of step 1 if")
+        condition.fill("q_nowhere[0] > 0")
+        before = file.read_text()
+        page.get_by_role("button", name="Save stages").click()
+        expect(message(page)).to_contain_text("Not saved: ")
+        expect(message(page)).to_contain_text("two_arms.yaml would have 1 error, the first: ")
+        expect(message(page)).to_contain_text("error[E813]: run: stage 3: the steps of subsystem 'left' do not interlock")
+        assert file.read_text() == before
+        condition.fill("abs(q_m[0]) > 0.01")
         page.get_by_role("button", name="Save stages").click()
         expect(message(page)).to_have_text("run: saved to two_arms.yaml, 4 stage(s); pbo check finds no error")
         text = file.read_text()

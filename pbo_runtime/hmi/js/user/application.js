@@ -89,7 +89,7 @@ function ParallelUnit({ workspace, step, index, count, actions, places }) {
       <div class="decision-head">
         <button class="icon step-icon" data-name="parallel" onKeyDown=${keys}
                 aria-label=${`step ${index + 1}: parallel, stage ${index + 1} of run: ${PARALLEL_DOC}; Delete removes it, Alt+arrows move it`}>
-          <${IconSvg} edges=${FLAT_EDGES} kind="decision" title="parallel" subtitle=${`stage ${index + 1}`} />
+          <${IconSvg} edges=${FLAT_EDGES} kind="decision" title="parallel" subtitle=${`stage ${index + 1}, at once`} />
         </button>
         <span class="step-tools">
           <button aria-label=${`remove step ${index + 1} parallel`} onClick=${() => actions.remove(index, [])}>✕</button>
@@ -208,7 +208,7 @@ export function ApplicationUser({ workspace, setWorkspace }) {
       setDirty(false);
       setMessage({ text: reply.message, error: false });
     } catch (e) {
-      setMessage({ text: `Not saved: ${e.message}`, error: true });
+      setMessage({ text: `Not saved: ${e.message.replace(/^not saved: /, "")}`, error: true });
     } finally {
       setBusy(false);
     }
@@ -253,7 +253,8 @@ export function ApplicationUser({ workspace, setWorkspace }) {
             <h3>Stages</h3>
             <ul class="icon-list" aria-label="stages"><li>
               <${DictionaryIcon} name="parallel" entry=${{ edges: FLAT_EDGES, doc: PARALLEL_DOC }} what="decision"
-                                 selected=${selected === "parallel"} onSelect=${select} onAppend=${append} />
+                                 selected=${selected === "parallel"} onSelect=${select} onAppend=${append} note="at once"
+                                 label=${`parallel: a stage of run: that ${PARALLEL_DOC}`} />
             </li></ul>
           </section>
           ${keys.map((key) => html`
@@ -263,7 +264,7 @@ export function ApplicationUser({ workspace, setWorkspace }) {
                              onAppend=${append} prefix=${key + ":"} />
             </section>`)}
         </aside>
-        <div class="workspace-pane"><h2>Application workspace: run: of ${workspace.application}</h2>
+        <div class="workspace-pane"><h2>Application workspace: ${workspace.application}, its stages (run:)</h2>
           <div class="workspace">
             <div class=${"row" + (over ? " over" : "")} role="list" aria-label="application workspace" data-test="workspace-row"
                  ...${dropProps((id) => actions.insert({ path: [], before: steps.length }, id),

@@ -26,15 +26,15 @@ export function iconLabel(name, entry, what) {
 }
 
 /** One icon of the dictionary: a button, draggable; aria-pressed when selected. */
-function DictionaryIcon({ name, entry, what, selected, onSelect, onAppend, prefix = "" }) {
+function DictionaryIcon({ name, entry, what, selected, onSelect, onAppend, prefix = "", note = null, label = null }) {
   const id = prefix + name;  // an application file's workspace: `subsystem:name`, the icon of that subsystem
   const kind = what === "object" ? "object" : what === "decision" ? "decision" : entry.class;
-  const subtitle = what === "object" ? entry.type : what === "decision" ? "decides"
+  const subtitle = note ? note : what === "object" ? entry.type : what === "decision" ? "decides"
                  : (what === "application" ? "app · " : "") + SUBTITLES[entry.class](entry);
   return html`
     <button class=${"icon dictionary-icon" + (selected ? " selected" : "")} draggable="true" aria-pressed=${selected}
-            aria-label=${iconLabel(name, entry, what)} data-icon=${name} data-class=${kind}
-            title=${entry.doc || iconLabel(name, entry, what)}
+            aria-label=${label || iconLabel(name, entry, what)} data-icon=${name} data-class=${kind}
+            title=${entry.doc || label || iconLabel(name, entry, what)}
             onDragStart=${(e) => { e.dataTransfer.setData(DRAG_ICON, id); e.dataTransfer.setData("text/plain", id);
                                    e.dataTransfer.effectAllowed = "copy"; onSelect(id, true); }}
             onClick=${() => onSelect(id)}

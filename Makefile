@@ -28,7 +28,8 @@ bench: $(STAMP)          ## every benchmark against its baseline (about 25 minut
 	$(BIN)/python -m bench
 
 screenshots: $(STAMP)   ## the HMI's pictures in docs/, taken by its browser tests (needs chromium)
-	PBO_SCREENSHOTS=docs $(BIN)/python -m pytest -q tests/test_hmi_engineer.py tests/test_hmi_user.py tests/test_hmi_monitor.py
+	PBO_SCREENSHOTS=docs $(BIN)/python -m pytest -q tests/test_hmi_engineer.py tests/test_hmi_user.py tests/test_hmi_monitor.py \
+		tests/test_hmi_parallel.py
 
 clean-shm: $(STAMP)      ## remove shared memory left by runs that crashed
 	$(BIN)/pbo clean

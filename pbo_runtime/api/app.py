@@ -21,7 +21,7 @@ from fastapi.openapi.utils import get_openapi
 from fastapi.responses import FileResponse, HTMLResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from pbo_runtime.api import canvas, files, monitor, streams, verbs, workspace
+from pbo_runtime.api import application, canvas, files, monitor, streams, verbs, workspace
 from pbo_runtime.api.auth import COOKIE, require_token
 from pbo_runtime.api.files import OutsideRoot
 from pbo_runtime.api.guard import Guard
@@ -69,6 +69,8 @@ def create_app(link: RunLink, token: str, file: str | None = None) -> FastAPI:
     app.state.link = link
     app.state.token = token
     app.state.file = file
+    app.state.application_run = None  # the run of an application file the page started (api.application)
+    app.state.application_subsystems = set()  # that file's subsystems, whose status streams the page may open
 
     protected = APIRouter(dependencies=[Depends(require_token)], responses=REFUSALS)
 
@@ -105,6 +107,7 @@ def create_app(link: RunLink, token: str, file: str | None = None) -> FastAPI:
     protected.include_router(canvas.router())
     protected.include_router(workspace.router())
     protected.include_router(monitor.router())
+    protected.include_router(application.router())
     app.include_router(protected)
 
     @app.exception_handler(StarletteHTTPException)

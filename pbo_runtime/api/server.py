@@ -18,6 +18,7 @@ import yaml
 from pbo_runtime.api.app import create_app
 from pbo_runtime.api.auth import new_token
 from pbo_runtime.api.link import LiveRunLink, NoRun
+from pbo_runtime.config.file_kind import is_application_file
 from pbo_runtime.errors import PboError
 
 DEFAULT_PORT = 8470
@@ -97,16 +98,19 @@ def serve(file: str | None, host: str, port: int, subsystem: str | None, run: st
           say: Callable[[str], None], warn: Callable[[str], None], allow_remote: bool = False) -> int:
     """Serve until Ctrl-C; the exit status. PboError (exit 2) when the run meant is not there or the port is taken.
 
-    Given FILE and no --subsystem or --run, the run served is the one of FILE's subsystem. A host
+    Given FILE and no --subsystem or --run, the run served is the one of FILE's subsystem (an application
+    file's: each of its subsystems', by name, as the page asks: api.application). A host
     that is not loopback is refused (exit 1) unless `allow_remote`.
     """
     if not is_loopback(host) and not allow_remote:
         warn(f"error: {remote_risk(host)}; to accept that, give --allow-remote")
         return 1
-    if file is not None and subsystem is None and run is None:
+    application = file is not None and subsystem is None and run is None and is_application_file(file)
+    if file is not None and subsystem is None and run is None and not application:
         subsystem = subsystem_of(file)
     link = LiveRunLink(subsystem, run)
-    attached = describe_run(link)
+    # an application file: the page reads each subsystem's run by its name (api.application), and may start one
+    attached = "application file: its subsystems' runs are found by their names" if application else describe_run(link)
     token = new_token()
     sock = bind(host, port)
     port = sock.getsockname()[1]
@@ -120,4 +124,6 @@ def serve(file: str | None, host: str, port: int, subsystem: str | None, run: st
         uvicorn.Server(config).run(sockets=[sock])
     finally:
         sock.close()
+        if app.state.application_run is not None:  # a run the page started ends with the server
+            app.state.application_run.stop()
     return 0

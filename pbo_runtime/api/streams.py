@@ -1,6 +1,8 @@
 """Live streams over WebSocket: the status reply at a few Hz, chosen variables at up to 100 Hz.
 
     /api/streams/status?rate=2                     the status reply (as POST /api/verbs/status), 2 a second
+    /api/streams/status?subsystem=NAME             the same of subsystem NAME's run, a subsystem of the
+                                                   application file served (api.application)
     /api/streams/variables?names=q_m,tau_u&rate=50  {"time", "values": {name: value}, "sequences": {name: n}}
 
 The variables are read from the run's table under its seqlock (`table.svar`), never under the
@@ -22,7 +24,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect, status
 from starlette.concurrency import run_in_threadpool
 
 from pbo_runtime.api.jsonable import jsonable
-from pbo_runtime.api.link import NoRun, RunLink
+from pbo_runtime.api.link import LiveRunLink, NoRun, RunLink
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import shm
 from pbo_runtime.supervisor.commands import STATUS_TIMEOUT
@@ -117,6 +119,14 @@ def router() -> APIRouter:
     async def status_stream(websocket: WebSocket) -> None:
         await websocket.accept()
         link: RunLink = websocket.app.state.link
+        subsystem = websocket.query_params.get("subsystem")
+        if subsystem is not None:  # one subsystem of the application file served: several runs read side by side
+            names = websocket.app.state.application_subsystems
+            if subsystem not in names:
+                await refuse(websocket, f"no subsystem '{subsystem[:80]}' in the application file served "
+                                        f"(subsystems: {', '.join(sorted(names)) or 'none'})")
+                return
+            link = LiveRunLink(subsystem)
         try:
             rate = parse_rate(websocket.query_params.get("rate"), DEFAULT_STATUS_RATE, MAX_STATUS_RATE)
         except ValueError as exc:

@@ -1,4 +1,4 @@
-"""`pbo hmi`: the local API and the browser HMI for a live run (`api.server`)."""
+"""`pbo hmi`: the local API and the browser HMI for a live run (`api.server`), or for an application file's stages."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ from pbo_runtime.errors import require_extra
 
 def serve_api(args: argparse.Namespace, console: Console, errors: Console) -> int:
     if args.file is not None and not os.path.isfile(args.file):
-        errors.print(f"error: no subsystem file '{args.file}': give the YAML file of the subsystem, or none", markup=False)
+        errors.print(f"error: no subsystem file '{args.file}': give the YAML file of the subsystem (or of an application), "
+                     "or none", markup=False)
         return EXIT_CONFIG
     if not 0 <= args.port <= 65535:
         errors.print(f"error: --port must be 0 to 65535, got: {args.port}", markup=False)

@@ -159,7 +159,8 @@ HOUSEKEEPING: tuple[Command, ...] = (
         Argument("--json", flag=True, hidden=True)),  # the older spelling of --format json
         "pbo_runtime.cli.operator:list_runs"),
     Command("hmi", "serve the local API (HTTP + WebSocket) for a live run, on 127.0.0.1 with a token", (
-        Argument("file", nargs="?", help="the subsystem file for lexicon, check, bus and graph (default: the run's own)"),
+        Argument("file", nargs="?", help="the subsystem file for lexicon, check, bus and graph (default: the run's own); "
+                                         "an application file: its stages, edited and run from the page"),
         Argument("--port", type=int, default=8470, help="TCP port (default 8470; 0: any free port, printed)"),
         Argument("--host", default="127.0.0.1",
                  help="address to listen on (default 127.0.0.1: this machine only; another needs --allow-remote)"),

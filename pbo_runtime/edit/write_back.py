@@ -4,16 +4,22 @@ The new text is written to a draft in the file's folder, so its includes and the
 resolve as the file's will, and checked by `pbo check`'s own loader there. Only a draft that checks
 clean replaces the file, in one rename with the file's mode: a reader sees the old file or the
 whole new one, and a refused or failed write leaves the file as it was and no draft behind.
-`pbo save`, the canvas's jobs and the workspace's applications and objects all write through here.
+`pbo save`, the canvas's jobs and the workspace's applications and objects all write through here,
+and so does an application file's `run:` from the HMI (checked as `pbo check APP.yaml` checks it).
 """
 
 from __future__ import annotations
 
 import os
 import secrets
+from collections.abc import Callable
+from typing import TypeVar
 
+from pbo_runtime.config.application import ApplicationCheck, check_application
 from pbo_runtime.config.loader import CheckResult, check_file
 from pbo_runtime.errors import ConfigError, PboError
+
+Checked = TypeVar("Checked", CheckResult, ApplicationCheck)
 
 DRAFT_ATTEMPTS = 8  # names to try for the draft before giving up: another writer's draft may hold one
 
@@ -32,14 +38,25 @@ def write_checked(file: str, text: str, even_with_errors: bool = False) -> Check
     """Replace `file` (or create it) with `text` if `text` checks clean; the draft's check (its locations name
     the draft, which is gone). `even_with_errors` writes it whatever the check says: `pbo save`, whose reply
     warns instead. WriteRefused says why the file is as it was."""
+    return _replace_checked(file, text, check_file, lambda result: result.subsystem is not None, even_with_errors)
+
+
+def write_checked_application(file: str, text: str) -> ApplicationCheck:
+    """The same for an application file: `text` replaces `file` only if `pbo check` of it (every subsystem, link
+    and stage) has no error."""
+    return _replace_checked(file, text, check_application, lambda result: result.application is not None)
+
+
+def _replace_checked(file: str, text: str, check: Callable[[str], Checked], loads: Callable[[Checked], bool],
+                     even_with_errors: bool = False) -> Checked:
     folder, base = os.path.split(os.path.abspath(file))
     mode = _mode_of(file)
     draft, handle = _new_draft(file, folder, base)
     try:
         with os.fdopen(handle, "w", encoding="utf-8") as stream:
             stream.write(text)
-        result = check_file(draft)
-        if not even_with_errors and (result.errors or result.subsystem is None):
+        result = check(draft)
+        if not even_with_errors and (result.errors or not loads(result)):
             first = result.errors[0].format().splitlines()[0].replace(draft, file) if result.errors else "it does not load"
             count = f"{len(result.errors)} error" + ("" if len(result.errors) == 1 else "s")
             raise WriteRefused(f"not saved: {file} would have {count}, the first: {first}", result.errors, first)

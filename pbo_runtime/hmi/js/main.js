@@ -1,11 +1,13 @@
 // The HMI's frame: a header with the run (subsystem, configuration, job, the illegal-configuration
 // flag, Stop), two working levels as tabs (Engineer: lexicon and job canvas; User: job dictionary
 // and application workspace), and the monitor drawer below both. Each part is its own module.
+// Given an application file, the page is that file's workspace: its stages and its subsystems' runs.
 import { html, render, useState, useEffect } from "./html.js";
-import { stream, verb } from "./api.js";
+import { get, stream, verb } from "./api.js";
 import { Engineer } from "./engineer.js";
 import { User } from "./user.js";
 import { Monitor } from "./monitor.js";
+import { ApplicationUser } from "./user/application.js";
 
 // The printed URL carries ?token=...; the server set the cookie from it, so the address bar forgets it.
 if (new URLSearchParams(location.search).has("token")) history.replaceState(null, "", location.pathname);
@@ -45,6 +47,20 @@ function RunHeader({ status }) {
     </header>`;
 }
 
+/** `pbo hmi APP.yaml`: the application file's stages, its subsystems' runs side by side (user/application.js). */
+function ApplicationFile({ first }) {
+  const [workspace, setWorkspace] = useState(first);
+  return html`<${ApplicationUser} workspace=${workspace} setWorkspace=${setWorkspace} />`;
+}
+
+/** A subsystem file (or a run): the two levels and the monitor; an application file: its workspace. */
+function Page() {
+  const [application, setApplication] = useState(undefined);  // undefined: not asked yet; null: a subsystem's file
+  useEffect(() => { get("application").then(setApplication, () => setApplication(null)); }, []);
+  if (application === undefined) return html`<p>Loading…</p>`;
+  return application ? html`<${ApplicationFile} first=${application} />` : html`<${App} />`;
+}
+
 function App() {
   const status = useRunStatus();
   const [level, setLevel] = useState("engineer");
@@ -70,4 +86,4 @@ function App() {
 
 const root = document.getElementById("app");
 root.textContent = "";  // the "Loading" line, for browsers that never get this far
-render(html`<${App} />`, root);
+render(html`<${Page} />`, root);

@@ -6,6 +6,7 @@ import { html } from "../html.js";
 import { IconSvg, TypeSwatch, typeStyle } from "./edges.js";
 import { DECISIONS, iconOf } from "./row.js";
 
+export { DictionaryIcon };
 export const DRAG_ICON = "application/x-pbo-icon";
 
 const SUBTITLES = {
@@ -25,23 +26,24 @@ export function iconLabel(name, entry, what) {
 }
 
 /** One icon of the dictionary: a button, draggable; aria-pressed when selected. */
-function DictionaryIcon({ name, entry, what, selected, onSelect, onAppend }) {
+function DictionaryIcon({ name, entry, what, selected, onSelect, onAppend, prefix = "", note = null, label = null }) {
+  const id = prefix + name;  // an application file's workspace: `subsystem:name`, the icon of that subsystem
   const kind = what === "object" ? "object" : what === "decision" ? "decision" : entry.class;
-  const subtitle = what === "object" ? entry.type : what === "decision" ? "decides"
+  const subtitle = note ? note : what === "object" ? entry.type : what === "decision" ? "decides"
                  : (what === "application" ? "app · " : "") + SUBTITLES[entry.class](entry);
   return html`
     <button class=${"icon dictionary-icon" + (selected ? " selected" : "")} draggable="true" aria-pressed=${selected}
-            aria-label=${iconLabel(name, entry, what)} data-icon=${name} data-class=${kind}
-            title=${entry.doc || iconLabel(name, entry, what)}
-            onDragStart=${(e) => { e.dataTransfer.setData(DRAG_ICON, name); e.dataTransfer.setData("text/plain", name);
-                                   e.dataTransfer.effectAllowed = "copy"; onSelect(name, true); }}
-            onClick=${() => onSelect(name)}
-            onKeyDown=${(e) => { if (e.key === "Enter") { e.preventDefault(); onAppend(name); } }}>
+            aria-label=${label || iconLabel(name, entry, what)} data-icon=${name} data-class=${kind}
+            title=${entry.doc || label || iconLabel(name, entry, what)}
+            onDragStart=${(e) => { e.dataTransfer.setData(DRAG_ICON, id); e.dataTransfer.setData("text/plain", id);
+                                   e.dataTransfer.effectAllowed = "copy"; onSelect(id, true); }}
+            onClick=${() => onSelect(id)}
+            onKeyDown=${(e) => { if (e.key === "Enter") { e.preventDefault(); onAppend(id); } }}>
       <${IconSvg} edges=${entry.edges} kind=${kind} title=${name} subtitle=${subtitle} application=${what === "application"} />
     </button>`;
 }
 
-function Section({ title, items, selected, onSelect, onAppend, onEdit, onOpen, test }) {
+function Section({ title, items, selected, onSelect, onAppend, onEdit, onOpen, test, prefix = "" }) {
   if (!items.length) return null;
   return html`
     <section class="dictionary-section" data-test=${test}>
@@ -49,11 +51,11 @@ function Section({ title, items, selected, onSelect, onAppend, onEdit, onOpen, t
       <ul class="icon-list" aria-label=${title}>
         ${items.map(([name, entry, what]) => html`
           <li key=${name}>
-            <${DictionaryIcon} name=${name} entry=${entry} what=${what} selected=${selected === name}
-                               onSelect=${onSelect} onAppend=${onAppend} />
-            ${what === "object" ? html`<button class="icon-action" aria-label=${`edit the values of ${name}`}
+            <${DictionaryIcon} name=${name} entry=${entry} what=${what} selected=${selected === prefix + name}
+                               onSelect=${onSelect} onAppend=${onAppend} prefix=${prefix} />
+            ${what === "object" && onEdit ? html`<button class="icon-action" aria-label=${`edit the values of ${name}`}
                                                onClick=${() => onEdit(name)}>Edit values</button>` : null}
-            ${what === "application" ? html`<button class="icon-action" aria-label=${`open application ${name} in the workspace`}
+            ${what === "application" && onOpen ? html`<button class="icon-action" aria-label=${`open application ${name} in the workspace`}
                                                     onClick=${() => onOpen(name)}>Open</button>` : null}
           </li>`)}
       </ul>
@@ -61,16 +63,16 @@ function Section({ title, items, selected, onSelect, onAppend, onEdit, onOpen, t
 }
 
 /** The dictionary pane: the object types' legend, then the icons by class. */
-export function Dictionary({ dictionary, selected, onSelect, onAppend, onEdit, onOpen }) {
+export function Dictionary({ dictionary, selected, onSelect, onAppend, onEdit, onOpen, prefix = "" }) {
   const jobs = Object.entries(dictionary.jobs).map(([name, entry]) => [name, entry, "job"]);
   const applications = Object.entries(dictionary.applications).map(([name, entry]) => [name, entry, "application"]);
   const all = [...jobs, ...applications];
   const objects = Object.entries(dictionary.objects).map(([name, entry]) => [name, entry, "object"]);
-  const common = { selected, onSelect, onAppend, onEdit, onOpen };
+  const common = { selected, onSelect, onAppend, onEdit, onOpen, prefix };
   return html`
     <div class="dictionary" aria-label="job dictionary">
-      <p class="hint">Drag an icon into the workspace, or press Enter on it to append it. Click (or Space) selects it;
-        then Enter on a place or a gap of the row puts it there.</p>
+      ${prefix ? null : html`<p class="hint">Drag an icon into the workspace, or press Enter on it to append it. Click (or Space)
+        selects it; then Enter on a place or a gap of the row puts it there.</p>`}
       ${Object.keys(dictionary.object_types).length ? html`
         <section class="type-legend" aria-label="object types">
           <h3>Object types</h3>

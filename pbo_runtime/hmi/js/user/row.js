@@ -19,7 +19,12 @@ export const DECISIONS = {
   repeat: { rows: ["repeat"], settings: { times: 2 }, doc: "runs its steps a number of times" },
   wait: { rows: [], settings: { condition: "", timeout: "2 s" }, doc: "goes on once its condition holds; fails after its timeout" },
 };
-const FLAT_EDGES = { left: { shape: "flat", object_type: null }, right: { shape: "flat", object_type: null } };
+export const FLAT_EDGES = { left: { shape: "flat", object_type: null }, right: { shape: "flat", object_type: null } };
+
+/** The names of a step's rows: a step that decides its kind's, a parallel step its arms (subsystems). */
+export function rowNames(step) {
+  return step.kind === "parallel" ? step.arms : DECISIONS[step.kind].rows;
+}
 
 /** The row at `path` of `steps`. */
 export function rowAt(steps, path = []) {
@@ -48,7 +53,7 @@ export function rowWords(steps, path = []) {
   const words = [];
   for (let i = 0; i < path.length; i += 2) {
     const step = row[path[i]];
-    words.push(`${DECISIONS[step.kind].rows[path[i + 1]]} of step ${path[i] + 1} (${step.kind})`);
+    words.push(`${step.kind === "parallel" ? "arm " : ""}${rowNames(step)[path[i + 1]]} of step ${path[i] + 1} (${step.kind})`);
     row = step.rows[path[i + 1]];
   }
   return `in the ${words.reverse().join(" in the ")} `;
@@ -92,7 +97,7 @@ export function gaps(dictionary, steps, where = "") {
   steps.forEach((step, index) => {
     if (step.kind) {  // a step that decides: the gaps of its rows are the application's
       step.rows.forEach((row, which) => found.push(
-        ...gaps(dictionary, row, `${where}${index + 1} (${step.kind}, ${DECISIONS[step.kind].rows[which]}): step `)));
+        ...gaps(dictionary, row, `${where}${index + 1} (${step.kind}, ${rowNames(step)[which]}): step `)));
       return;
     }
     const icon = iconOf(dictionary, step.name);
@@ -167,6 +172,7 @@ function insertInRow(dictionary, steps, name, where) {
   const made = icon.what === "decision"
     ? { id: nextId++, name, kind: name, object: null, ...DECISIONS[name].settings, rows: DECISIONS[name].rows.map(() => []) }
     : { id: nextId++, name, object: null };
+  if (where.subsystem) made.subsystem = where.subsystem;  // an arm's step: the subsystem whose dictionary it came from
   const changed = [...steps.slice(0, at), made, ...steps.slice(at)];
   let message = `'${name}' inserted as step ${at + 1}`;
   if (icon.class === "action_requiring_object") {
@@ -205,23 +211,35 @@ export function move(steps, path, from, before) {
   });
 }
 
-/** Application `name` of the dictionary as a row, to change and save again; refused if a step's object is written out as values. */
-export function fromApplication(dictionary, name) {
-  const application = dictionary.applications[name];
-  const written = [];
-  const toSteps = (entries) => entries.map((s) => {
+/**
+ * Steps as the dictionary writes an application's (`{job, object, value, decision}`) as a row; each step
+ * written out as values is pushed to `written`; `subsystem`, when given, marks whose dictionary they are of.
+ */
+export function entriesToSteps(entries, written = [], subsystem = undefined) {
+  return entries.map((s) => {
+    const mark = subsystem ? { subsystem } : {};
     if (!s.decision) {
       if (s.object === null && s.value !== null && s.value !== undefined) written.push(s);
-      return { id: nextId++, name: s.job, object: s.object };
+      return { id: nextId++, name: s.job, object: s.object, ...mark };
     }
     const d = s.decision;
     const settings = d.kind === "repeat"
       ? (d.condition ? { until: d.condition, max: d.max } : { times: d.times })
       : { condition: d.condition, ...(d.kind === "wait" && d.timeout !== null ? { timeout: `${d.timeout} s` } : {}) };
-    const rows = DECISIONS[d.kind].rows.map((_, k) => toSteps(d.rows[k] || []));
-    return { id: nextId++, name: d.kind, kind: d.kind, object: null, ...settings, rows };
+    const rows = DECISIONS[d.kind].rows.map((_, k) => entriesToSteps(d.rows[k] || [], written, subsystem));
+    return { id: nextId++, name: d.kind, kind: d.kind, object: null, ...settings, rows, ...mark };
   });
-  const steps = toSteps(application.steps);
+}
+
+/** A new step with its own id (a parallel step, made by the application file's workspace). */
+export function newStep(fields) {
+  return { id: nextId++, object: null, ...fields };
+}
+
+/** Application `name` of the dictionary as a row, to change and save again; refused if a step's object is written out as values. */
+export function fromApplication(dictionary, name) {
+  const written = [];
+  const steps = entriesToSteps(dictionary.applications[name].steps, written);
   if (written.length) {
     return { refused: `step ${written[0].step} of '${name}' gives '${written[0].job}' its object as values written out in the file; `
                       + "the workspace takes named objects: name the value under objects: in the file, or build the row anew" };
@@ -232,6 +250,7 @@ export function fromApplication(dictionary, name) {
 /** The row as the API takes it: [{name, object}], a step that decides as {kind, its settings, rows}. */
 export function rowBody(steps) {
   return steps.map((s) => (s.kind
-    ? { kind: s.kind, condition: s.condition, times: s.times, max: s.max, until: s.until, timeout: s.timeout, rows: s.rows.map(rowBody) }
-    : { name: s.name, object: s.object }));
+    ? { kind: s.kind, condition: s.condition, times: s.times, max: s.max, until: s.until, timeout: s.timeout, rows: s.rows.map(rowBody),
+        subsystem: s.subsystem }
+    : { name: s.name, object: s.object, subsystem: s.subsystem }));
 }

@@ -22,7 +22,7 @@ function dragged(event) {
 }
 
 /** A drop target that takes dictionary icons and (for places) the row's own steps. */
-function dropProps(onDropIcon, onDropStep, setOver) {
+export function dropProps(onDropIcon, onDropStep, setOver) {
   return {
     onDragOver: (e) => { e.preventDefault(); setOver(true); },
     onDragLeave: () => setOver(false),
@@ -39,7 +39,7 @@ function dropProps(onDropIcon, onDropStep, setOver) {
 }
 
 /** A place between steps (or at either end): where an icon goes; Enter or a click puts the selected icon there. */
-function Place({ before, count, onInsert, onMove, path = [], where = "" }) {
+export function Place({ before, count, onInsert, onMove, path = [], where = "" }) {
   const [over, setOver] = useState(false);
   const label = (count === 0 ? "insert the first step here" : before === count ? "insert at the end of the row"
                                                              : `insert before step ${before + 1}`) + where;
@@ -78,7 +78,7 @@ function Slot({ step, index, icon, onInsert, onRemoveObject, onEditObject, path 
 }
 
 /** The row's jobs in the order they run, each with the row step it belongs to: [[job, step index], ...]. */
-function runOrder(dictionary, steps) {
+export function runOrder(dictionary, steps) {
   const expand = (name, index, seen) => {
     const application = dictionary.applications[name];
     if (!application || seen.includes(name)) return [[name, index]];
@@ -155,7 +155,7 @@ function DecisionUnit({ dictionary, step, index, count, actions, path, statusPla
 }
 
 /** A row of steps at `path` (the workspace's own, or one of a step that decides), with places between them. */
-function RowView({ dictionary, steps, actions, path, statusPlace, runningStep = null, name }) {
+export function RowView({ dictionary, steps, actions, path, statusPlace, runningStep = null, name }) {
   const where = path.length ? ` in ${name}` : "";
   return html`
     <div class="nested-row" role="list" aria-label=${name} data-path=${path.join(".")}>

@@ -52,6 +52,7 @@ class Scheduled:
         "dropped_events",
         "events",
         "exec_max",
+        "exec_ring",
         "exec_time",
         "expected_writers",
         "expired_reads",
@@ -64,6 +65,7 @@ class Scheduled:
         "input_writers",
         "jitter",
         "jitter_max",
+        "jitter_ring",
         "last_lost",
         "last_release",
         "last_stale",
@@ -83,6 +85,7 @@ class Scheduled:
         "stale_at_switch",
         "stale_reads",
         "status",
+        "status_words",
         "task",
         "window_lost",
         "window_stale",
@@ -108,10 +111,13 @@ class Scheduled:
         # write, on the per-cycle path.
         self.jitter = np.full(RING, 0.0)
         self.exec_time = np.full(RING, 0.0)
+        self.jitter_ring: Any = self.jitter.data  # the same rings as memoryviews: per-cycle stores of floats
+        self.exec_ring: Any = self.exec_time.data
         self.samples = 0
         self.jitter_max = 0.0
         self.exec_max = 0.0
         self.status = task.status
+        self.status_words: Any = task.status.data  # the same words: a store costs about half a numpy array's
         self.shared_status = task.local.table.status[task.index]  # the table's own words, for what no cycle carries
         self.events: collections.deque[Any] = collections.deque(maxlen=EVENTS_QUEUED)
         self.dropped_events = 0
@@ -250,16 +256,22 @@ class Executive:
         The whole of a turn, whoever gives it: this RTPU's own process (`run_lockstep`), or the
         one process that runs every participant of a simulated run in turn (`rtpu.in_process`).
         """
-        signal_queue = self.signals
-        while self.running and self._signal_pending():
-            message = signal_queue.receive(0)
-            if message is None:
-                break
-            self.handle(message)
+        if self.running and self._signal_pending():
+            signal_queue = self.signals
+            while True:
+                message = signal_queue.receive(0)
+                if message is None:
+                    break
+                self.handle(message)
+                if not (self.running and self._signal_pending()):
+                    break
         if new_tick and self.running:
-            self.plan_if_due()
+            words = self.header_words
+            if words is not None and words[PLAN_SEQUENCE] != self.plans.seen:
+                self.plan_if_due()
             self.run_ready()
-            self.plans.send_held_reports()
+            if self.plans.held_reports:
+                self.plans.send_held_reports()
 
     def run_once(self) -> None:
         """Wait for the earliest release (or a signal, or a plan's boundary), then run what is due."""

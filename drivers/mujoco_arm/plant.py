@@ -60,6 +60,8 @@ if TYPE_CHECKING:
 # Simulated seconds without a new command after which the arm holds on its brakes, as a drive's
 # watchdog does when its controller stops (a stopped robot interface cannot engage them itself)
 COMMAND_TIMEOUT = 0.05
+# numpy's clip ufunc without np.clip's Python layers
+_CLIP: Any = getattr(getattr(getattr(np, "_core", None), "umath", None), "clip", np.clip)
 _LOOPBACK_DAC, _LOOPBACK_ADC = slice(0, 2), slice(6, 8)  # DAC channels 0-1 joined to ADC 6-7 by the loopback cable
 _TARGET_OPTIONS = ("center", "radius", "period", "phase", "orientation")
 # A driver's command write takes about a microsecond; if the seqlock is still odd after this many
@@ -371,7 +373,7 @@ class MujocoArmPlant:
             volts += self._noise
         np.multiply(volts, 1.0 / VOLTS_PER_COUNT, out=counts)
         np.rint(counts, out=counts)
-        _clip(counts, _INT16_MIN, _INT16_MAX, counts)
+        _CLIP(counts, _INT16_MIN, _INT16_MAX, out=counts)  # (whole numbers: a zero's sign is lost in the cast)
         words = regs.words
         seq = words[W_BOARD_SEQ]
         words[W_BOARD_SEQ] = seq + 1

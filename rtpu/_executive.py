@@ -126,8 +126,11 @@ class Scheduled:
         self.last_stale = ""
         self.input_periods = [math.inf] * len(task.local.input_variables)  # producer periods, per in-var
         self.expected_writers = [-1] * len(task.local.input_variables)  # the configuration's writer, per in-var
-        self.write_times = task.local.input_write_times  # gathered with the inputs: each writer's last release
-        self.input_writers = task.local.input_writer  # gathered with the inputs: who wrote what was read
+        # Gathered with the inputs: each writer's last release, and who wrote what was read. Read
+        # through memoryviews, as plain floats: the freshness check's arithmetic on numpy scalars
+        # would cost several times its own.
+        self.write_times: Any = task.local.input_write_times.data
+        self.input_writers: Any = task.local.input_writer.data
         self.lost_to_switch = 0
         self.last_lost = ""
         self.window_lost = 0  # counts at the last switch: what a switch's window adds is the difference

@@ -104,9 +104,14 @@ imports bytecode cached by the first (the run of one tick), as a user's install 
 its I/O boards, rtpu0's trajectory, PID (with Pinocchio's gravity) and logger, rtpu1's robot
 interface, each in Python, plus three hand-overs between processes (a semaphore post and a
 wake-up). On a 2-CPU machine shared with other work every hand-over also waits for the CPU.
-In one process the hand-overs are calls, and a tick is the plant's step and the tasks' cycles
-(their transfers through the table included) with a few µs of ring and executive around them;
-the start-up (interpreter, imports, MuJoCo's model) is then a larger share of a short run.""",
+In one process the hand-overs are calls. A tick is then, by cost: the tasks' cycles (numpy calls
+on six-element arrays, each costing more than its arithmetic, and Pinocchio's gravity); the
+plant's step, of which MuJoCo's step is the smaller part and the I/O boards' ADC conversion
+(served every step, whether or not a board is read) and the state's publication the larger; the
+executive's work per release (the transfers through the table under its lock, the finite
+check, the timing record, a critical task's freshness check) and per turn (a system call asking
+whether a signal waits). The start-up (interpreter, imports, MuJoCo's model) is then a larger
+share of a short run.""",
     )
     results: list[dict[str, Any]] = []
     failures: list[str] = []

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from modules._ufuncs import clip
+
 
 class BrakingLaw:
     """Advances a reference (position, velocity) one step of `dt` towards a goal, in place."""
@@ -21,6 +23,7 @@ class BrakingLaw:
         self._v_max = np.broadcast_to(np.asarray(max_velocity, dtype=float), (size,)).copy()
         self._dt = dt
         self._a_step = a * dt
+        self._a_step_down = -self._a_step
         self._a_step_tolerance = a * dt * (1 + 1e-9)
         self._two_a = 2.0 * a
         self._half_step = 0.5 * a * dt
@@ -47,7 +50,7 @@ class BrakingLaw:
         np.abs(velocity, out=dv)
         np.less_equal(dv, self._a_step_tolerance, out=self._slow)
         np.subtract(v, velocity, out=dv)
-        np.clip(dv, -self._a_step, self._a_step, out=dv)
+        clip(dv, self._a_step_down, self._a_step, out=dv)
         np.add(velocity, dv, out=velocity)
         np.multiply(velocity, self._dt, out=dv)
         np.add(position, dv, out=position)

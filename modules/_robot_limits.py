@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from modules._ufuncs import count_nonzero
 from pbo_runtime import Arm
 
 #: How long a command may stay at its limit before it is a fault, s (a module parameter).
@@ -92,13 +93,13 @@ class ArmLimits:
         flags = self._flags
         np.abs(tau, out=self._scratch)
         np.greater_equal(self._scratch, self.effort, out=flags)
-        if not np.count_nonzero(flags):  # the usual cycle: nothing to clip (a NaN is left for the driver to refuse)
+        if not count_nonzero(flags):  # the usual cycle: nothing to clip (a NaN is left for the driver to refuse)
             np.copyto(out, tau)
             if self._counting:
                 self._drain()
             return False
         # not a command to clip: the driver refuses it as it is
-        if np.count_nonzero(np.isfinite(tau, out=self._long)) != self.ndof:
+        if count_nonzero(np.isfinite(tau, out=self._long)) != self.ndof:
             np.copyto(out, tau)
             return False
         np.maximum(tau, self.effort_low, out=out)  # np.clip's Python layers allocate
@@ -120,14 +121,14 @@ class ArmLimits:
         count = self.saturation_count
         np.subtract(count, self._one, out=count)
         np.maximum(count, self._zero, out=count)
-        if not np.count_nonzero(count):
+        if not count_nonzero(count):
             self.at_limit.fill(0)
             self._counting = False
 
     def limit_position(self, q_r: np.ndarray, previous: np.ndarray, step: np.ndarray, out: np.ndarray) -> None:
         """`out` = `q_r` within `step` of `previous` (the velocity limit over a period) and within the
         range; `q_r` as it is when it is not finite, for the driver to refuse."""
-        if np.count_nonzero(np.isfinite(q_r, out=self._flags)) != self.ndof:
+        if count_nonzero(np.isfinite(q_r, out=self._flags)) != self.ndof:
             np.copyto(out, q_r)
             return
         low, high = self._scratch, self._q_step_high
@@ -140,7 +141,7 @@ class ArmLimits:
 
     def saturated_too_long(self) -> bool:
         """Whether a joint's count has passed the bound (after `saturate_torque`)."""
-        return bool(np.count_nonzero(np.greater(self.saturation_count, self._count_bound, out=self._long)))
+        return bool(count_nonzero(np.greater(self.saturation_count, self._count_bound, out=self._long)))
 
     def outside(self, q: np.ndarray, qd: np.ndarray) -> bool:
         """Whether a measured velocity is past its limit or a position past its range and the tolerance."""
@@ -148,7 +149,7 @@ class ArmLimits:
         np.subtract(q, self._q_centre, out=self._state_q)
         np.copyto(self._state_qd, qd)
         np.abs(state, out=state)
-        return bool(np.count_nonzero(np.greater(state, self._state_bound, out=self._state_flags)))
+        return bool(count_nonzero(np.greater(state, self._state_bound, out=self._state_flags)))
 
     def allow_from(self, q: np.ndarray) -> None:
         """At `on`: a joint already past its range (braked there after a fault) may be driven back,

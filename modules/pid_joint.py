@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from modules._ufuncs import clip
 from pbo_runtime import Arm, InConst, InVar, OutVar, PortBasedObject, Status, arm_gains, arm_model, inertia_range, param
 
 Gain = float | tuple[float, ...]
@@ -156,7 +157,7 @@ class PidJoint(PortBasedObject):
             np.multiply(self._error, self._ki, out=self._term)
             np.multiply(self._term, self.period, out=self._term)
             np.add(self._integral, self._term, out=self._integral)
-            np.clip(self._integral, -self._limit, self._limit, out=self._integral)
+            clip(self._integral, -self._limit, self._limit, out=self._integral)
         if self._fading:
             self._fading -= 1
             np.multiply(self._handover, self._fade if self._fading else 0.0, out=self._handover)

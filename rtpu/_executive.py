@@ -41,6 +41,8 @@ from rtpu.signals import EVENTS_QUEUED, SignalSource, handle_signal
 
 # Header words read before every release, as plain ints (through a memoryview: no numpy scalar each time)
 _FLAGS, _STOPPING = int(Header.FLAGS), int(Flag.STOPPING)
+# What a cycle returns, read once: an enum member read through its class costs a tenth of a microsecond
+_CONTINUE, _STABLE = Status.CONTINUE, Status.STABLE
 
 
 class Scheduled:
@@ -52,6 +54,7 @@ class Scheduled:
         "dropped_events",
         "events",
         "exec_max",
+        "exec_ring",
         "exec_time",
         "expected_writers",
         "expired_reads",
@@ -64,6 +67,7 @@ class Scheduled:
         "input_writers",
         "jitter",
         "jitter_max",
+        "jitter_ring",
         "last_lost",
         "last_release",
         "last_stale",
@@ -83,6 +87,7 @@ class Scheduled:
         "stale_at_switch",
         "stale_reads",
         "status",
+        "status_words",
         "task",
         "window_lost",
         "window_stale",
@@ -108,10 +113,13 @@ class Scheduled:
         # write, on the per-cycle path.
         self.jitter = np.full(RING, 0.0)
         self.exec_time = np.full(RING, 0.0)
+        self.jitter_ring: Any = self.jitter.data  # the same rings as memoryviews: per-cycle stores of floats
+        self.exec_ring: Any = self.exec_time.data
         self.samples = 0
         self.jitter_max = 0.0
         self.exec_max = 0.0
         self.status = task.status
+        self.status_words: Any = task.status.data  # the same words: a store costs about half a numpy array's
         self.shared_status = task.local.table.status[task.index]  # the table's own words, for what no cycle carries
         self.events: collections.deque[Any] = collections.deque(maxlen=EVENTS_QUEUED)
         self.dropped_events = 0
@@ -120,8 +128,11 @@ class Scheduled:
         self.last_stale = ""
         self.input_periods = [math.inf] * len(task.local.input_variables)  # producer periods, per in-var
         self.expected_writers = [-1] * len(task.local.input_variables)  # the configuration's writer, per in-var
-        self.write_times = task.local.input_write_times  # gathered with the inputs: each writer's last release
-        self.input_writers = task.local.input_writer  # gathered with the inputs: who wrote what was read
+        # Gathered with the inputs: each writer's last release, and who wrote what was read. Read
+        # through memoryviews, as plain floats: the freshness check's arithmetic on numpy scalars
+        # would cost several times its own.
+        self.write_times: Any = task.local.input_write_times.data
+        self.input_writers: Any = task.local.input_writer.data
         self.lost_to_switch = 0
         self.last_lost = ""
         self.window_lost = 0  # counts at the last switch: what a switch's window adds is the difference
@@ -250,16 +261,22 @@ class Executive:
         The whole of a turn, whoever gives it: this RTPU's own process (`run_lockstep`), or the
         one process that runs every participant of a simulated run in turn (`rtpu.in_process`).
         """
-        signal_queue = self.signals
-        while self.running and self._signal_pending():
-            message = signal_queue.receive(0)
-            if message is None:
-                break
-            self.handle(message)
+        if self.running and self._signal_pending():
+            signal_queue = self.signals
+            while True:
+                message = signal_queue.receive(0)
+                if message is None:
+                    break
+                self.handle(message)
+                if not (self.running and self._signal_pending()):
+                    break
         if new_tick and self.running:
-            self.plan_if_due()
+            words = self.header_words
+            if words is not None and words[PLAN_SEQUENCE] != self.plans.seen:
+                self.plan_if_due()
             self.run_ready()
-            self.plans.send_held_reports()
+            if self.plans.held_reports:
+                self.plans.send_held_reports()
 
     def run_once(self) -> None:
         """Wait for the earliest release (or a signal, or a plan's boundary), then run what is due."""
@@ -361,9 +378,9 @@ class Executive:
             result = task.run_read_cycle(release)
         else:  # the lock stayed held past the wait: this release is lost, the RTPU's critical cycles are not
             result = release_lost_to_the_lock(s)
-        if result is Status.STABLE:
+        if result is _STABLE:
             held = held or HELD_BY_MODULE
-            result = Status.CONTINUE
+            result = _CONTINUE
         if held or s.held_for:
             self.holds.after_cycle(s, held, result, start, release)
         end = self.clock.now()
@@ -371,7 +388,7 @@ class Executive:
         if s.first_cycle_of_plan:
             self.report(FirstCycle(s.first_cycle_of_plan, task.name, start))
             s.first_cycle_of_plan = 0
-        if result != Status.CONTINUE:
+        if result != _CONTINUE:
             self.leave_on(s)
             self.report_state(task)
 

@@ -25,6 +25,8 @@ class HostedRtpu:
         self.name = launch.rtpu
         self.hosting = hosting
         self.executive = hosting.executive
+        self._pumped = hosting.pumped
+        self._step_lockstep = hosting.executive.step_lockstep  # bound once: called every tick
         self.table = table
         self.signals = signals
         self.events = events
@@ -35,8 +37,9 @@ class HostedRtpu:
         if self.returncode is not None:
             return
         try:
-            pump(self.hosting.pumped)
-            self.executive.step_lockstep(new_tick)
+            if self._pumped:
+                pump(self._pumped)
+            self._step_lockstep(new_tick)
         except Exception as exc:  # what would have ended its process ends it here: reported as a crash
             self._crashed(exc)
             return

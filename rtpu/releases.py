@@ -27,6 +27,10 @@ OVERRUNS_KEPT = 8  # the last overruns kept per task (release, lateness, executi
 # Within this, a time is on the boundary (without it, half the plans would put their entering
 # tasks' first release one period after the activation).
 ON_THE_BOUNDARY = 1e-6
+# The status words a release writes, as plain ints: a numpy index of an IntEnum costs several
+# times a plain int's, and the words are written through a memoryview (`Scheduled.status_words`)
+_JITTER_LAST, _JITTER_MAX = int(W.JITTER_LAST), int(W.JITTER_MAX)
+_EXEC_LAST, _EXEC_MAX = int(W.EXEC_LAST), int(W.EXEC_MAX)
 
 
 class Clock(Protocol):
@@ -51,11 +55,11 @@ def record_jitter(s: Scheduled, jitter: float) -> float:
     """How late the cycle started after its release (never below zero) into the status words; returned."""
     if jitter < 0.0:
         jitter = 0.0  # simulated clock: a release a few ulps past its tick
-    status = s.status
-    status[W.JITTER_LAST] = jitter
+    status = s.status_words
+    status[_JITTER_LAST] = jitter
     if jitter > s.jitter_max:
         s.jitter_max = jitter
-        status[W.JITTER_MAX] = jitter
+        status[_JITTER_MAX] = jitter
     return jitter
 
 
@@ -68,17 +72,18 @@ def close_cycle(s: Scheduled, release: float, jitter: float, start: float, end: 
     queued event, after its minimum inter-arrival time.
     """
     took = end - start
-    k = s.samples & (RING - 1)
-    s.jitter[k] = jitter
-    s.exec_time[k] = took
-    s.samples += 1
-    if not s.samples & (RECENT - 1):
+    samples = s.samples
+    k = samples & (RING - 1)
+    s.jitter_ring[k] = jitter
+    s.exec_ring[k] = took
+    s.samples = samples = samples + 1
+    if not samples & (RECENT - 1):
         publish_recent(s)
-    status = s.status
-    status[W.EXEC_LAST] = took
+    status = s.status_words
+    status[_EXEC_LAST] = took
     if took > s.exec_max:
         s.exec_max = took
-        status[W.EXEC_MAX] = took
+        status[_EXEC_MAX] = took
     s.last_release = release
     if s.aperiodic:
         return max(release + s.period, end) if s.events else math.inf

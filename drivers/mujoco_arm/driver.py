@@ -50,6 +50,8 @@ _OPTIONS = ("mode",)
 _SPINS_BEFORE_YIELD = 100
 _STUCK_AFTER_S = 0.5
 _FAULTS_KEPT = 10  # the faults a driver keeps for the summary (an operator may clear and turn on again)
+# np.count_nonzero's C function without its Python wrapper, which costs more than counting six joints
+_COUNT_NONZERO: Any = getattr(getattr(getattr(np, "_core", None), "multiarray", None), "count_nonzero", np.count_nonzero)
 
 
 class MujocoArmDriver(DeviceDriver):
@@ -145,7 +147,7 @@ class MujocoArmDriver(DeviceDriver):
         """Command joint torques, N m (the plant clips them to its torque limits). Torque mode only."""
         if self._position:
             raise DeviceError(self._wrong_mode("write_torque", "torque"))
-        if np.count_nonzero(np.isfinite(tau, out=self._finite)) != self.ndof:  # a non-finite command never reaches the arm
+        if _COUNT_NONZERO(np.isfinite(tau, out=self._finite)) != self.ndof:  # a non-finite command never reaches the arm
             raise DeviceError(self._not_finite("write_torque", "torque", tau))
         words = self._words
         seq = words[W_CMD_SEQ]
@@ -157,7 +159,7 @@ class MujocoArmDriver(DeviceDriver):
         """Command joint positions, rad (the plant clips them to the joint limits). Position mode only."""
         if not self._position:
             raise DeviceError(self._wrong_mode("write_position", "position"))
-        if np.count_nonzero(np.isfinite(q_cmd, out=self._finite)) != self.ndof:
+        if _COUNT_NONZERO(np.isfinite(q_cmd, out=self._finite)) != self.ndof:
             raise DeviceError(self._not_finite("write_position", "position", q_cmd))
         words = self._words
         seq = words[W_CMD_SEQ]

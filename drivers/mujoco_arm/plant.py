@@ -60,7 +60,9 @@ if TYPE_CHECKING:
 # Simulated seconds without a new command after which the arm holds on its brakes, as a drive's
 # watchdog does when its controller stops (a stopped robot interface cannot engage them itself)
 COMMAND_TIMEOUT = 0.05
-_LOOPBACK = ((0, 6), (1, 7))  # (DAC channel, ADC channel) pairs joined by the loopback cable
+# numpy's clip ufunc without np.clip's Python layers
+_CLIP: Any = getattr(getattr(getattr(np, "_core", None), "umath", None), "clip", np.clip)
+_LOOPBACK_DAC, _LOOPBACK_ADC = slice(0, 2), slice(6, 8)  # DAC channels 0-1 joined to ADC 6-7 by the loopback cable
 _TARGET_OPTIONS = ("center", "radius", "period", "phase", "orientation")
 # A driver's command write takes about a microsecond; if the seqlock is still odd after this many
 # looks the driver was preempted (or died) mid-write, and the plant keeps the previous command
@@ -165,6 +167,8 @@ class MujocoArmPlant:
         self.model = robot.model
         self.data = mujoco.MjData(self.model)
         self.data.qpos[:] = q0
+        # MjData's arrays, taken once: each attribute read of the binding costs a fraction of a step
+        self._qpos, self._qvel, self._qfrc = self.data.qpos, self.data.qvel, self.data.qfrc_applied
         self.has_target = target is not None
         self._target_pose = np.zeros(6)  # the target's pose at data.time, as published
         if target is not None:
@@ -181,9 +185,11 @@ class MujocoArmPlant:
         adr = int(self.model.sensor("ft_force").adr[0])
         self._ft_reading = self.data.sensordata[adr : adr + 6]  # force then torque (ft_torque follows)
         self._wrist_wrench = wrench  # applied, sensor frame
+        self._wrench_applied = True  # xfrc_applied may hold a wrench at the sensor (none when it is zero)
         self._wrench = np.zeros(6)  # measured: what the sensor feels, published through the boards
         self._ft_inverse = np.linalg.inv(ft_models.CALIBRATION)
         self._volts = np.zeros(ADC_CHANNELS)
+        self._volts_ft, self._volts_looped = self._volts[:6], self._volts[_LOOPBACK_ADC]
         self._counts = np.zeros(ADC_CHANNELS)
         self._noise = np.zeros(ADC_CHANNELS)
         self._adc_noise = float(adc_noise)
@@ -230,6 +236,7 @@ class MujocoArmPlant:
             regs.reals[W_TIMESTEP] = self.timestep
             regs.words[W_PLANT_PID] = os.getpid()
             regs.words[W_TARGET] = int(self.has_target)
+            self._dac_looped = regs.dac[_LOOPBACK_DAC]
             self._publish()
             regs.pio_in[ft_models.A_STATUS] = ft_models.A_STATUS_POWERED  # vendor A's sensor is on, no reading yet
             self._serve_boards()
@@ -283,30 +290,32 @@ class MujocoArmPlant:
     def step(self) -> None:
         """Advance the simulation by exactly one timestep and publish the new state."""
         regs = self._registers
-        data = self.data
-        braked = regs.words[W_BRAKE] != 0 or self._command_stale(regs.words, data.time)
+        words = regs.words
+        data, qpos, qvel = self.data, self._qpos, self._qvel
+        braked = words[W_BRAKE] != 0 or self._command_stale(words, data.time)
         if braked and not self._braked:
-            self._brake_pose[:] = data.qpos  # brakes grip where the arm is now
+            self._brake_pose[:] = qpos  # brakes grip where the arm is now
         self._braked = braked
         if braked:
-            data.qpos[:] = self._brake_pose
-            data.qvel[:] = 0.0
-            data.qfrc_applied[:] = 0.0
+            qpos[:] = self._brake_pose
+            qvel[:] = 0.0
+            self._qfrc[:] = 0.0
         else:
-            mode = regs.words[W_MODE]
+            mode = words[W_MODE]
             if mode == MODE_TORQUE:
                 self._read_command(regs.tau, self._tau)
-                _clip(self._tau, self._torque_floor, self._torque_limits, data.qfrc_applied)
+                _clip(self._tau, self._torque_floor, self._torque_limits, self._qfrc)
             elif mode == MODE_POSITION:
                 self._read_command(regs.q_cmd, self._q_cmd)
                 self._servo(data)
             else:
-                data.qfrc_applied[:] = 0.0
-        self._apply_wrist_wrench()
+                self._qfrc[:] = 0.0
+        if self._wrench_applied:
+            self._apply_wrist_wrench()
         mujoco.mj_step(self.model, data)
         if braked:
-            data.qpos[:] = self._brake_pose
-            data.qvel[:] = 0.0
+            qpos[:] = self._brake_pose
+            qvel[:] = 0.0
         self._steps += 1
         if self.has_target:
             self._move_target()
@@ -323,6 +332,7 @@ class MujocoArmPlant:
     def set_wrist_wrench(self, wrench: Any) -> None:
         """Change the contact from the next step (tests, demos)."""
         self._wrist_wrench = _wrench_option(wrench)
+        self._wrench_applied = True
 
     @property
     def measured_wrench(self) -> np.ndarray:
@@ -339,6 +349,7 @@ class MujocoArmPlant:
         """
         if not self._wrist_wrench.any():
             self.data.xfrc_applied[self._ft_body] = 0.0
+            self._wrench_applied = False  # and it stays zero: only this applies a wrench there
             return
         mujoco.mj_kinematics(self.model, self.data)
         body = self._ft_body
@@ -351,19 +362,18 @@ class MujocoArmPlant:
         """One ADC conversion of all channels, and vendor A's answer to a new request (no allocation)."""
         regs = self._registers
         np.negative(self._ft_reading, out=self._wrench)  # MuJoCo's reading is the arm's pull on the tool
-        volts, counts = self._volts, self._counts
+        volts, counts, volts_ft = self._volts, self._counts, self._volts_ft
         # vendor B's gauges on ADC 0-5, the DAC looped back on ADC 6-7
-        np.matmul(self._ft_inverse, self._wrench, out=volts[:6])
-        np.add(volts[:6], ft_models.OFFSET, out=volts[:6])
-        for dac, adc in _LOOPBACK:
-            volts[adc] = regs.dac[dac] * VOLTS_PER_COUNT
+        np.matmul(self._ft_inverse, self._wrench, out=volts_ft)
+        np.add(volts_ft, ft_models.OFFSET, out=volts_ft)
+        np.multiply(self._dac_looped, VOLTS_PER_COUNT, out=self._volts_looped)
         if self._adc_noise > 0:
             self._rng.standard_normal(out=self._noise)
             self._noise *= self._adc_noise
             volts += self._noise
         np.multiply(volts, 1.0 / VOLTS_PER_COUNT, out=counts)
         np.rint(counts, out=counts)
-        _clip(counts, _INT16_MIN, _INT16_MAX, counts)
+        _CLIP(counts, _INT16_MIN, _INT16_MAX, out=counts)  # (whole numbers: a zero's sign is lost in the cast)
         words = regs.words
         seq = words[W_BOARD_SEQ]
         words[W_BOARD_SEQ] = seq + 1
@@ -456,8 +466,8 @@ class MujocoArmPlant:
         words = regs.words
         seq = words[W_STATE_SEQ]
         words[W_STATE_SEQ] = seq + 1  # odd: readers retry
-        np.copyto(regs.q, self.data.qpos)
-        np.copyto(regs.qd, self.data.qvel)
+        np.copyto(regs.q, self._qpos)
+        np.copyto(regs.qd, self._qvel)
         regs.reals[W_SIM_TIME] = self.data.time
         words[W_STEP_COUNT] = self._steps
         np.copyto(regs.target, self._target_pose)

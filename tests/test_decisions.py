@@ -96,7 +96,7 @@ def arm_moves_after(seconds: float):
 
 
 def kinds(host: FakeJobHost) -> list[tuple[str, str]]:
-    return [(entry["kind"], entry.get("taken", "")) for entry in host.job_control.decisions]
+    return [(entry.kind, entry.taken) for entry in host.job_control.decisions]
 
 
 @pytest.mark.parametrize("application, jobs, taken", [
@@ -108,17 +108,17 @@ def test_an_if_runs_the_row_its_condition_chooses_on_the_values_read_then(host, 
     host.job_control.run_application(application)
     assert host.job_control.jobs_done == jobs
     [entry] = host.job_control.decisions
-    assert (entry["kind"], entry["taken"], entry["path"]) == ("if", taken, application)
-    assert entry["values"] == {"q_m": [0.0] * 6}
+    assert (entry.kind, entry.taken, entry.path) == ("if", taken, application)
+    assert entry.values == {"q_m": [0.0] * 6}
 
 
 def test_a_try_that_fails_runs_its_fallback_and_the_application_goes_on(host):
     host.job_control.run_application("caught")
     assert host.job_control.jobs_done == ["dwell", "hold"]
     [entry] = host.job_control.decisions
-    assert entry["kind"] == "try" and entry["taken"] == "fallback" and entry["path"] == "caught"
-    assert entry["failure"].startswith("job 'guarded' (caught > try): pre-condition 'max(abs(q_m)) > 10' does not hold")
-    assert entry["values"] == {"q_m": [0.0] * 6}
+    assert entry.kind == "try" and entry.taken == "fallback" and entry.path == "caught"
+    assert entry.failure.startswith("job 'guarded' (caught > try): pre-condition 'max(abs(q_m)) > 10' does not hold")
+    assert entry.values == {"q_m": [0.0] * 6}
 
 
 def test_a_try_that_does_not_fail_skips_its_fallback(host):
@@ -130,7 +130,7 @@ def test_a_try_whose_job_times_out_runs_its_fallback_in_the_configuration_it_is_
     host.job_control.run_application("timed_out")
     assert host.job_control.jobs_done == ["dwell"]
     [entry] = host.job_control.decisions
-    assert "timed out after 10 s" in entry["failure"] and set(entry["values"]) == {"q_d", "q_m"}
+    assert "timed out after 10 s" in entry.failure and set(entry.values or {}) == {"q_d", "q_m"}
     assert [(r.before, r.after) for r in host.job_control.switches] == [("pd", "pid"), ("pid", "pd")]
 
 
@@ -143,7 +143,7 @@ def test_a_failure_no_try_catches_ends_the_application_as_a_sequence_does(host):
 def test_a_repeat_of_times_runs_its_row_that_many_times(host):
     host.job_control.run_application("thrice")
     assert host.job_control.jobs_done == ["dwell", "hold"] * 3
-    assert [(e["turn"], e["of"]) for e in host.job_control.decisions] == [(1, 3), (2, 3), (3, 3)]
+    assert [(e.turn, e.of) for e in host.job_control.decisions] == [(1, 3), (2, 3), (3, 3)]
 
 
 def test_a_repeat_until_stops_when_its_condition_holds_after_a_turn(host):
@@ -163,7 +163,8 @@ def test_a_wait_goes_on_when_its_condition_holds(host):
     host.on_pump = arm_moves_after(0.3)
     host.job_control.run_application("still")
     [entry] = host.job_control.decisions
-    assert entry["kind"] == "wait" and entry["values"]["q_m"][0] == 0.3 and 0.3 <= entry["waited"] < 0.35
+    assert entry.kind == "wait" and entry.values is not None and entry.values["q_m"][0] == 0.3
+    assert 0.3 <= entry.waited < 0.35
 
 
 def test_a_wait_that_times_out_fails_like_a_job(host):
@@ -197,7 +198,7 @@ def test_the_same_application_on_the_same_values_decides_the_same_way(subsystem)
         host = FakeJobHost(subsystem, "pd")
         host.on_pump = arm_moves_after(0.12)
         host.job_control.run_application("until_moved")
-        runs.append([{k: v for k, v in e.items()} for e in host.job_control.decisions])
+        runs.append(list(host.job_control.decisions))
     assert runs[0] == runs[1] and len(runs[0]) == 3
 
 

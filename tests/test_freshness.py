@@ -13,9 +13,15 @@ from pbo_runtime import InVar, OutVar, PortBasedObject, Status
 from pbo_runtime.clock.clocks import ManualClock
 from pbo_runtime.config.loader import check_file
 from pbo_runtime.ipc import messages
+from pbo_runtime.reports.run_records import StableEpisode
 from pbo_runtime.supervisor.event_ledger import STABLE_EPISODES_TOLD
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
-from pbo_runtime.supervisor.run_report import BRIEF_HOLD_PERIODS, BRIEF_HOLDS_SHARE, stable_episode_lines
+from pbo_runtime.supervisor.run_report import (
+    BRIEF_HOLD_PERIODS,
+    BRIEF_HOLDS_SHARE,
+    marked_episodes,
+    stable_episode_lines,
+)
 from pbo_runtime.table.table import Header, StateTable, TableLayout
 from pbo_runtime.task.lifecycle import Task
 from rtpu._executive import Executive
@@ -261,12 +267,12 @@ ON_AT = 100.0  # the configuration came on (run clock seconds)
 ROBOT_PERIOD = 0.001
 
 
-def episode(start: float, seconds: float | None, cause: str = "stale") -> dict:
-    return {"task": "robot", "from": ON_AT + start, "to": None if seconds is None else ON_AT + start + seconds,
-            "seconds": seconds, "reason": "in-var 'tau_u' is 2.5 ms old", "cause": cause}
+def episode(start: float, seconds: float | None, cause: str = "stale", reason: str = "in-var 'tau_u' is 2.5 ms old",
+            task: str = "robot") -> StableEpisode:
+    return StableEpisode(task, ON_AT + start, None if seconds is None else ON_AT + start + seconds, reason, cause)
 
 
-def lines(*episodes: dict, duration: float = 5.0) -> tuple[list[str], list[str]]:
+def lines(*episodes: StableEpisode, duration: float = 5.0) -> tuple[list[str], list[str]]:
     return stable_episode_lines(list(episodes), {"robot": ROBOT_PERIOD}, ON_AT, duration)
 
 
@@ -297,7 +303,7 @@ def test_brief_holds_adding_up_to_more_than_a_twentieth_of_the_run_are_a_fault()
 
 def test_a_hold_for_the_table_lock_is_timing_told_with_its_reason_not_a_fault():
     reason = "the table lock was held past its wait of 0.125 ms (its holder died holding it, or stalled)"
-    faults, timing = lines({**episode(1.0, 0.004, "lock"), "reason": reason}, {**episode(2.0, 0.001, "lock"), "reason": reason})
+    faults, timing = lines(episode(1.0, 0.004, "lock", reason), episode(2.0, 0.001, "lock", reason))
     assert faults == []
     assert timing == [f"critical task 'robot' held 2 times (the longest 4.0 ms), the first from 1.000 s into the run, rather "
                       f"than wait for the table lock: {reason}"]
@@ -305,16 +311,18 @@ def test_a_hold_for_the_table_lock_is_timing_told_with_its_reason_not_a_fault():
 
 def test_a_hold_for_an_illegal_configuration_the_operator_ended_is_neither_and_one_until_the_stop_is_a_fault():
     illegal = "the configuration is illegal (a task in ERROR, or a switch that overran a cycle)"
-    cleared = {**episode(1.0, 2.0, "illegal"), "reason": illegal}  # pbo clear, pbo on: the operator's procedure
+    cleared = episode(1.0, 2.0, "illegal", illegal)  # pbo clear, pbo on: the operator's procedure
     assert lines(cleared) == ([], [])
-    braked = {**episode(1.0, None, "illegal"), "reason": illegal}  # nobody brought the configuration back
+    braked = episode(1.0, None, "illegal", illegal)  # nobody brought the configuration back
     assert lines(cleared, braked) == ([f"critical task 'robot' ran its locally stable behaviour until the stop, from "
                                        f"1.000 s into the run: {illegal}"], [])
 
 
 def test_a_hold_while_the_configuration_comes_on_is_neither_and_is_marked():
     held = episode(-0.5, 0.3)
-    assert lines(held) == ([], []) and held["while_starting"] is True
+    assert lines(held) == ([], [])
+    [marked] = marked_episodes([held], {"robot": ROBOT_PERIOD}, ON_AT)
+    assert marked.while_starting is True and marked.brief is False
 
 
 class StableEpisodesHeard(EventsHeard):
@@ -340,7 +348,7 @@ def test_a_hold_for_an_illegal_configuration_is_told_even_after_many_holds_for_l
 
 
 def test_a_receiver_without_fresh_items_is_the_fault_and_the_robots_hold_it_caused_is_not_told_twice():
-    receiver = {**episode(1.0, 0.6, "module"), "task": "receive"}
+    receiver = episode(1.0, 0.6, "module", task="receive")
     held = episode(1.01, 0.6, "upstream")
     faults, timing = stable_episode_lines([receiver, held], {"robot": ROBOT_PERIOD, "receive": 0.002}, ON_AT, 5.0,
                                           critical={"robot"})

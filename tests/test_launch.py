@@ -4,11 +4,13 @@ from dataclasses import replace
 
 import pytest
 
+from pbo_runtime.links.run_link import RunLink
 from pbo_runtime.supervisor.launch import RtpuLaunch
 
 FULL = RtpuLaunch("configs/demo.yaml", "123-abc", "rtpu1", epoch=12.5, spin=0.0002, fifo=True, clock="sim",
                   tick=0.002, ring=("plant", "rtpu0", "rtpu1"), out="/tmp/out", configuration="pid",
-                  application="pick", links={"cmd": {"kind": "message", "shape": [3]}}, live="/tmp/live",
+                  application="pick", links={"cmd": RunLink("message", "shm", "float64", (3,), 4, shm_name="/pbo.a.msg-cmd")},
+                  live="/tmp/live",
                   live_now=2, restarted=True, parent=4242)
 
 

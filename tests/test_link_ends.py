@@ -9,6 +9,7 @@ from pbo_runtime import ModuleError
 from pbo_runtime.config.application import ENDS
 from pbo_runtime.links.ends import OPENERS, open_link_end
 from pbo_runtime.links.message_link import MessageLink
+from pbo_runtime.links.run_link import RunLink
 from pbo_runtime.links.spec import TRANSPORTS
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer
 from tests.support import unique_name
@@ -18,8 +19,8 @@ pytestmark = pytest.mark.usefixtures("no_leftover_ipc")
 LIKE = np.zeros(3)
 
 
-def spec(**given) -> dict:
-    return {"dtype": "float64", "shape": [3], **given}
+def spec(kind: str = "periodic", transport: str = "shm", shm_name: str = "") -> RunLink:
+    return RunLink(kind, transport, "float64", (3,), shm_name=shm_name)
 
 
 def test_every_transport_a_file_may_name_has_an_opener_for_every_kind_of_link():
@@ -45,7 +46,7 @@ def test_a_message_link_has_no_reader():
 def test_a_periodic_shm_end_attaches_to_the_runners_triple_buffer():
     name = unique_name("link")
     with (TripleBuffer.create(name, LinkLayout(LIKE.dtype, LIKE.shape), "sender") as sender,
-          open_link_end("l", spec(object=name), LIKE, "reader") as reader):
+          open_link_end("l", spec(shm_name=name), LIKE, "reader") as reader):
         assert isinstance(reader, TripleBuffer) and reader.role == "reader"
         sender.write(np.arange(3.0))
         reader.read()
@@ -55,7 +56,7 @@ def test_a_periodic_shm_end_attaches_to_the_runners_triple_buffer():
 def test_a_message_shm_end_attaches_to_the_runners_queue():
     name = unique_name("msg")
     with MessageLink.create(name, 2):
-        end = open_link_end("l", spec(kind="message", object=name), LIKE, "sender")
+        end = open_link_end("l", spec(kind="message", shm_name=name), LIKE, "sender")
         try:
             assert isinstance(end, MessageLink) and not end.owner
         finally:

@@ -11,6 +11,7 @@ import pytest
 from modules.link_receiver import LinkReceiver
 from pbo_runtime import Status
 from pbo_runtime.errors import ParamError
+from pbo_runtime.links.run_link import RunLink
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer
 from tests.support import make_task, unique_name, variables
 
@@ -19,7 +20,7 @@ from tests.support import make_task, unique_name, variables
 def receiver(make_table):
     link = TripleBuffer.create(unique_name("tb-q"), LinkLayout(np.dtype("float64"), (3,)), role="sender")
     table = make_table(variables(("q_d", "float64", (3,)), ("link_counts", "float64", (3,))))
-    spec = {"kind": "periodic", "transport": "shm", "object": link.name, "dtype": "float64", "shape": [3]}
+    spec = RunLink("periodic", "shm", "float64", (3,), shm_name=link.name)
     task = make_task(table, LinkReceiver, "follow", {"value": ("q_d", (3,)), "counts": ("link_counts", (3,))},
                      {"goal": spec})
     assert task.spawn(0.0), task.last_error
@@ -52,7 +53,7 @@ def bounded_receiver(make_table):
     """A receiver with fresh_within: 0.1 s, on a shm link whose sender the test drives."""
     link = TripleBuffer.create(unique_name("tb-f"), LinkLayout(np.dtype("float64"), (3,)), role="sender")
     table = make_table(variables(("q_d", "float64", (3,)), ("link_counts", "float64", (3,))))
-    spec = {"kind": "periodic", "transport": "shm", "object": link.name, "dtype": "float64", "shape": [3]}
+    spec = RunLink("periodic", "shm", "float64", (3,), shm_name=link.name)
     task = make_task(table, LinkReceiver, "follow", {"value": ("q_d", (3,)), "counts": ("link_counts", (3,))},
                      {"goal": spec}, params={"link": "goal", "fresh_within": 0.1})
     assert task.spawn(0.0), task.last_error

@@ -289,7 +289,7 @@ def test_job_controls_write_never_waits_for_good_on_a_lock_held_past_the_bound(m
         with pytest.raises(RunFailure, match=rf"^the table lock was held for \d+ ms \(bound 50 ms\) by pid {holder.pid}, "):
             table.write("a", np.ones(6), when=1.0)
         [event] = host.result.lock_events
-        assert (event["pid"], event["action"]) == (holder.pid, "left" if holder_ends == "stopped" else "released")
+        assert (event.pid, event.action) == (holder.pid, "left" if holder_ends == "stopped" else "released")
         assert host.result.failure == host.lines[0]
         if holder_ends == "stopped":
             assert process_state(holder.pid) in ("T", "t")

@@ -16,6 +16,7 @@ from modules.message_server import MessageServer
 from pbo_runtime.ipc import messages
 from pbo_runtime.links.message_link import MessageLink
 from pbo_runtime.links.relay import MessageRelay
+from pbo_runtime.links.run_link import RunLink
 from pbo_runtime.table.table import TaskState
 from pbo_runtime.task.background import process_background
 from tests.support import make_task, unique_name, variables
@@ -28,8 +29,8 @@ def goal_link():
     link.close()
 
 
-def link_spec(link: MessageLink) -> dict:
-    return {"kind": "message", "transport": "shm", "object": link.name, "dtype": "float64", "shape": [3], "capacity": 3}
+def link_spec(link: MessageLink) -> RunLink:
+    return RunLink("message", "shm", "float64", (3,), 3, shm_name=link.name)
 
 
 @pytest.fixture

@@ -125,7 +125,7 @@ def test_a_subsystem_goes_on_after_a_stage_only_once_every_other_is_done_and_the
     host.on_pump = other_is_done_at_0_2
     said: list[str] = []
     assert run_stages(host.job_control, str(plan), said.append) == ["dwell"]
-    joined = [m["time"] for m in host.job_control.marks if re.fullmatch(r"stage \d+ joined", m["label"])]
+    joined = [m.time for m in host.job_control.marks if re.fullmatch(r"stage \d+ joined", m.label)]
     assert joined[0] >= 0.203 - 1e-9 and joined[1] >= 0.303 - 1e-9
     assert said == ["stage 1 done here; joining me, other", "stage 2 done here; joining me, other"]
 

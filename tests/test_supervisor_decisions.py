@@ -8,6 +8,7 @@ from pbo_runtime.config.model import RestartPolicy, RtpuSpec
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.task_statistics import TaskStatistics
+from pbo_runtime.reports.run_records import StableEpisode
 from pbo_runtime.supervisor.children import Child, death_failure
 from pbo_runtime.supervisor.event_ledger import ErrorWords, error_words
 from pbo_runtime.supervisor.events import EventHandling, change_seen, state_served
@@ -177,8 +178,7 @@ def test_a_stable_episode_of_a_task_that_is_not_critical_says_the_critical_tasks
     assert heard.lines == [
         "task 'receive' has no fresh input (its cycle returned STABLE): the critical tasks hold until it has",
         "task 'receive' is back to its cycle after 500.0 ms"]
-    assert heard.result.stable_episodes == [{"task": "receive", "from": 1.0, "to": 1.5, "seconds": 0.5, "reason": "",
-                                             "cause": "module"}]
+    assert heard.result.stable_episodes == [StableEpisode("receive", 1.0, 1.5, "", "module")]
     assert heard.ledger.stable == {} and heard.handed == [("count_errors",)] * 2
 
 
@@ -186,7 +186,7 @@ def test_an_episode_open_at_the_stop_is_ended_without_an_end():
     heard = EventsHeard()
     heard.hear("rtpu0", messages.Stable("robot", True, 2.0, "stale q_m", "stale"))
     heard.ledger.end_stable_episode("robot", None)
-    assert heard.result.stable_episodes[0]["to"] is None and heard.result.stable_episodes[0]["seconds"] is None
+    assert heard.result.stable_episodes == [StableEpisode("robot", 2.0, None, "stale q_m", "stale")]
 
 
 # --- which child died, and what that means ---------------------------------------------------

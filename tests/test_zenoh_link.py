@@ -31,6 +31,7 @@ import pytest
 
 from pbo_runtime.links.ends import open_link, open_message_link
 from pbo_runtime.links.message_link import MAX_PRIORITY, LinkFullError, MessageLink, MessageLinkError
+from pbo_runtime.links.run_link import RunLink
 from pbo_runtime.links.triple_buffer import Freshness, LinkError, LinkLayout, LinkLayoutError, TripleBuffer
 from pbo_runtime.links.zenoh_link import DELIVERIES, ITEM_FORMAT, ITEM_HEADER, ZenohLink, open_periodic
 from pbo_runtime.links.zenoh_message_link import ZenohMessageLink
@@ -184,8 +185,7 @@ def test_open_link_chooses_the_transport():
 
 
 def test_an_application_links_spec_opens_the_sender_listening_and_the_reader_connecting():
-    spec = {"transport": "zenoh", "key": key("spec"), "endpoint": f"tcp/127.0.0.1:{free_port()}",
-            "dtype": "float64", "shape": [3]}
+    spec = RunLink("periodic", "zenoh", "float64", (3,), key=key("spec"), endpoint=f"tcp/127.0.0.1:{free_port()}")
     layout = LinkLayout("float64", (3,))
     with open_periodic(spec, layout, "sender") as sender, open_periodic(spec, layout, "reader") as reader:
         assert (sender.owner, reader.owner) == (True, False)
@@ -194,7 +194,7 @@ def test_an_application_links_spec_opens_the_sender_listening_and_the_reader_con
         read_until(reader, 1)
         assert reader.value.tolist() == [1.0, 2.0, 3.0]
     with pytest.raises(LinkError, match=r"^a zenoh link's spec needs 'key' and 'endpoint' \('tcp/<host>:<port>'\), got: "):
-        open_periodic({"key": "pbo/a/b", "endpoint": "udp/127.0.0.1:1"}, layout, "reader")
+        open_periodic(RunLink("periodic", "zenoh", "float64", (3,), key="pbo/a/b", endpoint="udp/127.0.0.1:1"), layout, "reader")
 
 
 def test_a_message_to_a_receiver_that_left_is_refused_not_lost():

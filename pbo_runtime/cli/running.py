@@ -24,6 +24,7 @@ from rich.table import Table
 from pbo_runtime.cli import summary
 from pbo_runtime.cli.arguments import host_addresses
 from pbo_runtime.cli.exits import EXIT_CONFIG, EXIT_OK, EXIT_RUN
+from pbo_runtime.links.run_link import links_from_json
 from pbo_runtime.supervisor.run_options import Alternation, RunOptions
 
 if TYPE_CHECKING:
@@ -102,7 +103,7 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
     startup = {"process": process_started(), "cli": args.entered, "loaded": getattr(args, "loaded", args.entered)}
     options = RunOptions(application=args.app, static=args.static, alternate=alternate, fifo=args.fifo, clock=args.clock,
                          one_process=args.one_process,
-                         out_dir=str(args.out), links=json.loads(args.links) if args.links else None, turn=args.turn,
+                         out_dir=str(args.out), links=links_from_json(args.links) if args.links else None, turn=args.turn,
                          stages=args.stages, startup=startup)
     refused = _check_output_paths(args)
     if refused:

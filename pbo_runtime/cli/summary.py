@@ -3,13 +3,16 @@ of restarts and decisions (reports/ does not import the supervisor)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from rich.console import Console
 
+    from pbo_runtime.config.model import Subsystem
+    from pbo_runtime.reports.run_result import RunResult
 
-def _print_summary(console: Console, subsystem: Any, result: Any) -> None:
+
+def _print_summary(console: Console, subsystem: Subsystem, result: RunResult) -> None:
     from pbo_runtime.reports.run_summary import print_summary
     from pbo_runtime.supervisor.decisions import decision_lines
     from pbo_runtime.supervisor.restarts import restart_lines

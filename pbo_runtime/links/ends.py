@@ -1,12 +1,8 @@
 """How a task reaches an application's link: the spec job control hands down, and the end it opens.
 
 The application runner (`supervisor.application_runner`) makes every link before the subsystems start and
-passes each subsystem a JSON mapping, link name -> spec, which travels with `pbo run --links` to
-the supervisor and then to each RTPU (`--links`), where `TaskContext.open_link` opens one end:
-
-    {"transport": "shm", "object": "/pbo.<app>.<run id>.link-<name>", "dtype": "float64", "shape": [6]}
-    {"transport": "zenoh", "key": "pbo/<app>/<name>", "endpoint": "tcp/127.0.0.1:<port>", ...}
-    {"kind": "message", "transport": "shm", "object": "/pbo.<app>.<run id>.msg-<name>", "capacity": 8, ...}
+passes each subsystem its links (`links.run_link.RunLink`, by name), which travel with `pbo run --links`
+to the supervisor and then to each RTPU (`--links`), where `TaskContext.open_link` opens one end.
 
 Roles: a periodic link has a 'sender' and a 'reader'; a message link a 'sender' and a 'server'
 (whose end the RTPU watches, releasing the server task per message: `links.relay`).
@@ -28,6 +24,7 @@ import numpy as np
 
 from pbo_runtime.errors import ModuleError, require_extra
 from pbo_runtime.links.message_link import SYSTEM_CAPACITY, SYSTEM_MESSAGE_BYTES
+from pbo_runtime.links.run_link import RunLink
 from pbo_runtime.links.spec import TRANSPORTS
 from pbo_runtime.links.triple_buffer import LinkError, LinkLayout, Role
 from pbo_runtime.links.zenoh_session import DEFAULT_WAIT, LOOPBACK
@@ -38,34 +35,34 @@ if TYPE_CHECKING:
     from pbo_runtime.links.zenoh_link import ZenohLink
     from pbo_runtime.links.zenoh_message_link import ZenohMessageLink
 
-Opener = Callable[[dict[str, Any], np.ndarray, str], Any]  # (the link's spec, an item like the port's, role) -> end
+Opener = Callable[[RunLink, np.ndarray, str], Any]  # (the link's spec, an item like the port's, role) -> end
 # Each opener imports its transport when called: a subsystem that uses no zenoh link never loads zenoh.
 
 
-def _shm_periodic(spec: dict[str, Any], like: np.ndarray, role: str) -> Any:
+def _shm_periodic(spec: RunLink, like: np.ndarray, role: str) -> Any:
     from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer
 
-    return TripleBuffer.attach(spec["object"], LinkLayout(like.dtype, like.shape), role=role)
+    return TripleBuffer.attach(spec.shm_name, LinkLayout(like.dtype, like.shape), role=role)
 
 
-def _zenoh_periodic(spec: dict[str, Any], like: np.ndarray, role: str) -> Any:
-    require_extra("zenoh", f"the zenoh link '{spec.get('key', '?')}'")
+def _zenoh_periodic(spec: RunLink, like: np.ndarray, role: str) -> Any:
+    require_extra("zenoh", f"the zenoh link '{spec.key or '?'}'")
     from pbo_runtime.links import zenoh_link
     from pbo_runtime.links.triple_buffer import LinkLayout
 
     return zenoh_link.open_periodic(spec, LinkLayout(like.dtype, like.shape), role)
 
 
-def _shm_message(spec: dict[str, Any], _like: np.ndarray, _role: str) -> Any:
+def _shm_message(spec: RunLink, _like: np.ndarray, _role: str) -> Any:
     """The runner made the queue: both ends attach."""
     from pbo_runtime.links.message_link import MessageLink
 
-    return MessageLink.attach(spec["object"])
+    return MessageLink.attach(spec.shm_name)
 
 
-def _zenoh_message(spec: dict[str, Any], _like: np.ndarray, role: str) -> Any:
+def _zenoh_message(spec: RunLink, _like: np.ndarray, role: str) -> Any:
     """The server listens on the spec's endpoint, the sender connects."""
-    require_extra("zenoh", f"the zenoh link '{spec.get('key', '?')}'")
+    require_extra("zenoh", f"the zenoh link '{spec.key or '?'}'")
     from pbo_runtime.links import zenoh_message_link
 
     return zenoh_message_link.open_aperiodic(spec, role)
@@ -77,16 +74,16 @@ OPENERS: dict[str, dict[str, Opener]] = {  # transport -> kind of link -> how an
 }
 
 
-def open_link_end(name: str, spec: dict[str, Any], like: np.ndarray, role: str) -> Any:
+def open_link_end(name: str, spec: RunLink, like: np.ndarray, role: str) -> Any:
     """The end of link `name` in `role`, for items shaped like `like`."""
-    expected = (np.dtype(spec["dtype"]), tuple(spec["shape"]))
+    expected = (np.dtype(spec.dtype), spec.shape)
     if (like.dtype, like.shape) != expected:
         raise ModuleError(f"link '{name}' carries {expected[0]} {list(expected[1])}, but the port is {like.dtype} "
                           f"{list(like.shape)}: link a variable of the link's type and shape")
-    transport = spec.get("transport", "shm")
+    transport = spec.transport
     if transport not in OPENERS:
         raise ModuleError(f"link '{name}': unknown transport '{transport}' (transports: {', '.join(OPENERS)})")
-    kind = "message" if spec.get("kind", "periodic") == "message" else "periodic"
+    kind = "message" if spec.kind == "message" else "periodic"
     if kind == "message" and role not in ("sender", "server"):
         raise ModuleError(f"link '{name}' carries messages: its ends are 'sender' and 'server', not '{role}'")
     return OPENERS[transport][kind](spec, like, role)

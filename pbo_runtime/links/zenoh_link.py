@@ -17,11 +17,11 @@ import socket
 import struct
 import threading
 import time
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
+from pbo_runtime.links.run_link import RunLink
 from pbo_runtime.links.triple_buffer import (
     Freshness,
     LinkError,
@@ -316,15 +316,15 @@ class ZenohLink(SessionEnd, ReaderTally):
                               contended=self._contended, lock_recoveries=0)
 
 
-def open_periodic(spec: Mapping[str, Any], layout: LinkLayout, role: Role | str) -> ZenohLink:
+def open_periodic(spec: RunLink, layout: LinkLayout, role: Role | str) -> ZenohLink:
     """One end of an application's zenoh link from the spec the application runner hands down (`links.ends`).
 
-    `spec`: {"key": "pbo/<app>/...", "endpoint": "tcp/<host>:<port>", "wait": seconds (optional)}.
+    `spec`: its key ("pbo/<app>/..."), endpoint ("tcp/<host>:<port>") and, optionally, wait (seconds).
     As the runner arranges it, the sender listens on the endpoint and the reader connects to it.
     The reader does not wait for the sender by default (its subsystem may start first, on another
     machine): it connects whenever the sender's end listens, and reads NONE until then.
     """
     host, port = spec_endpoint(spec)
     if _role(role) is Role.SENDER:
-        return ZenohLink.create(spec["key"], layout, Role.SENDER, port=port, host=host)
-    return ZenohLink.attach(spec["key"], layout, role, port=port, host=host, wait=spec.get("wait", None))
+        return ZenohLink.create(spec.key, layout, Role.SENDER, port=port, host=host)
+    return ZenohLink.attach(spec.key, layout, role, port=port, host=host, wait=spec.wait)

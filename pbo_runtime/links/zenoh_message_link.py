@@ -22,7 +22,6 @@ import os
 import socket
 import threading
 import time
-from collections.abc import Mapping
 from typing import Any
 
 import msgpack
@@ -36,6 +35,7 @@ from pbo_runtime.links.message_link import (
     MessageLinkError,
     encode_message,
 )
+from pbo_runtime.links.run_link import RunLink
 from pbo_runtime.links.zenoh_session import (
     ANSWER_TIMEOUT,
     DEFAULT_WAIT,
@@ -350,9 +350,9 @@ def _pause(deadline: float | None, pause: float) -> float:
     return min(pause * 2, WAIT_LONGEST)
 
 
-def open_aperiodic(spec: Mapping[str, Any], role: str) -> ZenohMessageLink:
+def open_aperiodic(spec: RunLink, role: str) -> ZenohMessageLink:
     """One end of an application's zenoh message link: the server listens on the spec's endpoint, the sender connects."""
     host, port = spec_endpoint(spec)
     if role == "server":
-        return ZenohMessageLink.create(spec["key"], int(spec.get("capacity") or SYSTEM_CAPACITY), port=port, host=host)
-    return ZenohMessageLink.attach(spec["key"], port=port, host=host, wait=spec.get("wait", DEFAULT_WAIT))
+        return ZenohMessageLink.create(spec.key, spec.capacity or SYSTEM_CAPACITY, port=port, host=host)
+    return ZenohMessageLink.attach(spec.key, port=port, host=host, wait=DEFAULT_WAIT if spec.wait is None else spec.wait)

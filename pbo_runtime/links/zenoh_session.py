@@ -14,12 +14,13 @@ import contextlib
 import json
 import socket
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import msgpack
 
 from pbo_runtime.errors import PboError
+from pbo_runtime.links.run_link import RunLink
 from pbo_runtime.links.spec import parse_endpoint
 from pbo_runtime.links.triple_buffer import LinkError
 
@@ -137,11 +138,11 @@ def key_expression(name: str) -> str:
     return key
 
 
-def spec_endpoint(spec: Mapping[str, Any]) -> tuple[str, int]:
-    """(host, port) of the spec the application runner hands down (`links.ends`), or LinkError."""
-    endpoint = parse_endpoint(spec.get("endpoint", ""))
-    if endpoint is None or "key" not in spec:
-        raise LinkError(f"a zenoh link's spec needs 'key' and 'endpoint' ('tcp/<host>:<port>'), got: {dict(spec)!r}")
+def spec_endpoint(spec: RunLink) -> tuple[str, int]:
+    """(host, port) of the link the application runner hands down (`links.ends`), or LinkError."""
+    endpoint = parse_endpoint(spec.endpoint)
+    if endpoint is None or not spec.key:
+        raise LinkError(f"a zenoh link's spec needs 'key' and 'endpoint' ('tcp/<host>:<port>'), got: {spec.to_json()!r}")
     return endpoint
 
 

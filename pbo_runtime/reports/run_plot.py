@@ -22,6 +22,7 @@ import numpy as np
 
 from pbo_runtime.reports.data_log import DataLog, LogError, find_logs, open_log
 from pbo_runtime.reports.plot_terms import Curves, axis_curves
+from pbo_runtime.reports.run_records import Mark
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -36,7 +37,7 @@ class RunData:
 
     logs: list[DataLog]
     origin: float  # run-clock seconds shown as 0
-    marks: list[dict[str, Any]] = field(default_factory=list)
+    marks: list[Mark] = field(default_factory=list)
     units: dict[str, str] = field(default_factory=dict)  # from the report, for logs that carry none (.npy)
 
     def columns(self) -> dict[str, DataLog]:
@@ -72,7 +73,7 @@ def load_run(target: str | Path) -> RunData:
     firsts = [float(log.rows["time"][0]) for log in logs if len(log.rows)]
     origin = started if started else (min(firsts) if firsts else 0.0)
     units = {name: v.get("unit", "") for name, v in report.get("variables", {}).items() if isinstance(v, dict)}
-    return RunData(logs, origin, list(report.get("marks", [])), units)
+    return RunData(logs, origin, [Mark.from_json(m) for m in report.get("marks", []) if isinstance(m, dict)], units)
 
 
 def logs_to_export(target: Path, output: Path | None) -> list[Path]:
@@ -120,7 +121,7 @@ def figure(run: RunData, variables: list[str] | None = None, new: Callable[..., 
     axes_asked = plot_axes(run, list(variables or []))
     fig = (new or Figure)(figsize=(10, 1.2 + 2.2 * len(axes_asked)), dpi=100, layout="constrained")
     axes = fig.subplots(len(axes_asked), 1, sharex=True, squeeze=False)[:, 0]
-    marks = [(float(m["time"]) - run.origin, str(m.get("label", "")), str(m.get("kind", ""))) for m in run.marks]
+    marks = [(mark.time - run.origin, mark.label, mark.kind) for mark in run.marks]
     for ax, (argument, curves) in zip(axes, axes_asked, strict=False):
         lines = 0
         for curve in curves:

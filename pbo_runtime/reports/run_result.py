@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from pbo_runtime.ipc.task_statistics import TaskStatistics
+from pbo_runtime.links.run_link import RunLink
+from pbo_runtime.reports.run_records import DecisionTaken, LockEvent, Mark, StableEpisode
 
 # A task whose RTPU was killed before it reported has only what its status block holds
 _TABLE_FIGURES = ("cycles", "overruns", "missed", "jitter_max", "jitter_p50", "jitter_p99", "exec_p50", "exec_p99",
@@ -195,14 +197,14 @@ class RunResult:
     application: str = ""
     jobs_done: list[str] = field(default_factory=list)
     switches: list[SwitchReport] = field(default_factory=list)
-    stable_episodes: list[dict[str, Any]] = field(default_factory=list)
+    stable_episodes: list[StableEpisode] = field(default_factory=list)
     realtime: dict[str, RtpuSettings] = field(default_factory=dict)  # per RTPU: cpu, scheduler, timer slack
     clock: str = "real"
     tick: float = 0.0  # seconds per tick of the simulated clock
     wall_seconds: float = 0.0  # how long the run took on the wall clock (a sim run's speed: duration / this)
     # of which from the configuration on to the stop: start-up and stop left out (a sim run's ticks: duration / this)
     running_wall_seconds: float = 0.0
-    links: dict[str, dict[str, Any]] = field(default_factory=dict)  # an application's links this run was handed
+    links: dict[str, RunLink] = field(default_factory=dict)  # an application's links this run was handed
     # CLOCK_MONOTONIC second the configuration came on (real clock; 0 on the simulated one): the
     # origin of each task's last_overruns times, to match them with a trace of the machine (tools/cpu_trace.py)
     started_monotonic: float = 0.0
@@ -215,16 +217,14 @@ class RunResult:
     faults: list[str] = field(default_factory=list)
     # brief holds of critical tasks on late inputs (BRIEF_HOLD_PERIODS), one line per task and cause: timing, not faults
     timing_holds: list[str] = field(default_factory=list)
-    # holdings of the table lock past its bound (supervisor.lock_watch): pid, holder, role, state
-    # (dead, stopped, running), held_ms, bound_ms, action (killed, released, left), at (run seconds)
-    lock_events: list[dict[str, Any]] = field(default_factory=list)
+    lock_events: list[LockEvent] = field(default_factory=list)  # holdings of the table lock past its bound
     # what the run's queues take of RLIMIT_MSGQUEUE (depth x (message size + the kernel's 96 B)), as made
     queue_bytes: int = 0
     # the run's clock (what a data log's time is: CLOCK_MONOTONIC, or simulated seconds) when the
     # configuration came on, and what happened when on it: switches and jobs (JobControl.marks)
     started_at: float = 0.0
-    marks: list[dict[str, Any]] = field(default_factory=list)
-    decisions: list[dict[str, Any]] = field(default_factory=list)  # an application's decisions, with their values
+    marks: list[Mark] = field(default_factory=list)
+    decisions: list[DecisionTaken] = field(default_factory=list)  # an application's decisions, with their values
     # RTPUs restarted by their restart policy (supervisor.restarts.Restart), in the order they died
     restarts: list[RestartRecord] = field(default_factory=list)
     # the start-up's time line, phase -> CLOCK_MONOTONIC second it ended (wall time, on either run
@@ -244,14 +244,17 @@ class RunResult:
             "run_id": self.run_id, "objects": self.objects, "states_at_stop": self.states_at_stop,
             "application": self.application, "jobs_done": self.jobs_done,
             "switches": [switch.to_json() for switch in self.switches],
-            "stable_episodes": self.stable_episodes,
+            "stable_episodes": [episode.to_json() for episode in self.stable_episodes],
             "realtime": {rtpu: settings.to_json() for rtpu, settings in self.realtime.items()},
             "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds,
-            "running_wall_seconds": self.running_wall_seconds, "links": self.links,
+            "running_wall_seconds": self.running_wall_seconds,
+            "links": {name: link.to_json() for name, link in self.links.items()},
             "started_monotonic": self.started_monotonic, "stalls": [stall.to_json() for stall in self.stalls],
             "unstopped": self.unstopped,
             "faults": self.faults, "timing_holds": self.timing_holds, "queue_bytes": self.queue_bytes,
-            "lock_events": self.lock_events, "started_at": self.started_at, "marks": self.marks, "decisions": self.decisions,
+            "lock_events": [event.to_json() for event in self.lock_events], "started_at": self.started_at,
+            "marks": [mark.to_json() for mark in self.marks],
+            "decisions": [decision.to_json() for decision in self.decisions],
             "restarts": [restart.to_json() for restart in self.restarts],
             "startup": self.startup, "gains": self.gains,
         }

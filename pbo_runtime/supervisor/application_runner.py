@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import dataclasses
 import json
 import os
 import shutil
@@ -47,6 +48,7 @@ from pbo_runtime.clock.application_lockstep import ApplicationLockstep
 from pbo_runtime.config.application import Application
 from pbo_runtime.ipc import limits, shm
 from pbo_runtime.links.message_link import SYSTEM_MESSAGE_BYTES, MessageLink, message_link_name
+from pbo_runtime.links.run_link import RunLink, links_to_json
 from pbo_runtime.links.triple_buffer import LinkLayout, TripleBuffer, link_name
 from pbo_runtime.links.zenoh_session import link_key
 from pbo_runtime.supervisor.cleanup import remove_dead_runs
@@ -104,7 +106,7 @@ class ApplicationRunner:
         self.clock = clock
         self.out_dir = out_dir
         self.run_id = shm.new_run_id()
-        self.links: dict[str, dict[str, Any]] = {}
+        self.links: dict[str, RunLink] = {}
         self._links: list[TripleBuffer | MessageLink] = []  # the shm links this runner made and removes
         self._children: dict[str, subprocess.Popen[str]] = {}
         self._terminated: set[str] = set()  # subsystems this runner sent SIGTERM to stop them
@@ -144,13 +146,10 @@ class ApplicationRunner:
             local = [end for end in (spec.sender[0], spec.receiver[0]) if end in self.local]
             if not local:
                 continue  # both ends on other hosts: theirs to make
-            entry: dict[str, Any] = {"kind": spec.kind, "transport": spec.transport, "dtype": spec.dtype,
-                                     "shape": list(spec.shape)}
-            if spec.kind == "message":
-                entry["capacity"] = spec.capacity
+            made = RunLink(spec.kind, spec.transport, spec.dtype, tuple(spec.shape),
+                           spec.capacity if spec.kind == "message" else None)
             if spec.transport == "zenoh":  # the sending (periodic) or serving (message) end listens; the other connects
-                entry["key"] = link_key(self.application.name, name)
-                entry["endpoint"] = self.endpoint(name)
+                made = dataclasses.replace(made, key=link_key(self.application.name, name), endpoint=self.endpoint(name))
             elif spec.kind == "message":
                 object_name = message_link_name(self.application.name, self.run_id, name)
                 try:
@@ -161,16 +160,16 @@ class ApplicationRunner:
                     if error is None:
                         raise
                     raise error from None
-                entry["object"] = object_name
+                made = dataclasses.replace(made, shm_name=object_name)
             else:
                 object_name = link_name(self.application.name, self.run_id, name)
                 self._links.append(TripleBuffer.create(object_name, LinkLayout(np.dtype(spec.dtype), spec.shape)))
-                entry["object"] = object_name
-            self.links[name] = entry
+                made = dataclasses.replace(made, shm_name=object_name)
+            self.links[name] = made
             what = f"messages, {spec.capacity} queued at most" if spec.kind == "message" else "periodic"
             self.say(f"link '{name}': {spec.sender[0]}.{spec.sender[1]} -> {spec.receiver[0]}.{spec.receiver[1]} "
                      f"({spec.dtype} {list(spec.shape)}, {what}, {spec.transport})"
-                     + (f": {self.application.listening_subsystem(name)} listens on {entry['endpoint']}, key {entry['key']}"
+                     + (f": {self.application.listening_subsystem(name)} listens on {made.endpoint}, key {made.key}"
                         if self.host is not None and spec.transport == "zenoh" else ""))
 
     def endpoint(self, link: str) -> str:
@@ -204,7 +203,7 @@ class ApplicationRunner:
         """The `pbo run` that runs subsystem `key` of the application, with the links and the run's options."""
         subsystem = self.application.subsystems[key]
         command = [sys.executable, "-m", "pbo_runtime.cli", "run", subsystem.file, "--no-live", "--clock", self.clock,
-                   "--duration", repr(self.duration or 0.0), "--links", json.dumps(self.links)]
+                   "--duration", repr(self.duration or 0.0), "--links", links_to_json(self.links)]
         chosen = self.application.run.get(key, {})
         if "config" in chosen:
             command += ["--config", chosen["config"]]

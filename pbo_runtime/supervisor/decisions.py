@@ -11,32 +11,33 @@ listed by the run's summary and report.json); `JobControl.path` is where the app
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from pbo_runtime.config.model import ApplicationStep, Decision
+from pbo_runtime.reports.run_records import DecisionTaken, Numbers
 
 
-def plain(values: dict[str, Any]) -> dict[str, Any]:
+def plain(values: Mapping[str, Any]) -> dict[str, Numbers]:
     """Variable values as JSON: lists of numbers."""
     return {name: np.asarray(value).tolist() for name, value in values.items()}
 
 
-def decision_lines(decisions: list[dict[str, Any]]) -> list[str]:
+def decision_lines(decisions: Sequence[DecisionTaken]) -> list[str]:
     """The summary's lines: each decision, where it was taken, which way it went and on what values."""
     lines = []
     for entry in decisions:
         values = "; ".join(f"{name} = {np.round(np.asarray(value), 4).tolist()}"
-                           for name, value in entry.get("values", {}).items())
-        what = {"if": f"if {entry.get('condition')}: {entry.get('taken')}",
-                "try": f"try failed -> fallback: {entry.get('failure')}",
-                "repeat": f"repeat {entry.get('turn')}/{entry.get('of')}" + (f" until {entry['condition']}: {entry['taken']}"
-                                                                             if "condition" in entry else ""),
-                "wait": f"wait {entry.get('condition')}: held after {entry.get('waited', 0.0):.3f} s"}[entry["kind"]]
-        shown = f" ({values})" if values and entry["kind"] != "try" else ""  # a failure's message has its values
-        lines.append(f"decision at {entry['time']:.3f} s ({entry['path']}): {what}{shown}")
+                           for name, value in (entry.values or {}).items())
+        what = {"if": f"if {entry.condition}: {entry.taken}",
+                "try": f"try failed -> fallback: {entry.failure}",
+                "repeat": f"repeat {entry.turn}/{entry.of}" + (f" until {entry.condition}: {entry.taken}"
+                                                               if entry.condition is not None else ""),
+                "wait": f"wait {entry.condition}: held after {entry.waited:.3f} s"}[entry.kind]
+        shown = f" ({values})" if values and entry.kind != "try" else ""  # a failure's message has its values
+        lines.append(f"decision at {entry.time:.3f} s ({entry.path}): {what}{shown}")
     return lines
 
 
@@ -91,10 +92,12 @@ class DecidingRun:
     def fail(self, message: str, values: dict[str, Any]) -> Exception:
         return self.failure(message, values)
 
-    def record(self, kind: str, **facts: Any) -> None:
-        entry = {"time": self.host.now(), "path": " > ".join(self.control.path), "kind": kind, **facts}
-        self.control.decisions.append(entry)
-        self.control.mark(entry["time"], "decision", f"{kind}: {facts.get('taken', '')}".rstrip(": "))
+    def record(self, kind: str, taken: str = "", condition: str | None = None, values: Mapping[str, Numbers] | None = None,
+               failure: str = "", turn: int = 0, of: int = 0, waited: float = 0.0) -> None:
+        taken_at = DecisionTaken(self.host.now(), " > ".join(self.control.path), kind, taken, condition, values, failure,
+                                 turn, of, waited)
+        self.control.decisions.append(taken_at)
+        self.control.mark(taken_at.time, "decision", f"{kind}: {taken}".rstrip(": "))
 
     def decide(self, decision: Decision, fill: Any, application: str) -> None:
         control, host, evaluate = self.control, self.host, self.evaluate

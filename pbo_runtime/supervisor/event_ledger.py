@@ -13,6 +13,7 @@ from typing import Protocol
 from pbo_runtime.config.model import TaskSpec
 from pbo_runtime.ipc import messages
 from pbo_runtime.ipc.task_statistics import TaskStatistics
+from pbo_runtime.reports.run_records import StableEpisode
 from pbo_runtime.supervisor.failures import RunFailure
 from pbo_runtime.supervisor.run_report import PlantFigures, RunResult
 
@@ -137,7 +138,7 @@ class EventLedger:
             cause = self.stable[task][2]
             told = self._told(task, cause)
             self.end_stable_episode(task, at)
-            began = self.result.stable_episodes[-1]["from"]
+            began = self.result.stable_episodes[-1].since
             if told:
                 self.say(f"{self._kind_of(task)} '{task}' is back to its cycle after {(at - began) * 1e3:.1f} ms"
                          + ("" if self._told(task, cause) else "; its further holds for late inputs are counted in "
@@ -156,11 +157,9 @@ class EventLedger:
         """Whether a stable episode of `task` for `cause` is told as it happens: always when the
         configuration is illegal (the operator acts on it), the first few holds for late inputs."""
         return cause == "illegal" or sum(1 for e in self.result.stable_episodes
-                                         if e["task"] == task and e["cause"] != "illegal") < STABLE_EPISODES_TOLD
+                                         if e.task == task and e.cause != "illegal") < STABLE_EPISODES_TOLD
 
     def end_stable_episode(self, task: str, at: float | None) -> None:
         """Into the report; `at` None: the task was still stable when the run stopped."""
         began, reason, cause = self.stable.pop(task)
-        self.result.stable_episodes.append({"task": task, "from": began, "to": at,
-                                            "seconds": None if at is None else at - began,
-                                            "reason": reason, "cause": cause})
+        self.result.stable_episodes.append(StableEpisode(task, began, at, reason, cause))

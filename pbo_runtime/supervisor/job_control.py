@@ -31,6 +31,7 @@ from pbo_runtime.config.expressions import ExpressionError, compile_condition
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.edit.live import LiveDescription
 from pbo_runtime.errors import PboError, closest_name
+from pbo_runtime.reports.run_records import DecisionTaken, Mark
 from pbo_runtime.reports.run_result import SwitchReport
 from pbo_runtime.supervisor.decisions import DecidingRun
 from pbo_runtime.supervisor.failures import RtpuDied, RunFailure, WrongArgument
@@ -249,15 +250,15 @@ class JobControl:
         self.post_lead = PlanLead(minimum=POST_LEAD_MIN)  # from the post delays (request to the plan in the header)
         # what a plot of the run's logs marks: switches and jobs, at their times on the run's clock
         # (the clock a data log's rows are stamped with: each cycle's release time)
-        self.marks: list[dict[str, Any]] = []
+        self.marks: list[Mark] = []
         # an application that decides: each decision with its values, and where it is now (`pick > try > reach`)
-        self.decisions: list[dict[str, Any]] = []
+        self.decisions: list[DecisionTaken] = []
         self.path: list[str] = []
         self.place: list[int] = []  # the same as positions: a step's index in its row, a row's in its step (the HMI's)
         self.jobs_done: list[str] = []  # the jobs the application ran to their end, in order
 
     def mark(self, at: float, kind: str, label: str) -> None:
-        self.marks.append({"time": at, "kind": kind, "label": label})
+        self.marks.append(Mark(at, kind, label))
 
     # --- switching --------------------------------------------------------------------------
 

@@ -9,11 +9,11 @@ back (`RtpuLaunch.parse`). A restart launches the same description with a field 
 from __future__ import annotations
 
 import argparse
-import json
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
 
 from pbo_runtime.config.model import DEFAULT_SPIN
+from pbo_runtime.links.run_link import RunLink, links_from_json, links_to_json
 
 SIM_TICK_DEFAULT = 0.001  # seconds per tick when none is given (the real clock has no tick)
 
@@ -34,7 +34,7 @@ class RtpuLaunch:
     out: str = ""  # directory the modules write their files into
     configuration: str = ""  # the configuration the run started in (for the logs' metadata)
     application: str = ""  # the application the run runs (for the logs' metadata)
-    links: dict[str, dict[str, Any]] = field(default_factory=dict)  # the application's links, by name
+    links: Mapping[str, RunLink] = field(default_factory=dict)  # the application's links, by name
     live: str = ""  # directory of the run's live descriptions (live-N.json)
     live_now: int = 0  # a restart after live changes: live-N.json describes the run, not the file (0: the file)
     restarted: bool = False  # a restart after this RTPU's process died: its tasks continue the run's files
@@ -52,7 +52,7 @@ class RtpuLaunch:
             argv += ["--out", self.out]
         argv += ["--configuration", self.configuration, "--application", self.application]
         if self.links:
-            argv += ["--links", json.dumps(self.links)]
+            argv += ["--links", links_to_json(self.links)]
         argv += ["--live", self.live]
         if self.restarted:
             argv.append("--restarted")
@@ -69,7 +69,7 @@ class RtpuLaunch:
         return cls(file=args.file, run_id=args.run_id, rtpu=args.rtpu, epoch=args.epoch, spin=args.spin,
                    fifo=args.fifo, clock=args.clock, tick=args.tick,
                    ring=tuple(args.ring.split(",")) if args.ring else (), out=args.out,
-                   configuration=args.configuration, application=args.application, links=json.loads(args.links),
+                   configuration=args.configuration, application=args.application, links=links_from_json(args.links),
                    live=args.live, live_now=args.live_now, restarted=args.restarted, parent=args.parent)
 
 

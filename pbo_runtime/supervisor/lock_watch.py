@@ -34,6 +34,7 @@ import posix_ipc
 
 from pbo_runtime.ipc import shm
 from pbo_runtime.objects.helper_threads import HELPER_FIFO_PRIORITY
+from pbo_runtime.reports.run_records import LockEvent
 from pbo_runtime.supervisor.children import Child
 from pbo_runtime.supervisor.failures import RunFailure, StopRequested
 from pbo_runtime.supervisor.fork_server import ForkedProcess
@@ -208,10 +209,8 @@ class LockGuard:
         if released:
             self.result.lock_recoveries += 1
         held_ms = holding.seconds * 1e3
-        self.result.lock_events.append({
-            "pid": pid, "holder": who, "role": child.role if child is not None else "", "state": how,
-            "held_ms": held_ms, "bound_ms": self.watch.bound * 1e3, "action": action, "at": self.run_time(),
-        })
+        self.result.lock_events.append(LockEvent(pid, who, child.role if child is not None else "", how, held_ms,
+                                                 self.watch.bound * 1e3, action, self.run_time()))
         holding.ended = True
         if action != "left":
             self.watch.forget()  # the lock is free again

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
 
+from pbo_runtime.links.run_link import RunLink
 from pbo_runtime.supervisor.failures import WrongArgument
 
 
@@ -28,7 +29,7 @@ class RunOptions:
     clock: str = "real"  # "real", or "sim": the simulated clock, replayed bit for bit
     one_process: bool = False  # sim: the plant and every RTPU hosted in the supervisor's process
     out_dir: str | None = None  # where the modules write their files
-    links: dict[str, dict[str, Any]] | None = None  # an application's links, handed to every RTPU
+    links: Mapping[str, RunLink] | None = None  # an application's links, handed to every RTPU
     turn: str | None = None  # an application on the simulated clock: the semaphores of this subsystem's turn
     stages: str | None = None  # an application file's stages: this subsystem's part and the joins
     # the start-up's time line before the supervisor (the CLI's imports, the file's load and check)

@@ -3,7 +3,7 @@ the events, a signal queue per RTPU, the control queue."""
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -12,17 +12,17 @@ from pbo_runtime.config.limits import MAX_NAME
 from pbo_runtime.config.model import Subsystem
 from pbo_runtime.ipc import limits, messages
 from pbo_runtime.ipc.control import REQUEST_BYTES, control_queue_name, control_queue_size
+from pbo_runtime.links.run_link import RunLink
 
 
-def queue_plan(sub: Subsystem, run_id: str, links: dict[str, dict[str, Any]]) -> list[limits.QueueSize]:
+def queue_plan(sub: Subsystem, run_id: str, links: Mapping[str, RunLink]) -> list[limits.QueueSize]:
     """The sizes of the run's queues, in the order they are made: events, each RTPU's signals, control."""
     plan = [messages.event_queue_size(messages.event_queue_name(sub.name, run_id),
                                       [[t.name for t in sub.tasks_on(rtpu.name)] for rtpu in sub.rtpus])]
     # what an aperiodic task's event may carry: an operator's values (a control request at most),
     # or a message of one of the application's links, as the checker bounds it
-    payload = max([REQUEST_BYTES] + [MSGPACK_BYTES_PER_NUMBER * int(np.prod(link.get("shape", [1])))
-                                     + MESSAGE_OVERHEAD_BYTES for link in links.values()
-                                     if link.get("kind") == "message"])
+    payload = max([REQUEST_BYTES] + [MSGPACK_BYTES_PER_NUMBER * int(np.prod(link.shape)) + MESSAGE_OVERHEAD_BYTES
+                                     for link in links.values() if link.kind == "message"])
     for rtpu in sub.rtpus:
         hosted = sub.tasks_on(rtpu.name)
         # (room for the longest name a task spawned live may have: `pbo spawn` may put one on any RTPU)

@@ -4,7 +4,7 @@ statistics, the stall watch and the table."""
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -12,6 +12,7 @@ import numpy as np
 from pbo_runtime.config.model import Subsystem, TaskSpec
 from pbo_runtime.ipc.task_statistics import Overrun, TaskStatistics
 from pbo_runtime.reports.log_notes import variable_notes
+from pbo_runtime.reports.run_records import StableEpisode
 from pbo_runtime.reports.run_result import FinalValue, Stall, TaskReport
 from pbo_runtime.reports.run_result import PlantFigures as PlantFigures
 from pbo_runtime.reports.run_result import RtpuSettings as RtpuSettings
@@ -141,6 +142,7 @@ class RunReporting:
         for task in list(self.ledger.stable):
             self.ledger.end_stable_episode(task, None)
         periods = {name: task.period for name, task in {**self.every_task, **self.subsystem.tasks}.items()}
+        self.result.stable_episodes = marked_episodes(self.result.stable_episodes, periods, self.started_at)
         faults, timing = stable_episode_lines(self.result.stable_episodes, periods, self.started_at, self.result.duration,
                                               {name for name, task in self.subsystem.tasks.items() if task.critical})
         self.result.faults += faults
@@ -221,14 +223,27 @@ def divergence_lines(task: str, spec: Any, figures: Mapping[str, Any], writers: 
     return lines
 
 
-def stable_episode_lines(episodes: list[dict[str, Any]], periods: dict[str, float], started_at: float | None,
+def marked_episodes(episodes: Sequence[StableEpisode], periods: Mapping[str, float],
+                    started_at: float | None) -> list[StableEpisode]:
+    """Each episode marked `while_starting` (it began before the configuration came on and ended) and
+    `brief` (it ended by itself within BRIEF_HOLD_PERIODS of its task's periods)."""
+    marked = []
+    for episode in episodes:
+        seconds = episode.seconds
+        marked.append(dataclasses.replace(
+            episode, while_starting=started_at is not None and episode.since < started_at and seconds is not None,
+            brief=seconds is not None and seconds < BRIEF_HOLD_PERIODS * periods.get(episode.task, 0.0)))
+    return marked
+
+
+def stable_episode_lines(episodes: Sequence[StableEpisode], periods: Mapping[str, float], started_at: float | None,
                          duration: float, critical: set[str] | None = None) -> tuple[list[str], list[str]]:
     """(faults, timing holds): one line per critical task and cause, from its stable episodes.
 
     Episodes of stale inputs or of a module's own STABLE count, once the configuration came on:
     while it comes on, task by task, a critical task on first may hold the arm until its writers
-    run, which is what it is for (each episode is marked `while_starting`). An episode is brief
-    when it ended by itself within BRIEF_HOLD_PERIODS of its task's periods (marked `brief`).
+    run, which is what it is for (`while_starting`). An episode is brief when it ended by itself
+    within BRIEF_HOLD_PERIODS of its task's periods (`brief`; see `marked_episodes`).
     Brief ones are timing unless they add up to more than BRIEF_HOLDS_SHARE of the run. A task that
     is not critical (in `critical`, when given) and returned STABLE had no fresh input (a link's
     item past its bound); the critical tasks' holds it caused (cause "upstream") are in the
@@ -239,48 +254,44 @@ def stable_episode_lines(episodes: list[dict[str, Any]], periods: dict[str, floa
     is a fault: the arm stayed braked.
     """
     origin = started_at if started_at is not None else 0.0
-    grouped: dict[tuple[str, str], list[dict[str, Any]]] = {}
-    locked: dict[str, list[dict[str, Any]]] = {}
-    braked: list[dict[str, Any]] = []
-    for episode in episodes:
-        episode["while_starting"] = (started_at is not None and episode["from"] < started_at
-                                     and episode["to"] is not None)  # (one still open at the stop is a fault)
-        episode["brief"] = (episode["to"] is not None
-                            and episode["seconds"] < BRIEF_HOLD_PERIODS * periods.get(episode["task"], 0.0))
-        if episode["cause"] in ("stale", "module") and not episode["while_starting"]:
-            grouped.setdefault((episode["task"], episode["cause"]), []).append(episode)
-        elif episode["cause"] == "lock":
-            locked.setdefault(episode["task"], []).append(episode)
-        elif episode["cause"] == "illegal" and episode["to"] is None:
+    grouped: dict[tuple[str, str], list[StableEpisode]] = {}
+    locked: dict[str, list[StableEpisode]] = {}
+    braked: list[StableEpisode] = []
+    for episode in marked_episodes(episodes, periods, started_at):
+        if episode.cause in ("stale", "module") and not episode.while_starting:
+            grouped.setdefault((episode.task, episode.cause), []).append(episode)
+        elif episode.cause == "lock":
+            locked.setdefault(episode.task, []).append(episode)
+        elif episode.cause == "illegal" and episode.until is None:
             braked.append(episode)
     faults, timing = [], []
     for episode in braked:  # the operator did not bring the configuration back: the arm stayed held
-        faults.append(f"critical task '{episode['task']}' ran its locally stable behaviour "
-                      f"{_episodes([episode], origin)}: {episode['reason']}")
+        faults.append(f"critical task '{episode.task}' ran its locally stable behaviour "
+                      f"{_episodes([episode], origin)}: {episode.reason}")
     for (task, _), group in grouped.items():
-        brief = [e for e in group if e["brief"]]
-        held = sum(e["seconds"] for e in brief)
+        brief = [e for e in group if e.brief]
+        held = sum(e.seconds or 0.0 for e in brief)
         if len(brief) == len(group) and held <= BRIEF_HOLDS_SHARE * duration:
             timing.append(f"critical task '{task}' held {_episodes(brief, origin)}, each back to its cycle within "
-                          f"{BRIEF_HOLD_PERIODS} periods (a late input: timing, not a fault): {brief[0]['reason']}")
+                          f"{BRIEF_HOLD_PERIODS} periods (a late input: timing, not a fault): {brief[0].reason}")
         elif critical is not None and task not in critical:
             faults.append(f"task '{task}' had no fresh input {_episodes(group, origin)} (its cycle returned STABLE: "
                           "a link's item or a topic's message past its bound), and the critical tasks held meanwhile")
         else:
             faults.append(f"critical task '{task}' ran its locally stable behaviour {_episodes(group, origin)}: "
-                          f"{group[0]['reason']}")
-    for task, group in locked.items():
-        timing.append(f"critical task '{task}' held {_episodes(group, origin)}, rather than wait for the table lock: "
-                      f"{group[0]['reason']}")
+                          f"{group[0].reason}")
+    for task, locks in locked.items():
+        timing.append(f"critical task '{task}' held {_episodes(locks, origin)}, rather than wait for the table lock: "
+                      f"{locks[0].reason}")
     return faults, timing
 
 
-def _episodes(episodes: list[dict[str, Any]], origin: float) -> str:
+def _episodes(episodes: list[StableEpisode], origin: float) -> str:
     """How long, or how often, and from when: "for 1.0 ms, from 2.232 s into the run", "3 times (the longest ...)"."""
     first = episodes[0]
     if len(episodes) == 1:
-        lasted = "until the stop" if first["to"] is None else f"for {first['seconds'] * 1e3:.1f} ms"
-        return f"{lasted}, from {first['from'] - origin:.3f} s into the run"
-    ended = [e["seconds"] for e in episodes if e["seconds"] is not None]
+        lasted = "until the stop" if first.seconds is None else f"for {first.seconds * 1e3:.1f} ms"
+        return f"{lasted}, from {first.since - origin:.3f} s into the run"
+    ended = [e.seconds for e in episodes if e.seconds is not None]
     longest = "one until the stop" if len(ended) < len(episodes) else f"the longest {max(ended) * 1e3:.1f} ms"
-    return f"{len(episodes)} times ({longest}), the first from {first['from'] - origin:.3f} s into the run"
+    return f"{len(episodes)} times ({longest}), the first from {first.since - origin:.3f} s into the run"

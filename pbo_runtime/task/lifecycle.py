@@ -32,6 +32,7 @@ import numpy as np
 
 from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.errors import LifecycleError, ModuleError, OutputError
+from pbo_runtime.links.run_link import RunLink
 from pbo_runtime.objects.module import PortBasedObject, Status
 from pbo_runtime.table.table import Flag, Header, StateTable, StatusWord, TaskState
 from pbo_runtime.task.transfer import LocalTable
@@ -62,7 +63,7 @@ class RuntimeTaskContext:
     outputs: list[str] = field(default_factory=list)  # the files `output_path` gave out
     run_metadata: Mapping[str, str] = field(default_factory=dict)  # reports.log_notes.run_metadata
     variable_notes: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # reports.log_notes.variable_notes
-    links: dict[str, dict[str, Any]] = field(default_factory=dict)  # the application's links, by name
+    links: dict[str, RunLink] = field(default_factory=dict)  # the application's links, by name
     relay: Relay | None = None  # the RTPU's: wakes this task per message of a link it serves
     restarted: bool = False  # its RTPU was restarted after a death: the run's files it writes are continued
     header_words: Any = None  # the table's header read as plain ints (a memoryview): the flags of `actuators_held`
@@ -136,7 +137,7 @@ class Task:
         devices: dict[str, DeviceSpec] | None = None,
         opener: DeviceOpener | None = None,
         out_dir: str = "",
-        links: dict[str, dict[str, Any]] | None = None,
+        links: Mapping[str, RunLink] | None = None,
         relay: Relay | None = None,
         run_metadata: Mapping[str, str] | None = None,
         variable_notes: Mapping[str, tuple[str, str]] | None = None,

@@ -99,9 +99,9 @@ def _main(argv: list[str], command_line: bool, fork_server: ForkServer | None) -
 
 
 def _early_fork_server(argv: list[str]) -> ForkServer | None:
-    """`pbo run` on the real clock: the run's fork server, started before anything else is imported, so
-    its imports (numpy, MuJoCo, the module library) overlap all of the CLI's; it is handed the
-    file once the CLI has loaded it (`cli.running`). The arguments are not parsed yet: a run that
+    """`pbo run` on the real clock: the run's fork server, forked from the CLI before its parser: its
+    own imports (MuJoCo, the module library, what the children run) overlap the CLI's parser,
+    load and check; it is handed the file once the CLI has loaded it (`cli.running`). The arguments are not parsed yet: a run that
     turns out not to need it (a wrong argument, the simulated clock) ends it unused; where the guess
     says no (no such file, an application, --help), the run starts it later (`cli.running`)."""
     if argv[:1] != ["run"] or any(a in ("sim", "-h", "--help", "--one-process") or a.endswith("=sim") for a in argv):
@@ -112,8 +112,8 @@ def _early_fork_server(argv: list[str]) -> ForkServer | None:
 
     if len(files) != 1 or is_application_file(files[0]) or not forking_enabled():
         return None
-    try:
-        return ForkServer.start(None, list(RUN_PRELOAD))
+    try:  # forked once the imports both need are done (numpy, the loader and the model): each imports them once
+        return ForkServer.fork_here(list(RUN_PRELOAD), ("numpy", "pbo_runtime.config.loader"))
     except OSError:
         return None  # the run starts one later, and says why if it cannot
 

@@ -102,7 +102,7 @@ class ForkedProcess:
 class ForkServer:
     """The supervisor's end: start the server, ask it for children, end it."""
 
-    def __init__(self, process: subprocess.Popen[bytes], channel: socket.socket) -> None:
+    def __init__(self, process: subprocess.Popen[bytes] | ForkedProcess, channel: socket.socket) -> None:
         self.process = process
         self._channel: socket.socket | None = channel
         self._replies = channel.makefile("rb")
@@ -138,6 +138,51 @@ class ForkServer:
         server = cls(process, ours)
         server.run_id = run_id
         server.awaits_run = file is None
+        return server
+
+    @classmethod
+    def fork_here(cls, preload: list[str], imports: tuple[str, ...]) -> ForkServer:
+        """A server forked from this process once it has imported `imports` (with OpenBLAS on one
+        thread: the server forks), which the server then has without importing them again; it
+        imports the `preload` modules meanwhile and waits for `hand_over`. Only while this process
+        holds one thread and has made nothing the server must not hold (`pbo run`, before it parses)."""
+        openblas = os.environ.get("OPENBLAS_NUM_THREADS")
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
+        try:
+            for module in imports:
+                importlib.import_module(module)
+        finally:  # this process's children started fresh get the environment it was given
+            if openblas is None:
+                os.environ.pop("OPENBLAS_NUM_THREADS", None)
+            else:
+                os.environ["OPENBLAS_NUM_THREADS"] = openblas
+        if _threads() != 1:
+            raise OSError("this process holds more than one thread: it cannot fork a server")
+        ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        arguments = ["--fd", str(theirs.fileno()), "--parent", str(os.getpid()), "--forked",
+                     *(["--openblas-threads", openblas] if openblas is not None else []),
+                     *(argument for module in preload for argument in ("--preload", module))]
+        sys.stdout.flush()  # (what either buffered would be written twice)
+        sys.stderr.flush()
+        try:
+            pid = os.fork()
+        except OSError:
+            ours.close()
+            theirs.close()
+            raise
+        if pid == 0:
+            try:
+                ours.close()
+                os.setsid()  # as a server started with start_new_session
+                devnull = os.open(os.devnull, os.O_RDONLY)
+                os.dup2(devnull, 0)
+                os.close(devnull)
+                main(arguments)
+            finally:
+                os._exit(3)  # (main exits by itself; this only if it raised)
+        theirs.close()
+        server = cls(ForkedProcess(pid), ours)
+        server.awaits_run = True
         return server
 
     def hand_over(self, subsystem: Any, run_id: str) -> None:
@@ -438,7 +483,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--preload", action="append", default=[], help="a module whose main() a request may run")
     parser.add_argument("--openblas-threads", default=None, help="the children's OPENBLAS_NUM_THREADS (unset if absent)")
     parser.add_argument("--run-id", default="", help="the run it serves: it takes part in its end (last_out)")
+    parser.add_argument("--forked", action="store_true", help="forked from its supervisor (`ForkServer.fork_here`)")
     args = parser.parse_args(argv)
+    if args.forked:  # its command line in ps and /proc is the one a server started fresh would have had
+        import setproctitle
+
+        setproctitle.setproctitle(" ".join([sys.executable, "-m", "pbo_runtime.supervisor.fork_server", *(argv or [])]))
     from pbo_runtime.ipc.process import Stop, become_child, supervisor_dying
     from pbo_runtime.supervisor import last_out
 

@@ -28,6 +28,13 @@ if TYPE_CHECKING:
     Handler = Callable[[argparse.Namespace, Console, Console], int]
 
 
+# What `pbo run` and its fork server both import, imported before the server is forked from it
+SHARED_IMPORTS = ("numpy", "pbo_runtime.config.loader", "pbo_runtime.table.table", "pbo_runtime.ipc.messages",
+                  "pbo_runtime.clock.clocks", "pbo_runtime.clock.lockstep", "pbo_runtime.edit.live",
+                  "pbo_runtime.supervisor.launch", "pbo_runtime.supervisor.reconfiguration",
+                  "pbo_runtime.reports.log_notes")
+
+
 def main(argv: list[str] | None = None) -> int:
     # MuJoCo without its OpenGL context: nothing pbo runs renders, and importing it loads GLFW (0.1-0.3 s
     # per process: the CLI, the plant, each RTPU). A module that renders sets MUJOCO_GL (egl, glfw) itself.
@@ -112,8 +119,9 @@ def _early_fork_server(argv: list[str]) -> ForkServer | None:
 
     if len(files) != 1 or is_application_file(files[0]) or not forking_enabled():
         return None
-    try:  # forked once the imports both need are done (numpy, the loader and the model): each imports them once
-        return ForkServer.fork_here(list(RUN_PRELOAD), ("numpy", "pbo_runtime.config.loader"))
+    try:  # forked once the imports both need are done (numpy, the loader and the model, the table, the
+        # queues, the clocks): each is imported once, in the CLI, which would import it later
+        return ForkServer.fork_here(list(RUN_PRELOAD), SHARED_IMPORTS)
     except OSError:
         return None  # the run starts one later, and says why if it cannot
 

@@ -225,3 +225,28 @@ def test_a_run_refused_before_it_starts_leaves_no_fork_server_behind(tmp_path, r
     assert pbo.returncode == 1, err
     assert "Traceback" not in err
     assert _servers_of(pbo.pid) == []  # forked before the arguments were parsed, and ended with the refusal
+
+
+class _UnpicklableSubsystem:
+    """Stands in for a subsystem that holds what cannot be pickled (a unit test's fake): the server loads its file."""
+
+    file = str(DEMO)
+
+    def __reduce__(self):
+        raise TypeError("cannot be pickled")
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("handed", ["the loaded subsystem", "a subsystem that cannot be pickled"])
+def test_a_server_started_without_a_file_serves_once_handed_its_run(tmp_path, monkeypatch, handed):
+    monkeypatch.setenv("PYTHONPATH", str(REPO))  # the server imports tests.fork_probe
+    started = ForkServer.start(None, [PROBE])
+    try:
+        subsystem = load_subsystem(str(DEMO)) if handed == "the loaded subsystem" else _UnpicklableSubsystem()
+        started.hand_over(subsystem, "")
+        out = tmp_path / "said.json"
+        child = started.fork(PROBE, [str(out), "report", "0", "--parent", str(os.getpid())])
+        assert child.wait(timeout=SAFETY_NET) == 0
+        assert json.loads(out.read_text())["ppid"] == os.getpid()
+    finally:
+        started.close()

@@ -192,7 +192,9 @@ class ForkServer:
             raise ValueError("hand_over is for a fork server started without a file, once")
         self.run_id = run_id
         self.awaits_run = False
-        run = {"run_id": run_id, "environ": dict(os.environ), "subsystem": pickle.dumps(subsystem).hex()}
+        run = {"run_id": run_id, "environ": dict(os.environ), "file": subsystem.file}
+        with contextlib.suppress(Exception):  # (a subsystem holding what cannot be pickled: the server loads the file)
+            run["subsystem"] = pickle.dumps(subsystem).hex()
         with contextlib.suppress(OSError):  # a server gone: the first fork says so, and the children start fresh
             self._channel.sendall(json.dumps(run).encode() + b"\n")
 
@@ -414,12 +416,16 @@ class _Server:
         self.run_id = run["run_id"]
         from pbo_runtime.supervisor import last_out
 
-        last_out.expect(self.run_id)
+        if self.run_id:
+            last_out.expect(self.run_id)
         environ = {**run["environ"], "OPENBLAS_NUM_THREADS": "1"}  # (the children's own is given back: `_child`)
         for key in set(os.environ) - set(environ):
             del os.environ[key]
         os.environ.update({key: value for key, value in environ.items() if os.environ.get(key) != value})
-        self.subsystem = pickle.loads(bytes.fromhex(run["subsystem"]))  # from the process that started this one
+        if "subsystem" in run:
+            self.subsystem = pickle.loads(bytes.fromhex(run["subsystem"]))  # from the process that started this one
+        else:
+            self.subsystem = _load(run["file"])
         return True
 
     def reply(self, answer: dict[str, Any]) -> None:

@@ -243,7 +243,7 @@ def test_a_server_started_without_a_file_serves_once_handed_its_run(tmp_path, mo
     started = ForkServer.start(None, [PROBE])
     try:
         subsystem = load_subsystem(str(DEMO)) if handed == "the loaded subsystem" else _UnpicklableSubsystem()
-        started.hand_over(subsystem, "")
+        started.hand_over(subsystem)
         out = tmp_path / "said.json"
         child = started.fork(PROBE, [str(out), "report", "0", "--parent", str(os.getpid())])
         assert child.wait(timeout=SAFETY_NET) == 0

@@ -121,7 +121,10 @@ def _early_fork_server(argv: list[str]) -> ForkServer | None:
         return None
     try:  # forked once the imports both need are done (numpy, the loader and the model, the table, the
         # queues, the clocks): each is imported once, in the CLI, which would import it later
-        return ForkServer.fork_here(list(RUN_PRELOAD), SHARED_IMPORTS)
+        from pbo_runtime.ipc.shm import new_run_id
+
+        # the run's id, which the supervisor takes: the server takes part in the run's end from its start
+        return ForkServer.fork_here(list(RUN_PRELOAD), SHARED_IMPORTS, new_run_id())
     except OSError:
         return None  # the run starts one later, and says why if it cannot
 

@@ -59,12 +59,13 @@ def _early_fork_server(args: argparse.Namespace) -> Iterator[ForkServer | None]:
     (supervisor.fork_server), and is handed the loaded file. The supervisor ends it once the
     children are started; this ends it on the paths where no supervisor took it (a bad file, a
     refused run). On the simulated clock the supervisor starts its own, in the clock's environment."""
+    from pbo_runtime.ipc.shm import new_run_id
     from pbo_runtime.supervisor.fork_server import RUN_PRELOAD, ForkServer, forking_enabled
 
     server: ForkServer | None = getattr(args, "fork_server", None)
     if server is None and args.clock == "real" and forking_enabled():  # (--one-process is on the simulated clock)
         try:
-            server = ForkServer.start(None, list(RUN_PRELOAD))
+            server = ForkServer.start(None, list(RUN_PRELOAD), run_id=new_run_id())  # the run's id, which the supervisor takes
         except OSError:
             server = None  # the supervisor tries again, and says why if it cannot
     elif server is not None and args.clock != "real":
@@ -83,9 +84,7 @@ def _load_and_run(args: argparse.Namespace, console: Console, errors: Console, f
     subsystem = load_subsystem(args.file)
     args.loaded = time.monotonic()
     if fork_server is not None:
-        from pbo_runtime.ipc.shm import new_run_id
-
-        fork_server.hand_over(subsystem, new_run_id())  # the run's id, which the supervisor takes
+        fork_server.hand_over(subsystem)
     live = console.is_terminal and not args.no_live
     duration = args.duration if args.duration > 0 else None
     alternate = None

@@ -141,11 +141,12 @@ class ForkServer:
         return server
 
     @classmethod
-    def fork_here(cls, preload: list[str], imports: tuple[str, ...]) -> ForkServer:
+    def fork_here(cls, preload: list[str], imports: tuple[str, ...], run_id: str) -> ForkServer:
         """A server forked from this process once it has imported `imports` (with OpenBLAS on one
         thread: the server forks), which the server then has without importing them again; it
         imports the `preload` modules meanwhile and waits for `hand_over`. Only while this process
-        holds one thread and has made nothing the server must not hold (`pbo run`, before it parses)."""
+        holds one thread and has made nothing the server must not hold (`pbo run`, before it parses).
+        It is a process of run `run_id` from its start, as `start` makes one."""
         openblas = os.environ.get("OPENBLAS_NUM_THREADS")
         os.environ["OPENBLAS_NUM_THREADS"] = "1"
         try:
@@ -159,7 +160,7 @@ class ForkServer:
         if _threads() != 1:
             raise OSError("this process holds more than one thread: it cannot fork a server")
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
-        arguments = ["--fd", str(theirs.fileno()), "--parent", str(os.getpid()), "--forked",
+        arguments = ["--fd", str(theirs.fileno()), "--parent", str(os.getpid()), "--forked", "--run-id", run_id,
                      *(["--openblas-threads", openblas] if openblas is not None else []),
                      *(argument for module in preload for argument in ("--preload", module))]
         sys.stdout.flush()  # (what either buffered would be written twice)
@@ -182,17 +183,17 @@ class ForkServer:
                 os._exit(3)  # (main exits by itself; this only if it raised)
         theirs.close()
         server = cls(ForkedProcess(pid), ours)
+        server.run_id = run_id
         server.awaits_run = True
         return server
 
-    def hand_over(self, subsystem: Any, run_id: str) -> None:
-        """Give a server started without a file the run's id, its loaded and checked subsystem (it does not
-        load the file again) and this process's environment now (what `pbo run` set after it started)."""
+    def hand_over(self, subsystem: Any) -> None:
+        """Give a server started without a file its loaded and checked subsystem (it does not load the
+        file again) and this process's environment now (what `pbo run` set after it started)."""
         if self._channel is None or not self.awaits_run:
             raise ValueError("hand_over is for a fork server started without a file, once")
-        self.run_id = run_id
         self.awaits_run = False
-        run = {"run_id": run_id, "environ": dict(os.environ), "file": subsystem.file}
+        run = {"environ": dict(os.environ), "file": subsystem.file}
         with contextlib.suppress(Exception):  # (a subsystem holding what cannot be pickled: the server loads the file)
             run["subsystem"] = pickle.dumps(subsystem).hex()
         with contextlib.suppress(OSError):  # a server gone: the first fork says so, and the children start fresh
@@ -413,11 +414,6 @@ class _Server:
         if not line or line == END:
             return False
         run = json.loads(line)
-        self.run_id = run["run_id"]
-        from pbo_runtime.supervisor import last_out
-
-        if self.run_id:
-            last_out.expect(self.run_id)
         environ = {**run["environ"], "OPENBLAS_NUM_THREADS": "1"}  # (the children's own is given back: `_child`)
         for key in set(os.environ) - set(environ):
             del os.environ[key]

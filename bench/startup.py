@@ -155,14 +155,18 @@ reader of the `entry_points.txt` files alone would spare it. The file checked it
 The line "the machine's first" is the same check with no result cache: it imports MuJoCo for the
 plant's description and Pinocchio for the inertia range, and computes both. Below this floor
 would take a checker without numpy, or printing without rich.
-`pbo run`: the CLI imports its parser and rich, then starts the fork server (before numpy, the
-loader and the checker: `config/file_kind.py`) and loads the file beside it; the server imports
-numpy, MuJoCo (through the plant's `warm()`) and the module library and loads the file again, on
-the second CPU; then the children are forked and each task's init runs. The chain is two
-interpreters' imports, one started by the other, and a load: several times the floor
-`python -c 'import numpy'`. Shorter would take a server started before the CLI's own imports (a
-launcher), or a server kept warm between runs. Read each figure against its floor: on a busy
-machine both grow alike.""",
+`pbo run`: the CLI imports numpy, the loader and what it shares with the children (the table, the
+queues, the clocks), then forks the fork server from itself, before its parser (`cli/main.py`);
+the server imports what only the children need (their own code, MuJoCo through the plant's
+`warm()`, the module library) while the CLI parses, loads and checks the file and imports the
+supervisor; the CLI hands the server the checked subsystem (no second load) and makes the table;
+the children are forked once the server is warm, and each task's init runs. In a run's time line
+the server is warm (`fork_server`) about when the table is made: the two sides are about even, so
+neither alone is the chain. What is left is imports that cannot be shared (numpy and the loader
+once, then the larger of the CLI's and the server's own), three forks of a large process and the
+children's start. Shorter would take a server kept warm between runs, or a module library whose
+modules import their heavy dependencies (Pinocchio) only when a task is made. Read each figure
+against its floor: on a busy machine both grow alike.""",
     )
     with tempfile.TemporaryDirectory(prefix="pbo-bench-startup-") as tmp:
         folder = Path(tmp)

@@ -10,6 +10,7 @@ import os
 import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -20,6 +21,7 @@ from pbo_runtime.supervisor.run_options import RunOptions
 from pbo_runtime.supervisor.supervisor import Supervisor
 from tests.support import (
     DEMO,
+    PBO,
     REPO,
     assert_nothing_left,
     children_of,
@@ -195,3 +197,56 @@ def test_a_run_with_a_restart_policy_keeps_its_fork_server_restarts_from_it_and_
         until(lambda: ipc_names(table.split(".")[2]) == [], "the run's objects removed", SAFETY_NET)
         assert "Traceback" not in out + err, err
     assert ipc_names(name) == []
+
+
+def _servers_of(pid: int) -> list[int]:
+    """The live fork servers whose supervisor was process `pid` (none once it has ended well)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        try:
+            command = (Path("/proc") / entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, ValueError):
+            continue
+        if "pbo_runtime.supervisor.fork_server" in command and f"--parent {pid} " in command:
+            found.append(int(entry))
+    return found
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("refused", ["a wrong argument", "a file with errors"])
+def test_a_run_refused_before_it_starts_leaves_no_fork_server_behind(tmp_path, refused):
+    file = demo_copy(tmp_path, "fork_refused")
+    arguments = ["--durration", "1"] if refused == "a wrong argument" else ["--no-live"]
+    if refused == "a file with errors":
+        file.write_text(file.read_text().replace("period: 1 ms", "period: -1 ms", 1))
+    pbo = subprocess.Popen([*PBO, "run", str(file), *arguments], cwd=tmp_path, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    _out, err = pbo.communicate(timeout=SAFETY_NET)
+    assert pbo.returncode == 1, err
+    assert "Traceback" not in err
+    assert _servers_of(pbo.pid) == []  # forked before the arguments were parsed, and ended with the refusal
+
+
+class _UnpicklableSubsystem:
+    """Stands in for a subsystem that holds what cannot be pickled (a unit test's fake): the server loads its file."""
+
+    file = str(DEMO)
+
+    def __reduce__(self):
+        raise TypeError("cannot be pickled")
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("handed", ["the loaded subsystem", "a subsystem that cannot be pickled"])
+def test_a_server_started_without_a_file_serves_once_handed_its_run(tmp_path, monkeypatch, handed):
+    monkeypatch.setenv("PYTHONPATH", str(REPO))  # the server imports tests.fork_probe
+    started = ForkServer.start(None, [PROBE])
+    try:
+        subsystem = load_subsystem(str(DEMO)) if handed == "the loaded subsystem" else _UnpicklableSubsystem()
+        started.hand_over(subsystem)
+        out = tmp_path / "said.json"
+        child = started.fork(PROBE, [str(out), "report", "0", "--parent", str(os.getpid())])
+        assert child.wait(timeout=SAFETY_NET) == 0
+        assert json.loads(out.read_text())["ppid"] == os.getpid()
+    finally:
+        started.close()

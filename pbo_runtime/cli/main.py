@@ -23,7 +23,16 @@ if TYPE_CHECKING:
 
     from rich.console import Console
 
+    from pbo_runtime.supervisor.fork_server import ForkServer
+
     Handler = Callable[[argparse.Namespace, Console, Console], int]
+
+
+# What `pbo run` and its fork server both import, imported before the server is forked from it
+SHARED_IMPORTS = ("numpy", "pbo_runtime.config.loader", "pbo_runtime.table.table", "pbo_runtime.ipc.messages",
+                  "pbo_runtime.clock.clocks", "pbo_runtime.clock.lockstep", "pbo_runtime.edit.live",
+                  "pbo_runtime.supervisor.launch", "pbo_runtime.supervisor.reconfiguration",
+                  "pbo_runtime.reports.log_notes")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -38,11 +47,21 @@ def main(argv: list[str] | None = None) -> int:
 
         print(f"pbo {installed_version()}")
         return 0
+    fork_server = _early_fork_server(argv)
+    try:
+        return _main(argv, command_line, fork_server)
+    finally:
+        if fork_server is not None:  # (ended already where a run took it)
+            fork_server.close()
+
+
+def _main(argv: list[str], command_line: bool, fork_server: ForkServer | None) -> int:
     from pbo_runtime.cli.completion import HIDDEN_VERB, complete
 
     if argv[:1] == [HIDDEN_VERB]:  # the shell completing a name at the time of a <TAB>
         return complete(argv[1:])
     args = _parser().parse_args(argv)
+    args.fork_server = fork_server
     if command_line and getattr(args, "one_process", False) and os.environ.get("PYTHONHASHSEED") != "0":
         # the tasks run in this interpreter: with the string hashing the run's processes have (`clock.run_clock`)
         os.execve(sys.executable, [sys.executable, "-m", "pbo_runtime.cli", *argv], {**os.environ, "PYTHONHASHSEED": "0"})
@@ -84,6 +103,30 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_RUN
     except Exception:
         return _internal_error(args, errors)
+
+
+def _early_fork_server(argv: list[str]) -> ForkServer | None:
+    """`pbo run` on the real clock: the run's fork server, forked from the CLI before its parser: its
+    own imports (MuJoCo, the module library, what the children run) overlap the CLI's parser,
+    load and check; it is handed the file once the CLI has loaded it (`cli.running`). The arguments are not parsed yet: a run that
+    turns out not to need it (a wrong argument, the simulated clock) ends it unused; where the guess
+    says no (no such file, an application, --help), the run starts it later (`cli.running`)."""
+    if argv[:1] != ["run"] or any(a in ("sim", "-h", "--help", "--one-process") or a.endswith("=sim") for a in argv):
+        return None
+    files = [a for a in argv[1:] if a.endswith((".yaml", ".yml")) and os.path.isfile(a)]
+    from pbo_runtime.config.file_kind import is_application_file
+    from pbo_runtime.supervisor.fork_server import RUN_PRELOAD, ForkServer, forking_enabled
+
+    if len(files) != 1 or is_application_file(files[0]) or not forking_enabled():
+        return None
+    try:  # forked once the imports both need are done (numpy, the loader and the model, the table, the
+        # queues, the clocks): each is imported once, in the CLI, which would import it later
+        from pbo_runtime.ipc.shm import new_run_id
+
+        # the run's id, which the supervisor takes: the server takes part in the run's end from its start
+        return ForkServer.fork_here(list(RUN_PRELOAD), SHARED_IMPORTS, new_run_id())
+    except OSError:
+        return None  # the run starts one later, and says why if it cannot
 
 
 def _refused_arguments() -> tuple[type[Exception], ...]:

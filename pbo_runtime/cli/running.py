@@ -42,6 +42,8 @@ def run(args: argparse.Namespace, console: Console, errors: Console) -> int:
         return EXIT_CONFIG
 
     if is_application_file(args.file):
+        if getattr(args, "fork_server", None) is not None:  # each subsystem of an application is a run of its own
+            args.fork_server.close()
         return _run_application(args, console, errors)
     if args.host is not None or args.address:
         errors.print(f"error: --host and --address place an application's subsystems on machines; {args.file} is a "
@@ -53,20 +55,23 @@ def run(args: argparse.Namespace, console: Console, errors: Console) -> int:
 
 @contextlib.contextmanager
 def _early_fork_server(args: argparse.Namespace) -> Iterator[ForkServer | None]:
-    """The run's fork server, started before the file is loaded: it imports and loads what the children
-    need on the other CPU meanwhile (supervisor.fork_server). The supervisor ends it once the children
-    are started; this ends it on the paths where no supervisor took it (a bad file, a refused run).
-    On the simulated clock the supervisor starts its own, in the clock's environment."""
+    """The run's fork server, started before the file is loaded (by `cli.main`, before the CLI's own
+    imports; else here): it imports what the children need on the other CPU meanwhile
+    (supervisor.fork_server), and is handed the loaded file. The supervisor ends it once the
+    children are started; this ends it on the paths where no supervisor took it (a bad file, a
+    refused run). On the simulated clock the supervisor starts its own, in the clock's environment."""
     from pbo_runtime.ipc.shm import new_run_id
-    from pbo_runtime.supervisor.fork_server import ForkServer, forking_enabled
+    from pbo_runtime.supervisor.fork_server import RUN_PRELOAD, ForkServer, forking_enabled
 
-    server: ForkServer | None = None
-    if args.clock == "real" and forking_enabled():  # (--one-process is on the simulated clock: no children to fork)
+    server: ForkServer | None = getattr(args, "fork_server", None)
+    if server is None and args.clock == "real" and forking_enabled():  # (--one-process is on the simulated clock)
         try:
-            server = ForkServer.start(str(Path(args.file).resolve()), ["pbo_runtime.supervisor.plant_host", "rtpu"],
-                                      run_id=new_run_id())  # the run's id, which the supervisor takes
+            server = ForkServer.start(None, list(RUN_PRELOAD), run_id=new_run_id())  # the run's id, which the supervisor takes
         except OSError:
             server = None  # the supervisor tries again, and says why if it cannot
+    elif server is not None and args.clock != "real":
+        server.close()
+        server = None
     try:
         yield server
     finally:
@@ -79,6 +84,8 @@ def _load_and_run(args: argparse.Namespace, console: Console, errors: Console, f
 
     subsystem = load_subsystem(args.file)
     args.loaded = time.monotonic()
+    if fork_server is not None:
+        fork_server.hand_over(subsystem)
     live = console.is_terminal and not args.no_live
     duration = args.duration if args.duration > 0 else None
     alternate = None

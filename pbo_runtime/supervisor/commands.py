@@ -39,7 +39,6 @@ from pbo_runtime.config.checker.loops import GAINS_NOTE
 from pbo_runtime.config.decisions import decides
 from pbo_runtime.config.values import as_value, describe, element_problem, range_problem
 from pbo_runtime.edit.live import LiveChangeRefused, LiveDescription, TaskChange, parse_assignments
-from pbo_runtime.edit.live_save import save_live
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import operator_input
 from pbo_runtime.ipc.control import BadRequest
@@ -469,6 +468,8 @@ def save(host: CommandHost, arguments: dict[str, Any]) -> dict[str, Any]:
         raise BadRequest(f"the file to write must be an absolute path (the supervisor writes it), got: {path!r}")
     if os.path.exists(path) and not arguments.get("force"):
         raise BadRequest(f"{path} exists: give --force to overwrite it")
+    from pbo_runtime.edit.live_save import save_live  # (ruamel.yaml: imported by the save, not by every run's start)
+
     try:
         same = save_live(live, path)
     except LiveChangeRefused as exc:

@@ -19,6 +19,8 @@ import importlib
 import inspect
 import json
 import os
+import pickle
+import select
 import signal
 import socket
 import subprocess
@@ -38,6 +40,7 @@ END = b"end\n"  # the supervisor's last line to the server: its channel closing 
 # imported by the server of a subsystem with a restart policy: a restarted controller's init would
 # otherwise import it again, most of its spawn (docs/performance.md, a dead RTPU restarted alone).
 WARM_FOR_RESTARTS = ("pinocchio",)
+RUN_PRELOAD = ("pbo_runtime.supervisor.plant_host", "rtpu")  # what `pbo run`'s children run
 
 
 class ForkServerUnavailable(Exception):
@@ -99,24 +102,29 @@ class ForkedProcess:
 class ForkServer:
     """The supervisor's end: start the server, ask it for children, end it."""
 
-    def __init__(self, process: subprocess.Popen[bytes], channel: socket.socket) -> None:
+    def __init__(self, process: subprocess.Popen[bytes] | ForkedProcess, channel: socket.socket) -> None:
         self.process = process
         self._channel: socket.socket | None = channel
         self._replies = channel.makefile("rb")
         self._subreaper = False
         self.run_id = ""  # the run it serves, made with it (the supervisor takes it): the server takes part in its end
         self.warm_at = 0.0  # CLOCK_MONOTONIC second the server was ready to fork (0: not yet heard)
+        self.awaits_run = False  # started without a file: it serves once `hand_over` gave it the loaded subsystem
 
     @classmethod
-    def start(cls, file: str, preload: list[str], env: dict[str, str] | None = None, run_id: str = "") -> ForkServer:
+    def start(cls, file: str | None, preload: list[str], env: dict[str, str] | None = None, run_id: str = "") -> ForkServer:
         """A server for subsystem `file` that imports the `preload` modules (each one's `main` serves a request),
-        a process of run `run_id` (`last_out`: if the supervisor dies, it may be the run's last one out)."""
+        a process of run `run_id` (`last_out`: if the supervisor dies, it may be the run's last one out).
+
+        `file` None: a server started before the file is known (`pbo run`, before it parses its
+        arguments); it imports what serves any file meanwhile and waits for `hand_over`."""
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
         environment = dict(os.environ if env is None else env)
         openblas = environment.get("OPENBLAS_NUM_THREADS")
         environment["OPENBLAS_NUM_THREADS"] = "1"  # no thread in the server: it forks
         command = [sys.executable, "-m", "pbo_runtime.supervisor.fork_server", "--fd", str(theirs.fileno()),
-                   "--parent", str(os.getpid()), "--file", file, *(["--run-id", run_id] if run_id else []),
+                   "--parent", str(os.getpid()), *(["--file", file] if file is not None else []),
+                   *(["--run-id", run_id] if run_id else []),
                    *(["--openblas-threads", openblas] if openblas is not None else []),
                    *(argument for module in preload for argument in ("--preload", module))]
         try:
@@ -129,7 +137,67 @@ class ForkServer:
             theirs.close()
         server = cls(process, ours)
         server.run_id = run_id
+        server.awaits_run = file is None
         return server
+
+    @classmethod
+    def fork_here(cls, preload: list[str], imports: tuple[str, ...], run_id: str) -> ForkServer:
+        """A server forked from this process once it has imported `imports` (with OpenBLAS on one
+        thread: the server forks), which the server then has without importing them again; it
+        imports the `preload` modules meanwhile and waits for `hand_over`. Only while this process
+        holds one thread and has made nothing the server must not hold (`pbo run`, before it parses).
+        It is a process of run `run_id` from its start, as `start` makes one."""
+        openblas = os.environ.get("OPENBLAS_NUM_THREADS")
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
+        try:
+            for module in imports:
+                importlib.import_module(module)
+        finally:  # this process's children started fresh get the environment it was given
+            if openblas is None:
+                os.environ.pop("OPENBLAS_NUM_THREADS", None)
+            else:
+                os.environ["OPENBLAS_NUM_THREADS"] = openblas
+        if _threads() != 1:
+            raise OSError("this process holds more than one thread: it cannot fork a server")
+        ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        arguments = ["--fd", str(theirs.fileno()), "--parent", str(os.getpid()), "--forked", "--run-id", run_id,
+                     *(["--openblas-threads", openblas] if openblas is not None else []),
+                     *(argument for module in preload for argument in ("--preload", module))]
+        sys.stdout.flush()  # (what either buffered would be written twice)
+        sys.stderr.flush()
+        try:
+            pid = os.fork()
+        except OSError:
+            ours.close()
+            theirs.close()
+            raise
+        if pid == 0:
+            try:
+                ours.close()
+                os.setsid()  # as a server started with start_new_session
+                devnull = os.open(os.devnull, os.O_RDONLY)
+                os.dup2(devnull, 0)
+                os.close(devnull)
+                main(arguments)
+            finally:
+                os._exit(3)  # (main exits by itself; this only if it raised)
+        theirs.close()
+        server = cls(ForkedProcess(pid), ours)
+        server.run_id = run_id
+        server.awaits_run = True
+        return server
+
+    def hand_over(self, subsystem: Any) -> None:
+        """Give a server started without a file its loaded and checked subsystem (it does not load the
+        file again) and this process's environment now (what `pbo run` set after it started)."""
+        if self._channel is None or not self.awaits_run:
+            raise ValueError("hand_over is for a fork server started without a file, once")
+        self.awaits_run = False
+        run = {"environ": dict(os.environ), "file": subsystem.file}
+        with contextlib.suppress(Exception):  # (a subsystem holding what cannot be pickled: the server loads the file)
+            run["subsystem"] = pickle.dumps(subsystem).hex()
+        with contextlib.suppress(OSError):  # a server gone: the first fork says so, and the children start fresh
+            self._channel.sendall(json.dumps(run).encode() + b"\n")
 
     def fork(self, module: str, arguments: list[str]) -> ForkedProcess:
         """Start `python -m module arguments...` as a fork; ForkServerUnavailable if the server cannot."""
@@ -177,8 +245,12 @@ class ForkServer:
         self.idle()
 
     def close(self) -> None:
-        """Release the server and reap it (SIGKILL if it has not gone within CLOSE_TIMEOUT)."""
+        """Release the server and reap it (SIGKILL if it has not gone within CLOSE_TIMEOUT; at once if it
+        was never handed a run: it is still importing, and has no share in any run)."""
+        never_used = self.awaits_run and self.process.poll() is None
         self.release()
+        if never_used:
+            self.process.kill()
         try:
             self.process.wait(timeout=CLOSE_TIMEOUT)
         except subprocess.TimeoutExpired:
@@ -205,21 +277,45 @@ def _main_of(module: str) -> Callable[..., int]:
     return main
 
 
-def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]], Any]:
-    """Import each preloaded module's `main`, load the subsystem, look up its modules, plant and drivers,
-    and import the rest of the library."""
-    importlib.import_module("setproctitle")  # imported once here, not in each child
+def _warm_library(preload: list[str]) -> dict[str, Callable[..., int]]:
+    """Import each preloaded module's `main` and the module library: what serves any file."""
+    title = importlib.import_module("setproctitle")  # imported once here, not in each child
+    title.setproctitle(title.getproctitle())  # it takes the command line's memory now, before `await_run` changes the environment
 
     mains = {module: _main_of(module) for module in preload}
+    from pbo_runtime.objects import registry
+
+    registry.import_library()  # what a task spawned live may need: a forked RTPU (a restarted one too) has it all
+    return mains
+
+
+def _warm_plants() -> None:
+    """Every registered plant's `warm()` (its simulator's imports): done while the server would only wait for its run."""
+    from pbo_runtime.objects import registry
+
+    for name in registry.names(registry.PLANTS):
+        with contextlib.suppress(Exception):  # the plant that is run imports it again, and reports a failure
+            warm = getattr(registry.plant_class(name), "warm", None)
+            if callable(warm):
+                warm()
+
+
+def _load(file: str) -> Any:
+    """The subsystem in `file`, loaded and checked; None if it has errors (each child loads it and reports them)."""
     from pbo_runtime.config.loader import load_subsystem
     from pbo_runtime.errors import PboError
+
+    try:
+        return load_subsystem(file)
+    except (PboError, OSError):
+        return None
+
+
+def _warm_subsystem(subsystem: Any) -> None:
+    """Look up the subsystem's modules, plant and drivers and import what each imports only once made."""
     from pbo_runtime.objects import registry
     from pbo_runtime.reports.log_notes import run_metadata
 
-    try:
-        subsystem = load_subsystem(file)
-    except (PboError, OSError):
-        return mains, None  # each child loads it and reports what is wrong, as a fresh one would
     run_metadata(subsystem, "real")  # the packages' versions it reads, read once here (each a parse of METADATA)
     if any(rtpu.restart is not None for rtpu in subsystem.rtpus):
         for module in WARM_FOR_RESTARTS:  # (the run's first children skip the import too)
@@ -234,8 +330,6 @@ def _warm(file: str, preload: list[str]) -> tuple[dict[str, Callable[..., int]],
             warm = getattr(found, "warm", None)  # what the class imports only once one is made (a plant's simulator)
             if callable(warm):
                 warm()
-    registry.import_library()  # what a task spawned live may need: a forked RTPU (a restarted one too) has it all
-    return mains, subsystem
 
 
 def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: Any, go: int, parent: int, middle: int,
@@ -310,6 +404,25 @@ class _Server:
         self.subsystem: Any = None
         self.refusal = ""  # why every request is refused ("": none is)
         self.warm_at = 0.0
+        self.requests = channel.makefile("rb")
+
+    def await_run(self) -> bool:
+        """A server started without a file: the run `hand_over` gives it (False: the supervisor needs none)."""
+        if not select.select([self.channel], [], [], 0)[0]:
+            _warm_plants()  # the run is not there yet: its plant's simulator is imported meanwhile, whichever it is
+        line = self.requests.readline()
+        if not line or line == END:
+            return False
+        run = json.loads(line)
+        environ = {**run["environ"], "OPENBLAS_NUM_THREADS": "1"}  # (the children's own is given back: `_child`)
+        for key in set(os.environ) - set(environ):
+            del os.environ[key]
+        os.environ.update({key: value for key, value in environ.items() if os.environ.get(key) != value})
+        if "subsystem" in run:
+            self.subsystem = pickle.loads(bytes.fromhex(run["subsystem"]))  # from the process that started this one
+        else:
+            self.subsystem = _load(run["file"])
+        return True
 
     def reply(self, answer: dict[str, Any]) -> None:
         self.channel.sendall(json.dumps({**answer, "warm_at": self.warm_at}).encode() + b"\n")
@@ -368,11 +481,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m pbo_runtime.supervisor.fork_server")
     parser.add_argument("--fd", type=int, required=True, help="this end of the supervisor's socketpair")
     parser.add_argument("--parent", type=int, required=True)
-    parser.add_argument("--file", required=True, help="the subsystem file the children run")
+    parser.add_argument("--file", default=None, help="the subsystem file the children run (absent: given by `hand_over`)")
     parser.add_argument("--preload", action="append", default=[], help="a module whose main() a request may run")
     parser.add_argument("--openblas-threads", default=None, help="the children's OPENBLAS_NUM_THREADS (unset if absent)")
     parser.add_argument("--run-id", default="", help="the run it serves: it takes part in its end (last_out)")
+    parser.add_argument("--forked", action="store_true", help="forked from its supervisor (`ForkServer.fork_here`)")
     args = parser.parse_args(argv)
+    if args.forked:  # its command line in ps and /proc is the one a server started fresh would have had
+        import setproctitle
+
+        setproctitle.setproctitle(" ".join([sys.executable, "-m", "pbo_runtime.supervisor.fork_server", *(argv or [])]))
     from pbo_runtime.ipc.process import Stop, become_child, supervisor_dying
     from pbo_runtime.supervisor import last_out
 
@@ -386,14 +504,22 @@ def main(argv: list[str] | None = None) -> int:
         raise
     try:
         try:
-            server.mains, server.subsystem = _warm(args.file, args.preload)
+            server.mains = _warm_library(args.preload)
+            if args.file is None and not server.await_run():
+                raise Stop
+            if args.file is not None:
+                server.subsystem = _load(args.file)
+            if server.subsystem is not None:
+                _warm_subsystem(server.subsystem)
+        except (Stop, BrokenPipeError, ConnectionResetError):
+            raise
         except Exception as exc:  # every request is refused with the reason: the children start fresh
             server.refusal = f"the fork server could not import what the children run: {type(exc).__name__}: {exc}"
         # what the children inherit stays out of their collections: a collection walking it would
         # write to each object's header, copying every page of it (most of a forked child's start)
         gc.freeze()
         server.warm_at = time.monotonic()
-        for line in server.channel.makefile("rb"):
+        for line in server.requests:
             if line == END:
                 break
             server.serve(json.loads(line))

@@ -36,11 +36,8 @@ def start(child: Any) -> None:
     def take(message: Any) -> None:
         values = ros2.goal_values(message, names)
         if len(values) != size or not all(math.isfinite(v) for v in values):
-            refused = int(counters[REFUSED]) + 1
-            if math.log10(refused).is_integer():  # (said before counted: whoever sees the count finds it said)
-                child.say(f"{setup['who']} refused a {setup['type']} on {setup['topic']} ({refusal(message, values, names)}); "
-                          f"{refused} refused so far")
-            counters[REFUSED] = refused
+            child.refuse(REFUSED, lambda refused: f"{setup['who']} refused a {setup['type']} on {setup['topic']} "
+                                                  f"({refusal(message, values, names)}); {refused} refused so far")
             return
         record.begin()
         record.values[:] = values

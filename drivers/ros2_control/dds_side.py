@@ -10,7 +10,6 @@ stderr (the first, then each tenfold count).
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -50,11 +49,9 @@ def start(child: Any) -> None:
             q = [sample.position[i] for i in order]
             qd = [sample.velocity[i] for i in order] if len(sample.velocity) == len(sample.name) else [0.0] * joints
         except (ValueError, IndexError):
-            refused = int(counters[REFUSED]) + 1
-            if math.log10(refused).is_integer():  # (said before counted: whoever sees the count finds it said)
-                child.say(f"ros2_control driver: refused a JointState on {setup['joint_states']} (names {list(sample.name)}, "
-                          f"{len(sample.position)} positions; it needs the joints {names}); {refused} refused so far")
-            counters[REFUSED] = refused
+            child.refuse(REFUSED, lambda refused: f"ros2_control driver: refused a JointState on {setup['joint_states']} "
+                                                  f"(names {list(sample.name)}, {len(sample.position)} positions; it needs "
+                                                  f"the joints {names}); {refused} refused so far")
             return
         state.begin()
         state.values[0] = sample.header.stamp.sec + sample.header.stamp.nanosec * 1e-9

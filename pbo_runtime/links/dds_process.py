@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import mmap
 import os
 import select
@@ -213,6 +214,14 @@ class DdsChild:
     def say(line: str) -> None:
         """One line on the run's stderr (the child's is the RTPU's)."""
         print(line, file=sys.stderr, flush=True)
+
+    def refuse(self, counter: int, why: Callable[[int], str]) -> None:
+        """Count a refused message in `counters[counter]`; say `why(count)` at the 1st, 10th, 100th...
+        (said before counted: whoever sees the count finds it said)."""
+        refused = int(self.counters[counter]) + 1
+        if math.log10(refused).is_integer():
+            self.say(why(refused))
+        self.counters[counter] = refused
 
     def take_in_thread(self, participant: Any, reader: Any, kind: type[Any], handle: Callable[[Any], None]) -> None:
         """Call `handle` with each message `reader` takes, in a thread of the child's own."""

@@ -36,6 +36,7 @@ from rtpu.releases import (
     close_cycle,
     first_release,
     record_jitter,
+    written_ring,
 )
 from rtpu.signals import EVENTS_QUEUED, SignalSource, handle_signal
 
@@ -95,7 +96,9 @@ class Scheduled:
         "writer_names",
     )
 
-    def __init__(self, task: Task) -> None:
+    def __init__(self, task: Task, between: Callable[[], None] | None = None) -> None:
+        """`between`: called between the steps of writing the timing rings (a live spawn runs the
+        RTPU's due cycles there: the rings are a megabyte of pages faulted in)."""
         self.task = task
         spec = task.spec
         self.aperiodic = bool(getattr(spec, "aperiodic", False))
@@ -109,10 +112,8 @@ class Scheduled:
         self.missed = 0
         self.long_cycles = 0  # overruns the cycle alone caused (it took more than a period)
         self.overrun_log = np.zeros(3 * OVERRUNS_KEPT)  # flat ring: release, lateness, execution time
-        # Written now, not zeroed lazily: a lazily zeroed page would be faulted in at its first
-        # write, on the per-cycle path.
-        self.jitter = np.full(RING, 0.0)
-        self.exec_time = np.full(RING, 0.0)
+        self.jitter = written_ring(between)
+        self.exec_time = written_ring(between)
         self.jitter_ring: Any = self.jitter.data  # the same rings as memoryviews: per-cycle stores of floats
         self.exec_ring: Any = self.exec_time.data
         self.samples = 0

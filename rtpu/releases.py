@@ -10,6 +10,7 @@ per RECENT cycles. Nothing on a cycle's path allocates.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -20,6 +21,7 @@ if TYPE_CHECKING:
     from rtpu._executive import Scheduled
 
 RING = 1 << 16  # timing samples kept per task for its percentiles
+RING_STEP = 1 << 13  # samples of a ring written in one step (16 pages): well under a period
 RECENT = 1 << 10  # every RECENT cycles, the last RECENT samples' percentiles go to the table for pbo status
 OVERRUNS_KEPT = 8  # the last overruns kept per task (release, lateness, execution time) for the run report
 # An activation comes back from the header's nanoseconds, a boundary is epoch + k x period in
@@ -125,3 +127,15 @@ def record_overrun(s: Scheduled, release: float, jitter: float, took: float, ski
     s.missed += skipped - 1 if skipped > 1 else 0
     s.status[W.OVERRUNS] = s.overruns
     s.shared_status[W.MISSED] = s.missed  # straight into the table: not one of the words a cycle carries
+
+
+def written_ring(between: Callable[[], None] | None = None) -> np.ndarray:
+    """A timing ring of RING zeros, every page written now: a page faulted in at its first write
+    would be on the per-cycle path. `between` runs after each RING_STEP samples (a live spawn
+    runs the RTPU's due cycles there)."""
+    ring = np.empty(RING)
+    for start in range(0, RING, RING_STEP):
+        ring[start:start + RING_STEP] = 0.0
+        if between is not None:
+            between()
+    return ring

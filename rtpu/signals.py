@@ -119,7 +119,7 @@ def make(executive: Executive, name: str) -> Scheduled:
 
     task = executive.factories[name]()
     cycles_due(executive)
-    made = Scheduled(task)
+    made = Scheduled(task, between=lambda: cycles_due(executive))
     cycles_due(executive)
     return made
 

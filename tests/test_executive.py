@@ -510,3 +510,13 @@ def test_a_cycle_through_the_executive_allocates_no_array(make_table, critical):
 
     assert allocation_peak(one_release, times=200) < one_array()
     assert a.task.cycles == 1 + 4 * 200 and a.overruns == 0
+
+
+def test_a_timing_ring_is_written_in_steps_with_the_due_cycles_run_between():
+    # a live spawn faults in a megabyte of ring pages: the RTPU's other tasks cycle between the steps
+    from rtpu.releases import RING, RING_STEP, written_ring
+
+    steps: list[int] = []
+    ring = written_ring(lambda: steps.append(1))
+    assert len(steps) == RING // RING_STEP > 1
+    assert ring.shape == (RING,) and not ring.any()

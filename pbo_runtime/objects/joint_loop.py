@@ -18,6 +18,7 @@ controllers' init.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -59,19 +60,21 @@ def bandwidth_gains(inertia: float, bandwidth: float, damping: float = 1.0, inte
     return LoopGains(kp, kd, kp / integral_time if integral_time > 0 else 0.0)
 
 
+@functools.lru_cache(maxsize=256)
 def design_gains(low: float, high: float, bandwidth: float, damping: float, integral_time: float, period: float,
                  delay: int = 1, viscous: float = 0.0) -> tuple[LoopGains, float]:
     """The gains of `bandwidth_gains` for a joint whose inertia spans `low`..`high`, and the inertia
     they are made for: the heaviest, unless gains that stiff would leave the loop at a lighter pose
     poorly damped (its fast pole, kd / I, too close to the sampling rate): then the heaviest inertia
-    for which every pose keeps a damping ratio of `DESIGN_DAMPING` (or the best there is)."""
+    for which every pose keeps a damping ratio of `DESIGN_DAMPING` (or the best there is).
+
+    Kept per process: a controller replaced live by one with the same gains finds them made."""
     wanted = min(DESIGN_DAMPING, damping)
     best, best_damping = high, -math.inf
     for design in np.geomspace(high, low, _DESIGN_POINTS) if high > low else (high,):
-        sleep_while_cycling(0)  # in a live spawn's init (a controller's gains), the RTPU's due cycles run meanwhile
         gains = bandwidth_gains(float(design), bandwidth, damping, integral_time, viscous)
-        worst = min(damping_ratio(i, gains, period, delay, viscous) for i in inertias(low, high))
-        if not stable(low, high, gains, period, delay, viscous):
+        worst, stable_everywhere = _worst_damping(low, high, gains, period, delay, viscous)
+        if not stable_everywhere:
             worst = -1.0
         if worst >= wanted * (1 - 1e-9):
             return gains, float(design)
@@ -129,7 +132,23 @@ def spectral_radius(inertia: float, gains: LoopGains, period: float, delay: int 
 def damping_ratio(inertia: float, gains: LoopGains, period: float, delay: int = 1, viscous: float = 0.0,
                   computed_torque: bool = False) -> float:
     """The smallest damping ratio of the loop's poles (1 for real poles, < 0 unstable)."""
-    poles = np.linalg.eigvals(closed_loop(inertia, gains, period, delay, viscous, computed_torque))
+    return _least_damping(np.linalg.eigvals(closed_loop(inertia, gains, period, delay, viscous, computed_torque)), period)
+
+
+def _worst_damping(low: float, high: float, gains: LoopGains, period: float, delay: int, viscous: float) -> tuple[float, bool]:
+    """(the least damping ratio over the inertias from `low` to `high`, whether the loop is stable at
+    every one): `damping_ratio` and `stable` from one eigenvalue problem an inertia. In a live
+    spawn's init the RTPU's due cycles run between two inertias, so no step lasts near a period."""
+    worst, stable_everywhere = math.inf, True
+    for inertia in inertias(low, high):
+        sleep_while_cycling(0)
+        poles = np.linalg.eigvals(closed_loop(float(inertia), gains, period, delay, viscous))
+        worst = min(worst, _least_damping(poles, period))
+        stable_everywhere = stable_everywhere and float(np.max(np.abs(poles))) < 1.0 - 1e-9
+    return worst, stable_everywhere
+
+
+def _least_damping(poles: np.ndarray, period: float) -> float:
     ratios = []
     for z in poles:
         if abs(z) < 1e-12:

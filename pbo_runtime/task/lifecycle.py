@@ -34,6 +34,7 @@ from pbo_runtime.config.model import DeviceSpec, TaskSpec
 from pbo_runtime.errors import LifecycleError, ModuleError, OutputError
 from pbo_runtime.links.run_link import RunLink
 from pbo_runtime.objects.module import PortBasedObject, Status
+from pbo_runtime.objects.waits import sleep_while_cycling
 from pbo_runtime.table.table import Flag, Header, StateTable, StatusWord, TaskState
 from pbo_runtime.task.transfer import LocalTable
 
@@ -158,7 +159,9 @@ class Task:
                                           run_metadata=run_metadata or {}, variable_notes=variable_notes or {},
                                           restarted=restarted, header_words=table.header.data, table=table,
                                           variable_of={b.port.name: b.variable for b in spec.bindings})
+        sleep_while_cycling(0)  # in a live spawn, the RTPU's due cycles run between the steps of making a task
         self.local = LocalTable(table, spec.bindings, spec.index, watch_freshness=spec.critical)
+        sleep_while_cycling(0)
         self.status = self.local.status
         self._status_words: Any = self.status.data  # the same words: a cycle's stores cost half a numpy array's
         self._forget_an_earlier_tasks_figures(table.status[spec.index])

@@ -124,7 +124,9 @@ def requests(config: Path, status: dict[str, Any], folder: Path, round_index: in
     made["spawn"] = {"task": LOGGER, "module": "data_logger", "rtpu": rtpu, "period": "10ms",
                      "param": [f"variables=[{logged}]", f"path={LOGGER}{round_index or ''}.mcap"]}
     made["off"] = made["on"] = made["kill"] = {"task": LOGGER}
-    replaceable = [s for s in others if s.module != "data_logger"]
+    # a task holding an exclusive device cannot be replaced while it holds it (the new one's init is refused the device)
+    exclusive = {name for name, device in subsystem.devices.items() if device.exclusive}
+    replaceable = [s for s in others if s.module != "data_logger" and not exclusive.intersection(s.resources)]
     made["replace"] = {"task": replaceable[0].name, "new": f"{replaceable[0].name}_b"} if replaceable else "no task to replace"
     made["save"] = {"file": str(folder / "saved.yaml"), "force": True}
     return {verb: request if isinstance(request, str) else COMMANDS[verb].request(request) for verb, request in made.items()}

@@ -93,8 +93,9 @@ class InverseKinematics(ModelBased):
         self.iterations = 0  # Newton steps the last cycle took
 
     def on(self) -> None:
+        # Where the arm is, until the first cycle, which runs at the same boundary and searches
+        # from here: a search here would only lengthen the switch that turns this task on.
         self.q_r = self.q_m
-        self._solve()
 
     def cycle(self) -> Status:
         if self._solve() or not self._fail:

@@ -131,11 +131,24 @@ def test_differentiator_cycle_allocates_nothing(table):
 # --- InverseKinematics ----------------------------------------------------------------------------
 
 
-def ik_task(table: StateTable, q_m: np.ndarray, x_d: np.ndarray, params: dict | None = None) -> Task:
+def ik_task(table: StateTable, q_m: np.ndarray, x_d: np.ndarray, params: dict | None = None, first_cycle: bool = True) -> Task:
+    """Turned on, and its first cycle run at the same boundary, as the executive does."""
     write(table, q_m=q_m, x_d=x_d)
     task = spawned(table, InverseKinematics, params)
     assert task.turn_on(0.0), task.last_error
+    if first_cycle:
+        task.run_cycle(0.0)
     return task
+
+
+def test_inverse_kinematics_turns_on_where_the_arm_is_and_searches_in_its_first_cycle(table):
+    # no search in `on`: it would lengthen the switch that turns the task on, before any cycle runs
+    x_d = pose(Q_GENERIC + 0.1)
+    task = ik_task(table, Q_GENERIC, x_d, first_cycle=False)
+    np.testing.assert_array_equal(read(table, "q_r"), Q_GENERIC)
+    assert task.module.iterations == 0
+    assert task.run_cycle(0.0) is Status.CONTINUE and task.module.converged
+    assert np.abs(pose_error(x_d, pose(read(table, "q_r")), np.zeros(6))).max() < 1e-6
 
 
 @pytest.mark.parametrize("offset", [np.array([0.1, -0.08, 0.12, -0.1, 0.09, 0.1]), np.array([0.4, 0.3, -0.3, 0.5, 0.4, -0.5])])
@@ -176,7 +189,7 @@ def test_inverse_kinematics_continues_or_reports_an_error_when_it_does_not_conve
     patient = ik_task(table, Q_GENERIC, far)
     assert patient.run_cycle(DT) is Status.CONTINUE
     patient.kill()
-    strict = ik_task(table, Q_GENERIC, far, {"unreachable": "error"})
+    strict = ik_task(table, Q_GENERIC, far, {"unreachable": "error"}, first_cycle=False)
     strict.run_cycle(DT)
     assert "inverse kinematics did not reach x_d within 1e-09 in 20 iterations" in strict.last_error
 

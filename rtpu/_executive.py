@@ -451,6 +451,11 @@ class Executive:
         self.report_statistics()
         self.running = False
 
+    def off_the_cycle(self, work: Callable[[], None]) -> None:
+        """Run `work` in this RTPU's background thread, below the executive (`task.background`):
+        a live change's reading and building, which between two cycles would make releases late."""
+        background.process_background().hand_off(work, "", "staging a live change")
+
     # --- reports ----------------------------------------------------------------------------
 
     def report_background_failures(self, failures: list[background.Failure] | None = None) -> None:

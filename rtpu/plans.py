@@ -131,18 +131,30 @@ class Plans:
             if self.seen:
                 send(Window(self.seen, s.task.name, lost, stale))
 
-    def stage(self, sequence: int, tasks: dict[str, Scheduled], factories: dict[str, Callable[[], Task]]) -> None:
-        """Read live description `sequence` and keep it for the next plan; its tasks on this RTPU can be spawned now."""
+    def stage(self, sequence: int, tasks: dict[str, Scheduled], factories: dict[str, Callable[[], Task]],
+              hand_off: Callable[[Callable[[], None]], None] | None = None) -> None:
+        """Read live description `sequence` and keep it for the next plan; its tasks on this RTPU can be spawned now.
+
+        `hand_off`: on the real clock, the reading (a file, a JSON text, the configurations built)
+        runs in the RTPU's background thread, not between two cycles, and says Staged from there.
+        Job control posts the change's plan only once every RTPU said so."""
+        hosted = [(name, s.task) for name, s in tasks.items()]  # taken here: the executive's thread changes `tasks`
+        if hand_off is None:
+            self._stage(sequence, hosted, factories)
+        else:
+            hand_off(lambda: self._stage(sequence, hosted, factories))
+
+    def _stage(self, sequence: int, hosted: list[tuple[str, Task]], factories: dict[str, Callable[[], Task]]) -> None:
         try:
             if self.live_loader is None:
                 raise RuntimeError("this RTPU was started without a live description")
             stage = self.live_loader(sequence)
             tunes = {}
-            for name, s in tasks.items():
+            for name, task in hosted:
                 index, params = stage.tasks.get(name, (-1, None))
-                if index == s.task.index and params != s.task.spec.params and s.task.state != TaskState.KILLED:
+                if index == task.index and params != task.spec.params and task.state != TaskState.KILLED:
                     spec = stage.spec(name)
-                    tunes[name] = (spec, s.task.tune_params(spec))  # built now: the boundary only calls tune
+                    tunes[name] = (spec, task.tune_params(spec))  # built now: the boundary only calls tune
         except Exception as exc:  # job control refuses the change and says why
             self.report(messages.Staged(sequence, f"{type(exc).__name__}: {exc}"))
             return

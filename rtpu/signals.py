@@ -42,7 +42,8 @@ def handle_signal(executive: Executive, message: list[Any]) -> None:
     if isinstance(signal, messages.PlanPosted):  # a wake-up: the plan itself is in the table's header
         return
     if isinstance(signal, messages.LiveUpdate):
-        executive.plans.stage(signal.sequence, executive.tasks, executive.factories)
+        executive.plans.stage(signal.sequence, executive.tasks, executive.factories,
+                              hand_off=executive.off_the_cycle if executive.cycles_between_steps else None)
         return
     name = signal.task if signal is not None else message[1]
     s = executive.tasks.get(name)

@@ -9,6 +9,7 @@ here sleeps or depends on the machine's timing, so the counts are exact.
 from __future__ import annotations
 
 import math
+import threading
 from types import SimpleNamespace
 
 import pytest
@@ -24,7 +25,7 @@ from pbo_runtime.task.lifecycle import Task
 from rtpu._executive import Executive
 from rtpu.holds import HELD_ILLEGAL, NOT_HELD
 from rtpu.releases import first_release
-from tests.support import IdleSignals, step_executives, unique_name
+from tests.support import IdleSignals, step_executives, unique_name, until
 
 PERIOD = 0.001
 STAGGER = 0.00045
@@ -286,6 +287,26 @@ def test_a_live_description_an_rtpu_cannot_read_is_answered_with_why(rig):
     executives["rtpu0"].handle(["live", 2])
     staged = [e for _, e in events if isinstance(e, messages.Staged)]
     assert staged == [messages.Staged(2, "FileNotFoundError: live-2.json")] and executives["rtpu0"].plans.staged is None
+
+
+def test_on_the_real_clock_a_live_description_is_read_off_the_cycle_and_staged_from_there(rig):
+    # a file read and a JSON text parsed between two cycles would make the RTPU's releases late
+    _subsystem, _table, _clock, executives, events = rig
+    executive = executives["rtpu0"]
+    executive.cycles_between_steps = True  # as `run` has it on the real clock
+    readers: list[int] = []
+    stage = SimpleNamespace(reconfiguration=executive.plans.reconfiguration, tasks={}, spec=None, factories={})
+
+    def loader(sequence):
+        readers.append(threading.get_ident())
+        return stage
+
+    executive.plans.live_loader = loader
+    executive.handle(["live", 5])
+    until(lambda: any(isinstance(e, messages.Staged) for _, e in events), "the live description staged")
+    assert readers and readers[0] != threading.get_ident()
+    assert [e for _, e in events if isinstance(e, messages.Staged)] == [messages.Staged(5)]
+    assert executive.plans.staged is stage
 
 
 class SlowToStartB(FakeControllerB):

@@ -155,6 +155,7 @@ class DataLogger(PortBasedObject):
                 chunk = np.full(self._rows, 0, dtype=self._dtype)
             pairs = [(_flat_rows(chunk[name]), source) for name, source in zip(params.variables, sources, strict=True)]
             self._buffers.append((chunk, chunk["time"], pairs))
+            sleep_while_cycling(0)  # in a live spawn, the RTPU's due cycles run between the two buffers written
         self._wait_when_full = self.run_metadata.get("clock") == "sim"
         self._current = 0
         self._chunk, self._times, self._pairs = self._buffers[0]

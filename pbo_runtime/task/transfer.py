@@ -25,6 +25,7 @@ import posix_ipc
 
 from pbo_runtime.config.model import PortBinding
 from pbo_runtime.objects.ports import PortKind
+from pbo_runtime.objects.waits import sleep_while_cycling
 from pbo_runtime.table.directory import META_WORDS
 from pbo_runtime.table.table import HEADER_WORDS, STATUS_WORDS, Header, StateTable, StatusWord
 
@@ -108,10 +109,15 @@ class LocalTable:
         out_const = [b for b in outputs if b.port.kind.at_init]
         out_var = [b for b in outputs if b.port.kind.every_cycle]
         # Consts move once, at init; a `both` port has one local copy shared by both regions.
+        # (in a live spawn the RTPU's due cycles run between the regions made: `sleep_while_cycling`)
         self._in_const = _Region(table, in_const, task_index, 0)
+        sleep_while_cycling(0)
         self._in_var = _Region(table, in_var, task_index, 0, freshness=watch_freshness)
+        sleep_while_cycling(0)
         self._out_const = _Region(table, out_const, task_index, 0)
+        sleep_while_cycling(0)
         self._out_var = _Region(table, out_var, task_index, int(StatusWord.USED))
+        sleep_while_cycling(0)
         by_binding: dict[int, np.ndarray] = {}
         for region, members in (
             (self._in_var, in_var),

@@ -80,7 +80,10 @@ def names(kind: str, words: Iterable[str]) -> list[str]:
             from pbo_runtime.ipc.runs import live_runs
 
             return sorted({run.subsystem if kind == "subsystem" else run.run_id for run in live_runs()})
-        file = next((Path(w) for w in words if w.endswith((".yaml", ".yml")) and Path(w).is_file()), None)
+        named = [Path(w) for w in words if w.endswith((".yaml", ".yml"))]
+        file = next((path for path in named if path.is_file()), None)
+        if named and file is None:
+            return []  # the file named is not there (yet): not the names of whatever else runs
         status = _live_status(words) if file is None else None
         if status is not None:
             file = Path(status["file"])

@@ -103,8 +103,9 @@ class Children:
             self.say(f"no fork server ({exc}): the children start as fresh interpreters")
 
     def release_fork_server(self, rtpus: Iterable[RtpuSpec]) -> None:
-        """Once the children are started: kept for the run if an RTPU may be restarted (it is forked
-        from it again), else ended (it exits at once, nothing to tear down)."""
+        """Once the configuration is on: kept for the run if an RTPU may be restarted (it is forked
+        from it again), else ended (it exits at once, nothing to tear down). Ended before, its exit
+        and reaping would come in the children's start; until then it only waits on its channel."""
         if self.fork_server is not None:
             if self.fork_server.warm_at:
                 self.mark("fork_server", self.fork_server.warm_at)

@@ -342,7 +342,6 @@ class Supervisor:
             self.processes.launch(rtpu.name, ["-m", "rtpu", *launch.to_argv()], hosted)
         # the plant and the RTPUs start side by side: an RTPU opens the plant's registers only in a
         # task's init, after every child is ready
-        self.processes.release_fork_server(sub.rtpus)
         self.event_handling.await_ready(set(self._roles()))
         self._startup_mark("children")
         members = sub.configurations[self.configuration].tasks
@@ -359,6 +358,8 @@ class Supervisor:
         self.job_control.mark(self.started_at, "configuration", f"{self.configuration} on")
         if self.clock.on_monotonic:
             self.result.started_monotonic = self.started_at
+        # (its exit, a large interpreter torn down, is no part of the start-up: once on, not before)
+        self.processes.release_fork_server(sub.rtpus)
         self.say(f"configuration '{self.configuration}' is on: {', '.join(ordered)}")
 
     def _bring_up_restarting(self, spawn: list[str], turn_on: list[str]) -> None:

@@ -283,6 +283,7 @@ def _warm_library(preload: list[str]) -> dict[str, Callable[..., int]]:
     title.setproctitle(title.getproctitle())  # it takes the command line's memory now, before `await_run` changes the environment
 
     mains = {module: _main_of(module) for module in preload}
+    importlib.import_module("numpy.random")  # each child seeds it (`_child`): imported once, here
     from pbo_runtime.objects import registry
 
     registry.import_library()  # what a task spawned live may need: a forked RTPU (a restarted one too) has it all

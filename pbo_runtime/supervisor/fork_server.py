@@ -313,7 +313,10 @@ def _load(file: str) -> Any:
 
 
 def _warm_subsystem(subsystem: Any) -> None:
-    """Look up the subsystem's modules, plant and drivers and import what each imports only once made."""
+    """Look up the subsystem's modules, plant and drivers, and import what the modules and drivers
+    import only once made. Not the plant's simulator (`_warm_plants` imports it only while the run
+    is not there yet): only the plant runs it, and imported here it would come before every fork,
+    where the plant imports it once forked, beside the RTPUs' start."""
     from pbo_runtime.objects import registry
     from pbo_runtime.reports.log_notes import run_metadata
 
@@ -324,11 +327,13 @@ def _warm_subsystem(subsystem: Any) -> None:
                 importlib.import_module(module)
     lookups = [(registry.module_class, task.module) for task in subsystem.tasks.values()]
     lookups += [(registry.driver_class, device.driver) for device in subsystem.devices.values()]
-    lookups += [(registry.plant_class, subsystem.plant.type)] if subsystem.plant is not None else []
+    if subsystem.plant is not None:
+        with contextlib.suppress(Exception):  # (the plant looks it up again and reports the failure)
+            registry.plant_class(subsystem.plant.type)
     for look_up, name in lookups:
         with contextlib.suppress(Exception):  # the child that needs it looks it up again and reports the failure
             found = look_up(name)
-            warm = getattr(found, "warm", None)  # what the class imports only once one is made (a plant's simulator)
+            warm = getattr(found, "warm", None)  # what the class imports only once one is made
             if callable(warm):
                 warm()
 

@@ -33,7 +33,6 @@ from pbo_runtime.ipc.process import STOP_SIGNALS
 
 PR_SET_CHILD_SUBREAPER = 36
 REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy, MuJoCo and the library on a busy machine
-REPARENT_TIMEOUT = 5.0  # seconds a forked child waits to become the supervisor's (its middle process exits at once)
 CLOSE_TIMEOUT = 2.0
 END = b"end\n"  # the supervisor's last line to the server: its channel closing without it means the supervisor died
 # What the runtime's public surface imports on first use (`pbo_runtime.arm_model` imports Pinocchio),
@@ -347,7 +346,7 @@ def _warm_subsystem(subsystem: Any) -> None:
                 warm()
 
 
-def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: Any, go: int, parent: int, middle: int,
+def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: Any, go: int, parent: int,
            openblas: str | None, run_id: str) -> None:
     """In the forked child: become the supervisor's, wait for the go, run `main`, never return.
 
@@ -365,14 +364,12 @@ def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: An
 
         # its command line in ps and /proc is the one a fresh interpreter would have had, not the server's
         setproctitle.setproctitle(" ".join([sys.executable, "-m", module, *argv]))
-        deadline = time.monotonic() + REPARENT_TIMEOUT
-        while (ppid := os.getppid()) != parent:  # the middle process is exiting; then the supervisor is the parent
-            if ppid != middle or time.monotonic() > deadline:  # adopted by another: the supervisor died
-                raise SystemExit(3)
-            time.sleep(0.0002)
+        # the go comes once the server reaped the middle process, which re-parented this one as it exited
         if os.read(go, 1) != b"g":  # the server died before the supervisor had this pid
             raise SystemExit(3)
         os.close(go)
+        if os.getppid() != parent:  # adopted by another: the supervisor died
+            raise SystemExit(3)
         os.setsid()
         for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGALRM, signal.SIGCHLD, signal.SIGPIPE):
             signal.signal(signum, signal.SIG_DFL if signum != signal.SIGPIPE else signal.SIG_IGN)
@@ -495,7 +492,6 @@ class _Server:
 
     def _fork_children(self, children: list[list[Any]], gos: list[tuple[int, int]], pid_write: int) -> None:
         """In the middle process: fork each child in turn and write its pid (a failed fork ends the list)."""
-        middle = os.getpid()
         for index, (module, argv) in enumerate(children):
             child = os.fork()
             if child == 0:
@@ -505,7 +501,7 @@ class _Server:
                     if other != index:
                         os.close(go_read)
                 _child(module, self.mains[module], [str(a) for a in argv], self.subsystem, gos[index][0], self.parent,
-                       middle, self.openblas, self.run_id)
+                       self.openblas, self.run_id)
             os.write(pid_write, f"{child}\n".encode())
 
 

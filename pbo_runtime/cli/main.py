@@ -61,7 +61,7 @@ def _main(argv: list[str], command_line: bool, fork_server: ForkServer | None) -
 
     if argv[:1] == [HIDDEN_VERB]:  # the shell completing a name at the time of a <TAB>
         return complete(argv[1:])
-    args = _parser().parse_args(argv)
+    args = _parser(argv).parse_args(argv)
     args.fork_server = fork_server
     if command_line and getattr(args, "one_process", False) and os.environ.get("PYTHONHASHSEED") != "0":
         # the tasks run in this interpreter: with the string hashing the run's processes have (`clock.run_clock`)
@@ -140,11 +140,11 @@ def _refused_arguments() -> tuple[type[Exception], ...]:
     return BadRequest, WrongArgument, MissingExtra
 
 
-def _parser() -> argparse.ArgumentParser:
-    """Every verb's parser, from the verb tables (`cli.parser`)."""
+def _parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """Every verb's parser, from the verb tables (`cli.parser`), the arguments only of the verb `argv` names."""
     from pbo_runtime.cli.parser import build_parser
 
-    return build_parser()
+    return build_parser(argv)
 
 
 def _handler(name: str) -> Handler:

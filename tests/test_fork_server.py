@@ -67,7 +67,7 @@ def test_a_forked_child_is_its_starters_own_single_threaded_at_sched_other_and_s
     assert said["openblas"] == os.environ.get("OPENBLAS_NUM_THREADS")  # the server's own setting given back
     assert f"-m {PROBE} {out} report" in said["cmdline"]  # its own command line, not the server's
     assert server.warm_at > 0
-    assert {"numpy.random", "modules.pid_joint"} <= set(said["modules"])  # imported once, by the server
+    assert "modules.pid_joint" in said["modules"]  # imported once, by the server
 
 
 @pytest.mark.multiprocess

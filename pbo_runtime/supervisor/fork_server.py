@@ -291,7 +291,6 @@ def _warm_library(preload: list[str]) -> dict[str, Callable[..., int]]:
     title.setproctitle(title.getproctitle())  # it takes the command line's memory now, before `await_run` changes the environment
 
     mains = {module: _main_of(module) for module in preload}
-    importlib.import_module("numpy.random")  # each child seeds it (`_child`): imported once, here
     from pbo_runtime.objects import registry
 
     registry.import_library()  # what a task spawned live may need: a forked RTPU (a restarted one too) has it all
@@ -382,8 +381,8 @@ def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: An
         import random
 
         random.seed()  # its own random streams, as a fresh interpreter has
-        if "numpy" in sys.modules:
-            sys.modules["numpy"].random.seed()
+        if "numpy.random" in sys.modules:  # (not imported yet: a child that imports it has it seeded from the OS)
+            sys.modules["numpy.random"].seed()
         keywords = {"subsystem": subsystem} if subsystem is not None and "subsystem" in inspect.signature(main).parameters else {}
         code = main(argv, **keywords)
     except SystemExit as exc:

@@ -347,7 +347,7 @@ def _warm_subsystem(subsystem: Any) -> None:
 
 def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: Any, go: int, parent: int,
            openblas: str | None, run_id: str) -> None:
-    """In the forked child: become the supervisor's, wait for the go, run `main`, never return.
+    """In the forked child: wait for the go (by then the supervisor's own), run `main`, never return.
 
     Until its main takes its share of the run, it expects it as the server does (`last_out`): a
     supervisor that dies while the child starts may leave the child the run's last process."""
@@ -486,7 +486,8 @@ class _Server:
             return self.reply({"error": "the fork server could not fork the child", "orphans": pids})
         self.reply({"pids": pids})
         for _, go_write in gos:  # the supervisor has their pids: they may start
-            os.write(go_write, b"g")
+            with contextlib.suppress(BrokenPipeError):  # (one killed meanwhile is the supervisor's to notice)
+                os.write(go_write, b"g")
             os.close(go_write)
 
     def _fork_children(self, children: list[list[Any]], gos: list[tuple[int, int]], pid_write: int) -> None:

@@ -32,7 +32,7 @@ from typing import Any
 from pbo_runtime.ipc.process import STOP_SIGNALS
 
 PR_SET_CHILD_SUBREAPER = 36
-REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy, MuJoCo and the library on a busy machine
+REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy and the module library on a busy machine
 CLOSE_TIMEOUT = 2.0
 END = b"end\n"  # the supervisor's last line to the server: its channel closing without it means the supervisor died
 # What the runtime's public surface imports on first use (`pbo_runtime.arm_model` imports Pinocchio),

@@ -173,7 +173,8 @@ plant (unless the server would otherwise wait for its run), one middle process f
 children (18-53 ms from the request to the reply, where the three requests took 35-70), and the
 server is ended after `on`. Alternated runs before and after, 20 each: p50 0.498 and 0.387 s at
 load about 1.3; 0.721 and 0.689 s, then 1.090 and 0.868 s, at load 3.5-4, where no CPU is free
-for either side. The two sides now reach the table and a warm server about together. What is left: numpy and the shared
+for either side. At load 1.3 the two sides now reach the table and a warm server about together
+(p50 298 and 296 ms); under load the CLI's is the later (557 and 491 ms at load 3). What is left: numpy and the shared
 runtime once; the larger of the two sides' imports (the CLI's: rich, the loader and the checker,
 the supervisor; the server's: the library with Pinocchio); MuJoCo's import and the model in the
 plant (about 65 ms after its fork, the last child ready); the inits. From the fork to the table

@@ -155,18 +155,32 @@ reader of the `entry_points.txt` files alone would spare it. The file checked it
 The line "the machine's first" is the same check with no result cache: it imports MuJoCo for the
 plant's description and Pinocchio for the inertia range, and computes both. Below this floor
 would take a checker without numpy, or printing without rich.
-`pbo run`: the CLI imports numpy, the loader and what it shares with the children (the table, the
-queues, the clocks), then forks the fork server from itself, before its parser (`cli/main.py`);
-the server imports what only the children need (their own code, MuJoCo through the plant's
-`warm()`, the module library) while the CLI parses, loads and checks the file and imports the
-supervisor; the CLI hands the server the checked subsystem (no second load) and makes the table;
-the children are forked once the server is warm, and each task's init runs. In a run's time line
-the server is warm (`fork_server`) about when the table is made: the two sides are about even, so
-neither alone is the chain. What is left is imports that cannot be shared (numpy and the loader
-once, then the larger of the CLI's and the server's own), three forks of a large process and the
-children's start. Shorter would take a server kept warm between runs, or a module library whose
-modules import their heavy dependencies (Pinocchio) only when a task is made. Read each figure
-against its floor: on a busy machine both grow alike.""",
+`pbo run`: the CLI imports numpy and what it shares with the children (the model, the table, the
+queues, the clocks), then forks the fork server from itself, before its parser (`cli/main.py`).
+Side by side, the CLI builds its verb's parser, imports rich, the loader and the checker, loads
+and checks the file, hands the server the checked subsystem, imports the supervisor and makes the
+table, while the server imports what only the children run (their own code, the module library
+with Pinocchio). Once it is warm, one middle process forks the plant and both RTPUs (one request);
+the plant imports MuJoCo and compiles its model once forked, beside the RTPUs' start; each task's
+init runs; the server ends once the configuration is on. A time line stamped in every process
+(`perf_counter`, one run, load about 1.5) put the chain before these changes at: interpreter 22
+ms, shared imports 168 ms (the loader, checker and PyYAML among them), the server's own 172 ms
+(the library about 100, half of it Pinocchio; MuJoCo 55-65) against the CLI's 110, three double
+forks in a row 38 ms, the last child ready 16 ms later, inits and on 10 ms, and the server's exit
+reaped before the children's Ready (3-74 ms). Since: the loader, checker and PyYAML are imported
+after the fork by the CLI alone (an RTPU reads a live change through `edit.wire`), MuJoCo by the
+plant (unless the server would otherwise wait for its run), one middle process forks the three
+children (18-53 ms from the request to the reply, where the three requests took 35-70), and the
+server is ended after `on`. Alternated runs before and after, 20 each: p50 0.498 and 0.387 s at
+load about 1.3; 0.721 and 0.689 s, then 1.090 and 0.868 s, at load 3.5-4, where no CPU is free
+for either side. At load 1.3 the two sides now reach the table and a warm server about together
+(p50 298 and 296 ms); under load the CLI's is the later (557 and 491 ms at load 3). What is left: numpy and the shared
+runtime once; the larger of the two sides' imports (the CLI's: rich, the loader and the checker,
+the supervisor; the server's: the library with Pinocchio); MuJoCo's import and the model in the
+plant (about 65 ms after its fork, the last child ready); the inits. From the fork to the table
+both CPUs are busy, so moving imports between the sides no longer pays; shorter would take fewer
+imports (a library whose modules import Pinocchio only when a task is made), or a server kept
+warm between runs. Read each figure against its floor: on a busy machine both grow alike.""",
     )
     with tempfile.TemporaryDirectory(prefix="pbo-bench-startup-") as tmp:
         folder = Path(tmp)

@@ -21,9 +21,8 @@ import posix_ipc
 
 from pbo_runtime.clock.clocks import RealClock, SimClock
 from pbo_runtime.clock.lockstep import LockstepParticipant
-from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.config.model import DeviceSpec, Subsystem, TaskSpec
-from pbo_runtime.edit.live import task_from_wire
+from pbo_runtime.edit.wire import task_from_wire
 from pbo_runtime.ipc import limits, messages, process
 from pbo_runtime.ipc.process import Stop, become_child, stop_only_at_waits
 from pbo_runtime.objects import registry
@@ -60,7 +59,9 @@ def _run(argv: list[str] | None, subsystem: Subsystem | None) -> int:
         if not last_out.join(launch.run_id):
             return 3  # the supervisor died and its run was removed before this process started
 
-    if subsystem is None:
+    if subsystem is None:  # (imported here: a forked RTPU, and its fork server, never load a file)
+        from pbo_runtime.config.loader import load_subsystem
+
         subsystem = load_subsystem(launch.file)
     name = subsystem.name
     events = messages.Queue(messages.event_queue_name(name, launch.run_id))

@@ -67,7 +67,29 @@ def test_a_forked_child_is_its_starters_own_single_threaded_at_sched_other_and_s
     assert said["openblas"] == os.environ.get("OPENBLAS_NUM_THREADS")  # the server's own setting given back
     assert f"-m {PROBE} {out} report" in said["cmdline"]  # its own command line, not the server's
     assert server.warm_at > 0
-    assert "mujoco" in said["modules"]  # the plant's warm(): a plant forked from it does not import MuJoCo itself
+    assert "modules.pid_joint" in said["modules"]  # imported once, by the server
+
+
+@pytest.mark.multiprocess
+def test_children_forked_in_one_request_are_each_their_starters_own_and_end_as_each_was_told(server, tmp_path):
+    outs = [tmp_path / f"said{index}.json" for index in range(3)]
+    children = server.fork_all([(PROBE, [str(out), "report", str(index), "--parent", str(os.getpid())])
+                                for index, out in enumerate(outs)])
+    assert [child.wait(timeout=SAFETY_NET) for child in children] == [0, 1, 2]
+    for child, out in zip(children, outs, strict=True):
+        said = json.loads(out.read_text())
+        assert said["pid"] == child.pid and said["ppid"] == os.getpid()
+        assert f"-m {PROBE} {out} report" in said["cmdline"]
+
+
+@pytest.mark.multiprocess
+def test_a_request_naming_a_child_the_server_does_not_start_starts_none(server, tmp_path):
+    out = tmp_path / "said.json"
+    with pytest.raises(ForkServerUnavailable, match=r"^the fork server does not start 'tests.no_such_module'"):
+        server.fork_all([(PROBE, [str(out), "report", "0", "--parent", str(os.getpid())]),
+                         ("tests.no_such_module", ["--parent", str(os.getpid())])])
+    assert not out.exists()
+    assert not any(f"-m {PROBE}" in command for command in children_of(os.getpid()).values())
 
 
 @pytest.mark.multiprocess

@@ -9,8 +9,9 @@ import re
 import pytest
 
 from pbo_runtime.config.loader import check_file, format_diagnostics, load_subsystem
-from pbo_runtime.edit.live import LiveDescription, TaskChange, from_wire, to_wire
+from pbo_runtime.edit.live import LiveDescription, TaskChange, to_wire
 from pbo_runtime.edit.live_save import same_subsystem
+from pbo_runtime.edit.wire import from_wire
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import BadRequest
 from pbo_runtime.supervisor.commands import dispatch

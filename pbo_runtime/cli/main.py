@@ -28,9 +28,10 @@ if TYPE_CHECKING:
     Handler = Callable[[argparse.Namespace, Console, Console], int]
 
 
-# What `pbo run` and its fork server both import, imported before the server is forked from it
-SHARED_IMPORTS = ("numpy", "pbo_runtime.config.loader", "pbo_runtime.table.table", "pbo_runtime.ipc.messages",
-                  "pbo_runtime.clock.clocks", "pbo_runtime.clock.lockstep", "pbo_runtime.edit.live",
+# What `pbo run` and its fork server both import, imported before the server is forked from it (not
+# the loader, the checker and the YAML parser: only the CLI loads the file, after the fork)
+SHARED_IMPORTS = ("numpy", "pbo_runtime.config.model", "pbo_runtime.table.table", "pbo_runtime.ipc.messages",
+                  "pbo_runtime.clock.clocks", "pbo_runtime.clock.lockstep", "pbo_runtime.edit.wire",
                   "pbo_runtime.supervisor.launch", "pbo_runtime.supervisor.reconfiguration",
                   "pbo_runtime.reports.log_notes")
 
@@ -60,7 +61,7 @@ def _main(argv: list[str], command_line: bool, fork_server: ForkServer | None) -
 
     if argv[:1] == [HIDDEN_VERB]:  # the shell completing a name at the time of a <TAB>
         return complete(argv[1:])
-    args = _parser().parse_args(argv)
+    args = _parser(argv).parse_args(argv)
     args.fork_server = fork_server
     if command_line and getattr(args, "one_process", False) and os.environ.get("PYTHONHASHSEED") != "0":
         # the tasks run in this interpreter: with the string hashing the run's processes have (`clock.run_clock`)
@@ -119,8 +120,8 @@ def _early_fork_server(argv: list[str]) -> ForkServer | None:
 
     if len(files) != 1 or is_application_file(files[0]) or not forking_enabled():
         return None
-    try:  # forked once the imports both need are done (numpy, the loader and the model, the table, the
-        # queues, the clocks): each is imported once, in the CLI, which would import it later
+    try:  # forked once the imports both need are done (numpy, the model, the table, the queues, the
+        # clocks): each is imported once, in the CLI, which would import it later
         from pbo_runtime.ipc.shm import new_run_id
 
         # the run's id, which the supervisor takes: the server takes part in the run's end from its start
@@ -139,11 +140,11 @@ def _refused_arguments() -> tuple[type[Exception], ...]:
     return BadRequest, WrongArgument, MissingExtra
 
 
-def _parser() -> argparse.ArgumentParser:
-    """Every verb's parser, from the verb tables (`cli.parser`)."""
+def _parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """Every verb's parser, from the verb tables (`cli.parser`), the arguments only of the verb `argv` names."""
     from pbo_runtime.cli.parser import build_parser
 
-    return build_parser()
+    return build_parser(argv)
 
 
 def _handler(name: str) -> Handler:

@@ -22,7 +22,7 @@ Decisions this module makes, and why:
   refused, with a message that says to add it to the file and restart.
 - How RTPUs learn it: `to_wire` is the description an RTPU needs (task specs and configuration
   members, no YAML), written by the supervisor to a file of the run and read back by each RTPU
-  with `from_wire`, outside any cycle; nothing of the per-cycle path changes.
+  with `edit.wire.from_wire`, outside any cycle; nothing of the per-cycle path changes.
 - `edits` records each change in order, for `pbo save` (`edit.live_save`).
 - An application given with its steps (`pbo app NAME --steps`, the HMI's workspace) is a change
   too: it is put in the description's `applications:` and checked with the whole file, so a step
@@ -34,14 +34,14 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from pbo_runtime.config.checker import ModuleLookup
 from pbo_runtime.config.limits import MAX_NAME
 from pbo_runtime.config.loader import check_loaded, load_document, with_application
-from pbo_runtime.config.model import NOWHERE, ConfigurationSpec, Location, PortBinding, Subsystem, TaskSpec
+from pbo_runtime.config.model import Location, Subsystem, TaskSpec
 from pbo_runtime.config.yaml_nodes import YList, YMap, load_text, plain
 from pbo_runtime.errors import ConfigError, PboError, closest_name
 from pbo_runtime.objects import registry
@@ -430,26 +430,3 @@ def to_wire(subsystem: Subsystem) -> dict[str, Any]:
                          "fresh_within": dict(t.fresh_within)}
                   for name, t in subsystem.tasks.items()},
     }
-
-
-def from_wire(base: Subsystem, data: Mapping[str, Any], module_lookup: Callable[[str], Any] = registry.module_class) -> Subsystem:
-    """The live subsystem `to_wire` describes, on the file's `base` (its variables, devices, RTPUs)."""
-    tasks = {name: task_from_wire(base, name, t, module_lookup) for name, t in data["tasks"].items()}
-    configurations = {name: ConfigurationSpec(name, tuple(members), base.configurations[name].loc
-                                              if name in base.configurations else NOWHERE)
-                      for name, members in data["configurations"].items()}
-    return dataclasses.replace(base, tasks=tasks, configurations=configurations, init_order=tuple(data["init_order"]))
-
-
-def task_from_wire(base: Subsystem, name: str, t: Mapping[str, Any],
-                   module_lookup: Callable[[str], Any] = registry.module_class) -> TaskSpec:
-    """One task's spec from `to_wire`'s data (its module is looked up: do it only for a task to host)."""
-    module_class = module_lookup(t["module"])
-    ports = {port.name: port for port in module_class.ports_for(module_class.build_params(dict(t["params"])))}
-    bindings = tuple(PortBinding(ports[port], variable, tuple(shape)) for port, variable, shape in t["bindings"])
-    known = base.tasks.get(name)
-    return TaskSpec(name, t["module"], t["rtpu"], float(t["period"]), int(t["priority"]), bool(t["critical"]),
-                    dict(t["params"]), bindings, tuple(t["resources"]), int(t["index"]),
-                    known.loc if known is not None else NOWHERE, t["wcet"], bool(t["aperiodic"]),
-                    t["min_interarrival"], {d: tuple(c) for d, c in t["resource_channels"].items()},
-                    dict(t["fresh_within"]))

@@ -103,8 +103,9 @@ class Children:
             self.say(f"no fork server ({exc}): the children start as fresh interpreters")
 
     def release_fork_server(self, rtpus: Iterable[RtpuSpec]) -> None:
-        """Once the children are started: kept for the run if an RTPU may be restarted (it is forked
-        from it again), else ended (it exits at once, nothing to tear down)."""
+        """Once the configuration is on: kept for the run if an RTPU may be restarted (it is forked
+        from it again), else ended (it exits at once, nothing to tear down). Ended before, its exit
+        and reaping would come in the children's start; until then it only waits on its channel."""
         if self.fork_server is not None:
             if self.fork_server.warm_at:
                 self.mark("fork_server", self.fork_server.warm_at)
@@ -117,19 +118,33 @@ class Children:
             self.fork_server.close()
             self.fork_server = None
 
-    def launch(self, role: str, arguments: list[str], tasks: tuple[str, ...] = ()) -> None:
+    def launch_all(self, launches: list[tuple[str, list[str], tuple[str, ...]]]) -> None:
+        """`launch` each (role, arguments, tasks) in turn; where the fork server serves, all are forked
+        in one request (one middle process forks them all, not one each)."""
+        forked: list[ForkedProcess] = []
+        if not self.clock.one_process and self.fork_server is not None and all(a[0] == "-m" for _, a, _ in launches):
+            parent = ["--parent", str(os.getpid())]
+            try:
+                forked = self.fork_server.fork_all([(a[1], [*a[2:], *parent]) for _, a, _ in launches])
+            except ForkServerUnavailable as exc:
+                self.say(f"{exc}: the children start as fresh interpreters")
+                self.end_fork_server()
+        for index, (role, arguments, tasks) in enumerate(launches):
+            self.launch(role, arguments, tasks, forked[index] if forked else None)
+
+    def launch(self, role: str, arguments: list[str], tasks: tuple[str, ...] = (), forked: ForkedProcess | None = None) -> None:
         """Start `python -m MODULE ARGUMENTS...` (`arguments` begins with -m MODULE): forked from the fork
-        server where it serves, else a fresh interpreter."""
+        server where it serves, else a fresh interpreter (`forked`: forked already, by `launch_all`)."""
         parent = ["--parent", str(os.getpid())]
         self.launched[role] = (arguments, tasks)  # a restart launches it the same way (from the kept fork server)
-        process: subprocess.Popen[bytes] | ForkedProcess | InProcessChild | None = None
-        if self.clock.one_process:  # hosted here, joining the simulated clock's ring (`supervisor.in_process`)
+        process: subprocess.Popen[bytes] | ForkedProcess | InProcessChild | None = forked
+        if forked is None and self.clock.one_process:  # hosted here, joining the simulated clock's ring (`supervisor.in_process`)
             events = self.events()
             assert events is not None and self.subsystem is not None
             # (the ring stops after a tick that sent job control an event)
             process = InProcessChild.start(arguments, self.subsystem, events,
                                            lambda step: self.clock.join(role, step, events.pending))
-        elif self.fork_server is not None and arguments[0] == "-m":
+        elif forked is None and self.fork_server is not None and arguments[0] == "-m":
             try:
                 process = self.fork_server.fork(arguments[1], [*arguments[2:], *parent])
             except ForkServerUnavailable as exc:

@@ -32,8 +32,7 @@ from typing import Any
 from pbo_runtime.ipc.process import STOP_SIGNALS
 
 PR_SET_CHILD_SUBREAPER = 36
-REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy, MuJoCo and the library on a busy machine
-REPARENT_TIMEOUT = 5.0  # seconds a forked child waits to become the supervisor's (its middle process exits at once)
+REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy and the module library on a busy machine
 CLOSE_TIMEOUT = 2.0
 END = b"end\n"  # the supervisor's last line to the server: its channel closing without it means the supervisor died
 # What the runtime's public surface imports on first use (`pbo_runtime.arm_model` imports Pinocchio),
@@ -201,6 +200,11 @@ class ForkServer:
 
     def fork(self, module: str, arguments: list[str]) -> ForkedProcess:
         """Start `python -m module arguments...` as a fork; ForkServerUnavailable if the server cannot."""
+        return self.fork_all([(module, arguments)])[0]
+
+    def fork_all(self, children: list[tuple[str, list[str]]]) -> list[ForkedProcess]:
+        """Start each `python -m module arguments...` as a fork, in one request: one middle process forks
+        them all, one after another. ForkServerUnavailable if the server cannot (then none was started)."""
         if not self._subreaper:
             self._subreaper = _prctl(PR_SET_CHILD_SUBREAPER, 1)
             if not self._subreaper:
@@ -209,7 +213,8 @@ class ForkServer:
             raise ForkServerUnavailable("the fork server was ended")
         try:
             self._channel.settimeout(REQUEST_TIMEOUT)
-            self._channel.sendall(json.dumps({"module": module, "argv": arguments}).encode() + b"\n")
+            self._channel.sendall(json.dumps({"children": [[module, arguments] for module, arguments in children]}).encode()
+                                  + b"\n")
             line = self._replies.readline()
         except OSError as exc:
             raise ForkServerUnavailable(f"the fork server (pid {self.process.pid}) did not answer: {exc}") from None
@@ -224,8 +229,11 @@ class ForkServer:
         reply = json.loads(line)
         self.warm_at = self.warm_at or float(reply.get("warm_at", 0.0))
         if "error" in reply:
+            for orphan in reply.get("orphans", []):  # forked before a fork failed: re-parented here, told to end
+                with contextlib.suppress(ChildProcessError):
+                    os.waitpid(int(orphan), 0)
             raise ForkServerUnavailable(reply["error"])
-        return ForkedProcess(int(reply["pid"]))
+        return [ForkedProcess(int(pid)) for pid in reply["pids"]]
 
     def idle(self) -> None:
         """Between forks: not a subreaper (an orphan of a child's own child is not this process's to reap)."""
@@ -312,7 +320,10 @@ def _load(file: str) -> Any:
 
 
 def _warm_subsystem(subsystem: Any) -> None:
-    """Look up the subsystem's modules, plant and drivers and import what each imports only once made."""
+    """Look up the subsystem's modules, plant and drivers, and import what the modules and drivers
+    import only once made. Not the plant's simulator (`_warm_plants` imports it only while the run
+    is not there yet): only the plant runs it, and imported here it would come before every fork,
+    where the plant imports it once forked, beside the RTPUs' start."""
     from pbo_runtime.objects import registry
     from pbo_runtime.reports.log_notes import run_metadata
 
@@ -323,18 +334,20 @@ def _warm_subsystem(subsystem: Any) -> None:
                 importlib.import_module(module)
     lookups = [(registry.module_class, task.module) for task in subsystem.tasks.values()]
     lookups += [(registry.driver_class, device.driver) for device in subsystem.devices.values()]
-    lookups += [(registry.plant_class, subsystem.plant.type)] if subsystem.plant is not None else []
+    if subsystem.plant is not None:
+        with contextlib.suppress(Exception):  # (the plant looks it up again and reports the failure)
+            registry.plant_class(subsystem.plant.type)
     for look_up, name in lookups:
         with contextlib.suppress(Exception):  # the child that needs it looks it up again and reports the failure
             found = look_up(name)
-            warm = getattr(found, "warm", None)  # what the class imports only once one is made (a plant's simulator)
+            warm = getattr(found, "warm", None)  # what the class imports only once one is made
             if callable(warm):
                 warm()
 
 
-def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: Any, go: int, parent: int, middle: int,
+def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: Any, go: int, parent: int,
            openblas: str | None, run_id: str) -> None:
-    """In the forked child: become the supervisor's, wait for the go, run `main`, never return.
+    """In the forked child: wait for the go (by then the supervisor's own), run `main`, never return.
 
     Until its main takes its share of the run, it expects it as the server does (`last_out`): a
     supervisor that dies while the child starts may leave the child the run's last process."""
@@ -350,14 +363,12 @@ def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: An
 
         # its command line in ps and /proc is the one a fresh interpreter would have had, not the server's
         setproctitle.setproctitle(" ".join([sys.executable, "-m", module, *argv]))
-        deadline = time.monotonic() + REPARENT_TIMEOUT
-        while (ppid := os.getppid()) != parent:  # the middle process is exiting; then the supervisor is the parent
-            if ppid != middle or time.monotonic() > deadline:  # adopted by another: the supervisor died
-                raise SystemExit(3)
-            time.sleep(0.0002)
+        # the go comes once the server reaped the middle process, which re-parented this one as it exited
         if os.read(go, 1) != b"g":  # the server died before the supervisor had this pid
             raise SystemExit(3)
         os.close(go)
+        if os.getppid() != parent:  # adopted by another: the supervisor died
+            raise SystemExit(3)
         os.setsid()
         for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGALRM, signal.SIGCHLD, signal.SIGPIPE):
             signal.signal(signum, signal.SIG_DFL if signum != signal.SIGPIPE else signal.SIG_IGN)
@@ -370,8 +381,8 @@ def _child(module: str, main: Callable[..., int], argv: list[str], subsystem: An
         import random
 
         random.seed()  # its own random streams, as a fresh interpreter has
-        if "numpy" in sys.modules:
-            sys.modules["numpy"].random.seed()
+        if "numpy.random" in sys.modules:  # (not imported yet: a child that imports it has it seeded from the OS)
+            sys.modules["numpy.random"].seed()
         keywords = {"subsystem": subsystem} if subsystem is not None and "subsystem" in inspect.signature(main).parameters else {}
         code = main(argv, **keywords)
     except SystemExit as exc:
@@ -428,53 +439,70 @@ class _Server:
         self.channel.sendall(json.dumps({**answer, "warm_at": self.warm_at}).encode() + b"\n")
 
     def serve(self, request: dict[str, Any]) -> None:
-        module, argv = request.get("module"), request.get("argv")
+        """Fork each child of the request ([module, argv] pairs, in order) from one middle process."""
+        children = request.get("children")
         if self.refusal:
             return self.reply({"error": self.refusal})
-        if module not in self.mains or not isinstance(argv, list):
-            return self.reply({"error": f"the fork server does not start {module!r}"})
+        if not isinstance(children, list) or not children:
+            return self.reply({"error": "the fork server was asked for no child"})
+        for child in children:
+            module, argv = child if isinstance(child, list) and len(child) == 2 else (child, None)
+            if not isinstance(module, str) or module not in self.mains or not isinstance(argv, list):
+                return self.reply({"error": f"the fork server does not start {module!r}"})
         threads = _threads()
         if threads != 1:
             return self.reply({"error": f"the fork server holds {threads} threads: a fork would copy their locks"})
         pid_read, pid_write = os.pipe()
-        go_read, go_write = os.pipe()
+        gos = [os.pipe() for _ in children]  # (read, write): a child starts once its write end says so
         # no stop while it forks: raised in the interpreter's fork hooks, it is only printed and lost
         signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)  # (the child takes them again: `_child`)
         middle = -1
         try:
             middle = os.fork()
         except OSError as exc:
-            for fd in (pid_read, pid_write, go_read, go_write):
+            for fd in (pid_read, pid_write, *(end for go in gos for end in go)):
                 os.close(fd)
             return self.reply({"error": f"the fork server could not fork: {exc}"})
         finally:
             if middle != 0:
                 signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
-        if middle == 0:  # the middle process: fork the child, say its pid, exit (the child is re-parented)
+        if middle == 0:  # the middle process: fork each child, say its pid, exit (the children are re-parented)
             try:
                 os.close(pid_read)
-                os.close(go_write)
-                middle_pid = os.getpid()
-                child = os.fork()
-                if child == 0:
-                    os.close(pid_write)
-                    os.close(self.channel.fileno())  # the child holds no end of the channel: a dead server reads as EOF
-                    _child(module, self.mains[module], [str(a) for a in argv], self.subsystem, go_read, self.parent,
-                           middle_pid, self.openblas, self.run_id)
-                os.write(pid_write, str(child).encode())
+                for _, go_write in gos:
+                    os.close(go_write)
+                self._fork_children(children, gos, pid_write)
             finally:
                 os._exit(0)
         os.close(pid_write)
-        os.close(go_read)
+        for go_read, _ in gos:
+            os.close(go_read)
         with os.fdopen(pid_read, "rb") as stream:
-            said = stream.read()
+            pids = [int(said) for said in stream.read().split()]
         os.waitpid(middle, 0)
-        if not said:
+        if len(pids) != len(children):  # a fork failed: those forked see their go closed and exit (status 3)
+            for _, go_write in gos:
+                os.close(go_write)
+            return self.reply({"error": "the fork server could not fork the child", "orphans": pids})
+        self.reply({"pids": pids})
+        for _, go_write in gos:  # the supervisor has their pids: they may start
+            with contextlib.suppress(BrokenPipeError):  # (one killed meanwhile is the supervisor's to notice)
+                os.write(go_write, b"g")
             os.close(go_write)
-            return self.reply({"error": "the fork server could not fork the child"})
-        self.reply({"pid": int(said)})
-        os.write(go_write, b"g")  # the supervisor has its pid: it may start
-        os.close(go_write)
+
+    def _fork_children(self, children: list[list[Any]], gos: list[tuple[int, int]], pid_write: int) -> None:
+        """In the middle process: fork each child in turn and write its pid (a failed fork ends the list)."""
+        for index, (module, argv) in enumerate(children):
+            child = os.fork()
+            if child == 0:
+                os.close(pid_write)
+                os.close(self.channel.fileno())  # the child holds no end of the channel: a dead server reads as EOF
+                for other, (go_read, _) in enumerate(gos):
+                    if other != index:
+                        os.close(go_read)
+                _child(module, self.mains[module], [str(a) for a in argv], self.subsystem, gos[index][0], self.parent,
+                       self.openblas, self.run_id)
+            os.write(pid_write, f"{child}\n".encode())
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -322,15 +322,16 @@ class Supervisor:
         epoch = self.epoch = self.clock.start(sub.name, run_id, self._roles(), self.table.header)
         self._write_initial_values()
         self._startup_mark("table")
+        launches: list[tuple[str, list[str], tuple[str, ...]]] = []  # (role, arguments, tasks)
         if sub.plant is not None:
             plant = sub.plant
-            self.processes.launch("plant", [
+            launches.append(("plant", [
                 "-m", "pbo_runtime.supervisor.plant_host", "--type", plant.type, "--model", plant.model,
                 "--timestep", repr(plant.timestep), "--options", json.dumps(dict(plant.options)),
                 "--subsystem", sub.name, "--run-id", run_id, *(["--fifo"] if self.fifo else []), *self.clock.plant_arguments(),
                 *(["--out", self.out_dir] if self.out_dir else []),
                 "--base-dir", str(Path(plant.loc.file or sub.file).resolve().parent),
-            ])
+            ], ()))
         ring = tuple(self._roles()) if self.clock.name == "sim" else ()
         for rtpu in sub.rtpus:
             hosted = tuple(t.name for t in sub.tasks_on(rtpu.name))
@@ -339,10 +340,10 @@ class Supervisor:
                 clock=self.clock.name, tick=self.tick or SIM_TICK_DEFAULT, ring=ring, out=self.out_dir,
                 configuration=self.configuration, application=self.application or "", links=self.links,
                 live=self.live_changes.live_dir)
-            self.processes.launch(rtpu.name, ["-m", "rtpu", *launch.to_argv()], hosted)
+            launches.append((rtpu.name, ["-m", "rtpu", *launch.to_argv()], hosted))
         # the plant and the RTPUs start side by side: an RTPU opens the plant's registers only in a
         # task's init, after every child is ready
-        self.processes.release_fork_server(sub.rtpus)
+        self.processes.launch_all(launches)
         self.event_handling.await_ready(set(self._roles()))
         self._startup_mark("children")
         members = sub.configurations[self.configuration].tasks
@@ -359,6 +360,8 @@ class Supervisor:
         self.job_control.mark(self.started_at, "configuration", f"{self.configuration} on")
         if self.clock.on_monotonic:
             self.result.started_monotonic = self.started_at
+        # (its exit, a large interpreter torn down, is no part of the start-up: once on, not before)
+        self.processes.release_fork_server(sub.rtpus)
         self.say(f"configuration '{self.configuration}' is on: {', '.join(ordered)}")
 
     def _bring_up_restarting(self, spawn: list[str], turn_on: list[str]) -> None:

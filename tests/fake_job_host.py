@@ -73,6 +73,7 @@ class FakeJobHost:
         self.plans: list[tuple[int, str, float]] = []  # (sequence, configuration, activation) as posted
         self.rtpus_apply_plans = True
         self.posting_delay = 0.0  # how long a switch's request waits before its posting runs
+        self.held_in_posting = 0.0  # how long the posting is held off after its first clock reading (once)
         self.in_posting = False
         self.read_delay: float | None = None  # each RTPU first reads a plan this long after its request (None: not stamped)
         self.signals: list[tuple[str, str]] = []  # (task, op) as sent
@@ -97,7 +98,11 @@ class FakeJobHost:
     # --- JobHost ----------------------------------------------------------------------------
 
     def now(self) -> float:
-        return self.clock.now()
+        now = self.clock.now()
+        if self.in_posting and self.held_in_posting:
+            self.clock.advance(self.held_in_posting)
+            self.held_in_posting = 0.0
+        return now
 
     def pump(self, timeout: float) -> None:
         self.clock.advance(timeout)

@@ -74,6 +74,20 @@ def test_a_request_that_waited_for_the_cpu_counts_its_plans_lead_from_the_postin
     assert record.latency == pytest.approx(0.0006)  # the operator's wait counts from the request
 
 
+@pytest.mark.parametrize(("held", "activation"), [(0.0002, 1.011), (0.0006, 1.012)])
+def test_a_posting_held_off_counts_its_activation_again_from_its_last_clock_reading(host, held, activation):
+    host.read_delay = 0.0001
+    for configuration in ("pd", "pid") * (FIRST_SAMPLES // 2):
+        host.job_control.switch(configuration)
+    host.clock.time = 1.0104
+    host.held_in_posting = held  # between the activation's computing and the plan's writing
+    record = host.job_control.switch("pd")
+    # the boundary at 1.011 is kept while the post lead (0.1 ms) still fits before it, else the next one
+    assert host.plans[-1][2] == pytest.approx(activation)
+    assert record.counted_from == pytest.approx(1.0104 + held) and record.posted_at <= activation - MARGIN
+    assert host.job_control.post_lead.late == 0
+
+
 def test_a_plan_read_after_its_activation_is_counted_late_and_raises_the_lead(host):
     host.read_delay = 0.0001
     for configuration in ("pd", "pid") * (FIRST_SAMPLES // 2):

@@ -292,9 +292,13 @@ class JobControl:
         else:
             with host.posting():  # from the request to the plan in the header: no ordinary process runs first
                 around = self._around(before, entering)
+                leads = self.post_lead.value, self.lead.value
                 counted_from = host.now()
-                activation, lead = earliest_activation(counted_from, host.epoch, host.shortest_period, around,
-                                                       self.post_lead.value, self.lead.value)
+                activation, lead = earliest_activation(counted_from, host.epoch, host.shortest_period, around, *leads)
+                # The post lead covers the plan's writing alone: counted again from the last clock reading
+                # before it, the activation moves on only if the computing was held off past its lead.
+                while (counted_from := host.now()) + lead > activation + 1e-12:
+                    activation, lead = earliest_activation(counted_from, host.epoch, host.shortest_period, around, *leads)
                 sequence = host.post_plan(configuration, activation)
                 posted_at = host.now()
                 host.wake_rtpus()

@@ -10,7 +10,7 @@ import pytest
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.job_control import POLL, SWITCH_TIMEOUT, JobFailure, application_steps, evaluate
-from pbo_runtime.supervisor.plan_lead import FIRST_SAMPLES, MARGIN, MARGIN_FACTOR
+from pbo_runtime.supervisor.plan_lead import FIRST_SAMPLES, LEAD_MAX, MARGIN, MARGIN_FACTOR
 from tests.fake_job_host import SUBSYSTEM, FakeJobHost, fake_subsystem
 
 GOAL = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]
@@ -41,11 +41,21 @@ def arm_reaches_its_goal_after(seconds: float):
 def test_a_switch_posts_a_plan_on_the_release_grid_and_ends_when_every_rtpu_applied_it(host):
     host.clock.advance(0.0104)
     record = host.job_control.switch("pd")
-    assert host.plans == [(1, "pd", pytest.approx(0.013))]  # the first plans: 2 ms of lead, to the next boundary of the grid
+    assert host.plans == [(1, "pd", pytest.approx(0.011))]  # the next boundary of the grid the post lead fits before
     assert (record.before, record.after, record.off, record.on) == ("pid", "pd", ["pid"], ["pd"])
-    assert set(record.applied) == {"rtpu0", "rtpu1"} and record.latency == pytest.approx(0.013 - 0.0104)
+    assert set(record.applied) == {"rtpu0", "rtpu1"} and record.latency == pytest.approx(0.011 - 0.0104)
     assert host.configuration == "pd" and host.job_control.pending is None
     assert host.job_control.switches == [record]
+
+
+def test_before_the_first_plan_the_writing_is_timed_so_its_post_lead_is_measured_not_the_bound(host):
+    host.job_control.switch("pd")
+    # the plan's words written as they were, FIRST_SAMPLES times: no post delay on the manual clock
+    assert host.rewrites == FIRST_SAMPLES and host.job_control.post_lead.value == pytest.approx(MARGIN)
+    assert host.job_control.switches[0].lead == pytest.approx(MARGIN)  # every RTPU's own release brings it
+    assert host.job_control.lead.value == LEAD_MAX  # the read delays of RTPUs a wake-up brings: none known yet
+    host.job_control.switch("pid")
+    assert host.rewrites == FIRST_SAMPLES  # once
 
 
 def test_once_plans_were_posted_the_lead_follows_the_post_delays_when_each_rtpus_own_release_brings_it(host):

@@ -451,6 +451,15 @@ class Supervisor:
         header[Header.PLAN_SEQUENCE] = sequence  # last: an executive that sees it sees the whole plan
         return sequence
 
+    def rewrite_plan(self) -> None:
+        """The plan's words written as they are, as `post_plan` writes them: no executive sees a new plan."""
+        assert self.table is not None
+        header = self.table.header
+        sequence = int(header[Header.PLAN_SEQUENCE])
+        header[Header.PLAN_CONFIGURATION] = int(header[Header.PLAN_CONFIGURATION])
+        header[Header.PLAN_TIME_NS] = int(header[Header.PLAN_TIME_NS])
+        header[Header.PLAN_SEQUENCE] = sequence
+
     def posting(self) -> AbstractContextManager[object]:
         """A plan's posting: at real-time priority on the real clock (`posting.at_realtime_priority`)."""
         return at_realtime_priority() if self.clock.plans_need_a_wakeup else nullcontext()

@@ -73,10 +73,16 @@ reconfiguration). Goal (issue 40): latency p99 at most 1.5 periods of the critic
 critical consumer, half a period later, reads it): from a request at a random phase the wait for
 that boundary alone is up to one period (p99 0.99 of it), and the lead and the switch work come on
 top: the goal of 1.5 periods leaves half a period at p99 for the lead and the switch work; p50 is about
-half a period plus the lead and the work. The lead follows the measured post delays (the supervisor's request to
-the plan in the header: every RTPU here is brought to its boundary by its own 1 ms task): on a
-loaded machine (other runs' real-time RTPUs on the same 2 CPUs) the supervisor waits for a CPU
-more often, and the lead grows with the delays' p99, up to its 2 ms bound. The skew is the RTPUs'
+half a period plus the lead and the work. What comes before the
+grid's wait is the request to the plan's last clock reading (the supervisor computing the activation)
+and the plan's lead; after it, the RTPU's switch work (the leaving controller's `off`, the entering
+one's `on`). The lead follows the measured post delays (from the supervisor's last clock reading
+before the plan's words to the words in the header: every RTPU here is brought to its boundary by its
+own 1 ms task), which are the writing of three words alone, at SCHED_FIFO 40; their tail is the
+supervisor losing its CPU to a real-time process's timer wake-up (the RTPUs' spins before their
+releases: the slow postings fall at those phases of the grid), and the lead grows with the delays'
+p99 on a loaded machine, up to its 2 ms bound. The first plans of a run get a post lead measured
+before them (the plan's words written as they are), not the bound. The skew is the RTPUs'
 timer wake-up precision, or a late read. A lost cycle needs the
 switch to overrun the gap between the writers' release and the critical consumer's read (the RTPUs'
 stagger, half the 1 ms period with two RTPUs): on a loaded machine a late release can do that, and

@@ -73,7 +73,9 @@ class FakeJobHost:
         self.plans: list[tuple[int, str, float]] = []  # (sequence, configuration, activation) as posted
         self.rtpus_apply_plans = True
         self.posting_delay = 0.0  # how long a switch's request waits before its posting runs
+        self.held_in_posting = 0.0  # how long the posting is held off after its first clock reading (once)
         self.in_posting = False
+        self.rewrites = 0  # the plan's words written as they were: a posting timed, no plan
         self.read_delay: float | None = None  # each RTPU first reads a plan this long after its request (None: not stamped)
         self.signals: list[tuple[str, str]] = []  # (task, op) as sent
         self.clear_fixes_the_fault = True
@@ -97,7 +99,11 @@ class FakeJobHost:
     # --- JobHost ----------------------------------------------------------------------------
 
     def now(self) -> float:
-        return self.clock.now()
+        now = self.clock.now()
+        if self.in_posting and self.held_in_posting:
+            self.clock.advance(self.held_in_posting)
+            self.held_in_posting = 0.0
+        return now
 
     def pump(self, timeout: float) -> None:
         self.clock.advance(timeout)
@@ -132,6 +138,10 @@ class FakeJobHost:
         sequence = len(self.plans) + 1
         self.plans.append((sequence, configuration, activation))
         return sequence
+
+    def rewrite_plan(self) -> None:
+        assert self.in_posting, "a posting is timed inside the host's posting()"
+        self.rewrites += 1
 
     @contextmanager
     def posting(self) -> Iterator[None]:

@@ -252,7 +252,7 @@ def test_any_request_shape_is_answered_or_refused_never_an_internal_error(goal_s
 def test_switch_answers_what_went_off_and_on_and_how_long_it_took(host):
     reply = dispatch(host, "switch", {"configuration": "pd"})
     assert (reply["configuration"], reply["entered"], reply["left"]) == ("pd", ["pd"], ["pid"])
-    assert reply["message"] == "switched 'pid' -> 'pd' in 2.00 ms: off pid; on pd"
+    assert reply["message"] == "switched 'pid' -> 'pd' in 1.00 ms: off pid; on pd"
 
 
 @pytest.mark.parametrize("arguments, refusal", [

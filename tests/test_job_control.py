@@ -10,7 +10,7 @@ import pytest
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.errors import PboError
 from pbo_runtime.supervisor.job_control import POLL, SWITCH_TIMEOUT, JobFailure, application_steps, evaluate
-from pbo_runtime.supervisor.plan_lead import FIRST_SAMPLES, MARGIN, MARGIN_FACTOR
+from pbo_runtime.supervisor.plan_lead import FIRST_SAMPLES, LEAD_MAX, MARGIN, MARGIN_FACTOR
 from tests.fake_job_host import SUBSYSTEM, FakeJobHost, fake_subsystem
 
 GOAL = [0.3, -0.5, 0.5, 0.2, 0.4, 0.2]
@@ -41,11 +41,21 @@ def arm_reaches_its_goal_after(seconds: float):
 def test_a_switch_posts_a_plan_on_the_release_grid_and_ends_when_every_rtpu_applied_it(host):
     host.clock.advance(0.0104)
     record = host.job_control.switch("pd")
-    assert host.plans == [(1, "pd", pytest.approx(0.013))]  # the first plans: 2 ms of lead, to the next boundary of the grid
+    assert host.plans == [(1, "pd", pytest.approx(0.011))]  # the next boundary of the grid the post lead fits before
     assert (record.before, record.after, record.off, record.on) == ("pid", "pd", ["pid"], ["pd"])
-    assert set(record.applied) == {"rtpu0", "rtpu1"} and record.latency == pytest.approx(0.013 - 0.0104)
+    assert set(record.applied) == {"rtpu0", "rtpu1"} and record.latency == pytest.approx(0.011 - 0.0104)
     assert host.configuration == "pd" and host.job_control.pending is None
     assert host.job_control.switches == [record]
+
+
+def test_before_the_first_plan_the_writing_is_timed_so_its_post_lead_is_measured_not_the_bound(host):
+    host.job_control.switch("pd")
+    # the plan's words written as they were, FIRST_SAMPLES times: no post delay on the manual clock
+    assert host.rewrites == FIRST_SAMPLES and host.job_control.post_lead.value == pytest.approx(MARGIN)
+    assert host.job_control.switches[0].lead == pytest.approx(MARGIN)  # every RTPU's own release brings it
+    assert host.job_control.lead.value == LEAD_MAX  # the read delays of RTPUs a wake-up brings: none known yet
+    host.job_control.switch("pid")
+    assert host.rewrites == FIRST_SAMPLES  # once
 
 
 def test_once_plans_were_posted_the_lead_follows_the_post_delays_when_each_rtpus_own_release_brings_it(host):
@@ -72,6 +82,20 @@ def test_a_request_that_waited_for_the_cpu_counts_its_plans_lead_from_the_postin
     assert host.plans[-1][2] == pytest.approx(1.011)  # still the next boundary: the lead counts from 1.0107
     assert record.read_delay == pytest.approx(0.0001)  # from the clock reading the lead was added to
     assert record.latency == pytest.approx(0.0006)  # the operator's wait counts from the request
+
+
+@pytest.mark.parametrize(("held", "activation"), [(0.0002, 1.011), (0.0006, 1.012)])
+def test_a_posting_held_off_counts_its_activation_again_from_its_last_clock_reading(host, held, activation):
+    host.read_delay = 0.0001
+    for configuration in ("pd", "pid") * (FIRST_SAMPLES // 2):
+        host.job_control.switch(configuration)
+    host.clock.time = 1.0104
+    host.held_in_posting = held  # between the activation's computing and the plan's writing
+    record = host.job_control.switch("pd")
+    # the boundary at 1.011 is kept while the post lead (0.1 ms) still fits before it, else the next one
+    assert host.plans[-1][2] == pytest.approx(activation)
+    assert record.counted_from == pytest.approx(1.0104 + held) and record.posted_at <= activation - MARGIN
+    assert host.job_control.post_lead.late == 0
 
 
 def test_a_plan_read_after_its_activation_is_counted_late_and_raises_the_lead(host):

@@ -159,6 +159,8 @@ class JobHost(Protocol):
         """Write a state variable as job control (a job's object)."""
     def post_plan(self, configuration: str, activation: float) -> int:
         """Post a switch plan in the table's header; the plan's sequence number."""
+    def rewrite_plan(self) -> None:
+        """Write the header's plan words as they are, as `post_plan` writes them (no new plan: a posting timed)."""
     def posting(self) -> AbstractContextManager[object]:
         """Around a plan's activation, its posting and the RTPUs' wake-up (the real clock: at real-time priority)."""
     def wake_rtpus(self) -> None:
@@ -292,9 +294,14 @@ class JobControl:
         else:
             with host.posting():  # from the request to the plan in the header: no ordinary process runs first
                 around = self._around(before, entering)
+                self._time_the_writing()
+                leads = self.post_lead.value, self.lead.value
                 counted_from = host.now()
-                activation, lead = earliest_activation(counted_from, host.epoch, host.shortest_period, around,
-                                                       self.post_lead.value, self.lead.value)
+                activation, lead = earliest_activation(counted_from, host.epoch, host.shortest_period, around, *leads)
+                # The post lead covers the plan's writing alone: counted again from the last clock reading
+                # before it, the activation moves on only if the computing was held off past its lead.
+                while (counted_from := host.now()) + lead > activation + 1e-12:
+                    activation, lead = earliest_activation(counted_from, host.epoch, host.shortest_period, around, *leads)
                 sequence = host.post_plan(configuration, activation)
                 posted_at = host.now()
                 host.wake_rtpus()
@@ -327,6 +334,15 @@ class JobControl:
         # the plan's activation: the cycle boundary at which every RTPU switched
         self.mark(record.activation, "change" if change else "switch", change or f"{before} -> {configuration}")
         return record
+
+    def _time_the_writing(self) -> None:
+        """Before a run's first plans, the post delay timed on the plan's words as they are: the first
+        plans' post lead is measured too, not the bound."""
+        host, post_lead = self.host, self.post_lead
+        while len(post_lead.ordered) < post_lead.first_samples:
+            start = host.now()
+            host.rewrite_plan()
+            post_lead.record(host.now() - start)
 
     def _around(self, before: str, entering: list[str]) -> list[RtpuAround]:
         """Each RTPU around a switch from `before`: what it releases (`plan_lead.deadline`), its tasks

@@ -4,7 +4,8 @@ Job control posts a plan in the table's header and wakes the RTPUs; each must ha
 deadline, the first release at or after the activation of a task ON there or entering (its
 boundary), for all of them to switch at that one instant. An RTPU whose own timer wakes it then
 reads the header before that boundary's cycles: it needs only the plan written by then, and the
-time from the request to the plan in the header (the post delay) is measured on every plan. One
+time from the last clock reading before the plan's words to the words in the header (the post
+delay; job control counts the activation again from that reading) is measured on every plan. One
 that only the plan's wake-up brings (its next release is later, or an aperiodic task may run at
 any time) needs the plan read by then. How long that takes is measured on every plan too: each
 RTPU stamps when it first read the plan (`Switched.read_at`), and the plan's read delay is its
@@ -15,8 +16,10 @@ quantile of the recent read delays plus a margin, within bounds:
 
 where q is the ceil(n / 100)-th largest of the last WINDOW delays (their p99 or above; the maximum
 while fewer than 100 are known). Until FIRST_SAMPLES plans were read the lead is LEAD_MAX, the fixed
-lead it replaces. A plan an RTPU read too late for its activation is still safe (that RTPU applies
-it at its first cycle boundary after, before anything of it runs in the old configuration:
+lead it replaces (the post delays: job control times the plan's words written as they are before a
+run's first plan, so only the read delays start there). A plan an RTPU read too late for its
+activation is still safe (that RTPU applies it at its first cycle boundary after, before anything
+of it runs in the old configuration:
 docs/reconfiguration.md); its delay enters the window like any other, and raises the next leads
 as soon as more than one plan in a hundred was that slow (at once, under 100 plans). The post
 delays make a second estimate the same way, bounded below by POST_LEAD_MIN; the activation is the

@@ -12,6 +12,10 @@ import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+import numpy as np
+
+from pbo_runtime.table.table import Header
+
 # Below the RTPUs (50, 55) and the plant (60); above a task's helper processes (a log's encoder,
 # a special-purpose processor: SCHED_FIFO 1), which must not hold a plan off.
 POSTING_FIFO_PRIORITY = 40
@@ -30,3 +34,10 @@ def at_realtime_priority(priority: int = POSTING_FIFO_PRIORITY) -> Iterator[bool
         yield True
     finally:
         os.sched_setscheduler(0, policy, param)
+
+
+def write_plan(header: np.ndarray, configuration: int, activation_ns: int, sequence: int) -> None:
+    """A plan's words in the table's header, the sequence last: an executive that sees it sees the whole plan."""
+    header[Header.PLAN_CONFIGURATION] = configuration
+    header[Header.PLAN_TIME_NS] = activation_ns
+    header[Header.PLAN_SEQUENCE] = sequence

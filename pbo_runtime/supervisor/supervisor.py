@@ -47,7 +47,7 @@ from pbo_runtime.supervisor.job_control import JobControl, JobFailure, starting_
 from pbo_runtime.supervisor.launch import SIM_TICK_DEFAULT, RtpuLaunch
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockGuard
-from pbo_runtime.supervisor.posting import at_realtime_priority
+from pbo_runtime.supervisor.posting import at_realtime_priority, write_plan
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.restarts import Restarter, RunSteps, RunView
 from pbo_runtime.supervisor.run_options import RunOptions
@@ -449,10 +449,14 @@ class Supervisor:
         assert self.table is not None
         header = self.table.header
         sequence = int(header[Header.PLAN_SEQUENCE]) + 1
-        header[Header.PLAN_CONFIGURATION] = self.reconfiguration.index(configuration)
-        header[Header.PLAN_TIME_NS] = int(activation * 1e9)
-        header[Header.PLAN_SEQUENCE] = sequence  # last: an executive that sees it sees the whole plan
+        write_plan(header, self.reconfiguration.index(configuration), int(activation * 1e9), sequence)
         return sequence
+
+    def rewrite_plan(self) -> None:
+        """The plan's words written as they are (`posting.write_plan`): no executive sees a new plan."""
+        assert self.table is not None
+        plan = self.table.header
+        write_plan(plan, int(plan[Header.PLAN_CONFIGURATION]), int(plan[Header.PLAN_TIME_NS]), int(plan[Header.PLAN_SEQUENCE]))
 
     def posting(self) -> AbstractContextManager[object]:
         """A plan's posting: at real-time priority on the real clock (`posting.at_realtime_priority`)."""

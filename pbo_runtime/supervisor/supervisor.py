@@ -47,7 +47,7 @@ from pbo_runtime.supervisor.job_control import JobControl, JobFailure, starting_
 from pbo_runtime.supervisor.launch import SIM_TICK_DEFAULT, RtpuLaunch
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockGuard
-from pbo_runtime.supervisor.posting import at_realtime_priority, write_plan
+from pbo_runtime.supervisor.posting import at_realtime_priority, rewrite_plan, write_plan
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.restarts import Restarter, RunSteps, RunView
 from pbo_runtime.supervisor.run_options import RunOptions
@@ -453,10 +453,9 @@ class Supervisor:
         return sequence
 
     def rewrite_plan(self) -> None:
-        """The plan's words written as they are (`posting.write_plan`): no executive sees a new plan."""
+        """The plan's words written as they are (`posting.rewrite_plan`): no executive sees a new plan."""
         assert self.table is not None
-        plan = self.table.header
-        write_plan(plan, int(plan[Header.PLAN_CONFIGURATION]), int(plan[Header.PLAN_TIME_NS]), int(plan[Header.PLAN_SEQUENCE]))
+        rewrite_plan(self.table.header)
 
     def posting(self) -> AbstractContextManager[object]:
         """A plan's posting: at real-time priority on the real clock (`posting.at_realtime_priority`)."""
@@ -567,11 +566,9 @@ class Supervisor:
         self.result.stopped_by = "duration"
 
     def pump(self, timeout: float) -> None:
-        """One turn of job control's loop: children, stop requests, events, commands, the view.
-
-        On the real clock it waits up to `timeout` for one event; on the simulated clock it runs
-        the ticks that cover `timeout` (at least one), taking every event after each.
-        """
+        """One turn of job control's loop: children, stop requests, events, commands, the view. On the
+        real clock it waits up to `timeout` for one event; on the simulated clock it runs the ticks
+        that cover `timeout` (at least one), taking every event after each."""
         assert self.events is not None
         try:
             self._check_children()

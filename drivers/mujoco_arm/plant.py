@@ -134,14 +134,15 @@ class MujocoArmPlant:
     phase: rad, orientation: [rx, ry, rz]}` (center, radius and period required); default none.
     `wrist_wrench` (6 floats, N and N m, sensor frame): a constant external wrench on the tool;
     default none. `adc_noise` (V, >= 0): noise of each ADC conversion; `seed` (int >= 0) seeds it.
-    `Options` declares them all.
+    `Options` declares them all. `boards`: False when the subsystem declares no I/O board, whose
+    conversions a step then skips (nobody reads them).
     """
 
     Options = MujocoArmPlantOptions
     DESCRIBED_WITH = ("mujoco",)  # the libraries `describe_robot`'s answer depends on (`pbo check` keeps it by them)
 
     def __init__(self, registers_name: str, model: str, timestep: float, options: Mapping[str, Any],
-                 log_dir: str = "", base_dir: str = ".") -> None:
+                 log_dir: str = "", base_dir: str = ".", boards: bool = True) -> None:
         from drivers.robots.plant_model import load_robot
 
         route_mujoco_log(log_dir)
@@ -196,6 +197,7 @@ class MujocoArmPlant:
         self._rng = np.random.Generator(np.random.PCG64(seed))
         self._a_counts = np.zeros(6)
         self._a_ack = 0  # the last REQUEST vendor A's sensor answered
+        self._boards = boards  # a step serves the boards only when the subsystem has one to read them
         self._apply_wrist_wrench()
         mujoco.mj_forward(self.model, self.data)
 
@@ -320,7 +322,8 @@ class MujocoArmPlant:
         if self.has_target:
             self._move_target()
         self._publish()
-        self._serve_boards()
+        if self._boards:
+            self._serve_boards()
 
     # --- the wrist F/T sensor and the I/O boards --------------------------------------------------
 

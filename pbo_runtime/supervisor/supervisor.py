@@ -330,6 +330,7 @@ class Supervisor:
                 "--subsystem", sub.name, "--run-id", run_id, *(["--fifo"] if self.fifo else []), *self.clock.plant_arguments(),
                 *(["--out", self.out_dir] if self.out_dir else []),
                 "--base-dir", str(Path(plant.loc.file or sub.file).resolve().parent),
+                "--drivers", ",".join(sorted({device.driver for device in sub.devices.values()})),
             ])
         ring = tuple(self._roles()) if self.clock.name == "sim" else ()
         for rtpu in sub.rtpus:

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy import copyto, maximum, minimum
 
 from drivers.force_torque import models as ft_models
 from drivers.mujoco_arm.registers import (
@@ -454,14 +455,14 @@ class MujocoArmPlant:
     def _read_command(self, source: np.ndarray, target: np.ndarray) -> None:
         """Copy one command register under the command seqlock; keep the last good command if the
         driver is mid-write."""
-        words = self._registers.words
+        words, scratch = self._registers.words, self._scratch
         for _ in range(_COMMAND_READ_TRIES):
             before = words[W_CMD_SEQ]
             if before & 1:
                 continue
-            np.copyto(self._scratch, source)
+            copyto(scratch, source)
             if words[W_CMD_SEQ] == before:
-                np.copyto(target, self._scratch)
+                copyto(target, scratch)
                 return
 
     def _publish(self) -> None:
@@ -469,11 +470,12 @@ class MujocoArmPlant:
         words = regs.words
         seq = words[W_STATE_SEQ]
         words[W_STATE_SEQ] = seq + 1  # odd: readers retry
-        np.copyto(regs.q, self._qpos)
-        np.copyto(regs.qd, self._qvel)
+        copyto(regs.q, self._qpos)
+        copyto(regs.qd, self._qvel)
         regs.reals[W_SIM_TIME] = self.data.time
         words[W_STEP_COUNT] = self._steps
-        np.copyto(regs.target, self._target_pose)
+        if self.has_target:  # (without one, its pose stays the zeros the segment was made with)
+            copyto(regs.target, self._target_pose)
         words[W_STATE_SEQ] = seq + 2
 
     def close(self) -> None:
@@ -537,8 +539,8 @@ def _positive(value: Any, where: str) -> float:
 def _clip(values: np.ndarray, low: Any, high: Any, out: np.ndarray) -> None:
     """`np.clip(values, low, high, out=out)` in two ufunc calls, without np.clip's Python layers
     (a few microseconds a call, twice a step); NaN stays NaN as it does there."""
-    np.maximum(values, low, out=out)
-    np.minimum(out, high, out=out)
+    maximum(values, low, out=out)
+    minimum(out, high, out=out)
 
 
 def _wrench_option(value: Any) -> np.ndarray:

@@ -456,7 +456,13 @@ class MujocoArmPlant:
         """Copy one command register under the command seqlock; keep the last good command if the
         driver is mid-write."""
         words, scratch = self._registers.words, self._scratch
-        for _ in range(_COMMAND_READ_TRIES):
+        before = words[W_CMD_SEQ]
+        if not before & 1:  # the usual case: no write under way, one copy
+            copyto(scratch, source)
+            if words[W_CMD_SEQ] == before:
+                copyto(target, scratch)
+                return
+        for _ in range(_COMMAND_READ_TRIES - 1):  # (the look above was the first)
             before = words[W_CMD_SEQ]
             if before & 1:
                 continue

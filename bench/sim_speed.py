@@ -105,12 +105,14 @@ its I/O boards, rtpu0's trajectory, PID (with Pinocchio's gravity) and logger, r
 interface, each in Python, plus three hand-overs between processes (a semaphore post and a
 wake-up). On a 2-CPU machine shared with other work every hand-over also waits for the CPU.
 In one process the hand-overs are calls. A tick is then, by cost: the tasks' cycles (numpy calls
-on six-element arrays, each costing more than its arithmetic, and Pinocchio's gravity); the
-plant's step, of which MuJoCo's step is the smaller part and the I/O boards' ADC conversion
-(served every step, whether or not a board is read) and the state's publication the larger; the
-executive's work per release (the transfers through the table under its lock, the finite
-check, the timing record, a critical task's freshness check) and per turn (a system call asking
-whether a signal waits). The start-up (interpreter, imports, MuJoCo's model) is then a larger
+on six-element arrays, each costing more than its arithmetic even as the cheapest call numpy
+has, a ufunc named once with its output positional and arrays for operands, and Pinocchio's
+gravity); the executive's work per release (the transfers through the table under its lock, the
+finite check, the timing record, a critical task's freshness check); the plant's step, MuJoCo's
+step and the Python around it (the command's read and clip, the state's publication). The I/O
+boards' conversions are served only when the subsystem declares a board (Figure 8 declares
+none), and whether a signal waits for an RTPU is a count its queue's ends share in the one
+process, not a system call. The start-up (interpreter, imports, MuJoCo's model) is then a larger
 share of a short run.""",
     )
     results: list[dict[str, Any]] = []

@@ -5,12 +5,15 @@ stop at the goal, v (v + a·dt) / (2a) = |e|, i.e. v = sqrt((a·dt/2)² + 2a|e|)
 discrete-time braking curve; the continuous sqrt(2a|e|) overshoots), capped by v_max; it lands
 exactly on the goal only from a speed one acceleration step can stop, so both limits hold on
 every cycle, arrival included. Limits may differ per component (linear and angular parts of a
-pose). Real-time safe: every buffer is made in the constructor.
+pose). Real-time safe: every buffer is made in the constructor. The step's ufuncs are called with
+their output positional (but `minimum`, which numpy takes it from only as `out=`) and with arrays,
+never Python numbers (each `out=` and each number costs a call more than a six-element operation does).
 """
 
 from __future__ import annotations
 
 import numpy as np
+from numpy import absolute, add, copysign, copyto, less_equal, logical_and, minimum, multiply, sqrt, subtract
 
 from modules._ufuncs import clip
 
@@ -21,7 +24,7 @@ class BrakingLaw:
     def __init__(self, size: int, max_velocity: float | np.ndarray, max_acceleration: float | np.ndarray, dt: float) -> None:
         a = np.broadcast_to(np.asarray(max_acceleration, dtype=float), (size,)).copy()
         self._v_max = np.broadcast_to(np.asarray(max_velocity, dtype=float), (size,)).copy()
-        self._dt = dt
+        self._dt = np.full(size, dt)
         self._a_step = a * dt
         self._a_step_down = -self._a_step
         self._a_step_tolerance = a * dt * (1 + 1e-9)
@@ -34,29 +37,30 @@ class BrakingLaw:
         self._change = np.zeros(size)
         self._slow = np.zeros(size, dtype=bool)
         self._near = np.zeros(size, dtype=bool)
+        self._zero = np.zeros(size)
 
     def step(self, goal: np.ndarray, position: np.ndarray, velocity: np.ndarray) -> None:
-        e, v, dv = self._error, self._speed, self._change
-        np.subtract(goal, position, out=e)
+        e, v, dv, slow, near = self._error, self._speed, self._change, self._slow, self._near
+        subtract(goal, position, e)
         # the fastest speed from which steps of a·dt still stop at the goal, signed towards it
-        np.abs(e, out=v)
-        np.multiply(v, self._two_a, out=v)
-        np.add(v, self._half_step_squared, out=v)
-        np.sqrt(v, out=v)
-        np.subtract(v, self._half_step, out=v)
-        np.minimum(v, self._v_max, out=v)
-        np.copysign(v, e, out=v)
+        absolute(e, v)
+        multiply(v, self._two_a, v)
+        add(v, self._half_step_squared, v)
+        sqrt(v, v)
+        subtract(v, self._half_step, v)
+        minimum(v, self._v_max, out=v)
+        copysign(v, e, v)
         # may this component land this cycle? only from a speed one acceleration step can stop
-        np.abs(velocity, out=dv)
-        np.less_equal(dv, self._a_step_tolerance, out=self._slow)
-        np.subtract(v, velocity, out=dv)
-        clip(dv, self._a_step_down, self._a_step, out=dv)
-        np.add(velocity, dv, out=velocity)
-        np.multiply(velocity, self._dt, out=dv)
-        np.add(position, dv, out=position)
-        np.subtract(goal, position, out=e)
-        np.abs(e, out=e)
-        np.less_equal(e, self._snap, out=self._near)
-        np.logical_and(self._slow, self._near, out=self._near)
-        np.copyto(position, goal, where=self._near)
-        np.copyto(velocity, 0.0, where=self._near)
+        absolute(velocity, dv)
+        less_equal(dv, self._a_step_tolerance, slow)
+        subtract(v, velocity, dv)
+        clip(dv, self._a_step_down, self._a_step, dv)
+        add(velocity, dv, velocity)
+        multiply(velocity, self._dt, dv)
+        add(position, dv, position)
+        subtract(goal, position, e)
+        absolute(e, e)
+        less_equal(e, self._snap, near)
+        logical_and(slow, near, near)
+        copyto(position, goal, where=near)
+        copyto(velocity, self._zero, where=near)

@@ -58,6 +58,7 @@ class RobotInterface(PortBasedObject):
         self._limits = ArmLimits(arm, self.period, saturation_bound, position_tolerance)
         self.end_effector = self._arm.end_effector()
         self._read = self._arm.read_state
+        self._measured = self.q_m, self.qd_m  # the ports' arrays, the task's for its life: no port lookup per cycle
         self._holding = False
         self._plant_stall_after = PLANT_STALL_PERIODS * max(self.period, getattr(self._arm, "timestep", 0.0))
         self._last_sim_time = -1.0
@@ -75,7 +76,7 @@ class RobotInterface(PortBasedObject):
 
     def diverged(self, command: str) -> Status | None:
         """ERROR, the arm braked, if the measured state left the arm's limits; None while within them."""
-        if not self._limits.outside(self.q_m, self.qd_m):
+        if not self._limits.outside(*self._measured):
             return None
         return self.divergence_fault(self._limits.divergence_message(self.q_m, self.qd_m), command)
 

@@ -14,7 +14,9 @@ Divergence is a fault: the interface returns ERROR with a message naming the joi
 its `error` component engages the brakes, and the driver keeps the message for the run's summary
 (a `fault:` line naming the task that wrote the command).
 
-Every array is made here, once; the per-cycle checks are ufuncs into them (no allocation).
+Every array is made here, once; the per-cycle checks are ufuncs into them (no allocation), called
+with their output positional (an `out=` costs a call more than six joints' operation does), but for
+`maximum` and `minimum`, which numpy takes it from only as `out=`.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy import absolute, add, copyto, greater, greater_equal, isfinite, maximum, minimum, multiply, subtract
 
 from modules._ufuncs import count_nonzero
 from pbo_runtime import Arm
@@ -91,26 +94,26 @@ class ArmLimits:
         adds to its count towards the saturation bound, one within drains it, slower. True when a
         joint is at its limit. `now` is the cycle's time, for the fault's message."""
         flags = self._flags
-        np.abs(tau, out=self._scratch)
-        np.greater_equal(self._scratch, self.effort, out=flags)
+        absolute(tau, self._scratch)
+        greater_equal(self._scratch, self.effort, flags)
         if not count_nonzero(flags):  # the usual cycle: nothing to clip (a NaN is left for the driver to refuse)
-            np.copyto(out, tau)
+            copyto(out, tau)
             if self._counting:
                 self._drain()
             return False
         # not a command to clip: the driver refuses it as it is
-        if count_nonzero(np.isfinite(tau, out=self._long)) != self.ndof:
-            np.copyto(out, tau)
+        if count_nonzero(isfinite(tau, self._long)) != self.ndof:
+            copyto(out, tau)
             return False
-        np.maximum(tau, self.effort_low, out=out)  # np.clip's Python layers allocate
-        np.minimum(out, self.effort, out=out)
+        maximum(tau, self.effort_low, out=out)  # np.clip's Python layers allocate
+        minimum(out, self.effort, out=out)
         counted, count = self._counted, self.saturation_count
-        np.copyto(counted, flags)  # as integers: a ufunc mixing bool and int64 allocates a cast buffer
-        np.multiply(counted, self._rise, out=self._step)
-        np.add(count, self._step, out=count)
-        np.subtract(count, self._one, out=count)
-        np.maximum(count, self._zero, out=count)
-        np.add(self.at_limit, counted, out=self.at_limit)
+        copyto(counted, flags)  # as integers: a ufunc mixing bool and int64 allocates a cast buffer
+        multiply(counted, self._rise, self._step)
+        add(count, self._step, count)
+        subtract(count, self._one, count)
+        maximum(count, self._zero, out=count)
+        add(self.at_limit, counted, self.at_limit)
         if not self._counting:
             self._counting = True
             self._since = now
@@ -119,8 +122,8 @@ class ArmLimits:
     def _drain(self) -> None:
         """A cycle with every command within its limit: each count drains by one; at 0 they start afresh."""
         count = self.saturation_count
-        np.subtract(count, self._one, out=count)
-        np.maximum(count, self._zero, out=count)
+        subtract(count, self._one, count)
+        maximum(count, self._zero, out=count)
         if not count_nonzero(count):
             self.at_limit.fill(0)
             self._counting = False
@@ -128,28 +131,28 @@ class ArmLimits:
     def limit_position(self, q_r: np.ndarray, previous: np.ndarray, step: np.ndarray, out: np.ndarray) -> None:
         """`out` = `q_r` within `step` of `previous` (the velocity limit over a period) and within the
         range; `q_r` as it is when it is not finite, for the driver to refuse."""
-        if count_nonzero(np.isfinite(q_r, out=self._flags)) != self.ndof:
-            np.copyto(out, q_r)
+        if count_nonzero(isfinite(q_r, self._flags)) != self.ndof:
+            copyto(out, q_r)
             return
         low, high = self._scratch, self._q_step_high
-        np.subtract(previous, step, out=low)
-        np.add(previous, step, out=high)
-        np.maximum(q_r, low, out=out)
-        np.minimum(out, high, out=out)
-        np.maximum(out, self.q_min, out=out)
-        np.minimum(out, self.q_max, out=out)
+        subtract(previous, step, low)
+        add(previous, step, high)
+        maximum(q_r, low, out=out)
+        minimum(out, high, out=out)
+        maximum(out, self.q_min, out=out)
+        minimum(out, self.q_max, out=out)
 
     def saturated_too_long(self) -> bool:
         """Whether a joint's count has passed the bound (after `saturate_torque`)."""
-        return bool(count_nonzero(np.greater(self.saturation_count, self._count_bound, out=self._long)))
+        return bool(count_nonzero(greater(self.saturation_count, self._count_bound, self._long)))
 
     def outside(self, q: np.ndarray, qd: np.ndarray) -> bool:
         """Whether a measured velocity is past its limit or a position past its range and the tolerance."""
         state = self._state
-        np.subtract(q, self._q_centre, out=self._state_q)
-        np.copyto(self._state_qd, qd)
-        np.abs(state, out=state)
-        return bool(count_nonzero(np.greater(state, self._state_bound, out=self._state_flags)))
+        subtract(q, self._q_centre, self._state_q)
+        copyto(self._state_qd, qd)
+        absolute(state, state)
+        return bool(count_nonzero(greater(state, self._state_bound, self._state_flags)))
 
     def allow_from(self, q: np.ndarray) -> None:
         """At `on`: a joint already past its range (braked there after a fault) may be driven back,

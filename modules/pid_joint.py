@@ -22,13 +22,19 @@ from the measured state alone. Without feed-forward the integral carries the loa
 the difference over itself (its joints with integral action only). While the actuators are held
 (`actuators_held`: a stopped plant, a stale torque, the table lock held) nothing is integrated:
 the arm does not answer, and q_m may stand still.
+
+The cycle calls its ufuncs with the output positional and arrays for operands, on its ports'
+arrays taken once in `init` (each `out=`, Python number or port lookup costs a call more than a
+six-element operation does).
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
+from numpy import add, multiply, subtract
 
 from modules._ufuncs import clip
 from pbo_runtime import Arm, InConst, InVar, OutVar, PortBasedObject, Status, arm_gains, arm_model, inertia_range, param
@@ -83,6 +89,8 @@ class PidJoint(PortBasedObject):
         n = int(self.ndof)
         self._kp, self._kd, self._ki = self._all_gains(params, n)
         self._limit = params.integral_limit
+        self._integral_low, self._integral_high = np.full(n, -self._limit), np.full(n, self._limit)
+        self._dt = np.full(n, self.period)
         self._error = np.zeros(n)
         self._term = np.zeros(n)
         self._integral = np.zeros(n)  # the integral term itself, N m
@@ -92,13 +100,14 @@ class PidJoint(PortBasedObject):
         # cycles until the handover is down to a billionth of itself, then it is dropped
         self._fade_cycles = int(np.ceil(np.log(1e-9) / np.log(self._fade))) if self._fade > 0.0 else 1
         self._fading = 0  # cycles of the handover left
+        # the ports' arrays, the task's for its life
+        self._q_r, self._qd_r, self._q_m, self._qd_m, self._tau = self.q_r, self.qd_r, self.q_m, self.qd_m, self.tau
         self._gravity = None
         if params.gravity_feedforward:
             import pinocchio
 
             model = arm_model(self.arm_table, self.end_effector)
-            data = model.createData()
-            self._gravity = lambda q: pinocchio.computeGeneralizedGravity(model, data, q)
+            self._gravity = functools.partial(pinocchio.computeGeneralizedGravity, model, model.createData())
 
     @staticmethod
     def _gains(name: str, value: Gain, n: int) -> np.ndarray:
@@ -153,11 +162,12 @@ class PidJoint(PortBasedObject):
 
     def cycle(self) -> Status:
         if not self.actuators_held:  # the arm answers: integrate
-            np.subtract(self.q_r, self.q_m, out=self._error)
-            np.multiply(self._error, self._ki, out=self._term)
-            np.multiply(self._term, self.period, out=self._term)
-            np.add(self._integral, self._term, out=self._integral)
-            clip(self._integral, -self._limit, self._limit, out=self._integral)
+            error, term, integral = self._error, self._term, self._integral
+            subtract(self._q_r, self._q_m, error)
+            multiply(error, self._ki, term)
+            multiply(term, self._dt, term)
+            add(integral, term, integral)
+            clip(integral, self._integral_low, self._integral_high, integral)
         if self._fading:
             self._fading -= 1
             np.multiply(self._handover, self._fade if self._fading else 0.0, out=self._handover)
@@ -166,14 +176,14 @@ class PidJoint(PortBasedObject):
 
     def _compute(self) -> None:
         """tau = kp e + kd ed + integral + handover (+ g(q_m) with feed-forward)."""
-        tau, term = self.tau, self._term
-        np.subtract(self.q_r, self.q_m, out=self._error)
-        np.multiply(self._kp, self._error, out=tau)
-        np.subtract(self.qd_r, self.qd_m, out=self._error)
-        np.multiply(self._kd, self._error, out=term)
-        np.add(tau, term, out=tau)
+        tau, term, error, q_m = self._tau, self._term, self._error, self._q_m
+        subtract(self._q_r, q_m, error)
+        multiply(self._kp, error, tau)
+        subtract(self._qd_r, self._qd_m, error)
+        multiply(self._kd, error, term)
+        add(tau, term, tau)
         if self._gravity is not None:
-            np.add(tau, self._gravity(self.q_m), out=tau)
-        np.add(tau, self._integral, out=tau)
+            add(tau, self._gravity(q_m), tau)
+        add(tau, self._integral, tau)
         if self._fading:
-            np.add(tau, self._handover, out=tau)
+            add(tau, self._handover, tau)

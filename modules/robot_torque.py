@@ -46,6 +46,7 @@ class RobotTorque(RobotInterface):
     def init(self, params: RobotTorqueParams) -> None:
         self._write = self.open_arm(params.device, "torque", params.saturation_bound, params.position_tolerance).write_torque
         self._tau = np.zeros(self._arm.ndof)  # tau_u within the effort limits: what the driver is given
+        self._tau_u = self.tau_u  # the port's array, the task's for its life
 
     def on(self) -> None:
         self._read(self.q_m, self.qd_m)
@@ -55,7 +56,7 @@ class RobotTorque(RobotInterface):
         self._arm.release_brakes()
 
     def cycle(self) -> Status:
-        if not self.plant_moving(self._read(self.q_m, self.qd_m)):
+        if not self.plant_moving(self._read(*self._measured)):
             self._hold()  # the plant stopped stepping: a torque now would be applied on a state nobody saw
             return Status.STABLE
         if self._holding:  # back from locally stable behaviour: a controller drives the arm again
@@ -65,7 +66,7 @@ class RobotTorque(RobotInterface):
         if fault is not None:
             return fault
         limits = self._limits
-        if limits.saturate_torque(self.tau_u, self._tau, self.time) and limits.saturated_too_long():
+        if limits.saturate_torque(self._tau_u, self._tau, self.time) and limits.saturated_too_long():
             return self.divergence_fault(limits.saturation_message(self.tau_u, "tau_u", self.period, self.time), "tau_u")
         self._write(self._tau)
         return Status.CONTINUE

@@ -153,14 +153,13 @@ def host_tasks(launch: RtpuLaunch, subsystem: Subsystem, table: StateTable, sign
     def device_figures(task: str) -> dict[str, Any]:
         return {device: driver.figures() for device, driver in with_figures.get(task, {}).items()}
 
-    signal_queue = messages.signal_queue_name(name, launch.run_id, launch.rtpu)
     pumped: list[MessageRelay] = []  # the simulated clock's relays: each forwards its link's messages at every step
 
     def relay(task: str, end: Any) -> MessageRelay:  # `end`: a message link's receiving end
         # A message link's server task (TR 5.1): each message is a signal to this RTPU.
         from pbo_runtime.links.relay import MessageRelay
 
-        made = MessageRelay(end, signal_queue, task, threaded=not simulated)
+        made = MessageRelay(end, signals.another_end(), task, threaded=not simulated)
         if simulated:
             pumped.append(made)
         return made

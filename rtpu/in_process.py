@@ -73,8 +73,10 @@ class HostedRtpu:
         self.table.close()
 
 
-def start(argv: list[str], subsystem: Subsystem, events: messages.Queue) -> HostedRtpu:
-    """Host the RTPU `python -m rtpu ARGV` would run, in this process; it reports Ready as that process does."""
+def start(argv: list[str], subsystem: Subsystem, events: messages.Queue,
+          job_control_end: messages.Queue | None = None) -> HostedRtpu:
+    """Host the RTPU `python -m rtpu ARGV` would run, in this process; it reports Ready as that process does.
+    It reads its signals from another end of `job_control_end` (its signal queue) where given, else opens the queue."""
     launch = RtpuLaunch.parse(argv)
     name = subsystem.name
 
@@ -83,7 +85,8 @@ def start(argv: list[str], subsystem: Subsystem, events: messages.Queue) -> Host
 
     table = StateTable.attach(TableLayout.of(subsystem), messages.table_name(name, launch.run_id))
     try:
-        signals = messages.Queue(messages.signal_queue_name(name, launch.run_id, launch.rtpu))
+        signals = (job_control_end.another_end() if job_control_end is not None
+                   else messages.Queue(messages.signal_queue_name(name, launch.run_id, launch.rtpu)))
         try:
             hosting = host_tasks(launch, subsystem, table, signals, report, report, in_process=True)
         except BaseException:

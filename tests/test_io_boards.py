@@ -15,7 +15,8 @@ from drivers.io.adc import Adc
 from drivers.io.dac import Dac
 from drivers.io.parallel_port import ParallelPort
 from drivers.mujoco_arm.plant import MujocoArmPlant
-from drivers.mujoco_arm.registers import VOLTS_PER_COUNT, DeviceError, attach_registers
+from drivers.mujoco_arm.registers import VOLTS_PER_COUNT, W_BOARD_STEP, W_STEP_COUNT, DeviceError, attach_registers
+from pbo_runtime.supervisor.plant_host import _has_boards
 from tests.support import NO_WATCHDOG, allocation_peak, one_array, unique_name
 
 
@@ -160,3 +161,30 @@ def test_a_parallel_port_refuses_output_lines_that_are_not_16_bit_integers(plant
                                           rf"an integer 0 \.\. 65535, got: "):
         port.write_channel(0, lines)
     assert port.output(0) == 0x00FF
+
+
+def test_a_plant_told_there_is_no_board_steps_without_converting():
+    plant = MujocoArmPlant(unique_name("plant"), "puma560", 0.001, NO_WATCHDOG, boards=False)
+    registers = attach_registers(plant.name)
+    try:
+        converted = int(registers.words[W_BOARD_STEP])
+        for _ in range(3):
+            plant.step()
+        assert registers.words[W_STEP_COUNT] == 3  # the state is published every step
+        assert registers.words[W_BOARD_STEP] == converted  # the boards are not converted
+    finally:
+        registers.release()
+        plant.close()
+
+
+@pytest.mark.parametrize(("drivers", "boards"), [
+    ("mujoco_arm", False),
+    ("", False),
+    ("adc,mujoco_arm", True),
+    ("dac", True),
+    ("parallel_port", True),
+    (None, True),  # not told (a plant host started by hand): served
+    ("no_such_driver", True),  # its task reports it; the plant does not guess
+])
+def test_the_plant_host_serves_the_boards_only_when_a_device_is_a_board(drivers, boards):
+    assert _has_boards(drivers) is boards

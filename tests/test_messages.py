@@ -7,7 +7,10 @@ import pytest
 
 from pbo_runtime.errors import InternalError
 from pbo_runtime.ipc import messages
+from pbo_runtime.ipc.limits import QueueSize
+from pbo_runtime.ipc.local_queue import CountedQueue
 from pbo_runtime.ipc.task_statistics import TaskStatistics
+from tests.support import unique_name
 
 SIGNALS = [messages.Spawn("pid"), messages.TurnOn("pid", 0.25, 1), messages.TurnOff("pid"), messages.Kill("pid"),
            messages.Clear("pid"), messages.OperatorEvent("server", [1.0, 2.0]), messages.LinkMessage("server", [[0.5], 3]),
@@ -51,3 +54,23 @@ def test_an_unknown_signal_is_left_to_the_rtpu_to_refuse_and_an_unknown_event_is
         messages.event_from_wire(["launched", "rtpu0"])
     with pytest.raises(InternalError, match=r"^a malformed 'state' event came on the event queue"):
         messages.event_from_wire(["state", "rtpu0"])
+
+
+def test_a_counted_queue_says_a_signal_waits_for_whichever_of_its_ends_sent_it():
+    """`--one-process`: job control's end, the RTPU's and a relay's share one count of what waits."""
+    size = QueueSize(unique_name("signals"), 2, 256)
+    job_control = CountedQueue(size.name, create=True, size=size)
+    rtpu, relay = job_control.another_end(), job_control.another_end()
+    try:
+        assert not rtpu.pending()
+        job_control.signal(messages.Spawn("pid"))
+        assert relay.try_send("message", "server", [[0.5], 3], timeout=0.0)
+        assert rtpu.pending()
+        assert not relay.try_send("message", "server", [[0.5], 4], timeout=0.0)  # full: not sent, not counted
+        assert messages.signal_from_wire(rtpu.receive(0)) == messages.Spawn("pid")
+        assert rtpu.pending()
+        assert rtpu.receive(0) == ["message", "server", [[0.5], 3]]
+        assert not rtpu.pending() and rtpu.receive(0) is None
+    finally:
+        for end in (relay, rtpu, job_control):
+            end.close()

@@ -26,6 +26,7 @@ from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
+from numpy import copyto, isfinite
 
 from drivers.mujoco_arm.registers import (
     MODE_NAMES,
@@ -123,8 +124,8 @@ class MujocoArmDriver(DeviceDriver):
         while True:
             before = words[W_STATE_SEQ]
             if not before & 1:
-                np.copyto(q_out, self._q)
-                np.copyto(qd_out, self._qd)
+                copyto(q_out, self._q)
+                copyto(qd_out, self._qd)
                 sim_time: float = self._reals[W_SIM_TIME]
                 if words[W_STATE_SEQ] == before:
                     return sim_time
@@ -147,24 +148,24 @@ class MujocoArmDriver(DeviceDriver):
         """Command joint torques, N m (the plant clips them to its torque limits). Torque mode only."""
         if self._position:
             raise DeviceError(self._wrong_mode("write_torque", "torque"))
-        if _COUNT_NONZERO(np.isfinite(tau, out=self._finite)) != self.ndof:  # a non-finite command never reaches the arm
+        if _COUNT_NONZERO(isfinite(tau, self._finite)) != self.ndof:  # a non-finite command never reaches the arm
             raise DeviceError(self._not_finite("write_torque", "torque", tau))
         words = self._words
         seq = words[W_CMD_SEQ]
         words[W_CMD_SEQ] = seq + 1  # odd: the plant keeps the previous command
-        np.copyto(self._tau, tau)
+        copyto(self._tau, tau)
         words[W_CMD_SEQ] = seq + 2
 
     def write_position(self, q_cmd: np.ndarray) -> None:
         """Command joint positions, rad (the plant clips them to the joint limits). Position mode only."""
         if not self._position:
             raise DeviceError(self._wrong_mode("write_position", "position"))
-        if _COUNT_NONZERO(np.isfinite(q_cmd, out=self._finite)) != self.ndof:
+        if _COUNT_NONZERO(isfinite(q_cmd, self._finite)) != self.ndof:
             raise DeviceError(self._not_finite("write_position", "position", q_cmd))
         words = self._words
         seq = words[W_CMD_SEQ]
         words[W_CMD_SEQ] = seq + 1  # odd: the plant keeps the previous command
-        np.copyto(self._q_cmd, q_cmd)
+        copyto(self._q_cmd, q_cmd)
         words[W_CMD_SEQ] = seq + 2
         self._positioned = True
 

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy import copyto, maximum, minimum
 
 from drivers.force_torque import models as ft_models
 from drivers.mujoco_arm.registers import (
@@ -134,14 +135,15 @@ class MujocoArmPlant:
     phase: rad, orientation: [rx, ry, rz]}` (center, radius and period required); default none.
     `wrist_wrench` (6 floats, N and N m, sensor frame): a constant external wrench on the tool;
     default none. `adc_noise` (V, >= 0): noise of each ADC conversion; `seed` (int >= 0) seeds it.
-    `Options` declares them all.
+    `Options` declares them all. `boards`: False when the subsystem declares no I/O board, whose
+    conversions a step then skips (nobody reads them).
     """
 
     Options = MujocoArmPlantOptions
     DESCRIBED_WITH = ("mujoco",)  # the libraries `describe_robot`'s answer depends on (`pbo check` keeps it by them)
 
     def __init__(self, registers_name: str, model: str, timestep: float, options: Mapping[str, Any],
-                 log_dir: str = "", base_dir: str = ".") -> None:
+                 log_dir: str = "", base_dir: str = ".", boards: bool = True) -> None:
         from drivers.robots.plant_model import load_robot
 
         route_mujoco_log(log_dir)
@@ -196,6 +198,7 @@ class MujocoArmPlant:
         self._rng = np.random.Generator(np.random.PCG64(seed))
         self._a_counts = np.zeros(6)
         self._a_ack = 0  # the last REQUEST vendor A's sensor answered
+        self._boards = boards  # a step serves the boards only when the subsystem has one to read them
         self._apply_wrist_wrench()
         mujoco.mj_forward(self.model, self.data)
 
@@ -320,7 +323,8 @@ class MujocoArmPlant:
         if self.has_target:
             self._move_target()
         self._publish()
-        self._serve_boards()
+        if self._boards:
+            self._serve_boards()
 
     # --- the wrist F/T sensor and the I/O boards --------------------------------------------------
 
@@ -451,14 +455,20 @@ class MujocoArmPlant:
     def _read_command(self, source: np.ndarray, target: np.ndarray) -> None:
         """Copy one command register under the command seqlock; keep the last good command if the
         driver is mid-write."""
-        words = self._registers.words
-        for _ in range(_COMMAND_READ_TRIES):
+        words, scratch = self._registers.words, self._scratch
+        before = words[W_CMD_SEQ]
+        if not before & 1:  # the usual case: no write under way, one copy
+            copyto(scratch, source)
+            if words[W_CMD_SEQ] == before:
+                copyto(target, scratch)
+                return
+        for _ in range(_COMMAND_READ_TRIES - 1):  # (the look above was the first)
             before = words[W_CMD_SEQ]
             if before & 1:
                 continue
-            np.copyto(self._scratch, source)
+            copyto(scratch, source)
             if words[W_CMD_SEQ] == before:
-                np.copyto(target, self._scratch)
+                copyto(target, scratch)
                 return
 
     def _publish(self) -> None:
@@ -466,11 +476,12 @@ class MujocoArmPlant:
         words = regs.words
         seq = words[W_STATE_SEQ]
         words[W_STATE_SEQ] = seq + 1  # odd: readers retry
-        np.copyto(regs.q, self._qpos)
-        np.copyto(regs.qd, self._qvel)
+        copyto(regs.q, self._qpos)
+        copyto(regs.qd, self._qvel)
         regs.reals[W_SIM_TIME] = self.data.time
         words[W_STEP_COUNT] = self._steps
-        np.copyto(regs.target, self._target_pose)
+        if self.has_target:  # (without one, its pose stays the zeros the segment was made with)
+            copyto(regs.target, self._target_pose)
         words[W_STATE_SEQ] = seq + 2
 
     def close(self) -> None:
@@ -534,8 +545,8 @@ def _positive(value: Any, where: str) -> float:
 def _clip(values: np.ndarray, low: Any, high: Any, out: np.ndarray) -> None:
     """`np.clip(values, low, high, out=out)` in two ufunc calls, without np.clip's Python layers
     (a few microseconds a call, twice a step); NaN stays NaN as it does there."""
-    np.maximum(values, low, out=out)
-    np.minimum(out, high, out=out)
+    maximum(values, low, out=out)
+    minimum(out, high, out=out)
 
 
 def _wrench_option(value: Any) -> np.ndarray:

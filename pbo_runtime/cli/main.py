@@ -48,6 +48,8 @@ def main(argv: list[str] | None = None) -> int:
 
         print(f"pbo {installed_version()}")
         return 0
+    if command_line and argv[:1] == ["run"] and "--one-process" in argv:
+        _with_fixed_hashing(argv)  # before the parser is imported: the interpreter that runs is the next one
     fork_server = _early_fork_server(argv)
     try:
         return _main(argv, command_line, fork_server)
@@ -63,9 +65,8 @@ def _main(argv: list[str], command_line: bool, fork_server: ForkServer | None) -
         return complete(argv[1:])
     args = _parser(argv).parse_args(argv)
     args.fork_server = fork_server
-    if command_line and getattr(args, "one_process", False) and os.environ.get("PYTHONHASHSEED") != "0":
-        # the tasks run in this interpreter: with the string hashing the run's processes have (`clock.run_clock`)
-        os.execve(sys.executable, [sys.executable, "-m", "pbo_runtime.cli", *argv], {**os.environ, "PYTHONHASHSEED": "0"})
+    if command_line and getattr(args, "one_process", False):
+        _with_fixed_hashing(argv)
     handler = _handler(args.handler)  # the verb's own code, imported only now
     from rich.console import Console
 
@@ -104,6 +105,13 @@ def _main(argv: list[str], command_line: bool, fork_server: ForkServer | None) -
         return EXIT_RUN
     except Exception:
         return _internal_error(args, errors)
+
+
+def _with_fixed_hashing(argv: list[str]) -> None:
+    """`--one-process`: the tasks run in this interpreter, which must hash strings as the run's processes
+    do (`clock.run_clock`); if it does not, it is replaced by one that does (never returns then)."""
+    if os.environ.get("PYTHONHASHSEED") != "0":
+        os.execve(sys.executable, [sys.executable, "-m", "pbo_runtime.cli", *argv], {**os.environ, "PYTHONHASHSEED": "0"})
 
 
 def _early_fork_server(argv: list[str]) -> ForkServer | None:

@@ -392,6 +392,10 @@ class Queue:
         waiting: int = self._mq.current_messages
         return waiting > 0
 
+    def another_end(self) -> Queue:
+        """Another end of this queue, opened in this process: closing one leaves the other open."""
+        return Queue(self.name)
+
     def send(self, *message: Any, timeout: float | None = 1.0) -> None:
         raw = self._encode(message)
         while True:

@@ -31,14 +31,15 @@ POLL = 0.1  # seconds the relay blocks on the link before it looks at its stop f
 
 
 class MessageRelay:
-    """Forwards the messages of `link` (a receiving end) to RTPU signal queue `signal_queue` for `task`."""
+    """Forwards the messages of `link` (a receiving end) to RTPU signal queue `signal_queue` (its name, or an
+    end of it opened for the relay, which closes it) for `task`."""
 
-    def __init__(self, link: Any, signal_queue: str, task: str, threaded: bool = True) -> None:
+    def __init__(self, link: Any, signal_queue: str | messages.Queue, task: str, threaded: bool = True) -> None:
         self.link = link
         self.task = task
         self.forwarded = 0
         self.closed = False
-        self._signals = messages.Queue(signal_queue)
+        self._signals = messages.Queue(signal_queue) if isinstance(signal_queue, str) else signal_queue
         self._stop = threading.Event()
         self._held: list[Any] | None = None  # pump: a message taken from the link that the signal queue had no room for
         self._thread: threading.Thread | None = None

@@ -13,7 +13,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 from pbo_runtime.clock.run_clock import RunClock
@@ -68,17 +68,20 @@ class Children:
 
     `table` gives the run's table once it is made; `manifest` the shared objects the run makes;
     `may_restart` whether a role's restart policy brings it back; `mark` notes a start-up phase;
-    `subsystem` and `events` are what a child hosted in this process (`--one-process`) is given.
+    `subsystem`, `events` and `signals` (each RTPU's signal queue, by RTPU) are what a child hosted in
+    this process (`--one-process`) is given.
     """
 
     def __init__(self, run_id: str, clock: RunClock, result: RunResult, say: Callable[[str], None],
                  table: Callable[[], StateTable | None], manifest: Callable[[], list[str]],
                  may_restart: Callable[[str], bool], mark: Callable[[str, float], None],
                  fork_server: ForkServer | None = None, subsystem: Subsystem | None = None,
-                 events: Callable[[], messages.Queue | None] = lambda: None) -> None:
+                 events: Callable[[], messages.Queue | None] = lambda: None,
+                 signals: Mapping[str, messages.Queue] | None = None) -> None:
         self.run_id = run_id
         self.subsystem = subsystem
         self.events = events
+        self.signals = signals if signals is not None else {}
         self.clock = clock
         self.result = result
         self.say = say
@@ -143,7 +146,7 @@ class Children:
             assert events is not None and self.subsystem is not None
             # (the ring stops after a tick that sent job control an event)
             process = InProcessChild.start(arguments, self.subsystem, events,
-                                           lambda step: self.clock.join(role, step, events.pending))
+                                           lambda step: self.clock.join(role, step, events.pending), self.signals.get(role))
         elif forked is None and self.fork_server is not None and arguments[0] == "-m":
             try:
                 process = self.fork_server.fork(arguments[1], [*arguments[2:], *parent])

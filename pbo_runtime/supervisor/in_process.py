@@ -56,15 +56,16 @@ class InProcessChild:
 
     @classmethod
     def start(cls, arguments: list[str], subsystem: Subsystem, events: messages.Queue,
-              join: Callable[[Callable[[bool], None]], None]) -> InProcessChild:
-        """Host what `python ARGUMENTS` (`-m MODULE ...`) would run; it joins the ring through `join`."""
+              join: Callable[[Callable[[bool], None]], None], signals: messages.Queue | None = None) -> InProcessChild:
+        """Host what `python ARGUMENTS` (`-m MODULE ...`) would run; it joins the ring through `join`. An
+        RTPU reads its signals from another end of `signals`, job control's end of its queue."""
         module, argv = arguments[1], arguments[2:]
         hosted: Any
         try:
             if module == PLANT_MODULE:
                 hosted = importlib.import_module(PLANT_MODULE).in_process(argv, events)
             else:
-                hosted = importlib.import_module(RTPU_IN_PROCESS).start(argv, subsystem, events)
+                hosted = importlib.import_module(RTPU_IN_PROCESS).start(argv, subsystem, events, signals)
         except Exception as exc:  # as its process would: reported, and it has ended (exit status 1)
             role = "plant" if module == PLANT_MODULE else argv[argv.index("--rtpu") + 1]
             limit = limits.explain(exc, f"{role} starting")

@@ -28,6 +28,7 @@ import numpy as np
 
 from pbo_runtime.clock.clocks import lower_timer_slack
 from pbo_runtime.clock.lockstep import LockstepParticipant
+from pbo_runtime.errors import ModuleError
 from pbo_runtime.ipc import limits, messages, shm
 from pbo_runtime.ipc.process import Stop, become_child, supervisor_told_gone
 from pbo_runtime.objects import registry
@@ -64,7 +65,24 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--ring", default="plant", help="sim: the participants of a tick, in order (clock.lockstep)")
     parser.add_argument("--out", default="", help="the run's output directory: the plant's own log goes there")
     parser.add_argument("--base-dir", default="", help="the YAML file's folder: a robot file's path is relative to it")
+    parser.add_argument("--drivers", default=None,
+                        help="the drivers of the subsystem's devices, comma-separated: the plant serves its I/O boards "
+                             "only if one of them is a board (default: serve them)")
     return parser.parse_args(argv)
+
+
+def _has_boards(drivers: str | None) -> bool:
+    """Whether the subsystem's devices (`--drivers`) may include a port-based I/O device, a board the plant
+    serves (a driver that cannot be looked up may: its task reports why it cannot open it)."""
+    if drivers is None:
+        return True
+    for name in filter(None, drivers.split(",")):
+        try:
+            if getattr(registry.driver_class(name), "PORTS", 0) > 0:
+                return True
+        except ModuleError:
+            return True
+    return False
 
 
 def _make_plant(args: argparse.Namespace) -> Any:
@@ -77,6 +95,7 @@ def _make_plant(args: argparse.Namespace) -> Any:
         messages.plant_registers_name(args.subsystem, args.run_id), args.model, args.timestep, json.loads(args.options),
         **({"log_dir": args.out} if "log_dir" in parameters else {}),
         **({"base_dir": args.base_dir} if "base_dir" in parameters and args.base_dir else {}),
+        **({"boards": _has_boards(args.drivers)} if "boards" in parameters else {}),
     )
 
 

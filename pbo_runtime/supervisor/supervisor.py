@@ -5,7 +5,6 @@ const-dependency order, turns the configuration on, watches until the duration e
 failure, then stops the children and unlinks what it made, whatever happened. Its parts are fields:
 the children (`Children`), signals and events (`EventHandling`), the report (`RunReporting`), the
 operator's commands (`ControlService`), restarts, the lock, live changes.
-
 The run's clock (`clock.run_clock`): real, or simulated and advanced by `pump`; run times are `now()`, process waits wall time.
 """
 
@@ -32,7 +31,7 @@ from pbo_runtime.edit.live import LiveDescription
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import limits, messages, shm
 from pbo_runtime.ipc.control import ControlServer
-from pbo_runtime.ipc.local_queue import LocalQueue
+from pbo_runtime.ipc.local_queue import CountedQueue, LocalQueue
 from pbo_runtime.supervisor.child_watch import ChildWatch
 from pbo_runtime.supervisor.children import Children
 from pbo_runtime.supervisor.cleanup import remove_dead_runs, unlink_run
@@ -128,7 +127,7 @@ class Supervisor:
         self.result.tick = self.tick
         self.processes = Children(self.run_id, self.clock, self.result, say, lambda: self.table, self._manifest,
                                   self.may_restart, self._startup_mark, fork_server,  # the plant and the RTPUs
-                                  subsystem=subsystem, events=lambda: self.events)
+                                  subsystem=subsystem, events=lambda: self.events, signals=self.signals)
         self.children, self.launched = self.processes.children, self.processes.launched
         self.static = options.static
         self.job_control = JobControl(self, static=options.static)
@@ -285,8 +284,9 @@ class Supervisor:
         try:
             self.events = (LocalQueue(events.name, events) if self.clock.one_process
                            else messages.Queue(events.name, create=True, size=events))
+            signal_queue = CountedQueue if self.clock.one_process else messages.Queue  # (every end in this process)
             for rtpu, size in zip(self.subsystem.rtpus, signals, strict=True):
-                self.signals[rtpu.name] = messages.Queue(size.name, create=True, size=size)
+                self.signals[rtpu.name] = signal_queue(size.name, create=True, size=size)
             self.control = ControlServer(self.subsystem.name, self.run_id)
         except (OSError, ValueError, posix_ipc.Error) as exc:
             made = len(self.signals) + (self.events is not None) + (self.control is not None)
@@ -331,6 +331,7 @@ class Supervisor:
                 "--subsystem", sub.name, "--run-id", run_id, *(["--fifo"] if self.fifo else []), *self.clock.plant_arguments(),
                 *(["--out", self.out_dir] if self.out_dir else []),
                 "--base-dir", str(Path(plant.loc.file or sub.file).resolve().parent),
+                "--drivers", ",".join(sorted({device.driver for device in sub.devices.values()})),
             ], ()))
         ring = tuple(self._roles()) if self.clock.name == "sim" else ()
         for rtpu in sub.rtpus:

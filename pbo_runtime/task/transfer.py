@@ -250,13 +250,13 @@ class LocalTable:
             (data, mask, size), = checks
 
             def outputs_finite() -> bool:
-                isfinite(data, out=mask)
+                isfinite(data, mask)  # the mask given positionally: an out= keyword is parsed at every call
                 return count_nonzero(mask) == size  # type: ignore[no-any-return]
         else:
 
             def outputs_finite() -> bool:
                 for data, mask, size in checks:
-                    isfinite(data, out=mask)
+                    isfinite(data, mask)
                     if count_nonzero(mask) != size:
                         return False
                 return True

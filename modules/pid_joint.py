@@ -100,6 +100,7 @@ class PidJoint(PortBasedObject):
         # cycles until the handover is down to a billionth of itself, then it is dropped
         self._fade_cycles = int(np.ceil(np.log(1e-9) / np.log(self._fade))) if self._fade > 0.0 else 1
         self._fading = 0  # cycles of the handover left
+        self._taking_over = False  # the first cycle after `on` takes the previous controller's torque over
         # the ports' arrays, the task's for its life
         self._q_r, self._qd_r, self._q_m, self._qd_m, self._tau = self.q_r, self.qd_r, self.q_m, self.qd_m, self.tau
         self._gravity = None
@@ -142,23 +143,14 @@ class PidJoint(PortBasedObject):
         self._handover[:] = 0.0
         self._fading = 0
         self._integral[:] = 0.0
-        self._compute()
-        if not np.any(previous):  # nothing commanded yet
-            return
-        # (the take-over is added to the torque just computed: a second pass through the
-        # dynamics would only lengthen the switch that turns this task on)
-        if self._gravity is None:
-            # Without feed-forward the integral carries the load (gravity): it takes over the
-            # difference, on the joints that have integral action (elsewhere it would never decay).
-            np.subtract(previous, self.tau, out=self._integral)
-            np.clip(self._integral, -self._limit, self._limit, out=self._integral)
-            np.copyto(self._integral, 0.0, where=self._ki == 0)
-            np.add(self.tau, self._integral, out=self.tau)
-        elif not self.actuators_held:  # that torque drives the arm now: take it over, fading
-            np.subtract(previous, self.tau, out=self._handover)
-            self._fading = self._fade_cycles
-            if self._fading:
-                np.add(self.tau, self._handover, out=self.tau)
+        # nothing commanded yet, or held on the brakes (a restart: what the dead controller left is
+        # not what the arm feels): its own torque from the start, nothing taken over
+        self._taking_over = bool(np.any(previous)) and not self.actuators_held
+        if not self._taking_over:
+            self._compute()
+        # Else tau stays the previous controller's torque until the first cycle, at the same
+        # boundary, takes it over: computing it here would only lengthen the switch that turns
+        # this task on, before any cycle of the boundary runs.
 
     def cycle(self) -> Status:
         if not self.actuators_held:  # the arm answers: integrate
@@ -172,7 +164,30 @@ class PidJoint(PortBasedObject):
             self._fading -= 1
             np.multiply(self._handover, self._fade if self._fading else 0.0, out=self._handover)
         self._compute()
+        if self._taking_over:
+            self._take_over()
         return Status.CONTINUE
+
+    def _take_over(self) -> None:
+        """The first cycle after `on` takes over the previous controller's torque: its output is that
+        torque, and the difference from this controller's own fades out (feed-forward) or is carried
+        by the integral (without: the load is the integral's, on the joints that have one)."""
+        self._taking_over = False
+        previous, tau = self._previous, self.tau
+        if self._gravity is None:
+            carried, change = self._term, self._error  # (free after `_compute`)
+            np.subtract(previous, tau, out=carried)
+            np.add(carried, self._integral, out=carried)
+            np.clip(carried, -self._limit, self._limit, out=carried)
+            np.copyto(carried, 0.0, where=self._ki == 0)
+            np.subtract(carried, self._integral, out=change)
+            np.copyto(self._integral, carried)
+            np.add(tau, change, out=tau)
+        else:  # that torque drives the arm now: take it over, fading
+            np.subtract(previous, tau, out=self._handover)
+            self._fading = self._fade_cycles
+            if self._fading:
+                np.add(tau, self._handover, out=tau)
 
     def _compute(self) -> None:
         """tau = kp e + kd ed + integral + handover (+ g(q_m) with feed-forward)."""

@@ -415,9 +415,12 @@ def test_pid_without_feed_forward_takes_over_into_its_integral_only_on_joints_wi
     write_state(table, q_r=np.zeros(N), q_m=np.zeros(N))
     assert task.turn_on(0.0)
     write_state(table, q_r=np.full(N, 0.1), q_m=np.zeros(N), when=PID_DT)
-    task.run_cycle(PID_DT)
+    task.run_cycle(PID_DT)  # the first cycle takes the 7 N m over
     np.testing.assert_allclose(tau_u(table)[3:], np.full(3, 10.0), rtol=0, atol=1e-12)  # kp * 0.1, no 7 N m
-    np.testing.assert_allclose(tau_u(table)[:3], np.full(3, 17.0 + 0.1 * PID_DT), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(tau_u(table)[:3], np.full(3, 7.0), rtol=0, atol=1e-12)  # kept, by the integral
+    task.run_cycle(2 * PID_DT)
+    np.testing.assert_allclose(tau_u(table)[3:], np.full(3, 10.0), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(tau_u(table)[:3], np.full(3, 7.0 + 0.1 * PID_DT), rtol=0, atol=1e-12)  # and integrated on
 
 
 def test_pid_with_feed_forward_fades_out_the_torque_it_took_over_on_every_joint_and_leaves_no_offset(table):
@@ -427,18 +430,20 @@ def test_pid_with_feed_forward_fades_out_the_torque_it_took_over_on_every_joint_
     task = pid_task(table, {"kp": 100.0, "kd": 0.0, "ki": list(ki)})
     assert task.spawn(0.0), task.last_error
     table.write("tau_u", np.full(N, 7.0), when=0.0)
-    write_state(table, q_r=np.zeros(N), q_m=np.zeros(N))
+    write_state(table, q_r=np.full(N, 0.1), q_m=np.zeros(N))
     assert task.turn_on(0.0)
-    np.testing.assert_allclose(tau_u(table), np.full(N, 7.0), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(tau_u(table), np.full(N, 7.0), rtol=0, atol=1e-12)  # held until its first cycle
     gravity = pinocchio_gravity(np.zeros(N))
     fade = np.exp(-PID_DT / PidJoint.HANDOVER_TIME_CONSTANT)
-    write_state(table, q_r=np.full(N, 0.1), q_m=np.zeros(N), when=PID_DT)
-    for k in range(1, 101):  # ten time constants
+    task.run_cycle(0.0)  # the first cycle, at the boundary of `on`: its output is the torque taken over
+    np.testing.assert_allclose(tau_u(table), np.full(N, 7.0), rtol=0, atol=1e-12)
+    handover = 7.0 - (100.0 * 0.1 + gravity + ki * 0.1 * PID_DT)
+    for k in range(2, 102):  # ten time constants
         task.run_cycle(k * PID_DT)
-        expected = 100.0 * 0.1 + gravity + ki * 0.1 * PID_DT * k + (7.0 - gravity) * fade**k
+        expected = 100.0 * 0.1 + gravity + ki * 0.1 * PID_DT * k + handover * fade**(k - 1)
         np.testing.assert_allclose(tau_u(table), expected, rtol=0, atol=1e-7)  # (dropped at a billionth of itself)
-    left_over = np.abs(tau_u(table) - (10.0 + gravity + ki * 0.1))
-    assert (left_over < np.abs(7.0 - gravity) * 1e-4).all()  # e^-10 of it
+    left_over = np.abs(tau_u(table) - (10.0 + gravity + ki * 0.1 * PID_DT * 101))
+    assert (left_over < np.abs(handover) * 1e-4).all()  # e^-10 of it
 
 
 def test_pid_turned_on_while_the_actuators_are_held_starts_from_the_measured_state_alone(table):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -69,6 +70,18 @@ def test_once_plans_were_posted_the_lead_follows_the_post_delays_when_each_rtpus
     assert record.lead == pytest.approx(host.job_control.post_lead.value) == pytest.approx(MARGIN)
     assert host.plans[-1][2] == pytest.approx(1.011)  # the next boundary of the 1 ms grid, not two periods later
     assert record.read_delay == pytest.approx(0.0001) and record.grid_wait == pytest.approx(0.0006 - record.lead)
+
+
+def test_each_rtpu_around_a_switch_is_made_once_for_the_states_and_descriptions_it_was_made_of(host):
+    # made before the plan's activation is counted: kept, it is no part of the next switch's latency
+    control = host.job_control
+    first = control._around("pid", ["pd"])
+    assert control._around("pid", ["pd"]) is first
+    host.task_states["traj"] = "OFF"  # a task ON no more: what its RTPU releases changed
+    assert control._around("pid", ["pd"]) is not first
+    host.task_states["traj"] = "ON"
+    control.switching_subsystem = dataclasses.replace(control.subsystem)  # a live change's description
+    assert control._around("pid", ["pd"]) is not first
 
 
 def test_a_request_that_waited_for_the_cpu_counts_its_plans_lead_from_the_posting_not_from_the_request(host):

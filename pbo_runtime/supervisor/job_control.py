@@ -246,6 +246,8 @@ class JobControl:
         # the switch under way (static or dynamic): a restart comes back in its `after`
         self.switching: SwitchRecord | None = None
         self.switching_subsystem = self.subsystem  # what a live change's plan swaps in, while it is under way
+        # each RTPU around a switch (`_around`), for the descriptions it was made of
+        self._arounds: tuple[Subsystem | None, Subsystem | None, dict[Any, list[RtpuAround]]] = (None, None, {})
         self.job: str | None = None
         self.application: str | None = None
         self.lead = PlanLead()  # on the real clock, from the read delays of the plans so far
@@ -348,6 +350,15 @@ class JobControl:
         """Each RTPU around a switch from `before`: what it releases (`plan_lead.deadline`), its tasks
         ON now from the running description, those entering from the one the switch goes to."""
         running, described = self.subsystem, self.switching_subsystem
+        states = self.host.task_states
+        # kept for the descriptions it was made of: it is counted in every switch's latency
+        key = (before, tuple(entering), tuple(states.get(name) for name in running.configurations[before].tasks), self.host.epoch)
+        if self._arounds[0] is not running or self._arounds[1] is not described:
+            self._arounds = (running, described, {})
+        kept = self._arounds[2]
+        return kept[key] if key in kept else kept.setdefault(key, self._made_around(running, described, before, entering))
+
+    def _made_around(self, running: Subsystem, described: Subsystem, before: str, entering: list[str]) -> list[RtpuAround]:
         states = self.host.task_states
         on = [running.tasks[name] for name in running.configurations[before].tasks
               if name not in entering and states.get(name) == "ON"]

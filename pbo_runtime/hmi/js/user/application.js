@@ -78,12 +78,14 @@ function useStatuses(workspace) {
 }
 
 /** One stage: the parallel icon, then one arm for each subsystem, each a row of that subsystem's steps. */
-function ParallelUnit({ workspace, step, index, count, actions, places }) {
+function ParallelUnit({ workspace, step, index, count, actions, places, stagesDone }) {
   const keys = (e) => {
     if (e.key === "Delete" || e.key === "Backspace") { e.preventDefault(); actions.remove(index, []); }
     else if (e.altKey && e.key === "ArrowLeft" && index > 0) { e.preventDefault(); actions.move(index, index - 1, []); }
     else if (e.altKey && e.key === "ArrowRight" && index < count - 1) { e.preventDefault(); actions.move(index, index + 2, []); }
   };
+  // the run's output says when each subsystem has done a stage: however short, an arm that ran steps is marked
+  const done = (key) => (stagesDone[key] || 0) > index && step.rows[step.arms.indexOf(key)].length > 0;
   return html`
     <div class="unit decision parallel" role="listitem" data-step=${index + 1} data-kind="parallel">
       <div class="decision-head">
@@ -96,8 +98,9 @@ function ParallelUnit({ workspace, step, index, count, actions, places }) {
         </span>
       </div>
       ${step.arms.map((key, arm) => html`
-        <div class="decision-row parallel-arm" key=${key} data-arm=${key}>
-          <span class="decision-label" title=${workspace.subsystems[key].name}>${key}</span>
+        <div class=${"decision-row parallel-arm" + (done(key) ? " arm-done" : "")} key=${key} data-arm=${key}
+             data-done=${done(key) ? "true" : null}>
+          <span class="decision-label" title=${workspace.subsystems[key].name + (done(key) ? ": done in the last run" : "")}>${key}</span>
           <${RowView} dictionary=${workspace.subsystems[key].dictionary} steps=${step.rows[arm]} actions=${actions}
                       path=${[index, arm]} statusPlace=${places[key]} name=${`${key} of step ${index + 1} parallel`} />
         </div>`)}
@@ -272,7 +275,7 @@ export function ApplicationUser({ workspace, setWorkspace }) {
               <${Place} before=${0} count=${steps.length} onInsert=${actions.insert} onMove=${actions.move} />
               ${steps.map((step, index) => html`
                 <${ParallelUnit} key=${step.id} workspace=${workspace} step=${step} index=${index} count=${steps.length}
-                                 actions=${actions} places=${places} />
+                                 actions=${actions} places=${places} stagesDone=${(run && run.stages_done) || {}} />
                 <${Place} key=${"place" + step.id} before=${index + 1} count=${steps.length} onInsert=${actions.insert}
                           onMove=${actions.move} />`)}
             </div>

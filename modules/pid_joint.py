@@ -183,7 +183,7 @@ class PidJoint(PortBasedObject):
             np.subtract(carried, self._integral, out=change)
             np.copyto(self._integral, carried)
             np.add(tau, change, out=tau)
-        else:  # that torque drives the arm now: take it over, fading
+        elif not self.actuators_held:  # that torque drives the arm now: take it over, fading
             np.subtract(previous, tau, out=self._handover)
             self._fading = self._fade_cycles
             if self._fading:

@@ -9,13 +9,11 @@ Third-party libraries register in the same groups.
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from pbo_runtime.errors import ModuleError
+from pbo_runtime.objects import distributions
 from pbo_runtime.objects.version import installed_version as installed_version  # looked up here too
-
-if TYPE_CHECKING:
-    from importlib import metadata
 
 MODULES = "pbo.modules"
 DRIVERS = "pbo.drivers"
@@ -26,23 +24,14 @@ _KIND = {MODULES: "module", DRIVERS: "driver", PLANTS: "plant", ROBOTS: "robot m
 
 
 @functools.cache
-def _registered(group: str) -> dict[str, metadata.EntryPoint]:
-    """A group's entry points by name (the first of a name), read once: reading them parses every
+def _registered(group: str) -> dict[str, distributions.EntryPoint]:
+    """A group's entry points by name (the first of a name), read once: reading them opens every
     installed distribution's metadata, milliseconds that a task spawned live would spend between
     two cycles of its RTPU for each module not looked up before."""
-    found: dict[str, metadata.EntryPoint] = {}
-    for ep in _entry_points().select(group=group):
+    found: dict[str, distributions.EntryPoint] = {}
+    for ep in distributions.entry_points(group):
         found.setdefault(ep.name, ep)
     return found
-
-
-@functools.cache
-def _entry_points() -> Any:
-    """Every installed distribution's entry points, read once for all four groups (what `select(group=)`
-    takes: EntryPoints, or the SelectableGroups Python 3.11 returns)."""
-    from importlib import metadata
-
-    return metadata.entry_points()
 
 
 def names(group: str) -> tuple[str, ...]:

@@ -17,10 +17,10 @@ from __future__ import annotations
 import functools
 import platform
 import re
-from importlib import metadata
 from pathlib import Path
 
 from pbo_runtime.config.model import Subsystem
+from pbo_runtime.objects import distributions
 from pbo_runtime.objects.registry import installed_version
 
 # Unit symbols a doc's last clause may be made of (SI and the few others control engineers write)
@@ -91,9 +91,6 @@ def run_metadata(subsystem: Subsystem, clock: str, configuration: str = "", appl
     }
 
 
-@functools.cache  # read once per process (metadata parses the package's METADATA file: ~10 ms each)
+@functools.cache  # read once per process
 def _version(package: str) -> str:
-    try:
-        return metadata.version(package)
-    except metadata.PackageNotFoundError:
-        return "not installed"
+    return distributions.version(package) or "not installed"

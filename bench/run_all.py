@@ -112,7 +112,7 @@ QUICK: dict[str, dict[str, Any]] = {
     "api_stream": {"seconds": 2.0, "rounds": 2},
     "hmi_latency": {"writes": 100},
     "hmi_load": {"seconds": 20.0, "rounds": 2},
-    "sim_speed": {"seconds": 1.0, "rounds": 2, "goal_seconds": 5.0},
+    "sim_speed": {"seconds": 1.0, "rounds": 2, "goal_seconds": 5.0, "goal_runs": 1},
     "startup": {"rounds": 5},  # each figure a median of 5
     "robot_limits": {"cycles": 500, "rounds": 2},
     "ros2_bridge": {"seconds": 2.0, "rounds": 2},

@@ -32,7 +32,7 @@ TINY = {
     "api_stream": {"seconds": 1.0, "rounds": 1},
     "hmi_latency": {"writes": 10},
     "hmi_load": {"seconds": 4.0, "rounds": 1},
-    "sim_speed": {"seconds": 0.2, "rounds": 2, "goal_seconds": 0.2},
+    "sim_speed": {"seconds": 0.2, "rounds": 2, "goal_seconds": 0.2, "goal_runs": 1},
     "startup": {"rounds": 1},
     "robot_limits": {"cycles": 50, "rounds": 1},
     "ros2_bridge": {"seconds": 1.0, "rounds": 1},

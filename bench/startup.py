@@ -148,10 +148,11 @@ is the interpreter and `site` (about 1.1x the floor `python -c pass`); an editab
 `pbo check FILE`, after a first check of the robot on this machine (its MuJoCo description and
 Pinocchio inertia range kept in the result cache): numpy is about a third of its imports (the
 ports, the model and the checker compute with it), rich's console about an eighth, the parser a
-tenth, the checker's own modules and PyYAML most of the rest. Within the check, the registry's
-entry points are the largest part: `importlib.metadata` imports the email package to read every
-installed distribution's metadata (a quarter of the check's own time, measured in-process); a
-reader of the `entry_points.txt` files alone would spare it. The file checked itself is a few tens of ms.
+tenth, the checker's own modules and PyYAML most of the rest. The registry's entry points are
+read from each installed distribution's `entry_points.txt` by `pbo_runtime.objects.distributions`,
+without importing `importlib.metadata` (the email package and zipfile: more than the reading
+itself). Within the check, creating the model's and checker's dataclasses at import and compiling
+their regular expressions are a visible share; the file checked itself is a few tens of ms.
 The line "the machine's first" is the same check with no result cache: it imports MuJoCo for the
 plant's description and Pinocchio for the inertia range, and computes both. Below this floor
 would take a checker without numpy, or printing without rich.

@@ -13,6 +13,7 @@ import math
 import os
 import platform
 import subprocess
+import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -82,6 +83,7 @@ class Section:
     targets: list[Target] = field(default_factory=list)
     ratios: dict[str, float] = field(default_factory=dict)  # every ratio computed: name -> value
     figure: str = ""  # a plot written by the benchmark, relative to docs/
+    pace: tuple[float, float] | None = None  # `machine_pace` just before and just after it ran (the runner's)
 
     def text(self) -> str:
         """What the benchmark prints when run alone."""
@@ -169,6 +171,26 @@ def hypervisor() -> str:
         if line.startswith("Hypervisor vendor:"):
             return line.split(":", 1)[1].strip()
     return ""
+
+
+def machine_pace(repeat: int = 5) -> float:
+    """Seconds of a fixed single-thread workload, the fastest of `repeat`: the kind of work a cycle does
+    (small numpy calls, Python arithmetic, a dict). Timed before and after each benchmark, it says how
+    fast the machine was then: a shared machine's speed drifts, and a figure judged against a goal
+    (not against a baseline of the same run) moves with it."""
+    state, step, out = np.zeros(6), np.full(6, 1e-3), np.empty(6)
+    fastest = math.inf
+    for _ in range(repeat):
+        started = time.perf_counter()
+        seen: dict[int, float] = {}
+        total = 0.0
+        for i in range(3000):
+            np.add(state, step, out)
+            np.multiply(out, 0.5, state)
+            total += math.sqrt(i) * 0.5
+            seen[i & 255] = total
+        fastest = min(fastest, time.perf_counter() - started)
+    return fastest
 
 
 def machine_info() -> dict[str, str]:

@@ -41,7 +41,7 @@ from bench import (
     verbs,
     wait,
 )
-from bench._common import REPO, Section, Table, machine_info
+from bench._common import REPO, Section, Table, machine_info, machine_pace
 
 BENCHMARKS: dict[str, Callable[..., Section]] = {
     "svar_transfer": svar_transfer.run,
@@ -131,9 +131,12 @@ def collect(counts: dict[str, dict[str, Any]], only: tuple[str, ...] = (), plot_
         if key == "scale" and plot_path:
             kwargs["plot_path"] = plot_path
         t0 = time.monotonic()
+        before = machine_pace()
         section = run(**kwargs)
+        section.pace = (before, machine_pace())
         if echo:
-            echo(section.text() + f"\n({key}: {time.monotonic() - t0:.0f} s)\n")
+            echo(section.text() + f"\n({key}: {time.monotonic() - t0:.0f} s; the machine's pace before and after it: "
+                 f"{section.pace[0] * 1e3:.1f} and {section.pace[1] * 1e3:.1f} ms)\n")
             sys.stdout.flush()
         sections.append(section)
     return sections
@@ -172,6 +175,7 @@ def render(sections: list[Section], info: dict[str, str], command: str, elapsed:
         "hypervisor steals milliseconds now and then, so tails (p99, max) and overruns vary from run to",
         "run. That is why every comparison is a ratio against a baseline measured in the same run.",
         "",
+        *_pace_lines(sections),
         "## How to reproduce",
         "",
         "```",
@@ -188,6 +192,28 @@ def render(sections: list[Section], info: dict[str, str], command: str, elapsed:
     for s in sections:
         lines += [s.markdown()]
     return "\n".join(lines).rstrip() + "\n"
+
+
+def _pace_lines(sections: list[Section]) -> list[str]:
+    """How fast the machine was around each benchmark: a goal in seconds or in times real time
+    (start-up, simulation speed) moves with it, where a ratio to a baseline of the same run does not."""
+    paced = [s for s in sections if s.pace is not None]
+    if not paced:
+        return []
+    fastest = min(min(s.pace) for s in paced if s.pace is not None)
+    table = Table(["benchmark", "before, ms", "after, ms", "slower than the run's fastest"], numeric=(1, 2, 3))
+    for s in paced:
+        assert s.pace is not None
+        table.add(s.key, f"{s.pace[0] * 1e3:.2f}", f"{s.pace[1] * 1e3:.2f}", f"{max(s.pace) / fastest:.2f}x")
+    return [
+        "The machine's pace through the run: a fixed single-thread workload (small numpy calls, Python",
+        "arithmetic, a dict: the kind of work a cycle does), the fastest of 5, timed just before and just",
+        "after each benchmark (`bench._common.machine_pace`). Read a figure judged against a goal rather",
+        "than a baseline of the same run (simulation speed, start-up) beside the pace of its benchmark.",
+        "",
+        table.markdown(),
+        "",
+    ]
 
 
 def main(argv: list[str] | None = None) -> int:

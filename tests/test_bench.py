@@ -57,6 +57,7 @@ def test_every_benchmark_runs_on_tiny_counts_and_renders_its_tables(tmp_path):
                 f"{section.key}: {name} = {value}"
         for target in section.targets:
             assert target.value is None or (target.value >= 0 and math.isfinite(target.value)), target.what
+        assert section.pace is not None and all(0 < pace < math.inf for pace in section.pace), section.key
     by_key = {s.key: s for s in sections}
     # every peer has its row, measured or reported as not installed / failed, never a crash
     names = [row[0] for row in by_key["peers"].tables[0].rows]
@@ -68,6 +69,8 @@ def test_every_benchmark_runs_on_tiny_counts_and_renders_its_tables(tmp_path):
     assert page.startswith("# Performance\n")
     for heading in ("## Targets", "## Machine", "## How to reproduce", *(f"## {s.title}" for s in sections)):
         assert heading in page
+    assert "The machine's pace through the run" in page
+    assert all(f"| {s.key} |" in page for s in sections)  # a row of the pace table each
 
 
 def test_the_overrun_interval_resamples_rounds_so_one_burst_widens_it():

@@ -623,8 +623,8 @@ def start_hmi(*arguments: str, cwd: Path | None = None) -> tuple[subprocess.Pope
     said = read_until(hmi, "http://127.0.0.1:")
     urls = [word for word in said.split() if word.startswith("http://127.0.0.1:")]
     if not urls:
-        stop_hmi(hmi)
-        pytest.fail(f"pbo hmi printed no URL: {said}{hmi.stderr.read() if hmi.stderr else ''}")
+        said_on_stderr = stop_hmi(hmi)  # (it reads stderr to its end: nothing is left to read after it)
+        pytest.fail(f"pbo hmi printed no URL (exit {hmi.returncode}): {said}{said_on_stderr}")
     return hmi, urls[0]
 
 

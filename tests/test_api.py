@@ -446,3 +446,24 @@ def test_pbo_hmi_serves_the_run_of_the_files_subsystem(tmp_path, subsystem):
     assert said.startswith("no run of 'no_such_subsystem_here' yet: lexicon, check, bus and graph are served")
     with pytest.raises(NoRun, match=r"^no live run has run id"):
         describe_run(LiveRunLink(None, "0-no-such-run"))
+
+
+@pytest.mark.parametrize("run, starts", [(None, True), ("0-", False)])
+def test_pbo_hmi_starts_beside_several_runs_until_a_run_id_is_what_cannot_be_told_apart(monkeypatch, run, starts):
+    """Several live runs and none named: the server starts (a request says which are alive); a run id's
+    prefix that matches several is the operator's to lengthen."""
+    from pbo_runtime.api import link
+    from pbo_runtime.api.server import describe_run
+    from pbo_runtime.ipc.runs import SeveralRuns
+
+    def fake_two_runs_alive(subsystem: str | None, run: str | None) -> tuple[str, str, str]:
+        raise SeveralRuns("2 runs are alive: a; b; pass --subsystem NAME or --run ID")
+
+    monkeypatch.setattr(link, "find_live_run", fake_two_runs_alive)
+    if starts:
+        assert describe_run(LiveRunLink(None, run)).startswith("2 runs are alive: a; b; pass --subsystem NAME or --run ID; "
+                                                               "until one is the only one")
+    else:
+        with pytest.raises(NoRun, match=r"^2 runs are alive") as refused:
+            describe_run(LiveRunLink(None, run))
+        assert refused.value.several

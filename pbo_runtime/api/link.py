@@ -11,12 +11,16 @@ from typing import Any, Protocol
 
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc.control import ControlClient, find_live_run
-from pbo_runtime.ipc.runs import live_runs
+from pbo_runtime.ipc.runs import SeveralRuns, live_runs
 from pbo_runtime.table.svar import TableView, attach
 
 
 class NoRun(PboError):
-    """No live run is the one meant (none alive, or several and none picked): the message says which."""
+    """No live run is the one meant (none alive, or several and none picked: `several`): the message says which."""
+
+    def __init__(self, message: str, several: bool = False) -> None:
+        super().__init__(message)
+        self.several = several
 
 
 class RunLink(Protocol):
@@ -43,6 +47,8 @@ class LiveRunLink:
         """(subsystem, run id, table name) of the run meant now; NoRun with the operator verbs' message if none."""
         try:
             return find_live_run(self.subsystem, self.run)
+        except SeveralRuns as exc:
+            raise NoRun(str(exc), several=True) from None
         except PboError as exc:
             raise NoRun(str(exc)) from None
 

@@ -79,6 +79,9 @@ def describe_run(link: LiveRunLink) -> str:
             which = f"'{link.subsystem}'" if link.subsystem else "any subsystem"
             return (f"no run of {which} yet: lexicon, check, bus and graph are served, and a run started later "
                     f"is found at the next request")
+        if link.run is None and exc.several:  # the server starts: the run meant is found at each request
+            return (f"{exc}; until one is the only one, lexicon, check, bus and graph are served and a request "
+                    f"for the run says which are alive")
         raise
     return f"attached to '{subsystem}' run {run_id}"
 

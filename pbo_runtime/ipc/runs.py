@@ -22,6 +22,10 @@ from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import shm
 
 HINT = "pass --run ID (pbo runs lists them)"
+
+
+class SeveralRuns(PboError):
+    """More than one live run could be the one meant (none named, or a subsystem with several runs)."""
 REUSE_SLACK = 2.0  # seconds: /proc gives the boot time in whole seconds; a reused pid starts long after
 
 
@@ -82,8 +86,8 @@ def find_run(subsystem: str | None = None, run: str | None = None) -> LiveRun:
     if run is not None:
         raise PboError(f"run id '{run}' matches {len(chosen)} live runs: {ids}; give more of the id")
     if len({r.subsystem for r in chosen}) == 1:  # named, or the only subsystem running: only --run can tell them apart
-        raise PboError(f"{len(chosen)} runs of subsystem '{chosen[0].subsystem}' are alive: {ids}; {HINT}")
-    raise PboError(f"{len(chosen)} runs are alive: {ids}; pass --subsystem NAME or --run ID")
+        raise SeveralRuns(f"{len(chosen)} runs of subsystem '{chosen[0].subsystem}' are alive: {ids}; {HINT}")
+    raise SeveralRuns(f"{len(chosen)} runs are alive: {ids}; pass --subsystem NAME or --run ID")
 
 
 def supervisor_alive(pid: int, table: str) -> bool:

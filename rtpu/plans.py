@@ -127,15 +127,16 @@ class Plans:
 
     def notice(self, now: float, executive: Executive | None = None) -> float:
         """The pending plan's activation time; the first time this RTPU saw it is stamped (reported with
-        its `Switched`) and, given `executive`, the plan is read for it then (`prepare`)."""
+        its `Switched`). Given `executive` (the RTPU is about to wait), the plan is read for its tasks
+        if it was not yet (`prepare`)."""
         words = self.words
         assert words is not None
         sequence = words[PLAN_SEQUENCE]
         if sequence != self.read:
             self.read = sequence
             self.read_at = now
-            if executive is not None:
-                self.prepared = self.prepare(executive)
+        if executive is not None and (self.prepared is None or self.prepared.sequence != sequence):
+            self.prepared = self.prepare(executive)
         return words[PLAN_TIME_NS] / 1e9
 
     def prepare(self, executive: Executive) -> Boundary:

@@ -67,6 +67,7 @@ class Boundary:
                  reconfiguration: Reconfiguration, view_name: str, leaving: list[Scheduled], entering: list[Scheduled],
                  watches: list[tuple[Scheduled, WatchedWriters]], critical: list[Scheduled]) -> None:
         self.sequence, self.configuration, self.activation = sequence, configuration, activation
+        # what the reading holds for: the RTPU's changes count, the live change staged and its description then
         self.changes, self.staged, self.reconfiguration = changes, staged, reconfiguration
         self.view_name = view_name
         self.leaving, self.entering = leaving, entering

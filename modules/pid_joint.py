@@ -139,7 +139,7 @@ class PidJoint(PortBasedObject):
 
     def on(self) -> None:
         previous = self._previous
-        np.copyto(previous, self.tau)  # what the previous controller left in the table (read before `on`)
+        np.copyto(previous, self._tau)  # what the previous controller left in the table (read before `on`)
         self._handover[:] = 0.0
         self._fading = 0
         self._integral[:] = 0.0

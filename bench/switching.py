@@ -76,9 +76,11 @@ top: the goal of 1.5 periods leaves half a period at p99 for the lead and the sw
 half a period plus the lead and the work. What comes before the
 grid's wait is the request to the plan's last clock reading (the supervisor computing the activation)
 and the plan's lead; after it, the RTPU's switch work (the leaving controller's `off`, the entering
-one's `on`). The lead follows the measured post delays (from the supervisor's last clock reading
-before the plan's words to the words in the header: every RTPU here is brought to its boundary by its
-own 1 ms task), which are the writing of three words alone, at SCHED_FIFO 40; their tail is the
+one's `on`, with their table transfers: which tasks leave and enter is read when the RTPU first sees
+the plan, and the switch's reports are built after the boundary's cycles). The lead follows the
+measured post delays (from the supervisor's last clock reading before the plan's words to the
+words in the header: every RTPU here is brought to its boundary by its own 1 ms task), which are
+the writing of three words alone, at SCHED_FIFO 40; their tail is the
 supervisor losing its CPU to a real-time process's timer wake-up (the RTPUs' spins before their
 releases: the slow postings fall at those phases of the grid), and the lead grows with the delays'
 p99 on a loaded machine, up to its 2 ms bound. The first plans of a run get a post lead measured

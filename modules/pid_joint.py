@@ -139,13 +139,14 @@ class PidJoint(PortBasedObject):
 
     def on(self) -> None:
         previous = self._previous
-        np.copyto(previous, self.tau)  # what the previous controller left in the table (read before `on`)
+        np.copyto(previous, self._tau)  # what the previous controller left in the table (read before `on`)
         self._handover[:] = 0.0
         self._fading = 0
         self._integral[:] = 0.0
         # nothing commanded yet, or held on the brakes (a restart: what the dead controller left is
         # not what the arm feels): its own torque from the start, nothing taken over
-        self._taking_over = bool(np.any(previous)) and not self.actuators_held
+        # (count_nonzero: a plain loop, where np.any sets up a whole reduction at the switch's boundary)
+        self._taking_over = bool(np.count_nonzero(previous)) and not self.actuators_held
         if not self._taking_over:
             self._compute()
         # Else tau stays the previous controller's torque until the first cycle, at the same

@@ -205,6 +205,7 @@ class Executive:
         # called once, before the first task is turned on (a restarted RTPU takes SCHED_FIFO then)
         self.before_first_on: Callable[[], None] | None = None
         self.on: list[Scheduled] = []
+        self.changes = 0  # counts changes to the tasks hosted or their states: a plan read before one is read again
         self.running = True
         self.idle_wait = 0.05
         # a task's drivers' own figures (a special-purpose processor's timing), reported with its statistics
@@ -290,7 +291,7 @@ class Executive:
         now = clock.now()
         words = self.header_words
         if words is not None and words[PLAN_SEQUENCE] != plans.seen:
-            activation = plans.notice(now)
+            activation = plans.notice(now, self)  # read for this RTPU's tasks now: the boundary only switches
             if now + self.release_slack + ON_THE_BOUNDARY >= activation:
                 self._switch_and_run()  # late (this RTPU read the plan after its activation): before any cycle
                 return
@@ -398,6 +399,7 @@ class Executive:
     def add(self, task: Task, factory: Callable[[], Task] | None = None) -> None:
         """Host a task; `factory` makes a fresh instance when a killed task is spawned again (static switches)."""
         self.tasks[task.name] = Scheduled(task)
+        self.changes += 1
         if factory is not None:
             self.factories[task.name] = factory
 
@@ -419,6 +421,7 @@ class Executive:
             s.release = max(self.clock.now(), s.last_release + s.period) if s.events else math.inf
         else:
             s.release = first_release(s, at, self.epoch)
+        self.changes += 1
         if s.task.turn_on(self.clock.now()):
             self.on.append(s)
             s.first_cycle_of_plan = plan
@@ -431,6 +434,7 @@ class Executive:
             watch_inputs(s, self.plans.reconfiguration, configuration, since)
 
     def leave_on(self, s: Scheduled) -> None:
+        self.changes += 1
         if s in self.on:
             self.on.remove(s)
 

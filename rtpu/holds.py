@@ -12,6 +12,7 @@ task that left the configuration wrote as lost to the switch.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
@@ -163,15 +164,39 @@ class Holds:
 
 def watch_inputs(s: Scheduled, reconfiguration: Reconfiguration, configuration: int, since: float) -> None:
     """Point a critical task's freshness check at the writers of its inputs in `configuration`, from `since` on."""
+    watch_writers(s, writers_to_watch(s, reconfiguration, configuration), since)
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class WatchedWriters:
+    """What a critical task's freshness check follows in one configuration, per in-var (`writers_to_watch`)."""
+
+    writers: list[int]  # the configuration's writer (task index; -1: none)
+    periods: list[float]  # its period
+    bounds: list[float]  # the input's freshness bound
+    names: list[str]  # the writer's name, for a report
+
+
+def writers_to_watch(s: Scheduled, reconfiguration: Reconfiguration, configuration: int) -> WatchedWriters:
+    """The writers of critical task `s`'s inputs in `configuration`, looked up ahead of the boundary that
+    makes them the ones watched (`watch_writers`)."""
     variables = s.task.local.input_variables
-    s.fresh_since = since
     writers = [reconfiguration.writer_of(configuration, v) for v in variables]
-    s.task.local.watch_writers([w for w, _ in writers])
-    for i, (writer, period) in enumerate(writers):
-        s.input_periods[i] = period
-        s.expected_writers[i] = writer
-        s.fresh_bounds[i] = s.fresh_within.get(variables[i], FRESH_WITHIN_WRITER_PERIODS * period) + AGE_TOLERANCE
-        s.writer_names[i] = reconfiguration.task_names.get(writer, "")
+    periods = [period for _, period in writers]
+    return WatchedWriters(
+        [writer for writer, _ in writers], periods,
+        [s.fresh_within.get(v, FRESH_WITHIN_WRITER_PERIODS * p) + AGE_TOLERANCE for v, p in zip(variables, periods, strict=True)],
+        [reconfiguration.task_names.get(writer, "") for writer, _ in writers])
+
+
+def watch_writers(s: Scheduled, watched: WatchedWriters, since: float) -> None:
+    """Point a critical task's freshness check at `watched`, from `since` on: stores into its lists, no lookup."""
+    s.fresh_since = since
+    s.task.local.watch_writers(watched.writers)
+    s.input_periods[:] = watched.periods
+    s.expected_writers[:] = watched.writers
+    s.fresh_bounds[:] = watched.bounds
+    s.writer_names[:] = watched.names
 
 
 def release_lost_to_the_lock(s: Scheduled) -> Status:

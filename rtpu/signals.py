@@ -46,6 +46,8 @@ def handle_signal(executive: Executive, message: list[Any]) -> None:
                               hand_off=executive.off_the_cycle if executive.cycles_between_steps else None)
         return
     name = signal.task if signal is not None else message[1]
+    if not isinstance(signal, (messages.OperatorEvent, messages.LinkMessage)):
+        executive.changes += 1  # a task spawned, turned on or off, killed or cleared: a plan read before is read again
     s = executive.tasks.get(name)
     if s is None and isinstance(signal, messages.Spawn) and name in executive.factories:  # spawned live
         with cycling_meanwhile(executive):

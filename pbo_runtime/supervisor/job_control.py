@@ -352,7 +352,7 @@ class JobControl:
         running, described = self.subsystem, self.switching_subsystem
         states = self.host.task_states
         # kept for the descriptions it was made of: it is counted in every switch's latency
-        key = (before, tuple(entering), tuple(states.get(name) for name in running.configurations[before].tasks), self.host.epoch)
+        key = (before, tuple(entering), tuple(map(states.get, running.configurations[before].tasks)), self.host.epoch)
         if self._arounds[0] is not running or self._arounds[1] is not described:
             self._arounds = (running, described, {})
         kept = self._arounds[2]

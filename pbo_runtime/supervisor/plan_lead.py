@@ -52,6 +52,9 @@ class PlanLead:
         self.recent: collections.deque[float] = collections.deque(maxlen=window)  # in arrival order
         self.ordered: list[float] = []  # the same delays, sorted (a quantile without sorting each time)
         self.late = 0  # plans some RTPU read after their activation
+        # The lead the next plan gets: kept up to date as each delay is recorded, since a switch's
+        # request reads it on the way to its activation, where each step counts in its latency
+        self.value = self._estimate()
 
     def record(self, delay: float, late: bool = False) -> None:
         """A plan's read delay: its slowest RTPU's first read minus the clock reading its lead was added to."""
@@ -64,6 +67,7 @@ class PlanLead:
         self.recent.append(delay)
         bisect.insort(self.ordered, delay)
         self.late += late
+        self.value = self._estimate()
 
     def quantile(self) -> float:
         """The ceil(n / 100)-th largest recent delay: at or above their p99 (nan: none yet)."""
@@ -72,9 +76,7 @@ class PlanLead:
             return math.nan
         return self.ordered[n - math.ceil(n / 100)]
 
-    @property
-    def value(self) -> float:
-        """The lead the next plan gets."""
+    def _estimate(self) -> float:
         if len(self.ordered) < self.first_samples:
             return self.maximum
         return min(max(MARGIN_FACTOR * self.quantile() + MARGIN, self.minimum), self.maximum)
@@ -104,11 +106,18 @@ def deadline(rtpu: RtpuAround, activation: float) -> tuple[float, bool]:
     if rtpu.aperiodic:
         return activation, False
 
-    def first(period: float) -> float:
-        return rtpu.epoch + max(math.ceil((activation - _ON_THE_BOUNDARY - rtpu.epoch) / period), 0) * period
-
-    own = min((first(p) for p in rtpu.on_periods), default=math.inf)
-    entering = min((first(p) for p in rtpu.entering_periods), default=math.inf)
+    # each period's first release at or after the activation (plain loops: a switch's request waits on this)
+    epoch = rtpu.epoch
+    since = activation - _ON_THE_BOUNDARY - epoch
+    own = entering = math.inf
+    for period in rtpu.on_periods:
+        first = epoch + max(math.ceil(since / period), 0) * period
+        if first < own:
+            own = first
+    for period in rtpu.entering_periods:
+        first = epoch + max(math.ceil(since / period), 0) * period
+        if first < entering:
+            entering = first
     return min(own, entering), own <= entering
 
 

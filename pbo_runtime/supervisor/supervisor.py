@@ -46,7 +46,7 @@ from pbo_runtime.supervisor.job_control import JobControl, JobFailure, starting_
 from pbo_runtime.supervisor.launch import SIM_TICK_DEFAULT, RtpuLaunch
 from pbo_runtime.supervisor.live_changes import LiveChanges
 from pbo_runtime.supervisor.lock_watch import LockGuard
-from pbo_runtime.supervisor.posting import at_realtime_priority, rewrite_plan, write_plan
+from pbo_runtime.supervisor.posting import PLAN_SEQUENCE, realtime_posting, rewrite_plan, write_plan
 from pbo_runtime.supervisor.reconfiguration import Reconfiguration
 from pbo_runtime.supervisor.restarts import Restarter, RunSteps, RunView
 from pbo_runtime.supervisor.run_options import RunOptions
@@ -448,9 +448,9 @@ class Supervisor:
     def post_plan(self, configuration: str, activation: float) -> int:
         """Post a switch plan in the table's header; the plan's sequence number."""
         assert self.table is not None
-        header = self.table.header
-        sequence = int(header[Header.PLAN_SEQUENCE]) + 1
-        write_plan(header, self.reconfiguration.index(configuration), int(activation * 1e9), sequence)
+        words = self.table.header.data  # (plain ints: no numpy scalar in the posting)
+        sequence = words[PLAN_SEQUENCE] + 1
+        write_plan(words, self.reconfiguration.index(configuration), int(activation * 1e9), sequence)
         return sequence
 
     def rewrite_plan(self) -> None:
@@ -459,8 +459,8 @@ class Supervisor:
         rewrite_plan(self.table.header)
 
     def posting(self) -> AbstractContextManager[object]:
-        """A plan's posting: at real-time priority on the real clock (`posting.at_realtime_priority`)."""
-        return at_realtime_priority() if self.clock.plans_need_a_wakeup else nullcontext()
+        """A plan's posting: at real-time priority on the real clock (`posting.realtime_posting`)."""
+        return realtime_posting() if self.clock.plans_need_a_wakeup else nullcontext()
 
     def wake_rtpus(self) -> None:
         """Tell every RTPU a plan was posted (on the real clock: one may wait past the activation)."""

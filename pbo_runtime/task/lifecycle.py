@@ -251,7 +251,14 @@ class Task:
         self.state = TaskState.ON
         self.status[StatusWord.STATE] = TaskState.ON
         self.status[StatusWord.RELEASE] = now
-        self.local.publish_outputs()
+        self._publish_outputs()
+
+    def _publish_outputs(self) -> None:
+        """What `on` or `off` left on the out-vars, and the status block, written at a switch's boundary
+        by the cycle's own transfer (the shortest); if its wait for the lock ran out, by the one that
+        waits as long as it takes: these values must reach the table."""
+        if not self.write_outputs():
+            self.local.publish_outputs()
 
     def _on_failed(self, now: float, exc: BaseException | None, problem: str = "") -> bool:
         verdict = self._error_component("on", exc, problem)
@@ -332,7 +339,7 @@ class Task:
         self.status[StatusWord.STATE] = TaskState.OFF
         if now is not None:
             self.status[StatusWord.RELEASE] = now
-        self.local.publish_outputs()
+        self._publish_outputs()
 
     def _off_failed(self, now: float | None, exc: BaseException | None, problem: str = "") -> None:
         """`off` failed: the task is stopping either way; `error` says whether it stops OFF or in ERROR."""

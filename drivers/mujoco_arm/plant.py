@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy import copyto, maximum, minimum
+from numpy import copyto
 
 from drivers.force_torque import models as ft_models
 from drivers.mujoco_arm.registers import (
@@ -295,7 +295,14 @@ class MujocoArmPlant:
         regs = self._registers
         words = regs.words
         data, qpos, qvel = self.data, self._qpos, self._qvel
-        braked = words[W_BRAKE] != 0 or self._command_stale(words, data.time)
+        if words[W_BRAKE] != 0:
+            braked = True
+        elif words[W_CMD_SEQ] != self._command_seen:  # a new command (the usual step): the watchdog starts again
+            self._command_seen, self._command_seen_at = words[W_CMD_SEQ], data.time
+            self._watchdog_holding = False
+            braked = False
+        else:
+            braked = self._command_stale(words, data.time)
         if braked and not self._braked:
             self._brake_pose[:] = qpos  # brakes grip where the arm is now
         self._braked = braked
@@ -457,18 +464,18 @@ class MujocoArmPlant:
         driver is mid-write."""
         words, scratch = self._registers.words, self._scratch
         before = words[W_CMD_SEQ]
-        if not before & 1:  # the usual case: no write under way, one copy
-            copyto(scratch, source)
+        if not before & 1:  # the usual case: no write under way, one copy (an assignment: copyto's dispatch costs more)
+            scratch[...] = source
             if words[W_CMD_SEQ] == before:
-                copyto(target, scratch)
+                target[...] = scratch
                 return
         for _ in range(_COMMAND_READ_TRIES - 1):  # (the look above was the first)
             before = words[W_CMD_SEQ]
             if before & 1:
                 continue
-            copyto(scratch, source)
+            scratch[...] = source
             if words[W_CMD_SEQ] == before:
-                copyto(target, scratch)
+                target[...] = scratch
                 return
 
     def _publish(self) -> None:
@@ -476,8 +483,8 @@ class MujocoArmPlant:
         words = regs.words
         seq = words[W_STATE_SEQ]
         words[W_STATE_SEQ] = seq + 1  # odd: readers retry
-        copyto(regs.q, self._qpos)
-        copyto(regs.qd, self._qvel)
+        regs.q[...] = self._qpos  # (assignments: copyto's dispatch costs more than six joints' copy)
+        regs.qd[...] = self._qvel
         regs.reals[W_SIM_TIME] = self.data.time
         words[W_STEP_COUNT] = self._steps
         if self.has_target:  # (without one, its pose stays the zeros the segment was made with)
@@ -543,10 +550,9 @@ def _positive(value: Any, where: str) -> float:
 
 
 def _clip(values: np.ndarray, low: Any, high: Any, out: np.ndarray) -> None:
-    """`np.clip(values, low, high, out=out)` in two ufunc calls, without np.clip's Python layers
-    (a few microseconds a call, twice a step); NaN stays NaN as it does there."""
-    maximum(values, low, out=out)
-    minimum(out, high, out=out)
+    """`np.clip(values, low, high, out=out)`: numpy's clip ufunc without np.clip's Python layers, its
+    output positional (an `out=` keyword is parsed at every call); NaN stays NaN as it does there."""
+    _CLIP(values, low, high, out)
 
 
 def _wrench_option(value: Any) -> np.ndarray:

@@ -800,8 +800,10 @@ def test_on_the_simulated_clock_a_logger_waits_for_a_slow_writer_and_drops_no_ro
     path = tmp_path / "log.npy"
     task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "chunk": 2 * LOG_DT}, clock="sim")
     release = slowed_writer(task)
-    threading.Timer(0.2, release.set).start()  # the fifth cycle waits until then, however long that is
-    written = log_cycles_without_waiting(log_table, task, 7)
+    buffers = task.module._count  # more than the real clock's two: the cycle fills them all before it waits
+    assert buffers > 2
+    threading.Timer(0.2, release.set).start()  # the cycle after every buffer is full waits until then, however long
+    written = log_cycles_without_waiting(log_table, task, 2 * buffers + 3)
     assert task.module.dropped == 0 and release.is_set()
     task.module.off()
     task.module.wait_for_writer()

@@ -225,6 +225,7 @@ class MujocoArmPlant:
         self._brake_pose = q0.copy()
         self._braked = True
         self._steps = 0
+        self._time = float(self.data.time)  # the simulated time of the last step (`_publish`)
         self._command_timeout = float(command_timeout)
         self._command_seen = -1  # the command sequence last seen, and the simulated time it changed
         self._command_seen_at = 0.0
@@ -298,11 +299,11 @@ class MujocoArmPlant:
         if words[W_BRAKE] != 0:
             braked = True
         elif words[W_CMD_SEQ] != self._command_seen:  # a new command (the usual step): the watchdog starts again
-            self._command_seen, self._command_seen_at = words[W_CMD_SEQ], data.time
+            self._command_seen, self._command_seen_at = words[W_CMD_SEQ], self._time
             self._watchdog_holding = False
             braked = False
         else:
-            braked = self._command_stale(words, data.time)
+            braked = self._command_stale(words, self._time)
         if braked and not self._braked:
             self._brake_pose[:] = qpos  # brakes grip where the arm is now
         self._braked = braked
@@ -314,7 +315,7 @@ class MujocoArmPlant:
             mode = words[W_MODE]
             if mode == MODE_TORQUE:
                 self._read_command(regs.tau, self._tau)
-                _clip(self._tau, self._torque_floor, self._torque_limits, self._qfrc)
+                _CLIP(self._tau, self._torque_floor, self._torque_limits, self._qfrc)  # (`_clip`, without its call)
             elif mode == MODE_POSITION:
                 self._read_command(regs.q_cmd, self._q_cmd)
                 self._servo(data)
@@ -485,7 +486,8 @@ class MujocoArmPlant:
         words[W_STATE_SEQ] = seq + 1  # odd: readers retry
         regs.q[...] = self._qpos  # (assignments: copyto's dispatch costs more than six joints' copy)
         regs.qd[...] = self._qvel
-        regs.reals[W_SIM_TIME] = self.data.time
+        self._time = now = self.data.time  # data.time as a float, read once a step (MjData's attributes are slow)
+        regs.reals[W_SIM_TIME] = now
         words[W_STEP_COUNT] = self._steps
         if self.has_target:  # (without one, its pose stays the zeros the segment was made with)
             copyto(regs.target, self._target_pose)

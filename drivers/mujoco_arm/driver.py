@@ -26,7 +26,7 @@ from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
-from numpy import isfinite
+from numpy import copyto, isfinite
 
 from drivers.mujoco_arm.registers import (
     MODE_NAMES,
@@ -124,8 +124,8 @@ class MujocoArmDriver(DeviceDriver):
         while True:
             before = words[W_STATE_SEQ]
             if not before & 1:
-                q_out[...] = self._q  # (assignments: copyto's dispatch costs more than six joints' copy)
-                qd_out[...] = self._qd
+                copyto(q_out, self._q)
+                copyto(qd_out, self._qd)
                 sim_time: float = self._reals[W_SIM_TIME]
                 if words[W_STATE_SEQ] == before:
                     return sim_time
@@ -153,7 +153,7 @@ class MujocoArmDriver(DeviceDriver):
         words = self._words
         seq = words[W_CMD_SEQ]
         words[W_CMD_SEQ] = seq + 1  # odd: the plant keeps the previous command
-        self._tau[...] = tau
+        copyto(self._tau, tau)
         words[W_CMD_SEQ] = seq + 2
 
     def write_position(self, q_cmd: np.ndarray) -> None:
@@ -165,7 +165,7 @@ class MujocoArmDriver(DeviceDriver):
         words = self._words
         seq = words[W_CMD_SEQ]
         words[W_CMD_SEQ] = seq + 1  # odd: the plant keeps the previous command
-        self._q_cmd[...] = q_cmd
+        copyto(self._q_cmd, q_cmd)
         words[W_CMD_SEQ] = seq + 2
         self._positioned = True
 

@@ -116,7 +116,11 @@ finite check, the timing record, a critical task's freshness check); the plant's
 step and the Python around it (the command's read and clip, the state's publication). The I/O
 boards' conversions are served only when the subsystem declares a board (Figure 8 declares
 none), and whether a signal waits for an RTPU is a count its queue's ends share in the one
-process, not a system call. The start-up (interpreter, imports, MuJoCo's model) is then a larger
+process, not a system call. Time stands still within a turn, so the executive reads the clock
+once a turn, not after every cycle; job control runs the ticks in stretches of 100 simulated ms
+(the table lock's looks do not cut them shorter: the participants take the lock only within their
+turns); the data logger fills up to 32 chunk buffers ahead of its MCAP encoder, whose process's
+start the ticks would otherwise wait for. The start-up (interpreter, imports, MuJoCo's model) is then a larger
 share of a short run.""",
     )
     results: list[dict[str, Any]] = []

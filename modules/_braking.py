@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numpy import absolute, add, copysign, copyto, less_equal, logical_and, minimum, multiply, sqrt, subtract
 
-from modules._ufuncs import clip
+from modules._ufuncs import clip, count_nonzero
 
 
 class BrakingLaw:
@@ -42,6 +42,12 @@ class BrakingLaw:
     def step(self, goal: np.ndarray, position: np.ndarray, velocity: np.ndarray) -> None:
         e, v, dv, slow, near = self._error, self._speed, self._change, self._slow, self._near
         subtract(goal, position, e)
+        if not count_nonzero(e) and not count_nonzero(velocity):
+            # At the goal and still (a NaN or an infinity is never that): the step below would land
+            # every component on the goal at rest again, as these two copies do.
+            position[...] = goal
+            velocity[...] = 0.0
+            return
         # the fastest speed from which steps of a·dt still stop at the goal, signed towards it
         absolute(e, v)
         multiply(v, self._two_a, v)

@@ -3,7 +3,7 @@
 Encoding a chunk is Python work (a JSON text and an MCAP record per variable per row). Done by a
 thread of the RTPU it took the GIL from the executive's thread for tens of microseconds at a
 time, and every task on that RTPU saw it in its cycle. Here the encoder is a child process
-(`python -m modules._mcap_encoder`): the logger's two chunk buffers live in a memfd both map,
+(`python -m modules._mcap_encoder`): the logger's chunk buffers live in a memfd both map,
 and the logger's writer thread only says "buffer i holds n rows" down a pipe and waits for the
 reply with the GIL released. The child runs at SCHED_OTHER, niced, on the RTPU's CPU: it takes
 the time the executive leaves idle.
@@ -382,8 +382,9 @@ def _serve(commands: int, replies: int) -> None:
         return
     dtype = np.lib.format.descr_to_dtype(setup["descr"])
     rows = setup["rows"]
-    shared = mmap.mmap(setup["buffers_fd"], 2 * rows * dtype.itemsize, prot=mmap.PROT_READ)
-    buffers = [np.frombuffer(shared, dtype, count=rows, offset=i * rows * dtype.itemsize) for i in (0, 1)]
+    count = setup.get("buffers", 2)
+    shared = mmap.mmap(setup["buffers_fd"], count * rows * dtype.itemsize, prot=mmap.PROT_READ)
+    buffers = [np.frombuffer(shared, dtype, count=rows, offset=i * rows * dtype.itemsize) for i in range(count)]
     columns = {name: tuple(note) for name, note in setup["columns"].items()}
     resume_at = tuple(setup["resume_at"]) if setup.get("resume_at") else None
     try:

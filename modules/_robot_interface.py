@@ -65,9 +65,11 @@ class RobotInterface(PortBasedObject):
         self._sim_time_seen_at = 0.0
         return self._arm
 
-    def plant_moving(self, sim_time: float) -> bool:
-        """False once the plant's simulated time has stood still past the stall bound (no allocation)."""
-        now = self.time
+    def plant_moving(self, sim_time: float, now: float | None = None) -> bool:
+        """False once the plant's simulated time has stood still past the stall bound (no allocation);
+        `now`: the cycle's time, where the caller has read it already."""
+        if now is None:
+            now = self.time
         if sim_time != self._last_sim_time:
             self._last_sim_time = sim_time
             self._sim_time_seen_at = now

@@ -97,7 +97,7 @@ class ArmLimits:
         absolute(tau, self._scratch)
         greater_equal(self._scratch, self.effort, flags)
         if not count_nonzero(flags):  # the usual cycle: nothing to clip (a NaN is left for the driver to refuse)
-            copyto(out, tau)
+            out[...] = tau  # (an assignment: copyto's dispatch costs more than six joints' copy)
             if self._counting:
                 self._drain()
             return False
@@ -150,7 +150,7 @@ class ArmLimits:
         """Whether a measured velocity is past its limit or a position past its range and the tolerance."""
         state = self._state
         subtract(q, self._q_centre, self._state_q)
-        copyto(self._state_qd, qd)
+        self._state_qd[...] = qd
         absolute(state, state)
         return bool(count_nonzero(greater(state, self._state_bound, self._state_flags)))
 

@@ -18,7 +18,7 @@ crash included (`pbo_runtime.open_log` adds the units, docs and the run's metada
 
 The file is written in chunks as the run goes, so a run of any length keeps every row with
 bounded memory, and a killed RTPU loses only the rows since the last chunk written. The cycle
-fills one of two chunk buffers preallocated in `init` (it allocates nothing, encodes nothing and
+fills one of its chunk buffers preallocated in `init` (it allocates nothing, encodes nothing and
 does no I/O); the cycle that fills it hands it to a writer thread (an eventfd write) and goes on
 in the other. An `.npy` log's writer appends the chunk in one write, then rewrites the row count
 in the header (fixed size: numpy leaves room for the count to grow), so the file is a valid array
@@ -36,7 +36,9 @@ to the RTPU's background thread (`hand_off`), which the RTPU waits for before it
 
 When both buffers are full (the writer still writes one), a cycle on the real clock drops its
 row, counted and reported; on the simulated clock it waits for the writer instead, as the
-simulated time does: a log of a simulated run has every row, however slow the disk.
+simulated time does: a log of a simulated run has every row, however slow the disk. There the
+cycle has more buffers to fill (`SIM_AHEAD` simulated seconds of rows, within `SIM_BUFFER_BYTES` and
+`SIM_BUFFERS`), written in turn: ticks that run faster than real time do not wait for the encoder's start.
 
 A write that fails (disk full, file or directory removed) makes the next cycle raise
 `OutputError`: the task goes to ERROR with the OS error, the run's exit status says so, and the
@@ -51,6 +53,7 @@ import contextlib
 import errno
 import importlib.util
 import io
+import math
 import mmap
 import os
 import threading
@@ -81,6 +84,9 @@ CHUNK_BYTES = 256 * 1024  # the most one cycle writes at once (tens of microseco
 FORMATS = (".mcap", ".npy")
 ENCODINGS = ("json", "ros2")
 FINISH_PATIENCE = 60.0  # s a logger spawned at a path waits for the one killed before it to end that file
+SIM_AHEAD = 16.0  # simulated seconds of rows the cycle may fill ahead of the writer on the simulated clock ...
+SIM_BUFFER_BYTES = 4 * 1024 * 1024  # ... in chunk buffers of at most this many bytes in all ...
+SIM_BUFFERS = 32  # ... and at most this many (two at least)
 # Logs being finished in the background, by path: a logger spawned again at the same path (kill,
 # then spawn) waits for the file's end before it replaces it.
 _FINISHING: dict[str, threading.Event] = {}
@@ -132,20 +138,25 @@ class DataLogger(PortBasedObject):
             [("time", np.float64)] + [(name, a.dtype, a.shape) for name, a in zip(params.variables, arrays, strict=True)]
         )
         self._rows = max(1, min(round(params.chunk / self.period), CHUNK_BYTES // self._dtype.itemsize))
-        # Two chunk buffers: the cycle fills one while the writer writes the other. An MCAP log's
+        # Chunk buffers (two; more on the simulated clock): the cycle fills one while the writer writes
+        # the others. An MCAP log's
         # are shared with its encoder process (a memfd: nothing to clean up in /dev/shm). Written
         # now: a row in a page never touched would be faulted in by the cycle that writes it.
         # Each buffer's views are made once.
         mcap = params.path.endswith(".mcap")
+        self._wait_when_full = self.run_metadata.get("clock") == "sim"
+        chunk_bytes = self._rows * self._dtype.itemsize
+        ahead = math.ceil(SIM_AHEAD / (self._rows * self.period)) + 1
+        self._count = max(2, min(ahead, SIM_BUFFER_BYTES // chunk_bytes, SIM_BUFFERS)) if self._wait_when_full else 2
         self._shared_fd, self._shared = -1, None
         if mcap:
-            size = 2 * self._rows * self._dtype.itemsize
+            size = self._count * chunk_bytes
             self._shared_fd = os.memfd_create(f"pbo-log-{self.task_name}", os.MFD_CLOEXEC)
             os.ftruncate(self._shared_fd, size)
             self._shared = mmap.mmap(self._shared_fd, size)
         sources = [a.reshape(-1) for a in arrays]
         self._buffers = []
-        for index in range(2):
+        for index in range(self._count):
             if self._shared is not None:
                 chunk = np.frombuffer(
                     self._shared, self._dtype, count=self._rows, offset=index * self._rows * self._dtype.itemsize
@@ -155,8 +166,7 @@ class DataLogger(PortBasedObject):
                 chunk = np.full(self._rows, 0, dtype=self._dtype)
             pairs = [(_flat_rows(chunk[name]), source) for name, source in zip(params.variables, sources, strict=True)]
             self._buffers.append((chunk, chunk["time"], pairs))
-            sleep_while_cycling(0)  # in a live spawn, the RTPU's due cycles run between the two buffers written
-        self._wait_when_full = self.run_metadata.get("clock") == "sim"
+            sleep_while_cycling(0)  # in a live spawn, the RTPU's due cycles run between the buffers written
         self._current = 0
         self._chunk, self._times, self._pairs = self._buffers[0]
         self.path = self.output_path(params.path)
@@ -166,8 +176,10 @@ class DataLogger(PortBasedObject):
         self.logged = 0  # rows taken, the chunk begun included
         self.dropped = 0  # rows taken while both buffers were full (the disk took longer than a chunk to write one)
         self._filled = 0  # rows of the chunk begun
-        self._queued = -1  # the buffer the writer is to write (-1: none), and its rows
-        self._queued_rows = 0
+        # Buffers handed to the writer, and written by it: the writer writes them in the order they
+        # were filled, the difference is in its hands; each buffer's rows as handed over
+        self._handed = self._written = 0
+        self._handed_rows = [0] * self._count
         self._failure = ""  # the writer's OutputError, raised by the next cycle
         self._fd = -1
         try:
@@ -182,7 +194,7 @@ class DataLogger(PortBasedObject):
                     os.ftruncate(self._fd, resume_at[0])  # a chunk cut short by the death, and any end of data
                 setup = {"columns": columns, "run": _with_unix_offset(self.run_metadata), "task": self.task_name,
                          "period": self.period, "encoding": params.encoding,
-                         "resume_at": resume_at}
+                         "resume_at": resume_at, "buffers": self._count}
                 self._file: _LogFile = _McapProcess(self._fd, self._shared_fd, self._dtype, self._rows, setup)
             else:
                 self._file = _NpyFile(self._fd, self._dtype, [chunk for chunk, _, _ in self._buffers], resume)
@@ -208,12 +220,12 @@ class DataLogger(PortBasedObject):
         if self._failure:
             raise OutputError(self._failure)
         row = self._filled
-        if row == self._rows:  # full, and the writer still has the other buffer
-            if self._queued >= 0:
+        if row == self._rows:  # full, and the writer still has every other buffer
+            if self._handed - self._written == self._count - 1:
                 if not self._wait_when_full:
                     self.dropped += 1
                     return Status.CONTINUE
-                self.wait_for_writer()
+                self.wait_for_writer(self._count - 2)
             self._hand_over()
             row = 0
         self._times[row] = self.time
@@ -221,16 +233,17 @@ class DataLogger(PortBasedObject):
             column[row] = source
         self._filled = row + 1
         self.logged += 1
-        if self._filled == self._rows and self._queued < 0:
+        if self._filled == self._rows and self._handed - self._written < self._count - 1:
             self._hand_over()
         return Status.CONTINUE
 
     def _hand_over(self) -> None:
-        """Give the full buffer to the writer and go on in the other: a few stores and one eventfd write."""
-        self._queued_rows = self._filled
-        self._queued = self._current
-        self._current ^= 1
-        self._chunk, self._times, self._pairs = self._buffers[self._current]
+        """Give the full buffer to the writer and go on in the next: a few stores and one eventfd write."""
+        current = self._current
+        self._handed_rows[current] = self._filled
+        self._handed += 1
+        self._current = current = current + 1 if current + 1 < self._count else 0
+        self._chunk, self._times, self._pairs = self._buffers[current]
         self._filled = 0
         os.eventfd_write(self._wake, 1)
 
@@ -260,24 +273,23 @@ class DataLogger(PortBasedObject):
             os.eventfd_read(self._wake)
             if self._stopping:
                 return
-            index = self._queued
-            if index < 0:
-                continue
-            try:
-                self._append(index, self._queued_rows)
-            except OutputError as exc:
-                self._failure = str(exc)
-            except Exception as exc:  # a bug in writing or encoding: said by the next cycle, never a writer gone silent
-                self._failure = f"cannot write log {self.path}: its writer failed: {type(exc).__name__}: {exc}"
-            self._queued = -1
+            while self._written < self._handed:  # (one wake-up may stand for several buffers handed over)
+                index = self._written % self._count
+                try:
+                    self._append(index, self._handed_rows[index])
+                except OutputError as exc:
+                    self._failure = str(exc)
+                except Exception as exc:  # a bug in writing or encoding: said by the next cycle, never a writer gone silent
+                    self._failure = f"cannot write log {self.path}: its writer failed: {type(exc).__name__}: {exc}"
+                self._written += 1
 
-    def wait_for_writer(self, patience: float = 30.0) -> None:
-        """Until the writer has set the file up and written what it was handed (off, kill and clear
-        write after it)."""
+    def wait_for_writer(self, in_hand: int = 0, patience: float = 30.0) -> None:
+        """Until the writer has set the file up and written what it was handed but `in_hand` buffers
+        (off, kill and clear write after it: none)."""
         give_up = time.monotonic() + patience
         if not self._ready.wait(patience):
             raise OutputError(f"cannot write log {self.path}: its writer has not set the file up in {patience:g} s")
-        while self._queued >= 0:
+        while self._handed - self._written > in_hand:
             if time.monotonic() > give_up:
                 raise OutputError(f"cannot write log {self.path}: a chunk's write has not returned for {patience:g} s")
             time.sleep(0.001)
@@ -288,9 +300,10 @@ class DataLogger(PortBasedObject):
         if self._failure:
             raise OutputError(self._failure)
         if self._filled:
-            if self._queued >= 0 and self._wait_when_full:  # the simulated clock waits for the writer, as the cycle does
-                self.wait_for_writer()
-            if self._queued < 0:
+            in_hand = self._handed - self._written
+            if in_hand == self._count - 1 and self._wait_when_full:  # the simulated clock waits, as the cycle does
+                self.wait_for_writer(self._count - 2)
+            if self._handed - self._written < self._count - 1:
                 self._hand_over()
         self._raise_if_dropped()
 

@@ -55,6 +55,7 @@ class JointTrajectory(PortBasedObject):
 
     def init(self, params: JointTrajectoryParams) -> None:
         self._law = BrakingLaw(self.q_r.shape[0], params.max_velocity, params.max_acceleration, self.period)
+        self._ports = self.q_d, self.q_r, self.qd_r  # the ports' arrays, the task's for its life: no port lookup per cycle
 
     def on(self) -> None:
         self._held = False
@@ -76,5 +77,5 @@ class JointTrajectory(PortBasedObject):
         if self._held:
             self._held = False
             self._start_from_measured()
-        self._law.step(self.q_d, self.q_r, self.qd_r)
+        self._law.step(*self._ports)
         return Status.CONTINUE

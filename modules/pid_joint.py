@@ -154,7 +154,8 @@ class PidJoint(PortBasedObject):
         # this task on, before any cycle of the boundary runs.
 
     def cycle(self) -> Status:
-        if not self.actuators_held:  # the arm answers: integrate
+        integrating = not self.actuators_held  # the arm answers: integrate
+        if integrating:
             error, term, integral = self._error, self._term, self._integral
             subtract(self._q_r, self._q_m, error)
             multiply(error, self._ki, term)
@@ -164,7 +165,7 @@ class PidJoint(PortBasedObject):
         if self._fading:
             self._fading -= 1
             np.multiply(self._handover, self._fade if self._fading else 0.0, out=self._handover)
-        self._compute()
+        self._compute(error_ready=integrating)
         if self._taking_over:
             self._take_over()
         return Status.CONTINUE
@@ -190,10 +191,12 @@ class PidJoint(PortBasedObject):
             if self._fading:
                 np.add(tau, self._handover, out=tau)
 
-    def _compute(self) -> None:
-        """tau = kp e + kd ed + integral + handover (+ g(q_m) with feed-forward)."""
+    def _compute(self, error_ready: bool = False) -> None:
+        """tau = kp e + kd ed + integral + handover (+ g(q_m) with feed-forward). `error_ready`: the
+        cycle's integration left e = q_r - q_m in `_error` already."""
         tau, term, error, q_m = self._tau, self._term, self._error, self._q_m
-        subtract(self._q_r, q_m, error)
+        if not error_ready:
+            subtract(self._q_r, q_m, error)
         multiply(self._kp, error, tau)
         subtract(self._qd_r, self._qd_m, error)
         multiply(self._kd, error, term)

@@ -56,7 +56,8 @@ class RobotTorque(RobotInterface):
         self._arm.release_brakes()
 
     def cycle(self) -> Status:
-        if not self.plant_moving(self._read(*self._measured)):
+        now = self.time
+        if not self.plant_moving(self._read(*self._measured), now):
             self._hold()  # the plant stopped stepping: a torque now would be applied on a state nobody saw
             return Status.STABLE
         if self._holding:  # back from locally stable behaviour: a controller drives the arm again
@@ -66,7 +67,7 @@ class RobotTorque(RobotInterface):
         if fault is not None:
             return fault
         limits = self._limits
-        if limits.saturate_torque(self._tau_u, self._tau, self.time) and limits.saturated_too_long():
+        if limits.saturate_torque(self._tau_u, self._tau, now) and limits.saturated_too_long():
             return self.divergence_fault(limits.saturation_message(self.tau_u, "tau_u", self.period, self.time), "tau_u")
         self._write(self._tau)
         return Status.CONTINUE

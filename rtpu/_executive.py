@@ -219,6 +219,8 @@ class Executive:
         self.holds = Holds(self.header_words, self.plans.switching_words, cycle_lock_wait, report)
         self.release_slack = getattr(clock, "release_slack", 0.0)  # sim clock: a release a few ulps late is due
         self.spin = getattr(clock, "spin", 0.0)  # real clock: the wait on signals ends this long before a release
+        # Simulated clock: time moves only between turns, so within a turn one reading serves every cycle
+        self._time_stands_still = bool(getattr(clock, "stands_still_within_a_turn", False))
         # What a task's off or kill hands off (a log's last chunk and footer): done by a thread of
         # lower priority, never between two cycles; waited for at the stop (`stop`).
         background.process_background().start()
@@ -348,6 +350,7 @@ class Executive:
         on = self.on
         slack = self.release_slack
         now = clock.now() if first_now is None else first_now
+        still = self._time_stands_still
         while True:
             due = now + slack
             best = None
@@ -363,7 +366,8 @@ class Executive:
             if best is None:
                 return
             self._cycle(best, now)
-            now = clock.now()
+            if not still:
+                now = clock.now()
 
     def _cycle(self, s: Scheduled, start: float) -> None:
         """One release of `s`, begun at `start`: its cycle or its stable behaviour, its timing, its next release."""
@@ -385,7 +389,7 @@ class Executive:
             result = _CONTINUE
         if held or s.held_for:
             self.holds.after_cycle(s, held, result, start, release)
-        end = self.clock.now()
+        end = start if self._time_stands_still else self.clock.now()
         s.release = close_cycle(s, release, jitter, start, end, self.epoch)
         if s.first_cycle_of_plan:
             self.report(FirstCycle(s.first_cycle_of_plan, task.name, start))

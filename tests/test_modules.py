@@ -22,6 +22,7 @@ import pytest
 from drivers.mujoco_arm.driver import MujocoArmDriver
 from drivers.mujoco_arm.plant import MujocoArmPlant
 from drivers.robots import robot
+from modules._braking import BrakingLaw
 from modules.data_logger import DataLogger, read_log
 from modules.fault_injector import FaultInjector
 from modules.joint_trajectory import JointTrajectory
@@ -116,6 +117,23 @@ def test_trajectory_reaches_q_d_exactly_and_stops_there(table):
     q_r, qd_r = run_trajectory(table, task, 500)  # 5 s: the longest move (3 rad at 1 rad/s) takes ~3.3 s
     np.testing.assert_array_equal(q_r[-100:], np.broadcast_to(GOAL, (100, N)))  # exactly, and it stays
     np.testing.assert_array_equal(qd_r[-100:], np.zeros((100, N)))
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-9, 1.0, 1e3])
+def test_a_reference_at_its_goal_and_at_rest_stays_there_bit_for_bit_with_a_positive_zero_velocity(scale):
+    goal = np.array([1.0, -0.5, 0.0, -0.0, 0.25, -2.0]) * scale
+    position, velocity = goal.copy(), np.array([0.0, -0.0, 0.0, -0.0, 0.0, -0.0])
+    position[goal == 0.0] = -0.0  # at the goal, whatever the sign of its zeros
+    BrakingLaw(6, V_MAX, A_MAX, DT).step(goal, position, velocity)
+    assert position.tobytes() == goal.tobytes() and velocity.tobytes() == np.zeros(6).tobytes()
+
+
+def test_a_reference_at_a_goal_that_is_not_finite_is_left_to_the_finite_check():
+    goal = np.array([np.inf, np.nan, 0.0, 0.0, 0.0, 0.0])
+    position, velocity = goal.copy(), np.zeros(6)
+    with np.errstate(invalid="ignore"):
+        BrakingLaw(6, V_MAX, A_MAX, DT).step(goal, position, velocity)
+    assert not np.isfinite(position[:2]).any() and not np.isfinite(velocity[:2]).any()
 
 
 def test_trajectory_never_exceeds_max_velocity_on_any_joint(table):
@@ -800,8 +818,10 @@ def test_on_the_simulated_clock_a_logger_waits_for_a_slow_writer_and_drops_no_ro
     path = tmp_path / "log.npy"
     task = logger_task(log_table, {"variables": ["x", "k", "m"], "path": str(path), "chunk": 2 * LOG_DT}, clock="sim")
     release = slowed_writer(task)
-    threading.Timer(0.2, release.set).start()  # the fifth cycle waits until then, however long that is
-    written = log_cycles_without_waiting(log_table, task, 7)
+    buffers = task.module._count  # more than the real clock's two: the cycle fills them all before it waits
+    assert buffers > 2
+    threading.Timer(0.2, release.set).start()  # the cycle after every buffer is full waits until then, however long
+    written = log_cycles_without_waiting(log_table, task, 2 * buffers + 3)
     assert task.module.dropped == 0 and release.is_set()
     task.module.off()
     task.module.wait_for_writer()

@@ -104,6 +104,24 @@ def test_arm_falls_under_gravity_after_the_brakes_release(plant, driver) -> None
     assert q[1] < -0.05 and qd[1] < 0
 
 
+def test_a_plant_without_io_boards_moves_the_arm_bit_for_bit_as_one_with_them() -> None:
+    # Without boards nobody reads the wrist sensor, and each step leaves its computation out.
+    states = []
+    for boards in (True, False):
+        plant = MujocoArmPlant(unique_name("plant"), "puma560", TIMESTEP, NO_WATCHDOG, boards=boards)
+        driver = MujocoArmDriver(plant.name, {"mode": "torque"})
+        try:
+            driver.write_torque(np.array([0.0, 30.0, 5.0, 0.5, -0.5, 0.1]))
+            driver.release_brakes()
+            run(plant, 0.3)
+            q, qd, sim_time = read(driver)
+            states.append((q.tobytes(), qd.tobytes(), sim_time))
+        finally:
+            driver.close()
+            plant.close()
+    assert states[0] == states[1]
+
+
 def test_engaging_the_brakes_holds_the_arm_where_it_is(plant, driver) -> None:
     driver.release_brakes()
     run(plant, 0.1)

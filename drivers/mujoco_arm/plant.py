@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy import copyto, maximum, minimum
+from numpy import copyto
 
 from drivers.force_torque import models as ft_models
 from drivers.mujoco_arm.registers import (
@@ -225,6 +225,7 @@ class MujocoArmPlant:
         self._brake_pose = q0.copy()
         self._braked = True
         self._steps = 0
+        self._time = float(self.data.time)  # the simulated time of the last step (`_publish`)
         self._command_timeout = float(command_timeout)
         self._command_seen = -1  # the command sequence last seen, and the simulated time it changed
         self._command_seen_at = 0.0
@@ -247,6 +248,8 @@ class MujocoArmPlant:
         except BaseException:
             self.close()
             raise
+        if not boards:  # nobody reads the wrist sensor: each step leaves its computation out (the dynamics do not use it)
+            self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
 
     @staticmethod
     def warm() -> None:
@@ -295,7 +298,14 @@ class MujocoArmPlant:
         regs = self._registers
         words = regs.words
         data, qpos, qvel = self.data, self._qpos, self._qvel
-        braked = words[W_BRAKE] != 0 or self._command_stale(words, data.time)
+        if words[W_BRAKE] != 0:
+            braked = True
+        elif words[W_CMD_SEQ] != self._command_seen:  # a new command (the usual step): the watchdog starts again
+            self._command_seen, self._command_seen_at = words[W_CMD_SEQ], self._time
+            self._watchdog_holding = False
+            braked = False
+        else:
+            braked = self._command_stale(words, self._time)
         if braked and not self._braked:
             self._brake_pose[:] = qpos  # brakes grip where the arm is now
         self._braked = braked
@@ -307,7 +317,7 @@ class MujocoArmPlant:
             mode = words[W_MODE]
             if mode == MODE_TORQUE:
                 self._read_command(regs.tau, self._tau)
-                _clip(self._tau, self._torque_floor, self._torque_limits, self._qfrc)
+                _CLIP(self._tau, self._torque_floor, self._torque_limits, self._qfrc)  # (`_clip`, without its call)
             elif mode == MODE_POSITION:
                 self._read_command(regs.q_cmd, self._q_cmd)
                 self._servo(data)
@@ -457,18 +467,18 @@ class MujocoArmPlant:
         driver is mid-write."""
         words, scratch = self._registers.words, self._scratch
         before = words[W_CMD_SEQ]
-        if not before & 1:  # the usual case: no write under way, one copy
-            copyto(scratch, source)
+        if not before & 1:  # the usual case: no write under way, one copy (an assignment: copyto's dispatch costs more)
+            scratch[...] = source
             if words[W_CMD_SEQ] == before:
-                copyto(target, scratch)
+                target[...] = scratch
                 return
         for _ in range(_COMMAND_READ_TRIES - 1):  # (the look above was the first)
             before = words[W_CMD_SEQ]
             if before & 1:
                 continue
-            copyto(scratch, source)
+            scratch[...] = source
             if words[W_CMD_SEQ] == before:
-                copyto(target, scratch)
+                target[...] = scratch
                 return
 
     def _publish(self) -> None:
@@ -476,9 +486,10 @@ class MujocoArmPlant:
         words = regs.words
         seq = words[W_STATE_SEQ]
         words[W_STATE_SEQ] = seq + 1  # odd: readers retry
-        copyto(regs.q, self._qpos)
-        copyto(regs.qd, self._qvel)
-        regs.reals[W_SIM_TIME] = self.data.time
+        regs.q[...] = self._qpos  # (assignments: copyto's dispatch costs more than six joints' copy)
+        regs.qd[...] = self._qvel
+        self._time = now = self.data.time  # data.time as a float, read once a step (MjData's attributes are slow)
+        regs.reals[W_SIM_TIME] = now
         words[W_STEP_COUNT] = self._steps
         if self.has_target:  # (without one, its pose stays the zeros the segment was made with)
             copyto(regs.target, self._target_pose)
@@ -543,10 +554,9 @@ def _positive(value: Any, where: str) -> float:
 
 
 def _clip(values: np.ndarray, low: Any, high: Any, out: np.ndarray) -> None:
-    """`np.clip(values, low, high, out=out)` in two ufunc calls, without np.clip's Python layers
-    (a few microseconds a call, twice a step); NaN stays NaN as it does there."""
-    maximum(values, low, out=out)
-    minimum(out, high, out=out)
+    """`np.clip(values, low, high, out=out)`: numpy's clip ufunc without np.clip's Python layers, its
+    output positional (an `out=` keyword is parsed at every call); NaN stays NaN as it does there."""
+    _CLIP(values, low, high, out)
 
 
 def _wrench_option(value: Any) -> np.ndarray:

@@ -74,8 +74,11 @@ class SimClock:
 
     It never sleeps: the lockstep barrier (`clock.lockstep`) decides when time moves. `release_slack`
     lets a release computed by adding periods in floating point (k x 1 ms may come out a few
-    ulps past the tick) still count as due at its tick.
+    ulps past the tick) still count as due at its tick. Time stands still within a participant's
+    turn (`stands_still_within_a_turn`): the executive reads it once a turn.
     """
+
+    stands_still_within_a_turn = True
 
     def __init__(self, header: np.ndarray, tick: float) -> None:
         self.header = header

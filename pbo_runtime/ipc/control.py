@@ -115,7 +115,7 @@ class ControlServer:
 
     def poll(self, handler: Handler, budget: float = 0.002) -> int:
         """Serve the requests waiting now (a few, within `budget` seconds); never blocks; returns how many."""
-        if self._mq is None:
+        if self._mq is None or not self._mq.current_messages:  # (most polls find none: no receive, no exception)
             return 0
         deadline = time.monotonic() + budget
         handled = 0

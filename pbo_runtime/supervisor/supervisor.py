@@ -576,8 +576,8 @@ class Supervisor:
             if self._stop_requested:
                 raise StopRequested(self._stop_requested)
             self._check_stalls()
-            if self.lock_guard is not None:  # while the lock is taken, look again soon
-                timeout = self.lock_guard.watch.next_look_in(timeout)
+            if self.lock_guard is not None and self.clock.name == "real":  # while the lock is taken, look again soon
+                timeout = self.lock_guard.watch.next_look_in(timeout)  # (sim: it is taken only within turns, over by now)
             events = self.event_handling
             self.clock.run_for(timeout, events.take_one_event, events.while_stepping, events.while_ticking)
         except RtpuDied as death:  # its restart policy brings it back; the other RTPUs never stopped

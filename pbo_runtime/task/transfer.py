@@ -185,7 +185,7 @@ class LocalTable:
                 except busy:
                     return False
                 words[holder] = pid
-                take(idx, out=local, mode="clip")
+                take(idx, None, local, "clip")  # (positional: keywords are parsed at every call)
                 release()
                 return True
         else:
@@ -197,7 +197,7 @@ class LocalTable:
                     return False
                 words[holder] = pid
                 for take, idx, local in in_groups:
-                    take(idx, out=local, mode="clip")
+                    take(idx, None, local, "clip")
                 release()
                 return True
 

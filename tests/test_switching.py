@@ -205,6 +205,29 @@ def test_an_rtpu_that_reads_the_plan_after_its_activation_applies_it_before_its_
     assert actuator.lost_to_switch == 0 and actuator.stable_cycles == 0
 
 
+@pytest.mark.parametrize("meanwhile", [["off", "ctl_a"], ["on", "ctl_b", None, None]])
+def test_a_plan_read_ahead_is_read_again_at_its_boundary_when_a_signal_changed_the_tasks_meanwhile(rig, meanwhile):
+    """rtpu0 reads the plan to with_b when it first sees it (ctl_a leaves, ctl_b enters); an operator's
+    signal then turns ctl_a off, or ctl_b on, before the activation: the boundary switches the tasks
+    as they are then, neither turning off a task already off nor on one already on."""
+    subsystem, table, clock, executives, events = rig
+    start(subsystem, executives, clock)
+    step_executives(executives, clock, clock.now() + 0.005)
+    activation = math.ceil((clock.now() + 0.004) / PERIOD) * PERIOD
+    post_plan(table, Reconfiguration(subsystem).index("with_b"), activation)
+    step_executives(executives, clock, activation - 0.002)
+    rtpu0 = executives["rtpu0"]
+    read_ahead = rtpu0.plans.prepared
+    assert read_ahead is not None and [s.task.name for s in read_ahead.leaving] == ["ctl_a"]
+    assert [s.task.name for s in read_ahead.entering] == ["ctl_b"]
+    rtpu0.handle(meanwhile)
+    step_executives(executives, clock, activation + 0.005)
+    assert not [e for _, e in events if isinstance(e, messages.Refused)]
+    switched = next(e for r, e in events if r == "rtpu0" and isinstance(e, messages.Switched))
+    assert (switched.off, switched.on) == ((["ctl_a"], []) if meanwhile[0] == "on" else ([], ["ctl_b"]))
+    assert rtpu0.tasks["ctl_a"].task.state is TaskState.OFF and rtpu0.tasks["ctl_b"].task.state is TaskState.ON
+
+
 def test_an_activation_read_back_from_the_headers_nanoseconds_is_the_boundary_it_was_posted_for_issue_23():
     """CLOCK_MONOTONIC epochs are ~1e5 s with whole nanoseconds: epoch + k x period, written as ns
     and read back, may come out a few ns either side of the boundary; it is that boundary."""

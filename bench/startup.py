@@ -170,15 +170,16 @@ ms, shared imports 168 ms (the loader, checker and PyYAML among them), the serve
 forks in a row 38 ms, the last child ready 16 ms later, inits and on 10 ms, and the server's exit
 reaped before the children's Ready (3-74 ms). Since: the loader, checker and PyYAML are imported
 after the fork by the CLI alone (an RTPU reads a live change through `edit.wire`), MuJoCo by the
-plant (unless the server would otherwise wait for its run), one middle process forks the three
+server while it waits for the children's request (before the file is handed over, or after it is
+warm until the CLI has made its table: the plant then starts warm), one middle process forks the three
 children (18-53 ms from the request to the reply, where the three requests took 35-70), and the
 server is ended after `on`. Alternated runs before and after, 20 each: p50 0.498 and 0.387 s at
 load about 1.3; 0.721 and 0.689 s, then 1.090 and 0.868 s, at load 3.5-4, where no CPU is free
 for either side. At load 1.3 the two sides now reach the table and a warm server about together
 (p50 298 and 296 ms); under load the CLI's is the later (557 and 491 ms at load 3). What is left: numpy and the shared
 runtime once; the larger of the two sides' imports (the CLI's: rich, the loader and the checker,
-the supervisor; the server's: the library with Pinocchio); MuJoCo's import and the model in the
-plant (about 65 ms after its fork, the last child ready); the inits. From the fork to the table
+the supervisor; the server's: the library with Pinocchio, then MuJoCo while the CLI makes its
+table); the plant's model; the inits. From the fork to the table
 both CPUs are busy, so moving imports between the sides no longer pays; shorter would take fewer
 imports (a library whose modules import Pinocchio only when a task is made), or a server kept
 warm between runs. Read each figure against its floor: on a busy machine both grow alike.""",

@@ -321,9 +321,9 @@ def _load(file: str) -> Any:
 
 def _warm_subsystem(subsystem: Any) -> None:
     """Look up the subsystem's modules, plant and drivers, and import what the modules and drivers
-    import only once made. Not the plant's simulator (`_warm_plants` imports it only while the run
-    is not there yet): only the plant runs it, and imported here it would come before every fork,
-    where the plant imports it once forked, beside the RTPUs' start."""
+    import only once made. Not the plant's simulator: `_warm_plants` imports it while no request
+    for the children has come (before the run is handed over, or after this, until the CLI has
+    made its table); a request that came first is served at once and the plant imports it forked."""
     from pbo_runtime.objects import registry
     from pbo_runtime.reports.log_notes import run_metadata
 
@@ -539,6 +539,8 @@ def main(argv: list[str] | None = None) -> int:
                 server.subsystem = _load(args.file)
             if server.subsystem is not None:
                 _warm_subsystem(server.subsystem)
+                if server.subsystem.plant is not None and not select.select([server.channel], [], [], 0)[0]:
+                    _warm_plants()  # the children are not asked for yet: the plant, forked then, starts warm
         except (Stop, BrokenPipeError, ConnectionResetError):
             raise
         except Exception as exc:  # every request is refused with the reason: the children start fresh

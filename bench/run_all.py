@@ -201,7 +201,7 @@ def _pace_lines(sections: list[Section]) -> list[str]:
     if not paced:
         return []
     fastest = min(min(s.pace) for s in paced if s.pace is not None)
-    table = Table(["benchmark", "before, ms", "after, ms", "slower than the run's fastest"], numeric=(1, 2, 3))
+    table = Table(["benchmark", "before, ms", "after, ms", "the slower of the two / the run's fastest"], numeric=(1, 2, 3))
     for s in paced:
         assert s.pace is not None
         table.add(s.key, f"{s.pace[0] * 1e3:.2f}", f"{s.pace[1] * 1e3:.2f}", f"{max(s.pace) / fastest:.2f}x")

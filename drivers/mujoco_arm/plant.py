@@ -305,7 +305,7 @@ class MujocoArmPlant:
             self._watchdog_holding = False
             braked = False
         else:
-            braked = self._command_stale(words, self._time)
+            braked = self._command_stale(self._time)
         if braked and not self._braked:
             self._brake_pose[:] = qpos  # brakes grip where the arm is now
         self._braked = braked
@@ -317,7 +317,7 @@ class MujocoArmPlant:
             mode = words[W_MODE]
             if mode == MODE_TORQUE:
                 self._read_command(regs.tau, self._tau)
-                _CLIP(self._tau, self._torque_floor, self._torque_limits, self._qfrc)  # (`_clip`, without its call)
+                _CLIP(self._tau, self._torque_floor, self._torque_limits, self._qfrc)  # numpy's clip, NaN kept
             elif mode == MODE_POSITION:
                 self._read_command(regs.q_cmd, self._q_cmd)
                 self._servo(data)
@@ -447,15 +447,11 @@ class MujocoArmPlant:
         np.subtract(v_ref, qvel, out=tau)
         np.multiply(tau, self.servo_kd, out=tau)
         np.add(tau, self.gravity_torque(qpos, self._gravity), out=tau)
-        _clip(tau, self._torque_floor, self._torque_limits, data.qfrc_applied)
+        _CLIP(tau, self._torque_floor, self._torque_limits, data.qfrc_applied)
 
-    def _command_stale(self, words: memoryview[int], now: float) -> bool:
-        """The drive's watchdog: no new command for `command_timeout` while the brakes are off."""
-        sequence = int(words[W_CMD_SEQ])
-        if sequence != self._command_seen or words[W_BRAKE] != 0:  # (braked: nothing is owed)
-            self._command_seen, self._command_seen_at = sequence, now
-            self._watchdog_holding = False
-            return False
+    def _command_stale(self, now: float) -> bool:
+        """The drive's watchdog, brakes off and the command unchanged since `_command_seen_at` (`step`
+        restarts it at each new command): stale past `command_timeout`."""
         stale = self._command_timeout > 0 and now - self._command_seen_at > self._command_timeout
         if stale and not self._watchdog_holding:
             self._watchdog_holding = True
@@ -551,12 +547,6 @@ def _positive(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
         raise ValueError(f"plant option {where} must be a finite number > 0, got: {value!r}")
     return float(value)
-
-
-def _clip(values: np.ndarray, low: Any, high: Any, out: np.ndarray) -> None:
-    """`np.clip(values, low, high, out=out)`: numpy's clip ufunc without np.clip's Python layers, its
-    output positional (an `out=` keyword is parsed at every call); NaN stays NaN as it does there."""
-    _CLIP(values, low, high, out)
 
 
 def _wrench_option(value: Any) -> np.ndarray:

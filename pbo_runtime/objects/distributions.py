@@ -7,34 +7,37 @@ folder of each sys.path entry in turn; of two distributions with the same normal
 first found wins; `entry_points.txt` is read as `importlib.metadata` reads it (sections are
 groups, `name = value` lines, `#` comments); an entry point loads as `module:attr.attr`.
 Distributions inside zip files or eggs are not seen (none of pbo's libraries installs so).
+`pbo --version` reads its version here too: this module imports nothing more than os and sys.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import os
-import re
 import sys
 from collections.abc import Iterator
 
 _INFO_SUFFIXES = (".dist-info", ".egg-info")
-_VALUE = re.compile(r"(?P<module>[\w.]+)\s*(:\s*(?P<attr>[\w.]+)\s*)?((?P<extras>\[.*\])\s*)?$")
+_VALUE = r"(?P<module>[\w.]+)\s*(:\s*(?P<attr>[\w.]+)\s*)?((?P<extras>\[.*\])\s*)?$"  # importlib.metadata's
 
 
-@dataclasses.dataclass(frozen=True)
 class EntryPoint:
     """One `name = module:attr` line of a distribution's `entry_points.txt`, under `group`."""
 
-    name: str
-    value: str
-    group: str
+    __slots__ = ("group", "name", "value")
+
+    def __init__(self, name: str, value: str, group: str) -> None:
+        self.name, self.value, self.group = name, value, group
+
+    def __repr__(self) -> str:
+        return f"EntryPoint({self.name!r}, {self.value!r}, {self.group!r})"
 
     def load(self) -> object:
         """The module, or the object named in it (ValueError for a value that names neither)."""
         import importlib
+        import re
 
-        match = _VALUE.match(self.value)
+        match = re.match(_VALUE, self.value)
         if match is None:
             raise ValueError(f"entry point {self.name} = {self.value!r} names no module")
         found: object = importlib.import_module(match.group("module"))
@@ -44,8 +47,15 @@ class EntryPoint:
 
 
 def normalized(name: str) -> str:
-    """A distribution's name as packaging compares names (PEP 503, with underscores)."""
-    return re.sub(r"[-_.]+", "_", name).lower()
+    """A distribution's name as packaging compares names (PEP 503, with underscores): each run of
+    `-`, `_` and `.` is one `_`."""
+    kept: list[str] = []
+    for char in name.lower():
+        if char not in "-_.":
+            kept.append(char)
+        elif not kept or kept[-1] != "_":
+            kept.append("_")
+    return "".join(kept)
 
 
 @functools.cache  # read once per process: a forked child has it from its parent

@@ -5,6 +5,7 @@ RTPU from it, and leaves nothing whether it ends or its supervisor is killed."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -16,7 +17,8 @@ import pytest
 
 from pbo_runtime.config.loader import load_subsystem
 from pbo_runtime.ipc.process import DEATH_SIGNAL
-from pbo_runtime.supervisor.fork_server import ForkServer, ForkServerUnavailable
+from pbo_runtime.supervisor.fork_server import RUN_PRELOAD, ForkServer, ForkServerUnavailable
+from pbo_runtime.supervisor.fork_server_process import PLANT_HOST
 from pbo_runtime.supervisor.run_options import RunOptions
 from pbo_runtime.supervisor.supervisor import Supervisor
 from tests.support import (
@@ -272,3 +274,61 @@ def test_a_server_started_without_a_file_serves_once_handed_its_run(tmp_path, mo
         assert json.loads(out.read_text())["ppid"] == os.getpid()
     finally:
         started.close()
+
+
+# --- the plant's middle process, forked early (`fork_server_process.EarlyPlant`) --------------------
+
+
+def _early_middle(server: ForkServer) -> int | None:
+    """The pid of the server's early middle process for the plant, while it lives."""
+    return next((pid for pid, command in children_of(server.process.pid).items() if "--early" in command.split()), None)
+
+
+@pytest.fixture
+def run_server():
+    """A server as `pbo run` starts one: no file yet, preloading what its plant and its RTPUs run."""
+    started = ForkServer.start(None, list(RUN_PRELOAD))
+    until(lambda: _early_middle(started) is not None, "the server forks the plant's middle process")
+    yield started
+    started.close()
+
+
+def _refused_arguments(module: str) -> tuple[str, list[str]]:
+    """A child that ends at once with argparse's status 2, having said nothing but its usage."""
+    return module, ["--no-such-argument", "--parent", str(os.getpid())]
+
+
+@pytest.mark.multiprocess
+def test_a_run_servers_plant_is_forked_by_its_early_middle_process_and_is_the_starters_own(run_server):
+    run_server.hand_over(load_subsystem(str(DEMO)))
+    plant, rtpu = run_server.fork_all([_refused_arguments(PLANT_HOST), _refused_arguments("rtpu")])
+    assert plant.wait(timeout=SAFETY_NET) == 2  # waited for here: each is this process's child
+    assert rtpu.wait(timeout=SAFETY_NET) == 2
+    assert _early_middle(run_server) is None  # asked, it forked the plant and exited
+
+
+@pytest.mark.multiprocess
+def test_a_plant_whose_early_middle_process_died_is_forked_by_the_server_itself(run_server):
+    early = _early_middle(run_server)
+    assert early is not None
+    os.kill(early, signal.SIGKILL)
+    run_server.hand_over(load_subsystem(str(DEMO)))
+    [plant] = run_server.fork_all([_refused_arguments(PLANT_HOST)])
+    assert plant.wait(timeout=SAFETY_NET) == 2
+    assert _early_middle(run_server) is None
+
+
+@pytest.mark.multiprocess
+def test_a_run_without_a_plant_ends_the_early_middle_process_once_handed_over(run_server):
+    run_server.hand_over(dataclasses.replace(load_subsystem(str(DEMO)), plant=None))  # (its robot is hardware)
+    until(lambda: _early_middle(run_server) is None, "the early middle process ends")
+    [rtpu] = run_server.fork_all([_refused_arguments("rtpu")])
+    assert rtpu.wait(timeout=SAFETY_NET) == 2
+
+
+@pytest.mark.multiprocess
+def test_a_run_server_ended_before_its_run_leaves_no_early_middle_process(run_server):
+    early = _early_middle(run_server)
+    assert early is not None
+    run_server.close()  # (killed while it imports: the middle process dies with it)
+    until(lambda: _gone(early), "the early middle process ends with its server", SAFETY_NET)

@@ -1,5 +1,12 @@
 """The fork server's own process (`supervisor.fork_server`): what it imports before it forks, and how
-it forks the run's children."""
+it forks the run's children.
+
+A child is forked by a middle process that exits at once, so the child is re-parented to the
+supervisor (a subreaper while it asks). The plant's middle process of `pbo run` is forked
+early, at the server's start (`EarlyPlant`): it imports the plant's simulator while the server
+imports the module library, each on a CPU of its own beside the CLI's load and check, instead of
+one after the other in the server.
+"""
 
 from __future__ import annotations
 
@@ -21,6 +28,8 @@ from typing import Any
 
 from pbo_runtime.ipc.process import STOP_SIGNALS
 from pbo_runtime.supervisor.fork_server import END, WARM_FOR_RESTARTS, _threads
+
+PLANT_HOST = "pbo_runtime.supervisor.plant_host"  # what `pbo run`'s plant runs
 
 
 def _main_of(module: str) -> Callable[..., int]:
@@ -160,22 +169,20 @@ class _Server:
         self.openblas = openblas
         self.mains: dict[str, Callable[..., int]] = {}
         self.subsystem: Any = None
+        self.early_plant: EarlyPlant | None = None  # the plant's middle process, forked early, until it is asked
         self.refusal = ""  # why every request is refused ("": none is)
         self.warm_at = 0.0
         self.requests = channel.makefile("rb")
 
     def await_run(self) -> bool:
         """A server started without a file: the run `hand_over` gives it (False: the supervisor needs none)."""
-        if not select.select([self.channel], [], [], 0)[0]:
+        if self.early_plant is None and not select.select([self.channel], [], [], 0)[0]:
             _warm_plants()  # the run is not there yet: its plant's simulator is imported meanwhile, whichever it is
         line = self.requests.readline()
         if not line or line == END:
             return False
         run = json.loads(line)
-        environ = {**run["environ"], "OPENBLAS_NUM_THREADS": "1"}  # (the children's own is given back: `_child`)
-        for key in set(os.environ) - set(environ):
-            del os.environ[key]
-        os.environ.update({key: value for key, value in environ.items() if os.environ.get(key) != value})
+        _take_environment(run["environ"])
         if "subsystem" in run:
             self.subsystem = pickle.loads(bytes.fromhex(run["subsystem"]))  # from the process that started this one
         else:
@@ -186,7 +193,8 @@ class _Server:
         self.channel.sendall(json.dumps({**answer, "warm_at": self.warm_at}).encode() + b"\n")
 
     def serve(self, request: dict[str, Any]) -> None:
-        """Fork each child of the request ([module, argv] pairs, in order) from one middle process."""
+        """Fork each child of the request ([module, argv] pairs, in order) from one middle process (the
+        plant's from its own, forked early, if there is one: `EarlyPlant`)."""
         children = request.get("children")
         if self.refusal:
             return self.reply({"error": self.refusal})
@@ -199,43 +207,74 @@ class _Server:
         threads = _threads()
         if threads != 1:
             return self.reply({"error": f"the fork server holds {threads} threads: a fork would copy their locks"})
+        early, self.early_plant = self.early_plant, None  # (one plant a run: asked once)
+        plant = next((i for i, (module, _) in enumerate(children) if module == PLANT_HOST), -1) if early else -1
+        if early is not None and (plant < 0 or not early.ask([str(a) for a in children[plant][1]])):
+            early.end()
+            early, plant = None, -1
+        try:
+            pids, gos = self._fork([child for index, child in enumerate(children) if index != plant])
+            if early is not None:  # (forked meanwhile)
+                plant_pid = early.answer()
+                if plant_pid is None:  # it died before it forked: the plant is forked here
+                    early.end()
+                    early = None
+                    [plant_pid], more = self._fork([children[plant]], orphans=pids, gos=gos)
+                    gos += more
+                pids.insert(plant, plant_pid)
+        except _ForkFailed as failed:
+            if early is not None:  # the plant, if it was forked, sees its go closed and ends
+                if early.pid:
+                    failed.orphans += [pid for pid in [early.answer()] if pid is not None]
+                early.end()
+            return self.reply({"error": str(failed), "orphans": failed.orphans})
+        self.reply({"pids": pids})
+        if early is not None:
+            gos.insert(plant, early.go)
+        for go_write in gos:  # the supervisor has their pids: they may start
+            with contextlib.suppress(BrokenPipeError):  # (one killed meanwhile is the supervisor's to notice)
+                os.write(go_write, b"g")
+            os.close(go_write)
+
+    def _fork(self, children: list[list[Any]], orphans: list[int] | None = None,
+              gos: list[int] | None = None) -> tuple[list[int], list[int]]:
+        """Fork each child from one middle process: their pids, and the write end of each one's go pipe.
+        _ForkFailed if one fork failed: those forked, and the `orphans` already forked (`gos` theirs), end."""
+        if not children:
+            return [], []
         pid_read, pid_write = os.pipe()
-        gos = [os.pipe() for _ in children]  # (read, write): a child starts once its write end says so
+        pipes = [os.pipe() for _ in children]  # (read, write): a child starts once its write end says so
         # no stop while it forks: raised in the interpreter's fork hooks, it is only printed and lost
         signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)  # (the child takes them again: `_child`)
         middle = -1
         try:
             middle = os.fork()
         except OSError as exc:
-            for fd in (pid_read, pid_write, *(end for go in gos for end in go)):
+            for fd in (pid_read, pid_write, *(end for pipe in pipes for end in pipe), *(gos or [])):
                 os.close(fd)
-            return self.reply({"error": f"the fork server could not fork: {exc}"})
+            raise _ForkFailed(f"the fork server could not fork: {exc}", list(orphans or [])) from None
         finally:
             if middle != 0:
                 signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
         if middle == 0:  # the middle process: fork each child, say its pid, exit (the children are re-parented)
             try:
                 os.close(pid_read)
-                for _, go_write in gos:
-                    os.close(go_write)
-                self._fork_children(children, gos, pid_write)
+                for fd in (*(go_write for _, go_write in pipes), *(gos or [])):
+                    os.close(fd)
+                self._fork_children(children, pipes, pid_write)
             finally:
                 os._exit(0)
         os.close(pid_write)
-        for go_read, _ in gos:
+        for go_read, _ in pipes:
             os.close(go_read)
         with os.fdopen(pid_read, "rb") as stream:
             pids = [int(said) for said in stream.read().split()]
         os.waitpid(middle, 0)
         if len(pids) != len(children):  # a fork failed: those forked see their go closed and exit (status 3)
-            for _, go_write in gos:
-                os.close(go_write)
-            return self.reply({"error": "the fork server could not fork the child", "orphans": pids})
-        self.reply({"pids": pids})
-        for _, go_write in gos:  # the supervisor has their pids: they may start
-            with contextlib.suppress(BrokenPipeError):  # (one killed meanwhile is the supervisor's to notice)
-                os.write(go_write, b"g")
-            os.close(go_write)
+            for fd in (*(go_write for _, go_write in pipes), *(gos or [])):
+                os.close(fd)
+            raise _ForkFailed("the fork server could not fork the child", [*(orphans or []), *pids])
+        return pids, [go_write for _, go_write in pipes]
 
     def _fork_children(self, children: list[list[Any]], gos: list[tuple[int, int]], pid_write: int) -> None:
         """In the middle process: fork each child in turn and write its pid (a failed fork ends the list)."""
@@ -244,12 +283,133 @@ class _Server:
             if child == 0:
                 os.close(pid_write)
                 os.close(self.channel.fileno())  # the child holds no end of the channel: a dead server reads as EOF
+                if self.early_plant is not None:
+                    self.early_plant.close_in_child()
                 for other, (go_read, _) in enumerate(gos):
                     if other != index:
                         os.close(go_read)
                 _child(module, self.mains[module], [str(a) for a in argv], self.subsystem, gos[index][0], self.parent,
                        self.openblas, self.run_id)
             os.write(pid_write, f"{child}\n".encode())
+
+
+class _ForkFailed(Exception):
+    """A request that could not be served whole: why, and the pids of the children forked before (each ends)."""
+
+    def __init__(self, message: str, orphans: list[int]) -> None:
+        super().__init__(message)
+        self.orphans = orphans
+
+
+def _take_environment(environ: dict[str, str]) -> None:
+    """This process's environment becomes `environ` (the supervisor's now), with OpenBLAS on one thread
+    while it forks (the children's own is given back: `_child`)."""
+    environ = {**environ, "OPENBLAS_NUM_THREADS": "1"}
+    for key in set(os.environ) - set(environ):
+        del os.environ[key]
+    os.environ.update({key: value for key, value in environ.items() if os.environ.get(key) != value})
+
+
+class EarlyPlant:
+    """The server's end of the plant's middle process, forked at the server's start (`_early_plant`):
+    asked once, it forks the plant and exits, as `_Server._fork`'s middle does."""
+
+    def __init__(self, pid: int, ask: int, answer: int, go: int) -> None:
+        self.pid = pid
+        self.ask_fd, self.answer_fd, self.go = ask, answer, go  # go: the plant's go pipe, written by the server
+
+    @classmethod
+    def fork(cls, server: _Server) -> EarlyPlant | None:
+        """Forked now (None if it could not be: the server then forks the plant itself)."""
+        ask_read, ask_write = os.pipe()
+        answer_read, answer_write = os.pipe()
+        go_read, go_write = os.pipe()
+        try:
+            pid = os.fork()
+        except OSError:
+            for fd in (ask_read, ask_write, answer_read, answer_write, go_read, go_write):
+                os.close(fd)
+            return None
+        if pid == 0:
+            for fd in (ask_write, answer_read, go_write):
+                os.close(fd)
+            _early_plant(server, ask_read, answer_write, go_read)
+        for fd in (ask_read, answer_write, go_read):
+            os.close(fd)
+        return cls(pid, ask_write, answer_read, go_write)
+
+    def ask(self, argv: list[str]) -> bool:
+        """Ask it to fork the plant with `argv`, in this process's environment (False: it is gone)."""
+        try:
+            os.write(self.ask_fd, json.dumps({"argv": argv, "environ": dict(os.environ)}).encode() + b"\n")
+            return True
+        except OSError:
+            return False
+
+    def answer(self) -> int | None:
+        """The plant's pid once it has exited (so the plant is re-parented); None if it died before it forked."""
+        said = b""
+        with contextlib.suppress(OSError):
+            while not said.endswith(b"\n"):
+                read = os.read(self.answer_fd, 64)
+                if not read:
+                    break
+                said += read
+        with contextlib.suppress(ChildProcessError):
+            os.waitpid(self.pid, 0)
+        self.pid = 0
+        return int(said) if said.endswith(b"\n") else None
+
+    def end(self) -> None:
+        """Not asked, or its request failed: it ends at once (it holds nothing), and a plant it forked sees
+        its go closed and ends (status 3)."""
+        for fd in (self.ask_fd, self.answer_fd, self.go):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        if self.pid:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGKILL)  # (still importing, it would end only once it read the EOF)
+            with contextlib.suppress(ChildProcessError):
+                os.waitpid(self.pid, 0)
+            self.pid = 0
+
+    def close_in_child(self) -> None:
+        """In another child of the server: it holds none of these ends (a dead server reads as EOF)."""
+        for fd in (self.ask_fd, self.answer_fd, self.go):
+            os.close(fd)
+
+
+def _early_plant(server: _Server, ask: int, answer: int, go: int) -> None:
+    """The plant's middle process: import the plant's simulator, wait to be asked, fork the plant, exit."""
+    from pbo_runtime.ipc.process import Stop, become_child
+    from pbo_runtime.supervisor import last_out
+
+    try:
+        os.close(server.channel.fileno())  # the supervisor's channel is the server's alone
+        last_out.forget_inherited()  # it makes and opens nothing of the run's: no share in its end
+        become_child(os.getppid())  # it ends with the server
+        import setproctitle
+
+        setproctitle.setproctitle(" ".join([sys.executable, "-m", "pbo_runtime.supervisor.fork_server", "--preload",
+                                            PLANT_HOST, "--run-id", server.run_id, "--early"]))
+        main = _main_of(PLANT_HOST)
+        _warm_plants()
+        gc.freeze()  # (as the server's: `_serve`)
+        with os.fdopen(ask, "rb") as asked:
+            line = asked.readline()
+        if not line:  # not asked: the run needs no plant, or the server ended
+            os._exit(0)
+        request = json.loads(line)
+        _take_environment(request["environ"])
+        signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)  # (as `_Server._fork`)
+        plant = os.fork()
+        if plant == 0:
+            os.close(answer)
+            _child(PLANT_HOST, main, request["argv"], None, go, server.parent, server.openblas, server.run_id)
+        os.write(answer, f"{plant}\n".encode())
+    except Stop:
+        pass
+    os._exit(0)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -278,6 +438,8 @@ def main(argv: list[str] | None = None) -> int:
         last_out.leave()
         raise
     try:
+        if args.file is None and PLANT_HOST in args.preload and len(args.preload) > 1:  # `pbo run`'s
+            server.early_plant = EarlyPlant.fork(server)
         try:
             server.mains = _warm_library(args.preload)
             if args.file is None and not server.await_run():
@@ -285,8 +447,12 @@ def main(argv: list[str] | None = None) -> int:
             if args.file is not None:
                 server.subsystem = _load(args.file)
             if server.subsystem is not None:
+                if server.subsystem.plant is None and server.early_plant is not None:
+                    server.early_plant.end()
+                    server.early_plant = None
                 _warm_subsystem(server.subsystem)
-                if server.subsystem.plant is not None and not select.select([server.channel], [], [], 0)[0]:
+                if (server.subsystem.plant is not None and server.early_plant is None
+                        and not select.select([server.channel], [], [], 0)[0]):
                     _warm_plants()  # the children are not asked for yet: the plant, forked then, starts warm
         except (Stop, BrokenPipeError, ConnectionResetError):
             raise
@@ -306,6 +472,8 @@ def main(argv: list[str] | None = None) -> int:
         supervisor_dying()
     except Stop:
         pass
+    if server.early_plant is not None:
+        server.early_plant.end()
     # EOF: the server made no shared object; if the supervisor died, it may be the run's last process
     # out (before the children were started, or with a restart policy). Tearing down an interpreter
     # that holds numpy, MuJoCo and the module library takes a while: it is skipped.

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import gc
 import importlib
 import json
 import os
@@ -157,6 +158,9 @@ class ForkServer:
                      *(argument for module in preload for argument in ("--preload", module))]
         sys.stdout.flush()  # (what either buffered would be written twice)
         sys.stderr.flush()
+        # what both hold stays out of both's collections: a collection walking it writes to each
+        # object's header, and each process would copy every page of what they share
+        gc.freeze()
         try:
             pid = os.fork()
         except OSError:

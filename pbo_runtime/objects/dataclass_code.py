@@ -35,22 +35,24 @@ _path: str | None = None  # the file (None: not installed)
 compiled = 0  # methods this process compiled (a forked one: since its fork)
 
 
-def install() -> None:
-    """Run each dataclass method from its kept code, compiling only new texts (once per process)."""
+def install() -> bool:
+    """Run each dataclass method from its kept code, compiling only new texts (True: installed by
+    this call; False: installed already, or PBO_CACHE_DIR=off)."""
     global _path
     if _path is not None:
-        return
+        return False
     from pbo_runtime.objects.cache_folder import cache_folder
 
     folder = cache_folder()
     if folder is None:
-        return
+        return False
     import dataclasses
 
     _path = os.path.join(folder, f"dataclass-code.{sys.implementation.cache_tag}.marshal")
     _kept.update(read(_path))
     dataclasses.exec = _exec  # type: ignore[attr-defined]
     os.register_at_fork(after_in_child=_forked)
+    return True
 
 
 def _forked() -> None:

@@ -30,6 +30,7 @@ from collections.abc import Callable
 from typing import Any
 
 from pbo_runtime.ipc.process import STOP_SIGNALS
+from pbo_runtime.objects import dataclass_code
 
 PR_SET_CHILD_SUBREAPER = 36
 REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy and the module library on a busy machine
@@ -506,6 +507,7 @@ class _Server:
 
 
 def main(argv: list[str] | None = None) -> int:
+    dataclass_code.install()  # (a server forked from the CLI has it already)
     parser = argparse.ArgumentParser(prog="python -m pbo_runtime.supervisor.fork_server")
     parser.add_argument("--fd", type=int, required=True, help="this end of the supervisor's socketpair")
     parser.add_argument("--parent", type=int, required=True)
@@ -563,6 +565,7 @@ def main(argv: list[str] | None = None) -> int:
     # out (before the children were started, or with a restart policy). Tearing down an interpreter
     # that holds numpy, MuJoCo and the module library takes a while: it is skipped.
     last_out.leave()
+    dataclass_code.save()  # the module library's methods it compiled, if any (its children never save)
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(0)

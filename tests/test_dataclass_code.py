@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import marshal
 import os
 import subprocess
 import sys
@@ -72,7 +73,7 @@ def behaviour(point: type, box: type) -> list[object]:
 def kept_code(tmp_path, monkeypatch):
     """`dataclass_code` as in a process that has not installed it, keeping its code in `tmp_path`."""
     monkeypatch.setenv("PBO_CACHE_DIR", str(tmp_path))
-    for name, empty in (("_kept", {}), ("_new", {}), ("_used", set()), ("_path", None), ("compiled", 0)):
+    for name, empty in (("_kept", {}), ("_code", {}), ("_new", {}), ("_used", set()), ("_path", None), ("compiled", 0)):
         monkeypatch.setattr(dataclass_code, name, empty)
     monkeypatch.setattr(dataclasses, "exec", None, raising=False)  # (so that what install sets is undone)
     monkeypatch.delattr(dataclasses, "exec")
@@ -82,6 +83,7 @@ def kept_code(tmp_path, monkeypatch):
 def forget_in_memory(module) -> None:
     """As a new process starts: nothing installed, nothing compiled (the file stays)."""
     module._kept.clear()
+    module._code.clear()
     module._new.clear()
     module._used.clear()
     module._path = None
@@ -152,6 +154,10 @@ def corrupt(path: Path) -> None:
     path.write_bytes(dataclass_code.HEADER + b"\x00not marshal data")
 
 
+def holding_other_types(path: Path) -> None:
+    path.write_bytes(dataclass_code.HEADER + marshal.dumps({"def __init__(self): pass": 1}))
+
+
 def from_another_python(path: Path) -> None:
     data = path.read_bytes()
     other = dataclass_code.HEADER.replace(sys.version.encode(), b"3.99.0 (main) [another compiler]")
@@ -169,8 +175,9 @@ def another_users(path: Path) -> None:
     os.chown(path, 65534, 65534)
 
 
-@pytest.mark.parametrize("spoil", [writable_by_group, writable_by_all, corrupt, from_another_python, truncated,
-                                   another_users], ids=lambda spoil: spoil.__name__.replace("_", " "))
+@pytest.mark.parametrize("spoil", [writable_by_group, writable_by_all, corrupt, holding_other_types,
+                                   from_another_python, truncated, another_users],
+                         ids=lambda spoil: spoil.__name__.replace("_", " "))
 def test_a_file_it_cannot_trust_or_read_is_ignored_and_rewritten_whole_on_save(kept_code, tmp_path, spoil):
     kept_code.install()
     make_classes()
@@ -187,6 +194,18 @@ def test_a_file_it_cannot_trust_or_read_is_ignored_and_rewritten_whole_on_save(k
     kept_code.save()
     assert kept_code.read(str(path)).keys() == whole.keys()
     assert path.stat().st_mode & 0o777 == 0o600 and path.stat().st_uid == os.geteuid()
+
+
+def test_an_entry_that_is_not_code_is_compiled_again(kept_code, tmp_path):
+    kept_code.install()
+    make_classes()
+    kept_code.save()
+    path = tmp_path / FILE_NAME
+    texts = kept_code.read(str(path)).keys()
+    path.write_bytes(kept_code.HEADER + marshal.dumps(dict.fromkeys(texts, marshal.dumps("not code"))))
+    forget_in_memory(kept_code)
+    kept_code.install()
+    assert behaviour(*make_classes()) and kept_code.compiled == len(texts)
 
 
 def test_a_folder_where_the_file_should_be_costs_compiling_and_nothing_else(kept_code, tmp_path):

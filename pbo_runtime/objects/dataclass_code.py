@@ -5,11 +5,13 @@ compiles it, in every process, for every class: a large part of importing the ru
 messages. `dataclasses` calls `exec` by name, found in its module before builtins:
 `install()` gives it one that runs the code kept for that very text and compiles only a text not
 seen before; `save()` keeps the new ones for the next process. Nothing else about the class changes.
+An entry stays marshalled until its text is run: a process pays only for the classes it makes.
 
 The file is in the cache folder (`cache_folder`), one per interpreter build. It is trusted as a
 user's own bytecode is: read only if it is a regular file of this user that no one else may write,
 and only if it was written by this very interpreter (`sys.version` heads it); anything else,
-missing, corrupt or truncated reads as empty, never as an error. Only os, sys, marshal and
+missing, corrupt or truncated reads as empty, never as an error; an entry that is not code is
+compiled again. Only os (and its stat), sys, marshal and
 builtins are imported here: the CLI installs it before its own imports.
 """
 
@@ -28,9 +30,10 @@ if TYPE_CHECKING:
 LIMIT = 4096  # entries the file holds at most: over it, a process keeps only the ones it used
 HEADER = f"pbo dataclass code 1\0{sys.version}\0".encode()
 
-_kept: dict[str, Any] = {}  # source text -> its code object: the file's and this process's
-_new: dict[str, Any] = {}  # those compiled in this process, not yet saved
-_used: set[str] = set()  # texts this process ran from the file
+_kept: dict[str, bytes] = {}  # source text -> its marshalled code object, as the file held it
+_code: dict[str, Any] = {}  # source text -> its code object, made in this process (or before its fork)
+_new: dict[str, Any] = {}  # those compiled in this process and not yet saved
+_used: set[str] = set()  # texts this process ran
 _path: str | None = None  # the file (None: not installed)
 compiled = 0  # methods this process compiled (a forked one: since its fork)
 
@@ -68,13 +71,14 @@ def save() -> None:
         return
     import tempfile
 
+    mine = {text: marshal.dumps(code) for text, code in _new.items()}
     try:
         folder = os.path.dirname(_path)
         os.makedirs(folder, exist_ok=True)
         merged = read(_path)
-        merged.update(_new)
+        merged.update(mine)
         if len(merged) > LIMIT:
-            merged = {text: code for text, code in _kept.items() if text in _used or text in _new}
+            merged = {text: data for text, data in merged.items() if text in _used}
         fd, temporary = tempfile.mkstemp(dir=folder, prefix=".dataclass-code.", suffix=".tmp")
         try:
             with os.fdopen(fd, "wb") as file:
@@ -86,12 +90,11 @@ def save() -> None:
             raise
     except OSError:
         return  # a read-only home: the next process compiles them again
-    _used.update(_new)
     _new.clear()
 
 
-def read(path: str) -> dict[str, Any]:
-    """The code kept in `path`: empty unless the file is trusted, whole, and of this interpreter."""
+def read(path: str) -> dict[str, bytes]:
+    """The entries kept in `path`: empty unless the file is trusted, whole, and of this interpreter."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
     except OSError:
@@ -111,21 +114,33 @@ def read(path: str) -> dict[str, Any]:
         return {}
     finally:
         os.close(fd)
-    code_type = type(read.__code__)
-    if type(kept) is not dict or not all(type(text) is str and type(code) is code_type for text, code in kept.items()):
+    if type(kept) is not dict or not all(type(text) is str and type(code) is bytes for text, code in kept.items()):
         return {}
     return kept
 
 
+def _code_for(source: str) -> Any:
+    """The code object of `source`: compiled here before, kept, or compiled now."""
+    global compiled
+    _used.add(source)
+    code = _code.get(source)
+    if code is not None:
+        return code
+    data = _kept.get(source)
+    if data is not None:
+        try:
+            code = marshal.loads(data)
+        except (ValueError, EOFError, TypeError):
+            code = None
+    if type(code) is not type(_code_for.__code__):
+        code = _new[source] = compile(source, "<string>", "exec", dont_inherit=True)
+        compiled += 1
+    _code[source] = code
+    return code
+
+
 def _exec(source: Any, globals: Any = None, locals: Any = None, /, *args: Any, **kwargs: Any) -> None:
     """`dataclasses`'s exec: a method's text runs from its kept code object."""
-    global compiled
-    if type(source) is not str or type(globals) is not dict:
-        return builtins.exec(source, globals, locals, *args, **kwargs)
-    code = _kept.get(source)
-    if code is None:
-        code = _kept[source] = _new[source] = compile(source, "<string>", "exec", dont_inherit=True)
-        compiled += 1
-    else:
-        _used.add(source)
-    return builtins.exec(code, globals, locals, *args, **kwargs)
+    if type(source) is str and type(globals) is dict:
+        source = _code_for(source)
+    return builtins.exec(source, globals, locals, *args, **kwargs)

@@ -11,8 +11,8 @@ The file is in the cache folder (`cache_folder`), one per interpreter build. It 
 user's own bytecode is: read only if it is a regular file of this user that no one else may write,
 and only if it was written by this very interpreter (`sys.version` heads it); anything else,
 missing, corrupt or truncated reads as empty, never as an error; an entry that is not code is
-compiled again. Only os (and its stat), sys, marshal and
-builtins are imported here: the CLI installs it before its own imports.
+compiled again. Only os (and its stat), sys, marshal and builtins are imported here: the CLI
+installs it before its own imports.
 """
 
 from __future__ import annotations  # (the code compiled here does not inherit it: dont_inherit)

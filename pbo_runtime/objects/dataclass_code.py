@@ -71,7 +71,7 @@ def save() -> None:
         return
     import tempfile
 
-    mine = {text: marshal.dumps(code) for text, code in _new.items()}
+    mine = {text: marshal.dumps(code) for text, code in list(_new.items())}  # (a thread may add one meanwhile)
     try:
         folder = os.path.dirname(_path)
         os.makedirs(folder, exist_ok=True)
@@ -90,7 +90,8 @@ def save() -> None:
             raise
     except OSError:
         return  # a read-only home: the next process compiles them again
-    _new.clear()
+    for text in mine:
+        del _new[text]
 
 
 def read(path: str) -> dict[str, bytes]:

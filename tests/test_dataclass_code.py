@@ -123,6 +123,38 @@ def test_a_second_process_making_the_runtimes_dataclasses_compiles_none_of_their
 
 
 @pytest.mark.multiprocess
+def test_a_second_pbo_check_finds_every_method_kept_and_leaves_the_file_as_it_was(tmp_path):
+    env = {**os.environ, "PBO_CACHE_DIR": str(tmp_path)}
+    check = [sys.executable, "-m", "pbo_runtime.cli", "check", "configs/pid_joint.yaml"]
+    subprocess.run(check, cwd=REPO, env=env, capture_output=True, timeout=120, check=True)
+    written = (tmp_path / FILE_NAME).stat()
+    subprocess.run(check, cwd=REPO, env=env, capture_output=True, timeout=120, check=True)
+    assert (tmp_path / FILE_NAME).stat().st_ino == written.st_ino  # (a save replaces the file: a new inode)
+    assert len(dataclass_code.read(str(tmp_path / FILE_NAME))) > 100
+
+
+@pytest.mark.multiprocess
+def test_a_forked_child_has_the_code_its_parent_compiled_but_not_its_parents_to_save(kept_code):
+    kept_code.install()
+    make_classes()
+    compiled = kept_code.compiled
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # (the child never returns to pytest)
+        try:
+            os.close(read_end)
+            make_classes()
+            os.write(write_end, json.dumps([kept_code.compiled, len(kept_code._new)]).encode())
+        finally:
+            os._exit(0)
+    os.close(write_end)
+    with os.fdopen(read_end) as said:
+        assert json.loads(said.read()) == [0, 0]
+    os.waitpid(pid, 0)
+    assert compiled > 0 and kept_code.compiled == len(kept_code._new) == compiled
+
+
+@pytest.mark.multiprocess
 def test_two_processes_making_different_classes_leave_a_file_holding_both(tmp_path):
     define_in_a_process(tmp_path, "Left")
     define_in_a_process(tmp_path, "Right")

@@ -9,6 +9,10 @@ written by job control) and stages it for the next plan.
 
 from __future__ import annotations
 
+from pbo_runtime.objects import dataclass_code
+
+dataclass_code.install()  # before the imports below make their dataclasses (a fork server's: installed already)
+
 import dataclasses
 import json
 import os
@@ -249,5 +253,7 @@ def pump(relays: list[MessageRelay]) -> None:
             relay.pump()
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # a fresh interpreter (a forked child never saves)
+    status = main()
+    dataclass_code.save()
+    sys.exit(status)

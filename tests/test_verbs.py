@@ -69,5 +69,6 @@ def test_help_version_and_completion_load_neither_numpy_nor_the_checker_nor_a_ha
     assert not {"numpy", "mujoco", "pbo_runtime.config.checker", "pbo_runtime.supervisor.commands",
                 "pbo_runtime.cli.running", "pbo_runtime.cli.check"} & loaded
     if argv == ["--version"]:  # the answer alone: no parser of every verb, no package metadata library
-        assert not {"pbo_runtime.cli.parser", "pbo_runtime.objects.registry", "importlib.metadata", "argparse", "rich"} & loaded
+        assert not {"pbo_runtime.cli.parser", "pbo_runtime.objects.registry", "importlib.metadata", "argparse", "rich",
+                    "dataclasses", "pbo_runtime.objects.dataclass_code"} & loaded
         assert done.stdout.startswith("pbo ")

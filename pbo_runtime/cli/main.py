@@ -50,6 +50,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if command_line and argv[:1] == ["run"] and "--one-process" in argv:
         _with_fixed_hashing(argv)  # before the parser is imported: the interpreter that runs is the next one
+    _keep_dataclass_code()
     fork_server = _early_fork_server(argv)
     try:
         return _main(argv, command_line, fork_server)
@@ -105,6 +106,17 @@ def _main(argv: list[str], command_line: bool, fork_server: ForkServer | None) -
         return EXIT_RUN
     except Exception:
         return _internal_error(args, errors)
+
+
+def _keep_dataclass_code() -> None:
+    """Dataclass methods run from the code kept by an earlier process, before the first dataclass is
+    made (the fork server, forked later, inherits it); what this process compiled is kept at exit."""
+    import atexit
+
+    from pbo_runtime.objects import dataclass_code
+
+    if dataclass_code.install():
+        atexit.register(dataclass_code.save)
 
 
 def _with_fixed_hashing(argv: list[str]) -> None:

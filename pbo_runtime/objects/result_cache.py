@@ -4,9 +4,8 @@ range without Pinocchio).
 
 An entry is named by a hash of everything its value depends on: the caller's inputs, and the
 source files and installed libraries that compute it, so a changed input, a changed computation
-or another library version reads as a miss, never as a stale value. The folder is
-$PBO_CACHE_DIR, else $XDG_CACHE_HOME/pbo-runtime, else ~/.cache/pbo-runtime; PBO_CACHE_DIR=off
-keeps nothing. A folder that cannot be read or written costs the computation, never the answer.
+or another library version reads as a miss, never as a stale value. The folder is `cache_folder`'s
+(PBO_CACHE_DIR=off keeps nothing). A folder that cannot be read or written costs the computation, never the answer.
 """
 
 from __future__ import annotations
@@ -21,18 +20,15 @@ from pathlib import Path
 
 import numpy as np
 
+from pbo_runtime.objects.cache_folder import cache_folder
+
 FORMAT = 1  # what an entry holds and how: a change here names every entry anew
 
 
 def cache_dir() -> Path | None:
     """Where entries are kept (None: PBO_CACHE_DIR=off)."""
-    chosen = os.environ.get("PBO_CACHE_DIR", "")
-    if chosen == "off":
-        return None
-    if chosen:
-        return Path(chosen)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "pbo-runtime"
+    folder = cache_folder()
+    return Path(folder) if folder is not None else None
 
 
 def fingerprint(*parts: bytes | str, sources: tuple[str, ...] = (), libraries: tuple[str, ...] = ()) -> str:

@@ -271,6 +271,9 @@ def _threads() -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m pbo_runtime.supervisor.fork_server`: the server's own process (`supervisor.fork_server_process`)."""
+    from pbo_runtime.objects import dataclass_code
+
+    dataclass_code.install()  # (a server forked from the CLI has it already)
     from pbo_runtime.supervisor.fork_server_process import main as serve
 
     return serve(argv)

@@ -27,6 +27,7 @@ from collections.abc import Callable
 from typing import Any
 
 from pbo_runtime.ipc.process import STOP_SIGNALS
+from pbo_runtime.objects import dataclass_code
 from pbo_runtime.supervisor.fork_server import END, WARM_FOR_RESTARTS, _threads
 
 PLANT_HOST = "pbo_runtime.supervisor.plant_host"  # what `pbo run`'s plant runs
@@ -478,6 +479,7 @@ def main(argv: list[str] | None = None) -> int:
     # out (before the children were started, or with a restart policy). Tearing down an interpreter
     # that holds numpy, MuJoCo and the module library takes a while: it is skipped.
     last_out.leave()
+    dataclass_code.save()  # the module library's methods it compiled, if any (its children never save)
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(0)

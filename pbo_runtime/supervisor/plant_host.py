@@ -14,6 +14,10 @@ With `--clock sim` it steps exactly once per tick of the supervisor's simulated 
 
 from __future__ import annotations
 
+from pbo_runtime.objects import dataclass_code
+
+dataclass_code.install()  # before the imports below make their dataclasses (a fork server's: installed already)
+
 import argparse
 import contextlib
 import inspect
@@ -221,5 +225,7 @@ def in_process(argv: list[str], events: messages.Queue) -> HostedPlant:
     return HostedPlant(plant, events)
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # a fresh interpreter (a forked child never saves)
+    status = main()
+    dataclass_code.save()
+    sys.exit(status)

@@ -253,9 +253,11 @@ class MujocoArmPlant:
 
     @staticmethod
     def warm() -> None:
-        """Import what a plant imports once made (MuJoCo, the robot loader): a fork server calls it, so
-        the plant it forks has them."""
+        """Import what a plant imports once made (MuJoCo, the robot loader, numpy's random generators
+        for its noise): a fork server calls it, so the plant it forks has them."""
         _import_mujoco()
+        import numpy.random  # noqa: F401  (a forked child reseeds its global state: `fork_server_process._child`)
+
         import drivers.robots.plant_model  # noqa: F401
 
     @staticmethod

@@ -69,16 +69,15 @@ def _main(argv: list[str], command_line: bool, fork_server: ForkServer | None) -
     if command_line and getattr(args, "one_process", False):
         _with_fixed_hashing(argv)
     handler = _handler(args.handler)  # the verb's own code, imported only now
-    from rich.console import Console
+    from typing import cast
 
+    from pbo_runtime.cli.console import LazyConsole
     from pbo_runtime.errors import ConfigErrors, PboError
 
     args.entered = time.monotonic()  # the start-up's time line (`pbo run`): the CLI's imports end here
-    console = Console(highlight=False)
-    errors = Console(stderr=True, highlight=False, soft_wrap=True)
-    if not console.is_terminal:  # logs and CI: wide enough for the summary, no wrapping
-        console = Console(highlight=False, width=140)
-        errors = Console(stderr=True, highlight=False, width=140, soft_wrap=True)
+    # rich's consoles, made once used (`cli.console`): `pbo run` off a terminal makes them after `on`
+    lazy = LazyConsole()
+    console, errors = cast("Console", lazy), cast("Console", LazyConsole(stderr=True, width_from=lazy))
     try:
         status = handler(args, console, errors)
         if status == EXIT_CONFIG:

@@ -27,6 +27,7 @@ from rich.live import Live
 from rich.table import Table
 
 from pbo_runtime.api.jsonable import jsonable
+from pbo_runtime.cli.console import rich_console
 from pbo_runtime.errors import PboError
 from pbo_runtime.ipc import shm
 from pbo_runtime.ipc.control import BadRequest, ControlClient
@@ -373,7 +374,7 @@ def svar(console: Console, names: Sequence[str], watch: bool, interval: float = 
         if not watch:
             console.print(svar_table(svar_rows(view, chosen, writers), title))
             return 0
-        with Live(console=console, auto_refresh=False, transient=False) as live:
+        with Live(console=rich_console(console), auto_refresh=False, transient=False) as live:
             try:
                 count = 0
                 rows: list[dict[str, Any]] = []

@@ -16,18 +16,17 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rich.console import Console
-from rich.live import Live
-from rich.markup import escape
-from rich.table import Table
-
 from pbo_runtime.cli import summary
 from pbo_runtime.cli.arguments import host_addresses
+from pbo_runtime.cli.console import LazyConsole, rich_console
 from pbo_runtime.cli.exits import EXIT_CONFIG, EXIT_OK, EXIT_RUN
 from pbo_runtime.links.run_link import links_from_json
 from pbo_runtime.supervisor.run_options import Alternation, RunOptions
 
 if TYPE_CHECKING:
+    from rich.console import Console
+    from rich.table import Table
+
     from pbo_runtime.supervisor.fork_server import ForkServer
 
 
@@ -86,7 +85,7 @@ def _load_and_run(args: argparse.Namespace, console: Console, errors: Console, f
     args.loaded = time.monotonic()
     if fork_server is not None:
         fork_server.hand_over(subsystem)
-    live = console.is_terminal and not args.no_live
+    live = not args.no_live and console.is_terminal
     duration = args.duration if args.duration > 0 else None
     alternate = None
     if args.alternate:
@@ -128,7 +127,9 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
         say(note)
     with _results_outlive_a_second_stop():
         if live:
-            with Live(console=console, refresh_per_second=4, transient=True) as view:
+            from rich.live import Live
+
+            with Live(console=rich_console(console), refresh_per_second=4, transient=True) as view:
                 supervisor.on_tick = lambda s: view.update(_status_table(s))
                 result = supervisor.run()
         else:
@@ -285,6 +286,8 @@ def _run_linked_subsystems(args: argparse.Namespace, console: Console, errors: C
 
 
 def _status_table(supervisor: Any) -> Table:
+    from rich.table import Table
+
     elapsed = supervisor.now() - supervisor.started_at if supervisor.started_at is not None else 0.0
     table = Table(title=f"{supervisor.subsystem.name} · {supervisor.configuration} · {elapsed:5.1f} s", title_justify="left")
     for column in ("task", "rtpu", "state", "cycles", "overruns", "exec µs", "max jitter µs"):
@@ -300,7 +303,12 @@ def _status_table(supervisor: Any) -> Table:
 
 def _sayer(console: Console) -> Callable[[str], None]:
     """How a run's lines are printed: one line each however long (a log is read by line, and
-    grepped), and the text as written, brackets included (not taken for markup)."""
+    grepped), and the text as written, brackets included (not taken for markup); off a terminal,
+    before rich is made, written as they are (`cli.console`)."""
     def say(text: str) -> None:
+        if isinstance(console, LazyConsole) and console.write_plainly(f"pbo: {text}"):
+            return
+        from rich.markup import escape
+
         console.print(f"[dim]pbo:[/dim] {escape(text)}", markup=True, soft_wrap=True)
     return say

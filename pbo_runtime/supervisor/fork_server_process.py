@@ -395,6 +395,7 @@ def _early_plant(server: _Server, ask: int, answer: int, go: int) -> None:
                                             PLANT_HOST, "--run-id", server.run_id, "--early"]))
         main = _main_of(PLANT_HOST)
         _warm_plants()
+        dataclass_code.save()  # the plant's classes it made, if new, while it waits (the server saves its own)
         gc.freeze()  # (as the server's: `_serve`)
         with os.fdopen(ask, "rb") as asked:
             line = asked.readline()

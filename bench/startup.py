@@ -151,38 +151,43 @@ ports, the model and the checker compute with it), rich's console about an eight
 tenth, the checker's own modules and PyYAML most of the rest. The registry's entry points are
 read from each installed distribution's `entry_points.txt` by `pbo_runtime.objects.distributions`,
 without importing `importlib.metadata` (the email package and zipfile: more than the reading
-itself). Within the check, creating the model's and checker's dataclasses at import and compiling
-their regular expressions are a visible share; the file checked itself is a few tens of ms.
+itself). Within the check, compiling the checker's and PyYAML's regular expressions is a visible
+share (the dataclasses' methods are read from the code kept per machine); the file checked itself
+is a few tens of ms.
 The line "the machine's first" is the same check with no result cache: it imports MuJoCo for the
 plant's description and Pinocchio for the inertia range, and computes both. Below this floor
 would take a checker without numpy, or printing without rich.
 `pbo run`: the CLI imports numpy and what it shares with the children (the model, the table, the
-queues, the clocks), then forks the fork server from itself, before its parser (`cli/main.py`).
-Side by side, the CLI builds its verb's parser, imports rich, the loader and the checker, loads
-and checks the file, hands the server the checked subsystem, imports the supervisor and makes the
-table, while the server imports what only the children run (their own code, the module library
-with Pinocchio). Once it is warm, one middle process forks the plant and both RTPUs (one request);
-the plant imports MuJoCo and compiles its model once forked, beside the RTPUs' start; each task's
-init runs; the server ends once the configuration is on. A time line stamped in every process
-(`perf_counter`, one run, load about 1.5) put the chain before these changes at: interpreter 22
-ms, shared imports 168 ms (the loader, checker and PyYAML among them), the server's own 172 ms
-(the library about 100, half of it Pinocchio; MuJoCo 55-65) against the CLI's 110, three double
-forks in a row 38 ms, the last child ready 16 ms later, inits and on 10 ms, and the server's exit
-reaped before the children's Ready (3-74 ms). Since: the loader, checker and PyYAML are imported
-after the fork by the CLI alone (an RTPU reads a live change through `edit.wire`), MuJoCo by the
-server while it waits for the children's request (before the file is handed over, or after it is
-warm until the CLI has made its table: the plant then starts warm), one middle process forks the three
-children (18-53 ms from the request to the reply, where the three requests took 35-70), and the
-server is ended after `on`. Alternated runs before and after, 20 each: p50 0.498 and 0.387 s at
-load about 1.3; 0.721 and 0.689 s, then 1.090 and 0.868 s, at load 3.5-4, where no CPU is free
-for either side. At load 1.3 the two sides now reach the table and a warm server about together
-(p50 298 and 296 ms); under load the CLI's is the later (557 and 491 ms at load 3). What is left: numpy and the shared
-runtime once; the larger of the two sides' imports (the CLI's: rich, the loader and the checker,
-the supervisor; the server's: the library with Pinocchio, then MuJoCo while the CLI makes its
-table); the plant's model; the inits. From the fork to the table
-both CPUs are busy, so moving imports between the sides no longer pays; shorter would take fewer
-imports (a library whose modules import Pinocchio only when a task is made), or a server kept
-warm between runs. Read each figure against its floor: on a busy machine both grow alike.""",
+queues, the clocks), freezes that heap (`gc.freeze()`: no collection in either process then walks
+what they share, which would copy its pages) and forks the fork server from itself, before its
+parser (`cli/main.py`). The methods `dataclasses` generates for the runtime's classes (about 300
+in the shared imports alone, one compile each) are compiled once per machine and kept beside the
+result cache: in a fresh interpreter the shared imports, numpy included, went from p50 122 to 104
+ms (12 alternated rounds). The server forks the plant's middle process at once. Then three
+processes share the two CPUs: the CLI builds its verb's parser, loads and checks the file, hands
+the server the checked subsystem, imports the supervisor and makes the table (rich it imports
+only for the summary, once the configuration is on, where its output is no terminal); the server
+imports the RTPU's code and the module library, Pinocchio most of it (the demo's PID needs it for
+its gravity feed-forward, and every RTPU holds the whole library so that a task spawned live never
+imports between two cycles); the plant's middle process imports MuJoCo (and numpy's random
+generators). Asked, the server's middle forks both RTPUs and the plant's middle forks the plant,
+side by side; the plant compiles its model; each task's init runs; the server ends once the
+configuration is on. A time line stamped in every process (`process_time` and `monotonic`, this
+machine, quiet) after these changes: the CLI reaches its table about 95 ms after the fork, having
+used about 90 ms of CPU; the server is warm 160-175 ms after it (about 115-130 ms of CPU, Pinocchio
+and the library about 90 of them, against 60-70 in a process of its own: the pages a forked
+process writes are copied); the plant's middle is warm after 140-150 ms (85 ms of CPU, MuJoCo's
+import); the server's reply comes about 11 ms after the request, the children are ready 17-33 ms
+later, the inits and `on` take 10 ms. From the fork to the children's request both CPUs are busy,
+and before the fork one is idle while the CLI imports what both need: the figure is the CPU time
+of numpy, Pinocchio, MuJoCo, the check and the runtime's own imports, shared by two CPUs.
+Alternated `pbo run` start-ups (14 rounds, the tree before and after): early plant, frozen heap and
+kept dataclass code 353 -> 334 ms, with rich after `on` 386 -> 367 ms (the machine slower then);
+kept dataclass code alone 341-370 -> 310-330 ms against the code of the last `make bench`. What is
+left: numpy and the shared runtime once, before the fork; Pinocchio and MuJoCo; the check; the
+copying after the fork. Shorter would take less of that work: a library whose Pinocchio modules
+could be imported between cycles without holding the GIL (it cannot), or a server kept warm
+between runs. Read each figure against its floor: on a busy machine both grow alike.""",
     )
     with tempfile.TemporaryDirectory(prefix="pbo-bench-startup-") as tmp:
         folder = Path(tmp)

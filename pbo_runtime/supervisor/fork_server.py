@@ -25,14 +25,12 @@ import sys
 import time
 from typing import Any
 
+from pbo_runtime.supervisor.fork_server_process import END, thread_count
+from pbo_runtime.supervisor.fork_server_process import main as serve
+
 PR_SET_CHILD_SUBREAPER = 36
 REQUEST_TIMEOUT = 60.0  # seconds for the server to import numpy and the module library on a busy machine
 CLOSE_TIMEOUT = 2.0
-END = b"end\n"  # the supervisor's last line to the server: its channel closing without it means the supervisor died
-# What the runtime's public surface imports on first use (`pbo_runtime.arm_model` imports Pinocchio),
-# imported by the server of a subsystem with a restart policy: a restarted controller's init would
-# otherwise import it again, most of its spawn (docs/performance.md, a dead RTPU restarted alone).
-WARM_FOR_RESTARTS = ("pinocchio",)
 RUN_PRELOAD = ("pbo_runtime.supervisor.plant_host", "rtpu")  # what `pbo run`'s children run
 
 
@@ -150,7 +148,7 @@ class ForkServer:
                 os.environ.pop("OPENBLAS_NUM_THREADS", None)
             else:
                 os.environ["OPENBLAS_NUM_THREADS"] = openblas
-        if _threads() != 1:
+        if thread_count() != 1:
             raise OSError("this process holds more than one thread: it cannot fork a server")
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
         arguments = ["--fd", str(theirs.fileno()), "--parent", str(os.getpid()), "--forked", "--run-id", run_id,
@@ -262,20 +260,10 @@ class ForkServer:
             self.process.kill()
             self.process.wait()
 
-def _threads() -> int:
-    try:
-        return len(os.listdir("/proc/self/task"))
-    except OSError:
-        return 0  # cannot tell: refused below
 
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m pbo_runtime.supervisor.fork_server`: the server's own process (`supervisor.fork_server_process`)."""
-    from pbo_runtime.objects import dataclass_code
-
-    dataclass_code.install()  # (a server forked from the CLI has it already)
-    from pbo_runtime.supervisor.fork_server_process import main as serve
-
     return serve(argv)
 
 

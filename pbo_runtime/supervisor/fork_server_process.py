@@ -28,9 +28,21 @@ from typing import Any
 
 from pbo_runtime.ipc.process import STOP_SIGNALS
 from pbo_runtime.objects import dataclass_code
-from pbo_runtime.supervisor.fork_server import END, WARM_FOR_RESTARTS, _threads
 
 PLANT_HOST = "pbo_runtime.supervisor.plant_host"  # what `pbo run`'s plant runs
+END = b"end\n"  # the supervisor's last line to the server: its channel closing without it means the supervisor died
+# What the runtime's public surface imports on first use (`pbo_runtime.arm_model` imports Pinocchio),
+# imported by the server of a subsystem with a restart policy: a restarted controller's init would
+# otherwise import it again, most of its spawn (docs/performance.md, a dead RTPU restarted alone).
+WARM_FOR_RESTARTS = ("pinocchio",)
+
+
+def thread_count() -> int:
+    """How many threads this process holds (0: cannot tell): a process forks only while it holds one."""
+    try:
+        return len(os.listdir("/proc/self/task"))
+    except OSError:
+        return 0  # cannot tell: refused below
 
 
 def _main_of(module: str) -> Callable[..., int]:
@@ -205,7 +217,7 @@ class _Server:
             module, argv = child if isinstance(child, list) and len(child) == 2 else (child, None)
             if not isinstance(module, str) or module not in self.mains or not isinstance(argv, list):
                 return self.reply({"error": f"the fork server does not start {module!r}"})
-        threads = _threads()
+        threads = thread_count()
         if threads != 1:
             return self.reply({"error": f"the fork server holds {threads} threads: a fork would copy their locks"})
         early, self.early_plant = self.early_plant, None  # (one plant a run: asked once)
@@ -415,6 +427,7 @@ def _early_plant(server: _Server, ask: int, answer: int, go: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    dataclass_code.install()  # (a server forked from the CLI has it already)
     parser = argparse.ArgumentParser(prog="python -m pbo_runtime.supervisor.fork_server")
     parser.add_argument("--fd", type=int, required=True, help="this end of the supervisor's socketpair")
     parser.add_argument("--parent", type=int, required=True)

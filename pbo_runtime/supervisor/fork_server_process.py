@@ -413,6 +413,8 @@ def _early_plant(server: _Server, ask: int, answer: int, go: int) -> None:
             line = asked.readline()
         if not line:  # not asked: the run needs no plant, or the server ended
             os._exit(0)
+        if thread_count() != 1:  # a fork would copy their locks: the server forks the plant itself
+            os._exit(0)
         request = json.loads(line)
         _take_environment(request["environ"])
         signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)  # (as `_Server._fork`)

@@ -69,26 +69,14 @@ def save() -> None:
     """Add this process's new code to the file, merged with what the file holds now (no-op if none)."""
     if not _new or _path is None:
         return
-    import tempfile
+    from pbo_runtime.objects.cache_folder import keep_whole
 
     mine = {text: marshal.dumps(code) for text, code in list(_new.items())}  # (a thread may add one meanwhile)
-    try:
-        folder = os.path.dirname(_path)
-        os.makedirs(folder, exist_ok=True)
-        merged = read(_path)
-        merged.update(mine)
-        if len(merged) > LIMIT:
-            merged = {text: data for text, data in merged.items() if text in _used}
-        fd, temporary = tempfile.mkstemp(dir=folder, prefix=".dataclass-code.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as file:
-                file.write(HEADER)
-                file.write(marshal.dumps(merged))
-            os.replace(temporary, _path)
-        except BaseException:
-            os.unlink(temporary)
-            raise
-    except OSError:
+    merged = read(_path)
+    merged.update(mine)
+    if len(merged) > LIMIT:
+        merged = {text: data for text, data in merged.items() if text in _used}
+    if not keep_whole(_path, lambda file: file.write(HEADER + marshal.dumps(merged))):
         return  # a read-only home: the next process compiles them again
     for text in mine:
         del _new[text]

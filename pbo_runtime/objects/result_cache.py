@@ -13,14 +13,13 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import os
-import tempfile
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from pbo_runtime.objects.cache_folder import cache_folder
+from pbo_runtime.objects.cache_folder import cache_folder, keep_whole
 
 FORMAT = 1  # what an entry holds and how: a change here names every entry anew
 
@@ -58,22 +57,6 @@ def cached_arrays(name: str, compute: Callable[[], dict[str, np.ndarray]]) -> di
         except (OSError, ValueError, EOFError, zipfile.BadZipFile):  # not there yet, or unreadable: computed again
             pass
     value = compute()
-    if path is not None:
-        _keep(path, value)
+    if path is not None:  # written whole or not at all; a read-only home: the next process computes it again
+        keep_whole(str(path), lambda file: np.savez(file, **value))  # type: ignore[arg-type]  # (the stubs read a name as savez's allow_pickle)
     return value
-
-
-def _keep(path: Path, value: dict[str, np.ndarray]) -> None:
-    """Written whole or not at all: to a temporary file beside it, then renamed over it."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as file:
-                np.savez(file, **value)  # type: ignore[arg-type]  # (the stubs read a name as savez's allow_pickle)
-            os.replace(temporary, path)
-        except BaseException:
-            os.unlink(temporary)
-            raise
-    except OSError:
-        pass  # a read-only home: the next process computes it again

@@ -18,7 +18,9 @@ import numpy as np
 import pytest
 
 from pbo_runtime import read_log
+from pbo_runtime.cli.main import main
 from pbo_runtime.clock.lockstep import LockstepMaster, LockstepParticipant
+from pbo_runtime.clock.run_clock import PACE_TURN
 from pbo_runtime.ipc import shm
 from pbo_runtime.table.table import HEADER_WORDS, Header
 from tests.support import DEMO, PBO, REPO, assert_nothing_left, children_of, read_until
@@ -152,6 +154,30 @@ def test_a_simulated_run_releases_every_cycle_and_steps_the_plant_once_per_tick(
     assert "clock: simulated, 1 ms ticks; 2.00 s simulated in" in done.stdout
     assert sorted(os.listdir(tmp_path / "out")) == ["pid_joint.mcap", "report.json"]
     assert not (tmp_path / "runs").exists()  # with --out, the YAML's directory is not used
+
+
+@pytest.mark.multiprocess
+def test_a_paced_run_is_the_same_run_and_no_faster_than_its_pace(tmp_path):
+    """`--pace 4`: one simulated second takes a quarter of a wall second at least (the last look at
+    the wall clock is one turn of the ring before the end), and the run writes what an unpaced one does."""
+    _, fast = run_sim(tmp_path, DEMO, "--duration", "1", out="fast")
+    _, paced = run_sim(tmp_path, DEMO, "--duration", "1", "--pace", "4", out="paced")
+    assert paced["running_wall_seconds"] >= (1.0 - PACE_TURN * 4) / 4
+    assert (tmp_path / "paced" / "pid_joint.mcap").read_bytes() == (tmp_path / "fast" / "pid_joint.mcap").read_bytes()
+    assert paced["variables"] == fast["variables"] and paced["plant"]["steps"] == fast["plant"]["steps"]
+    assert_nothing_left(paced)
+
+
+@pytest.mark.parametrize("arguments, said", [
+    (("--clock", "sim", "--pace", "0"), "--pace 0 is out of range: give simulated seconds per wall second from 0.01 to 1000"),
+    (("--clock", "sim", "--pace", "nan"), "--pace nan is out of range"),
+    (("--clock", "sim", "--pace", "5000"), "--pace 5000 is out of range"),
+    (("--pace", "1"), "--pace slows the simulated clock; the real clock already runs at real time: add --clock sim"),
+])
+def test_a_pace_out_of_range_or_on_the_real_clock_is_refused_before_anything_starts(tmp_path, capsys, arguments, said):
+    assert main(["run", str(DEMO), *arguments, "--no-live", "--out", str(tmp_path / "out")]) == 1
+    assert said in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.multiprocess

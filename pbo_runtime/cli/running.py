@@ -21,7 +21,7 @@ from pbo_runtime.cli.arguments import host_addresses
 from pbo_runtime.cli.console import LazyConsole, rich_console
 from pbo_runtime.cli.exits import EXIT_CONFIG, EXIT_OK, EXIT_RUN
 from pbo_runtime.links.run_link import links_from_json
-from pbo_runtime.supervisor.run_options import Alternation, RunOptions
+from pbo_runtime.supervisor.run_options import Alternation, RunOptions, pace_refused
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -38,6 +38,10 @@ def run(args: argparse.Namespace, console: Console, errors: Console) -> int:
     if args.one_process and args.clock != "sim":
         errors.print("error: --one-process runs the plant and the RTPUs in turn in one process, which only the "
                      "simulated clock allows: add --clock sim", markup=False)
+        return EXIT_CONFIG
+    refused = pace_refused(args.pace, args.clock)
+    if refused:
+        errors.print(f"error: {refused}", markup=False)
         return EXIT_CONFIG
 
     if is_application_file(args.file):
@@ -108,7 +112,7 @@ def _run_subsystem(args: argparse.Namespace, console: Console, errors: Console, 
 
     startup = {"process": process_started(), "cli": args.entered, "loaded": getattr(args, "loaded", args.entered)}
     options = RunOptions(application=args.app, static=args.static, alternate=alternate, fifo=args.fifo, clock=args.clock,
-                         one_process=args.one_process,
+                         one_process=args.one_process, pace=args.pace,
                          out_dir=str(args.out), links=links_from_json(args.links) if args.links else None, turn=args.turn,
                          stages=args.stages, startup=startup)
     refused = _check_output_paths(args)
@@ -277,7 +281,7 @@ def _run_linked_subsystems(args: argparse.Namespace, console: Console, errors: C
         + f": {', '.join(here)}; "
         + ("Ctrl-C stops it" if duration is None else f"runs {duration:g} s, Ctrl-C stops it sooner"))
     code = ApplicationRunner(app, duration, say, clock=args.clock, out_dir=args.out, fifo=args.fifo, host=args.host,
-                             one_process=args.one_process).run()
+                             one_process=args.one_process, pace=args.pace).run()
     if code:
         errors.print(f"error: application '{app.name}' stopped: a subsystem failed (exit {code}); see its lines above",
                      markup=False)

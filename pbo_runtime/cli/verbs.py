@@ -69,6 +69,9 @@ OFFLINE: tuple[Command, ...] = (
         Argument("--one-process", flag=True,
                  help="with --clock sim: the plant and every RTPU in this one process, taking their turns in the "
                       "same order: the same run (logs and report), without a process hand-over per tick"),
+        Argument("--pace", type=float, metavar="FACTOR",
+                 help="with --clock sim: at most FACTOR simulated seconds per wall second (1: real time, to watch "
+                      "the run in the HMI; 0.01 to 1000); the same run, only no faster"),
         Argument("--out", type=Path, metavar="DIR",
                  help="the run's output directory: its report (report.json), its data logs and every file it "
                       "writes (default: runs/SUBSYSTEM-DATE-TIME/ in the current directory)"),

@@ -17,7 +17,10 @@ here once instead of in branches through the supervisor:
   application on the simulated clock it takes the application's turn
   (`clock.application_lockstep`) before each tick or step, and gives it back after each tick.
   With `one_process` the participants are hosted in the supervisor's process and the ring is
-  a loop of calls (`clock.local_ring`), the same turns in the same order.
+  a loop of calls (`clock.local_ring`), the same turns in the same order. With a `pace` (`pbo run
+  --pace`), simulated time runs no faster than that many seconds per wall second, for a person
+  watching it: the master waits on the wall clock between turns of the ring, never within one,
+  so the ticks and what they compute are the same as unpaced.
 """
 
 from __future__ import annotations
@@ -37,6 +40,8 @@ from pbo_runtime.clock.lockstep import LockstepMaster, RingStop, ring_arguments,
 from pbo_runtime.table.table import Header
 
 TURN_STALL_SECONDS = 30.0  # wall seconds one participant may take over a tick while a whole application waits
+PACE_TURN = 0.01  # paced: wall seconds between two looks at the wall clock (the ring runs the ticks they cover)
+PACE_BEHIND = 0.1  # paced: wall seconds a run may fall behind its pace before it stops catching up (a slow machine)
 
 
 class RunClock(Protocol):
@@ -165,9 +170,12 @@ class SimRunClock:
     signals_served_when_sent = True
     plans_need_a_wakeup = False  # the simulated clock's RTPUs read the header every tick anyway
 
-    def __init__(self, tick: float, gate: TurnGate | None = None, stall_limit: float = TURN_STALL_SECONDS,
-                 one_process: bool = False) -> None:
+    def __init__(self, tick: float, gate: TurnGate | None = None, one_process: bool = False, pace: float | None = None,
+                 stall_limit: float = TURN_STALL_SECONDS) -> None:
         self.tick = tick
+        # `--pace`: at most this many simulated seconds per wall second (None: as fast as the machine allows)
+        self.pace = pace
+        self._paced_from: tuple[float, float] | None = None  # (wall, simulated) seconds the pace is counted from
         # `--one-process`: the participants are hosted in this process and take their turns by calls
         # (`clock.local_ring`), in the order the processes would take them
         self.one_process = one_process
@@ -213,13 +221,31 @@ class SimRunClock:
         gate = self.gate
         left = max(1, math.floor(timeout / self.tick + 1e-9))
         limit = self.ticks_per_turn or left
+        if self.pace is not None:
+            limit = min(limit, max(1, round(PACE_TURN * self.pace / self.tick)))
         while left > 0:
+            if self.pace is not None:
+                self._keep_pace()  # before the application's turn: another subsystem may use the wait
             if gate is not None:
                 gate.take(while_stepping)
             left -= self.lockstep.advance(while_ticking, min(left, limit))
             if gate is not None:
                 gate.give()  # one tick a turn: the application's next turn may be another subsystem's
             while_stepping()
+
+    def _keep_pace(self) -> None:
+        """Wait until the wall clock has caught up with simulated time at the pace; a run that fell
+        behind it (a machine slower than the pace) counts its pace from now rather than rushing."""
+        assert self.pace is not None
+        wall, simulated = time.monotonic(), self.now()
+        if self._paced_from is None:
+            self._paced_from = (wall, simulated)  # the first tick: start-up is not paced
+            return
+        ahead = self._paced_from[0] + (simulated - self._paced_from[1]) / self.pace - wall
+        if ahead > 0:
+            time.sleep(ahead)
+        elif ahead < -PACE_BEHIND:
+            self._paced_from = (wall, simulated)
 
     def serve(self, role: str, while_waiting: Callable[[], bool | None]) -> None:
         if self.lockstep is not None:

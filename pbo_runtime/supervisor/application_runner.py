@@ -95,9 +95,10 @@ def _free_port() -> int:
 class ApplicationRunner:
     def __init__(self, application: Application, duration: float | None, say: Callable[[str], None],
                  clock: str = "real", out_dir: Path | None = None, fifo: bool | None = None,
-                 host: str | None = None, one_process: bool = False) -> None:
+                 host: str | None = None, one_process: bool = False, pace: float | None = None) -> None:
         self.application = application
         self.one_process = one_process  # sim: each subsystem's plant and RTPUs in its supervisor's process
+        self.pace = pace  # sim: at most this many simulated seconds per wall second, in every subsystem
         self.host = host  # None: every subsystem runs here; else only those placed on this host
         self.local = list(application.subsystems) if host is None else application.on_host(host)
         self.fifo = fifo  # None: each subsystem's default (SCHED_FIFO on the real clock where allowed)
@@ -219,6 +220,8 @@ class ApplicationRunner:
             command.append("--fifo" if self.fifo else "--no-fifo")
         if self.one_process:
             command.append("--one-process")
+        if self.pace is not None:
+            command += ["--pace", repr(self.pace)]
         return command
 
     def _stage_plan(self, key: str) -> str:

@@ -92,7 +92,7 @@ class Supervisor:
         # in an application on the simulated clock, `turn` names the semaphores of this subsystem's turn
         # (clock.application_lockstep); it is no longer waited for once the run is stopped or has failed
         gate = TurnGate(turn, lambda: bool(self._stop_requested or self.result.failure)) if turn else None
-        self.clock: RunClock = (SimRunClock(simulation_tick(subsystem), gate, one_process=options.one_process)
+        self.clock: RunClock = (SimRunClock(simulation_tick(subsystem), gate, options.one_process, options.pace)
                                 if clock == "sim" else RealRunClock())
         self.out_dir = os.path.abspath(options.out_dir) if options.out_dir else ""
         self.links = dict(options.links or {})  # an application's links, handed to every RTPU (see _links)

@@ -662,12 +662,17 @@ def canvas_base_file(folder: Path, name: str = "empty") -> Path:
 # --- the application workspace (user level) -------------------------------------------------------
 
 
+# `pbo run` arguments for a run a page watches job by job: the simulated clock, no faster than real
+# time, so a job of N simulated seconds is the current one for N wall seconds at least on any machine
+WATCHED_SIM = ("--clock", "sim", "--pace", "1", "--duration", "0")
+
+
 def user_level_copy(folder: Path, subsystem: str, reach_seconds: float = 6.0, hold_seconds: float = 600.0) -> Path:
     """configs/pid_joint.yaml, comments kept, as subsystem `subsystem`, for the HMI's user level: without
     its logger, with a joint_position object type, two named objects, a job that requires an object
     (`reach`: its trajectory reads q_d) and an action (`hold`), each running for its seconds (simulated
-    on `--clock sim`): long enough for a page to see `reach` as the current job at any speed of the
-    simulation, and `hold` until the test stops the run."""
+    on `--clock sim`; with WATCHED_SIM as many wall seconds at least, long enough for a page to see it
+    as the current job), `hold` by default until the test stops the run."""
     text = DEMO.read_text()
     logger = ("  logger: {module: data_logger, rtpu: rtpu0, period: 10 ms,\n"
               "           params: {variables: [q_m, q_r, tau_u], path: pid_joint.mcap}}\n")

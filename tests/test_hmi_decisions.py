@@ -10,6 +10,7 @@ from __future__ import annotations
 import pytest
 
 from tests.support import (
+    WATCHED_SIM,
     check_clean,
     icon,
     message,
@@ -32,12 +33,13 @@ def place(page, text: str):
 
 
 def test_one_step_of_each_kind_is_built_from_the_dictionary_saved_and_run(page, tmp_path):
-    # stuck fails at once (its pre-condition never holds); reach and hold run for their seconds of simulated time
-    file = user_level_copy(tmp_path, "hmi_decide", reach_seconds=6.0, hold_seconds=4.0)
+    # stuck fails at once (its pre-condition never holds); reach and hold run for their seconds of simulated time,
+    # as many of wall time at least (WATCHED_SIM: --pace 1)
+    file = user_level_copy(tmp_path, "hmi_decide", reach_seconds=3.0, hold_seconds=2.0)
     file.write_text(file.read_text().replace("  hold:  {configuration: joint_pid,",
                                              "  stuck: {configuration: joint_pid, object: none, pre: \"max(abs(q_m)) > 10\"}\n"
                                              "  hold:  {configuration: joint_pid,"))
-    run = start_run(file, tmp_path, "--clock", "sim", "--duration", "0")
+    run = start_run(file, tmp_path, *WATCHED_SIM)
     hmi, url = start_hmi(str(file), cwd=tmp_path)
     try:
         open_user_level(page, url)
@@ -103,10 +105,10 @@ def test_one_step_of_each_kind_is_built_from_the_dictionary_saved_and_run(page, 
 
 
 def test_of_two_identical_rows_only_the_running_one_is_lit(page, tmp_path):
-    file = user_level_copy(tmp_path, "hmi_twins", hold_seconds=6.0)
+    file = user_level_copy(tmp_path, "hmi_twins", hold_seconds=3.0)
     file.write_text(file.read_text() + "\napplications:\n  twins:\n"
                     + "".join('    - if: "q_m[0] > -10"\n      then: [hold]\n' for _ in range(2)))
-    run = start_run(file, tmp_path, "--clock", "sim", "--duration", "0")
+    run = start_run(file, tmp_path, *WATCHED_SIM)
     hmi, url = start_hmi(str(file), cwd=tmp_path)
     try:
         open_user_level(page, url)

@@ -11,7 +11,7 @@ import subprocess
 
 import pytest
 
-from tests.support import PBO, start_hmi, start_run, stop_hmi, user_level_copy
+from tests.support import PBO, WATCHED_SIM, start_hmi, start_run, stop_hmi, user_level_copy
 
 pytestmark = pytest.mark.multiprocess
 
@@ -19,7 +19,7 @@ expect = pytest.importorskip("playwright.sync_api").expect
 
 
 def test_a_job_saved_on_the_canvas_is_run_by_an_application_built_on_the_user_level(page, tmp_path):
-    file = user_level_copy(tmp_path, "hmi_levels")
+    file = user_level_copy(tmp_path, "hmi_levels", reach_seconds=3.0)
     hmi, url = start_hmi(str(file), cwd=tmp_path)
     run = None
     try:
@@ -49,7 +49,7 @@ def test_a_job_saved_on_the_canvas_is_run_by_an_application_built_on_the_user_le
             "Run refused: the application has 1 gap: step 2 'approach' needs an object of type joint_position")
 
         # the run starts from the file the HMI wrote; the page finds it by itself
-        run = start_run(file, tmp_path, "--clock", "sim", "--duration", "0")
+        run = start_run(file, tmp_path, *WATCHED_SIM)
         expect(page.locator("[data-test=subsystem]")).to_have_text("hmi_levels")
         dictionary.locator("[data-icon=home]").drag_to(gap)
         expect(page.locator("[data-test=run-readiness]")).to_have_text("Complete: ready to run on the attached run.")

@@ -13,6 +13,7 @@ import re
 import pytest
 
 from tests.support import (
+    WATCHED_SIM,
     check_clean,
     icon,
     message,
@@ -34,8 +35,8 @@ GAP_REFUSED = ("Run refused: the application has 1 gap: step 1 'reach' needs an 
 
 
 def test_an_application_with_a_gap_is_refused_a_run_until_filled_then_runs_showing_the_current_job(page, tmp_path):
-    file = user_level_copy(tmp_path, "hmi_user_run")
-    run = start_run(file, tmp_path, "--clock", "sim", "--duration", "0")
+    file = user_level_copy(tmp_path, "hmi_user_run", reach_seconds=3.0)
+    run = start_run(file, tmp_path, *WATCHED_SIM)
     hmi, url = start_hmi(str(file), cwd=tmp_path)
     try:
         open_user_level(page, url)

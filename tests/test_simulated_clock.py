@@ -161,8 +161,10 @@ def test_a_paced_run_is_the_same_run_and_no_faster_than_its_pace(tmp_path):
     """`--pace 4`: one simulated second takes a quarter of a wall second at least (the last look at
     the wall clock is one turn of the ring before the end), and the run writes what an unpaced one does."""
     _, fast = run_sim(tmp_path, DEMO, "--duration", "1", out="fast")
-    _, paced = run_sim(tmp_path, DEMO, "--duration", "1", "--pace", "4", out="paced")
+    done, paced = run_sim(tmp_path, DEMO, "--duration", "1", "--pace", "4", out="paced")
     assert paced["running_wall_seconds"] >= (1.0 - PACE_TURN * 4) / 4
+    assert (paced["pace"], fast["pace"]) == (4.0, None)
+    assert "clock: simulated, 1 ms ticks, paced at 4x real time at most; 1.00 s simulated in" in done.stdout
     assert (tmp_path / "paced" / "pid_joint.mcap").read_bytes() == (tmp_path / "fast" / "pid_joint.mcap").read_bytes()
     assert paced["variables"] == fast["variables"] and paced["plant"]["steps"] == fast["plant"]["steps"]
     assert_nothing_left(paced)

@@ -201,6 +201,7 @@ class RunResult:
     realtime: dict[str, RtpuSettings] = field(default_factory=dict)  # per RTPU: cpu, scheduler, timer slack
     clock: str = "real"
     tick: float = 0.0  # seconds per tick of the simulated clock
+    pace: float | None = None  # simulated seconds per wall second at most (`pbo run --pace`); None: unpaced
     wall_seconds: float = 0.0  # how long the run took on the wall clock (a sim run's speed: duration / this)
     # of which from the configuration on to the stop: start-up and stop left out (a sim run's ticks: duration / this)
     running_wall_seconds: float = 0.0
@@ -246,7 +247,7 @@ class RunResult:
             "switches": [switch.to_json() for switch in self.switches],
             "stable_episodes": [episode.to_json() for episode in self.stable_episodes],
             "realtime": {rtpu: settings.to_json() for rtpu, settings in self.realtime.items()},
-            "clock": self.clock, "tick": self.tick, "wall_seconds": self.wall_seconds,
+            "clock": self.clock, "tick": self.tick, "pace": self.pace, "wall_seconds": self.wall_seconds,
             "running_wall_seconds": self.running_wall_seconds,
             "links": {name: link.to_json() for name, link in self.links.items()},
             "started_monotonic": self.started_monotonic, "stalls": [stall.to_json() for stall in self.stalls],

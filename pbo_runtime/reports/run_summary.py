@@ -66,7 +66,8 @@ def print_summary(console: Console, subsystem: Subsystem, result: RunResult, res
         speed = result.duration / result.wall_seconds if result.wall_seconds else 0.0
         running = result.running_wall_seconds
         ticking = f"; {result.duration / running:.2f}x from the configuration on" if running else ""
-        console.print(f"clock: simulated, {result.tick * 1e3:g} ms ticks; {result.duration:.2f} s simulated in "
+        paced = f", paced at {result.pace:g}x real time at most" if result.pace else ""
+        console.print(f"clock: simulated, {result.tick * 1e3:g} ms ticks{paced}; {result.duration:.2f} s simulated in "
                       f"{result.wall_seconds:.2f} s of wall time ({speed:.2f}x real time{ticking})", markup=False)
     for rtpu, settings in realtime.items():
         if settings.simulated:

@@ -124,7 +124,7 @@ class Supervisor:
         self.epoch = 0.0
         self.tick = self.clock.tick
         self.result.clock = clock
-        self.result.tick = self.tick
+        self.result.tick, self.result.pace = self.tick, options.pace
         self.processes = Children(self.run_id, self.clock, self.result, say, lambda: self.table, self._manifest,
                                   self.may_restart, self._startup_mark, fork_server,  # the plant and the RTPUs
                                   subsystem=subsystem, events=lambda: self.events, signals=self.signals)

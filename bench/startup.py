@@ -160,34 +160,26 @@ would take a checker without numpy, or printing without rich.
 `pbo run`: the CLI imports numpy and what it shares with the children (the model, the table, the
 queues, the clocks), freezes that heap (`gc.freeze()`: no collection in either process then walks
 what they share, which would copy its pages) and forks the fork server from itself, before its
-parser (`cli/main.py`). The methods `dataclasses` generates for the runtime's classes (about 300
-in the shared imports alone, one compile each) are compiled once per machine and kept beside the
-result cache: in a fresh interpreter the shared imports, numpy included, went from p50 122 to 104
-ms (12 alternated rounds). The server forks the plant's middle process at once. Then three
-processes share the two CPUs: the CLI builds its verb's parser, loads and checks the file, hands
-the server the checked subsystem, imports the supervisor and makes the table (rich it imports
-only for the summary, once the configuration is on, where its output is no terminal); the server
-imports the RTPU's code and the module library, Pinocchio most of it (the demo's PID needs it for
-its gravity feed-forward, and every RTPU holds the whole library so that a task spawned live never
-imports between two cycles); the plant's middle process imports MuJoCo (and numpy's random
+parser (`cli/main.py`). The methods `dataclasses` generates for the runtime's classes (about 300 in
+the shared imports alone, one compile each) are compiled once per machine and kept beside the result
+cache, so no process of the run compiles them again. The server forks the plant's middle process at
+once. Then three processes share the two CPUs: the CLI builds its verb's parser, loads and checks
+the file, hands the server the checked subsystem, imports the supervisor and makes the table (rich
+it imports only for the summary, once the configuration is on, where its output is no terminal); the
+server imports the RTPU's code and the module library, Pinocchio most of it (the demo's PID needs it
+for its gravity feed-forward, and every RTPU holds the whole library so that a task spawned live
+never imports between two cycles); the plant's middle process imports MuJoCo (and numpy's random
 generators). Asked, the server's middle forks both RTPUs and the plant's middle forks the plant,
 side by side; the plant compiles its model; each task's init runs; the server ends once the
-configuration is on. A time line stamped in every process (`process_time` and `monotonic`, this
-machine, quiet) after these changes: the CLI reaches its table about 95 ms after the fork, having
-used about 90 ms of CPU; the server is warm 160-175 ms after it (about 115-130 ms of CPU, Pinocchio
-and the library about 90 of them, against 60-70 in a process of its own: the pages a forked
-process writes are copied); the plant's middle is warm after 140-150 ms (85 ms of CPU, MuJoCo's
-import); the server's reply comes about 11 ms after the request, the children are ready 17-33 ms
-later, the inits and `on` take 10 ms. From the fork to the children's request both CPUs are busy,
-and before the fork one is idle while the CLI imports what both need: the figure is the CPU time
-of numpy, Pinocchio, MuJoCo, the check and the runtime's own imports, shared by two CPUs.
-Alternated `pbo run` start-ups (14 rounds, the tree before and after): early plant, frozen heap and
-kept dataclass code 353 -> 334 ms, with rich after `on` 386 -> 367 ms (the machine slower then);
-kept dataclass code alone 341-370 -> 310-330 ms against the code of the last `make bench`. What is
-left: numpy and the shared runtime once, before the fork; Pinocchio and MuJoCo; the check; the
-copying after the fork. Shorter would take less of that work: a library whose Pinocchio modules
-could be imported between cycles without holding the GIL (it cannot), or a server kept warm
-between runs. Read each figure against its floor: on a busy machine both grow alike.""",
+configuration is on. Of the three, the server is the last to be warm (its imports are slowed by the
+pages a forked process writes, which are copied): the phase "start the plant and the RTPUs" above is
+mostly the CLI waiting for it. From the fork to the children's request both CPUs are busy, and
+before the fork one is idle while the CLI imports what both need: the figure is the CPU time of
+numpy, Pinocchio, MuJoCo, the check and the runtime's own imports, shared by two CPUs. What is left:
+numpy and the shared runtime once, before the fork; Pinocchio and MuJoCo; the check; the copying
+after the fork. Shorter would take less of that work: a library whose Pinocchio modules could be
+imported between cycles without holding the GIL (it cannot), or a server kept warm between runs.
+Read each figure against its floor: on a busy machine both grow alike.""",
     )
     with tempfile.TemporaryDirectory(prefix="pbo-bench-startup-") as tmp:
         folder = Path(tmp)
